@@ -1,0 +1,60 @@
+"""Exception hierarchy of softsbi.
+
+Every error softsbi raises on purpose derives from :class:`SoftsbiError`, so a caller
+(or the CLI) can catch one type and print a single clear message. Each message names
+the problem and the fix.
+"""
+from __future__ import annotations
+
+import difflib
+from typing import Iterable
+
+
+class SoftsbiError(Exception):
+    """Base class of all deliberate softsbi errors."""
+
+
+class PluginNotFound(SoftsbiError, KeyError):
+    """A simulator / effect / observer / estimator / executor name is not registered."""
+
+    def __init__(self, kind: str, name: str, available: Iterable[str]):
+        available = sorted(available)
+        close = difflib.get_close_matches(name, available, n=1)
+        hint = f" Did you mean '{close[0]}'?" if close else ""
+        msg = (f"unknown {kind} '{name}'.{hint} Installed {kind}s: "
+               f"{', '.join(available) or '(none)'}. Run `softsbi plugins` to list them.")
+        super().__init__(msg)
+        self.kind, self.name, self.available = kind, name, available
+
+    def __str__(self) -> str:  # KeyError would otherwise repr() the message
+        return self.args[0]
+
+
+class DependencyMissing(SoftsbiError, ImportError):
+    """An optional dependency needed by a plugin is not installed."""
+
+
+class SchemaError(SoftsbiError):
+    """A run store or data folder does not have the expected layout or version."""
+
+
+class DataError(SoftsbiError, ValueError):
+    """Observed data is missing, malformed or non-finite."""
+
+
+class ShapeError(SoftsbiError, ValueError):
+    """An array does not have the documented shape."""
+
+
+class ParameterError(SoftsbiError, ValueError):
+    """A parameter is unknown, outside its bounds, or not supported by a backend."""
+
+
+class SimulationFailed(SoftsbiError, RuntimeError):
+    """A simulation diverged or produced an implausible state."""
+
+
+def closest(name: str, choices: Iterable[str]) -> str:
+    """Return " Did you mean 'x'?" for the closest choice, or an empty string."""
+    close = difflib.get_close_matches(name, list(choices), n=1)
+    return f" Did you mean '{close[0]}'?" if close else ""

@@ -1,0 +1,340 @@
+"""Data model of softsbi: parameter spaces, scenarios, rollouts and observations.
+
+Conventions (part of the public contract):
+
+* lengths in metres, times in seconds, masses in kilograms;
+* the world frame is right-handed with z up and the table top at ``Scenario.table_z``;
+* arrays are NumPy ``float64`` unless stated otherwise.
+
+This module imports no simulator and no torch.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .errors import ParameterError, ShapeError, closest
+
+
+@dataclass(frozen=True)
+class Param:
+    """One physical parameter.
+
+    Attributes:
+        name: identifier used on the command line and in stores (e.g. ``"bend"``).
+        low, high: bounds of the uniform prior, in ``unit``; ``low < high``.
+        unit: physical unit as text (e.g. ``"Pa"``, ``"m"``, ``"1"`` for dimensionless).
+        log: if True the prior is log-uniform and inference works on ``log(value)``;
+            requires ``low > 0``.
+        description: one line for humans.
+    """
+
+    name: str
+    low: float
+    high: float
+    unit: str = "1"
+    log: bool = False
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.low < self.high:
+            raise ParameterError(f"parameter '{self.name}': low ({self.low}) must be < high ({self.high})")
+        if self.log and self.low <= 0:
+            raise ParameterError(f"parameter '{self.name}' is log-scaled, so low must be > 0 (got {self.low})")
+
+
+class ParamSpace:
+    """An ordered set of :class:`Param` with a uniform (or log-uniform) box prior.
+
+    Inference happens in the *unit cube*: ``u = (t(theta) - t(low)) / (t(high) - t(low))``
+    with ``t = log`` for log-scaled parameters and identity otherwise, so the prior is
+    uniform on ``[0, 1]^D``.
+
+    Raises:
+        ParameterError: duplicate names.
+    """
+
+    def __init__(self, params: Sequence[Param]):
+        names = [p.name for p in params]
+        if len(set(names)) != len(names):
+            raise ParameterError(f"duplicate parameter names in {names}")
+        self.params: tuple[Param, ...] = tuple(params)
+
+    # -- basic access -------------------------------------------------------------
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    @property
+    def dim(self) -> int:
+        return len(self.params)
+
+    def __len__(self) -> int:
+        return self.dim
+
+    def __iter__(self):
+        return iter(self.params)
+
+    def __getitem__(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise ParameterError(f"unknown parameter '{name}'.{closest(name, self.names)} "
+                             f"Valid parameters: {', '.join(self.names)}")
+
+    def __add__(self, other: "ParamSpace") -> "ParamSpace":
+        return ParamSpace(list(self.params) + list(other.params))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ParamSpace) and self.params == other.params
+
+    def subset(self, names: Iterable[str]) -> "ParamSpace":
+        return ParamSpace([self[n] for n in names])
+
+    def with_bounds(self, overrides: Mapping[str, tuple[float, float]]) -> "ParamSpace":
+        """Return a copy with some bounds replaced: ``{"bend": (1e-6, 1e-3)}``."""
+        out = []
+        for p in self.params:
+            if p.name in overrides:
+                lo, hi = overrides[p.name]
+                p = dataclasses.replace(p, low=float(lo), high=float(hi))
+            out.append(p)
+        for n in overrides:
+            self[n]  # raises ParameterError for unknown names
+        return ParamSpace(out)
+
+    # -- transforms -----------------------------------------------------------------
+    def _t(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lo = np.array([math.log(p.low) if p.log else p.low for p in self.params])
+        hi = np.array([math.log(p.high) if p.log else p.high for p in self.params])
+        lg = np.array([p.log for p in self.params])
+        return lo, hi, lg
+
+    def to_unit(self, theta: np.ndarray) -> np.ndarray:
+        """Map physical values ``(..., D)`` to the unit cube ``(..., D)``."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape[-1] != self.dim:
+            raise ShapeError(f"theta has {theta.shape[-1]} columns, parameter space has {self.dim} ({self.names})")
+        lo, hi, lg = self._t()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(lg, np.log(np.where(lg, theta, 1.0)), theta)
+        return (t - lo) / (hi - lo)
+
+    def from_unit(self, u: np.ndarray) -> np.ndarray:
+        """Map unit-cube coordinates ``(..., D)`` to physical values ``(..., D)``."""
+        u = np.asarray(u, dtype=float)
+        if u.shape[-1] != self.dim:
+            raise ShapeError(f"u has {u.shape[-1]} columns, parameter space has {self.dim}")
+        lo, hi, lg = self._t()
+        t = lo + u * (hi - lo)
+        return np.where(lg, np.exp(t), t)
+
+    def log_det_jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """``log |du/dtheta|`` summed over dimensions, shape ``theta.shape[:-1]``.
+
+        Converts a density over the unit cube into a density over physical values:
+        ``log p(theta) = log p(u) + log_det_jacobian(theta)``.
+        """
+        theta = np.asarray(theta, dtype=float)
+        lo, hi, lg = self._t()
+        per = np.where(lg, -np.log(np.abs(np.where(lg, theta, 1.0))), 0.0) - np.log(hi - lo)
+        return per.sum(-1)
+
+    def contains(self, theta: np.ndarray) -> np.ndarray:
+        """Boolean ``(...)``: whether each row lies inside the prior box (inclusive)."""
+        u = self.to_unit(theta)
+        return np.all((u >= -1e-12) & (u <= 1 + 1e-12), axis=-1)
+
+    def sample_prior(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` draws ``(n, D)`` from the (log-)uniform prior, physical units."""
+        return self.from_unit(rng.random((n, self.dim)))
+
+    def check(self, theta: Mapping[str, float], *, allow_missing: bool = False) -> dict[str, float]:
+        """Validate a name->value mapping: known names, finite values inside the bounds.
+
+        Raises:
+            ParameterError: unknown name (with the closest valid name), value outside
+                ``[low, high]`` or not finite, or a missing name (unless ``allow_missing``).
+        """
+        out: dict[str, float] = {}
+        for k, v in theta.items():
+            p = self[k]
+            v = float(v)
+            if not math.isfinite(v) or v < p.low or v > p.high:
+                raise ParameterError(
+                    f"parameter '{k}' = {v:g} {p.unit} is outside its bounds [{p.low:g}, {p.high:g}] {p.unit}; "
+                    f"choose a value inside them or widen the prior with --bounds")
+            out[k] = v
+        if not allow_missing:
+            missing = [n for n in self.names if n not in out]
+            if missing:
+                raise ParameterError(f"missing values for parameters {missing}; give all of {self.names}")
+        return out
+
+    def as_dict(self, row: np.ndarray) -> dict[str, float]:
+        """``(D,)`` array -> ``{name: value}``."""
+        return {n: float(v) for n, v in zip(self.names, np.asarray(row).ravel())}
+
+    def as_array(self, theta: Mapping[str, float]) -> np.ndarray:
+        """``{name: value}`` -> ``(D,)`` array in this space's order."""
+        return np.array([float(theta[n]) for n in self.names])
+
+    def midpoint(self) -> dict[str, float]:
+        """Centre of the prior box (geometric centre for log-scaled parameters)."""
+        return self.as_dict(self.from_unit(np.full(self.dim, 0.5)))
+
+    def to_json(self) -> list[dict[str, Any]]:
+        return [dataclasses.asdict(p) for p in self.params]
+
+    @classmethod
+    def from_json(cls, data: Sequence[Mapping[str, Any]]) -> "ParamSpace":
+        return cls([Param(**d) for d in data])
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{p.name}[{p.low:g},{p.high:g}]{p.unit}{'(log)' if p.log else ''}" for p in self.params)
+        return f"ParamSpace({inner})"
+
+
+@dataclass
+class Scenario:
+    """A manipulation task: what the robot does to the object, independent of the engine.
+
+    Attributes:
+        name: scenario kind, e.g. ``"lift"``.
+        times: ``(T,)`` seconds, the frame times at which states are recorded (t[0] = 0).
+        gripper: ``(T, 3)`` metres, the grasp point's commanded position at each frame;
+            backends interpolate between frames (piecewise-linear).
+        table_z: height of the table top, metres.
+        object: description of the deformable object, e.g.
+            ``{"kind": "cloth", "size": 0.28, "corner": [x, y], "direction": [dx, dy]}``.
+        options: free-form extras (source recording, notes on derivations).
+    """
+
+    name: str
+    times: np.ndarray
+    gripper: np.ndarray
+    table_z: float
+    object: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.times = np.asarray(self.times, dtype=float)
+        self.gripper = np.asarray(self.gripper, dtype=float)
+        if self.times.ndim != 1 or self.gripper.shape != (len(self.times), 3):
+            raise ShapeError(f"scenario '{self.name}': times must be (T,) and gripper (T, 3); got "
+                             f"{self.times.shape} and {self.gripper.shape}")
+        if np.any(np.diff(self.times) <= 0):
+            raise ShapeError(f"scenario '{self.name}': frame times must increase strictly")
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.times)
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1] - self.times[0])
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "times": self.times.tolist(), "gripper": self.gripper.tolist(),
+                "table_z": float(self.table_z), "object": _jsonable(self.object),
+                "options": _jsonable(self.options)}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> "Scenario":
+        return cls(name=d["name"], times=np.asarray(d["times"]), gripper=np.asarray(d["gripper"]),
+                   table_z=float(d["table_z"]), object=dict(d.get("object", {})),
+                   options=dict(d.get("options", {})))
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    return x
+
+
+STATUS_OK = 0
+STATUS_DIVERGED = 1
+STATUS_IMPLAUSIBLE = 2
+STATUS_ERROR = 3
+STATUS_PENDING = 255
+STATUS_NAMES = {STATUS_OK: "ok", STATUS_DIVERGED: "diverged", STATUS_IMPLAUSIBLE: "implausible",
+                STATUS_ERROR: "error", STATUS_PENDING: "pending"}
+
+
+@dataclass
+class Rollout:
+    """One simulated trajectory of a deformable object.
+
+    Attributes:
+        times: ``(T,)`` s.
+        gripper: ``(T, 3)`` m, grasp point position at each frame.
+        vertices: ``(T, N, 3)`` m, mesh vertex positions.
+        faces: ``(F, 3)`` int, triangles indexing ``vertices`` (empty ``(0, 3)`` for a rope).
+        status: one of ``STATUS_*`` (0 = ok); anything else means the rollout must not be
+            used for training.
+        reason: human-readable explanation when ``status != STATUS_OK``.
+        rgb: optional ``(T, H, W, 3)`` uint8 frames.
+        info: backend-specific extras (wall time, step count...).
+    """
+
+    times: np.ndarray
+    gripper: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    status: int = STATUS_OK
+    reason: str = ""
+    rgb: np.ndarray | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == STATUS_OK
+
+    def validate(self) -> "Rollout":
+        """Check shapes; raises :class:`ShapeError` naming the offending array."""
+        T = len(self.times)
+        if self.gripper.shape != (T, 3):
+            raise ShapeError(f"rollout gripper must be ({T}, 3), got {self.gripper.shape}")
+        if self.vertices.ndim != 3 or self.vertices.shape[0] != T or self.vertices.shape[2] != 3:
+            raise ShapeError(f"rollout vertices must be ({T}, N, 3), got {self.vertices.shape}")
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3:
+            raise ShapeError(f"rollout faces must be (F, 3), got {self.faces.shape}")
+        return self
+
+
+@dataclass
+class Observation:
+    """What an observer sees: per-frame point sets plus the gripper.
+
+    Attributes:
+        points: ``(T, K, 3)`` m (3-D clouds/keypoints) or ``(T, K, 2)`` px (image keypoints);
+            the K points of a frame are an unordered set.
+        gripper: ``(T, 3)`` m.
+        times: ``(T,)`` s.
+        source: where it came from (path or ``"simulated:<backend>"``).
+    """
+
+    points: np.ndarray
+    gripper: np.ndarray
+    times: np.ndarray
+    source: str = ""
+
+    def state(self) -> np.ndarray:
+        """The per-frame state ``s_t = [gripper, k_1..k_K]`` as ``(T, 1 + K, 3)``.
+
+        Raises:
+            ShapeError: 2-D keypoints (their state is built by the image observers).
+        """
+        if self.points.shape[-1] != 3:
+            raise ShapeError("state() needs 3-D points; 2-D keypoints carry their own state layout")
+        return np.concatenate([self.gripper[:, None, :], self.points], axis=1)
