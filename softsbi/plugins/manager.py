@@ -8,6 +8,7 @@ Use :func:`registry` for name -> class look-ups::
 from __future__ import annotations
 
 import functools
+import warnings
 import importlib.metadata as md
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,13 +19,36 @@ from ..core.errors import PluginNotFound
 from . import hookspecs
 
 
+#: entry points that failed to import: ``{entry point name: error text}``
+LOAD_ERRORS: dict[str, str] = {}
+
+
 def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
-    """A fresh manager with the hook specs; ``autoload`` loads the ``softsbi`` entry points."""
+    """A fresh manager with the hook specs; ``autoload`` loads the ``softsbi`` entry points.
+
+    A plugin module that fails to import is skipped with a warning (and listed in
+    :data:`LOAD_ERRORS` and by ``softsbi plugins``) instead of breaking every command.
+    """
     pm = pluggy.PluginManager(hookspecs.PROJECT)
     pm.add_hookspecs(hookspecs)
     if autoload:
-        pm.load_setuptools_entrypoints(hookspecs.PROJECT)
+        for ep in md.entry_points(group=hookspecs.PROJECT):
+            if pm.get_plugin(ep.name) is not None or pm.is_blocked(ep.name):
+                continue
+            try:
+                plugin = ep.load()
+            except Exception as exc:  # noqa: BLE001 - any import failure of a plugin
+                LOAD_ERRORS[ep.name] = f"{type(exc).__name__}: {exc}"
+                warnings.warn(f"softsbi plugin '{ep.name}' ({ep.value}) failed to load and is skipped: {exc}",
+                              stacklevel=2)
+                continue
+            pm.register(plugin, name=ep.name)
+            dist = getattr(ep, "dist", None)
+            _DIST[id(plugin)] = f"{dist.name} {dist.version}" if dist is not None else ep.value
     return pm
+
+
+_DIST: dict[int, str] = {}
 
 
 KINDS = {"simulator": "softsbi_simulators", "effect": "softsbi_effects", "observer": "softsbi_observers",
@@ -45,9 +69,7 @@ class Registry:
     origin: dict[tuple[str, str], str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        dists = {}
-        for dist, ep_plugin in _entry_point_dists(self.pm).items():
-            dists[dist] = ep_plugin
+        dists = _entry_point_dists(self.pm)
         for kind, hook in KINDS.items():
             table: dict[str, type] = {}
             for impl in getattr(self.pm.hook, hook).get_hookimpls():
@@ -100,10 +122,7 @@ class Registry:
 
 
 def _entry_point_dists(pm: pluggy.PluginManager) -> dict[Any, str]:
-    out = {}
-    for plugin, dist in pm.list_plugin_distinfo():
-        out[plugin] = f"{dist.project_name} {dist.version}"
-    return out
+    return {plugin: _DIST[id(plugin)] for plugin in pm.get_plugins() if id(plugin) in _DIST}
 
 
 @functools.lru_cache(maxsize=1)
