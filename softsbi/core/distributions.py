@@ -11,12 +11,11 @@ an estimator trained on pairs ``(u, x)`` with ``u ~ p~(u)`` learns
 
 With all rounds' data pooled, ``p~`` is the *mixture* of the proposals of all rounds,
 weighted by the number of simulations each round contributed (round 1 = the prior), which
-keeps the importance ratio bounded by ``N_total / N_round1``.
+keeps the importance ratio bounded by ``N_total / N_round1`` (see :class:`PosteriorChain`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
@@ -114,123 +113,140 @@ def _inside(u: np.ndarray) -> np.ndarray:
     return np.all((u >= 0) & (u <= 1), axis=1)
 
 
-class ProposalMixture(Distribution):
-    """Mixture of the proposals of all rounds so far, weighted by simulations per round.
+def _sir(u: np.ndarray, logw: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """Systematic resampling of ``k`` rows of ``u`` with log weights ``logw`` (finite)."""
+    w = np.exp(logw - logw.max())
+    c = np.cumsum(w / w.sum())
+    pos = (rng.random() + np.arange(k)) / k
+    return u[np.minimum(np.searchsorted(c, pos), len(u) - 1)]
+
+
+class PosteriorChain:
+    """The sequence of corrected posteriors of a sequential (BayesSim) fit.
+
+    Round ``k`` draws its simulations from ``p~_k`` (round 0: the prior; round k > 0: the
+    corrected posterior of round k-1). After round ``k`` the estimator has been trained on
+    all data so far, whose parameters come from the pooled proposal
+
+        m_k(u) = sum_{j<=k} c_j p~_j(u) / sum_{j<=k} c_j      (c_j = usable simulations of round j)
+
+    and the corrected posterior is ``post_k(u) = 1[u in box] q_k(u | x_obs) / m_k(u) / Z_k``.
+    Because ``m_k >= c_0 / sum c`` on the box, the importance weights are bounded.
+
+    Densities of all rounds are evaluated together in one pass (``O(k)`` mixture
+    evaluations), avoiding the exponential cost of evaluating the recursion naively.
 
     Args:
-        components: the per-round proposals (round 1 is normally :class:`UnitBoxPrior`).
-        counts: simulations drawn from each (only successful ones should count).
+        dim: number of parameters D.
+        n_norm: Monte Carlo draws for each normalising constant ``Z_k``.
+        seed: seeds those draws (results are deterministic).
     """
 
-    def __init__(self, components: Sequence[Distribution], counts: Sequence[float]):
-        if len(components) != len(counts) or not components:
-            raise ShapeError("ProposalMixture needs one count per component")
-        c = np.asarray(counts, float)
-        self.components = list(components)
-        self.logw = np.log(np.maximum(c, 1e-300) / c.sum())
+    def __init__(self, dim: int, n_norm: int = 20000, seed: int = 0):
+        self.dim = dim
+        self.n_norm = n_norm
+        self.seed = seed
+        self.qs: list[MixtureOfGaussians] = []
+        self.counts: list[float] = []
+        self.log_z: list[float] = []
 
-    def log_prob(self, u: np.ndarray) -> np.ndarray:
-        u = np.atleast_2d(u)
-        return logsumexp(np.stack([lw + comp.log_prob(u) for lw, comp in zip(self.logw, self.components)]), axis=0)
+    def __len__(self) -> int:
+        return len(self.qs)
 
-    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        k = rng.choice(len(self.components), size=n, p=np.exp(self.logw))
-        out = np.empty((n, self.components[0].sample(1, rng).shape[1]))
-        for j, comp in enumerate(self.components):
-            idx = np.nonzero(k == j)[0]
-            if len(idx):
-                out[idx] = comp.sample(len(idx), rng)
-        return out
-
-
-@dataclass
-class CorrectedPosterior(Distribution):
-    """``p(u | x_obs) ∝ 1[u in box] / p~(u) * q(u | x_obs)`` (uniform prior on the unit cube).
-
-    Sampling is by sampling-importance-resampling from ``q`` restricted to the box: draws
-    from ``q`` inside the box weighted by ``1 / p~``. With ``proposal=None`` (all data
-    from the prior) this is just ``q`` truncated to the box.
-
-    ``log_prob`` is normalised by a Monte Carlo estimate of the constant (``n_norm`` draws),
-    which is all the next round needs (it enters the proposal mixture as a density).
-
-    Attributes:
-        q: the estimator's conditional at ``x_obs``.
-        proposal: the pooled proposal ``p~`` of the training data, or None for the prior.
-    """
-
-    q: MixtureOfGaussians
-    proposal: Distribution | None = None
-    n_norm: int = 20000
-    seed: int = 0
-    _log_z: float | None = field(default=None, repr=False)
-
-    def _log_ratio(self, u: np.ndarray) -> np.ndarray:
-        lr = np.where(_inside(u), 0.0, -np.inf)
-        if self.proposal is not None:
+    def _log_mix_and_posts(self, u: np.ndarray, upto: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``log m_upto(u)`` and ``[log post_j(u) for j < upto]``."""
+        inside = _inside(u)
+        log_prior = np.where(inside, 0.0, -np.inf)
+        posts: list[np.ndarray] = []
+        for j in range(upto + 1):
+            c = np.asarray(self.counts[: j + 1], float)
+            lw = np.log(np.maximum(c, 1e-300) / c.sum())
+            comps = np.stack([log_prior] + posts[:j])
             with np.errstate(invalid="ignore"):
-                lr = lr - self.proposal.log_prob(u)
-        return lr
+                log_mix = logsumexp(lw[:, None] + comps, axis=0)
+            if j == upto:
+                return log_mix, posts
+            with np.errstate(invalid="ignore"):
+                lp = self.qs[j].log_prob(u) - log_mix - self.log_z[j]
+            posts.append(np.where(inside, lp, -np.inf))
+        raise AssertionError("unreachable")
+
+    def add_round(self, q: MixtureOfGaussians, count: float) -> "RoundPosterior":
+        """Append round ``k = len(self)`` trained on data whose newest ``count`` usable
+        simulations came from the current proposal; returns ``post_k``."""
+        if q.dim != self.dim:
+            raise ShapeError(f"q has dimension {q.dim}, chain has {self.dim}")
+        k = len(self.qs)
+        self.qs.append(q)
+        self.counts.append(float(count))
+        rng = np.random.default_rng([self.seed, k, 7919])
+        u = q.sample(self.n_norm, rng)
+        inside = _inside(u)
+        if not inside.any():
+            log_z = -np.inf
+        else:
+            log_mix, _ = self._log_mix_and_posts(u[inside], k)
+            log_z = float(logsumexp(-log_mix) - np.log(len(u)))
+        self.log_z.append(log_z)
+        return RoundPosterior(self, k)
+
+    def posterior(self, k: int = -1) -> "RoundPosterior":
+        return RoundPosterior(self, k % len(self.qs))
+
+
+class RoundPosterior(Distribution):
+    """The corrected posterior after round ``k`` of a :class:`PosteriorChain` (unit cube)."""
+
+    def __init__(self, chain: PosteriorChain, k: int):
+        self.chain, self.k = chain, k
 
     @property
-    def log_z(self) -> float:
-        """``log ∫_box q(u) / p~(u) du`` estimated by Monte Carlo with draws from ``q``."""
-        if self._log_z is None:
-            rng = np.random.default_rng(self.seed + 7919)
-            u = self.q.sample(self.n_norm, rng)
-            lr = self._log_ratio(u)
-            finite = np.isfinite(lr)
-            if not finite.any():
-                self._log_z = -np.inf
-            else:
-                self._log_z = float(logsumexp(lr[finite]) - np.log(len(u)))
-        return self._log_z
+    def q(self) -> MixtureOfGaussians:
+        return self.chain.qs[self.k]
+
+    def log_prob(self, u: np.ndarray) -> np.ndarray:
+        u = np.atleast_2d(np.asarray(u, float))
+        log_mix, _ = self.chain._log_mix_and_posts(u, self.k)
+        with np.errstate(invalid="ignore"):
+            lp = self.q.log_prob(u) - log_mix - self.chain.log_z[self.k]
+        return np.where(_inside(u), lp, -np.inf)
 
     @property
     def mass_in_box(self) -> float:
-        """Fraction of ``q``'s mass inside the prior box (diagnoses a posterior pushed
-        against the prior's bounds)."""
-        rng = np.random.default_rng(self.seed + 104729)
-        return float(_inside(self.q.sample(self.n_norm, rng)).mean())
+        """Fraction of ``q``'s mass inside the prior box; a small value means the estimator
+        puts the observation outside what the prior allows (widen bounds or suspect the model)."""
+        rng = np.random.default_rng([self.chain.seed, self.k, 104729])
+        return float(_inside(self.q.sample(self.chain.n_norm, rng)).mean())
 
-    def log_prob(self, u: np.ndarray) -> np.ndarray:
-        u = np.atleast_2d(u)
-        return self.q.log_prob(u) + self._log_ratio(u) - self.log_z
-
-    def sample(self, n: int, rng: np.random.Generator, oversample: int = 20) -> np.ndarray:
-        """``n`` draws ``(n, D)`` inside the unit box.
+    def sample(self, n: int, rng: np.random.Generator, oversample: int = 10) -> np.ndarray:
+        """``n`` draws ``(n, D)`` inside the unit box, by sampling-importance-resampling from
+        ``q`` with weights ``1 / m_k``.
 
         Raises:
             RuntimeError: ``q`` has (numerically) no mass inside the prior box.
         """
         out: list[np.ndarray] = []
-        tries = 0
-        while sum(len(o) for o in out) < n:
-            m = max(oversample * n, 1000)
-            u = self.q.sample(m, rng)
-            lr = self._log_ratio(u)
-            ok = np.isfinite(lr)
+        got, tries = 0, 0
+        while got < n:
             tries += 1
-            if not ok.any():
+            u = self.q.sample(max(oversample * (n - got), 2000), rng)
+            u = u[_inside(u)]
+            if len(u) == 0:
                 if tries > 20:
-                    raise RuntimeError("the posterior has no mass inside the prior box; widen the prior "
-                                       "bounds or check that the observation is reachable by the simulator")
+                    raise RuntimeError("the posterior has no mass inside the prior box; widen the prior bounds "
+                                       "or check that the observation is reachable by the simulator")
                 continue
-            u, lr = u[ok], lr[ok]
-            w = np.exp(lr - lr.max())
-            w /= w.sum()
-            k = min(n, max(1, int(len(u) / oversample)))
-            # systematic resampling keeps the draw close to the weights with few samples
-            pos = (rng.random() + np.arange(k)) / k
-            idx = np.searchsorted(np.cumsum(w), pos)
-            out.append(u[np.minimum(idx, len(u) - 1)])
+            log_mix, _ = self.chain._log_mix_and_posts(u, self.k)
+            k = min(n - got, max(1, len(u) // oversample))
+            out.append(_sir(u, -log_mix, k, rng))
+            got += k
         res = np.concatenate(out)[:n]
         return res[rng.permutation(len(res))]
 
     def moments(self, n: int = 20000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Monte Carlo mean ``(D,)`` and covariance ``(D, D)`` in the unit cube."""
         u = self.sample(n, np.random.default_rng(seed))
-        return u.mean(0), np.cov(u.T).reshape(u.shape[1], u.shape[1])
+        return u.mean(0), np.atleast_2d(np.cov(u.T))
 
 
 def gaussian(mean: np.ndarray, cov: np.ndarray) -> MixtureOfGaussians:

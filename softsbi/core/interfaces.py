@@ -146,8 +146,15 @@ class Executor(ABC):
     name: ClassVar[str]
 
     @abstractmethod
-    def map_unordered(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterable[tuple[int, Any]]:
-        """Yield ``(index, fn(items[index]))`` in completion order."""
+    def map_unordered(self, fn: Callable[[Any, Any], Any], items: Sequence[Any],
+                      context: Any = None) -> Iterable[tuple[int, Any]]:
+        """Yield ``(index, fn(context, items[index]))`` in completion order.
+
+        ``context`` (large, read-only data such as the observed clouds) is shipped to each
+        worker once, not once per item. ``fn`` must be a picklable module-level function.
+        If ``fn`` raises, the exception object is yielded in place of the result, so one
+        failed job never stops the batch.
+        """
 
     def close(self) -> None:
         """Release workers."""

@@ -1,0 +1,395 @@
+"""Engine-independent scenario construction for the cloth *lift* task (DiffCloud data).
+
+The lift frame
+--------------
+softsbi's **lift frame** is DiffCloud's ARCSim simulator frame multiplied by the scale
+``s`` (0.35 m per simulator unit): metres, z up, same axes and origin as the simulator frame.
+Real robot-frame points (metres) map into it with the per-recording transform of
+``lift_real2sim.yaml`` exactly as DiffCloud's post-processing does
+(``real/post_proc/plot_pcls.py::real2sim_transf``, see ``shared/data/README.md``)::
+
+    p_sim  = (((p_real + c) - t) / s) @ Rz(a)      # Rz from scipy, row vectors
+    p_lift = p_sim * s
+
+with ``a = z_rotation`` (deg), ``t = translation``, ``s = scale``, ``c = compensation_factor``.
+The recorded clouds ``NNN.npy`` are already in the simulator frame, so ``p_lift = cloud * s``.
+
+Table height (``Scenario.table_z``)
+-----------------------------------
+The table plane of DiffCloud's ``plane.obj`` is at ``z = 0.157065`` simulator units. It matches
+the recordings whose compensation is ``c_z = -0.02`` (navy, paper, polka, tan: their lowest
+cloud points sit at 0.157). Mapped back to the robot frame with ``c_z = -0.02`` this is the
+physical table at ``z_real = 0.157065 * 0.35 + 0.02 = 0.07497 m``. For any recording the table
+then lies at ``table_z = z_real + c_z - t_z`` (metres, lift frame) - the exact same transform
+applied to the table. For tan2 / redblack / redblack2 (``c_z = 0``) this gives 0.2142
+simulator units, where their lowest cloud points are (0.214); see :func:`table_height`.
+The unit tests check this against the 1st percentile of every recording's cloud z.
+
+Gripper path (``Scenario.gripper``)
+-----------------------------------
+``lift_traj.npy`` (25 commanded end-effector positions, robot frame) mapped into the lift frame.
+The commanded end-effector point is *not* where the cloth corner is: in the last frames (the
+corner is then the cloud's highest point) the top 1 % of the cloud sits at a constant offset
+from the mapped path - (-5.7, -2.4, -0.3) cm for navy/paper/polka/tan (spread 0.2 cm over frames
+18-24), about (-3, 0, -4.5) cm for tan2/redblack*. With ``grasp_offset="data"`` (the default)
+the horizontal part of this per-recording offset is added to the whole path, so the simulated
+corner follows the real corner; the vertical part is only recorded in ``options`` (applying it
+would put the start below the table). Cross-check: for lift_tan the offset-corrected start
+(-1.0, 10.2) cm equals DiffCloud's own placement of the grasped node (node 13 of
+``cloth_diamond_flat.obj`` at (0.07, 10.7) cm in the lift frame) within 1.2 cm, while the
+commanded start (5.0, 12.7) cm is 5 cm away.
+``grasp_offset="none"`` keeps the commanded path.
+
+Cloth geometry (``Scenario.object``)
+------------------------------------
+From DiffCloud's ARCSim scene ``arcsim_lift_demo_diamond25.json``: the cloth is
+``cloth_diamond_flat.obj``, a 7x7-vertex square rotated by 45 deg in the simulator frame, the
+handle on node 13 (0-based; the corner at (0.002, 0.304) sim units, the diamond's +y tip).
+Its diagonal is 1.1220 sim units, i.e. side ``1.1220 / sqrt(2) * 0.35 = 0.2777 m``
+(:data:`NOMINAL_SIZE`), and the diagonal from the grasped corner to the opposite corner
+(0.002, -0.818) points along ``(0, -1)`` (:data:`NOMINAL_DIRECTION`) - the direction in which
+the gripper also moves back. The grasped corner is placed under the gripper's start
+(``corner = gripper[0, :2]``). The last real frames agree: the hanging sheet spans about
+0.35-0.36 m across x (its horizontal diagonal), i.e. a side of about 0.25-0.28 m.
+
+Timing
+------
+The real timing is not in the files. We assume DiffCloud's: 25 frames 0.04 s apart, 1 s in
+total (``frame_time`` of the ARCSim scene), so ``times = arange(n_frames) * frame_dt``. With
+ARCSim's gravity of 30 units/s^2 = 10.5 m/s^2 this is ordinary gravity in metres. When
+``n_frames != 25`` the recorded path is resampled (linear) over the same normalised progress.
+
+Built-in default (``lift_scenario(None)``)
+------------------------------------------
+Needs no data files: the commanded start/end points of ``lift_traj.npy`` mapped with the
+default ``lift_real2sim.yaml`` (stored here as constants), joined by a smooth analytic curve
+(a straight segment with a delayed smoothstep easing fitted to
+the recorded profile - within 0.8 cm of it), with the table from the same default
+convention (``c_z = 0`` -> ``table_z = 0.07497 m``) and no data-derived grasp offset.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..core.errors import DataError, ShapeError
+from ..core.types import Scenario
+
+#: metres per ARCSim simulator unit (``scale`` of every lift_real2sim.yaml)
+SIM_SCALE = 0.35
+#: ARCSim table plane height of plane.obj, simulator units
+PLANE_Z_SIM = 0.157065
+#: compensation z of the recordings whose table is exactly at plane.obj (navy/paper/polka/tan)
+PLANE_REFERENCE_CZ = -0.02
+#: physical table height in the robot base frame, metres (plane.obj mapped back with c_z = -0.02)
+TABLE_Z_REAL = PLANE_Z_SIM * SIM_SCALE - PLANE_REFERENCE_CZ
+#: ARCSim cloth (cloth_diamond_flat.obj): diagonal 1.12203 sim units -> side in metres
+NOMINAL_SIZE = 1.122032 / np.sqrt(2.0) * SIM_SCALE
+#: unit vector from the grasped corner (node 13) to the opposite corner, lift frame
+NOMINAL_DIRECTION = (0.0, -1.0)
+#: the ARCSim grasped corner (node 13) in the lift frame, metres
+ARCSIM_CORNER = (0.002075 * SIM_SCALE, 0.304429 * SIM_SCALE)
+#: DiffCloud's frame spacing (ARCSim frame_time), s
+FRAME_DT = 0.04
+N_FRAMES = 25
+
+#: default lift_real2sim.yaml (shared/data/diffcloud_lift/lift_real2sim.yaml)
+DEFAULT_TRANSFORM: dict[str, Any] = {"z_rotation": 90.0, "translation": [0.67, 0.15, 0.0], "scale": 0.35,
+                                     "compensation_factor": [-0.02, 0.0, 0.0]}
+#: first and last rows of lift_traj.npy (robot frame, m): the only recorded numbers the default uses
+_TRAJ_START = (0.56344985, 0.15072625, 0.07796145)
+_TRAJ_END = (0.75582497, 0.15036571, 0.38734047)
+
+
+# --------------------------------------------------------------------------------------------
+# transforms
+# --------------------------------------------------------------------------------------------
+def _rz(a_deg: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_euler("z", float(a_deg), degrees=True).as_matrix()
+
+
+def _check_cfg(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    try:
+        out = {"z_rotation": float(cfg["z_rotation"]),
+               "translation": np.asarray(cfg["translation"], dtype=float).reshape(3),
+               "scale": float(cfg["scale"]),
+               "compensation_factor": np.asarray(cfg["compensation_factor"], dtype=float).reshape(3)}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"real2sim transform needs z_rotation, translation (3), scale and "
+                        f"compensation_factor (3); got {dict(cfg)!r} ({exc})") from exc
+    if not out["scale"] > 0:
+        raise DataError(f"real2sim transform scale must be > 0, got {out['scale']}")
+    return out
+
+
+def recording_transform(recording_dir: str | Path) -> dict[str, Any]:
+    """Read the real->simulator transform of a recording (or of a folder holding the default).
+
+    Args:
+        recording_dir: a recording folder (``.../diffcloud_lift/lift_tan``) containing
+            ``lift_real2sim.yaml``, or the ``diffcloud_lift`` folder itself (default yaml).
+
+    Returns:
+        ``{"z_rotation": deg, "translation": (3,) m, "scale": m/unit, "compensation_factor": (3,) m}``
+        (arrays are NumPy float64).
+
+    Raises:
+        DataError: the yaml is missing or malformed.
+    """
+    import yaml
+    path = Path(recording_dir) / "lift_real2sim.yaml"
+    if not path.is_file():
+        raise DataError(f"no lift_real2sim.yaml in {recording_dir}; expected a DiffCloud lift recording "
+                        f"folder such as shared/data/diffcloud_lift/lift_tan")
+    with open(path) as fh:
+        cfg = yaml.safe_load(fh)
+    if not isinstance(cfg, Mapping):
+        raise DataError(f"{path} is not a mapping")
+    return _check_cfg(cfg)
+
+
+def real_to_sim(p_real: np.ndarray, cfg: Mapping[str, Any]) -> np.ndarray:
+    """Robot-frame points ``(..., 3)`` m -> DiffCloud simulator frame ``(..., 3)`` sim units.
+
+    ``p_sim = (((p_real + c) - t) / s) @ Rz(a)`` (DiffCloud ``real2sim_transf``).
+    """
+    c = _check_cfg(cfg)
+    p = np.asarray(p_real, dtype=float)
+    if p.shape[-1] != 3:
+        raise ShapeError(f"points must be (..., 3), got {p.shape}")
+    return (((p + c["compensation_factor"]) - c["translation"]) / c["scale"]) @ _rz(c["z_rotation"])
+
+
+def real_to_lift_frame(p_real: np.ndarray, cfg: Mapping[str, Any]) -> np.ndarray:
+    """Robot-frame points ``(..., 3)`` m -> softsbi lift frame ``(..., 3)`` m (= sim frame x s)."""
+    return real_to_sim(p_real, cfg) * _check_cfg(cfg)["scale"]
+
+
+def lift_frame_to_real(p_lift: np.ndarray, cfg: Mapping[str, Any]) -> np.ndarray:
+    """Inverse of :func:`real_to_lift_frame`: ``p_real = (p_sim @ Rz(a).T) * s + t - c``."""
+    c = _check_cfg(cfg)
+    p_sim = np.asarray(p_lift, dtype=float) / c["scale"]
+    return (p_sim @ _rz(c["z_rotation"]).T) * c["scale"] + c["translation"] - c["compensation_factor"]
+
+
+def sim_units_to_metres(points: np.ndarray, cfg: Mapping[str, Any] | None = None) -> np.ndarray:
+    """DiffCloud simulator-frame points ``(..., 3)`` -> lift frame ``(..., 3)`` m (multiply by ``s``).
+
+    ``cfg`` defaults to :data:`DEFAULT_TRANSFORM` (s = 0.35 m per unit, same for every recording).
+    """
+    s = _check_cfg(cfg or DEFAULT_TRANSFORM)["scale"]
+    return np.asarray(points, dtype=float) * s
+
+
+def table_height(cfg: Mapping[str, Any]) -> float:
+    """Table top in the lift frame (m) for a recording's transform.
+
+    The physical table is at :data:`TABLE_Z_REAL` in the robot frame (plane.obj's 0.157065 sim
+    units mapped back with the reference ``c_z = -0.02``); mapped forward with ``cfg`` this is
+    ``TABLE_Z_REAL + c_z - t_z`` (the z-rotation leaves z alone).
+    """
+    c = _check_cfg(cfg)
+    return float(TABLE_Z_REAL + c["compensation_factor"][2] - c["translation"][2])
+
+
+def load_recording(recording: str | Path, frames: range | None = None) -> np.ndarray:
+    """The recorded clouds of a lift recording in the lift frame, metres.
+
+    Args:
+        recording: folder with ``000.npy``...``024.npy`` (simulator frame, (3500, 3) each).
+        frames: which frame indices (default: all files present, in order).
+
+    Returns:
+        ``(T, P, 3)`` float64 metres (each cloud x ``scale``). No validation beyond shape
+        and finiteness; the perception loader adds the rest.
+
+    Raises:
+        DataError: no frames, unequal sizes, non-finite values.
+    """
+    rec = Path(recording)
+    files = sorted(rec.glob("[0-9][0-9][0-9].npy"))
+    if frames is not None:
+        files = [rec / f"{i:03d}.npy" for i in frames]
+    if not files or not all(f.is_file() for f in files):
+        raise DataError(f"no frames NNN.npy found in {rec}")
+    s = recording_transform(rec)["scale"]
+    clouds = [np.load(f) for f in files]
+    if any(c.ndim != 2 or c.shape[1] != 3 or c.shape != clouds[0].shape for c in clouds):
+        raise DataError(f"frames of {rec} must all be (P, 3) of equal size")
+    out = np.stack(clouds).astype(float) * s
+    if not np.all(np.isfinite(out)):
+        raise DataError(f"non-finite values in the frames of {rec}")
+    return out
+
+
+def estimate_grasp_offset(recording: str | Path, commanded: np.ndarray,
+                          frames: range = range(18, 25), top_fraction: float = 0.01) -> np.ndarray:
+    """Offset ``(3,)`` m from the commanded gripper path to the real grasped corner.
+
+    In the last frames the grasped corner is the highest part of the hanging cloth; the median
+    of the top ``top_fraction`` of (unique) cloud points minus the commanded position, averaged
+    over ``frames``. ``commanded`` is ``(25, 3)`` in the lift frame (recorded frame indices).
+    """
+    s = recording_transform(recording)["scale"]
+    offs = []
+    for i in frames:
+        f = np.unique(np.load(Path(recording) / f"{i:03d}.npy"), axis=0) * s
+        top = f[f[:, 2] >= np.quantile(f[:, 2], 1.0 - top_fraction)]
+        offs.append(np.median(top, axis=0) - commanded[i])
+    return np.mean(offs, axis=0)
+
+
+# --------------------------------------------------------------------------------------------
+# scenarios
+# --------------------------------------------------------------------------------------------
+def _resample(path: np.ndarray, n_frames: int) -> np.ndarray:
+    if n_frames == len(path):
+        return path.copy()
+    src = np.linspace(0.0, 1.0, len(path))
+    dst = np.linspace(0.0, 1.0, n_frames)
+    return np.stack([np.interp(dst, src, path[:, k]) for k in range(3)], axis=1)
+
+
+def default_gripper_path(n_frames: int = N_FRAMES) -> np.ndarray:
+    """Analytic approximation of the recorded lift, lift frame (default transform), ``(n_frames, 3)`` m.
+
+    The recorded path is a straight segment (horizontal and vertical progress agree to 0.1 %);
+    progress ``u = t / T in [0, 1]`` is eased by :func:`_ease` (delayed smoothstep). Start and
+    end are the mapped first/last commanded points; within 0.8 cm of the full recorded path.
+    """
+    if n_frames < 2:
+        raise ValueError(f"n_frames must be >= 2, got {n_frames}")
+    a = real_to_lift_frame(np.asarray(_TRAJ_START), DEFAULT_TRANSFORM)
+    b = real_to_lift_frame(np.asarray(_TRAJ_END), DEFAULT_TRANSFORM)
+    u = np.linspace(0.0, 1.0, n_frames)
+    h = _ease(u)
+    out = a + h[:, None] * (b - a)
+    return out
+
+
+def _ease(u: np.ndarray) -> np.ndarray:
+    """Smooth 0->1 easing of the recorded lift's progress: a smoothstep ``3w^2 - 2w^3`` that starts
+    after a delay of 4 % of the duration (the recorded path does not move between its first two
+    frames), ``w = clip((u - 0.04) / 0.96, 0, 1)``. Max deviation from the recorded path: 0.8 cm."""
+    w = np.clip((np.asarray(u, dtype=float) - _EASE_DELAY) / (1.0 - _EASE_DELAY), 0.0, 1.0)
+    return w * w * (3.0 - 2.0 * w)
+
+
+_EASE_DELAY = 0.04
+
+
+def lift_scenario(recording: str | Path | None = None, n_frames: int = N_FRAMES, frame_dt: float = FRAME_DT,
+                  grasp_offset: str = "data") -> Scenario:
+    """The cloth-lift scenario, in the lift frame (metres, z up; see the module docstring).
+
+    Args:
+        recording: a DiffCloud recording folder (``.../diffcloud_lift/lift_tan``; its parent holds
+            ``lift_traj.npy``), or None for the built-in default that needs no files.
+        n_frames: number of recorded frames ``T`` (the path is resampled if != 25).
+        frame_dt: seconds between frames (DiffCloud's 0.04 s assumed; the real timing is unknown).
+        grasp_offset: ``"data"`` (shift the path horizontally by the offset between commanded
+            end effector and real grasped corner estimated from the recording) or ``"none"``.
+            Ignored for the built-in default.
+
+    Returns:
+        :class:`Scenario` named ``"lift"``: ``times (T,)`` s, ``gripper (T, 3)`` m, ``table_z`` m,
+        ``object = {"kind": "cloth", "size", "corner", "direction", "grasp": "corner"}`` and
+        ``options`` with the provenance (recording, transform, offsets).
+
+    Raises:
+        DataError: recording folder / files missing or malformed.
+        ValueError: ``n_frames < 2``, ``frame_dt <= 0`` or an unknown ``grasp_offset``.
+    """
+    if n_frames < 2:
+        raise ValueError(f"n_frames must be >= 2, got {n_frames}")
+    if not frame_dt > 0:
+        raise ValueError(f"frame_dt must be > 0, got {frame_dt}")
+    if grasp_offset not in ("data", "none"):
+        raise ValueError(f"grasp_offset must be 'data' or 'none', got {grasp_offset!r}")
+    times = np.arange(n_frames) * float(frame_dt)
+    options: dict[str, Any] = {"timing": f"assumed DiffCloud timing: frames {frame_dt} s apart",
+                               "frame": "lift frame = DiffCloud simulator frame x 0.35 m"}
+    if recording is None:
+        gripper = default_gripper_path(n_frames)
+        cfg = _check_cfg(DEFAULT_TRANSFORM)
+        table_z = table_height(cfg)
+        options.update(source="built-in default (analytic path, default lift_real2sim.yaml)")
+    else:
+        rec = Path(recording)
+        if not rec.is_dir():
+            raise DataError(f"recording folder {rec} does not exist")
+        traj_file = rec.parent / "lift_traj.npy"
+        if not traj_file.is_file():
+            raise DataError(f"{traj_file} not found: lift_traj.npy must be in the recording's parent folder")
+        traj = np.load(traj_file)
+        if traj.ndim != 2 or traj.shape[1] != 3:
+            raise DataError(f"{traj_file} must be (T, 3), got {traj.shape}")
+        cfg = recording_transform(rec)
+        commanded = real_to_lift_frame(traj, cfg)
+        table_z = table_height(cfg)
+        offset = np.zeros(3)
+        if (rec / "024.npy").is_file() and len(commanded) == N_FRAMES:
+            est = estimate_grasp_offset(rec, commanded)
+            options["grasp_offset_estimate"] = est.tolist()
+            if grasp_offset == "data":
+                offset[:2] = est[:2]
+        elif grasp_offset == "data":
+            options["grasp_offset_note"] = "no frames to estimate the grasp offset from; commanded path used"
+        gripper = _resample(commanded + offset, n_frames)
+        options.update(source=str(rec), recording=rec.name, grasp_offset_applied=offset.tolist(),
+                       transform={k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in cfg.items()})
+    obj = {"kind": "cloth", "size": float(NOMINAL_SIZE), "corner": [float(gripper[0, 0]), float(gripper[0, 1])],
+           "direction": [float(NOMINAL_DIRECTION[0]), float(NOMINAL_DIRECTION[1])], "grasp": "corner"}
+    return Scenario(name="lift", times=times, gripper=gripper, table_z=float(table_z), object=obj,
+                    options=options)
+
+
+# --------------------------------------------------------------------------------------------
+# overlay
+# --------------------------------------------------------------------------------------------
+def overlay_png(scenario: Scenario, rollout: Any, real_points: np.ndarray, path: str | Path,
+                frame: int = 0, title: str | None = None) -> Path:
+    """Write a top + side view PNG of a real frame against the simulated cloth and gripper path.
+
+    Args:
+        scenario: the lift scenario (lift frame, m).
+        rollout: a :class:`~softsbi.core.types.Rollout` (its ``vertices[frame]`` are drawn), or None.
+        real_points: ``(P, 3)`` m, the real cloud of the same frame in the lift frame.
+        path: output PNG file.
+        frame: which rollout frame to draw.
+        title: optional figure title.
+
+    Returns:
+        The written path. Uses matplotlib's Agg backend (no display needed).
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    real = np.asarray(real_points, dtype=float)
+    if real.ndim != 2 or real.shape[1] != 3:
+        raise ShapeError(f"real_points must be (P, 3), got {real.shape}")
+    g = scenario.gripper
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
+    for ax, (i, j), lab in ((axes[0], (0, 1), ("x [m]", "y [m]")), (axes[1], (1, 2), ("y [m]", "z [m]"))):
+        ax.scatter(real[:, i], real[:, j], s=2, c="tab:blue", alpha=0.4, label=f"real frame {frame}")
+        if rollout is not None:
+            v = np.asarray(rollout.vertices[frame])
+            ax.scatter(v[:, i], v[:, j], s=10, c="tab:red", label=f"simulated frame {frame}")
+        ax.plot(g[:, i], g[:, j], "k-", lw=1, label="gripper path")
+        ax.plot(g[frame, i], g[frame, j], "kx", ms=10)
+        if j == 2:
+            ax.axhline(scenario.table_z, color="gray", ls="--", lw=1, label="table")
+        ax.set_xlabel(lab[0]); ax.set_ylabel(lab[1]); ax.set_aspect("equal"); ax.grid(alpha=0.3)
+    axes[0].set_title("top view"); axes[1].set_title("side view")
+    axes[1].legend(loc="upper right", fontsize=8)
+    fig.suptitle(title or f"{scenario.options.get('recording', scenario.name)}: frame {frame}")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

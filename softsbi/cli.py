@@ -1,0 +1,315 @@
+"""Command-line interface: ``softsbi plugins | simulate | fit | demo``."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
+    TimeRemainingColumn
+from rich.markup import escape
+from rich.table import Table
+
+from .core.errors import SoftsbiError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="softsbi: Bayesian real-to-sim for deformable objects (BayesSim-RKHS).")
+console = Console(stderr=False)
+err_console = Console(stderr=True)
+
+#: demo's hidden parameter values (the user is not told them before the fit ends)
+DEMO_TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55}
+
+
+def _parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for it in items or []:
+        for part in it.split(","):
+            if not part:
+                continue
+            if "=" not in part:
+                raise SoftsbiError(f"{what} '{part}' must look like name=value")
+            k, v = part.split("=", 1)
+            out[k.strip()] = _num(v.strip())
+    return out
+
+
+def _num(v: str) -> Any:
+    for cast in (int, float):
+        try:
+            return cast(v)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(v.lower(), v)
+
+
+def _parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
+    out = {}
+    for it in items or []:
+        for part in it.split(","):
+            try:
+                k, rng = part.split("=", 1)
+                lo, hi = rng.split(":")
+                out[k.strip()] = (float(lo), float(hi))
+            except ValueError:
+                raise SoftsbiError(f"--bounds '{part}' must look like name=low:high (e.g. friction=0.1:1.5)") from None
+    return out
+
+
+class RichHooks:
+    """Progress bars for :func:`softsbi.core.loop.run_fit`."""
+
+    def __init__(self, progress: Progress):
+        self.p = progress
+        self.sim_task = None
+        self.train_task = None
+
+    def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
+        label = f"round {r + 1}/{rounds} simulations" if r >= 0 else "posterior rollouts"
+        if self.sim_task is not None:
+            self.p.remove_task(self.sim_task)
+        self.sim_task = self.p.add_task(label, total=n_total, completed=n_total - n_pending)
+
+    def simulation_done(self, r: int, done: int, total: int) -> None:
+        self.p.update(self.sim_task, completed=done)
+
+    def training_epoch(self, r: int, epoch: int, max_epochs: int, loss: float) -> None:
+        if self.train_task is None:
+            self.train_task = self.p.add_task(f"round {r + 1} training", total=max_epochs)
+        self.p.update(self.train_task, completed=epoch, description=f"round {r + 1} training (loss {loss:.3f})")
+
+    def round_end(self, r: int, s: dict[str, Any]) -> None:
+        if self.train_task is not None:
+            self.p.remove_task(self.train_task)
+            self.train_task = None
+        ch = s.get("chamfer_proposal") or {}
+        ch_txt = f", Chamfer of this round's rollouts {ch['mean_m'] * 100:.2f} cm" if ch.get("mean_m") else ""
+        mean = ", ".join(f"{k}={v:.3g}" for k, v in s["posterior_mean"].items())
+        self.p.console.print(f"[bold]round {r + 1}[/]: {s['usable']} usable, {s['failed']} failed{ch_txt}; "
+                             f"posterior mean {mean}")
+
+    def message(self, text: str) -> None:
+        self.p.console.print(f"[yellow]{text}[/]")
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TimeRemainingColumn(), console=console, transient=False)
+
+
+def _run(meas, cfg, out: Path):
+    from .core.loop import run_fit
+    with _progress() as p:
+        return run_fit(out, meas, cfg, hooks=RichHooks(p))
+
+
+def _print_report(rep: dict[str, Any], out: Path) -> None:
+    t = Table(title="Posterior (physical units)")
+    for c in ("parameter", "unit", "mean", "std", "90% interval"):
+        t.add_column(c)
+    truth = rep.get("truth") or {}
+    if truth:
+        t.add_column("hidden value")
+        t.add_column("inside 90%?")
+    for p in rep["parameters"]:
+        n = p["name"]
+        row = [n, p["unit"], f"{rep['posterior_mean'][n]:.4g}", f"{rep['posterior_std'][n]:.3g}",
+               f"[{rep['posterior_q05'][n]:.4g}, {rep['posterior_q95'][n]:.4g}]"]
+        if truth:
+            row += [f"{truth[n]:.4g}", "yes" if rep["truth_in_90pct_interval"][n] else "NO"]
+        t.add_row(*row)
+    console.print(t)
+    if rep.get("chamfer_prior_m") and rep.get("chamfer_posterior_m"):
+        console.print(f"Chamfer to the measurement: prior {rep['chamfer_prior_m'] * 100:.2f} cm -> posterior "
+                      f"{rep['chamfer_posterior_m'] * 100:.2f} cm ({rep['chamfer_reduction'] * 100:.0f}% lower)")
+    console.print(f"{rep['simulations']} simulations ({rep['failed_simulations']} failed), "
+                  f"{rep['wall_time_s']:.0f} s. Outputs in {out}: report.json, run.zarr, chamfer_rounds.png, "
+                  f"posterior_pairs.png, clouds.png")
+
+
+def _guard(fn):
+    """Print SoftsbiError messages without a traceback and exit 2."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*a, **kw):
+        try:
+            return fn(*a, **kw)
+        except SoftsbiError as exc:
+            err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True, highlight=False)
+            raise typer.Exit(2)
+    return wrapper
+
+
+@app.command()
+@_guard
+def plugins(as_json: bool = typer.Option(False, "--json", help="machine-readable listing")) -> None:
+    """List installed simulators, effects, observers, estimators and executors."""
+    from .plugins import registry
+    from .plugins.manager import LOAD_ERRORS
+    desc = registry().describe()
+    if LOAD_ERRORS:
+        desc["load_errors"] = dict(LOAD_ERRORS)
+    if as_json:
+        typer.echo(json.dumps(desc, indent=2))
+        return
+    for kind, rows in desc.items():
+        if kind == "load_errors":
+            continue
+        t = Table(title=kind)
+        for c in ("name", "package", "description"):
+            t.add_column(c)
+        for r in rows:
+            extra = ""
+            if r.get("scenarios"):
+                extra = f" scenarios: {', '.join(r['scenarios'])}"
+            t.add_row(r["name"], r["package"], (r.get("doc") or "") + extra)
+        console.print(t)
+    for name, err in LOAD_ERRORS.items():
+        console.print(f"[red]plugin '{name}' failed to load:[/] {err}")
+
+
+@app.command()
+@_guard
+def simulate(backend: str = typer.Option("mujoco-flex", help="simulator plugin"),
+             scenario: str = typer.Option("lift", help="scenario name"),
+             recording: Optional[Path] = typer.Option(None, help="real recording folder to take the scenario from"),
+             theta: list[str] = typer.Option(None, "--theta", help="name=value (repeatable); unset = prior midpoint"),
+             effect: list[str] = typer.Option(None, "--effect", help="effect names to switch on"),
+             backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
+             out: Path = typer.Option(Path("rollout"), help="output folder (rollout.zarr + preview.png)")) -> None:
+    """Roll a scenario out at given parameters; write Zarr and a PNG preview."""
+    import zarr
+    from .backends.scenarios import lift_scenario
+    from .plugins import registry
+
+    if scenario != "lift":
+        raise SoftsbiError(f"unknown scenario '{scenario}'; available: lift")
+    sc = lift_scenario(recording)
+    sim = registry().simulator(backend)(**_parse_kv(backend_opt, "--backend-opt"))
+    effects = [e for it in effect or [] for e in it.split(",") if e]
+    space = sim.param_space(sc)
+    for e in effects:
+        space = space + registry().effect(e)().param_space()
+    values = space.midpoint()
+    values.update(_parse_kv(theta, "--theta"))
+    values = space.check(values)
+    t0 = time.perf_counter()
+    ro = sim.simulate(sc, values, effects=effects)
+    dt = time.perf_counter() - t0
+    out.mkdir(parents=True, exist_ok=True)
+    g = zarr.open_group(str(out / "rollout.zarr"), mode="w")
+    g.attrs.update({"backend": backend, "scenario": sc.to_json(), "theta": values, "status": int(ro.status),
+                    "reason": ro.reason})
+    for name, arr, units in (("times", ro.times, "s"), ("gripper", ro.gripper, "m"), ("vertices", ro.vertices, "m"),
+                             ("faces", ro.faces, "1")):
+        a = g.create_array(name, shape=arr.shape, dtype=arr.dtype, attributes={"units": units})
+        a[...] = arr
+    console.print(f"{backend} {scenario}: status {'ok' if ro.ok else ro.reason}, {len(ro.times)} frames, "
+                  f"{ro.vertices.shape[1]} vertices, {dt:.2f} s wall -> {out / 'rollout.zarr'}")
+    if ro.ok:
+        _preview(ro, out / "preview.png", f"{backend} {scenario}")
+        console.print(f"preview: {out / 'preview.png'}")
+
+
+def _preview(ro, path: Path, title: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    T = len(ro.times)
+    frames = sorted({0, T // 3, 2 * T // 3, T - 1})
+    fig, axes = plt.subplots(1, len(frames), figsize=(3 * len(frames), 3.2), squeeze=False)
+    for ax, f in zip(axes[0], frames):
+        v = ro.vertices[f]
+        ax.scatter(v[:, 1], v[:, 2], s=4)
+        ax.plot(ro.gripper[f, 1], ro.gripper[f, 2], "r+", ms=10)
+        ax.set_title(f"t = {ro.times[f]:.2f} s (side view)", fontsize=9)
+        ax.set_xlabel("y [m]")
+        ax.set_ylabel("z [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
+                backend_opt, estimator_opt, n_eval):
+    from .core.loop import FitConfig
+    effects = [e for it in effect or [] for e in it.split(",") if e]
+    return FitConfig(backend=backend, backend_options=_parse_kv(backend_opt, "--backend-opt"), effects=effects,
+                     estimator=estimator, estimator_options=_parse_kv(estimator_opt, "--estimator-opt"),
+                     rounds=rounds, sims_per_round=sims_per_round, seed=seed, n_points=points, workers=workers,
+                     bounds=_parse_bounds(bounds), fixed=_parse_kv(fix, "--fix"), n_eval=n_eval)
+
+
+DEFAULT_ROUNDS = 4
+DEFAULT_SIMS = 150
+
+
+@app.command()
+@_guard
+def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... + lift_real2sim.yaml)"),
+        out: Path = typer.Option(..., help="run directory (resumes if it holds a run)"),
+        backend: str = typer.Option("mujoco-flex", help="simulator plugin"),
+        estimator: str = typer.Option("rkhs", help="posterior estimator plugin"),
+        rounds: int = typer.Option(DEFAULT_ROUNDS, help="sequential rounds (paper: 15)"),
+        sims_per_round: int = typer.Option(DEFAULT_SIMS, help="simulations per round (paper: 100)"),
+        seed: int = typer.Option(0),
+        points: int = typer.Option(64, help="K, points per frame"),
+        workers: Optional[int] = typer.Option(None, help="simulation processes (default: one per core)"),
+        effect: list[str] = typer.Option(None, "--effect", help="effects to add (their parameters are inferred)"),
+        bounds: list[str] = typer.Option(None, "--bounds", help="prior bounds name=low:high"),
+        fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
+        backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
+        estimator_opt: list[str] = typer.Option(None, "--estimator-opt", help="estimator option name=value"),
+        n_eval: int = typer.Option(30, help="rollouts at posterior samples for the final Chamfer")) -> None:
+    """Infer the posterior over physical parameters from a recording (resumable)."""
+    from .perception.measurement import load_measurement
+    cfg = _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
+                      backend_opt, estimator_opt, n_eval)
+    meas = load_measurement(observed, n_points=points, seed=seed)
+    res = _run(meas, cfg, out)
+    _print_report(res.report, out)
+
+
+@app.command()
+@_guard
+def demo(out: Path = typer.Option(Path("softsbi-demo"), help="run directory"),
+         rounds: int = typer.Option(DEFAULT_ROUNDS), sims_per_round: int = typer.Option(DEFAULT_SIMS),
+         estimator: str = typer.Option("rkhs"), seed: int = typer.Option(0),
+         workers: Optional[int] = typer.Option(None)) -> None:
+    """Fit the built-in lift scenario simulated at hidden parameters; compare with the posterior."""
+    from .backends.scenarios import lift_scenario
+    from .core.loop import FitConfig
+    from .perception.measurement import simulate_measurement
+    from .plugins import registry
+
+    sc = lift_scenario(None)
+    sim = registry().simulator("mujoco-flex")()
+    space = sim.param_space(sc)
+    u = np.array([DEMO_TRUTH_UNIT.get(n, 0.5) for n in space.names])
+    truth = space.as_dict(space.from_unit(u))
+    console.print(f"[bold]softsbi demo[/]: the built-in lift scenario simulated at hidden parameters; "
+                  f"{rounds} rounds x {sims_per_round} simulations of mujoco-flex, estimator {estimator}.")
+    meas = simulate_measurement("mujoco-flex", sc, truth)
+    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers)
+    res = _run(meas, cfg, out)
+    _print_report(res.report, out)
+    inside = res.report["truth_in_90pct_interval"]
+    console.print(f"{sum(inside.values())}/{len(inside)} hidden values inside the 90% posterior interval.")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

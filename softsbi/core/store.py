@@ -1,0 +1,272 @@
+"""The run store: one Zarr v3 group per fit (``RUN_DIR/run.zarr``).
+
+Layout (schema ``softsbi.run``, version :data:`SCHEMA_VERSION`)::
+
+    / attrs: schema, schema_version, softsbi_version, created, config (backend, scenario,
+             param_space, effects, observer, estimator, rounds, sims_per_round, seed, ...)
+    observed/   x (T, 1+K, 3) m, gripper (T, 3) m, times (T,) s, dense (T, P, 3) m
+    rounds/<r>/ theta (N, D) physical units, u (N, D) unit cube, seed (N,),
+                x (N, T, 1+K, 3) m, status (N,) uint8 (255 = pending), chamfer (N, T) m
+                attrs: begun, complete, failures {i: reason}, train info
+                posterior/ weights (C,), means (C, D), scale_tril (C, D, D)   [q(u | x_obs)]
+    evaluation/ theta, u, status, chamfer  (rollouts at final-posterior samples)
+
+Every array carries ``units`` in its attributes and dimension names. Simulation results
+are chunked one simulation per chunk and Zarr's local store writes each chunk atomically
+(temporary file + rename), so a run killed at any point resumes with every finished
+simulation kept; a round is marked ``complete`` only after its posterior is written.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import shutil
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import zarr
+
+from .distributions import MixtureOfGaussians
+from .errors import SchemaError
+from .types import STATUS_PENDING
+
+SCHEMA = "softsbi.run"
+SCHEMA_VERSION = 1
+
+#: config keys that must match when an existing run is resumed
+RESUME_KEYS = ("backend", "backend_options", "scenario", "param_space", "effects", "observer",
+               "estimator", "sims_per_round", "seed", "observed_source")
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("softsbi")
+    except Exception:  # noqa: BLE001 - not installed (source tree)
+        return "unknown"
+
+
+class RunStore:
+    """Read/write access to a run's Zarr store.
+
+    Use :meth:`create` for a new run and :meth:`open` for an existing one.
+
+    Raises:
+        SchemaError: the path is not a softsbi run, or has another schema version.
+    """
+
+    def __init__(self, path: Path, root: zarr.Group):
+        self.path = Path(path)
+        self.root = root
+
+    # -- life cycle -----------------------------------------------------------------
+    @classmethod
+    def exists(cls, path: str | Path) -> bool:
+        return (Path(path) / "zarr.json").exists()
+
+    @classmethod
+    def create(cls, path: str | Path, config: Mapping[str, Any]) -> "RunStore":
+        """Create a new store at ``path`` (must not exist yet)."""
+        path = Path(path)
+        if cls.exists(path):
+            raise SchemaError(f"a run store already exists at '{path}'; open it with RunStore.open or choose "
+                              f"another --out")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        root = zarr.open_group(str(path), mode="w")
+        root.attrs.update({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "softsbi_version": _version(),
+                           "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                           "config": _jsonable(dict(config))})
+        root.require_group("rounds")
+        return cls(path, root)
+
+    @classmethod
+    def open(cls, path: str | Path, mode: str = "a") -> "RunStore":
+        """Open an existing store, checking its schema and version."""
+        path = Path(path)
+        if not cls.exists(path):
+            raise SchemaError(f"'{path}' is not a softsbi run store (no zarr.json); pass the run.zarr written "
+                              f"by `softsbi fit`")
+        try:
+            root = zarr.open_group(str(path), mode=mode)
+        except Exception as exc:  # noqa: BLE001
+            raise SchemaError(f"cannot open '{path}' as a Zarr group: {exc}") from exc
+        schema = root.attrs.get("schema")
+        version = root.attrs.get("schema_version")
+        if schema != SCHEMA:
+            raise SchemaError(f"'{path}' is a Zarr store but not a softsbi run (schema={schema!r}); "
+                              f"point at a run.zarr written by `softsbi fit`")
+        if version != SCHEMA_VERSION:
+            raise SchemaError(f"run store '{path}' has schema version {version}, this softsbi reads version "
+                              f"{SCHEMA_VERSION}; re-run the fit into a new --out folder with this version, or "
+                              f"install the softsbi version that wrote it ({root.attrs.get('softsbi_version')})")
+        return cls(path, root)
+
+    @property
+    def config(self) -> dict[str, Any]:
+        return dict(self.root.attrs["config"])
+
+    def check_resumable(self, config: Mapping[str, Any]) -> None:
+        """Raise :class:`SchemaError` if ``config`` differs from the stored one in a key that
+        would make the stored simulations invalid for this fit."""
+        stored = self.config
+        new = _jsonable(dict(config))
+        diff = [k for k in RESUME_KEYS if k in new and stored.get(k) != new.get(k)]
+        if diff:
+            raise SchemaError(f"the run at '{self.path}' was started with different settings for {diff}; "
+                              f"resume it with the same settings or fit into a new --out folder")
+
+    def update_config(self, **kw: Any) -> None:
+        cfg = self.config
+        cfg.update(_jsonable(kw))
+        self.root.attrs["config"] = cfg
+
+    # -- observed data --------------------------------------------------------------
+    def write_observed(self, x: np.ndarray, gripper: np.ndarray, times: np.ndarray,
+                       dense: np.ndarray | None = None, source: str = "") -> None:
+        g = self.root.require_group("observed")
+        _put(g, "x", x, ("frame", "point", "xyz"), "m")
+        _put(g, "gripper", gripper, ("frame", "xyz"), "m")
+        _put(g, "times", times, ("frame",), "s")
+        if dense is not None:
+            _put(g, "dense", dense, ("frame", "point", "xyz"), "m")
+        g.attrs["source"] = source
+
+    def read_observed(self) -> dict[str, np.ndarray]:
+        if "observed" not in self.root:
+            raise SchemaError(f"run '{self.path}' has no observed data; it was not created by `softsbi fit`")
+        g = self.root["observed"]
+        return {k: g[k][...] for k in g.array_keys()}
+
+    # -- rounds -----------------------------------------------------------------------
+    def _round(self, r: int) -> zarr.Group:
+        return self.root["rounds"][str(r)]
+
+    def round_ids(self) -> list[int]:
+        return sorted(int(k) for k in self.root["rounds"].group_keys())
+
+    def is_begun(self, r: int) -> bool:
+        return str(r) in self.root["rounds"] and bool(self._round(r).attrs.get("begun", False))
+
+    def is_complete(self, r: int) -> bool:
+        return str(r) in self.root["rounds"] and bool(self._round(r).attrs.get("complete", False))
+
+    def completed_rounds(self) -> list[int]:
+        out = []
+        for r in self.round_ids():
+            if not self.is_complete(r):
+                break
+            out.append(r)
+        return out
+
+    def begin_round(self, r: int, theta: np.ndarray, u: np.ndarray, seeds: np.ndarray,
+                    x_shape: tuple[int, ...], proposal: str) -> None:
+        """Create round ``r`` with its parameter draws; results start as pending.
+
+        A half-created round (killed before ``begun`` was set) is removed first.
+        """
+        rounds = self.root["rounds"]
+        if str(r) in rounds:
+            if self.is_begun(r):
+                raise SchemaError(f"round {r} already begun in '{self.path}'")
+            shutil.rmtree(self.path / "rounds" / str(r), ignore_errors=True)
+            rounds = self.root = zarr.open_group(str(self.path), mode="a")
+            rounds = self.root["rounds"]
+        g = rounds.require_group(str(r))
+        n, d = theta.shape
+        T = x_shape[0]
+        _put(g, "theta", theta, ("simulation", "parameter"), "physical (see param_space)")
+        _put(g, "u", u, ("simulation", "parameter"), "unit cube")
+        _put(g, "seed", np.asarray(seeds, np.int64), ("simulation",), "1")
+        g.create_array("x", shape=(n, *x_shape), dtype="float32", chunks=(1, *x_shape), fill_value=np.nan,
+                       dimension_names=("simulation", "frame", "point", "xyz"), attributes={"units": "m"})
+        g.create_array("chamfer", shape=(n, T), dtype="float32", chunks=(1, T), fill_value=np.nan,
+                       dimension_names=("simulation", "frame"), attributes={"units": "m"})
+        g.create_array("status", shape=(n,), dtype="uint8", chunks=(1,), fill_value=STATUS_PENDING,
+                       dimension_names=("simulation",),
+                       attributes={"units": "1", "codes": "0 ok, 1 diverged, 2 implausible, 3 error, 255 pending"})
+        g.attrs.update({"proposal": proposal, "failures": {}, "complete": False})
+        g.attrs["begun"] = True
+
+    def write_simulation(self, r: int, i: int, x: np.ndarray | None, chamfer: np.ndarray | None,
+                         status: int, reason: str = "") -> None:
+        """Store simulation ``i`` of round ``r``; ``status`` is written last (it marks the row done)."""
+        g = self._round(r)
+        if x is not None:
+            g["x"][i] = np.asarray(x, np.float32)
+        if chamfer is not None:
+            g["chamfer"][i] = np.asarray(chamfer, np.float32)
+        if status != 0 and reason:
+            fails = dict(g.attrs.get("failures", {}))
+            fails[str(i)] = reason
+            g.attrs["failures"] = fails
+        g["status"][i] = np.uint8(status)
+
+    def round_data(self, r: int) -> dict[str, np.ndarray]:
+        g = self._round(r)
+        return {k: g[k][...] for k in ("theta", "u", "seed", "x", "status", "chamfer")}
+
+    def round_attrs(self, r: int) -> dict[str, Any]:
+        return dict(self._round(r).attrs)
+
+    def pending(self, r: int) -> np.ndarray:
+        return np.nonzero(self._round(r)["status"][...] == STATUS_PENDING)[0]
+
+    def finish_round(self, r: int, q: MixtureOfGaussians, info: Mapping[str, Any]) -> None:
+        """Write ``q(u | x_obs)`` and training info, then mark the round complete."""
+        g = self._round(r)
+        p = g.require_group("posterior")
+        _put(p, "weights", q.weights, ("component",), "1")
+        _put(p, "means", q.means, ("component", "parameter"), "unit cube")
+        _put(p, "scale_tril", q.scale_tril, ("component", "parameter", "parameter2"), "unit cube")
+        g.attrs["info"] = _jsonable(dict(info))
+        g.attrs["complete"] = True
+
+    def read_q(self, r: int) -> MixtureOfGaussians:
+        p = self._round(r)["posterior"]
+        return MixtureOfGaussians(p["weights"][...], p["means"][...], p["scale_tril"][...])
+
+    # -- evaluation -----------------------------------------------------------------
+    def write_group(self, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None,
+                    units: Mapping[str, str] | None = None) -> None:
+        """(Over)write a named group of arrays, e.g. ``evaluation`` or ``checks``."""
+        if name in self.root:
+            shutil.rmtree(self.path / name, ignore_errors=True)
+            self.root = zarr.open_group(str(self.path), mode="a")
+        g = self.root.require_group(name)
+        for k, v in arrays.items():
+            v = np.asarray(v)
+            _put(g, k, v, tuple(f"dim_{i}" for i in range(v.ndim)), (units or {}).get(k, ""))
+        if attrs:
+            g.attrs.update(_jsonable(dict(attrs)))
+
+    def read_group(self, name: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        g = self.root[name]
+        return {k: g[k][...] for k in g.array_keys()}, dict(g.attrs)
+
+    def has(self, name: str) -> bool:
+        return name in self.root
+
+
+def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], units: str) -> None:
+    value = np.asarray(value)
+    if name in g:
+        del g[name]
+    arr = g.create_array(name, shape=value.shape, dtype=value.dtype, dimension_names=dims,
+                         attributes={"units": units})
+    arr[...] = value
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, np.integer, np.bool_)):
+        return x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    if isinstance(x, Path):
+        return str(x)
+    return x

@@ -1,0 +1,124 @@
+"""Mixture density network head with full-covariance Gaussian components.
+
+Source: Bishop, "Mixture Density Networks" (1994); used as the posterior model of
+BayesSim (Ramos, Possas, Fox, RSS 2019, Sec. 3-4, eq. 3: ``q(theta | x) = sum_c alpha_c(x)
+N(theta; mu_c(x), Sigma_c(x))``) and of BayesSim-RKHS (Antonova et al. 2022, Sec. IV).
+
+Each covariance is parameterised by its Cholesky factor ``L`` (``Sigma = L L^T``) with a
+positive diagonal ``softplus(.) + min_scale``, so every output is a valid density; the
+negative log-likelihood uses ``log_softmax`` + ``logsumexp`` over components and a
+triangular solve, so it is numerically stable.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ..core.distributions import MixtureOfGaussians
+from ..core.errors import ShapeError
+
+_SOFTPLUS_ONE = math.log(math.e - 1.0)  # softplus(_SOFTPLUS_ONE) == 1
+
+
+@dataclass
+class MDNParams:
+    """Batched mixture parameters (torch tensors).
+
+    Attributes:
+        logits: ``(B, C)`` unnormalised log weights (use ``log_softmax``).
+        means: ``(B, C, D)``.
+        scale_tril: ``(B, C, D, D)`` lower-triangular, positive diagonal.
+    """
+
+    logits: torch.Tensor
+    means: torch.Tensor
+    scale_tril: torch.Tensor
+
+    @property
+    def log_weights(self) -> torch.Tensor:
+        return torch.log_softmax(self.logits, dim=-1)
+
+    def affine(self, shift: torch.Tensor, scale: torch.Tensor) -> "MDNParams":
+        """Parameters of the pushed-forward mixture ``u = shift + scale * z`` (elementwise,
+        ``shift``/``scale`` of shape ``(D,)``), e.g. to undo a standardisation of ``u``."""
+        return MDNParams(self.logits, self.means * scale + shift, scale[:, None] * self.scale_tril)
+
+    def to_mixtures(self) -> list[MixtureOfGaussians]:
+        """One :class:`MixtureOfGaussians` (float64 NumPy) per batch row."""
+        w = torch.softmax(self.logits.double(), dim=-1).detach().cpu().numpy()
+        m = self.means.detach().double().cpu().numpy()
+        L = self.scale_tril.detach().double().cpu().numpy()
+        return [MixtureOfGaussians(w[i], m[i], L[i]) for i in range(w.shape[0])]
+
+
+def mdn_log_prob(params: MDNParams, u: torch.Tensor) -> torch.Tensor:
+    """Log density ``(B,)`` of ``u (B, D)`` under the per-row mixtures ``params``.
+
+    ``log sum_c alpha_c N(u; mu_c, L_c L_c^T)``, computed with a triangular solve and
+    ``logsumexp``; matches :meth:`MixtureOfGaussians.log_prob`.
+    """
+    B, C, D = params.means.shape
+    if u.shape != (B, D):
+        raise ShapeError(f"mdn_log_prob: u must have shape ({B}, {D}), got {tuple(u.shape)}")
+    diff = (u[:, None, :] - params.means).unsqueeze(-1)  # (B, C, D, 1)
+    z = torch.linalg.solve_triangular(params.scale_tril, diff, upper=False).squeeze(-1)  # (B, C, D)
+    logdet = torch.log(torch.diagonal(params.scale_tril, dim1=-2, dim2=-1)).sum(-1)  # (B, C)
+    comp = -0.5 * (z * z).sum(-1) - logdet - 0.5 * D * math.log(2 * math.pi)
+    return torch.logsumexp(params.log_weights + comp, dim=-1)
+
+
+def mdn_nll(params: MDNParams, u: torch.Tensor) -> torch.Tensor:
+    """Mean negative log-likelihood (scalar) of ``u (B, D)``; the MDN training loss."""
+    return -mdn_log_prob(params, u).mean()
+
+
+class MDNHead(nn.Module):
+    """Linear head mapping features ``(B, H)`` to a C-component full-covariance mixture over ``D`` dims.
+
+    Args:
+        in_dim: feature size ``H``.
+        out_dim: target dimension ``D``.
+        n_components: ``C`` (BayesSim-RKHS posteriors: 4).
+        min_scale: floor added to the Cholesky diagonal (in target units), keeps covariances
+            positive definite and bounds the density.
+
+    Initialisation: means spread as small random offsets around 0, diagonal scales ~1 and
+    equal weights, which suits standardised targets.
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, n_components: int = 4, min_scale: float = 1e-3):
+        super().__init__()
+        if n_components < 1 or out_dim < 1:
+            raise ValueError(f"MDNHead needs n_components >= 1 and out_dim >= 1 (got {n_components}, {out_dim})")
+        self.D, self.C, self.min_scale = int(out_dim), int(n_components), float(min_scale)
+        self.n_off = self.D * (self.D - 1) // 2
+        self.logits = nn.Linear(in_dim, self.C)
+        self.means = nn.Linear(in_dim, self.C * self.D)
+        self.diag = nn.Linear(in_dim, self.C * self.D)
+        self.off = nn.Linear(in_dim, self.C * self.n_off) if self.n_off else None
+        with torch.no_grad():
+            for lin in (self.logits, self.diag) + ((self.off,) if self.off is not None else ()):
+                lin.weight.mul_(0.1)
+                lin.bias.zero_()
+            self.diag.bias.fill_(_SOFTPLUS_ONE)
+        rows, cols = torch.tril_indices(self.D, self.D, offset=-1)
+        self.register_buffer("_rows", rows, persistent=False)
+        self.register_buffer("_cols", cols, persistent=False)
+
+    def forward(self, h: torch.Tensor) -> MDNParams:
+        B = h.shape[0]
+        logits = self.logits(h)
+        means = self.means(h).view(B, self.C, self.D)
+        diag = F.softplus(self.diag(h)).view(B, self.C, self.D) + self.min_scale
+        L = torch.diag_embed(diag)
+        if self.off is not None:
+            off = self.off(h).view(B, self.C, self.n_off)
+            L = L.index_put((torch.arange(B)[:, None, None], torch.arange(self.C)[None, :, None],
+                             self._rows[None, None, :], self._cols[None, None, :]), off)
+        return MDNParams(logits, means, L)
+

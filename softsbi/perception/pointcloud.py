@@ -1,0 +1,136 @@
+"""Point-cloud observer (simulated rollouts) and the real point-cloud loader.
+
+The observed state per frame is ``s_t = [gripper, k_1..k_K]`` (Antonova et al. 2022,
+Sec. IV: keypoints / points are samples of a distribution): K points sampled
+*area-weighted* on the simulated cloth surface, or subsampled from a recorded cloud,
+independently in every frame, so the K points are an unordered set with no
+correspondence across frames.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from ..core.errors import DataError, ShapeError
+from ..core.interfaces import Observer
+from ..core.types import Observation, Rollout
+from ..plugins.hookspecs import hookimpl
+
+
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points ``(n, 3)`` sampled uniformly by area on a triangle mesh.
+
+    Args:
+        vertices: ``(N, 3)`` m. faces: ``(F, 3)`` int. For a mesh without faces (a rope)
+            points are sampled uniformly along the polyline of the vertices.
+
+    Raises:
+        ShapeError: bad shapes.
+    """
+    vertices = np.asarray(vertices, float)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ShapeError(f"vertices must be (N, 3), got {vertices.shape}")
+    if len(faces) == 0:
+        seg = np.linalg.norm(np.diff(vertices, axis=0), axis=1)
+        p = seg / seg.sum() if seg.sum() > 0 else np.full(len(seg), 1 / len(seg))
+        k = rng.choice(len(seg), size=n, p=p)
+        t = rng.random((n, 1))
+        return vertices[k] * (1 - t) + vertices[k + 1] * t
+    tri = vertices[faces]  # (F, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    total = area.sum()
+    p = area / total if total > 0 else np.full(len(area), 1 / len(area))
+    k = rng.choice(len(faces), size=n, p=p)
+    r1 = np.sqrt(rng.random(n))
+    r2 = rng.random(n)
+    w = np.stack([1 - r1, r1 * (1 - r2), r1 * r2], axis=1)
+    return np.einsum("nk,nkd->nd", w, tri[k])
+
+
+def rollout_clouds(rollout: Rollout, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Area-weighted surface samples of every frame: ``(T, n, 3)`` m."""
+    return np.stack([sample_surface(v, rollout.faces, n, rng) for v in rollout.vertices])
+
+
+class PointCloudObserver(Observer):
+    """K points per frame sampled area-weighted on the simulated surface.
+
+    Args:
+        n_points: K, points per frame (default 64).
+        noise: isotropic Gaussian noise std added to each point, metres (default 0).
+    """
+
+    name: ClassVar[str] = "pointcloud"
+
+    def __init__(self, n_points: int = 64, noise: float = 0.0):
+        if n_points < 1:
+            raise ValueError(f"n_points must be >= 1, got {n_points}")
+        self.n_points = int(n_points)
+        self.noise = float(noise)
+
+    def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
+        pts = rollout_clouds(rollout, self.n_points, rng)
+        if self.noise > 0:
+            pts = pts + rng.normal(0, self.noise, pts.shape)
+        return Observation(points=pts, gripper=np.asarray(rollout.gripper, float),
+                           times=np.asarray(rollout.times, float), source="simulated")
+
+    def observe_clouds(self, clouds: list[np.ndarray], gripper: np.ndarray, times: np.ndarray,
+                       rng: np.random.Generator, source: str = "") -> Observation:
+        """Subsample K points from each recorded cloud ``clouds[t] (P_t, 3)``.
+
+        Clouds with fewer than K points are sampled with replacement.
+        """
+        pts = np.stack([c[rng.choice(len(c), size=self.n_points, replace=len(c) < self.n_points)]
+                        for c in clouds])
+        return Observation(points=pts, gripper=np.asarray(gripper, float), times=np.asarray(times, float),
+                           source=source)
+
+
+def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
+    """Load a recording's frames ``000.npy, 001.npy, ...`` (each ``(P, 3)``) in order.
+
+    Args:
+        folder: a recording folder such as ``../shared/data/diffcloud_lift/lift_tan``.
+
+    Returns:
+        A list of ``T`` float64 arrays ``(P_t, 3)``, in the file's units (callers convert).
+
+    Raises:
+        DataError: missing folder, no ``NNN.npy`` frames, a gap in the numbering, a frame
+            that is not ``(P, 3)``, or NaN/inf values — the message names the file and the fix.
+            (Point counts may differ between frames; the frame *count* is checked against the
+            scenario by :func:`softsbi.perception.measurement.load_measurement`.)
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"observed data folder '{folder}' does not exist; pass a recording folder such as "
+                        f"../shared/data/diffcloud_lift/lift_tan (frames 000.npy, 001.npy, ...)")
+    files = sorted(f for f in folder.glob("*.npy") if f.stem.isdigit())
+    if not files:
+        raise DataError(f"'{folder}' holds no frames named 000.npy, 001.npy, ...; a recording folder must "
+                        f"contain one (P, 3) point cloud per frame")
+    idx = [int(f.stem) for f in files]
+    if idx != list(range(idx[0], idx[0] + len(idx))):
+        missing = sorted(set(range(idx[0], idx[-1] + 1)) - set(idx))
+        raise DataError(f"'{folder}': frame numbering has gaps (missing {missing[:5]}); frames must be consecutive")
+    clouds = []
+    for f in files:
+        try:
+            a = np.load(f, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file
+            raise DataError(f"cannot read frame '{f}': {exc}; re-export it as a (P, 3) float .npy") from exc
+        if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
+            raise DataError(f"frame '{f}' has shape {a.shape}; each frame must be a (P, 3) point cloud")
+        if not np.all(np.isfinite(a)):
+            bad = int((~np.isfinite(a)).any(1).sum())
+            raise DataError(f"frame '{f}' contains {bad} points with NaN/inf coordinates; remove them before fitting")
+        clouds.append(a.astype(float))
+    return clouds
+
+
+@hookimpl
+def softsbi_observers():
+    return [PointCloudObserver]

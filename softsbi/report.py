@@ -1,0 +1,139 @@
+"""PNG figures of a fit: Chamfer per round, posterior pair plot, real vs simulated clouds."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def write_fit_plots(out_dir: Path, result: Any, meas: Any, cfg: Any, samples: np.ndarray) -> list[Path]:
+    """Write ``chamfer_rounds.png``, ``posterior_pairs.png`` and ``clouds.png`` into ``out_dir``.
+
+    Args:
+        result: :class:`~softsbi.core.loop.FitResult`. meas: the measurement.
+        samples: ``(S, D)`` final-posterior samples, physical units.
+    """
+    paths = [plot_chamfer_rounds(out_dir / "chamfer_rounds.png", result.report),
+             plot_pairs(out_dir / "posterior_pairs.png", result.param_space, samples, meas.truth)]
+    try:
+        paths.append(plot_clouds(out_dir / "clouds.png", result, meas, cfg))
+    except Exception as exc:  # noqa: BLE001 - a failed preview must not lose the fit
+        (out_dir / "clouds_error.txt").write_text(f"could not draw clouds.png: {exc}\n")
+    return paths
+
+
+def plot_chamfer_rounds(path: Path, report: dict[str, Any]) -> Path:
+    """Mean Chamfer (cm) of rollouts at prior samples and at each round's posterior samples."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    rows = [r for r in report["per_round"] if r.get("chamfer_posterior_m") is not None]
+    if report.get("chamfer_prior_m") is not None:
+        m, s = report["chamfer_prior_m"] * 100, (report.get("chamfer_prior_std_m") or 0) * 100
+        ax.axhspan(m - s, m + s, color="0.85", label="prior ± std")
+        ax.axhline(m, color="0.4", lw=1.5, label=f"prior mean {m:.2f} cm")
+    if rows:
+        x = [r["round"] + 1 for r in rows]
+        y = np.array([r["chamfer_posterior_m"] for r in rows]) * 100
+        e = np.array([r["chamfer_posterior_std_m"] or 0 for r in rows]) * 100
+        ax.errorbar(x, y, yerr=e, marker="o", color="C0", capsize=3, label="posterior after round (mean ± std)")
+        ax.set_xticks(x)
+    ax.set_xlabel("round")
+    ax.set_ylabel("bidirectional Chamfer, mean over frames [cm]")
+    ax.set_title(f"Distance to the measurement\n{Path(str(report.get('observed', ''))).name}", fontsize=10)
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_pairs(path: Path, space: Any, samples: np.ndarray, truth: dict[str, float] | None = None) -> Path:
+    """Corner plot of posterior samples over the prior box (log axes for log-scaled parameters)."""
+    plt = _plt()
+    D = space.dim
+    fig, axes = plt.subplots(D, D, figsize=(2.3 * D + 0.5, 2.3 * D + 0.5), squeeze=False)
+    for i, pi in enumerate(space):
+        for j, pj in enumerate(space):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                bins = np.geomspace(pi.low, pi.high, 30) if pi.log else np.linspace(pi.low, pi.high, 30)
+                ax.hist(samples[:, i], bins=bins, color="C0", alpha=0.8)
+                if pi.log:
+                    ax.set_xscale("log")
+                ax.set_xlim(pi.low, pi.high)
+                ax.set_yticks([])
+                if truth and pi.name in truth:
+                    ax.axvline(truth[pi.name], color="C3", lw=2)
+            else:
+                ax.scatter(samples[:1500, j], samples[:1500, i], s=2, alpha=0.3, color="C0")
+                if pj.log:
+                    ax.set_xscale("log")
+                if pi.log:
+                    ax.set_yscale("log")
+                ax.set_xlim(pj.low, pj.high)
+                ax.set_ylim(pi.low, pi.high)
+                if truth and pi.name in truth and pj.name in truth:
+                    ax.plot(truth[pj.name], truth[pi.name], "x", color="C3", ms=9, mew=2)
+            if i == D - 1:
+                ax.set_xlabel(f"{pj.name} [{pj.unit}]", fontsize=8)
+            if j == 0 and i > 0:
+                ax.set_ylabel(f"{pi.name} [{pi.unit}]", fontsize=8)
+            ax.tick_params(labelsize=6)
+    title = "Posterior (axes = prior bounds)" + ("; red = hidden true value" if truth else "")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int, ...] | None = None) -> Path:
+    """Real (grey) vs simulated-at-posterior-median (blue) clouds: side view and top view."""
+    from .perception.pointcloud import rollout_clouds
+    from .plugins import registry
+
+    plt = _plt()
+    space = result.param_space
+    theta = dict(result.report["posterior_median"])
+    theta.update(cfg.fixed)
+    sim = registry().simulator(cfg.backend)(**cfg.backend_options)
+    ro = sim.simulate(meas.scenario, theta, effects=cfg.effects, seed=0)
+    T = meas.scenario.n_frames
+    frames = frames or tuple(sorted({0, T // 3, 2 * T // 3, T - 1}))
+    fig, axes = plt.subplots(2, len(frames), figsize=(3.2 * len(frames), 6.4), squeeze=False)
+    sim_pts = rollout_clouds(ro, 800, np.random.default_rng(0)) if ro.ok else None
+    for c, f in enumerate(frames):
+        real = meas.dense[f]
+        for r, (a, b, lab) in enumerate([(1, 2, ("y [m]", "z [m]")), (0, 1, ("x [m]", "y [m]"))]):
+            ax = axes[r, c]
+            ax.scatter(real[:, a], real[:, b], s=2, color="0.55", alpha=0.5, label="measured")
+            if sim_pts is not None:
+                ax.scatter(sim_pts[f][:, a], sim_pts[f][:, b], s=2, color="C0", alpha=0.6, label="simulated")
+            ax.plot(meas.scenario.gripper[f, a], meas.scenario.gripper[f, b], "r+", ms=12, mew=2, label="gripper")
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_xlabel(lab[0], fontsize=8)
+            ax.set_ylabel(lab[1], fontsize=8)
+            ax.tick_params(labelsize=7)
+            if r == 0:
+                ax.set_title(f"frame {f} (t = {meas.scenario.times[f]:.2f} s)", fontsize=9)
+    axes[0, 0].legend(fontsize=7, markerscale=4, loc="upper left")
+    status = "" if ro.ok else f" (simulation failed: {ro.reason})"
+    fig.suptitle(f"Measured vs simulated at the posterior median{status}\nrow 1: side view (y-z), "
+                 f"row 2: top view (x-y)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,1 @@
+"""softsbi-toy: a third-party plugin package for softsbi's tests."""

@@ -1,0 +1,111 @@
+"""ParamSpace transforms and the sequential proposal correction against exact posteriors."""
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal, norm
+
+from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, gaussian
+from softsbi.core.errors import ParameterError
+from softsbi.core.types import Param, ParamSpace
+
+
+def space():
+    return ParamSpace([Param("bend", 1e-6, 1e-3, "N*m", log=True), Param("friction", 0.0, 2.0)])
+
+
+def test_unit_transform_round_trip_and_log_scale():
+    ps = space()
+    theta = np.array([[1e-6, 0.0], [1e-3, 2.0], [np.sqrt(1e-6 * 1e-3), 1.0]])
+    u = ps.to_unit(theta)
+    np.testing.assert_allclose(u, [[0, 0], [1, 1], [0.5, 0.5]], atol=1e-12)
+    np.testing.assert_allclose(ps.from_unit(u), theta, rtol=1e-12)
+    # log-uniform prior: the density in physical units integrates to one
+    grid = np.geomspace(1e-6, 1e-3, 20001)
+    dens = np.exp(ps.subset(["bend"]).log_det_jacobian(grid[:, None]))
+    assert np.trapezoid(dens, grid) == pytest.approx(1.0, rel=1e-3)
+
+
+def test_check_names_the_problem():
+    ps = space()
+    with pytest.raises(ParameterError, match="Did you mean 'friction'"):
+        ps.check({"frictoin": 0.3}, allow_missing=True)
+    with pytest.raises(ParameterError, match="outside its bounds"):
+        ps.check({"bend": 1e-6, "friction": 3.0})
+    with pytest.raises(ParameterError, match="missing"):
+        ps.check({"friction": 0.3})
+    with pytest.raises(ParameterError, match="low"):
+        Param("x", 1.0, 0.5)
+
+
+def test_mixture_log_prob_matches_scipy():
+    rng = np.random.default_rng(0)
+    L = np.array([[[0.2, 0], [0.05, 0.1]], [[0.1, 0], [-0.03, 0.3]]])
+    q = MixtureOfGaussians(np.array([0.3, 0.7]), np.array([[0.2, 0.5], [0.6, 0.4]]), L)
+    u = rng.random((50, 2))
+    ref = np.log(0.3 * multivariate_normal(q.means[0], q.covariances[0]).pdf(u)
+                 + 0.7 * multivariate_normal(q.means[1], q.covariances[1]).pdf(u))
+    np.testing.assert_allclose(q.log_prob(u), ref, rtol=1e-10)
+    s = q.sample(200000, rng)
+    np.testing.assert_allclose(s.mean(0), q.mean(), atol=5e-3)
+    np.testing.assert_allclose(np.cov(s.T), q.cov(), atol=5e-3)
+
+
+def test_round0_posterior_is_q_truncated_to_the_prior_box():
+    chain = PosteriorChain(1, seed=0)
+    post = chain.add_round(gaussian([0.9], [[0.2**2]]), 100)
+    grid = np.linspace(0, 1, 4001)[:, None]
+    dens = np.exp(post.log_prob(grid))
+    ref = norm(0.9, 0.2).pdf(grid[:, 0]) / (norm(0.9, 0.2).cdf(1) - norm(0.9, 0.2).cdf(0))
+    np.testing.assert_allclose(dens, ref, rtol=0.02)
+    assert np.all(np.isneginf(post.log_prob(np.array([[-0.1], [1.1]]))))
+    s = post.sample(20000, np.random.default_rng(1))
+    assert s.min() >= 0 and s.max() <= 1
+    assert s.mean() == pytest.approx((grid[:, 0] * ref).sum() / ref.sum(), abs=0.01)
+
+
+def test_sequential_correction_recovers_the_exact_posterior():
+    """Known case: the true posterior is N(m, s^2) (inside the box). Round 0 data come from the
+    prior; round 1 data from post_0. An exact estimator trained on the pooled data learns
+    q_1(u) ∝ m_1(u) p*(u) with m_1 = (c0 U + c1 post_0) / (c0 + c1), which here is a
+    two-component Gaussian mixture; the chain must divide m_1 out and return p* again."""
+    m, s, c0, c1 = 0.4, 0.08, 100.0, 300.0
+    chain = PosteriorChain(1, seed=0, n_norm=200000)
+    p0 = chain.add_round(gaussian([m], [[s * s]]), c0)  # exact q_0 = p* (uniform proposal)
+    z0 = norm(m, s).cdf(1) - norm(m, s).cdf(0)
+    # q_1 ∝ c0 * N(u; m, s) + c1 * N(u; m, s)^2 / z0, and N^2 = N(u; m, s/sqrt2) / (2 sqrt(pi) s)
+    w = np.array([c0, c1 / z0 / (2 * np.sqrt(np.pi) * s)])
+    q1 = MixtureOfGaussians(w, np.array([[m], [m]]), np.array([[[s]], [[s / np.sqrt(2)]]]))
+    p1 = chain.add_round(q1, c1)
+    grid = np.linspace(0.01, 0.99, 99)[:, None]
+    np.testing.assert_allclose(np.exp(p1.log_prob(grid)), np.exp(p0.log_prob(grid)), rtol=0.03)
+    samp = p1.sample(40000, np.random.default_rng(2))
+    assert samp.mean() == pytest.approx(m, abs=0.003)
+    assert samp.std() == pytest.approx(s, rel=0.03)
+    # without the correction (q_1 as the posterior) the result would be too narrow
+    assert np.sqrt(q1.cov()[0, 0]) < 0.9 * s
+
+
+def test_sequential_correction_2d_three_rounds():
+    """Same construction in 2-D over three rounds with correlated Gaussians."""
+    mean = np.array([0.45, 0.55])
+    cov = np.array([[0.004, 0.002], [0.002, 0.006]])
+    chain = PosteriorChain(2, seed=3, n_norm=200000)
+    rng = np.random.default_rng(4)
+    grid = rng.uniform(0.3, 0.7, (200, 2))
+    target = multivariate_normal(mean, cov)
+    posts = [chain.add_round(gaussian(mean, cov), 200)]
+    counts = [200.0]
+    for r in (1, 2):
+        # exact q_r ∝ m_r p*: mixture of p* (from the prior part) and p* x post_{j} (= N(mean, cov/2) scaled)
+        counts.append(150.0)
+        comps_w = [counts[0]]
+        for j in range(r):
+            # post_j equals p* (by induction), so p* x post_j = N(mean, cov/2) * N(mean; mean, 2 cov) / z
+            z = 1.0  # p* has essentially all its mass inside the box
+            comps_w.append(counts[j + 1] * multivariate_normal(mean, 2 * cov).pdf(mean) / z)
+        covs = [cov] + [cov / 2] * r
+        q = MixtureOfGaussians(np.array(comps_w), np.tile(mean, (r + 1, 1)), np.linalg.cholesky(np.array(covs)))
+        posts.append(chain.add_round(q, counts[-1]))
+    np.testing.assert_allclose(np.exp(posts[-1].log_prob(grid)), target.pdf(grid), rtol=0.05)
+    s = posts[-1].sample(30000, rng)
+    np.testing.assert_allclose(s.mean(0), mean, atol=0.003)
+    np.testing.assert_allclose(np.cov(s.T), cov, rtol=0.08, atol=2e-4)
