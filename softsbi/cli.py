@@ -186,12 +186,13 @@ def simulate(backend: str = typer.Option("mujoco-flex", help="simulator plugin")
              out: Path = typer.Option(Path("rollout"), help="output folder (rollout.zarr + preview.png)")) -> None:
     """Roll a scenario out at given parameters; write Zarr and a PNG preview."""
     import zarr
-    from .backends.scenarios import lift_scenario
+    from .backends.scenarios import make_scenario
     from .plugins import registry
 
-    if scenario != "lift":
-        raise SoftsbiError(f"unknown scenario '{scenario}'; available: lift")
-    sc = lift_scenario(recording)
+    try:
+        sc = make_scenario(scenario, recording)
+    except ValueError as exc:
+        raise SoftsbiError(str(exc)) from None
     sim = registry().simulator(backend)(**_parse_kv(backend_opt, "--backend-opt"))
     effects = [e for it in effect or [] for e in it.split(",") if e]
     space = sim.param_space(sc)
@@ -239,17 +240,36 @@ def _preview(ro, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def _parse_frames(spec: str | None) -> list[int] | None:
+    if not spec:
+        return None
+    out: list[int] = []
+    try:
+        for part in spec.split(","):
+            if ":" in part:
+                a, b = part.split(":")
+                out.extend(range(int(a), int(b)))
+            else:
+                out.append(int(part))
+    except ValueError:
+        raise SoftsbiError(f"--frames '{spec}' must be indices or ranges like 10:25 or 0,5,10") from None
+    return out
+
+
 def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
-                backend_opt, estimator_opt, n_eval):
+                backend_opt, estimator_opt, n_eval, min_height=None, frames=None):
     from .core.loop import FitConfig
     effects = [e for it in effect or [] for e in it.split(",") if e]
     return FitConfig(backend=backend, backend_options=_parse_kv(backend_opt, "--backend-opt"), effects=effects,
                      estimator=estimator, estimator_options=_parse_kv(estimator_opt, "--estimator-opt"),
                      rounds=rounds, sims_per_round=sims_per_round, seed=seed, n_points=points, workers=workers,
-                     bounds=_parse_bounds(bounds), fixed=_parse_kv(fix, "--fix"), n_eval=n_eval)
+                     bounds=_parse_bounds(bounds), fixed=_parse_kv(fix, "--fix"), n_eval=n_eval,
+                     min_height=min_height, frames=_parse_frames(frames))
 
 
 DEFAULT_ROUNDS = 4
+#: real depth clouds contain no cloth lying flat on the table (checked on all 10 DiffCloud recordings)
+DEFAULT_MIN_HEIGHT = 0.01
 DEFAULT_SIMS = 150
 
 
@@ -269,11 +289,16 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
         backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
         estimator_opt: list[str] = typer.Option(None, "--estimator-opt", help="estimator option name=value"),
-        n_eval: int = typer.Option(30, help="rollouts at posterior samples for the final Chamfer")) -> None:
+        n_eval: int = typer.Option(30, help="rollouts at posterior samples for the final Chamfer"),
+        min_height: Optional[float] = typer.Option(
+            DEFAULT_MIN_HEIGHT, help="sensor model: points closer than this (m) to the table are not seen, in "
+                                     "simulation and recording alike (real depth clouds lack cloth lying flat)"),
+        frames: Optional[str] = typer.Option(None, help="frames that inform the posterior, e.g. 10:25 "
+                                                        "(default all; the Chamfer metric always uses all)")) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from .perception.measurement import load_measurement
     cfg = _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
-                      backend_opt, estimator_opt, n_eval)
+                      backend_opt, estimator_opt, n_eval, min_height, frames)
     meas = load_measurement(observed, n_points=points, seed=seed)
     res = _run(meas, cfg, out)
     _print_report(res.report, out)
@@ -304,6 +329,127 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="run directory"),
     _print_report(res.report, out)
     inside = res.report["truth_in_90pct_interval"]
     console.print(f"{sum(inside.values())}/{len(inside)} hidden values inside the 90% posterior interval.")
+
+
+@app.command()
+@_guard
+def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
+          samples: int = typer.Option(30, help="posterior rollouts"),
+          workers: Optional[int] = typer.Option(None)) -> None:
+    """Posterior predictive check: where and when the fitted model misses the measurement."""
+    from .core.diagnostics import check_run
+    with console.status("simulating at posterior samples..."):
+        out = check_run(run, n_samples=samples, workers=workers)
+    t = Table(title="Error by phase of the motion")
+    for c in ("phase", "time [s]", "gripper height [cm]", "Chamfer [cm]", "worst region"):
+        t.add_column(c)
+    for ph in out["phases"]:
+        t.add_row(ph["phase"], f"{ph['t_s'][0]:.2f}-{ph['t_s'][1]:.2f}",
+                  f"{ph['gripper_height_m'][0] * 100:.1f}-{ph['gripper_height_m'][1] * 100:.1f}",
+                  f"{ph['chamfer_m'] * 100:.2f}", ph["worst_region"])
+    console.print(t)
+    m = out["misspecification"]
+    console.print(f"misspecification test: statistic {m['statistic']:.2f} (null mean {m['null_mean']:.2f}), "
+                  f"p = {m['p_value_gamma']:.3g} (empirical {m['p_value']:.3g}, {m['n_simulations']} rollouts)")
+    console.print(out["summary"])
+    console.print(f"wrote {run / 'check.json'} and {run / 'check.png'}")
+
+
+@app.command()
+@_guard
+def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
+             effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
+             confirm: int = typer.Option(1, help="refit the top N significant effects to confirm (0 = none)"),
+             confirm_rounds: Optional[int] = typer.Option(None, help="rounds of a confirmation refit"),
+             confirm_sims: Optional[int] = typer.Option(None, help="simulations per round of a confirmation refit"),
+             workers: Optional[int] = typer.Option(None)) -> None:
+    """Rank installed effects by how much of the residual each explains; confirm the best by refitting."""
+    from .core.diagnostics import diagnose_run
+    names = [e for it in effect or [] for e in it.split(",") if e] or None
+    budget = {k: v for k, v in (("rounds", confirm_rounds), ("sims_per_round", confirm_sims)) if v}
+    with console.status("screening candidate effects..."):
+        out = diagnose_run(run, effects=names, confirm=0, workers=workers)
+    if confirm and out["significant"]:
+        from .core.diagnostics import _diagnosis_sentence, confirm_effect, load_run
+        view = load_run(run)
+        for name in out["significant"][:confirm]:
+            console.print(f"confirming {name} with a refit ...")
+            out["confirmed"].append(confirm_effect(view, name, budget or None, workers))
+        out["summary"] = _diagnosis_sentence(view, out["ranking"], out["significant"], out["confirmed"],
+                                             out["significance_threshold"])
+        (run / "diagnosis.json").write_text(json.dumps(out, indent=2))
+    t = Table(title="Candidate effects, ranked")
+    for c in ("rank", "effect", "explains", "p-value", "estimate", "significant"):
+        t.add_column(c)
+    for i, r in enumerate(out["ranking"]):
+        if "statistic" not in r:
+            t.add_row(str(i + 1), r["effect"], "-", "-", r.get("error", ""), "")
+            continue
+        est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
+        t.add_row(str(i + 1), r["effect"], f"{r['explained_fraction'] * 100:.0f}%", f"{r['p_value_gamma']:.2g}", est,
+                  "yes" if r["effect"] in out["significant"] else "no")
+    console.print(t)
+    console.print(out["summary"])
+    console.print(f"wrote {run / 'diagnosis.json'}")
+
+
+@app.command()
+@_guard
+def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal model)"),
+            run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
+            out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
+            samples: int = typer.Option(30, help="posterior rollouts per run"),
+            workers: Optional[int] = typer.Option(None)) -> None:
+    """Two runs side by side: error per time step and region, before vs after."""
+    from .core.diagnostics import compare_runs
+    with console.status("checking both runs..."):
+        res = compare_runs(run_a, run_b, out or run_b, n_samples=samples, workers=workers)
+    t = Table(title="Posterior-predictive error")
+    for c in ("", str(run_a), str(run_b), "change"):
+        t.add_column(c)
+    for row in res["table"]:
+        t.add_row(row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm", f"{row['change'] * 100:+.0f}%")
+    console.print(t)
+    console.print(res["summary"])
+    console.print(f"wrote {res['png']} and {res['json']}")
+
+
+@app.command("compare-backends")
+@_guard
+def compare_backends_cmd(scenario: str = typer.Option("lift", help="lift, wipe, wind or fling"),
+                         theta: list[str] = typer.Option(None, "--theta",
+                                                         help="name=value (repeatable); unset = each backend's midpoint"),
+                         backends: str = typer.Option("mujoco-flex,pybullet-fem", help="comma-separated simulators"),
+                         backend_opt: list[str] = typer.Option(None, "--backend-opt",
+                                                               help="backend:option=value, e.g. pybullet-fem:grid=7"),
+                         match: str = typer.Option("physical", help="'physical' values, or 'unit' prior positions in [0, 1]"),
+                         out: Path = typer.Option(Path("compare"), help="output folder (compare.json + compare.png)")) -> None:
+    """Roll the same scenario and parameters out on two engines; per-frame Chamfer between them."""
+    from .backends.compare import compare_backends
+    from .backends.scenarios import make_scenario
+
+    try:
+        sc = make_scenario(scenario)
+    except ValueError as exc:
+        raise SoftsbiError(str(exc)) from None
+    names = [b for b in backends.split(",") if b]
+    opts: dict[str, dict[str, Any]] = {}
+    for it in backend_opt or []:
+        if ":" not in it:
+            raise SoftsbiError(f"--backend-opt '{it}' must look like backend:name=value")
+        b, kv = it.split(":", 1)
+        opts.setdefault(b, {}).update(_parse_kv([kv], "--backend-opt"))
+    try:
+        rep = compare_backends(sc, _parse_kv(theta, "--theta"), names, out, backend_options=opts, match=match)
+    except ValueError as exc:
+        raise SoftsbiError(str(exc)) from None
+    for b, r in rep["backends"].items():
+        console.print(f"{b}: status {r['status']}{' (' + r['reason'] + ')' if r['reason'] else ''}, "
+                      f"{r['n_vertices']} vertices, {r['wall_s']:.2f} s; theta "
+                      + ", ".join(f"{k}={v:.4g}" for k, v in r["theta"].items()))
+    for key, m in rep["mean_chamfer_m"].items():
+        console.print(f"mean Chamfer {key}: " + (f"{m * 100:.2f} cm" if m is not None else "n/a (a rollout failed)"))
+    console.print(f"wrote {out / 'compare.json'} and {out / 'compare.png'}")
 
 
 def main() -> None:

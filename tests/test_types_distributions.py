@@ -18,6 +18,9 @@ def test_unit_transform_round_trip_and_log_scale():
     u = ps.to_unit(theta)
     np.testing.assert_allclose(u, [[0, 0], [1, 1], [0.5, 0.5]], atol=1e-12)
     np.testing.assert_allclose(ps.from_unit(u), theta, rtol=1e-12)
+    # the corners of the box map exactly onto the bounds (no rounding outside a log bound)
+    corners = ParamSpace([Param("k", 5.0, 1000.0, log=True)]).from_unit(np.array([[0.0], [1.0]]))
+    assert corners[0, 0] >= 5.0 and corners[1, 0] <= 1000.0
     # log-uniform prior: the density in physical units integrates to one
     grid = np.geomspace(1e-6, 1e-3, 20001)
     dens = np.exp(ps.subset(["bend"]).log_det_jacobian(grid[:, None]))

@@ -132,6 +132,70 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
     return spec
 
 
+def rope_param_space() -> ParamSpace:
+    """Parameters of the rope (wind) scenario in MuJoCo units: ``bend`` = ``young`` of the 1-D flex
+    elasticity [Pa] (log 1e5-3e7; the rope is inextensible through ``<edge equality="true"/>``, so
+    there is no ``stretch``), ``friction`` [1] 0.1-1.0, ``scale`` = rope length [m] 0.3-0.5,
+    ``mass`` = linear density [kg/m] 0.01-0.05."""
+    return ParamSpace([
+        Param("bend", 1e5, 3e7, "Pa", log=True,
+              description="MuJoCo young of the 1-D flex (rope bending; edges are inextensible)"),
+        Param("friction", 0.1, 1.0, "1", description="rope-table and rope-spool friction coefficient"),
+        Param("scale", 0.30, 0.50, "m", description="rope length"),
+        Param("mass", 0.01, 0.05, "kg/m", description="linear density of the rope"),
+    ])
+
+
+def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: int, timestep: float, solver: str,
+                    integrator: str, poisson: float, damping: float, iterations: int,
+                    overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """Model dict of the rope (``wind``) scenario, same keys as :func:`build_spec` plus ``geoms``
+    (the spool). The rope is a 1-D ``flexcomp`` grid of ``nodes`` vertices with
+    ``<edge equality="true"/>`` (MuJoCo 4.0: a 1-D flex explodes without it, shared/MEASURED.md) and
+    ``<elasticity young=bend>``; vertex 0 (body ``rope_0``) is grasped at ``object["start"]`` and the
+    rope lies along ``object["direction"]``. The spool is a fixed vertical cylinder geom."""
+    ov = dict(overrides or {})
+    timestep = float(ov.pop("timestep", timestep))
+    obj = scenario.object
+    L = float(theta["scale"])
+    r = float(obj.get("radius", 0.004))
+    e = np.asarray(obj.get("direction", (0.0, -1.0)), dtype=float)
+    e = e / np.linalg.norm(e)
+    start = np.asarray(obj.get("start", scenario.gripper[0, :2]), dtype=float)
+    centre = start + e * L / 2.0
+    z0 = float(scenario.table_z) + r
+    h = L / (nodes - 1)
+    fric = float(theta["friction"])
+    spec: dict[str, Any] = {
+        "option": {"timestep": timestep, "solver": solver, "integrator": integrator,
+                   "iterations": iterations, "gravity": [0.0, 0.0, -9.81]},
+        "table": {"name": "table", "type": "plane", "size": [2.0, 2.0, 0.01],
+                  "pos": [0.0, 0.0, float(scenario.table_z)], "friction": [fric, 0.005, 0.0001], "condim": 3},
+        "geoms": [],
+        "grip": {"name": "grip", "mocap": "true", "pos": [float(start[0]), float(start[1]), z0]},
+        "flexcomp": {"name": "rope", "type": "grid", "dim": 1, "count": [nodes, 1, 1], "spacing": [h, h, h],
+                     "pos": [float(centre[0]), float(centre[1]), z0],
+                     "euler": [0.0, 0.0, math.degrees(math.atan2(e[1], e[0]))], "radius": r,
+                     "mass": float(theta["mass"]) * L},
+        "contact": {"condim": 3, "friction": [fric, 0.005, 0.0001], "selfcollide": "none", "solref": [0.004, 1.0]},
+        "edge": {"equality": "true"},
+        "elasticity": {"young": float(ov.pop("young", theta["bend"])), "poisson": poisson,
+                       "thickness": float(ov.pop("thickness", 2.0 * r)), "damping": float(ov.pop("damping", damping))},
+        "corner_body": "rope_0",
+        "connect": {"body1": "rope_0", "body2": "grip", "anchor": [0.0, 0.0, 0.0],
+                    "solref": [2.0 * float(timestep), 0.4], "solimp": [0.99, 0.999, 0.001, 0.5, 2.0]},
+    }
+    sp = obj.get("spool")
+    if sp:
+        spec["geoms"].append({"name": "spool", "type": "cylinder", "size": [float(sp["radius"]), float(sp["height"]) / 2],
+                              "pos": [float(sp["centre"][0]), float(sp["centre"][1]),
+                                      float(scenario.table_z) + float(sp["height"]) / 2],
+                              "friction": [fric, 0.005, 0.0001], "condim": 3})
+    for k, v in ov.items():
+        spec["option"][k] = v
+    return spec
+
+
 def spec_to_xml(spec: Mapping[str, Any]) -> str:
     """Serialise :func:`build_spec`'s dict to an MJCF string."""
     def attrs(d: Mapping[str, Any]) -> str:
@@ -142,6 +206,7 @@ def spec_to_xml(spec: Mapping[str, Any]) -> str:
   <option {attrs(spec["option"])}/>
   <worldbody>
     <geom {attrs(spec["table"])}/>
+    {"".join(f"<geom {attrs(g)}/>" for g in spec.get("geoms", []))}
     <body {attrs(spec["grip"])}/>
     <flexcomp {attrs(fc)}>
       <contact {attrs(spec["contact"])}/>
@@ -175,12 +240,12 @@ class MujocoFlex(Simulator):
     """
 
     name = "mujoco-flex"
-    scenarios = ("lift",)
-    effects: tuple[str, ...] = ()
+    scenarios = ("lift", "wipe", "wind", "fling")
+    effects: tuple[str, ...] = ("air-drag", "wind", "extra-damping", "grip-compliance")
 
     def __init__(self, grid: int = 9, timestep: float = 0.004, solver: str = "CG", integrator: str = "discrete",
                  poisson: float = 0.3, radius: float = 0.003, damping: float = 0.001, iterations: int = 50,
-                 overrides: Mapping[str, float] | None = None):
+                 overrides: Mapping[str, float] | None = None, rope_nodes: int = 24):
         if int(grid) < 3:
             raise ValueError(f"grid must be >= 3 vertices per side, got {grid}")
         if not timestep > 0:
@@ -188,6 +253,9 @@ class MujocoFlex(Simulator):
         self.grid, self.timestep, self.solver, self.integrator = int(grid), float(timestep), solver, integrator
         self.poisson, self.radius, self.damping, self.iterations = float(poisson), float(radius), float(damping), int(iterations)
         self.overrides = dict(overrides or {})
+        if int(rope_nodes) < 3:
+            raise ValueError(f"rope_nodes must be >= 3, got {rope_nodes}")
+        self.rope_nodes = int(rope_nodes)
 
     def __repr__(self) -> str:
         return (f"MujocoFlex(grid={self.grid}, timestep={self.timestep}, solver={self.solver!r}, "
@@ -204,6 +272,8 @@ class MujocoFlex(Simulator):
             ValueError: scenario not supported.
         """
         self._check_scenario(scenario)
+        if scenario.object.get("kind") == "rope":
+            return rope_param_space()
         return ParamSpace([
             Param("bend", 1e-6, 1e-3, "N*m", log=True,
                   description="bending rigidity D = E t^3 / (12 (1 - nu^2))"),
@@ -225,19 +295,34 @@ class MujocoFlex(Simulator):
                                  f"{', '.join(self.effects) or '(none yet)'}")
 
     def _apply_effects(self, spec: dict[str, Any], theta: Mapping[str, float], effects: Sequence[str]) -> None:
-        """Hook for effects: edit ``spec`` in place (``spec["option"]``, ``spec["flexcomp"]``...)."""
-        return None
+        """Apply effects (see :mod:`softsbi.effects.builtin`) by editing ``spec`` in place."""
+        if effects:
+            from ..effects.builtin import apply_mujoco
+            apply_mujoco(spec, theta, effects, grid=self.grid)
 
-    # -- model ------------------------------------------------------------------------------
+    def full_space(self, scenario: Scenario, effects: Sequence[str] = ()) -> ParamSpace:
+        """Nominal parameters plus those of ``effects``."""
+        from ..effects.builtin import BUILTIN_EFFECTS
+        space = self.param_space(scenario)
+        by_name = {e.name: e for e in BUILTIN_EFFECTS}
+        for e in effects:
+            space = space + by_name[e]().param_space()
+        return space
+
     def build_xml(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> str:
         """MJCF string of the lift at ``theta`` (no validation; use :meth:`simulate`)."""
         return spec_to_xml(self.build_spec(scenario, theta, effects))
 
     def build_spec(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> dict[str, Any]:
         """The model dict of :func:`build_spec` with this instance's options and effects applied."""
-        spec = build_spec(scenario, theta, grid=self.grid, timestep=self.timestep, solver=self.solver,
-                          integrator=self.integrator, poisson=self.poisson, radius=self.radius,
-                          damping=self.damping, iterations=self.iterations, overrides=self.overrides)
+        if scenario.object.get("kind") == "rope":
+            spec = build_rope_spec(scenario, theta, nodes=self.rope_nodes, timestep=self.timestep,
+                                   solver=self.solver, integrator=self.integrator, poisson=self.poisson,
+                                   damping=self.damping, iterations=self.iterations, overrides=self.overrides)
+        else:
+            spec = build_spec(scenario, theta, grid=self.grid, timestep=self.timestep, solver=self.solver,
+                              integrator=self.integrator, poisson=self.poisson, radius=self.radius,
+                              damping=self.damping, iterations=self.iterations, overrides=self.overrides)
         self._apply_effects(spec, theta, effects)
         return spec
 
@@ -257,14 +342,14 @@ class MujocoFlex(Simulator):
 
         self._check_scenario(scenario)
         self._check_effects(effects)
-        space = self.param_space(scenario)
+        space = self.full_space(scenario, effects)
         theta = space.check(theta)
         t0 = time.perf_counter()
         spec = self.build_spec(scenario, theta, effects)
         m = mujoco.MjModel.from_xml_string(spec_to_xml(spec))
         d = mujoco.MjData(m)
         mujoco.mj_forward(m, d)
-        n = self.grid * self.grid
+        n = int(m.flex_vertnum[0])  # grid^2 (cloth) or rope_nodes (rope)
         times = scenario.times
         T = len(times)
         # constant offset from the commanded path to the grasped vertex (the corner lies on the table)
@@ -278,21 +363,25 @@ class MujocoFlex(Simulator):
         dt = m.opt.timestep
         status, reason = STATUS_OK, ""
         steps = 0
-        badqacc = mujoco.mjtWarning.mjWARN_BADQACC
+        # step counts are fixed in advance: after a divergence MuJoCo resets d.time to 0, so a
+        # loop on d.time would never end
+        frame_steps = np.maximum(np.round(times / dt).astype(int), 0)
+        warn = d.warning[mujoco.mjtWarning.mjWARN_BADQACC]
         for k in range(1, T):
-            t_end = times[k]
-            while d.time < t_end - 0.5 * dt:
-                tn = d.time + dt
+            while steps < frame_steps[k]:
+                tn = (steps + 1) * dt
                 d.mocap_pos[0] = [np.interp(tn, times, target[:, c]) for c in range(3)]
                 mujoco.mj_step(m, d)
                 steps += 1
-            if d.warning[badqacc].number > 0:
-                status, reason = STATUS_DIVERGED, (f"MuJoCo reported bad accelerations (mjWARN_BADQACC) before "
-                                                   f"t={t_end:.3f} s; the state was reset")
+                if warn.number > 0:
+                    break
+            if warn.number > 0:
+                status, reason = STATUS_DIVERGED, (f"MuJoCo reported bad accelerations (mjWARN_BADQACC) at "
+                                                   f"t={steps * dt:.3f} s and reset the state")
                 break
             v = d.flexvert_xpos.reshape(-1, 3)[:n]
             if not np.all(np.isfinite(v)):
-                status, reason = STATUS_DIVERGED, f"non-finite vertex positions at t={t_end:.3f} s"
+                status, reason = STATUS_DIVERGED, f"non-finite vertex positions at t={times[k]:.3f} s"
                 break
             verts[k] = v
             grip[k] = d.mocap_pos[0]
@@ -301,7 +390,8 @@ class MujocoFlex(Simulator):
             status, reason = self._plausibility(scenario, theta, verts, grip)
         if status != STATUS_OK:
             verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
-        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=grid_faces(self.grid),
+        faces = np.zeros((0, 3), dtype=np.int64) if scenario.object.get("kind") == "rope" else grid_faces(self.grid)
+        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
                        status=status, reason=reason,
                        info={"wall_s": wall, "steps": steps, "backend": self.name, "grid": self.grid,
                              "timestep": dt, "young": spec["elasticity"]["young"],
@@ -318,6 +408,12 @@ class MujocoFlex(Simulator):
         if reach > 2.0 * L * math.sqrt(2.0):
             return STATUS_IMPLAUSIBLE, (f"a vertex is {reach:.2f} m from the grasp point, more than twice the "
                                         f"cloth diagonal ({L * math.sqrt(2):.2f} m): torn or exploded")
+        if scenario.object.get("kind") == "rope":
+            h = L / (verts.shape[1] - 1)
+            edge = np.linalg.norm(np.diff(verts[-1], axis=0), axis=-1).max()
+            if edge > 3.0 * h:
+                return STATUS_IMPLAUSIBLE, f"a rope segment is stretched to {edge / h:.1f}x its rest length"
+            return STATUS_OK, ""
         g = self.grid
         first_row = verts[-1].reshape(g, g, 3)
         edge = np.linalg.norm(np.diff(first_row, axis=0), axis=-1).max()

@@ -393,3 +393,167 @@ def overlay_png(scenario: Scenario, rollout: Any, real_points: np.ndarray, path:
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+# --------------------------------------------------------------------------------------------
+# the other scenarios of the paper: wipe, wind, fling (synthetic, engine-independent)
+# --------------------------------------------------------------------------------------------
+#: scenario names :func:`make_scenario` builds
+SCENARIOS = ("lift", "wipe", "wind", "fling")
+
+#: table height of the synthetic scenarios (world frame, m)
+SYNTH_TABLE_Z = 0.0
+
+
+def _keyframe_path(key_t: np.ndarray, key_p: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Piecewise path through keyframes ``key_p (K, 3)`` at ``key_t (K,)`` s, sampled at ``times``.
+
+    Each segment is eased with a smoothstep ``3w^2 - 2w^3`` so the gripper starts and stops every
+    segment at zero velocity (no velocity jumps for the engines to absorb).
+    """
+    out = np.empty((len(times), 3))
+    for k, t in enumerate(times):
+        i = int(np.clip(np.searchsorted(key_t, t, side="right") - 1, 0, len(key_t) - 2))
+        w = float(np.clip((t - key_t[i]) / (key_t[i + 1] - key_t[i]), 0.0, 1.0))
+        w = w * w * (3.0 - 2.0 * w)
+        out[k] = key_p[i] + w * (key_p[i + 1] - key_p[i])
+    return out
+
+
+def wipe_scenario(n_frames: int = 31, duration: float = 1.5, size: float = 0.30, drag: float = 0.30,
+                  sweep: float = 0.15) -> Scenario:
+    """A thick cloth dragged across the table by one corner (BayesSim-RKHS *wiping*, Antonova et al. 2022).
+
+    Geometry (world frame, metres, table top at z = 0): a square cloth of side ``size`` lies flat
+    with its grasped corner at the origin and its diagonal along ``direction = (-1, 0)`` (the
+    cloth trails behind the gripper). Gripper path, smoothstep-eased keyframes:
+
+    * 0 -> 13 % of ``duration``: the corner is lifted 2 cm (the hand closes on the cloth);
+    * -> 73 %: dragged ``drag`` m along +x at 2 cm height (the wipe stroke);
+    * -> 100 %: a sideways sweep of ``sweep`` m along +y (the end of a wiping curve).
+
+    "Thick" is a property of the fabric, i.e. of the parameters (upper part of the bend and mass
+    priors), not of the geometry; the backends use their usual cloth priors.
+
+    Returns:
+        :class:`Scenario` ``"wipe"`` with ``times (n_frames,)`` s, ``gripper (n_frames, 3)`` m,
+        ``object = {"kind": "cloth", "size", "corner", "direction", "grasp": "corner"}``.
+
+    Raises:
+        ValueError: ``n_frames < 2`` or non-positive sizes / duration.
+    """
+    _check_synth(n_frames, duration, size)
+    times = np.linspace(0.0, duration, n_frames)
+    h = 0.02
+    key_t = np.array([0.0, 0.13, 0.73, 1.0]) * duration
+    key_p = np.array([[0, 0, 0], [0, 0, h], [drag, 0, h], [drag, sweep, h]], dtype=float)
+    key_p[:, 2] += SYNTH_TABLE_Z
+    obj = {"kind": "cloth", "size": float(size), "corner": [0.0, 0.0], "direction": [-1.0, 0.0],
+           "grasp": "corner", "fabric": "thick"}
+    return Scenario(name="wipe", times=times, gripper=_keyframe_path(key_t, key_p, times), table_z=SYNTH_TABLE_Z,
+                    object=obj, options={"source": "synthetic wipe (softsbi.backends.scenarios.wipe_scenario)",
+                                         "frame": "world, table top at z = 0"})
+
+
+def fling_scenario(n_frames: int = 36, duration: float = 1.4, size: float = 0.28) -> Scenario:
+    """A cloth flung up by one corner, lowered onto the table and dragged over it (paper's *fling*).
+
+    Geometry (world frame, m, table top z = 0): square cloth of side ``size`` flat on the table,
+    grasped corner at the origin, diagonal along ``direction = (-1, 0)``. Keyframes (fraction of
+    ``duration``: position relative to the corner), smoothstep-eased:
+
+    * 0.00: (0, 0, 0) start;   0.25: (-0.05, 0, 0.35) swing up and slightly back (the cloth hangs);
+    * 0.43: (0.10, 0, 0.40) fling forward at the top (the cloth unfurls ahead);
+    * 0.68: (0.25, 0, 0.06) lower it onto the table;   1.00: (0.45, 0, 0.02) drag it along +x.
+
+    Returns:
+        :class:`Scenario` ``"fling"``; ``object`` as in :func:`wipe_scenario`.
+
+    Raises:
+        ValueError: ``n_frames < 2`` or non-positive size / duration.
+    """
+    _check_synth(n_frames, duration, size)
+    times = np.linspace(0.0, duration, n_frames)
+    key_t = np.array([0.0, 0.25, 0.43, 0.68, 1.0]) * duration
+    key_p = np.array([[0, 0, 0], [-0.05, 0, 0.35], [0.10, 0, 0.40], [0.25, 0, 0.06], [0.45, 0, 0.02]])
+    key_p[:, 2] += SYNTH_TABLE_Z
+    obj = {"kind": "cloth", "size": float(size), "corner": [0.0, 0.0], "direction": [-1.0, 0.0], "grasp": "corner"}
+    return Scenario(name="fling", times=times, gripper=_keyframe_path(key_t, key_p, times), table_z=SYNTH_TABLE_Z,
+                    object=obj, options={"source": "synthetic fling (softsbi.backends.scenarios.fling_scenario)",
+                                         "frame": "world, table top at z = 0"})
+
+
+def wind_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 0.40, turns: float = 1.25,
+                  spool_radius: float = 0.03, spool_height: float = 0.08, rope_radius: float = 0.004) -> Scenario:
+    """A flexible rope wound onto a spool (a fixed rigid cylinder), partly occluded by it (paper's *winding*).
+
+    Geometry (world frame, m, table top z = 0): a vertical rigid cylinder (``spool``: centre (0, 0),
+    radius ``spool_radius``, height ``spool_height``) stands on the table. The rope (``length`` m,
+    cross-section radius ``rope_radius``) lies straight on the table, tangent to a circle of radius
+    ``rho = spool_radius + 3 * rope_radius`` around the spool: its grasped end (vertex 0) at
+    ``(rho, 0)``, the rest along ``direction = (0, -1)``. The gripper carries the grasped end
+    counter-clockwise around the spool on that circle, ``turns`` turns at constant angular speed
+    (after a smoothstep start-up over the first 10 %), at the rope's height; the trailing rope is
+    pulled against the cylinder and wraps around it.
+
+    Occlusion: the spool hides the part of the rope behind it from any camera; its geometry is in
+    ``object["spool"]`` so observers can remove occluded points. The backends return *all*
+    vertices.
+
+    Returns:
+        :class:`Scenario` ``"wind"`` with ``object = {"kind": "rope", "length", "radius", "start",
+        "direction", "grasp": "end", "spool": {"centre", "radius", "height"}}``.
+
+    Raises:
+        ValueError: ``n_frames < 2`` or non-positive sizes / duration.
+    """
+    _check_synth(n_frames, duration, length)
+    if not (spool_radius > 0 and spool_height > 0 and rope_radius > 0):
+        raise ValueError("spool_radius, spool_height and rope_radius must be > 0")
+    times = np.linspace(0.0, duration, n_frames)
+    rho = spool_radius + 3.0 * rope_radius
+    u = times / duration
+    # angle: smoothstep start-up over 10 % of the duration, then constant angular speed
+    ramp = 0.1
+    w = np.where(u < ramp, u * u / (2 * ramp), u - ramp / 2) / (1 - ramp / 2)
+    phi = 2 * np.pi * turns * w
+    z = SYNTH_TABLE_Z + rope_radius
+    gripper = np.stack([rho * np.cos(phi), rho * np.sin(phi), np.full_like(phi, z)], axis=1)
+    obj = {"kind": "rope", "length": float(length), "radius": float(rope_radius), "start": [float(rho), 0.0],
+           "direction": [0.0, -1.0], "grasp": "end",
+           "spool": {"centre": [0.0, 0.0], "radius": float(spool_radius), "height": float(spool_height)}}
+    return Scenario(name="wind", times=times, gripper=gripper, table_z=SYNTH_TABLE_Z, object=obj,
+                    options={"source": "synthetic wind (softsbi.backends.scenarios.wind_scenario)",
+                             "frame": "world, table top at z = 0", "occluder": "object['spool']"})
+
+
+def _check_synth(n_frames: int, duration: float, size: float) -> None:
+    if n_frames < 2:
+        raise ValueError(f"n_frames must be >= 2, got {n_frames}")
+    if not duration > 0 or not size > 0:
+        raise ValueError(f"duration and size must be > 0, got {duration} and {size}")
+
+
+def make_scenario(name: str, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
+    """Build a scenario by name: ``lift`` (real DiffCloud lift, optionally from ``recording``),
+    ``wipe``, ``wind``, ``fling`` (synthetic; see their constructors for geometry and paths).
+
+    Args:
+        name: one of :data:`SCENARIOS`.
+        recording: lift only - a recording folder (``.../diffcloud_lift/lift_tan``).
+        kwargs: passed to the constructor (e.g. ``n_frames``).
+
+    Raises:
+        ValueError: unknown name (the message lists the valid ones), or a recording given for a
+            synthetic scenario.
+        DataError: lift recording missing or malformed.
+    """
+    from ..core.errors import closest
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario '{name}'.{closest(name, SCENARIOS)} Valid scenarios: "
+                         f"{', '.join(SCENARIOS)}")
+    if name == "lift":
+        return lift_scenario(recording, **kwargs)
+    if recording is not None:
+        raise ValueError(f"scenario '{name}' is synthetic and takes no recording (only 'lift' has real recordings)")
+    return {"wipe": wipe_scenario, "wind": wind_scenario, "fling": fling_scenario}[name](**kwargs)

@@ -47,6 +47,11 @@ class FitConfig:
         executor: executor plugin name.
         bounds: prior-bound overrides ``{name: (low, high)}`` in physical units.
         fixed: parameters held at a value instead of inferred ``{name: value}``.
+        min_height: sensor model of the observed state (m): points closer than this to the
+            table are not observed, in simulation and measurement alike (None = all visible).
+            Does not change the Chamfer metric, which compares full clouds.
+        frames: indices of the frames whose state informs the posterior (None = all); the
+            metric still uses every frame.
     """
 
     backend: str = "mujoco-flex"
@@ -65,6 +70,8 @@ class FitConfig:
     executor: str = "local"
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     fixed: dict[str, float] = field(default_factory=dict)
+    min_height: float | None = None
+    frames: list[int] | None = None
 
     def validate(self) -> None:
         if self.rounds < 1:
@@ -75,6 +82,8 @@ class FitConfig:
             raise SoftsbiError(f"--workers must be >= 1 (got {self.workers})")
         if self.n_points < 1:
             raise SoftsbiError(f"--points must be >= 1 (got {self.n_points})")
+        if self.frames is not None and len(self.frames) < 1:
+            raise SoftsbiError("--frames selects no frame; give e.g. --frames 10:25")
 
 
 @dataclass
@@ -83,8 +92,10 @@ class Measurement:
 
     Attributes:
         scenario: the task the measurement was recorded in.
-        x: ``(T, 1 + K, 3)`` observed state (gripper row then K points), metres.
-        dense: ``(T, P, 3)`` denser observed clouds for the Chamfer metric, metres.
+        x: ``(T, 1 + K, 3)`` observed state (gripper row then K points), metres; rebuilt by
+            :func:`run_fit` from ``dense`` with the fit's observer settings when the observer
+            can observe recorded clouds.
+        dense: ``(T, P, 3)`` denser observed clouds (the Chamfer metric's reference), metres.
         source: path of the recording or a description.
         truth: hidden parameter values when the measurement is simulated (else None).
     """
@@ -228,9 +239,28 @@ def _config_dict(cfg: FitConfig, meas: Measurement, inferred: ParamSpace) -> dic
     d["bounds"] = {k: list(v) for k, v in cfg.bounds.items()}
     d.update({"scenario": meas.scenario.to_json(), "param_space": inferred.to_json(),
               "observed_source": meas.source, "truth": meas.truth,
-              "observer_options": {"n_points": cfg.n_points}})
+              "observer_options": observer_options(cfg, meas.scenario)})
     d.pop("n_points", None)
     return d
+
+
+def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
+    """Constructor options of the observer for this fit (K and the sensor's visibility)."""
+    opts: dict[str, Any] = {"n_points": cfg.n_points}
+    if cfg.min_height is not None:
+        opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
+    return opts
+
+
+def observe_measurement(cfg: FitConfig, meas: Measurement) -> np.ndarray:
+    """The observed state ``(T, 1+K, 3)`` under the fit's observer settings."""
+    from ..plugins import registry
+    obs = registry().observer(cfg.observer)(**observer_options(cfg, meas.scenario))
+    if hasattr(obs, "observe_clouds") and meas.dense is not None:
+        o = obs.observe_clouds(list(meas.dense), meas.scenario.gripper, meas.scenario.times,
+                               np.random.default_rng([cfg.seed, 31337]), source=meas.source)
+        return o.state()
+    return np.asarray(meas.x, float)
 
 
 def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
@@ -324,7 +354,8 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                       f"({prev:.0f} s spent before)")
     else:
         store = RunStore.create(store_path, config)
-        store.write_observed(meas.x, meas.scenario.gripper, meas.scenario.times, meas.dense, meas.source)
+        store.write_observed(observe_measurement(cfg, meas), meas.scenario.gripper, meas.scenario.times,
+                             meas.dense, meas.source)
         prev = 0.0
     store.update_config(rounds=cfg.rounds)
     x_obs = store.read_observed()["x"]
@@ -332,7 +363,7 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
 
     ctx = SimContext(backend=cfg.backend, backend_options=cfg.backend_options, scenario=meas.scenario.to_json(),
                      effects=list(cfg.effects), observer=cfg.observer,
-                     observer_options={"n_points": cfg.n_points}, param_names=space.names,
+                     observer_options=observer_options(cfg, meas.scenario), param_names=space.names,
                      fixed=dict(cfg.fixed), dense=dense, n_dense=cfg.n_dense)
     executor = exe_cls(workers=cfg.workers)
     chain = PosteriorChain(space.dim, seed=cfg.seed)
@@ -366,9 +397,10 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                 info = store.round_attrs(r).get("info", {})
             else:
                 est = est_cls(**cfg.estimator_options)
-                info = est.fit(U.astype(np.float64), X.astype(np.float64), seed=cfg.seed + r,
+                fr = slice(None) if cfg.frames is None else list(cfg.frames)
+                info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
                                progress=lambda e, m, l, _r=r: hooks.training_epoch(_r, e, m, l))
-                q = est.conditional(x_obs)
+                q = est.conditional(x_obs[fr])
                 info = dict(info, n_train_total=int(len(U)), usable_per_round=counts)
                 store.finish_round(r, q, info)
             post = chain.add_round(q, counts[r])
@@ -397,6 +429,7 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
         "backend": cfg.backend, "estimator": cfg.estimator, "effects": cfg.effects,
         "parameters": space.to_json(), "fixed": cfg.fixed,
         "rounds": cfg.rounds, "sims_per_round": cfg.sims_per_round, "simulations": total,
+        "min_height_m": cfg.min_height, "frames": cfg.frames,
         "failed_simulations": failed,
         "chamfer_prior_m": (prior_stats or {}).get("mean_m"),
         "chamfer_prior_std_m": (prior_stats or {}).get("std_m"),

@@ -35,7 +35,8 @@ SCHEMA_VERSION = 1
 
 #: config keys that must match when an existing run is resumed
 RESUME_KEYS = ("backend", "backend_options", "scenario", "param_space", "effects", "observer",
-               "estimator", "sims_per_round", "seed", "observed_source")
+               "observer_options", "estimator", "sims_per_round", "seed", "observed_source", "min_height",
+               "frames")
 
 
 def _version() -> str:

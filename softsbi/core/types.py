@@ -131,7 +131,12 @@ class ParamSpace:
             raise ShapeError(f"u has {u.shape[-1]} columns, parameter space has {self.dim}")
         lo, hi, lg = self._t()
         t = lo + u * (hi - lo)
-        return np.where(lg, np.exp(t), t)
+        out = np.where(lg, np.exp(t), t)
+        # exp(log(x)) can land one rounding step outside a log bound: clip points of the box
+        plo = np.array([p.low for p in self.params])
+        phi = np.array([p.high for p in self.params])
+        inside = (u >= 0) & (u <= 1)
+        return np.where(inside, np.clip(out, plo, phi), out)
 
     def log_det_jacobian(self, theta: np.ndarray) -> np.ndarray:
         """``log |du/dtheta|`` summed over dimensions, shape ``theta.shape[:-1]``.

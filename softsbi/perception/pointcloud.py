@@ -54,24 +54,51 @@ def rollout_clouds(rollout: Rollout, n: int, rng: np.random.Generator) -> np.nda
     return np.stack([sample_surface(v, rollout.faces, n, rng) for v in rollout.vertices])
 
 
+def visible_subset(cloud: np.ndarray, k: int, rng: np.random.Generator, min_z: float | None) -> np.ndarray:
+    """``k`` points ``(k, 3)`` drawn from the part of ``cloud (P, 3)`` a depth sensor sees.
+
+    The sensor model: points less than the visibility threshold above the table (``z <=
+    min_z``) are not segmented from the table (the real DiffCloud clouds contain no cloth
+    lying flat). If no point is visible, the ``k`` highest points stand in (the frame is then
+    as uninformative as the real one). ``min_z=None`` sees everything. Draws are without
+    replacement when enough points are visible.
+    """
+    if min_z is not None:
+        vis = cloud[cloud[:, 2] > min_z]
+        if len(vis) == 0:
+            vis = cloud[np.argsort(cloud[:, 2])[-k:]]
+    else:
+        vis = cloud
+    return vis[rng.choice(len(vis), size=k, replace=len(vis) < k)]
+
+
 class PointCloudObserver(Observer):
     """K points per frame sampled area-weighted on the simulated surface.
 
     Args:
         n_points: K, points per frame (default 64).
         noise: isotropic Gaussian noise std added to each point, metres (default 0).
+        min_z: visibility threshold (m, absolute height): points at or below it are not
+            observed (see :func:`visible_subset`); None = every point is visible. Set it to
+            ``table_z + min_height`` to model a depth sensor that cannot tell cloth lying flat
+            from the table.
     """
 
     name: ClassVar[str] = "pointcloud"
 
-    def __init__(self, n_points: int = 64, noise: float = 0.0):
+    def __init__(self, n_points: int = 64, noise: float = 0.0, min_z: float | None = None):
         if n_points < 1:
             raise ValueError(f"n_points must be >= 1, got {n_points}")
         self.n_points = int(n_points)
         self.noise = float(noise)
+        self.min_z = None if min_z is None else float(min_z)
 
     def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
-        pts = rollout_clouds(rollout, self.n_points, rng)
+        if self.min_z is None:
+            pts = rollout_clouds(rollout, self.n_points, rng)
+        else:
+            dense = rollout_clouds(rollout, 8 * self.n_points, rng)
+            pts = np.stack([visible_subset(c, self.n_points, rng, self.min_z) for c in dense])
         if self.noise > 0:
             pts = pts + rng.normal(0, self.noise, pts.shape)
         return Observation(points=pts, gripper=np.asarray(rollout.gripper, float),
@@ -79,12 +106,10 @@ class PointCloudObserver(Observer):
 
     def observe_clouds(self, clouds: list[np.ndarray], gripper: np.ndarray, times: np.ndarray,
                        rng: np.random.Generator, source: str = "") -> Observation:
-        """Subsample K points from each recorded cloud ``clouds[t] (P_t, 3)``.
-
-        Clouds with fewer than K points are sampled with replacement.
+        """Subsample K points from each recorded cloud ``clouds[t] (P_t, 3)`` (same sensor model
+        as :meth:`observe`). Clouds with fewer than K points are sampled with replacement.
         """
-        pts = np.stack([c[rng.choice(len(c), size=self.n_points, replace=len(c) < self.n_points)]
-                        for c in clouds])
+        pts = np.stack([visible_subset(np.asarray(c, float), self.n_points, rng, self.min_z) for c in clouds])
         return Observation(points=pts, gripper=np.asarray(gripper, float), times=np.asarray(times, float),
                            source=source)
 

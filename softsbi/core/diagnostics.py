@@ -1,0 +1,677 @@
+"""Model-error workflow: posterior predictive checks and missing-effect screening.
+
+* :func:`check_run` - posterior predictive check (Gelman et al., *Bayesian Data Analysis*,
+  ch. 6): rollouts at posterior samples against the measurement; Chamfer error per frame,
+  per region of the object and per phase of the motion; a misspecification test (is the
+  measurement's summary vector inside the distribution of posterior-predictive summaries?)
+  with a simulation-based p-value.
+* :func:`diagnose_run` - rank candidate effects by how much of the residual each explains.
+  A linearised score / added-variable test: with summaries ``s``, the residual
+  ``r = s_obs - s(theta_hat)`` is regressed on the sensitivities of the nominal parameters
+  ``J_theta`` and of the effect ``J_E`` (finite differences at the posterior median, one
+  simulation per direction; the engines are deterministic). The statistic is the drop of
+  the weighted residual sum of squares when ``J_E`` joins ``J_theta`` (effect parameters
+  kept inside their prior range); its null distribution comes from posterior-predictive
+  simulations of the nominal model treated as if they were the measurement. Top candidates
+  are then confirmed by a short refit with the effect switched on.
+
+Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,
+horizontal extent), which both simulated surfaces and real partial clouds have.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import lsq_linear
+from scipy.spatial import cKDTree
+
+from .errors import SoftsbiError
+from .types import STATUS_OK, ParamSpace, Scenario
+
+#: names of the per-frame summary statistics
+FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10", "z_q50", "z_q90",
+                 "x_q05", "x_q95", "y_q05", "y_q95")
+#: floor of a summary's standard deviation (m): sensor resolution, keeps weights finite
+FEATURE_FLOOR = 0.003
+
+
+def cloud_features(points: np.ndarray) -> np.ndarray:
+    """Summary statistics ``(13,)`` (m) of one point set ``(P, 3)``; see :data:`FEATURE_NAMES`."""
+    p = np.asarray(points, float)
+    q = np.quantile(p, [0.05, 0.95], axis=0)
+    return np.concatenate([p.mean(0), p.std(0), np.quantile(p[:, 2], [0.1, 0.5, 0.9]),
+                           [q[0, 0], q[1, 0], q[0, 1], q[1, 1]]])
+
+
+def trajectory_features(clouds: Sequence[np.ndarray]) -> np.ndarray:
+    """``(T * 13,)`` summaries of a sequence of point sets."""
+    return np.concatenate([cloud_features(c) for c in clouds])
+
+
+def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Deterministic surface points ``(T, N + F, 3)``: vertices and face centroids."""
+    if len(faces) == 0:
+        return vertices
+    return np.concatenate([vertices, vertices[:, faces].mean(2)], axis=1)
+
+
+# ----------------------------------------------------------------------------------------
+# simulation jobs returning vertices
+
+
+@dataclass
+class RolloutContext:
+    backend: str
+    backend_options: dict[str, Any]
+    scenario: dict[str, Any]
+
+
+_CACHE: dict[str, Any] = {}
+
+
+def rollout_job(ctx: RolloutContext, item: tuple[dict[str, float], tuple[str, ...], int]) -> dict[str, Any]:
+    """Simulate ``(values, effects, seed)``; return status, vertices ``(T, N, 3)``, faces, gripper."""
+    from ..plugins import registry
+    key = json.dumps([ctx.backend, ctx.backend_options, ctx.scenario], sort_keys=True, default=str)
+    if key not in _CACHE:
+        _CACHE.clear()
+        _CACHE[key] = (registry().simulator(ctx.backend)(**ctx.backend_options), Scenario.from_json(ctx.scenario))
+    sim, sc = _CACHE[key]
+    values, effects, seed = item
+    ro = sim.simulate(sc, values, effects=list(effects), seed=int(seed))
+    return {"status": int(ro.status), "reason": ro.reason, "vertices": ro.vertices, "faces": ro.faces,
+            "gripper": ro.gripper}
+
+
+def _run_jobs(ctx: RolloutContext, items: list, workers: int | None, executor: str = "local") -> list[dict]:
+    from ..plugins import registry
+    exe = registry().executor(executor)(workers=workers)
+    out: list[dict | None] = [None] * len(items)
+    try:
+        for i, res in exe.map_unordered(rollout_job, items, context=ctx):
+            if isinstance(res, BaseException):
+                if isinstance(res, SoftsbiError):
+                    raise res
+                res = {"status": 3, "reason": f"{type(res).__name__}: {res}", "vertices": None}
+            out[i] = res
+    finally:
+        exe.close()
+    return out  # type: ignore[return-value]
+
+
+# ----------------------------------------------------------------------------------------
+# loading a run
+
+
+@dataclass
+class RunView:
+    """What the diagnostics need from a finished run."""
+
+    path: Path
+    config: dict[str, Any]
+    space: ParamSpace
+    scenario: Scenario
+    dense: np.ndarray
+    x_obs: np.ndarray
+    report: dict[str, Any]
+    post_theta: np.ndarray  # (S, D) posterior samples (inferred params), physical units
+
+    @property
+    def fixed(self) -> dict[str, float]:
+        return dict(self.config.get("fixed") or {})
+
+    @property
+    def effects(self) -> list[str]:
+        return list(self.config.get("effects") or [])
+
+    def values(self, row: np.ndarray) -> dict[str, float]:
+        v = self.space.as_dict(row)
+        v.update(self.fixed)
+        return v
+
+    def median(self) -> dict[str, float]:
+        v = {k: float(x) for k, x in self.report["posterior_median"].items()}
+        v.update(self.fixed)
+        return v
+
+    def context(self) -> RolloutContext:
+        return RolloutContext(self.config["backend"], dict(self.config.get("backend_options") or {}),
+                              self.config["scenario"])
+
+
+def load_run(run_dir: str | Path, n_samples: int = 30, seed: int = 0) -> RunView:
+    """Open a finished fit (``run.zarr`` + ``report.json``) for checking.
+
+    Raises:
+        SchemaError: not a run; SoftsbiError: the fit has not finished (no report.json).
+    """
+    from .store import RunStore
+    run_dir = Path(run_dir)
+    store = RunStore.open(run_dir / "run.zarr")
+    rep_path = run_dir / "report.json"
+    if not rep_path.exists():
+        raise SoftsbiError(f"'{run_dir}' has no report.json: the fit has not finished; resume it with the same "
+                           f"`softsbi fit ... --out {run_dir}` command first")
+    report = json.loads(rep_path.read_text())
+    cfg = store.config
+    space = ParamSpace.from_json(cfg["param_space"])
+    obs = store.read_observed()
+    if store.has("evaluation"):
+        ev, _ = store.read_group("evaluation")
+        theta = ev["theta"][:n_samples]
+    else:  # fall back on the last round's draws (samples of the previous posterior)
+        last = store.round_ids()[-1]
+        theta = store.round_data(last)["theta"][:n_samples]
+    return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta)
+
+
+# ----------------------------------------------------------------------------------------
+# per-region errors
+
+
+def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) -> tuple[np.ndarray, list[str]]:
+    """Partition the object into ``n_side x n_side`` regions in its rest configuration.
+
+    Args:
+        vertices0: ``(N, 3)`` vertex positions at frame 0 (material coordinates).
+        grasp: ``(3,)`` gripper position at frame 0.
+
+    Returns:
+        ``labels (N,)`` int region of each vertex, and region names ordered by the distance of
+        the region's centre from the grasp point ("R1 at the grasp" ... "R9 farthest").
+    """
+    v = vertices0 - vertices0.mean(0)
+    _, _, vt = np.linalg.svd(v, full_matrices=False)
+    uv = v @ vt[:2].T
+    bins = []
+    for k in range(2):
+        edges = np.quantile(uv[:, k], np.linspace(0, 1, n_side + 1)[1:-1])
+        bins.append(np.searchsorted(edges, uv[:, k], side="right"))
+    raw = bins[0] * n_side + bins[1]
+    centres = np.array([vertices0[raw == r].mean(0) if (raw == r).any() else np.full(3, np.inf)
+                        for r in range(n_side * n_side)])
+    order = np.argsort(np.linalg.norm(centres - grasp, axis=1))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    labels = rank[raw]
+    names = []
+    for r in range(n_side * n_side):
+        tag = " (at the grasp)" if r == 0 else (" (farthest from the grasp)" if r == n_side * n_side - 1 else "")
+        names.append(f"R{r + 1}{tag}")
+    return labels, names
+
+
+def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, dense: np.ndarray) -> np.ndarray:
+    """Bidirectional nearest-neighbour error ``(T, R)`` (m) per frame and region.
+
+    Simulated points of a region (its vertices and the centroids of faces whose first vertex
+    is in it) contribute their distance to the nearest measured point; measured points are
+    assigned to the region of their nearest simulated point and contribute that distance.
+    """
+    R = int(labels.max()) + 1
+    pts = surface_points(vertices, faces)
+    lab = labels if len(faces) == 0 else np.concatenate([labels, labels[faces[:, 0]]])
+    out = np.full((len(vertices), R), np.nan)
+    for t in range(len(vertices)):
+        d_sr, _ = cKDTree(dense[t]).query(pts[t])
+        d_rs, idx = cKDTree(pts[t]).query(dense[t])
+        lr = lab[idx]
+        for r in range(R):
+            parts = [d_sr[lab == r].mean()] if (lab == r).any() else []
+            if (lr == r).any():
+                parts.append(d_rs[lr == r].mean())
+            out[t, r] = np.mean(parts) if parts else np.nan
+    return out
+
+
+def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
+    """Split the frames into three phases of equal duration, with the gripper's height."""
+    T = scenario.n_frames
+    cuts = np.linspace(0, T, 4).round().astype(int)
+    names = ("early", "middle", "late")
+    out = []
+    for k in range(3):
+        idx = list(range(cuts[k], cuts[k + 1]))
+        if not idx:
+            continue
+        h = scenario.gripper[idx, 2] - scenario.table_z
+        out.append({"phase": names[k], "frames": [idx[0], idx[-1]],
+                    "t_s": [float(scenario.times[idx[0]]), float(scenario.times[idx[-1]])],
+                    "gripper_height_m": [float(h.min()), float(h.max())]})
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# check
+
+
+def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, float]:
+    """Is ``f_obs (F,)`` inside the distribution of ``f_sims (S, F)``?
+
+    Statistic: mean squared standardised deviation (per-summary standard deviation from the
+    simulations, floored at :data:`FEATURE_FLOOR`). Null: each simulation against the others
+    (leave-one-out). p-value: ``(1 + #{null >= observed}) / (S + 1)``; also a Gamma fit of
+    the null for p-values below ``1 / (S + 1)``.
+    """
+    S = len(f_sims)
+    if S < 5:
+        raise SoftsbiError(f"the misspecification test needs at least 5 successful posterior rollouts (got {S})")
+
+    def stat(f, others):
+        sd = np.maximum(others.std(0), FEATURE_FLOOR)
+        return float((((f - others.mean(0)) / sd) ** 2).mean())
+
+    d_obs = stat(f_obs, f_sims)
+    null = np.array([stat(f_sims[i], np.delete(f_sims, i, axis=0)) for i in range(S)])
+    p_emp = (1 + (null >= d_obs).sum()) / (S + 1)
+    a, loc, scale = stats.gamma.fit(null, floc=0)
+    p_gamma = float(stats.gamma.sf(d_obs, a, loc=loc, scale=scale))
+    return {"statistic": d_obs, "null_mean": float(null.mean()), "null_q95": float(np.quantile(null, 0.95)),
+            "p_value": float(p_emp), "p_value_gamma": p_gamma, "n_simulations": S}
+
+
+def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = None, plot: bool = True,
+              seed: int = 0) -> dict[str, Any]:
+    """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
+
+    Returns:
+        dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts),
+        ``region_error_m`` (T x R mean), ``regions``, ``phases`` (mean error per phase),
+        ``worst_frames``, ``worst_regions``, ``misspecification`` and a ``summary`` sentence.
+    """
+    t0 = time.perf_counter()
+    run = load_run(run_dir, n_samples, seed)
+    items = [(run.values(th), tuple(run.effects), 1000 + i) for i, th in enumerate(run.post_theta)]
+    res = _run_jobs(run.context(), items, workers)
+    ok = [r for r in res if r["status"] == STATUS_OK and r.get("vertices") is not None]
+    if len(ok) < 5:
+        raise SoftsbiError(f"only {len(ok)} of {len(res)} posterior rollouts succeeded; cannot check the fit")
+    dense = run.dense
+    T = len(dense)
+    ch = np.zeros((len(ok), T))
+    labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
+    reg = np.zeros((len(ok), T, len(names)))
+    f_sims = []
+    from .metrics import chamfer
+    for k, r in enumerate(ok):
+        pts = surface_points(r["vertices"], r["faces"])
+        ch[k] = [chamfer(pts[t], dense[t]) for t in range(T)]
+        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense)
+        f_sims.append(trajectory_features(pts))
+    f_obs = trajectory_features(dense)
+    mis = misspecification_test(f_obs, np.array(f_sims))
+    reg_mean = np.nanmean(reg, axis=0)
+    phases = motion_phases(run.scenario)
+    mean_t = ch.mean(0)
+    for ph in phases:
+        a, b = ph["frames"]
+        ph["chamfer_m"] = float(mean_t[a:b + 1].mean())
+        ph["worst_region"] = names[int(np.nanargmax(np.nanmean(reg_mean[a:b + 1], axis=0)))]
+    worst_frames = [int(i) for i in np.argsort(mean_t)[::-1][:3]]
+    reg_avg = np.nanmean(reg_mean, axis=0)
+    worst_regions = [names[int(i)] for i in np.argsort(reg_avg)[::-1][:2]]
+    worst_phase = max(phases, key=lambda p: p["chamfer_m"])
+    verdict = ("the measurement is NOT explained by the model (p = {:.3g})" if mis["p_value_gamma"] < 0.01
+               else "no evidence of misspecification (p = {:.3g})").format(mis["p_value_gamma"])
+    summary = (f"Posterior rollouts miss the measurement by {mean_t.mean() * 100:.2f} cm on average (Chamfer); "
+               f"worst in the {worst_phase['phase']} phase (t {worst_phase['t_s'][0]:.2f}-"
+               f"{worst_phase['t_s'][1]:.2f} s, {worst_phase['chamfer_m'] * 100:.2f} cm) and in region "
+               f"{worst_regions[0]}; {verdict}.")
+    out = {"run": str(run.path), "n_rollouts": len(ok), "failed_rollouts": len(res) - len(ok),
+           "times_s": run.scenario.times.tolist(),
+           "chamfer_per_frame_m": {"mean": mean_t.tolist(), "q05": np.quantile(ch, 0.05, 0).tolist(),
+                                   "q95": np.quantile(ch, 0.95, 0).tolist()},
+           "chamfer_mean_m": float(mean_t.mean()),
+           "regions": names, "region_error_m": np.nan_to_num(reg_mean).tolist(),
+           "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
+           "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
+           "misspecification": mis, "summary": summary, "seconds": time.perf_counter() - t0}
+    run_dir = Path(run_dir)
+    (run_dir / "check.json").write_text(json.dumps(out, indent=2))
+    if plot:
+        plot_check(run_dir / "check.png", out, ch)
+    return out
+
+
+def plot_check(path: Path, out: dict[str, Any], ch: np.ndarray) -> Path:
+    """Heatmap (frame x region) and Chamfer per frame with its posterior band and phases."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = np.array(out["times_s"])
+    reg = np.array(out["region_error_m"]) * 100
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), gridspec_kw={"width_ratios": [1.2, 1]})
+    ax = axes[0]
+    m = np.array(out["chamfer_per_frame_m"]["mean"]) * 100
+    ax.fill_between(t, np.array(out["chamfer_per_frame_m"]["q05"]) * 100,
+                    np.array(out["chamfer_per_frame_m"]["q95"]) * 100, color="C0", alpha=0.25,
+                    label="5-95% over posterior rollouts")
+    ax.plot(t, m, color="C0", lw=2, label="mean")
+    for k, ph in enumerate(out["phases"]):
+        ax.axvspan(ph["t_s"][0], ph["t_s"][1], color=f"C{k + 2}", alpha=0.07)
+        ax.text(np.mean(ph["t_s"]), 0.02, ph["phase"], transform=ax.get_xaxis_transform(), ha="center", fontsize=8)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("Chamfer to the measurement [cm]")
+    ax.set_ylim(bottom=0)
+    mis = out["misspecification"]
+    ax.set_title(f"Posterior predictive check (misspecification p = {mis['p_value_gamma']:.2g})", fontsize=10)
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(alpha=0.3)
+    ax = axes[1]
+    im = ax.imshow(reg.T, aspect="auto", origin="lower", cmap="magma",
+                   extent=[t[0] - 0.02, t[-1] + 0.02, 0.5, reg.shape[1] + 0.5])
+    ax.set_yticks(range(1, reg.shape[1] + 1))
+    ax.set_yticklabels(out["regions"], fontsize=7)
+    ax.set_xlabel("time [s]")
+    ax.set_title("Error per region of the cloth [cm]\n(regions ordered by distance from the grasp)", fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.suptitle(out["summary"], fontsize=8, wrap=True)
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------------------------
+# diagnose
+
+
+def _candidate_effects(run: RunView, names: Sequence[str] | None) -> list[Any]:
+    from ..plugins import registry
+    reg = registry()
+    sim_cls = reg.simulator(run.config["backend"])
+    if names:
+        cands = [reg.effect(n) for n in names]
+        bad = [c.name for c in cands if c.name not in sim_cls.effects]
+        if bad:
+            raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
+    else:
+        cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
+    return [c() for c in cands if c.name not in run.effects]
+
+
+def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_null: int = 30,
+                 unit_step: float = 0.05, effect_step: float = 0.25, alpha: float = 0.01,
+                 workers: int | None = None, confirm: int = 1, confirm_budget: dict[str, int] | None = None,
+                 seed: int = 0) -> dict[str, Any]:
+    """Rank installed effects by how much of the residual each explains; writes ``diagnosis.json``.
+
+    Args:
+        run_dir: a finished fit of the nominal model.
+        effects: candidate effect names (default: every installed effect the backend supports
+            and the run does not already include).
+        n_null: posterior-predictive simulations forming the null distribution.
+        unit_step: finite-difference step of the nominal parameters (unit-cube units).
+        effect_step: finite-difference step of each effect parameter (fraction of its range).
+        alpha: family-wise significance level (Bonferroni over candidates).
+        confirm: refit the top ``confirm`` significant candidates with the effect switched on
+            (0 = no refit) and report the change in posterior-predictive Chamfer.
+        confirm_budget: ``{"rounds": r, "sims_per_round": n}`` of the confirmation refits
+            (default: the run's own).
+
+    Returns:
+        dict with ``ranking`` (effect, explained_fraction, statistic, p_value, estimate, ...),
+        ``significant`` (names), ``confirmed`` (refit results) and ``summary`` (plain language).
+    """
+    t0 = time.perf_counter()
+    run = load_run(run_dir, n_null, seed)
+    cands = _candidate_effects(run, effects)
+    if not cands:
+        raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
+    base = run.median()
+    space = run.space
+    u_hat = np.clip(space.to_unit(space.as_array({k: base[k] for k in space.names})), 0, 1)
+    jobs: list[tuple[dict, tuple, int]] = [(dict(base), tuple(run.effects), 0)]
+    theta_steps = []
+    for j in range(space.dim):
+        s = unit_step if u_hat[j] + unit_step <= 1 else -unit_step
+        u = u_hat.copy()
+        u[j] += s
+        v = dict(base)
+        v.update(space.as_dict(space.from_unit(u)))
+        jobs.append((v, tuple(run.effects), 0))
+        theta_steps.append(s)
+    eff_cols: list[tuple[Any, str, int, int]] = []  # (effect, param, job index with, job index nominal)
+    for eff in cands:
+        es = eff.param_space()
+        nom = eff.nominal()
+        v0 = dict(base)
+        v0.update(nom)
+        jobs.append((v0, tuple(run.effects) + (eff.name,), 0))
+        i_nom = len(jobs) - 1
+        for p in es:
+            u0 = es.subset([p.name]).to_unit(np.array([nom[p.name]]))[0]
+            s = effect_step if u0 + effect_step <= 1 else -effect_step
+            v = dict(v0)
+            v[p.name] = float(es.subset([p.name]).from_unit(np.array([u0 + s]))[0])
+            jobs.append((v, tuple(run.effects) + (eff.name,), 0))
+            eff_cols.append((eff, p.name, len(jobs) - 1, i_nom))
+    n_fd = len(jobs)
+    for i, th in enumerate(run.post_theta):
+        jobs.append((run.values(th), tuple(run.effects), 2000 + i))
+    res = _run_jobs(run.context(), jobs, workers)
+    feats = [trajectory_features(surface_points(r["vertices"], r["faces"])) if r["status"] == STATUS_OK else None
+             for r in res]
+    if feats[0] is None:
+        raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
+    f0 = feats[0]
+    null_f = np.array([f for f in feats[n_fd:] if f is not None])
+    if len(null_f) < 5:
+        raise SoftsbiError("too few successful posterior-predictive simulations for the null distribution")
+    sd = np.maximum(null_f.std(0), FEATURE_FLOOR)
+    J_theta = np.stack([(feats[1 + j] - f0) / sd if feats[1 + j] is not None else np.zeros_like(f0)
+                        for j in range(space.dim)], 1)
+    r_obs = (trajectory_features(run.dense) - f0) / sd
+    r_null = (null_f - f0) / sd
+
+    def drop(r: np.ndarray, J_e: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """(SSE without effect, SSE with effect, effect coefficients)."""
+        big = 1e3
+        base_fit = lsq_linear(J_theta, r, bounds=(-big, big))
+        sse0 = float(((r - J_theta @ base_fit.x) ** 2).sum())
+        A = np.concatenate([J_theta, J_e], 1)
+        lb = np.concatenate([np.full(J_theta.shape[1], -big), lo])
+        ub = np.concatenate([np.full(J_theta.shape[1], big), hi])
+        fit = lsq_linear(A, r, bounds=(lb, ub))
+        sse1 = float(((r - A @ fit.x) ** 2).sum())
+        return sse0, sse1, fit.x[J_theta.shape[1]:]
+
+    ranking = []
+    for eff in cands:
+        cols = [c for c in eff_cols if c[0] is eff]
+        if any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
+            ranking.append({"effect": eff.name, "error": "a sensitivity simulation failed"})
+            continue
+        J_e = np.stack([(feats[c[2]] - feats[c[3]]) / sd for c in cols], 1)
+        # the effect switched on at its nominal value may already differ from the base model
+        # (e.g. wind at 0 m/s still adds air); that offset is part of its explanation
+        J_e0 = (feats[cols[0][3]] - f0) / sd
+        es = eff.param_space()
+        lo, hi = [], []
+        for c in cols:
+            p = es[c[1]]
+            u0 = es.subset([p.name]).to_unit(np.array([eff.nominal()[p.name]]))[0]
+            step = effect_step if u0 + effect_step <= 1 else -effect_step
+            a, b = (0 - u0) / step, (1 - u0) / step
+            lo.append(min(a, b))
+            hi.append(max(a, b))
+        lo_a, hi_a = np.array(lo), np.array(hi)
+
+        def stat(r):
+            sse0, sse1, coef = drop(r - J_e0, J_e, lo_a, hi_a)
+            sse_base = float(((r - J_theta @ lsq_linear(J_theta, r).x) ** 2).sum())
+            return sse_base - sse1, (sse_base - sse1) / max(sse_base, 1e-12), coef
+
+        d_obs, frac, coef = stat(r_obs)
+        null = np.array([stat(r)[0] for r in r_null])
+        p_emp = (1 + (null >= d_obs).sum()) / (len(null) + 1)
+        pos = null[null > 0]
+        if len(pos) >= 3 and d_obs > 0:
+            a, loc, scale = stats.gamma.fit(pos, floc=0)
+            p_g = float(stats.gamma.sf(d_obs, a, loc=loc, scale=scale)) * len(pos) / len(null)
+        else:
+            p_g = float(p_emp) if d_obs > 0 else 1.0
+        est = {}
+        for (e, pname, _, _), c in zip(cols, coef):
+            ps = es.subset([pname])
+            u0 = ps.to_unit(np.array([eff.nominal()[pname]]))[0]
+            step = effect_step if u0 + effect_step <= 1 else -effect_step
+            est[pname] = float(ps.from_unit(np.array([np.clip(u0 + c * step, 0, 1)]))[0])
+        ranking.append({"effect": eff.name, "description": eff.description, "explained_fraction": float(frac),
+                        "statistic": float(d_obs), "null_mean": float(null.mean()),
+                        "p_value": float(p_emp), "p_value_gamma": min(1.0, p_g), "estimate": est})
+    ranking.sort(key=lambda r: -r.get("statistic", -np.inf))
+    thr = alpha / max(len(cands), 1)
+    significant = [r["effect"] for r in ranking if r.get("p_value_gamma", 1) < thr and r["explained_fraction"] > 0.1]
+    confirmed = []
+    for name in significant[:confirm]:
+        confirmed.append(confirm_effect(run, name, confirm_budget, workers))
+    summary = _diagnosis_sentence(run, ranking, significant, confirmed, thr)
+    out = {"run": str(run.path), "candidates": [c.name for c in cands], "ranking": ranking,
+           "significance_threshold": thr, "significant": significant, "confirmed": confirmed,
+           "summary": summary, "simulations": len(jobs), "seconds": time.perf_counter() - t0}
+    (Path(run_dir) / "diagnosis.json").write_text(json.dumps(out, indent=2))
+    return out
+
+
+def _diagnosis_sentence(run: RunView, ranking, significant, confirmed, thr) -> str:
+    if not significant:
+        top = ranking[0] if ranking else None
+        extra = (f" (best candidate {top['effect']} explains {top['explained_fraction'] * 100:.0f}% of the "
+                 f"residual, p = {top['p_value_gamma']:.2g} > {thr:.2g})") if top and "statistic" in top else ""
+        return "No missing effect detected: no candidate explains the residual beyond what the nominal model's " \
+               "own posterior spread produces" + extra + "."
+    top = next(r for r in ranking if r["effect"] == significant[0])
+    est = ", ".join(f"{k} ~ {v:.3g}" for k, v in top["estimate"].items())
+    s = (f"The nominal model misses the measurement; {top['effect']} ({top['description']}) explains "
+         f"{top['explained_fraction'] * 100:.0f}% of the residual (p = {top['p_value_gamma']:.2g}; linearised "
+         f"estimate {est}).")
+    for c in confirmed:
+        if c["effect"] == top["effect"] and c.get("chamfer_after_m"):
+            s += (f" Refitting with it lowers the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+                  f"to {c['chamfer_after_m'] * 100:.2f} cm ({c['drop'] * 100:.0f}% lower).")
+    others = [r["effect"] for r in ranking if r["effect"] in significant[1:]]
+    if others:
+        s += f" Also significant: {', '.join(others)}."
+    return s
+
+
+def measurement_from_run(run: RunView):
+    """Rebuild the :class:`~softsbi.core.loop.Measurement` a run was fitted to."""
+    from .loop import Measurement
+    return Measurement(scenario=run.scenario, x=run.x_obs, dense=run.dense,
+                       source=run.config.get("observed_source", ""), truth=run.config.get("truth"))
+
+
+def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = None,
+                   workers: int | None = None) -> dict[str, Any]:
+    """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``)."""
+    from .loop import FitConfig, run_fit
+    c = run.config
+    budget = budget or {}
+    cfg = FitConfig(backend=c["backend"], backend_options=c.get("backend_options") or {},
+                    effects=list(run.effects) + [effect], observer=c["observer"],
+                    n_points=int(c["observer_options"]["n_points"]), estimator=c["estimator"],
+                    min_height=c.get("min_height"), frames=c.get("frames"),
+                    estimator_options=c.get("estimator_options") or {},
+                    rounds=int(budget.get("rounds", c["rounds"])),
+                    sims_per_round=int(budget.get("sims_per_round", c["sims_per_round"])), seed=int(c["seed"]),
+                    n_eval=int(c.get("n_eval", 30)), n_dense=int(c.get("n_dense", 600)),
+                    workers=workers, fixed=run.fixed,
+                    bounds={k: tuple(v) for k, v in (c.get("bounds") or {}).items()})
+    out = run.path / f"refit-{effect}"
+    res = run_fit(out, measurement_from_run(run), cfg)
+    before = run.report.get("chamfer_posterior_m")
+    after = res.report.get("chamfer_posterior_m")
+    return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
+            "drop": (1 - after / before) if before and after else None,
+            "posterior_mean": res.report["posterior_mean"]}
+
+
+# ----------------------------------------------------------------------------------------
+# compare
+
+
+def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_samples: int = 30,
+                 workers: int | None = None) -> dict[str, Any]:
+    """Posterior predictive checks of two runs of the same measurement, side by side.
+
+    Writes ``compare.png`` (Chamfer per frame, error per region) and ``compare.json``.
+
+    Raises:
+        SoftsbiError: the runs were fitted to different measurements.
+    """
+    a = check_run(run_a, n_samples=n_samples, workers=workers, plot=True)
+    b = check_run(run_b, n_samples=n_samples, workers=workers, plot=True)
+    if len(a["times_s"]) != len(b["times_s"]):
+        raise SoftsbiError("the two runs have different frame counts; compare runs of the same measurement")
+    ra, rb = load_run(run_a), load_run(run_b)
+    if ra.config.get("observed_source") != rb.config.get("observed_source"):
+        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
+                           f"{rb.config.get('observed_source')}); compare runs of the same measurement")
+    rows = [{"what": "Chamfer, mean over frames", "a": a["chamfer_mean_m"], "b": b["chamfer_mean_m"]}]
+    for pa, pb in zip(a["phases"], b["phases"]):
+        rows.append({"what": f"{pa['phase']} phase ({pa['t_s'][0]:.2f}-{pa['t_s'][1]:.2f} s)", "a": pa["chamfer_m"],
+                     "b": pb["chamfer_m"]})
+    for name in a["regions"]:
+        rows.append({"what": f"region {name}", "a": a["region_mean_m"][name], "b": b["region_mean_m"].get(name, np.nan)})
+    for r in rows:
+        r["change"] = (r["b"] - r["a"]) / r["a"] if r["a"] else 0.0
+    la = _label(ra)
+    lb = _label(rb)
+    drop = -rows[0]["change"]
+    summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
+               f"({drop * 100:.0f}% {'lower' if drop >= 0 else 'higher'}); misspecification p "
+               f"{a['misspecification']['p_value_gamma']:.2g} -> {b['misspecification']['p_value_gamma']:.2g}.")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    png = out_dir / "compare.png"
+    _plot_compare(png, a, b, la, lb)
+    res = {"run_a": str(run_a), "run_b": str(run_b), "label_a": la, "label_b": lb, "table": rows,
+           "summary": summary, "check_a": a, "check_b": b, "png": str(png), "json": str(out_dir / "compare.json")}
+    (out_dir / "compare.json").write_text(json.dumps(res, indent=2))
+    return res
+
+
+def _label(run: RunView) -> str:
+    eff = run.effects
+    return f"{run.config['backend']} + {'+'.join(eff)}" if eff else f"{run.config['backend']} (nominal)"
+
+
+def _plot_compare(path: Path, a: dict, b: dict, la: str, lb: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = np.array(a["times_s"])
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    ax = axes[0]
+    for res, lab, col in ((a, la, "C3"), (b, lb, "C0")):
+        c = res["chamfer_per_frame_m"]
+        ax.fill_between(t, np.array(c["q05"]) * 100, np.array(c["q95"]) * 100, color=col, alpha=0.2)
+        ax.plot(t, np.array(c["mean"]) * 100, color=col, lw=2, label=f"{lab}: {res['chamfer_mean_m'] * 100:.2f} cm")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("Chamfer to the measurement [cm]")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Error per time step (band: 5-95% over posterior rollouts)", fontsize=10)
+    ax = axes[1]
+    names = a["regions"]
+    x = np.arange(len(names))
+    ax.bar(x - 0.2, [a["region_mean_m"][n] * 100 for n in names], 0.4, color="C3", label=la)
+    ax.bar(x + 0.2, [b["region_mean_m"].get(n, 0) * 100 for n in names], 0.4, color="C0", label=lb)
+    ax.set_xticks(x)
+    ax.set_xticklabels([n.split(" ")[0] for n in names], fontsize=8)
+    ax.set_xlabel("region of the cloth (R1 at the grasp ... R9 farthest)")
+    ax.set_ylabel("mean error [cm]")
+    ax.legend(fontsize=8)
+    ax.set_title("Error per region", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,1 @@
+"""Physical effects a nominal cloth model may lack, as plugins (entry-point group ``softsbi``)."""
