@@ -257,14 +257,16 @@ def _parse_frames(spec: str | None) -> list[int] | None:
 
 
 def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
-                backend_opt, estimator_opt, n_eval, min_height=None, frames=None):
+                backend_opt, estimator_opt, n_eval, min_height=None, frames=None, executor="local",
+                executor_options=None):
     from .core.loop import FitConfig
     effects = [e for it in effect or [] for e in it.split(",") if e]
     return FitConfig(backend=backend, backend_options=_parse_kv(backend_opt, "--backend-opt"), effects=effects,
                      estimator=estimator, estimator_options=_parse_kv(estimator_opt, "--estimator-opt"),
                      rounds=rounds, sims_per_round=sims_per_round, seed=seed, n_points=points, workers=workers,
                      bounds=_parse_bounds(bounds), fixed=_parse_kv(fix, "--fix"), n_eval=n_eval,
-                     min_height=min_height, frames=_parse_frames(frames))
+                     min_height=min_height, frames=_parse_frames(frames), executor=executor,
+                     executor_options=dict(executor_options or {}))
 
 
 DEFAULT_ROUNDS = 4
@@ -294,11 +296,30 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
             DEFAULT_MIN_HEIGHT, help="sensor model: points closer than this (m) to the table are not seen, in "
                                      "simulation and recording alike (real depth clouds lack cloth lying flat)"),
         frames: Optional[str] = typer.Option(None, help="frames that inform the posterior, e.g. 10:25 "
-                                                        "(default all; the Chamfer metric always uses all)")) -> None:
+                                                        "(default all; the Chamfer metric always uses all)"),
+        executor: str = typer.Option("local", help="where simulations run: local (process pool) or ray"),
+        ray_address: Optional[str] = typer.Option(None, help="with --executor ray: address of an existing Ray "
+                                                             "cluster (head host:port or auto); default: start Ray "
+                                                             "on this machine"),
+        sim_timeout: Optional[float] = typer.Option(None, help="seconds after which a hung simulation's worker is "
+                                                               "killed and the simulation retried (default: none)"),
+        retries: int = typer.Option(2, help="re-runs of a simulation whose worker crashed or hung, before it is "
+                                            "stored as failed")) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from .perception.measurement import load_measurement
+    exe_opts: dict[str, Any] = {"retries": retries}
+    if sim_timeout is not None:
+        exe_opts["timeout"] = sim_timeout
+    if ray_address:
+        if executor != "ray":
+            raise SoftsbiError(f"--ray-address needs --executor ray (got --executor {executor})")
+        exe_opts["address"] = ray_address
     cfg = _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
-                      backend_opt, estimator_opt, n_eval, min_height, frames)
+                      backend_opt, estimator_opt, n_eval, min_height, frames, executor, exe_opts)
+    cfg.validate()  # fail fast (e.g. --workers 0) before loading the recording
+    if executor == "ray":
+        from .executors.ray_executor import _import_ray
+        _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`
     meas = load_measurement(observed, n_points=points, seed=seed)
     res = _run(meas, cfg, out)
     _print_report(res.report, out)

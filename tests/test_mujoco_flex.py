@@ -121,8 +121,8 @@ def test_parameter_errors(sim, scenario, theta):
     with pytest.raises(ParameterError, match="missing"):
         sim.simulate(scenario, missing)
     with pytest.raises(ParameterError, match="effect"):
-        sim.simulate(scenario, theta, effects=["wind"])
-    bad = Scenario(name="wipe", times=scenario.times, gripper=scenario.gripper, table_z=0.0)
+        sim.simulate(scenario, theta, effects=["toy-wind"])
+    bad = Scenario(name="fold", times=scenario.times, gripper=scenario.gripper, table_z=0.0)
     with pytest.raises(ValueError, match="lift"):
         sim.simulate(scenario=bad, theta=theta)
     with pytest.raises(ValueError, match="lift"):

@@ -207,14 +207,15 @@ def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) 
     return labels, names
 
 
-def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, dense: np.ndarray) -> np.ndarray:
+def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, dense: np.ndarray,
+                  n_regions: int | None = None) -> np.ndarray:
     """Bidirectional nearest-neighbour error ``(T, R)`` (m) per frame and region.
 
     Simulated points of a region (its vertices and the centroids of faces whose first vertex
     is in it) contribute their distance to the nearest measured point; measured points are
     assigned to the region of their nearest simulated point and contribute that distance.
     """
-    R = int(labels.max()) + 1
+    R = n_regions or int(labels.max()) + 1
     pts = surface_points(vertices, faces)
     lab = labels if len(faces) == 0 else np.concatenate([labels, labels[faces[:, 0]]])
     out = np.full((len(vertices), R), np.nan)
@@ -302,10 +303,12 @@ def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = No
     for k, r in enumerate(ok):
         pts = surface_points(r["vertices"], r["faces"])
         ch[k] = [chamfer(pts[t], dense[t]) for t in range(T)]
-        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense)
+        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names))
         f_sims.append(trajectory_features(pts))
     f_obs = trajectory_features(dense)
     mis = misspecification_test(f_obs, np.array(f_sims))
+    import warnings
+    warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)  # regions a small mesh lacks
     reg_mean = np.nanmean(reg, axis=0)
     phases = motion_phases(run.scenario)
     mean_t = ch.mean(0)
@@ -470,71 +473,91 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     r_obs = (trajectory_features(run.dense) - f0) / sd
     r_null = (null_f - f0) / sd
 
-    def drop(r: np.ndarray, J_e: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(SSE without effect, SSE with effect, effect coefficients)."""
-        big = 1e3
-        base_fit = lsq_linear(J_theta, r, bounds=(-big, big))
-        sse0 = float(((r - J_theta @ base_fit.x) ** 2).sum())
-        A = np.concatenate([J_theta, J_e], 1)
-        lb = np.concatenate([np.full(J_theta.shape[1], -big), lo])
-        ub = np.concatenate([np.full(J_theta.shape[1], big), hi])
-        fit = lsq_linear(A, r, bounds=(lb, ub))
-        sse1 = float(((r - A @ fit.x) ** 2).sum())
-        return sse0, sse1, fit.x[J_theta.shape[1]:]
-
-    ranking = []
+    # design of each candidate: offset (effect switched on at its nominal value, e.g. wind at
+    # 0 m/s still adds air), sensitivity columns and the coefficient bounds that keep the
+    # effect parameters inside their prior range
+    design: dict[str, dict[str, Any]] = {}
+    failed: list[dict[str, Any]] = []
     for eff in cands:
         cols = [c for c in eff_cols if c[0] is eff]
-        if any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
-            ranking.append({"effect": eff.name, "error": "a sensitivity simulation failed"})
+        if any(feats[c[2]] is None or feats[c[3]] is None for c in cols) or feats[cols[0][3]] is None:
+            failed.append({"effect": eff.name, "error": "a sensitivity simulation failed"})
             continue
-        J_e = np.stack([(feats[c[2]] - feats[c[3]]) / sd for c in cols], 1)
-        # the effect switched on at its nominal value may already differ from the base model
-        # (e.g. wind at 0 m/s still adds air); that offset is part of its explanation
-        J_e0 = (feats[cols[0][3]] - f0) / sd
         es = eff.param_space()
-        lo, hi = [], []
+        lo, hi, steps = [], [], []
         for c in cols:
-            p = es[c[1]]
-            u0 = es.subset([p.name]).to_unit(np.array([eff.nominal()[p.name]]))[0]
+            ps1 = es.subset([c[1]])
+            u0 = ps1.to_unit(np.array([eff.nominal()[c[1]]]))[0]
             step = effect_step if u0 + effect_step <= 1 else -effect_step
-            a, b = (0 - u0) / step, (1 - u0) / step
-            lo.append(min(a, b))
-            hi.append(max(a, b))
-        lo_a, hi_a = np.array(lo), np.array(hi)
+            lo.append(min(-u0 / step, (1 - u0) / step))
+            hi.append(max(-u0 / step, (1 - u0) / step))
+            steps.append((c[1], u0, step))
+        design[eff.name] = {"effect": eff, "J": np.stack([(feats[c[2]] - feats[c[3]]) / sd for c in cols], 1),
+                            "offset": (feats[cols[0][3]] - f0) / sd, "lo": np.array(lo), "hi": np.array(hi),
+                            "steps": steps}
 
-        def stat(r):
-            sse0, sse1, coef = drop(r - J_e0, J_e, lo_a, hi_a)
-            sse_base = float(((r - J_theta @ lsq_linear(J_theta, r).x) ** 2).sum())
-            return sse_base - sse1, (sse_base - sse1) / max(sse_base, 1e-12), coef
+    def sse(r: np.ndarray, names: Sequence[str]) -> tuple[float, np.ndarray]:
+        """Weighted residual sum of squares of the best linearised fit with effects ``names``."""
+        big = 1e3
+        rr = r - sum((design[n]["offset"] for n in names), np.zeros_like(r))
+        A = np.concatenate([J_theta] + [design[n]["J"] for n in names], 1)
+        lb = np.concatenate([np.full(J_theta.shape[1], -big)] + [design[n]["lo"] for n in names])
+        ub = np.concatenate([np.full(J_theta.shape[1], big)] + [design[n]["hi"] for n in names])
+        fit = lsq_linear(A, rr, bounds=(lb, ub))
+        return float(((rr - A @ fit.x) ** 2).sum()), fit.x[J_theta.shape[1]:]
 
-        d_obs, frac, coef = stat(r_obs)
-        null = np.array([stat(r)[0] for r in r_null])
+    def test(name: str, given: list[str]) -> dict[str, Any]:
+        base_obs, _ = sse(r_obs, given)
+        with_obs, coef = sse(r_obs, given + [name])
+        d_obs = base_obs - with_obs
+        null = np.array([sse(r, given)[0] - sse(r, given + [name])[0] for r in r_null])
         p_emp = (1 + (null >= d_obs).sum()) / (len(null) + 1)
-        pos = null[null > 0]
-        if len(pos) >= 3 and d_obs > 0:
-            a, loc, scale = stats.gamma.fit(pos, floc=0)
-            p_g = float(stats.gamma.sf(d_obs, a, loc=loc, scale=scale)) * len(pos) / len(null)
+        pos = null[null > 1e-12]
+        if d_obs <= 0:
+            p_g = 1.0
+        elif len(pos) >= 3:
+            ga, _, gscale = stats.gamma.fit(pos, floc=0)
+            p_g = float(stats.gamma.sf(d_obs, ga, scale=gscale)) * len(pos) / len(null)
         else:
-            p_g = float(p_emp) if d_obs > 0 else 1.0
+            p_g = float(p_emp)
         est = {}
-        for (e, pname, _, _), c in zip(cols, coef):
-            ps = es.subset([pname])
-            u0 = ps.to_unit(np.array([eff.nominal()[pname]]))[0]
-            step = effect_step if u0 + effect_step <= 1 else -effect_step
-            est[pname] = float(ps.from_unit(np.array([np.clip(u0 + c * step, 0, 1)]))[0])
-        ranking.append({"effect": eff.name, "description": eff.description, "explained_fraction": float(frac),
-                        "statistic": float(d_obs), "null_mean": float(null.mean()),
-                        "p_value": float(p_emp), "p_value_gamma": min(1.0, p_g), "estimate": est})
-    ranking.sort(key=lambda r: -r.get("statistic", -np.inf))
-    thr = alpha / max(len(cands), 1)
-    significant = [r["effect"] for r in ranking if r.get("p_value_gamma", 1) < thr and r["explained_fraction"] > 0.1]
+        k = len(coef) - len(design[name]["steps"])
+        for (pname, u0, step), cval in zip(design[name]["steps"], coef[k:]):
+            ps1 = design[name]["effect"].param_space().subset([pname])
+            est[pname] = float(ps1.from_unit(np.array([np.clip(u0 + cval * step, 0, 1)]))[0])
+        return {"statistic": float(d_obs), "explained_fraction": float(d_obs / max(base_obs, 1e-12)),
+                "null_mean": float(null.mean()), "p_value": float(p_emp), "p_value_gamma": min(1.0, p_g),
+                "estimate": est}
+
+    ranking = []
+    for name, dsg in design.items():
+        ranking.append({"effect": name, "description": dsg["effect"].description, **test(name, [])})
+    ranking.sort(key=lambda r: -r["statistic"])
+    ranking += failed
+    # forward selection: an effect is significant if it explains residual beyond those already chosen
+    thr = alpha / max(len(design), 1)
+    significant: list[str] = []
+    remaining = [r["effect"] for r in ranking if "statistic" in r]
+    steps_log = []
+    while remaining:
+        tests = {n: (test(n, significant) if significant else next(r for r in ranking if r["effect"] == n))
+                 for n in remaining}
+        best = max(tests, key=lambda n: tests[n]["statistic"])
+        t = tests[best]
+        steps_log.append({"given": list(significant), "best": best, "p_value_gamma": t["p_value_gamma"],
+                          "explained_fraction": t["explained_fraction"]})
+        if t["p_value_gamma"] < thr and t["explained_fraction"] > 0.1:
+            significant.append(best)
+            remaining.remove(best)
+        else:
+            break
     confirmed = []
     for name in significant[:confirm]:
         confirmed.append(confirm_effect(run, name, confirm_budget, workers))
     summary = _diagnosis_sentence(run, ranking, significant, confirmed, thr)
     out = {"run": str(run.path), "candidates": [c.name for c in cands], "ranking": ranking,
-           "significance_threshold": thr, "significant": significant, "confirmed": confirmed,
+           "significance_threshold": thr, "significant": significant, "selection": steps_log,
+           "confirmed": confirmed,
            "summary": summary, "simulations": len(jobs), "seconds": time.perf_counter() - t0}
     (Path(run_dir) / "diagnosis.json").write_text(json.dumps(out, indent=2))
     return out
@@ -556,9 +579,10 @@ def _diagnosis_sentence(run: RunView, ranking, significant, confirmed, thr) -> s
         if c["effect"] == top["effect"] and c.get("chamfer_after_m"):
             s += (f" Refitting with it lowers the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
                   f"to {c['chamfer_after_m'] * 100:.2f} cm ({c['drop'] * 100:.0f}% lower).")
-    others = [r["effect"] for r in ranking if r["effect"] in significant[1:]]
-    if others:
-        s += f" Also significant: {', '.join(others)}."
+    if significant[1:]:
+        s += f" Also needed beyond it: {', '.join(significant[1:])}."
+    else:
+        s += " No other candidate explains significantly more once it is included."
     return s
 
 

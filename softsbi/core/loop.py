@@ -1,7 +1,9 @@
 """The sequential real-to-sim loop (BayesSim, Ramos et al. 2019; Antonova et al. 2022, Alg. 1).
 
 Round 1 draws ``sims_per_round`` parameters from the prior; round r+1 draws them from the
-corrected posterior of round r (:class:`~softsbi.core.distributions.PosteriorChain`). All
+corrected posterior of round r (estimators with ``sequential = False``, the "bulk"
+baselines, draw every round from the prior and their posterior is ``q`` truncated to the
+prior box, so round r reports the bulk method with r x sims_per_round simulations) (:class:`~softsbi.core.distributions.PosteriorChain`). All
 simulations are kept; after each round the estimator is trained on all usable simulations
 so far and conditioned on the observation. Everything goes to the run's Zarr store as it
 is produced, so ``run_fit`` on an existing run directory resumes where it stopped.
@@ -45,6 +47,8 @@ class FitConfig:
         n_dense: points sampled per simulated frame for the Chamfer distance.
         workers: simulation worker processes (None = one per core).
         executor: executor plugin name.
+        executor_options: keyword options of the executor's constructor besides ``workers``
+            (e.g. ``{"timeout": 120, "retries": 2}``, ``{"address": "10.0.0.5:6379"}`` for ray).
         bounds: prior-bound overrides ``{name: (low, high)}`` in physical units.
         fixed: parameters held at a value instead of inferred ``{name: value}``.
         min_height: sensor model of the observed state (m): points closer than this to the
@@ -68,6 +72,7 @@ class FitConfig:
     n_dense: int = 600
     workers: int | None = None
     executor: str = "local"
+    executor_options: dict[str, Any] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     fixed: dict[str, float] = field(default_factory=dict)
     min_height: float | None = None
@@ -268,6 +273,7 @@ def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
 
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: Hooks) -> None:
+    from .executor import WorkerFailure
     data = store.round_data(r)
     for attempt in range(2):  # one retry for jobs whose worker crashed
         pending = store.pending(r)
@@ -280,6 +286,11 @@ def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, h
             i = int(pending[j])
             if isinstance(res, SoftsbiError):
                 raise res
+            if isinstance(res, WorkerFailure):  # crashed/hung on every attempt the executor allowed
+                store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                done += 1
+                hooks.simulation_done(r, done, len(data["status"]))
+                continue
             if isinstance(res, BaseException):
                 errors.append(i)
                 if attempt == 1:
@@ -341,6 +352,7 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
     out_dir.mkdir(parents=True, exist_ok=True)
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
+    sequential = bool(getattr(est_cls, "sequential", True))
     reg.observer(cfg.observer)
     exe_cls = reg.executor(cfg.executor)
     full, space = fit_param_space(cfg, meas.scenario)
@@ -365,19 +377,20 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                      effects=list(cfg.effects), observer=cfg.observer,
                      observer_options=observer_options(cfg, meas.scenario), param_names=space.names,
                      fixed=dict(cfg.fixed), dense=dense, n_dense=cfg.n_dense)
-    executor = exe_cls(workers=cfg.workers)
+    executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     chain = PosteriorChain(space.dim, seed=cfg.seed)
     summaries: list[dict[str, Any]] = []
     prior_stats: dict[str, Any] | None = None
     try:
         for r in range(cfg.rounds):
-            proposal = None if r == 0 else chain.posterior(r - 1)
+            # bulk estimators (sequential = False): every round draws from the prior
+            proposal = None if (r == 0 or not sequential) else chain.posterior(r - 1)
             if not store.is_begun(r):
                 rng = np.random.default_rng([cfg.seed, r, 0])
                 u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else \
                     proposal.sample(cfg.sims_per_round, rng)
                 store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
-                                  x_obs.shape, "prior" if r == 0 else f"posterior of round {r - 1}")
+                                  x_obs.shape, "prior" if proposal is None else f"posterior of round {r - 1}")
             hooks.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
             _simulate_missing(store, r, ctx, executor, hooks)
             d = store.round_data(r)
@@ -403,7 +416,11 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                 q = est.conditional(x_obs[fr])
                 info = dict(info, n_train_total=int(len(U)), usable_per_round=counts)
                 store.finish_round(r, q, info)
-            post = chain.add_round(q, counts[r])
+            if sequential:
+                post = chain.add_round(q, counts[r])
+            else:  # all data from the prior: the posterior is q truncated to the prior box
+                chain = PosteriorChain(space.dim, seed=cfg.seed)
+                post = chain.add_round(q, sum(counts))
             mean_u, cov_u = post.moments(4000, seed=cfg.seed + r)
             summaries.append({"round": r, "simulations": int(len(d["status"])), "usable": counts[r],
                               "failed": int((d["status"] != STATUS_OK).sum()),
@@ -413,7 +430,7 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
             hooks.round_end(r, summaries[-1])
 
         # final evaluation: rollouts at final-posterior samples
-        post = chain.posterior(cfg.rounds - 1)
+        post = chain.posterior(len(chain) - 1)
         ev_stats = _evaluate(store, post, space, ctx, executor, cfg, hooks)
         summaries[-1]["chamfer_posterior"] = ev_stats
     finally:

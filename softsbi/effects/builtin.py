@@ -5,7 +5,8 @@ it off. A backend applies an effect by name; for MuJoCo the application edits th
 dict of :func:`softsbi.backends.mujoco_flex.build_spec` before it is compiled:
 
 * ``air-drag``: MuJoCo's inertia-box fluid model (MuJoCo docs, *Computation / Fluid forces*):
-  option ``density`` (kg/m^3) and ``viscosity`` (air, 1.8e-5 Pa s), with the flex vertex
+  option ``density`` (kg/m^3) and ``viscosity`` (air's kinematic viscosity times the density:
+  1.8e-5 Pa s at 1.2 kg/m^3), with the flex vertex
   ``inertiabox`` set to the grid spacing so each vertex carries the drag of its cloth patch
   (measured here: a 1 m drop ends at 0.01 m without air, 0.57 m with density 1.2).
 * ``wind``: option ``wind`` (m/s) acting through the same fluid model at air density 1.2.
@@ -100,7 +101,8 @@ def apply_mujoco(spec: dict[str, Any], theta: Mapping[str, float], effects, *, g
     viscosity = 0.0
     if "air-drag" in effects:
         density = max(density, float(theta["air_density"]))
-        viscosity = AIR_VISCOSITY
+        # constant kinematic viscosity of air: mu = nu * rho, so density 0 is the nominal model
+        viscosity = AIR_VISCOSITY * density / AIR_DENSITY
         fluid = True
     if "wind" in effects:
         density = max(density, AIR_DENSITY)

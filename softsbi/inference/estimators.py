@@ -110,11 +110,15 @@ class NeuralMDNEstimator(PosteriorEstimator):
             OpenMP spin-waiting made a 2-thread fit ~8x slower than 1 thread there.
 
     Subclass hooks: :meth:`preprocess`, :meth:`input_stats`, :meth:`build_features`,
-    :meth:`check_x_obs_shape`.
+    :meth:`check_x_obs_shape`, and :meth:`check_x_shape` with ``x_event_ndim`` for inputs that
+    are not ``(N, T, 1+K, 3)`` states.
     """
 
     name: ClassVar[str] = "neural-mdn"
     sequential: ClassVar[bool] = True
+    #: Number of dimensions of ONE observation: 3 for states ``(T, 1+K, 3)``; 1 for flat
+    #: feature vectors ``(F,)`` (benchmark tasks; see :meth:`check_x_shape`).
+    x_event_ndim: ClassVar[int] = 3
     #: Base defaults; subclasses extend with ``EXTRA_DEFAULTS``.
     BASE_DEFAULTS: ClassVar[dict[str, Any]] = {
         "hidden": (256, 256), "n_components": 4, "activation": "relu", "lr": 1e-3, "weight_decay": 1e-5,
@@ -208,17 +212,22 @@ class NeuralMDNEstimator(PosteriorEstimator):
                       torch.cat([o.scale_tril for o in outs]))
         return p.affine(torch.as_tensor(self._u_mean), torch.as_tensor(self._u_std))
 
-    @staticmethod
-    def _validate(u: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def check_x_shape(self, x: np.ndarray) -> None:
+        """Hook: raise :class:`ShapeError` unless the training inputs ``x`` have this
+        estimator's layout. Default: ``(N, T, 1+K, 3)`` with ``K >= 1``; estimators on flat
+        feature vectors set ``x_event_ndim = 1`` and override this."""
+        if x.ndim != 4 or x.shape[-1] != 3 or x.shape[2] < 2:
+            raise ShapeError(f"x must have shape (N, T, 1+K, 3) with K >= 1 (gripper row then K points), "
+                             f"got {x.shape}")
+
+    def _validate(self, u: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         u = np.asarray(u, dtype=np.float64)
         x = np.asarray(x, dtype=np.float64)
         if u.ndim == 1:
             u = u[:, None]
         if u.ndim != 2:
             raise ShapeError(f"u must have shape (N, D), got {u.shape}")
-        if x.ndim != 4 or x.shape[-1] != 3 or x.shape[2] < 2:
-            raise ShapeError(f"x must have shape (N, T, 1+K, 3) with K >= 1 (gripper row then K points), "
-                             f"got {x.shape}")
+        self.check_x_shape(x)
         if len(u) != len(x):
             raise ShapeError(f"u and x must have the same number of simulations N: u has {len(u)}, x has {len(x)}")
         for name, a in (("u", u), ("x", x)):
@@ -340,7 +349,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             raise RuntimeError(f"estimator '{self.name}' is not fitted: call fit(u, x) (or load_state_dict) "
                                f"before conditional()")
         x = np.asarray(x_obs, dtype=np.float64)
-        if x.ndim != 4 or not self.check_x_obs_shape(tuple(x.shape[1:])):
+        if x.ndim != 1 + self.x_event_ndim or not self.check_x_obs_shape(tuple(x.shape[1:])):
             raise ShapeError(f"observations must have shape (n, {self._expected()}), got {x.shape}")
         if not np.isfinite(x).all():
             raise DataError("the observation contains non-finite values (NaN/inf)")
@@ -367,9 +376,9 @@ class NeuralMDNEstimator(PosteriorEstimator):
             raise RuntimeError(f"estimator '{self.name}' is not fitted: call fit(u, x) (or load_state_dict) "
                                f"before conditional()")
         x = np.asarray(x_obs, dtype=np.float64)
-        if x.ndim == 4 and x.shape[0] == 1:
+        if x.ndim == self.x_event_ndim + 1 and x.shape[0] == 1:
             x = x[0]
-        if x.ndim != 3 or not self.check_x_obs_shape(x.shape):
+        if x.ndim != self.x_event_ndim or not self.check_x_obs_shape(x.shape):
             raise ShapeError(f"x_obs must have shape ({self._expected()}) (T, 1+K, 3), got {x.shape}")
         return self.conditionals(x[None])[0]
 

@@ -92,6 +92,20 @@ class ToyGauss(Simulator):
         # test hooks: slow simulations (to kill a fit mid-round) and a divergence region
         if os.environ.get("SOFTSBI_TOY_SLEEP"):
             time.sleep(float(os.environ["SOFTSBI_TOY_SLEEP"]))
+        # fault-injection hooks (executor tests): crash the worker process once per seed, hang
+        crash_dir = os.environ.get("SOFTSBI_TOY_CRASH_ONCE")
+        if crash_dir:
+            marker = os.path.join(crash_dir, f"crashed-{int(seed)}")
+            if not os.path.exists(marker):
+                open(marker, "w").close()
+                os._exit(13)
+        crash_above = os.environ.get("SOFTSBI_TOY_CRASH_ABOVE")
+        if crash_above is not None and vals["a"] > float(crash_above):
+            os._exit(14)
+        hang_above = os.environ.get("SOFTSBI_TOY_HANG_ABOVE")
+        if hang_above is not None and vals["a"] > float(hang_above):
+            while True:
+                time.sleep(3600)
         limit = os.environ.get("SOFTSBI_TOY_DIVERGE_ABOVE")
         if limit is not None and vals["a"] > float(limit):
             return Rollout(times=scenario.times.copy(), gripper=scenario.gripper.copy(),

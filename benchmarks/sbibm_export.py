@@ -1,0 +1,36 @@
+"""Export SBI-benchmark observations and reference posterior samples to .npy (run in a
+SEPARATE venv with sbibm; sbibm pins sbi 0.21, which conflicts with the main venv's sbi).
+
+Usage::
+
+    /tmp/sbibm-venv/bin/python benchmarks/sbibm_export.py --out /tmp/sbibm_ref [--obs 1 2 3]
+
+Writes ``<task>_obs<k>.npy`` (1, F) and ``<task>_ref<k>.npy`` (10000, D) for two_moons,
+slcp and gaussian_linear, plus ``<task>_prior.npy`` (100000, D) prior draws and
+``<task>_sims.npy`` (10000 + 1000 simulations as ``theta`` / ``x`` pairs, ``.npz``) drawn
+with sbibm's own simulators, so the main venv needs no sbibm.
+"""
+import argparse
+from pathlib import Path
+
+import numpy as np
+import sbibm
+import torch
+
+ap = argparse.ArgumentParser()
+ap.add_argument("--out", default="/tmp/sbibm_ref")
+ap.add_argument("--obs", type=int, nargs="+", default=[1, 2, 3])
+ap.add_argument("--n-sims", type=int, default=10000)
+args = ap.parse_args()
+out = Path(args.out)
+out.mkdir(parents=True, exist_ok=True)
+for name in ["two_moons", "slcp", "gaussian_linear"]:
+    task = sbibm.get_task(name)
+    for k in args.obs:
+        np.save(out / f"{name}_obs{k}.npy", task.get_observation(num_observation=k).numpy())
+        np.save(out / f"{name}_ref{k}.npy", task.get_reference_posterior_samples(num_observation=k).numpy())
+    torch.manual_seed(0)
+    theta = task.get_prior()(num_samples=args.n_sims)
+    x = task.get_simulator()(theta)
+    np.savez(out / f"{name}_sims.npz", theta=theta.numpy(), x=x.numpy())
+    print(name, theta.shape, x.shape, flush=True)
