@@ -93,12 +93,12 @@ def test_fit_round_completes_with_crashing_simulations_marked_failed(tmp_path, m
     reason; the round and the fit complete with the others."""
     monkeypatch.setenv("SOFTSBI_TOY_CRASH_ABOVE", "0.7")
     cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=1, sims_per_round=16, workers=2, n_points=8,
-                    n_eval=2, n_dense=16, seed=4, estimator_options={"max_epochs": 5, "hidden": [8]},
+                    n_eval=2, n_dense=16, seed=2, estimator_options={"max_epochs": 5, "hidden": [8]},
                     bounds={"b": (-0.5, 0.5)}, executor_options={"retries": 1})
     res = run_fit(tmp_path / "r", toy_measurement(), cfg, make_plots=False)
     d = res.store.round_data(0)
     bad = d["theta"][:, 0] > 0.7
-    assert 1 <= bad.sum() <= 6, d["theta"][:, 0]
+    assert bad.sum() == 2, d["theta"][:, 0]
     assert (d["status"][bad] == STATUS_ERROR).all() and (d["status"][~bad] == STATUS_OK).all()
     fails = res.store.round_attrs(0)["failures"]
     assert set(fails) == {str(i) for i in np.nonzero(bad)[0]}
