@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.backends.scenarios import lift_scenario
+from softsbi.backends.scenarios import lift_scenario, make_scenario
 from softsbi.core.diagnostics import check_run, compare_runs, diagnose_run
 from softsbi.core.loop import FitConfig, run_fit
 from softsbi.perception.measurement import simulate_measurement
@@ -28,28 +28,34 @@ from softsbi.plugins import registry
 TRUTH_UNIT = {"bend": 0.6, "stretch": 0.45, "friction": 0.4, "scale": 0.5, "mass": 0.5}
 CASES = {
     "wind-lift": ("lift", ["wind"], {"wind_x": 0.0, "wind_y": 0.8}),
+    "drag-fling": ("fling", ["air-drag"], {"air_density": 1.2}),
     "compliance-lift": ("lift", ["grip-compliance"], {"grip_timeconst": 0.15}),
     "control-lift": ("lift", [], {}),
+    "control-fling": ("fling", [], {}),
 }
+#: backend options per scenario (fling uses a coarser grid to stay affordable on 2 cores)
+BACKEND_OPTIONS = {"lift": {}, "fling": {"grid": 7}}
 
 
-def make_case(name: str, magnitude: float = 1.0, backend_options: dict | None = None):
+def make_case(name: str, magnitude: float = 1.0):
     scen_name, effects, hidden = CASES[name]
-    sc = lift_scenario(None)
-    sim = registry().simulator("mujoco-flex")(**(backend_options or {}))
+    backend_options = BACKEND_OPTIONS[scen_name]
+    sc = lift_scenario(None) if scen_name == "lift" else make_scenario(scen_name)
+    sim = registry().simulator("mujoco-flex")(**backend_options)
     space = sim.param_space(sc)
     truth = space.as_dict(space.from_unit(np.array([TRUTH_UNIT[n] for n in space.names])))
     hidden = {k: v * magnitude for k, v in hidden.items()}
     truth.update(hidden)
     meas = simulate_measurement("mujoco-flex", sc, truth, backend_options=backend_options, effects=effects)
-    return meas, effects, hidden
+    return meas, effects, hidden, backend_options
 
 
 def run_case(name: str, out: Path, rounds: int, sims: int, magnitude: float = 1.0, confirm: bool = True,
              workers: int | None = None, estimator: str = "rkhs") -> dict:
     t0 = time.perf_counter()
-    meas, effects, hidden = make_case(name, magnitude)
-    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims, workers=workers, seed=0)
+    meas, effects, hidden, backend_options = make_case(name, magnitude)
+    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims, workers=workers, seed=0,
+                    backend_options=backend_options)
     nominal = out / f"{name}-x{magnitude:g}" / "nominal"
     fit = run_fit(nominal, meas, cfg)
     chk = check_run(nominal, workers=workers)
