@@ -1,0 +1,30 @@
+"""`softsbi demo` end to end on a tiny budget (the real budget is measured in BENCHMARKS.md)."""
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from softsbi.cli import app
+
+runner = CliRunner()
+
+
+def test_quick_demo_fits_hidden_parameters(tmp_path):
+    res = runner.invoke(app, ["demo", "--quick", "--out", str(tmp_path), "--rounds", "1", "--sims-per-round", "24",
+                              "--workers", "2"])
+    assert res.exit_code == 0, res.output
+    assert "hidden values inside the 90% posterior interval" in res.output
+    rep = json.loads((tmp_path / "nominal" / "report.json").read_text())
+    assert set(rep["truth"]) == {p["name"] for p in rep["parameters"]}
+    assert rep["simulations"] == 24 + 30
+    for png in ("chamfer_rounds.png", "posterior_pairs.png", "clouds.png"):
+        assert (tmp_path / "nominal" / png).stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_full_demo_story(tmp_path):
+    res = runner.invoke(app, ["demo", "--out", str(tmp_path), "--rounds", "2", "--sims-per-round", "100"])
+    assert res.exit_code == 0, res.output
+    for step in ("1. fit the nominal model", "2. check", "3. diagnose"):
+        assert step in res.output
+    assert (tmp_path / "nominal" / "check.json").exists() and (tmp_path / "nominal" / "diagnosis.json").exists()
