@@ -54,6 +54,17 @@ def trajectory_features(clouds: Sequence[np.ndarray]) -> np.ndarray:
     return np.concatenate([cloud_features(c) for c in clouds])
 
 
+def sampled_points(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """``(T, n, 3)`` area-weighted surface samples, drawn exactly like the measurement's dense
+    clouds so that summaries compare like with like (the same ``seed`` gives common random
+    numbers across finite-difference simulations of the same mesh)."""
+    from ..perception.pointcloud import sample_surface
+    out = []
+    for t, v in enumerate(vertices):
+        out.append(sample_surface(v, faces, n, np.random.default_rng([seed, t])))
+    return np.stack(out)
+
+
 def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Deterministic surface points ``(T, N + F, 3)``: vertices and face centroids."""
     if len(faces) == 0:
@@ -304,7 +315,7 @@ def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = No
         pts = surface_points(r["vertices"], r["faces"])
         ch[k] = [chamfer(pts[t], dense[t]) for t in range(T)]
         reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names))
-        f_sims.append(trajectory_features(pts))
+        f_sims.append(trajectory_features(sampled_points(r["vertices"], r["faces"], dense.shape[1], 1000 + k)))
     f_obs = trajectory_features(dense)
     mis = misspecification_test(f_obs, np.array(f_sims))
     import warnings
@@ -431,7 +442,6 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     space = run.space
     u_hat = np.clip(space.to_unit(space.as_array({k: base[k] for k in space.names})), 0, 1)
     jobs: list[tuple[dict, tuple, int]] = [(dict(base), tuple(run.effects), 0)]
-    theta_steps = []
     for j in range(space.dim):
         s = unit_step if u_hat[j] + unit_step <= 1 else -unit_step
         u = u_hat.copy()
@@ -439,7 +449,6 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         v = dict(base)
         v.update(space.as_dict(space.from_unit(u)))
         jobs.append((v, tuple(run.effects), 0))
-        theta_steps.append(s)
     eff_cols: list[tuple[Any, str, int, int]] = []  # (effect, param, job index with, job index nominal)
     for eff in cands:
         es = eff.param_space()
@@ -459,8 +468,11 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     for i, th in enumerate(run.post_theta):
         jobs.append((run.values(th), tuple(run.effects), 2000 + i))
     res = _run_jobs(run.context(), jobs, workers)
-    feats = [trajectory_features(surface_points(r["vertices"], r["faces"])) if r["status"] == STATUS_OK else None
-             for r in res]
+    n_pts = run.dense.shape[1]
+    # finite-difference simulations share one sampling seed (common random numbers); the null
+    # simulations each get their own, like the measurement
+    feats = [trajectory_features(sampled_points(r["vertices"], r["faces"], n_pts, 0 if i < n_fd else 5000 + i))
+             if r["status"] == STATUS_OK else None for i, r in enumerate(res)]
     if feats[0] is None:
         raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
     f0 = feats[0]
