@@ -149,6 +149,9 @@ class PosteriorChain:
         self.qs: list[MixtureOfGaussians] = []
         self.counts: list[float] = []
         self.log_z: list[float] = []
+        #: per round: True = posterior is q / m_k (analytic correction), False = q itself (the
+        #: estimator was trained with importance weights p / m_k, SNPE-B)
+        self.divide: list[bool] = []
 
     def __len__(self) -> int:
         return len(self.qs)
@@ -167,23 +170,42 @@ class PosteriorChain:
             if j == upto:
                 return log_mix, posts
             with np.errstate(invalid="ignore"):
-                lp = self.qs[j].log_prob(u) - log_mix - self.log_z[j]
+                lp = self.qs[j].log_prob(u) - (log_mix if self.divide[j] else 0.0) - self.log_z[j]
             posts.append(np.where(inside, lp, -np.inf))
         raise AssertionError("unreachable")
 
-    def add_round(self, q: MixtureOfGaussians, count: float) -> "RoundPosterior":
+    def log_pooled_proposal(self, u: np.ndarray, count: float) -> np.ndarray:
+        """``log m_k(u)`` for the next round ``k = len(self)`` whose newest ``count`` usable
+        simulations came from the current proposal (the density of the pooled training data)."""
+        self.counts.append(float(count))
+        try:
+            log_mix, _ = self._log_mix_and_posts(np.atleast_2d(u), len(self.qs))
+        finally:
+            self.counts.pop()
+        return log_mix
+
+    def add_round(self, q: MixtureOfGaussians, count: float, divide: bool = True) -> "RoundPosterior":
         """Append round ``k = len(self)`` trained on data whose newest ``count`` usable
-        simulations came from the current proposal; returns ``post_k``."""
+        simulations came from the current proposal; returns ``post_k``.
+
+        Args:
+            divide: True when ``q`` was trained unweighted (posterior = ``q / m_k``, the analytic
+                correction); False when it was trained with importance weights ``p / m_k``
+                (posterior = ``q`` truncated to the box).
+        """
         if q.dim != self.dim:
             raise ShapeError(f"q has dimension {q.dim}, chain has {self.dim}")
         k = len(self.qs)
         self.qs.append(q)
         self.counts.append(float(count))
+        self.divide.append(bool(divide))
         rng = np.random.default_rng([self.seed, k, 7919])
         u = q.sample(self.n_norm, rng)
         inside = _inside(u)
         if not inside.any():
             log_z = -np.inf
+        elif not divide:
+            log_z = float(np.log(inside.mean()))
         else:
             log_mix, _ = self._log_mix_and_posts(u[inside], k)
             log_z = float(logsumexp(-log_mix) - np.log(len(u)))
@@ -204,11 +226,17 @@ class RoundPosterior(Distribution):
     def q(self) -> MixtureOfGaussians:
         return self.chain.qs[self.k]
 
+    def _log_w(self, u: np.ndarray) -> np.ndarray:
+        """Log importance weight of draws from ``q``: ``-log m_k`` or 0 (weighted training)."""
+        if not self.chain.divide[self.k]:
+            return np.zeros(len(u))
+        log_mix, _ = self.chain._log_mix_and_posts(u, self.k)
+        return -log_mix
+
     def log_prob(self, u: np.ndarray) -> np.ndarray:
         u = np.atleast_2d(np.asarray(u, float))
-        log_mix, _ = self.chain._log_mix_and_posts(u, self.k)
         with np.errstate(invalid="ignore"):
-            lp = self.q.log_prob(u) - log_mix - self.chain.log_z[self.k]
+            lp = self.q.log_prob(u) + self._log_w(u) - self.chain.log_z[self.k]
         return np.where(_inside(u), lp, -np.inf)
 
     @property
@@ -236,9 +264,8 @@ class RoundPosterior(Distribution):
                     raise RuntimeError("the posterior has no mass inside the prior box; widen the prior bounds "
                                        "or check that the observation is reachable by the simulator")
                 continue
-            log_mix, _ = self.chain._log_mix_and_posts(u, self.k)
             k = min(n - got, max(1, len(u) // oversample))
-            out.append(_sir(u, -log_mix, k, rng))
+            out.append(_sir(u, self._log_w(u), k, rng))
             got += k
         res = np.concatenate(out)[:n]
         return res[rng.permutation(len(res))]

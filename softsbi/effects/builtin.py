@@ -118,7 +118,9 @@ def apply_mujoco(spec: dict[str, Any], theta: Mapping[str, float], effects, *, g
         spec["option"]["viscosity"] = viscosity
         fc["inertiabox"] = h
     if "grip-compliance" in effects:
-        spec["connect"]["solref"] = [max(float(theta["grip_timeconst"]), spec["connect"]["solref"][0]), 1.0]
+        # only the time constant changes (the damping ratio stays), so the lower bound is the nominal grasp
+        tc, ratio = spec["connect"]["solref"]
+        spec["connect"]["solref"] = [max(float(theta["grip_timeconst"]), tc), ratio]
 
 
 @hookimpl
