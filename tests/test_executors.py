@@ -151,7 +151,7 @@ def test_cli_fit_workers_zero_and_ray_address_without_ray_executor(tmp_path):
 def test_ray_crash_is_retried_and_hang_times_out(ray_cluster, tmp_path):
     from softsbi.executors.ray_executor import RayExecutor
     env = {"SOFTSBI_TOY_CRASH_ONCE": str(tmp_path), "SOFTSBI_TOY_HANG_ABOVE": "0.8"}
-    ex = RayExecutor(workers=2, timeout=4, retries=1, startup_grace=60, runtime_env={"env_vars": env})
+    ex = RayExecutor(workers=2, timeout=15, retries=1, startup_grace=120, runtime_env={"env_vars": env})
     ctx = toy_ctx()
     res = run_all(ex, [(OK, 1), (OK, 2)], ctx)  # each crashes once, then succeeds on a fresh worker
     assert all(not isinstance(r, BaseException) and r["status"] == STATUS_OK for r in res.values()), res
