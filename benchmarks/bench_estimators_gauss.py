@@ -13,6 +13,10 @@
 Usage::
 
     nice -n 15 python benchmarks/bench_estimators_gauss.py [--rounds 3 --sims 200] [--train 600 --test 200]
+    # coverage only, toy posterior well inside the prior box / on a bulk lift run's prior sims:
+    nice -n 15 python benchmarks/bench_estimators_gauss.py --skip c2st --toy-sigma 0.01 --out /tmp/cov_toy01
+    nice -n 15 python benchmarks/bench_estimators_gauss.py --skip c2st --lift-store /tmp/bench_lift/nn-bulk/run.zarr \
+        --test 60 --out /tmp/cov_lift
 """
 from __future__ import annotations
 
@@ -26,11 +30,11 @@ import numpy as np
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
 
 
-def toy_pool(n: int, T: int, K: int, seed: int):
+def toy_pool(n: int, T: int, K: int, seed: int, sigma: float | None = None):
     from softsbi.perception.pointcloud import PointCloudObserver
     from softsbi.plugins import registry
     import softsbi_toy.plugin as toy
-    sim = registry().simulator("toy-gauss")()
+    sim = registry().simulator("toy-gauss")(**({} if sigma is None else {"sigma": sigma}))
     sc = toy.toy_scenario(T)
     space = sim.param_space(sc)
     rng = np.random.default_rng(seed)
@@ -68,6 +72,11 @@ def main() -> None:
     ap.add_argument("--test", type=int, default=200)
     ap.add_argument("--methods", nargs="+", default=METHODS)
     ap.add_argument("--skip", nargs="*", default=[], choices=["c2st", "coverage"])
+    ap.add_argument("--toy-sigma", type=float, default=None,
+                    help="noise of toy-gauss for the coverage pool (default 0.05: the posterior is wide and "
+                         "truncated by the prior box; 0.01 keeps it inside)")
+    ap.add_argument("--lift-store", default=None,
+                    help="coverage on the prior simulations (round data) of a bulk lift run store instead of toy")
     args = ap.parse_args()
     import softsbi_toy.plugin as toy
     from softsbi.core.loop import FitConfig, run_fit
@@ -98,7 +107,14 @@ def main() -> None:
             print(f"{m:15s} C2ST per round: {' '.join(f'{a:.3f}' for a in accs)}", flush=True)
             (out / "results.json").write_text(json.dumps(results, indent=1))
     if "coverage" not in args.skip:
-        u, x = toy_pool(args.train + args.test, T, K, seed=11)
+        if args.lift_store:
+            from softsbi.core.loop import _usable
+            from softsbi.core.store import RunStore
+            st = RunStore.open(args.lift_store)
+            u, x, _ = _usable(st, len(st.completed_rounds()) - 1)
+            args.train = min(args.train, len(u) - args.test)
+        else:
+            u, x = toy_pool(args.train + args.test, T, K, seed=11, sigma=args.toy_sigma)
         reg = registry()
         names = list(args.methods) + ["sbi-npe"]
         for m in names:

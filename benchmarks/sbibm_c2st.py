@@ -35,6 +35,7 @@ def main() -> None:
     ap.add_argument("--c2st-n", type=int, default=2000)
     ap.add_argument("--max-seconds", type=float, default=300.0)
     ap.add_argument("--out", default="/tmp/sbibm_c2st.json")
+    ap.add_argument("--save-samples", default=None, help="folder for the posterior samples (.npy)")
     args = ap.parse_args()
 
     from softsbi.inference.baselines import FlatMDNEstimator
@@ -60,6 +61,9 @@ def main() -> None:
                         lo, hi = BOX[task]
                         s = s[np.all((s >= lo) & (s <= hi), axis=1)]
                     refs = np.load(ref / f"{task}_ref{k}.npy")
+                    if args.save_samples:
+                        Path(args.save_samples).mkdir(parents=True, exist_ok=True)
+                        np.save(Path(args.save_samples) / f"{task}_{name}_{n}_obs{k}.npy", s[:args.c2st_n])
                     t0 = time.perf_counter()
                     acc = c2st(s[:args.c2st_n], refs, max_n=args.c2st_n, seed=k)
                     pub = PUBLISHED_NPE[task][0 if n == 1000 else 1] if n in (1000, 10000) else None

@@ -313,9 +313,6 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         frames: str = typer.Option("auto", help="frames that inform the posterior: 'auto' (the cloth hangs clear: "
                                                 "gripper >= 10 cm above the table), 'all', or e.g. 10:25; the "
                                                 "Chamfer metric always uses every frame"),
-        correction: str = typer.Option("analytic", help="proposal correction of later rounds: analytic "
-                                                       "(BayesSim, p/p~ * q) or weights (SNPE-B importance-"
-                                                       "weighted training)"),
         executor: str = typer.Option("local", help="where simulations run: local (process pool) or ray"),
         ray_address: Optional[str] = typer.Option(None, help="with --executor ray: address of an existing Ray "
                                                              "cluster (head host:port or auto); default: start Ray "
@@ -339,8 +336,6 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
     if executor == "ray":
         from .executors.ray_executor import _import_ray
         _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`
-    cfg.correction = correction
-    cfg.validate()
     meas = load_measurement(observed, n_points=points, seed=seed)
     if frames == "auto":
         cfg.frames = _parse_frames("auto", meas.scenario)

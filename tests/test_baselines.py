@@ -119,11 +119,14 @@ def test_sbi_npe_adapter(blobs):
     assert q.weights.shape == (2,)
 
 
-def test_c2st_identical_and_disjoint():
+@pytest.mark.parametrize("backend", ["torch", "sklearn"])
+def test_c2st_identical_and_disjoint(backend):
+    if backend == "sklearn":
+        pytest.importorskip("sklearn")
     rng = np.random.default_rng(0)
     a, b = rng.standard_normal((400, 2)), rng.standard_normal((400, 2))
-    same = c2st(a, b, seed=0, epochs=30)
-    far = c2st(a, b + 6.0, seed=0, epochs=30)
+    same = c2st(a, b, seed=0, epochs=30, backend=backend)
+    far = c2st(a, b + 6.0, seed=0, epochs=30, backend=backend)
     assert 0.4 < same < 0.6, same
     assert far > 0.97, far
     with pytest.raises(ShapeError):

@@ -58,8 +58,7 @@ def test_store_round_trip_and_schema_errors(tmp_path):
         RunStore.create(p, {})
 
 
-@pytest.mark.parametrize("correction", ["analytic", "weights"])
-def test_sequential_fit_matches_the_analytic_posterior(tmp_path, correction):
+def test_sequential_fit_matches_the_analytic_posterior(tmp_path):
     """Linear-Gaussian toy (known posterior), 3 rounds: the proposal-corrected posterior's mean
     and std match the analytic ones; the Chamfer of posterior rollouts is below the prior's."""
     meas = toy_measurement()
@@ -68,7 +67,7 @@ def test_sequential_fit_matches_the_analytic_posterior(tmp_path, correction):
     mean, cov = toy.analytic_posterior(centres)
     # rkhs, not mdnn: BayesSim's summaries use state *differences*, which lose absolute position here
     cfg = FitConfig(backend="toy-gauss", estimator="rkhs", rounds=2, sims_per_round=250, workers=1, n_points=16,
-                    n_eval=20, n_dense=64, seed=1, correction=correction,
+                    n_eval=20, n_dense=64, seed=1,
                     estimator_options={"max_epochs": 150, "hidden": [64, 64], "n_components": 2})
     res = run_fit(tmp_path / "run", meas, cfg, make_plots=False)
     rep = res.report

@@ -149,9 +149,6 @@ class PosteriorChain:
         self.qs: list[MixtureOfGaussians] = []
         self.counts: list[float] = []
         self.log_z: list[float] = []
-        #: per round: True = posterior is q / m_k (analytic correction), False = q itself (the
-        #: estimator was trained with importance weights p / m_k, SNPE-B)
-        self.divide: list[bool] = []
 
     def __len__(self) -> int:
         return len(self.qs)
@@ -170,42 +167,23 @@ class PosteriorChain:
             if j == upto:
                 return log_mix, posts
             with np.errstate(invalid="ignore"):
-                lp = self.qs[j].log_prob(u) - (log_mix if self.divide[j] else 0.0) - self.log_z[j]
+                lp = self.qs[j].log_prob(u) - log_mix - self.log_z[j]
             posts.append(np.where(inside, lp, -np.inf))
         raise AssertionError("unreachable")
 
-    def log_pooled_proposal(self, u: np.ndarray, count: float) -> np.ndarray:
-        """``log m_k(u)`` for the next round ``k = len(self)`` whose newest ``count`` usable
-        simulations came from the current proposal (the density of the pooled training data)."""
-        self.counts.append(float(count))
-        try:
-            log_mix, _ = self._log_mix_and_posts(np.atleast_2d(u), len(self.qs))
-        finally:
-            self.counts.pop()
-        return log_mix
-
-    def add_round(self, q: MixtureOfGaussians, count: float, divide: bool = True) -> "RoundPosterior":
+    def add_round(self, q: MixtureOfGaussians, count: float) -> "RoundPosterior":
         """Append round ``k = len(self)`` trained on data whose newest ``count`` usable
-        simulations came from the current proposal; returns ``post_k``.
-
-        Args:
-            divide: True when ``q`` was trained unweighted (posterior = ``q / m_k``, the analytic
-                correction); False when it was trained with importance weights ``p / m_k``
-                (posterior = ``q`` truncated to the box).
-        """
+        simulations came from the current proposal; returns ``post_k``."""
         if q.dim != self.dim:
             raise ShapeError(f"q has dimension {q.dim}, chain has {self.dim}")
         k = len(self.qs)
         self.qs.append(q)
         self.counts.append(float(count))
-        self.divide.append(bool(divide))
         rng = np.random.default_rng([self.seed, k, 7919])
         u = q.sample(self.n_norm, rng)
         inside = _inside(u)
         if not inside.any():
             log_z = -np.inf
-        elif not divide:
-            log_z = float(np.log(inside.mean()))
         else:
             log_mix, _ = self._log_mix_and_posts(u[inside], k)
             log_z = float(logsumexp(-log_mix) - np.log(len(u)))
@@ -227,9 +205,7 @@ class RoundPosterior(Distribution):
         return self.chain.qs[self.k]
 
     def _log_w(self, u: np.ndarray) -> np.ndarray:
-        """Log importance weight of draws from ``q``: ``-log m_k`` or 0 (weighted training)."""
-        if not self.chain.divide[self.k]:
-            return np.zeros(len(u))
+        """Log importance weight ``-log m_k(u)`` of draws from ``q``."""
         log_mix, _ = self.chain._log_mix_and_posts(u, self.k)
         return -log_mix
 

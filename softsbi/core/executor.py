@@ -67,9 +67,11 @@ def check_options(workers: int | None, timeout: float | None, retries: int) -> N
         ExecutorOptionError (a ValueError): ``workers < 1``, ``timeout <= 0`` or ``retries < 0``.
     """
     if workers is not None and int(workers) < 1:
-        raise ExecutorOptionError(f"--workers must be >= 1 (got {workers}); use 1 to run simulations in this process")
+        raise ExecutorOptionError(f"--workers must be >= 1 (got {workers}); use 1 to run simulations in this "
+                                  f"process")
     if timeout is not None and not float(timeout) > 0:
-        raise ExecutorOptionError(f"the per-simulation timeout must be > 0 seconds (got {timeout}); leave it unset for none")
+        raise ExecutorOptionError(f"the per-simulation timeout must be > 0 seconds (got {timeout}); leave it "
+                                  f"unset for none")
     if int(retries) < 0:
         raise ExecutorOptionError(f"retries must be >= 0 (got {retries})")
 
@@ -137,8 +139,8 @@ class LocalExecutor(Executor):
         timeout: per-job limit in seconds (None = none); a job running longer has its worker
             killed and counts as a failed attempt.
         retries: how many times a job whose worker crashed or hung is re-run (default 2).
-        in_process: run jobs in this process, one after the other (default: ``workers == 1``);
-            no crash or hang protection then (a crash kills the driver, ``timeout`` is ignored).
+        in_process: run jobs in this process, one after the other (default: ``workers == 1`` and
+            no ``timeout``); no crash or hang protection then (a crash kills the driver).
         startup_grace: extra seconds allowed to the first job of a fresh worker process, which
             pays for imports and one-time set-up (loading plugins takes seconds).
 
@@ -155,7 +157,9 @@ class LocalExecutor(Executor):
         self.workers = (os.cpu_count() or 1) if workers is None else int(workers)
         self.timeout = None if timeout is None else float(timeout)
         self.retries = int(retries)
-        self.in_process = (self.workers == 1) if in_process is None else bool(in_process)
+        if in_process is None:
+            in_process = self.workers == 1 and self.timeout is None
+        self.in_process = bool(in_process)
         self._mp = mp.get_context("spawn")
         self._pool: list[_Worker] = []
         self._context: Any = None

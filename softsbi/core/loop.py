@@ -56,10 +56,6 @@ class FitConfig:
             Does not change the Chamfer metric, which compares full clouds.
         frames: indices of the frames whose state informs the posterior (None = all); the
             metric still uses every frame.
-        correction: how later rounds account for their proposal: ``"analytic"`` (BayesSim: the
-            estimator fits ``q`` unweighted and the posterior is ``p / p~ * q``, default) or
-            ``"weights"`` (SNPE-B, Lueckmann et al. 2017: the loss is weighted by ``p / p~`` and the
-            posterior is ``q``; more robust when ``q`` is imprecise).
     """
 
     backend: str = "mujoco-flex"
@@ -81,7 +77,6 @@ class FitConfig:
     fixed: dict[str, float] = field(default_factory=dict)
     min_height: float | None = None
     frames: list[int] | None = None
-    correction: str = "analytic"
 
     def validate(self) -> None:
         if self.rounds < 1:
@@ -92,8 +87,6 @@ class FitConfig:
             raise SoftsbiError(f"--workers must be >= 1 (got {self.workers})")
         if self.n_points < 1:
             raise SoftsbiError(f"--points must be >= 1 (got {self.n_points})")
-        if self.correction not in ("analytic", "weights"):
-            raise SoftsbiError(f"--correction must be 'analytic' or 'weights' (got '{self.correction}')")
         if self.frames is not None and len(self.frames) < 1:
             raise SoftsbiError("--frames selects no frame; give e.g. --frames 10:25")
 
@@ -419,16 +412,13 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                 est = est_cls(**cfg.estimator_options)
                 fr = slice(None) if cfg.frames is None else list(cfg.frames)
                 kw = {}
-                if cfg.correction == "weights" and r > 0:
-                    # importance weights prior / pooled proposal, bounded by N / N_round0
-                    kw["weights"] = np.exp(-chain.log_pooled_proposal(U, counts[r]))
                 info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
                                progress=lambda e, m, l, _r=r: hooks.training_epoch(_r, e, m, l), **kw)
                 q = est.conditional(x_obs[fr])
                 info = dict(info, n_train_total=int(len(U)), usable_per_round=counts)
                 store.finish_round(r, q, info)
             if sequential:
-                post = chain.add_round(q, counts[r], divide=not (cfg.correction == "weights" and r > 0))
+                post = chain.add_round(q, counts[r])
             else:  # all data from the prior: the posterior is q truncated to the prior box
                 chain = PosteriorChain(space.dim, seed=cfg.seed)
                 post = chain.add_round(q, sum(counts))

@@ -36,7 +36,7 @@ SCHEMA_VERSION = 1
 #: config keys that must match when an existing run is resumed
 RESUME_KEYS = ("backend", "backend_options", "scenario", "param_space", "effects", "observer",
                "observer_options", "estimator", "sims_per_round", "seed", "observed_source", "min_height",
-               "frames", "correction")
+               "frames")
 
 
 def _version() -> str:

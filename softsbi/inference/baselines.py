@@ -278,7 +278,7 @@ class GPBulkEstimator(PosteriorEstimator):
 
     name: ClassVar[str] = "gp-bulk"
     sequential: ClassVar[bool] = False
-    DEFAULTS: ClassVar[dict[str, Any]] = {"pca_dim": 8, "gp_iters": 100, "gp_lr": 0.05, "max_train": 3000,
+    DEFAULTS: ClassVar[dict[str, Any]] = {"pca_dim": 8, "gp_iters": 60, "gp_lr": 0.05, "max_train": 1000,
                                           "num_threads": 1}
 
     def __init__(self, **config: Any):

@@ -243,8 +243,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
 
     # ------------------------------------------------------------------ API
     def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
-            progress: Callable[[int, int, float], None] | None = None,
-            weights: np.ndarray | None = None) -> dict[str, Any]:
+            progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
         """Train ``q(u | x)`` by maximum likelihood (MDN negative log-likelihood).
 
         Args:
@@ -252,9 +251,6 @@ class NeuralMDNEstimator(PosteriorEstimator):
             x: ``(N, T, 1+K, 3)`` states in metres (gripper row, then K unordered points).
             seed: seeds the weight init, the train/validation split and the batch order.
             progress: ``progress(epoch, max_epochs, train_loss)`` after every epoch.
-            weights: optional ``(N,)`` non-negative importance weights of the simulations
-                (SNPE-B, Lueckmann et al. 2017: ``prior / proposal``); the loss is the weighted
-                mean NLL, so ``q`` approximates the posterior directly.
 
         Returns:
             ``{"epochs", "best_epoch", "train_loss", "val_loss", "seconds", "n_train", "n_val"}``;
@@ -269,13 +265,6 @@ class NeuralMDNEstimator(PosteriorEstimator):
         u, x = self._validate(u, x)
         c = self.config
         N, D = u.shape
-        if weights is None:
-            w_all = np.ones(N, np.float32)
-        else:
-            w_all = np.asarray(weights, np.float64)
-            if w_all.shape != (N,) or not np.all(np.isfinite(w_all)) or (w_all < 0).any() or w_all.sum() <= 0:
-                raise DataError(f"weights must be {N} finite non-negative numbers with a positive sum")
-            w_all = (w_all / w_all.mean()).astype(np.float32)
         old_threads = torch.get_num_threads()
         torch.set_num_threads(self._threads())
         try:
@@ -301,7 +290,6 @@ class NeuralMDNEstimator(PosteriorEstimator):
             opt = torch.optim.Adam(net.parameters(), lr=float(c["lr"]), weight_decay=float(c["weight_decay"]))
             z_tr, u_tr = torch.as_tensor(zs[tr_idx]), torch.as_tensor(uz[tr_idx])
             z_va, u_va = torch.as_tensor(zs[val_idx]), torch.as_tensor(uz[val_idx])
-            w_tr, w_va = torch.as_tensor(w_all[tr_idx]), torch.as_tensor(w_all[val_idx])
             n_tr = len(tr_idx)
             n_batches = max(1, math.ceil(n_tr / int(c["batch_size"])))
             max_epochs, patience = int(c["max_epochs"]), int(c["patience"])
@@ -315,8 +303,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
                 total = 0.0
                 for b in np.array_split(np.arange(n_tr), n_batches):
                     idx = order[torch.as_tensor(b)]
-                    wb = w_tr[idx]
-                    loss = -(wb * mdn_log_prob(net(z_tr[idx]), u_tr[idx])).sum() / wb.sum().clamp_min(1e-12)
+                    loss = -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
                     opt.zero_grad(set_to_none=True)
                     loss.backward()
                     if c["grad_clip"]:
@@ -324,7 +311,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
                     opt.step()
                     total += loss.item() * len(b)
                 train_loss = total / n_tr + us_log
-                val_loss = self._val_loss(z_va, u_va, w_va) + us_log
+                val_loss = self._val_loss(z_va, u_va) + us_log
                 if not math.isfinite(train_loss):
                     break
                 if val_loss < best[0]:
@@ -348,17 +335,14 @@ class NeuralMDNEstimator(PosteriorEstimator):
                          "seconds": time.perf_counter() - t0, "n_train": int(n_tr), "n_val": int(n_val)}
         return dict(self.fit_info)
 
-    def _val_loss(self, z_va: torch.Tensor, u_va: torch.Tensor, w_va: torch.Tensor | None = None,
-                  chunk: int = 256) -> float:
+    def _val_loss(self, z_va: torch.Tensor, u_va: torch.Tensor, chunk: int = 256) -> float:
         assert self._net is not None
         self._net.eval()
-        w = torch.ones(len(z_va)) if w_va is None else w_va
         total = 0.0
         with torch.no_grad():
             for i in range(0, len(z_va), chunk):
-                lp = mdn_log_prob(self._net(z_va[i:i + chunk]), u_va[i:i + chunk])
-                total += float(-(w[i:i + chunk] * lp).sum())
-        return total / max(float(w.sum()), 1e-12)
+                total += float(-mdn_log_prob(self._net(z_va[i:i + chunk]), u_va[i:i + chunk]).sum())
+        return total / len(z_va)
 
     def _prepare_obs(self, x_obs: np.ndarray) -> np.ndarray:
         if self._net is None:

@@ -109,7 +109,8 @@ class SbiNPEEstimator(PosteriorEstimator):
 
     def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
             progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
-        """Train sbi's NPE (first-round loss) on ``u (N, D)``, ``x``.
+        """Train sbi's NPE (first-round loss) on ``u (N, D)``, ``x``; softsbi's loop applies the
+        proposal correction, as for the built-in estimators.
 
         Returns:
             ``{"epochs", "val_loss" (best validation log-prob, negated), "seconds", "n_train"}``.

@@ -8,6 +8,13 @@
 plus ``wind * s_t`` along x when the ``toy-wind`` effect is on. With a uniform prior
 wide enough, the posterior given the centres is Gaussian with precision
 ``sum_t A_t^T A_t / sigma^2`` (see :func:`analytic_posterior`).
+
+Test hooks (environment variables read at each ``simulate``): ``SOFTSBI_TOY_SLEEP=<s>`` sleeps;
+``SOFTSBI_TOY_DIVERGE_ABOVE=<a>`` returns a diverged rollout for a larger ``a``;
+``SOFTSBI_TOY_CRASH_ONCE=<dir>`` kills the worker process (``os._exit(13)``) the first time a
+seed is simulated (a marker file ``<dir>/crashed-<seed>`` records it);
+``SOFTSBI_TOY_CRASH_ABOVE=<a>`` kills it (``os._exit(14)``) for a larger ``a``, every time;
+``SOFTSBI_TOY_HANG_ABOVE=<a>`` sleeps forever for a larger ``a``.
 """
 from __future__ import annotations
 
