@@ -126,7 +126,8 @@ def _print_report(rep: dict[str, Any], out: Path) -> None:
         row = [n, p["unit"], f"{rep['posterior_mean'][n]:.4g}", f"{rep['posterior_std'][n]:.3g}",
                f"[{rep['posterior_q05'][n]:.4g}, {rep['posterior_q95'][n]:.4g}]"]
         if truth:
-            row += [f"{truth[n]:.4g}", "yes" if rep["truth_in_90pct_interval"][n] else "NO"]
+            ok = rep["truth_in_90pct_interval"].get(n)
+            row += [f"{truth[n]:.4g}" if n in truth else "-", "-" if ok is None else ("yes" if ok else "NO")]
         t.add_row(*row)
     console.print(t)
     if rep.get("chamfer_prior_m") and rep.get("chamfer_posterior_m"):

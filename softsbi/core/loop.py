@@ -469,10 +469,15 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
     if report["chamfer_prior_m"] and report["chamfer_posterior_m"]:
         report["chamfer_reduction"] = 1 - report["chamfer_posterior_m"] / report["chamfer_prior_m"]
     if meas.truth:
-        inside = {}
-        for n in space.names:
-            inside[n] = bool(report["posterior_q05"][n] <= meas.truth[n] <= report["posterior_q95"][n])
-        report["truth_in_90pct_interval"] = inside
+        # an effect added by the fit but absent from the measurement is truly switched off
+        truth = dict(meas.truth)
+        for e in cfg.effects:
+            for k, v in reg.effect(e)().nominal().items():
+                truth.setdefault(k, v)
+        report["truth"] = truth
+        report["truth_in_90pct_interval"] = {
+            n: bool(report["posterior_q05"][n] <= truth[n] <= report["posterior_q95"][n])
+            for n in space.names if n in truth}
     (out_dir / "report.json").write_text(json.dumps(report, indent=2))
     result = FitResult(store=store, param_space=space, posterior=post, report=report, rounds=summaries)
     if make_plots:
