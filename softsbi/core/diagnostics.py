@@ -12,8 +12,10 @@
   simulation per direction; the engines are deterministic). The statistic is the drop of
   the weighted residual sum of squares when ``J_E`` joins ``J_theta`` (effect parameters
   kept inside their prior range); its null distribution comes from posterior-predictive
-  simulations of the nominal model treated as if they were the measurement. Top candidates
-  are then confirmed by a short refit with the effect switched on.
+  simulations of the nominal model treated as if they were the measurement (a Gamma fit of
+  that null gives the p-value). Candidates are ranked, and selected forward, by that p-value,
+  since raw residual drops are not comparable across effects with different parameters. Top
+  candidates are then confirmed by a short refit with the effect switched on.
 
 Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,
 horizontal extent), which both simulated surfaces and real partial clouds have.
@@ -430,7 +432,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
             (default: the run's own).
 
     Returns:
-        dict with ``ranking`` (effect, explained_fraction, statistic, p_value, estimate, ...),
+        dict with ``ranking`` (effect, explained_fraction, statistic, p_value, log10_p, estimate,
+        ...; ordered by evidence, i.e. by the p-value against each effect's own null),
         ``significant`` (names), ``confirmed`` (refit results) and ``summary`` (plain language).
     """
     t0 = time.perf_counter()
@@ -526,25 +529,32 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         p_emp = (1 + (null >= d_obs).sum()) / (len(null) + 1)
         pos = null[null > 1e-12]
         if d_obs <= 0:
-            p_g = 1.0
+            log_p = 0.0
         elif len(pos) >= 3:
             ga, _, gscale = stats.gamma.fit(pos, floc=0)
-            p_g = float(stats.gamma.sf(d_obs, ga, scale=gscale)) * len(pos) / len(null)
+            log_p = float(stats.gamma.logsf(d_obs, ga, scale=gscale)) + np.log(len(pos) / len(null))
         else:
-            p_g = float(p_emp)
+            log_p = float(np.log(p_emp))
+        log_p = min(0.0, log_p)
+        p_g = float(np.exp(log_p))
         est = {}
         k = len(coef) - len(design[name]["steps"])
         for (pname, u0, step), cval in zip(design[name]["steps"], coef[k:]):
             ps1 = design[name]["effect"].param_space().subset([pname])
             est[pname] = float(ps1.from_unit(np.array([np.clip(u0 + cval * step, 0, 1)]))[0])
         return {"statistic": float(d_obs), "explained_fraction": float(d_obs / max(base_obs, 1e-12)),
-                "null_mean": float(null.mean()), "p_value": float(p_emp), "p_value_gamma": min(1.0, p_g),
-                "estimate": est}
+                "null_mean": float(null.mean()), "p_value": float(p_emp), "p_value_gamma": p_g,
+                "log10_p": log_p / np.log(10), "estimate": est}
+
+    def evidence(t: dict[str, Any]) -> tuple[float, float]:
+        return (t["log10_p"], -t["explained_fraction"])
 
     ranking = []
     for name, dsg in design.items():
         ranking.append({"effect": name, "description": dsg["effect"].description, **test(name, [])})
-    ranking.sort(key=lambda r: -r["statistic"])
+    # rank by evidence: each statistic is calibrated by its own null (effects differ in their number
+    # of parameters and in how nonlinear they are, so raw residual drops are not comparable)
+    ranking.sort(key=evidence)
     ranking += failed
     # forward selection: an effect is significant if it explains residual beyond those already chosen
     thr = alpha / max(len(design), 1)
@@ -554,7 +564,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     while remaining:
         tests = {n: (test(n, significant) if significant else next(r for r in ranking if r["effect"] == n))
                  for n in remaining}
-        best = max(tests, key=lambda n: tests[n]["statistic"])
+        best = min(tests, key=lambda n: evidence(tests[n]))
         t = tests[best]
         steps_log.append({"given": list(significant), "best": best, "p_value_gamma": t["p_value_gamma"],
                           "explained_fraction": t["explained_fraction"]})
