@@ -28,7 +28,7 @@ import zarr
 
 from .distributions import MixtureOfGaussians
 from .errors import SchemaError
-from .types import STATUS_PENDING
+from .types import STATUS_PENDING, _jsonable
 
 SCHEMA = "softsbi.run"
 SCHEMA_VERSION = 1
@@ -256,18 +256,3 @@ def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], uni
                          attributes={"units": units})
     arr[...] = value
 
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, np.integer, np.bool_)):
-        return x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    if isinstance(x, Path):
-        return str(x)
-    return x
