@@ -106,7 +106,6 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     from .plugins import registry
 
     plt = _plt()
-    space = result.param_space
     theta = dict(result.report["posterior_median"])
     theta.update(cfg.fixed)
     sim = registry().simulator(cfg.backend)(**cfg.backend_options)

@@ -17,12 +17,12 @@ import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from .distributions import PosteriorChain, RoundPosterior
-from .errors import SchemaError, SoftsbiError
+from .errors import SoftsbiError
 from .metrics import chamfer_per_frame
 from .store import RunStore
 from .types import STATUS_ERROR, STATUS_OK, ParamSpace, Scenario

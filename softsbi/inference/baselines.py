@@ -35,7 +35,6 @@ passes states ``(N, T, 1+K, 3)``.
 """
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Callable, ClassVar, Mapping
 
