@@ -1,8 +1,6 @@
 """CLI and bad-input behaviour: each error names the file/problem and the fix."""
 import json
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest

@@ -6,7 +6,7 @@ import pytest
 from typer.testing import CliRunner
 
 from softsbi.cli import app
-from softsbi.core.diagnostics import check_run, compare_runs, diagnose_run, misspecification_test
+from softsbi.core.diagnostics import check_run, diagnose_run, misspecification_test
 from softsbi.core.errors import ParameterError
 from softsbi.core.loop import FitConfig, run_fit
 from softsbi.perception.measurement import simulate_measurement

@@ -5,7 +5,6 @@ Fault injection uses the toy plugin's env hooks: SOFTSBI_TOY_CRASH_ONCE=<dir> (o
 first time per seed), SOFTSBI_TOY_CRASH_ABOVE=<a>, SOFTSBI_TOY_HANG_ABOVE=<a>. Local workers
 inherit the environment when they are spawned; Ray workers get it through ``runtime_env``.
 """
-import os
 import signal
 import subprocess
 import sys

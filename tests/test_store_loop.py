@@ -13,7 +13,7 @@ import zarr
 
 from softsbi.core.distributions import gaussian
 from softsbi.core.errors import SchemaError
-from softsbi.core.loop import FitConfig, Measurement, run_fit
+from softsbi.core.loop import FitConfig, run_fit
 from softsbi.core.store import SCHEMA_VERSION, RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING
 
