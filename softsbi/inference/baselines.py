@@ -46,7 +46,7 @@ from ..core.distributions import MixtureOfGaussians
 from ..core.errors import DataError, DependencyMissing, ParameterError, ShapeError, closest
 from ..core.interfaces import PosteriorEstimator
 from ..plugins.hookspecs import hookimpl
-from .estimators import NeuralMDNEstimator, RKHSEstimator, _default_threads
+from .estimators import NeuralMDNEstimator, RKHSEstimator, _default_threads, check_training_pair
 from .mdn import MDNParams
 from .summaries import bayessim_summaries
 
@@ -332,15 +332,8 @@ class GPBulkEstimator(PosteriorEstimator):
         """
         gpytorch = _require_gpytorch()
         t0 = time.perf_counter()
-        u = np.asarray(u, np.float64)
-        u = u[:, None] if u.ndim == 1 else u
         s = self._summaries(x)
-        if u.ndim != 2 or len(u) != len(s):
-            raise ShapeError(f"u must be (N, D) with the N of x; got u {u.shape}, x {np.shape(x)}")
-        if not (np.isfinite(u).all() and np.isfinite(s).all()):
-            raise DataError("u or x has non-finite values (NaN/inf); drop failed simulations before fitting")
-        if len(u) < 10:
-            raise DataError(f"need at least 10 simulations to fit an estimator, got {len(u)}")
+        u = check_training_pair(u, s, np.shape(x))
         c = self.config
         rng = np.random.default_rng(seed)
         if len(u) > int(c["max_train"]):

@@ -42,6 +42,32 @@ __all__ = ["NeuralMDNEstimator", "RKHSEstimator", "MDNNEstimator", "MDNNetwork",
 STATE_FORMAT = "softsbi.neural-mdn/1"
 MIN_SAMPLES = 10
 
+
+def check_training_pair(u: np.ndarray, features: np.ndarray, x_shape: tuple[int, ...]) -> np.ndarray:
+    """Validate parameters against precomputed features of the simulations.
+
+    Args:
+        u: ``(N, D)`` (or ``(N,)``) unit-cube parameters.
+        features: ``(N, ...)`` features computed from ``x``.
+        x_shape: shape of the raw ``x``, for the error message.
+
+    Returns:
+        ``u`` as a float64 ``(N, D)`` array.
+
+    Raises:
+        ShapeError: ``u`` is not ``(N, D)`` with the N of ``x``.
+        DataError: non-finite values, or fewer than :data:`MIN_SAMPLES` simulations.
+    """
+    u = np.asarray(u, np.float64)
+    u = u[:, None] if u.ndim == 1 else u
+    if u.ndim != 2 or len(u) != len(features):
+        raise ShapeError(f"u must be (N, D) with the N of x; got u {u.shape}, x {tuple(x_shape)}")
+    if not (np.isfinite(u).all() and np.isfinite(features).all()):
+        raise DataError("u or x has non-finite values (NaN/inf); drop failed simulations before fitting")
+    if len(u) < MIN_SAMPLES:
+        raise DataError(f"need at least {MIN_SAMPLES} simulations to fit an estimator, got {len(u)}")
+    return u
+
 _ACTIVATIONS: dict[str, Callable[[], nn.Module]] = {
     "relu": nn.ReLU, "elu": nn.ELU, "silu": nn.SiLU, "tanh": nn.Tanh, "gelu": nn.GELU}
 

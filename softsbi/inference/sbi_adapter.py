@@ -27,9 +27,9 @@ import numpy as np
 import torch
 
 from ..core.distributions import MixtureOfGaussians
-from ..core.errors import DataError, DependencyMissing, ParameterError, ShapeError, closest
+from ..core.errors import DependencyMissing, ParameterError, ShapeError, closest
 from ..core.interfaces import PosteriorEstimator
-from .estimators import _default_threads
+from .estimators import _default_threads, check_training_pair
 from .summaries import bayessim_summaries
 
 __all__ = ["SbiNPEEstimator", "sbi_available"]
@@ -118,15 +118,8 @@ class SbiNPEEstimator(PosteriorEstimator):
         """
         _, NPE, posterior_nn = _require_sbi()
         t0 = time.perf_counter()
-        u = np.asarray(u, np.float64)
-        u = u[:, None] if u.ndim == 1 else u
         f = self._features(x)
-        if u.ndim != 2 or len(u) != len(f):
-            raise ShapeError(f"u must be (N, D) with the N of x; got u {u.shape}, x {np.shape(x)}")
-        if not (np.isfinite(u).all() and np.isfinite(f).all()):
-            raise DataError("u or x has non-finite values (NaN/inf); drop failed simulations before fitting")
-        if len(u) < 10:
-            raise DataError(f"need at least 10 simulations to fit an estimator, got {len(u)}")
+        u = check_training_pair(u, f, np.shape(x))
         c = self.config
         old = torch.get_num_threads()
         torch.set_num_threads(self._threads())
