@@ -101,6 +101,7 @@ def ribbon_vertices(scenario: Scenario, length: float, n: int, width: float, z: 
 
 
 def ribbon_faces(n: int) -> np.ndarray:
+    """Triangles ``(2 (n - 1), 3)`` of a ribbon of ``n`` vertex pairs (vertex ``2k``/``2k+1`` = pair ``k``)."""
     f = []
     for k in range(n - 1):
         a, b, c, d = 2 * k, 2 * k + 1, 2 * k + 3, 2 * k + 2

@@ -80,6 +80,7 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 @dataclass
 class RolloutContext:
+    """What a worker needs to rebuild the simulator and scenario of a run (picklable)."""
     backend: str
     backend_options: dict[str, Any]
     scenario: dict[str, Any]
@@ -137,23 +138,28 @@ class RunView:
 
     @property
     def fixed(self) -> dict[str, float]:
+        """Parameters held fixed in the fit ``{name: value}``."""
         return dict(self.config.get("fixed") or {})
 
     @property
     def effects(self) -> list[str]:
+        """Effects the fit switched on."""
         return list(self.config.get("effects") or [])
 
     def values(self, row: np.ndarray) -> dict[str, float]:
+        """Inferred parameters ``(D,)`` plus the fixed ones as a ``{name: value}`` mapping."""
         v = self.space.as_dict(row)
         v.update(self.fixed)
         return v
 
     def median(self) -> dict[str, float]:
+        """Posterior median (physical units) plus the fixed parameters."""
         v = {k: float(x) for k, x in self.report["posterior_median"].items()}
         v.update(self.fixed)
         return v
 
     def context(self) -> RolloutContext:
+        """The :class:`RolloutContext` of this run."""
         return RolloutContext(self.config["backend"], dict(self.config.get("backend_options") or {}),
                               self.config["scenario"])
 

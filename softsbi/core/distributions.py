@@ -49,16 +49,20 @@ class MixtureOfGaussians:
 
     @property
     def dim(self) -> int:
+        """Number of dimensions D."""
         return self.means.shape[1]
 
     @property
     def covariances(self) -> np.ndarray:
+        """Component covariances ``(C, D, D)``."""
         return self.scale_tril @ np.swapaxes(self.scale_tril, -1, -2)
 
     def mean(self) -> np.ndarray:
+        """Mixture mean ``(D,)``."""
         return self.weights @ self.means
 
     def cov(self) -> np.ndarray:
+        """Mixture covariance ``(D, D)`` (within- plus between-component)."""
         m = self.mean()
         d = self.means - m
         return np.einsum("c,cij->ij", self.weights, self.covariances) + np.einsum("c,ci,cj->ij", self.weights, d, d)
@@ -81,6 +85,7 @@ class MixtureOfGaussians:
         return self.means[comp] + np.einsum("nij,nj->ni", self.scale_tril[comp], eps)
 
     def to_dict(self) -> dict:
+        """``{"weights", "means", "scale_tril"}`` arrays (as stored in a run)."""
         return {"weights": self.weights, "means": self.means, "scale_tril": self.scale_tril}
 
 
