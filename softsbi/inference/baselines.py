@@ -43,10 +43,10 @@ import torch
 from torch import nn
 
 from ..core.distributions import MixtureOfGaussians
-from ..core.errors import DataError, DependencyMissing, ParameterError, ShapeError, closest
+from ..core.errors import DataError, DependencyMissing, ParameterError, ShapeError
 from ..core.interfaces import PosteriorEstimator
 from ..plugins.hookspecs import hookimpl
-from .estimators import NeuralMDNEstimator, RKHSEstimator, _default_threads, check_training_pair
+from .estimators import NeuralMDNEstimator, RKHSEstimator, _default_threads, check_training_pair, merge_config
 from .mdn import MDNParams
 from .summaries import bayessim_summaries
 
@@ -281,12 +281,7 @@ class GPBulkEstimator(PosteriorEstimator):
                                           "num_threads": 1}
 
     def __init__(self, **config: Any):
-        unknown = [k for k in config if k not in self.DEFAULTS]
-        if unknown:
-            k = unknown[0]
-            raise ParameterError(f"unknown option '{k}' for estimator '{self.name}'.{closest(k, self.DEFAULTS)} "
-                                 f"Options: {', '.join(sorted(self.DEFAULTS))}")
-        super().__init__(**{**self.DEFAULTS, **config})
+        super().__init__(**merge_config(self.name, self.DEFAULTS, config))
         self._state: dict[str, Any] | None = None
         self._models: list[Any] | None = None
         self.fit_info: dict[str, Any] = {}

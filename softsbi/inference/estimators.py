@@ -43,6 +43,20 @@ STATE_FORMAT = "softsbi.neural-mdn/1"
 MIN_SAMPLES = 10
 
 
+def merge_config(estimator: str, defaults: Mapping[str, Any], config: Mapping[str, Any]) -> dict[str, Any]:
+    """``defaults`` updated by ``config``.
+
+    Raises:
+        ParameterError: a key of ``config`` is not an option (names the closest one and lists all).
+    """
+    unknown = [k for k in config if k not in defaults]
+    if unknown:
+        k = unknown[0]
+        raise ParameterError(f"unknown option '{k}' for estimator '{estimator}'.{closest(k, defaults)} "
+                             f"Options: {', '.join(sorted(defaults))}")
+    return {**defaults, **config}
+
+
 def check_training_pair(u: np.ndarray, features: np.ndarray, x_shape: tuple[int, ...]) -> np.ndarray:
     """Validate parameters against precomputed features of the simulations.
 
@@ -154,13 +168,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {}
 
     def __init__(self, **config: Any):
-        defaults = self.defaults()
-        unknown = [k for k in config if k not in defaults]
-        if unknown:
-            k = unknown[0]
-            raise ParameterError(f"unknown option '{k}' for estimator '{self.name}'.{closest(k, defaults)} "
-                                 f"Options: {', '.join(sorted(defaults))}")
-        cfg = {**defaults, **config}
+        cfg = merge_config(self.name, self.defaults(), config)
         cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
         if cfg["activation"] not in _ACTIVATIONS:
             raise ParameterError(f"activation '{cfg['activation']}' not in {sorted(_ACTIVATIONS)}")

@@ -27,9 +27,9 @@ import numpy as np
 import torch
 
 from ..core.distributions import MixtureOfGaussians
-from ..core.errors import DependencyMissing, ParameterError, ShapeError, closest
+from ..core.errors import DependencyMissing, ShapeError
 from ..core.interfaces import PosteriorEstimator
-from .estimators import _default_threads, check_training_pair
+from .estimators import _default_threads, check_training_pair, merge_config
 from .summaries import bayessim_summaries
 
 __all__ = ["SbiNPEEstimator", "sbi_available"]
@@ -80,12 +80,7 @@ class SbiNPEEstimator(PosteriorEstimator):
                                           "val_fraction": 0.1, "num_threads": 1}
 
     def __init__(self, **config: Any):
-        unknown = [k for k in config if k not in self.DEFAULTS]
-        if unknown:
-            k = unknown[0]
-            raise ParameterError(f"unknown option '{k}' for estimator '{self.name}'.{closest(k, self.DEFAULTS)} "
-                                 f"Options: {', '.join(sorted(self.DEFAULTS))}")
-        super().__init__(**{**self.DEFAULTS, **config})
+        super().__init__(**merge_config(self.name, self.DEFAULTS, config))
         self._de = None
         self._event_shape: tuple[int, ...] | None = None
         self.fit_info: dict[str, Any] = {}
