@@ -1,4 +1,8 @@
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -16,3 +20,31 @@ def lift_dir() -> Path:
 
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+
+def _kill_when_stored(script: str, out: Path, n: int, env: dict | None = None, timeout: float = 120) -> int:
+    """Run ``script`` (a fit writing ``out/run.zarr``) in a driver process and SIGKILL it once at
+    least ``n`` simulations of round 0 are stored; returns how many were stored."""
+    import zarr
+    from softsbi.core.types import STATUS_PENDING
+    proc = subprocess.Popen([sys.executable, "-c", script], env=env)
+    deadline = time.time() + timeout
+    done = 0
+    while time.time() < deadline and proc.poll() is None:
+        time.sleep(0.3)
+        try:
+            st = zarr.open_group(str(out / "run.zarr"), mode="r")["rounds"]["0"]["status"][...]
+            done = int((st != STATUS_PENDING).sum())
+        except Exception:  # noqa: BLE001 - the store is still being created
+            continue
+        if done >= n:
+            break
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    return done
+
+
+@pytest.fixture
+def kill_when_stored():
+    """``kill_when_stored(script, out, n, env=None) -> stored``: kill a fit's driver mid-round."""
+    return _kill_when_stored

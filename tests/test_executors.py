@@ -5,7 +5,6 @@ Fault injection uses the toy plugin's env hooks: SOFTSBI_TOY_CRASH_ONCE=<dir> (o
 first time per seed), SOFTSBI_TOY_CRASH_ABOVE=<a>, SOFTSBI_TOY_HANG_ABOVE=<a>. Local workers
 inherit the environment when they are spawned; Ray workers get it through ``runtime_env``.
 """
-import signal
 import subprocess
 import sys
 import time
@@ -13,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zarr
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.core.executor import LocalExecutor, SimulationTimeout, WorkerCrashed
@@ -179,23 +177,10 @@ run_fit({out!r}, toy_measurement(), cfg, make_plots=False)
 
 
 @needs_ray
-def test_ray_fit_resumes_after_sigkill_of_the_driver(ray_cluster, tmp_path):
+def test_ray_fit_resumes_after_sigkill_of_the_driver(ray_cluster, tmp_path, kill_when_stored):
     out = tmp_path / "run"
     script = RESUME_SCRIPT.format(tests=str(Path(__file__).parent), out=str(out), addr=ray_cluster)
-    proc = subprocess.Popen([sys.executable, "-c", script])
-    deadline = time.time() + 120
-    done = 0
-    while time.time() < deadline and proc.poll() is None:
-        time.sleep(0.3)
-        try:
-            st = zarr.open_group(str(out / "run.zarr"), mode="r")["rounds"]["0"]["status"][...]
-            done = int((st != STATUS_PENDING).sum())
-        except Exception:
-            continue
-        if done >= 6:
-            break
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    done = kill_when_stored(script, out, 6)
     assert 6 <= done < 60, f"kill came too late or too early ({done} simulations stored)"
     before = RunStore.open(out / "run.zarr").round_data(0)
     finished = before["status"] != STATUS_PENDING

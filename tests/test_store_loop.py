@@ -1,10 +1,8 @@
 """Run store round trip, resume after SIGKILL, and the sequential loop on an analytic posterior."""
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -95,25 +93,11 @@ run_fit({out!r}, toy_measurement(), cfg, make_plots=False)
 
 
 
-def test_resume_after_sigkill_keeps_finished_simulations(tmp_path):
+def test_resume_after_sigkill_keeps_finished_simulations(tmp_path, kill_when_stored):
     out = tmp_path / "run"
     script = SCRIPT.format(tests=str(Path(__file__).parent), out=str(out))
-    env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.02")
-    proc = subprocess.Popen([sys.executable, "-c", script], env=env)
     # wait until some simulations of round 0 are stored, then kill the driver hard
-    deadline = time.time() + 120
-    done = 0
-    while time.time() < deadline:
-        time.sleep(0.3)
-        try:
-            st = zarr.open_group(str(out / "run.zarr"), mode="r")["rounds"]["0"]["status"][...]
-            done = int((st != STATUS_PENDING).sum())
-        except Exception:
-            continue
-        if done >= 10:
-            break
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    done = kill_when_stored(script, out, 10, env=dict(os.environ, SOFTSBI_TOY_SLEEP="0.02"))
     assert 10 <= done < 60, f"kill came too late or too early ({done} simulations stored)"
     store = RunStore.open(out / "run.zarr")
     before = store.round_data(0)
