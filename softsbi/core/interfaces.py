@@ -7,12 +7,16 @@ contract and are checked by :func:`softsbi.core.checks.check_simulator`.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Callable, ClassVar, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from .distributions import MixtureOfGaussians
 from .types import Observation, ParamSpace, Rollout, Scenario
+
+if TYPE_CHECKING:
+    from .camera import Camera, RenderStyle
 
 
 class Effect(ABC):
@@ -81,6 +85,23 @@ class Simulator(ABC):
         """
 
 
+    def simulate_images(self, scenario: Scenario, theta: Mapping[str, float], camera: "Camera",
+                        effects: Sequence[str] = (), seed: int = 0,
+                        style: "RenderStyle | None" = None) -> Rollout:
+        """Like :meth:`simulate`, and also render every recorded frame through ``camera``.
+
+        Returns:
+            A :class:`Rollout` whose ``rgb (T, H, W, 3)`` uint8, ``depth (T, H, W)`` float32 m
+            (along the optical axis) and ``segmentation (T, H, W)`` uint8 (``SEG_*`` labels) are
+            filled, ``H, W = camera.height, camera.width``. A failed rollout may leave them None.
+
+        Raises:
+            NotImplementedError: this backend cannot render (the default).
+        """
+        raise NotImplementedError(f"backend '{self.name}' cannot render images; use a backend that "
+                                  f"implements simulate_images (mujoco-flex, pybullet-fem)")
+
+
 class Observer(ABC):
     """Maps a rollout to what a sensor would see (point clouds, keypoints).
 
@@ -89,10 +110,75 @@ class Observer(ABC):
     """
 
     name: ClassVar[str]
+    #: True for observers that need rendered frames: the loop then calls
+    #: :meth:`Simulator.simulate_images` with the observer's ``camera`` and ``style``.
+    needs_images: ClassVar[bool] = False
 
     @abstractmethod
     def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
         """Observation of a rollout: ``points (T, K, 3|2)``, ``gripper (T, 3)``."""
+
+
+class KeypointExtractor(ABC):
+    """Finds K keypoints in RGB images (supervised heatmaps, unsupervised Transporter...).
+
+    Keypoints are pixel coordinates ``(u, v)`` = (column, row). Downstream they are treated as an
+    unordered set per frame (the RKHS mean embedding), so an extractor need not keep identities.
+
+    Class attributes:
+        name: plugin name (``"heatmap"``).
+        supervised: whether :meth:`fit` needs keypoint labels.
+    """
+
+    name: ClassVar[str]
+    supervised: ClassVar[bool] = True
+
+    def __init__(self, **config: Any):
+        self.config = dict(config)
+
+    @property
+    @abstractmethod
+    def trained(self) -> bool:
+        """Whether :meth:`fit` or :meth:`load` has been called."""
+
+    @property
+    @abstractmethod
+    def n_keypoints(self) -> int:
+        """K."""
+
+    @abstractmethod
+    def fit(self, images: np.ndarray, keypoints: np.ndarray | None = None, masks: np.ndarray | None = None, *,
+            seed: int = 0, progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
+        """Train on ``images (N, H, W, 3)`` uint8 RGB, with ``keypoints (N, K, 2)`` px for supervised
+        extractors and optional ``masks (N, H, W)`` bool (True = pixels to ignore in the loss, e.g. the
+        robot). Returns training info (``epochs``, ``train_loss``, ``val_loss``, ``seconds``).
+
+        Raises:
+            ShapeError: images not ``(N, H, W, 3)`` uint8, or keypoints/masks not matching them.
+        """
+
+    @abstractmethod
+    def predict(self, images: np.ndarray) -> np.ndarray:
+        """Keypoints ``(N, K, 2)`` px ``(u, v)`` of ``images (N, H, W, 3)`` uint8 RGB (any size the
+        extractor accepts; coordinates are in the given images' pixels).
+
+        Raises:
+            RuntimeError: called before :meth:`fit` / :meth:`load`.
+            ShapeError: images of the wrong rank or channel count.
+        """
+
+    @abstractmethod
+    def save(self, path: str | Path) -> None:
+        """Write the trained extractor (weights and config) to ``path`` (a ``.pt`` file)."""
+
+    @classmethod
+    @abstractmethod
+    def load(cls, path: str | Path) -> "KeypointExtractor":
+        """Inverse of :meth:`save`.
+
+        Raises:
+            DataError: the file is missing or is not a checkpoint of this extractor.
+        """
 
 
 class PosteriorEstimator(ABC):

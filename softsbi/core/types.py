@@ -278,6 +278,11 @@ STATUS_DIVERGED = 1
 STATUS_IMPLAUSIBLE = 2
 STATUS_ERROR = 3
 STATUS_PENDING = 255
+#: segmentation labels of rendered frames (:attr:`Rollout.segmentation`)
+SEG_BACKGROUND = 0
+SEG_OBJECT = 1
+SEG_ROBOT = 2
+
 STATUS_NAMES = {STATUS_OK: "ok", STATUS_DIVERGED: "diverged", STATUS_IMPLAUSIBLE: "implausible",
                 STATUS_ERROR: "error", STATUS_PENDING: "pending"}
 
@@ -294,7 +299,10 @@ class Rollout:
         status: one of ``STATUS_*`` (0 = ok); anything else means the rollout must not be
             used for training.
         reason: human-readable explanation when ``status != STATUS_OK``.
-        rgb: optional ``(T, H, W, 3)`` uint8 frames.
+        rgb: optional ``(T, H, W, 3)`` uint8 frames (filled by :meth:`Simulator.simulate_images`).
+        depth: optional ``(T, H, W)`` float32 distance along the camera's optical axis, m.
+        segmentation: optional ``(T, H, W)`` uint8 labels ``SEG_*`` (0 table/background,
+            1 cloth/rope, 2 robot/gripper).
         info: backend-specific extras (wall time, step count...).
     """
 
@@ -305,6 +313,8 @@ class Rollout:
     status: int = STATUS_OK
     reason: str = ""
     rgb: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    segmentation: np.ndarray | None = None
     info: dict[str, Any] = field(default_factory=dict)
 
     @property

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pluggy
 
-from ..core.interfaces import Effect, Executor, Observer, PosteriorEstimator, Simulator
+from ..core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
 
 PROJECT = "softsbi"
 hookspec = pluggy.HookspecMarker(PROJECT)
@@ -43,3 +43,8 @@ def softsbi_estimators() -> list[type[PosteriorEstimator]]:
 @hookspec
 def softsbi_executors() -> list[type[Executor]]:
     """Executors (where simulations run) this plugin provides."""
+
+
+@hookspec
+def softsbi_extractors() -> list[type[KeypointExtractor]]:
+    """Keypoint extractors (image -> K keypoints) this plugin provides."""

@@ -52,7 +52,7 @@ _DIST: dict[int, str] = {}
 
 
 KINDS = {"simulator": "softsbi_simulators", "effect": "softsbi_effects", "observer": "softsbi_observers",
-         "estimator": "softsbi_estimators", "executor": "softsbi_executors"}
+         "estimator": "softsbi_estimators", "executor": "softsbi_executors", "extractor": "softsbi_extractors"}
 
 
 @dataclass
@@ -60,7 +60,8 @@ class Registry:
     """Name -> class tables built from a plugin manager.
 
     Attributes:
-        tables: ``{kind: {name: class}}`` for kinds simulator, effect, observer, estimator, executor.
+        tables: ``{kind: {name: class}}`` for kinds simulator, effect, observer, estimator, executor,
+            extractor.
         origin: ``{(kind, name): "distribution version"}`` of the package that provided each.
     """
 
@@ -99,6 +100,9 @@ class Registry:
 
     def executor(self, name: str) -> type:
         return self.get("executor", name)
+
+    def extractor(self, name: str) -> type:
+        return self.get("extractor", name)
 
     def names(self, kind: str) -> list[str]:
         return sorted(self.tables[kind])

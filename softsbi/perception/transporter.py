@@ -1,0 +1,9 @@
+"""(being written this session: see issue 6)."""
+from __future__ import annotations
+
+from ..plugins.hookspecs import hookimpl
+
+
+@hookimpl
+def softsbi_extractors():
+    return []
