@@ -1,4 +1,5 @@
-"""Command-line interface: ``softsbi plugins | simulate | fit | demo``."""
+"""Command-line interface: ``softsbi plugins | simulate | fit | train-extractor | check | diagnose | compare |
+compare-backends | demo``."""
 from __future__ import annotations
 
 import json
@@ -128,6 +129,9 @@ def _print_report(rep: dict[str, Any], out: Path) -> None:
             row += [f"{truth[n]:.4g}" if n in truth else "-", "-" if ok is None else ("yes" if ok else "NO")]
         t.add_row(*row)
     console.print(t)
+    if rep.get("mask_chamfer_prior_px") and rep.get("mask_chamfer_posterior_px"):
+        console.print(f"Mask Chamfer to the measured frames: prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
+                      f"{rep['mask_chamfer_posterior_px']:.2f} px ({rep['chamfer_reduction'] * 100:.0f}% lower)")
     if rep.get("chamfer_prior_m") and rep.get("chamfer_posterior_m"):
         console.print(f"Chamfer to the measurement: prior {rep['chamfer_prior_m'] * 100:.2f} cm -> posterior "
                       f"{rep['chamfer_posterior_m'] * 100:.2f} cm ({rep['chamfer_reduction'] * 100:.0f}% lower)")
@@ -186,8 +190,12 @@ def simulate(backend: str = typer.Option("mujoco-flex", help="simulator plugin")
              theta: list[str] = typer.Option(None, "--theta", help="name=value (repeatable); unset = prior midpoint"),
              effect: list[str] = typer.Option(None, "--effect", help="effect names to switch on"),
              backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
-             out: Path = typer.Option(Path("rollout"), help="output folder (rollout.zarr + preview.png)")) -> None:
-    """Roll a scenario out at given parameters; write Zarr and a PNG preview."""
+             out: Path = typer.Option(Path("rollout"), help="output folder (rollout.zarr + preview.png)"),
+             render: Optional[int] = typer.Option(None, help="also render every frame through the scenario's "
+                                                             "overhead camera at this square size (px): "
+                                                             "OUT/frames/000.png ... + truth.json, a measurement "
+                                                             "for `fit --observer heatmap|transporter`")) -> None:
+    """Roll a scenario out at given parameters; write Zarr and a PNG preview (and rendered frames)."""
     import zarr
     from .backends.scenarios import make_scenario
     from .plugins import registry
@@ -205,7 +213,11 @@ def simulate(backend: str = typer.Option("mujoco-flex", help="simulator plugin")
     values.update(_parse_kv(theta, "--theta"))
     values = space.check(values)
     t0 = time.perf_counter()
-    ro = sim.simulate(sc, values, effects=effects)
+    if render:
+        from .core.camera import default_camera
+        ro = sim.simulate_images(sc, values, camera=default_camera(sc.name, render), effects=effects)
+    else:
+        ro = sim.simulate(sc, values, effects=effects)
     dt = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     g = zarr.open_group(str(out / "rollout.zarr"), mode="w")
@@ -220,6 +232,13 @@ def simulate(backend: str = typer.Option("mujoco-flex", help="simulator plugin")
     if ro.ok:
         _preview(ro, out / "preview.png", f"{backend} {scenario}")
         console.print(f"preview: {out / 'preview.png'}")
+    if ro.ok and render:
+        from .perception.images import save_frames
+        save_frames(ro.rgb, out / "frames")
+        (out / "frames" / "truth.json").write_text(json.dumps(values, indent=2))
+        console.print(f"{len(ro.rgb)} rendered frames ({render}x{render} px): {out / 'frames'} (truth.json holds "
+                      f"the parameters; `softsbi fit --observed {out / 'frames'} --scenario {scenario} "
+                      f"--observer heatmap --extractor ...` fits them)")
 
 
 def _preview(ro, path: Path, title: str) -> None:
@@ -291,7 +310,8 @@ DEFAULT_SIMS = 150
 
 @app.command()
 @_guard
-def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... + lift_real2sim.yaml)"),
+def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... + lift_real2sim.yaml), or with an "
+                                                 "image observer a folder of frames 000.png ..."),
         out: Path = typer.Option(..., help="run directory (resumes if it holds a run)"),
         backend: str = typer.Option("mujoco-flex", help="simulator plugin"),
         estimator: str = typer.Option("rkhs", help="posterior estimator plugin"),
@@ -319,9 +339,18 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         sim_timeout: Optional[float] = typer.Option(None, help="seconds after which a hung simulation's worker is "
                                                                "killed and the simulation retried (default: none)"),
         retries: int = typer.Option(2, help="re-runs of a simulation whose worker crashed or hung, before it is "
-                                            "stored as failed")) -> None:
+                                            "stored as failed"),
+        observer: str = typer.Option("pointcloud", help="pointcloud (3-D clouds), or heatmap / transporter "
+                                                        "(keypoints found in RGB frames by a trained extractor)"),
+        extractor: Optional[Path] = typer.Option(None, help="with --observer heatmap|transporter: the trained "
+                                                            "extractor checkpoint (softsbi train-extractor)"),
+        scenario: str = typer.Option("lift", help="scenario the frames were recorded in (image observers; "
+                                                  "point clouds are always lift)"),
+        image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
+                                                 "camera; frames are resized to it")) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
-    from .perception.measurement import load_measurement
+    from .perception.measurement import load_image_measurement, load_measurement
+    from .plugins import registry
     exe_opts: dict[str, Any] = {"retries": retries}
     if sim_timeout is not None:
         exe_opts["timeout"] = sim_timeout
@@ -331,12 +360,30 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         exe_opts["address"] = ray_address
     cfg = _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
                       backend_opt, estimator_opt, n_eval, min_height, frames, executor, exe_opts)
+    cfg.observer = observer
+    images = bool(getattr(registry().observer(observer), "needs_images", False))
+    if images:
+        if extractor is None:
+            raise SoftsbiError(f"--observer {observer} needs --extractor PATH.pt (train one with `softsbi "
+                               f"train-extractor {observer} --out PATH.pt`)")
+        cfg.observer_options = {"extractor": str(extractor), "size": image_size}
+        cfg.min_height = None  # a depth-sensor model; frames show the whole cloth
+    elif extractor is not None:
+        raise SoftsbiError(f"--extractor is for image observers (heatmap, transporter), not '{observer}'")
     cfg.validate()  # fail fast (e.g. --workers 0) before loading the recording
     if executor == "ray":
         from .executors.ray_executor import _import_ray
         _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`
-    meas = load_measurement(observed, n_points=points, seed=seed)
-    if frames == "auto":
+    if images:
+        meas = load_image_measurement(observed, scenario=scenario, size=image_size)
+        if frames == "auto":
+            cfg.frames = None
+    else:
+        if scenario != "lift":
+            raise SoftsbiError(f"point-cloud recordings are lift recordings; --scenario {scenario} needs an image "
+                               f"observer (--observer heatmap|transporter) and a folder of frames")
+        meas = load_measurement(observed, n_points=points, seed=seed)
+    if frames == "auto" and not images:
         cfg.frames = _parse_frames("auto", meas.scenario)
     res = _run(meas, cfg, out)
     _print_report(res.report, out)
@@ -507,6 +554,75 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     console.print(t)
     console.print(res["summary"])
     console.print(f"wrote {res['png']} and {res['json']}")
+
+
+@app.command("train-extractor")
+@_guard
+def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heatmap (supervised) or transporter "
+                                                         "(unsupervised)"),
+                    out: Path = typer.Option(..., help="checkpoint to write (.pt)"),
+                    data: Optional[Path] = typer.Option(None, help="annotated folder (images/NNNNN.jpg|png + "
+                                                                   "keypoints/NNNNN.npy), e.g. "
+                                                                   "../shared/data/wiping_keypoints"),
+                    simulate: Optional[str] = typer.Option(None, help="instead of --data: render this scenario at "
+                                                                      "prior samples (labels = projected cloth "
+                                                                      "corners; robot masks from the segmentation)"),
+                    backend: str = typer.Option("mujoco-flex", help="with --simulate: simulator plugin"),
+                    rollouts: int = typer.Option(40, help="with --simulate: rendered rollouts"),
+                    image_size: int = typer.Option(128, help="with --simulate: square camera size (px)"),
+                    mask_robot: bool = typer.Option(True, help="transporter: leave the robot out of the "
+                                                               "reconstruction loss"),
+                    opt: list[str] = typer.Option(None, "--opt", help="extractor option name=value (repeatable)"),
+                    seed: int = typer.Option(0)) -> None:
+    """Train a keypoint extractor on annotated images or on rendered rollouts; report its test error."""
+    from .perception.synthdata import render_training_set, visible_corner_labels
+    from .plugins import registry
+
+    cls = registry().extractor(kind)
+    if (data is None) == (simulate is None):
+        raise SoftsbiError("give exactly one of --data FOLDER (annotated images) or --simulate SCENARIO (rendered)")
+    ext = cls(**_parse_kv(opt, "--opt"))
+    supervised = bool(getattr(cls, "supervised", True))
+    summary: dict[str, Any] = {"extractor": kind}
+    if data is not None:
+        from .perception.keypoint_data import block_split, keypoint_errors, load_keypoint_folder
+        images, kps, names = load_keypoint_folder(data)
+        split = block_split(len(images))
+        tr, va, te = split["train"], split["val"], split["test"]
+        console.print(f"{len(images)} annotated images from {data}: contiguous blocks, {len(tr)} train / {len(va)} "
+                      f"val / {len(te)} test")
+        with _progress() as p:
+            task = p.add_task(f"training {kind}", total=None)
+            cb = lambda e, m, l: p.update(task, total=m, completed=e, description=f"training {kind} (loss {l:.4g})")  # noqa: E731
+            if supervised:
+                info = ext.fit(images[tr], kps[tr], seed=seed, progress=cb, val_images=images[va],
+                               val_keypoints=kps[va])
+            else:
+                info = ext.fit(images[np.r_[tr, va]], seed=seed, progress=cb)
+        summary["test"] = keypoint_errors(ext.predict(images[te]), kps[te])
+        console.print(f"test ({len(te)} frames): mean {summary['test']['mean_px']:.2f} px, PCK@10px "
+                      f"{summary['test']['pck@10px'] * 100:.0f}% (set-matched: mean "
+                      f"{summary['test']['hungarian_mean_px']:.2f} px)")
+    else:
+        with _progress() as p:
+            task = p.add_task(f"rendering {simulate} on {backend}", total=rollouts)
+            d = render_training_set(backend, simulate, n_rollouts=rollouts, size=image_size, seed=seed,
+                                    progress=lambda i, n: p.update(task, completed=i))
+            task2 = p.add_task(f"training {kind}", total=None)
+            cb = lambda e, m, l: p.update(task2, total=m, completed=e, description=f"training {kind} (loss {l:.4g})")  # noqa: E731
+            H, W = d["images"].shape[1:3]
+            if supervised:
+                info = ext.fit(d["images"], visible_corner_labels(d["corners"], W, H), seed=seed, progress=cb)
+            else:
+                info = ext.fit(d["images"], None, d["robot_masks"] if mask_robot else None, seed=seed, progress=cb,
+                               sequence_ids=d["sequence_ids"])
+        summary["frames"] = int(len(d["images"]))
+    summary["train"] = {k: v for k, v in info.items() if k != "history"}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ext.save(out)
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=2, default=float))
+    console.print(f"trained {kind}: {info.get('epochs')} epochs, {info.get('seconds', 0):.0f} s -> {out} "
+                  f"(summary {out.with_suffix('.json')})")
 
 
 @app.command("compare-backends")

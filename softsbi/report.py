@@ -23,30 +23,38 @@ def write_fit_plots(out_dir: Path, result: Any, meas: Any, cfg: Any, samples: np
     """
     paths = [plot_chamfer_rounds(out_dir / "chamfer_rounds.png", result.report),
              plot_pairs(out_dir / "posterior_pairs.png", result.param_space, samples, meas.truth)]
+    image_fit = result.report.get("metric") == "mask_chamfer_px"
+    name = "frames.png" if image_fit else "clouds.png"
     try:
-        paths.append(plot_clouds(out_dir / "clouds.png", result, meas, cfg))
+        paths.append((plot_frames if image_fit else plot_clouds)(out_dir / name, result, meas, cfg))
     except Exception as exc:  # noqa: BLE001 - a failed preview must not lose the fit
-        (out_dir / "clouds_error.txt").write_text(f"could not draw clouds.png: {exc}\n")
+        (out_dir / name.replace(".png", "_error.txt")).write_text(f"could not draw {name}: {exc}\n")
     return paths
 
 
 def plot_chamfer_rounds(path: Path, report: dict[str, Any]) -> Path:
-    """Mean Chamfer (cm) of rollouts at prior samples and at each round's posterior samples."""
+    """Mean Chamfer of rollouts at prior samples and at each round's posterior samples: 3-D
+    Chamfer in cm, or for image fits the mask Chamfer in px."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4))
-    rows = [r for r in report["per_round"] if r.get("chamfer_posterior_m") is not None]
-    if report.get("chamfer_prior_m") is not None:
-        m, s = report["chamfer_prior_m"] * 100, (report.get("chamfer_prior_std_m") or 0) * 100
+    if report.get("metric") == "mask_chamfer_px":
+        key, scale, unit, what = "mask_chamfer_{}_px", 1.0, "px", "HSV cloth-mask Chamfer"
+    else:
+        key, scale, unit, what = "chamfer_{}_m", 100.0, "cm", "bidirectional Chamfer"
+    post, post_std = key.format("posterior"), key.format("posterior_std")
+    rows = [r for r in report["per_round"] if r.get(post) is not None]
+    if report.get(key.format("prior")) is not None:
+        m, s = report[key.format("prior")] * scale, (report.get(key.format("prior_std")) or 0) * scale
         ax.axhspan(m - s, m + s, color="0.85", label="prior ± std")
-        ax.axhline(m, color="0.4", lw=1.5, label=f"prior mean {m:.2f} cm")
+        ax.axhline(m, color="0.4", lw=1.5, label=f"prior mean {m:.2f} {unit}")
     if rows:
         x = [r["round"] + 1 for r in rows]
-        y = np.array([r["chamfer_posterior_m"] for r in rows]) * 100
-        e = np.array([r["chamfer_posterior_std_m"] or 0 for r in rows]) * 100
+        y = np.array([r[post] for r in rows]) * scale
+        e = np.array([r[post_std] or 0 for r in rows]) * scale
         ax.errorbar(x, y, yerr=e, marker="o", color="C0", capsize=3, label="posterior after round (mean ± std)")
         ax.set_xticks(x)
     ax.set_xlabel("round")
-    ax.set_ylabel("bidirectional Chamfer, mean over frames [cm]")
+    ax.set_ylabel(f"{what}, mean over frames [{unit}]")
     ax.set_title(f"Distance to the measurement\n{Path(str(report.get('observed', ''))).name}", fontsize=10)
     ax.set_ylim(bottom=0)
     ax.legend(fontsize=8)
@@ -134,5 +142,41 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
                  f"row 2: top view (x-y)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int, ...] | None = None) -> Path:
+    """Image fits: measured frames (top) and frames rendered at the posterior median (bottom), with
+    the extractor's keypoints (cyan) and the HSV cloth-mask outline (yellow) of each."""
+    from .core.loop import observer_options
+    from .perception.masks import hsv_mask
+    from .plugins import registry
+
+    plt = _plt()
+    theta = dict(result.report["posterior_median"])
+    theta.update(cfg.fixed)
+    obs = registry().observer(cfg.observer)(**observer_options(cfg, meas.scenario))
+    sim = registry().simulator(cfg.backend)(**cfg.backend_options)
+    ro = sim.simulate_images(meas.scenario, theta, camera=obs.camera, style=obs.style, effects=cfg.effects, seed=0)
+    T = meas.scenario.n_frames
+    frames = frames or tuple(sorted({0, T // 3, 2 * T // 3, T - 1}))
+    rows = [("measured", meas.images)] + ([("posterior median", ro.rgb)] if ro.ok else [])
+    fig, axes = plt.subplots(len(rows), len(frames), figsize=(2.8 * len(frames), 3.0 * len(rows)), squeeze=False)
+    for r, (label, imgs) in enumerate(rows):
+        kp = obs.observe_images(imgs, meas.scenario.gripper, meas.scenario.times).points
+        m = hsv_mask(imgs)
+        for c, f in enumerate(frames):
+            ax = axes[r, c]
+            ax.imshow(imgs[f])
+            if m[f].any():
+                ax.contour(m[f], levels=[0.5], colors="yellow", linewidths=0.7)
+            ax.scatter(kp[f, :, 0], kp[f, :, 1], s=16, c="cyan", edgecolors="k", linewidths=0.5)
+            ax.set_title(f"{label}, frame {f}", fontsize=8)
+            ax.axis("off")
+    status = "" if ro.ok else f" (posterior simulation failed: {ro.reason})"
+    fig.suptitle(f"{cfg.observer} keypoints (cyan), HSV cloth mask (yellow){status}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -32,20 +32,36 @@ a reason instead of raising.
 Extending (effects): :func:`build_spec` returns a plain nested dict; an effect edits it before
 :func:`spec_to_xml`, e.g. ``spec["option"].update(density=1.2, viscosity=1.8e-5, wind="1 0 0")``
 or ``spec["flexcomp"]["inertiabox"] = h``; see :meth:`MujocoFlex._apply_effects`.
+
+Rendering (:meth:`MujocoFlex.simulate_images`): the same model plus a fixed camera with the exact
+pinhole intrinsics (``focalpixel``/``principalpixel``/``sensorsize``; OpenCV axes converted to
+MuJoCo's camera frame, which looks along -z with y up), one directional light from above and the
+headlight off; shadows and reflections are switched off after every ``update_scene`` (5 ms per
+320 px frame instead of ~50 ms). Cameras, lights and colours do not enter the physics: the
+vertices are bit-identical to :meth:`MujocoFlex.simulate`. The robot is *visual only*: geoms added
+to the rendered scene (:func:`visual_robot`), never to the model. Segmentation comes from MuJoCo's
+segmentation rendering (flex -> ``SEG_OBJECT``, the added robot geoms -> ``SEG_ROBOT``, everything
+else -> ``SEG_BACKGROUND``), depth from the linearised depth buffer (metres along the optical axis).
+Off-screen OpenGL: ``MUJOCO_GL`` is set to ``osmesa`` (CPU, needs ``libosmesa6``) when unset, *at
+import of this module*; it must be set before ``mujoco`` is first imported (``egl`` also works).
 """
 from __future__ import annotations
 
 import math
+import os
 import time
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
-import numpy as np
+# off-screen rendering without a display: must happen before the first `import mujoco`
+os.environ.setdefault("MUJOCO_GL", "osmesa")
 
-from ..core.errors import ParameterError
-from ..core.interfaces import Simulator
-from ..core.types import (STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout,
-                          Scenario)
-from ..plugins.hookspecs import hookimpl
+import numpy as np  # noqa: E402
+
+from ..core.errors import DataError, ParameterError  # noqa: E402
+from ..core.interfaces import Simulator  # noqa: E402
+from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,  # noqa: E402
+                          STATUS_OK, Param, ParamSpace, Rollout, Scenario)
+from ..plugins.hookspecs import hookimpl  # noqa: E402
 
 #: default areal density (kg/m^2) used when ``mass`` is not sampled: camel-ponte-roma, DiffCloud's start
 DEFAULT_AREAL_DENSITY = 0.284
@@ -82,6 +98,104 @@ def grid_faces(n: int) -> np.ndarray:
             f.append((a, b, c))
             f.append((a, c, d))
     return np.asarray(f, dtype=np.int64).reshape(-1, 3)
+
+
+def grid_corners(n: int) -> list[int]:
+    """Vertex indices of the 4 corners of an ``n x n`` x-major grid, in the order grid ``(0, 0)``,
+    ``(0, n-1)``, ``(n-1, n-1)``, ``(n-1, 0)`` (index ``i * n + j``); index 0 is the grasped corner.
+    Both backends use this layout, so ``rollout.info["corners"]`` agrees across them."""
+    return [0, n - 1, n * n - 1, (n - 1) * n]
+
+
+# -- the visual-only robot (shared by both backends' renderers) -------------------------------
+#: half sizes (m) of the black gripper block: 5 cm towards the robot base, 7 cm across, 4 cm high
+GRIPPER_HALF = (0.025, 0.035, 0.02)
+#: radius (m) and length (m, between the cap centres) of the white arm capsule
+ARM_RADIUS = 0.03
+ARM_LENGTH = 0.55
+#: height (m) of the arm's shoulder point above the table for the synthetic scenarios
+SHOULDER_HEIGHT = 0.5
+
+
+def robot_base(scenario: Scenario) -> np.ndarray:
+    """World point ``(3,)`` m the visual arm reaches towards (the robot's shoulder).
+
+    ``scenario.options["robot_base"]`` when given; ``lift``: the real robot base (robot-frame
+    origin, shoulder 0.33 m up) mapped with the recording's real->lift transform; ``wipe``: 0.45 m
+    beyond the stroke's far end along the drag direction +x (the cloth trails away from the robot,
+    as in the real wiping images); ``fling``/``wind``/others: behind the workspace along +y.
+    """
+    if "robot_base" in scenario.options:
+        return np.asarray(scenario.options["robot_base"], dtype=float).reshape(3)
+    g = scenario.gripper
+    tz = float(scenario.table_z)
+    if scenario.name == "lift":
+        from .scenarios import DEFAULT_TRANSFORM, real_to_lift_frame
+        cfg = scenario.options.get("transform", DEFAULT_TRANSFORM)
+        return real_to_lift_frame(np.array([0.0, 0.0, 0.33]), cfg)
+    if scenario.name == "wipe":
+        return np.array([g[:, 0].max() + 0.45, g[:, 1].mean(), tz + SHOULDER_HEIGHT])
+    return np.array([g[:, 0].mean(), g[:, 1].max() + 0.55, tz + SHOULDER_HEIGHT])
+
+
+def _frame_from_x(x: np.ndarray) -> np.ndarray:
+    """Rotation ``(3, 3)`` (columns = local axes in world) whose x axis is horizontal ``x``, z up."""
+    x = np.array([x[0], x[1], 0.0])
+    nx = np.linalg.norm(x)
+    x = x / nx if nx > 1e-9 else np.array([1.0, 0.0, 0.0])
+    z = np.array([0.0, 0.0, 1.0])
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _frame_from_z(z: np.ndarray) -> np.ndarray:
+    """Rotation ``(3, 3)`` (columns = local axes in world) whose z axis is the unit vector ``z``."""
+    z = np.asarray(z, dtype=float) / np.linalg.norm(z)
+    a = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(a, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def visual_robot(grip: np.ndarray, base: np.ndarray) -> list[dict[str, Any]]:
+    """The visual-only robot at grasp point ``grip (3,)`` m, arm reaching towards ``base (3,)`` m.
+
+    Returns two parts, each ``{"part": "gripper"|"arm", "shape": "box"|"capsule", "pos": (3,) m
+    (centre), "rot": (3, 3) local->world, "size": box half sizes (3,) | capsule (radius,
+    half-length)}``: a :data:`GRIPPER_HALF` block standing on the grasp point (its bottom at the
+    grasp height) and an :data:`ARM_RADIUS` capsule of length :data:`ARM_LENGTH` rising from the
+    block's top edge on the base side towards ``base`` (from above it occludes what lies under it,
+    like the arm in the real wiping images).
+    """
+    grip = np.asarray(grip, dtype=float)
+    base = np.asarray(base, dtype=float)
+    hx, hy, hz = GRIPPER_HALF
+    rg = _frame_from_x(base - grip)
+    parts = [{"part": "gripper", "shape": "box", "pos": grip + np.array([0.0, 0.0, hz]), "rot": rg,
+              "size": np.array([hx, hy, hz])}]
+    p0 = grip + rg[:, 0] * (hx + 0.5 * ARM_RADIUS) + np.array([0.0, 0.0, 2 * hz + ARM_RADIUS])
+    axis = base - p0
+    if np.linalg.norm(axis) < 1e-6:
+        axis = np.array([0.0, 0.0, 1.0])
+    axis = axis / np.linalg.norm(axis)
+    parts.append({"part": "arm", "shape": "capsule", "pos": p0 + axis * ARM_LENGTH / 2,
+                  "rot": _frame_from_z(axis), "size": np.array([ARM_RADIUS, ARM_LENGTH / 2])})
+    return parts
+
+
+def _check_render_args(camera: Any, style: Any) -> Any:
+    """Validate ``camera``/``style`` of ``simulate_images``; returns the style (default if None)."""
+    from ..core.camera import Camera, RenderStyle
+    if not isinstance(camera, Camera):
+        raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. default_camera('wipe', 128)), "
+                        f"got {type(camera).__name__}")
+    if np.linalg.det(camera.R) < 0:
+        raise DataError("camera.world_to_cam's 3x3 block is a reflection (det = -1), not a rotation: the "
+                        "OpenCV axes x right, y down, z forward must form a right-handed frame (z = x cross y)")
+    if style is None:
+        return RenderStyle()
+    if not isinstance(style, RenderStyle):
+        raise DataError(f"style must be a softsbi.core.camera.RenderStyle or None, got {type(style).__name__}")
+    return style
 
 
 def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, timestep: float, solver: str,
@@ -201,10 +315,15 @@ def spec_to_xml(spec: Mapping[str, Any]) -> str:
     def attrs(d: Mapping[str, Any]) -> str:
         return " ".join(f'{k}="{_fmt(v)}"' for k, v in d.items())
     fc = spec["flexcomp"]
+    # rendering only (simulate_images): <visual> settings, a camera and a light; no physics effect
+    rnd = spec.get("render") or {}
+    visual = "".join(f"<{k} {attrs(v)}/>" for k, v in rnd.get("visual", {}).items())
+    visual = f"\n  <visual>{visual}</visual>" if visual else ""
+    extras = "".join(f"<{k} {attrs(v)}/>" for k, v in rnd.get("bodies", []))
     return f"""<mujoco model="softsbi_lift">
   <compiler autolimits="true"/>
-  <option {attrs(spec["option"])}/>
-  <worldbody>
+  <option {attrs(spec["option"])}/>{visual}
+  <worldbody>{extras}
     <geom {attrs(spec["table"])}/>
     {"".join(f"<geom {attrs(g)}/>" for g in spec.get("geoms", []))}
     <body {attrs(spec["grip"])}/>
@@ -332,11 +451,57 @@ class MujocoFlex(Simulator):
         """Run the lift; returns ``vertices (T, grid^2, 3)`` m at ``scenario.times``.
 
         ``gripper (T, 3)`` is the actual grasp target (mocap) at those times, ``faces`` the grid
-        triangles ``(2 (grid-1)^2, 3)``. ``info``: ``wall_s``, ``steps``, ``young``, ``thickness``.
+        triangles ``(2 (grid-1)^2, 3)``. ``info``: ``wall_s``, ``steps``, ``young``, ``thickness``,
+        and for cloth ``corners`` (4 vertex indices, :func:`grid_corners` order).
 
         Raises:
             ValueError: unknown scenario (names the valid ones).
             ParameterError: unknown/missing/out-of-bounds parameter, unsupported effect.
+        """
+        return self._rollout(scenario, theta, effects)
+
+    def simulate_images(self, scenario: Scenario, theta: Mapping[str, float], camera: Any,
+                        effects: Sequence[str] = (), seed: int = 0, style: Any = None) -> Rollout:
+        """:meth:`simulate` plus every recorded frame rendered through ``camera`` (OpenGL off-screen).
+
+        Args:
+            camera: a :class:`~softsbi.core.camera.Camera` (exact pinhole intrinsics, OpenCV axes).
+            style: :class:`~softsbi.core.camera.RenderStyle` colours and ``show_robot`` (default
+                style if None).
+
+        Returns:
+            The rollout of :meth:`simulate` (identical vertices) with ``rgb (T, H, W, 3)`` uint8,
+            ``depth (T, H, W)`` float32 m along the optical axis and ``segmentation (T, H, W)``
+            uint8 (0 table/background, 1 cloth/rope, 2 robot); ``info["render_s"]`` is the time
+            spent rendering (``info["render_setup_s"]`` of it once per rollout). A failed rollout
+            (``status != 0``) has them None.
+
+        Raises:
+            ValueError: unknown scenario. ParameterError: bad parameter or effect.
+            DataError: ``camera``/``style`` of the wrong type, or a mirrored camera (det R = -1).
+            RuntimeError: no off-screen OpenGL (set ``MUJOCO_GL=osmesa`` or ``egl`` before importing
+                mujoco; osmesa needs ``libosmesa6``).
+        """
+        style = _check_render_args(camera, style)
+        frames = _MjFrames(scenario, camera, style)
+        try:
+            ro = self._rollout(scenario, theta, effects, spec_hook=frames.edit_spec, frame_hook=frames)
+        finally:
+            frames.close()
+        if ro.ok:
+            ro.rgb, ro.depth, ro.segmentation = frames.rgb, frames.depth, frames.seg
+        ro.info["render_s"] = frames.seconds
+        ro.info["render_setup_s"] = frames.setup_seconds
+        return ro
+
+    def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 spec_hook: Callable[[dict[str, Any]], None] | None = None,
+                 frame_hook: Callable[[int, Any, Any], None] | None = None) -> Rollout:
+        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images`.
+
+        ``spec_hook(spec)`` may add render-only elements to the model dict before compiling;
+        ``frame_hook(k, m, d)`` is called after frame ``k`` is recorded (``k = 0`` after
+        ``mj_forward``), with the grasp target in ``d.mocap_pos[0]``; not called after a failure.
         """
         import mujoco
 
@@ -346,6 +511,8 @@ class MujocoFlex(Simulator):
         theta = space.check(theta)
         t0 = time.perf_counter()
         spec = self.build_spec(scenario, theta, effects)
+        if spec_hook is not None:
+            spec_hook(spec)
         m = mujoco.MjModel.from_xml_string(spec_to_xml(spec))
         d = mujoco.MjData(m)
         mujoco.mj_forward(m, d)
@@ -360,6 +527,8 @@ class MujocoFlex(Simulator):
         grip = np.zeros((T, 3))
         verts[0] = d.flexvert_xpos.reshape(-1, 3)[:n]
         grip[0] = target[0]
+        if frame_hook is not None:
+            frame_hook(0, m, d)
         dt = m.opt.timestep
         status, reason = STATUS_OK, ""
         steps = 0
@@ -385,17 +554,22 @@ class MujocoFlex(Simulator):
                 break
             verts[k] = v
             grip[k] = d.mocap_pos[0]
+            if frame_hook is not None:
+                frame_hook(k, m, d)
         wall = time.perf_counter() - t0
         if status == STATUS_OK:
             status, reason = self._plausibility(scenario, theta, verts, grip)
         if status != STATUS_OK:
             verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
-        faces = np.zeros((0, 3), dtype=np.int64) if scenario.object.get("kind") == "rope" else grid_faces(self.grid)
+        rope = scenario.object.get("kind") == "rope"
+        faces = np.zeros((0, 3), dtype=np.int64) if rope else grid_faces(self.grid)
+        info = {"wall_s": wall, "steps": steps, "backend": self.name, "grid": self.grid,
+                "timestep": dt, "young": spec["elasticity"]["young"],
+                "thickness": spec["elasticity"]["thickness"], "effects": list(effects)}
+        if not rope:
+            info["corners"] = grid_corners(self.grid)
         return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
-                       status=status, reason=reason,
-                       info={"wall_s": wall, "steps": steps, "backend": self.name, "grid": self.grid,
-                             "timestep": dt, "young": spec["elasticity"]["young"],
-                             "thickness": spec["elasticity"]["thickness"], "effects": list(effects)})
+                       status=status, reason=reason, info=info)
 
     def _plausibility(self, scenario: Scenario, theta: Mapping[str, float], verts: np.ndarray,
                       grip: np.ndarray) -> tuple[int, str]:
@@ -421,6 +595,182 @@ class MujocoFlex(Simulator):
         if edge > 3.0 * h:
             return STATUS_IMPLAUSIBLE, f"an edge is stretched to {edge / h:.1f}x its rest length"
         return STATUS_OK, ""
+
+
+def _rgba(c: Sequence[int]) -> np.ndarray:
+    return np.array([c[0] / 255.0, c[1] / 255.0, c[2] / 255.0, 1.0], dtype=np.float32)
+
+
+#: colour of scene geoms other than the table (the wind scenario's spool), RGB 0-255
+PROP_COLOUR = (120, 128, 150)
+#: objid given to the added robot geoms in the rendered scene (segmentation decoding)
+_ROBOT_OBJID = -1000
+
+
+def _gl_context(width: int, height: int) -> Any:
+    """An off-screen OpenGL context of the back-end named by ``MUJOCO_GL``.
+
+    ``import mujoco`` fixes its back-end from ``MUJOCO_GL`` once; if mujoco was imported before the
+    variable was set (e.g. by user code before softsbi), ``mujoco.GLContext`` is GLFW, which needs a
+    display. Then the requested ``osmesa``/``egl`` context class is loaded directly.
+    """
+    import importlib
+
+    import mujoco
+    cls = getattr(mujoco, "GLContext", None)
+    want = os.environ.get("MUJOCO_GL", "").lower().strip()
+    if want in ("osmesa", "egl") and not getattr(cls, "__module__", "").startswith(f"mujoco.{want}"):
+        cls = importlib.import_module(f"mujoco.{want}").GLContext
+    if cls is None:
+        raise RuntimeError("mujoco has no OpenGL context class (MUJOCO_GL disabled?)")
+    return cls(width, height)
+
+
+class _MjFrames:
+    """Renders each recorded frame of a MuJoCo rollout (the ``frame_hook`` of ``_rollout``).
+
+    Low-level pipeline (``mjv_updateScene`` -> ``mjr_render`` -> ``mjr_readPixels``) rather than
+    ``mujoco.Renderer``, so that one pass reads colour *and* depth (the Renderer needs a pass for
+    each) and a second pass the segmentation: 2 passes per frame instead of 3.
+    """
+
+    CAMERA = "softsbi_cam"
+
+    def __init__(self, scenario: Scenario, camera: Any, style: Any):
+        self.scenario, self.camera, self.style = scenario, camera, style
+        self.base = robot_base(scenario)
+        T, H, W = scenario.n_frames, camera.height, camera.width
+        self.rgb = np.zeros((T, H, W, 3), np.uint8)
+        self.depth = np.zeros((T, H, W), np.float32)
+        self.seg = np.zeros((T, H, W), np.uint8)
+        self._buf_rgb = np.zeros((H, W, 3), np.uint8)
+        self._buf_depth = np.zeros((H, W), np.float32)
+        self.gl = self.ctx = None
+        self.seconds = 0.0
+        self.setup_seconds = 0.0
+
+    def edit_spec(self, spec: dict[str, Any]) -> None:
+        """Add the camera (exact intrinsics), a light from above and off-screen buffer settings."""
+        cam = self.camera
+        W, H = cam.width, cam.height
+        R = cam.R
+        # OpenCV camera axes (x right, y down, z forward) -> MuJoCo's (x right, y up, looking along -z)
+        xa, ya = R[0], -R[1]
+        pitch = 1e-4  # m per pixel of a virtual sensor: only the focal/sensor ratio matters
+        # MuJoCo's principal offset moves the image content the other way than OpenCV's (cx, cy)
+        # (checked by projecting spheres: agreement within 0.3 px, tests/test_render.py)
+        camera = {"name": self.CAMERA, "pos": cam.position.tolist(), "xyaxes": list(xa) + list(ya),
+                  "resolution": [W, H], "sensorsize": [W * pitch, H * pitch],
+                  "focalpixel": [cam.fx, cam.fy], "principalpixel": [(W - 1) / 2 - cam.cx, (H - 1) / 2 - cam.cy]}
+        light = {"name": "softsbi_sun", "pos": [0.0, 0.0, 3.0], "dir": [0.0, 0.0, -1.0], "directional": "true",
+                 "castshadow": "false", "ambient": [0.45] * 3, "diffuse": [0.55] * 3, "specular": [0.0] * 3}
+        spec["render"] = {
+            # no shadow map, no multisampling (software MSAA is slow and would blend segmentation ids)
+            "visual": {"global": {"offwidth": max(640, W), "offheight": max(480, H)},
+                       "headlight": {"active": 0, "ambient": [0.0] * 3, "diffuse": [0.0] * 3, "specular": [0.0] * 3},
+                       "quality": {"shadowsize": 0, "offsamples": 0}},
+            "bodies": [("camera", camera), ("light", light)],
+        }
+
+    def _setup(self, m: Any) -> None:
+        import mujoco
+        table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
+        for g in range(m.ngeom):
+            m.geom_rgba[g] = _rgba(self.style.table if g == table else PROP_COLOUR)
+            if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+                # size[2] of a plane is only its rendering grid spacing (1 cm: 160 000 quads, ~6 ms a
+                # frame in software GL); one quad suffices under a directional light. No physics effect.
+                m.geom_size[g, 2] = max(float(m.geom_size[g, 0]), float(m.geom_size[g, 1]), 1.0)
+        m.flex_rgba[:] = _rgba(self.style.cloth)
+        try:
+            self.gl = _gl_context(max(640, self.camera.width), max(480, self.camera.height))
+            self.gl.make_current()
+            self.ctx = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
+        except Exception as exc:  # noqa: BLE001 - GL back-ends fail with many exception types
+            self.close()
+            raise RuntimeError(f"MuJoCo could not open an off-screen OpenGL context (MUJOCO_GL="
+                               f"{os.environ.get('MUJOCO_GL', '')!r}, GL backend "
+                               f"{getattr(getattr(mujoco, 'GLContext', None), '__module__', 'none')}): {exc}. "
+                               f"Set MUJOCO_GL=osmesa (needs libosmesa6) or egl before mujoco is first "
+                               f"imported") from exc
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.ctx)
+        self.ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR  # reversed z (as mujoco.Renderer)
+        self.scene = mujoco.MjvScene(m, maxgeom=m.ngeom + m.nflex + 16)
+        self.opt = mujoco.MjvOption()
+        self.cam = mujoco.MjvCamera()
+        self.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self.cam.fixedcamid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, self.CAMERA)
+        self.rect = mujoco.MjrRect(0, 0, self.camera.width, self.camera.height)
+        # reversed-z depth buffer -> metres along the optical axis (mujoco.Renderer's formula)
+        near = np.float32(m.vis.map.znear * m.stat.extent)
+        far = np.float32(m.vis.map.zfar * m.stat.extent)
+        self._c = float(np.float32(-0.5) * (-(far + near) / (far - near)) - np.float32(0.5))
+        self._d = float(np.float32(-0.5) * (-(np.float32(2) * far * near) / (far - near)))
+
+    def _add_robot(self, scene: Any, grip: np.ndarray) -> None:
+        import mujoco
+        for part in visual_robot(grip, self.base):
+            if scene.ngeom >= scene.maxgeom:
+                break
+            g = scene.geoms[scene.ngeom]
+            colour = self.style.gripper if part["part"] == "gripper" else self.style.robot
+            if part["shape"] == "box":
+                gtype, size = mujoco.mjtGeom.mjGEOM_BOX, np.asarray(part["size"], float)
+            else:
+                gtype = mujoco.mjtGeom.mjGEOM_CAPSULE
+                size = np.array([part["size"][0], part["size"][1], 0.0])
+            mujoco.mjv_initGeom(g, int(gtype), size, np.asarray(part["pos"], float),
+                                np.asarray(part["rot"], float).ravel(), _rgba(colour))
+            g.objtype, g.objid, g.segid = int(mujoco.mjtObj.mjOBJ_UNKNOWN), _ROBOT_OBJID, scene.ngeom
+            scene.ngeom += 1
+
+    def __call__(self, k: int, m: Any, d: Any) -> None:
+        import mujoco
+        t0 = time.perf_counter()
+        if self.ctx is None:
+            self._setup(m)
+            self.setup_seconds = time.perf_counter() - t0
+        self.gl.make_current()
+        scn, flags = self.scene, mujoco.mjtRndFlag
+        mujoco.mjv_updateScene(m, d, self.opt, None, self.cam, int(mujoco.mjtCatBit.mjCAT_ALL), scn)
+        if self.style.show_robot:
+            self._add_robot(scn, np.array(d.mocap_pos[0]))
+        scn.flags[flags.mjRND_SHADOW] = 0
+        scn.flags[flags.mjRND_REFLECTION] = 0
+        # pass 1: colour and depth
+        mujoco.mjr_render(self.rect, scn, self.ctx)
+        mujoco.mjr_readPixels(self._buf_rgb, self._buf_depth, self.rect, self.ctx)
+        self.rgb[k] = self._buf_rgb[::-1]
+        self.depth[k] = (self._d / (self._buf_depth[::-1].astype(np.float64) + self._c)).astype(np.float32)
+        # pass 2: segmentation (each geom drawn in a colour encoding segid + 1; 0 = nothing)
+        scn.flags[flags.mjRND_SEGMENT] = 1
+        scn.flags[flags.mjRND_IDCOLOR] = 1
+        mujoco.mjr_render(self.rect, scn, self.ctx)
+        scn.flags[flags.mjRND_SEGMENT] = 0
+        scn.flags[flags.mjRND_IDCOLOR] = 0
+        mujoco.mjr_readPixels(self._buf_rgb, None, self.rect, self.ctx)
+        ids = self._buf_rgb[::-1].astype(np.int64)
+        ids = ids[..., 0] + (ids[..., 1] << 8) + (ids[..., 2] << 16)
+        lut = np.zeros(scn.ngeom + 2, np.uint8)
+        flex = int(mujoco.mjtObj.mjOBJ_FLEX)
+        for i in range(scn.ngeom):
+            g = scn.geoms[i]
+            if 0 <= g.segid <= scn.ngeom:
+                lab = (SEG_OBJECT if g.objtype == flex else
+                       SEG_ROBOT if g.objid == _ROBOT_OBJID else SEG_BACKGROUND)
+                lut[g.segid + 1] = lab
+        self.seg[k] = lut[np.clip(ids, 0, len(lut) - 1)]
+        self.seconds += time.perf_counter() - t0
+
+    def close(self) -> None:
+        if self.ctx is not None:
+            if self.gl is not None:
+                self.gl.make_current()
+            self.ctx.free()
+            self.ctx = None
+        if self.gl is not None:
+            self.gl.free()
+            self.gl = None
 
 
 @hookimpl

@@ -39,6 +39,19 @@ steps per ``timestep`` (``k_max = max(stretch, bend)``). Failures are *not* NaNs
 crumples, tunnels through the table or explodes to ~1000 m; they are detected from the minimum
 height, the extent and the edge lengths and returned as ``STATUS_DIVERGED`` /
 ``STATUS_IMPLAUSIBLE`` with a reason.
+
+Rendering (:meth:`PybulletFEM.simulate_images`): PyBullet's CPU TinyRenderer in the same DIRECT
+client, one ``getCameraImage`` per recorded frame giving colour, depth and the segmentation mask
+at once. The view matrix is the camera's ``[R | t]`` with OpenCV axes flipped to OpenGL's (y up,
+looking along -z); the projection matrix is built from the exact intrinsics (``fx, fy, cx, cy``,
+near/far :data:`NEAR`/:data:`FAR`), with TinyRenderer's half-pixel offsets compensated (measured:
+without it, rendered spheres sit +0.5 px right and 0.5 px up of ``Camera.project``). Depth is the
+linearised z-buffer ``near far / (far - (far - near) z)``. The visual-only robot
+(:func:`~softsbi.backends.mujoco_flex.visual_robot`) is two collision-free, mass-0 multibodies
+created after the cloth and moved to each frame's grasp point before rendering (the arm is a
+square bar of the capsule's size: TinyRenderer shades capsule sides wrongly): they do not
+change the physics (vertices bit-identical to :meth:`PybulletFEM.simulate`). Segmentation mask
+ids map to labels: soft body -> 1, robot bodies -> 2, table/spool/nothing -> 0.
 """
 from __future__ import annotations
 
@@ -52,15 +65,38 @@ import numpy as np
 
 from ..core.errors import ParameterError
 from ..core.interfaces import Simulator
-from ..core.types import (STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout,
-                          Scenario)
+from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,
+                          STATUS_OK, Param, ParamSpace, Rollout, Scenario)
 from ..plugins.hookspecs import hookimpl
-from .mujoco_flex import grid_faces
+from .mujoco_flex import PROP_COLOUR, _check_render_args, grid_corners, grid_faces, robot_base, visual_robot
 
 CLOTH_SCENARIOS = ("lift", "wipe", "fling")
 ROPE_SCENARIOS = ("wind",)
 #: stability constant of the substep rule k dt^2 / m_node <= STABILITY_C (measured: ~1.8 breaks)
 STABILITY_C = 1.5
+#: clipping planes of the rendering projection, m
+NEAR, FAR = 0.01, 20.0
+
+
+def gl_matrices(camera: Any, near: float = NEAR, far: float = FAR) -> tuple[list[float], list[float]]:
+    """PyBullet ``(viewMatrix, projectionMatrix)`` (16 floats each, column-major) of an OpenCV
+    :class:`~softsbi.core.camera.Camera`, for ``getCameraImage`` with the TinyRenderer.
+
+    The projection maps ``u = fx x/z + cx``, ``v = fy y/z + cy`` exactly, including TinyRenderer's
+    half-pixel conventions (its pixel (i, j) is sampled at (i - 0.5, j + 0.5) of OpenCV's grid).
+    """
+    W, H = camera.width, camera.height
+    V = np.eye(4)
+    V[:3, :4] = np.diag([1.0, -1.0, -1.0]) @ np.asarray(camera.world_to_cam, dtype=float)
+    P = np.zeros((4, 4))
+    P[0, 0] = 2.0 * camera.fx / W
+    P[0, 2] = 1.0 - 2.0 * camera.cx / W
+    P[1, 1] = 2.0 * camera.fy / H
+    P[1, 2] = 2.0 * (camera.cy + 1.0) / H - 1.0
+    P[2, 2] = -(far + near) / (far - near)
+    P[2, 3] = -2.0 * far * near / (far - near)
+    P[3, 2] = -1.0
+    return V.T.ravel().tolist(), P.T.ravel().tolist()
 
 
 def _pb():
@@ -233,10 +269,50 @@ class PybulletFEM(Simulator):
             ``N = grid^2`` with ``faces`` the grid triangles ``(2 (grid-1)^2, 3)``; rope
             ``N = rope_nodes`` (ribbon midpoints, vertex 0 grasped) with ``faces (0, 3)``.
             ``gripper (T, 3)``: the anchor body's position. ``info``: ``wall_s``, ``steps``,
-            ``substeps``, ``sim_s`` (time inside ``stepSimulation``).
+            ``substeps``, ``sim_s`` (time inside ``stepSimulation``), for cloth ``corners`` (4 vertex
+            indices, :func:`~softsbi.backends.mujoco_flex.grid_corners` order).
 
         Raises:
             ValueError: unknown scenario. ParameterError: bad/missing parameter, unsupported effect.
+        """
+        return self._rollout(scenario, theta, effects)
+
+    def simulate_images(self, scenario: Scenario, theta: Mapping[str, float], camera: Any,
+                        effects: Sequence[str] = (), seed: int = 0, style: Any = None) -> Rollout:
+        """:meth:`simulate` plus every recorded frame rendered through ``camera`` (TinyRenderer, CPU).
+
+        Args:
+            camera: a :class:`~softsbi.core.camera.Camera` (exact pinhole intrinsics, OpenCV axes).
+            style: :class:`~softsbi.core.camera.RenderStyle` colours and ``show_robot`` (default
+                style if None).
+
+        Returns:
+            The rollout of :meth:`simulate` (identical vertices) with ``rgb (T, H, W, 3)`` uint8,
+            ``depth (T, H, W)`` float32 m along the optical axis and ``segmentation (T, H, W)``
+            uint8 (0 table/background, 1 cloth/rope, 2 robot); ``info["render_s"]`` is the time
+            spent rendering (``info["render_setup_s"]`` of it once per rollout). A failed rollout
+            (``status != 0``) has them None.
+
+        Raises:
+            ValueError: unknown scenario. ParameterError: bad parameter or effect.
+            DataError: ``camera``/``style`` of the wrong type, or a mirrored camera (det R = -1).
+        """
+        style = _check_render_args(camera, style)
+        frames = _PbFrames(scenario, camera, style)
+        ro = self._rollout(scenario, theta, effects, frame_hook=frames)
+        if ro.ok:
+            ro.rgb, ro.depth, ro.segmentation = frames.rgb, frames.depth, frames.seg
+        ro.info["render_s"] = frames.seconds
+        ro.info["render_setup_s"] = frames.setup_seconds
+        return ro
+
+    def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 frame_hook: Any = None) -> Rollout:
+        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images`.
+
+        ``frame_hook(k, cid, bodies, grip_pos)`` is called after frame ``k`` is recorded (``k = 0``
+        before the first step) with the client id, ``{"table", "soft", "spool"?}`` body ids and the
+        grasp target ``(3,)``; it is not called after a failure.
         """
         self._check_scenario(scenario)
         self._check_effects(effects)
@@ -277,6 +353,7 @@ class PybulletFEM(Simulator):
         box = p.createCollisionShape(p.GEOM_BOX, halfExtents=[3.0, 3.0, 0.05], physicsClientId=cid)
         table = p.createMultiBody(0, box, basePosition=[cx, cy, table_z - 0.05], physicsClientId=cid)
         p.changeDynamics(table, -1, lateralFriction=float(theta["friction"]), physicsClientId=cid)
+        bodies = {"table": table}
         if rope and "spool" in scenario.object:
             sp = scenario.object["spool"]
             cyl = p.createCollisionShape(p.GEOM_CYLINDER, radius=float(sp["radius"]), height=float(sp["height"]),
@@ -285,6 +362,7 @@ class PybulletFEM(Simulator):
             spool = p.createMultiBody(0, cyl, basePosition=[float(c[0]), float(c[1]), table_z + sp["height"] / 2],
                                       physicsClientId=cid)
             p.changeDynamics(spool, -1, lateralFriction=float(theta["friction"]), physicsClientId=cid)
+            bodies["spool"] = spool
         fd, path = tempfile.mkstemp(suffix=".obj", prefix="softsbi_pb_")
         os.close(fd)
         try:
@@ -301,6 +379,7 @@ class PybulletFEM(Simulator):
         grip_body = p.createMultiBody(0, -1, basePosition=start.tolist(), physicsClientId=cid)
         for node in grasped:
             p.createSoftBodyAnchor(sb, node, grip_body, -1, physicsClientId=cid)
+        bodies["soft"] = sb
 
         def nodes() -> np.ndarray:
             _, v = p.getMeshData(sb, -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=cid)
@@ -315,6 +394,8 @@ class PybulletFEM(Simulator):
         verts = np.zeros((T, N, 3))
         grip = np.zeros((T, 3))
         verts[0], grip[0] = first, target[0]
+        if frame_hook is not None:
+            frame_hook(0, cid, bodies, grip[0])
         frame_steps = np.maximum(np.round(times / dt).astype(int), 0)
         steps = 0
         sim_s = 0.0
@@ -341,17 +422,21 @@ class PybulletFEM(Simulator):
                 status, reason = STATUS_DIVERGED, (f"exploded: extent {ext:.2f} m at t={times[k]:.3f} s "
                                                    f"(limit {ext_limit:.2f} m)")
                 break
+            if frame_hook is not None:
+                frame_hook(k, cid, bodies, grip[k])
         wall = time.perf_counter() - t0
         if status == STATUS_OK:
             status, reason = self._plausibility(verts, table_z, L, rope, n)
         if status != STATUS_OK:
             verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
         faces = np.zeros((0, 3), dtype=np.int64) if rope else grid_faces(n)
+        info = {"wall_s": wall, "sim_s": sim_s, "steps": steps, "substeps": sub, "backend": self.name,
+                "grid": n, "timestep": dt, "springElasticStiffness": k_el,
+                "springBendingStiffness": k_be, "springDampingStiffness": k_da, "effects": list(effects)}
+        if not rope:
+            info["corners"] = grid_corners(n)
         return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces, status=status, reason=reason,
-                       info={"wall_s": wall, "sim_s": sim_s, "steps": steps, "substeps": sub, "backend": self.name,
-                             "grid": n, "timestep": dt, "springElasticStiffness": k_el,
-                             "springBendingStiffness": k_be, "springDampingStiffness": k_da,
-                             "effects": list(effects)})
+                       info=info)
 
     @staticmethod
     def _plausibility(verts: np.ndarray, table_z: float, L: float, rope: bool, n: int) -> tuple[int, str]:
@@ -371,6 +456,83 @@ class PybulletFEM(Simulator):
         if edge[-1].mean() < 0.3 * h:
             return STATUS_IMPLAUSIBLE, f"crumpled: mean edge {edge[-1].mean() / h:.2f}x its rest length"
         return STATUS_OK, ""
+
+
+def _rgba(c: Sequence[int]) -> list[float]:
+    return [c[0] / 255.0, c[1] / 255.0, c[2] / 255.0, 1.0]
+
+
+class _PbFrames:
+    """Renders each recorded frame of a PyBullet rollout (the ``frame_hook`` of ``_rollout``)."""
+
+    def __init__(self, scenario: Scenario, camera: Any, style: Any):
+        self.camera, self.style = camera, style
+        self.base = robot_base(scenario)
+        T, H, W = scenario.n_frames, camera.height, camera.width
+        self.rgb = np.zeros((T, H, W, 3), np.uint8)
+        self.depth = np.zeros((T, H, W), np.float32)
+        self.seg = np.zeros((T, H, W), np.uint8)
+        self.view, self.proj = gl_matrices(camera)
+        self.robot: list[tuple[int, str]] = []
+        self.lut: dict[int, int] = {}
+        self.seconds = 0.0
+        self.setup_seconds = 0.0
+
+    def _setup(self, cid: int, bodies: Mapping[str, int], grip: np.ndarray) -> None:
+        p = _pb()
+        st = self.style
+        p.changeVisualShape(bodies["table"], -1, rgbaColor=_rgba(st.table), physicsClientId=cid)
+        if "spool" in bodies:
+            p.changeVisualShape(bodies["spool"], -1, rgbaColor=_rgba(PROP_COLOUR), physicsClientId=cid)
+        p.changeVisualShape(bodies["soft"], -1, rgbaColor=_rgba(st.cloth), flags=p.VISUAL_SHAPE_DOUBLE_SIDED,
+                            physicsClientId=cid)
+        self.lut = {bodies["soft"]: SEG_OBJECT}
+        if st.show_robot:
+            for part in visual_robot(grip, self.base):
+                colour = _rgba(st.gripper if part["part"] == "gripper" else st.robot)
+                if part["shape"] == "box":
+                    vs = p.createVisualShape(p.GEOM_BOX, halfExtents=[float(v) for v in part["size"]],
+                                             rgbaColor=colour, physicsClientId=cid)
+                else:
+                    # the arm as a square bar of the capsule's width and length (no caps): TinyRenderer
+                    # lights the sides of capsules/cylinders as if their normals pointed inwards
+                    # (a tilted white capsule renders at ambient grey), flat faces are lit correctly
+                    r, hl = float(part["size"][0]), float(part["size"][1])
+                    vs = p.createVisualShape(p.GEOM_BOX, halfExtents=[r, r, hl], rgbaColor=colour,
+                                             physicsClientId=cid)
+                # no collision shape, mass 0: invisible to the physics
+                body = p.createMultiBody(0, -1, vs, physicsClientId=cid)
+                self.robot.append((body, part["part"]))
+                self.lut[body] = SEG_ROBOT
+
+    def __call__(self, k: int, cid: int, bodies: Mapping[str, int], grip: np.ndarray) -> None:
+        from scipy.spatial.transform import Rotation
+        p = _pb()
+        t0 = time.perf_counter()
+        if k == 0:
+            self._setup(cid, bodies, grip)
+            self.setup_seconds = time.perf_counter() - t0
+        if self.robot:
+            parts = {q["part"]: q for q in visual_robot(grip, self.base)}
+            for body, name in self.robot:
+                q = parts[name]
+                p.resetBasePositionAndOrientation(body, [float(v) for v in q["pos"]],
+                                                  Rotation.from_matrix(q["rot"]).as_quat().tolist(),
+                                                  physicsClientId=cid)
+        W, H = self.camera.width, self.camera.height
+        _, _, rgba, zbuf, ids = p.getCameraImage(W, H, self.view, self.proj, renderer=p.ER_TINY_RENDERER,
+                                                 shadow=0, lightDirection=[0.3, -0.2, 1.0],
+                                                 lightAmbientCoeff=0.45, lightDiffuseCoeff=0.55,
+                                                 lightSpecularCoeff=0.0, physicsClientId=cid)
+        self.rgb[k] = np.asarray(rgba, dtype=np.uint8).reshape(H, W, 4)[..., :3]
+        z = np.asarray(zbuf, dtype=np.float64).reshape(H, W)
+        self.depth[k] = (NEAR * FAR / (FAR - (FAR - NEAR) * z)).astype(np.float32)
+        ids = np.asarray(ids, dtype=np.int64).reshape(H, W)
+        lab = np.full((H, W), SEG_BACKGROUND, np.uint8)
+        for body, label in self.lut.items():
+            lab[ids == body] = label
+        self.seg[k] = lab
+        self.seconds += time.perf_counter() - t0
 
 
 @hookimpl

@@ -44,6 +44,9 @@ class Camera:
             raise ShapeError(f"world_to_cam must be 3x4 [R | t], got shape {m.shape}")
         if not np.allclose(m[:, :3] @ m[:, :3].T, np.eye(3), atol=1e-4):
             raise DataError("world_to_cam's left 3x3 block is not a rotation (R R^T != I)")
+        if np.linalg.det(m[:, :3]) < 0:
+            raise DataError("world_to_cam's left 3x3 block is a reflection (det < 0), which would render mirror "
+                            "images; flip the sign of one camera axis")
         if self.width < 8 or self.height < 8:
             raise DataError(f"camera image size must be at least 8x8 px, got {self.width}x{self.height}")
         if self.fx <= 0 or self.fy <= 0:
@@ -65,7 +68,7 @@ class Camera:
         if np.linalg.norm(z) < 1e-9:
             raise DataError("look_at: eye and target coincide")
         z /= np.linalg.norm(z)
-        x = np.cross(z, -up)
+        x = np.cross(z, up)  # image right; then image down = z x right = -up (projected)
         if np.linalg.norm(x) < 1e-9:
             raise DataError("look_at: 'up' is parallel to the viewing direction; pass another up vector")
         x /= np.linalg.norm(x)
@@ -152,8 +155,8 @@ class RenderStyle:
     images (``../shared/data/wiping_keypoints``): a green cloth on a salmon-red table, white arm and
     black gripper."""
 
-    cloth: tuple[int, int, int] = (112, 150, 86)
-    table: tuple[int, int, int] = (214, 104, 98)
+    cloth: tuple[int, int, int] = (101, 144, 122)  # median colour of the real cloth (frames 0-280)
+    table: tuple[int, int, int] = (175, 103, 112)  # median colour of the real table
     robot: tuple[int, int, int] = (225, 225, 225)
     gripper: tuple[int, int, int] = (30, 30, 34)
     show_robot: bool = True
@@ -179,8 +182,10 @@ def default_camera(scenario_name: str, size: int = 128) -> Camera:
         DataError: a scenario without a built-in camera.
     """
     views = {
-        # wipe: cloth corner starts at the origin, trails along -x, stroke +0.30 x then +0.15 y
-        "wipe": dict(eye=(-0.02, 0.06, 1.0), target=(-0.02, 0.06, 0.0), up=(1, 0, 0), fovy_deg=44.0),
+        # wipe: the grasped corner starts at the origin and the cloth (side <= 0.34 m) trails along -x;
+        # the stroke goes +0.30 m in x then +0.15 m in y: workspace x in [-0.48, 0.32], y in [-0.24, 0.39];
+        # fovy 52 deg shows x in [-0.57, 0.41], so the gripper and the arm stay in view
+        "wipe": dict(eye=(-0.08, 0.075, 1.0), target=(-0.08, 0.075, 0.0), up=(1, 0, 0), fovy_deg=52.0),
         "fling": dict(eye=(0.0, -0.9, 0.75), target=(0.0, 0.0, 0.2), up=(0, 0, 1), fovy_deg=55.0),
         "lift": dict(eye=(0.0, 0.0, 1.2), target=(0.0, 0.0, 0.1), up=(1, 0, 0), fovy_deg=50.0),
         "wind": dict(eye=(0.0, -0.8, 0.6), target=(0.0, 0.0, 0.15), up=(0, 0, 1), fovy_deg=50.0),

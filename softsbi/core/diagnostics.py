@@ -179,6 +179,10 @@ def load_run(run_dir: str | Path, n_samples: int = 30, seed: int = 0) -> RunView
                            f"`softsbi fit ... --out {run_dir}` command first")
     report = json.loads(rep_path.read_text())
     cfg = store.config
+    if cfg.get("metric") == "mask_chamfer_px" or "dense" not in store.read_observed():
+        raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.get('observer')}'): check, diagnose and "
+                           f"compare work on point-cloud fits, which carry 3-D clouds to localise the error; "
+                           f"its report.json holds the mask Chamfer of prior and posterior rollouts")
     space = ParamSpace.from_json(cfg["param_space"])
     obs = store.read_observed()
     if store.has("evaluation"):

@@ -39,7 +39,10 @@ class FitConfig:
         backend: simulator plugin name.
         backend_options: keyword options of the simulator's constructor (e.g. ``{"grid": 8}``).
         effects: effect plugin names switched on; their parameters join the inferred ones.
-        observer: observer plugin name; ``n_points`` = K points per frame.
+        observer: observer plugin name; ``n_points`` = K points per frame (point-cloud observers;
+            image observers take K from their extractor).
+        observer_options: extra constructor options of the observer, e.g. for the image observers
+            ``{"extractor": "heatmap.pt", "size": 128}``.
         estimator: posterior-estimator plugin name; ``estimator_options`` its config.
         rounds: number of sequential rounds; sims_per_round: simulations per round.
         seed: fixes every draw and every simulation seed.
@@ -63,6 +66,7 @@ class FitConfig:
     effects: list[str] = field(default_factory=list)
     observer: str = "pointcloud"
     n_points: int = 64
+    observer_options: dict[str, Any] = field(default_factory=dict)
     estimator: str = "rkhs"
     estimator_options: dict[str, Any] = field(default_factory=dict)
     rounds: int = 4
@@ -103,13 +107,17 @@ class Measurement:
         dense: ``(T, P, 3)`` denser observed clouds (the Chamfer metric's reference), metres.
         source: path of the recording or a description.
         truth: hidden parameter values when the measurement is simulated (else None).
+        images: ``(T, H, W, 3)`` uint8 RGB frames for image observers (``heatmap``,
+            ``transporter``); their cloth masks are the reference of the mask Chamfer metric.
+            ``x`` and ``dense`` may then be None.
     """
 
     scenario: Scenario
-    x: np.ndarray
-    dense: np.ndarray
+    x: np.ndarray | None
+    dense: np.ndarray | None
     source: str
     truth: dict[str, float] | None = None
+    images: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------------------
@@ -130,6 +138,8 @@ class SimContext:
     fixed: dict[str, float]
     dense: np.ndarray | None
     n_dense: int
+    #: ``(T, H, W)`` bool cloth masks of the observed frames: the metric becomes the mask Chamfer (px)
+    ref_masks: np.ndarray | None = None
 
 
 _WORKER_CACHE: dict[str, Any] = {}
@@ -155,7 +165,9 @@ def simulate_job(ctx: SimContext, item: tuple[np.ndarray, int]) -> dict[str, Any
         ctx: the shared context. item: ``(theta (D,), seed)``.
 
     Returns:
-        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "seconds"}``.
+        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "seconds"}``;
+        ``chamfer`` is the 3-D Chamfer (m) against ``ctx.dense``, or the mask Chamfer (px) against
+        ``ctx.ref_masks`` for image fits.
     """
     from ..perception.pointcloud import rollout_clouds  # local: workers import lazily
 
@@ -165,7 +177,11 @@ def simulate_job(ctx: SimContext, item: tuple[np.ndarray, int]) -> dict[str, Any
     values = dict(zip(ctx.param_names, map(float, theta)))
     values.update(ctx.fixed)
     try:
-        ro = sim.simulate(scenario, values, effects=ctx.effects, seed=int(seed))
+        if getattr(obs, "needs_images", False):
+            ro = sim.simulate_images(scenario, values, camera=obs.camera, effects=ctx.effects, seed=int(seed),
+                                     style=obs.style)
+        else:
+            ro = sim.simulate(scenario, values, effects=ctx.effects, seed=int(seed))
     except SoftsbiError:
         raise
     except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
@@ -176,9 +192,12 @@ def simulate_job(ctx: SimContext, item: tuple[np.ndarray, int]) -> dict[str, Any
                 "seconds": time.perf_counter() - t0}
     rng = np.random.default_rng([int(seed), 17])
     o = obs.observe(ro, rng)
-    x = np.concatenate([o.gripper[:, None, :], o.points], axis=1)
+    x = o.state()
     ch = None
-    if ctx.dense is not None:
+    if ctx.ref_masks is not None:
+        from ..perception.masks import hsv_mask, mask_chamfer_per_frame
+        ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
+    elif ctx.dense is not None:
         ch = chamfer_per_frame(rollout_clouds(ro, ctx.n_dense, rng), ctx.dense)
     return {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "seconds": time.perf_counter() - t0}
 
@@ -244,23 +263,52 @@ def _config_dict(cfg: FitConfig, meas: Measurement, inferred: ParamSpace) -> dic
     d["bounds"] = {k: list(v) for k, v in cfg.bounds.items()}
     d.update({"scenario": meas.scenario.to_json(), "param_space": inferred.to_json(),
               "observed_source": meas.source, "truth": meas.truth,
-              "observer_options": observer_options(cfg, meas.scenario)})
+              "observer_options": observer_options(cfg, meas.scenario),
+              "metric": "mask_chamfer_px" if (needs_images(cfg) and meas.images is not None) else "chamfer_m"})
     d.pop("n_points", None)
     return d
 
 
+def needs_images(cfg: FitConfig) -> bool:
+    """Whether the fit's observer works on rendered frames (``heatmap``, ``transporter``)."""
+    from ..plugins import registry
+    return bool(getattr(registry().observer(cfg.observer), "needs_images", False))
+
+
 def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
-    """Constructor options of the observer for this fit (K and the sensor's visibility)."""
-    opts: dict[str, Any] = {"n_points": cfg.n_points}
+    """Constructor options of the observer for this fit: K and the sensor's visibility for point
+    clouds; extractor checkpoint, camera and scenario for image observers."""
+    if needs_images(cfg):
+        opts = dict(cfg.observer_options)
+        opts.setdefault("scenario", scenario.name)
+        if "extractor" in opts:
+            opts["extractor"] = str(Path(opts["extractor"]).resolve())
+        return opts
+    opts = {"n_points": cfg.n_points}
     if cfg.min_height is not None:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
+    opts.update(cfg.observer_options)
     return opts
 
 
 def observe_measurement(cfg: FitConfig, meas: Measurement) -> np.ndarray:
-    """The observed state ``(T, 1+K, 3)`` under the fit's observer settings."""
+    """The observed state ``(T, 1+K, 3)`` under the fit's observer settings.
+
+    Raises:
+        DataError: an image observer with a measurement that has no frames, or a point-cloud
+            observer with one that has neither state nor clouds.
+    """
     from ..plugins import registry
+    from .errors import DataError
     obs = registry().observer(cfg.observer)(**observer_options(cfg, meas.scenario))
+    if getattr(obs, "needs_images", False):
+        if meas.images is None:
+            raise DataError(f"observer '{cfg.observer}' works on images but the measurement '{meas.source}' has "
+                            f"no frames; pass a folder of frames (000.png ...) or use --observer pointcloud")
+        return obs.observe_images(meas.images, meas.scenario.gripper, meas.scenario.times, meas.source).state()
+    if meas.x is None and meas.dense is None:
+        raise DataError(f"measurement '{meas.source}' has no point clouds; observer '{cfg.observer}' needs them "
+                        f"(for a folder of frames use --observer heatmap or transporter)")
     if hasattr(obs, "observe_clouds") and meas.dense is not None:
         o = obs.observe_clouds(list(meas.dense), meas.scenario.gripper, meas.scenario.times,
                                np.random.default_rng([cfg.seed, 31337]), source=meas.source)
@@ -365,18 +413,27 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
         hooks.message(f"resuming run in {store_path} after round {len(store.completed_rounds())} "
                       f"({prev:.0f} s spent before)")
     else:
+        x0 = observe_measurement(cfg, meas)  # before creating the store: bad input leaves nothing behind
         store = RunStore.create(store_path, config)
-        store.write_observed(observe_measurement(cfg, meas), meas.scenario.gripper, meas.scenario.times,
-                             meas.dense, meas.source)
+        masks = None
+        if config["metric"] == "mask_chamfer_px":
+            from ..perception.masks import hsv_mask
+            masks = hsv_mask(meas.images)
+        store.write_observed(x0, meas.scenario.gripper, meas.scenario.times, meas.dense, meas.source,
+                             images=meas.images, masks=masks)
         prev = 0.0
     store.update_config(rounds=cfg.rounds)
-    x_obs = store.read_observed()["x"]
-    dense = store.read_observed().get("dense")
+    observed = store.read_observed()
+    x_obs = observed["x"]
+    dense = observed.get("dense")
+    ref_masks = observed.get("masks")
+    metric = store.config.get("metric", "chamfer_m")
 
     ctx = SimContext(backend=cfg.backend, backend_options=cfg.backend_options, scenario=meas.scenario.to_json(),
                      effects=list(cfg.effects), observer=cfg.observer,
                      observer_options=observer_options(cfg, meas.scenario), param_names=space.names,
-                     fixed=dict(cfg.fixed), dense=dense, n_dense=cfg.n_dense)
+                     fixed=dict(cfg.fixed), dense=dense, n_dense=cfg.n_dense,
+                     ref_masks=ref_masks if metric == "mask_chamfer_px" else None)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     chain = PosteriorChain(space.dim, seed=cfg.seed)
     summaries: list[dict[str, Any]] = []
@@ -394,7 +451,7 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
             hooks.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
             _simulate_missing(store, r, ctx, executor, hooks)
             d = store.round_data(r)
-            stats = _chamfer_stats(d["chamfer"], d["status"]) if dense is not None else {}
+            stats = _chamfer_stats(d["chamfer"], d["status"]) if (dense is not None or ref_masks is not None) else {}
             if r == 0:
                 prior_stats = stats
             elif summaries:
@@ -466,7 +523,17 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                        "posterior_mean": s["posterior_mean"]} for s in summaries],
         "wall_time_s": wall,
     }
-    if report["chamfer_prior_m"] and report["chamfer_posterior_m"]:
+    report["metric"] = metric
+    if metric == "mask_chamfer_px":  # the paper's image metric: HSV cloth masks, bidirectional Chamfer (px)
+        for k in ("prior", "prior_std", "posterior", "posterior_std"):
+            report[f"mask_chamfer_{k}_px"] = report.pop(f"chamfer_{k}_m")
+            report[f"chamfer_{k}_m"] = None
+        for row in report["per_round"]:
+            row["mask_chamfer_posterior_px"] = row.pop("chamfer_posterior_m")
+            row["mask_chamfer_posterior_std_px"] = row.pop("chamfer_posterior_std_m")
+        if report["mask_chamfer_prior_px"] and report["mask_chamfer_posterior_px"]:
+            report["chamfer_reduction"] = 1 - report["mask_chamfer_posterior_px"] / report["mask_chamfer_prior_px"]
+    elif report["chamfer_prior_m"] and report["chamfer_posterior_m"]:
         report["chamfer_reduction"] = 1 - report["chamfer_posterior_m"] / report["chamfer_prior_m"]
     if meas.truth:
         # an effect added by the fit but absent from the measurement is truly switched off
@@ -512,5 +579,5 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
             chamfer[i] = res["chamfer"]
     store.write_group("evaluation", {"theta": theta, "u": u, "status": status, "chamfer": chamfer},
                       attrs={"rounds": cfg.rounds, "what": "rollouts at final-posterior samples"},
-                      units={"chamfer": "m", "theta": "physical"})
+                      units={"chamfer": "px" if ctx.ref_masks is not None else "m", "theta": "physical"})
     return _chamfer_stats(chamfer, status)

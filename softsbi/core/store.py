@@ -123,8 +123,16 @@ class RunStore:
 
     # -- observed data --------------------------------------------------------------
     def write_observed(self, x: np.ndarray, gripper: np.ndarray, times: np.ndarray,
-                       dense: np.ndarray | None = None, source: str = "") -> None:
+                       dense: np.ndarray | None = None, source: str = "", images: np.ndarray | None = None,
+                       masks: np.ndarray | None = None) -> None:
+        """Store the observed state ``x (T, 1+K, 3)``, the gripper path and, when given, the dense
+        clouds ``(T, P, 3)`` m, the frames ``images (T, H, W, 3)`` uint8 and their cloth ``masks
+        (T, H, W)`` bool (references of the 3-D and the mask Chamfer metric)."""
         g = self.root.require_group("observed")
+        if images is not None:
+            _put(g, "images", np.asarray(images, np.uint8), ("frame", "row", "col", "rgb"), "1")
+        if masks is not None:
+            _put(g, "masks", np.asarray(masks, bool), ("frame", "row", "col"), "1")
         _put(g, "x", x, ("frame", "point", "xyz"), "m")
         _put(g, "gripper", gripper, ("frame", "xyz"), "m")
         _put(g, "times", times, ("frame",), "s")

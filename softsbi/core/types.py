@@ -343,19 +343,33 @@ class Observation:
         gripper: ``(T, 3)`` m.
         times: ``(T,)`` s.
         source: where it came from (path or ``"simulated:<backend>"``).
+        image_size: ``(width, height)`` px of the images 2-D keypoints were found in (None for 3-D).
     """
 
     points: np.ndarray
     gripper: np.ndarray
     times: np.ndarray
     source: str = ""
+    image_size: tuple[int, int] | None = None
 
     def state(self) -> np.ndarray:
         """The per-frame state ``s_t = [gripper, k_1..k_K]`` as ``(T, 1 + K, 3)``.
 
+        3-D points are kept in metres. 2-D keypoints ``(u, v)`` px become ``(u / W, v / H, 0)``
+        (image-normalised, so the state does not depend on the resolution); the gripper row stays
+        in metres.
+
         Raises:
-            ShapeError: 2-D keypoints (their state is built by the image observers).
+            ShapeError: points neither ``(T, K, 3)`` nor ``(T, K, 2)``, or 2-D keypoints without
+                ``image_size``.
         """
-        if self.points.shape[-1] != 3:
-            raise ShapeError("state() needs 3-D points; 2-D keypoints carry their own state layout")
-        return np.concatenate([self.gripper[:, None, :], self.points], axis=1)
+        pts = np.asarray(self.points, float)
+        if pts.ndim != 3 or pts.shape[-1] not in (2, 3) or len(pts) != len(self.gripper):
+            raise ShapeError(f"observation points must be (T, K, 3) or (T, K, 2) with T = {len(self.gripper)}, "
+                             f"got {pts.shape}")
+        if pts.shape[-1] == 2:
+            if self.image_size is None:
+                raise ShapeError("2-D keypoints need Observation.image_size = (width, height) to build the state")
+            w, h = self.image_size
+            pts = np.concatenate([pts / np.array([w, h], float), np.zeros(pts.shape[:2] + (1,))], axis=-1)
+        return np.concatenate([np.asarray(self.gripper, float)[:, None, :], pts], axis=1)

@@ -1,9 +1,211 @@
-"""(being written this session: see issue 6)."""
+"""Image observers: rendered (or recorded) RGB frames -> keypoints from a trained extractor.
+
+The paper's input (Antonova et al. 2022, Sec. V) is RGB video: keypoints are extracted from every
+frame by a supervised heatmap model or an unsupervised Transporter and treated as an unordered set
+per frame. Here the observers ``heatmap`` and ``transporter`` wrap a trained
+:class:`~softsbi.core.interfaces.KeypointExtractor` checkpoint; the fit loop sees that they need
+images (``needs_images``) and asks the backend for rendered rollouts
+(:meth:`~softsbi.core.interfaces.Simulator.simulate_images`) through the observer's camera.
+
+The observed state of a frame is ``[gripper (m), (u/W, v/H, 0) for each keypoint]``
+(:meth:`softsbi.core.types.Observation.state`).
+"""
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from ..core.camera import Camera, RenderStyle, default_camera
+from ..core.errors import DataError, ShapeError, SoftsbiError
+from ..core.interfaces import Observer
+from ..core.types import Observation, Rollout
 from ..plugins.hookspecs import hookimpl
+
+#: image file suffixes read from a folder of frames
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def check_images(images: np.ndarray, what: str = "images") -> np.ndarray:
+    """Validate RGB frames.
+
+    Args:
+        images: ``(N, H, W, 3)`` uint8 RGB.
+
+    Returns:
+        ``images`` as a C-contiguous uint8 array.
+
+    Raises:
+        ShapeError: wrong rank or channel count (greyscale, RGBA) or a non-uint8 dtype; the
+            message says how to convert.
+    """
+    a = np.asarray(images)
+    if a.ndim == 3 and a.shape[-1] == 3:
+        raise ShapeError(f"{what} must be a stack (N, H, W, 3); got one image {a.shape}: use images[None]")
+    if a.ndim != 4:
+        raise ShapeError(f"{what} must be (N, H, W, 3) uint8 RGB, got shape {a.shape}")
+    if a.shape[-1] != 3:
+        raise ShapeError(f"{what} must have 3 colour channels (RGB), got {a.shape[-1]}: convert greyscale with "
+                         f"np.repeat(img[..., None], 3, -1) or drop alpha with img[..., :3]")
+    if a.dtype != np.uint8:
+        raise ShapeError(f"{what} must be uint8 (0-255), got {a.dtype}: use (img * 255).round().astype(np.uint8) "
+                         f"for float images in [0, 1]")
+    return np.ascontiguousarray(a)
+
+
+def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a folder of frames ``000.png, 001.png, ...`` (or ``.jpg``) in numeric order as RGB.
+
+    Args:
+        folder: the frames folder.
+        size: optional ``(width, height)`` px to resize every frame to (``cv2.INTER_AREA``).
+
+    Returns:
+        ``(T, H, W, 3)`` uint8 RGB.
+
+    Raises:
+        DataError: missing folder, no numbered frames, gaps in the numbering, unreadable files,
+            frames of different sizes, or a resize that changes the aspect ratio by more than 2 %.
+    """
+    import cv2
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"frames folder '{folder}' does not exist; it must hold 000.png, 001.png, ... "
+                        f"(one RGB frame per scenario frame)")
+    files = sorted((f for f in folder.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES and f.stem.isdigit()),
+                   key=lambda f: int(f.stem))
+    if not files:
+        raise DataError(f"'{folder}' holds no frames named 000.png, 001.png, ... (.png/.jpg)")
+    idx = [int(f.stem) for f in files]
+    if idx != list(range(idx[0], idx[0] + len(idx))):
+        raise DataError(f"'{folder}': frame numbering has gaps or duplicates ({idx[:8]}...); frames must be "
+                        f"consecutive")
+    frames = []
+    for f in files:
+        im = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        if im is None:
+            raise DataError(f"cannot read image '{f}'; re-export it as PNG or JPEG")
+        frames.append(cv2.cvtColor(im, cv2.COLOR_BGR2RGB))
+    shapes = {fr.shape for fr in frames}
+    if len(shapes) > 1:
+        raise DataError(f"'{folder}': frames have different sizes {sorted(shapes)}; all frames must share one size")
+    out = np.stack(frames)
+    if size is not None:
+        w, h = size
+        H, W = out.shape[1:3]
+        if abs((W / H) / (w / h) - 1) > 0.02:
+            raise DataError(f"'{folder}': frames are {W}x{H} px, which cannot be resized to {w}x{h} without "
+                            f"distortion; crop them or pass a camera with the frames' aspect ratio")
+        if (W, H) != (w, h):
+            out = np.stack([cv2.resize(fr, (w, h), interpolation=cv2.INTER_AREA) for fr in out])
+    return out
+
+
+def save_frames(images: np.ndarray, folder: str | Path) -> list[Path]:
+    """Write ``images (T, H, W, 3)`` uint8 RGB as ``folder/000.png, 001.png, ...``; returns the paths."""
+    import cv2
+
+    images = check_images(images)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, im in enumerate(images):
+        p = folder / f"{i:03d}.png"
+        cv2.imwrite(str(p), cv2.cvtColor(im, cv2.COLOR_RGB2BGR))
+        paths.append(p)
+    return paths
+
+
+class ImageKeypointObserver(Observer):
+    """Keypoints found by a trained extractor in rendered frames (base of ``heatmap`` / ``transporter``).
+
+    Args:
+        extractor: path of the extractor checkpoint (``.pt`` written by its ``save`` or by
+            ``softsbi train-extractor``).
+        size: square image size (px) of the built-in scenario camera, used when ``camera`` is None.
+        camera: a :class:`~softsbi.core.camera.Camera` as JSON (``Camera.to_json()``); None = the
+            scenario's built-in overhead camera :func:`~softsbi.core.camera.default_camera`.
+        scenario: scenario name (for the built-in camera).
+        style: :class:`~softsbi.core.camera.RenderStyle` as JSON (colours of the rendered scene).
+
+    Raises:
+        SoftsbiError: no checkpoint given. DataError: unreadable checkpoint (from the extractor's
+        ``load``).
+    """
+
+    name: ClassVar[str] = "image-keypoints"
+    needs_images: ClassVar[bool] = True
+    #: extractor plugin that reads the checkpoint
+    extractor_kind: ClassVar[str] = ""
+
+    def __init__(self, extractor: str | Path | None = None, size: int = 128,
+                 camera: Mapping[str, Any] | None = None, scenario: str = "wipe",
+                 style: Mapping[str, Any] | None = None):
+        from ..plugins import registry
+
+        if not extractor:
+            raise SoftsbiError(f"observer '{self.name}' needs a trained extractor checkpoint: pass --extractor "
+                               f"PATH.pt (train one with `softsbi train-extractor {self.extractor_kind} ...`)")
+        if not Path(extractor).is_file():
+            raise DataError(f"extractor checkpoint '{extractor}' does not exist; train one with "
+                            f"`softsbi train-extractor {self.extractor_kind} --out {extractor}`")
+        self.extractor_path = str(extractor)
+        self.extractor = registry().extractor(self.extractor_kind).load(extractor)
+        self.camera = Camera.from_json(camera) if camera else default_camera(scenario, int(size))
+        self.style = RenderStyle.from_json(style)
+
+    @property
+    def n_keypoints(self) -> int:
+        return int(self.extractor.n_keypoints)
+
+    def observe_images(self, images: np.ndarray, gripper: np.ndarray, times: np.ndarray,
+                       source: str = "") -> Observation:
+        """Keypoints of recorded or rendered frames.
+
+        Args:
+            images: ``(T, H, W, 3)`` uint8 RGB, ``H, W`` = the camera's size.
+            gripper: ``(T, 3)`` m. times: ``(T,)`` s.
+
+        Returns:
+            :class:`Observation` with ``points (T, K, 2)`` px and ``image_size = (W, H)``.
+
+        Raises:
+            ShapeError: bad images, or a size other than the camera's.
+        """
+        images = check_images(images)
+        H, W = images.shape[1:3]
+        if (W, H) != (self.camera.width, self.camera.height):
+            raise ShapeError(f"frames are {W}x{H} px but the observer's camera is {self.camera.width}x"
+                             f"{self.camera.height}; render or resize the frames to the camera size")
+        if len(images) != len(gripper):
+            raise ShapeError(f"{len(images)} frames but {len(gripper)} gripper poses; every frame needs one")
+        kp = np.asarray(self.extractor.predict(images), float)
+        return Observation(points=kp, gripper=np.asarray(gripper, float), times=np.asarray(times, float),
+                           source=source, image_size=(W, H))
+
+    def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
+        if rollout.rgb is None:
+            raise ShapeError(f"observer '{self.name}' needs rendered frames (rollout.rgb); simulate with "
+                             f"Simulator.simulate_images(..., camera=observer.camera)")
+        return self.observe_images(rollout.rgb, rollout.gripper, rollout.times, source="simulated")
+
+
+class HeatmapObserver(ImageKeypointObserver):
+    """Keypoints of the supervised ``heatmap`` extractor (Grannen et al. 2020) in rendered frames."""
+
+    name: ClassVar[str] = "heatmap"
+    extractor_kind: ClassVar[str] = "heatmap"
+
+
+class TransporterObserver(ImageKeypointObserver):
+    """Keypoints of the unsupervised ``transporter`` extractor (Kulkarni et al. 2019) in rendered frames."""
+
+    name: ClassVar[str] = "transporter"
+    extractor_kind: ClassVar[str] = "transporter"
 
 
 @hookimpl
 def softsbi_observers():
-    return []
+    return [HeatmapObserver, TransporterObserver]

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
 
@@ -10,6 +10,9 @@ from ..core.errors import DataError
 from ..core.loop import Measurement
 from ..core.types import Scenario
 from .pointcloud import PointCloudObserver, load_cloud_frames, rollout_clouds
+
+if TYPE_CHECKING:
+    from ..core.camera import Camera, RenderStyle
 
 #: points per frame kept from a real cloud for the Chamfer metric
 N_DENSE = 1000
@@ -83,3 +86,69 @@ def simulate_measurement(backend: str, scenario: Scenario, truth: Mapping[str, f
         dense = dense + rng.normal(0, noise, dense.shape)
     src = f"simulated:{backend}" + (f"+{'+'.join(effects)}" if effects else "")
     return Measurement(scenario=scenario, x=obs.state(), dense=dense, source=src, truth=dict(truth))
+
+
+def load_image_measurement(folder: str | Path, scenario: str | Scenario = "wipe", size: int = 128,
+                           camera: "Camera | None" = None) -> Measurement:
+    """A folder of RGB frames (real or rendered) as a :class:`Measurement` for image observers.
+
+    The gripper path is the scenario's (the robot's commanded path, as for the real lift): the
+    frames only add what the camera saw.
+
+    Args:
+        folder: ``000.png, 001.png, ...`` (or ``.jpg``), one frame per scenario frame.
+        scenario: the task (name or :class:`Scenario`) the frames were recorded in.
+        size: square size of the built-in scenario camera when ``camera`` is None; frames are
+            resized to the camera's size.
+
+    Returns:
+        Measurement with ``images (T, H, W, 3)`` uint8, ``x = None`` (the observer builds it from the
+        frames), ``dense = None``, ``truth`` from ``folder/truth.json`` when present (rendered
+        measurements written by ``softsbi simulate --render``).
+
+    Raises:
+        DataError: see :func:`~softsbi.perception.images.load_frames`; a frame count different from
+            the scenario's.
+    """
+    import json
+
+    from ..backends.scenarios import make_scenario
+    from ..core.camera import default_camera
+    from .images import load_frames
+
+    sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
+    cam = camera or default_camera(sc.name, size)
+    images = load_frames(folder, size=(cam.width, cam.height))
+    if len(images) != sc.n_frames:
+        raise DataError(f"'{folder}' has {len(images)} frames but scenario '{sc.name}' records {sc.n_frames}; "
+                        f"give one frame per scenario frame")
+    truth_file = Path(folder) / "truth.json"
+    truth = json.loads(truth_file.read_text()) if truth_file.is_file() else None
+    return Measurement(scenario=sc, x=None, dense=None, source=str(folder), truth=truth, images=images)
+
+
+def render_measurement(backend: str, scenario: Scenario, truth: Mapping[str, float], size: int = 128,
+                       camera: "Camera | None" = None, style: "RenderStyle | None" = None,
+                       backend_options: Mapping | None = None, effects: Sequence[str] = (),
+                       n_dense: int = N_DENSE, seed: int = 12345) -> Measurement:
+    """A rendered measurement: ``scenario`` simulated at hidden parameters ``truth`` and rendered.
+
+    Returns:
+        Measurement with ``images (T, H, W, 3)`` uint8 and also ``dense (T, n_dense, 3)`` m (the
+        3-D truth, for reference), ``truth``.
+
+    Raises:
+        SimulationFailed: the hidden-parameter simulation failed.
+    """
+    from ..core.camera import default_camera
+    from ..core.errors import SimulationFailed
+    from ..plugins import registry
+
+    cam = camera or default_camera(scenario.name, size)
+    sim = registry().simulator(backend)(**dict(backend_options or {}))
+    ro = sim.simulate_images(scenario, dict(truth), camera=cam, style=style, effects=list(effects), seed=seed)
+    if not ro.ok:
+        raise SimulationFailed(f"the measurement simulation failed: {ro.reason}")
+    dense = rollout_clouds(ro, n_dense, np.random.default_rng(seed))
+    src = f"rendered:{backend}" + (f"+{'+'.join(effects)}" if effects else "")
+    return Measurement(scenario=scenario, x=None, dense=dense, source=src, truth=dict(truth), images=ro.rgb)

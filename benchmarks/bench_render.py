@@ -1,0 +1,121 @@
+"""Rendering benchmark (issue 6): ms per rendered frame of each backend at 64, 128 and 320 px, and the
+rollout overhead of ``simulate_images`` over ``simulate`` (wipe scenario, grid 9, 31 frames).
+
+Usage::
+
+    nice -n 15 python benchmarks/bench_render.py [--repeats 3] [--sizes 64 128 320] [--no-figures]
+
+Writes ``benchmarks/results/render.json`` and prints a markdown table; also writes the contact
+sheets ``docs/figures/render_wipe_mujoco.png`` and ``docs/figures/render_wipe_pybullet.png``.
+``ms/frame`` is the time inside the per-frame render hook (colour + depth + segmentation, robot
+included) divided by the number of frames, without the once-per-rollout set-up (GL context,
+colours, robot bodies: ``set-up ms``); ``overhead`` is the extra wall time of the whole
+rendered rollout (model/GL set-up included) over a plain ``simulate``. Medians of ``--repeats``
+runs on a shared machine.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from softsbi.backends.mujoco_flex import MujocoFlex
+from softsbi.backends.pybullet_fem import PybulletFEM
+from softsbi.backends.scenarios import wipe_scenario
+from softsbi.core.camera import Camera, default_camera
+from softsbi.perception.render import save_frames_png
+
+ROOT = Path(__file__).resolve().parents[1]
+BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-fem": PybulletFEM}
+FIGURES = {"mujoco-flex": "render_wipe_mujoco.png", "pybullet-fem": "render_wipe_pybullet.png"}
+
+
+def _median_time(fn, repeats):
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        r = fn()
+        out.append((time.perf_counter() - t, r))
+    walls = [w for w, _ in out]
+    return statistics.median(walls), out[-1][1]
+
+
+def bench(sizes, repeats, grid=9):
+    sc = wipe_scenario()
+    T = sc.n_frames
+    rows = []
+    for name, cls in BACKENDS.items():
+        sim = cls(grid=grid)
+        th = sim.param_space(sc).midpoint()
+        sim.simulate(sc, th)  # warm-up (imports, clients)
+        t_sim, _ = _median_time(lambda sim=sim, th=th: sim.simulate(sc, th), repeats)
+        for size in sizes:
+            cam = default_camera("wipe", size)
+            sim.simulate_images(sc, th, cam)  # warm-up (GL context)
+            renders = []
+            t_img, _ = _median_time(lambda sim=sim, th=th, cam=cam: sim.simulate_images(sc, th, cam), repeats)
+            setups = []
+            for _ in range(repeats):
+                info = sim.simulate_images(sc, th, cam).info
+                renders.append(info["render_s"] - info["render_setup_s"])
+                setups.append(info["render_setup_s"])
+            ms = 1000.0 * statistics.median(renders) / T
+            rows.append({"backend": name, "size": size, "frames": T, "grid": grid, "ms_per_frame": round(ms, 2),
+                         "setup_ms": round(1000.0 * statistics.median(setups), 1),
+                         "simulate_s": round(t_sim, 3), "simulate_images_s": round(t_img, 3),
+                         "overhead_s": round(t_img - t_sim, 3), "overhead_x": round(t_img / t_sim, 2)})
+            print(f"{name} {size}px: {ms:.1f} ms/frame, simulate {t_sim:.2f} s, with images {t_img:.2f} s", flush=True)
+    return rows
+
+
+def table(rows):
+    lines = ["| backend | px | ms / frame | set-up ms | simulate s | simulate_images s | overhead |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['backend']} | {r['size']} | {r['ms_per_frame']:.1f} | {r['setup_ms']:.0f} | "
+                     f"{r['simulate_s']:.2f} | {r['simulate_images_s']:.2f} | "
+                     f"+{r['overhead_s']:.2f} s (x{r['overhead_x']:.2f}) |")
+    return "\n".join(lines)
+
+
+def figures(size=192, n=6, grid=9):
+    sc = wipe_scenario()
+    cam = default_camera("wipe", size)  # +x (the drag direction, towards the robot) at the image top
+    idx = np.linspace(0, sc.n_frames - 1, n).round().astype(int)
+    for name, cls in BACKENDS.items():
+        sim = cls(grid=grid)
+        ro = sim.simulate_images(sc, sim.param_space(sc).midpoint(), cam)
+        path = ROOT / "docs" / "figures" / FIGURES[name]
+        save_frames_png(ro.rgb[idx], path, ncols=n, labels=[f"t = {ro.times[k]:.2f} s" for k in idx],
+                        title=f"{name}: wipe, grid {grid}, prior midpoint, {size} px", scale=1.0)
+        print("wrote", path.relative_to(ROOT))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 320])
+    ap.add_argument("--no-figures", action="store_true")
+    a = ap.parse_args()
+    rows = bench(a.sizes, a.repeats)
+    import mujoco
+    import pybullet
+    out = {"benchmark": "render", "scenario": "wipe (31 frames, 1.5 s)", "repeats": a.repeats,
+           "machine": f"{platform.machine()}, {platform.processor() or 'cpu'}, shared 2-core, niced",
+           "mujoco": mujoco.__version__, "pybullet_api": pybullet.getAPIVersion(), "rows": rows}
+    res = ROOT / "benchmarks" / "results" / "render.json"
+    res.parent.mkdir(parents=True, exist_ok=True)
+    res.write_text(json.dumps(out, indent=1))
+    print("\n" + table(rows))
+    print("\nwrote", res.relative_to(ROOT))
+    if not a.no_figures:
+        figures()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,167 @@
+"""Image-based real-to-sim on a rendered measurement (issue 6, "Done when", third item).
+
+Pipeline: the wipe scenario is rendered at hidden parameters the fit does not see -> a keypoint
+extractor (``heatmap`` trained on rendered frames with the projected cloth corners as labels, or
+``transporter`` trained without labels, robot masked out of its loss) finds keypoints in every
+frame -> ``run_fit(observer=heatmap|transporter)`` infers the posterior -> the paper's metric, the
+bidirectional Chamfer between HSV cloth masks of measured and simulated frames, is compared for
+prior and posterior rollouts.
+
+Usage::
+
+    python benchmarks/image_fit.py --extractor heatmap transporter --rounds 3 --sims 100
+
+Writes ``benchmarks/results/image_fit.json`` and ``docs/figures/image_fit_<extractor>.png``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+FIGS = ROOT / "docs" / "figures"
+
+#: hidden parameter values as prior (unit-cube) positions
+TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}
+
+EXTRACTOR_CONFIG = {
+    "heatmap": {"input_size": 128, "layers": [3, 4, 6, 3], "width": 16, "epochs": 40, "patience": 8},
+    "transporter": {"image_size": 64, "n_keypoints": 8, "epochs": 40},
+}
+
+
+def train_extractor(kind: str, data: dict, path: Path, config: dict, mask: bool = True) -> dict:
+    """Train ``kind`` on a rendered set; returns its training info (and saves it to ``path``)."""
+    import torch
+
+    from softsbi.perception.synthdata import visible_corner_labels
+    from softsbi.plugins import registry
+
+    torch.set_num_threads(2)
+    ext = registry().extractor(kind)(**config)
+    H, W = data["images"].shape[1:3]
+    t0 = time.perf_counter()
+    if kind == "heatmap":
+        info = ext.fit(data["images"], visible_corner_labels(data["corners"], W, H), seed=0)
+    else:
+        info = ext.fit(data["images"], None, data["robot_masks"] if mask else None, seed=0,
+                       sequence_ids=data["sequence_ids"])
+    info = dict(info, wall_s=time.perf_counter() - t0, n_images=int(len(data["images"])))
+    ext.save(path)
+    return info
+
+
+def figure(kind: str, meas, fit_dir: Path, ext_path: Path, path: Path, size: int) -> None:
+    """Measured frames with their keypoints (top) and a posterior-mean rollout (bottom)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from softsbi.core.camera import default_camera
+    from softsbi.perception.images import HeatmapObserver, TransporterObserver
+    from softsbi.perception.masks import hsv_mask
+    from softsbi.plugins import registry
+
+    rep = json.loads((fit_dir / "report.json").read_text())
+    obs = (HeatmapObserver if kind == "heatmap" else TransporterObserver)(extractor=ext_path, size=size,
+                                                                           scenario="wipe")
+    sim = registry().simulator("mujoco-flex")()
+    ro = sim.simulate_images(meas.scenario, rep["posterior_mean"], camera=default_camera("wipe", size))
+    T = len(meas.images)
+    frames = [0, T // 3, 2 * T // 3, T - 1]
+    fig, axes = plt.subplots(2, len(frames), figsize=(2.6 * len(frames), 5.6))
+    for row, (imgs, title) in enumerate(((meas.images, "measured"), (ro.rgb, "posterior mean"))):
+        kp = obs.observe_images(imgs, meas.scenario.gripper, meas.scenario.times).points
+        m = hsv_mask(imgs)
+        for ax, f in zip(axes[row], frames):
+            ax.imshow(imgs[f])
+            ax.contour(m[f], levels=[0.5], colors="yellow", linewidths=0.6)
+            ax.scatter(kp[f, :, 0], kp[f, :, 1], s=18, c="cyan", edgecolors="k", linewidths=0.5)
+            ax.set_title(f"{title}, frame {f}", fontsize=8)
+            ax.axis("off")
+    fig.suptitle(f"wipe, {kind} keypoints (cyan) and HSV cloth mask (yellow); mask Chamfer prior "
+                 f"{rep['mask_chamfer_prior_px']:.2f} px -> posterior {rep['mask_chamfer_posterior_px']:.2f} px",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--extractor", nargs="+", default=["heatmap", "transporter"])
+    ap.add_argument("--train-rollouts", type=int, default=40)
+    ap.add_argument("--size", type=int, default=128, help="camera image size (px)")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--sims", type=int, default=100)
+    ap.add_argument("--n-eval", type=int, default=20)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=Path("/tmp/softsbi_image_fit"))
+    ap.add_argument("--retrain", action="store_true", help="train extractors even if a checkpoint exists")
+    args = ap.parse_args()
+
+    from softsbi.backends.scenarios import make_scenario
+    from softsbi.core.loop import FitConfig, run_fit
+    from softsbi.perception.measurement import render_measurement
+    from softsbi.perception.synthdata import render_training_set
+    from softsbi.plugins import registry
+
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    FIGS.mkdir(parents=True, exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    sc = make_scenario("wipe")
+    space = registry().simulator("mujoco-flex")().param_space(sc)
+    truth = space.as_dict(space.from_unit(np.array([TRUTH_UNIT[n] for n in space.names])))
+    meas = render_measurement("mujoco-flex", sc, truth, size=args.size)
+    out_json = RESULTS / "image_fit.json"
+    results = json.loads(out_json.read_text()) if out_json.exists() else {}
+    data = None
+    for kind in args.extractor:
+        ext_path = RESULTS / f"{kind}_wipe_sim.pt"
+        row: dict = {"truth": truth}
+        if args.retrain or not ext_path.exists():
+            if data is None:
+                t0 = time.perf_counter()
+                data = render_training_set("mujoco-flex", sc, n_rollouts=args.train_rollouts, size=args.size, seed=1)
+                print(f"rendered {len(data['images'])} training frames in {time.perf_counter() - t0:.0f} s")
+            cfg = dict(EXTRACTOR_CONFIG[kind])
+            if kind == "heatmap":
+                cfg["input_size"] = args.size
+            row["train"] = train_extractor(kind, data, ext_path, cfg)
+            print(kind, "trained:", {k: row["train"].get(k) for k in ("epochs", "val_loss", "wall_s")})
+        cfg = FitConfig(backend="mujoco-flex", observer=kind,
+                        observer_options={"extractor": str(ext_path), "size": args.size},
+                        rounds=args.rounds, sims_per_round=args.sims, n_eval=args.n_eval, workers=args.workers,
+                        seed=0)
+        t0 = time.perf_counter()
+        res = run_fit(args.out / kind, meas, cfg)
+        rep = res.report
+        prior_std = {p.name: float(np.std(space.from_unit(np.random.default_rng(0).random((4000, space.dim)))[:, i]))
+                     for i, p in enumerate(space)}
+        row.update({
+            "fit_wall_s": time.perf_counter() - t0,
+            "simulations": rep["simulations"], "failed": rep["failed_simulations"],
+            "mask_chamfer_prior_px": rep["mask_chamfer_prior_px"],
+            "mask_chamfer_posterior_px": rep["mask_chamfer_posterior_px"],
+            "chamfer_reduction": rep.get("chamfer_reduction"),
+            "truth_in_90pct_interval": rep["truth_in_90pct_interval"],
+            "posterior_mean": rep["posterior_mean"], "posterior_std": rep["posterior_std"],
+            "posterior_q05": rep["posterior_q05"], "posterior_q95": rep["posterior_q95"],
+            "std_ratio_posterior_to_prior": {n: rep["posterior_std"][n] / prior_std[n] for n in space.names},
+            "config": {"rounds": args.rounds, "sims_per_round": args.sims, "size": args.size,
+                       "train_rollouts": args.train_rollouts},
+        })
+        results[kind] = row
+        out_json.write_text(json.dumps(results, indent=2))
+        figure(kind, meas, args.out / kind, ext_path, FIGS / f"image_fit_{kind}.png", args.size)
+        print(json.dumps({k: row[k] for k in ("mask_chamfer_prior_px", "mask_chamfer_posterior_px",
+                                              "truth_in_90pct_interval", "std_ratio_posterior_to_prior")}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
