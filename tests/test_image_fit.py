@@ -75,7 +75,7 @@ def test_frames_round_trip_and_bad_folders(tmp_path):
         load_frames(tmp_path / "f")
     with pytest.raises(DataError, match="does not exist"):
         load_frames(tmp_path / "nope")
-    with pytest.raises(ShapeError, match="colour channels"):
+    with pytest.raises(ShapeError, match="RGBA"):
         check_images(np.zeros((2, 8, 8, 4), np.uint8))
     with pytest.raises(ShapeError, match="uint8"):
         check_images(np.zeros((2, 8, 8, 3), np.float32))

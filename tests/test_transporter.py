@@ -231,7 +231,7 @@ def test_bad_inputs_raise_clear_errors(data):
         ext.fit(images.astype(np.float32))
     with pytest.raises(ShapeError, match=r"images\[None\]"):
         ext.fit(images[0])
-    with pytest.raises(ShapeError, match="3 colour channels"):
+    with pytest.raises(ShapeError, match="greyscale"):
         ext.fit(images[..., :1])
     with pytest.raises(ShapeError, match="masks"):
         ext.fit(images, masks=robot[:, :10])

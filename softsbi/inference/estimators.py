@@ -43,8 +43,9 @@ STATE_FORMAT = "softsbi.neural-mdn/1"
 MIN_SAMPLES = 10
 
 
-def merge_config(estimator: str, defaults: Mapping[str, Any], config: Mapping[str, Any]) -> dict[str, Any]:
-    """``defaults`` updated by ``config``.
+def merge_config(estimator: str, defaults: Mapping[str, Any], config: Mapping[str, Any],
+                 kind: str = "estimator") -> dict[str, Any]:
+    """``defaults`` updated by ``config`` (the options of an estimator, extractor... named ``estimator``).
 
     Raises:
         ParameterError: a key of ``config`` is not an option (names the closest one and lists all).
@@ -52,7 +53,7 @@ def merge_config(estimator: str, defaults: Mapping[str, Any], config: Mapping[st
     unknown = [k for k in config if k not in defaults]
     if unknown:
         k = unknown[0]
-        raise ParameterError(f"unknown option '{k}' for estimator '{estimator}'.{closest(k, defaults)} "
+        raise ParameterError(f"unknown option '{k}' for {kind} '{estimator}'.{closest(k, defaults)} "
                              f"Options: {', '.join(sorted(defaults))}")
     return {**defaults, **config}
 

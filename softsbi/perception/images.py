@@ -22,36 +22,13 @@ from ..core.errors import DataError, ShapeError, SoftsbiError
 from ..core.interfaces import Observer
 from ..core.types import Observation, Rollout
 from ..plugins.hookspecs import hookimpl
+from .keypoint_data import check_images
+
+__all__ = ["HeatmapObserver", "ImageKeypointObserver", "TransporterObserver", "check_images", "load_frames",
+           "save_frames"]
 
 #: image file suffixes read from a folder of frames
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-def check_images(images: np.ndarray, what: str = "images") -> np.ndarray:
-    """Validate RGB frames.
-
-    Args:
-        images: ``(N, H, W, 3)`` uint8 RGB.
-
-    Returns:
-        ``images`` as a C-contiguous uint8 array.
-
-    Raises:
-        ShapeError: wrong rank or channel count (greyscale, RGBA) or a non-uint8 dtype; the
-            message says how to convert.
-    """
-    a = np.asarray(images)
-    if a.ndim == 3 and a.shape[-1] == 3:
-        raise ShapeError(f"{what} must be a stack (N, H, W, 3); got one image {a.shape}: use images[None]")
-    if a.ndim != 4:
-        raise ShapeError(f"{what} must be (N, H, W, 3) uint8 RGB, got shape {a.shape}")
-    if a.shape[-1] != 3:
-        raise ShapeError(f"{what} must have 3 colour channels (RGB), got {a.shape[-1]}: convert greyscale with "
-                         f"np.repeat(img[..., None], 3, -1) or drop alpha with img[..., :3]")
-    if a.dtype != np.uint8:
-        raise ShapeError(f"{what} must be uint8 (0-255), got {a.dtype}: use (img * 255).round().astype(np.uint8) "
-                         f"for float images in [0, 1]")
-    return np.ascontiguousarray(a)
 
 
 def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:

@@ -48,7 +48,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..core.errors import DataError, ParameterError, ShapeError, closest
+from ..core.errors import DataError, ParameterError, ShapeError
 from ..core.interfaces import KeypointExtractor
 from ..plugins.hookspecs import hookimpl
 from .images import check_images
@@ -294,12 +294,8 @@ class TransporterNet(nn.Module):
 # extractor
 # --------------------------------------------------------------------------------------------
 def _merge(defaults: Mapping[str, Any], config: Mapping[str, Any]) -> dict[str, Any]:
-    unknown = [k for k in config if k not in defaults]
-    if unknown:
-        k = unknown[0]
-        raise ParameterError(f"unknown option '{k}' for extractor 'transporter'.{closest(k, defaults)} "
-                             f"Options: {', '.join(sorted(defaults))}")
-    return {**defaults, **config}
+    from ..inference.estimators import merge_config
+    return merge_config("transporter", defaults, config, kind="extractor")
 
 
 def _check_images(images: Any, what: str = "images") -> np.ndarray:
