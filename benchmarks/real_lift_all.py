@@ -29,7 +29,7 @@ def main() -> None:
         out = a.out / r
         if (out / "report.json").exists():
             continue
-        subprocess.run(["softsbi", "fit", "--observed", str(a.data / f"lift_{r}"), "--out", str(out), *a.extra],
+        subprocess.run([sys.executable, "-m", "softsbi.cli", "fit", "--observed", str(a.data / f"lift_{r}"), "--out", str(out), *a.extra],
                        check=True, stdout=subprocess.DEVNULL)
     reps = {r: json.loads((a.out / r / "report.json").read_text()) for r in RECS if (a.out / r / "report.json").exists()}
     names = [p["name"] for p in next(iter(reps.values()))["parameters"]]
