@@ -31,19 +31,22 @@ DEMO_SIMS = 150
 
 
 def _parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
+    import re
     out: dict[str, Any] = {}
     for it in items or []:
-        for part in it.split(","):
+        for part in re.split(r",(?![^\[]*\])", it):  # commas inside [..] belong to a list value
             if not part:
                 continue
             if "=" not in part:
-                raise SoftsbiError(f"{what} '{part}' must look like name=value")
+                raise SoftsbiError(f"{what} '{part}' must look like name=value (lists as name=[1,2])")
             k, v = part.split("=", 1)
             out[k.strip()] = _num(v.strip())
     return out
 
 
 def _num(v: str) -> Any:
+    if v.startswith("[") and v.endswith("]"):
+        return [_num(x.strip()) for x in v[1:-1].split(",") if x.strip()]
     for cast in (int, float):
         try:
             return cast(v)

@@ -177,3 +177,49 @@ def test_image_fit_bad_input(rendered, tmp_path):
                               "--extractor", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "d")])
     assert res.exit_code == 2 and "does not exist" in res.output
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
+
+
+# ---------------------------------------------------------------------------- train-extractor
+def test_train_extractor_from_an_annotated_folder(tmp_path):
+    """`--data`: contiguous-block split, training, test error on held-out frames, checkpoint + summary."""
+    import cv2
+    rng = np.random.default_rng(0)
+    (tmp_path / "d" / "images").mkdir(parents=True)
+    (tmp_path / "d" / "keypoints").mkdir()
+    for i in range(20):
+        img = np.full((64, 64, 3), (200, 100, 100), np.uint8)
+        kp = rng.integers(8, 56, (2, 2))
+        for (x, y) in kp:
+            cv2.circle(img, (int(x), int(y)), 3, (20, 200, 20), -1)
+        cv2.imwrite(str(tmp_path / "d" / "images" / f"{i:05d}.png"), img[..., ::-1])
+        np.save(tmp_path / "d" / "keypoints" / f"{i:05d}.npy", kp)
+    out = tmp_path / "hm.pt"
+    res = runner.invoke(app, ["train-extractor", "heatmap", "--data", str(tmp_path / "d"), "--out", str(out),
+                              "--opt", "input_size=32,layers=[1,1,1,1],width=4,epochs=2,augment=false"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(out.with_suffix(".json").read_text())
+    assert summary["test"]["n_frames"] >= 2 and np.isfinite(summary["test"]["hungarian_mean_px"])
+    from softsbi.perception.heatmap import HeatmapExtractor
+    assert HeatmapExtractor.load(out).n_keypoints == 2
+    # a keypoint file that does not match its image
+    np.save(tmp_path / "d" / "keypoints" / "00003.npy", np.zeros((3, 2)))
+    res = runner.invoke(app, ["train-extractor", "heatmap", "--data", str(tmp_path / "d"), "--out", str(out)])
+    assert res.exit_code == 2 and "00003" in res.output
+
+
+def test_train_extractor_on_rendered_rollouts_and_bad_choices(tmp_path):
+    out = tmp_path / "tp.pt"
+    res = runner.invoke(app, ["train-extractor", "transporter", "--simulate", "wipe", "--rollouts", "2",
+                              "--image-size", "32", "--out", str(out),
+                              "--opt", "image_size=32,epochs=1,n_keypoints=3,channels=8,hidden=8"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(out.with_suffix(".json").read_text())["frames"] == 62
+    from softsbi.perception.transporter import TransporterExtractor
+    assert TransporterExtractor.load(out).n_keypoints == 3
+    res = runner.invoke(app, ["train-extractor", "heatmap", "--out", str(tmp_path / "x.pt")])
+    assert res.exit_code == 2 and "exactly one of --data" in res.output
+    res = runner.invoke(app, ["train-extractor", "heatmapp", "--simulate", "wipe", "--out", str(tmp_path / "x.pt")])
+    assert res.exit_code == 2 and "Did you mean 'heatmap'" in res.output
+    res = runner.invoke(app, ["train-extractor", "heatmap", "--simulate", "wipe", "--out", str(tmp_path / "x.pt"),
+                              "--opt", "input_sise=32"])
+    assert res.exit_code == 2 and "input_size" in res.output
