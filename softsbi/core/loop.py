@@ -287,6 +287,12 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     opts = {"n_points": cfg.n_points}
     if cfg.min_height is not None:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
+    spool = (scenario.object or {}).get("spool")
+    if spool and cfg.observer == "pointcloud":  # the wind scenario: the spool hides part of the rope
+        from .camera import default_camera
+        opts["viewpoint"] = [float(v) for v in default_camera(scenario.name).position]
+        opts["occluder"] = {"centre": list(spool["centre"]), "radius": float(spool["radius"]),
+                            "z0": float(scenario.table_z), "height": float(spool["height"])}
     opts.update(cfg.observer_options)
     return opts
 

@@ -9,7 +9,7 @@ correspondence across frames.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -72,6 +72,40 @@ def visible_subset(cloud: np.ndarray, k: int, rng: np.random.Generator, min_z: f
     return vis[rng.choice(len(vis), size=k, replace=len(vis) < k)]
 
 
+def occluded_by_cylinder(points: np.ndarray, viewpoint: Sequence[float], centre: Sequence[float], radius: float,
+                         z0: float, height: float) -> np.ndarray:
+    """Which points a vertical cylinder (the wind scenario's spool) hides from a viewpoint.
+
+    A point is occluded when the open segment from ``viewpoint`` to it passes through the solid
+    cylinder of axis z through ``centre (x, y)``, ``radius`` and ``z0 <= z <= z0 + height``.
+
+    Args:
+        points: ``(N, 3)`` m. viewpoint: ``(3,)`` m (the camera centre).
+
+    Returns:
+        ``(N,)`` bool, True = hidden.
+    """
+    p = np.asarray(points, float)
+    cam = np.asarray(viewpoint, float)
+    d = p - cam  # X(t) = cam + t d, t in [0, 1)
+    oc = cam[:2] - np.asarray(centre, float)
+    a = d[:, 0] ** 2 + d[:, 1] ** 2
+    b = 2 * (d[:, :2] @ oc)
+    c = oc @ oc - radius ** 2
+    disc = b * b - 4 * a * c
+    vertical = a <= 1e-18  # a segment parallel to the axis is inside for all t or for none
+    hit = np.where(vertical, c < 0, disc > 0)
+    sq = np.sqrt(np.where(hit & ~vertical, disc, 0.0))
+    aa = np.where(vertical, 1.0, a)
+    t1 = np.where(vertical, 0.0, (-b - sq) / (2 * aa))
+    t2 = np.where(vertical, 1.0, (-b + sq) / (2 * aa))
+    lo, hi = np.maximum(t1, 0.0), np.minimum(t2, 1.0 - 1e-6)  # inside the infinite cylinder for t in [lo, hi]
+    hit &= lo < hi
+    za, zb = cam[2] + lo * d[:, 2], cam[2] + hi * d[:, 2]
+    hit &= (np.maximum(za, zb) >= z0) & (np.minimum(za, zb) <= z0 + height)
+    return hit
+
+
 class PointCloudObserver(Observer):
     """K points per frame sampled area-weighted on the simulated surface.
 
@@ -82,23 +116,40 @@ class PointCloudObserver(Observer):
             observed (see :func:`visible_subset`); None = every point is visible. Set it to
             ``table_z + min_height`` to model a depth sensor that cannot tell cloth lying flat
             from the table.
+        viewpoint, occluder: with both, points hidden from ``viewpoint (3,)`` m by the cylinder
+            ``occluder = {"centre": (x, y), "radius", "z0", "height"}`` (the wind scenario's spool)
+            are not observed (:func:`occluded_by_cylinder`); the fit sets them for scenarios with a
+            spool.
     """
 
     name: ClassVar[str] = "pointcloud"
 
-    def __init__(self, n_points: int = 64, noise: float = 0.0, min_z: float | None = None):
+    def __init__(self, n_points: int = 64, noise: float = 0.0, min_z: float | None = None,
+                 viewpoint: Sequence[float] | None = None, occluder: Mapping[str, Any] | None = None):
         if n_points < 1:
             raise ValueError(f"n_points must be >= 1, got {n_points}")
+        if (viewpoint is None) != (occluder is None):
+            raise ValueError("give both viewpoint and occluder (or neither)")
         self.n_points = int(n_points)
         self.noise = float(noise)
         self.min_z = None if min_z is None else float(min_z)
+        self.viewpoint = None if viewpoint is None else np.asarray(viewpoint, float)
+        self.occluder = None if occluder is None else dict(occluder)
+
+    def _unoccluded(self, cloud: np.ndarray) -> np.ndarray:
+        if self.occluder is None:
+            return cloud
+        o = self.occluder
+        keep = ~occluded_by_cylinder(cloud, self.viewpoint, o["centre"], float(o["radius"]), float(o["z0"]),
+                                     float(o["height"]))
+        return cloud[keep] if keep.any() else cloud
 
     def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
-        if self.min_z is None:
+        if self.min_z is None and self.occluder is None:
             pts = rollout_clouds(rollout, self.n_points, rng)
         else:
             dense = rollout_clouds(rollout, 8 * self.n_points, rng)
-            pts = np.stack([visible_subset(c, self.n_points, rng, self.min_z) for c in dense])
+            pts = np.stack([visible_subset(self._unoccluded(c), self.n_points, rng, self.min_z) for c in dense])
         if self.noise > 0:
             pts = pts + rng.normal(0, self.noise, pts.shape)
         return Observation(points=pts, gripper=np.asarray(rollout.gripper, float),
@@ -109,7 +160,8 @@ class PointCloudObserver(Observer):
         """Subsample K points from each recorded cloud ``clouds[t] (P_t, 3)`` (same sensor model
         as :meth:`observe`). Clouds with fewer than K points are sampled with replacement.
         """
-        pts = np.stack([visible_subset(np.asarray(c, float), self.n_points, rng, self.min_z) for c in clouds])
+        pts = np.stack([visible_subset(self._unoccluded(np.asarray(c, float)), self.n_points, rng, self.min_z)
+                        for c in clouds])
         return Observation(points=pts, gripper=np.asarray(gripper, float), times=np.asarray(times, float),
                            source=source)
 
