@@ -105,10 +105,12 @@ class Camera:
     # -- geometry ----------------------------------------------------------------------
     @property
     def R(self) -> np.ndarray:
+        """``(3, 3)`` rotation world -> camera (rows: camera x, y, z axes in world coordinates)."""
         return np.asarray(self.world_to_cam)[:, :3]
 
     @property
     def t(self) -> np.ndarray:
+        """``(3,)`` translation world -> camera, m."""
         return np.asarray(self.world_to_cam)[:, 3]
 
     @property
@@ -140,11 +142,13 @@ class Camera:
         return uv, z
 
     def to_json(self) -> dict[str, Any]:
+        """JSON-able dict (the run store and observer options keep cameras this way)."""
         return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy, "cx": self.cx,
                 "cy": self.cy, "world_to_cam": [list(r) for r in self.world_to_cam]}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> "Camera":
+        """Inverse of :meth:`to_json`."""
         return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]),
                    float(d["cy"]), tuple(tuple(r) for r in d["world_to_cam"]))
 
