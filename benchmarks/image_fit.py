@@ -82,42 +82,6 @@ def evaluate_extractor(kind: str, ext_path: Path, size: int, n_rollouts: int = 8
             "in_robot": keypoints_in_mask(kp, d["robot_masks"])}
 
 
-def figure(kind: str, meas, fit_dir: Path, ext_path: Path, path: Path, size: int) -> None:
-    """Measured frames with their keypoints (top) and a posterior-mean rollout (bottom)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from softsbi.core.camera import default_camera
-    from softsbi.perception.images import HeatmapObserver, TransporterObserver
-    from softsbi.perception.masks import hsv_mask
-    from softsbi.plugins import registry
-
-    rep = json.loads((fit_dir / "report.json").read_text())
-    obs = (HeatmapObserver if kind == "heatmap" else TransporterObserver)(extractor=ext_path, size=size,
-                                                                           scenario="wipe")
-    sim = registry().simulator("mujoco-flex")()
-    ro = sim.simulate_images(meas.scenario, rep["posterior_mean"], camera=default_camera("wipe", size))
-    T = len(meas.images)
-    frames = [0, T // 3, 2 * T // 3, T - 1]
-    fig, axes = plt.subplots(2, len(frames), figsize=(2.6 * len(frames), 5.6))
-    for row, (imgs, title) in enumerate(((meas.images, "measured"), (ro.rgb, "posterior mean"))):
-        kp = obs.observe_images(imgs, meas.scenario.gripper, meas.scenario.times).points
-        m = hsv_mask(imgs)
-        for ax, f in zip(axes[row], frames):
-            ax.imshow(imgs[f])
-            ax.contour(m[f], levels=[0.5], colors="yellow", linewidths=0.6)
-            ax.scatter(kp[f, :, 0], kp[f, :, 1], s=18, c="cyan", edgecolors="k", linewidths=0.5)
-            ax.set_title(f"{title}, frame {f}", fontsize=8)
-            ax.axis("off")
-    fig.suptitle(f"wipe, {kind} keypoints (cyan) and HSV cloth mask (yellow); mask Chamfer prior "
-                 f"{rep['mask_chamfer_prior_px']:.2f} px -> posterior {rep['mask_chamfer_posterior_px']:.2f} px",
-                 fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--extractor", nargs="+", default=["heatmap", "transporter"])
@@ -192,7 +156,8 @@ def main() -> None:
         })
         results[kind] = row
         out_json.write_text(json.dumps(results, indent=2))
-        figure(kind, meas, args.out / kind, ext_path, FIGS / f"image_fit_{kind}.png", args.size)
+        from softsbi.report import plot_frames
+        plot_frames(FIGS / f"image_fit_{kind}.png", res, meas, cfg)
         print(json.dumps({k: row[k] for k in ("mask_chamfer_prior_px", "mask_chamfer_posterior_px",
                                               "truth_in_90pct_interval", "std_ratio_posterior_to_prior")}, indent=1))
 

@@ -175,7 +175,11 @@ def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
             ax.set_title(f"{label}, frame {f}", fontsize=8)
             ax.axis("off")
     status = "" if ro.ok else f" (posterior simulation failed: {ro.reason})"
-    fig.suptitle(f"{cfg.observer} keypoints (cyan), HSV cloth mask (yellow){status}", fontsize=9)
+    rep = result.report
+    score = (f"; mask Chamfer prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
+             f"{rep['mask_chamfer_posterior_px']:.3f} px" if rep.get("mask_chamfer_posterior_px") is not None else "")
+    fig.suptitle(f"{meas.scenario.name}, {cfg.observer} keypoints (cyan), HSV cloth mask (yellow){score}{status}",
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
