@@ -294,7 +294,7 @@ def _parse_frames(spec: str | None, scenario=None) -> list[int] | None:
 
 def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
                 backend_opt, estimator_opt, n_eval, min_height=None, frames=None, executor="local",
-                executor_options=None):
+                executor_options=None, proposal="corrected"):
     from .core.loop import FitConfig
     effects = [e for it in effect or [] for e in it.split(",") if e]
     return FitConfig(backend=backend, backend_options=_parse_kv(backend_opt, "--backend-opt"), effects=effects,
@@ -302,7 +302,7 @@ def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, worker
                      rounds=rounds, sims_per_round=sims_per_round, seed=seed, n_points=points, workers=workers,
                      bounds=_parse_bounds(bounds), fixed=_parse_kv(fix, "--fix"), n_eval=n_eval,
                      min_height=min_height, frames=_parse_frames(frames), executor=executor,
-                     executor_options=dict(executor_options or {}))
+                     executor_options=dict(executor_options or {}), proposal=proposal)
 
 
 DEFAULT_ROUNDS = 4
@@ -350,7 +350,11 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         scenario: str = typer.Option("lift", help="scenario the frames were recorded in (image observers; "
                                                   "point clouds are always lift)"),
         image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
-                                                 "camera; frames are resized to it")) -> None:
+                                                 "camera; frames are resized to it"),
+        proposal: str = typer.Option("corrected", help="how later rounds draw parameters: corrected (BayesSim: "
+                                                       "from the posterior p/p~*q) or truncated (TSNPE: from the "
+                                                       "prior truncated to the posterior's 99.9% region; more "
+                                                       "robust in many dimensions)")) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from .perception.measurement import load_image_measurement, load_measurement
     from .plugins import registry
@@ -362,7 +366,7 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
             raise SoftsbiError(f"--ray-address needs --executor ray (got --executor {executor})")
         exe_opts["address"] = ray_address
     cfg = _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
-                      backend_opt, estimator_opt, n_eval, min_height, frames, executor, exe_opts)
+                      backend_opt, estimator_opt, n_eval, min_height, frames, executor, exe_opts, proposal)
     cfg.observer = observer
     images = bool(getattr(registry().observer(observer), "needs_images", False))
     if images:
@@ -398,7 +402,10 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
          quick: bool = typer.Option(False, "--quick", help="only fit hidden parameters (no hidden effect)"),
          rounds: int = typer.Option(DEMO_ROUNDS), sims_per_round: int = typer.Option(DEMO_SIMS),
          estimator: str = typer.Option("rkhs"), seed: int = typer.Option(0),
-         workers: Optional[int] = typer.Option(None)) -> None:
+         workers: Optional[int] = typer.Option(None),
+         proposal: str = typer.Option("truncated", help="how later rounds draw parameters (see `softsbi fit "
+                                                        "--help`); truncated keeps the 7-parameter refit's "
+                                                        "posterior tight")) -> None:
     """The whole real-to-sim story on a built-in case that needs no data files.
 
     A lift measurement is simulated at parameters you are not shown, with a hidden breeze the
@@ -421,9 +428,11 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     truth_all = dict(truth, **({} if quick else DEMO_HIDDEN_EFFECT["wind"]))
     console.rule("[bold]softsbi demo")
     console.print(f"A cloth lift simulated at hidden parameters{'' if quick else ' with a hidden effect'}: "
-                  f"{rounds} rounds x {sims_per_round} simulations per fit, estimator {estimator}.")
+                  f"{rounds} rounds x {sims_per_round} simulations per fit, estimator {estimator}, "
+                  f"{proposal} proposals.")
     meas = simulate_measurement("mujoco-flex", sc, truth_all, effects=hidden_effects)
-    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers)
+    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers,
+                    proposal=proposal)
     nominal = out / "nominal"
     console.rule("1. fit the nominal model")
     res = _run(meas, cfg, nominal)
@@ -448,10 +457,10 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     if not diag["significant"]:
         console.print("no effect to add; stopping here")
         return
-    eff = diag["significant"][0]
+    eff = diag["selected"]
     console.rule(f"4. add the effect: refit with --effect {eff}")
     cfg2 = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers,
-                     effects=[eff])
+                     effects=[eff], proposal=proposal)
     refit = out / f"with-{eff}"
     res2 = _run(meas, cfg2, refit)
     _print_report(res2.report, refit)
@@ -504,7 +513,8 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
-             confirm: int = typer.Option(1, help="refit the top N significant effects to confirm (0 = none)"),
+             confirm: int = typer.Option(2, help="refit the top N significant candidates and keep the one whose "
+                                                 "refit lowers the error most (0 = no refit)"),
              confirm_rounds: Optional[int] = typer.Option(None, help="rounds of a confirmation refit"),
              confirm_sims: Optional[int] = typer.Option(None, help="simulations per round of a confirmation refit"),
              workers: Optional[int] = typer.Option(None)) -> None:
@@ -515,13 +525,9 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     with console.status("screening candidate effects..."):
         out = diagnose_run(run, effects=names, confirm=0, workers=workers)
     if confirm and out["significant"]:
-        from .core.diagnostics import _diagnosis_sentence, confirm_effect, load_run
-        view = load_run(run)
-        for name in out["significant"][:confirm]:
-            console.print(f"confirming {name} with a refit ...")
-            out["confirmed"].append(confirm_effect(view, name, budget or None, workers))
-        out["summary"] = _diagnosis_sentence(view, out["ranking"], out["significant"], out["confirmed"],
-                                             out["significance_threshold"])
+        from .core.diagnostics import confirm_candidates
+        confirm_candidates(run, out, confirm, budget or None, workers,
+                           progress=lambda name: console.print(f"confirming {name} with a refit ..."))
         (run / "diagnosis.json").write_text(json.dumps(out, indent=2))
     t = Table(title="Candidate effects, ranked")
     for c in ("rank", "effect", "explains", "p-value", "estimate", "significant"):

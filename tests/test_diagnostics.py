@@ -90,7 +90,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     hidden, control = toy_runs
     d = diagnose_run(hidden, workers=1, confirm=1, confirm_budget={"rounds": 2, "sims_per_round": 150})
     assert d["ranking"][0]["effect"] == "toy-wind"
-    assert d["significant"] == ["toy-wind"]
+    assert d["significant"] == ["toy-wind"] and d["selected"] == "toy-wind"
     assert d["ranking"][0]["estimate"]["wind"] == pytest.approx(0.35, abs=0.12)
     conf = d["confirmed"][0]
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
@@ -98,7 +98,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert conf["chamfer_after_m"] < 0.8 * conf["chamfer_before_m"]
     assert "toy-wind" in d["summary"] and json.loads((hidden / "diagnosis.json").read_text())["significant"]
     c = diagnose_run(control, workers=1, confirm=1)
-    assert c["significant"] == [] and c["confirmed"] == []
+    assert c["significant"] == [] and c["confirmed"] == [] and c["selected"] is None
     assert c["summary"].startswith("No missing effect detected")
     # compare before/after
     res = runner.invoke(app, ["compare", str(hidden), conf["run"], "--workers", "1", "--samples", "20"])
@@ -118,3 +118,43 @@ def test_cli_check_and_diagnose(toy_runs):
     assert "toy-wind" in res.output
     res = runner.invoke(app, ["diagnose", str(hidden), "--effect", "wind", "--workers", "1"])
     assert res.exit_code == 2 and "cannot apply" in res.output
+
+
+def test_refits_decide_between_near_collinear_candidates(monkeypatch, tmp_path):
+    """Two effects both significant on their own: both are refitted and the one whose refit
+    lowers the error most is selected, even if the linearised screening ranked it second."""
+    from softsbi.core import diagnostics as dg
+
+    def rank(name, lp, frac):
+        return {"effect": name, "description": name, "statistic": 1.0, "explained_fraction": frac,
+                "p_value_gamma": 10.0 ** lp, "log10_p": lp, "estimate": {"k": 1.0}}
+    out = {"ranking": [rank("extra-damping", -40, 0.35), rank("air-drag", -30, 0.30), rank("wind", -1, 0.2),
+                       rank("grip", -9, 0.05)],
+           "significant": ["extra-damping"], "significance_threshold": 0.0025, "confirmed": [],
+           "selected": "extra-damping"}
+    assert dg.candidates_to_confirm(out, 2) == ["extra-damping", "air-drag"]
+    assert dg.candidates_to_confirm(out, 5) == ["extra-damping", "air-drag"]  # wind: p too large; grip: < 10 %
+    after = {"extra-damping": 0.015, "air-drag": 0.009}
+    monkeypatch.setattr(dg, "confirm_effect", lambda run, name, budget, workers: {
+        "effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.025, "chamfer_after_m": after[name],
+        "drop": 1 - after[name] / 0.025, "posterior_mean": {}})
+    seen = []
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2, progress=seen.append)
+    assert seen == ["extra-damping", "air-drag"]
+    assert out["selected"] == "air-drag" and [c["effect"] for c in out["confirmed"]] == ["air-drag", "extra-damping"]
+    assert "favour air-drag" in out["summary"] and "64% lower" in out["summary"]
+
+
+def test_gamma_tail_log_probability_stays_finite_far_in_the_tail():
+    from scipy import stats
+
+    from softsbi.core.diagnostics import _gamma_logsf
+    # where SciPy is finite the two agree; far out it stays finite and keeps decreasing
+    assert _gamma_logsf(30.0, 2.0, 1.0) == pytest.approx(stats.gamma.logsf(30.0, 2.0), rel=1e-9)
+    a = _gamma_logsf(4000.0, 1.5, 0.13 / 1.5 * 1.0)
+    b = _gamma_logsf(4000.0, 1.5, 0.20 / 1.5 * 1.0)
+    assert np.isfinite(a) and np.isfinite(b) and a < b
+    # the asymptotic expansion used there matches SciPy where both are representable
+    from softsbi.core.diagnostics import _gamma_logsf_asymptotic
+    for a_, z in ((1.5, 300.0), (4.0, 600.0), (0.7, 200.0)):
+        assert _gamma_logsf_asymptotic(z, a_) == pytest.approx(stats.gamma.logsf(z, a_), rel=1e-4)

@@ -112,3 +112,47 @@ def test_sequential_correction_2d_three_rounds():
     s = posts[-1].sample(30000, rng)
     np.testing.assert_allclose(s.mean(0), mean, atol=0.003)
     np.testing.assert_allclose(np.cov(s.T), cov, rtol=0.08, atol=2e-4)
+
+
+def test_truncated_prior_is_uniform_on_the_posterior_hpd_region():
+    """TSNPE proposal of a 2-D Gaussian posterior: the region is the ellipse holding 1 - eps of
+    the posterior mass; draws are uniform on it (its centroid) and its prior mass is the
+    ellipse's area."""
+    from scipy.stats import chi2
+
+    from softsbi.core.distributions import TruncatedPrior
+    mean = np.array([0.4, 0.6])
+    cov = np.array([[0.004, 0.0015], [0.0015, 0.002]])
+    post = PosteriorChain(2, seed=0).add_round(gaussian(mean, cov), 100)
+    eps = 1e-3
+    tp = TruncatedPrior(post, eps=eps, seed=1)
+    r2 = chi2.ppf(1 - eps, 2)
+    area = np.pi * r2 * np.sqrt(np.linalg.det(cov))
+    assert tp.prior_mass == pytest.approx(area, rel=0.05)
+    s = tp.sample(20000, np.random.default_rng(2))
+    d2 = np.einsum("ni,ij,nj->n", s - mean, np.linalg.inv(cov), s - mean)
+    assert d2.max() <= r2 * 1.01  # inside the region
+    assert np.mean(d2 > 0.5 * r2) == pytest.approx(0.5, abs=0.02)  # uniform: half the area beyond r/sqrt2
+    np.testing.assert_allclose(s.mean(0), mean, atol=0.004)
+    # the region holds 1 - eps of the posterior
+    ps = post.sample(50000, np.random.default_rng(3))
+    assert tp.in_region(ps).mean() == pytest.approx(1 - eps, abs=1e-3)
+    lp = tp.log_prob(np.array([mean, [0.95, 0.05]]))
+    assert lp[0] == pytest.approx(-np.log(tp.prior_mass)) and np.isneginf(lp[1])
+    with pytest.raises(ValueError, match="eps"):
+        TruncatedPrior(post, eps=0.0)
+
+
+def test_posterior_draws_are_not_repeated_when_importance_weights_are_uneven():
+    """Sampling-importance-resampling from a corrected posterior whose weights vary by orders of
+    magnitude (narrow proposal, broad q) draws until the effective sample size is large
+    enough: a small sample holds no repeated rows."""
+    chain = PosteriorChain(3, seed=0)
+    chain.add_round(gaussian([0.5] * 3, np.eye(3) * 0.03 ** 2), 100)  # narrow round-0 posterior
+    post = chain.add_round(gaussian([0.5] * 3, np.eye(3) * 0.04 ** 2), 900)  # q barely wider
+    u = post.q.sample(2000, np.random.default_rng(0))
+    lw = post._log_w(u)
+    w = np.exp(lw - lw.max())
+    assert w.sum() ** 2 / (w * w).sum() < 100  # 2000 draws from q are worth < 100 posterior draws
+    s = post.sample(30, np.random.default_rng(0))
+    assert len(np.unique(s, axis=0)) == 30

@@ -424,7 +424,7 @@ def _candidate_effects(run: RunView, names: Sequence[str] | None) -> list[Any]:
 
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_null: int = 30,
                  unit_step: float = 0.05, effect_step: float = 0.25, alpha: float = 0.01,
-                 workers: int | None = None, confirm: int = 1, confirm_budget: dict[str, int] | None = None,
+                 workers: int | None = None, confirm: int = 2, confirm_budget: dict[str, int] | None = None,
                  seed: int = 0) -> dict[str, Any]:
     """Rank installed effects by how much of the residual each explains; writes ``diagnosis.json``.
 
@@ -436,15 +436,18 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         unit_step: finite-difference step of the nominal parameters (unit-cube units).
         effect_step: finite-difference step of each effect parameter (fraction of its range).
         alpha: family-wise significance level (Bonferroni over candidates).
-        confirm: refit the top ``confirm`` significant candidates with the effect switched on
-            (0 = no refit) and report the change in posterior-predictive Chamfer.
+        confirm: refit the top ``confirm`` candidates (:func:`candidates_to_confirm`) with the
+            effect switched on (0 = no refit), report the change in posterior-predictive Chamfer
+            and select the effect whose refit lowers it most (:func:`confirm_candidates`).
         confirm_budget: ``{"rounds": r, "sims_per_round": n}`` of the confirmation refits
             (default: the run's own).
 
     Returns:
         dict with ``ranking`` (effect, explained_fraction, statistic, p_value, log10_p, estimate,
         ...; ordered by evidence, i.e. by the p-value against each effect's own null),
-        ``significant`` (names), ``confirmed`` (refit results) and ``summary`` (plain language).
+        ``significant`` (names, forward selection), ``confirmed`` (refit results, best first),
+        ``selected`` (the effect to add: the best confirmed one, else the first significant one,
+        else None) and ``summary`` (plain language).
     """
     t0 = time.perf_counter()
     run = load_run(run_dir, n_null, seed)
@@ -542,7 +545,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
             log_p = 0.0
         elif len(pos) >= 3:
             ga, _, gscale = stats.gamma.fit(pos, floc=0)
-            log_p = float(stats.gamma.logsf(d_obs, ga, scale=gscale)) + np.log(len(pos) / len(null))
+            log_p = _gamma_logsf(d_obs, ga, gscale) + np.log(len(pos) / len(null))
         else:
             log_p = float(np.log(p_emp))
         log_p = min(0.0, log_p)
@@ -583,36 +586,112 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
             remaining.remove(best)
         else:
             break
-    confirmed = []
-    for name in significant[:confirm]:
-        confirmed.append(confirm_effect(run, name, confirm_budget, workers))
-    summary = _diagnosis_sentence(run, ranking, significant, confirmed, thr)
     out = {"run": str(run.path), "candidates": [c.name for c in cands], "ranking": ranking,
            "significance_threshold": thr, "significant": significant, "selection": steps_log,
-           "confirmed": confirmed,
-           "summary": summary, "simulations": len(jobs), "seconds": time.perf_counter() - t0}
+           "confirmed": [], "selected": significant[0] if significant else None,
+           "summary": "", "simulations": len(jobs), "seconds": time.perf_counter() - t0}
+    out["summary"] = _diagnosis_sentence(run, out)
+    if confirm:
+        confirm_candidates(run, out, confirm, confirm_budget, workers)
     (Path(run_dir) / "diagnosis.json").write_text(json.dumps(out, indent=2))
     return out
 
 
-def _diagnosis_sentence(run: RunView, ranking, significant, confirmed, thr) -> str:
+def _gamma_logsf(x: float, a: float, scale: float) -> float:
+    """``log P(X > x)`` for ``X ~ Gamma(a, scale)``, finite far in the tail.
+
+    SciPy's ``logsf`` underflows to ``-inf`` when ``x / scale`` is in the thousands, which would
+    tie every strongly significant effect; there the leading term of the asymptotic expansion of
+    the upper incomplete gamma function is used (Abramowitz & Stegun 6.5.32):
+    ``log Q(a, z) ~ (a - 1) log z - z - log Gamma(a) + log(1 + (a - 1) / z)``.
+    """
+    lsf = float(stats.gamma.logsf(x, a, scale=scale))
+    return lsf if np.isfinite(lsf) else _gamma_logsf_asymptotic(x / scale, a)
+
+
+def _gamma_logsf_asymptotic(z: float, a: float) -> float:
+    """``log Q(a, z)`` for ``z >> a`` (A&S 6.5.32, two terms)."""
+    from scipy.special import gammaln
+    return float((a - 1) * np.log(z) - z - gammaln(a) + np.log1p((a - 1) / z))
+
+
+def candidates_to_confirm(out: dict[str, Any], confirm: int) -> list[str]:
+    """The top candidates a diagnosis refits: the forward selection's first effect, then the
+    other effects that are significant on their own (``p < threshold`` and > 10 % of the
+    residual), in ranking order, ``confirm`` at most.
+
+    Near-collinear effects (air drag and extra damping in a fling are both velocity-dependent
+    drags) can each explain most of the residual in the linearised screening; only a refit tells
+    which one the data prefer.
+    """
+    names = list(out["significant"][:1])
+    for r in out["ranking"]:
+        if len(names) >= confirm:
+            break
+        if "statistic" in r and r["effect"] not in names and r["p_value_gamma"] < out["significance_threshold"] \
+                and r["explained_fraction"] > 0.1:
+            names.append(r["effect"])
+    return names[:confirm]
+
+
+def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm: int,
+                       budget: dict[str, int] | None = None, workers: int | None = None,
+                       progress: Any = None) -> dict[str, Any]:
+    """Refit the top ``confirm`` candidates of a diagnosis ``out`` (from :func:`diagnose_run`)
+    and select the effect whose refit lowers the posterior-predictive Chamfer most.
+
+    Updates ``out`` in place: ``confirmed`` (one refit result per candidate, ordered by error
+    drop), ``selected`` (the effect with the largest drop, or the screening's first choice when
+    no refit lowers the error) and ``summary``.
+
+    Args:
+        progress: optional ``callable(str)`` told which effect is being refitted.
+    """
+    view = run if isinstance(run, RunView) else load_run(run)
+    for name in candidates_to_confirm(out, confirm):
+        if any(c["effect"] == name for c in out["confirmed"]):
+            continue
+        if progress:
+            progress(name)
+        out["confirmed"].append(confirm_effect(view, name, budget, workers))
+    out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
+    best = out["confirmed"][0] if out["confirmed"] else None
+    if best is not None and (best.get("drop") or 0) > 0:
+        out["selected"] = best["effect"]
+    out["summary"] = _diagnosis_sentence(view, out)
+    return out
+
+
+def _diagnosis_sentence(run: RunView, out: dict[str, Any]) -> str:
+    ranking, significant, thr = out["ranking"], out["significant"], out["significance_threshold"]
+    confirmed = out.get("confirmed") or []
     if not significant:
         top = ranking[0] if ranking else None
         extra = (f" (best candidate {top['effect']} explains {top['explained_fraction'] * 100:.0f}% of the "
                  f"residual, p = {top['p_value_gamma']:.2g} > {thr:.2g})") if top and "statistic" in top else ""
         return "No missing effect detected: no candidate explains the residual beyond what the nominal model's " \
                "own posterior spread produces" + extra + "."
-    top = next(r for r in ranking if r["effect"] == significant[0])
+    chosen = out.get("selected") or significant[0]
+    top = next(r for r in ranking if r["effect"] == chosen)
     est = ", ".join(f"{k} ~ {v:.3g}" for k, v in top["estimate"].items())
     s = (f"The nominal model misses the measurement; {top['effect']} ({top['description']}) explains "
          f"{top['explained_fraction'] * 100:.0f}% of the residual (p = {top['p_value_gamma']:.2g}; linearised "
          f"estimate {est}).")
-    for c in confirmed:
-        if c["effect"] == top["effect"] and c.get("chamfer_after_m"):
+    done = [c for c in confirmed if c.get("chamfer_after_m")]
+    for c in done:
+        if c["effect"] == chosen:
             s += (f" Refitting with it lowers the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
-                  f"to {c['chamfer_after_m'] * 100:.2f} cm ({c['drop'] * 100:.0f}% lower).")
-    if significant[1:]:
-        s += f" Also needed beyond it: {', '.join(significant[1:])}."
+                  f"to {c['chamfer_after_m'] * 100:.2f} cm ({c['drop'] * 100:.0f}% lower)")
+            others = [o for o in done if o["effect"] != chosen]
+            s += ("; " + ", ".join(f"with {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
+                                   f"({o['drop'] * 100:.0f}% lower)" for o in others) + ", so the data favour "
+                  f"{chosen}." if others else ".")
+    rest = [n for n in significant if n != chosen]
+    if chosen != significant[0]:
+        s += (f" (The linearised screening ranked {significant[0]} first; the refits decide between these "
+              f"near-collinear candidates.)")
+    elif rest:
+        s += f" Also needed beyond it: {', '.join(rest)}."
     else:
         s += " No other candidate explains significantly more once it is included."
     return s
@@ -640,7 +719,9 @@ def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = No
                     sims_per_round=int(budget.get("sims_per_round", c["sims_per_round"])), seed=int(c["seed"]),
                     n_eval=int(c.get("n_eval", 30)), n_dense=int(c.get("n_dense", 600)),
                     workers=workers, fixed=run.fixed,
-                    bounds={k: tuple(v) for k, v in (c.get("bounds") or {}).items()})
+                    bounds={k: tuple(v) for k, v in (c.get("bounds") or {}).items()},
+                    proposal=c.get("proposal", "corrected"),
+                    truncation_eps=float(c.get("truncation_eps", 1e-3)))
     out = run.path / f"refit-{effect}"
     res = run_fit(out, measurement_from_run(run), cfg)
     before = run.report.get("chamfer_posterior_m")

@@ -12,6 +12,14 @@ an estimator trained on pairs ``(u, x)`` with ``u ~ p~(u)`` learns
 With all rounds' data pooled, ``p~`` is the *mixture* of the proposals of all rounds,
 weighted by the number of simulations each round contributed (round 1 = the prior), which
 keeps the importance ratio bounded by ``N_total / N_round1`` (see :class:`PosteriorChain`).
+
+Truncated proposals (TSNPE; Deistler, Goncalves & Macke 2022, "Truncated proposals for
+scalable and hassle-free simulation-based inference", Alg. 1): round r+1 draws from the
+prior restricted to the highest-density region of round r's posterior
+(:class:`TruncatedPrior`). Inside that region every round's proposal is proportional to the
+prior, so ``q(u | x_obs)`` trained on the pooled data *is* the posterior there and needs no
+importance correction (whose weights, ``1 / p~``, amplify the estimator's errors in the tails
+of ``q`` when the proposals are narrow).
 """
 from __future__ import annotations
 
@@ -227,34 +235,112 @@ class RoundPosterior(Distribution):
         rng = np.random.default_rng([self.chain.seed, self.k, 104729])
         return float(_inside(self.q.sample(self.chain.n_norm, rng)).mean())
 
-    def sample(self, n: int, rng: np.random.Generator, oversample: int = 10) -> np.ndarray:
+    def sample(self, n: int, rng: np.random.Generator, oversample: int = 10,
+               max_draws: int = 2_000_000) -> np.ndarray:
         """``n`` draws ``(n, D)`` inside the unit box, by sampling-importance-resampling from
         ``q`` with weights ``1 / m_k``.
+
+        Draws from ``q`` are added until their effective sample size (Kish) is at least
+        ``min(oversample * n, max(2 n, 20000))`` (or ``max_draws`` are used), so uneven
+        weights do not turn into repeated draws.
 
         Raises:
             RuntimeError: ``q`` has (numerically) no mass inside the prior box.
         """
-        out: list[np.ndarray] = []
-        got, tries = 0, 0
-        while got < n:
+        us: list[np.ndarray] = []
+        lws: list[np.ndarray] = []
+        drawn, tries = 0, 0
+        batch = max(oversample * n, 2000)
+        while True:
             tries += 1
-            u = self.q.sample(max(oversample * (n - got), 2000), rng)
+            u = self.q.sample(batch, rng)
+            drawn += batch
             u = u[_inside(u)]
-            if len(u) == 0:
-                if tries > 20:
-                    raise RuntimeError("the posterior has no mass inside the prior box; widen the prior bounds "
-                                       "or check that the observation is reachable by the simulator")
-                continue
-            k = min(n - got, max(1, len(u) // oversample))
-            out.append(_sir(u, self._log_w(u), k, rng))
-            got += k
-        res = np.concatenate(out)[:n]
+            if len(u):
+                us.append(u)
+                lws.append(self._log_w(u))
+            elif tries > 20 and not us:
+                raise RuntimeError("the posterior has no mass inside the prior box; widen the prior bounds "
+                                   "or check that the observation is reachable by the simulator")
+            if us:
+                lw = np.concatenate(lws)
+                w = np.exp(lw - lw.max())
+                ess = w.sum() ** 2 / (w * w).sum()
+                if ess >= min(oversample * n, max(2 * n, 20000)) or drawn >= max_draws:
+                    break
+            batch = min(2 * batch, 200_000)
+        res = _sir(np.concatenate(us), np.concatenate(lws), n, rng)
         return res[rng.permutation(len(res))]
 
     def moments(self, n: int = 20000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Monte Carlo mean ``(D,)`` and covariance ``(D, D)`` in the unit cube."""
         u = self.sample(n, np.random.default_rng(seed))
         return u.mean(0), np.atleast_2d(np.cov(u.T))
+
+
+class TruncatedPrior(Distribution):
+    """The prior (uniform on the unit box) restricted to a posterior's highest-density region.
+
+    The TSNPE proposal (Deistler, Goncalves & Macke 2022, Alg. 1): the region is
+    ``{u in [0,1]^D : log post(u) >= tau}`` with ``tau`` the ``eps``-quantile of
+    ``log post`` at draws from ``post`` (so it holds ``1 - eps`` of the posterior mass).
+    Draws are made by rejection from the prior restricted to the region's bounding box
+    (the extent of ``n_ref`` posterior draws, widened by ``pad`` of its width per side).
+
+    Args:
+        posterior: the previous round's posterior (unit cube), e.g. a :class:`RoundPosterior`.
+        eps: posterior mass left outside the region (sbi's default is 1e-4).
+        n_ref: posterior draws that set ``tau`` and the bounding box.
+        seed: seeds those draws (results are deterministic).
+
+    Raises:
+        RuntimeError (from ``sample``): the region is too small to hit by rejection.
+    """
+
+    def __init__(self, posterior: Distribution, eps: float = 1e-3, n_ref: int = 20000, seed: int = 0,
+                 pad: float = 0.1):
+        if not 0 < eps < 1:
+            raise ValueError(f"eps must lie in (0, 1), got {eps}")
+        self.posterior = posterior
+        ref = posterior.sample(n_ref, np.random.default_rng([seed, 31337]))
+        self.dim = ref.shape[1]
+        lp = posterior.log_prob(ref)
+        self.tau = float(np.quantile(lp[np.isfinite(lp)], eps))
+        lo, hi = ref.min(0), ref.max(0)
+        w = hi - lo
+        self.low = np.clip(lo - pad * w, 0.0, 1.0)
+        self.high = np.clip(hi + pad * w, 0.0, 1.0)
+        rng = np.random.default_rng([seed, 27644437])
+        u = self._box(20000, rng)
+        #: fraction of the prior box inside the region (its prior probability)
+        self.prior_mass = float(self.in_region(u).mean() * np.prod(self.high - self.low))
+
+    def _box(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        return self.low + rng.random((n, self.dim)) * (self.high - self.low)
+
+    def in_region(self, u: np.ndarray) -> np.ndarray:
+        """Whether each row of ``u (n, D)`` lies in the truncation region."""
+        u = np.atleast_2d(np.asarray(u, float))
+        box = np.all((u >= self.low) & (u <= self.high), axis=1)
+        with np.errstate(invalid="ignore"):
+            return box & (self.posterior.log_prob(u) >= self.tau)
+
+    def log_prob(self, u: np.ndarray) -> np.ndarray:
+        return np.where(self.in_region(u), -np.log(max(self.prior_mass, 1e-300)), -np.inf)
+
+    def sample(self, n: int, rng: np.random.Generator, max_draws: int = 5_000_000) -> np.ndarray:
+        out: list[np.ndarray] = []
+        got, drawn = 0, 0
+        while got < n:
+            u = self._box(max(4 * (n - got), 2000), rng)
+            drawn += len(u)
+            u = u[self.in_region(u)]
+            out.append(u[: n - got])
+            got += len(out[-1])
+            if got < n and drawn >= max_draws:
+                raise RuntimeError(f"the truncated prior's region is too small to sample by rejection "
+                                   f"({got} of {n} draws after {drawn} tries); use --proposal corrected")
+        return np.concatenate(out)[:n]
 
 
 def gaussian(mean: np.ndarray, cov: np.ndarray) -> MixtureOfGaussians:

@@ -1,9 +1,11 @@
 """The sequential real-to-sim loop (BayesSim, Ramos et al. 2019; Antonova et al. 2022, Alg. 1).
 
 Round 1 draws ``sims_per_round`` parameters from the prior; round r+1 draws them from the
-corrected posterior of round r (estimators with ``sequential = False``, the "bulk"
-baselines, draw every round from the prior and their posterior is ``q`` truncated to the
-prior box, so round r reports the bulk method with r x sims_per_round simulations) (:class:`~softsbi.core.distributions.PosteriorChain`). All
+corrected posterior of round r (:class:`~softsbi.core.distributions.PosteriorChain`), or with
+``proposal="truncated"`` from the prior truncated to round r's posterior (TSNPE,
+:class:`~softsbi.core.distributions.TruncatedPrior`). Estimators with ``sequential = False``,
+the "bulk" baselines, draw every round from the prior and their posterior is ``q`` truncated
+to the prior box, so round r reports the bulk method with r x sims_per_round simulations. All
 simulations are kept; after each round the estimator is trained on all usable simulations
 so far and conditioned on the observation. Everything goes to the run's Zarr store as it
 is produced, so ``run_fit`` on an existing run directory resumes where it stopped.
@@ -21,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .distributions import PosteriorChain, RoundPosterior
+from .distributions import PosteriorChain, RoundPosterior, TruncatedPrior
 from .errors import SoftsbiError
 from .metrics import chamfer_per_frame
 from .store import RunStore
@@ -29,6 +31,9 @@ from .types import STATUS_ERROR, STATUS_OK, ParamSpace, Scenario
 
 # ----------------------------------------------------------------------------------------
 # configuration
+
+#: proposal schemes of sequential fits (see :class:`FitConfig`)
+PROPOSALS = ("corrected", "truncated")
 
 
 @dataclass
@@ -59,6 +64,13 @@ class FitConfig:
             Does not change the Chamfer metric, which compares full clouds.
         frames: indices of the frames whose state informs the posterior (None = all); the
             metric still uses every frame.
+        proposal: how round r+1 draws its parameters (sequential estimators only):
+            ``"corrected"`` (BayesSim, the paper's): from round r's posterior ``p/p~ * q``;
+            ``"truncated"`` (TSNPE, Deistler et al. 2022): from the prior restricted to the
+            ``1 - truncation_eps`` highest-density region of round r's posterior, and the
+            posterior is ``q`` itself (no importance weights, robust when the rounds narrow
+            down fast in many dimensions).
+        truncation_eps: posterior mass outside the truncated proposal's region.
     """
 
     backend: str = "mujoco-flex"
@@ -81,8 +93,14 @@ class FitConfig:
     fixed: dict[str, float] = field(default_factory=dict)
     min_height: float | None = None
     frames: list[int] | None = None
+    proposal: str = "corrected"
+    truncation_eps: float = 1e-3
 
     def validate(self) -> None:
+        if self.proposal not in PROPOSALS:
+            raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
+        if not 0 < self.truncation_eps < 0.5:
+            raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
         if self.rounds < 1:
             raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
         if self.sims_per_round < 10:
@@ -442,18 +460,26 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                      ref_masks=ref_masks if metric == "mask_chamfer_px" else None)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     chain = PosteriorChain(space.dim, seed=cfg.seed)
+    truncated = sequential and cfg.proposal == "truncated"
     summaries: list[dict[str, Any]] = []
     prior_stats: dict[str, Any] | None = None
     try:
         for r in range(cfg.rounds):
             # bulk estimators (sequential = False): every round draws from the prior
-            proposal = None if (r == 0 or not sequential) else chain.posterior(r - 1)
+            proposal = None
+            if r > 0 and sequential and not store.is_begun(r):
+                proposal = chain.posterior(len(chain) - 1)
+                if truncated:
+                    proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
             if not store.is_begun(r):
                 rng = np.random.default_rng([cfg.seed, r, 0])
                 u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else \
                     proposal.sample(cfg.sims_per_round, rng)
+                what = "prior" if proposal is None else (
+                    f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r - 1}'s posterior "
+                    f"(prior mass {proposal.prior_mass:.3g})" if truncated else f"posterior of round {r - 1}")
                 store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
-                                  x_obs.shape, "prior" if proposal is None else f"posterior of round {r - 1}")
+                                  x_obs.shape, what)
             hooks.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
             _simulate_missing(store, r, ctx, executor, hooks)
             d = store.round_data(r)
@@ -480,9 +506,10 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                 q = est.conditional(x_obs[fr])
                 info = dict(info, n_train_total=int(len(U)), usable_per_round=counts)
                 store.finish_round(r, q, info)
-            if sequential:
+            if sequential and not truncated:
                 post = chain.add_round(q, counts[r])
-            else:  # all data from the prior: the posterior is q truncated to the prior box
+            else:  # bulk (all data from the prior) or truncated proposals (TSNPE): the posterior
+                # is q restricted to the prior box, with no importance weights
                 chain = PosteriorChain(space.dim, seed=cfg.seed)
                 post = chain.add_round(q, sum(counts))
             mean_u, cov_u = post.moments(4000, seed=cfg.seed + r)
@@ -510,6 +537,7 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
         "backend": cfg.backend, "estimator": cfg.estimator, "effects": cfg.effects,
         "parameters": space.to_json(), "fixed": cfg.fixed,
         "rounds": cfg.rounds, "sims_per_round": cfg.sims_per_round, "simulations": total,
+        "proposal": cfg.proposal if sequential else "prior",
         "min_height_m": cfg.min_height, "frames": cfg.frames,
         "failed_simulations": failed,
         "chamfer_prior_m": (prior_stats or {}).get("mean_m"),

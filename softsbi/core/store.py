@@ -36,7 +36,9 @@ SCHEMA_VERSION = 1
 #: config keys that must match when an existing run is resumed
 RESUME_KEYS = ("backend", "backend_options", "scenario", "param_space", "effects", "observer",
                "observer_options", "estimator", "sims_per_round", "seed", "observed_source", "min_height",
-               "frames")
+               "frames", "proposal", "truncation_eps")
+#: values of resume keys in runs written before the key existed
+RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3}
 
 
 def _version() -> str:
@@ -111,7 +113,7 @@ class RunStore:
         would make the stored simulations invalid for this fit."""
         stored = self.config
         new = _jsonable(dict(config))
-        diff = [k for k in RESUME_KEYS if k in new and stored.get(k) != new.get(k)]
+        diff = [k for k in RESUME_KEYS if k in new and stored.get(k, RESUME_DEFAULTS.get(k)) != new.get(k)]
         if diff:
             raise SchemaError(f"the run at '{self.path}' was started with different settings for {diff}; "
                               f"resume it with the same settings or fit into a new --out folder")

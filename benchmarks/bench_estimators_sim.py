@@ -1,6 +1,8 @@
-"""The paper's six-method comparison in simulation (issue 4), on the cloth lift task.
+"""The paper's six-method comparison in simulation (issue 4): cloth lift or rope winding.
 
-A measurement is simulated with ``mujoco-flex`` at hidden parameters and observed as K
+A measurement of ``--scenario lift`` (cloth lift) or ``--scenario wind`` (the paper's
+*winding*: a rope wound onto a spool, partly occluded by it) is simulated with
+``mujoco-flex`` at hidden parameters and observed as K
 noisy points per frame, resampled (so unordered) frame to frame. Each estimator runs
 ``run_fit`` for 1..R rounds (each call resumes the previous run and adds a round); after
 each round ``n_eval`` rollouts at posterior samples are compared with the truth's dense
@@ -10,8 +12,8 @@ Bulk methods (``sequential = False``) draw every round from the prior, so their 
 
 Usage::
 
-    nice -n 15 python benchmarks/bench_estimators_lift.py --out /tmp/bench_lift [--rounds 3]
-        [--sims 100] [--eval 10] [--grid 6] [--points 32] [--methods rkhs mdnn ...]
+    nice -n 15 python benchmarks/bench_estimators_sim.py --out /tmp/bench_lift [--scenario lift]
+        [--rounds 3] [--sims 100] [--eval 10] [--grid 6] [--points 32] [--methods rkhs mdnn ...]
 
 Writes ``<out>/results.json`` and ``<out>/chamfer_per_round.png`` and prints a table.
 """
@@ -25,11 +27,16 @@ from pathlib import Path
 import numpy as np
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
+#: hidden parameters (unit-cube position in the backend's parameter order) per scenario
+TRUTH_UNIT = {"lift": [0.6, 0.4, 0.5, 0.5, 0.6],  # bend, stretch, friction, scale, mass
+              "wind": [0.6, 0.4, 0.5, 0.6]}  # bend, friction, scale, mass (rope)
+TITLE = {"lift": "cloth lift", "wind": "rope winding (spool occludes part of the rope)"}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="/tmp/bench_lift")
+    ap.add_argument("--scenario", default="lift", choices=sorted(TRUTH_UNIT))
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--sims", type=int, default=100)
     ap.add_argument("--eval", type=int, default=10)
@@ -41,24 +48,25 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
-    from softsbi.backends.scenarios import lift_scenario
+    from softsbi.backends.scenarios import make_scenario
     from softsbi.core.loop import FitConfig, run_fit
     from softsbi.perception.measurement import simulate_measurement
     from softsbi.plugins import registry
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sc = lift_scenario(None)
-    sim = registry().simulator("mujoco-flex")(grid=args.grid)
+    sc = make_scenario(args.scenario)
+    bopts = {"grid": args.grid}
+    sim = registry().simulator("mujoco-flex")(**bopts)
     space = sim.param_space(sc)
-    truth = space.as_dict(space.from_unit(np.array([0.6, 0.4, 0.5, 0.5, 0.6])))
-    meas = simulate_measurement("mujoco-flex", sc, truth, backend_options={"grid": args.grid}, n_points=args.points,
+    truth = space.as_dict(space.from_unit(np.array(TRUTH_UNIT[args.scenario])))
+    meas = simulate_measurement("mujoco-flex", sc, truth, backend_options=bopts, n_points=args.points,
                                 n_dense=300, noise=args.noise, seed=7)
     results = {"truth": truth, "config": vars(args), "methods": {}}
     for m in args.methods:
         rows = []
         for R in range(1, args.rounds + 1):
-            cfg = FitConfig(backend="mujoco-flex", backend_options={"grid": args.grid}, estimator=m, rounds=R,
+            cfg = FitConfig(backend="mujoco-flex", backend_options=bopts, estimator=m, rounds=R,
                             sims_per_round=args.sims, n_eval=args.eval, n_dense=300, n_points=args.points,
                             workers=args.workers, seed=args.seed)
             t0 = time.perf_counter()
@@ -94,7 +102,10 @@ def plot(results: dict, path: Path) -> None:
     ax.set_xlabel("simulations used (sequential: rounds x sims/round; bulk: all from the prior)")
     ax.set_ylabel("Chamfer to truth (cm), mean +- std")
     cfg = results["config"]
-    ax.set_title(f"lift, mujoco-flex grid {cfg['grid']}, K={cfg['points']} noisy points, {cfg['eval']} eval rollouts")
+    scen = cfg.get("scenario", "lift")
+    what = f"{TITLE[scen]}, mujoco-flex" + (f" grid {cfg['grid']}" if scen == "lift" else "")
+    ax.set_title(f"{what}\nK={cfg['points']} noisy unordered points per frame, {cfg['eval']} rollouts at posterior samples",
+                 fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
