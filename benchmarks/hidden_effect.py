@@ -71,6 +71,7 @@ def run_case(name: str, out: Path, rounds: int, sims: int, magnitude: float = 1.
                         r.get("p_value_gamma")) for r in diag["ranking"]],
            "significant": diag["significant"], "summary": diag["summary"]}
     res["selected"] = diag["selected"]
+    res["final_ranking"] = diag.get("final_ranking")
     if diag["confirmed"]:
         res["refits"] = [{"effect": c["effect"], "chamfer_before_m": c["chamfer_before_m"],
                           "chamfer_after_m": c["chamfer_after_m"], "drop": c["drop"]} for c in diag["confirmed"]]

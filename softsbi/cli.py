@@ -413,7 +413,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     diagnoses the missing effect among all installed ones, refits with it and compares.
     """
     from .backends.scenarios import lift_scenario
-    from .core.diagnostics import check_run, compare_runs, diagnose_run
+    from .core.diagnostics import check_run, compare_runs, diagnose_run, format_p
     from .core.loop import FitConfig
     from .perception.measurement import simulate_measurement
     from .plugins import registry
@@ -452,7 +452,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     for i, r in enumerate(diag["ranking"]):
         if "statistic" in r:
             console.print(f"  {i + 1}. {r['effect']:<16} explains {r['explained_fraction'] * 100:3.0f}% "
-                          f"(p = {r['p_value_gamma']:.2g})")
+                          f"(p = {format_p(r)})")
     console.print(diag["summary"])
     if not diag["significant"]:
         console.print("no effect to add; stopping here")
@@ -529,16 +529,21 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
         confirm_candidates(run, out, confirm, budget or None, workers,
                            progress=lambda name: console.print(f"confirming {name} with a refit ..."))
         (run / "diagnosis.json").write_text(json.dumps(out, indent=2))
-    t = Table(title="Candidate effects, ranked")
-    for c in ("rank", "effect", "explains", "p-value", "estimate", "significant"):
+    from .core.diagnostics import format_p
+    t = Table(title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")
+    for c in ("rank", "effect", "explains", "p-value", "estimate", "significant", "refit: error drop"):
         t.add_column(c)
-    for i, r in enumerate(out["ranking"]):
+    by_name = {r["effect"]: r for r in out["ranking"]}
+    drops = {c["effect"]: c.get("drop") for c in out["confirmed"]}
+    for i, name in enumerate(out.get("final_ranking") or list(by_name)):
+        r = by_name[name]
         if "statistic" not in r:
-            t.add_row(str(i + 1), r["effect"], "-", "-", r.get("error", ""), "")
+            t.add_row(str(i + 1), r["effect"], "-", "-", r.get("error", ""), "", "")
             continue
         est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
-        t.add_row(str(i + 1), r["effect"], f"{r['explained_fraction'] * 100:.0f}%", f"{r['p_value_gamma']:.2g}", est,
-                  "yes" if r["effect"] in out["significant"] else "no")
+        d = drops.get(name)
+        t.add_row(str(i + 1), r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r), est,
+                  "yes" if r["effect"] in out["significant"] else "no", "" if d is None else f"{d * 100:.0f}%")
     console.print(t)
     console.print(out["summary"])
     console.print(f"wrote {run / 'diagnosis.json'}")

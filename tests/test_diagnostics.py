@@ -142,6 +142,7 @@ def test_refits_decide_between_near_collinear_candidates(monkeypatch, tmp_path):
     dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2, progress=seen.append)
     assert seen == ["extra-damping", "air-drag"]
     assert out["selected"] == "air-drag" and [c["effect"] for c in out["confirmed"]] == ["air-drag", "extra-damping"]
+    assert out["final_ranking"] == ["air-drag", "extra-damping", "wind", "grip"]
     assert "favour air-drag" in out["summary"] and "64% lower" in out["summary"]
 
 
@@ -154,6 +155,9 @@ def test_gamma_tail_log_probability_stays_finite_far_in_the_tail():
     a = _gamma_logsf(4000.0, 1.5, 0.13 / 1.5 * 1.0)
     b = _gamma_logsf(4000.0, 1.5, 0.20 / 1.5 * 1.0)
     assert np.isfinite(a) and np.isfinite(b) and a < b
+    from softsbi.core.diagnostics import format_p
+    assert format_p({"p_value_gamma": 0.0, "log10_p": a / np.log(10)}).startswith("1e-")
+    assert format_p({"p_value_gamma": 2.1e-19, "log10_p": -18.7}) == "2.1e-19"
     # the asymptotic expansion used there matches SciPy where both are representable
     from softsbi.core.diagnostics import _gamma_logsf_asymptotic
     for a_, z in ((1.5, 300.0), (4.0, 600.0), (0.7, 200.0)):

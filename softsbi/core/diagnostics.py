@@ -447,7 +447,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         ...; ordered by evidence, i.e. by the p-value against each effect's own null),
         ``significant`` (names, forward selection), ``confirmed`` (refit results, best first),
         ``selected`` (the effect to add: the best confirmed one, else the first significant one,
-        else None) and ``summary`` (plain language).
+        else None), ``final_ranking`` (effect names: refitted ones by error drop, then the
+        screening's order) and ``summary`` (plain language).
     """
     t0 = time.perf_counter()
     run = load_run(run_dir, n_null, seed)
@@ -589,12 +590,22 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     out = {"run": str(run.path), "candidates": [c.name for c in cands], "ranking": ranking,
            "significance_threshold": thr, "significant": significant, "selection": steps_log,
            "confirmed": [], "selected": significant[0] if significant else None,
+           "final_ranking": [r["effect"] for r in ranking],
            "summary": "", "simulations": len(jobs), "seconds": time.perf_counter() - t0}
     out["summary"] = _diagnosis_sentence(run, out)
     if confirm:
         confirm_candidates(run, out, confirm, confirm_budget, workers)
     (Path(run_dir) / "diagnosis.json").write_text(json.dumps(out, indent=2))
     return out
+
+
+def format_p(test: dict[str, Any]) -> str:
+    """A candidate's p-value for people: ``2.1e-19``, or ``1e-1234`` from ``log10_p`` where the
+    float underflows to 0."""
+    p = test.get("p_value_gamma", float("nan"))
+    if p > 0 or not np.isfinite(test.get("log10_p", np.nan)):
+        return f"{p:.2g}"
+    return f"1e{int(np.floor(test['log10_p']))}"
 
 
 def _gamma_logsf(x: float, a: float, scale: float) -> float:
@@ -658,6 +669,9 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     best = out["confirmed"][0] if out["confirmed"] else None
     if best is not None and (best.get("drop") or 0) > 0:
         out["selected"] = best["effect"]
+    # the diagnosis's final order: refitted candidates by their error drop, then the screening's
+    done = [c["effect"] for c in out["confirmed"]]
+    out["final_ranking"] = done + [r["effect"] for r in out["ranking"] if r["effect"] not in done]
     out["summary"] = _diagnosis_sentence(view, out)
     return out
 
@@ -668,14 +682,14 @@ def _diagnosis_sentence(run: RunView, out: dict[str, Any]) -> str:
     if not significant:
         top = ranking[0] if ranking else None
         extra = (f" (best candidate {top['effect']} explains {top['explained_fraction'] * 100:.0f}% of the "
-                 f"residual, p = {top['p_value_gamma']:.2g} > {thr:.2g})") if top and "statistic" in top else ""
+                 f"residual, p = {format_p(top)} > {thr:.2g})") if top and "statistic" in top else ""
         return "No missing effect detected: no candidate explains the residual beyond what the nominal model's " \
                "own posterior spread produces" + extra + "."
     chosen = out.get("selected") or significant[0]
     top = next(r for r in ranking if r["effect"] == chosen)
     est = ", ".join(f"{k} ~ {v:.3g}" for k, v in top["estimate"].items())
     s = (f"The nominal model misses the measurement; {top['effect']} ({top['description']}) explains "
-         f"{top['explained_fraction'] * 100:.0f}% of the residual (p = {top['p_value_gamma']:.2g}; linearised "
+         f"{top['explained_fraction'] * 100:.0f}% of the residual (p = {format_p(top)}; linearised "
          f"estimate {est}).")
     done = [c for c in confirmed if c.get("chamfer_after_m")]
     for c in done:
