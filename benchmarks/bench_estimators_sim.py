@@ -49,6 +49,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from softsbi.backends.scenarios import make_scenario
+    from softsbi.core.errors import PosteriorError
     from softsbi.core.loop import FitConfig, run_fit
     from softsbi.perception.measurement import simulate_measurement
     from softsbi.plugins import registry
@@ -70,7 +71,12 @@ def main() -> None:
                             sims_per_round=args.sims, n_eval=args.eval, n_dense=300, n_points=args.points,
                             workers=args.workers, seed=args.seed)
             t0 = time.perf_counter()
-            res = run_fit(out / m, meas, cfg, make_plots=False)
+            try:
+                res = run_fit(out / m, meas, cfg, make_plots=False)
+            except PosteriorError as exc:  # e.g. q with no mass in the prior box: the method fails here
+                rows.append({"round": R, "simulations": R * args.sims, "failed": str(exc)})
+                print(f"{m:15s} round {R}: FAILED ({exc})", flush=True)
+                break
             rep = res.report
             rows.append({"round": R, "simulations": R * args.sims,
                          "chamfer_mean_m": rep["chamfer_posterior_m"], "chamfer_std_m": rep["chamfer_posterior_std_m"],
@@ -92,6 +98,10 @@ def plot(results: dict, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.2))
     prior = None
     for i, (m, rows) in enumerate(results["methods"].items()):
+        rows = [r for r in rows if "failed" not in r]
+        if not rows:
+            ax.plot([], [], ls="none", label=f"{m}: failed (no posterior mass in the prior box)")
+            continue
         n = np.array([r["simulations"] for r in rows]) + (i - 2.5) * 2.0  # small offset so bars do not overlap
         mu = 100 * np.array([r["chamfer_mean_m"] for r in rows])
         sd = 100 * np.array([r["chamfer_std_m"] for r in rows])

@@ -156,3 +156,11 @@ def test_posterior_draws_are_not_repeated_when_importance_weights_are_uneven():
     assert w.sum() ** 2 / (w * w).sum() < 100  # 2000 draws from q are worth < 100 posterior draws
     s = post.sample(30, np.random.default_rng(0))
     assert len(np.unique(s, axis=0)) == 30
+
+
+def test_a_posterior_outside_the_prior_box_gives_a_clear_error():
+    from softsbi.core.errors import PosteriorError
+    post = PosteriorChain(2, seed=0).add_round(gaussian([5.0, 5.0], np.eye(2) * 0.01), 100)
+    assert post.mass_in_box == 0.0
+    with pytest.raises(PosteriorError, match="no mass inside the prior box; widen the prior bounds"):
+        post.sample(10, np.random.default_rng(0))

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from .errors import ShapeError
+from .errors import PosteriorError, ShapeError
 
 
 @dataclass
@@ -245,7 +245,7 @@ class RoundPosterior(Distribution):
         weights do not turn into repeated draws.
 
         Raises:
-            RuntimeError: ``q`` has (numerically) no mass inside the prior box.
+            PosteriorError: ``q`` has (numerically) no mass inside the prior box.
         """
         us: list[np.ndarray] = []
         lws: list[np.ndarray] = []
@@ -260,7 +260,7 @@ class RoundPosterior(Distribution):
                 us.append(u)
                 lws.append(self._log_w(u))
             elif tries > 20 and not us:
-                raise RuntimeError("the posterior has no mass inside the prior box; widen the prior bounds "
+                raise PosteriorError("the posterior has no mass inside the prior box; widen the prior bounds "
                                    "or check that the observation is reachable by the simulator")
             if us:
                 lw = np.concatenate(lws)
@@ -294,7 +294,7 @@ class TruncatedPrior(Distribution):
         seed: seeds those draws (results are deterministic).
 
     Raises:
-        RuntimeError (from ``sample``): the region is too small to hit by rejection.
+        PosteriorError (from ``sample``): the region is too small to hit by rejection.
     """
 
     def __init__(self, posterior: Distribution, eps: float = 1e-3, n_ref: int = 20000, seed: int = 0,
@@ -338,7 +338,7 @@ class TruncatedPrior(Distribution):
             out.append(u[: n - got])
             got += len(out[-1])
             if got < n and drawn >= max_draws:
-                raise RuntimeError(f"the truncated prior's region is too small to sample by rejection "
+                raise PosteriorError(f"the truncated prior's region is too small to sample by rejection "
                                    f"({got} of {n} draws after {drawn} tries); use --proposal corrected")
         return np.concatenate(out)[:n]
 

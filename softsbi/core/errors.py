@@ -50,6 +50,10 @@ class ParameterError(SoftsbiError, ValueError):
     """A parameter is unknown, outside its bounds, or not supported by a backend."""
 
 
+class PosteriorError(SoftsbiError, RuntimeError):
+    """A posterior cannot be sampled (no mass inside the prior box, or a truncation region too small)."""
+
+
 class SimulationFailed(SoftsbiError, RuntimeError):
     """A simulation diverged or produced an implausible state."""
 

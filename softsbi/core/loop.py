@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .distributions import PosteriorChain, RoundPosterior, TruncatedPrior
-from .errors import SoftsbiError
+from .errors import PosteriorError, SoftsbiError
 from .metrics import chamfer_per_frame
 from .store import RunStore
 from .types import STATUS_ERROR, STATUS_OK, ParamSpace, Scenario
@@ -512,7 +512,12 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
                 # is q restricted to the prior box, with no importance weights
                 chain = PosteriorChain(space.dim, seed=cfg.seed)
                 post = chain.add_round(q, sum(counts))
-            mean_u, cov_u = post.moments(4000, seed=cfg.seed + r)
+            try:
+                mean_u, cov_u = post.moments(4000, seed=cfg.seed + r)
+            except PosteriorError as exc:
+                raise PosteriorError(f"round {r}: estimator '{cfg.estimator}' conditioned on the measurement: {exc}. "
+                                     f"Try another estimator (e.g. rkhs), more --sims-per-round or wider --bounds; "
+                                     f"the finished simulations are kept in {store.path}") from exc
             summaries.append({"round": r, "simulations": int(len(d["status"])), "usable": counts[r],
                               "failed": int((d["status"] != STATUS_OK).sum()),
                               "chamfer_proposal": stats, "train": info,
