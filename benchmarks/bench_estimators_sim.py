@@ -95,7 +95,7 @@ def plot(results: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = plt.subplots(figsize=(9.5, 4.2))
     prior = None
     for i, (m, rows) in enumerate(results["methods"].items()):
         rows = [r for r in rows if "failed" not in r]
@@ -116,7 +116,7 @@ def plot(results: dict, path: Path) -> None:
     what = f"{TITLE[scen]}, mujoco-flex" + (f" grid {cfg['grid']}" if scen == "lift" else "")
     ax.set_title(f"{what}\nK={cfg['points']} noisy unordered points per frame, {cfg['eval']} rollouts at posterior samples",
                  fontsize=10)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
