@@ -465,13 +465,13 @@ def run_fit(out_dir: str | Path, meas: Measurement, cfg: FitConfig, hooks: Hooks
     prior_stats: dict[str, Any] | None = None
     try:
         for r in range(cfg.rounds):
-            # bulk estimators (sequential = False): every round draws from the prior
-            proposal = None
-            if r > 0 and sequential and not store.is_begun(r):
-                proposal = chain.posterior(len(chain) - 1)
-                if truncated:
-                    proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
             if not store.is_begun(r):
+                # bulk estimators (sequential = False): every round draws from the prior
+                proposal = None
+                if r > 0 and sequential:
+                    proposal = chain.posterior(len(chain) - 1)
+                    if truncated:
+                        proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
                 rng = np.random.default_rng([cfg.seed, r, 0])
                 u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else \
                     proposal.sample(cfg.sims_per_round, rng)
