@@ -44,13 +44,16 @@ def main() -> None:
     # repeats vs other fabrics: distance between posterior means in prior-normalised (unit-cube) units
     from softsbi.core.types import ParamSpace
     space = ParamSpace.from_json(next(iter(reps.values()))["parameters"])
-    u = {r: space.to_unit(space.as_array(rep["posterior_mean"])) for r, rep in reps.items()}
+    # material only: the placement yaw is how the cloth was laid on the table, not what it is made of
+    mat = [i for i, n in enumerate(names) if n != "yaw"]
+    names = [names[i] for i in mat]
+    u = {r: space.to_unit(space.as_array(rep["posterior_mean"]))[mat] for r, rep in reps.items()}
     same, diff = [], []
     for x, y in itertools.combinations(u, 2):
         d = float(np.linalg.norm(u[x] - u[y]))
         (same if x.rstrip("2") == y.rstrip("2") else diff).append(d)
     if same and diff:
-        print(f"\ndistance between posterior means (unit-cube units): repeats of a fabric {np.mean(same):.3f} "
+        print(f"\ndistance between posterior means (unit-cube units, {', '.join(names)}): repeats of a fabric {np.mean(same):.3f} "
               f"(n={len(same)}), different fabrics {np.mean(diff):.3f} (n={len(diff)})")
         for n_i, n in enumerate(names):
             s_ = [abs(u[x][n_i] - u[y][n_i]) for x, y in itertools.combinations(u, 2) if x.rstrip("2") == y.rstrip("2")]

@@ -62,6 +62,7 @@ from ..core.interfaces import Simulator  # noqa: E402
 from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,  # noqa: E402
                           STATUS_OK, Param, ParamSpace, Rollout, Scenario)
 from ..plugins.hookspecs import hookimpl  # noqa: E402
+from .scenarios import placed_direction, placement_params  # noqa: E402
 
 #: default areal density (kg/m^2) used when ``mass`` is not sampled: camel-ponte-roma, DiffCloud's start
 DEFAULT_AREAL_DENSITY = 0.284
@@ -212,8 +213,7 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
     young, thick = plate_mapping(float(theta["bend"]), float(theta["stretch"]), poisson)
     young = float(ov.pop("young", young))
     thick = float(ov.pop("thickness", thick))
-    d = np.asarray(obj.get("direction", (0.0, -1.0)), dtype=float)
-    d = d / np.linalg.norm(d)
+    d = placed_direction(scenario, theta)
     corner = np.asarray(obj.get("corner", scenario.gripper[0, :2]), dtype=float)
     # vertex 0 of the grid sits at local (-L/2, -L/2); the local diagonal (1, 1)/sqrt2 must map to d
     phi = math.degrees(math.atan2(d[1], d[0])) - 45.0
@@ -384,8 +384,8 @@ class MujocoFlex(Simulator):
     def param_space(self, scenario: Scenario) -> ParamSpace:
         """Nominal parameters of the lift (SI units, see the module docstring for the mapping).
 
-        ``bend`` [N m] log, ``stretch`` [N/m] log, ``friction`` [1], ``scale`` [m], ``mass`` [kg/m^2].
-        Bounds were swept corner by corner for stability at the default options.
+        ``bend`` [N m] log, ``stretch`` [N/m] log, ``friction`` [1], ``scale`` [m], ``mass`` [kg/m^2],
+        and ``yaw`` [deg] when the scenario's placement is unknown (``object["yaw_bounds"]``). Bounds were swept corner by corner for stability at the default options.
 
         Raises:
             ValueError: scenario not supported.
@@ -400,6 +400,7 @@ class MujocoFlex(Simulator):
             Param("friction", 0.05, 1.5, "1", description="cloth-table sliding friction coefficient"),
             Param("scale", 0.20, 0.34, "m", description="cloth side length (square)"),
             Param("mass", 0.1, 0.35, "kg/m^2", description="areal density (fabrics: 0.11-0.32)"),
+            *placement_params(scenario),
         ])
 
     def _check_scenario(self, scenario: Scenario) -> None:

@@ -68,6 +68,7 @@ from ..core.interfaces import Simulator
 from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,
                           STATUS_OK, Param, ParamSpace, Rollout, Scenario)
 from ..plugins.hookspecs import hookimpl
+from .scenarios import placed_direction, placement_params
 from .mujoco_flex import PROP_COLOUR, _check_render_args, grid_corners, grid_faces, robot_base, visual_robot
 
 CLOTH_SCENARIOS = ("lift", "wipe", "fling")
@@ -105,15 +106,16 @@ def _pb():
     return pybullet
 
 
-def cloth_vertices(scenario: Scenario, L: float, n: int, z: float) -> np.ndarray:
+def cloth_vertices(scenario: Scenario, L: float, n: int, z: float,
+                   theta: Mapping[str, float] | None = None) -> np.ndarray:
     """Rest positions ``(n*n, 3)`` m of the cloth grid, mujoco-flex layout (vertex ``i*n+j``).
 
     Vertex 0 is the grasped corner at ``object["corner"]`` and the local diagonal (1, 1) points
-    along ``object["direction"]``.
+    along ``object["direction"]`` rotated by ``theta["yaw"]`` deg if given
+    (:func:`softsbi.backends.scenarios.placed_direction`).
     """
     obj = scenario.object
-    d = np.asarray(obj.get("direction", (0.0, -1.0)), dtype=float)
-    d = d / np.linalg.norm(d)
+    d = placed_direction(scenario, theta)
     corner = np.asarray(obj.get("corner", scenario.gripper[0, :2]), dtype=float)
     phi = math.atan2(d[1], d[0]) - math.pi / 4
     c, s = math.cos(phi), math.sin(phi)
@@ -221,7 +223,8 @@ class PybulletFEM(Simulator):
     def param_space(self, scenario: Scenario) -> ParamSpace:
         """Parameters in PyBullet units (module docstring). Cloth scenarios: ``bend`` [N/m] log
         0.05-20, ``stretch`` [N/m] log 20-200, ``friction`` 0.05-1.5, ``scale`` [m] 0.20-0.34,
-        ``mass`` [kg/m^2] 0.1-0.35. Rope (wind): ``bend`` [N/m] log 0.05-20, ``stretch`` [N/m] log 80-600,
+        ``mass`` [kg/m^2] 0.1-0.35, and ``yaw`` [deg] when ``object["yaw_bounds"]`` is set (placement
+        unknown). Rope (wind): ``bend`` [N/m] log 0.05-20, ``stretch`` [N/m] log 80-600,
         ``friction`` 0.1-1.0, ``scale`` (rope length) [m] 0.3-0.5, ``mass`` [kg/m] 0.01-0.05.
 
         Raises:
@@ -246,6 +249,7 @@ class PybulletFEM(Simulator):
             Param("friction", 0.05, 1.5, "1", description="PyBullet frictionCoeff, cloth-table"),
             Param("scale", 0.20, 0.34, "m", description="cloth side length (square)"),
             Param("mass", 0.1, 0.35, "kg/m^2", description="areal density (fabrics: 0.11-0.32)"),
+            *placement_params(scenario),
         ])
 
     def _check_scenario(self, scenario: Scenario) -> None:
@@ -336,7 +340,7 @@ class PybulletFEM(Simulator):
             total_mass = float(theta["mass"]) * L
         else:
             n = self.grid
-            verts0 = cloth_vertices(scenario, L, n, table_z + self.margin)
+            verts0 = cloth_vertices(scenario, L, n, table_z + self.margin, theta)
             faces_sim = grid_faces(n)
             total_mass = float(theta["mass"]) * L * L
         m_node = total_mass / len(verts0)
