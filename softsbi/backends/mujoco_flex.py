@@ -385,7 +385,8 @@ class MujocoFlex(Simulator):
         """Nominal parameters of the lift (SI units, see the module docstring for the mapping).
 
         ``bend`` [N m] log, ``stretch`` [N/m] log, ``friction`` [1], ``scale`` [m], ``mass`` [kg/m^2],
-        and ``yaw`` [deg] when the scenario's placement is unknown (``object["yaw_bounds"]``). Bounds were swept corner by corner for stability at the default options.
+        and ``yaw`` [deg] when the scenario's placement is unknown (``object["yaw_bounds"]``). Bounds
+        were swept corner by corner for stability at the default options.
 
         Raises:
             ValueError: scenario not supported.
