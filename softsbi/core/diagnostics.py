@@ -361,47 +361,9 @@ def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = No
     run_dir = Path(run_dir)
     (run_dir / "check.json").write_text(json.dumps(out, indent=2))
     if plot:
+        from ..report import plot_check
         plot_check(run_dir / "check.png", out, ch)
     return out
-
-
-def plot_check(path: Path, out: dict[str, Any], ch: np.ndarray) -> Path:
-    """Heatmap (frame x region) and Chamfer per frame with its posterior band and phases."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    t = np.array(out["times_s"])
-    reg = np.array(out["region_error_m"]) * 100
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), gridspec_kw={"width_ratios": [1.2, 1]})
-    ax = axes[0]
-    m = np.array(out["chamfer_per_frame_m"]["mean"]) * 100
-    ax.fill_between(t, np.array(out["chamfer_per_frame_m"]["q05"]) * 100,
-                    np.array(out["chamfer_per_frame_m"]["q95"]) * 100, color="C0", alpha=0.25,
-                    label="5-95% over posterior rollouts")
-    ax.plot(t, m, color="C0", lw=2, label="mean")
-    for k, ph in enumerate(out["phases"]):
-        ax.axvspan(ph["t_s"][0], ph["t_s"][1], color=f"C{k + 2}", alpha=0.07)
-        ax.text(np.mean(ph["t_s"]), 0.02, ph["phase"], transform=ax.get_xaxis_transform(), ha="center", fontsize=8)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("Chamfer to the measurement [cm]")
-    ax.set_ylim(bottom=0)
-    mis = out["misspecification"]
-    ax.set_title(f"Posterior predictive check (misspecification p = {mis['p_value_gamma']:.2g})", fontsize=10)
-    ax.legend(fontsize=8, loc="upper right")
-    ax.grid(alpha=0.3)
-    ax = axes[1]
-    im = ax.imshow(reg.T, aspect="auto", origin="lower", cmap="magma",
-                   extent=[t[0] - 0.02, t[-1] + 0.02, 0.5, reg.shape[1] + 0.5])
-    ax.set_yticks(range(1, reg.shape[1] + 1))
-    ax.set_yticklabels(out["regions"], fontsize=7)
-    ax.set_xlabel("time [s]")
-    ax.set_title("Error per region of the cloth [cm]\n(regions ordered by distance from the grasp)", fontsize=10)
-    fig.colorbar(im, ax=ax, fraction=0.046)
-    fig.suptitle(out["summary"], fontsize=8, wrap=True)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 # ----------------------------------------------------------------------------------------
@@ -783,7 +745,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"
-    _plot_compare(png, a, b, la, lb)
+    from ..report import plot_compare
+    plot_compare(png, a, b, la, lb)
     res = {"run_a": str(run_a), "run_b": str(run_b), "label_a": la, "label_b": lb, "table": rows,
            "summary": summary, "check_a": a, "check_b": b, "png": str(png), "json": str(out_dir / "compare.json")}
     (out_dir / "compare.json").write_text(json.dumps(res, indent=2))
@@ -793,36 +756,3 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
 def _label(run: RunView) -> str:
     eff = run.effects
     return f"{run.config['backend']} + {'+'.join(eff)}" if eff else f"{run.config['backend']} (nominal)"
-
-
-def _plot_compare(path: Path, a: dict, b: dict, la: str, lb: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    t = np.array(a["times_s"])
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    ax = axes[0]
-    for res, lab, col in ((a, la, "C3"), (b, lb, "C0")):
-        c = res["chamfer_per_frame_m"]
-        ax.fill_between(t, np.array(c["q05"]) * 100, np.array(c["q95"]) * 100, color=col, alpha=0.2)
-        ax.plot(t, np.array(c["mean"]) * 100, color=col, lw=2, label=f"{lab}: {res['chamfer_mean_m'] * 100:.2f} cm")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("Chamfer to the measurement [cm]")
-    ax.set_ylim(bottom=0)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Error per time step (band: 5-95% over posterior rollouts)", fontsize=10)
-    ax = axes[1]
-    names = a["regions"]
-    x = np.arange(len(names))
-    ax.bar(x - 0.2, [a["region_mean_m"][n] * 100 for n in names], 0.4, color="C3", label=la)
-    ax.bar(x + 0.2, [b["region_mean_m"].get(n, 0) * 100 for n in names], 0.4, color="C0", label=lb)
-    ax.set_xticks(x)
-    ax.set_xticklabels([n.split(" ")[0] for n in names], fontsize=8)
-    ax.set_xlabel("region of the cloth (R1 at the grasp ... R9 farthest)")
-    ax.set_ylabel("mean error [cm]")
-    ax.legend(fontsize=8)
-    ax.set_title("Error per region", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
