@@ -101,7 +101,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert c["significant"] == [] and c["confirmed"] == [] and c["selected"] is None
     assert c["summary"].startswith("No missing effect detected")
     # compare before/after
-    res = runner.invoke(app, ["compare", str(hidden), conf["run"], "--workers", "1", "--samples", "20"])
+    res = runner.invoke(app, ["compare", str(hidden), conf["run"], "--workers", "1", "--n-eval", "20"])
     assert res.exit_code == 0, res.output
     out = json.loads((hidden / "refit-toy-wind" / "compare.json").read_text())
     assert out["table"][0]["b"] < out["table"][0]["a"]
@@ -110,7 +110,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
 
 def test_cli_check_and_diagnose(toy_runs):
     hidden, _ = toy_runs
-    res = runner.invoke(app, ["check", str(hidden), "--workers", "1", "--samples", "20"])
+    res = runner.invoke(app, ["check", str(hidden), "--workers", "1", "--n-eval", "20"])
     assert res.exit_code == 0, res.output
     assert "misspecification test" in res.output
     res = runner.invoke(app, ["diagnose", str(hidden), "--workers", "1", "--confirm", "0"])

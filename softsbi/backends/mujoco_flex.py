@@ -42,27 +42,24 @@ vertices are bit-identical to :meth:`MujocoFlex.simulate`. The robot is *visual 
 to the rendered scene (:func:`visual_robot`), never to the model. Segmentation comes from MuJoCo's
 segmentation rendering (flex -> ``SEG_OBJECT``, the added robot geoms -> ``SEG_ROBOT``, everything
 else -> ``SEG_BACKGROUND``), depth from the linearised depth buffer (metres along the optical axis).
-Off-screen OpenGL: ``MUJOCO_GL`` is set to ``osmesa`` (CPU, needs ``libosmesa6``) when unset, *at
-import of this module*; it must be set before ``mujoco`` is first imported (``egl`` also works).
+Off-screen OpenGL is chosen only when rendering is first asked for (:mod:`.mujoco_gl`):
+``MUJOCO_GL`` if set, else OSMesa if its library loads, else EGL. Simulation loads no OpenGL.
 """
 from __future__ import annotations
 
 import math
-import os
 import time
 from typing import Any, Callable, Mapping, Sequence
 
-# off-screen rendering without a display: must happen before the first `import mujoco`
-os.environ.setdefault("MUJOCO_GL", "osmesa")
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from ..core.errors import DataError, ParameterError  # noqa: E402
-from ..core.interfaces import Simulator  # noqa: E402
-from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,  # noqa: E402
+from ..core.errors import DataError, ParameterError, RenderingUnavailable
+from ..core.interfaces import Simulator
+from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,
                           STATUS_OK, Param, ParamSpace, Rollout, Scenario)
-from ..plugins.hookspecs import hookimpl  # noqa: E402
-from .scenarios import placed_direction, placement_params  # noqa: E402
+from ..plugins.hookspecs import hookimpl
+from .mujoco_gl import RENDER_FIX, choose_backend, gl_context_class, import_mujoco
+from .scenarios import placed_direction, placement_params
 
 #: default areal density (kg/m^2) used when ``mass`` is not sampled: camel-ponte-roma, DiffCloud's start
 DEFAULT_AREAL_DENSITY = 0.284
@@ -481,8 +478,8 @@ class MujocoFlex(Simulator):
         Raises:
             ValueError: unknown scenario. ParameterError: bad parameter or effect.
             DataError: ``camera``/``style`` of the wrong type, or a mirrored camera (det R = -1).
-            RuntimeError: no off-screen OpenGL (set ``MUJOCO_GL=osmesa`` or ``egl`` before importing
-                mujoco; osmesa needs ``libosmesa6``).
+            RenderingUnavailable: no off-screen OpenGL back-end works (the message names the fix:
+                ``apt-get install -y libosmesa6``, or ``MUJOCO_GL=egl``).
         """
         style = _check_render_args(camera, style)
         frames = _MjFrames(scenario, camera, style)
@@ -505,7 +502,7 @@ class MujocoFlex(Simulator):
         ``frame_hook(k, m, d)`` is called after frame ``k`` is recorded (``k = 0`` after
         ``mj_forward``), with the grasp target in ``d.mocap_pos[0]``; not called after a failure.
         """
-        import mujoco
+        mujoco = import_mujoco()
 
         self._check_scenario(scenario)
         self._check_effects(effects)
@@ -609,25 +606,6 @@ PROP_COLOUR = (120, 128, 150)
 _ROBOT_OBJID = -1000
 
 
-def _gl_context(width: int, height: int) -> Any:
-    """An off-screen OpenGL context of the back-end named by ``MUJOCO_GL``.
-
-    ``import mujoco`` fixes its back-end from ``MUJOCO_GL`` once; if mujoco was imported before the
-    variable was set (e.g. by user code before softsbi), ``mujoco.GLContext`` is GLFW, which needs a
-    display. Then the requested ``osmesa``/``egl`` context class is loaded directly.
-    """
-    import importlib
-
-    import mujoco
-    cls = getattr(mujoco, "GLContext", None)
-    want = os.environ.get("MUJOCO_GL", "").lower().strip()
-    if want in ("osmesa", "egl") and not getattr(cls, "__module__", "").startswith(f"mujoco.{want}"):
-        cls = importlib.import_module(f"mujoco.{want}").GLContext
-    if cls is None:
-        raise RuntimeError("mujoco has no OpenGL context class (MUJOCO_GL disabled?)")
-    return cls(width, height)
-
-
 class _MjFrames:
     """Renders each recorded frame of a MuJoCo rollout (the ``frame_hook`` of ``_rollout``).
 
@@ -675,7 +653,7 @@ class _MjFrames:
         }
 
     def _setup(self, m: Any) -> None:
-        import mujoco
+        mujoco = import_mujoco()
         table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
         for g in range(m.ngeom):
             m.geom_rgba[g] = _rgba(self.style.table if g == table else PROP_COLOUR)
@@ -684,17 +662,15 @@ class _MjFrames:
                 # frame in software GL); one quad suffices under a directional light. No physics effect.
                 m.geom_size[g, 2] = max(float(m.geom_size[g, 0]), float(m.geom_size[g, 1]), 1.0)
         m.flex_rgba[:] = _rgba(self.style.cloth)
+        cls = gl_context_class()  # RenderingUnavailable names the fix
         try:
-            self.gl = _gl_context(max(640, self.camera.width), max(480, self.camera.height))
+            self.gl = cls(max(640, self.camera.width), max(480, self.camera.height))
             self.gl.make_current()
             self.ctx = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
         except Exception as exc:  # noqa: BLE001 - GL back-ends fail with many exception types
             self.close()
-            raise RuntimeError(f"MuJoCo could not open an off-screen OpenGL context (MUJOCO_GL="
-                               f"{os.environ.get('MUJOCO_GL', '')!r}, GL backend "
-                               f"{getattr(getattr(mujoco, 'GLContext', None), '__module__', 'none')}): {exc}. "
-                               f"Set MUJOCO_GL=osmesa (needs libosmesa6) or egl before mujoco is first "
-                               f"imported") from exc
+            raise RenderingUnavailable(f"MuJoCo could not open an off-screen OpenGL context with back-end "
+                                       f"{choose_backend()!r} ({type(exc).__name__}: {exc}); {RENDER_FIX}") from exc
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.ctx)
         self.ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR  # reversed z (as mujoco.Renderer)
         self.scene = mujoco.MjvScene(m, maxgeom=m.ngeom + m.nflex + 16)
@@ -710,7 +686,7 @@ class _MjFrames:
         self._d = float(np.float32(-0.5) * (-(np.float32(2) * far * near) / (far - near)))
 
     def _add_robot(self, scene: Any, grip: np.ndarray) -> None:
-        import mujoco
+        mujoco = import_mujoco()
         for part in visual_robot(grip, self.base):
             if scene.ngeom >= scene.maxgeom:
                 break
@@ -727,7 +703,7 @@ class _MjFrames:
             scene.ngeom += 1
 
     def __call__(self, k: int, m: Any, d: Any) -> None:
-        import mujoco
+        mujoco = import_mujoco()
         t0 = time.perf_counter()
         if self.ctx is None:
             self._setup(m)

@@ -55,15 +55,17 @@ ids map to labels: soft body -> 1, robot bodies -> 2, table/spool/nothing -> 0.
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import os
+import sys
 import tempfile
 import time
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..core.errors import ParameterError
+from ..core.errors import EnvironmentFault, ParameterError
 from ..core.interfaces import Simulator
 from ..core.types import (SEG_BACKGROUND, SEG_OBJECT, SEG_ROBOT, STATUS_DIVERGED, STATUS_IMPLAUSIBLE,
                           STATUS_OK, Param, ParamSpace, Rollout, Scenario)
@@ -101,8 +103,27 @@ def gl_matrices(camera: Any, near: float = NEAR, far: float = FAR) -> tuple[list
 
 
 def _pb():
-    """Import pybullet (its only output is a build-time line on stderr)."""
-    import pybullet
+    """Import pybullet with its build-time banner sent to stderr, not stdout (the banner is written
+    by C code at import, so stdout's file descriptor is pointed at stderr's meanwhile).
+
+    Raises:
+        EnvironmentFault: pybullet cannot be loaded (the message names the fix).
+    """
+    mod = sys.modules.get("pybullet")
+    if mod is not None:
+        return mod
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        import pybullet
+        ctypes.CDLL(None).fflush(None)  # flush C stdio while fd 1 still points at stderr
+    except ImportError as exc:
+        raise EnvironmentFault(f"PyBullet cannot be loaded ({exc}); reinstall it with "
+                               f"`pip install --force-reinstall pybullet`") from exc
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
     return pybullet
 
 

@@ -103,12 +103,14 @@ def rollout_job(ctx: RolloutContext, item: tuple[dict[str, float], tuple[str, ..
             "gripper": ro.gripper}
 
 
-def _run_jobs(ctx: RolloutContext, items: list, workers: int | None, executor: str = "local") -> list[dict]:
+def _run_jobs(ctx: Any, items: list, workers: int | None, executor: str = "local", job: Any = None) -> list[dict]:
+    """Run ``job`` (default :func:`rollout_job`) over ``items``; results in item order. A worker's
+    SoftsbiError (e.g. an environment fault) is raised; other exceptions become failed results."""
     from ..plugins import registry
     exe = registry().executor(executor)(workers=workers)
     out: list[dict | None] = [None] * len(items)
     try:
-        for i, res in exe.map_unordered(rollout_job, items, context=ctx):
+        for i, res in exe.map_unordered(job or rollout_job, items, context=ctx):
             if isinstance(res, BaseException):
                 if isinstance(res, SoftsbiError):
                     raise res
@@ -135,6 +137,18 @@ class RunView:
     x_obs: np.ndarray
     report: dict[str, Any]
     post_theta: np.ndarray  # (S, D) posterior samples (inferred params), physical units
+    post_seeds: np.ndarray | None = None  # (S,) their simulation seeds in the fit's evaluation
+
+    def sim_context(self, keep_rollout: bool = True) -> Any:
+        """The fit's own worker context (:class:`~softsbi.core.loop.SimContext`): same simulator,
+        observer and metric, so re-simulating the fit's evaluation samples reproduces its Chamfer."""
+        from .loop import SimContext
+        c = self.config
+        return SimContext(backend=c["backend"], backend_options=dict(c.get("backend_options") or {}),
+                          scenario=c["scenario"], effects=list(self.effects), observer=c["observer"],
+                          observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
+                          fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
+                          keep_rollout=keep_rollout)
 
     @property
     def fixed(self) -> dict[str, float]:
@@ -186,12 +200,17 @@ def load_run(run_dir: str | Path, n_samples: int = 30, seed: int = 0) -> RunView
     space = ParamSpace.from_json(cfg["param_space"])
     obs = store.read_observed()
     if store.has("evaluation"):
-        ev, _ = store.read_group("evaluation")
+        from .loop import evaluation_seeds
+        ev, ev_attrs = store.read_group("evaluation")
         theta = ev["theta"][:n_samples]
+        seeds = evaluation_seeds(int(cfg.get("seed", 0)), int(ev_attrs.get("rounds", cfg["rounds"])),
+                                 len(ev["theta"]))[:n_samples]
     else:  # fall back on the last round's draws (samples of the previous posterior)
         last = store.round_ids()[-1]
-        theta = store.round_data(last)["theta"][:n_samples]
-    return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta)
+        d = store.round_data(last)
+        theta, seeds = d["theta"][:n_samples], d["seed"][:n_samples]
+    return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta,
+                   np.asarray(seeds))
 
 
 # ----------------------------------------------------------------------------------------
@@ -311,21 +330,21 @@ def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = No
     """
     t0 = time.perf_counter()
     run = load_run(run_dir, n_samples, seed)
-    items = [(run.values(th), tuple(run.effects), 1000 + i) for i, th in enumerate(run.post_theta)]
-    res = _run_jobs(run.context(), items, workers)
+    from .loop import simulate_job
+    # the fit's own job, samples and seeds: the per-frame Chamfer is the fit's metric, so the mean
+    # equals report.json's chamfer_posterior_m when all of the fit's evaluation samples are used
+    items = list(zip(run.post_theta, run.post_seeds))
+    res = _run_jobs(run.sim_context(keep_rollout=True), items, workers, job=simulate_job)
     ok = [r for r in res if r["status"] == STATUS_OK and r.get("vertices") is not None]
     if len(ok) < 5:
         raise SoftsbiError(f"only {len(ok)} of {len(res)} posterior rollouts succeeded; cannot check the fit")
     dense = run.dense
     T = len(dense)
-    ch = np.zeros((len(ok), T))
+    ch = np.array([r["chamfer"] for r in ok])
     labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
     reg = np.zeros((len(ok), T, len(names)))
     f_sims = []
-    from .metrics import chamfer
     for k, r in enumerate(ok):
-        pts = surface_points(r["vertices"], r["faces"])
-        ch[k] = [chamfer(pts[t], dense[t]) for t in range(T)]
         reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names))
         f_sims.append(trajectory_features(sampled_points(r["vertices"], r["faces"], dense.shape[1], 1000 + k)))
     f_obs = trajectory_features(dense)

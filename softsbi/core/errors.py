@@ -54,6 +54,18 @@ class PosteriorError(SoftsbiError, RuntimeError):
     """A posterior cannot be sampled (no mass inside the prior box, or a truncation region too small)."""
 
 
+class EnvironmentFault(SoftsbiError, RuntimeError):
+    """The machine cannot run a simulation at all (an engine or system library that cannot load).
+
+    Not a failed simulation: a fit stops the round with this message and stores nothing as
+    failed, so the same command resumes once the environment is fixed.
+    """
+
+
+class RenderingUnavailable(EnvironmentFault):
+    """Rendering was asked for but no off-screen OpenGL back-end works; the message names the fix."""
+
+
 class SimulationFailed(SoftsbiError, RuntimeError):
     """A simulation diverged or produced an implausible state."""
 

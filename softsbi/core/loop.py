@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .distributions import PosteriorChain, RoundPosterior, TruncatedPrior
-from .errors import PosteriorError, SoftsbiError
+from .errors import EnvironmentFault, PosteriorError, SoftsbiError
 from .metrics import chamfer_per_frame
 from .store import RunStore
 from .types import STATUS_ERROR, STATUS_OK, ParamSpace, Scenario
@@ -158,6 +158,9 @@ class SimContext:
     n_dense: int
     #: ``(T, H, W)`` bool cloth masks of the observed frames: the metric becomes the mask Chamfer (px)
     ref_masks: np.ndarray | None = None
+    #: also return the rollout's ``vertices (T, N, 3)``, ``faces (F, 3)`` and ``gripper (T, 3)``
+    #: (posterior predictive checks localise the error on the object)
+    keep_rollout: bool = False
 
 
 _WORKER_CACHE: dict[str, Any] = {}
@@ -183,7 +186,8 @@ def simulate_job(ctx: SimContext, item: tuple[np.ndarray, int]) -> dict[str, Any
         ctx: the shared context. item: ``(theta (D,), seed)``.
 
     Returns:
-        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "seconds"}``;
+        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "seconds"}``, plus
+        ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
         ``chamfer`` is the 3-D Chamfer (m) against ``ctx.dense``, or the mask Chamfer (px) against
         ``ctx.ref_masks`` for image fits.
     """
@@ -202,6 +206,9 @@ def simulate_job(ctx: SimContext, item: tuple[np.ndarray, int]) -> dict[str, Any
             ro = sim.simulate(scenario, values, effects=ctx.effects, seed=int(seed))
     except SoftsbiError:
         raise
+    except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed
+        raise EnvironmentFault(f"{ctx.backend} cannot simulate on this machine ({type(exc).__name__}: {exc}); "
+                               f"fix the installation and re-run the same command to resume") from exc
     except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
         return {"status": STATUS_ERROR, "reason": f"{type(exc).__name__}: {exc}", "x": None, "chamfer": None,
                 "seconds": time.perf_counter() - t0}
@@ -217,7 +224,10 @@ def simulate_job(ctx: SimContext, item: tuple[np.ndarray, int]) -> dict[str, Any
         ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
     elif ctx.dense is not None:
         ch = chamfer_per_frame(rollout_clouds(ro, ctx.n_dense, rng), ctx.dense)
-    return {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "seconds": time.perf_counter() - t0}
+    out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "seconds": time.perf_counter() - t0}
+    if ctx.keep_rollout:
+        out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
+    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -342,6 +352,12 @@ def observe_measurement(cfg: FitConfig, meas: Measurement) -> np.ndarray:
 
 def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
     return np.random.default_rng([seed, r, 1]).integers(0, 2**31 - 1, size=n)
+
+
+def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
+    """``(n_eval,)`` simulation seeds of a fit's final evaluation rollouts (posterior predictive):
+    a check that re-simulates the same samples with them reproduces the fit's Chamfer exactly."""
+    return _round_seeds(seed, 10_000 + rounds, n_eval)
 
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: Hooks) -> None:
@@ -602,7 +618,7 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     rng = np.random.default_rng([cfg.seed, 10_000 + cfg.rounds])
     u = post.sample(cfg.n_eval, rng)
     theta = space.from_unit(u)
-    seeds = _round_seeds(cfg.seed, 10_000 + cfg.rounds, cfg.n_eval)
+    seeds = evaluation_seeds(cfg.seed, cfg.rounds, cfg.n_eval)
     T = len(ctx.scenario["times"])
     chamfer = np.full((cfg.n_eval, T), np.nan)
     status = np.full(cfg.n_eval, STATUS_ERROR, np.uint8)

@@ -6,18 +6,14 @@ image utilities that need no simulator. Cameras and colours: :mod:`softsbi.core.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-# off-screen OpenGL for MuJoCo without a display (must precede the first `import mujoco`)
-os.environ.setdefault("MUJOCO_GL", "osmesa")
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from ..core.camera import Camera, RenderStyle, default_camera  # noqa: E402
-from ..core.errors import DataError, DependencyMissing, ShapeError  # noqa: E402
-from ..core.types import Rollout, Scenario  # noqa: E402
+from ..core.camera import Camera, RenderStyle, default_camera
+from ..core.errors import DataError, DependencyMissing, ShapeError
+from ..core.types import Rollout, Scenario
 
 
 def backproject_depth(depth: np.ndarray, camera: Camera) -> np.ndarray:
