@@ -131,41 +131,86 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
 
 
 def compare_png(scenario: Scenario, rollouts: Mapping[str, Any], report: Mapping[str, Any], path: str | Path) -> Path:
-    """Side-by-side PNG: top row the side view (y-z for lift, x-z otherwise) of 4 frames with every
-    backend overlaid, bottom-right the per-frame Chamfer. Matplotlib Agg, no display needed."""
+    """Side-by-side PNG: the side view (y-z for lift, x-z otherwise; top view x-y for the rope on
+    the table) of 4 frames with every backend overlaid, and the per-frame Chamfer on the right.
+
+    Colours: each engine one of :data:`softsbi.report.ENGINE_COLOURS` in backend order (first:
+    sky blue, second: reddish purple), none of them a role colour of the fit figures; the gripper
+    in its role colour (black ``+``). Matplotlib Agg, no display needed."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from ..report import (
+        DPI,
+        ENGINE_COLOURS,
+        FS_LABEL,
+        FS_LEGEND,
+        FS_SUB,
+        FS_TICK,
+        FS_TITLE,
+        ROLE_COLOURS,
+        _header,
+    )
 
     T = scenario.n_frames
     frames = sorted({0, T // 3, 2 * T // 3, T - 1})
     ax_i = 1 if scenario.name == "lift" else 0
     top = scenario.name == "wind"  # the rope stays on the table: top view
     j = 1 if top else 2
-    fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3.2 * (len(frames) + 1), 3.4))
-    colours = ["tab:blue", "tab:red", "tab:green", "tab:orange"]
+    i = 0 if top else ax_i
+    view = "top view" if top else "side view"
+    names = list(rollouts)
+    colours = {b: ENGINE_COLOURS[k % len(ENGINE_COLOURS)] for k, b in enumerate(names)}
+    fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3.0 * len(frames) + 3.6, 4.3),
+                             gridspec_kw={"width_ratios": [1] * len(frames) + [1.15]})
     for ax, f in zip(axes, frames):
-        for (b, ro), c in zip(rollouts.items(), colours):
+        for b, ro in rollouts.items():
+            if ro.vertices is None or len(ro.vertices) <= f:
+                continue
             v = ro.vertices[f]
-            ax.scatter(v[:, 0 if top else ax_i], v[:, j], s=5, c=c, alpha=0.7, label=b)
+            ax.scatter(v[:, i], v[:, j], s=10, color=colours[b], alpha=0.75, linewidths=0)
         g = scenario.gripper[f]
-        ax.plot(g[0 if top else ax_i], g[j], "k+", ms=10)
-        ax.set_title(f"t = {scenario.times[f]:.2f} s", fontsize=9)
-        ax.set_xlabel("x [m]" if top or ax_i == 0 else "y [m]")
-        ax.set_ylabel("y [m]" if top else "z [m]")
+        ax.plot(g[i], g[j], "+", color="white", ms=13, mew=4, zorder=4)
+        ax.plot(g[i], g[j], "+", color=ROLE_COLOURS["gripper"], ms=12, mew=2, zorder=5)
+        ax.set_title(f"t = {scenario.times[f]:.2f} s", fontsize=FS_SUB)
+        ax.set_xlabel("xyz"[i] + " [m]", fontsize=FS_LABEL)
+        ax.set_ylabel(f"{view}: " + "xyz"[j] + " [m]" if ax is axes[0] else "xyz"[j] + " [m]", fontsize=FS_LABEL)
+        ax.tick_params(labelsize=FS_TICK)
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(3))
         ax.set_aspect("equal", adjustable="datalim")
-    axes[0].legend(fontsize=7)
+        ax.grid(alpha=0.25)
     ax = axes[-1]
-    for key, ch in report["chamfer_m"].items():
-        if ch is not None:
-            ax.plot(scenario.times, np.asarray(ch) * 100, label=key)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("Chamfer [cm]")
-    ax.set_title("per-frame Chamfer", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.suptitle(f"{scenario.name}: {' vs '.join(rollouts)}")
-    fig.tight_layout()
+    pairs = [(k, ch) for k, ch in report["chamfer_m"].items() if ch is not None]
+    for key, ch in pairs:
+        other = key.split("|", 1)[1]
+        ax.plot(scenario.times, np.asarray(ch) * 100, lw=2, marker="o", ms=3,
+                color="0.2" if len(pairs) == 1 else colours.get(other, "0.2"), label=key.replace("|", " vs "))
+    ax.set_xlabel("time [s]", fontsize=FS_LABEL)
+    ax.set_ylabel("Chamfer between engines [cm]", fontsize=FS_LABEL)
+    ax.tick_params(labelsize=FS_TICK)
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.set_title("per-frame Chamfer", fontsize=FS_SUB)
+    if pairs:
+        ax.legend(fontsize=FS_LEGEND, loc="upper left")
+    else:
+        ax.text(0.5, 0.5, "no Chamfer:\na rollout failed", ha="center", va="center", transform=ax.transAxes,
+                fontsize=FS_LABEL)
+    handles = [Line2D([], [], ls="none", marker="o", ms=6, color=colours[b],
+                      label=b + ("" if rollouts[b].ok else f" (failed: {report['backends'][b]['reason']})"))
+               for b in names]
+    handles.append(Line2D([], [], ls="none", marker="+", ms=10, mew=2, color=ROLE_COLOURS["gripper"], label="gripper"))
+    means = [f"{k.replace('|', ' vs ')} {v * 100:.2f} cm" for k, v in report["mean_chamfer_m"].items() if v is not None]
+    frac = _header(fig, [(f"{scenario.name}: {' vs '.join(names)} at the same parameters", {"fontsize": FS_TITLE,
+                                                                                             "weight": "bold"}),
+                         ("mean Chamfer " + "; ".join(means) if means else "", {"fontsize": FS_SUB})])
+    leg_h = 0.45 / fig.get_figheight()
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=FS_LEGEND + 1, frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, leg_h, 1, 1 - frac), pad=0.6)
     path = Path(path)
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
