@@ -19,11 +19,11 @@ import time
 import numpy as np
 
 from softsbi.backends.mujoco_flex import MujocoFlex, spec_to_xml
-from softsbi.backends.pybullet_fem import PybulletFEM
-from softsbi.backends.scenarios import SCENARIOS, make_scenario
-from softsbi.core.executor import LocalExecutor
+from softsbi.backends.pybullet_massspring import PybulletMassSpring
+from softsbi.scenarios.builtin import SCENARIOS, make_scenario
+from softsbi.executors.local import LocalExecutor
 
-BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-fem": PybulletFEM}
+BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-massspring": PybulletMassSpring}
 
 
 def speed(grids, repeats):
@@ -66,12 +66,12 @@ def raw_mujoco(sim, sc, th):
 
 
 def raw_pybullet(sim, sc, th):
-    """The same scene as PybulletFEM.simulate, written as a plain pybullet loop (no softsbi checks)."""
+    """The same scene as PybulletMassSpring.simulate, written as a plain pybullet loop (no softsbi checks)."""
     import os
     import tempfile
     import pybullet as p
-    from softsbi.backends.mujoco_flex import grid_faces
-    from softsbi.backends.pybullet_fem import cloth_vertices, write_obj
+    from softsbi.backends.common import grid_faces
+    from softsbi.backends.pybullet_massspring import cloth_vertices, write_obj
     t0 = time.perf_counter()
     cid = sim._client()
     L = th["scale"]
@@ -116,7 +116,7 @@ def overhead(grid, repeats):
     print(f"\n### softsbi rollout vs a raw engine loop (lift, {grid}x{grid}), median of {repeats}")
     print("| backend | softsbi s | raw s | overhead |\n|---|---|---|---|")
     sc = make_scenario("lift")
-    for b, raw in (("mujoco-flex", raw_mujoco), ("pybullet-fem", raw_pybullet)):
+    for b, raw in (("mujoco-flex", raw_mujoco), ("pybullet-massspring", raw_pybullet)):
         sim = BACKENDS[b](grid=grid)
         th = sim.param_space(sc).midpoint()
         sim.simulate(sc, th)

@@ -52,7 +52,7 @@ def coverage(est, u_test, x_test, n=2000, seed=0):
     rng = np.random.default_rng(seed)
     ranks = []
     for ui, xi in zip(u_test, x_test):
-        q = est.conditional(xi)
+        q = est.posterior_at(xi)
         s = q.sample(3 * n, rng)
         s = s[np.all((s >= 0) & (s <= 1), axis=1)][:n]
         if len(s) < 50:
@@ -79,9 +79,9 @@ def main() -> None:
                     help="coverage on the prior simulations (round data) of a bulk lift run store instead of toy")
     args = ap.parse_args()
     import softsbi_toy.plugin as toy
-    from softsbi.core.loop import FitConfig, run_fit
+    from softsbi.workflows.fit import FitConfig, run_fit
     from softsbi.inference.c2st import c2st
-    from softsbi.perception.measurement import simulate_measurement
+    from softsbi.workflows.measurement import simulate_recording
     from softsbi.plugins import registry
 
     out = Path(args.out)
@@ -89,7 +89,7 @@ def main() -> None:
     results: dict = {"config": vars(args), "c2st": {}, "coverage": {}}
     T, K = 3, 16
     if "c2st" not in args.skip:
-        meas = simulate_measurement("toy-gauss", toy.toy_scenario(T), {"a": 0.3, "b": -0.4}, n_points=K, n_dense=64,
+        meas = simulate_recording("toy-gauss", toy.toy_scenario(T), {"a": 0.3, "b": -0.4}, n_points=K, n_dense=64,
                                     seed=5)
         mean, cov = toy.analytic_posterior(meas.x[:, 1:, :].mean(1))
         rng = np.random.default_rng(0)
@@ -108,7 +108,7 @@ def main() -> None:
             (out / "results.json").write_text(json.dumps(results, indent=1))
     if "coverage" not in args.skip:
         if args.lift_store:
-            from softsbi.core.loop import _usable
+            from softsbi.workflows.fit import _usable
             from softsbi.core.store import RunStore
             st = RunStore.open(args.lift_store)
             u, x, _ = _usable(st, len(st.completed_rounds()) - 1)

@@ -48,10 +48,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
-    from softsbi.backends.scenarios import make_scenario
+    from softsbi.scenarios.builtin import make_scenario
     from softsbi.core.errors import PosteriorError
-    from softsbi.core.loop import FitConfig, run_fit
-    from softsbi.perception.measurement import simulate_measurement
+    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.measurement import simulate_recording
     from softsbi.plugins import registry
 
     out = Path(args.out)
@@ -61,7 +61,7 @@ def main() -> None:
     sim = registry().simulator("mujoco-flex")(**bopts)
     space = sim.param_space(sc)
     truth = space.as_dict(space.from_unit(np.array(TRUTH_UNIT[args.scenario])))
-    meas = simulate_measurement("mujoco-flex", sc, truth, backend_options=bopts, n_points=args.points,
+    meas = simulate_recording("mujoco-flex", sc, truth, backend_options=bopts, n_points=args.points,
                                 n_dense=300, noise=args.noise, seed=7)
     results = {"truth": truth, "config": vars(args), "methods": {}}
     for m in args.methods:

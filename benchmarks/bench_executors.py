@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.core.loop import FitConfig, SimContext, fit_param_space, observer_options, simulate_job
+from softsbi.workflows.fit import FitConfig, SimContext, fit_param_space, observer_options, simulate_job
 
 _CTX = None
 
@@ -57,8 +57,8 @@ def _ray_peak_rss(ctx, item):
 
 
 def build(observed: str, n: int, seed: int = 0):
-    from softsbi.perception.measurement import load_measurement
-    meas = load_measurement(Path(observed), n_points=64, seed=seed)
+    from softsbi.workflows.measurement import load_recording
+    meas = load_recording(Path(observed), n_points=64, seed=seed)
     cfg = FitConfig(min_height=0.01)
     _, space = fit_param_space(cfg, meas.scenario)
     ctx = SimContext(backend=cfg.backend, backend_options={}, scenario=meas.scenario.to_json(), effects=[],
@@ -81,7 +81,7 @@ def run_mode(mode: str, ctx, items) -> dict:
             out["seconds"] = time.perf_counter() - t0
             out["peak_rss_mb"] = max(_peak_rss_mb(p.pid) for p in pool._pool)  # noqa: SLF001
     elif kind == "local":
-        from softsbi.core.executor import LocalExecutor
+        from softsbi.executors.local import LocalExecutor
         ex = LocalExecutor(workers=w, in_process=False)
         try:
             list(ex.map_unordered(simulate_job, warm, context=ctx))

@@ -2,7 +2,7 @@
 
 Data: ``shared/data/wiping_keypoints`` (449 frames, 320x320, 4 cloth corners; 61 source images,
 31 real and 30 simulated, and 8 augmented copies of each of sources 0..48, see
-:mod:`softsbi.perception.keypoint_data`). Split: :func:`block_split` with the source id as group
+:mod:`softsbi.data.keypoints`). Split: :func:`block_split` with the source id as group
 (15 contiguous blocks of sources; an image and its copies never straddle splits), so no test
 image, nor an augmented copy of it, is seen in training. Training on train, early stopping on val,
 metrics on test at the original 320x320 pixel coordinates, for all test frames, real-only and
@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from softsbi.perception.heatmap import HeatmapExtractor
-from softsbi.perception.keypoint_data import (
+from softsbi.perception.keypoints.heatmap import HeatmapExtractor
+from softsbi.data.keypoints import (
     block_split,
     draw_keypoints,
     index_ranges,

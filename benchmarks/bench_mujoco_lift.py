@@ -14,7 +14,7 @@ import argparse
 import statistics
 
 from softsbi.backends.mujoco_flex import MujocoFlex
-from softsbi.backends.scenarios import lift_scenario
+from softsbi.scenarios.builtin import lift_scenario
 
 
 def main() -> None:

@@ -25,14 +25,15 @@ from pathlib import Path
 import numpy as np
 
 from softsbi.backends.mujoco_flex import MujocoFlex
-from softsbi.backends.pybullet_fem import PybulletFEM
-from softsbi.backends.scenarios import wipe_scenario
-from softsbi.core.camera import Camera, default_camera
+from softsbi.backends.pybullet_massspring import PybulletMassSpring
+from softsbi.scenarios.builtin import wipe_scenario
+from softsbi.core.camera import Camera
+from softsbi.scenarios.cameras import default_camera
 from softsbi.perception.render import save_frames_png
 
 ROOT = Path(__file__).resolve().parents[1]
-BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-fem": PybulletFEM}
-FIGURES = {"mujoco-flex": "render_wipe_mujoco.png", "pybullet-fem": "render_wipe_pybullet.png"}
+BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-massspring": PybulletMassSpring}
+FIGURES = {"mujoco-flex": "render_wipe_mujoco.png", "pybullet-massspring": "render_wipe_pybullet.png"}
 
 
 def _median_time(fn, repeats):

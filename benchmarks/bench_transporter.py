@@ -42,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from softsbi.core.types import SEG_OBJECT, SEG_ROBOT  # noqa: E402
-from softsbi.perception.transporter import TransporterExtractor, keypoints_in_mask  # noqa: E402
+from softsbi.perception.keypoints.transporter import TransporterExtractor, keypoints_in_mask  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 FIGURES = ROOT / "docs" / "figures"
@@ -94,8 +94,8 @@ def synthetic_sequences(n_seq: int, T: int, size: int, seed: int) -> dict[str, n
 def rendered_sequences(n_rollouts: int, size: int, seed: int, grid: int) -> dict[str, np.ndarray]:
     """Rendered mujoco-flex wipe rollouts at prior samples (failed rollouts skipped, at most 2x tries)."""
     from softsbi.backends.mujoco_flex import MujocoFlex
-    from softsbi.backends.scenarios import make_scenario
-    from softsbi.core.camera import default_camera
+    from softsbi.scenarios.builtin import make_scenario
+    from softsbi.scenarios.cameras import default_camera
     from softsbi.perception.render import robot_mask_from_depth
 
     sim = MujocoFlex(grid=grid)

@@ -19,10 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.backends.scenarios import lift_scenario, make_scenario
-from softsbi.core.diagnostics import check_run, compare_runs, diagnose_run
-from softsbi.core.loop import FitConfig, run_fit
-from softsbi.perception.measurement import simulate_measurement
+from softsbi.scenarios.builtin import lift_scenario, make_scenario
+from softsbi.workflows.check import check_run
+from softsbi.workflows.compare import compare_runs
+from softsbi.workflows.diagnose import diagnose_run
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
 
 #: hidden nominal parameters (unit-cube position) shared by all cases
@@ -47,7 +49,7 @@ def make_case(name: str, magnitude: float = 1.0):
     truth = space.as_dict(space.from_unit(np.array([TRUTH_UNIT[n] for n in space.names])))
     hidden = {k: v * magnitude for k, v in hidden.items()}
     truth.update(hidden)
-    meas = simulate_measurement("mujoco-flex", sc, truth, backend_options=backend_options, effects=effects)
+    meas = simulate_recording("mujoco-flex", sc, truth, backend_options=backend_options, effects=effects)
     return meas, effects, hidden, backend_options
 
 

@@ -15,8 +15,8 @@ import argparse
 import numpy as np
 
 from softsbi.backends.mujoco_flex import MujocoFlex
-from softsbi.backends.pybullet_fem import PybulletFEM
-from softsbi.backends.scenarios import SCENARIOS, make_scenario
+from softsbi.backends.pybullet_massspring import PybulletMassSpring
+from softsbi.scenarios.builtin import SCENARIOS, make_scenario
 
 PARAMS = ("bend", "stretch", "friction", "scale", "mass")
 
@@ -24,7 +24,7 @@ PARAMS = ("bend", "stretch", "friction", "scale", "mass")
 def table(grid: int = 7, rope_nodes: int = 24) -> list[dict]:
     rows = []
     for bname, sim in (("mujoco-flex", MujocoFlex(grid=grid, rope_nodes=rope_nodes)),
-                       ("pybullet-fem", PybulletFEM(grid=grid, rope_nodes=rope_nodes))):
+                       ("pybullet-massspring", PybulletMassSpring(grid=grid, rope_nodes=rope_nodes))):
         for sc_name in SCENARIOS:
             sc = make_scenario(sc_name)
             sp = sim.param_space(sc)

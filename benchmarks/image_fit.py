@@ -65,9 +65,9 @@ def evaluate_extractor(kind: str, ext_path: Path, size: int, n_rollouts: int = 8
     """Keypoint quality on held-out rendered rollouts (seed not used for training): heatmap =
     set-matched pixel error to the projected cloth corners (px at ``size``); transporter = fraction of
     keypoints inside the cloth mask (exact and within 2 px)."""
-    from softsbi.perception.keypoint_data import keypoint_errors
+    from softsbi.data.keypoints import keypoint_errors
     from softsbi.perception.synthdata import render_training_set, visible_corner_labels
-    from softsbi.perception.transporter import keypoints_in_mask
+    from softsbi.perception.keypoints.transporter import keypoints_in_mask
     from softsbi.plugins import registry
 
     d = render_training_set("mujoco-flex", "wipe", n_rollouts=n_rollouts, size=size, seed=777)
@@ -96,9 +96,9 @@ def main() -> None:
     ap.add_argument("--eval-only", action="store_true", help="only evaluate the extractors on held-out renders")
     args = ap.parse_args()
 
-    from softsbi.backends.scenarios import make_scenario
-    from softsbi.core.loop import FitConfig, run_fit
-    from softsbi.perception.measurement import render_measurement
+    from softsbi.scenarios.builtin import make_scenario
+    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.measurement import render_recording
     from softsbi.perception.synthdata import render_training_set
     from softsbi.plugins import registry
 
@@ -108,7 +108,7 @@ def main() -> None:
     sc = make_scenario("wipe")
     space = registry().simulator("mujoco-flex")().param_space(sc)
     truth = space.as_dict(space.from_unit(np.array([TRUTH_UNIT[n] for n in space.names])))
-    meas = render_measurement("mujoco-flex", sc, truth, size=args.size)
+    meas = render_recording("mujoco-flex", sc, truth, size=args.size)
     out_json = RESULTS / "image_fit.json"
     results = json.loads(out_json.read_text()) if out_json.exists() else {}
     data = None

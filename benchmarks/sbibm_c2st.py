@@ -54,7 +54,7 @@ def main() -> None:
                 info = est.fit(theta, x, seed=0)
                 for k in args.obs:
                     xo = np.load(ref / f"{task}_obs{k}.npy")
-                    q = est.conditional(xo[0])
+                    q = est.posterior_at(xo[0])
                     rng = np.random.default_rng(k)
                     s = q.sample(4 * args.c2st_n, rng)
                     if BOX[task] is not None:

@@ -2,7 +2,7 @@
 
 The observation is the lift scenario simulated on ``--truth-backend`` (default mujoco-flex) at
 hidden parameters (its prior box at relative position 0.6 in every dimension). Each backend is
-then fitted to it with :func:`softsbi.core.loop.run_fit` (sequential BayesSim-RKHS rounds); the
+then fitted to it with :func:`softsbi.workflows.fit.run_fit` (sequential BayesSim-RKHS rounds); the
 script tabulates each posterior (mean, std, 90 % interval, in that backend's own units - the
 engines do not share units for ``bend``/``stretch``) and the posterior-predictive Chamfer
 distance (rollouts at posterior samples vs the observation, cm). The backend that did not make
@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.backends.scenarios import make_scenario
-from softsbi.core.loop import FitConfig, run_fit
-from softsbi.perception.measurement import simulate_measurement
+from softsbi.scenarios.builtin import make_scenario
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
 
 
@@ -43,11 +43,11 @@ def main() -> None:
     tsim = registry().simulator(a.truth_backend)(**opts)
     space = tsim.param_space(sc)
     truth = space.as_dict(space.from_unit(np.full(space.dim, 0.6)))
-    meas = simulate_measurement(a.truth_backend, sc, truth, backend_options=opts)
+    meas = simulate_recording(a.truth_backend, sc, truth, backend_options=opts)
     print(f"observation: lift simulated on {a.truth_backend} at " + ", ".join(f"{k}={v:.4g}" for k, v in truth.items()))
 
     rows = []
-    for backend in ("mujoco-flex", "pybullet-fem"):
+    for backend in ("mujoco-flex", "pybullet-massspring"):
         cfg = FitConfig(backend=backend, backend_options=opts, estimator=a.estimator, rounds=a.rounds,
                         sims_per_round=a.sims_per_round, workers=a.workers, n_eval=10)
         res = run_fit(a.out / backend, meas, cfg)

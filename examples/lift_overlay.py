@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from softsbi.backends.mujoco_flex import MujocoFlex
-from softsbi.backends.scenarios import load_recording, lift_scenario, overlay_png
+from softsbi.scenarios.builtin import load_recording, lift_scenario, overlay_png
 
 
 def main(argv: list[str]) -> None:

@@ -2,20 +2,19 @@
 compare-backends | demo``."""
 from __future__ import annotations
 
+import contextlib
 import functools
 from enum import Enum
-import json
 import sys
-import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
-import click
-import numpy as np
 import typer
 
-from ..core.errors import SoftsbiError
-from .output import Output, json_error
+from softsbi.core.errors import SoftsbiError
+from softsbi.cli.output import Output, json_error
+from softsbi.workflows.demo import DEMO_ROUNDS, DEMO_SIMS, DemoCallbacks
+from softsbi.workflows.fit import FitCallbacks
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="softsbi: Bayesian real-to-sim for deformable objects (BayesSim-RKHS).")
@@ -25,7 +24,7 @@ H_JSON = "print one JSON document on stdout (results, or the error) instead of t
 H_WORKERS = "simulation worker processes (default: one per core)"
 H_SEED = "random seed: fixes every parameter draw and every simulation"
 H_N_EVAL = "rollouts at posterior samples (the posterior-predictive check's sample size)"
-H_BACKEND = "simulator plugin: mujoco-flex or pybullet-fem built in (`softsbi plugins` lists the installed ones)"
+H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
 H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
                "sbi-npe (`softsbi plugins` lists the installed ones)")
 H_PROPOSAL = ("how later rounds draw parameters: corrected (BayesSim: from the posterior p/p~*q) or truncated "
@@ -43,12 +42,6 @@ class Match(str, Enum):
     physical = "physical"
     unit = "unit"
 
-#: demo's hidden parameter values (unit-cube positions; the user is not told them before the fit ends)
-DEMO_TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}
-#: demo's hidden effect: a breeze the nominal model lacks
-DEMO_HIDDEN_EFFECT = {"wind": {"wind_x": 0.0, "wind_y": 0.8}}
-DEMO_ROUNDS = 3
-DEMO_SIMS = 150
 
 
 def _parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
@@ -89,8 +82,8 @@ def _parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
     return out
 
 
-class ProgressHooks:
-    """Progress of :func:`softsbi.core.loop.run_fit` on stderr: bars on a terminal, one line per
+class ProgressHooks(FitCallbacks):
+    """Progress of :func:`softsbi.workflows.fit.run_fit` on stderr: bars on a terminal, one line per
     round otherwise."""
 
     def __init__(self, o: Output, progress: Any):
@@ -128,9 +121,9 @@ class ProgressHooks:
 
 
 def _run(o: Output, meas, cfg, out: Path):
-    from ..core.loop import run_fit
+    from softsbi.workflows.fit import run_fit
     with o.progress() as p:
-        return run_fit(out, meas, cfg, hooks=ProgressHooks(o, p))
+        return run_fit(out, meas, cfg, callbacks=ProgressHooks(o, p))
 
 
 def _pct_change(before: float, after: float) -> str:
@@ -173,7 +166,7 @@ def _guard(fn):
         as_json = bool(kw.get("as_json"))
         try:
             return fn(*a, **kw)
-        except (typer.Exit, typer.Abort, click.exceptions.Exit):
+        except (typer.Exit, typer.Abort):
             raise
         except SoftsbiError as exc:
             if as_json:
@@ -200,8 +193,8 @@ def _guard(fn):
 @_guard
 def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """List installed simulators, effects, observers, estimators and executors."""
-    from ..plugins import registry
-    from ..plugins.manager import LOAD_ERRORS
+    from softsbi.plugins import registry
+    from softsbi.plugins.manager import LOAD_ERRORS
     desc = registry().describe()
     if LOAD_ERRORS:
         desc["load_errors"] = dict(LOAD_ERRORS)
@@ -235,126 +228,39 @@ def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
                                                              "for `fit --observer heatmap|transporter`"),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Roll a scenario out at given parameters; write Zarr and a PNG preview (and rendered frames)."""
-    import zarr
-    from ..backends.scenarios import make_scenario
-    from ..plugins import registry
+    from softsbi.workflows.simulate import simulate_to_folder
 
     o = Output(as_json)
-    try:
-        sc = make_scenario(scenario, recording)
-    except ValueError as exc:
-        raise SoftsbiError(str(exc)) from None
-    sim = registry().simulator(backend)(**_parse_kv(backend_opt, "--backend-opt"))
-    effects = [e for it in effect or [] for e in it.split(",") if e]
-    space = sim.param_space(sc)
-    for e in effects:
-        space = space + registry().effect(e)().param_space()
-    values = space.midpoint()
-    values.update(_parse_kv(theta, "--theta"))
-    values = space.check(values)
-    t0 = time.perf_counter()
-    if render:
-        from ..core.camera import default_camera
-        ro = sim.simulate_images(sc, values, camera=default_camera(sc.name, render), effects=effects)
-    else:
-        ro = sim.simulate(sc, values, effects=effects)
-    dt = time.perf_counter() - t0
-    out.mkdir(parents=True, exist_ok=True)
-    g = zarr.open_group(str(out / "rollout.zarr"), mode="w")
-    g.attrs.update({"backend": backend, "scenario": sc.to_json(), "theta": values, "status": int(ro.status),
-                    "reason": ro.reason})
-    for name, arr, units in (("times", ro.times, "s"), ("gripper", ro.gripper, "m"), ("vertices", ro.vertices, "m"),
-                             ("faces", ro.faces, "1")):
-        a = g.create_array(name, shape=arr.shape, dtype=arr.dtype, attributes={"units": units})
-        a[...] = arr
-    doc: dict[str, Any] = {"backend": backend, "scenario": scenario, "theta": values, "status": int(ro.status),
-                           "reason": ro.reason, "frames": len(ro.times), "vertices": int(ro.vertices.shape[1]),
-                           "wall_s": dt, "rollout": str(out / "rollout.zarr")}
-    o.line(f"{backend} {scenario}: status {'ok' if ro.ok else ro.reason}, {len(ro.times)} frames, "
-           f"{ro.vertices.shape[1]} vertices, {dt:.2f} s wall -> {out / 'rollout.zarr'}")
-    if ro.ok:
-        _preview(ro, out / "preview.png", f"{backend} {scenario}")
-        doc["preview"] = str(out / "preview.png")
-        o.line(f"preview: {out / 'preview.png'}")
-    if ro.ok and render:
-        from ..perception.images import save_frames
-        save_frames(ro.rgb, out / "frames")
-        (out / "frames" / "truth.json").write_text(json.dumps(values, indent=2))
-        doc["frames_dir"] = str(out / "frames")
-        o.line(f"{len(ro.rgb)} rendered frames ({render}x{render} px): {out / 'frames'} (truth.json holds "
-               f"the parameters; `softsbi fit --observed {out / 'frames'} --scenario {scenario} "
-               f"--observer heatmap --extractor ...` fits them)")
+    doc = simulate_to_folder(out, backend=backend, scenario=scenario, recording=recording,
+                             theta=_parse_kv(theta, "--theta"), effects=[e for it in effect or [] for e in it.split(",") if e],
+                             backend_options=_parse_kv(backend_opt, "--backend-opt"), render=render)
     if as_json:
         o.emit_json(doc)
-
-
-def _preview(ro, path: Path, title: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    T = len(ro.times)
-    frames = sorted({0, T // 3, 2 * T // 3, T - 1})
-    fig, axes = plt.subplots(1, len(frames), figsize=(3 * len(frames), 3.2), squeeze=False)
-    for ax, f in zip(axes[0], frames):
-        v = ro.vertices[f]
-        ax.scatter(v[:, 1], v[:, 2], s=4)
-        ax.plot(ro.gripper[f, 1], ro.gripper[f, 2], "r+", ms=10)
-        ax.set_title(f"t = {ro.times[f]:.2f} s (side view)", fontsize=9)
-        ax.set_xlabel("y [m]")
-        ax.set_ylabel("z [m]")
-        ax.set_aspect("equal", adjustable="datalim")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-#: ``--frames auto``: frames in which the gripper is at least this high above the table (m); in
-#: the DiffCloud recordings the cloud is complete only once the cloth hangs clear (frame 10 on)
-LIFTED_HEIGHT = 0.10
-
-
-def _parse_frames(spec: str | None, scenario=None) -> list[int] | None:
-    if not spec or spec == "all":
-        return None
-    if spec == "auto":
-        if scenario is None:
-            return None
-        h = scenario.gripper[:, 2] - scenario.table_z
-        lifted = [int(i) for i in np.nonzero(h >= LIFTED_HEIGHT)[0]]
-        return lifted or None
-    out: list[int] = []
-    try:
-        for part in spec.split(","):
-            if ":" in part:
-                a, b = part.split(":")
-                out.extend(range(int(a), int(b)))
-            else:
-                out.append(int(part))
-    except ValueError:
-        raise SoftsbiError(f"--frames '{spec}' must be indices or ranges like 10:25 or 0,5,10") from None
-    return out
+        return
+    o.line(f"{backend} {scenario}: status {'ok' if doc['status'] == 0 else doc['reason']}, {doc['frames']} frames, "
+           f"{doc['vertices']} vertices, {doc['wall_s']:.2f} s wall -> {doc['rollout']}")
+    if doc.get("preview"):
+        o.line(f"preview: {doc['preview']}")
+    if doc.get("frames_dir"):
+        o.line(f"{doc['frames']} rendered frames ({render}x{render} px): {doc['frames_dir']} (truth.json holds "
+               f"the parameters; `softsbi fit --observed {doc['frames_dir']} --scenario {scenario} "
+               f"--observer heatmap --extractor ...` fits them)")
 
 
 def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
                 backend_opt, estimator_opt, n_eval, min_height=None, frames=None, executor="local",
                 executor_options=None, proposal="corrected"):
-    from ..core.loop import FitConfig
+    from softsbi.workflows.fit import FitConfig
     effects = [e for it in effect or [] for e in it.split(",") if e]
     return FitConfig(backend=backend, backend_options=_parse_kv(backend_opt, "--backend-opt"), effects=effects,
                      estimator=estimator, estimator_options=_parse_kv(estimator_opt, "--estimator-opt"),
                      rounds=rounds, sims_per_round=sims_per_round, seed=seed, n_points=points, workers=workers,
                      bounds=_parse_bounds(bounds), fixed=_parse_kv(fix, "--fix"), n_eval=n_eval,
-                     min_height=min_height, frames=_parse_frames(frames), executor=executor,
+                     min_height=min_height, frames=frames, executor=executor,
                      executor_options=dict(executor_options or {}), proposal=Proposal(proposal).value)
 
 
 DEFAULT_ROUNDS = 4
-#: real depth clouds contain no cloth lying flat on the table (checked on all 10 DiffCloud recordings).
-#: With the placement yaw inferred, fitting every frame without this sensor model lowers lift_tan's total
-#: Chamfer further (3.35 vs 3.65 cm) but only by covering the early fragments with a rotated cloth that
-#: then hangs crossed to the real one (frames 15-24: 4.77 vs 3.11 cm); BENCHMARKS.md
-DEFAULT_MIN_HEIGHT = 0.01
 DEFAULT_SIMS = 150
 
 
@@ -377,11 +283,13 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         estimator_opt: list[str] = typer.Option(None, "--estimator-opt", help="estimator option name=value"),
         n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL + "; their mean Chamfer is the reported one"),
         min_height: Optional[float] = typer.Option(
-            DEFAULT_MIN_HEIGHT, help="sensor model: points closer than this (m) to the table are not seen, in "
-                                     "simulation and recording alike (real depth clouds lack cloth lying flat)"),
-        frames: str = typer.Option("auto", help="frames that inform the posterior: 'auto' (the cloth hangs clear: "
-                                                "gripper >= 10 cm above the table), 'all', or e.g. 10:25; the "
-                                                "Chamfer metric always uses every frame"),
+            None, help="sensor model: points closer than this (m) to the table are not seen, in simulation and "
+                       "recording alike (0 = all visible); default: the recording's (DiffCloud depth clouds lack "
+                       "cloth lying flat: 0.01)"),
+        frames: Optional[str] = typer.Option(None, help="frames that inform the posterior: 'auto' (the cloth hangs "
+                                                        "clear: gripper >= 10 cm above the table), 'all', or e.g. "
+                                                        "10:25; default: the recording's (DiffCloud: auto); the "
+                                                        "Chamfer metric always uses every frame"),
         executor: str = typer.Option("local", help="where simulations run: local (process pool) or ray "
                                                    "(executor plugins; `softsbi plugins` lists them)"),
         ray_address: Optional[str] = typer.Option(None, help="with --executor ray: address of an existing Ray "
@@ -403,8 +311,8 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         proposal: Proposal = typer.Option(Proposal.corrected, help=H_PROPOSAL),
         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
-    from ..perception.measurement import load_image_measurement, load_measurement
-    from ..plugins import registry
+    from softsbi.workflows.measurement import load_image_recording, load_recording
+    from softsbi.plugins import registry
     exe_opts: dict[str, Any] = {"retries": retries}
     if sim_timeout is not None:
         exe_opts["timeout"] = sim_timeout
@@ -421,30 +329,63 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
             raise SoftsbiError(f"--observer {observer} needs --extractor PATH.pt (train one with `softsbi "
                                f"train-extractor {observer} --out PATH.pt`)")
         cfg.observer_options = {"extractor": str(extractor), "size": image_size}
-        cfg.min_height = None  # a depth-sensor model; frames show the whole cloth
     elif extractor is not None:
         raise SoftsbiError(f"--extractor is for image observers (heatmap, transporter), not '{observer}'")
     cfg.validate()  # fail fast (e.g. --workers 0) before loading the recording
     if executor == "ray":
-        from ..executors.ray_executor import _import_ray
+        from softsbi.executors.ray_executor import _import_ray
         _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`
     if images:
-        meas = load_image_measurement(observed, scenario=scenario, size=image_size)
-        if frames == "auto":
-            cfg.frames = None
+        meas = load_image_recording(observed, scenario=scenario, size=image_size)
     else:
         if scenario != "lift":
             raise SoftsbiError(f"point-cloud recordings are lift recordings; --scenario {scenario} needs an image "
                                f"observer (--observer heatmap|transporter) and a folder of frames")
-        meas = load_measurement(observed, n_points=points, seed=seed)
-    if frames == "auto" and not images:
-        cfg.frames = _parse_frames("auto", meas.scenario)
+        meas = load_recording(observed, n_points=points, seed=seed)
     o = Output(as_json)
     res = _run(o, meas, cfg, out)
     if as_json:
         o.emit_json(dict(res.report, run_dir=str(out)))
     else:
         _print_report(o, res.report, out)
+
+
+class DemoPrinter(DemoCallbacks):
+    """Prints the demo's steps (results on stdout, progress on stderr)."""
+
+    def __init__(self, o: Output):
+        self.o = o
+
+    def step(self, title: str) -> None:
+        self.o.rule(title)
+
+    def line(self, text: str) -> None:
+        self.o.line(text)
+
+    @contextlib.contextmanager
+    def fitting(self) -> Iterator[FitCallbacks]:
+        with self.o.progress() as p:
+            yield ProgressHooks(self.o, p)
+
+    @contextlib.contextmanager
+    def working(self, text: str) -> Iterator[None]:
+        with self.o.status(text):
+            yield
+
+    def fit_done(self, report: dict[str, Any], run_dir: Path) -> None:
+        _print_report(self.o, report, run_dir)
+
+    def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
+        from softsbi.workflows.diagnose import format_p
+        self.o.table(["rank", "effect", "explains", "p-value"],
+                     [[i + 1, r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r)]
+                      for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
+        self.o.line(diagnosis["summary"])
+
+    def comparison_done(self, comparison: dict[str, Any], effect: str) -> None:
+        self.o.table(["", "nominal", f"+ {effect}", "change"],
+                     [[row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm",
+                       f"{row['change'] * 100:+.0f}%"] for row in comparison["table"][:4]])
 
 
 @app.command()
@@ -467,86 +408,11 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     "Before" and "after" are the posterior-predictive Chamfer of the two fits: the mean over
     rollouts at their posterior samples (report.json's chamfer_posterior_m; compare shows the same).
     """
-    from ..backends.scenarios import lift_scenario
-    from ..core.diagnostics import check_run, compare_runs, diagnose_run, format_p
-    from ..core.loop import FitConfig
-    from ..perception.measurement import simulate_measurement
-    from ..plugins import registry
-
+    from softsbi.workflows.demo import run_demo
     o = Output(as_json)
-    proposal = Proposal(proposal).value
-    t0 = time.perf_counter()
-    sc = lift_scenario(None)
-    sim = registry().simulator("mujoco-flex")()
-    space = sim.param_space(sc)
-    u = np.array([DEMO_TRUTH_UNIT.get(n, 0.5) for n in space.names])
-    truth = space.as_dict(space.from_unit(u))
-    hidden_effects = [] if quick else list(DEMO_HIDDEN_EFFECT)
-    truth_all = dict(truth, **({} if quick else DEMO_HIDDEN_EFFECT["wind"]))
-    o.rule("softsbi demo")
-    o.line(f"A cloth lift simulated at hidden parameters{'' if quick else ' with a hidden effect'}: "
-           f"{rounds} rounds x {sims_per_round} simulations per fit, estimator {estimator}, {proposal} proposals.")
-    meas = simulate_measurement("mujoco-flex", sc, truth_all, effects=hidden_effects)
-    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers,
-                    proposal=proposal)
-    nominal = out / "nominal"
-    o.rule("1. fit the nominal model")
-    res = _run(o, meas, cfg, nominal)
-    _print_report(o, res.report, nominal)
-    doc: dict[str, Any] = {"out": str(out), "quick": quick, "nominal": res.report}
-    if quick:
-        inside = res.report["truth_in_90pct_interval"]
-        doc.update(inside_90=sum(inside.values()), parameters=len(inside), wall_s=time.perf_counter() - t0)
-        o.line(f"{sum(inside.values())}/{len(inside)} hidden values inside the 90% posterior interval "
-               f"({time.perf_counter() - t0:.0f} s).")
-        if as_json:
-            o.emit_json(doc)
-        return
-    o.rule("2. check: where does the model miss the measurement?")
-    with o.status("posterior predictive check ..."):
-        chk = check_run(nominal, workers=workers)
-    o.line(chk["summary"])
-    o.rule("3. diagnose: which installed effect explains the residual?")
-    with o.status("screening candidate effects ..."):
-        diag = diagnose_run(nominal, confirm=0, workers=workers)
-    o.table(["rank", "effect", "explains", "p-value"],
-            [[i + 1, r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r)]
-             for i, r in enumerate(diag["ranking"]) if "statistic" in r])
-    o.line(diag["summary"])
-    doc.update(check=chk, diagnosis=diag)
-    if not diag["significant"]:
-        o.line("no effect to add; stopping here")
-        if as_json:
-            o.emit_json(doc)
-        return
-    eff = diag["selected"]
-    o.rule(f"4. add the effect: refit with --effect {eff}")
-    cfg2 = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers,
-                     effects=[eff], proposal=proposal)
-    refit = out / f"with-{eff}"
-    res2 = _run(o, meas, cfg2, refit)
-    _print_report(o, res2.report, refit)
-    o.rule("5. compare: error before and after")
-    with o.status("checking both runs ..."):
-        comp = compare_runs(nominal, refit, out, workers=workers)
-    o.table(["", "nominal", f"+ {eff}", "change"],
-            [[row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm", f"{row['change'] * 100:+.0f}%"]
-             for row in comp["table"][:4]])
-    inside = res2.report["truth_in_90pct_interval"]
-    hidden_ok = eff in DEMO_HIDDEN_EFFECT
-    before, after = comp["table"][0]["a"], comp["table"][0]["b"]
-    o.rule("the numbers")
-    o.line(f"hidden effect: {', '.join(DEMO_HIDDEN_EFFECT)}; diagnosis named: {eff} "
-           f"({'correct' if hidden_ok else 'WRONG'}).")
-    o.line(f"posterior-predictive Chamfer: {before * 100:.2f} cm (nominal) -> {after * 100:.2f} cm (with {eff}), "
-           f"{_pct_change(before, after)}.")
-    o.line(f"{sum(inside.values())}/{len(inside)} hidden values inside the refit's 90% posterior interval. "
-           f"Total {time.perf_counter() - t0:.0f} s. Figures: {out}/compare.png, {nominal}/check.png, "
-           f"{refit}/posterior_pairs.png")
+    doc = run_demo(out, quick=quick, rounds=rounds, sims_per_round=sims_per_round, estimator=estimator, seed=seed,
+                   workers=workers, proposal=Proposal(proposal).value, ui=DemoPrinter(o))
     if as_json:
-        doc.update(refit=res2.report, compare={k: v for k, v in comp.items() if k not in ("check_a", "check_b")},
-                   named=eff, named_correctly=hidden_ok, chamfer_before_m=before, chamfer_after_m=after,
-                   inside_90=sum(inside.values()), parameters=len(inside), wall_s=time.perf_counter() - t0)
         o.emit_json(doc)
 
 
@@ -557,7 +423,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
           workers: Optional[int] = typer.Option(None, help=H_WORKERS),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
-    from ..core.diagnostics import check_run
+    from softsbi.workflows.check import check_run
     o = Output(as_json)
     with o.status("simulating at posterior samples ..."):
         out = check_run(run, n_samples=n_eval, workers=workers)
@@ -589,16 +455,13 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Rank installed effects by how much of the residual each explains; confirm the best by refitting."""
-    from ..core.diagnostics import confirm_candidates, diagnose_run, format_p
+    from softsbi.workflows.diagnose import diagnose_run, format_p
     o = Output(as_json)
     names = [e for it in effect or [] for e in it.split(",") if e] or None
     budget = {k: v for k, v in (("rounds", confirm_rounds), ("sims_per_round", confirm_sims)) if v}
     with o.status("screening candidate effects ..."):
-        out = diagnose_run(run, effects=names, confirm=0, workers=workers)
-    if confirm and out["significant"]:
-        confirm_candidates(run, out, confirm, budget or None, workers,
+        out = diagnose_run(run, effects=names, confirm=confirm, confirm_budget=budget or None, workers=workers,
                            progress=lambda name: o.message(f"confirming {name} with a refit ..."))
-        (run / "diagnosis.json").write_text(json.dumps(out, indent=2))
     if as_json:
         o.emit_json(out)
         return
@@ -629,7 +492,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
             workers: Optional[int] = typer.Option(None, help=H_WORKERS),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Two runs side by side: error per time step and region, before vs after."""
-    from ..core.diagnostics import compare_runs
+    from softsbi.workflows.compare import compare_runs
     o = Output(as_json)
     with o.status("checking both runs ..."):
         res = compare_runs(run_a, run_b, out or run_b, n_samples=n_eval, workers=workers)
@@ -654,7 +517,7 @@ def view(run: Path = typer.Argument(..., help="run directory of a finished point
          workers: Optional[int] = typer.Option(None, help=H_WORKERS),
          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """See the measured cloud move against posterior rollouts: an animation and a rerun recording."""
-    from ..viewer import write_view
+    from softsbi.workflows.view import write_view
     o = Output(as_json)
     with o.status(f"simulating {n_eval} posterior rollouts ..."):
         res = write_view(run, n_samples=n_eval, workers=workers, gif=gif, rrd=rrd)
@@ -686,57 +549,34 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
                     seed: int = typer.Option(0, help=H_SEED),
                     as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Train a keypoint extractor on annotated images or on rendered rollouts; report its test error."""
-    from ..perception.synthdata import render_training_set, visible_corner_labels
-    from ..plugins import registry
+    from softsbi.workflows.extractor import ExtractorProgress, train_extractor as train
+
+    class Bars(ExtractorProgress):
+        def __init__(self, p: Any):
+            self.p = p
+
+        def message(self, text: str) -> None:
+            o.line(text)
+
+        def task(self, description: str, total: int | None):
+            t = self.p.add_task(description, total=total)
+
+            def update(done: int, total: int | None = None, loss: float | None = None) -> None:
+                label = description if loss is None else f"{description} (loss {loss:.4g})"
+                self.p.update(t, completed=done, total=total, description=label)
+            return update
 
     o = Output(as_json)
-    cls = registry().extractor(kind)
-    if (data is None) == (simulate is None):
-        raise SoftsbiError("give exactly one of --data FOLDER (annotated images) or --simulate SCENARIO (rendered)")
-    ext = cls(**_parse_kv(opt, "--opt"))
-    supervised = bool(getattr(cls, "supervised", True))
-    summary: dict[str, Any] = {"extractor": kind}
-    if data is not None:
-        from ..perception.keypoint_data import block_split, keypoint_errors, load_keypoint_folder
-        images, kps, names = load_keypoint_folder(data)
-        split = block_split(len(images))
-        tr, va, te = split["train"], split["val"], split["test"]
-        o.line(f"{len(images)} annotated images from {data}: contiguous blocks, {len(tr)} train / {len(va)} "
-                      f"val / {len(te)} test")
-        with o.progress() as p:
-            task = p.add_task(f"training {kind}", total=None)
-            cb = lambda e, m, l: p.update(task, total=m, completed=e, description=f"training {kind} (loss {l:.4g})")  # noqa: E731
-            if supervised:
-                info = ext.fit(images[tr], kps[tr], seed=seed, progress=cb, val_images=images[va],
-                               val_keypoints=kps[va])
-            else:
-                info = ext.fit(images[np.r_[tr, va]], seed=seed, progress=cb)
-        summary["test"] = keypoint_errors(ext.predict(images[te]), kps[te])
-        o.line(f"test ({len(te)} frames): mean {summary['test']['mean_px']:.2f} px, PCK@10px "
-                      f"{summary['test']['pck@10px'] * 100:.0f}% (set-matched: mean "
-                      f"{summary['test']['hungarian_mean_px']:.2f} px)")
-    else:
-        with o.progress() as p:
-            task = p.add_task(f"rendering {simulate} on {backend}", total=rollouts)
-            d = render_training_set(backend, simulate, n_rollouts=rollouts, size=image_size, seed=seed,
-                                    progress=lambda i, n: p.update(task, completed=i))
-            task2 = p.add_task(f"training {kind}", total=None)
-            cb = lambda e, m, l: p.update(task2, total=m, completed=e, description=f"training {kind} (loss {l:.4g})")  # noqa: E731
-            H, W = d["images"].shape[1:3]
-            if supervised:
-                info = ext.fit(d["images"], visible_corner_labels(d["corners"], W, H), seed=seed, progress=cb)
-            else:
-                info = ext.fit(d["images"], None, d["robot_masks"] if mask_robot else None, seed=seed, progress=cb,
-                               sequence_ids=d["sequence_ids"])
-        summary["frames"] = int(len(d["images"]))
-    summary["train"] = {k: v for k, v in info.items() if k != "history"}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    ext.save(out)
-    out.with_suffix(".json").write_text(json.dumps(summary, indent=2, default=float))
-    o.line(f"trained {kind}: {info.get('epochs')} epochs, {info.get('seconds', 0):.0f} s -> {out} "
-           f"(summary {out.with_suffix('.json')})")
+    with o.progress() as p:
+        summary = train(kind, out, data=data, simulate=simulate, backend=backend, rollouts=rollouts,
+                        image_size=image_size, mask_robot=mask_robot, options=_parse_kv(opt, "--opt"), seed=seed,
+                        progress=Bars(p))
     if as_json:
-        o.emit_json(dict(summary, checkpoint=str(out)))
+        o.emit_json(summary)
+        return
+    tr = summary["train"]
+    o.line(f"trained {kind}: {tr.get('epochs')} epochs, {tr.get('seconds', 0):.0f} s -> {out} "
+           f"(summary {out.with_suffix('.json')})")
 
 
 @app.command("compare-backends")
@@ -744,17 +584,17 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
 def compare_backends_cmd(scenario: str = typer.Option("lift", help="scenario name: lift, wipe, wind or fling"),
                          theta: list[str] = typer.Option(None, "--theta",
                                                          help="name=value (repeatable); unset = each backend's midpoint"),
-                         backends: str = typer.Option("mujoco-flex,pybullet-fem", help="comma-separated simulators"),
+                         backends: str = typer.Option("mujoco-flex,pybullet-massspring", help="comma-separated simulators"),
                          backend_opt: list[str] = typer.Option(None, "--backend-opt",
-                                                               help="backend:option=value, e.g. pybullet-fem:grid=7"),
+                                                               help="backend:option=value, e.g. pybullet-massspring:grid=7"),
                          match: Match = typer.Option(Match.physical, help="match the engines by 'physical' "
                                                                           "parameter values or by 'unit' prior "
                                                                           "positions in [0, 1]"),
                          out: Path = typer.Option(Path("compare"), help="output folder (compare.json + compare.png)"),
                          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Roll the same scenario and parameters out on two engines; per-frame Chamfer between them."""
-    from ..backends.compare import compare_backends
-    from ..backends.scenarios import make_scenario
+    from softsbi.workflows.compare_backends import compare_backends
+    from softsbi.scenarios.builtin import make_scenario
 
     try:
         sc = make_scenario(scenario)

@@ -1,4 +1,4 @@
 """``python -m softsbi.cli``: the same as the ``softsbi`` command."""
-from . import main
+from softsbi.cli import main
 
 main()

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import sys
 from typing import Any, Iterator, Sequence
 
@@ -21,6 +20,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
     TimeRemainingColumn
 from rich.table import Table
+
+from softsbi.core.types import jsonable
 
 #: width of a piped console: wide enough that no line wraps and no table cell is cut
 PIPE_WIDTH = 100_000
@@ -100,27 +101,8 @@ class Output:
     # JSON -------------------------------------------------------------------------------------
     def emit_json(self, doc: Any) -> None:
         """Write ``doc`` as the command's one JSON document on stdout (NaN/inf as null)."""
-        sys.stdout.write(json.dumps(_jsonable(doc), indent=2) + "\n")
+        sys.stdout.write(json.dumps(jsonable(doc), indent=2) + "\n")
         sys.stdout.flush()
-
-
-def _jsonable(x: Any) -> Any:
-    """``x`` with numpy scalars/arrays, paths and non-finite floats made JSON-safe."""
-    import numpy as np
-    from pathlib import PurePath
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        return _jsonable(x.item())
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, PurePath):
-        return str(x)
-    return x
 
 
 def json_error(exc: BaseException) -> str:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from .errors import PosteriorError, ShapeError
+from softsbi.core.errors import PosteriorError, ShapeError
 
 
 @dataclass

@@ -74,3 +74,7 @@ def closest(name: str, choices: Iterable[str]) -> str:
     """Return " Did you mean 'x'?" for the closest choice, or an empty string."""
     close = difflib.get_close_matches(name, list(choices), n=1)
     return f" Did you mean '{close[0]}'?" if close else ""
+
+
+class PluginError(SoftsbiError, TypeError):
+    """A plugin is malformed: wrong base class, duplicate name, unknown hook."""

@@ -2,7 +2,7 @@
 
 Plugins (built-in or third-party) provide concrete subclasses through the pluggy hooks in
 :mod:`softsbi.plugins.hookspecs`. Shapes and units in these docstrings are part of the
-contract and are checked by :func:`softsbi.core.checks.check_simulator`.
+contract and are checked by :func:`softsbi.workflows.conformance.check_simulator`.
 """
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterable, Mapping, Se
 
 import numpy as np
 
-from .distributions import MixtureOfGaussians
-from .types import Observation, ParamSpace, Rollout, Scenario
+from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.types import Observation, ParamSpace, Rollout, Scenario
 
 if TYPE_CHECKING:
-    from .camera import Camera, RenderStyle
+    from softsbi.core.camera import Camera, RenderStyle
 
 
 class Effect(ABC):
@@ -52,6 +52,20 @@ class Simulator(ABC):
         name: plugin name (``"mujoco-flex"``).
         scenarios: scenario names it can run.
         effects: effect names it can apply.
+
+    Rendering is a template (:meth:`simulate_images`): a backend that can render supplies only
+    frames, by overriding two hooks,
+
+    * :meth:`_frame_renderer` ``(scenario, camera, style)`` -> a frame renderer: an object with
+      ``edit(model)`` (called once with the engine's model description before it is built, for
+      render-only additions such as a camera; may do nothing), ``__call__(k, state)`` (renders
+      recorded frame ``k`` from the engine's state, called for ``k = 0 .. T-1`` in order and not
+      after a failure), ``close()`` (releases GL contexts; always called), and the outputs
+      ``rgb (T, H, W, 3)`` uint8, ``depth (T, H, W)`` float32 m, ``segmentation (T, H, W)``
+      uint8, ``seconds`` and ``setup_seconds`` (float, s);
+    * :meth:`_rollout` ``(scenario, theta, effects, seed, frames)``: the engine's one stepping
+      loop (the same one :meth:`simulate` runs, so rendering never changes the vertices) calling
+      ``frames`` as above when it is not None.
     """
 
     name: ClassVar[str]
@@ -84,22 +98,89 @@ class Simulator(ABC):
             ValueError: a scenario this backend cannot run.
         """
 
-
     def simulate_images(self, scenario: Scenario, theta: Mapping[str, float], camera: "Camera",
                         effects: Sequence[str] = (), seed: int = 0,
                         style: "RenderStyle | None" = None) -> Rollout:
         """Like :meth:`simulate`, and also render every recorded frame through ``camera``.
 
+        The template of every backend: checks ``camera``/``style`` once, asks the backend for a
+        frame renderer (:meth:`_frame_renderer`), runs the backend's own stepping loop
+        (:meth:`_rollout`) with it as the per-frame hook, and closes it even when the loop raises.
+
+        Args:
+            camera: a :class:`~softsbi.core.camera.Camera` (exact pinhole intrinsics, OpenCV axes).
+            style: :class:`~softsbi.core.camera.RenderStyle` colours and ``show_robot`` (default
+                style if None).
+
         Returns:
-            A :class:`Rollout` whose ``rgb (T, H, W, 3)`` uint8, ``depth (T, H, W)`` float32 m
-            (along the optical axis) and ``segmentation (T, H, W)`` uint8 (``SEG_*`` labels) are
-            filled, ``H, W = camera.height, camera.width``. A failed rollout may leave them None.
+            The rollout of :meth:`simulate` (identical vertices) whose ``rgb (T, H, W, 3)`` uint8,
+            ``depth (T, H, W)`` float32 m (along the optical axis) and ``segmentation (T, H, W)``
+            uint8 (``SEG_*`` labels: 0 table/background, 1 cloth/rope, 2 robot) are filled,
+            ``H, W = camera.height, camera.width``; ``info["render_s"]`` is the time spent
+            rendering, s (``info["render_setup_s"]`` of it once per rollout). A failed rollout
+            (``status != 0``) has them None.
 
         Raises:
-            NotImplementedError: this backend cannot render (the default).
+            NotImplementedError: this backend cannot render (no :meth:`_frame_renderer`).
+            DataError: ``camera``/``style`` of the wrong type, or a mirrored camera (det R = -1).
+            RenderingUnavailable: no off-screen OpenGL back-end works (backends that need one; the
+                message names the fix).
+            ValueError: unknown scenario. ParameterError: bad parameter or effect.
         """
-        raise NotImplementedError(f"backend '{self.name}' cannot render images; use a backend that "
-                                  f"implements simulate_images (mujoco-flex, pybullet-fem)")
+        if type(self)._frame_renderer is Simulator._frame_renderer:
+            raise NotImplementedError(f"backend '{self.name}' cannot render images; use a backend that "
+                                      f"implements simulate_images (mujoco-flex, pybullet-massspring)")
+        style = self._check_render_args(camera, style)
+        frames = self._frame_renderer(scenario, camera, style)
+        try:
+            ro = self._rollout(scenario, theta, effects, seed, frames)
+        finally:
+            frames.close()
+        if ro.ok:
+            ro.rgb, ro.depth, ro.segmentation = frames.rgb, frames.depth, frames.segmentation
+        ro.info["render_s"] = frames.seconds
+        ro.info["render_setup_s"] = frames.setup_seconds
+        return ro
+
+    def _frame_renderer(self, scenario: Scenario, camera: "Camera", style: "RenderStyle") -> Any:
+        """The per-frame renderer of :meth:`simulate_images` (see the class docstring); backends that
+        render override it. ``style`` is already checked (never None)."""
+        raise NotImplementedError(f"backend '{self.name}' cannot render images")
+
+    def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 seed: int = 0, frames: Any = None) -> Rollout:
+        """The backend's stepping loop, rendering through ``frames`` when given (class docstring);
+        backends that render override it together with :meth:`_frame_renderer`.
+
+        Returns:
+            the :class:`Rollout` of :meth:`simulate` (same vertices with or without ``frames``).
+
+        Raises:
+            NotImplementedError: the default (a backend overrode only :meth:`_frame_renderer`).
+        """
+        raise NotImplementedError(f"backend '{self.name}' defines _frame_renderer but not _rollout")
+
+    @staticmethod
+    def _check_render_args(camera: Any, style: Any) -> "RenderStyle":
+        """Validate ``camera``/``style`` of :meth:`simulate_images`; returns the style (default if None).
+
+        Raises:
+            DataError: ``camera`` not a :class:`~softsbi.core.camera.Camera` or mirrored (det R < 0),
+                ``style`` neither a :class:`~softsbi.core.camera.RenderStyle` nor None.
+        """
+        from softsbi.core.camera import Camera, RenderStyle
+        from softsbi.core.errors import DataError
+        if not isinstance(camera, Camera):
+            raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. default_camera('wipe', 128)), "
+                            f"got {type(camera).__name__}")
+        if np.linalg.det(camera.R) < 0:
+            raise DataError("camera.world_to_cam's 3x3 block is a reflection (det = -1), not a rotation: the "
+                            "OpenCV axes x right, y down, z forward must form a right-handed frame (z = x cross y)")
+        if style is None:
+            return RenderStyle()
+        if not isinstance(style, RenderStyle):
+            raise DataError(f"style must be a softsbi.core.camera.RenderStyle or None, got {type(style).__name__}")
+        return style
 
 
 class Observer(ABC):
@@ -182,11 +263,23 @@ class KeypointExtractor(ABC):
 
 
 class PosteriorEstimator(ABC):
-    """Learns a conditional density ``q(u | x)`` over the unit-cube parameters.
+    """Learns a conditional density ``q(theta_unit | x)``: the posterior over the simulator parameters.
 
-    ``u`` are parameters mapped by :meth:`ParamSpace.to_unit`; ``x`` are states
-    ``(N, T, 1 + K, 3)`` (per frame: gripper then K unordered points). The sequential loop
-    applies the proposal correction; estimators only fit ``q``.
+    ``theta_unit`` are the parameters ``theta`` mapped to the unit cube by
+    :meth:`ParamSpace.to_unit`; ``x`` are states ``(N, T, 1 + K, 3)`` (per frame: gripper then K
+    unordered points). The sequential loop applies the proposal correction; estimators only fit
+    ``q`` (BayesSim, Ramos et al. RSS 2019, Sec. 3; Antonova et al. RA-L 2022, Sec. IV).
+
+    Implementing one: subclass, implement :meth:`fit` and :meth:`posterior_at` (and
+    :meth:`state_dict` / :meth:`load_state_dict` to persist), and register the class through the
+    ``softsbi_estimators`` hook.
+
+    Renamed method (rule for estimators written before the rename): ``conditional(x_obs)`` is now
+    :meth:`posterior_at`. The base class keeps :meth:`conditional` as a deprecated alias that calls
+    :meth:`posterior_at`, and a subclass that still overrides ``conditional`` *instead of*
+    :meth:`posterior_at` keeps working: the default :meth:`posterior_at` then calls that
+    ``conditional``. A subclass overriding neither cannot be instantiated (``TypeError``, as for an
+    abstract method).
 
     Class attributes:
         name: plugin name (``"rkhs"``).
@@ -196,23 +289,64 @@ class PosteriorEstimator(ABC):
     name: ClassVar[str]
     sequential: ClassVar[bool] = True
 
+    def __new__(cls, *args: Any, **kwargs: Any):
+        if not (cls._overrides("posterior_at") or cls._overrides("conditional")):
+            raise TypeError(f"Can't instantiate {cls.__name__}: a PosteriorEstimator must implement "
+                            f"posterior_at(x_obs)")
+        return super().__new__(cls)
+
+    @classmethod
+    def _overrides(cls, method: str) -> bool:
+        """Whether ``cls`` (or a base between it and :class:`PosteriorEstimator`) defines ``method``."""
+        return getattr(cls, method) is not getattr(PosteriorEstimator, method)
+
     def __init__(self, **config: Any):
         self.config = dict(config)
 
     @abstractmethod
-    def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
+    def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
             progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
-        """Train on ``u (N, D)`` and ``x (N, T, 1+K, 3)``; returns training info
-        (``epochs``, ``train_loss``, ``val_loss``, ``seconds``). ``progress(epoch, max_epochs, loss)``
-        is called once per epoch when given."""
+        """Train ``q`` on simulations.
 
-    @abstractmethod
-    def conditional(self, x_obs: np.ndarray) -> MixtureOfGaussians:
-        """``q(u | x_obs)`` as a Gaussian mixture over the (unbounded) unit-cube coordinates.
+        Args:
+            theta_unit: ``(N, D)`` parameters in the unit cube (:meth:`ParamSpace.to_unit`).
+            x: ``(N, T, 1+K, 3)`` states in metres.
+            seed: seeds every random choice of the fit (same seed, same estimator).
+            progress: ``progress(epoch, max_epochs, loss)``, called once per epoch when given.
+
+        Returns:
+            Training info (``epochs``, ``train_loss``, ``val_loss``, ``seconds``).
+
+        Raises:
+            ShapeError: shapes not as above. DataError: non-finite values or too few simulations.
+        """
+
+    def posterior_at(self, x_obs: np.ndarray) -> MixtureOfGaussians:
+        """The posterior ``q(theta_unit | x_o)`` at one observation ``x_o = x_obs`` ``(T, 1+K, 3)``, as a
+        Gaussian mixture over the (unbounded) unit-cube coordinates.
+
+        Subclasses implement this. The default exists only for estimators written before the rename:
+        it calls their overridden :meth:`conditional`.
 
         Raises:
             RuntimeError: called before :meth:`fit`.
+            NotImplementedError: the subclass overrides neither this nor :meth:`conditional`.
         """
+        if type(self)._overrides("conditional"):
+            return self.conditional(x_obs)
+        raise NotImplementedError(f"{type(self).__name__} must implement posterior_at(x_obs)")
+
+    def conditional(self, x_obs: np.ndarray) -> MixtureOfGaussians:
+        """Deprecated alias of :meth:`posterior_at` (same arguments, result and errors).
+
+        Warns:
+            DeprecationWarning: always; call :meth:`posterior_at`.
+        """
+        import warnings
+
+        warnings.warn(f"{type(self).__name__}.conditional(x_obs) is deprecated; use posterior_at(x_obs)",
+                      DeprecationWarning, stacklevel=2)
+        return self.posterior_at(x_obs)
 
     def state_dict(self) -> dict[str, Any]:
         """Everything needed to restore the fitted estimator (for the run store)."""

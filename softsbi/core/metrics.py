@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import ShapeError
+from softsbi.core.errors import ShapeError
 
 
 def chamfer(a: np.ndarray, b: np.ndarray) -> float:

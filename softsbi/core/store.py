@@ -21,24 +21,18 @@ from __future__ import annotations
 import datetime as _dt
 import shutil
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import zarr
 
-from .distributions import MixtureOfGaussians
-from .errors import SchemaError
-from .types import STATUS_PENDING, _jsonable
+from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.errors import SchemaError
+from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
 SCHEMA_VERSION = 1
 
-#: config keys that must match when an existing run is resumed
-RESUME_KEYS = ("backend", "backend_options", "scenario", "param_space", "effects", "observer",
-               "observer_options", "estimator", "sims_per_round", "seed", "observed_source", "min_height",
-               "frames", "proposal", "truncation_eps")
-#: values of resume keys in runs written before the key existed
-RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3}
 
 
 def _version() -> str:
@@ -78,7 +72,7 @@ class RunStore:
         root = zarr.open_group(str(path), mode="w")
         root.attrs.update({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "softsbi_version": _version(),
                            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-                           "config": _jsonable(dict(config))})
+                           "config": jsonable(dict(config))})
         root.require_group("rounds")
         return cls(path, root)
 
@@ -108,19 +102,23 @@ class RunStore:
     def config(self) -> dict[str, Any]:
         return dict(self.root.attrs["config"])
 
-    def check_resumable(self, config: Mapping[str, Any]) -> None:
-        """Raise :class:`SchemaError` if ``config`` differs from the stored one in a key that
-        would make the stored simulations invalid for this fit."""
+    def check_resumable(self, config: Mapping[str, Any], keys: Sequence[str],
+                        defaults: Mapping[str, Any] | None = None) -> None:
+        """Raise :class:`SchemaError` if ``config`` differs from the stored one in one of ``keys``
+        (the settings that would make the stored simulations invalid for this fit; the fit
+        workflow derives them from its configuration). ``defaults`` are the values of keys that
+        runs written before the key existed lack."""
         stored = self.config
-        new = _jsonable(dict(config))
-        diff = [k for k in RESUME_KEYS if k in new and stored.get(k, RESUME_DEFAULTS.get(k)) != new.get(k)]
+        new = jsonable(dict(config))
+        defaults = dict(defaults or {})
+        diff = [k for k in keys if k in new and stored.get(k, defaults.get(k)) != new.get(k)]
         if diff:
             raise SchemaError(f"the run at '{self.path}' was started with different settings for {diff}; "
                               f"resume it with the same settings or fit into a new --out folder")
 
     def update_config(self, **kw: Any) -> None:
         cfg = self.config
-        cfg.update(_jsonable(kw))
+        cfg.update(jsonable(kw))
         self.root.attrs["config"] = cfg
 
     # -- observed data --------------------------------------------------------------
@@ -229,7 +227,7 @@ class RunStore:
         _put(p, "weights", q.weights, ("component",), "1")
         _put(p, "means", q.means, ("component", "parameter"), "unit cube")
         _put(p, "scale_tril", q.scale_tril, ("component", "parameter", "parameter2"), "unit cube")
-        g.attrs["info"] = _jsonable(dict(info))
+        g.attrs["info"] = jsonable(dict(info))
         g.attrs["complete"] = True
 
     def read_q(self, r: int) -> MixtureOfGaussians:
@@ -248,7 +246,7 @@ class RunStore:
             v = np.asarray(v)
             _put(g, k, v, tuple(f"dim_{i}" for i in range(v.ndim)), (units or {}).get(k, ""))
         if attrs:
-            g.attrs.update(_jsonable(dict(attrs)))
+            g.attrs.update(jsonable(dict(attrs)))
 
     def read_group(self, name: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         g = self.root[name]

@@ -18,7 +18,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import ParameterError, ShapeError, closest
+from softsbi.core.errors import ParameterError, ShapeError, closest
 
 
 @dataclass(frozen=True)
@@ -246,8 +246,8 @@ class Scenario:
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "times": self.times.tolist(), "gripper": self.gripper.tolist(),
-                "table_z": float(self.table_z), "object": _jsonable(self.object),
-                "options": _jsonable(self.options)}
+                "table_z": float(self.table_z), "object": jsonable(self.object),
+                "options": jsonable(self.options)}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> "Scenario":
@@ -256,16 +256,16 @@ class Scenario:
                    options=dict(d.get("options", {})))
 
 
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
     """``x`` with NumPy values, tuples and paths made JSON-serialisable (non-finite floats -> None)."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return jsonable(x.tolist())
     if isinstance(x, (np.floating, np.integer, np.bool_)):
-        return _jsonable(x.item())
+        return jsonable(x.item())
     if isinstance(x, float) and not math.isfinite(x):
         return None
     if isinstance(x, PurePath):
@@ -373,3 +373,35 @@ class Observation:
             w, h = self.image_size
             pts = np.concatenate([pts / np.array([w, h], float), np.zeros(pts.shape[:2] + (1,))], axis=-1)
         return np.concatenate([np.asarray(self.gripper, float)[:, None, :], pts], axis=1)
+
+
+@dataclass
+class Recording:
+    """What a fit is fitted to: a real recording or a simulated one, in the scenario's frame (metres).
+
+    Attributes:
+        scenario: the task the measurement was recorded in.
+        x: ``(T, 1 + K, 3)`` observed state (gripper row then K points), metres; rebuilt by
+            :func:`run_fit` from ``dense`` with the fit's observer settings when the observer
+            can observe recorded clouds.
+        dense: ``(T, P, 3)`` denser observed clouds (the Chamfer metric's reference), metres.
+        source: path of the recording or a description.
+        truth: hidden parameter values when the measurement is simulated (else None).
+        images: ``(T, H, W, 3)`` uint8 RGB frames for image observers (``heatmap``,
+            ``transporter``); their cloth masks are the reference of the mask Chamfer metric.
+            ``x`` and ``dense`` may then be None.
+        min_height, frames: the recording's sensor model (see below).
+    """
+
+    scenario: Scenario
+    x: np.ndarray | None
+    dense: np.ndarray | None
+    source: str
+    truth: dict[str, float] | None = None
+    images: np.ndarray | None = None
+    #: the sensor's defaults for a fit that does not set them (``FitConfig.min_height`` and
+    #: ``FitConfig.frames`` None): points closer than ``min_height`` m to the table are not seen
+    #: (None: all are), and the frames that inform the posterior (``"auto"``: those where the
+    #: gripper is at least 10 cm above the table; ``"all"``; or indices)
+    min_height: float | None = None
+    frames: str | list[int] | None = "all"

@@ -22,9 +22,9 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar, Mapping
 
-from ..core.interfaces import Effect
-from ..core.types import Param, ParamSpace
-from ..plugins.hookspecs import hookimpl
+from softsbi.core.interfaces import Effect
+from softsbi.core.types import Param, ParamSpace
+from softsbi.plugins.hookspecs import hookimpl
 
 AIR_VISCOSITY = 1.8e-5  # Pa s
 AIR_DENSITY = 1.2  # kg/m^3

@@ -5,11 +5,11 @@ Install with ``pip install softsbi[ray]``. Each job is one Ray task (``num_cpus=
 back as they finish (``ray.wait``), and the shared context is put into Ray's object store once
 per batch and fetched once per worker process.
 
-Fault tolerance is the same as the ``local`` executor's (see :mod:`softsbi.core.executor`):
+Fault tolerance is the same as the ``local`` executor's (see :mod:`softsbi.executors.local`):
 a task whose worker process dies (``WorkerCrashedError``, lost node) or that runs longer than
 ``timeout`` seconds (then cancelled with ``force=True``, which kills its worker) is re-run at
-most ``retries`` more times, then yielded as :class:`~softsbi.core.executor.WorkerCrashed` /
-:class:`~softsbi.core.executor.SimulationTimeout`. Ray's own task retries are switched off so
+most ``retries`` more times, then yielded as :class:`~softsbi.executors.local.WorkerCrashed` /
+:class:`~softsbi.executors.local.SimulationTimeout`. Ray's own task retries are switched off so
 the count is softsbi's. An exception raised by the job function is yielded as is.
 
 Note: ``timeout`` is measured from submission; since no more than ``workers`` tasks are in
@@ -23,10 +23,10 @@ import socket
 import time
 from typing import Any, Callable, ClassVar, Iterable, Sequence
 
-from ..core.errors import DependencyMissing, SoftsbiError
-from ..core.executor import SimulationTimeout, WorkerCrashed, WorkerFailure, check_options
-from ..core.interfaces import Executor
-from ..plugins.hookspecs import hookimpl
+from softsbi.core.errors import DependencyMissing, SoftsbiError
+from softsbi.executors.local import SimulationTimeout, WorkerCrashed, WorkerFailure, check_options
+from softsbi.core.interfaces import Executor
+from softsbi.plugins.hookspecs import hookimpl
 
 INSTALL_HINT = "pip install softsbi[ray]  (or: pip install 'ray>=2.9')"
 

@@ -23,7 +23,7 @@ Interpretations where the paper leaves details open (documented choices):
       so the shared training loop with early stopping is reused); the std of parameter d is
       the mean absolute validation error of d.
 
-How ``run_fit`` treats ``sequential = False`` estimators (see :func:`softsbi.core.loop.run_fit`):
+How ``run_fit`` treats ``sequential = False`` estimators (see :func:`softsbi.workflows.fit.run_fit`):
 every round draws its simulations from the prior, the estimator is retrained on all data so
 far, and the posterior of a round is ``q`` truncated to the prior box (no proposal
 correction is needed); per-round figures are then "bulk with r x sims_per_round
@@ -42,13 +42,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.distributions import MixtureOfGaussians
-from ..core.errors import DataError, DependencyMissing, ParameterError, ShapeError
-from ..core.interfaces import PosteriorEstimator
-from ..plugins.hookspecs import hookimpl
-from .estimators import NeuralMDNEstimator, RKHSEstimator, _default_threads, check_training_pair, merge_config
-from .mdn import MDNParams
-from .summaries import bayessim_summaries
+from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.errors import DataError, DependencyMissing, ParameterError, ShapeError
+from softsbi.core.interfaces import PosteriorEstimator
+from softsbi.plugins.hookspecs import hookimpl
+from softsbi.inference.estimators import (NeuralMDNEstimator, RKHSEstimator, check_training_pair, merge_config,
+                                         threads_option)
+from softsbi.inference.mdn import MDNParams
+from softsbi.inference.summaries import bayessim_summaries
+from softsbi.inference.training import torch_threads, train_val_split
 
 __all__ = ["FlatMDNEstimator", "MDRFFEstimator", "BayesZoomRKHSEstimator", "NNBulkEstimator",
            "GPBulkEstimator", "RandomFourierFeatures", "MeanHead", "softsbi_estimators"]
@@ -63,7 +65,7 @@ class FlatMDNEstimator(NeuralMDNEstimator):
     identical to :class:`~softsbi.inference.estimators.MDNNEstimator` (BayesSim, Ramos et
     al. 2019, Sec. 3-4) with all of :class:`NeuralMDNEstimator`'s options.
 
-    Shapes: ``fit(u (N, D), x (N, F))``; ``conditional(x_obs (F,) or (1, F))``.
+    Shapes: ``fit(theta_unit (N, D), x (N, F))``; ``posterior_at(x_obs (F,) or (1, F))``.
 
     Raises:
         ShapeError: ``x`` is not 2-D (fit) or an observation does not have ``F`` entries.
@@ -73,6 +75,7 @@ class FlatMDNEstimator(NeuralMDNEstimator):
     x_event_ndim: ClassVar[int] = 1
 
     def check_x_shape(self, x: np.ndarray) -> None:
+        """Raise :class:`ShapeError` unless ``x`` is ``(N, F)`` with ``F >= 1``."""
         if x.ndim != 2 or x.shape[1] < 1:
             raise ShapeError(f"x must have shape (N, F) (flat feature vectors), got {x.shape}")
 
@@ -97,6 +100,7 @@ class RandomFourierFeatures(nn.Module):
         self.register_buffer("W", torch.randn(int(n_features), int(in_dim)) / float(sigma))
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
+        """``(B, ...)`` (flattened to ``(B, F)``) -> ``(B, 2M)``."""
         proj = z.flatten(1) @ self.W.t()
         return torch.cat([torch.cos(proj), torch.sin(proj)], dim=-1)
 
@@ -121,14 +125,17 @@ class MDRFFEstimator(NeuralMDNEstimator):
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"rff_features": 256, "rff_sigma": 1.0, "hidden": (),
                                                 "weight_decay": 1e-4, "lr": 3e-3}
 
-    def preprocess(self, x: np.ndarray) -> np.ndarray:
+    def summary_statistics(self, x: np.ndarray) -> np.ndarray:
+        """BayesSim summaries ``(N, F)`` float32 of ``x (N, T, 1+K, 3)`` (Ramos et al. 2019, Sec. 4)."""
         return bayessim_summaries(x).astype(np.float32)
 
     def input_stats(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-feature mean, and std times ``sqrt(F)`` (unit RMS norm per simulation)."""
         mean, std = super().input_stats(z)
         return mean, (std * np.sqrt(z.shape[1])).astype(np.float32)
 
-    def build_features(self, z_example: np.ndarray) -> nn.Module:
+    def embedding_net(self, z_example: np.ndarray) -> nn.Module:
+        """Fixed :class:`RandomFourierFeatures` of the standardised summaries: ``(n, F) -> (n, 2M)``."""
         c = self.config
         return RandomFourierFeatures(z_example.shape[1], int(c["rff_features"]), float(c["rff_sigma"]))
 
@@ -148,6 +155,7 @@ class MeanHead(nn.Module):
         self.register_buffer("scale", torch.ones(out_dim))
 
     def forward(self, h: torch.Tensor) -> MDNParams:
+        """``h (B, H)`` -> one-component :class:`MDNParams` (mean ``(B, 1, D)``, diagonal ``scale``)."""
         B = h.shape[0]
         m = self.mean(h)
         L = torch.diag_embed(self.scale.expand(B, -1))
@@ -160,7 +168,7 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
     with diagonal covariance).
 
     Training minimises the squared error of the standardised parameters (early stopping on
-    the validation split); afterwards ``std_d = mean_i |u_id - mean_d(x_i)|`` over the
+    the validation split); afterwards ``std_d = mean_i |theta_unit_id - mean_d(x_i)|`` over the
     validation simulations (unit-cube units), stored in ``fit_info["val_l1"]``.
 
     Options: those of :class:`~softsbi.inference.estimators.RKHSEstimator`; ``hidden``
@@ -177,21 +185,19 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
         net.head = MeanHead(int(last), D)
         return net
 
-    def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
+    def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
             progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
         """As :meth:`NeuralMDNEstimator.fit`; adds ``val_l1 (D,)`` (unit-cube units) to the info.
 
         Raises:
-            ShapeError, DataError: as the base class.
+            ShapeError, DataError, RuntimeError: as the base class.
         """
-        info = super().fit(u, x, seed=seed, progress=progress)
-        u2, x2 = self._validate(u, x)
-        # the base class's split (same seed, same formula)
-        N = len(u2)
-        perm = np.random.default_rng(seed).permutation(N)
-        n_val = min(max(1, int(round(float(self.config["val_fraction"]) * N))), N - 2)
-        val_idx = perm[:n_val]
-        zs = self._standardise(self.preprocess(x2[val_idx]))
+        info = super().fit(theta_unit, x, seed=seed, progress=progress)
+        u2, x2 = self._validate(theta_unit, x)
+        # the base class's split (same seed, same call)
+        _, val_idx = train_val_split(len(u2), float(self.config["val_fraction"]), np.random.default_rng(seed),
+                                     min_train=2)
+        zs = self._standardise(self.summary_statistics(x2[val_idx]))
         assert self._net is not None
         self._net.head.scale.fill_(1.0)
         pred = self._predict(zs).means[:, 0, :].double().numpy()  # unit-cube units
@@ -209,7 +215,7 @@ class NNBulkEstimator(RKHSEstimator):
     """NN-bulk (Antonova et al. 2022, Sec. V, bulk baseline): RKHS-net -> MLP -> one
     full-covariance Gaussian, trained once on the whole budget drawn from the prior.
 
-    ``sequential = False``: :func:`~softsbi.core.loop.run_fit` draws every round from the
+    ``sequential = False``: :func:`~softsbi.workflows.fit.run_fit` draws every round from the
     prior. Options: those of :class:`RKHSEstimator`; ``n_components`` defaults to 1.
     """
 
@@ -256,7 +262,7 @@ class GPBulkEstimator(PosteriorEstimator):
 
     Pipeline: ``x (N, T, 1+K, 3)`` -> BayesSim summaries (or ``x (N, F)`` used as is) ->
     per-feature standardisation -> PCA to ``pca_dim`` components (whitened) -> for each
-    parameter d an exact GP ``u_d = f_d(z) + eps``, ``f_d ~ GP(c, s^2 RBF_ARD)``, hyperparameters
+    parameter d an exact GP ``theta_unit_d = f_d(z) + eps``, ``f_d ~ GP(c, s^2 RBF_ARD)``, hyperparameters
     by maximising the exact marginal likelihood (Adam, ``gp_iters`` steps). The posterior is
     the predictive ``N(mean_d(z_obs), var_d(z_obs) + noise_d)`` per parameter: a
     one-component :class:`MixtureOfGaussians` with diagonal covariance (unit-cube units).
@@ -305,17 +311,13 @@ class GPBulkEstimator(PosteriorEstimator):
         assert st is not None
         return ((s - st["s_mean"]) / st["s_std"]) @ st["pca"] / st["pc_std"]
 
-    def _threads(self) -> int:
-        n = self.config.get("num_threads")
-        return int(n) if n else _default_threads()
-
     # -------------------------------------------------------------- API
-    def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
+    def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
             progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
         """Fit the PCA and one GP per parameter.
 
         Args:
-            u: ``(N, D)`` unit-cube parameters. x: ``(N, T, 1+K, 3)`` states (m) or ``(N, F)``.
+            theta_unit: ``(N, D)`` unit-cube parameters. x: ``(N, T, 1+K, 3)`` states (m) or ``(N, F)``.
             seed: seeds the subset (if ``N > max_train``) and the optimiser.
             progress: ``progress(step, D * gp_iters, -mll)`` after each optimiser step.
 
@@ -328,7 +330,7 @@ class GPBulkEstimator(PosteriorEstimator):
         gpytorch = _require_gpytorch()
         t0 = time.perf_counter()
         s = self._summaries(x)
-        u = check_training_pair(u, s, np.shape(x))
+        u = check_training_pair(theta_unit, s, np.shape(x))
         c = self.config
         rng = np.random.default_rng(seed)
         if len(u) > int(c["max_train"]):
@@ -347,10 +349,8 @@ class GPBulkEstimator(PosteriorEstimator):
         self._state = {"s_mean": s_mean, "s_std": s_std, "pca": pca, "pc_std": pc_std,
                        "u_mean": u_mean, "u_std": u_std, "x_event_shape": list(np.shape(x)[1:])}
         Z = self._features(s)
-        old = torch.get_num_threads()
-        torch.set_num_threads(self._threads())
-        torch.manual_seed(seed)
-        try:
+        with torch_threads(threads_option(c.get("num_threads"))):
+            torch.manual_seed(seed)
             X = torch.as_tensor(Z, dtype=torch.float64)
             Y = torch.as_tensor((u - u_mean) / u_std, dtype=torch.float64)
             models, params, mlls = [], [], []
@@ -377,8 +377,6 @@ class GPBulkEstimator(PosteriorEstimator):
                 models.append(model)
                 mlls.append(-float(loss.detach()))
                 params.append({k_: v.detach().numpy().copy() for k_, v in model.state_dict().items()})
-        finally:
-            torch.set_num_threads(old)
         self._models = models
         self._state.update({"params": params, "X": Z, "Y": (u - u_mean) / u_std})
         self.fit_info = {
@@ -396,7 +394,8 @@ class GPBulkEstimator(PosteriorEstimator):
         """
         gpytorch = _require_gpytorch()
         if self._models is None or self._state is None:
-            raise RuntimeError("estimator 'gp-bulk' is not fitted: call fit(u, x) (or load_state_dict) first")
+            raise RuntimeError("estimator 'gp-bulk' is not fitted: call fit(theta_unit, x) (or load_state_dict) "
+                               "first")
         x = np.asarray(x, np.float64)
         if list(x.shape[1:]) != list(self._state["x_event_shape"]):
             raise ShapeError(f"observations must have shape (n, {', '.join(map(str, self._state['x_event_shape']))}),"
@@ -415,8 +414,9 @@ class GPBulkEstimator(PosteriorEstimator):
         var = np.stack(vars_, 1) * st["u_std"] ** 2
         return mean, var
 
-    def conditional(self, x_obs: np.ndarray) -> MixtureOfGaussians:
-        """``q(u | x_obs)``: one diagonal Gaussian (unit-cube units).
+    def posterior_at(self, x_obs: np.ndarray) -> MixtureOfGaussians:
+        """The posterior ``q(theta_unit | x_o)`` at ``x_o = x_obs``: the GP predictive, one diagonal
+        Gaussian (unit-cube units).
 
         Args:
             x_obs: one observation ``(T, 1+K, 3)`` or ``(F,)``, optionally with a leading 1.
@@ -425,7 +425,8 @@ class GPBulkEstimator(PosteriorEstimator):
             RuntimeError: not fitted. ShapeError: wrong shape. DataError: non-finite values.
         """
         if self._state is None:
-            raise RuntimeError("estimator 'gp-bulk' is not fitted: call fit(u, x) (or load_state_dict) first")
+            raise RuntimeError("estimator 'gp-bulk' is not fitted: call fit(theta_unit, x) (or load_state_dict) "
+                               "first")
         x = np.asarray(x_obs, np.float64)
         ev = len(self._state["x_event_shape"])
         if x.ndim == ev:
@@ -476,6 +477,6 @@ def softsbi_estimators() -> list[type[PosteriorEstimator]]:
     """Estimators of this module (``mdrff``, ``bayeszoom-rkhs``, ``nn-bulk``, ``gp-bulk``) and,
     when ``sbi`` is importable, ``sbi-npe`` (:mod:`softsbi.inference.sbi_adapter`)."""
     out: list[type[PosteriorEstimator]] = [MDRFFEstimator, BayesZoomRKHSEstimator, NNBulkEstimator, GPBulkEstimator]
-    from .sbi_adapter import SbiNPEEstimator
+    from softsbi.inference.sbi_adapter import SbiNPEEstimator
     out.append(SbiNPEEstimator)
     return out

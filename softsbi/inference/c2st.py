@@ -16,7 +16,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ShapeError
+from softsbi.core.errors import ShapeError
+from softsbi.inference.training import torch_threads
 
 __all__ = ["c2st"]
 
@@ -70,7 +71,7 @@ def c2st(X: np.ndarray, Y: np.ndarray, *, folds: int = 5, seed: int = 0, max_n: 
             units, as sbibm), at most ``epochs`` epochs, stopped when the training loss stalls
             (scikit-learn's rule). Checked against sbibm's scikit-learn recipe on the same
             samples: two_moons 0.70 vs 0.71, moment-matched Gaussian 0.96 vs 0.96.
-        num_threads: torch threads during the test.
+        num_threads: torch threads during the test (restored afterwards; 0 = leave torch's setting).
         backend: ``"sklearn"`` (sbibm's exact recipe, ``MLPClassifier``; scikit-learn comes
             with GPyTorch), ``"torch"`` (this module's re-implementation, somewhat less
             powerful: 0.66 vs 0.71 on the same two_moons samples) or ``"auto"`` (sklearn when
@@ -115,12 +116,10 @@ def c2st(X: np.ndarray, Y: np.ndarray, *, folds: int = 5, seed: int = 0, max_n: 
             clf = MLPClassifier(activation="relu", hidden_layer_sizes=(10 * Z.shape[1],) * 2, max_iter=10000,
                                 solver="adam", random_state=seed)
             return float(np.mean(cross_val_score(clf, Z, lab, cv=PredefinedSplit(fold_of), scoring="accuracy")))
-    old = torch.get_num_threads()
-    torch.set_num_threads(num_threads)
-    gen = torch.Generator().manual_seed(seed)
-    torch.manual_seed(seed)
     accs = []
-    try:
+    with torch_threads(num_threads):
+        gen = torch.Generator().manual_seed(seed)
+        torch.manual_seed(seed)
         Zt, Lt = torch.as_tensor(Z), torch.as_tensor(lab)
         for k in range(folds):
             te = torch.as_tensor(np.nonzero(fold_of == k)[0])
@@ -129,6 +128,4 @@ def c2st(X: np.ndarray, Y: np.ndarray, *, folds: int = 5, seed: int = 0, max_n: 
             with torch.no_grad():
                 pred = (net(Zt[te]).squeeze(-1) > 0).float()
             accs.append(float((pred == Lt[te]).float().mean()))
-    finally:
-        torch.set_num_threads(old)
     return float(np.mean(accs))

@@ -8,33 +8,37 @@ Sources:
       (RKHS-net) of each frame's unordered point cloud feeds the MDN (:class:`RKHSEstimator`).
 
 Both share :class:`NeuralMDNEstimator`, which handles validation, input/target
-standardisation, the train/validation split with early stopping, determinism, and the
-(numpy) state dict. New estimators reuse it by overriding the hooks
-:meth:`~NeuralMDNEstimator.preprocess` (fixed NumPy featurisation), :meth:`~NeuralMDNEstimator.input_stats`
-(standardisation statistics) and :meth:`~NeuralMDNEstimator.build_features` (trainable
-feature module).
+standardisation, the train/validation split with early stopping (the shared loop of
+:mod:`softsbi.inference.training`), determinism, and the (numpy) state dict. New estimators
+reuse it by overriding the hooks :meth:`~NeuralMDNEstimator.summary_statistics` (fixed NumPy
+summary statistics of an observation), :meth:`~NeuralMDNEstimator.input_stats`
+(standardisation statistics) and :meth:`~NeuralMDNEstimator.embedding_net` (trainable
+embedding network).
+
+Notation: ``theta_unit`` are the simulator parameters ``theta`` mapped to the unit cube by
+:meth:`~softsbi.core.types.ParamSpace.to_unit`; the estimators learn ``q(theta_unit | x)``.
 
 Registered through the ``softsbi_estimators`` hook as ``rkhs`` and ``mdnn``.
 """
 from __future__ import annotations
 
-import copy
-import math
-import os
 import time
+import warnings
 from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 import torch
 from torch import nn
 
-from ..core.distributions import MixtureOfGaussians
-from ..core.errors import DataError, ParameterError, ShapeError, closest
-from ..core.interfaces import PosteriorEstimator
-from ..plugins.hookspecs import hookimpl
-from .mdn import MDNHead, MDNParams, mdn_log_prob
-from .rkhs import RKHSNet
-from .summaries import bayessim_summaries
+from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.errors import DataError, ParameterError, ShapeError, closest
+from softsbi.core.interfaces import PosteriorEstimator
+from softsbi.plugins.hookspecs import hookimpl
+from softsbi.inference.mdn import MDNHead, MDNParams, mdn_log_prob
+from softsbi.inference.rkhs import RKHSNet
+from softsbi.inference.summaries import bayessim_summaries
+from softsbi.inference.training import (fit_early_stopping, minibatches, predict_batched, torch_threads,
+                                        train_val_split, available_cpus)
 
 __all__ = ["NeuralMDNEstimator", "RKHSEstimator", "MDNNEstimator", "MDNNetwork", "RKHSFrameFeatures",
            "softsbi_estimators"]
@@ -58,47 +62,46 @@ def merge_config(estimator: str, defaults: Mapping[str, Any], config: Mapping[st
     return {**defaults, **config}
 
 
-def check_training_pair(u: np.ndarray, features: np.ndarray, x_shape: tuple[int, ...]) -> np.ndarray:
+def check_training_pair(theta_unit: np.ndarray, features: np.ndarray, x_shape: tuple[int, ...]) -> np.ndarray:
     """Validate parameters against precomputed features of the simulations.
 
     Args:
-        u: ``(N, D)`` (or ``(N,)``) unit-cube parameters.
+        theta_unit: ``(N, D)`` (or ``(N,)``) parameters in the unit cube.
         features: ``(N, ...)`` features computed from ``x``.
         x_shape: shape of the raw ``x``, for the error message.
 
     Returns:
-        ``u`` as a float64 ``(N, D)`` array.
+        ``theta_unit`` as a float64 ``(N, D)`` array.
 
     Raises:
-        ShapeError: ``u`` is not ``(N, D)`` with the N of ``x``.
+        ShapeError: ``theta_unit`` is not ``(N, D)`` with the N of ``x``.
         DataError: non-finite values, or fewer than :data:`MIN_SAMPLES` simulations.
     """
-    u = np.asarray(u, np.float64)
+    u = np.asarray(theta_unit, np.float64)
     u = u[:, None] if u.ndim == 1 else u
     if u.ndim != 2 or len(u) != len(features):
-        raise ShapeError(f"u must be (N, D) with the N of x; got u {u.shape}, x {tuple(x_shape)}")
+        raise ShapeError(f"theta_unit must be (N, D) with the N of x; got theta_unit {u.shape}, x {tuple(x_shape)}")
     if not (np.isfinite(u).all() and np.isfinite(features).all()):
-        raise DataError("u or x has non-finite values (NaN/inf); drop failed simulations before fitting")
+        raise DataError("theta_unit or x has non-finite values (NaN/inf); drop failed simulations before fitting")
     if len(u) < MIN_SAMPLES:
         raise DataError(f"need at least {MIN_SAMPLES} simulations to fit an estimator, got {len(u)}")
     return u
+
+
+def threads_option(n: int | None) -> int:
+    """The ``num_threads`` option of an estimator: ``n``, or every available CPU when None/0."""
+    return int(n) if n else available_cpus()
+
 
 _ACTIVATIONS: dict[str, Callable[[], nn.Module]] = {
     "relu": nn.ReLU, "elu": nn.ELU, "silu": nn.SiLU, "tanh": nn.Tanh, "gelu": nn.GELU}
 
 
-def _default_threads() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return max(1, os.cpu_count() or 1)
-
-
 class MDNNetwork(nn.Module):
-    """``features -> MLP -> MDNHead``.
+    """``embedding net -> MLP -> MDNHead`` (BayesSim, Ramos et al. 2019, Sec. 3-4).
 
     Args:
-        features: module mapping a standardised input batch ``(B, ...)`` to ``(B, F)``.
+        features: embedding net mapping a standardised input batch ``(B, ...)`` to ``(B, F)``.
         feat_dim: ``F``.
         hidden: MLP layer widths (empty: the head sits directly on the features).
         out_dim: parameter dimension ``D``.
@@ -120,15 +123,16 @@ class MDNNetwork(nn.Module):
         self.head = MDNHead(last, out_dim, n_components, min_scale)
 
     def forward(self, z: torch.Tensor) -> MDNParams:
+        """Mixture parameters (standardised target units) of a standardised batch ``z (B, ...)``."""
         return self.head(self.mlp(self.features(z)))
 
 
 class NeuralMDNEstimator(PosteriorEstimator):
-    """Base class: ``q(u | x)`` as an MDN on learned/fixed features (BayesSim, Ramos et al. 2019).
+    """Base class: ``q(theta_unit | x)`` as an MDN on learned/fixed features (BayesSim, Ramos et al. 2019).
 
-    Pipeline: ``x (N, T, 1+K, 3)`` -> :meth:`preprocess` (fixed, NumPy) -> standardise with
-    training statistics (:meth:`input_stats`) -> :meth:`build_features` module -> MLP ->
-    :class:`~softsbi.inference.mdn.MDNHead`. Targets ``u`` are standardised with their
+    Pipeline: ``x (N, T, 1+K, 3)`` -> :meth:`summary_statistics` (fixed, NumPy) -> standardise
+    with training statistics (:meth:`input_stats`) -> :meth:`embedding_net` (trainable) -> MLP ->
+    :class:`~softsbi.inference.mdn.MDNHead`. Targets ``theta_unit`` are standardised with their
     training mean/std, and the mixture is mapped back to unit-cube coordinates.
 
     Config options (keyword arguments; unknown names raise :class:`ParameterError`):
@@ -146,13 +150,15 @@ class NeuralMDNEstimator(PosteriorEstimator):
         min_scale: Cholesky-diagonal floor in standardised units, default 1e-3.
         max_seconds: wall-clock budget per fit (None: no budget); training stops early
             and keeps the best weights.
-        num_threads: torch threads during fit/conditional (restored afterwards), default 1
+        num_threads: torch threads during fit/posterior_at (restored afterwards), default 1
             (measured: robust on a shared 2-core machine; raise it on an idle many-core one). On an oversubscribed machine (other processes busy) use 1:
             OpenMP spin-waiting made a 2-thread fit ~8x slower than 1 thread there.
 
-    Subclass hooks: :meth:`preprocess`, :meth:`input_stats`, :meth:`build_features`,
+    Subclass hooks: :meth:`summary_statistics`, :meth:`input_stats`, :meth:`embedding_net`,
     :meth:`check_x_obs_shape`, and :meth:`check_x_shape` with ``x_event_ndim`` for inputs that
-    are not ``(N, T, 1+K, 3)`` states.
+    are not ``(N, T, 1+K, 3)`` states. Subclasses written against the old hook names
+    ``preprocess`` / ``build_features`` still work: defining one of them (and not the new name)
+    aliases it to the new hook, with a :class:`DeprecationWarning` at class creation.
     """
 
     name: ClassVar[str] = "neural-mdn"
@@ -167,6 +173,21 @@ class NeuralMDNEstimator(PosteriorEstimator):
         "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1,
     }
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {}
+    #: old hook name -> new hook name (deprecated aliases, see :meth:`__init_subclass__`)
+    RENAMED_HOOKS: ClassVar[dict[str, str]] = {"preprocess": "summary_statistics", "build_features": "embedding_net"}
+
+    def __init_subclass__(cls, **kwargs: Any):
+        """Map a subclass's old-named hooks (``preprocess``, ``build_features``) onto the new names.
+
+        Warns:
+            DeprecationWarning: the subclass defines an old hook name.
+        """
+        super().__init_subclass__(**kwargs)
+        for old, new in NeuralMDNEstimator.RENAMED_HOOKS.items():
+            if old in cls.__dict__ and new not in cls.__dict__:
+                warnings.warn(f"{cls.__name__}.{old} is deprecated: rename the hook to {new}",
+                              DeprecationWarning, stacklevel=2)
+                setattr(cls, new, cls.__dict__[old])
 
     def __init__(self, **config: Any):
         cfg = merge_config(self.name, self.defaults(), config)
@@ -193,9 +214,9 @@ class NeuralMDNEstimator(PosteriorEstimator):
             out.update(klass.__dict__.get("EXTRA_DEFAULTS", {}))
         return out
 
-    def preprocess(self, x: np.ndarray) -> np.ndarray:
-        """Fixed (non-trainable) featurisation ``(N, T, 1+K, 3) -> (N, ...)``, float32.
-        Default: identity."""
+    def summary_statistics(self, x: np.ndarray) -> np.ndarray:
+        """Fixed (non-trainable) summary statistics of observations, ``(N, T, 1+K, 3) -> (N, ...)``
+        float32 (the trainable part is :meth:`embedding_net`). Default: the observation itself."""
         return np.asarray(x, dtype=np.float32)
 
     def input_stats(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,9 +230,9 @@ class NeuralMDNEstimator(PosteriorEstimator):
         std = np.where(std > tiny, std, 1.0)
         return mean.astype(np.float32), std.astype(np.float32)
 
-    def build_features(self, z_example: np.ndarray) -> nn.Module:
-        """Trainable feature module for standardised inputs shaped like ``z_example (n, ...)``,
-        returning ``(n, F)``. Default: flatten."""
+    def embedding_net(self, z_example: np.ndarray) -> nn.Module:
+        """The trainable embedding net for standardised summary statistics shaped like
+        ``z_example (n, ...)``, returning ``(n, F)`` features for the MLP. Default: flatten."""
         return nn.Flatten()
 
     def check_x_obs_shape(self, shape: tuple[int, ...]) -> bool:
@@ -221,11 +242,10 @@ class NeuralMDNEstimator(PosteriorEstimator):
 
     # ------------------------------------------------------------------ helpers
     def _threads(self) -> int:
-        n = self.config.get("num_threads")
-        return int(n) if n else _default_threads()
+        return threads_option(self.config.get("num_threads"))
 
     def _build(self, z_example: np.ndarray, D: int) -> MDNNetwork:
-        features = self.build_features(z_example)
+        features = self.embedding_net(z_example)
         with torch.no_grad():
             feat_dim = int(features(torch.as_tensor(z_example[:2])).shape[1])
         c = self.config
@@ -238,11 +258,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
     def _predict(self, zs: np.ndarray, chunk: int = 256) -> MDNParams:
         """Mixture parameters in unit-cube coordinates for standardised inputs (no grad)."""
         assert self._net is not None
-        self._net.eval()
-        outs = []
-        with torch.no_grad():
-            for i in range(0, len(zs), chunk):
-                outs.append(self._net(torch.as_tensor(zs[i:i + chunk])))
+        net = self._net
+        outs = predict_batched(lambda z: net(torch.as_tensor(z)), zs, batch_size=chunk, module=net)
         p = MDNParams(torch.cat([o.logits for o in outs]), torch.cat([o.means for o in outs]),
                       torch.cat([o.scale_tril for o in outs]))
         return p.affine(torch.as_tensor(self._u_mean), torch.as_tensor(self._u_std))
@@ -255,17 +272,19 @@ class NeuralMDNEstimator(PosteriorEstimator):
             raise ShapeError(f"x must have shape (N, T, 1+K, 3) with K >= 1 (gripper row then K points), "
                              f"got {x.shape}")
 
-    def _validate(self, u: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        u = np.asarray(u, dtype=np.float64)
+    def _validate(self, theta_unit: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta_unit (N, D), x)`` as float64 after the checks of :meth:`fit` (raises as it documents)."""
+        u = np.asarray(theta_unit, dtype=np.float64)
         x = np.asarray(x, dtype=np.float64)
         if u.ndim == 1:
             u = u[:, None]
         if u.ndim != 2:
-            raise ShapeError(f"u must have shape (N, D), got {u.shape}")
+            raise ShapeError(f"theta_unit must have shape (N, D), got {u.shape}")
         self.check_x_shape(x)
         if len(u) != len(x):
-            raise ShapeError(f"u and x must have the same number of simulations N: u has {len(u)}, x has {len(x)}")
-        for name, a in (("u", u), ("x", x)):
+            raise ShapeError(f"theta_unit and x must have the same number of simulations N: theta_unit has "
+                             f"{len(u)}, x has {len(x)}")
+        for name, a in (("theta_unit", u), ("x", x)):
             bad = ~np.isfinite(a.reshape(len(a), -1)).all(axis=1)
             if bad.any():
                 rows = np.nonzero(bad)[0]
@@ -277,39 +296,38 @@ class NeuralMDNEstimator(PosteriorEstimator):
         return u, x
 
     # ------------------------------------------------------------------ API
-    def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
+    def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
             progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
-        """Train ``q(u | x)`` by maximum likelihood (MDN negative log-likelihood).
+        """Train ``q(theta_unit | x)`` by maximum likelihood (MDN negative log-likelihood; BayesSim,
+        Ramos et al. 2019, Sec. 3-4) with early stopping (:func:`~softsbi.inference.training.fit_early_stopping`).
 
         Args:
-            u: ``(N, D)`` unit-cube parameters.
+            theta_unit: ``(N, D)`` (or ``(N,)``) parameters in the unit cube
+                (:meth:`~softsbi.core.types.ParamSpace.to_unit`).
             x: ``(N, T, 1+K, 3)`` states in metres (gripper row, then K unordered points).
             seed: seeds the weight init, the train/validation split and the batch order.
             progress: ``progress(epoch, max_epochs, train_loss)`` after every epoch.
 
         Returns:
-            ``{"epochs", "best_epoch", "train_loss", "val_loss", "seconds", "n_train", "n_val"}``;
-            losses are mean NLL per simulation in nats, in unit-cube coordinates (``val_loss``
-            at the best epoch, whose weights are kept).
+            ``{"epochs", "best_epoch", "train_loss", "val_loss", "last_train_loss", "seconds", "n_train",
+            "n_val"}``; losses are mean NLL per simulation in nats, in unit-cube coordinates
+            (``val_loss`` at the best epoch, whose weights are kept).
 
         Raises:
             ShapeError: wrong array ranks/shapes or mismatched N.
             DataError: non-finite values, or fewer than 10 simulations.
+            RuntimeError: the loss is non-finite in the first epoch (diverged).
         """
         t0 = time.perf_counter()
-        u, x = self._validate(u, x)
+        u, x = self._validate(theta_unit, x)
         c = self.config
-        N, D = u.shape
-        old_threads = torch.get_num_threads()
-        torch.set_num_threads(self._threads())
-        try:
+        D = u.shape[1]
+        with torch_threads(self._threads()):
             rng = np.random.default_rng(seed)
             torch.manual_seed(seed)
-            perm = rng.permutation(N)
-            n_val = min(max(1, int(round(float(c["val_fraction"]) * N))), N - 2)
-            val_idx, tr_idx = perm[:n_val], perm[n_val:]
+            tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2)
 
-            z = self.preprocess(x)
+            z = self.summary_statistics(x)
             self._x_shape = tuple(x.shape[1:])
             self._z_shape = tuple(z.shape[1:])
             self._in_mean, self._in_std = self.input_stats(z[tr_idx])
@@ -322,80 +340,57 @@ class NeuralMDNEstimator(PosteriorEstimator):
             uz = ((u - um) / us).astype(np.float32)
 
             self._net = net = self._build(zs[tr_idx[:2]], D)
-            opt = torch.optim.Adam(net.parameters(), lr=float(c["lr"]), weight_decay=float(c["weight_decay"]))
             z_tr, u_tr = torch.as_tensor(zs[tr_idx]), torch.as_tensor(uz[tr_idx])
             z_va, u_va = torch.as_tensor(zs[val_idx]), torch.as_tensor(uz[val_idx])
-            n_tr = len(tr_idx)
-            n_batches = max(1, math.ceil(n_tr / int(c["batch_size"])))
-            max_epochs, patience = int(c["max_epochs"]), int(c["patience"])
-            best = (math.inf, 0, math.inf)  # val, epoch, train
-            best_state = copy.deepcopy(net.state_dict())
-            epoch = 0
-            train_loss = math.inf
-            for epoch in range(1, max_epochs + 1):
-                net.train()
-                order = torch.as_tensor(rng.permutation(n_tr))
-                total = 0.0
-                for b in np.array_split(np.arange(n_tr), n_batches):
-                    idx = order[torch.as_tensor(b)]
-                    loss = -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
-                    opt.zero_grad(set_to_none=True)
-                    loss.backward()
-                    if c["grad_clip"]:
-                        nn.utils.clip_grad_norm_(net.parameters(), float(c["grad_clip"]))
-                    opt.step()
-                    total += loss.item() * len(b)
-                train_loss = total / n_tr + us_log
-                val_loss = self._val_loss(z_va, u_va) + us_log
-                if not math.isfinite(train_loss):
-                    break
-                if val_loss < best[0]:
-                    best = (val_loss, epoch, train_loss)
-                    best_state = copy.deepcopy(net.state_dict())
-                if progress is not None:
-                    progress(epoch, max_epochs, train_loss)
-                if epoch >= int(c["min_epochs"]) and epoch - best[1] >= patience:
-                    break
-                if c["max_seconds"] is not None and time.perf_counter() - t0 > float(c["max_seconds"]):
-                    break
-            if best[1] == 0:
+
+            def nll(b: np.ndarray) -> torch.Tensor:
+                idx = torch.as_tensor(b)
+                return -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
+
+            info = fit_early_stopping(
+                net, nll, lambda: minibatches(len(tr_idx), int(c["batch_size"]), rng, balanced=True),
+                validate=lambda: self._val_loss(z_va, u_va) + us_log, max_epochs=int(c["max_epochs"]),
+                patience=int(c["patience"]), min_epochs=int(c["min_epochs"]), lr=float(c["lr"]),
+                weight_decay=float(c["weight_decay"]), grad_clip=float(c["grad_clip"]) if c["grad_clip"] else None,
+                loss_offset=us_log, max_seconds=c["max_seconds"], progress=progress, t0=t0)
+            if info["best_epoch"] == 0:
                 raise RuntimeError(f"estimator '{self.name}' training diverged (non-finite loss) in the first "
                                    f"epoch; try a smaller lr (now {c['lr']})")
-            net.load_state_dict(best_state)
-            net.eval()
-        finally:
-            torch.set_num_threads(old_threads)
-        self.fit_info = {"epochs": epoch, "best_epoch": best[1], "train_loss": float(best[2]),
-                         "val_loss": float(best[0]), "last_train_loss": float(train_loss),
-                         "seconds": time.perf_counter() - t0, "n_train": int(n_tr), "n_val": int(n_val)}
+        self.fit_info = {"epochs": info["epochs"], "best_epoch": info["best_epoch"], "train_loss": info["train_loss"],
+                         "val_loss": info["val_loss"], "last_train_loss": info["last_train_loss"],
+                         "seconds": time.perf_counter() - t0, "n_train": int(len(tr_idx)), "n_val": int(len(val_idx))}
         return dict(self.fit_info)
 
     def _val_loss(self, z_va: torch.Tensor, u_va: torch.Tensor, chunk: int = 256) -> float:
+        """Mean NLL (standardised units) of the validation set under the current network."""
         assert self._net is not None
-        self._net.eval()
-        total = 0.0
-        with torch.no_grad():
-            for i in range(0, len(z_va), chunk):
-                total += float(-mdn_log_prob(self._net(z_va[i:i + chunk]), u_va[i:i + chunk]).sum())
-        return total / len(z_va)
+        net = self._net
+        sums = predict_batched(lambda z, u: float(-mdn_log_prob(net(z), u).sum()), z_va, u_va,
+                               batch_size=chunk, module=net)
+        return sum(sums) / len(z_va)
+
+    def _require_fitted(self) -> None:
+        """Raise RuntimeError (naming the fix) unless fitted or loaded."""
+        if self._net is None:
+            raise RuntimeError(f"estimator '{self.name}' is not fitted: call fit(theta_unit, x) (or "
+                               f"load_state_dict) before posterior_at()")
 
     def _prepare_obs(self, x_obs: np.ndarray) -> np.ndarray:
-        if self._net is None:
-            raise RuntimeError(f"estimator '{self.name}' is not fitted: call fit(u, x) (or load_state_dict) "
-                               f"before conditional()")
+        """Standardised summary statistics of observations ``(n, T, 1+K, 3)`` (raises as :meth:`posterior_at`)."""
+        self._require_fitted()
         x = np.asarray(x_obs, dtype=np.float64)
         if x.ndim != 1 + self.x_event_ndim or not self.check_x_obs_shape(tuple(x.shape[1:])):
             raise ShapeError(f"observations must have shape (n, {self._expected()}), got {x.shape}")
         if not np.isfinite(x).all():
             raise DataError("the observation contains non-finite values (NaN/inf)")
-        return self._standardise(self.preprocess(x))
+        return self._standardise(self.summary_statistics(x))
 
     def _expected(self) -> str:
         T, R, d = self._x_shape  # type: ignore[misc]
         return f"{T}, {R}, {d}"
 
-    def conditional(self, x_obs: np.ndarray) -> MixtureOfGaussians:
-        """``q(u | x_obs)`` in unit-cube coordinates.
+    def posterior_at(self, x_obs: np.ndarray) -> MixtureOfGaussians:
+        """The posterior ``q(theta_unit | x_o)`` at the observation ``x_o = x_obs``, unit-cube coordinates.
 
         Args:
             x_obs: ``(T, 1+K, 3)`` (or ``(1, T, 1+K, 3)``) in metres, same T as in fit.
@@ -407,30 +402,42 @@ class NeuralMDNEstimator(PosteriorEstimator):
             RuntimeError: not fitted. ShapeError: wrong shape (the message names the expected
             one). DataError: non-finite values.
         """
-        if self._net is None:
-            raise RuntimeError(f"estimator '{self.name}' is not fitted: call fit(u, x) (or load_state_dict) "
-                               f"before conditional()")
+        self._require_fitted()
         x = np.asarray(x_obs, dtype=np.float64)
         if x.ndim == self.x_event_ndim + 1 and x.shape[0] == 1:
             x = x[0]
         if x.ndim != self.x_event_ndim or not self.check_x_obs_shape(x.shape):
             raise ShapeError(f"x_obs must have shape ({self._expected()}) (T, 1+K, 3), got {x.shape}")
-        return self.conditionals(x[None])[0]
+        return self.posteriors_at(x[None])[0]
+
+    def posteriors_at(self, x: np.ndarray) -> list[MixtureOfGaussians]:
+        """Batched :meth:`posterior_at`: ``x (n, T, 1+K, 3)`` -> list of ``n`` mixtures.
+
+        Raises:
+            RuntimeError, ShapeError, DataError: as :meth:`posterior_at`.
+        """
+        zs = self._prepare_obs(x)
+        with torch_threads(self._threads()):
+            return self._predict(zs).to_mixtures()
 
     def conditionals(self, x: np.ndarray) -> list[MixtureOfGaussians]:
-        """Batched :meth:`conditional`: ``x (n, T, 1+K, 3)`` -> list of ``n`` mixtures."""
-        zs = self._prepare_obs(x)
-        old = torch.get_num_threads()
-        torch.set_num_threads(self._threads())
-        try:
-            return self._predict(zs).to_mixtures()
-        finally:
-            torch.set_num_threads(old)
+        """Deprecated alias of :meth:`posteriors_at`.
 
-    def log_prob(self, u: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """``log q(u_i | x_i)`` ``(n,)`` for ``u (n, D)``, ``x (n, T, 1+K, 3)`` (e.g. held-out NLL)."""
+        Warns:
+            DeprecationWarning: always.
+        """
+        warnings.warn("conditionals() is deprecated; use posteriors_at()", DeprecationWarning, stacklevel=2)
+        return self.posteriors_at(x)
+
+    def log_prob(self, theta_unit: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``log q(theta_unit_i | x_i)`` ``(n,)`` for ``theta_unit (n, D)``, ``x (n, T, 1+K, 3)``
+        (e.g. held-out NLL, nats in unit-cube coordinates).
+
+        Raises:
+            RuntimeError, ShapeError, DataError: as :meth:`posterior_at`.
+        """
         zs = self._prepare_obs(x)
-        u = np.atleast_2d(np.asarray(u, dtype=np.float64))
+        u = np.atleast_2d(np.asarray(theta_unit, dtype=np.float64))
         p = self._predict(zs)
         return mdn_log_prob(MDNParams(p.logits.double(), p.means.double(), p.scale_tril.double()),
                             torch.as_tensor(u)).numpy()
@@ -522,7 +529,7 @@ class RKHSEstimator(NeuralMDNEstimator):
             (on a synthetic lifted-cloth task it trained in fewer epochs but generalised
             clearly worse: held-out NLL -2.6 vs -3.3 nats at N=1000).
 
-    ``conditional`` accepts any number of points K' >= 1 per frame (same T).
+    ``posterior_at`` accepts any number of points K' >= 1 per frame (same T).
     """
 
     name: ClassVar[str] = "rkhs"
@@ -538,7 +545,8 @@ class RKHSEstimator(NeuralMDNEstimator):
         std = np.full((1, 1, 1), scale)
         return mean.astype(np.float32), std.astype(np.float32)
 
-    def build_features(self, z_example: np.ndarray) -> nn.Module:
+    def embedding_net(self, z_example: np.ndarray) -> nn.Module:
+        """:class:`RKHSFrameFeatures` for ``z_example (n, T, 1+K, 3)``: output ``(n, T * (2M + 3))``."""
         c = self.config
         return RKHSFrameFeatures(int(c["rkhs_features"]), float(c["rkhs_sigma"]), bool(c["rkhs_learn"]),
                                  bool(c["batch_norm"]), n_frames=z_example.shape[1])
@@ -560,12 +568,13 @@ class MDNNEstimator(NeuralMDNEstimator):
     variance of the state differences), standardised per feature. The cloth points are an
     unordered set, so these statistics mix unrelated points; this baseline is expected to
     do worse than ``rkhs`` (the point of Antonova et al. 2022). Requires the same ``K`` at
-    fit and ``conditional``.
+    fit and ``posterior_at``.
     """
 
     name: ClassVar[str] = "mdnn"
 
-    def preprocess(self, x: np.ndarray) -> np.ndarray:
+    def summary_statistics(self, x: np.ndarray) -> np.ndarray:
+        """BayesSim summaries ``(N, F)`` float32 of ``x (N, T, 1+K, 3)`` (Ramos et al. 2019, Sec. 4)."""
         return bayessim_summaries(x).astype(np.float32)
 
 

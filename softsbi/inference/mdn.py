@@ -18,8 +18,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..core.distributions import MixtureOfGaussians
-from ..core.errors import ShapeError
+from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.errors import ShapeError
 
 _SOFTPLUS_ONE = math.log(math.e - 1.0)  # softplus(_SOFTPLUS_ONE) == 1
 
@@ -43,8 +43,8 @@ class MDNParams:
         return torch.log_softmax(self.logits, dim=-1)
 
     def affine(self, shift: torch.Tensor, scale: torch.Tensor) -> "MDNParams":
-        """Parameters of the pushed-forward mixture ``u = shift + scale * z`` (elementwise,
-        ``shift``/``scale`` of shape ``(D,)``), e.g. to undo a standardisation of ``u``."""
+        """Parameters of the pushed-forward mixture ``theta = shift + scale * z`` (elementwise,
+        ``shift``/``scale`` of shape ``(D,)``), e.g. to undo the standardisation of ``theta_unit``."""
         return MDNParams(self.logits, self.means * scale + shift, scale[:, None] * self.scale_tril)
 
     def to_mixtures(self) -> list[MixtureOfGaussians]:
@@ -55,25 +55,34 @@ class MDNParams:
         return [MixtureOfGaussians(w[i], m[i], L[i]) for i in range(w.shape[0])]
 
 
-def mdn_log_prob(params: MDNParams, u: torch.Tensor) -> torch.Tensor:
-    """Log density ``(B,)`` of ``u (B, D)`` under the per-row mixtures ``params``.
+def mdn_log_prob(params: MDNParams, theta: torch.Tensor) -> torch.Tensor:
+    """Log density ``(B,)`` of ``theta (B, D)`` under the per-row mixtures ``params`` (Bishop 1994;
+    BayesSim, Ramos et al. 2019, eq. 3).
 
-    ``log sum_c alpha_c N(u; mu_c, L_c L_c^T)``, computed with a triangular solve and
-    ``logsumexp``; matches :meth:`MixtureOfGaussians.log_prob`.
+    ``log sum_c alpha_c N(theta; mu_c, L_c L_c^T)``, computed with a triangular solve and
+    ``logsumexp``; matches :meth:`MixtureOfGaussians.log_prob`. ``theta`` are the targets in the
+    mixture's units (during training: the standardised ``theta_unit``).
+
+    Raises:
+        ShapeError: ``theta`` is not ``(B, D)`` for the mixtures' ``B`` and ``D``.
     """
     B, C, D = params.means.shape
-    if u.shape != (B, D):
-        raise ShapeError(f"mdn_log_prob: u must have shape ({B}, {D}), got {tuple(u.shape)}")
-    diff = (u[:, None, :] - params.means).unsqueeze(-1)  # (B, C, D, 1)
+    if theta.shape != (B, D):
+        raise ShapeError(f"mdn_log_prob: theta must have shape ({B}, {D}), got {tuple(theta.shape)}")
+    diff = (theta[:, None, :] - params.means).unsqueeze(-1)  # (B, C, D, 1)
     z = torch.linalg.solve_triangular(params.scale_tril, diff, upper=False).squeeze(-1)  # (B, C, D)
     logdet = torch.log(torch.diagonal(params.scale_tril, dim1=-2, dim2=-1)).sum(-1)  # (B, C)
     comp = -0.5 * (z * z).sum(-1) - logdet - 0.5 * D * math.log(2 * math.pi)
     return torch.logsumexp(params.log_weights + comp, dim=-1)
 
 
-def mdn_nll(params: MDNParams, u: torch.Tensor) -> torch.Tensor:
-    """Mean negative log-likelihood (scalar) of ``u (B, D)``; the MDN training loss."""
-    return -mdn_log_prob(params, u).mean()
+def mdn_nll(params: MDNParams, theta: torch.Tensor) -> torch.Tensor:
+    """Mean negative log-likelihood (scalar) of ``theta (B, D)``; the MDN training loss.
+
+    Raises:
+        ShapeError: as :func:`mdn_log_prob`.
+    """
+    return -mdn_log_prob(params, theta).mean()
 
 
 class MDNHead(nn.Module):

@@ -21,7 +21,7 @@ import math
 import torch
 from torch import nn
 
-from ..core.errors import ShapeError
+from softsbi.core.errors import ShapeError
 
 
 class _RFFMean(torch.autograd.Function):

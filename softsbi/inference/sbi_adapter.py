@@ -26,11 +26,12 @@ from typing import Any, Callable, ClassVar, Mapping
 import numpy as np
 import torch
 
-from ..core.distributions import MixtureOfGaussians
-from ..core.errors import DependencyMissing, ShapeError
-from ..core.interfaces import PosteriorEstimator
-from .estimators import _default_threads, check_training_pair, merge_config
-from .summaries import bayessim_summaries
+from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.errors import DependencyMissing, ShapeError
+from softsbi.core.interfaces import PosteriorEstimator
+from softsbi.inference.estimators import check_training_pair, merge_config, threads_option
+from softsbi.inference.summaries import bayessim_summaries
+from softsbi.inference.training import torch_threads
 
 __all__ = ["SbiNPEEstimator", "sbi_available"]
 
@@ -58,7 +59,7 @@ def _require_sbi():
 class SbiNPEEstimator(PosteriorEstimator):
     """NPE from ``sbi`` with an MDN density estimator, as a softsbi :class:`PosteriorEstimator`.
 
-    Shapes: ``fit(u (N, D), x (N, T, 1+K, 3) | (N, F))``; ``conditional(x_obs)`` for one
+    Shapes: ``fit(theta_unit (N, D), x (N, T, 1+K, 3) | (N, F))``; ``posterior_at(x_obs)`` for one
     observation of the training event shape -> :class:`MixtureOfGaussians` with
     ``num_components`` full-covariance components over ``D`` (unit-cube coordinates).
 
@@ -98,27 +99,24 @@ class SbiNPEEstimator(PosteriorEstimator):
             return x.astype(np.float32)
         raise ShapeError(f"x must have shape (N, T, 1+K, 3) or (N, F), got {x.shape}")
 
-    def _threads(self) -> int:
-        n = self.config.get("num_threads")
-        return int(n) if n else _default_threads()
-
-    def fit(self, u: np.ndarray, x: np.ndarray, *, seed: int = 0,
+    def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
             progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
-        """Train sbi's NPE (first-round loss) on ``u (N, D)``, ``x``; softsbi's loop applies the
-        proposal correction, as for the built-in estimators.
+        """Train sbi's NPE (first-round loss) on ``theta_unit (N, D)`` (unit cube), ``x``; softsbi's loop
+        applies the proposal correction, as for the built-in estimators.
 
         Returns:
             ``{"epochs", "val_loss" (best validation log-prob, negated), "seconds", "n_train"}``.
             ``progress`` is called once at the end (sbi trains in one call).
+
+        Raises:
+            DependencyMissing: ``sbi`` not installed. ShapeError, DataError: bad inputs.
         """
         _, NPE, posterior_nn = _require_sbi()
         t0 = time.perf_counter()
         f = self._features(x)
-        u = check_training_pair(u, f, np.shape(x))
+        u = check_training_pair(theta_unit, f, np.shape(x))
         c = self.config
-        old = torch.get_num_threads()
-        torch.set_num_threads(self._threads())
-        try:
+        with torch_threads(threads_option(c.get("num_threads"))):
             torch.manual_seed(seed)
             builder = posterior_nn(model="mdn", num_components=int(c["num_components"]),
                                    hidden_features=int(c["hidden_features"]))
@@ -131,8 +129,6 @@ class SbiNPEEstimator(PosteriorEstimator):
                                stop_after_epochs=int(c["stop_after_epochs"]),
                                max_num_epochs=int(c["max_epochs"]), show_train_summary=False)
             de.eval()
-        finally:
-            torch.set_num_threads(old)
         self._de = de
         self._event_shape = tuple(np.shape(x)[1:])
         summ = getattr(inf, "_summary", {})
@@ -144,14 +140,15 @@ class SbiNPEEstimator(PosteriorEstimator):
             progress(epochs, epochs, float(best))
         return dict(self.fit_info)
 
-    def conditional(self, x_obs: np.ndarray) -> MixtureOfGaussians:
-        """``q(u | x_obs)`` read off sbi's MDN (z-scoring of ``u`` undone).
+    def posterior_at(self, x_obs: np.ndarray) -> MixtureOfGaussians:
+        """The posterior ``q(theta_unit | x_o)`` at ``x_o = x_obs``, read off sbi's MDN (its z-scoring
+        of ``theta_unit`` undone).
 
         Raises:
             RuntimeError: not fitted. ShapeError: wrong shape.
         """
         if self._de is None:
-            raise RuntimeError("estimator 'sbi-npe' is not fitted: call fit(u, x) first")
+            raise RuntimeError("estimator 'sbi-npe' is not fitted: call fit(theta_unit, x) first")
         x = np.asarray(x_obs, np.float64)
         if x.shape == (1,) + tuple(self._event_shape):
             x = x[0]

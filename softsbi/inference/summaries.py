@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.errors import ShapeError
+from softsbi.core.errors import ShapeError
 
 
 def n_summary_features(n_points: int, dim: int = 3) -> int:

@@ -17,12 +17,13 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from ..core.camera import Camera, RenderStyle, default_camera
-from ..core.errors import DataError, ShapeError, SoftsbiError
-from ..core.interfaces import Observer
-from ..core.types import Observation, Rollout
-from ..plugins.hookspecs import hookimpl
-from .keypoint_data import check_images
+from softsbi.core.camera import Camera, RenderStyle
+from softsbi.scenarios.cameras import default_camera
+from softsbi.core.errors import DataError, ShapeError, SoftsbiError
+from softsbi.core.interfaces import Observer
+from softsbi.core.types import Observation, Rollout
+from softsbi.plugins.hookspecs import hookimpl
+from softsbi.data.keypoints import check_images
 
 __all__ = ["HeatmapObserver", "ImageKeypointObserver", "TransporterObserver", "check_images", "load_frames",
            "save_frames"]
@@ -120,7 +121,7 @@ class ImageKeypointObserver(Observer):
     def __init__(self, extractor: str | Path | None = None, size: int = 128,
                  camera: Mapping[str, Any] | None = None, scenario: str = "wipe",
                  style: Mapping[str, Any] | None = None):
-        from ..plugins import registry
+        from softsbi.plugins import registry
 
         if not extractor:
             raise SoftsbiError(f"observer '{self.name}' needs a trained extractor checkpoint: pass --extractor "

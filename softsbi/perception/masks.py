@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..core.errors import DataError, ShapeError
+from softsbi.core.errors import DataError, ShapeError
 
 #: (lo, hi) OpenCV-HSV bounds of the green cloth (real wiping images and rendered frames)
 CLOTH_HSV_LO = (35, 45, 60)

@@ -13,10 +13,10 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from ..core.errors import DataError, ShapeError
-from ..core.interfaces import Observer
-from ..core.types import Observation, Rollout
-from ..plugins.hookspecs import hookimpl
+from softsbi.core.errors import DataError, ShapeError
+from softsbi.core.interfaces import Observer
+from softsbi.core.types import Observation, Rollout
+from softsbi.plugins.hookspecs import hookimpl
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -179,7 +179,7 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
         DataError: missing folder, no ``NNN.npy`` frames, a gap in the numbering, a frame
             that is not ``(P, 3)``, or NaN/inf values — the message names the file and the fix.
             (Point counts may differ between frames; the frame *count* is checked against the
-            scenario by :func:`softsbi.perception.measurement.load_measurement`.)
+            scenario by :func:`softsbi.workflows.measurement.load_recording`.)
     """
     folder = Path(folder)
     if not folder.is_dir():

@@ -1,7 +1,7 @@
 """Rendering helpers: render a rollout by backend name, robot masks from depth, contact sheets, GIFs.
 
 The renderers themselves live in the backends (:meth:`MujocoFlex.simulate_images`,
-:meth:`PybulletFEM.simulate_images`); this module is the convenience layer around them and the
+:meth:`PybulletMassSpring.simulate_images`); this module is the convenience layer around them and the
 image utilities that need no simulator. Cameras and colours: :mod:`softsbi.core.camera`.
 """
 from __future__ import annotations
@@ -11,9 +11,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..core.camera import Camera, RenderStyle, default_camera
-from ..core.errors import DataError, DependencyMissing, ShapeError
-from ..core.types import Rollout, Scenario
+from softsbi.core.camera import Camera, RenderStyle
+from softsbi.scenarios.cameras import default_camera
+from softsbi.core.errors import DataError, DependencyMissing, ShapeError
+from softsbi.core.types import Rollout, Scenario
 
 
 def backproject_depth(depth: np.ndarray, camera: Camera) -> np.ndarray:
@@ -142,9 +143,9 @@ def render_rollout(backend_name: str, scenario: Scenario | str, theta: Mapping[s
     """Simulate and render one rollout with a registered backend.
 
     Args:
-        backend_name: simulator plugin name (``"mujoco-flex"``, ``"pybullet-fem"``).
+        backend_name: simulator plugin name (``"mujoco-flex"``, ``"pybullet-massspring"``).
         scenario: a :class:`Scenario` or a scenario name (built with
-            :func:`softsbi.backends.scenarios.make_scenario`).
+            :func:`softsbi.scenarios.builtin.make_scenario`).
         theta: parameters (physical units); None -> the midpoint of the backend's prior box.
         camera: None -> ``default_camera(scenario.name, size)``.
         size: image side, px, of the default camera.
@@ -159,10 +160,10 @@ def render_rollout(backend_name: str, scenario: Scenario | str, theta: Mapping[s
         PluginNotFound: unknown backend. DataError: no default camera for the scenario.
         NotImplementedError: the backend cannot render.
     """
-    from ..plugins import registry
+    from softsbi.plugins import registry
 
     if isinstance(scenario, str):
-        from ..backends.scenarios import make_scenario
+        from softsbi.scenarios.builtin import make_scenario
         scenario = make_scenario(scenario)
     if not isinstance(scenario, Scenario):
         raise DataError(f"scenario must be a Scenario or a scenario name, got {type(scenario).__name__}")

@@ -11,9 +11,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..core.camera import Camera, RenderStyle, default_camera
-from ..core.errors import SimulationFailed, SoftsbiError
-from ..core.types import SEG_OBJECT, SEG_ROBOT, Scenario
+from softsbi.core.camera import Camera, RenderStyle
+from softsbi.scenarios.cameras import default_camera
+from softsbi.core.errors import SimulationFailed, SoftsbiError
+from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Scenario
 
 
 def corner_keypoints(rollout: Any, camera: Camera) -> np.ndarray:
@@ -26,7 +27,7 @@ def corner_keypoints(rollout: Any, camera: Camera) -> np.ndarray:
     corners = rollout.info.get("corners")
     if not corners or len(corners) != 4:
         raise SoftsbiError("the rollout has no info['corners'] (4 corner vertex indices); corner labels need a "
-                           "cloth scenario on a backend that reports its corners (mujoco-flex, pybullet-fem)")
+                           "cloth scenario on a backend that reports its corners (mujoco-flex, pybullet-massspring)")
     uv, _ = camera.project(np.asarray(rollout.vertices)[:, list(corners)])
     return uv
 
@@ -40,7 +41,7 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
 
     Args:
         backend: simulator plugin that implements ``simulate_images``.
-        scenario: a :class:`Scenario` or a scenario name for :func:`~softsbi.backends.scenarios.make_scenario`.
+        scenario: a :class:`Scenario` or a scenario name for :func:`~softsbi.scenarios.builtin.make_scenario`.
         n_rollouts: rollouts (failed ones are skipped and replaced, at most ``2 n_rollouts`` tries).
         size: square image size when ``camera`` is None (scenario's built-in camera).
         fixed: parameters held at a value instead of drawn.
@@ -55,8 +56,8 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
     Raises:
         SimulationFailed: more than half the rollouts failed. PluginNotFound: unknown backend.
     """
-    from ..backends.scenarios import make_scenario
-    from ..plugins import registry
+    from softsbi.scenarios.builtin import make_scenario
+    from softsbi.plugins import registry
 
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
     cam = camera or default_camera(sc.name, size)

@@ -8,12 +8,22 @@ through the ``softsbi`` entry-point group of its package, e.g. in ``pyproject.to
 
 Each hook returns a list of *classes*; softsbi instantiates them on demand. Built-in
 plugins are registered through the same entry points as third-party ones.
+
+The registry (:mod:`softsbi.plugins.manager`) checks every plugin when it is built and raises
+:class:`~softsbi.core.errors.PluginError` for: a hook returning anything but classes derived
+from the hook's ABC with a non-empty string ``name``; two classes of one kind with the same
+name or alias; a ``@hookimpl`` function whose name is not one of the hooks below (a typo). A
+class renamed may keep its old name working for a while (with a ``FutureWarning``)::
+
+    class MassSpring(Simulator):
+        name = "pybullet-massspring"
+        aliases = ("pybullet-fem",)
 """
 from __future__ import annotations
 
 import pluggy
 
-from ..core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
+from softsbi.core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
 
 PROJECT = "softsbi"
 hookspec = pluggy.HookspecMarker(PROJECT)

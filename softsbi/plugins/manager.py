@@ -4,19 +4,30 @@ Use :func:`registry` for name -> class look-ups::
 
     reg = registry()
     sim = reg.simulator("mujoco-flex")()
+
+The registry is strict: a malformed plugin (a hook returning something that is not a class
+derived from its kind's ABC, two plugins of one kind with the same name, a misspelled hook)
+raises :class:`~softsbi.core.errors.PluginError` when the registry is built, so every command
+fails with that one line instead of silently picking one plugin. A plugin module that fails
+to *import* is only skipped with a warning (see :data:`LOAD_ERRORS`).
+
+A class may keep an old name working for a while with ``aliases = ("old-name",)``: looking
+it up by an alias returns the class with a :class:`FutureWarning`.
 """
 from __future__ import annotations
 
 import functools
-import warnings
 import importlib.metadata as md
+import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import pluggy
 
-from ..core.errors import PluginNotFound
-from . import hookspecs
+from softsbi.core.errors import PluginError, PluginNotFound, closest
+from softsbi.core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
+from softsbi.plugins import hookspecs
 
 
 #: entry points that failed to import: ``{entry point name: error text}``
@@ -28,6 +39,10 @@ def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
 
     A plugin module that fails to import is skipped with a warning (and listed in
     :data:`LOAD_ERRORS` and by ``softsbi plugins``) instead of breaking every command.
+
+    Raises:
+        PluginError: a loaded plugin has a hook implementation whose arguments do not match
+            the hook specification (pluggy's ``PluginValidationError``).
     """
     pm = pluggy.PluginManager(hookspecs.PROJECT)
     pm.add_hookspecs(hookspecs)
@@ -37,22 +52,36 @@ def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
                 continue
             try:
                 plugin = ep.load()
+            except PluginError:
+                raise
             except Exception as exc:  # noqa: BLE001 - any import failure of a plugin
                 LOAD_ERRORS[ep.name] = f"{type(exc).__name__}: {exc}"
                 warnings.warn(f"softsbi plugin '{ep.name}' ({ep.value}) failed to load and is skipped: {exc}",
                               stacklevel=2)
                 continue
-            pm.register(plugin, name=ep.name)
+            if pm.is_registered(plugin):  # two entry points naming the same module: load it once
+                continue
             dist = getattr(ep, "dist", None)
             _DIST[id(plugin)] = f"{dist.name} {dist.version}" if dist is not None else ep.value
+            try:
+                pm.register(plugin, name=ep.name)
+            except pluggy.PluginValidationError as exc:
+                raise PluginError(f"softsbi plugin '{ep.name}' ({ep.value}, {_DIST[id(plugin)]}) is malformed: "
+                                  f"{exc}") from None
     return pm
 
 
+#: ``{id(plugin object): "distribution version"}`` of the entry points loaded by :func:`get_plugin_manager`
 _DIST: dict[int, str] = {}
 
 
+#: kind -> name of the hook that lists the plugin classes of that kind
 KINDS = {"simulator": "softsbi_simulators", "effect": "softsbi_effects", "observer": "softsbi_observers",
          "estimator": "softsbi_estimators", "executor": "softsbi_executors", "extractor": "softsbi_extractors"}
+
+#: kind -> the ABC (softsbi.core.interfaces) every class of that kind derives from
+BASES: dict[str, type] = {"simulator": Simulator, "effect": Effect, "observer": Observer,
+                          "estimator": PosteriorEstimator, "executor": Executor, "extractor": KeypointExtractor}
 
 
 @dataclass
@@ -60,57 +89,171 @@ class Registry:
     """Name -> class tables built from a plugin manager.
 
     Attributes:
+        pm: the plugin manager the tables are built from.
         tables: ``{kind: {name: class}}`` for kinds simulator, effect, observer, estimator, executor,
-            extractor.
+            extractor (real names only, no aliases).
         origin: ``{(kind, name): "distribution version"}`` of the package that provided each.
+        dists: ``{registered plugin name: "distribution version"}``: who provides a plugin that was
+            not loaded through an entry point (plugins registered in code, tests); entry points loaded
+            by :func:`get_plugin_manager` are known without it.
+        aliases: ``{kind: {old name: name}}`` from the classes' ``aliases`` attributes.
+
+    Raises (on construction):
+        PluginError: a plugin has a hook implementation with an unknown (misspelled) hook name; a hook
+            returns something that is not a class derived from the kind's ABC or has no non-empty
+            string ``name``, or has malformed ``aliases``; two different classes of one kind share a
+            name or an alias.
     """
 
     pm: pluggy.PluginManager
     tables: dict[str, dict[str, type]] = field(default_factory=dict)
     origin: dict[tuple[str, str], str] = field(default_factory=dict)
+    dists: Mapping[str, str] = field(default_factory=dict)
+    aliases: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        dists = _entry_point_dists(self.pm)
+        self._check_hook_names()
         for kind, hook in KINDS.items():
             table: dict[str, type] = {}
+            aliases: dict[str, str] = {}
+            #: every name and alias taken so far -> (class, provider text, is alias)
+            taken: dict[str, tuple[type, str, bool]] = {}
             for impl in getattr(self.pm.hook, hook).get_hookimpls():
-                for cls in impl.function() or []:
+                dist = self._dist(impl.plugin)
+                for cls in self._classes(kind, hook, impl):
+                    if table.get(cls.name) is cls:  # the same class twice (one plugin, or two hooks): fine
+                        continue
+                    provider = f"{dist} ({cls.__module__}.{cls.__qualname__}"
+                    labels = [(cls.name, False)] + [(a, True) for a in _aliases_of(cls, self._who(impl.plugin), hook)]
+                    for label, is_alias in labels:
+                        if label in taken and taken[label][0] is not cls:
+                            other_cls, other, other_alias = taken[label]
+                            raise PluginError(
+                                f"two {kind} plugins are named '{label}': "
+                                f"{other}{_as_alias(other_cls, other_alias)}) and "
+                                f"{provider}{_as_alias(cls, is_alias)}); uninstall one or rename it")
+                        taken[label] = (cls, provider, is_alias)
+                        if is_alias:
+                            aliases[label] = cls.name
                     table[cls.name] = cls
-                    self.origin[(kind, cls.name)] = dists.get(impl.plugin, "softsbi (registered in code)")
+                    self.origin[(kind, cls.name)] = dist
             self.tables[kind] = table
+            self.aliases[kind] = aliases
 
+    # -- construction helpers -------------------------------------------------------------------
+    def _dist(self, plugin: Any) -> str:
+        name = self.pm.get_name(plugin)
+        if name in self.dists:
+            return self.dists[name]
+        return _DIST.get(id(plugin), "softsbi (registered in code)")
+
+    def _who(self, plugin: Any) -> str:
+        """``softsbi plugin 'effects' (softsbi.effects.builtin, softsbi 0.1.0)``."""
+        module = getattr(plugin, "__name__", None) or f"{type(plugin).__module__}.{type(plugin).__qualname__}"
+        return f"softsbi plugin '{self.pm.get_name(plugin)}' ({module}, {self._dist(plugin)})"
+
+    def _check_hook_names(self) -> None:
+        """Hook implementations without a spec are misspelled hooks: one PluginError naming them all."""
+        unknown: list[str] = []
+        for name in list(vars(self.pm.hook)):
+            if name.startswith("_"):
+                continue
+            caller = getattr(self.pm.hook, name)
+            if caller.has_spec():
+                continue
+            for impl in caller.get_hookimpls():
+                if not impl.optionalhook:
+                    unknown.append(f"{self._who(impl.plugin)} has an unknown hook '{name}'."
+                                   f"{closest(name, KINDS.values())}")
+        if unknown:
+            raise PluginError(" ".join(unknown) + f" The hooks are: {', '.join(KINDS.values())}.")
+        try:  # whatever else pluggy finds unverified
+            self.pm.check_pending()
+        except pluggy.PluginValidationError as exc:
+            raise PluginError(f"{self._who(exc.plugin)}: {exc}") from None
+
+    def _classes(self, kind: str, hook: str, impl: Any) -> list[type]:
+        """The classes one hook implementation returns, checked against the kind's ABC."""
+        base = BASES[kind]
+        expected = f"{base.__module__}.{base.__qualname__}"
+        where = f"{self._who(impl.plugin)}: hook {hook}"
+        result = impl.function()
+        if result is None:
+            return []
+        if isinstance(result, (str, bytes, Mapping, type)) or not hasattr(result, "__iter__"):
+            raise PluginError(f"{where} returned {result!r}; it must return a list of classes derived from "
+                              f"{expected}")
+        out = []
+        for obj in result:
+            if not isinstance(obj, type):
+                hint = " (an instance: return the class itself)" if isinstance(obj, base) else ""
+                raise PluginError(f"{where} returned {obj!r}{hint}, which is not a class; a {kind} plugin "
+                                  f"is a class derived from {expected}")
+            if not issubclass(obj, base):
+                raise PluginError(f"{where} returned class {obj.__module__}.{obj.__qualname__}, which does not "
+                                  f"derive from {expected}")
+            name = getattr(obj, "name", None)
+            if not isinstance(name, str) or not name:
+                raise PluginError(f"{where} returned class {obj.__module__}.{obj.__qualname__} without a name; "
+                                  f"give it a non-empty string class attribute `name` ({expected} requires one)")
+            out.append(obj)
+        return out
+
+    # -- look-ups -------------------------------------------------------------------------------
     def get(self, kind: str, name: str) -> type:
-        """Class registered under ``name``; raises :class:`PluginNotFound` with the closest name."""
+        """Class registered under ``name`` (or under one of its ``aliases``, with a FutureWarning).
+
+        Raises:
+            PluginNotFound: no class of that kind has that name or alias; the message names the
+                closest name.
+        """
+        return self._lookup(kind, name, stacklevel=3)
+
+    def _lookup(self, kind: str, name: str, stacklevel: int) -> type:
         table = self.tables[kind]
-        if name not in table:
-            raise PluginNotFound(kind, name, table)
-        return table[name]
+        if name in table:
+            return table[name]
+        new = self.aliases.get(kind, {}).get(name)
+        if new is not None:
+            warnings.warn(f"plugin name '{name}' is deprecated; use '{new}'", FutureWarning, stacklevel=stacklevel)
+            return table[new]
+        raise PluginNotFound(kind, name, table)
 
     def simulator(self, name: str) -> type:
-        return self.get("simulator", name)
+        """:meth:`get` of kind ``simulator``."""
+        return self._lookup("simulator", name, stacklevel=3)
 
     def effect(self, name: str) -> type:
-        return self.get("effect", name)
+        """:meth:`get` of kind ``effect``."""
+        return self._lookup("effect", name, stacklevel=3)
 
     def observer(self, name: str) -> type:
-        return self.get("observer", name)
+        """:meth:`get` of kind ``observer``."""
+        return self._lookup("observer", name, stacklevel=3)
 
     def estimator(self, name: str) -> type:
-        return self.get("estimator", name)
+        """:meth:`get` of kind ``estimator``."""
+        return self._lookup("estimator", name, stacklevel=3)
 
     def executor(self, name: str) -> type:
-        return self.get("executor", name)
+        """:meth:`get` of kind ``executor``."""
+        return self._lookup("executor", name, stacklevel=3)
 
     def extractor(self, name: str) -> type:
-        return self.get("extractor", name)
+        """:meth:`get` of kind ``extractor``."""
+        return self._lookup("extractor", name, stacklevel=3)
 
     def names(self, kind: str) -> list[str]:
+        """Sorted names of one kind (aliases not included)."""
         return sorted(self.tables[kind])
 
     def describe(self) -> dict[str, list[dict[str, Any]]]:
-        """JSON-able listing used by ``softsbi plugins --json``."""
+        """JSON-able listing used by ``softsbi plugins --json`` (``aliases`` for classes that have them)."""
         out: dict[str, list[dict[str, Any]]] = {}
         for kind, table in self.tables.items():
+            old_names: dict[str, list[str]] = {}
+            for alias, name in self.aliases.get(kind, {}).items():
+                old_names.setdefault(name, []).append(alias)
             rows = []
             for name, cls in sorted(table.items()):
                 row = {"name": name, "class": f"{cls.__module__}.{cls.__qualname__}",
@@ -120,16 +263,39 @@ class Registry:
                     if hasattr(cls, attr) and not callable(getattr(cls, attr)):
                         v = getattr(cls, attr)
                         row[attr] = list(v) if isinstance(v, tuple) else v
+                if name in old_names:
+                    row["aliases"] = sorted(old_names[name])
                 rows.append(row)
             out[kind + "s"] = rows
         return out
 
 
-def _entry_point_dists(pm: pluggy.PluginManager) -> dict[Any, str]:
-    return {plugin: _DIST[id(plugin)] for plugin in pm.get_plugins() if id(plugin) in _DIST}
+def _aliases_of(cls: type, who: str, hook: str) -> list[str]:
+    """The class's ``aliases`` (its own name dropped); PluginError if not a tuple of non-empty strings."""
+    raw = getattr(cls, "aliases", ())
+    if raw is None:
+        return []
+    if isinstance(raw, (str, bytes)) or not isinstance(raw, (tuple, list, frozenset, set)) or \
+            not all(isinstance(a, str) and a for a in raw):
+        raise PluginError(f"{who}: hook {hook} returned class {cls.__module__}.{cls.__qualname__} whose `aliases` "
+                          f"is {raw!r}; it must be a tuple of non-empty strings, e.g. aliases = ('old-name',)")
+    out: list[str] = []
+    for a in raw:
+        if a != cls.name and a not in out:
+            out.append(a)
+    return out
+
+
+def _as_alias(cls: type, is_alias: bool) -> str:
+    return f", an alias of '{cls.name}'" if is_alias else ""
 
 
 @functools.lru_cache(maxsize=1)
 def registry() -> Registry:
-    """The process-wide registry of entry-point plugins (cached)."""
+    """The process-wide registry of entry-point plugins (cached once it builds).
+
+    Raises:
+        PluginError: an installed plugin is malformed (see :class:`Registry`); nothing is cached, so
+            each call reports it again.
+    """
     return Registry(get_plugin_manager(autoload=True))

@@ -1,0 +1,199 @@
+"""Code shared by the simulator backends (``mujoco-flex``, ``pybullet-massspring``).
+
+* the cloth grid layout both engines use (:func:`grid_faces`, :func:`grid_corners`), so that
+  ``rollout.info["corners"]`` and vertex indices agree across engines;
+* the visual-only robot drawn by both renderers (:func:`robot_base`, :func:`visual_robot`) and
+  the colour helpers (:data:`PROP_COLOUR`, :func:`rgba`);
+* the size/density/placement parameters every engine shares (:func:`size_params`);
+* the scenario/effect checks with the backend's name in the message (:func:`check_scenario`,
+  :func:`check_effects`);
+* :class:`FrameRenderer`, the base of each engine's per-frame renderer used by the template
+  :meth:`softsbi.core.interfaces.Simulator.simulate_images`.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from softsbi.core.errors import ParameterError
+from softsbi.core.types import Param, Scenario
+from softsbi.scenarios.builtin import placement_params
+
+
+# -- the cloth grid (x-major, vertex i * n + j) -----------------------------------------------
+def grid_faces(n: int) -> np.ndarray:
+    """Triangles ``(2 (n-1)^2, 3)`` int64 of an ``n x n`` x-major vertex grid (index ``i * n + j``)."""
+    f = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            f.append((a, b, c))
+            f.append((a, c, d))
+    return np.asarray(f, dtype=np.int64).reshape(-1, 3)
+
+
+def grid_corners(n: int) -> list[int]:
+    """Vertex indices of the 4 corners of an ``n x n`` x-major grid, in the order grid ``(0, 0)``,
+    ``(0, n-1)``, ``(n-1, n-1)``, ``(n-1, 0)`` (index ``i * n + j``); index 0 is the grasped corner.
+    Both backends use this layout, so ``rollout.info["corners"]`` agrees across them."""
+    return [0, n - 1, n * n - 1, (n - 1) * n]
+
+
+def size_params(scenario: Scenario | None, rope: bool) -> list[Param]:
+    """The size, density and placement parameters, the same in every engine (units, bounds).
+
+    Rope: ``scale`` (length) [m] 0.30-0.50, ``mass`` (linear density) [kg/m] 0.01-0.05. Cloth:
+    ``scale`` (side) [m] 0.20-0.34, ``mass`` (areal density) [kg/m^2] 0.1-0.35, and ``yaw`` [deg]
+    when ``scenario.object`` has ``"yaw_bounds"`` (:func:`~softsbi.scenarios.builtin.placement_params`).
+
+    Raises:
+        DataError: malformed ``yaw_bounds``.
+    """
+    if rope:
+        return [Param("scale", 0.30, 0.50, "m", description="rope length"),
+                Param("mass", 0.01, 0.05, "kg/m", description="linear density of the rope")]
+    return [Param("scale", 0.20, 0.34, "m", description="cloth side length (square)"),
+            Param("mass", 0.1, 0.35, "kg/m^2", description="areal density (fabrics: 0.11-0.32)"),
+            *placement_params(scenario)]
+
+
+# -- checks ------------------------------------------------------------------------------------
+def check_scenario(sim: Any, scenario: Scenario) -> None:
+    """Refuse a scenario not in ``sim.scenarios``.
+
+    Raises:
+        ValueError: names the backend and its valid scenarios.
+    """
+    if scenario.name not in sim.scenarios:
+        raise ValueError(f"{sim.name} cannot run scenario '{scenario.name}'; valid scenarios: "
+                         f"{', '.join(sim.scenarios)}")
+
+
+def check_effects(sim: Any, effects: Sequence[str]) -> None:
+    """Refuse effects not in ``sim.effects``.
+
+    Raises:
+        ParameterError: names the backend, the unsupported effects and the supported ones.
+    """
+    bad = [e for e in effects if e not in sim.effects]
+    if bad:
+        raise ParameterError(f"{sim.name} does not support effect(s) {bad}; supported effects: "
+                             f"{', '.join(sim.effects) or '(none yet)'}")
+
+
+# -- the visual-only robot (shared by both backends' renderers) -------------------------------
+#: half sizes (m) of the black gripper block: 5 cm towards the robot base, 7 cm across, 4 cm high
+GRIPPER_HALF = (0.025, 0.035, 0.02)
+#: radius (m) and length (m, between the cap centres) of the white arm capsule
+ARM_RADIUS = 0.03
+ARM_LENGTH = 0.55
+#: height (m) of the arm's shoulder point above the table for the synthetic scenarios
+SHOULDER_HEIGHT = 0.5
+#: colour of scene geoms other than the table, cloth and robot (the wind scenario's spool), RGB 0-255
+PROP_COLOUR = (120, 128, 150)
+
+
+def rgba(c: Sequence[int]) -> list[float]:
+    """RGB 0-255 -> ``[r, g, b, 1.0]`` floats in 0-1."""
+    return [c[0] / 255.0, c[1] / 255.0, c[2] / 255.0, 1.0]
+
+
+def robot_base(scenario: Scenario) -> np.ndarray:
+    """World point ``(3,)`` m the visual arm reaches towards (the robot's shoulder).
+
+    ``scenario.options["robot_base"]`` when given; ``lift``: the real robot base (robot-frame
+    origin, shoulder 0.33 m up) mapped with the recording's real->lift transform; ``wipe``: 0.45 m
+    beyond the stroke's far end along the drag direction +x (the cloth trails away from the robot,
+    as in the real wiping images); ``fling``/``wind``/others: behind the workspace along +y.
+    """
+    if "robot_base" in scenario.options:
+        return np.asarray(scenario.options["robot_base"], dtype=float).reshape(3)
+    g = scenario.gripper
+    tz = float(scenario.table_z)
+    if scenario.name == "lift":
+        from softsbi.scenarios.builtin import DEFAULT_TRANSFORM, real_to_lift_frame
+        cfg = scenario.options.get("transform", DEFAULT_TRANSFORM)
+        return real_to_lift_frame(np.array([0.0, 0.0, 0.33]), cfg)
+    if scenario.name == "wipe":
+        return np.array([g[:, 0].max() + 0.45, g[:, 1].mean(), tz + SHOULDER_HEIGHT])
+    return np.array([g[:, 0].mean(), g[:, 1].max() + 0.55, tz + SHOULDER_HEIGHT])
+
+
+def _frame_from_x(x: np.ndarray) -> np.ndarray:
+    """Rotation ``(3, 3)`` (columns = local axes in world) whose x axis is horizontal ``x``, z up."""
+    x = np.array([x[0], x[1], 0.0])
+    nx = np.linalg.norm(x)
+    x = x / nx if nx > 1e-9 else np.array([1.0, 0.0, 0.0])
+    z = np.array([0.0, 0.0, 1.0])
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _frame_from_z(z: np.ndarray) -> np.ndarray:
+    """Rotation ``(3, 3)`` (columns = local axes in world) whose z axis is the unit vector ``z``."""
+    z = np.asarray(z, dtype=float) / np.linalg.norm(z)
+    a = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(a, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def visual_robot(grip: np.ndarray, base: np.ndarray) -> list[dict[str, Any]]:
+    """The visual-only robot at grasp point ``grip (3,)`` m, arm reaching towards ``base (3,)`` m.
+
+    Returns two parts, each ``{"part": "gripper"|"arm", "shape": "box"|"capsule", "pos": (3,) m
+    (centre), "rot": (3, 3) local->world, "size": box half sizes (3,) | capsule (radius,
+    half-length)}``: a :data:`GRIPPER_HALF` block standing on the grasp point (its bottom at the
+    grasp height) and an :data:`ARM_RADIUS` capsule of length :data:`ARM_LENGTH` rising from the
+    block's top edge on the base side towards ``base`` (from above it occludes what lies under it,
+    like the arm in the real wiping images).
+    """
+    grip = np.asarray(grip, dtype=float)
+    base = np.asarray(base, dtype=float)
+    hx, hy, hz = GRIPPER_HALF
+    rg = _frame_from_x(base - grip)
+    parts = [{"part": "gripper", "shape": "box", "pos": grip + np.array([0.0, 0.0, hz]), "rot": rg,
+              "size": np.array([hx, hy, hz])}]
+    p0 = grip + rg[:, 0] * (hx + 0.5 * ARM_RADIUS) + np.array([0.0, 0.0, 2 * hz + ARM_RADIUS])
+    axis = base - p0
+    if np.linalg.norm(axis) < 1e-6:
+        axis = np.array([0.0, 0.0, 1.0])
+    axis = axis / np.linalg.norm(axis)
+    parts.append({"part": "arm", "shape": "capsule", "pos": p0 + axis * ARM_LENGTH / 2,
+                  "rot": _frame_from_z(axis), "size": np.array([ARM_RADIUS, ARM_LENGTH / 2])})
+    return parts
+
+
+# -- the per-frame renderer of Simulator.simulate_images --------------------------------------
+class FrameRenderer:
+    """Base of an engine's frame renderer (the protocol of
+    :meth:`softsbi.core.interfaces.Simulator.simulate_images`).
+
+    Holds the outputs, filled frame by frame by the engine's ``__call__``:
+    ``rgb (T, H, W, 3)`` uint8, ``depth (T, H, W)`` float32 m along the optical axis,
+    ``segmentation (T, H, W)`` uint8 (``SEG_*``), ``seconds`` (s spent rendering) and
+    ``setup_seconds`` (s of it spent once, on the first frame); ``T = scenario.n_frames``,
+    ``H, W = camera.height, camera.width``. Also ``base``: the visual robot's shoulder
+    (:func:`robot_base`).
+    """
+
+    def __init__(self, scenario: Scenario, camera: Any, style: Any):
+        self.scenario, self.camera, self.style = scenario, camera, style
+        self.base = robot_base(scenario)
+        T, H, W = scenario.n_frames, camera.height, camera.width
+        self.rgb = np.zeros((T, H, W, 3), np.uint8)
+        self.depth = np.zeros((T, H, W), np.float32)
+        self.segmentation = np.zeros((T, H, W), np.uint8)
+        self.seconds = 0.0
+        self.setup_seconds = 0.0
+
+    def edit(self, model: Any) -> None:
+        """Add render-only elements to the engine's model description before it is built
+        (default: nothing)."""
+
+    def __call__(self, k: int, state: Any) -> None:
+        """Render recorded frame ``k`` from the engine's ``state`` into the output arrays."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release what rendering holds (GL contexts); safe to call twice (default: nothing)."""

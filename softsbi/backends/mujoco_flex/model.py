@@ -1,0 +1,233 @@
+"""``mujoco-flex`` model: the MuJoCo scene as a plain dict (:func:`build_spec`, :func:`build_rope_spec`)
+and its MJCF text (:func:`spec_to_xml`). No MuJoCo import here; the simulator compiles the XML.
+
+Cloth (lift, wipe, fling; ~10 ms to compile):
+
+* ``<flexcomp type="grid" dim="2">`` of ``grid x grid`` vertices, side ``scale`` m, total
+  mass ``mass * scale^2`` kg, with ``<elasticity elastic2d="both">`` (membrane + bending; MuJoCo
+  docs, XML reference *flexcomp/elasticity*). MuJoCo 4.0 removed ``<composite>``; flex
+  elasticity rejects the implicit integrators, hence ``integrator="discrete"`` by default.
+* grasp: a mocap body ``grip`` and ``<equality><connect body1="cloth_<corner>" body2="grip">``
+  (mocap attachments to an elastic flex are rejected by MuJoCo 4.0).
+* table: a plane at ``scenario.table_z``; the cloth lies flat on it at t = 0 with the grasped
+  corner at ``object["corner"]`` and its diagonal along ``object["direction"]`` (rotated by
+  ``theta["yaw"]`` when sampled), ``radius`` above the table.
+
+Rope (wind): a 1-D ``flexcomp`` of ``nodes`` vertices with inextensible edges, and the spool as a
+fixed cylinder geom (:func:`build_rope_spec`).
+
+Physical parameters -> MuJoCo (plate theory, Kirchhoff-Love; ``nu`` = ``poisson``, fixed)::
+
+    stretch  k = E t                      [N/m]   membrane stiffness
+    bend     D = E t^3 / (12 (1 - nu^2))  [N m]   bending rigidity
+    =>  thickness t = sqrt(12 (1 - nu^2) D / k),   young E = k / t
+
+``friction`` is the sliding friction coefficient of the cloth-table contact (both the table geom
+and the flex contact get it; MuJoCo combines by maximum). ``mass`` is the areal density in
+kg/m^2 (the ten fabrics measured by Wang et al. 2011, shipped in ``shared/data/fabric_materials``,
+range 0.113-0.324 kg/m^2). ``scale`` is the cloth side in metres.
+
+Extending (effects): :func:`build_spec` returns a plain nested dict; an effect edits it before
+:func:`spec_to_xml`, e.g. ``spec["option"].update(density=1.2, viscosity=1.8e-5, wind="1 0 0")``
+or ``spec["flexcomp"]["inertiabox"] = h``; rendering adds ``spec["render"]`` (camera, light,
+``<visual>`` settings; no physics effect).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from softsbi.backends.common import size_params
+from softsbi.core.errors import ParameterError
+from softsbi.core.types import Param, ParamSpace, Scenario
+from softsbi.scenarios.builtin import placed_direction
+
+#: default areal density (kg/m^2) used when ``mass`` is not sampled: camel-ponte-roma, DiffCloud's start
+DEFAULT_AREAL_DENSITY = 0.284
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return " ".join(_fmt(x) for x in (v.ravel().tolist() if isinstance(v, np.ndarray) else v))
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    return str(v)
+
+
+def plate_mapping(bend: float, stretch: float, poisson: float) -> tuple[float, float]:
+    """Map bending rigidity ``D`` (N m) and stretch stiffness ``k`` (N/m) to MuJoCo ``(young, thickness)``.
+
+    ``t = sqrt(12 (1 - nu^2) D / k)`` (m), ``E = k / t`` (Pa), so that ``E t = k`` and
+    ``E t^3 / (12 (1 - nu^2)) = D``.
+
+    Raises:
+        ParameterError: ``bend`` or ``stretch`` not > 0.
+    """
+    if bend <= 0 or stretch <= 0:
+        raise ParameterError(f"bend and stretch must be > 0 (got {bend}, {stretch})")
+    t = math.sqrt(12.0 * (1.0 - poisson ** 2) * bend / stretch)
+    return stretch / t, t
+
+
+
+def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, timestep: float, solver: str,
+               integrator: str, poisson: float, radius: float, damping: float, iterations: int,
+               overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """The cloth model as a nested dict (``option``, ``flexcomp``, ``elasticity``, ``contact``, ``table``,
+    ``grip``, ``corner_body``, ``connect``); units SI (m, kg, s, Pa). ``theta`` needs ``bend`` [N m],
+    ``stretch`` [N/m], ``friction``, ``scale`` [m], optionally ``mass`` [kg/m^2] (default
+    :data:`DEFAULT_AREAL_DENSITY`) and ``yaw`` [deg]; ``grid`` vertices per side, ``timestep`` s,
+    ``radius`` m. ``overrides`` replaces derived MuJoCo values (``young``, ``thickness``,
+    ``timestep``, ``damping``, any other key goes to ``option``) bypassing the bounds (testing only).
+
+    Raises:
+        ParameterError: ``bend`` or ``stretch`` not > 0. KeyError: a required ``theta`` key is missing
+            (the simulator checks ``theta`` first).
+    """
+    ov = dict(overrides or {})
+    timestep = float(ov.pop("timestep", timestep))
+    obj = scenario.object
+    L = float(theta["scale"])
+    rho = float(theta.get("mass", DEFAULT_AREAL_DENSITY))
+    young, thick = plate_mapping(float(theta["bend"]), float(theta["stretch"]), poisson)
+    young = float(ov.pop("young", young))
+    thick = float(ov.pop("thickness", thick))
+    d = placed_direction(scenario, theta)
+    corner = np.asarray(obj.get("corner", scenario.gripper[0, :2]), dtype=float)
+    # vertex 0 of the grid sits at local (-L/2, -L/2); the local diagonal (1, 1)/sqrt2 must map to d
+    phi = math.degrees(math.atan2(d[1], d[0])) - 45.0
+    centre = corner + d * L / math.sqrt(2.0)
+    z0 = float(scenario.table_z) + radius
+    h = L / (grid - 1)
+    fric = float(theta["friction"])
+    spec = {
+        "option": {"timestep": timestep, "solver": solver, "integrator": integrator,
+                   "iterations": iterations, "gravity": [0.0, 0.0, -9.81]},
+        "table": {"name": "table", "type": "plane", "size": [2.0, 2.0, 0.01],
+                  "pos": [float(centre[0]), float(centre[1]), float(scenario.table_z)],
+                  "friction": [fric, 0.005, 0.0001], "condim": 3},
+        "grip": {"name": "grip", "mocap": "true", "pos": [float(corner[0]), float(corner[1]), z0]},
+        "flexcomp": {"name": "cloth", "type": "grid", "dim": 2, "count": [grid, grid, 1],
+                     "spacing": [h, h, h], "pos": [float(centre[0]), float(centre[1]), z0],
+                     "euler": [0.0, 0.0, phi], "radius": radius, "mass": rho * L * L},
+        "contact": {"condim": 3, "friction": [fric, 0.005, 0.0001], "selfcollide": "none",
+                    "solref": [0.004, 1.0]},
+        "edge": {"equality": "false"},
+        "elasticity": {"young": young, "poisson": poisson, "thickness": thick,
+                       "damping": float(ov.pop("damping", damping)), "elastic2d": "both"},
+        "corner_body": "cloth_0",
+        # stiff grasp: solref time constant at twice the step (MuJoCo's minimum for stability)
+        "connect": {"body1": "cloth_0", "body2": "grip", "anchor": [0.0, 0.0, 0.0],
+                    "solref": [2.0 * float(timestep), 0.4], "solimp": [0.99, 0.999, 0.001, 0.5, 2.0]},
+    }
+    for k, v in ov.items():  # remaining overrides go to option
+        spec["option"][k] = v
+    return spec
+
+
+def rope_param_space() -> ParamSpace:
+    """Parameters of the rope (wind) scenario in MuJoCo units: ``bend`` = ``young`` of the 1-D flex
+    elasticity [Pa] (log 1e5-3e7; the rope is inextensible through ``<edge equality="true"/>``, so
+    there is no ``stretch``), ``friction`` [1] 0.1-1.0, ``scale`` = rope length [m] 0.3-0.5,
+    ``mass`` = linear density [kg/m] 0.01-0.05."""
+    return ParamSpace([
+        Param("bend", 1e5, 3e7, "Pa", log=True,
+              description="MuJoCo young of the 1-D flex (rope bending; edges are inextensible)"),
+        Param("friction", 0.1, 1.0, "1", description="rope-table and rope-spool friction coefficient"),
+        *size_params(None, rope=True),
+    ])
+
+
+def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: int, timestep: float, solver: str,
+                    integrator: str, poisson: float, damping: float, iterations: int,
+                    overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """Model dict of the rope (``wind``) scenario, same keys as :func:`build_spec` plus ``geoms``
+    (the spool). The rope is a 1-D ``flexcomp`` grid of ``nodes`` vertices with
+    ``<edge equality="true"/>`` (MuJoCo 4.0: a 1-D flex explodes without it, shared/MEASURED.md) and
+    ``<elasticity young=bend>``; vertex 0 (body ``rope_0``) is grasped at ``object["start"]`` and the
+    rope lies along ``object["direction"]``. The spool is a fixed vertical cylinder geom.
+    ``theta``: ``bend`` [Pa], ``friction``, ``scale`` (length) [m], ``mass`` [kg/m].
+
+    Raises:
+        KeyError: a required ``theta`` key is missing (the simulator checks ``theta`` first).
+    """
+    ov = dict(overrides or {})
+    timestep = float(ov.pop("timestep", timestep))
+    obj = scenario.object
+    L = float(theta["scale"])
+    r = float(obj.get("radius", 0.004))
+    e = np.asarray(obj.get("direction", (0.0, -1.0)), dtype=float)
+    e = e / np.linalg.norm(e)
+    start = np.asarray(obj.get("start", scenario.gripper[0, :2]), dtype=float)
+    centre = start + e * L / 2.0
+    z0 = float(scenario.table_z) + r
+    h = L / (nodes - 1)
+    fric = float(theta["friction"])
+    spec: dict[str, Any] = {
+        "option": {"timestep": timestep, "solver": solver, "integrator": integrator,
+                   "iterations": iterations, "gravity": [0.0, 0.0, -9.81]},
+        "table": {"name": "table", "type": "plane", "size": [2.0, 2.0, 0.01],
+                  "pos": [0.0, 0.0, float(scenario.table_z)], "friction": [fric, 0.005, 0.0001], "condim": 3},
+        "geoms": [],
+        "grip": {"name": "grip", "mocap": "true", "pos": [float(start[0]), float(start[1]), z0]},
+        "flexcomp": {"name": "rope", "type": "grid", "dim": 1, "count": [nodes, 1, 1], "spacing": [h, h, h],
+                     "pos": [float(centre[0]), float(centre[1]), z0],
+                     "euler": [0.0, 0.0, math.degrees(math.atan2(e[1], e[0]))], "radius": r,
+                     "mass": float(theta["mass"]) * L},
+        "contact": {"condim": 3, "friction": [fric, 0.005, 0.0001], "selfcollide": "none", "solref": [0.004, 1.0]},
+        "edge": {"equality": "true"},
+        "elasticity": {"young": float(ov.pop("young", theta["bend"])), "poisson": poisson,
+                       "thickness": float(ov.pop("thickness", 2.0 * r)), "damping": float(ov.pop("damping", damping))},
+        "corner_body": "rope_0",
+        "connect": {"body1": "rope_0", "body2": "grip", "anchor": [0.0, 0.0, 0.0],
+                    "solref": [2.0 * float(timestep), 0.4], "solimp": [0.99, 0.999, 0.001, 0.5, 2.0]},
+    }
+    sp = obj.get("spool")
+    if sp:
+        spec["geoms"].append({"name": "spool", "type": "cylinder", "size": [float(sp["radius"]), float(sp["height"]) / 2],
+                              "pos": [float(sp["centre"][0]), float(sp["centre"][1]),
+                                      float(scenario.table_z) + float(sp["height"]) / 2],
+                              "friction": [fric, 0.005, 0.0001], "condim": 3})
+    for k, v in ov.items():
+        spec["option"][k] = v
+    return spec
+
+
+def spec_to_xml(spec: Mapping[str, Any]) -> str:
+    """Serialise the dict of :func:`build_spec` / :func:`build_rope_spec` (plus ``spec["render"]``, if a
+    renderer added one) to an MJCF string; lists become space-separated values, bools true/false.
+
+    Raises:
+        KeyError: a required section (``option``, ``table``, ``grip``, ``flexcomp``, ...) is missing.
+    """
+    def attrs(d: Mapping[str, Any]) -> str:
+        return " ".join(f'{k}="{_fmt(v)}"' for k, v in d.items())
+    fc = spec["flexcomp"]
+    # rendering only (simulate_images): <visual> settings, a camera and a light; no physics effect
+    rnd = spec.get("render") or {}
+    visual = "".join(f"<{k} {attrs(v)}/>" for k, v in rnd.get("visual", {}).items())
+    visual = f"\n  <visual>{visual}</visual>" if visual else ""
+    extras = "".join(f"<{k} {attrs(v)}/>" for k, v in rnd.get("bodies", []))
+    return f"""<mujoco model="softsbi_lift">
+  <compiler autolimits="true"/>
+  <option {attrs(spec["option"])}/>{visual}
+  <worldbody>{extras}
+    <geom {attrs(spec["table"])}/>
+    {"".join(f"<geom {attrs(g)}/>" for g in spec.get("geoms", []))}
+    <body {attrs(spec["grip"])}/>
+    <flexcomp {attrs(fc)}>
+      <contact {attrs(spec["contact"])}/>
+      <edge {attrs(spec["edge"])}/>
+      <elasticity {attrs(spec["elasticity"])}/>
+    </flexcomp>
+  </worldbody>
+  <equality>
+    <connect {attrs(spec["connect"])}/>
+  </equality>
+</mujoco>
+"""
+

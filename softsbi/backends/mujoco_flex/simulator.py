@@ -1,0 +1,254 @@
+"""``mujoco-flex``: the :class:`MujocoFlex` simulator and its one stepping loop.
+
+One XML per rollout (:mod:`.model`), compiled with MuJoCo 4.0. The grasp is a mocap body that
+follows ``scenario.gripper`` interpolated linearly in time between frames, offset by a constant
+so that it starts exactly at the grasped vertex (the vertex lies ``radius`` above the table).
+
+Divergence: MuJoCo resets the state silently when accelerations blow up; we check
+``d.warning[mjWARN_BADQACC]``, NaN/inf, vertices outside a plausible box or far below the table,
+and an over-stretched grasped edge, and return ``STATUS_DIVERGED`` / ``STATUS_IMPLAUSIBLE`` with
+a reason instead of raising.
+
+Rendering: :meth:`~softsbi.core.interfaces.Simulator.simulate_images` (the base class template)
+runs :meth:`MujocoFlex._rollout` with :class:`~.render.MjFrameRenderer`. Simulation loads no
+OpenGL (:mod:`.gl`).
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from softsbi.backends.common import check_effects, check_scenario, grid_corners, grid_faces, size_params
+from softsbi.backends.mujoco_flex.gl import import_mujoco
+from softsbi.backends.mujoco_flex.model import build_rope_spec, build_spec, rope_param_space, spec_to_xml
+from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
+from softsbi.core.interfaces import Simulator
+from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
+
+
+class MujocoFlex(Simulator):
+    """Cloth lift in MuJoCo 4.0 flex (``mujoco-flex``).
+
+    Args:
+        grid: vertices per cloth side (N = grid^2 vertices). Default 9 (~0.2 s per 1 s lift).
+        timestep: MuJoCo step, s.
+        solver: MuJoCo constraint solver (``"CG"``; ``"Newton"`` is ~2x slower here).
+        integrator: ``"discrete"`` (flex elasticity rejects the implicit ones) or ``"Euler"``.
+        poisson: Poisson ratio of the plate mapping (fixed, not inferred).
+        radius: flex collision radius, m (the cloth lies this far above the table).
+        damping: flex elasticity damping (Rayleigh, s).
+        iterations: solver iterations.
+        overrides: raw MuJoCo values (``young``, ``thickness``, ``timestep``, ``damping`` or any
+            ``<option>`` attribute) replacing the derived ones, *bypassing the bounds*; for tests.
+
+    All options are plain values, so instances pickle and can be built inside worker processes.
+    """
+
+    name = "mujoco-flex"
+    scenarios = ("lift", "wipe", "wind", "fling")
+    effects: tuple[str, ...] = ("air-drag", "wind", "extra-damping", "grip-compliance")
+
+    def __init__(self, grid: int = 9, timestep: float = 0.004, solver: str = "CG", integrator: str = "discrete",
+                 poisson: float = 0.3, radius: float = 0.003, damping: float = 0.001, iterations: int = 50,
+                 overrides: Mapping[str, float] | None = None, rope_nodes: int = 24):
+        if int(grid) < 3:
+            raise ValueError(f"grid must be >= 3 vertices per side, got {grid}")
+        if not timestep > 0:
+            raise ValueError(f"timestep must be > 0, got {timestep}")
+        self.grid, self.timestep, self.solver, self.integrator = int(grid), float(timestep), solver, integrator
+        self.poisson, self.radius, self.damping, self.iterations = float(poisson), float(radius), float(damping), int(iterations)
+        self.overrides = dict(overrides or {})
+        if int(rope_nodes) < 3:
+            raise ValueError(f"rope_nodes must be >= 3, got {rope_nodes}")
+        self.rope_nodes = int(rope_nodes)
+
+    def __repr__(self) -> str:
+        return (f"MujocoFlex(grid={self.grid}, timestep={self.timestep}, solver={self.solver!r}, "
+                f"integrator={self.integrator!r})")
+
+    # -- parameters -------------------------------------------------------------------------
+    def param_space(self, scenario: Scenario) -> ParamSpace:
+        """Nominal parameters (SI units; the mapping to MuJoCo values is in :mod:`.model`).
+
+        Cloth (lift, wipe, fling): ``bend`` [N m] log, ``stretch`` [N/m] log, ``friction`` [1],
+        ``scale`` [m], ``mass`` [kg/m^2], and ``yaw`` [deg] when the scenario's placement is unknown
+        (``object["yaw_bounds"]``). Rope (wind): :func:`~.model.rope_param_space`. Bounds were swept
+        corner by corner for stability at the default options.
+
+        Raises:
+            ValueError: scenario not supported (names the valid ones).
+        """
+        check_scenario(self, scenario)
+        if scenario.object.get("kind") == "rope":
+            return rope_param_space()
+        return ParamSpace([
+            Param("bend", 1e-6, 1e-3, "N*m", log=True,
+                  description="bending rigidity D = E t^3 / (12 (1 - nu^2))"),
+            Param("stretch", 5.0, 1000.0, "N/m", log=True, description="membrane stretch stiffness k = E t"),
+            Param("friction", 0.05, 1.5, "1", description="cloth-table sliding friction coefficient"),
+            *size_params(scenario, rope=False),
+        ])
+
+    def _apply_effects(self, spec: dict[str, Any], theta: Mapping[str, float], effects: Sequence[str]) -> None:
+        """Apply effects (see :mod:`softsbi.effects.builtin`) by editing ``spec`` in place."""
+        if effects:
+            from softsbi.effects.builtin import apply_mujoco
+            apply_mujoco(spec, theta, effects, grid=self.grid)
+
+    def full_space(self, scenario: Scenario, effects: Sequence[str] = ()) -> ParamSpace:
+        """Nominal parameters plus those of ``effects``."""
+        from softsbi.effects.builtin import BUILTIN_EFFECTS
+        space = self.param_space(scenario)
+        by_name = {e.name: e for e in BUILTIN_EFFECTS}
+        for e in effects:
+            space = space + by_name[e]().param_space()
+        return space
+
+    def build_xml(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> str:
+        """MJCF string of the lift at ``theta`` (no validation; use :meth:`simulate`)."""
+        return spec_to_xml(self.build_spec(scenario, theta, effects))
+
+    def build_spec(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> dict[str, Any]:
+        """The model dict of :func:`~.model.build_spec` (cloth) or :func:`~.model.build_rope_spec`
+        (wind) with this instance's options and effects applied (no validation of ``theta``)."""
+        if scenario.object.get("kind") == "rope":
+            spec = build_rope_spec(scenario, theta, nodes=self.rope_nodes, timestep=self.timestep,
+                                   solver=self.solver, integrator=self.integrator, poisson=self.poisson,
+                                   damping=self.damping, iterations=self.iterations, overrides=self.overrides)
+        else:
+            spec = build_spec(scenario, theta, grid=self.grid, timestep=self.timestep, solver=self.solver,
+                              integrator=self.integrator, poisson=self.poisson, radius=self.radius,
+                              damping=self.damping, iterations=self.iterations, overrides=self.overrides)
+        self._apply_effects(spec, theta, effects)
+        return spec
+
+    # -- simulation -------------------------------------------------------------------------
+    def simulate(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 seed: int = 0) -> Rollout:
+        """Roll ``scenario`` out; deterministic (``seed`` is unused).
+
+        Returns:
+            :class:`Rollout` with ``vertices (T, N, 3)`` m at ``scenario.times``: cloth
+            ``N = grid^2`` with ``faces`` the grid triangles ``(2 (grid-1)^2, 3)`` int64; rope
+            ``N = rope_nodes`` with ``faces (0, 3)``. ``gripper (T, 3)`` m is the actual grasp target
+            (mocap) at those times. ``info``: ``wall_s`` (s), ``steps``, ``timestep`` (s), ``young``
+            (Pa), ``thickness`` (m), and for cloth ``corners`` (4 vertex indices,
+            :func:`~softsbi.backends.common.grid_corners` order). Divergence is returned as
+            ``status != 0`` with a ``reason``, its vertices zeroed where they were not finite.
+
+        Raises:
+            ValueError: unknown scenario (names the valid ones).
+            ParameterError: unknown/missing/out-of-bounds parameter, unsupported effect.
+        """
+        return self._rollout(scenario, theta, effects)
+
+    def _frame_renderer(self, scenario: Scenario, camera: Any, style: Any) -> MjFrameRenderer:
+        """The MuJoCo frame renderer of :meth:`simulate_images` (OpenGL off-screen; the GL context
+        opens on the first frame, ``RenderingUnavailable`` when no back-end works)."""
+        return MjFrameRenderer(scenario, camera, style)
+
+    def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 seed: int = 0, frames: MjFrameRenderer | None = None) -> Rollout:
+        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images` (``seed`` unused).
+
+        With ``frames``: ``frames.edit(spec)`` may add render-only elements to the model dict
+        before compiling, and ``frames(k, MjState(m, d))`` is called after frame ``k`` is recorded
+        (``k = 0`` after ``mj_forward``), with the grasp target in ``d.mocap_pos[0]``; not called
+        after a failure.
+        """
+        mujoco = import_mujoco()
+
+        check_scenario(self, scenario)
+        check_effects(self, effects)
+        space = self.full_space(scenario, effects)
+        theta = space.check(theta)
+        t0 = time.perf_counter()
+        spec = self.build_spec(scenario, theta, effects)
+        if frames is not None:
+            frames.edit(spec)
+        m = mujoco.MjModel.from_xml_string(spec_to_xml(spec))
+        d = mujoco.MjData(m)
+        mujoco.mj_forward(m, d)
+        n = int(m.flex_vertnum[0])  # grid^2 (cloth) or rope_nodes (rope)
+        times = scenario.times
+        T = len(times)
+        # constant offset from the commanded path to the grasped vertex (the corner lies on the table)
+        grip0 = d.mocap_pos[0].copy()
+        offset = grip0 - scenario.gripper[0]
+        target = scenario.gripper + offset
+        verts = np.full((T, n, 3), np.nan)
+        grip = np.zeros((T, 3))
+        verts[0] = d.flexvert_xpos.reshape(-1, 3)[:n]
+        grip[0] = target[0]
+        if frames is not None:
+            frames(0, MjState(m, d))
+        dt = m.opt.timestep
+        status, reason = STATUS_OK, ""
+        steps = 0
+        # step counts are fixed in advance: after a divergence MuJoCo resets d.time to 0, so a
+        # loop on d.time would never end
+        frame_steps = np.maximum(np.round(times / dt).astype(int), 0)
+        warn = d.warning[mujoco.mjtWarning.mjWARN_BADQACC]
+        for k in range(1, T):
+            while steps < frame_steps[k]:
+                tn = (steps + 1) * dt
+                d.mocap_pos[0] = [np.interp(tn, times, target[:, c]) for c in range(3)]
+                mujoco.mj_step(m, d)
+                steps += 1
+                if warn.number > 0:
+                    break
+            if warn.number > 0:
+                status, reason = STATUS_DIVERGED, (f"MuJoCo reported bad accelerations (mjWARN_BADQACC) at "
+                                                   f"t={steps * dt:.3f} s and reset the state")
+                break
+            v = d.flexvert_xpos.reshape(-1, 3)[:n]
+            if not np.all(np.isfinite(v)):
+                status, reason = STATUS_DIVERGED, f"non-finite vertex positions at t={times[k]:.3f} s"
+                break
+            verts[k] = v
+            grip[k] = d.mocap_pos[0]
+            if frames is not None:
+                frames(k, MjState(m, d))
+        wall = time.perf_counter() - t0
+        if status == STATUS_OK:
+            status, reason = self._plausibility(scenario, theta, verts, grip)
+        if status != STATUS_OK:
+            verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
+        rope = scenario.object.get("kind") == "rope"
+        faces = np.zeros((0, 3), dtype=np.int64) if rope else grid_faces(self.grid)
+        info = {"wall_s": wall, "steps": steps, "backend": self.name, "grid": self.grid,
+                "timestep": dt, "young": spec["elasticity"]["young"],
+                "thickness": spec["elasticity"]["thickness"], "effects": list(effects)}
+        if not rope:
+            info["corners"] = grid_corners(self.grid)
+        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
+                       status=status, reason=reason, info=info)
+
+    def _plausibility(self, scenario: Scenario, theta: Mapping[str, float], verts: np.ndarray,
+                      grip: np.ndarray) -> tuple[int, str]:
+        L = float(theta["scale"])
+        tz = float(scenario.table_z)
+        zmin = float(verts[..., 2].min())
+        if zmin < tz - 0.02:
+            return STATUS_IMPLAUSIBLE, f"a vertex fell {100 * (tz - zmin):.1f} cm below the table"
+        reach = np.linalg.norm(verts - grip[:, None, :], axis=-1).max()
+        if reach > 2.0 * L * math.sqrt(2.0):
+            return STATUS_IMPLAUSIBLE, (f"a vertex is {reach:.2f} m from the grasp point, more than twice the "
+                                        f"cloth diagonal ({L * math.sqrt(2):.2f} m): torn or exploded")
+        if scenario.object.get("kind") == "rope":
+            h = L / (verts.shape[1] - 1)
+            edge = np.linalg.norm(np.diff(verts[-1], axis=0), axis=-1).max()
+            if edge > 3.0 * h:
+                return STATUS_IMPLAUSIBLE, f"a rope segment is stretched to {edge / h:.1f}x its rest length"
+            return STATUS_OK, ""
+        g = self.grid
+        first_row = verts[-1].reshape(g, g, 3)
+        edge = np.linalg.norm(np.diff(first_row, axis=0), axis=-1).max()
+        h = L / (g - 1)
+        if edge > 3.0 * h:
+            return STATUS_IMPLAUSIBLE, f"an edge is stretched to {edge / h:.1f}x its rest length"
+        return STATUS_OK, ""
+

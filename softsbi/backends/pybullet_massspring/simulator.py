@@ -1,0 +1,275 @@
+"""``pybullet-massspring``: the :class:`PybulletMassSpring` simulator and its one stepping loop.
+
+Each rollout builds a fresh deformable world (:func:`~.model.build_world`) on this instance's own
+DIRECT physics client and moves the grasp body with ``resetBasePositionAndOrientation`` along
+``scenario.gripper`` (linear interpolation in time, offset by a constant so it starts on the
+grasped node); nodes are read with ``p.getMeshData(..., flags=p.MESH_DATA_SIMULATION_MESH)``
+(simulation nodes in ``.obj`` order).
+
+Parameters (PyBullet's own units; the names are shared with mujoco-flex where the physics is):
+
+* ``stretch``: ``springElasticStiffness``, N/m per structural spring (the membrane stiffness of
+  the square lattice, roughly mesh independent);
+* ``bend``: ``springBendingStiffness``, N/m per bending spring (springs across two edges). Weakly
+  identifiable here: low vs high bound moves a light cloth by < 1 cm (benchmarks/identifiability.py);
+* ``friction``: ``frictionCoeff`` (Coulomb, cloth-table and cloth-spool);
+* ``scale``: cloth side / rope length, m;  ``mass``: areal (cloth, kg/m^2) or linear (rope, kg/m)
+  density.
+
+Stability (shared/MEASURED.md and the sweeps behind these bounds): each rollout takes
+``substeps = ceil(sqrt(k_max dt^2 / (1.5 m_node)))`` engine steps per ``timestep``
+(``k_max = max(stretch, bend)``, :func:`~.model.substeps`). Failures are *not* NaNs: the cloth
+crumples, tunnels through the table or explodes to ~1000 m; they are detected from the minimum
+height, the extent and the edge lengths and returned as ``STATUS_DIVERGED`` /
+``STATUS_IMPLAUSIBLE`` with a reason.
+
+Rendering: :meth:`~softsbi.core.interfaces.Simulator.simulate_images` (the base class template)
+runs :meth:`PybulletMassSpring._rollout` with :class:`~.render.PbFrameRenderer`.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from softsbi.backends.common import check_effects, check_scenario, grid_corners, grid_faces, size_params
+from softsbi.backends.pybullet_massspring.model import (CLOTH_SCENARIOS, ROPE_SCENARIOS, build_world, cloth_vertices,
+                                                        import_pybullet, ribbon_faces, ribbon_vertices, substeps)
+from softsbi.backends.pybullet_massspring.render import PbFrameRenderer, PbState
+from softsbi.core.interfaces import Simulator
+from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
+
+
+class PybulletMassSpring(Simulator):
+    """Cloth (lift, wipe, fling) and rope (wind) in PyBullet's deformable world, mass-spring model
+    (``pybullet-massspring``; the old name ``pybullet-fem`` still resolves, with a FutureWarning).
+
+    Args:
+        grid: cloth vertices per side (N = grid^2). Default 9.
+        rope_nodes: rope vertices (ribbon node pairs). Default 24.
+        timestep: control step, s (PyBullet's usual 1/240); engine substeps are added automatically.
+        damping: ``springDampingStiffness`` (fixed; stable 0.02-5 per shared/MEASURED.md).
+        margin: collision margin, m; the cloth starts this far above the table.
+        max_substeps: cap of the automatic substeps.
+        overrides: raw values bypassing the bounds, for tests: ``springElasticStiffness``,
+            ``springBendingStiffness``, ``springDampingStiffness``, ``substeps``, ``timestep``.
+
+    Each instance owns one PyBullet DIRECT client, created on first use (also inside worker
+    processes: the client is not pickled) and reset for every rollout.
+    """
+
+    name = "pybullet-massspring"
+    #: former plugin names (resolved by the registry with a FutureWarning)
+    aliases = ("pybullet-fem",)
+    scenarios = CLOTH_SCENARIOS + ROPE_SCENARIOS
+    effects: tuple[str, ...] = ()
+
+    def __init__(self, grid: int = 9, rope_nodes: int = 24, timestep: float = 1.0 / 240.0, damping: float = 0.1,
+                 margin: float = 0.004, max_substeps: int = 10, overrides: Mapping[str, float] | None = None):
+        if int(grid) < 3:
+            raise ValueError(f"grid must be >= 3 vertices per side, got {grid}")
+        if int(rope_nodes) < 3:
+            raise ValueError(f"rope_nodes must be >= 3, got {rope_nodes}")
+        if not timestep > 0:
+            raise ValueError(f"timestep must be > 0, got {timestep}")
+        if not damping > 0:
+            raise ValueError(f"damping must be > 0 (0 explodes), got {damping}")
+        self.grid, self.rope_nodes, self.timestep = int(grid), int(rope_nodes), float(timestep)
+        self.damping, self.margin, self.max_substeps = float(damping), float(margin), int(max_substeps)
+        self.overrides = dict(overrides or {})
+        self._cid: int | None = None
+
+    def __repr__(self) -> str:
+        return f"PybulletMassSpring(grid={self.grid}, rope_nodes={self.rope_nodes}, timestep={self.timestep:.5g})"
+
+    # -- pickling / client lifetime ------------------------------------------------------------
+    def __getstate__(self) -> dict[str, Any]:
+        st = dict(self.__dict__)
+        st["_cid"] = None
+        return st
+
+    def _client(self) -> int:
+        p = import_pybullet()
+        if self._cid is None or not p.isConnected(physicsClientId=self._cid):
+            self._cid = p.connect(p.DIRECT)
+        return self._cid
+
+    def close(self) -> None:
+        """Disconnect this instance's physics client (a later rollout reconnects)."""
+        if getattr(self, "_cid", None) is not None:
+            try:
+                p = import_pybullet()
+                if p.isConnected(physicsClientId=self._cid):
+                    p.disconnect(physicsClientId=self._cid)
+            except Exception:  # noqa: BLE001 - interpreter shutdown
+                pass
+            self._cid = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    # -- parameters ----------------------------------------------------------------------------
+    def param_space(self, scenario: Scenario) -> ParamSpace:
+        """Parameters in PyBullet units (module docstring). Cloth scenarios: ``bend`` [N/m] log
+        0.05-20, ``stretch`` [N/m] log 20-200, ``friction`` 0.05-1.5, ``scale`` [m] 0.20-0.34,
+        ``mass`` [kg/m^2] 0.1-0.35, and ``yaw`` [deg] when ``object["yaw_bounds"]`` is set (placement
+        unknown). Rope (wind): ``bend`` [N/m] log 0.05-20, ``stretch`` [N/m] log 80-600,
+        ``friction`` 0.1-1.0, ``scale`` (rope length) [m] 0.3-0.5, ``mass`` [kg/m] 0.01-0.05.
+
+        Raises:
+            ValueError: scenario not supported (names the valid ones).
+        """
+        check_scenario(self, scenario)
+        rope = scenario.name in ROPE_SCENARIOS
+        bend = ("PyBullet springBendingStiffness of the rope ribbon (per bending spring)" if rope else
+                "PyBullet springBendingStiffness (per bending spring; ~D / h^2 for rigidity D)")
+        stretch = ("PyBullet springElasticStiffness of the rope ribbon (per spring)" if rope else
+                   "PyBullet springElasticStiffness (per structural spring; ~membrane stiffness)")
+        return ParamSpace([
+            Param("bend", 0.05, 20.0, "N/m", log=True, description=bend),
+            Param("stretch", *((80.0, 600.0) if rope else (20.0, 200.0)), "N/m", log=True, description=stretch),
+            Param("friction", *((0.1, 1.0) if rope else (0.05, 1.5)), "1",
+                  description=f"PyBullet frictionCoeff, {'rope-table and rope-spool' if rope else 'cloth-table'}"),
+            *size_params(scenario, rope),
+        ])
+
+    # -- simulation ----------------------------------------------------------------------------
+    def simulate(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 seed: int = 0) -> Rollout:
+        """Roll ``scenario`` out; deterministic (``seed`` is unused: the engine has no randomness).
+
+        Returns:
+            :class:`Rollout` with ``vertices (T, N, 3)`` m at ``scenario.times``: cloth
+            ``N = grid^2`` with ``faces`` the grid triangles ``(2 (grid-1)^2, 3)``; rope
+            ``N = rope_nodes`` (ribbon midpoints, vertex 0 grasped) with ``faces (0, 3)``.
+            ``gripper (T, 3)``: the anchor body's position. ``info``: ``wall_s``, ``steps``,
+            ``substeps``, ``sim_s`` (time inside ``stepSimulation``), for cloth ``corners`` (4 vertex
+            indices, :func:`~softsbi.backends.common.grid_corners` order).
+
+        Raises:
+            ValueError: unknown scenario. ParameterError: bad/missing parameter, unsupported effect.
+        """
+        return self._rollout(scenario, theta, effects)
+
+    def _frame_renderer(self, scenario: Scenario, camera: Any, style: Any) -> PbFrameRenderer:
+        """The TinyRenderer frame renderer of :meth:`simulate_images` (CPU, no OpenGL)."""
+        return PbFrameRenderer(scenario, camera, style)
+
+    def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                 seed: int = 0, frames: PbFrameRenderer | None = None) -> Rollout:
+        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images` (``seed`` unused).
+
+        With ``frames``: ``frames(k, PbState(cid, bodies, grip_pos))`` is called after frame ``k``
+        is recorded (``k = 0`` before the first step) with the client id, the ``{"table", "soft",
+        "spool"?}`` body ids and the grasp target ``(3,)`` m; it is not called after a failure.
+        """
+        check_scenario(self, scenario)
+        check_effects(self, effects)
+        theta = self.param_space(scenario).check(theta)
+        p = import_pybullet()
+        t0 = time.perf_counter()
+        cid = self._client()
+        rope = scenario.name in ROPE_SCENARIOS
+        ov = self.overrides
+        dt = float(ov.get("timestep", self.timestep))
+        k_el = float(ov.get("springElasticStiffness", theta["stretch"]))
+        k_be = float(ov.get("springBendingStiffness", theta["bend"]))
+        k_da = float(ov.get("springDampingStiffness", self.damping))
+        L = float(theta["scale"])
+        table_z = float(scenario.table_z)
+        if rope:
+            radius = float(scenario.object.get("radius", 0.004))
+            n = self.rope_nodes
+            verts0 = ribbon_vertices(scenario, L, n, 2 * radius, table_z + max(self.margin, radius))
+            faces_sim = ribbon_faces(n)
+            total_mass = float(theta["mass"]) * L
+        else:
+            n = self.grid
+            verts0 = cloth_vertices(scenario, L, n, table_z + self.margin, theta)
+            faces_sim = grid_faces(n)
+            total_mass = float(theta["mass"]) * L * L
+        m_node = total_mass / len(verts0)
+        sub = int(ov.get("substeps", 0)) or substeps(max(k_el, k_be), dt, m_node, self.max_substeps)
+        h = dt / sub
+        bodies, grip_body, start = build_world(p, cid, scenario, verts0, faces_sim, rope=rope, total_mass=total_mass,
+                                               friction=float(theta["friction"]), k_el=k_el, k_be=k_be, k_da=k_da,
+                                               margin=self.margin, step=h)
+        sb = bodies["soft"]
+
+        def nodes() -> np.ndarray:
+            _, v = p.getMeshData(sb, -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=cid)
+            v = np.asarray(v, dtype=float)
+            return 0.5 * (v[0::2] + v[1::2]) if rope else v
+
+        times = scenario.times
+        T = len(times)
+        target = scenario.gripper + (start - scenario.gripper[0])
+        first = nodes()
+        N = len(first)
+        verts = np.zeros((T, N, 3))
+        grip = np.zeros((T, 3))
+        verts[0], grip[0] = first, target[0]
+        if frames is not None:
+            frames(0, PbState(cid, bodies, grip[0]))
+        frame_steps = np.maximum(np.round(times / dt).astype(int), 0)
+        steps = 0
+        sim_s = 0.0
+        status, reason = STATUS_OK, ""
+        ext_limit = 3.0 * L * (1.0 if rope else math.sqrt(2.0)) + float(np.ptp(target, axis=0).max())
+        for k in range(1, T):
+            while steps < frame_steps[k]:
+                tn = (steps + 1) * dt
+                pos = [float(np.interp(tn, times, target[:, c])) for c in range(3)]
+                p.resetBasePositionAndOrientation(grip_body, pos, [0, 0, 0, 1], physicsClientId=cid)
+                ts = time.perf_counter()
+                for _ in range(sub):
+                    p.stepSimulation(physicsClientId=cid)
+                sim_s += time.perf_counter() - ts
+                steps += 1
+            v = nodes()
+            grip[k] = target[k]
+            if not np.all(np.isfinite(v)):
+                status, reason = STATUS_DIVERGED, f"non-finite node positions at t={times[k]:.3f} s"
+                break
+            verts[k] = v
+            ext = float(np.ptp(v, axis=0).max())
+            if ext > ext_limit or np.abs(v - target[k]).max() > ext_limit:
+                status, reason = STATUS_DIVERGED, (f"exploded: extent {ext:.2f} m at t={times[k]:.3f} s "
+                                                   f"(limit {ext_limit:.2f} m)")
+                break
+            if frames is not None:
+                frames(k, PbState(cid, bodies, grip[k]))
+        wall = time.perf_counter() - t0
+        if status == STATUS_OK:
+            status, reason = self._plausibility(verts, table_z, L, rope, n)
+        if status != STATUS_OK:
+            verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
+        faces = np.zeros((0, 3), dtype=np.int64) if rope else grid_faces(n)
+        info = {"wall_s": wall, "sim_s": sim_s, "steps": steps, "substeps": sub, "backend": self.name,
+                "grid": n, "timestep": dt, "springElasticStiffness": k_el,
+                "springBendingStiffness": k_be, "springDampingStiffness": k_da, "effects": list(effects)}
+        if not rope:
+            info["corners"] = grid_corners(n)
+        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces, status=status, reason=reason,
+                       info=info)
+
+    @staticmethod
+    def _plausibility(verts: np.ndarray, table_z: float, L: float, rope: bool, n: int) -> tuple[int, str]:
+        zmin = float(verts[..., 2].min())
+        if zmin < table_z - 0.02:
+            return STATUS_IMPLAUSIBLE, f"tunnelled through the table: a node is {100 * (table_z - zmin):.1f} cm below it"
+        h = L / (n - 1)
+        if rope:
+            edge = np.linalg.norm(np.diff(verts, axis=1), axis=-1)
+        else:
+            g = verts.reshape(len(verts), n, n, 3)
+            edge = np.concatenate([np.linalg.norm(np.diff(g, axis=1), axis=-1).reshape(len(verts), -1),
+                                   np.linalg.norm(np.diff(g, axis=2), axis=-1).reshape(len(verts), -1)], axis=1)
+        if edge.max() > 3.0 * h:
+            return STATUS_IMPLAUSIBLE, f"torn: an edge is stretched to {edge.max() / h:.1f}x its rest length"
+        # crumpled: the mesh collapsed (mean edge far below rest length)
+        if edge[-1].mean() < 0.3 * h:
+            return STATUS_IMPLAUSIBLE, f"crumpled: mean edge {edge[-1].mean() / h:.2f}x its rest length"
+        return STATUS_OK, ""

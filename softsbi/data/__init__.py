@@ -1,0 +1,1 @@
+"""On-disk formats read and written by softsbi: recordings, DiffCloud folders, keypoint sets."""

@@ -1,0 +1,1 @@
+"""Keypoint extractors (image -> K keypoints): supervised heatmaps and the unsupervised Transporter."""

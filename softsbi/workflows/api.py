@@ -1,0 +1,90 @@
+"""The public Python API (re-exported as ``softsbi.fit``, ``softsbi.open_run``, ``softsbi.simulate``,
+``softsbi.load_recording``, ``softsbi.load_scenario``): the same workflows and defaults as the CLI.
+
+    import softsbi
+    rec = softsbi.load_recording("../shared/data/diffcloud_lift/lift_tan")
+    run = softsbi.fit(rec, out="runs/tan", rounds=4, sims_per_round=150)
+    post = softsbi.open_run("runs/tan").posterior          # physical units
+    theta = post.sample(100); post.log_prob(theta); post.mean; post.interval(0.9)
+    roll = softsbi.simulate("lift", dict(zip(post.names, theta[0])))
+"""
+from __future__ import annotations
+
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from softsbi.core.errors import ParameterError, SoftsbiError
+from softsbi.core.types import Recording, Rollout, Scenario
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import make_scenario
+from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
+from softsbi.workflows.runs import Run, open_run
+
+
+def load_scenario(name: str, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
+    """A scenario by name (``lift``, ``wipe``, ``wind``, ``fling``); ``lift`` from a recording
+    folder when given.
+
+    Raises:
+        SoftsbiError: an unknown name (the message lists the valid ones) or a malformed recording.
+    """
+    try:
+        return make_scenario(name, recording, **kwargs)
+    except ValueError as exc:
+        raise SoftsbiError(str(exc)) from None
+
+
+def fit(recording: Recording, out: str | Path, config: FitConfig | None = None,
+        callbacks: FitCallbacks | None = None, plots: bool = True, **settings: Any) -> FitResult:
+    """Fit the posterior over a simulator's physical parameters to ``recording`` (resumable).
+
+    Args:
+        recording: a :class:`~softsbi.core.types.Recording` (:func:`load_recording`, or a simulated
+            one from :func:`softsbi.workflows.measurement.simulate_recording`).
+        out: run directory (``run.zarr``, ``report.json``, figures); an existing run with the same
+            settings resumes.
+        config: settings; default :class:`FitConfig` (the CLI's defaults).
+        settings: :class:`FitConfig` fields overriding ``config``, e.g. ``backend="mujoco-flex"``,
+            ``estimator="rkhs"``, ``rounds=4``, ``effects=["wind"]``.
+
+    Returns:
+        :class:`~softsbi.workflows.fit.FitResult`; :func:`open_run` ``(out).posterior`` gives the
+        posterior in physical units.
+
+    Raises:
+        ParameterError: a setting that is not a :class:`FitConfig` field (names the closest one).
+        Everything :func:`~softsbi.workflows.fit.run_fit` raises.
+    """
+    names = [f.name for f in fields(FitConfig)]
+    bad = [k for k in settings if k not in names]
+    if bad:
+        from softsbi.core.errors import closest
+        raise ParameterError(f"unknown fit setting {bad[0]!r}.{closest(bad[0], names)} Settings: {', '.join(names)}")
+    cfg = replace(config or FitConfig(), **settings)
+    return run_fit(out, recording, cfg, callbacks=callbacks, make_plots=plots)
+
+
+def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None, backend: str = "mujoco-flex",
+             effects: Sequence[str] = (), seed: int = 0, **backend_options: Any) -> Rollout:
+    """One rollout of ``scenario`` at ``theta`` (physical units; unset parameters at their prior
+    midpoint) on a simulator plugin.
+
+    Returns:
+        :class:`~softsbi.core.types.Rollout` (``vertices (T, N, 3)`` m, ``gripper``, ``times``, status).
+
+    Raises:
+        PluginNotFound: unknown backend or effect. ParameterError: unknown or out-of-bounds parameter.
+    """
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    reg = registry()
+    sim = reg.simulator(backend)(**backend_options)
+    space = sim.param_space(sc)
+    for e in effects:
+        space = space + reg.effect(e)().param_space()
+    values = space.midpoint()
+    values.update(dict(theta or {}))
+    return sim.simulate(sc, space.check(values), effects=list(effects), seed=int(seed))
+
+
+__all__ = ["FitConfig", "FitResult", "Run", "fit", "load_scenario", "open_run", "simulate"]

@@ -1,0 +1,233 @@
+"""Posterior predictive check (Gelman et al., *Bayesian Data Analysis*, ch. 6).
+
+:func:`check_run` re-simulates a finished fit at its own posterior samples (the fit's evaluation
+samples and seeds, through :func:`~softsbi.workflows.jobs.simulate_job`) and compares them with
+the measurement: Chamfer error per frame, per region of the object and per phase of the motion,
+and a misspecification test (is the measurement's summary vector inside the distribution of
+posterior-predictive summaries?) with a simulation-based p-value.
+
+Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,
+horizontal extent), which both simulated surfaces and real partial clouds have.
+"""
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from scipy import stats
+from scipy.spatial import cKDTree
+
+from softsbi.core.errors import SoftsbiError
+from softsbi.core.types import STATUS_OK, Scenario
+from softsbi.perception.pointcloud import sample_surface
+from softsbi.report import plot_check
+from softsbi.workflows.jobs import run_jobs
+from softsbi.workflows.runs import load_run
+
+#: names of the per-frame summary statistics
+FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10", "z_q50", "z_q90",
+                 "x_q05", "x_q95", "y_q05", "y_q95")
+#: floor of a summary's standard deviation (m): sensor resolution, keeps weights finite
+FEATURE_FLOOR = 0.003
+
+
+def cloud_features(points: np.ndarray) -> np.ndarray:
+    """Summary statistics ``(13,)`` (m) of one point set ``(P, 3)``; see :data:`FEATURE_NAMES`."""
+    p = np.asarray(points, float)
+    q = np.quantile(p, [0.05, 0.95], axis=0)
+    return np.concatenate([p.mean(0), p.std(0), np.quantile(p[:, 2], [0.1, 0.5, 0.9]),
+                           [q[0, 0], q[1, 0], q[0, 1], q[1, 1]]])
+
+
+def trajectory_features(clouds: Sequence[np.ndarray]) -> np.ndarray:
+    """``(T * 13,)`` summaries of a sequence of point sets."""
+    return np.concatenate([cloud_features(c) for c in clouds])
+
+
+def sampled_points(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """``(T, n, 3)`` area-weighted surface samples, drawn exactly like the measurement's dense
+    clouds so that summaries compare like with like (the same ``seed`` gives common random
+    numbers across finite-difference simulations of the same mesh)."""
+    out = []
+    for t, v in enumerate(vertices):
+        out.append(sample_surface(v, faces, n, np.random.default_rng([seed, t])))
+    return np.stack(out)
+
+
+def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Deterministic surface points ``(T, N + F, 3)``: vertices and face centroids."""
+    if len(faces) == 0:
+        return vertices
+    return np.concatenate([vertices, vertices[:, faces].mean(2)], axis=1)
+
+
+
+def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) -> tuple[np.ndarray, list[str]]:
+    """Partition the object into ``n_side x n_side`` regions in its rest configuration.
+
+    Args:
+        vertices0: ``(N, 3)`` vertex positions at frame 0 (material coordinates).
+        grasp: ``(3,)`` gripper position at frame 0.
+
+    Returns:
+        ``labels (N,)`` int region of each vertex, and region names ordered by the distance of
+        the region's centre from the grasp point ("R1 at the grasp" ... "R9 farthest").
+    """
+    v = vertices0 - vertices0.mean(0)
+    _, _, vt = np.linalg.svd(v, full_matrices=False)
+    uv = v @ vt[:2].T
+    bins = []
+    for k in range(2):
+        edges = np.quantile(uv[:, k], np.linspace(0, 1, n_side + 1)[1:-1])
+        bins.append(np.searchsorted(edges, uv[:, k], side="right"))
+    raw = bins[0] * n_side + bins[1]
+    centres = np.array([vertices0[raw == r].mean(0) if (raw == r).any() else np.full(3, np.inf)
+                        for r in range(n_side * n_side)])
+    order = np.argsort(np.linalg.norm(centres - grasp, axis=1))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    labels = rank[raw]
+    names = []
+    for r in range(n_side * n_side):
+        tag = " (at the grasp)" if r == 0 else (" (farthest from the grasp)" if r == n_side * n_side - 1 else "")
+        names.append(f"R{r + 1}{tag}")
+    return labels, names
+
+
+def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, dense: np.ndarray,
+                  n_regions: int | None = None) -> np.ndarray:
+    """Bidirectional nearest-neighbour error ``(T, R)`` (m) per frame and region.
+
+    Simulated points of a region (its vertices and the centroids of faces whose first vertex
+    is in it) contribute their distance to the nearest measured point; measured points are
+    assigned to the region of their nearest simulated point and contribute that distance.
+    """
+    R = n_regions or int(labels.max()) + 1
+    pts = surface_points(vertices, faces)
+    lab = labels if len(faces) == 0 else np.concatenate([labels, labels[faces[:, 0]]])
+    out = np.full((len(vertices), R), np.nan)
+    for t in range(len(vertices)):
+        d_sr, _ = cKDTree(dense[t]).query(pts[t])
+        d_rs, idx = cKDTree(pts[t]).query(dense[t])
+        lr = lab[idx]
+        for r in range(R):
+            parts = [d_sr[lab == r].mean()] if (lab == r).any() else []
+            if (lr == r).any():
+                parts.append(d_rs[lr == r].mean())
+            out[t, r] = np.mean(parts) if parts else np.nan
+    return out
+
+
+def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
+    """Split the frames into three phases of equal duration, with the gripper's height."""
+    T = scenario.n_frames
+    cuts = np.linspace(0, T, 4).round().astype(int)
+    names = ("early", "middle", "late")
+    out = []
+    for k in range(3):
+        idx = list(range(cuts[k], cuts[k + 1]))
+        if not idx:
+            continue
+        h = scenario.gripper[idx, 2] - scenario.table_z
+        out.append({"phase": names[k], "frames": [idx[0], idx[-1]],
+                    "t_s": [float(scenario.times[idx[0]]), float(scenario.times[idx[-1]])],
+                    "gripper_height_m": [float(h.min()), float(h.max())]})
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# check
+
+
+def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, float]:
+    """Is ``f_obs (F,)`` inside the distribution of ``f_sims (S, F)``?
+
+    Statistic: mean squared standardised deviation (per-summary standard deviation from the
+    simulations, floored at :data:`FEATURE_FLOOR`). Null: each simulation against the others
+    (leave-one-out). p-value: ``(1 + #{null >= observed}) / (S + 1)``; also a Gamma fit of
+    the null for p-values below ``1 / (S + 1)``.
+    """
+    S = len(f_sims)
+    if S < 5:
+        raise SoftsbiError(f"the misspecification test needs at least 5 successful posterior rollouts (got {S})")
+
+    def stat(f, others):
+        sd = np.maximum(others.std(0), FEATURE_FLOOR)
+        return float((((f - others.mean(0)) / sd) ** 2).mean())
+
+    d_obs = stat(f_obs, f_sims)
+    null = np.array([stat(f_sims[i], np.delete(f_sims, i, axis=0)) for i in range(S)])
+    p_emp = (1 + (null >= d_obs).sum()) / (S + 1)
+    a, loc, scale = stats.gamma.fit(null, floc=0)
+    p_gamma = float(stats.gamma.sf(d_obs, a, loc=loc, scale=scale))
+    return {"statistic": d_obs, "null_mean": float(null.mean()), "null_q95": float(np.quantile(null, 0.95)),
+            "p_value": float(p_emp), "p_value_gamma": p_gamma, "n_simulations": S}
+
+
+def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = None, plot: bool = True,
+              seed: int = 0) -> dict[str, Any]:
+    """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
+
+    Returns:
+        dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts),
+        ``region_error_m`` (T x R mean), ``regions``, ``phases`` (mean error per phase),
+        ``worst_frames``, ``worst_regions``, ``misspecification`` and a ``summary`` sentence.
+    """
+    t0 = time.perf_counter()
+    run = load_run(run_dir, n_samples, seed)
+    # the fit's own job, samples and seeds: the per-frame Chamfer is the fit's metric, so the mean
+    # equals report.json's chamfer_posterior_m when all of the fit's evaluation samples are used
+    items = list(zip(run.post_theta, run.post_seeds))
+    res = run_jobs(run.sim_context(keep_rollout=True), items, workers)
+    ok = [r for r in res if r["status"] == STATUS_OK and r.get("vertices") is not None]
+    if len(ok) < 5:
+        raise SoftsbiError(f"only {len(ok)} of {len(res)} posterior rollouts succeeded; cannot check the fit")
+    dense = run.dense
+    T = len(dense)
+    ch = np.array([r["chamfer"] for r in ok])
+    labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
+    reg = np.zeros((len(ok), T, len(names)))
+    f_sims = []
+    for k, r in enumerate(ok):
+        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names))
+        f_sims.append(trajectory_features(sampled_points(r["vertices"], r["faces"], dense.shape[1], 1000 + k)))
+    f_obs = trajectory_features(dense)
+    mis = misspecification_test(f_obs, np.array(f_sims))
+    warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)  # regions a small mesh lacks
+    reg_mean = np.nanmean(reg, axis=0)
+    phases = motion_phases(run.scenario)
+    mean_t = ch.mean(0)
+    for ph in phases:
+        a, b = ph["frames"]
+        ph["chamfer_m"] = float(mean_t[a:b + 1].mean())
+        ph["worst_region"] = names[int(np.nanargmax(np.nanmean(reg_mean[a:b + 1], axis=0)))]
+    worst_frames = [int(i) for i in np.argsort(mean_t)[::-1][:3]]
+    reg_avg = np.nanmean(reg_mean, axis=0)
+    worst_regions = [names[int(i)] for i in np.argsort(reg_avg)[::-1][:2]]
+    worst_phase = max(phases, key=lambda p: p["chamfer_m"])
+    verdict = ("the measurement is NOT explained by the model (p = {:.3g})" if mis["p_value_gamma"] < 0.01
+               else "no evidence of misspecification (p = {:.3g})").format(mis["p_value_gamma"])
+    summary = (f"Posterior rollouts miss the measurement by {mean_t.mean() * 100:.2f} cm on average (Chamfer); "
+               f"worst in the {worst_phase['phase']} phase (t {worst_phase['t_s'][0]:.2f}-"
+               f"{worst_phase['t_s'][1]:.2f} s, {worst_phase['chamfer_m'] * 100:.2f} cm) and in region "
+               f"{worst_regions[0]}; {verdict}.")
+    out = {"run": str(run.path), "n_rollouts": len(ok), "failed_rollouts": len(res) - len(ok),
+           "times_s": run.scenario.times.tolist(),
+           "chamfer_per_frame_m": {"mean": mean_t.tolist(), "q05": np.quantile(ch, 0.05, 0).tolist(),
+                                   "q95": np.quantile(ch, 0.95, 0).tolist()},
+           "chamfer_mean_m": float(mean_t.mean()),
+           "regions": names, "region_error_m": np.nan_to_num(reg_mean).tolist(),
+           "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
+           "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
+           "misspecification": mis, "summary": summary, "seconds": time.perf_counter() - t0}
+    run_dir = Path(run_dir)
+    (run_dir / "check.json").write_text(json.dumps(out, indent=2))
+    if plot:
+        plot_check(run_dir / "check.png", out, ch)
+    return out
+
+

@@ -1,0 +1,681 @@
+"""The sequential real-to-sim fit (BayesSim, Ramos et al. 2019; Antonova et al. 2022, Alg. 1).
+
+Round 1 draws ``sims_per_round`` parameters from the prior; round r+1 draws them from the
+corrected posterior of round r (:class:`~softsbi.core.distributions.PosteriorChain`), or with
+``proposal="truncated"`` from the prior truncated to round r's posterior (TSNPE,
+:class:`~softsbi.core.distributions.TruncatedPrior`). Estimators with ``sequential = False``,
+the "bulk" baselines, draw every round from the prior and their posterior is ``q`` truncated
+to the prior box, so round r reports the bulk method with r x sims_per_round simulations. All
+simulations are kept; after each round the estimator is trained on all usable simulations
+so far and conditioned on the observation. Everything goes to the run's Zarr store as it
+is produced, so :func:`run_fit` on an existing run directory resumes where it stopped.
+
+This module resolves simulators, observers, estimators and executors by *name* through
+the plugin registry: it imports no simulator. :class:`FitConfig` is the one set of settings
+(and defaults) of the CLI's ``fit`` and the Python API.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from softsbi.core.distributions import PosteriorChain, RoundPosterior, TruncatedPrior
+from softsbi.core.errors import DataError, ParameterError, PosteriorError, SoftsbiError
+from softsbi.core.store import RunStore
+from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
+from softsbi.executors.local import WorkerFailure
+from softsbi.perception.masks import hsv_mask
+from softsbi.plugins import registry
+from softsbi.report import write_fit_plots
+from softsbi.scenarios.cameras import default_camera
+from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
+
+# ----------------------------------------------------------------------------------------
+# configuration
+
+#: proposal schemes of sequential fits (see :class:`FitConfig`)
+PROPOSALS = ("corrected", "truncated")
+#: ``frames="auto"``: frames in which the gripper is at least this high above the table (m); in
+#: the DiffCloud recordings the cloud is complete only once the cloth hangs clear (frame 10 on)
+LIFTED_HEIGHT = 0.10
+#: keys of the stored run configuration that come from the recording, not from :class:`FitConfig`,
+#: and must match on resume
+RECORDING_RESUME_KEYS = ("scenario", "param_space", "observed_source", "observer_options")
+#: values of resume keys in runs written before the key existed
+RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3}
+
+
+def _resume(default: Any = None, factory: Any = None) -> Any:
+    """A :class:`FitConfig` field whose value must match when a stored run is resumed."""
+    if factory is not None:
+        return field(default_factory=factory, metadata={"resume": True})
+    return field(default=default, metadata={"resume": True})
+
+
+@dataclass
+class FitConfig:
+    """Settings of a fit: the CLI's ``softsbi fit`` options and the Python API share these
+    defaults. Stored in the run (:meth:`to_json`) and compared on resume (:meth:`resume_keys`).
+
+    Attributes:
+        backend: simulator plugin name.
+        backend_options: keyword options of the simulator's constructor (e.g. ``{"grid": 8}``).
+        effects: effect plugin names switched on; their parameters join the inferred ones.
+        observer: observer plugin name; ``n_points`` = K points per frame (point-cloud observers;
+            image observers take K from their extractor).
+        observer_options: extra constructor options of the observer, e.g. for the image observers
+            ``{"extractor": "heatmap.pt", "size": 128}``.
+        estimator: posterior-estimator plugin name; ``estimator_options`` its config.
+        rounds: number of sequential rounds (may be raised on resume); sims_per_round: simulations
+            per round (the simulation budget is ``rounds * sims_per_round``).
+        seed: fixes every draw and every simulation seed.
+        n_eval: rollouts at final-posterior samples (the posterior predictive) for the reported Chamfer.
+        n_dense: points sampled per simulated frame for the Chamfer distance.
+        workers: simulation worker processes (None = one per core).
+        executor: executor plugin name.
+        executor_options: keyword options of the executor's constructor besides ``workers``
+            (e.g. ``{"timeout": 120, "retries": 2}``, ``{"address": "10.0.0.5:6379"}`` for ray).
+        bounds: prior-bound overrides ``{name: (low, high)}`` in physical units.
+        fixed: parameters held at a value instead of inferred ``{name: value}``.
+        min_height: sensor model of the observed state (m): points closer than this to the table
+            are not observed, in simulation and recording alike (0 = all visible). None = the
+            recording's own sensor model (:attr:`Recording.min_height`: 0.01 m for DiffCloud depth
+            clouds, which hold no cloth lying flat; all visible for a simulated recording). Does not
+            change the Chamfer metric, which compares full clouds.
+        frames: the frames whose state informs the posterior: indices, ``"all"``, ``"auto"`` (the
+            gripper at least 10 cm above the table) or a spec like ``"10:25"`` / ``"0,5,10"``.
+            None = the recording's own choice (:attr:`Recording.frames`). The metric still uses
+            every frame.
+        proposal: how round r+1 draws its parameters (sequential estimators only):
+            ``"corrected"`` (BayesSim, the paper's): from round r's posterior ``p/p~ * q``;
+            ``"truncated"`` (TSNPE, Deistler et al. 2022): from the prior restricted to the
+            ``1 - truncation_eps`` highest-density region of round r's posterior, and the
+            posterior is ``q`` itself (no importance weights, robust when the rounds narrow
+            down fast in many dimensions).
+        truncation_eps: posterior mass outside the truncated proposal's region.
+    """
+
+    backend: str = _resume("mujoco-flex")
+    backend_options: dict[str, Any] = _resume(factory=dict)
+    effects: list[str] = _resume(factory=list)
+    observer: str = _resume("pointcloud")
+    n_points: int = 64
+    observer_options: dict[str, Any] = field(default_factory=dict)
+    estimator: str = _resume("rkhs")
+    estimator_options: dict[str, Any] = field(default_factory=dict)
+    rounds: int = 4
+    sims_per_round: int = _resume(150)
+    seed: int = _resume(0)
+    n_eval: int = 30
+    n_dense: int = 600
+    workers: int | None = None
+    executor: str = "local"
+    executor_options: dict[str, Any] = field(default_factory=dict)
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fixed: dict[str, float] = field(default_factory=dict)
+    min_height: float | None = _resume(None)
+    frames: list[int] | str | None = _resume(None)
+    proposal: str = _resume("corrected")
+    truncation_eps: float = _resume(1e-3)
+
+    def validate(self) -> None:
+        """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range."""
+        if self.proposal not in PROPOSALS:
+            raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
+        if not 0 < self.truncation_eps < 0.5:
+            raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
+        if self.rounds < 1:
+            raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
+        if self.sims_per_round < 10:
+            raise SoftsbiError(f"--sims-per-round must be >= 10 (got {self.sims_per_round}); the estimator needs data")
+        if self.workers is not None and self.workers < 1:
+            raise SoftsbiError(f"--workers must be >= 1 (got {self.workers})")
+        if self.n_points < 1:
+            raise SoftsbiError(f"--points must be >= 1 (got {self.n_points})")
+        if self.min_height is not None and self.min_height < 0:
+            raise SoftsbiError(f"--min-height must be >= 0 m (got {self.min_height})")
+        if isinstance(self.frames, list) and len(self.frames) < 1:
+            raise SoftsbiError("--frames selects no frame; give e.g. --frames 10:25")
+        if isinstance(self.frames, str):
+            parse_frames(self.frames, None)
+
+    def to_json(self) -> dict[str, Any]:
+        """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""
+        d = asdict(self)
+        d["bounds"] = {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()}
+        return d
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> "FitConfig":
+        """The inverse of :meth:`to_json`; keys that are not settings are ignored.
+
+        Raises:
+            SoftsbiError: a value of the wrong type (e.g. bounds that are not pairs).
+        """
+        names = {f.name for f in fields(cls)}
+        kw = {k: v for k, v in d.items() if k in names}
+        try:
+            kw["bounds"] = {k: (float(v[0]), float(v[1])) for k, v in (kw.get("bounds") or {}).items()}
+        except (TypeError, IndexError, ValueError):
+            raise SoftsbiError(f"FitConfig bounds must map names to [low, high] pairs (got {kw.get('bounds')!r})") from None
+        for k in ("backend_options", "observer_options", "estimator_options", "executor_options", "fixed"):
+            kw[k] = dict(kw.get(k) or {})
+        kw["effects"] = list(kw.get("effects") or [])
+        return cls(**kw)
+
+    @classmethod
+    def from_run_config(cls, config: Mapping[str, Any]) -> "FitConfig":
+        """The settings a stored run was fitted with (``RunStore.config``). Runs written before
+        the full settings were stored rebuild them from the stored keys."""
+        if "fit_config" in config:
+            return cls.from_json(config["fit_config"])
+        legacy = dict(config)
+        obs = dict(legacy.get("observer_options") or {})
+        legacy.setdefault("n_points", int(obs.get("n_points", 64)))
+        # the stored observer options were computed from the settings (K, table height, occluder)
+        legacy["observer_options"] = {k: v for k, v in obs.items()
+                                      if k not in ("n_points", "min_z", "viewpoint", "occluder", "scenario")}
+        return cls.from_json(legacy)
+
+    @classmethod
+    def resume_keys(cls) -> tuple[str, ...]:
+        """Stored-config keys that must match for a run to resume: the settings that change what
+        the stored simulations mean, plus those that come from the recording."""
+        return tuple(f.name for f in fields(cls) if f.metadata.get("resume")) + RECORDING_RESUME_KEYS
+
+    def resolved(self, recording: Recording) -> "FitConfig":
+        """These settings with the recording's defaults filled in: ``min_height`` and ``frames``
+        from the recording's sensor model when None, frame specs turned into indices (``None`` =
+        every frame); image observers see whole frames (no height cut).
+
+        Raises:
+            SoftsbiError: a frame spec that is not indices or ranges.
+        """
+        min_height = self.min_height if self.min_height is not None else recording.min_height
+        frames = self.frames if self.frames is not None else recording.frames
+        if needs_images(self):
+            min_height = None
+            frames = None if frames in ("auto", "all") else frames
+        return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario))
+
+
+def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> list[int] | None:
+    """Frame indices of a frame spec: ``None``/``"all"`` -> None (every frame); ``"auto"`` -> the
+    frames where the gripper is at least :data:`LIFTED_HEIGHT` above the table (None if none or
+    no scenario); ``"10:25"`` / ``"0,5,10"`` / a list -> indices.
+
+    Raises:
+        SoftsbiError: a spec that is not indices or ranges.
+    """
+    if spec is None or spec == "all":
+        return None
+    if isinstance(spec, (list, tuple)):
+        return [int(i) for i in spec]
+    if spec == "auto":
+        if scenario is None:
+            return None
+        h = scenario.gripper[:, 2] - scenario.table_z
+        lifted = [int(i) for i in np.nonzero(h >= LIFTED_HEIGHT)[0]]
+        return lifted or None
+    out: list[int] = []
+    try:
+        for part in str(spec).split(","):
+            if ":" in part:
+                a, b = part.split(":")
+                out.extend(range(int(a), int(b)))
+            else:
+                out.append(int(part))
+    except ValueError:
+        raise SoftsbiError(f"--frames '{spec}' must be all, auto, or indices and ranges like 10:25 or 0,5,10") from None
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# progress and results
+
+
+class FitCallbacks:
+    """Progress callbacks of :func:`run_fit` (the CLI draws progress bars with them); every
+    method does nothing by default."""
+
+    def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
+        """Round ``r`` (0-based; -1 = the final posterior-predictive rollouts) begins."""
+
+    def simulation_done(self, r: int, done: int, total: int) -> None:
+        """``done`` of ``total`` simulations of round ``r`` are stored."""
+
+    def training_epoch(self, r: int, epoch: int, max_epochs: int, loss: float) -> None:
+        """The estimator finished an epoch on round ``r``'s data."""
+
+    def round_end(self, r: int, summary: dict[str, Any]) -> None:
+        """Round ``r`` is complete; ``summary`` as in ``report.json``'s ``per_round``."""
+
+    def message(self, text: str) -> None:
+        """A notice for the user (resuming, retries)."""
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`run_fit`; ``report`` is what goes to ``report.json``.
+
+    ``posterior`` samples theta in unit coordinates (``param_space.from_unit`` maps them to
+    physical units); :func:`softsbi.open_run` gives the posterior in physical units."""
+
+    store: RunStore
+    param_space: ParamSpace
+    posterior: RoundPosterior
+    report: dict[str, Any]
+    rounds: list[dict[str, Any]]
+
+
+def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, ParamSpace]:
+    """The full parameter space (backend + effects, bounds overridden) and the inferred
+    sub-space (without ``cfg.fixed``).
+
+    Raises:
+        PluginNotFound, ParameterError: unknown backend/effect, unsupported effect/scenario.
+    """
+    reg = registry()
+    sim_cls = reg.simulator(cfg.backend)
+    if scenario.name not in sim_cls.scenarios:
+        raise ParameterError(f"backend '{cfg.backend}' cannot run scenario '{scenario.name}'; it runs "
+                             f"{list(sim_cls.scenarios)}")
+    sim = sim_cls(**cfg.backend_options)
+    space = sim.param_space(scenario)
+    for e in cfg.effects:
+        eff_cls = reg.effect(e)
+        if e not in sim_cls.effects:
+            raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}'; it supports "
+                                 f"{list(sim_cls.effects) or 'no effects'}")
+        space = space + eff_cls().param_space()
+    if cfg.bounds:
+        space = space.with_bounds(cfg.bounds)
+    space.check(cfg.fixed, allow_missing=True)
+    inferred = ParamSpace([p for p in space if p.name not in cfg.fixed])
+    if inferred.dim == 0:
+        raise ParameterError("every parameter is fixed; leave at least one to infer")
+    return space, inferred
+
+
+def _config_dict(cfg: FitConfig, meas: Recording, inferred: ParamSpace) -> dict[str, Any]:
+    """What the run store keeps: the settings (also whole, as ``fit_config``) and what comes from
+    the recording (scenario, inferred parameter space, source, truth, observer options, metric)."""
+    d = cfg.to_json()
+    d["fit_config"] = cfg.to_json()
+    d.update({"scenario": meas.scenario.to_json(), "param_space": inferred.to_json(),
+              "observed_source": meas.source, "truth": meas.truth,
+              "observer_options": observer_options(cfg, meas.scenario),
+              "metric": "mask_chamfer_px" if (needs_images(cfg) and meas.images is not None) else "chamfer_m"})
+    d.pop("n_points", None)
+    return d
+
+
+def needs_images(cfg: FitConfig) -> bool:
+    """Whether the fit's observer works on rendered frames (``heatmap``, ``transporter``)."""
+    return bool(getattr(registry().observer(cfg.observer), "needs_images", False))
+
+
+def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
+    """Constructor options of the observer for this fit: K and the sensor's visibility for point
+    clouds; extractor checkpoint, camera and scenario for image observers."""
+    if needs_images(cfg):
+        opts = dict(cfg.observer_options)
+        opts.setdefault("scenario", scenario.name)
+        if "extractor" in opts:
+            opts["extractor"] = str(Path(opts["extractor"]).resolve())
+        return opts
+    opts = {"n_points": cfg.n_points}
+    if cfg.min_height:
+        opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
+    spool = (scenario.object or {}).get("spool")
+    if spool and cfg.observer == "pointcloud":  # the wind scenario: the spool hides part of the rope
+        opts["viewpoint"] = [float(v) for v in default_camera(scenario.name).position]
+        opts["occluder"] = {"centre": list(spool["centre"]), "radius": float(spool["radius"]),
+                            "z0": float(scenario.table_z), "height": float(spool["height"])}
+    opts.update(cfg.observer_options)
+    return opts
+
+
+def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
+    """The observed state ``(T, 1+K, 3)`` under the fit's observer settings.
+
+    Raises:
+        DataError: an image observer with a measurement that has no frames, or a point-cloud
+            observer with one that has neither state nor clouds.
+    """
+    obs = registry().observer(cfg.observer)(**observer_options(cfg, meas.scenario))
+    if getattr(obs, "needs_images", False):
+        if meas.images is None:
+            raise DataError(f"observer '{cfg.observer}' works on images but the measurement '{meas.source}' has "
+                            f"no frames; pass a folder of frames (000.png ...) or use --observer pointcloud")
+        return obs.observe_images(meas.images, meas.scenario.gripper, meas.scenario.times, meas.source).state()
+    if meas.x is None and meas.dense is None:
+        raise DataError(f"measurement '{meas.source}' has no point clouds; observer '{cfg.observer}' needs them "
+                        f"(for a folder of frames use --observer heatmap or transporter)")
+    if hasattr(obs, "observe_clouds") and meas.dense is not None:
+        o = obs.observe_clouds(list(meas.dense), meas.scenario.gripper, meas.scenario.times,
+                               np.random.default_rng([cfg.seed, 31337]), source=meas.source)
+        return o.state()
+    return np.asarray(meas.x, float)
+
+
+def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks) -> None:
+    data = store.round_data(r)
+    for attempt in range(2):  # one retry for jobs whose worker crashed
+        pending = store.pending(r)
+        if len(pending) == 0:
+            return
+        items = [(data["theta"][i], int(data["seed"][i])) for i in pending]
+        done = len(data["status"]) - len(pending)
+        errors = []
+        for j, res in executor.map_unordered(simulate_job, items, context=ctx):
+            i = int(pending[j])
+            if isinstance(res, SoftsbiError):
+                raise res
+            if isinstance(res, WorkerFailure):  # crashed/hung on every attempt the executor allowed
+                store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                done += 1
+                hooks.simulation_done(r, done, len(data["status"]))
+                continue
+            if isinstance(res, BaseException):
+                errors.append(i)
+                if attempt == 1:
+                    store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                continue
+            store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"])
+            done += 1
+            hooks.simulation_done(r, done, len(data["status"]))
+        if not errors:
+            return
+        hooks.message(f"round {r + 1}: {len(errors)} simulations raised in their worker; retrying them once")
+
+
+def _usable(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    us, xs, counts = [], [], []
+    for r in range(upto + 1):
+        d = store.round_data(r)
+        ok = (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+        us.append(d["u"][ok])
+        xs.append(d["x"][ok])
+        counts.append(int(ok.sum()))
+    return np.concatenate(us), np.concatenate(xs), counts
+
+
+def _chamfer_stats(chamfer: np.ndarray, status: np.ndarray) -> dict[str, Any]:
+    ok = (status == STATUS_OK) & np.all(np.isfinite(chamfer), axis=1)
+    per_sim = chamfer[ok].mean(1) if ok.any() else np.array([])
+    return {"mean_m": float(per_sim.mean()) if len(per_sim) else None,
+            "std_m": float(per_sim.std()) if len(per_sim) else None,
+            "n": int(ok.sum()), "failed": int((status != STATUS_OK).sum())}
+
+
+def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
+            callbacks: FitCallbacks | None = None, make_plots: bool = True) -> FitResult:
+    """Run (or resume) a sequential fit into ``out_dir``.
+
+    Writes ``out_dir/run.zarr`` as it goes, then ``report.json`` and PNGs.
+
+    Args:
+        out_dir: run directory; if it holds a run with the same settings, the fit resumes after
+            the last completed step (finished simulations are never redone).
+        recording: what to fit (a real recording or a simulated one).
+        cfg: settings (default :class:`FitConfig`()); ``cfg.rounds`` may be raised on resume to
+            add rounds.
+        callbacks: progress callbacks (:class:`FitCallbacks`).
+
+    Returns:
+        :class:`FitResult`.
+
+    Raises:
+        SchemaError: the run directory holds a run with incompatible settings or schema.
+        PluginNotFound, ParameterError: bad plugin names, effects or bounds.
+        EnvironmentFault: the machine cannot simulate; nothing is stored as failed.
+        PosteriorError: a round's posterior has no mass in the prior box.
+    """
+    callbacks = callbacks or FitCallbacks()
+    cfg = (cfg or FitConfig()).resolved(recording)
+    cfg.validate()
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reg = registry()
+    est_cls = reg.estimator(cfg.estimator)
+    exe_cls = reg.executor(cfg.executor)
+    _, space = fit_param_space(cfg, recording.scenario)
+    store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
+    ctx = _sim_context(cfg, recording, store, space)
+    loop = _Rounds(cfg, store, space, ctx, est_cls, callbacks)
+    executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
+    try:
+        for r in range(cfg.rounds):
+            loop.run_round(r, executor)
+        post = loop.chain.posterior(len(loop.chain) - 1)
+        ev_stats = _evaluate(store, post, space, ctx, executor, cfg, callbacks)
+        loop.summaries[-1]["chamfer_posterior"] = ev_stats
+    finally:
+        executor.close()
+    samples = space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99])))
+    wall = prev + time.perf_counter() - t_start
+    store.update_config(wall_time_s=wall)
+    report = _report(recording, cfg, space, loop, ev_stats, samples, wall, store.config.get("metric", "chamfer_m"))
+    (out_dir / "report.json").write_text(json.dumps(report, indent=2))
+    result = FitResult(store=store, param_space=space, posterior=post, report=report, rounds=loop.summaries)
+    if make_plots:
+        write_fit_plots(out_dir, result, recording, cfg, samples,
+                        observer_options=observer_options(cfg, recording.scenario))
+    return result
+
+
+def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: ParamSpace,
+                callbacks: FitCallbacks) -> tuple[RunStore, float]:
+    """Open the run store to resume it (checking the settings) or create it with the observed
+    state; returns the store and the wall time already spent in it (s)."""
+    config = _config_dict(cfg, recording, space)
+    store_path = out_dir / "run.zarr"
+    if RunStore.exists(store_path):
+        store = RunStore.open(store_path)
+        store.check_resumable(config, FitConfig.resume_keys(), RESUME_DEFAULTS)
+        prev = store.config.get("wall_time_s", 0.0) or 0.0
+        callbacks.message(f"resuming run in {store_path} after round {len(store.completed_rounds())} "
+                          f"({prev:.0f} s spent before)")
+        store.update_config(rounds=cfg.rounds)
+        return store, prev
+    x0 = observe_recording(cfg, recording)  # before creating the store: bad input leaves nothing behind
+    store = RunStore.create(store_path, config)
+    masks = hsv_mask(recording.images) if config["metric"] == "mask_chamfer_px" else None
+    store.write_observed(x0, recording.scenario.gripper, recording.scenario.times, recording.dense,
+                         recording.source, images=recording.images, masks=masks)
+    store.update_config(rounds=cfg.rounds)
+    return store, 0.0
+
+
+def _sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: ParamSpace) -> SimContext:
+    """What every simulation job of this fit needs: simulator, observer, the metric's reference."""
+    observed = store.read_observed()
+    metric = store.config.get("metric", "chamfer_m")
+    return SimContext(backend=cfg.backend, backend_options=cfg.backend_options,
+                      scenario=recording.scenario.to_json(), effects=list(cfg.effects), observer=cfg.observer,
+                      observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
+                      fixed=dict(cfg.fixed), dense=observed.get("dense"), n_dense=cfg.n_dense,
+                      ref_masks=observed.get("masks") if metric == "mask_chamfer_px" else None)
+
+
+class _Rounds:
+    """The sequential rounds of one fit: draw the proposal, simulate, train, condition."""
+
+    def __init__(self, cfg: FitConfig, store: RunStore, space: ParamSpace, ctx: SimContext, est_cls: type,
+                 callbacks: FitCallbacks):
+        self.cfg, self.store, self.space, self.ctx, self.est_cls, self.cb = cfg, store, space, ctx, est_cls, callbacks
+        self.sequential = bool(getattr(est_cls, "sequential", True))
+        self.truncated = self.sequential and cfg.proposal == "truncated"
+        self.chain = PosteriorChain(space.dim, seed=cfg.seed)
+        self.summaries: list[dict[str, Any]] = []
+        self.prior_stats: dict[str, Any] | None = None
+        self.x_obs = store.read_observed()["x"]
+        self.scored = ctx.dense is not None or ctx.ref_masks is not None
+
+    def run_round(self, r: int, executor: Any) -> None:
+        """Round ``r``: begin it (draw and store its parameters) unless stored, simulate what is
+        pending, train the estimator unless the round is complete, add its posterior."""
+        cfg, store = self.cfg, self.store
+        if not store.is_begun(r):
+            self._begin(r)
+        self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
+        _simulate_missing(store, r, self.ctx, executor, self.cb)
+        d = store.round_data(r)
+        stats = _chamfer_stats(d["chamfer"], d["status"]) if self.scored else {}
+        if r == 0:
+            self.prior_stats = stats
+        elif self.summaries:
+            self.summaries[-1]["chamfer_posterior"] = stats  # round r draws from posterior r-1
+        U, X, counts = _usable(store, r)
+        if counts[r] == 0:
+            reasons = sorted(set(store.round_attrs(r)["failures"].values()))
+            raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; narrow the prior "
+                               f"bounds with --bounds or change backend options (finished simulations are "
+                               f"kept in {store.path})")
+        q, info = self._train(r, U, X, counts)
+        post = self._add_posterior(r, q, counts)
+        try:
+            mean_u, _ = post.moments(4000, seed=cfg.seed + r)
+        except PosteriorError as exc:
+            raise PosteriorError(f"round {r + 1}: estimator '{cfg.estimator}' conditioned on the measurement: {exc}. "
+                                 f"Try another estimator (e.g. rkhs), more --sims-per-round or wider --bounds; "
+                                 f"the finished simulations are kept in {store.path}") from exc
+        self.summaries.append({"round": r, "simulations": int(len(d["status"])), "usable": counts[r],
+                               "failed": int((d["status"] != STATUS_OK).sum()),
+                               "chamfer_proposal": stats, "train": info, "mass_in_box": post.mass_in_box,
+                               "posterior_mean": self.space.as_dict(self.space.from_unit(mean_u))})
+        self.cb.round_end(r, self.summaries[-1])
+
+    def _begin(self, r: int) -> None:
+        """Draw round ``r``'s parameters from its proposal and store them (with their seeds)."""
+        cfg, space = self.cfg, self.space
+        proposal = None  # bulk estimators (sequential = False): every round draws from the prior
+        if r > 0 and self.sequential:
+            proposal = self.chain.posterior(len(self.chain) - 1)
+            if self.truncated:
+                proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
+        rng = np.random.default_rng([cfg.seed, r, 0])
+        u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
+        what = "prior" if proposal is None else (
+            f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r - 1}'s posterior "
+            f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r - 1}")
+        self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
+                               self.x_obs.shape, what)
+
+    def _train(self, r: int, U: np.ndarray, X: np.ndarray, counts: list[int]) -> tuple[Any, dict[str, Any]]:
+        """The posterior at the observation after round ``r`` (stored once trained)."""
+        cfg, store = self.cfg, self.store
+        if store.is_complete(r):
+            return store.read_q(r), store.round_attrs(r).get("info", {})
+        est = self.est_cls(**cfg.estimator_options)
+        fr = slice(None) if cfg.frames is None else list(cfg.frames)
+        info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
+                       progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l))
+        q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
+        info = dict(info, n_train_total=int(len(U)), usable_per_round=counts)
+        store.finish_round(r, q, info)
+        return q, info
+
+    def _add_posterior(self, r: int, q: Any, counts: list[int]) -> RoundPosterior:
+        if self.sequential and not self.truncated:
+            return self.chain.add_round(q, counts[r])
+        # bulk (all data from the prior) or truncated proposals (TSNPE): the posterior is q
+        # restricted to the prior box, with no importance weights
+        self.chain = PosteriorChain(self.space.dim, seed=self.cfg.seed)
+        return self.chain.add_round(q, sum(counts))
+
+
+def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Rounds, ev_stats: dict[str, Any],
+            samples: np.ndarray, wall: float, metric: str) -> dict[str, Any]:
+    """``report.json``: settings, posterior summaries (physical units), Chamfer of prior and
+    posterior-predictive rollouts, per-round summaries, and the truth when simulated."""
+    summaries, prior_stats = loop.summaries, loop.prior_stats
+    failed = sum(s["failed"] for s in summaries) + ev_stats.get("failed", 0)
+    total = sum(s["simulations"] for s in summaries) + cfg.n_eval
+    report = {
+        "observed": recording.source,
+        "backend": cfg.backend, "estimator": cfg.estimator, "effects": cfg.effects,
+        "parameters": space.to_json(), "fixed": cfg.fixed,
+        "rounds": cfg.rounds, "sims_per_round": cfg.sims_per_round, "simulations": total,
+        "proposal": cfg.proposal if loop.sequential else "prior",
+        "min_height_m": cfg.min_height, "frames": cfg.frames,
+        "failed_simulations": failed,
+        "chamfer_prior_m": (prior_stats or {}).get("mean_m"),
+        "chamfer_prior_std_m": (prior_stats or {}).get("std_m"),
+        "chamfer_posterior_m": ev_stats.get("mean_m"),
+        "chamfer_posterior_std_m": ev_stats.get("std_m"),
+        "posterior_mean": space.as_dict(samples.mean(0)),
+        "posterior_std": space.as_dict(samples.std(0)),
+        "posterior_q05": space.as_dict(np.quantile(samples, 0.05, axis=0)),
+        "posterior_q95": space.as_dict(np.quantile(samples, 0.95, axis=0)),
+        "posterior_median": space.as_dict(np.median(samples, axis=0)),
+        "truth": recording.truth,
+        "per_round": [{"round": s["round"], "usable": s["usable"], "failed": s["failed"],
+                       "chamfer_posterior_m": (s.get("chamfer_posterior") or {}).get("mean_m"),
+                       "chamfer_posterior_std_m": (s.get("chamfer_posterior") or {}).get("std_m"),
+                       "mass_in_box": s["mass_in_box"], "train_seconds": s["train"].get("seconds"),
+                       "posterior_mean": s["posterior_mean"]} for s in summaries],
+        "wall_time_s": wall,
+        "metric": metric,
+    }
+    if metric == "mask_chamfer_px":  # the paper's image metric: HSV cloth masks, bidirectional Chamfer (px)
+        for k in ("prior", "prior_std", "posterior", "posterior_std"):
+            report[f"mask_chamfer_{k}_px"] = report.pop(f"chamfer_{k}_m")
+            report[f"chamfer_{k}_m"] = None
+        for row in report["per_round"]:
+            row["mask_chamfer_posterior_px"] = row.pop("chamfer_posterior_m")
+            row["mask_chamfer_posterior_std_px"] = row.pop("chamfer_posterior_std_m")
+        if report["mask_chamfer_prior_px"] and report["mask_chamfer_posterior_px"]:
+            report["chamfer_reduction"] = 1 - report["mask_chamfer_posterior_px"] / report["mask_chamfer_prior_px"]
+    elif report["chamfer_prior_m"] and report["chamfer_posterior_m"]:
+        report["chamfer_reduction"] = 1 - report["chamfer_posterior_m"] / report["chamfer_prior_m"]
+    if recording.truth:
+        # an effect added by the fit but absent from the measurement is truly switched off
+        truth = dict(recording.truth)
+        for e in cfg.effects:
+            for k, v in registry().effect(e)().nominal().items():
+                truth.setdefault(k, v)
+        report["truth"] = truth
+        report["truth_in_90pct_interval"] = {
+            n: bool(report["posterior_q05"][n] <= truth[n] <= report["posterior_q95"][n])
+            for n in space.names if n in truth}
+    return report
+
+
+def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: SimContext, executor: Any,
+              cfg: FitConfig, hooks: FitCallbacks) -> dict[str, Any]:
+    """Rollouts at ``cfg.n_eval`` final-posterior samples (stored under ``evaluation/``)."""
+    if store.has("evaluation"):
+        arrays, attrs = store.read_group("evaluation")
+        if attrs.get("rounds") == cfg.rounds and len(arrays["status"]) == cfg.n_eval:
+            return _chamfer_stats(arrays["chamfer"], arrays["status"])
+    rng = np.random.default_rng([cfg.seed, 10_000 + cfg.rounds])
+    u = post.sample(cfg.n_eval, rng)
+    theta = space.from_unit(u)
+    seeds = evaluation_seeds(cfg.seed, cfg.rounds, cfg.n_eval)
+    T = len(ctx.scenario["times"])
+    chamfer = np.full((cfg.n_eval, T), np.nan)
+    status = np.full(cfg.n_eval, STATUS_ERROR, np.uint8)
+    hooks.round_start(-1, cfg.rounds, cfg.n_eval, cfg.n_eval)
+    done = 0
+    for i, res in executor.map_unordered(simulate_job, list(zip(theta, seeds)), context=ctx):
+        done += 1
+        hooks.simulation_done(-1, done, cfg.n_eval)
+        if isinstance(res, SoftsbiError):  # an environment fault: stop, nothing stored
+            raise res
+        if isinstance(res, BaseException):
+            continue
+        status[i] = res["status"]
+        if res["chamfer"] is not None:
+            chamfer[i] = res["chamfer"]
+    store.write_group("evaluation", {"theta": theta, "u": u, "status": status, "chamfer": chamfer},
+                      attrs={"rounds": cfg.rounds, "what": "rollouts at final-posterior samples"},
+                      units={"chamfer": "px" if ctx.ref_masks is not None else "m", "theta": "physical"})
+    return _chamfer_stats(chamfer, status)

@@ -1,0 +1,147 @@
+"""The one worker-side job of every workflow: simulate, observe, score.
+
+Fit rounds, the fit's evaluation, ``check``, ``diagnose``, ``view`` and ``calibrate`` all run
+:func:`simulate_job` through an executor, so a rollout at the same parameters and seed gives the
+same observation and the same Chamfer everywhere.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from softsbi.core.errors import EnvironmentFault, SoftsbiError
+from softsbi.core.metrics import chamfer_per_frame
+from softsbi.core.types import STATUS_ERROR, STATUS_OK, Scenario
+from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
+from softsbi.perception.pointcloud import rollout_clouds
+from softsbi.plugins import registry
+
+
+@dataclass
+class SimContext:
+    """Read-only data every simulation job needs (shipped once per worker)."""
+
+    backend: str
+    backend_options: dict[str, Any]
+    scenario: dict[str, Any]
+    effects: list[str]
+    observer: str
+    observer_options: dict[str, Any]
+    param_names: list[str]
+    fixed: dict[str, float]
+    dense: np.ndarray | None
+    n_dense: int
+    #: ``(T, H, W)`` bool cloth masks of the observed frames: the metric becomes the mask Chamfer (px)
+    ref_masks: np.ndarray | None = None
+    #: also return the rollout's ``vertices (T, N, 3)``, ``faces (F, 3)`` and ``gripper (T, 3)``
+    #: (posterior predictive checks localise the error on the object)
+    keep_rollout: bool = False
+
+
+_WORKER_CACHE: dict[str, Any] = {}
+
+
+def _objects(ctx: SimContext) -> tuple[Any, Any, Scenario]:
+    key = json.dumps([ctx.backend, ctx.backend_options, ctx.observer, ctx.observer_options, ctx.scenario],
+                     sort_keys=True, default=str)
+    if key not in _WORKER_CACHE:
+        reg = registry()
+        sim = reg.simulator(ctx.backend)(**ctx.backend_options)
+        obs = reg.observer(ctx.observer)(**ctx.observer_options)
+        _WORKER_CACHE.clear()
+        _WORKER_CACHE[key] = (sim, obs, Scenario.from_json(ctx.scenario))
+    return _WORKER_CACHE[key]
+
+
+def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
+    """Simulate one parameter vector, observe it and score it against the measurement.
+
+    Args:
+        ctx: the shared context.
+        item: ``(theta, seed)`` or ``(theta, seed, effects)``: ``theta`` is ``(D,)`` in the order of
+            ``ctx.param_names`` (physical units) or a ``{name: value}`` mapping; ``ctx.fixed`` is
+            added to it. ``effects`` (names) replaces ``ctx.effects`` for this simulation (the
+            diagnosis's sensitivity simulations switch candidate effects on one at a time).
+
+    Returns:
+        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "seconds"}``, plus
+        ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
+        ``chamfer`` is the 3-D Chamfer (m) against ``ctx.dense``, or the mask Chamfer (px) against
+        ``ctx.ref_masks`` for image fits.
+    """
+
+    theta, seed = item[0], item[1]
+    effects = list(item[2]) if len(item) > 2 else list(ctx.effects)
+    t0 = time.perf_counter()
+    sim, obs, scenario = _objects(ctx)
+    if isinstance(theta, Mapping):
+        values = {k: float(v) for k, v in theta.items()}
+    else:
+        values = dict(zip(ctx.param_names, map(float, theta)))
+    values.update(ctx.fixed)
+    try:
+        if getattr(obs, "needs_images", False):
+            ro = sim.simulate_images(scenario, values, camera=obs.camera, effects=effects, seed=int(seed),
+                                     style=obs.style)
+        else:
+            ro = sim.simulate(scenario, values, effects=effects, seed=int(seed))
+    except SoftsbiError:
+        raise
+    except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed
+        raise EnvironmentFault(f"{ctx.backend} cannot simulate on this machine ({type(exc).__name__}: {exc}); "
+                               f"fix the installation and re-run the same command to resume") from exc
+    except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
+        return {"status": STATUS_ERROR, "reason": f"{type(exc).__name__}: {exc}", "x": None, "chamfer": None,
+                "seconds": time.perf_counter() - t0}
+    if not ro.ok:
+        return {"status": int(ro.status), "reason": ro.reason, "x": None, "chamfer": None,
+                "seconds": time.perf_counter() - t0}
+    rng = np.random.default_rng([int(seed), 17])
+    o = obs.observe(ro, rng)
+    x = o.state()
+    ch = None
+    if ctx.ref_masks is not None:
+        ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
+    elif ctx.dense is not None:
+        ch = chamfer_per_frame(rollout_clouds(ro, ctx.n_dense, rng), ctx.dense)
+    out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "seconds": time.perf_counter() - t0}
+    if ctx.keep_rollout:
+        out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
+    return out
+
+
+def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
+    return np.random.default_rng([seed, r, 1]).integers(0, 2**31 - 1, size=n)
+
+
+def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
+    """``(n_eval,)`` simulation seeds of a fit's final evaluation rollouts (posterior predictive):
+    a check that re-simulates the same samples with them reproduces the fit's Chamfer exactly."""
+    return _round_seeds(seed, 10_000 + rounds, n_eval)
+
+
+
+def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
+             executor_options: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order.
+
+    A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised; any other
+    exception, or a crashed worker, becomes a failed result ``{"status": STATUS_ERROR, "reason"}``.
+    """
+    exe = registry().executor(executor)(workers=workers, **dict(executor_options or {}))
+    out: list[dict[str, Any] | None] = [None] * len(items)
+    try:
+        for i, res in exe.map_unordered(simulate_job, items, context=ctx):
+            if isinstance(res, BaseException):
+                if isinstance(res, SoftsbiError):
+                    raise res
+                res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None, "chamfer": None}
+            out[i] = res
+    finally:
+        exe.close()
+    return out  # type: ignore[return-value]

@@ -1,0 +1,217 @@
+"""Finished runs: open a run directory for checking, diagnosing, viewing, or its posterior."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softsbi.core.distributions import PosteriorChain
+from softsbi.core.errors import SoftsbiError
+from softsbi.core.store import RunStore
+from softsbi.core.types import ParamSpace, Scenario
+from softsbi.plugins import registry
+from softsbi.workflows.fit import FitConfig, _usable
+from softsbi.workflows.jobs import SimContext, evaluation_seeds
+
+
+@dataclass
+class RunView:
+    """What the diagnostics need from a finished run."""
+
+    path: Path
+    config: dict[str, Any]
+    space: ParamSpace
+    scenario: Scenario
+    dense: np.ndarray
+    x_obs: np.ndarray
+    report: dict[str, Any]
+    post_theta: np.ndarray  # (S, D) posterior samples (inferred params), physical units
+    post_seeds: np.ndarray | None = None  # (S,) their simulation seeds in the fit's evaluation
+
+    def sim_context(self, keep_rollout: bool = True) -> Any:
+        """The fit's own worker context (:class:`~softsbi.workflows.fit.SimContext`): same simulator,
+        observer and metric, so re-simulating the fit's evaluation samples reproduces its Chamfer."""
+        c = self.config
+        return SimContext(backend=c["backend"], backend_options=dict(c.get("backend_options") or {}),
+                          scenario=c["scenario"], effects=list(self.effects), observer=c["observer"],
+                          observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
+                          fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
+                          keep_rollout=keep_rollout)
+
+    @property
+    def fixed(self) -> dict[str, float]:
+        """Parameters held fixed in the fit ``{name: value}``."""
+        return dict(self.config.get("fixed") or {})
+
+    @property
+    def effects(self) -> list[str]:
+        """Effects the fit switched on."""
+        return list(self.config.get("effects") or [])
+
+    def values(self, row: np.ndarray) -> dict[str, float]:
+        """Inferred parameters ``(D,)`` plus the fixed ones as a ``{name: value}`` mapping."""
+        v = self.space.as_dict(row)
+        v.update(self.fixed)
+        return v
+
+    def median(self) -> dict[str, float]:
+        """Posterior median (physical units) plus the fixed parameters."""
+        v = {k: float(x) for k, x in self.report["posterior_median"].items()}
+        v.update(self.fixed)
+        return v
+
+
+
+def load_run(run_dir: str | Path, n_samples: int = 30, seed: int = 0) -> RunView:
+    """Open a finished fit (``run.zarr`` + ``report.json``) for checking.
+
+    Raises:
+        SchemaError: not a run; SoftsbiError: the fit has not finished (no report.json).
+    """
+    run_dir = Path(run_dir)
+    store = RunStore.open(run_dir / "run.zarr")
+    rep_path = run_dir / "report.json"
+    if not rep_path.exists():
+        raise SoftsbiError(f"'{run_dir}' has no report.json: the fit has not finished; resume it with the same "
+                           f"`softsbi fit ... --out {run_dir}` command first")
+    report = json.loads(rep_path.read_text())
+    cfg = store.config
+    if cfg.get("metric") == "mask_chamfer_px" or "dense" not in store.read_observed():
+        raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.get('observer')}'): check, diagnose and "
+                           f"compare work on point-cloud fits, which carry 3-D clouds to localise the error; "
+                           f"its report.json holds the mask Chamfer of prior and posterior rollouts")
+    space = ParamSpace.from_json(cfg["param_space"])
+    obs = store.read_observed()
+    if store.has("evaluation"):
+        ev, ev_attrs = store.read_group("evaluation")
+        theta = ev["theta"][:n_samples]
+        seeds = evaluation_seeds(int(cfg.get("seed", 0)), int(ev_attrs.get("rounds", cfg["rounds"])),
+                                 len(ev["theta"]))[:n_samples]
+    else:  # fall back on the last round's draws (samples of the previous posterior)
+        last = store.round_ids()[-1]
+        d = store.round_data(last)
+        theta, seeds = d["theta"][:n_samples], d["seed"][:n_samples]
+    return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta,
+                   np.asarray(seeds))
+
+
+
+
+# ----------------------------------------------------------------------------------------
+# a finished run's posterior, in physical units (the public API's ``softsbi.open_run``)
+
+
+class Posterior:
+    """A fit's final posterior over the inferred parameters, in physical units.
+
+    Wraps the posterior the fit computed in unit coordinates (``u`` in ``[0, 1]^D``, log scale
+    for log-scaled parameters; see :class:`~softsbi.core.types.ParamSpace`) and maps it to the
+    parameters' own units.
+
+    Attributes:
+        space: the inferred :class:`~softsbi.core.types.ParamSpace` (names, units, prior box).
+        unit: the posterior in unit coordinates (``sample(n, rng)``, ``log_prob(u)``).
+    """
+
+    def __init__(self, space: ParamSpace, unit: Any, seed: int = 0):
+        self.space, self.unit, self._seed = space, unit, seed
+        self._draws: np.ndarray | None = None
+
+    @property
+    def names(self) -> list[str]:
+        """Parameter names, in column order."""
+        return self.space.names
+
+    def sample(self, n: int, seed: int = 0) -> np.ndarray:
+        """``(n, D)`` posterior draws in physical units (columns in :attr:`names` order)."""
+        return self.space.from_unit(self.unit.sample(int(n), np.random.default_rng([self._seed, 7, int(seed)])))
+
+    def log_prob(self, theta: np.ndarray) -> np.ndarray:
+        """Log posterior density ``(n,)`` at ``theta (n, D)`` in physical units: the unit-coordinate
+        density plus ``log |du/dtheta|`` (``1 / (high - low)``, or ``1 / (theta log(high / low))``
+        for log-scaled parameters); ``-inf`` outside the prior box.
+
+        Raises:
+            ShapeError: ``theta`` does not have D columns.
+        """
+        theta = np.atleast_2d(np.asarray(theta, float))
+        u = self.space.to_unit(theta)
+        lo, hi, lg = self.space._t()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jac = np.where(lg, -np.log(np.abs(theta)) - np.log(hi - lo), -np.log(hi - lo)).sum(-1)
+            return self.unit.log_prob(u) + jac
+
+    def _samples(self) -> np.ndarray:
+        if self._draws is None:
+            self._draws = self.sample(4000)
+        return self._draws
+
+    @property
+    def mean(self) -> dict[str, float]:
+        """Posterior mean per parameter (physical units; 4000 draws)."""
+        return self.space.as_dict(self._samples().mean(0))
+
+    def interval(self, level: float = 0.9) -> dict[str, tuple[float, float]]:
+        """Central ``level`` credible interval per parameter ``{name: (low, high)}`` (physical units).
+
+        Raises:
+            SoftsbiError: ``level`` outside (0, 1).
+        """
+        if not 0 < level < 1:
+            raise SoftsbiError(f"interval level must lie in (0, 1) (got {level})")
+        s = self._samples()
+        lo = np.quantile(s, (1 - level) / 2, axis=0)
+        hi = np.quantile(s, (1 + level) / 2, axis=0)
+        return {n: (float(a), float(b)) for n, a, b in zip(self.names, lo, hi)}
+
+
+@dataclass
+class Run:
+    """A fit's run directory, opened (:func:`open_run`).
+
+    Attributes:
+        path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.FitConfig`).
+        report: ``report.json`` (None while the fit has not finished). space: the inferred parameters.
+        posterior: the final posterior in physical units (:class:`Posterior`).
+    """
+
+    path: Path
+    config: Any
+    report: dict[str, Any] | None
+    space: ParamSpace
+    posterior: Posterior
+
+
+def open_run(run_dir: str | Path) -> Run:
+    """Open a fit's run directory: its settings, report and final posterior in physical units.
+
+    The posterior is rebuilt from the stored rounds exactly as the fit built it (the corrected
+    chain of round posteriors, or the last round's ``q`` restricted to the prior box for truncated
+    proposals and bulk estimators).
+
+    Raises:
+        SchemaError: not a run directory (no ``run.zarr``) or an unreadable schema version.
+        SoftsbiError: no round has finished yet (resume the fit first).
+    """
+    run_dir = Path(run_dir)
+    store = RunStore.open(run_dir / "run.zarr")
+    cfg = FitConfig.from_run_config(store.config)
+    space = ParamSpace.from_json(store.config["param_space"])
+    rounds = [r for r in store.completed_rounds()]
+    if not rounds:
+        raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
+                           f"command first")
+    sequential = bool(getattr(registry().estimator(cfg.estimator), "sequential", True))
+    _, _, counts = _usable(store, rounds[-1])
+    chain = PosteriorChain(space.dim, seed=cfg.seed)
+    if sequential and cfg.proposal != "truncated":
+        for r in rounds:
+            chain.add_round(store.read_q(r), counts[r])
+    else:
+        chain.add_round(store.read_q(rounds[-1]), sum(counts))
+    rep_path = run_dir / "report.json"
+    report = json.loads(rep_path.read_text()) if rep_path.exists() else None
+    return Run(run_dir, cfg, report, space, Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed))

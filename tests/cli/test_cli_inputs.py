@@ -1,0 +1,102 @@
+"""CLI and bad-input behaviour: each error names the file/problem and the fix."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from softsbi.cli import app
+from softsbi.core.errors import DataError, PluginNotFound
+from softsbi.workflows.measurement import load_recording
+from softsbi.perception.pointcloud import load_cloud_frames, sample_surface
+from softsbi.plugins import registry
+
+runner = CliRunner()
+
+
+def test_plugins_json_lists_builtins_and_third_party():
+    res = runner.invoke(app, ["plugins", "--json"])
+    assert res.exit_code == 0, res.output
+    d = json.loads(res.output[res.output.index("{"):])
+    sims = {r["name"]: r for r in d["simulators"]}
+    assert "mujoco-flex" in sims and sims["mujoco-flex"]["package"].startswith("softsbi ")
+    assert {"rkhs", "mdnn"} <= {r["name"] for r in d["estimators"]}
+    assert "pointcloud" in {r["name"] for r in d["observers"]}
+    assert "local" in {r["name"] for r in d["executors"]}
+    # the third-party test package registers through the same entry-point group
+    assert sims["toy-gauss"]["package"].startswith("softsbi-toy")
+    assert "toy-wind" in {r["name"] for r in d["effects"]}
+
+
+def test_unknown_plugin_suggests_the_closest_name():
+    with pytest.raises(PluginNotFound, match="Did you mean 'rkhs'"):
+        registry().estimator("rkhz")
+    res = runner.invoke(app, ["simulate", "--backend", "mujoco-flx", "--out", "/tmp/never"])
+    assert res.exit_code == 2
+    assert "mujoco-flex" in res.output and "Traceback" not in res.output
+
+
+def _copy_recording(lift_dir, tmp_path):
+    dst = tmp_path / "diffcloud_lift"
+    dst.mkdir()
+    for f in ("lift_traj.npy", "lift_real2sim.yaml"):
+        shutil.copy(lift_dir / f, dst / f)
+    shutil.copytree(lift_dir / "lift_tan", dst / "lift_tan")
+    return dst / "lift_tan"
+
+
+def test_real_measurement_loads_in_metres(lift_dir):
+    m = load_recording(lift_dir / "lift_tan", n_points=32, n_dense=200)
+    assert m.x.shape == (25, 33, 3) and m.dense.shape == (25, 200, 3)
+    # simulator units x 0.35 m: the hanging cloth of the last frame is ~0.3 m tall
+    assert 0.25 < m.dense[-1][:, 2].max() - m.dense[-1][:, 2].min() < 0.4
+    np.testing.assert_allclose(m.x[:, 0], m.scenario.gripper)
+
+
+def test_bad_data_folders(lift_dir, tmp_path):
+    with pytest.raises(DataError, match="does not exist"):
+        load_cloud_frames(tmp_path / "nope")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(DataError, match="no frames"):
+        load_cloud_frames(empty)
+    rec = _copy_recording(lift_dir, tmp_path)
+    # NaN points
+    a = np.load(rec / "003.npy")
+    a[5] = np.nan
+    np.save(rec / "003.npy", a)
+    with pytest.raises(DataError, match=r"003\.npy.*NaN"):
+        load_recording(rec)
+    # malformed frame
+    np.save(rec / "003.npy", np.zeros((10, 2)))
+    with pytest.raises(DataError, match=r"003\.npy.*shape"):
+        load_recording(rec)
+    np.save(rec / "003.npy", np.load(lift_dir / "lift_tan" / "003.npy"))
+    # a gap in the numbering
+    (rec / "010.npy").unlink()
+    with pytest.raises(DataError, match="gaps"):
+        load_recording(rec)
+    # a frame count that does not match the gripper path
+    for i in range(10, 25):
+        (rec / f"{i:03d}.npy").unlink(missing_ok=True)
+    with pytest.raises(DataError, match="10 frames but the lift gripper path has 25"):
+        load_recording(rec)
+
+
+def test_cli_fit_reports_bad_input_without_traceback(tmp_path):
+    res = runner.invoke(app, ["fit", "--observed", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2
+    assert "does not exist" in res.output and "Traceback" not in res.output
+
+
+def test_area_weighted_sampling_is_uniform_on_the_surface():
+    # two triangles of very different areas: samples split in proportion to area
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [10, 0, 0], [13, 0, 0], [10, 3, 0]], float)
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    p = sample_surface(v, f, 20000, np.random.default_rng(0))
+    frac_small = (p[:, 0] < 5).mean()
+    assert frac_small == pytest.approx(0.5 / (0.5 + 4.5), abs=0.01)
+    # points lie inside their triangles
+    small = p[p[:, 0] < 5]
+    assert (small[:, 0] >= -1e-12).all() and (small.sum(1) <= 1 + 1e-12).all()

@@ -1,0 +1,218 @@
+"""Figures: readable pair plots at D = 2..8, the prior box and truth drawn, headlines that fit the
+figure, one role palette across the figures."""
+from types import SimpleNamespace
+from unittest import mock
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from matplotlib.colors import to_rgba
+from matplotlib.patches import Rectangle
+from matplotlib.text import Text
+
+from softsbi.report import figures as R
+from softsbi.core.types import Param, ParamSpace
+
+PARAMS = [Param("bend", 1e-6, 1e-3, "N*m", log=True), Param("stretch", 5.0, 1000.0, "N/m", log=True),
+          Param("friction", 0.05, 1.5, "1"), Param("scale", 0.20, 0.34, "m"), Param("mass", 0.1, 0.35, "kg/m^2"),
+          Param("wind_x", -2.0, 2.0, "m/s"), Param("wind_y", -2.0, 2.0, "m/s"),
+          Param("grip_timeconst", 0.008, 0.3, "s", log=True)]
+
+
+def _space_samples(D, n=2000, seed=0):
+    sp = ParamSpace(PARAMS[:D])
+    rng = np.random.default_rng(seed)
+    th = sp.from_unit(np.clip(rng.normal(0.4, 0.12, (n, D)), 0, 1))
+    truth = sp.as_dict(sp.from_unit(np.full(D, 0.45)))
+    return sp, th, truth
+
+
+def _drawn_texts(fig):
+    """``(text, window extent)`` of every non-empty text the renderer actually draws."""
+    drawn = []
+    orig = Text.draw
+
+    def record(self, renderer):
+        orig(self, renderer)
+        if self.get_visible() and self.get_text().strip():
+            drawn.append((self, self.get_window_extent(renderer)))
+
+    with mock.patch.object(Text, "draw", record):
+        fig.canvas.draw()
+    return drawn
+
+
+def _assert_texts_inside(fig, min_pt=7.0):
+    W, H = fig.bbox.width, fig.bbox.height
+    texts = _drawn_texts(fig)
+    assert texts
+    for t, bb in texts:
+        assert bb.x0 >= -1 and bb.y0 >= -1 and bb.x1 <= W + 1 and bb.y1 <= H + 1, \
+            f"text {t.get_text()!r} at {bb} is clipped by the {W}x{H} figure"
+        assert t.get_fontsize() >= min_pt, f"text {t.get_text()!r} has font size {t.get_fontsize()} < {min_pt} pt"
+
+
+def _same_colour(a, b):
+    return np.allclose(to_rgba(a)[:3], to_rgba(b)[:3])
+
+
+def test_pairs_d7_draws_prior_box_truth_and_few_outer_ticks(tmp_path):
+    D = 7
+    sp, th, truth = _space_samples(D)
+    fig = R.pairs_figure(sp, th, truth, subtitle="fit: mujoco-flex + wind; measurement: simulated:mujoco-flex+wind")
+    axes = np.array(fig.axes).reshape(D, D)
+    prior, tc = R.ROLE_COLOURS["prior"], R.ROLE_COLOURS["truth"]
+    for i in range(D):
+        for j in range(D):
+            ax = axes[i, j]
+            if j > i:
+                assert not ax.axison
+                continue
+            # at most 3 ticks per axis, labels only on the outer row / column
+            assert len(ax.get_xticks()) <= 3 and (i == j or len(ax.get_yticks()) <= 3)
+            assert any(tk.label1.get_visible() for tk in ax.xaxis.get_major_ticks()) == (i == D - 1)
+            if i == j:
+                assert not ax.get_yticks().size
+                assert any(_same_colour(c.get_facecolor()[0], prior) for c in ax.collections), "prior band"
+                assert any(_same_colour(ln.get_color(), tc) for ln in ax.lines), "truth line"
+            else:
+                assert any(tk.label1.get_visible() for tk in ax.yaxis.get_major_ticks()) == (j == 0)
+                boxes = [p for p in ax.patches if isinstance(p, Rectangle) and _same_colour(p.get_edgecolor(), prior)]
+                assert boxes, "prior box outline"
+                lo, hi = ax.get_xlim()
+                assert lo < PARAMS[j].low and hi > PARAMS[j].high, "the prior box shows inside the axes"
+                assert any(_same_colour(ln.get_color(), tc) for ln in ax.lines), "truth marker"
+                assert _same_colour(ax.collections[0].get_facecolor()[0], R.ROLE_COLOURS["posterior"])
+    legend = axes[0, -1].get_legend()
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert any(lab.startswith("prior") for lab in labels) and any(lab.startswith("truth") for lab in labels)
+    assert fig.get_figwidth() <= 13 and fig.get_figheight() <= 13.5
+    _assert_texts_inside(fig)
+    plt.close(fig)
+    path = R.plot_pairs(tmp_path / "pairs.png", sp, th, truth)
+    assert path.stat().st_size > 20_000
+
+
+@pytest.mark.parametrize("D", [2, 4, 8])
+def test_pairs_readable_for_every_dimension(D):
+    sp, th, truth = _space_samples(D, n=500)
+    fig = R.pairs_figure(sp, th, truth if D != 4 else None)
+    assert 5.5 <= fig.get_figwidth() <= 13
+    labels = [t for t in fig.axes[-1].get_xticklabels() if t.get_visible() and t.get_text()]
+    assert 1 <= len(labels) <= 3
+    _assert_texts_inside(fig)
+    if D == 4:  # no truth: no truth legend entry
+        assert not any("truth" in t.get_text() for t in fig.axes[D - 1].get_legend().get_texts())
+    plt.close(fig)
+
+
+def test_param_ticks_are_round_and_labels_consistent():
+    assert R._param_ticks(Param("b", 1e-6, 1e-3, log=True)) == [1e-6, 1e-4]
+    assert R._param_ticks(Param("s", 80.0, 600.0, log=True)) == [100.0, 200.0, 500.0]
+    assert R._param_ticks(Param("w", -2.0, 2.0)) == [-2.0, 0.0, 2.0]
+    assert R._tick_texts([1e-6, 1e-4]) == ["$10^{-6}$", "$10^{-4}$"]
+    assert R._tick_texts([10.0, 100.0, 1000.0]) == ["10", "100", "1000"]
+    assert R._tick_texts([-2.0, 0.0, 2.0]) == ["\u22122", "0", "2"]
+
+
+def _check_out(T=25, long=False):
+    t = np.linspace(0, 0.96, T)
+    mean = 0.01 + 0.15 * t ** 2
+    names = [f"R{r + 1}" + (" (at the grasp)" if r == 0 else " (farthest from the grasp)" if r == 8 else "")
+             for r in range(9)]
+    cuts = np.linspace(0, T, 4).round().astype(int)
+    phases = [{"phase": p, "frames": [int(cuts[k]), int(cuts[k + 1] - 1)], "t_s": [float(t[cuts[k]]),
+               float(t[cuts[k + 1] - 1])], "chamfer_m": float(mean[cuts[k]:cuts[k + 1]].mean()),
+               "worst_region": "R9"} for k, p in enumerate(["early", "middle", "late"])]
+    run = "/very/long/path/to/a/run/directory/" + ("with_a_really_long_name_" * 6 if long else "run")
+    return {"run": run, "n_rollouts": 30, "times_s": t.tolist(),
+            "chamfer_per_frame_m": {"mean": mean.tolist(), "q05": (0.8 * mean).tolist(), "q95": (1.2 * mean).tolist()},
+            "chamfer_mean_m": float(mean.mean()), "regions": names,
+            "region_error_m": (mean[:, None] * np.linspace(0.5, 1.5, 9)).tolist(),
+            "region_mean_m": dict(zip(names, (mean.mean() * np.linspace(0.5, 1.5, 9)).tolist())),
+            "phases": phases, "worst_frames": [24, 23, 22], "worst_regions": [names[8], names[7]],
+            "misspecification": {"p_value_gamma": 2.7e-71, "p_value": 0.03},
+            "summary": "Posterior rollouts miss the measurement by ... " * 8}
+
+
+@pytest.mark.parametrize("long", [False, True])
+def test_check_headline_gives_the_verdict_and_fits_the_figure(tmp_path, long):
+    out = _check_out(long=long)
+    fig = R.check_figure(out)
+    texts = [t.get_text() for t in fig.texts]
+    head = texts[0].replace("\n", " ")
+    assert f"{out['chamfer_mean_m'] * 100:.2f} cm" in head and "late phase" in head and "p = 2.7e-71" in head
+    assert "NOT" in head
+    _assert_texts_inside(fig)
+    plt.close(fig)
+    assert R.plot_check(tmp_path / "check.png", out).stat().st_size > 10_000
+
+
+def test_compare_uses_the_before_after_roles(tmp_path):
+    a, b = _check_out(), _check_out()
+    b["misspecification"] = {"p_value_gamma": 0.4}
+    fig = R.compare_figure(a, b, "mujoco-flex (nominal)", "mujoco-flex + wind")
+    cols = [ln.get_color() for ln in fig.axes[0].lines]
+    assert _same_colour(cols[0], R.ROLE_COLOURS["nominal"]) and _same_colour(cols[1], R.ROLE_COLOURS["with_effect"])
+    bars = fig.axes[1].patches
+    assert _same_colour(bars[0].get_facecolor(), R.ROLE_COLOURS["nominal"])
+    assert _same_colour(bars[-1].get_facecolor(), R.ROLE_COLOURS["with_effect"])
+    _assert_texts_inside(fig)
+    plt.close(fig)
+    assert R.plot_compare(tmp_path / "compare.png", a, b, "A", "B").stat().st_size > 10_000
+
+
+def _scenario(T=12, name="lift"):
+    t = np.linspace(0, 1, T)
+    return SimpleNamespace(name=name, n_frames=T, times=t,
+                           gripper=np.stack([np.zeros(T), 0.1 - 0.1 * t, 0.08 + 0.3 * t], 1))
+
+
+def test_clouds_use_the_palette_and_one_legend():
+    sc = _scenario()
+    rng = np.random.default_rng(0)
+    dense = rng.normal(0, 0.05, (sc.n_frames, 300, 3))
+    sim = rng.normal(0, 0.05, (sc.n_frames, 400, 3))
+    fig = R.clouds_figure(sc, dense, sim, (0, 4, 8, 11), title="fit: mujoco-flex (nominal); measurement: x")
+    ax = fig.axes[0]
+    assert _same_colour(ax.collections[0].get_facecolor()[0], R.ROLE_COLOURS["measured"])
+    assert _same_colour(ax.collections[1].get_facecolor()[0], R.ROLE_COLOURS["posterior"])
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["measured", "simulated at the posterior median",
+                                                                  "gripper"]
+    _assert_texts_inside(fig)
+    plt.close(fig)
+
+
+def test_chamfer_rounds_is_titled_with_the_fit_not_the_measurement():
+    rep = {"observed": "simulated:mujoco-flex+wind", "backend": "mujoco-flex", "effects": [],
+           "chamfer_prior_m": 0.07, "chamfer_prior_std_m": 0.01,
+           "per_round": [{"round": 0, "chamfer_posterior_m": 0.06, "chamfer_posterior_std_m": 0.005},
+                         {"round": 1, "chamfer_posterior_m": 0.05, "chamfer_posterior_std_m": 0.004}]}
+    fig = R.chamfer_rounds_figure(rep)
+    head, sub = (t.get_text() for t in fig.texts)
+    assert "mujoco-flex (nominal)" in head and "wind" not in head
+    assert sub == "measurement: simulated:mujoco-flex+wind"
+    _assert_texts_inside(fig)
+    plt.close(fig)
+    fig = R.chamfer_rounds_figure({**rep, "effects": ["wind"]})
+    assert "mujoco-flex + wind" in fig.texts[0].get_text()
+    plt.close(fig)
+
+
+def test_palette_is_colour_blind_safe_and_engines_have_no_role_colour(tmp_path):
+    roles = {k: to_rgba(v) for k, v in R.ROLE_COLOURS.items()}
+    assert {"measured", "posterior", "prior", "truth", "gripper", "nominal", "with_effect"} <= set(roles)
+    assert roles["measured"] != roles["posterior"] and roles["nominal"] != roles["with_effect"]
+    assert not {to_rgba(c) for c in R.ENGINE_COLOURS[:2]} & set(roles.values())
+    # the compare-backends figure, with one failed engine
+    from softsbi.report import plot_compare_backends as compare_png
+    sc = _scenario()
+    rng = np.random.default_rng(1)
+    ros = {"mujoco-flex": SimpleNamespace(ok=True, vertices=rng.normal(0, 0.05, (sc.n_frames, 49, 3))),
+           "pybullet-massspring": SimpleNamespace(ok=False, vertices=rng.normal(0, 0.05, (5, 49, 3)))}
+    rep = {"chamfer_m": {"mujoco-flex|pybullet-massspring": None}, "mean_chamfer_m": {"mujoco-flex|pybullet-massspring": None},
+           "backends": {"mujoco-flex": {"reason": ""}, "pybullet-massspring": {"reason": "diverged"}}}
+    assert compare_png(sc, ros, rep, tmp_path / "cb.png").stat().st_size > 10_000

@@ -1,0 +1,62 @@
+"""softsbi.open_run: a finished run's posterior in physical units (the public API)."""
+import numpy as np
+import pytest
+
+import softsbi
+from softsbi.core.errors import SoftsbiError
+from softsbi.core.types import Param, ParamSpace
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+from toy_helpers import toy_measurement  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("api") / "run"
+    softsbi.fit(toy_measurement(), out, backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=60,
+                n_points=8, n_eval=5, n_dense=32, workers=1, seed=3, plots=False,
+                estimator_options={"max_epochs": 30, "hidden": [16]})
+    return out
+
+
+def test_open_run_posterior_matches_the_report_in_physical_units(toy_run):
+    run = softsbi.open_run(toy_run)
+    post = run.posterior
+    assert post.names == ["a", "b"] and run.config.backend == "toy-gauss"
+    s = post.sample(4000)
+    assert s.shape == (4000, 2) and np.all((s >= -1) & (s <= 1))
+    for n in post.names:  # the fit's own summaries, from an independent set of draws
+        sd = run.report["posterior_std"][n]
+        assert abs(post.mean[n] - run.report["posterior_mean"][n]) < 0.1 * sd + 1e-9
+        lo, hi = post.interval(0.9)[n]
+        assert abs(lo - run.report["posterior_q05"][n]) < 0.2 * sd and abs(hi - run.report["posterior_q95"][n]) < 0.2 * sd
+
+
+def test_log_prob_is_a_normalised_density_in_physical_units(toy_run):
+    post = softsbi.open_run(toy_run).posterior
+    rng = np.random.default_rng(0)
+    grid = rng.uniform(-1, 1, (200_000, 2))  # the prior box, volume 4
+    mass = 4.0 * np.exp(post.log_prob(grid)).mean()
+    assert mass == pytest.approx(1.0, abs=0.1)
+    assert np.all(post.log_prob(np.array([[1.5, 0.0]])) == -np.inf)  # outside the prior box
+
+
+def test_log_prob_has_the_jacobian_of_log_scaled_parameters():
+    from softsbi.workflows.runs import Posterior
+
+    class UniformUnit:  # uniform on the unit square
+        def log_prob(self, u):
+            return np.where(np.all((u >= 0) & (u <= 1), -1), 0.0, -np.inf)
+
+    space = ParamSpace([Param("k", 1.0, 100.0, "N/m", log=True), Param("x", 0.0, 2.0, "m")])
+    post = Posterior(space, UniformUnit())
+    theta = np.array([[10.0, 1.0]])
+    # log-uniform on [1, 100]: p(k) = 1 / (k ln 100); uniform on [0, 2]: 1/2
+    assert post.log_prob(theta)[0] == pytest.approx(-np.log(10.0 * np.log(100.0)) - np.log(2.0))
+
+
+def test_fit_refuses_an_unknown_setting_and_open_run_an_unfinished_run(tmp_path):
+    with pytest.raises(SoftsbiError, match="unknown fit setting 'round'.*Did you mean 'rounds'"):
+        softsbi.fit(toy_measurement(), tmp_path / "x", backend="toy-gauss", round=2)
+    with pytest.raises(SoftsbiError):
+        softsbi.open_run(tmp_path / "nothing-here")
