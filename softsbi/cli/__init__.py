@@ -120,10 +120,10 @@ class ProgressHooks(FitCallbacks):
         self.o.message(text, style="yellow")
 
 
-def _run(o: Output, meas, cfg, out: Path):
+def _run(o: Output, meas, cfg, out: Path, retry_failed: bool = False):
     from softsbi.workflows.fit import run_fit
     with o.progress() as p:
-        return run_fit(out, meas, cfg, callbacks=ProgressHooks(o, p))
+        return run_fit(out, meas, cfg, callbacks=ProgressHooks(o, p), retry_failed=retry_failed)
 
 
 def _pct_change(before: float, after: float) -> str:
@@ -309,6 +309,9 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
         proposal: Proposal = typer.Option(Proposal.corrected, help=H_PROPOSAL),
+        retry_failed: bool = typer.Option(False, "--retry-failed",
+                                          help="on resume, simulate the stored failed simulations again (after "
+                                               "fixing what made them fail); later rounds are drawn again"),
         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from softsbi.workflows.measurement import load_image_recording, load_recording
@@ -343,7 +346,7 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
                                f"observer (--observer heatmap|transporter) and a folder of frames")
         meas = load_recording(observed, n_points=points, seed=seed)
     o = Output(as_json)
-    res = _run(o, meas, cfg, out)
+    res = _run(o, meas, cfg, out, retry_failed=retry_failed)
     if as_json:
         o.emit_json(dict(res.report, run_dir=str(out)))
     else:

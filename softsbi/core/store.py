@@ -234,6 +234,39 @@ class RunStore:
         p = self._round(r)["posterior"]
         return MixtureOfGaussians(p["weights"][...], p["means"][...], p["scale_tril"][...])
 
+    def reset_failures(self) -> tuple[int, int, int] | None:
+        """Make the failed simulations of the earliest round that has any pending again.
+
+        That round becomes incomplete (its posterior is removed), and every later round and the
+        final evaluation are removed: they were drawn from its old posterior.
+
+        Returns:
+            ``(round, failed simulations reset, simulations of later rounds removed)``, or None when
+            no round holds a failed simulation.
+        """
+        for r in self.round_ids():
+            status = self._round(r)["status"][...]
+            failed = np.nonzero((status != 0) & (status != STATUS_PENDING))[0]
+            if len(failed) == 0:
+                continue
+            later = [k for k in self.round_ids() if k > r]
+            dropped = sum(int(self._round(k)["status"].shape[0]) for k in later)
+            for k in later:
+                shutil.rmtree(self.path / "rounds" / str(k), ignore_errors=True)
+            if "evaluation" in self.root:
+                shutil.rmtree(self.path / "evaluation", ignore_errors=True)
+            self.root = zarr.open_group(str(self.path), mode="a")
+            g = self._round(r)
+            g.attrs["complete"] = False
+            if "posterior" in g:
+                shutil.rmtree(self.path / "rounds" / str(r) / "posterior", ignore_errors=True)
+                self.root = zarr.open_group(str(self.path), mode="a")
+                g = self._round(r)
+            g["status"].oindex[failed] = np.uint8(STATUS_PENDING)
+            g.attrs["failures"] = {}
+            return r, int(len(failed)), int(dropped)
+        return None
+
     # -- evaluation -----------------------------------------------------------------
     def write_group(self, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None,
                     units: Mapping[str, str] | None = None) -> None:

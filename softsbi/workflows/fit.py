@@ -34,6 +34,7 @@ from softsbi.plugins import registry
 from softsbi.report import write_fit_plots
 from softsbi.scenarios.cameras import default_camera
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
+from softsbi.workflows.lock import run_lock
 
 # ----------------------------------------------------------------------------------------
 # configuration
@@ -415,7 +416,7 @@ def _chamfer_stats(chamfer: np.ndarray, status: np.ndarray) -> dict[str, Any]:
 
 
 def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
-            callbacks: FitCallbacks | None = None, make_plots: bool = True) -> FitResult:
+            callbacks: FitCallbacks | None = None, make_plots: bool = True, retry_failed: bool = False) -> FitResult:
     """Run (or resume) a sequential fit into ``out_dir``.
 
     Writes ``out_dir/run.zarr`` as it goes, then ``report.json`` and PNGs.
@@ -427,11 +428,15 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
         cfg: settings (default :class:`FitConfig`()); ``cfg.rounds`` may be raised on resume to
             add rounds.
         callbacks: progress callbacks (:class:`FitCallbacks`).
+        retry_failed: on resume, simulate the stored failed simulations again (e.g. after fixing the
+            environment that made them fail): the earliest round with failures is redone from its
+            stored draws and the rounds after it are drawn again from its new posterior.
 
     Returns:
         :class:`FitResult`.
 
     Raises:
+        RunLocked: another process is writing ``out_dir`` (one writer per run directory).
         SchemaError: the run directory holds a run with incompatible settings or schema.
         PluginNotFound, ParameterError: bad plugin names, effects or bounds.
         EnvironmentFault: the machine cannot simulate; nothing is stored as failed.
@@ -440,14 +445,21 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
     callbacks = callbacks or FitCallbacks()
     cfg = (cfg or FitConfig()).resolved(recording)
     cfg.validate()
+    with run_lock(out_dir):
+        return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
+
+
+def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbacks: FitCallbacks, make_plots: bool,
+                    retry_failed: bool) -> FitResult:
+    """:func:`run_fit` with the run directory's lock held."""
     t_start = time.perf_counter()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
     exe_cls = reg.executor(cfg.executor)
     _, space = fit_param_space(cfg, recording.scenario)
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
+    if retry_failed:
+        _retry_failed(store, callbacks)
     ctx = _sim_context(cfg, recording, store, space)
     loop = _Rounds(cfg, store, space, ctx, est_cls, callbacks)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
@@ -494,6 +506,18 @@ def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Para
     return store, 0.0
 
 
+def _retry_failed(store: RunStore, callbacks: FitCallbacks) -> None:
+    """Make the stored failed simulations pending again (``fit --retry-failed``)."""
+    redo = store.reset_failures()
+    if redo is None:
+        callbacks.message("no stored failed simulations to retry")
+        return
+    r, n_failed, n_dropped = redo
+    callbacks.message(f"retrying {n_failed} failed simulations of round {r + 1}"
+                      + (f"; the {n_dropped} simulations of later rounds were drawn from the old posterior of "
+                         f"round {r + 1} and are drawn again" if n_dropped else ""))
+
+
 def _sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: ParamSpace) -> SimContext:
     """What every simulation job of this fit needs: simulator, observer, the metric's reference."""
     observed = store.read_observed()
@@ -537,8 +561,9 @@ class _Rounds:
         if counts[r] == 0:
             reasons = sorted(set(store.round_attrs(r)["failures"].values()))
             raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; narrow the prior "
-                               f"bounds with --bounds or change backend options (finished simulations are "
-                               f"kept in {store.path})")
+                               f"bounds with --bounds or change backend options; if the environment made them "
+                               f"fail, fix it and re-run with --retry-failed (finished simulations are kept in "
+                               f"{store.path})")
         q, info = self._train(r, U, X, counts)
         post = self._add_posterior(r, q, counts)
         try:

@@ -1,0 +1,96 @@
+"""Runs that cannot be lost (issue 18, first part): one writer per run directory, and stored
+failures that can be retried once the cause is fixed."""
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from softsbi.core.store import RunStore
+from softsbi.core.types import STATUS_OK, STATUS_PENDING
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.lock import RunLocked, run_lock
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+from toy_helpers import TESTS_DIR, toy_measurement  # noqa: E402
+
+FIT = r"""
+import sys
+sys.path.insert(0, {tests!r})
+from toy_helpers import toy_measurement
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.lock import RunLocked
+cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=1, sims_per_round=40, workers=1, n_points=8,
+                n_eval=3, n_dense=32, seed={seed}, estimator_options={{"max_epochs": 10, "hidden": [16]}})
+try:
+    run_fit({out!r}, toy_measurement(), cfg, make_plots=False)
+except RunLocked as exc:
+    print("LOCKED", exc)
+    sys.exit(2)
+print("DONE")
+"""
+
+
+def _cfg(**kw):
+    base = dict(backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=30, workers=1, n_points=8, n_eval=3,
+                n_dense=32, seed=1, estimator_options={"max_epochs": 10, "hidden": [16]})
+    base.update(kw)
+    return FitConfig(**base)
+
+
+def test_a_second_writer_fails_at_once_naming_the_holder(tmp_path):
+    """Two fits started on one fresh run directory with different seeds: the second stops at once with
+    one line naming the first's pid; the first finishes and the store holds its run only."""
+    out = tmp_path / "run"
+    env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.1")
+    first = subprocess.Popen([sys.executable, "-c", FIT.format(tests=str(TESTS_DIR), out=str(out), seed=1)],
+                             env=env, stdout=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not (out / "run.lock.json").exists() and time.time() < deadline:
+        time.sleep(0.05)
+    t0 = time.time()
+    second = subprocess.run([sys.executable, "-c", FIT.format(tests=str(TESTS_DIR), out=str(out), seed=2)],
+                            env=env, capture_output=True, text=True, timeout=120)
+    assert second.returncode == 2, (second.stdout, second.stderr[-2000:])
+    assert f"pid {first.pid}" in second.stdout and str(out) in second.stdout
+    assert time.time() - t0 < 30  # at once, not after the first fit
+    assert first.wait(timeout=300) == 0 and "DONE" in first.stdout.read()
+    assert RunStore.open(out / "run.zarr").config["seed"] == 1
+
+
+def test_the_lock_is_released_after_a_fit_and_refused_inside_one(tmp_path):
+    with run_lock(tmp_path / "r"):
+        with pytest.raises(RunLocked, match="being written by another softsbi process"):
+            with run_lock(tmp_path / "r"):
+                pass
+    with run_lock(tmp_path / "r"):  # released: taken again
+        pass
+
+
+def test_retry_failed_resimulates_stored_failures_and_redraws_later_rounds(tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    monkeypatch.setenv("SOFTSBI_TOY_DIVERGE_ABOVE", "0.5")  # a > 0.5 "diverges": stored as failed
+    res = run_fit(out, toy_measurement(), _cfg(), make_plots=False)
+    failed0 = int(res.report["per_round"][0]["failed"])
+    assert failed0 > 0
+    monkeypatch.delenv("SOFTSBI_TOY_DIVERGE_ABOVE")
+    again = run_fit(out, toy_measurement(), _cfg(), make_plots=False)  # plain resume keeps the failures
+    assert again.report["per_round"][0]["failed"] == failed0
+    fixed = run_fit(out, toy_measurement(), _cfg(), make_plots=False, retry_failed=True)
+    assert fixed.report["failed_simulations"] == 0
+    store = RunStore.open(out / "run.zarr")
+    assert store.completed_rounds() == [0, 1]
+    assert np.all(store.round_data(0)["status"] == STATUS_OK)
+    assert store.round_attrs(0)["failures"] == {}
+
+
+def test_reset_failures_without_failures_changes_nothing(tmp_path):
+    out = tmp_path / "run"
+    run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+    store = RunStore.open(out / "run.zarr")
+    assert store.reset_failures() is None
+    assert store.completed_rounds() == [0] and not np.any(store.round_data(0)["status"] == STATUS_PENDING)
+    assert json.loads((out / "run.lock.json").read_text())["pid"] == os.getpid()
