@@ -235,10 +235,8 @@ class RunStore:
         return MixtureOfGaussians(p["weights"][...], p["means"][...], p["scale_tril"][...])
 
     def reset_failures(self) -> tuple[int, int, int] | None:
-        """Make the failed simulations of the earliest round that has any pending again.
-
-        That round becomes incomplete (its posterior is removed), and every later round and the
-        final evaluation are removed: they were drawn from its old posterior.
+        """Make the failed simulations of the earliest round that has any pending again
+        (:meth:`redo`).
 
         Returns:
             ``(round, failed simulations reset, simulations of later rounds removed)``, or None when
@@ -247,25 +245,62 @@ class RunStore:
         for r in self.round_ids():
             status = self._round(r)["status"][...]
             failed = np.nonzero((status != 0) & (status != STATUS_PENDING))[0]
-            if len(failed) == 0:
-                continue
-            later = [k for k in self.round_ids() if k > r]
-            dropped = sum(int(self._round(k)["status"].shape[0]) for k in later)
-            for k in later:
-                shutil.rmtree(self.path / "rounds" / str(k), ignore_errors=True)
-            if "evaluation" in self.root:
-                shutil.rmtree(self.path / "evaluation", ignore_errors=True)
-            self.root = zarr.open_group(str(self.path), mode="a")
-            g = self._round(r)
-            g.attrs["complete"] = False
-            if "posterior" in g:
-                shutil.rmtree(self.path / "rounds" / str(r) / "posterior", ignore_errors=True)
-                self.root = zarr.open_group(str(self.path), mode="a")
-                g = self._round(r)
-            g["status"].oindex[failed] = np.uint8(STATUS_PENDING)
-            g.attrs["failures"] = {}
-            return r, int(len(failed)), int(dropped)
+            if len(failed):
+                return r, int(len(failed)), self.redo(r, failed)
         return None
+
+    def damaged(self) -> tuple[int, dict[int, str]] | None:
+        """The earliest round with stored simulations that cannot be trusted: a chunk that cannot
+        be read (truncated or corrupt) or a simulation marked done whose state is missing (a deleted
+        chunk reads as its fill value).
+
+        Returns:
+            ``(round, {simulation: reason})``, or None when every stored simulation is intact.
+        """
+        for r in self.round_ids():
+            g = self._round(r)
+            bad: dict[int, str] = {}
+            arrays = {name: _read_rows(g[name], bad, name) for name in ("status", "x", "chamfer")}
+            done = arrays["status"] == 0
+            x = arrays["x"].reshape(len(done), -1)
+            for i in np.nonzero(done & ~np.all(np.isfinite(x), axis=1))[0]:
+                bad.setdefault(int(i), "its stored state is missing (a deleted chunk)")
+            complete = self.is_complete(r)
+            if complete:  # a complete round has no pending simulation: its status chunk is gone
+                for i in np.nonzero(arrays["status"] == STATUS_PENDING)[0]:
+                    bad.setdefault(int(i), "its status is missing (a deleted chunk)")
+            else:  # a pending simulation is (re)written whole when it is simulated
+                bad = {i: why for i, why in bad.items() if arrays["status"][i] != STATUS_PENDING}
+            if bad:
+                return r, bad
+        return None
+
+    def redo(self, r: int, rows: Sequence[int]) -> int:
+        """Make simulations ``rows`` of round ``r`` pending again (their parameters and seeds stay),
+        mark the round incomplete (its posterior is removed) and remove every later round and the
+        final evaluation, which were drawn from its old posterior.
+
+        Returns:
+            the number of simulations of later rounds removed.
+        """
+        later = [k for k in self.round_ids() if k > r]
+        dropped = sum(int(self._round(k)["status"].shape[0]) for k in later)
+        for k in later:
+            shutil.rmtree(self.path / "rounds" / str(k), ignore_errors=True)
+        shutil.rmtree(self.path / "evaluation", ignore_errors=True)
+        shutil.rmtree(self.path / "rounds" / str(r) / "posterior", ignore_errors=True)
+        self.root = zarr.open_group(str(self.path), mode="a")
+        g = self._round(r)
+        g.attrs["complete"] = False
+        rows = np.asarray(sorted(int(i) for i in rows), dtype=np.int64)
+        if len(rows):
+            for i in rows:  # whole-chunk writes: a damaged chunk is replaced, never read
+                g["x"][int(i)] = np.full(g["x"].shape[1:], np.nan, np.float32)
+                g["chamfer"][int(i)] = np.full(g["chamfer"].shape[1:], np.nan, np.float32)
+            g["status"].oindex[rows] = np.uint8(STATUS_PENDING)
+            fails = {k: v for k, v in dict(g.attrs.get("failures", {})).items() if int(k) not in set(rows.tolist())}
+            g.attrs["failures"] = fails
+        return int(dropped)
 
     # -- evaluation -----------------------------------------------------------------
     def write_group(self, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None,
@@ -297,3 +332,17 @@ def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], uni
                          attributes={"units": units})
     arr[...] = value
 
+
+def _read_rows(arr: zarr.Array, bad: dict[int, str], name: str) -> np.ndarray:
+    """``arr[...]``; when a chunk cannot be read, row by row, with the unreadable rows filled
+    (``arr.fill_value``) and named in ``bad``."""
+    try:
+        return arr[...]
+    except Exception:  # noqa: BLE001 - a truncated or corrupt chunk fails with the codec's error
+        out = np.full(arr.shape, arr.fill_value, dtype=arr.dtype)
+        for i in range(arr.shape[0]):
+            try:
+                out[i] = arr[i]
+            except Exception as exc:  # noqa: BLE001
+                bad.setdefault(i, f"its '{name}' chunk cannot be read ({type(exc).__name__})")
+        return out

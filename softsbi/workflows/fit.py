@@ -458,6 +458,7 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     exe_cls = reg.executor(cfg.executor)
     _, space = fit_param_space(cfg, recording.scenario)
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
+    _repair_damaged(store, callbacks)
     if retry_failed:
         _retry_failed(store, callbacks)
     ctx = _sim_context(cfg, recording, store, space)
@@ -504,6 +505,23 @@ def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Para
                          recording.source, images=recording.images, masks=masks)
     store.update_config(rounds=cfg.rounds)
     return store, 0.0
+
+
+def _repair_damaged(store: RunStore, callbacks: FitCallbacks) -> None:
+    """Stored simulations whose chunks are missing or unreadable are named and simulated again
+    from their stored parameters and seeds, never dropped or trained on; the rounds after the
+    first damaged one are drawn again from its new posterior."""
+    found = store.damaged()
+    if found is None:
+        return
+    r, bad = found  # the earliest damaged round: the rounds after it are drawn again anyway
+    rows = sorted(bad)
+    reasons = sorted(set(bad.values()))
+    dropped = store.redo(r, rows)
+    callbacks.message(f"round {r + 1}: {len(rows)} stored simulations of {store.path} cannot be trusted "
+                      f"(simulations {rows[:10]}{' ...' if len(rows) > 10 else ''}: {'; '.join(reasons)}); "
+                      f"simulating them again from their stored seeds"
+                      + (f", and drawing the {dropped} simulations of later rounds again" if dropped else ""))
 
 
 def _retry_failed(store: RunStore, callbacks: FitCallbacks) -> None:

@@ -22,18 +22,25 @@ class RunLocked(SoftsbiError):
     """Another process is writing this run directory."""
 
 
+class RunDirError(SoftsbiError):
+    """The run directory cannot be created or written (a file, read-only, no space)."""
+
+
 @contextlib.contextmanager
 def run_lock(run_dir: str | Path) -> Iterator[None]:
     """Hold the run directory's write lock for the ``with`` block (creating the directory).
 
     Raises:
         RunLocked: another process holds it; the message names its pid, since when, and the fix.
+        RunDirError: the path is a file, or the directory cannot be created or written.
     """
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    lock = FileLock(str(run_dir / "run.lock"), timeout=0)
-    info = run_dir / "run.lock.json"
     try:
+        if run_dir.exists() and not run_dir.is_dir():
+            raise RunDirError(f"--out '{run_dir}' is a file, not a run directory; choose a folder path")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(str(run_dir / "run.lock"), timeout=0)
+        info = run_dir / "run.lock.json"
         lock.acquire()
     except Timeout:
         try:
@@ -43,6 +50,9 @@ def run_lock(run_dir: str | Path) -> Iterator[None]:
             who = "pid unknown"
         raise RunLocked(f"run directory '{run_dir}' is being written by another softsbi process ({who}); wait "
                         f"for it to finish (then the same command resumes) or fit into another --out") from None
+    except OSError as exc:  # after Timeout, which is an OSError (TimeoutError) too
+        raise RunDirError(f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); choose a writable "
+                          f"--out (or free space / fix its permissions)") from None
     try:
         info.write_text(json.dumps({"pid": os.getpid(), "since": _dt.datetime.now().isoformat(timespec="seconds")}))
         yield

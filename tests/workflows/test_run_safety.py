@@ -9,6 +9,7 @@ import time
 import numpy as np
 import pytest
 
+from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING
 from softsbi.workflows.fit import FitConfig, run_fit
@@ -94,3 +95,61 @@ def test_reset_failures_without_failures_changes_nothing(tmp_path):
     assert store.reset_failures() is None
     assert store.completed_rounds() == [0] and not np.any(store.round_data(0)["status"] == STATUS_PENDING)
     assert json.loads((out / "run.lock.json").read_text())["pid"] == os.getpid()
+
+
+def _chunk(out, r, name, i):
+    """The file of simulation ``i``'s chunk of array ``name`` in round ``r`` (one simulation per chunk)."""
+    base = out / "run.zarr" / "rounds" / str(r) / name / "c" / str(i)
+    files = [base] if base.is_file() else [p for p in base.rglob("*") if p.is_file()]
+    assert len(files) == 1, files
+    return files[0]
+
+
+def test_missing_and_damaged_chunks_are_named_resimulated_and_never_trained_on(tmp_path):
+    out = tmp_path / "run"
+    cfg = _cfg()
+    first = run_fit(out, toy_measurement(), cfg, make_plots=False)
+    before = RunStore.open(out / "run.zarr").round_data(0)
+    _chunk(out, 0, "x", 3).unlink()                       # a deleted chunk
+    p = _chunk(out, 0, "x", 5)
+    p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2])  # a truncated chunk
+    _chunk(out, 0, "status", 7).unlink()                  # a simulation whose "done" mark is gone
+    store = RunStore.open(out / "run.zarr")
+    r, bad = store.damaged()
+    assert r == 0 and sorted(bad) == [3, 5, 7], bad
+    assert "cannot be read" in bad[5] and "missing" in bad[3] and "status" in bad[7]
+    messages = []
+
+    class Cb:
+        def message(self, text):
+            messages.append(text)
+
+        def __getattr__(self, name):
+            return lambda *a, **k: None
+
+    again = run_fit(out, toy_measurement(), cfg, callbacks=Cb(), make_plots=False)
+    assert any("simulations [3, 5, 7]" in m and "again" in m for m in messages), messages
+    after = RunStore.open(out / "run.zarr")
+    assert after.damaged() is None and after.completed_rounds() == [0, 1]
+    d = after.round_data(0)
+    assert np.all(d["status"] == STATUS_OK)
+    np.testing.assert_array_equal(d["x"], before["x"])  # the same seeds give the same simulations
+    # the report is written from the posterior it reports: the same data give the same numbers
+    assert again.report["posterior_mean"] == first.report["posterior_mean"]
+    assert again.report["chamfer_posterior_m"] == first.report["chamfer_posterior_m"]
+
+
+def test_an_out_that_is_a_file_or_unwritable_is_one_clear_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from softsbi.cli import app
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    r = CliRunner().invoke(app, ["fit", "--observed", str(tmp_path), "--out", str(afile)])
+    assert r.exit_code == 2
+    with pytest.raises(SoftsbiError, match="is a file, not a run directory"):
+        with run_lock(afile):
+            pass
+    with pytest.raises(SoftsbiError, match="cannot write the run directory"):
+        with run_lock("/proc/softsbi-cannot-be-here"):
+            pass
