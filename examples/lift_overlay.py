@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 from softsbi.backends.mujoco_flex import MujocoFlex
-from softsbi.scenarios.builtin import load_recording, lift_scenario, overlay_png
+from softsbi.report import plot_scenario_overlay as overlay_png
+from softsbi.scenarios.builtin import load_recording, lift_scenario
 
 
 def main(argv: list[str]) -> None:
@@ -41,7 +42,7 @@ def main(argv: list[str]) -> None:
     clouds = load_recording(rec)
     for frame in (0, len(clouds) - 1):
         p = overlay_png(scenario, rollout, clouds[frame], out / f"{rec.name}_frame{frame:02d}{suffix}.png",
-                        frame=frame, title=f"{rec.name} frame {frame}: real (blue) vs mujoco-flex at {label} (red)")
+                        frame=frame, title=f"{rec.name} frame {frame}: measured (grey) vs mujoco-flex at {label} (blue)")
         print(p)
 
 

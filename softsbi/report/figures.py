@@ -652,3 +652,50 @@ def plot_rollout_preview(ro: Any, path: str | Path, title: str) -> Path:
     fig.suptitle(title, fontsize=FS_TITLE)
     fig.tight_layout()
     return _save(fig, Path(path))
+
+
+def plot_scenario_overlay(scenario: Any, rollout: Any, real_points: np.ndarray, path: str | Path,
+                          frame: int = 0, title: str | None = None) -> Path:
+    """Top and side view (m) of a measured frame against the simulated cloth and the gripper path,
+    in the palette's measured and posterior colours (``examples/lift_overlay.py``).
+
+    Args:
+        scenario: the lift scenario (lift frame, m).
+        rollout: a :class:`~softsbi.core.types.Rollout` (its ``vertices[frame]`` are drawn), or None.
+        real_points: ``(P, 3)`` m, the measured cloud of the same frame in the lift frame.
+        path: output PNG file (its folder is created).
+        frame: which frame to draw. title: optional figure title.
+
+    Raises:
+        ShapeError: ``real_points`` is not ``(P, 3)``.
+    """
+    from softsbi.core.errors import ShapeError
+
+    real = np.asarray(real_points, dtype=float)
+    if real.ndim != 2 or real.shape[1] != 3:
+        raise ShapeError(f"real_points must be (P, 3), got {real.shape}")
+    plt = _plt()
+    g = scenario.gripper
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
+    for ax, (i, j), lab in ((axes[0], (0, 1), ("x [m]", "y [m]")), (axes[1], (1, 2), ("y [m]", "z [m]"))):
+        ax.scatter(real[:, i], real[:, j], s=2, color=ROLE_COLOURS["measured"], alpha=0.5,
+                   label=f"measured frame {frame}")
+        if rollout is not None:
+            v = np.asarray(rollout.vertices[frame])
+            ax.scatter(v[:, i], v[:, j], s=10, color=ROLE_COLOURS["posterior"], label=f"simulated frame {frame}")
+        ax.plot(g[:, i], g[:, j], "-", color=ROLE_COLOURS["gripper"], lw=1, label="gripper path")
+        ax.plot(g[frame, i], g[frame, j], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2)
+        if j == 2:
+            ax.axhline(scenario.table_z, color=ROLE_COLOURS["prior"], ls="--", lw=1, label="table")
+        ax.set_xlabel(lab[0], fontsize=FS_LABEL)
+        ax.set_ylabel(lab[1], fontsize=FS_LABEL)
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+    axes[0].set_title("top view", fontsize=FS_SUB)
+    axes[1].set_title("side view", fontsize=FS_SUB)
+    axes[1].legend(loc="upper right", fontsize=FS_LEGEND)
+    fig.suptitle(title or f"{scenario.options.get('recording', scenario.name)}: frame {frame}", fontsize=FS_TITLE)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return _save(fig, path)

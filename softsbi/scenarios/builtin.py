@@ -411,51 +411,6 @@ def lift_scenario(recording: str | Path | None = None, n_frames: int = N_FRAMES,
 # --------------------------------------------------------------------------------------------
 # overlay
 # --------------------------------------------------------------------------------------------
-def overlay_png(scenario: Scenario, rollout: Any, real_points: np.ndarray, path: str | Path,
-                frame: int = 0, title: str | None = None) -> Path:
-    """Write a top + side view PNG of a real frame against the simulated cloth and gripper path.
-
-    Args:
-        scenario: the lift scenario (lift frame, m).
-        rollout: a :class:`~softsbi.core.types.Rollout` (its ``vertices[frame]`` are drawn), or None.
-        real_points: ``(P, 3)`` m, the real cloud of the same frame in the lift frame.
-        path: output PNG file.
-        frame: which rollout frame to draw.
-        title: optional figure title.
-
-    Returns:
-        The written path. Uses matplotlib's Agg backend (no display needed).
-    """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    real = np.asarray(real_points, dtype=float)
-    if real.ndim != 2 or real.shape[1] != 3:
-        raise ShapeError(f"real_points must be (P, 3), got {real.shape}")
-    g = scenario.gripper
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
-    for ax, (i, j), lab in ((axes[0], (0, 1), ("x [m]", "y [m]")), (axes[1], (1, 2), ("y [m]", "z [m]"))):
-        ax.scatter(real[:, i], real[:, j], s=2, c="tab:blue", alpha=0.4, label=f"real frame {frame}")
-        if rollout is not None:
-            v = np.asarray(rollout.vertices[frame])
-            ax.scatter(v[:, i], v[:, j], s=10, c="tab:red", label=f"simulated frame {frame}")
-        ax.plot(g[:, i], g[:, j], "k-", lw=1, label="gripper path")
-        ax.plot(g[frame, i], g[frame, j], "kx", ms=10)
-        if j == 2:
-            ax.axhline(scenario.table_z, color="gray", ls="--", lw=1, label="table")
-        ax.set_xlabel(lab[0]); ax.set_ylabel(lab[1]); ax.set_aspect("equal"); ax.grid(alpha=0.3)
-    axes[0].set_title("top view"); axes[1].set_title("side view")
-    axes[1].legend(loc="upper right", fontsize=8)
-    fig.suptitle(title or f"{scenario.options.get('recording', scenario.name)}: frame {frame}")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
-
-
 # --------------------------------------------------------------------------------------------
 # the other scenarios of the paper: wipe, wind, fling (synthetic, engine-independent)
 # --------------------------------------------------------------------------------------------

@@ -131,7 +131,8 @@ def test_overlay_png(tmp_path):
     sc = S.lift_scenario(None)
     v = np.zeros((25, 4, 3))
     r = Rollout(times=sc.times, gripper=sc.gripper, vertices=v, faces=np.zeros((0, 3), int))
-    out = S.overlay_png(sc, r, np.random.default_rng(0).normal(size=(100, 3)) * 0.1, tmp_path / "o.png")
+    from softsbi.report import plot_scenario_overlay
+    out = plot_scenario_overlay(sc, r, np.random.default_rng(0).normal(size=(100, 3)) * 0.1, tmp_path / "o.png")
     assert out.is_file() and out.stat().st_size > 10_000
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
