@@ -22,10 +22,9 @@ from scipy import stats
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.types import STATUS_OK, Scenario
+from softsbi.core.types import Scenario
 from softsbi.perception.pointcloud import sample_surface
 from softsbi.report import plot_check
-from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import load_run
 
 #: names of the per-frame summary statistics
@@ -179,11 +178,9 @@ def check_run(run_dir: str | Path, n_samples: int = 30, workers: int | None = No
     """
     t0 = time.perf_counter()
     run = load_run(run_dir, n_samples, seed)
-    # the fit's own job, samples and seeds: the per-frame Chamfer is the fit's metric, so the mean
-    # equals report.json's chamfer_posterior_m when all of the fit's evaluation samples are used
-    items = list(zip(run.post_theta, run.post_seeds))
-    res = run_jobs(run.sim_context(keep_rollout=True), items, workers)
-    ok = [r for r in res if r["status"] == STATUS_OK and r.get("vertices") is not None]
+    # the fit's own job, samples and seeds: the mean Chamfer equals report.json's
+    # chamfer_posterior_m when all of the fit's evaluation samples are used
+    ok, res = run.posterior_rollouts(workers)
     if len(ok) < 5:
         raise SoftsbiError(f"only {len(ok)} of {len(res)} posterior rollouts succeeded; cannot check the fit")
     dense = run.dense

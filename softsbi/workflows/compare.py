@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.report import plot_compare
+from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import check_run
-from softsbi.workflows.runs import RunView, load_run
+from softsbi.workflows.runs import load_run
 
 
 def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_samples: int = 30,
@@ -38,8 +38,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
         rows.append({"what": f"region {name}", "a": a["region_mean_m"][name], "b": b["region_mean_m"].get(name, np.nan)})
     for r in rows:
         r["change"] = (r["b"] - r["a"]) / r["a"] if r["a"] else 0.0
-    la = _label(ra)
-    lb = _label(rb)
+    la = fit_label(ra.config)
+    lb = fit_label(rb.config)
     drop = -rows[0]["change"]
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
                f"({drop * 100:.0f}% {'lower' if drop >= 0 else 'higher'}); misspecification p "
@@ -52,9 +52,3 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
            "summary": summary, "check_a": a, "check_b": b, "png": str(png), "json": str(out_dir / "compare.json")}
     (out_dir / "compare.json").write_text(json.dumps(res, indent=2))
     return res
-
-
-def _label(run: RunView) -> str:
-    eff = run.effects
-    return f"{run.config['backend']} + {'+'.join(eff)}" if eff else f"{run.config['backend']} (nominal)"
-

@@ -11,10 +11,10 @@ import numpy as np
 from softsbi.core.distributions import PosteriorChain
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
-from softsbi.core.types import ParamSpace, Scenario
+from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.workflows.fit import FitConfig, _usable
-from softsbi.workflows.jobs import SimContext, evaluation_seeds
+from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
 
 
 @dataclass
@@ -40,6 +40,21 @@ class RunView:
                           observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
                           fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
                           keep_rollout=keep_rollout)
+
+    def posterior_rollouts(self, workers: int | None = None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+        """Re-simulate the run's posterior samples (:attr:`post_theta`) with their seeds through the
+        fit's own job, so each rollout's per-frame Chamfer is the fit's metric.
+
+        Returns:
+            ``(ok, results)``: the successful rollouts (job results with ``vertices (T, N, 3)`` m,
+            ``faces``, ``gripper``, ``chamfer (T,)``, plus ``sample`` = the row of
+            :attr:`post_theta` and ``seed``) and every job result, in sample order.
+        """
+        items = list(zip(self.post_theta, self.post_seeds))
+        res = run_jobs(self.sim_context(keep_rollout=True), items, workers)
+        ok = [dict(r, sample=i, seed=int(items[i][1])) for i, r in enumerate(res)
+              if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
+        return ok, res
 
     @property
     def fixed(self) -> dict[str, float]:

@@ -25,10 +25,8 @@ import numpy as np
 
 from softsbi.workflows.runs import RunView, load_run
 
-from softsbi.workflows.jobs import run_jobs
 from softsbi.core.errors import SoftsbiError
 
-from softsbi.core.types import STATUS_OK
 from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 
 
@@ -66,15 +64,9 @@ def posterior_rollouts(run_dir: str | Path, n_samples: int = 5,
     view = load_run(run_dir, n_samples=int(n_samples))
     # the fit's own job, evaluation samples and seeds: the rollouts are the fit's posterior-predictive
     # rollouts and their Chamfer is the fit's metric (as in `softsbi check` and report.json)
-    items = list(zip(view.post_theta, view.post_seeds))
-    res = run_jobs(view.sim_context(keep_rollout=True), items, workers)
-    rollouts = []
-    for i, r in enumerate(res):
-        if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None:
-            r = dict(r)
-            r["faces"] = np.asarray(r["faces"] if r.get("faces") is not None else np.zeros((0, 3)), int)
-            r["sample"], r["seed"] = i, int(items[i][1])
-            rollouts.append(r)
+    rollouts, res = view.posterior_rollouts(workers)
+    for r in rollouts:
+        r["faces"] = np.asarray(r["faces"] if r.get("faces") is not None else np.zeros((0, 3)), int)
     if not rollouts:
         reasons = sorted({str(r.get("reason")) for r in res if r is not None})
         raise SoftsbiError(f"all {len(res)} posterior rollouts of '{run_dir}' failed ({'; '.join(reasons)}); "
