@@ -60,14 +60,14 @@ def size_params(scenario: Scenario | None, rope: bool) -> list[Param]:
 
 # -- checks ------------------------------------------------------------------------------------
 def check_scenario(sim: Any, scenario: Scenario) -> None:
-    """Refuse a scenario not in ``sim.scenarios``.
+    """Refuse a scenario needing an engine feature ``sim`` lacks (any valid scenario file otherwise runs;
+    :func:`softsbi.backends.scenario_build.check_features`).
 
     Raises:
-        ValueError: names the backend and its valid scenarios.
+        ValueError: names the backend, the scenario and the missing feature.
     """
-    if scenario.name not in sim.scenarios:
-        raise ValueError(f"{sim.name} cannot run scenario '{scenario.name}'; valid scenarios: "
-                         f"{', '.join(sim.scenarios)}")
+    from softsbi.backends.scenario_build import check_features
+    check_features(sim, scenario)
 
 
 def check_effects(sim: Any, effects: Sequence[str]) -> None:

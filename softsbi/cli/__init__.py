@@ -635,6 +635,21 @@ def compare_backends_cmd(scenario: str = typer.Option("lift", help="scenario nam
     o.line(f"wrote {out / 'compare.json'} and {out / 'compare.png'}")
 
 
+@app.command("scenarios")
+@_guard
+def scenarios_cmd(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """List the scenarios: the built-in scenario files and those plugins add (softsbi_scenarios hook).
+    Any scenario file path works wherever a scenario name does."""
+    from softsbi.scenarios import list_scenarios
+    rows = list_scenarios()
+    o = Output(as_json)
+    if as_json:
+        o.emit_json(rows)
+        return
+    o.table(["name", "source", "description"], [[r["name"], r["source"], r["description"]] for r in rows],
+            title="scenarios")
+
+
 def main() -> None:
     """Console-script entry point."""
     app()

@@ -206,33 +206,99 @@ class ParamSpace:
 
 
 @dataclass
+class Handle:
+    """One grasp of the object: a vertex held by the robot (pinned, or following a path).
+
+    Attributes:
+        name: label (e.g. ``"grip"``, ``"held_corner"``).
+        grasp: which vertex: ``{"corner": k}`` (grid cloth, :func:`~softsbi.backends.common.grid_corners`
+            order, 0 = the placed corner), ``{"end": k}`` (rope: 0 = the start end, 1 = the far end),
+            ``{"vertex": i}`` (mesh cloth: index into the mesh) or ``{"point": [x, y, z]}`` (the rest
+            vertex nearest to this point of the scenario frame, m).
+        path: ``(T, 3)`` m, the commanded positions at the scenario's frame times, or None for a pinned
+            handle (held where the vertex rests). Backends shift a path by a constant so it starts on
+            the grasped vertex, and interpolate it linearly between frames.
+    """
+
+    name: str
+    grasp: dict[str, Any]
+    path: np.ndarray | None = None
+
+    @property
+    def pinned(self) -> bool:
+        return self.path is None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "grasp": jsonable(self.grasp),
+                "path": None if self.path is None else np.asarray(self.path).tolist()}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> "Handle":
+        return cls(name=str(d["name"]), grasp=dict(d["grasp"]),
+                   path=None if d.get("path") is None else np.asarray(d["path"], dtype=float))
+
+
+@dataclass
 class Scenario:
     """A manipulation task: what the robot does to the object, independent of the engine.
 
+    Scenarios are data: :func:`softsbi.scenarios.load_scenario` builds one from a scenario file
+    (``softsbi/scenarios/files/*.yaml`` for the built-in ones).
+
     Attributes:
-        name: scenario kind, e.g. ``"lift"``.
+        name: scenario name, e.g. ``"lift"``.
         times: ``(T,)`` seconds, the frame times at which states are recorded (t[0] = 0).
-        gripper: ``(T, 3)`` metres, the grasp point's commanded position at each frame;
-            backends interpolate between frames (piecewise-linear).
+        gripper: ``(T, 3)`` metres, the first moving handle's commanded path (kept for every
+            single-gripper consumer); may be None when ``handles`` are given.
         table_z: height of the table top, metres.
         object: description of the deformable object, e.g.
-            ``{"kind": "cloth", "size": 0.28, "corner": [x, y], "direction": [dx, dy]}``.
+            ``{"kind": "cloth", "size": 0.28, "corner": [x, y], "direction": [dx, dy]}``; a mesh cloth
+            has ``"mesh": {"vertices": (N, 3) m, "faces": (F, 3)}`` at its rest placement.
         options: free-form extras (source recording, notes on derivations).
+        handles: every grasp (:class:`Handle`); default one moving handle on the grasped corner
+            (cloth) or end (rope) following ``gripper``.
+        world: ``{"gravity": [gx, gy, gz] m/s^2, "obstacles": [{"type": "box"|"cylinder", ...}]}``
+            (defaults: -9.81 m/s^2 along z, no obstacles besides the table).
+        cameras: optional ``[{"name", "eye", "target", "up", "fovy_deg", "width", "height"}]``.
+
+    Raises:
+        ShapeError: times not ``(T,)`` strictly increasing, a path not ``(T, 3)``, no handle.
     """
 
     name: str
     times: np.ndarray
-    gripper: np.ndarray
+    gripper: np.ndarray | None
     table_z: float
     object: dict[str, Any] = field(default_factory=dict)
     options: dict[str, Any] = field(default_factory=dict)
+    handles: list[Handle] = field(default_factory=list)
+    world: dict[str, Any] = field(default_factory=dict)
+    cameras: list[dict[str, Any]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.times = np.asarray(self.times, dtype=float)
+        if self.times.ndim != 1:
+            raise ShapeError(f"scenario '{self.name}': times must be (T,), got {self.times.shape}")
+        T = len(self.times)
+        self.handles = [h if isinstance(h, Handle) else Handle.from_json(h) for h in self.handles]
+        if self.gripper is None:
+            moving = [h for h in self.handles if not h.pinned]
+            if not moving:
+                raise ShapeError(f"scenario '{self.name}' needs a gripper path or at least one moving handle")
+            self.gripper = moving[0].path
         self.gripper = np.asarray(self.gripper, dtype=float)
-        if self.times.ndim != 1 or self.gripper.shape != (len(self.times), 3):
+        if self.gripper.shape != (T, 3):
             raise ShapeError(f"scenario '{self.name}': times must be (T,) and gripper (T, 3); got "
                              f"{self.times.shape} and {self.gripper.shape}")
+        if not self.handles:
+            grasp = {"end": 0} if self.object.get("kind") == "rope" else {"corner": 0}
+            self.handles = [Handle("grip", grasp, self.gripper)]
+        for h in self.handles:
+            if h.path is not None:
+                h.path = np.asarray(h.path, dtype=float)
+                if h.path.shape != (T, 3):
+                    raise ShapeError(f"scenario '{self.name}': handle '{h.name}' path must be ({T}, 3), "
+                                     f"got {h.path.shape}")
         if np.any(np.diff(self.times) <= 0):
             raise ShapeError(f"scenario '{self.name}': frame times must increase strictly")
 
@@ -244,16 +310,24 @@ class Scenario:
     def duration(self) -> float:
         return float(self.times[-1] - self.times[0])
 
+    @property
+    def gravity(self) -> list[float]:
+        """``[gx, gy, gz]`` m/s^2 (default ``[0, 0, -9.81]``)."""
+        return [float(v) for v in self.world.get("gravity", (0.0, 0.0, -9.81))]
+
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "times": self.times.tolist(), "gripper": self.gripper.tolist(),
                 "table_z": float(self.table_z), "object": jsonable(self.object),
-                "options": jsonable(self.options)}
+                "options": jsonable(self.options), "handles": [h.to_json() for h in self.handles],
+                "world": jsonable(self.world), "cameras": jsonable(self.cameras)}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> "Scenario":
         return cls(name=d["name"], times=np.asarray(d["times"]), gripper=np.asarray(d["gripper"]),
                    table_z=float(d["table_z"]), object=dict(d.get("object", {})),
-                   options=dict(d.get("options", {})))
+                   options=dict(d.get("options", {})),
+                   handles=[Handle.from_json(h) for h in d.get("handles", [])],
+                   world=dict(d.get("world", {})), cameras=list(d.get("cameras", [])))
 
 
 def jsonable(x: Any) -> Any:

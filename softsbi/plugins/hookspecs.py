@@ -58,3 +58,9 @@ def softsbi_executors() -> list[type[Executor]]:
 @hookspec
 def softsbi_extractors() -> list[type[KeypointExtractor]]:
     """Keypoint extractors (image -> K keypoints) this plugin provides."""
+
+
+@hookspec
+def softsbi_scenarios() -> dict:
+    """Code-defined scenarios: ``{name: Scenario | zero-argument callable returning one | scenario file
+    path}`` (:mod:`softsbi.scenarios.catalog`; ``softsbi scenarios`` lists them)."""

@@ -79,6 +79,8 @@ _DIST: dict[int, str] = {}
 KINDS = {"simulator": "softsbi_simulators", "effect": "softsbi_effects", "observer": "softsbi_observers",
          "estimator": "softsbi_estimators", "executor": "softsbi_executors", "extractor": "softsbi_extractors"}
 
+#: every hook name (the kinds' hooks plus softsbi_scenarios, whose entries are scenarios, not classes)
+HOOKS = (*KINDS.values(), "softsbi_scenarios")
 #: kind -> the ABC (softsbi.core.interfaces) every class of that kind derives from
 BASES: dict[str, type] = {"simulator": Simulator, "effect": Effect, "observer": Observer,
                           "estimator": PosteriorEstimator, "executor": Executor, "extractor": KeypointExtractor}
@@ -164,9 +166,9 @@ class Registry:
             for impl in caller.get_hookimpls():
                 if not impl.optionalhook:
                     unknown.append(f"{self._who(impl.plugin)} has an unknown hook '{name}'."
-                                   f"{closest(name, KINDS.values())}")
+                                   f"{closest(name, HOOKS)}")
         if unknown:
-            raise PluginError(" ".join(unknown) + f" The hooks are: {', '.join(KINDS.values())}.")
+            raise PluginError(" ".join(unknown) + f" The hooks are: {', '.join(HOOKS)}.")
         try:  # whatever else pluggy finds unverified
             self.pm.check_pending()
         except pluggy.PluginValidationError as exc:

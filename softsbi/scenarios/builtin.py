@@ -559,20 +559,26 @@ def _check_synth(n_frames: int, duration: float, size: float) -> None:
 
 
 def make_scenario(name: str, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
-    """Build a scenario by name: ``lift`` (real DiffCloud lift, optionally from ``recording``),
-    ``wipe``, ``wind``, ``fling`` (synthetic; see their constructors for geometry and paths).
-
-    Args:
-        name: one of :data:`SCENARIOS`.
-        recording: lift only - a recording folder (``.../diffcloud_lift/lift_tan``).
-        kwargs: passed to the constructor (e.g. ``n_frames``).
+    """Build a scenario by name. Without ``recording`` or ``kwargs`` this is the scenario file of that
+    name (:func:`softsbi.scenarios.catalog.load_scenario`: built-in files, plugins, or a file path);
+    ``lift`` with a DiffCloud ``recording`` folder, or any built-in with constructor ``kwargs`` (e.g.
+    ``n_frames``), uses the reference constructors here (:func:`lift_scenario`, :func:`wipe_scenario`,
+    :func:`wind_scenario`, :func:`fling_scenario`; the built-in files equal their defaults).
 
     Raises:
         ValueError: unknown name (the message lists the valid ones), or a recording given for a
             synthetic scenario.
-        DataError: lift recording missing or malformed.
+        DataError: lift recording missing or malformed; an invalid scenario file.
     """
     from softsbi.core.errors import closest
+    if recording is None and not kwargs:
+        from softsbi.scenarios.catalog import load_scenario
+        try:
+            return load_scenario(name)
+        except DataError as exc:
+            if str(exc).startswith("unknown scenario"):
+                raise ValueError(str(exc)) from None
+            raise
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario '{name}'.{closest(name, SCENARIOS)} Valid scenarios: "
                          f"{', '.join(SCENARIOS)}")

@@ -22,15 +22,17 @@ from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.runs import Run, open_run
 
 
-def load_scenario(name: str, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
-    """A scenario by name (``lift``, ``wipe``, ``wind``, ``fling``); ``lift`` from a recording
-    folder when given.
+def load_scenario(name_or_path: str | Path, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
+    """A scenario by built-in name (``lift``, ``wipe``, ``wind``, ``fling``; ``softsbi scenarios`` lists
+    them and those plugins add) or scenario file path (``my_fold.yaml``,
+    :mod:`softsbi.scenarios.spec`); ``lift`` from a DiffCloud recording folder when ``recording`` is given.
 
     Raises:
-        SoftsbiError: an unknown name (the message lists the valid ones) or a malformed recording.
+        SoftsbiError: an unknown name (the message lists the valid ones), an invalid scenario file (one
+            line naming the file, the field and the fix) or a malformed recording.
     """
     try:
-        return make_scenario(name, recording, **kwargs)
+        return make_scenario(str(name_or_path), recording, **kwargs)
     except ValueError as exc:
         raise SoftsbiError(str(exc)) from None
 
@@ -76,7 +78,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     Raises:
         PluginNotFound: unknown backend or effect. ParameterError: unknown or out-of-bounds parameter.
     """
-    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     reg = registry()
     sim = reg.simulator(backend)(**backend_options)
     space = sim.param_space(sc)

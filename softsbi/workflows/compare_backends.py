@@ -89,8 +89,10 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
     sims = {}
     for b in backends:
         cls = reg.simulator(b)
-        if scenario.name not in cls.scenarios:
-            raise ValueError(f"backend '{b}' cannot run scenario '{scenario.name}'; it runs {list(cls.scenarios)}")
+        from softsbi.backends.scenario_build import unsupported
+        why = unsupported(cls, scenario)
+        if why:
+            raise ValueError(why)
         sims[b] = cls(**dict((backend_options or {}).get(b, {})))
     known = set().union(*(s.param_space(scenario).names for s in sims.values()))
     unknown = [n for n in theta if n not in known]

@@ -114,7 +114,7 @@ def check_simulator(sim: type[Simulator] | Simulator, scenario: Scenario | str |
     _expect(lambda: inst.simulate(scenario, theta, effects=["__no_such_effect__"]), (ParameterError,), problems,
             "an unknown effect")
     unknown = Scenario(name="__no_such_scenario__", times=scenario.times, gripper=scenario.gripper,
-                       table_z=scenario.table_z, object=dict(scenario.object))
+                       table_z=scenario.table_z, object=dict(scenario.object, kind="__no_such_kind__"))
     _expect(lambda: inst.simulate(unknown, theta), (ValueError, ParameterError), problems, "an unknown scenario")
     return _finish(name, problems, raise_on_error)
 

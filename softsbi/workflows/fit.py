@@ -284,9 +284,10 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     """
     reg = registry()
     sim_cls = reg.simulator(cfg.backend)
-    if scenario.name not in sim_cls.scenarios:
-        raise ParameterError(f"backend '{cfg.backend}' cannot run scenario '{scenario.name}'; it runs "
-                             f"{list(sim_cls.scenarios)}")
+    from softsbi.backends.scenario_build import unsupported
+    why = unsupported(sim_cls, scenario)
+    if why:
+        raise ParameterError(why)
     sim = sim_cls(**cfg.backend_options)
     space = sim.param_space(scenario)
     for e in cfg.effects:

@@ -122,10 +122,12 @@ def test_parameter_errors(sim, scenario, theta):
         sim.simulate(scenario, missing)
     with pytest.raises(ParameterError, match="effect"):
         sim.simulate(scenario, theta, effects=["toy-wind"])
-    bad = Scenario(name="fold", times=scenario.times, gripper=scenario.gripper, table_z=0.0)
-    with pytest.raises(ValueError, match="lift"):
+    # any valid scenario runs; one needing a feature the engine lacks is refused naming it
+    bad = Scenario(name="fold", times=scenario.times, gripper=scenario.gripper, table_z=0.0,
+                   object={"kind": "jelly"})
+    with pytest.raises(ValueError, match="lacks objects of kind 'jelly'"):
         sim.simulate(scenario=bad, theta=theta)
-    with pytest.raises(ValueError, match="lift"):
+    with pytest.raises(ValueError, match="lacks objects of kind 'jelly'"):
         sim.param_space(bad)
 
 

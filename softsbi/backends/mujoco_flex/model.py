@@ -40,6 +40,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.backends.common import size_params
+from softsbi.backends.scenario_build import grid_rest_vertices, handle_vertices, mesh_rest, obstacles
 from softsbi.core.errors import ParameterError
 from softsbi.core.types import Param, ParamSpace, Scenario
 from softsbi.scenarios.builtin import placed_direction
@@ -104,26 +105,33 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
     z0 = float(scenario.table_z) + radius
     h = L / (grid - 1)
     fric = float(theta["friction"])
+    if "mesh" in obj:  # a mesh cloth at its placement (scale and yaw about the pivot vertex)
+        rest, faces = mesh_rest(scenario, theta, z0)
+        centre = rest[:, :2].mean(0)
+        area = float(0.5 * np.linalg.norm(np.cross(rest[faces[:, 1]] - rest[faces[:, 0]],
+                                                    rest[faces[:, 2]] - rest[faces[:, 0]]), axis=1).sum())
+        flex = {"name": "cloth", "type": "direct", "dim": 2, "radius": radius, "mass": rho * area,
+                "point": rest.ravel().tolist(), "element": faces.ravel().tolist()}
+    else:
+        rest = grid_rest_vertices(scenario, L, grid, z0, theta)
+        flex = {"name": "cloth", "type": "grid", "dim": 2, "count": [grid, grid, 1],
+                "spacing": [h, h, h], "pos": [float(centre[0]), float(centre[1]), z0],
+                "euler": [0.0, 0.0, phi], "radius": radius, "mass": rho * L * L}
     spec = {
         "option": {"timestep": timestep, "solver": solver, "integrator": integrator,
-                   "iterations": iterations, "gravity": [0.0, 0.0, -9.81]},
+                   "iterations": iterations, "gravity": scenario.gravity},
         "table": {"name": "table", "type": "plane", "size": [2.0, 2.0, 0.01],
                   "pos": [float(centre[0]), float(centre[1]), float(scenario.table_z)],
                   "friction": [fric, 0.005, 0.0001], "condim": 3},
-        "grip": {"name": "grip", "mocap": "true", "pos": [float(corner[0]), float(corner[1]), z0]},
-        "flexcomp": {"name": "cloth", "type": "grid", "dim": 2, "count": [grid, grid, 1],
-                     "spacing": [h, h, h], "pos": [float(centre[0]), float(centre[1]), z0],
-                     "euler": [0.0, 0.0, phi], "radius": radius, "mass": rho * L * L},
+        "geoms": obstacle_geoms(scenario, fric),
+        "flexcomp": flex,
         "contact": {"condim": 3, "friction": [fric, 0.005, 0.0001], "selfcollide": "none",
                     "solref": [0.004, 1.0]},
         "edge": {"equality": "false"},
         "elasticity": {"young": young, "poisson": poisson, "thickness": thick,
                        "damping": float(ov.pop("damping", damping)), "elastic2d": "both"},
-        "corner_body": "cloth_0",
-        # stiff grasp: solref time constant at twice the step (MuJoCo's minimum for stability)
-        "connect": {"body1": "cloth_0", "body2": "grip", "anchor": [0.0, 0.0, 0.0],
-                    "solref": [2.0 * float(timestep), 0.4], "solimp": [0.99, 0.999, 0.001, 0.5, 2.0]},
     }
+    add_handles(spec, scenario, rest, handle_vertices(scenario, rest, grid), "cloth", timestep)
     for k, v in ov.items():  # remaining overrides go to option
         spec["option"][k] = v
     return spec
@@ -169,11 +177,10 @@ def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: in
     fric = float(theta["friction"])
     spec: dict[str, Any] = {
         "option": {"timestep": timestep, "solver": solver, "integrator": integrator,
-                   "iterations": iterations, "gravity": [0.0, 0.0, -9.81]},
+                   "iterations": iterations, "gravity": scenario.gravity},
         "table": {"name": "table", "type": "plane", "size": [2.0, 2.0, 0.01],
                   "pos": [0.0, 0.0, float(scenario.table_z)], "friction": [fric, 0.005, 0.0001], "condim": 3},
-        "geoms": [],
-        "grip": {"name": "grip", "mocap": "true", "pos": [float(start[0]), float(start[1]), z0]},
+        "geoms": obstacle_geoms(scenario, fric),
         "flexcomp": {"name": "rope", "type": "grid", "dim": 1, "count": [nodes, 1, 1], "spacing": [h, h, h],
                      "pos": [float(centre[0]), float(centre[1]), z0],
                      "euler": [0.0, 0.0, math.degrees(math.atan2(e[1], e[0]))], "radius": r,
@@ -182,19 +189,54 @@ def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: in
         "edge": {"equality": "true"},
         "elasticity": {"young": float(ov.pop("young", theta["bend"])), "poisson": poisson,
                        "thickness": float(ov.pop("thickness", 2.0 * r)), "damping": float(ov.pop("damping", damping))},
-        "corner_body": "rope_0",
-        "connect": {"body1": "rope_0", "body2": "grip", "anchor": [0.0, 0.0, 0.0],
-                    "solref": [2.0 * float(timestep), 0.4], "solimp": [0.99, 0.999, 0.001, 0.5, 2.0]},
     }
-    sp = obj.get("spool")
-    if sp:
-        spec["geoms"].append({"name": "spool", "type": "cylinder", "size": [float(sp["radius"]), float(sp["height"]) / 2],
-                              "pos": [float(sp["centre"][0]), float(sp["centre"][1]),
-                                      float(scenario.table_z) + float(sp["height"]) / 2],
-                              "friction": [fric, 0.005, 0.0001], "condim": 3})
+    rest = np.column_stack([start + np.linspace(0.0, L, nodes)[:, None] * e, np.full(nodes, z0)])
+    add_handles(spec, scenario, rest, handle_vertices(scenario, rest), "rope", timestep)
     for k, v in ov.items():
         spec["option"][k] = v
     return spec
+
+
+def obstacle_geoms(scenario: Scenario, fric: float) -> list[dict[str, Any]]:
+    """MuJoCo geoms of the scenario's obstacles: a ``cylinder`` stands on the table (``centre`` [x, y],
+    ``radius``, ``height`` m), a ``box`` has ``centre`` [x, y, z], ``half_size`` and ``yaw`` (deg)."""
+    out = []
+    for i, o in enumerate(obstacles(scenario)):
+        name = o.get("name") or f"obstacle_{i}"
+        if o["type"] == "cylinder":
+            out.append({"name": name, "type": "cylinder", "size": [float(o["radius"]), float(o["height"]) / 2],
+                        "pos": [float(o["centre"][0]), float(o["centre"][1]),
+                                float(scenario.table_z) + float(o["height"]) / 2],
+                        "friction": [fric, 0.005, 0.0001], "condim": 3})
+        else:
+            out.append({"name": name, "type": "box", "size": [float(v) for v in o["half_size"]],
+                        "pos": [float(v) for v in o["centre"]], "euler": [0.0, 0.0, float(o.get("yaw", 0.0))],
+                        "friction": [fric, 0.005, 0.0001], "condim": 3})
+    return out
+
+
+def add_handles(spec: dict[str, Any], scenario: Scenario, rest: np.ndarray, vertices: list[int], body: str,
+                timestep: float) -> None:
+    """One mocap body per handle at its grasped vertex's rest position, welded to the vertex's body by an
+    ``<equality><connect>`` (pinned handles are mocaps that never move). The first moving handle's mocap
+    is ``spec["grip"]`` (mocap index 0, named ``grip``) and its constraint ``spec["connect"]`` (what the
+    grip-compliance effect edits); all of them are in ``spec["grips"]`` / ``spec["connects"]`` (handle
+    order in ``spec["handle_mocaps"]``: the mocap index of each handle)."""
+    first = next(i for i, h in enumerate(scenario.handles) if not h.pinned)
+    order = [first] + [i for i in range(len(scenario.handles)) if i != first]
+    grips, connects, mocap_of = [], [], [0] * len(order)
+    for j, i in enumerate(order):
+        h = scenario.handles[i]
+        name = "grip" if j == 0 else f"handle_{i}"
+        p = rest[vertices[i]]
+        grips.append({"name": name, "mocap": "true", "pos": [float(p[0]), float(p[1]), float(p[2])]})
+        # stiff grasp: solref time constant at twice the step (MuJoCo's minimum for stability)
+        connects.append({"body1": f"{body}_{vertices[i]}", "body2": name, "anchor": [0.0, 0.0, 0.0],
+                         "solref": [2.0 * float(timestep), 0.4], "solimp": [0.99, 0.999, 0.001, 0.5, 2.0]})
+        mocap_of[i] = j
+        del h
+    spec.update(grip=grips[0], grips=grips, connect=connects[0], connects=connects,
+                corner_body=connects[0]["body1"], handle_mocaps=mocap_of, handle_vertices=list(vertices))
 
 
 def spec_to_xml(spec: Mapping[str, Any]) -> str:
@@ -218,7 +260,7 @@ def spec_to_xml(spec: Mapping[str, Any]) -> str:
   <worldbody>{extras}
     <geom {attrs(spec["table"])}/>
     {"".join(f"<geom {attrs(g)}/>" for g in spec.get("geoms", []))}
-    <body {attrs(spec["grip"])}/>
+    {"".join(f"<body {attrs(g)}/>" for g in spec.get("grips", [spec["grip"]]))}
     <flexcomp {attrs(fc)}>
       <contact {attrs(spec["contact"])}/>
       <edge {attrs(spec["edge"])}/>
@@ -226,7 +268,7 @@ def spec_to_xml(spec: Mapping[str, Any]) -> str:
     </flexcomp>
   </worldbody>
   <equality>
-    <connect {attrs(spec["connect"])}/>
+    {"".join(f"<connect {attrs(c)}/>" for c in spec.get("connects", [spec["connect"]]))}
   </equality>
 </mujoco>
 """

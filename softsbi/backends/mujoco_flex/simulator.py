@@ -22,6 +22,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from softsbi.backends.common import check_effects, check_scenario, grid_corners, grid_faces, size_params
+from softsbi.backends.scenario_build import FEATURES, handle_targets, mesh_edges
 from softsbi.backends.mujoco_flex.gl import import_mujoco
 from softsbi.backends.mujoco_flex.model import build_rope_spec, build_spec, rope_param_space, spec_to_xml
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
@@ -48,7 +49,11 @@ class MujocoFlex(Simulator):
     """
 
     name = "mujoco-flex"
+    #: the built-in scenarios; any scenario file needing only :attr:`features` runs too
     scenarios = ("lift", "wipe", "wind", "fling")
+    #: engine features (:data:`~softsbi.backends.scenario_build.FEATURES`): grid or mesh cloth (flexcomp
+    #: grid / direct), rope, any number of handles (mocap bodies + connect), box and cylinder obstacles
+    features = FEATURES
     effects: tuple[str, ...] = ("air-drag", "wind", "extra-damping", "grip-compliance")
 
     def __init__(self, grid: int = 9, timestep: float = 0.004, solver: str = "CG", integrator: str = "discrete",
@@ -175,10 +180,12 @@ class MujocoFlex(Simulator):
         n = int(m.flex_vertnum[0])  # grid^2 (cloth) or rope_nodes (rope)
         times = scenario.times
         T = len(times)
-        # constant offset from the commanded path to the grasped vertex (the corner lies on the table)
-        grip0 = d.mocap_pos[0].copy()
-        offset = grip0 - scenario.gripper[0]
-        target = scenario.gripper + offset
+        # each handle's path shifted by a constant so it starts on its grasped vertex (which lies on the
+        # table); pinned handles hold their vertex where it rests
+        mocaps = spec["handle_mocaps"]
+        targets = handle_targets(scenario, [d.mocap_pos[j].copy() for j in mocaps])
+        target = targets[next(i for i, j in enumerate(mocaps) if j == 0)]
+        others = [(j, tg) for j, tg in zip(mocaps, targets) if j != 0]
         verts = np.full((T, n, 3), np.nan)
         grip = np.zeros((T, 3))
         verts[0] = d.flexvert_xpos.reshape(-1, 3)[:n]
@@ -196,6 +203,8 @@ class MujocoFlex(Simulator):
             while steps < frame_steps[k]:
                 tn = (steps + 1) * dt
                 d.mocap_pos[0] = [np.interp(tn, times, target[:, c]) for c in range(3)]
+                for j, tg in others:
+                    d.mocap_pos[j] = [np.interp(tn, times, tg[:, c]) for c in range(3)]
                 mujoco.mj_step(m, d)
                 steps += 1
                 if warn.number > 0:
@@ -218,11 +227,14 @@ class MujocoFlex(Simulator):
         if status != STATUS_OK:
             verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
         rope = scenario.object.get("kind") == "rope"
-        faces = np.zeros((0, 3), dtype=np.int64) if rope else grid_faces(self.grid)
+        mesh = "mesh" in scenario.object
+        faces = (np.zeros((0, 3), dtype=np.int64) if rope else
+                 np.asarray(scenario.object["mesh"]["faces"], dtype=np.int64) if mesh else grid_faces(self.grid))
         info = {"wall_s": wall, "steps": steps, "backend": self.name, "grid": self.grid,
                 "timestep": dt, "young": spec["elasticity"]["young"],
-                "thickness": spec["elasticity"]["thickness"], "effects": list(effects)}
-        if not rope:
+                "thickness": spec["elasticity"]["thickness"], "effects": list(effects),
+                "handle_vertices": list(spec["handle_vertices"])}
+        if not rope and not mesh:
             info["corners"] = grid_corners(self.grid)
         return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
                        status=status, reason=reason, info=info)
@@ -243,6 +255,13 @@ class MujocoFlex(Simulator):
             edge = np.linalg.norm(np.diff(verts[-1], axis=0), axis=-1).max()
             if edge > 3.0 * h:
                 return STATUS_IMPLAUSIBLE, f"a rope segment is stretched to {edge / h:.1f}x its rest length"
+            return STATUS_OK, ""
+        if "mesh" in scenario.object:
+            e = mesh_edges(np.asarray(scenario.object["mesh"]["faces"], dtype=np.int64))
+            rest = np.linalg.norm(verts[0, e[:, 0]] - verts[0, e[:, 1]], axis=-1)
+            ratio = (np.linalg.norm(verts[-1, e[:, 0]] - verts[-1, e[:, 1]], axis=-1) / rest).max()
+            if ratio > 3.0:
+                return STATUS_IMPLAUSIBLE, f"an edge is stretched to {ratio:.1f}x its rest length"
             return STATUS_OK, ""
         g = self.grid
         first_row = verts[-1].reshape(g, g, 3)

@@ -32,7 +32,7 @@ import numpy as np
 
 from softsbi.core.errors import EnvironmentFault
 from softsbi.core.types import Scenario
-from softsbi.scenarios.builtin import placed_direction
+from softsbi.backends.scenario_build import grid_rest_vertices, obstacles
 
 CLOTH_SCENARIOS = ("lift", "wipe", "fling")
 ROPE_SCENARIOS = ("wind",)
@@ -67,22 +67,9 @@ def import_pybullet() -> Any:
 
 def cloth_vertices(scenario: Scenario, L: float, n: int, z: float,
                    theta: Mapping[str, float] | None = None) -> np.ndarray:
-    """Rest positions ``(n*n, 3)`` m of the cloth grid, mujoco-flex layout (vertex ``i*n+j``).
-
-    Vertex 0 is the grasped corner at ``object["corner"]`` and the local diagonal (1, 1) points
-    along ``object["direction"]`` rotated by ``theta["yaw"]`` deg if given
-    (:func:`softsbi.scenarios.builtin.placed_direction`).
-    """
-    obj = scenario.object
-    d = placed_direction(scenario, theta)
-    corner = np.asarray(obj.get("corner", scenario.gripper[0, :2]), dtype=float)
-    phi = math.atan2(d[1], d[0]) - math.pi / 4
-    c, s = math.cos(phi), math.sin(phi)
-    g = np.linspace(-L / 2, L / 2, n)
-    loc = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-    rot = loc @ np.array([[c, s], [-s, c]])
-    centre = corner + d * L / math.sqrt(2.0)
-    return np.column_stack([rot + centre, np.full(len(rot), z)])
+    """Rest positions ``(n*n, 3)`` m of the cloth grid, mujoco-flex layout (vertex ``i*n+j``):
+    :func:`softsbi.backends.scenario_build.grid_rest_vertices`."""
+    return grid_rest_vertices(scenario, L, n, z, theta)
 
 
 def ribbon_vertices(scenario: Scenario, length: float, n: int, width: float, z: float) -> np.ndarray:
@@ -129,26 +116,31 @@ def substeps(k_max: float, dt: float, m_node: float, max_substeps: int) -> int:
 
 def build_world(p: Any, cid: int, scenario: Scenario, verts0: np.ndarray, faces: np.ndarray, *, rope: bool,
                 total_mass: float, friction: float, k_el: float, k_be: float, k_da: float, margin: float,
-                step: float) -> tuple[dict[str, int], int, np.ndarray]:
+                step: float, grasps: list[list[int]] | None = None
+                ) -> tuple[dict[str, int], list[int], list[np.ndarray]]:
     """Reset client ``cid`` to a deformable world holding the table, the spool (rope scenarios with
     ``object["spool"]``), the soft body and its grasp.
 
     Args:
         p: the pybullet module (:func:`import_pybullet`).
         verts0: rest positions ``(N, 3)`` m of the soft body's nodes (world frame), ``faces (F, 3)``.
-        rope: grasp node pair 0, 1 (ribbon) instead of node 0.
+        rope: the soft body is a rope ribbon (default grasp: node pair 0, 1).
         total_mass: kg. friction: Coulomb coefficient (table, spool, soft body).
         k_el, k_be, k_da: ``springElasticStiffness``, ``springBendingStiffness`` (N/m),
             ``springDampingStiffness``.
         margin: collision margin, m. step: engine time step, s.
 
+        grasps: the soft-body nodes each handle holds (scenario handle order); default the first
+            node (pair).
+
     Returns:
-        ``(bodies, grip_body, start)``: body ids ``{"table", "spool"?, "soft"}``, the id of the
-        collision-free mass-0 body the grasped nodes are anchored to, and its start position ``(3,)`` m.
+        ``(bodies, grip_bodies, starts)``: body ids ``{"table", "spool"?, "soft"}`` (obstacles by name),
+        per handle the id of the collision-free mass-0 body its nodes are anchored to, and its start
+        position ``(3,)`` m.
     """
     table_z = float(scenario.table_z)
     p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=cid)
-    p.setGravity(0, 0, -9.81, physicsClientId=cid)
+    p.setGravity(*scenario.gravity, physicsClientId=cid)
     p.setTimeStep(step, physicsClientId=cid)
     # the table is a thick box: a GEOM_PLANE made with createCollisionShape pushes a resting
     # deformable *up* (measured: a flat cloth levitates 10 cm in 0.6 s), a box does not
@@ -157,15 +149,20 @@ def build_world(p: Any, cid: int, scenario: Scenario, verts0: np.ndarray, faces:
     table = p.createMultiBody(0, box, basePosition=[cx, cy, table_z - 0.05], physicsClientId=cid)
     p.changeDynamics(table, -1, lateralFriction=friction, physicsClientId=cid)
     bodies = {"table": table}
-    if rope and "spool" in scenario.object:
-        sp = scenario.object["spool"]
-        cyl = p.createCollisionShape(p.GEOM_CYLINDER, radius=float(sp["radius"]), height=float(sp["height"]),
-                                     physicsClientId=cid)
-        c = sp["centre"]
-        spool = p.createMultiBody(0, cyl, basePosition=[float(c[0]), float(c[1]), table_z + sp["height"] / 2],
-                                  physicsClientId=cid)
-        p.changeDynamics(spool, -1, lateralFriction=friction, physicsClientId=cid)
-        bodies["spool"] = spool
+    for i, sp in enumerate(obstacles(scenario)):
+        if sp["type"] == "cylinder":
+            shape = p.createCollisionShape(p.GEOM_CYLINDER, radius=float(sp["radius"]), height=float(sp["height"]),
+                                           physicsClientId=cid)
+            c = sp["centre"]
+            pos, orn = [float(c[0]), float(c[1]), table_z + sp["height"] / 2], [0, 0, 0, 1]
+        else:
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[float(v) for v in sp["half_size"]],
+                                           physicsClientId=cid)
+            pos = [float(v) for v in sp["centre"]]
+            orn = p.getQuaternionFromEuler([0, 0, math.radians(float(sp.get("yaw", 0.0)))])
+        body = p.createMultiBody(0, shape, basePosition=pos, baseOrientation=orn, physicsClientId=cid)
+        p.changeDynamics(body, -1, lateralFriction=friction, physicsClientId=cid)
+        bodies[sp.get("name") or f"obstacle_{i}"] = body
     fd, path = tempfile.mkstemp(suffix=".obj", prefix="softsbi_pb_")
     os.close(fd)
     try:
@@ -177,10 +174,13 @@ def build_world(p: Any, cid: int, scenario: Scenario, verts0: np.ndarray, faces:
                             collisionMargin=margin, physicsClientId=cid)
     finally:
         os.unlink(path)
-    grasped = [0, 1] if rope else [0]
-    start = verts0[grasped].mean(0)
-    grip_body = p.createMultiBody(0, -1, basePosition=start.tolist(), physicsClientId=cid)
-    for node in grasped:
-        p.createSoftBodyAnchor(sb, node, grip_body, -1, physicsClientId=cid)
+    grip_bodies, starts = [], []
+    for grasped in grasps or [[0, 1] if rope else [0]]:
+        start = verts0[grasped].mean(0)
+        grip_body = p.createMultiBody(0, -1, basePosition=start.tolist(), physicsClientId=cid)
+        for node in grasped:
+            p.createSoftBodyAnchor(sb, node, grip_body, -1, physicsClientId=cid)
+        grip_bodies.append(grip_body)
+        starts.append(start)
     bodies["soft"] = sb
-    return bodies, grip_body, start
+    return bodies, grip_bodies, starts

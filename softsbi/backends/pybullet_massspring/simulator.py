@@ -35,6 +35,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from softsbi.backends.common import check_effects, check_scenario, grid_corners, grid_faces, size_params
+from softsbi.backends.scenario_build import FEATURES, handle_targets, handle_vertices, mesh_edges, mesh_rest
 from softsbi.backends.pybullet_massspring.model import (CLOTH_SCENARIOS, ROPE_SCENARIOS, build_world, cloth_vertices,
                                                         import_pybullet, ribbon_faces, ribbon_vertices, substeps)
 from softsbi.backends.pybullet_massspring.render import PbFrameRenderer, PbState
@@ -63,7 +64,11 @@ class PybulletMassSpring(Simulator):
     name = "pybullet-massspring"
     #: former plugin names (resolved by the registry with a FutureWarning)
     aliases = ("pybullet-fem",)
+    #: the built-in scenarios; any scenario file needing only :attr:`features` runs too
     scenarios = CLOTH_SCENARIOS + ROPE_SCENARIOS
+    #: grid or mesh cloth (a soft body from the mesh), rope (ribbon), any number of handles (soft-body
+    #: anchors to mass-0 bodies), box and cylinder obstacles
+    features = FEATURES
     effects: tuple[str, ...] = ()
 
     def __init__(self, grid: int = 9, rope_nodes: int = 24, timestep: float = 1.0 / 240.0, damping: float = 0.1,
@@ -122,7 +127,7 @@ class PybulletMassSpring(Simulator):
             ValueError: scenario not supported (names the valid ones).
         """
         check_scenario(self, scenario)
-        rope = scenario.name in ROPE_SCENARIOS
+        rope = scenario.object.get("kind") == "rope"
         bend = ("PyBullet springBendingStiffness of the rope ribbon (per bending spring)" if rope else
                 "PyBullet springBendingStiffness (per bending spring; ~D / h^2 for rigidity D)")
         stretch = ("PyBullet springElasticStiffness of the rope ribbon (per spring)" if rope else
@@ -171,7 +176,8 @@ class PybulletMassSpring(Simulator):
         p = import_pybullet()
         t0 = time.perf_counter()
         cid = self._client()
-        rope = scenario.name in ROPE_SCENARIOS
+        rope = scenario.object.get("kind") == "rope"
+        mesh = "mesh" in scenario.object
         ov = self.overrides
         dt = float(ov.get("timestep", self.timestep))
         k_el = float(ov.get("springElasticStiffness", theta["stretch"]))
@@ -185,17 +191,35 @@ class PybulletMassSpring(Simulator):
             verts0 = ribbon_vertices(scenario, L, n, 2 * radius, table_z + max(self.margin, radius))
             faces_sim = ribbon_faces(n)
             total_mass = float(theta["mass"]) * L
+            vidx = handle_vertices(scenario, 0.5 * (verts0[0::2] + verts0[1::2]))
+            grasps = [[2 * v, 2 * v + 1] for v in vidx]
+        elif mesh:
+            verts0, faces_sim = mesh_rest(scenario, theta, table_z + self.margin)
+            n = len(verts0)
+            area = float(0.5 * np.linalg.norm(np.cross(verts0[faces_sim[:, 1]] - verts0[faces_sim[:, 0]],
+                                                       verts0[faces_sim[:, 2]] - verts0[faces_sim[:, 0]]), axis=1).sum())
+            total_mass = float(theta["mass"]) * area
+            vidx = handle_vertices(scenario, verts0)
+            grasps = [[v] for v in vidx]
         else:
             n = self.grid
             verts0 = cloth_vertices(scenario, L, n, table_z + self.margin, theta)
             faces_sim = grid_faces(n)
             total_mass = float(theta["mass"]) * L * L
+            vidx = handle_vertices(scenario, verts0, n)
+            grasps = [[v] for v in vidx]
         m_node = total_mass / len(verts0)
         sub = int(ov.get("substeps", 0)) or substeps(max(k_el, k_be), dt, m_node, self.max_substeps)
         h = dt / sub
-        bodies, grip_body, start = build_world(p, cid, scenario, verts0, faces_sim, rope=rope, total_mass=total_mass,
-                                               friction=float(theta["friction"]), k_el=k_el, k_be=k_be, k_da=k_da,
-                                               margin=self.margin, step=h)
+        bodies, grip_bodies, starts = build_world(p, cid, scenario, verts0, faces_sim, rope=rope,
+                                                  total_mass=total_mass, friction=float(theta["friction"]), k_el=k_el,
+                                                  k_be=k_be, k_da=k_da, margin=self.margin, step=h, grasps=grasps)
+        # each handle's path starts on its grasped node(s); pinned handles stay where their nodes rest
+        targets = handle_targets(scenario, starts)
+        first = next(i for i, hd in enumerate(scenario.handles) if not hd.pinned)
+        grip_body = grip_bodies[first]
+        others = [(b, tg) for i, (b, tg, hd) in enumerate(zip(grip_bodies, targets, scenario.handles))
+                  if i != first and not hd.pinned]
         sb = bodies["soft"]
 
         def nodes() -> np.ndarray:
@@ -205,7 +229,7 @@ class PybulletMassSpring(Simulator):
 
         times = scenario.times
         T = len(times)
-        target = scenario.gripper + (start - scenario.gripper[0])
+        target = targets[first]
         first = nodes()
         N = len(first)
         verts = np.zeros((T, N, 3))
@@ -223,6 +247,9 @@ class PybulletMassSpring(Simulator):
                 tn = (steps + 1) * dt
                 pos = [float(np.interp(tn, times, target[:, c])) for c in range(3)]
                 p.resetBasePositionAndOrientation(grip_body, pos, [0, 0, 0, 1], physicsClientId=cid)
+                for b, tg in others:
+                    p.resetBasePositionAndOrientation(b, [float(np.interp(tn, times, tg[:, c])) for c in range(3)],
+                                                      [0, 0, 0, 1], physicsClientId=cid)
                 ts = time.perf_counter()
                 for _ in range(sub):
                     p.stepSimulation(physicsClientId=cid)
@@ -243,25 +270,31 @@ class PybulletMassSpring(Simulator):
                 frames(k, PbState(cid, bodies, grip[k]))
         wall = time.perf_counter() - t0
         if status == STATUS_OK:
-            status, reason = self._plausibility(verts, table_z, L, rope, n)
+            status, reason = self._plausibility(verts, table_z, L, rope, n,
+                                                mesh_edges(faces_sim) if mesh else None)
         if status != STATUS_OK:
             verts = np.nan_to_num(verts, nan=0.0, posinf=0.0, neginf=0.0)
-        faces = np.zeros((0, 3), dtype=np.int64) if rope else grid_faces(n)
-        info = {"wall_s": wall, "sim_s": sim_s, "steps": steps, "substeps": sub, "backend": self.name,
+        faces = np.zeros((0, 3), dtype=np.int64) if rope else (faces_sim if mesh else grid_faces(n))
+        info = {"handle_vertices": list(vidx), "wall_s": wall, "sim_s": sim_s, "steps": steps, "substeps": sub, "backend": self.name,
                 "grid": n, "timestep": dt, "springElasticStiffness": k_el,
                 "springBendingStiffness": k_be, "springDampingStiffness": k_da, "effects": list(effects)}
-        if not rope:
+        if not rope and not mesh:
             info["corners"] = grid_corners(n)
         return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces, status=status, reason=reason,
                        info=info)
 
     @staticmethod
-    def _plausibility(verts: np.ndarray, table_z: float, L: float, rope: bool, n: int) -> tuple[int, str]:
+    def _plausibility(verts: np.ndarray, table_z: float, L: float, rope: bool, n: int,
+                      edges: np.ndarray | None = None) -> tuple[int, str]:
         zmin = float(verts[..., 2].min())
         if zmin < table_z - 0.02:
             return STATUS_IMPLAUSIBLE, f"tunnelled through the table: a node is {100 * (table_z - zmin):.1f} cm below it"
         h = L / (n - 1)
-        if rope:
+        if edges is not None:  # a mesh cloth: edge lengths relative to their rest lengths
+            rest = np.linalg.norm(verts[0, edges[:, 0]] - verts[0, edges[:, 1]], axis=-1)
+            edge = np.linalg.norm(verts[:, edges[:, 0]] - verts[:, edges[:, 1]], axis=-1) / rest
+            h = 1.0
+        elif rope:
             edge = np.linalg.norm(np.diff(verts, axis=1), axis=-1)
         else:
             g = verts.reshape(len(verts), n, n, 3)

@@ -1,0 +1,570 @@
+"""Scenario files: a versioned YAML format, validated with pydantic v2, turned into a :class:`Scenario`.
+
+A scenario file (``format: softsbi-scenario/1``) describes a task as data (DESIGN.md "Scenarios are
+data")::
+
+    format: softsbi-scenario/1
+    name: fold
+    object:                       # cloth from a grid (size) or a mesh; or a rope (length, radius)
+      kind: cloth
+      mesh: {file: cloth.obj, units: 0.35}     # .obj relative to this file, metres per mesh unit
+    placement:                    # rest pose; yaw_bounds: the fit infers the yaw about the grasped vertex
+      yaw_bounds: [-45, 45]
+    handles:                      # any number; each pinned or following a path
+      - {name: held, grasp: {vertex: 13}, pinned: true}
+      - name: grip
+        grasp: {vertex: 42}       # or {corner: k} (grid), {end: k} (rope), {point: [x, y, z]}
+        path: {file: traj.npy, frame: robot}   # or keyframes: [{t: 0.0, p: [x, y, z]}, ...]
+    frames: {count: 25, dt: 0.04}              # or {count, duration}, or {times: [...]}
+    transforms:                   # named frames -> the scenario frame (metres, z up)
+      robot: {diffcloud: {z_rotation: 90, translation: [0.55, 0.18, 0], scale: 0.35,
+                          compensation_factor: [0, 0, 0]}}     # or {matrix: 4x4}
+    world: {table_z: 0.075, gravity: [0, 0, -9.81], obstacles: [{type: cylinder, ...}]}
+    cameras: [{name: top, eye: [..], target: [..], up: [..], fovy_deg: 50, width: 128, height: 128}]
+
+Units: metres, seconds, degrees for angles. Every error is one line naming the file, the field and
+the fix (:class:`~softsbi.core.errors.DataError`); nothing is built from an invalid file.
+
+Frames of paths: ``scenario`` (the default) or a name under ``transforms``; a recording may supply
+its own transforms (e.g. its robot -> scenario calibration), which replace the file's.
+DiffCloud transform convention (``diffcloud:``; ``shared/data/README.md``): with row vectors
+``p_sim = (((p + c) - t) / s) @ Rz(a)`` and the scenario frame is ``p_sim * s`` metres, i.e. the
+rigid map ``p -> (p + c - t) @ Rz(a)``.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Literal, Mapping, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from softsbi.core.errors import DataError
+from softsbi.core.types import Handle, Scenario
+
+FORMAT = "softsbi-scenario/1"
+#: the format versions this reader understands
+FORMATS = (FORMAT,)
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MeshSpec(_Strict):
+    """A triangle mesh file (``.obj``) relative to the scenario file; ``units`` metres per mesh unit."""
+    file: str
+    units: float = Field(1.0, gt=0)
+
+
+class ObjectSpec(_Strict):
+    """The deformable object: ``cloth`` (``size`` m of a square grid, or ``mesh``) or ``rope``
+    (``length`` m, ``radius`` m)."""
+    kind: Literal["cloth", "rope"]
+    size: Optional[float] = Field(None, gt=0)
+    mesh: Optional[MeshSpec] = None
+    length: Optional[float] = Field(None, gt=0)
+    radius: Optional[float] = Field(None, gt=0)
+    fabric: Optional[str] = None
+
+    @model_validator(mode="after")
+    def _shape(self) -> "ObjectSpec":
+        if self.kind == "cloth" and (self.size is None) == (self.mesh is None):
+            raise ValueError("a cloth needs exactly one of 'size' (square grid side, m) or 'mesh' (.obj file)")
+        if self.kind == "rope" and (self.length is None or self.mesh is not None or self.size is not None):
+            raise ValueError("a rope needs 'length' (m) and optionally 'radius' (m), no 'size' or 'mesh'")
+        return self
+
+
+class PlacementSpec(_Strict):
+    """Rest pose: the grid cloth's placed corner / the rope's start (``corner``, m; default under the
+    first moving handle's start), the direction of the cloth's diagonal / rope from it, and
+    ``yaw_bounds`` (deg) when the fit infers the rotation about the grasped vertex."""
+    corner: Optional[Vec2] = None
+    direction: Optional[Vec2] = None
+    yaw_bounds: Optional[Vec2] = None
+
+    @model_validator(mode="after")
+    def _check(self) -> "PlacementSpec":
+        if self.yaw_bounds is not None and not self.yaw_bounds[0] < self.yaw_bounds[1]:
+            raise ValueError(f"yaw_bounds must be [low, high] with low < high (deg), got {list(self.yaw_bounds)}")
+        if self.direction is not None and math.hypot(*self.direction) == 0:
+            raise ValueError("direction must be a non-zero [dx, dy]")
+        return self
+
+
+class GraspSpec(_Strict):
+    """Which vertex a handle holds: exactly one of ``vertex`` (mesh index), ``corner`` (grid corner
+    0-3), ``end`` (rope end 0/1) or ``point`` (nearest rest vertex to this scenario-frame point, m)."""
+    vertex: Optional[int] = Field(None, ge=0)
+    corner: Optional[int] = Field(None, ge=0, le=3)
+    end: Optional[int] = Field(None, ge=0, le=1)
+    point: Optional[Vec3] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "GraspSpec":
+        given = [k for k in ("vertex", "corner", "end", "point") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of vertex, corner, end or point (got {given or 'none'})")
+        return self
+
+    def as_dict(self) -> dict[str, Any]:
+        k = next(k for k in ("vertex", "corner", "end", "point") if getattr(self, k) is not None)
+        v = getattr(self, k)
+        return {k: list(v) if isinstance(v, tuple) else int(v)}
+
+
+class Keyframe(_Strict):
+    t: float = Field(ge=0)
+    p: Vec3
+
+
+class PathSpec(_Strict):
+    """A handle's path: a ``(T, 3)`` ``.npy`` ``file`` (one row per frame) or ``keyframes`` sampled
+    at the frame times (``easing`` between them), in ``frame``, plus an ``offset`` (m, scenario frame)."""
+    file: Optional[str] = None
+    keyframes: Optional[list[Keyframe]] = None
+    frame: str = "scenario"
+    easing: Literal["smoothstep", "linear"] = "smoothstep"
+    offset: Vec3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _one(self) -> "PathSpec":
+        if (self.file is None) == (self.keyframes is None):
+            raise ValueError("give exactly one of 'file' (.npy, one row per frame) or 'keyframes'")
+        if self.keyframes is not None:
+            if len(self.keyframes) < 2:
+                raise ValueError("keyframes need at least two entries")
+            ts = [k.t for k in self.keyframes]
+            if any(b < a for a, b in zip(ts, ts[1:])):
+                raise ValueError(f"keyframe times must not decrease, got {ts}")
+        return self
+
+
+class HandleSpec(_Strict):
+    name: str
+    grasp: GraspSpec
+    pinned: bool = False
+    path: Optional[PathSpec] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "HandleSpec":
+        if self.pinned == (self.path is not None):
+            raise ValueError("a handle is either 'pinned: true' or has a 'path', not both or neither")
+        return self
+
+
+class FramesSpec(_Strict):
+    """Frame times: ``count`` and ``dt`` (s, ``t = k dt``), ``count`` and ``duration`` (evenly from 0),
+    or explicit ``times`` (s, strictly increasing from 0)."""
+    count: Optional[int] = Field(None, ge=2)
+    dt: Optional[float] = Field(None, gt=0)
+    duration: Optional[float] = Field(None, gt=0)
+    times: Optional[list[float]] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "FramesSpec":
+        if self.times is not None:
+            if self.dt is not None or self.duration is not None:
+                raise ValueError("give either 'times' or 'count' with 'dt'/'duration', not both")
+            if len(self.times) < 2 or any(b <= a for a, b in zip(self.times, self.times[1:])):
+                raise ValueError("times need at least two strictly increasing values (s)")
+            if self.count is not None and self.count != len(self.times):
+                raise ValueError(f"count {self.count} disagrees with the {len(self.times)} times; drop count")
+        elif self.count is None or (self.dt is None) == (self.duration is None):
+            raise ValueError("give 'count' with exactly one of 'dt' or 'duration' (s), or 'times'")
+        return self
+
+    def values(self) -> np.ndarray:
+        if self.times is not None:
+            return np.asarray(self.times, dtype=float)
+        if self.dt is not None:
+            return np.arange(self.count) * float(self.dt)
+        return np.linspace(0.0, float(self.duration), self.count)
+
+
+class DiffCloudTransform(_Strict):
+    z_rotation: float
+    translation: Vec3
+    scale: float = Field(gt=0)
+    compensation_factor: Vec3 = (0.0, 0.0, 0.0)
+
+
+class TransformSpec(_Strict):
+    """A named frame -> scenario frame: a 4x4 homogeneous ``matrix`` (column vectors, metres) or the
+    DiffCloud real2sim fields (module docstring)."""
+    matrix: Optional[list[list[float]]] = None
+    diffcloud: Optional[DiffCloudTransform] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "TransformSpec":
+        if (self.matrix is None) == (self.diffcloud is None):
+            raise ValueError("give exactly one of 'matrix' (4x4) or 'diffcloud' (z_rotation, translation, scale, "
+                             "compensation_factor)")
+        if self.matrix is not None:
+            m = np.asarray(self.matrix, dtype=float)
+            if m.shape != (4, 4) or not np.allclose(m[3], [0, 0, 0, 1]):
+                raise ValueError("matrix must be 4x4 with last row [0, 0, 0, 1]")
+        return self
+
+
+class BoxSpec(_Strict):
+    type: Literal["box"]
+    name: Optional[str] = None
+    centre: Vec3
+    half_size: Vec3
+    yaw: float = 0.0
+
+
+class CylinderSpec(_Strict):
+    """A vertical cylinder standing on the table (``centre`` [x, y] m, ``radius``, ``height`` m);
+    ``occludes``: observers hide the points behind it (the wind scenario's spool)."""
+    type: Literal["cylinder"]
+    name: Optional[str] = None
+    centre: Vec2
+    radius: float = Field(gt=0)
+    height: float = Field(gt=0)
+    occludes: bool = False
+
+
+class WorldSpec(_Strict):
+    table_z: float = 0.0
+    gravity: Vec3 = (0.0, 0.0, -9.81)
+    obstacles: list[BoxSpec | CylinderSpec] = Field(default_factory=list)
+
+
+class CameraSpec(_Strict):
+    name: str
+    eye: Vec3
+    target: Vec3
+    up: Vec3 = (0.0, 0.0, 1.0)
+    fovy_deg: float = Field(50.0, gt=0, lt=180)
+    width: int = Field(128, ge=1)
+    height: int = Field(128, ge=1)
+
+
+class ScenarioSpec(_Strict):
+    """The whole scenario file (module docstring)."""
+    format: Literal["softsbi-scenario/1"]
+    name: str = Field(min_length=1)
+    description: str = ""
+    object: ObjectSpec
+    placement: PlacementSpec = Field(default_factory=PlacementSpec)
+    handles: list[HandleSpec] = Field(min_length=1)
+    frames: FramesSpec
+    transforms: dict[str, TransformSpec] = Field(default_factory=dict)
+    world: WorldSpec = Field(default_factory=WorldSpec)
+    cameras: list[CameraSpec] = Field(default_factory=list)
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _handles(self) -> "ScenarioSpec":
+        if not any(not h.pinned for h in self.handles):
+            raise ValueError("at least one handle must follow a path (all are pinned)")
+        names = [h.name for h in self.handles]
+        if len(set(names)) != len(names):
+            raise ValueError(f"handle names must be unique, got {names}")
+        return self
+
+
+# ---------------------------------------------------------------------------------------------
+# errors
+# ---------------------------------------------------------------------------------------------
+def _loc(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in ("box", "cylinder") or str(part).startswith("function-"):
+            continue
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def validation_line(source: str, exc: ValidationError, model: type[BaseModel] = ScenarioSpec) -> str:
+    """One line for the first problem of a pydantic ``ValidationError``: file, field and fix."""
+    err = exc.errors()[0]
+    loc = _loc(tuple(err.get("loc", ())))
+    kind = err.get("type", "")
+    if kind == "extra_forbidden":
+        field = str(err["loc"][-1])
+        return (f"{source}: unknown field '{loc}'; remove it or correct its spelling (see the format in "
+                f"softsbi/scenarios/files/lift.yaml)")
+    if kind == "missing":
+        return f"{source}: field '{loc}' is missing; add it (see softsbi/scenarios/files/lift.yaml)"
+    msg = err.get("msg", "invalid").replace("Value error, ", "")
+    got = err.get("input")
+    got_s = "" if isinstance(got, (dict, list)) and len(repr(got)) > 60 else f" (got {got!r})"
+    return f"{source}: field '{loc}': {msg}{got_s}; fix that field"
+
+
+def _read_yaml(path: Path) -> Any:
+    import yaml
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DataError(f"scenario file {path} does not exist; give a path to a .yaml scenario file or a "
+                        f"built-in name (`softsbi scenarios` lists them)") from None
+    except (IsADirectoryError, PermissionError) as exc:
+        raise DataError(f"cannot read scenario file {path} ({exc.strerror}); give a readable .yaml file") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise DataError(f"{path} is not valid YAML{at} ({problem}); fix that line") from None
+
+
+def parse_spec(data: Any, source: str) -> ScenarioSpec:
+    """Validate a scenario mapping; one-line :class:`DataError` naming ``source``, the field and the fix."""
+    if not isinstance(data, Mapping):
+        raise DataError(f"{source}: a scenario file must be a YAML mapping (format, name, object, handles, "
+                        f"frames, ...), got {type(data).__name__}")
+    if data.get("format") not in FORMATS:
+        raise DataError(f"{source}: field 'format' is {data.get('format')!r}; this softsbi reads "
+                        f"{', '.join(FORMATS)} (set format: {FORMAT})")
+    try:
+        return ScenarioSpec.model_validate(dict(data))
+    except ValidationError as exc:
+        raise DataError(validation_line(source, exc)) from None
+
+
+# ---------------------------------------------------------------------------------------------
+# building a Scenario
+# ---------------------------------------------------------------------------------------------
+def transform_matrix(t: TransformSpec | Mapping[str, Any]) -> np.ndarray:
+    """4x4 matrix (column vectors, metres) of a transform spec (or its mapping) into the scenario frame."""
+    if not isinstance(t, TransformSpec):
+        t = TransformSpec.model_validate(dict(t))
+    if t.matrix is not None:
+        return np.asarray(t.matrix, dtype=float)
+    from scipy.spatial.transform import Rotation
+    d = t.diffcloud
+    rz = Rotation.from_euler("z", float(d.z_rotation), degrees=True).as_matrix()
+    m = np.eye(4)
+    m[:3, :3] = rz.T                        # row vectors: p @ Rz == Rz.T @ p (column)
+    m[:3, 3] = rz.T @ (np.asarray(d.compensation_factor) - np.asarray(d.translation))
+    return m
+
+
+def apply_transform(m: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Points ``(..., 3)`` mapped by the 4x4 ``m``."""
+    p = np.asarray(p, dtype=float)
+    return p @ m[:3, :3].T + m[:3, 3]
+
+
+def ease_keyframes(key_t: np.ndarray, key_p: np.ndarray, times: np.ndarray, easing: str) -> np.ndarray:
+    """Piecewise path through keyframes ``key_p (K, 3)`` at ``key_t (K,)`` s, sampled at ``times``;
+    each segment eased with the smoothstep ``3w^2 - 2w^3`` (zero velocity at every keyframe) or linear;
+    held constant before the first and after the last keyframe."""
+    out = np.empty((len(times), 3))
+    for k, t in enumerate(times):
+        i = int(np.clip(np.searchsorted(key_t, t, side="right") - 1, 0, len(key_t) - 2))
+        span = key_t[i + 1] - key_t[i]
+        w = float(np.clip((t - key_t[i]) / span, 0.0, 1.0)) if span > 0 else 1.0
+        if easing == "smoothstep":
+            w = w * w * (3.0 - 2.0 * w)
+        out[k] = key_p[i] + w * (key_p[i + 1] - key_p[i])
+    return out
+
+
+def read_mesh(path: Path, source: str, field: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(N, 3)`` (file units) and triangles ``(F, 3)`` of an ``.obj``, in file order, checked:
+    every edge in at most two triangles (manifold), no degenerate triangle, at least one triangle.
+
+    Raises:
+        DataError: missing/unreadable file, non-manifold or degenerate mesh (names the file and field).
+    """
+    import trimesh
+    if not path.is_file():
+        raise DataError(f"{source}: field '{field}': mesh {path} does not exist; give a .obj path relative to "
+                        f"the scenario file")
+    try:
+        m = trimesh.load(str(path), process=False, force="mesh")
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds
+        raise DataError(f"{source}: field '{field}': cannot read mesh {path} ({exc}); give a triangle .obj") from None
+    v = np.asarray(m.vertices, dtype=float)
+    f = np.asarray(m.faces, dtype=np.int64)
+    if len(f) == 0:
+        raise DataError(f"{source}: field '{field}': mesh {path} has no triangles; give a triangle .obj")
+    if np.any(f[:, 0] == f[:, 1]) or np.any(f[:, 1] == f[:, 2]) or np.any(f[:, 0] == f[:, 2]) or \
+            np.any(np.asarray(m.area_faces) <= 0):
+        raise DataError(f"{source}: field '{field}': mesh {path} has degenerate triangles (repeated or collinear "
+                        f"vertices); remove them")
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(edges, axis=0, return_counts=True)
+    if counts.max() > 2:
+        e = uniq[int(np.argmax(counts))]
+        raise DataError(f"{source}: field '{field}': mesh {path} is non-manifold (edge {int(e[0])}-{int(e[1])} "
+                        f"is shared by {int(counts.max())} triangles); a cloth must be a surface where every edge "
+                        f"borders at most two triangles: split or remove the extra triangles")
+    return v, f
+
+
+def _resolve_path(base: Path | None, rel: str) -> Path:
+    p = Path(rel).expanduser()
+    return p if p.is_absolute() or base is None else base / p
+
+
+def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
+                   transforms: Mapping[str, Any] | None = None) -> Scenario:
+    """The :class:`Scenario` a validated spec describes.
+
+    Args:
+        spec: :func:`parse_spec`'s result.
+        source: the file (or description) named in errors.
+        base_dir: folder relative paths (mesh, path files) are resolved against.
+        transforms: named frame -> transform (:class:`TransformSpec` mapping or 4x4 matrix) replacing the
+            file's (a recording's calibration).
+
+    Raises:
+        DataError: unknown frame name, a path whose length disagrees with the frames, a handle vertex out
+            of range or a grasp kind that does not fit the object, a missing or non-manifold mesh.
+    """
+    from softsbi.core.arrays import read_npy
+
+    times = spec.frames.values()
+    T = len(times)
+    mats: dict[str, np.ndarray] = {"scenario": np.eye(4)}
+    for k, t in spec.transforms.items():
+        mats[k] = transform_matrix(t)
+    for k, t in (transforms or {}).items():
+        mats[k] = np.asarray(t, dtype=float) if isinstance(t, (np.ndarray, list)) else transform_matrix(t)
+
+    # object (mesh first: grasps by point need its vertices)
+    obj: dict[str, Any] = {"kind": spec.object.kind}
+    verts = faces = None
+    if spec.object.mesh is not None:
+        mpath = _resolve_path(base_dir, spec.object.mesh.file)
+        v, faces = read_mesh(mpath, source, "object.mesh.file")
+        verts = v * float(spec.object.mesh.units)
+
+    # handle paths
+    handles: list[Handle] = []
+    for i, h in enumerate(spec.handles):
+        where = f"handles[{i}]"
+        path = None
+        if h.path is not None:
+            pth = h.path
+            if pth.frame not in mats:
+                raise DataError(f"{source}: field '{where}.path.frame': unknown frame '{pth.frame}'; use 'scenario' "
+                                f"or one of the names under 'transforms' ({', '.join(sorted(mats))})")
+            if pth.file is not None:
+                f = _resolve_path(base_dir, pth.file)
+                if not f.is_file():
+                    raise DataError(f"{source}: field '{where}.path.file': {f} does not exist; give a (T, 3) .npy "
+                                    f"relative to the scenario file")
+                raw = read_npy(f, "handle path", "save a (T, 3) float array with numpy.save")
+                if raw.ndim != 2 or raw.shape[1] != 3:
+                    raise DataError(f"{source}: field '{where}.path.file': {f} must be (T, 3) positions, got "
+                                    f"{raw.shape}")
+                if len(raw) != T:
+                    raise DataError(f"{source}: field '{where}.path.file': {f} has {len(raw)} rows but frames gives "
+                                    f"{T} frames; give one row per frame (or set frames.count to {len(raw)})")
+            else:
+                kt = np.array([k.t for k in pth.keyframes])
+                if kt[-1] > times[-1] + 1e-9:
+                    raise DataError(f"{source}: field '{where}.path.keyframes': the last keyframe (t = {kt[-1]:g} s) "
+                                    f"is after the last frame (t = {times[-1]:g} s); end the keyframes by then")
+                raw = ease_keyframes(kt, np.array([k.p for k in pth.keyframes], dtype=float), times, pth.easing)
+            path = apply_transform(mats[pth.frame], raw) + np.asarray(pth.offset, dtype=float)
+        handles.append(Handle(h.name, h.grasp.as_dict(), path))
+    gripper = next(h.path for h in handles if h.path is not None)
+
+    # grasps fit the object
+    for i, (h, hs) in enumerate(zip(handles, spec.handles)):
+        field = f"handles[{i}].grasp"
+        kind = next(iter(h.grasp))
+        if kind == "vertex":
+            if verts is None:
+                raise DataError(f"{source}: field '{field}.vertex': a vertex index needs a mesh object (a grid's or "
+                                f"rope's resolution is the backend's); use corner (grid) / end (rope) or point")
+            if not h.grasp["vertex"] < len(verts):
+                raise DataError(f"{source}: field '{field}.vertex': vertex {h.grasp['vertex']} is out of range, the "
+                                f"mesh has {len(verts)} vertices (0..{len(verts) - 1}); choose one of those")
+        elif kind == "corner" and (spec.object.kind != "cloth" or verts is not None):
+            raise DataError(f"{source}: field '{field}.corner': corners are for a grid cloth; use vertex (mesh) or "
+                            f"end (rope)")
+        elif kind == "end" and spec.object.kind != "rope":
+            raise DataError(f"{source}: field '{field}.end': ends are for a rope; use corner (grid) or vertex (mesh)")
+
+    pl = spec.placement
+    first = next(h for h in handles if h.path is not None)
+    if verts is not None:
+        # mesh cloth: rest flat on the table (z = the table's), the fit's scale and yaw act about the
+        # first moving handle's vertex (the pivot)
+        if "point" in first.grasp:
+            pivot = int(np.argmin(np.linalg.norm(verts - np.asarray(first.grasp["point"]), axis=1)))
+        else:
+            pivot = int(first.grasp["vertex"])
+        area = float(0.5 * np.linalg.norm(np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
+                                                    verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1).sum())
+        far = verts[int(np.argmax(np.linalg.norm(verts[:, :2] - verts[pivot, :2], axis=1)))]
+        d = far[:2] - verts[pivot, :2]
+        obj.update(size=math.sqrt(area), corner=[float(verts[pivot, 0]), float(verts[pivot, 1])],
+                   direction=[float(v) for v in d / np.linalg.norm(d)], grasp="vertex",
+                   mesh={"vertices": verts.tolist(), "faces": faces.tolist(), "pivot": pivot,
+                         "file": str(_resolve_path(base_dir, spec.object.mesh.file))})
+    elif spec.object.kind == "cloth":
+        corner = pl.corner if pl.corner is not None else (float(gripper[0, 0]), float(gripper[0, 1]))
+        obj.update(size=float(spec.object.size), corner=[float(corner[0]), float(corner[1])],
+                   direction=[float(v) for v in (pl.direction or (1.0, 0.0))], grasp="corner")
+    else:
+        start = pl.corner if pl.corner is not None else (float(gripper[0, 0]), float(gripper[0, 1]))
+        obj.update(length=float(spec.object.length), radius=float(spec.object.radius or 0.004),
+                   start=[float(start[0]), float(start[1])],
+                   direction=[float(v) for v in (pl.direction or (0.0, -1.0))], grasp="end")
+    if spec.object.fabric:
+        obj["fabric"] = spec.object.fabric
+    if pl.yaw_bounds is not None:
+        obj["yaw_bounds"] = [float(pl.yaw_bounds[0]), float(pl.yaw_bounds[1])]
+    obstacles = []
+    for o in spec.world.obstacles:
+        d = o.model_dump()
+        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items() if v is not None}
+        obstacles.append(d)
+        if o.type == "cylinder" and o.occludes:  # observers hide what it occludes
+            obj["spool"] = {"centre": list(o.centre), "radius": float(o.radius), "height": float(o.height)}
+    world = {"gravity": list(spec.world.gravity), "obstacles": obstacles}
+    options = dict(spec.options)
+    options.setdefault("source", source)
+    if spec.description:
+        options.setdefault("description", spec.description)
+    options["transforms"] = {k: m.tolist() for k, m in mats.items() if k != "scenario"}
+    cams = [c.model_dump() for c in spec.cameras]
+    for c in cams:
+        for k, v in list(c.items()):
+            if isinstance(v, tuple):
+                c[k] = list(v)
+    return Scenario(name=spec.name, times=times, gripper=gripper, table_z=float(spec.world.table_z), object=obj,
+                    options=options, handles=handles, world=world, cameras=cams)
+
+
+def load_scenario_file(path: str | Path, transforms: Mapping[str, Any] | None = None) -> Scenario:
+    """Read, validate and build a scenario file (module docstring).
+
+    Args:
+        path: the ``.yaml`` file; relative paths inside it are resolved against its folder.
+        transforms: named frames -> scenario frame replacing the file's (e.g. a recording's
+            ``robot`` calibration).
+
+    Raises:
+        DataError: one line naming the file, the field and the fix.
+    """
+    path = Path(path)
+    spec = parse_spec(_read_yaml(path), str(path))
+    sc = build_scenario(spec, str(path), path.parent, transforms)
+    sc.options["file"] = str(path.resolve())
+    return sc
+
+
+def load_scenario_data(data: Mapping[str, Any], source: str, base_dir: Path | None,
+                       transforms: Mapping[str, Any] | None = None) -> Scenario:
+    """:func:`load_scenario_file` for a mapping already read (an inline scenario of a recording)."""
+    return build_scenario(parse_spec(data, source), source, base_dir, transforms)
