@@ -8,7 +8,7 @@
 * :func:`handle_vertices`: the vertex each handle holds.
 
 Mesh placement: the mesh lies flat on the table (``z = table_z + lift``: every vertex keeps its
-x, y); ``theta["scale"]`` (the side of a square of the same area, m) scales it and ``theta["yaw"]``
+x, y), or with ``placement.rest: mesh`` keeps the file's heights above its lowest vertex; ``theta["scale"]`` (the side of a square of the same area, m) scales it and ``theta["yaw"]``
 (deg, counter-clockwise from above) rotates it, both about the first moving handle's vertex
 (``object["mesh"]["pivot"]``).
 """
@@ -115,7 +115,7 @@ def mesh_rest(scenario: Scenario, theta: Mapping[str, float], z: float) -> tuple
     a = math.radians(float(theta.get("yaw", 0.0)))
     rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
     v[:, :2] = piv + ((v[:, :2] - piv) * k) @ rot.T
-    v[:, 2] = z
+    v[:, 2] = z + ((v[:, 2] - v[:, 2].min()) * k if mesh.get("rest") == "mesh" else 0.0)
     return v, f
 
 

@@ -219,12 +219,15 @@ def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
 @app.command()
 @_guard
 def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
-             scenario: str = typer.Option("lift", help="scenario name: lift, wipe, wind or fling"),
+             scenario: str = typer.Option("lift", help="scenario name (`softsbi scenarios` lists them) or scenario "
+                                                       "file (.yaml)"),
              recording: Optional[Path] = typer.Option(None, help="real recording folder to take the scenario from"),
              theta: list[str] = typer.Option(None, "--theta", help="name=value (repeatable); unset = prior midpoint"),
              effect: list[str] = typer.Option(None, "--effect", help="effect names to switch on"),
              backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
-             out: Path = typer.Option(Path("rollout"), help="output folder (rollout.zarr + preview.png)"),
+             out: Path = typer.Option(Path("rollout"), help="output folder: rollout.zarr, preview.png and a "
+                                                            "recording (recording.yaml + clouds/) that `softsbi fit "
+                                                            "--observed OUT` reads"),
              render: Optional[int] = typer.Option(None, help="also render every frame through the scenario's "
                                                              "overhead camera at this square size (px): "
                                                              "OUT/frames/000.png ... + truth.json, a measurement "
@@ -246,6 +249,8 @@ def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
         return
     o.line(f"{backend} {scenario}: status {'ok' if doc['status'] == 0 else doc['reason']}, {doc['frames']} frames, "
            f"{doc['vertices']} vertices, {doc['wall_s']:.2f} s wall -> {doc['rollout']}")
+    if doc.get("recording"):
+        o.line(f"recording: {doc['recording']} (`softsbi fit --observed {doc['recording']} --out RUN` fits it)")
     if doc.get("preview"):
         o.line(f"preview: {doc['preview']}")
     if doc.get("frames_dir"):
@@ -273,8 +278,10 @@ DEFAULT_SIMS = 150
 
 @app.command()
 @_guard
-def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... + lift_real2sim.yaml), or with an "
-                                                 "image observer a folder of frames 000.png ..."),
+def fit(observed: Path = typer.Option(..., help="recording directory (recording.yaml + clouds/: `softsbi import "
+                                                 "diffcloud`, `softsbi simulate --out`), a DiffCloud folder "
+                                                 "(000.npy ... + <task>_real2sim.yaml), or with an image observer "
+                                                 "a folder of frames 000.png ..."),
         out: Path = typer.Option(..., help="run directory (resumes if it holds a run)"),
         backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
         estimator: str = typer.Option("rkhs", help=H_ESTIMATOR),
@@ -311,8 +318,8 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
                                                         "extractor)"),
         extractor: Optional[Path] = typer.Option(None, help="with --observer heatmap|transporter: the trained "
                                                             "extractor checkpoint (softsbi train-extractor)"),
-        scenario: str = typer.Option("lift", help="scenario the frames were recorded in: lift, wipe, wind or "
-                                                  "fling (image observers; point clouds are always lift)"),
+        scenario: Optional[str] = typer.Option(None, help="scenario (name or file) the frames were recorded in; "
+                                                          "default: the recording's own (image observers: lift)"),
         image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
         proposal: Proposal = typer.Option(Proposal.corrected, help=H_PROPOSAL),
@@ -346,12 +353,9 @@ def fit(observed: Path = typer.Option(..., help="recording folder (000.npy ... +
         from softsbi.executors.ray_executor import _import_ray
         _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`
     if images:
-        meas = load_image_recording(observed, scenario=scenario, size=image_size)
+        meas = load_image_recording(observed, scenario=scenario or "lift", size=image_size)
     else:
-        if scenario != "lift":
-            raise SoftsbiError(f"point-cloud recordings are lift recordings; --scenario {scenario} needs an image "
-                               f"observer (--observer heatmap|transporter) and a folder of frames")
-        meas = load_recording(observed, n_points=points, seed=seed)
+        meas = load_recording(observed, n_points=points, seed=seed, scenario=scenario)
     o = Output(as_json)
     res = _run(o, meas, cfg, out, retry_failed=retry_failed)
     if as_json:
@@ -648,6 +652,32 @@ def scenarios_cmd(as_json: bool = typer.Option(False, "--json", help=H_JSON)) ->
         return
     o.table(["name", "source", "description"], [[r["name"], r["source"], r["description"]] for r in rows],
             title="scenarios")
+
+
+import_app = typer.Typer(help="Convert recordings from other layouts into recording directories.",
+                         no_args_is_help=True)
+app.add_typer(import_app, name="import")
+
+
+@import_app.command("diffcloud")
+@_guard
+def import_diffcloud_cmd(src: Path = typer.Argument(..., help="a DiffCloud recording folder (lift_tan, fold_navy2) "
+                                                              "or a folder of them (diffcloud_lift, diffcloud_fold)"),
+                         dst: Path = typer.Argument(..., help="destination: the recording directory, or for a "
+                                                              "folder of recordings their parent"),
+                         scenario: Optional[str] = typer.Option(None, help="scenario name or file of the "
+                                                                           "recordings (needed for tasks other "
+                                                                           "than lift, e.g. examples/fold.yaml)"),
+                         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """Convert DiffCloud recordings (lift, fold) into recording directories (recording.yaml + clouds/)."""
+    from softsbi.workflows.measurement import import_diffcloud
+    written = import_diffcloud(src, dst, scenario)
+    o = Output(as_json)
+    if as_json:
+        o.emit_json({"recordings": [str(p) for p in written]})
+        return
+    for p in written:
+        o.line(f"wrote {p}")
 
 
 def main() -> None:

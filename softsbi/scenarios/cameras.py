@@ -25,3 +25,18 @@ def default_camera(scenario_name: str, size: int = 128) -> Camera:
         raise DataError(f"no built-in camera for scenario '{scenario_name}'; choose one of {sorted(views)} "
                         f"or pass a Camera")
     return Camera.look_at(width=size, height=size, **views[scenario_name])
+
+
+def scenario_camera(scenario, size: int = 128) -> Camera:
+    """The first camera of ``scenario.cameras`` (a scenario file's ``cameras``) at ``size x size`` px, else
+    :func:`default_camera` of its name.
+
+    Raises:
+        DataError: no camera in the scenario and no built-in one for its name.
+    """
+    cams = getattr(scenario, "cameras", None) or []
+    if cams:
+        c = cams[0]
+        return Camera.look_at(width=size, height=size, eye=tuple(c["eye"]), target=tuple(c["target"]),
+                              up=tuple(c.get("up", (0, 0, 1))), fovy_deg=float(c.get("fovy_deg", 50.0)))
+    return default_camera(scenario.name, size)

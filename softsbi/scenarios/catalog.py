@@ -103,7 +103,7 @@ def load_scenario(name_or_path: str | Path | Scenario, transforms: Mapping[str, 
             raise DataError(f"scenario '{s}' of plugin {plugins[s][1]} built {type(sc).__name__}, not a Scenario")
         return sc
     names = sorted(files) + sorted(plugins)
-    raise DataError(f"unknown scenario '{s}'.{closest(s, names)} Known scenarios: {', '.join(names)}; or give a "
+    raise DataError(f"unknown scenario '{s}'.{closest(s, names)} Valid scenarios: {', '.join(names)}; or give a "
                     f"scenario file path (.yaml)")
 
 

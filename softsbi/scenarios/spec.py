@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from softsbi.core.errors import DataError
 from softsbi.core.types import Handle, Scenario
+from softsbi.data.validation import validation_line
 
 FORMAT = "softsbi-scenario/1"
 #: the format versions this reader understands
@@ -87,6 +88,9 @@ class PlacementSpec(_Strict):
     corner: Optional[Vec2] = None
     direction: Optional[Vec2] = None
     yaw_bounds: Optional[Vec2] = None
+    #: mesh cloth: ``flat`` lays every vertex on the table; ``mesh`` keeps the file's heights above its
+    #: lowest vertex (e.g. a corner already raised into the gripper)
+    rest: Literal["flat", "mesh"] = "flat"
 
     @model_validator(mode="after")
     def _check(self) -> "PlacementSpec":
@@ -124,9 +128,11 @@ class Keyframe(_Strict):
 
 
 class PathSpec(_Strict):
-    """A handle's path: a ``(T, 3)`` ``.npy`` ``file`` (one row per frame) or ``keyframes`` sampled
-    at the frame times (``easing`` between them), in ``frame``, plus an ``offset`` (m, scenario frame)."""
+    """A handle's path: a ``(T, 3)`` ``.npy`` ``file`` or inline ``points`` (one row per frame), or
+    ``keyframes`` sampled at the frame times (``easing`` between them), in ``frame``, plus an ``offset``
+    (m, scenario frame)."""
     file: Optional[str] = None
+    points: Optional[list[Vec3]] = None
     keyframes: Optional[list[Keyframe]] = None
     frame: str = "scenario"
     easing: Literal["smoothstep", "linear"] = "smoothstep"
@@ -134,8 +140,9 @@ class PathSpec(_Strict):
 
     @model_validator(mode="after")
     def _one(self) -> "PathSpec":
-        if (self.file is None) == (self.keyframes is None):
-            raise ValueError("give exactly one of 'file' (.npy, one row per frame) or 'keyframes'")
+        if sum(x is not None for x in (self.file, self.points, self.keyframes)) != 1:
+            raise ValueError("give exactly one of 'file' (.npy, one row per frame), 'points' (one [x, y, z] per "
+                             "frame) or 'keyframes'")
         if self.keyframes is not None:
             if len(self.keyframes) < 2:
                 raise ValueError("keyframes need at least two entries")
@@ -274,33 +281,7 @@ class ScenarioSpec(_Strict):
 # ---------------------------------------------------------------------------------------------
 # errors
 # ---------------------------------------------------------------------------------------------
-def _loc(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif part in ("box", "cylinder") or str(part).startswith("function-"):
-            continue
-        else:
-            out += ("." if out else "") + str(part)
-    return out or "(top level)"
-
-
-def validation_line(source: str, exc: ValidationError, model: type[BaseModel] = ScenarioSpec) -> str:
-    """One line for the first problem of a pydantic ``ValidationError``: file, field and fix."""
-    err = exc.errors()[0]
-    loc = _loc(tuple(err.get("loc", ())))
-    kind = err.get("type", "")
-    if kind == "extra_forbidden":
-        field = str(err["loc"][-1])
-        return (f"{source}: unknown field '{loc}'; remove it or correct its spelling (see the format in "
-                f"softsbi/scenarios/files/lift.yaml)")
-    if kind == "missing":
-        return f"{source}: field '{loc}' is missing; add it (see softsbi/scenarios/files/lift.yaml)"
-    msg = err.get("msg", "invalid").replace("Value error, ", "")
-    got = err.get("input")
-    got_s = "" if isinstance(got, (dict, list)) and len(repr(got)) > 60 else f" (got {got!r})"
-    return f"{source}: field '{loc}': {msg}{got_s}; fix that field"
+EXAMPLE = "softsbi/scenarios/files/lift.yaml"
 
 
 def _read_yaml(path: Path) -> Any:
@@ -332,7 +313,7 @@ def parse_spec(data: Any, source: str) -> ScenarioSpec:
     try:
         return ScenarioSpec.model_validate(dict(data))
     except ValidationError as exc:
-        raise DataError(validation_line(source, exc)) from None
+        raise DataError(validation_line(source, exc, EXAMPLE)) from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -467,6 +448,11 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
                 if len(raw) != T:
                     raise DataError(f"{source}: field '{where}.path.file': {f} has {len(raw)} rows but frames gives "
                                     f"{T} frames; give one row per frame (or set frames.count to {len(raw)})")
+            elif pth.points is not None:
+                raw = np.asarray(pth.points, dtype=float)
+                if len(raw) != T:
+                    raise DataError(f"{source}: field '{where}.path.points': {len(raw)} points but frames gives {T} "
+                                    f"frames; give one point per frame (or set frames.count to {len(raw)})")
             else:
                 kt = np.array([k.t for k in pth.keyframes])
                 if kt[-1] > times[-1] + 1e-9:
@@ -509,8 +495,9 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
         d = far[:2] - verts[pivot, :2]
         obj.update(size=math.sqrt(area), corner=[float(verts[pivot, 0]), float(verts[pivot, 1])],
                    direction=[float(v) for v in d / np.linalg.norm(d)], grasp="vertex",
-                   mesh={"vertices": verts.tolist(), "faces": faces.tolist(), "pivot": pivot,
-                         "file": str(_resolve_path(base_dir, spec.object.mesh.file))})
+                   mesh={"vertices": verts.tolist(), "faces": faces.tolist(), "pivot": pivot, "rest": pl.rest,
+                         "file": str(_resolve_path(base_dir, spec.object.mesh.file).resolve()),
+                         "units": float(spec.object.mesh.units)})
     elif spec.object.kind == "cloth":
         corner = pl.corner if pl.corner is not None else (float(gripper[0, 0]), float(gripper[0, 1]))
         obj.update(size=float(spec.object.size), corner=[float(corner[0]), float(corner[1])],
@@ -568,3 +555,55 @@ def load_scenario_data(data: Mapping[str, Any], source: str, base_dir: Path | No
                        transforms: Mapping[str, Any] | None = None) -> Scenario:
     """:func:`load_scenario_file` for a mapping already read (an inline scenario of a recording)."""
     return build_scenario(parse_spec(data, source), source, base_dir, transforms)
+
+
+def spec_from_scenario(sc: Scenario, description: str = "") -> dict[str, Any]:
+    """A scenario-file mapping (inline in a recording) that builds ``sc`` again: paths as ``points`` in
+    the scenario frame (exact), the object, placement, world and cameras; ``options`` kept when they are
+    plain data. A mesh cloth refers to its ``.obj`` by absolute path.
+
+    Raises:
+        DataError: an object this format cannot express (e.g. a mesh cloth built in code without a file).
+    """
+    from softsbi.core.types import jsonable
+    obj = sc.object
+    kind = obj.get("kind", "cloth")
+    o: dict[str, Any] = {"kind": kind}
+    placement: dict[str, Any] = {}
+    if kind == "rope":
+        o.update(length=float(obj["length"]), radius=float(obj.get("radius", 0.004)))
+        placement.update(corner=list(obj["start"]), direction=list(obj["direction"]))
+    elif "mesh" in obj:
+        if not obj["mesh"].get("file"):
+            raise DataError(f"scenario '{sc.name}': a mesh cloth needs object['mesh']['file'] to be written out")
+        o["mesh"] = {"file": str(obj["mesh"]["file"]), "units": float(obj["mesh"].get("units", 1.0))}
+        placement["rest"] = obj["mesh"].get("rest", "flat")
+    else:
+        o["size"] = float(obj["size"])
+        placement.update(corner=list(obj["corner"]), direction=list(obj["direction"]))
+    if obj.get("fabric"):
+        o["fabric"] = obj["fabric"]
+    if obj.get("yaw_bounds") is not None:
+        placement["yaw_bounds"] = [float(v) for v in obj["yaw_bounds"]]
+    handles = []
+    for h in sc.handles:
+        d: dict[str, Any] = {"name": h.name, "grasp": jsonable(h.grasp)}
+        if h.pinned:
+            d["pinned"] = True
+        else:
+            d["path"] = {"points": np.asarray(h.path).tolist()}
+        handles.append(d)
+    world: dict[str, Any] = {"table_z": float(sc.table_z), "gravity": sc.gravity}
+    obs = sc.world.get("obstacles")
+    if obs is None and obj.get("spool"):
+        sp = obj["spool"]
+        obs = [{"type": "cylinder", "name": "spool", "centre": list(sp["centre"]), "radius": float(sp["radius"]),
+                "height": float(sp["height"]), "occludes": True}]
+    if obs:
+        world["obstacles"] = jsonable(obs)
+    out = {"format": FORMAT, "name": sc.name, "description": description or sc.options.get("description", ""),
+           "object": o, "placement": placement, "handles": handles, "frames": {"times": sc.times.tolist()},
+           "world": world, "options": {k: v for k, v in jsonable(sc.options).items() if k != "transforms"}}
+    if sc.cameras:
+        out["cameras"] = jsonable(sc.cameras)
+    return out

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -27,31 +27,157 @@ DIFFCLOUD_MIN_HEIGHT = 0.01
 
 
 def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENSE, seed: int = 0,
-                     scenario: str = "lift") -> Recording:
-    """A real recording as a :class:`Recording` in the lift frame (metres).
+                   scenario: str | Path | Scenario | None = None) -> Recording:
+    """A recording as a :class:`Recording` in its scenario's frame (metres).
 
     Args:
-        folder: recording folder (``000.npy`` ... one ``(P, 3)`` cloud per frame in DiffCloud's
-            simulator frame, plus ``lift_real2sim.yaml``; ``lift_traj.npy`` in the parent).
+        folder: a recording directory (``recording.yaml`` + ``clouds/``, :mod:`softsbi.data.recording`;
+            written by ``softsbi import diffcloud`` or ``softsbi simulate --out``), or a DiffCloud folder
+            (``000.npy`` ... in the simulator frame with ``<task>_real2sim.yaml``; converted in memory by
+            the importer, :func:`diffcloud_recording`).
         n_points: K, points per frame of the observed state.
-        n_dense: points per frame kept for the Chamfer metric (subsampled without replacement).
+        n_dense: points per frame kept for the Chamfer metric (subsampled without replacement when
+            the frame has that many, any ``P_t`` otherwise).
         seed: seeds the subsampling.
+        scenario: replaces the recording's own scenario (name, file or :class:`Scenario`).
 
     Returns:
-        Recording with ``x (T, 1+K, 3)`` and ``dense (T, n_dense, 3)``, and DiffCloud's sensor
-        model as its fit defaults (``min_height`` :data:`DIFFCLOUD_MIN_HEIGHT`, ``frames="auto"``).
+        Recording with ``x (T, 1+K, 3)``, ``dense (T, n_dense, 3)``, ``truth`` for simulated ones, and the
+        recording's sensor model as its fit defaults (``min_height``, ``frames``).
 
     Raises:
-        DataError: missing/malformed folder or frames, NaN/inf points, a frame count that does
-            not match the recorded gripper path, an unknown scenario.
+        DataError: missing/malformed folder, files or fields (one line naming the file, field and fix);
+            a frame count or times that disagree with the scenario's frames.
     """
-    from softsbi.scenarios.builtin import lift_scenario, recording_transform
+    from softsbi.data.recording import is_recording, read_recording
+    folder = Path(folder)
+    if is_recording(folder):
+        data = read_recording(folder)
+        meta, clouds, base = data.meta.model_dump(mode="json", exclude_none=True), data.clouds, folder
+    else:
+        meta, clouds = diffcloud_recording(folder, scenario if isinstance(scenario, (str, Path)) else None)
+        from softsbi.data.recording import Transform, parse_meta
+        parsed = parse_meta(meta, str(folder))
+        m = Transform.model_validate(parsed.model_dump()["transform"]).as_matrix()
+        clouds = [c @ m[:3, :3].T + m[:3, 3] for c in clouds]
+        meta, base = parsed.model_dump(mode="json", exclude_none=True), folder
+    return recording_from_meta(meta, clouds, base, n_points=n_points, n_dense=n_dense, seed=seed,
+                               scenario=scenario, source=str(folder))
 
-    if scenario != "lift":
-        raise DataError(f"real recordings are supported for scenario 'lift' only (got '{scenario}')")
+
+def scenario_of(meta: Mapping, base: Path, source: str) -> Scenario:
+    """The scenario a recording's ``scenario`` entry names, with its ``frames_of_reference`` replacing the
+    scenario's transforms (the recording's own calibration).
+
+    Raises:
+        DataError: an unknown name or an invalid scenario file / inline scenario.
+    """
+    from softsbi.data.recording import Transform
+    from softsbi.scenarios.catalog import load_scenario
+    from softsbi.scenarios.spec import load_scenario_data
+    frames = {k: Transform.model_validate(v).as_matrix() for k, v in (meta.get("frames_of_reference") or {}).items()}
+    ref = meta["scenario"]
+    if ref.get("inline") is not None:
+        return load_scenario_data(ref["inline"], f"{source}/recording.yaml: scenario.inline", base, frames)
+    if ref.get("file") is not None:
+        f = Path(ref["file"]).expanduser()
+        return load_scenario(f if f.is_absolute() else base / f, frames)
+    return load_scenario(ref["name"], frames)
+
+
+def recording_from_meta(meta: Mapping, clouds: Sequence[np.ndarray], base: Path, n_points: int = 64,
+                        n_dense: int = N_DENSE, seed: int = 0, scenario: str | Path | Scenario | None = None,
+                        source: str = "") -> Recording:
+    """Build the :class:`Recording` of validated recording metadata and clouds ``(P_t, 3)`` m (scenario frame).
+
+    Raises:
+        DataError: the number of clouds or their times disagree with the scenario's frames.
+    """
+    from softsbi.scenarios.catalog import load_scenario
+    sc = scenario_of(meta, base, source) if scenario is None else load_scenario(scenario)
+    times = np.asarray(meta["times"], dtype=float)
+    if len(clouds) != sc.n_frames:
+        raise DataError(f"{source}: the recording has {len(clouds)} frames but scenario '{sc.name}' has "
+                        f"{sc.n_frames}; make the scenario's frames match the recording (frames.count / times)")
+    if np.abs(times - sc.times).max() > 1e-6:
+        k = int(np.argmax(np.abs(times - sc.times)))
+        raise DataError(f"{source}: frame {k} is at t = {times[k]:g} s in the recording but {sc.times[k]:g} s in "
+                        f"scenario '{sc.name}'; make the scenario's frames match the recording's times")
+    rng = np.random.default_rng(seed)
+    obs = PointCloudObserver(n_points).observe_clouds(list(clouds), sc.gripper, sc.times, rng, source=source)
+    dense = np.stack([c[rng.choice(len(c), size=n_dense, replace=len(c) < n_dense)] for c in clouds])
+    sensor = meta.get("sensor") or {}
+    return Recording(scenario=sc, x=obs.state(), dense=dense, source=source, truth=meta.get("truth"),
+                     min_height=sensor.get("min_height"), frames=sensor.get("frames", "all"))
+
+
+# ---------------------------------------------------------------------------------------------
+# DiffCloud folders (an importer, not the format)
+# ---------------------------------------------------------------------------------------------
+def _diffcloud_task(folder: Path) -> tuple[str, Path]:
+    ymls = sorted(folder.glob("*_real2sim.yaml"))
+    if not ymls:
+        raise DataError(f"'{folder}' holds no <task>_real2sim.yaml; a DiffCloud recording folder (such as "
+                        f"../shared/data/diffcloud_lift/lift_tan) has one, or give a recording directory "
+                        f"(recording.yaml)")
+    return ymls[0].name[: -len("_real2sim.yaml")], ymls[0]
+
+
+def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
+                        ) -> tuple[dict[str, Any], list[np.ndarray]]:
+    """Convert a DiffCloud recording folder into recording metadata and clouds (nothing written).
+
+    The clouds stay in DiffCloud's simulator frame; ``transform`` is ``diag(s, s, s, 1)`` (``s`` = the
+    real2sim ``scale``, 0.35 m per unit) into the scenario frame (metres). ``frames_of_reference.robot``
+    is the folder's ``<task>_real2sim.yaml`` (DiffCloud convention), so a scenario whose paths are in
+    the ``robot`` frame uses this recording's calibration. Times: DiffCloud's 0.04 s frames (assumed:
+    the real timing is not in the files). Sensor: :data:`DIFFCLOUD_MIN_HEIGHT`, ``frames: auto``.
+
+    Scenario: ``scenario`` (a name or file) when given; otherwise ``lift`` folders get the lift derived
+    from the recording (:func:`softsbi.scenarios.builtin.lift_scenario`: the parent's ``lift_traj.npy``,
+    the grasp offset estimated from the clouds), written inline; other tasks need ``scenario``.
+
+    Raises:
+        DataError: not a DiffCloud folder, malformed frames or yaml, a frame count that disagrees with
+            the lift path, another task without ``scenario``.
+    """
+    import yaml
+
+    from softsbi.scenarios.builtin import FRAME_DT, lift_scenario
+    from softsbi.scenarios.spec import spec_from_scenario
     folder = Path(folder)
     clouds = load_cloud_frames(folder)
-    cfg = recording_transform(folder)
+    task, yml = _diffcloud_task(folder)
+    try:
+        cfg = yaml.safe_load(yml.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise DataError(f"{yml} is not valid YAML{at} ({problem}); fix that line (the file holds z_rotation, "
+                        f"translation, scale and compensation_factor)") from None
+    if not isinstance(cfg, Mapping) or not {"z_rotation", "translation", "scale"} <= set(cfg):
+        raise DataError(f"{yml} must hold z_rotation, translation, scale and compensation_factor")
+    dc = {"z_rotation": float(cfg["z_rotation"]), "translation": [float(v) for v in cfg["translation"]],
+          "scale": float(cfg["scale"]),
+          "compensation_factor": [float(v) for v in cfg.get("compensation_factor", (0, 0, 0))]}
+    s = dc["scale"]
+    meta: dict[str, Any] = {
+        "format": "softsbi-recording/1", "units": {"length": "m", "time": "s"},
+        "times": (np.arange(len(clouds)) * FRAME_DT).tolist(),
+        "transform": {"matrix": [[s, 0.0, 0.0, 0.0], [0.0, s, 0.0, 0.0], [0.0, 0.0, s, 0.0], [0.0, 0.0, 0.0, 1.0]]},
+        "frames_of_reference": {"robot": {"diffcloud": dc}},
+        "sensor": {"kind": "depth point cloud (overhead + side RealSense, robot masked out)",
+                   "min_height": DIFFCLOUD_MIN_HEIGHT, "frames": "auto"},
+        "source": f"DiffCloud {task} recording {folder.name} (priyasundaresan/diffcloud_real2sim), {folder}"}
+    if scenario is not None:
+        p = Path(scenario)
+        meta["scenario"] = {"file": str(p.resolve())} if p.suffix in (".yaml", ".yml") or p.exists() else \
+            {"name": str(scenario)}
+        return meta, clouds
+    if task != "lift":
+        raise DataError(f"'{folder}' is a DiffCloud '{task}' recording: give its scenario file (e.g. "
+                        f"--scenario examples/{task}.yaml); only lift folders derive their scenario from the data")
     try:
         sc = lift_scenario(folder)
     except FileNotFoundError as exc:
@@ -60,14 +186,52 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
     if len(clouds) != sc.n_frames:
         raise DataError(f"'{folder}' has {len(clouds)} frames but the lift gripper path has {sc.n_frames}; "
                         f"every recorded frame needs a gripper pose (add or remove frames so the counts match)")
-    clouds = [c * float(cfg["scale"]) for c in clouds]
-    rng = np.random.default_rng(seed)
-    obs = PointCloudObserver(n_points).observe_clouds(clouds, sc.gripper, sc.times, rng, source=str(folder))
-    dense = np.stack([c[rng.choice(len(c), size=n_dense, replace=len(c) < n_dense)] for c in clouds])
-    # the depth sensor's model (BENCHMARKS.md, real lift): real depth clouds hold no cloth lying flat
-    # on the table, and the cloud is complete once the cloth hangs clear of it
-    return Recording(scenario=sc, x=obs.state(), dense=dense, source=str(folder),
-                     min_height=DIFFCLOUD_MIN_HEIGHT, frames="auto")
+    meta["times"] = sc.times.tolist()
+    meta["scenario"] = {"inline": spec_from_scenario(
+        sc, f"DiffCloud lift derived from {folder.name} (lift_traj.npy + grasp offset from the clouds)")}
+    return meta, clouds
+
+
+def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | None = None) -> list[Path]:
+    """``softsbi import diffcloud``: convert DiffCloud recordings into recording directories.
+
+    Args:
+        src: one recording folder (``.../diffcloud_lift/lift_tan``) or a folder of them
+            (``.../diffcloud_fold``): each subfolder holding ``NNN.npy`` and ``<task>_real2sim.yaml``.
+        dst: for one recording, its new directory; for a folder, the parent of one directory per recording.
+        scenario: the scenario (name or file) of every recording; needed for tasks other than lift
+            (:func:`diffcloud_recording`).
+
+    Returns:
+        the written recording directories.
+
+    Raises:
+        DataError: no DiffCloud recording in ``src``, an existing non-empty destination, anything
+            :func:`diffcloud_recording` raises. Everything is converted before anything is written.
+    """
+    from softsbi.data.recording import write_recording
+    src, dst = Path(src), Path(dst)
+    if not src.is_dir():
+        raise DataError(f"'{src}' does not exist; give a DiffCloud recording folder or a folder of them")
+    if sorted(src.glob("*_real2sim.yaml")) and any(f.stem.isdigit() for f in src.glob("*.npy")):
+        pairs = [(src, dst)]
+    else:
+        pairs = [(d, dst / d.name) for d in sorted(src.iterdir())
+                 if d.is_dir() and any(f.stem.isdigit() for f in d.glob("*.npy"))]
+        if not pairs:
+            raise DataError(f"'{src}' holds no DiffCloud recording (folders with 000.npy ... and "
+                            f"<task>_real2sim.yaml)")
+    converted = [(out, *diffcloud_recording(d, scenario)) for d, out in pairs]
+    for out, _, _ in converted:
+        if out.exists() and any(out.iterdir()):
+            raise DataError(f"'{out}' exists and is not empty; choose a new destination or remove it")
+    written = []
+    for out, meta, clouds in converted:
+        if "file" in meta["scenario"]:  # relative to the recording, so the pair can move together
+            import os
+            meta["scenario"]["file"] = os.path.relpath(meta["scenario"]["file"], out.resolve())
+        written.append(write_recording(out, meta, clouds))
+    return written
 
 
 def simulate_recording(backend: str, scenario: Scenario, truth: Mapping[str, float],

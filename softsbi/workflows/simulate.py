@@ -1,7 +1,10 @@
 """``softsbi simulate``: one rollout at given parameters, written to a folder.
 
 ``OUT/rollout.zarr`` (times s, gripper m, vertices m, faces; attributes: backend, scenario, theta,
-status, reason), ``OUT/preview.png`` (side views of four frames) and, when rendering,
+status, reason), ``OUT/preview.png`` (side views of four frames), a recording directory in the same
+folder (``OUT/recording.yaml`` + ``OUT/clouds/NNN.npy``, :mod:`softsbi.data.recording`: surface samples of
+every frame, the scenario inline, the hidden ``truth`` and ``effects``; ``softsbi fit --observed OUT``
+reads it) and, when rendering,
 ``OUT/frames/000.png ...`` with ``truth.json`` (a measurement for ``fit --observer heatmap|transporter``).
 """
 from __future__ import annotations
@@ -11,16 +14,22 @@ import time
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+import numpy as np
 import zarr
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.perception.images import save_frames
 from softsbi.plugins import registry
 from softsbi.report import plot_rollout_preview
+from softsbi.data.recording import write_recording
+from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.scenarios.builtin import make_scenario
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.spec import spec_from_scenario
+from softsbi.scenarios.cameras import scenario_camera
 
 
+#: points per frame of the recording ``softsbi simulate`` writes
+CLOUD_POINTS = 2000
 #: default cap on the memory of rendered frames held at once (GB); override with ``render_memory_gb``
 RENDER_MEMORY_GB = 4.0
 #: peak bytes per rendered pixel and frame: 8 stored (rgb 3 x uint8, depth float32, segmentation uint8) plus
@@ -54,15 +63,19 @@ def check_render_memory(size: int, frames: int, cap_gb: float) -> int:
     return need
 
 
-def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: str = "lift",
+def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: str | Path = "lift",
                        recording: str | Path | None = None, theta: Mapping[str, float] | None = None,
                        effects: Sequence[str] = (), backend_options: Mapping[str, Any] | None = None,
                        render: int | None = None,
-                       render_memory_gb: float = RENDER_MEMORY_GB) -> dict[str, Any]:
+                       render_memory_gb: float = RENDER_MEMORY_GB, cloud_points: int = CLOUD_POINTS,
+                       seed: int = 0) -> dict[str, Any]:
     """Roll ``scenario`` out at ``theta`` (physical units; unset parameters at the prior midpoint)
     and write it into ``out``.
 
     Args:
+        scenario: a scenario name (``softsbi scenarios``) or scenario file path.
+        cloud_points: points per frame of the written recording (area-weighted surface samples).
+        seed: seeds the surface sampling.
         render: also render every frame through the scenario's built-in overhead camera at this
             square size (px).
         render_memory_gb: cap on the estimated memory of the rendered frames
@@ -79,7 +92,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
     """
     out = Path(out)
     try:
-        sc = make_scenario(scenario, recording)
+        sc = make_scenario(str(scenario), recording)
     except ValueError as exc:
         raise SoftsbiError(str(exc)) from None
     reg = registry()
@@ -94,7 +107,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
         check_render_memory(render, len(sc.times), render_memory_gb)
     t0 = time.perf_counter()
     if render:
-        ro = sim.simulate_images(sc, values, camera=default_camera(sc.name, render), effects=list(effects))
+        ro = sim.simulate_images(sc, values, camera=scenario_camera(sc, render), effects=list(effects))
     else:
         ro = sim.simulate(sc, values, effects=list(effects))
     dt = time.perf_counter() - t0
@@ -110,7 +123,16 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
                            "reason": ro.reason, "frames": len(ro.times), "vertices": int(ro.vertices.shape[1]),
                            "wall_s": dt, "rollout": str(out / "rollout.zarr")}
     if ro.ok:
-        doc["preview"] = str(plot_rollout_preview(ro, out / "preview.png", f"{backend} {scenario}"))
+        doc["preview"] = str(plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}"))
+        clouds = rollout_clouds(ro, int(cloud_points), np.random.default_rng(seed))
+        meta = {"scenario": {"inline": spec_from_scenario(sc)}, "times": ro.times.tolist(),
+                "transform": {"matrix": np.eye(4).tolist()},
+                "sensor": {"kind": f"surface samples of the simulated mesh ({cloud_points} per frame)",
+                           "frames": "all"},
+                "truth": values, "effects": list(effects),
+                "source": f"simulated:{backend}" + (f"+{'+'.join(effects)}" if effects else "")}
+        write_recording(out, meta, list(clouds), overwrite=True)
+        doc["recording"] = str(out)
     if ro.ok and render:
         save_frames(ro.rgb, out / "frames")
         (out / "frames" / "truth.json").write_text(json.dumps(values, indent=2))

@@ -35,7 +35,7 @@ def test_midpoint_rollout(backend, name):
 
 
 def test_make_scenario_errors():
-    with pytest.raises(ValueError, match="Did you mean 'wipe'.*Known scenarios: fling, lift, wind, wipe"):
+    with pytest.raises(ValueError, match="Did you mean 'wipe'.*Valid scenarios: fling, lift, wind, wipe"):
         make_scenario("wip")
     with pytest.raises(ValueError, match="takes no recording"):
         make_scenario("wipe", recording="x")

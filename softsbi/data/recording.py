@@ -1,0 +1,315 @@
+"""Recording directories: the format of what a fit is fitted to (DESIGN.md "Recordings are data").
+
+A recording directory::
+
+    recording.yaml          # below
+    clouds/000.npy ...      # one (P_t, 3) float point cloud per frame, any P_t, recording frame, metres
+    images/000.png ...      # optional RGB frames
+    depth/000.npy ...       # optional (H, W) depth images, metres
+    calibration.yaml        # optional camera calibration (free-form, kept as written)
+
+``recording.yaml`` (``format: softsbi-recording/1``)::
+
+    format: softsbi-recording/1
+    scenario: {name: lift}            # or {file: fold.yaml} (relative to this folder) or {inline: {...}}
+    units: {length: m, time: s}
+    times: [0.0, 0.04, ...]           # one per frame, s
+    transform: {matrix: [[1, 0, 0, 0], ...]}    # recording frame -> scenario frame (required), or
+                                                # {diffcloud: {z_rotation, translation, scale, compensation_factor}}
+    frames_of_reference:              # optional: named frames of the scenario's paths -> scenario frame
+      robot: {diffcloud: {...}}       #   (this recording's calibration replaces the scenario file's)
+    sensor: {kind: depth point cloud, min_height: 0.01, frames: auto}
+    truth: {bend: 1e-4, ...}          # simulated recordings: the hidden parameters, and
+    effects: [wind]                   #   the effects switched on
+    source: "DiffCloud lift_tan (priyasundaresan/diffcloud_real2sim)"
+
+:func:`read_recording` checks everything and gives one line naming the file, the field and the fix;
+:func:`write_recording` checks before writing, so a bad recording leaves nothing behind.
+This layer knows no scenario: :func:`softsbi.workflows.measurement.load_recording` builds the
+:class:`~softsbi.core.types.Recording` (scenario, observed state) from what is read here.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Mapping, Optional, Sequence, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from softsbi.core.arrays import read_npy
+from softsbi.core.errors import DataError
+from softsbi.data.validation import validation_line
+
+FORMAT = "softsbi-recording/1"
+META = "recording.yaml"
+EXAMPLE = "softsbi/data/recording.py (module docstring)"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ScenarioRef(_Strict):
+    """Exactly one of a scenario ``name`` (built-in or plugin), ``file`` (relative to the recording
+    folder) or ``inline`` scenario mapping (the scenario file format)."""
+    name: Optional[str] = None
+    file: Optional[str] = None
+    inline: Optional[dict[str, Any]] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "ScenarioRef":
+        if sum(x is not None for x in (self.name, self.file, self.inline)) != 1:
+            raise ValueError("give exactly one of name, file or inline")
+        return self
+
+
+class DiffCloudTransform(_Strict):
+    z_rotation: float
+    translation: tuple[float, float, float]
+    scale: float = Field(gt=0)
+    compensation_factor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class Transform(_Strict):
+    """A 4x4 ``matrix`` (column vectors, metres) or DiffCloud's real2sim fields; maps into the scenario frame."""
+    matrix: Optional[list[list[float]]] = None
+    diffcloud: Optional[DiffCloudTransform] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "Transform":
+        if (self.matrix is None) == (self.diffcloud is None):
+            raise ValueError("give exactly one of 'matrix' (4x4) or 'diffcloud'")
+        if self.matrix is not None:
+            m = np.asarray(self.matrix, dtype=float)
+            if m.shape != (4, 4) or not np.allclose(m[3], [0, 0, 0, 1]):
+                raise ValueError("matrix must be 4x4 with last row [0, 0, 0, 1]")
+        return self
+
+    def as_matrix(self) -> np.ndarray:
+        """4x4 homogeneous matrix; DiffCloud: ``p -> (p + c - t) @ Rz(a)`` (rows; metres, the scale cancels)."""
+        if self.matrix is not None:
+            return np.asarray(self.matrix, dtype=float)
+        from scipy.spatial.transform import Rotation
+        d = self.diffcloud
+        rz = Rotation.from_euler("z", float(d.z_rotation), degrees=True).as_matrix()
+        m = np.eye(4)
+        m[:3, :3] = rz.T
+        m[:3, 3] = rz.T @ (np.asarray(d.compensation_factor) - np.asarray(d.translation))
+        return m
+
+
+class Units(_Strict):
+    length: Literal["m"] = "m"
+    time: Literal["s"] = "s"
+
+
+class Sensor(_Strict):
+    """The sensor model a fit uses by default: points within ``min_height`` m of the table are not seen
+    (None: all are); ``frames`` that inform the posterior (``auto``, ``all`` or indices)."""
+    kind: str = "point cloud"
+    min_height: Optional[float] = Field(None, ge=0)
+    frames: Union[Literal["auto", "all"], list[int]] = "all"
+
+
+class RecordingMeta(_Strict):
+    """``recording.yaml`` (module docstring)."""
+    format: Literal["softsbi-recording/1"]
+    scenario: ScenarioRef
+    units: Units = Field(default_factory=Units)
+    times: list[float] = Field(min_length=1)
+    transform: Transform
+    frames_of_reference: dict[str, Transform] = Field(default_factory=dict)
+    sensor: Sensor = Field(default_factory=Sensor)
+    truth: Optional[dict[str, float]] = None
+    effects: list[str] = Field(default_factory=list)
+    source: str = ""
+    calibration: Optional[str] = None
+
+    @model_validator(mode="after")
+    def _times(self) -> "RecordingMeta":
+        if any(b <= a for a, b in zip(self.times, self.times[1:])):
+            raise ValueError("times must increase strictly (s, one per frame)")
+        return self
+
+
+@dataclass
+class RecordingData:
+    """What :func:`read_recording` returns.
+
+    Attributes:
+        folder: the recording directory.
+        meta: the validated ``recording.yaml``.
+        clouds: ``T`` arrays ``(P_t, 3)`` m, already mapped into the scenario frame.
+        times: ``(T,)`` s.
+        images: optional ``(T, H, W, 3)`` uint8.
+        depth: optional ``T`` arrays ``(H, W)`` m.
+    """
+    folder: Path
+    meta: RecordingMeta
+    clouds: list[np.ndarray]
+    times: np.ndarray
+    images: np.ndarray | None = None
+    depth: list[np.ndarray] | None = None
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+def is_recording(folder: str | Path) -> bool:
+    """Whether ``folder`` is a recording directory (holds ``recording.yaml``)."""
+    return (Path(folder) / META).is_file()
+
+
+def parse_meta(data: Any, source: str) -> RecordingMeta:
+    """Validate a ``recording.yaml`` mapping; one-line :class:`DataError` naming the file, field and fix."""
+    if not isinstance(data, Mapping):
+        raise DataError(f"{source}: recording.yaml must be a mapping (format, scenario, times, transform, ...)")
+    if data.get("format") != FORMAT:
+        raise DataError(f"{source}: field 'format' is {data.get('format')!r}; this softsbi reads {FORMAT} "
+                        f"(set format: {FORMAT})")
+    try:
+        return RecordingMeta.model_validate(dict(data))
+    except ValidationError as exc:
+        raise DataError(validation_line(source, exc, EXAMPLE)) from None
+
+
+def _frames(folder: Path, sub: str) -> list[Path]:
+    files = sorted(f for f in (folder / sub).glob("*.npy") if f.stem.isdigit())
+    idx = [int(f.stem) for f in files]
+    if idx and idx != list(range(len(idx))):
+        missing = sorted(set(range(idx[-1] + 1)) - set(idx))
+        raise DataError(f"{folder / sub}: frame numbering must run 000, 001, ... without gaps (missing "
+                        f"{missing[:5]}); renumber the files")
+    return files
+
+
+def _check_clouds(clouds: Sequence[np.ndarray], where: str) -> None:
+    for i, c in enumerate(clouds):
+        c = np.asarray(c)
+        if c.ndim != 2 or c.shape[1] != 3 or len(c) == 0:
+            raise DataError(f"{where} frame {i:03d}: a cloud must be (P, 3) with P >= 1, got {c.shape}; re-export it")
+        if not np.all(np.isfinite(c)):
+            raise DataError(f"{where} frame {i:03d}: NaN or inf points; drop them before saving")
+
+
+def read_recording(folder: str | Path) -> RecordingData:
+    """Read and check a recording directory; clouds are mapped into the scenario frame with ``transform``.
+
+    Raises:
+        DataError: no ``recording.yaml``; invalid YAML or fields (unknown field, wrong type, missing
+            ``transform``); the number of ``times`` differs from the number of clouds; a malformed cloud.
+    """
+    import yaml
+    folder = Path(folder)
+    meta_file = folder / META
+    if not meta_file.is_file():
+        raise DataError(f"'{folder}' is not a recording directory (no {META}); convert DiffCloud folders with "
+                        f"`softsbi import diffcloud SRC DST`, or write one with `softsbi simulate --out DIR`")
+    try:
+        raw = yaml.safe_load(meta_file.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise DataError(f"{meta_file} is not valid YAML{at}; fix that line") from None
+    meta = parse_meta(raw, str(meta_file))
+    files = _frames(folder, "clouds")
+    if not files:
+        raise DataError(f"{folder / 'clouds'} holds no frames 000.npy, 001.npy, ...; a recording needs one (P, 3) "
+                        f"cloud per frame")
+    if len(files) != len(meta.times):
+        raise DataError(f"{meta_file}: field 'times' has {len(meta.times)} entries but clouds/ holds {len(files)} "
+                        f"frames; give one time per frame")
+    clouds = [read_npy(f, "frame", "re-export it as a (P, 3) float .npy").astype(float) for f in files]
+    _check_clouds(clouds, str(folder / "clouds"))
+    m = meta.transform.as_matrix()
+    clouds = [c @ m[:3, :3].T + m[:3, 3] for c in clouds]
+    images = None
+    if (folder / "images").is_dir():
+        import cv2
+        imgs = sorted((folder / "images").glob("[0-9]*.png"))
+        if imgs:
+            if len(imgs) != len(files):
+                raise DataError(f"{folder / 'images'} holds {len(imgs)} images for {len(files)} frames; give one per "
+                                f"frame or none")
+            loaded = []
+            for p in imgs:
+                im = cv2.imread(str(p), cv2.IMREAD_COLOR)
+                if im is None:
+                    raise DataError(f"{p} is not a readable image; re-export it as PNG")
+                loaded.append(im[..., ::-1])
+            images = np.stack(loaded)
+    depth = None
+    dfiles = _frames(folder, "depth") if (folder / "depth").is_dir() else []
+    if dfiles:
+        if len(dfiles) != len(files):
+            raise DataError(f"{folder / 'depth'} holds {len(dfiles)} depth images for {len(files)} frames; give one "
+                            f"per frame or none")
+        depth = [read_npy(f, "depth image") for f in dfiles]
+    return RecordingData(folder=folder, meta=meta, clouds=clouds, times=np.asarray(meta.times, float),
+                         images=images, depth=depth)
+
+
+def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequence[np.ndarray],
+                    images: np.ndarray | None = None, depth: Sequence[np.ndarray] | None = None,
+                    overwrite: bool = False) -> Path:
+    """Write a recording directory: ``recording.yaml``, ``clouds/NNN.npy`` (and ``images/``, ``depth/``).
+
+    Everything is checked first and written into a temporary sibling folder that is renamed into
+    place, so a failure leaves nothing at ``folder``. With ``overwrite`` an existing folder keeps its
+    other files (e.g. ``softsbi simulate``'s ``rollout.zarr``); ``recording.yaml``, ``clouds/``
+    (``images/``, ``depth/``) are replaced.
+
+    Args:
+        meta: the ``recording.yaml`` mapping (``format`` is added if absent).
+        clouds: ``T`` arrays ``(P_t, 3)`` m in the recording frame.
+
+    Raises:
+        DataError: invalid meta, times vs clouds disagree, malformed clouds, ``folder`` exists and is
+            not empty (unless ``overwrite``).
+    """
+    import yaml
+    folder = Path(folder)
+    meta = dict(meta)
+    meta.setdefault("format", FORMAT)
+    parsed = parse_meta(meta, str(folder / META))
+    if len(parsed.times) != len(clouds):
+        raise DataError(f"{folder / META}: field 'times' has {len(parsed.times)} entries for {len(clouds)} clouds; "
+                        f"give one time per frame")
+    _check_clouds(clouds, str(folder / "clouds"))
+    if folder.exists() and any(folder.iterdir()):
+        if not overwrite:
+            raise DataError(f"'{folder}' exists and is not empty; choose a new folder or remove it")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        (tmp / "clouds").mkdir()
+        for i, c in enumerate(clouds):
+            np.save(tmp / "clouds" / f"{i:03d}.npy", np.asarray(c, dtype=np.float64))
+        if images is not None:
+            import cv2
+            (tmp / "images").mkdir()
+            for i, im in enumerate(images):
+                cv2.imwrite(str(tmp / "images" / f"{i:03d}.png"), np.ascontiguousarray(im[..., ::-1]))
+        if depth is not None:
+            (tmp / "depth").mkdir()
+            for i, d in enumerate(depth):
+                np.save(tmp / "depth" / f"{i:03d}.npy", np.asarray(d, dtype=np.float32))
+        (tmp / META).write_text(yaml.safe_dump(parsed.model_dump(mode="json", exclude_none=True), sort_keys=False,
+                                                default_flow_style=None, width=120))
+        if not folder.exists():
+            os.replace(tmp, folder)
+        else:  # overwrite: replace the recording's own entries, keep anything else in the folder
+            for item in tmp.iterdir():
+                old = folder / item.name
+                if old.is_dir():
+                    shutil.rmtree(old)
+                elif old.exists():
+                    old.unlink()
+                os.replace(item, old)
+            tmp.rmdir()
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return folder

@@ -1,0 +1,108 @@
+"""Recording directories: writer/reader round trip, the DiffCloud importer (lift and fold), bad input."""
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from softsbi.core.errors import DataError
+from softsbi.data.recording import read_recording, write_recording
+from softsbi.workflows.measurement import import_diffcloud, load_recording
+
+REPO = Path(__file__).resolve().parents[2]
+DATA = REPO.parent / "shared" / "data"
+LIFT, FOLD = DATA / "diffcloud_lift", DATA / "diffcloud_fold"
+FOLD_YAML = REPO / "examples" / "fold.yaml"
+needs_data = pytest.mark.skipif(not (LIFT / "lift_tan").is_dir() or not (FOLD / "fold_tan").is_dir(),
+                                reason="shared/data/diffcloud_{lift,fold} not present")
+
+
+def _meta(n, **kw):
+    m = {"scenario": {"name": "wipe"}, "times": list(np.linspace(0.0, 1.5, n)),
+         "transform": {"matrix": np.eye(4).tolist()}}
+    m.update(kw)
+    return m
+
+
+def test_round_trip_any_points_per_frame_and_transform(tmp_path):
+    rng = np.random.default_rng(0)
+    clouds = [rng.normal(size=(50 + 7 * i, 3)) for i in range(31)]  # P_t differs per frame
+    shift = np.eye(4)
+    shift[:3, 3] = [0.1, -0.2, 0.3]
+    write_recording(tmp_path / "r", _meta(31, transform={"matrix": shift.tolist()}, truth={"bend": 1e-4}),
+                    clouds)
+    data = read_recording(tmp_path / "r")
+    assert [len(c) for c in data.clouds] == [len(c) for c in clouds]
+    np.testing.assert_allclose(data.clouds[3], clouds[3] + [0.1, -0.2, 0.3])
+    assert data.meta.truth == {"bend": 1e-4} and len(data.times) == 31
+    rec = load_recording(tmp_path / "r", n_points=16, n_dense=100)
+    assert rec.scenario.name == "wipe" and rec.x.shape == (31, 17, 3) and rec.dense.shape == (31, 100, 3)
+
+
+def test_times_disagreeing_with_frames_writes_nothing(tmp_path):
+    clouds = [np.zeros((5, 3))] * 31
+    with pytest.raises(DataError, match=r"recording\.yaml: field 'times' has 30 entries for 31 clouds; give one "
+                                        r"time per frame"):
+        write_recording(tmp_path / "r", _meta(30), clouds)
+    assert not (tmp_path / "r").exists() and not list(tmp_path.iterdir())
+
+
+def test_missing_transform_and_unknown_field_are_one_line(tmp_path):
+    write_recording(tmp_path / "r", _meta(31), [np.zeros((5, 3))] * 31)
+    meta_file = tmp_path / "r" / "recording.yaml"
+    meta = yaml.safe_load(meta_file.read_text())
+    del meta["transform"]
+    meta_file.write_text(yaml.safe_dump(meta))
+    with pytest.raises(DataError, match=r"r/recording\.yaml: field 'transform' is missing; add it") as err:
+        read_recording(tmp_path / "r")
+    assert "\n" not in str(err.value)
+    meta["transform"] = {"matrix": np.eye(4).tolist()}
+    meta["tiems"] = [0.0]
+    meta_file.write_text(yaml.safe_dump(meta))
+    with pytest.raises(DataError, match=r"recording\.yaml: unknown field 'tiems'; remove it"):
+        read_recording(tmp_path / "r")
+
+
+def test_recording_times_vs_clouds_and_scenario(tmp_path):
+    write_recording(tmp_path / "r", _meta(31), [np.zeros((5, 3))] * 31)
+    meta_file = tmp_path / "r" / "recording.yaml"
+    meta = yaml.safe_load(meta_file.read_text())
+    meta["times"] = meta["times"][:20]
+    meta_file.write_text(yaml.safe_dump(meta))
+    with pytest.raises(DataError, match=r"field 'times' has 20 entries but clouds/ holds 31 frames"):
+        read_recording(tmp_path / "r")
+    # 20 frames of a 31-frame scenario: named, with the fix
+    shutil.rmtree(tmp_path / "r")
+    write_recording(tmp_path / "r", _meta(20), [np.zeros((5, 3))] * 20)
+    with pytest.raises(DataError, match=r"has 20 frames but scenario 'wipe' has 31; make the scenario's frames"):
+        load_recording(tmp_path / "r")
+
+
+@needs_data
+def test_import_diffcloud_lift_gives_the_same_recording(tmp_path):
+    out = import_diffcloud(LIFT / "lift_tan", tmp_path / "lift_tan")
+    assert out == [tmp_path / "lift_tan"]
+    a, b = load_recording(LIFT / "lift_tan"), load_recording(tmp_path / "lift_tan")
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.dense, b.dense)
+    np.testing.assert_array_equal(a.scenario.gripper, b.scenario.gripper)
+    assert b.min_height == 0.01 and b.frames == "auto" and b.scenario.object["yaw_bounds"] == [-45.0, 45.0]
+    meta = yaml.safe_load((tmp_path / "lift_tan" / "recording.yaml").read_text())
+    assert meta["frames_of_reference"]["robot"]["diffcloud"]["z_rotation"] == 90.0
+
+
+@needs_data
+def test_import_diffcloud_fold_folder(tmp_path):
+    with pytest.raises(DataError, match=r"DiffCloud 'fold' recording: give its scenario file"):
+        import_diffcloud(FOLD, tmp_path / "fold")
+    assert not (tmp_path / "fold").exists()
+    out = import_diffcloud(FOLD, tmp_path / "fold", scenario=FOLD_YAML)
+    assert sorted(p.name for p in out) == sorted(d.name for d in FOLD.iterdir() if d.is_dir())
+    rec = load_recording(tmp_path / "fold" / "fold_navy2", n_points=32)
+    assert rec.scenario.name == "fold" and [h.name for h in rec.scenario.handles] == ["grip", "held"]
+    # the recording's frame: simulator units x 0.35 m; the grasped corner (vertex 42) rises with the path
+    assert rec.dense.shape == (25, 1000, 3)
+    assert abs(rec.scenario.gripper[0, 1] - (-0.817829 * 0.35)) < 0.002
+    with pytest.raises(DataError, match="exists and is not empty"):
+        import_diffcloud(FOLD / "fold_tan", tmp_path / "fold" / "fold_tan", scenario=FOLD_YAML)
