@@ -1,0 +1,117 @@
+"""Bad scenario files: one line naming the file, the field and the fix."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import softsbi
+from softsbi.core.errors import DataError
+from softsbi.scenarios import load_scenario
+
+
+def _grid_obj(path: Path, n: int = 3, extra_face: bool = False) -> Path:
+    g = np.linspace(0.0, 0.3, n)
+    v = [(x, y, 0.0) for x in g for y in g]
+    f = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            f += [(a, b, c), (a, c, d)]
+    if extra_face:  # a fin: a third triangle on edge 0-4 (shared by two grid triangles already)
+        v.append((0.1, 0.1, 0.2))
+        f.append((0, 4, len(v) - 1))
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in v) + "".join(f"f {a + 1} {b + 1} {c + 1}\n"
+                                                                          for a, b, c in f))
+    return path
+
+
+def _spec(tmp_path: Path, **change) -> Path:
+    _grid_obj(tmp_path / "sheet.obj")
+    spec = {"format": "softsbi-scenario/1", "name": "pull",
+            "object": {"kind": "cloth", "mesh": {"file": "sheet.obj"}},
+            "handles": [{"name": "grip", "grasp": {"vertex": 8},
+                         "path": {"keyframes": [{"t": 0.0, "p": [0.3, 0.3, 0.0]}, {"t": 0.5, "p": [0.4, 0.3, 0.1]}]}},
+                        {"name": "held", "grasp": {"vertex": 0}, "pinned": True}],
+            "frames": {"count": 11, "dt": 0.05}}
+    for k, v in change.items():
+        spec[k] = v
+    p = tmp_path / "pull.yaml"
+    p.write_text(yaml.safe_dump(spec))
+    return p
+
+
+def _one_line(exc) -> str:
+    s = str(exc.value)
+    assert "\n" not in s
+    return s
+
+
+def test_a_valid_mesh_file_builds_and_runs(tmp_path):
+    sc = load_scenario(_spec(tmp_path))
+    assert sc.object["mesh"]["pivot"] == 8 and [h.pinned for h in sc.handles] == [False, True]
+    ro = softsbi.simulate(sc, backend="mujoco-flex")
+    assert ro.ok and ro.vertices.shape == (11, 9, 3)
+    np.testing.assert_allclose(ro.vertices[-1, 0], ro.vertices[0, 0], atol=2e-3)  # the pinned vertex stays
+
+
+def test_unknown_field(tmp_path):
+    p = _spec(tmp_path, object={"kind": "cloth", "mesh": {"file": "sheet.obj"}, "colour": "red"})
+    with pytest.raises(DataError) as err:
+        load_scenario(p)
+    assert _one_line(err).startswith(f"{p}: unknown field 'object.colour'; remove it or correct its spelling")
+
+
+def test_wrong_type(tmp_path):
+    p = _spec(tmp_path, frames={"count": "eleven", "dt": 0.05})
+    with pytest.raises(DataError) as err:
+        load_scenario(p)
+    assert _one_line(err).startswith(f"{p}: field 'frames.count': Input should be a valid integer")
+    assert "(got 'eleven'); fix that field" in str(err.value)
+
+
+def test_handle_vertex_out_of_range(tmp_path):
+    p = _spec(tmp_path)
+    spec = yaml.safe_load(p.read_text())
+    spec["handles"][1]["grasp"] = {"vertex": 9}
+    p.write_text(yaml.safe_dump(spec))
+    with pytest.raises(DataError) as err:
+        load_scenario(p)
+    assert _one_line(err) == (f"{p}: field 'handles[1].grasp.vertex': vertex 9 is out of range, the mesh has 9 "
+                              f"vertices (0..8); choose one of those")
+
+
+def test_path_length_disagrees_with_frames(tmp_path):
+    p = _spec(tmp_path)
+    np.save(tmp_path / "path.npy", np.zeros((7, 3)))
+    spec = yaml.safe_load(p.read_text())
+    spec["handles"][0]["path"] = {"file": "path.npy"}
+    p.write_text(yaml.safe_dump(spec))
+    with pytest.raises(DataError) as err:
+        load_scenario(p)
+    assert _one_line(err).startswith(f"{p}: field 'handles[0].path.file': ")
+    assert "has 7 rows but frames gives 11 frames; give one row per frame (or set frames.count to 7)" in str(err.value)
+
+
+def test_non_manifold_mesh(tmp_path):
+    p = _spec(tmp_path)
+    _grid_obj(tmp_path / "sheet.obj", extra_face=True)
+    with pytest.raises(DataError) as err:
+        load_scenario(p)
+    assert _one_line(err).startswith(f"{p}: field 'object.mesh.file': mesh {tmp_path / 'sheet.obj'} is non-manifold "
+                                     f"(edge 0-4 is shared by 3 triangles)")
+
+
+def test_unknown_frame_and_format(tmp_path):
+    p = _spec(tmp_path)
+    spec = yaml.safe_load(p.read_text())
+    spec["handles"][0]["path"]["frame"] = "robot"
+    p.write_text(yaml.safe_dump(spec))
+    with pytest.raises(DataError, match=r"field 'handles\[0\]\.path\.frame': unknown frame 'robot'; use 'scenario' "
+                                        r"or one of the names under 'transforms'"):
+        load_scenario(p)
+    spec["format"] = "softsbi-scenario/9"
+    p.write_text(yaml.safe_dump(spec))
+    with pytest.raises(DataError, match=r"field 'format' is 'softsbi-scenario/9'; this softsbi reads "
+                                        r"softsbi-scenario/1"):
+        load_scenario(p)
