@@ -316,10 +316,21 @@ class Scenario:
         return [float(v) for v in self.world.get("gravity", (0.0, 0.0, -9.81))]
 
     def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "times": self.times.tolist(), "gripper": self.gripper.tolist(),
-                "table_z": float(self.table_z), "object": jsonable(self.object),
-                "options": jsonable(self.options), "handles": [h.to_json() for h in self.handles],
-                "world": jsonable(self.world), "cameras": jsonable(self.cameras)}
+        """JSON-able mapping; ``handles``, ``world`` and ``cameras`` only when they are not the defaults
+        (one handle on the grasped corner/end following ``gripper``, default world, no camera), so a
+        single-gripper scenario serialises as it did before handles existed."""
+        d = {"name": self.name, "times": self.times.tolist(), "gripper": self.gripper.tolist(),
+             "table_z": float(self.table_z), "object": jsonable(self.object), "options": jsonable(self.options)}
+        default = {"end": 0} if self.object.get("kind") == "rope" else {"corner": 0}
+        h0 = self.handles[0]
+        if not (len(self.handles) == 1 and h0.name == "grip" and h0.grasp == default and h0.path is not None
+                and np.array_equal(h0.path, self.gripper)):
+            d["handles"] = [h.to_json() for h in self.handles]
+        if self.world:
+            d["world"] = jsonable(self.world)
+        if self.cameras:
+            d["cameras"] = jsonable(self.cameras)
+        return d
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> "Scenario":

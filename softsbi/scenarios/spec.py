@@ -518,12 +518,13 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
         obstacles.append(d)
         if o.type == "cylinder" and o.occludes:  # observers hide what it occludes
             obj["spool"] = {"centre": list(o.centre), "radius": float(o.radius), "height": float(o.height)}
-    world = {"gravity": list(spec.world.gravity), "obstacles": obstacles}
+    world: dict[str, Any] = {}
+    if tuple(spec.world.gravity) != (0.0, 0.0, -9.81):
+        world["gravity"] = list(spec.world.gravity)
+    if obstacles:
+        world["obstacles"] = obstacles
     options = dict(spec.options)
     options.setdefault("source", source)
-    if spec.description:
-        options.setdefault("description", spec.description)
-    options["transforms"] = {k: m.tolist() for k, m in mats.items() if k != "scenario"}
     cams = [c.model_dump() for c in spec.cameras]
     for c in cams:
         for k, v in list(c.items()):
@@ -601,7 +602,7 @@ def spec_from_scenario(sc: Scenario, description: str = "") -> dict[str, Any]:
                 "height": float(sp["height"]), "occludes": True}]
     if obs:
         world["obstacles"] = jsonable(obs)
-    out = {"format": FORMAT, "name": sc.name, "description": description or sc.options.get("description", ""),
+    out = {"format": FORMAT, "name": sc.name, "description": description,
            "object": o, "placement": placement, "handles": handles, "frames": {"times": sc.times.tolist()},
            "world": world, "options": {k: v for k, v in jsonable(sc.options).items() if k != "transforms"}}
     if sc.cameras:
