@@ -6,7 +6,7 @@ A recording directory::
     clouds/000.npy ...      # one (P_t, 3) float point cloud per frame, any P_t, recording frame, metres
     images/000.png ...      # optional RGB frames
     depth/000.npy ...       # optional (H, W) depth images, metres
-    calibration.yaml        # optional camera calibration (free-form, kept as written)
+    calibration.yaml        # optional camera calibration (free-form, read into RecordingData.extras)
 
 ``recording.yaml`` (``format: softsbi-recording/1``)::
 
@@ -147,6 +147,7 @@ class RecordingData:
         times: ``(T,)`` s.
         images: optional ``(T, H, W, 3)`` uint8.
         depth: optional ``T`` arrays ``(H, W)`` m.
+        extras: ``{"calibration": ...}`` when the recording names a calibration file.
     """
     folder: Path
     meta: RecordingMeta
@@ -247,13 +248,23 @@ def read_recording(folder: str | Path) -> RecordingData:
             raise DataError(f"{folder / 'depth'} holds {len(dfiles)} depth images for {len(files)} frames; give one "
                             f"per frame or none")
         depth = [read_npy(f, "depth image") for f in dfiles]
+    extras: dict[str, Any] = {}
+    if meta.calibration:
+        cal = folder / meta.calibration
+        if not cal.is_file():
+            raise DataError(f"{meta_file}: field 'calibration' names {cal}, which does not exist; add the file or "
+                            f"remove the field")
+        try:
+            extras["calibration"] = yaml.safe_load(cal.read_text())
+        except yaml.YAMLError:
+            raise DataError(f"{cal} is not valid YAML; fix it or remove the field 'calibration'") from None
     return RecordingData(folder=folder, meta=meta, clouds=clouds, times=np.asarray(meta.times, float),
-                         images=images, depth=depth)
+                         images=images, depth=depth, extras=extras)
 
 
 def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequence[np.ndarray],
                     images: np.ndarray | None = None, depth: Sequence[np.ndarray] | None = None,
-                    overwrite: bool = False) -> Path:
+                    overwrite: bool = False, calibration: Mapping[str, Any] | None = None) -> Path:
     """Write a recording directory: ``recording.yaml``, ``clouds/NNN.npy`` (and ``images/``, ``depth/``).
 
     Everything is checked first and written into a temporary sibling folder that is renamed into
@@ -264,6 +275,8 @@ def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequenc
     Args:
         meta: the ``recording.yaml`` mapping (``format`` is added if absent).
         clouds: ``T`` arrays ``(P_t, 3)`` m in the recording frame.
+        calibration: camera calibration written as ``calibration.yaml`` (and named in ``meta``), e.g.
+            ``{"cameras": {"overhead": {"intrinsics": {...}, "robot_from_camera": 3x4}}}``.
 
     Raises:
         DataError: invalid meta, times vs clouds disagree, malformed clouds, ``folder`` exists and is
@@ -273,6 +286,8 @@ def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequenc
     folder = Path(folder)
     meta = dict(meta)
     meta.setdefault("format", FORMAT)
+    if calibration is not None:
+        meta["calibration"] = "calibration.yaml"
     parsed = parse_meta(meta, str(folder / META))
     if len(parsed.times) != len(clouds):
         raise DataError(f"{folder / META}: field 'times' has {len(parsed.times)} entries for {len(clouds)} clouds; "
@@ -296,6 +311,9 @@ def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequenc
             (tmp / "depth").mkdir()
             for i, d in enumerate(depth):
                 np.save(tmp / "depth" / f"{i:03d}.npy", np.asarray(d, dtype=np.float32))
+        if calibration is not None:
+            (tmp / "calibration.yaml").write_text(yaml.safe_dump(dict(calibration), sort_keys=False,
+                                                                 default_flow_style=None, width=120))
         (tmp / META).write_text(yaml.safe_dump(parsed.model_dump(mode="json", exclude_none=True), sort_keys=False,
                                                 default_flow_style=None, width=120))
         if not folder.exists():

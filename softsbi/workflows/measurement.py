@@ -192,6 +192,26 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
     return meta, clouds
 
 
+def diffcloud_calibration(folder: str | Path) -> dict[str, Any] | None:
+    """The RealSense calibration beside a DiffCloud recording (``calib_<camera>/`` in its parent folder:
+    ``intrinsics.npy`` ``(fx, fy, cx, cy)`` px and ``tcr.npy``, the 3x4 camera -> robot-base transform, m),
+    or None when there is none."""
+    from softsbi.core.arrays import read_npy
+    cams = {}
+    for d in sorted(Path(folder).parent.glob("calib_*")):
+        if (d / "intrinsics.npy").is_file() and (d / "tcr.npy").is_file():
+            k = read_npy(d / "intrinsics.npy", "camera intrinsics").astype(float).ravel()
+            cams[d.name[len("calib_"):]] = {
+                "intrinsics": {"fx": float(k[0]), "fy": float(k[1]), "cx": float(k[2]), "cy": float(k[3])},
+                "robot_from_camera": read_npy(d / "tcr.npy", "camera extrinsics").astype(float).tolist(),
+                "source": str(d)}
+    if not cams:
+        return None
+    return {"frame": "robot", "note": "robot_from_camera maps camera-frame points (m) into the robot base frame "
+                                      "(DiffCloud's tcr.npy); frames_of_reference.robot maps those into the "
+                                      "scenario frame", "cameras": cams}
+
+
 def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | None = None) -> list[Path]:
     """``softsbi import diffcloud``: convert DiffCloud recordings into recording directories.
 
@@ -221,16 +241,16 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
         if not pairs:
             raise DataError(f"'{src}' holds no DiffCloud recording (folders with 000.npy ... and "
                             f"<task>_real2sim.yaml)")
-    converted = [(out, *diffcloud_recording(d, scenario)) for d, out in pairs]
-    for out, _, _ in converted:
+    converted = [(d, out, *diffcloud_recording(d, scenario)) for d, out in pairs]
+    for _, out, _, _ in converted:
         if out.exists() and any(out.iterdir()):
             raise DataError(f"'{out}' exists and is not empty; choose a new destination or remove it")
     written = []
-    for out, meta, clouds in converted:
+    for d, out, meta, clouds in converted:
         if "file" in meta["scenario"]:  # relative to the recording, so the pair can move together
             import os
             meta["scenario"]["file"] = os.path.relpath(meta["scenario"]["file"], out.resolve())
-        written.append(write_recording(out, meta, clouds))
+        written.append(write_recording(out, meta, clouds, calibration=diffcloud_calibration(d)))
     return written
 
 

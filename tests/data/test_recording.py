@@ -90,6 +90,10 @@ def test_import_diffcloud_lift_gives_the_same_recording(tmp_path):
     assert b.min_height == 0.01 and b.frames == "auto" and b.scenario.object["yaw_bounds"] == [-45.0, 45.0]
     meta = yaml.safe_load((tmp_path / "lift_tan" / "recording.yaml").read_text())
     assert meta["frames_of_reference"]["robot"]["diffcloud"]["z_rotation"] == 90.0
+    # the RealSense calibration beside the lift recordings comes along
+    cal = read_recording(tmp_path / "lift_tan").extras["calibration"]
+    assert set(cal["cameras"]) == {"overhead", "side"}
+    np.testing.assert_allclose(cal["cameras"]["overhead"]["robot_from_camera"], np.load(LIFT / "calib_overhead" / "tcr.npy"))
 
 
 @needs_data
