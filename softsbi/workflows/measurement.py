@@ -65,9 +65,10 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
                                scenario=scenario, source=str(folder))
 
 
-def scenario_of(meta: Mapping, base: Path, source: str) -> Scenario:
-    """The scenario a recording's ``scenario`` entry names, with its ``frames_of_reference`` replacing the
-    scenario's transforms (the recording's own calibration).
+def scenario_of(meta: Mapping, base: Path, source: str, override: str | Path | Scenario | None = None) -> Scenario:
+    """The scenario a recording's ``scenario`` entry names (or ``override``: a name, file or
+    :class:`Scenario`), with the recording's ``frames_of_reference`` replacing the scenario's transforms
+    (the recording's own calibration).
 
     Raises:
         DataError: an unknown name or an invalid scenario file / inline scenario.
@@ -76,6 +77,8 @@ def scenario_of(meta: Mapping, base: Path, source: str) -> Scenario:
     from softsbi.scenarios.catalog import load_scenario
     from softsbi.scenarios.spec import load_scenario_data
     frames = {k: Transform.model_validate(v).as_matrix() for k, v in (meta.get("frames_of_reference") or {}).items()}
+    if override is not None:
+        return override if isinstance(override, Scenario) else load_scenario(override, frames)
     ref = meta["scenario"]
     if ref.get("inline") is not None:
         return load_scenario_data(ref["inline"], f"{source}/recording.yaml: scenario.inline", base, frames)
@@ -93,8 +96,7 @@ def recording_from_meta(meta: Mapping, clouds: Sequence[np.ndarray], base: Path,
     Raises:
         DataError: the number of clouds or their times disagree with the scenario's frames.
     """
-    from softsbi.scenarios.catalog import load_scenario
-    sc = scenario_of(meta, base, source) if scenario is None else load_scenario(scenario)
+    sc = scenario_of(meta, base, source, scenario)
     times = np.asarray(meta["times"], dtype=float)
     if len(clouds) != sc.n_frames:
         raise DataError(f"{source}: the recording has {len(clouds)} frames but scenario '{sc.name}' has "

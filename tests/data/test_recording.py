@@ -110,3 +110,16 @@ def test_import_diffcloud_fold_folder(tmp_path):
     assert abs(rec.scenario.gripper[0, 1] - (-0.817829 * 0.35)) < 0.002
     with pytest.raises(DataError, match="exists and is not empty"):
         import_diffcloud(FOLD / "fold_tan", tmp_path / "fold" / "fold_tan", scenario=FOLD_YAML)
+
+
+@needs_data
+def test_the_recordings_robot_calibration_replaces_the_scenarios(tmp_path):
+    import_diffcloud(FOLD / "fold_tan", tmp_path / "r", scenario=FOLD_YAML)
+    base = load_recording(tmp_path / "r", n_points=8).scenario.gripper
+    f = tmp_path / "r" / "recording.yaml"
+    meta = yaml.safe_load(f.read_text())
+    meta["frames_of_reference"]["robot"]["diffcloud"]["translation"][0] += 0.02  # robot base 2 cm further in x
+    f.write_text(yaml.safe_dump(meta))
+    moved = load_recording(tmp_path / "r", n_points=8).scenario.gripper
+    # p_scenario = (p + c - t) @ Rz(90 deg): t_x + 2 cm moves every path point by (-0.02, 0, 0) @ Rz = (0, +0.02, 0)
+    np.testing.assert_allclose(moved - base, np.tile([0.0, 0.02, 0.0], (25, 1)), atol=1e-12)
