@@ -353,7 +353,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         from softsbi.executors.ray_executor import _import_ray
         _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`
     if images:
-        meas = load_image_recording(observed, scenario=scenario or "lift", size=image_size)
+        meas = load_image_recording(observed, scenario=scenario, size=image_size)
     else:
         meas = load_recording(observed, n_points=points, seed=seed, scenario=scenario)
     o = Output(as_json)

@@ -286,7 +286,7 @@ def simulate_recording(backend: str, scenario: Scenario, truth: Mapping[str, flo
     return Recording(scenario=scenario, x=obs.state(), dense=dense, source=src, truth=dict(truth))
 
 
-def load_image_recording(folder: str | Path, scenario: str | Scenario = "wipe", size: int = 128,
+def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | None = "wipe", size: int = 128,
                            camera: "Camera | None" = None) -> Recording:
     """A folder of RGB frames (real or rendered) as a :class:`Recording` for image observers.
 
@@ -294,8 +294,10 @@ def load_image_recording(folder: str | Path, scenario: str | Scenario = "wipe", 
     frames only add what the camera saw.
 
     Args:
-        folder: ``000.png, 001.png, ...`` (or ``.jpg``), one frame per scenario frame.
-        scenario: the task (name or :class:`Scenario`) the frames were recorded in.
+        folder: ``000.png, 001.png, ...`` (or ``.jpg``), one frame per scenario frame; or a recording
+            directory with ``images/`` (its scenario, calibration and truth are used).
+        scenario: the task (name, file or :class:`Scenario`) the frames were recorded in; None: the
+            recording directory's own (``lift`` for a plain folder of frames).
         size: square size of the built-in scenario camera when ``camera`` is None; frames are
             resized to the camera's size.
 
@@ -311,10 +313,27 @@ def load_image_recording(folder: str | Path, scenario: str | Scenario = "wipe", 
     import json
 
     from softsbi.scenarios.builtin import make_scenario
-    from softsbi.scenarios.cameras import default_camera
+    from softsbi.scenarios.cameras import default_camera, scenario_camera
     from softsbi.perception.images import load_frames
 
-    sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
+    from softsbi.data.recording import is_recording, read_recording
+    if is_recording(folder):
+        data = read_recording(folder)
+        if data.images is None:
+            raise DataError(f"recording '{folder}' has no images/ (000.png ...); image observers need one RGB frame "
+                            f"per frame (`softsbi simulate --render SIZE --out DIR` writes them)")
+        meta = data.meta.model_dump(mode="json", exclude_none=True)
+        sc = scenario_of(meta, Path(folder), str(folder), scenario)
+        cam = camera or scenario_camera(sc, size)
+        import cv2
+        images = np.stack([im if im.shape[:2] == (cam.height, cam.width) else
+                           cv2.resize(im, (cam.width, cam.height), interpolation=cv2.INTER_AREA) for im in data.images])
+        if len(images) != sc.n_frames:
+            raise DataError(f"'{folder}' has {len(images)} frames but scenario '{sc.name}' records {sc.n_frames}; "
+                            f"give one frame per scenario frame")
+        return Recording(scenario=sc, x=None, dense=None, source=str(folder), truth=data.meta.truth, images=images)
+    scenario = "lift" if scenario is None else scenario
+    sc = make_scenario(str(scenario)) if isinstance(scenario, (str, Path)) else scenario
     cam = camera or default_camera(sc.name, size)
     images = load_frames(folder, size=(cam.width, cam.height))
     if len(images) != sc.n_frames:

@@ -131,7 +131,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
                            "frames": "all"},
                 "truth": values, "effects": list(effects),
                 "source": f"simulated:{backend}" + (f"+{'+'.join(effects)}" if effects else "")}
-        write_recording(out, meta, list(clouds), overwrite=True)
+        write_recording(out, meta, list(clouds), images=ro.rgb if render else None, overwrite=True)
         doc["recording"] = str(out)
     if ro.ok and render:
         save_frames(ro.rgb, out / "frames")

@@ -123,3 +123,18 @@ def test_the_recordings_robot_calibration_replaces_the_scenarios(tmp_path):
     moved = load_recording(tmp_path / "r", n_points=8).scenario.gripper
     # p_scenario = (p + c - t) @ Rz(90 deg): t_x + 2 cm moves every path point by (-0.02, 0, 0) @ Rz = (0, +0.02, 0)
     np.testing.assert_allclose(moved - base, np.tile([0.0, 0.02, 0.0], (25, 1)), atol=1e-12)
+
+
+def test_rendered_simulation_is_an_image_recording(tmp_path):
+    from softsbi.workflows.measurement import load_image_recording
+    from softsbi.workflows.simulate import simulate_to_folder
+    try:
+        doc = simulate_to_folder(tmp_path / "m", scenario="wipe", render=24)
+    except Exception as exc:  # noqa: BLE001 - no off-screen OpenGL here
+        if type(exc).__name__ == "RenderingUnavailable":
+            pytest.skip(str(exc))
+        raise
+    assert doc["recording"] == str(tmp_path / "m") and len(list((tmp_path / "m" / "images").glob("*.png"))) == 31
+    rec = load_image_recording(tmp_path / "m", scenario=None, size=24)
+    assert rec.images.shape == (31, 24, 24, 3) and rec.scenario.name == "wipe"
+    assert rec.truth == doc["theta"]
