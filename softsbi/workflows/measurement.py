@@ -55,6 +55,10 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
         data = read_recording(folder)
         meta, clouds, base = data.meta.model_dump(mode="json", exclude_none=True), data.clouds, folder
     else:
+        if folder.is_dir() and not any(f.stem.isdigit() for f in folder.glob("*.npy")) and \
+                any(f.stem.isdigit() for f in folder.glob("*.png")):
+            raise DataError(f"'{folder}' holds image frames (000.png ...), not point clouds; fit them with an image "
+                            f"observer (--observer heatmap|transporter --extractor PATH.pt)")
         meta, clouds = diffcloud_recording(folder, scenario if isinstance(scenario, (str, Path)) else None)
         from softsbi.data.recording import Transform, parse_meta
         parsed = parse_meta(meta, str(folder))
