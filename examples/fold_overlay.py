@@ -2,16 +2,18 @@
 
 Usage::
 
-    python examples/fold_overlay.py [RECORDING_DIR] [OUT_DIR]
+    python examples/fold_overlay.py [RECORDING_DIR] [OUT_DIR] [RUN_DIR]
 
 Defaults: ``../shared/data/diffcloud_fold/fold_tan`` beside the repository, ``OUT_DIR = docs/figures``.
 Loads the recording through the generic path (the DiffCloud importer with ``examples/fold.yaml``),
 simulates the scenario on mujoco-flex at the prior midpoint and writes
 ``fold_overlay_<recording>_frameNN.png`` for frames 0 and 12 (top and side views, the palette of
-:func:`softsbi.report.plot_scenario_overlay`).
+:func:`softsbi.report.plot_scenario_overlay`). With ``RUN_DIR`` (a ``softsbi fit`` of the same
+recording) it simulates at that fit's posterior mean (inferred yaw included) and adds ``_posterior``.
 """
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -28,12 +30,17 @@ def main(argv: list[str]) -> None:
     clouds = [c * 0.35 for c in clouds]  # the recording's transform: simulator units -> metres
     meas = recording_from_meta(meta, clouds, rec, n_points=64, source=str(rec))
     sc = meas.scenario
-    ro = softsbi.simulate(sc, backend="mujoco-flex")
+    theta, label, suffix = None, "the prior midpoint", ""
+    if len(argv) > 3:
+        rep = json.loads((Path(argv[3]) / "report.json").read_text())
+        theta = rep["posterior_mean"]
+        label, suffix = f"the posterior mean (yaw {theta.get('yaw', 0.0):+.0f} deg)", "_posterior"
+    ro = softsbi.simulate(sc, theta, backend="mujoco-flex")
     print(f"{rec.name}: rollout {'ok' if ro.ok else ro.reason}")
     for frame in (0, sc.n_frames // 2):
-        p = plot_scenario_overlay(sc, ro, clouds[frame], out / f"fold_overlay_{rec.name}_frame{frame:02d}.png",
+        p = plot_scenario_overlay(sc, ro, clouds[frame], out / f"fold_overlay_{rec.name}_frame{frame:02d}{suffix}.png",
                                   frame=frame, title=f"{rec.name} frame {frame}: measured (grey) vs mujoco-flex "
-                                                     f"fold at the prior midpoint (blue)")
+                                                     f"fold at {label} (blue)")
         print(p)
 
 
