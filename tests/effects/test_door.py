@@ -105,3 +105,39 @@ def test_diagnose_candidates_come_through_the_door():
     pb = SimpleNamespace(config={"backend": "pybullet-massspring"}, effects=[])
     with pytest.raises(SoftsbiError, match="heavy-hem \\(it needs a force field"):
         _candidate_effects(pb, ["heavy-hem"])
+
+
+class _Recorder(Effect):
+    """Records the state the force door passes (zero force). Off always."""
+
+    name = "recorder"
+    calls: list = []
+
+    def param_space(self):
+        return ParamSpace([Param("unused", 0.0, 1.0, "1")])
+
+    def force(self, x, v, t, theta, ctx):
+        type(self).calls.append((t, x.copy(), v.copy(), ctx))
+        return np.zeros_like(x)
+
+
+def test_force_door_sees_the_current_state(monkeypatch):
+    """x, v, t passed to a force field are the state at the start of each step, read from qpos/qvel: the
+    rollout's frame k (``flexvert_xpos`` after the frame's last step, which MuJoCo computes before
+    integrating that step) is the state one step earlier, and (x_{n+1} - x_n) / dt equals v_{n+1}
+    (MuJoCo's semi-implicit Euler)."""
+    monkeypatch.setitem(registry().tables["effect"], "recorder", _Recorder)
+    _Recorder.calls = []
+    sim = MujocoFlex(grid=5)
+    ro = sim.simulate(LIFT, {**sim.param_space(LIFT).midpoint(), "unused": 0.0}, effects=["recorder"])
+    dt = ro.info["timestep"]
+    t = np.array([c[0] for c in _Recorder.calls])
+    x = np.stack([c[1] for c in _Recorder.calls])
+    v = np.stack([c[2] for c in _Recorder.calls])
+    np.testing.assert_allclose(t, np.arange(len(t)) * dt)
+    for k in range(1, len(ro.times) - 1):
+        n = int(round(ro.times[k] / dt))
+        np.testing.assert_allclose(x[n - 1], ro.vertices[k], atol=1e-12)
+    np.testing.assert_allclose((x[1:] - x[:-1]) / dt, v[1:], atol=1e-9)
+    ctx = _Recorder.calls[0][3]
+    assert ctx.shape == (5, 5) and np.isclose(ctx.mass.sum(), sim.param_space(LIFT).midpoint()["mass"] * 0.27 ** 2)

@@ -263,11 +263,14 @@ class MujocoFlex(Simulator):
         vadr = m.jnt_dofadr[jnt]
         q0 = d.qpos[qadr].copy()
         x0 = d.xpos[ids].copy()
-
-        def push(t: float) -> None:
-            x = x0 + np.einsum("njc,nj->nc", axes, d.qpos[qadr] - q0)
-            v = np.einsum("njc,nj->nc", axes, d.qvel[vadr])
-            d.xfrc_applied[ids, :3] = total(x, v, t)
+        if np.allclose(axes, np.eye(3)[None]):  # flexcomp's vertex joints are world-aligned: skip the rotation
+            def push(t: float) -> None:
+                d.xfrc_applied[ids, :3] = total(x0 + (d.qpos[qadr] - q0), d.qvel[vadr], t)
+        else:
+            def push(t: float) -> None:
+                x = x0 + np.einsum("njc,nj->nc", axes, d.qpos[qadr] - q0)
+                v = np.einsum("njc,nj->nc", axes, d.qvel[vadr])
+                d.xfrc_applied[ids, :3] = total(x, v, t)
         return push
 
     @staticmethod

@@ -7,7 +7,7 @@ height) that slides with velocity ``u_x`` along x feels the extra friction force
     F_x = -rib_friction * m * g * u_x / max(|u_x|, 0.1 m/s)      (N; F_y = F_z = 0)
 
 (smooth Coulomb friction, saturating above 0.1 m/s so that it stays stable at explicit 4 ms steps).
-``rib_friction`` is dimensionless, off at the lower bound 0. It acts through the force-field door
+``rib_friction`` is dimensionless (prior 0-3), off at the lower bound 0. It acts through the force-field door
 (:meth:`softsbi.core.interfaces.Effect.force`), so every backend that applies vertex forces runs it.
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ class AnisotropicFriction(Effect):
     description: ClassVar[str] = "ribbed table: extra sliding friction along x only (coefficient)"
 
     def param_space(self) -> ParamSpace:
-        return ParamSpace([Param("rib_friction", 0.0, 1.5, "1",
+        return ParamSpace([Param("rib_friction", 0.0, 3.0, "1",
                                  description="extra friction coefficient for sliding along the table's x axis")])
 
     def force(self, x: np.ndarray, v: np.ndarray, t: float, theta: Mapping[str, float],
