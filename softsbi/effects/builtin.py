@@ -3,13 +3,14 @@
 Each effect has its own parameters in physical units; its lower bound (or zero) switches it off.
 No backend knows them by name: each acts through the kinds of :class:`~softsbi.core.interfaces.Effect`:
 
-* ``air-drag`` (model edit for ``mujoco-flex``): MuJoCo's inertia-box fluid model (MuJoCo docs,
+* ``air-drag`` (model edit for ``mujoco-flex``, force field :func:`fluid_force` elsewhere): MuJoCo's
+  inertia-box fluid model (MuJoCo docs,
   *Computation / Fluid forces*): option ``density`` (kg/m^3) and ``viscosity`` (air's kinematic
   viscosity times the density: 1.8e-5 Pa s at 1.2 kg/m^3), with the flex vertex ``inertiabox`` set to
   the grid spacing so each vertex carries the drag of its cloth patch (measured here: a 1 m drop
   ends at 0.01 m without air, 0.57 m with density 1.2).
-* ``wind`` (model edit for ``mujoco-flex``): option ``wind`` (m/s) acting through the same fluid
-  model at air density 1.2.
+* ``wind`` (model edit for ``mujoco-flex``, force field elsewhere): option ``wind`` (m/s) acting
+  through the same fluid model at air density 1.2.
 * ``extra-damping``: ``F = -gamma m_v v`` on every vertex at a rate gamma (1/s), ``m_v`` the vertex
   mass. On ``mujoco-flex`` a model edit (MuJoCo's fluid viscosity, integrated implicitly by the
   ``discrete`` integrator, stable at any rate); elsewhere a force field. Deliberate change: before the
@@ -58,12 +59,25 @@ def _fluid(spec: dict[str, Any], spacing: float, density: float = 0.0, air_visco
     spec["flexcomp"]["inertiabox"] = spacing
 
 
+def fluid_force(v: np.ndarray, spacing: float, density: float, viscosity: float,
+                wind: np.ndarray | None = None) -> np.ndarray:
+    """The force ``(N, 3)`` N that MuJoCo's inertia-box fluid model applies to flex vertices with
+    ``inertiabox = spacing`` (measured to machine precision against ``qfrc_fluid``):
+    ``-(6 pi mu h u + 2 rho h^2 |u| u)`` per axis, ``u = v - wind`` (m/s), h = ``spacing`` (m),
+    rho = ``density`` (kg/m^3), mu = ``viscosity`` (Pa s). The force-field version of :class:`AirDrag`
+    and :class:`Wind` for backends without their MuJoCo model edit."""
+    u = v if wind is None else v - np.asarray(wind, dtype=float)[None, :]
+    h = float(spacing)
+    return -(6.0 * math.pi * viscosity * h * u + 2.0 * density * h * h * np.abs(u) * u)
+
+
 class AirDrag(Effect):
     """Aerodynamic drag on the cloth (MuJoCo inertia-box fluid model, per vertex).
 
-    Physics: each vertex carries the drag of a cube of side h (the grid spacing) in air of density
-    ``air_density`` kg/m^3 with kinematic viscosity 1.5e-5 m^2/s (quadratic + Stokes drag).
-    Off at the lower bound 0 kg/m^3. Model edit for ``mujoco-flex`` only.
+    Physics: each vertex carries MuJoCo's inertia-box drag with ``inertiabox`` = h (the grid spacing) in
+    air of density ``air_density`` kg/m^3 with kinematic viscosity 1.5e-5 m^2/s:
+    ``F = -(6 pi mu h v + 2 rho h^2 |v| v)`` per axis (:func:`fluid_force`). Off at the lower bound
+    0 kg/m^3. Model edit for ``mujoco-flex`` (integrated implicitly), force field elsewhere.
     """
 
     name: ClassVar[str] = "air-drag"
@@ -81,12 +95,20 @@ class AirDrag(Effect):
         rho = float(theta["air_density"])
         _fluid(model, float(ctx["spacing"]), density=rho, air_viscosity=AIR_VISCOSITY * rho / AIR_DENSITY)
 
+    def force(self, x: np.ndarray, v: np.ndarray, t: float, theta: Mapping[str, float],
+              ctx: VertexContext) -> np.ndarray:
+        """Force field elsewhere: :func:`fluid_force` in still air (with ``wind`` also on, the two force
+        fields add, i.e. the drag counts twice; on mujoco-flex the model edits combine them properly)."""
+        rho = float(theta["air_density"])
+        return fluid_force(v, ctx.spacing, rho, AIR_VISCOSITY * rho / AIR_DENSITY)
+
 
 class Wind(Effect):
     """Steady horizontal wind (through MuJoCo's fluid model at air density 1.2 kg/m^3).
 
-    Physics: the drag of :class:`AirDrag` computed on the velocity relative to the wind
-    ``(wind_x, wind_y, 0)`` m/s. Off at 0 m/s (the prior's midpoint). Model edit for ``mujoco-flex``.
+    Physics: the drag of :class:`AirDrag` at 1.2 kg/m^3 computed on the velocity relative to the wind
+    ``(wind_x, wind_y, 0)`` m/s. Off at 0 m/s (the prior's midpoint). Model edit for ``mujoco-flex``,
+    force field elsewhere.
     """
 
     name: ClassVar[str] = "wind"
@@ -105,6 +127,12 @@ class Wind(Effect):
         """Fluid model at air density and viscosity, option ``wind``."""
         _fluid(model, float(ctx["spacing"]), density=AIR_DENSITY, air_viscosity=AIR_VISCOSITY)
         model["option"]["wind"] = [float(theta["wind_x"]), float(theta["wind_y"]), 0.0]
+
+    def force(self, x: np.ndarray, v: np.ndarray, t: float, theta: Mapping[str, float],
+              ctx: VertexContext) -> np.ndarray:
+        """Force field elsewhere: :func:`fluid_force` at air density relative to the wind."""
+        return fluid_force(v, ctx.spacing, AIR_DENSITY, AIR_VISCOSITY,
+                           np.array([float(theta["wind_x"]), float(theta["wind_y"]), 0.0]))
 
 
 class ExtraDamping(Effect):

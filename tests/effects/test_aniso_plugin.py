@@ -88,10 +88,11 @@ def test_diagnose_screens_it(tmp_path, lift_dir):
 @pytest.mark.slow
 def test_hidden_aniso_is_diagnosed_and_refitted(tmp_path):
     """Wipe measured on a ribbed table (friction 0.3 along y, 0.3 + 3.0 along x) with the effect hidden;
-    the nominal fit (3 rounds x 40, truncated proposals) is diagnosed with aniso-friction among 4
-    candidates: it must rank in the top two of the screening, be refitted, and its refit must lower the
-    posterior-predictive error (measured: ranked first, 2.21 -> 2.05 cm; at this budget the wind refit
-    lowered it more, 1.94 cm, and was selected). ~90 s."""
+    the nominal fit (4 rounds x 60, truncated proposals) is diagnosed with aniso-friction among 4
+    candidates: it ranks in the top two of the screening, its refit lowers the posterior-predictive
+    error by more than 10% and more than any other refit, so it is selected (measured: ranked first,
+    2.18 -> 1.73 cm, 21% lower; the wind refit 14% lower). At 3 rounds x 40 the wind refit won (12% vs
+    8%): the budget matters. ~200 s on 2 busy cores."""
     from softsbi.backends.mujoco_flex import MujocoFlex
     from softsbi.scenarios.builtin import wipe_scenario
     from softsbi.workflows.diagnose import diagnose_run
@@ -102,16 +103,16 @@ def test_hidden_aniso_is_diagnosed_and_refitted(tmp_path):
     truth = {**MujocoFlex(grid=5).param_space(sc).midpoint(), "friction": 0.3, "rib_friction": 3.0}
     meas = simulate_recording("mujoco-flex", sc, truth, backend_options={"grid": 5}, effects=[NAME], n_points=32,
                               n_dense=200, seed=7)
-    cfg = FitConfig(backend="mujoco-flex", backend_options={"grid": 5}, rounds=3, sims_per_round=40, n_eval=10,
+    cfg = FitConfig(backend="mujoco-flex", backend_options={"grid": 5}, rounds=4, sims_per_round=60, n_eval=10,
                     n_points=32, n_dense=200, workers=1, seed=0, estimator_options={"max_epochs": 60},
                     proposal="truncated")
     run = tmp_path / "nominal"
     run_fit(run, meas, cfg, make_plots=False)
     d = diagnose_run(run, effects=[NAME, "air-drag", "heavy-hem", "wind"], n_null=30, workers=1, confirm=2,
-                     confirm_budget={"rounds": 3, "sims_per_round": 40})
+                     confirm_budget={"rounds": 4, "sims_per_round": 60})
     ranked = [r["effect"] for r in d["ranking"]]
     assert NAME in ranked[:2], ranked
     conf = {c["effect"]: c for c in d["confirmed"]}
     assert NAME in conf, d["confirmed"]
-    c = conf[NAME]
-    assert c["chamfer_after_m"] < c["chamfer_before_m"], c
+    assert conf[NAME]["drop"] > 0.1, conf[NAME]
+    assert d["selected"] == NAME, d["confirmed"]
