@@ -117,7 +117,7 @@ class EffectPlan:
         """``f(x (N,3), v (N,3), t) -> (N, 3)`` N: the sum of the force fields, or None when there are none.
 
         Raises (when called):
-            ShapeError: a force field returned something other than ``(N, 3)`` finite-shaped values.
+            ShapeError: a force field returned an array whose shape is not ``(N, 3)``.
         """
         if not self.forces:
             return None
