@@ -26,8 +26,11 @@ def test_listed_by_plugins():
     doc = json.loads(res.output)
     row = next(e for e in doc["effects"] if e["name"] == NAME)
     assert row["package"].startswith("softsbi-aniso") and row["class"] == "softsbi_aniso.plugin.AnisotropicFriction"
+    assert row["kind"] == "physics" and row["generic"] is False
+    assert {r["name"]: r["kind"] for r in doc["effects"]}["point-noise"] == "sensor"
     sims = {s["name"]: s for s in doc["simulators"]}
     assert NAME in sims["mujoco-flex"]["effects"] and NAME not in sims["pybullet-massspring"]["effects"]
+    assert sims["mujoco-flex"]["effect_kinds"] == ["force", "model-edit", "observation"]
 
 
 def _simulate(tmp_path, *extra):
