@@ -6,18 +6,21 @@
   the colour helpers (:data:`PROP_COLOUR`, :func:`rgba`);
 * the size/density/placement parameters every engine shares (:func:`size_params`);
 * the scenario/effect checks with the backend's name in the message (:func:`check_scenario`,
-  :func:`check_effects`);
+  :func:`check_effects`), and the effect door's bookkeeping (:class:`EffectPlan`: model edits,
+  force fields, observation transforms; :class:`EffectsThroughDoor`);
 * :class:`FrameRenderer`, the base of each engine's per-frame renderer used by the template
   :meth:`softsbi.core.interfaces.Simulator.simulate_images`.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import ParameterError
-from softsbi.core.types import Param, Scenario
+from softsbi.core.errors import ParameterError, ShapeError
+from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Effect, VertexContext
+from softsbi.core.types import Param, ParamSpace, Rollout, Scenario
 from softsbi.scenarios.builtin import placement_params
 
 
@@ -70,16 +73,114 @@ def check_scenario(sim: Any, scenario: Scenario) -> None:
     check_features(sim, scenario)
 
 
-def check_effects(sim: Any, effects: Sequence[str]) -> None:
-    """Refuse effects not in ``sim.effects``.
+class EffectsThroughDoor:
+    """Class attribute ``effects`` of a backend that applies effects through the effect door: the sorted
+    names of every registered effect the backend :meth:`~softsbi.core.interfaces.Simulator.supports`
+    (built-in and third-party alike), read from the plugin registry when asked. No effect is known
+    by name."""
+
+    def __get__(self, obj: Any, cls: type) -> tuple[str, ...]:
+        from softsbi.plugins import registry
+        table = registry().tables["effect"]
+        return tuple(n for n in sorted(table) if cls.supports(table[n]) is None)
+
+
+@dataclass
+class EffectPlan:
+    """The effects of one rollout, resolved to objects and sorted by door (:func:`check_effects`).
+
+    Attributes:
+        backend: the simulator's name.
+        effects: the :class:`~softsbi.core.interfaces.Effect` instances, in the order given.
+        edits / forces / observers: those acting through a model edit for ``backend``, a force
+            field, an observation transform.
+    """
+
+    backend: str
+    effects: list[Effect] = field(default_factory=list)
+    edits: list[Effect] = field(default_factory=list)
+    forces: list[Effect] = field(default_factory=list)
+    observers: list[Effect] = field(default_factory=list)
+
+    def space(self, base: ParamSpace) -> ParamSpace:
+        """``base`` plus every effect's parameters."""
+        for e in self.effects:
+            base = base + e.param_space()
+        return base
+
+    def edit(self, model: Any, theta: Mapping[str, float], ctx: Mapping[str, Any]) -> None:
+        """Apply the model edits, in order, to ``model`` in place."""
+        for e in self.edits:
+            e.edit_model(self.backend, model, e.own(theta), ctx)
+
+    def force_fn(self, theta: Mapping[str, float], ctx: VertexContext):
+        """``f(x (N,3), v (N,3), t) -> (N, 3)`` N: the sum of the force fields, or None when there are none.
+
+        Raises (when called):
+            ShapeError: a force field returned an array whose shape is not ``(N, 3)``.
+        """
+        if not self.forces:
+            return None
+        parts = [(e, e.own(theta)) for e in self.forces]
+
+        def total(x: np.ndarray, v: np.ndarray, t: float) -> np.ndarray:
+            f = np.zeros_like(x)
+            for e, th in parts:
+                fe = np.asarray(e.force(x, v, t, th, ctx), dtype=float)
+                if fe.shape != x.shape:
+                    raise ShapeError(f"effect '{e.name}': force() must return ({len(x)}, 3) newtons, got "
+                                     f"shape {fe.shape}")
+                f += fe
+            return f
+        return total
+
+    def observe(self, rollout: Rollout, theta: Mapping[str, float], seed: int) -> Rollout:
+        """Apply the observation transforms, in order, to a successful rollout (``rng`` seeded by ``seed``)."""
+        if not self.observers or not rollout.ok:
+            return rollout
+        rng = np.random.default_rng(int(seed))
+        for e in self.observers:
+            rollout = e.observe(rollout, e.own(theta), rng)
+        return rollout
+
+
+def check_effects(sim: Any, effects: Sequence[str]) -> EffectPlan:
+    """Resolve effect names through the plugin registry and refuse any the backend cannot apply.
+
+    Returns:
+        the :class:`EffectPlan` of the rollout.
 
     Raises:
-        ParameterError: names the backend, the unsupported effects and the supported ones.
+        ParameterError: one line naming the backend, the effect and the missing door (or that no such
+            effect is installed), and the effects it supports.
     """
-    bad = [e for e in effects if e not in sim.effects]
-    if bad:
-        raise ParameterError(f"{sim.name} does not support effect(s) {bad}; supported effects: "
+    from softsbi.core.errors import PluginNotFound
+    from softsbi.plugins import registry
+
+    plan = EffectPlan(sim.name)
+    problems = []
+    for name in effects:
+        try:
+            eff = registry().effect(name)()
+        except PluginNotFound:
+            problems.append(f"'{name}' is not an installed effect")
+            continue
+        why = type(sim).supports(eff)
+        if why is not None:
+            problems.append(f"'{name}' needs {why}")
+            continue
+        plan.effects.append(eff)
+        doors = eff.doors(sim.name)
+        if MODEL_EDIT in doors:
+            plan.edits.append(eff)
+        if FORCE in doors:
+            plan.forces.append(eff)
+        if OBSERVATION in doors:
+            plan.observers.append(eff)
+    if problems:
+        raise ParameterError(f"{sim.name} does not support effect(s): {'; '.join(problems)}; supported effects: "
                              f"{', '.join(sim.effects) or '(none yet)'}")
+    return plan
 
 
 # -- the visual-only robot (shared by both backends' renderers) -------------------------------

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from pathlib import Path
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -19,22 +20,92 @@ if TYPE_CHECKING:
     from softsbi.core.camera import Camera, RenderStyle
 
 
-class Effect(ABC):
-    """A named physical effect that a nominal model may lack (air drag, wind, slip...).
+#: the ways an effect can act on a simulation (see :class:`Effect`); a backend lists those it
+#: supports in ``Simulator.effect_kinds``
+FORCE, MODEL_EDIT, OBSERVATION = "force", "model-edit", "observation"
+EFFECT_KINDS = (FORCE, MODEL_EDIT, OBSERVATION)
 
-    An effect contributes its own parameters (physical units) and is *applied by a backend*:
-    the backend lists the effect names it supports in ``Simulator.effects`` and reads the
-    effect's parameter values from the ``theta`` mapping passed to ``simulate``.
+
+@dataclass(frozen=True)
+class VertexContext:
+    """What a force field may know about the simulated object besides its state (engine-neutral).
+
+    Attributes:
+        mass: ``(N,)`` kg, the mass each vertex carries (the engine's own lumped masses).
+        area: ``(N,)`` m^2, the surface patch each vertex stands for (cloth: spacing^2; rope:
+            spacing x diameter), e.g. for drag per area.
+        x0: ``(N, 3)`` m, vertex positions at t = 0 (the cloth lies flat on the table).
+        table_z: height of the table top, m (world frame, z up).
+        spacing: rest distance between neighbouring vertices, m.
+        shape: vertex layout: ``(n, n)`` for a cloth grid (vertex ``i * n + j``, x-major,
+            :func:`softsbi.backends.common.grid_faces`), ``(n,)`` for a rope (vertex 0 grasped).
+        grasped: indices of the grasped vertices.
+        gravity: ``(3,)`` m/s^2.
+    """
+
+    mass: np.ndarray
+    area: np.ndarray
+    x0: np.ndarray
+    table_z: float
+    spacing: float
+    shape: tuple[int, ...]
+    grasped: tuple[int, ...] = (0,)
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+
+    @property
+    def edges(self) -> np.ndarray:
+        """``(N,)`` bool: vertices on the border of a cloth grid (both ends of a rope)."""
+        n = int(np.prod(self.shape))
+        out = np.zeros(n, dtype=bool)
+        if len(self.shape) == 2:
+            g = np.zeros(self.shape, dtype=bool)
+            g[0, :] = g[-1, :] = g[:, 0] = g[:, -1] = True
+            out[:] = g.ravel()
+        else:
+            out[[0, n - 1]] = True
+        return out
+
+
+class Effect(ABC):
+    """A physical or sensor effect that a nominal model may lack (air drag, wind, a soft grasp, a
+    calibration offset...), with its own parameters (physical units) and ways to act that backends
+    understand *without knowing the effect by name* (the effect door, DESIGN.md "Interfaces"):
+
+    * a **force field** (kind ``"force"``): override :meth:`force`; the backend adds the returned
+      ``(N, 3)`` newtons to the object's vertices before every physics step (mujoco-flex:
+      ``xfrc_applied`` of the flex vertex bodies). Engine-neutral: every backend with ``"force"``
+      in ``Simulator.effect_kinds`` applies it.
+    * a **model edit** for a named backend (kind ``"model-edit"``): list the backend in
+      ``model_edits`` and override :meth:`edit_model`, which changes the backend's model description
+      before it is built (mujoco-flex: the dict of :func:`softsbi.backends.mujoco_flex.build_spec`).
+      On that backend the edit is used *in place of* the force field (it is the engine's faithful
+      version of the same physics, e.g. MuJoCo's fluid model).
+    * an **observation transform** (kind ``"observation"``, sensor effects): override
+      :meth:`observe`, which maps the finished rollout to what the sensor reports (offset, noise,
+      time shift), with a seeded random generator.
+
+    A backend supports an effect iff it supports every kind the effect uses on it
+    (:meth:`doors`, :meth:`Simulator.supports`).
 
     Class attributes:
         name: identifier used with ``--effect``.
         description: one line.
-        backends: names of the simulators that can apply it.
+        backends: simulators the effect was written and tested for (informational; support is
+            decided by the kinds, not by this list).
+        kind: ``"physics"`` (acts on the motion) or ``"sensor"`` (acts on the observation only),
+            so verdicts can separate the two.
+        generic: True for the generic force terms (constant, linear/quadratic in velocity, linear in
+            height) that describe residuals no named effect explains; they are not ordinary
+            diagnosis candidates.
+        model_edits: backend names for which :meth:`edit_model` is implemented.
     """
 
     name: ClassVar[str]
     description: ClassVar[str] = ""
     backends: ClassVar[tuple[str, ...]] = ()
+    kind: ClassVar[str] = "physics"
+    generic: ClassVar[bool] = False
+    model_edits: ClassVar[tuple[str, ...]] = ()
 
     @abstractmethod
     def param_space(self) -> ParamSpace:
@@ -44,6 +115,78 @@ class Effect(ABC):
         """Parameter values that switch the effect off (default: the lower bounds)."""
         return {p.name: p.low for p in self.param_space()}
 
+    # -- the three doors --------------------------------------------------------------------
+    def force(self, x: np.ndarray, v: np.ndarray, t: float, theta: Mapping[str, float],
+              ctx: VertexContext) -> np.ndarray:
+        """Per-vertex force field (override to use the ``"force"`` door).
+
+        Args:
+            x: ``(N, 3)`` vertex positions, m (world/scenario frame, z up).
+            v: ``(N, 3)`` vertex velocities, m/s.
+            t: time since the start of the rollout, s.
+            theta: this effect's own parameters (physical units).
+            ctx: masses, areas, rest positions, table height and layout (:class:`VertexContext`).
+
+        Returns:
+            ``(N, 3)`` forces in newtons, applied at the vertices until the next step.
+        """
+        raise NotImplementedError(f"effect '{self.name}' has no force field")
+
+    def edit_model(self, backend: str, model: Any, theta: Mapping[str, float], ctx: Mapping[str, Any]) -> None:
+        """Edit ``backend``'s model description in place before it is built (override together with
+        ``model_edits``).
+
+        Args:
+            backend: the simulator's name (one of ``model_edits``).
+            model: the backend's model description (mujoco-flex: the spec dict of ``build_spec``).
+            theta: this effect's own parameters (physical units).
+            ctx: backend facts (mujoco-flex: ``grid``, ``spacing`` m, ``vertex_mass`` kg, ``timestep`` s).
+        """
+        raise NotImplementedError(f"effect '{self.name}' has no model edit for '{backend}'")
+
+    def observe(self, rollout: Rollout, theta: Mapping[str, float], rng: np.random.Generator) -> Rollout:
+        """Observation transform (override to use the ``"observation"`` door): what the sensor reports
+        of a finished, successful rollout.
+
+        Args:
+            rollout: the simulated rollout (not modified).
+            theta: this effect's own parameters (physical units).
+            rng: seeded by the simulation's seed.
+
+        Returns:
+            A new :class:`Rollout` with the same frames and vertex count (``gripper``, the commanded
+            path, is left as it is).
+        """
+        raise NotImplementedError(f"effect '{self.name}' has no observation transform")
+
+    @classmethod
+    def _overrides(cls, method: str) -> bool:
+        return getattr(cls, method) is not getattr(Effect, method)
+
+    def doors(self, backend: str) -> tuple[str, ...]:
+        """The kinds this effect uses on ``backend``: ``"model-edit"`` if it registered one for that
+        backend, else ``"force"`` if it has a force field, else ``"model-edit"`` if it has edits only for
+        other backends (which ``backend`` then lacks); plus ``"observation"`` if it has a transform.
+        Empty: the effect has no door at all."""
+        out: list[str] = []
+        if backend in self.model_edits:
+            out.append(MODEL_EDIT)
+        elif self._overrides("force"):
+            out.append(FORCE)
+        elif self.model_edits:
+            out.append(MODEL_EDIT)
+        if self._overrides("observe"):
+            out.append(OBSERVATION)
+        return tuple(out)
+
+    def own(self, theta: Mapping[str, float]) -> dict[str, float]:
+        """This effect's parameters taken from a full ``theta`` mapping.
+
+        Raises:
+            KeyError: one of them is missing (backends check ``theta`` first).
+        """
+        return {n: float(theta[n]) for n in self.param_space().names}
+
 
 class Simulator(ABC):
     """A simulator backend.
@@ -51,7 +194,11 @@ class Simulator(ABC):
     Class attributes:
         name: plugin name (``"mujoco-flex"``).
         scenarios: scenario names it can run.
-        effects: effect names it can apply.
+        effects: effect names it can apply. A simulator with effects of its own that it applies
+            by name lists them here (a tuple); the built-in backends derive it from the registry
+            instead (every registered effect :meth:`supports` accepts).
+        effect_kinds: the effect doors it implements (``"force"``, ``"model-edit"``,
+            ``"observation"``; :class:`Effect`).
 
     Rendering is a template (:meth:`simulate_images`): a backend that can render supplies only
     frames, by overriding two hooks,
@@ -71,6 +218,35 @@ class Simulator(ABC):
     name: ClassVar[str]
     scenarios: ClassVar[tuple[str, ...]] = ()
     effects: ClassVar[tuple[str, ...]] = ()
+    effect_kinds: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def supports(cls, effect: "Effect | type[Effect]") -> str | None:
+        """Whether this backend can apply ``effect``: None if it can, else what is missing (one phrase,
+        e.g. ``"a force field (pybullet-massspring applies: observation)"``).
+
+        An effect this backend lists by name in a plain ``effects`` tuple is its own (applied by name).
+        Otherwise the backend must implement every kind the effect uses on it (:meth:`Effect.doors`).
+        """
+        import inspect
+
+        eff = effect() if isinstance(effect, type) else effect
+        own = inspect.getattr_static(cls, "effects", ())
+        if isinstance(own, (tuple, list)) and eff.name in own:
+            return None
+        doors = eff.doors(cls.name)
+        if not doors:
+            return "any door (the effect has no force field, model edit or observation transform)"
+        have = tuple(cls.effect_kinds)
+        missing = []
+        for d in doors:
+            if d == MODEL_EDIT and cls.name not in eff.model_edits:
+                missing.append(f"a model edit registered for '{cls.name}' (the effect has edits for: "
+                               f"{', '.join(eff.model_edits)})")
+            elif d not in have:
+                what = {FORCE: "a force field", MODEL_EDIT: "model edits", OBSERVATION: "an observation transform"}[d]
+                missing.append(f"{what} ({cls.name} applies: {', '.join(have) or 'none'})")
+        return "; ".join(missing) or None
 
     @abstractmethod
     def param_space(self, scenario: Scenario) -> ParamSpace:

@@ -1,1 +1,39 @@
-"""Physical effects a nominal cloth model may lack, as plugins (entry-point group ``softsbi``)."""
+"""Effects: physical or sensor effects a nominal model may lack, declared exactly like third-party ones.
+
+Modules: :mod:`.builtin` (air-drag, wind, extra-damping, grip-compliance; its hook registers every
+built-in), :mod:`.physics` (table-slope, sticky-patch, heavy-hem), :mod:`.sensor`
+(calibration-offset, point-noise, time-offset; ``kind = "sensor"``) and :mod:`.generic` (generic
+force terms, ``generic = True``, not ordinary diagnosis candidates).
+
+Writing an effect (the effect door; no backend needs to know its name)::
+
+    import numpy as np
+    from softsbi import Effect, Param, ParamSpace, hookimpl
+
+    class HeavyHem(Effect):
+        '''Extra weight hem_density * spacing * g on the border vertices. Off at 0 kg/m.'''
+        name = "my-hem"
+        description = "extra weight along the cloth's edges (kg/m)"
+
+        def param_space(self):
+            return ParamSpace([Param("hem_density", 0.0, 0.05, "kg/m")])
+
+        def force(self, x, v, t, theta, ctx):      # x, v (N, 3) m, m/s; t s; theta: own parameters
+            w = theta["hem_density"] * ctx.spacing  # ctx: VertexContext (mass, area, x0, table_z, edges...)
+            return ctx.edges[:, None] * w * ctx.gravity[None, :]   # (N, 3) newtons
+
+    @hookimpl
+    def softsbi_effects():
+        return [HeavyHem]
+
+The three doors (:class:`softsbi.core.interfaces.Effect`): override ``force`` (a per-vertex force
+field, applied before every physics step by every backend with ``"force"`` in its
+``effect_kinds``), or list a backend in ``model_edits`` and override ``edit_model`` (that backend's
+model description, edited before it is built; used there in place of the force field), or override
+``observe`` (an observation transform of the finished rollout, with a seeded generator: sensor
+effects, ``kind = "sensor"``). ``Simulator.supports(effect)`` says whether a backend can apply it
+and, if not, which door it lacks; ``softsbi plugins`` lists the effects each backend supports.
+Door support today: ``mujoco-flex`` all three (forces through ``xfrc_applied`` of the flex vertex
+bodies); ``pybullet-massspring`` observation transforms only (PyBullet's ``applyExternalForce``
+does not act on deformable nodes).
+"""

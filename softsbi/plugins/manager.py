@@ -250,7 +250,8 @@ class Registry:
         return sorted(self.tables[kind])
 
     def describe(self) -> dict[str, list[dict[str, Any]]]:
-        """JSON-able listing used by ``softsbi plugins --json`` (``aliases`` for classes that have them)."""
+        """JSON-able listing used by ``softsbi plugins --json`` (``aliases`` for classes that have them; for
+        simulators the effects they support and their ``effect_kinds``, for effects ``kind`` and ``generic``)."""
         out: dict[str, list[dict[str, Any]]] = {}
         for kind, table in self.tables.items():
             old_names: dict[str, list[str]] = {}
@@ -261,7 +262,7 @@ class Registry:
                 row = {"name": name, "class": f"{cls.__module__}.{cls.__qualname__}",
                        "package": self.origin.get((kind, name), ""),
                        "doc": (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""}
-                for attr in ("scenarios", "effects", "backends", "description"):
+                for attr in ("scenarios", "effects", "effect_kinds", "backends", "kind", "generic", "description"):
                     if hasattr(cls, attr) and not callable(getattr(cls, attr)):
                         v = getattr(cls, attr)
                         row[attr] = list(v) if isinstance(v, tuple) else v

@@ -38,11 +38,11 @@ def _candidate_effects(run: RunView, names: Sequence[str] | None) -> list[Any]:
     sim_cls = reg.simulator(run.config["backend"])
     if names:
         cands = [reg.effect(n) for n in names]
-        bad = [c.name for c in cands if c.name not in sim_cls.effects]
+        bad = [f"{c.name} (it needs {sim_cls.supports(c)})" for c in cands if sim_cls.supports(c) is not None]
         if bad:
             raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
     else:
-        cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
+        cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"] and not reg.effect(n).generic]
     return [c() for c in cands if c.name not in run.effects]
 
 

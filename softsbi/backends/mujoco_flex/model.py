@@ -112,8 +112,19 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
                                                     rest[faces[:, 2]] - rest[faces[:, 0]]), axis=1).sum())
         flex = {"name": "cloth", "type": "direct", "dim": 2, "radius": radius, "mass": rho * area,
                 "point": rest.ravel().tolist(), "element": faces.ravel().tolist()}
+        tri = 0.5 * np.linalg.norm(np.cross(rest[faces[:, 1]] - rest[faces[:, 0]], rest[faces[:, 2]] - rest[faces[:, 0]]),
+                                   axis=1)
+        varea = np.zeros(len(rest))
+        np.add.at(varea, faces.ravel(), np.repeat(tri / 3.0, 3))
+        e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+        e = np.unique(e, axis=0)
+        # what effects need of a mesh (a grid has it in its flexcomp attributes): mean edge length, the
+        # surface patch of each vertex (a third of its triangles' areas)
+        layout = {"spacing": float(np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1).mean()),
+                  "n": len(rest), "area": varea.tolist()}
     else:
         rest = grid_rest_vertices(scenario, L, grid, z0, theta)
+        layout = None
         flex = {"name": "cloth", "type": "grid", "dim": 2, "count": [grid, grid, 1],
                 "spacing": [h, h, h], "pos": [float(centre[0]), float(centre[1]), z0],
                 "euler": [0.0, 0.0, phi], "radius": radius, "mass": rho * L * L}
@@ -131,6 +142,8 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
         "elasticity": {"young": young, "poisson": poisson, "thickness": thick,
                        "damping": float(ov.pop("damping", damping)), "elastic2d": "both"},
     }
+    if layout is not None:
+        spec["mesh_layout"] = layout
     add_handles(spec, scenario, rest, handle_vertices(scenario, rest, grid), "cloth", timestep)
     for k, v in ov.items():  # remaining overrides go to option
         spec["option"][k] = v

@@ -21,12 +21,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.backends.common import check_effects, check_scenario, grid_corners, grid_faces, size_params
+from softsbi.backends.common import (EffectPlan, EffectsThroughDoor, check_effects, check_scenario, grid_corners,
+                                     grid_faces, size_params)
 from softsbi.backends.scenario_build import FEATURES, handle_targets, mesh_edges
 from softsbi.backends.mujoco_flex.gl import import_mujoco
 from softsbi.backends.mujoco_flex.model import build_rope_spec, build_spec, rope_param_space, spec_to_xml
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
-from softsbi.core.interfaces import Simulator
+from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Simulator, VertexContext
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
 
 
@@ -54,7 +55,9 @@ class MujocoFlex(Simulator):
     #: engine features (:data:`~softsbi.backends.scenario_build.FEATURES`): grid or mesh cloth (flexcomp
     #: grid / direct), rope, any number of handles (mocap bodies + connect), box and cylinder obstacles
     features = FEATURES
-    effects: tuple[str, ...] = ("air-drag", "wind", "extra-damping", "grip-compliance")
+    #: every registered effect this backend supports (no effect is known by name)
+    effects = EffectsThroughDoor()
+    effect_kinds = (FORCE, MODEL_EDIT, OBSERVATION)
 
     def __init__(self, grid: int = 9, timestep: float = 0.004, solver: str = "CG", integrator: str = "discrete",
                  poisson: float = 0.3, radius: float = 0.003, damping: float = 0.001, iterations: int = 50,
@@ -97,28 +100,23 @@ class MujocoFlex(Simulator):
             *size_params(scenario, rope=False),
         ])
 
-    def _apply_effects(self, spec: dict[str, Any], theta: Mapping[str, float], effects: Sequence[str]) -> None:
-        """Apply effects (see :mod:`softsbi.effects.builtin`) by editing ``spec`` in place."""
-        if effects:
-            from softsbi.effects.builtin import apply_mujoco
-            apply_mujoco(spec, theta, effects, grid=self.grid)
-
     def full_space(self, scenario: Scenario, effects: Sequence[str] = ()) -> ParamSpace:
-        """Nominal parameters plus those of ``effects``."""
-        from softsbi.effects.builtin import BUILTIN_EFFECTS
-        space = self.param_space(scenario)
-        by_name = {e.name: e for e in BUILTIN_EFFECTS}
-        for e in effects:
-            space = space + by_name[e]().param_space()
-        return space
+        """Nominal parameters plus those of ``effects``.
+
+        Raises:
+            ParameterError: an effect that is not installed or that this backend cannot apply.
+        """
+        return check_effects(self, effects).space(self.param_space(scenario))
 
     def build_xml(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> str:
         """MJCF string of the lift at ``theta`` (no validation; use :meth:`simulate`)."""
         return spec_to_xml(self.build_spec(scenario, theta, effects))
 
-    def build_spec(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> dict[str, Any]:
+    def build_spec(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
+                   plan: EffectPlan | None = None) -> dict[str, Any]:
         """The model dict of :func:`~.model.build_spec` (cloth) or :func:`~.model.build_rope_spec`
-        (wind) with this instance's options and effects applied (no validation of ``theta``)."""
+        (wind) with this instance's options and the effects' model edits applied (no validation of
+        ``theta``). The edits get ``ctx = {"grid", "spacing" (m), "vertex_mass" (kg), "timestep" (s)}``."""
         if scenario.object.get("kind") == "rope":
             spec = build_rope_spec(scenario, theta, nodes=self.rope_nodes, timestep=self.timestep,
                                    solver=self.solver, integrator=self.integrator, poisson=self.poisson,
@@ -127,13 +125,21 @@ class MujocoFlex(Simulator):
             spec = build_spec(scenario, theta, grid=self.grid, timestep=self.timestep, solver=self.solver,
                               integrator=self.integrator, poisson=self.poisson, radius=self.radius,
                               damping=self.damping, iterations=self.iterations, overrides=self.overrides)
-        self._apply_effects(spec, theta, effects)
+        plan = plan if plan is not None else check_effects(self, effects)
+        if plan.edits:
+            fc = spec["flexcomp"]
+            lay = spec.get("mesh_layout")  # a mesh cloth (flexcomp direct) has no grid spacing/count
+            n = lay["n"] if lay else int(np.prod(fc["count"]))
+            ctx = {"grid": self.grid, "spacing": lay["spacing"] if lay else float(fc["spacing"][0]),
+                   "vertex_mass": float(fc["mass"]) / n, "timestep": float(spec["option"]["timestep"])}
+            plan.edit(spec, theta, ctx)
         return spec
 
     # -- simulation -------------------------------------------------------------------------
     def simulate(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
                  seed: int = 0) -> Rollout:
-        """Roll ``scenario`` out; deterministic (``seed`` is unused).
+        """Roll ``scenario`` out; the physics is deterministic (``seed`` seeds only the observation
+        transforms of sensor effects).
 
         Returns:
             :class:`Rollout` with ``vertices (T, N, 3)`` m at ``scenario.times``: cloth
@@ -148,7 +154,7 @@ class MujocoFlex(Simulator):
             ValueError: unknown scenario (names the valid ones).
             ParameterError: unknown/missing/out-of-bounds parameter, unsupported effect.
         """
-        return self._rollout(scenario, theta, effects)
+        return self._rollout(scenario, theta, effects, seed)
 
     def _frame_renderer(self, scenario: Scenario, camera: Any, style: Any) -> MjFrameRenderer:
         """The MuJoCo frame renderer of :meth:`simulate_images` (OpenGL off-screen; the GL context
@@ -157,7 +163,10 @@ class MujocoFlex(Simulator):
 
     def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
                  seed: int = 0, frames: MjFrameRenderer | None = None) -> Rollout:
-        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images` (``seed`` unused).
+        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images` (``seed`` seeds the
+        effects' observation transforms). Effects act through their doors (:class:`~.common.EffectPlan`):
+        model edits on the spec before compiling, force fields written to ``xfrc_applied`` of the
+        vertex bodies before every step, observation transforms on the finished rollout.
 
         With ``frames``: ``frames.edit(spec)`` may add render-only elements to the model dict
         before compiling, and ``frames(k, MjState(m, d))`` is called after frame ``k`` is recorded
@@ -167,11 +176,10 @@ class MujocoFlex(Simulator):
         mujoco = import_mujoco()
 
         check_scenario(self, scenario)
-        check_effects(self, effects)
-        space = self.full_space(scenario, effects)
-        theta = space.check(theta)
+        plan = check_effects(self, effects)
+        theta = plan.space(self.param_space(scenario)).check(theta)
         t0 = time.perf_counter()
-        spec = self.build_spec(scenario, theta, effects)
+        spec = self.build_spec(scenario, theta, effects, plan=plan)
         if frames is not None:
             frames.edit(spec)
         m = mujoco.MjModel.from_xml_string(spec_to_xml(spec))
@@ -193,6 +201,7 @@ class MujocoFlex(Simulator):
         if frames is not None:
             frames(0, MjState(m, d))
         dt = m.opt.timestep
+        push = self._force_applier(m, d, plan, theta, scenario, spec)
         status, reason = STATUS_OK, ""
         steps = 0
         # step counts are fixed in advance: after a divergence MuJoCo resets d.time to 0, so a
@@ -205,6 +214,8 @@ class MujocoFlex(Simulator):
                 d.mocap_pos[0] = [np.interp(tn, times, target[:, c]) for c in range(3)]
                 for j, tg in others:
                     d.mocap_pos[j] = [np.interp(tn, times, tg[:, c]) for c in range(3)]
+                if push is not None:
+                    push(steps * dt)
                 mujoco.mj_step(m, d)
                 steps += 1
                 if warn.number > 0:
@@ -236,8 +247,60 @@ class MujocoFlex(Simulator):
                 "handle_vertices": list(spec["handle_vertices"])}
         if not rope and not mesh:
             info["corners"] = grid_corners(self.grid)
-        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
-                       status=status, reason=reason, info=info)
+        ro = Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
+                     status=status, reason=reason, info=info)
+        return plan.observe(ro, theta, seed)
+
+    @staticmethod
+    def _force_applier(m: Any, d: Any, plan: EffectPlan, theta: Mapping[str, float], scenario: Scenario,
+                       spec: Mapping[str, Any]):
+        """``push(t)``: writes the effects' summed force field at the current state into
+        ``d.xfrc_applied`` of the flex vertex bodies (world frame, at the vertex), or None without
+        force fields.
+
+        The state is read from ``qpos``/``qvel`` (not ``flexvert_xpos``/``cvel``, which ``mj_step``
+        leaves one integration behind): each vertex body moves on 3 slide joints, so
+        ``x = x(q0) + A (q - q0)`` and ``v = A qdot`` with ``A`` the joint axes in the world frame.
+        """
+        n = int(m.flex_vertnum[0])
+        ids = np.asarray(m.flex_vertbodyid[:n], dtype=int)
+        vctx = MujocoFlex._vertex_context(m, d, ids, scenario, spec)
+        total = plan.force_fn(theta, vctx)
+        if total is None:
+            return None
+        if not np.all(m.body_jntnum[ids] == 3) or not np.all(m.jnt_type[m.body_jntadr[ids]] == 2):
+            raise RuntimeError("mujoco-flex force fields expect flex vertex bodies with 3 slide joints each")
+        jnt = m.body_jntadr[ids][:, None] + np.arange(3)[None, :]          # (n, 3) joint ids
+        axes = np.asarray(d.xaxis)[jnt]                                     # (n, 3 joints, 3 xyz)
+        qadr = m.jnt_qposadr[jnt]
+        vadr = m.jnt_dofadr[jnt]
+        q0 = d.qpos[qadr].copy()
+        x0 = d.xpos[ids].copy()
+        if np.allclose(axes, np.eye(3)[None]):  # flexcomp's vertex joints are world-aligned: skip the rotation
+            def push(t: float) -> None:
+                d.xfrc_applied[ids, :3] = total(x0 + (d.qpos[qadr] - q0), d.qvel[vadr], t)
+        else:
+            def push(t: float) -> None:
+                x = x0 + np.einsum("njc,nj->nc", axes, d.qpos[qadr] - q0)
+                v = np.einsum("njc,nj->nc", axes, d.qvel[vadr])
+                d.xfrc_applied[ids, :3] = total(x, v, t)
+        return push
+
+    @staticmethod
+    def _vertex_context(m: Any, d: Any, ids: np.ndarray, scenario: Scenario, spec: Mapping[str, Any]) -> VertexContext:
+        """The :class:`~softsbi.core.interfaces.VertexContext` of the compiled model (masses from MuJoCo)."""
+        fc = spec["flexcomp"]
+        lay = spec.get("mesh_layout")  # a mesh cloth: mean edge length, per-vertex patch areas, layout (N,)
+        h = lay["spacing"] if lay else float(fc["spacing"][0])
+        rope = int(fc["dim"]) == 1
+        n = len(ids)
+        area = (np.asarray(lay["area"], float) if lay else
+                np.full(n, h * 2.0 * float(fc["radius"]) if rope else h * h))
+        shape = (n,) if rope or lay else (int(fc["count"][0]), int(fc["count"][1]))
+        return VertexContext(mass=np.asarray(m.body_mass[ids], dtype=float).copy(), area=area,
+                             x0=np.asarray(d.xpos[ids], dtype=float).copy(), table_z=float(scenario.table_z),
+                             spacing=h, shape=shape, grasped=tuple(int(v) for v in spec.get("handle_vertices", (0,))),
+                             gravity=np.asarray(m.opt.gravity, float).copy())
 
     def _plausibility(self, scenario: Scenario, theta: Mapping[str, float], verts: np.ndarray,
                       grip: np.ndarray) -> tuple[int, str]:

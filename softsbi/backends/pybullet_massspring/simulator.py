@@ -34,12 +34,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.backends.common import check_effects, check_scenario, grid_corners, grid_faces, size_params
+from softsbi.backends.common import (EffectsThroughDoor, check_effects, check_scenario, grid_corners, grid_faces,
+                                     size_params)
 from softsbi.backends.scenario_build import FEATURES, handle_targets, handle_vertices, mesh_edges, mesh_rest
 from softsbi.backends.pybullet_massspring.model import (CLOTH_SCENARIOS, ROPE_SCENARIOS, build_world, cloth_vertices,
                                                         import_pybullet, ribbon_faces, ribbon_vertices, substeps)
 from softsbi.backends.pybullet_massspring.render import PbFrameRenderer, PbState
-from softsbi.core.interfaces import Simulator
+from softsbi.core.interfaces import OBSERVATION, Simulator
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
 
 
@@ -69,7 +70,12 @@ class PybulletMassSpring(Simulator):
     #: grid or mesh cloth (a soft body from the mesh), rope (ribbon), any number of handles (soft-body
     #: anchors to mass-0 bodies), box and cylinder obstacles
     features = FEATURES
-    effects: tuple[str, ...] = ()
+    #: every registered effect this backend supports (no effect is known by name)
+    effects = EffectsThroughDoor()
+    #: observation transforms only: PyBullet 3.2's applyExternalForce does nothing to a deformable
+    #: body's nodes (measured: all-node and whole-body forces of 2 m g leave a lift unchanged to
+    #: the last digit), and its deformable world has no model edits registered yet
+    effect_kinds = (OBSERVATION,)
 
     def __init__(self, grid: int = 9, rope_nodes: int = 24, timestep: float = 1.0 / 240.0, damping: float = 0.1,
                  margin: float = 0.004, max_substeps: int = 10, overrides: Mapping[str, float] | None = None):
@@ -143,7 +149,8 @@ class PybulletMassSpring(Simulator):
     # -- simulation ----------------------------------------------------------------------------
     def simulate(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
                  seed: int = 0) -> Rollout:
-        """Roll ``scenario`` out; deterministic (``seed`` is unused: the engine has no randomness).
+        """Roll ``scenario`` out; the engine is deterministic (``seed`` seeds only the observation
+        transforms of sensor effects, the one effect door this backend implements).
 
         Returns:
             :class:`Rollout` with ``vertices (T, N, 3)`` m at ``scenario.times``: cloth
@@ -156,7 +163,7 @@ class PybulletMassSpring(Simulator):
         Raises:
             ValueError: unknown scenario. ParameterError: bad/missing parameter, unsupported effect.
         """
-        return self._rollout(scenario, theta, effects)
+        return self._rollout(scenario, theta, effects, seed)
 
     def _frame_renderer(self, scenario: Scenario, camera: Any, style: Any) -> PbFrameRenderer:
         """The TinyRenderer frame renderer of :meth:`simulate_images` (CPU, no OpenGL)."""
@@ -164,15 +171,16 @@ class PybulletMassSpring(Simulator):
 
     def _rollout(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
                  seed: int = 0, frames: PbFrameRenderer | None = None) -> Rollout:
-        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images` (``seed`` unused).
+        """The one stepping loop of :meth:`simulate` and :meth:`simulate_images` (``seed`` seeds the
+        effects' observation transforms, applied to the finished rollout).
 
         With ``frames``: ``frames(k, PbState(cid, bodies, grip_pos))`` is called after frame ``k``
         is recorded (``k = 0`` before the first step) with the client id, the ``{"table", "soft",
         "spool"?}`` body ids and the grasp target ``(3,)`` m; it is not called after a failure.
         """
         check_scenario(self, scenario)
-        check_effects(self, effects)
-        theta = self.param_space(scenario).check(theta)
+        plan = check_effects(self, effects)
+        theta = plan.space(self.param_space(scenario)).check(theta)
         p = import_pybullet()
         t0 = time.perf_counter()
         cid = self._client()
@@ -280,8 +288,9 @@ class PybulletMassSpring(Simulator):
                 "springBendingStiffness": k_be, "springDampingStiffness": k_da, "effects": list(effects)}
         if not rope and not mesh:
             info["corners"] = grid_corners(n)
-        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces, status=status, reason=reason,
-                       info=info)
+        ro = Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces, status=status, reason=reason,
+                     info=info)
+        return plan.observe(ro, theta, seed)
 
     @staticmethod
     def _plausibility(verts: np.ndarray, table_z: float, L: float, rope: bool, n: int,

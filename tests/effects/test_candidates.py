@@ -1,0 +1,101 @@
+"""The built-in candidate effects: off at their nominal values, and each changes the rollout in the
+direction its docstring states (mujoco-flex, 5x5 cloth, 11 frames)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softsbi.backends.mujoco_flex import MujocoFlex
+from softsbi.effects.generic import GENERIC_EFFECTS
+from softsbi.effects.physics import PHYSICS_EFFECTS
+from softsbi.effects.sensor import SENSOR_EFFECTS
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import lift_scenario, wipe_scenario
+
+SIM = MujocoFlex(grid=5)
+LIFT = lift_scenario(None, n_frames=11)
+WIPE = wipe_scenario(n_frames=11)  # dragged from (0, 0) to (0.3, 0.15): drag along +x
+
+
+def _run(sc, effects=(), seed=0, **values):
+    theta = {**SIM.param_space(sc).midpoint(), **values}
+    for e in effects:
+        theta = {**registry().effect(e)().nominal(), **theta}
+    ro = SIM.simulate(sc, theta, effects=list(effects), seed=seed)
+    assert ro.ok, ro.reason
+    return ro
+
+
+@pytest.fixture(scope="module")
+def base():
+    return {"lift": _run(LIFT).vertices, "wipe": _run(WIPE).vertices, "wipe_slippery": _run(WIPE, friction=0.1).vertices}
+
+
+def test_all_registered_with_kinds():
+    reg = registry()
+    for cls in PHYSICS_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS:
+        assert reg.effect(cls.name) is cls
+        assert cls.__doc__ and "Off at" in cls.__doc__, cls.name
+    assert {c.kind for c in SENSOR_EFFECTS} == {"sensor"}
+    assert {c.kind for c in PHYSICS_EFFECTS + GENERIC_EFFECTS} == {"physics"}
+    assert all(c.generic for c in GENERIC_EFFECTS) and not any(c.generic for c in PHYSICS_EFFECTS + SENSOR_EFFECTS)
+
+
+@pytest.mark.parametrize("cls", PHYSICS_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS, ids=lambda c: c.name)
+def test_nominal_is_the_nominal_model(cls, base):
+    ro = _run(LIFT, [cls.name], seed=3, **cls().nominal())
+    assert np.array_equal(ro.vertices, base["lift"])
+
+
+def test_heavy_hem_lowers_the_hanging_cloth(base):
+    v = _run(LIFT, ["heavy-hem"], hem_density=0.05).vertices
+    assert (v[-1, :, 2] - base["lift"][-1, :, 2]).mean() < -0.005
+
+
+@pytest.mark.parametrize("direction,sign", [(90.0, 1.0), (-90.0, -1.0)])
+def test_table_slope_pulls_the_dragged_cloth_downhill(base, direction, sign):
+    v = _run(WIPE, ["table-slope"], slope_deg=10.0, slope_dir=direction).vertices
+    assert sign * (v[-1, :, 1] - base["wipe"][-1, :, 1]).mean() > 0.01
+
+
+def test_sticky_patch_holds_the_dragged_cloth_back(base):
+    v = _run(WIPE, ["sticky-patch"], friction=0.1, patch_friction=1.5, patch_radius=0.2).vertices
+    assert (v[-1, :, 0] - base["wipe_slippery"][-1, :, 0]).mean() < -0.002
+
+
+def test_calibration_offset_shifts_the_observed_cloud_only(base):
+    ro = _run(LIFT, ["calibration-offset"], offset_x=0.01, offset_y=-0.02, offset_z=0.005)
+    np.testing.assert_allclose(ro.vertices - base["lift"], np.broadcast_to([0.01, -0.02, 0.005], ro.vertices.shape),
+                               atol=1e-12)
+    np.testing.assert_array_equal(ro.gripper, _run(LIFT).gripper)
+
+
+def test_point_noise_has_its_std_and_is_seeded(base):
+    a = _run(LIFT, ["point-noise"], seed=1, noise_std=0.005).vertices
+    b = _run(LIFT, ["point-noise"], seed=1, noise_std=0.005).vertices
+    c = _run(LIFT, ["point-noise"], seed=2, noise_std=0.005).vertices
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert abs(np.std(a - base["lift"]) - 0.005) < 0.0005  # 11 x 25 x 3 = 825 draws: 2.5% std error
+
+
+def test_time_offset_shows_the_lift_ahead(base):
+    ro = _run(LIFT, ["time-offset"], time_offset=0.05)
+    dt = LIFT.times[1] - LIFT.times[0]
+    w = 0.05 / dt - np.floor(0.05 / dt)
+    k = int(np.floor(0.05 / dt))
+    expect = (1 - w) * base["lift"][3 + k] + w * base["lift"][4 + k]
+    np.testing.assert_allclose(ro.vertices[3], expect, atol=1e-12)
+    assert ro.vertices[5, :, 2].mean() > base["lift"][5, :, 2].mean()  # rising cloth seen later in its rise
+    np.testing.assert_allclose(ro.vertices[-1], base["lift"][-1], atol=1e-12)  # held at the last frame
+
+
+@pytest.mark.parametrize("name,values,check", [
+    ("generic-constant", {"const_ax": 2.0}, lambda d: d[-1, :, 0].mean() > 0.01),
+    ("generic-linear-drag", {"lin_kh": 30.0, "lin_kv": 30.0}, lambda d: d[5, :, 2].mean() < -0.0005),
+    ("generic-quadratic-drag", {"quad_c": 20.0}, lambda d: d[5, :, 2].mean() < -0.0002),
+    ("generic-height-force", {"height_kz": 20.0}, lambda d: d[-1, :, 2].mean() > 0.001),
+])
+def test_generic_terms_push_the_stated_way(base, name, values, check):
+    v = _run(LIFT, [name], **values).vertices
+    assert check(v - base["lift"]), name
