@@ -190,8 +190,12 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
         """As :meth:`NeuralMDNEstimator.fit`; adds ``val_l1 (D,)`` (unit-cube units) to the info.
 
         Raises:
-            ShapeError, DataError, RuntimeError: as the base class.
+            ShapeError, DataError, RuntimeError: as the base class. ParameterError: ``ensemble > 1``
+            (the per-dimension scale is fitted on one network's validation error).
         """
+        if int(self.config.get("ensemble", 1)) != 1:
+            raise ParameterError(f"estimator '{self.name}' does not support ensemble > 1 (got "
+                                 f"{self.config['ensemble']}); use rkhs with ensemble instead")
         info = super().fit(theta_unit, x, seed=seed, progress=progress)
         u2, x2 = self._validate(theta_unit, x)
         # the base class's split (same seed, same call)

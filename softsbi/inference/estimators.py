@@ -150,6 +150,12 @@ class NeuralMDNEstimator(PosteriorEstimator):
         min_scale: Cholesky-diagonal floor in standardised units, default 1e-3.
         max_seconds: wall-clock budget per fit (None: no budget); training stops early
             and keeps the best weights.
+        ensemble: number ``M`` of independently trained networks (deep ensemble; Lakshminarayanan et al.
+            2017; proposed against over-confident SBI posteriors by Hermans et al. 2022, "A trust crisis
+            in simulation-based inference?"), default 1. Each member has its own train/validation split,
+            initialisation and batch order; the posterior is the equal-weight mixture of the members'
+            mixtures (``M * n_components`` components), so sampling draws a member then a component.
+            Training time grows ~M-fold; ``max_seconds`` is split evenly between the members.
         num_threads: torch threads during fit/posterior_at (restored afterwards), default 1
             (measured: robust on a shared 2-core machine; raise it on an idle many-core one). On an oversubscribed machine (other processes busy) use 1:
             OpenMP spin-waiting made a 2-thread fit ~8x slower than 1 thread there.
@@ -170,7 +176,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
     BASE_DEFAULTS: ClassVar[dict[str, Any]] = {
         "hidden": (256, 256), "n_components": 4, "activation": "relu", "lr": 1e-3, "weight_decay": 1e-5,
         "max_epochs": 300, "patience": 15, "min_epochs": 10, "batch_size": 64, "val_fraction": 0.15,
-        "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1,
+        "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1, "ensemble": 1,
     }
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {}
     #: old hook name -> new hook name (deprecated aliases, see :meth:`__init_subclass__`)
@@ -197,7 +203,10 @@ class NeuralMDNEstimator(PosteriorEstimator):
         if not 0.0 < float(cfg["val_fraction"]) < 0.9:
             raise ParameterError(f"val_fraction must be in (0, 0.9), got {cfg['val_fraction']}")
         super().__init__(**cfg)
+        if int(cfg["ensemble"]) < 1:
+            raise ParameterError(f"ensemble must be an integer >= 1 (got {cfg['ensemble']}); 1 = a single network")
         self._net: MDNNetwork | None = None
+        self._nets: list[MDNNetwork] = []
         self._x_shape: tuple[int, ...] | None = None  # (T, 1+K, 3) seen in fit
         self._z_shape: tuple[int, ...] | None = None  # preprocessed per-sample shape
         self._in_mean = self._in_std = None
@@ -258,10 +267,15 @@ class NeuralMDNEstimator(PosteriorEstimator):
     def _predict(self, zs: np.ndarray, chunk: int = 256) -> MDNParams:
         """Mixture parameters in unit-cube coordinates for standardised inputs (no grad)."""
         assert self._net is not None
-        net = self._net
-        outs = predict_batched(lambda z: net(torch.as_tensor(z)), zs, batch_size=chunk, module=net)
-        p = MDNParams(torch.cat([o.logits for o in outs]), torch.cat([o.means for o in outs]),
-                      torch.cat([o.scale_tril for o in outs]))
+        parts = []
+        nets = self._nets or [self._net]
+        for net in nets:
+            outs = predict_batched(lambda z, net=net: net(torch.as_tensor(z)), zs, batch_size=chunk, module=net)
+            parts.append(MDNParams(torch.cat([o.log_weights for o in outs]) - float(np.log(len(nets))),
+                                   torch.cat([o.means for o in outs]), torch.cat([o.scale_tril for o in outs])))
+        p = parts[0] if len(parts) == 1 else MDNParams(torch.cat([q.logits for q in parts], 1),
+                                                       torch.cat([q.means for q in parts], 1),
+                                                       torch.cat([q.scale_tril for q in parts], 1))
         return p.affine(torch.as_tensor(self._u_mean), torch.as_tensor(self._u_std))
 
     def check_x_shape(self, x: np.ndarray) -> None:
@@ -322,43 +336,64 @@ class NeuralMDNEstimator(PosteriorEstimator):
         u, x = self._validate(theta_unit, x)
         c = self.config
         D = u.shape[1]
+        K = int(c["ensemble"])
+        members: list[dict[str, Any]] = []
+        nets: list[MDNNetwork] = []
         with torch_threads(self._threads()):
-            rng = np.random.default_rng(seed)
-            torch.manual_seed(seed)
-            tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2)
-
             z = self.summary_statistics(x)
             self._x_shape = tuple(x.shape[1:])
             self._z_shape = tuple(z.shape[1:])
-            self._in_mean, self._in_std = self.input_stats(z[tr_idx])
-            zs = self._standardise(z)
-            um = u[tr_idx].mean(0)
-            us = u[tr_idx].std(0)
-            us = np.where(us > 1e-9, np.maximum(us, 1e-3 * float(us.max())), 1.0)
-            self._u_mean, self._u_std = um.astype(np.float32), us.astype(np.float32)
-            us_log = float(np.log(self._u_std.astype(np.float64)).sum())  # NLL shift to unit-cube units
-            uz = ((u - um) / us).astype(np.float32)
+            for k in range(K):
+                # member 0 reproduces the single network exactly; the others get their own split,
+                # initialisation and batch order (deep ensembles, Lakshminarayanan et al. 2017)
+                rng = np.random.default_rng(seed if k == 0 else [seed, k])
+                torch.manual_seed(seed if k == 0 else seed + 1_000_003 * k)
+                tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2)
+                if k == 0:  # standardisation from member 0's training split, shared by all members
+                    self._in_mean, self._in_std = self.input_stats(z[tr_idx])
+                    zs = self._standardise(z)
+                    um = u[tr_idx].mean(0)
+                    us = u[tr_idx].std(0)
+                    us = np.where(us > 1e-9, np.maximum(us, 1e-3 * float(us.max())), 1.0)
+                    self._u_mean, self._u_std = um.astype(np.float32), us.astype(np.float32)
+                    us_log = float(np.log(self._u_std.astype(np.float64)).sum())  # NLL shift to unit-cube units
+                    uz = ((u - um) / us).astype(np.float32)
+                net = self._build(zs[tr_idx[:2]], D)
+                self._net = net
+                z_tr, u_tr = torch.as_tensor(zs[tr_idx]), torch.as_tensor(uz[tr_idx])
+                z_va, u_va = torch.as_tensor(zs[val_idx]), torch.as_tensor(uz[val_idx])
 
-            self._net = net = self._build(zs[tr_idx[:2]], D)
-            z_tr, u_tr = torch.as_tensor(zs[tr_idx]), torch.as_tensor(uz[tr_idx])
-            z_va, u_va = torch.as_tensor(zs[val_idx]), torch.as_tensor(uz[val_idx])
+                def nll(b: np.ndarray, net: MDNNetwork = net, z_tr: torch.Tensor = z_tr,
+                        u_tr: torch.Tensor = u_tr) -> torch.Tensor:
+                    idx = torch.as_tensor(b)
+                    return -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
 
-            def nll(b: np.ndarray) -> torch.Tensor:
-                idx = torch.as_tensor(b)
-                return -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
-
-            info = fit_early_stopping(
-                net, nll, lambda: minibatches(len(tr_idx), int(c["batch_size"]), rng, balanced=True),
-                validate=lambda: self._val_loss(z_va, u_va) + us_log, max_epochs=int(c["max_epochs"]),
-                patience=int(c["patience"]), min_epochs=int(c["min_epochs"]), lr=float(c["lr"]),
-                weight_decay=float(c["weight_decay"]), grad_clip=float(c["grad_clip"]) if c["grad_clip"] else None,
-                loss_offset=us_log, max_seconds=c["max_seconds"], progress=progress, t0=t0)
-            if info["best_epoch"] == 0:
-                raise RuntimeError(f"estimator '{self.name}' training diverged (non-finite loss) in the first "
-                                   f"epoch; try a smaller lr (now {c['lr']})")
-        self.fit_info = {"epochs": info["epochs"], "best_epoch": info["best_epoch"], "train_loss": info["train_loss"],
-                         "val_loss": info["val_loss"], "last_train_loss": info["last_train_loss"],
-                         "seconds": time.perf_counter() - t0, "n_train": int(len(tr_idx)), "n_val": int(len(val_idx))}
+                info = fit_early_stopping(
+                    net, nll, lambda n=len(tr_idx), rng=rng: minibatches(n, int(c["batch_size"]), rng, balanced=True),
+                    validate=lambda z_va=z_va, u_va=u_va: self._val_loss(z_va, u_va) + us_log,
+                    max_epochs=int(c["max_epochs"]), patience=int(c["patience"]), min_epochs=int(c["min_epochs"]),
+                    lr=float(c["lr"]), weight_decay=float(c["weight_decay"]),
+                    grad_clip=float(c["grad_clip"]) if c["grad_clip"] else None,
+                    loss_offset=us_log, progress=progress,
+                    max_seconds=None if c["max_seconds"] is None else float(c["max_seconds"]) / K,
+                    t0=t0 if k == 0 else time.perf_counter())
+                if info["best_epoch"] == 0:
+                    raise RuntimeError(f"estimator '{self.name}' training diverged (non-finite loss) in the first "
+                                       f"epoch; try a smaller lr (now {c['lr']})")
+                nets.append(net)
+                members.append({"epochs": info["epochs"], "best_epoch": info["best_epoch"],
+                                "val_loss": info["val_loss"], "n_train": int(len(tr_idx)), "n_val": int(len(val_idx)),
+                                "train_loss": info["train_loss"], "last_train_loss": info["last_train_loss"]})
+        self._nets = nets
+        self._net = nets[0]
+        m0 = members[0]
+        self.fit_info = {"epochs": int(sum(m["epochs"] for m in members)), "best_epoch": m0["best_epoch"],
+                         "train_loss": m0["train_loss"], "val_loss": float(np.mean([m["val_loss"] for m in members])),
+                         "last_train_loss": m0["last_train_loss"],
+                         "seconds": time.perf_counter() - t0, "n_train": m0["n_train"], "n_val": m0["n_val"]}
+        if K > 1:
+            self.fit_info["ensemble"] = K
+            self.fit_info["member_val_loss"] = [float(m["val_loss"]) for m in members]
         return dict(self.fit_info)
 
     def _val_loss(self, z_va: torch.Tensor, u_va: torch.Tensor, chunk: int = 256) -> float:
@@ -459,6 +494,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
             "in_mean": np.array(self._in_mean), "in_std": np.array(self._in_std),
             "u_mean": np.array(self._u_mean), "u_std": np.array(self._u_std),
             "params": {k: v.detach().cpu().numpy().copy() for k, v in self._net.state_dict().items()},
+            "ensemble_params": [{k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()}
+                                for net in self._nets[1:]],
             "fit_info": dict(self.fit_info),
         }
 
@@ -480,10 +517,14 @@ class NeuralMDNEstimator(PosteriorEstimator):
         self._u_mean = np.asarray(state["u_mean"], np.float32)
         self._u_std = np.asarray(state["u_std"], np.float32)
         z_example = np.zeros((2,) + self._z_shape, np.float32)
-        net = self._build(z_example, int(state["dim"]))
-        net.load_state_dict({k: torch.as_tensor(np.asarray(v)) for k, v in state["params"].items()})
-        net.eval()
-        self._net = net
+        nets = []
+        for params in [state["params"]] + list(state.get("ensemble_params") or []):
+            net = self._build(z_example, int(state["dim"]))
+            net.load_state_dict({k: torch.as_tensor(np.asarray(v)) for k, v in params.items()})
+            net.eval()
+            nets.append(net)
+        self._nets = nets
+        self._net = nets[0]
         self.fit_info = dict(state.get("fit_info", {}))
 
 
