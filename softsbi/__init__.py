@@ -30,7 +30,8 @@ except Exception:  # noqa: BLE001 - running from a source tree
 _LAZY = {"fit": "softsbi.workflows.api", "open_run": "softsbi.workflows.api", "simulate": "softsbi.workflows.api",
          "load_scenario": "softsbi.workflows.api", "FitConfig": "softsbi.workflows.api",
          "FitResult": "softsbi.workflows.api", "Run": "softsbi.workflows.api",
-         "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement"}
+         "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement",
+         "calibrate_run": "softsbi.workflows.api"}
 
 
 def __getattr__(name: str):
