@@ -22,8 +22,10 @@ from pathlib import Path
 import numpy as np
 
 TRUTH_UNIT = {"lift": [0.6, 0.4, 0.5, 0.5, 0.6], "wind": [0.6, 0.4, 0.5, 0.6]}
-VARIANTS = {"rkhs": ("rkhs", {}), "rkhs-ens5": ("rkhs", {"ensemble": 5}),
-            "mdnn": ("mdnn", {}), "mdnn-ens5": ("mdnn", {"ensemble": 5})}
+VARIANTS = {"rkhs": ("rkhs", {}), "rkhs-recal": ("rkhs", {"recalibrate": True}),
+            "rkhs-ens5": ("rkhs", {"ensemble": 5}), "rkhs-ens5-recal": ("rkhs", {"ensemble": 5, "recalibrate": True}),
+            "mdnn": ("mdnn", {}), "mdnn-recal": ("mdnn", {"recalibrate": True}),
+            "mdnn-ens5": ("mdnn", {"ensemble": 5}), "mdnn-ens5-recal": ("mdnn", {"ensemble": 5, "recalibrate": True})}
 
 
 def main() -> None:
@@ -72,7 +74,7 @@ def main() -> None:
                           "n_train": cal["n_train"], "coverage_50": cov["at_50"], "coverage_90": cov["at_90"],
                           "verdict": cal["verdict"], "train_seconds": cal["train_seconds"],
                           "wall_s": time.perf_counter() - t0, "sbc_ks_p": cal["sbc"]["ks_pvalue"],
-                          "tarp_atc": cal["tarp"]["atc"]}
+                          "tarp_atc": cal["tarp"]["atc"], "estimator_fit": cal["estimator_fit"]}
             print(f"{v:10s} n_test {cal['n_test']}: coverage 50% {cov['at_50']:.3f}, 90% {cov['at_90']:.3f} "
                   f"({cal['verdict']}); train {cal['train_seconds']:.0f} s", flush=True)
             res_path.write_text(json.dumps(results, indent=2))

@@ -189,40 +189,40 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
         raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
                            f"command first")
     last = rounds[-1]
-    with run_lock(run_dir):
-        U, X, counts = _usable(store, last)
-        t0 = time.perf_counter()
+    U, X, counts = _usable(store, last)
+    t0 = time.perf_counter()
+    with run_lock(run_dir):  # only the writes need the lock: training and evaluating read the store
         data = _test_simulations(store, cfg, space, last, counts, n_test, workers, msg)
-        sim_s = time.perf_counter() - t0
-        ok = (data["status"] == STATUS_OK) & np.all(np.isfinite(data["x"].reshape(len(data["x"]), -1)), axis=1)
-        name = estimator or cfg.estimator
-        opts = dict(cfg.estimator_options) if estimator is None else {}
-        opts.update(dict(estimator_options or {}))
-        est = registry().estimator(name)(**opts)
-        fr = slice(None) if cfg.frames is None else list(cfg.frames)
-        msg(f"training '{name}' on the run's {len(U)} stored simulations (as the fit's round {last + 1})")
-        t1 = time.perf_counter()
-        est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + last)
-        train_s = time.perf_counter() - t1
-        x_obs = store.read_observed()["x"]
-        refit = None
-        if estimator is None and estimator_options is None:  # does the re-trained estimator reproduce the run?
-            q_run, q_new = store.read_q(last), est.posterior_at(x_obs[fr])
-            refit = float(np.abs(q_run.mean() - q_new.mean()).max())
-        u_test, x_test = data["u"][ok], data["x"][ok]
-        qs = est.posteriors_at(x_test[:, fr].astype(np.float64)) if hasattr(est, "posteriors_at") else \
-            [est.posterior_at(x) for x in x_test[:, fr].astype(np.float64)]
-        rng = np.random.default_rng([cfg.seed, 16016, 1])
-        draws, lq_true, lq_draws, keep = [], [], [], []
-        for i, q in enumerate(qs):
-            try:
-                s = cal.draws_in_box(q, n_draws, rng)
-            except PosteriorError:  # no mass in the box: the truth lies outside every region
-                continue
-            keep.append(i)
-            draws.append(s)
-            lq_draws.append(q.log_prob(s))
-            lq_true.append(float(q.log_prob(u_test[i][None])[0]))
+    sim_s = time.perf_counter() - t0
+    ok = (data["status"] == STATUS_OK) & np.all(np.isfinite(data["x"].reshape(len(data["x"]), -1)), axis=1)
+    name = estimator or cfg.estimator
+    opts = dict(cfg.estimator_options) if estimator is None else {}
+    opts.update(dict(estimator_options or {}))
+    est = registry().estimator(name)(**opts)
+    fr = slice(None) if cfg.frames is None else list(cfg.frames)
+    msg(f"training '{name}' on the run's {len(U)} stored simulations (as the fit's round {last + 1})")
+    t1 = time.perf_counter()
+    est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + last)
+    train_s = time.perf_counter() - t1
+    x_obs = store.read_observed()["x"]
+    refit = None
+    if estimator is None and estimator_options is None:  # does the re-trained estimator reproduce the run?
+        q_run, q_new = store.read_q(last), est.posterior_at(x_obs[fr])
+        refit = float(np.abs(q_run.mean() - q_new.mean()).max())
+    u_test, x_test = data["u"][ok], data["x"][ok]
+    qs = est.posteriors_at(x_test[:, fr].astype(np.float64)) if hasattr(est, "posteriors_at") else \
+        [est.posterior_at(x) for x in x_test[:, fr].astype(np.float64)]
+    rng = np.random.default_rng([cfg.seed, 16016, 1])
+    draws, lq_true, lq_draws, keep = [], [], [], []
+    for i, q in enumerate(qs):
+        try:
+            s = cal.draws_in_box(q, n_draws, rng)
+        except PosteriorError:  # no mass in the box: the truth lies outside every region
+            continue
+        keep.append(i)
+        draws.append(s)
+        lq_draws.append(q.log_prob(s))
+        lq_true.append(float(q.log_prob(u_test[i][None])[0]))
     n_nomass = len(qs) - len(keep)
     draws_a = np.stack(draws) if draws else np.zeros((0, n_draws, space.dim))
     hpd = cal.hpd_levels(np.array(lq_true), np.array(lq_draws).reshape(len(keep), n_draws))
@@ -253,9 +253,12 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
                 "band_confidence": 0.99, **tests},
         "tarp": cal.tarp_coverage(u_test[keep], draws_a, np.random.default_rng([cfg.seed, 16016, 2]), levels),
         "train_seconds": train_s, "simulation_seconds": sim_s,
+        "estimator_fit": {k: v for k, v in dict(getattr(est, "fit_info", {}) or {}).items()
+                          if k in ("epochs", "best_epoch", "val_loss", "ensemble", "recalibration")},
         "refit_max_mean_difference": refit,
     }
     if write:
-        (run_dir / "calibration.json").write_text(json.dumps(out, indent=2))
-        plot_calibration(run_dir / "calibration.png", out)
+        with run_lock(run_dir):
+            (run_dir / "calibration.json").write_text(json.dumps(out, indent=2))
+            plot_calibration(run_dir / "calibration.png", out)
     return out

@@ -113,3 +113,22 @@ def test_contraction_in_the_parameters_own_scale():
     old = contraction_from_report(rep)  # a report.json from before contraction was stored
     assert np.isclose(old["k"]["width_ratio"], np.log(727 / 9.7) / np.log(200) / 0.9, rtol=1e-6)
     assert not old["k"]["informed"] and old["f"]["informed"]
+
+
+def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validation_split():
+    u, x = blob_task(160, seed=0)
+    _, xt = blob_task(3, seed=1)
+    cfg = {**FAST, "max_epochs": 15, "min_epochs": 2, "n_components": 2}
+    plain = MDNNEstimator(**cfg)
+    plain.fit(u, x, seed=2)
+    rec = MDNNEstimator(**cfg, recalibrate=True)
+    info = rec.fit(u, x, seed=2)["recalibration"]
+    s = info["cov_scale"]
+    assert s in MDNNEstimator.RECAL_SCALES and info["n_val"] == 24
+    assert info["coverage_error_after"] <= info["coverage_error_before"]
+    a, b = plain.posterior_at(xt[0]), rec.posterior_at(xt[0])
+    np.testing.assert_allclose(b.means, a.means, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(b.covariances, s ** 2 * a.covariances, rtol=1e-4, atol=1e-12)
+    other = MDNNEstimator()
+    other.load_state_dict(rec.state_dict())
+    np.testing.assert_allclose(other.posterior_at(xt[0]).covariances, b.covariances, rtol=1e-6)
