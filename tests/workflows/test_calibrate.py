@@ -75,3 +75,18 @@ def test_cli_calibrate_table_and_json(toy_run):
     assert doc["verdict"] and doc["n_test"] + doc["n_test_failed"] == 50
     res = runner.invoke(app, ["calibrate", str(toy_run / "nope")])
     assert res.exit_code == 2 and "error:" in res.output
+
+
+def test_report_and_fit_table_show_contraction(toy_run, capsys):
+    from softsbi.cli import _print_report
+    from softsbi.cli.output import Output
+    rep = json.loads((toy_run / "report.json").read_text())
+    con = rep["contraction"]
+    assert set(con) == {"a", "b"} and rep["informed_max_width_ratio"] == 0.5
+    for n, c in con.items():
+        assert 0 < c["width_ratio"] <= 1.2 and c["informed"] == (c["width_ratio"] <= 0.5)
+        assert np.isclose(c["q05"], rep["posterior_q05"][n]) and c["scale"] == "linear"
+    _print_report(Output(), rep, toy_run)
+    out = capsys.readouterr().out
+    assert "width / prior" in out and f"{con['a']['width_ratio']:.2f}" in out and "±" in out
+    assert ("not informed" in out) == (not all(c["informed"] for c in con.values()))
