@@ -74,7 +74,7 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
     est = cal["estimator"] + (f" {opts}" if opts else "")
     frac = _header(fig, [(f"Calibration: {v}", {"fontsize": FS_TITLE, "weight": "bold",
                                                  "color": VERDICT_COLOUR.get(v, "black")}),
-                         (f"{est}, {cal['n_test']} fresh test simulations from the run's proposals "
+                         (f"{Path(str(cal.get('run', ''))).name}: {est}, {cal['n_test']} fresh test simulations from the run's proposals "
                           f"(trained on {cal['n_train']}); SBC rank histograms right "
                           f"(grey: {int(100 * s['band_confidence'])}% band of a uniform histogram)",
                           {"fontsize": FS_SUB})])
