@@ -61,6 +61,7 @@ def main() -> None:
         run_fit(run_dir, meas, cfg, make_plots=False)
         print(f"fit: {args.train} prior simulations in {time.perf_counter() - t0:.0f} s", flush=True)
     if args.stage in ("calibrate", "all"):
+        from softsbi.report.calibration import plot_calibration
         from softsbi.workflows.calibrate import calibrate_run
         res_path = out / "results.json"
         results = json.loads(res_path.read_text()) if res_path.exists() else {}
@@ -78,6 +79,8 @@ def main() -> None:
             print(f"{v:10s} n_test {cal['n_test']}: coverage 50% {cov['at_50']:.3f}, 90% {cov['at_90']:.3f} "
                   f"({cal['verdict']}); train {cal['train_seconds']:.0f} s", flush=True)
             res_path.write_text(json.dumps(results, indent=2))
+            (out / f"{v}.json").write_text(json.dumps(cal, indent=2))
+            plot_calibration(out / f"{v}.png", cal)
 
 
 if __name__ == "__main__":

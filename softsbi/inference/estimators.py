@@ -156,9 +156,9 @@ class NeuralMDNEstimator(PosteriorEstimator):
             differ in initialisation and batch order; the posterior is the equal-weight mixture of the
             members' mixtures (``M * n_components`` components), so sampling draws a member then a component.
             Training time grows ~M-fold; ``max_seconds`` is split evenly between the members.
-        recalibrate: after training, scale every component's covariance by the factor ``s`` in
-            :data:`RECAL_SCALES` whose expected HPD coverage on the held-out validation simulations is
-            closest to nominal (post-hoc recalibration), default False. ``fit_info["recalibration"]``
+        recalibrate: after training, scale every component's covariance by the smallest factor ``s``
+            in :data:`RECAL_SCALES` whose expected HPD coverage on the held-out validation simulations
+            is at least nominal at the levels :data:`RECAL_LEVELS` (post-hoc recalibration), default False. ``fit_info["recalibration"]``
             holds ``s`` and the validation coverage error before/after.
         num_threads: torch threads during fit/posterior_at (restored afterwards), default 1
             (measured: robust on a shared 2-core machine; raise it on an idle many-core one). On an oversubscribed machine (other processes busy) use 1:
@@ -414,20 +414,26 @@ class NeuralMDNEstimator(PosteriorEstimator):
     #: covariance scale factors tried by ``recalibrate`` (1 = the trained posterior)
     RECAL_SCALES: ClassVar[tuple[float, ...]] = (0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.65, 1.8, 2.0, 2.25,
                                                  2.5, 2.75, 3.0)
-    #: credibility levels whose expected coverage ``recalibrate`` matches
-    RECAL_LEVELS: ClassVar[tuple[float, ...]] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+    #: credibility levels at which ``recalibrate`` requires the nominal coverage
+    RECAL_LEVELS: ClassVar[tuple[float, ...]] = (0.3, 0.5, 0.7, 0.9)
 
     def _recalibrate(self, zs_val: np.ndarray, u_val: np.ndarray, seed: int, n_draws: int = 300) -> dict[str, Any]:
-        """Choose the covariance scale ``s`` (every component's Cholesky factor times ``s``) whose
-        expected HPD coverage on the held-out validation simulations is closest to the nominal levels
-        (mean absolute error over :data:`RECAL_LEVELS`; the posterior restricted to the unit box, as used).
-        Post-hoc recalibration of the predictive distribution, like temperature scaling (Guo et al.
-        2017) on the held-out split that early stopping also uses. Sets ``self._cov_scale``."""
+        """Choose the covariance scale ``s`` (every component's Cholesky factor times ``s``): the smallest
+        in :data:`RECAL_SCALES` whose expected HPD coverage on the held-out validation simulations is at
+        least nominal at every level of :data:`RECAL_LEVELS` (the posterior restricted to the unit box,
+        as used; the largest scale if none is). Post-hoc recalibration of the predictive distribution,
+        like temperature scaling (Guo et al. 2017), on the split that early stopping also uses.
+
+        Conservative on purpose: the validation coverage is optimistic (early stopping picked the
+        epoch on the same split; measured on lift and wind, a scale matching it to the nominal levels
+        left the test coverage 0.03-0.08 below them), and an over-confident posterior is the failure
+        to avoid (Hermans et al. 2022). Sets ``self._cov_scale``."""
         from softsbi.inference import calibration as cal  # local: calibration is a sibling module
         base = self._predict(zs_val)
         levels = list(self.RECAL_LEVELS)
         rng = np.random.default_rng([seed, 4242])
-        errors = []
+        errors: list[float] = []
+        covs: list[np.ndarray] = []
         for scale in self.RECAL_SCALES:
             hpd = []
             for q in MDNParams(base.logits, base.means, base.scale_tril * scale).to_mixtures():
@@ -438,11 +444,15 @@ class NeuralMDNEstimator(PosteriorEstimator):
                     continue
                 hpd.append(float((q.log_prob(d) > q.log_prob(u_val[len(hpd)][None])[0]).mean()))
             cov = cal.expected_coverage(np.array(hpd), levels)
+            covs.append(cov)
             errors.append(float(np.abs(cov - np.array(levels)).mean()))
-        best = int(np.argmin(errors))
+        ok = [i for i, cov in enumerate(covs) if np.all(cov >= np.array(levels))]
+        best = ok[0] if ok else len(self.RECAL_SCALES) - 1
         self._cov_scale = float(self.RECAL_SCALES[best])
-        return {"cov_scale": self._cov_scale, "n_val": int(len(u_val)), "coverage_error_before":
-                errors[self.RECAL_SCALES.index(1.0)], "coverage_error_after": errors[best]}
+        one = self.RECAL_SCALES.index(1.0)
+        return {"cov_scale": self._cov_scale, "n_val": int(len(u_val)), "levels": levels,
+                "val_coverage_before": covs[one].tolist(), "val_coverage_after": covs[best].tolist(),
+                "coverage_error_before": errors[one], "coverage_error_after": errors[best]}
 
     def _val_loss(self, z_va: torch.Tensor, u_va: torch.Tensor, chunk: int = 256) -> float:
         """Mean NLL (standardised units) of the validation set under the current network."""
