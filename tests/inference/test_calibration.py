@@ -70,7 +70,7 @@ def test_ensemble_is_the_equal_mixture_of_its_members_and_member_0_is_the_single
     cfg = {**FAST, "max_epochs": 15, "min_epochs": 2}
     single = MDNNEstimator(**cfg, n_components=2)
     single.fit(u, x, seed=4)
-    ens = MDNNEstimator(**cfg, n_components=2, ensemble=3)
+    ens = MDNNEstimator(**{**cfg, "ensemble": 3}, n_components=2)
     info = ens.fit(u, x, seed=4)
     assert info["ensemble"] == 3 and len(info["member_val_loss"]) == 3
     q1, q3 = single.posterior_at(xt[0]), ens.posterior_at(xt[0])
@@ -121,7 +121,7 @@ def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validati
     cfg = {**FAST, "max_epochs": 15, "min_epochs": 2, "n_components": 2}
     plain = MDNNEstimator(**cfg)
     plain.fit(u, x, seed=2)
-    rec = MDNNEstimator(**cfg, recalibrate=True)
+    rec = MDNNEstimator(**{**cfg, "recalibrate": True})
     info = rec.fit(u, x, seed=2)["recalibration"]
     s = info["cov_scale"]
     assert s in MDNNEstimator.RECAL_SCALES and info["n_val"] == 24
@@ -136,3 +136,17 @@ def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validati
     other = MDNNEstimator()
     other.load_state_dict(rec.state_dict())
     np.testing.assert_allclose(other.posterior_at(xt[0]).covariances, b.covariances, rtol=1e-6)
+
+
+def test_rkhs_defaults_to_a_recalibrated_ensemble_and_the_baselines_to_one_network():
+    from softsbi.inference.baselines import NNBulkEstimator
+    from softsbi.inference.estimators import RKHSEstimator
+    assert RKHSEstimator.defaults()["ensemble"] == 5 and RKHSEstimator.defaults()["recalibrate"] is True
+    for cls in (NNBulkEstimator, BayesZoomRKHSEstimator, MDNNEstimator):
+        assert cls.defaults()["ensemble"] == 1 and cls.defaults()["recalibrate"] is False
+    u, x = blob_task(60, seed=0)
+    est = RKHSEstimator(**{**FAST, "ensemble": 5, "recalibrate": True, "max_epochs": 3, "min_epochs": 1,
+                           "rkhs_features": 8})
+    info = est.fit(u, x, seed=0)
+    assert info["ensemble"] == 5 and "cov_scale" in info["recalibration"]
+    assert est.posterior_at(x[0]).weights.shape == (5 * 4,)
