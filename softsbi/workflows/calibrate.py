@@ -209,6 +209,10 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
     if estimator is None and estimator_options is None:  # does the re-trained estimator reproduce the run?
         q_run, q_new = store.read_q(last), est.posterior_at(x_obs[fr])
         refit = float(np.abs(q_run.mean() - q_new.mean()).max())
+        if refit > 1e-3:
+            msg(f"the estimator trained now differs from the run's final one (posterior means {refit:.3g} apart in "
+                f"unit coordinates): the run was fitted with another softsbi version or other estimator defaults; "
+                f"the calibration describes the estimator as trained now")
     u_test, x_test = data["u"][ok], data["x"][ok]
     qs = est.posteriors_at(x_test[:, fr].astype(np.float64)) if hasattr(est, "posteriors_at") else \
         [est.posterior_at(x) for x in x_test[:, fr].astype(np.float64)]
