@@ -71,12 +71,12 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
         a.set_title(f"{name}  (KS p={p:.2g})", fontsize=FS_LABEL)
     v = cal["verdict"]
     opts = cal.get("estimator_options") or {}
-    est = cal["estimator"] + (f" {opts}" if opts else "")
+    est = cal["estimator"] + (" (" + ", ".join(f"{k}={v}" for k, v in opts.items()) + ")" if opts else "")
     frac = _header(fig, [(f"Calibration: {v}", {"fontsize": FS_TITLE, "weight": "bold",
                                                  "color": VERDICT_COLOUR.get(v, "black")}),
                          (f"{Path(str(cal.get('run', ''))).name}: {est}, {cal['n_test']} fresh test simulations from the run's proposals "
                           f"(trained on {cal['n_train']}); SBC rank histograms right "
-                          f"(grey: {int(100 * s['band_confidence'])}% band of a uniform histogram)",
+                          f"(grey: {int(100 * s['band_confidence'])}% band of a uniform histogram; orange: a bin outside it)",
                           {"fontsize": FS_SUB})])
     fig.tight_layout(rect=(0, 0, 1, 1 - frac), pad=0.6)
     return fig
