@@ -161,9 +161,12 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
             0.05 at 90 % (binomial s.e. 0.02).
         n_draws: posterior draws per test case.
         workers: simulation worker processes (None: one per core).
-        estimator, estimator_options: calibrate another estimator / options trained on the same stored
-            simulations instead of the run's (e.g. ``{"ensemble": 5}``); the stored test simulations
-            are shared (they depend on the run's proposals only).
+        estimator, estimator_options: calibrate another estimator (with ``estimator_options`` only) or
+            the run's estimator with its options updated by ``estimator_options`` (e.g.
+            ``{"ensemble": 1}``), trained on the same stored simulations; the stored test simulations
+            are shared (they depend on the run's proposals only). The estimator's defaults are those
+            of the installed version: a run fitted under other defaults is reported with a notice and
+            ``refit_max_mean_difference`` > 0.
         n_bins: bins of the rank histograms.
         write: write ``calibration.json`` and ``calibration.png`` into ``run_dir``.
         message: progress notices.
