@@ -31,7 +31,8 @@ _LAZY = {"fit": "softsbi.workflows.api", "open_run": "softsbi.workflows.api", "s
          "load_scenario": "softsbi.workflows.api", "FitConfig": "softsbi.workflows.api",
          "FitResult": "softsbi.workflows.api", "Run": "softsbi.workflows.api",
          "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement",
-         "import_diffcloud": "softsbi.workflows.measurement"}
+         "import_diffcloud": "softsbi.workflows.measurement",
+         "calibrate_run": "softsbi.workflows.api"}
 
 
 def __getattr__(name: str):

@@ -128,18 +128,25 @@ def _run(o: Output, meas, cfg, out: Path, retry_failed: bool = False):
 
 
 def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
+    from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction_from_report, format_estimate
     truth = rep.get("truth") or {}
-    cols = ["parameter", "unit", "mean", "std", "90% interval"] + (["hidden value", "inside 90%?"] if truth else [])
+    con = contraction_from_report(rep)
+    cols = (["parameter", "unit", "estimate", "90% interval", "width / prior"]
+            + (["hidden value", "inside 90%?"] if truth else []))
     rows = []
     for p in rep["parameters"]:
         n = p["name"]
-        row = [n, p["unit"], f"{rep['posterior_mean'][n]:.4g}", f"{rep['posterior_std'][n]:.3g}",
-               f"[{rep['posterior_q05'][n]:.4g}, {rep['posterior_q95'][n]:.4g}]"]
+        c = con[n]
+        row = [n, p["unit"], format_estimate(c), f"[{rep['posterior_q05'][n]:.4g}, {rep['posterior_q95'][n]:.4g}]",
+               f"{c['width_ratio']:.2f}" + ("" if c["informed"] else " not informed")]
         if truth:
             ok = rep["truth_in_90pct_interval"].get(n)
             row += [f"{truth[n]:.4g}" if n in truth else "-", "-" if ok is None else ("yes" if ok else "NO")]
         rows.append(row)
     o.table(cols, rows, title="Posterior (physical units)")
+    o.line(f"estimate: mean ± std, or geometric mean ×/÷ multiplicative spread for log-scaled parameters; "
+           f"width / prior: the 90% interval's width over the prior's in the parameter's own scale (log for "
+           f"log-scaled ones); above {INFORMED_MAX_RATIO:g} the data do not inform the parameter")
     if rep.get("mask_chamfer_prior_px") and rep.get("mask_chamfer_posterior_px"):
         o.line(f"Mask Chamfer to the measured frames: prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
                f"{rep['mask_chamfer_posterior_px']:.2f} px "
@@ -454,6 +461,34 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
            f"p = {m['p_value_gamma']:.3g} (empirical {m['p_value']:.3g}, {m['n_simulations']} rollouts)")
     o.line(out["summary"])
     o.line(f"wrote {run / 'check.json'} and {run / 'check.png'}")
+
+
+@app.command()
+@_guard
+def calibrate(run: Path = typer.Argument(..., help="run directory of a finished fit"),
+              n_test: int = typer.Option(200, "--n-test", help="fresh test simulations from the run's proposals "
+                                         "(stored in the run; a re-run resumes, a larger number adds to them)"),
+              n_draws: int = typer.Option(1000, "--n-draws", help="posterior draws per test simulation"),
+              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """Simulation-based calibration of the run's posterior estimator: expected coverage, SBC ranks, TARP."""
+    from softsbi.workflows.calibrate import calibrate_run
+    o = Output(as_json)
+    with o.status("simulating test cases and training the estimator again ..."):
+        out = calibrate_run(run, n_test=n_test, n_draws=n_draws, workers=workers, message=o.message)
+    if as_json:
+        o.emit_json(out)
+        return
+    c = out["coverage"]
+    o.table(["level", "expected coverage", "calibrated range (95%)", "verdict"],
+            [[f"{int(100 * g)}%", f"{c[k]:.2f}", f"[{c[b][0]:.2f}, {c[b][1]:.2f}]", out[v]]
+             for g, k, b, v in ((0.5, "at_50", "band_50", "verdict_50"), (0.9, "at_90", "band_90", "verdict_90"))],
+            title=f"Calibration of '{out['estimator']}' on {out['n_test']} fresh test simulations")
+    s = out["sbc"]
+    o.line("SBC rank uniformity (KS p): " + ", ".join(f"{n} {p:.2g}" for n, p in zip(out["parameters"],
+                                                                                     s["ks_pvalue"])))
+    o.line(f"verdict: {out['verdict']}")
+    o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
 
 
 @app.command()

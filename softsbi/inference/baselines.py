@@ -177,7 +177,7 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
     """
 
     name: ClassVar[str] = "bayeszoom-rkhs"
-    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"hidden": (256, 256, 256)}
+    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"hidden": (256, 256, 256), "ensemble": 1, "recalibrate": False}
 
     def _build(self, z_example: np.ndarray, D: int):
         net = super()._build(z_example, D)
@@ -190,8 +190,13 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
         """As :meth:`NeuralMDNEstimator.fit`; adds ``val_l1 (D,)`` (unit-cube units) to the info.
 
         Raises:
-            ShapeError, DataError, RuntimeError: as the base class.
+            ShapeError, DataError, RuntimeError: as the base class. ParameterError: ``ensemble > 1``
+            (the per-dimension scale is fitted on one network's validation error).
         """
+        if int(self.config.get("ensemble", 1)) != 1 or self.config.get("recalibrate"):
+            raise ParameterError(f"estimator '{self.name}' supports neither ensemble > 1 nor recalibrate (got "
+                                 f"ensemble={self.config['ensemble']}, recalibrate={self.config['recalibrate']}); "
+                                 f"use rkhs with these options instead")
         info = super().fit(theta_unit, x, seed=seed, progress=progress)
         u2, x2 = self._validate(theta_unit, x)
         # the base class's split (same seed, same call)
@@ -221,7 +226,8 @@ class NNBulkEstimator(RKHSEstimator):
 
     name: ClassVar[str] = "nn-bulk"
     sequential: ClassVar[bool] = False
-    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"n_components": 1}
+    #: the measured baseline: one network, no recalibration (rkhs's defaults are an ensemble)
+    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"n_components": 1, "ensemble": 1, "recalibrate": False}
 
 
 # ---------------------------------------------------------------------------------------- GP-bulk

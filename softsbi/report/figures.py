@@ -247,6 +247,8 @@ def pairs_figure(space: Any, samples: np.ndarray, truth: dict[str, float] | None
     pc, qc, tc = ROLE_COLOURS["posterior"], ROLE_COLOURS["prior"], ROLE_COLOURS["truth"]
     params = list(space)
     show = samples[:max_points]
+    from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction
+    con = contraction(space, samples) if len(samples) > 1 else {}
 
     def axis_style(axis, p):
         ticks = _param_ticks(p)
@@ -276,6 +278,11 @@ def pairs_figure(space: Any, samples: np.ndarray, truth: dict[str, float] | None
                 ax.set_yticks([])
                 if pi.name in truth:
                     ax.axvline(truth[pi.name], color=tc, lw=2, zorder=3)
+                if pi.name in con:  # contraction: 90% width over the prior's, in the parameter's own scale
+                    c = con[pi.name]
+                    ax.set_title(f"width {c['width_ratio']:.2f} of prior" + ("" if c["informed"] else
+                                                                            "\nnot informed"),
+                                 fontsize=FS_TICK, color="black" if c["informed"] else "#5a5a5a", pad=2)
             else:
                 if pi.log:
                     ax.set_yscale("log")
@@ -311,7 +318,10 @@ def pairs_figure(space: Any, samples: np.ndarray, truth: dict[str, float] | None
     leg.set_in_layout(False)  # it sits in the empty upper triangle; the grid keeps its size
     frac = _header(fig, [("Posterior over the prior box (grey box = prior bounds)", {"fontsize": FS_TITLE,
                                                                                       "weight": "bold"}),
-                         (subtitle, {"fontsize": FS_SUB})])
+                         (subtitle, {"fontsize": FS_SUB}),
+                         (f"width: the 90% interval over the prior's, in each parameter's own scale (log for "
+                          f"log-scaled ones); not informed above {INFORMED_MAX_RATIO:g}" if con else "",
+                          {"fontsize": FS_TICK, "color": "#5a5a5a"})])
     fig.tight_layout(rect=(0, 0, 1, 1 - frac), pad=0.6, h_pad=0.3, w_pad=0.3)
     return fig
 

@@ -18,6 +18,7 @@ from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import Recording, Rollout, Scenario
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import make_scenario
+from softsbi.workflows.calibrate import calibrate_run
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.runs import Run, open_run
 
@@ -89,4 +90,4 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     return sim.simulate(sc, space.check(values), effects=list(effects), seed=int(seed))
 
 
-__all__ = ["FitConfig", "FitResult", "Run", "fit", "load_scenario", "open_run", "simulate"]
+__all__ = ["FitConfig", "FitResult", "Run", "calibrate_run", "fit", "load_scenario", "open_run", "simulate"]

@@ -20,6 +20,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from softsbi.core.metrics import describe_change
+from softsbi.inference.contraction import contraction_from_report
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario
@@ -91,7 +92,9 @@ def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int 
     """Run the demo into ``out`` (``nominal/``, ``with-<effect>/``, ``compare.png``).
 
     Returns:
-        ``{"out", "quick", "nominal" (report), "inside_90", "parameters", "wall_s"}`` and, unless
+        ``{"out", "quick", "nominal" (report), "inside_90", "parameters" (all hidden values inside the 90%
+        interval, all parameters), "informed" and "not_informed" (names; :mod:`softsbi.inference.contraction`),
+        "inside_90_informed" (the informed parameters' hidden values inside), "wall_s"}`` and, unless
         ``quick``: ``check``, ``diagnosis``, ``refit`` (report), ``compare`` (without the per-run
         checks), ``named``, ``named_correctly``, ``chamfer_before_m``, ``chamfer_after_m``.
 
@@ -154,7 +157,14 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
 def _finish(ui: DemoCallbacks, doc: dict[str, Any], report: dict[str, Any], t0: float, figures: str,
             what: str = "the ") -> dict[str, Any]:
     inside = report["truth_in_90pct_interval"]
-    doc.update(inside_90=sum(inside.values()), parameters=len(inside), wall_s=time.perf_counter() - t0)
-    ui.line(f"{doc['inside_90']}/{doc['parameters']} hidden values inside {what}90% posterior interval. "
+    con = contraction_from_report(report)
+    informed = [n for n in inside if con[n]["informed"]]
+    doc.update(inside_90=sum(inside.values()), parameters=len(inside), informed=informed,
+               inside_90_informed=sum(inside[n] for n in informed),
+               not_informed=[n for n in inside if n not in informed], wall_s=time.perf_counter() - t0)
+    j = len(doc["not_informed"])
+    ui.line(f"{doc['inside_90_informed']} of {len(informed)} informed parameters' hidden values inside {what}90% "
+            f"posterior interval; {j} parameter{'' if j == 1 else 's'} not informed"
+            f"{' (' + ', '.join(doc['not_informed']) + ': 90% interval wider than half the prior)' if j else ''}. "
             f"Total {doc['wall_s']:.0f} s.{figures}")
     return doc

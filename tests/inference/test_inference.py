@@ -14,7 +14,9 @@ from softsbi.inference.mdn import MDNHead, mdn_log_prob, mdn_nll
 from softsbi.inference.rkhs import RKHSNet
 from softsbi.inference.summaries import bayessim_summaries, n_summary_features
 
-FAST = dict(hidden=(64, 64), max_epochs=150, patience=15, batch_size=32, lr=3e-3, num_threads=1)
+# one network (rkhs's default is a recalibrated ensemble of 5, tested in test_calibration.py)
+FAST = dict(hidden=(64, 64), max_epochs=150, patience=15, batch_size=32, lr=3e-3, num_threads=1, ensemble=1,
+            recalibrate=False)
 
 
 def blob_task(n: int, T: int = 5, K: int = 32, seed: int = 0):

@@ -1,0 +1,89 @@
+"""Expected coverage before/after deep ensembles (issue 16), lift (cloth) and wind (rope) in simulation.
+
+Stage 1 (``fit``): one round of ``--train`` prior simulations of a simulated measurement (the
+six-method setup of ``bench_estimators_sim.py``: mujoco-flex, grid 6, 32 noisy (5 mm) points per
+frame) through ``run_fit`` (resumable). Stage 2 (``calibrate``): :func:`softsbi.workflows.calibrate.calibrate_run`
+on that run with ``--test`` fresh simulations from the run's proposal (the prior: one round), stored
+in the run's ``calibration`` group and shared by every estimator variant, which are retrained on
+the run's own stored simulations (never on the test ones).
+
+Usage::
+
+    nice -n 15 python benchmarks/bench_calibration.py --scenario lift --out /tmp/calib/lift --train 800 --test 200
+    nice -n 15 python benchmarks/bench_calibration.py --scenario wind --out /tmp/calib/wind --train 800 --test 200
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+TRUTH_UNIT = {"lift": [0.6, 0.4, 0.5, 0.5, 0.6], "wind": [0.6, 0.4, 0.5, 0.6]}
+ONE = {"ensemble": 1, "recalibrate": False}  # one network: rkhs's default before issue 16
+VARIANTS = {"rkhs": ("rkhs", ONE), "rkhs-recal": ("rkhs", {**ONE, "recalibrate": True}),
+            "rkhs-ens5": ("rkhs", {"ensemble": 5, "recalibrate": False}),
+            "rkhs-ens5-recal": ("rkhs", {"ensemble": 5, "recalibrate": True}),  # rkhs's default now
+            "mdnn": ("mdnn", {}), "mdnn-recal": ("mdnn", {"recalibrate": True}),
+            "mdnn-ens5": ("mdnn", {"ensemble": 5}), "mdnn-ens5-recal": ("mdnn", {"ensemble": 5, "recalibrate": True})}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="/tmp/calib/lift")
+    ap.add_argument("--scenario", default="lift", choices=sorted(TRUTH_UNIT))
+    ap.add_argument("--train", type=int, default=800)
+    ap.add_argument("--test", type=int, default=200)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS))
+    ap.add_argument("--fit-estimator", default="mdnn",
+                    help="estimator of the one-round fit (its training does not matter: calibrate retrains each variant)")
+    ap.add_argument("--stage", choices=["fit", "calibrate", "all"], default="all")
+    args = ap.parse_args()
+
+    from softsbi.plugins import registry
+    from softsbi.scenarios.builtin import make_scenario
+    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.measurement import simulate_recording
+
+    out = Path(args.out)
+    run_dir = out / "run"
+    bopts = {"grid": 6} if args.scenario == "lift" else {}
+    if args.stage in ("fit", "all"):
+        sc = make_scenario(args.scenario)
+        space = registry().simulator("mujoco-flex")(**bopts).param_space(sc)
+        truth = space.as_dict(space.from_unit(np.array(TRUTH_UNIT[args.scenario])))
+        meas = simulate_recording("mujoco-flex", sc, truth, backend_options=bopts, n_points=32, n_dense=300,
+                                  noise=0.005, seed=7)
+        cfg = FitConfig(backend="mujoco-flex", backend_options=bopts, estimator=args.fit_estimator, rounds=1,
+                        sims_per_round=args.train, n_eval=4, n_dense=300, n_points=32, workers=args.workers)
+        t0 = time.perf_counter()
+        run_fit(run_dir, meas, cfg, make_plots=False)
+        print(f"fit: {args.train} prior simulations in {time.perf_counter() - t0:.0f} s", flush=True)
+    if args.stage in ("calibrate", "all"):
+        from softsbi.report.calibration import plot_calibration
+        from softsbi.workflows.calibrate import calibrate_run
+        res_path = out / "results.json"
+        results = json.loads(res_path.read_text()) if res_path.exists() else {}
+        for v in args.variants:
+            est, opts = VARIANTS[v]
+            t0 = time.perf_counter()
+            cal = calibrate_run(run_dir, n_test=args.test, workers=args.workers, estimator=est,
+                                estimator_options=opts, write=False)
+            cov = cal["coverage"]
+            results[v] = {"estimator": est, "options": opts, "n_test": cal["n_test"],
+                          "n_train": cal["n_train"], "coverage_50": cov["at_50"], "coverage_90": cov["at_90"],
+                          "verdict": cal["verdict"], "train_seconds": cal["train_seconds"],
+                          "wall_s": time.perf_counter() - t0, "sbc_ks_p": cal["sbc"]["ks_pvalue"],
+                          "tarp_atc": cal["tarp"]["atc"], "estimator_fit": cal["estimator_fit"]}
+            print(f"{v:10s} n_test {cal['n_test']}: coverage 50% {cov['at_50']:.3f}, 90% {cov['at_90']:.3f} "
+                  f"({cal['verdict']}); train {cal['train_seconds']:.0f} s", flush=True)
+            res_path.write_text(json.dumps(results, indent=2))
+            (out / f"{v}.json").write_text(json.dumps(cal, indent=2))
+            plot_calibration(out / f"{v}.png", cal)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,271 @@
+"""``softsbi calibrate RUN``: is this run's posterior estimator calibrated where its posterior lives?
+
+Simulation-based calibration (Talts et al. 2018; expected coverage as in Hermans et al. 2022,
+"A trust crisis in simulation-based inference?"; TARP, Lemos et al. 2023) of the run's final
+estimator, on fresh simulations from the run's own proposals:
+
+1. The final round's estimator is trained again exactly as the fit trained it (same stored
+   simulations, options and seed; the run keeps ``q`` at the measurement only, not the network).
+2. ``n_test`` test parameters are drawn from the distribution the training simulations came from:
+   the run's proposals, each round's with the weight of its usable simulations (round 1: the
+   prior; later rounds: the previous round's posterior, or the truncated prior of TSNPE). The
+   last proposal is the largest part of it in a sequential run, so the test covers the region of
+   the run's posterior; drawing from the *same* mixture the estimator was trained on is what makes
+   ``q(theta | x)`` the reference posterior of every test pair (drawing from the last proposal
+   alone would need an importance correction by ``p~_last / p~_mix``).
+3. They are simulated and observed with the fit's simulator, observer and seeds scheme, and stored
+   in the run store's ``calibration`` group (a re-run resumes; more ``n_test`` adds to them). The
+   test simulations are never used in training.
+4. Per test pair, ``n_draws`` draws of ``q(. | x_i)`` restricted to the prior box give the HPD
+   expected coverage at every level (with the binomial band of a calibrated estimator), SBC rank
+   histograms per parameter, and TARP (:mod:`softsbi.inference.calibration`).
+
+Outputs ``RUN/calibration.json`` and ``RUN/calibration.png``. All coordinates are the unit cube of
+the inferred parameters (log scale for log-scaled parameters).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from softsbi.core.distributions import PosteriorChain, TruncatedPrior
+from softsbi.core.errors import PosteriorError, SoftsbiError
+from softsbi.core.store import RunStore
+from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
+from softsbi.inference import calibration as cal
+from softsbi.plugins import registry
+from softsbi.report.calibration import plot_calibration
+from softsbi.workflows.fit import FitConfig, _usable
+from softsbi.workflows.jobs import SimContext, run_jobs
+from softsbi.workflows.lock import run_lock
+
+__all__ = ["calibrate_run", "calibration_verdict"]
+
+GROUP = "calibration"
+#: test simulations are drawn in blocks of this size, each from its own seed, so a larger ``n_test``
+#: later extends the stored ones instead of replacing them
+BLOCK = 50
+
+
+def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
+               counts: list[int]) -> list[tuple[Any, str]]:
+    """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description."""
+    est_cls = registry().estimator(cfg.estimator)
+    sequential = bool(getattr(est_cls, "sequential", True))
+    truncated = sequential and cfg.proposal == "truncated"
+    chain = PosteriorChain(space.dim, seed=cfg.seed)
+    out: list[tuple[Any, str]] = []
+    for r in range(last + 1):
+        if r == 0 or not sequential:
+            out.append((None, "prior"))
+            continue
+        if truncated:
+            ch = PosteriorChain(space.dim, seed=cfg.seed)
+            ch.add_round(store.read_q(r - 1), sum(counts[:r]))
+            out.append((TruncatedPrior(ch.posterior(0), eps=cfg.truncation_eps, seed=cfg.seed + r),
+                        f"prior truncated to round {r}'s posterior"))
+        else:
+            chain.add_round(store.read_q(r - 1), counts[r - 1])
+            out.append((chain.posterior(r - 1), f"posterior of round {r}"))
+    return out
+
+
+def _draw_block(b: int, proposals: list[tuple[Any, str]], counts: list[int], seed: int, last: int,
+                dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block ``b`` of test draws: ``(u (BLOCK, D), round (BLOCK,), seeds (BLOCK,))``."""
+    rng = np.random.default_rng([seed, 16016, last, b])
+    w = np.asarray(counts, float)
+    which = np.sort(rng.choice(len(proposals), size=BLOCK, p=w / w.sum()))
+    u = np.empty((BLOCK, dim))
+    for r in np.unique(which):
+        idx = np.nonzero(which == r)[0]
+        prop = proposals[r][0]
+        u[idx] = rng.random((len(idx), dim)) if prop is None else prop.sample(len(idx), rng)
+    seeds = rng.integers(0, 2**31 - 1, size=BLOCK)
+    return u, which, seeds
+
+
+def _sim_context(store: RunStore) -> SimContext:
+    c = store.config
+    return SimContext(backend=c["backend"], backend_options=dict(c.get("backend_options") or {}),
+                      scenario=c["scenario"], effects=list(c.get("effects") or []), observer=c["observer"],
+                      observer_options=dict(c.get("observer_options") or {}),
+                      param_names=[p["name"] for p in c["param_space"]], fixed=dict(c.get("fixed") or {}),
+                      dense=None, n_dense=int(c.get("n_dense", 600)))
+
+
+def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int, counts: list[int],
+                      n_test: int, workers: int | None, message: Callable[[str], None]) -> dict[str, np.ndarray]:
+    """The stored test simulations, simulating the missing ones block by block (stored after each)."""
+    n_blocks = -(-n_test // BLOCK)
+    key = {"last_round": last, "seed": cfg.seed, "counts": counts}
+    data: dict[str, np.ndarray] | None = None
+    if store.has(GROUP):
+        arrays, attrs = store.read_group(GROUP)
+        if all(attrs.get(k) == v for k, v in key.items()):
+            data = arrays
+        else:
+            message("the run has changed since its last calibration: drawing new test simulations")
+    x_shape = store.read_observed()["x"].shape
+    if data is None:
+        data = {"u": np.zeros((0, space.dim)), "round": np.zeros(0, int), "seed": np.zeros(0, np.int64),
+                "status": np.zeros(0, np.uint8), "x": np.zeros((0,) + x_shape, np.float32)}
+    proposals = _proposals(store, cfg, space, last, counts)
+    ctx = _sim_context(store)
+    have = len(data["status"]) // BLOCK
+    for b in range(n_blocks):
+        if b < have and not (data["status"][b * BLOCK:(b + 1) * BLOCK] == STATUS_PENDING).any():
+            continue
+        u, which, seeds = _draw_block(b, proposals, counts, cfg.seed, last, space.dim)
+        theta = space.from_unit(u)
+        message(f"test simulations {b * BLOCK + 1}-{(b + 1) * BLOCK} of {n_blocks * BLOCK}")
+        res = run_jobs(ctx, list(zip(theta, seeds)), workers, cfg.executor, cfg.executor_options)
+        status = np.array([r["status"] for r in res], np.uint8)
+        x = np.full((BLOCK,) + x_shape, np.nan, np.float32)
+        for i, r in enumerate(res):
+            if r["status"] == STATUS_OK and r.get("x") is not None:
+                x[i] = r["x"]
+        sl = slice(b * BLOCK, (b + 1) * BLOCK)
+        new = {"u": u, "round": which, "seed": seeds, "status": status, "x": x}
+        if b < len(data["status"]) // BLOCK:
+            for k in data:
+                data[k][sl] = new[k]
+        else:
+            data = {k: np.concatenate([data[k], new[k].astype(data[k].dtype)]) for k in data}
+        store.write_group(GROUP, data, attrs={**key, "what": "calibration test simulations from the run's "
+                                              "proposals (never used in training)",
+                                              "proposals": [p[1] for p in proposals]},
+                          units={"x": "m"})
+    return {k: v[: n_blocks * BLOCK] for k, v in data.items()}
+
+
+def calibration_verdict(v50: str, v90: str) -> str:
+    """One verdict from those at the 50 % and 90 % levels (each ``calibrated``, ``over-confident`` or
+    ``under-confident``)."""
+    return v50 if v50 == v90 else f"{v50} at 50%, {v90} at 90%"
+
+
+def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, workers: int | None = None,
+                  estimator: str | None = None, estimator_options: Mapping[str, Any] | None = None,
+                  n_bins: int = 10, write: bool = True,
+                  message: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Simulation-based calibration of a finished run's final estimator (module docstring).
+
+    Args:
+        run_dir: a fit's run directory (at least one finished round).
+        n_test: test simulations (rounded up to blocks of 50); >= 200 resolves a coverage error of
+            0.05 at 90 % (binomial s.e. 0.02).
+        n_draws: posterior draws per test case.
+        workers: simulation worker processes (None: one per core).
+        estimator, estimator_options: calibrate another estimator (with ``estimator_options`` only) or
+            the run's estimator with its options updated by ``estimator_options`` (e.g.
+            ``{"ensemble": 1}``), trained on the same stored simulations; the stored test simulations
+            are shared (they depend on the run's proposals only). The estimator's defaults are those
+            of the installed version: a run fitted under other defaults is reported with a notice and
+            ``refit_max_mean_difference`` > 0.
+        n_bins: bins of the rank histograms.
+        write: write ``calibration.json`` and ``calibration.png`` into ``run_dir``.
+        message: progress notices.
+
+    Returns:
+        The ``calibration.json`` dict: ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi``,
+        ``at_50``, ``at_90``), ``verdict_50``, ``verdict_90``, ``verdict``, ``sbc`` (per-parameter
+        rank histograms, ``band``, ``ks_pvalue``, ``chi2_pvalue``), ``tarp``, counts and timings.
+
+    Raises:
+        SchemaError: not a run directory. SoftsbiError: no finished round, or ``n_test`` < 20.
+        RunLocked: another process writes the run.
+    """
+    msg = message or (lambda s: None)
+    run_dir = Path(run_dir)
+    if n_test < 20:
+        raise SoftsbiError(f"--n-test must be >= 20 (got {n_test}); 200 or more resolves the 90% coverage")
+    store = RunStore.open(run_dir / "run.zarr")
+    cfg = FitConfig.from_run_config(store.config)
+    space = ParamSpace.from_json(store.config["param_space"])
+    rounds = store.completed_rounds()
+    if not rounds:
+        raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
+                           f"command first")
+    last = rounds[-1]
+    U, X, counts = _usable(store, last)
+    t0 = time.perf_counter()
+    with run_lock(run_dir):  # only the writes need the lock: training and evaluating read the store
+        data = _test_simulations(store, cfg, space, last, counts, n_test, workers, msg)
+    sim_s = time.perf_counter() - t0
+    ok = (data["status"] == STATUS_OK) & np.all(np.isfinite(data["x"].reshape(len(data["x"]), -1)), axis=1)
+    name = estimator or cfg.estimator
+    opts = dict(cfg.estimator_options) if estimator is None else {}
+    opts.update(dict(estimator_options or {}))
+    est = registry().estimator(name)(**opts)
+    fr = slice(None) if cfg.frames is None else list(cfg.frames)
+    msg(f"training '{name}' on the run's {len(U)} stored simulations (as the fit's round {last + 1})")
+    t1 = time.perf_counter()
+    est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + last)
+    train_s = time.perf_counter() - t1
+    x_obs = store.read_observed()["x"]
+    refit = None
+    if estimator is None and estimator_options is None:  # does the re-trained estimator reproduce the run?
+        q_run, q_new = store.read_q(last), est.posterior_at(x_obs[fr])
+        refit = float(np.abs(q_run.mean() - q_new.mean()).max())
+        if refit > 1e-3:
+            msg(f"the estimator trained now differs from the run's final one (posterior means {refit:.3g} apart in "
+                f"unit coordinates): the run was fitted with another softsbi version or other estimator defaults; "
+                f"the calibration describes the estimator as trained now")
+    u_test, x_test = data["u"][ok], data["x"][ok]
+    qs = est.posteriors_at(x_test[:, fr].astype(np.float64)) if hasattr(est, "posteriors_at") else \
+        [est.posterior_at(x) for x in x_test[:, fr].astype(np.float64)]
+    rng = np.random.default_rng([cfg.seed, 16016, 1])
+    draws, lq_true, lq_draws, keep = [], [], [], []
+    for i, q in enumerate(qs):
+        try:
+            s = cal.draws_in_box(q, n_draws, rng)
+        except PosteriorError:  # no mass in the box: the truth lies outside every region
+            continue
+        keep.append(i)
+        draws.append(s)
+        lq_draws.append(q.log_prob(s))
+        lq_true.append(float(q.log_prob(u_test[i][None])[0]))
+    n_nomass = len(qs) - len(keep)
+    draws_a = np.stack(draws) if draws else np.zeros((0, n_draws, space.dim))
+    hpd = cal.hpd_levels(np.array(lq_true), np.array(lq_draws).reshape(len(keep), n_draws))
+    hpd = np.concatenate([hpd, np.ones(n_nomass)])  # a posterior with no mass in the box covers nothing
+    n = len(hpd)
+    levels = cal.LEVELS
+    cov = cal.expected_coverage(hpd, levels)
+    lo, hi = cal.coverage_band(n, levels)
+    at = {g: float(cal.expected_coverage(hpd, [g])[0]) for g in (0.5, 0.9)}
+    v50, v90 = (cal.coverage_verdict(at[g], n, g) for g in (0.5, 0.9))
+    ranks = cal.sbc_ranks(u_test[keep], draws_a)
+    tests = cal.rank_tests(ranks, n_draws, n_bins)
+    hist = [np.histogram(ranks[:, d], bins=n_bins, range=(0, n_draws + 1))[0].tolist() for d in range(space.dim)]
+    out = {
+        "run": str(run_dir), "estimator": name, "estimator_options": opts,
+        "n_test": int(n), "n_test_failed": int((~ok).sum()), "n_no_mass_in_box": int(n_nomass),
+        "n_train": int(len(U)), "n_draws": int(n_draws), "rounds": int(last + 1),
+        "test_proposal": "the run's proposals weighted by their usable simulations: " + ", ".join(
+            f"{p} ({c})" for p, c in zip([p[1] for p in _proposals(store, cfg, space, last, counts)], counts)),
+        "coordinates": "unit cube of the inferred parameters (log scale for log-scaled ones)",
+        "parameters": space.names,
+        "coverage": {"levels": levels.tolist(), "hpd": cov.tolist(), "band_lo": lo.tolist(), "band_hi": hi.tolist(),
+                     "band_confidence": 0.95, "at_50": at[0.5], "at_90": at[0.9],
+                     "band_50": [float(x[0]) for x in cal.coverage_band(n, [0.5])],
+                     "band_90": [float(x[0]) for x in cal.coverage_band(n, [0.9])]},
+        "verdict_50": v50, "verdict_90": v90, "verdict": calibration_verdict(v50, v90),
+        "sbc": {"n_bins": n_bins, "histograms": hist, "band": list(cal.rank_band(len(keep), n_bins)),
+                "band_confidence": 0.99, **tests},
+        "tarp": cal.tarp_coverage(u_test[keep], draws_a, np.random.default_rng([cfg.seed, 16016, 2]), levels),
+        "train_seconds": train_s, "simulation_seconds": sim_s,
+        "estimator_fit": {k: v for k, v in dict(getattr(est, "fit_info", {}) or {}).items()
+                          if k in ("epochs", "best_epoch", "val_loss", "ensemble", "recalibration")},
+        "refit_max_mean_difference": refit,
+    }
+    if write:
+        with run_lock(run_dir):
+            (run_dir / "calibration.json").write_text(json.dumps(out, indent=2))
+            plot_calibration(run_dir / "calibration.png", out)
+    return out

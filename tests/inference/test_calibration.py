@@ -1,0 +1,152 @@
+"""SBC statistics (softsbi.inference.calibration), deep ensembles of the MDN estimators, contraction."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softsbi.core.distributions import MixtureOfGaussians, gaussian
+from softsbi.core.errors import ParameterError
+from softsbi.core.types import Param, ParamSpace
+from softsbi.inference import calibration as cal
+from softsbi.inference.baselines import BayesZoomRKHSEstimator
+from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction, contraction_from_report, format_estimate
+from softsbi.inference.estimators import MDNNEstimator
+
+from test_inference import FAST, blob_task  # noqa: E402  (tests/inference on sys.path via rootdir conftest)
+
+
+def _cases(width_factor: float, n: int = 300, L: int = 400, seed: int = 0):
+    """Truths from a known posterior N(m_i, 0.05^2 I) in 2-D, and draws of a posterior whose sd is
+    ``width_factor`` times the true one (1: calibrated; < 1: over-confident; > 1: under-confident)."""
+    rng = np.random.default_rng(seed)
+    m = 0.3 + 0.4 * rng.random((n, 2))
+    truth = m + 0.05 * rng.standard_normal((n, 2))
+    sd = 0.05 * width_factor
+    qs = [gaussian(mi, sd ** 2 * np.eye(2)) for mi in m]
+    draws = np.stack([cal.draws_in_box(q, L, rng) for q in qs])
+    lq_true = np.array([q.log_prob(t[None])[0] for q, t in zip(qs, truth)])
+    lq_draws = np.stack([q.log_prob(d) for q, d in zip(qs, draws)])
+    return truth, draws, cal.hpd_levels(lq_true, lq_draws)
+
+
+@pytest.mark.parametrize("factor,verdict", [(1.0, "calibrated"), (0.6, "over-confident"), (1.7, "under-confident")])
+def test_coverage_and_verdict_tell_calibrated_from_over_and_under_confident(factor, verdict):
+    truth, draws, hpd = _cases(factor)
+    n = len(hpd)
+    for level in (0.5, 0.9):
+        cov = cal.expected_coverage(hpd, [level])[0]
+        assert cal.coverage_verdict(cov, n, level) == verdict, (level, cov)
+    ks = cal.rank_tests(cal.sbc_ranks(truth, draws), draws.shape[1], 10)["ks_pvalue"]
+    if verdict == "calibrated":
+        assert min(ks) > 1e-3
+    else:
+        assert max(ks) < 1e-3
+    atc = cal.tarp_coverage(truth, draws, np.random.default_rng(1))["atc"]
+    assert (abs(atc) < 0.05) if verdict == "calibrated" else ((atc < -0.02) if factor < 1 else (atc > 0.02))
+
+
+def test_binomial_band_and_ranks():
+    lo, hi = cal.coverage_band(200, [0.5, 0.9])
+    assert lo[0] < 0.5 < hi[0] and lo[1] < 0.9 < hi[1] and hi[1] - lo[1] < hi[0] - lo[0]
+    assert np.isclose(hi[1] - lo[1], 2 * 1.96 * np.sqrt(0.09 / 200), atol=0.01)
+    ranks = cal.sbc_ranks(np.array([[0.5, 0.0]]), np.array([[[0.1, 0.1], [0.7, 0.2], [0.2, -0.1]]]))
+    np.testing.assert_array_equal(ranks, [[2, 1]])
+    b_lo, b_hi = cal.rank_band(200, 10)
+    assert b_lo < 20 < b_hi
+
+
+def test_draws_in_box_stay_in_the_box_and_fail_without_mass():
+    rng = np.random.default_rng(0)
+    s = cal.draws_in_box(gaussian(np.array([0.95, 0.5]), 0.01 * np.eye(2)), 500, rng)
+    assert s.shape == (500, 2) and s.min() >= 0 and s.max() <= 1
+    from softsbi.core.errors import PosteriorError
+    with pytest.raises(PosteriorError):
+        cal.draws_in_box(gaussian(np.array([5.0, 5.0]), 1e-4 * np.eye(2)), 100, rng)
+
+
+def test_ensemble_is_the_equal_mixture_of_its_members_and_member_0_is_the_single_network():
+    u, x = blob_task(160, seed=0)
+    ut, xt = blob_task(6, seed=1)
+    cfg = {**FAST, "max_epochs": 15, "min_epochs": 2}
+    single = MDNNEstimator(**cfg, n_components=2)
+    single.fit(u, x, seed=4)
+    ens = MDNNEstimator(**{**cfg, "ensemble": 3}, n_components=2)
+    info = ens.fit(u, x, seed=4)
+    assert info["ensemble"] == 3 and len(info["member_val_loss"]) == 3
+    q1, q3 = single.posterior_at(xt[0]), ens.posterior_at(xt[0])
+    assert q3.weights.shape == (6,) and np.isclose(q3.weights.sum(), 1.0)
+    np.testing.assert_allclose(q3.weights[:2] * 3, q1.weights, rtol=1e-5)
+    np.testing.assert_allclose(q3.means[:2], q1.means, rtol=1e-5, atol=1e-7)
+    assert not np.allclose(q3.means[2:4], q1.means)  # members differ (split, init, batch order)
+    # log_prob is the log of the mean of the members' densities
+    members = [MixtureOfGaussians(q3.weights[2 * k:2 * k + 2], q3.means[2 * k:2 * k + 2],
+                                  q3.scale_tril[2 * k:2 * k + 2]) for k in range(3)]
+    th = np.array([[0.4, 0.5]])
+    mean_density = np.mean([np.exp(m.log_prob(th)[0]) for m in members])
+    assert np.isclose(ens.log_prob(th, xt[:1])[0], np.log(mean_density), rtol=1e-4)
+    other = MDNNEstimator()
+    other.load_state_dict(ens.state_dict())
+    np.testing.assert_allclose(other.posterior_at(xt[0]).means, q3.means, rtol=1e-6)
+
+
+def test_ensemble_option_is_checked():
+    with pytest.raises(ParameterError, match="ensemble"):
+        MDNNEstimator(ensemble=0)
+    u, x = blob_task(40, seed=0)
+    with pytest.raises(ParameterError, match="ensemble"):
+        BayesZoomRKHSEstimator(ensemble=2, max_epochs=2).fit(u, x)
+
+
+def test_contraction_in_the_parameters_own_scale():
+    space = ParamSpace([Param("k", 5.0, 1000.0, "N/m", log=True), Param("f", 0.0, 2.0, "1")])
+    rng = np.random.default_rng(0)
+    k = np.exp(rng.uniform(np.log(5.0), np.log(1000.0), 20000))  # the prior: not informed
+    f = rng.normal(1.0, 0.05, 20000)  # 90% width 0.16 of 2.0 * 0.9
+    c = contraction(space, np.stack([k, f], 1))
+    assert c["k"]["scale"] == "log" and 0.97 < c["k"]["width_ratio"] < 1.03 and not c["k"]["informed"]
+    assert np.isclose(c["k"]["center"], np.sqrt(5 * 1000), rtol=0.03)  # geometric mean of a log-uniform
+    assert np.isclose(c["f"]["width_ratio"], 2 * 1.645 * 0.05 / 1.8, rtol=0.05) and c["f"]["informed"]
+    assert "×/÷" in format_estimate(c["k"]) and "±" in format_estimate(c["f"])
+    assert INFORMED_MAX_RATIO == 0.5
+    rep = {"parameters": space.to_json(), "posterior_q05": {"k": 9.7, "f": 0.9}, "posterior_q95": {"k": 727.0, "f": 1.1},
+           "posterior_mean": {"k": 189.8, "f": 1.0}, "posterior_std": {"k": 224.0, "f": 0.06}}
+    old = contraction_from_report(rep)  # a report.json from before contraction was stored
+    assert np.isclose(old["k"]["width_ratio"], np.log(727 / 9.7) / np.log(200) / 0.9, rtol=1e-6)
+    assert not old["k"]["informed"] and old["f"]["informed"]
+
+
+def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validation_split():
+    u, x = blob_task(160, seed=0)
+    _, xt = blob_task(3, seed=1)
+    cfg = {**FAST, "max_epochs": 15, "min_epochs": 2, "n_components": 2}
+    plain = MDNNEstimator(**cfg)
+    plain.fit(u, x, seed=2)
+    rec = MDNNEstimator(**{**cfg, "recalibrate": True})
+    info = rec.fit(u, x, seed=2)["recalibration"]
+    s = info["cov_scale"]
+    assert s in MDNNEstimator.RECAL_SCALES and info["n_val"] == 24
+    assert all(c >= g for c, g in zip(info["val_coverage_after"], info["levels"])) or s == 3.0
+    if all(c >= g for c, g in zip(info["val_coverage_before"], info["levels"])):
+        assert s <= 1.0  # the smallest scale that is nominal on the validation split
+    else:
+        assert s > 1.0
+    a, b = plain.posterior_at(xt[0]), rec.posterior_at(xt[0])
+    np.testing.assert_allclose(b.means, a.means, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(b.covariances, s ** 2 * a.covariances, rtol=1e-4, atol=1e-12)
+    other = MDNNEstimator()
+    other.load_state_dict(rec.state_dict())
+    np.testing.assert_allclose(other.posterior_at(xt[0]).covariances, b.covariances, rtol=1e-6)
+
+
+def test_rkhs_defaults_to_a_recalibrated_ensemble_and_the_baselines_to_one_network():
+    from softsbi.inference.baselines import NNBulkEstimator
+    from softsbi.inference.estimators import RKHSEstimator
+    assert RKHSEstimator.defaults()["ensemble"] == 5 and RKHSEstimator.defaults()["recalibrate"] is True
+    for cls in (NNBulkEstimator, BayesZoomRKHSEstimator, MDNNEstimator):
+        assert cls.defaults()["ensemble"] == 1 and cls.defaults()["recalibrate"] is False
+    u, x = blob_task(60, seed=0)
+    est = RKHSEstimator(**{**FAST, "ensemble": 5, "recalibrate": True, "max_epochs": 3, "min_epochs": 1,
+                           "rkhs_features": 8})
+    info = est.fit(u, x, seed=0)
+    assert info["ensemble"] == 5 and "cov_scale" in info["recalibration"]
+    assert est.posterior_at(x[0]).weights.shape == (5 * 4,)

@@ -1,0 +1,92 @@
+"""softsbi calibrate / softsbi.calibrate_run on a small toy-gauss run."""
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import softsbi
+from softsbi.cli import app
+from softsbi.core.errors import SoftsbiError
+from softsbi.core.store import RunStore
+from softsbi.workflows.lock import RunLocked, run_lock
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+from toy_helpers import toy_measurement  # noqa: E402
+
+OPTS = {"max_epochs": 30, "hidden": [16]}
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cal") / "run"
+    softsbi.fit(toy_measurement(), out, backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=60,
+                n_points=8, n_eval=5, n_dense=32, workers=1, seed=3, plots=False, estimator_options=OPTS)
+    return out
+
+
+def test_calibrate_run_writes_json_and_png_and_resumes(toy_run):
+    said = []
+    out = softsbi.calibrate_run(toy_run, n_test=50, n_draws=300, workers=1, message=said.append)
+    assert sum("test simulations" in s for s in said) == 1
+    assert out["n_test"] + out["n_test_failed"] == 50 and out["n_train"] == 120
+    assert out["refit_max_mean_difference"] < 1e-6  # the re-trained estimator is the run's
+    c = out["coverage"]
+    assert c["levels"][0] == 0 and c["hpd"][-1] == 1 and np.all(np.diff(c["hpd"]) >= 0)
+    assert c["band_lo"][18] < 0.9 < c["band_hi"][18]
+    assert out["verdict_90"] in ("calibrated", "over-confident", "under-confident")
+    assert len(out["sbc"]["histograms"]) == 2 and sum(out["sbc"]["histograms"][0]) == out["n_test"]
+    doc = json.loads((toy_run / "calibration.json").read_text())
+    assert doc["coverage"]["at_90"] == c["at_90"]
+    assert (toy_run / "calibration.png").stat().st_size > 20_000
+    # test cases come from both rounds' proposals (the prior and round 1's posterior), as the training data
+    arrays, attrs = RunStore.open(toy_run / "run.zarr").read_group("calibration")
+    assert set(np.unique(arrays["round"])) == {0, 1} and attrs["proposals"][0] == "prior"
+    # a larger n_test adds to the stored test simulations; the first 50 are kept
+    said.clear()
+    out2 = softsbi.calibrate_run(toy_run, n_test=100, n_draws=300, workers=1, message=said.append, write=False)
+    assert sum("test simulations" in s for s in said) == 1 and out2["n_test"] + out2["n_test_failed"] == 100
+    arrays2, _ = RunStore.open(toy_run / "run.zarr").read_group("calibration")
+    np.testing.assert_array_equal(arrays2["u"][:50], arrays["u"])
+    # a different estimator setting is trained on the same stored simulations and shares the test cases
+    said.clear()
+    ens = softsbi.calibrate_run(toy_run, n_test=100, n_draws=300, workers=1, estimator="mdnn",
+                                estimator_options={**OPTS, "ensemble": 2}, message=said.append, write=False)
+    assert not any("test simulations" in s for s in said) and ens["estimator_options"]["ensemble"] == 2
+
+
+def test_calibrate_refuses_a_locked_run_and_a_tiny_test_set(toy_run):
+    with run_lock(toy_run):
+        with pytest.raises(RunLocked):
+            softsbi.calibrate_run(toy_run, n_test=50, workers=1)
+    with pytest.raises(SoftsbiError, match="n-test"):
+        softsbi.calibrate_run(toy_run, n_test=5)
+
+
+def test_cli_calibrate_table_and_json(toy_run):
+    runner = CliRunner()
+    res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert "verdict:" in res.output and "90%" in res.output and "calibration.png" in res.output
+    res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1",
+                              "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output[res.output.index("\n{") + 1:])  # progress notices go to stderr, mixed in here
+    assert doc["verdict"] and doc["n_test"] + doc["n_test_failed"] == 50
+    res = runner.invoke(app, ["calibrate", str(toy_run / "nope")])
+    assert res.exit_code == 2 and "error:" in res.output
+
+
+def test_report_and_fit_table_show_contraction(toy_run, capsys):
+    from softsbi.cli import _print_report
+    from softsbi.cli.output import Output
+    rep = json.loads((toy_run / "report.json").read_text())
+    con = rep["contraction"]
+    assert set(con) == {"a", "b"} and rep["informed_max_width_ratio"] == 0.5
+    for n, c in con.items():
+        assert 0 < c["width_ratio"] <= 1.2 and c["informed"] == (c["width_ratio"] <= 0.5)
+        assert np.isclose(c["q05"], rep["posterior_q05"][n]) and c["scale"] == "linear"
+    _print_report(Output(), rep, toy_run)
+    out = capsys.readouterr().out
+    assert "width / prior" in out and f"{con['a']['width_ratio']:.2f}" in out and "±" in out
+    assert ("not informed" in out) == (not all(c["informed"] for c in con.values()))
