@@ -42,8 +42,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     lb = fit_label(rb.config)
     drop = -rows[0]["change"]
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
-               f"({drop * 100:.0f}% {'lower' if drop >= 0 else 'higher'}); misspecification p "
-               f"{a['misspecification']['p_value_gamma']:.2g} -> {b['misspecification']['p_value_gamma']:.2g}.")
+               f"({drop * 100:.0f}% {'lower' if drop >= 0 else 'higher'}); misspecification "
+               f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}.")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"
