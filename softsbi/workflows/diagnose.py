@@ -479,7 +479,7 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
 
 
 def _pct(x: float) -> str:
-    return f"{x * 100:.0f}%"
+    return f"{max(x, 0.0) * 100:.0f}%"  # a linearised drop can be a rounding error below zero
 
 
 def _diagnosis_sentence(out: dict[str, Any]) -> str:
@@ -525,7 +525,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         return s
     # misspecified by nothing installed
     named = [r for r in tested if not r.get("generic")]
-    s = f"Misspecified by nothing installed: {head.lower()[4:]}, but no installed named effect explains it"
+    s = f"Misspecified by nothing installed: t{head[1:]}, but no installed named effect explains it"
     if named:
         t = named[0]
         why = (f"adjusted {t['adjusted_p_text']} > {a:g}" if t["adjusted_p_value"] > a else

@@ -139,8 +139,11 @@ def max_t_adjusted(observed: np.ndarray, null: np.ndarray) -> tuple[list[MCPValu
         null: ``(n, C)`` the same statistics on each of ``n`` null simulations (one simulation gives
             every candidate's statistic, so their dependence is kept).
 
-    Each column is normalised by its null's mean and standard deviation (floored at ``1e-12``);
-    the adjusted p-value of candidate ``c`` is ``(1 + #{i: max_c' z_ic' >= z_c}) / (n + 1)``.
+    Each column is normalised by the mean and standard deviation (floored at ``1e-12``) of all
+    ``n + 1`` values, the measurement's included: a symmetric function of the exchangeable sample,
+    so the test is exact (normalising by the nulls alone is anti-conservative: the nulls are then
+    shrunk towards their own mean; measured 7.3% family-wise error at a 5% level in
+    ``tests/workflows/test_stats.py``). The adjusted p-value of candidate ``c`` is ``(1 + #{i: max_c' z_ic' >= z_c}) / (n + 1)``.
     It controls the family-wise error rate at any level under the complete null (Westfall & Young
     1993, section 2.6).
 
@@ -154,7 +157,8 @@ def max_t_adjusted(observed: np.ndarray, null: np.ndarray) -> tuple[list[MCPValu
     null = np.asarray(null, float)
     if null.ndim != 2 or null.shape[1] != len(observed) or len(null) == 0:
         raise SoftsbiError(f"max-T needs null statistics of shape (n, {len(observed)}), got {null.shape}")
-    mu, sd = null.mean(0), np.maximum(null.std(0), 1e-12)
+    both = np.vstack([observed[None], null])
+    mu, sd = both.mean(0), np.maximum(both.std(0), 1e-12)
     z_obs = (observed - mu) / sd
     z_max = ((null - mu) / sd).max(1)
     return [mc_pvalue(z, z_max) for z in z_obs], z_obs
