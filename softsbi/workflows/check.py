@@ -164,7 +164,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         ph["worst_region"] = names[int(np.nanargmax(np.nanmean(reg_mean[a:b + 1], axis=0)))]
     worst_frames = [int(i) for i in np.argsort(mean_t)[::-1][:3]]
     reg_avg = np.nanmean(reg_mean, axis=0)
-    worst_regions = [names[int(i)] for i in np.argsort(reg_avg)[::-1][:2]]
+    # regions a small mesh lacks are NaN: never the worst
+    worst_regions = [names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]]
     worst_phase = max(phases, key=lambda p: p["chamfer_m"])
     verdict = (f"the measurement is NOT explained by the model ({mis['p_text']} <= {alpha:g})" if mis["misspecified"]
                else f"no evidence of misspecification ({mis['p_text']} > {alpha:g})")

@@ -127,8 +127,8 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     with ui.working("screening candidate effects ..."):
         diag = doc["diagnosis"] = diagnose_run(nominal, confirm=0, workers=workers)
     ui.diagnosis_done(diag)
-    if not diag["significant"]:
-        ui.line("no effect to add; stopping here")
+    if diag.get("verdict", "missing-effect") != "missing-effect" or not diag["significant"]:
+        ui.line(f"verdict {diag.get('verdict')}: no named effect to add; stopping here")
         return doc
     eff = diag["selected"]
     ui.step(f"4. add the effect: refit with --effect {eff}")
