@@ -131,7 +131,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
     ranking = screen.ranking()
     top = [r for r in ranking if "statistic" in r]
-    if top and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null) \
+    if mis["misspecified"] and top and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null) \
             and pool.requested < max_null:
         pool.ensure(max_null)  # stage 1 could not reject any candidate: decide at the cap only
         screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)

@@ -92,3 +92,48 @@ def test_adaptive_resolution_extends_only_when_the_cap_can_decide_and_keeps_the_
     assert not t["misspecified"] and "p <= 1/51" in t["rule"] and "raise the cap" in t["rule"]
     t = decided({"exceed": 0, "n_null": 200, "p_value": 1 / 201}, 0.01, 200, True, "misfit")
     assert t["misspecified"] and t["rule"].endswith("<= 0.01")
+
+
+def _screening(r_obs, r_null, cols, generic=()):
+    """A screening on synthetic residuals: effect ``name`` adds ``coef * cols[name]`` (coef >= 0)."""
+    from softsbi.core.interfaces import Effect
+    from softsbi.core.types import Param, ParamSpace
+    from softsbi.workflows.diagnose import _Screening
+
+    def effect(nm):
+        return type(nm, (Effect,), {"name": nm, "description": nm, "generic": nm in generic,
+                                    "kind": "sensor" if nm == "B" else "physics",
+                                    "param_space": lambda self: ParamSpace([Param("k", 0.0, 10.0, "")])})()
+    sc = _Screening.__new__(_Screening)
+    rng = np.random.default_rng(5)
+    sc.J_theta = rng.normal(size=(len(r_obs), 2))
+    sc.r_obs, sc.r_null, sc.failed = r_obs, r_null, []
+    sc.design = {nm: {"effect": effect(nm), "J": c[:, None], "offset": np.zeros(len(r_obs)), "lo": np.array([0.0]),
+                      "hi": np.array([10.0]), "steps": [("k", 0.0, 0.1)]} for nm, c in cols.items()}
+    return sc
+
+
+def test_forward_selection_names_two_effects_and_leaves_a_generic_term_unnamed():
+    rng = np.random.default_rng(4)
+    F = 60
+    cols = {n: rng.normal(size=F) for n in ("A", "B", "C")}
+    null = rng.normal(size=(60, F))
+    # two effects present: both named, the stronger first, each with the max-T rule as applied
+    sc = _screening(rng.normal(size=F) + 1.2 * cols["A"] + 0.8 * cols["B"], null, cols, generic=("C",))
+    ranking = sc.ranking()
+    chosen, log = sc.forward_selection(ranking, 0.05, 0.1)
+    assert chosen == ["A", "B"] and [st["accepted"] for st in log] == [True, True]  # C is generic: not named
+    assert log[1]["given"] == ["A"] and ranking[0]["effect"] == "A" and ranking[0]["kind"] == "physics"
+    assert next(r for r in ranking if r["effect"] == "B")["kind"] == "sensor"
+    assert ranking[0]["estimate"]["k"] == pytest.approx(1.2, abs=0.3)
+    assert all(r["adjusted_p_value"] >= 1 / 61 for r in ranking)
+    # only the generic term explains it: nothing named, the generic term ranks first
+    sc = _screening(rng.normal(size=F) + 1.5 * cols["C"], null, cols, generic=("C",))
+    ranking = sc.ranking()
+    chosen, log = sc.forward_selection(ranking, 0.05, 0.1)
+    assert chosen == [] and ranking[0]["effect"] == "C" and ranking[0]["generic"]
+    assert ranking[0]["adjusted_p_value"] <= 0.05 and not log[0]["accepted"]
+    # pure noise: nothing passes
+    sc = _screening(rng.normal(size=F), null, cols)
+    chosen, _ = sc.forward_selection(sc.ranking(), 0.05, 0.1)
+    assert chosen == []
