@@ -17,7 +17,8 @@ Usage:
     python benchmarks/diagnose_stats.py run --suite mujoco --cases 0:20 --results benchmarks/results/diagnose_stats.jsonl
     python benchmarks/diagnose_stats.py summary --results benchmarks/results/diagnose_stats.jsonl
 Suites: ``mujoco`` (mujoco-flex; lift, wipe, fling, wind; effects wind, air-drag, extra-damping,
-grip-compliance) and ``toy`` (the test plugin's toy-gauss and toy-wind; needs tests/plugins/softsbi_toy).
+grip-compliance), ``cross-engine`` (measurements by pybullet-massspring fitted with mujoco-flex; the
+right verdict is misspecified-unexplained) and ``toy`` (the test plugin's toy-gauss and toy-wind; needs tests/plugins/softsbi_toy).
 """
 from __future__ import annotations
 
@@ -40,6 +41,12 @@ SUITES: dict[str, dict[str, Any]] = {
     "mujoco": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
                "effects": ["wind", "air-drag", "extra-damping", "grip-compliance"],
                "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
+    # data from the other engine (pybullet-massspring at random truths), fitted with mujoco-flex: the
+    # right verdict is misspecified-unexplained (no installed effect turns one engine into the other)
+    "cross-engine": {"backend": "mujoco-flex", "data_backend": "pybullet-massspring",
+                     "data_backend_options": {"grid": 7}, "scenarios": ["lift", "wipe", "fling"],
+                     "effects": ["wind", "air-drag", "extra-damping", "grip-compliance"],
+                     "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     "toy": {"backend": "toy-gauss", "scenarios": ["toy"], "effects": ["toy-wind"], "backend_options": {},
             "n_points": 16, "n_dense": 64, "estimator_options": {"max_epochs": 80, "hidden": [64, 64]}},
 }
@@ -53,6 +60,10 @@ def _scenario(name: str):
     return lift_scenario(None) if name == "lift" else make_scenario(name)
 
 
+#: the right verdict of cases without a named hidden effect
+CORRECT_VERDICT = {"control": "nothing-missing", "other-engine": "misspecified-unexplained"}
+
+
 def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
     """Case ``i`` of ``suite`` (deterministic from ``seed`` and ``i``): ``id``, ``truth_label``
     (``control`` or the hidden effect), ``scenario``, ``truth`` (physical units), ``magnitude``."""
@@ -60,14 +71,15 @@ def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
     rng = np.random.default_rng([seed, i, 41])
     effects = cfg["effects"]
     k = i % (1 + len(effects))
-    label = "control" if k == 0 else effects[k - 1]
+    label = "other-engine" if "data_backend" in cfg else "control" if k == 0 else effects[k - 1]
     scen = cfg["scenarios"][int(rng.integers(len(cfg["scenarios"])))]
     sc = _scenario(scen)
     reg = registry()
-    space = reg.simulator(cfg["backend"])(**cfg["backend_options"]).param_space(sc)
+    data_backend = cfg.get("data_backend", cfg["backend"])
+    space = reg.simulator(data_backend)(**cfg.get("data_backend_options", cfg["backend_options"])).param_space(sc)
     truth = space.as_dict(space.from_unit(rng.uniform(0.2, 0.8, space.dim)))
     magnitude = None
-    if label != "control":
+    if label not in ("control", "other-engine"):
         magnitude = float(rng.uniform(0.1, 1.0))
         eff = reg.effect(label)()
         es, nom = eff.param_space(), eff.nominal()
@@ -85,9 +97,9 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields."""
     t0 = time.perf_counter()
     cfg = SUITES[case["suite"]]
-    hidden = [] if case["truth_label"] == "control" else [case["truth_label"]]
-    meas = simulate_recording(cfg["backend"], _scenario(case["scenario"]), case["truth"],
-                              backend_options=cfg["backend_options"], effects=hidden, n_points=cfg["n_points"],
+    hidden = [] if case["truth_label"] in ("control", "other-engine") else [case["truth_label"]]
+    meas = simulate_recording(cfg.get("data_backend", cfg["backend"]), _scenario(case["scenario"]), case["truth"],
+                              backend_options=cfg.get("data_backend_options", cfg["backend_options"]), effects=hidden, n_points=cfg["n_points"],
                               n_dense=cfg["n_dense"], seed=1000 + case["index"])
     fc = FitConfig(backend=cfg["backend"], backend_options=cfg["backend_options"], estimator="rkhs",
                    rounds=rounds, sims_per_round=sims, workers=workers, n_points=cfg["n_points"], n_eval=n_null,
@@ -99,7 +111,7 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     named = d["selected"] if d["verdict"] == "missing-effect" else None
     called = named or d["verdict"]
     return {**case, "verdict": d["verdict"], "named": named, "called": called,
-            "correct": (d["verdict"] == "nothing-missing") if not hidden else (named == hidden[0]),
+            "correct": (named == hidden[0]) if hidden else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
             "second": d["significant"][1:], "misspecification_p": d["misspecification"]["p_value"],
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"],
             "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
@@ -158,7 +170,7 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     out["confusion"] = {k: dict(v) for k, v in sorted(conf.items())}
     edges = np.linspace(0.1, 1.0, n_bins + 1)
     power: dict[str, list[dict[str, Any]]] = {}
-    for eff in sorted({r["truth_label"] for r in rows} - {"control"}):
+    for eff in sorted({r["truth_label"] for r in rows if r.get("magnitude") is not None}):
         rs = [r for r in rows if r["truth_label"] == eff]
         bins = []
         for lo, hi in zip(edges[:-1], edges[1:]):
@@ -168,6 +180,9 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
                          "named_correctly": sum(bool(r["correct"]) for r in b)})
         power[eff] = bins
     out["power"] = power
+    other = [r for r in rows if r["truth_label"] == "other-engine"]
+    if other:
+        out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other)}
     return out
 
 

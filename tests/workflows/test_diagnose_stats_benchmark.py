@@ -25,6 +25,10 @@ def test_cases_are_deterministic_and_cover_controls_and_every_effect():
     assert u == pytest.approx([wind["magnitude"]] * 2)
     drag = a[2]
     assert drag["truth"]["air_density"] == pytest.approx(6.0 * drag["magnitude"])
+    # cross-engine cases: data from pybullet-massspring at its own random truths, no named hidden effect
+    x = bench.make_case("cross-engine", 0, 0)
+    assert x["truth_label"] == "other-engine" and x["magnitude"] is None
+    assert bench.CORRECT_VERDICT["other-engine"] == "misspecified-unexplained"
 
 
 def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
