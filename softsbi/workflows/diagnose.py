@@ -73,7 +73,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
                  max_null: int = MAX_NULL, unit_step: float = 0.05, effect_step: float = 0.25,
                  alpha: float = ALPHA, min_explained: float = MIN_EXPLAINED, workers: int | None = None,
                  confirm: int = 2, confirm_budget: dict[str, int] | None = None,
-                 seed: int = 0, progress: Any = None) -> dict[str, Any]:
+                 seed: int = 0, progress: Any = None, pool: PosteriorPredictive | None = None) -> dict[str, Any]:
     """Is the nominal model enough, and if not, which installed effect is missing? Writes ``diagnosis.json``.
 
     Three verdicts, in this order (``verdict``):
@@ -107,6 +107,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
             and select the effect whose refit lowers it most (:func:`confirm_candidates`).
         confirm_budget: ``{"rounds": r, "sims_per_round": n}`` of the confirmation refits.
         progress: optional ``callable(str)`` told which effect is being refitted.
+        pool: posterior-predictive rollouts of this run already simulated (e.g. by ``check_run``
+            with the same ``seed``): reused, so check and diagnose share one null.
 
     Returns:
         dict with ``verdict``, ``summary`` (plain language), ``rules`` (the decision rules as
@@ -126,7 +128,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
     jobs, eff_cols, _ = _sensitivity_jobs(run, cands, unit_step, effect_step)
     res = run_jobs(run.sim_context(keep_rollout=True), jobs, workers)
-    pool = PosteriorPredictive(run, workers, seed).ensure(n_null)
+    pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_null)
     mis = pool.misspecification(alpha, max_null)
     screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
     ranking = screen.ranking()

@@ -225,6 +225,7 @@ class PosteriorPredictive:
         self.rollouts: list[dict[str, Any]] = []
         self._feats: list[np.ndarray] = []
         self.requested = 0
+        self.first = 0  # size of the first request: the null's starting size
         self._extra: np.ndarray | None = None
 
     @property
@@ -249,6 +250,7 @@ class PosteriorPredictive:
         """Simulate rollouts up to ``n`` requested in all (no-op when already there)."""
         if n <= self.requested:
             return self
+        self.first = self.first or n
         res = run_jobs(self.run.sim_context(keep_rollout=True), self._items(self.requested, n), self.workers)
         n_pts = self.run.dense.shape[1]
         for i, r in enumerate(res, start=self.requested):
@@ -266,7 +268,7 @@ class PosteriorPredictive:
 
         Returns:
             the test's fields plus ``alpha``, ``misspecified`` (``p <= alpha``), ``extended``
-            (whether more nulls were simulated), ``max_null`` and ``rule`` (the decision rule as
+            (whether the null grew beyond its first size), ``max_null`` and ``rule`` (the decision rule as
             applied, in words).
 
         Raises:
@@ -274,13 +276,11 @@ class PosteriorPredictive:
         """
         f_obs = trajectory_features(self.run.dense)
         m = misspecification_test(f_obs, self.features)
-        extended = False
         if resolution_needed(MCPValue(m["exceed"], m["n_simulations"]), alpha, max_null) \
                 and self.requested < max_null:
             self.ensure(max_null)
             m = misspecification_test(f_obs, self.features)
-            extended = True
-        return decided(m, alpha, max_null, extended, "the measurement's summaries are outside the posterior "
+        return decided(m, alpha, max_null, self.requested > self.first, "the measurement's summaries are outside the posterior "
                                                      "predictive distribution")
 
 

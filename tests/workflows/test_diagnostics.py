@@ -114,6 +114,18 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert (hidden / "refit-toy-wind" / "compare.png").stat().st_size > 10_000
 
 
+def test_check_and_diagnose_share_one_null(toy_runs, monkeypatch):
+    """One pool of posterior-predictive rollouts serves both commands (the demo's path): diagnose
+    simulates no further null rollouts, and its first verdict is check's."""
+    from softsbi.workflows.stats import PosteriorPredictive
+    hidden, _ = toy_runs
+    pool = PosteriorPredictive(hidden, workers=1)
+    chk = check_run(hidden, workers=1, plot=False, pool=pool)["misspecification"]
+    n = pool.requested
+    d = diagnose_run(hidden, workers=1, confirm=0, pool=pool)
+    assert pool.requested == n == chk["n_null"] and d["misspecification"] == chk
+
+
 def test_misspecified_by_nothing_installed_names_where_and_the_generic_term(toy_runs, monkeypatch):
     """The hidden wind's class marked as a generic force term: no named candidate is left, so the
     verdict is the third one, with the residual's shape and how much the generic term explains."""
