@@ -383,7 +383,7 @@ class DemoPrinter(DemoCallbacks):
 
     def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
         from softsbi.workflows.diagnose import format_p
-        self.o.table(["rank", "effect", "explains", "adjusted p"],
+        self.o.table(["rank", "effect", "explains", f"max-T p ({diagnosis['n_null']} nulls)"],
                      [[i + 1, r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r)]
                       for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
         self.o.line(f"verdict: {diagnosis['verdict']}")
