@@ -12,6 +12,7 @@ from typing import Any, Iterator, Optional
 import typer
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.metrics import describe_change
 from softsbi.cli.output import Output, json_error
 from softsbi.workflows.demo import DEMO_ROUNDS, DEMO_SIMS, DemoCallbacks
 from softsbi.workflows.fit import FitCallbacks
@@ -129,12 +130,6 @@ def _run(o: Output, meas, cfg, out: Path, retry_failed: bool = False):
         return run_fit(out, meas, cfg, callbacks=ProgressHooks(o, p), retry_failed=retry_failed)
 
 
-def _pct_change(before: float, after: float) -> str:
-    """``"37% lower"`` or ``"12% higher"``: never a negative 'lower'."""
-    ch = after / before - 1
-    return f"{abs(ch) * 100:.0f}% {'lower' if ch <= 0 else 'higher'}"
-
-
 def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
     truth = rep.get("truth") or {}
     cols = ["parameter", "unit", "mean", "std", "90% interval"] + (["hidden value", "inside 90%?"] if truth else [])
@@ -151,11 +146,11 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
     if rep.get("mask_chamfer_prior_px") and rep.get("mask_chamfer_posterior_px"):
         o.line(f"Mask Chamfer to the measured frames: prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
                f"{rep['mask_chamfer_posterior_px']:.2f} px "
-               f"({_pct_change(rep['mask_chamfer_prior_px'], rep['mask_chamfer_posterior_px'])})")
+               f"({describe_change(rep['mask_chamfer_prior_px'], rep['mask_chamfer_posterior_px'])})")
     if rep.get("chamfer_prior_m") and rep.get("chamfer_posterior_m"):
         o.line(f"Chamfer to the measurement: prior {rep['chamfer_prior_m'] * 100:.2f} cm -> posterior "
                f"predictive {rep['chamfer_posterior_m'] * 100:.2f} cm "
-               f"({_pct_change(rep['chamfer_prior_m'], rep['chamfer_posterior_m'])})")
+               f"({describe_change(rep['chamfer_prior_m'], rep['chamfer_posterior_m'])})")
     o.line(f"{rep['simulations']} simulations ({rep['failed_simulations']} failed), {rep['wall_time_s']:.0f} s. "
            f"Outputs in {out}: report.json, run.zarr, chamfer_rounds.png, posterior_pairs.png, clouds.png")
 
@@ -185,6 +180,14 @@ def _guard(fn):
                 Output().error(str(exc))
             raise typer.Exit(130)
         except Exception as exc:
+            from softsbi.core.errors import storage_error
+            err = storage_error(exc)  # a full or read-only disk is the machine's state, not a bug
+            if err is not None:
+                if as_json:
+                    sys.stdout.write(json_error(err) + "\n")
+                else:
+                    Output().error(str(err))
+                raise typer.Exit(2)
             if as_json:
                 sys.stdout.write(json_error(exc) + "\n")
                 raise typer.Exit(1)
@@ -229,14 +232,18 @@ def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
                                                              "overhead camera at this square size (px): "
                                                              "OUT/frames/000.png ... + truth.json, a measurement "
                                                              "for `fit --observer heatmap|transporter`"),
+             render_memory_gb: Optional[float] = typer.Option(None, help="cap on the rendered frames' estimated "
+                                                                         "memory, GB (default 4); larger renders "
+                                                                         "are refused before simulating"),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Roll a scenario out at given parameters; write Zarr and a PNG preview (and rendered frames)."""
-    from softsbi.workflows.simulate import simulate_to_folder
+    from softsbi.workflows.simulate import RENDER_MEMORY_GB, simulate_to_folder
 
     o = Output(as_json)
     doc = simulate_to_folder(out, backend=backend, scenario=scenario, recording=recording,
                              theta=_parse_kv(theta, "--theta"), effects=[e for it in effect or [] for e in it.split(",") if e],
-                             backend_options=_parse_kv(backend_opt, "--backend-opt"), render=render)
+                             backend_options=_parse_kv(backend_opt, "--backend-opt"), render=render,
+                             render_memory_gb=RENDER_MEMORY_GB if render_memory_gb is None else render_memory_gb)
     if as_json:
         o.emit_json(doc)
         return

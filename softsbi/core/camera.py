@@ -87,11 +87,10 @@ class Camera:
             DataError: missing files or wrong shapes.
         """
         folder = Path(folder)
-        try:
-            k = np.load(folder / "intrinsics.npy")
-            trc = np.load(folder / "trc.npy")
-        except FileNotFoundError as exc:
-            raise DataError(f"calibration folder '{folder}' needs intrinsics.npy and trc.npy: {exc}") from exc
+        from softsbi.core.arrays import read_npy
+        fix = f"calibration folder '{folder}' needs intrinsics.npy (4,) and trc.npy (3, 4)"
+        k = read_npy(folder / "intrinsics.npy", "camera intrinsics", fix)
+        trc = read_npy(folder / "trc.npy", "camera pose", fix)
         if k.shape != (4,) or trc.shape != (3, 4):
             raise DataError(f"'{folder}': intrinsics must be (4,) and trc (3, 4), got {k.shape} and {trc.shape}")
         return cls(width, height, *map(float, k), trc)

@@ -78,3 +78,40 @@ def closest(name: str, choices: Iterable[str]) -> str:
 
 class PluginError(SoftsbiError, TypeError):
     """A plugin is malformed: wrong base class, duplicate name, unknown hook."""
+
+
+class StorageError(SoftsbiError, OSError):
+    """The disk refused a write: full, over quota, read-only or not permitted (``errno`` kept)."""
+
+    def __str__(self) -> str:
+        return self.strerror or super().__str__()
+
+
+#: errno values that mean "the storage refused the write" (not a bug): what each needs from the user
+STORAGE_ERRNOS = {28: "no space left on the device", 122: "disk quota exceeded",
+                  30: "the file system is read-only", 13: "permission denied", 1: "operation not permitted"}
+
+
+def storage_error(exc: BaseException, where: object = None, resumable: bool = False) -> StorageError | None:
+    """One clear line for an ``OSError`` the storage raised (ENOSPC, EDQUOT, EROFS, EACCES, EPERM).
+
+    Args:
+        exc: the exception caught.
+        where: the run directory or output path being written (named in the message).
+        resumable: the command resumes where it stopped when re-run (finished work is kept).
+
+    Returns:
+        a :class:`StorageError` to raise instead, or None when ``exc`` is not such an error.
+    """
+    if not isinstance(exc, OSError) or isinstance(exc, SoftsbiError) or exc.errno not in STORAGE_ERRNOS:
+        return None
+    what = STORAGE_ERRNOS[exc.errno]
+    target = where if where is not None else exc.filename
+    named = f" writing '{target}'" if target is not None else ""
+    if exc.errno in (28, 122):
+        fix = "free space (or choose --out on another disk), then re-run the same command"
+    else:
+        fix = "choose a writable --out (or copy the run directory to one and point --out at the copy)"
+    if resumable:
+        fix += "; finished simulations are kept and the run resumes"
+    return StorageError(exc.errno, f"{what}{named}; {fix}")

@@ -57,3 +57,14 @@ def directed_nn_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     d, _ = cKDTree(np.asarray(b, float)).query(np.asarray(a, float))
     return d
+
+
+def describe_change(before: float, after: float) -> str:
+    """A relative change in words: ``"37% lower"``, ``"12% higher"`` or ``"unchanged"`` (never a
+    negative "lower"); ``"n/a"`` when ``before`` is zero or not finite."""
+    if not (np.isfinite(before) and np.isfinite(after)) or before == 0:
+        return "n/a"
+    ch = after / before - 1
+    if round(abs(ch) * 100) == 0:
+        return "unchanged"
+    return f"{abs(ch) * 100:.0f}% {'lower' if ch < 0 else 'higher'}"

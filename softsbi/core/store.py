@@ -176,7 +176,7 @@ class RunStore:
         rounds = self.root["rounds"]
         if str(r) in rounds:
             if self.is_begun(r):
-                raise SchemaError(f"round {r} already begun in '{self.path}'")
+                raise SchemaError(f"round {r + 1} (group rounds/{r}) already begun in '{self.path}'")
             shutil.rmtree(self.path / "rounds" / str(r), ignore_errors=True)
             rounds = self.root = zarr.open_group(str(self.path), mode="a")
             rounds = self.root["rounds"]

@@ -173,7 +173,7 @@ class ParamSpace:
             if not math.isfinite(v) or v < p.low or v > p.high:
                 raise ParameterError(
                     f"parameter '{k}' = {v:g} {p.unit} is outside its bounds [{p.low:g}, {p.high:g}] {p.unit}; "
-                    f"choose a value inside them or widen the prior with --bounds")
+                    f"choose a value inside them")
             out[k] = v
         if not allow_missing:
             missing = [n for n in self.names if n not in out]

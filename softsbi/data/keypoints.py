@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, ShapeError
 
 __all__ = [
@@ -184,10 +185,7 @@ def load_keypoint_folder(folder: str | Path, outside_margin: float = 0.25) -> tu
         if images and im.shape != images[0].shape:
             raise DataError(f"mixed image sizes: {imgs[name]} is {im.shape[1]}x{im.shape[0]} but "
                             f"{names[0]} is {images[0].shape[1]}x{images[0].shape[0]}; resize them to one size")
-        try:
-            k = np.load(kps[name], allow_pickle=False)
-        except Exception as exc:
-            raise DataError(f"cannot read keypoints {kps[name]}: {exc}") from exc
+        k = read_npy(kps[name], "keypoints", "save them as a (K, 2) array of pixel coordinates")
         k = np.asarray(k)
         if k.ndim != 2 or k.shape[1] != 2 or k.dtype.kind not in "iuf":
             raise DataError(f"keypoints {kps[name]} must be a numeric (K, 2) array of (x, y) px, got "

@@ -13,6 +13,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
+from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, ShapeError
 from softsbi.core.interfaces import Observer
 from softsbi.core.types import Observation, Rollout
@@ -195,10 +196,7 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
         raise DataError(f"'{folder}': frame numbering has gaps (missing {missing[:5]}); frames must be consecutive")
     clouds = []
     for f in files:
-        try:
-            a = np.load(f, allow_pickle=False)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file
-            raise DataError(f"cannot read frame '{f}': {exc}; re-export it as a (P, 3) float .npy") from exc
+        a = read_npy(f, "frame", "re-export it as a (P, 3) float .npy")
         if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
             raise DataError(f"frame '{f}' has shape {a.shape}; each frame must be a (P, 3) point cloud")
         if not np.all(np.isfinite(a)):

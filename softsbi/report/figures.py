@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from softsbi.core.metrics import describe_change
+
 #: one colour per role, in every figure of a fit, of ``check``, ``compare`` and ``compare-backends``.
 #: Measured data is neutral grey, everything simulated is coloured; the prior is a light grey;
 #: the truth (hidden parameters of a simulated measurement) is vermillion.
@@ -550,8 +552,7 @@ def compare_figure(a: dict, b: dict, la: str, lb: str) -> Any:
     ax.set_title("Error per region of the cloth", fontsize=FS_SUB)
     ma, mb = a["chamfer_mean_m"] * 100, b["chamfer_mean_m"] * 100
     pa, pb = short_p(a["misspecification"]), short_p(b["misspecification"])
-    change = (mb - ma) / ma * 100 if ma else 0.0
-    head = (f"Mean error {ma:.2f} → {mb:.2f} cm ({abs(change):.0f}% {'lower' if change <= 0 else 'higher'})"
+    head = (f"Mean error {ma:.2f} → {mb:.2f} cm ({describe_change(ma, mb)})"
             f"  ·  misspecification {pa} → {pb}")
     frac = _header(fig, [(head, {"fontsize": FS_TITLE, "weight": "bold"}),
                          (f"A (before): {la}   vs   B (after): {lb}", {"fontsize": FS_SUB})])

@@ -90,6 +90,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, ShapeError
 from softsbi.core.types import Param, Scenario
 
@@ -162,8 +163,15 @@ def recording_transform(recording_dir: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise DataError(f"no lift_real2sim.yaml in {recording_dir}; expected a DiffCloud lift recording "
                         f"folder such as shared/data/diffcloud_lift/lift_tan")
-    with open(path) as fh:
-        cfg = yaml.safe_load(fh)
+    try:
+        with open(path) as fh:
+            cfg = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise DataError(f"{path} is not valid YAML{at} ({problem}); fix that line (the file holds z_rotation, "
+                        f"translation, scale and compensation_factor)") from None
     if not isinstance(cfg, Mapping):
         raise DataError(f"{path} is not a mapping")
     return _check_cfg(cfg)
@@ -234,7 +242,7 @@ def load_recording(recording: str | Path, frames: range | None = None) -> np.nda
     if not files or not all(f.is_file() for f in files):
         raise DataError(f"no frames NNN.npy found in {rec}")
     s = recording_transform(rec)["scale"]
-    clouds = [np.load(f) for f in files]
+    clouds = [read_npy(f, "frame", "re-export it as a (P, 3) float .npy") for f in files]
     if any(c.ndim != 2 or c.shape[1] != 3 or c.shape != clouds[0].shape for c in clouds):
         raise DataError(f"frames of {rec} must all be (P, 3) of equal size")
     out = np.stack(clouds).astype(float) * s
@@ -254,7 +262,7 @@ def estimate_grasp_offset(recording: str | Path, commanded: np.ndarray,
     s = recording_transform(recording)["scale"]
     offs = []
     for i in frames:
-        f = np.unique(np.load(Path(recording) / f"{i:03d}.npy"), axis=0) * s
+        f = np.unique(read_npy(Path(recording) / f"{i:03d}.npy", "frame"), axis=0) * s
         top = f[f[:, 2] >= np.quantile(f[:, 2], 1.0 - top_fraction)]
         offs.append(np.median(top, axis=0) - commanded[i])
     return np.mean(offs, axis=0)
@@ -383,7 +391,7 @@ def lift_scenario(recording: str | Path | None = None, n_frames: int = N_FRAMES,
         traj_file = rec.parent / "lift_traj.npy"
         if not traj_file.is_file():
             raise DataError(f"{traj_file} not found: lift_traj.npy must be in the recording's parent folder")
-        traj = np.load(traj_file)
+        traj = read_npy(traj_file, "gripper path", "save the (T, 3) path in metres with numpy.save")
         if traj.ndim != 2 or traj.shape[1] != 3:
             raise DataError(f"{traj_file} must be (T, 3), got {traj.shape}")
         cfg = recording_transform(rec)

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.metrics import describe_change
 from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import check_run
 from softsbi.workflows.runs import load_run
@@ -40,9 +41,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
         r["change"] = (r["b"] - r["a"]) / r["a"] if r["a"] else 0.0
     la = fit_label(ra.config)
     lb = fit_label(rb.config)
-    drop = -rows[0]["change"]
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
-               f"({drop * 100:.0f}% {'lower' if drop >= 0 else 'higher'}); misspecification "
+               f"({describe_change(rows[0]['a'], rows[0]['b'])}); misspecification "
                f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}.")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

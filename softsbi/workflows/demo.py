@@ -19,6 +19,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from softsbi.core.metrics import describe_change
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario
@@ -146,9 +147,8 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     ui.step("the numbers")
     ui.line(f"hidden effect: {', '.join(DEMO_HIDDEN_EFFECT)}; diagnosis named: {eff} "
             f"({'correct' if doc['named_correctly'] else 'WRONG'}).")
-    ch = after / before - 1
     ui.line(f"posterior-predictive Chamfer: {before * 100:.2f} cm (nominal) -> {after * 100:.2f} cm (with {eff}), "
-            f"{abs(ch) * 100:.0f}% {'lower' if ch <= 0 else 'higher'}.")
+            f"{describe_change(before, after)}.")
     figures = f" Figures: {out}/compare.png, {nominal}/check.png, {refit}/posterior_pairs.png"
     return _finish(ui, doc, res2.report, t0, figures, what="the refit's ")
 

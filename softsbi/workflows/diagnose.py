@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.metrics import describe_change
 from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, region_errors
@@ -509,12 +510,15 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
              f"estimate {est}).")
         if chosen in confirmed:
             c = confirmed[chosen]
-            s += (f" Refitting with it lowers the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
-                  f"to {c['chamfer_after_m'] * 100:.2f} cm ({_pct(c['drop'])} lower).")
+            s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+                  f"to {c['chamfer_after_m'] * 100:.2f} cm "
+                  f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
             others = [o for n, o in confirmed.items() if n != chosen]
             if others:
                 s += " " + "; ".join(f"With {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
-                                     f"({_pct(o['drop'])} lower)" for o in others) + f", so the data favour {chosen}."
+                                     f"({describe_change(o['chamfer_before_m'], o['chamfer_after_m'])})"
+                                     for o in others) + (f", so the data favour {chosen}." if (c.get("drop") or 0) > 0
+                                                         else "; no refit lowers the error.")
         if chosen != out["significant"][0]:
             s += (f" (The linearised screening ranked {out['significant'][0]} first; the refits decide between "
                   f"these near-collinear candidates.)")
@@ -555,7 +559,9 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
               f"(max-T adjusted {g['adjusted_p_text']}).")
         if gen in confirmed:
             c = confirmed[gen]
-            s += f" Refitting with it lowers the Chamfer by {_pct(c['drop'])}."
+            s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+                  f"to {c['chamfer_after_m'] * 100:.2f} cm "
+                  f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
     else:
         s += " No generic force term is installed (effect classes with generic = True)."
     return s

@@ -16,6 +16,7 @@ the plugin registry: it imports no simulator. :class:`FitConfig` is the one set 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -296,7 +297,10 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
         space = space + eff_cls().param_space()
     if cfg.bounds:
         space = space.with_bounds(cfg.bounds)
-    space.check(cfg.fixed, allow_missing=True)
+    try:
+        space.check(cfg.fixed, allow_missing=True)
+    except ParameterError as exc:
+        raise ParameterError(f"{exc} (--fix), or widen the prior with --bounds name=low:high") from None
     inferred = ParamSpace([p for p in space if p.name not in cfg.fixed])
     if inferred.dim == 0:
         raise ParameterError("every parameter is fixed; leave at least one to infer")
@@ -365,7 +369,8 @@ def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
     return np.asarray(meas.x, float)
 
 
-def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks) -> None:
+def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
+                      clock: _Clock | None = None) -> None:
     data = store.round_data(r)
     for attempt in range(2):  # one retry for jobs whose worker crashed
         pending = store.pending(r)
@@ -389,6 +394,8 @@ def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                     store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
                 continue
             store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"])
+            if clock is not None:
+                clock.save()
             done += 1
             hooks.simulation_done(r, done, len(data["status"]))
         if not errors:
@@ -452,17 +459,17 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
 def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbacks: FitCallbacks, make_plots: bool,
                     retry_failed: bool) -> FitResult:
     """:func:`run_fit` with the run directory's lock held."""
-    t_start = time.perf_counter()
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
     exe_cls = reg.executor(cfg.executor)
     _, space = fit_param_space(cfg, recording.scenario)
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
+    clock = _Clock(store, prev)
     _repair_damaged(store, callbacks)
     if retry_failed:
         _retry_failed(store, callbacks)
     ctx = _sim_context(cfg, recording, store, space)
-    loop = _Rounds(cfg, store, space, ctx, est_cls, callbacks)
+    loop = _Rounds(cfg, store, space, ctx, est_cls, callbacks, clock)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     try:
         for r in range(cfg.rounds):
@@ -472,9 +479,10 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
         loop.summaries[-1]["chamfer_posterior"] = ev_stats
     finally:
         executor.close()
+        with contextlib.suppress(OSError):  # also when interrupted: the next session's resume message counts it
+            clock.save(force=True)
     samples = space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99])))
-    wall = prev + time.perf_counter() - t_start
-    store.update_config(wall_time_s=wall)
+    wall = clock.save(force=True)
     report = _report(recording, cfg, space, loop, ev_stats, samples, wall, store.config.get("metric", "chamfer_m"))
     (out_dir / "report.json").write_text(json.dumps(report, indent=2))
     result = FitResult(store=store, param_space=space, posterior=post, report=report, rounds=loop.summaries)
@@ -494,8 +502,7 @@ def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Para
         store = RunStore.open(store_path)
         store.check_resumable(config, FitConfig.resume_keys(), RESUME_DEFAULTS)
         prev = store.config.get("wall_time_s", 0.0) or 0.0
-        callbacks.message(f"resuming run in {store_path} after round {len(store.completed_rounds())} "
-                          f"({prev:.0f} s spent before)")
+        callbacks.message(_resume_message(store, prev))
         store.update_config(rounds=cfg.rounds)
         return store, prev
     x0 = observe_recording(cfg, recording)  # before creating the store: bad input leaves nothing behind
@@ -536,6 +543,39 @@ def _retry_failed(store: RunStore, callbacks: FitCallbacks) -> None:
                          f"round {r + 1} and are drawn again" if n_dropped else ""))
 
 
+def _resume_message(store: RunStore, spent_s: float) -> str:
+    """What a resumed fit finds: complete rounds, the partly stored round, the time already spent."""
+    done = store.completed_rounds()
+    parts = [f"resuming run in {store.path} after round {len(done)}" if done else f"resuming run in {store.path}"]
+    nxt = len(done)
+    if store.is_begun(nxt):
+        n = int(len(store.round_data(nxt)["status"]))
+        stored = n - len(store.pending(nxt))
+        parts.append(f"round {nxt + 1}: {stored} of {n} simulations already stored")
+    parts.append(f"{spent_s:.0f} s spent before")
+    return "; ".join(parts)
+
+
+class _Clock:
+    """Wall time of a run over all its sessions (s), saved to the store's config as ``wall_time_s``
+    at least every ``every`` seconds while simulating, so a killed session's time is not lost."""
+
+    def __init__(self, store: RunStore, before: float, every: float = 15.0):
+        self.store, self.before, self.every = store, before, every
+        self.t0 = time.perf_counter()
+        self.saved_at = self.t0
+
+    def spent(self) -> float:
+        return self.before + time.perf_counter() - self.t0
+
+    def save(self, force: bool = False) -> float:
+        now = time.perf_counter()
+        if force or now - self.saved_at >= self.every:
+            self.saved_at = now
+            self.store.update_config(wall_time_s=self.spent())
+        return self.spent()
+
+
 def _sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: ParamSpace) -> SimContext:
     """What every simulation job of this fit needs: simulator, observer, the metric's reference."""
     observed = store.read_observed()
@@ -551,8 +591,9 @@ class _Rounds:
     """The sequential rounds of one fit: draw the proposal, simulate, train, condition."""
 
     def __init__(self, cfg: FitConfig, store: RunStore, space: ParamSpace, ctx: SimContext, est_cls: type,
-                 callbacks: FitCallbacks):
+                 callbacks: FitCallbacks, clock: _Clock | None = None):
         self.cfg, self.store, self.space, self.ctx, self.est_cls, self.cb = cfg, store, space, ctx, est_cls, callbacks
+        self.clock = clock
         self.sequential = bool(getattr(est_cls, "sequential", True))
         self.truncated = self.sequential and cfg.proposal == "truncated"
         self.chain = PosteriorChain(space.dim, seed=cfg.seed)
@@ -568,7 +609,7 @@ class _Rounds:
         if not store.is_begun(r):
             self._begin(r)
         self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
-        _simulate_missing(store, r, self.ctx, executor, self.cb)
+        _simulate_missing(store, r, self.ctx, executor, self.cb, self.clock)
         d = store.round_data(r)
         stats = _chamfer_stats(d["chamfer"], d["status"]) if self.scored else {}
         if r == 0:
@@ -607,8 +648,8 @@ class _Rounds:
         rng = np.random.default_rng([cfg.seed, r, 0])
         u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
         what = "prior" if proposal is None else (
-            f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r - 1}'s posterior "
-            f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r - 1}")
+            f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
+            f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r}")
         self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
                                self.x_obs.shape, what)
 

@@ -15,7 +15,7 @@ from typing import Iterator
 
 from filelock import FileLock, Timeout
 
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import SoftsbiError, storage_error
 
 
 class RunLocked(SoftsbiError):
@@ -24,6 +24,12 @@ class RunLocked(SoftsbiError):
 
 class RunDirError(SoftsbiError):
     """The run directory cannot be created or written (a file, read-only, no space)."""
+
+
+def _storage_line(exc: OSError, run_dir: Path) -> SoftsbiError:
+    return storage_error(exc, run_dir, resumable=True) or RunDirError(
+        f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); choose a writable --out (or free "
+        f"space / fix its permissions)")
 
 
 @contextlib.contextmanager
@@ -38,6 +44,7 @@ def run_lock(run_dir: str | Path) -> Iterator[None]:
     try:
         if run_dir.exists() and not run_dir.is_dir():
             raise RunDirError(f"--out '{run_dir}' is a file, not a run directory; choose a folder path")
+        created = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
         lock = FileLock(str(run_dir / "run.lock"), timeout=0)
         info = run_dir / "run.lock.json"
@@ -51,10 +58,31 @@ def run_lock(run_dir: str | Path) -> Iterator[None]:
         raise RunLocked(f"run directory '{run_dir}' is being written by another softsbi process ({who}); wait "
                         f"for it to finish (then the same command resumes) or fit into another --out") from None
     except OSError as exc:  # after Timeout, which is an OSError (TimeoutError) too
-        raise RunDirError(f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); choose a writable "
-                          f"--out (or free space / fix its permissions)") from None
+        if isinstance(exc, SoftsbiError):
+            raise
+        raise _storage_line(exc, run_dir) from None
     try:
         info.write_text(json.dumps({"pid": os.getpid(), "since": _dt.datetime.now().isoformat(timespec="seconds")}))
         yield
+    except BaseException as exc:
+        if created:
+            with contextlib.suppress(OSError):
+                _remove_if_only_lock(run_dir, lock)
+        err = storage_error(exc, run_dir, resumable=True)
+        if err is not None:  # the disk refused a write mid-run: one line, the run resumes once fixed
+            raise err from None
+        raise
     finally:
         lock.release()
+
+
+def _remove_if_only_lock(run_dir: Path, lock: FileLock) -> None:
+    """A directory this call created and that still holds nothing but the lock files (the command
+    failed before storing anything, e.g. an unknown plugin name) is removed, so no empty run is left."""
+    names = {p.name for p in run_dir.iterdir()}
+    if names <= {"run.lock", "run.lock.json"}:
+        lock.release()
+        for n in names:
+            (run_dir / n).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            run_dir.rmdir()

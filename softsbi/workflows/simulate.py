@@ -21,16 +21,52 @@ from softsbi.scenarios.builtin import make_scenario
 from softsbi.scenarios.cameras import default_camera
 
 
+#: default cap on the memory of rendered frames held at once (GB); override with ``render_memory_gb``
+RENDER_MEMORY_GB = 4.0
+#: peak bytes per rendered pixel and frame: 8 stored (rgb 3 x uint8, depth float32, segmentation uint8) plus
+#: the copies made while rendering and saving; measured peak RSS over a plain simulation, lift (25 frames):
+#: 362 MB at 1024 px, 1197 MB at 2048 px (10.6-12.8 B), 7.2 GB at 5000 px (issue 18's probe: 10.7 B)
+BYTES_PER_PIXEL = 11
+
+
+def render_memory_bytes(size: int, frames: int) -> int:
+    """Peak memory of rendering one rollout, bytes: ``(frames + 2) * size**2 * BYTES_PER_PIXEL`` (the
+    frames kept, plus two frames of off-screen buffers), with the per-pixel cost measured on mujoco-flex
+    (see :data:`BYTES_PER_PIXEL`)."""
+    return int((frames + 2) * size * size * BYTES_PER_PIXEL)
+
+
+def check_render_memory(size: int, frames: int, cap_gb: float) -> int:
+    """Refuse a render whose frames would exceed ``cap_gb`` GB (one line with the fix); returns the estimate.
+
+    Raises:
+        SoftsbiError: ``size`` < 1, or the estimate exceeds the cap.
+    """
+    if size < 1:
+        raise SoftsbiError(f"--render {size}: the image size must be a positive number of pixels (e.g. 256)")
+    need = render_memory_bytes(size, frames)
+    if need > cap_gb * 1e9:
+        fits = int((cap_gb * 1e9 / ((frames + 2) * BYTES_PER_PIXEL)) ** 0.5)
+        raise SoftsbiError(f"--render {size} would hold about {need / 1e9:.1f} GB of frames ({frames} frames of "
+                           f"{size}x{size} px), over the {cap_gb:g} GB cap: use "
+                           f"--render {fits} or less, or raise the cap with --render-memory-gb "
+                           f"{need / 1e9 * 1.2:.0f}")
+    return need
+
+
 def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: str = "lift",
                        recording: str | Path | None = None, theta: Mapping[str, float] | None = None,
                        effects: Sequence[str] = (), backend_options: Mapping[str, Any] | None = None,
-                       render: int | None = None) -> dict[str, Any]:
+                       render: int | None = None,
+                       render_memory_gb: float = RENDER_MEMORY_GB) -> dict[str, Any]:
     """Roll ``scenario`` out at ``theta`` (physical units; unset parameters at the prior midpoint)
     and write it into ``out``.
 
     Args:
         render: also render every frame through the scenario's built-in overhead camera at this
             square size (px).
+        render_memory_gb: cap on the estimated memory of the rendered frames
+            (:func:`render_memory_bytes`), GB; a larger request is refused before simulating.
 
     Returns:
         ``{"backend", "scenario", "theta", "status", "reason", "frames", "vertices", "wall_s",
@@ -38,7 +74,8 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
 
     Raises:
         SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect;
-        ParameterError: unknown or out-of-bounds parameter; RenderingUnavailable: no OpenGL.
+        ParameterError: unknown or out-of-bounds parameter; RenderingUnavailable: no OpenGL;
+        SoftsbiError: ``render`` not positive, or the frames would exceed ``render_memory_gb``.
     """
     out = Path(out)
     try:
@@ -53,6 +90,8 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
     values = space.midpoint()
     values.update(dict(theta or {}))
     values = space.check(values)
+    if render is not None:
+        check_render_memory(render, len(sc.times), render_memory_gb)
     t0 = time.perf_counter()
     if render:
         ro = sim.simulate_images(sc, values, camera=default_camera(sc.name, render), effects=list(effects))

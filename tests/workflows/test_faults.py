@@ -1,0 +1,242 @@
+"""Fault injection (issue 18): every failure a new user or an unlucky operator meets is one clear
+line naming the file and the fix, leaves nothing half-written, and the same command resumes.
+
+Concurrent writers, deleted and truncated chunks, ``--retry-failed`` and an ``--out`` that is a
+file are in ``test_run_safety.py``; ``MUJOCO_GL=bogus`` and a machine without OpenGL in
+``tests/cli/test_no_gl.py``. Full and read-only disks need a small tmpfs: mounted when the tests
+run as root with ``CAP_SYS_ADMIN``, skipped with that reason otherwise.
+"""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from softsbi.cli import app
+from softsbi.core.errors import DataError, ParameterError, SchemaError, SoftsbiError, StorageError
+from softsbi.core.metrics import describe_change
+from softsbi.core.store import RunStore
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.simulate import check_render_memory, render_memory_bytes
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+from toy_helpers import DATA, REPO, toy_measurement  # noqa: E402
+
+runner = CliRunner()
+LIFT = DATA / "diffcloud_lift"
+
+
+def _cfg(**kw):
+    base = dict(backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=30, workers=1, n_points=8, n_eval=3,
+                n_dense=32, seed=3, estimator_options={"max_epochs": 10, "hidden": [16]})
+    base.update(kw)
+    return FitConfig(**base)
+
+
+class _Messages:
+    """Fit callbacks that keep the messages and can run an action after the k-th stored simulation."""
+
+    def __init__(self, after=None, action=None):
+        self.messages, self.after, self.action, self.n = [], after, action, 0
+
+    def message(self, text):
+        self.messages.append(text)
+
+    def simulation_done(self, r, done, total):
+        self.n += 1
+        if self.after is not None and self.n == self.after:
+            self.action()
+
+    def __getattr__(self, name):
+        return lambda *a, **k: None
+
+
+@pytest.fixture
+def tmpfs(tmp_path):
+    """A fresh 8 MB tmpfs (root with CAP_SYS_ADMIN only)."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs root with CAP_SYS_ADMIN): {r.stderr.strip()[:120]}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def _fill(disk):
+    """Fill ``disk`` until the device refuses (ENOSPC); returns the filler file."""
+    filler = disk / "filler"
+    with open(filler, "wb") as fh:
+        try:
+            while True:
+                fh.write(b"\0" * 65536)
+                fh.flush()
+        except OSError:
+            pass
+    return filler
+
+
+def test_a_full_disk_mid_round_is_one_line_and_the_same_fit_resumes_to_the_same_result(tmpfs, tmp_path):
+    reference = run_fit(tmp_path / "ref", toy_measurement(), _cfg(), make_plots=False)
+    out = tmpfs / "run"
+    filler = []
+    cb = _Messages(after=12, action=lambda: filler.append(_fill(tmpfs)))
+    with pytest.raises(StorageError) as err:
+        run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)
+    line = str(err.value)
+    assert "\n" not in line and "no space left" in line and str(out) in line and "re-run the same command" in line
+    filler[0].unlink()  # space freed: the same call resumes from what was stored
+    cb = _Messages()
+    again = run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)
+    assert any("already stored" in m for m in cb.messages), cb.messages
+    assert again.report["simulations"] == reference.report["simulations"]
+    assert again.report["posterior_mean"] == reference.report["posterior_mean"]
+    assert RunStore.open(out / "run.zarr").damaged() is None
+
+
+def test_a_read_only_disk_is_one_line_for_a_new_and_for_a_finished_run(tmpfs):
+    run_fit(tmpfs / "done", toy_measurement(), _cfg(rounds=1), make_plots=False)
+    assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
+    for out in (tmpfs / "new" / "run", tmpfs / "done"):
+        with pytest.raises(StorageError, match="read-only") as err:
+            run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+        assert str(out) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_cli_turns_a_full_disk_into_one_line_and_exit_2(tmpfs):
+    _fill(tmpfs)
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(tmpfs / "r")])
+    assert res.exit_code == 2, res.output
+    assert "no space left" in res.output and "Traceback" not in res.output
+
+
+def test_a_garbage_store_is_one_line_naming_the_file(tmp_path):
+    out = tmp_path / "run"
+    run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+    (out / "run.zarr" / "zarr.json").write_bytes(os.urandom(200))
+    with pytest.raises(SchemaError) as err:
+        run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+    assert "run.zarr" in str(err.value) and "\n" not in str(err.value)
+
+
+def _recording(tmp_path):
+    dst = tmp_path / "diffcloud_lift"
+    dst.mkdir()
+    for f in ("lift_traj.npy", "lift_real2sim.yaml"):
+        shutil.copy(LIFT / f, dst / f)
+    shutil.copytree(LIFT / "lift_tan", dst / "lift_tan")
+    return dst / "lift_tan"
+
+
+def test_bad_recording_files_are_one_line_naming_file_and_fix(tmp_path):
+    from softsbi.workflows.measurement import load_recording
+    rec = _recording(tmp_path)
+    good = (rec / "003.npy").read_bytes()
+    (rec / "003.npy").write_bytes(os.urandom(500))  # random bytes: not numpy's allow_pickle advice
+    with pytest.raises(DataError, match=r"003\.npy' is not a NumPy \.npy file") as err:
+        load_recording(rec)
+    assert "pickle" not in str(err.value)
+    (rec / "003.npy").write_bytes(good[:90])  # truncated
+    with pytest.raises(DataError, match=r"003\.npy' cannot be read"):
+        load_recording(rec)
+    np.save(rec / "003.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(DataError, match="holds Python objects"):
+        load_recording(rec)
+    (rec / "003.npy").write_bytes(good)
+    yaml = rec / "lift_real2sim.yaml"
+    yaml.write_text(yaml.read_text() + "z_rotation: [1,\n")
+    with pytest.raises(DataError, match=r"lift_real2sim\.yaml is not valid YAML at line \d+, column \d+") as err:
+        load_recording(rec)
+    assert "\n" not in str(err.value)
+
+
+def test_an_unknown_plugin_name_leaves_no_run_directory(tmp_path):
+    out = tmp_path / "never"
+    rec = _recording(tmp_path)
+    res = runner.invoke(app, ["fit", "--observed", str(rec), "--out", str(out), "--estimator", "rkhz"])
+    assert res.exit_code == 2 and "Did you mean 'rkhs'" in res.output
+    assert not out.exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine")
+    runner.invoke(app, ["fit", "--observed", str(rec), "--out", str(kept), "--estimator", "rkhz"])
+    assert (kept / "notes.txt").exists()  # a directory the user made is never removed
+
+
+def test_a_huge_render_is_refused_before_simulating_with_an_estimate_and_an_override(tmp_path):
+    res = runner.invoke(app, ["simulate", "--render", "5000", "--out", str(tmp_path / "r")])
+    assert res.exit_code == 2
+    assert "7.4 GB" in res.output and "--render-memory-gb" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "r").exists()
+    assert check_render_memory(5000, 25, cap_gb=10) == render_memory_bytes(5000, 25)  # the override admits it
+    with pytest.raises(SoftsbiError, match="positive"):
+        check_render_memory(0, 25, cap_gb=4)
+
+
+def test_out_of_bounds_values_advise_only_options_the_command_has(tmp_path):
+    res = runner.invoke(app, ["simulate", "--theta", "bend=5", "--out", str(tmp_path / "r")])
+    assert res.exit_code == 2 and "outside its bounds" in res.output and "--bounds" not in res.output
+    with pytest.raises(ParameterError, match="--fix.*--bounds"):
+        run_fit(tmp_path / "f", toy_measurement(), _cfg(fixed={"a": 50.0}), make_plots=False)
+
+
+def test_relative_changes_are_never_a_negative_lower():
+    assert describe_change(5.77, 6.69) == "16% higher"
+    assert describe_change(3.77, 1.25) == "67% lower"
+    assert describe_change(2.0, 2.001) == "unchanged"
+    assert describe_change(0.0, 1.0) == "n/a"
+
+
+def test_resume_names_the_partly_stored_round_and_the_time_spent_and_rounds_count_from_one(tmp_path):
+    out = tmp_path / "run"
+
+    def stop():
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_fit(out, toy_measurement(), _cfg(), callbacks=_Messages(after=40, action=stop), make_plots=False)
+    store = RunStore.open(out / "run.zarr")
+    assert store.completed_rounds() == [0]
+    assert store.config["wall_time_s"] > 0  # the interrupted session's time is kept
+    cb = _Messages()
+    run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)
+    msg = next(m for m in cb.messages if m.startswith("resuming"))
+    assert "after round 1" in msg and "round 2: 10 of 30 simulations already stored" in msg and "s spent" in msg
+    # round 2 draws from the posterior of round 1 (rounds count from one wherever a user reads them)
+    assert "round 1" in RunStore.open(out / "run.zarr").round_attrs(1)["proposal"]
+
+
+SIGINT_FIT = [sys.executable, "-m", "softsbi.cli", "fit", "--rounds", "1", "--sims-per-round", "60", "--workers", "1",
+              "--n-eval", "3", "--points", "16"]
+
+
+def test_ctrl_c_says_how_to_resume_and_the_same_command_resumes(tmp_path):
+    rec = _recording(tmp_path)
+    out = tmp_path / "run"
+    cmd = SIGINT_FIT + ["--observed", str(rec), "--out", str(out)]
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.time() + 120
+    while time.time() < deadline:  # wait until a few simulations are stored
+        status = out / "run.zarr" / "rounds" / "0" / "status" / "c"
+        if status.is_dir() and len(list(status.iterdir())) >= 5:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (stdout, stderr[-2000:])
+    assert "re-run the same command to resume" in stderr and "Traceback" not in stderr
+    stored = 60 - len(RunStore.open(out / "run.zarr").pending(0))
+    assert stored >= 5
+    again = subprocess.run(cmd + ["--json"], capture_output=True, text=True, env=env, timeout=300)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert f"round 1: {stored} of 60 simulations already stored" in again.stderr
+    assert json.loads(again.stdout)["simulations"] == 63
