@@ -186,6 +186,37 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     return out
 
 
+def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """The summary as Markdown tables (BENCHMARKS.md): false alarms, confusion matrix, power, cases."""
+    out = []
+    if summary.get("controls"):
+        lo, hi = summary["false_alarm_ci95"]
+        out.append(f"False alarms: {summary['false_alarms']} of {summary['controls']} controls = "
+                   f"{summary['false_alarm_rate']:.2f} ± {summary['false_alarm_se']:.2f} (binomial SE; "
+                   f"Clopper-Pearson 95% interval {lo:.2f}-{hi:.2f}).\n")
+    cols = sorted({c for v in summary["confusion"].values() for c in v})
+    out.append("| truth \\ called | " + " | ".join(cols) + " |")
+    out.append("|---" * (len(cols) + 1) + "|")
+    for truth, v in summary["confusion"].items():
+        out.append(f"| {truth} | " + " | ".join(str(v.get(c, 0)) for c in cols) + " |")
+    out.append("\n| hidden effect | " + " | ".join(f"magnitude {b['magnitude'][0]:.1f}-{b['magnitude'][1]:.1f}"
+                                                for b in next(iter(summary["power"].values()), [])) + " |")
+    out.append("|---" * (1 + len(next(iter(summary["power"].values()), []))) + "|")
+    for eff, bins in summary["power"].items():
+        out.append(f"| {eff} | " + " | ".join(f"{b['named_correctly']}/{b['n']} named ({b['detected']} detected)"
+                                              if b["n"] else "-" for b in bins) + " |")
+    out.append("\n| case | truth | scenario | magnitude | misspecification p | verdict | named | wall [s] |")
+    out.append("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if "verdict" not in r:
+            out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | | | error: {r.get('error', '')[:60]} | | |")
+            continue
+        m = "" if r["magnitude"] is None else f"{r['magnitude']:.2f}"
+        out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | {m} | {r['misspecification_p_text']} | "
+                   f"{r['verdict']} | {r['named'] or ''} | {r['wall_s']:.0f} |")
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -203,6 +234,7 @@ def main() -> None:
     r.add_argument("--workers", type=int, default=None)
     s = sub.add_parser("summary")
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
     a = ap.parse_args()
     if a.cmd == "run":
         lo, hi = (int(x) for x in a.cases.split(":"))
@@ -210,7 +242,8 @@ def main() -> None:
                   a.confirm, a.workers)
     else:
         rows = [json.loads(x) for x in a.results.read_text().splitlines() if x.strip()]
-        print(json.dumps(summarise(rows), indent=2))
+        summ = summarise(rows)
+        print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 
 
 if __name__ == "__main__":

@@ -47,6 +47,8 @@ def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
     assert sum(sum(v.values()) for v in s["confusion"].values()) == 2
     assert s["confusion"]["toy-wind"] == {rows[1]["called"]: 1}
     assert sum(b["n"] for b in s["power"]["toy-wind"]) == 1
+    md = bench.markdown(s, rows)
+    assert "False alarms: " in md and "| control |" in md and rows[1]["misspecification_p_text"] in md
     for r in rows:
         assert r["verdict"] in ("nothing-missing", "missing-effect", "misspecified-unexplained")
         assert r["misspecification_p"] >= 1 / (r["n_null"] + 1)
