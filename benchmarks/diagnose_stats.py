@@ -112,7 +112,8 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     called = named or d["verdict"]
     return {**case, "verdict": d["verdict"], "named": named, "called": called,
             "correct": (named == hidden[0]) if hidden else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
-            "second": d["significant"][1:], "misspecification_p": d["misspecification"]["p_value"],
+            "second": d["significant"][1:], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
+            if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"],
             "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
                         for r in d["ranking"] if "statistic" in r],

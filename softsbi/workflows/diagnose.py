@@ -153,6 +153,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
                       "missing-effect" if significant else "misspecified-unexplained")
     if out["verdict"] != "nothing-missing":
         out["residual"] = residual_shape(run, pool)
+    if significant:
+        out["remaining"] = screen.remaining(significant)
     out["rules"] = decision_rules(out)
     out["summary"] = _diagnosis_sentence(out)
     if confirm:
@@ -300,6 +302,16 @@ class _Screening:
     def ranking(self) -> list[dict[str, Any]]:
         """Every candidate tested alone, by evidence; failed candidates last."""
         return self.family(list(self.design), []) + self.failed
+
+    def remaining(self, names: list[str]) -> dict[str, Any]:
+        """What the effects ``names`` leave unexplained: the residual sum of squares after the
+        linearised fit with them, its fraction of the nominal fit's, and its Monte-Carlo p-value
+        against the same quantity on the null rollouts (``p_text``)."""
+        obs = self.sse(self.r_obs, names)[0]
+        null = np.array([self.sse(r, names)[0] for r in self.r_null])
+        p = mc_pvalue(obs, null)
+        return {"effects": list(names), "sse": obs, "fraction": obs / max(self.sse(self.r_obs, [])[0], 1e-12),
+                **p.as_dict()}
 
     def forward_selection(self, ranking: list[dict[str, Any]], alpha: float,
                           min_explained: float) -> tuple[list[str], list[dict[str, Any]]]:
@@ -528,6 +540,13 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                 f"{n} ({by_name[n]['kind']})" for n in rest) + "."
         else:
             s += " No second effect explains significantly more once it is included."
+        rem = out.get("remaining")
+        if rem:
+            s += (f" With {' and '.join(rem['effects'])}, {_pct(rem['fraction'])} of the residual remains "
+                  f"(linearised), {'more than' if rem['p_value'] <= a else 'within what'} the nominal model's own "
+                  f"spread produces ({rem['p_text']})"
+                  + ("; part of the misfit is not explained by any installed effect." if rem["p_value"] <= a
+                     else "."))
         return s
     # misspecified by nothing installed
     named = [r for r in tested if not r.get("generic")]

@@ -94,6 +94,9 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     for k in ("statistic", "p_value", "n_null", "misspecified"):
         assert d["misspecification"][k] == chk[k], k
     assert d["ranking"][0]["adjusted_p_value"] >= 1 / (d["n_null"] + 1)
+    # what the named effect leaves: a small fraction, stated with its own Monte-Carlo p-value
+    assert d["remaining"]["effects"] == ["toy-wind"] and d["remaining"]["fraction"] < 0.3
+    assert "of the residual remains" in d["summary"] and d["remaining"]["p_value"] >= 1 / (d["n_null"] + 1)
     conf = d["confirmed"][0]
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
     # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/hidden_effect.py)
