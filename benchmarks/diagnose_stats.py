@@ -99,7 +99,8 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     cfg = SUITES[case["suite"]]
     hidden = [] if case["truth_label"] in ("control", "other-engine") else [case["truth_label"]]
     meas = simulate_recording(cfg.get("data_backend", cfg["backend"]), _scenario(case["scenario"]), case["truth"],
-                              backend_options=cfg.get("data_backend_options", cfg["backend_options"]), effects=hidden, n_points=cfg["n_points"],
+                              backend_options=cfg.get("data_backend_options", cfg["backend_options"]), effects=hidden,
+                              n_points=cfg["n_points"],
                               n_dense=cfg["n_dense"], seed=1000 + case["index"])
     fc = FitConfig(backend=cfg["backend"], backend_options=cfg["backend_options"], estimator="rkhs",
                    rounds=rounds, sims_per_round=sims, workers=workers, n_points=cfg["n_points"], n_eval=n_null,
@@ -210,7 +211,8 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     out.append("|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "verdict" not in r:
-            out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | | | error: {r.get('error', '')[:60]} | | |")
+            err = r.get("error", "")[:60]
+            out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | | | error: {err} | | |")
             continue
         m = "" if r["magnitude"] is None else f"{r['magnitude']:.2f}"
         out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | {m} | {r['misspecification_p_text']} | "

@@ -482,7 +482,8 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     budget = {k: v for k, v in (("rounds", confirm_rounds), ("sims_per_round", confirm_sims)) if v}
     with o.status("screening candidate effects ..."):
         out = diagnose_run(run, effects=names, confirm=confirm, confirm_budget=budget or None, workers=workers,
-                           n_null=n_null, max_null=max_null, alpha=alpha, progress=lambda name: o.message(f"confirming {name} with a refit ..."))
+                           n_null=n_null, max_null=max_null, alpha=alpha,
+                           progress=lambda name: o.message(f"confirming {name} with a refit ..."))
     if as_json:
         o.emit_json(out)
         return

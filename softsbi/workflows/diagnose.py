@@ -116,8 +116,14 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         applied), ``misspecification`` (check's test), ``ranking`` (per candidate: ``kind``,
         ``generic``, ``explained_fraction``, ``statistic``, max-T ``adjusted_p_value`` and
         ``adjusted_p_text``, ``estimate``; by evidence), ``significant`` (named effects, forward
-        selection), ``selected``, ``generic`` (best generic term or None), ``residual`` (shape),
-        ``confirmed``, ``final_ranking``.
+        selection), ``selected``, ``generic`` (best generic term or None), ``residual`` (shape;
+        when misspecified), ``remaining`` (what the named effects leave, with its p-value),
+        ``confirmed``, ``final_ranking``, ``n_null``, ``simulations``.
+
+    The null treats posterior-predictive rollouts as data without refitting them; since the
+    measurement itself was fitted, such p-values tend to be conservative (Bayarri & Berger 2000;
+    the benchmark's controls measure the false-alarm rate); a parametric bootstrap that refits every null (Key et al. 2025) would be
+    exact but costs one fit per null simulation.
 
     Raises:
         SoftsbiError: no candidates; the posterior median's simulation failed; too few rollouts.
@@ -134,8 +140,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
     ranking = screen.ranking()
     top = [r for r in ranking if "statistic" in r]
-    if mis["misspecified"] and top and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null) \
-            and pool.requested < max_null:
+    if mis["misspecified"] and top and pool.requested < max_null \
+            and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null):
         pool.ensure(max_null)  # stage 1 could not reject any candidate: decide at the cap only
         screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
         ranking = screen.ranking()

@@ -143,7 +143,8 @@ def max_t_adjusted(observed: np.ndarray, null: np.ndarray) -> tuple[list[MCPValu
     ``n + 1`` values, the measurement's included: a symmetric function of the exchangeable sample,
     so the test is exact (normalising by the nulls alone is anti-conservative: the nulls are then
     shrunk towards their own mean; measured 7.3% family-wise error at a 5% level in
-    ``tests/workflows/test_stats.py``). The adjusted p-value of candidate ``c`` is ``(1 + #{i: max_c' z_ic' >= z_c}) / (n + 1)``.
+    ``tests/workflows/test_stats.py``). The adjusted p-value of candidate ``c`` is
+    ``(1 + #{i: max_c' z_ic' >= z_c}) / (n + 1)``.
     It controls the family-wise error rate at any level under the complete null (Westfall & Young
     1993, section 2.6).
 
@@ -280,7 +281,8 @@ class PosteriorPredictive:
                 and self.requested < max_null:
             self.ensure(max_null)
             m = misspecification_test(f_obs, self.features)
-        return decided(m, alpha, max_null, self.requested > self.first, "the measurement's summaries are outside the posterior "
+        return decided(m, alpha, max_null, self.requested > self.first,
+                       "the measurement's summaries are outside the posterior "
                                                      "predictive distribution")
 
 
