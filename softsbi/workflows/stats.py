@@ -282,8 +282,7 @@ class PosteriorPredictive:
             self.ensure(max_null)
             m = misspecification_test(f_obs, self.features)
         return decided(m, alpha, max_null, self.requested > self.first,
-                       "the measurement's summaries are outside the posterior "
-                                                     "predictive distribution")
+                       "the measurement's summaries are outside the posterior predictive distribution")
 
 
 def decided(test: dict[str, Any], alpha: float, max_null: int, extended: bool, what: str) -> dict[str, Any]:
