@@ -149,6 +149,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
                               else ([], []))
     generic = [r for r in ranking if r.get("generic") and "statistic" in r]
     out = {"run": str(run.path), "candidates": [c.name for c in cands], "alpha": alpha,
+           "n_null_start": n_null, "max_null": max_null,
            "min_explained": min_explained, "misspecification": mis, "ranking": ranking,
            "significant": significant, "selection": steps_log, "confirmed": [],
            "selected": significant[0] if significant else None,
@@ -487,7 +488,9 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
             continue
         if progress:
             progress(name)
-        out["confirmed"].append(confirm_effect(view, name, budget, workers))
+        out["confirmed"].append(confirm_effect(view, name, budget, workers, alpha=out.get("alpha", ALPHA),
+                                               n_null=out.get("n_null_start", N_NULL),
+                                               max_null=out.get("max_null", MAX_NULL)))
     out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
     named = [c for c in out["confirmed"] if c["effect"] in out["significant"] or
              not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False)]
@@ -501,6 +504,18 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
 
 def _pct(x: float) -> str:
     return f"{max(x, 0.0) * 100:.0f}%"  # a linearised drop can be a rounding error below zero
+
+
+def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
+    """check's verdict on a confirmation refit, in words ('' when it was not computed)."""
+    m = c.get("misspecification_after")
+    if not m:
+        return ""
+    if m["misspecified"]:
+        return (f" With {name} the measurement is still outside the posterior predictive distribution "
+                f"({m['p_text']} <= {alpha:g}): part of the misfit is not explained by {name}.")
+    return (f" With {name} the measurement is inside the posterior predictive distribution "
+            f"({m['p_text']} > {alpha:g}).")
 
 
 def _diagnosis_sentence(out: dict[str, Any]) -> str:
@@ -531,6 +546,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
             s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
                   f"to {c['chamfer_after_m'] * 100:.2f} cm "
                   f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
+            s += _after_refit(c, chosen, a)
             others = [o for n, o in confirmed.items() if n != chosen]
             if others:
                 s += " " + "; ".join(f"With {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
@@ -587,6 +603,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
             s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
                   f"to {c['chamfer_after_m'] * 100:.2f} cm "
                   f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
+            s += _after_refit(c, gen, a)
     else:
         s += " No generic force term is installed (effect classes with generic = True)."
     return s
@@ -599,13 +616,17 @@ def recording_from_run(run: RunView):
 
 
 def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = None,
-                   workers: int | None = None) -> dict[str, Any]:
+                   workers: int | None = None, alpha: float = ALPHA, n_null: int = N_NULL,
+                   max_null: int = MAX_NULL) -> dict[str, Any]:
     """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``), with the
     run's own settings (:meth:`FitConfig.from_run_config`: executor and its options included), the
-    effect switched on and, where given, ``budget`` ``{"rounds", "sims_per_round"}`` and ``workers``.
+    effect switched on and, where given, ``budget`` ``{"rounds", "sims_per_round"}`` and ``workers``;
+    then ``check``'s misspecification test of the refit (same ``alpha``, null sizes): does the
+    measurement fall inside the refitted model's posterior predictive distribution?
 
     Returns:
-        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "drop", "posterior_mean"}``.
+        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "drop", "posterior_mean",
+        "misspecification_after"}``.
     """
     budget = budget or {}
     base = FitConfig.from_run_config(run.config)
@@ -617,8 +638,9 @@ def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = No
     res = run_fit(out, recording_from_run(run), cfg)
     before = run.report.get("chamfer_posterior_m")
     after = res.report.get("chamfer_posterior_m")
+    mis = PosteriorPredictive(out, workers).ensure(n_null).misspecification(alpha, max_null)
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
             "drop": (1 - after / before) if before and after else None,
-            "posterior_mean": res.report["posterior_mean"]}
+            "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis}
 
 
