@@ -391,7 +391,7 @@ class DemoPrinter(DemoCallbacks):
     def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
         from softsbi.workflows.diagnose import format_p
         self.o.table(["rank", "effect", "explains", f"max-T p ({diagnosis['n_null']} nulls)"],
-                     [[i + 1, r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r)]
+                     [[i + 1, r["effect"], f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r)]
                       for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
         self.o.line(f"verdict: {diagnosis['verdict']}")
         self.o.line(diagnosis["summary"])
@@ -498,7 +498,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
         est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
         d = drops.get(name)
         kind = "generic" if r.get("generic") else r.get("kind", "physics")
-        rows.append([i + 1, r["effect"], kind, f"{r['explained_fraction'] * 100:.0f}%", format_p(r), est,
+        rows.append([i + 1, r["effect"], kind, f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r), est,
                      "yes" if r["effect"] in out["significant"] else "no", "" if d is None else f"{d * 100:.0f}%"])
     o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
              "refit: error drop"], rows,
