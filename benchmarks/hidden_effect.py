@@ -68,9 +68,10 @@ def run_case(name: str, out: Path, rounds: int, sims: int, magnitude: float = 1.
     res = {"case": name, "magnitude": magnitude, "hidden": hidden, "hidden_effects": effects,
            "proposal": proposal, "seed": seed,
            "chamfer_prior_m": fit.report["chamfer_prior_m"], "chamfer_posterior_m": fit.report["chamfer_posterior_m"],
-           "misspecification_p": chk["misspecification"]["p_value_gamma"],
+           "misspecification_p": chk["misspecification"]["p_value"],
            "ranking": [(r["effect"], round(r.get("explained_fraction", float("nan")), 3),
-                        r.get("p_value_gamma")) for r in diag["ranking"]],
+                        r.get("adjusted_p_value")) for r in diag["ranking"]],
+           "verdict": diag.get("verdict"),
            "significant": diag["significant"], "summary": diag["summary"]}
     res["selected"] = diag["selected"]
     res["final_ranking"] = diag.get("final_ranking")

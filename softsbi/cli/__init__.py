@@ -25,6 +25,9 @@ H_JSON = "print one JSON document on stdout (results, or the error) instead of t
 H_WORKERS = "simulation worker processes (default: one per core)"
 H_SEED = "random seed: fixes every parameter draw and every simulation"
 H_N_EVAL = "rollouts at posterior samples (the posterior-predictive check's sample size)"
+H_MAX_NULL = ("cap of the adaptive null: when the measurement lies beyond all posterior-predictive rollouts and "
+              "1/(n+1) > alpha, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
+H_ALPHA = "family-wise significance level of the verdicts"
 H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
 H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
                "sbi-npe (`softsbi plugins` lists the installed ones)")
@@ -398,9 +401,10 @@ class DemoPrinter(DemoCallbacks):
 
     def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
         from softsbi.workflows.diagnose import format_p
-        self.o.table(["rank", "effect", "explains", "p-value"],
-                     [[i + 1, r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r)]
+        self.o.table(["rank", "effect", "explains", f"max-T p ({diagnosis['n_null']} nulls)"],
+                     [[i + 1, r["effect"], f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r)]
                       for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
+        self.o.line(f"verdict: {diagnosis['verdict']}")
         self.o.line(diagnosis["summary"])
 
     def comparison_done(self, comparison: dict[str, Any], effect: str) -> None:
@@ -441,13 +445,15 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
 @_guard
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
           n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL),
+          max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
+          alpha: float = typer.Option(0.01, help=H_ALPHA),
           workers: Optional[int] = typer.Option(None, help=H_WORKERS),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
     from softsbi.workflows.check import check_run
     o = Output(as_json)
     with o.status("simulating at posterior samples ..."):
-        out = check_run(run, n_samples=n_eval, workers=workers)
+        out = check_run(run, n_samples=n_eval, workers=workers, alpha=alpha, max_null=max_null)
     if as_json:
         o.emit_json(out)
         return
@@ -458,7 +464,8 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
             title="Error by phase of the motion")
     m = out["misspecification"]
     o.line(f"misspecification test: statistic {m['statistic']:.2f} (null mean {m['null_mean']:.2f}), "
-           f"p = {m['p_value_gamma']:.3g} (empirical {m['p_value']:.3g}, {m['n_simulations']} rollouts)")
+           f"{m['p_text']}")
+    o.line(f"decision rule: {m['rule']}")
     o.line(out["summary"])
     o.line(f"wrote {run / 'check.json'} and {run / 'check.png'}")
 
@@ -501,15 +508,20 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                                      "(default: the run's)"),
              confirm_sims: Optional[int] = typer.Option(None, help="simulations per round of a confirmation refit "
                                                                    "(default: the run's)"),
+             n_null: int = typer.Option(30, "--n-null", help="posterior-predictive simulations the null starts with"),
+             max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
+             alpha: float = typer.Option(0.01, help=H_ALPHA),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
-    """Rank installed effects by how much of the residual each explains; confirm the best by refitting."""
+    """Three verdicts: nothing missing; a named installed effect is missing; misspecified by nothing
+    installed (where and when the residual lives, and the best generic force term)."""
     from softsbi.workflows.diagnose import diagnose_run, format_p
     o = Output(as_json)
     names = [e for it in effect or [] for e in it.split(",") if e] or None
     budget = {k: v for k, v in (("rounds", confirm_rounds), ("sims_per_round", confirm_sims)) if v}
     with o.status("screening candidate effects ..."):
         out = diagnose_run(run, effects=names, confirm=confirm, confirm_budget=budget or None, workers=workers,
+                           n_null=n_null, max_null=max_null, alpha=alpha,
                            progress=lambda name: o.message(f"confirming {name} with a refit ..."))
     if as_json:
         o.emit_json(out)
@@ -520,15 +532,20 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     for i, name in enumerate(out.get("final_ranking") or list(by_name)):
         r = by_name[name]
         if "statistic" not in r:
-            rows.append([i + 1, r["effect"], "-", "-", r.get("error", ""), "", ""])
+            rows.append([i + 1, r["effect"], r.get("kind", ""), "-", "-", r.get("error", ""), "", ""])
             continue
         est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
         d = drops.get(name)
-        rows.append([i + 1, r["effect"], f"{r['explained_fraction'] * 100:.0f}%", format_p(r), est,
+        kind = "generic" if r.get("generic") else r.get("kind", "physics")
+        rows.append([i + 1, r["effect"], kind, f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r), est,
                      "yes" if r["effect"] in out["significant"] else "no", "" if d is None else f"{d * 100:.0f}%"])
-    o.table(["rank", "effect", "explains", "p-value", "estimate", "significant", "refit: error drop"], rows,
+    o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
+             "refit: error drop"], rows,
             title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")
+    o.line(f"verdict: {out['verdict']}")
     o.line(out["summary"])
+    for rule in out["rules"]:
+        o.line(f"decision rule {rule}")
     o.line(f"wrote {run / 'diagnosis.json'}")
 
 

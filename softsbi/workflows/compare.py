@@ -42,8 +42,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     la = fit_label(ra.config)
     lb = fit_label(rb.config)
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
-               f"({describe_change(rows[0]['a'], rows[0]['b'])}); misspecification p "
-               f"{a['misspecification']['p_value_gamma']:.2g} -> {b['misspecification']['p_value_gamma']:.2g}.")
+               f"({describe_change(rows[0]['a'], rows[0]['b'])}); misspecification "
+               f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}.")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"

@@ -27,6 +27,7 @@ from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows.check import check_run
 from softsbi.workflows.compare import compare_runs
 from softsbi.workflows.diagnose import diagnose_run
+from softsbi.workflows.stats import PosteriorPredictive
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
@@ -124,15 +125,16 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     """Steps 2-5: check, diagnose, refit with the named effect, compare."""
     nominal = out / "nominal"
     ui.step("2. check: where does the model miss the measurement?")
+    pool = PosteriorPredictive(nominal, workers)  # one null for check and diagnose
     with ui.working("posterior predictive check ..."):
-        doc["check"] = check_run(nominal, workers=workers)
+        doc["check"] = check_run(nominal, workers=workers, pool=pool)
     ui.line(doc["check"]["summary"])
     ui.step("3. diagnose: which installed effect explains the residual?")
     with ui.working("screening candidate effects ..."):
-        diag = doc["diagnosis"] = diagnose_run(nominal, confirm=0, workers=workers)
+        diag = doc["diagnosis"] = diagnose_run(nominal, confirm=0, workers=workers, pool=pool)
     ui.diagnosis_done(diag)
-    if not diag["significant"]:
-        ui.line("no effect to add; stopping here")
+    if diag.get("verdict", "missing-effect") != "missing-effect" or not diag["significant"]:
+        ui.line(f"verdict {diag.get('verdict')}: no named effect to add; stopping here")
         return doc
     eff = diag["selected"]
     ui.step(f"4. add the effect: refit with --effect {eff}")

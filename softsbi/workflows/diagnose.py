@@ -1,32 +1,38 @@
-"""Which installed effect is missing? A linearised screening, then refits of the top candidates.
+"""Is the nominal model enough, and which installed effect is missing? Three verdicts.
 
-:func:`diagnose_run` ranks candidate effects by how much of the residual each explains: with
-summaries ``s``, the residual ``r = s_obs - s(theta_hat)`` is regressed on the sensitivities of
-the nominal parameters ``J_theta`` and of the effect ``J_E`` (finite differences at the posterior
-median, one simulation per direction; the engines are deterministic). The statistic is the drop
-of the weighted residual sum of squares when ``J_E`` joins ``J_theta`` (effect parameters kept
-inside their prior range); its null distribution comes from posterior-predictive simulations of
-the nominal model treated as if they were the measurement (a Gamma fit of that null gives the
-p-value). Candidates are ranked, and selected forward, by that p-value, since raw residual drops
-are not comparable across effects with different parameters. Top candidates are then confirmed
-by a short refit with the effect switched on (:func:`confirm_candidates`).
+:func:`diagnose_run` first asks ``check``'s question with ``check``'s test (the same code and null:
+:class:`~softsbi.workflows.stats.PosteriorPredictive`): is the measurement inside the posterior
+predictive distribution? If not, it ranks candidate effects by how much of the residual each
+explains: with summaries ``s``, the residual ``r = s_obs - s(theta_hat)`` is regressed on the
+sensitivities of the nominal parameters ``J_theta`` and of the effect ``J_E`` (finite differences
+at the posterior median, one simulation per direction; the engines are deterministic). The
+statistic is the drop of the weighted residual sum of squares when ``J_E`` joins ``J_theta``
+(effect parameters kept inside their prior range); its null comes from the posterior-predictive
+rollouts treated as if they were the measurement, and the family of candidates is tested with
+the Westfall-Young max-T null (:func:`~softsbi.workflows.stats.max_t_adjusted`); every p-value is
+a Monte-Carlo p-value with its resolution, extended adaptively, never extrapolated. Top candidates
+are then confirmed by a short refit with the effect switched on (:func:`confirm_candidates`).
 """
 from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from scipy import stats
 from scipy.optimize import lsq_linear
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.metrics import describe_change
 from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
-from softsbi.workflows.check import FEATURE_FLOOR, sampled_points, trajectory_features
+from softsbi.workflows.check import material_regions, motion_phases, region_errors
+from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
+                                     PosteriorPredictive, max_t_adjusted, mc_pvalue, pvalue_fields,
+                                     resolution_needed, sampled_points, trajectory_features)
 from softsbi.core.types import Recording
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.jobs import run_jobs
@@ -46,65 +52,131 @@ def _candidate_effects(run: RunView, names: Sequence[str] | None) -> list[Any]:
     return [c() for c in cands if c.name not in run.effects]
 
 
-def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_null: int = 30,
-                 unit_step: float = 0.05, effect_step: float = 0.25, alpha: float = 0.01,
-                 workers: int | None = None, confirm: int = 2, confirm_budget: dict[str, int] | None = None,
-                 seed: int = 0, progress: Any = None) -> dict[str, Any]:
-    """Rank installed effects by how much of the residual each explains; writes ``diagnosis.json``.
+#: verdicts of a diagnosis (``diagnosis.json``'s ``verdict``)
+VERDICTS = ("nothing-missing", "missing-effect", "misspecified-unexplained")
+#: practical-significance rule: a named effect must explain at least this fraction of the residual
+MIN_EXPLAINED = 0.1
+
+
+def effect_kind(effect: Any) -> str:
+    """``"physics"`` or ``"sensor"``: an effect class's ``kind`` attribute (default physics)."""
+    return str(getattr(type(effect), "kind", getattr(effect, "kind", "physics")) or "physics")
+
+
+def is_generic(effect: Any) -> bool:
+    """True for a generic force term (class attribute ``generic = True``: constant force, linear
+    or quadratic drag, a position-dependent force field), which describes a residual rather than
+    naming a physical cause."""
+    return bool(getattr(type(effect), "generic", False))
+
+
+def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_null: int = N_NULL,
+                 max_null: int = MAX_NULL, unit_step: float = 0.05, effect_step: float = 0.25,
+                 alpha: float = ALPHA, min_explained: float = MIN_EXPLAINED, workers: int | None = None,
+                 confirm: int = 2, confirm_budget: dict[str, int] | None = None,
+                 seed: int = 0, progress: Any = None, pool: PosteriorPredictive | None = None) -> dict[str, Any]:
+    """Is the nominal model enough, and if not, which installed effect is missing? Writes ``diagnosis.json``.
+
+    Three verdicts, in this order (``verdict``):
+
+    1. ``nothing-missing``: the measurement lies inside the posterior predictive distribution
+       (``check``'s misspecification test, the same code and null: :meth:`PosteriorPredictive.misspecification`,
+       ``p > alpha``). Candidates are ranked for reference only.
+    2. ``missing-effect``: misspecified, and a named (non-generic) candidate explains the residual:
+       max-T adjusted Monte-Carlo ``p <= alpha`` over all candidates (:func:`max_t_adjusted`) and
+       at least ``min_explained`` of the residual sum of squares. Forward selection adds a second
+       effect when it passes the same rule given the first. Physics and sensor effects
+       (:func:`effect_kind`) are named as such.
+    3. ``misspecified-unexplained``: misspecified but no named candidate passes; the residual's
+       shape (frames/phases, regions of the cloth, direction; :func:`residual_shape`) and the best
+       generic force term (:func:`is_generic`) with the fraction it explains.
+
+    Adaptive resolution: the null starts with ``n_null`` posterior-predictive rollouts; when a
+    decision at ``alpha`` needs more (:func:`resolution_needed`) it is extended once to ``max_null``.
 
     Args:
         run_dir: a finished fit of the nominal model.
         effects: candidate effect names (default: every installed effect the backend supports
             and the run does not already include).
-        n_null: posterior-predictive simulations forming the null distribution.
+        n_null, max_null: start and cap of the posterior-predictive null.
         unit_step: finite-difference step of the nominal parameters (unit-cube units).
         effect_step: finite-difference step of each effect parameter (fraction of its range).
-        alpha: family-wise significance level (Bonferroni over candidates).
+        alpha: family-wise level of every test.
+        min_explained: smallest fraction of the residual a named effect must explain.
         confirm: refit the top ``confirm`` candidates (:func:`candidates_to_confirm`) with the
             effect switched on (0 = no refit), report the change in posterior-predictive Chamfer
             and select the effect whose refit lowers it most (:func:`confirm_candidates`).
-        confirm_budget: ``{"rounds": r, "sims_per_round": n}`` of the confirmation refits
-            (default: the run's own).
+        confirm_budget: ``{"rounds": r, "sims_per_round": n}`` of the confirmation refits.
         progress: optional ``callable(str)`` told which effect is being refitted.
+        pool: posterior-predictive rollouts of this run already simulated (e.g. by ``check_run``
+            with the same ``seed``): reused, so check and diagnose share one null.
 
     Returns:
-        dict with ``ranking`` (effect, explained_fraction, statistic, p_value, log10_p, estimate,
-        ...; ordered by evidence, i.e. by the p-value against each effect's own null),
-        ``significant`` (names, forward selection), ``confirmed`` (refit results, best first),
-        ``selected`` (the effect to add: the best confirmed one, else the first significant one,
-        else None), ``final_ranking`` (effect names: refitted ones by error drop, then the
-        screening's order) and ``summary`` (plain language).
+        dict with ``verdict``, ``summary`` (plain language), ``rules`` (the decision rules as
+        applied), ``misspecification`` (check's test), ``ranking`` (per candidate: ``kind``,
+        ``generic``, ``explained_fraction``, ``statistic``, max-T ``adjusted_p_value`` and
+        ``adjusted_p_text``, ``estimate``; by evidence), ``significant`` (named effects, forward
+        selection), ``selected``, ``generic`` (best generic term or None), ``residual`` (shape;
+        when misspecified), ``remaining`` (what the named effects leave, with its p-value),
+        ``confirmed``, ``final_ranking``, ``n_null``, ``simulations``.
+
+    The null treats posterior-predictive rollouts as data without refitting them; since the
+    measurement itself was fitted, such p-values tend to be conservative (Bayarri & Berger 2000;
+    the benchmark's controls measure the false-alarm rate); a parametric bootstrap that refits
+    every null (Key et al. 2025) would be exact but costs one fit per null simulation.
+
+    Raises:
+        SoftsbiError: no candidates; the posterior median's simulation failed; too few rollouts.
     """
     t0 = time.perf_counter()
     run = load_run(run_dir, n_null, seed)
     cands = _candidate_effects(run, effects)
     if not cands:
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
-    jobs, eff_cols, n_fd = _sensitivity_jobs(run, cands, unit_step, effect_step)
+    jobs, eff_cols, _ = _sensitivity_jobs(run, cands, unit_step, effect_step)
     res = run_jobs(run.sim_context(keep_rollout=True), jobs, workers)
-    screen = _Screening(run, cands, res, eff_cols, n_fd, effect_step)
+    pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_null)
+    mis = pool.misspecification(alpha, max_null)
+    screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
     ranking = screen.ranking()
-    thr = alpha / max(len(screen.design), 1)
-    significant, steps_log = screen.forward_selection(ranking, thr)
-    out = {"run": str(run.path), "candidates": [c.name for c in cands], "ranking": ranking,
-           "significance_threshold": thr, "significant": significant, "selection": steps_log,
-           "confirmed": [], "selected": significant[0] if significant else None,
-           "final_ranking": [r["effect"] for r in ranking],
-           "summary": "", "simulations": len(jobs), "seconds": time.perf_counter() - t0}
-    out["summary"] = _diagnosis_sentence(run, out)
+    top = [r for r in ranking if "statistic" in r]
+    if mis["misspecified"] and top and pool.requested < max_null \
+            and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null):
+        pool.ensure(max_null)  # stage 1 could not reject any candidate: decide at the cap only
+        screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
+        ranking = screen.ranking()
+    significant, steps_log = (screen.forward_selection(ranking, alpha, min_explained) if mis["misspecified"]
+                              else ([], []))
+    generic = [r for r in ranking if r.get("generic") and "statistic" in r]
+    out = {"run": str(run.path), "candidates": [c.name for c in cands], "alpha": alpha,
+           "n_null_start": n_null, "max_null": max_null,
+           "min_explained": min_explained, "misspecification": mis, "ranking": ranking,
+           "significant": significant, "selection": steps_log, "confirmed": [],
+           "selected": significant[0] if significant else None,
+           "generic": generic[0]["effect"] if generic else None,
+           "final_ranking": [r["effect"] for r in ranking], "n_null": len(pool.rollouts),
+           "simulations": len(jobs) + pool.requested}
+    out["verdict"] = ("nothing-missing" if not mis["misspecified"] else
+                      "missing-effect" if significant else "misspecified-unexplained")
+    if out["verdict"] != "nothing-missing":
+        out["residual"] = residual_shape(run, pool)
+    if significant:
+        out["remaining"] = screen.remaining(significant)
+    out["rules"] = decision_rules(out)
+    out["summary"] = _diagnosis_sentence(out)
     if confirm:
         confirm_candidates(run, out, confirm, confirm_budget, workers, progress=progress)
+    out["seconds"] = time.perf_counter() - t0
     (Path(run_dir) / "diagnosis.json").write_text(json.dumps(out, indent=2))
     return out
 
 
 def _sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
                       effect_step: float) -> tuple[list[tuple[dict, int, tuple]], list[tuple[Any, str, int, int]], int]:
-    """The simulations of the screening, as job items ``(theta, seed, effects)``: the posterior
-    median; one finite-difference step per nominal parameter; per candidate the effect at its
-    nominal value and one step per effect parameter; then the posterior-predictive rollouts that
-    form the null. Returns the items, the effect columns ``(effect, parameter, index with the
-    step, index at nominal)`` and the number of finite-difference items."""
+    """The finite-difference simulations of the screening, as job items ``(theta, seed, effects)``:
+    the posterior median; one step per nominal parameter; per candidate the effect at its nominal
+    value and one step per effect parameter. Returns the items, the effect columns ``(effect,
+    parameter, index with the step, index at nominal)`` and the number of items."""
     base = run.median()
     space = run.space
     u_hat = np.clip(space.to_unit(space.as_array({k: base[k] for k in space.names})), 0, 1)
@@ -131,32 +203,31 @@ def _sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
             v[p.name] = float(es.subset([p.name]).from_unit(np.array([u0 + s]))[0])
             jobs.append((v, 0, tuple(run.effects) + (eff.name,)))
             eff_cols.append((eff, p.name, len(jobs) - 1, i_nom))
-    n_fd = len(jobs)
-    for i, th in enumerate(run.post_theta):
-        jobs.append((run.values(th), 2000 + i, tuple(run.effects)))
-    return jobs, eff_cols, n_fd
+    return jobs, eff_cols, len(jobs)
 
 
 class _Screening:
-    """The linearised added-variable test of every candidate, from the screening's simulations.
+    """The linearised added-variable test of every candidate.
 
     Residuals are standardised summary statistics: ``r_obs`` of the measurement and ``r_null`` of
-    the posterior-predictive rollouts, both relative to the posterior median's; ``J_theta`` holds
-    the nominal parameters' sensitivities, ``design[name]`` each effect's offset, sensitivities
-    and the coefficient bounds that keep its parameters inside their prior range.
+    the posterior-predictive rollouts (the null: the nominal model's own data), both relative to the
+    posterior median's; ``J_theta`` holds the nominal parameters' sensitivities, ``design[name]``
+    each effect's offset, sensitivities and the coefficient bounds that keep its parameters inside
+    their prior range. A candidate's statistic is the drop of the residual sum of squares when it
+    joins the fit; one null rollout gives every candidate's statistic, so the family is tested
+    with the max-T null (:func:`max_t_adjusted`).
     """
 
     def __init__(self, run: RunView, cands: list[Any], res: list[dict[str, Any]],
-                 eff_cols: list[tuple[Any, str, int, int]], n_fd: int, effect_step: float):
+                 eff_cols: list[tuple[Any, str, int, int]], effect_step: float, null_features: np.ndarray):
         n_pts = run.dense.shape[1]
-        # finite-difference simulations share one sampling seed (common random numbers); the null
-        # simulations each get their own, like the measurement
-        feats = [trajectory_features(sampled_points(r["vertices"], r["faces"], n_pts, 0 if i < n_fd else 5000 + i))
-                 if r["status"] == STATUS_OK else None for i, r in enumerate(res)]
+        # finite-difference simulations share one sampling seed (common random numbers)
+        feats = [trajectory_features(sampled_points(r["vertices"], r["faces"], n_pts, 0))
+                 if r is not None and r["status"] == STATUS_OK else None for r in res]
         if feats[0] is None:
             raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
         f0 = feats[0]
-        null_f = np.array([f for f in feats[n_fd:] if f is not None])
+        null_f = np.asarray(null_features)
         if len(null_f) < 5:
             raise SoftsbiError("too few successful posterior-predictive simulations for the null distribution")
         sd = np.maximum(null_f.std(0), FEATURE_FLOOR)
@@ -172,8 +243,9 @@ class _Screening:
     def _add_design(self, eff: Any, cols: list[tuple[Any, str, int, int]], feats: list[Any], f0: np.ndarray,
                     sd: np.ndarray, effect_step: float) -> None:
         # offset: the effect switched on at its nominal value (e.g. wind at 0 m/s still adds air)
-        if any(feats[c[2]] is None or feats[c[3]] is None for c in cols) or feats[cols[0][3]] is None:
-            self.failed.append({"effect": eff.name, "error": "a sensitivity simulation failed"})
+        if not cols or any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
+            self.failed.append({"effect": eff.name, "kind": effect_kind(eff), "generic": is_generic(eff),
+                                "error": "a sensitivity simulation failed"})
             return
         es = eff.param_space()
         lo, hi, steps = [], [], []
@@ -200,110 +272,200 @@ class _Screening:
         fit = lsq_linear(A, rr, bounds=(lb, ub))
         return float(((rr - A @ fit.x) ** 2).sum()), fit.x[J_theta.shape[1]:]
 
-    def test(self, name: str, given: list[str]) -> dict[str, Any]:
-        """Does effect ``name`` explain residual beyond the effects ``given``? The drop in the
-        residual sum of squares against its null over the posterior-predictive rollouts."""
+    def statistic(self, name: str, given: list[str]) -> dict[str, Any]:
+        """Residual drop of effect ``name`` beyond the effects ``given``, on the measurement and on
+        every null rollout (``null (n,)``), with the explained fraction and the linearised estimate."""
         base_obs, _ = self.sse(self.r_obs, given)
         with_obs, coef = self.sse(self.r_obs, given + [name])
         d_obs = base_obs - with_obs
-        null = np.array([self.sse(r, given)[0] - self.sse(r, given + [name])[0] for r in self.r_null])
-        p_emp = (1 + (null >= d_obs).sum()) / (len(null) + 1)
-        pos = null[null > 1e-12]
-        if d_obs <= 0:
-            log_p = 0.0
-        elif len(pos) >= 3:
-            ga, _, gscale = stats.gamma.fit(pos, floc=0)
-            log_p = _gamma_logsf(d_obs, ga, gscale) + np.log(len(pos) / len(null))
-        else:
-            log_p = float(np.log(p_emp))
-        log_p = min(0.0, log_p)
+        base_null = [self.sse(r, given)[0] for r in self.r_null]
+        null = np.array([b - self.sse(r, given + [name])[0] for b, r in zip(base_null, self.r_null)])
         est = {}
         dsg = self.design[name]
         k = len(coef) - len(dsg["steps"])
         for (pname, u0, step), cval in zip(dsg["steps"], coef[k:]):
             ps1 = dsg["effect"].param_space().subset([pname])
             est[pname] = float(ps1.from_unit(np.array([np.clip(u0 + cval * step, 0, 1)]))[0])
-        return {"statistic": float(d_obs), "explained_fraction": float(d_obs / max(base_obs, 1e-12)),
-                "null_mean": float(null.mean()), "p_value": float(p_emp), "p_value_gamma": float(np.exp(log_p)),
-                "log10_p": log_p / np.log(10), "estimate": est}
+        eff = dsg["effect"]
+        return {"effect": name, "description": eff.description, "kind": effect_kind(eff), "generic": is_generic(eff),
+                "statistic": float(d_obs), "explained_fraction": float(d_obs / max(base_obs, 1e-12)),
+                "null_mean": float(null.mean()), "null": null, "estimate": est}
 
-    @staticmethod
-    def evidence(t: dict[str, Any]) -> tuple[float, float]:
-        """Sort key: p-value first (each statistic is calibrated by its own null: effects differ in
-        their number of parameters and nonlinearity, so raw residual drops are not comparable)."""
-        return (t["log10_p"], -t["explained_fraction"])
+    def family(self, names: Sequence[str], given: list[str]) -> list[dict[str, Any]]:
+        """Every candidate in ``names`` tested beyond ``given``, with max-T adjusted p-values over
+        the family (``adjusted_p_value``, ``adjusted_p_text``, ...), its own Monte-Carlo p-value
+        (``p_value``) and the normalised statistic ``z``; ordered by evidence (adjusted p, then z)."""
+        tests = [self.statistic(n, given) for n in names]
+        if not tests:
+            return []
+        adj, z = max_t_adjusted(np.array([t["statistic"] for t in tests]), np.stack([t["null"] for t in tests], 1))
+        for t, p, zz in zip(tests, adj, z):
+            own = mc_pvalue(t["statistic"], t.pop("null"))
+            t.update(z=float(zz), p_value=own.value, p_text=own.text(), **pvalue_fields(p, "adjusted_"))
+            t["adjusted_exceed"], t["n_null"] = p.exceed, p.n
+        tests.sort(key=lambda t: (t["adjusted_p_value"], -t["z"]))
+        return tests
 
     def ranking(self) -> list[dict[str, Any]]:
         """Every candidate tested alone, by evidence; failed candidates last."""
-        ranking = [{"effect": name, "description": dsg["effect"].description, **self.test(name, [])}
-                   for name, dsg in self.design.items()]
-        ranking.sort(key=self.evidence)
-        return ranking + self.failed
+        return self.family(list(self.design), []) + self.failed
 
-    def forward_selection(self, ranking: list[dict[str, Any]], thr: float) -> tuple[list[str], list[dict[str, Any]]]:
-        """Effects selected forward: one is significant if it explains residual beyond those already
-        chosen (p below ``thr`` and more than 10% of the residual). Returns them and the steps."""
-        significant: list[str] = []
+    def remaining(self, names: list[str]) -> dict[str, Any]:
+        """What the effects ``names`` leave unexplained: the residual sum of squares after the
+        linearised fit with them, its fraction of the nominal fit's, and its Monte-Carlo p-value
+        against the same quantity on the null rollouts (``p_text``)."""
+        obs = self.sse(self.r_obs, names)[0]
+        null = np.array([self.sse(r, names)[0] for r in self.r_null])
+        p = mc_pvalue(obs, null)
+        return {"effects": list(names), "sse": obs, "fraction": obs / max(self.sse(self.r_obs, [])[0], 1e-12),
+                **p.as_dict()}
+
+    def forward_selection(self, ranking: list[dict[str, Any]], alpha: float,
+                          min_explained: float) -> tuple[list[str], list[dict[str, Any]]]:
+        """Named (non-generic) effects selected forward: the best named candidate joins when its
+        max-T adjusted p-value (over every remaining candidate, given those chosen) is at most
+        ``alpha`` and it explains at least ``min_explained`` of the remaining residual. Returns the
+        chosen names and one log entry per step."""
+        chosen: list[str] = []
         remaining = [r["effect"] for r in ranking if "statistic" in r]
-        steps_log = []
+        log = []
+        tests = [r for r in ranking if "statistic" in r]
         while remaining:
-            tests = {n: (self.test(n, significant) if significant else next(r for r in ranking if r["effect"] == n))
-                     for n in remaining}
-            best = min(tests, key=lambda n: self.evidence(tests[n]))
-            t = tests[best]
-            steps_log.append({"given": list(significant), "best": best, "p_value_gamma": t["p_value_gamma"],
-                              "explained_fraction": t["explained_fraction"]})
-            if t["p_value_gamma"] < thr and t["explained_fraction"] > 0.1:
-                significant.append(best)
-                remaining.remove(best)
-            else:
+            if chosen:
+                tests = self.family(remaining, chosen)
+            named = [t for t in tests if not t["generic"]]
+            if not named:
                 break
-        return significant, steps_log
+            best = named[0]
+            ok = best["adjusted_p_value"] <= alpha and best["explained_fraction"] >= min_explained
+            log.append({"given": list(chosen), "best": best["effect"], "adjusted_p_value": best["adjusted_p_value"],
+                        "adjusted_p_text": best["adjusted_p_text"], "explained_fraction": best["explained_fraction"],
+                        "accepted": bool(ok)})
+            if not ok:
+                break
+            chosen.append(best["effect"])
+            remaining.remove(best["effect"])
+        return chosen, log
 
 
 def format_p(test: dict[str, Any]) -> str:
-    """A candidate's p-value for people: ``2.1e-19``, or ``1e-1234`` from ``log10_p`` where the
-    float underflows to 0."""
-    p = test.get("p_value_gamma", float("nan"))
-    if p > 0 or not np.isfinite(test.get("log10_p", np.nan)):
-        return f"{p:.2g}"
-    return f"1e{int(np.floor(test['log10_p']))}"
+    """A candidate's max-T adjusted p-value for people, with its resolution (``p <= 1/121``)."""
+    if "adjusted_exceed" in test:
+        p = MCPValue(test["adjusted_exceed"], test["n_null"])
+        return f"p <= 1/{p.n + 1}" if p.at_floor else f"p = {p.value:.2g}"
+    return "-"
 
 
-def _gamma_logsf(x: float, a: float, scale: float) -> float:
-    """``log P(X > x)`` for ``X ~ Gamma(a, scale)``, finite far in the tail.
+def decision_rules(out: dict[str, Any]) -> list[str]:
+    """The decision rules of a diagnosis, as applied to it (one line each)."""
+    a, m = out["alpha"], out["misspecification"]
+    rules = [f"1. misspecified if check's test gives p <= {a:g}: {m['p_text']} -> "
+             f"{'misspecified' if m['misspecified'] else 'not misspecified'}"]
+    if not m["misspecified"]:
+        return rules + ["2. not applied: the measurement is inside the posterior predictive distribution"]
+    for st in out["selection"]:
+        given = f" beyond {', '.join(st['given'])}" if st["given"] else ""
+        rules.append(f"2. a named effect is missing if its max-T adjusted p <= {a:g} and it explains >= "
+                     f"{out['min_explained'] * 100:.0f}% of the residual: {st['best']}{given} has "
+                     f"{st['adjusted_p_text']}, explains {st['explained_fraction'] * 100:.0f}% -> "
+                     f"{'accepted' if st['accepted'] else 'rejected'}")
+    if not out["selection"]:
+        rules.append("2. no named (non-generic) candidate could be tested")
+    return rules
 
-    SciPy's ``logsf`` underflows to ``-inf`` when ``x / scale`` is in the thousands, which would
-    tie every strongly significant effect; there the leading term of the asymptotic expansion of
-    the upper incomplete gamma function is used (Abramowitz & Stegun 6.5.32):
-    ``log Q(a, z) ~ (a - 1) log z - z - log Gamma(a) + log(1 + (a - 1) / z)``.
+
+def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: int = 20) -> dict[str, Any]:
+    """When, where and in which direction the measurement leaves the posterior predictive distribution.
+
+    - frames: per frame, the mean squared standardised deviation of the measurement's 13 cloud
+      summaries from the posterior-predictive rollouts, against the same statistic of each rollout
+      (leave-one-out); a frame is flagged when the measurement exceeds the rollouts' 95% quantile.
+      Reported as runs of consecutive flagged frames with their times, and per motion phase.
+    - direction: the measured centroid minus the rollouts' mean centroid (cm), over the flagged frames.
+    - regions: per region of the cloth (:func:`~softsbi.workflows.check.material_regions`), the
+      bidirectional nearest-neighbour error of the measurement to the rollouts minus that of another
+      rollout to them (cm; the first ``n_regions_rollouts`` rollouts): the error the nominal model's
+      own spread does not produce.
+
+    Returns:
+        dict with ``frames_flagged``, ``frame_spans`` (``[[first, last, t0_s, t1_s], ...]``),
+        ``phases`` (``phase``, ``frames``, ``fraction_flagged``), ``centroid_offset_cm`` (3,),
+        ``direction`` (words), ``worst_summary``, ``region_excess_cm`` and ``worst_regions``.
     """
-    lsf = float(stats.gamma.logsf(x, a, scale=scale))
-    return lsf if np.isfinite(lsf) else _gamma_logsf_asymptotic(x / scale, a)
-
-
-def _gamma_logsf_asymptotic(z: float, a: float) -> float:
-    """``log Q(a, z)`` for ``z >> a`` (A&S 6.5.32, two terms)."""
-    from scipy.special import gammaln
-    return float((a - 1) * np.log(z) - z - gammaln(a) + np.log1p((a - 1) / z))
+    T = len(run.dense)
+    F = pool.features.reshape(len(pool.rollouts), T, -1)
+    f_obs = trajectory_features(run.dense).reshape(T, -1)
+    S = len(F)
+    mu, sd = F.mean(0), np.maximum(F.std(0), FEATURE_FLOOR)
+    z_obs = (((f_obs - mu) / sd) ** 2).mean(-1)
+    z_null = np.empty((S, T))
+    for i in range(S):
+        o = np.delete(F, i, axis=0)
+        z_null[i] = (((F[i] - o.mean(0)) / np.maximum(o.std(0), FEATURE_FLOOR)) ** 2).mean(-1)
+    flagged = z_obs > np.quantile(z_null, 0.95, axis=0)
+    times = run.scenario.times
+    spans, t = [], 0
+    while t < T:
+        if flagged[t]:
+            e = t
+            while e + 1 < T and flagged[e + 1]:
+                e += 1
+            spans.append([int(t), int(e), float(times[t]), float(times[e])])
+            t = e + 1
+        else:
+            t += 1
+    phases = [{"phase": ph["phase"], "frames": ph["frames"],
+               "fraction_flagged": float(flagged[ph["frames"][0]:ph["frames"][1] + 1].mean())}
+              for ph in motion_phases(run.scenario)]
+    sel = flagged if flagged.any() else np.ones(T, bool)
+    off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
+    axis = int(np.argmax(np.abs(off)))
+    direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + (" (up)" if axis == 2 and off[2] > 0 else
+                                                               " (down)" if axis == 2 else "")
+    zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
+    out = {"frames_flagged": [int(i) for i in np.flatnonzero(flagged)], "frame_spans": spans, "phases": phases,
+           "centroid_offset_cm": off.tolist(), "direction": direction,
+           "worst_summary": FEATURE_NAMES[int(np.argmax(zf))]}
+    ro = pool.rollouts[:max(2, n_regions_rollouts)]
+    labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
+    n_pts = run.dense.shape[1]
+    exc = []
+    for k, r in enumerate(ro):
+        j = (k + 1) % len(ro)
+        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], n_pts, 1000 + ro[j]["sample"])
+        e_obs = region_errors(r["vertices"], r["faces"], labels, run.dense, len(names))
+        e_null = region_errors(r["vertices"], r["faces"], labels, other, len(names))
+        exc.append(e_obs - e_null)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        per_region = np.nanmean(np.array(exc)[:, sel], axis=(0, 1)) * 100
+    per_region = np.nan_to_num(per_region, nan=-np.inf)
+    out["region_excess_cm"] = {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)}
+    out["worst_regions"] = [names[int(i)] for i in np.argsort(per_region)[::-1][:2]]
+    return out
 
 
 def candidates_to_confirm(out: dict[str, Any], confirm: int) -> list[str]:
-    """The top candidates a diagnosis refits: the forward selection's first effect, then the
-    other effects that are significant on their own (``p < threshold`` and > 10 % of the
-    residual), in ranking order, ``confirm`` at most.
+    """The candidates a diagnosis refits, ``confirm`` at most: for ``missing-effect`` the forward
+    selection's first effect, then the other named effects that pass the rule on their own
+    (adjusted ``p <= alpha`` and ``>= min_explained`` of the residual), in ranking order; for
+    ``misspecified-unexplained`` the best generic force term when it passes the same rule;
+    nothing for ``nothing-missing``.
 
     Near-collinear effects (air drag and extra damping in a fling are both velocity-dependent
     drags) can each explain most of the residual in the linearised screening; only a refit tells
     which one the data prefer.
     """
-    names = list(out["significant"][:1])
-    for r in out["ranking"]:
-        if len(names) >= confirm:
-            break
-        if "statistic" in r and r["effect"] not in names and r["p_value_gamma"] < out["significance_threshold"] \
-                and r["explained_fraction"] > 0.1:
-            names.append(r["effect"])
+    verdict = out.get("verdict")
+    passes = [r for r in out["ranking"] if "statistic" in r and r["adjusted_p_value"] <= out["alpha"]
+              and r["explained_fraction"] >= out.get("min_explained", MIN_EXPLAINED)]
+    if verdict == "missing-effect":
+        names = list(out["significant"][:1])
+        names += [r["effect"] for r in passes if not r.get("generic") and r["effect"] not in names]
+    elif verdict == "misspecified-unexplained":
+        names = [r["effect"] for r in passes if r.get("generic")][:1]
+    else:
+        names = []
     return names[:confirm]
 
 
@@ -311,11 +473,11 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                        budget: dict[str, int] | None = None, workers: int | None = None,
                        progress: Any = None) -> dict[str, Any]:
     """Refit the top ``confirm`` candidates of a diagnosis ``out`` (from :func:`diagnose_run`)
-    and select the effect whose refit lowers the posterior-predictive Chamfer most.
+    and select the named effect whose refit lowers the posterior-predictive Chamfer most.
 
     Updates ``out`` in place: ``confirmed`` (one refit result per candidate, ordered by error
-    drop), ``selected`` (the effect with the largest drop, or the screening's first choice when
-    no refit lowers the error) and ``summary``.
+    drop), ``selected`` (for ``missing-effect``: the named effect with the largest drop, or the
+    screening's first choice when no refit lowers the error), ``final_ranking`` and ``summary``.
 
     Args:
         progress: optional ``callable(str)`` told which effect is being refitted.
@@ -326,50 +488,124 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
             continue
         if progress:
             progress(name)
-        out["confirmed"].append(confirm_effect(view, name, budget, workers))
+        out["confirmed"].append(confirm_effect(view, name, budget, workers, alpha=out.get("alpha", ALPHA),
+                                               n_null=out.get("n_null_start", N_NULL),
+                                               max_null=out.get("max_null", MAX_NULL)))
     out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
-    best = out["confirmed"][0] if out["confirmed"] else None
-    if best is not None and (best.get("drop") or 0) > 0:
-        out["selected"] = best["effect"]
-    # the diagnosis's final order: refitted candidates by their error drop, then the screening's
+    named = [c for c in out["confirmed"] if c["effect"] in out["significant"] or
+             not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False)]
+    if out.get("verdict") == "missing-effect" and named and (named[0].get("drop") or 0) > 0:
+        out["selected"] = named[0]["effect"]
     done = [c["effect"] for c in out["confirmed"]]
     out["final_ranking"] = done + [r["effect"] for r in out["ranking"] if r["effect"] not in done]
-    out["summary"] = _diagnosis_sentence(view, out)
+    out["summary"] = _diagnosis_sentence(out)
     return out
 
 
-def _diagnosis_sentence(run: RunView, out: dict[str, Any]) -> str:
-    ranking, significant, thr = out["ranking"], out["significant"], out["significance_threshold"]
-    confirmed = out.get("confirmed") or []
-    if not significant:
-        top = ranking[0] if ranking else None
-        extra = (f" (best candidate {top['effect']} explains {top['explained_fraction'] * 100:.0f}% of the "
-                 f"residual, p = {format_p(top)} > {thr:.2g})") if top and "statistic" in top else ""
-        return "No missing effect detected: no candidate explains the residual beyond what the nominal model's " \
-               "own posterior spread produces" + extra + "."
-    chosen = out.get("selected") or significant[0]
-    top = next(r for r in ranking if r["effect"] == chosen)
-    est = ", ".join(f"{k} ~ {v:.3g}" for k, v in top["estimate"].items())
-    s = (f"The nominal model misses the measurement; {top['effect']} ({top['description']}) explains "
-         f"{top['explained_fraction'] * 100:.0f}% of the residual (p = {format_p(top)}; linearised "
-         f"estimate {est}).")
-    done = [c for c in confirmed if c.get("chamfer_after_m")]
-    for c in done:
-        if c["effect"] == chosen:
-            s += (f" Refitting with it lowers the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
-                  f"to {c['chamfer_after_m'] * 100:.2f} cm ({c['drop'] * 100:.0f}% lower)")
-            others = [o for o in done if o["effect"] != chosen]
-            s += ("; " + ", ".join(f"with {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
-                                   f"({o['drop'] * 100:.0f}% lower)" for o in others) + ", so the data favour "
-                  f"{chosen}." if others else ".")
-    rest = [n for n in significant if n != chosen]
-    if chosen != significant[0]:
-        s += (f" (The linearised screening ranked {significant[0]} first; the refits decide between these "
-              f"near-collinear candidates.)")
-    elif rest:
-        s += f" Also needed beyond it: {', '.join(rest)}."
+def _pct(x: float) -> str:
+    return f"{max(x, 0.0) * 100:.0f}%"  # a linearised drop can be a rounding error below zero
+
+
+def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
+    """check's verdict on a confirmation refit, in words ('' when it was not computed)."""
+    m = c.get("misspecification_after")
+    if not m:
+        return ""
+    if m["misspecified"]:
+        return (f" With {name} the measurement is still outside the posterior predictive distribution "
+                f"({m['p_text']} <= {alpha:g}): part of the misfit is not explained by {name}.")
+    return (f" With {name} the measurement is inside the posterior predictive distribution "
+            f"({m['p_text']} > {alpha:g}).")
+
+
+def _diagnosis_sentence(out: dict[str, Any]) -> str:
+    """The verdict in plain language (one of :data:`VERDICTS`)."""
+    ranking, a, m = out["ranking"], out["alpha"], out["misspecification"]
+    tested = [r for r in ranking if "statistic" in r]
+    verdict = out.get("verdict")
+    if verdict == "nothing-missing":
+        s = (f"Nothing missing: the measurement lies inside the nominal model's posterior predictive distribution "
+             f"(misspecification test {m['p_text']} > {a:g}), so no effect is called missing.")
+        if tested:
+            t = tested[0]
+            s += (f" For reference, the best candidate {t['effect']} would explain {_pct(t['explained_fraction'])} "
+                  f"of the residual (max-T adjusted {t['adjusted_p_text']}).")
+        return s
+    confirmed = {c["effect"]: c for c in out.get("confirmed") or [] if c.get("chamfer_after_m")}
+    by_name = {r["effect"]: r for r in tested}
+    head = f"The nominal model misses the measurement (misspecification test {m['p_text']} <= {a:g})"
+    if verdict == "missing-effect":
+        chosen = out.get("selected") or out["significant"][0]
+        t = by_name[chosen]
+        est = ", ".join(f"{k} ~ {v:.3g}" for k, v in t["estimate"].items())
+        s = (f"Missing {t['kind']} effect: {chosen} ({t['description']}). {head}; {chosen} explains "
+             f"{_pct(t['explained_fraction'])} of the residual (max-T adjusted {t['adjusted_p_text']}; linearised "
+             f"estimate {est}).")
+        if chosen in confirmed:
+            c = confirmed[chosen]
+            s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+                  f"to {c['chamfer_after_m'] * 100:.2f} cm "
+                  f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
+            s += _after_refit(c, chosen, a)
+            others = [o for n, o in confirmed.items() if n != chosen]
+            if others:
+                s += " " + "; ".join(f"With {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
+                                     f"({describe_change(o['chamfer_before_m'], o['chamfer_after_m'])})"
+                                     for o in others) + (f", so the data favour {chosen}." if (c.get("drop") or 0) > 0
+                                                         else "; no refit lowers the error.")
+        if chosen != out["significant"][0]:
+            s += (f" (The linearised screening ranked {out['significant'][0]} first; the refits decide between "
+                  f"these near-collinear candidates.)")
+        rest = [n for n in out["significant"] if n != chosen]
+        if rest:
+            s += " A second effect is needed beyond it: " + ", ".join(
+                f"{n} ({by_name[n]['kind']})" for n in rest) + "."
+        else:
+            s += " No second effect explains significantly more once it is included."
+        rem = out.get("remaining")
+        if rem and not (confirmed.get(chosen) or {}).get("misspecification_after"):
+            # the linearised remainder is beyond the null even where the effect is right (nonlinear
+            # response): information, not a verdict; a refit's check decides
+            s += (f" In the linearised screening {_pct(rem['fraction'])} of the residual remains with "
+                  f"{' and '.join(rem['effects'])} ({rem['p_text']}); a confirmation refit (--confirm) and its "
+                  f"check tell whether {'they account' if len(rem['effects']) > 1 else 'it accounts'} for the misfit.")
+        return s
+    # misspecified by nothing installed
+    named = [r for r in tested if not r.get("generic")]
+    s = f"Misspecified by nothing installed: t{head[1:]}, but no installed named effect explains it"
+    if named:
+        t = named[0]
+        why = (f"adjusted {t['adjusted_p_text']} > {a:g}" if t["adjusted_p_value"] > a else
+               f"it explains only {_pct(t['explained_fraction'])} < {_pct(out['min_explained'])} of the residual")
+        s += f" (best: {t['effect']}, {why})"
+    s += "."
+    res = out.get("residual") or {}
+    if res:
+        spans = res["frame_spans"]
+        if spans:
+            sp = ", ".join(f"frames {a_}-{b_} (t {t0:.2f}-{t1:.2f} s)" for a_, b_, t0, t1 in spans[:3])
+            worst = max(res["phases"], key=lambda p: p["fraction_flagged"])
+            s += (f" The residual lives in {sp}, mostly the {worst['phase']} phase "
+                  f"({_pct(worst['fraction_flagged'])} of its frames outside the rollouts' 95% range)")
+        else:
+            s += " No single frame is outside the rollouts' 95% range; the residual is spread over the motion"
+        off = res["centroid_offset_cm"]
+        s += (f"; the measured centroid is displaced by ({off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f}) cm, "
+              f"mostly {res['direction']}; the most deviant summary is {res['worst_summary']}; regions with the "
+              f"most unexplained error: {', '.join(res['worst_regions'])}.")
+    gen = out.get("generic")
+    if gen:
+        g = by_name[gen]
+        s += (f" Best generic force term: {gen} explains {_pct(g['explained_fraction'])} of the residual "
+              f"(max-T adjusted {g['adjusted_p_text']}).")
+        if gen in confirmed:
+            c = confirmed[gen]
+            s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+                  f"to {c['chamfer_after_m'] * 100:.2f} cm "
+                  f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
+            s += _after_refit(c, gen, a)
     else:
-        s += " No other candidate explains significantly more once it is included."
+        s += " No generic force term is installed (effect classes with generic = True)."
     return s
 
 
@@ -380,13 +616,17 @@ def recording_from_run(run: RunView):
 
 
 def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = None,
-                   workers: int | None = None) -> dict[str, Any]:
+                   workers: int | None = None, alpha: float = ALPHA, n_null: int = N_NULL,
+                   max_null: int = MAX_NULL) -> dict[str, Any]:
     """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``), with the
     run's own settings (:meth:`FitConfig.from_run_config`: executor and its options included), the
-    effect switched on and, where given, ``budget`` ``{"rounds", "sims_per_round"}`` and ``workers``.
+    effect switched on and, where given, ``budget`` ``{"rounds", "sims_per_round"}`` and ``workers``;
+    then ``check``'s misspecification test of the refit (same ``alpha``, null sizes): does the
+    measurement fall inside the refitted model's posterior predictive distribution?
 
     Returns:
-        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "drop", "posterior_mean"}``.
+        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "drop", "posterior_mean",
+        "misspecification_after"}``.
     """
     budget = budget or {}
     base = FitConfig.from_run_config(run.config)
@@ -398,8 +638,9 @@ def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = No
     res = run_fit(out, recording_from_run(run), cfg)
     before = run.report.get("chamfer_posterior_m")
     after = res.report.get("chamfer_posterior_m")
+    mis = PosteriorPredictive(out, workers).ensure(n_null).misspecification(alpha, max_null)
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
             "drop": (1 - after / before) if before and after else None,
-            "posterior_mean": res.report["posterior_mean"]}
+            "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis}
 
 

@@ -134,7 +134,8 @@ def _check_out(T=25, long=False):
             "region_error_m": (mean[:, None] * np.linspace(0.5, 1.5, 9)).tolist(),
             "region_mean_m": dict(zip(names, (mean.mean() * np.linspace(0.5, 1.5, 9)).tolist())),
             "phases": phases, "worst_frames": [24, 23, 22], "worst_regions": [names[8], names[7]],
-            "misspecification": {"p_value_gamma": 2.7e-71, "p_value": 0.03},
+            "misspecification": {"p_value": 1 / 201, "exceed": 0, "n_null": 200, "misspecified": True,
+                                 "p_text": "p <= 1/201 (beyond all 200 null simulations)"},
             "summary": "Posterior rollouts miss the measurement by ... " * 8}
 
 
@@ -144,7 +145,7 @@ def test_check_headline_gives_the_verdict_and_fits_the_figure(tmp_path, long):
     fig = R.check_figure(out)
     texts = [t.get_text() for t in fig.texts]
     head = texts[0].replace("\n", " ")
-    assert f"{out['chamfer_mean_m'] * 100:.2f} cm" in head and "late phase" in head and "p = 2.7e-71" in head
+    assert f"{out['chamfer_mean_m'] * 100:.2f} cm" in head and "late phase" in head and "p ≤ 1/201" in head
     assert "NOT" in head
     _assert_texts_inside(fig)
     plt.close(fig)
@@ -153,7 +154,7 @@ def test_check_headline_gives_the_verdict_and_fits_the_figure(tmp_path, long):
 
 def test_compare_uses_the_before_after_roles(tmp_path):
     a, b = _check_out(), _check_out()
-    b["misspecification"] = {"p_value_gamma": 0.4}
+    b["misspecification"] = {"p_value": 0.42, "exceed": 12, "n_null": 30, "misspecified": False}
     fig = R.compare_figure(a, b, "mujoco-flex (nominal)", "mujoco-flex + wind")
     cols = [ln.get_color() for ln in fig.axes[0].lines]
     assert _same_colour(cols[0], R.ROLE_COLOURS["nominal"]) and _same_colour(cols[1], R.ROLE_COLOURS["with_effect"])

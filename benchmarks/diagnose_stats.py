@@ -1,0 +1,253 @@
+"""Statistical benchmark of ``diagnose``'s verdicts: false alarms, confusion matrix, power.
+
+Cases are deterministic from ``--seed`` and their index: case ``i`` is a control (the nominal model
+is true) when ``i % (1 + E) == 0``, else a measurement with the ``(i % (1 + E))``-th candidate effect
+hidden (``E`` candidate effects). Truths are random (nominal parameters uniform in the middle 60%
+of their prior box; scenario drawn from the suite's); a hidden effect's magnitude ``m`` is uniform
+in ``[0.1, 1]``: each effect parameter moves from its nominal (switched-off) value a fraction ``m``
+of the way to an edge of its range (random edge for two-sided parameters such as wind).
+
+Each case fits the nominal model with a small budget, diagnoses it (screening verdict; refits only
+with ``--confirm``) and appends one JSON line to ``--results`` (resumable: cases already there are
+skipped, so the benchmark grows over several sessions). ``summary`` computes the false-alarm rate
+with its binomial standard error (and a Clopper-Pearson 95% interval), the confusion matrix (truth x
+verdict/named effect) and detection vs magnitude.
+
+Usage:
+    python benchmarks/diagnose_stats.py run --suite mujoco --cases 0:20 --results benchmarks/results/diagnose_stats.jsonl
+    python benchmarks/diagnose_stats.py summary --results benchmarks/results/diagnose_stats.jsonl
+Suites: ``mujoco`` (mujoco-flex; lift, wipe, fling, wind; effects wind, air-drag, extra-damping,
+grip-compliance), ``cross-engine`` (measurements by pybullet-massspring fitted with mujoco-flex; the
+right verdict is misspecified-unexplained) and ``toy`` (the test plugin's toy-gauss and toy-wind; needs tests/plugins/softsbi_toy).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from softsbi.plugins import registry
+from softsbi.workflows.diagnose import diagnose_run
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.measurement import simulate_recording
+
+SUITES: dict[str, dict[str, Any]] = {
+    "mujoco": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
+               "effects": ["wind", "air-drag", "extra-damping", "grip-compliance"],
+               "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
+    # data from the other engine (pybullet-massspring at random truths), fitted with mujoco-flex: the
+    # right verdict is misspecified-unexplained (no installed effect turns one engine into the other)
+    "cross-engine": {"backend": "mujoco-flex", "data_backend": "pybullet-massspring",
+                     "data_backend_options": {"grid": 7}, "scenarios": ["lift", "wipe", "fling"],
+                     "effects": ["wind", "air-drag", "extra-damping", "grip-compliance"],
+                     "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
+    "toy": {"backend": "toy-gauss", "scenarios": ["toy"], "effects": ["toy-wind"], "backend_options": {},
+            "n_points": 16, "n_dense": 64, "estimator_options": {"max_epochs": 80, "hidden": [64, 64]}},
+}
+
+
+def _scenario(name: str):
+    if name == "toy":
+        from softsbi_toy.plugin import toy_scenario
+        return toy_scenario(4)
+    from softsbi.scenarios.builtin import lift_scenario, make_scenario
+    return lift_scenario(None) if name == "lift" else make_scenario(name)
+
+
+#: the right verdict of cases without a named hidden effect
+CORRECT_VERDICT = {"control": "nothing-missing", "other-engine": "misspecified-unexplained"}
+
+
+def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
+    """Case ``i`` of ``suite`` (deterministic from ``seed`` and ``i``): ``id``, ``truth_label``
+    (``control`` or the hidden effect), ``scenario``, ``truth`` (physical units), ``magnitude``."""
+    cfg = SUITES[suite]
+    rng = np.random.default_rng([seed, i, 41])
+    effects = cfg["effects"]
+    k = i % (1 + len(effects))
+    label = "other-engine" if "data_backend" in cfg else "control" if k == 0 else effects[k - 1]
+    scen = cfg["scenarios"][int(rng.integers(len(cfg["scenarios"])))]
+    sc = _scenario(scen)
+    reg = registry()
+    data_backend = cfg.get("data_backend", cfg["backend"])
+    space = reg.simulator(data_backend)(**cfg.get("data_backend_options", cfg["backend_options"])).param_space(sc)
+    truth = space.as_dict(space.from_unit(rng.uniform(0.2, 0.8, space.dim)))
+    magnitude = None
+    if label not in ("control", "other-engine"):
+        magnitude = float(rng.uniform(0.1, 1.0))
+        eff = reg.effect(label)()
+        es, nom = eff.param_space(), eff.nominal()
+        for p in es:
+            ps1 = es.subset([p.name])
+            u0 = float(ps1.to_unit(np.array([nom[p.name]]))[0])
+            edge = (1.0 if rng.random() < 0.5 else 0.0) if 0.05 < u0 < 0.95 else (1.0 if u0 <= 0.05 else 0.0)
+            truth[p.name] = float(ps1.from_unit(np.array([u0 + magnitude * (edge - u0)]))[0])
+    return {"id": f"{suite}-s{seed}-{i}", "suite": suite, "index": i, "truth_label": label, "scenario": scen,
+            "truth": truth, "magnitude": magnitude}
+
+
+def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: int, max_null: int,
+             confirm: int, workers: int | None) -> dict[str, Any]:
+    """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields."""
+    t0 = time.perf_counter()
+    cfg = SUITES[case["suite"]]
+    hidden = [] if case["truth_label"] in ("control", "other-engine") else [case["truth_label"]]
+    meas = simulate_recording(cfg.get("data_backend", cfg["backend"]), _scenario(case["scenario"]), case["truth"],
+                              backend_options=cfg.get("data_backend_options", cfg["backend_options"]), effects=hidden,
+                              n_points=cfg["n_points"],
+                              n_dense=cfg["n_dense"], seed=1000 + case["index"])
+    fc = FitConfig(backend=cfg["backend"], backend_options=cfg["backend_options"], estimator="rkhs",
+                   rounds=rounds, sims_per_round=sims, workers=workers, n_points=cfg["n_points"], n_eval=n_null,
+                   n_dense=cfg["n_dense"], seed=case["index"], estimator_options=cfg["estimator_options"])
+    run_dir = out / case["id"]
+    run_fit(run_dir, meas, fc)
+    d = diagnose_run(run_dir, effects=cfg["effects"], n_null=n_null, max_null=max_null, workers=workers,
+                     confirm=confirm)
+    named = d["selected"] if d["verdict"] == "missing-effect" else None
+    called = named or d["verdict"]
+    return {**case, "verdict": d["verdict"], "named": named, "called": called,
+            "correct": (named == hidden[0]) if hidden else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
+            "second": d["significant"][1:], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
+            if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
+            "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"],
+            "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
+                        for r in d["ranking"] if "statistic" in r],
+            "refits": [[c["effect"], c.get("drop")] for c in d["confirmed"]],
+            "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null},
+            "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
+
+
+def done_ids(results: Path) -> set[str]:
+    """Case ids already stored in ``results`` (one JSON object per line)."""
+    if not results.exists():
+        return set()
+    return {json.loads(line)["id"] for line in results.read_text().splitlines() if line.strip()}
+
+
+def run_cases(suite: str, indices: range, results: Path, out: Path, seed: int = 0, rounds: int = 2,
+              sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
+              workers: int | None = None) -> list[dict[str, Any]]:
+    """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes."""
+    have = done_ids(results)
+    results.parent.mkdir(parents=True, exist_ok=True)
+    new = []
+    for i in indices:
+        case = make_case(suite, seed, i)
+        if case["id"] in have:
+            continue
+        try:
+            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers)
+        except Exception as exc:  # noqa: BLE001 - a failed case is recorded, not retried silently
+            row = {**case, "error": f"{type(exc).__name__}: {exc}"}
+        with results.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+        new.append(row)
+        print(json.dumps({k: row.get(k) for k in ("id", "truth_label", "scenario", "magnitude", "verdict", "named",
+                                                   "correct", "misspecification_p_text", "wall_s", "error")}),
+              flush=True)
+    return new
+
+
+def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
+    """False-alarm rate (binomial SE, Clopper-Pearson 95%), confusion matrix, detection vs magnitude."""
+    rows = [r for r in rows if "verdict" in r]
+    ctrl = [r for r in rows if r["truth_label"] == "control"]
+    fa = sum(r["verdict"] != "nothing-missing" for r in ctrl)
+    n = len(ctrl)
+    out: dict[str, Any] = {"cases": len(rows), "controls": n, "false_alarms": fa}
+    if n:
+        p = fa / n
+        ci = stats.binomtest(fa, n).proportion_ci(0.95, method="exact")
+        out.update(false_alarm_rate=p, false_alarm_se=float(np.sqrt(p * (1 - p) / n)),
+                   false_alarm_ci95=[float(ci.low), float(ci.high)])
+    conf: dict[str, Counter] = defaultdict(Counter)
+    for r in rows:
+        conf[r["truth_label"]][r["called"]] += 1
+    out["confusion"] = {k: dict(v) for k, v in sorted(conf.items())}
+    edges = np.linspace(0.1, 1.0, n_bins + 1)
+    power: dict[str, list[dict[str, Any]]] = {}
+    for eff in sorted({r["truth_label"] for r in rows if r.get("magnitude") is not None}):
+        rs = [r for r in rows if r["truth_label"] == eff]
+        bins = []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            b = [r for r in rs if lo <= r["magnitude"] <= hi]
+            bins.append({"magnitude": [float(lo), float(hi)], "n": len(b),
+                         "detected": sum(r["verdict"] != "nothing-missing" for r in b),
+                         "named_correctly": sum(bool(r["correct"]) for r in b)})
+        power[eff] = bins
+    out["power"] = power
+    other = [r for r in rows if r["truth_label"] == "other-engine"]
+    if other:
+        out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other)}
+    return out
+
+
+def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """The summary as Markdown tables (BENCHMARKS.md): false alarms, confusion matrix, power, cases."""
+    out = []
+    if summary.get("controls"):
+        lo, hi = summary["false_alarm_ci95"]
+        out.append(f"False alarms: {summary['false_alarms']} of {summary['controls']} controls = "
+                   f"{summary['false_alarm_rate']:.2f} ± {summary['false_alarm_se']:.2f} (binomial SE; "
+                   f"Clopper-Pearson 95% interval {lo:.2f}-{hi:.2f}).\n")
+    cols = sorted({c for v in summary["confusion"].values() for c in v})
+    out.append("| truth \\ called | " + " | ".join(cols) + " |")
+    out.append("|---" * (len(cols) + 1) + "|")
+    for truth, v in summary["confusion"].items():
+        out.append(f"| {truth} | " + " | ".join(str(v.get(c, 0)) for c in cols) + " |")
+    out.append("\n| hidden effect | " + " | ".join(f"magnitude {b['magnitude'][0]:.1f}-{b['magnitude'][1]:.1f}"
+                                                for b in next(iter(summary["power"].values()), [])) + " |")
+    out.append("|---" * (1 + len(next(iter(summary["power"].values()), []))) + "|")
+    for eff, bins in summary["power"].items():
+        out.append(f"| {eff} | " + " | ".join(f"{b['named_correctly']}/{b['n']} named ({b['detected']} detected)"
+                                              if b["n"] else "-" for b in bins) + " |")
+    out.append("\n| case | truth | scenario | magnitude | misspecification p | verdict | named | wall [s] |")
+    out.append("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if "verdict" not in r:
+            err = r.get("error", "")[:60]
+            out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | | | error: {err} | | |")
+            continue
+        m = "" if r["magnitude"] is None else f"{r['magnitude']:.2f}"
+        out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | {m} | {r['misspecification_p_text']} | "
+                   f"{r['verdict']} | {r['named'] or ''} | {r['wall_s']:.0f} |")
+    return "\n".join(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("--suite", default="mujoco", choices=sorted(SUITES))
+    r.add_argument("--cases", default="0:10", help="index range start:stop")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    r.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
+    r.add_argument("--rounds", type=int, default=2)
+    r.add_argument("--sims", type=int, default=60)
+    r.add_argument("--n-null", type=int, default=30)
+    r.add_argument("--max-null", type=int, default=200)
+    r.add_argument("--confirm", type=int, default=0)
+    r.add_argument("--workers", type=int, default=None)
+    s = sub.add_parser("summary")
+    s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
+    a = ap.parse_args()
+    if a.cmd == "run":
+        lo, hi = (int(x) for x in a.cases.split(":"))
+        run_cases(a.suite, range(lo, hi), a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
+                  a.confirm, a.workers)
+    else:
+        rows = [json.loads(x) for x in a.results.read_text().splitlines() if x.strip()]
+        summ = summarise(rows)
+        print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
+
+
+if __name__ == "__main__":
+    main()

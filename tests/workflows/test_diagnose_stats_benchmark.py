@@ -1,0 +1,54 @@
+"""A tiny version of benchmarks/diagnose_stats.py: deterministic cases, resumable results, summary."""
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+_path = Path(__file__).resolve().parents[2] / "benchmarks" / "diagnose_stats.py"
+_spec = importlib.util.spec_from_file_location("diagnose_stats", _path)
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
+
+
+def test_cases_are_deterministic_and_cover_controls_and_every_effect():
+    a = [bench.make_case("mujoco", 0, i) for i in range(10)]
+    b = [bench.make_case("mujoco", 0, i) for i in range(10)]
+    assert a == b
+    assert [c["truth_label"] for c in a[:5]] == ["control", "wind", "air-drag", "extra-damping", "grip-compliance"]
+    assert a[0]["magnitude"] is None and all(0.1 <= c["magnitude"] <= 1.0 for c in a[1:5])
+    assert bench.make_case("mujoco", 1, 1)["truth"] != a[1]["truth"]
+    # the hidden effect's parameter moved from its nominal value by the magnitude's fraction of the range
+    wind = a[1]
+    u = [abs(wind["truth"][k]) / 2.0 for k in ("wind_x", "wind_y")]
+    assert u == pytest.approx([wind["magnitude"]] * 2)
+    drag = a[2]
+    assert drag["truth"]["air_density"] == pytest.approx(6.0 * drag["magnitude"])
+    # cross-engine cases: data from pybullet-massspring at its own random truths, no named hidden effect
+    x = bench.make_case("cross-engine", 0, 0)
+    assert x["truth_label"] == "other-engine" and x["magnitude"] is None
+    assert bench.CORRECT_VERDICT["other-engine"] == "misspecified-unexplained"
+
+
+def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
+    results = tmp_path / "r.jsonl"
+    rows = bench.run_cases("toy", range(0, 2), results, tmp_path / "runs", seed=3, rounds=2, sims=120, n_null=30,
+                           max_null=100, workers=1)
+    assert [r["truth_label"] for r in rows] == ["control", "toy-wind"]
+    assert all("error" not in r for r in rows), rows
+    assert len(results.read_text().splitlines()) == 2
+    assert bench.run_cases("toy", range(0, 2), results, tmp_path / "runs", seed=3, workers=1) == []  # resumed
+    s = bench.summarise([json.loads(x) for x in results.read_text().splitlines()])
+    assert s["controls"] == 1 and s["cases"] == 2
+    fa = int(rows[0]["verdict"] != "nothing-missing")
+    assert s["false_alarms"] == fa and s["false_alarm_rate"] == fa
+    assert s["false_alarm_ci95"][0] <= s["false_alarm_rate"] <= s["false_alarm_ci95"][1]
+    assert sum(sum(v.values()) for v in s["confusion"].values()) == 2
+    assert s["confusion"]["toy-wind"] == {rows[1]["called"]: 1}
+    assert sum(b["n"] for b in s["power"]["toy-wind"]) == 1
+    md = bench.markdown(s, rows)
+    assert "False alarms: " in md and "| control |" in md and rows[1]["misspecification_p_text"] in md
+    for r in rows:
+        assert r["verdict"] in ("nothing-missing", "missing-effect", "misspecified-unexplained")
+        assert r["misspecification_p"] >= 1 / (r["n_null"] + 1)

@@ -1,0 +1,139 @@
+"""Honest Monte-Carlo statistics (softsbi.workflows.stats): p-values, max-T, adaptive resolution."""
+import numpy as np
+import pytest
+
+from softsbi.core.errors import SoftsbiError
+from softsbi.workflows.stats import (MCPValue, decided, max_t_adjusted, mc_pvalue, misspecification_test,
+                                     resolution_needed)
+
+
+def test_monte_carlo_p_value_counts_and_never_goes_below_its_resolution():
+    null = np.arange(30, dtype=float)
+    p = mc_pvalue(26.5, null)  # 27, 28, 29 are as extreme
+    assert (p.exceed, p.n) == (3, 30) and p.value == pytest.approx(4 / 31)
+    assert p.text() == "p = 0.13 (3 of 30 null simulations as extreme)"
+    far = mc_pvalue(1e9, null)
+    assert far.value == pytest.approx(1 / 31) == far.floor and far.at_floor
+    assert far.text() == "p <= 1/31 (beyond all 30 null simulations)"
+    assert mc_pvalue(29.0, null).exceed == 1  # ties count as extreme
+    with pytest.raises(SoftsbiError, match="non-finite"):
+        mc_pvalue(np.nan, null)
+    with pytest.raises(SoftsbiError, match="at least one"):
+        mc_pvalue(1.0, [])
+
+
+def test_misspecification_test_is_calibrated_and_floored():
+    rng = np.random.default_rng(0)
+    sims = rng.normal(size=(40, 30))
+    inside = misspecification_test(rng.normal(size=30), sims)
+    outside = misspecification_test(rng.normal(size=30) + 3.0, sims)
+    assert inside["p_value"] > 0.05
+    assert outside["exceed"] == 0 and outside["p_value"] == pytest.approx(1 / 41)
+    assert outside["statistic"] > 5 * inside["statistic"] and "beyond all 40" in outside["p_text"]
+    # under the null the p-value is (close to) uniform: rejections at 0.1 about 10% of the time
+    rej = [misspecification_test(rng.normal(size=30), rng.normal(size=(19, 30)))["p_value"] <= 0.1
+           for _ in range(300)]
+    assert abs(np.mean(rej) - 0.1) < 3 * np.sqrt(0.1 * 0.9 / 300)
+
+
+def _correlated(rng, n, C, rho=0.6):
+    common = rng.normal(size=(n, 1))
+    return np.sqrt(rho) * common + np.sqrt(1 - rho) * rng.normal(size=(n, C))
+
+
+def test_max_t_controls_the_family_wise_error_and_beats_bonferroni_at_low_resolution():
+    rng = np.random.default_rng(1)
+    C, n, alpha, reps = 5, 39, 0.05, 1500
+    fwe = 0
+    for _ in range(reps):
+        x = _correlated(rng, n + 1, C) ** 2  # chi-square-like drops, dependent across candidates
+        adj, _ = max_t_adjusted(x[0], x[1:])
+        fwe += min(p.value for p in adj) <= alpha
+    rate = fwe / reps
+    assert rate <= alpha + 3 * np.sqrt(alpha * (1 - alpha) / reps)
+    assert rate > alpha / 3  # and not absurdly conservative
+    # adjusted p-values are never below the marginal ones
+    x = _correlated(rng, n + 1, C) ** 2
+    adj, z = max_t_adjusted(x[0], x[1:])
+    for c in range(C):
+        assert adj[c].value >= mc_pvalue(x[0, c], x[1:, c]).value
+    # one strong candidate among five with 30 nulls: max-T can reach 1/31 < 0.05, Bonferroni needs
+    # a marginal p <= 0.01 that 30 nulls cannot give
+    null = _correlated(rng, 30, C) ** 2
+    obs = null.mean(0).copy()
+    obs[2] = 50.0
+    adj, z = max_t_adjusted(obs, null)
+    assert adj[2].value == pytest.approx(1 / 31) and adj[2].value <= alpha
+    assert mc_pvalue(obs[2], null[:, 2]).value > alpha / C
+    assert all(adj[c].value > alpha for c in (0, 1, 3, 4)) and np.argmax(z) == 2
+    with pytest.raises(SoftsbiError, match="shape"):
+        max_t_adjusted(obs, null[:, :3])
+
+
+def test_adaptive_resolution_extends_only_when_the_cap_can_decide_and_keeps_the_level():
+    assert resolution_needed(MCPValue(0, 30), 0.01, 200)
+    assert resolution_needed(MCPValue(1, 30), 0.01, 200)  # 2/201 <= 0.01: the cap can still decide
+    assert not resolution_needed(MCPValue(1, 30), 0.01, 120)  # 2/121 > 0.01: it cannot
+    assert not resolution_needed(MCPValue(0, 199), 0.01, 300)  # 1/200 <= 0.01: already decidable
+    assert not resolution_needed(MCPValue(0, 200), 0.01, 200)
+    # the two-stage test under the null: reject at most alpha of the time
+    rng = np.random.default_rng(2)
+    alpha, n1, cap, reps = 0.02, 30, 99, 4000
+    rej = 0
+    for _ in range(reps):
+        x = rng.normal(size=cap + 1)
+        p = mc_pvalue(x[0], x[1:n1 + 1])
+        if resolution_needed(p, alpha, cap):
+            p = mc_pvalue(x[0], x[1:])
+        rej += p.value <= alpha
+    assert rej / reps <= alpha + 3 * np.sqrt(alpha * (1 - alpha) / reps)
+    # the rule as applied names the resolution, and the fix when the cap is too small
+    t = decided({"exceed": 0, "n_null": 50, "p_value": 1 / 51}, 0.01, 50, True, "misfit")
+    assert not t["misspecified"] and "p <= 1/51" in t["rule"] and "raise the cap" in t["rule"]
+    t = decided({"exceed": 0, "n_null": 200, "p_value": 1 / 201}, 0.01, 200, True, "misfit")
+    assert t["misspecified"] and t["rule"].endswith("<= 0.01")
+
+
+def _screening(r_obs, r_null, cols, generic=()):
+    """A screening on synthetic residuals: effect ``name`` adds ``coef * cols[name]`` (coef >= 0)."""
+    from softsbi.core.interfaces import Effect
+    from softsbi.core.types import Param, ParamSpace
+    from softsbi.workflows.diagnose import _Screening
+
+    def effect(nm):
+        return type(nm, (Effect,), {"name": nm, "description": nm, "generic": nm in generic,
+                                    "kind": "sensor" if nm == "B" else "physics",
+                                    "param_space": lambda self: ParamSpace([Param("k", 0.0, 10.0, "")])})()
+    sc = _Screening.__new__(_Screening)
+    rng = np.random.default_rng(5)
+    sc.J_theta = rng.normal(size=(len(r_obs), 2))
+    sc.r_obs, sc.r_null, sc.failed = r_obs, r_null, []
+    sc.design = {nm: {"effect": effect(nm), "J": c[:, None], "offset": np.zeros(len(r_obs)), "lo": np.array([0.0]),
+                      "hi": np.array([10.0]), "steps": [("k", 0.0, 0.1)]} for nm, c in cols.items()}
+    return sc
+
+
+def test_forward_selection_names_two_effects_and_leaves_a_generic_term_unnamed():
+    rng = np.random.default_rng(4)
+    F = 60
+    cols = {n: rng.normal(size=F) for n in ("A", "B", "C")}
+    null = rng.normal(size=(60, F))
+    # two effects present: both named, the stronger first, each with the max-T rule as applied
+    sc = _screening(rng.normal(size=F) + 1.2 * cols["A"] + 0.8 * cols["B"], null, cols, generic=("C",))
+    ranking = sc.ranking()
+    chosen, log = sc.forward_selection(ranking, 0.05, 0.1)
+    assert chosen == ["A", "B"] and [st["accepted"] for st in log] == [True, True]  # C is generic: not named
+    assert log[1]["given"] == ["A"] and ranking[0]["effect"] == "A" and ranking[0]["kind"] == "physics"
+    assert next(r for r in ranking if r["effect"] == "B")["kind"] == "sensor"
+    assert ranking[0]["estimate"]["k"] == pytest.approx(1.2, abs=0.3)
+    assert all(r["adjusted_p_value"] >= 1 / 61 for r in ranking)
+    # only the generic term explains it: nothing named, the generic term ranks first
+    sc = _screening(rng.normal(size=F) + 1.5 * cols["C"], null, cols, generic=("C",))
+    ranking = sc.ranking()
+    chosen, log = sc.forward_selection(ranking, 0.05, 0.1)
+    assert chosen == [] and ranking[0]["effect"] == "C" and ranking[0]["generic"]
+    assert ranking[0]["adjusted_p_value"] <= 0.05 and not log[0]["accepted"]
+    # pure noise: nothing passes
+    sc = _screening(rng.normal(size=F), null, cols)
+    chosen, _ = sc.forward_selection(sc.ranking(), 0.05, 0.1)
+    assert chosen == []
