@@ -129,7 +129,7 @@ def main() -> None:
         rows.append(r)
         print(json.dumps(r), flush=True)
     base = {r["mode"]: r for r in rows}
-    print(f"\n| mode | workers | sims | s | sims/s | vs local1 | peak RSS/worker (MB) | load (1/5/15 min) |")
+    print("\n| mode | workers | sims | s | sims/s | vs local1 | peak RSS/worker (MB) | load (1/5/15 min) |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio = r["sims_per_s"] / base["local1"]["sims_per_s"] if "local1" in base else float("nan")

@@ -27,7 +27,6 @@ import numpy as np
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import wipe_scenario
-from softsbi.core.camera import Camera
 from softsbi.scenarios.cameras import default_camera
 from softsbi.perception.render import save_frames_png
 

@@ -6,7 +6,7 @@ import pytest
 from typer.testing import CliRunner
 
 from softsbi.cli import app
-from softsbi.workflows.check import check_run, misspecification_test
+from softsbi.workflows.check import check_run
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.core.errors import ParameterError
 from softsbi.workflows.fit import FitConfig, run_fit
