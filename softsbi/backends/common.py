@@ -43,6 +43,43 @@ def grid_corners(n: int) -> list[int]:
     return [0, n - 1, n * n - 1, (n - 1) * n]
 
 
+#: shared physical cloth parameters: name -> (low, high, unit, log, description); one meaning on every backend
+CLOTH_MATERIAL = {
+    "bend": (1e-6, 1e-3, "N*m", True, "bending rigidity D = E t^3 / (12 (1 - nu^2))"),
+    "stretch": (5.0, 1000.0, "N/m", True, "membrane stretch stiffness k = E t"),
+    "friction": (0.05, 1.5, "1", False, "cloth-table sliding friction coefficient (Coulomb)"),
+}
+
+
+def cloth_material_params(**narrow: tuple[float, float]) -> list[Param]:
+    """The shared physical cloth material parameters (:data:`CLOTH_MATERIAL`), one name, unit and meaning
+    on every backend: ``bend`` bending rigidity [N m] log 1e-6-1e-3, ``stretch`` membrane stiffness
+    [N/m] log 5-1000, ``friction`` Coulomb coefficient 0.05-1.5. Each backend maps them to its own
+    knobs (mujoco-flex: :func:`softsbi.backends.mujoco_flex.model.plate_mapping`; pybullet-massspring:
+    :func:`softsbi.backends.pybullet_massspring.model.spring_constants`). With the size parameters
+    (:func:`size_params`) they are the shared physical space.
+
+    Args:
+        narrow: ``name=(low, high)``: a backend that cannot honour the whole shared range of ``name``
+            gives the sub-range it can (must lie inside the shared one).
+
+    Raises:
+        ValueError: an unknown name, or a range not inside the shared one.
+    """
+    out = []
+    for name, (lo, hi, unit, log, desc) in CLOTH_MATERIAL.items():
+        if name in narrow:
+            a, b = narrow[name]
+            if not lo <= a < b <= hi:
+                raise ValueError(f"narrowed range of '{name}' {a}-{b} must lie inside the shared {lo}-{hi} {unit}")
+            lo, hi = a, b
+        out.append(Param(name, lo, hi, unit, log=log, description=desc))
+    bad = set(narrow) - set(CLOTH_MATERIAL)
+    if bad:
+        raise ValueError(f"unknown shared parameter(s) {sorted(bad)}; shared: {', '.join(CLOTH_MATERIAL)}")
+    return out
+
+
 def size_params(scenario: Scenario | None, rope: bool) -> list[Param]:
     """The size, density and placement parameters, the same in every engine (units, bounds).
 
