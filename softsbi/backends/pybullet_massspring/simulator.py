@@ -158,7 +158,8 @@ class PybulletMassSpring(Simulator):
 
         Raises:
             ParameterError: rope ``bend``/``stretch`` (now ``pb_rope_bend``/``pb_rope_stretch``), or a
-                cloth ``bend`` above 1 N m (a per-spring N/m value: the old unit).
+                cloth ``bend`` >= 0.05 (a per-spring N/m value, the old unit; the
+                shared N m range ends at 1e-3).
         """
         rope = scenario.object.get("kind") == "rope"
         if rope and ("bend" in theta or "stretch" in theta):
