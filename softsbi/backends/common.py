@@ -43,6 +43,90 @@ def grid_corners(n: int) -> list[int]:
     return [0, n - 1, n * n - 1, (n - 1) * n]
 
 
+#: shared physical cloth parameters: name -> (low, high, unit, log, description); one meaning on every backend
+CLOTH_MATERIAL = {
+    "bend": (1e-6, 1e-3, "N*m", True, "bending rigidity D = E t^3 / (12 (1 - nu^2))"),
+    "stretch": (5.0, 1000.0, "N/m", True, "membrane stretch stiffness k = E t"),
+    "friction": (0.05, 1.5, "1", False, "cloth-table sliding friction coefficient (Coulomb)"),
+}
+
+
+def cloth_material_params(**narrow: tuple[float, float]) -> list[Param]:
+    """The shared physical cloth material parameters (:data:`CLOTH_MATERIAL`), one name, unit and meaning
+    on every backend: ``bend`` bending rigidity [N m] log 1e-6-1e-3, ``stretch`` membrane stiffness
+    [N/m] log 5-1000, ``friction`` Coulomb coefficient 0.05-1.5. Each backend maps them to its own
+    knobs (mujoco-flex: :func:`softsbi.backends.mujoco_flex.model.plate_mapping`; pybullet-massspring:
+    :func:`softsbi.backends.pybullet_massspring.model.spring_constants`). With the size parameters
+    (:func:`size_params`) they are the shared physical space.
+
+    Args:
+        narrow: ``name=(low, high)``: a backend that cannot honour the whole shared range of ``name``
+            gives the sub-range it can (must lie inside the shared one).
+
+    Raises:
+        ValueError: an unknown name, or a range not inside the shared one.
+    """
+    out = []
+    for name, (lo, hi, unit, log, desc) in CLOTH_MATERIAL.items():
+        if name in narrow:
+            a, b = narrow[name]
+            if not lo <= a < b <= hi:
+                raise ValueError(f"narrowed range of '{name}' {a}-{b} must lie inside the shared {lo}-{hi} {unit}")
+            lo, hi = a, b
+        out.append(Param(name, lo, hi, unit, log=log, description=desc))
+    bad = set(narrow) - set(CLOTH_MATERIAL)
+    if bad:
+        raise ValueError(f"unknown shared parameter(s) {sorted(bad)}; shared: {', '.join(CLOTH_MATERIAL)}")
+    return out
+
+
+def cantilever_scenario(L: float = 0.2, grid: int = 9, clamp_rows: int = 5, g: float = 9.81,
+                        duration: float = 16.0, frames: int = 11) -> Scenario:
+    """A static check of the bending mapping: a clamped cloth strip drooping under its own weight.
+
+    A square grid cloth of side ``L`` m (placed with its grid axes along world x, y, vertex 0 at the
+    origin) has its first ``clamp_rows`` rows (x <= (clamp_rows - 1) h, h = L / (grid - 1)) pinned: a
+    clamped edge and a free overhang ``a = L - (clamp_rows - 1) h``. Gravity points *up* (``+g``
+    m/s^2) so the table below never touches the strip. Use the backend at ``grid`` vertices per side.
+    One handle follows a standing-still path (a scenario needs one moving handle).
+
+    Raises:
+        DataError: invalid values (the scenario-file validation).
+    """
+    from softsbi.scenarios.spec import load_scenario_data
+    h = L / (grid - 1)
+    handles: list[dict[str, Any]] = []
+    for i in range(clamp_rows):
+        for j in range(grid):
+            p = [h * i, h * j, 0.0]
+            if i == 0 and j == 0:
+                handles.append({"name": "h0_0", "grasp": {"point": p},
+                                "path": {"keyframes": [{"t": 0.0, "p": p}, {"t": duration, "p": p}]}})
+            else:
+                handles.append({"name": f"h{i}_{j}", "grasp": {"point": p}, "pinned": True})
+    data = {"format": "softsbi-scenario/1", "name": "cantilever", "object": {"kind": "cloth", "size": L},
+            "placement": {"corner": [0.0, 0.0], "direction": [1.0, 1.0]}, "handles": handles,
+            "frames": {"count": frames, "duration": duration}, "world": {"table_z": 0.0, "gravity": [0.0, 0.0, g]}}
+    return load_scenario_data(data, "<cantilever>", None)
+
+
+def cantilever_tip_deflection(vertices: np.ndarray, grid: int) -> float:
+    """Tip deflection (m) of :func:`cantilever_scenario`: mean rise of the free edge (grid row ``grid - 1``)
+    between the first and last frame of ``vertices (T, grid^2, 3)``."""
+    v = np.asarray(vertices, dtype=float).reshape(len(vertices), grid, grid, 3)
+    return float((v[-1, -1, :, 2] - v[0, -1, :, 2]).mean())
+
+
+def cantilever_analytic(bend: float, mass: float, L: float = 0.2, grid: int = 9, clamp_rows: int = 5,
+                        g: float = 9.81) -> float:
+    """Small-deflection tip deflection (m) of a clamped plate strip under its weight (Euler-Bernoulli):
+    ``w a^4 / (8 D)``, ``w = mass g`` N/m^2 (``mass`` kg/m^2), ``a`` the overhang (m), ``D = bend`` N m
+    (Timoshenko & Gere, *Mechanics of Materials*, cantilever under uniform load). Valid while it is
+    small against ``a`` (say < 0.1 a)."""
+    a = L - (clamp_rows - 1) * L / (grid - 1)
+    return mass * g * a ** 4 / (8.0 * bend)
+
+
 def size_params(scenario: Scenario | None, rope: bool) -> list[Param]:
     """The size, density and placement parameters, the same in every engine (units, bounds).
 

@@ -649,7 +649,8 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
 @_guard
 def compare_backends_cmd(scenario: str = typer.Option("lift", help="scenario name: lift, wipe, wind or fling"),
                          theta: list[str] = typer.Option(None, "--theta",
-                                                         help="name=value (repeatable); unset = each backend's midpoint"),
+                                                         help="name=value (repeatable); unset = the shared prior midpoint "
+                                                              "(engine-only knobs: each backend's own)"),
                          backends: str = typer.Option("mujoco-flex,pybullet-massspring", help="comma-separated simulators"),
                          backend_opt: list[str] = typer.Option(None, "--backend-opt",
                                                                help="backend:option=value, e.g. pybullet-massspring:grid=7"),
@@ -658,7 +659,8 @@ def compare_backends_cmd(scenario: str = typer.Option("lift", help="scenario nam
                                                                           "positions in [0, 1]"),
                          out: Path = typer.Option(Path("compare"), help="output folder (compare.json + compare.png)"),
                          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
-    """Roll the same scenario and parameters out on two engines; per-frame Chamfer between them."""
+    """Roll the same scenario out on two engines at the same physical parameters (default: the shared prior
+    midpoint); per-frame Chamfer between them says how far the engines disagree."""
     from softsbi.workflows.compare_backends import compare_backends
     from softsbi.scenarios.builtin import make_scenario
 
@@ -686,8 +688,11 @@ def compare_backends_cmd(scenario: str = typer.Option("lift", help="scenario nam
         o.line(f"{b}: status {r['status']}{' (' + r['reason'] + ')' if r['reason'] else ''}, "
                       f"{r['n_vertices']} vertices, {r['wall_s']:.2f} s; theta "
                       + ", ".join(f"{k}={v:.4g}" for k, v in r["theta"].items()))
+    o.line("shared physical parameters: " + (", ".join(rep["shared_params"]) or "(none)"))
     for key, m in rep["mean_chamfer_m"].items():
-        o.line(f"mean Chamfer {key}: " + (f"{m * 100:.2f} cm" if m is not None else "n/a (a rollout failed)"))
+        mx = rep["max_chamfer_m"][key]
+        o.line(f"Chamfer {key}: " + (f"mean {m * 100:.2f} cm, max {mx * 100:.2f} cm over {len(rep['times'])} frames"
+                                     if m is not None else "n/a (a rollout failed)"))
     o.line(f"wrote {out / 'compare.json'} and {out / 'compare.png'}")
 
 

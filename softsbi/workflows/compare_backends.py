@@ -1,11 +1,14 @@
-"""Cross-simulator comparison: the same scenario and parameters rolled out on several engines.
+"""Cross-simulator comparison: the same scenario at the same *physical* parameters on several engines.
 
-The engines do not share units for every parameter (mujoco-flex ``bend`` is a bending rigidity in
-N m, pybullet-massspring ``bend`` a spring stiffness in N/m), so "the same parameters" means: values
-given by name are used where the backend has that parameter and they lie inside its bounds;
-every other parameter sits at that backend's prior midpoint - or, with ``match="unit"``, the same
-*relative position* ``u`` in each backend's prior box (``theta`` is then read in unit-cube
-coordinates). The report says which value each backend got.
+Shared physical parameters have one name, unit and meaning on every backend (issue 15 item 6:
+cloth ``bend`` N m, ``stretch`` N/m, ``friction``, ``scale`` m, ``mass`` kg/m^2, see
+:func:`softsbi.backends.common.cloth_material_params`; each backend maps them to its own knobs).
+:func:`shared_space` is the box every backend honours: the parameters all backends have with the
+same unit, bounds intersected. By default every backend gets the *shared prior midpoint* (the
+centre of that box, geometric for log parameters); values given by name override it. Engine-only
+knobs (e.g. ``pb_rope_bend``, or mujoco-flex's rope ``bend`` in Pa) sit at that backend's own
+prior midpoint. With ``match="unit"`` ``theta`` is read in unit-cube coordinates of each backend's
+own prior instead. The report says which value each backend got and where it came from.
 
 Distance: per-frame bidirectional Chamfer (:func:`softsbi.core.metrics.chamfer_per_frame`,
 Antonova et al. 2022, Sec. V) between area-weighted surface samples of the two meshes
@@ -21,13 +24,36 @@ import numpy as np
 
 from softsbi.core.errors import ParameterError
 from softsbi.core.metrics import chamfer_per_frame
-from softsbi.core.types import STATUS_NAMES, Scenario
+from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
 from softsbi.report.figures import plot_compare_backends
 
 
-def backend_theta(space, theta: Mapping[str, float], match: str = "physical") -> tuple[dict[str, float], dict[str, str]]:
+def shared_space(spaces: Sequence[ParamSpace]) -> ParamSpace:
+    """The shared physical parameter box of several backends' spaces: the parameters every space has with
+    the same unit (and log flag), bounds intersected (first space's order).
+
+    Raises:
+        ParameterError: a shared parameter's bounds do not overlap between backends.
+    """
+    first, rest = spaces[0], spaces[1:]
+    out = []
+    for p in first:
+        others = [s[p.name] for s in rest if p.name in s.names]
+        if len(others) != len(rest) or any(o.unit != p.unit or o.log != p.log for o in others):
+            continue
+        lo, hi = max([p.low] + [o.low for o in others]), min([p.high] + [o.high for o in others])
+        if not lo < hi:
+            raise ParameterError(f"parameter '{p.name}' has no common range across backends "
+                                 f"({[(q.low, q.high) for q in [p] + others]})")
+        out.append(Param(p.name, lo, hi, p.unit, log=p.log, description=p.description))
+    return ParamSpace(out)
+
+
+def backend_theta(space, theta: Mapping[str, float], match: str = "physical",
+                  shared: Mapping[str, float] | None = None) -> tuple[dict[str, float], dict[str, str]]:
     """Parameters for one backend: ``(values, source)`` with ``source[name]`` in
-    ``{"given", "midpoint", "unit"}``.
+    ``{"given", "shared-midpoint", "midpoint", "unit"}``; ``shared``: the shared prior midpoint
+    (:func:`shared_space`), used for the names it has unless given.
 
     Raises:
         ParameterError: a given physical value is outside this backend's bounds; unknown ``match``.
@@ -36,6 +62,10 @@ def backend_theta(space, theta: Mapping[str, float], match: str = "physical") ->
         raise ParameterError(f"match must be 'physical' or 'unit', got {match!r}")
     vals = space.midpoint()
     src = {n: "midpoint" for n in space.names}
+    if match == "physical":
+        for n, v in (shared or {}).items():
+            if n in vals:
+                vals[n], src[n] = float(v), "shared-midpoint"
     for n, v in theta.items():
         if n not in space.names:
             continue
@@ -60,8 +90,8 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
 
     Args:
         scenario: any scenario every backend can run (see :func:`softsbi.scenarios.builtin.make_scenario`).
-        theta: ``{name: value}``; see the module docstring (unset names: each backend's midpoint).
-            A name that no backend has raises.
+        theta: ``{name: value}``; see the module docstring (unset names: the shared prior midpoint,
+            engine-only ones each backend's own midpoint). A name that no backend has raises.
         backends: simulator plugin names (>= 2); the first is the reference of the Chamfer.
         out_dir: if given, writes ``compare.json`` and ``compare.png`` (side view of 4 frames,
             backends overlaid, plus the Chamfer curve) there.
@@ -71,9 +101,9 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
         match: ``"physical"`` or ``"unit"`` (see :func:`backend_theta`).
 
     Returns:
-        ``{"scenario", "backends": {name: {"theta", "theta_source", "status", "reason", "wall_s",
-        "n_vertices"}}, "times" (T,), "chamfer_m": {"a|b": (T,) list}, "mean_chamfer_m": {...},
-        "files": [...]}``. Chamfer values are metres; null when a rollout failed.
+        ``{"scenario", "shared_params": [names], "shared_midpoint": {...}, "backends": {name: {"theta",
+        "theta_source", "status", "reason", "wall_s", "n_vertices"}}, "times" (T,), "chamfer_m":
+        {"a|b": (T,) list}, "mean_chamfer_m": {...}, "max_chamfer_m": {...}, "files": [...]}``. Chamfer values are metres; null when a rollout failed.
 
     Raises:
         PluginNotFound: unknown backend. ValueError: a backend cannot run the scenario, fewer than
@@ -99,12 +129,17 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
     if unknown:
         raise ParameterError(f"unknown parameter(s) {unknown} for scenario '{scenario.name}'; valid parameters: "
                              f"{', '.join(sorted(known))}")
+    spaces = {b: s.param_space(scenario) for b, s in sims.items()}
+    shared = shared_space(list(spaces.values()))
+    mid = shared.midpoint()
     report: dict[str, Any] = {"scenario": scenario.name, "match": match, "backends": {},
-                              "times": scenario.times.tolist(), "chamfer_m": {}, "mean_chamfer_m": {}}
+                              "shared_params": shared.names, "shared_midpoint": mid,
+                              "times": scenario.times.tolist(), "chamfer_m": {}, "mean_chamfer_m": {},
+                              "max_chamfer_m": {}}
     rollouts = {}
     for b, sim in sims.items():
-        space = sim.param_space(scenario)
-        vals, src = backend_theta(space, theta, match)
+        space = spaces[b]
+        vals, src = backend_theta(space, theta, match, mid)
         ro = sim.simulate(scenario, vals, seed=seed)
         rollouts[b] = ro
         report["backends"][b] = {"theta": vals, "units": {p.name: p.unit for p in space}, "theta_source": src,
@@ -119,10 +154,12 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
         if clouds[ref] is None or clouds[b] is None:
             report["chamfer_m"][key] = None
             report["mean_chamfer_m"][key] = None
+            report["max_chamfer_m"][key] = None
             continue
         ch = chamfer_per_frame(clouds[ref], clouds[b])
         report["chamfer_m"][key] = ch.tolist()
         report["mean_chamfer_m"][key] = float(ch.mean())
+        report["max_chamfer_m"][key] = float(ch.max())
     report["files"] = []
     if out_dir is not None:
         out = Path(out_dir)

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from softsbi.backends.common import grid_faces
+from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
+from softsbi.backends.pybullet_massspring.model import C_BEND, C_STRETCH, spring_constants
 from softsbi.scenarios.builtin import lift_scenario, make_scenario
 from softsbi.core.errors import ParameterError
 from softsbi.executors.local import LocalExecutor
@@ -52,10 +54,43 @@ def test_old_name_warns():
 def test_param_space_names_units(sim, scenario):
     sp = sim.param_space(scenario)
     assert sp.names == ["bend", "stretch", "friction", "scale", "mass"]
-    assert sp["bend"].unit == "N/m" and sp["stretch"].unit == "N/m" and sp["mass"].unit == "kg/m^2"
+    # the shared physical parameters: mujoco-flex's names, units and (bend, friction, size) bounds
+    assert sp["bend"].unit == "N*m" and sp["stretch"].unit == "N/m" and sp["mass"].unit == "kg/m^2"
+    mj = MujocoFlex().param_space(scenario)
+    for name in ("bend", "friction", "scale", "mass"):
+        assert (sp[name].low, sp[name].high, sp[name].unit) == (mj[name].low, mj[name].high, mj[name].unit)
+    assert mj["stretch"].low <= sp["stretch"].low < sp["stretch"].high <= mj["stretch"].high
     assert all(p.description for p in sp)
     rope = sim.param_space(make_scenario("wind"))
+    assert rope.names == ["pb_rope_bend", "pb_rope_stretch", "friction", "scale", "mass"]
     assert rope["mass"].unit == "kg/m" and rope["scale"].description == "rope length"
+
+
+def test_spring_constants_mapping():
+    """k_el = stretch (lattice membrane stiffness, mesh independent), k_be = C_BEND D / h^2."""
+    k_el, k_be = spring_constants(2e-4, 80.0, 0.025)
+    assert k_el == pytest.approx(80.0 * C_STRETCH)
+    assert k_be == pytest.approx(C_BEND * 2e-4 / 0.025 ** 2)
+    k_el2, k_be2 = spring_constants(2e-4, 80.0, 0.05)  # coarser mesh: same membrane, softer hinges
+    assert k_el2 == k_el and k_be2 == pytest.approx(k_be / 4)
+    with pytest.raises(ParameterError, match="must be > 0"):
+        spring_constants(0.0, 80.0, 0.025)
+
+
+def test_rollout_uses_the_mapping(sim, scenario, theta, base):
+    h = theta["scale"] / (GRID - 1)
+    k_el, k_be = spring_constants(theta["bend"], theta["stretch"], h)
+    assert base.info["springElasticStiffness"] == pytest.approx(k_el)
+    assert base.info["springBendingStiffness"] == pytest.approx(k_be)
+
+
+def test_old_parameter_units_give_one_line_errors(sim, scenario, theta):
+    with pytest.raises(ParameterError, match="now the bending rigidity in N.m.*old per-spring"):
+        sim.simulate(scenario, dict(theta, bend=2.0))
+    wind = make_scenario("wind")
+    th = sim.param_space(wind).midpoint()
+    with pytest.raises(ParameterError, match="bend -> pb_rope_bend, stretch -> pb_rope_stretch"):
+        sim.simulate(wind, dict({k: v for k, v in th.items() if not k.startswith("pb_")}, bend=1.0, stretch=200.0))
 
 
 def test_shapes_and_layout(base, scenario, theta):

@@ -159,7 +159,7 @@ def test_placement_yaw_both_backends_place_the_cloth_alike():
     sc = S.lift_scenario(LIFT / "lift_tan")
     assert sc.object["yaw_bounds"] == list(S.YAW_BOUNDS)
     theta = {"bend": 3e-5, "stretch": 50.0, "friction": 0.5, "scale": 0.25, "mass": 0.2, "yaw": 30.0}
-    pb_theta = dict(theta, bend=1.0)  # pybullet-massspring units
+    pb_theta = theta  # one physical meaning per name on both backends (issue 15 item 6)
     starts = []
     for sim, th in ((MujocoFlex(grid=7), theta), (PybulletMassSpring(grid=7), pb_theta)):
         assert sim.param_space(sc).names == ["bend", "stretch", "friction", "scale", "mass", "yaw"]

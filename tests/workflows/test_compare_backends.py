@@ -49,4 +49,28 @@ def test_api_errors_and_unit_match():
     rep = compare_backends(sc, {"bend": 0.0}, BACKENDS, match="unit",
                            backend_options={"mujoco-flex": {"grid": 4}, "pybullet-massspring": {"grid": 4}})
     assert rep["backends"]["mujoco-flex"]["theta"]["bend"] == pytest.approx(1e-6)
-    assert rep["backends"]["pybullet-massspring"]["theta"]["bend"] == pytest.approx(0.05)
+    assert rep["backends"]["pybullet-massspring"]["theta"]["bend"] == pytest.approx(1e-6)  # same unit now
+
+
+def test_default_is_the_shared_physical_midpoint():
+    """Unset parameters sit at the shared prior midpoint: the same physical value on both engines."""
+    from softsbi.backends.mujoco_flex import MujocoFlex
+    from softsbi.backends.pybullet_massspring import PybulletMassSpring
+    from softsbi.workflows.compare_backends import shared_space
+    sc = make_scenario("lift")
+    sh = shared_space([MujocoFlex().param_space(sc), PybulletMassSpring().param_space(sc)])
+    assert sh.names == ["bend", "stretch", "friction", "scale", "mass"]
+    assert (sh["stretch"].low, sh["stretch"].high) == (20.0, 200.0)  # intersection of 5-1000 and 20-200
+    rep = compare_backends(sc, {"friction": 0.4}, BACKENDS,
+                           backend_options={"mujoco-flex": {"grid": 4}, "pybullet-massspring": {"grid": 4}})
+    mj, pb = (rep["backends"][b] for b in BACKENDS)
+    assert mj["theta"] == pb["theta"]
+    assert mj["theta"]["stretch"] == pytest.approx(np.sqrt(20.0 * 200.0))
+    assert mj["theta_source"]["bend"] == "shared-midpoint" and mj["theta_source"]["friction"] == "given"
+    assert rep["max_chamfer_m"]["mujoco-flex|pybullet-massspring"] >= rep["mean_chamfer_m"][
+        "mujoco-flex|pybullet-massspring"] > 0
+    # wind: the rope knobs are engine-only (pb_rope_*, mujoco's Pa 'bend') and sit at each engine's midpoint
+    wind = compare_backends(make_scenario("wind"), {}, BACKENDS,
+                            backend_options={"mujoco-flex": {"rope_nodes": 8}, "pybullet-massspring": {"rope_nodes": 8}})
+    assert wind["shared_params"] == ["friction", "scale", "mass"]
+    assert wind["backends"]["pybullet-massspring"]["theta_source"]["pb_rope_bend"] == "midpoint"

@@ -108,6 +108,54 @@ def write_obj(path: str, verts: np.ndarray, faces: np.ndarray) -> None:
 
 
 
+#: calibrated factor of :func:`spring_constants` (bending): cantilever droop vs mujoco-flex at D = 3e-4 N m
+C_BEND = 20.0
+#: factor of :func:`spring_constants` (membrane): 1 from the square-lattice argument (not calibrated)
+C_STRETCH = 1.0
+
+
+def spring_constants(bend: float, stretch: float, spacing: float, *, c_bend: float | None = None,
+                     c_stretch: float | None = None) -> tuple[float, float]:
+    """Map the shared physical cloth parameters to PyBullet's mass-spring knobs (the one mapping).
+
+    Args:
+        bend: bending rigidity ``D`` [N m] (plate theory, ``E t^3 / (12 (1 - nu^2))``; the same
+            meaning as mujoco-flex's ``bend``).
+        stretch: membrane stretch stiffness ``k`` [N/m] (``E t``; same as mujoco-flex's ``stretch``).
+        spacing: rest edge length ``h`` [m] of the mesh (grid: ``scale / (grid - 1)``).
+        c_bend, c_stretch: correction factors (default :data:`C_BEND`, :data:`C_STRETCH`).
+
+    Returns:
+        ``(springElasticStiffness, springBendingStiffness)`` in N/m per spring.
+
+    Derivation:
+        *Stretch* (square lattice, Provot 1995; Baraff & Witkin 1998 Sec. 4.2 use the same
+        continuum-per-area scaling): structural springs of stiffness ``k_s`` along x, one per ``h``
+        of width, carry a force per unit width ``k_s (h eps) / h = k_s eps`` at strain ``eps``, so the
+        membrane stiffness is ``k_s`` itself, independent of ``h``: ``k_el = c_stretch * stretch``
+        (the triangulation's diagonal springs add shear stiffness and some normal stiffness; not
+        corrected, ``c_stretch = 1``).
+        *Bend*: a bending spring joins vertices two edges apart. Continuum bending energy per area is
+        ``D kappa^2 / 2``; the discrete-shell hinge energy (Grinspun et al. 2003, Eq. 5) of a hinge of
+        edge ``h`` and dual area ``~h^2`` is ``~ D theta^2`` with hinge angle ``theta ~ h kappa``, so
+        the per-hinge stiffness against the change in length across the hinge scales as ``D / h^2``
+        (N/m): ``k_be = c_bend * D / h^2``. A distance spring resists bending only at second order
+        (no linear stiffness when flat), so no exact constant exists: ``c_bend`` is calibrated by
+        measurement (a clamped strip drooping under gravity, ``benchmarks/bench_backend_units.py``,
+        against mujoco-flex; BENCHMARKS.md "One physical meaning per parameter") at one rigidity
+        and checked at the others.
+
+    Raises:
+        ParameterError: a value not > 0.
+    """
+    from softsbi.core.errors import ParameterError
+    if not (bend > 0 and stretch > 0 and spacing > 0):
+        raise ParameterError(f"bend, stretch and mesh spacing must be > 0 (got {bend}, {stretch}, {spacing})")
+    cb = C_BEND if c_bend is None else float(c_bend)
+    cs = C_STRETCH if c_stretch is None else float(c_stretch)
+    return cs * float(stretch), cb * float(bend) / float(spacing) ** 2
+
+
 def substeps(k_max: float, dt: float, m_node: float, max_substeps: int) -> int:
     """Engine steps per control step ``dt`` (s): ``ceil(sqrt(k_max dt^2 / (STABILITY_C m_node)))``
     clipped to ``1 .. max_substeps`` (``k_max`` N/m, ``m_node`` kg)."""
@@ -174,6 +222,9 @@ def build_world(p: Any, cid: int, scenario: Scenario, verts0: np.ndarray, faces:
                             collisionMargin=margin, physicsClientId=cid)
     finally:
         os.unlink(path)
+    # a deformable body falls asleep when its nodes are slow: a slowly drooping cloth then freezes
+    # mid-way (measured: a clamped strip stops 2.6 cm short of its rest shape); keep it awake
+    p.changeDynamics(sb, -1, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid)
     grip_bodies, starts = [], []
     for grasped in grasps or [[0, 1] if rope else [0]]:
         start = verts0[grasped].mean(0)

@@ -6,15 +6,14 @@ DIRECT physics client and moves the grasp body with ``resetBasePositionAndOrient
 grasped node); nodes are read with ``p.getMeshData(..., flags=p.MESH_DATA_SIMULATION_MESH)``
 (simulation nodes in ``.obj`` order).
 
-Parameters (PyBullet's own units; the names are shared with mujoco-flex where the physics is):
-
-* ``stretch``: ``springElasticStiffness``, N/m per structural spring (the membrane stiffness of
-  the square lattice, roughly mesh independent);
-* ``bend``: ``springBendingStiffness``, N/m per bending spring (springs across two edges). Weakly
-  identifiable here: low vs high bound moves a light cloth by < 1 cm (benchmarks/identifiability.py);
-* ``friction``: ``frictionCoeff`` (Coulomb, cloth-table and cloth-spool);
-* ``scale``: cloth side / rope length, m;  ``mass``: areal (cloth, kg/m^2) or linear (rope, kg/m)
-  density.
+Parameters: cloth has the *shared physical* parameters, the same names, units, meaning and (where
+honoured) bounds as mujoco-flex (:func:`~softsbi.backends.common.cloth_material_params`): ``bend``
+bending rigidity [N m], ``stretch`` membrane stiffness [N/m], ``friction`` (Coulomb, cloth-table),
+``scale`` side [m], ``mass`` areal density [kg/m^2]. :func:`~.model.spring_constants` is the one
+mapping to PyBullet's ``springElasticStiffness`` / ``springBendingStiffness`` (derivation and
+calibration in its docstring). Rope (wind) has PyBullet-only spring knobs ``pb_rope_bend`` and
+``pb_rope_stretch`` (N/m per ribbon spring; formerly ``bend``/``stretch``: those names now raise a
+one-line rename error, :meth:`PybulletMassSpring.check_legacy_theta`).
 
 Stability (shared/MEASURED.md and the sweeps behind these bounds): each rollout takes
 ``substeps = ceil(sqrt(k_max dt^2 / (1.5 m_node)))`` engine steps per ``timestep``
@@ -34,14 +33,20 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.backends.common import (EffectsThroughDoor, check_effects, check_scenario, grid_corners, grid_faces,
-                                     size_params)
+from softsbi.backends.common import (EffectsThroughDoor, check_effects, check_scenario, cloth_material_params,
+                                     grid_corners, grid_faces, size_params)
 from softsbi.backends.scenario_build import FEATURES, handle_targets, handle_vertices, mesh_edges, mesh_rest
 from softsbi.backends.pybullet_massspring.model import (CLOTH_SCENARIOS, ROPE_SCENARIOS, build_world, cloth_vertices,
-                                                        import_pybullet, ribbon_faces, ribbon_vertices, substeps)
+                                                        import_pybullet, ribbon_faces, ribbon_vertices, spring_constants,
+                                                        substeps)
 from softsbi.backends.pybullet_massspring.render import PbFrameRenderer, PbState
 from softsbi.core.interfaces import OBSERVATION, Simulator
+from softsbi.core.errors import ParameterError
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
+
+
+#: the ``stretch`` bounds [N/m] this backend honours (a sub-box of the shared 5-1000: stiffer springs crumple)
+PB_STRETCH_BOUNDS = (20.0, 200.0)
 
 
 class PybulletMassSpring(Simulator):
@@ -123,28 +128,48 @@ class PybulletMassSpring(Simulator):
 
     # -- parameters ----------------------------------------------------------------------------
     def param_space(self, scenario: Scenario) -> ParamSpace:
-        """Parameters in PyBullet units (module docstring). Cloth scenarios: ``bend`` [N/m] log
-        0.05-20, ``stretch`` [N/m] log 20-200, ``friction`` 0.05-1.5, ``scale`` [m] 0.20-0.34,
-        ``mass`` [kg/m^2] 0.1-0.35, and ``yaw`` [deg] when ``object["yaw_bounds"]`` is set (placement
-        unknown). Rope (wind): ``bend`` [N/m] log 0.05-20, ``stretch`` [N/m] log 80-600,
-        ``friction`` 0.1-1.0, ``scale`` (rope length) [m] 0.3-0.5, ``mass`` [kg/m] 0.01-0.05.
+        """Cloth (any grid or mesh cloth): the shared physical parameters with mujoco-flex's names,
+        units and meaning (:func:`~softsbi.backends.common.cloth_material_params`: ``bend`` [N m],
+        ``stretch`` [N/m], ``friction``, then ``scale`` [m], ``mass`` [kg/m^2], ``yaw`` [deg]); they
+        become spring constants in :func:`~.model.spring_constants`. ``stretch`` is narrowed to
+        :data:`PB_STRETCH_BOUNDS` (stiffer springs crumple at the default step and substep cap).
+        Rope (wind): PyBullet-only knobs ``pb_rope_bend`` [N/m] log 0.05-20 and ``pb_rope_stretch``
+        [N/m] log 80-600 (per ribbon spring), ``friction`` 0.1-1.0, ``scale`` (rope length) [m]
+        0.3-0.5, ``mass`` [kg/m] 0.01-0.05.
 
         Raises:
             ValueError: scenario not supported (names the valid ones).
         """
         check_scenario(self, scenario)
+        if scenario.object.get("kind") == "rope":
+            return ParamSpace([
+                Param("pb_rope_bend", 0.05, 20.0, "N/m", log=True,
+                      description="PyBullet springBendingStiffness of the rope ribbon (per bending spring)"),
+                Param("pb_rope_stretch", 80.0, 600.0, "N/m", log=True,
+                      description="PyBullet springElasticStiffness of the rope ribbon (per spring)"),
+                Param("friction", 0.1, 1.0, "1", description="rope-table and rope-spool friction coefficient"),
+                *size_params(scenario, True),
+            ])
+        return ParamSpace([*cloth_material_params(stretch=PB_STRETCH_BOUNDS), *size_params(scenario, False)])
+
+    @staticmethod
+    def check_legacy_theta(scenario: Scenario, theta: Mapping[str, float]) -> None:
+        """Refuse parameters written for the pre-issue-15 PyBullet units with one line naming the rename.
+
+        Raises:
+            ParameterError: rope ``bend``/``stretch`` (now ``pb_rope_bend``/``pb_rope_stretch``), or a
+                cloth ``bend`` >= 0.05 (a per-spring N/m value, the old unit; the
+                shared N m range ends at 1e-3).
+        """
         rope = scenario.object.get("kind") == "rope"
-        bend = ("PyBullet springBendingStiffness of the rope ribbon (per bending spring)" if rope else
-                "PyBullet springBendingStiffness (per bending spring; ~D / h^2 for rigidity D)")
-        stretch = ("PyBullet springElasticStiffness of the rope ribbon (per spring)" if rope else
-                   "PyBullet springElasticStiffness (per structural spring; ~membrane stiffness)")
-        return ParamSpace([
-            Param("bend", 0.05, 20.0, "N/m", log=True, description=bend),
-            Param("stretch", *((80.0, 600.0) if rope else (20.0, 200.0)), "N/m", log=True, description=stretch),
-            Param("friction", *((0.1, 1.0) if rope else (0.05, 1.5)), "1",
-                  description=f"PyBullet frictionCoeff, {'rope-table and rope-spool' if rope else 'cloth-table'}"),
-            *size_params(scenario, rope),
-        ])
+        if rope and ("bend" in theta or "stretch" in theta):
+            raise ParameterError("pybullet-massspring rope parameters were renamed: bend -> pb_rope_bend, stretch -> "
+                                 "pb_rope_stretch (same values, N/m per ribbon spring); rename them in your theta")
+        if not rope and "bend" in theta and float(theta["bend"]) >= 0.05:
+            raise ParameterError(f"pybullet-massspring 'bend' is now the bending rigidity in N*m (1e-06..0.001, as on "
+                                 f"mujoco-flex), got {theta['bend']}: that is an old per-spring N/m value; convert "
+                                 f"it with bend = value * h^2 / C_BEND (spring_constants), or pass it raw as "
+                                 f"overrides={{'springBendingStiffness': value}}")
 
     # -- simulation ----------------------------------------------------------------------------
     def simulate(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
@@ -180,6 +205,7 @@ class PybulletMassSpring(Simulator):
         """
         check_scenario(self, scenario)
         plan = check_effects(self, effects)
+        self.check_legacy_theta(scenario, theta)
         theta = plan.space(self.param_space(scenario)).check(theta)
         p = import_pybullet()
         t0 = time.perf_counter()
@@ -188,8 +214,6 @@ class PybulletMassSpring(Simulator):
         mesh = "mesh" in scenario.object
         ov = self.overrides
         dt = float(ov.get("timestep", self.timestep))
-        k_el = float(ov.get("springElasticStiffness", theta["stretch"]))
-        k_be = float(ov.get("springBendingStiffness", theta["bend"]))
         k_da = float(ov.get("springDampingStiffness", self.damping))
         L = float(theta["scale"])
         table_z = float(scenario.table_z)
@@ -216,6 +240,14 @@ class PybulletMassSpring(Simulator):
             total_mass = float(theta["mass"]) * L * L
             vidx = handle_vertices(scenario, verts0, n)
             grasps = [[v] for v in vidx]
+        if rope:
+            k_el, k_be = float(theta["pb_rope_stretch"]), float(theta["pb_rope_bend"])
+        else:
+            spacing = (float(np.linalg.norm(verts0[mesh_edges(faces_sim)[:, 0]] - verts0[mesh_edges(faces_sim)[:, 1]],
+                                            axis=1).mean()) if mesh else L / (n - 1))
+            k_el, k_be = spring_constants(float(theta["bend"]), float(theta["stretch"]), spacing)
+        k_el = float(ov.get("springElasticStiffness", k_el))
+        k_be = float(ov.get("springBendingStiffness", k_be))
         m_node = total_mass / len(verts0)
         sub = int(ov.get("substeps", 0)) or substeps(max(k_el, k_be), dt, m_node, self.max_substeps)
         h = dt / sub
