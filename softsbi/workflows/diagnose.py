@@ -48,7 +48,9 @@ def _candidate_effects(run: RunView, names: Sequence[str] | None) -> list[Any]:
         if bad:
             raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
     else:
-        cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"] and not reg.effect(n).generic]
+        # generic force terms are screened too (in the max-T family), but only for the third verdict: forward
+        # selection names non-generic effects only (_Screening.select)
+        cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
     return [c() for c in cands if c.name not in run.effects]
 
 
