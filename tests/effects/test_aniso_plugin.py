@@ -107,7 +107,10 @@ def test_hidden_aniso_is_diagnosed_and_refitted(tmp_path):
     meas = simulate_recording("mujoco-flex", sc, truth, backend_options={"grid": 5}, effects=[NAME], n_points=32,
                               n_dense=200, seed=7)
     cfg = FitConfig(backend="mujoco-flex", backend_options={"grid": 5}, rounds=4, sims_per_round=60, n_eval=10,
-                    n_points=32, n_dense=200, workers=1, seed=0, estimator_options={"max_epochs": 60},
+                    n_points=32, n_dense=200, workers=1, seed=0,
+                    # one network, as when this round trip was measured (the calibrated ensemble default widens
+                    # the posterior predictive: its refit drop was 6.9%, measured after the issue-16 merge)
+                    estimator_options={"max_epochs": 60, "ensemble": 1, "recalibrate": False},
                     proposal="truncated")
     run = tmp_path / "nominal"
     run_fit(run, meas, cfg, make_plots=False)
