@@ -228,7 +228,10 @@ def test_ctrl_c_says_how_to_resume_and_the_same_command_resumes(tmp_path):
     # 0.2 s per simulation: the interrupt lands mid-round even on a loaded machine
     env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.2",
                PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    # a user's shell leaves SIGINT at its default; an earlier test (e.g. Ray) may have left it ignored in this
+    # process, and an ignored SIGINT is inherited (Python then installs no KeyboardInterrupt handler)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
     while time.time() < deadline:  # wait until a few simulations are stored
         status = out / "run.zarr" / "rounds" / "0" / "status" / "c"
