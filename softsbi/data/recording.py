@@ -41,7 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from softsbi.core.arrays import read_npy
-from softsbi.core.errors import DataError
+from softsbi.core.errors import DataError, yaml_error_parts
 from softsbi.data.validation import validation_line
 
 FORMAT = "softsbi-recording/1"
@@ -211,8 +211,7 @@ def read_recording(folder: str | Path) -> RecordingData:
     try:
         raw = yaml.safe_load(meta_file.read_text())
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        at, _ = yaml_error_parts(exc)
         raise DataError(f"{meta_file} is not valid YAML{at}; fix that line") from None
     meta = parse_meta(raw, str(meta_file))
     files = _frames(folder, "clouds")

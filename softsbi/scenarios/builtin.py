@@ -91,7 +91,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.core.arrays import read_npy
-from softsbi.core.errors import DataError, ShapeError
+from softsbi.core.errors import DataError, ShapeError, yaml_error_parts
 from softsbi.core.types import Param, Scenario
 
 #: metres per ARCSim simulator unit (``scale`` of every lift_real2sim.yaml)
@@ -167,9 +167,7 @@ def recording_transform(recording_dir: str | Path) -> dict[str, Any]:
         with open(path) as fh:
             cfg = yaml.safe_load(fh)
     except yaml.YAMLError as exc:
-        where = getattr(exc, "problem_mark", None)
-        at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        at, problem = yaml_error_parts(exc)
         raise DataError(f"{path} is not valid YAML{at} ({problem}); fix that line (the file holds z_rotation, "
                         f"translation, scale and compensation_factor)") from None
     if not isinstance(cfg, Mapping):

@@ -40,7 +40,7 @@ from typing import Any, Literal, Mapping, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from softsbi.core.errors import DataError
+from softsbi.core.errors import DataError, yaml_error_parts
 from softsbi.core.types import Handle, Scenario
 from softsbi.data.validation import validation_line
 
@@ -296,9 +296,7 @@ def _read_yaml(path: Path) -> Any:
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        at, problem = yaml_error_parts(exc)
         raise DataError(f"{path} is not valid YAML{at} ({problem}); fix that line") from None
 
 

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import DataError
+from softsbi.core.errors import DataError, yaml_error_parts
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.perception.pointcloud import PointCloudObserver, load_cloud_frames, rollout_clouds
@@ -157,9 +157,7 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
     try:
         cfg = yaml.safe_load(yml.read_text())
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        at, problem = yaml_error_parts(exc)
         raise DataError(f"{yml} is not valid YAML{at} ({problem}); fix that line (the file holds z_rotation, "
                         f"translation, scale and compensation_factor)") from None
     if not isinstance(cfg, Mapping) or not {"z_rotation", "translation", "scale"} <= set(cfg):

@@ -1,6 +1,5 @@
 """CLI and bad-input behaviour: each error names the file/problem and the fix."""
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -11,6 +10,7 @@ from softsbi.core.errors import DataError, PluginNotFound
 from softsbi.workflows.measurement import load_recording
 from softsbi.perception.pointcloud import load_cloud_frames, sample_surface
 from softsbi.plugins import registry
+from toy_helpers import copy_lift_recording
 
 runner = CliRunner()
 
@@ -38,12 +38,7 @@ def test_unknown_plugin_suggests_the_closest_name():
 
 
 def _copy_recording(lift_dir, tmp_path):
-    dst = tmp_path / "diffcloud_lift"
-    dst.mkdir()
-    for f in ("lift_traj.npy", "lift_real2sim.yaml"):
-        shutil.copy(lift_dir / f, dst / f)
-    shutil.copytree(lift_dir / "lift_tan", dst / "lift_tan")
-    return dst / "lift_tan"
+    return copy_lift_recording(tmp_path, lift_dir)
 
 
 def test_real_measurement_loads_in_metres(lift_dir):

@@ -8,7 +8,6 @@ run as root with ``CAP_SYS_ADMIN``, skipped with that reason otherwise.
 """
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -26,7 +25,7 @@ from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.simulate import check_render_memory, render_memory_bytes
 
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
-from toy_helpers import DATA, REPO, toy_measurement  # noqa: E402
+from toy_helpers import DATA, REPO, copy_lift_recording, toy_measurement  # noqa: E402
 
 runner = CliRunner()
 LIFT = DATA / "diffcloud_lift"
@@ -128,12 +127,7 @@ def test_a_garbage_store_is_one_line_naming_the_file(tmp_path):
 
 
 def _recording(tmp_path):
-    dst = tmp_path / "diffcloud_lift"
-    dst.mkdir()
-    for f in ("lift_traj.npy", "lift_real2sim.yaml"):
-        shutil.copy(LIFT / f, dst / f)
-    shutil.copytree(LIFT / "lift_tan", dst / "lift_tan")
-    return dst / "lift_tan"
+    return copy_lift_recording(tmp_path, LIFT)
 
 
 def test_bad_recording_files_are_one_line_naming_file_and_fix(tmp_path):
