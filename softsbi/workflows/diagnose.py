@@ -508,6 +508,13 @@ def _pct(x: float) -> str:
     return f"{max(x, 0.0) * 100:.0f}%"  # a linearised drop can be a rounding error below zero
 
 
+def _refit_sentence(c: dict[str, Any], name: str, alpha: float) -> str:
+    """The refit's Chamfer change in words, then what its check says (:func:`_after_refit`)."""
+    return (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+            f"to {c['chamfer_after_m'] * 100:.2f} cm ({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])})."
+            + _after_refit(c, name, alpha))
+
+
 def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
     """check's verdict on a confirmation refit, in words ('' when it was not computed)."""
     m = c.get("misspecification_after")
@@ -545,10 +552,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
              f"estimate {est}).")
         if chosen in confirmed:
             c = confirmed[chosen]
-            s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
-                  f"to {c['chamfer_after_m'] * 100:.2f} cm "
-                  f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
-            s += _after_refit(c, chosen, a)
+            s += _refit_sentence(c, chosen, a)
             others = [o for n, o in confirmed.items() if n != chosen]
             if others:
                 s += " " + "; ".join(f"With {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
@@ -601,11 +605,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         s += (f" Best generic force term: {gen} explains {_pct(g['explained_fraction'])} of the residual "
               f"(max-T adjusted {g['adjusted_p_text']}).")
         if gen in confirmed:
-            c = confirmed[gen]
-            s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
-                  f"to {c['chamfer_after_m'] * 100:.2f} cm "
-                  f"({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
-            s += _after_refit(c, gen, a)
+            s += _refit_sentence(confirmed[gen], gen, a)
     else:
         s += " No generic force term is installed (effect classes with generic = True)."
     return s
