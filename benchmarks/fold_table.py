@@ -16,13 +16,14 @@ different fabrics (posterior means in prior-normalised units, material parameter
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from fabric_distances import material_unit_means, repeat_fabric_distances
 
 RECS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
 REPO = Path(__file__).resolve().parents[1]
@@ -62,16 +63,10 @@ def main() -> None:
         print(f"| {r} | {rep['chamfer_prior_m'] * 100:.2f} | {rep['chamfer_posterior_m'] * 100:.2f} | {ratio:.2f} | "
               + " | ".join(cells) + f" | {rep['wall_time_s']:.0f} | {rep['failed_simulations']} |")
     print(f"\nposterior/prior Chamfer <= 0.70 on {sum(x <= 0.70 for x in ratios)} of {len(ratios)} recordings")
-    from softsbi.core.types import ParamSpace
-    space = ParamSpace.from_json(first["parameters"])
-    mat = [i for i, n in enumerate(names) if n != "yaw"]  # the placement yaw is how the cloth was laid
-    u = {r: space.to_unit(space.as_array(rep["posterior_mean"]))[mat] for r, rep in reps.items()}
-    same, diff = [], []
-    for x, y in itertools.combinations(u, 2):
-        d = float(np.linalg.norm(u[x] - u[y]))
-        (same if x.rstrip("2") == y.rstrip("2") else diff).append(d)
+    mat_names, u = material_unit_means(reps, names)
+    same, diff = repeat_fabric_distances(u)
     if same and diff:
-        print(f"distance between posterior means (unit-cube units, {', '.join(names[i] for i in mat)}): repeats of a "
+        print(f"distance between posterior means (unit-cube units, {', '.join(mat_names)}): repeats of a "
               f"fabric {np.mean(same):.3f} (n={len(same)}), different fabrics {np.mean(diff):.3f} (n={len(diff)})")
     else:
         print("repeats vs fabrics: needs both repeats of at least one fabric and two fabrics")

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fabric_distances import material_unit_means, repeat_fabric_distances
+
 RECS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
 
 
@@ -42,16 +44,8 @@ def main() -> None:
         print(f"| {r} | {rep['chamfer_prior_m'] * 100:.2f} | {rep['chamfer_posterior_m'] * 100:.2f} | {ch:+.0f}% | "
               + " | ".join(cells) + f" | {rep['wall_time_s']:.0f} | {rep['failed_simulations']} |")
     # repeats vs other fabrics: distance between posterior means in prior-normalised (unit-cube) units
-    from softsbi.core.types import ParamSpace
-    space = ParamSpace.from_json(next(iter(reps.values()))["parameters"])
-    # material only: the placement yaw is how the cloth was laid on the table, not what it is made of
-    mat = [i for i, n in enumerate(names) if n != "yaw"]
-    names = [names[i] for i in mat]
-    u = {r: space.to_unit(space.as_array(rep["posterior_mean"]))[mat] for r, rep in reps.items()}
-    same, diff = [], []
-    for x, y in itertools.combinations(u, 2):
-        d = float(np.linalg.norm(u[x] - u[y]))
-        (same if x.rstrip("2") == y.rstrip("2") else diff).append(d)
+    names, u = material_unit_means(reps, names)
+    same, diff = repeat_fabric_distances(u)
     if same and diff:
         print(f"\ndistance between posterior means (unit-cube units, {', '.join(names)}): repeats of a fabric {np.mean(same):.3f} "
               f"(n={len(same)}), different fabrics {np.mean(diff):.3f} (n={len(diff)})")
