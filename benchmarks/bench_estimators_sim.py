@@ -29,7 +29,7 @@ import numpy as np
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
 #: hidden parameters (unit-cube position in the backend's parameter order) per scenario
 TRUTH_UNIT = {"lift": [0.6, 0.4, 0.5, 0.5, 0.6],  # bend, stretch, friction, scale, mass
-              "wind": [0.6, 0.4, 0.5, 0.6]}  # bend, friction, scale, mass (rope)
+              "wind": [0.6, 0.4, 0.5, 0.6]}  # young, friction, scale, mass (rope)
 TITLE = {"lift": "cloth lift", "wind": "rope winding (spool occludes part of the rope)"}
 
 

@@ -18,7 +18,7 @@ from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import SCENARIOS, make_scenario
 
-PARAMS = ("bend", "stretch", "friction", "scale", "mass")
+PARAMS = ("bend", "young", "stretch", "friction", "scale", "mass")  # young: the mujoco-flex rope
 
 
 def table(grid: int = 7, rope_nodes: int = 24) -> list[dict]:

@@ -127,6 +127,45 @@ def cantilever_analytic(bend: float, mass: float, L: float = 0.2, grid: int = 9,
     return mass * g * a ** 4 / (8.0 * bend)
 
 
+def rope_cantilever_scenario(L: float = 0.3, nodes: int = 31, clamp_nodes: int = 6, g: float = 9.81,
+                             radius: float = 0.004, duration: float = 12.0, frames: int = 13) -> Scenario:
+    """A static check of a rope's bending: a clamped rope drooping under its own weight.
+
+    A rope of length ``L`` m and ``radius`` m lies along -y from the origin; its first ``clamp_nodes``
+    vertices (of ``nodes``, the backend's rope resolution: pass the same number to the backend) are
+    pinned, leaving a free overhang ``a = L - (clamp_nodes - 1) L / (nodes - 1)``. Gravity points *up*
+    (``+g`` m/s^2) so the table never touches the rope. Tip deflection:
+    :func:`rope_cantilever_tip_deflection`; Euler-Bernoulli value: :func:`cantilever_analytic` with
+    ``bend = EI`` [N m^2] and ``mass`` in kg/m (the same formula per unit width or per rope).
+
+    Raises:
+        DataError: invalid values (the scenario-file validation).
+    """
+    from softsbi.scenarios.spec import load_scenario_data
+    h = L / (nodes - 1)
+    handles: list[dict[str, Any]] = []
+    for i in range(clamp_nodes):
+        p = [0.0, -h * i, 0.0]
+        if i == 0:
+            handles.append({"name": "clamp_0", "grasp": {"point": p},
+                            "path": {"keyframes": [{"t": 0.0, "p": p}, {"t": duration, "p": p}]}})
+        else:
+            handles.append({"name": f"clamp_{i}", "grasp": {"point": p}, "pinned": True})
+    data = {"format": "softsbi-scenario/1", "name": "rope-cantilever", "object": {"kind": "rope", "length": L,
+                                                                                "radius": radius},
+            "placement": {"corner": [0.0, 0.0], "direction": [0.0, -1.0]}, "handles": handles,
+            "frames": {"count": frames, "duration": duration}, "world": {"table_z": 0.0, "gravity": [0.0, 0.0, g]}}
+    return load_scenario_data(data, "<rope-cantilever>", None)
+
+
+def rope_cantilever_tip_deflection(vertices: np.ndarray, last: int = 3) -> float:
+    """Tip deflection (m) of :func:`rope_cantilever_scenario`: the rise of the free end (last vertex of
+    ``vertices (T, N, 3)``) from the first frame, averaged over the ``last`` frames (a lightly damped
+    rope still swings a little about its rest shape)."""
+    v = np.asarray(vertices, dtype=float)
+    return float((v[-last:, -1, 2] - v[0, -1, 2]).mean())
+
+
 def size_params(scenario: Scenario | None, rope: bool) -> list[Param]:
     """The size, density and placement parameters, the same in every engine (units, bounds).
 

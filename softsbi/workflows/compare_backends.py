@@ -6,7 +6,7 @@ cloth ``bend`` N m, ``stretch`` N/m, ``friction``, ``scale`` m, ``mass`` kg/m^2,
 :func:`shared_space` is the box every backend honours: the parameters all backends have with the
 same unit, bounds intersected. By default every backend gets the *shared prior midpoint* (the
 centre of that box, geometric for log parameters); values given by name override it. Engine-only
-knobs (e.g. ``pb_rope_bend``, or mujoco-flex's rope ``bend`` in Pa) sit at that backend's own
+knobs (e.g. ``pb_rope_bend``, or mujoco-flex's rope ``young`` in Pa) sit at that backend's own
 prior midpoint. With ``match="unit"`` ``theta`` is read in unit-cube coordinates of each backend's
 own prior instead. The report says which value each backend got and where it came from.
 

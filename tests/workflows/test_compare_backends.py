@@ -69,8 +69,10 @@ def test_default_is_the_shared_physical_midpoint():
     assert mj["theta_source"]["bend"] == "shared-midpoint" and mj["theta_source"]["friction"] == "given"
     assert rep["max_chamfer_m"]["mujoco-flex|pybullet-massspring"] >= rep["mean_chamfer_m"][
         "mujoco-flex|pybullet-massspring"] > 0
-    # wind: the rope knobs are engine-only (pb_rope_*, mujoco's Pa 'bend') and sit at each engine's midpoint
+    # wind: the rope knobs are engine-only (pb_rope_*, mujoco's Young's modulus 'young') and sit at each
+    # engine's midpoint; no parameter name means two things
     wind = compare_backends(make_scenario("wind"), {}, BACKENDS,
                             backend_options={"mujoco-flex": {"rope_nodes": 8}, "pybullet-massspring": {"rope_nodes": 8}})
     assert wind["shared_params"] == ["friction", "scale", "mass"]
     assert wind["backends"]["pybullet-massspring"]["theta_source"]["pb_rope_bend"] == "midpoint"
+    assert wind["backends"]["mujoco-flex"]["theta_source"]["young"] == "midpoint"

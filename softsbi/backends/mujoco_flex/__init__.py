@@ -17,7 +17,7 @@ from __future__ import annotations
 from softsbi.backends.common import (ARM_LENGTH, ARM_RADIUS, GRIPPER_HALF, PROP_COLOUR, SHOULDER_HEIGHT, grid_corners,
                                      grid_faces, robot_base, visual_robot)
 from softsbi.backends.mujoco_flex.model import (DEFAULT_AREAL_DENSITY, build_rope_spec, build_spec, plate_mapping,
-                                                rope_param_space, spec_to_xml)
+                                                rope_bending_rigidity, rope_param_space, spec_to_xml)
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
 from softsbi.backends.mujoco_flex.simulator import MujocoFlex
 from softsbi.core.interfaces import Simulator
@@ -25,7 +25,7 @@ from softsbi.plugins.hookspecs import hookimpl
 
 __all__ = ["ARM_LENGTH", "ARM_RADIUS", "DEFAULT_AREAL_DENSITY", "GRIPPER_HALF", "PROP_COLOUR", "SHOULDER_HEIGHT",
            "MjFrameRenderer", "MjState", "MujocoFlex", "build_rope_spec", "build_spec", "grid_corners", "grid_faces",
-           "plate_mapping", "robot_base", "rope_param_space", "softsbi_simulators", "spec_to_xml", "visual_robot"]
+           "plate_mapping", "robot_base", "rope_bending_rigidity", "rope_param_space", "softsbi_simulators", "spec_to_xml", "visual_robot"]
 
 
 @hookimpl

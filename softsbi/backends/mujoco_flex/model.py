@@ -155,16 +155,37 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
 
 
 def rope_param_space() -> ParamSpace:
-    """Parameters of the rope (wind) scenario in MuJoCo units: ``bend`` = ``young`` of the 1-D flex
-    elasticity [Pa] (log 1e5-3e7; the rope is inextensible through ``<edge equality="true"/>``, so
-    there is no ``stretch``), ``friction`` [1] 0.1-1.0, ``scale`` = rope length [m] 0.3-0.5,
-    ``mass`` = linear density [kg/m] 0.01-0.05."""
+    """Parameters of the rope (wind) scenario, SI units: ``young`` = Young's modulus E of the rope
+    material [Pa] (log 1e5-3e7): MuJoCo's ``young`` of the 1-D flex elasticity, whose bending rigidity
+    is ``EI = E pi r^4 / 4`` for the rope radius ``r`` (checked by a clamped rope drooping under its
+    weight, :func:`~softsbi.backends.common.rope_cantilever_scenario`; the rope is inextensible through ``<edge equality="true"/>``,
+    so there is no ``stretch``); ``friction`` [1] 0.1-1.0, ``scale`` = rope length [m] 0.3-0.5,
+    ``mass`` = linear density [kg/m] 0.01-0.05. The rope's stiffness was called ``bend`` before; that
+    name means the cloth's bending rigidity D [N m] and is refused on a rope (:func:`check_rope_theta`)."""
     return ParamSpace([
-        Param("bend", 1e5, 3e7, "Pa", log=True,
-              description="MuJoCo young of the 1-D flex (rope bending; edges are inextensible)"),
+        Param("young", 1e5, 3e7, "Pa", log=True,
+              description="Young's modulus of the rope (bending rigidity E pi r^4 / 4; edges inextensible)"),
         Param("friction", 0.1, 1.0, "1", description="rope-table and rope-spool friction coefficient"),
         *size_params(None, rope=True),
     ])
+
+
+def check_rope_theta(theta: Mapping[str, float]) -> None:
+    """Refuse the rope's old parameter name ``bend`` with one line naming the rename.
+
+    Raises:
+        ParameterError: ``theta`` has ``bend`` (now ``young``, the same value in Pa).
+    """
+    if "bend" in theta:
+        raise ParameterError(f"the mujoco-flex rope's stiffness is now 'young' (Young's modulus, Pa; the same value "
+                             f"as the old 'bend' = {theta['bend']}); 'bend' is the cloth's bending rigidity in N*m. "
+                             f"Rename it in your theta")
+
+
+def rope_bending_rigidity(young: float, radius: float) -> float:
+    """Bending rigidity ``EI`` [N m^2] of a rope of circular cross-section: ``young * pi * radius^4 / 4``
+    (Young's modulus [Pa] times the second moment of area of a disc of ``radius`` m)."""
+    return float(young) * math.pi * float(radius) ** 4 / 4.0
 
 
 def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: int, timestep: float, solver: str,
@@ -173,9 +194,9 @@ def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: in
     """Model dict of the rope (``wind``) scenario, same keys as :func:`build_spec` plus ``geoms``
     (the spool). The rope is a 1-D ``flexcomp`` grid of ``nodes`` vertices with
     ``<edge equality="true"/>`` (MuJoCo 4.0: a 1-D flex explodes without it, shared/MEASURED.md) and
-    ``<elasticity young=bend>``; vertex 0 (body ``rope_0``) is grasped at ``object["start"]`` and the
+    ``<elasticity young=young>``; vertex 0 (body ``rope_0``) is grasped at ``object["start"]`` and the
     rope lies along ``object["direction"]``. The spool is a fixed vertical cylinder geom.
-    ``theta``: ``bend`` [Pa], ``friction``, ``scale`` (length) [m], ``mass`` [kg/m].
+    ``theta``: ``young`` [Pa], ``friction``, ``scale`` (length) [m], ``mass`` [kg/m].
 
     Raises:
         KeyError: a required ``theta`` key is missing (the simulator checks ``theta`` first).
@@ -204,7 +225,7 @@ def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: in
                      "mass": float(theta["mass"]) * L},
         "contact": {"condim": 3, "friction": [fric, 0.005, 0.0001], "selfcollide": "none", "solref": [0.004, 1.0]},
         "edge": {"equality": "true"},
-        "elasticity": {"young": float(ov.pop("young", theta["bend"])), "poisson": poisson,
+        "elasticity": {"young": float(ov.pop("young", theta["young"])), "poisson": poisson,
                        "thickness": float(ov.pop("thickness", 2.0 * r)), "damping": float(ov.pop("damping", damping))},
     }
     rest = np.column_stack([start + np.linspace(0.0, L, nodes)[:, None] * e, np.full(nodes, z0)])

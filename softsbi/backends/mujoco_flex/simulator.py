@@ -25,7 +25,8 @@ from softsbi.backends.common import (EffectPlan, EffectsThroughDoor, check_effec
                                      grid_faces, size_params)
 from softsbi.backends.scenario_build import FEATURES, handle_targets, mesh_edges
 from softsbi.backends.mujoco_flex.gl import import_mujoco
-from softsbi.backends.mujoco_flex.model import build_rope_spec, build_spec, rope_param_space, spec_to_xml
+from softsbi.backends.mujoco_flex.model import (build_rope_spec, build_spec, check_rope_theta, rope_param_space,
+                                                spec_to_xml)
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Simulator, VertexContext
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
@@ -83,7 +84,7 @@ class MujocoFlex(Simulator):
 
         Cloth (lift, wipe, fling): ``bend`` [N m] log, ``stretch`` [N/m] log, ``friction`` [1],
         ``scale`` [m], ``mass`` [kg/m^2], and ``yaw`` [deg] when the scenario's placement is unknown
-        (``object["yaw_bounds"]``). Rope (wind): :func:`~.model.rope_param_space`. Bounds were swept
+        (``object["yaw_bounds"]``). Rope (wind): :func:`~.model.rope_param_space` (``young`` [Pa], ``friction``, ``scale``, ``mass``). Bounds were swept
         corner by corner for stability at the default options.
 
         Raises:
@@ -152,7 +153,8 @@ class MujocoFlex(Simulator):
 
         Raises:
             ValueError: unknown scenario (names the valid ones).
-            ParameterError: unknown/missing/out-of-bounds parameter, unsupported effect.
+            ParameterError: unknown/missing/out-of-bounds parameter, unsupported effect, a rope's old
+                ``bend`` (now ``young``).
         """
         return self._rollout(scenario, theta, effects, seed)
 
@@ -177,6 +179,8 @@ class MujocoFlex(Simulator):
 
         check_scenario(self, scenario)
         plan = check_effects(self, effects)
+        if scenario.object.get("kind") == "rope":
+            check_rope_theta(theta)
         theta = plan.space(self.param_space(scenario)).check(theta)
         t0 = time.perf_counter()
         spec = self.build_spec(scenario, theta, effects, plan=plan)
