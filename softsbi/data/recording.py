@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, yaml_error_parts
+from softsbi.data.frames import load_frames, save_frames
 from softsbi.data.validation import validation_line
 
 FORMAT = "softsbi-recording/1"
@@ -226,20 +227,11 @@ def read_recording(folder: str | Path) -> RecordingData:
     m = meta.transform.as_matrix()
     clouds = [c @ m[:3, :3].T + m[:3, 3] for c in clouds]
     images = None
-    if (folder / "images").is_dir():
-        import cv2
-        imgs = sorted((folder / "images").glob("[0-9]*.png"))
-        if imgs:
-            if len(imgs) != len(files):
-                raise DataError(f"{folder / 'images'} holds {len(imgs)} images for {len(files)} frames; give one per "
-                                f"frame or none")
-            loaded = []
-            for p in imgs:
-                im = cv2.imread(str(p), cv2.IMREAD_COLOR)
-                if im is None:
-                    raise DataError(f"{p} is not a readable image; re-export it as PNG")
-                loaded.append(im[..., ::-1])
-            images = np.stack(loaded)
+    if (folder / "images").is_dir() and any(p.stem.isdigit() for p in (folder / "images").iterdir()):
+        images = load_frames(folder / "images")
+        if len(images) != len(files):
+            raise DataError(f"{folder / 'images'} holds {len(images)} images for {len(files)} frames; give one per "
+                            f"frame or none")
     depth = None
     dfiles = _frames(folder, "depth") if (folder / "depth").is_dir() else []
     if dfiles:
@@ -302,10 +294,7 @@ def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequenc
         for i, c in enumerate(clouds):
             np.save(tmp / "clouds" / f"{i:03d}.npy", np.asarray(c, dtype=np.float64))
         if images is not None:
-            import cv2
-            (tmp / "images").mkdir()
-            for i, im in enumerate(images):
-                cv2.imwrite(str(tmp / "images" / f"{i:03d}.png"), np.ascontiguousarray(im[..., ::-1]))
+            save_frames(images, tmp / "images")
         if depth is not None:
             (tmp / "depth").mkdir()
             for i, d in enumerate(depth):

@@ -1,0 +1,76 @@
+"""Folders of RGB frames (``000.png, 001.png, ...``): the one reader and writer of image sequences, used by
+recording directories (:mod:`softsbi.data.recording`, ``images/``) and the image observers
+(:mod:`softsbi.perception.images`, ``fit --observed FRAMES_DIR``)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from softsbi.core.errors import DataError
+from softsbi.data.keypoints import IMAGE_SUFFIXES, check_images
+
+__all__ = ["IMAGE_SUFFIXES", "load_frames", "save_frames"]
+
+def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a folder of frames ``000.png, 001.png, ...`` (or ``.jpg``) in numeric order as RGB.
+
+    Args:
+        folder: the frames folder.
+        size: optional ``(width, height)`` px to resize every frame to (``cv2.INTER_AREA``).
+
+    Returns:
+        ``(T, H, W, 3)`` uint8 RGB.
+
+    Raises:
+        DataError: missing folder, no numbered frames, gaps in the numbering, unreadable files,
+            frames of different sizes, or a resize that changes the aspect ratio by more than 2 %.
+    """
+    import cv2
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"frames folder '{folder}' does not exist; it must hold 000.png, 001.png, ... "
+                        f"(one RGB frame per scenario frame)")
+    files = sorted((f for f in folder.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES and f.stem.isdigit()),
+                   key=lambda f: int(f.stem))
+    if not files:
+        raise DataError(f"'{folder}' holds no frames named 000.png, 001.png, ... (.png/.jpg)")
+    idx = [int(f.stem) for f in files]
+    if idx != list(range(idx[0], idx[0] + len(idx))):
+        raise DataError(f"'{folder}': frame numbering has gaps or duplicates ({idx[:8]}...); frames must be "
+                        f"consecutive")
+    frames = []
+    for f in files:
+        im = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        if im is None:
+            raise DataError(f"cannot read image '{f}'; re-export it as PNG or JPEG")
+        frames.append(cv2.cvtColor(im, cv2.COLOR_BGR2RGB))
+    shapes = {fr.shape for fr in frames}
+    if len(shapes) > 1:
+        raise DataError(f"'{folder}': frames have different sizes {sorted(shapes)}; all frames must share one size")
+    out = np.stack(frames)
+    if size is not None:
+        w, h = size
+        H, W = out.shape[1:3]
+        if abs((W / H) / (w / h) - 1) > 0.02:
+            raise DataError(f"'{folder}': frames are {W}x{H} px, which cannot be resized to {w}x{h} without "
+                            f"distortion; crop them or pass a camera with the frames' aspect ratio")
+        if (W, H) != (w, h):
+            out = np.stack([cv2.resize(fr, (w, h), interpolation=cv2.INTER_AREA) for fr in out])
+    return out
+
+
+def save_frames(images: np.ndarray, folder: str | Path) -> list[Path]:
+    """Write ``images (T, H, W, 3)`` uint8 RGB as ``folder/000.png, 001.png, ...``; returns the paths."""
+    import cv2
+
+    images = check_images(images)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, im in enumerate(images):
+        p = folder / f"{i:03d}.png"
+        cv2.imwrite(str(p), cv2.cvtColor(im, cv2.COLOR_RGB2BGR))
+        paths.append(p)
+    return paths
