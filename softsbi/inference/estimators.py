@@ -37,8 +37,8 @@ from softsbi.plugins.hookspecs import hookimpl
 from softsbi.inference.mdn import MDNHead, MDNParams, mdn_log_prob
 from softsbi.inference.rkhs import RKHSNet
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import (fit_early_stopping, minibatches, predict_batched, torch_threads,
-                                        train_val_split, available_cpus)
+from softsbi.inference.training import (available_cpus, fit_early_stopping, fit_early_stopping_stacked, minibatches,
+                                        predict_batched, torch_threads, train_val_split)
 
 __all__ = ["NeuralMDNEstimator", "RKHSEstimator", "MDNNEstimator", "MDNNetwork", "RKHSFrameFeatures",
            "softsbi_estimators"]
@@ -122,9 +122,10 @@ class MDNNetwork(nn.Module):
         self.mlp = nn.Sequential(*layers)
         self.head = MDNHead(last, out_dim, n_components, min_scale)
 
-    def forward(self, z: torch.Tensor) -> MDNParams:
-        """Mixture parameters (standardised target units) of a standardised batch ``z (B, ...)``."""
-        return self.head(self.mlp(self.features(z)))
+    def forward(self, z: torch.Tensor, embedded: bool = False) -> MDNParams:
+        """Mixture parameters (standardised target units) of a standardised batch ``z (B, ...)``, or of
+        its embedding-net features ``z (B, F)`` when ``embedded`` (the frozen-embedding training phase)."""
+        return self.head(self.mlp(z if embedded else self.features(z)))
 
 
 class NeuralMDNEstimator(PosteriorEstimator):
@@ -160,6 +161,11 @@ class NeuralMDNEstimator(PosteriorEstimator):
             in :data:`RECAL_SCALES` whose expected HPD coverage on the held-out validation simulations
             is at least nominal at the levels :data:`RECAL_LEVELS` (post-hoc recalibration), default False. ``fit_info["recalibration"]``
             holds ``s`` and the validation coverage error before/after.
+        embedding_epochs: train the embedding net end to end for this many epochs only, then freeze it:
+            its features of the training and validation simulations are computed once and the MLP and
+            head train on until early stopping (the embedding's share of an epoch is then never paid
+            again). Default None: the embedding trains in every epoch. Needs a network without batch
+            normalisation (else ignored).
         num_threads: torch threads during fit/posterior_at (restored afterwards), default 1
             (measured: robust on a shared 2-core machine; raise it on an idle many-core one). On an oversubscribed machine (other processes busy) use 1:
             OpenMP spin-waiting made a 2-thread fit ~8x slower than 1 thread there.
@@ -181,7 +187,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
         "hidden": (256, 256), "n_components": 4, "activation": "relu", "lr": 1e-3, "weight_decay": 1e-5,
         "max_epochs": 300, "patience": 15, "min_epochs": 10, "batch_size": 64, "val_fraction": 0.15,
         "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1, "ensemble": 1,
-        "recalibrate": False,
+        "recalibrate": False, "embedding_epochs": None,
     }
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {}
     #: old hook name -> new hook name (deprecated aliases, see :meth:`__init_subclass__`)
@@ -351,47 +357,53 @@ class NeuralMDNEstimator(PosteriorEstimator):
             z = self.summary_statistics(x)
             self._x_shape = tuple(x.shape[1:])
             self._z_shape = tuple(z.shape[1:])
+            # member 0 reproduces the single network; the others get their own initialisation and batch
+            # order (deep ensembles, Lakshminarayanan et al. 2017); one train/validation split and
+            # standardisation, drawn by member 0's generator, shared by all members
+            rngs = [np.random.default_rng(seed if k == 0 else [seed, k]) for k in range(K)]
+            tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rngs[0], min_train=2)
+            self._in_mean, self._in_std = self.input_stats(z[tr_idx])
+            zs = self._standardise(z)
+            um = u[tr_idx].mean(0)
+            us = u[tr_idx].std(0)
+            us = np.where(us > 1e-9, np.maximum(us, 1e-3 * float(us.max())), 1.0)
+            self._u_mean, self._u_std = um.astype(np.float32), us.astype(np.float32)
+            us_log = float(np.log(self._u_std.astype(np.float64)).sum())  # NLL shift to unit-cube units
+            uz = ((u - um) / us).astype(np.float32)
+            z_tr, u_tr = torch.as_tensor(zs[tr_idx]), torch.as_tensor(uz[tr_idx])
+            z_va, u_va = torch.as_tensor(zs[val_idx]), torch.as_tensor(uz[val_idx])
             for k in range(K):
-                # member 0 reproduces the single network exactly; the others get their own split,
-                # initialisation and batch order (deep ensembles, Lakshminarayanan et al. 2017)
-                rng = np.random.default_rng(seed if k == 0 else [seed, k])
                 torch.manual_seed(seed if k == 0 else seed + 1_000_003 * k)
-                if k == 0:  # one train/validation split and standardisation, shared by all members
-                    tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2)
-                    self._in_mean, self._in_std = self.input_stats(z[tr_idx])
-                    zs = self._standardise(z)
-                    um = u[tr_idx].mean(0)
-                    us = u[tr_idx].std(0)
-                    us = np.where(us > 1e-9, np.maximum(us, 1e-3 * float(us.max())), 1.0)
-                    self._u_mean, self._u_std = um.astype(np.float32), us.astype(np.float32)
-                    us_log = float(np.log(self._u_std.astype(np.float64)).sum())  # NLL shift to unit-cube units
-                    uz = ((u - um) / us).astype(np.float32)
-                net = self._build(zs[tr_idx[:2]], D)
-                self._net = net
-                z_tr, u_tr = torch.as_tensor(zs[tr_idx]), torch.as_tensor(uz[tr_idx])
-                z_va, u_va = torch.as_tensor(zs[val_idx]), torch.as_tensor(uz[val_idx])
+                nets.append(self._build(zs[tr_idx[:2]], D))
+            if (K > 1 or c["embedding_epochs"] is not None) and self._stackable(nets[0]):
+                members, epochs = self._fit_stacked(nets, z_tr, u_tr, z_va, u_va, rngs, us_log, t0, progress)
+            else:
+                epochs = 0
+                for k, net in enumerate(nets):
+                    self._net = net
 
-                def nll(b: np.ndarray, net: MDNNetwork = net, z_tr: torch.Tensor = z_tr,
-                        u_tr: torch.Tensor = u_tr) -> torch.Tensor:
-                    idx = torch.as_tensor(b)
-                    return -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
+                    def nll(b: np.ndarray, net: MDNNetwork = net) -> torch.Tensor:
+                        idx = torch.as_tensor(b)
+                        return -mdn_log_prob(net(z_tr[idx]), u_tr[idx]).mean()
 
-                info = fit_early_stopping(
-                    net, nll, lambda n=len(tr_idx), rng=rng: minibatches(n, int(c["batch_size"]), rng, balanced=True),
-                    validate=lambda z_va=z_va, u_va=u_va: self._val_loss(z_va, u_va) + us_log,
-                    max_epochs=int(c["max_epochs"]), patience=int(c["patience"]), min_epochs=int(c["min_epochs"]),
-                    lr=float(c["lr"]), weight_decay=float(c["weight_decay"]),
-                    grad_clip=float(c["grad_clip"]) if c["grad_clip"] else None,
-                    loss_offset=us_log, progress=progress,
-                    max_seconds=None if c["max_seconds"] is None else float(c["max_seconds"]) / K,
-                    t0=t0 if k == 0 else time.perf_counter())
-                if info["best_epoch"] == 0:
-                    raise RuntimeError(f"estimator '{self.name}' training diverged (non-finite loss) in the first "
-                                       f"epoch; try a smaller lr (now {c['lr']})")
-                nets.append(net)
-                members.append({"epochs": info["epochs"], "best_epoch": info["best_epoch"],
-                                "val_loss": info["val_loss"], "n_train": int(len(tr_idx)), "n_val": int(len(val_idx)),
-                                "train_loss": info["train_loss"], "last_train_loss": info["last_train_loss"]})
+                    info = fit_early_stopping(
+                        net, nll, lambda n=len(tr_idx), rng=rngs[k]: minibatches(n, int(c["batch_size"]), rng,
+                                                                                 balanced=True),
+                        validate=lambda: self._val_loss(z_va, u_va) + us_log,
+                        max_epochs=int(c["max_epochs"]), patience=int(c["patience"]),
+                        min_epochs=int(c["min_epochs"]), lr=float(c["lr"]), weight_decay=float(c["weight_decay"]),
+                        grad_clip=float(c["grad_clip"]) if c["grad_clip"] else None,
+                        loss_offset=us_log, progress=progress,
+                        max_seconds=None if c["max_seconds"] is None else float(c["max_seconds"]) / K,
+                        t0=t0 if k == 0 else time.perf_counter())
+                    epochs += int(info["epochs"])
+                    members.append({k2: info[k2] for k2 in ("epochs", "best_epoch", "val_loss", "train_loss",
+                                                             "last_train_loss")})
+            for m in members:
+                m.update(n_train=int(len(tr_idx)), n_val=int(len(val_idx)))
+            if any(m["best_epoch"] == 0 for m in members):
+                raise RuntimeError(f"estimator '{self.name}' training diverged (non-finite loss) in the first "
+                                   f"epoch; try a smaller lr (now {c['lr']})")
         self._nets = nets
         self._net = nets[0]
         self._cov_scale = 1.0
@@ -400,7 +412,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             with torch_threads(self._threads()):
                 recal = self._recalibrate(zs[val_idx], u[val_idx], seed)
         m0 = members[0]
-        self.fit_info = {"epochs": int(sum(m["epochs"] for m in members)), "best_epoch": m0["best_epoch"],
+        self.fit_info = {"epochs": int(epochs), "best_epoch": m0["best_epoch"],
                          "train_loss": m0["train_loss"], "val_loss": float(np.mean([m["val_loss"] for m in members])),
                          "last_train_loss": m0["last_train_loss"],
                          "seconds": time.perf_counter() - t0, "n_train": m0["n_train"], "n_val": m0["n_val"]}
@@ -409,7 +421,115 @@ class NeuralMDNEstimator(PosteriorEstimator):
         if K > 1:
             self.fit_info["ensemble"] = K
             self.fit_info["member_val_loss"] = [float(m["val_loss"]) for m in members]
+            self.fit_info["member_best_epoch"] = [int(m["best_epoch"]) for m in members]
+            self.fit_info["stacked"] = bool(self._stackable(nets[0]))
         return dict(self.fit_info)
+
+    @staticmethod
+    def _stackable(net: nn.Module) -> bool:
+        """Whether an ensemble of ``net``-shaped members can train as one vmapped network (no batch
+        normalisation, whose running statistics ``torch.func.vmap`` cannot update in place)."""
+        return not any(isinstance(m, nn.modules.batchnorm._BatchNorm) for m in net.modules())
+
+    def _fit_stacked(self, nets: list[MDNNetwork], z_tr: torch.Tensor, u_tr: torch.Tensor, z_va: torch.Tensor,
+                     u_va: torch.Tensor, rngs: list[np.random.Generator], us_log: float, t0: float,
+                     progress: Callable[[int, int, float], None] | None, chunk: int = 256
+                     ) -> tuple[list[dict[str, Any]], int]:
+        """Train the ``E`` ensemble members ``nets`` as one network: their parameters stacked along a
+        leading axis (``torch.func.stack_module_state``), the forward pass batched over members with
+        ``torch.func.vmap`` of ``functional_call``, and
+        :func:`~softsbi.inference.training.fit_early_stopping_stacked` (per-member clipping, validation,
+        best epoch and patience). Member ``e`` sees the batches its own generator ``rngs[e]`` draws,
+        as when trained alone, so this is the sequential ensemble up to floating-point rounding, with
+        the per-step overhead paid once. The best weights are written into ``nets``.
+
+        Returns:
+            ``(members, epochs)``: per-member ``{"epochs", "best_epoch", "val_loss", "train_loss",
+            "last_train_loss"}`` and the epochs run.
+        """
+        from torch.func import functional_call, stack_module_state, vmap
+        c = self.config
+        E = len(nets)
+        params, buffers = stack_module_state(nets)
+        base = nets[0]
+        n_tr = len(z_tr)
+        freeze_after = c.get("embedding_epochs")
+        if not any(True for _ in base.features.parameters()):
+            freeze_after = 0  # a fixed embedding (e.g. Flatten): its features never change
+        cache: dict[str, torch.Tensor] = {}
+
+        def member_nll_sum(p: dict, b: dict, zb: torch.Tensor, ub: torch.Tensor, embedded: bool) -> torch.Tensor:
+            return -mdn_log_prob(functional_call(base, (p, b), (zb,), {"embedded": embedded}), ub).sum()
+
+        train_nll = vmap(member_nll_sum, in_dims=(0, 0, 0, 0, None))
+        val_nll = vmap(member_nll_sum, in_dims=(0, 0, 0, None, None))
+
+        def embed(zz: torch.Tensor) -> torch.Tensor:
+            """``(E, n, F)`` features of every member for inputs ``zz (n, ...)`` (no gradient)."""
+            fp = {k[9:]: v for k, v in params.items() if k.startswith("features.")}
+            fb = {k[9:]: v for k, v in buffers.items() if k.startswith("features.")}
+            with torch.no_grad():
+                if not fp and not fb:  # a fixed embedding: the same features for every member
+                    f = torch.cat([base.features(zz[i:i + chunk]) for i in range(0, len(zz), chunk)])
+                    return f.expand((E,) + f.shape)
+                one = vmap(lambda p, b, x: functional_call(base.features, (p, b), (x,)), in_dims=(0, 0, None))
+                return torch.cat([one(fp, fb, zz[i:i + chunk]) for i in range(0, len(zz), chunk)], dim=1)
+
+        def freeze(epoch: int) -> None:
+            """From epoch ``freeze_after`` on, the embedding nets stay as they are: their features of the
+            training and validation inputs are computed once, and only the MLP and head train on."""
+            if freeze_after is not None and epoch == freeze_after and not cache:
+                cache["train"], cache["val"] = embed(z_tr), embed(z_va)
+
+        freeze(0)
+        def sub(a: torch.Tensor) -> dict:
+            """``params``/``buffers`` rows of the still-training members ``a`` (all: no copy)."""
+            if len(a) == E:
+                return params, buffers
+            return {k: v[a] for k, v in params.items()}, {k: v[a] for k, v in buffers.items()}
+
+        def loss(batch: np.ndarray, active: torch.Tensor) -> torch.Tensor:
+            idx = torch.as_tensor(batch)[active]  # (A, b): member active[j]'s batch
+            p, b = sub(active)
+            if cache:
+                feats = cache["train"][active[:, None], idx]
+                return train_nll(p, b, feats, u_tr[idx], True) / idx.shape[1]
+            return train_nll(p, b, z_tr[idx], u_tr[idx], False) / idx.shape[1]
+
+        def batches() -> list[np.ndarray]:
+            per = [minibatches(n_tr, int(c["batch_size"]), rng, balanced=True) for rng in rngs]
+            return [np.stack([p[j] for p in per]) for j in range(len(per[0]))]
+
+        def validate(active: torch.Tensor) -> np.ndarray:
+            p, b = sub(active)
+            with torch.no_grad():
+                if cache:
+                    f = cache["val"][active]
+                    tot = sum(val_nll(p, b, f[:, i:i + chunk], u_va[i:i + chunk], True)
+                              for i in range(0, len(z_va), chunk))
+                else:
+                    zv = z_va.expand((len(active),) + z_va.shape)
+                    tot = sum(val_nll(p, b, zv[:, i:i + chunk], u_va[i:i + chunk], False)
+                              for i in range(0, len(z_va), chunk))
+            return tot.double().numpy() / len(z_va) + us_log
+
+        for net in nets:
+            net.train()
+        info = fit_early_stopping_stacked(
+            params, loss, batches, validate, max_epochs=int(c["max_epochs"]), patience=int(c["patience"]),
+            min_epochs=int(c["min_epochs"]), lr=float(c["lr"]), weight_decay=float(c["weight_decay"]),
+            grad_clip=float(c["grad_clip"]) if c["grad_clip"] else None, loss_offset=us_log,
+            max_seconds=None if c["max_seconds"] is None else float(c["max_seconds"]), progress=progress,
+            on_epoch_end=freeze, t0=t0)
+        with torch.no_grad():
+            for e, net in enumerate(nets):
+                for name, p in net.named_parameters():
+                    p.copy_(params[name][e])
+                net.eval()
+        members = [{"epochs": int(info["member_epochs"][e]), "best_epoch": int(info["best_epoch"][e]),
+                    "val_loss": float(info["val_loss"][e]), "train_loss": float(info["train_loss"][e]),
+                    "last_train_loss": float(info["last_train_loss"][e])} for e in range(E)]
+        return members, int(sum(info["member_epochs"]))
 
     #: covariance scale factors tried by ``recalibrate`` (1 = the trained posterior)
     RECAL_SCALES: ClassVar[tuple[float, ...]] = (0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.65, 1.8, 2.0, 2.25,
