@@ -4,7 +4,9 @@ Data: lift-shaped synthetic states ``(1500, T=25, 1+K=33, 3)`` from the ``blob_t
 tests/inference/test_inference.py (2 parameters); training cost depends on shapes and N, not on the
 simulator. Default options of every estimator (``rkhs``: the recalibrated ensemble of 5), all with the
 same torch thread count (``--threads``, passed as every estimator's ``num_threads``); wall seconds of
-``fit`` (early stopping and recalibration included), epochs, and the held-out NLL (nats, unit-cube
+``fit`` (early stopping and recalibration included) and the process's CPU seconds during it (with one
+torch thread the CPU time is the work done, which other processes on a shared machine do not inflate
+the way they inflate the wall time), epochs, and the held-out NLL (nats, unit-cube
 coordinates, on ``--n-test`` fresh simulations of the same task) so a faster fit that is worse shows.
 Extra variants: ``rkhs-one`` (``ensemble=1, recalibrate=false``: one network) and ``rkhs-sequential``
 (the default ensemble with its members trained one after the other, the code path before issue 16's
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +42,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--methods", nargs="+", default=METHODS)
     ap.add_argument("--out", default="/tmp/bench_speed.json")
+    ap.add_argument("--label", default="", help="a tag stored with every row (e.g. the code version)")
     args = ap.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "inference"))
     from test_inference import blob_task
@@ -52,26 +56,32 @@ def main() -> None:
         for m in args.methods:
             name, opts = VARIANTS.get(m, (m, {}))
             est = registry().estimator(name)(**opts, num_threads=args.threads)
-            stackable = NeuralMDNEstimator.__dict__["_stackable"]
+            stackable = NeuralMDNEstimator.__dict__.get("_stackable")  # absent before issue 16
             if m == "rkhs-sequential":  # the members one after the other (before the stacked training)
                 NeuralMDNEstimator._stackable = staticmethod(lambda net: False)  # type: ignore[method-assign]
+            cpu0 = time.process_time()
             try:
                 info = est.fit(u, x, seed=0)
             finally:
-                NeuralMDNEstimator._stackable = stackable  # type: ignore[method-assign]
+                if stackable is not None:
+                    NeuralMDNEstimator._stackable = stackable  # type: ignore[method-assign]
             qs = est.posteriors_at(xt) if hasattr(est, "posteriors_at") else [est.posterior_at(xi) for xi in xt]
             nll = float(-np.mean([q.log_prob(ui[None])[0] for q, ui in zip(qs, ut)]))
-            rows.append({"estimator": m, "repeat": rep, "seconds": info["seconds"], "epochs": info.get("epochs"),
+            cpu = time.process_time() - cpu0
+            rows.append({"estimator": m, "repeat": rep, "seconds": info["seconds"], "cpu_seconds": cpu, "epochs": info.get("epochs"),
                          "test_nll": nll, "n": args.n, "threads": args.threads,
+                         "label": args.label,
                          "cov_scale": (info.get("recalibration") or {}).get("cov_scale"),
                          "member_best_epoch": info.get("member_best_epoch")})
             print(json.dumps(rows[-1]), flush=True)
             Path(args.out).write_text(json.dumps(rows, indent=1))
-    ref = {r["repeat"]: r["seconds"] for r in rows if r["estimator"] == "sbi-npe"}
+    ref = {r["repeat"]: r for r in rows if r["estimator"] == "sbi-npe"}
     for r in rows:
         if r["repeat"] in ref:
-            print(f"{r['estimator']:16s} repeat {r['repeat']}: {r['seconds']:7.1f} s = "
-                  f"{r['seconds'] / ref[r['repeat']]:.2f} x sbi-npe, test NLL {r['test_nll']:.3f}")
+            f = ref[r["repeat"]]
+            print(f"{r['estimator']:16s} repeat {r['repeat']}: wall {r['seconds']:7.1f} s = "
+                  f"{r['seconds'] / f['seconds']:.2f} x sbi-npe; CPU {r['cpu_seconds']:7.1f} s = "
+                  f"{r['cpu_seconds'] / f['cpu_seconds']:.2f} x sbi-npe; test NLL {r['test_nll']:.3f}")
 
 
 if __name__ == "__main__":

@@ -207,16 +207,21 @@ class NeuralMDNEstimator(PosteriorEstimator):
             in simulation-based inference?"), default 1. The members share one train/validation split and
             differ in initialisation and batch order; the posterior is the equal-weight mixture of the
             members' mixtures (``M * n_components`` components), so sampling draws a member then a component.
-            Training time grows ~M-fold; ``max_seconds`` is split evenly between the members.
+            The members train as one network (parameters stacked, forward pass ``torch.func.vmap``-ed,
+            each member with its own clipping, validation, best epoch and patience; a member that has
+            stopped costs nothing more), which is the members trained one after the other up to float
+            rounding; networks with batch normalisation train them one after the other. Training time
+            still grows ~M-fold (the RFF embedding's cos/sin dominate and scale with M); ``max_seconds``
+            bounds the whole ensemble (split evenly between members trained one after the other).
         recalibrate: after training, scale every component's covariance by the smallest factor ``s``
             in :data:`RECAL_SCALES` whose expected HPD coverage on the held-out validation simulations
             is at least nominal, plus ``recal_margin`` binomial standard errors, at the levels
             :data:`RECAL_LEVELS` (post-hoc recalibration), default False. ``fit_info["recalibration"]``
             holds ``s``, the validation coverage at every scale and the coverage error before/after.
         recal_margin: ``m`` of ``recalibrate``: the validation coverage at level ``g`` must reach
-            ``g + m * sqrt(g (1 - g) / n_val)``, i.e. its one-sided lower bound at ``m`` standard errors
-            must be at least nominal. Default 1.0 (issue 16); 0 is the rule before it (nominal only,
-            which left the default ensemble's test coverage 0.44 at 50 % on wind).
+            ``g + m * sqrt(g (1 - g) / n_val)`` (``m`` binomial standard errors above nominal). Default 0
+            (nominal). Measured on lift and wind (BENCHMARKS.md, issue 16): ``m = 1`` over-widened the
+            default ensemble (test coverage 0.59 / 0.565 at 50 %), ``m = 0`` gave 0.505 / 0.48.
         embedding_epochs: train the embedding net end to end for this many epochs only, then freeze it:
             its features of the training and validation simulations are computed once and the MLP and
             head train on until early stopping (the embedding's share of an epoch is then never paid
@@ -243,7 +248,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
         "hidden": (256, 256), "n_components": 4, "activation": "relu", "lr": 1e-3, "weight_decay": 1e-5,
         "max_epochs": 300, "patience": 15, "min_epochs": 10, "batch_size": 64, "val_fraction": 0.15,
         "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1, "ensemble": 1,
-        "recalibrate": False, "recal_margin": 1.0, "embedding_epochs": None,
+        "recalibrate": False, "recal_margin": 0.0, "embedding_epochs": None,
     }
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {}
     #: old hook name -> new hook name (deprecated aliases, see :meth:`__init_subclass__`)
@@ -603,11 +608,10 @@ class NeuralMDNEstimator(PosteriorEstimator):
 
         Conservative on purpose: the validation coverage is optimistic (early stopping picked the
         epoch on the same split; measured on lift and wind, a scale matching it to the nominal levels
-        left the test coverage 0.03-0.08 below them; with ``m = 0`` the default ensemble still covered
-        only 0.44 at 50 % on wind), and an over-confident posterior is the failure to avoid (Hermans et
-        al. 2022). The margin ``m`` standard errors makes the choice a one-sided lower confidence bound
-        (``m = 1``: ~84 %) rather than a point estimate, so the noise of 120-200 validation cases
-        does not pick too small a scale half of the time. Sets ``self._cov_scale``."""
+        left the test coverage 0.03-0.08 below them), and an over-confident posterior is the failure to
+        avoid (Hermans et al. 2022). A margin ``m > 0`` makes the choice a one-sided lower confidence
+        bound on the validation coverage (``m = 1``: ~84 %); measured, ``m = 1`` over-widened the
+        ensemble, so the default is ``m = 0``. Sets ``self._cov_scale``."""
         from softsbi.inference import calibration as cal  # local: calibration is a sibling module
         base = self._predict(zs_val)
         levels = list(self.RECAL_LEVELS)
