@@ -171,13 +171,14 @@ def test_stacked_ensemble_trains_the_members_as_the_sequential_loop_does(monkeyp
     _, xt = blob_task(3, seed=1)
     cfg = {**FAST, "ensemble": 3, "recalibrate": False, "max_epochs": 12, "min_epochs": 2, "patience": 3,
            "rkhs_features": 8, "n_components": 2}
-    stacked = RKHSEstimator(**cfg)
+    stacked = RKHSEstimator(**cfg, stack_members=True)
     info = stacked.fit(u, x, seed=1)
     assert info["stacked"] and len(info["member_best_epoch"]) == 3
-    monkeypatch.setattr(NeuralMDNEstimator, "_stackable", staticmethod(lambda net: False))
-    seq = RKHSEstimator(**cfg)
+    seq = RKHSEstimator(**cfg)  # default: one member after the other
     info_seq = seq.fit(u, x, seed=1)
     assert not info_seq["stacked"]
+    monkeypatch.setattr(NeuralMDNEstimator, "_stackable", staticmethod(lambda net: False))  # e.g. batch norm
+    assert not RKHSEstimator(**cfg, stack_members=True).fit(u, x, seed=1)["stacked"]
     assert info["member_best_epoch"] == info_seq["member_best_epoch"]
     assert info["epochs"] == info_seq["epochs"]  # a stopped member trains no further epochs
     np.testing.assert_allclose(info["member_val_loss"], info_seq["member_val_loss"], rtol=1e-3, atol=1e-3)
