@@ -213,7 +213,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             ``torch.func.vmap``-ed, each member with its own clipping, validation, best epoch and
             patience; a stopped member costs nothing more): the members trained one after the other up
             to float rounding, with the per-step Python/autograd overhead paid once. Default False:
-            measured on the 2-core CPU (1 thread, rkhs, 1500 simulations) it cost ~1.8x more CPU per
+            measured on the 2-core CPU (1 thread, rkhs, 1500 simulations) it cost ~1.2x more CPU per
             member-epoch, as the work is elementwise on 5x larger arrays; it pays where per-step
             overhead dominates (small networks, a GPU). Networks with batch normalisation never stack.
         recalibrate: after training, scale every component's covariance by the smallest factor ``s``
@@ -806,8 +806,9 @@ class RKHSEstimator(NeuralMDNEstimator):
     (a deep ensemble of 5 networks, covariances scaled on the validation split). Measured on lift and
     wind in simulation (800 training / 200 fresh test simulations, BENCHMARKS.md): one network covers
     the truth 0.30-0.32 / 0.69-0.72 of the time at the 50 % / 90 % levels (over-confident); this
-    default 0.44-0.47 / 0.86-0.89, inside the binomial band of a calibrated estimator on both, for
-    about 3.5-4.5x the training time. ``ensemble=1, recalibrate=False`` gives the single network
+    default 0.44-0.54 / 0.86-0.92 on two data sets, inside the binomial band of a calibrated estimator,
+    for about 5x the training time of one network (at 1500 simulations 10-16x sbi-npe's CPU time, one
+    network 1.5-3x; the RFF embedding of every point dominates). ``ensemble=1, recalibrate=False`` gives the single network
     of Antonova et al. 2022.
 
     Extra config options (besides :class:`NeuralMDNEstimator`'s):
