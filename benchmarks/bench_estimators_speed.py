@@ -1,42 +1,78 @@
-"""Training time of one round at 1500 simulations for every estimator (issue 4).
+"""Training time of one round at 1500 simulations for every estimator (issues 4 and 16).
 
 Data: lift-shaped synthetic states ``(1500, T=25, 1+K=33, 3)`` from the ``blob_task`` of
-tests/test_inference.py (2 parameters); training cost depends on shapes and N, not on the
-simulator. Default options of every estimator; wall seconds of ``fit`` (early stopping
-included) and epochs. Run with ``nice``; on a loaded machine figures are upper bounds.
+tests/inference/test_inference.py (2 parameters); training cost depends on shapes and N, not on the
+simulator. Default options of every estimator (``rkhs``: the recalibrated ensemble of 5), all with the
+same torch thread count (``--threads``, passed as every estimator's ``num_threads``); wall seconds of
+``fit`` (early stopping and recalibration included) and the process's CPU seconds during it (with one
+torch thread the CPU time is the work done, which other processes on a shared machine do not inflate
+the way they inflate the wall time), epochs, and the held-out NLL (nats, unit-cube
+coordinates, on ``--n-test`` fresh simulations of the same task) so a faster fit that is worse shows.
+Extra variants: ``rkhs-one`` (``ensemble=1, recalibrate=false``: one network) and ``rkhs-stacked``
+(the default ensemble trained as one stacked network, ``stack_members=true``); ``rkhs-freeze10`` / ``rkhs-one-freeze10``: ``embedding_epochs=10``
+(the embedding frozen after 10 epochs). ``--repeats R`` runs the whole list R times, interleaved, so every
+method sees the same machine load; the ratios to ``sbi-npe`` are taken within each repeat.
 
 Usage::
 
-    nice -n 15 python benchmarks/bench_estimators_speed.py [--n 1500] [--methods ...]
+    nice -n 15 python benchmarks/bench_estimators_speed.py [--n 1500] [--threads 1] [--methods ...]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
+import numpy as np
+
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk", "sbi-npe"]
+VARIANTS = {"rkhs-one": ("rkhs", {"ensemble": 1, "recalibrate": False}), "rkhs-stacked": ("rkhs", {"stack_members": True}),
+            "rkhs-freeze10": ("rkhs", {"embedding_epochs": 10}),
+            "rkhs-one-freeze10": ("rkhs", {"ensemble": 1, "recalibrate": False, "embedding_epochs": 10})}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1500)
+    ap.add_argument("--n-test", type=int, default=300)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads of every estimator")
+    ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--methods", nargs="+", default=METHODS)
     ap.add_argument("--out", default="/tmp/bench_speed.json")
+    ap.add_argument("--label", default="", help="a tag stored with every row (e.g. the code version)")
     args = ap.parse_args()
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "inference"))
     from test_inference import blob_task
 
     from softsbi.plugins import registry
     u, x = blob_task(args.n, T=25, K=32, seed=0)
+    ut, xt = blob_task(args.n_test, T=25, K=32, seed=1)
     rows = []
-    for m in args.methods:
-        est = registry().estimator(m)()
-        info = est.fit(u, x, seed=0)
-        rows.append({"estimator": m, "seconds": info["seconds"], "epochs": info.get("epochs"), "n": args.n})
-        print(json.dumps(rows[-1]), flush=True)
-        Path(args.out).write_text(json.dumps(rows, indent=1))
+    for rep in range(args.repeats):
+        for m in args.methods:
+            name, opts = VARIANTS.get(m, (m, {}))
+            est = registry().estimator(name)(**opts, num_threads=args.threads)
+            cpu0 = time.process_time()
+            info = est.fit(u, x, seed=0)
+            cpu = time.process_time() - cpu0
+            qs = est.posteriors_at(xt) if hasattr(est, "posteriors_at") else [est.posterior_at(xi) for xi in xt]
+            nll = float(-np.mean([q.log_prob(ui[None])[0] for q, ui in zip(qs, ut)]))
+            rows.append({"estimator": m, "repeat": rep, "seconds": info["seconds"], "cpu_seconds": cpu, "epochs": info.get("epochs"),
+                         "test_nll": nll, "n": args.n, "threads": args.threads,
+                         "label": args.label,
+                         "cov_scale": (info.get("recalibration") or {}).get("cov_scale"),
+                         "member_best_epoch": info.get("member_best_epoch")})
+            print(json.dumps(rows[-1]), flush=True)
+            Path(args.out).write_text(json.dumps(rows, indent=1))
+    ref = {r["repeat"]: r for r in rows if r["estimator"] == "sbi-npe"}
+    for r in rows:
+        if r["repeat"] in ref:
+            f = ref[r["repeat"]]
+            print(f"{r['estimator']:16s} repeat {r['repeat']}: wall {r['seconds']:7.1f} s = "
+                  f"{r['seconds'] / f['seconds']:.2f} x sbi-npe; CPU {r['cpu_seconds']:7.1f} s = "
+                  f"{r['cpu_seconds'] / f['cpu_seconds']:.2f} x sbi-npe; test NLL {r['test_nll']:.3f}")
 
 
 if __name__ == "__main__":

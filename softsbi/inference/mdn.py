@@ -115,8 +115,11 @@ class MDNHead(nn.Module):
                 lin.bias.zero_()
             self.diag.bias.fill_(_SOFTPLUS_ONE)
         rows, cols = torch.tril_indices(self.D, self.D, offset=-1)
-        self.register_buffer("_rows", rows, persistent=False)
-        self.register_buffer("_cols", cols, persistent=False)
+        # one-hot map of the n_off strictly-lower entries into the flattened D x D factor (a matmul, not
+        # index_put, so torch.func.vmap can batch the head over ensemble members)
+        place = torch.zeros(self.n_off, self.D * self.D)
+        place[torch.arange(self.n_off), rows * self.D + cols] = 1.0
+        self.register_buffer("_place", place, persistent=False)
 
     def forward(self, h: torch.Tensor) -> MDNParams:
         B = h.shape[0]
@@ -126,7 +129,6 @@ class MDNHead(nn.Module):
         L = torch.diag_embed(diag)
         if self.off is not None:
             off = self.off(h).view(B, self.C, self.n_off)
-            L = L.index_put((torch.arange(B)[:, None, None], torch.arange(self.C)[None, :, None],
-                             self._rows[None, None, :], self._cols[None, None, :]), off)
+            L = L + (off @ self._place).view(B, self.C, self.D, self.D)
         return MDNParams(logits, means, L)
 

@@ -12,6 +12,10 @@ extractors of :mod:`softsbi.perception.keypoints`), so they share one stopping r
   validation after every epoch, *early stopping* with a patience (Prechelt, "Early Stopping --
   But When?", in Neural Networks: Tricks of the Trade, 1998), and the weights of the best
   validation epoch restored at the end.
+* :func:`fit_early_stopping_stacked` is the same loop for ``E`` independent models whose parameters
+  are stacked along a leading axis (a deep ensemble trained as one ``torch.func.vmap``-ed network):
+  per-model gradient clipping, validation, best weights and patience; one gradient step per batch
+  for all models, so the per-step Python and autograd overhead is paid once instead of ``E`` times.
 * :func:`predict_batched` applies a module to consecutive slices of its inputs in eval mode
   without gradients.
 
@@ -33,7 +37,7 @@ import torch
 from torch import nn
 
 __all__ = ["available_cpus", "torch_threads", "train_val_split", "minibatches", "fit_early_stopping",
-           "predict_batched"]
+           "fit_early_stopping_stacked", "predict_batched"]
 
 B = TypeVar("B")
 T = TypeVar("T")
@@ -258,6 +262,120 @@ def fit_early_stopping(net: nn.Module, loss_fn: Callable[[B], torch.Tensor], bat
             "val_loss": float(best["val_loss"]) if best else math.inf,
             "last_train_loss": float(train_loss), "seconds": time.perf_counter() - t0, "history": history,
             "best": best}
+
+
+def fit_early_stopping_stacked(params: Mapping[str, torch.Tensor], loss_fn: Callable[[B, torch.Tensor], torch.Tensor],
+                               batches: Callable[[], Iterable[B]], validate: Callable[[torch.Tensor], np.ndarray], *,
+                               max_epochs: int, patience: int, min_epochs: int = 1, lr: float = 1e-3,
+                               weight_decay: float = 0.0, grad_clip: float | None = None, loss_offset: float = 0.0,
+                               max_seconds: float | None = None,
+                               progress: Callable[[int, int, float], None] | None = None,
+                               on_epoch_end: Callable[[int], None] | None = None,
+                               t0: float | None = None) -> dict[str, Any]:
+    """:func:`fit_early_stopping` for ``E`` independent models trained together (e.g. a deep ensemble
+    vmapped with ``torch.func.functional_call``), each with its own validation score, best epoch and
+    patience.
+
+    Every epoch: for each batch of ``batches()``: ``losses = loss_fn(batch, active)`` (shape
+    ``(len(active),)``: the mean loss of each still-training model ``active[j]`` on its own part of
+    the batch), backpropagate ``losses.sum()`` (a model's gradient is its own loss's, as the models
+    share no parameter), clip each model's gradient to 2-norm ``grad_clip`` (as
+    ``nn.utils.clip_grad_norm_`` per model), one Adam step (Kingma & Ba 2015; elementwise, so identical
+    to one Adam per model). Then ``validate(active)`` returns their validation losses; a model's
+    weights are copied when its loss improves on its best. A model that has gone ``patience`` epochs
+    without improvement (once ``epoch >= min_epochs``) leaves ``active`` and costs nothing from then
+    on (its rows may still drift under Adam's momentum and weight decay; they are overwritten by its
+    best weights at the end), so every model trains exactly the epochs it would alone. Training stops
+    when no model is active, after ``max_epochs``, after ``max_seconds`` since ``t0``, or at a
+    non-finite training loss of any model. Each model's best weights are written back into ``params``
+    (in place).
+
+    Args:
+        params: stacked leaf tensors ``name -> (E, ...)`` with ``requires_grad`` (e.g. from
+            ``torch.func.stack_module_state``); optimised in place.
+        loss_fn: ``(batch, active) -> (len(active),)`` losses with gradient; ``active`` is a sorted
+            ``LongTensor`` of model indices.
+        batches: returns one epoch's batches (``len(batch)`` = samples per model in it), for all ``E``
+            models (so the batch order does not depend on which models are still active).
+        validate: ``active -> (len(active),)`` validation losses of the current weights (no gradient
+            needed).
+        max_epochs, patience, min_epochs, lr, weight_decay, grad_clip, loss_offset, max_seconds,
+        progress, t0: as :func:`fit_early_stopping` (``progress`` gets the mean training loss over
+            the models).
+        on_epoch_end: ``on_epoch_end(epoch)`` after every validated epoch (e.g. to freeze part of the
+            models from then on).
+
+    Returns:
+        ``{"epochs", "member_epochs" (E,), "best_epoch" (E,), "train_loss" (E,), "val_loss" (E,),
+        "last_train_loss" (E,), "seconds", "history"}``: epochs run; per model the epochs it trained, the
+        best epoch (0 when none improved), training
+        and validation loss there, and the last epoch's training loss (lists of floats); the
+        per-epoch rows ``{"epoch", "train_loss", "val_loss", "seconds"}`` (lists per model).
+    """
+    t0 = time.perf_counter() if t0 is None else t0
+    leaves = list(params.values())
+    E = int(leaves[0].shape[0])
+    opt = torch.optim.Adam(leaves, lr=float(lr), weight_decay=float(weight_decay))
+    best_val = np.full(E, np.inf)
+    best_train = np.full(E, np.inf)
+    best_epoch = np.zeros(E, dtype=int)
+    best_state = {k: v.detach().clone() for k, v in params.items()}
+    history: list[dict[str, Any]] = []
+    train = np.full(E, np.inf)
+    epoch = 0
+    active = torch.arange(E)
+    member_epochs = np.zeros(E, dtype=int)
+    for epoch in range(1, int(max_epochs) + 1):
+        act = active.numpy()
+        total = torch.zeros(len(act), dtype=torch.float64)
+        count = 0
+        for batch in batches():
+            losses = loss_fn(batch, active)
+            opt.zero_grad(set_to_none=True)
+            losses.sum().backward()
+            if grad_clip is not None:
+                with torch.no_grad():
+                    sq = sum(p.grad.reshape(E, -1).pow(2).sum(1) for p in leaves if p.grad is not None)
+                    coef = (float(grad_clip) / (sq.sqrt() + 1e-6)).clamp(max=1.0)
+                    for p in leaves:
+                        if p.grad is not None:
+                            p.grad.mul_(coef.view((E,) + (1,) * (p.dim() - 1)))
+            opt.step()
+            total += losses.detach().double() * len(batch)
+            count += len(batch)
+        train[act] = total.numpy() / max(count, 1) + loss_offset
+        member_epochs[act] = epoch
+        if not np.isfinite(train[act]).all():
+            break
+        val = np.full(E, np.nan)
+        val[act] = np.asarray(validate(active), dtype=float)
+        history.append({"epoch": epoch, "train_loss": train.tolist(), "val_loss": val.tolist(),
+                        "seconds": time.perf_counter() - t0})
+        better = np.zeros(E, dtype=bool)
+        better[act] = val[act] < best_val[act]
+        if better.any():
+            sel = torch.as_tensor(better)
+            with torch.no_grad():
+                for k, v in params.items():
+                    best_state[k][sel] = v.detach()[sel]
+            best_val[better], best_train[better], best_epoch[better] = val[better], train[better], epoch
+        if progress is not None:
+            progress(epoch, int(max_epochs), float(train[act].mean()))
+        if on_epoch_end is not None:
+            on_epoch_end(epoch)
+        if epoch >= int(min_epochs):
+            active = torch.as_tensor(np.nonzero(epoch - best_epoch < int(patience))[0])
+            if len(active) == 0:
+                break
+        if max_seconds is not None and time.perf_counter() - t0 > float(max_seconds):
+            break
+    with torch.no_grad():
+        for k, v in params.items():
+            v.copy_(best_state[k])
+    return {"epochs": epoch, "member_epochs": member_epochs.tolist(), "best_epoch": best_epoch.tolist(),
+            "train_loss": best_train.tolist(),
+            "val_loss": best_val.tolist(), "last_train_loss": np.asarray(train, float).tolist(),
+            "seconds": time.perf_counter() - t0, "history": history}
 
 
 def predict_batched(fn: Callable[..., T], *arrays: Any, batch_size: int, module: nn.Module | None = None

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from softsbi.core.distributions import MixtureOfGaussians, gaussian
 from softsbi.core.errors import ParameterError
@@ -125,11 +126,21 @@ def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validati
     info = rec.fit(u, x, seed=2)["recalibration"]
     s = info["cov_scale"]
     assert s in MDNNEstimator.RECAL_SCALES and info["n_val"] == 24
-    assert all(c >= g for c, g in zip(info["val_coverage_after"], info["levels"])) or s == 3.0
-    if all(c >= g for c, g in zip(info["val_coverage_before"], info["levels"])):
-        assert s <= 1.0  # the smallest scale that is nominal on the validation split
+    g = np.array(info["levels"])
+    np.testing.assert_allclose(info["required"], g)  # default: nominal (recal_margin=0)
+    assert all(c >= r for c, r in zip(info["val_coverage_after"], info["required"])) or s == 3.0
+    if all(c >= r for c, r in zip(info["val_coverage_before"], info["required"])):
+        assert s <= 1.0  # the smallest scale whose validation coverage reaches the requirement
     else:
         assert s > 1.0
+    # the smallest such scale: every smaller one misses the requirement at some level
+    by_scale = dict(zip(info["scales"], info["val_coverage_by_scale"]))
+    assert all(any(c < r for c, r in zip(by_scale[t], info["required"])) for t in info["scales"] if t < s)
+    # a margin of one binomial standard error asks for more coverage: the scale is never smaller
+    rec1 = MDNNEstimator(**{**cfg, "recalibrate": True, "recal_margin": 1.0})
+    info1 = rec1.fit(u, x, seed=2)["recalibration"]
+    np.testing.assert_allclose(info1["required"], g + np.sqrt(g * (1 - g) / 24))
+    assert info1["cov_scale"] >= s
     a, b = plain.posterior_at(xt[0]), rec.posterior_at(xt[0])
     np.testing.assert_allclose(b.means, a.means, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(b.covariances, s ** 2 * a.covariances, rtol=1e-4, atol=1e-12)
@@ -150,3 +161,44 @@ def test_rkhs_defaults_to_a_recalibrated_ensemble_and_the_baselines_to_one_netwo
     info = est.fit(u, x, seed=0)
     assert info["ensemble"] == 5 and "cov_scale" in info["recalibration"]
     assert est.posterior_at(x[0]).weights.shape == (5 * 4,)
+
+
+def test_stacked_ensemble_trains_the_members_as_the_sequential_loop_does(monkeypatch):
+    """The members trained as one vmapped network (each with its own batches, clipping, best epoch and
+    patience) give the posterior of the members trained one after the other, up to float rounding."""
+    from softsbi.inference.estimators import NeuralMDNEstimator, RKHSEstimator
+    u, x = blob_task(160, seed=0)
+    _, xt = blob_task(3, seed=1)
+    cfg = {**FAST, "ensemble": 3, "recalibrate": False, "max_epochs": 12, "min_epochs": 2, "patience": 3,
+           "rkhs_features": 8, "n_components": 2}
+    stacked = RKHSEstimator(**cfg, stack_members=True)
+    info = stacked.fit(u, x, seed=1)
+    assert info["stacked"] and len(info["member_best_epoch"]) == 3
+    seq = RKHSEstimator(**cfg)  # default: one member after the other
+    info_seq = seq.fit(u, x, seed=1)
+    assert not info_seq["stacked"]
+    monkeypatch.setattr(NeuralMDNEstimator, "_stackable", staticmethod(lambda net: False))  # e.g. batch norm
+    assert not RKHSEstimator(**cfg, stack_members=True).fit(u, x, seed=1)["stacked"]
+    assert info["member_best_epoch"] == info_seq["member_best_epoch"]
+    assert info["epochs"] == info_seq["epochs"]  # a stopped member trains no further epochs
+    np.testing.assert_allclose(info["member_val_loss"], info_seq["member_val_loss"], rtol=1e-3, atol=1e-3)
+    a, b = stacked.posterior_at(xt[0]), seq.posterior_at(xt[0])
+    np.testing.assert_allclose(a.means, b.means, atol=2e-3)
+    np.testing.assert_allclose(a.weights, b.weights, atol=2e-3)
+
+
+def test_embedding_epochs_freezes_the_embedding_after_that_epoch():
+    from softsbi.inference.estimators import RKHSEstimator
+    u, x = blob_task(120, seed=0)
+    cfg = {**FAST, "recalibrate": False, "rkhs_features": 8, "n_components": 2, "min_epochs": 1}
+    frozen = RKHSEstimator(**{**cfg, "embedding_epochs": 2, "max_epochs": 8, "patience": 50})
+    frozen.fit(u, x, seed=3)
+    two = RKHSEstimator(**{**cfg, "embedding_epochs": 2, "max_epochs": 2})
+    two.fit(u, x, seed=3)
+    W_frozen = frozen._net.features.rkhs.W.detach()
+    W_two = two._net.features.rkhs.W.detach()
+    torch.testing.assert_close(W_frozen, W_two)  # not trained after epoch 2
+    full = RKHSEstimator(**{**cfg, "max_epochs": 8, "patience": 50})
+    full.fit(u, x, seed=3)
+    assert not torch.allclose(full._net.features.rkhs.W.detach(), W_two)  # end to end: W keeps training
+    assert not torch.allclose(frozen._net.mlp[0].weight, two._net.mlp[0].weight)  # the MLP trained on
