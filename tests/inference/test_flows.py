@@ -82,16 +82,17 @@ def test_refuses_where_a_gaussian_mixture_is_needed(fitted: FlowEstimator) -> No
         q.to_dict()
 
 
-def test_run_store_refuses_the_flow_posterior(fitted: FlowEstimator, tmp_path) -> None:
-    # where 'softsbi fit' keeps a round's posterior (core.store.RunStore.finish_round): refused in one line
-    from softsbi.core.store import RunStore
+def test_fit_workflow_refuses_in_one_line(tmp_path) -> None:
+    # 'softsbi fit' keeps every round's posterior as a Gaussian mixture (RunStore.finish_round)
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    import softsbi
+    from toy_helpers import toy_measurement
 
-    store = RunStore.create(tmp_path / "run.zarr", {"estimator": "flow"})
-    u = np.random.default_rng(0).random((4, 2))
-    store.begin_round(0, u, u, np.arange(4), (3, 2, 3), "prior")
-    with pytest.raises(PosteriorError, match="--estimator mdnn"):
-        store.finish_round(0, fitted.posterior_at(np.array([0.5, 0.5])), {})
-    assert not store.is_complete(0)
+    with pytest.raises(PosteriorError, match=r"^estimator 'flow' .*use --estimator mdnn") as info:
+        softsbi.fit(toy_measurement(), tmp_path / "run", backend="toy-gauss", estimator="flow", rounds=2,
+                    sims_per_round=30, n_points=8, n_eval=3, workers=1, seed=0, plots=False,
+                    estimator_options={"max_epochs": 3, "transforms": 1, "hidden": [8]})
+    assert "\n" not in str(info.value)
 
 
 def test_states_input_and_shape_errors() -> None:
