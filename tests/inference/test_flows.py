@@ -13,7 +13,7 @@ from softsbi.core.errors import DependencyMissing, ParameterError, PosteriorErro
 from softsbi.inference.flows import FlowEstimator, FlowPosterior  # noqa: E402
 
 SIGMA = 0.05  # observation noise of the toy simulator x = theta + N(0, SIGMA^2 I)
-FAST = {"transforms": 2, "hidden": (32, 32), "patience": 10, "max_epochs": 200, "max_seconds": 30.0, "lr": 2e-3,
+FAST = {"transforms": 2, "hidden": (32, 32), "patience": 10, "max_epochs": 200, "lr": 2e-3,
         "batch_size": 100}
 
 
