@@ -1,28 +1,114 @@
-"""C2ST of softsbi's MDN (``mdnn`` network on flat vectors, :class:`FlatMDNEstimator`) and of
-``sbi-npe`` on SBI-benchmark tasks, against sbibm's reference posteriors.
+"""C2ST of softsbi's estimators and of sbi's own NPE on SBI-benchmark tasks, against sbibm's
+reference posteriors, on the same simulations, observations and C2ST.
 
 Needs the .npy/.npz files written by ``benchmarks/sbibm_export.py`` (run in a separate venv
-with sbibm). Amortised, one round: q(theta | x) is trained on prior simulations from
-sbibm's simulators; posterior samples are drawn from q at the observation, rejected outside
-the prior's support (two_moons, slcp have box priors; gaussian_linear's prior is Gaussian).
-C2ST: :func:`softsbi.inference.c2st.c2st` (torch re-implementation of sbibm's recipe),
-``--c2st-n`` samples of each (sbibm uses 10k vs 10k; 2k is noisier by about +-0.01).
+with sbibm). Amortised, one round: q(theta | x) is trained on the first ``sims`` prior
+simulations of sbibm's simulators (the same ones for every estimator); posterior samples are
+drawn at the observation and rejected outside the prior's support (two_moons, slcp have box
+priors; gaussian_linear's prior is Gaussian, unbounded).
+
+Estimators (``--estimators``):
+    flow: :class:`softsbi.inference.flows.FlowEstimator` (zuko NSF, 5 transforms, 50 hidden, 10 bins:
+        the benchmark's NPE architecture; sbi's training settings).
+    mdnn-flat: :class:`softsbi.inference.baselines.FlatMDNEstimator` (mdnn network on flat vectors,
+        10 full-covariance components).
+    sbi-nsf / sbi-maf: sbi's own NPE (``sbi.inference.NPE(prior, density_estimator="nsf"|"maf")``,
+        sbi's defaults otherwise: training batch 200, lr 5e-4, 10 % validation, patience 20), posterior
+        from ``build_posterior`` (sbi's own rejection to the prior's support). sbibm's published NPE
+        used an NSF; sbi 0.27's default density estimator is a MAF.
+C2ST: :func:`softsbi.inference.c2st.c2st` (sbibm's recipe, scikit-learn ``MLPClassifier`` when
+installed), ``--c2st-n`` samples of each (sbibm uses 10k vs 10k; 2k scatters by about +-0.04).
+One torch thread per process (``--threads``).
 
 Usage::
 
-    nice -n 15 python benchmarks/sbibm_c2st.py --ref /tmp/sbibm_ref --budgets 1000 10000 --obs 1
+    nice -n 15 python benchmarks/sbibm_c2st.py --ref /tmp/sbibm_ref --budgets 1000 10000 --obs 1 2 3 \
+        --estimators flow mdnn-flat sbi-nsf --out benchmarks/results/sbibm_c2st.json
+
+Rows already in ``--out`` are kept; a row with the same (task, sims, estimator, obs) is replaced.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
-import numpy as np
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one BLAS thread (before numpy):
+    os.environ.setdefault(_v, "1")  # a 2-thread OpenBLAS made one gaussian_linear C2ST 30x slower on a loaded machine
+
+import numpy as np  # noqa: E402
 
 PUBLISHED_NPE = {"two_moons": (0.725, 0.606), "slcp": (0.975, 0.901), "gaussian_linear": (0.694, 0.552)}
 BOX = {"two_moons": (-1.0, 1.0), "slcp": (-3.0, 3.0), "gaussian_linear": None}
+ESTIMATORS = ("flow", "mdnn-flat", "sbi-nsf", "sbi-maf")
+
+
+def sbi_prior(task: str, dim: int):
+    """The task's prior as a torch distribution for sbi (sbibm's definitions)."""
+    import torch
+    from sbi.utils import BoxUniform
+
+    if BOX[task] is not None:
+        lo, hi = BOX[task]
+        return BoxUniform(lo * torch.ones(dim), hi * torch.ones(dim))
+    return torch.distributions.MultivariateNormal(torch.zeros(dim), 0.1 * torch.eye(dim))  # gaussian_linear
+
+
+class SbiNPE:
+    """sbi's own NPE end to end (training, ``build_posterior``, sampling), for ``--estimators sbi-*``."""
+
+    def __init__(self, task: str, model: str):
+        self.task, self.model = task, model
+
+    def fit(self, theta: np.ndarray, x: np.ndarray, seed: int = 0) -> dict:
+        import torch
+        from sbi.inference import NPE
+
+        t0 = time.perf_counter()
+        torch.manual_seed(seed)
+        inf = NPE(prior=sbi_prior(self.task, theta.shape[1]), density_estimator=self.model, show_progress_bars=False)
+        inf.append_simulations(torch.as_tensor(theta, dtype=torch.float32), torch.as_tensor(x, dtype=torch.float32))
+        de = inf.train()
+        self.posterior = inf.build_posterior(de)
+        return {"seconds": time.perf_counter() - t0, "epochs": int(inf._summary["epochs_trained"][-1])}
+
+    def sample(self, xo: np.ndarray, n: int, seed: int) -> np.ndarray:
+        import torch
+
+        torch.manual_seed(seed)
+        s = self.posterior.sample((n,), x=torch.as_tensor(xo, dtype=torch.float32), show_progress_bars=False)
+        return s.numpy().astype(np.float64)
+
+
+def make(name: str, task: str, max_seconds: float):
+    if name == "flow":
+        from softsbi.inference.flows import FlowEstimator
+        return FlowEstimator(max_seconds=max_seconds)
+    if name == "mdnn-flat":
+        from softsbi.inference.baselines import FlatMDNEstimator
+        return FlatMDNEstimator(n_components=10, max_seconds=max_seconds)
+    if name in ("sbi-nsf", "sbi-maf"):
+        return SbiNPE(task, name.split("-")[1])
+    raise SystemExit(f"unknown estimator {name!r}; choose from {list(ESTIMATORS)}")
+
+
+def draw(est, name: str, task: str, xo: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """``n`` posterior draws at ``xo (1, F)`` inside the prior's support."""
+    if isinstance(est, SbiNPE):
+        return est.sample(xo, n, seed)  # sbi rejects outside the prior's support itself
+    q = est.posterior_at(xo[0])
+    rng = np.random.default_rng(seed)
+    out, got = [], 0
+    while got < n:
+        s = q.sample(2 * n, rng)
+        if BOX[task] is not None:
+            lo, hi = BOX[task]
+            s = s[np.all((s >= lo) & (s <= hi), axis=1)]
+        out.append(s)
+        got += len(s)
+    return np.concatenate(out)[:n]
 
 
 def main() -> None:
@@ -31,47 +117,46 @@ def main() -> None:
     ap.add_argument("--tasks", nargs="+", default=list(PUBLISHED_NPE))
     ap.add_argument("--budgets", type=int, nargs="+", default=[1000, 10000])
     ap.add_argument("--obs", type=int, nargs="+", default=[1])
-    ap.add_argument("--estimators", nargs="+", default=["mdnn-flat"])
+    ap.add_argument("--estimators", nargs="+", default=["flow", "mdnn-flat", "sbi-nsf"])
     ap.add_argument("--c2st-n", type=int, default=2000)
-    ap.add_argument("--max-seconds", type=float, default=300.0)
+    ap.add_argument("--max-seconds", type=float, default=600.0, help="training budget of softsbi's estimators")
+    ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default="/tmp/sbibm_c2st.json")
     ap.add_argument("--save-samples", default=None, help="folder for the posterior samples (.npy)")
     args = ap.parse_args()
 
-    from softsbi.inference.baselines import FlatMDNEstimator
-    from softsbi.inference.c2st import c2st
-    from softsbi.inference.sbi_adapter import SbiNPEEstimator
+    import torch
 
+    from softsbi.inference.c2st import c2st
+
+    torch.set_num_threads(args.threads)
     ref = Path(args.ref)
-    rows = []
+    out = Path(args.out)
+    rows = json.loads(out.read_text()) if out.exists() else []
     for task in args.tasks:
         sims = np.load(ref / f"{task}_sims.npz")
         for n in args.budgets:
             for name in args.estimators:
                 theta, x = sims["theta"][:n].astype(np.float64), sims["x"][:n].astype(np.float64)
-                est = (FlatMDNEstimator(n_components=10, max_seconds=args.max_seconds) if name == "mdnn-flat"
-                       else SbiNPEEstimator(num_components=10))
+                est = make(name, task, args.max_seconds)
                 info = est.fit(theta, x, seed=0)
                 for k in args.obs:
                     xo = np.load(ref / f"{task}_obs{k}.npy")
-                    q = est.posterior_at(xo[0])
-                    rng = np.random.default_rng(k)
-                    s = q.sample(4 * args.c2st_n, rng)
-                    if BOX[task] is not None:
-                        lo, hi = BOX[task]
-                        s = s[np.all((s >= lo) & (s <= hi), axis=1)]
+                    s = draw(est, name, task, xo, args.c2st_n, seed=k)
                     refs = np.load(ref / f"{task}_ref{k}.npy")
                     if args.save_samples:
                         Path(args.save_samples).mkdir(parents=True, exist_ok=True)
-                        np.save(Path(args.save_samples) / f"{task}_{name}_{n}_obs{k}.npy", s[:args.c2st_n])
+                        np.save(Path(args.save_samples) / f"{task}_{name}_{n}_obs{k}.npy", s)
                     t0 = time.perf_counter()
-                    acc = c2st(s[:args.c2st_n], refs, max_n=args.c2st_n, seed=k)
+                    acc = c2st(s, refs, max_n=args.c2st_n, seed=k)
                     pub = PUBLISHED_NPE[task][0 if n == 1000 else 1] if n in (1000, 10000) else None
-                    rows.append({"task": task, "sims": n, "estimator": name, "obs": k, "c2st": acc,
-                                 "published_npe": pub, "train_s": info["seconds"], "epochs": info.get("epochs"),
-                                 "c2st_s": time.perf_counter() - t0})
-                    print(json.dumps(rows[-1]), flush=True)
-                Path(args.out).write_text(json.dumps(rows, indent=1))
+                    row = {"task": task, "sims": n, "estimator": name, "obs": k, "c2st": acc,
+                           "published_npe": pub, "train_s": info["seconds"], "epochs": info.get("epochs"),
+                           "c2st_s": time.perf_counter() - t0, "threads": args.threads}
+                    key = (task, n, name, k)
+                    rows = [r for r in rows if (r["task"], r["sims"], r["estimator"], r["obs"]) != key] + [row]
+                    print(json.dumps(row), flush=True)
+                    out.write_text(json.dumps(rows, indent=1))
 
 
 if __name__ == "__main__":

@@ -3,12 +3,14 @@ SEPARATE venv with sbibm; sbibm pins sbi 0.21, which conflicts with the main ven
 
 Usage::
 
+    python3 -m venv /tmp/sbibm-venv && /tmp/sbibm-venv/bin/pip install torch==2.13.0 &&
+    /tmp/sbibm-venv/bin/pip install sbibm future torch==2.13.0
     /tmp/sbibm-venv/bin/python benchmarks/sbibm_export.py --out /tmp/sbibm_ref [--obs 1 2 3]
 
 Writes ``<task>_obs<k>.npy`` (1, F) and ``<task>_ref<k>.npy`` (10000, D) for two_moons,
-slcp and gaussian_linear, plus ``<task>_prior.npy`` (100000, D) prior draws and
-``<task>_sims.npy`` (10000 + 1000 simulations as ``theta`` / ``x`` pairs, ``.npz``) drawn
-with sbibm's own simulators, so the main venv needs no sbibm.
+slcp and gaussian_linear (observations 1-10 by default), plus ``<task>_sims.npz``: ``--n-sims``
+prior simulations (``theta (n, D)``, ``x (n, F)``, seed 0) drawn with sbibm's own simulators, so
+the main venv needs no sbibm. A budget of N uses the first N of them.
 """
 import argparse
 from pathlib import Path
@@ -19,7 +21,7 @@ import torch
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--out", default="/tmp/sbibm_ref")
-ap.add_argument("--obs", type=int, nargs="+", default=[1, 2, 3])
+ap.add_argument("--obs", type=int, nargs="+", default=list(range(1, 11)))
 ap.add_argument("--n-sims", type=int, default=10000)
 args = ap.parse_args()
 out = Path(args.out)
