@@ -65,3 +65,24 @@ def test_check_reproduces_the_reports_sensor_faithful_numbers(sensor_run):
     assert rep["chamfer_posterior_m"] != pytest.approx(per_frame.mean(), rel=1e-9)
     assert "unseen" in chk["summary"] and "frames 1-3" in chk["summary"]
     assert [p["in_fit"] for p in chk["phases"]] == [False, True, True]
+
+
+def test_region_errors_compare_only_what_the_sensor_sees():
+    from softsbi.workflows.check import material_regions, region_errors
+    g = np.linspace(0, 0.3, 7)
+    xx, yy = np.meshgrid(g, g)
+    flat = np.c_[xx.ravel(), yy.ravel(), np.zeros(xx.size)]  # the cloth on the table (z = 0)
+    lifted = flat.copy()
+    lifted[:, 2] = np.where(flat[:, 1] < 0.1, 0.2 - flat[:, 1], 0.0)  # one edge raised, the rest flat
+    verts = np.stack([flat, lifted])  # (T=2, N, 3), no faces: the vertices are the surface points
+    labels, names = material_regions(flat, np.zeros(3))
+    measured = np.stack([lifted[lifted[:, 2] > 0.01]] * 2)  # the sensor saw the raised edge only
+    full = region_errors(verts, np.zeros((0, 3), int), labels, measured, len(names))
+    seen = region_errors(verts, np.zeros((0, 3), int), labels, measured, len(names), min_z=0.01)
+    # frame 1: the flat regions are not compared (NaN) and the raised ones match the measurement
+    raised = np.unique(labels[lifted[:, 2] > 0.01])
+    hidden = np.setdiff1d(np.unique(labels), raised)  # regions lying wholly flat
+    assert len(hidden) and np.isnan(seen[1, hidden]).all() and np.isfinite(full[1, hidden]).all()
+    assert np.nanmax(seen[1]) < 1e-9 < np.nanmax(full[1])
+    # frame 0: nothing is seen; the highest points stand in and every value stays finite where defined
+    assert np.isfinite(seen[0]).any()
