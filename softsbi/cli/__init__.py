@@ -458,7 +458,8 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
         o.emit_json(out)
         return
     o.table(["phase", "time [s]", "gripper height [cm]", "Chamfer [cm]", "worst region"],
-            [[ph["phase"], f"{ph['t_s'][0]:.2f}-{ph['t_s'][1]:.2f}",
+            [[ph["phase"] + ("" if ph.get("in_fit", True) else " (not fitted)"),
+              f"{ph['t_s'][0]:.2f}-{ph['t_s'][1]:.2f}",
               f"{ph['gripper_height_m'][0] * 100:.1f}-{ph['gripper_height_m'][1] * 100:.1f}",
               f"{ph['chamfer_m'] * 100:.2f}", ph["worst_region"]] for ph in out["phases"]],
             title="Error by phase of the motion")

@@ -1,4 +1,4 @@
-"""Distances between point sets: the paper's bidirectional Chamfer distance.
+"""Distances between point sets: the paper's bidirectional Chamfer distance, and its one-sided half.
 
 Source: Antonova et al. 2022 (BayesSim-RKHS), Sec. V "distance to ground-truth state":
 bidirectional Chamfer distance between point sets (there: HSV-mask pixels; here also
@@ -6,6 +6,11 @@ bidirectional Chamfer distance between point sets (there: HSV-mask pixels; here 
 value is in the units of the points (metres for clouds, pixels for masks):
 
     CD(A, B) = 1/2 * ( mean_{a in A} min_{b in B} |a - b|  +  mean_{b in B} min_{a in A} |a - b| )
+
+The one-sided (directed) Chamfer ``D(A -> B) = mean_{a in A} min_{b in B} |a - b|`` is one of the two
+halves; with ``A`` the measurement and ``B`` the simulation it asks only "is every measured point
+explained by the simulation?", so a partial measurement (a depth sensor's view) is not penalised for
+what it did not see (Fan et al. 2017 call the pair of halves the Chamfer distance's two terms).
 """
 from __future__ import annotations
 
@@ -15,11 +20,9 @@ from scipy.spatial import cKDTree
 from softsbi.core.errors import ShapeError
 
 
-def chamfer(a: np.ndarray, b: np.ndarray) -> float:
-    """Bidirectional Chamfer distance between point sets ``a (n, d)`` and ``b (m, d)``.
-
-    Returns:
-        The symmetric mean nearest-neighbour distance, in the points' units.
+def chamfer_terms(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """The two one-sided Chamfer terms ``(D(a -> b), D(b -> a))`` of point sets ``a (n, d)`` and ``b (m, d)``:
+    mean distance of each point of one set to the nearest point of the other, in the points' units.
 
     Raises:
         ShapeError: empty sets or mismatched dimensions.
@@ -32,7 +35,30 @@ def chamfer(a: np.ndarray, b: np.ndarray) -> float:
         raise ShapeError("chamfer of an empty point set is undefined")
     dab, _ = cKDTree(b).query(a)
     dba, _ = cKDTree(a).query(b)
-    return 0.5 * (float(dab.mean()) + float(dba.mean()))
+    return float(dab.mean()), float(dba.mean())
+
+
+def chamfer(a: np.ndarray, b: np.ndarray) -> float:
+    """Bidirectional Chamfer distance between point sets ``a (n, d)`` and ``b (m, d)``.
+
+    Returns:
+        The symmetric mean nearest-neighbour distance, in the points' units.
+
+    Raises:
+        ShapeError: empty sets or mismatched dimensions.
+    """
+    ab, ba = chamfer_terms(a, b)
+    return 0.5 * (ab + ba)
+
+
+def one_sided_chamfer(measured: np.ndarray, simulated: np.ndarray) -> float:
+    """One-sided Chamfer ``D(measured -> simulated)``: the mean distance of each measured point
+    ``(n, d)`` to the nearest simulated point ``(m, d)``, in the points' units (module docstring).
+
+    Raises:
+        ShapeError: empty sets or mismatched dimensions.
+    """
+    return chamfer_terms(measured, simulated)[0]
 
 
 def chamfer_per_frame(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, ShapeError
 from softsbi.core.interfaces import Observer
+from softsbi.core.metrics import chamfer_terms
 from softsbi.core.types import Observation, Rollout
 from softsbi.plugins.hookspecs import hookimpl
 
@@ -71,6 +72,52 @@ def visible_subset(cloud: np.ndarray, k: int, rng: np.random.Generator, min_z: f
     else:
         vis = cloud
     return vis[rng.choice(len(vis), size=k, replace=len(vis) < k)]
+
+
+#: share of a cloud's highest points that stand in when a sensor sees none of it (:func:`sensor_view`)
+FALLBACK_SHARE = 0.1
+
+
+def sensor_view(cloud: np.ndarray, min_z: float | None) -> np.ndarray:
+    """The part ``(P', 3)`` of ``cloud (P, 3)`` m that the fit's depth-sensor model sees: the points
+    more than the visibility threshold above the table (``z > min_z``, absolute height in m), as in
+    :func:`visible_subset`. When none is seen, the highest :data:`FALLBACK_SHARE` of the points (at
+    least one) stand in, so a frame of cloth lying flat still has a defined distance. ``min_z=None``
+    sees everything (the cloud itself, no copy)."""
+    if min_z is None:
+        return cloud
+    vis = cloud[cloud[:, 2] > min_z]
+    if len(vis):
+        return vis
+    k = max(1, int(round(FALLBACK_SHARE * len(cloud))))
+    return cloud[np.argsort(cloud[:, 2])[-k:]]
+
+
+def sensor_chamfer_per_frame(simulated: Sequence[np.ndarray], measured: Sequence[np.ndarray],
+                             min_z: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame distances between simulated and measured clouds, both seen through the same sensor
+    model (:func:`sensor_view`): the metric of every fit, check and diagnosis.
+
+    Args:
+        simulated: ``T`` clouds ``(n_t, 3)`` m (e.g. ``(T, n, 3)`` area-weighted surface samples).
+        measured: ``T`` clouds ``(m_t, 3)`` m.
+        min_z: the sensor's visibility threshold (absolute height, m); None = full clouds.
+
+    Returns:
+        ``(bidirectional (T,), one_sided (T,))`` in m: the bidirectional Chamfer
+        (:func:`softsbi.core.metrics.chamfer`) and the one-sided ``D(measured -> simulated)``
+        (:func:`softsbi.core.metrics.one_sided_chamfer`).
+
+    Raises:
+        ShapeError: different frame counts, empty clouds.
+    """
+    if len(simulated) != len(measured):
+        raise ShapeError(f"sequences have different frame counts: {len(simulated)} vs {len(measured)}")
+    bi, one = np.empty(len(simulated)), np.empty(len(simulated))
+    for t, (s, m) in enumerate(zip(simulated, measured)):
+        sm, ms = chamfer_terms(sensor_view(np.asarray(s, float), min_z), sensor_view(np.asarray(m, float), min_z))
+        bi[t], one[t] = 0.5 * (sm + ms), ms
+    return bi, one
 
 
 def occluded_by_cylinder(points: np.ndarray, viewpoint: Sequence[float], centre: Sequence[float], radius: float,

@@ -455,8 +455,9 @@ def check_headline(out: dict[str, Any]) -> str:
     rej = mis["misspecified"] if "misspecified" in mis else mis["p_value"] <= MISSPEC_ALPHA
     verdict = "the model does NOT explain the measurement" if rej else "no evidence of misspecification"
     s = f"Mean error {out['chamfer_mean_m'] * 100:.2f} cm"
-    if out.get("phases"):
-        w = max(out["phases"], key=lambda ph: ph["chamfer_m"])
+    fit_phases = [ph for ph in out.get("phases") or [] if ph.get("in_fit", True)]  # the sensor model's frames
+    if fit_phases:
+        w = max(fit_phases, key=lambda ph: ph["chamfer_m"])
         s += f"  ·  worst: {w['phase']} phase ({w['chamfer_m'] * 100:.2f} cm)"
     return s + f"  ·  misspecification {short_p(mis)}: {verdict}"
 
@@ -479,7 +480,8 @@ def check_figure(out: dict[str, Any], ch: np.ndarray | None = None) -> Any:
                     label="posterior rollouts: 5-95%")
     ax.plot(t, m, color=pc, lw=2, label="posterior rollouts: mean")
     phases = out.get("phases") or []
-    worst = max(phases, key=lambda ph: ph["chamfer_m"]) if phases else None
+    fit_phases = [ph for ph in phases if ph.get("in_fit", True)]  # phases outside the fit's frames: not blamed
+    worst = max(fit_phases, key=lambda ph: ph["chamfer_m"]) if fit_phases else None
     dt = (t[1] - t[0]) / 2 if len(t) > 1 else 0.02
     for k, ph in enumerate(phases):
         if k % 2 == 0:
@@ -487,7 +489,8 @@ def check_figure(out: dict[str, Any], ch: np.ndarray | None = None) -> Any:
     if phases:  # phase names and their mean error on a top axis, clear of the data
         top = ax.secondary_xaxis("top")
         top.set_xticks([float(np.mean(ph["t_s"])) for ph in phases])
-        top.set_xticklabels([f"{ph['phase']}{' (worst)' if ph is worst else ''}: {ph['chamfer_m'] * 100:.2f} cm"
+        top.set_xticklabels([f"{ph['phase']}{' (worst)' if ph is worst else ''}"
+                             f"{'' if ph.get('in_fit', True) else ' (not fitted)'}: {ph['chamfer_m'] * 100:.2f} cm"
                              for ph in phases], fontsize=FS_TICK)
         top.tick_params(length=0)
         for lab, ph in zip(top.get_xticklabels(), phases):

@@ -6,6 +6,12 @@ the measurement: Chamfer error per frame, per region of the object and per phase
 and a misspecification test (is the measurement's summary vector inside the distribution of
 posterior-predictive summaries?) with a simulation-based p-value.
 
+Every distance sees the simulated and the measured clouds through the fit's own sensor model
+(:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, and the
+headline averages the fit's ``frames``), so the check's mean Chamfer is the fit's
+``chamfer_posterior_m`` and it does not blame what the sensor cannot see (issue 17). Both the
+bidirectional and the one-sided (measured -> simulated) Chamfer are reported per frame.
+
 Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,
 horizontal extent), which both simulated surfaces and real partial clouds have.
 """
@@ -21,8 +27,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.types import Scenario
+from softsbi.core.types import STATUS_OK, Scenario
+from softsbi.perception.pointcloud import sensor_view
 from softsbi.report import plot_check
+from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.runs import load_run
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL,  # noqa: F401 (re-exported)
                                      PosteriorPredictive, cloud_features, misspecification_test, sampled_points,
@@ -69,20 +77,32 @@ def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) 
 
 
 def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, dense: np.ndarray,
-                  n_regions: int | None = None) -> np.ndarray:
+                  n_regions: int | None = None, min_z: float | None = None) -> np.ndarray:
     """Bidirectional nearest-neighbour error ``(T, R)`` (m) per frame and region.
 
     Simulated points of a region (its vertices and the centroids of faces whose first vertex
     is in it) contribute their distance to the nearest measured point; measured points are
     assigned to the region of their nearest simulated point and contribute that distance.
+    With ``min_z`` (the fit's sensor model, m) both sides keep only what the sensor sees
+    (:func:`~softsbi.perception.pointcloud.sensor_view`): a region lying flat on the table is then
+    not compared (NaN) unless no point of the frame is seen.
     """
     R = n_regions or int(labels.max()) + 1
     pts = surface_points(vertices, faces)
-    lab = labels if len(faces) == 0 else np.concatenate([labels, labels[faces[:, 0]]])
+    lab_all = labels if len(faces) == 0 else np.concatenate([labels, labels[faces[:, 0]]])
     out = np.full((len(vertices), R), np.nan)
     for t in range(len(vertices)):
-        d_sr, _ = cKDTree(dense[t]).query(pts[t])
-        d_rs, idx = cKDTree(pts[t]).query(dense[t])
+        p_t, lab = pts[t], lab_all
+        if min_z is not None:
+            seen = p_t[:, 2] > min_z
+            if seen.any():
+                p_t, lab = p_t[seen], lab_all[seen]
+            else:
+                p_t = sensor_view(p_t, min_z)
+                lab = lab_all[np.argsort(pts[t][:, 2])[-len(p_t):]]
+        m_t = sensor_view(dense[t], min_z)
+        d_sr, _ = cKDTree(m_t).query(p_t)
+        d_rs, idx = cKDTree(p_t).query(m_t)
         lr = lab[idx]
         for r in range(R):
             parts = [d_sr[lab == r].mean()] if (lab == r).any() else []
@@ -90,6 +110,28 @@ def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, d
                 parts.append(d_rs[lr == r].mean())
             out[t, r] = np.mean(parts) if parts else np.nan
     return out
+
+
+def _sensor_words(min_z: float | None, frames: list[int] | None, table_z: float, T: int) -> str:
+    """The metric's sensor model in words, for the check's summary ("" when it sees everything)."""
+    parts = []
+    if min_z is not None:
+        parts.append(f"points within {(min_z - table_z) * 100:.1f} cm of the table unseen")
+    if frames is not None and len(frames) < T:
+        parts.append(f"frames {_ranges(frames)}")
+    return f" under the fit's sensor model: {', '.join(parts)}" if parts else ""
+
+
+def _ranges(idx: list[int]) -> str:
+    """``[10, 11, 12, 20]`` -> ``"10-12, 20"``."""
+    out, start = [], None
+    s = sorted(int(i) for i in idx)
+    for k, i in enumerate(s):
+        start = i if start is None else start
+        if k == len(s) - 1 or s[k + 1] != i + 1:
+            out.append(f"{start}-{i}" if i > start else f"{i}")
+            start = None
+    return ", ".join(out)
 
 
 def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
@@ -148,28 +190,44 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         raise SoftsbiError(f"only {len(ok)} of {n_samples} posterior rollouts succeeded; cannot check the fit")
     dense = run.dense
     T = len(dense)
+    min_z, frames = run.metric_min_z, run.metric_frames
+    in_fit = np.zeros(T, bool)
+    in_fit[slice(None) if frames is None else frames] = True
     ch = np.array([r["chamfer"] for r in ok])
+    ch1 = np.array([r["chamfer_one_sided"] if r.get("chamfer_one_sided") is not None else np.full(T, np.nan)
+                    for r in ok])
+    stats = chamfer_stats(ch, np.full(len(ok), STATUS_OK), frames, ch1)
     labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
     reg = np.zeros((len(ok), T, len(names)))
     for k, r in enumerate(ok):
-        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names))
+        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names), min_z)
     mis = pool.misspecification(alpha, max_null)
     warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)  # regions a small mesh lacks
     reg_mean = np.nanmean(reg, axis=0)
     phases = motion_phases(run.scenario)
     mean_t = ch.mean(0)
+    mean_t1 = ch1.mean(0)
     for ph in phases:
         a, b = ph["frames"]
         ph["chamfer_m"] = float(mean_t[a:b + 1].mean())
-        ph["worst_region"] = names[int(np.nanargmax(np.nanmean(reg_mean[a:b + 1], axis=0)))]
-    worst_frames = [int(i) for i in np.argsort(mean_t)[::-1][:3]]
-    reg_avg = np.nanmean(reg_mean, axis=0)
-    # regions a small mesh lacks are NaN: never the worst
+        ph["chamfer_one_sided_m"] = float(mean_t1[a:b + 1].mean())
+        # frames the fit's sensor model does not use (e.g. the cloth still flat) are reported, not blamed
+        ph["in_fit"] = bool(in_fit[a:b + 1].any())
+        ph["worst_region"] = names[int(np.nanargmax(np.nan_to_num(np.nanmean(reg_mean[a:b + 1], axis=0),
+                                                                  nan=-np.inf)))]
+    fit_idx = np.nonzero(in_fit)[0]
+    worst_frames = [int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]]]
+    reg_avg = np.nanmean(reg_mean[in_fit], axis=0)
+    # regions a small mesh lacks (or the sensor never sees) are NaN: never the worst
     worst_regions = [names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]]
-    worst_phase = max(phases, key=lambda p: p["chamfer_m"])
+    worst_phase = max((p for p in phases if p["in_fit"]), key=lambda p: p["chamfer_m"])
     verdict = (f"the measurement is NOT explained by the model ({mis['p_text']} <= {alpha:g})" if mis["misspecified"]
                else f"no evidence of misspecification ({mis['p_text']} > {alpha:g})")
-    summary = (f"Posterior rollouts miss the measurement by {mean_t.mean() * 100:.2f} cm on average (Chamfer); "
+    sensor = _sensor_words(min_z, frames, run.scenario.table_z, T)
+    one = stats.get("one_sided_mean_m")
+    summary = (f"Posterior rollouts miss the measurement by {stats['mean_m'] * 100:.2f} cm on average (Chamfer"
+               f"{sensor}" + (f"; measured -> simulated {one * 100:.2f} cm" if one is not None and np.isfinite(one)
+                              else "") + "); "
                f"worst in the {worst_phase['phase']} phase (t {worst_phase['t_s'][0]:.2f}-"
                f"{worst_phase['t_s'][1]:.2f} s, {worst_phase['chamfer_m'] * 100:.2f} cm) and in region "
                f"{worst_regions[0]}; {verdict}.")
@@ -177,7 +235,10 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
            "times_s": run.scenario.times.tolist(),
            "chamfer_per_frame_m": {"mean": mean_t.tolist(), "q05": np.quantile(ch, 0.05, 0).tolist(),
                                    "q95": np.quantile(ch, 0.95, 0).tolist()},
-           "chamfer_mean_m": float(mean_t.mean()),
+           "chamfer_one_sided_per_frame_m": {"mean": mean_t1.tolist(), "q05": np.quantile(ch1, 0.05, 0).tolist(),
+                                             "q95": np.quantile(ch1, 0.95, 0).tolist()},
+           "chamfer_mean_m": stats["mean_m"], "chamfer_one_sided_mean_m": one,
+           "metric_min_z_m": min_z, "metric_frames": frames,
            "regions": names, "region_error_m": np.nan_to_num(reg_mean).tolist(),
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,

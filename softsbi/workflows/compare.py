@@ -1,4 +1,9 @@
-"""Two runs of the same measurement side by side: error per time step and region, before vs after."""
+"""Two runs of the same measurement side by side: error per time step and region, before vs after.
+
+Each run's errors are its own ``check`` (:func:`~softsbi.workflows.check.check_run`): clouds seen
+through that fit's sensor model, the headline averaged over the fit's frames; runs whose sensor
+models differ are compared on different metrics, which the summary says.
+"""
 from __future__ import annotations
 
 import json
@@ -31,7 +36,10 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     if ra.config.get("observed_source") != rb.config.get("observed_source"):
         raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
                            f"{rb.config.get('observed_source')}); compare runs of the same measurement")
-    rows = [{"what": "Chamfer, mean over frames", "a": a["chamfer_mean_m"], "b": b["chamfer_mean_m"]}]
+    rows = [{"what": "Chamfer, mean over the fit's frames", "a": a["chamfer_mean_m"], "b": b["chamfer_mean_m"]}]
+    if a.get("chamfer_one_sided_mean_m") is not None and b.get("chamfer_one_sided_mean_m") is not None:
+        rows.append({"what": "one-sided Chamfer (measured -> simulated)", "a": a["chamfer_one_sided_mean_m"],
+                     "b": b["chamfer_one_sided_mean_m"]})
     for pa, pb in zip(a["phases"], b["phases"]):
         rows.append({"what": f"{pa['phase']} phase ({pa['t_s'][0]:.2f}-{pa['t_s'][1]:.2f} s)", "a": pa["chamfer_m"],
                      "b": pb["chamfer_m"]})
@@ -39,11 +47,14 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
         rows.append({"what": f"region {name}", "a": a["region_mean_m"][name], "b": b["region_mean_m"].get(name, np.nan)})
     for r in rows:
         r["change"] = (r["b"] - r["a"]) / r["a"] if r["a"] else 0.0
+    same_sensor = (a.get("metric_min_z_m"), a.get("metric_frames")) == (b.get("metric_min_z_m"), b.get("metric_frames"))
     la = fit_label(ra.config)
     lb = fit_label(rb.config)
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
                f"({describe_change(rows[0]['a'], rows[0]['b'])}); misspecification "
-               f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}.")
+               f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}."
+               + ("" if same_sensor else " The two fits use different sensor models (--min-height / --frames), so "
+                                         "their Chamfer values measure different things."))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"

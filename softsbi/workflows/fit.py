@@ -88,12 +88,14 @@ class FitConfig:
         min_height: sensor model of the observed state (m): points closer than this to the table
             are not observed, in simulation and recording alike (0 = all visible). None = the
             recording's own sensor model (:attr:`Recording.min_height`: 0.01 m for DiffCloud depth
-            clouds, which hold no cloth lying flat; all visible for a simulated recording). Does not
-            change the Chamfer metric, which compares full clouds.
+            clouds, which hold no cloth lying flat; all visible for a simulated recording). The
+            reported Chamfer sees the simulated and the measured clouds through the same model
+            (:func:`metric_sensor`).
         frames: the frames whose state informs the posterior: indices, ``"all"``, ``"auto"`` (the
             gripper at least 10 cm above the table) or a spec like ``"10:25"`` / ``"0,5,10"``.
-            None = the recording's own choice (:attr:`Recording.frames`). The metric still uses
-            every frame.
+            None = the recording's own choice (:attr:`Recording.frames`). The reported Chamfer
+            (``chamfer_prior_m``, ``chamfer_posterior_m``) is the mean over these frames; every
+            frame's value is kept (:func:`metric_sensor`).
         proposal: how round r+1 draws its parameters (sequential estimators only):
             ``"corrected"`` (BayesSim, the paper's): from round r's posterior ``p/p~ * q``;
             ``"truncated"`` (TSNPE, Deistler et al. 2022): from the prior restricted to the
@@ -309,6 +311,22 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     return space, inferred
 
 
+def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
+    """The fit's sensor model as the metric applies it (issue 17: one definition of the per-frame
+    distance for the fit's report, ``check``, ``compare`` and ``diagnose``).
+
+    ``metric_min_z``: simulated and measured points at or below ``table_z + min_height`` (m) are not
+    seen (:func:`~softsbi.perception.pointcloud.sensor_view`), None without a height cut;
+    ``metric_frames``: the frames the headline Chamfer averages (the fit's ``frames``), None = all.
+    ``cfg`` must be :meth:`FitConfig.resolved`. Image fits (mask Chamfer) get neither.
+    """
+    if needs_images(cfg):
+        return {"metric_min_z": None, "metric_frames": None}
+    min_z = float(scenario.table_z) + float(cfg.min_height) if cfg.min_height else None
+    frames = None if cfg.frames is None else [int(i) for i in cfg.frames]
+    return {"metric_min_z": min_z, "metric_frames": frames}
+
+
 def _config_dict(cfg: FitConfig, meas: Recording, inferred: ParamSpace) -> dict[str, Any]:
     """What the run store keeps: the settings (also whole, as ``fit_config``) and what comes from
     the recording (scenario, inferred parameter space, source, truth, observer options, metric)."""
@@ -317,7 +335,8 @@ def _config_dict(cfg: FitConfig, meas: Recording, inferred: ParamSpace) -> dict[
     d.update({"scenario": meas.scenario.to_json(), "param_space": inferred.to_json(),
               "observed_source": meas.source, "truth": meas.truth,
               "observer_options": observer_options(cfg, meas.scenario),
-              "metric": "mask_chamfer_px" if (needs_images(cfg) and meas.images is not None) else "chamfer_m"})
+              "metric": "mask_chamfer_px" if (needs_images(cfg) and meas.images is not None) else "chamfer_m",
+              **metric_sensor(cfg, meas.scenario)})
     d.pop("n_points", None)
     return d
 
@@ -416,12 +435,32 @@ def _usable(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[in
     return np.concatenate(us), np.concatenate(xs), counts
 
 
-def _chamfer_stats(chamfer: np.ndarray, status: np.ndarray) -> dict[str, Any]:
+def chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | None = None,
+                  one_sided: np.ndarray | None = None) -> dict[str, Any]:
+    """Summary of per-frame Chamfer values ``chamfer (N, T)`` of ``N`` simulations with ``status (N,)``:
+    each simulation's mean over ``frames`` (None = all), then ``mean_m``/``std_m`` over the successful
+    ones, ``per_frame_m (T,)`` (mean over them), ``n``, ``failed``; with ``one_sided (N, T)`` also
+    ``one_sided_mean_m``, ``one_sided_std_m``, ``one_sided_per_frame_m``. The fit's report and
+    ``check`` both summarise with this, so their numbers agree."""
+    fr = slice(None) if frames is None else list(frames)
     ok = (status == STATUS_OK) & np.all(np.isfinite(chamfer), axis=1)
-    per_sim = chamfer[ok].mean(1) if ok.any() else np.array([])
-    return {"mean_m": float(per_sim.mean()) if len(per_sim) else None,
-            "std_m": float(per_sim.std()) if len(per_sim) else None,
-            "n": int(ok.sum()), "failed": int((status != STATUS_OK).sum())}
+    per_sim = chamfer[ok][:, fr].mean(1) if ok.any() else np.array([])
+    out = {"mean_m": float(per_sim.mean()) if len(per_sim) else None,
+           "std_m": float(per_sim.std()) if len(per_sim) else None,
+           "per_frame_m": chamfer[ok].mean(0).tolist() if ok.any() else None,
+           "n": int(ok.sum()), "failed": int((status != STATUS_OK).sum())}
+    if one_sided is not None:
+        ok1 = ok & np.all(np.isfinite(one_sided), axis=1)
+        o = one_sided[ok1][:, fr].mean(1) if ok1.any() else np.array([])
+        out.update(one_sided_mean_m=float(o.mean()) if len(o) else None,
+                   one_sided_std_m=float(o.std()) if len(o) else None,
+                   one_sided_per_frame_m=one_sided[ok1].mean(0).tolist() if ok1.any() else None)
+    return out
+
+
+def _chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | None = None,
+                   one_sided: np.ndarray | None = None) -> dict[str, Any]:
+    return chamfer_stats(chamfer, status, frames, one_sided)
 
 
 def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
@@ -586,7 +625,8 @@ def _sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: P
                       scenario=recording.scenario.to_json(), effects=list(cfg.effects), observer=cfg.observer,
                       observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
                       fixed=dict(cfg.fixed), dense=observed.get("dense"), n_dense=cfg.n_dense,
-                      ref_masks=observed.get("masks") if metric == "mask_chamfer_px" else None)
+                      ref_masks=observed.get("masks") if metric == "mask_chamfer_px" else None,
+                      min_z=store.config.get("metric_min_z"))
 
 
 class _Rounds:
@@ -613,7 +653,7 @@ class _Rounds:
         self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
         _simulate_missing(store, r, self.ctx, executor, self.cb, self.clock)
         d = store.round_data(r)
-        stats = _chamfer_stats(d["chamfer"], d["status"]) if self.scored else {}
+        stats = _chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
         if r == 0:
             self.prior_stats = stats
         elif self.summaries:
@@ -697,6 +737,15 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         "chamfer_prior_std_m": (prior_stats or {}).get("std_m"),
         "chamfer_posterior_m": ev_stats.get("mean_m"),
         "chamfer_posterior_std_m": ev_stats.get("std_m"),
+        # the metric (issue 17): per frame, simulated and measured clouds seen through the fit's sensor
+        # model; the headline values above are the mean over metric_frames
+        "metric_min_z_m": metric_sensor(cfg, recording.scenario)["metric_min_z"] if metric == "chamfer_m" else None,
+        "metric_frames": cfg.frames if metric == "chamfer_m" else None,
+        "chamfer_posterior_one_sided_m": ev_stats.get("one_sided_mean_m"),
+        "chamfer_posterior_one_sided_std_m": ev_stats.get("one_sided_std_m"),
+        "chamfer_prior_per_frame_m": (prior_stats or {}).get("per_frame_m"),
+        "chamfer_posterior_per_frame_m": ev_stats.get("per_frame_m"),
+        "chamfer_posterior_one_sided_per_frame_m": ev_stats.get("one_sided_per_frame_m"),
         "posterior_mean": space.as_dict(samples.mean(0)),
         "posterior_std": space.as_dict(samples.std(0)),
         "posterior_q05": space.as_dict(np.quantile(samples, 0.05, axis=0)),
@@ -743,13 +792,15 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     if store.has("evaluation"):
         arrays, attrs = store.read_group("evaluation")
         if attrs.get("rounds") == cfg.rounds and len(arrays["status"]) == cfg.n_eval:
-            return _chamfer_stats(arrays["chamfer"], arrays["status"])
+            return _chamfer_stats(arrays["chamfer"], arrays["status"], store.config.get("metric_frames"),
+                                  arrays.get("chamfer_one_sided"))
     rng = np.random.default_rng([cfg.seed, 10_000 + cfg.rounds])
     u = post.sample(cfg.n_eval, rng)
     theta = space.from_unit(u)
     seeds = evaluation_seeds(cfg.seed, cfg.rounds, cfg.n_eval)
     T = len(ctx.scenario["times"])
     chamfer = np.full((cfg.n_eval, T), np.nan)
+    one_sided = np.full((cfg.n_eval, T), np.nan)
     status = np.full(cfg.n_eval, STATUS_ERROR, np.uint8)
     hooks.round_start(-1, cfg.rounds, cfg.n_eval, cfg.n_eval)
     done = 0
@@ -763,7 +814,13 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
         status[i] = res["status"]
         if res["chamfer"] is not None:
             chamfer[i] = res["chamfer"]
-    store.write_group("evaluation", {"theta": theta, "u": u, "status": status, "chamfer": chamfer},
+        if res.get("chamfer_one_sided") is not None:
+            one_sided[i] = res["chamfer_one_sided"]
+    arrays = {"theta": theta, "u": u, "status": status, "chamfer": chamfer}
+    if ctx.ref_masks is None:
+        arrays["chamfer_one_sided"] = one_sided
+    store.write_group("evaluation", arrays,
                       attrs={"rounds": cfg.rounds, "what": "rollouts at final-posterior samples"},
-                      units={"chamfer": "px" if ctx.ref_masks is not None else "m", "theta": "physical"})
-    return _chamfer_stats(chamfer, status)
+                      units={"chamfer": "px" if ctx.ref_masks is not None else "m", "chamfer_one_sided": "m",
+                             "theta": "physical"})
+    return _chamfer_stats(chamfer, status, store.config.get("metric_frames"), arrays.get("chamfer_one_sided"))

@@ -15,10 +15,9 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
-from softsbi.core.metrics import chamfer_per_frame
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, Scenario
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
-from softsbi.perception.pointcloud import rollout_clouds
+from softsbi.perception.pointcloud import rollout_clouds, sensor_chamfer_per_frame
 from softsbi.plugins import registry
 
 
@@ -41,6 +40,10 @@ class SimContext:
     #: also return the rollout's ``vertices (T, N, 3)``, ``faces (F, 3)`` and ``gripper (T, 3)``
     #: (posterior predictive checks localise the error on the object)
     keep_rollout: bool = False
+    #: the fit's sensor model for the metric: simulated and measured points at or below this height
+    #: (m, absolute; ``table_z + min_height``) are not seen (:func:`~softsbi.perception.pointcloud.sensor_view`);
+    #: None = full clouds
+    min_z: float | None = None
 
 
 _WORKER_CACHE: dict[str, Any] = {}
@@ -69,10 +72,12 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
             diagnosis's sensitivity simulations switch candidate effects on one at a time).
 
     Returns:
-        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "seconds"}``, plus
-        ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
-        ``chamfer`` is the 3-D Chamfer (m) against ``ctx.dense``, or the mask Chamfer (px) against
-        ``ctx.ref_masks`` for image fits.
+        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
+        or None, "seconds"}``, plus ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
+        ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
+        seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
+        half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
+        ``chamfer`` is the mask Chamfer (px) against ``ctx.ref_masks`` and ``chamfer_one_sided`` None.
     """
 
     theta, seed = item[0], item[1]
@@ -104,12 +109,13 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     rng = np.random.default_rng([int(seed), 17])
     o = obs.observe(ro, rng)
     x = o.state()
-    ch = None
+    ch = ch1 = None
     if ctx.ref_masks is not None:
         ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
     elif ctx.dense is not None:
-        ch = chamfer_per_frame(rollout_clouds(ro, ctx.n_dense, rng), ctx.dense)
-    out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "seconds": time.perf_counter() - t0}
+        ch, ch1 = sensor_chamfer_per_frame(rollout_clouds(ro, ctx.n_dense, rng), ctx.dense, ctx.min_z)
+    out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
+           "seconds": time.perf_counter() - t0}
     if ctx.keep_rollout:
         out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
     return out

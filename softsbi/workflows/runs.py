@@ -39,7 +39,20 @@ class RunView:
                           scenario=c["scenario"], effects=list(self.effects), observer=c["observer"],
                           observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
                           fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
-                          keep_rollout=keep_rollout)
+                          keep_rollout=keep_rollout, min_z=c.get("metric_min_z"))
+
+    @property
+    def metric_min_z(self) -> float | None:
+        """The fit's sensor model for the metric: points at or below this height (m) are not seen;
+        None = full clouds (also runs written before the metric had a sensor model)."""
+        v = self.config.get("metric_min_z")
+        return None if v is None else float(v)
+
+    @property
+    def metric_frames(self) -> list[int] | None:
+        """The frames the fit's headline Chamfer averages (None = all)."""
+        v = self.config.get("metric_frames")
+        return None if v is None else [int(i) for i in v]
 
     def posterior_rollouts(self, workers: int | None = None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
         """Re-simulate the run's posterior samples (:attr:`post_theta`) with their seeds through the
