@@ -460,10 +460,15 @@ class PosteriorEstimator(ABC):
     Class attributes:
         name: plugin name (``"rkhs"``).
         sequential: whether the estimator is meant for rounds (False for bulk baselines).
+        mixture_posterior: whether :meth:`posterior_at` gives a Gaussian mixture
+            (:class:`~softsbi.core.distributions.MixtureOfGaussians`). The run store of ``softsbi fit``
+            keeps every round's posterior as one, so the fit workflow refuses an estimator with
+            False before simulating; such an estimator (e.g. a normalising flow) is for the Python API.
     """
 
     name: ClassVar[str]
     sequential: ClassVar[bool] = True
+    mixture_posterior: ClassVar[bool] = True
 
     def __new__(cls, *args: Any, **kwargs: Any):
         if not (cls._overrides("posterior_at") or cls._overrides("conditional")):

@@ -196,6 +196,8 @@ class FlowEstimator(PosteriorEstimator):
 
     name: ClassVar[str] = "flow"
     sequential: ClassVar[bool] = True
+    #: its posterior is a flow: ``softsbi fit`` refuses it before simulating (``PosteriorEstimator``)
+    mixture_posterior: ClassVar[bool] = False
     DEFAULTS: ClassVar[dict[str, Any]] = {
         "flow": "nsf", "transforms": 5, "hidden": (50, 50), "bins": 10, "embedding": (),
         "lr": 5e-4, "batch_size": 200, "val_fraction": 0.1, "patience": 20, "max_epochs": 2000,

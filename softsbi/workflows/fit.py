@@ -502,6 +502,11 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     """:func:`run_fit` with the run directory's lock held."""
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
+    if not est_cls.mixture_posterior:
+        raise PosteriorError(f"estimator '{cfg.estimator}' gives a posterior that is not a Gaussian mixture, which "
+                             f"the run store of 'softsbi fit' keeps for every round; use --estimator rkhs (or mdnn, "
+                             f"sbi-npe) here, and '{cfg.estimator}' from Python (softsbi.plugins.registry()"
+                             f".estimator('{cfg.estimator}'))")
     exe_cls = reg.executor(cfg.executor)
     _, space = fit_param_space(cfg, recording.scenario)
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)

@@ -88,11 +88,13 @@ def test_fit_workflow_refuses_in_one_line(tmp_path) -> None:
     import softsbi
     from toy_helpers import toy_measurement
 
-    with pytest.raises(PosteriorError, match=r"^estimator 'flow' .*use --estimator mdnn") as info:
+    with pytest.raises(PosteriorError, match=r"^estimator 'flow' .*not a Gaussian mixture.*use --estimator rkhs") as info:
         softsbi.fit(toy_measurement(), tmp_path / "run", backend="toy-gauss", estimator="flow", rounds=2,
                     sims_per_round=30, n_points=8, n_eval=3, workers=1, seed=0, plots=False,
                     estimator_options={"max_epochs": 3, "transforms": 1, "hidden": [8]})
     assert "\n" not in str(info.value)
+    # refused before anything was simulated or stored: no run directory is left behind
+    assert not (tmp_path / "run" / "run.zarr").exists()
 
 
 def test_states_input_and_shape_errors() -> None:
