@@ -385,10 +385,11 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
         m2 = c.get("misspecification_after")
         if not m2 or any(r["effect"] == c["effect"] and r.get("generic") for r in out["ranking"]):
             continue
-        drop = "" if c.get("drop") is None else f", error {c['drop'] * 100:+.0f}% lower"
-        rules.append(f"3. a named effect explains the misfit if check's test of its refit gives p > {a:g} (and the "
-                     f"refit lowers the error): {c['effect']}'s refit has {m2['p_text']}{drop} -> "
-                     f"{'still misspecified' if m2['misspecified'] else 'explained' if (c.get('drop') or 0) > 0 else 'no lower error'}")
+        change = (f" (Chamfer {describe_change(c['chamfer_before_m'], c['chamfer_after_m'])})"
+                  if c.get("chamfer_before_m") and c.get("chamfer_after_m") else "")
+        rules.append(f"3. a named effect explains the misfit if check's test of its refit gives p > {a:g}: "
+                     f"{c['effect']}'s refit has {m2['p_text']}{change} -> "
+                     f"{'still misspecified' if m2['misspecified'] else 'explained'}")
     if out.get("partial"):
         rules.append(f"3. no refitted named effect explains the misfit -> misspecified-unexplained "
                      f"({out['partial']} explains a part)")
@@ -497,8 +498,9 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     and select the named effect whose refit lowers the posterior-predictive Chamfer most.
 
     Updates ``out`` in place: ``confirmed`` (one refit result per candidate, ordered by error
-    drop), ``selected`` (for ``missing-effect``: among the refits that lower the error and that
-    check's test accepts (``misspecification_after``: ``p > alpha``), the one with the largest drop;
+    drop), ``selected`` (for ``missing-effect``: among the refits that check's test accepts
+    (``misspecification_after``: ``p > alpha``), the one with the largest positive drop, else the
+    screening's first choice if it is among them;
     where no check was computed, the named effect with the largest drop, or the screening's first
     choice when no refit lowers the error), ``final_ranking``, ``rules`` and ``summary``. When every
     refitted named effect is still misspecified, the verdict becomes ``misspecified-unexplained``
@@ -522,15 +524,19 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
              not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False)]
     if out.get("verdict") == "missing-effect" and named:
         checked = [c for c in named if c.get("misspecification_after")]
-        passing = [c for c in checked if not c["misspecification_after"]["misspecified"] and (c.get("drop") or 0) > 0]
+        passing = [c for c in checked if not c["misspecification_after"]["misspecified"]]
         if passing:
-            # an effect with which the measurement is inside the posterior predictive distribution
-            out["selected"] = passing[0]["effect"]
+            # effects with which the measurement is inside the posterior predictive distribution: the one
+            # whose refit lowers the error most (a refit at a small budget can widen the predictive and raise
+            # it; the screening's first choice then, if it passes)
+            lower = [c for c in passing if (c.get("drop") or 0) > 0]
+            firsts = [c for c in passing if c["effect"] == out["significant"][0]]
+            out["selected"] = (lower or firsts or passing)[0]["effect"]
         elif checked and len(checked) == len(named):
             # every refitted named effect still leaves the measurement outside: it explains a part only
             out["screening_verdict"] = out["verdict"]
             out["verdict"] = "misspecified-unexplained"
-            out["partial"] = (named[0] if (named[0].get("drop") or 0) > 0 else checked[0])["effect"]
+            out["partial"] = named[0]["effect"]
             out["selected"] = None
         elif (named[0].get("drop") or 0) > 0:
             out["selected"] = named[0]["effect"]
