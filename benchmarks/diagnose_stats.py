@@ -252,7 +252,7 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         verdict = r["verdict"]
         if r.get("screening_verdict", verdict) != verdict:
             verdict += f" (screening: {r['screening_verdict']})"
-        refits = "; ".join(f"{x[0]} {x[1] * 100:+.0f}%" + (f", check p {x[2]:.2g}" if len(x) > 2 and x[2] is not None
+        refits = "; ".join(f"{x[0]} Chamfer {-x[1] * 100:+.0f}%" + (f", check p {x[2]:.2g}" if len(x) > 2 and x[2] is not None
                                                              else "") for x in r.get("refits") or [] if x[1] is not None)
         named = (r["named"] or "") + (f" (refits: {refits})" if refits else "")
         out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | {m} | {r['misspecification_p_text']} | "

@@ -73,4 +73,4 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
     assert s["refit_drop"] == {"n": 1, "median": 0.5}
     assert s["other_engine"] == {"n": 1, "misspecified-unexplained": 1, "screening": {"missing-effect": 1}}
     md = bench.markdown(s, [dict(r, misspecification_p_text="p", wall_s=1.0) for r in refit])
-    assert "misspecified-unexplained (screening: missing-effect)" in md and "wind +20%, check p 0.004" in md
+    assert "misspecified-unexplained (screening: missing-effect)" in md and "wind Chamfer -20%, check p 0.004" in md
