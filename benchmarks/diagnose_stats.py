@@ -137,7 +137,7 @@ def done_ids(results: Path) -> set[str]:
     return {json.loads(line)["id"] for line in results.read_text().splitlines() if line.strip()}
 
 
-def run_cases(suite: str, indices: range, results: Path, out: Path, seed: int = 0, rounds: int = 2,
+def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
               workers: int | None = None, only: set[str] | None = None) -> list[dict[str, Any]]:
     """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
@@ -265,7 +265,7 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
     r.add_argument("--suite", default="mujoco", choices=sorted(SUITES))
-    r.add_argument("--cases", default="0:10", help="index range start:stop")
+    r.add_argument("--cases", default="0:10", help="index range start:stop, or indices i,j,k")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     r.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
@@ -283,8 +283,12 @@ def main() -> None:
     s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits")
     a = ap.parse_args()
     if a.cmd == "run":
-        lo, hi = (int(x) for x in a.cases.split(":"))
-        run_cases(a.suite, range(lo, hi), a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
+        if ":" in a.cases:
+            lo, hi = (int(x) for x in a.cases.split(":"))
+            indices: Any = range(lo, hi)
+        else:
+            indices = [int(x) for x in a.cases.split(",")]
+        run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
                   a.confirm, a.workers, set(a.only.split(",")) if a.only else None)
     else:
         rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()], a.confirm)
