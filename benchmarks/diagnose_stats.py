@@ -130,6 +130,28 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
 
 
+def refit_case(run_dir: Path, effect: str, rounds: int, sims: int, proposal: str = "truncated", n_null: int = 30,
+               max_null: int = 200, alpha: float = 0.01) -> dict[str, Any]:
+    """Refit a stored case's nominal run (``run_dir``) with ``effect`` switched on at another budget and
+    proposal (into ``run_dir/trefit-<effect>-<rounds>x<sims>``), then check's test of the refit: the
+    posterior-predictive Chamfer before/after and the refit's misspecification p-value."""
+    from dataclasses import replace
+
+    from softsbi.workflows.diagnose import recording_from_run
+    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.stats import PosteriorPredictive
+    t0 = time.perf_counter()
+    run = load_run(run_dir)
+    cfg = replace(FitConfig.from_run_config(run.config), effects=list(run.effects) + [effect], rounds=rounds,
+                  sims_per_round=sims, workers=1, proposal=proposal)
+    out = run.path / f"trefit-{effect}-{rounds}x{sims}"
+    res = run_fit(out, recording_from_run(run), cfg, make_plots=False)
+    mis = PosteriorPredictive(out, 1).ensure(n_null).misspecification(alpha, max_null)
+    b, a = run.report["chamfer_posterior_m"], res.report["chamfer_posterior_m"]
+    return {"case": run_dir.name, "effect": effect, "budget": f"{rounds}x{sims} {proposal}", "before_cm": b * 100,
+            "after_cm": a * 100, "drop": 1 - a / b, "check_after": mis["p_text"], "s": time.perf_counter() - t0}
+
+
 def done_ids(results: Path) -> set[str]:
     """Case ids already stored in ``results`` (one JSON object per line)."""
     if not results.exists():
@@ -277,11 +299,22 @@ def main() -> None:
     r.add_argument("--workers", type=int, default=None)
     r.add_argument("--only", default=None, help="comma-separated truth labels to run (e.g. control); other "
                                                 "indices in --cases are skipped")
+    f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
+    f.add_argument("--runs", default="CASE_ID:EFFECT", help="comma-separated CASE_ID:EFFECT (run dirs under --out)")
+    f.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
+    f.add_argument("--rounds", type=int, default=3)
+    f.add_argument("--sims", type=int, default=100)
+    f.add_argument("--proposal", default="truncated")
     s = sub.add_parser("summary")
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
     s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits")
     a = ap.parse_args()
+    if a.cmd == "refit":
+        for item in a.runs.split(","):
+            case_id, effect = item.split(":")
+            print(json.dumps(refit_case(a.out / case_id, effect, a.rounds, a.sims, a.proposal)), flush=True)
+        return
     if a.cmd == "run":
         if ":" in a.cases:
             lo, hi = (int(x) for x in a.cases.split(":"))
