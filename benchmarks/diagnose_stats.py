@@ -15,7 +15,10 @@ verdict/named effect) and detection vs magnitude.
 
 Usage:
     python benchmarks/diagnose_stats.py run --suite mujoco --cases 0:20 --results benchmarks/results/diagnose_stats.jsonl
-    python benchmarks/diagnose_stats.py summary --results benchmarks/results/diagnose_stats.jsonl
+    python benchmarks/diagnose_stats.py run --suite mujoco --cases 45:110 --only control   # controls only
+    python benchmarks/diagnose_stats.py run --suite cross-engine --cases 0:8 --confirm 2   # with refits
+    python benchmarks/diagnose_stats.py summary --results benchmarks/results/diagnose_stats.jsonl [--confirm 2]
+Rows with refits carry the id suffix ``-refit<N>`` and are summarised apart (``summary --confirm N``).
 Suites: ``mujoco`` (mujoco-flex; lift, wipe, fling, wind; effects wind, air-drag, extra-damping,
 grip-compliance), ``cross-engine`` (measurements by pybullet-massspring fitted with mujoco-flex; the
 right verdict is misspecified-unexplained) and ``toy`` (the test plugin's toy-gauss and toy-wind; needs tests/plugins/softsbi_toy).
@@ -118,9 +121,35 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"],
             "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
                         for r in d["ranking"] if "statistic" in r],
-            "refits": [[c["effect"], c.get("drop")] for c in d["confirmed"]],
-            "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null},
+            # per refit: effect, error drop, and check's test of the refit (p, still misspecified)
+            "refits": [[c["effect"], c.get("drop"), (c.get("misspecification_after") or {}).get("p_value"),
+                        (c.get("misspecification_after") or {}).get("misspecified")] for c in d["confirmed"]],
+            "screening_verdict": d.get("screening_verdict", d["verdict"]),
+            "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null,
+                       "confirm": confirm},
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
+
+
+def refit_case(run_dir: Path, effect: str, rounds: int, sims: int, proposal: str = "truncated", n_null: int = 30,
+               max_null: int = 200, alpha: float = 0.01) -> dict[str, Any]:
+    """Refit a stored case's nominal run (``run_dir``) with ``effect`` switched on at another budget and
+    proposal (into ``run_dir/trefit-<effect>-<rounds>x<sims>``), then check's test of the refit: the
+    posterior-predictive Chamfer before/after and the refit's misspecification p-value."""
+    from dataclasses import replace
+
+    from softsbi.workflows.diagnose import recording_from_run
+    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.stats import PosteriorPredictive
+    t0 = time.perf_counter()
+    run = load_run(run_dir)
+    cfg = replace(FitConfig.from_run_config(run.config), effects=list(run.effects) + [effect], rounds=rounds,
+                  sims_per_round=sims, workers=1, proposal=proposal)
+    out = run.path / f"trefit-{effect}-{rounds}x{sims}"
+    res = run_fit(out, recording_from_run(run), cfg, make_plots=False)
+    mis = PosteriorPredictive(out, 1).ensure(n_null).misspecification(alpha, max_null)
+    b, a = run.report["chamfer_posterior_m"], res.report["chamfer_posterior_m"]
+    return {"case": run_dir.name, "effect": effect, "budget": f"{rounds}x{sims} {proposal}", "before_cm": b * 100,
+            "after_cm": a * 100, "drop": 1 - a / b, "check_after": mis["p_text"], "s": time.perf_counter() - t0}
 
 
 def done_ids(results: Path) -> set[str]:
@@ -130,15 +159,24 @@ def done_ids(results: Path) -> set[str]:
     return {json.loads(line)["id"] for line in results.read_text().splitlines() if line.strip()}
 
 
-def run_cases(suite: str, indices: range, results: Path, out: Path, seed: int = 0, rounds: int = 2,
+def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
-              workers: int | None = None) -> list[dict[str, Any]]:
-    """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes."""
+              workers: int | None = None, only: set[str] | None = None) -> list[dict[str, Any]]:
+    """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
+
+    ``only``: run just the cases whose ``truth_label`` is in this set (e.g. ``{"control"}``); the
+    other indices are skipped, not renumbered, so every case keeps its definition. With ``confirm``
+    > 0 (refits) a case is stored under its own id with the suffix ``-refit<confirm>``: the screening-only
+    and the refitted diagnosis of a case are two rows, summarised separately (:func:`select_rows`)."""
     have = done_ids(results)
     results.parent.mkdir(parents=True, exist_ok=True)
     new = []
     for i in indices:
         case = make_case(suite, seed, i)
+        if only and case["truth_label"] not in only:
+            continue
+        if confirm:
+            case["id"] += f"-refit{confirm}"
         if case["id"] in have:
             continue
         try:
@@ -154,8 +192,14 @@ def run_cases(suite: str, indices: range, results: Path, out: Path, seed: int = 
     return new
 
 
+def select_rows(rows: list[dict[str, Any]], confirm: int = 0) -> list[dict[str, Any]]:
+    """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none)."""
+    return [r for r in rows if int((r.get("budget") or {}).get("confirm", 0)) == confirm]
+
+
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
-    """False-alarm rate (binomial SE, Clopper-Pearson 95%), confusion matrix, detection vs magnitude."""
+    """False-alarm rate (binomial SE, Clopper-Pearson 95%), confusion matrix, detection vs magnitude,
+    and with refits the median error drop of the named effect's refit in correctly named cases."""
     rows = [r for r in rows if "verdict" in r]
     ctrl = [r for r in rows if r["truth_label"] == "control"]
     fa = sum(r["verdict"] != "nothing-missing" for r in ctrl)
@@ -184,7 +228,12 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     out["power"] = power
     other = [r for r in rows if r["truth_label"] == "other-engine"]
     if other:
-        out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other)}
+        out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other),
+                               "screening": dict(Counter(r.get("screening_verdict", r["verdict"]) for r in other))}
+    drops = [d for r in rows if r["correct"] and r.get("named") for e, d, *_ in r.get("refits") or []
+             if e == r["named"] and d is not None]
+    if drops:
+        out["refit_drop"] = {"n": len(drops), "median": float(np.median(drops))}
     return out
 
 
@@ -207,6 +256,13 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     for eff, bins in summary["power"].items():
         out.append(f"| {eff} | " + " | ".join(f"{b['named_correctly']}/{b['n']} named ({b['detected']} detected)"
                                               if b["n"] else "-" for b in bins) + " |")
+    if summary.get("other_engine"):
+        oe = summary["other_engine"]
+        out.append(f"\nOther engine: {oe['misspecified-unexplained']} of {oe['n']} misspecified-unexplained "
+                   f"(screening verdicts: {oe['screening']}).")
+    if summary.get("refit_drop"):
+        rd = summary["refit_drop"]
+        out.append(f"\nMedian refit error drop, correctly named cases: {rd['median'] * 100:.0f}% (n = {rd['n']}).")
     out.append("\n| case | truth | scenario | magnitude | misspecification p | verdict | named | wall [s] |")
     out.append("|---|---|---|---|---|---|---|---|")
     for r in rows:
@@ -215,8 +271,14 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | | | error: {err} | | |")
             continue
         m = "" if r["magnitude"] is None else f"{r['magnitude']:.2f}"
+        verdict = r["verdict"]
+        if r.get("screening_verdict", verdict) != verdict:
+            verdict += f" (screening: {r['screening_verdict']})"
+        refits = "; ".join(f"{x[0]} Chamfer {-x[1] * 100:+.0f}%" + (f", check p {x[2]:.2g}" if len(x) > 2 and x[2] is not None
+                                                             else "") for x in r.get("refits") or [] if x[1] is not None)
+        named = (r["named"] or "") + (f" (refits: {refits})" if refits else "")
         out.append(f"| {r['id']} | {r['truth_label']} | {r['scenario']} | {m} | {r['misspecification_p_text']} | "
-                   f"{r['verdict']} | {r['named'] or ''} | {r['wall_s']:.0f} |")
+                   f"{verdict} | {named} | {r['wall_s']:.0f} |")
     return "\n".join(out)
 
 
@@ -225,7 +287,7 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
     r.add_argument("--suite", default="mujoco", choices=sorted(SUITES))
-    r.add_argument("--cases", default="0:10", help="index range start:stop")
+    r.add_argument("--cases", default="0:10", help="index range start:stop, or indices i,j,k")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     r.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
@@ -235,16 +297,34 @@ def main() -> None:
     r.add_argument("--max-null", type=int, default=200)
     r.add_argument("--confirm", type=int, default=0)
     r.add_argument("--workers", type=int, default=None)
+    r.add_argument("--only", default=None, help="comma-separated truth labels to run (e.g. control); other "
+                                                "indices in --cases are skipped")
+    f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
+    f.add_argument("--runs", default="CASE_ID:EFFECT", help="comma-separated CASE_ID:EFFECT (run dirs under --out)")
+    f.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
+    f.add_argument("--rounds", type=int, default=3)
+    f.add_argument("--sims", type=int, default=100)
+    f.add_argument("--proposal", default="truncated")
     s = sub.add_parser("summary")
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
+    s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits")
     a = ap.parse_args()
+    if a.cmd == "refit":
+        for item in a.runs.split(","):
+            case_id, effect = item.split(":")
+            print(json.dumps(refit_case(a.out / case_id, effect, a.rounds, a.sims, a.proposal)), flush=True)
+        return
     if a.cmd == "run":
-        lo, hi = (int(x) for x in a.cases.split(":"))
-        run_cases(a.suite, range(lo, hi), a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
-                  a.confirm, a.workers)
+        if ":" in a.cases:
+            lo, hi = (int(x) for x in a.cases.split(":"))
+            indices: Any = range(lo, hi)
+        else:
+            indices = [int(x) for x in a.cases.split(",")]
+        run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
+                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None)
     else:
-        rows = [json.loads(x) for x in a.results.read_text().splitlines() if x.strip()]
+        rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()], a.confirm)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

@@ -89,9 +89,13 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
        at least ``min_explained`` of the residual sum of squares. Forward selection adds a second
        effect when it passes the same rule given the first. Physics and sensor effects
        (:func:`effect_kind`) are named as such.
-    3. ``misspecified-unexplained``: misspecified but no named candidate passes; the residual's
-       shape (frames/phases, regions of the cloth, direction; :func:`residual_shape`) and the best
-       generic force term (:func:`is_generic`) with the fraction it explains.
+    3. ``misspecified-unexplained``: misspecified but no named candidate passes; or (with refits,
+       ``confirm`` > 0) named candidates pass the screening but with each refitted one the measurement
+       is still outside the refit's posterior predictive distribution (check's test of the refit,
+       ``misspecification_after``, ``p <= alpha``): the effect explains a part only (``partial``; the
+       screening's verdict stays in ``screening_verdict``). With it the residual's shape
+       (frames/phases, regions of the cloth, direction; :func:`residual_shape`) and the best generic
+       force term (:func:`is_generic`) with the fraction it explains.
 
     Adaptive resolution: the null starts with ``n_null`` posterior-predictive rollouts; when a
     decision at ``alpha`` needs more (:func:`resolution_needed`) it is extended once to ``max_null``.
@@ -296,7 +300,8 @@ class _Screening:
     def family(self, names: Sequence[str], given: list[str]) -> list[dict[str, Any]]:
         """Every candidate in ``names`` tested beyond ``given``, with max-T adjusted p-values over
         the family (``adjusted_p_value``, ``adjusted_p_text``, ...), its own Monte-Carlo p-value
-        (``p_value``) and the normalised statistic ``z``; ordered by evidence (adjusted p, then z)."""
+        (``p_value``) and the normalised statistic ``z``; ordered by evidence (adjusted p, then z; among
+        candidates beyond all nulls, where z saturates at ``sqrt(n)``, by the fraction explained)."""
         tests = [self.statistic(n, given) for n in names]
         if not tests:
             return []
@@ -305,7 +310,10 @@ class _Screening:
             own = mc_pvalue(t["statistic"], t.pop("null"))
             t.update(z=float(zz), p_value=own.value, p_text=own.text(), **pvalue_fields(p, "adjusted_"))
             t["adjusted_exceed"], t["n_null"] = p.exceed, p.n
-        tests.sort(key=lambda t: (t["adjusted_p_value"], -t["z"]))
+        # beyond all nulls the normalised statistic saturates (an outlier among n + 1 values has z <= sqrt(n)),
+        # so there the effect size decides: the fraction of the residual explained
+        tests.sort(key=lambda t: (t["adjusted_p_value"], 0.0 if t["adjusted_exceed"] == 0 else -t["z"],
+                                  -t["explained_fraction"]))
         return tests
 
     def ranking(self) -> list[dict[str, Any]]:
@@ -365,14 +373,26 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
              f"{'misspecified' if m['misspecified'] else 'not misspecified'}"]
     if not m["misspecified"]:
         return rules + ["2. not applied: the measurement is inside the posterior predictive distribution"]
-    for st in out["selection"]:
+    for st in out.get("selection") or []:
         given = f" beyond {', '.join(st['given'])}" if st["given"] else ""
         rules.append(f"2. a named effect is missing if its max-T adjusted p <= {a:g} and it explains >= "
                      f"{out['min_explained'] * 100:.0f}% of the residual: {st['best']}{given} has "
                      f"{st['adjusted_p_text']}, explains {st['explained_fraction'] * 100:.0f}% -> "
                      f"{'accepted' if st['accepted'] else 'rejected'}")
-    if not out["selection"]:
+    if not out.get("selection"):
         rules.append("2. no named (non-generic) candidate could be tested")
+    for c in out.get("confirmed") or []:
+        m2 = c.get("misspecification_after")
+        if not m2 or any(r["effect"] == c["effect"] and r.get("generic") for r in out["ranking"]):
+            continue
+        change = (f" (Chamfer {describe_change(c['chamfer_before_m'], c['chamfer_after_m'])})"
+                  if c.get("chamfer_before_m") and c.get("chamfer_after_m") else "")
+        rules.append(f"3. a named effect explains the misfit if check's test of its refit gives p > {a:g}: "
+                     f"{c['effect']}'s refit has {m2['p_text']}{change} -> "
+                     f"{'still misspecified' if m2['misspecified'] else 'explained'}")
+    if out.get("partial"):
+        rules.append(f"3. no refitted named effect explains the misfit -> misspecified-unexplained "
+                     f"({out['partial']} explains a part)")
     return rules
 
 
@@ -478,8 +498,14 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     and select the named effect whose refit lowers the posterior-predictive Chamfer most.
 
     Updates ``out`` in place: ``confirmed`` (one refit result per candidate, ordered by error
-    drop), ``selected`` (for ``missing-effect``: the named effect with the largest drop, or the
-    screening's first choice when no refit lowers the error), ``final_ranking`` and ``summary``.
+    drop), ``selected`` (for ``missing-effect``: among the refits that check's test accepts
+    (``misspecification_after``: ``p > alpha``), the one with the largest positive drop, else the
+    screening's first choice if it is among them;
+    where no check was computed, the named effect with the largest drop, or the screening's first
+    choice when no refit lowers the error), ``final_ranking``, ``rules`` and ``summary``. When every
+    refitted named effect is still misspecified, the verdict becomes ``misspecified-unexplained``
+    (``screening_verdict`` keeps ``missing-effect``; ``partial`` names the effect whose refit lowers
+    the error most; ``selected`` is None): the effect explains a part of the misfit, not all of it.
 
     Args:
         progress: optional ``callable(str)`` told which effect is being refitted.
@@ -496,10 +522,27 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
     named = [c for c in out["confirmed"] if c["effect"] in out["significant"] or
              not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False)]
-    if out.get("verdict") == "missing-effect" and named and (named[0].get("drop") or 0) > 0:
-        out["selected"] = named[0]["effect"]
+    if out.get("verdict") == "missing-effect" and named:
+        checked = [c for c in named if c.get("misspecification_after")]
+        passing = [c for c in checked if not c["misspecification_after"]["misspecified"]]
+        if passing:
+            # effects with which the measurement is inside the posterior predictive distribution: the one
+            # whose refit lowers the error most (a refit at a small budget can widen the predictive and raise
+            # it; the screening's first choice then, if it passes)
+            lower = [c for c in passing if (c.get("drop") or 0) > 0]
+            firsts = [c for c in passing if c["effect"] == out["significant"][0]]
+            out["selected"] = (lower or firsts or passing)[0]["effect"]
+        elif checked and len(checked) == len(named):
+            # every refitted named effect still leaves the measurement outside: it explains a part only
+            out["screening_verdict"] = out["verdict"]
+            out["verdict"] = "misspecified-unexplained"
+            out["partial"] = named[0]["effect"]
+            out["selected"] = None
+        elif (named[0].get("drop") or 0) > 0:
+            out["selected"] = named[0]["effect"]
     done = [c["effect"] for c in out["confirmed"]]
     out["final_ranking"] = done + [r["effect"] for r in out["ranking"] if r["effect"] not in done]
+    out["rules"] = decision_rules(out)
     out["summary"] = _diagnosis_sentence(out)
     return out
 
@@ -579,12 +622,20 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
     # misspecified by nothing installed
     named = [r for r in tested if not r.get("generic")]
     s = f"Misspecified by nothing installed: t{head[1:]}, but no installed named effect explains it"
-    if named:
+    part = out.get("partial")
+    if part:
+        t = by_name[part]
+        s += (f": {part} explains {_pct(t['explained_fraction'])} of the residual in the screening (max-T adjusted "
+              f"{t['adjusted_p_text']}), but it does not account for the misfit.")
+        if part in confirmed:
+            s += _refit_sentence(confirmed[part], part, a)
+    elif named:
         t = named[0]
         why = (f"adjusted {t['adjusted_p_text']} > {a:g}" if t["adjusted_p_value"] > a else
                f"it explains only {_pct(t['explained_fraction'])} < {_pct(out['min_explained'])} of the residual")
         s += f" (best: {t['effect']}, {why})"
-    s += "."
+    if not part:
+        s += "."
     res = out.get("residual") or {}
     if res:
         spans = res["frame_spans"]

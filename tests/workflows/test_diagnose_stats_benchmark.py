@@ -52,3 +52,25 @@ def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
     for r in rows:
         assert r["verdict"] in ("nothing-missing", "missing-effect", "misspecified-unexplained")
         assert r["misspecification_p"] >= 1 / (r["n_null"] + 1)
+
+
+def test_only_and_refit_rows_keep_case_definitions(tmp_path):
+    """``--only`` skips other labels without renumbering; refit rows are stored and summarised apart."""
+    results = tmp_path / "r.jsonl"
+    assert bench.run_cases("toy", range(0, 4), results, tmp_path / "runs", only={"no-such-label"}) == []
+    assert not results.exists() or results.read_text() == ""
+    base = {"suite": "mujoco", "truth_label": "control", "scenario": "lift", "magnitude": None, "named": None,
+            "called": "nothing-missing", "verdict": "nothing-missing", "correct": True}
+    rows = [dict(base, id="a", budget={"rounds": 2}),
+            dict(base, id="b-refit2", budget={"rounds": 2, "confirm": 2}, truth_label="wind", named="wind",
+                 called="wind", verdict="missing-effect", magnitude=0.5, refits=[["wind", 0.5, 0.3, False]]),
+            dict(base, id="c-refit2", budget={"confirm": 2}, truth_label="other-engine", called="misspecified-unexplained",
+                 verdict="misspecified-unexplained", screening_verdict="missing-effect",
+                 refits=[["wind", 0.2, 0.004, True]])]
+    assert [r["id"] for r in bench.select_rows(rows)] == ["a"]
+    refit = bench.select_rows(rows, 2)
+    s = bench.summarise(refit)
+    assert s["refit_drop"] == {"n": 1, "median": 0.5}
+    assert s["other_engine"] == {"n": 1, "misspecified-unexplained": 1, "screening": {"missing-effect": 1}}
+    md = bench.markdown(s, [dict(r, misspecification_p_text="p", wall_s=1.0) for r in refit])
+    assert "misspecified-unexplained (screening: missing-effect)" in md and "wind Chamfer -20%, check p 0.004" in md

@@ -47,3 +47,69 @@ def test_generic_force_terms_give_the_third_verdict_with_where_and_how_much(tmp_
     d2 = diagnose_run(run, effects=["wind", "extra-damping"], workers=1, confirm=0)
     assert d2["verdict"] == "missing-effect" and d2["selected"] == "wind"
     assert d2["summary"].startswith("Missing physics effect: wind")
+
+
+def _fake_diagnosis():
+    def rank(name, frac):
+        return {"effect": name, "description": name, "kind": "physics", "generic": False, "statistic": 1.0,
+                "explained_fraction": frac, "adjusted_exceed": 0, "n_null": 200, "adjusted_p_value": 1 / 201,
+                "adjusted_p_text": "p <= 1/201 (beyond all 200 null simulations)", "estimate": {"k": 1.0}}
+    sel = [{"given": [], "best": "wind", "adjusted_p_value": 1 / 201,
+            "adjusted_p_text": "p <= 1/201 (beyond all 200 null simulations)", "explained_fraction": 0.28,
+            "accepted": True}]
+    return {"ranking": [rank("wind", 0.28), rank("extra-damping", 0.15)], "significant": ["wind"], "alpha": 0.01,
+            "min_explained": 0.1, "confirmed": [], "selected": "wind", "verdict": "missing-effect", "selection": sel,
+            "misspecification": {"p_text": "p <= 1/201 (beyond all 200 null simulations)", "misspecified": True}}
+
+
+def _fake_refits(monkeypatch, after):
+    """confirm_effect replaced: per effect (Chamfer after in m, check's p of the refit)."""
+    import softsbi.workflows.diagnose as dg
+
+    def fake(run, name, budget, workers, **stat):
+        ch, p = after[name]
+        mis = {"p_value": p, "p_text": f"p = {p:.2g}", "misspecified": p <= stat["alpha"]}
+        return {"effect": name, "run": name, "chamfer_before_m": 0.03, "chamfer_after_m": ch, "drop": 1 - ch / 0.03,
+                "posterior_mean": {}, "misspecification_after": mis}
+    monkeypatch.setattr(dg, "confirm_effect", fake)
+    return dg
+
+
+def test_a_named_effect_whose_refit_is_still_misspecified_gives_the_third_verdict(monkeypatch):
+    """The confirmation refit re-checked with check's test separates 'the named effect explains the
+    residual' from 'it explains a part but the model is still misspecified' (data from another engine)."""
+    dg = _fake_refits(monkeypatch, {"wind": (0.025, 0.005), "extra-damping": (0.028, 0.005)})
+    out = _fake_diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["verdict"] == "misspecified-unexplained" and out["screening_verdict"] == "missing-effect"
+    assert out["partial"] == "wind" and out["selected"] is None
+    assert out["summary"].startswith("Misspecified by nothing installed")
+    assert "wind explains 28% of the residual in the screening" in out["summary"]
+    assert "still outside the posterior predictive distribution" in out["summary"]
+    # the rule is printed as applied
+    assert any(r.startswith("3. a named effect explains the misfit") and "wind's refit has p = 0.005" in r
+               and r.endswith("still misspecified") for r in out["rules"])
+    assert out["rules"][-1].startswith("3. no refitted named effect explains the misfit -> misspecified-unexplained")
+
+
+def test_a_refit_that_check_accepts_is_selected(monkeypatch):
+    """Of two refits, the one check accepts is named even when the other lowers the error more."""
+    dg = _fake_refits(monkeypatch, {"wind": (0.020, 0.004), "extra-damping": (0.022, 0.4)})
+    out = _fake_diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["verdict"] == "missing-effect" and "partial" not in out
+    assert out["selected"] == "extra-damping"
+    assert any("extra-damping's refit has p = 0.4 (Chamfer 27% lower)" in r and r.endswith("-> explained")
+               for r in out["rules"])
+    assert out["summary"].startswith("Missing physics effect: extra-damping")
+    assert "inside the posterior predictive distribution" in out["summary"]
+
+
+def test_a_refit_check_accepts_keeps_the_effect_even_if_its_error_rises(monkeypatch):
+    """A refit at a small budget can widen the posterior predictive (higher Chamfer) while check accepts
+    it: the effect accounts for the misfit, so it stays named (measured on a hidden wind, wipe)."""
+    dg = _fake_refits(monkeypatch, {"wind": (0.057, 0.84)})
+    out = _fake_diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 1)
+    assert out["verdict"] == "missing-effect" and out["selected"] == "wind" and "partial" not in out
+    assert any("wind's refit has p = 0.84 (Chamfer 90% higher) -> explained" in r for r in out["rules"])
