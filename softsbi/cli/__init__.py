@@ -503,8 +503,10 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
-             confirm: int = typer.Option(2, help="refit the top N significant candidates and keep the one whose "
-                                                 "refit lowers the error most (0 = no refit)"),
+             confirm: int = typer.Option(2, help="refit the top N significant candidates, re-check each refit "
+                                                 "with check's test and name, among the refits check accepts, the "
+                                                 "one that lowers the error most; none accepted: "
+                                                 "misspecified-unexplained (0 = no refit)"),
              confirm_rounds: Optional[int] = typer.Option(None, help="rounds of a confirmation refit "
                                                                      "(default: the run's)"),
              confirm_sims: Optional[int] = typer.Option(None, help="simulations per round of a confirmation refit "

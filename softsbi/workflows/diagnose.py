@@ -455,8 +455,8 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: 
     for k, r in enumerate(ro):
         j = (k + 1) % len(ro)
         other = sampled_points(ro[j]["vertices"], ro[j]["faces"], n_pts, 1000 + ro[j]["sample"])
-        e_obs = region_errors(r["vertices"], r["faces"], labels, run.dense, len(names))
-        e_null = region_errors(r["vertices"], r["faces"], labels, other, len(names))
+        e_obs = region_errors(r["vertices"], r["faces"], labels, run.dense, len(names), run.metric_min_z)
+        e_null = region_errors(r["vertices"], r["faces"], labels, other, len(names), run.metric_min_z)
         exc.append(e_obs - e_null)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
