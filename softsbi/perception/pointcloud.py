@@ -78,19 +78,23 @@ def visible_subset(cloud: np.ndarray, k: int, rng: np.random.Generator, min_z: f
 FALLBACK_SHARE = 0.1
 
 
-def sensor_view(cloud: np.ndarray, min_z: float | None) -> np.ndarray:
-    """The part ``(P', 3)`` of ``cloud (P, 3)`` m that the fit's depth-sensor model sees: the points
-    more than the visibility threshold above the table (``z > min_z``, absolute height in m), as in
-    :func:`visible_subset`. When none is seen, the highest :data:`FALLBACK_SHARE` of the points (at
-    least one) stand in, so a frame of cloth lying flat still has a defined distance. ``min_z=None``
-    sees everything (the cloud itself, no copy)."""
-    if min_z is None:
-        return cloud
-    vis = cloud[cloud[:, 2] > min_z]
-    if len(vis):
-        return vis
+def sensor_indices(cloud: np.ndarray, min_z: float) -> np.ndarray:
+    """Indices ``(P',)`` of the points of ``cloud (P, 3)`` m that the fit's depth-sensor model sees: those
+    more than the visibility threshold above the table (``z > min_z``, absolute height in m, in cloud
+    order), as in :func:`visible_subset`. When none is seen, the highest :data:`FALLBACK_SHARE` of the
+    points (at least one, lowest first) stand in, so a frame of cloth lying flat still has a defined
+    distance."""
+    seen = np.flatnonzero(cloud[:, 2] > min_z)
+    if len(seen):
+        return seen
     k = max(1, int(round(FALLBACK_SHARE * len(cloud))))
-    return cloud[np.argsort(cloud[:, 2])[-k:]]
+    return np.argsort(cloud[:, 2])[-k:]
+
+
+def sensor_view(cloud: np.ndarray, min_z: float | None) -> np.ndarray:
+    """The part ``(P', 3)`` of ``cloud (P, 3)`` m that the fit's depth-sensor model sees
+    (:func:`sensor_indices`); ``min_z=None`` sees everything (the cloud itself, no copy)."""
+    return cloud if min_z is None else cloud[sensor_indices(cloud, min_z)]
 
 
 def sensor_chamfer_per_frame(simulated: Sequence[np.ndarray], measured: Sequence[np.ndarray],

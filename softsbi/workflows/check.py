@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK, Scenario
-from softsbi.perception.pointcloud import sensor_view
+from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.runs import load_run
@@ -93,13 +93,9 @@ def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, d
     out = np.full((len(vertices), R), np.nan)
     for t in range(len(vertices)):
         p_t, lab = pts[t], lab_all
-        if min_z is not None:
-            seen = p_t[:, 2] > min_z
-            if seen.any():
-                p_t, lab = p_t[seen], lab_all[seen]
-            else:
-                p_t = sensor_view(p_t, min_z)
-                lab = lab_all[np.argsort(pts[t][:, 2])[-len(p_t):]]
+        if min_z is not None:  # the simulated points the sensor sees, with their regions
+            idx = sensor_indices(p_t, min_z)
+            p_t, lab = p_t[idx], lab_all[idx]
         m_t = sensor_view(dense[t], min_z)
         d_sr, _ = cKDTree(m_t).query(p_t)
         d_rs, idx = cKDTree(p_t).query(m_t)

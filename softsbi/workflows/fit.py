@@ -458,10 +458,6 @@ def chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | N
     return out
 
 
-def _chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | None = None,
-                   one_sided: np.ndarray | None = None) -> dict[str, Any]:
-    return chamfer_stats(chamfer, status, frames, one_sided)
-
 
 def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
             callbacks: FitCallbacks | None = None, make_plots: bool = True, retry_failed: bool = False) -> FitResult:
@@ -658,7 +654,7 @@ class _Rounds:
         self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
         _simulate_missing(store, r, self.ctx, executor, self.cb, self.clock)
         d = store.round_data(r)
-        stats = _chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
+        stats = chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
         if r == 0:
             self.prior_stats = stats
         elif self.summaries:
@@ -797,7 +793,7 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     if store.has("evaluation"):
         arrays, attrs = store.read_group("evaluation")
         if attrs.get("rounds") == cfg.rounds and len(arrays["status"]) == cfg.n_eval:
-            return _chamfer_stats(arrays["chamfer"], arrays["status"], store.config.get("metric_frames"),
+            return chamfer_stats(arrays["chamfer"], arrays["status"], store.config.get("metric_frames"),
                                   arrays.get("chamfer_one_sided"))
     rng = np.random.default_rng([cfg.seed, 10_000 + cfg.rounds])
     u = post.sample(cfg.n_eval, rng)
@@ -828,4 +824,4 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
                       attrs={"rounds": cfg.rounds, "what": "rollouts at final-posterior samples"},
                       units={"chamfer": "px" if ctx.ref_masks is not None else "m", "chamfer_one_sided": "m",
                              "theta": "physical"})
-    return _chamfer_stats(chamfer, status, store.config.get("metric_frames"), arrays.get("chamfer_one_sided"))
+    return chamfer_stats(chamfer, status, store.config.get("metric_frames"), arrays.get("chamfer_one_sided"))
