@@ -32,7 +32,7 @@ from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, region_errors
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, max_t_adjusted, mc_pvalue, pvalue_fields,
-                                     resolution_needed, sampled_points, trajectory_features)
+                                     resolution_needed, run_features, run_frames, sampled_points)
 from softsbi.core.types import Recording
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.jobs import run_jobs
@@ -228,7 +228,7 @@ class _Screening:
                  eff_cols: list[tuple[Any, str, int, int]], effect_step: float, null_features: np.ndarray):
         n_pts = run.dense.shape[1]
         # finite-difference simulations share one sampling seed (common random numbers)
-        feats = [trajectory_features(sampled_points(r["vertices"], r["faces"], n_pts, 0))
+        feats = [run_features(run, sampled_points(r["vertices"], r["faces"], n_pts, 0))
                  if r is not None and r["status"] == STATUS_OK else None for r in res]
         if feats[0] is None:
             raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
@@ -239,7 +239,7 @@ class _Screening:
         sd = np.maximum(null_f.std(0), FEATURE_FLOOR)
         self.J_theta = np.stack([(feats[1 + j] - f0) / sd if feats[1 + j] is not None else np.zeros_like(f0)
                                  for j in range(run.space.dim)], 1)
-        self.r_obs = (trajectory_features(run.dense) - f0) / sd
+        self.r_obs = (run_features(run, run.dense) - f0) / sd
         self.r_null = (null_f - f0) / sd
         self.design: dict[str, dict[str, Any]] = {}
         self.failed: list[dict[str, Any]] = []
@@ -414,9 +414,10 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: 
         ``phases`` (``phase``, ``frames``, ``fraction_flagged``), ``centroid_offset_cm`` (3,),
         ``direction`` (words), ``worst_summary``, ``region_excess_cm`` and ``worst_regions``.
     """
-    T = len(run.dense)
+    fit_frames = np.array(run_frames(run))  # the summaries' frames: the fit's (run_features)
+    T = len(fit_frames)
     F = pool.features.reshape(len(pool.rollouts), T, -1)
-    f_obs = trajectory_features(run.dense).reshape(T, -1)
+    f_obs = run_features(run, run.dense).reshape(T, -1)
     S = len(F)
     mu, sd = F.mean(0), np.maximum(F.std(0), FEATURE_FLOOR)
     z_obs = (((f_obs - mu) / sd) ** 2).mean(-1)
@@ -426,26 +427,32 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: 
         z_null[i] = (((F[i] - o.mean(0)) / np.maximum(o.std(0), FEATURE_FLOOR)) ** 2).mean(-1)
     flagged = z_obs > np.quantile(z_null, 0.95, axis=0)
     times = run.scenario.times
+    # spans of flagged frames that are consecutive in the recording (fit frames may skip some)
     spans, t = [], 0
     while t < T:
         if flagged[t]:
             e = t
-            while e + 1 < T and flagged[e + 1]:
+            while e + 1 < T and flagged[e + 1] and fit_frames[e + 1] == fit_frames[e] + 1:
                 e += 1
-            spans.append([int(t), int(e), float(times[t]), float(times[e])])
+            a, b = int(fit_frames[t]), int(fit_frames[e])
+            spans.append([a, b, float(times[a]), float(times[b])])
             t = e + 1
         else:
             t += 1
-    phases = [{"phase": ph["phase"], "frames": ph["frames"],
-               "fraction_flagged": float(flagged[ph["frames"][0]:ph["frames"][1] + 1].mean())}
-              for ph in motion_phases(run.scenario)]
+    phases = []
+    for ph in motion_phases(run.scenario):
+        in_ph = (fit_frames >= ph["frames"][0]) & (fit_frames <= ph["frames"][1])
+        # phases without a fitted frame are not judged (None), as check marks them "not fitted"
+        phases.append({"phase": ph["phase"], "frames": ph["frames"],
+                       "fraction_flagged": float(flagged[in_ph].mean()) if in_ph.any() else None})
     sel = flagged if flagged.any() else np.ones(T, bool)
     off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
     axis = int(np.argmax(np.abs(off)))
     direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + (" (up)" if axis == 2 and off[2] > 0 else
                                                                " (down)" if axis == 2 else "")
     zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
-    out = {"frames_flagged": [int(i) for i in np.flatnonzero(flagged)], "frame_spans": spans, "phases": phases,
+    out = {"frames_flagged": [int(fit_frames[i]) for i in np.flatnonzero(flagged)], "frame_spans": spans,
+           "phases": phases,
            "centroid_offset_cm": off.tolist(), "direction": direction,
            "worst_summary": FEATURE_NAMES[int(np.argmax(zf))]}
     ro = pool.rollouts[:max(2, n_regions_rollouts)]
@@ -460,7 +467,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: 
         exc.append(e_obs - e_null)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        per_region = np.nanmean(np.array(exc)[:, sel], axis=(0, 1)) * 100
+        per_region = np.nanmean(np.array(exc)[:, fit_frames[sel]], axis=(0, 1)) * 100
     per_region = np.nan_to_num(per_region, nan=-np.inf)
     out["region_excess_cm"] = {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)}
     out["worst_regions"] = [names[int(i)] for i in np.argsort(per_region)[::-1][:2]]
@@ -641,7 +648,8 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         spans = res["frame_spans"]
         if spans:
             sp = ", ".join(f"frames {a_}-{b_} (t {t0:.2f}-{t1:.2f} s)" for a_, b_, t0, t1 in spans[:3])
-            worst = max(res["phases"], key=lambda p: p["fraction_flagged"])
+            worst = max((p for p in res["phases"] if p["fraction_flagged"] is not None),
+                        key=lambda p: p["fraction_flagged"])
             s += (f" The residual lives in {sp}, mostly the {worst['phase']} phase "
                   f"({_pct(worst['fraction_flagged'])} of its frames outside the rollouts' 95% range)")
         else:

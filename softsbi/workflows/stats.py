@@ -34,7 +34,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK
-from softsbi.perception.pointcloud import sample_surface
+from softsbi.perception.pointcloud import sample_surface, sensor_view
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView, load_run, open_run
 
@@ -59,9 +59,35 @@ def cloud_features(points: np.ndarray) -> np.ndarray:
                            [q[0, 0], q[1, 0], q[0, 1], q[1, 1]]])
 
 
-def trajectory_features(clouds: Sequence[np.ndarray]) -> np.ndarray:
-    """``(T * 13,)`` summaries of a sequence of point sets."""
-    return np.concatenate([cloud_features(c) for c in clouds])
+def trajectory_features(clouds: Sequence[np.ndarray], min_z: float | None = None,
+                        frames: Sequence[int] | None = None) -> np.ndarray:
+    """``(T' * 13,)`` summaries of a sequence of ``T`` point sets ``(P_t, 3)`` m, as a sensor model sees them.
+
+    Args:
+        clouds: the ``T`` clouds.
+        min_z: the sensor's visibility threshold (absolute height, m): each cloud is first reduced to
+            :func:`~softsbi.perception.pointcloud.sensor_view` (points at or below it are not seen);
+            None = full clouds.
+        frames: the frames summarised (``T' = len(frames)``, in this order); None = all ``T``.
+    """
+    idx = range(len(clouds)) if frames is None else frames
+    return np.concatenate([cloud_features(sensor_view(np.asarray(clouds[t], float), min_z)) for t in idx])
+
+
+def run_features(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
+    """``(T' * 13,)`` summaries of ``clouds`` under the run's own sensor model: the metric's visibility
+    threshold (:attr:`RunView.metric_min_z`) and frames (:attr:`RunView.metric_frames`, ``T'`` of them).
+
+    The misspecification test and the screening compare the measurement with simulations as the fit
+    compared them (issue 17): a real depth cloud lacks the cloth lying flat on the table, so summaries
+    of full simulated clouds would reject every real recording for the sensor's sake.
+    """
+    return trajectory_features(clouds, run.metric_min_z, run.metric_frames)
+
+
+def run_frames(run: "RunView") -> list[int]:
+    """The frame indices :func:`run_features` summarises, in order (all frames when the fit used all)."""
+    return list(range(len(run.dense))) if run.metric_frames is None else list(run.metric_frames)
 
 
 def sampled_points(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int) -> np.ndarray:
@@ -214,7 +240,8 @@ class PosteriorPredictive:
 
     Attributes:
         rollouts: successful job results (``vertices (T, N, 3)``, ``faces``, ``chamfer (T,)``, ...).
-        features: ``(len(rollouts), T * 13)`` summaries.
+        features: ``(len(rollouts), T' * 13)`` summaries under the fit's sensor model
+            (:func:`run_features`: its visibility threshold and its ``T'`` metric frames).
         requested: rollouts simulated so far (failed ones included).
     """
 
@@ -231,7 +258,7 @@ class PosteriorPredictive:
 
     @property
     def features(self) -> np.ndarray:
-        """``(S, T * 13)`` summaries of the successful rollouts."""
+        """``(S, T' * 13)`` summaries of the successful rollouts (:func:`run_features`)."""
         return np.array(self._feats)
 
     def _items(self, lo: int, hi: int) -> list[tuple[Any, int]]:
@@ -258,7 +285,7 @@ class PosteriorPredictive:
             if r is None or r["status"] != STATUS_OK or r.get("vertices") is None:
                 continue
             self.rollouts.append(dict(r, sample=i))
-            self._feats.append(trajectory_features(sampled_points(r["vertices"], r["faces"], n_pts, 1000 + i)))
+            self._feats.append(run_features(self.run, sampled_points(r["vertices"], r["faces"], n_pts, 1000 + i)))
         self.requested = n
         return self
 
@@ -275,7 +302,7 @@ class PosteriorPredictive:
         Raises:
             SoftsbiError: fewer than 5 successful rollouts.
         """
-        f_obs = trajectory_features(self.run.dense)
+        f_obs = run_features(self.run, self.run.dense)
         m = misspecification_test(f_obs, self.features)
         if resolution_needed(MCPValue(m["exceed"], m["n_simulations"]), alpha, max_null) \
                 and self.requested < max_null:
