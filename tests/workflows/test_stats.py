@@ -137,3 +137,13 @@ def test_forward_selection_names_two_effects_and_leaves_a_generic_term_unnamed()
     sc = _screening(rng.normal(size=F), null, cols)
     chosen, _ = sc.forward_selection(sc.ranking(), 0.05, 0.1)
     assert chosen == []
+
+
+def test_the_rule_asks_for_more_nulls_only_when_resolution_decides():
+    from softsbi.workflows.stats import decided
+    beyond = decided({"exceed": 0, "n_null": 30}, 0.01, 30, False, "misspecified")
+    assert not beyond["misspecified"] and "raise the cap (--max-null) to at least 99" in beyond["rule"]
+    # 3 of 30 as extreme (p = 0.13): more nulls would not bring it to 0.01; no advice
+    some = decided({"exceed": 3, "n_null": 30}, 0.01, 30, False, "misspecified")
+    assert not some["misspecified"] and "raise the cap" not in some["rule"]
+    assert decided({"exceed": 0, "n_null": 200}, 0.01, 200, True, "misspecified")["misspecified"]
