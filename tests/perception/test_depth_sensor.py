@@ -144,3 +144,12 @@ def test_diffcloud_lift_frames_real_points_project_into_both_cameras_and_flat_cl
     assert s.observe(v, f, sc.gripper[0], np.random.default_rng(0)).shape == (0, 3)
     v[:, 2] += 0.05  # the same cloth 5 cm up is seen
     assert s.observe(v, f, None, np.random.default_rng(0)).shape == (3500, 3)
+
+
+def test_statistical_outlier_filter_removes_an_isolated_point():
+    from softsbi.perception.depth_sensor import statistical_outliers
+    g = np.stack(np.meshgrid(np.arange(20), np.arange(20), [0.0]), -1).reshape(-1, 3) * 0.01
+    pts = np.vstack([g, [[1.0, 1.0, 1.0]]])
+    out = statistical_outliers(pts, 8, 0.5)
+    assert out[-1] and out.mean() < 0.3
+    assert not statistical_outliers(pts, 0, 0.5).any()
