@@ -60,7 +60,7 @@ Modelling choices, stated (the source does not fix them):
   cm with it, 1.85 cm without; the second repeats agree, 1.70 vs 1.52 cm; BENCHMARKS.md "Virtual depth
   sensor").
 * **Resolution.** 160x120 px (intrinsics scaled from 640x480); 320x240 changes the per-phase Chamfer of the
-  same benchmark by <= 0.04 cm at 6x the cost.
+  same benchmark by <= 0.06 cm at 1.5x the cost.
 """
 from __future__ import annotations
 
