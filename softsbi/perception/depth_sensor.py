@@ -313,6 +313,34 @@ class VirtualDepthSensor:
         kwargs.setdefault("offsets", ((0.0, 0.0, 0.0), DIFFCLOUD_SIDE_OFFSET))
         return cls.from_calibration([calib / "calib_overhead", calib / "calib_side"], M, **kwargs)
 
+    def to_json(self) -> dict:
+        """JSON-able dict (a fit's run config keeps its metric's sensor this way); :meth:`from_json` inverts it."""
+        inf = lambda a: [None if not np.isfinite(x) else float(x) for x in a]  # noqa: E731
+        return {"cameras": [c.to_json() for c in self.cameras], "scene_to_robot": self.scene_to_robot.tolist(),
+                "offsets": [o.tolist() for o in self.offsets], "crop_min": inf(self.crop_min),
+                "crop_max": inf(self.crop_max), "crop_clearance": self.crop_clearance,
+                "mask_radius": self.mask_radius, "mask_lift": self.mask_lift,
+                "columns": [list(c) for c in self.columns], "outlier_k": self.outlier_k,
+                "outlier_std": self.outlier_std, "n_points": self.n_points}
+
+    @classmethod
+    def from_json(cls, d) -> "VirtualDepthSensor":
+        """Inverse of :meth:`to_json` (``None`` in a crop bound = open, +-inf).
+
+        Raises:
+            DataError: a missing key (the dict is not a stored sensor).
+        """
+        try:
+            lo = tuple(-np.inf if x is None else float(x) for x in d["crop_min"])
+            hi = tuple(np.inf if x is None else float(x) for x in d["crop_max"])
+            return cls(tuple(Camera.from_json(c) for c in d["cameras"]), np.asarray(d["scene_to_robot"], float),
+                       tuple(tuple(o) for o in d["offsets"]), lo, hi, float(d["crop_clearance"]),
+                       float(d["mask_radius"]), float(d["mask_lift"]), tuple(tuple(c) for c in d["columns"]),
+                       int(d["outlier_k"]), float(d["outlier_std"]), int(d["n_points"]))
+        except KeyError as exc:
+            raise DataError(f"stored virtual depth sensor lacks {exc}; re-create it with "
+                            f"VirtualDepthSensor.for_diffcloud_recording(...).to_json()") from None
+
     # -- the sensor ----------------------------------------------------------------------
     def _camera_points(self, vertices: np.ndarray, faces: np.ndarray, gripper: np.ndarray | None
                        ) -> list[np.ndarray]:
@@ -436,3 +464,46 @@ def diffcloud_lift_crop(clouds_scene: np.ndarray | Sequence[np.ndarray], scene_t
     if np.all(pts >= lo - tol) and np.all(pts <= hi + tol):
         return DIFFCLOUD_LIFT_CROP
     return DIFFCLOUD_LIFT_CROP_EARLY
+
+
+#: share of the simulated surface samples (highest first) that stand in for an empty view, as
+#: :data:`softsbi.perception.pointcloud.FALLBACK_SHARE`
+_FALLBACK_SHARE = 0.1
+
+
+def camera_chamfer_per_frame(sensor: VirtualDepthSensor, vertices: np.ndarray, faces: np.ndarray,
+                             gripper: np.ndarray | None, measured, surface, rng: np.random.Generator
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame distances between a rollout seen through the virtual depth sensor and recorded clouds.
+
+    The recorded clouds are used as recorded (the real sensor already made them); the simulated ones are
+    :meth:`VirtualDepthSensor.observe` of each frame. A frame the sensor sees nothing of (cloth lying flat)
+    is scored with the highest 10 % of ``surface[t]`` instead, the convention of
+    :func:`softsbi.perception.pointcloud.sensor_indices`, so every frame has a defined distance.
+
+    Args:
+        sensor: the virtual sensor. vertices: ``(T, N, 3)`` m. faces: ``(F, 3)``. gripper: ``(T, 3)`` m or None.
+        measured: ``T`` clouds ``(m_t, 3)`` m. surface: ``T`` surface samples ``(n, 3)`` m (fallback only).
+        rng: for the sensor's subsampling.
+
+    Returns:
+        ``(bidirectional (T,), one_sided (T,))`` m: the bidirectional Chamfer and ``D(measured -> simulated)``,
+        as :func:`softsbi.perception.pointcloud.sensor_chamfer_per_frame`.
+
+    Raises:
+        ShapeError: different frame counts.
+    """
+    from softsbi.core.metrics import chamfer_terms
+    v = np.asarray(vertices, float)
+    if not (len(v) == len(measured) == len(surface)):
+        raise ShapeError(f"frame counts differ: rollout {len(v)}, measured {len(measured)}, surface {len(surface)}")
+    bi, one = np.empty(len(v)), np.empty(len(v))
+    for t in range(len(v)):
+        sim = sensor.observe(v[t], faces, None if gripper is None else np.asarray(gripper)[t], rng)
+        if not len(sim):
+            s = np.asarray(surface[t], float)
+            k = max(1, int(round(_FALLBACK_SHARE * len(s))))
+            sim = s[np.argsort(s[:, 2])[-k:]]
+        sm, ms = chamfer_terms(sim, np.asarray(measured[t], float))
+        bi[t], one[t] = 0.5 * (sm + ms), ms
+    return bi, one
