@@ -106,8 +106,9 @@ class FitConfig:
         sensor: the sensor model of the per-frame metric: ``"height"`` (the height cut ``min_height``
             applied to simulated and measured clouds) or ``"camera"`` (simulated clouds made by the
             recording's virtual depth sensor, :class:`~softsbi.perception.depth_sensor.VirtualDepthSensor`,
-            measured clouds as recorded; DiffCloud recordings with ``calib_*`` folders only). The observed
-            state the posterior conditions on is not changed by it.
+            measured clouds as recorded; DiffCloud recordings with ``calib_*`` folders only). The
+            point-cloud observer then draws the simulated frames' K points from the same sensor's clouds
+            and the recorded frames' from the clouds as recorded (``observer_options["camera"]``).
     """
 
     backend: str = _resume("mujoco-flex")
@@ -380,7 +381,9 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
             opts["extractor"] = str(Path(opts["extractor"]).resolve())
         return opts
     opts = {"n_points": cfg.n_points}
-    if cfg.min_height:
+    if cfg.sensor == "camera" and cfg.observer == "pointcloud":  # the virtual depth sensor replaces the height cut
+        opts["camera"] = metric_sensor(cfg, scenario)["metric_camera"]
+    elif cfg.min_height:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
     spool = (scenario.object or {}).get("spool")
     if spool and cfg.observer == "pointcloud":  # the wind scenario: the spool hides part of the rope

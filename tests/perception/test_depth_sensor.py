@@ -201,3 +201,18 @@ def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     np.testing.assert_allclose(np.mean([r["chamfer"] for r in ok], axis=0), per_frame, rtol=1e-12)
     with pytest.raises(Exception, match="sensor must be"):
         FitConfig(sensor="lidar").validate()
+
+
+def test_pointcloud_observer_draws_from_the_camera_view():
+    from softsbi.core.types import Rollout
+    from softsbi.perception.pointcloud import PointCloudObserver
+    cam = down_camera()
+    s = sensor([cam], crop_min=(-np.inf, -np.inf, 0.05), outlier_k=0)
+    v, f = grid_square(0.3, 0.1)
+    hidden_v, hidden_f = grid_square(0.1, 0.0)  # a small square on the "table", below the crop
+    V = np.stack([np.concatenate([v, hidden_v]), np.concatenate([v - [0, 0, 0.1], hidden_v])])
+    F = np.concatenate([f, hidden_f + len(v)])
+    ro = Rollout(times=np.array([0.0, 0.1]), gripper=np.zeros((2, 3)), vertices=V, faces=F)
+    obs = PointCloudObserver(n_points=32, camera=s.to_json()).observe(ro, np.random.default_rng(0))
+    assert np.allclose(obs.points[0][:, 2], 0.1)  # only the seen square, never the one under the crop
+    assert obs.points[1][:, 2].max() <= 0.0 + 1e-12  # nothing seen: the highest surface samples stand in
