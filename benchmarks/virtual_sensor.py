@@ -22,6 +22,11 @@ Usage::
 
     python benchmarks/virtual_sensor.py [--recordings lift_tan,lift_navy,lift_polka2]
         [--runs /work/bench_runs/real17] [--out docs/figures] [--json runs/virtual_sensor.json]
+    python benchmarks/virtual_sensor.py --compare CAMERA_RUN --height-report HEIGHT_RUN/report.json
+
+The second form scores a ``sensor="camera"`` fit and a default (height-cut) fit of the same recording on
+both metrics (headline frames): the camera fit's posterior predictive (its 30 evaluation rollouts,
+re-simulated with their seeds) and both fits' posterior-mean rollouts.
 """
 from __future__ import annotations
 
@@ -180,6 +185,37 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def compare_fits(camera_run: Path, height_report: Path) -> dict:
+    """Both metrics for a camera-sensor fit and a height-cut fit of the same recording (module docstring)."""
+    from dataclasses import replace
+
+    from softsbi.workflows.jobs import run_jobs
+    from softsbi.workflows.runs import load_run
+    view = load_run(camera_run, n_samples=30)
+    ctx_cam = view.sim_context(keep_rollout=False)
+    table_z = view.scenario.table_z
+    ctx_h = replace(ctx_cam, camera=None, min_z=float(table_z) + 0.01)
+    frames = view.metric_frames
+    href = json.loads(height_report.read_text())
+    cam_rep = json.loads((camera_run / "report.json").read_text())
+    out = {"camera_fit": {"prior_camera": cam_rep["chamfer_prior_m"], "posterior_camera": cam_rep["chamfer_posterior_m"],
+                          "posterior_mean": cam_rep["posterior_mean"],
+                          "contraction": {k: v["width_ratio"] for k, v in cam_rep["contraction"].items()}},
+           "height_fit": {"prior_height": href["chamfer_prior_m"], "posterior_height": href["chamfer_posterior_m"],
+                          "posterior_mean": href["posterior_mean"],
+                          "contraction": {k: v["width_ratio"] for k, v in href["contraction"].items()}}}
+    items = list(zip(view.post_theta, view.post_seeds))
+    for name, ctx in (("camera", ctx_cam), ("height", ctx_h)):
+        res = [r for r in run_jobs(ctx, items, 1) if r["status"] == 0]
+        out["camera_fit"][f"posterior_predictive_{name}"] = float(np.mean([np.mean(r["chamfer"][frames]) for r in res]))
+    for fit, pm in (("camera_fit", cam_rep["posterior_mean"]), ("height_fit", href["posterior_mean"])):
+        theta = {k: float(v) for k, v in pm.items()}
+        for name, ctx in (("camera", ctx_cam), ("height", ctx_h)):
+            r = run_jobs(ctx, [(theta, 0)], 1)[0]
+            out[fit][f"posterior_mean_rollout_{name}"] = float(np.mean(r["chamfer"][frames]))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--recordings", default="lift_tan,lift_navy,lift_polka2")
@@ -193,7 +229,12 @@ def main() -> None:
     ap.add_argument("--mask-radius", type=float, default=0.03)
     ap.add_argument("--clearance", type=float, default=0.005, help="crop plane above robot z 0.075 m, m")
     ap.add_argument("--outlier", action="store_true", help="switch DiffCloud's statistical outlier filter on")
+    ap.add_argument("--compare", default="", help="a sensor='camera' fit's run folder (second usage form)")
+    ap.add_argument("--height-report", default="", help="report.json of the default fit of the same recording")
     a = ap.parse_args()
+    if a.compare:
+        print(json.dumps(compare_fits(Path(a.compare), Path(a.height_report)), indent=1))
+        return
     w, h = (int(x) for x in a.resolution.split("x"))
     kw = {"resolution": (w, h), "mask_radius": a.mask_radius, "crop_clearance": a.clearance}
     if a.outlier:
