@@ -98,7 +98,8 @@ def run_recording(rec: Path, runs: Path | None, min_height: float, out: Path | N
         bi_h, one_h = chamfers(r, with_fallback(hc, surf))
         bi_c, one_c = chamfers(r, with_fallback(cam, surf))
         rows.append({"frame": t, "seen_height": float(len(hc) / len(surf)), "seen_camera": seen_cam,
-                     "n_camera_unique": int(len(np.unique(cam, axis=0))), "n_real_unique": int(len(np.unique(real[t], axis=0))),
+                     "n_camera_unique": int(len(np.unique(cam, axis=0))),
+                     "n_real_unique": int(len(np.unique(real[t], axis=0))),
                      "bi_height": bi_h, "one_height": one_h, "bi_camera": bi_c, "one_camera": one_c})
         cams.append(cam)
         surfs.append(surf)
@@ -198,7 +199,8 @@ def compare_fits(camera_run: Path, height_report: Path) -> dict:
     frames = view.metric_frames
     href = json.loads(height_report.read_text())
     cam_rep = json.loads((camera_run / "report.json").read_text())
-    out = {"camera_fit": {"prior_camera": cam_rep["chamfer_prior_m"], "posterior_camera": cam_rep["chamfer_posterior_m"],
+    out = {"camera_fit": {"prior_camera": cam_rep["chamfer_prior_m"],
+                          "posterior_camera": cam_rep["chamfer_posterior_m"],
                           "posterior_mean": cam_rep["posterior_mean"],
                           "contraction": {k: v["width_ratio"] for k, v in cam_rep["contraction"].items()}},
            "height_fit": {"prior_height": href["chamfer_prior_m"], "posterior_height": href["chamfer_posterior_m"],

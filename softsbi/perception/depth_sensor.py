@@ -10,7 +10,8 @@ The real lift/fold clouds of ``../shared/data/diffcloud_*`` come out of DiffClou
    480x480 = the central columns 80-559 of the 640x480 image) keeps only the pixels where the rendered
    table is visible (``mask == 0``); the mask is dilated. Pixels outside those 480 columns are dropped;
 3. a robot-frame crop box (lift: ``x in [0.5, 0.95]``, ``y in [-0.35, 0.35]``, ``z in [0.075, 0.35]`` m in
-   the repository's version; :func:`diffcloud_lift_crop`) and a statistical outlier filter (PCL, ``mean_k = 175``, ``std_mul = 0.5``:
+   the repository's version; :func:`diffcloud_lift_crop`) and a statistical outlier filter (PCL,
+   ``mean_k = 175``, ``std_mul = 0.5``:
    points whose mean distance to their 175 nearest neighbours exceeds the mean of that over the cloud by
    more than 0.5 standard deviations are removed), per camera;
 4. the side camera's points are shifted by a hard-coded ``(0.0075, 0.0175, 0)`` m (robot frame;
@@ -221,8 +222,10 @@ class VirtualDepthSensor:
         if m.shape != (4, 4) or not np.allclose(m[3], [0, 0, 0, 1]) or not np.all(np.isfinite(m)):
             raise ShapeError(f"scene_to_robot must be a finite 4x4 homogeneous matrix (last row 0 0 0 1), "
                              f"got shape {m.shape}")
-        offs = tuple(np.zeros(3) for _ in cams) if not self.offsets else tuple(np.asarray(o, float) for o in self.offsets)
-        cols = tuple((0, c.width) for c in cams) if not self.columns else tuple(tuple(int(x) for x in c) for c in self.columns)
+        offs = (tuple(np.asarray(o, float) for o in self.offsets) if self.offsets
+                else tuple(np.zeros(3) for _ in cams))
+        cols = (tuple(tuple(int(x) for x in c) for c in self.columns) if self.columns
+                else tuple((0, c.width) for c in cams))
         if len(offs) != len(cams) or any(o.shape != (3,) for o in offs):
             raise ShapeError(f"offsets must give one (3,) shift per camera ({len(cams)}), got {len(offs)}")
         if len(cols) != len(cams):
