@@ -172,12 +172,17 @@ class PointCloudObserver(Observer):
             ``occluder = {"centre": (x, y), "radius", "z0", "height"}`` (the wind scenario's spool)
             are not observed (:func:`occluded_by_cylinder`); the fit sets them for scenarios with a
             spool.
+        camera: a virtual depth sensor (:meth:`softsbi.perception.depth_sensor.VirtualDepthSensor.to_json`):
+            the K points of a simulated frame are drawn from the sensor's cloud of it (the highest 10% of
+            dense surface samples when it sees nothing), those of a recorded cloud from the cloud as recorded
+            (the real sensor made it); replaces ``min_z`` (``FitConfig.sensor = "camera"``).
     """
 
     name: ClassVar[str] = "pointcloud"
 
     def __init__(self, n_points: int = 64, noise: float = 0.0, min_z: float | None = None,
-                 viewpoint: Sequence[float] | None = None, occluder: Mapping[str, Any] | None = None):
+                 viewpoint: Sequence[float] | None = None, occluder: Mapping[str, Any] | None = None,
+                 camera: Mapping[str, Any] | None = None):
         if n_points < 1:
             raise ValueError(f"n_points must be >= 1, got {n_points}")
         if (viewpoint is None) != (occluder is None):
@@ -187,6 +192,10 @@ class PointCloudObserver(Observer):
         self.min_z = None if min_z is None else float(min_z)
         self.viewpoint = None if viewpoint is None else np.asarray(viewpoint, float)
         self.occluder = None if occluder is None else dict(occluder)
+        self.camera = None
+        if camera is not None:
+            from softsbi.perception.depth_sensor import VirtualDepthSensor
+            self.camera = VirtualDepthSensor.from_json(camera)
 
     def _unoccluded(self, cloud: np.ndarray) -> np.ndarray:
         if self.occluder is None:
@@ -197,7 +206,12 @@ class PointCloudObserver(Observer):
         return cloud[keep] if keep.any() else cloud
 
     def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
-        if self.min_z is None and self.occluder is None:
+        if self.camera is not None:
+            dense = rollout_clouds(rollout, 8 * self.n_points, rng)
+            views = [self.camera.observe(v, rollout.faces, g, rng) for v, g in zip(rollout.vertices, rollout.gripper)]
+            pts = np.stack([visible_subset(c if len(c) else d[sensor_indices(d, np.inf)], self.n_points, rng, None)
+                            for c, d in zip(views, dense)])
+        elif self.min_z is None and self.occluder is None:
             pts = rollout_clouds(rollout, self.n_points, rng)
         else:
             dense = rollout_clouds(rollout, 8 * self.n_points, rng)

@@ -50,7 +50,7 @@ LIFTED_HEIGHT = 0.10
 #: and must match on resume
 RECORDING_RESUME_KEYS = ("scenario", "param_space", "observed_source", "observer_options")
 #: values of resume keys in runs written before the key existed
-RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3}
+RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height"}
 
 
 def _resume(default: Any = None, factory: Any = None) -> Any:
@@ -103,6 +103,12 @@ class FitConfig:
             posterior is ``q`` itself (no importance weights, robust when the rounds narrow
             down fast in many dimensions).
         truncation_eps: posterior mass outside the truncated proposal's region.
+        sensor: the sensor model of the per-frame metric: ``"height"`` (the height cut ``min_height``
+            applied to simulated and measured clouds) or ``"camera"`` (simulated clouds made by the
+            recording's virtual depth sensor, :class:`~softsbi.perception.depth_sensor.VirtualDepthSensor`,
+            measured clouds as recorded; DiffCloud recordings with ``calib_*`` folders only). The
+            point-cloud observer then draws the simulated frames' K points from the same sensor's clouds
+            and the recorded frames' from the clouds as recorded (``observer_options["camera"]``).
     """
 
     backend: str = _resume("mujoco-flex")
@@ -127,11 +133,14 @@ class FitConfig:
     frames: list[int] | str | None = _resume(None)
     proposal: str = _resume("corrected")
     truncation_eps: float = _resume(1e-3)
+    sensor: str = _resume("height")
 
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range."""
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
+        if self.sensor not in ("height", "camera"):
+            raise SoftsbiError(f"sensor must be 'height' or 'camera' (got {self.sensor!r})")
         if not 0 < self.truncation_eps < 0.5:
             raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
         if self.rounds < 1:
@@ -318,13 +327,29 @@ def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     ``metric_min_z``: simulated and measured points at or below ``table_z + min_height`` (m) are not
     seen (:func:`~softsbi.perception.pointcloud.sensor_view`), None without a height cut;
     ``metric_frames``: the frames the headline Chamfer averages (the fit's ``frames``), None = all.
-    ``cfg`` must be :meth:`FitConfig.resolved`. Image fits (mask Chamfer) get neither.
+    ``metric_camera``: with ``cfg.sensor == "camera"`` the recording's virtual depth sensor (JSON,
+    :meth:`~softsbi.perception.depth_sensor.VirtualDepthSensor.to_json`, every kept pixel once) that makes
+    the simulated clouds, the measured ones used as recorded (``metric_min_z`` None); else None.
+    ``cfg`` must be :meth:`FitConfig.resolved`. Image fits (mask Chamfer) get none of them.
+
+    Raises:
+        DataError: ``sensor="camera"`` for a recording that is not a calibrated DiffCloud folder.
     """
     if needs_images(cfg):
-        return {"metric_min_z": None, "metric_frames": None}
+        return {"metric_min_z": None, "metric_frames": None, "metric_camera": None}
     min_z = float(scenario.table_z) + float(cfg.min_height) if cfg.min_height else None
     frames = None if cfg.frames is None else [int(i) for i in cfg.frames]
-    return {"metric_min_z": min_z, "metric_frames": frames}
+    camera = None
+    if cfg.sensor == "camera":
+        from softsbi.perception.depth_sensor import VirtualDepthSensor
+        src = Path(str((scenario.options or {}).get("source", "")))
+        if not ((src / "lift_real2sim.yaml").is_file() and (src.parent / "calib_overhead").is_dir()
+                and (src.parent / "calib_side").is_dir()):
+            raise DataError(f"sensor='camera' needs a DiffCloud recording folder (lift_real2sim.yaml, with "
+                            f"calib_overhead/ and calib_side/ beside it), got scenario source '{src}'; use "
+                            f"sensor='height' for other recordings")
+        camera, min_z = VirtualDepthSensor.for_diffcloud_recording(src, n_points=0).to_json(), None
+    return {"metric_min_z": min_z, "metric_frames": frames, "metric_camera": camera}
 
 
 def _config_dict(cfg: FitConfig, meas: Recording, inferred: ParamSpace) -> dict[str, Any]:
@@ -356,7 +381,9 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
             opts["extractor"] = str(Path(opts["extractor"]).resolve())
         return opts
     opts = {"n_points": cfg.n_points}
-    if cfg.min_height:
+    if cfg.sensor == "camera" and cfg.observer == "pointcloud":  # the virtual depth sensor replaces the height cut
+        opts["camera"] = metric_sensor(cfg, scenario)["metric_camera"]
+    elif cfg.min_height:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
     spool = (scenario.object or {}).get("spool")
     if spool and cfg.observer == "pointcloud":  # the wind scenario: the spool hides part of the rope
@@ -627,7 +654,7 @@ def _sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: P
                       observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
                       fixed=dict(cfg.fixed), dense=observed.get("dense"), n_dense=cfg.n_dense,
                       ref_masks=observed.get("masks") if metric == "mask_chamfer_px" else None,
-                      min_z=store.config.get("metric_min_z"))
+                      min_z=store.config.get("metric_min_z"), camera=store.config.get("metric_camera"))
 
 
 class _Rounds:
@@ -741,7 +768,7 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         # the metric (issue 17): per frame, simulated and measured clouds seen through the fit's sensor
         # model; the headline values above are the mean over metric_frames
         "metric_min_z_m": metric_sensor(cfg, recording.scenario)["metric_min_z"] if metric == "chamfer_m" else None,
-        "metric_frames": cfg.frames if metric == "chamfer_m" else None,
+        "metric_frames": cfg.frames if metric == "chamfer_m" else None, "metric_sensor": cfg.sensor,
         "chamfer_posterior_one_sided_m": ev_stats.get("one_sided_mean_m"),
         "chamfer_posterior_one_sided_std_m": ev_stats.get("one_sided_std_m"),
         "chamfer_prior_per_frame_m": (prior_stats or {}).get("per_frame_m"),

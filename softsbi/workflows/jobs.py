@@ -44,9 +44,12 @@ class SimContext:
     #: (m, absolute; ``table_z + min_height``) are not seen (:func:`~softsbi.perception.pointcloud.sensor_view`);
     #: None = full clouds
     min_z: float | None = None
+    #: the fit's virtual depth sensor for the metric (``VirtualDepthSensor.to_json``), None = height cut
+    camera: dict[str, Any] | None = None
 
 
 _WORKER_CACHE: dict[str, Any] = {}
+_CAMERA_CACHE: dict[str, Any] = {}
 
 
 def _objects(ctx: SimContext) -> tuple[Any, Any, Scenario]:
@@ -113,7 +116,14 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     if ctx.ref_masks is not None:
         ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
     elif ctx.dense is not None:
-        ch, ch1 = sensor_chamfer_per_frame(rollout_clouds(ro, ctx.n_dense, rng), ctx.dense, ctx.min_z)
+        surface = rollout_clouds(ro, ctx.n_dense, rng)
+        if ctx.camera is not None:  # the virtual depth sensor makes the simulated clouds (FitConfig.sensor)
+            from softsbi.perception.depth_sensor import VirtualDepthSensor, camera_chamfer_per_frame
+            key = json.dumps(ctx.camera, sort_keys=True)
+            sensor = _CAMERA_CACHE.get(key) or _CAMERA_CACHE.setdefault(key, VirtualDepthSensor.from_json(ctx.camera))
+            ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface, rng)
+        else:
+            ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, ctx.min_z)
     out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
            "seconds": time.perf_counter() - t0}
     if ctx.keep_rollout:

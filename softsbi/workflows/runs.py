@@ -39,7 +39,7 @@ class RunView:
                           scenario=c["scenario"], effects=list(self.effects), observer=c["observer"],
                           observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
                           fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
-                          keep_rollout=keep_rollout, min_z=c.get("metric_min_z"))
+                          keep_rollout=keep_rollout, min_z=c.get("metric_min_z"), camera=c.get("metric_camera"))
 
     @property
     def metric_min_z(self) -> float | None:
