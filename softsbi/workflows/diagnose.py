@@ -32,7 +32,8 @@ from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, region_errors
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, max_t_adjusted, mc_pvalue, pvalue_fields,
-                                     resolution_needed, run_features, run_frames, sampled_points)
+                                     resolution_needed, rollout_features, run_features, run_frames,
+                                     sampled_points)
 from softsbi.core.types import Recording
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.jobs import run_jobs
@@ -227,9 +228,8 @@ class _Screening:
 
     def __init__(self, run: RunView, cands: list[Any], res: list[dict[str, Any]],
                  eff_cols: list[tuple[Any, str, int, int]], effect_step: float, null_features: np.ndarray):
-        n_pts = run.dense.shape[1]
         # finite-difference simulations share one sampling seed (common random numbers)
-        feats = [run_features(run, sampled_points(r["vertices"], r["faces"], n_pts, 0))
+        feats = [rollout_features(run, r, 0)
                  if r is not None and r["status"] == STATUS_OK else None for r in res]
         if feats[0] is None:
             raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")

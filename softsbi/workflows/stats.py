@@ -85,6 +85,22 @@ def run_features(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
     return trajectory_features(clouds, run.metric_min_z, run.metric_frames)
 
 
+def rollout_features(run: "RunView", rollout: dict[str, Any], seed: int) -> np.ndarray:
+    """``(T' * 13,)`` summaries of one simulated rollout (a job result with ``vertices (T, N, 3)``,
+    ``faces``, ``gripper``) as the run's sensor model sees it (:func:`run_features`): area-weighted surface
+    samples, as many per frame as the measurement's dense clouds, drawn with ``seed`` (common random
+    numbers), seen through the visibility threshold; or, for a fit through the virtual depth sensor
+    (``FitConfig.sensor == "camera"``), that sensor's clouds of the rollout."""
+    camera = run.config.get("metric_camera")
+    if camera is not None:
+        from softsbi.perception.depth_sensor import VirtualDepthSensor
+        sensor = VirtualDepthSensor.from_json(camera)
+        clouds = sensor.observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
+                                        np.random.default_rng([seed, 23]))
+        return trajectory_features(clouds, None, run.metric_frames)
+    return run_features(run, sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed))
+
+
 def run_frames(run: "RunView") -> list[int]:
     """The frame indices :func:`run_features` summarises, in order (all frames when the fit used all)."""
     return list(range(len(run.dense))) if run.metric_frames is None else list(run.metric_frames)
@@ -280,12 +296,11 @@ class PosteriorPredictive:
             return self
         self.first = self.first or n
         res = run_jobs(self.run.sim_context(keep_rollout=True), self._items(self.requested, n), self.workers)
-        n_pts = self.run.dense.shape[1]
         for i, r in enumerate(res, start=self.requested):
             if r is None or r["status"] != STATUS_OK or r.get("vertices") is None:
                 continue
             self.rollouts.append(dict(r, sample=i))
-            self._feats.append(run_features(self.run, sampled_points(r["vertices"], r["faces"], n_pts, 1000 + i)))
+            self._feats.append(rollout_features(self.run, r, 1000 + i))
         self.requested = n
         return self
 
