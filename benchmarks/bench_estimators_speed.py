@@ -2,14 +2,17 @@
 
 Data: lift-shaped synthetic states ``(1500, T=25, 1+K=33, 3)`` from the ``blob_task`` of
 tests/inference/test_inference.py (2 parameters); training cost depends on shapes and N, not on the
-simulator. Default options of every estimator (``rkhs``: the recalibrated ensemble of 5), all with the
+simulator. Default options of every estimator (``rkhs``: the recalibrated shared-trunk ensemble of 5), all with the
 same torch thread count (``--threads``, passed as every estimator's ``num_threads``); wall seconds of
 ``fit`` (early stopping and recalibration included) and the process's CPU seconds during it (with one
 torch thread the CPU time is the work done, which other processes on a shared machine do not inflate
 the way they inflate the wall time), epochs, and the held-out NLL (nats, unit-cube
 coordinates, on ``--n-test`` fresh simulations of the same task) so a faster fit that is worse shows.
-Extra variants: ``rkhs-one`` (``ensemble=1, recalibrate=false``: one network) and ``rkhs-stacked``
-(the default ensemble trained as one stacked network, ``stack_members=true``); ``rkhs-freeze10`` / ``rkhs-one-freeze10``: ``embedding_epochs=10``
+Extra variants (``OLD`` = rkhs's training before the issue-16 speed change: ``ensemble_shared=none,
+point_subset=0, lr=1e-3, patience=15``): ``rkhs-old`` (the default before: 5 independent networks,
+recalibrated), ``rkhs-one`` (one network as before), ``rkhs-one-fast`` (one network trained as member 0 of
+today's default: 8-point subsets, lr 3e-3, patience 8), ``rkhs-stacked`` (the old ensemble trained as one
+stacked network, ``stack_members=true``); ``rkhs-freeze10`` / ``rkhs-one-freeze10``: ``embedding_epochs=10``
 (the embedding frozen after 10 epochs). ``--repeats R`` runs the whole list R times, interleaved, so every
 method sees the same machine load; the ratios to ``sbi-npe`` are taken within each repeat.
 
@@ -28,9 +31,14 @@ from pathlib import Path
 import numpy as np
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk", "sbi-npe"]
-VARIANTS = {"rkhs-one": ("rkhs", {"ensemble": 1, "recalibrate": False}), "rkhs-stacked": ("rkhs", {"stack_members": True}),
-            "rkhs-freeze10": ("rkhs", {"embedding_epochs": 10}),
-            "rkhs-one-freeze10": ("rkhs", {"ensemble": 1, "recalibrate": False, "embedding_epochs": 10})}
+# rkhs's training before the issue-16 speed change (independent members, every point, lr 1e-3, patience 15)
+OLD = {"ensemble_shared": "none", "point_subset": None, "lr": 1e-3, "patience": 15}
+VARIANTS = {"rkhs-old": ("rkhs", {**OLD, "ensemble": 5, "recalibrate": True}),  # the default before the change
+            "rkhs-one": ("rkhs", {**OLD, "ensemble": 1, "recalibrate": False}),  # one network as before
+            "rkhs-one-fast": ("rkhs", {"ensemble": 1, "recalibrate": False}),  # member 0 of the default now
+            "rkhs-stacked": ("rkhs", {**OLD, "stack_members": True}),
+            "rkhs-freeze10": ("rkhs", {**OLD, "embedding_epochs": 10}),
+            "rkhs-one-freeze10": ("rkhs", {**OLD, "ensemble": 1, "recalibrate": False, "embedding_epochs": 10})}
 
 
 def main() -> None:

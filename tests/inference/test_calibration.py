@@ -170,7 +170,7 @@ def test_stacked_ensemble_trains_the_members_as_the_sequential_loop_does(monkeyp
     u, x = blob_task(160, seed=0)
     _, xt = blob_task(3, seed=1)
     cfg = {**FAST, "ensemble": 3, "recalibrate": False, "max_epochs": 12, "min_epochs": 2, "patience": 3,
-           "rkhs_features": 8, "n_components": 2}
+           "rkhs_features": 8, "n_components": 2, "ensemble_shared": "none", "point_subset": None}
     stacked = RKHSEstimator(**cfg, stack_members=True)
     info = stacked.fit(u, x, seed=1)
     assert info["stacked"] and len(info["member_best_epoch"]) == 3
