@@ -306,7 +306,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
         "max_epochs": 300, "patience": 15, "min_epochs": 10, "batch_size": 64, "val_fraction": 0.15,
         "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1, "ensemble": 1,
         "recalibrate": False, "recal_margin": 0.0, "embedding_epochs": None, "stack_members": False,
-        "ensemble_shared": "none", "head_batch_size": None,
+        "ensemble_shared": "none",
     }
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {}
     #: values of the ``ensemble_shared`` option
@@ -741,7 +741,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             return -lp.mean(1)[active]  # all members computed (small), only the active ones learn
 
         def batches() -> list[np.ndarray]:
-            per = [minibatches(n_tr, int(c["head_batch_size"] or c["batch_size"]), rng, balanced=True) for rng in rngs]
+            per = [minibatches(n_tr, int(c["batch_size"]), rng, balanced=True) for rng in rngs]
             return [np.stack([q[j] for q in per]) for j in range(len(per[0]))]
 
         u_va_all = u_va.repeat(E, 1)
