@@ -284,6 +284,16 @@ class NeuralMDNEstimator(PosteriorEstimator):
             head train on until early stopping (the embedding's share of an epoch is then never paid
             again). Default None: the embedding trains in every epoch. Needs a network without batch
             normalisation (else ignored); trains through the stacked path of ``stack_members``.
+        ensemble_shared: what the ensemble members ``1..M-1`` share with member 0, default ``"none"``
+            (independent networks). ``"embedding"``: member 0 trains end to end first; its embedding net is
+            then frozen and copied into every member, its features of the training and validation
+            simulations are computed once, and the other members train only their MLP and head on them.
+            ``"trunk"``: the same with the first MLP layer (and its activation) shared too, so the other
+            members train only the remaining layers and the head (small: cheap to train, all members at
+            once as one stacked network). A deep ensemble of the heads on one learned representation
+            (Lakshminarayanan et al. 2017 for the ensemble; sharing the trunk is this project's own
+            variant, measured in BENCHMARKS.md, issue 16). Does not combine with ``stack_members`` or
+            ``embedding_epochs``; needs a network without batch normalisation.
         num_threads: torch threads during fit/posterior_at (restored afterwards), default 1
             (measured: robust on a shared 2-core machine; raise it on an idle many-core one). On an oversubscribed machine (other processes busy) use 1:
             OpenMP spin-waiting made a 2-thread fit ~8x slower than 1 thread there.
@@ -972,17 +982,25 @@ class RKHSEstimator(NeuralMDNEstimator):
     Defaults that differ from :class:`NeuralMDNEstimator`'s: ``ensemble=5`` and ``recalibrate=True``
     (a deep ensemble of 5 networks, covariances scaled on the validation split). Measured on lift and
     wind in simulation (800 training / 200 fresh test simulations, BENCHMARKS.md): one network covers
-    the truth 0.30-0.32 / 0.69-0.72 of the time at the 50 % / 90 % levels (over-confident); this
-    default 0.44-0.54 / 0.86-0.92 on two data sets, inside the binomial band of a calibrated estimator,
-    for about 5x the training time of one network (at 1500 simulations 10-16x sbi-npe's CPU time, one
-    network 1.5-3x; the RFF embedding of every point dominates). ``ensemble=1, recalibrate=False`` gives the single network
-    of Antonova et al. 2022.
+    the truth 0.30-0.40 / 0.69-0.79 of the time at the 50 % / 90 % levels (over-confident); this
+    default 0.44-0.63 / 0.86-0.93 on four data sets (under-confident at 50 % on two wind sets), for
+    about 5x the training time of one network (at 1500 simulations ~45x sbi-npe's training CPU time
+    with sbi imported beforehand; the RFF embedding of every point dominates). ``ensemble=1,
+    recalibrate=False`` gives the single network of Antonova et al. 2022.
+
+    ``SHARED_TRUNK`` (``ensemble_shared="trunk", point_subset=8, lr=3e-3, patience=8``; issue 16) trains
+    member 0 end to end on random 8-point subsets of every frame and the other members' heads on its
+    frozen trunk: on the same four data sets 0.46-0.545 / 0.86-0.92 (error <= 0.05), a better held-out
+    NLL, ~10x less training CPU time than this default, but still ~4-5x sbi-npe's, so it is not the
+    default (the issue's target is 2x).
 
     Extra config options (besides :class:`NeuralMDNEstimator`'s):
         rkhs_features: number of frequencies ``M`` per layer (output ``2M``), default 32
             (M=64 costs ~2-3x more time per epoch on CPU for no gain on our tests).
         rkhs_sigma: initial bandwidth in standardised units, default 0.5.
         rkhs_learn: train frequencies and bandwidth (paper: yes), default True.
+        point_subset: points per frame that one end-to-end training step embeds (a uniform random subset,
+            drawn anew every step; see :meth:`training_view`), default None (every point; 0 too).
         batch_norm: batch-normalise the flattened embedding before the MLP, default False
             (on a synthetic lifted-cloth task it trained in fewer epochs but generalised
             clearly worse: held-out NLL -2.6 vs -3.3 nats at N=1000).
@@ -993,14 +1011,13 @@ class RKHSEstimator(NeuralMDNEstimator):
     name: ClassVar[str] = "rkhs"
     #: ``ensemble=5, recalibrate=True``: the calibrated default (BENCHMARKS.md, "Calibration of the
     #: default estimator"; about 3.5-4.5x the training time of one network)
-    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"ensemble": 5, "recalibrate": True, "ensemble_shared": "trunk",
-                                                "point_subset": 8, "lr": 3e-3, "patience": 8,
+    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"ensemble": 5, "recalibrate": True,
                                                 "rkhs_features": 32, "rkhs_sigma": 0.5, "rkhs_learn": True,
-                                                "batch_norm": False}
-    #: the default before the issue-16 speed change (five independent networks, every point, lr 1e-3,
-    #: patience 15), e.g. ``RKHSEstimator(**RKHSEstimator.BEFORE_SPEEDUP)``
-    BEFORE_SPEEDUP: ClassVar[dict[str, Any]] = {"ensemble_shared": "none", "point_subset": None, "lr": 1e-3,
-                                                "patience": 15}
+                                                "batch_norm": False, "point_subset": None}
+    #: the shared-trunk ensemble (issue 16, not the default), e.g. ``RKHSEstimator(**RKHSEstimator.SHARED_TRUNK)``:
+    #: with the default ``ensemble=5, recalibrate=True`` ~6x less training CPU time than the default, as
+    #: calibrated and a better held-out NLL (BENCHMARKS.md); still ~4-5x sbi-npe's CPU time at 1500 simulations
+    SHARED_TRUNK: ClassVar[dict[str, Any]] = {"ensemble_shared": "trunk", "point_subset": 8, "lr": 3e-3, "patience": 8}
 
     def __init__(self, **config: Any):
         super().__init__(**config)

@@ -153,9 +153,7 @@ def test_rkhs_defaults_to_a_recalibrated_ensemble_and_the_baselines_to_one_netwo
     from softsbi.inference.baselines import NNBulkEstimator
     from softsbi.inference.estimators import RKHSEstimator
     assert RKHSEstimator.defaults()["ensemble"] == 5 and RKHSEstimator.defaults()["recalibrate"] is True
-    assert RKHSEstimator.defaults()["ensemble_shared"] == "trunk" and RKHSEstimator.defaults()["point_subset"] == 8
-    for cls in (NNBulkEstimator, BayesZoomRKHSEstimator):  # the baselines keep the training they were measured with
-        assert {k: cls.defaults()[k] for k in RKHSEstimator.BEFORE_SPEEDUP} == RKHSEstimator.BEFORE_SPEEDUP
+    assert RKHSEstimator.defaults()["ensemble_shared"] == "none" and RKHSEstimator.defaults()["point_subset"] is None
     for cls in (NNBulkEstimator, BayesZoomRKHSEstimator, MDNNEstimator):
         assert cls.defaults()["ensemble"] == 1 and cls.defaults()["recalibrate"] is False
     u, x = blob_task(60, seed=0)
@@ -173,7 +171,7 @@ def test_stacked_ensemble_trains_the_members_as_the_sequential_loop_does(monkeyp
     u, x = blob_task(160, seed=0)
     _, xt = blob_task(3, seed=1)
     cfg = {**FAST, "ensemble": 3, "recalibrate": False, "max_epochs": 12, "min_epochs": 2, "patience": 3,
-           "rkhs_features": 8, "n_components": 2, "ensemble_shared": "none", "point_subset": None}
+           "rkhs_features": 8, "n_components": 2}
     stacked = RKHSEstimator(**cfg, stack_members=True)
     info = stacked.fit(u, x, seed=1)
     assert info["stacked"] and len(info["member_best_epoch"]) == 3
@@ -263,15 +261,15 @@ def test_point_subset_keeps_the_gripper_and_draws_distinct_points_of_each_frame(
         RKHSEstimator(ensemble_shared="heads")
     u, x = blob_task(40, seed=0)
     with pytest.raises(ParameterError, match="ensemble_shared=none"):
-        RKHSEstimator(stack_members=True, max_epochs=1).fit(u, x)
+        RKHSEstimator(**RKHSEstimator.SHARED_TRUNK, stack_members=True, max_epochs=1).fit(u, x)
 
 
-def test_default_rkhs_fits_a_toy_problem_and_is_calibrated_on_held_out_cases():
-    """The default estimator (shared-trunk ensemble of 5, point subsets, recalibrated) learns the blob
-    task: held-out NLL far below the uniform prior's 0 nats, posterior means track the truth, and the
-    expected coverage of 150 held-out cases is near nominal, where one network trained as before
-    (``BEFORE_SPEEDUP``, ``ensemble=1``, no recalibration) is over-confident on the same cases (measured:
-    0.52 / 0.91 against 0.37 / 0.77 at 50 / 90 %)."""
+def test_shared_trunk_rkhs_fits_a_toy_problem_and_is_calibrated_on_held_out_cases():
+    """The shared-trunk ensemble (``SHARED_TRUNK`` with the default ``ensemble=5, recalibrate=True``) learns
+    the blob task: held-out NLL far below the uniform prior's 0 nats, posterior means track the truth, and
+    the expected coverage of 150 held-out cases is near nominal, where one network of the default training
+    (``ensemble=1``, no recalibration) is over-confident on the same cases (measured: 0.52 / 0.91 against
+    0.37 / 0.77 at 50 / 90 %)."""
     from softsbi.inference.estimators import RKHSEstimator
     u, x = blob_task(400, seed=0)
     ut, xt = blob_task(150, seed=1)
@@ -283,14 +281,14 @@ def test_default_rkhs_fits_a_toy_problem_and_is_calibrated_on_held_out_cases():
         lq_draws = np.stack([q.log_prob(cal.draws_in_box(q, 300, rng)) for q in qs])
         return cal.expected_coverage(cal.hpd_levels(lq_true, lq_draws), [0.5, 0.9]), np.array([q.mean() for q in qs])
 
-    est = RKHSEstimator()
+    est = RKHSEstimator(**RKHSEstimator.SHARED_TRUNK)
     info = est.fit(u, x, seed=0)
     assert info["ensemble"] == 5 and info["ensemble_shared"] == "trunk" and "cov_scale" in info["recalibration"]
     assert float(-est.log_prob(ut, xt).mean()) < -2.5
     cov, means = coverage(est)
     assert np.corrcoef(means[:, 0], ut[:, 0])[0, 1] > 0.9 and np.corrcoef(means[:, 1], ut[:, 1])[0, 1] > 0.95
     assert 0.4 < cov[0] < 0.62 and 0.84 < cov[1] < 0.96, cov
-    one = RKHSEstimator(**{**RKHSEstimator.BEFORE_SPEEDUP, "ensemble": 1, "recalibrate": False})
+    one = RKHSEstimator(ensemble=1, recalibrate=False)
     one.fit(u, x, seed=0)
     cov_one, _ = coverage(one)
     assert cov_one[1] < 0.84 and cov_one[1] < cov[1] - 0.05, (cov_one, cov)
