@@ -982,17 +982,17 @@ class RKHSEstimator(NeuralMDNEstimator):
     Defaults that differ from :class:`NeuralMDNEstimator`'s: ``ensemble=5`` and ``recalibrate=True``
     (a deep ensemble of 5 networks, covariances scaled on the validation split). Measured on lift and
     wind in simulation (800 training / 200 fresh test simulations, BENCHMARKS.md): one network covers
-    the truth 0.30-0.40 / 0.69-0.79 of the time at the 50 % / 90 % levels (over-confident); this
-    default 0.44-0.63 / 0.86-0.93 on four data sets (under-confident at 50 % on two wind sets), for
-    about 5x the training time of one network (at 1500 simulations ~45x sbi-npe's training CPU time
-    with sbi imported beforehand; the RFF embedding of every point dominates). ``ensemble=1,
-    recalibrate=False`` gives the single network of Antonova et al. 2022.
+    the truth 0.30-0.40 / 0.69-0.79 of the time at the 50 % / 90 % levels (over-confident); this default
+    0.44-0.63 / 0.86-0.93 on four data sets per scenario (under-confident at 50 % on the two newest wind
+    sets), for about 5x the training time of one network (at 1500 simulations 45-50x sbi-npe's training
+    CPU time, one network ~9x, with sbi imported beforehand; the RFF embedding of every point dominates).
+    ``ensemble=1, recalibrate=False`` gives the single network of Antonova et al. 2022.
 
     ``SHARED_TRUNK`` (``ensemble_shared="trunk", point_subset=8, lr=3e-3, patience=8``; issue 16) trains
     member 0 end to end on random 8-point subsets of every frame and the other members' heads on its
-    frozen trunk: on the same four data sets 0.46-0.545 / 0.86-0.92 (error <= 0.05), a better held-out
-    NLL, ~10x less training CPU time than this default, but still ~4-5x sbi-npe's, so it is not the
-    default (the issue's target is 2x).
+    frozen trunk: on the two newest data sets per scenario 0.46-0.545 / 0.86-0.92 (error <= 0.05), a
+    better held-out NLL, 7-8x less training CPU time than this default, but still 4.6-6.7x sbi-npe's, so
+    it is not the default (the issue's target is 2x).
 
     Extra config options (besides :class:`NeuralMDNEstimator`'s):
         rkhs_features: number of frequencies ``M`` per layer (output ``2M``), default 32
@@ -1015,8 +1015,8 @@ class RKHSEstimator(NeuralMDNEstimator):
                                                 "rkhs_features": 32, "rkhs_sigma": 0.5, "rkhs_learn": True,
                                                 "batch_norm": False, "point_subset": None}
     #: the shared-trunk ensemble (issue 16, not the default), e.g. ``RKHSEstimator(**RKHSEstimator.SHARED_TRUNK)``:
-    #: with the default ``ensemble=5, recalibrate=True`` ~6x less training CPU time than the default, as
-    #: calibrated and a better held-out NLL (BENCHMARKS.md); still ~4-5x sbi-npe's CPU time at 1500 simulations
+    #: with the default ``ensemble=5, recalibrate=True`` 7-8x less training CPU time than the default, as
+    #: calibrated and a better held-out NLL (BENCHMARKS.md); still 4.6-6.7x sbi-npe's CPU time at 1500 simulations
     SHARED_TRUNK: ClassVar[dict[str, Any]] = {"ensemble_shared": "trunk", "point_subset": 8, "lr": 3e-3, "patience": 8}
 
     def __init__(self, **config: Any):

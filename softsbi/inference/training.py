@@ -148,8 +148,8 @@ def _improves(key: Sequence[float], best: Sequence[float], min_delta: float) -> 
 
 def _adam(params: list[torch.Tensor], lr: float, weight_decay: float) -> torch.optim.Optimizer:
     """``torch.optim.Adam`` (Kingma & Ba 2015) with torch's fused kernel where every parameter is a floating
-    CPU or CUDA tensor (the same update; measured ~1 ms less per step than the default multi-tensor
-    implementation on the RKHS estimator's 0.5 M parameters, one CPU thread)."""
+    CPU or CUDA tensor (the same update; measured less time per step than the default multi-tensor
+    implementation on the RKHS estimator's 0.5 M parameters, one CPU thread: ~0.7 ms of a 8 ms step)."""
     fused = all(p.dtype in (torch.float32, torch.float64) and p.device.type in ("cpu", "cuda") for p in params)
     return torch.optim.Adam(params, lr=float(lr), weight_decay=float(weight_decay), fused=fused or None)
 
