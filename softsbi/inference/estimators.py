@@ -480,15 +480,19 @@ class NeuralMDNEstimator(PosteriorEstimator):
         Returns:
             ``{"epochs", "best_epoch", "train_loss", "val_loss", "last_train_loss", "seconds", "n_train",
             "n_val"}``; losses are mean NLL per simulation in nats, in unit-cube coordinates
-            (``val_loss`` at the best epoch, whose weights are kept).
+            (``val_loss`` at the best epoch, whose weights are kept). With ``ensemble > 1`` also
+            ``"ensemble"``, ``"member_val_loss"``, ``"member_best_epoch"``, ``"stacked"``,
+            ``"ensemble_shared"`` and, for a shared ensemble, ``"heads_cpu_seconds"`` (process CPU time
+            of training the heads); with ``recalibrate`` ``"recalibration"``.
 
         Raises:
             ShapeError: wrong array ranks/shapes or mismatched N.
             DataError: non-finite values, or fewer than 10 simulations.
             RuntimeError: the loss is non-finite in the first epoch (diverged).
+            ParameterError: ``ensemble_shared`` with ``stack_members`` / ``embedding_epochs`` or batch norm.
         """
         t0 = time.perf_counter()
-        heads_seconds = 0.0
+        heads_cpu_seconds = 0.0
         u, x = self._validate(theta_unit, x)
         c = self.config
         D = u.shape[1]
@@ -562,7 +566,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
                                                                 us_log, progress)
                     members += heads
                     epochs += head_epochs
-                    heads_seconds = time.process_time() - t_heads
+                    heads_cpu_seconds = time.process_time() - t_heads
             for m in members:
                 m.update(n_train=int(len(tr_idx)), n_val=int(len(val_idx)))
             if any(m["best_epoch"] == 0 for m in members):
@@ -589,7 +593,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             self.fit_info["stacked"] = bool(stacked)
             self.fit_info["ensemble_shared"] = shared
             if shared != "none":
-                self.fit_info["heads_seconds"] = heads_seconds
+                self.fit_info["heads_cpu_seconds"] = heads_cpu_seconds
         return dict(self.fit_info)
 
     @staticmethod
