@@ -8,9 +8,14 @@ same torch thread count (``--threads``, passed as every estimator's ``num_thread
 torch thread the CPU time is the work done, which other processes on a shared machine do not inflate
 the way they inflate the wall time), epochs, and the held-out NLL (nats, unit-cube
 coordinates, on ``--n-test`` fresh simulations of the same task) so a faster fit that is worse shows.
-Extra variants: ``rkhs-one`` (``ensemble=1, recalibrate=false``: one network) and ``rkhs-stacked``
-(the default ensemble trained as one stacked network, ``stack_members=true``); ``rkhs-freeze10`` / ``rkhs-one-freeze10``: ``embedding_epochs=10``
-(the embedding frozen after 10 epochs). ``--repeats R`` runs the whole list R times, interleaved, so every
+Extra variants: ``rkhs-shared`` (the shared-trunk ensemble of issue 16: ``ensemble_shared=trunk,
+point_subset=8, lr=0.003, patience=8`` with the default ``ensemble=5, recalibrate=true``), ``rkhs-one``
+(``ensemble=1, recalibrate=false``: one network), ``rkhs-one-fast`` (one network trained as member 0 of
+``rkhs-shared``), ``rkhs-stacked`` (the default ensemble trained as one stacked network,
+``stack_members=true``); ``rkhs-freeze10`` / ``rkhs-one-freeze10``: ``embedding_epochs=10``
+(the embedding frozen after 10 epochs). Before timing, every method is fitted once, untimed, on the first ``--warmup`` simulations (default
+100; 0: none), so lazy imports and first-call set-up are not timed (importing sbi inside sbi-npe's first
+fit costs ~1.8 CPU s, more than its whole training). ``--repeats R`` runs the whole list R times, interleaved, so every
 method sees the same machine load; the ratios to ``sbi-npe`` are taken within each repeat.
 
 Usage::
@@ -28,7 +33,12 @@ from pathlib import Path
 import numpy as np
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk", "sbi-npe"]
-VARIANTS = {"rkhs-one": ("rkhs", {"ensemble": 1, "recalibrate": False}), "rkhs-stacked": ("rkhs", {"stack_members": True}),
+# the shared-trunk ensemble of issue 16 (RKHSEstimator.SHARED_TRUNK; with rkhs's default ensemble=5, recalibrate=true)
+SHARED = {"ensemble_shared": "trunk", "point_subset": 8, "lr": 3e-3, "patience": 8}
+VARIANTS = {"rkhs-shared": ("rkhs", SHARED),
+            "rkhs-one": ("rkhs", {"ensemble": 1, "recalibrate": False}),  # one network of the default training
+            "rkhs-one-fast": ("rkhs", {**SHARED, "ensemble": 1, "recalibrate": False}),  # member 0 of rkhs-shared
+            "rkhs-stacked": ("rkhs", {"stack_members": True}),
             "rkhs-freeze10": ("rkhs", {"embedding_epochs": 10}),
             "rkhs-one-freeze10": ("rkhs", {"ensemble": 1, "recalibrate": False, "embedding_epochs": 10})}
 
@@ -42,6 +52,8 @@ def main() -> None:
     ap.add_argument("--methods", nargs="+", default=METHODS)
     ap.add_argument("--out", default="/tmp/bench_speed.json")
     ap.add_argument("--label", default="", help="a tag stored with every row (e.g. the code version)")
+    ap.add_argument("--warmup", type=int, default=100, help="simulations of the untimed warm-up fit per method (0: none)")
+    ap.add_argument("--seed", type=int, default=0, help="fit seed of every estimator (initialisation, split, batches)")
     args = ap.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "inference"))
     from test_inference import blob_task
@@ -50,18 +62,21 @@ def main() -> None:
     u, x = blob_task(args.n, T=25, K=32, seed=0)
     ut, xt = blob_task(args.n_test, T=25, K=32, seed=1)
     rows = []
+    for m in dict.fromkeys(args.methods) if args.warmup else []:
+        name, opts = VARIANTS.get(m, (m, {}))
+        registry().estimator(name)(**opts, num_threads=args.threads).fit(u[:args.warmup], x[:args.warmup], seed=0)
     for rep in range(args.repeats):
         for m in args.methods:
             name, opts = VARIANTS.get(m, (m, {}))
             est = registry().estimator(name)(**opts, num_threads=args.threads)
             cpu0 = time.process_time()
-            info = est.fit(u, x, seed=0)
+            info = est.fit(u, x, seed=args.seed)
             cpu = time.process_time() - cpu0
             qs = est.posteriors_at(xt) if hasattr(est, "posteriors_at") else [est.posterior_at(xi) for xi in xt]
             nll = float(-np.mean([q.log_prob(ui[None])[0] for q, ui in zip(qs, ut)]))
             rows.append({"estimator": m, "repeat": rep, "seconds": info["seconds"], "cpu_seconds": cpu, "epochs": info.get("epochs"),
                          "test_nll": nll, "n": args.n, "threads": args.threads,
-                         "label": args.label,
+                         "label": args.label, "seed": args.seed, "warmup": args.warmup,
                          "cov_scale": (info.get("recalibration") or {}).get("cov_scale"),
                          "member_best_epoch": info.get("member_best_epoch")})
             print(json.dumps(rows[-1]), flush=True)

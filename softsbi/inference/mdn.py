@@ -122,13 +122,17 @@ class MDNHead(nn.Module):
         self.register_buffer("_place", place, persistent=False)
 
     def forward(self, h: torch.Tensor) -> MDNParams:
-        B = h.shape[0]
-        logits = self.logits(h)
-        means = self.means(h).view(B, self.C, self.D)
-        diag = F.softplus(self.diag(h)).view(B, self.C, self.D) + self.min_scale
-        L = torch.diag_embed(diag)
-        if self.off is not None:
-            off = self.off(h).view(B, self.C, self.n_off)
-            L = L + (off @ self._place).view(B, self.C, self.D, self.D)
+        return self.assemble(self.logits(h), self.means(h), self.diag(h), self.off(h) if self.off is not None else None)
+
+    def assemble(self, logits: torch.Tensor, means: torch.Tensor, diag: torch.Tensor,
+                 off: torch.Tensor | None) -> MDNParams:
+        """Mixture parameters from the raw outputs of the four linear layers, each ``(B, ...)``: ``logits
+        (B, C)``, ``means (B, C*D)``, ``diag (B, C*D)`` (before ``softplus + min_scale``), ``off
+        (B, C*D(D-1)/2)`` (the strictly-lower Cholesky entries; None when ``D = 1``)."""
+        B = logits.shape[0]
+        means = means.reshape(B, self.C, self.D)
+        L = torch.diag_embed(F.softplus(diag).reshape(B, self.C, self.D) + self.min_scale)
+        if off is not None:
+            L = L + (off.reshape(B, self.C, self.n_off) @ self._place).view(B, self.C, self.D, self.D)
         return MDNParams(logits, means, L)
 

@@ -153,6 +153,7 @@ def test_rkhs_defaults_to_a_recalibrated_ensemble_and_the_baselines_to_one_netwo
     from softsbi.inference.baselines import NNBulkEstimator
     from softsbi.inference.estimators import RKHSEstimator
     assert RKHSEstimator.defaults()["ensemble"] == 5 and RKHSEstimator.defaults()["recalibrate"] is True
+    assert RKHSEstimator.defaults()["ensemble_shared"] == "none" and RKHSEstimator.defaults()["point_subset"] is None
     for cls in (NNBulkEstimator, BayesZoomRKHSEstimator, MDNNEstimator):
         assert cls.defaults()["ensemble"] == 1 and cls.defaults()["recalibrate"] is False
     u, x = blob_task(60, seed=0)
@@ -202,3 +203,92 @@ def test_embedding_epochs_freezes_the_embedding_after_that_epoch():
     full.fit(u, x, seed=3)
     assert not torch.allclose(full._net.features.rkhs.W.detach(), W_two)  # end to end: W keeps training
     assert not torch.allclose(frozen._net.mlp[0].weight, two._net.mlp[0].weight)  # the MLP trained on
+
+
+def test_shared_trunk_ensemble_members_share_member_0s_trunk_and_their_stacked_heads_are_their_own():
+    """ensemble_shared='trunk': every member carries member 0's embedding and first MLP layer; the other
+    members' heads differ (own initialisation and batches), and the stacked heads used in training give,
+    after write-back, exactly each member's own forward pass on the cached trunk features."""
+    from softsbi.inference.estimators import RKHSEstimator, _StackedTails
+    u, x = blob_task(150, seed=0)
+    est = RKHSEstimator(**{**FAST, "ensemble": 3, "recalibrate": True, "ensemble_shared": "trunk", "point_subset": 8,
+                           "rkhs_features": 8, "n_components": 2, "max_epochs": 6, "min_epochs": 1})
+    info = est.fit(u, x, seed=0)
+    assert info["ensemble"] == 3 and info["ensemble_shared"] == "trunk" and len(info["member_best_epoch"]) == 3
+    first, *rest = est._nets
+    for net in rest:
+        torch.testing.assert_close(net.features.rkhs.W, first.features.rkhs.W, rtol=0, atol=0)
+        torch.testing.assert_close(net.mlp[0].weight, first.mlp[0].weight, rtol=0, atol=0)
+        assert not torch.allclose(net.mlp[2].weight, first.mlp[2].weight)  # own head
+    assert not torch.allclose(rest[0].head.means.weight, rest[1].head.means.weight)
+    z = torch.as_tensor(est._standardise(x[:7].astype(np.float32)))
+    with torch.no_grad():
+        h = first.mlp[:2](first.features(z))  # the cached trunk features
+        stacked = _StackedTails([n.mlp[2:] for n in rest], [n.head for n in rest])
+        for p in stacked.parameters():
+            p.add_(0.01 * torch.randn_like(p))  # as after training: write_back must carry these into the members
+        want = stacked(h.expand(len(rest), -1, -1))
+        stacked.write_back()
+        got = [n(z) for n in rest]
+    torch.testing.assert_close(want.means.view(len(rest), 7, 2, 2), torch.stack([g.means for g in got]))
+    torch.testing.assert_close(want.scale_tril.view(len(rest), 7, 2, 2, 2), torch.stack([g.scale_tril for g in got]))
+    torch.testing.assert_close(want.logits.view(len(rest), 7, 2), torch.stack([g.logits for g in got]))
+    # the saved estimator restores the same posterior
+    again = RKHSEstimator()
+    again.load_state_dict(est.state_dict())
+    np.testing.assert_allclose(again.posterior_at(x[0]).means, est.posterior_at(x[0]).means, atol=1e-6)
+
+
+def test_point_subset_keeps_the_gripper_and_draws_distinct_points_of_each_frame():
+    from softsbi.inference.estimators import RKHSEstimator
+    _, x = blob_task(4, T=3, K=10, seed=0)
+    z = torch.as_tensor(x.astype(np.float32))
+    est = RKHSEstimator(point_subset=4)
+    v = est.training_view(z, torch.Generator().manual_seed(0))
+    assert v.shape == (4, 3, 5, 3)
+    torch.testing.assert_close(v[:, :, 0], z[:, :, 0])  # gripper row kept
+    for b in range(4):
+        for t in range(3):
+            rows = [int(torch.nonzero((z[b, t, 1:] == p).all(-1))[0]) for p in v[b, t, 1:]]
+            assert len(set(rows)) == 4  # 4 distinct points of that frame
+    assert RKHSEstimator(point_subset=0).training_view(z, torch.Generator()) is z
+    assert RKHSEstimator(point_subset=10).training_view(z, torch.Generator()) is z  # >= K: every point
+    assert RKHSEstimator(point_subset="none").config["point_subset"] is None
+    for bad in (-1, 2.5, "eight"):
+        with pytest.raises(ParameterError, match="point_subset"):
+            RKHSEstimator(point_subset=bad)
+    with pytest.raises(ParameterError, match="ensemble_shared"):
+        RKHSEstimator(ensemble_shared="heads")
+    u, x = blob_task(40, seed=0)
+    with pytest.raises(ParameterError, match="ensemble_shared=none"):
+        RKHSEstimator(**RKHSEstimator.SHARED_TRUNK, stack_members=True, max_epochs=1).fit(u, x)
+
+
+def test_shared_trunk_rkhs_fits_a_toy_problem_and_is_calibrated_on_held_out_cases():
+    """The shared-trunk ensemble (``SHARED_TRUNK`` with the default ``ensemble=5, recalibrate=True``) learns
+    the blob task: held-out NLL far below the uniform prior's 0 nats, posterior means track the truth, and
+    the expected coverage of 150 held-out cases is near nominal, where one network of the default training
+    (``ensemble=1``, no recalibration) is over-confident on the same cases (measured: 0.52 / 0.91 against
+    0.37 / 0.77 at 50 / 90 %)."""
+    from softsbi.inference.estimators import RKHSEstimator
+    u, x = blob_task(400, seed=0)
+    ut, xt = blob_task(150, seed=1)
+
+    def coverage(est):
+        qs = est.posteriors_at(xt)
+        rng = np.random.default_rng(0)
+        lq_true = np.array([q.log_prob(t[None])[0] for q, t in zip(qs, ut)])
+        lq_draws = np.stack([q.log_prob(cal.draws_in_box(q, 300, rng)) for q in qs])
+        return cal.expected_coverage(cal.hpd_levels(lq_true, lq_draws), [0.5, 0.9]), np.array([q.mean() for q in qs])
+
+    est = RKHSEstimator(**RKHSEstimator.SHARED_TRUNK)
+    info = est.fit(u, x, seed=0)
+    assert info["ensemble"] == 5 and info["ensemble_shared"] == "trunk" and "cov_scale" in info["recalibration"]
+    assert float(-est.log_prob(ut, xt).mean()) < -2.5
+    cov, means = coverage(est)
+    assert np.corrcoef(means[:, 0], ut[:, 0])[0, 1] > 0.9 and np.corrcoef(means[:, 1], ut[:, 1])[0, 1] > 0.95
+    assert 0.4 < cov[0] < 0.62 and 0.84 < cov[1] < 0.96, cov
+    one = RKHSEstimator(ensemble=1, recalibrate=False)
+    one.fit(u, x, seed=0)
+    cov_one, _ = coverage(one)
+    assert cov_one[1] < 0.84 and cov_one[1] < cov[1] - 0.05, (cov_one, cov)
