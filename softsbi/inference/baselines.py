@@ -177,7 +177,8 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
     """
 
     name: ClassVar[str] = "bayeszoom-rkhs"
-    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"hidden": (256, 256, 256), "ensemble": 1, "recalibrate": False}
+    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"hidden": (256, 256, 256), "ensemble": 1, "recalibrate": False,
+                                                **RKHSEstimator.END_TO_END}
 
     def _build(self, z_example: np.ndarray, D: int):
         net = super()._build(z_example, D)
@@ -227,7 +228,8 @@ class NNBulkEstimator(RKHSEstimator):
     name: ClassVar[str] = "nn-bulk"
     sequential: ClassVar[bool] = False
     #: the measured baseline: one network, no recalibration (rkhs's defaults are an ensemble)
-    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"n_components": 1, "ensemble": 1, "recalibrate": False}
+    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"n_components": 1, "ensemble": 1, "recalibrate": False,
+                                                **RKHSEstimator.END_TO_END}
 
 
 # ---------------------------------------------------------------------------------------- GP-bulk
