@@ -495,6 +495,12 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     s = out["sbc"]
     o.line("SBC rank uniformity (KS p): " + ", ".join(f"{n} {p:.2g}" for n, p in zip(out["parameters"],
                                                                                      s["ks_pvalue"])))
+    out_pw = c.get("outside_pointwise")
+    if out_pw is not None:
+        o.line("whole curve: " + ("inside" if c["inside_simultaneous"] else "OUTSIDE")
+               + f" the simultaneous 95% band over {len(c['levels']) - 2} levels; "
+               + (f"outside the pointwise band at {', '.join(f'{int(round(100 * g))}%' for g in out_pw)}"
+                  if out_pw else "inside the pointwise band at every level"))
     o.line(f"verdict: {out['verdict']}")
     o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
 

@@ -29,7 +29,8 @@ from scipy import stats
 
 from softsbi.core.errors import PosteriorError, ShapeError
 
-__all__ = ["draws_in_box", "hpd_levels", "expected_coverage", "coverage_band", "sbc_ranks", "rank_tests",
+__all__ = ["draws_in_box", "hpd_levels", "expected_coverage", "coverage_band", "coverage_band_simultaneous",
+           "curve_outside", "sbc_ranks", "rank_tests",
            "rank_band", "tarp_coverage", "coverage_verdict", "LEVELS"]
 
 #: credibility levels of the coverage curve
@@ -87,6 +88,25 @@ def coverage_band(n: int, levels: Sequence[float] = LEVELS, confidence: float = 
     g = np.asarray(levels, float)
     a = (1 - confidence) / 2
     return stats.binom.ppf(a, n, g) / n, stats.binom.ppf(1 - a, n, g) / n
+
+
+def coverage_band_simultaneous(n: int, levels: Sequence[float] = LEVELS,
+                               confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Simultaneous ``confidence`` band of a calibrated estimator's whole coverage curve over ``levels``
+    (``n`` test cases): the pointwise binomial band at ``1 - (1 - confidence) / L`` per level, ``L`` the
+    levels strictly inside (0, 1) (Bonferroni: a calibrated estimator's curve leaves it anywhere with
+    probability at most ``1 - confidence``). The pointwise band (:func:`coverage_band`) judges one level;
+    a curve of 21 levels leaves a 95 % pointwise band somewhere far more often than 5 % of the time even
+    when calibrated, so "the curve is inside the band" is judged with this one. Returns ``(lo, hi)``."""
+    g = np.asarray(levels, float)
+    L = max(int(((g > 0) & (g < 1)).sum()), 1)
+    return coverage_band(n, g, 1 - (1 - confidence) / L)
+
+
+def curve_outside(coverage: Sequence[float], lo: Sequence[float], hi: Sequence[float]) -> list[int]:
+    """Indices of the levels where a coverage curve lies outside a band ``(lo, hi)``."""
+    c, lo, hi = (np.asarray(a, float) for a in (coverage, lo, hi))
+    return [int(i) for i in np.flatnonzero((c < lo - 1e-12) | (c > hi + 1e-12))]
 
 
 def coverage_verdict(coverage: float, n: int, level: float, confidence: float = 0.95) -> str:

@@ -35,6 +35,10 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
     ax = fig.add_subplot(gs[:, 0])
     ax.fill_between(g, c["band_lo"], c["band_hi"], color=qc, alpha=0.5, lw=0,
                     label=f"calibrated ({int(100 * c['band_confidence'])}% binomial band)")
+    if "band_simultaneous_lo" in c:  # the whole curve's band (calibration.json before it: pointwise only)
+        for key in ("band_simultaneous_lo", "band_simultaneous_hi"):
+            ax.plot(g, c[key], color="#8a8a8a", lw=0.9, ls="--",
+                    label="whole curve: simultaneous 95% band" if key.endswith("lo") else None)
     ax.plot([0, 1], [0, 1], color="#5a5a5a", lw=1, ls=":")
     ax.plot(g, c["hpd"], color=pc, lw=2.2, marker="o", ms=3, label="expected coverage (HPD)")
     ax.plot(cal["tarp"]["levels"], cal["tarp"]["coverage"], color=pc, lw=1.2, ls="--", alpha=0.7, label="TARP")

@@ -172,8 +172,9 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
         message: progress notices.
 
     Returns:
-        The ``calibration.json`` dict: ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi``,
-        ``at_50``, ``at_90``), ``verdict_50``, ``verdict_90``, ``verdict``, ``sbc`` (per-parameter
+        The ``calibration.json`` dict: ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
+        95 %), ``band_simultaneous_lo``/``_hi`` (the whole curve's 95 % band, Bonferroni over the levels),
+        ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``), ``verdict_50``, ``verdict_90``, ``verdict``, ``sbc`` (per-parameter
         rank histograms, ``band``, ``ks_pvalue``, ``chi2_pvalue``), ``tarp``, counts and timings.
 
     Raises:
@@ -238,6 +239,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
     levels = cal.LEVELS
     cov = cal.expected_coverage(hpd, levels)
     lo, hi = cal.coverage_band(n, levels)
+    slo, shi = cal.coverage_band_simultaneous(n, levels)
     at = {g: float(cal.expected_coverage(hpd, [g])[0]) for g in (0.5, 0.9)}
     v50, v90 = (cal.coverage_verdict(at[g], n, g) for g in (0.5, 0.9))
     ranks = cal.sbc_ranks(u_test[keep], draws_a)
@@ -253,6 +255,10 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
         "parameters": space.names,
         "coverage": {"levels": levels.tolist(), "hpd": cov.tolist(), "band_lo": lo.tolist(), "band_hi": hi.tolist(),
                      "band_confidence": 0.95, "at_50": at[0.5], "at_90": at[0.9],
+                     # the whole curve is judged with the simultaneous band (Bonferroni over the levels)
+                     "band_simultaneous_lo": slo.tolist(), "band_simultaneous_hi": shi.tolist(),
+                     "outside_pointwise": [float(levels[i]) for i in cal.curve_outside(cov, lo, hi)],
+                     "inside_simultaneous": not cal.curve_outside(cov, slo, shi),
                      "band_50": [float(x[0]) for x in cal.coverage_band(n, [0.5])],
                      "band_90": [float(x[0]) for x in cal.coverage_band(n, [0.9])]},
         "verdict_50": v50, "verdict_90": v90, "verdict": calibration_verdict(v50, v90),

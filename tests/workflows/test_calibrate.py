@@ -34,6 +34,9 @@ def test_calibrate_run_writes_json_and_png_and_resumes(toy_run):
     c = out["coverage"]
     assert c["levels"][0] == 0 and c["hpd"][-1] == 1 and np.all(np.diff(c["hpd"]) >= 0)
     assert c["band_lo"][18] < 0.9 < c["band_hi"][18]
+    assert c["band_simultaneous_lo"][18] <= c["band_lo"][18] and c["band_simultaneous_hi"][18] >= c["band_hi"][18]
+    outside = [g for g, h, lo, hi in zip(c["levels"], c["hpd"], c["band_lo"], c["band_hi"]) if not lo <= h <= hi]
+    assert c["outside_pointwise"] == outside and isinstance(c["inside_simultaneous"], bool)
     assert out["verdict_90"] in ("calibrated", "over-confident", "under-confident")
     assert len(out["sbc"]["histograms"]) == 2 and sum(out["sbc"]["histograms"][0]) == out["n_test"]
     doc = json.loads((toy_run / "calibration.json").read_text())
@@ -68,6 +71,7 @@ def test_cli_calibrate_table_and_json(toy_run):
     res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1"])
     assert res.exit_code == 0, res.output
     assert "verdict:" in res.output and "90%" in res.output and "calibration.png" in res.output
+    assert "whole curve:" in res.output and "simultaneous 95% band over 19 levels" in res.output
     res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1",
                               "--json"])
     assert res.exit_code == 0, res.output
