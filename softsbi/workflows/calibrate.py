@@ -174,8 +174,9 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
     Returns:
         The ``calibration.json`` dict: ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
         95 %), ``band_simultaneous_lo``/``_hi`` (the whole curve's 95 % band, Bonferroni over the levels),
-        ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``), ``verdict_50``, ``verdict_90``, ``verdict``, ``sbc`` (per-parameter
-        rank histograms, ``band``, ``ks_pvalue``, ``chi2_pvalue``), ``tarp``, counts and timings.
+        ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``), ``verdict_50``,
+        ``verdict_90``, ``verdict``, ``sbc`` (per-parameter rank histograms, ``band``, ``ks_pvalue``,
+        ``chi2_pvalue``), ``tarp``, counts and timings.
 
     Raises:
         SchemaError: not a run directory. SoftsbiError: no finished round, or ``n_test`` < 20.

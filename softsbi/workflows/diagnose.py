@@ -391,11 +391,18 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
         lower = (c.get("drop") or 0) > 0
         rules.append(f"3. a named effect explains the misfit if check's test of its refit gives p > {a:g} and the "
                      f"refit lowers the posterior-predictive Chamfer: {c['effect']}'s refit has {m2['p_text']}{change}"
-                     f" -> {'still misspecified' if m2['misspecified'] else 'explained' if lower else 'not confirmed (the error does not fall)'}")
+                     f" -> {_rule3_outcome(m2['misspecified'], lower)}")
     if out.get("partial"):
         rules.append(f"3. no refitted named effect explains the misfit -> misspecified-unexplained "
                      f"({out['partial']} explains a part)")
     return rules
+
+
+def _rule3_outcome(misspecified: bool, lower: bool) -> str:
+    """Rule 3's outcome for one refit, in words."""
+    if misspecified:
+        return "still misspecified"
+    return "explained" if lower else "not confirmed (the error does not fall)"
 
 
 def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: int = 20) -> dict[str, Any]:
