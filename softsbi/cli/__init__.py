@@ -313,7 +313,12 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         frames: Optional[str] = typer.Option(None, help="frames that inform the posterior: 'auto' (the cloth hangs "
                                                         "clear: gripper >= 10 cm above the table), 'all', or e.g. "
                                                         "10:25; default: the recording's (DiffCloud: auto); the "
-                                                        "Chamfer metric always uses every frame"),
+                                                        "reported Chamfer is the mean over these frames"),
+        sensor: str = typer.Option("height", help="sensor model of the metric and the observed state: height (the "
+                                                  "--min-height cut, simulation and recording alike) or camera "
+                                                  "(simulated clouds from a virtual depth sensor made like "
+                                                  "DiffCloud's, from the recording's calibrated cameras; DiffCloud "
+                                                  "lift folders only)"),
         executor: str = typer.Option("local", help="where simulations run: local (process pool) or ray "
                                                    "(executor plugins; `softsbi plugins` lists them)"),
         ray_address: Optional[str] = typer.Option(None, help="with --executor ray: address of an existing Ray "
@@ -350,6 +355,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     cfg = _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
                       backend_opt, estimator_opt, n_eval, min_height, frames, executor, exe_opts, proposal)
     cfg.observer = observer
+    cfg.sensor = sensor
     images = bool(getattr(registry().observer(observer), "needs_images", False))
     if images:
         if extractor is None:

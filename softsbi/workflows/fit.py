@@ -140,7 +140,7 @@ class FitConfig:
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
         if self.sensor not in ("height", "camera"):
-            raise SoftsbiError(f"sensor must be 'height' or 'camera' (got {self.sensor!r})")
+            raise SoftsbiError(f"--sensor must be 'height' or 'camera' (got {self.sensor!r})")
         if not 0 < self.truncation_eps < 0.5:
             raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
         if self.rounds < 1:

@@ -243,3 +243,16 @@ def test_ctrl_c_says_how_to_resume_and_the_same_command_resumes(tmp_path):
     assert again.returncode == 0, again.stderr[-2000:]
     assert f"round 1: {stored} of 60 simulations already stored" in again.stderr
     assert json.loads(again.stdout)["simulations"] == 63
+
+
+def test_a_bad_or_unusable_sensor_is_one_line(tmp_path):
+    rec = _recording(tmp_path)
+    out = tmp_path / "never"
+    res = runner.invoke(app, ["fit", "--observed", str(rec), "--out", str(out), "--sensor", "lidar"])
+    assert res.exit_code == 2 and "--sensor must be 'height' or 'camera'" in res.output and not out.exists()
+    # the virtual depth sensor needs a calibrated DiffCloud folder: one line naming the fix, before simulating
+    res = runner.invoke(app, ["fit", "--observed", str(rec), "--out", str(out), "--sensor", "camera",
+                              "--rounds", "1", "--sims-per-round", "10"])
+    assert res.exit_code == 2 and "sensor='camera' needs a DiffCloud recording folder" in res.output
+    assert "use sensor='height'" in res.output and "Traceback" not in res.output
+    assert not out.exists()  # nothing left behind
