@@ -65,6 +65,7 @@ Modelling choices, stated (the source does not fix them):
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -73,6 +74,7 @@ import numpy as np
 
 from softsbi.core.camera import Camera
 from softsbi.core.errors import DataError, ShapeError
+from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_indices
 
 #: DiffCloud's lift crop box in the robot base frame, m (``filter_pointcloud`` of the post-processing,
 #: repository version): ``(min (3,), max (3,))``. The recordings tan2, redblack, redblack2 end exactly on
@@ -469,9 +471,21 @@ def diffcloud_lift_crop(clouds_scene: np.ndarray | Sequence[np.ndarray], scene_t
     return DIFFCLOUD_LIFT_CROP_EARLY
 
 
-#: share of the simulated surface samples (highest first) that stand in for an empty view, as
-#: :data:`softsbi.perception.pointcloud.FALLBACK_SHARE`
-_FALLBACK_SHARE = 0.1
+_FROM_JSON: dict[str, VirtualDepthSensor] = {}
+
+
+def sensor_from_json(d: dict) -> VirtualDepthSensor:
+    """:meth:`VirtualDepthSensor.from_json`, kept per process by the JSON's content: a simulation worker,
+    ``check`` and ``diagnose`` build each stored sensor (a fit's ``metric_camera``) once, not per rollout.
+    The sensor is immutable, so sharing it is safe.
+
+    Raises:
+        DataError: as :meth:`VirtualDepthSensor.from_json`.
+    """
+    key = json.dumps(d, sort_keys=True)
+    if key not in _FROM_JSON:
+        _FROM_JSON[key] = VirtualDepthSensor.from_json(d)
+    return _FROM_JSON[key]
 
 
 def camera_chamfer_per_frame(sensor: VirtualDepthSensor, vertices: np.ndarray, faces: np.ndarray,
@@ -496,17 +510,14 @@ def camera_chamfer_per_frame(sensor: VirtualDepthSensor, vertices: np.ndarray, f
     Raises:
         ShapeError: different frame counts.
     """
-    from softsbi.core.metrics import chamfer_terms
     v = np.asarray(vertices, float)
     if not (len(v) == len(measured) == len(surface)):
         raise ShapeError(f"frame counts differ: rollout {len(v)}, measured {len(measured)}, surface {len(surface)}")
-    bi, one = np.empty(len(v)), np.empty(len(v))
+    sims = []
     for t in range(len(v)):
         sim = sensor.observe(v[t], faces, None if gripper is None else np.asarray(gripper)[t], rng)
-        if not len(sim):
+        if not len(sim):  # nothing seen: the highest surface samples stand in (sensor_indices' fallback)
             s = np.asarray(surface[t], float)
-            k = max(1, int(round(_FALLBACK_SHARE * len(s))))
-            sim = s[np.argsort(s[:, 2])[-k:]]
-        sm, ms = chamfer_terms(sim, np.asarray(measured[t], float))
-        bi[t], one[t] = 0.5 * (sm + ms), ms
-    return bi, one
+            sim = s[sensor_indices(s, np.inf)]
+        sims.append(sim)
+    return sensor_chamfer_per_frame(sims, measured, None)  # the simulated views are the sensor's already

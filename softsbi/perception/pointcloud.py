@@ -194,8 +194,8 @@ class PointCloudObserver(Observer):
         self.occluder = None if occluder is None else dict(occluder)
         self.camera = None
         if camera is not None:
-            from softsbi.perception.depth_sensor import VirtualDepthSensor
-            self.camera = VirtualDepthSensor.from_json(camera)
+            from softsbi.perception.depth_sensor import sensor_from_json
+            self.camera = sensor_from_json(camera)
 
     def _unoccluded(self, cloud: np.ndarray) -> np.ndarray:
         if self.occluder is None:

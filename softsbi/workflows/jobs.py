@@ -49,7 +49,6 @@ class SimContext:
 
 
 _WORKER_CACHE: dict[str, Any] = {}
-_CAMERA_CACHE: dict[str, Any] = {}
 
 
 def _objects(ctx: SimContext) -> tuple[Any, Any, Scenario]:
@@ -118,9 +117,8 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     elif ctx.dense is not None:
         surface = rollout_clouds(ro, ctx.n_dense, rng)
         if ctx.camera is not None:  # the virtual depth sensor makes the simulated clouds (FitConfig.sensor)
-            from softsbi.perception.depth_sensor import VirtualDepthSensor, camera_chamfer_per_frame
-            key = json.dumps(ctx.camera, sort_keys=True)
-            sensor = _CAMERA_CACHE.get(key) or _CAMERA_CACHE.setdefault(key, VirtualDepthSensor.from_json(ctx.camera))
+            from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
+            sensor = sensor_from_json(ctx.camera)
             ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface, rng)
         else:
             ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, ctx.min_z)

@@ -93,9 +93,8 @@ def rollout_features(run: "RunView", rollout: dict[str, Any], seed: int) -> np.n
     (``FitConfig.sensor == "camera"``), that sensor's clouds of the rollout."""
     camera = run.config.get("metric_camera")
     if camera is not None:
-        from softsbi.perception.depth_sensor import VirtualDepthSensor
-        sensor = VirtualDepthSensor.from_json(camera)
-        clouds = sensor.observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
+        from softsbi.perception.depth_sensor import sensor_from_json
+        clouds = sensor_from_json(camera).observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
                                         np.random.default_rng([seed, 23]))
         return trajectory_features(clouds, None, run.metric_frames)
     return run_features(run, sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed))
