@@ -179,6 +179,23 @@ def _hpd_levels_by_scale(p: MDNParams, u: torch.Tensor, scales: Sequence[float],
     return out
 
 
+def _member_batches(n: int, batch_size: int, rngs: Sequence[np.random.Generator]) -> list[np.ndarray]:
+    """One epoch's batches for ``E = len(rngs)`` models trained together: batch ``j`` is ``(E, b)``, row ``e``
+    member ``e``'s ``j``-th balanced minibatch drawn by its own generator (as when it trains alone)."""
+    per = [minibatches(n, batch_size, rng, balanced=True) for rng in rngs]
+    return [np.stack([p[j] for p in per]) for j in range(len(per[0]))]
+
+
+def _member_results(info: Mapping[str, Any]) -> tuple[list[dict[str, Any]], int]:
+    """Per-member ``{"epochs", "best_epoch", "val_loss", "train_loss", "last_train_loss"}`` of a
+    :func:`~softsbi.inference.training.fit_early_stopping_stacked` result, and the sum of their epochs."""
+    members = [{"epochs": int(ep), "best_epoch": int(be), "val_loss": float(vl), "train_loss": float(tl),
+                "last_train_loss": float(lt)}
+               for ep, be, vl, tl, lt in zip(info["member_epochs"], info["best_epoch"], info["val_loss"],
+                                              info["train_loss"], info["last_train_loss"])]
+    return members, int(sum(info["member_epochs"]))
+
+
 class _StackedTails(nn.Module):
     """``E`` copies of ``MLP layers -> MDNHead`` with their weights stacked along a leading member axis and
     applied with batched matrix products (``torch.baddbmm``): the ``E`` heads of the shared-embedding
@@ -670,8 +687,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             return train_nll(p, b, zb, u_tr[idx], False) / idx.shape[1]
 
         def batches() -> list[np.ndarray]:
-            per = [minibatches(n_tr, int(c["batch_size"]), rng, balanced=True) for rng in rngs]
-            return [np.stack([p[j] for p in per]) for j in range(len(per[0]))]
+            return _member_batches(n_tr, int(c["batch_size"]), rngs)
 
         def validate(active: torch.Tensor) -> np.ndarray:
             p, b = sub(active)
@@ -699,10 +715,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
                 for name, p in net.named_parameters():
                     p.copy_(params[name][e])
                 net.eval()
-        members = [{"epochs": int(info["member_epochs"][e]), "best_epoch": int(info["best_epoch"][e]),
-                    "val_loss": float(info["val_loss"][e]), "train_loss": float(info["train_loss"][e]),
-                    "last_train_loss": float(info["last_train_loss"][e])} for e in range(E)]
-        return members, int(sum(info["member_epochs"]))
+        return _member_results(info)
 
     def _fit_shared_heads(self, nets: list[MDNNetwork], shared: str, z_tr: torch.Tensor, u_tr: torch.Tensor,
                           z_va: torch.Tensor, u_va: torch.Tensor, rngs: list[np.random.Generator], us_log: float,
@@ -755,8 +768,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
             return -lp.mean(1)[active]  # all members computed (small), only the active ones learn
 
         def batches() -> list[np.ndarray]:
-            per = [minibatches(n_tr, int(c["batch_size"]), rng, balanced=True) for rng in rngs]
-            return [np.stack([q[j] for q in per]) for j in range(len(per[0]))]
+            return _member_batches(n_tr, int(c["batch_size"]), rngs)
 
         u_va_all = u_va.repeat(E, 1)
 
@@ -773,10 +785,7 @@ class NeuralMDNEstimator(PosteriorEstimator):
         tails.write_back()
         for net in rest:
             net.eval()
-        members = [{"epochs": int(info["member_epochs"][e]), "best_epoch": int(info["best_epoch"][e]),
-                    "val_loss": float(info["val_loss"][e]), "train_loss": float(info["train_loss"][e]),
-                    "last_train_loss": float(info["last_train_loss"][e])} for e in range(E)]
-        return members, int(sum(info["member_epochs"]))
+        return _member_results(info)
 
     #: covariance scale factors tried by ``recalibrate`` (1 = the trained posterior)
     RECAL_SCALES: ClassVar[tuple[float, ...]] = (0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.65, 1.8, 2.0, 2.25,
