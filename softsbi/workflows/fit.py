@@ -767,7 +767,8 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         "chamfer_posterior_std_m": ev_stats.get("std_m"),
         # the metric (issue 17): per frame, simulated and measured clouds seen through the fit's sensor
         # model; the headline values above are the mean over metric_frames
-        "metric_min_z_m": metric_sensor(cfg, recording.scenario)["metric_min_z"] if metric == "chamfer_m" else None,
+        # the sensor model stored with the run, which its simulations' per-frame metric used (_sim_context)
+        "metric_min_z_m": loop.store.config.get("metric_min_z") if metric == "chamfer_m" else None,
         "metric_frames": cfg.frames if metric == "chamfer_m" else None, "metric_sensor": cfg.sensor,
         "chamfer_posterior_one_sided_m": ev_stats.get("one_sided_mean_m"),
         "chamfer_posterior_one_sided_std_m": ev_stats.get("one_sided_std_m"),
