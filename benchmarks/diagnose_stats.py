@@ -50,6 +50,15 @@ SUITES: dict[str, dict[str, Any]] = {
                      "data_backend_options": {"grid": 7}, "scenarios": ["lift", "wipe", "fling"],
                      "effects": ["wind", "air-drag", "extra-damping", "grip-compliance"],
                      "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
+    # the candidates added with the effect door (issue 19 item 1): physics (table-slope, sticky-patch,
+    # heavy-hem) and sensor (calibration-offset, time-offset, point-noise) effects hidden, and all ten named
+    # candidates screened
+    "mujoco-more": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
+                    "effects": ["table-slope", "sticky-patch", "heavy-hem", "calibration-offset", "time-offset",
+                                "point-noise"],
+                    "candidates": ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope",
+                                   "sticky-patch", "heavy-hem", "calibration-offset", "time-offset", "point-noise"],
+                    "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     "toy": {"backend": "toy-gauss", "scenarios": ["toy"], "effects": ["toy-wind"], "backend_options": {},
             "n_points": 16, "n_dense": 64, "estimator_options": {"max_epochs": 80, "hidden": [64, 64]}},
 }
@@ -96,8 +105,11 @@ def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
 
 
 def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: int, max_null: int,
-             confirm: int, workers: int | None) -> dict[str, Any]:
-    """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields."""
+             confirm: int, workers: int | None, confirm_budget: dict[str, int] | None = None) -> dict[str, Any]:
+    """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields.
+
+    ``confirm_budget``: ``{"rounds", "sims_per_round"}`` of the confirmation refits (default: the
+    nominal fit's); the suite's ``candidates`` (default its ``effects``) are screened."""
     t0 = time.perf_counter()
     cfg = SUITES[case["suite"]]
     hidden = [] if case["truth_label"] in ("control", "other-engine") else [case["truth_label"]]
@@ -110,8 +122,8 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
                    n_dense=cfg["n_dense"], seed=case["index"], estimator_options=cfg["estimator_options"])
     run_dir = out / case["id"]
     run_fit(run_dir, meas, fc)
-    d = diagnose_run(run_dir, effects=cfg["effects"], n_null=n_null, max_null=max_null, workers=workers,
-                     confirm=confirm)
+    d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=n_null, max_null=max_null,
+                     workers=workers, confirm=confirm, confirm_budget=confirm_budget)
     named = d["selected"] if d["verdict"] == "missing-effect" else None
     called = named or d["verdict"]
     return {**case, "verdict": d["verdict"], "named": named, "called": called,
@@ -126,7 +138,7 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
                         (c.get("misspecification_after") or {}).get("misspecified")] for c in d["confirmed"]],
             "screening_verdict": d.get("screening_verdict", d["verdict"]),
             "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null,
-                       "confirm": confirm},
+                       "confirm": confirm, "confirm_budget": confirm_budget},
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
 
 
@@ -161,13 +173,15 @@ def done_ids(results: Path) -> set[str]:
 
 def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
-              workers: int | None = None, only: set[str] | None = None) -> list[dict[str, Any]]:
+              workers: int | None = None, only: set[str] | None = None,
+              confirm_budget: dict[str, int] | None = None) -> list[dict[str, Any]]:
     """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
 
     ``only``: run just the cases whose ``truth_label`` is in this set (e.g. ``{"control"}``); the
     other indices are skipped, not renumbered, so every case keeps its definition. With ``confirm``
     > 0 (refits) a case is stored under its own id with the suffix ``-refit<confirm>``: the screening-only
-    and the refitted diagnosis of a case are two rows, summarised separately (:func:`select_rows`)."""
+    and the refitted diagnosis of a case are two rows, summarised separately (:func:`select_rows`); with a
+    ``confirm_budget`` the suffix also names it (``-refit2-3x100``)."""
     have = done_ids(results)
     results.parent.mkdir(parents=True, exist_ok=True)
     new = []
@@ -177,10 +191,12 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
             continue
         if confirm:
             case["id"] += f"-refit{confirm}"
+            if confirm_budget:
+                case["id"] += f"-{confirm_budget['rounds']}x{confirm_budget['sims_per_round']}"
         if case["id"] in have:
             continue
         try:
-            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers)
+            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget)
         except Exception as exc:  # noqa: BLE001 - a failed case is recorded, not retried silently
             row = {**case, "error": f"{type(exc).__name__}: {exc}"}
         with results.open("a") as f:
@@ -192,9 +208,14 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
     return new
 
 
-def select_rows(rows: list[dict[str, Any]], confirm: int = 0) -> list[dict[str, Any]]:
-    """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none)."""
-    return [r for r in rows if int((r.get("budget") or {}).get("confirm", 0)) == confirm]
+def select_rows(rows: list[dict[str, Any]], confirm: int = 0, confirm_budget: str | None = None) -> list[dict[str, Any]]:
+    """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none),
+    and with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget."""
+    def budget(r):
+        cb = (r.get("budget") or {}).get("confirm_budget")
+        return f"{cb['rounds']}x{cb['sims_per_round']}" if cb else None
+    return [r for r in rows if int((r.get("budget") or {}).get("confirm", 0)) == confirm
+            and (confirm_budget is None or budget(r) == confirm_budget)]
 
 
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
@@ -297,6 +318,8 @@ def main() -> None:
     r.add_argument("--max-null", type=int, default=200)
     r.add_argument("--confirm", type=int, default=0)
     r.add_argument("--workers", type=int, default=None)
+    r.add_argument("--confirm-budget", default=None, help="ROUNDSxSIMS of the confirmation refits (default: "
+                                                          "the nominal fit's)")
     r.add_argument("--only", default=None, help="comma-separated truth labels to run (e.g. control); other "
                                                 "indices in --cases are skipped")
     f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
@@ -309,6 +332,7 @@ def main() -> None:
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
     s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits")
+    s.add_argument("--confirm-budget", default=None, help="only rows whose refits had this budget (3x100)")
     a = ap.parse_args()
     if a.cmd == "refit":
         for item in a.runs.split(","):
@@ -321,10 +345,15 @@ def main() -> None:
             indices: Any = range(lo, hi)
         else:
             indices = [int(x) for x in a.cases.split(",")]
+        cb = None
+        if a.confirm_budget:
+            r_, n_ = (int(x) for x in a.confirm_budget.lower().split("x"))
+            cb = {"rounds": r_, "sims_per_round": n_}
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
-                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None)
+                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb)
     else:
-        rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()], a.confirm)
+        rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()], a.confirm,
+                           a.confirm_budget)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

@@ -68,7 +68,7 @@ def _fake_refits(monkeypatch, after):
 
     def fake(run, name, budget, workers, **stat):
         ch, p = after[name]
-        mis = {"p_value": p, "p_text": f"p = {p:.2g}", "misspecified": p <= stat["alpha"]}
+        mis = {"p_value": p, "p_text": f"p = {p:.2g}", "misspecified": p <= stat["alpha"], "alpha": stat["alpha"]}
         return {"effect": name, "run": name, "chamfer_before_m": 0.03, "chamfer_after_m": ch, "drop": 1 - ch / 0.03,
                 "posterior_mean": {}, "misspecification_after": mis}
     monkeypatch.setattr(dg, "confirm_effect", fake)
@@ -115,6 +115,19 @@ def test_a_refit_check_accepts_but_whose_error_rises_confirms_nothing(monkeypatc
     assert any("wind's refit has p = 0.84 (Chamfer 90% higher) -> not confirmed (the error does not fall)" in r
                for r in out["rules"])
     assert "the error does not fall, so wind is not confirmed" in out["summary"]
+
+
+def test_a_refit_at_the_edge_of_its_posterior_predictive_explains_a_part_only(monkeypatch):
+    """Rule 3's level is EXPLAIN_ALPHA (0.1), not alpha: a refit with p = 0.05 is not rejected by check at
+    0.01 but is not taken as the explanation either (data from another engine: p = 0.097, 5% lower)."""
+    dg = _fake_refits(monkeypatch, {"wind": (0.0285, 0.05)})
+    out = _fake_diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 1)
+    assert dg.EXPLAIN_ALPHA == 0.1
+    assert out["verdict"] == "misspecified-unexplained" and out["partial"] == "wind" and out["selected"] is None
+    assert any("refit gives p > 0.1 and the refit lowers" in r and "wind's refit has p = 0.05" in r
+               for r in out["rules"])
+    assert "p = 0.05 <= 0.1, the level a confirmation needs" in out["summary"]
 
 
 def test_a_refit_check_accepts_and_that_lowers_the_error_names_the_effect(monkeypatch):
