@@ -59,6 +59,15 @@ SUITES: dict[str, dict[str, Any]] = {
                     "candidates": ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope",
                                    "sticky-patch", "heavy-hem", "calibration-offset", "time-offset", "point-noise"],
                     "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
+    # pairs of hidden effects (issue 19 item 5): both switched on at magnitudes in [0.4, 1]; right = the
+    # verdict names both (the selected effect and the forward selection's second), nothing else
+    "pairs": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
+              "pairs": [["wind", "extra-damping"], ["wind", "calibration-offset"],
+                        ["extra-damping", "calibration-offset"]], "magnitude_range": [0.4, 1.0],
+              "effects": ["wind", "extra-damping", "calibration-offset"],
+              "candidates": ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope",
+                             "sticky-patch", "heavy-hem", "calibration-offset", "time-offset", "point-noise"],
+              "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     "toy": {"backend": "toy-gauss", "scenarios": ["toy"], "effects": ["toy-wind"], "backend_options": {},
             "n_points": 16, "n_dense": 64, "estimator_options": {"max_epochs": 80, "hidden": [64, 64]}},
 }
@@ -78,12 +87,16 @@ CORRECT_VERDICT = {"control": "nothing-missing", "other-engine": "misspecified-u
 
 def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
     """Case ``i`` of ``suite`` (deterministic from ``seed`` and ``i``): ``id``, ``truth_label``
-    (``control`` or the hidden effect), ``scenario``, ``truth`` (physical units), ``magnitude``."""
+    (``control``, ``other-engine``, the hidden effect, or for the ``pairs`` suite two effects joined by
+    ``+``), ``scenario``, ``truth`` (physical units), ``magnitude`` (the smallest of a pair's)."""
     cfg = SUITES[suite]
     rng = np.random.default_rng([seed, i, 41])
     effects = cfg["effects"]
     k = i % (1 + len(effects))
-    label = "other-engine" if "data_backend" in cfg else "control" if k == 0 else effects[k - 1]
+    if "pairs" in cfg:
+        label = "+".join(cfg["pairs"][i % len(cfg["pairs"])])
+    else:
+        label = "other-engine" if "data_backend" in cfg else "control" if k == 0 else effects[k - 1]
     scen = cfg["scenarios"][int(rng.integers(len(cfg["scenarios"])))]
     sc = _scenario(scen)
     reg = registry()
@@ -91,15 +104,16 @@ def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
     space = reg.simulator(data_backend)(**cfg.get("data_backend_options", cfg["backend_options"])).param_space(sc)
     truth = space.as_dict(space.from_unit(rng.uniform(0.2, 0.8, space.dim)))
     magnitude = None
-    if label not in ("control", "other-engine"):
-        magnitude = float(rng.uniform(0.1, 1.0))
-        eff = reg.effect(label)()
+    for name in ([] if label in ("control", "other-engine") else label.split("+")):
+        m = float(rng.uniform(*cfg.get("magnitude_range", (0.1, 1.0))))
+        magnitude = m if magnitude is None else min(m, magnitude)
+        eff = reg.effect(name)()
         es, nom = eff.param_space(), eff.nominal()
         for p in es:
             ps1 = es.subset([p.name])
             u0 = float(ps1.to_unit(np.array([nom[p.name]]))[0])
             edge = (1.0 if rng.random() < 0.5 else 0.0) if 0.05 < u0 < 0.95 else (1.0 if u0 <= 0.05 else 0.0)
-            truth[p.name] = float(ps1.from_unit(np.array([u0 + magnitude * (edge - u0)]))[0])
+            truth[p.name] = float(ps1.from_unit(np.array([u0 + m * (edge - u0)]))[0])
     return {"id": f"{suite}-s{seed}-{i}", "suite": suite, "index": i, "truth_label": label, "scenario": scen,
             "truth": truth, "magnitude": magnitude}
 
@@ -112,7 +126,7 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     nominal fit's); the suite's ``candidates`` (default its ``effects``) are screened."""
     t0 = time.perf_counter()
     cfg = SUITES[case["suite"]]
-    hidden = [] if case["truth_label"] in ("control", "other-engine") else [case["truth_label"]]
+    hidden = [] if case["truth_label"] in ("control", "other-engine") else case["truth_label"].split("+")
     meas = simulate_recording(cfg.get("data_backend", cfg["backend"]), _scenario(case["scenario"]), case["truth"],
                               backend_options=cfg.get("data_backend_options", cfg["backend_options"]), effects=hidden,
                               n_points=cfg["n_points"],
@@ -125,9 +139,11 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=n_null, max_null=max_null,
                      workers=workers, confirm=confirm, confirm_budget=confirm_budget)
     named = d["selected"] if d["verdict"] == "missing-effect" else None
-    called = named or d["verdict"]
-    return {**case, "verdict": d["verdict"], "named": named, "called": called,
-            "correct": (named == hidden[0]) if hidden else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
+    named_all = [named] + [e for e in d["significant"] if e != named] if named else []
+    called = "+".join(sorted(named_all)) if len(hidden) > 1 and named else named or d["verdict"]
+    return {**case, "verdict": d["verdict"], "named": named, "called": called, "named_all": named_all,
+            "correct": (sorted(named_all) == sorted(hidden) if len(hidden) > 1 else named == hidden[0]) if hidden
+            else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
             "second": d["significant"][1:], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
             if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"],
