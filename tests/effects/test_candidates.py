@@ -7,7 +7,7 @@ import pytest
 
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.effects.generic import GENERIC_EFFECTS
-from softsbi.effects.physics import PHYSICS_EFFECTS
+from softsbi.effects.physics import PHYSICS_EFFECTS, TableSlope
 from softsbi.effects.sensor import SENSOR_EFFECTS
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario, wipe_scenario
@@ -52,10 +52,22 @@ def test_heavy_hem_lowers_the_hanging_cloth(base):
     assert (v[-1, :, 2] - base["lift"][-1, :, 2]).mean() < -0.005
 
 
-@pytest.mark.parametrize("direction,sign", [(90.0, 1.0), (-90.0, -1.0)])
-def test_table_slope_pulls_the_dragged_cloth_downhill(base, direction, sign):
-    v = _run(WIPE, ["table-slope"], slope_deg=10.0, slope_dir=direction).vertices
+@pytest.mark.parametrize("slope_y,sign", [(10.0, 1.0), (-10.0, -1.0)])
+def test_table_slope_pulls_the_dragged_cloth_downhill(base, slope_y, sign):
+    v = _run(WIPE, ["table-slope"], slope_x=0.0, slope_y=slope_y).vertices
     assert sign * (v[-1, :, 1] - base["wipe"][-1, :, 1]).mean() > 0.01
+
+
+def test_table_slope_is_one_force_in_its_two_components():
+    """A tilt along x and y together is the tilt of their combined gradient: downhill along it, with
+    magnitude m g sin(alpha), tan(alpha) = |gradient| (5 deg along x and y: alpha = 7.06 deg)."""
+    from types import SimpleNamespace
+    ctx = SimpleNamespace(x0=np.zeros((2, 3)), table_z=0.0, gravity=np.array([0.0, 0.0, -9.81]), mass=np.ones(2))
+    f = TableSlope().force(np.zeros((2, 3)), np.zeros((2, 3)), 0.0, {"slope_x": 5.0, "slope_y": 5.0}, ctx)
+    a = np.arctan(np.hypot(np.tan(np.radians(5.0)), np.tan(np.radians(5.0))))
+    np.testing.assert_allclose(f[0, :2], 9.81 * np.sin(a) / np.sqrt(2) * np.ones(2), rtol=1e-12)
+    np.testing.assert_allclose(f[0, 2], 9.81 * (1 - np.cos(a)), rtol=1e-12)
+    assert np.degrees(a) == pytest.approx(7.06, abs=0.01)
 
 
 def test_sticky_patch_holds_the_dragged_cloth_back(base):
