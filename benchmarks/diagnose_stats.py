@@ -294,6 +294,8 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
                          "named_correctly": sum(bool(r["correct"]) for r in b)})
         power[eff] = bins
     out["power"] = power
+    out["thresholds"] = {eff: detection_threshold([r for r in rows if r["truth_label"] == eff])
+                         for eff in power if "+" not in eff}
     other = [r for r in rows if r["truth_label"] == "other-engine"]
     if other:
         out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other),
@@ -308,6 +310,33 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
               for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
     if excess:
         out["refit_drop_of_reducible"] = {"n": len(excess), "median": float(np.median(excess))}
+    return out
+
+
+def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9) -> dict[str, Any]:
+    """The measured detection threshold of one hidden effect: a logistic power curve
+    ``P(named correctly | magnitude m) = 1 / (1 + exp(-(a + b m)))`` fitted by maximum likelihood to the
+    cases (scipy), and the magnitude ``m_level`` where it reaches ``level`` (None when it does not within
+    (0, 1], or when the fit is degenerate: all cases named or none). Then the criterion as measured: of
+    the cases with magnitude >= ``m_level``, how many were named correctly."""
+    from scipy.optimize import minimize
+    m = np.array([r["magnitude"] for r in rows], float)
+    y = np.array([bool(r["correct"]) for r in rows], float)
+    out: dict[str, Any] = {"n": len(rows), "named_correctly": int(y.sum()), "level": level, "m_level": None}
+    if len(rows) < 4 or y.sum() == 0:
+        return out
+
+    def nll(w):
+        z = w[0] + w[1] * m
+        return float(np.sum(np.logaddexp(0, z) - y * z)) + 1e-3 * float(w @ w)  # tiny ridge: separable data
+
+    w = minimize(nll, np.zeros(2), method="BFGS").x
+    out["curve"] = [float(w[0]), float(w[1])]
+    if w[1] > 0:
+        m_lv = (np.log(level / (1 - level)) - w[0]) / w[1]
+        if 0 < m_lv <= 1:
+            above = m >= m_lv
+            out.update(m_level=float(m_lv), above=int(above.sum()), above_named=int(y[above].sum()))
     return out
 
 
@@ -330,6 +359,15 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     for eff, bins in summary["power"].items():
         out.append(f"| {eff} | " + " | ".join(f"{b['named_correctly']}/{b['n']} named ({b['detected']} detected)"
                                               if b["n"] else "-" for b in bins) + " |")
+    th = {k: v for k, v in (summary.get("thresholds") or {}).items() if v["n"]}
+    if th:
+        out.append("\n| hidden effect | cases | named correctly | magnitude where the fitted power curve reaches 90% "
+                   "| named correctly above it |")
+        out.append("|---|---|---|---|---|")
+        for eff, t in th.items():
+            lv = (f"{t['m_level']:.2f}", f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
+                else ("not reached in (0, 1]", "-")
+            out.append(f"| {eff} | {t['n']} | {t['named_correctly']} | {lv[0]} | {lv[1]} |")
     if summary.get("other_engine"):
         oe = summary["other_engine"]
         out.append(f"\nOther engine: {oe['misspecified-unexplained']} of {oe['n']} misspecified-unexplained "
