@@ -239,7 +239,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
     Returns:
         dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts),
         ``region_error_m`` (T x R mean under the fit's sensor model, :func:`rollout_region_errors`; 0 where
-        a region is never seen), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
+        no rollout's region is seen), ``region_compared`` (T x R bool: False where it is 0 for that
+        reason, not for a perfect fit), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
         (``"camera"``, ``"height"`` or ``"none"``, :func:`sensor_model`),
         ``worst_frames``, ``worst_regions``, ``misspecification`` (statistic, Monte-Carlo ``p_value``
         with ``p_text`` stating its resolution, ``misspecified``, ``rule``) and a ``summary`` sentence.
@@ -311,6 +312,7 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
            "chamfer_mean_m": stats["mean_m"], "chamfer_one_sided_mean_m": one,
            "metric_min_z_m": min_z, "metric_frames": frames, "metric_sensor": model["kind"],
            "regions": names, "region_error_m": np.nan_to_num(reg_mean).tolist(),
+           "region_compared": np.isfinite(reg_mean).tolist(),
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
            "misspecification": mis, "summary": summary, "seconds": time.perf_counter() - t0}

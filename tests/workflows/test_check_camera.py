@@ -112,6 +112,8 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
         warnings.simplefilter("ignore", RuntimeWarning)  # (frame, region) pairs no rollout's camera sees
         mean = np.nanmean(reg, axis=0)
     np.testing.assert_allclose(chk["region_error_m"], np.nan_to_num(mean), rtol=1e-12)
+    compared = np.array(chk["region_compared"])
+    assert np.array_equal(compared, np.isfinite(mean)) and not compared.all()  # unseen cells are flagged, not 0 cm
     # diagnose's null: another rollout stands in for the measurement, seen through the same camera, so its
     # cloth lying on the table is not blamed on the regions the camera sees
     r, o = ok[0], ok[1]
