@@ -169,8 +169,9 @@ def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndar
         return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, run.metric_min_z)
     if measured_rollout is not None:
         mr = measured_rollout
+        # seeded like the null's summaries of that rollout (rollout_features, seed 1000 + its sample)
         views = sensor.observe_rollout(mr["vertices"], mr["faces"], mr.get("gripper"),
-                                       np.random.default_rng([int(mr.get("sample", 0)), 23]))
+                                       np.random.default_rng([1000 + int(mr.get("sample", 0)), 23]))
         measured = [c if len(c) else np.asarray(m, float)[sensor_indices(np.asarray(m, float), np.inf)]
                     for c, m in zip(views, measured)]
     return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, None, sensor,

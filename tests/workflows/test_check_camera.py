@@ -123,6 +123,12 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     mid = slice(8, 15)  # the cloth partly lifted
     assert np.nanmean(through[mid]) < np.nanmean(raw[mid])
     assert np.array_equal(np.isnan(through[mid]), np.isnan(raw[mid]))  # same simulated side, same regions
+    # diagnose's residual shape runs through this path on a camera fit
+    from softsbi.workflows.diagnose import residual_shape
+    from softsbi.workflows.stats import PosteriorPredictive
+    shape = residual_shape(view, PosteriorPredictive(view, workers=1).ensure(6), 6)
+    exc = shape["region_excess_cm"]
+    assert list(exc) == names and any(v is not None and np.isfinite(v) for v in exc.values())
 
 
 @needs_data
