@@ -66,9 +66,10 @@ Modelling choices, stated (the source does not fix them):
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -252,6 +253,8 @@ class VirtualDepthSensor:
                                      np.hstack([R @ A, (R @ (b - o) + t)[:, None]])))
         object.__setattr__(self, "_scene_cams", tuple(scene_cams))
         object.__setattr__(self, "_robot_to_scene", np.linalg.inv(m))
+        # renders kept while shared_renders() is active: {"depth": nesting, "memo": {frame key: (P, 3)}}
+        object.__setattr__(self, "_shared", {"depth": 0, "memo": {}})
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -378,6 +381,40 @@ class VirtualDepthSensor:
             out.append(pr + off)
         return out
 
+    @contextmanager
+    def shared_renders(self) -> Iterator["VirtualDepthSensor"]:
+        """Within the block every distinct frame is rendered once: :meth:`observe` of the same
+        ``(vertices, faces, gripper)`` (compared by value) reuses the kept pixels of the first call, and the
+        subsampling still draws from each call's ``rng`` exactly as without the block, so the results are
+        bit-identical. A simulation job wraps its observer and its metric in it (both see every frame of
+        the rollout through this sensor); the kept renders are dropped when the outermost block ends.
+        Nesting is allowed."""
+        st = self._shared
+        st["depth"] += 1
+        try:
+            yield self
+        finally:
+            st["depth"] -= 1
+            if st["depth"] <= 0:
+                st["depth"] = 0
+                st["memo"].clear()
+
+    def _kept_points(self, vertices: np.ndarray, faces: np.ndarray, gripper: np.ndarray | None) -> np.ndarray:
+        """Steps 1-4 before the subsampling: every kept pixel ``(P, 3)`` of all cameras, robot frame with the
+        offsets added; memoised by value inside :meth:`shared_renders` (read-only then)."""
+        st = self._shared
+        if not st["depth"]:
+            return np.concatenate(self._camera_points(vertices, faces, gripper), axis=0)
+        v, f = np.ascontiguousarray(vertices, float), np.ascontiguousarray(faces)
+        g = None if gripper is None else np.ascontiguousarray(gripper, float)
+        key = (v.shape, v.tobytes(), f.shape, f.dtype.str, f.tobytes(), None if g is None else g.tobytes())
+        pts = st["memo"].get(key)
+        if pts is None:
+            pts = np.concatenate(self._camera_points(vertices, faces, gripper), axis=0)
+            pts.setflags(write=False)
+            st["memo"][key] = pts
+        return pts
+
     def observe(self, vertices: np.ndarray, faces: np.ndarray, gripper: np.ndarray | None,
                 rng: np.random.Generator) -> np.ndarray:
         """The virtual sensor's cloud of one simulated frame.
@@ -394,7 +431,7 @@ class VirtualDepthSensor:
         Raises:
             ShapeError: bad ``vertices`` / ``faces``.
         """
-        pts = np.concatenate(self._camera_points(vertices, faces, gripper), axis=0)
+        pts = self._kept_points(vertices, faces, gripper)
         if len(pts) and self.n_points:
             pts = pts[rng.choice(len(pts), size=self.n_points, replace=True)]
         return pts @ self._robot_to_scene[:3, :3].T + self._robot_to_scene[:3, 3]

@@ -7,10 +7,11 @@ and a misspecification test (is the measurement's summary vector inside the dist
 posterior-predictive summaries?) with a simulation-based p-value.
 
 Every distance sees the simulated and the measured clouds through the fit's own sensor model
-(:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, and the
-headline averages the fit's ``frames``), so the check's mean Chamfer is the fit's
-``chamfer_posterior_m`` and it does not blame what the sensor cannot see (issue 17). Both the
-bidirectional and the one-sided (measured -> simulated) Chamfer are reported per frame.
+(:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, or for
+``--sensor camera`` the recording's virtual depth sensor, and the headline averages the fit's
+``frames``), so the check's mean Chamfer is the fit's ``chamfer_posterior_m`` and neither it nor the
+per-region errors blame what the sensor cannot see (issue 17). Both the bidirectional and the
+one-sided (measured -> simulated) Chamfer are reported per frame.
 
 Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,
 horizontal extent), which both simulated surfaces and real partial clouds have.
@@ -28,10 +29,11 @@ from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK, Scenario
+from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
-from softsbi.workflows.runs import load_run
+from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL,  # noqa: F401 (re-exported)
                                      PosteriorPredictive, cloud_features, misspecification_test, sampled_points,
                                      trajectory_features)
@@ -77,16 +79,34 @@ def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) 
 
 
 def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, dense: np.ndarray,
-                  n_regions: int | None = None, min_z: float | None = None) -> np.ndarray:
+                  n_regions: int | None = None, min_z: float | None = None,
+                  camera: VirtualDepthSensor | None = None, gripper: np.ndarray | None = None) -> np.ndarray:
     """Bidirectional nearest-neighbour error ``(T, R)`` (m) per frame and region.
 
     Simulated points of a region (its vertices and the centroids of faces whose first vertex
     is in it) contribute their distance to the nearest measured point; measured points are
     assigned to the region of their nearest simulated point and contribute that distance.
-    With ``min_z`` (the fit's sensor model, m) both sides keep only what the sensor sees
-    (:func:`~softsbi.perception.pointcloud.sensor_view`): a region lying flat on the table is then
-    not compared (NaN) unless no point of the frame is seen.
+    Both sides keep only what the fit's sensor model sees, so a region lying flat on the table is
+    not compared (NaN) unless no point of the frame is seen (then the highest 10 % of the simulated
+    points stand in, :func:`~softsbi.perception.pointcloud.sensor_indices`' fallback, as in the metric):
+
+    - ``min_z`` (the height cut, m): both sides through
+      :func:`~softsbi.perception.pointcloud.sensor_view`;
+    - ``camera`` (the fit's virtual depth sensor): the simulated points the sensor sees
+      (:meth:`~softsbi.perception.depth_sensor.VirtualDepthSensor.seen` against the rollout's mesh, robot
+      mask at ``gripper``); ``dense`` is used as given (the recording as recorded, or a simulated
+      cloud the sensor made: :func:`rollout_region_errors`).
+
+    Args:
+        vertices: ``(T, N, 3)`` m. faces: ``(F, 3)`` int. labels: ``(N,)`` region per vertex.
+        dense: ``T`` measured clouds ``(m_t, 3)`` m. n_regions: ``R`` (default ``labels.max() + 1``).
+        gripper: ``(T, 3)`` m, the grasp point per frame (camera only; None = no robot mask).
+
+    Raises:
+        SoftsbiError: both ``min_z`` and ``camera`` given (a fit has one sensor model).
     """
+    if min_z is not None and camera is not None:
+        raise SoftsbiError("region_errors takes one sensor model: min_z (height cut) or camera, not both")
     R = n_regions or int(labels.max()) + 1
     pts = surface_points(vertices, faces)
     lab_all = labels if len(faces) == 0 else np.concatenate([labels, labels[faces[:, 0]]])
@@ -96,7 +116,12 @@ def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, d
         if min_z is not None:  # the simulated points the sensor sees, with their regions
             idx = sensor_indices(p_t, min_z)
             p_t, lab = p_t[idx], lab_all[idx]
-        m_t = sensor_view(dense[t], min_z)
+        elif camera is not None:
+            idx = np.flatnonzero(camera.seen(p_t, vertices[t], faces, None if gripper is None else gripper[t]))
+            if not len(idx):  # nothing seen: the metric's fallback (camera_chamfer_per_frame)
+                idx = sensor_indices(p_t, np.inf)
+            p_t, lab = p_t[idx], lab_all[idx]
+        m_t = sensor_view(np.asarray(dense[t], float), min_z)
         d_sr, _ = cKDTree(m_t).query(p_t)
         d_rs, idx = cKDTree(p_t).query(m_t)
         lr = lab[idx]
@@ -108,10 +133,58 @@ def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, d
     return out
 
 
-def _sensor_words(min_z: float | None, frames: list[int] | None, table_z: float, T: int) -> str:
+def run_sensor(run: RunView) -> VirtualDepthSensor | None:
+    """The run's virtual depth sensor (its stored ``metric_camera``) for a ``--sensor camera`` fit, else None."""
+    camera = run.config.get("metric_camera")
+    return None if camera is None else sensor_from_json(camera)
+
+
+def sensor_model(run: RunView) -> dict[str, Any]:
+    """The run's sensor model as stored (what its metric used): ``kind`` (``"camera"``, ``"height"`` or
+    ``"none"``: full clouds), ``min_z`` (m or None), ``frames`` (None = all) and ``camera`` (the virtual
+    sensor's JSON or None). Two runs measure the same thing only when these are equal."""
+    camera = run.config.get("metric_camera")
+    kind = "camera" if camera is not None else ("height" if run.metric_min_z is not None else "none")
+    return {"kind": kind, "min_z": run.metric_min_z, "frames": run.metric_frames, "camera": camera}
+
+
+def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndarray, n_regions: int,
+                          measured: Any, measured_rollout: dict[str, Any] | None = None) -> np.ndarray:
+    """:func:`region_errors` ``(T, R)`` m of one posterior rollout under the run's own sensor model
+    (its height cut :attr:`~softsbi.workflows.runs.RunView.metric_min_z`, or its virtual depth sensor),
+    as :func:`~softsbi.workflows.stats.rollout_features` sees rollouts.
+
+    Args:
+        rollout: a job result with ``vertices (T, N, 3)``, ``faces``, ``gripper (T, 3)``.
+        measured: ``T`` clouds ``(m_t, 3)`` m: the run's measurement (``run.dense``, used as recorded by a
+            camera fit), or surface samples of another rollout standing in for it (``diagnose``'s null).
+        measured_rollout: when ``measured`` are surface samples of a simulated rollout, that rollout (job
+            result): a camera fit's sensor sees its mesh (its cloud per frame,
+            :meth:`~softsbi.perception.depth_sensor.VirtualDepthSensor.observe_rollout`; the highest 10 % of
+            ``measured[t]`` where it sees nothing), as the real sensor made the measurement. The height cut
+            sees ``measured`` itself.
+    """
+    sensor = run_sensor(run)
+    if sensor is None:
+        return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, run.metric_min_z)
+    if measured_rollout is not None:
+        mr = measured_rollout
+        # seeded like the null's summaries of that rollout (rollout_features, seed 1000 + its sample)
+        views = sensor.observe_rollout(mr["vertices"], mr["faces"], mr.get("gripper"),
+                                       np.random.default_rng([1000 + int(mr.get("sample", 0)), 23]))
+        measured = [c if len(c) else np.asarray(m, float)[sensor_indices(np.asarray(m, float), np.inf)]
+                    for c, m in zip(views, measured)]
+    return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, None, sensor,
+                         rollout.get("gripper"))
+
+
+def _sensor_words(min_z: float | None, frames: list[int] | None, table_z: float, T: int,
+                  camera: bool = False) -> str:
     """The metric's sensor model in words, for the check's summary ("" when it sees everything)."""
     parts = []
-    if min_z is not None:
+    if camera:
+        parts.append("simulated clouds made by the recording's virtual depth sensor")
+    elif min_z is not None:
         parts.append(f"points within {(min_z - table_z) * 100:.1f} cm of the table unseen")
     if frames is not None and len(frames) < T:
         parts.append(f"frames {_ranges(frames)}")
@@ -166,7 +239,10 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
 
     Returns:
         dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts),
-        ``region_error_m`` (T x R mean), ``regions``, ``phases`` (mean error per phase),
+        ``region_error_m`` (T x R mean under the fit's sensor model, :func:`rollout_region_errors`; 0 where
+        no rollout's region is seen), ``region_compared`` (T x R bool: False where it is 0 for that
+        reason, not for a perfect fit), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
+        (``"camera"``, ``"height"`` or ``"none"``, :func:`sensor_model`),
         ``worst_frames``, ``worst_regions``, ``misspecification`` (statistic, Monte-Carlo ``p_value``
         with ``p_text`` stating its resolution, ``misspecified``, ``rule``) and a ``summary`` sentence.
         The misspecification verdict is :meth:`PosteriorPredictive.misspecification`, the same
@@ -196,7 +272,7 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
     labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
     reg = np.zeros((len(ok), T, len(names)))
     for k, r in enumerate(ok):
-        reg[k] = region_errors(r["vertices"], r["faces"], labels, dense, len(names), min_z)
+        reg[k] = rollout_region_errors(run, r, labels, len(names), dense)
     mis = pool.misspecification(alpha, max_null)
     warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)  # regions a small mesh lacks
     reg_mean = np.nanmean(reg, axis=0)
@@ -219,7 +295,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
     worst_phase = max((p for p in phases if p["in_fit"]), key=lambda p: p["chamfer_m"])
     verdict = (f"the measurement is NOT explained by the model ({mis['p_text']} <= {alpha:g})" if mis["misspecified"]
                else f"no evidence of misspecification ({mis['p_text']} > {alpha:g})")
-    sensor = _sensor_words(min_z, frames, run.scenario.table_z, T)
+    model = sensor_model(run)
+    sensor = _sensor_words(min_z, frames, run.scenario.table_z, T, model["kind"] == "camera")
     one = stats.get("one_sided_mean_m")
     summary = (f"Posterior rollouts miss the measurement by {stats['mean_m'] * 100:.2f} cm on average (Chamfer"
                f"{sensor}" + (f"; measured -> simulated {one * 100:.2f} cm" if one is not None and np.isfinite(one)
@@ -234,8 +311,9 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
            "chamfer_one_sided_per_frame_m": {"mean": mean_t1.tolist(), "q05": np.quantile(ch1, 0.05, 0).tolist(),
                                              "q95": np.quantile(ch1, 0.95, 0).tolist()},
            "chamfer_mean_m": stats["mean_m"], "chamfer_one_sided_mean_m": one,
-           "metric_min_z_m": min_z, "metric_frames": frames,
+           "metric_min_z_m": min_z, "metric_frames": frames, "metric_sensor": model["kind"],
            "regions": names, "region_error_m": np.nan_to_num(reg_mean).tolist(),
+           "region_compared": np.isfinite(reg_mean).tolist(),
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
            "misspecification": mis, "summary": summary, "seconds": time.perf_counter() - t0}

@@ -2,7 +2,8 @@
 
 Each run's errors are its own ``check`` (:func:`~softsbi.workflows.check.check_run`): clouds seen
 through that fit's sensor model, the headline averaged over the fit's frames; runs whose sensor
-models differ are compared on different metrics, which the summary says.
+models differ (``--sensor height|camera``, the camera itself, ``--min-height``, ``--frames``:
+:func:`~softsbi.workflows.check.sensor_model`) are compared on different metrics, which the summary says.
 """
 from __future__ import annotations
 
@@ -15,21 +16,28 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
 from softsbi.report import fit_label, plot_compare
-from softsbi.workflows.check import check_run
+from softsbi.workflows.check import MAX_NULL, check_run, sensor_model
 from softsbi.workflows.runs import load_run
 
 
 def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_samples: int = 30,
-                 workers: int | None = None) -> dict[str, Any]:
+                 workers: int | None = None, max_null: int = MAX_NULL) -> dict[str, Any]:
     """Posterior predictive checks of two runs of the same measurement, side by side.
 
     Writes ``compare.png`` (Chamfer per frame, error per region) and ``compare.json``.
+    ``n_samples`` and ``max_null`` go to each run's :func:`~softsbi.workflows.check.check_run`.
+
+    Returns:
+        dict with ``table`` (rows ``what``, ``a``, ``b``, relative ``change``), ``summary`` (says when the
+        two fits use different sensor models, :func:`~softsbi.workflows.check.sensor_model`: sensor kind,
+        virtual camera, height cut or frames, so their Chamfer values measure different things),
+        ``same_sensor``, both checks, and the paths of the figure and the JSON.
 
     Raises:
         SoftsbiError: the runs were fitted to different measurements.
     """
-    a = check_run(run_a, n_samples=n_samples, workers=workers, plot=True)
-    b = check_run(run_b, n_samples=n_samples, workers=workers, plot=True)
+    a = check_run(run_a, n_samples=n_samples, workers=workers, plot=True, max_null=max_null)
+    b = check_run(run_b, n_samples=n_samples, workers=workers, plot=True, max_null=max_null)
     if len(a["times_s"]) != len(b["times_s"]):
         raise SoftsbiError("the two runs have different frame counts; compare runs of the same measurement")
     ra, rb = load_run(run_a), load_run(run_b)
@@ -47,19 +55,20 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
         rows.append({"what": f"region {name}", "a": a["region_mean_m"][name], "b": b["region_mean_m"].get(name, np.nan)})
     for r in rows:
         r["change"] = (r["b"] - r["a"]) / r["a"] if r["a"] else 0.0
-    same_sensor = (a.get("metric_min_z_m"), a.get("metric_frames")) == (b.get("metric_min_z_m"), b.get("metric_frames"))
+    same_sensor = sensor_model(ra) == sensor_model(rb)
     la = fit_label(ra.config)
     lb = fit_label(rb.config)
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
                f"({describe_change(rows[0]['a'], rows[0]['b'])}); misspecification "
                f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}."
-               + ("" if same_sensor else " The two fits use different sensor models (--min-height / --frames), so "
-                                         "their Chamfer values measure different things."))
+               + ("" if same_sensor else " The two fits use different sensor models (--sensor / --min-height / "
+                                         "--frames), so their Chamfer values measure different things."))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"
     plot_compare(png, a, b, la, lb)
     res = {"run_a": str(run_a), "run_b": str(run_b), "label_a": la, "label_b": lb, "table": rows,
-           "summary": summary, "check_a": a, "check_b": b, "png": str(png), "json": str(out_dir / "compare.json")}
+           "summary": summary, "same_sensor": same_sensor, "check_a": a, "check_b": b, "png": str(png),
+           "json": str(out_dir / "compare.json")}
     (out_dir / "compare.json").write_text(json.dumps(res, indent=2))
     return res

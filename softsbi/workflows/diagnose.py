@@ -29,7 +29,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
 from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
-from softsbi.workflows.check import material_regions, motion_phases, region_errors
+from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, max_t_adjusted, mc_pvalue, pvalue_fields,
                                      resolution_needed, rollout_features, run_features, run_frames,
@@ -480,8 +480,8 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: 
     for k, r in enumerate(ro):
         j = (k + 1) % len(ro)
         other = sampled_points(ro[j]["vertices"], ro[j]["faces"], n_pts, 1000 + ro[j]["sample"])
-        e_obs = region_errors(r["vertices"], r["faces"], labels, run.dense, len(names), run.metric_min_z)
-        e_null = region_errors(r["vertices"], r["faces"], labels, other, len(names), run.metric_min_z)
+        e_obs = rollout_region_errors(run, r, labels, len(names), run.dense)
+        e_null = rollout_region_errors(run, r, labels, len(names), other, ro[j])
         exc.append(e_obs - e_null)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

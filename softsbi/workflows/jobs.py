@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping
+from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, Scenario
+from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import rollout_clouds, sensor_chamfer_per_frame
 from softsbi.plugins import registry
@@ -109,19 +111,23 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
         return {"status": int(ro.status), "reason": ro.reason, "x": None, "chamfer": None,
                 "seconds": time.perf_counter() - t0}
     rng = np.random.default_rng([int(seed), 17])
-    o = obs.observe(ro, rng)
-    x = o.state()
-    ch = ch1 = None
-    if ctx.ref_masks is not None:
-        ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
-    elif ctx.dense is not None:
-        surface = rollout_clouds(ro, ctx.n_dense, rng)
-        if ctx.camera is not None:  # the virtual depth sensor makes the simulated clouds (FitConfig.sensor)
-            from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
-            sensor = sensor_from_json(ctx.camera)
-            ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface, rng)
-        else:
-            ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, ctx.min_z)
+    # a camera fit: the virtual depth sensor makes the simulated clouds of the metric (FitConfig.sensor) and
+    # of the point-cloud observer (the same per-process sensor, sensor_from_json); each frame is rendered once
+    # and shared by both (same rng draws, so the same numbers as rendering twice)
+    sensor = sensor_from_json(ctx.camera) if ctx.camera is not None and ctx.ref_masks is None else None
+    with sensor.shared_renders() if sensor is not None else nullcontext():
+        o = obs.observe(ro, rng)
+        x = o.state()
+        ch = ch1 = None
+        if ctx.ref_masks is not None:
+            ch = mask_chamfer_per_frame(hsv_mask(ro.rgb), ctx.ref_masks)
+        elif ctx.dense is not None:
+            surface = rollout_clouds(ro, ctx.n_dense, rng)
+            if sensor is not None:
+                ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface,
+                                                   rng)
+            else:
+                ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, ctx.min_z)
     out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
            "seconds": time.perf_counter() - t0}
     if ctx.keep_rollout:

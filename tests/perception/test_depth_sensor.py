@@ -196,8 +196,13 @@ def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     assert per_frame.shape == (25,) and np.all(np.isfinite(per_frame)) and 0 < rep["chamfer_posterior_m"] < 0.2
     # re-simulating the fit's evaluation samples through its stored context reproduces its camera metric
     view = load_run(tmp_path / "run", n_samples=2)
-    ok, _ = view.posterior_rollouts(workers=1)
+    renders = []
+    inner = VirtualDepthSensor._camera_points
+    with pytest.MonkeyPatch.context() as mp:  # count the sensor's renders (workers=1 runs in this process)
+        mp.setattr(VirtualDepthSensor, "_camera_points", lambda self, *a: renders.append(1) or inner(self, *a))
+        ok, _ = view.posterior_rollouts(workers=1)
     assert len(ok) == 2
+    assert len(renders) == 2 * 25  # the observer and the metric share one render per frame (shared_renders)
     np.testing.assert_allclose(np.mean([r["chamfer"] for r in ok], axis=0), per_frame, rtol=1e-12)
     # check's and diagnose's summaries see the rollouts through the same virtual sensor, on the fit's frames:
     # the cloth still on the table is unseen, so they differ from the full surface's
@@ -226,3 +231,30 @@ def test_pointcloud_observer_draws_from_the_camera_view():
     obs = PointCloudObserver(n_points=32, camera=s.to_json()).observe(ro, np.random.default_rng(0))
     assert np.allclose(obs.points[0][:, 2], 0.1)  # only the seen square, never the one under the crop
     assert obs.points[1][:, 2].max() <= 0.0 + 1e-12  # nothing seen: the highest surface samples stand in
+
+
+def test_shared_renders_render_each_frame_once_and_keep_the_draws():
+    cam = down_camera()
+    v, f = grid_square(0.3, 0.1)
+    V = np.stack([v, v + [0.0, 0.0, 0.05]])
+    s = sensor([cam], mask_radius=0.02, n_points=500)
+    g = np.zeros((2, 3))
+    plain = [s.observe_rollout(V, f, g, np.random.default_rng(3)) for _ in range(2)]
+    calls = []
+    inner = VirtualDepthSensor._camera_points
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(VirtualDepthSensor, "_camera_points", lambda self, *a: calls.append(1) or inner(self, *a))
+        with s.shared_renders():
+            shared = [s.observe_rollout(V, f, g, np.random.default_rng(3)) for _ in range(2)]
+            moved = s.observe(V[0] + [0.01, 0.0, 0.0], f, g[0], np.random.default_rng(3))  # another frame
+            with s.shared_renders():  # nested: still shared
+                s.observe(V[1], f, g[1], np.random.default_rng(0))
+        assert len(calls) == 3  # two frames, then the moved one; the repeats reuse the renders
+        s.observe(V[0], f, g[0], np.random.default_rng(0))
+        assert len(calls) == 4  # outside the block nothing is kept
+    # the same rng draws as rendering every time: identical clouds
+    for a, b in zip(plain, shared):
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x, y)
+    assert not np.array_equal(moved, shared[0][0])
+    assert not s._shared["memo"] and s._shared["depth"] == 0
