@@ -504,8 +504,17 @@ def check_figure(out: dict[str, Any], ch: np.ndarray | None = None) -> Any:
     ax.legend(fontsize=FS_LEGEND, loc="best")
     ax.grid(alpha=0.3)
     ax = axes[1]
-    im = ax.imshow(reg.T, aspect="auto", origin="lower", cmap="magma",
-                   extent=[t[0] - dt, t[-1] + dt, 0.5, reg.shape[1] + 0.5])
+    compared = np.array(out.get("region_compared", np.ones_like(reg, bool)), dtype=bool)
+    cmap = plt.get_cmap("magma").copy()
+    cmap.set_bad("0.75")  # regions the fit's sensor model never sees: grey, not a perfect match
+    fitted = np.zeros(len(reg), bool)
+    fitted[out.get("metric_frames") if out.get("metric_frames") is not None else slice(None)] = True
+    # the colour scale follows the fitted frames (frames outside them, e.g. a real recording's cloth on the
+    # table, can be ten times worse and would leave the fitted part black)
+    vals = reg[fitted][compared[fitted]]
+    vmax = float(np.max(vals)) if vals.size else None
+    im = ax.imshow(np.ma.masked_where(~compared, reg).T, aspect="auto", origin="lower", cmap=cmap, vmin=0,
+                   vmax=vmax, extent=[t[0] - dt, t[-1] + dt, 0.5, reg.shape[1] + 0.5])
     for ph in phases[1:]:
         ax.axvline(ph["t_s"][0] - dt, color="white", lw=1, ls="--", alpha=0.8)
     ax.set_yticks(range(1, reg.shape[1] + 1))
@@ -513,9 +522,10 @@ def check_figure(out: dict[str, Any], ch: np.ndarray | None = None) -> Any:
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
     ax.set_ylabel("region of the cloth (R1 at the grasp)", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
-    ax.set_title("Error per region of the cloth (dashed: phase boundaries)", fontsize=FS_SUB)
+    ax.set_title("Error per region of the cloth (dashed: phase boundaries"
+                 + ("; grey: not seen by the sensor model)" if not compared.all() else ")"), fontsize=FS_SUB)
     cb = fig.colorbar(im, ax=ax, fraction=0.046)
-    cb.set_label("mean error [cm]", fontsize=FS_LABEL)
+    cb.set_label("mean error [cm]" + (" (scale: fitted frames)" if not fitted.all() else ""), fontsize=FS_LABEL)
     cb.ax.tick_params(labelsize=FS_TICK)
     frac = _header(fig, [(check_headline(out), {"fontsize": FS_TITLE, "weight": "bold"}),
                          (f"Posterior predictive check of {_source(out.get('run'))}: {out.get('n_rollouts', '?')} "
