@@ -155,7 +155,9 @@ class Effect(ABC):
 
         Returns:
             A new :class:`Rollout` with the same frames and vertex count (``gripper``, the commanded
-            path, is left as it is).
+            path, is left as it is). It may move the vertices (what the sensor reports of them) and may
+            set ``info[INFO_MIN_VISIBLE_Z]`` (:data:`~softsbi.core.types.INFO_MIN_VISIBLE_Z`, m): points
+            at or below that height are then not seen by the observers and the metric.
         """
         raise NotImplementedError(f"effect '{self.name}' has no observation transform")
 

@@ -372,6 +372,11 @@ STATUS_NAMES = {STATUS_OK: "ok", STATUS_DIVERGED: "diverged", STATUS_IMPLAUSIBLE
                 STATUS_ERROR: "error", STATUS_PENDING: "pending"}
 
 
+#: ``Rollout.info`` key: a visibility threshold (absolute height, m) that a sensor effect sets; observers
+#: and metrics see only points above it (with the fit's own threshold, the higher one applies)
+INFO_MIN_VISIBLE_Z = "min_visible_z"
+
+
 @dataclass
 class Rollout:
     """One simulated trajectory of a deformable object.
@@ -388,7 +393,9 @@ class Rollout:
         depth: optional ``(T, H, W)`` float32 distance along the camera's optical axis, m.
         segmentation: optional ``(T, H, W)`` uint8 labels ``SEG_*`` (0 table/background,
             1 cloth/rope, 2 robot/gripper).
-        info: backend-specific extras (wall time, step count...).
+        info: backend-specific extras (wall time, step count...). One key is read by every observer
+            and metric: :data:`INFO_MIN_VISIBLE_Z` (absolute height, m; set by a sensor effect such as
+            ``table-unseen``): points at or below it are not seen, on top of the fit's own sensor model.
     """
 
     times: np.ndarray

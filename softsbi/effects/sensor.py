@@ -6,8 +6,9 @@ seeded by the simulation's seed. The commanded gripper path is left unchanged (i
 not the sensor's). They act on the rollout's vertices, from which the observers sample their
 points, and not on rendered images (image observers do not see them).
 
-Not built: "points near the table unseen" needs the observer's per-frame point selection
-(a rollout has one set of faces for all frames), so it cannot be a rollout transform.
+"Points near the table unseen" (:class:`TableUnseen`) does not move vertices: it sets the rollout's
+visibility threshold (``info[INFO_MIN_VISIBLE_Z]``), which the point-cloud observer, the metric, the
+synthetic measurement and check/diagnose's summaries apply per frame on top of the fit's own sensor model.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from softsbi.core.interfaces import Effect
-from softsbi.core.types import Param, ParamSpace, Rollout
+from softsbi.core.types import INFO_MIN_VISIBLE_Z, Param, ParamSpace, Rollout
 
 
 class CalibrationOffset(Effect):
@@ -96,4 +97,35 @@ class TimeOffset(Effect):
         return replace(rollout, vertices=verts, info=dict(rollout.info))
 
 
-SENSOR_EFFECTS = (CalibrationOffset, PointNoise, TimeOffset)
+class TableUnseen(Effect):
+    """The depth sensor does not see the cloth near the table: points less than ``unseen_height`` above
+    the cloth's resting height are not segmented from the table.
+
+    Sensor model: a point of frame t is seen iff its height is above ``z_rest + unseen_height``, with
+    ``z_rest`` the lowest vertex of the first frame (the cloth starts resting on the table, one collision
+    radius above it); when a frame has no point above it, its highest 10% stand in, as for the fit's own
+    height cut (:func:`~softsbi.perception.pointcloud.sensor_indices`). This is the real DiffCloud clouds'
+    crop (``FitConfig.min_height``) as a candidate with an unknown height: it applies to fits through the
+    height cut or full clouds; a ``--sensor camera`` fit's virtual sensor decides itself what the table
+    hides. Off at the lower bound 0 m (everything seen). It is not smooth at 0: any positive height hides
+    the whole flat cloth at once, so the screening's finite difference (a step of the prior range) measures
+    that jump, not a slope.
+    """
+
+    name: ClassVar[str] = "table-unseen"
+    description: ClassVar[str] = "points near the table are not seen (height above the resting cloth, m)"
+    kind: ClassVar[str] = "sensor"
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace([Param("unseen_height", 0.0, 0.03, "m",
+                                 description="height above the resting cloth below which nothing is seen")])
+
+    def observe(self, rollout: Rollout, theta: Mapping[str, float], rng: np.random.Generator) -> Rollout:
+        h = float(theta["unseen_height"])
+        if h <= 0.0:
+            return rollout
+        z_rest = float(np.asarray(rollout.vertices)[0, :, 2].min())
+        return replace(rollout, info={**rollout.info, INFO_MIN_VISIBLE_Z: z_rest + h})
+
+
+SENSOR_EFFECTS = (CalibrationOffset, PointNoise, TimeOffset, TableUnseen)

@@ -17,7 +17,7 @@ from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, ShapeError
 from softsbi.core.interfaces import Observer
 from softsbi.core.metrics import chamfer_terms
-from softsbi.core.types import Observation, Rollout
+from softsbi.core.types import INFO_MIN_VISIBLE_Z, Observation, Rollout
 from softsbi.plugins.hookspecs import hookimpl
 
 
@@ -72,6 +72,31 @@ def visible_subset(cloud: np.ndarray, k: int, rng: np.random.Generator, min_z: f
     else:
         vis = cloud
     return vis[rng.choice(len(vis), size=k, replace=len(vis) < k)]
+
+
+def combined_min_z(*thresholds: float | None) -> float | None:
+    """The visibility threshold (absolute height, m) of several sensor models applied together: the
+    highest of those given (a point is seen only if every model sees it); None when none is given."""
+    given = [float(z) for z in thresholds if z is not None]
+    return max(given) if given else None
+
+
+def rollout_min_z(rollout: Any) -> float | None:
+    """The visibility threshold a sensor effect set on a rollout (``info[INFO_MIN_VISIBLE_Z]``, m) or on a
+    job result dict (the same key), else None."""
+    info = rollout.get("info", rollout) if isinstance(rollout, dict) else getattr(rollout, "info", None) or {}
+    v = info.get(INFO_MIN_VISIBLE_Z) if isinstance(info, dict) else None
+    return None if v is None else float(v)
+
+
+def seen_resampled(cloud: np.ndarray, min_z: float | None, rng: np.random.Generator) -> np.ndarray:
+    """``(P, 3)``: the part of ``cloud (P, 3)`` m seen through ``min_z`` (:func:`sensor_indices`, with its
+    fallback), drawn back to ``P`` points with replacement (as DiffCloud draws its clouds), so that a
+    measurement keeps one point count per frame. ``min_z=None`` returns the cloud itself."""
+    if min_z is None:
+        return cloud
+    idx = sensor_indices(cloud, min_z)
+    return cloud[idx[rng.integers(len(idx), size=len(cloud))]]
 
 
 #: share of a cloud's highest points that stand in when a sensor sees none of it (:func:`sensor_view`)
@@ -206,16 +231,18 @@ class PointCloudObserver(Observer):
         return cloud[keep] if keep.any() else cloud
 
     def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
+        # a sensor effect's threshold (table-unseen) adds to the observer's own
+        min_z = combined_min_z(self.min_z, rollout_min_z(rollout))
         if self.camera is not None:
             dense = rollout_clouds(rollout, 8 * self.n_points, rng)
             views = [self.camera.observe(v, rollout.faces, g, rng) for v, g in zip(rollout.vertices, rollout.gripper)]
             pts = np.stack([visible_subset(c if len(c) else d[sensor_indices(d, np.inf)], self.n_points, rng, None)
                             for c, d in zip(views, dense)])
-        elif self.min_z is None and self.occluder is None:
+        elif min_z is None and self.occluder is None:
             pts = rollout_clouds(rollout, self.n_points, rng)
         else:
             dense = rollout_clouds(rollout, 8 * self.n_points, rng)
-            pts = np.stack([visible_subset(self._unoccluded(c), self.n_points, rng, self.min_z) for c in dense])
+            pts = np.stack([visible_subset(self._unoccluded(c), self.n_points, rng, min_z) for c in dense])
         if self.noise > 0:
             pts = pts + rng.normal(0, self.noise, pts.shape)
         return Observation(points=pts, gripper=np.asarray(rollout.gripper, float),

@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
-from softsbi.core.types import STATUS_ERROR, STATUS_OK, Scenario
+from softsbi.core.types import INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
-from softsbi.perception.pointcloud import rollout_clouds, sensor_chamfer_per_frame
+from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
 
 
@@ -126,12 +126,14 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
             if sensor is not None:
                 ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface,
                                                    rng)
-            else:
-                ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, ctx.min_z)
+            else:  # a sensor effect's threshold (table-unseen) adds to the fit's own
+                ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, rollout_min_z(ro)))
     out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
            "seconds": time.perf_counter() - t0}
     if ctx.keep_rollout:
         out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
+        if rollout_min_z(ro) is not None:
+            out[INFO_MIN_VISIBLE_Z] = rollout_min_z(ro)
     return out
 
 

@@ -9,7 +9,8 @@ import numpy as np
 from softsbi.core.errors import DataError, yaml_error_parts
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
-from softsbi.perception.pointcloud import PointCloudObserver, load_cloud_frames, rollout_clouds
+from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
+                                          seen_resampled)
 
 if TYPE_CHECKING:
     from softsbi.core.camera import Camera, RenderStyle
@@ -282,6 +283,8 @@ def simulate_recording(backend: str, scenario: Scenario, truth: Mapping[str, flo
     rng = np.random.default_rng(seed)
     obs = PointCloudObserver(n_points, noise=noise).observe(ro, rng)
     dense = rollout_clouds(ro, n_dense, rng)
+    if rollout_min_z(ro) is not None:  # a hidden sensor effect hides points (table-unseen): the seen ones, redrawn
+        dense = np.stack([seen_resampled(c, rollout_min_z(ro), rng) for c in dense])
     if noise > 0:
         dense = dense + rng.normal(0, noise, dense.shape)
     src = f"simulated:{backend}" + (f"+{'+'.join(effects)}" if effects else "")

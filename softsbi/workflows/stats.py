@@ -34,7 +34,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK
-from softsbi.perception.pointcloud import sample_surface, sensor_view
+from softsbi.perception.pointcloud import combined_min_z, rollout_min_z, sample_surface, sensor_view
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView, load_run, open_run
 
@@ -97,7 +97,9 @@ def rollout_features(run: "RunView", rollout: dict[str, Any], seed: int) -> np.n
         clouds = sensor_from_json(camera).observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
                                         np.random.default_rng([seed, 23]))
         return trajectory_features(clouds, None, run.metric_frames)
-    return run_features(run, sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed))
+    clouds = sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed)
+    # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own
+    return trajectory_features(clouds, combined_min_z(run.metric_min_z, rollout_min_z(rollout)), run.metric_frames)
 
 
 def run_frames(run: "RunView") -> list[int]:

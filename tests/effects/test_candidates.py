@@ -102,6 +102,51 @@ def test_time_offset_shows_the_lift_ahead(base):
     np.testing.assert_allclose(ro.vertices[-1], base["lift"][-1], atol=1e-12)  # held at the last frame
 
 
+def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_measurement(base):
+    """table-unseen moves no vertex; the observer, the metric, the synthetic measurement and check's
+    summaries see only points above the resting cloth + unseen_height (the highest 10% where none is)."""
+    from softsbi.perception.pointcloud import PointCloudObserver, rollout_clouds
+    from softsbi.workflows.measurement import simulate_recording
+    from softsbi.workflows.stats import trajectory_features
+    h = 0.02
+    ro = _run(LIFT, ["table-unseen"], unseen_height=h)
+    np.testing.assert_array_equal(ro.vertices, base["lift"])
+    z_cut = base["lift"][0, :, 2].min() + h
+    assert ro.info["min_visible_z"] == pytest.approx(z_cut)
+    x = PointCloudObserver(64).observe(ro, np.random.default_rng(0)).points
+    x0 = PointCloudObserver(64).observe(_run(LIFT), np.random.default_rng(0)).points
+    mid = 5  # partly lifted: part of the cloth still lies on the table
+    assert (x[mid, :, 2] > z_cut).all() and (x0[mid, :, 2] <= z_cut).any()
+    assert (x[0, :, 2] > z_cut).sum() == 0  # flat cloth: only the fallback (its highest points) stands in
+    rec = simulate_recording("mujoco-flex", LIFT, {**SIM.param_space(LIFT).midpoint(), "unseen_height": h},
+                             backend_options={"grid": 5}, effects=["table-unseen"], n_points=32, n_dense=200)
+    assert rec.dense.shape == (11, 200, 3) and (rec.dense[mid, :, 2] > z_cut).all()
+    # summaries: the rollout's threshold adds to the run's own (none here)
+    clouds = rollout_clouds(ro, 200, np.random.default_rng(1))
+    f_seen = trajectory_features(clouds, z_cut)
+    assert f_seen[mid * 13 + 8] > trajectory_features(clouds)[mid * 13 + 8]  # 50% height quantile rises
+
+
+def test_table_unseen_adds_to_the_fits_sensor_in_the_job_metric():
+    from softsbi.workflows.jobs import SimContext, simulate_job
+    clouds = rollout_clouds_of(_run(LIFT))
+    kw = dict(backend="mujoco-flex", backend_options={"grid": 5}, scenario=LIFT.to_json(), effects=[],
+              observer="pointcloud", observer_options={"n_points": 32}, param_names=SIM.param_space(LIFT).names,
+              fixed={}, dense=clouds, n_dense=200, keep_rollout=True)
+    theta = {**SIM.param_space(LIFT).midpoint(), "unseen_height": 0.02}
+    plain = simulate_job(SimContext(**kw), (SIM.param_space(LIFT).midpoint(), 0, []))
+    hidden = simulate_job(SimContext(**kw), (theta, 0, ["table-unseen"]))
+    assert hidden["min_visible_z"] == pytest.approx(clouds[0][:, 2].min() + 0.02, abs=0.003)
+    assert "min_visible_z" not in plain
+    # the nominal rollout against its own full clouds: close; with the flat cloth unseen: the early frames differ
+    assert hidden["chamfer"][0] > 2 * plain["chamfer"][0]
+
+
+def rollout_clouds_of(ro):
+    from softsbi.perception.pointcloud import rollout_clouds
+    return rollout_clouds(ro, 200, np.random.default_rng(7))
+
+
 @pytest.mark.parametrize("name,values,check", [
     ("generic-constant", {"const_ax": 2.0}, lambda d: d[-1, :, 0].mean() > 0.01),
     ("generic-linear-drag", {"lin_kh": 30.0, "lin_kv": 30.0}, lambda d: d[5, :, 2].mean() < -0.0005),
