@@ -146,7 +146,9 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=n_null, max_null=max_null,
                      workers=workers, confirm=confirm, confirm_budget=confirm_budget)
     named = d["selected"] if d["verdict"] == "missing-effect" else None
-    named_all = [named] + [e for e in d["significant"] if e != named] if named else []
+    # the effects the verdict names: after refits the diagnosis says (named_effects), else the screening's
+    named_all = (list(d["named_effects"]) if d.get("named_effects") is not None else
+                 [named] + [e for e in d["significant"] if e != named]) if named else []
     called = "+".join(sorted(named_all)) if len(hidden) > 1 and named else named or d["verdict"]
     return {**case, "verdict": d["verdict"], "named": named, "called": called, "named_all": named_all,
             "correct": (sorted(named_all) == sorted(hidden) if len(hidden) > 1 else named == hidden[0]) if hidden

@@ -103,7 +103,10 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
        each, the measurement is still outside the refit's posterior predictive distribution (check's test
        of the refit, ``misspecification_after``, ``p <= max(alpha, EXPLAIN_ALPHA)``) or the refit does not lower the
        posterior-predictive Chamfer (``drop <= 0``): the effect explains a part at most (``partial``; the
-       screening's verdict stays in ``screening_verdict``). With it the residual's shape
+       screening's verdict stays in ``screening_verdict``). A second effect is named only when no single
+       refit explains the misfit and the refit with the forward selection's first two effects does
+       (``confirm >= 2``); a single refit that explains it leaves no second effect. ``named_effects``
+       lists the effects the verdict names after the refits. With it the residual's shape
        (frames/phases, regions of the cloth, direction; :func:`residual_shape`) and the best generic
        force term (:func:`is_generic`) with the fraction it explains.
 
@@ -401,6 +404,10 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
                      f"{m2.get('alpha', a):g} and the "
                      f"refit lowers the posterior-predictive Chamfer: {c['effect']}'s refit has {m2['p_text']}{change}"
                      f" -> {_rule3_outcome(m2['misspecified'], lower)}")
+    ne = out.get("named_effects") or []
+    if len(ne) > 1:
+        rules.append(f"3. no single refit explains the misfit, the refit with {' and '.join(ne)} does -> "
+                     f"missing-effect ({', '.join(ne)})")
     if out.get("partial"):
         rules.append(f"3. no refitted named effect explains the misfit -> misspecified-unexplained "
                      f"({out['partial']} explains a part)")
@@ -554,15 +561,37 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
         # posterior-predictive error ("add it and watch the error fall"); a refit that check accepts only
         # because its posterior predictive is wider, with a higher error, confirms nothing (real lift_tan2:
         # time-offset's refit p = 0.32 but Chamfer 26% higher)
-        explains = [c for c in checked if not c["misspecification_after"]["misspecified"] and (c.get("drop") or 0) > 0]
+        explains = [c for c in checked if _explains(c)]
+        sig = list(out["significant"])
         if explains:
             out["selected"] = explains[0]["effect"]  # the largest drop (sorted above)
+            # the refit explains the misfit alone: the data call for no second effect, whatever the
+            # linearised forward selection added
+            out["named_effects"] = [out["selected"]]
         elif checked and len(checked) == len(named):
-            # no refitted named effect explains the misfit: it explains a part at most
-            out["screening_verdict"] = out["verdict"]
-            out["verdict"] = "misspecified-unexplained"
-            out["partial"] = named[0]["effect"]
-            out["selected"] = None
+            joint = None
+            if len(sig) >= 2 and confirm >= 2:
+                # no single refit explains it, and the screening's forward selection called for a second
+                # effect: refit with both (rule 3 applied to the pair)
+                pair = "+".join(sig[:2])
+                joint = next((c for c in out["confirmed"] if c["effect"] == pair), None)
+                if joint is None:
+                    if progress:
+                        progress(pair)
+                    joint = confirm_effect(view, sig[:2], budget, workers,
+                                           alpha=max(out.get("alpha", ALPHA), EXPLAIN_ALPHA),
+                                           n_null=out.get("n_null_start", N_NULL), max_null=out.get("max_null", MAX_NULL))
+                    out["confirmed"].append(joint)
+            if joint is not None and _explains(joint):
+                out["selected"] = sig[0]
+                out["named_effects"] = sig[:2]
+            else:
+                # no refitted named effect (or pair) explains the misfit: it explains a part at most
+                out["screening_verdict"] = out["verdict"]
+                out["verdict"] = "misspecified-unexplained"
+                out["partial"] = named[0]["effect"]
+                out["selected"] = None
+                out["named_effects"] = []
         elif (named[0].get("drop") or 0) > 0:
             out["selected"] = named[0]["effect"]
     done = [c["effect"] for c in out["confirmed"]]
@@ -570,6 +599,13 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     out["rules"] = decision_rules(out)
     out["summary"] = _diagnosis_sentence(out)
     return out
+
+
+def _explains(c: dict[str, Any]) -> bool:
+    """Rule 3 for one confirmation refit: check's test of the refit accepts it (at
+    ``max(alpha, EXPLAIN_ALPHA)``) and the refit lowers the posterior-predictive Chamfer."""
+    m = c.get("misspecification_after")
+    return bool(m) and not m["misspecified"] and (c.get("drop") or 0) > 0
 
 
 def _pct(x: float) -> str:
@@ -632,10 +668,19 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         if chosen != out["significant"][0]:
             s += (f" (The linearised screening ranked {out['significant'][0]} first; the refits decide between "
                   f"these near-collinear candidates.)")
-        rest = [n for n in out["significant"] if n != chosen]
+        named_eff = out.get("named_effects")
+        rest = [n for n in (out["significant"] if named_eff is None else named_eff) if n != chosen]
         if rest:
             s += " A second effect is needed beyond it: " + ", ".join(
                 f"{n} ({by_name[n]['kind']})" for n in rest) + "."
+            joint = confirmed.get("+".join([chosen] + rest[:1]))
+            if joint:
+                s += (f" Refitting with both changes the posterior-predictive Chamfer from "
+                      f"{joint['chamfer_before_m'] * 100:.2f} to {joint['chamfer_after_m'] * 100:.2f} cm "
+                      f"({describe_change(joint['chamfer_before_m'], joint['chamfer_after_m'])})."
+                      + _after_refit(joint, "both", a))
+        elif named_eff is not None:
+            s += " No second effect is needed: the refit with it alone explains the misfit."
         else:
             s += " No second effect explains significantly more once it is included."
         rem = out.get("remaining")
@@ -709,10 +754,11 @@ def recording_from_run(run: RunView):
 REFIT_PROPOSAL = "truncated"
 
 
-def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = None,
+def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, int] | None = None,
                    workers: int | None = None, alpha: float = ALPHA, n_null: int = N_NULL,
                    max_null: int = MAX_NULL) -> dict[str, Any]:
-    """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``), with the
+    """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``; several effects
+    at once: ``RUN/refit-<a>+<b>``, reported as effect ``"a+b"``), with the
     run's own settings (:meth:`FitConfig.from_run_config`: executor and its options included), the
     effect switched on, truncated proposals (:data:`REFIT_PROPOSAL`) and, where given, ``budget``
     ``{"rounds", "sims_per_round", "proposal"}`` and ``workers``;
@@ -725,8 +771,10 @@ def confirm_effect(run: RunView, effect: str, budget: dict[str, int] | None = No
         "misspecification_after"}``.
     """
     budget = budget or {}
+    added = [effect] if isinstance(effect, str) else list(effect)
+    effect = "+".join(added)
     base = FitConfig.from_run_config(run.config)
-    cfg = replace(base, effects=list(run.effects) + [effect],
+    cfg = replace(base, effects=list(run.effects) + added,
                   rounds=int(budget.get("rounds", base.rounds)),
                   sims_per_round=int(budget.get("sims_per_round", base.sims_per_round)),
                   proposal=str(budget.get("proposal", REFIT_PROPOSAL)),

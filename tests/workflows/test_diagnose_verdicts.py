@@ -67,6 +67,7 @@ def _fake_refits(monkeypatch, after):
     import softsbi.workflows.diagnose as dg
 
     def fake(run, name, budget, workers, **stat):
+        name = name if isinstance(name, str) else "+".join(name)
         ch, p = after[name]
         mis = {"p_value": p, "p_text": f"p = {p:.2g}", "misspecified": p <= stat["alpha"], "alpha": stat["alpha"]}
         return {"effect": name, "run": name, "chamfer_before_m": 0.03, "chamfer_after_m": ch, "drop": 1 - ch / 0.03,
@@ -128,6 +129,37 @@ def test_a_refit_at_the_edge_of_its_posterior_predictive_explains_a_part_only(mo
     assert any("refit gives p > 0.1 and the refit lowers" in r and "wind's refit has p = 0.05" in r
                for r in out["rules"])
     assert "p = 0.05 <= 0.1, the level a confirmation needs" in out["summary"]
+
+
+def test_a_pair_is_named_only_when_no_single_refit_explains_and_the_joint_refit_does(monkeypatch):
+    """The forward selection's second effect is confirmed by a joint refit: singles still outside, the pair
+    inside with a lower error -> missing-effect naming both; a single refit that explains the misfit drops
+    the second effect."""
+    after = {"wind": (0.025, 0.005), "extra-damping": (0.028, 0.005), "wind+extra-damping": (0.015, 0.5)}
+    dg = _fake_refits(monkeypatch, after)
+    out = _fake_diagnosis()
+    out["significant"] = ["wind", "extra-damping"]
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["verdict"] == "missing-effect" and out["named_effects"] == ["wind", "extra-damping"]
+    assert out["confirmed"][-1]["effect"] == "wind+extra-damping"
+    assert any(r.startswith("3. no single refit explains the misfit, the refit with wind and extra-damping does")
+               for r in out["rules"])
+    assert "A second effect is needed beyond it: extra-damping" in out["summary"]
+    assert "Refitting with both changes the posterior-predictive Chamfer from 3.00 to 1.50 cm" in out["summary"]
+    # the pair does not explain it either: third verdict
+    after["wind+extra-damping"] = (0.02, 0.05)
+    out = _fake_diagnosis()
+    out["significant"] = ["wind", "extra-damping"]
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["verdict"] == "misspecified-unexplained" and out["named_effects"] == []
+    # a single refit explains it: no second effect, whatever the screening's forward selection said
+    after["wind"] = (0.012, 0.6)
+    out = _fake_diagnosis()
+    out["significant"] = ["wind", "extra-damping"]
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["verdict"] == "missing-effect" and out["named_effects"] == ["wind"]
+    assert "No second effect is needed" in out["summary"] and "A second effect" not in out["summary"]
+    assert not any(c["effect"] == "wind+extra-damping" for c in out["confirmed"])
 
 
 def test_a_refit_check_accepts_and_that_lowers_the_error_names_the_effect(monkeypatch):
