@@ -264,13 +264,14 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
     return new
 
 
-def select_rows(rows: list[dict[str, Any]], confirm: int = 0, confirm_budget: str | None = None) -> list[dict[str, Any]]:
-    """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none),
-    and with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget."""
+def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
+                confirm_budget: str | None = None) -> list[dict[str, Any]]:
+    """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none;
+    None: any number), and with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget."""
     def budget(r):
         cb = (r.get("budget") or {}).get("confirm_budget")
         return f"{cb['rounds']}x{cb['sims_per_round']}" if cb else None
-    return [r for r in rows if int((r.get("budget") or {}).get("confirm", 0)) == confirm
+    return [r for r in rows if (confirm is None or int((r.get("budget") or {}).get("confirm", 0)) == confirm)
             and (confirm_budget is None or budget(r) == confirm_budget)]
 
 
@@ -438,7 +439,8 @@ def main() -> None:
     s = sub.add_parser("summary")
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
-    s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits")
+    s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits "
+                                                          "(-1: any number)")
     s.add_argument("--confirm-budget", default=None, help="only rows whose refits had this budget (3x100)")
     a = ap.parse_args()
     if a.cmd == "floor":
@@ -462,8 +464,8 @@ def main() -> None:
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
                   a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb)
     else:
-        rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()], a.confirm,
-                           a.confirm_budget)
+        rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()],
+                           None if a.confirm < 0 else a.confirm, a.confirm_budget)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 
