@@ -111,6 +111,7 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
         return {"status": int(ro.status), "reason": ro.reason, "x": None, "chamfer": None,
                 "seconds": time.perf_counter() - t0}
     rng = np.random.default_rng([int(seed), 17])
+    effect_z = rollout_min_z(ro)  # a sensor effect's visibility threshold (table-unseen), else None
     # a camera fit: the virtual depth sensor makes the simulated clouds of the metric (FitConfig.sensor) and
     # of the point-cloud observer (the same per-process sensor, sensor_from_json); each frame is rendered once
     # and shared by both (same rng draws, so the same numbers as rendering twice)
@@ -127,13 +128,13 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
                 ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface,
                                                    rng)
             else:  # a sensor effect's threshold (table-unseen) adds to the fit's own
-                ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, rollout_min_z(ro)))
+                ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, effect_z))
     out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
            "seconds": time.perf_counter() - t0}
     if ctx.keep_rollout:
         out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
-        if rollout_min_z(ro) is not None:
-            out[INFO_MIN_VISIBLE_Z] = rollout_min_z(ro)
+        if effect_z is not None:
+            out[INFO_MIN_VISIBLE_Z] = effect_z
     return out
 
 

@@ -283,8 +283,9 @@ def simulate_recording(backend: str, scenario: Scenario, truth: Mapping[str, flo
     rng = np.random.default_rng(seed)
     obs = PointCloudObserver(n_points, noise=noise).observe(ro, rng)
     dense = rollout_clouds(ro, n_dense, rng)
-    if rollout_min_z(ro) is not None:  # a hidden sensor effect hides points (table-unseen): the seen ones, redrawn
-        dense = np.stack([seen_resampled(c, rollout_min_z(ro), rng) for c in dense])
+    effect_z = rollout_min_z(ro)
+    if effect_z is not None:  # a hidden sensor effect hides points (table-unseen): the seen ones, redrawn
+        dense = np.stack([seen_resampled(c, effect_z, rng) for c in dense])
     if noise > 0:
         dense = dense + rng.normal(0, noise, dense.shape)
     src = f"simulated:{backend}" + (f"+{'+'.join(effects)}" if effects else "")
