@@ -40,6 +40,10 @@ from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
+#: the ten named candidates installed with softsbi before table-unseen (screened by the newer suites)
+NAMED_CANDIDATES = ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope", "sticky-patch",
+                    "heavy-hem", "calibration-offset", "time-offset", "point-noise"]
+
 SUITES: dict[str, dict[str, Any]] = {
     "mujoco": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
                "effects": ["wind", "air-drag", "extra-damping", "grip-compliance"],
@@ -56,15 +60,12 @@ SUITES: dict[str, dict[str, Any]] = {
     "mujoco-more": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
                     "effects": ["table-slope", "sticky-patch", "heavy-hem", "calibration-offset", "time-offset",
                                 "point-noise"],
-                    "candidates": ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope",
-                                   "sticky-patch", "heavy-hem", "calibration-offset", "time-offset", "point-noise"],
+                    "candidates": NAMED_CANDIDATES,
                     "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     # the sensor candidate added last (points near the table unseen), hidden alone; all eleven named screened
     "table-unseen": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
                      "effects": ["table-unseen"],
-                     "candidates": ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope",
-                                    "sticky-patch", "heavy-hem", "calibration-offset", "time-offset", "point-noise",
-                                    "table-unseen"],
+                     "candidates": NAMED_CANDIDATES + ["table-unseen"],
                      "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     # pairs of hidden effects (issue 19 item 5): both switched on at magnitudes in [0.4, 1]; right = the
     # verdict names both (the selected effect and the forward selection's second), nothing else
@@ -72,8 +73,7 @@ SUITES: dict[str, dict[str, Any]] = {
               "pairs": [["wind", "extra-damping"], ["wind", "calibration-offset"],
                         ["extra-damping", "calibration-offset"]], "magnitude_range": [0.4, 1.0],
               "effects": ["wind", "extra-damping", "calibration-offset"],
-              "candidates": ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope",
-                             "sticky-patch", "heavy-hem", "calibration-offset", "time-offset", "point-noise"],
+              "candidates": NAMED_CANDIDATES,
               "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     "toy": {"backend": "toy-gauss", "scenarios": ["toy"], "effects": ["toy-wind"], "backend_options": {},
             "n_points": 16, "n_dense": 64, "estimator_options": {"max_epochs": 80, "hidden": [64, 64]}},
@@ -86,6 +86,11 @@ def _scenario(name: str):
         return toy_scenario(4)
     from softsbi.scenarios.builtin import lift_scenario, make_scenario
     return lift_scenario(None) if name == "lift" else make_scenario(name)
+
+
+def hidden_effects(case: dict[str, Any]) -> list[str]:
+    """The effects hidden in a case's measurement (none for controls and other-engine data)."""
+    return [] if case["truth_label"] in ("control", "other-engine") else case["truth_label"].split("+")
 
 
 #: the right verdict of cases without a named hidden effect
@@ -133,7 +138,7 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     nominal fit's); the suite's ``candidates`` (default its ``effects``) are screened."""
     t0 = time.perf_counter()
     cfg = SUITES[case["suite"]]
-    hidden = [] if case["truth_label"] in ("control", "other-engine") else case["truth_label"].split("+")
+    hidden = hidden_effects(case)
     meas = simulate_recording(cfg.get("data_backend", cfg["backend"]), _scenario(case["scenario"]), case["truth"],
                               backend_options=cfg.get("data_backend_options", cfg["backend_options"]), effects=hidden,
                               n_points=cfg["n_points"],
@@ -197,7 +202,7 @@ def truth_floor(run_dir: Path, case: dict[str, Any], n: int = 5) -> float:
     from softsbi.workflows.jobs import run_jobs
     from softsbi.workflows.runs import load_run
     run = load_run(run_dir)
-    hidden = [] if case["truth_label"] in ("control", "other-engine") else case["truth_label"].split("+")
+    hidden = hidden_effects(case)
     res = run_jobs(run.sim_context(keep_rollout=False),
                    [(dict(case["truth"]), 5000 + k, list(run.effects) + hidden) for k in range(n)], 1)
     fr = slice(None) if run.metric_frames is None else run.metric_frames
