@@ -19,6 +19,9 @@ Usage:
     python benchmarks/diagnose_stats.py run --suite cross-engine --cases 0:8 --confirm 2   # with refits
     python benchmarks/diagnose_stats.py summary --results benchmarks/results/diagnose_stats.jsonl [--confirm 2]
 Rows with refits carry the id suffix ``-refit<N>`` and are summarised apart (``summary --confirm N``).
+Rows diagnosed with check's joint test (the omnibus and the directional test, Bonferroni-combined:
+``softsbi.workflows.screening.misspecification_verdict``) carry ``"test": "joint"`` and the id suffix ``-joint``;
+rows stored before it have the omnibus test alone (``summary --test omnibus``, the default ``joint``).
 Suites: ``mujoco`` (mujoco-flex; lift, wipe, fling, wind; effects wind, air-drag, extra-damping,
 grip-compliance), ``cross-engine`` (measurements by pybullet-massspring fitted with mujoco-flex; the
 right verdict is misspecified-unexplained) and ``toy`` (the test plugin's toy-gauss and toy-wind; needs tests/plugins/softsbi_toy).
@@ -39,6 +42,9 @@ from softsbi.plugins import registry
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
+
+#: the misspecification test the verdicts below are decided with (stored with every new row)
+TEST = "joint"
 
 #: the ten named candidates installed with softsbi before table-unseen (screened by the newer suites)
 NAMED_CANDIDATES = ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope", "sticky-patch",
@@ -160,7 +166,9 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
             else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
             "second": d["significant"][1:], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
             if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
-            "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"],
+            "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"], "test": TEST,
+            "omnibus_p": d["misspecification"]["omnibus"]["p_value"],
+            "directional_p": (d["misspecification"].get("directional") or {}).get("p_value"),
             "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
                         for r in d["ranking"] if "statistic" in r],
             # per refit: effect, error drop, and check's test of the refit (p, still misspecified)
@@ -181,6 +189,7 @@ def refit_case(run_dir: Path, effect: str, rounds: int, sims: int, proposal: str
 
     from softsbi.workflows.diagnose import recording_from_run
     from softsbi.workflows.runs import load_run
+    from softsbi.workflows.screening import candidate_effects, misspecification_verdict
     from softsbi.workflows.stats import PosteriorPredictive
     t0 = time.perf_counter()
     run = load_run(run_dir)
@@ -188,7 +197,8 @@ def refit_case(run_dir: Path, effect: str, rounds: int, sims: int, proposal: str
                   sims_per_round=sims, workers=1, proposal=proposal)
     out = run.path / f"trefit-{effect}-{rounds}x{sims}"
     res = run_fit(out, recording_from_run(run), cfg, make_plots=False)
-    mis = PosteriorPredictive(out, 1).ensure(n_null).misspecification(alpha, max_null)
+    pool = PosteriorPredictive(out, 1).ensure(n_null)
+    mis = misspecification_verdict(pool, candidate_effects(pool.run), alpha, max_null)[0]
     b, a = run.report["chamfer_posterior_m"], res.report["chamfer_posterior_m"]
     return {"case": run_dir.name, "effect": effect, "budget": f"{rounds}x{sims} {proposal}", "before_cm": b * 100,
             "after_cm": a * 100, "drop": 1 - a / b, "check_after": mis["p_text"], "s": time.perf_counter() - t0}
@@ -254,6 +264,7 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
             case["id"] += f"-refit{confirm}"
             if confirm_budget:
                 case["id"] += f"-{confirm_budget['rounds']}x{confirm_budget['sims_per_round']}"
+        case["id"] += f"-{TEST}"
         if case["id"] in have:
             continue
         try:
@@ -270,14 +281,17 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
 
 
 def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
-                confirm_budget: str | None = None) -> list[dict[str, Any]]:
+                confirm_budget: str | None = None, test: str | None = None) -> list[dict[str, Any]]:
     """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none;
-    None: any number), and with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget."""
+    None: any number), with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget, and
+    with ``test`` (``"joint"`` or ``"omnibus"``, rows without the field) only those decided with that
+    misspecification test."""
     def budget(r):
         cb = (r.get("budget") or {}).get("confirm_budget")
         return f"{cb['rounds']}x{cb['sims_per_round']}" if cb else None
     return [r for r in rows if (confirm is None or int((r.get("budget") or {}).get("confirm", 0)) == confirm)
-            and (confirm_budget is None or budget(r) == confirm_budget)]
+            and (confirm_budget is None or budget(r) == confirm_budget)
+            and (test is None or r.get("test", "omnibus") == test)]
 
 
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
@@ -447,6 +461,8 @@ def main() -> None:
     s.add_argument("--confirm", type=int, default=0, help="summarise the rows run with this many refits "
                                                           "(-1: any number)")
     s.add_argument("--confirm-budget", default=None, help="only rows whose refits had this budget (3x100)")
+    s.add_argument("--test", default="joint", choices=["joint", "omnibus", "any"],
+                   help="only rows decided with this misspecification test (omnibus: rows stored before the joint test)")
     a = ap.parse_args()
     if a.cmd == "floor":
         print(f"{add_floors(a.results, a.out)} rows updated")
@@ -470,7 +486,8 @@ def main() -> None:
                   a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb)
     else:
         rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()],
-                           None if a.confirm < 0 else a.confirm, a.confirm_budget)
+                           None if a.confirm < 0 else a.confirm, a.confirm_budget,
+                           None if a.test == "any" else a.test)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

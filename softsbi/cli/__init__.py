@@ -470,8 +470,10 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
               f"{ph['chamfer_m'] * 100:.2f}", ph["worst_region"]] for ph in out["phases"]],
             title="Error by phase of the motion")
     m = out["misspecification"]
-    o.line(f"misspecification test: statistic {m['statistic']:.2f} (null mean {m['null_mean']:.2f}), "
-           f"{m['p_text']}")
+    d = m.get("directional")
+    o.line(f"misspecification test: omnibus statistic {m['statistic']:.2f} (null mean {m['null_mean']:.2f}), "
+           f"{m['omnibus']['p_text']}" + (f"; directional (max-T over {d['family']} installed effects, strongest "
+                                          f"{d['effect']}) {d['p_text']}" if d else "") + f"; joint {m['p_text']}")
     o.line(f"decision rule: {m['rule']}")
     o.line(out["summary"])
     o.line(f"wrote {run / 'check.json'} and {run / 'check.png'}")

@@ -442,10 +442,13 @@ def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
 
 
 def short_p(mis: dict[str, Any]) -> str:
-    """A Monte-Carlo p-value with its resolution, short: ``p ≤ 1/201`` or ``p = 0.4 (30 sims)``."""
+    """A Monte-Carlo p-value with its resolution, short: ``p ≤ 1/201`` (``p ≤ 2/201`` for check's joint test of
+    two) or ``p = 0.4 (30 sims)``."""
     n = mis.get("n_null")
     if n is None:
         return f"p = {mis['p_value']:.2g}"
+    if "tests" in mis:  # check's joint test: resolution tests / (n + 1)
+        return f"p ≤ {mis['tests']}/{n + 1}" if mis.get("at_floor") else f"p = {mis['p_value']:.2g} ({n} sims)"
     return f"p ≤ 1/{n + 1}" if mis.get("exceed") == 0 else f"p = {mis['p_value']:.2g} ({n} sims)"
 
 

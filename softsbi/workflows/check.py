@@ -4,7 +4,8 @@
 samples and seeds, through :func:`~softsbi.workflows.jobs.simulate_job`) and compares them with
 the measurement: Chamfer error per frame, per region of the object and per phase of the motion,
 and a misspecification test (is the measurement's summary vector inside the distribution of
-posterior-predictive summaries?) with a simulation-based p-value.
+posterior-predictive summaries, in any direction or along an installed effect's?) with a
+simulation-based p-value.
 
 Every distance sees the simulated and the measured clouds through the fit's own sensor model
 (:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, or for
@@ -22,7 +23,7 @@ import json
 import time
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -34,6 +35,7 @@ from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.runs import RunView, load_run
+from softsbi.workflows.screening import candidate_effects, misspecification_verdict
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL,  # noqa: F401 (re-exported)
                                      PosteriorPredictive, cloud_features, misspecification_test, sampled_points,
                                      trajectory_features)
@@ -226,7 +228,7 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
 
 def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
-              pool: PosteriorPredictive | None = None) -> dict[str, Any]:
+              pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None) -> dict[str, Any]:
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
@@ -236,6 +238,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
             the measurement lies beyond all ``n_samples`` rollouts and ``1 / (n_samples + 1) > alpha``,
             the test simulates up to ``max_null`` posterior-predictive rollouts before deciding.
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
+        effects: the directional test's family (default: every installed effect the run's backend can apply
+            and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
 
     Returns:
         dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts),
@@ -243,10 +247,12 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         no rollout's region is seen), ``region_compared`` (T x R bool: False where it is 0 for that
         reason, not for a perfect fit), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
         (``"camera"``, ``"height"`` or ``"none"``, :func:`sensor_model`),
-        ``worst_frames``, ``worst_regions``, ``misspecification`` (statistic, Monte-Carlo ``p_value``
-        with ``p_text`` stating its resolution, ``misspecified``, ``rule``) and a ``summary`` sentence.
-        The misspecification verdict is :meth:`PosteriorPredictive.misspecification`, the same
-        test ``diagnose`` uses as its first verdict.
+        ``worst_frames``, ``worst_regions``, ``misspecification`` (the omnibus and the directional test,
+        each a Monte-Carlo p-value, their Bonferroni-combined ``p_value`` with ``p_text`` stating its
+        resolution, ``misspecified``, ``rule``) and a ``summary`` sentence. The misspecification verdict is
+        :func:`~softsbi.workflows.screening.misspecification_verdict`, the same test ``diagnose`` uses as its
+        first verdict; its directional part simulates the screening's finite differences (one simulation per
+        nominal and effect parameter, about 40 for mujoco-flex's installed effects).
 
     Raises:
         SoftsbiError: fewer than 5 posterior rollouts succeeded.
@@ -273,7 +279,7 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
     reg = np.zeros((len(ok), T, len(names)))
     for k, r in enumerate(ok):
         reg[k] = rollout_region_errors(run, r, labels, len(names), dense)
-    mis = pool.misspecification(alpha, max_null)
+    mis = misspecification_verdict(pool, candidate_effects(run, effects), alpha, max_null)[0]
     warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)  # regions a small mesh lacks
     reg_mean = np.nanmean(reg, axis=0)
     phases = motion_phases(run.scenario)

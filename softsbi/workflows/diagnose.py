@@ -1,6 +1,7 @@
 """Is the nominal model enough, and which installed effect is missing? Three verdicts.
 
 :func:`diagnose_run` first asks ``check``'s question with ``check``'s test (the same code and null:
+:func:`~softsbi.workflows.screening.misspecification_verdict` on
 :class:`~softsbi.workflows.stats.PosteriorPredictive`): is the measurement inside the posterior
 predictive distribution? If not, it ranks candidate effects by how much of the residual each
 explains: with summaries ``s``, the residual ``r = s_obs - s(theta_hat)`` is regressed on the
@@ -23,36 +24,18 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
-from softsbi.core.types import STATUS_OK
-from softsbi.plugins import registry
-from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
-from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
-                                     PosteriorPredictive, max_t_adjusted, mc_pvalue, pvalue_fields,
-                                     resolution_needed, rollout_features, run_features, run_frames,
-                                     sampled_points)
 from softsbi.core.types import Recording
+from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
 from softsbi.workflows.fit import FitConfig, run_fit
-from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView, load_run
-
-
-def _candidate_effects(run: RunView, names: Sequence[str] | None) -> list[Any]:
-    reg = registry()
-    sim_cls = reg.simulator(run.config["backend"])
-    if names:
-        cands = [reg.effect(n) for n in names]
-        bad = [f"{c.name} (it needs {sim_cls.supports(c)})" for c in cands if sim_cls.supports(c) is not None]
-        if bad:
-            raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
-    else:
-        # generic force terms are screened too (in the max-T family), but only for the third verdict: forward
-        # selection names non-generic effects only (_Screening.select)
-        cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
-    return [c() for c in cands if c.name not in run.effects]
+from softsbi.workflows.screening import (Screening, candidate_effects, effect_kind, is_generic,  # noqa: F401
+                                         misspecification_verdict, screening_of)
+from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
+                                     PosteriorPredictive, resolution_needed, run_features, run_frames,
+                                     sampled_points)
 
 
 #: verdicts of a diagnosis (``diagnosis.json``'s ``verdict``)
@@ -69,17 +52,6 @@ MIN_EXPLAINED = 0.1
 EXPLAIN_ALPHA = 0.1
 
 
-def effect_kind(effect: Any) -> str:
-    """``"physics"`` or ``"sensor"``: an effect class's ``kind`` attribute (default physics)."""
-    return str(getattr(type(effect), "kind", getattr(effect, "kind", "physics")) or "physics")
-
-
-def is_generic(effect: Any) -> bool:
-    """True for a generic force term (class attribute ``generic = True``: constant force, linear
-    or quadratic drag, a position-dependent force field), which describes a residual rather than
-    naming a physical cause."""
-    return bool(getattr(type(effect), "generic", False))
-
 
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_null: int = N_NULL,
                  max_null: int = MAX_NULL, unit_step: float = 0.05, effect_step: float = 0.25,
@@ -91,8 +63,10 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     Three verdicts, in this order (``verdict``):
 
     1. ``nothing-missing``: the measurement lies inside the posterior predictive distribution
-       (``check``'s misspecification test, the same code and null: :meth:`PosteriorPredictive.misspecification`,
-       ``p > alpha``). Candidates are ranked for reference only.
+       (``check``'s misspecification test, the same code and null:
+       :func:`~softsbi.workflows.screening.misspecification_verdict`, the omnibus test and the directional
+       test over these candidates, Bonferroni-combined, ``p > alpha``). Candidates are ranked for reference
+       only. With the default candidates (every installed effect) the test is exactly ``check``'s.
     2. ``missing-effect``: misspecified, and a named (non-generic) candidate explains the residual:
        max-T adjusted Monte-Carlo ``p <= alpha`` over all candidates (:func:`max_t_adjusted`) and
        at least ``min_explained`` of the residual sum of squares. Forward selection adds a second
@@ -149,20 +123,19 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     """
     t0 = time.perf_counter()
     run = load_run(run_dir, n_null, seed)
-    cands = _candidate_effects(run, effects)
+    cands = candidate_effects(run, effects)
     if not cands:
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
-    jobs, eff_cols, _ = _sensitivity_jobs(run, cands, unit_step, effect_step)
-    res = run_jobs(run.sim_context(keep_rollout=True), jobs, workers)
     pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_null)
-    mis = pool.misspecification(alpha, max_null)
-    screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
-    ranking = screen.ranking()
+    # check's test (omnibus and directional, one null); its screening ranks the candidates
+    mis, screen, ranking = misspecification_verdict(pool, cands, alpha, max_null, unit_step, effect_step)
+    if screen is None:
+        raise SoftsbiError(mis.get("directional_error") or "no candidate could be screened")
     top = [r for r in ranking if "statistic" in r]
     if mis["misspecified"] and top and pool.requested < max_null \
             and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null):
-        pool.ensure(max_null)  # stage 1 could not reject any candidate: decide at the cap only
-        screen = _Screening(run, cands, res, eff_cols, effect_step, pool.features)
+        pool.ensure(max_null)  # the forward selection (at alpha) could not name any candidate: decide at the cap
+        screen = screening_of(pool, cands, unit_step, effect_step)
         ranking = screen.ranking()
     significant, steps_log = (screen.forward_selection(ranking, alpha, min_explained) if mis["misspecified"]
                               else ([], []))
@@ -174,7 +147,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
            "selected": significant[0] if significant else None,
            "generic": generic[0]["effect"] if generic else None,
            "final_ranking": [r["effect"] for r in ranking], "n_null": len(pool.rollouts),
-           "simulations": len(jobs) + pool.requested}
+           "simulations": screen.n_simulations + pool.requested}
     out["verdict"] = ("nothing-missing" if not mis["misspecified"] else
                       "missing-effect" if significant else "misspecified-unexplained")
     if out["verdict"] != "nothing-missing":
@@ -189,185 +162,6 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     (Path(run_dir) / "diagnosis.json").write_text(json.dumps(out, indent=2))
     return out
 
-
-def _sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
-                      effect_step: float) -> tuple[list[tuple[dict, int, tuple]], list[tuple[Any, str, int, int]], int]:
-    """The finite-difference simulations of the screening, as job items ``(theta, seed, effects)``:
-    the posterior median; one step per nominal parameter; per candidate the effect at its nominal
-    value and one step per effect parameter. Returns the items, the effect columns ``(effect,
-    parameter, index with the step, index at nominal)`` and the number of items."""
-    base = run.median()
-    space = run.space
-    u_hat = np.clip(space.to_unit(space.as_array({k: base[k] for k in space.names})), 0, 1)
-    jobs: list[tuple[dict, int, tuple]] = [(dict(base), 0, tuple(run.effects))]
-    for j in range(space.dim):
-        s = unit_step if u_hat[j] + unit_step <= 1 else -unit_step
-        u = u_hat.copy()
-        u[j] += s
-        v = dict(base)
-        v.update(space.as_dict(space.from_unit(u)))
-        jobs.append((v, 0, tuple(run.effects)))
-    eff_cols: list[tuple[Any, str, int, int]] = []
-    for eff in cands:
-        es = eff.param_space()
-        nom = eff.nominal()
-        v0 = dict(base)
-        v0.update(nom)
-        jobs.append((v0, 0, tuple(run.effects) + (eff.name,)))
-        i_nom = len(jobs) - 1
-        for p in es:
-            u0 = es.subset([p.name]).to_unit(np.array([nom[p.name]]))[0]
-            s = effect_step if u0 + effect_step <= 1 else -effect_step
-            v = dict(v0)
-            v[p.name] = float(es.subset([p.name]).from_unit(np.array([u0 + s]))[0])
-            jobs.append((v, 0, tuple(run.effects) + (eff.name,)))
-            eff_cols.append((eff, p.name, len(jobs) - 1, i_nom))
-    return jobs, eff_cols, len(jobs)
-
-
-class _Screening:
-    """The linearised added-variable test of every candidate.
-
-    Residuals are standardised summary statistics: ``r_obs`` of the measurement and ``r_null`` of
-    the posterior-predictive rollouts (the null: the nominal model's own data), both relative to the
-    posterior median's; ``J_theta`` holds the nominal parameters' sensitivities, ``design[name]``
-    each effect's offset, sensitivities and the coefficient bounds that keep its parameters inside
-    their prior range. A candidate's statistic is the drop of the residual sum of squares when it
-    joins the fit; one null rollout gives every candidate's statistic, so the family is tested
-    with the max-T null (:func:`max_t_adjusted`).
-    """
-
-    def __init__(self, run: RunView, cands: list[Any], res: list[dict[str, Any]],
-                 eff_cols: list[tuple[Any, str, int, int]], effect_step: float, null_features: np.ndarray):
-        # finite-difference simulations share one sampling seed (common random numbers)
-        feats = [rollout_features(run, r, 0)
-                 if r is not None and r["status"] == STATUS_OK else None for r in res]
-        if feats[0] is None:
-            raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
-        f0 = feats[0]
-        null_f = np.asarray(null_features)
-        if len(null_f) < 5:
-            raise SoftsbiError("too few successful posterior-predictive simulations for the null distribution")
-        sd = np.maximum(null_f.std(0), FEATURE_FLOOR)
-        self.J_theta = np.stack([(feats[1 + j] - f0) / sd if feats[1 + j] is not None else np.zeros_like(f0)
-                                 for j in range(run.space.dim)], 1)
-        self.r_obs = (run_features(run, run.dense) - f0) / sd
-        self.r_null = (null_f - f0) / sd
-        self.design: dict[str, dict[str, Any]] = {}
-        self.failed: list[dict[str, Any]] = []
-        for eff in cands:
-            self._add_design(eff, [c for c in eff_cols if c[0] is eff], feats, f0, sd, effect_step)
-
-    def _add_design(self, eff: Any, cols: list[tuple[Any, str, int, int]], feats: list[Any], f0: np.ndarray,
-                    sd: np.ndarray, effect_step: float) -> None:
-        # offset: the effect switched on at its nominal value (e.g. wind at 0 m/s still adds air)
-        if not cols or any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
-            self.failed.append({"effect": eff.name, "kind": effect_kind(eff), "generic": is_generic(eff),
-                                "error": "a sensitivity simulation failed"})
-            return
-        es = eff.param_space()
-        lo, hi, steps = [], [], []
-        for c in cols:
-            ps1 = es.subset([c[1]])
-            u0 = ps1.to_unit(np.array([eff.nominal()[c[1]]]))[0]
-            step = effect_step if u0 + effect_step <= 1 else -effect_step
-            lo.append(min(-u0 / step, (1 - u0) / step))
-            hi.append(max(-u0 / step, (1 - u0) / step))
-            steps.append((c[1], u0, step))
-        self.design[eff.name] = {"effect": eff, "J": np.stack([(feats[c[2]] - feats[c[3]]) / sd for c in cols], 1),
-                                 "offset": (feats[cols[0][3]] - f0) / sd, "lo": np.array(lo), "hi": np.array(hi),
-                                 "steps": steps}
-
-    def sse(self, r: np.ndarray, names: Sequence[str]) -> tuple[float, np.ndarray]:
-        """Weighted residual sum of squares of the best linearised fit with effects ``names``, and
-        the effects' coefficients."""
-        big = 1e3
-        design, J_theta = self.design, self.J_theta
-        rr = r - sum((design[n]["offset"] for n in names), np.zeros_like(r))
-        A = np.concatenate([J_theta] + [design[n]["J"] for n in names], 1)
-        lb = np.concatenate([np.full(J_theta.shape[1], -big)] + [design[n]["lo"] for n in names])
-        ub = np.concatenate([np.full(J_theta.shape[1], big)] + [design[n]["hi"] for n in names])
-        fit = lsq_linear(A, rr, bounds=(lb, ub))
-        return float(((rr - A @ fit.x) ** 2).sum()), fit.x[J_theta.shape[1]:]
-
-    def statistic(self, name: str, given: list[str]) -> dict[str, Any]:
-        """Residual drop of effect ``name`` beyond the effects ``given``, on the measurement and on
-        every null rollout (``null (n,)``), with the explained fraction and the linearised estimate."""
-        base_obs, _ = self.sse(self.r_obs, given)
-        with_obs, coef = self.sse(self.r_obs, given + [name])
-        d_obs = base_obs - with_obs
-        base_null = [self.sse(r, given)[0] for r in self.r_null]
-        null = np.array([b - self.sse(r, given + [name])[0] for b, r in zip(base_null, self.r_null)])
-        est = {}
-        dsg = self.design[name]
-        k = len(coef) - len(dsg["steps"])
-        for (pname, u0, step), cval in zip(dsg["steps"], coef[k:]):
-            ps1 = dsg["effect"].param_space().subset([pname])
-            est[pname] = float(ps1.from_unit(np.array([np.clip(u0 + cval * step, 0, 1)]))[0])
-        eff = dsg["effect"]
-        return {"effect": name, "description": eff.description, "kind": effect_kind(eff), "generic": is_generic(eff),
-                "statistic": float(d_obs), "explained_fraction": float(d_obs / max(base_obs, 1e-12)),
-                "null_mean": float(null.mean()), "null": null, "estimate": est}
-
-    def family(self, names: Sequence[str], given: list[str]) -> list[dict[str, Any]]:
-        """Every candidate in ``names`` tested beyond ``given``, with max-T adjusted p-values over
-        the family (``adjusted_p_value``, ``adjusted_p_text``, ...), its own Monte-Carlo p-value
-        (``p_value``) and the normalised statistic ``z``; ordered by evidence (adjusted p, then z; among
-        candidates beyond all nulls, where z saturates at ``sqrt(n)``, by the fraction explained)."""
-        tests = [self.statistic(n, given) for n in names]
-        if not tests:
-            return []
-        adj, z = max_t_adjusted(np.array([t["statistic"] for t in tests]), np.stack([t["null"] for t in tests], 1))
-        for t, p, zz in zip(tests, adj, z):
-            own = mc_pvalue(t["statistic"], t.pop("null"))
-            t.update(z=float(zz), p_value=own.value, p_text=own.text(), **pvalue_fields(p, "adjusted_"))
-            t["adjusted_exceed"], t["n_null"] = p.exceed, p.n
-        # beyond all nulls the normalised statistic saturates (an outlier among n + 1 values has z <= sqrt(n)),
-        # so there the effect size decides: the fraction of the residual explained
-        tests.sort(key=lambda t: (t["adjusted_p_value"], 0.0 if t["adjusted_exceed"] == 0 else -t["z"],
-                                  -t["explained_fraction"]))
-        return tests
-
-    def ranking(self) -> list[dict[str, Any]]:
-        """Every candidate tested alone, by evidence; failed candidates last."""
-        return self.family(list(self.design), []) + self.failed
-
-    def remaining(self, names: list[str]) -> dict[str, Any]:
-        """What the effects ``names`` leave unexplained: the residual sum of squares after the
-        linearised fit with them, its fraction of the nominal fit's, and its Monte-Carlo p-value
-        against the same quantity on the null rollouts (``p_text``)."""
-        obs = self.sse(self.r_obs, names)[0]
-        null = np.array([self.sse(r, names)[0] for r in self.r_null])
-        p = mc_pvalue(obs, null)
-        return {"effects": list(names), "sse": obs, "fraction": obs / max(self.sse(self.r_obs, [])[0], 1e-12),
-                **p.as_dict()}
-
-    def forward_selection(self, ranking: list[dict[str, Any]], alpha: float,
-                          min_explained: float) -> tuple[list[str], list[dict[str, Any]]]:
-        """Named (non-generic) effects selected forward: the best named candidate joins when its
-        max-T adjusted p-value (over every remaining candidate, given those chosen) is at most
-        ``alpha`` and it explains at least ``min_explained`` of the remaining residual. Returns the
-        chosen names and one log entry per step."""
-        chosen: list[str] = []
-        remaining = [r["effect"] for r in ranking if "statistic" in r]
-        log = []
-        tests = [r for r in ranking if "statistic" in r]
-        while remaining:
-            if chosen:
-                tests = self.family(remaining, chosen)
-            named = [t for t in tests if not t["generic"]]
-            if not named:
-                break
-            best = named[0]
-            ok = best["adjusted_p_value"] <= alpha and best["explained_fraction"] >= min_explained
-            log.append({"given": list(chosen), "best": best["effect"], "adjusted_p_value": best["adjusted_p_value"],
-                        "adjusted_p_text": best["adjusted_p_text"], "explained_fraction": best["explained_fraction"],
-                        "accepted": bool(ok)})
-            if not ok:
-                break
-            chosen.append(best["effect"])
-            remaining.remove(best["effect"])
-        return chosen, log
 
 
 def format_p(test: dict[str, Any]) -> str:
@@ -783,7 +577,10 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     res = run_fit(out, recording_from_run(run), cfg)
     before = run.report.get("chamfer_posterior_m")
     after = res.report.get("chamfer_posterior_m")
-    mis = PosteriorPredictive(out, workers).ensure(n_null).misspecification(alpha, max_null)
+    refit = PosteriorPredictive(out, workers).ensure(n_null)
+    # check's test of the refit (softsbi check RUN/refit-<effect> prints the same): the omnibus test and the
+    # directional test over the installed effects the refit does not include
+    mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
             "drop": (1 - after / before) if before and after else None,
             "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis}

@@ -260,6 +260,8 @@ class PosteriorPredictive:
         features: ``(len(rollouts), T' * 13)`` summaries under the fit's sensor model
             (:func:`run_features`: its visibility threshold and its ``T'`` metric frames).
         requested: rollouts simulated so far (failed ones included).
+        sensitivities: the screening's finite-difference simulations at the posterior median, kept so that
+            ``check`` and ``diagnose`` sharing this pool simulate them once.
     """
 
     def __init__(self, run: "RunView | str | Path", workers: int | None = None, seed: int = 0):
@@ -272,6 +274,9 @@ class PosteriorPredictive:
         self.requested = 0
         self.first = 0  # size of the first request: the null's starting size
         self._extra: np.ndarray | None = None
+        #: the screening's finite-difference simulations, by (candidates, steps)
+        #: (:func:`softsbi.workflows.screening.screening_of`)
+        self.sensitivities: dict[tuple, Any] = {}
 
     @property
     def features(self) -> np.ndarray:
@@ -306,8 +311,9 @@ class PosteriorPredictive:
         return self
 
     def misspecification(self, alpha: float = ALPHA, max_null: int = MAX_NULL) -> dict[str, Any]:
-        """The misspecification test of the run's measurement (:func:`misspecification_test`),
-        with adaptive resolution: when it cannot decide at ``alpha`` with the rollouts so far,
+        """The omnibus misspecification test alone (:func:`misspecification_test`); ``check`` and
+        ``diagnose`` decide with :func:`softsbi.workflows.screening.misspecification_verdict`, which combines
+        it with the directional test over the installed effects. With adaptive resolution: when it cannot decide at ``alpha`` with the rollouts so far,
         simulate up to ``max_null`` first (:func:`resolution_needed`).
 
         Returns:

@@ -18,7 +18,7 @@ from softsbi.effects.physics import HeavyHem
 from softsbi.effects.sensor import CalibrationOffset
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario
-from softsbi.workflows.diagnose import _candidate_effects
+from softsbi.workflows.screening import candidate_effects
 
 LIFT = lift_scenario(None, n_frames=11)
 
@@ -98,16 +98,16 @@ def test_vertex_context_edges():
 
 def test_diagnose_candidates_come_through_the_door():
     run = SimpleNamespace(config={"backend": "mujoco-flex"}, effects=["wind"])
-    names = {c.name for c in _candidate_effects(run, None)}
+    names = {c.name for c in candidate_effects(run, None)}
     assert {"air-drag", "extra-damping", "heavy-hem", "sticky-patch", "table-slope", "point-noise"} <= names
     assert "wind" not in names
     # generic force terms are screened too (for the third verdict); forward selection never names them
-    generic = {c.name for c in _candidate_effects(run, None) if c.generic}
+    generic = {c.name for c in candidate_effects(run, None) if c.generic}
     assert generic and all(n.startswith("generic-") for n in generic)
-    assert [c.name for c in _candidate_effects(run, ["generic-constant"])] == ["generic-constant"]  # asked by name
+    assert [c.name for c in candidate_effects(run, ["generic-constant"])] == ["generic-constant"]  # asked by name
     pb = SimpleNamespace(config={"backend": "pybullet-massspring"}, effects=[])
     with pytest.raises(SoftsbiError, match="heavy-hem \\(it needs a force field"):
-        _candidate_effects(pb, ["heavy-hem"])
+        candidate_effects(pb, ["heavy-hem"])
 
 
 class _Recorder(Effect):

@@ -51,7 +51,10 @@ def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
     assert "False alarms: " in md and "| control |" in md and rows[1]["misspecification_p_text"] in md
     for r in rows:
         assert r["verdict"] in ("nothing-missing", "missing-effect", "misspecified-unexplained")
-        assert r["misspecification_p"] >= 1 / (r["n_null"] + 1)
+        # check's joint test (omnibus and directional): never below its resolution 2 / (n + 1)
+        assert r["test"] == "joint" and r["id"].endswith("-joint")
+        assert r["misspecification_p"] >= 2 / (r["n_null"] + 1)
+        assert r["misspecification_p"] == pytest.approx(min(1.0, 2 * min(r["omnibus_p"], r["directional_p"])))
 
 
 def test_only_and_refit_rows_keep_case_definitions(tmp_path):
@@ -68,6 +71,9 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
                  verdict="misspecified-unexplained", screening_verdict="missing-effect",
                  refits=[["wind", 0.2, 0.004, True]])]
     assert [r["id"] for r in bench.select_rows(rows)] == ["a"]
+    # rows stored before the joint test count as the omnibus test's
+    assert [r["id"] for r in bench.select_rows(rows + [dict(base, id="d", test="joint")], test="joint")] == ["d"]
+    assert [r["id"] for r in bench.select_rows(rows, test="omnibus")] == ["a"]
     refit = bench.select_rows(rows, 2)
     s = bench.summarise(refit)
     assert s["refit_drop"] == {"n": 1, "median": 0.5}

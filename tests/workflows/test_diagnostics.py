@@ -73,10 +73,15 @@ def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     assert np.array(h["region_error_m"]).shape == (4, 9)
     assert [p["phase"] for p in h["phases"]] == ["early", "middle", "late"]
     hm, cm = h["misspecification"], c["misspecification"]
-    # beyond all 30 rollouts, 1/31 > 0.01: the null was extended to the cap before deciding
-    assert hm["misspecified"] and hm["extended"] and hm["n_null"] == 200 and hm["exceed"] <= 1
-    assert hm["p_value"] == pytest.approx((hm["exceed"] + 1) / 201) and "200 null simulations" in hm["p_text"]
-    assert not cm["misspecified"] and cm["p_value"] > 0.01 and cm["p_value"] >= 1 / (cm["n_null"] + 1)
+    # beyond all 30 rollouts, 2/31 > 0.01: the null was extended to the cap before deciding
+    assert hm["misspecified"] and hm["extended"] and hm["n_null"] == 200 and hm["tests"] == 2
+    o, d = hm["omnibus"], hm["directional"]
+    # two tests on one null, Bonferroni-combined: the joint p is twice the smaller one, never below 2/201
+    assert d["effect"] == "toy-wind" and d["family"] == 1 and o["n_null"] == d["n_null"] == 200
+    assert hm["p_value"] == pytest.approx(min(1.0, 2 * min(o["p_value"], d["p_value"])))
+    assert hm["p_value"] >= 2 / 201 and "200 null simulations" in hm["p_text"] and "Bonferroni" in hm["rule"]
+    assert not cm["misspecified"] and cm["p_value"] > 0.01 and cm["p_value"] >= 2 / (cm["n_null"] + 1)
+    assert cm["p_value"] == pytest.approx(min(1.0, 2 * min(cm["omnibus"]["p_value"], cm["directional"]["p_value"])))
     assert "null simulations" in h["summary"] and "200 null simulations" in hm["rule"]
     # the hidden wind grows over time: the late phase is the worst
     assert h["phases"][-1]["chamfer_m"] > h["phases"][0]["chamfer_m"]

@@ -98,13 +98,13 @@ def _screening(r_obs, r_null, cols, generic=()):
     """A screening on synthetic residuals: effect ``name`` adds ``coef * cols[name]`` (coef >= 0)."""
     from softsbi.core.interfaces import Effect
     from softsbi.core.types import Param, ParamSpace
-    from softsbi.workflows.diagnose import _Screening
+    from softsbi.workflows.screening import Screening
 
     def effect(nm):
         return type(nm, (Effect,), {"name": nm, "description": nm, "generic": nm in generic,
                                     "kind": "sensor" if nm == "B" else "physics",
                                     "param_space": lambda self: ParamSpace([Param("k", 0.0, 10.0, "")])})()
-    sc = _Screening.__new__(_Screening)
+    sc = Screening.__new__(Screening)
     rng = np.random.default_rng(5)
     sc.J_theta = rng.normal(size=(len(r_obs), 2))
     sc.r_obs, sc.r_null, sc.failed = r_obs, r_null, []
@@ -147,3 +147,32 @@ def test_the_rule_asks_for_more_nulls_only_when_resolution_decides():
     some = decided({"exceed": 3, "n_null": 30}, 0.01, 30, False, "misspecified")
     assert not some["misspecified"] and "raise the cap" not in some["rule"]
     assert decided({"exceed": 0, "n_null": 200}, 0.01, 200, True, "misspecified")["misspecified"]
+
+
+def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_keeps_its_level():
+    """check's test: the omnibus and the directional test on one null, joint p = 2 x the smaller one,
+    never below its resolution 2/(n + 1); under the null it rejects at most at its level, whatever the
+    dependence of the two statistics."""
+    from softsbi.workflows.screening import joint_decision
+    from softsbi.workflows.stats import MCPValue, mc_pvalue
+    j = joint_decision(MCPValue(0, 200), MCPValue(30, 200), 0.01)
+    assert j["p_value"] == pytest.approx(2 / 201) and j["at_floor"] and j["tests"] == 2
+    assert j["deciding_test"] == "omnibus" and j["p_text"].startswith("p <= 2/201 (Bonferroni")
+    j = joint_decision(MCPValue(12, 200), MCPValue(3, 200), 0.01)
+    assert j["p_value"] == pytest.approx(8 / 201) and j["deciding_test"] == "directional" and not j["at_floor"]
+    assert "omnibus p = 0.065" in j["p_text"] and "200 null simulations" in j["p_text"]
+    assert joint_decision(MCPValue(20, 30), MCPValue(25, 30), 0.01)["p_value"] == 1.0  # capped at 1
+    one = joint_decision(MCPValue(5, 30), None, 0.01)  # no candidate screened: the omnibus test alone
+    assert one["tests"] == 1 and one["p_value"] == pytest.approx(6 / 31) and one["resolution"] == pytest.approx(1 / 31)
+    # level under the null: observation and 40 nulls exchangeable, two strongly dependent statistics
+    rng = np.random.default_rng(11)
+    rej = 0
+    reps = 3000
+    for _ in range(reps):
+        x = rng.normal(size=41)
+        s1, s2 = x, 0.8 * x + 0.6 * rng.normal(size=41)
+        p1, p2 = mc_pvalue(s1[0], s1[1:]), mc_pvalue(s2[0], s2[1:])
+        rej += joint_decision(p1, p2, 0.1)["p_value"] <= 0.1
+    rate = rej / reps
+    assert rate <= 0.1 + 2 * np.sqrt(0.1 * 0.9 / reps)
+    assert rate >= 0.05  # not vacuous: dependent tests lose little to Bonferroni here
