@@ -472,8 +472,9 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
     m = out["misspecification"]
     d = m.get("directional")
     o.line(f"misspecification test: omnibus statistic {m['statistic']:.2f} (null mean {m['null_mean']:.2f}), "
-           f"{m['omnibus']['p_text']}" + (f"; directional (max-T over {d['family']} installed effects, strongest "
-                                          f"{d['effect']}) {d['p_text']}" if d else "") + f"; joint {m['p_text']}")
+           f"{m['omnibus']['p_text']}" + (f"; directional (max-T over {d['family']} installed "
+                                          f"effect{'s' if d['family'] != 1 else ''}, strongest {d['effect']}) "
+                                          f"{d['p_text']}" if d else ""))
     o.line(f"decision rule: {m['rule']}")
     o.line(out["summary"])
     o.line(f"wrote {run / 'check.json'} and {run / 'check.png'}")

@@ -307,12 +307,10 @@ def joint_decision(omnibus: MCPValue, directional: MCPValue | None, alpha: float
 
     if k == 1:
         text = omnibus.text()
+    elif best.at_floor:
+        text = f"p <= 2/{n + 1} (two tests, Bonferroni; the {name} test beyond all {n} null simulations)"
     else:
-        other = next(p for nm, p in parts if nm != name)
-        other_name = "directional" if name == "omnibus" else "omnibus"
-        head = f"p <= 2/{n + 1}" if best.at_floor else f"p = {value:.2g}"
-        text = (f"{head} (Bonferroni, 2 x the {name} test's {short(best)}; {other_name} {short(other)}; "
-                f"{n} null simulations)")
+        text = f"p = {value:.2g} (two tests, Bonferroni: 2 x the {name} test's {short(best)}; {n} null simulations)"
     return {"p_value": value, "resolution": res, "at_floor": bool(best.at_floor), "tests": k,
             "deciding_test": name, "p_text": text}
 
@@ -383,9 +381,10 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
         k = 2 if p_d is not None else 1
     joint = joint_decision(p_o, p_d, alpha)
     rej = joint["p_value"] <= alpha
+    family = f"{len(tested)} installed effect{'s' if len(tested) != 1 else ''}"
     what = ("the measurement's summaries are outside the posterior predictive distribution if "
             + (f"the joint test gives p <= {alpha:g} (Bonferroni over the omnibus test and the directional max-T "
-               f"test over {len(tested)} installed effects)" if k == 2 else f"p <= {alpha:g}"))
+               f"test over {family})" if k == 2 else f"p <= {alpha:g}"))
     rule = f"{what}: {joint['p_text']} {'<=' if rej else '>'} {alpha:g}"
     n = p_o.n
     if not rej and joint["at_floor"] and joint["resolution"] > alpha and n >= max_null:

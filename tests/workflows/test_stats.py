@@ -157,10 +157,10 @@ def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_keeps_it
     from softsbi.workflows.stats import MCPValue, mc_pvalue
     j = joint_decision(MCPValue(0, 200), MCPValue(30, 200), 0.01)
     assert j["p_value"] == pytest.approx(2 / 201) and j["at_floor"] and j["tests"] == 2
-    assert j["deciding_test"] == "omnibus" and j["p_text"].startswith("p <= 2/201 (Bonferroni")
+    assert j["deciding_test"] == "omnibus" and j["p_text"].startswith("p <= 2/201 (two tests, Bonferroni; the omnibus")
     j = joint_decision(MCPValue(12, 200), MCPValue(3, 200), 0.01)
     assert j["p_value"] == pytest.approx(8 / 201) and j["deciding_test"] == "directional" and not j["at_floor"]
-    assert "omnibus p = 0.065" in j["p_text"] and "200 null simulations" in j["p_text"]
+    assert "2 x the directional test's p = 0.02" in j["p_text"] and "200 null simulations" in j["p_text"]
     assert joint_decision(MCPValue(20, 30), MCPValue(25, 30), 0.01)["p_value"] == 1.0  # capped at 1
     one = joint_decision(MCPValue(5, 30), None, 0.01)  # no candidate screened: the omnibus test alone
     assert one["tests"] == 1 and one["p_value"] == pytest.approx(6 / 31) and one["resolution"] == pytest.approx(1 / 31)
