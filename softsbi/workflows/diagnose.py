@@ -44,12 +44,14 @@ VERDICTS = ("nothing-missing", "missing-effect", "misspecified-unexplained")
 MIN_EXPLAINED = 0.1
 #: rule 3's level: a confirmation refit "explains the misfit" only if check's test of the refit gives
 #: p > EXPLAIN_ALPHA (and the error falls). The claim to protect here is "the effect explains it", so the
-#: level is lenient, not alpha: chosen from the p-values of correctly specified fits, the 92 controls of
-#: benchmarks/diagnose_stats.py (none below 0.29; the posterior-predictive test is conservative), so a
-#: correct refit fails it rarely, while a refit that only widens the posterior predictive towards the
-#: measurement (data from another engine: p = 0.097 twice at alpha 0.01) does not count as explained.
+#: level is lenient, not alpha. check's test is two tests Bonferroni-combined (omnibus and directional,
+#: :func:`~softsbi.workflows.screening.misspecification_verdict`), so 0.2 holds each of them to p > 0.1: the
+#: omnibus test at the level chosen from the p-values of correctly specified fits (the 92 controls of
+#: benchmarks/diagnose_stats.py: none below 0.29; the posterior-predictive test is conservative), while a refit
+#: that only widens the posterior predictive towards the measurement (data from another engine: omnibus
+#: p = 0.03-0.097) does not count as explained. The directional test on the same 92 controls: 3 below 0.1.
 #: BENCHMARKS.md "Honest statistics and three verdicts".
-EXPLAIN_ALPHA = 0.1
+EXPLAIN_ALPHA = 0.2
 
 
 
