@@ -134,9 +134,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     if screen is None:
         raise SoftsbiError(mis.get("directional_error") or "no candidate could be screened")
     top = [r for r in ranking if "statistic" in r]
-    if mis["misspecified"] and top and pool.requested < max_null \
+    if mis["misspecified"] and top and len(pool.rollouts) < max_null \
             and resolution_needed(MCPValue(top[0]["adjusted_exceed"], top[0]["n_null"]), alpha, max_null):
-        pool.ensure(max_null)  # the forward selection (at alpha) could not name any candidate: decide at the cap
+        pool.ensure_successful(max_null)  # the forward selection (at alpha) could not name any candidate: decide at the cap
         screen = screening_of(pool, cands, unit_step, effect_step)
         ranking = screen.ranking()
     significant, steps_log = (screen.forward_selection(ranking, alpha, min_explained) if mis["misspecified"]

@@ -332,8 +332,9 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
 
     Misspecified when the Bonferroni-combined p-value (:func:`joint_decision`) is ``<= alpha``. Adaptive
     resolution as in :func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``: when either
-    test lies beyond all of the first nulls and could reject at the cap, the null grows to ``max_null`` once
-    and both tests are decided there (the first stage cannot reject: ``2 / 31 > 0.01``), so the level holds.
+    test lies beyond all of the first nulls and could reject at the cap, the null grows to ``max_null``
+    successful rollouts once (:meth:`~softsbi.workflows.stats.PosteriorPredictive.ensure_successful`) and both
+    tests are decided there (the first stage cannot reject: ``2 / 31 > 0.01``), so the level holds.
 
     Args:
         pool: the run's posterior-predictive rollouts (at least 5 successful; more are simulated on demand).
@@ -374,8 +375,8 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
 
     p_o, p_d = pvals()
     k = 2 if p_d is not None else 1
-    if pool.requested < max_null and any(resolution_needed(p, alpha / k, max_null) for p in (p_o, p_d) if p):
-        pool.ensure(max_null)
+    if len(pool.rollouts) < max_null and any(resolution_needed(p, alpha / k, max_null) for p in (p_o, p_d) if p):
+        pool.ensure_successful(max_null)  # the cap counts successful rollouts: failures would cost resolution
         omni, screen, ranking, tested, err = evaluate()
         p_o, p_d = pvals()
         k = 2 if p_d is not None else 1

@@ -176,3 +176,30 @@ def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_keeps_it
     rate = rej / reps
     assert rate <= 0.1 + 2 * np.sqrt(0.1 * 0.9 / reps)
     assert rate >= 0.05  # not vacuous: dependent tests lose little to Bonferroni here
+
+
+def test_a_null_grown_to_its_cap_counts_successful_rollouts():
+    """Failed posterior-predictive rollouts do not cost resolution: the cap is reached in successes (an
+    other-engine fling with 193 successes of 200 could not resolve the joint test's 2/201 <= 0.01), within a
+    bound on requests when most fail."""
+    from softsbi.workflows.stats import PosteriorPredictive
+
+    class Flaky(PosteriorPredictive):
+        def __init__(self, fail_every):
+            self.rollouts, self.requested, self.first, self.fail_every = [], 0, 0, fail_every
+
+        def ensure(self, n):
+            for i in range(self.requested, n):
+                if i % self.fail_every:
+                    self.rollouts.append({"sample": i})
+            self.first = self.first or n
+            self.requested = max(n, self.requested)
+            return self
+
+    pool = Flaky(10).ensure(30)
+    assert len(pool.rollouts) == 27
+    pool.ensure_successful(200)
+    assert len(pool.rollouts) == 200 and pool.requested == 223
+    always = Flaky(1).ensure(30)  # every rollout fails: stops at twice the cap
+    always.ensure_successful(200)
+    assert always.requested == 400 and always.rollouts == []
