@@ -404,8 +404,15 @@ def _explains(c: dict[str, Any]) -> bool:
     return bool(m) and not m["misspecified"] and (c.get("drop") or 0) > 0
 
 
-def _pct(x: float) -> str:
-    return f"{max(x, 0.0) * 100:.0f}%"  # a linearised drop can be a rounding error below zero
+def _pct(x: float, digits: int = 0) -> str:
+    return f"{max(x, 0.0) * 100:.{digits}f}%"  # a linearised drop can be a rounding error below zero
+
+
+def _pct_below(x: float, limit: float) -> str:
+    """``"x% < limit%"`` with as many decimals as it takes for the two to read differently (9.96% is not
+    printed as "10% < 10%")."""
+    digits = next((d for d in range(4) if _pct(x, d) != _pct(limit, d)), 4)
+    return f"{_pct(x, digits)} < {_pct(limit, digits)}"
 
 
 def _refit_sentence(c: dict[str, Any], name: str, alpha: float) -> str:
@@ -505,7 +512,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
     elif named:
         t = named[0]
         why = (f"adjusted {t['adjusted_p_text']} > {a:g}" if t["adjusted_p_value"] > a else
-               f"it explains only {_pct(t['explained_fraction'])} < {_pct(out['min_explained'])} of the residual")
+               f"it explains only {_pct_below(t['explained_fraction'], out['min_explained'])} of the residual")
         s += f" (best: {t['effect']}, {why})"
     if not part:
         s += "."

@@ -196,3 +196,10 @@ def test_confirmation_refits_use_truncated_proposals(monkeypatch, tmp_path):
     with pytest.raises(_Stop):
         dg.confirm_effect(_Run(), "wind", {"proposal": "corrected"})
     assert seen["cfg"].proposal == "corrected"
+
+
+def test_explained_share_below_the_rule_never_reads_as_equal_to_it():
+    """A candidate at 9.96% of the residual against the 10% rule was printed "10% < 10%" (real lift_paper2)."""
+    from softsbi.workflows.diagnose import _pct_below
+    assert _pct_below(0.0996, 0.10) == "9.96% < 10.00%"
+    assert _pct_below(0.04, 0.10) == "4% < 10%"
