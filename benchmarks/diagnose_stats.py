@@ -137,11 +137,13 @@ def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
 
 
 def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: int, max_null: int,
-             confirm: int, workers: int | None, confirm_budget: dict[str, int] | None = None) -> dict[str, Any]:
+             confirm: int, workers: int | None, confirm_budget: dict[str, int] | None = None,
+             proposal: str = "corrected") -> dict[str, Any]:
     """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields.
 
     ``confirm_budget``: ``{"rounds", "sims_per_round"}`` of the confirmation refits (default: the
-    nominal fit's); the suite's ``candidates`` (default its ``effects``) are screened."""
+    nominal fit's); the suite's ``candidates`` (default its ``effects``) are screened. ``proposal``: the
+    nominal fit's (rows stored before the field existed were fitted with ``"corrected"``)."""
     t0 = time.perf_counter()
     cfg = SUITES[case["suite"]]
     hidden = hidden_effects(case)
@@ -151,7 +153,8 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
                               n_dense=cfg["n_dense"], seed=1000 + case["index"])
     fc = FitConfig(backend=cfg["backend"], backend_options=cfg["backend_options"], estimator="rkhs",
                    rounds=rounds, sims_per_round=sims, workers=workers, n_points=cfg["n_points"], n_eval=n_null,
-                   n_dense=cfg["n_dense"], seed=case["index"], estimator_options=cfg["estimator_options"])
+                   n_dense=cfg["n_dense"], seed=case["index"], estimator_options=cfg["estimator_options"],
+                   proposal=proposal)
     run_dir = out / case["id"]
     run_fit(run_dir, meas, fc)
     d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=n_null, max_null=max_null,
@@ -175,6 +178,7 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
             "refits": [[c["effect"], c.get("drop"), (c.get("misspecification_after") or {}).get("p_value"),
                         (c.get("misspecification_after") or {}).get("misspecified")] for c in d["confirmed"]],
             "screening_verdict": d.get("screening_verdict", d["verdict"]),
+            "proposal": proposal,
             "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null,
                        "confirm": confirm, "confirm_budget": confirm_budget},
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
@@ -245,14 +249,16 @@ def done_ids(results: Path) -> set[str]:
 def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
               workers: int | None = None, only: set[str] | None = None,
-              confirm_budget: dict[str, int] | None = None) -> list[dict[str, Any]]:
+              confirm_budget: dict[str, int] | None = None,
+              proposal: str = "corrected") -> list[dict[str, Any]]:
     """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
 
     ``only``: run just the cases whose ``truth_label`` is in this set (e.g. ``{"control"}``); the
     other indices are skipped, not renumbered, so every case keeps its definition. With ``confirm``
     > 0 (refits) a case is stored under its own id with the suffix ``-refit<confirm>``: the screening-only
     and the refitted diagnosis of a case are two rows, summarised separately (:func:`select_rows`); with a
-    ``confirm_budget`` the suffix also names it (``-refit2-3x100``)."""
+    ``confirm_budget`` the suffix also names it (``-refit2-3x100``); a nominal fit with truncated
+    proposals adds ``-truncated``."""
     have = done_ids(results)
     results.parent.mkdir(parents=True, exist_ok=True)
     new = []
@@ -264,11 +270,11 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
             case["id"] += f"-refit{confirm}"
             if confirm_budget:
                 case["id"] += f"-{confirm_budget['rounds']}x{confirm_budget['sims_per_round']}"
-        case["id"] += f"-{TEST}"
+        case["id"] += f"-{TEST}" + ("" if proposal == "corrected" else f"-{proposal}")
         if case["id"] in have:
             continue
         try:
-            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget)
+            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget, proposal)
         except Exception as exc:  # noqa: BLE001 - a failed case is recorded, not retried silently
             row = {**case, "error": f"{type(exc).__name__}: {exc}"}
         with results.open("a") as f:
@@ -281,17 +287,20 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
 
 
 def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
-                confirm_budget: str | None = None, test: str | None = None) -> list[dict[str, Any]]:
+                confirm_budget: str | None = None, test: str | None = None,
+                proposal: str | None = "corrected") -> list[dict[str, Any]]:
     """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none;
     None: any number), with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget, and
     with ``test`` (``"joint"`` or ``"omnibus"``, rows without the field) only those decided with that
-    misspecification test."""
+    misspecification test; with ``proposal`` only rows whose nominal fit drew its rounds so (rows without the
+    field: ``"corrected"``; None: any)."""
     def budget(r):
         cb = (r.get("budget") or {}).get("confirm_budget")
         return f"{cb['rounds']}x{cb['sims_per_round']}" if cb else None
     return [r for r in rows if (confirm is None or int((r.get("budget") or {}).get("confirm", 0)) == confirm)
             and (confirm_budget is None or budget(r) == confirm_budget)
-            and (test is None or r.get("test", "omnibus") == test)]
+            and (test is None or r.get("test", "omnibus") == test)
+            and (proposal is None or r.get("proposal", "corrected") == proposal)]
 
 
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
@@ -444,6 +453,8 @@ def main() -> None:
     r.add_argument("--workers", type=int, default=None)
     r.add_argument("--confirm-budget", default=None, help="ROUNDSxSIMS of the confirmation refits (default: "
                                                           "the nominal fit's)")
+    r.add_argument("--proposal", default="corrected", choices=["corrected", "truncated"],
+                   help="the nominal fits' proposals (the refits' are truncated)")
     r.add_argument("--only", default=None, help="comma-separated truth labels to run (e.g. control); other "
                                                 "indices in --cases are skipped")
     f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
@@ -463,6 +474,8 @@ def main() -> None:
     s.add_argument("--confirm-budget", default=None, help="only rows whose refits had this budget (3x100)")
     s.add_argument("--test", default="joint", choices=["joint", "omnibus", "any"],
                    help="only rows decided with this misspecification test (omnibus: rows stored before the joint test)")
+    s.add_argument("--proposal", default="corrected", choices=["corrected", "truncated", "any"],
+                   help="only rows whose nominal fit used these proposals (rows stored before the field: corrected)")
     a = ap.parse_args()
     if a.cmd == "floor":
         print(f"{add_floors(a.results, a.out)} rows updated")
@@ -483,11 +496,11 @@ def main() -> None:
             r_, n_ = (int(x) for x in a.confirm_budget.lower().split("x"))
             cb = {"rounds": r_, "sims_per_round": n_}
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
-                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb)
+                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal)
     else:
         rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()],
                            None if a.confirm < 0 else a.confirm, a.confirm_budget,
-                           None if a.test == "any" else a.test)
+                           None if a.test == "any" else a.test, None if a.proposal == "any" else a.proposal)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

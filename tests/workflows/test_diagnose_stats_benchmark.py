@@ -74,6 +74,11 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
     # rows stored before the joint test count as the omnibus test's
     assert [r["id"] for r in bench.select_rows(rows + [dict(base, id="d", test="joint")], test="joint")] == ["d"]
     assert [r["id"] for r in bench.select_rows(rows, test="omnibus")] == ["a"]
+    # rows stored before the proposal field were fitted with corrected proposals; truncated ones are kept apart
+    trunc = dict(base, id="e", proposal="truncated", budget={"rounds": 3})
+    assert [r["id"] for r in bench.select_rows(rows + [trunc])] == ["a"]
+    assert [r["id"] for r in bench.select_rows(rows + [trunc], proposal="truncated")] == ["e"]
+    assert [r["id"] for r in bench.select_rows(rows + [trunc], proposal=None)] == ["a", "e"]
     refit = bench.select_rows(rows, 2)
     s = bench.summarise(refit)
     assert s["refit_drop"] == {"n": 1, "median": 0.5}
