@@ -99,7 +99,7 @@ def main() -> None:
             accs = []
             for R in range(1, args.rounds + 1):
                 cfg = FitConfig(backend="toy-gauss", estimator=m, rounds=R, sims_per_round=args.sims, workers=1,
-                                n_points=K, n_eval=5, n_dense=64, seed=1)
+                                n_points=K, n_eval=5, n_dense=64, seed=1, proposal="corrected")  # the paper's BayesSim rounds
                 res = run_fit(out / m, meas, cfg, make_plots=False)
                 th = res.param_space.from_unit(res.posterior.sample(2000, np.random.default_rng(R)))
                 accs.append(c2st(th, ref, seed=R, max_n=2000))

@@ -69,7 +69,7 @@ def main() -> None:
         for R in range(1, args.rounds + 1):
             cfg = FitConfig(backend="mujoco-flex", backend_options=bopts, estimator=m, rounds=R,
                             sims_per_round=args.sims, n_eval=args.eval, n_dense=300, n_points=args.points,
-                            workers=args.workers, seed=args.seed)
+                            workers=args.workers, seed=args.seed, proposal="corrected")  # the paper's BayesSim rounds
             t0 = time.perf_counter()
             try:
                 res = run_fit(out / m, meas, cfg, make_plots=False)

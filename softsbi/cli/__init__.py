@@ -31,8 +31,9 @@ H_ALPHA = "family-wise significance level of the verdicts"
 H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
 H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
                "sbi-npe (`softsbi plugins` lists the installed ones)")
-H_PROPOSAL = ("how later rounds draw parameters: corrected (BayesSim: from the posterior p/p~*q) or truncated "
-              "(TSNPE: from the prior truncated to the posterior's 99.9% region; robust in many dimensions)")
+H_PROPOSAL = ("how later rounds draw parameters: truncated (TSNPE: from the prior truncated to the posterior's "
+              "99.9% region; robust in many dimensions) or corrected (the paper's BayesSim: from the posterior "
+              "p/p~*q)")
 
 
 class Proposal(str, Enum):
@@ -271,7 +272,7 @@ def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
 
 def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, workers, effect, bounds, fix,
                 backend_opt, estimator_opt, n_eval, min_height=None, frames=None, executor="local",
-                executor_options=None, proposal="corrected"):
+                executor_options=None, proposal="truncated"):
     from softsbi.workflows.fit import FitConfig
     effects = [e for it in effect or [] for e in it.split(",") if e]
     return FitConfig(backend=backend, backend_options=_parse_kv(backend_opt, "--backend-opt"), effects=effects,
@@ -337,7 +338,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                           "default: the recording's own (image observers: lift)"),
         image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
-        proposal: Proposal = typer.Option(Proposal.corrected, help=H_PROPOSAL),
+        proposal: Proposal = typer.Option(Proposal.truncated, help=H_PROPOSAL),
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),

@@ -1,9 +1,10 @@
 """The sequential real-to-sim fit (BayesSim, Ramos et al. 2019; Antonova et al. 2022, Alg. 1).
 
 Round 1 draws ``sims_per_round`` parameters from the prior; round r+1 draws them from the
-corrected posterior of round r (:class:`~softsbi.core.distributions.PosteriorChain`), or with
-``proposal="truncated"`` from the prior truncated to round r's posterior (TSNPE,
-:class:`~softsbi.core.distributions.TruncatedPrior`). Estimators with ``sequential = False``,
+prior truncated to round r's posterior (the default, TSNPE,
+:class:`~softsbi.core.distributions.TruncatedPrior`), or with ``proposal="corrected"`` (the
+paper's BayesSim rounds) from the corrected posterior of round r
+(:class:`~softsbi.core.distributions.PosteriorChain`). Estimators with ``sequential = False``,
 the "bulk" baselines, draw every round from the prior and their posterior is ``q`` truncated
 to the prior box, so round r reports the bulk method with r x sims_per_round simulations. All
 simulations are kept; after each round the estimator is trained on all usable simulations
@@ -97,11 +98,14 @@ class FitConfig:
             (``chamfer_prior_m``, ``chamfer_posterior_m``) is the mean over these frames; every
             frame's value is kept (:func:`metric_sensor`).
         proposal: how round r+1 draws its parameters (sequential estimators only):
-            ``"corrected"`` (BayesSim, the paper's): from round r's posterior ``p/p~ * q``;
-            ``"truncated"`` (TSNPE, Deistler et al. 2022): from the prior restricted to the
-            ``1 - truncation_eps`` highest-density region of round r's posterior, and the
+            ``"truncated"`` (the default; TSNPE, Deistler et al. 2022): from the prior restricted to
+            the ``1 - truncation_eps`` highest-density region of round r's posterior, and the
             posterior is ``q`` itself (no importance weights, robust when the rounds narrow
-            down fast in many dimensions).
+            down fast in many dimensions); ``"corrected"`` (BayesSim, the paper's Alg. 1): from
+            round r's posterior, the final posterior ``p/p~ * q``. The default was chosen on the
+            real lift recordings (BENCHMARKS.md, "Truncated proposals as the default"): tuned on
+            the first repeat of each fabric, checked on the second; runs stored before the field
+            existed resume as ``"corrected"``.
         truncation_eps: posterior mass outside the truncated proposal's region.
         sensor: the sensor model of the per-frame metric: ``"height"`` (the height cut ``min_height``
             applied to simulated and measured clouds) or ``"camera"`` (simulated clouds made by the
@@ -131,7 +135,7 @@ class FitConfig:
     fixed: dict[str, float] = field(default_factory=dict)
     min_height: float | None = _resume(None)
     frames: list[int] | str | None = _resume(None)
-    proposal: str = _resume("corrected")
+    proposal: str = _resume("truncated")
     truncation_eps: float = _resume(1e-3)
     sensor: str = _resume("height")
 

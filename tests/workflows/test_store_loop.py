@@ -124,14 +124,18 @@ def test_resume_refuses_changed_settings(tmp_path):
     cfg.seed = 99
     with pytest.raises(SchemaError, match="different settings.*seed"):
         run_fit(tmp_path / "r", meas, cfg, make_plots=False)
-    cfg.seed, cfg.proposal = 0, "truncated"
+    assert FitConfig().proposal == "truncated"  # the default (BENCHMARKS.md, "Truncated proposals as the default")
+    cfg.seed, cfg.proposal = 0, "corrected"
     with pytest.raises(SchemaError, match="different settings.*proposal"):
         run_fit(tmp_path / "r", meas, cfg, make_plots=False)
-    # a run stored before the proposal setting existed resumes as "corrected"
+    # a run stored before the proposal setting existed resumes as "corrected", not under the new default
     store = RunStore.open(tmp_path / "r" / "run.zarr")
     c = store.config
     del c["proposal"], c["truncation_eps"]
     store.root.attrs["config"] = c
+    cfg.proposal = "truncated"
+    with pytest.raises(SchemaError, match="different settings.*proposal"):
+        run_fit(tmp_path / "r", meas, cfg, make_plots=False)
     cfg.proposal, cfg.rounds = "corrected", 2
     assert run_fit(tmp_path / "r", meas, cfg, make_plots=False).report["rounds"] == 2
     with pytest.raises(SoftsbiError, match="--proposal must be one of"):
