@@ -33,7 +33,7 @@ import json
 import time
 from collections import Counter, defaultdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import stats
@@ -224,6 +224,47 @@ def truth_floor(run_dir: Path, case: dict[str, Any], n: int = 5) -> float:
     return float(np.mean(vals)) if vals else float("nan")
 
 
+def effect_size(run_dir: Path, case: dict[str, Any], n: int = 5) -> dict[str, float]:
+    """How visible a case's hidden effect(s) are in its measurement, in metres of the run's own metric:
+    the mean Chamfer to the measurement of ``n`` rollouts at the case's truth *without* the hidden
+    effects (what the nominal model at the right parameters scores) minus that of ``n`` rollouts *with*
+    them (:func:`truth_floor`'s oracle), seeds ``5000 + k`` for both. The prior-relative ``magnitude``
+    says how far the effect's parameter is from off; this says how much of it reaches the sensor in this
+    scenario (a grip's compliance hardly shows in a rope wound on a spool). Returns ``size_m``,
+    ``without_m`` and ``with_m``."""
+    from softsbi.workflows.jobs import run_jobs
+    from softsbi.workflows.runs import load_run
+    run = load_run(run_dir)
+    fr = slice(None) if run.metric_frames is None else run.metric_frames
+    hidden = hidden_effects(case)
+    own = {q for e in hidden for q in registry().effect(e)().param_space().names}
+    means = []
+    for effects, theta in ((list(run.effects), {k: v for k, v in case["truth"].items() if k not in own}),
+                           (list(run.effects) + hidden, dict(case["truth"]))):
+        res = run_jobs(run.sim_context(keep_rollout=False), [(theta, 5000 + k, effects) for k in range(n)], 1)
+        vals = [float(np.mean(r["chamfer"][fr])) for r in res if r and r.get("chamfer") is not None]
+        means.append(float(np.mean(vals)) if vals else float("nan"))
+    return {"size_m": means[0] - means[1], "without_m": means[0], "with_m": means[1]}
+
+
+def add_effect_sizes(results: Path, outs: Sequence[Path]) -> int:
+    """Add ``effect_size`` (:func:`effect_size`) to every stored hidden-effect row whose run directory is in
+    one of ``outs`` and that lacks it (rewrites ``results`` after each row, so an interrupted call loses
+    nothing); returns the number of rows updated."""
+    rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    k = 0
+    for r in rows:
+        if r.get("magnitude") is None or "effect_size" in r or "verdict" not in r:
+            continue
+        d = next((o / r["id"] for o in outs if (o / r["id"] / "run.zarr").exists()), None)
+        if d is None:
+            continue
+        r["effect_size"] = effect_size(d, r)
+        k += 1
+        results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+    return k
+
+
 def add_floors(results: Path, out: Path) -> int:
     """Add ``floor_m`` (:func:`truth_floor`) to every stored hidden-effect row with a refit that lacks it
     (rewrites ``results``; controls and other-engine data have no truth in the fitted model); returns the
@@ -332,6 +373,19 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
                          "named_correctly": sum(bool(r["correct"]) for r in b)})
         power[eff] = bins
     out["power"] = power
+    sized = [r for r in rows if r.get("effect_size")]
+    if sized:
+        # power over the effect's size in the data (cm): bins and a threshold per effect
+        sedges = [0.0, 0.3, 1.0, 3.0, np.inf]
+        out["power_size"] = {eff: [{"size_cm": [lo, hi], "n": len(b), "detected": sum(r["verdict"] != "nothing-missing"
+                                                                                   for r in b),
+                                    "named_correctly": sum(bool(r["correct"]) for r in b)}
+                                   for lo, hi in zip(sedges[:-1], sedges[1:])
+                                   for b in [[r for r in sized if r["truth_label"] == eff
+                                              and lo <= r["effect_size"]["size_m"] * 100 < hi]]]
+                             for eff in sorted({r["truth_label"] for r in sized})}
+        out["thresholds_size"] = {eff: detection_threshold([r for r in sized if r["truth_label"] == eff], by="size")
+                                  for eff in out["power_size"] if "+" not in eff}
     out["thresholds"] = {eff: detection_threshold([r for r in rows if r["truth_label"] == eff])
                          for eff in power if "+" not in eff}
     other = [r for r in rows if r["truth_label"] == "other-engine"]
@@ -351,16 +405,27 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     return out
 
 
-def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9) -> dict[str, Any]:
+def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str = "magnitude") -> dict[str, Any]:
     """The measured detection threshold of one hidden effect: a logistic power curve
-    ``P(named correctly | magnitude m) = 1 / (1 + exp(-(a + b m)))`` fitted by maximum likelihood to the
-    cases (scipy), and the magnitude ``m_level`` where it reaches ``level`` (None when it does not within
-    (0, 1], or when the fit is degenerate: all cases named or none). Then the criterion as measured: of
-    the cases with magnitude >= ``m_level``, how many were named correctly."""
+    ``P(named correctly | x) = 1 / (1 + exp(-(a + b x)))`` fitted by maximum likelihood to the cases
+    (scipy), and the ``x`` where it reaches ``level`` (``m_level``; None when it does not within the
+    range, or when the fit is degenerate: all cases named or none). Then the criterion as measured: of
+    the cases with ``x >= m_level``, how many were named correctly.
+
+    ``by="magnitude"``: ``x`` is the prior-relative magnitude, range (0, 1]. ``by="size"``: ``x`` is
+    ``log10`` of the effect's size in the data in cm (:func:`effect_size`; rows without it or with a
+    size <= 0.01 cm are left out), range up to 10 cm; ``m_level`` is then reported in cm."""
     from scipy.optimize import minimize
-    m = np.array([r["magnitude"] for r in rows], float)
+    if by == "size":
+        rows = [r for r in rows if (r.get("effect_size") or {}).get("size_m", 0) > 1e-4]
+        m = np.log10(np.array([r["effect_size"]["size_m"] * 100 for r in rows], float))
+        lo, hi = -2.0, 1.0
+    else:
+        m = np.array([r["magnitude"] for r in rows], float)
+        lo, hi = 0.0, 1.0
     y = np.array([bool(r["correct"]) for r in rows], float)
-    out: dict[str, Any] = {"n": len(rows), "named_correctly": int(y.sum()), "level": level, "m_level": None}
+    out: dict[str, Any] = {"n": len(rows), "named_correctly": int(y.sum()), "level": level, "m_level": None,
+                           "by": by}
     if len(rows) < 4 or y.sum() == 0:
         return out
 
@@ -372,9 +437,10 @@ def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9) -> dict[
     out["curve"] = [float(w[0]), float(w[1])]
     if w[1] > 0:
         m_lv = (np.log(level / (1 - level)) - w[0]) / w[1]
-        if 0 < m_lv <= 1:
+        if lo < m_lv <= hi:
             above = m >= m_lv
-            out.update(m_level=float(m_lv), above=int(above.sum()), above_named=int(y[above].sum()))
+            out.update(m_level=float(10 ** m_lv if by == "size" else m_lv), above=int(above.sum()),
+                       above_named=int(y[above].sum()))
     return out
 
 
@@ -406,6 +472,18 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             lv = (f"{t['m_level']:.2f}", f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
                 else ("not reached in (0, 1]", "-")
             out.append(f"| {eff} | {t['n']} | {t['named_correctly']} | {lv[0]} | {lv[1]} |")
+    if summary.get("power_size"):
+        out.append("\nBy the effect's size in the data (Chamfer to the measurement at the truth without the effect "
+                   "minus with it):\n")
+        out.append("| hidden effect | < 0.3 cm | 0.3-1 cm | 1-3 cm | >= 3 cm | size where the power curve reaches 90% "
+                   "| named correctly above it |")
+        out.append("|---|---|---|---|---|---|---|")
+        for eff, bins in summary["power_size"].items():
+            t = (summary.get("thresholds_size") or {}).get(eff) or {}
+            lv = (f"{t['m_level']:.2f} cm", f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
+                else ("not reached (up to 10 cm)" if "curve" in t else "too few cases", "-")
+            out.append(f"| {eff} | " + " | ".join(f"{b['named_correctly']}/{b['n']} named ({b['detected']} detected)"
+                                                  if b["n"] else "-" for b in bins) + f" | {lv[0]} | {lv[1]} |")
     if summary.get("other_engine"):
         oe = summary["other_engine"]
         out.append(f"\nOther engine: {oe['misspecified-unexplained']} of {oe['n']} misspecified-unexplained "
@@ -466,6 +544,11 @@ def main() -> None:
     fl = sub.add_parser("floor", help="add the oracle floor (truth re-simulated) to stored rows with refits")
     fl.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     fl.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
+    sz = sub.add_parser("size", help="add each hidden effect's size in the data (Chamfer at the truth without "
+                                     "it minus with it) to stored rows")
+    sz.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    sz.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                    help="folders holding the cases' run directories")
     s = sub.add_parser("summary")
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
@@ -477,6 +560,9 @@ def main() -> None:
     s.add_argument("--proposal", default="corrected", choices=["corrected", "truncated", "any"],
                    help="only rows whose nominal fit used these proposals (rows stored before the field: corrected)")
     a = ap.parse_args()
+    if a.cmd == "size":
+        print(f"{add_effect_sizes(a.results, a.out)} rows updated")
+        return
     if a.cmd == "floor":
         print(f"{add_floors(a.results, a.out)} rows updated")
         return

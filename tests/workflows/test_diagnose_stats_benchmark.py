@@ -55,6 +55,27 @@ def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
         assert r["test"] == "joint" and r["id"].endswith("-joint")
         assert r["misspecification_p"] >= 2 / (r["n_null"] + 1)
         assert r["misspecification_p"] == pytest.approx(min(1.0, 2 * min(r["omnibus_p"], r["directional_p"])))
+    # the hidden effect's size in the data: the nominal model at the truth scores worse without the effect
+    assert bench.add_effect_sizes(results, [tmp_path / "elsewhere", tmp_path / "runs"]) == 1
+    assert bench.add_effect_sizes(results, [tmp_path / "runs"]) == 0  # stored: not measured again
+    stored = [json.loads(x) for x in results.read_text().splitlines()]
+    es = stored[1]["effect_size"]
+    assert "effect_size" not in stored[0]  # a control has no hidden effect
+    assert es["size_m"] == pytest.approx(es["without_m"] - es["with_m"]) and es["without_m"] > es["with_m"] > 0
+    ps = bench.summarise(stored)["power_size"]["toy-wind"]
+    assert sum(b["n"] for b in ps) == 1
+
+
+def test_detection_threshold_over_the_effects_size_in_the_data():
+    """Named correctly from 1 cm up: the curve over log10(size) reaches 90% between 0.3 and 3 cm, and every
+    case above it was named; rows without a size are left out."""
+    sizes = [0.05, 0.1, 0.2, 0.4, 0.7, 0.9, 1.2, 2.0, 4.0, 8.0]
+    rows = [{"correct": s >= 1.0, "magnitude": 0.5, "effect_size": {"size_m": s / 100}} for s in sizes]
+    t = bench.detection_threshold(rows + [{"correct": False, "magnitude": 0.5}], by="size")
+    assert t["n"] == 10 and t["named_correctly"] == 4 and t["by"] == "size"
+    assert 0.3 < t["m_level"] < 3.0 and t["above"] == t["above_named"] >= 3
+    # never named: no threshold
+    assert bench.detection_threshold([dict(r, correct=False) for r in rows], by="size")["m_level"] is None
 
 
 def test_only_and_refit_rows_keep_case_definitions(tmp_path):
