@@ -149,6 +149,23 @@ def test_the_rule_asks_for_more_nulls_only_when_resolution_decides():
     assert decided({"exceed": 0, "n_null": 200}, 0.01, 200, True, "misspecified")["misspecified"]
 
 
+def test_a_near_miss_at_the_cap_is_told_how_more_nulls_could_decide_it():
+    """1 of 200 nulls as extreme (joint p = 0.02 > 0.01): at a cap of 400 the test could still reject (2/401 <=
+    0.005), so the rule says how; 2 of 200 could not (3/401 > 0.005), and the rule stays silent."""
+    from softsbi.workflows.screening import near_miss_advice
+    from softsbi.workflows.stats import MCPValue
+    one = near_miss_advice([("omnibus", MCPValue(40, 200)), ("directional", MCPValue(1, 200))], 0.01, 200)
+    assert one.startswith("; 1 of 200 nulls are as extreme in the directional test") and \
+        "with --max-null 400 it rejects if at most 1 of 400 are" in one
+    assert (1 + 1) / 401 <= 0.01 / 2 < (2 + 1) / 401  # the advice's arithmetic: at most 1 of 400
+    assert near_miss_advice([("omnibus", MCPValue(2, 200)), ("directional", MCPValue(5, 200))], 0.01, 200) == ""
+    # the omnibus test alone (k = 1): 2 of 200 still fit under 0.01 at 400 (3/401), 4 do not (5/401)
+    assert "at most 3 of 400" in near_miss_advice([("omnibus", MCPValue(2, 200))], 0.01, 200)
+    assert near_miss_advice([("omnibus", MCPValue(4, 200))], 0.01, 200) == ""
+    # not at the cap yet (30 nulls): the adaptive extension decides, not the user
+    assert near_miss_advice([("omnibus", MCPValue(1, 30))], 0.01, 200) == ""
+
+
 def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_keeps_its_level():
     """check's test: the omnibus and the directional test on one null, joint p = 2 x the smaller one,
     never below its resolution 2/(n + 1); under the null it rejects at most at its level, whatever the
