@@ -515,6 +515,40 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
 
 
+def diagnosis_table_rows(out: dict, format_p) -> list[list]:
+    """The rows of `softsbi diagnose`'s candidate table, one per effect of ``out["final_ranking"]``.
+
+    Args:
+        out: a diagnosis (:func:`softsbi.workflows.diagnose.diagnose_run`, refits included).
+        format_p: formats a screening entry's max-T p (``softsbi.workflows.diagnose.format_p``).
+
+    Returns:
+        Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
+        rank). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
+        its own: its row reads kind ``pair``, "-" for the screening's columns, and its refit's drop.
+    """
+    by_name = {r["effect"]: r for r in out["ranking"]}
+    drops = {c["effect"]: c.get("drop") for c in out["confirmed"]}
+    rows = []
+    for i, name in enumerate(out.get("final_ranking") or list(by_name)):
+        d = drops.get(name)
+        drop = "" if d is None else f"{d * 100:.0f}%"
+        r = by_name.get(name)
+        if r is None:  # a refitted pair
+            parts = name.split("+")
+            named = "yes" if all(p_ in out["significant"] for p_ in parts) else "no"
+            rows.append([i + 1, name, "pair", "-", "-", "-", named, drop])
+            continue
+        if "statistic" not in r:
+            rows.append([i + 1, r["effect"], r.get("kind", ""), "-", "-", r.get("error", ""), "", ""])
+            continue
+        est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
+        kind = "generic" if r.get("generic") else r.get("kind", "physics")
+        rows.append([i + 1, r["effect"], kind, f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r), est,
+                     "yes" if r["effect"] in out["significant"] else "no", drop])
+    return rows
+
+
 @app.command()
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
@@ -545,19 +579,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     if as_json:
         o.emit_json(out)
         return
-    by_name = {r["effect"]: r for r in out["ranking"]}
-    drops = {c["effect"]: c.get("drop") for c in out["confirmed"]}
-    rows = []
-    for i, name in enumerate(out.get("final_ranking") or list(by_name)):
-        r = by_name[name]
-        if "statistic" not in r:
-            rows.append([i + 1, r["effect"], r.get("kind", ""), "-", "-", r.get("error", ""), "", ""])
-            continue
-        est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
-        d = drops.get(name)
-        kind = "generic" if r.get("generic") else r.get("kind", "physics")
-        rows.append([i + 1, r["effect"], kind, f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r), est,
-                     "yes" if r["effect"] in out["significant"] else "no", "" if d is None else f"{d * 100:.0f}%"])
+    rows = diagnosis_table_rows(out, format_p)
     o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
              "refit: error drop"], rows,
             title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")

@@ -95,3 +95,32 @@ def test_area_weighted_sampling_is_uniform_on_the_surface():
     # points lie inside their triangles
     small = p[p[:, 0] < 5]
     assert (small[:, 0] >= -1e-12).all() and (small.sum(1) <= 1 + 1e-12).all()
+
+
+def test_diagnose_prints_a_refitted_pair(tmp_path, monkeypatch):
+    """A pair refit ("wind+time-offset", rule 3 on two effects) has no screening entry of its own; the
+    printed table must still list it (it raised KeyError on the real lift_tan recording)."""
+    import softsbi.workflows.diagnose as dg
+
+    def entry(name, frac, p):
+        return {"effect": name, "kind": "physics", "statistic": 1.0, "explained_fraction": frac,
+                "estimate": {"x": 0.5}, "p_value": p, "n_exceed": 0, "n_null": 200}
+
+    def refit(name, drop):
+        return {"effect": name, "run": str(tmp_path / f"refit-{name}"), "chamfer_before_m": 0.0285,
+                "chamfer_after_m": 0.0285 * (1 - drop), "drop": drop, "posterior_mean": {},
+                "misspecification_after": {"misspecified": True}}
+
+    out = {"ranking": [entry("time-offset", 0.14, 1 / 201), entry("wind", 0.12, 1 / 201),
+                       entry("table-unseen", 0.05, 0.3)],
+           "significant": ["time-offset", "wind"],
+           "confirmed": [refit("time-offset", -0.05), refit("wind", -0.18), refit("wind+time-offset", -0.42)],
+           "final_ranking": ["time-offset", "wind", "wind+time-offset", "table-unseen"],
+           "n_null": 200, "verdict": "misspecified-unexplained", "summary": "Misspecified by nothing installed.",
+           "rules": ["3. no refitted named effect explains the misfit -> misspecified-unexplained"]}
+    monkeypatch.setattr(dg, "diagnose_run", lambda *a, **k: out)
+    res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    line = next(ln for ln in res.output.splitlines() if "wind+time-offset" in ln)
+    assert "pair" in line and "-42%" in line and "yes" in line
+    assert "table-unseen" in res.output and "verdict: misspecified-unexplained" in res.output
