@@ -529,7 +529,8 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
     if res:
         spans = res["frame_spans"]
         if spans:
-            sp = ", ".join(f"frames {a_}-{b_} (t {t0:.2f}-{t1:.2f} s)" for a_, b_, t0, t1 in spans[:3])
+            sp = ", ".join(f"frames {a_}-{b_} (t {t0:.2f}-{t1:.2f} s)" if b_ != a_ else f"frame {a_} (t {t0:.2f} s)"
+                           for a_, b_, t0, t1 in spans[:3])
             worst = max((p for p in res["phases"] if p["fraction_flagged"] is not None),
                         key=lambda p: p["fraction_flagged"])
             s += (f" The residual lives in {sp}, mostly the {worst['phase']} phase "

@@ -100,11 +100,17 @@ def test_refits_that_raise_the_error_explain_no_part(monkeypatch):
     dg = _fake_refits(monkeypatch, {"wind": (0.0315, 0.005), "extra-damping": (0.034, 0.005),
                                     "wind+extra-damping": (0.04, 0.005)})
     out = _fake_diagnosis()
+    out["residual"] = {"frame_spans": [[10, 21, 0.40, 0.84], [24, 24, 0.96, 0.96]],
+                       "phases": [{"phase": "middle", "fraction_flagged": 1.0}], "centroid_offset_cm": [0.3, 0.7, 0.4],
+                       "direction": "+y", "worst_summary": "y_q95", "worst_regions": ["R8", "R2"]}
     dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
     assert out["verdict"] == "misspecified-unexplained" and out["partial"] == "wind"
     assert out["rules"][-1] == ("3. no refitted named effect explains the misfit -> misspecified-unexplained "
                                 "(no refit lowers the error; wind came closest)")
     assert "5% higher" in out["summary"]
+    # a one-frame span reads as one frame, not "frames 24-24"
+    assert "The residual lives in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s), mostly the middle phase" \
+        in out["summary"]
 
 
 def test_a_refit_that_check_accepts_is_selected(monkeypatch):
