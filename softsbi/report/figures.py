@@ -152,11 +152,24 @@ def chamfer_rounds_figure(report: dict[str, Any]) -> Any:
         x = [r["round"] + 1 for r in rows]
         y = np.array([r[post] for r in rows]) * scale
         e = np.array([r[post_std] or 0 for r in rows]) * scale
-        ax.errorbar(x, y, yerr=e, marker="o", color=ROLE_COLOURS["posterior"], capsize=3, lw=2,
-                    label=f"posterior after round: mean ± std (last {y[-1]:.2f} {unit})")
+        # after round r < last, the point is round r+1's rollouts, drawn from the proposal round r's posterior
+        # gives (the posterior itself for corrected rounds, the truncated prior for truncated ones); after the
+        # last round it is the posterior predictive (n_eval rollouts at final-posterior samples)
+        final = (report.get(post) is not None
+                 and rows[-1]["round"] == max(r["round"] for r in report["per_round"]))
+        k = len(rows) - 1 if final else len(rows)
+        if k:
+            truncated = report.get("proposal") == "truncated"
+            what_prop = ("next round's rollouts, from the truncated prior" if truncated
+                         else "next round's rollouts, from the posterior")
+            ax.errorbar(x[:k], y[:k], yerr=e[:k], marker="o", mfc="white", ls="--", color=ROLE_COLOURS["posterior"],
+                        capsize=3, lw=1.5, label=f"{what_prop}: mean ± std")
+        if final:
+            ax.errorbar(x[-1:], y[-1:], yerr=e[-1:], marker="o", ms=8, color=ROLE_COLOURS["posterior"], capsize=3,
+                        lw=2, label=f"posterior predictive: mean ± std ({y[-1]:.2f} {unit})")
         ax.set_xticks(x)
         ax.set_xlim(min(x) - 0.5, max(x) + 0.5)
-    ax.set_xlabel("round (number)", fontsize=FS_LABEL)
+    ax.set_xlabel("after round (number)", fontsize=FS_LABEL)
     ax.set_ylabel(f"{what} to the measurement,\nmean over frames [{unit}]", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
     ax.set_ylim(bottom=0)
@@ -170,9 +183,12 @@ def chamfer_rounds_figure(report: dict[str, Any]) -> Any:
 
 
 def plot_chamfer_rounds(path: Path, report: dict[str, Any]) -> Path:
-    """Mean Chamfer of rollouts at prior samples and at each round's posterior samples: 3-D
-    Chamfer in cm, or for image fits the mask Chamfer in px. Titled with what was fitted
-    (backend + effects) and, below, the measurement."""
+    """Mean Chamfer of rollouts at prior samples (band), of each later round's rollouts (drawn from
+    the proposal the previous round's posterior gives: that posterior for ``proposal="corrected"``,
+    the truncated prior for ``"truncated"``, which is wider) and of the posterior predictive (the
+    fit's ``n_eval`` rollouts at final-posterior samples, the reported number): 3-D Chamfer in cm,
+    or for image fits the mask Chamfer in px. Titled with what was fitted (backend + effects) and,
+    below, the measurement."""
     return _save(chamfer_rounds_figure(report), path)
 
 

@@ -203,6 +203,26 @@ def test_chamfer_rounds_is_titled_with_the_fit_not_the_measurement():
     plt.close(fig)
 
 
+def test_chamfer_rounds_tells_proposal_rollouts_from_the_posterior_predictive():
+    """Under truncated proposals a round's rollouts come from the truncated prior, not the posterior:
+    the figure must not call them "posterior"; the last point is the posterior predictive (the reported
+    number)."""
+    rep = {"observed": "x", "backend": "mujoco-flex", "effects": [], "proposal": "truncated",
+           "chamfer_prior_m": 0.043, "chamfer_prior_std_m": 0.013, "chamfer_posterior_m": 0.0163,
+           "per_round": [{"round": r, "chamfer_posterior_m": m, "chamfer_posterior_std_m": 0.008}
+                         for r, m in enumerate([0.040, 0.034, 0.0163])]}
+    fig = R.chamfer_rounds_figure(rep)
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "next round's rollouts, from the truncated prior: mean ± std" in labels
+    assert "posterior predictive: mean ± std (1.63 cm)" in labels
+    _assert_texts_inside(fig)
+    plt.close(fig)
+    fig = R.chamfer_rounds_figure({**rep, "proposal": "corrected"})
+    assert "next round's rollouts, from the posterior: mean ± std" in [
+        t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    plt.close(fig)
+
+
 def test_palette_is_colour_blind_safe_and_engines_have_no_role_colour(tmp_path):
     roles = {k: to_rgba(v) for k, v in R.ROLE_COLOURS.items()}
     assert {"measured", "posterior", "prior", "truth", "gripper", "nominal", "with_effect"} <= set(roles)
