@@ -208,20 +208,24 @@ def refit_case(run_dir: Path, effect: str, rounds: int, sims: int, proposal: str
             "after_cm": a * 100, "drop": 1 - a / b, "check_after": mis["p_text"], "s": time.perf_counter() - t0}
 
 
+def _mean_chamfer_at(run: Any, theta: dict[str, float], effects: list[str], n: int) -> float:
+    """Mean Chamfer (m, over the run's metric frames) between the measurement and ``n`` rollouts at
+    ``theta`` with ``effects``, seeds ``5000 + k``, through the run's own job; NaN when none succeeds."""
+    from softsbi.workflows.jobs import run_jobs
+    res = run_jobs(run.sim_context(keep_rollout=False), [(theta, 5000 + k, effects) for k in range(n)], 1)
+    fr = slice(None) if run.metric_frames is None else run.metric_frames
+    vals = [float(np.mean(r["chamfer"][fr])) for r in res if r and r.get("chamfer") is not None]
+    return float(np.mean(vals)) if vals else float("nan")
+
+
 def truth_floor(run_dir: Path, case: dict[str, Any], n: int = 5) -> float:
     """The oracle floor (m) of a case's posterior-predictive Chamfer: the mean Chamfer between the
     measurement and ``n`` rollouts at the case's truth with its hidden effects switched on (seeds
     ``5000 + k``), through the nominal run's own job and metric. A model that knew everything would
     score this; the point sampling of both clouds keeps it above zero."""
-    from softsbi.workflows.jobs import run_jobs
     from softsbi.workflows.runs import load_run
     run = load_run(run_dir)
-    hidden = hidden_effects(case)
-    res = run_jobs(run.sim_context(keep_rollout=False),
-                   [(dict(case["truth"]), 5000 + k, list(run.effects) + hidden) for k in range(n)], 1)
-    fr = slice(None) if run.metric_frames is None else run.metric_frames
-    vals = [float(np.mean(r["chamfer"][fr])) for r in res if r and r.get("chamfer") is not None]
-    return float(np.mean(vals)) if vals else float("nan")
+    return _mean_chamfer_at(run, dict(case["truth"]), list(run.effects) + hidden_effects(case), n)
 
 
 def effect_size(run_dir: Path, case: dict[str, Any], n: int = 5) -> dict[str, float]:
@@ -234,19 +238,13 @@ def effect_size(run_dir: Path, case: dict[str, Any], n: int = 5) -> dict[str, fl
     ``without_m``, ``with_m`` and ``nominal_m``, the nominal fit's posterior-predictive Chamfer
     (``report.json``): ``nominal_m - with_m`` is what the fit leaves, misspecification and posterior width
     together."""
-    from softsbi.workflows.jobs import run_jobs
     from softsbi.workflows.runs import load_run
     run = load_run(run_dir)
-    fr = slice(None) if run.metric_frames is None else run.metric_frames
     hidden = hidden_effects(case)
     own = {q for e in hidden for q in registry().effect(e)().param_space().names}
-    means = []
-    for effects, theta in ((list(run.effects), {k: v for k, v in case["truth"].items() if k not in own}),
-                           (list(run.effects) + hidden, dict(case["truth"]))):
-        res = run_jobs(run.sim_context(keep_rollout=False), [(theta, 5000 + k, effects) for k in range(n)], 1)
-        vals = [float(np.mean(r["chamfer"][fr])) for r in res if r and r.get("chamfer") is not None]
-        means.append(float(np.mean(vals)) if vals else float("nan"))
-    return {"size_m": means[0] - means[1], "without_m": means[0], "with_m": means[1],
+    without = _mean_chamfer_at(run, {k: v for k, v in case["truth"].items() if k not in own}, list(run.effects), n)
+    with_ = _mean_chamfer_at(run, dict(case["truth"]), list(run.effects) + hidden, n)  # truth_floor's oracle
+    return {"size_m": without - with_, "without_m": without, "with_m": with_,
             "nominal_m": float(json.loads((run_dir / "report.json").read_text())["chamfer_posterior_m"])}
 
 
