@@ -22,9 +22,8 @@ RECS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "r
 def p_short(m: dict) -> str:
     """A joint / component p as the table prints it: ``<= k/(n+1)`` at the floor, else two decimals."""
     n = m["n_null"]
-    if m.get("exceed", None) == 0 or (m.get("at_floor") and "beyond" in m.get("p_text", "")):
-        k = round(m["p_value"] * (n + 1))
-        return f"<= {k}/{n + 1}"
+    if m.get("exceed") == 0 or m.get("at_floor"):  # a component beyond every null, or the joint test at its floor
+        return f"<= {round(m['resolution'] * (n + 1))}/{n + 1}"
     return f"{m['p_value']:.2g}"
 
 
