@@ -515,18 +515,18 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
 
 
-def diagnosis_table_rows(out: dict, format_p) -> list[list]:
+def diagnosis_table_rows(out: dict) -> list[list]:
     """The rows of `softsbi diagnose`'s candidate table, one per effect of ``out["final_ranking"]``.
 
     Args:
         out: a diagnosis (:func:`softsbi.workflows.diagnose.diagnose_run`, refits included).
-        format_p: formats a screening entry's max-T p (``softsbi.workflows.diagnose.format_p``).
 
     Returns:
         Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
         rank). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
         its own: its row reads kind ``pair``, "-" for the screening's columns, and its refit's drop.
     """
+    from softsbi.workflows.diagnose import format_p
     by_name = {r["effect"]: r for r in out["ranking"]}
     drops = {c["effect"]: c.get("drop") for c in out["confirmed"]}
     rows = []
@@ -568,7 +568,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Three verdicts: nothing missing; a named installed effect is missing; misspecified by nothing
     installed (where and when the residual lives, and the best generic force term)."""
-    from softsbi.workflows.diagnose import diagnose_run, format_p
+    from softsbi.workflows.diagnose import diagnose_run
     o = Output(as_json)
     names = [e for it in effect or [] for e in it.split(",") if e] or None
     budget = {k: v for k, v in (("rounds", confirm_rounds), ("sims_per_round", confirm_sims)) if v}
@@ -579,7 +579,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     if as_json:
         o.emit_json(out)
         return
-    rows = diagnosis_table_rows(out, format_p)
+    rows = diagnosis_table_rows(out)
     o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
              "refit: error drop"], rows,
             title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")
