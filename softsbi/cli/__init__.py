@@ -25,8 +25,8 @@ H_JSON = "print one JSON document on stdout (results, or the error) instead of t
 H_WORKERS = "simulation worker processes (default: one per core)"
 H_SEED = "random seed: fixes every parameter draw and every simulation"
 H_N_EVAL = "rollouts at posterior samples (the posterior-predictive check's sample size)"
-H_MAX_NULL = ("cap of the adaptive null: when the measurement lies beyond all posterior-predictive rollouts and "
-              "1/(n+1) > alpha, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
+H_MAX_NULL = ("cap of the adaptive null: when 1/(n+1) > alpha and the first n posterior-predictive rollouts give "
+              "p <= 0.1, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
 H_ALPHA = "family-wise significance level of the verdicts"
 H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
 H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "

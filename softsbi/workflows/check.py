@@ -235,7 +235,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         n_samples: posterior rollouts for the error maps and the start of the test's null.
         alpha: level of the misspecification verdict (``p <= alpha``).
         max_null: cap of the adaptive extension of the null (:class:`PosteriorPredictive`): when
-            the measurement lies beyond all ``n_samples`` rollouts and ``1 / (n_samples + 1) > alpha``,
+            ``1 / (n_samples + 1) > alpha`` and the first stage is promising (the measurement beyond all
+            ``n_samples`` rollouts, or ``p <= EXTEND_P``: :func:`~softsbi.workflows.stats.resolution_needed`),
             the test simulates up to ``max_null`` posterior-predictive rollouts before deciding.
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply

@@ -351,7 +351,7 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
 
     Misspecified when the Bonferroni-combined p-value (:func:`joint_decision`) is ``<= alpha``. Adaptive
     resolution as in :func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``: when either
-    test lies beyond all of the first nulls and could reject at the cap, the null grows to ``max_null``
+    test's first stage is promising (beyond all of the first nulls, or ``p <= EXTEND_P``), the null grows to ``max_null``
     successful rollouts once (:meth:`~softsbi.workflows.stats.PosteriorPredictive.ensure_successful`) and both
     tests are decided there (the first stage cannot reject: ``2 / 31 > 0.01``), so the level holds.
 

@@ -70,10 +70,12 @@ def test_max_t_controls_the_family_wise_error_and_beats_bonferroni_at_low_resolu
         max_t_adjusted(obs, null[:, :3])
 
 
-def test_adaptive_resolution_extends_only_when_the_cap_can_decide_and_keeps_the_level():
+def test_adaptive_resolution_extends_only_when_promising_and_keeps_the_level():
     assert resolution_needed(MCPValue(0, 30), 0.01, 200)
     assert resolution_needed(MCPValue(1, 30), 0.01, 200)  # 2/201 <= 0.01: the cap can still decide
-    assert not resolution_needed(MCPValue(1, 30), 0.01, 120)  # 2/121 > 0.01: it cannot
+    assert not resolution_needed(MCPValue(1, 30), 0.01, 120, promising=0)  # 2/121 > 0.01 and no eager rule
+    assert resolution_needed(MCPValue(2, 30), 0.005, 200)  # 3/201 > 0.005, but the first stage's 3/31 <= 0.1
+    assert not resolution_needed(MCPValue(3, 30), 0.005, 200)  # 4/31 > 0.1 and 4/201 > 0.005
     assert not resolution_needed(MCPValue(0, 199), 0.01, 300)  # 1/200 <= 0.01: already decidable
     assert not resolution_needed(MCPValue(0, 200), 0.01, 200)
     # the two-stage test under the null: reject at most alpha of the time
