@@ -167,7 +167,9 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     return {**case, "verdict": d["verdict"], "named": named, "called": called, "named_all": named_all,
             "correct": (sorted(named_all) == sorted(hidden) if len(hidden) > 1 else named == hidden[0]) if hidden
             else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
-            "second": d["significant"][1:], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
+            "second": d["significant"][1:],
+            # refits that explain the misfit as well as the named one (diagnose: the data cannot tell them apart)
+            "alternatives": [t["effect"] for t in d.get("indistinguishable") or []], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
             if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"], "test": TEST,
             "omnibus_p": d["misspecification"]["omnibus"]["p_value"],
@@ -399,6 +401,12 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     if other:
         out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other),
                                "screening": dict(Counter(r.get("screening_verdict", r["verdict"]) for r in other))}
+    # a named effect with indistinguishable alternatives (diagnose: the data cannot tell them apart)
+    alt = [r for r in rows if r.get("alternatives")]
+    if alt:
+        out["alternatives"] = {"n": len(alt), "named_correctly": sum(bool(r["correct"]) for r in alt),
+                               "hidden_among_alternatives": sum(not r["correct"] and r["truth_label"] in r["alternatives"]
+                                                                for r in alt)}
     drops = [d for r in rows if r["correct"] and r.get("named") for e, d, *_ in r.get("refits") or []
              if e == r["named"] and d is not None]
     if drops:
@@ -495,6 +503,10 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         oe = summary["other_engine"]
         out.append(f"\nOther engine: {oe['misspecified-unexplained']} of {oe['n']} misspecified-unexplained "
                    f"(screening verdicts: {oe['screening']}).")
+    if summary.get("alternatives"):
+        a = summary["alternatives"]
+        out.append(f"\nNamed with indistinguishable alternatives: {a['n']} cases; the named effect was the hidden one in "
+                   f"{a['named_correctly']}, an alternative was in {a['hidden_among_alternatives']}.")
     if summary.get("refit_drop"):
         rd = summary["refit_drop"]
         out.append(f"\nMedian refit error drop, correctly named cases: {rd['median'] * 100:.0f}% (n = {rd['n']}).")

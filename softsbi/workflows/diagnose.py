@@ -200,6 +200,11 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
                      f"{m2.get('alpha', a):g} and the "
                      f"refit lowers the posterior-predictive Chamfer: {c['effect']}'s refit has {m2['p_text']}{change}"
                      f" -> {_rule3_outcome(m2['misspecified'], lower)}")
+    for t in out.get("ties") or []:
+        rules.append(f"3. two refits that explain the misfit are told apart if their posterior-predictive Chamfers "
+                     f"differ by at least {TIE_Z:g} standard errors: {out.get('selected')} vs {t['effect']}, "
+                     f"{t['difference_m'] * 100:.2f} cm apart, standard error {t['se_m'] * 100:.2f} cm -> "
+                     f"{'indistinguishable' if t['indistinguishable'] else 'told apart'}")
     ne = out.get("named_effects") or []
     if len(ne) > 1:
         rules.append(f"3. no single refit explains the misfit, the refit with {' and '.join(ne)} does -> "
@@ -343,6 +348,9 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     refitted named effect is still misspecified, the verdict becomes ``misspecified-unexplained``
     (``screening_verdict`` keeps ``missing-effect``; ``partial`` names the effect whose refit lowers
     the error most; ``selected`` is None): the effect explains a part of the misfit, not all of it.
+    ``ties`` compares the selected refit with every other refit that explains the misfit (:func:`_tie`);
+    ``indistinguishable`` keeps those within :data:`TIE_Z` standard errors of it: the data cannot tell them
+    apart, and the summary says so instead of "the data favour" the selected one.
 
     Args:
         progress: optional ``callable(str)`` told which effect is being refitted.
@@ -358,6 +366,7 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                                                n_null=out.get("n_null_start", N_NULL),
                                                max_null=out.get("max_null", MAX_NULL)))
     out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
+    out["ties"], out["indistinguishable"] = [], []
     named = [c for c in out["confirmed"] if c["effect"] in out["significant"] or
              not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False)]
     if out.get("verdict") == "missing-effect" and named:
@@ -370,6 +379,11 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
         sig = list(out["significant"])
         if explains:
             out["selected"] = explains[0]["effect"]  # the largest drop (sorted above)
+            # refits that explain the misfit as well as the chosen one, within the Monte-Carlo error of their
+            # posterior-predictive Chamfers: the data cannot tell them apart (a time offset and a compliant
+            # grip both make the cloth lag the gripper)
+            out["ties"] = [_tie(explains[0], c) for c in explains[1:]]
+            out["indistinguishable"] = [t for t in out["ties"] if t["indistinguishable"]]
             # the refit explains the misfit alone: the data call for no second effect, whatever the
             # linearised forward selection added
             out["named_effects"] = [out["selected"]]
@@ -404,6 +418,24 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     out["rules"] = decision_rules(out)
     out["summary"] = _diagnosis_sentence(out)
     return out
+
+
+#: two refits that both explain the misfit are told apart only if their posterior-predictive Chamfers differ
+#: by at least this many standard errors of the difference (about a two-sided 5% z-test)
+TIE_Z = 2.0
+
+
+def _tie(best: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
+    """Whether refit ``other``'s posterior-predictive Chamfer is within :data:`TIE_Z` standard errors of
+    ``best``'s (``chamfer_after_m``, ``chamfer_after_se_m``; each mean is over independent posterior rollouts,
+    so the difference's standard error is ``sqrt(se_a^2 + se_b^2)``). Returns ``{"effect", "difference_m",
+    "se_m", "indistinguishable"}``; without standard errors (refits stored before they were kept) the two
+    count as distinguishable, as they did then."""
+    d = other["chamfer_after_m"] - best["chamfer_after_m"]
+    sa, sb = best.get("chamfer_after_se_m"), other.get("chamfer_after_se_m")
+    se = float(np.hypot(sa, sb)) if sa is not None and sb is not None else None
+    return {"effect": other["effect"], "difference_m": float(d), "se_m": se,
+            "indistinguishable": bool(se is not None and d < TIE_Z * se)}
 
 
 def _explains(c: dict[str, Any]) -> bool:
@@ -476,8 +508,15 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                 s += " " + "; ".join(f"With {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
                                      f"({describe_change(o['chamfer_before_m'], o['chamfer_after_m'])})"
                                      for o in others) + (f", so the data favour {chosen}." if (c.get("drop") or 0) > 0
+                                                         and not out.get("indistinguishable")
+                                                         else "." if (c.get("drop") or 0) > 0
                                                          else "; no refit lowers the error.")
-        if chosen != out["significant"][0]:
+            for t in out.get("indistinguishable") or []:
+                s += (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and their "
+                      f"posterior-predictive Chamfers differ by {t['difference_m'] * 100:.2f} cm, less than "
+                      f"{TIE_Z:g} standard errors of the difference ({TIE_Z:g} x {t['se_m'] * 100:.2f} cm); {chosen} is "
+                      f"listed first for its larger drop.")
+        if chosen != out["significant"][0] and not out.get("indistinguishable"):
             s += (f" (The linearised screening ranked {out['significant'][0]} first; the refits decide between "
                   f"these near-collinear candidates.)")
         named_eff = out.get("named_effects")
@@ -580,8 +619,10 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     measurement fall inside the refitted model's posterior predictive distribution?
 
     Returns:
-        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "drop", "posterior_mean",
-        "misspecification_after"}``.
+        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
+        "posterior_mean", "misspecification_after"}``; ``chamfer_after_se_m`` is the standard error (m) of
+        the refit's posterior-predictive Chamfer, its rollouts' standard deviation over ``sqrt(n)`` (``n``:
+        the report's ``chamfer_posterior_n``, else the run's ``n_eval``).
     """
     budget = budget or {}
     added = [effect] if isinstance(effect, str) else list(effect)
@@ -600,7 +641,9 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     # check's test of the refit (softsbi check RUN/refit-<effect> prints the same): the omnibus test and the
     # directional test over the installed effects the refit does not include
     mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
+    sd, n = res.report.get("chamfer_posterior_std_m"), res.report.get("chamfer_posterior_n") or cfg.n_eval
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
+            "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
             "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis}
 

@@ -769,6 +769,7 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         "chamfer_prior_std_m": (prior_stats or {}).get("std_m"),
         "chamfer_posterior_m": ev_stats.get("mean_m"),
         "chamfer_posterior_std_m": ev_stats.get("std_m"),
+        "chamfer_posterior_n": ev_stats.get("n"),
         # the metric (issue 17): per frame, simulated and measured clouds seen through the fit's sensor
         # model; the headline values above are the mean over metric_frames
         # the sensor model stored with the run, which its simulations' per-frame metric used (_sim_context)

@@ -200,3 +200,37 @@ def test_refits_decide_between_near_collinear_candidates(monkeypatch, tmp_path):
     out3 = dict(out, verdict="misspecified-unexplained", significant=[], confirmed=[])
     assert dg.candidates_to_confirm(out3, 2) == ["const-force"]
     assert dg.candidates_to_confirm(dict(out, verdict="nothing-missing"), 2) == []
+
+
+def test_refits_within_their_monte_carlo_error_are_not_told_apart(monkeypatch, tmp_path):
+    """Two refits that both explain the misfit (check accepts each, each lowers the error): the one with the
+    larger drop is listed first, but when their posterior-predictive Chamfers differ by less than two standard
+    errors the diagnosis says the data cannot tell them apart instead of "the data favour" it (measured: a
+    hidden time offset in a lift, whose grip-compliance refit came out 0.06 +- 0.05 cm lower)."""
+    from softsbi.workflows import diagnose as dg
+
+    def rank(name):
+        return {"effect": name, "description": name, "kind": "physics", "generic": False, "statistic": 1.0,
+                "explained_fraction": 0.2, "adjusted_exceed": 0, "n_null": 200, "adjusted_p_value": 1 / 201,
+                "adjusted_p_text": "p <= 1/201", "estimate": {"k": 1.0}}
+
+    def diagnose_with(after, se):
+        out = {"ranking": [rank("time-offset"), rank("grip-compliance")], "significant": ["time-offset"],
+               "alpha": 0.01, "min_explained": 0.1, "confirmed": [], "selected": "time-offset",
+               "verdict": "missing-effect",
+               "misspecification": {"p_text": "p <= 2/201", "misspecified": True}}
+        accepted = {"p_text": "p = 1", "misspecified": False, "alpha": 0.2}
+        monkeypatch.setattr(dg, "confirm_effect", lambda run, name, budget, workers, **kw: {
+            "effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.011, "chamfer_after_m": after[name],
+            "chamfer_after_se_m": se, "drop": 1 - after[name] / 0.011, "posterior_mean": {},
+            "misspecification_after": accepted})
+        return dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+
+    close = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.01020}, 0.00035)
+    assert close["verdict"] == "missing-effect" and close["selected"] == "grip-compliance"
+    assert [t["effect"] for t in close["indistinguishable"]] == ["time-offset"]
+    assert "cannot tell grip-compliance from time-offset" in close["summary"] and "favour" not in close["summary"]
+    assert any(r.endswith("-> indistinguishable") for r in close["rules"])
+    far = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.00800}, 0.00035)
+    assert far["selected"] == "grip-compliance" and far["indistinguishable"] == []
+    assert "favour grip-compliance" in far["summary"] and any(r.endswith("-> told apart") for r in far["rules"])
