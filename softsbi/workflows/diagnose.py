@@ -201,9 +201,11 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
                      f"refit lowers the posterior-predictive Chamfer: {c['effect']}'s refit has {m2['p_text']}{change}"
                      f" -> {_rule3_outcome(m2['misspecified'], lower)}")
     for t in out.get("ties") or []:
+        se = (f"standard error {t['se_m'] * 100:.2f} cm" if t.get("se_m") is not None
+              else "no standard error stored with these refits")
         rules.append(f"3. two refits that explain the misfit are told apart if their posterior-predictive Chamfers "
                      f"differ by at least {TIE_Z:g} standard errors: {out.get('selected')} vs {t['effect']}, "
-                     f"{t['difference_m'] * 100:.2f} cm apart, standard error {t['se_m'] * 100:.2f} cm -> "
+                     f"{t['difference_m'] * 100:.2f} cm apart, {se} -> "
                      f"{'indistinguishable' if t['indistinguishable'] else 'told apart'}")
     ne = out.get("named_effects") or []
     if len(ne) > 1:

@@ -234,3 +234,7 @@ def test_refits_within_their_monte_carlo_error_are_not_told_apart(monkeypatch, t
     far = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.00800}, 0.00035)
     assert far["selected"] == "grip-compliance" and far["indistinguishable"] == []
     assert "favour grip-compliance" in far["summary"] and any(r.endswith("-> told apart") for r in far["rules"])
+    # refits resumed from a diagnosis stored before standard errors were kept: told apart, as they were then
+    old = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.01020}, None)
+    assert old["indistinguishable"] == [] and "favour grip-compliance" in old["summary"]
+    assert any("no standard error stored" in r for r in old["rules"])
