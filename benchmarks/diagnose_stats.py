@@ -169,8 +169,8 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
             else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
             "second": d["significant"][1:],
             # refits that explain the misfit as well as the named one (diagnose: the data cannot tell them apart)
-            "alternatives": [t["effect"] for t in d.get("indistinguishable") or []], "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")}
-            if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
+            "alternatives": [t["effect"] for t in d.get("indistinguishable") or []],
+            "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")} if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"], "test": TEST,
             "omnibus_p": d["misspecification"]["omnibus"]["p_value"],
             "directional_p": (d["misspecification"].get("directional") or {}).get("p_value"),

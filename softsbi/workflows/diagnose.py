@@ -507,12 +507,15 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
             s += _refit_sentence(c, chosen, a)
             others = [o for n, o in confirmed.items() if n != chosen]
             if others:
+                if (c.get("drop") or 0) <= 0:
+                    ending = "; no refit lowers the error."
+                elif out.get("indistinguishable"):
+                    ending = "."  # the next sentence says the data cannot tell them apart
+                else:
+                    ending = f", so the data favour {chosen}."
                 s += " " + "; ".join(f"With {o['effect']} instead: {o['chamfer_after_m'] * 100:.2f} cm "
                                      f"({describe_change(o['chamfer_before_m'], o['chamfer_after_m'])})"
-                                     for o in others) + (f", so the data favour {chosen}." if (c.get("drop") or 0) > 0
-                                                         and not out.get("indistinguishable")
-                                                         else "." if (c.get("drop") or 0) > 0
-                                                         else "; no refit lowers the error.")
+                                     for o in others) + ending
             for t in out.get("indistinguishable") or []:
                 s += (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and their "
                       f"posterior-predictive Chamfers differ by {t['difference_m'] * 100:.2f} cm, less than "
