@@ -16,6 +16,9 @@ the same run:
 - :func:`misspecification_test`: the posterior predictive check's test (Gelman et al., *BDA*
   ch. 6): mean squared standardised deviation of the measurement's summaries from the posterior
   predictive ones, against leave-one-out nulls.
+- :func:`summary_bias`: how far the posterior predictive's mean summaries lie from the measurement's,
+  whatever its spread (rule 3 of ``diagnose``: a refit that only widens its posterior predictive does not
+  lower it).
 - :class:`PosteriorPredictive`: the posterior-predictive rollouts of a run, the null of both
   tests: the fit's own evaluation samples with their seeds first, then further posterior draws,
   simulated on demand (:meth:`PosteriorPredictive.ensure`).
@@ -252,6 +255,44 @@ def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, An
     p = mc_pvalue(d_obs, null)
     return {"statistic": d_obs, "null_mean": float(null.mean()), "null_q95": float(np.quantile(null, 0.95)),
             **p.as_dict(), "n_simulations": S}
+
+
+def summary_bias(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray | None = None, n_boot: int = 400,
+                 seed: int = 0) -> dict[str, Any]:
+    """How far the posterior predictive's *mean* summaries lie from the measurement's, whatever its spread.
+
+    ``B^2 = ||(mean_i f_i - f_obs) / scale||^2 - tr(Cov(f / scale)) / S``: the squared standardised distance of
+    the rollouts' mean summaries ``f_sims (S, F)`` from ``f_obs (F,)``, minus the sampling noise of the mean,
+    so that it estimates ``||(E f - f_obs) / scale||^2`` without bias whatever ``S`` (the same correction as an
+    unbiased MMD estimate with a linear kernel). ``scale (F,)`` is fixed by the caller: a refit is measured
+    in its nominal fit's scale (:func:`~softsbi.workflows.diagnose.confirm_effect`), so a posterior predictive
+    that only widens leaves ``B^2`` unchanged in expectation while one whose rollouts move toward the
+    measurement lowers it. Default scale: ``f_sims``' standard deviations floored at :data:`FEATURE_FLOOR`
+    (the misspecification test's weights).
+
+    Returns:
+        ``{"b2", "se", "n", "scale"}``: ``b2`` (dimensionless), its bootstrap standard error over the
+        rollouts (``n_boot`` resamples, seeded), ``n = S`` and the scale used (list of ``F`` floats).
+
+    Raises:
+        SoftsbiError: fewer than 5 simulations or shapes that disagree.
+    """
+    f_obs, f_sims = np.asarray(f_obs, float).ravel(), np.asarray(f_sims, float)
+    if f_sims.ndim != 2 or f_sims.shape[1] != len(f_obs) or len(f_sims) < 5:
+        raise SoftsbiError(f"summary_bias needs at least 5 simulations of {len(f_obs)} summaries, got {f_sims.shape}")
+    if scale is None:
+        scale = np.maximum(f_sims.std(0, ddof=1), FEATURE_FLOOR)
+    scale = np.asarray(scale, float)
+    z = (f_sims - f_obs) / scale
+
+    def b2(zz: np.ndarray) -> float:
+        m = zz.mean(0)
+        return float(m @ m - zz.var(0, ddof=1).sum() / len(zz))
+
+    rng = np.random.default_rng(seed)
+    S = len(z)
+    boots = np.array([b2(z[rng.integers(0, S, S)]) for _ in range(n_boot)])
+    return {"b2": b2(z), "se": float(boots.std(ddof=1)), "n": S, "scale": scale.tolist()}
 
 
 # ----------------------------------------------------------------------------------------

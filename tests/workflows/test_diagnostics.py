@@ -238,3 +238,38 @@ def test_refits_within_their_monte_carlo_error_are_not_told_apart(monkeypatch, t
     old = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.01020}, None)
     assert old["indistinguishable"] == [] and "favour grip-compliance" in old["summary"]
     assert any("no standard error stored" in r for r in old["rules"])
+
+
+def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfer_rises(monkeypatch, tmp_path):
+    """Rule 3 with a sensor effect: a point-noise refit raises the Chamfer between the clouds (noise on both
+    adds to their distance) yet check accepts it and its rollouts' summaries moved toward the measurement
+    (summary bias 41% lower, 11 standard errors): the effect is named. A refit that check accepts only through
+    a wider posterior predictive (bias 4% lower, 0.5 standard errors), one whose small fall is significant
+    (8% < 10%), and one stored without the bias are not confirmed."""
+    from softsbi.workflows import diagnose as dg
+
+    rank = {"effect": "point-noise", "description": "noise", "kind": "sensor", "generic": False, "statistic": 1.0,
+            "explained_fraction": 0.21, "adjusted_exceed": 0, "n_null": 200, "adjusted_p_value": 1 / 201,
+            "adjusted_p_text": "p <= 1/201", "estimate": {"noise_std": 0.004}}
+
+    def diagnose_with(bias):
+        out = {"ranking": [rank], "significant": ["point-noise"], "alpha": 0.01, "min_explained": 0.1,
+               "confirmed": [], "selected": "point-noise", "verdict": "missing-effect",
+               "misspecification": {"p_text": "p <= 2/201", "misspecified": True}}
+        monkeypatch.setattr(dg, "confirm_effect", lambda run, name, budget, workers, **kw: {
+            "effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.01144, "chamfer_after_m": 0.01205,
+            "chamfer_after_se_m": 0.0001, "drop": 1 - 0.01205 / 0.01144, "posterior_mean": {},
+            "misspecification_after": {"p_text": "p = 0.45", "misspecified": False, "alpha": 0.2}, **bias})
+        return dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 1)
+
+    named = diagnose_with({"bias_fall": 0.41, "bias_fall_z": 11.0})
+    assert named["verdict"] == "missing-effect" and named["selected"] == "point-noise"
+    assert "moved toward the measurement" in named["summary"] and "5% higher" in named["summary"]
+    assert any("summary bias 41% lower, z = 11.0" in r and r.endswith("-> explained") for r in named["rules"])
+    for bias in ({"bias_fall": 0.04, "bias_fall_z": 0.5}, {"bias_fall": 0.08, "bias_fall_z": 3.0}, {}):
+        wide = diagnose_with(bias)
+        assert wide["verdict"] == "misspecified-unexplained" and wide["selected"] is None, bias
+        assert wide["partial"] == "point-noise" and "not confirmed" in wide["summary"]
+        assert any(r.endswith("not confirmed (the error does not fall)") for r in wide["rules"])
+    assert "Nor did its rollouts move toward the measurement" in diagnose_with({"bias_fall": 0.04,
+                                                                                  "bias_fall_z": 0.5})["summary"]

@@ -222,3 +222,32 @@ def test_a_null_grown_to_its_cap_counts_successful_rollouts():
     always = Flaky(1).ensure(30)  # every rollout fails: stops at twice the cap
     always.ensure_successful(200)
     assert always.requested == 400 and always.rollouts == []
+
+
+def test_summary_bias_ignores_spread_and_follows_the_mean():
+    """summary_bias estimates the squared standardised distance of the posterior predictive's mean summaries
+    from the measurement's without bias: a pool that only widens (3x the spread, same mean) keeps it, a pool
+    whose mean moves half-way to the measurement quarters it. Without the noise correction the widened pool
+    would look farther away (its sample mean is noisier), and a refit that moved nothing would look worse."""
+    from softsbi.workflows.stats import summary_bias
+
+    rng = np.random.default_rng(3)
+    F, S = 400, 30
+    scale = np.full(F, 0.01)
+    mu = np.zeros(F)
+    mu[:50] = 0.01  # ||mu / scale||^2 = 50
+    y = np.zeros(F)
+    nominal = summary_bias(y, mu + rng.normal(0, 0.01, (S, F)), scale)
+    widened = [summary_bias(y, mu + rng.normal(0, 0.03, (S, F)), scale, n_boot=100, seed=i) for i in range(8)]
+    moved = summary_bias(y, 0.5 * mu + rng.normal(0, 0.01, (S, F)), scale)
+    assert abs(nominal["b2"] - 50) < 3 * nominal["se"]
+    b_wide = np.mean([w["b2"] for w in widened])
+    se_wide = np.sqrt(np.mean([w["se"] ** 2 for w in widened]) / len(widened))
+    assert abs(b_wide - 50) < 3 * se_wide
+    assert abs(moved["b2"] - 12.5) < 3 * moved["se"]
+    # the uncorrected distance of the widened pool's mean: about 50 + F * 9 / S = 170
+    z = (mu + rng.normal(0, 0.03, (S, F)) - y) / scale
+    assert float(z.mean(0) @ z.mean(0)) > 120
+    assert nominal["n"] == S and len(nominal["scale"]) == F
+    with pytest.raises(SoftsbiError, match="at least 5 simulations"):
+        summary_bias(y, mu[None].repeat(4, 0), scale)
