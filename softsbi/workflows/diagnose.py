@@ -384,8 +384,10 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                                                nominal_bias=out.get("summary_bias")))
     out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
     out["ties"], out["indistinguishable"] = [], []
-    named = [c for c in out["confirmed"] if c["effect"] in out["significant"] or
-             not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False)]
+    # single named effects; a refitted pair ("a+b", stored when a diagnosis is resumed or decided again) is
+    # judged only where no single refit explains the misfit (below)
+    named = [c for c in out["confirmed"] if "+" not in c["effect"] and (c["effect"] in out["significant"] or
+             not next((r.get("generic") for r in out["ranking"] if r["effect"] == c["effect"]), False))]
     if out.get("verdict") == "missing-effect" and named:
         checked = [c for c in named if c.get("misspecification_after")]
         # rule 3: the refit puts the measurement inside its posterior predictive distribution AND lowers the

@@ -273,3 +273,37 @@ def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfe
         assert any(r.endswith("not confirmed (the error does not fall)") for r in wide["rules"])
     assert "Nor did its rollouts move toward the measurement" in diagnose_with({"bias_fall": 0.04,
                                                                                   "bias_fall_z": 0.5})["summary"]
+
+
+def test_a_resumed_diagnosis_judges_a_stored_pair_refit_as_a_pair(monkeypatch, tmp_path):
+    """No single refit explains the misfit, the refit with both screened effects does: both are named. Deciding
+    again on the stored diagnosis (a resumed or redecided one, whose refits include the pair) gives the same
+    verdict: the pair is judged as a pair, never selected as if it were one effect."""
+    from softsbi.workflows import diagnose as dg
+
+    def rank(name):
+        return {"effect": name, "description": name, "kind": "physics", "generic": False, "statistic": 1.0,
+                "explained_fraction": 0.3, "adjusted_exceed": 0, "n_null": 200, "adjusted_p_value": 1 / 201,
+                "adjusted_p_text": "p <= 1/201", "estimate": {"k": 1.0}}
+
+    def refit(run, name, budget, workers, **kw):
+        name = name if isinstance(name, str) else "+".join(name)
+        ok = "+" in name
+        return {"effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.03,
+                "chamfer_after_m": 0.012 if ok else 0.02, "chamfer_after_se_m": 0.0005,
+                "drop": 1 - (0.012 if ok else 0.02) / 0.03, "posterior_mean": {},
+                "misspecification_after": {"p_text": "p = 0.5" if ok else "p = 0.065", "misspecified": not ok,
+                                           "alpha": 0.2}}
+
+    monkeypatch.setattr(dg, "confirm_effect", refit)
+    out = {"ranking": [rank("wind"), rank("calibration-offset")], "significant": ["wind", "calibration-offset"],
+           "alpha": 0.01, "min_explained": 0.1, "confirmed": [], "selected": "wind", "verdict": "missing-effect",
+           "misspecification": {"p_text": "p <= 2/201", "misspecified": True}}
+    view = dg.RunView.__new__(dg.RunView)
+    first = dg.confirm_candidates(view, out, 2)
+    assert first["named_effects"] == ["wind", "calibration-offset"] and first["selected"] == "wind"
+    assert [c["effect"] for c in first["confirmed"]][-1] == "wind+calibration-offset"
+    again = dg.confirm_candidates(view, json.loads(json.dumps(first)), 2)
+    assert (again["verdict"], again["selected"], again["named_effects"]) == ("missing-effect", "wind",
+                                                                             ["wind", "calibration-offset"])
+    assert "Refitting with both" in again["summary"]
