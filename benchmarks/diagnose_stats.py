@@ -197,13 +197,13 @@ def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) 
     """Rule 3 applied again (:func:`softsbi.workflows.diagnose.redecide`) to the stored rows it can change: those
     with a refit that check accepted (``p > 0.2``, not misspecified) whose Chamfer did not fall. Their run
     directories are looked up in ``outs``; each diagnosis.json is rewritten and the row's verdict fields replaced
-    (marked ``"redecided"``). Returns the ids changed in verdict or name."""
+    (marked ``"redecided"``). Running it again re-applies the rule without simulating (the bias is kept in
+    diagnosis.json). Returns the ids changed in verdict or name."""
     from softsbi.workflows.diagnose import redecide
     rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
     changed = []
     for r in rows:
-        acc_rise = [x for x in r.get("refits") or [] if x[2] is not None and x[3] is False and (x[1] or 0) <= 0
-                    and (len(x) < 5 or x[4] is None)]
+        acc_rise = [x for x in r.get("refits") or [] if x[2] is not None and x[3] is False and (x[1] or 0) <= 0]
         run_dir = next((o / r["id"] for o in outs if (o / r["id"] / "diagnosis.json").exists()), None)
         if not acc_rise or run_dir is None:
             continue

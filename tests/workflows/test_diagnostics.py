@@ -245,7 +245,7 @@ def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfe
     adds to their distance) yet check accepts it and its rollouts' summaries moved toward the measurement
     (summary bias 41% lower, 11 standard errors): the effect is named. A refit that check accepts only through
     a wider posterior predictive (bias 4% lower, 0.5 standard errors), one whose small fall is significant
-    (8% < 10%), and one stored without the bias are not confirmed."""
+    (8% < 10%), one stored without the bias, and a physics effect with the same numbers are not confirmed."""
     from softsbi.workflows import diagnose as dg
 
     rank = {"effect": "point-noise", "description": "noise", "kind": "sensor", "generic": False, "statistic": 1.0,
@@ -273,6 +273,10 @@ def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfe
         assert any(r.endswith("not confirmed (the error does not fall)") for r in wide["rules"])
     assert "Nor did its rollouts move toward the measurement" in diagnose_with({"bias_fall": 0.04,
                                                                                   "bias_fall_z": 0.5})["summary"]
+    # a physics effect changes the motion, which the Chamfer measures: the same numbers do not confirm it
+    rank["kind"] = "physics"
+    physics = diagnose_with({"bias_fall": 0.41, "bias_fall_z": 11.0})
+    assert physics["verdict"] == "misspecified-unexplained" and "moved toward" not in physics["summary"]
 
 
 def test_a_resumed_diagnosis_judges_a_stored_pair_refit_as_a_pair(monkeypatch, tmp_path):
