@@ -42,6 +42,7 @@ from softsbi.plugins import registry
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
+from softsbi.workflows.stats import ALPHA
 
 #: the misspecification test the verdicts below are decided with (stored with every new row)
 TEST = "joint"
@@ -138,7 +139,7 @@ def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
 
 def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: int, max_null: int,
              confirm: int, workers: int | None, confirm_budget: dict[str, int] | None = None,
-             proposal: str = "corrected") -> dict[str, Any]:
+             proposal: str = "corrected", alpha: float = ALPHA) -> dict[str, Any]:
     """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields.
 
     ``confirm_budget``: ``{"rounds", "sims_per_round"}`` of the confirmation refits (default: the
@@ -158,10 +159,10 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
     run_dir = out / case["id"]
     run_fit(run_dir, meas, fc)
     d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=n_null, max_null=max_null,
-                     workers=workers, confirm=confirm, confirm_budget=confirm_budget)
+                     workers=workers, confirm=confirm, confirm_budget=confirm_budget, alpha=alpha)
     return {**row_fields(case, d), "proposal": proposal,
             "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null,
-                       "confirm": confirm, "confirm_budget": confirm_budget},
+                       "confirm": confirm, "confirm_budget": confirm_budget, "alpha": alpha},
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
 
 
@@ -219,6 +220,79 @@ def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) 
                           "after": [new["verdict"], new["named"]],
                           "refits": [[x[0], x[1], x[2], x[4], x[5]] for x in new["refits"]]}), flush=True)
         r.update(new, redecided=True)
+        results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+    return changed
+
+
+def row_alpha(r: dict[str, Any]) -> float:
+    """The level a stored row was decided at (rows stored before the field: 0.01, the default of the time)."""
+    return float((r.get("budget") or {}).get("alpha", 0.01))
+
+
+def can_change_at(r: dict[str, Any], alpha: float) -> bool:
+    """Could a stored row's verdict change if it were decided at ``alpha`` instead of its own level? Only
+    when some decision of the diagnosis compared a p-value lying between the two levels: the
+    misspecification test's, a candidate's max-T adjusted p-value (which candidates are refitted, which is
+    named), or the remaining residual's (a second effect); or when its null stopped short of the cap with
+    a p-value the eager extension (p <= 0.1 per test) would now grow. The pool, screening and refits are
+    otherwise the same simulations (same seeds), so every other row's verdict is the same at either level."""
+    if "verdict" not in r or r.get("misspecification_p") is None:
+        return False
+    lo, hi = sorted((row_alpha(r), alpha))
+
+    def between(p: Any) -> bool:
+        return p is not None and lo < p <= hi
+
+    p = r["misspecification_p"]
+    if between(p) or (r.get("n_null", 200) < (r.get("budget") or {}).get("max_null", 200) and p <= 0.2):
+        return True
+    if p > hi:
+        return False
+    return any(between(x[2]) for x in r.get("ranking") or []) or between((r.get("remaining") or {}).get("p_value"))
+
+
+def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: int | None = 1,
+                    ids: Sequence[str] | None = None) -> list[str]:
+    """Diagnose again, at level ``alpha``, the stored rows whose verdict could change at it
+    (:func:`can_change_at`), from their stored nominal runs (looked up in ``outs``): same candidates, null
+    sizes, refit budget and seeds; refits already on disk are reused (``run_fit`` resumes), new ones are
+    fitted. The old ``diagnosis.json`` is kept as ``diagnosis.alpha<old>.json``; the row's verdict fields are
+    replaced, ``budget.alpha`` set and the old verdict kept in ``rediagnosed``. Rows that cannot change get
+    ``budget.alpha`` too (their verdict holds at both levels). ``results`` is rewritten after each row, so an
+    interrupted call loses nothing and the same call continues. Returns the ids whose verdict or name changed."""
+    rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    changed = []
+    first = {i: k for k, i in enumerate(ids or [])}  # the order asked for, then the file's
+    for r in sorted(rows, key=lambda x: first.get(x["id"], len(first))):
+        if "verdict" not in r or row_alpha(r) == alpha or (ids and r["id"] not in ids):
+            continue
+        if not can_change_at(r, alpha):
+            if r.get("test") == TEST and (r.get("budget") or {}).get("confirm"):
+                r["budget"]["alpha"] = alpha  # the same verdict at either level
+                results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+            continue
+        run_dir = next((o / r["id"] for o in outs if (o / r["id"] / "diagnosis.json").exists()), None)
+        if run_dir is None:
+            continue
+        b = r["budget"]
+        old = run_dir / f"diagnosis.alpha{row_alpha(r):g}.json"
+        if not old.exists():
+            old.write_text((run_dir / "diagnosis.json").read_text())
+        cfg = SUITES[r["suite"]]
+        t0 = time.perf_counter()
+        d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=b["n_null"],
+                         max_null=b["max_null"], workers=workers, confirm=b["confirm"],
+                         confirm_budget=b.get("confirm_budget"), alpha=alpha)
+        new = row_fields({k: r[k] for k in ("id", "suite", "index", "truth_label", "scenario", "truth", "magnitude")},
+                         d)
+        if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
+            changed.append(r["id"])
+        print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
+                          "after": [new["verdict"], new["named"]], "p": new["misspecification_p_text"],
+                          "s": round(time.perf_counter() - t0)}), flush=True)
+        r.update(new, rediagnosed={"alpha": row_alpha(r), "verdict": r["verdict"], "named": r["named"]},
+                 simulations=d["simulations"])
+        r["budget"]["alpha"] = alpha
         results.write_text("".join(json.dumps(x) + "\n" for x in rows))
     return changed
 
@@ -337,7 +411,7 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
               workers: int | None = None, only: set[str] | None = None,
               confirm_budget: dict[str, int] | None = None,
-              proposal: str = "corrected") -> list[dict[str, Any]]:
+              proposal: str = "corrected", alpha: float = ALPHA) -> list[dict[str, Any]]:
     """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
 
     ``only``: run just the cases whose ``truth_label`` is in this set (e.g. ``{"control"}``); the
@@ -361,7 +435,7 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
         if case["id"] in have:
             continue
         try:
-            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget, proposal)
+            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget, proposal, alpha)
         except Exception as exc:  # noqa: BLE001 - a failed case is recorded, not retried silently
             row = {**case, "error": f"{type(exc).__name__}: {exc}"}
         with results.open("a") as f:
@@ -375,19 +449,20 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
 
 def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
                 confirm_budget: str | None = None, test: str | None = None,
-                proposal: str | None = "corrected") -> list[dict[str, Any]]:
+                proposal: str | None = "corrected", alpha: float | None = None) -> list[dict[str, Any]]:
     """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none;
     None: any number), with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget, and
     with ``test`` (``"joint"`` or ``"omnibus"``, rows without the field) only those decided with that
     misspecification test; with ``proposal`` only rows whose nominal fit drew its rounds so (rows without the
-    field: ``"corrected"``; None: any)."""
+    field: ``"corrected"``; None: any); with ``alpha`` only rows decided at that level (:func:`row_alpha`)."""
     def budget(r):
         cb = (r.get("budget") or {}).get("confirm_budget")
         return f"{cb['rounds']}x{cb['sims_per_round']}" if cb else None
     return [r for r in rows if (confirm is None or int((r.get("budget") or {}).get("confirm", 0)) == confirm)
             and (confirm_budget is None or budget(r) == confirm_budget)
             and (test is None or r.get("test", "omnibus") == test)
-            and (proposal is None or r.get("proposal", "corrected") == proposal)]
+            and (proposal is None or r.get("proposal", "corrected") == proposal)
+            and (alpha is None or row_alpha(r) == alpha)]
 
 
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
@@ -591,6 +666,7 @@ def main() -> None:
                    help="the nominal fits' proposals (the refits' are truncated)")
     r.add_argument("--only", default=None, help="comma-separated truth labels to run (e.g. control); other "
                                                 "indices in --cases are skipped")
+    r.add_argument("--alpha", type=float, default=ALPHA, help="family-wise level of the verdicts")
     f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
     f.add_argument("--runs", default="CASE_ID:EFFECT", help="comma-separated CASE_ID:EFFECT (run dirs under --out)")
     f.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
@@ -610,6 +686,14 @@ def main() -> None:
     rd.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     rd.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
+    rg = sub.add_parser("rediagnose", help="diagnose again, at another level, the stored rows whose verdict could "
+                                           "change at it (from their stored nominal runs)")
+    rg.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    rg.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                    help="folders holding the cases' run directories")
+    rg.add_argument("--alpha", type=float, default=ALPHA)
+    rg.add_argument("--ids", default=None, help="comma-separated case ids (default: every row that could change)")
+    rg.add_argument("--list", action="store_true", help="only list the rows that could change and their run dirs")
     s = sub.add_parser("summary")
     s.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     s.add_argument("--markdown", action="store_true", help="Markdown tables instead of JSON")
@@ -618,11 +702,23 @@ def main() -> None:
     s.add_argument("--confirm-budget", default=None, help="only rows whose refits had this budget (3x100)")
     s.add_argument("--test", default="joint", choices=["joint", "omnibus", "any"],
                    help="only rows decided with this misspecification test (omnibus: rows stored before the joint test)")
+    s.add_argument("--alpha", type=float, default=None, help="only rows decided at this level (rows stored before "
+                                                             "the field: 0.01; default: any)")
     s.add_argument("--proposal", default="corrected", choices=["corrected", "truncated", "any"],
                    help="only rows whose nominal fit used these proposals (rows stored before the field: corrected)")
     a = ap.parse_args()
     if a.cmd == "size":
         print(f"{add_effect_sizes(a.results, a.out)} rows updated")
+        return
+    if a.cmd == "rediagnose":
+        ids = a.ids.split(",") if a.ids else None
+        if a.list:
+            for r in (json.loads(x) for x in a.results.read_text().splitlines() if x.strip()):
+                if (not ids or r["id"] in ids) and row_alpha(r) != a.alpha and can_change_at(r, a.alpha):
+                    d = next((o / r["id"] for o in a.out if (o / r["id"] / "diagnosis.json").exists()), None)
+                    print(r["id"], r["truth_label"], r.get("misspecification_p"), d)
+            return
+        print(f"changed: {rediagnose_rows(a.results, a.out, a.alpha, 1, ids)}")
         return
     if a.cmd == "redecide":
         print(f"changed: {redecide_rows(a.results, a.out)}")
@@ -646,11 +742,12 @@ def main() -> None:
             r_, n_ = (int(x) for x in a.confirm_budget.lower().split("x"))
             cb = {"rounds": r_, "sims_per_round": n_}
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
-                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal)
+                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal, a.alpha)
     else:
         rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()],
                            None if a.confirm < 0 else a.confirm, a.confirm_budget,
-                           None if a.test == "any" else a.test, None if a.proposal == "any" else a.proposal)
+                           None if a.test == "any" else a.test, None if a.proposal == "any" else a.proposal,
+                           a.alpha)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

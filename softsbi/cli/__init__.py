@@ -27,7 +27,7 @@ H_SEED = "random seed: fixes every parameter draw and every simulation"
 H_N_EVAL = "rollouts at posterior samples (the posterior-predictive check's sample size)"
 H_MAX_NULL = ("cap of the adaptive null: when 1/(n+1) > alpha and the first n posterior-predictive rollouts give "
               "p <= 0.1, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
-H_ALPHA = "family-wise significance level of the verdicts"
+H_ALPHA = "family-wise significance level of the verdicts (the tolerated false-alarm rate)"
 H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
 H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
                "sbi-npe (`softsbi plugins` lists the installed ones)")
@@ -453,7 +453,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
           n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL),
           max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
-          alpha: float = typer.Option(0.01, help=H_ALPHA),
+          alpha: float = typer.Option(0.05, help=H_ALPHA),
           workers: Optional[int] = typer.Option(None, help=H_WORKERS),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
@@ -563,7 +563,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                                    "(default: the run's)"),
              n_null: int = typer.Option(30, "--n-null", help="posterior-predictive simulations the null starts with"),
              max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
-             alpha: float = typer.Option(0.01, help=H_ALPHA),
+             alpha: float = typer.Option(0.05, help=H_ALPHA),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Three verdicts: nothing missing; a named installed effect is missing; misspecified by nothing

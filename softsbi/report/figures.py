@@ -34,7 +34,7 @@ ROLE_COLOURS: dict[str, str] = {
 ENGINE_COLOURS: tuple[str, ...] = ("#56B4E9", "#CC79A7", "#8C510A", "#01665E")
 
 #: threshold of the misspecification verdict (the same as :func:`softsbi.workflows.check.check_run`)
-MISSPEC_ALPHA = 0.01
+MISSPEC_ALPHA = 0.05
 
 DPI = 120           # saved resolution of every figure
 FS_TITLE = 11       # headline

@@ -353,7 +353,7 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
     resolution as in :func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``: when either
     test's first stage is promising (beyond all of the first nulls, or ``p <= EXTEND_P``), the null grows to ``max_null``
     successful rollouts once (:meth:`~softsbi.workflows.stats.PosteriorPredictive.ensure_successful`) and both
-    tests are decided there (the first stage cannot reject: ``2 / 31 > 0.01``), so the level holds.
+    tests are decided there (the first stage cannot reject: ``2 / 31 > 0.05``), so the level holds.
 
     Args:
         pool: the run's posterior-predictive rollouts (at least 5 successful; more are simulated on demand).

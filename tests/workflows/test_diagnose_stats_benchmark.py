@@ -106,3 +106,23 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
     assert s["other_engine"] == {"n": 1, "misspecified-unexplained": 1, "screening": {"missing-effect": 1}}
     md = bench.markdown(s, [dict(r, misspecification_p_text="p", wall_s=1.0) for r in refit])
     assert "misspecified-unexplained (screening: missing-effect)" in md and "wind Chamfer -20%, check p 0.004" in md
+
+
+def test_a_stored_row_is_rediagnosed_at_a_new_level_only_when_one_of_its_decisions_lay_between_the_levels():
+    def row(p, ranking=(), remaining=None, n_null=200, alpha=None):
+        budget = {"n_null": 30, "max_null": 200, "confirm": 2}
+        if alpha is not None:
+            budget["alpha"] = alpha
+        return {"verdict": "x", "misspecification_p": p, "n_null": n_null, "budget": budget,
+                "ranking": [["wind", 0.5, q] for q in ranking], "remaining": remaining and {"p_value": remaining}}
+
+    assert bench.row_alpha(row(0.3)) == 0.01 and bench.row_alpha(row(0.3, alpha=0.05)) == 0.05
+    assert bench.can_change_at(row(0.03), 0.05)                      # not rejected at 0.01, rejected at 0.05
+    assert not bench.can_change_at(row(0.3), 0.05)                   # accepted at both
+    assert not bench.can_change_at(row(0.06, ranking=[0.03]), 0.05)  # accepted at both: the candidates do not matter
+    assert bench.can_change_at(row(0.005, ranking=[0.005, 0.03]), 0.05)  # a second candidate now passes
+    assert not bench.can_change_at(row(0.005, ranking=[0.005, 0.2]), 0.05)
+    assert bench.can_change_at(row(0.005, ranking=[0.005], remaining=0.02), 0.05)  # a second effect now passes
+    assert bench.can_change_at(row(0.13, n_null=30), 0.05)          # a null the eager extension would now grow
+    assert bench.can_change_at(row(0.03, alpha=0.05), 0.01)          # and back
+    assert not bench.can_change_at({"id": "e", "error": "boom"}, 0.05)
