@@ -194,6 +194,25 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
             "screening_verdict": d.get("screening_verdict", d["verdict"])}
 
 
+#: the fields of a stored row that define its case (:func:`make_case`); the rest come from its diagnosis
+CASE_KEYS = ("id", "suite", "index", "truth_label", "scenario", "truth", "magnitude")
+
+
+def load_rows(results: Path) -> list[dict[str, Any]]:
+    """The stored rows of ``results`` (one JSON object per line)."""
+    return [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+
+
+def save_rows(results: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Write ``rows`` back to ``results``, one JSON object per line."""
+    results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+
+
+def find_run_dir(outs: Sequence[Path], case_id: str, marker: str = "diagnosis.json") -> Path | None:
+    """The first ``out / case_id`` among ``outs`` that holds ``marker``; None when none does."""
+    return next((o / case_id for o in outs if (o / case_id / marker).exists()), None)
+
+
 def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) -> list[str]:
     """Rule 3 applied again (:func:`softsbi.workflows.diagnose.redecide`) to the stored rows it can change: those
     with a refit that check accepted (``p > 0.2``, not misspecified) whose Chamfer did not fall. Their run
@@ -201,26 +220,25 @@ def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) 
     (marked ``"redecided"``). Running it again re-applies the rule without simulating (the bias is kept in
     diagnosis.json). Returns the ids changed in verdict or name."""
     from softsbi.workflows.diagnose import redecide
-    rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    rows = load_rows(results)
     changed = []
     for r in rows:
         acc_rise = [x for x in r.get("refits") or [] if x[2] is not None and x[3] is False and (x[1] or 0) <= 0]
-        run_dir = next((o / r["id"] for o in outs if (o / r["id"] / "diagnosis.json").exists()), None)
+        run_dir = find_run_dir(outs, r["id"])
         if not acc_rise or run_dir is None:
             continue
         d = json.loads((run_dir / "diagnosis.json").read_text())
         confirm = r.get("budget", {}).get("confirm") or int(r["id"].split("-refit")[1][0])
         d = redecide(run_dir, d, confirm, workers)
         (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
-        new = row_fields({k: r[k] for k in ("id", "suite", "index", "truth_label", "scenario", "truth", "magnitude")},
-                         d)
+        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
         if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
             changed.append(r["id"])
         print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
                           "after": [new["verdict"], new["named"]],
                           "refits": [[x[0], x[1], x[2], x[4], x[5]] for x in new["refits"]]}), flush=True)
         r.update(new, redecided=True)
-        results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+        save_rows(results, rows)
     return changed
 
 
@@ -251,6 +269,11 @@ def can_change_at(r: dict[str, Any], alpha: float) -> bool:
     return any(between(x[2]) for x in r.get("ranking") or []) or between((r.get("remaining") or {}).get("p_value"))
 
 
+def awaits_level(r: dict[str, Any], alpha: float, ids: Sequence[str] | None = None) -> bool:
+    """Whether a stored row (among ``ids``, when given) has a verdict not yet decided at ``alpha``."""
+    return "verdict" in r and row_alpha(r) != alpha and (not ids or r["id"] in ids)
+
+
 def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: int | None = 1,
                     ids: Sequence[str] | None = None) -> list[str]:
     """Diagnose again, at level ``alpha``, the stored rows whose verdict could change at it
@@ -258,20 +281,20 @@ def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: 
     sizes, refit budget and seeds; refits already on disk are reused (``run_fit`` resumes), new ones are
     fitted. The old ``diagnosis.json`` is kept as ``diagnosis.alpha<old>.json``; the row's verdict fields are
     replaced, ``budget.alpha`` set and the old verdict kept in ``rediagnosed``. Rows that cannot change get
-    ``budget.alpha`` too (their verdict holds at both levels). ``results`` is rewritten after each row, so an
-    interrupted call loses nothing and the same call continues. Returns the ids whose verdict or name changed."""
-    rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    ``budget.alpha`` too (their verdict holds at both levels). ``results`` is rewritten after each rediagnosed
+    row and at the end, so an interrupted call loses no diagnosis and the same call continues (marking the
+    rows that cannot change costs nothing to repeat). Returns the ids whose verdict or name changed."""
+    rows = load_rows(results)
     changed = []
     first = {i: k for k, i in enumerate(ids or [])}  # the order asked for, then the file's
     for r in sorted(rows, key=lambda x: first.get(x["id"], len(first))):
-        if "verdict" not in r or row_alpha(r) == alpha or (ids and r["id"] not in ids):
+        if not awaits_level(r, alpha, ids):
             continue
         if not can_change_at(r, alpha):
             if r.get("test") == TEST and (r.get("budget") or {}).get("confirm"):
                 r["budget"]["alpha"] = alpha  # the same verdict at either level
-                results.write_text("".join(json.dumps(x) + "\n" for x in rows))
             continue
-        run_dir = next((o / r["id"] for o in outs if (o / r["id"] / "diagnosis.json").exists()), None)
+        run_dir = find_run_dir(outs, r["id"])
         if run_dir is None:
             continue
         b = r["budget"]
@@ -283,8 +306,7 @@ def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: 
         d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=b["n_null"],
                          max_null=b["max_null"], workers=workers, confirm=b["confirm"],
                          confirm_budget=b.get("confirm_budget"), alpha=alpha)
-        new = row_fields({k: r[k] for k in ("id", "suite", "index", "truth_label", "scenario", "truth", "magnitude")},
-                         d)
+        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
         if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
             changed.append(r["id"])
         print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
@@ -293,7 +315,8 @@ def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: 
         r.update(new, rediagnosed={"alpha": row_alpha(r), "verdict": r["verdict"], "named": r["named"]},
                  simulations=d["simulations"])
         r["budget"]["alpha"] = alpha
-        results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+        save_rows(results, rows)
+    save_rows(results, rows)
     return changed
 
 
@@ -365,12 +388,12 @@ def add_effect_sizes(results: Path, outs: Sequence[Path]) -> int:
     """Add ``effect_size`` (:func:`effect_size`) to every stored hidden-effect row whose run directory is in
     one of ``outs`` and that lacks it (rewrites ``results`` after each row, so an interrupted call loses
     nothing); returns the number of rows updated."""
-    rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    rows = load_rows(results)
     k = 0
     for r in rows:
         if r.get("magnitude") is None or "verdict" not in r or "nominal_m" in r.get("effect_size", {}):
             continue
-        d = next((o / r["id"] for o in outs if (o / r["id"] / "run.zarr").exists()), None)
+        d = find_run_dir(outs, r["id"], "run.zarr")
         if d is None:
             continue
         if "effect_size" in r:  # stored before nominal_m: add it, nothing to simulate
@@ -379,9 +402,9 @@ def add_effect_sizes(results: Path, outs: Sequence[Path]) -> int:
             continue
         r["effect_size"] = effect_size(d, r)
         k += 1
-        results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+        save_rows(results, rows)
     if k:
-        results.write_text("".join(json.dumps(x) + "\n" for x in rows))
+        save_rows(results, rows)
     return k
 
 
@@ -389,14 +412,14 @@ def add_floors(results: Path, out: Path) -> int:
     """Add ``floor_m`` (:func:`truth_floor`) to every stored hidden-effect row with a refit that lacks it
     (rewrites ``results``; controls and other-engine data have no truth in the fitted model); returns the
     number of rows updated."""
-    rows = [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    rows = load_rows(results)
     k = 0
     for r in rows:
         if r.get("refits") and "floor_m" not in r and r.get("magnitude") is not None and (out / r["id"]).exists():
             r["floor_m"] = truth_floor(out / r["id"], r)
             r["chamfer_nominal_m"] = json.loads((out / r["id"] / "report.json").read_text())["chamfer_posterior_m"]
             k += 1
-    results.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    save_rows(results, rows)
     return k
 
 
@@ -404,7 +427,7 @@ def done_ids(results: Path) -> set[str]:
     """Case ids already stored in ``results`` (one JSON object per line)."""
     if not results.exists():
         return set()
-    return {json.loads(line)["id"] for line in results.read_text().splitlines() if line.strip()}
+    return {r["id"] for r in load_rows(results)}
 
 
 def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
@@ -713,10 +736,9 @@ def main() -> None:
     if a.cmd == "rediagnose":
         ids = a.ids.split(",") if a.ids else None
         if a.list:
-            for r in (json.loads(x) for x in a.results.read_text().splitlines() if x.strip()):
-                if (not ids or r["id"] in ids) and row_alpha(r) != a.alpha and can_change_at(r, a.alpha):
-                    d = next((o / r["id"] for o in a.out if (o / r["id"] / "diagnosis.json").exists()), None)
-                    print(r["id"], r["truth_label"], r.get("misspecification_p"), d)
+            for r in load_rows(a.results):
+                if awaits_level(r, a.alpha, ids) and can_change_at(r, a.alpha):
+                    print(r["id"], r["truth_label"], r.get("misspecification_p"), find_run_dir(a.out, r["id"]))
             return
         print(f"changed: {rediagnose_rows(a.results, a.out, a.alpha, 1, ids)}")
         return
@@ -744,7 +766,7 @@ def main() -> None:
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
                   a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal, a.alpha)
     else:
-        rows = select_rows([json.loads(x) for x in a.results.read_text().splitlines() if x.strip()],
+        rows = select_rows(load_rows(a.results),
                            None if a.confirm < 0 else a.confirm, a.confirm_budget,
                            None if a.test == "any" else a.test, None if a.proposal == "any" else a.proposal,
                            a.alpha)
