@@ -532,6 +532,9 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
                                   for eff in out["power_size"] if "+" not in eff}
     out["thresholds"] = {eff: detection_threshold([r for r in rows if r["truth_label"] == eff])
                          for eff in power if "+" not in eff}
+    out["thresholds_detected"] = {eff: detection_threshold([r for r in rows if r["truth_label"] == eff],
+                                                           outcome="detected")
+                                  for eff in power if "+" not in eff}
     other = [r for r in rows if r["truth_label"] == "other-engine"]
     if other:
         out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other),
@@ -555,12 +558,20 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     return out
 
 
-def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str = "magnitude") -> dict[str, Any]:
+def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str = "magnitude",
+                        outcome: str = "named") -> dict[str, Any]:
     """The measured detection threshold of one hidden effect: a logistic power curve
-    ``P(named correctly | x) = 1 / (1 + exp(-(a + b x)))`` fitted by maximum likelihood to the cases
+    ``P(outcome | x) = 1 / (1 + exp(-(a + b x)))`` fitted by maximum likelihood to the cases
     (scipy), and the ``x`` where it reaches ``level`` (``m_level``; None when it does not within the
-    range, or when the fit is degenerate: all cases named or none). Then the criterion as measured: of
-    the cases with ``x >= m_level``, how many were named correctly.
+    range, or when the fit is degenerate: every case has the outcome or none; the range's lower end when the
+    curve stays above ``level`` over the whole range). Then the criterion as
+    measured: of the cases with ``x >= m_level``, how many were named correctly (``above_named``) and
+    detected (``above_detected``: any verdict but nothing-missing).
+
+    ``outcome="named"``: the curve of naming the hidden effect (the threshold above which it is named
+    with probability ``level``). ``outcome="detected"``: the curve of detecting a misfit at all; the
+    criterion then asks how often the effect is named where the test already sees it, which does not
+    follow from the curve's own definition.
 
     ``by="magnitude"``: ``x`` is the prior-relative magnitude, range (0, 1]. ``by="size"``: ``x`` is
     ``log10`` of the effect's size in the data in cm (:func:`effect_size`; rows without it or with a
@@ -573,9 +584,13 @@ def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str 
     else:
         m = np.array([r["magnitude"] for r in rows], float)
         lo, hi = 0.0, 1.0
-    y = np.array([bool(r["correct"]) for r in rows], float)
-    out: dict[str, Any] = {"n": len(rows), "named_correctly": int(y.sum()), "level": level, "m_level": None,
-                           "by": by}
+    named = np.array([bool(r["correct"]) for r in rows], float)
+    detected = np.array([r.get("verdict", "nothing-missing") != "nothing-missing" for r in rows], float)
+    if outcome not in ("named", "detected"):
+        raise ValueError(f"outcome {outcome!r}: use 'named' or 'detected'")
+    y = named if outcome == "named" else detected
+    out: dict[str, Any] = {"n": len(rows), "named_correctly": int(named.sum()), "detected": int(detected.sum()),
+                           "level": level, "m_level": None, "by": by, "outcome": outcome}
     if len(rows) < 4 or y.sum() == 0:
         return out
 
@@ -585,12 +600,16 @@ def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str 
 
     w = minimize(nll, np.zeros(2), method="BFGS").x
     out["curve"] = [float(w[0]), float(w[1])]
+    logit = np.log(level / (1 - level))
+    m_lv = None
     if w[1] > 0:
-        m_lv = (np.log(level / (1 - level)) - w[0]) / w[1]
-        if lo < m_lv <= hi:
-            above = m >= m_lv
-            out.update(m_level=float(10 ** m_lv if by == "size" else m_lv), above=int(above.sum()),
-                       above_named=int(y[above].sum()))
+        m_lv = max((logit - w[0]) / w[1], lo)  # a curve above the level over the whole range: every case
+    elif w[0] + w[1] * hi >= logit:
+        m_lv = lo  # flat or falling, yet above the level up to the range's end: every case
+    if m_lv is not None and m_lv <= hi:
+        above = m >= m_lv
+        out.update(m_level=float(10 ** m_lv if by == "size" else m_lv), above=int(above.sum()),
+                   above_named=int(named[above].sum()), above_detected=int(detected[above].sum()))
     return out
 
 
@@ -622,6 +641,18 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             lv = (f"{t['m_level']:.2f}", f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
                 else ("not reached in (0, 1]", "-")
             out.append(f"| {eff} | {t['n']} | {t['named_correctly']} | {lv[0]} | {lv[1]} |")
+    td = {k: v for k, v in (summary.get("thresholds_detected") or {}).items() if v["n"]}
+    if td:
+        out.append("\nThe criterion above the detection threshold (the magnitude where the fitted curve of detecting a "
+                   "misfit at all reaches 90%):\n")
+        out.append("| hidden effect | cases | detected | magnitude where detection reaches 90% | detected above it "
+                   "| named correctly above it |")
+        out.append("|---|---|---|---|---|---|")
+        for eff, t in td.items():
+            lv = (f"{t['m_level']:.2f}", f"{t['above_detected']} of {t['above']}",
+                  f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
+                else ("not reached in (0, 1]", "-", "-")
+            out.append(f"| {eff} | {t['n']} | {t['detected']} | {lv[0]} | {lv[1]} | {lv[2]} |")
     if summary.get("power_size"):
         out.append("\nBy the effect's size in the data (Chamfer to the measurement at the truth without the effect "
                    "minus with it):\n")

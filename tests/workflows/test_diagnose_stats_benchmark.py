@@ -3,6 +3,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
@@ -76,6 +77,26 @@ def test_detection_threshold_over_the_effects_size_in_the_data():
     assert 0.3 < t["m_level"] < 3.0 and t["above"] == t["above_named"] >= 3
     # never named: no threshold
     assert bench.detection_threshold([dict(r, correct=False) for r in rows], by="size")["m_level"] is None
+
+
+def test_the_criterion_above_the_detection_threshold_counts_naming_where_the_misfit_is_detected():
+    """Detected from magnitude 0.5 up but named in only half of those cases: the detection curve's threshold
+    lies between 0.4 and 0.7 and the criterion above it reads about half named, where the naming curve never
+    reaches 90%. A curve above the level over the whole range puts every case above it."""
+    mags = np.linspace(0.1, 1.0, 10)
+    rows = [{"magnitude": float(m), "verdict": "missing-effect" if m >= 0.5 else "nothing-missing",
+             "correct": bool(m >= 0.5 and k % 2 == 0)} for k, m in enumerate(mags)]
+    d = bench.detection_threshold(rows, outcome="detected")
+    assert d["outcome"] == "detected" and d["detected"] == 6 and d["named_correctly"] == 3
+    assert 0.4 < d["m_level"] < 0.7 and d["above"] == d["above_detected"] >= 5  # every case above it detected
+    assert d["above_named"] <= d["above"] - 2  # ... but half of them named: the criterion fails
+    assert bench.detection_threshold(rows)["m_level"] is None  # named in half: the naming curve stays below 90%
+    every = [{"magnitude": float(m), "verdict": "missing-effect", "correct": True} for m in np.linspace(0.1, 1, 20)]
+    every.append({"magnitude": 0.55, "verdict": "nothing-missing", "correct": False})  # 20 of 21 detected
+    e = bench.detection_threshold(every, outcome="detected")
+    assert e["m_level"] == 0.0 and e["above"] == 21 and e["above_detected"] == 20 and e["above_named"] == 20
+    with pytest.raises(ValueError, match="outcome"):
+        bench.detection_threshold(rows, outcome="power")
 
 
 def test_only_and_refit_rows_keep_case_definitions(tmp_path):
