@@ -530,11 +530,9 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
                              for eff in sorted({r["truth_label"] for r in sized})}
         out["thresholds_size"] = {eff: detection_threshold([r for r in sized if r["truth_label"] == eff], by="size")
                                   for eff in out["power_size"] if "+" not in eff}
-    out["thresholds"] = {eff: detection_threshold([r for r in rows if r["truth_label"] == eff])
-                         for eff in power if "+" not in eff}
-    out["thresholds_detected"] = {eff: detection_threshold([r for r in rows if r["truth_label"] == eff],
-                                                           outcome="detected")
-                                  for eff in power if "+" not in eff}
+    single = {eff: [r for r in rows if r["truth_label"] == eff] for eff in power if "+" not in eff}
+    out["thresholds"] = {eff: detection_threshold(rs) for eff, rs in single.items()}
+    out["thresholds_detected"] = {eff: detection_threshold(rs, outcome="detected") for eff, rs in single.items()}
     other = [r for r in rows if r["truth_label"] == "other-engine"]
     if other:
         out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other),

@@ -16,6 +16,7 @@ from softsbi.core.metrics import describe_change
 from softsbi.cli.output import Output, json_error
 from softsbi.workflows.demo import DEMO_ROUNDS, DEMO_SIMS, DemoCallbacks
 from softsbi.workflows.fit import FitCallbacks
+from softsbi.workflows.stats import ALPHA
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="softsbi: Bayesian real-to-sim for deformable objects (BayesSim-RKHS).")
@@ -453,7 +454,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
           n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL),
           max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
-          alpha: float = typer.Option(0.05, help=H_ALPHA),
+          alpha: float = typer.Option(ALPHA, help=H_ALPHA),
           workers: Optional[int] = typer.Option(None, help=H_WORKERS),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
@@ -563,7 +564,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                                    "(default: the run's)"),
              n_null: int = typer.Option(30, "--n-null", help="posterior-predictive simulations the null starts with"),
              max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
-             alpha: float = typer.Option(0.05, help=H_ALPHA),
+             alpha: float = typer.Option(ALPHA, help=H_ALPHA),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Three verdicts: nothing missing; a named installed effect is missing; misspecified by nothing
