@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from softsbi.core.levels import ALPHA
 from softsbi.core.metrics import describe_change
 
 #: one colour per role, in every figure of a fit, of ``check``, ``compare`` and ``compare-backends``.
@@ -33,8 +34,9 @@ ROLE_COLOURS: dict[str, str] = {
 #: sky blue, reddish purple, then brown and dark teal for a third and fourth engine.
 ENGINE_COLOURS: tuple[str, ...] = ("#56B4E9", "#CC79A7", "#8C510A", "#01665E")
 
-#: threshold of the misspecification verdict (the same as :func:`softsbi.workflows.check.check_run`)
-MISSPEC_ALPHA = 0.05
+#: threshold of the misspecification verdict for a stored check without its ``misspecified`` field: the verdicts'
+#: default level, the one :func:`softsbi.workflows.check.check_run` decides at
+MISSPEC_ALPHA = ALPHA
 
 DPI = 120           # saved resolution of every figure
 FS_TITLE = 11       # headline

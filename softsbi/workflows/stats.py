@@ -36,6 +36,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.levels import ALPHA
 from softsbi.core.types import STATUS_OK
 from softsbi.perception.pointcloud import combined_min_z, rollout_min_z, sample_surface, sensor_view
 from softsbi.workflows.jobs import run_jobs
@@ -46,12 +47,6 @@ FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10
                  "x_q05", "x_q95", "y_q05", "y_q95")
 #: floor of a summary's standard deviation (m): sensor resolution, keeps weights finite
 FEATURE_FLOOR = 0.003
-#: default family-wise level of the verdicts (check's misspecification test and diagnose's tests). Chosen as the
-#: false-alarm rate a user tolerates (issue 19: at most 5%), not fitted. The posterior-predictive test is
-#: conservative (the measurement was fitted; Bayarri & Berger 2000), so the rate it gives is lower: on the
-#: statistical benchmark's controls 1 of 90 joint p-values is at or below 0.05 (0.03); the next is 0.26.
-#: Until the tenth session it was 0.01 (BENCHMARKS.md, "Tenth session: the verdicts' level").
-ALPHA = 0.05
 #: default number of posterior-predictive simulations a test starts with
 N_NULL = 30
 #: default cap of the adaptive extension (``1 / (cap + 1)`` is the finest p-value a verdict can print)
