@@ -1,0 +1,148 @@
+"""CMA-ES vs softsbi on well-specified twins of the real lift recordings (issue 17).
+
+Issue 17 asks for softsbi's posterior-mean rollout within 10% of CMA-ES's best at equal simulation
+budget on the real lift recordings; on the second repeats it is within 10% on 1 of 5 (PM rollout /
+CMA-ES best 1.05-1.22, BENCHMARKS.md). Every real lift recording is also misspecified for the
+nominal model (``diagnose``: misspecified-unexplained on all 10), and a neural posterior estimate is
+known to degrade when the measurement lies outside what the simulator can produce, while CMA-ES
+minimises the metric whatever the model. This script tells the two apart: it replaces a real
+recording's clouds with a simulation of the same recording, a *twin*, so that the nominal model is
+true, and compares the two methods there exactly as :mod:`cmaes_baseline` does on the real one.
+
+The twin of recording ``R``: ``R``'s scenario (its gripper path and calibration), its sensor model
+(height cut, ``frames: auto``) and its points per frame, with its clouds replaced by one simulation
+(surface samples of the cloth mesh, full clouds: the height cut is applied by the fit and the metric,
+to both clouds, as on the real recording) at ``theta*`` = the posterior mean of a finished softsbi fit of
+``R`` (a realistic cloth; ``--truth-fit``), seed ``--twin-seed``. On it:
+
+* a default ``softsbi fit`` (``FitConfig(workers=1)``: 4 x 150 truncated, 30 posterior rollouts);
+* CMA-ES (``cma``) with the same 630 simulations on the headline metric (:func:`cmaes_baseline.run`);
+* both on the same metric: the posterior-mean rollout, the posterior predictive, CMA-ES's best, and
+  the truth's own score (``floor``: ``theta*`` simulated with a seed the twin did not use).
+
+If the PM rollout is within 10% of CMA-ES's best on the twins but not on the recordings, the gap on the
+real data comes from the misspecification, not from the estimator or the budget.
+
+Usage:
+    python benchmarks/cmaes_twin.py --recording lift_tan2 --truth-fit /work/bench_runs/trunc/tan2 \
+        --out /work/bench_runs/s33/twins
+    python benchmarks/cmaes_twin.py --table /work/bench_runs/s33/twins
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import cmaes_baseline as cb  # noqa: E402
+
+from softsbi.core.types import Rollout  # noqa: E402
+from softsbi.perception.pointcloud import rollout_clouds  # noqa: E402
+from softsbi.workflows.fit import FitConfig, run_fit  # noqa: E402
+from softsbi.workflows.jobs import SimContext, simulate_job  # noqa: E402
+from softsbi.workflows.measurement import load_recording  # noqa: E402
+
+
+def twin(folder: Path, theta: dict[str, float], seed: int):
+    """The twin of the recording in ``folder``: its :class:`~softsbi.core.types.Recording` with ``dense``
+    replaced by one simulation at ``theta`` (physical units, the fit's parameters), seed ``seed``, as many
+    points per frame as the recording's; ``x`` is rebuilt from it by the fit. Returns ``(recording,
+    theta array, parameter space)``."""
+    rec, space, _, _, ctx_full = cb.contexts(folder)
+    th = space.as_array(theta)
+    res = simulate_job(SimContext(**{**ctx_full.__dict__, "keep_rollout": True}), (th, seed))
+    if res["chamfer"] is None:
+        raise RuntimeError(f"the twin's simulation failed: {res['reason']}")
+    ro = Rollout(vertices=res["vertices"], faces=res["faces"], gripper=res["gripper"],
+                 times=np.asarray(ctx_full.scenario["times"]))
+    clouds = np.stack(rollout_clouds(ro, rec.dense.shape[1], np.random.default_rng(seed)))
+    return dataclasses.replace(rec, dense=clouds, x=None, truth=space.as_dict(th),
+                               source=f"twin of {folder.name} (seed {seed})"), th, space
+
+
+def run_twin(folder: Path, truth_fit: Path, out: Path, twin_seed: int, budget: int, seed: int) -> dict:
+    """Fit the twin with softsbi, run CMA-ES on it at ``budget`` simulations, and score both and the truth."""
+    t0 = time.perf_counter()
+    theta = json.loads((truth_fit / "report.json").read_text())["posterior_mean"]
+    rec, th, space = twin(folder, theta, twin_seed)
+    fit_dir = out / f"{folder.name}_twin{twin_seed}"
+    run_fit(fit_dir, rec, FitConfig(workers=1), make_plots=False)
+    fit_s = time.perf_counter() - t0
+    orig = cb.contexts
+    cb.contexts = lambda _folder: _contexts_of(rec)  # cmaes_baseline.run on the twin, unchanged otherwise
+    try:
+        res = cb.run(folder, "fit", budget, fit_dir, seed)
+    finally:
+        cb.contexts = orig
+    _, _, sensor, ctx_s, _ = _contexts_of(rec)
+    floor = [cb.score(simulate_job(ctx_s, (th, 9000 + k)), "fit", sensor["metric_frames"]) for k in range(5)]
+    res.update(recording=f"{folder.name} twin {twin_seed}", truth=space.as_dict(th), truth_fit=str(truth_fit),
+               floor_m=float(np.mean(floor)), floor_runs_m=floor, fit_seconds=fit_s,
+               seconds=time.perf_counter() - t0)
+    res.pop("history_m", None)
+    return res
+
+
+def _contexts_of(rec):
+    """:func:`cmaes_baseline.contexts` for an in-memory recording (the twin)."""
+    from softsbi.workflows.fit import fit_param_space, metric_sensor, observer_options
+    cfg = FitConfig(workers=1).resolved(rec)
+    _, space = fit_param_space(cfg, rec.scenario)
+    sensor = metric_sensor(cfg, rec.scenario)
+    kw = dict(backend=cfg.backend, backend_options=cfg.backend_options, scenario=rec.scenario.to_json(), effects=[],
+              observer=cfg.observer, observer_options=observer_options(cfg, rec.scenario), param_names=space.names,
+              fixed={}, dense=rec.dense, n_dense=cfg.n_dense)
+    return rec, space, sensor, SimContext(**kw, min_z=sensor["metric_min_z"]), SimContext(**kw, min_z=None)
+
+
+def table(folder: Path) -> None:
+    """Markdown table of every twin result in ``folder``."""
+    print("| twin | truth's own score (floor) [cm] | CMA-ES best [cm] | softsbi posterior-mean rollout [cm] | "
+          "softsbi posterior predictive [cm] | prior [cm] | post. pred. / prior | PM rollout / CMA-ES best | "
+          "CMA-ES best / floor | yaw truth / CMA-ES / posterior mean [deg] |")
+    print("|" + "---|" * 10)
+    for f in sorted(folder.glob("*.json")):
+        r = json.loads(f.read_text())
+        s = r["softsbi"]
+        print(f"| {r['recording']} | {r['floor_m'] * 100:.2f} | {r['cma_best_m'] * 100:.2f} | "
+              f"{s['posterior_mean_rollout_m'] * 100:.2f} | {s['posterior_predictive_m'] * 100:.2f} | "
+              f"{s['prior_m'] * 100:.2f} | {s['posterior_predictive_m'] / s['prior_m']:.2f} | "
+              f"{s['posterior_mean_rollout_m'] / r['cma_best_m']:.2f} | {r['cma_best_m'] / r['floor_m']:.2f} | "
+              f"{r['truth'].get('yaw', float('nan')):+.1f} / {r['cma_best'].get('yaw', float('nan')):+.1f} / "
+              f"{s['posterior_mean'].get('yaw', float('nan')):+.1f} |")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--recording", help="e.g. lift_tan2 (a folder of --data)")
+    ap.add_argument("--data", type=Path, default=cb.DATA)
+    ap.add_argument("--truth-fit", type=Path, help="a finished softsbi fit of the recording: its posterior mean "
+                                                   "is the twin's truth")
+    ap.add_argument("--twin-seed", type=int, default=1)
+    ap.add_argument("--budget", type=int, default=630)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=Path("runs/cmaes_twin"))
+    ap.add_argument("--table", type=Path, help="print the table of a folder of results and exit")
+    a = ap.parse_args()
+    if a.table:
+        table(a.table)
+        return 0
+    a.out.mkdir(parents=True, exist_ok=True)
+    res = run_twin(a.data / a.recording, a.truth_fit, a.out, a.twin_seed, a.budget, a.seed)
+    (a.out / f"{a.recording}_twin{a.twin_seed}.json").write_text(json.dumps(res, indent=1))
+    s = res["softsbi"]
+    print(f"{res['recording']}: floor {res['floor_m'] * 100:.2f} cm, CMA-ES best {res['cma_best_m'] * 100:.2f} cm, "
+          f"PM rollout {s['posterior_mean_rollout_m'] * 100:.2f} cm "
+          f"({s['posterior_mean_rollout_m'] / res['cma_best_m']:.2f}x), post. pred. {s['posterior_predictive_m'] * 100:.2f} cm")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
