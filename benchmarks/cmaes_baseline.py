@@ -58,9 +58,14 @@ YAW_GRID = np.linspace(-45, 45, 13)
 
 
 def contexts(folder: Path) -> tuple[FitConfig, object, dict, SimContext, SimContext]:
-    """The default fit's settings, parameter space, sensor model and two worker contexts (the fit's
-    sensor model, and full clouds) for a recording."""
-    rec = load_recording(folder)
+    """The recording in ``folder``, the default fit's parameter space, sensor model and two worker contexts
+    (the fit's sensor model, and full clouds): :func:`contexts_of` of :func:`load_recording`."""
+    return contexts_of(load_recording(folder))
+
+
+def contexts_of(rec) -> tuple[FitConfig, object, dict, SimContext, SimContext]:
+    """:func:`contexts` for a :class:`~softsbi.core.types.Recording` already in memory (e.g. a simulated twin,
+    ``cmaes_twin.py``)."""
     cfg = FitConfig(workers=1).resolved(rec)
     _, space = fit_param_space(cfg, rec.scenario)
     sensor = metric_sensor(cfg, rec.scenario)
@@ -137,23 +142,30 @@ def wrap90(a: float) -> float:
     return float((a + 90) % 180 - 90)
 
 
-def rollout_axis(ctx: SimContext, theta: np.ndarray, seed: int) -> tuple[dict, float | None]:
-    """One rollout (with its vertices) and its hanging-sheet orientation (deg)."""
-    c = SimContext(**{**ctx.__dict__, "keep_rollout": True})
-    res = simulate_job(c, (theta, seed))
+def simulated_clouds(ctx: SimContext, theta: np.ndarray, seed: int, n: int | None = None
+                     ) -> tuple[dict, list[np.ndarray] | None]:
+    """One rollout through ``ctx``'s job with its vertices kept, and its surface clouds ``(n, 3)`` m per frame
+    (``n`` points, default ``ctx.n_dense``, sampled with ``seed``); clouds None when the simulation failed."""
+    res = simulate_job(SimContext(**{**ctx.__dict__, "keep_rollout": True}), (theta, seed))
     if res["chamfer"] is None:
         return res, None
     from softsbi.core.types import Rollout
     ro = Rollout(vertices=res["vertices"], faces=res["faces"], gripper=res["gripper"],
                  times=np.asarray(ctx.scenario["times"]))
-    clouds = rollout_clouds(ro, ctx.n_dense, np.random.default_rng(seed))
-    return res, hanging_axis_deg(clouds, ctx.min_z)
+    return res, rollout_clouds(ro, ctx.n_dense if n is None else n, np.random.default_rng(seed))
 
 
-def run(folder: Path, metric: str, budget: int, fit_dir: Path | None, seed: int) -> dict:
-    """CMA-ES on one recording and metric, then softsbi's numbers on the same metric and the yaw evidence."""
+def rollout_axis(ctx: SimContext, theta: np.ndarray, seed: int) -> tuple[dict, float | None]:
+    """One rollout (with its vertices) and its hanging-sheet orientation (deg)."""
+    res, clouds = simulated_clouds(ctx, theta, seed)
+    return res, None if clouds is None else hanging_axis_deg(clouds, ctx.min_z)
+
+
+def run(folder: Path, metric: str, budget: int, fit_dir: Path | None, seed: int, rec=None) -> dict:
+    """CMA-ES on one recording and metric, then softsbi's numbers on the same metric and the yaw evidence;
+    ``rec``: the recording in memory instead of ``folder``'s (a twin; ``folder`` then only names it)."""
     t0 = time.perf_counter()
-    rec, space, sensor, ctx_s, ctx_f = contexts(folder)
+    rec, space, sensor, ctx_s, ctx_f = contexts(folder) if rec is None else contexts_of(rec)
     ctx = ctx_f if metric == "full" else ctx_s
     frames = sensor["metric_frames"]
     seeds = np.random.default_rng([seed, 17]).integers(0, 2**31 - 1, size=budget + 100)
@@ -251,7 +263,6 @@ def overlay(folder: Path, result: Path, png: Path, frames=(0, 8, 14, 24)) -> Non
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from softsbi.core.types import Rollout
     res = json.loads(result.read_text())
     rec, space, sensor, ctx_s, _ = contexts(folder)
     thetas = {"CMA-ES best": space.as_array(res["cma_best"])}
@@ -260,10 +271,7 @@ def overlay(folder: Path, result: Path, png: Path, frames=(0, 8, 14, 24)) -> Non
     min_z = ctx_s.min_z
     sims = {}
     for k, th in thetas.items():
-        r = simulate_job(SimContext(**{**ctx_s.__dict__, "keep_rollout": True}), (th, 0))
-        ro = Rollout(vertices=r["vertices"], faces=r["faces"], gripper=r["gripper"],
-                     times=np.asarray(ctx_s.scenario["times"]))
-        sims[k] = rollout_clouds(ro, ctx_s.n_dense, np.random.default_rng(0))
+        sims[k] = simulated_clouds(ctx_s, th, 0)[1]
     fig, axes = plt.subplots(2, len(frames), figsize=(4.2 * len(frames), 8.4))
     cols = {"CMA-ES best": "tab:red", "softsbi posterior mean": "tab:blue"}
     for j, t in enumerate(frames):

@@ -43,11 +43,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import cmaes_baseline as cb  # noqa: E402
 
-from softsbi.core.types import Rollout  # noqa: E402
-from softsbi.perception.pointcloud import rollout_clouds  # noqa: E402
 from softsbi.workflows.fit import FitConfig, run_fit  # noqa: E402
-from softsbi.workflows.jobs import SimContext, simulate_job  # noqa: E402
-from softsbi.workflows.measurement import load_recording  # noqa: E402
+from softsbi.workflows.jobs import simulate_job  # noqa: E402
 
 
 def twin(folder: Path, theta: dict[str, float], seed: int):
@@ -57,13 +54,10 @@ def twin(folder: Path, theta: dict[str, float], seed: int):
     theta array, parameter space)``."""
     rec, space, _, _, ctx_full = cb.contexts(folder)
     th = space.as_array(theta)
-    res = simulate_job(SimContext(**{**ctx_full.__dict__, "keep_rollout": True}), (th, seed))
-    if res["chamfer"] is None:
+    res, clouds = cb.simulated_clouds(ctx_full, th, seed, rec.dense.shape[1])
+    if clouds is None:
         raise RuntimeError(f"the twin's simulation failed: {res['reason']}")
-    ro = Rollout(vertices=res["vertices"], faces=res["faces"], gripper=res["gripper"],
-                 times=np.asarray(ctx_full.scenario["times"]))
-    clouds = np.stack(rollout_clouds(ro, rec.dense.shape[1], np.random.default_rng(seed)))
-    return dataclasses.replace(rec, dense=clouds, x=None, truth=space.as_dict(th),
+    return dataclasses.replace(rec, dense=np.stack(clouds), x=None, truth=space.as_dict(th),
                                source=f"twin of {folder.name} (seed {seed})"), th, space
 
 
@@ -75,31 +69,14 @@ def run_twin(folder: Path, truth_fit: Path, out: Path, twin_seed: int, budget: i
     fit_dir = out / f"{folder.name}_twin{twin_seed}"
     run_fit(fit_dir, rec, FitConfig(workers=1), make_plots=False)
     fit_s = time.perf_counter() - t0
-    orig = cb.contexts
-    cb.contexts = lambda _folder: _contexts_of(rec)  # cmaes_baseline.run on the twin, unchanged otherwise
-    try:
-        res = cb.run(folder, "fit", budget, fit_dir, seed)
-    finally:
-        cb.contexts = orig
-    _, _, sensor, ctx_s, _ = _contexts_of(rec)
+    res = cb.run(folder, "fit", budget, fit_dir, seed, rec=rec)
+    _, _, sensor, ctx_s, _ = cb.contexts_of(rec)
     floor = [cb.score(simulate_job(ctx_s, (th, 9000 + k)), "fit", sensor["metric_frames"]) for k in range(5)]
     res.update(recording=f"{folder.name} twin {twin_seed}", truth=space.as_dict(th), truth_fit=str(truth_fit),
                floor_m=float(np.mean(floor)), floor_runs_m=floor, fit_seconds=fit_s,
                seconds=time.perf_counter() - t0)
     res.pop("history_m", None)
     return res
-
-
-def _contexts_of(rec):
-    """:func:`cmaes_baseline.contexts` for an in-memory recording (the twin)."""
-    from softsbi.workflows.fit import fit_param_space, metric_sensor, observer_options
-    cfg = FitConfig(workers=1).resolved(rec)
-    _, space = fit_param_space(cfg, rec.scenario)
-    sensor = metric_sensor(cfg, rec.scenario)
-    kw = dict(backend=cfg.backend, backend_options=cfg.backend_options, scenario=rec.scenario.to_json(), effects=[],
-              observer=cfg.observer, observer_options=observer_options(cfg, rec.scenario), param_names=space.names,
-              fixed={}, dense=rec.dense, n_dense=cfg.n_dense)
-    return rec, space, sensor, SimContext(**kw, min_z=sensor["metric_min_z"]), SimContext(**kw, min_z=None)
 
 
 def table(folder: Path) -> None:
