@@ -61,6 +61,16 @@ def twin(folder: Path, theta: dict[str, float], seed: int):
                                source=f"twin of {folder.name} (seed {seed})"), th, space
 
 
+def add_twin_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options that name a twin (``--recording``, ``--data``, ``--truth-fit``, ``--twin-seed``), shared with
+    ``estimator_variants_twin.py``."""
+    ap.add_argument("--recording", help="e.g. lift_tan2 (a folder of --data)")
+    ap.add_argument("--data", type=Path, default=cb.DATA)
+    ap.add_argument("--truth-fit", type=Path, help="a finished softsbi fit of the recording: its posterior mean "
+                                                   "is the twin's truth")
+    ap.add_argument("--twin-seed", type=int, default=1)
+
+
 def run_twin(folder: Path, truth_fit: Path, out: Path, twin_seed: int, budget: int, seed: int) -> dict:
     """Fit the twin with softsbi, run CMA-ES on it at ``budget`` simulations, and score both and the truth."""
     t0 = time.perf_counter()
@@ -98,11 +108,7 @@ def table(folder: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--recording", help="e.g. lift_tan2 (a folder of --data)")
-    ap.add_argument("--data", type=Path, default=cb.DATA)
-    ap.add_argument("--truth-fit", type=Path, help="a finished softsbi fit of the recording: its posterior mean "
-                                                   "is the twin's truth")
-    ap.add_argument("--twin-seed", type=int, default=1)
+    add_twin_arguments(ap)
     ap.add_argument("--budget", type=int, default=630)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("runs/cmaes_twin"))

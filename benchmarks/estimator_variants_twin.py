@@ -40,9 +40,8 @@ import cmaes_twin as ct  # noqa: E402
 
 from softsbi.core.distributions import PosteriorChain  # noqa: E402
 from softsbi.core.store import RunStore  # noqa: E402
-from softsbi.core.types import STATUS_OK  # noqa: E402
 from softsbi.plugins import registry  # noqa: E402
-from softsbi.workflows.fit import FitConfig, run_fit  # noqa: E402
+from softsbi.workflows.fit import FitConfig, _usable, run_fit  # noqa: E402
 from softsbi.workflows.jobs import simulate_job  # noqa: E402
 
 #: estimator options over the fit's own (rkhs defaults: a recalibrated shared-trunk ensemble of 5, 8-point
@@ -63,16 +62,11 @@ VARIANTS: dict[str, dict] = {
 
 
 def training_set(store: RunStore) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Every usable simulation of a finished fit (all rounds, as its last training saw them): ``(u, x, n, rounds)``."""
+    """Every usable simulation of a finished fit (all rounds, as its last training saw them; the fit's own
+    selection, ``softsbi.workflows.fit._usable``): ``(u, x, n, rounds)``."""
     rounds = len(store.completed_rounds())
-    us, xs = [], []
-    for r in range(rounds):
-        d = store.round_data(r)
-        ok = (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
-        us.append(d["u"][ok])
-        xs.append(d["x"][ok])
-    u, x = np.concatenate(us), np.concatenate(xs)
-    return u, x, len(u), rounds
+    u, x, counts = _usable(store, rounds - 1)
+    return u, x, sum(counts), rounds
 
 
 def retrain(store: RunStore, space, options: dict, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,11 +146,7 @@ def table(folder: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--recording", help="e.g. lift_tan (a folder of --data)")
-    ap.add_argument("--data", type=Path, default=cb.DATA)
-    ap.add_argument("--truth-fit", type=Path, help="a finished softsbi fit of the recording: its posterior mean "
-                                                   "is the twin's truth")
-    ap.add_argument("--twin-seed", type=int, default=1)
+    ct.add_twin_arguments(ap)
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
     ap.add_argument("--seeds", default="0,1,2", help="training seeds")
     ap.add_argument("--out", type=Path, default=Path("runs/estimator_variants"))
