@@ -117,6 +117,8 @@ def main() -> int:
     if a.table:
         table(a.table)
         return 0
+    if not (a.recording and a.truth_fit):
+        ap.error("--recording and --truth-fit name the twin (or print a table with --table FOLDER)")
     a.out.mkdir(parents=True, exist_ok=True)
     res = run_twin(a.data / a.recording, a.truth_fit, a.out, a.twin_seed, a.budget, a.seed)
     (a.out / f"{a.recording}_twin{a.twin_seed}.json").write_text(json.dumps(res, indent=1))

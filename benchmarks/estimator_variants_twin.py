@@ -155,6 +155,8 @@ def main() -> int:
     if a.table:
         table(a.table)
         return 0
+    if not (a.recording and a.truth_fit):
+        ap.error("--recording and --truth-fit name the twin (or print a table with --table FOLDER)")
     unknown = [v for v in a.variants.split(",") if v not in VARIANTS]
     if unknown:
         ap.error(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(VARIANTS)}")
