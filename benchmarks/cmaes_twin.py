@@ -61,6 +61,24 @@ def twin(folder: Path, theta: dict[str, float], seed: int):
                                source=f"twin of {folder.name} (seed {seed})"), th, space
 
 
+def floor_runs(ctx_s, theta: np.ndarray, frames: list[int] | None, n: int = 5) -> list[float]:
+    """The truth's own score (m, headline metric): ``theta`` simulated in the sensor context ``ctx_s`` with ``n``
+    seeds (9000, 9001, ...) that neither the twin nor the fits use."""
+    return [cb.score(simulate_job(ctx_s, (theta, 9000 + k)), "fit", frames) for k in range(n)]
+
+
+def parse_twin_arguments(ap: argparse.ArgumentParser, table) -> argparse.Namespace | None:
+    """Parse a twin script's command line: with ``--table FOLDER`` print ``table(FOLDER)`` and return None;
+    otherwise refuse, in one line, a run that does not name the twin (``--recording`` and ``--truth-fit``)."""
+    a = ap.parse_args()
+    if a.table:
+        table(a.table)
+        return None
+    if not (a.recording and a.truth_fit):
+        ap.error("--recording and --truth-fit name the twin (or print a table with --table FOLDER)")
+    return a
+
+
 def add_twin_arguments(ap: argparse.ArgumentParser) -> None:
     """The options that name a twin (``--recording``, ``--data``, ``--truth-fit``, ``--twin-seed``), shared with
     ``estimator_variants_twin.py``."""
@@ -81,7 +99,7 @@ def run_twin(folder: Path, truth_fit: Path, out: Path, twin_seed: int, budget: i
     fit_s = time.perf_counter() - t0
     res = cb.run(folder, "fit", budget, fit_dir, seed, rec=rec)
     _, _, sensor, ctx_s, _ = cb.contexts_of(rec)
-    floor = [cb.score(simulate_job(ctx_s, (th, 9000 + k)), "fit", sensor["metric_frames"]) for k in range(5)]
+    floor = floor_runs(ctx_s, th, sensor["metric_frames"])
     res.update(recording=f"{folder.name} twin {twin_seed}", truth=space.as_dict(th), truth_fit=str(truth_fit),
                floor_m=float(np.mean(floor)), floor_runs_m=floor, fit_seconds=fit_s,
                seconds=time.perf_counter() - t0)
@@ -113,12 +131,9 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("runs/cmaes_twin"))
     ap.add_argument("--table", type=Path, help="print the table of a folder of results and exit")
-    a = ap.parse_args()
-    if a.table:
-        table(a.table)
+    a = parse_twin_arguments(ap, table)
+    if a is None:
         return 0
-    if not (a.recording and a.truth_fit):
-        ap.error("--recording and --truth-fit name the twin (or print a table with --table FOLDER)")
     a.out.mkdir(parents=True, exist_ok=True)
     res = run_twin(a.data / a.recording, a.truth_fit, a.out, a.twin_seed, a.budget, a.seed)
     (a.out / f"{a.recording}_twin{a.twin_seed}.json").write_text(json.dumps(res, indent=1))

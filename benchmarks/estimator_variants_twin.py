@@ -95,7 +95,7 @@ def run(folder: Path, truth_fit: Path, out: Path, twin_seed: int, variants: list
     path = out / f"{folder.name}_twin{twin_seed}_variants.json"
     res = json.loads(path.read_text()) if path.exists() else {}
     if "floor_m" not in res:
-        floor = [cb.score(simulate_job(ctx_s, (th, 9000 + k)), "fit", frames) for k in range(5)]
+        floor = ct.floor_runs(ctx_s, th, frames)
         rep = json.loads((fit_dir / "report.json").read_text())
         pm = space.as_array(rep["posterior_mean"])
         res = {"recording": f"{folder.name} twin {twin_seed}", "truth": space.as_dict(th), "fit": str(fit_dir),
@@ -151,12 +151,9 @@ def main() -> int:
     ap.add_argument("--seeds", default="0,1,2", help="training seeds")
     ap.add_argument("--out", type=Path, default=Path("runs/estimator_variants"))
     ap.add_argument("--table", type=Path, help="print the table of a folder of results and exit")
-    a = ap.parse_args()
-    if a.table:
-        table(a.table)
+    a = ct.parse_twin_arguments(ap, table)
+    if a is None:
         return 0
-    if not (a.recording and a.truth_fit):
-        ap.error("--recording and --truth-fit name the twin (or print a table with --table FOLDER)")
     unknown = [v for v in a.variants.split(",") if v not in VARIANTS]
     if unknown:
         ap.error(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(VARIANTS)}")
