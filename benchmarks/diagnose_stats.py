@@ -187,10 +187,11 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
             "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
                         for r in d["ranking"] if "statistic" in r],
             # per refit: effect, error drop, check's test of the refit (p, still misspecified), and the fraction of
-            # the nominal's summary bias it removes with its z (None for refits made before it was kept)
+            # the nominal's summary bias it removes with its z (None for refits made before it was kept), and the
+            # drop of the posterior predictive's energy score (None for refits made before it was computed)
             "refits": [[c["effect"], c.get("drop"), (c.get("misspecification_after") or {}).get("p_value"),
                         (c.get("misspecification_after") or {}).get("misspecified"), c.get("bias_fall"),
-                        c.get("bias_fall_z")] for c in d["confirmed"]],
+                        c.get("bias_fall_z"), c.get("energy_drop")] for c in d["confirmed"]],
             "screening_verdict": d.get("screening_verdict", d["verdict"])}
 
 
@@ -362,6 +363,48 @@ def truth_floor(run_dir: Path, case: dict[str, Any], n: int = 5) -> float:
     from softsbi.workflows.runs import load_run
     run = load_run(run_dir)
     return _mean_chamfer_at(run, dict(case["truth"]), list(run.effects) + hidden_effects(case), n)
+
+
+def truth_energy(run_dir: Path, case: dict[str, Any], n: int = 30) -> dict[str, Any] | None:
+    """The energy score (:func:`softsbi.workflows.stats.energy_score`) of the oracle's predictive distribution:
+    ``n`` rollouts at the case's truth with its hidden effects switched on (seeds ``5000 + k``, as
+    :func:`truth_floor`), through the nominal run's own job and metric. Only the simulation seeds vary, so this is
+    the distribution the measurement was drawn from; a proper score gives it the lowest expected score of all
+    predictive distributions, which the benchmark checks against the nominal fits and the refits."""
+    from types import SimpleNamespace
+
+    from softsbi.workflows.jobs import run_jobs
+    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.stats import energy_score
+    run = load_run(run_dir)
+    items = [(dict(case["truth"]), 5000 + k, list(run.effects) + hidden_effects(case)) for k in range(n)]
+    res = run_jobs(run.sim_context(keep_rollout=True), items, 1)
+    rollouts = [dict(r, sample=k) for k, r in enumerate(res) if r and r.get("vertices") is not None]
+    return energy_score(SimpleNamespace(run=run, rollouts=rollouts), n)
+
+
+def add_truth_energies(results: Path, outs: Sequence[Path]) -> int:
+    """Add ``energy_m = {"nominal", "refit", "truth"}`` (m) to every stored correctly named row whose diagnosis
+    kept energy scores (``diagnosis.json``: the nominal's ``energy`` and the named refit's ``energy_after_m``),
+    with the truth's from :func:`truth_energy`; rewrites ``results``, returns the number of rows updated."""
+    rows = load_rows(results)
+    k = 0
+    for r in rows:
+        run_dir = find_run_dir(outs, r["id"])
+        if "energy_m" in r or not (r.get("correct") and r.get("named")) or run_dir is None \
+                or not (run_dir / "diagnosis.json").exists():
+            continue
+        d = json.loads((run_dir / "diagnosis.json").read_text())
+        c = next((c for c in d.get("confirmed") or [] if c["effect"] == r["named"]), None)
+        if not d.get("energy") or c is None or c.get("energy_after_m") is None:
+            continue
+        t = truth_energy(run_dir, r)
+        r["energy_m"] = {"nominal": d["energy"]["energy_m"], "refit": c["energy_after_m"],
+                         "refit_se": c.get("energy_after_se_m"), "truth": t and t["energy_m"],
+                         "truth_se": t and t["energy_se_m"]}
+        k += 1
+        save_rows(results, rows)
+    return k
 
 
 def effect_size(run_dir: Path, case: dict[str, Any], n: int = 5) -> dict[str, float]:
@@ -553,6 +596,21 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
               for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
     if excess:
         out["refit_drop_of_reducible"] = {"n": len(excess), "median": float(np.median(excess))}
+    # the same cases' drop of the energy score (stats.energy_score), where the refit stored it; with the Chamfer
+    # drop of exactly those cases, so the two medians compare like with like
+    both = [(x[1], x[6]) for r in rows if r["correct"] and r.get("named") for x in r.get("refits") or []
+            if x[0] == r["named"] and x[1] is not None and len(x) > 6 and x[6] is not None]
+    if both:
+        out["refit_drop_energy"] = {"n": len(both), "median": float(np.median([e for _, e in both])),
+                                    "median_chamfer_same_cases": float(np.median([c for c, _ in both]))}
+    # the proper score in practice: the truth's own predictive distribution (add_truth_energies) against the
+    # nominal fit's and the refit's, and the refit's share of the energy score above the truth's
+    es = [r["energy_m"] for r in rows if r.get("energy_m") and r["energy_m"].get("truth") is not None]
+    if es:
+        red = [(e["nominal"] - e["refit"]) / (e["nominal"] - e["truth"]) for e in es if e["nominal"] > e["truth"]]
+        out["energy_truth"] = {"n": len(es), "truth_below_nominal": sum(e["truth"] < e["nominal"] for e in es),
+                               "truth_below_refit": sum(e["truth"] < e["refit"] for e in es),
+                               "median_drop_of_reducible": float(np.median(red)) if red else None}
     return out
 
 
@@ -678,6 +736,18 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         rd = summary["refit_drop_of_reducible"]
         out.append(f"Median refit drop of the reducible error (nominal Chamfer minus the truth's), correctly named "
                    f"cases: {rd['median'] * 100:.0f}% (n = {rd['n']}).")
+    if summary.get("refit_drop_energy"):
+        rd = summary["refit_drop_energy"]
+        out.append(f"Median refit drop of the energy score, correctly named cases that stored it: "
+                   f"{rd['median'] * 100:.0f}% (n = {rd['n']}; their Chamfer drop: "
+                   f"{rd['median_chamfer_same_cases'] * 100:.0f}%).")
+    if summary.get("energy_truth"):
+        et = summary["energy_truth"]
+        red = et["median_drop_of_reducible"]
+        out.append(f"The truth's own predictive distribution scores below the nominal fit in {et['truth_below_nominal']} "
+                   f"and below the refit in {et['truth_below_refit']} of {et['n']} cases (a proper score); median "
+                   f"share of the energy score above the truth's that the refit removes: "
+                   + ("-" if red is None else f"{red * 100:.0f}%") + ".")
     out.append("\n| case | truth | scenario | magnitude | misspecification p | verdict | named | wall [s] |")
     out.append("|---|---|---|---|---|---|---|---|")
     for r in rows:
@@ -728,6 +798,11 @@ def main() -> None:
     fl = sub.add_parser("floor", help="add the oracle floor (truth re-simulated) to stored rows with refits")
     fl.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     fl.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
+    te = sub.add_parser("truth-energy", help="add the energy scores of the nominal fit, the named refit and the "
+                                             "truth's own predictive distribution to stored correctly named rows")
+    te.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    te.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                    help="folders holding the cases' run directories")
     sz = sub.add_parser("size", help="add each hidden effect's size in the data (Chamfer at the truth without "
                                      "it minus with it) to stored rows")
     sz.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
@@ -776,6 +851,9 @@ def main() -> None:
         return
     if a.cmd == "floor":
         print(f"{add_floors(a.results, a.out)} rows updated")
+        return
+    if a.cmd == "truth-energy":
+        print(f"{add_truth_energies(a.results, a.out)} rows updated")
         return
     if a.cmd == "refit":
         for item in a.runs.split(","):

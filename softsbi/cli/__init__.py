@@ -524,16 +524,17 @@ def diagnosis_table_rows(out: dict) -> list[list]:
 
     Returns:
         Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
-        rank). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
+        rank); the drop is the posterior-predictive Chamfer's, then the energy score's where the refit has one
+        (``"32% / 45%"``). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
         its own: its row reads kind ``pair``, "-" for the screening's columns, and its refit's drop.
     """
     from softsbi.workflows.diagnose import format_p
     by_name = {r["effect"]: r for r in out["ranking"]}
-    drops = {c["effect"]: c.get("drop") for c in out["confirmed"]}
+    drops = {c["effect"]: (c.get("drop"), c.get("energy_drop")) for c in out["confirmed"]}
     rows = []
     for i, name in enumerate(out.get("final_ranking") or list(by_name)):
-        d = drops.get(name)
-        drop = "" if d is None else f"{d * 100:.0f}%"
+        d, e = drops.get(name, (None, None))
+        drop = "" if d is None else f"{d * 100:.0f}%" + ("" if e is None else f" / {e * 100:.0f}%")
         r = by_name.get(name)
         if r is None:  # a refitted pair
             parts = name.split("+")
@@ -582,7 +583,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
         return
     rows = diagnosis_table_rows(out)
     o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
-             "refit: error drop"], rows,
+             "refit drop: Chamfer / energy"], rows,
             title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")
     o.line(f"verdict: {out['verdict']}")
     o.line(out["summary"])

@@ -35,7 +35,7 @@ from softsbi.workflows.screening import (Screening, candidate_effects, effect_ki
                                          misspecification_verdict, screening_of)
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, resolution_needed, run_features, run_frames,
-                                     sampled_points, summary_bias)
+                                     energy_score, sampled_points, summary_bias)
 
 
 #: verdicts of a diagnosis (``diagnosis.json``'s ``verdict``)
@@ -114,7 +114,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         ``generic``, ``explained_fraction``, ``statistic``, max-T ``adjusted_p_value`` and
         ``adjusted_p_text``, ``estimate``; by evidence), ``significant`` (named effects, forward
         selection), ``selected``, ``generic`` (best generic term or None), ``residual`` (shape;
-        when misspecified), ``remaining`` (what the named effects leave, with its p-value),
+        when misspecified), ``energy`` (when misspecified: the nominal posterior predictive's
+        :func:`~softsbi.workflows.stats.energy_score`, against which each refit's is reported), ``remaining`` (what the named effects leave, with its p-value),
         ``confirmed``, ``final_ranking``, ``n_null``, ``simulations``.
 
     The null treats posterior-predictive rollouts as data without refitting them; since the
@@ -157,6 +158,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
     if out["verdict"] != "nothing-missing":
         out["residual"] = residual_shape(run, pool)
         out["summary_bias"] = nominal_summary_bias(pool, n_null)
+        out["energy"] = energy_score(pool)
     if significant:
         out["remaining"] = screen.remaining(significant)
     out["rules"] = decision_rules(out)
@@ -381,7 +383,8 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                                                alpha=max(out.get("alpha", ALPHA), EXPLAIN_ALPHA),
                                                n_null=out.get("n_null_start", N_NULL),
                                                max_null=out.get("max_null", MAX_NULL),
-                                               nominal_bias=out.get("summary_bias")))
+                                               nominal_bias=out.get("summary_bias"),
+                                               nominal_energy=out.get("energy")))
     out["confirmed"].sort(key=lambda c: -(c["drop"] if c.get("drop") is not None else -np.inf))
     kinds = {r["effect"]: r.get("kind") for r in out["ranking"]}
     for c in out["confirmed"]:
@@ -425,7 +428,7 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                     joint = confirm_effect(view, sig[:2], budget, workers,
                                            alpha=max(out.get("alpha", ALPHA), EXPLAIN_ALPHA),
                                            n_null=out.get("n_null_start", N_NULL), max_null=out.get("max_null", MAX_NULL),
-                                           nominal_bias=out.get("summary_bias"))
+                                           nominal_bias=out.get("summary_bias"), nominal_energy=out.get("energy"))
                     out["confirmed"].append(joint)
             if joint is not None and _explains(joint, mx):
                 out["selected"] = sig[0]
@@ -508,7 +511,15 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
     """The refit's Chamfer change in words, where the Chamfer does not fall whether its rollouts moved toward
     the measurement (:func:`_moves_toward`), then what its check says (:func:`_after_refit`)."""
     s = (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
-         f"to {c['chamfer_after_m'] * 100:.2f} cm ({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])}).")
+         f"to {c['chamfer_after_m'] * 100:.2f} cm ({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])})")
+    if c.get("energy_before_m") and c.get("energy_after_m") is not None:
+        s += (f" and its energy score from {c['energy_before_m'] * 100:.2f} to {c['energy_after_m'] * 100:.2f} cm "
+              f"({describe_change(c['energy_before_m'], c['energy_after_m'])}, the refit's standard error "
+              f"{c['energy_after_se_m'] * 100:.2f} cm). The energy score is the Chamfer less half the mean Chamfer "
+              f"between two rollouts: a proper score, it does not penalise a model for predicting the measurement's "
+              f"own spread.")
+    else:
+        s += "."
     if (c.get("drop") or 0) <= 0 and c.get("bias_fall") is not None and c.get("adds_sensor_effect"):
         if _moves_toward(c, min_explained):
             s += (f" Its rollouts moved toward the measurement all the same ({_bias_words(c)}; at least "
@@ -693,7 +704,8 @@ REFIT_PROPOSAL = "truncated"
 
 def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, int] | None = None,
                    workers: int | None = None, alpha: float = ALPHA, n_null: int = N_NULL,
-                   max_null: int = MAX_NULL, nominal_bias: dict[str, Any] | None = None) -> dict[str, Any]:
+                   max_null: int = MAX_NULL, nominal_bias: dict[str, Any] | None = None,
+                   nominal_energy: dict[str, Any] | None = None) -> dict[str, Any]:
     """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``; several effects
     at once: ``RUN/refit-<a>+<b>``, reported as effect ``"a+b"``), with the
     run's own settings (:meth:`FitConfig.from_run_config`: executor and its options included), the
@@ -707,6 +719,11 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     measured by their systematic deviation from the measurement in the nominal's scale
     (:func:`refit_summary_bias`), so a refit that only widens its posterior predictive is told from one that
     moves toward the measurement.
+
+    With ``nominal_energy`` (:func:`~softsbi.workflows.stats.energy_score` of the nominal fit) the refit's
+    posterior predictive is also scored by the energy score, which credits a model whose rollouts spread as the
+    measurement does: ``energy_before_m``, ``energy_after_m``, ``energy_after_se_m`` and ``energy_drop``
+    (``1 - after / before``).
 
     Returns:
         ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
@@ -734,10 +751,22 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
     sd, n = res.report.get("chamfer_posterior_std_m"), res.report.get("chamfer_posterior_n") or cfg.n_eval
     bias = refit_summary_bias(run, refit, nominal_bias, n_null) if nominal_bias else {}
+    energy = energy_change(nominal_energy, energy_score(refit)) if nominal_energy else {}
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
             "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
-            "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis, **bias}
+            "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis, **bias, **energy}
+
+
+def energy_change(before: dict[str, Any], after: dict[str, Any] | None) -> dict[str, Any]:
+    """A refit's energy score against its nominal fit's (both :func:`~softsbi.workflows.stats.energy_score`):
+    ``{"energy_before_m", "energy_before_se_m", "energy_after_m", "energy_after_se_m", "energy_drop"}`` with
+    ``energy_drop = 1 - after / before``; ``{}`` when the refit has no score."""
+    if not after:
+        return {}
+    b, a = before["energy_m"], after["energy_m"]
+    return {"energy_before_m": b, "energy_before_se_m": before["energy_se_m"], "energy_after_m": a,
+            "energy_after_se_m": after["energy_se_m"], "energy_drop": (1 - a / b) if b > 0 else None}
 
 
 def nominal_summary_bias(pool: PosteriorPredictive, n: int = N_NULL) -> dict[str, Any]:

@@ -109,6 +109,13 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
     # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/hidden_effect.py)
     assert conf["chamfer_after_m"] < 0.8 * conf["chamfer_before_m"]
+    # the energy score (the Chamfer less half the rollouts' spread) of the same posterior predictives: the
+    # nominal's is stored with the diagnosis, the refit's is lower, and the sentence gives both numbers
+    assert d["energy"]["chamfer_m"] == pytest.approx(conf["chamfer_before_m"])
+    assert conf["energy_before_m"] == d["energy"]["energy_m"] < conf["chamfer_before_m"]
+    assert conf["energy_after_m"] < conf["energy_before_m"] - 3 * conf["energy_after_se_m"]
+    assert conf["energy_drop"] == pytest.approx(1 - conf["energy_after_m"] / conf["energy_before_m"])
+    assert f"energy score from {conf['energy_before_m'] * 100:.2f} to {conf['energy_after_m'] * 100:.2f} cm" in d["summary"]
     saved = json.loads((hidden / "diagnosis.json").read_text())
     assert saved["verdict"] == "missing-effect" and saved["significant"] and saved["rules"][0].startswith("1. ")
     c = diagnose_run(control, workers=1, confirm=1)

@@ -251,3 +251,47 @@ def test_summary_bias_ignores_spread_and_follows_the_mean():
     assert nominal["n"] == S and len(nominal["scale"]) == F
     with pytest.raises(SoftsbiError, match="at least 5 simulations"):
         summary_bias(y, mu[None].repeat(4, 0), scale)
+
+
+def _sheet(n: int = 12, size: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """A flat square sheet ``(n * n, 3)`` m at height 0.2 m and its triangles."""
+    u = np.linspace(0, size, n)
+    xx, yy = np.meshgrid(u, u)
+    v = np.stack([xx.ravel(), yy.ravel(), np.full(n * n, 0.2)], 1)
+    f = [(i * n + j, i * n + j + 1, (i + 1) * n + j) for i in range(n - 1) for j in range(n - 1)]
+    f += [(i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j) for i in range(n - 1) for j in range(n - 1)]
+    return v, np.array(f)
+
+
+def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_chamfer_is_not():
+    """A measurement with 1 cm point noise on the observed surface; models that predict noise of 0, 1 and 2 cm.
+    The posterior-predictive Chamfer is smallest for the noise-free model (it rewards predicting no spread), so
+    the right sensor model raises it; the energy score (proper) is smallest at the measurement's own noise."""
+    from types import SimpleNamespace
+
+    from softsbi.perception.pointcloud import sensor_chamfer_per_frame
+    from softsbi.workflows.stats import energy_score, sampled_points
+
+    v, f = _sheet()
+    T, P, S, sigma = 3, 300, 30, 0.01
+    rng = np.random.default_rng(0)
+    verts = np.repeat(v[None], T, 0)
+    y = sampled_points(verts + rng.normal(0, sigma, verts.shape), f, P, 999)
+    run = SimpleNamespace(post_theta=np.zeros(S), dense=y, metric_frames=None, metric_min_z=None, config={})
+
+    def pool(noise: float, n: int = S) -> SimpleNamespace:
+        ro = []
+        for i in range(n):
+            vv = verts + rng.normal(0, noise, verts.shape)
+            ch = sensor_chamfer_per_frame(sampled_points(vv, f, P, 5000 + i), y)[0]
+            ro.append({"vertices": vv, "faces": f, "chamfer": ch, "sample": i})
+        return SimpleNamespace(run=run, rollouts=ro)
+
+    none, right, double = (energy_score(pool(s)) for s in (0.0, sigma, 2 * sigma))
+    assert none["chamfer_m"] < right["chamfer_m"] < double["chamfer_m"]
+    assert right["energy_m"] < none["energy_m"] - 5 * np.hypot(right["energy_se_m"], none["energy_se_m"])
+    assert right["energy_m"] < double["energy_m"] - 5 * np.hypot(right["energy_se_m"], double["energy_se_m"])
+    for e in (none, right, double):
+        assert e["energy_m"] == pytest.approx(e["chamfer_m"] - e["spread_m"] / 2)
+        assert e["n"] == S and e["pairs"] == 3 * S and 0 < e["energy_se_m"] < 0.1 * e["energy_m"]
+    assert energy_score(pool(sigma, 2)) is None  # no spread from fewer than 3 rollouts
