@@ -37,8 +37,8 @@ from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, misspecification_verdict
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL,  # noqa: F401 (re-exported)
-                                     PosteriorPredictive, cloud_features, misspecification_test, sampled_points,
-                                     trajectory_features)
+                                     PosteriorPredictive, cloud_features, energy_score, misspecification_test,
+                                     sampled_points, trajectory_features)
 
 def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Deterministic surface points ``(T, N + F, 3)``: vertices and face centroids."""
@@ -248,7 +248,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         no rollout's region is seen), ``region_compared`` (T x R bool: False where it is 0 for that
         reason, not for a perfect fit), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
         (``"camera"``, ``"height"`` or ``"none"``, :func:`sensor_model`),
-        ``worst_frames``, ``worst_regions``, ``misspecification`` (the omnibus and the directional test,
+        ``worst_frames``, ``worst_regions``, ``energy`` (the same rollouts'
+        :func:`~softsbi.workflows.stats.energy_score`; None for an image fit), ``misspecification`` (the omnibus and the directional test,
         each a Monte-Carlo p-value, their Bonferroni-combined ``p_value`` with ``p_text`` stating its
         resolution, ``misspecified``, ``rule``) and a ``summary`` sentence. The misspecification verdict is
         :func:`~softsbi.workflows.screening.misspecification_verdict`, the same test ``diagnose`` uses as its
@@ -323,7 +324,8 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
            "region_compared": np.isfinite(reg_mean).tolist(),
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
-           "misspecification": mis, "summary": summary, "seconds": time.perf_counter() - t0}
+           "misspecification": mis, "energy": energy_score(pool, n_samples), "summary": summary,
+           "seconds": time.perf_counter() - t0}
     run_dir = Path(run_dir)
     (run_dir / "check.json").write_text(json.dumps(out, indent=2))
     if plot:

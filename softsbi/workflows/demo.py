@@ -152,6 +152,11 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
             f"({'correct' if doc['named_correctly'] else 'WRONG'}).")
     ui.line(f"posterior-predictive Chamfer: {before * 100:.2f} cm (nominal) -> {after * 100:.2f} cm (with {eff}), "
             f"{describe_change(before, after)}.")
+    ea, eb = (comp[k].get("energy") for k in ("check_a", "check_b"))
+    if ea and eb:
+        ui.line(f"energy score (the Chamfer less half the mean Chamfer between two rollouts, a proper score): "
+                f"{ea['energy_m'] * 100:.2f} cm -> {eb['energy_m'] * 100:.2f} cm, "
+                f"{describe_change(ea['energy_m'], eb['energy_m'])}.")
     figures = f" Figures: {out}/compare.png, {nominal}/check.png, {refit}/posterior_pairs.png"
     return _finish(ui, doc, res2.report, t0, figures, what="the refit's ")
 

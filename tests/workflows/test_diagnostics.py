@@ -129,6 +129,9 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert res.exit_code == 0, res.output
     out = json.loads((hidden / "refit-toy-wind" / "compare.json").read_text())
     assert out["table"][0]["b"] < out["table"][0]["a"]
+    energy = next(r for r in out["table"] if r["what"].startswith("energy score"))
+    assert energy["b"] < energy["a"] and "energy score" in out["summary"]
+    assert energy["a"] == pytest.approx(out["table"][0]["a"] - out["check_a"]["energy"]["spread_m"] / 2)
     assert (hidden / "refit-toy-wind" / "compare.png").stat().st_size > 10_000
 
 
