@@ -48,9 +48,11 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     if a.get("chamfer_one_sided_mean_m") is not None and b.get("chamfer_one_sided_mean_m") is not None:
         rows.append({"what": "one-sided Chamfer (measured -> simulated)", "a": a["chamfer_one_sided_mean_m"],
                      "b": b["chamfer_one_sided_mean_m"]})
-    if a.get("energy") and b.get("energy"):
-        rows.append({"what": "energy score (Chamfer less half the mean Chamfer between two rollouts)",
-                     "a": a["energy"]["energy_m"], "b": b["energy"]["energy_m"]})
+    energy = ({"what": "energy score (Chamfer less half the mean Chamfer between two rollouts)",
+               "a": a["energy"]["energy_m"], "b": b["energy"]["energy_m"]} if a.get("energy") and b.get("energy")
+              else None)
+    if energy:
+        rows.append(energy)
     for pa, pb in zip(a["phases"], b["phases"]):
         rows.append({"what": f"{pa['phase']} phase ({pa['t_s'][0]:.2f}-{pa['t_s'][1]:.2f} s)", "a": pa["chamfer_m"],
                      "b": pb["chamfer_m"]})
@@ -63,9 +65,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     lb = fit_label(rb.config)
     summary = (f"{lb} vs {la}: posterior-predictive Chamfer {rows[0]['a'] * 100:.2f} -> {rows[0]['b'] * 100:.2f} cm "
                f"({describe_change(rows[0]['a'], rows[0]['b'])})"
-               + (f", energy score {a['energy']['energy_m'] * 100:.2f} -> {b['energy']['energy_m'] * 100:.2f} cm "
-                  f"({describe_change(a['energy']['energy_m'], b['energy']['energy_m'])})"
-                  if a.get("energy") and b.get("energy") else "")
+               + (f", energy score {energy['a'] * 100:.2f} -> {energy['b'] * 100:.2f} cm "
+                  f"({describe_change(energy['a'], energy['b'])})" if energy else "")
                + "; misspecification "
                f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}."
                + ("" if same_sensor else " The two fits use different sensor models (--sensor / --min-height / "

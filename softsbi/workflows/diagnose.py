@@ -115,8 +115,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
         ``adjusted_p_text``, ``estimate``; by evidence), ``significant`` (named effects, forward
         selection), ``selected``, ``generic`` (best generic term or None), ``residual`` (shape;
         when misspecified), ``energy`` (when misspecified: the nominal posterior predictive's
-        :func:`~softsbi.workflows.stats.energy_score`, against which each refit's is reported), ``remaining`` (what the named effects leave, with its p-value),
-        ``confirmed``, ``final_ranking``, ``n_null``, ``simulations``.
+        :func:`~softsbi.workflows.stats.energy_score`, against which each refit's is reported),
+        ``remaining`` (what the named effects leave, with its p-value), ``confirmed``, ``final_ranking``, ``n_null``, ``simulations``.
 
     The null treats posterior-predictive rollouts as data without refitting them; since the
     measurement itself was fitted, such p-values tend to be conservative (Bayarri & Berger 2000;

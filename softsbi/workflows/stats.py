@@ -115,11 +115,14 @@ def run_frames(run: "RunView") -> list[int]:
     return list(range(len(run.dense))) if run.metric_frames is None else list(run.metric_frames)
 
 
-def sampled_points(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int) -> np.ndarray:
+def sampled_points(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int,
+                   frames: Sequence[int] | None = None) -> np.ndarray:
     """``(T, n, 3)`` area-weighted surface samples, drawn exactly like the measurement's dense
     clouds so that summaries compare like with like (the same ``seed`` gives common random
-    numbers across finite-difference simulations of the same mesh)."""
-    return np.stack([sample_surface(v, faces, n, np.random.default_rng([seed, t])) for t, v in enumerate(vertices)])
+    numbers across finite-difference simulations of the same mesh). With ``frames``, only those
+    frames ``(len(frames), n, 3)``, each drawn as it would be among all ``T``."""
+    idx = range(len(vertices)) if frames is None else frames
+    return np.stack([sample_surface(vertices[t], faces, n, np.random.default_rng([seed, t])) for t in idx])
 
 
 # ----------------------------------------------------------------------------------------
@@ -412,15 +415,15 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     convention). ``min_z`` is the visibility threshold still to apply to them (the run's, combined with a
     sensor effect's on the rollout; None for the camera, whose clouds are already what it sees)."""
     frames = run_frames(run)
-    surface = sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed)
+    surface = sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed, frames)
     camera = run.config.get("metric_camera")
     if camera is None:
-        return [surface[t] for t in frames], combined_min_z(run.metric_min_z, rollout_min_z(rollout))
+        return list(surface), combined_min_z(run.metric_min_z, rollout_min_z(rollout))
     v = np.asarray(rollout["vertices"])[frames]
     g = rollout.get("gripper")
     views = sensor_from_json(camera).observe_rollout(v, rollout["faces"], None if g is None else np.asarray(g)[frames],
                                                     np.random.default_rng([seed, 23]))
-    return [c if len(c) else surface[t][sensor_indices(surface[t], np.inf)] for c, t in zip(views, frames)], None
+    return [c if len(c) else s[sensor_indices(s, np.inf)] for c, s in zip(views, surface)], None
 
 
 def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, Any] | None:
