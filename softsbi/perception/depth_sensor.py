@@ -525,6 +525,35 @@ def sensor_from_json(d: dict) -> VirtualDepthSensor:
     return _FROM_JSON[key]
 
 
+def views_or_highest(views: Sequence[np.ndarray], surface: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """The virtual sensor's clouds with the metric's convention for a frame it sees nothing of (cloth lying
+    flat): that frame's highest :data:`~softsbi.perception.pointcloud.FALLBACK_SHARE` of ``surface[t]`` stand
+    in (:func:`~softsbi.perception.pointcloud.sensor_indices` with no height cut), so every frame has a
+    defined distance. The one place this convention lives for camera fits (the fit's metric, ``check``'s
+    regions, the posterior-predictive summaries and energy score).
+
+    Args:
+        views: ``T`` clouds ``(P_t, 3)`` m seen by the sensor (``P_t`` may be 0).
+        surface: ``T`` surface samples ``(n_t, 3)`` m of the same frames (or any stand-in cloud).
+
+    Returns:
+        ``T`` clouds ``(P'_t, 3)`` m, ``P'_t >= 1`` where ``surface[t]`` has points.
+
+    Raises:
+        ShapeError: different frame counts.
+    """
+    if len(views) != len(surface):
+        raise ShapeError(f"frame counts differ: sensor views {len(views)}, surface samples {len(surface)}")
+    out = []
+    for c, s in zip(views, surface):
+        if len(c):
+            out.append(c)
+        else:
+            s = np.asarray(s, float)
+            out.append(s[sensor_indices(s, np.inf)])
+    return out
+
+
 def camera_chamfer_per_frame(sensor: VirtualDepthSensor, vertices: np.ndarray, faces: np.ndarray,
                              gripper: np.ndarray | None, measured, surface, rng: np.random.Generator
                              ) -> tuple[np.ndarray, np.ndarray]:
@@ -550,11 +579,7 @@ def camera_chamfer_per_frame(sensor: VirtualDepthSensor, vertices: np.ndarray, f
     v = np.asarray(vertices, float)
     if not (len(v) == len(measured) == len(surface)):
         raise ShapeError(f"frame counts differ: rollout {len(v)}, measured {len(measured)}, surface {len(surface)}")
-    sims = []
-    for t in range(len(v)):
-        sim = sensor.observe(v[t], faces, None if gripper is None else np.asarray(gripper)[t], rng)
-        if not len(sim):  # nothing seen: the highest surface samples stand in (sensor_indices' fallback)
-            s = np.asarray(surface[t], float)
-            sim = s[sensor_indices(s, np.inf)]
-        sims.append(sim)
-    return sensor_chamfer_per_frame(sims, measured, None)  # the simulated views are the sensor's already
+    sims = [sensor.observe(v[t], faces, None if gripper is None else np.asarray(gripper)[t], rng)
+            for t in range(len(v))]
+    # the simulated views are the sensor's already
+    return sensor_chamfer_per_frame(views_or_highest(sims, surface), measured, None)

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK, Scenario
-from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
+from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
@@ -174,8 +174,7 @@ def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndar
         # seeded like the null's summaries of that rollout (rollout_features, seed 1000 + its sample)
         views = sensor.observe_rollout(mr["vertices"], mr["faces"], mr.get("gripper"),
                                        np.random.default_rng([1000 + int(mr.get("sample", 0)), 23]))
-        measured = [c if len(c) else np.asarray(m, float)[sensor_indices(np.asarray(m, float), np.inf)]
-                    for c, m in zip(views, measured)]
+        measured = views_or_highest(views, measured)
     return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, None, sensor,
                          rollout.get("gripper"))
 

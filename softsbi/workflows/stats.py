@@ -38,9 +38,9 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.levels import ALPHA
 from softsbi.core.types import STATUS_OK
-from softsbi.perception.depth_sensor import sensor_from_json
+from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
-                                          sensor_indices, sensor_view)
+                                          sensor_view)
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView, load_run, open_run
 
@@ -423,7 +423,7 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     g = rollout.get("gripper")
     views = sensor_from_json(camera).observe_rollout(v, rollout["faces"], None if g is None else np.asarray(g)[frames],
                                                     np.random.default_rng([seed, 23]))
-    return [c if len(c) else s[sensor_indices(s, np.inf)] for c, s in zip(views, surface)], None
+    return views_or_highest(views, surface), None
 
 
 def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, Any] | None:

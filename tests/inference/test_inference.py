@@ -162,6 +162,25 @@ def test_fit_is_deterministic(blob_data):
     assert q1["val_loss"] == q2["val_loss"] and q1["train_loss"] == q2["train_loss"]
 
 
+def test_frame_moments_are_unbiased_under_point_subsets_and_the_option_trains_and_round_trips(blob_data):
+    from softsbi.inference.estimators import point_moments
+    pts = torch.from_numpy(np.random.default_rng(0).standard_normal((2, 3, 30, 3)))
+    full = point_moments(pts)  # (2, 3, 9)
+    assert full.shape == (2, 3, 9)
+    np.testing.assert_allclose(full[..., :3], pts.mean(-2))
+    np.testing.assert_allclose(full[..., 4], (pts[..., 0] * pts[..., 1]).mean(-1))  # xy
+    # the mean over every 8-point subset's moments is the full moments (checked on 4000 random subsets)
+    g = torch.Generator().manual_seed(1)
+    sub = torch.stack([point_moments(pts[:, :, torch.randperm(30, generator=g)[:8]]) for _ in range(4000)]).mean(0)
+    np.testing.assert_allclose(sub, full, atol=0.03)
+    (u, x), (_, xt) = blob_data
+    est = RKHSEstimator(**{**FAST, "max_epochs": 5, "min_epochs": 1}, rkhs_features=8, frame_moments=True)
+    est.fit(u[:100], x[:100], seed=0)
+    other = RKHSEstimator()
+    other.load_state_dict(est.state_dict())
+    np.testing.assert_array_equal(est.posterior_at(xt[0]).means, other.posterior_at(xt[0]).means)
+
+
 # ---------------------------------------------------------------- (d) persistence
 def test_state_dict_round_trip(fitted_rkhs, blob_data):
     est, _ = fitted_rkhs

@@ -178,6 +178,20 @@ def test_sensor_json_round_trip_and_camera_chamfer_fallback():
         VirtualDepthSensor.from_json({"cameras": []})
 
 
+def test_views_or_highest_keeps_seen_views_and_stands_in_the_highest_tenth_for_an_empty_one():
+    from softsbi.core.errors import ShapeError
+    from softsbi.perception.depth_sensor import views_or_highest
+    rng = np.random.default_rng(0)
+    seen = rng.random((5, 3))
+    surface = [rng.random((40, 3)), rng.random((40, 3))]
+    out = views_or_highest([seen, np.zeros((0, 3))], surface)
+    assert out[0] is seen  # a view with points is used as the sensor made it
+    top = np.sort(surface[1][:, 2])[-4:]  # 10% of 40 points, the highest
+    np.testing.assert_array_equal(np.sort(out[1][:, 2]), top)
+    with pytest.raises(ShapeError, match="frame counts differ"):
+        views_or_highest([seen], surface)
+
+
 @pytest.mark.skipif(not (DATA / "calib_overhead").is_dir(), reason="needs ../shared/data/diffcloud_lift")
 def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     import json
