@@ -22,6 +22,8 @@ Usage:
     python benchmarks/estimator_variants_twin.py --recording lift_tan --truth-fit /work/bench_runs/trunc/tan \
         --out /work/bench_runs/s34/variants --seeds 0,1,2
     python benchmarks/estimator_variants_twin.py --table /work/bench_runs/s34/variants
+    python benchmarks/estimator_variants_twin.py --recording lift_navy --truth-fit /work/bench_runs/trunc/navy \
+        --out /work/bench_runs/s34/variants --seeds 0,1,2,3,4,5 --seed-average
 """
 from __future__ import annotations
 
@@ -122,6 +124,31 @@ def run(folder: Path, truth_fit: Path, out: Path, twin_seed: int, variants: list
     return res
 
 
+def seed_average(folder: Path, truth_fit: Path, out: Path, twin_seed: int, seeds: list[int]) -> dict:
+    """Does averaging over training seeds move the posterior mean closer? The default retrained with each of
+    ``seeds`` (as :func:`run`), each posterior mean rolled out, then the average of the first ``k`` posterior
+    means (physical units) rolled out for ``k = 2..len(seeds)``: if the rollout's excess over the floor were
+    the training's randomness, it would shrink with ``k``. Results: ``OUT/<R>_twin<S>_seed_average.json``."""
+    res = run(folder, truth_fit, out, twin_seed, [], [])  # the twin's fit and floor, nothing retrained
+    theta = json.loads((truth_fit / "report.json").read_text())["posterior_mean"]
+    rec, th, space = ct.twin(folder, theta, twin_seed)
+    _, _, sensor, ctx_s, _ = cb.contexts_of(rec)
+    frames = sensor["metric_frames"]
+    store = RunStore.open(out / f"{folder.name}_twin{twin_seed}" / "run.zarr")
+    pms, single, averaged = [], [], []
+    for s in seeds:
+        pms.append(retrain(store, space, {}, s)[0])
+        single.append(cb.score(simulate_job(ctx_s, (pms[-1], 0)), "fit", frames) / res["floor_m"])
+        print(f"seed {s}: PM rollout / floor {single[-1]:.3f}", flush=True)
+    for k in range(2, len(pms) + 1):
+        averaged.append(cb.score(simulate_job(ctx_s, (np.mean(pms[:k], 0), 0)), "fit", frames) / res["floor_m"])
+        print(f"average of the first {k} posterior means: PM rollout / floor {averaged[-1]:.3f}", flush=True)
+    summary = {"recording": res["recording"], "seeds": seeds, "single_over_floor": single,
+               "average_of_first_k_over_floor": dict(zip(range(2, len(pms) + 1), averaged))}
+    (out / f"{folder.name}_twin{twin_seed}_seed_average.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
 def table(folder: Path) -> None:
     """Markdown table: per twin and variant, the PM rollout over the floor (mean, range over training seeds)."""
     files = sorted(folder.glob("*_variants.json"))
@@ -152,6 +179,8 @@ def main() -> int:
     ap.add_argument("--seeds", default="0,1,2", help="training seeds")
     ap.add_argument("--out", type=Path, default=Path("runs/estimator_variants"))
     ap.add_argument("--table", type=Path, help="print the table of a folder of results and exit")
+    ap.add_argument("--seed-average", action="store_true", help="instead of the variants: the default retrained "
+                    "with each of --seeds and the average of the posterior means rolled out (seed_average)")
     a = ct.parse_twin_arguments(ap, table)
     if a is None:
         return 0
@@ -159,6 +188,9 @@ def main() -> int:
     if unknown:
         ap.error(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(VARIANTS)}")
     a.out.mkdir(parents=True, exist_ok=True)
+    if a.seed_average:
+        seed_average(a.data / a.recording, a.truth_fit, a.out, a.twin_seed, [int(s) for s in a.seeds.split(",")])
+        return 0
     run(a.data / a.recording, a.truth_fit, a.out, a.twin_seed, a.variants.split(","),
         [int(s) for s in a.seeds.split(",")])
     return 0

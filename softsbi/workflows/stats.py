@@ -318,6 +318,7 @@ class PosteriorPredictive:
         requested: rollouts simulated so far (failed ones included).
         sensitivities: the screening's finite-difference simulations at the posterior median, kept so that
             ``check`` and ``diagnose`` sharing this pool simulate them once.
+        energy_scores: :func:`energy_score`'s results, kept for the same reason.
     """
 
     def __init__(self, run: "RunView | str | Path", workers: int | None = None, seed: int = 0):
@@ -333,6 +334,9 @@ class PosteriorPredictive:
         #: the screening's finite-difference simulations, by (candidates, steps)
         #: (:func:`softsbi.workflows.screening.screening_of`)
         self.sensitivities: dict[tuple, Any] = {}
+        #: :func:`energy_score` results, by (n, the rollouts' samples), so that check and diagnose sharing this
+        #: pool score it once
+        self.energy_scores: dict[tuple, dict[str, Any]] = {}
 
     @property
     def features(self) -> np.ndarray:
@@ -455,6 +459,9 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
     m = len(ok)
     if m < 3 or run.dense is None:
         return None
+    key = (n, tuple(int(r["sample"]) for r in ok))
+    if key in pool.energy_scores:  # check and diagnose sharing one pool score it once
+        return dict(pool.energy_scores[key])
     frames = run_frames(run)
     d_obs = np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in ok])
     views = [rollout_views(run, r, 2000 + int(r["sample"])) for r in ok]
@@ -470,8 +477,9 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
     full = score(np.ones(m, bool))
     loo = np.array([score(np.arange(m) != i) for i in range(m)])
     se = float(np.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2)))
-    return {"energy_m": full, "energy_se_m": se, "chamfer_m": float(d_obs.mean()), "spread_m": float(d_pair.mean()),
-            "n": m, "pairs": len(pairs)}
+    pool.energy_scores[key] = {"energy_m": full, "energy_se_m": se, "chamfer_m": float(d_obs.mean()),
+                               "spread_m": float(d_pair.mean()), "n": m, "pairs": len(pairs)}
+    return dict(pool.energy_scores[key])
 
 
 def decided(test: dict[str, Any], alpha: float, max_null: int, extended: bool, what: str) -> dict[str, Any]:

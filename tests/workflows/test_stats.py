@@ -285,7 +285,7 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
             vv = verts + rng.normal(0, noise, verts.shape)
             ch = sensor_chamfer_per_frame(sampled_points(vv, f, P, 5000 + i), y)[0]
             ro.append({"vertices": vv, "faces": f, "chamfer": ch, "sample": i})
-        return SimpleNamespace(run=run, rollouts=ro)
+        return SimpleNamespace(run=run, rollouts=ro, energy_scores={})
 
     none, right, double = (energy_score(pool(s)) for s in (0.0, sigma, 2 * sigma))
     assert none["chamfer_m"] < right["chamfer_m"] < double["chamfer_m"]
@@ -295,3 +295,9 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
         assert e["energy_m"] == pytest.approx(e["chamfer_m"] - e["spread_m"] / 2)
         assert e["n"] == S and e["pairs"] == 3 * S and 0 < e["energy_se_m"] < 0.1 * e["energy_m"]
     assert energy_score(pool(sigma, 2)) is None  # no spread from fewer than 3 rollouts
+    # a pool shared by check and diagnose is scored once: the second call reads what the first stored
+    p = pool(sigma)
+    first = energy_score(p)
+    for r in p.rollouts:
+        r["chamfer"] = np.zeros_like(r["chamfer"])  # a recomputation would now give another Chamfer term
+    assert energy_score(p) == first
