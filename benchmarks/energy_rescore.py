@@ -10,6 +10,7 @@ named effect, the Chamfer drop and the energy score's drop, with both scores.
 Usage:
     python benchmarks/energy_rescore.py --runs /work/bench_runs/s34/ds/* > energy_rescore.jsonl
     python benchmarks/energy_rescore.py --table energy_rescore.jsonl
+    python benchmarks/energy_rescore.py --merge energy_rescore.jsonl   # into benchmarks/results/diagnose_stats.jsonl
 """
 from __future__ import annotations
 
@@ -59,14 +60,43 @@ def table(path: Path) -> str:
     return "\n".join(out)
 
 
+def merge(rescored: Path, results: Path) -> int:
+    """Store each re-scored row's energy drop in its stored row (``results``): the named effect's refit entry gains
+    the drop as its seventh field, where ``diagnose_stats.py`` stores it for new rows, and the row is marked
+    ``energy_rescored``. Only where the re-scoring reproduced the stored Chamfer drop (to 1e-6), i.e. the same
+    rollouts. Returns the number of rows changed."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from diagnose_stats import load_rows, save_rows
+    rows = load_rows(results)
+    by_id = {r["id"]: r for r in rows}
+    k = 0
+    for e in map(json.loads, rescored.read_text().splitlines()):
+        row = by_id.get(e["id"])
+        entry = next((x for x in (row or {}).get("refits") or [] if x[0] == e["named"]), None)
+        if entry is None or entry[1] is None or abs(entry[1] - e["chamfer_drop"]) > 1e-6:
+            print(f"{e['id']}: not merged (no stored refit of {e['named']} with the same Chamfer drop)",
+                  file=sys.stderr)
+            continue
+        entry[6:] = [e["energy_drop"]]
+        row["energy_rescored"] = True
+        k += 1
+    save_rows(results, rows)
+    return k
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=Path, nargs="*", default=[], help="the cases' run directories")
     ap.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     ap.add_argument("--table", type=Path, default=None, help="print the table of a re-scored JSONL file")
+    ap.add_argument("--merge", type=Path, default=None, help="store the energy drops of a re-scored JSONL file in "
+                                                             "--results (merge)")
     a = ap.parse_args()
     if a.table:
         print(table(a.table))
+        return
+    if a.merge:
+        print(f"{merge(a.merge, a.results)} rows given their energy-score drop")
         return
     if not a.runs:
         sys.exit("name the run directories to re-score (--runs DIR ...), or --table FILE")
