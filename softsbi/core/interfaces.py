@@ -98,6 +98,11 @@ class Effect(ABC):
             height) that describe residuals no named effect explains; they are not ordinary
             diagnosis candidates.
         model_edits: backend names for which :meth:`edit_model` is implemented.
+        estimator_options: options this effect asks of the posterior estimator so that its parameters can
+            be identified from the observations (e.g. point noise: ``{"frame_thickness": True}``, a summary
+            that sees centimetre noise). A fit whose model has the effect passes them to an estimator that
+            has the option (:func:`softsbi.workflows.fit.estimator_options`); the user's own
+            ``estimator_options`` win.
     """
 
     name: ClassVar[str]
@@ -106,6 +111,7 @@ class Effect(ABC):
     kind: ClassVar[str] = "physics"
     generic: ClassVar[bool] = False
     model_edits: ClassVar[tuple[str, ...]] = ()
+    estimator_options: ClassVar[Mapping[str, Any]] = {}
 
     @abstractmethod
     def param_space(self) -> ParamSpace:

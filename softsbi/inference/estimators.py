@@ -37,7 +37,7 @@ from softsbi.core.interfaces import PosteriorEstimator
 from softsbi.plugins.hookspecs import hookimpl
 from softsbi.inference.mdn import MDNHead, MDNParams, mdn_log_prob
 from softsbi.inference.rkhs import RKHSNet
-from softsbi.inference.summaries import bayessim_summaries
+from softsbi.inference.summaries import bayessim_summaries, local_thickness
 from softsbi.inference.training import (available_cpus, fit_early_stopping, fit_early_stopping_stacked, minibatches,
                                         predict_batched, torch_threads, train_val_split)
 
@@ -963,25 +963,28 @@ class RKHSFrameFeatures(nn.Module):
     """Per-frame RKHS-net embedding of the points, concatenated with the gripper, flattened.
 
     Input ``(B, T, 1+K, 3)`` standardised states (row 0 gripper); output
-    ``(B, T * (2M + 3))``, or ``(B, T * (2M + 12))`` with ``moments`` (each frame's
-    :func:`point_moments` appended). One :class:`~softsbi.inference.rkhs.RKHSNet` is shared by all
+    ``(B, T * (2M + 3))``, plus 9 per frame with ``moments`` (each frame's :func:`point_moments`)
+    and 1 with ``thickness`` (then row 1 holds the frame's log thickness in its first entry and the
+    points follow: ``(B, T, 2+K, 3)``, :meth:`RKHSEstimator.summary_statistics`). One :class:`~softsbi.inference.rkhs.RKHSNet` is shared by all
     frames (Antonova et al. 2022, Sec. IV), so the output is invariant to the order of the
     K points within each frame, and K may differ between fit and use.
     """
 
     def __init__(self, n_features: int = 32, sigma: float = 0.5, learn: bool = True, batch_norm: bool = False,
-                 n_frames: int | None = None, moments: bool = False):
+                 n_frames: int | None = None, moments: bool = False, thickness: bool = False):
         super().__init__()
         self.rkhs = RKHSNet(3, n_features, sigma, learn_frequencies=learn, learn_bandwidth=learn)
-        self.moments = bool(moments)
-        per_frame = 2 * n_features + 3 + (9 if self.moments else 0)
+        self.moments, self.thickness = bool(moments), bool(thickness)
+        per_frame = 2 * n_features + 3 + (9 if self.moments else 0) + (1 if self.thickness else 0)
         self.norm = nn.BatchNorm1d(n_frames * per_frame) if batch_norm and n_frames else None
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
-        pts = z[:, :, 1:, :]
+        pts = z[:, :, 2:, :] if self.thickness else z[:, :, 1:, :]
         parts = [self.rkhs(pts), z[:, :, 0, :]]  # (B, T, 2M), (B, T, 3)
         if self.moments:
             parts.append(point_moments(pts))  # (B, T, 9)
+        if self.thickness:
+            parts.append(z[:, :, 1, :1])  # (B, T, 1): the frame's log thickness (RKHSEstimator.summary_statistics)
         f = torch.cat(parts, dim=-1).flatten(1)
         return self.norm(f) if self.norm is not None else f
 
@@ -1045,6 +1048,11 @@ class RKHSEstimator(NeuralMDNEstimator):
             numbers: centroid and spread) to its embedding, default False (on the well-specified lift twins
             the posterior-mean rollout was no closer to the truth's own score: 1.24 / 1.07 x the floor
             against the default's 1.11 / 1.08, three training seeds each; BENCHMARKS.md, fifteenth session).
+        frame_thickness: append each frame's :func:`~softsbi.inference.summaries.local_thickness` (log10 mm,
+            computed from every point) to its embedding, default False. Switched on by a fit whose model has an
+            effect that asks for it (``Effect.estimator_options``: point noise), because the random-Fourier-
+            feature embedding cannot see centimetre noise: without it the posterior of the noise's standard
+            deviation stayed the prior (BENCHMARKS.md, fifteenth session).
 
     ``posterior_at`` accepts any number of points K' >= 1 per frame (same T).
     """
@@ -1061,7 +1069,8 @@ class RKHSEstimator(NeuralMDNEstimator):
     #: "Calibration of the default estimator")
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"ensemble": 5, "recalibrate": True,
                                                 "rkhs_features": 32, "rkhs_sigma": 0.5, "rkhs_learn": True,
-                                                "batch_norm": False, "frame_moments": False, **SHARED_TRUNK}
+                                                "batch_norm": False, "frame_moments": False, "frame_thickness": False,
+                                                **SHARED_TRUNK}
 
     def __init__(self, **config: Any):
         super().__init__(**config)
@@ -1085,14 +1094,43 @@ class RKHSEstimator(NeuralMDNEstimator):
         point. ``point_subset`` None or ``>= K``: ``zb`` unchanged."""
         k = self.config.get("point_subset")
         B, T, R, d = zb.shape
-        if not k or int(k) >= R - 1:
+        h = self._head_rows()
+        if not k or int(k) >= R - h:
             return zb
-        pick = torch.rand(T, R - 1, generator=generator).argsort(-1)[:, :int(k)] + 1  # (T, k) point rows
-        rows = torch.cat([torch.zeros(T, 1, dtype=pick.dtype), pick], -1)  # gripper row first
+        pick = torch.rand(T, R - h, generator=generator).argsort(-1)[:, :int(k)] + h  # (T, k) point rows
+        head = torch.arange(h, dtype=pick.dtype).expand(T, h)
+        rows = torch.cat([head, pick], -1)  # gripper row (and thickness row) first
         return zb[:, torch.arange(T)[:, None], rows]
 
+    def _head_rows(self) -> int:
+        """Rows of the summary statistics before the points: the gripper, and the thickness row with
+        ``frame_thickness``."""
+        return 2 if self.config.get("frame_thickness") else 1
+
+    #: the thickness row's value: ``log10(thickness / THICKNESS_UNIT_M)``, about -1 to 1 for 0.1-10 mm
+    THICKNESS_UNIT_M: ClassVar[float] = 1e-3
+
+    def summary_statistics(self, x: np.ndarray) -> np.ndarray:
+        """The states themselves ``(N, T, 1+K, 3)`` float32; with ``frame_thickness`` a row inserted after the
+        gripper row, ``(N, T, 2+K, 3)``, whose first entry is ``log10`` of the frame's
+        :func:`~softsbi.inference.summaries.local_thickness` in mm (computed from every point, so the
+        training's point subsets do not change it; the other two entries are 0)."""
+        z = np.asarray(x, dtype=np.float32)
+        if not self.config.get("frame_thickness"):
+            return z
+        th = local_thickness(np.asarray(x, np.float64)[:, :, 1:, :])  # (N, T) m
+        row = np.zeros(z.shape[:2] + (1, 3), np.float32)
+        row[..., 0, 0] = np.log10(np.maximum(th, 1e-7) / self.THICKNESS_UNIT_M)
+        return np.concatenate([z[:, :, :1], row, z[:, :, 1:]], axis=2)
+
+    def _standardise(self, z: np.ndarray) -> np.ndarray:
+        zs = super()._standardise(z)
+        if self.config.get("frame_thickness"):
+            zs[:, :, 1, :] = z[:, :, 1, :]  # already on a fixed scale (log10 mm), not the points' standardisation
+        return zs
+
     def input_stats(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        pts = z[:, :, 1:, :].astype(np.float64)  # (N, T, K, 3)
+        pts = z[:, :, self._head_rows():, :].astype(np.float64)  # (N, T, K, 3)
         centre = pts.mean(axis=(0, 2))  # (T, 3)
         scale = float(np.sqrt(((pts - centre[None, :, None, :]) ** 2).sum(-1).mean() / 3.0))
         scale = scale if scale > 1e-9 else 1.0
@@ -1105,7 +1143,8 @@ class RKHSEstimator(NeuralMDNEstimator):
         c = self.config
         return RKHSFrameFeatures(int(c["rkhs_features"]), float(c["rkhs_sigma"]), bool(c["rkhs_learn"]),
                                  bool(c["batch_norm"]), n_frames=z_example.shape[1],
-                                 moments=bool(c.get("frame_moments", False)))
+                                 moments=bool(c.get("frame_moments", False)),
+                                 thickness=bool(c.get("frame_thickness", False)))
 
     def check_x_obs_shape(self, shape: tuple[int, ...]) -> bool:
         T, _, d = self._x_shape  # type: ignore[misc]

@@ -54,3 +54,40 @@ def bayessim_summaries(x: np.ndarray) -> np.ndarray:
     a = np.diff(x[:, :, 0, :], axis=1)  # (N, T-1, 3) gripper displacement
     cross = np.einsum("nts,nta->nsa", tau, a).reshape(N, -1)
     return np.concatenate([cross, tau.mean(axis=1), tau.var(axis=1)], axis=1)
+
+
+def local_thickness(clouds: np.ndarray, k: int = 8) -> np.ndarray:
+    """Mean local thickness of point clouds: ``(..., P, 3) -> (...)`` m.
+
+    For every point, the covariance of it and its ``k`` nearest neighbours (``min(k, P - 1)``); its smallest
+    eigenvalue is the variance across the best-fitting local plane (the surface-variation statistic of
+    point-cloud normal estimation, Pauly et al. 2002). The result is the mean over points of its square root.
+    A smooth surface sampled densely gives about 0 (its curvature's share only); independent sensor noise of
+    standard deviation ``s`` per axis gives about ``s`` for a curve and a little less for a surface, whatever
+    the sampling density. The random-Fourier-feature mean embedding hardly sees such noise (it multiplies each
+    feature by ``exp(-|w|^2 s^2 / 2)``, under 2 % for 1 cm on a 30 cm cloth at the default bandwidth), so this
+    is the summary that makes a noise parameter identifiable (:class:`~softsbi.inference.estimators.RKHSEstimator`'s
+    ``frame_thickness``).
+
+    Args:
+        clouds: ``(..., P, 3)`` points, m, ``P >= 2``.
+        k: neighbours per point.
+
+    Raises:
+        ShapeError: not ``(..., P, 3)`` with ``P >= 2``.
+    """
+    from scipy.spatial import cKDTree
+    c = np.asarray(clouds, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-1] != 3 or c.shape[-2] < 2:
+        raise ShapeError(f"local_thickness needs clouds of shape (..., P, 3) with P >= 2, got {c.shape}")
+    lead, P = c.shape[:-2], c.shape[-2]
+    kk = max(1, min(int(k), P - 1))
+    flat = c.reshape(-1, P, 3)
+    out = np.empty(len(flat))
+    for i, pts in enumerate(flat):
+        _, idx = cKDTree(pts).query(pts, kk + 1)
+        nb = pts[idx]  # (P, kk + 1, 3): each point and its neighbours
+        nb = nb - nb.mean(axis=1, keepdims=True)
+        cov = np.einsum("pki,pkj->pij", nb, nb) / (kk + 1)
+        out[i] = np.sqrt(np.clip(np.linalg.eigvalsh(cov)[:, 0], 0.0, None)).mean()
+    return out.reshape(lead)

@@ -222,6 +222,21 @@ class FitConfig:
         return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario))
 
 
+def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
+    """The options a fit gives its posterior estimator: those the model's effects ask for
+    (:attr:`~softsbi.core.interfaces.Effect.estimator_options`) where ``est_cls`` has the option (its
+    ``defaults()``), then the user's ``cfg.estimator_options`` over them.
+
+    Raises:
+        PluginNotFound: an effect of ``cfg.effects`` is not installed.
+    """
+    known = est_cls.defaults() if hasattr(est_cls, "defaults") else {}
+    asked: dict[str, Any] = {}
+    for e in cfg.effects:
+        asked.update({k: v for k, v in registry().effect(e).estimator_options.items() if k in known})
+    return {**asked, **cfg.estimator_options}
+
+
 def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> list[int] | None:
     """Frame indices of a frame spec: ``None``/``"all"`` -> None (every frame); ``"auto"`` -> the
     frames where the gripper is at least :data:`LIFTED_HEIGHT` above the table (None if none or
@@ -732,7 +747,7 @@ class _Rounds:
         cfg, store = self.cfg, self.store
         if store.is_complete(r):
             return store.read_q(r), store.round_attrs(r).get("info", {})
-        est = self.est_cls(**cfg.estimator_options)
+        est = self.est_cls(**estimator_options(cfg, self.est_cls))
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
         info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
                        progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l))

@@ -41,6 +41,18 @@ def test_all_registered_with_kinds():
     assert all(c.generic for c in GENERIC_EFFECTS) and not any(c.generic for c in PHYSICS_EFFECTS + SENSOR_EFFECTS)
 
 
+def test_a_fit_passes_the_estimator_the_options_its_effects_ask_for_and_the_users_win():
+    from softsbi.inference.estimators import MDNNEstimator, RKHSEstimator
+    from softsbi.workflows.fit import FitConfig, estimator_options
+    assert registry().effect("point-noise").estimator_options == {"frame_thickness": True}
+    assert estimator_options(FitConfig(effects=["wind", "point-noise"]), RKHSEstimator) == {"frame_thickness": True}
+    assert estimator_options(FitConfig(effects=["wind"]), RKHSEstimator) == {}
+    # an estimator without the option gets nothing it would refuse; the user's setting wins
+    assert estimator_options(FitConfig(effects=["point-noise"]), MDNNEstimator) == {}
+    mine = FitConfig(effects=["point-noise"], estimator_options={"frame_thickness": False, "ensemble": 1})
+    assert estimator_options(mine, RKHSEstimator) == {"frame_thickness": False, "ensemble": 1}
+
+
 @pytest.mark.parametrize("cls", PHYSICS_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS, ids=lambda c: c.name)
 def test_nominal_is_the_nominal_model(cls, base):
     ro = _run(LIFT, [cls.name], seed=3, **cls().nominal())
