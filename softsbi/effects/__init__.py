@@ -36,4 +36,9 @@ and, if not, which door it lacks; ``softsbi plugins`` lists the effects each bac
 Door support today: ``mujoco-flex`` all three (forces through ``xfrc_applied`` of the flex vertex
 bodies); ``pybullet-massspring`` observation transforms only (PyBullet's ``applyExternalForce``
 does not act on deformable nodes).
+
+An effect whose parameters the estimator's default summaries cannot see names the estimator options that
+make them identifiable in ``estimator_options`` (a class attribute); a fit whose model has the effect passes
+them to an estimator that has them, under the user's own (:func:`softsbi.workflows.fit.estimator_options`).
+Point noise asks for ``{"frame_thickness": True}``.
 """
