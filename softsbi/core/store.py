@@ -21,7 +21,7 @@ from __future__ import annotations
 import datetime as _dt
 import shutil
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import zarr
@@ -103,15 +103,18 @@ class RunStore:
         return dict(self.root.attrs["config"])
 
     def check_resumable(self, config: Mapping[str, Any], keys: Sequence[str],
-                        defaults: Mapping[str, Any] | None = None) -> None:
+                        defaults: Mapping[str, Any] | None = None,
+                        identity: Callable[[str, Any], Any] | None = None) -> None:
         """Raise :class:`SchemaError` if ``config`` differs from the stored one in one of ``keys``
         (the settings that would make the stored simulations invalid for this fit; the fit
         workflow derives them from its configuration). ``defaults`` are the values of keys that
-        runs written before the key existed lack."""
+        runs written before the key existed lack. ``identity(key, value)``, when given, is what is
+        compared of each value (e.g. a scenario without the path of the file it was read from)."""
         stored = self.config
         new = jsonable(dict(config))
         defaults = dict(defaults or {})
-        diff = [k for k in keys if k in new and stored.get(k, defaults.get(k)) != new.get(k)]
+        same = identity or (lambda k, v: v)
+        diff = [k for k in keys if k in new and same(k, stored.get(k, defaults.get(k))) != same(k, new.get(k))]
         if diff:
             raise SchemaError(f"the run at '{self.path}' was started with different settings for {diff}; "
                               f"resume it with the same settings or fit into a new --out folder")

@@ -54,6 +54,19 @@ RECORDING_RESUME_KEYS = ("scenario", "param_space", "observed_source", "observer
 RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height"}
 
 
+#: scenario options that say where a scenario was read from, not what it is: a run resumes whatever path the
+#: same scenario file is read from now (a moved checkout, another install of softsbi)
+SCENARIO_PROVENANCE = ("source", "file")
+
+
+def resume_identity(key: str, value: Any) -> Any:
+    """What a resume compares of a stored setting: the value itself, except the scenario without its
+    provenance options (:data:`SCENARIO_PROVENANCE`)."""
+    if key == "scenario" and isinstance(value, dict) and isinstance(value.get("options"), dict):
+        return {**value, "options": {k: v for k, v in value["options"].items() if k not in SCENARIO_PROVENANCE}}
+    return value
+
+
 def _resume(default: Any = None, factory: Any = None) -> Any:
     """A :class:`FitConfig` field whose value must match when a stored run is resumed."""
     if factory is not None:
@@ -588,7 +601,7 @@ def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Para
     store_path = out_dir / "run.zarr"
     if RunStore.exists(store_path):
         store = RunStore.open(store_path)
-        store.check_resumable(config, FitConfig.resume_keys(), RESUME_DEFAULTS)
+        store.check_resumable(config, FitConfig.resume_keys(), RESUME_DEFAULTS, resume_identity)
         prev = store.config.get("wall_time_s", 0.0) or 0.0
         callbacks.message(_resume_message(store, prev))
         store.update_config(rounds=cfg.rounds)

@@ -156,3 +156,25 @@ def test_failed_simulations_are_stored_and_never_trained_on(tmp_path, monkeypatc
     assert np.isnan(d["x"][bad]).all()
     assert res.report["failed_simulations"] >= int(bad.sum())
     assert res.rounds[0]["usable"] == int((~bad).sum())
+
+
+def test_a_run_resumes_when_its_scenario_file_is_read_from_another_path_but_not_when_the_scenario_changed(tmp_path):
+    """The scenario's provenance (the path of the file it was read from) is not what it is: a checkout or
+    install moved elsewhere resumes its runs (a benchmark run started from another copy of the project
+    could not be continued), while a changed scenario is still refused."""
+    meas = toy_measurement()
+    cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=1, sims_per_round=30, workers=1, n_points=8,
+                    n_eval=4, n_dense=16, estimator_options={"max_epochs": 5, "hidden": [8]})
+    run_fit(tmp_path / "r", meas, cfg, make_plots=False)
+    store = RunStore.open(tmp_path / "r" / "run.zarr")
+    c = store.config
+    c["scenario"]["options"] = {**c["scenario"].get("options", {}), "file": "/elsewhere/lift.yaml",
+                                "source": "/elsewhere/lift.yaml"}
+    store.root.attrs["config"] = c
+    cfg.rounds = 2
+    assert run_fit(tmp_path / "r", meas, cfg, make_plots=False).report["rounds"] == 2
+    c = store.config
+    c["scenario"]["table_z"] = float(c["scenario"]["table_z"]) + 0.01
+    store.root.attrs["config"] = c
+    with pytest.raises(SchemaError, match="different settings.*scenario"):
+        run_fit(tmp_path / "r", meas, cfg, make_plots=False)
