@@ -43,7 +43,7 @@ import cmaes_twin as ct  # noqa: E402
 from softsbi.core.distributions import PosteriorChain  # noqa: E402
 from softsbi.core.store import RunStore  # noqa: E402
 from softsbi.plugins import registry  # noqa: E402
-from softsbi.workflows.fit import FitConfig, _usable, run_fit  # noqa: E402
+from softsbi.workflows.fit import FitConfig, _usable, estimator_options, run_fit  # noqa: E402
 from softsbi.workflows.jobs import simulate_job  # noqa: E402
 
 #: estimator options over the fit's own (rkhs defaults: a recalibrated shared-trunk ensemble of 5, 8-point
@@ -78,7 +78,8 @@ def retrain(store: RunStore, space, options: dict, seed: int) -> tuple[np.ndarra
     cfg = FitConfig.from_run_config(store.config)
     u, x, n, rounds = training_set(store)
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
-    est = registry().estimator(cfg.estimator)(**{**cfg.estimator_options, **options})
+    est_cls = registry().estimator(cfg.estimator)
+    est = est_cls(**{**estimator_options(cfg, est_cls), **options})  # the fit's own options, then the variant's
     est.fit(u.astype(np.float64), x[:, fr].astype(np.float64), seed=cfg.seed + rounds - 1 + 1000 * seed)
     q = est.posterior_at(store.read_observed()["x"][fr])
     post = PosteriorChain(space.dim, seed=cfg.seed).add_round(q, n)

@@ -965,9 +965,10 @@ class RKHSFrameFeatures(nn.Module):
     Input ``(B, T, 1+K, 3)`` standardised states (row 0 gripper); output
     ``(B, T * (2M + 3))``, plus 9 per frame with ``moments`` (each frame's :func:`point_moments`)
     and 1 with ``thickness`` (then row 1 holds the frame's log thickness in its first entry and the
-    points follow: ``(B, T, 2+K, 3)``, :meth:`RKHSEstimator.summary_statistics`). One :class:`~softsbi.inference.rkhs.RKHSNet` is shared by all
-    frames (Antonova et al. 2022, Sec. IV), so the output is invariant to the order of the
-    K points within each frame, and K may differ between fit and use.
+    points follow: ``(B, T, 2+K, 3)``, :meth:`RKHSEstimator.summary_statistics`). One
+    :class:`~softsbi.inference.rkhs.RKHSNet` is shared by all frames (Antonova et al. 2022, Sec. IV),
+    so the output is invariant to the order of the K points within each frame, and K may differ
+    between fit and use.
     """
 
     def __init__(self, n_features: int = 32, sigma: float = 0.5, learn: bool = True, batch_norm: bool = False,

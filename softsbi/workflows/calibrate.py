@@ -39,7 +39,7 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration import plot_calibration
-from softsbi.workflows.fit import FitConfig, _usable
+from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
 
@@ -201,9 +201,11 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
     sim_s = time.perf_counter() - t0
     ok = (data["status"] == STATUS_OK) & np.all(np.isfinite(data["x"].reshape(len(data["x"]), -1)), axis=1)
     name = estimator or cfg.estimator
-    opts = dict(cfg.estimator_options) if estimator is None else {}
+    est_cls = registry().estimator(name)
+    # the run's own estimator as its fit trained it: the options its effects asked for, under the user's
+    opts = fit_estimator_options(cfg, est_cls) if estimator is None else {}
     opts.update(dict(estimator_options or {}))
-    est = registry().estimator(name)(**opts)
+    est = est_cls(**opts)
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
     msg(f"training '{name}' on the run's {len(U)} stored simulations (as the fit's round {last + 1})")
     t1 = time.perf_counter()

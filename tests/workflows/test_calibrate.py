@@ -94,3 +94,16 @@ def test_report_and_fit_table_show_contraction(toy_run, capsys):
     out = capsys.readouterr().out
     assert "width / prior" in out and f"{con['a']['width_ratio']:.2f}" in out and "±" in out
     assert ("not informed" in out) == (not all(c["informed"] for c in con.values()))
+
+
+def test_calibrate_retrains_with_the_options_the_runs_effects_asked_for(tmp_path, monkeypatch):
+    """A run whose model has an effect that asks the estimator for options (Effect.estimator_options, as point
+    noise asks for the thickness summary) is calibrated with the estimator its fit trained, not the bare one."""
+    from softsbi.plugins import registry
+    monkeypatch.setattr(registry().effect("toy-wind"), "estimator_options", dict(OPTS), raising=False)
+    out = tmp_path / "run"
+    softsbi.fit(toy_measurement(), out, backend="toy-gauss", estimator="mdnn", effects=["toy-wind"], rounds=1,
+                sims_per_round=60, n_points=8, n_eval=5, n_dense=32, workers=1, seed=3, plots=False)
+    cal = softsbi.calibrate_run(out, n_test=20, n_draws=200, workers=1)
+    assert cal["estimator_options"] == OPTS
+    assert cal["refit_max_mean_difference"] < 1e-6  # the re-trained estimator is the run's
