@@ -133,7 +133,8 @@ def _run(o: Output, meas, cfg, out: Path, retry_failed: bool = False):
 
 
 def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
-    from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction_from_report, format_estimate
+    from softsbi.inference.contraction import (INFORMED_MAX_RATIO, bound_sentence, contraction_from_report,
+                                               format_estimate)
     truth = rep.get("truth") or {}
     con = contraction_from_report(rep)
     cols = (["parameter", "unit", "estimate", "90% interval", "width / prior"]
@@ -152,6 +153,8 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
     o.line(f"estimate: mean ± std, or geometric mean ×/÷ multiplicative spread for log-scaled parameters; "
            f"width / prior: the 90% interval's width over the prior's in the parameter's own scale (log for "
            f"log-scaled ones); above {INFORMED_MAX_RATIO:g} the data do not inform the parameter")
+    for e in rep.get("posterior_at_bounds") or []:
+        o.line("Note: " + bound_sentence(e) + ".")
     if rep.get("mask_chamfer_prior_px") and rep.get("mask_chamfer_posterior_px"):
         o.line(f"Mask Chamfer to the measured frames: prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
                f"{rep['mask_chamfer_posterior_px']:.2f} px "

@@ -27,6 +27,8 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
+from softsbi.inference.contraction import bound_sentence
+from softsbi.plugins import registry
 from softsbi.core.types import Recording
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
 from softsbi.workflows.fit import FitConfig, run_fit
@@ -528,7 +530,10 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
         else:
             s += (f" Nor did its rollouts move toward the measurement ({_bias_words(c)}; at least "
                   f"{min_explained * 100:.0f}% and {TIE_Z:g} standard errors needed).")
-    return s + _after_refit(c, name, alpha)
+    s += _after_refit(c, name, alpha)
+    for b in c.get("at_bounds") or []:
+        s += " In this refit " + bound_sentence(b) + "."
+    return s
 
 
 def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
@@ -727,7 +732,9 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
 
     Returns:
         ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
-        "posterior_mean", "misspecification_after"}``, plus :func:`refit_summary_bias`'s fields with
+        "posterior_mean", "misspecification_after", "at_bounds"}`` (``at_bounds``: the added effects' parameters
+        whose refit posterior presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`;
+        the refit's sentence then says so), plus :func:`refit_summary_bias`'s fields with
         ``nominal_bias``; ``chamfer_after_se_m`` is the standard error (m) of
         the refit's posterior-predictive Chamfer, its rollouts' standard deviation over ``sqrt(n)`` (``n``:
         the report's ``chamfer_posterior_n``, else the run's ``n_eval``).
@@ -752,7 +759,12 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     sd, n = res.report.get("chamfer_posterior_std_m"), res.report.get("chamfer_posterior_n") or cfg.n_eval
     bias = refit_summary_bias(run, refit, nominal_bias, n_null) if nominal_bias else {}
     energy = energy_change(nominal_energy, energy_score(refit)) if nominal_energy else {}
+    # the added effects' parameters whose refit posterior piles up at a prior bound (the effect may be larger
+    # than its prior allows: a refit held inside the box cannot reach the measurement)
+    added_params = {p.name for e in added for p in registry().effect(e)().param_space()}
+    at_bounds = [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params]
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
+            "at_bounds": at_bounds,
             "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
             "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis, **bias, **energy}

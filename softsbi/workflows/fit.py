@@ -31,7 +31,7 @@ from softsbi.core.errors import DataError, ParameterError, PosteriorError, Softs
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
-from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction
+from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.perception.masks import hsv_mask
 from softsbi.plugins import registry
 from softsbi.report import write_fit_plots
@@ -815,6 +815,8 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         "posterior_median": space.as_dict(np.median(samples, axis=0)),
         # width of the 90% interval over the prior's, in each parameter's own scale (log for log ones)
         "contraction": contraction(space, samples), "informed_max_width_ratio": INFORMED_MAX_RATIO,
+        # parameters whose posterior piles up at a prior bound: a prior too narrow, or a misspecified model
+        "posterior_at_bounds": bound_pressure(space, samples),
         "truth": recording.truth,
         "per_round": [{"round": s["round"], "usable": s["usable"], "failed": s["failed"],
                        "chamfer_posterior_m": (s.get("chamfer_posterior") or {}).get("mean_m"),

@@ -116,6 +116,9 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert conf["energy_after_m"] < conf["energy_before_m"] - 3 * conf["energy_after_se_m"]
     assert conf["energy_drop"] == pytest.approx(1 - conf["energy_after_m"] / conf["energy_before_m"])
     assert f"energy score from {conf['energy_before_m'] * 100:.2f} to {conf['energy_after_m'] * 100:.2f} cm" in d["summary"]
+    # the refit's bounds pressed by the added effect's parameters only (the refit's report holds all of its own)
+    refit_rep = json.loads((hidden / "refit-toy-wind" / "report.json").read_text())
+    assert conf["at_bounds"] == [b for b in refit_rep["posterior_at_bounds"] if b["param"] == "wind"]
     saved = json.loads((hidden / "diagnosis.json").read_text())
     assert saved["verdict"] == "missing-effect" and saved["significant"] and saved["rules"][0].startswith("1. ")
     c = diagnose_run(control, workers=1, confirm=1)

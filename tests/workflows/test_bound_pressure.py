@@ -1,0 +1,94 @@
+"""A posterior that presses against a prior bound (softsbi.inference.contraction.bound_pressure): the fit's
+report, its printed table and a diagnosis refit's sentence say so, with the fix."""
+import json
+
+import numpy as np
+import pytest
+
+import softsbi
+from softsbi.core.types import Param, ParamSpace
+from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+from toy_helpers import toy_measurement  # noqa: E402
+
+SPACE = ParamSpace([Param("stretch", 1.0, 1000.0, "N/m", log=True), Param("friction", 0.0, 1.5)])
+
+
+def test_a_flat_or_interior_posterior_presses_no_bound():
+    rng = np.random.default_rng(0)
+    flat = SPACE.from_unit(rng.random((4000, 2)))  # the prior itself: BOUND_SLAB of the mass in each slab
+    assert bound_pressure(SPACE, flat) == []
+    interior = SPACE.from_unit(np.clip(rng.normal(0.5, 0.1, (4000, 2)), 0, 1))
+    assert bound_pressure(SPACE, interior) == []
+
+
+def test_a_pile_up_at_a_bound_is_named_in_the_parameters_own_scale():
+    rng = np.random.default_rng(1)
+    u = np.column_stack([1 - np.abs(rng.normal(0, 0.04, 4000)),  # stretch piled at its upper bound (log scale)
+                         rng.uniform(0.3, 0.7, 4000)])
+    u[:, 0] = np.clip(u[:, 0], 0, 1)
+    (e,) = bound_pressure(SPACE, SPACE.from_unit(u))
+    assert e["param"] == "stretch" and e["side"] == "upper" and e["bound"] == 1000.0 and e["unit"] == "N/m"
+    assert e["mass"] > 0.7
+    # the slab is measured in the log scale: 5% of the log range below 1000 N/m is above 708 N/m, not above 950
+    theta = np.column_stack([np.full(100, 800.0), np.full(100, 0.75)])
+    assert bound_pressure(SPACE, theta)[0]["mass"] == 1.0
+    text = bound_sentence(e)
+    assert "stretch's posterior presses against its upper prior bound 1000 N/m" in text
+    assert "--bounds stretch=LOW:HIGHER" in text and f"within {BOUND_SLAB * 100:.0f}% of the range" in text
+    # the lower bound, and the threshold
+    lo = SPACE.from_unit(np.column_stack([rng.uniform(0.3, 0.7, 1000), np.r_[np.zeros(300), rng.uniform(0.3, 0.7, 700)]]))
+    (e,) = bound_pressure(SPACE, lo)
+    assert (e["param"], e["side"], e["bound"]) == ("friction", "lower", 0.0) and e["mass"] == pytest.approx(0.3)
+    assert bound_pressure(SPACE, lo, min_mass=0.31) == []
+    assert BOUND_MASS_MIN > BOUND_SLAB
+
+
+def test_bad_input_raises():
+    with pytest.raises(ValueError, match=r"shape \(S, 2\)"):
+        bound_pressure(SPACE, np.ones((10, 3)))
+    with pytest.raises(ValueError, match="slab and min_mass"):
+        bound_pressure(SPACE, np.ones((10, 2)), slab=0.0)
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bounds") / "run"
+    res = softsbi.fit(toy_measurement(), out, backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=60,
+                      n_points=8, n_eval=5, n_dense=32, workers=1, seed=3, plots=False,
+                      bounds={"a": (-1.0, 0.05)}, estimator_options={"max_epochs": 30, "hidden": [16]})
+    return out, res
+
+
+def test_the_fit_report_holds_the_bound_pressure_of_its_own_posterior(toy_run):
+    """report.json's entry is bound_pressure of the fit's posterior (the same 4000 draws as its summaries)."""
+    from softsbi.workflows.runs import open_run
+    out, res = toy_run
+    rep = json.loads((out / "report.json").read_text())
+    post = open_run(out).posterior
+    draws = post.space.from_unit(post.unit.sample(4000, np.random.default_rng([3, 99])))
+    np.testing.assert_allclose(draws.mean(0), [rep["posterior_mean"][n] for n in post.names])  # the report's draws
+    assert rep["posterior_at_bounds"] == bound_pressure(post.space, draws)
+    # and with the threshold lowered to what this wide posterior puts next to a's upper bound 0.05, it is named
+    mass = float((post.space.to_unit(draws)[:, 0] >= 1 - BOUND_SLAB).mean())
+    assert mass > 0
+    (e,) = [b for b in bound_pressure(post.space, draws, min_mass=mass) if b["param"] == "a" and b["side"] == "upper"]
+    assert e["bound"] == pytest.approx(0.05) and e["mass"] == pytest.approx(mass)
+
+
+def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
+    from softsbi.cli import _print_report
+    from softsbi.cli.output import Output
+    from softsbi.workflows.diagnose import _refit_sentence
+    out, res = toy_run
+    pressed = {"param": "a", "side": "upper", "bound": 0.05, "unit": "1", "mass": 0.42}
+    _print_report(Output(), dict(res.report, posterior_at_bounds=[pressed]), out)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "Note: a's posterior presses against its upper prior bound 0.05 (42% of its mass" in printed
+    assert "--bounds a=LOW:HIGHER" in printed
+    _print_report(Output(), dict(res.report, posterior_at_bounds=[]), out)
+    assert "presses" not in capsys.readouterr().out
+    c = {"chamfer_before_m": 0.02, "chamfer_after_m": 0.015, "at_bounds": [pressed]}
+    assert "In this refit a's posterior presses against its upper prior bound 0.05" in _refit_sentence(c, "toy", 0.05)
+    assert "presses" not in _refit_sentence(dict(c, at_bounds=[]), "toy", 0.05)
