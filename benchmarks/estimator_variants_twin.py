@@ -61,6 +61,7 @@ VARIANTS: dict[str, dict] = {
     "features-64-bandwidth-0.25": {"rkhs_features": 64, "rkhs_sigma": 0.25},
     "bandwidth-1": {"rkhs_sigma": 1.0},
     "moments": {"frame_moments": True},
+    "thickness": {"frame_thickness": True},
 }
 
 
