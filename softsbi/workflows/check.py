@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.inference.contraction import bound_sentence
 from softsbi.core.types import STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
@@ -250,7 +251,9 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         ``worst_frames``, ``worst_regions``, ``energy`` (the same rollouts'
         :func:`~softsbi.workflows.stats.energy_score`; None for an image fit), ``misspecification`` (the omnibus and the directional test,
         each a Monte-Carlo p-value, their Bonferroni-combined ``p_value`` with ``p_text`` stating its
-        resolution, ``misspecified``, ``rule``) and a ``summary`` sentence. The misspecification verdict is
+        resolution, ``misspecified``, ``rule``), ``posterior_at_bounds`` (the fit's parameters whose posterior
+        presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`, from its
+        ``report.json``; the summary then says so) and a ``summary`` sentence. The misspecification verdict is
         :func:`~softsbi.workflows.screening.misspecification_verdict`, the same test ``diagnose`` uses as its
         first verdict; its directional part simulates the screening's finite differences (one simulation per
         nominal and effect parameter, about 40 for mujoco-flex's installed effects).
@@ -311,6 +314,10 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
                f"worst in the {worst_phase['phase']} phase (t {worst_phase['t_s'][0]:.2f}-"
                f"{worst_phase['t_s'][1]:.2f} s, {worst_phase['chamfer_m'] * 100:.2f} cm) and in region "
                f"{worst_regions[0]}; {verdict}.")
+    # a posterior piled against a prior bound: too narrow a prior, or the model compensating for what it lacks
+    pressed = list((run.report or {}).get("posterior_at_bounds") or [])
+    if pressed:
+        summary += " The fit's posterior: " + " ".join(bound_sentence(e) + "." for e in pressed)
     out = {"run": str(run.path), "n_rollouts": len(ok), "failed_rollouts": n_samples - len(ok),
            "times_s": run.scenario.times.tolist(),
            "chamfer_per_frame_m": {"mean": mean_t.tolist(), "q05": np.quantile(ch, 0.05, 0).tolist(),
@@ -324,7 +331,7 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
            "misspecification": mis, "energy": energy_score(pool, n_samples), "summary": summary,
-           "seconds": time.perf_counter() - t0}
+           "posterior_at_bounds": pressed, "seconds": time.perf_counter() - t0}
     run_dir = Path(run_dir)
     (run_dir / "check.json").write_text(json.dumps(out, indent=2))
     if plot:

@@ -92,3 +92,23 @@ def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
     c = {"chamfer_before_m": 0.02, "chamfer_after_m": 0.015, "at_bounds": [pressed]}
     assert "In this refit a's posterior presses against its upper prior bound 0.05" in _refit_sentence(c, "toy", 0.05)
     assert "presses" not in _refit_sentence(dict(c, at_bounds=[]), "toy", 0.05)
+
+
+def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
+    import shutil
+
+    from softsbi.workflows.check import check_run
+    out, res = toy_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    plain = check_run(run, n_samples=10, workers=1, plot=False, max_null=10)
+    rep = json.loads((run / "report.json").read_text())
+    assert plain["posterior_at_bounds"] == rep["posterior_at_bounds"]
+    assert ("presses against" in plain["summary"]) == bool(rep["posterior_at_bounds"])
+    rep["posterior_at_bounds"] = [{"param": "b", "side": "lower", "bound": -1.0, "unit": "1", "mass": 0.35}]
+    (run / "report.json").write_text(json.dumps(rep))
+    pressed = check_run(run, n_samples=10, workers=1, plot=False, max_null=10)
+    assert pressed["posterior_at_bounds"] == rep["posterior_at_bounds"]
+    assert "The fit's posterior: b's posterior presses against its lower prior bound -1 (35% of its mass" in \
+        pressed["summary"]
+    assert pressed["misspecification"]["p_value"] == plain["misspecification"]["p_value"]  # the test is unchanged
