@@ -29,8 +29,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.inference.contraction import bound_sentence
 from softsbi.core.types import STATUS_OK, Scenario
+from softsbi.inference.contraction import bound_sentence
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check

@@ -27,9 +27,9 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
+from softsbi.core.types import Recording
 from softsbi.inference.contraction import bound_sentence
 from softsbi.plugins import registry
-from softsbi.core.types import Recording
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.runs import RunView, load_run
