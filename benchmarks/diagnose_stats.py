@@ -17,6 +17,7 @@ Usage:
     python benchmarks/diagnose_stats.py run --suite mujoco --cases 0:20 --results benchmarks/results/diagnose_stats.jsonl
     python benchmarks/diagnose_stats.py run --suite mujoco --cases 45:110 --only control   # controls only
     python benchmarks/diagnose_stats.py run --suite cross-engine --cases 0:8 --confirm 2   # with refits
+    python benchmarks/diagnose_stats.py pm-rollout --out RUNS...   # posterior-mean rollout drops of stored refits
     python benchmarks/diagnose_stats.py summary --results benchmarks/results/diagnose_stats.jsonl [--confirm 2]
 Rows with refits carry the id suffix ``-refit<N>`` and are summarised apart (``summary --confirm N``).
 Rows diagnosed with check's joint test (the omnibus and the directional test, Bonferroni-combined:
@@ -188,10 +189,11 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
                         for r in d["ranking"] if "statistic" in r],
             # per refit: effect, error drop, check's test of the refit (p, still misspecified), and the fraction of
             # the nominal's summary bias it removes with its z (None for refits made before it was kept), and the
-            # drop of the posterior predictive's energy score (None for refits made before it was computed)
+            # drop of the posterior predictive's energy score (None for refits made before it was computed), and
+            # the drop of the posterior-mean rollout's Chamfer (None before it was computed; `pm-rollout` adds it)
             "refits": [[c["effect"], c.get("drop"), (c.get("misspecification_after") or {}).get("p_value"),
                         (c.get("misspecification_after") or {}).get("misspecified"), c.get("bias_fall"),
-                        c.get("bias_fall_z"), c.get("energy_drop")] for c in d["confirmed"]],
+                        c.get("bias_fall_z"), c.get("energy_drop"), c.get("pm_drop")] for c in d["confirmed"]],
             "screening_verdict": d.get("screening_verdict", d["verdict"])}
 
 
@@ -407,6 +409,33 @@ def add_truth_energies(results: Path, outs: Sequence[Path]) -> int:
     return k
 
 
+def add_pm_drops(results: Path, outs: Sequence[Path]) -> int:
+    """Add the posterior-mean rollout's Chamfer drop (:func:`~softsbi.workflows.stats.posterior_mean_chamfer`, as
+    ``diagnose`` computes it now: the nominal fit's and each refit's posterior mean, ``PM_ROLLOUTS`` seeds) to the
+    refits of stored correctly named rows made before diagnose computed it (``refits[i][7]``), where the nominal
+    run and the named effect's refit are on disk; rewrites ``results``, returns the number of rows updated."""
+    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.stats import posterior_mean_chamfer
+    rows = load_rows(results)
+    k = 0
+    for r in rows:
+        run_dir = find_run_dir(outs, r["id"], marker="report.json")
+        if not (r.get("correct") and r.get("named")) or run_dir is None:
+            continue
+        todo = [x for x in r.get("refits") or [] if (len(x) < 8 or x[7] is None)
+                and (run_dir / f"refit-{x[0]}" / "report.json").exists()]
+        if not todo:
+            continue
+        before = posterior_mean_chamfer(load_run(run_dir), workers=1)
+        for x in todo:
+            after = posterior_mean_chamfer(load_run(run_dir / f"refit-{x[0]}"), workers=1)
+            x.extend([None] * (8 - len(x)))
+            x[7] = (1 - after["chamfer_m"] / before["chamfer_m"]) if before and after else None
+        k += 1
+        save_rows(results, rows)
+    return k
+
+
 def effect_size(run_dir: Path, case: dict[str, Any], n: int = 5) -> dict[str, float]:
     """How visible a case's hidden effect(s) are in its measurement, in metres of the run's own metric:
     the mean Chamfer to the measurement of ``n`` rollouts at the case's truth *without* the hidden
@@ -603,6 +632,12 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     if both:
         out["refit_drop_energy"] = {"n": len(both), "median": float(np.median([e for _, e in both])),
                                     "median_chamfer_same_cases": float(np.median([c for c, _ in both]))}
+    # the same for the posterior-mean rollout's Chamfer (the fitted point estimate, without the posterior's width)
+    both = [(x[1], x[7]) for r in rows if r["correct"] and r.get("named") for x in r.get("refits") or []
+            if x[0] == r["named"] and x[1] is not None and len(x) > 7 and x[7] is not None]
+    if both:
+        out["refit_drop_pm"] = {"n": len(both), "median": float(np.median([e for _, e in both])),
+                                "median_chamfer_same_cases": float(np.median([c for c, _ in both]))}
     # the proper score in practice: the truth's own predictive distribution (add_truth_energies) against the
     # nominal fit's and the refit's, and the refit's share of the energy score above the truth's
     es = [r["energy_m"] for r in rows if r.get("energy_m") and r["energy_m"].get("truth") is not None]
@@ -741,6 +776,11 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         out.append(f"Median refit drop of the energy score, correctly named cases that stored it: "
                    f"{rd['median'] * 100:.0f}% (n = {rd['n']}; their Chamfer drop: "
                    f"{rd['median_chamfer_same_cases'] * 100:.0f}%).")
+    if summary.get("refit_drop_pm"):
+        rd = summary["refit_drop_pm"]
+        out.append(f"Median refit drop of the posterior-mean rollout's Chamfer, correctly named cases that stored it: "
+                   f"{rd['median'] * 100:.0f}% (n = {rd['n']}; their posterior-predictive Chamfer drop: "
+                   f"{rd['median_chamfer_same_cases'] * 100:.0f}%).")
     if summary.get("energy_truth"):
         et = summary["energy_truth"]
         red = et["median_drop_of_reducible"]
@@ -808,6 +848,11 @@ def main() -> None:
     sz.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     sz.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
+    pm = sub.add_parser("pm-rollout", help="add the posterior-mean rollout's Chamfer drop to the refits of stored "
+                                           "correctly named rows whose runs are on disk")
+    pm.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    pm.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                    help="folders holding the cases' run directories")
     rd = sub.add_parser("redecide", help="apply rule 3 again to stored rows with a check-accepted refit whose "
                                          "Chamfer did not fall (adds the summary bias)")
     rd.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
@@ -851,6 +896,9 @@ def main() -> None:
         return
     if a.cmd == "floor":
         print(f"{add_floors(a.results, a.out)} rows updated")
+        return
+    if a.cmd == "pm-rollout":
+        print(f"{add_pm_drops(a.results, a.out)} rows updated")
         return
     if a.cmd == "truth-energy":
         print(f"{add_truth_energies(a.results, a.out)} rows updated")

@@ -527,17 +527,21 @@ def diagnosis_table_rows(out: dict) -> list[list]:
 
     Returns:
         Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
-        rank); the drop is the posterior-predictive Chamfer's, then the energy score's where the refit has one
-        (``"32% / 45%"``). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
+        rank); the drop is the posterior-predictive Chamfer's, then the posterior-mean rollout's and the energy
+        score's where the refit has them (``"32% / 59% / 45%"``, ``-`` for one it lacks). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
         its own: its row reads kind ``pair``, "-" for the screening's columns, and its refit's drop.
     """
     from softsbi.workflows.diagnose import format_p
     by_name = {r["effect"]: r for r in out["ranking"]}
-    drops = {c["effect"]: (c.get("drop"), c.get("energy_drop")) for c in out["confirmed"]}
+    drops = {c["effect"]: (c.get("drop"), c.get("pm_drop"), c.get("energy_drop")) for c in out["confirmed"]}
     rows = []
+
+    def pct(x: float | None) -> str:
+        return "-" if x is None else f"{x * 100:.0f}%"
+
     for i, name in enumerate(out.get("final_ranking") or list(by_name)):
-        d, e = drops.get(name, (None, None))
-        drop = "" if d is None else f"{d * 100:.0f}%" + ("" if e is None else f" / {e * 100:.0f}%")
+        d, pm, e = drops.get(name, (None, None, None))
+        drop = "" if d is None else pct(d) + ("" if pm is None and e is None else f" / {pct(pm)} / {pct(e)}")
         r = by_name.get(name)
         if r is None:  # a refitted pair
             parts = name.split("+")
@@ -586,7 +590,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
         return
     rows = diagnosis_table_rows(out)
     o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
-             "refit drop: Chamfer / energy"], rows,
+             "refit drop: Chamfer / mean rollout / energy"], rows,
             title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")
     o.line(f"verdict: {out['verdict']}")
     o.line(out["summary"])

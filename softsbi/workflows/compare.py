@@ -18,6 +18,7 @@ from softsbi.core.metrics import describe_change
 from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import MAX_NULL, check_run, sensor_model
 from softsbi.workflows.runs import load_run
+from softsbi.workflows.stats import posterior_mean_chamfer
 
 
 def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_samples: int = 30,
@@ -28,7 +29,10 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     ``n_samples`` and ``max_null`` go to each run's :func:`~softsbi.workflows.check.check_run`.
 
     Returns:
-        dict with ``table`` (rows ``what``, ``a``, ``b``, relative ``change``), ``summary`` (says when the
+        dict with ``table`` (rows ``what``, ``a``, ``b``, relative ``change``: the posterior-predictive Chamfer
+        first, then the one-sided Chamfer, the energy score and the posterior-mean rollout's Chamfer
+        (:func:`~softsbi.workflows.stats.posterior_mean_chamfer`) where both runs have them, per phase, per
+        region), ``summary`` (says when the
         two fits use different sensor models, :func:`~softsbi.workflows.check.sensor_model`: sensor kind,
         virtual camera, height cut or frames, so their Chamfer values measure different things),
         ``same_sensor``, both checks, and the paths of the figure and the JSON.
@@ -53,6 +57,11 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
               else None)
     if energy:
         rows.append(energy)
+    pm_a, pm_b = posterior_mean_chamfer(ra, workers=workers), posterior_mean_chamfer(rb, workers=workers)
+    pm = ({"what": "posterior-mean rollout Chamfer (the fitted point estimate)", "a": pm_a["chamfer_m"],
+           "b": pm_b["chamfer_m"]} if pm_a and pm_b else None)
+    if pm:
+        rows.append(pm)
     for pa, pb in zip(a["phases"], b["phases"]):
         rows.append({"what": f"{pa['phase']} phase ({pa['t_s'][0]:.2f}-{pa['t_s'][1]:.2f} s)", "a": pa["chamfer_m"],
                      "b": pb["chamfer_m"]})
@@ -67,6 +76,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
                f"({describe_change(rows[0]['a'], rows[0]['b'])})"
                + (f", energy score {energy['a'] * 100:.2f} -> {energy['b'] * 100:.2f} cm "
                   f"({describe_change(energy['a'], energy['b'])})" if energy else "")
+               + (f", posterior-mean rollout {pm['a'] * 100:.2f} -> {pm['b'] * 100:.2f} cm "
+                  f"({describe_change(pm['a'], pm['b'])})" if pm else "")
                + "; misspecification "
                f"{a['misspecification']['p_text']} -> {b['misspecification']['p_text']}."
                + ("" if same_sensor else " The two fits use different sensor models (--sensor / --min-height / "

@@ -482,6 +482,46 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
     return dict(pool.energy_scores[key])
 
 
+#: rollouts at the posterior mean whose mean Chamfer is a fit's posterior-mean rollout error
+#: (:func:`posterior_mean_chamfer`); they differ only in their simulation seeds (the point sampling)
+PM_ROLLOUTS = 3
+#: the seeds of those rollouts are ``PM_SEED + k`` (apart from the fit's, the null's and the benchmark's)
+PM_SEED = 3000
+
+
+def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | None = None) -> dict[str, Any] | None:
+    """The error of the fitted model's point estimate: the mean Chamfer between the measurement and ``n``
+    rollouts at the posterior mean (the report's ``posterior_mean``, physical units), through the fit's own job
+    and metric (sensor model and frames, as the report's ``chamfer_posterior_m``).
+
+    The posterior-predictive Chamfer averages the Chamfer over posterior draws, so it carries the posterior's
+    width too: an honest posterior from a small simulation budget is wide and scores worse than its own mean.
+    This is the number a user who simulates with the fitted parameters sees, and the one issue 17 compares
+    with CMA-ES's best ("the posterior-mean rollout").
+
+    Args:
+        run: a finished fit (:class:`~softsbi.workflows.runs.RunView`) with a point-cloud measurement.
+        n: rollouts, seeds ``PM_SEED + k``; they differ only in the point sampling of the simulated clouds.
+        workers: simulation processes (None: the executor's default).
+
+    Returns:
+        ``{"chamfer_m", "chamfer_se_m", "n"}`` (m; the standard error over the ``n`` seeds, 0 with one), or None
+        for an image fit, a report without a posterior mean, or when every rollout fails.
+    """
+    pm = run.report.get("posterior_mean")
+    if not pm or run.dense is None or any(name not in pm for name in run.space.names):
+        return None
+    theta = run.space.as_array(pm)
+    res = run_jobs(run.sim_context(keep_rollout=False), [(theta, PM_SEED + k) for k in range(n)], workers)
+    frames = run_frames(run)
+    vals = np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in res
+                     if r is not None and r["status"] == STATUS_OK and r.get("chamfer") is not None])
+    if not len(vals):
+        return None
+    se = float(vals.std(ddof=1) / np.sqrt(len(vals))) if len(vals) > 1 else 0.0
+    return {"chamfer_m": float(vals.mean()), "chamfer_se_m": se, "n": int(len(vals))}
+
+
 def decided(test: dict[str, Any], alpha: float, max_null: int, extended: bool, what: str) -> dict[str, Any]:
     """Add the decision at level ``alpha`` to a test's fields (``p_value``, ``exceed``, ``n_null``),
     with the rule as applied in words (``rule``) and whether the cap left it undecidable."""

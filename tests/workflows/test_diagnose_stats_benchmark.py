@@ -108,7 +108,8 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
             "called": "nothing-missing", "verdict": "nothing-missing", "correct": True}
     rows = [dict(base, id="a", budget={"rounds": 2}),
             dict(base, id="b-refit2", budget={"rounds": 2, "confirm": 2}, truth_label="wind", named="wind",
-                 called="wind", verdict="missing-effect", magnitude=0.5, refits=[["wind", 0.5, 0.3, False]]),
+                 called="wind", verdict="missing-effect", magnitude=0.5,
+                 refits=[["wind", 0.5, 0.3, False, None, None, None, 0.7], ["air-drag", 0.1, 0.3, False]]),
             dict(base, id="c-refit2", budget={"confirm": 2}, truth_label="other-engine", called="misspecified-unexplained",
                  verdict="misspecified-unexplained", screening_verdict="missing-effect",
                  refits=[["wind", 0.2, 0.004, True]])]
@@ -124,9 +125,31 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
     refit = bench.select_rows(rows, 2)
     s = bench.summarise(refit)
     assert s["refit_drop"] == {"n": 1, "median": 0.5}
+    # the posterior-mean rollout's drop (refits[i][7]) of the named effect's refit, with the same cases' Chamfer drop
+    assert s["refit_drop_pm"] == {"n": 1, "median": 0.7, "median_chamfer_same_cases": 0.5}
     assert s["other_engine"] == {"n": 1, "misspecified-unexplained": 1, "screening": {"missing-effect": 1}}
     md = bench.markdown(s, [dict(r, misspecification_p_text="p", wall_s=1.0) for r in refit])
     assert "misspecified-unexplained (screening: missing-effect)" in md and "wind Chamfer -20%, check p 0.004" in md
+    assert "posterior-mean rollout's Chamfer, correctly named cases that stored it: 70% (n = 1;" in md
+
+
+def test_refit_rows_keep_the_posterior_mean_rollout_drop_and_the_backfill_recomputes_it(tmp_path):
+    """A refitted case stores its named refit's posterior-mean rollout drop (diagnose computes it); ``pm-rollout``
+    (:func:`add_pm_drops`) recomputes the same number from the runs on disk for rows stored without it."""
+    results = tmp_path / "r.jsonl"
+    rows = bench.run_cases("toy", [1], results, tmp_path / "runs", seed=3, rounds=2, sims=120, n_null=30,
+                           max_null=100, confirm=1, workers=1)
+    assert rows[0]["truth_label"] == "toy-wind" and rows[0]["correct"], rows
+    refit = next(x for x in rows[0]["refits"] if x[0] == rows[0]["named"])
+    assert len(refit) == 8 and refit[7] > 0.2
+    stored = bench.load_rows(results)
+    for x in stored[0]["refits"]:
+        del x[7:]
+    bench.save_rows(results, stored)
+    assert bench.add_pm_drops(results, [tmp_path / "elsewhere", tmp_path / "runs"]) == 1
+    again = next(x for x in bench.load_rows(results)[0]["refits"] if x[0] == rows[0]["named"])
+    assert again[7] == pytest.approx(refit[7], abs=1e-9)  # the same seeds and runs
+    assert bench.add_pm_drops(results, [tmp_path / "runs"]) == 0  # stored: not measured again
 
 
 def test_a_stored_row_is_rediagnosed_at_a_new_level_only_when_one_of_its_decisions_lay_between_the_levels():

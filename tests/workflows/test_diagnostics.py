@@ -1,4 +1,5 @@
 """Model-error workflow: effects, posterior predictive check, diagnosis, compare."""
+import dataclasses
 import json
 
 import numpy as np
@@ -11,6 +12,8 @@ from softsbi.workflows.diagnose import diagnose_run
 from softsbi.core.errors import ParameterError
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
+from softsbi.workflows.runs import load_run
+from softsbi.workflows.stats import PM_ROLLOUTS, posterior_mean_chamfer
 from softsbi.plugins import registry
 
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
@@ -87,6 +90,25 @@ def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     assert h["phases"][-1]["chamfer_m"] > h["phases"][0]["chamfer_m"]
 
 
+def test_posterior_mean_rollout_scores_the_point_estimate_with_the_fits_metric(toy_runs):
+    """posterior_mean_chamfer: PM_ROLLOUTS rollouts at the report's posterior mean, scored like the report's
+    posterior-predictive Chamfer; on a well-specified fit the point estimate does not score worse than the
+    posterior predictive (which adds the posterior's width), and a point far from the posterior scores worse."""
+    _, control = toy_runs
+    run = load_run(control)
+    pm = posterior_mean_chamfer(run, workers=1)
+    assert pm["n"] == PM_ROLLOUTS and pm["chamfer_se_m"] > 0  # the seeds change the toy's per-frame noise
+    assert pm["chamfer_m"] <= run.report["chamfer_posterior_m"] + 2 * pm["chamfer_se_m"]
+    assert posterior_mean_chamfer(run, n=1, workers=1)["chamfer_m"] == pytest.approx(
+        posterior_mean_chamfer(run, n=1, workers=1)["chamfer_m"])  # fixed seeds: reproducible
+    far = dict(run.report["posterior_mean"])
+    q = run.space.params[0]
+    far[q.name] = q.high if far[q.name] < (q.low + q.high) / 2 else q.low
+    moved = dataclasses.replace(run, report=dict(run.report, posterior_mean=far))
+    assert posterior_mean_chamfer(moved, workers=1)["chamfer_m"] > pm["chamfer_m"]
+    assert posterior_mean_chamfer(dataclasses.replace(run, report={}), workers=1) is None
+
+
 def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     hidden, control = toy_runs
     d = diagnose_run(hidden, workers=1, confirm=1, confirm_budget={"rounds": 2, "sims_per_round": 150})
@@ -116,6 +138,15 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert conf["energy_after_m"] < conf["energy_before_m"] - 3 * conf["energy_after_se_m"]
     assert conf["energy_drop"] == pytest.approx(1 - conf["energy_after_m"] / conf["energy_before_m"])
     assert f"energy score from {conf['energy_before_m'] * 100:.2f} to {conf['energy_after_m'] * 100:.2f} cm" in d["summary"]
+    # the fitted point estimate: rollouts at the nominal fit's and the refit's posterior means (seeds PM_SEED + k)
+    # through the fit's own job; the refit's is lower and the sentence gives both numbers
+    pm = posterior_mean_chamfer(load_run(hidden), workers=1)
+    assert pm["n"] == PM_ROLLOUTS and conf["pm_chamfer_before_m"] == pm["chamfer_m"]
+    refit_pm = posterior_mean_chamfer(load_run(hidden / "refit-toy-wind"), workers=1)
+    assert conf["pm_chamfer_after_m"] == refit_pm["chamfer_m"] < 0.8 * pm["chamfer_m"]
+    assert conf["pm_drop"] == pytest.approx(1 - conf["pm_chamfer_after_m"] / conf["pm_chamfer_before_m"])
+    assert (f"posterior-mean rollout's from {conf['pm_chamfer_before_m'] * 100:.2f} to "
+            f"{conf['pm_chamfer_after_m'] * 100:.2f} cm") in d["summary"]
     # the refit's bounds pressed by the added effect's parameters only (the refit's report holds all of its own)
     refit_rep = json.loads((hidden / "refit-toy-wind" / "report.json").read_text())
     assert conf["at_bounds"] == [b for b in refit_rep["posterior_at_bounds"] if b["param"] == "wind"]
@@ -135,6 +166,10 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     energy = next(r for r in out["table"] if r["what"].startswith("energy score"))
     assert energy["b"] < energy["a"] and "energy score" in out["summary"]
     assert energy["a"] == pytest.approx(out["table"][0]["a"] - out["check_a"]["energy"]["spread_m"] / 2)
+    # the fitted point estimates, as diagnose scored them
+    pm_row = next(r for r in out["table"] if r["what"].startswith("posterior-mean rollout"))
+    assert (pm_row["a"], pm_row["b"]) == (conf["pm_chamfer_before_m"], conf["pm_chamfer_after_m"])
+    assert f"posterior-mean rollout {pm_row['a'] * 100:.2f} -> {pm_row['b'] * 100:.2f} cm" in out["summary"]
     assert (hidden / "refit-toy-wind" / "compare.png").stat().st_size > 10_000
 
 
