@@ -528,8 +528,9 @@ def diagnosis_table_rows(out: dict) -> list[list]:
     Returns:
         Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
         rank); the drop is the posterior-predictive Chamfer's, then the posterior-mean rollout's and the energy
-        score's where the refit has them (``"32% / 59% / 45%"``, ``-`` for one it lacks). A refitted pair (``"a+b"``, rule 3 applied to two effects together) has no screening entry of
-        its own: its row reads kind ``pair``, "-" for the screening's columns, and its refit's drop.
+        score's where the refit has them (``"32% / 59% / 45%"``, ``-`` for one it lacks). A refitted pair
+        (``"a+b"``, rule 3 applied to two effects together) has no screening entry of its own: its row reads kind
+        ``pair``, "-" for the screening's columns, and its refit's drop.
     """
     from softsbi.workflows.diagnose import format_p
     by_name = {r["effect"]: r for r in out["ranking"]}

@@ -483,7 +483,7 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
 
 
 #: rollouts at the posterior mean whose mean Chamfer is a fit's posterior-mean rollout error
-#: (:func:`posterior_mean_chamfer`); they differ only in their simulation seeds (the point sampling)
+#: (:func:`posterior_mean_chamfer`); they differ only in their simulation seeds (point sampling, sensor noise)
 PM_ROLLOUTS = 3
 #: the seeds of those rollouts are ``PM_SEED + k`` (apart from the fit's, the null's and the benchmark's)
 PM_SEED = 3000
@@ -495,13 +495,15 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
     and metric (sensor model and frames, as the report's ``chamfer_posterior_m``).
 
     The posterior-predictive Chamfer averages the Chamfer over posterior draws, so it carries the posterior's
-    width too: an honest posterior from a small simulation budget is wide and scores worse than its own mean.
+    width too: an honest posterior from a small simulation budget is wide, and its draws usually score worse
+    than its mean (not always: a misspecified fit's mean can miss more than its draws do).
     This is the number a user who simulates with the fitted parameters sees, and the one issue 17 compares
     with CMA-ES's best ("the posterior-mean rollout").
 
     Args:
         run: a finished fit (:class:`~softsbi.workflows.runs.RunView`) with a point-cloud measurement.
-        n: rollouts, seeds ``PM_SEED + k``; they differ only in the point sampling of the simulated clouds.
+        n: rollouts, seeds ``PM_SEED + k``; they differ only in their seeds (the point sampling of the simulated
+            clouds, a sensor effect's noise).
         workers: simulation processes (None: the executor's default).
 
     Returns:
