@@ -349,12 +349,11 @@ def refit_case(run_dir: Path, effect: str, rounds: int, sims: int, proposal: str
 
 def _mean_chamfer_at(run: Any, theta: dict[str, float], effects: list[str], n: int) -> float:
     """Mean Chamfer (m, over the run's metric frames) between the measurement and ``n`` rollouts at
-    ``theta`` with ``effects``, seeds ``5000 + k``, through the run's own job; NaN when none succeeds."""
-    from softsbi.workflows.jobs import run_jobs
-    res = run_jobs(run.sim_context(keep_rollout=False), [(theta, 5000 + k, effects) for k in range(n)], 1)
-    fr = slice(None) if run.metric_frames is None else run.metric_frames
-    vals = [float(np.mean(r["chamfer"][fr])) for r in res if r and r.get("chamfer") is not None]
-    return float(np.mean(vals)) if vals else float("nan")
+    ``theta`` with ``effects``, seeds ``5000 + k``, through the run's own job
+    (:func:`~softsbi.workflows.stats.rollout_chamfers`); NaN when none succeeds."""
+    from softsbi.workflows.stats import rollout_chamfers
+    vals = rollout_chamfers(run, [(theta, 5000 + k, effects) for k in range(n)], 1)
+    return float(np.mean(vals)) if len(vals) else float("nan")
 
 
 def truth_floor(run_dir: Path, case: dict[str, Any], n: int = 5) -> float:
@@ -625,19 +624,15 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
               for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
     if excess:
         out["refit_drop_of_reducible"] = {"n": len(excess), "median": float(np.median(excess))}
-    # the same cases' drop of the energy score (stats.energy_score), where the refit stored it; with the Chamfer
+    # the same cases' drop of the energy score (stats.energy_score, refits[i][6]) and of the posterior-mean
+    # rollout's Chamfer (the fitted point estimate, refits[i][7]), where the refit stored it; each with the Chamfer
     # drop of exactly those cases, so the two medians compare like with like
-    both = [(x[1], x[6]) for r in rows if r["correct"] and r.get("named") for x in r.get("refits") or []
-            if x[0] == r["named"] and x[1] is not None and len(x) > 6 and x[6] is not None]
-    if both:
-        out["refit_drop_energy"] = {"n": len(both), "median": float(np.median([e for _, e in both])),
-                                    "median_chamfer_same_cases": float(np.median([c for c, _ in both]))}
-    # the same for the posterior-mean rollout's Chamfer (the fitted point estimate, without the posterior's width)
-    both = [(x[1], x[7]) for r in rows if r["correct"] and r.get("named") for x in r.get("refits") or []
-            if x[0] == r["named"] and x[1] is not None and len(x) > 7 and x[7] is not None]
-    if both:
-        out["refit_drop_pm"] = {"n": len(both), "median": float(np.median([e for _, e in both])),
-                                "median_chamfer_same_cases": float(np.median([c for c, _ in both]))}
+    for key, idx in (("refit_drop_energy", 6), ("refit_drop_pm", 7)):
+        both = [(x[1], x[idx]) for r in rows if r["correct"] and r.get("named") for x in r.get("refits") or []
+                if x[0] == r["named"] and x[1] is not None and len(x) > idx and x[idx] is not None]
+        if both:
+            out[key] = {"n": len(both), "median": float(np.median([e for _, e in both])),
+                        "median_chamfer_same_cases": float(np.median([c for c, _ in both]))}
     # the proper score in practice: the truth's own predictive distribution (add_truth_energies) against the
     # nominal fit's and the refit's, and the refit's share of the energy score above the truth's
     es = [r["energy_m"] for r in rows if r.get("energy_m") and r["energy_m"].get("truth") is not None]

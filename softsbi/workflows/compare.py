@@ -35,7 +35,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
         region), ``summary`` (says when the
         two fits use different sensor models, :func:`~softsbi.workflows.check.sensor_model`: sensor kind,
         virtual camera, height cut or frames, so their Chamfer values measure different things),
-        ``same_sensor``, both checks, and the paths of the figure and the JSON.
+        ``same_sensor``, both checks, ``posterior_mean_chamfer`` (``{"a", "b"}``, each run's
+        :func:`~softsbi.workflows.stats.posterior_mean_chamfer` or None), and the paths of the figure and the JSON.
 
     Raises:
         SoftsbiError: the runs were fitted to different measurements.
@@ -87,7 +88,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
     png = out_dir / "compare.png"
     plot_compare(png, a, b, la, lb)
     res = {"run_a": str(run_a), "run_b": str(run_b), "label_a": la, "label_b": lb, "table": rows,
-           "summary": summary, "same_sensor": same_sensor, "check_a": a, "check_b": b, "png": str(png),
+           "summary": summary, "same_sensor": same_sensor, "check_a": a, "check_b": b,
+           "posterior_mean_chamfer": {"a": pm_a, "b": pm_b}, "png": str(png),
            "json": str(out_dir / "compare.json")}
     (out_dir / "compare.json").write_text(json.dumps(res, indent=2))
     return res

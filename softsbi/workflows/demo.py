@@ -157,11 +157,12 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
         ui.line(f"energy score (the Chamfer less half the mean Chamfer between two rollouts, a proper score): "
                 f"{ea['energy_m'] * 100:.2f} cm -> {eb['energy_m'] * 100:.2f} cm, "
                 f"{describe_change(ea['energy_m'], eb['energy_m'])}.")
-    pm = next((r for r in comp["table"] if r["what"].startswith("posterior-mean rollout")), None)
-    if pm:
+    pa, pb = (comp["posterior_mean_chamfer"][k] for k in ("a", "b"))
+    if pa and pb:
+        a, b = pa["chamfer_m"], pb["chamfer_m"]
         ui.line(f"posterior-mean rollout Chamfer (the fitted point estimate, without the posterior's width): "
-                f"{pm['a'] * 100:.2f} cm -> {pm['b'] * 100:.2f} cm, {describe_change(pm['a'], pm['b'])}.")
-        doc.update(pm_chamfer_before_m=pm["a"], pm_chamfer_after_m=pm["b"])
+                f"{a * 100:.2f} cm -> {b * 100:.2f} cm, {describe_change(a, b)}.")
+        doc.update(pm_chamfer_before_m=a, pm_chamfer_after_m=b)
     figures = f" Figures: {out}/compare.png, {nominal}/check.png, {refit}/posterior_pairs.png"
     return _finish(ui, doc, res2.report, t0, figures, what="the refit's ")
 

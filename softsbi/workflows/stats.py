@@ -489,6 +489,25 @@ PM_ROLLOUTS = 3
 PM_SEED = 3000
 
 
+def rollout_chamfers(run: RunView, items: Sequence[tuple], workers: int | None = None) -> np.ndarray:
+    """Simulate job ``items`` through the fit's own job (:meth:`RunView.sim_context`: its simulator, effects,
+    observer and sensor model) and score each: the mean Chamfer (m) over the fit's metric frames, as the report's
+    ``chamfer_posterior_m`` scores one rollout.
+
+    Args:
+        run: a finished fit with a point-cloud measurement.
+        items: :func:`~softsbi.workflows.jobs.simulate_job` items, ``(theta, seed)`` or ``(theta, seed, effects)``.
+        workers: simulation processes (None: the executor's default).
+
+    Returns:
+        ``(k,)`` scores of the ``k <= len(items)`` rollouts that succeeded, in item order.
+    """
+    res = run_jobs(run.sim_context(keep_rollout=False), list(items), workers)
+    frames = run_frames(run)
+    return np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in res
+                     if r is not None and r["status"] == STATUS_OK and r.get("chamfer") is not None])
+
+
 def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | None = None) -> dict[str, Any] | None:
     """The error of the fitted model's point estimate: the mean Chamfer between the measurement and ``n``
     rollouts at the posterior mean (the report's ``posterior_mean``, physical units), through the fit's own job
@@ -514,10 +533,7 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
     if not pm or run.dense is None or any(name not in pm for name in run.space.names):
         return None
     theta = run.space.as_array(pm)
-    res = run_jobs(run.sim_context(keep_rollout=False), [(theta, PM_SEED + k) for k in range(n)], workers)
-    frames = run_frames(run)
-    vals = np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in res
-                     if r is not None and r["status"] == STATUS_OK and r.get("chamfer") is not None])
+    vals = rollout_chamfers(run, [(theta, PM_SEED + k) for k in range(n)], workers)
     if not len(vals):
         return None
     se = float(vals.std(ddof=1) / np.sqrt(len(vals))) if len(vals) > 1 else 0.0

@@ -169,6 +169,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     # the fitted point estimates, as diagnose scored them
     pm_row = next(r for r in out["table"] if r["what"].startswith("posterior-mean rollout"))
     assert (pm_row["a"], pm_row["b"]) == (conf["pm_chamfer_before_m"], conf["pm_chamfer_after_m"])
+    assert [out["posterior_mean_chamfer"][k]["chamfer_m"] for k in "ab"] == [pm_row["a"], pm_row["b"]]
     assert f"posterior-mean rollout {pm_row['a'] * 100:.2f} -> {pm_row['b'] * 100:.2f} cm" in out["summary"]
     assert (hidden / "refit-toy-wind" / "compare.png").stat().st_size > 10_000
 
