@@ -52,7 +52,9 @@ MIN_EXPLAINED = 0.1
 #: benchmarks/diagnose_stats.py: none below 0.29; the posterior-predictive test is conservative), while a refit
 #: that only widens the posterior predictive towards the measurement (data from another engine: omnibus
 #: p = 0.03-0.097) does not count as explained. The directional test on the same 92 controls: 3 below 0.1.
-#: BENCHMARKS.md "Honest statistics and three verdicts".
+#: BENCHMARKS.md "Honest statistics and three verdicts". 30 nulls resolve this level only at 0 or at 7+
+#: exceedances per test: in between, the refit's null grows to the cap before rule 3 decides
+#: (:func:`~softsbi.workflows.screening.joint_resolved`; BENCHMARKS.md, eighteenth session).
 EXPLAIN_ALPHA = 0.2
 
 
@@ -91,7 +93,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
        force term (:func:`is_generic`) with the fraction it explains.
 
     Adaptive resolution: the null starts with ``n_null`` posterior-predictive rollouts; when a
-    decision at ``alpha`` needs more (:func:`resolution_needed`) it is extended once to ``max_null``.
+    decision at ``alpha`` needs more (:func:`resolution_needed`) it is extended once to ``max_null``. A refit's
+    check (rule 3, level ``EXPLAIN_ALPHA``) grows its null the same way when its first stage's decision lies inside
+    its own Monte-Carlo error (:func:`~softsbi.workflows.screening.joint_resolved`).
 
     Args:
         run_dir: a finished fit of the nominal model.

@@ -30,7 +30,7 @@ from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, MAX_NULL, MCPValue, PosteriorPredictive,
                                      max_t_adjusted, mc_pvalue, misspecification_test, pvalue_fields,
-                                     resolution_needed, rollout_features, run_features)
+                                     resolution_needed, resolved_side, rollout_features, run_features)
 
 
 def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
@@ -283,6 +283,17 @@ def _directional_fields(top: dict[str, Any], n_family: int) -> dict[str, Any]:
             "family": n_family}
 
 
+def joint_resolved(pvals: Sequence[MCPValue], level: float) -> bool:
+    """Does the first stage resolve the Bonferroni decision at ``level`` per test? Yes when one test lies
+    below ``level`` with confidence (that alone rejects) or every test lies above it
+    (:func:`~softsbi.workflows.stats.resolved_side`); otherwise the decision is within its Monte-Carlo error and
+    :func:`misspecification_verdict` grows the null. At the verdicts' level (0.025 per test, where 30 nulls cannot
+    reject) this adds nothing to :func:`~softsbi.workflows.stats.resolution_needed`; it matters where the first
+    stage can decide, e.g. rule 3's 0.2 (0.1 per test): 1 to 6 exceedances in 30 are not resolved there."""
+    sides = [resolved_side(p, level) for p in pvals]
+    return "below" in sides or all(s == "above" for s in sides)
+
+
 def joint_decision(omnibus: MCPValue, directional: MCPValue | None, alpha: float) -> dict[str, Any]:
     """Bonferroni combination of the omnibus and the directional test on one null of ``n`` rollouts.
 
@@ -353,7 +364,10 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
     resolution as in :func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``: when either
     test's first stage is promising (beyond all of the first nulls, or ``p <= EXTEND_P``), the null grows to ``max_null``
     successful rollouts once (:meth:`~softsbi.workflows.stats.PosteriorPredictive.ensure_successful`) and both
-    tests are decided there (the first stage cannot reject: ``2 / 31 > 0.05``), so the level holds.
+    tests are decided there (the first stage cannot reject: ``2 / 31 > 0.05``), so the level holds. At a level the
+    first stage can resolve (rule 3's ``EXPLAIN_ALPHA = 0.2``), the null also grows when the first stage's
+    decision lies inside its own Monte-Carlo error (:func:`joint_resolved`): a refit is not turned away, or
+    accepted, on 1 exceedance in 30.
 
     Args:
         pool: the run's posterior-predictive rollouts (at least 5 successful; more are simulated on demand).
@@ -394,7 +408,8 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
 
     p_o, p_d = pvals()
     k = 2 if p_d is not None else 1
-    if len(pool.rollouts) < max_null and any(resolution_needed(p, alpha / k, max_null) for p in (p_o, p_d) if p):
+    if len(pool.rollouts) < max_null and (any(resolution_needed(p, alpha / k, max_null) for p in (p_o, p_d) if p)
+                                          or not joint_resolved([p for p in (p_o, p_d) if p], alpha / k)):
         pool.ensure_successful(max_null)  # the cap counts successful rollouts: failures would cost resolution
         omni, screen, ranking, tested, err = evaluate()
         p_o, p_d = pvals()

@@ -96,6 +96,72 @@ def test_adaptive_resolution_extends_only_when_promising_and_keeps_the_level():
     assert t["misspecified"] and t["rule"].endswith("<= 0.01")
 
 
+def test_a_first_stage_decision_inside_its_monte_carlo_error_is_not_resolved():
+    """resolved_side: the exact 90% interval of the exceedance probability against the level. At rule 3's 0.1
+    per test, 0 of 30 is resolved below, 1-6 of 30 are not, 7 of 30 is resolved above; at the verdicts' 0.025
+    per test the unresolved counts (0-2) are the ones EXTEND_P already extends, so nothing changes there."""
+    from softsbi.workflows.screening import joint_resolved
+    from softsbi.workflows.stats import EXTEND_P, resolved_side
+    assert resolved_side(MCPValue(0, 30), 0.1) == "below"
+    assert [resolved_side(MCPValue(k, 30), 0.1) for k in range(1, 7)] == [None] * 6
+    assert resolved_side(MCPValue(7, 30), 0.1) == "above"
+    assert resolved_side(MCPValue(10, 200), 0.1) == "below" and resolved_side(MCPValue(19, 200), 0.1) is None
+    for k in range(0, 31):
+        unresolved_at_verdict_level = not joint_resolved([MCPValue(k, 30), MCPValue(30, 30)], 0.025)
+        assert unresolved_at_verdict_level == (MCPValue(k, 30).value <= EXTEND_P)
+    # Bonferroni: one test resolved below rejects whatever the other; accepting needs both resolved above
+    assert joint_resolved([MCPValue(0, 30), MCPValue(3, 30)], 0.1)
+    assert not joint_resolved([MCPValue(10, 30), MCPValue(3, 30)], 0.1)
+    assert joint_resolved([MCPValue(10, 30), MCPValue(12, 30)], 0.1)
+    with pytest.raises(ValueError, match="level"):
+        resolved_side(MCPValue(0, 30), 1.5)
+    # a first-stage decision is wrong (the side of the true exceedance probability) at most about 1 - 0.9 of
+    # the times it is taken, for true probabilities on either side of the level
+    rng = np.random.default_rng(3)
+    for q in (0.03, 0.06, 0.14, 0.2):
+        k = rng.binomial(30, q, size=4000)
+        sides = [resolved_side(MCPValue(int(x), 30), 0.1) for x in k]
+        taken = [s for s in sides if s is not None]
+        wrong = sum(s != ("below" if q < 0.1 else "above") for s in taken)
+        assert wrong <= 0.1 * len(sides)
+
+
+def test_the_null_grows_when_a_lenient_levels_first_stage_is_unresolved(monkeypatch):
+    """misspecification_verdict at rule 3's 0.2: 4 exceedances in 30 (p = 0.16, 90% interval 0.05-0.28) is inside
+    its Monte-Carlo error, so the null grows to the cap and the decision is taken there; 0 or 12 in 30 is decided
+    at 30, and so is 12 in 30 at 0.05."""
+    from softsbi.workflows import screening as scr
+
+    class Pool:
+        def __init__(self):
+            self.rollouts, self.requested, self.first, self.run = [None] * 30, 30, 30, type("R", (), {"dense": None})()
+
+        @property
+        def features(self):
+            return np.zeros((len(self.rollouts), 2))
+
+        def ensure_successful(self, n):
+            self.rollouts, self.requested = [None] * n, n
+            return self
+
+    def verdict(rate_at, alpha):
+        def test(f_obs, feats):
+            n = len(feats)
+            return {"statistic": 1.0, "null_mean": 0.5, "null_q95": 1.2, "exceed": rate_at(n), "n_simulations": n}
+        monkeypatch.setattr(scr, "misspecification_test", test)
+        monkeypatch.setattr(scr, "run_features", lambda run, dense: np.zeros(2))
+        return scr.misspecification_verdict(Pool(), [], alpha, 200)[0]
+
+    grown = verdict(lambda n: 4 if n == 30 else 60, 0.2)  # 4/30 first, then 60/200: accepted at the cap
+    assert grown["extended"] and grown["n_null"] == 200 and not grown["misspecified"]
+    assert grown["p_value"] == pytest.approx(61 / 201) and "200 null simulations" in grown["p_text"]
+    for k in (0, 12):
+        t = verdict(lambda n, k=k: k, 0.2)
+        assert not t["extended"] and t["n_null"] == 30 and t["misspecified"] == (k == 0)
+    t = verdict(lambda n: 12, 0.05)  # 90% interval 0.25-0.56, far above 0.05: nothing more is simulated
+    assert not t["extended"] and not t["misspecified"]
+
+
 def _screening(r_obs, r_null, cols, generic=()):
     """A screening on synthetic residuals: effect ``name`` adds ``coef * cols[name]`` (coef >= 0)."""
     from softsbi.core.interfaces import Effect
