@@ -245,6 +245,87 @@ def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) 
     return changed
 
 
+def keep_backfilled(old: Sequence[list[Any]], new: Sequence[list[Any]]) -> list[list[Any]]:
+    """A row's refits after it was decided again (``new``), with the energy and posterior-mean drops
+    (``refits[i][6:8]``) that backfills (``truth-energy``, ``pm-rollout``) stored in the row but not in
+    diagnosis.json carried over from ``old`` for the same refit: the refit's runs are unchanged."""
+    before = {x[0]: list(x) + [None] * (8 - len(x)) for x in old}
+    out = []
+    for x in new:
+        x, b = list(x) + [None] * (8 - len(x)), before.get(x[0], [None] * 8)
+        out.append(x[:6] + [b[i] if x[i] is None else x[i] for i in (6, 7)])
+    return out
+
+
+def unresolved_refit_checks(d: dict[str, Any]) -> list[dict[str, Any]]:
+    """The refits of a stored diagnosis ``d`` whose check (``misspecification_after``) stopped at a first stage
+    that does not resolve its decision (:func:`softsbi.workflows.screening.joint_resolved`) and did not grow."""
+    from softsbi.workflows.screening import joint_resolved
+    from softsbi.workflows.stats import MCPValue
+    out = []
+    for c in d.get("confirmed") or []:
+        m = c.get("misspecification_after") or {}
+        if not m or m.get("extended") or m.get("n_null", 0) >= m.get("max_null", 0):
+            continue
+        ps = [MCPValue(t["exceed"], t["n_null"]) for t in (m.get("omnibus"), m.get("directional")) if t]
+        if ps and not joint_resolved(ps, m["alpha"] / len(ps)):
+            out.append(c)
+    return out
+
+
+def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
+                 ids: Sequence[str] | None = None) -> list[str]:
+    """Rule 3 with resolved refit checks: for every stored row (or ``ids``) whose run directory (looked up in
+    ``outs``) has a refit whose check the first stage did not resolve (:func:`unresolved_refit_checks`), that
+    check is decided again as ``misspecification_verdict`` now does: the refit's posterior-predictive rollouts
+    re-simulated with their seeds, the null grown to its cap. Then rule 3 is applied again
+    (:func:`softsbi.workflows.diagnose.redecide`). The old diagnosis is kept as ``diagnosis.before-recheck.json``
+    and each rechecked refit keeps its first-stage test in ``misspecification_first_stage``; the row's verdict
+    fields are replaced and the old ones kept in ``rechecked``. ``results`` is rewritten after each row, so an
+    interrupted call continues where it stopped. Returns the ids whose verdict or name changed."""
+    from softsbi.workflows.diagnose import redecide
+    from softsbi.workflows.screening import candidate_effects, misspecification_verdict
+    from softsbi.workflows.stats import PosteriorPredictive
+    rows = load_rows(results)
+    changed = []
+    for r in rows:
+        if (ids and r["id"] not in ids) or "rechecked" in r:
+            continue
+        run_dir = find_run_dir(outs, r["id"])
+        if run_dir is None:
+            continue
+        d = json.loads((run_dir / "diagnosis.json").read_text())
+        todo = unresolved_refit_checks(d)
+        if not todo:
+            continue
+        old = run_dir / "diagnosis.before-recheck.json"
+        if not old.exists():
+            old.write_text((run_dir / "diagnosis.json").read_text())
+        t0 = time.perf_counter()
+        for c in todo:
+            m = c["misspecification_after"]
+            pool = PosteriorPredictive(c["run"], workers).ensure(int(m["n_null"]))
+            c["misspecification_first_stage"] = m
+            c["misspecification_after"] = misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"],
+                                                                   int(m["max_null"]))[0]
+        confirm = r.get("budget", {}).get("confirm") or int(r["id"].split("-refit")[1][0])
+        d = redecide(run_dir, d, confirm, workers)
+        (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
+        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
+        new["refits"] = keep_backfilled(r.get("refits") or [], new["refits"])
+        if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
+            changed.append(r["id"])
+        print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
+                          "after": [new["verdict"], new["named"]],
+                          "checks": [[c["effect"], c["misspecification_first_stage"]["p_text"],
+                                      c["misspecification_after"]["p_text"]] for c in todo],
+                          "s": round(time.perf_counter() - t0)}), flush=True)
+        r.update(new, rechecked={"verdict": r["verdict"], "named": r["named"],
+                                 "refits": [c["effect"] for c in todo]})
+        save_rows(results, rows)
+    return changed
+
+
 def row_alpha(r: dict[str, Any]) -> float:
     """The level a stored row was decided at (rows stored before the field: 0.01, the default of the time)."""
     return float((r.get("budget") or {}).get("alpha", 0.01))
@@ -853,6 +934,13 @@ def main() -> None:
     rd.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     rd.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
+    rc = sub.add_parser("recheck", help="decide again, with the null grown, the refit checks of stored rows that "
+                                        "the first stage did not resolve, then apply rule 3 again")
+    rc.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    rc.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                    help="folders holding the cases' run directories")
+    rc.add_argument("--ids", default=None, help="comma-separated case ids (default: every row with such a refit)")
+    rc.add_argument("--list", action="store_true", help="only list the rows and refits that would be rechecked")
     rg = sub.add_parser("rediagnose", help="diagnose again, at another level, the stored rows whose verdict could "
                                            "change at it (from their stored nominal runs)")
     rg.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
@@ -885,6 +973,19 @@ def main() -> None:
                     print(r["id"], r["truth_label"], r.get("misspecification_p"), find_run_dir(a.out, r["id"]))
             return
         print(f"changed: {rediagnose_rows(a.results, a.out, a.alpha, 1, ids)}")
+        return
+    if a.cmd == "recheck":
+        ids = a.ids.split(",") if a.ids else None
+        if a.list:
+            for r in load_rows(a.results):
+                run_dir = find_run_dir(a.out, r["id"])
+                if run_dir is not None and (not ids or r["id"] in ids) and "rechecked" not in r:
+                    todo = unresolved_refit_checks(json.loads((run_dir / "diagnosis.json").read_text()))
+                    if todo:
+                        print(r["id"], r["truth_label"], r["verdict"], r["named"],
+                              [[c["effect"], c["misspecification_after"]["p_text"]] for c in todo])
+            return
+        print(f"changed: {recheck_rows(a.results, a.out, 1, ids)}")
         return
     if a.cmd == "redecide":
         print(f"changed: {redecide_rows(a.results, a.out)}")

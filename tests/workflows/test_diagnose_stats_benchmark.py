@@ -170,3 +170,23 @@ def test_a_stored_row_is_rediagnosed_at_a_new_level_only_when_one_of_its_decisio
     assert bench.can_change_at(row(0.13, n_null=30), 0.05)          # a null the eager extension would now grow
     assert bench.can_change_at(row(0.03, alpha=0.05), 0.01)          # and back
     assert not bench.can_change_at({"id": "e", "error": "boom"}, 0.05)
+
+
+def test_recheck_finds_the_refit_checks_the_first_stage_left_unresolved_and_keeps_backfilled_drops():
+    """``recheck`` takes a refit's check again only when its first stage did not resolve rule 3's decision
+    (1-6 exceedances in 30 at 0.1 per test) and it did not grow; a decided-again row keeps the energy and
+    posterior-mean drops that backfills stored in the row only."""
+    def check(k_omni, k_dir, n=30, extended=False):
+        return {"misspecification_after": {"alpha": 0.2, "n_null": n, "max_null": 200, "extended": extended,
+                                           "omnibus": {"exceed": k_omni, "n_null": n},
+                                           "directional": {"exceed": k_dir, "n_null": n}}}
+    d = {"confirmed": [dict(check(0, 9), effect="a"), dict(check(3, 12), effect="b"), dict(check(9, 12), effect="c"),
+                       dict(check(3, 12, n=200, extended=True), effect="d"), dict(check(2, 8, n=200), effect="e")]}
+    assert [c["effect"] for c in bench.unresolved_refit_checks(d)] == ["b"]
+    old = [["a", 0.5, 0.3, False, None, None, 0.4, 0.6], ["b", 0.2, 0.26, False, None, None]]
+    new = [["b", 0.2, 0.05, True, None, None, None, None], ["a", 0.5, 0.3, False, None, None, 0.45, None],
+           ["a+b", 0.6, 0.5, False, None, None, 0.7, 0.8]]
+    kept = bench.keep_backfilled(old, new)
+    assert kept[0] == ["b", 0.2, 0.05, True, None, None, None, None]
+    assert kept[1] == ["a", 0.5, 0.3, False, None, None, 0.45, 0.6]  # the new energy drop, the backfilled one
+    assert kept[2] == new[2]
