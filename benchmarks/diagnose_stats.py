@@ -285,7 +285,7 @@ def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
     interrupted call continues where it stopped. Returns the ids whose verdict or name changed."""
     from softsbi.workflows.diagnose import redecide
     from softsbi.workflows.screening import candidate_effects, misspecification_verdict
-    from softsbi.workflows.stats import PosteriorPredictive
+    from softsbi.workflows.stats import N_NULL, PosteriorPredictive
     rows = load_rows(results)
     changed = []
     for r in rows:
@@ -304,7 +304,8 @@ def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
         t0 = time.perf_counter()
         for c in todo:
             m = c["misspecification_after"]
-            pool = PosteriorPredictive(c["run"], workers).ensure(int(m["n_null"]))
+            # the first stage as confirm_effect requested it (n_null counts the successes among those requests)
+            pool = PosteriorPredictive(c["run"], workers).ensure(int(d.get("n_null_start", N_NULL)))
             c["misspecification_first_stage"] = m
             c["misspecification_after"] = misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"],
                                                                    int(m["max_null"]))[0]
