@@ -32,6 +32,15 @@ class Param:
         log: if True the prior is log-uniform and inference works on ``log(value)``;
             requires ``low > 0``.
         description: one line for humans.
+        limits: ``(lowest, highest)`` values that are physically meaningful (a simulator accepts any value
+            inside them), wider than or equal to the prior box; the prior bounds are a default guess that the
+            user widens with ``--bounds`` up to these. None: ``(0, inf)`` for a log-scaled parameter or one
+            whose prior starts at or above 0 (a stiffness, a friction coefficient, a noise level), else
+            ``(-inf, inf)`` (a wind component, an offset). See :attr:`physical_limits`.
+
+    Raises:
+        ParameterError: ``low >= high``, a log-scaled parameter with ``low <= 0``, or limits that do not
+            contain ``[low, high]``.
     """
 
     name: str
@@ -40,12 +49,26 @@ class Param:
     unit: str = "1"
     log: bool = False
     description: str = ""
+    limits: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if not self.low < self.high:
             raise ParameterError(f"parameter '{self.name}': low ({self.low}) must be < high ({self.high})")
         if self.log and self.low <= 0:
             raise ParameterError(f"parameter '{self.name}' is log-scaled, so low must be > 0 (got {self.low})")
+        if self.limits is not None:
+            object.__setattr__(self, "limits", (float(self.limits[0]), float(self.limits[1])))
+        lo, hi = self.physical_limits
+        if not (lo <= self.low and self.high <= hi):
+            raise ParameterError(f"parameter '{self.name}': prior bounds [{self.low:g}, {self.high:g}] {self.unit} "
+                                 f"must lie within its physical limits [{lo:g}, {hi:g}] {self.unit}")
+
+    @property
+    def physical_limits(self) -> tuple[float, float]:
+        """``(lowest, highest)`` physically meaningful value: :attr:`limits`, or the default described there."""
+        if self.limits is not None:
+            return self.limits
+        return (0.0, math.inf) if (self.log or self.low >= 0) else (-math.inf, math.inf)
 
 
 class ParamSpace:
@@ -97,15 +120,22 @@ class ParamSpace:
         return ParamSpace([self[n] for n in names])
 
     def with_bounds(self, overrides: Mapping[str, tuple[float, float]]) -> "ParamSpace":
-        """Return a copy with some bounds replaced: ``{"bend": (1e-6, 1e-3)}``."""
+        """Return a copy with some prior bounds replaced: ``{"bend": (1e-6, 1e-3)}``. The new bounds may be
+        wider than the declared ones, up to the parameter's :attr:`Param.physical_limits`.
+
+        Raises:
+            ParameterError: an unknown name, ``low >= high``, or bounds outside the physical limits.
+        """
+        for n in overrides:
+            self[n]  # raises ParameterError for unknown names
         out = []
         for p in self.params:
             if p.name in overrides:
                 lo, hi = overrides[p.name]
+                if p.limits is None:  # keep the declared default's limits, not the new bounds' default
+                    p = dataclasses.replace(p, limits=p.physical_limits)
                 p = dataclasses.replace(p, low=float(lo), high=float(hi))
             out.append(p)
-        for n in overrides:
-            self[n]  # raises ParameterError for unknown names
         return ParamSpace(out)
 
     # -- transforms -----------------------------------------------------------------
@@ -159,20 +189,28 @@ class ParamSpace:
         """``n`` draws ``(n, D)`` from the (log-)uniform prior, physical units."""
         return self.from_unit(rng.random((n, self.dim)))
 
-    def check(self, theta: Mapping[str, float], *, allow_missing: bool = False) -> dict[str, float]:
-        """Validate a name->value mapping: known names, finite values inside the bounds.
+    def check(self, theta: Mapping[str, float], *, allow_missing: bool = False,
+              within: str = "prior") -> dict[str, float]:
+        """Validate a name->value mapping: known names, finite values inside the prior bounds
+        (``within="prior"``) or inside the physical limits (``within="limits"``: what a simulator accepts, so
+        that a prior widened with ``--bounds`` beyond the declared one can be simulated).
 
         Raises:
             ParameterError: unknown name (with the closest valid name), value outside
-                ``[low, high]`` or not finite, or a missing name (unless ``allow_missing``).
+                ``[low, high]`` (or the limits) or not finite, or a missing name (unless ``allow_missing``).
+            ValueError: ``within`` not ``"prior"`` or ``"limits"``.
         """
+        if within not in ("prior", "limits"):
+            raise ValueError(f"within must be 'prior' or 'limits', got {within!r}")
         out: dict[str, float] = {}
         for k, v in theta.items():
             p = self[k]
             v = float(v)
-            if not math.isfinite(v) or v < p.low or v > p.high:
+            lo, hi = (p.low, p.high) if within == "prior" else p.physical_limits
+            if not math.isfinite(v) or v < lo or v > hi:
+                what = "bounds" if within == "prior" else "physical limits"
                 raise ParameterError(
-                    f"parameter '{k}' = {v:g} {p.unit} is outside its bounds [{p.low:g}, {p.high:g}] {p.unit}; "
+                    f"parameter '{k}' = {v:g} {p.unit} is outside its {what} [{lo:g}, {hi:g}] {p.unit}; "
                     f"choose a value inside them")
             out[k] = v
         if not allow_missing:
@@ -194,11 +232,23 @@ class ParamSpace:
         return self.as_dict(self.from_unit(np.full(self.dim, 0.5)))
 
     def to_json(self) -> list[dict[str, Any]]:
-        return [dataclasses.asdict(p) for p in self.params]
+        """The parameters as JSON-able dicts (``limits`` only where set, as ``[low, high]``; infinite ends as
+        None)."""
+        out = []
+        for p in self.params:
+            d = dataclasses.asdict(p)
+            if p.limits is None:
+                d.pop("limits")
+            else:
+                d["limits"] = [None if math.isinf(v) else v for v in p.limits]
+            out.append(d)
+        return out
 
     @classmethod
     def from_json(cls, data: Sequence[Mapping[str, Any]]) -> "ParamSpace":
-        return cls([Param(**d) for d in data])
+        def limits(v):
+            return None if v is None else (-math.inf if v[0] is None else v[0], math.inf if v[1] is None else v[1])
+        return cls([Param(**{**d, "limits": limits(d.get("limits"))}) for d in data])
 
     def __repr__(self) -> str:
         inner = ", ".join(f"{p.name}[{p.low:g},{p.high:g}]{p.unit}{'(log)' if p.log else ''}" for p in self.params)

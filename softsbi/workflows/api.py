@@ -77,7 +77,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
         :class:`~softsbi.core.types.Rollout` (``vertices (T, N, 3)`` m, ``gripper``, ``times``, status).
 
     Raises:
-        PluginNotFound: unknown backend or effect. ParameterError: unknown or out-of-bounds parameter.
+        PluginNotFound: unknown backend or effect. ParameterError: unknown parameter or a value outside its physical limits.
     """
     sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     reg = registry()
@@ -87,7 +87,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
         space = space + reg.effect(e)().param_space()
     values = space.midpoint()
     values.update(dict(theta or {}))
-    return sim.simulate(sc, space.check(values), effects=list(effects), seed=int(seed))
+    return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))
 
 
 __all__ = ["FitConfig", "FitResult", "Run", "calibrate_run", "fit", "load_scenario", "open_run", "simulate"]

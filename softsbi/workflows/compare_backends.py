@@ -79,7 +79,7 @@ def backend_theta(space, theta: Mapping[str, float], match: str = "physical",
         else:
             vals[n] = float(v)
             src[n] = "given"
-    return space.check(vals), src
+    return space.check(vals, within="limits"), src
 
 
 def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = None,

@@ -87,7 +87,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
 
     Raises:
         SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect;
-        ParameterError: unknown or out-of-bounds parameter; RenderingUnavailable: no OpenGL;
+        ParameterError: unknown parameter or a value outside its physical limits (not its prior: a widened prior is simulated); RenderingUnavailable: no OpenGL;
         SoftsbiError: ``render`` not positive, or the frames would exceed ``render_memory_gb``.
     """
     out = Path(out)
@@ -102,7 +102,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
         space = space + reg.effect(e)().param_space()
     values = space.midpoint()
     values.update(dict(theta or {}))
-    values = space.check(values)
+    values = space.check(values, within="limits")
     if render is not None:
         check_render_memory(render, len(sc.times), render_memory_gb)
     t0 = time.perf_counter()

@@ -112,8 +112,10 @@ def test_each_parameter_changes_outcome(sim, scenario, theta, name):
 
 
 def test_parameter_errors(sim, scenario, theta):
-    with pytest.raises(ParameterError, match="outside its bounds"):
-        sim.simulate(scenario, dict(theta, bend=1.0))
+    with pytest.raises(ParameterError, match="outside its physical limits"):
+        sim.simulate(scenario, dict(theta, bend=-1.0))
+    # beyond the declared prior but physical (a prior widened with --bounds): simulated
+    assert sim.simulate(scenario, dict(theta, friction=2.0)).ok
     with pytest.raises(ParameterError, match="unknown parameter"):
         sim.simulate(scenario, dict(theta, bendd=1e-5))
     missing = dict(theta)

@@ -141,8 +141,8 @@ def test_failure_detection_fires(scenario, theta):
 
 
 def test_bad_input(sim, scenario, theta):
-    with pytest.raises(ParameterError, match="outside its bounds"):
-        sim.simulate(scenario, dict(theta, stretch=1e6))
+    with pytest.raises(ParameterError, match="outside its physical limits"):
+        sim.simulate(scenario, dict(theta, stretch=-1.0))
     with pytest.raises(ParameterError, match="Valid parameters: bend, stretch"):
         sim.simulate(scenario, dict(theta, bendd=1.0))
     with pytest.raises(ParameterError, match="supported effects"):

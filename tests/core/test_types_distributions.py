@@ -1,4 +1,7 @@
 """ParamSpace transforms and the sequential proposal correction against exact posteriors."""
+import json
+import math
+
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal, norm
@@ -37,6 +40,36 @@ def test_check_names_the_problem():
         ps.check({"friction": 0.3})
     with pytest.raises(ParameterError, match="low"):
         Param("x", 1.0, 0.5)
+
+
+def test_prior_bounds_widen_up_to_the_physical_limits_and_a_simulator_accepts_them():
+    """``--bounds`` may widen a prior beyond the declared guess (the fix ``bound_sentence`` advises); the
+    physical limits, not the declared prior, bound what can be simulated."""
+    friction, noise, wind = Param("friction", 0.05, 1.5), Param("noise_std", 0.0, 0.01, "m"), Param("wind_x", -1.0, 1.0)
+    assert friction.physical_limits == (0.0, math.inf) and noise.physical_limits == (0.0, math.inf)
+    assert wind.physical_limits == (-math.inf, math.inf)
+    assert Param("bend", 1e-6, 1e-3, log=True).physical_limits == (0.0, math.inf)
+    declared = ParamSpace([friction, noise, wind])
+    wide = declared.with_bounds({"friction": (0.05, 2.5), "wind_x": (-3.0, 1.0)})
+    assert (wide["friction"].high, wide["wind_x"].low) == (2.5, -3.0)
+    # the declared space refuses the widened prior's draws as prior values but accepts them as physical ones
+    with pytest.raises(ParameterError, match="outside its bounds"):
+        declared.check({"friction": 2.0}, allow_missing=True)
+    assert declared.check({"friction": 2.0, "noise_std": 0.02, "wind_x": -3.0}, within="limits")["friction"] == 2.0
+    with pytest.raises(ParameterError, match="outside its physical limits"):
+        declared.check({"noise_std": -0.001}, allow_missing=True, within="limits")
+    # bounds beyond the physical limits: one line naming them
+    with pytest.raises(ParameterError, match=r"noise_std.*within its physical limits \[0, inf\]"):
+        declared.with_bounds({"noise_std": (-0.01, 0.01)})
+    # a widened prior keeps the declared parameter's limits (a prior moved to [0.5, 2] is still >= 0, not >= 0.5)
+    assert declared.with_bounds({"friction": (0.5, 2.0)})["friction"].physical_limits == (0.0, math.inf)
+    explicit = Param("slope", 0.0, 0.1, limits=(-0.5, 0.5))
+    with pytest.raises(ParameterError, match="within its physical limits"):
+        Param("slope", 0.0, 1.0, limits=(-0.5, 0.5))
+    # the JSON round trip keeps limits (infinite ends as None) and leaves parameters without them unchanged
+    for ps in (declared, wide, ParamSpace([explicit])):
+        assert ParamSpace.from_json(json.loads(json.dumps(ps.to_json()))) == ps
+    assert "limits" not in declared.to_json()[0]
 
 
 def test_mixture_log_prob_matches_scipy():

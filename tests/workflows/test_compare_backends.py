@@ -43,8 +43,8 @@ def test_api_errors_and_unit_match():
     sc = make_scenario("lift")
     with pytest.raises(PluginNotFound, match="pybullet-massspring"):
         compare_backends(sc, {}, ("mujoco-flex", "pybullet-masspring"))
-    with pytest.raises(ParameterError, match="outside its bounds"):
-        compare_backends(sc, {"friction": 9.0}, BACKENDS,
+    with pytest.raises(ParameterError, match="outside its physical limits"):
+        compare_backends(sc, {"friction": -0.1}, BACKENDS,
                          backend_options={"mujoco-flex": {"grid": 4}, "pybullet-massspring": {"grid": 4}})
     rep = compare_backends(sc, {"bend": 0.0}, BACKENDS, match="unit",
                            backend_options={"mujoco-flex": {"grid": 4}, "pybullet-massspring": {"grid": 4}})

@@ -42,7 +42,7 @@ def test_mujoco_effects_are_plugins_and_change_the_rollout():
         r = sim.simulate(sc, {**base, **reg.effect(name)().nominal()}, effects=[name])
         np.testing.assert_allclose(r.vertices, r0.vertices, atol=1e-9, err_msg=name)
     with pytest.raises(ParameterError, match="wind_x"):
-        sim.simulate(sc, {**base, "wind_x": 9.0, "wind_y": 0.0}, effects=["wind"])
+        sim.simulate(sc, {**base, "wind_x": float("nan"), "wind_y": 0.0}, effects=["wind"])
     with pytest.raises(ParameterError, match="supported effects"):
         sim.simulate(sc, base, effects=["toy-wind"])
 
@@ -360,3 +360,4 @@ def test_a_resumed_diagnosis_judges_a_stored_pair_refit_as_a_pair(monkeypatch, t
     assert (again["verdict"], again["selected"], again["named_effects"]) == ("missing-effect", "wind",
                                                                              ["wind", "calibration-offset"])
     assert "Refitting with both" in again["summary"]
+

@@ -175,9 +175,21 @@ def test_a_huge_render_is_refused_before_simulating_with_an_estimate_and_an_over
         check_render_memory(0, 25, cap_gb=4)
 
 
+def test_a_prior_widened_beyond_the_declared_one_is_fitted(tmp_path):
+    """The fix bound_sentence advises (``--bounds`` beyond the declared prior) runs: the fit draws and simulates
+    values outside the declared box (toy-gauss declares a in [-1, 1]) and reports the widened prior."""
+    res = run_fit(tmp_path / "w", toy_measurement(truth=(0.9, -0.4)), _cfg(bounds={"a": (-1.0, 3.0)}),
+                  make_plots=False)
+    assert res.report["parameters"][0]["high"] == 3.0
+    theta = RunStore.open(tmp_path / "w" / "run.zarr", mode="r").round_data(0)["theta"]
+    assert (theta[:, 0] > 1.0).any() and res.report["failed_simulations"] == 0
+    with pytest.raises(ParameterError, match="physical limits"):
+        run_fit(tmp_path / "w2", toy_measurement(), _cfg(bounds={"a": (-1.0, float("inf"))}), make_plots=False)
+
+
 def test_out_of_bounds_values_advise_only_options_the_command_has(tmp_path):
-    res = runner.invoke(app, ["simulate", "--theta", "bend=5", "--out", str(tmp_path / "r")])
-    assert res.exit_code == 2 and "outside its bounds" in res.output and "--bounds" not in res.output
+    res = runner.invoke(app, ["simulate", "--theta", "bend=-5", "--out", str(tmp_path / "r")])
+    assert res.exit_code == 2 and "outside its physical limits" in res.output and "--bounds" not in res.output
     with pytest.raises(ParameterError, match="--fix.*--bounds"):
         run_fit(tmp_path / "f", toy_measurement(), _cfg(fixed={"a": 50.0}), make_plots=False)
 

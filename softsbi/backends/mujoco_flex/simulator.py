@@ -153,8 +153,9 @@ class MujocoFlex(Simulator):
 
         Raises:
             ValueError: unknown scenario (names the valid ones).
-            ParameterError: unknown/missing/out-of-bounds parameter, unsupported effect, a rope's old
-                ``bend`` (now ``young``).
+            ParameterError: unknown/missing parameter, a value outside its physical limits
+                (``ParamSpace.check(within="limits")``: a prior widened with ``--bounds`` is simulated),
+                unsupported effect, a rope's old ``bend`` (now ``young``).
         """
         return self._rollout(scenario, theta, effects, seed)
 
@@ -181,7 +182,7 @@ class MujocoFlex(Simulator):
         plan = check_effects(self, effects)
         if scenario.object.get("kind") == "rope":
             check_rope_theta(theta)
-        theta = plan.space(self.param_space(scenario)).check(theta)
+        theta = plan.space(self.param_space(scenario)).check(theta, within="limits")
         t0 = time.perf_counter()
         spec = self.build_spec(scenario, theta, effects, plan=plan)
         if frames is not None:

@@ -206,7 +206,7 @@ class PybulletMassSpring(Simulator):
         check_scenario(self, scenario)
         plan = check_effects(self, effects)
         self.check_legacy_theta(scenario, theta)
-        theta = plan.space(self.param_space(scenario)).check(theta)
+        theta = plan.space(self.param_space(scenario)).check(theta, within="limits")
         p = import_pybullet()
         t0 = time.perf_counter()
         cid = self._client()

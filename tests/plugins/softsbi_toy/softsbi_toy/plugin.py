@@ -94,7 +94,7 @@ class ToyGauss(Simulator):
         space = self.param_space(scenario)
         if "toy-wind" in effects:
             space = space + ToyWind().param_space()
-        vals = space.check({k: v for k, v in theta.items() if k in space.names})
+        vals = space.check({k: v for k, v in theta.items() if k in space.names}, within="limits")
         T = scenario.n_frames
         # test hooks: slow simulations (to kill a fit mid-round) and a divergence region
         if os.environ.get("SOFTSBI_TOY_SLEEP"):
