@@ -34,7 +34,7 @@ import json
 import time
 from collections import Counter, defaultdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import stats
@@ -83,6 +83,12 @@ SUITES: dict[str, dict[str, Any]] = {
               "effects": ["wind", "extra-damping", "calibration-offset"],
               "candidates": NAMED_CANDIDATES,
               "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
+    # one named effect hidden beyond its declared prior (magnitude 1-1.5: the parameter goes past the prior's edge
+    # by up to half the distance from its switched-off value), the case confirm_effect's widening is for: a user's
+    # effect larger than its prior's guess. Stored apart (magnitudes above 1 are outside the power curves' range)
+    "beyond-prior": {"backend": "mujoco-flex", "scenarios": ["lift", "wipe", "fling", "wind"],
+                     "effects": NAMED_CANDIDATES, "candidates": NAMED_CANDIDATES, "magnitude_range": [1.0, 1.5],
+                     "backend_options": {"grid": 7}, "n_points": 64, "n_dense": 300, "estimator_options": {}},
     "toy": {"backend": "toy-gauss", "scenarios": ["toy"], "effects": ["toy-wind"], "backend_options": {},
             "n_points": 16, "n_dense": 64, "estimator_options": {"max_epochs": 80, "hidden": [64, 64]}},
 }
@@ -273,6 +279,26 @@ def unresolved_refit_checks(d: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
+def stored_diagnoses(rows: list[dict[str, Any]], outs: Sequence[Path], ids: Sequence[str] | None, done: str,
+                     select: Callable[[dict[str, Any]], list[dict[str, Any]]], keep_as: str | None = None):
+    """The stored rows (or ``ids``) not yet marked ``done`` whose run directory (looked up in ``outs``) holds a
+    diagnosis in which ``select`` finds refits: yields ``(row, run_dir, diagnosis, selected)``, after keeping the
+    diagnosis as ``run_dir / keep_as`` (once; an interrupted call keeps the first)."""
+    for r in rows:
+        if (ids and r["id"] not in ids) or done in r:
+            continue
+        run_dir = find_run_dir(outs, r["id"])
+        if run_dir is None:
+            continue
+        d = json.loads((run_dir / "diagnosis.json").read_text())
+        todo = select(d)
+        if not todo:
+            continue
+        if keep_as and not (run_dir / keep_as).exists():
+            (run_dir / keep_as).write_text((run_dir / "diagnosis.json").read_text())
+        yield r, run_dir, d, todo
+
+
 def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                  ids: Sequence[str] | None = None) -> list[str]:
     """Rule 3 with resolved refit checks: for every stored row (or ``ids``) whose run directory (looked up in
@@ -288,19 +314,8 @@ def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
     from softsbi.workflows.stats import N_NULL, PosteriorPredictive
     rows = load_rows(results)
     changed = []
-    for r in rows:
-        if (ids and r["id"] not in ids) or "rechecked" in r:
-            continue
-        run_dir = find_run_dir(outs, r["id"])
-        if run_dir is None:
-            continue
-        d = json.loads((run_dir / "diagnosis.json").read_text())
-        todo = unresolved_refit_checks(d)
-        if not todo:
-            continue
-        old = run_dir / "diagnosis.before-recheck.json"
-        if not old.exists():
-            old.write_text((run_dir / "diagnosis.json").read_text())
+    for r, run_dir, d, todo in stored_diagnoses(rows, outs, ids, "rechecked", unresolved_refit_checks,
+                                                "diagnosis.before-recheck.json"):
         t0 = time.perf_counter()
         for c in todo:
             m = c["misspecification_after"]
@@ -323,6 +338,60 @@ def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                           "s": round(time.perf_counter() - t0)}), flush=True)
         r.update(new, rechecked={"verdict": r["verdict"], "named": r["named"],
                                  "refits": [c["effect"] for c in todo]})
+        save_rows(results, rows)
+    return changed
+
+
+def refits_to_widen(d: dict[str, Any]) -> list[dict[str, Any]]:
+    """A stored diagnosis' refits that :func:`softsbi.workflows.diagnose.confirm_effect` would now refit with a wider
+    prior: check rejected them, an added effect's parameter presses a prior bound (``at_bounds``, stored since
+    the field exists) and none was widened. Whether the bound can move (not the switched-off side) is
+    ``confirm_effect``'s call."""
+    return [c for c in d.get("confirmed") or [] if (c.get("misspecification_after") or {}).get("misspecified")
+            and c.get("at_bounds") and "widened" not in c]
+
+
+def rewiden_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
+                 ids: Sequence[str] | None = None) -> list[str]:
+    """Widen pressed priors in stored rows: for every row (or ``ids``) whose run directory (looked up in ``outs``)
+    has a refit :func:`refits_to_widen` lists, ``confirm_effect`` is called again with the diagnosis' settings
+    (the first refit is on disk and resumes as it was; where it may, the widened refit is fitted into
+    ``refit-<effect>-widened``), the refit's entry replaced, and rule 3 applied again
+    (:func:`softsbi.workflows.diagnose.redecide`, which also refits the pair where the rules ask for it). The old
+    diagnosis is kept as ``diagnosis.before-widening.json``; the row's verdict fields are replaced and the old ones
+    kept in ``rewidened``. ``results`` is rewritten after each row, so an interrupted call continues. Returns the
+    ids whose verdict or name changed."""
+    from softsbi.workflows.diagnose import EXPLAIN_ALPHA, confirm_effect, redecide
+    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.stats import MAX_NULL, N_NULL
+    rows = load_rows(results)
+    changed = []
+    for r, run_dir, d, todo in stored_diagnoses(rows, outs, ids, "rewidened", refits_to_widen,
+                                                "diagnosis.before-widening.json"):
+        t0 = time.perf_counter()
+        view = load_run(run_dir)
+        b = r.get("budget") or {}
+        for c in todo:
+            new_c = confirm_effect(view, c["effect"].split("+"), b.get("confirm_budget"), workers,
+                                   alpha=max(d.get("alpha", 0.05), EXPLAIN_ALPHA),
+                                   n_null=int(d.get("n_null_start", N_NULL)), max_null=int(d.get("max_null", MAX_NULL)),
+                                   nominal_bias=d.get("summary_bias"), nominal_energy=d.get("energy"))
+            d["confirmed"][d["confirmed"].index(c)] = new_c
+        confirm = b.get("confirm") or int(r["id"].split("-refit")[1][0])
+        d = redecide(run_dir, d, confirm, workers)
+        (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
+        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
+        if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
+            changed.append(r["id"])
+        widened = [c for c in d["confirmed"] if c.get("widened")]
+        print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
+                          "after": [new["verdict"], new["named"]],
+                          "widened": [[c["effect"], c["widened"]["bounds"],
+                                       c["widened"]["first_misspecification_after"]["p_text"],
+                                       c["misspecification_after"]["p_text"], c.get("drop")] for c in widened],
+                          "s": round(time.perf_counter() - t0)}), flush=True)
+        r.update(new, rewidened={"verdict": r["verdict"], "named": r["named"], "refits": [c["effect"] for c in todo],
+                                 "widened": [c["effect"] for c in widened]})
         save_rows(results, rows)
     return changed
 
@@ -942,6 +1011,13 @@ def main() -> None:
                     help="folders holding the cases' run directories")
     rc.add_argument("--ids", default=None, help="comma-separated case ids (default: every row with such a refit)")
     rc.add_argument("--list", action="store_true", help="only list the rows and refits that would be rechecked")
+    rw = sub.add_parser("rewiden", help="refit with a wider prior the stored refits that check rejected while an "
+                                        "added effect's parameter pressed a prior bound, then apply rule 3 again")
+    rw.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    rw.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                    help="folders holding the cases' run directories")
+    rw.add_argument("--ids", default=None, help="comma-separated case ids (default: every row with such a refit)")
+    rw.add_argument("--list", action="store_true", help="only list the rows and refits that would be widened")
     rg = sub.add_parser("rediagnose", help="diagnose again, at another level, the stored rows whose verdict could "
                                            "change at it (from their stored nominal runs)")
     rg.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
@@ -975,16 +1051,23 @@ def main() -> None:
             return
         print(f"changed: {rediagnose_rows(a.results, a.out, a.alpha, 1, ids)}")
         return
+    if a.cmd == "rewiden":
+        ids = a.ids.split(",") if a.ids else None
+        if a.list:
+            for r, _, _, todo in stored_diagnoses(load_rows(a.results), a.out, ids, "rewidened", refits_to_widen):
+                print(r["id"], r["truth_label"], r["verdict"], r["named"],
+                      [[c["effect"], c["misspecification_after"]["p_text"],
+                        [(e["param"], e["side"]) for e in c["at_bounds"]]] for c in todo])
+            return
+        print(f"changed: {rewiden_rows(a.results, a.out, 1, ids)}")
+        return
     if a.cmd == "recheck":
         ids = a.ids.split(",") if a.ids else None
         if a.list:
-            for r in load_rows(a.results):
-                run_dir = find_run_dir(a.out, r["id"])
-                if run_dir is not None and (not ids or r["id"] in ids) and "rechecked" not in r:
-                    todo = unresolved_refit_checks(json.loads((run_dir / "diagnosis.json").read_text()))
-                    if todo:
-                        print(r["id"], r["truth_label"], r["verdict"], r["named"],
-                              [[c["effect"], c["misspecification_after"]["p_text"]] for c in todo])
+            for r, _, _, todo in stored_diagnoses(load_rows(a.results), a.out, ids, "rechecked",
+                                                  unresolved_refit_checks):
+                print(r["id"], r["truth_label"], r["verdict"], r["named"],
+                      [[c["effect"], c["misspecification_after"]["p_text"]] for c in todo])
             return
         print(f"changed: {recheck_rows(a.results, a.out, 1, ids)}")
         return

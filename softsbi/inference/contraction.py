@@ -18,14 +18,14 @@ quantity spread over decades is meaningless (e.g. 189.8 ± 224 N/m).
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from softsbi.core.types import ParamSpace
 
-__all__ = ["BOUND_MASS_MIN", "BOUND_SLAB", "INFORMED_MAX_RATIO", "bound_pressure", "bound_sentence", "contraction",
-           "contraction_from_report", "format_estimate"]
+__all__ = ["BOUND_MASS_MIN", "BOUND_SLAB", "INFORMED_MAX_RATIO", "WIDEN_FRACTION", "bound_pressure", "bound_sentence",
+           "contraction", "contraction_from_report", "format_estimate", "widened_bounds"]
 
 #: width ratio above which a parameter counts as not informed by the data (module docstring)
 INFORMED_MAX_RATIO = 0.5
@@ -121,6 +121,61 @@ def bound_pressure(space: ParamSpace, samples: np.ndarray, slab: float = BOUND_S
             if mass >= min_mass:
                 out.append({"param": p.name, "side": side, "bound": float(bound), "unit": p.unit, "mass": mass})
     return sorted(out, key=lambda e: -e["mass"])
+
+
+#: how far :func:`widened_bounds` moves a pressed prior bound outward: this fraction of the prior's range, in the
+#: parameter's own scale (log for log-scaled ones). Chosen, not tuned: half the range puts the old bound at a third
+#: (or two thirds) of the new one, inside it with room on both sides, while the prior stays as informative as
+#: the user's guess allows (one widening, not a search)
+WIDEN_FRACTION = 0.5
+
+
+def widened_bounds(space: ParamSpace, pressed: Sequence[Mapping[str, Any]], keep: Mapping[str, float] | None = None,
+                   fraction: float = WIDEN_FRACTION) -> dict[str, tuple[float, float]]:
+    """Prior bounds widened where a posterior presses against them (:func:`bound_pressure`'s entries).
+
+    Each pressed bound moves outward by ``fraction`` of the parameter's prior range in its own scale (log for
+    log-scaled parameters), clipped to its physical limits (:attr:`~softsbi.core.types.Param.physical_limits`).
+    A bound is not moved when it equals ``keep[param]`` (an effect's switched-off value: no noise, a rigid grasp
+    is an edge of what the effect can be, not a guess) or a physical limit.
+
+    Args:
+        space: the prior (physical units).
+        pressed: ``{"param", "side" ("lower"/"upper"), ...}`` entries; parameters not in ``space`` are ignored.
+        keep: values whose bound stays where it is, by parameter name.
+        fraction: in ``(0, 10]``.
+
+    Returns:
+        ``{param: (low, high)}`` in physical units for the parameters widened; ``{}`` when none can be.
+
+    Raises:
+        ValueError: ``fraction`` outside ``(0, 10]`` or a side other than ``"lower"``/``"upper"``.
+    """
+    if not 0 < fraction <= 10:
+        raise ValueError(f"fraction must lie in (0, 10], got {fraction}")
+    keep = dict(keep or {})
+    out: dict[str, tuple[float, float]] = {}
+    for e in pressed:
+        if e["param"] not in space.names:
+            continue
+        if e["side"] not in ("lower", "upper"):
+            raise ValueError(f"side must be 'lower' or 'upper', got {e['side']!r}")
+        p = space[e["param"]]
+        lo, hi = out.get(p.name, (p.low, p.high))
+        bound = p.low if e["side"] == "lower" else p.high
+        limit = p.physical_limits[0] if e["side"] == "lower" else p.physical_limits[1]
+        if (p.name in keep and np.isclose(keep[p.name], bound)) or bound == limit:
+            continue
+        t0, t1 = (np.log(p.low), np.log(p.high)) if p.log else (p.low, p.high)
+        step = fraction * (t1 - t0)
+        if e["side"] == "lower":
+            new = float(np.exp(t0 - step)) if p.log else t0 - step
+            lo = max(new, limit)
+        else:
+            new = float(np.exp(t1 + step)) if p.log else t1 + step
+            hi = min(new, limit)
+        out[p.name] = (float(lo), float(hi))
+    return out
 
 
 def bound_sentence(e: Mapping[str, Any], slab: float = BOUND_SLAB) -> str:

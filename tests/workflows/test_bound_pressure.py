@@ -7,7 +7,7 @@ import pytest
 
 import softsbi
 from softsbi.core.types import Param, ParamSpace
-from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence
+from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence, widened_bounds
 
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402
@@ -112,3 +112,24 @@ def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     assert "The fit's posterior: b's posterior presses against its lower prior bound -1 (35% of its mass" in \
         pressed["summary"]
     assert pressed["misspecification"]["p_value"] == plain["misspecification"]["p_value"]  # the test is unchanged
+
+
+def test_widened_bounds_move_a_pressed_bound_half_the_range_outward_but_never_past_an_edge():
+    """widened_bounds: half the range in the parameter's own scale (a decade and a half for bend's three decades),
+    clipped to the physical limits; an effect's switched-off value (keep) and a physical limit stay put."""
+    space = ParamSpace([Param("bend", 1e-6, 1e-3, "N*m", log=True), Param("wind_x", -2.0, 2.0, "m/s"),
+                        Param("noise_std", 0.0, 0.01, "m"), Param("friction", 0.2, 1.0, limits=(0.0, 1.1))])
+    pressed = [{"param": "bend", "side": "lower"}, {"param": "wind_x", "side": "lower"},
+               {"param": "wind_x", "side": "upper"}, {"param": "noise_std", "side": "lower"},
+               {"param": "noise_std", "side": "upper"}, {"param": "friction", "side": "upper"},
+               {"param": "not-inferred", "side": "upper"}]
+    new = widened_bounds(space, pressed, keep={"noise_std": 0.0, "wind_x": 0.0})
+    assert new["bend"] == (pytest.approx(10 ** -7.5), 1e-3)
+    assert new["wind_x"] == (-4.0, 4.0)  # both sides pressed (a bimodal posterior): both move
+    assert new["noise_std"] == (0.0, 0.015)  # the switched-off side (no noise) stays
+    assert new["friction"] == (0.2, 1.1)  # clipped to the explicit physical limit
+    assert widened_bounds(space, [{"param": "noise_std", "side": "lower"}], keep={"noise_std": 0.0}) == {}
+    assert widened_bounds(space, []) == {}
+    assert widened_bounds(space, [{"param": "friction", "side": "lower"}], fraction=1.0)["friction"] == (0.0, 1.0)
+    with pytest.raises(ValueError, match="fraction"):
+        widened_bounds(space, pressed, fraction=0.0)

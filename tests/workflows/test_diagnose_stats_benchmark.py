@@ -190,3 +190,18 @@ def test_recheck_finds_the_refit_checks_the_first_stage_left_unresolved_and_keep
     assert kept[0] == ["b", 0.2, 0.05, True, None, None, None, None]
     assert kept[1] == ["a", 0.5, 0.3, False, None, None, 0.45, 0.6]  # the new energy drop, the backfilled one
     assert kept[2] == new[2]
+
+
+def test_rewiden_takes_only_rejected_refits_that_press_a_bound_and_were_not_widened():
+    """``rewiden`` refits again only what confirm_effect would now widen: check rejected the refit, an added
+    effect's parameter presses a prior bound, and it has no ``widened`` entry yet."""
+    pressed = [{"param": "wind_x", "side": "lower"}]
+    d = {"confirmed": [{"effect": "a", "misspecification_after": {"misspecified": True}, "at_bounds": pressed},
+                       {"effect": "b", "misspecification_after": {"misspecified": False}, "at_bounds": pressed},
+                       {"effect": "c", "misspecification_after": {"misspecified": True}, "at_bounds": []},
+                       {"effect": "d", "misspecification_after": {"misspecified": True}},
+                       {"effect": "e", "misspecification_after": {"misspecified": True}, "at_bounds": pressed,
+                        "widened": {"bounds": {}}},
+                       {"effect": "f", "at_bounds": pressed}]}
+    assert [c["effect"] for c in bench.refits_to_widen(d)] == ["a"]
+    assert bench.refits_to_widen({}) == []

@@ -223,3 +223,66 @@ def test_explained_share_below_the_rule_never_reads_as_equal_to_it():
     from softsbi.workflows.diagnose import _pct_below
     assert _pct_below(0.0996, 0.10) == "9.96% < 10.00%"
     assert _pct_below(0.04, 0.10) == "4% < 10%"
+
+
+def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with_the_bound_widened(monkeypatch,
+                                                                                                  tmp_path):
+    """confirm_effect's widening, with the fit and check replaced: the first refit presses the effect's upper
+    prior bound and check rejects it -> one more refit into refit-<effect>-widened with that bound moved half the
+    range outward (never the switched-off side); its numbers are returned, the first refit's kept. A refit that
+    check accepts, or one that presses only the switched-off side, is not refitted."""
+    import types
+
+    import softsbi.workflows.diagnose as dg
+    fits = []
+
+    def fake_fit(out, rec, cfg):
+        fits.append((out.name, dict(cfg.bounds)))
+        wide = "widened" in out.name
+        pressed = [] if wide else [{"param": "noise_std", "side": side, "bound": 0.01, "unit": "m", "mass": 0.4}
+                                   for side in sides]
+        return types.SimpleNamespace(report={"chamfer_posterior_m": 0.01 if wide else 0.02, "chamfer_posterior_std_m": 0.001,
+                                             "chamfer_posterior_n": 30, "posterior_mean": {"noise_std": 0.012},
+                                             "posterior_at_bounds": pressed})
+
+    class _Pool:
+        def __init__(self, out, workers=None):
+            self.run = types.SimpleNamespace(path=out)
+
+        def ensure(self, n):
+            return self
+
+    def fake_verdict(pool, candidates, alpha, max_null):
+        wide = "widened" in pool.run.path.name
+        return [{"misspecified": not wide and reject, "p_text": "p = 0.05" if not wide else "p = 0.6"}]
+
+    class _Run:
+        config = {"backend": "mujoco-flex", "scenario": {}}
+        effects: list = []
+        path = tmp_path
+        report = {"chamfer_posterior_m": 0.03}
+
+    monkeypatch.setattr(dg, "run_fit", fake_fit)
+    monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
+    monkeypatch.setattr(dg, "PosteriorPredictive", _Pool)
+    monkeypatch.setattr(dg, "misspecification_verdict", fake_verdict)
+    monkeypatch.setattr(dg, "candidate_effects", lambda run: [])
+    monkeypatch.setattr(dg, "posterior_mean_chamfer", lambda run, workers=None: None)
+    monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(lambda cls, c: cls(rounds=2, sims_per_round=10)))
+    sides, reject = ["upper"], True
+    c = dg.confirm_effect(_Run(), "point-noise")
+    assert fits == [("refit-point-noise", {}), ("refit-point-noise-widened", {"noise_std": (0.0, 0.015)})]
+    assert c["widened"]["bounds"] == {"noise_std": [0.0, 0.01, 0.0, 0.015]}
+    assert c["run"].endswith("refit-point-noise-widened") and not c["misspecification_after"]["misspecified"]
+    assert c["widened"]["first_chamfer_after_m"] == 0.02 and c["chamfer_after_m"] == 0.01
+    assert c["widened"]["first_misspecification_after"]["misspecified"]
+    # the sentence and the printed rule say what was done
+    sentence = dg._refit_sentence({**c, "chamfer_before_m": 0.03}, "point-noise", 0.2)
+    assert "second refit with a wider prior (noise_std from [0, 0.01] to [0, 0.015] m)" in sentence
+    for sides, reject in ((["upper"], False), (["lower"], True)):  # accepted; pressing the switched-off side only
+        fits.clear()
+        c = dg.confirm_effect(_Run(), "point-noise")
+        assert [f[0] for f in fits] == ["refit-point-noise"] and "widened" not in c
+    sides, reject = ["upper"], True
+    fits.clear()
+    assert "widened" not in dg.confirm_effect(_Run(), "point-noise", widen=False) and len(fits) == 1
