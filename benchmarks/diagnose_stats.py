@@ -381,6 +381,7 @@ def rewiden_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
         d = redecide(run_dir, d, confirm, workers)
         (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
         new = row_fields({k: r[k] for k in CASE_KEYS}, d)
+        new["refits"] = keep_backfilled(r.get("refits") or [], new["refits"])  # a widened refit computes its own
         if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
             changed.append(r["id"])
         widened = [c for c in d["confirmed"] if c.get("widened")]
