@@ -278,7 +278,9 @@ class Simulator(ABC):
             so a batch of simulations survives one bad sample.
 
         Raises:
-            ParameterError: unknown/missing parameter, value out of bounds, unsupported effect.
+            ParameterError: unknown/missing parameter, a value outside its physical limits
+                (``ParamSpace.check(theta, within="limits")``: values beyond the declared prior but physical are
+                simulated, so that a prior widened with ``--bounds`` can be fitted), unsupported effect.
             ValueError: a scenario this backend cannot run.
         """
 

@@ -7,6 +7,7 @@ shapes and units, finiteness, determinism and the documented errors for bad inpu
 from __future__ import annotations
 
 import inspect
+import math
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,8 @@ def check_simulator(sim: type[Simulator] | Simulator, scenario: Scenario | str |
     non-empty :class:`ParamSpace`; ``simulate`` at the prior midpoint returns a :class:`Rollout`
     with ``T = scenario.n_frames``, ``times (T,)``, ``gripper (T, 3)``, ``vertices (T, N, 3)``,
     ``faces (F, 3)`` integer indices < N, a known status, finite values when ok; the same seed
-    gives identical vertices; a value above a bound raises :class:`ParameterError`; an unknown
+    gives identical vertices; a value outside the physical limits (:attr:`~softsbi.core.types.Param.physical_limits`; not
+    the declared prior, which ``--bounds`` may widen) or a non-finite one raises :class:`ParameterError`; an unknown
     effect raises :class:`ParameterError`; an unknown scenario raises ``ValueError`` (or
     ``ParameterError``).
 
@@ -106,11 +108,14 @@ def check_simulator(sim: type[Simulator] | Simulator, scenario: Scenario | str |
                 problems.append("not deterministic: the same parameters and seed gave different vertices")
 
     # bad input
+    # outside the physical limits (a prior widened with --bounds beyond the declared one must still simulate)
     p0 = space.params[0]
     span = p0.high - p0.low
-    bad = dict(theta, **{p0.name: p0.high + max(abs(span), 1.0)})
+    lowest = p0.physical_limits[0]
+    bad = dict(theta, **{p0.name: lowest - max(abs(span), 1.0) if math.isfinite(lowest) else math.nan})
     _expect(lambda: inst.simulate(scenario, bad), (ParameterError,), problems,
-            f"a value of '{p0.name}' above its upper bound")
+            f"a value of '{p0.name}' below its physical limit" if math.isfinite(lowest)
+            else f"a non-finite value of '{p0.name}'")
     _expect(lambda: inst.simulate(scenario, theta, effects=["__no_such_effect__"]), (ParameterError,), problems,
             "an unknown effect")
     unknown = Scenario(name="__no_such_scenario__", times=scenario.times, gripper=scenario.gripper,

@@ -46,7 +46,7 @@ def test_checker_finds_problems():
     probs = check_simulator(Broken(), "lift")
     text = "\n".join(probs)
     assert "gripper must be" in text and "deterministic" in text
-    assert "upper bound" in text and "unknown effect" in text and "unknown scenario" in text
+    assert "below its physical limit" in text and "unknown effect" in text and "unknown scenario" in text
     with pytest.raises(ConformanceError, match="broken"):
         check_simulator(Broken(), "lift", raise_on_error=True)
     assert issubclass(ConformanceError, Exception) and not issubclass(ConformanceError, ParameterError)
