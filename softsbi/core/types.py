@@ -60,8 +60,9 @@ class Param:
             object.__setattr__(self, "limits", (float(self.limits[0]), float(self.limits[1])))
         lo, hi = self.physical_limits
         if not (lo <= self.low and self.high <= hi):
-            raise ParameterError(f"parameter '{self.name}': prior bounds [{self.low:g}, {self.high:g}] {self.unit} "
-                                 f"must lie within its physical limits [{lo:g}, {hi:g}] {self.unit}")
+            u = "" if self.unit in ("", "1") else f" {self.unit}"
+            raise ParameterError(f"parameter '{self.name}': prior bounds [{self.low:g}, {self.high:g}]{u} "
+                                 f"must lie within its physical limits [{lo:g}, {hi:g}]{u}")
 
     @property
     def physical_limits(self) -> tuple[float, float]:
@@ -209,8 +210,9 @@ class ParamSpace:
             lo, hi = (p.low, p.high) if within == "prior" else p.physical_limits
             if not math.isfinite(v) or v < lo or v > hi:
                 what = "bounds" if within == "prior" else "physical limits"
+                u = "" if p.unit in ("", "1") else f" {p.unit}"
                 raise ParameterError(
-                    f"parameter '{k}' = {v:g} {p.unit} is outside its {what} [{lo:g}, {hi:g}] {p.unit}; "
+                    f"parameter '{k}' = {v:g}{u} is outside its {what} [{lo:g}, {hi:g}]{u}; "
                     f"choose a value inside them")
             out[k] = v
         if not allow_missing:
