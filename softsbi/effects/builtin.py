@@ -177,7 +177,8 @@ class GripCompliance(Effect):
     model_edits: ClassVar[tuple[str, ...]] = ("mujoco-flex",)
 
     def param_space(self) -> ParamSpace:
-        return ParamSpace([Param("grip_timeconst", 0.008, 0.3, "s", log=True,
+        # the rigid grasp is the edge of what the effect can be (the edit never goes below it): a physical limit
+        return ParamSpace([Param("grip_timeconst", 0.008, 0.3, "s", log=True, limits=(0.008, float("inf")),
                                  description="time constant of the grasp constraint (0.008 s = rigid grasp)")])
 
     def edit_model(self, backend: str, model: Any, theta: Mapping[str, float], ctx: Mapping[str, Any]) -> None:

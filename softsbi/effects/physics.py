@@ -51,8 +51,10 @@ class TableSlope(Effect):
     backends: ClassVar[tuple[str, ...]] = ("mujoco-flex",)
 
     def param_space(self) -> ParamSpace:
-        return ParamSpace([Param("slope_x", -10.0, 10.0, "deg", description="descent of the table along +x"),
-                           Param("slope_y", -10.0, 10.0, "deg", description="descent of the table along +y")])
+        return ParamSpace([Param("slope_x", -10.0, 10.0, "deg", limits=(-90.0, 90.0),
+                                 description="descent of the table along +x"),
+                           Param("slope_y", -10.0, 10.0, "deg", limits=(-90.0, 90.0),
+                                 description="descent of the table along +y")])
 
     def nominal(self) -> dict[str, float]:
         return {"slope_x": 0.0, "slope_y": 0.0}

@@ -102,8 +102,10 @@ def bound_pressure(space: ParamSpace, samples: np.ndarray, slab: float = BOUND_S
         slab, min_mass: fractions in ``(0, 1)``.
 
     Returns:
-        one ``{"param", "side" ("lower"/"upper"), "bound" (physical units), "unit", "mass"}`` per bound
-        pressed, largest mass first; ``[]`` when none.
+        one ``{"param", "side" ("lower"/"upper"), "bound" (physical units), "unit", "mass", "suggested_bounds"}``
+        per bound pressed, largest mass first; ``[]`` when none. ``suggested_bounds``: ``[low, high]``, the prior
+        with this bound moved half the range outward (:func:`widened_bounds`), or None when the bound is the
+        parameter's physical limit (no wider prior can help).
 
     Raises:
         ValueError: ``samples`` not ``(S, space.dim)`` or ``slab``/``min_mass`` outside ``(0, 1)``.
@@ -119,7 +121,11 @@ def bound_pressure(space: ParamSpace, samples: np.ndarray, slab: float = BOUND_S
         for side, mass, bound in (("lower", float((u[:, d] <= slab).mean()), p.low),
                                   ("upper", float((u[:, d] >= 1 - slab).mean()), p.high)):
             if mass >= min_mass:
-                out.append({"param": p.name, "side": side, "bound": float(bound), "unit": p.unit, "mass": mass})
+                e = {"param": p.name, "side": side, "bound": float(bound), "unit": p.unit, "mass": mass}
+                wide = widened_bounds(space, [e]).get(p.name)
+                # the prior :func:`widened_bounds` would try next, or None when the bound is a physical limit
+                e["suggested_bounds"] = [wide[0], wide[1]] if wide else None
+                out.append(e)
     return sorted(out, key=lambda e: -e["mass"])
 
 
@@ -181,11 +187,19 @@ def widened_bounds(space: ParamSpace, pressed: Sequence[Mapping[str, Any]], keep
 def bound_sentence(e: Mapping[str, Any], slab: float = BOUND_SLAB) -> str:
     """One entry of :func:`bound_pressure` in words, with the fix (``--bounds``)."""
     unit = f" {e['unit']}" if e.get("unit") and e["unit"] != "1" else ""
-    widen = "LOW:HIGHER" if e["side"] == "upper" else "LOWER:HIGH"
-    return (f"{e['param']}'s posterior presses against its {e['side']} prior bound {e['bound']:.4g}{unit} "
+    head = (f"{e['param']}'s posterior presses against its {e['side']} prior bound {e['bound']:.4g}{unit} "
             f"({e['mass'] * 100:.0f}% of its mass within {slab * 100:.0f}% of the range from it): the data would put "
-            f"it beyond; widen the prior (--bounds {e['param']}={widen}) if such values are physical, or suspect "
-            f"an effect the model lacks and compensates for here (softsbi check, softsbi diagnose)")
+            f"it beyond; ")
+    suspect = "an effect the model lacks and compensates for here (softsbi check, softsbi diagnose)"
+    if "suggested_bounds" in e and e["suggested_bounds"] is None:
+        return head + f"the bound is the parameter's physical limit, so no wider prior can help: suspect {suspect}"
+    if e.get("suggested_bounds"):
+        lo, hi = e["suggested_bounds"]
+        widen = f"{lo:.4g}:{hi:.4g}"
+    else:  # entries stored before the suggestion was
+        widen = "LOW:HIGHER" if e["side"] == "upper" else "LOWER:HIGH"
+    return head + (f"widen the prior (--bounds {e['param']}={widen}) if such values are physical, or suspect "
+                   f"{suspect}")
 
 
 def format_estimate(c: Mapping[str, Any]) -> str:

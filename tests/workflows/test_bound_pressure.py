@@ -36,11 +36,17 @@ def test_a_pile_up_at_a_bound_is_named_in_the_parameters_own_scale():
     assert bound_pressure(SPACE, theta)[0]["mass"] == 1.0
     text = bound_sentence(e)
     assert "stretch's posterior presses against its upper prior bound 1000 N/m" in text
-    assert "--bounds stretch=LOW:HIGHER" in text and f"within {BOUND_SLAB * 100:.0f}% of the range" in text
+    # the fix, with numbers: the upper bound moved half the (log) range outward, 10^3 -> 10^4.5 N/m
+    assert e["suggested_bounds"] == [1.0, pytest.approx(10 ** 4.5)]
+    assert "--bounds stretch=1:3.162e+04" in text and f"within {BOUND_SLAB * 100:.0f}% of the range" in text
     # the lower bound, and the threshold
     lo = SPACE.from_unit(np.column_stack([rng.uniform(0.3, 0.7, 1000), np.r_[np.zeros(300), rng.uniform(0.3, 0.7, 700)]]))
     (e,) = bound_pressure(SPACE, lo)
     assert (e["param"], e["side"], e["bound"]) == ("friction", "lower", 0.0) and e["mass"] == pytest.approx(0.3)
+    # friction 0 is a physical limit: no wider prior is suggested, the sentence says to suspect a missing effect
+    assert e["suggested_bounds"] is None
+    assert "physical limit, so no wider prior can help: suspect an effect" in bound_sentence(e)
+    assert "--bounds" not in bound_sentence(e)
     assert bound_pressure(SPACE, lo, min_mass=0.31) == []
     assert BOUND_MASS_MIN > BOUND_SLAB
 
