@@ -764,9 +764,12 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     pressed bounds widened (:func:`~softsbi.inference.contraction.widened_bounds`: half the range outward, never
     the effect's switched-off side) into ``RUN/refit-<effect>-widened``; the returned numbers are that refit's, and
     ``widened`` keeps the bounds (``{param: [old_low, old_high, new_low, new_high]}``) and the first refit's
-    run, Chamfer and check. Why: an effect's prior is a guess of its size; an effect larger than the guess
-    presses the bound, its posterior mass piles up short of the truth, and check rejects the right effect
-    (hidden point noise at the prior's upper bound 1 cm: posterior 0.85-0.96 cm, check p = 0.15).
+    run, Chamfer and check. Why: an effect's declared prior is a guess of its size, and a refit held inside a prior
+    narrower than the effect cannot reach the measurement, so check would reject the right effect. Measured
+    (BENCHMARKS.md "Nineteenth session"): on the benchmark's built-in effects, whose priors are generous, the rule
+    fired on a few refits (all of effects that were not hidden, or of one effect of a hidden pair) and changed no
+    verdict; right effects beyond their prior passed check without it. It is a safety net for a user's own effect
+    with a narrow prior, at the cost of one more refit.
 
     Returns:
         ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
