@@ -27,7 +27,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
-from softsbi.core.types import ParamSpace, Recording
+from softsbi.core.types import Recording
 from softsbi.inference.contraction import bound_sentence, widened_bounds
 from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
@@ -790,26 +790,29 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
                   sims_per_round=int(budget.get("sims_per_round", base.sims_per_round)),
                   proposal=str(budget.get("proposal", REFIT_PROPOSAL)),
                   workers=workers if workers is not None else base.workers)
-    out = run.path / f"refit-{effect}"
-    res = run_fit(out, recording_from_run(run), cfg)
-    refit = PosteriorPredictive(out, workers).ensure(n_null)
-    # check's test of the refit (softsbi check RUN/refit-<effect> prints the same): the omnibus test and the
-    # directional test over the installed effects the refit does not include
-    mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
-    # the added effects' parameters whose refit posterior piles up at a prior bound (the effect may be larger
-    # than its prior allows: a refit held inside the box cannot reach the measurement)
+    recording = recording_from_run(run)
     effects = [registry().effect(e)() for e in added]
     added_params = {p.name for e in effects for p in e.param_space()}
-    at_bounds = [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params]
+
+    def fit_and_check(out: Path, cfg: FitConfig):
+        # the refit, its posterior-predictive pool, check's test of it (softsbi check OUT prints the same: the
+        # omnibus test and the directional test over the installed effects the refit does not include) and the
+        # added effects' parameters whose refit posterior piles up at a prior bound (the effect may be larger
+        # than its prior allows: a refit held inside the box cannot reach the measurement)
+        res = run_fit(out, recording, cfg)
+        refit = PosteriorPredictive(out, workers).ensure(n_null)
+        mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
+        return res, refit, mis, [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params]
+
+    out = run.path / f"refit-{effect}"
+    res, refit, mis, at_bounds = fit_and_check(out, cfg)
     widened: dict[str, Any] = {}
     if widen and mis["misspecified"] and at_bounds:
         # the measurement is still outside the refit's posterior predictive and the effect presses its prior:
-        # refit once with the pressed bounds widened (never the switched-off side: no noise is an edge, not a
-        # guess) into RUN/refit-<effect>-widened, and judge that refit
-        space = ParamSpace([p for e in effects for p in e.param_space()]).with_bounds(
-            {k: tuple(v) for k, v in cfg.bounds.items() if k in added_params})
-        nominal_values = {k: v for e in effects for k, v in e.nominal().items()}
-        new = widened_bounds(space, at_bounds, keep=nominal_values)
+        # refit once with the pressed bounds of the refit's prior (--bounds included) widened, never on the
+        # switched-off side (no noise is an edge, not a guess), into RUN/refit-<effect>-widened, and judge that refit
+        space = refit.run.space
+        new = widened_bounds(space, at_bounds, keep={k: v for e in effects for k, v in e.nominal().items()})
         if new:
             widened = {"bounds": {k: [space[k].low, space[k].high, lo, hi] for k, (lo, hi) in new.items()},
                        "first_run": str(out), "first_at_bounds": at_bounds,
@@ -817,10 +820,7 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
                        "first_misspecification_after": mis}
             cfg = replace(cfg, bounds={**cfg.bounds, **new})
             out = run.path / f"refit-{effect}-widened"
-            res = run_fit(out, recording_from_run(run), cfg)
-            refit = PosteriorPredictive(out, workers).ensure(n_null)
-            mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
-            at_bounds = [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params]
+            res, refit, mis, at_bounds = fit_and_check(out, cfg)
     before = run.report.get("chamfer_posterior_m")
     after = res.report.get("chamfer_posterior_m")
     sd, n = res.report.get("chamfer_posterior_std_m"), res.report.get("chamfer_posterior_n") or cfg.n_eval

@@ -234,6 +234,7 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
     import types
 
     import softsbi.workflows.diagnose as dg
+    from softsbi.core.types import Param, ParamSpace
     fits = []
 
     def fake_fit(out, rec, cfg):
@@ -246,8 +247,8 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
                                              "posterior_at_bounds": pressed})
 
     class _Pool:
-        def __init__(self, out, workers=None):
-            self.run = types.SimpleNamespace(path=out)
+        def __init__(self, out, workers=None):  # the refit's inferred prior: point noise as declared
+            self.run = types.SimpleNamespace(path=out, space=ParamSpace([Param("noise_std", 0.0, 0.01, "m")]))
 
         def ensure(self, n):
             return self
