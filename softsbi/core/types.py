@@ -21,6 +21,11 @@ import numpy as np
 from softsbi.core.errors import ParameterError, ShapeError, closest
 
 
+def unit_suffix(unit: str | None) -> str:
+    """``" m"`` for a value's unit in running text, ``""`` for a dimensionless one (``"1"``, ``""`` or None)."""
+    return "" if unit in (None, "", "1") else f" {unit}"
+
+
 @dataclass(frozen=True)
 class Param:
     """One physical parameter.
@@ -60,7 +65,7 @@ class Param:
             object.__setattr__(self, "limits", (float(self.limits[0]), float(self.limits[1])))
         lo, hi = self.physical_limits
         if not (lo <= self.low and self.high <= hi):
-            u = "" if self.unit in ("", "1") else f" {self.unit}"
+            u = unit_suffix(self.unit)
             raise ParameterError(f"parameter '{self.name}': prior bounds [{self.low:g}, {self.high:g}]{u} "
                                  f"must lie within its physical limits [{lo:g}, {hi:g}]{u}")
 
@@ -210,7 +215,7 @@ class ParamSpace:
             lo, hi = (p.low, p.high) if within == "prior" else p.physical_limits
             if not math.isfinite(v) or v < lo or v > hi:
                 what = "bounds" if within == "prior" else "physical limits"
-                u = "" if p.unit in ("", "1") else f" {p.unit}"
+                u = unit_suffix(p.unit)
                 raise ParameterError(
                     f"parameter '{k}' = {v:g}{u} is outside its {what} [{lo:g}, {hi:g}]{u}; "
                     f"choose a value inside them")

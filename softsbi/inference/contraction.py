@@ -22,7 +22,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.types import ParamSpace
+from softsbi.core.types import ParamSpace, unit_suffix
 
 __all__ = ["BOUND_MASS_MIN", "BOUND_SLAB", "INFORMED_MAX_RATIO", "WIDEN_FRACTION", "bound_pressure", "bound_sentence",
            "contraction", "contraction_from_report", "format_estimate", "widened_bounds"]
@@ -186,7 +186,7 @@ def widened_bounds(space: ParamSpace, pressed: Sequence[Mapping[str, Any]], keep
 
 def bound_sentence(e: Mapping[str, Any], slab: float = BOUND_SLAB) -> str:
     """One entry of :func:`bound_pressure` in words, with the fix (``--bounds``)."""
-    unit = f" {e['unit']}" if e.get("unit") and e["unit"] != "1" else ""
+    unit = unit_suffix(e.get("unit"))
     head = (f"{e['param']}'s posterior presses against its {e['side']} prior bound {e['bound']:.4g}{unit} "
             f"({e['mass'] * 100:.0f}% of its mass within {slab * 100:.0f}% of the range from it): the data would put "
             f"it beyond; ")

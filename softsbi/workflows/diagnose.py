@@ -27,7 +27,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
-from softsbi.core.types import Recording
+from softsbi.core.types import Recording, unit_suffix
 from softsbi.inference.contraction import bound_sentence, widened_bounds
 from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
@@ -548,7 +548,7 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
     if w:
         units = {e["param"]: e.get("unit", "") for e in w.get("first_at_bounds", [])}
         moved = ", ".join(f"{k} from [{v[0]:.4g}, {v[1]:.4g}] to [{v[2]:.4g}, {v[3]:.4g}]"
-                          + (f" {units[k]}" if units.get(k) not in (None, "", "1") else "")
+                          + unit_suffix(units.get(k))
                           for k, v in w["bounds"].items())
         first = w.get("first_misspecification_after") or {}
         s += (f" These numbers are from a second refit with a wider prior ({moved}): the first refit's posterior "
