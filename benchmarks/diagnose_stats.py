@@ -397,6 +397,21 @@ def rewiden_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
     return changed
 
 
+#: the subcommands that decide stored rows again, refit by refit: the mark they leave in a row, the refits they
+#: select in its diagnosis, what ``--list`` prints of one, the function that does it, and what it does
+REDO_STORED: dict[str, tuple[str, Callable, Callable, Callable, str]] = {
+    "recheck": ("rechecked", unresolved_refit_checks,
+                lambda c: [c["effect"], c["misspecification_after"]["p_text"]], recheck_rows,
+                "decide again, with the null grown, the refit checks of stored rows that the first stage did not "
+                "resolve"),
+    "rewiden": ("rewidened", refits_to_widen,
+                lambda c: [c["effect"], c["misspecification_after"]["p_text"],
+                           [(e["param"], e["side"]) for e in c["at_bounds"]]], rewiden_rows,
+                "refit with a wider prior the stored refits that check rejected while an added effect's parameter "
+                "pressed a prior bound"),
+}
+
+
 def row_alpha(r: dict[str, Any]) -> float:
     """The level a stored row was decided at (rows stored before the field: 0.01, the default of the time)."""
     return float((r.get("budget") or {}).get("alpha", 0.01))
@@ -1005,20 +1020,13 @@ def main() -> None:
     rd.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     rd.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
-    rc = sub.add_parser("recheck", help="decide again, with the null grown, the refit checks of stored rows that "
-                                        "the first stage did not resolve, then apply rule 3 again")
-    rc.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
-    rc.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
-                    help="folders holding the cases' run directories")
-    rc.add_argument("--ids", default=None, help="comma-separated case ids (default: every row with such a refit)")
-    rc.add_argument("--list", action="store_true", help="only list the rows and refits that would be rechecked")
-    rw = sub.add_parser("rewiden", help="refit with a wider prior the stored refits that check rejected while an "
-                                        "added effect's parameter pressed a prior bound, then apply rule 3 again")
-    rw.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
-    rw.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
-                    help="folders holding the cases' run directories")
-    rw.add_argument("--ids", default=None, help="comma-separated case ids (default: every row with such a refit)")
-    rw.add_argument("--list", action="store_true", help="only list the rows and refits that would be widened")
+    for cmd, (_, _, _, _, what) in REDO_STORED.items():
+        rs = sub.add_parser(cmd, help=f"{what}, then apply rule 3 again")
+        rs.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+        rs.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
+                        help="folders holding the cases' run directories")
+        rs.add_argument("--ids", default=None, help="comma-separated case ids (default: every row with such a refit)")
+        rs.add_argument("--list", action="store_true", help=f"only list the rows and refits ({cmd})")
     rg = sub.add_parser("rediagnose", help="diagnose again, at another level, the stored rows whose verdict could "
                                            "change at it (from their stored nominal runs)")
     rg.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
@@ -1052,25 +1060,14 @@ def main() -> None:
             return
         print(f"changed: {rediagnose_rows(a.results, a.out, a.alpha, 1, ids)}")
         return
-    if a.cmd == "rewiden":
+    if a.cmd in REDO_STORED:
+        done, select, describe, redo, _ = REDO_STORED[a.cmd]
         ids = a.ids.split(",") if a.ids else None
         if a.list:
-            for r, _, _, todo in stored_diagnoses(load_rows(a.results), a.out, ids, "rewidened", refits_to_widen):
-                print(r["id"], r["truth_label"], r["verdict"], r["named"],
-                      [[c["effect"], c["misspecification_after"]["p_text"],
-                        [(e["param"], e["side"]) for e in c["at_bounds"]]] for c in todo])
+            for r, _, _, todo in stored_diagnoses(load_rows(a.results), a.out, ids, done, select):
+                print(r["id"], r["truth_label"], r["verdict"], r["named"], [describe(c) for c in todo])
             return
-        print(f"changed: {rewiden_rows(a.results, a.out, 1, ids)}")
-        return
-    if a.cmd == "recheck":
-        ids = a.ids.split(",") if a.ids else None
-        if a.list:
-            for r, _, _, todo in stored_diagnoses(load_rows(a.results), a.out, ids, "rechecked",
-                                                  unresolved_refit_checks):
-                print(r["id"], r["truth_label"], r["verdict"], r["named"],
-                      [[c["effect"], c["misspecification_after"]["p_text"]] for c in todo])
-            return
-        print(f"changed: {recheck_rows(a.results, a.out, 1, ids)}")
+        print(f"changed: {redo(a.results, a.out, 1, ids)}")
         return
     if a.cmd == "redecide":
         print(f"changed: {redecide_rows(a.results, a.out)}")
