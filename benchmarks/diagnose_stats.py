@@ -218,8 +218,11 @@ def save_rows(results: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 
 def find_run_dir(outs: Sequence[Path], case_id: str, marker: str = "diagnosis.json") -> Path | None:
-    """The first ``out / case_id`` among ``outs`` that holds ``marker``; None when none does."""
-    return next((o / case_id for o in outs if (o / case_id / marker).exists()), None)
+    """The ``out / case_id`` among ``outs`` whose ``marker`` was written last (a case run again, e.g. an interrupted
+    one finished in a later session's folder, or a point-noise case refitted apart, has several); None when none
+    holds it."""
+    found = [o / case_id for o in outs if (o / case_id / marker).exists()]
+    return max(found, key=lambda d: (d / marker).stat().st_mtime) if found else None
 
 
 def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) -> list[str]:
@@ -238,7 +241,7 @@ def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) 
             continue
         d = json.loads((run_dir / "diagnosis.json").read_text())
         confirm = r.get("budget", {}).get("confirm") or int(r["id"].split("-refit")[1][0])
-        d = redecide(run_dir, d, confirm, workers)
+        d = redecide(run_dir, d, confirm, workers, budget=(r.get("budget") or {}).get("confirm_budget"))
         (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
         new = row_fields({k: r[k] for k in CASE_KEYS}, d)
         if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
@@ -299,24 +302,54 @@ def stored_diagnoses(rows: list[dict[str, Any]], outs: Sequence[Path], ids: Sequ
         yield r, run_dir, d, todo
 
 
+def decide_stored_again(results: Path, outs: Sequence[Path], ids: Sequence[str] | None, mark: str,
+                        select: Callable[[dict[str, Any]], list[dict[str, Any]]], keep_as: str,
+                        redo: Callable[..., None], report: Callable[..., tuple[dict[str, Any], dict[str, Any]]],
+                        workers: int | None = 1) -> list[str]:
+    """The loop every ``REDO_STORED`` subcommand shares: for each stored row (or ``ids``) whose run directory (looked
+    up in ``outs``) has refits ``select`` lists (:func:`stored_diagnoses`; the old diagnosis kept as ``keep_as``),
+    ``redo(run_dir, diagnosis, selected, workers, budget)`` changes those refits in the diagnosis, then the rules are applied again
+    (:func:`softsbi.workflows.diagnose.redecide`, at the row's refit budget, which also refits a pair where the rules
+    ask for one) and diagnosis.json rewritten. The row's verdict fields are replaced (the energy and posterior-mean
+    drops backfills stored kept, :func:`keep_backfilled`); the old verdict and name, with the mark fields of
+    ``report(diagnosis, selected) -> (printed, kept)``, are kept under ``mark``. ``results`` is rewritten after each
+    row, so an interrupted call continues where it stopped. Returns the ids whose verdict or name changed."""
+    from softsbi.workflows.diagnose import redecide
+    rows = load_rows(results)
+    changed = []
+    for r, run_dir, d, todo in stored_diagnoses(rows, outs, ids, mark, select, keep_as):
+        t0 = time.perf_counter()
+        b = r.get("budget") or {}
+        redo(run_dir, d, todo, workers, b)
+        confirm = b.get("confirm") or int(r["id"].split("-refit")[1][0])
+        d = redecide(run_dir, d, confirm, workers, budget=b.get("confirm_budget"))
+        (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
+        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
+        new["refits"] = keep_backfilled(r.get("refits") or [], new["refits"])
+        if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
+            changed.append(r["id"])
+        printed, kept = report(d, todo)
+        print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
+                          "after": [new["verdict"], new["named"]], **printed,
+                          "s": round(time.perf_counter() - t0)}), flush=True)
+        r.update(new, **{mark: {"verdict": r["verdict"], "named": r["named"], **kept}})
+        save_rows(results, rows)
+    return changed
+
+
 def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                  ids: Sequence[str] | None = None) -> list[str]:
     """Rule 3 with resolved refit checks: for every stored row (or ``ids``) whose run directory (looked up in
     ``outs``) has a refit whose check the first stage did not resolve (:func:`unresolved_refit_checks`), that
     check is decided again as ``misspecification_verdict`` now does: the refit's posterior-predictive rollouts
     re-simulated with their seeds, the null grown to its cap. Then rule 3 is applied again
-    (:func:`softsbi.workflows.diagnose.redecide`). The old diagnosis is kept as ``diagnosis.before-recheck.json``
-    and each rechecked refit keeps its first-stage test in ``misspecification_first_stage``; the row's verdict
-    fields are replaced and the old ones kept in ``rechecked``. ``results`` is rewritten after each row, so an
-    interrupted call continues where it stopped. Returns the ids whose verdict or name changed."""
-    from softsbi.workflows.diagnose import redecide
+    (:func:`decide_stored_again`). The old diagnosis is kept as ``diagnosis.before-recheck.json``
+    and each rechecked refit keeps its first-stage test in ``misspecification_first_stage``; the old verdict
+    fields are kept in ``rechecked``. Returns the ids whose verdict or name changed."""
     from softsbi.workflows.screening import candidate_effects, misspecification_verdict
     from softsbi.workflows.stats import N_NULL, PosteriorPredictive
-    rows = load_rows(results)
-    changed = []
-    for r, run_dir, d, todo in stored_diagnoses(rows, outs, ids, "rechecked", unresolved_refit_checks,
-                                                "diagnosis.before-recheck.json"):
-        t0 = time.perf_counter()
+
+    def redo(run_dir, d, todo, workers, budget):
         for c in todo:
             m = c["misspecification_after"]
             # the first stage as confirm_effect requested it (n_null counts the successes among those requests)
@@ -324,22 +357,13 @@ def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
             c["misspecification_first_stage"] = m
             c["misspecification_after"] = misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"],
                                                                    int(m["max_null"]))[0]
-        confirm = r.get("budget", {}).get("confirm") or int(r["id"].split("-refit")[1][0])
-        d = redecide(run_dir, d, confirm, workers)
-        (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
-        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
-        new["refits"] = keep_backfilled(r.get("refits") or [], new["refits"])
-        if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
-            changed.append(r["id"])
-        print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
-                          "after": [new["verdict"], new["named"]],
-                          "checks": [[c["effect"], c["misspecification_first_stage"]["p_text"],
-                                      c["misspecification_after"]["p_text"]] for c in todo],
-                          "s": round(time.perf_counter() - t0)}), flush=True)
-        r.update(new, rechecked={"verdict": r["verdict"], "named": r["named"],
-                                 "refits": [c["effect"] for c in todo]})
-        save_rows(results, rows)
-    return changed
+
+    def report(d, todo):
+        return ({"checks": [[c["effect"], c["misspecification_first_stage"]["p_text"],
+                             c["misspecification_after"]["p_text"]] for c in todo]},
+                {"refits": [c["effect"] for c in todo]})
+    return decide_stored_again(results, outs, ids, "rechecked", unresolved_refit_checks,
+                               "diagnosis.before-recheck.json", redo, report, workers)
 
 
 def refits_to_widen(d: dict[str, Any]) -> list[dict[str, Any]]:
@@ -350,51 +374,81 @@ def refits_to_widen(d: dict[str, Any]) -> list[dict[str, Any]]:
     return [c for c in d.get("confirmed") or [] if (c.get("misspecification_after") or {}).get("misspecified")
             and c.get("at_bounds") and "widened" not in c]
 
-
 def rewiden_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                  ids: Sequence[str] | None = None) -> list[str]:
     """Widen pressed priors in stored rows: for every row (or ``ids``) whose run directory (looked up in ``outs``)
     has a refit :func:`refits_to_widen` lists, ``confirm_effect`` is called again with the diagnosis' settings
     (the first refit is on disk and resumes as it was; where it may, the widened refit is fitted into
-    ``refit-<effect>-widened``), the refit's entry replaced, and rule 3 applied again
-    (:func:`softsbi.workflows.diagnose.redecide`, which also refits the pair where the rules ask for it). The old
-    diagnosis is kept as ``diagnosis.before-widening.json``; the row's verdict fields are replaced and the old ones
-    kept in ``rewidened``. ``results`` is rewritten after each row, so an interrupted call continues. Returns the
-    ids whose verdict or name changed."""
-    from softsbi.workflows.diagnose import EXPLAIN_ALPHA, confirm_effect, redecide
+    ``refit-<effect>-widened``), the refit's entry replaced, and rule 3 applied again (:func:`decide_stored_again`).
+    The old diagnosis is kept as ``diagnosis.before-widening.json``; the old verdict fields are kept in
+    ``rewidened``. Returns the ids whose verdict or name changed."""
+    from softsbi.workflows.diagnose import EXPLAIN_ALPHA, confirm_effect
     from softsbi.workflows.runs import load_run
     from softsbi.workflows.stats import MAX_NULL, N_NULL
-    rows = load_rows(results)
-    changed = []
-    for r, run_dir, d, todo in stored_diagnoses(rows, outs, ids, "rewidened", refits_to_widen,
-                                                "diagnosis.before-widening.json"):
-        t0 = time.perf_counter()
+
+    def redo(run_dir, d, todo, workers, budget):
         view = load_run(run_dir)
-        b = r.get("budget") or {}
         for c in todo:
-            new_c = confirm_effect(view, c["effect"].split("+"), b.get("confirm_budget"), workers,
+            new_c = confirm_effect(view, c["effect"].split("+"), budget.get("confirm_budget"), workers,
                                    alpha=max(d.get("alpha", 0.05), EXPLAIN_ALPHA),
                                    n_null=int(d.get("n_null_start", N_NULL)), max_null=int(d.get("max_null", MAX_NULL)),
                                    nominal_bias=d.get("summary_bias"), nominal_energy=d.get("energy"))
             d["confirmed"][d["confirmed"].index(c)] = new_c
-        confirm = b.get("confirm") or int(r["id"].split("-refit")[1][0])
-        d = redecide(run_dir, d, confirm, workers)
-        (run_dir / "diagnosis.json").write_text(json.dumps(d, indent=2))
-        new = row_fields({k: r[k] for k in CASE_KEYS}, d)
-        new["refits"] = keep_backfilled(r.get("refits") or [], new["refits"])  # a widened refit computes its own
-        if (new["verdict"], new["named"]) != (r["verdict"], r["named"]):
-            changed.append(r["id"])
+
+    def report(d, todo):
         widened = [c for c in d["confirmed"] if c.get("widened")]
-        print(json.dumps({"id": r["id"], "truth": r["truth_label"], "before": [r["verdict"], r["named"]],
-                          "after": [new["verdict"], new["named"]],
-                          "widened": [[c["effect"], c["widened"]["bounds"],
-                                       c["widened"]["first_misspecification_after"]["p_text"],
-                                       c["misspecification_after"]["p_text"], c.get("drop")] for c in widened],
-                          "s": round(time.perf_counter() - t0)}), flush=True)
-        r.update(new, rewidened={"verdict": r["verdict"], "named": r["named"], "refits": [c["effect"] for c in todo],
-                                 "widened": [c["effect"] for c in widened]})
-        save_rows(results, rows)
-    return changed
+        return ({"widened": [[c["effect"], c["widened"]["bounds"],
+                              c["widened"]["first_misspecification_after"]["p_text"],
+                              c["misspecification_after"]["p_text"], c.get("drop")] for c in widened]},
+                {"refits": [c["effect"] for c in todo], "widened": [c["effect"] for c in widened]})
+    return decide_stored_again(results, outs, ids, "rewidened", refits_to_widen, "diagnosis.before-widening.json",
+                               redo, report, workers)
+
+
+def refits_without_lead(d: dict[str, Any]) -> list[dict[str, Any]]:
+    """A stored diagnosis' first refit (the screening's first effect) when the pair rule
+    (:func:`softsbi.workflows.diagnose.second_effect`) would read its check's screening and it was stored without
+    one: the screening said missing-effect, every refitted single named effect was checked and rejected, and that
+    refit has no ``ranking_after``."""
+    if d.get("screening_verdict", d.get("verdict")) != "missing-effect" or not d.get("significant"):
+        return []
+    singles = [c for c in d.get("confirmed") or [] if "+" not in c["effect"]]
+    if not singles or any(not (c.get("misspecification_after") or {}).get("misspecified", False) for c in singles):
+        return []
+    return [c for c in singles if c["effect"] == d["significant"][0] and "ranking_after" not in c]
+
+def resecond_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
+                  ids: Sequence[str] | None = None) -> list[str]:
+    """The pair's second effect from the first refit's check: for every stored row (or ``ids``) whose run
+    directory (looked up in ``outs``) has a refit :func:`refits_without_lead` lists, check's test of that refit is
+    computed again (its posterior-predictive rollouts re-simulated with their seeds, the null grown as it was) to
+    keep its screening (``ranking_after``), then the rules are applied again (:func:`decide_stored_again`, which
+    refits the pair :func:`~softsbi.workflows.diagnose.second_effect` now chooses). The old diagnosis is kept as
+    ``diagnosis.before-resecond.json``; the old verdict fields, the pairs refitted before and the second effect
+    chosen now are kept in ``reseconded``. Returns the ids whose verdict or name changed."""
+    from softsbi.workflows.diagnose import ranking_digest
+    from softsbi.workflows.screening import candidate_effects, misspecification_verdict
+    from softsbi.workflows.stats import N_NULL, PosteriorPredictive
+    old_pairs: list[str] = []
+
+    def redo(run_dir, d, todo, workers, budget):
+        old_pairs[:] = [c["effect"] for c in d["confirmed"] if "+" in c["effect"]]
+        for c in todo:
+            m = c["misspecification_after"]
+            pool = PosteriorPredictive(c["run"], workers).ensure(int(d.get("n_null_start", N_NULL)))
+            again, _, ranking = misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"], int(m["max_null"]))
+            c["ranking_after"] = ranking_digest(ranking)
+            c["ranking_after_check"] = again["p_text"]  # the same test, simulated again: should read as stored
+
+    def report(d, todo):
+        return ({"old_pairs": list(old_pairs), "lead": d.get("pair_lead"),
+                 "checks": [[c["effect"], c["misspecification_after"]["p_text"], c.get("ranking_after_check")]
+                            for c in todo],
+                 "pairs": [[c["effect"], c.get("drop"), c["misspecification_after"]["p_text"]]
+                           for c in d["confirmed"] if "+" in c["effect"]]},
+                {"old_pairs": list(old_pairs), "lead": (d.get("pair_lead") or {}).get("effect")})
+    return decide_stored_again(results, outs, ids, "reseconded", refits_without_lead, "diagnosis.before-resecond.json",
+                               redo, report, workers)
 
 
 #: the subcommands that decide stored rows again, refit by refit: the mark they leave in a row, the refits they
@@ -409,6 +463,10 @@ REDO_STORED: dict[str, tuple[str, Callable, Callable, Callable, str]] = {
                            [(e["param"], e["side"]) for e in c["at_bounds"]]], rewiden_rows,
                 "refit with a wider prior the stored refits that check rejected while an added effect's parameter "
                 "pressed a prior bound"),
+    "resecond": ("reseconded", refits_without_lead,
+                 lambda c: [c["effect"], c["misspecification_after"]["p_text"]], resecond_rows,
+                 "keep the screening of check of the first refit where no single refit explains the misfit, and refit "
+                 "the pair it calls for"),
 }
 
 

@@ -86,8 +86,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
        :data:`TIE_Z` standard errors, the summaries' systematic deviation from the measurement (``bias_fall``,
        :func:`_moves_toward`; ``summary_bias`` keeps the nominal's): the effect explains a part at most (``partial``; the
        screening's verdict stays in ``screening_verdict``). A second effect is named only when no single
-       refit explains the misfit and the refit with the forward selection's first two effects does
-       (``confirm >= 2``); a single refit that explains it leaves no second effect. ``named_effects``
+       refit explains the misfit and the refit with two effects does (``confirm >= 2``): the screening's first
+       and the first named candidate that check of its refit still finds (:func:`second_effect`, ``pair_lead``;
+       else the forward selection's second); a single refit that explains it leaves no second effect. ``named_effects``
        lists the effects the verdict names after the refits. With it the residual's shape
        (frames/phases, regions of the cloth, direction; :func:`residual_shape`) and the best generic
        force term (:func:`is_generic`) with the fraction it explains.
@@ -227,6 +228,13 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
                      f"differ by at least {TIE_Z:g} standard errors: {out.get('selected')} vs {t['effect']}, "
                      f"{t['difference_m'] * 100:.2f} cm apart, {se} -> "
                      f"{'indistinguishable' if t['indistinguishable'] else 'told apart'}")
+    lead = out.get("pair_lead")
+    if lead:
+        rules.append(f"3. no single refit explains the misfit: the second effect is the first named candidate of check "
+                     f"of {lead['after']}'s refit if its max-T adjusted p <= {lead['level']:g} (that check's level per "
+                     f"test) and it explains >= {out.get('min_explained', MIN_EXPLAINED) * 100:.0f}% of the refit's "
+                     f"residual: {lead['effect']} has {lead['adjusted_p_text']}, explains "
+                     f"{lead['explained_fraction'] * 100:.0f}% -> refit {lead['after']} + {lead['effect']}")
     ne = out.get("named_effects") or []
     if len(ne) > 1:
         rules.append(f"3. no single refit explains the misfit, the refit with {' and '.join(ne)} does -> "
@@ -427,23 +435,23 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
             # linearised forward selection added
             out["named_effects"] = [out["selected"]]
         elif checked and len(checked) == len(named):
-            joint = None
-            if len(sig) >= 2 and confirm >= 2:
-                # no single refit explains it, and the screening's forward selection called for a second
-                # effect: refit with both (rule 3 applied to the pair)
-                pair = "+".join(sig[:2])
-                joint = next((c for c in out["confirmed"] if c["effect"] == pair), None)
+            joint, pair = None, second_effect(out, mx)
+            if pair and confirm >= 2:
+                # no single refit explains it, and the first effect's refit (or, for a refit stored without its
+                # screening, the nominal's forward selection) calls for a second effect: refit with both (rule 3
+                # applied to the pair)
+                joint = next((c for c in out["confirmed"] if c["effect"] == "+".join(pair)), None)
                 if joint is None:
                     if progress:
-                        progress(pair)
-                    joint = confirm_effect(view, sig[:2], budget, workers,
+                        progress("+".join(pair))
+                    joint = confirm_effect(view, pair, budget, workers,
                                            alpha=max(out.get("alpha", ALPHA), EXPLAIN_ALPHA),
                                            n_null=out.get("n_null_start", N_NULL), max_null=out.get("max_null", MAX_NULL),
                                            nominal_bias=out.get("summary_bias"), nominal_energy=out.get("energy"))
                     out["confirmed"].append(joint)
             if joint is not None and _explains(joint, mx):
-                out["selected"] = sig[0]
-                out["named_effects"] = sig[:2]
+                out["selected"] = pair[0]
+                out["named_effects"] = pair
             else:
                 # no refitted named effect (or pair) explains the misfit: it explains a part at most
                 out["screening_verdict"] = out["verdict"]
@@ -458,6 +466,19 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     out["rules"] = decision_rules(out)
     out["summary"] = _diagnosis_sentence(out)
     return out
+
+
+def second_effect(out: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> list[str]:
+    """The pair a diagnosis ``out`` refits when no single refit explains the misfit: the screening's first effect
+    and what check of that effect's refit ranks first (:func:`next_effect`; kept in ``out["pair_lead"]``), else the
+    forward selection's first two (``significant[:2]``); ``[]`` when neither gives a second effect."""
+    sig = list(out.get("significant") or [])
+    first = next((c for c in out.get("confirmed") or [] if sig and c["effect"] == sig[0]), None)
+    lead = next_effect(first, min_explained) if first else None
+    out["pair_lead"] = {"after": sig[0], **lead} if lead else None
+    if lead:
+        return [sig[0], lead["effect"]]
+    return sig[:2] if len(sig) >= 2 else []
 
 
 #: two refits that both explain the misfit are told apart only if their posterior-predictive Chamfers differ
@@ -624,6 +645,11 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         if rest:
             s += " A second effect is needed beyond it: " + ", ".join(
                 f"{n} ({by_name[n]['kind']})" for n in rest) + "."
+            lead = out.get("pair_lead") or {}
+            if lead.get("effect") == rest[0]:
+                s += (f" Check of the refit with {lead['after']} alone ranks {rest[0]} first: it explains "
+                      f"{_pct(lead['explained_fraction'])} of what that refit leaves (max-T adjusted "
+                      f"{lead['adjusted_p_text']}).")
             joint = confirmed.get("+".join([chosen] + rest[:1]))
             if joint:
                 s += (f" Refitting with both changes the posterior-predictive Chamfer from "
@@ -693,18 +719,18 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
 
 
 def redecide(run: "RunView | str | Path", out: dict[str, Any], confirm: int = 2, workers: int | None = None,
-             n: int | None = None) -> dict[str, Any]:
+             n: int | None = None, budget: dict[str, int] | None = None) -> dict[str, Any]:
     """Apply rule 3 again to a stored diagnosis ``out`` (``diagnosis.json``) whose refits were made before the
     summary bias was kept: adds ``summary_bias`` (the nominal's first ``n`` posterior-predictive rollouts,
     default the diagnosis' ``n_null_start``, re-simulated with their seeds) and each refit's
     :func:`refit_summary_bias` (its first ``n`` rollouts), restores the screening's verdict and decides again
     with :func:`confirm_candidates` (``confirm`` as the diagnosis was run; no new refit unless the rules ask
-    for one). Updates ``out`` in place and returns it."""
+    for one, with ``budget`` as the diagnosis' refits had it). Updates ``out`` in place and returns it."""
     view = run if isinstance(run, RunView) else load_run(run)
     n = int(n or out.get("n_null_start", N_NULL))
     if out.get("screening_verdict"):
         out["verdict"] = out.pop("screening_verdict")
-    for k in ("partial", "named_effects"):
+    for k in ("partial", "named_effects", "pair_lead"):
         out.pop(k, None)
     out["selected"] = out["significant"][0] if out.get("significant") else None
     if out["verdict"] == "nothing-missing":
@@ -714,7 +740,7 @@ def redecide(run: "RunView | str | Path", out: dict[str, Any], confirm: int = 2,
     for c in out.get("confirmed") or []:
         if c.get("bias_fall") is None and c.get("run") and Path(c["run"]).exists():
             c.update(refit_summary_bias(view, PosteriorPredictive(c["run"], workers).ensure(n), out["summary_bias"], n))
-    return confirm_candidates(view, out, confirm, workers=workers)
+    return confirm_candidates(view, out, confirm, budget, workers=workers)
 
 
 def recording_from_run(run: RunView):
@@ -801,11 +827,12 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
         # than its prior allows: a refit held inside the box cannot reach the measurement)
         res = run_fit(out, recording, cfg)
         refit = PosteriorPredictive(out, workers).ensure(n_null)
-        mis = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)[0]
-        return res, refit, mis, [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params]
+        mis, _, ranking = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)
+        return (res, refit, mis, ranking,
+                [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params])
 
     out = run.path / f"refit-{effect}"
-    res, refit, mis, at_bounds = fit_and_check(out, cfg)
+    res, refit, mis, ranking, at_bounds = fit_and_check(out, cfg)
     widened: dict[str, Any] = {}
     if widen and mis["misspecified"] and at_bounds:
         # the measurement is still outside the refit's posterior predictive and the effect presses its prior:
@@ -820,7 +847,7 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
                        "first_misspecification_after": mis}
             cfg = replace(cfg, bounds={**cfg.bounds, **new})
             out = run.path / f"refit-{effect}-widened"
-            res, refit, mis, at_bounds = fit_and_check(out, cfg)
+            res, refit, mis, ranking, at_bounds = fit_and_check(out, cfg)
     before = run.report.get("chamfer_posterior_m")
     after = res.report.get("chamfer_posterior_m")
     sd, n = res.report.get("chamfer_posterior_std_m"), res.report.get("chamfer_posterior_n") or cfg.n_eval
@@ -831,7 +858,40 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
             "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
             "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
-            "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis, **bias, **energy, **pm}
+            "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis,
+            "ranking_after": ranking_digest(ranking), **bias, **energy, **pm}
+
+
+def ranking_digest(ranking: Sequence[dict[str, Any]], n: int = 5) -> list[dict[str, Any]]:
+    """The first ``n`` tested entries of a screening's ranking (:meth:`~softsbi.workflows.screening.Screening.ranking`),
+    with the fields :func:`next_effect` and the report read: ``effect``, ``kind``, ``generic``, ``explained_fraction``,
+    ``adjusted_p_value``, ``adjusted_p_text``."""
+    keys = ("effect", "kind", "generic", "explained_fraction", "adjusted_p_value", "adjusted_p_text")
+    return [{k: r.get(k) for k in keys} for r in ranking if "statistic" in r][:n]
+
+
+def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> dict[str, Any] | None:
+    """The effect a rejected refit ``c`` (from :func:`confirm_effect`) calls for next: the first named
+    (non-generic) candidate of check's directional test of the refit (``ranking_after``: the installed effects the
+    refit does not include, screened against the refit's own posterior predictive), when that test rejects at the
+    level check of the refit used (``misspecification_after``: its ``alpha`` over its number of ``tests``,
+    Bonferroni; 0.2 / 2 = 0.1 for rule 3) and the candidate explains ``>= min_explained`` of the refit's residual;
+    None otherwise, or for a refit stored without ``ranking_after``.
+
+    Why the refit's screening and not the nominal fit's forward selection: the nominal fit's parameters absorb part
+    of the first effect (a stiffer, more damped cloth stands in for a wind), so the residual it leaves "given the
+    first" is linearised around the wrong point. The refit has the first effect in its model and its own posterior;
+    what check still finds there, at the level at which it turned the refit away, is what is left. Measured on
+    stored and fresh pairs (BENCHMARKS.md "Twentieth session")."""
+    m = c.get("misspecification_after") or {}
+    level = float(m.get("alpha", EXPLAIN_ALPHA)) / max(int(m.get("tests", 2)), 1)
+    named = [r for r in c.get("ranking_after") or [] if not r.get("generic")]
+    if not named:
+        return None
+    best = named[0]
+    ok = (best.get("adjusted_p_value") is not None and best["adjusted_p_value"] <= level
+          and (best.get("explained_fraction") or 0.0) >= min_explained)
+    return {**best, "level": level} if ok else None
 
 
 def pm_change(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, Any]:

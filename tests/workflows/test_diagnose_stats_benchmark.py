@@ -205,3 +205,59 @@ def test_rewiden_takes_only_rejected_refits_that_press_a_bound_and_were_not_wide
                        {"effect": "f", "at_bounds": pressed}]}
     assert [c["effect"] for c in bench.refits_to_widen(d)] == ["a"]
     assert bench.refits_to_widen({}) == []
+
+
+def test_resecond_takes_the_first_refit_only_where_no_single_refit_explains_and_it_has_no_screening():
+    """``resecond`` re-checks only the refit whose screening the pair rule reads (the screening's first effect),
+    only where the rule applies (screening said missing-effect, every single refit rejected) and only once."""
+    rej, acc = {"misspecified": True}, {"misspecified": False}
+    d = {"verdict": "misspecified-unexplained", "screening_verdict": "missing-effect", "significant": ["w", "c"],
+         "confirmed": [{"effect": "c", "misspecification_after": rej}, {"effect": "w", "misspecification_after": rej},
+                       {"effect": "w+c", "misspecification_after": acc}]}
+    assert [c["effect"] for c in bench.refits_without_lead(d)] == ["w"]
+    d["confirmed"][1]["ranking_after"] = []  # already has its screening
+    assert bench.refits_without_lead(d) == []
+    del d["confirmed"][1]["ranking_after"]
+    d["confirmed"][0]["misspecification_after"] = acc  # a single refit explains it: no pair is refitted
+    assert bench.refits_without_lead(d) == []
+    assert bench.refits_without_lead({"verdict": "nothing-missing", "significant": [], "confirmed": []}) == []
+
+
+def test_a_stored_row_decided_again_keeps_its_old_verdict_the_old_diagnosis_and_continues(tmp_path, monkeypatch):
+    """The loop shared by recheck, rewiden and resecond: the selected refits are changed, the rules applied again,
+    diagnosis.json rewritten with the old one kept, the row's verdict replaced with the old one under the mark, and a
+    second call does nothing (the mark is there)."""
+    import softsbi.workflows.diagnose as dg
+    case = {**bench.make_case("mujoco", 0, 1), "id": "mujoco-s0-1-refit2-joint"}
+    old = {"run": "x", "verdict": "misspecified-unexplained", "selected": None, "significant": ["wind"],
+           "misspecification": {"p_value": 0.01, "p_text": "p = 0.01", "omnibus": {"p_value": 0.01}}, "n_null": 30,
+           "ranking": [], "confirmed": [{"effect": "wind", "drop": 0.5, "misspecification_after":
+                                         {"p_value": 0.01, "misspecified": True}}]}
+    run_dir = tmp_path / "out" / case["id"]
+    run_dir.mkdir(parents=True)
+    (run_dir / "diagnosis.json").write_text(json.dumps(old))
+    results = tmp_path / "r.jsonl"
+    bench.save_rows(results, [{**bench.row_fields(case, old), "budget": {"confirm": 2}}])
+    seen = {}
+
+    def fake_redecide(run, d, confirm, workers=None, n=None, budget=None):
+        seen.update(confirm=confirm, budget=budget, p=d["confirmed"][0]["misspecification_after"]["p_value"])
+        return {**d, "verdict": "missing-effect", "selected": "wind", "named_effects": ["wind"]}
+    monkeypatch.setattr(dg, "redecide", fake_redecide)
+
+    def redo(run_dir_, d, todo, workers, budget):
+        assert run_dir_ == run_dir
+        todo[0]["misspecification_after"] = {"p_value": 0.5, "misspecified": False}
+
+    calls = []
+    changed = bench.decide_stored_again(results, [tmp_path / "out"], None, "redone", lambda d: d["confirmed"],
+                                        "diagnosis.before.json", redo,
+                                        lambda d, todo: calls.append(1) or ({"n": len(todo)}, {"k": 1}))
+    assert changed == [case["id"]] and seen == {"confirm": 2, "budget": None, "p": 0.5}
+    row = bench.load_rows(results)[0]
+    assert row["verdict"] == "missing-effect" and row["named"] == "wind" and row["correct"]
+    assert row["redone"] == {"verdict": "misspecified-unexplained", "named": None, "k": 1}
+    assert json.loads((run_dir / "diagnosis.before.json").read_text()) == old
+    assert json.loads((run_dir / "diagnosis.json").read_text())["verdict"] == "missing-effect"
+    assert bench.decide_stored_again(results, [tmp_path / "out"], None, "redone", lambda d: d["confirmed"],
+                                     "diagnosis.before.json", redo, lambda d, todo: ({}, {})) == [] and calls == [1]

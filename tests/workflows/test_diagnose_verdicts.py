@@ -62,8 +62,9 @@ def _fake_diagnosis():
             "misspecification": {"p_text": "p <= 1/201 (beyond all 200 null simulations)", "misspecified": True}}
 
 
-def _fake_refits(monkeypatch, after):
-    """confirm_effect replaced: per effect (Chamfer after in m, check's p of the refit)."""
+def _fake_refits(monkeypatch, after, ranking_after=None):
+    """confirm_effect replaced: per effect (Chamfer after in m, check's p of the refit); ``ranking_after``: per
+    effect, check's screening of its refit (``ranking_after`` entries)."""
     import softsbi.workflows.diagnose as dg
 
     def fake(run, name, budget, workers, **stat):
@@ -71,7 +72,8 @@ def _fake_refits(monkeypatch, after):
         ch, p = after[name]
         mis = {"p_value": p, "p_text": f"p = {p:.2g}", "misspecified": p <= stat["alpha"], "alpha": stat["alpha"]}
         return {"effect": name, "run": name, "chamfer_before_m": 0.03, "chamfer_after_m": ch, "drop": 1 - ch / 0.03,
-                "posterior_mean": {}, "misspecification_after": mis}
+                "posterior_mean": {}, "misspecification_after": mis,
+                "ranking_after": (ranking_after or {}).get(name, [])}
     monkeypatch.setattr(dg, "confirm_effect", fake)
     return dg
 
@@ -183,6 +185,61 @@ def test_a_pair_is_named_only_when_no_single_refit_explains_and_the_joint_refit_
     assert not any(c["effect"] == "wind+extra-damping" for c in out["confirmed"])
 
 
+def _after(name, p, frac, generic=False):
+    return {"effect": name, "kind": "physics", "generic": generic, "explained_fraction": frac,
+            "adjusted_p_value": p, "adjusted_p_text": f"p = {p:.2g}"}
+
+
+def test_the_second_effect_of_a_pair_is_what_check_of_the_first_refit_still_finds(monkeypatch):
+    """No single refit explains the misfit: the pair is the screening's first effect and the first named
+    candidate along which check of that effect's refit rejects at its own level (a hidden wind + extra damping: the
+    nominal's forward selection said calibration offset, the wind refit's check says extra damping), not the
+    forward selection's second; a generic term, a candidate beyond that level or one explaining too little of the
+    refit's residual is not taken, and then the forward selection's second is."""
+    after = {"wind": (0.025, 0.005), "calibration-offset": (0.029, 0.005), "wind+extra-damping": (0.012, 0.6),
+             "wind+calibration-offset": (0.02, 0.005)}
+    lead = {"wind": [_after("drag-linear", 0.005, 0.6, generic=True), _after("extra-damping", 0.01, 0.4),
+                     _after("calibration-offset", 0.3, 0.1)]}
+    dg = _fake_refits(monkeypatch, after, lead)
+
+    def diagnosis(significant):
+        out = _fake_diagnosis()
+        out["significant"], out["alpha"] = significant, 0.05
+        out["ranking"].append({**out["ranking"][0], "effect": "calibration-offset", "explained_fraction": 0.12})
+        out["ranking"][1]["explained_fraction"] = 0.05  # the nominal's screening hardly sees the damping
+        return out
+
+    out = diagnosis(["wind", "calibration-offset"])
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert [c["effect"] for c in out["confirmed"]][-1] == "wind+extra-damping"
+    assert not any(c["effect"] == "wind+calibration-offset" for c in out["confirmed"])
+    assert out["verdict"] == "missing-effect" and out["named_effects"] == ["wind", "extra-damping"]
+    assert out["pair_lead"]["effect"] == "extra-damping" and out["pair_lead"]["after"] == "wind"
+    assert ("3. no single refit explains the misfit: the second effect is the first named candidate of check of "
+            "wind's refit if its max-T adjusted p <= 0.1 (that check's level per test) and it explains >= 10% of the "
+            "refit's residual: extra-damping has p = 0.01, explains 40% -> refit wind + extra-damping") in out["rules"]
+    assert "A second effect is needed beyond it: extra-damping (physics)" in out["summary"]
+    assert "Check of the refit with wind alone ranks extra-damping first: it explains 40% of what that refit " \
+           "leaves (max-T adjusted p = 0.01)" in out["summary"]
+    # check of the wind refit (two tests at 0.2, i.e. 0.1 each) does not reject along its best named candidate:
+    # the forward selection's second; at p = 0.08 it does, whatever the verdicts' alpha (0.05)
+    lead["wind"][1] = _after("extra-damping", 0.08, 0.4)
+    out = diagnosis(["wind", "calibration-offset"])
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"]["effect"] == "extra-damping" and out["pair_lead"]["level"] == 0.1
+    lead["wind"][1] = _after("extra-damping", 0.12, 0.4)
+    out = diagnosis(["wind", "calibration-offset"])
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"] is None and out["confirmed"][-1]["effect"] == "wind+calibration-offset"
+    assert out["verdict"] == "misspecified-unexplained"
+    # ... or explains too little of the refit's residual
+    lead["wind"][1] = _after("extra-damping", 0.01, 0.05)
+    out = diagnosis(["wind"])
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"] is None  # no second effect anywhere: no pair refit
+    assert not any("+" in c["effect"] for c in out["confirmed"]) and out["verdict"] == "misspecified-unexplained"
+
+
 def test_a_refit_check_accepts_and_that_lowers_the_error_names_the_effect(monkeypatch):
     dg = _fake_refits(monkeypatch, {"wind": (0.012, 0.84)})
     out = _fake_diagnosis()
@@ -255,7 +312,7 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
 
     def fake_verdict(pool, candidates, alpha, max_null):
         wide = "widened" in pool.run.path.name
-        return [{"misspecified": not wide and reject, "p_text": "p = 0.05" if not wide else "p = 0.6"}]
+        return ({"misspecified": not wide and reject, "p_text": "p = 0.05" if not wide else "p = 0.6"}, None, [])
 
     class _Run:
         config = {"backend": "mujoco-flex", "scenario": {}}
