@@ -474,7 +474,7 @@ def second_effect(out: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> 
     forward selection's first two (``significant[:2]``); ``[]`` when neither gives a second effect."""
     sig = list(out.get("significant") or [])
     first = next((c for c in out.get("confirmed") or [] if sig and c["effect"] == sig[0]), None)
-    lead = next_effect(first, min_explained) if first else None
+    lead = next_effect(first, min_explained, out.get("candidates")) if first else None
     out["pair_lead"] = {"after": sig[0], **lead} if lead else None
     if lead:
         return [sig[0], lead["effect"]]
@@ -643,9 +643,10 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         named_eff = out.get("named_effects")
         rest = [n for n in (out["significant"] if named_eff is None else named_eff) if n != chosen]
         if rest:
-            s += " A second effect is needed beyond it: " + ", ".join(
-                f"{n} ({by_name[n]['kind']})" for n in rest) + "."
             lead = out.get("pair_lead") or {}
+            kinds = {**{lead.get("effect"): lead.get("kind")}, **{n: r["kind"] for n, r in by_name.items()}}
+            s += " A second effect is needed beyond it: " + ", ".join(
+                f"{n} ({kinds.get(n) or 'physics'})" for n in rest) + "."
             if lead.get("effect") == rest[0]:
                 s += (f" Check of the refit with {lead['after']} alone ranks {rest[0]} first: it explains "
                       f"{_pct(lead['explained_fraction'])} of what that refit leaves (max-T adjusted "
@@ -862,21 +863,24 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
             "ranking_after": ranking_digest(ranking), **bias, **energy, **pm}
 
 
-def ranking_digest(ranking: Sequence[dict[str, Any]], n: int = 5) -> list[dict[str, Any]]:
-    """The first ``n`` tested entries of a screening's ranking (:meth:`~softsbi.workflows.screening.Screening.ranking`),
+def ranking_digest(ranking: Sequence[dict[str, Any]], n: int | None = None) -> list[dict[str, Any]]:
+    """The first ``n`` (default: all) tested entries of a screening's ranking (:meth:`~softsbi.workflows.screening.Screening.ranking`),
     with the fields :func:`next_effect` and the report read: ``effect``, ``kind``, ``generic``, ``explained_fraction``,
     ``adjusted_p_value``, ``adjusted_p_text``."""
     keys = ("effect", "kind", "generic", "explained_fraction", "adjusted_p_value", "adjusted_p_text")
     return [{k: r.get(k) for k in keys} for r in ranking if "statistic" in r][:n]
 
 
-def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> dict[str, Any] | None:
+def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED,
+                candidates: Sequence[str] | None = None) -> dict[str, Any] | None:
     """The effect a rejected refit ``c`` (from :func:`confirm_effect`) calls for next: the first named
     (non-generic) candidate of check's directional test of the refit (``ranking_after``: the installed effects the
     refit does not include, screened against the refit's own posterior predictive), when that test rejects at the
     level check of the refit used (``misspecification_after``: its ``alpha`` over its number of ``tests``,
     Bonferroni; 0.2 / 2 = 0.1 for rule 3) and the candidate explains ``>= min_explained`` of the refit's residual;
-    None otherwise, or for a refit stored without ``ranking_after``.
+    None otherwise, or for a refit stored without ``ranking_after``. With ``candidates`` (the diagnosis' own, e.g.
+    ``diagnose --effect``), only those are considered: check of the refit screens every installed effect, and its
+    max-T adjustment over that larger family stays valid (conservative) for the subset.
 
     Why the refit's screening and not the nominal fit's forward selection: the nominal fit's parameters absorb part
     of the first effect (a stiffer, more damped cloth stands in for a wind), so the residual it leaves "given the
@@ -885,7 +889,8 @@ def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> dict
     stored and fresh pairs (BENCHMARKS.md "Twentieth session")."""
     m = c.get("misspecification_after") or {}
     level = float(m.get("alpha", EXPLAIN_ALPHA)) / max(int(m.get("tests", 2)), 1)
-    named = [r for r in c.get("ranking_after") or [] if not r.get("generic")]
+    named = [r for r in c.get("ranking_after") or [] if not r.get("generic")
+             and (candidates is None or r["effect"] in candidates)]
     if not named:
         return None
     best = named[0]

@@ -221,6 +221,12 @@ def test_the_second_effect_of_a_pair_is_what_check_of_the_first_refit_still_find
     assert "A second effect is needed beyond it: extra-damping (physics)" in out["summary"]
     assert "Check of the refit with wind alone ranks extra-damping first: it explains 40% of what that refit " \
            "leaves (max-T adjusted p = 0.01)" in out["summary"]
+    # diagnose --effect wind calibration-offset: check of the refit screens every installed effect, but only the
+    # diagnosis' own candidates can be the second effect (here none passes: the forward selection's second)
+    out = diagnosis(["wind", "calibration-offset"])
+    out["candidates"] = ["wind", "calibration-offset"]
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"] is None and out["confirmed"][-1]["effect"] == "wind+calibration-offset"
     # check of the wind refit (two tests at 0.2, i.e. 0.1 each) does not reject along its best named candidate:
     # the forward selection's second; at p = 0.08 it does, whatever the verdicts' alpha (0.05)
     lead["wind"][1] = _after("extra-damping", 0.08, 0.4)
