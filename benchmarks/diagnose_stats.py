@@ -337,6 +337,18 @@ def decide_stored_again(results: Path, outs: Sequence[Path], ids: Sequence[str] 
     return changed
 
 
+def check_refit_again(d: dict[str, Any], c: dict[str, Any], workers: int | None = 1):
+    """Check's test of a stored refit ``c`` of diagnosis ``d``, computed again as ``misspecification_verdict`` now
+    does, at the refit check's own level and cap: its posterior-predictive rollouts re-simulated with their seeds
+    from the first stage confirm_effect requested (``n_null`` counts the successes among those requests). Returns
+    ``misspecification_verdict``'s ``(test, screening, ranking)``."""
+    from softsbi.workflows.screening import candidate_effects, misspecification_verdict
+    from softsbi.workflows.stats import N_NULL, PosteriorPredictive
+    m = c["misspecification_after"]
+    pool = PosteriorPredictive(c["run"], workers).ensure(int(d.get("n_null_start", N_NULL)))
+    return misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"], int(m["max_null"]))
+
+
 def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                  ids: Sequence[str] | None = None) -> list[str]:
     """Rule 3 with resolved refit checks: for every stored row (or ``ids``) whose run directory (looked up in
@@ -346,17 +358,10 @@ def recheck_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
     (:func:`decide_stored_again`). The old diagnosis is kept as ``diagnosis.before-recheck.json``
     and each rechecked refit keeps its first-stage test in ``misspecification_first_stage``; the old verdict
     fields are kept in ``rechecked``. Returns the ids whose verdict or name changed."""
-    from softsbi.workflows.screening import candidate_effects, misspecification_verdict
-    from softsbi.workflows.stats import N_NULL, PosteriorPredictive
-
     def redo(run_dir, d, todo, workers, budget):
         for c in todo:
-            m = c["misspecification_after"]
-            # the first stage as confirm_effect requested it (n_null counts the successes among those requests)
-            pool = PosteriorPredictive(c["run"], workers).ensure(int(d.get("n_null_start", N_NULL)))
-            c["misspecification_first_stage"] = m
-            c["misspecification_after"] = misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"],
-                                                                   int(m["max_null"]))[0]
+            test = check_refit_again(d, c, workers)[0]
+            c["misspecification_first_stage"], c["misspecification_after"] = c["misspecification_after"], test
 
     def report(d, todo):
         return ({"checks": [[c["effect"], c["misspecification_first_stage"]["p_text"],
@@ -427,16 +432,12 @@ def resecond_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
     ``diagnosis.before-resecond.json``; the old verdict fields, the pairs refitted before and the second effect
     chosen now are kept in ``reseconded``. Returns the ids whose verdict or name changed."""
     from softsbi.workflows.diagnose import ranking_digest
-    from softsbi.workflows.screening import candidate_effects, misspecification_verdict
-    from softsbi.workflows.stats import N_NULL, PosteriorPredictive
     old_pairs: list[str] = []
 
     def redo(run_dir, d, todo, workers, budget):
         old_pairs[:] = [c["effect"] for c in d["confirmed"] if "+" in c["effect"]]
         for c in todo:
-            m = c["misspecification_after"]
-            pool = PosteriorPredictive(c["run"], workers).ensure(int(d.get("n_null_start", N_NULL)))
-            again, _, ranking = misspecification_verdict(pool, candidate_effects(pool.run), m["alpha"], int(m["max_null"]))
+            again, _, ranking = check_refit_again(d, c, workers)
             c["ranking_after"] = ranking_digest(ranking)
             c["ranking_after_check"] = again["p_text"]  # the same test, simulated again: should read as stored
 

@@ -34,7 +34,7 @@ from softsbi.workflows.check import material_regions, motion_phases, rollout_reg
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import (Screening, candidate_effects, effect_kind, is_generic,  # noqa: F401
-                                         misspecification_verdict, screening_of)
+                                         misspecification_verdict, passes_screening_rule, screening_of)
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, resolution_needed, run_features, run_frames,
                                      energy_score, posterior_mean_chamfer, sampled_points, summary_bias)
@@ -358,8 +358,8 @@ def candidates_to_confirm(out: dict[str, Any], confirm: int) -> list[str]:
     which one the data prefer.
     """
     verdict = out.get("verdict")
-    passes = [r for r in out["ranking"] if "statistic" in r and r["adjusted_p_value"] <= out["alpha"]
-              and r["explained_fraction"] >= out.get("min_explained", MIN_EXPLAINED)]
+    passes = [r for r in out["ranking"] if "statistic" in r
+              and passes_screening_rule(r, out["alpha"], out.get("min_explained", MIN_EXPLAINED))]
     if verdict == "missing-effect":
         names = list(out["significant"][:1])
         names += [r["effect"] for r in passes if not r.get("generic") and r["effect"] not in names]
@@ -643,10 +643,10 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         named_eff = out.get("named_effects")
         rest = [n for n in (out["significant"] if named_eff is None else named_eff) if n != chosen]
         if rest:
+            # a second effect not screened by the nominal fit (its screening failed there) can only be the lead
             lead = out.get("pair_lead") or {}
-            kinds = {**{lead.get("effect"): lead.get("kind")}, **{n: r["kind"] for n, r in by_name.items()}}
             s += " A second effect is needed beyond it: " + ", ".join(
-                f"{n} ({kinds.get(n) or 'physics'})" for n in rest) + "."
+                f"{n} ({(by_name.get(n) or lead).get('kind') or 'physics'})" for n in rest) + "."
             if lead.get("effect") == rest[0]:
                 s += (f" Check of the refit with {lead['after']} alone ranks {rest[0]} first: it explains "
                       f"{_pct(lead['explained_fraction'])} of what that refit leaves (max-T adjusted "
@@ -863,12 +863,12 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
             "ranking_after": ranking_digest(ranking), **bias, **energy, **pm}
 
 
-def ranking_digest(ranking: Sequence[dict[str, Any]], n: int | None = None) -> list[dict[str, Any]]:
-    """The first ``n`` (default: all) tested entries of a screening's ranking (:meth:`~softsbi.workflows.screening.Screening.ranking`),
+def ranking_digest(ranking: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The tested entries of a screening's ranking (:meth:`~softsbi.workflows.screening.Screening.ranking`), in order,
     with the fields :func:`next_effect` and the report read: ``effect``, ``kind``, ``generic``, ``explained_fraction``,
     ``adjusted_p_value``, ``adjusted_p_text``."""
     keys = ("effect", "kind", "generic", "explained_fraction", "adjusted_p_value", "adjusted_p_text")
-    return [{k: r.get(k) for k in keys} for r in ranking if "statistic" in r][:n]
+    return [{k: r.get(k) for k in keys} for r in ranking if "statistic" in r]
 
 
 def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED,
@@ -893,10 +893,7 @@ def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED,
              and (candidates is None or r["effect"] in candidates)]
     if not named:
         return None
-    best = named[0]
-    ok = (best.get("adjusted_p_value") is not None and best["adjusted_p_value"] <= level
-          and (best.get("explained_fraction") or 0.0) >= min_explained)
-    return {**best, "level": level} if ok else None
+    return {**named[0], "level": level} if passes_screening_rule(named[0], level, min_explained) else None
 
 
 def pm_change(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, Any]:

@@ -60,6 +60,14 @@ def effect_kind(effect: Any) -> str:
     return str(getattr(type(effect), "kind", getattr(effect, "kind", "physics")) or "physics")
 
 
+def passes_screening_rule(entry: dict[str, Any], level: float, min_explained: float) -> bool:
+    """Rule 2 of a diagnosis for one screening entry (:meth:`Screening.ranking`, :meth:`Screening.family`): its
+    max-T adjusted Monte-Carlo p-value is at most ``level`` and it explains at least ``min_explained`` (a fraction)
+    of the residual sum of squares. False for an entry without a p-value (a candidate whose screening failed)."""
+    p = entry.get("adjusted_p_value")
+    return p is not None and p <= level and (entry.get("explained_fraction") or 0.0) >= min_explained
+
+
 def is_generic(effect: Any) -> bool:
     """True for a generic force term (class attribute ``generic = True``: constant force, linear
     or quadratic drag, a position-dependent force field), which describes a residual rather than
@@ -237,7 +245,7 @@ class Screening:
             if not named:
                 break
             best = named[0]
-            ok = best["adjusted_p_value"] <= alpha and best["explained_fraction"] >= min_explained
+            ok = passes_screening_rule(best, alpha, min_explained)
             log.append({"given": list(chosen), "best": best["effect"], "adjusted_p_value": best["adjusted_p_value"],
                         "adjusted_p_text": best["adjusted_p_text"], "explained_fraction": best["explained_fraction"],
                         "accepted": bool(ok)})
