@@ -4,6 +4,19 @@
 default; ``workers=1`` runs in-process, which is easiest to debug). Worker processes use
 the ``spawn`` start method, so they never inherit torch's thread pools from the driver.
 
+Workers do not re-run the calling script. ``spawn`` normally imports the driver's ``__main__``
+(a user's ``python my_fit.py``) in every worker, so a script without an ``if __name__ ==
+"__main__":`` guard would run its own fit again in each worker (measured: the README's Python
+example saved as a file hung, its workers stopping on the run's lock). softsbi's jobs and
+contexts are importable from softsbi and its plugins, so a worker starts from them alone; only
+when the job function or the context refers to something defined in ``__main__`` is the script
+imported as usual (and then it needs the guard, as with any ``spawn`` pool).
+
+A worker that dies *while starting* (before its first handshake: an import error in a plugin,
+a context that cannot be unpickled) ran no job: its job is handed on without being charged an
+attempt, and after ``STARTUP_FAILURES`` such deaths in a row with no worker started,
+:class:`WorkerStartupError` stops the batch with one line instead of retrying forever.
+
 Fault tolerance (shared by every executor of softsbi, see also
 :mod:`softsbi.executors.ray_executor`):
 
@@ -21,10 +34,14 @@ attempt, only that worker is replaced, and the other workers keep their work.
 from __future__ import annotations
 
 import collections
+import contextlib
 import multiprocessing as mp
 import multiprocessing.connection as mpc
 import os
+import pickle
+import sys
 import time
+import types
 from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 from softsbi.core.errors import SoftsbiError
@@ -56,6 +73,14 @@ class SimulationTimeout(WorkerFailure):
     """The job ran longer than the executor's ``timeout`` (its worker was killed)."""
 
 
+class WorkerStartupError(SoftsbiError):
+    """Worker processes die while starting, before they can run any job.
+
+    Raised (not yielded) by :meth:`LocalExecutor.map_unordered` after :data:`STARTUP_FAILURES` such
+    deaths in a row: no simulation can run, so the fit stops; every result stored so far is kept.
+    """
+
+
 class ExecutorOptionError(SoftsbiError, ValueError):
     """An executor option (workers, timeout, retries) has an invalid value."""
 
@@ -76,13 +101,23 @@ def check_options(workers: int | None, timeout: float | None, retries: int) -> N
         raise ExecutorOptionError(f"retries must be >= 0 (got {retries})")
 
 
+#: worker deaths before the handshake, in a row, after which a batch stops (WorkerStartupError)
+STARTUP_FAILURES = 3
+#: the first message of a worker: it has started and unpickled its context
+_READY = "softsbi-worker-ready"
+
 # ----------------------------------------------------------------------------------------
 # worker side
 
 def _worker_main(conn: mpc.Connection, context: Any) -> None:
-    """Loop of one worker process: receive ``(i, fn, item)``, send ``(i, ok, result)``."""
+    """Loop of one worker process: send :data:`_READY`, then receive ``(i, fn, item)`` and send
+    ``(i, ok, result)`` until told to stop (``None``) or the pipe closes."""
     # simulations are single-threaded; keep BLAS from oversubscribing the cores
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    try:
+        conn.send(_READY)
+    except (OSError, ValueError):
+        return
     while True:
         try:
             msg = conn.recv()
@@ -102,12 +137,42 @@ def _worker_main(conn: mpc.Connection, context: Any) -> None:
                                               f"{type(exc).__name__}: {exc}; original: {out[2]!r}"[:2000])))
 
 
+def refers_to_main(*objects: Any) -> bool:
+    """Whether pickling ``objects`` refers to the driver's ``__main__`` module (a job function or
+    context defined in the user's script), which a worker can only unpickle by importing the script.
+
+    Conservative: ``True`` also when the objects cannot be pickled or merely hold the text
+    ``"__main__"``; then workers start the way plain ``spawn`` starts them.
+    """
+    try:
+        return b"__main__" in pickle.dumps(objects, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:  # noqa: BLE001 - unpicklable: let multiprocessing report it as usual
+        return True
+
+
+@contextlib.contextmanager
+def _main_script_hidden():
+    """While a worker process starts, show ``spawn`` a ``__main__`` without a file or module name,
+    so that the worker does not import (and run) the caller's script."""
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is None:
+            del sys.modules["__main__"]
+        else:
+            sys.modules["__main__"] = main
+
+
 class _Worker:
-    def __init__(self, ctx: Any, context: Any):
+    def __init__(self, ctx: Any, context: Any, import_main: bool = True):
         self.conn, child = ctx.Pipe(duplex=True)
         self.proc = ctx.Process(target=_worker_main, args=(child, context), daemon=True)
-        self.proc.start()
+        with contextlib.nullcontext() if import_main else _main_script_hidden():
+            self.proc.start()
         child.close()
+        self.ready = False  # the worker's handshake has arrived
         self.job: int | None = None
         self.started = 0.0
         self.deadline = float("inf")
@@ -163,18 +228,21 @@ class LocalExecutor(Executor):
         self._mp = mp.get_context("spawn")
         self._pool: list[_Worker] = []
         self._context: Any = None
-        #: counts since construction: workers started, crashed, killed on timeout
-        self.stats = {"started": 0, "crashed": 0, "timed_out": 0}
+        self._import_main = False  # whether the pool's workers imported the caller's __main__
+        #: counts since construction: workers started, crashed (startup deaths included), killed on timeout,
+        #: died while starting
+        self.stats = {"started": 0, "crashed": 0, "timed_out": 0, "startup_failed": 0}
 
     # -- pool ---------------------------------------------------------------------------
     def _spawn(self) -> _Worker:
         self.stats["started"] += 1
-        return _Worker(self._mp, self._context)
+        return _Worker(self._mp, self._context, import_main=self._import_main)
 
-    def _ensure_pool(self, context: Any) -> None:
-        if self._pool and self._context is not context:
+    def _ensure_pool(self, context: Any, import_main: bool = False) -> None:
+        if self._pool and (self._context is not context or (import_main and not self._import_main)):
             self.close()
         self._context = context
+        self._import_main = import_main or (bool(self._pool) and self._import_main)
         self._pool = [w for w in self._pool if w.proc.is_alive()]
         while len(self._pool) < self.workers:
             self._pool.append(self._spawn())
@@ -201,10 +269,11 @@ class LocalExecutor(Executor):
             return
         if len(items) == 0:
             return
-        self._ensure_pool(context)
+        self._ensure_pool(context, import_main=refers_to_main(fn, context))
         queue = collections.deque(range(len(items)))
         attempts = [0] * len(items)
         remaining = len(items)
+        startup_deaths = 0  # workers in a row that died before their handshake
         try:
             while remaining:
                 for w in self._pool:  # hand one job to every idle worker
@@ -234,6 +303,20 @@ class LocalExecutor(Executor):
                         has_msg = w.conn.poll()
                     except (OSError, EOFError):
                         has_msg = False
+                    if has_msg and not w.ready:
+                        try:
+                            hello = w.conn.recv()
+                        except (EOFError, OSError):  # died while starting
+                            w.proc.join(5)
+                            has_msg = False
+                        else:
+                            w.ready = True  # the handshake (_READY) is the first message
+                            del hello
+                            startup_deaths = 0
+                            try:
+                                has_msg = w.conn.poll()
+                            except (OSError, EOFError):
+                                has_msg = False
                     if has_msg:
                         try:
                             j, ok, res = w.conn.recv()
@@ -250,6 +333,20 @@ class LocalExecutor(Executor):
                         self.stats["crashed"] += 1
                         code = w.proc.exitcode
                         w.kill()
+                        if not w.ready:  # died while starting: its job never ran
+                            self.stats["startup_failed"] += 1
+                            startup_deaths += 1
+                            if startup_deaths >= STARTUP_FAILURES:
+                                raise WorkerStartupError(
+                                    f"simulation worker processes die while starting ({startup_deaths} in a row, "
+                                    f"last exit code {code}{_signal_name(code)}; what they printed is above), so no "
+                                    f"simulation can run; run with --workers 1 (workers=1) to see the error in this "
+                                    f"process; the same command then resumes")
+                            if i is not None:
+                                attempts[i] -= 1
+                                queue.appendleft(i)
+                            self._pool[k] = self._spawn()
+                            continue
                         self._pool[k] = self._spawn()
                         if i is None:
                             continue

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
-from softsbi.executors.local import LocalExecutor, SimulationTimeout, WorkerCrashed
+from softsbi.executors.local import LocalExecutor, SimulationTimeout, WorkerCrashed, WorkerStartupError
 from softsbi.workflows.fit import FitConfig, SimContext, run_fit, simulate_job
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING
@@ -100,6 +100,77 @@ def test_fit_round_completes_with_crashing_simulations_marked_failed(tmp_path, m
     assert set(fails) == {str(i) for i in np.nonzero(bad)[0]}
     assert all("WorkerCrashed" in v and "2 attempt" in v for v in fails.values())
     assert res.rounds[0]["usable"] == int((~bad).sum())
+
+
+UNGUARDED_SCRIPT = """
+import operator, os, sys
+from softsbi.executors.local import LocalExecutor
+with open(sys.argv[1], "a") as f:   # one line each time this file's top level runs
+    f.write(f"{os.getpid()}\\n")
+ex = LocalExecutor(workers=2, retries=0)
+print(sorted(r for _, r in ex.map_unordered(operator.add, [1, 2, 3, 4], context=10)))
+ex.close()
+"""
+
+MAIN_FUNCTION_SCRIPT = """
+import sys
+from softsbi.executors.local import LocalExecutor
+
+def triple(context, item):   # defined in __main__: workers must import this file to run it
+    return context * item
+
+if __name__ == "__main__":
+    ex = LocalExecutor(workers=2, retries=0)
+    print(sorted(r for _, r in ex.map_unordered(triple, [1, 2, 3], context=3)))
+    ex.close()
+"""
+
+
+def test_a_script_without_a_main_guard_runs_once_and_its_workers_do_not_rerun_it(tmp_path):
+    """A user's `python my_fit.py` with no `if __name__ == "__main__":` guard (the README's Python
+    example saved as a file): spawn used to re-run the whole script in every worker, which hung the fit
+    on its own run lock. Workers now start from softsbi alone."""
+    script, marks = tmp_path / "my_fit.py", tmp_path / "top_level_runs.txt"
+    script.write_text(UNGUARDED_SCRIPT)
+    out = subprocess.run([sys.executable, str(script), str(marks)], capture_output=True, text=True, timeout=120,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "[11, 12, 13, 14]"
+    assert len(marks.read_text().split()) == 1, "the script's top level ran in a worker"
+
+
+def test_a_job_function_defined_in_the_script_still_reaches_the_workers(tmp_path):
+    """The exception to the rule above: a job function from `__main__` needs the script in the worker."""
+    script = tmp_path / "my_jobs.py"
+    script.write_text(MAIN_FUNCTION_SCRIPT)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "[3, 6, 9]"
+
+
+class _DiesWhenUnpickled:
+    """A context whose unpickling in a worker exits the process (a worker that dies while starting)."""
+
+    def __reduce__(self):
+        import os
+        return os._exit, (7,)
+
+
+def test_workers_that_die_while_starting_stop_the_batch_with_one_line():
+    """Before: the jobs were retried on fresh workers that died again, for as long as the batch lasted
+    (the README example as a script hung for more than 600 s). Now three deaths before the handshake stop it,
+    and a job that never ran is not charged an attempt."""
+    import operator
+    ex = LocalExecutor(workers=2, retries=5)
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(WorkerStartupError, match=r"die while starting \(3 in a row, last exit code 7.*--workers 1"):
+            list(ex.map_unordered(operator.add, [1, 2, 3], context=_DiesWhenUnpickled()))
+        assert ex.stats["startup_failed"] == 3 and time.perf_counter() - t0 < 60
+        # the same executor still runs a batch whose context loads
+        assert sorted(r for _, r in ex.map_unordered(operator.add, [1, 2], context=5)) == [6, 7]
+    finally:
+        ex.close()
 
 
 def test_option_errors():
