@@ -202,8 +202,8 @@ class ParamSpace:
         that a prior widened with ``--bounds`` beyond the declared one can be simulated).
 
         Raises:
-            ParameterError: unknown name (with the closest valid name), value outside
-                ``[low, high]`` (or the limits) or not finite, or a missing name (unless ``allow_missing``).
+            ParameterError: unknown name (with the closest valid name), a value that is not a number, a value
+                outside ``[low, high]`` (or the limits) or not finite, or a missing name (unless ``allow_missing``).
             ValueError: ``within`` not ``"prior"`` or ``"limits"``.
         """
         if within not in ("prior", "limits"):
@@ -211,7 +211,12 @@ class ParamSpace:
         out: dict[str, float] = {}
         for k, v in theta.items():
             p = self[k]
-            v = float(v)
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                u = unit_suffix(p.unit)
+                raise ParameterError(f"parameter '{k}' = {v!r} is not a number; give a number{' in' + u if u else ''}, "
+                                     f"e.g. {k}={p.low:g}") from None
             lo, hi = (p.low, p.high) if within == "prior" else p.physical_limits
             if not math.isfinite(v) or v < lo or v > hi:
                 what = "bounds" if within == "prior" else "physical limits"

@@ -11,7 +11,8 @@ A recording directory::
 ``recording.yaml`` (``format: softsbi-recording/1``)::
 
     format: softsbi-recording/1
-    scenario: {name: lift}            # or {file: fold.yaml} (relative to this folder) or {inline: {...}}
+    scenario: {name: lift}            # or {file: fold.yaml} (relative to this folder) or {inline: {...}};
+                                      #   shorthand: scenario: lift, scenario: fold.yaml
     units: {length: m, time: s}
     times: [0.0, 0.04, ...]           # one per frame, s
     transform: {matrix: [[1, 0, 0, 0], ...]}    # recording frame -> scenario frame (required), or
@@ -48,6 +49,14 @@ from softsbi.data.validation import validation_line
 FORMAT = "softsbi-recording/1"
 META = "recording.yaml"
 EXAMPLE = "softsbi/data/recording.py (module docstring)"
+#: what to write for a required field a hand-written recording.yaml lacks
+MISSING_HINTS = {
+    "format": f"format: {FORMAT}",
+    "scenario": "the task, e.g. scenario: lift (a name) or scenario: my_task.yaml (a file beside recording.yaml)",
+    "times": "one time per frame in s, e.g. times: [0.0, 0.04, 0.08, ...]",
+    "transform": "the map of the clouds into the scenario frame, e.g. transform: {matrix: [[1, 0, 0, 0], "
+                 "[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]} when they are already in it",
+}
 
 
 class _Strict(BaseModel):
@@ -56,10 +65,19 @@ class _Strict(BaseModel):
 
 class ScenarioRef(_Strict):
     """Exactly one of a scenario ``name`` (built-in or plugin), ``file`` (relative to the recording
-    folder) or ``inline`` scenario mapping (the scenario file format)."""
+    folder) or ``inline`` scenario mapping (the scenario file format). A plain string is shorthand:
+    ``scenario: lift`` is ``{name: lift}``, ``scenario: my_task.yaml`` (ending in ``.yaml``/``.yml``) is
+    ``{file: my_task.yaml}``."""
     name: Optional[str] = None
     file: Optional[str] = None
     inline: Optional[dict[str, Any]] = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, data: Any) -> Any:
+        if isinstance(data, str):
+            return {"file": data} if data.lower().endswith((".yaml", ".yml")) else {"name": data}
+        return data
 
     @model_validator(mode="after")
     def _one(self) -> "ScenarioRef":
@@ -174,7 +192,7 @@ def parse_meta(data: Any, source: str) -> RecordingMeta:
     try:
         return RecordingMeta.model_validate(dict(data))
     except ValidationError as exc:
-        raise DataError(validation_line(source, exc, EXAMPLE)) from None
+        raise DataError(validation_line(source, exc, EXAMPLE, MISSING_HINTS)) from None
 
 
 def _frames(folder: Path, sub: str) -> list[Path]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import importlib.metadata as md
+import inspect
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -25,7 +26,7 @@ from typing import Any
 
 import pluggy
 
-from softsbi.core.errors import PluginError, PluginNotFound, closest
+from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, closest
 from softsbi.core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
 from softsbi.plugins import hookspecs
 
@@ -302,3 +303,56 @@ def registry() -> Registry:
             each call reports it again.
     """
     return Registry(get_plugin_manager(autoload=True))
+
+
+def option_defaults(cls: type) -> tuple[dict[str, Any], bool]:
+    """``({option: default}, open)`` of a plugin class: a config-style class's ``defaults()`` or ``DEFAULTS``
+    (estimators, extractors), else the keyword parameters of its ``__init__`` (simulators, executors; a
+    parameter without a default maps to ``None``). ``open`` is True when ``__init__`` also takes ``**kwargs``,
+    so that names outside the defaults may still be valid."""
+    if callable(getattr(cls, "defaults", None)):
+        return dict(cls.defaults()), False
+    if isinstance(getattr(cls, "DEFAULTS", None), Mapping):
+        return dict(cls.DEFAULTS), False
+    out: dict[str, Any] = {}
+    is_open = False
+    for i, (name, par) in enumerate(inspect.signature(cls.__init__).parameters.items()):
+        if i == 0 or par.kind is par.VAR_POSITIONAL:
+            continue
+        if par.kind is par.VAR_KEYWORD:
+            is_open = True
+            continue
+        out[name] = None if par.default is par.empty else par.default
+    return out, is_open
+
+
+def check_options(cls: type, options: Mapping[str, Any], what: str) -> None:
+    """Check a plugin's options before anything runs: known names, and a number or a flag where the default is one.
+
+    Catches what a command line gets wrong (``--estimator-opt max_epochs=abc``, ``--backend-opt gridd=3``) before the
+    first simulation instead of as a traceback from deep inside the plugin, after a round of simulations. Values of
+    other types are left to the plugin, which may accept several (a list or a number, say).
+
+    Args:
+        cls: the plugin class (a :class:`Registry` look-up).
+        options: the options the user gave.
+        what: how the error names the plugin and its option flag, e.g. ``"estimator 'rkhs' (--estimator-opt)"``.
+
+    Raises:
+        ParameterError: an unknown option (with the closest name and the list), or text where a number or
+            true/false is expected.
+    """
+    defaults, is_open = option_defaults(cls)
+    for k, v in options.items():
+        if k not in defaults:
+            if is_open:
+                continue
+            raise ParameterError(f"unknown option '{k}' for {what}.{closest(k, defaults)} "
+                                 f"Options: {', '.join(sorted(defaults)) or 'none'}")
+        d = defaults[k]
+        if v is None or d is None:
+            continue
+        if isinstance(d, bool) and type(v).__name__ not in ("bool", "bool_"):
+            raise ParameterError(f"option '{k}' of {what} = {v!r} must be true or false (default {d})")
+        if isinstance(d, (int, float)) and not isinstance(d, bool) and isinstance(v, str):
+            raise ParameterError(f"option '{k}' of {what} = {v!r} is not a number (default {d!r})")

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 
 from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import Recording, Rollout, Scenario
-from softsbi.plugins import registry
+from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.workflows.calibrate import calibrate_run
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
@@ -77,10 +77,12 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
         :class:`~softsbi.core.types.Rollout` (``vertices (T, N, 3)`` m, ``gripper``, ``times``, status).
 
     Raises:
-        PluginNotFound: unknown backend or effect. ParameterError: unknown parameter or a value outside its physical limits.
+        PluginNotFound: unknown backend or effect. ParameterError: unknown parameter or a value outside its physical limits,
+            or a backend option the backend does not have (or text where it expects a number).
     """
     sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     reg = registry()
+    check_options(reg.simulator(backend), backend_options, f"simulator '{backend}' (backend_options)")
     sim = reg.simulator(backend)(**backend_options)
     space = sim.param_space(sc)
     for e in effects:

@@ -33,7 +33,7 @@ from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, S
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.perception.masks import hsv_mask
-from softsbi.plugins import registry
+from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
 from softsbi.scenarios.cameras import default_camera
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
@@ -153,7 +153,9 @@ class FitConfig:
     sensor: str = _resume("height")
 
     def validate(self) -> None:
-        """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range."""
+        """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
+        plugin option that its plugin does not have or that is text where a number is expected
+        (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin)."""
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
         if self.sensor not in ("height", "camera"):
@@ -174,6 +176,12 @@ class FitConfig:
             raise SoftsbiError("--frames selects no frame; give e.g. --frames 10:25")
         if isinstance(self.frames, str):
             parse_frames(self.frames, None)
+        # the plugins' options, before the first simulation (an estimator's are otherwise read after a round)
+        reg = registry()
+        for kind, name, opts, flag in (("simulator", self.backend, self.backend_options, "--backend-opt"),
+                                       ("estimator", self.estimator, self.estimator_options, "--estimator-opt"),
+                                       ("executor", self.executor, self.executor_options, "executor option")):
+            check_options(reg.get(kind, name), opts, f"{kind} '{name}' ({flag})")
 
     def to_json(self) -> dict[str, Any]:
         """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""

@@ -19,7 +19,7 @@ import zarr
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.perception.images import save_frames
-from softsbi.plugins import registry
+from softsbi.plugins import check_options, registry
 from softsbi.report import plot_rollout_preview
 from softsbi.data.recording import write_recording
 from softsbi.perception.pointcloud import rollout_clouds
@@ -96,6 +96,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
     except ValueError as exc:
         raise SoftsbiError(str(exc)) from None
     reg = registry()
+    check_options(reg.simulator(backend), dict(backend_options or {}), f"simulator '{backend}' (--backend-opt)")
     sim = reg.simulator(backend)(**dict(backend_options or {}))
     space = sim.param_space(sc)
     for e in effects:

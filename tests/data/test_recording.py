@@ -54,13 +54,34 @@ def test_missing_transform_and_unknown_field_are_one_line(tmp_path):
     meta = yaml.safe_load(meta_file.read_text())
     del meta["transform"]
     meta_file.write_text(yaml.safe_dump(meta))
-    with pytest.raises(DataError, match=r"r/recording\.yaml: field 'transform' is missing; add it") as err:
+    with pytest.raises(DataError, match=r"r/recording\.yaml: field 'transform' is missing; add it, the map of the "
+                                        r"clouds into the scenario frame, e\.g\. transform: \{matrix: ") as err:
         read_recording(tmp_path / "r")
     assert "\n" not in str(err.value)
     meta["transform"] = {"matrix": np.eye(4).tolist()}
     meta["tiems"] = [0.0]
     meta_file.write_text(yaml.safe_dump(meta))
     with pytest.raises(DataError, match=r"recording\.yaml: unknown field 'tiems'; remove it"):
+        read_recording(tmp_path / "r")
+
+
+def test_a_hand_written_recording_yaml_may_name_its_scenario_in_one_word(tmp_path):
+    """`scenario: wipe` (what the README's "scenario name, file or inline" suggests) was refused with a pydantic
+    type error; a plain string is a name, or a file when it ends in .yaml."""
+    write_recording(tmp_path / "r", _meta(31), [np.zeros((5, 3))] * 31)
+    meta_file = tmp_path / "r" / "recording.yaml"
+    meta = yaml.safe_load(meta_file.read_text())
+    meta["scenario"] = "wipe"
+    meta_file.write_text(yaml.safe_dump(meta))
+    assert read_recording(tmp_path / "r").meta.scenario.name == "wipe"
+    assert load_recording(tmp_path / "r", n_points=8, n_dense=50).scenario.name == "wipe"
+    shutil.copy(FOLD_YAML, tmp_path / "r" / "task.yaml")
+    meta["scenario"] = "task.yaml"
+    meta_file.write_text(yaml.safe_dump(meta))
+    assert read_recording(tmp_path / "r").meta.scenario.file == "task.yaml"
+    del meta["times"]
+    meta_file.write_text(yaml.safe_dump(meta))
+    with pytest.raises(DataError, match=r"field 'times' is missing; add it, one time per frame in s, e\.g\. times: "):
         read_recording(tmp_path / "r")
 
 
