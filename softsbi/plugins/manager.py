@@ -13,12 +13,23 @@ to *import* is only skipped with a warning (see :data:`LOAD_ERRORS`).
 
 A class may keep an old name working for a while with ``aliases = ("old-name",)``: looking
 it up by an alias returns the class with a :class:`FutureWarning`.
+
+Without a package: the environment variable ``SOFTSBI_PLUGINS`` names plugin modules to load as well,
+separated by ``os.pathsep`` (``:``), each an importable module name or the path of a ``.py`` file
+(``SOFTSBI_PLUGINS=./my_effects.py softsbi fit ... --effect my-hem``). They register exactly like
+entry points; simulation workers inherit the variable and load the same files. A listed module that
+cannot be loaded is an error (it was asked for by name), not a warning.
 """
 from __future__ import annotations
 
 import functools
+import importlib
 import importlib.metadata as md
+import importlib.util
 import inspect
+import os
+import sys
+from pathlib import Path
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -69,7 +80,57 @@ def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
             except pluggy.PluginValidationError as exc:
                 raise PluginError(f"softsbi plugin '{ep.name}' ({ep.value}, {_DIST[id(plugin)]}) is malformed: "
                                   f"{exc}") from None
+        _load_env_plugins(pm)
     return pm
+
+
+#: environment variable naming plugin modules or ``.py`` files to load besides the entry points
+PLUGINS_ENV = "SOFTSBI_PLUGINS"
+
+
+def _import_plugin(item: str) -> Any:
+    """The module named by one entry of :data:`PLUGINS_ENV`: a ``.py`` file (path) or an importable module."""
+    if item.endswith(".py") or os.sep in item:
+        path = Path(item).expanduser().resolve()
+        if not path.is_file():
+            raise FileNotFoundError(f"no such file {str(path)!r}")
+        name = f"softsbi_file_plugin_{path.stem}"
+        module = sys.modules.get(name)
+        if module is not None and getattr(module, "__file__", None) == str(path):
+            return module
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[name]
+            raise
+        return module
+    return importlib.import_module(item)
+
+
+def _load_env_plugins(pm: pluggy.PluginManager) -> None:
+    """Register the modules of :data:`PLUGINS_ENV` (see the module docstring).
+
+    Raises:
+        PluginError: an entry cannot be loaded (missing file, import error) or its hooks are malformed.
+    """
+    for item in (s.strip() for s in os.environ.get(PLUGINS_ENV, "").split(os.pathsep)):
+        if not item:
+            continue
+        try:
+            plugin = _import_plugin(item)
+        except Exception as exc:  # noqa: BLE001 - any failure of a plugin the user named
+            raise PluginError(f"{PLUGINS_ENV}: cannot load '{item}' ({type(exc).__name__}: {exc}); give an importable "
+                              f"module name or the path of a .py file, separated by '{os.pathsep}'") from None
+        if pm.is_registered(plugin):
+            continue
+        _DIST[id(plugin)] = f"{PLUGINS_ENV} ({item})"
+        try:
+            pm.register(plugin, name=f"{PLUGINS_ENV}:{item}")
+        except pluggy.PluginValidationError as exc:
+            raise PluginError(f"softsbi plugin '{item}' ({PLUGINS_ENV}) is malformed: {exc}") from None
 
 
 #: ``{id(plugin object): "distribution version"}`` of the entry points loaded by :func:`get_plugin_manager`

@@ -187,3 +187,55 @@ def test_cli_prints_a_broken_registry_as_one_line(monkeypatch):
     assert res.exit_code == 2
     doc = json.loads(res.output[res.output.index("{"):])
     assert doc["type"] == "PluginError" and "two effect plugins are named 'wind'" in doc["error"]
+
+
+FILE_EFFECT = '''
+from softsbi import Effect, Param, ParamSpace, hookimpl
+
+
+class FileHem(Effect):
+    """Extra weight on the border vertices (a force field). Off at 0 kg/m."""
+    name = "file-hem"
+    description = "extra weight along the cloth's edges (kg/m)"
+
+    def param_space(self):
+        return ParamSpace([Param("hem_density", 0.0, 0.05, "kg/m")])
+
+    def force(self, x, v, t, theta, ctx):
+        return ctx.edges[:, None] * theta["hem_density"] * ctx.spacing * ctx.gravity[None, :]
+
+
+@hookimpl
+def softsbi_effects():
+    return [FileHem]
+'''
+
+
+def test_an_effect_in_one_file_plugs_in_through_softsbi_plugins_without_a_package(tmp_path):
+    """SOFTSBI_PLUGINS=my_effect.py: listed, simulated, and fitted with spawned workers (which load the same
+    file); a path that does not exist is one line naming the variable and the fix."""
+    import os
+    import subprocess
+    import sys
+    (tmp_path / "my_effect.py").write_text(FILE_EFFECT)
+    env = {**os.environ, "SOFTSBI_PLUGINS": "my_effect.py"}
+
+    def cli(*args, env=env):
+        return subprocess.run([sys.executable, "-m", "softsbi.cli", *args], cwd=tmp_path, env=env, capture_output=True,
+                              text=True, timeout=300)
+
+    res = cli("plugins", "--json")
+    assert res.returncode == 0, res.stderr[-2000:]
+    effects = {e["name"]: e for e in json.loads(res.stdout)["effects"]}
+    assert effects["file-hem"]["package"] == "SOFTSBI_PLUGINS (my_effect.py)"
+    res = cli("simulate", "--scenario", "lift", "--effect", "file-hem", "--theta", "hem_density=0.04",
+              "--backend-opt", "grid=5", "--out", "meas")
+    assert res.returncode == 0, res.stderr[-2000:]
+    res = cli("fit", "--observed", "meas", "--effect", "file-hem", "--backend-opt", "grid=5", "--rounds", "1",
+              "--sims-per-round", "10", "--n-eval", "2", "--workers", "2", "--out", "run")
+    assert res.returncode == 0, res.stderr[-2000:]
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert "hem_density" in report["posterior_mean"] and report["failed_simulations"] == 0
+    res = cli("plugins", env={**env, "SOFTSBI_PLUGINS": "missing.py"})
+    assert res.returncode == 2 and "SOFTSBI_PLUGINS: cannot load 'missing.py' (FileNotFoundError" in res.stderr
+    assert "Traceback" not in res.stderr
