@@ -305,13 +305,12 @@ class LocalExecutor(Executor):
                         has_msg = False
                     if has_msg and not w.ready:
                         try:
-                            hello = w.conn.recv()
+                            w.conn.recv()  # the handshake (_READY) is the first message
                         except (EOFError, OSError):  # died while starting
                             w.proc.join(5)
                             has_msg = False
                         else:
-                            w.ready = True  # the handshake (_READY) is the first message
-                            del hello
+                            w.ready = True
                             startup_deaths = 0
                             try:
                                 has_msg = w.conn.poll()

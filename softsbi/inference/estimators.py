@@ -32,9 +32,10 @@ import torch
 from torch import nn
 
 from softsbi.core.distributions import MixtureOfGaussians
-from softsbi.core.errors import DataError, ParameterError, PosteriorError, ShapeError, closest
+from softsbi.core.errors import DataError, ParameterError, PosteriorError, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
 from softsbi.plugins.hookspecs import hookimpl
+from softsbi.plugins.manager import check_option_values
 from softsbi.inference.mdn import MDNHead, MDNParams, mdn_log_prob
 from softsbi.inference.rkhs import RKHSNet
 from softsbi.inference.summaries import bayessim_summaries, local_thickness
@@ -53,13 +54,10 @@ def merge_config(estimator: str, defaults: Mapping[str, Any], config: Mapping[st
     """``defaults`` updated by ``config`` (the options of an estimator, extractor... named ``estimator``).
 
     Raises:
-        ParameterError: a key of ``config`` is not an option (names the closest one and lists all).
+        ParameterError: a key of ``config`` is not an option (names the closest one and lists all), or a value
+            is text where the default is a number or a flag (:func:`~softsbi.plugins.manager.check_option_values`).
     """
-    unknown = [k for k in config if k not in defaults]
-    if unknown:
-        k = unknown[0]
-        raise ParameterError(f"unknown option '{k}' for {kind} '{estimator}'.{closest(k, defaults)} "
-                             f"Options: {', '.join(sorted(defaults))}")
+    check_option_values(defaults, config, f"{kind} '{estimator}'")
     return {**defaults, **config}
 
 

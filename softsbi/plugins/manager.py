@@ -404,6 +404,13 @@ def check_options(cls: type, options: Mapping[str, Any], what: str) -> None:
             true/false is expected.
     """
     defaults, is_open = option_defaults(cls)
+    check_option_values(defaults, options, what, is_open)
+
+
+def check_option_values(defaults: Mapping[str, Any], options: Mapping[str, Any], what: str,
+                        is_open: bool = False) -> None:
+    """:func:`check_options` against a ``{option: default}`` table (``is_open``: names outside it are allowed).
+    The text ``none``/``null`` passes where a number is expected: plugins read it as switched off."""
     for k, v in options.items():
         if k not in defaults:
             if is_open:
@@ -415,5 +422,6 @@ def check_options(cls: type, options: Mapping[str, Any], what: str) -> None:
             continue
         if isinstance(d, bool) and type(v).__name__ not in ("bool", "bool_"):
             raise ParameterError(f"option '{k}' of {what} = {v!r} must be true or false (default {d})")
-        if isinstance(d, (int, float)) and not isinstance(d, bool) and isinstance(v, str):
+        if isinstance(d, (int, float)) and not isinstance(d, bool) and isinstance(v, str) \
+                and v.lower() not in ("none", "null"):  # "none": the option switched off (point_subset=none)
             raise ParameterError(f"option '{k}' of {what} = {v!r} is not a number (default {d!r})")
