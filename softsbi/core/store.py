@@ -81,6 +81,12 @@ class RunStore:
         """Open an existing store, checking its schema and version."""
         path = Path(path)
         if not cls.exists(path):
+            if path.name == "run.zarr" and not path.parent.exists():
+                raise SchemaError(f"run directory '{path.parent}' does not exist; pass the --out folder of a "
+                                  f"`softsbi fit`")
+            if path.name == "run.zarr" and not path.exists():
+                raise SchemaError(f"'{path.parent}' is not a run directory (it holds no run.zarr); pass the --out "
+                                  f"folder of a `softsbi fit`")
             raise SchemaError(f"'{path}' is not a softsbi run store (no zarr.json); pass the run.zarr written "
                               f"by `softsbi fit`")
         try:

@@ -46,6 +46,12 @@ def test_store_round_trip_and_schema_errors(tmp_path):
         RunStore.open(p)
     with pytest.raises(SchemaError, match="not a softsbi run store"):
         RunStore.open(tmp_path / "nothing.zarr")
+    # what `softsbi check/diagnose/compare/view RUN` pass: RUN/run.zarr; the message is about RUN
+    with pytest.raises(SchemaError, match=r"run directory '.*typo' does not exist; pass the --out folder"):
+        RunStore.open(tmp_path / "typo" / "run.zarr")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SchemaError, match=r"'.*empty' is not a run directory \(it holds no run\.zarr\)"):
+        RunStore.open(tmp_path / "empty" / "run.zarr")
     with pytest.raises(SchemaError, match="already exists"):
         RunStore.create(p, {})
 
