@@ -280,6 +280,9 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
                         f"../shared/data/diffcloud_lift/lift_tan (frames 000.npy, 001.npy, ...)")
     files = sorted(f for f in folder.glob("*.npy") if f.stem.isdigit())
     if not files:
+        if (folder / "run.zarr").exists():
+            raise DataError(f"'{folder}' is a run directory (the output of `softsbi fit`), not a recording; pass the "
+                            f"recording it was fitted to (report.json's 'observed') or check/diagnose it")
         raise DataError(f"'{folder}' holds no frames named 000.npy, 001.npy, ...; a recording folder must "
                         f"contain one (P, 3) point cloud per frame")
     idx = [int(f.stem) for f in files]

@@ -164,3 +164,9 @@ def test_check_options_leaves_open_signatures_and_other_types_to_the_plugin():
     check_options(Open, {"size": [1, 2]}, "simulator 'open'")                     # a list is the plugin's to judge
     with pytest.raises(Exception, match="option 'size' of simulator 'open' = 'big' is not a number"):
         check_options(Open, {"size": "big"}, "simulator 'open'")
+
+
+def test_a_run_directory_passed_as_the_recording_is_named_as_such(tmp_path):
+    (tmp_path / "run" / "run.zarr").mkdir(parents=True)
+    with pytest.raises(DataError, match=r"is a run directory \(the output of `softsbi fit`\), not a recording"):
+        load_cloud_frames(tmp_path / "run")
