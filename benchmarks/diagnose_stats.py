@@ -452,6 +452,42 @@ def resecond_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                                redo, report, workers)
 
 
+def refits_with_another_base(d: dict[str, Any]) -> list[dict[str, Any]]:
+    """A stored diagnosis' single refit that a pair now builds on (:func:`softsbi.workflows.diagnose.pair_base`: the
+    refit that lowered the error most) where that is not the screening's first effect and the pair path was taken
+    (the screening said missing-effect, and the stored verdict is the third or names a pair)."""
+    from softsbi.workflows.diagnose import pair_base
+    if d.get("screening_verdict", d.get("verdict")) != "missing-effect" or not d.get("significant"):
+        return []
+    confirmed = d.get("confirmed") or []
+    if not (d.get("verdict") == "misspecified-unexplained" or any("+" in c["effect"] for c in confirmed)):
+        return []
+    base = pair_base(d)
+    return [base] if base is not None and base["effect"] != d["significant"][0] else []
+
+
+def rebase_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
+                ids: Sequence[str] | None = None) -> list[str]:
+    """The pair built on the refit that lowered the error most: every stored row (or ``ids``) that
+    :func:`refits_with_another_base` selects is decided again (:func:`decide_stored_again`: ``redecide`` refits the
+    pair :func:`~softsbi.workflows.diagnose.second_effect` now chooses, from the base refit's stored check screening).
+    The old diagnosis is kept as ``diagnosis.before-rebase.json``; the old verdict fields, the pairs refitted before
+    and the base are kept in ``rebased``. Returns the ids whose verdict or name changed."""
+    old_pairs: list[str] = []
+
+    def redo(run_dir, d, todo, workers, budget):
+        old_pairs[:] = [c["effect"] for c in d["confirmed"] if "+" in c["effect"]]
+
+    def report(d, todo):
+        return ({"old_pairs": list(old_pairs), "base": [c["effect"] for c in todo], "lead": d.get("pair_lead"),
+                 "pairs": [[c["effect"], c.get("drop"), c["misspecification_after"]["p_text"]]
+                           for c in d["confirmed"] if "+" in c["effect"]]},
+                {"old_pairs": list(old_pairs), "base": [c["effect"] for c in todo],
+                 "lead": (d.get("pair_lead") or {}).get("effect")})
+    return decide_stored_again(results, outs, ids, "rebased", refits_with_another_base, "diagnosis.before-rebase.json",
+                               redo, report, workers)
+
+
 #: the subcommands that decide stored rows again, refit by refit: the mark they leave in a row, the refits they
 #: select in its diagnosis, what ``--list`` prints of one, the function that does it, and what it does
 REDO_STORED: dict[str, tuple[str, Callable, Callable, Callable, str]] = {
@@ -468,6 +504,10 @@ REDO_STORED: dict[str, tuple[str, Callable, Callable, Callable, str]] = {
                  lambda c: [c["effect"], c["misspecification_after"]["p_text"]], resecond_rows,
                  "keep the screening of check of the first refit where no single refit explains the misfit, and refit "
                  "the pair it calls for"),
+    "rebase": ("rebased", refits_with_another_base,
+               lambda c: [c["effect"], c.get("drop"), c["misspecification_after"]["p_text"]], rebase_rows,
+               "build the pair on the refit that lowered the error most where that is not the screening's first effect, "
+               "and refit the pair it calls for"),
 }
 
 

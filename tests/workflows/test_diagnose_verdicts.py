@@ -246,6 +246,45 @@ def test_the_second_effect_of_a_pair_is_what_check_of_the_first_refit_still_find
     assert not any("+" in c["effect"] for c in out["confirmed"]) and out["verdict"] == "misspecified-unexplained"
 
 
+def test_a_pair_builds_on_the_refit_that_lowers_the_error_most_not_the_screenings_first(monkeypatch):
+    """Near-collinear effects (a wind and extra damping in a fling) tie in the linearised screening; the refits tell
+    them apart. Pairs case 44 (hidden: extra damping + calibration offset): the screening ranked wind first, the
+    damping refit lowered the error 54% and the wind refit 21%, and the pair built on wind named nothing. The pair
+    now builds on the refit the verdict already calls the partial explanation; with no refit lowering the error it
+    falls back to the screening's first."""
+    after = {"wind": (0.028, 0.005), "extra-damping": (0.015, 0.005), "extra-damping+calibration-offset": (0.01, 0.7),
+             "wind+calibration-offset": (0.02, 0.005), "wind+extra-damping": (0.02, 0.005),
+             "extra-damping+wind": (0.02, 0.005)}
+    lead = {"extra-damping": [_after("calibration-offset", 0.01, 0.4)], "wind": [_after("calibration-offset", 0.01, 0.4)]}
+    dg = _fake_refits(monkeypatch, after, lead)
+
+    def diagnosis():
+        out = _fake_diagnosis()
+        out["significant"], out["alpha"] = ["wind", "extra-damping"], 0.05
+        out["ranking"][1]["explained_fraction"] = 0.27  # as much as the wind: near-collinear in the screening
+        out["ranking"].append({**out["ranking"][0], "effect": "calibration-offset", "explained_fraction": 0.12})
+        return out
+
+    out = diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"]["after"] == "extra-damping" and out["confirmed"][-1]["effect"] == \
+        "extra-damping+calibration-offset"
+    assert not any(c["effect"].startswith("wind+") for c in out["confirmed"])
+    assert out["verdict"] == "missing-effect" and out["named_effects"] == ["extra-damping", "calibration-offset"]
+    assert any("check of extra-damping's refit" in r for r in out["rules"])
+    # no refit lowers the error: the pair builds on the screening's first, as before
+    after.update({"wind": (0.031, 0.005), "extra-damping": (0.032, 0.005)})
+    out = diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"]["after"] == "wind" and out["confirmed"][-1]["effect"] == "wind+calibration-offset"
+    # without a lead from check of the base refit, the forward selection's next effect after the base
+    lead["extra-damping"] = []
+    after.update({"wind": (0.028, 0.005), "extra-damping": (0.015, 0.005)})
+    out = diagnosis()
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"] is None and out["confirmed"][-1]["effect"] == "extra-damping+wind"
+
+
 def test_a_refit_check_accepts_and_that_lowers_the_error_names_the_effect(monkeypatch):
     dg = _fake_refits(monkeypatch, {"wind": (0.012, 0.84)})
     out = _fake_diagnosis()
