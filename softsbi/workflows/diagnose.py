@@ -471,8 +471,9 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
 
 def pair_base(out: dict[str, Any]) -> dict[str, Any] | None:
     """The refit a pair builds on when no single refit explains the misfit: among the single refits of the
-    screening's significant effects, the one that lowers the posterior-predictive Chamfer most (the effect the
-    verdict says explains a part, ``partial``), else the refit of the screening's first effect; None without one.
+    screening's significant effects, the one that lowers the posterior-predictive Chamfer most (the verdict's
+    ``partial``, the effect it says explains a part, whenever that one is significant), else the refit of the
+    screening's first effect; None without one.
 
     Why the largest drop and not the screening's first: the linearised screening cannot tell near-collinear effects
     apart (a wind and extra damping in a fling explained 38% and 37% of the residual in pairs case 44), the refits can
