@@ -223,6 +223,22 @@ def test_resecond_takes_the_first_refit_only_where_no_single_refit_explains_and_
     assert bench.refits_without_lead({"verdict": "nothing-missing", "significant": [], "confirmed": []}) == []
 
 
+def test_rebase_takes_the_refit_with_the_largest_drop_only_where_it_is_not_the_screenings_first_and_a_pair_was_due():
+    """``rebase`` selects the refit a pair now builds on (the largest drop among the significant effects' single
+    refits) only where it differs from the screening's first and the pair path was taken (third verdict, or a pair)."""
+    rej = {"misspecified": True}
+    d = {"verdict": "misspecified-unexplained", "screening_verdict": "missing-effect", "significant": ["w", "d"],
+         "confirmed": [{"effect": "d", "drop": 0.54, "misspecification_after": rej},
+                       {"effect": "w", "drop": 0.21, "misspecification_after": rej},
+                       {"effect": "w+c", "drop": -0.06, "misspecification_after": {"misspecified": False}}]}
+    assert [c["effect"] for c in bench.refits_with_another_base(d)] == ["d"]
+    d["confirmed"][0]["drop"] = 0.1  # the screening's first lowers the error most: nothing to rebase
+    assert bench.refits_with_another_base(d) == []
+    d["confirmed"][0]["drop"] = 0.54
+    assert bench.refits_with_another_base({**d, "verdict": "missing-effect", "confirmed": d["confirmed"][:2]}) == []
+    assert bench.refits_with_another_base({**d, "significant": ["w"]}) == []  # d is not significant
+
+
 def test_a_stored_row_decided_again_keeps_its_old_verdict_the_old_diagnosis_and_continues(tmp_path, monkeypatch):
     """The loop shared by recheck, rewiden and resecond: the selected refits are changed, the rules applied again,
     diagnosis.json rewritten with the old one kept, the row's verdict replaced with the old one under the mark, and a
