@@ -441,7 +441,8 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                 # no single refit explains it, and the first effect's refit (or, for a refit stored without its
                 # screening, the nominal's forward selection) calls for a second effect: refit with both (rule 3
                 # applied to the pair)
-                joint = next((c for c in out["confirmed"] if c["effect"] == "+".join(pair)), None)
+                # a stored refit of the same two effects in the other order is the same model: reused
+                joint = next((c for c in out["confirmed"] if set(c["effect"].split("+")) == set(pair)), None)
                 if joint is None:
                     if progress:
                         progress("+".join(pair))
@@ -673,7 +674,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                 s += (f" Check of the refit with {lead['after']} alone ranks {rest[0]} first: it explains "
                       f"{_pct(lead['explained_fraction'])} of what that refit leaves (max-T adjusted "
                       f"{lead['adjusted_p_text']}).")
-            joint = confirmed.get("+".join([chosen] + rest[:1]))
+            joint = next((c for c in confirmed.values() if set(c["effect"].split("+")) == {chosen, *rest[:1]}), None)
             if joint:
                 s += (f" Refitting with both changes the posterior-predictive Chamfer from "
                       f"{joint['chamfer_before_m'] * 100:.2f} to {joint['chamfer_after_m'] * 100:.2f} cm "

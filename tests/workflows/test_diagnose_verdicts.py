@@ -285,6 +285,23 @@ def test_a_pair_builds_on_the_refit_that_lowers_the_error_most_not_the_screening
     assert out["pair_lead"] is None and out["confirmed"][-1]["effect"] == "extra-damping+wind"
 
 
+def test_a_stored_refit_of_the_same_pair_in_the_other_order_is_reused_not_refitted(monkeypatch):
+    """'b+a' is the model 'a+b': a diagnosis decided again (or resumed) whose rule now asks for wind + extra-damping
+    reuses the stored extra-damping+wind refit (the fake refits have no wind+extra-damping: refitting it would fail)."""
+    after = {"wind": (0.025, 0.005), "extra-damping": (0.028, 0.005)}
+    dg = _fake_refits(monkeypatch, after)
+    out = _fake_diagnosis()
+    out["significant"] = ["wind", "extra-damping"]
+    stored = {"effect": "extra-damping+wind", "run": "x", "chamfer_before_m": 0.03, "chamfer_after_m": 0.015,
+              "drop": 0.5, "posterior_mean": {}, "misspecification_after": {"p_value": 0.5, "p_text": "p = 0.5",
+                                                                             "misspecified": False, "alpha": 0.2}}
+    out["confirmed"].append(stored)
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["verdict"] == "missing-effect" and out["named_effects"] == ["wind", "extra-damping"]
+    assert [c["effect"] for c in out["confirmed"]].count("extra-damping+wind") == 1
+    assert "Refitting with both changes the posterior-predictive Chamfer from 3.00 to 1.50 cm" in out["summary"]
+
+
 def test_a_refit_check_accepts_and_that_lowers_the_error_names_the_effect(monkeypatch):
     dg = _fake_refits(monkeypatch, {"wind": (0.012, 0.84)})
     out = _fake_diagnosis()
