@@ -242,7 +242,8 @@ class LocalExecutor(Executor):
         if self._pool and (self._context is not context or (import_main and not self._import_main)):
             self.close()
         self._context = context
-        self._import_main = import_main or (bool(self._pool) and self._import_main)
+        if not self._pool:  # a pool that is kept keeps how its workers started
+            self._import_main = import_main
         self._pool = [w for w in self._pool if w.proc.is_alive()]
         while len(self._pool) < self.workers:
             self._pool.append(self._spawn())

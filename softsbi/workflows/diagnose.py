@@ -21,7 +21,7 @@ import time
 import warnings
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
@@ -424,7 +424,6 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
         # refit p = 0.32 but Chamfer 26% higher)
         mx = out.get("min_explained", MIN_EXPLAINED)
         explains = [c for c in checked if _explains(c, mx)]
-        sig = list(out["significant"])
         if explains:
             out["selected"] = explains[0]["effect"]  # the largest drop (sorted above)
             # refits that explain the misfit as well as the chosen one, within the Monte-Carlo error of their
@@ -441,8 +440,7 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                 # no single refit explains it, and the first effect's refit (or, for a refit stored without its
                 # screening, the nominal's forward selection) calls for a second effect: refit with both (rule 3
                 # applied to the pair)
-                # a stored refit of the same two effects in the other order is the same model: reused
-                joint = next((c for c in out["confirmed"] if set(c["effect"].split("+")) == set(pair)), None)
+                joint = refit_of(out["confirmed"], pair)
                 if joint is None:
                     if progress:
                         progress("+".join(pair))
@@ -468,6 +466,13 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
     out["rules"] = decision_rules(out)
     out["summary"] = _diagnosis_sentence(out)
     return out
+
+
+def refit_of(confirmed: Iterable[dict[str, Any]], effects: Sequence[str]) -> dict[str, Any] | None:
+    """The stored refit (a ``confirmed`` entry) whose added effects are ``effects``, in any order: a refit of
+    ``b+a`` is the model ``a+b``, so a diagnosis decided again or resumed reuses it; None without one."""
+    want = set(effects)
+    return next((c for c in confirmed if set(c["effect"].split("+")) == want), None)
 
 
 def pair_base(out: dict[str, Any]) -> dict[str, Any] | None:
@@ -674,7 +679,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                 s += (f" Check of the refit with {lead['after']} alone ranks {rest[0]} first: it explains "
                       f"{_pct(lead['explained_fraction'])} of what that refit leaves (max-T adjusted "
                       f"{lead['adjusted_p_text']}).")
-            joint = next((c for c in confirmed.values() if set(c["effect"].split("+")) == {chosen, *rest[:1]}), None)
+            joint = refit_of(confirmed.values(), [chosen, *rest[:1]])
             if joint:
                 s += (f" Refitting with both changes the posterior-predictive Chamfer from "
                       f"{joint['chamfer_before_m'] * 100:.2f} to {joint['chamfer_after_m'] * 100:.2f} cm "
