@@ -771,11 +771,15 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
               workers: int | None = None, only: set[str] | None = None,
               confirm_budget: dict[str, int] | None = None,
-              proposal: str = "corrected", alpha: float = ALPHA) -> list[dict[str, Any]]:
+              proposal: str = "corrected", alpha: float = ALPHA,
+              min_magnitude: float | None = None) -> list[dict[str, Any]]:
     """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
 
     ``only``: run just the cases whose ``truth_label`` is in this set (e.g. ``{"control"}``); the
-    other indices are skipped, not renumbered, so every case keeps its definition. With ``confirm``
+    other indices are skipped, not renumbered, so every case keeps its definition. ``min_magnitude``: run just
+    the hidden-effect cases whose magnitude is at least this (a choice on the covariate of the power curves, not
+    on their outcome: a logistic curve fitted to them stays unbiased; spends the machine where a criterion above
+    a detection threshold has few cases). With ``confirm``
     > 0 (refits) a case is stored under its own id with the suffix ``-refit<confirm>``: the screening-only
     and the refitted diagnosis of a case are two rows, summarised separately (:func:`select_rows`); with a
     ``confirm_budget`` the suffix also names it (``-refit2-3x100``); a nominal fit with truncated
@@ -786,6 +790,8 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
     for i in indices:
         case = make_case(suite, seed, i)
         if only and case["truth_label"] not in only:
+            continue
+        if min_magnitude is not None and (case["magnitude"] is None or case["magnitude"] < min_magnitude):
             continue
         if confirm:
             case["id"] += f"-refit{confirm}"
@@ -1090,6 +1096,8 @@ def main() -> None:
     r.add_argument("--only", default=None, help="comma-separated truth labels to run (e.g. control); other "
                                                 "indices in --cases are skipped")
     r.add_argument("--alpha", type=float, default=ALPHA, help="family-wise level of the verdicts")
+    r.add_argument("--min-magnitude", type=float, default=None,
+                   help="run only hidden-effect cases with at least this magnitude (controls skipped)")
     f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
     f.add_argument("--runs", default="CASE_ID:EFFECT", help="comma-separated CASE_ID:EFFECT (run dirs under --out)")
     f.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
@@ -1196,7 +1204,8 @@ def main() -> None:
             r_, n_ = (int(x) for x in a.confirm_budget.lower().split("x"))
             cb = {"rounds": r_, "sims_per_round": n_}
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
-                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal, a.alpha)
+                  a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal, a.alpha,
+                  a.min_magnitude)
     else:
         rows = select_rows(load_rows(a.results),
                            None if a.confirm < 0 else a.confirm, a.confirm_budget,
