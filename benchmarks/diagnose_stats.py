@@ -217,6 +217,41 @@ def save_rows(results: Path, rows: Sequence[dict[str, Any]]) -> None:
     results.write_text("".join(json.dumps(x) + "\n" for x in rows))
 
 
+#: the fields a stored row keeps when its case is run again (:func:`merge_rows`): they describe the case's data
+#: (the hidden effect's size in it, the oracle floor), not its diagnosis
+CASE_DATA_KEYS = ("effect_size", "floor_m")
+
+
+def merge_rows(results: Path, new_files: Sequence[Path], note: str | None = None) -> dict[str, int]:
+    """Merge rows run apart (``run --results FILE``) into ``results``: a row whose id is already stored replaces it
+    in place (the case run again on the current code, e.g. because its stored diagnosis was decided under an older
+    rule), keeping the old row's :data:`CASE_DATA_KEYS` and recording ``rerun`` = ``note`` and the old verdict
+    (``rerun_was``: ``called``, ``correct``); other rows are appended. Rows that ended in an error are skipped.
+    Returns ``{"replaced", "appended", "skipped"}``."""
+    rows = load_rows(results)
+    where = {r["id"]: i for i, r in enumerate(rows)}
+    k = {"replaced": 0, "appended": 0, "skipped": 0}
+    for f in new_files:
+        for new in load_rows(f):
+            if new.get("error") or "verdict" not in new:
+                k["skipped"] += 1
+                continue
+            i = where.get(new["id"])
+            if i is None:
+                where[new["id"]] = len(rows)
+                rows.append(new)
+                k["appended"] += 1
+                continue
+            old = rows[i]
+            new.update({key: old[key] for key in CASE_DATA_KEYS if key in old and key not in new})
+            new["rerun"] = note
+            new["rerun_was"] = {"called": old.get("called"), "correct": old.get("correct")}
+            rows[i] = new
+            k["replaced"] += 1
+    save_rows(results, rows)
+    return k
+
+
 def find_run_dir(outs: Sequence[Path], case_id: str, marker: str = "diagnosis.json") -> Path | None:
     """The ``out / case_id`` among ``outs`` whose ``marker`` was written last (a case run again, e.g. an interrupted
     one finished in a later session's folder, or a point-noise case refitted apart, has several); None when none
@@ -1112,6 +1147,11 @@ def main() -> None:
     te.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     te.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
+    mg = sub.add_parser("merge", help="merge rows run apart into --results: same id replaces (the case run again), "
+                                      "new ids are appended")
+    mg.add_argument("files", type=Path, nargs="+")
+    mg.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
+    mg.add_argument("--note", default=None, help="why replaced rows were run again (stored as 'rerun')")
     sz = sub.add_parser("size", help="add each hidden effect's size in the data (Chamfer at the truth without "
                                      "it minus with it) to stored rows")
     sz.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
@@ -1155,6 +1195,9 @@ def main() -> None:
     s.add_argument("--proposal", default="corrected", choices=["corrected", "truncated", "any"],
                    help="only rows whose nominal fit used these proposals (rows stored before the field: corrected)")
     a = ap.parse_args()
+    if a.cmd == "merge":
+        print(json.dumps(merge_rows(a.results, a.files, a.note)))
+        return
     if a.cmd == "size":
         print(f"{add_effect_sizes(a.results, a.out)} rows updated")
         return

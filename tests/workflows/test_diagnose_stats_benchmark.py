@@ -133,6 +133,36 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
     assert "posterior-mean rollout's Chamfer, correctly named cases that stored it: 70% (n = 1;" in md
 
 
+def test_min_magnitude_runs_only_hidden_effect_cases_at_or_above_it(tmp_path, monkeypatch):
+    """``--min-magnitude`` chooses cases on the power curve's covariate: controls and smaller effects are skipped,
+    the indices keep their definitions."""
+    ran = []
+    monkeypatch.setattr(bench, "run_case", lambda case, *a, **k: ran.append(case) or {**case, "verdict": "x"})
+    bench.run_cases("toy", range(0, 12), tmp_path / "r.jsonl", tmp_path / "runs", min_magnitude=0.7)
+    cases = [bench.make_case("toy", 0, i) for i in range(12)]
+    want = [c["index"] for c in cases if c["magnitude"] is not None and c["magnitude"] >= 0.7]
+    assert want and [c["index"] for c in ran] == want
+    # some hidden effects were smaller, and the controls (no magnitude) were skipped too
+    assert any(c["magnitude"] is not None and c["magnitude"] < 0.7 for c in cases)
+    assert any(c["magnitude"] is None for c in cases)
+
+
+def test_merge_replaces_a_case_run_again_keeps_its_data_fields_and_appends_new_ones(tmp_path):
+    results, new = tmp_path / "r.jsonl", tmp_path / "n.jsonl"
+    old = [{"id": "a", "verdict": "misspecified-unexplained", "called": "misspecified-unexplained", "correct": False,
+            "effect_size": {"size_m": 0.02}}, {"id": "b", "verdict": "nothing-missing", "correct": True}]
+    bench.save_rows(results, old)
+    bench.save_rows(new, [{"id": "a", "verdict": "missing-effect", "called": "wind", "correct": True},
+                          {"id": "c", "verdict": "nothing-missing", "correct": True},
+                          {"id": "d", "error": "RuntimeError: x"}])
+    assert bench.merge_rows(results, [new], note="why") == {"replaced": 1, "appended": 1, "skipped": 1}
+    rows = bench.load_rows(results)
+    assert [r["id"] for r in rows] == ["a", "b", "c"]
+    assert rows[0]["called"] == "wind" and rows[0]["effect_size"] == {"size_m": 0.02} and rows[0]["rerun"] == "why"
+    assert rows[0]["rerun_was"] == {"called": "misspecified-unexplained", "correct": False}
+    assert "rerun" not in rows[2]
+
+
 def test_refit_rows_keep_the_posterior_mean_rollout_drop_and_the_backfill_recomputes_it(tmp_path):
     """A refitted case stores its named refit's posterior-mean rollout drop (diagnose computes it); ``pm-rollout``
     (:func:`add_pm_drops`) recomputes the same number from the runs on disk for rows stored without it."""
