@@ -180,9 +180,11 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
     # the effects the verdict names: after refits the diagnosis says (named_effects), else the screening's
     named_all = (list(d["named_effects"]) if d.get("named_effects") is not None else
                  [named] + [e for e in d["significant"] if e != named]) if named else []
-    called = "+".join(sorted(named_all)) if len(hidden) > 1 and named else named or d["verdict"]
+    called = "+".join(sorted(named_all)) if len(named_all) > 1 else named or d["verdict"]
     return {**case, "verdict": d["verdict"], "named": named, "called": called, "named_all": named_all,
-            "correct": (sorted(named_all) == sorted(hidden) if len(hidden) > 1 else named == hidden[0]) if hidden
+            # named correctly: exactly the hidden effects, no more (a single hidden wind named "wind + extra damping"
+            # is not; until the twenty-second session such a row counted as right when the first named was)
+            "correct": sorted(named_all) == sorted(hidden) if hidden
             else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
             "second": d["significant"][1:],
             # refits that explain the misfit as well as the named one (diagnose: the data cannot tell them apart)
@@ -207,9 +209,24 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
 CASE_KEYS = ("id", "suite", "index", "truth_label", "scenario", "truth", "magnitude")
 
 
+def scored(r: dict[str, Any]) -> dict[str, Any]:
+    """Row ``r`` with ``called`` and ``correct`` from its stored verdict and named effects under the current
+    scoring rule (:func:`row_fields`: the hidden effects named, no more), so that rows stored under an older rule
+    are counted the same way. Rows without ``named_all`` (failed cases, or tests' hand-made rows) are kept as
+    they are."""
+    if "verdict" not in r or "named_all" not in r:
+        return r
+    hidden = hidden_effects(r)
+    if not hidden:
+        return r
+    named_all = list(r["named_all"]) if r.get("named") else []
+    return {**r, "called": "+".join(sorted(named_all)) if len(named_all) > 1 else r.get("named") or r["verdict"],
+            "correct": sorted(named_all) == sorted(hidden)}
+
+
 def load_rows(results: Path) -> list[dict[str, Any]]:
-    """The stored rows of ``results`` (one JSON object per line)."""
-    return [json.loads(x) for x in results.read_text().splitlines() if x.strip()]
+    """The stored rows of ``results`` (one JSON object per line), scored under the current rule (:func:`scored`)."""
+    return [scored(json.loads(x)) for x in results.read_text().splitlines() if x.strip()]
 
 
 def save_rows(results: Path, rows: Sequence[dict[str, Any]]) -> None:

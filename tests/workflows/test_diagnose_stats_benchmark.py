@@ -147,6 +147,22 @@ def test_min_magnitude_runs_only_hidden_effect_cases_at_or_above_it(tmp_path, mo
     assert any(c["magnitude"] is None for c in cases)
 
 
+def test_a_single_hidden_effect_is_named_correctly_only_when_named_alone():
+    """A hidden wind named "wind + extra damping" (a pair refit explained the misfit) is not named correctly, and the
+    row says what was called; the pair's own cases need both."""
+    case = bench.make_case("mujoco", 0, 1)
+    assert case["truth_label"] == "wind"
+    d = {"verdict": "missing-effect", "selected": "wind", "significant": ["wind", "extra-damping"],
+         "misspecification": {"p_value": 0.01, "p_text": "p", "omnibus": {"p_value": 0.01}}, "n_null": 200,
+         "ranking": [], "confirmed": []}
+    alone = bench.row_fields(case, {**d, "named_effects": ["wind"]})
+    assert alone["correct"] and alone["called"] == "wind"
+    pair = bench.row_fields(case, {**d, "named_effects": ["wind", "extra-damping"]})
+    assert not pair["correct"] and pair["called"] == "extra-damping+wind"
+    both = bench.row_fields({**case, "truth_label": "wind+extra-damping"}, {**d, "named_effects": ["wind", "extra-damping"]})
+    assert both["correct"] and both["called"] == "extra-damping+wind"
+
+
 def test_merge_replaces_a_case_run_again_keeps_its_data_fields_and_appends_new_ones(tmp_path):
     results, new = tmp_path / "r.jsonl", tmp_path / "n.jsonl"
     old = [{"id": "a", "verdict": "misspecified-unexplained", "called": "misspecified-unexplained", "correct": False,
