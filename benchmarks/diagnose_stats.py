@@ -235,8 +235,9 @@ def save_rows(results: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 
 #: the fields a stored row keeps when its case is run again (:func:`merge_rows`): they describe the case's data
-#: (the hidden effect's size in it, the oracle floor), not its diagnosis
-CASE_DATA_KEYS = ("effect_size", "floor_m")
+#: (the hidden effect's size in it), not its diagnosis. The oracle floor is not kept: it is stored with the nominal
+#: fit's Chamfer, which the new run replaces (``floor`` adds both again)
+CASE_DATA_KEYS = ("effect_size",)
 
 
 def merge_rows(results: Path, new_files: Sequence[Path], note: str | None = None) -> dict[str, int]:

@@ -166,7 +166,7 @@ def test_a_single_hidden_effect_is_named_correctly_only_when_named_alone():
 def test_merge_replaces_a_case_run_again_keeps_its_data_fields_and_appends_new_ones(tmp_path):
     results, new = tmp_path / "r.jsonl", tmp_path / "n.jsonl"
     old = [{"id": "a", "verdict": "misspecified-unexplained", "called": "misspecified-unexplained", "correct": False,
-            "effect_size": {"size_m": 0.02}}, {"id": "b", "verdict": "nothing-missing", "correct": True}]
+            "effect_size": {"size_m": 0.02}, "floor_m": 0.01, "chamfer_nominal_m": 0.03}, {"id": "b", "verdict": "nothing-missing", "correct": True}]
     bench.save_rows(results, old)
     bench.save_rows(new, [{"id": "a", "verdict": "missing-effect", "called": "wind", "correct": True},
                           {"id": "c", "verdict": "nothing-missing", "correct": True},
@@ -176,6 +176,7 @@ def test_merge_replaces_a_case_run_again_keeps_its_data_fields_and_appends_new_o
     assert [r["id"] for r in rows] == ["a", "b", "c"]
     assert rows[0]["called"] == "wind" and rows[0]["effect_size"] == {"size_m": 0.02} and rows[0]["rerun"] == "why"
     assert rows[0]["rerun_was"] == {"called": "misspecified-unexplained", "correct": False}
+    assert "floor_m" not in rows[0]  # stored with the old nominal fit's Chamfer: `floor` adds both again
     assert "rerun" not in rows[2]
 
 
