@@ -75,8 +75,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
        only. With the default candidates (every installed effect) the test is exactly ``check``'s.
     2. ``missing-effect``: misspecified, and a named (non-generic) candidate explains the residual:
        max-T adjusted Monte-Carlo ``p <= alpha`` over all candidates (:func:`max_t_adjusted`) and
-       at least ``min_explained`` of the residual sum of squares. Forward selection adds a second
-       effect when it passes the same rule given the first. Physics and sensor effects
+       at least ``min_explained`` of the residual sum of squares; among the candidates that pass both, the one
+       with the strongest evidence (:meth:`~softsbi.workflows.screening.Screening.forward_selection`).
+       Forward selection adds a second effect when one passes the same rule given the first. Physics and sensor effects
        (:func:`effect_kind`) are named as such.
     3. ``misspecified-unexplained``: misspecified but no named candidate passes; or (with refits,
        ``confirm`` > 0) named candidates pass the screening but no refitted one explains the misfit: with
@@ -199,7 +200,9 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
         rules.append(f"2. a named effect is missing if its max-T adjusted p <= {a:g} and it explains >= "
                      f"{out['min_explained'] * 100:.0f}% of the residual: {st['best']}{given} has "
                      f"{st['adjusted_p_text']}, explains {st['explained_fraction'] * 100:.0f}% -> "
-                     f"{'accepted' if st['accepted'] else 'rejected'}")
+                     f"{'accepted' if st['accepted'] else 'rejected'}"
+                     + (f" (ranked above it but failing the rule: {', '.join(st['passed_over'])})"
+                        if st.get("passed_over") else ""))
     if not out.get("selection"):
         rules.append("2. no named (non-generic) candidate could be tested")
     for c in out.get("confirmed") or []:

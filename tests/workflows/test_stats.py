@@ -207,6 +207,30 @@ def test_forward_selection_names_two_effects_and_leaves_a_generic_term_unnamed()
     assert chosen == []
 
 
+def test_forward_selection_takes_the_strongest_candidate_that_passes_not_the_first_ranked():
+    """Rule 2 among the candidates that pass it: a first-ranked candidate that explains too little (it won the
+    ordering on its normalised statistic) is passed over, and the selection goes on to the one that passes
+    (fresh benchmark case mujoco-more 656: point noise first with 2%, time offset 66%, both at adjusted p = 2/201)."""
+    from softsbi.workflows.diagnose import decision_rules
+    sc = _screening(np.zeros(4), np.zeros((3, 4)), {"A": np.ones(4), "B": np.ones(4)})
+    ranking = [{"effect": "A", "generic": False, "statistic": 1.0, "adjusted_p_value": 0.01, "adjusted_p_text": "p",
+                "explained_fraction": 0.02},
+               {"effect": "B", "generic": False, "statistic": 9.0, "adjusted_p_value": 0.01, "adjusted_p_text": "p",
+                "explained_fraction": 0.66}]
+    sc.family = lambda names, given: [r for r in ranking if r["effect"] in names]  # step 2: nothing else passes
+    chosen, log = sc.forward_selection(ranking, 0.05, 0.1)
+    assert chosen == ["B"]
+    assert log[0]["best"] == "B" and log[0]["accepted"] and log[0]["passed_over"] == ["A"]
+    assert log[1]["best"] == "A" and not log[1]["accepted"] and log[1]["passed_over"] == []
+    rules = decision_rules({"alpha": 0.05, "min_explained": 0.1, "selection": log,
+                            "misspecification": {"misspecified": True, "p_text": "p = 0.01"}})
+    assert "B has p, explains 66% -> accepted (ranked above it but failing the rule: A)" in rules[1]
+    # none passes: the strongest named candidate is reported, rejected, nothing chosen
+    ranking[1]["explained_fraction"] = 0.05
+    chosen, log = sc.forward_selection(ranking, 0.05, 0.1)
+    assert chosen == [] and log == [{**log[0], "best": "A", "accepted": False, "passed_over": []}]
+
+
 def test_the_rule_asks_for_more_nulls_only_when_resolution_decides():
     from softsbi.workflows.stats import decided
     beyond = decided({"exceed": 0, "n_null": 30}, 0.01, 30, False, "misspecified")
