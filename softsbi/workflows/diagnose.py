@@ -235,8 +235,8 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
     lead = out.get("pair_lead")
     if lead:
         rules.append(f"3. no single refit explains the misfit: the second effect is the first named candidate of check "
-                     f"of {lead['after']}'s refit if its max-T adjusted p <= {lead['level']:g} (that check's level per "
-                     f"test) and it explains >= {out.get('min_explained', MIN_EXPLAINED) * 100:.0f}% of the refit's "
+                     f"of {lead['after']}'s refit whose max-T adjusted p <= {lead['level']:g} (that check's level per "
+                     f"test) and that explains >= {out.get('min_explained', MIN_EXPLAINED) * 100:.0f}% of the refit's "
                      f"residual: {lead['effect']} has {lead['adjusted_p_text']}, explains "
                      f"{lead['explained_fraction'] * 100:.0f}% -> refit {lead['after']} + {lead['effect']}")
     ne = out.get("named_effects") or []
@@ -906,10 +906,12 @@ def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED,
                 candidates: Sequence[str] | None = None) -> dict[str, Any] | None:
     """The effect a rejected refit ``c`` (from :func:`confirm_effect`) calls for next: the first named
     (non-generic) candidate of check's directional test of the refit (``ranking_after``: the installed effects the
-    refit does not include, screened against the refit's own posterior predictive), when that test rejects at the
-    level check of the refit used (``misspecification_after``: its ``alpha`` over its number of ``tests``,
-    Bonferroni; 0.2 / 2 = 0.1 for rule 3) and the candidate explains ``>= min_explained`` of the refit's residual;
-    None otherwise, or for a refit stored without ``ranking_after``. With ``candidates`` (the diagnosis' own, e.g.
+    refit does not include, screened against the refit's own posterior predictive) that passes rule 2 there: that
+    test rejects along it at the level check of the refit used (``misspecification_after``: its ``alpha`` over its
+    number of ``tests``, Bonferroni; 0.2 / 2 = 0.1 for rule 3) and it explains ``>= min_explained`` of the refit's
+    residual (a candidate ranked above it that explains less is passed over, as in
+    :meth:`~softsbi.workflows.screening.Screening.forward_selection`); None when none passes, or for a refit stored
+    without ``ranking_after``. With ``candidates`` (the diagnosis' own, e.g.
     ``diagnose --effect``), only those are considered: check of the refit screens every installed effect, and its
     max-T adjustment over that larger family stays valid (conservative) for the subset.
 
@@ -922,9 +924,8 @@ def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED,
     level = float(m.get("alpha", EXPLAIN_ALPHA)) / max(int(m.get("tests", 2)), 1)
     named = [r for r in c.get("ranking_after") or [] if not r.get("generic")
              and (candidates is None or r["effect"] in candidates)]
-    if not named:
-        return None
-    return {**named[0], "level": level} if passes_screening_rule(named[0], level, min_explained) else None
+    passing = [r for r in named if passes_screening_rule(r, level, min_explained)]
+    return {**passing[0], "level": level} if passing else None
 
 
 def pm_change(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, Any]:

@@ -216,7 +216,7 @@ def test_the_second_effect_of_a_pair_is_what_check_of_the_first_refit_still_find
     assert out["verdict"] == "missing-effect" and out["named_effects"] == ["wind", "extra-damping"]
     assert out["pair_lead"]["effect"] == "extra-damping" and out["pair_lead"]["after"] == "wind"
     assert ("3. no single refit explains the misfit: the second effect is the first named candidate of check of "
-            "wind's refit if its max-T adjusted p <= 0.1 (that check's level per test) and it explains >= 10% of the "
+            "wind's refit whose max-T adjusted p <= 0.1 (that check's level per test) and that explains >= 10% of the "
             "refit's residual: extra-damping has p = 0.01, explains 40% -> refit wind + extra-damping") in out["rules"]
     assert "A second effect is needed beyond it: extra-damping (physics)" in out["summary"]
     assert "Check of the refit with wind alone ranks extra-damping first: it explains 40% of what that refit " \
@@ -244,6 +244,12 @@ def test_the_second_effect_of_a_pair_is_what_check_of_the_first_refit_still_find
     dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
     assert out["pair_lead"] is None  # no second effect anywhere: no pair refit
     assert not any("+" in c["effect"] for c in out["confirmed"]) and out["verdict"] == "misspecified-unexplained"
+    # a candidate ranked first that explains too little is passed over for the next one that passes (rule 2)
+    lead["wind"][2] = _after("calibration-offset", 0.02, 0.3)
+    out = diagnosis(["wind"])
+    dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert out["pair_lead"]["effect"] == "calibration-offset"
+    assert out["confirmed"][-1]["effect"] == "wind+calibration-offset"
 
 
 def test_a_pair_builds_on_the_refit_that_lowers_the_error_most_not_the_screenings_first(monkeypatch):
