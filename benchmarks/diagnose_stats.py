@@ -541,6 +541,43 @@ def rebase_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                                redo, report, workers)
 
 
+def refits_with_another_lead(d: dict[str, Any]) -> list[dict[str, Any]]:
+    """A stored diagnosis' base refit (:func:`softsbi.workflows.diagnose.pair_base`) whose pair's second effect under
+    the current rule (:func:`softsbi.workflows.diagnose.next_effect`: the first named candidate of check of the refit
+    that passes rule 2, twenty-second session) differs from the stored ``pair_lead`` (the first ranked, when it
+    passed), where the pair path was taken (as in :func:`refits_with_another_base`)."""
+    from softsbi.workflows.diagnose import MIN_EXPLAINED, next_effect, pair_base
+    if d.get("screening_verdict", d.get("verdict")) != "missing-effect" or not d.get("significant"):
+        return []
+    confirmed = d.get("confirmed") or []
+    if not (d.get("verdict") == "misspecified-unexplained" or any("+" in c["effect"] for c in confirmed)):
+        return []
+    base = pair_base(d)
+    if base is None or not base.get("ranking_after"):
+        return []
+    lead = next_effect(base, d.get("min_explained", MIN_EXPLAINED), d.get("candidates"))
+    return [base] if (lead or {}).get("effect") != (d.get("pair_lead") or {}).get("effect") else []
+
+
+def relead_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
+                ids: Sequence[str] | None = None) -> list[str]:
+    """The pair's second effect under the current rule 2 (:func:`refits_with_another_lead`): each selected row is
+    decided again (:func:`decide_stored_again`; ``redecide`` refits the pair the current rule chooses). The old
+    diagnosis is kept as ``diagnosis.before-relead.json``; the old verdict, the old lead and the new one in
+    ``reled``. Returns the ids whose verdict or name changed."""
+    old_lead: list[Any] = []
+
+    def redo(run_dir, d, todo, workers, budget):
+        old_lead[:] = [(d.get("pair_lead") or {}).get("effect")]
+
+    def report(d, todo):
+        kept = {"old_lead": old_lead[0] if old_lead else None, "lead": (d.get("pair_lead") or {}).get("effect")}
+        return ({**kept, "pairs": [[c["effect"], c.get("drop"), c["misspecification_after"]["p_text"]]
+                                   for c in d["confirmed"] if "+" in c["effect"]]}, kept)
+    return decide_stored_again(results, outs, ids, "reled", refits_with_another_lead, "diagnosis.before-relead.json",
+                               redo, report, workers)
+
+
 #: the subcommands that decide stored rows again, refit by refit: the mark they leave in a row, the refits they
 #: select in its diagnosis, what ``--list`` prints of one, the function that does it, and what it does
 REDO_STORED: dict[str, tuple[str, Callable, Callable, Callable, str]] = {
@@ -561,6 +598,10 @@ REDO_STORED: dict[str, tuple[str, Callable, Callable, Callable, str]] = {
                lambda c: [c["effect"], c.get("drop"), c["misspecification_after"]["p_text"]], rebase_rows,
                "build the pair on the refit that lowered the error most where that is not the screening's first effect, "
                "and refit the pair it calls for"),
+    "relead": ("reled", refits_with_another_lead,
+               lambda c: [c["effect"], c.get("drop"), c["misspecification_after"]["p_text"]], relead_rows,
+               "take as the pair's second effect the first named candidate of check of the base refit that passes "
+               "rule 2 (not the first ranked), and refit the pair it calls for"),
 }
 
 

@@ -286,6 +286,25 @@ def test_rebase_takes_the_refit_with_the_largest_drop_only_where_it_is_not_the_s
     assert bench.refits_with_another_base({**d, "significant": ["w"]}) == []  # d is not significant
 
 
+def test_relead_takes_the_base_refit_only_where_the_current_rule_2_picks_another_second_effect():
+    """``relead`` selects the base refit whose check screening now gives another pair lead: the first ranked
+    candidate explains too little, the next passes (the stored lead was None)."""
+    rej = {"misspecified": True, "alpha": 0.2, "tests": 2}
+
+    def after(effect, p, frac):
+        return {"effect": effect, "generic": False, "adjusted_p_value": p, "adjusted_p_text": f"p = {p}",
+                "explained_fraction": frac}
+    base = {"effect": "w", "drop": 0.3, "misspecification_after": rej,
+            "ranking_after": [after("a", 0.01, 0.02), after("d", 0.01, 0.4)]}
+    d = {"verdict": "misspecified-unexplained", "screening_verdict": "missing-effect", "significant": ["w"],
+         "confirmed": [base], "pair_lead": None}
+    assert [c["effect"] for c in bench.refits_with_another_lead(d)] == ["w"]
+    assert bench.refits_with_another_lead({**d, "pair_lead": {"after": "w", "effect": "d"}}) == []
+    base["ranking_after"][0]["explained_fraction"] = 0.3  # the first ranked passes: the lead is unchanged
+    assert bench.refits_with_another_lead({**d, "pair_lead": {"after": "w", "effect": "a"}}) == []
+    assert bench.refits_with_another_lead({**d, "verdict": "missing-effect"}) == []  # a single refit explained it
+
+
 def test_a_stored_row_decided_again_keeps_its_old_verdict_the_old_diagnosis_and_continues(tmp_path, monkeypatch):
     """The loop shared by recheck, rewiden and resecond: the selected refits are changed, the rules applied again,
     diagnosis.json rewritten with the old one kept, the row's verdict replaced with the old one under the mark, and a
