@@ -505,15 +505,20 @@ def resecond_rows(results: Path, outs: Sequence[Path], workers: int | None = 1,
                                redo, report, workers)
 
 
+def took_pair_path(d: dict[str, Any]) -> bool:
+    """Whether a stored diagnosis ``d`` went down the pair path: the screening said missing-effect (with a significant
+    effect), and the stored verdict is the third or names a pair (no single refit explained the misfit)."""
+    if d.get("screening_verdict", d.get("verdict")) != "missing-effect" or not d.get("significant"):
+        return False
+    return d.get("verdict") == "misspecified-unexplained" or any("+" in c["effect"] for c in d.get("confirmed") or [])
+
+
 def refits_with_another_base(d: dict[str, Any]) -> list[dict[str, Any]]:
     """A stored diagnosis' single refit that a pair now builds on (:func:`softsbi.workflows.diagnose.pair_base`: the
     refit that lowered the error most) where that is not the screening's first effect and the pair path was taken
-    (the screening said missing-effect, and the stored verdict is the third or names a pair)."""
+    (:func:`took_pair_path`)."""
     from softsbi.workflows.diagnose import pair_base
-    if d.get("screening_verdict", d.get("verdict")) != "missing-effect" or not d.get("significant"):
-        return []
-    confirmed = d.get("confirmed") or []
-    if not (d.get("verdict") == "misspecified-unexplained" or any("+" in c["effect"] for c in confirmed)):
+    if not took_pair_path(d):
         return []
     base = pair_base(d)
     return [base] if base is not None and base["effect"] != d["significant"][0] else []
@@ -545,12 +550,9 @@ def refits_with_another_lead(d: dict[str, Any]) -> list[dict[str, Any]]:
     """A stored diagnosis' base refit (:func:`softsbi.workflows.diagnose.pair_base`) whose pair's second effect under
     the current rule (:func:`softsbi.workflows.diagnose.next_effect`: the first named candidate of check of the refit
     that passes rule 2, twenty-second session) differs from the stored ``pair_lead`` (the first ranked, when it
-    passed), where the pair path was taken (as in :func:`refits_with_another_base`)."""
+    passed), where the pair path was taken (:func:`took_pair_path`)."""
     from softsbi.workflows.diagnose import MIN_EXPLAINED, next_effect, pair_base
-    if d.get("screening_verdict", d.get("verdict")) != "missing-effect" or not d.get("significant"):
-        return []
-    confirmed = d.get("confirmed") or []
-    if not (d.get("verdict") == "misspecified-unexplained" or any("+" in c["effect"] for c in confirmed)):
+    if not took_pair_path(d):
         return []
     base = pair_base(d)
     if base is None or not base.get("ranking_after"):
