@@ -173,19 +173,27 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
 
 
+def called_and_correct(case: dict[str, Any], verdict: str, named: str | None,
+                       named_all: Sequence[str]) -> tuple[str, bool]:
+    """The scoring rule: what a verdict ``called`` (the named effects joined by ``+`` when more than one, else the
+    named effect or the verdict) and whether it is ``correct``: exactly the case's hidden effects named, no more (a
+    single hidden wind named "wind + extra damping" is not; until the twenty-second session such a row counted as
+    right when the first named was), or for a case without a hidden effect the verdict :data:`CORRECT_VERDICT`
+    gives its label."""
+    hidden = hidden_effects(case)
+    called = "+".join(sorted(named_all)) if len(named_all) > 1 else named or verdict
+    return called, (sorted(named_all) == sorted(hidden) if hidden else verdict == CORRECT_VERDICT[case["truth_label"]])
+
+
 def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
     """The JSON line's fields that come from the case and its diagnosis ``d`` (``diagnosis.json``)."""
-    hidden = hidden_effects(case)
     named = d["selected"] if d["verdict"] == "missing-effect" else None
     # the effects the verdict names: after refits the diagnosis says (named_effects), else the screening's
     named_all = (list(d["named_effects"]) if d.get("named_effects") is not None else
                  [named] + [e for e in d["significant"] if e != named]) if named else []
-    called = "+".join(sorted(named_all)) if len(named_all) > 1 else named or d["verdict"]
+    called, correct = called_and_correct(case, d["verdict"], named, named_all)
     return {**case, "verdict": d["verdict"], "named": named, "called": called, "named_all": named_all,
-            # named correctly: exactly the hidden effects, no more (a single hidden wind named "wind + extra damping"
-            # is not; until the twenty-second session such a row counted as right when the first named was)
-            "correct": sorted(named_all) == sorted(hidden) if hidden
-            else d["verdict"] == CORRECT_VERDICT[case["truth_label"]],
+            "correct": correct,
             "second": d["significant"][1:],
             # refits that explain the misfit as well as the named one (diagnose: the data cannot tell them apart)
             "alternatives": [t["effect"] for t in d.get("indistinguishable") or []],
@@ -214,14 +222,10 @@ def scored(r: dict[str, Any]) -> dict[str, Any]:
     scoring rule (:func:`row_fields`: the hidden effects named, no more), so that rows stored under an older rule
     are counted the same way. Rows without ``named_all`` (failed cases, or tests' hand-made rows) are kept as
     they are."""
-    if "verdict" not in r or "named_all" not in r:
+    if "verdict" not in r or "named_all" not in r or not hidden_effects(r):
         return r
-    hidden = hidden_effects(r)
-    if not hidden:
-        return r
-    named_all = list(r["named_all"]) if r.get("named") else []
-    return {**r, "called": "+".join(sorted(named_all)) if len(named_all) > 1 else r.get("named") or r["verdict"],
-            "correct": sorted(named_all) == sorted(hidden)}
+    called, correct = called_and_correct(r, r["verdict"], r.get("named"), r["named_all"] if r.get("named") else [])
+    return {**r, "called": called, "correct": correct}
 
 
 def load_rows(results: Path) -> list[dict[str, Any]]:

@@ -33,8 +33,8 @@ from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.runs import RunView, load_run
-from softsbi.workflows.screening import (Screening, candidate_effects, effect_kind, is_generic,  # noqa: F401
-                                         misspecification_verdict, passes_screening_rule, screening_of)
+from softsbi.workflows.screening import (Screening, candidate_effects, effect_kind, first_passing,  # noqa: F401
+                                         is_generic, misspecification_verdict, passes_screening_rule, screening_of)
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, resolution_needed, run_features, run_frames,
                                      energy_score, posterior_mean_chamfer, sampled_points, summary_bias)
@@ -924,8 +924,8 @@ def next_effect(c: dict[str, Any], min_explained: float = MIN_EXPLAINED,
     level = float(m.get("alpha", EXPLAIN_ALPHA)) / max(int(m.get("tests", 2)), 1)
     named = [r for r in c.get("ranking_after") or [] if not r.get("generic")
              and (candidates is None or r["effect"] in candidates)]
-    passing = [r for r in named if passes_screening_rule(r, level, min_explained)]
-    return {**passing[0], "level": level} if passing else None
+    lead = first_passing(named, level, min_explained)
+    return {**lead, "level": level} if lead else None
 
 
 def pm_change(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, Any]:

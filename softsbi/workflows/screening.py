@@ -68,6 +68,14 @@ def passes_screening_rule(entry: dict[str, Any], level: float, min_explained: fl
     return p is not None and p <= level and (entry.get("explained_fraction") or 0.0) >= min_explained
 
 
+def first_passing(entries: Sequence[dict[str, Any]], level: float, min_explained: float) -> dict[str, Any] | None:
+    """Rule 2 applied to a family's named candidates ``entries`` in evidence order: the first that passes
+    (:func:`passes_screening_rule`), so that a candidate ranked above it that explains less than ``min_explained``
+    is passed over; None when none passes. Used by :meth:`Screening.forward_selection` and, on check of a refit,
+    by :func:`softsbi.workflows.diagnose.next_effect`."""
+    return next((e for e in entries if passes_screening_rule(e, level, min_explained)), None)
+
+
 def is_generic(effect: Any) -> bool:
     """True for a generic force term (class attribute ``generic = True``: constant force, linear
     or quadratic drag, a position-dependent force field), which describes a residual rather than
@@ -253,9 +261,9 @@ class Screening:
             named = [t for t in tests if not t["generic"]]
             if not named:
                 break
-            passing = [t for t in named if passes_screening_rule(t, alpha, min_explained)]
-            best = passing[0] if passing else named[0]
-            ok = bool(passing)
+            passing = first_passing(named, alpha, min_explained)
+            best = passing or named[0]
+            ok = passing is not None
             log.append({"given": list(chosen), "best": best["effect"], "adjusted_p_value": best["adjusted_p_value"],
                         "adjusted_p_text": best["adjusted_p_text"], "explained_fraction": best["explained_fraction"],
                         "accepted": ok, "passed_over": [t["effect"] for t in named[:named.index(best)]]})
