@@ -412,3 +412,76 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
     sides, reject = ["upper"], True
     fits.clear()
     assert "widened" not in dg.confirm_effect(_Run(), "point-noise", widen=False) and len(fits) == 1
+
+
+def test_a_refit_scoring_worse_than_the_nominal_on_the_energy_score_goes_on_round_by_round_up_to_the_cap(
+        monkeypatch, tmp_path):
+    """confirm_effect's extension, with the fit, the energy score and check replaced: a refit whose posterior
+    predictive scores worse than the nominal fit's on the energy score (it nests the nominal, so it has not
+    converged) is resumed with one more round while it still scores worse, up to REFIT_MAX_ROUNDS_FACTOR times the
+    budget's rounds; check is applied to the last refit only; the rounds and the refits that went on are returned and
+    said in the refit's sentence. A refit that scores better, ``extend=False`` or no nominal score: one fit."""
+    import types
+
+    import softsbi.workflows.diagnose as dg
+    from softsbi.core.types import Param, ParamSpace
+    fits, checks = [], []
+    energy_by_rounds = {}
+
+    def fake_fit(out, rec, cfg):
+        fits.append(cfg.rounds)
+        return types.SimpleNamespace(report={"chamfer_posterior_m": 0.01 * cfg.rounds, "chamfer_posterior_std_m": 0.001,
+                                             "chamfer_posterior_n": 30, "posterior_mean": {"time_offset": 0.05},
+                                             "posterior_at_bounds": []})
+
+    class _Pool:
+        def __init__(self, out, workers=None):
+            self.run = types.SimpleNamespace(path=out, space=ParamSpace([Param("time_offset", -0.1, 0.1, "s")]))
+            self.rounds = fits[-1]
+
+        def ensure(self, n):
+            return self
+
+    def fake_verdict(pool, candidates, alpha, max_null):
+        checks.append(pool.rounds)
+        return ({"misspecified": False, "p_text": "p = 0.6"}, None, [])
+
+    class _Run:
+        config = {"backend": "mujoco-flex", "scenario": {}}
+        effects: list = []
+        path = tmp_path
+        report = {"chamfer_posterior_m": 0.03}
+
+    monkeypatch.setattr(dg, "run_fit", fake_fit)
+    monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
+    monkeypatch.setattr(dg, "PosteriorPredictive", _Pool)
+    monkeypatch.setattr(dg, "misspecification_verdict", fake_verdict)
+    monkeypatch.setattr(dg, "candidate_effects", lambda run: [])
+    monkeypatch.setattr(dg, "posterior_mean_chamfer", lambda run, workers=None: None)
+    monkeypatch.setattr(dg, "energy_score", lambda pool: {"energy_m": energy_by_rounds[pool.rounds], "energy_se_m": 1e-4})
+    monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(lambda cls, c: cls(rounds=2, sims_per_round=10)))
+    nominal = {"energy_m": 0.02, "energy_se_m": 1e-4}
+    assert dg.REFIT_MAX_ROUNDS_FACTOR == 2
+
+    def refit(**kw):
+        fits.clear(), checks.clear()
+        return dg.confirm_effect(_Run(), "time-offset", **kw)
+
+    energy_by_rounds.update({2: 0.03, 3: 0.025, 4: 0.015})  # worse, worse, better
+    c = refit(nominal_energy=nominal)
+    assert fits == [2, 3, 4] and checks == [4] and c["rounds"] == 4
+    assert [(e["rounds"], round(e["energy_drop"], 3)) for e in c["extended"]] == [(2, -0.5), (3, -0.25)]
+    assert c["energy_drop"] == 1 - 0.015 / 0.02 and c["chamfer_after_m"] == 0.04
+    sentence = dg._refit_sentence({**c, "chamfer_before_m": 0.03}, "time-offset", 0.2)
+    assert "The refit ran 4 rounds, not 2: after 2 its posterior predictive scored worse" in sentence
+    assert "(50% higher)" in sentence
+    energy_by_rounds.update({4: 0.021})  # still worse at the cap: stops there
+    c = refit(nominal_energy=nominal)
+    assert fits == [2, 3, 4] and checks == [4] and c["rounds"] == 4 and c["energy_drop"] < 0
+    energy_by_rounds.update({2: 0.019})  # better at once
+    c = refit(nominal_energy=nominal)
+    assert fits == [2] and "extended" not in c and c["rounds"] == 2
+    energy_by_rounds.update({2: 0.03})
+    for kw in ({"nominal_energy": nominal, "extend": False}, {}):
+        c = refit(**kw)
+        assert fits == [2] and checks == [2] and "extended" not in c
