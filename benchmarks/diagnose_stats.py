@@ -206,12 +206,10 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
             # per refit: effect, error drop, check's test of the refit (p, still misspecified), and the fraction of
             # the nominal's summary bias it removes with its z (None for refits made before it was kept), and the
             # drop of the posterior predictive's energy score (None for refits made before it was computed), and
-            # the drop of the posterior-mean rollout's Chamfer (None before it was computed; `pm-rollout` adds it),
-            # and the refit's rounds (more than the budget's where the energy score extended it; absent before)
+            # the drop of the posterior-mean rollout's Chamfer (None before it was computed; `pm-rollout` adds it)
             "refits": [[c["effect"], c.get("drop"), (c.get("misspecification_after") or {}).get("p_value"),
                         (c.get("misspecification_after") or {}).get("misspecified"), c.get("bias_fall"),
-                        c.get("bias_fall_z"), c.get("energy_drop"), c.get("pm_drop"), c.get("rounds")]
-                       for c in d["confirmed"]],
+                        c.get("bias_fall_z"), c.get("energy_drop"), c.get("pm_drop")] for c in d["confirmed"]],
             "screening_verdict": d.get("screening_verdict", d["verdict"])}
 
 

@@ -607,14 +607,6 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
               f"pressed against the prior bound while the measurement stayed outside its posterior predictive "
               f"distribution ({first.get('p_text', 'rejected')}), so the effect may be larger than its prior "
               f"allowed (first refit: {w['first_run']}).")
-    ext = c.get("extended")
-    if ext:
-        first = ext[0]
-        s += (f" The refit ran {c['rounds']} rounds, not {first['rounds']}: after {first['rounds']} its posterior "
-              f"predictive scored worse than the nominal fit's on the energy score "
-              f"({describe_change(1.0, 1.0 - first['energy_drop'])}), so it had not converged (it contains the "
-              f"nominal model) and went on one round at a time while it still scored worse, up to "
-              f"{REFIT_MAX_ROUNDS_FACTOR} times its rounds.")
     for b in c.get("at_bounds") or []:
         s += " In this refit " + bound_sentence(b) + "."
     return s
@@ -796,21 +788,11 @@ def recording_from_run(run: RunView):
 #: BENCHMARKS.md "Honest statistics and three verdicts". Rule 3 needs the error to fall.
 REFIT_PROPOSAL = "truncated"
 
-#: a confirmation refit runs at most this many times its budget's rounds (:func:`confirm_effect`'s
-#: ``extend``): a refit whose posterior predictive scores worse than the nominal fit's on the energy score has
-#: not converged (it nests the nominal fit, the effect switched off), so it goes on, one round at a time, up to
-#: this cap. Measured on a hidden time offset of +0.081 s in the rope winding (mujoco-more 761, 3 x 100): after 3
-#: rounds the refit's posterior of the offset was still the prior's (-0.007 +/- 0.047 s) and its
-#: posterior-predictive Chamfer 56% above the nominal's; the fourth round found it (+0.059 s), the sixth gave
-#: +0.065 +/- 0.013 s and 19% below the nominal (BENCHMARKS.md, "Twenty-third session").
-REFIT_MAX_ROUNDS_FACTOR = 2
-
 
 def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, int] | None = None,
                    workers: int | None = None, alpha: float = ALPHA, n_null: int = N_NULL,
                    max_null: int = MAX_NULL, nominal_bias: dict[str, Any] | None = None,
-                   nominal_energy: dict[str, Any] | None = None, widen: bool = True,
-                   extend: bool = True) -> dict[str, Any]:
+                   nominal_energy: dict[str, Any] | None = None, widen: bool = True) -> dict[str, Any]:
     """Refit ``run``'s measurement with ``effect`` added (into ``RUN/refit-<effect>``; several effects
     at once: ``RUN/refit-<a>+<b>``, reported as effect ``"a+b"``), with the
     run's own settings (:meth:`FitConfig.from_run_config`: executor and its options included), the
@@ -848,20 +830,9 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     check without it. It is a safety net, mostly for a user's own effect with a narrow prior, at the cost of one more
     refit.
 
-    With ``extend`` (the default) and ``nominal_energy``, a refit whose posterior predictive scores worse than the
-    nominal fit's on the energy score (``energy_drop < 0``) goes on for one more round of the same size (the same run
-    directory: the stored rounds are kept), again while it still scores worse, up to
-    :data:`REFIT_MAX_ROUNDS_FACTOR` times the budget's rounds; check's test is applied to the last. Why: the refit
-    nests the nominal fit (the effect switched off), and the energy score is a proper score, so a refit that scores
-    worse has not yet found where the measurement is; its truncated rounds started again from the prior with more
-    parameters. ``extended`` lists the rounds, energy drop and posterior-predictive Chamfer of each refit that went
-    on; the stopping rule reads the energy score only, never check's test, so the test keeps its level. The same
-    command run again replays the same rounds from the store.
-
     Returns:
-        ``{"effect", "run", "rounds", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
-        "posterior_mean", "misspecification_after", "at_bounds"}`` (``rounds``: the refit's rounds, more than the
-        budget's where ``extended`` says so; ``at_bounds``: the added effects' parameters
+        ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
+        "posterior_mean", "misspecification_after", "at_bounds"}`` (``at_bounds``: the added effects' parameters
         whose refit posterior presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`;
         the refit's sentence then says so), ``widened`` where the prior was widened, plus :func:`refit_summary_bias`'s fields with
         ``nominal_bias``; ``chamfer_after_se_m`` is the standard error (m) of
@@ -888,24 +859,12 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
         # than its prior allows: a refit held inside the box cannot reach the measurement)
         res = run_fit(out, recording, cfg)
         refit = PosteriorPredictive(out, workers).ensure(n_null)
-        while extend and nominal_energy and cfg.rounds < max_rounds:
-            # a refit scoring worse than the nominal fit it nests has not converged: one more round
-            drop = energy_change(nominal_energy, energy_score(refit)).get("energy_drop")
-            if drop is None or drop >= 0:
-                break
-            extended.append({"run": str(out), "rounds": cfg.rounds, "energy_drop": drop,
-                             "chamfer_m": res.report.get("chamfer_posterior_m")})
-            cfg = replace(cfg, rounds=cfg.rounds + 1)
-            res = run_fit(out, recording, cfg)
-            refit = PosteriorPredictive(out, workers).ensure(n_null)
         mis, _, ranking = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)
         return (res, refit, mis, ranking,
-                [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params], cfg)
+                [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params])
 
-    max_rounds = REFIT_MAX_ROUNDS_FACTOR * cfg.rounds
-    extended: list[dict[str, Any]] = []
     out = run.path / f"refit-{effect}"
-    res, refit, mis, ranking, at_bounds, last = fit_and_check(out, cfg)
+    res, refit, mis, ranking, at_bounds = fit_and_check(out, cfg)
     widened: dict[str, Any] = {}
     if widen and mis["misspecified"] and at_bounds:
         # the measurement is still outside the refit's posterior predictive and the effect presses its prior:
@@ -920,16 +879,15 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
                        "first_misspecification_after": mis}
             cfg = replace(cfg, bounds={**cfg.bounds, **new})
             out = run.path / f"refit-{effect}-widened"
-            res, refit, mis, ranking, at_bounds, last = fit_and_check(out, cfg)
+            res, refit, mis, ranking, at_bounds = fit_and_check(out, cfg)
     before = run.report.get("chamfer_posterior_m")
     after = res.report.get("chamfer_posterior_m")
     sd, n = res.report.get("chamfer_posterior_std_m"), res.report.get("chamfer_posterior_n") or cfg.n_eval
     bias = refit_summary_bias(run, refit, nominal_bias, n_null) if nominal_bias else {}
     energy = energy_change(nominal_energy, energy_score(refit)) if nominal_energy else {}
     pm = pm_change(posterior_mean_chamfer(run, workers=workers), posterior_mean_chamfer(refit.run, workers=workers))
-    return {"effect": effect, "run": str(out), "rounds": last.rounds, "chamfer_before_m": before,
-            "chamfer_after_m": after, "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
-            **({"extended": extended} if extended else {}),
+    return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
+            "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
             "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
             "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis,
