@@ -177,9 +177,12 @@ class RunStore:
         return out
 
     def begin_round(self, r: int, theta: np.ndarray, u: np.ndarray, seeds: np.ndarray,
-                    x_shape: tuple[int, ...], proposal: str) -> None:
+                    x_shape: tuple[int, ...], proposal: str, sensor_u: np.ndarray | None = None) -> None:
         """Create round ``r`` with its parameter draws; results start as pending.
 
+        ``sensor_u`` ``(n, K, D)`` (unit cube): K further parameter vectors per simulation that differ from
+        ``u`` in the sensor parameters only (``FitConfig.sensor_draws``); their observations ``sensor_x``
+        ``(n, K, *x_shape)`` are written with the simulation (:meth:`write_simulation`).
         A half-created round (killed before ``begun`` was set) is removed first.
         """
         rounds = self.root["rounds"]
@@ -199,6 +202,12 @@ class RunStore:
                        dimension_names=("simulation", "frame", "point", "xyz"), attributes={"units": "m"})
         g.create_array("chamfer", shape=(n, T), dtype="float32", chunks=(1, T), fill_value=np.nan,
                        dimension_names=("simulation", "frame"), attributes={"units": "m"})
+        if sensor_u is not None:
+            k = sensor_u.shape[1]
+            _put(g, "sensor_u", sensor_u, ("simulation", "draw", "parameter"), "unit cube")
+            g.create_array("sensor_x", shape=(n, k, *x_shape), dtype="float32", chunks=(1, k, *x_shape),
+                           fill_value=np.nan, dimension_names=("simulation", "draw", "frame", "point", "xyz"),
+                           attributes={"units": "m"})
         g.create_array("status", shape=(n,), dtype="uint8", chunks=(1,), fill_value=STATUS_PENDING,
                        dimension_names=("simulation",),
                        attributes={"units": "1", "codes": "0 ok, 1 diverged, 2 implausible, 3 error, 255 pending"})
@@ -206,11 +215,14 @@ class RunStore:
         g.attrs["begun"] = True
 
     def write_simulation(self, r: int, i: int, x: np.ndarray | None, chamfer: np.ndarray | None,
-                         status: int, reason: str = "") -> None:
-        """Store simulation ``i`` of round ``r``; ``status`` is written last (it marks the row done)."""
+                         status: int, reason: str = "", sensor_x: np.ndarray | None = None) -> None:
+        """Store simulation ``i`` of round ``r`` (``sensor_x``: its observations at the round's ``sensor_u``
+        draws); ``status`` is written last (it marks the row done)."""
         g = self._round(r)
         if x is not None:
             g["x"][i] = np.asarray(x, np.float32)
+        if sensor_x is not None and "sensor_x" in g:
+            g["sensor_x"][i] = np.asarray(sensor_x, np.float32)
         if chamfer is not None:
             g["chamfer"][i] = np.asarray(chamfer, np.float32)
         if status != 0 and reason:
@@ -221,7 +233,8 @@ class RunStore:
 
     def round_data(self, r: int) -> dict[str, np.ndarray]:
         g = self._round(r)
-        return {k: g[k][...] for k in ("theta", "u", "seed", "x", "status", "chamfer")}
+        return {k: g[k][...] for k in ("theta", "u", "seed", "x", "status", "chamfer", "sensor_u", "sensor_x")
+                if k in g}
 
     def round_attrs(self, r: int) -> dict[str, Any]:
         return dict(self._round(r).attrs)

@@ -27,6 +27,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
+from softsbi.core.store import RunStore
 from softsbi.core.types import Recording, unit_suffix
 from softsbi.inference.contraction import bound_sentence, widened_bounds
 from softsbi.plugins import registry
@@ -788,6 +789,10 @@ def recording_from_run(run: RunView):
 #: BENCHMARKS.md "Honest statistics and three verdicts". Rule 3 needs the error to fall.
 REFIT_PROPOSAL = "truncated"
 
+#: observations per simulation of a confirmation refit beyond the first, at further values of its sensor effects'
+#: parameters (:attr:`FitConfig.sensor_draws`; refits without a sensor effect are unaffected)
+REFIT_SENSOR_DRAWS = 4
+
 
 def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, int] | None = None,
                    workers: int | None = None, alpha: float = ALPHA, n_null: int = N_NULL,
@@ -847,6 +852,7 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
                   rounds=int(budget.get("rounds", base.rounds)),
                   sims_per_round=int(budget.get("sims_per_round", base.sims_per_round)),
                   proposal=str(budget.get("proposal", REFIT_PROPOSAL)),
+                  sensor_draws=int(budget.get("sensor_draws", REFIT_SENSOR_DRAWS)),
                   workers=workers if workers is not None else base.workers)
     recording = recording_from_run(run)
     effects = [registry().effect(e)() for e in added]
@@ -857,6 +863,9 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
         # omnibus test and the directional test over the installed effects the refit does not include) and the
         # added effects' parameters whose refit posterior piles up at a prior bound (the effect may be larger
         # than its prior allows: a refit held inside the box cannot reach the measurement)
+        if RunStore.exists(out / "run.zarr"):  # a refit stored before sensor_draws existed resumes as it was made
+            cfg = replace(cfg, sensor_draws=FitConfig.from_run_config(RunStore.open(out / "run.zarr").config)
+                          .sensor_draws)
         res = run_fit(out, recording, cfg)
         refit = PosteriorPredictive(out, workers).ensure(n_null)
         mis, _, ranking = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)

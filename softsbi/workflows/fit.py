@@ -28,6 +28,7 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, RoundPosterior, TruncatedPrior
 from softsbi.core.errors import DataError, ParameterError, PosteriorError, SoftsbiError
+from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
@@ -51,7 +52,7 @@ LIFTED_HEIGHT = 0.10
 #: and must match on resume
 RECORDING_RESUME_KEYS = ("scenario", "param_space", "observed_source", "observer_options")
 #: values of resume keys in runs written before the key existed
-RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height"}
+RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height", "sensor_draws": 0}
 
 
 #: scenario options that say where a scenario was read from, not what it is: a run resumes whatever path the
@@ -126,6 +127,16 @@ class FitConfig:
             measured clouds as recorded; DiffCloud recordings with ``calib_*`` folders only). The
             point-cloud observer then draws the simulated frames' K points from the same sensor's clouds
             and the recorded frames' from the clouds as recorded (``observer_options["camera"]``).
+        sensor_draws: K >= 1: every simulation is observed K more times, at K further values of the sensor
+            effects' parameters (effects acting only through an observation transform, e.g. ``time-offset``,
+            ``point-noise``), drawn from the round's proposal given the simulation's other parameters; the
+            estimator trains on all ``(K + 1) n`` pairs. A sensor effect needs no new simulation, so this
+            multiplies the training pairs along its parameters at no simulation cost; the pairs are draws of
+            the same joint proposal, correlated within a simulation. Only for the point-cloud observer with
+            the height sensor model, truncated proposals or bulk estimators, and when every observation
+            transform of the fit is such a sensor effect; otherwise, and at 0 (the default), it does nothing.
+            ``diagnose`` sets it for refits that add a sensor effect
+            (:data:`~softsbi.workflows.diagnose.REFIT_SENSOR_DRAWS`).
     """
 
     backend: str = _resume("mujoco-flex")
@@ -151,6 +162,7 @@ class FitConfig:
     proposal: str = _resume("truncated")
     truncation_eps: float = _resume(1e-3)
     sensor: str = _resume("height")
+    sensor_draws: int = _resume(0)
 
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
@@ -162,6 +174,8 @@ class FitConfig:
             raise SoftsbiError(f"--sensor must be 'height' or 'camera' (got {self.sensor!r})")
         if not 0 < self.truncation_eps < 0.5:
             raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
+        if not isinstance(self.sensor_draws, int) or self.sensor_draws < 0:
+            raise SoftsbiError(f"sensor_draws must be an integer >= 0 (got {self.sensor_draws!r})")
         if self.rounds < 1:
             raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
         if self.sims_per_round < 10:
@@ -458,13 +472,15 @@ def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
 
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
-                      clock: _Clock | None = None) -> None:
+                      clock: _Clock | None = None, sensor: "SensorDraws | None" = None) -> None:
     data = store.round_data(r)
+    extra = sensor is not None and "sensor_u" in data
     for attempt in range(2):  # one retry for jobs whose worker crashed
         pending = store.pending(r)
         if len(pending) == 0:
             return
-        items = [(data["theta"][i], int(data["seed"][i])) for i in pending]
+        items = [(data["theta"][i], int(data["seed"][i])) + ((None, sensor.job_draws(data["sensor_u"][i]),)
+                                                              if extra else ()) for i in pending]
         done = len(data["status"]) - len(pending)
         errors = []
         for j, res in executor.map_unordered(simulate_job, items, context=ctx):
@@ -481,7 +497,8 @@ def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                 if attempt == 1:
                     store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
                 continue
-            store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"])
+            store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"],
+                                   sensor_x=res.get("sensor_x"))
             if clock is not None:
                 clock.save()
             done += 1
@@ -489,6 +506,86 @@ def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, h
         if not errors:
             return
         hooks.message(f"round {r + 1}: {len(errors)} simulations raised in their worker; retrying them once")
+
+
+class SensorDraws:
+    """``FitConfig.sensor_draws`` of one fit: which parameters are the sensor effects', how to draw them.
+
+    Attributes:
+        k: draws per simulation.
+        effects: the sensor effects' names, in the fit's order (every observation transform of the fit).
+        dims: their inferred parameters' indices in the fit's parameter space.
+    """
+
+    def __init__(self, k: int, effects: list[str], dims: list[int], space: ParamSpace):
+        self.k, self.effects, self.dims, self.space = k, effects, dims, space
+
+    @classmethod
+    def of(cls, cfg: FitConfig, space: ParamSpace, ctx: SimContext, usable: bool) -> "SensorDraws | None":
+        """None unless ``cfg.sensor_draws >= 1``, ``usable`` (truncated proposals or a bulk estimator), a
+        point-cloud fit with the height sensor model, and every observation transform of ``cfg.effects`` is
+        an observation-only effect with an inferred parameter."""
+        if cfg.sensor_draws < 1 or not usable or ctx.ref_masks is not None or ctx.camera is not None \
+                or getattr(registry().observer(cfg.observer), "needs_images", False):
+            return None
+        reg, sim = registry(), registry().simulator(cfg.backend)
+        names, dims = [], []
+        for name in cfg.effects:
+            doors = set(reg.effect(name)().doors(sim.name))
+            if OBSERVATION not in doors:
+                continue
+            if doors != {OBSERVATION}:
+                return None  # an observation transform that also acts on the physics: simulate each time
+            names.append(name)
+            dims += [space.names.index(p.name) for p in reg.effect(name)().param_space() if p.name in space.names]
+        return cls(cfg.sensor_draws, names, dims, space) if dims else None
+
+    def draw(self, u: np.ndarray, proposal: Any, rng: np.random.Generator) -> np.ndarray:
+        """``(n, K, D)`` unit-cube draws: each row of ``u (n, D)`` with its sensor dimensions drawn again from
+        ``proposal`` given the others (None: the prior, uniform; a
+        :class:`~softsbi.core.distributions.TruncatedPrior`: uniform within its region, by rejection; a row
+        whose region admits too few after 20 tries keeps its own values for the rest)."""
+        out = np.repeat(u[:, None, :], self.k, axis=1)
+        for i in range(len(u)):
+            got: list[np.ndarray] = []
+            for _ in range(20):
+                cand = np.repeat(u[i][None], 64 * self.k, axis=0)
+                cand[:, self.dims] = rng.random((len(cand), len(self.dims)))
+                if proposal is not None:
+                    cand = cand[proposal.in_region(cand)]
+                got += list(cand[: self.k - len(got)])
+                if len(got) >= self.k:
+                    break
+            if got:
+                out[i, : len(got)] = np.array(got)
+        return out
+
+    def job_draws(self, sensor_u: np.ndarray) -> dict[str, Any]:
+        """The worker's ``sensor_draws`` item (:func:`~softsbi.workflows.jobs.simulate_job`) of one simulation's
+        ``(K, D)`` unit-cube draws: their sensor parameters in physical units."""
+        names = [self.space.names[d] for d in self.dims]
+        return {"effects": list(self.effects),
+                "draws": [{n: float(v) for n, v in zip(names, self.space.from_unit(row[None])[0][self.dims])}
+                          for row in sensor_u]}
+
+
+def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray]:
+    """The stored ``sensor_draws`` pairs of rounds ``<= upto``: ``(m, D)`` unit-cube parameters and their
+    ``(m, T, 1+K, 3)`` observations, of successful simulations with finite observations (empty when none)."""
+    us, xs = [], []
+    for r in range(upto + 1):
+        d = store.round_data(r)
+        if "sensor_u" not in d:
+            continue
+        ok = d["status"] == STATUS_OK
+        u, x = d["sensor_u"][ok].reshape(-1, d["sensor_u"].shape[-1]), d["sensor_x"][ok]
+        x = x.reshape(-1, *x.shape[2:])
+        fin = np.all(np.isfinite(x.reshape(len(x), -1)), axis=1)
+        us.append(u[fin])
+        xs.append(x[fin])
+    if not us:
+        return np.zeros((0, 0)), np.zeros((0,))
+    return np.concatenate(us), np.concatenate(xs)
 
 
 def _usable(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -711,6 +808,7 @@ class _Rounds:
         self.prior_stats: dict[str, Any] | None = None
         self.x_obs = store.read_observed()["x"]
         self.scored = ctx.dense is not None or ctx.ref_masks is not None
+        self.sensor = SensorDraws.of(cfg, space, ctx, self.truncated or not self.sequential)
 
     def run_round(self, r: int, executor: Any) -> None:
         """Round ``r``: begin it (draw and store its parameters) unless stored, simulate what is
@@ -719,7 +817,7 @@ class _Rounds:
         if not store.is_begun(r):
             self._begin(r)
         self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
-        _simulate_missing(store, r, self.ctx, executor, self.cb, self.clock)
+        _simulate_missing(store, r, self.ctx, executor, self.cb, self.clock, self.sensor)
         d = store.round_data(r)
         stats = chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
         if r == 0:
@@ -760,8 +858,10 @@ class _Rounds:
         what = "prior" if proposal is None else (
             f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
             f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r}")
+        sensor_u = (self.sensor.draw(u, proposal, np.random.default_rng([cfg.seed, r, 1]))
+                    if self.sensor is not None else None)
         self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
-                               self.x_obs.shape, what)
+                               self.x_obs.shape, what, sensor_u=sensor_u)
 
     def _train(self, r: int, U: np.ndarray, X: np.ndarray, counts: list[int]) -> tuple[Any, dict[str, Any]]:
         """The posterior at the observation after round ``r`` (stored once trained)."""
@@ -770,10 +870,16 @@ class _Rounds:
             return store.read_q(r), store.round_attrs(r).get("info", {})
         est = self.est_cls(**estimator_options(cfg, self.est_cls))
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
+        n_sensor = 0
+        if self.sensor is not None:  # one simulation, K more observations at other sensor parameters
+            su, sx = _sensor_pairs(store, r)
+            n_sensor = len(su)
+            if n_sensor:
+                U, X = np.concatenate([U, su]), np.concatenate([X, sx])
         info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
                        progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l))
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
-        info = dict(info, n_train_total=int(len(U)), usable_per_round=counts)
+        info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor)
         store.finish_round(r, q, info)
         return q, info
 

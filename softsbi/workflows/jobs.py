@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from softsbi.backends.common import check_effects
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
 from softsbi.core.types import INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
@@ -70,14 +71,20 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
 
     Args:
         ctx: the shared context.
-        item: ``(theta, seed)`` or ``(theta, seed, effects)``: ``theta`` is ``(D,)`` in the order of
-            ``ctx.param_names`` (physical units) or a ``{name: value}`` mapping; ``ctx.fixed`` is
-            added to it. ``effects`` (names) replaces ``ctx.effects`` for this simulation (the
-            diagnosis's sensitivity simulations switch candidate effects on one at a time).
+        item: ``(theta, seed)``, ``(theta, seed, effects)`` or ``(theta, seed, effects, sensor_draws)``:
+            ``theta`` is ``(D,)`` in the order of ``ctx.param_names`` (physical units) or a ``{name: value}``
+            mapping; ``ctx.fixed`` is added to it. ``effects`` (names; None = ``ctx.effects``) replaces
+            ``ctx.effects`` for this simulation (the diagnosis's sensitivity simulations switch candidate
+            effects on one at a time). ``sensor_draws`` ``{"effects": names, "draws": [{param: value}, ...]}``:
+            the named effects (observation transforms only, every observation transform of ``effects``, in
+            their order) are applied after the simulation, once with ``theta`` (the returned ``x`` and Chamfer,
+            the same numbers as without ``sensor_draws``) and once per draw, whose parameters replace
+            ``theta``'s: one simulation, several observations (``FitConfig.sensor_draws``).
 
     Returns:
         ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
-        or None, "seconds"}``, plus ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
+        or None, "seconds"}``, plus ``sensor_x`` ``(K, T, 1+K, 3)`` with ``sensor_draws`` (the observations at
+        the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
         ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
         seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
         half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
@@ -85,7 +92,8 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     """
 
     theta, seed = item[0], item[1]
-    effects = list(item[2]) if len(item) > 2 else list(ctx.effects)
+    effects = list(item[2]) if len(item) > 2 and item[2] is not None else list(ctx.effects)
+    draws = item[3] if len(item) > 3 else None
     t0 = time.perf_counter()
     sim, obs, scenario = _objects(ctx)
     if isinstance(theta, Mapping):
@@ -97,6 +105,12 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
         if getattr(obs, "needs_images", False):
             ro = sim.simulate_images(scenario, values, camera=obs.camera, effects=effects, seed=int(seed),
                                      style=obs.style)
+        elif draws:  # simulate without the observation transforms, then observe once per draw
+            plan = check_effects(sim, draws["effects"])
+            own = {p.name for e in plan.effects for p in e.param_space()}
+            raw = sim.simulate(scenario, {k: v for k, v in values.items() if k not in own},
+                               effects=[e for e in effects if e not in draws["effects"]], seed=int(seed))
+            ro = plan.observe(raw, values, int(seed))
         else:
             ro = sim.simulate(scenario, values, effects=effects, seed=int(seed))
     except SoftsbiError:
@@ -131,6 +145,14 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
                 ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, effect_z))
     out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
            "seconds": time.perf_counter() - t0}
+    if draws:
+        # each draw: the sensor effects' own randomness (point noise) drawn afresh, the observer's point
+        # sampling the primary's (so a draw at theta's own sensor parameters repeats x when they are deterministic)
+        out["sensor_x"] = np.stack([
+            obs.observe(plan.observe(raw, {**values, **{k: float(v) for k, v in d.items()}},
+                                     int(seed) + 1_000_003 * (j + 1)),
+                        np.random.default_rng([int(seed), 17])).state()
+            for j, d in enumerate(draws["draws"])])
     if ctx.keep_rollout:
         out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
         if effect_z is not None:

@@ -412,3 +412,48 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
     sides, reject = ["upper"], True
     fits.clear()
     assert "widened" not in dg.confirm_effect(_Run(), "point-noise", widen=False) and len(fits) == 1
+
+
+def test_a_refit_draws_sensor_parameters_unless_it_was_stored_without(monkeypatch, tmp_path):
+    """confirm_effect asks for REFIT_SENSOR_DRAWS observations per simulation; a refit directory stored before the
+    setting existed (no ``sensor_draws`` in its settings) resumes with none, so the same command continues it."""
+    import types
+
+    import softsbi.workflows.diagnose as dg
+    from softsbi.core.store import RunStore
+    from softsbi.core.types import Param, ParamSpace
+    seen = []
+
+    def fake_fit(out, rec, cfg):
+        seen.append(cfg.sensor_draws)
+        return types.SimpleNamespace(report={"chamfer_posterior_m": 0.02, "chamfer_posterior_std_m": 0.001,
+                                             "chamfer_posterior_n": 30, "posterior_mean": {}, "posterior_at_bounds": []})
+
+    class _Pool:
+        def __init__(self, out, workers=None):
+            self.run = types.SimpleNamespace(path=out, space=ParamSpace([Param("time_offset", -0.1, 0.1, "s")]))
+
+        def ensure(self, n):
+            return self
+
+    class _Run:
+        config = {"backend": "mujoco-flex", "scenario": {}}
+        effects: list = []
+        path = tmp_path
+        report = {"chamfer_posterior_m": 0.03}
+
+    monkeypatch.setattr(dg, "run_fit", fake_fit)
+    monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
+    monkeypatch.setattr(dg, "PosteriorPredictive", _Pool)
+    monkeypatch.setattr(dg, "misspecification_verdict", lambda *a: ({"misspecified": False, "p_text": "p = 1"}, None, []))
+    monkeypatch.setattr(dg, "candidate_effects", lambda run: [])
+    monkeypatch.setattr(dg, "posterior_mean_chamfer", lambda run, workers=None: None)
+    monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(
+        lambda cls, c: cls.from_json({k: v for k, v in c.get("fit_config", {}).items()}) if c else cls(rounds=2, sims_per_round=10)))
+    dg.confirm_effect(_Run(), "time-offset")
+    assert seen == [dg.REFIT_SENSOR_DRAWS] and dg.REFIT_SENSOR_DRAWS >= 1
+    old = dg.FitConfig(rounds=2, sims_per_round=10, effects=["time-offset"]).to_json()
+    del old["sensor_draws"]
+    RunStore.create(tmp_path / "refit-time-offset" / "run.zarr", {"fit_config": old})
+    dg.confirm_effect(_Run(), "time-offset")
+    assert seen[-1] == 0
