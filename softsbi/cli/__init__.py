@@ -343,6 +343,11 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
         proposal: Proposal = typer.Option(Proposal.truncated, help=H_PROPOSAL),
+        sensor_draws: int = typer.Option(0, "--sensor-draws",
+                                         help="observe each simulation at N more values of the sensor effects' "
+                                              "parameters (--effect time-offset, point-noise, ...): N times more "
+                                              "training pairs along them at no simulation cost (truncated "
+                                              "proposals; diagnose's refits use 4)"),
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),
@@ -361,6 +366,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                       backend_opt, estimator_opt, n_eval, min_height, frames, executor, exe_opts, proposal)
     cfg.observer = observer
     cfg.sensor = sensor
+    cfg.sensor_draws = sensor_draws
     images = bool(getattr(registry().observer(observer), "needs_images", False))
     if images:
         if extractor is None:
