@@ -505,6 +505,10 @@ class PosteriorEstimator(ABC):
             seed: seeds every random choice of the fit (same seed, same estimator).
             progress: ``progress(epoch, max_epochs, loss)``, called once per epoch when given.
 
+        An estimator whose ``fit`` also takes ``groups`` (``(N,)`` labels of samples observed from one
+        simulation, ``FitConfig.sensor_draws``) is given them, so that a validation split can hold out whole
+        simulations; the built-in neural estimators do.
+
         Returns:
             Training info (``epochs``, ``train_loss``, ``val_loss``, ``seconds``).
 

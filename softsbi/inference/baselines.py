@@ -187,7 +187,8 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
         return net
 
     def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
-            progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[int, int, float], None] | None = None,
+            groups: np.ndarray | None = None) -> dict[str, Any]:
         """As :meth:`NeuralMDNEstimator.fit`; adds ``val_l1 (D,)`` (unit-cube units) to the info.
 
         Raises:
@@ -198,11 +199,11 @@ class BayesZoomRKHSEstimator(RKHSEstimator):
             raise ParameterError(f"estimator '{self.name}' supports neither ensemble > 1 nor recalibrate (got "
                                  f"ensemble={self.config['ensemble']}, recalibrate={self.config['recalibrate']}); "
                                  f"use rkhs with these options instead")
-        info = super().fit(theta_unit, x, seed=seed, progress=progress)
+        info = super().fit(theta_unit, x, seed=seed, progress=progress, groups=groups)
         u2, x2 = self._validate(theta_unit, x)
         # the base class's split (same seed, same call)
         _, val_idx = train_val_split(len(u2), float(self.config["val_fraction"]), np.random.default_rng(seed),
-                                     min_train=2)
+                                     min_train=2, groups=groups)
         zs = self._standardise(self.summary_statistics(x2[val_idx]))
         assert self._net is not None
         self._net.head.scale.fill_(1.0)

@@ -481,7 +481,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
 
     # ------------------------------------------------------------------ API
     def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
-            progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[int, int, float], None] | None = None,
+            groups: np.ndarray | None = None) -> dict[str, Any]:
         """Train ``q(theta_unit | x)`` by maximum likelihood (MDN negative log-likelihood; BayesSim,
         Ramos et al. 2019, Sec. 3-4) with early stopping (:func:`~softsbi.inference.training.fit_early_stopping`).
 
@@ -491,6 +492,9 @@ class NeuralMDNEstimator(PosteriorEstimator):
             x: ``(N, T, 1+K, 3)`` states in metres (gripper row, then K unordered points).
             seed: seeds the weight init, the train/validation split and the batch order.
             progress: ``progress(epoch, max_epochs, train_loss)`` after every epoch.
+            groups: optional ``(N,)`` labels of samples from one simulation (``FitConfig.sensor_draws``): the
+                validation split, which early stopping and ``recalibrate`` judge on, holds out whole groups
+                (:func:`~softsbi.inference.training.train_val_split`).
 
         Returns:
             ``{"epochs", "best_epoch", "train_loss", "val_loss", "last_train_loss", "seconds", "n_train",
@@ -522,7 +526,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
             # order (deep ensembles, Lakshminarayanan et al. 2017); one train/validation split and
             # standardisation, drawn by member 0's generator, shared by all members
             rngs = [np.random.default_rng(seed if k == 0 else [seed, k]) for k in range(K)]
-            tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rngs[0], min_train=2)
+            tr_idx, val_idx = train_val_split(len(u), float(c["val_fraction"]), rngs[0], min_train=2,
+                                              groups=groups)
             self._in_mean, self._in_std = self.input_stats(z[tr_idx])
             zs = self._standardise(z)
             um = u[tr_idx].mean(0)

@@ -249,9 +249,11 @@ class FlowEstimator(PosteriorEstimator):
         return FlowNetwork(F, D, c["flow"], int(c["transforms"]), c["hidden"], int(c["bins"]), c["embedding"])
 
     def fit(self, theta_unit: np.ndarray, x: np.ndarray, *, seed: int = 0,
-            progress: Callable[[int, int, float], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[int, int, float], None] | None = None,
+            groups: np.ndarray | None = None) -> dict[str, Any]:
         """Train ``q(theta_unit | x)`` by maximum likelihood (NPE's first-round loss) with early stopping on
-        a held-out split (:func:`~softsbi.inference.training.fit_early_stopping`; best weights kept).
+        a held-out split (:func:`~softsbi.inference.training.fit_early_stopping`; best weights kept; with
+        ``groups`` ``(N,)``, samples of one simulation, whole groups are held out).
 
         Args:
             theta_unit: ``(N, D)`` (or ``(N,)``) parameters in the unit cube.
@@ -280,7 +282,7 @@ class FlowEstimator(PosteriorEstimator):
             raise DataError(f"need at least {MIN_SAMPLES} simulations to fit an estimator, got {len(u)}")
         c = self.config
         rng = np.random.default_rng(seed)
-        tr, va = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2)
+        tr, va = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2, groups=groups)
         zm, zsd = z[tr].mean(0), z[tr].std(0)
         zsd = np.where(zsd > 1e-7 * max(float(zsd.max()), 1e-30), zsd, 1.0)
         um, usd = u[tr].mean(0), u[tr].std(0)

@@ -85,7 +85,7 @@ def torch_threads(n: int | None, convolutions: bool = False) -> Iterator[None]:
 
 
 def train_val_split(n: int, val_fraction: float, rng: np.random.Generator, *, min_train: int = 1,
-                    min_val: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                    min_val: int = 1, groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Random train/validation split of ``n`` samples.
 
     Draws one permutation ``rng.permutation(n)`` (always, even when nothing is held out, so the
@@ -93,20 +93,43 @@ def train_val_split(n: int, val_fraction: float, rng: np.random.Generator, *, mi
     ``n_val = min(max(min_val, round(val_fraction * n)), n - min_train)`` entries are the
     validation indices (``n_val = 0`` when ``val_fraction <= 0``).
 
+    With ``groups`` (``(n,)`` labels: samples of one simulation observed several times,
+    ``FitConfig.sensor_draws``) whole groups are held out: one permutation of the groups
+    (``rng.permutation(n_groups)``), whose first groups go to validation until they hold at least ``n_val``
+    samples (never leaving fewer than ``min_train``). A validation sample whose simulation is also in the
+    training set would make early stopping and recalibration judge the network on what it has seen.
+
     Args:
         n: number of samples.
         val_fraction: share held out, in ``[0, 1)``.
         rng: NumPy generator.
         min_train: fewest training samples left (takes precedence over ``min_val``).
         min_val: fewest validation samples when ``val_fraction > 0``.
+        groups: optional ``(n,)`` group labels.
 
     Returns:
         ``(train_idx (n - n_val,), val_idx (n_val,))`` int arrays in permutation order (not sorted).
     """
-    perm = rng.permutation(n)
     n_val = max(0, min(max(int(min_val), int(round(float(val_fraction) * n))), n - int(min_train))) \
         if val_fraction > 0 else 0
-    return perm[n_val:], perm[:n_val]
+    if groups is None:
+        perm = rng.permutation(n)
+        return perm[n_val:], perm[:n_val]
+    groups = np.asarray(groups)
+    if groups.shape != (n,):
+        raise ValueError(f"groups must have shape ({n},), got {groups.shape}")
+    labels = np.unique(groups)
+    members = [np.nonzero(groups == g)[0] for g in labels[rng.permutation(len(labels))]]
+    val: list[np.ndarray] = []
+    held = 0
+    for m in members:
+        if held >= n_val or n - held - len(m) < min_train:
+            break
+        val.append(m)
+        held += len(m)
+    rest = members[len(val):]
+    cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, int)  # noqa: E731
+    return cat(rest), cat(val)
 
 
 def minibatches(n: int, batch_size: int, rng: np.random.Generator, *, balanced: bool = False,

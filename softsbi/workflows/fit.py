@@ -18,6 +18,7 @@ the plugin registry: it imports no simulator. :class:`FitConfig` is the one set 
 from __future__ import annotations
 
 import contextlib
+import inspect
 import json
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -569,23 +570,27 @@ class SensorDraws:
                           for row in sensor_u]}
 
 
-def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray]:
-    """The stored ``sensor_draws`` pairs of rounds ``<= upto``: ``(m, D)`` unit-cube parameters and their
-    ``(m, T, 1+K, 3)`` observations, of successful simulations with finite observations (empty when none)."""
-    us, xs = [], []
+def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stored ``sensor_draws`` pairs of rounds ``<= upto``: ``(m, D)`` unit-cube parameters, their
+    ``(m, T, 1+K, 3)`` observations and ``(m,)`` the index of their simulation among :func:`_usable`'s rows; pairs
+    of simulations :func:`_usable` keeps, with finite observations (empty when none)."""
+    us, xs, gs = [], [], []
+    offset = 0
     for r in range(upto + 1):
         d = store.round_data(r)
-        if "sensor_u" not in d:
-            continue
-        ok = d["status"] == STATUS_OK
-        u, x = d["sensor_u"][ok].reshape(-1, d["sensor_u"].shape[-1]), d["sensor_x"][ok]
-        x = x.reshape(-1, *x.shape[2:])
-        fin = np.all(np.isfinite(x.reshape(len(x), -1)), axis=1)
-        us.append(u[fin])
-        xs.append(x[fin])
+        ok = (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+        if "sensor_u" in d:
+            u, x = d["sensor_u"][ok], d["sensor_x"][ok]  # (n_ok, K, D), (n_ok, K, ...)
+            row = np.repeat(offset + np.arange(len(u)), u.shape[1])
+            u, x = u.reshape(-1, u.shape[-1]), x.reshape(-1, *x.shape[2:])
+            fin = np.all(np.isfinite(x.reshape(len(x), -1)), axis=1)
+            us.append(u[fin])
+            xs.append(x[fin])
+            gs.append(row[fin])
+        offset += int(ok.sum())
     if not us:
-        return np.zeros((0, 0)), np.zeros((0,))
-    return np.concatenate(us), np.concatenate(xs)
+        return np.zeros((0, 0)), np.zeros((0,)), np.zeros(0, int)
+    return np.concatenate(us), np.concatenate(xs), np.concatenate(gs)
 
 
 def _usable(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -870,16 +875,19 @@ class _Rounds:
             return store.read_q(r), store.round_attrs(r).get("info", {})
         est = self.est_cls(**estimator_options(cfg, self.est_cls))
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
-        n_sensor = 0
+        n_sensor, kw = 0, {}
         if self.sensor is not None:  # one simulation, K more observations at other sensor parameters
-            su, sx = _sensor_pairs(store, r)
+            su, sx, sg = _sensor_pairs(store, r)
             n_sensor = len(su)
             if n_sensor:
                 U, X = np.concatenate([U, su]), np.concatenate([X, sx])
+                if "groups" in inspect.signature(est.fit).parameters:  # hold out whole simulations
+                    kw["groups"] = np.concatenate([np.arange(len(U) - n_sensor), sg])
         info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
-                       progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l))
+                       progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l), **kw)
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
-        info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor)
+        info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
+                    **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))
         store.finish_round(r, q, info)
         return q, info
 

@@ -91,6 +91,21 @@ def test_a_fit_trains_on_the_draws_stores_them_and_resumes(tmp_path):
         info = store.round_attrs(r)["info"]
         assert info["sensor_pairs"] == 2 * sum(info["usable_per_round"])
         assert info["n_train_total"] == 3 * sum(info["usable_per_round"])
+        assert info["held_out_by_simulation"] is True
     run_fit(tmp_path / "run", meas, cfg, make_plots=False)  # resumes: nothing to do
     with pytest.raises(SchemaError, match="sensor_draws"):
         run_fit(tmp_path / "run", meas, FitConfig(**{**cfg.__dict__, "sensor_draws": 3}), make_plots=False)
+
+
+def test_a_grouped_split_holds_out_whole_simulations():
+    """With groups, no simulation has samples on both sides; the held-out share is about the asked one; without
+    groups the split is the plain permutation's (unchanged)."""
+    from softsbi.inference.training import train_val_split
+    groups = np.repeat(np.arange(40), 5)  # 40 simulations observed 5 times each
+    tr, va = train_val_split(200, 0.1, np.random.default_rng(0), min_train=2, groups=groups)
+    assert len(tr) + len(va) == 200 and set(tr).isdisjoint(va)
+    assert not set(groups[tr]) & set(groups[va]) and 20 <= len(va) <= 25
+    tr0, va0 = train_val_split(200, 0.1, np.random.default_rng(0), min_train=2)
+    np.testing.assert_array_equal(np.r_[va0, tr0], np.random.default_rng(0).permutation(200))
+    with pytest.raises(ValueError, match="groups must have shape"):
+        train_val_split(10, 0.1, np.random.default_rng(0), groups=np.zeros(9))
