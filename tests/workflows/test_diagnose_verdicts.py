@@ -358,7 +358,6 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
     check accepts, or one that presses only the switched-off side, is not refitted."""
     import types
 
-    import softsbi.workflows.diagnose as dg
     from softsbi.core.types import Param, ParamSpace
     fits = []
 
@@ -382,18 +381,7 @@ def test_a_rejected_refit_pressing_its_effects_prior_bound_is_refitted_once_with
         wide = "widened" in pool.run.path.name
         return ({"misspecified": not wide and reject, "p_text": "p = 0.05" if not wide else "p = 0.6"}, None, [])
 
-    class _Run:
-        config = {"backend": "mujoco-flex", "scenario": {}}
-        effects: list = []
-        path = tmp_path
-        report = {"chamfer_posterior_m": 0.03}
-
-    monkeypatch.setattr(dg, "run_fit", fake_fit)
-    monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
-    monkeypatch.setattr(dg, "PosteriorPredictive", _Pool)
-    monkeypatch.setattr(dg, "misspecification_verdict", fake_verdict)
-    monkeypatch.setattr(dg, "candidate_effects", lambda run: [])
-    monkeypatch.setattr(dg, "posterior_mean_chamfer", lambda run, workers=None: None)
+    dg, _Run = _confirm_effect_without_fitting(monkeypatch, tmp_path, fake_fit, _Pool, fake_verdict)
     monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(lambda cls, c: cls(rounds=2, sims_per_round=10)))
     sides, reject = ["upper"], True
     c = dg.confirm_effect(_Run(), "point-noise")
@@ -419,7 +407,6 @@ def test_a_refit_draws_sensor_parameters_unless_it_was_stored_without(monkeypatc
     setting existed (no ``sensor_draws`` in its settings) resumes with none, so the same command continues it."""
     import types
 
-    import softsbi.workflows.diagnose as dg
     from softsbi.core.store import RunStore
     from softsbi.core.types import Param, ParamSpace
     seen = []
@@ -436,18 +423,8 @@ def test_a_refit_draws_sensor_parameters_unless_it_was_stored_without(monkeypatc
         def ensure(self, n):
             return self
 
-    class _Run:
-        config = {"backend": "mujoco-flex", "scenario": {}}
-        effects: list = []
-        path = tmp_path
-        report = {"chamfer_posterior_m": 0.03}
-
-    monkeypatch.setattr(dg, "run_fit", fake_fit)
-    monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
-    monkeypatch.setattr(dg, "PosteriorPredictive", _Pool)
-    monkeypatch.setattr(dg, "misspecification_verdict", lambda *a: ({"misspecified": False, "p_text": "p = 1"}, None, []))
-    monkeypatch.setattr(dg, "candidate_effects", lambda run: [])
-    monkeypatch.setattr(dg, "posterior_mean_chamfer", lambda run, workers=None: None)
+    dg, _Run = _confirm_effect_without_fitting(
+        monkeypatch, tmp_path, fake_fit, _Pool, lambda *a: ({"misspecified": False, "p_text": "p = 1"}, None, []))
     monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(
         lambda cls, c: cls.from_json({k: v for k, v in c.get("fit_config", {}).items()}) if c else cls(rounds=2, sims_per_round=10)))
     dg.confirm_effect(_Run(), "time-offset")
@@ -457,3 +434,23 @@ def test_a_refit_draws_sensor_parameters_unless_it_was_stored_without(monkeypatc
     RunStore.create(tmp_path / "refit-time-offset" / "run.zarr", {"fit_config": old})
     dg.confirm_effect(_Run(), "time-offset")
     assert seen[-1] == 0
+
+
+def _confirm_effect_without_fitting(monkeypatch, tmp_path, fake_fit, pool, verdict):
+    """diagnose's module with confirm_effect's collaborators replaced (the fit, the posterior-predictive pool,
+    check's verdict, the candidates, the posterior-mean rollout), and a nominal run in ``tmp_path`` to refit."""
+    import softsbi.workflows.diagnose as dg
+
+    class _Run:
+        config = {"backend": "mujoco-flex", "scenario": {}}
+        effects: list = []
+        path = tmp_path
+        report = {"chamfer_posterior_m": 0.03}
+
+    monkeypatch.setattr(dg, "run_fit", fake_fit)
+    monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
+    monkeypatch.setattr(dg, "PosteriorPredictive", pool)
+    monkeypatch.setattr(dg, "misspecification_verdict", verdict)
+    monkeypatch.setattr(dg, "candidate_effects", lambda run: [])
+    monkeypatch.setattr(dg, "posterior_mean_chamfer", lambda run, workers=None: None)
+    return dg, _Run
