@@ -35,6 +35,10 @@ SCHEMA_VERSION = 1
 
 
 
+#: the arrays every round holds (:meth:`RunStore.round_data`); a fit with sensor draws adds ``sensor_u``, ``sensor_x``
+ROUND_ARRAYS = ("theta", "u", "seed", "x", "status", "chamfer")
+
+
 def _version() -> str:
     try:
         from importlib.metadata import version
@@ -231,10 +235,11 @@ class RunStore:
             g.attrs["failures"] = fails
         g["status"][i] = np.uint8(status)
 
-    def round_data(self, r: int) -> dict[str, np.ndarray]:
+    def round_data(self, r: int, keys: Sequence[str] = ROUND_ARRAYS) -> dict[str, np.ndarray]:
+        """Round ``r``'s arrays named in ``keys`` that it holds (default :data:`ROUND_ARRAYS`; add
+        ``"sensor_u"``, ``"sensor_x"`` for a fit's sensor draws, which only those who need them read)."""
         g = self._round(r)
-        return {k: g[k][...] for k in ("theta", "u", "seed", "x", "status", "chamfer", "sensor_u", "sensor_x")
-                if k in g}
+        return {k: g[k][...] for k in keys if k in g}
 
     def round_attrs(self, r: int) -> dict[str, Any]:
         return dict(self._round(r).attrs)

@@ -30,7 +30,7 @@ import numpy as np
 from softsbi.core.distributions import PosteriorChain, RoundPosterior, TruncatedPrior
 from softsbi.core.errors import DataError, ParameterError, PosteriorError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
-from softsbi.core.store import RunStore
+from softsbi.core.store import ROUND_ARRAYS, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
@@ -474,8 +474,8 @@ def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
                       clock: _Clock | None = None, sensor: "SensorDraws | None" = None) -> None:
-    data = store.round_data(r)
-    extra = sensor is not None and "sensor_u" in data
+    data = store.round_data(r, ROUND_ARRAYS + (("sensor_u",) if sensor is not None else ()))
+    extra = "sensor_u" in data
     for attempt in range(2):  # one retry for jobs whose worker crashed
         pending = store.pending(r)
         if len(pending) == 0:
@@ -532,13 +532,14 @@ class SensorDraws:
         reg, sim = registry(), registry().simulator(cfg.backend)
         names, dims = [], []
         for name in cfg.effects:
-            doors = set(reg.effect(name)().doors(sim.name))
+            eff = reg.effect(name)()
+            doors = set(eff.doors(sim.name))
             if OBSERVATION not in doors:
                 continue
             if doors != {OBSERVATION}:
                 return None  # an observation transform that also acts on the physics: simulate each time
             names.append(name)
-            dims += [space.names.index(p.name) for p in reg.effect(name)().param_space() if p.name in space.names]
+            dims += [space.names.index(p.name) for p in eff.param_space() if p.name in space.names]
         return cls(cfg.sensor_draws, names, dims, space) if dims else None
 
     def draw(self, u: np.ndarray, proposal: Any, rng: np.random.Generator) -> np.ndarray:
@@ -577,8 +578,8 @@ def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, n
     us, xs, gs = [], [], []
     offset = 0
     for r in range(upto + 1):
-        d = store.round_data(r)
-        ok = (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+        d = store.round_data(r, ("status", "x", "sensor_u", "sensor_x"))
+        ok = _usable_rows(d)
         if "sensor_u" in d:
             u, x = d["sensor_u"][ok], d["sensor_x"][ok]  # (n_ok, K, D), (n_ok, K, ...)
             row = np.repeat(offset + np.arange(len(u)), u.shape[1])
@@ -593,11 +594,16 @@ def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, n
     return np.concatenate(us), np.concatenate(xs), np.concatenate(gs)
 
 
+def _usable_rows(d: dict[str, np.ndarray]) -> np.ndarray:
+    """``(n,)`` bool: the simulations of a round's arrays ``d`` that training uses (status ok, finite state)."""
+    return (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+
+
 def _usable(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
     us, xs, counts = [], [], []
     for r in range(upto + 1):
         d = store.round_data(r)
-        ok = (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+        ok = _usable_rows(d)
         us.append(d["u"][ok])
         xs.append(d["x"][ok])
         counts.append(int(ok.sum()))
