@@ -920,15 +920,29 @@ def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
     None: any number), with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget, and
     with ``test`` (``"joint"`` or ``"omnibus"``, rows without the field) only those decided with that
     misspecification test; with ``proposal`` only rows whose nominal fit drew its rounds so (rows without the
-    field: ``"corrected"``; None: any); with ``alpha`` only rows decided at that level (:func:`row_alpha`)."""
+    field: ``"corrected"``; None: any); with ``alpha`` only rows decided at that level (:func:`row_alpha`).
+
+    A case diagnosed under several protocols that all pass the filters (e.g. refits at the nominal budget and
+    at 3 x 100: two ids, one measurement) counts once: its row stored last (:func:`one_row_per_case`)."""
     def budget(r):
         cb = (r.get("budget") or {}).get("confirm_budget")
         return f"{cb['rounds']}x{cb['sims_per_round']}" if cb else None
-    return [r for r in rows if (confirm is None or int((r.get("budget") or {}).get("confirm", 0)) == confirm)
-            and (confirm_budget is None or budget(r) == confirm_budget)
-            and (test is None or r.get("test", "omnibus") == test)
-            and (proposal is None or r.get("proposal", "corrected") == proposal)
-            and (alpha is None or row_alpha(r) == alpha)]
+    return one_row_per_case([r for r in rows if (confirm is None or int((r.get("budget") or {}).get("confirm", 0)) == confirm)
+                             and (confirm_budget is None or budget(r) == confirm_budget)
+                             and (test is None or r.get("test", "omnibus") == test)
+                             and (proposal is None or r.get("proposal", "corrected") == proposal)
+                             and (alpha is None or row_alpha(r) == alpha)])
+
+
+def one_row_per_case(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` with one row per case (suite, seed and index: one measurement): of several, the one stored last
+    (the newest protocol), in its place; rows without an ``index`` (tests' hand-made rows) are all kept."""
+    def key(r):  # make_case's id: f"{suite}-s{seed}-{index}" and the protocol's suffixes
+        if r.get("index") is None or not str(r.get("suite")) or not r["id"].startswith(f"{r['suite']}-s"):
+            return ("row", r["id"])
+        return (r["suite"], r["id"][len(r["suite"]) + 2:].split("-")[0], r["index"])
+    last = {key(r): i for i, r in enumerate(rows)}
+    return [r for i, r in enumerate(rows) if last[key(r)] == i]
 
 
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:

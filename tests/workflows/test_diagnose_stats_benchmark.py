@@ -343,3 +343,20 @@ def test_a_stored_row_decided_again_keeps_its_old_verdict_the_old_diagnosis_and_
     assert json.loads((run_dir / "diagnosis.json").read_text())["verdict"] == "missing-effect"
     assert bench.decide_stored_again(results, [tmp_path / "out"], None, "redone", lambda d: d["confirmed"],
                                      "diagnosis.before.json", redo, lambda d, todo: ({}, {})) == [] and calls == [1]
+
+
+def test_a_case_diagnosed_under_two_protocols_counts_once():
+    """Two refit protocols of one measurement (``mujoco-more-s0-475``: refits at the nominal budget and at 3 x 100)
+    are one case in the summary: the row stored last; other cases and rows without an index are kept."""
+    base = {"suite": "mujoco-more", "truth_label": "point-noise", "scenario": "wipe", "magnitude": 0.3, "named": None,
+            "called": "nothing-missing", "verdict": "nothing-missing", "correct": False, "test": "joint",
+            "proposal": "truncated", "budget": {"confirm": 2, "alpha": 0.05}}
+    rows = [dict(base, id="mujoco-more-s0-475-refit2-joint-truncated", index=475),
+            dict(base, id="mujoco-more-s0-476-refit2-3x100-joint-truncated", index=476),
+            dict(base, id="mujoco-more-s1-475-refit2-3x100-joint-truncated", index=475),
+            dict(base, id="mujoco-more-s0-475-refit2-3x100-joint-truncated", index=475),
+            dict(base, id="hand-made", index=None)]
+    kept = [r["id"] for r in bench.select_rows(rows, None, proposal=None, alpha=0.05, test="joint")]
+    assert kept == ["mujoco-more-s0-476-refit2-3x100-joint-truncated", "mujoco-more-s1-475-refit2-3x100-joint-truncated",
+                    "mujoco-more-s0-475-refit2-3x100-joint-truncated", "hand-made"]
+    assert bench.summarise(bench.select_rows(rows, None, proposal=None))["power"]["point-noise"]
