@@ -248,7 +248,9 @@ def merge_rows(results: Path, new_files: Sequence[Path], note: str | None = None
     """Merge rows run apart (``run --results FILE``) into ``results``: a row whose id is already stored replaces it
     in place (the case run again on the current code, e.g. because its stored diagnosis was decided under an older
     rule), keeping the old row's :data:`CASE_DATA_KEYS` and recording ``rerun`` = ``note`` and the old verdict
-    (``rerun_was``: ``called``, ``correct``); other rows are appended. Rows that ended in an error are skipped.
+    (``rerun_was``: ``called``, ``correct``); other rows are appended (one that diagnosed a stored measurement under
+    another protocol's id gets ``rerun`` and ``rerun_was`` with that row's ``id``; the summary counts the newer,
+    :func:`one_row_per_case`). Rows that ended in an error are skipped.
     Returns ``{"replaced", "appended", "skipped"}``."""
     rows = load_rows(results)
     where = {r["id"]: i for i, r in enumerate(rows)}
@@ -260,6 +262,13 @@ def merge_rows(results: Path, new_files: Sequence[Path], note: str | None = None
                 continue
             i = where.get(new["id"])
             if i is None:
+                # the same measurement stored under another protocol's id (e.g. refits at the nominal budget, now
+                # 3 x 100): kept, and the summary counts the newest (select_rows); the new row says what it follows
+                same = [r for r in rows if case_key(r) == case_key(new) and case_key(new)[0] != "row"]
+                if same:
+                    new["rerun"] = note
+                    new["rerun_was"] = {"called": same[-1].get("called"), "correct": same[-1].get("correct"),
+                                        "id": same[-1]["id"]}
                 where[new["id"]] = len(rows)
                 rows.append(new)
                 k["appended"] += 1
@@ -937,12 +946,16 @@ def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
 def one_row_per_case(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """``rows`` with one row per case (suite, seed and index: one measurement): of several, the one stored last
     (the newest protocol), in its place; rows without an ``index`` (tests' hand-made rows) are all kept."""
-    def key(r):  # make_case's id: f"{suite}-s{seed}-{index}" and the protocol's suffixes
-        if r.get("index") is None or not str(r.get("suite")) or not r["id"].startswith(f"{r['suite']}-s"):
-            return ("row", r["id"])
-        return (r["suite"], r["id"][len(r["suite"]) + 2:].split("-")[0], r["index"])
-    last = {key(r): i for i, r in enumerate(rows)}
-    return [r for i, r in enumerate(rows) if last[key(r)] == i]
+    last = {case_key(r): i for i, r in enumerate(rows)}
+    return [r for i, r in enumerate(rows) if last[case_key(r)] == i]
+
+
+def case_key(r: dict[str, Any]) -> tuple[Any, ...]:
+    """The measurement a row diagnosed: (suite, seed, index) from :func:`make_case`'s id
+    (``f"{suite}-s{seed}-{index}"`` and the protocol's suffixes); ``("row", id)`` for a row without an index."""
+    if r.get("index") is None or not r.get("suite") or not r["id"].startswith(f"{r['suite']}-s"):
+        return ("row", r["id"])
+    return (r["suite"], r["id"][len(r["suite"]) + 2:].split("-")[0], r["index"])
 
 
 def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:

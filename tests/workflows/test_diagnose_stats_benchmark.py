@@ -178,6 +178,17 @@ def test_merge_replaces_a_case_run_again_keeps_its_data_fields_and_appends_new_o
     assert rows[0]["rerun_was"] == {"called": "misspecified-unexplained", "correct": False}
     assert "floor_m" not in rows[0]  # stored with the old nominal fit's Chamfer: `floor` adds both again
     assert "rerun" not in rows[2]
+    # the same measurement under another protocol's id: appended, pointing at the row it follows; counted once
+    case = {"suite": "mujoco-more", "index": 495, "truth_label": "time-offset", "verdict": "nothing-missing",
+            "called": "nothing-missing", "correct": False}
+    bench.save_rows(results, [dict(case, id="mujoco-more-s0-495-refit2-joint-truncated")])
+    bench.save_rows(new, [dict(case, id="mujoco-more-s0-495-refit2-3x100-joint-truncated", verdict="missing-effect",
+                               called="time-offset", correct=True)])
+    assert bench.merge_rows(results, [new], note="protocol") == {"replaced": 0, "appended": 1, "skipped": 0}
+    rows = bench.load_rows(results)
+    assert rows[1]["rerun_was"] == {"called": "nothing-missing", "correct": False,
+                                    "id": "mujoco-more-s0-495-refit2-joint-truncated"}
+    assert [r["id"] for r in bench.one_row_per_case(rows)] == ["mujoco-more-s0-495-refit2-3x100-joint-truncated"]
 
 
 def test_refit_rows_keep_the_posterior_mean_rollout_drop_and_the_backfill_recomputes_it(tmp_path):
