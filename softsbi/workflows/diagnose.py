@@ -574,7 +574,8 @@ def _pct_below(x: float, limit: float) -> str:
 def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: float = MIN_EXPLAINED) -> str:
     """The refit's Chamfer change in words, where the Chamfer does not fall whether its rollouts moved toward
     the measurement (:func:`_moves_toward`), then what its check says (:func:`_after_refit`)."""
-    s = (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
+    s = _estimates_sentence(c)
+    s += (f" Refitting with it changes the posterior-predictive Chamfer from {c['chamfer_before_m'] * 100:.2f} "
          f"to {c['chamfer_after_m'] * 100:.2f} cm ({describe_change(c['chamfer_before_m'], c['chamfer_after_m'])})")
     if c.get("pm_chamfer_before_m") and c.get("pm_chamfer_after_m") is not None:
         s += (f", the posterior-mean rollout's from {c['pm_chamfer_before_m'] * 100:.2f} to "
@@ -611,6 +612,19 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
     for b in c.get("at_bounds") or []:
         s += " In this refit " + bound_sentence(b) + "."
     return s
+
+
+def _estimates_sentence(c: dict[str, Any]) -> str:
+    """The refit's posterior of the added effects' parameters in words: mean and 90% interval with units (''
+    for a refit stored before ``estimates`` was kept)."""
+    parts = []
+    for k, e in (c.get("estimates") or {}).items():
+        u = unit_suffix(e.get("unit"))
+        t = f"{k} = {e['mean']:.3g}{u}"
+        if e.get("q05") is not None and e.get("q95") is not None:
+            t += f" (90% interval {e['q05']:.3g} to {e['q95']:.3g}{u})"
+        parts.append(t)
+    return f" The refit estimates {', '.join(parts)}." if parts else ""
 
 
 def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
@@ -837,7 +851,9 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
 
     Returns:
         ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
-        "posterior_mean", "misspecification_after", "at_bounds"}`` (``at_bounds``: the added effects' parameters
+        "posterior_mean", "estimates", "misspecification_after", "at_bounds"}`` (``estimates``: per parameter of the
+        added effects, the refit's posterior ``mean``, ``q05`` and ``q95`` (its 90% interval, None where the report
+        lacks it) and ``unit``; ``at_bounds``: the added effects' parameters
         whose refit posterior presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`;
         the refit's sentence then says so), ``widened`` where the prior was widened, plus :func:`refit_summary_bias`'s fields with
         ``nominal_bias``; ``chamfer_after_se_m`` is the standard error (m) of
@@ -895,8 +911,12 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     bias = refit_summary_bias(run, refit, nominal_bias, n_null) if nominal_bias else {}
     energy = energy_change(nominal_energy, energy_score(refit)) if nominal_energy else {}
     pm = pm_change(posterior_mean_chamfer(run, workers=workers), posterior_mean_chamfer(refit.run, workers=workers))
+    units = {p.name: p.unit for e in effects for p in e.param_space()}
+    q05, q95 = res.report.get("posterior_q05") or {}, res.report.get("posterior_q95") or {}
+    estimates = {k: {"mean": float(res.report["posterior_mean"][k]), "q05": q05.get(k), "q95": q95.get(k),
+                     "unit": units[k]} for k in units if k in res.report["posterior_mean"]}
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
-            "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
+            "estimates": estimates, "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
             "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
             "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis,

@@ -150,6 +150,14 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     # the refit's bounds pressed by the added effect's parameters only (the refit's report holds all of its own)
     refit_rep = json.loads((hidden / "refit-toy-wind" / "report.json").read_text())
     assert conf["at_bounds"] == [b for b in refit_rep["posterior_at_bounds"] if b["param"] == "wind"]
+    # the refit's estimate of the added effect (its posterior mean and 90% interval, with the unit), which the
+    # sentence gives; the hidden wind (0.45) lies inside it
+    est = conf["estimates"]["wind"]
+    assert list(conf["estimates"]) == ["wind"]
+    assert (est["mean"], est["q05"], est["q95"]) == tuple(refit_rep[f"posterior_{q}"]["wind"] for q in ("mean", "q05", "q95"))
+    assert est["q05"] < 0.45 < est["q95"]
+    assert f"The refit estimates wind = {est['mean']:.3g}" in d["summary"]
+    assert f"(90% interval {est['q05']:.3g} to {est['q95']:.3g}" in d["summary"]
     saved = json.loads((hidden / "diagnosis.json").read_text())
     assert saved["verdict"] == "missing-effect" and saved["significant"] and saved["rules"][0].startswith("1. ")
     c = diagnose_run(control, workers=1, confirm=1)
