@@ -597,7 +597,7 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
         else:
             s += (f" Nor did its rollouts move toward the measurement ({_bias_words(c)}; at least "
                   f"{min_explained * 100:.0f}% and {TIE_Z:g} standard errors needed).")
-    s += _after_refit(c, name, alpha)
+    s += _after_refit(c, name, alpha) + _continue_hint(c)
     w = c.get("widened")
     if w:
         units = {e["param"]: e.get("unit", "") for e in w.get("first_at_bounds", [])}
@@ -625,6 +625,21 @@ def _estimates_sentence(c: dict[str, Any]) -> str:
             t += f" (90% interval {e['q05']:.3g} to {e['q95']:.3g}{u})"
         parts.append(t)
     return f" The refit estimates {', '.join(parts)}." if parts else ""
+
+
+def _continue_hint(c: dict[str, Any]) -> str:
+    """For a refit that lowered the posterior-predictive Chamfer but that check still rejects, how to continue it:
+    a refit that has not converged looks the same (a time offset in a rope winding was found in a refit's fourth
+    round, not its third; BENCHMARKS.md "Twenty-third session"). The command resumes the stored refits (``fit``
+    raises ``rounds`` on resume, the rounds already simulated are kept) and decides again. '' otherwise, and for a
+    refit stored before its ``budget`` was kept."""
+    m, b = c.get("misspecification_after") or {}, c.get("budget")
+    if not (m.get("misspecified") and (c.get("drop") or 0) > 0 and b and c.get("run")):
+        return ""
+    r, n = int(b["rounds"]), int(b["sims_per_round"])
+    return (f" A refit that has not converged looks the same: `softsbi diagnose {Path(c['run']).parent} "
+            f"--confirm-rounds {2 * r} --confirm-sims {n}` continues the stored refits from round {r + 1} to "
+            f"{2 * r} and decides again.")
 
 
 def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
@@ -851,7 +866,8 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
 
     Returns:
         ``{"effect", "run", "chamfer_before_m", "chamfer_after_m", "chamfer_after_se_m", "drop",
-        "posterior_mean", "estimates", "misspecification_after", "at_bounds"}`` (``estimates``: per parameter of the
+        "posterior_mean", "estimates", "budget", "misspecification_after", "at_bounds"}`` (``budget``: the refit's
+        ``rounds`` and ``sims_per_round``; ``estimates``: per parameter of the
         added effects, the refit's posterior ``mean``, ``q05`` and ``q95`` (its 90% interval, None where the report
         lacks it) and ``unit``; ``at_bounds``: the added effects' parameters
         whose refit posterior presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`;
@@ -916,7 +932,8 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     estimates = {k: {"mean": float(res.report["posterior_mean"][k]), "q05": q05.get(k), "q95": q95.get(k),
                      "unit": units[k]} for k in units if k in res.report["posterior_mean"]}
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
-            "estimates": estimates, "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
+            "estimates": estimates, "budget": {"rounds": cfg.rounds, "sims_per_round": cfg.sims_per_round},
+            "at_bounds": at_bounds, **({"widened": widened} if widened else {}),
             "chamfer_after_se_m": float(sd / np.sqrt(n)) if sd is not None and n else None,
             "drop": (1 - after / before) if before and after else None,
             "posterior_mean": res.report["posterior_mean"], "misspecification_after": mis,

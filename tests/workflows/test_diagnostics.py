@@ -1,6 +1,8 @@
 """Model-error workflow: effects, posterior predictive check, diagnosis, compare."""
 import dataclasses
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +10,8 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.workflows.check import check_run
+from softsbi.core.store import RunStore
+from softsbi.workflows import diagnose as dg
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.core.errors import ParameterError
 from softsbi.workflows.fit import FitConfig, run_fit
@@ -369,3 +373,33 @@ def test_a_resumed_diagnosis_judges_a_stored_pair_refit_as_a_pair(monkeypatch, t
                                                                              ["wind", "calibration-offset"])
     assert "Refitting with both" in again["summary"]
 
+
+
+def test_a_rejected_refit_that_lowered_the_error_says_how_to_continue_it(toy_runs, tmp_path):
+    """A refit that lowers the error while check still rejects it may not have converged: its sentence gives the
+    command that continues it, and that command's mechanism (a refit confirmed again with more rounds) resumes the
+    stored refit, keeping its rounds, instead of starting over."""
+    hidden, _ = toy_runs
+    c = {"effect": "toy-wind", "run": str(hidden / "refit-toy-wind"), "drop": 0.07, "budget": {"rounds": 3, "sims_per_round": 100},
+         "misspecification_after": {"misspecified": True, "p_text": "p = 0.06", "alpha": 0.2}}
+    hint = (f"`softsbi diagnose {hidden} --confirm-rounds 6 --confirm-sims 100` continues the stored refits from "
+            f"round 4 to 6")
+    assert hint in dg._continue_hint(c)
+    # no hint where the error did not fall, where check accepts, or for a refit stored before its budget was kept
+    assert dg._continue_hint({**c, "drop": -0.1}) == ""
+    assert dg._continue_hint({**c, "misspecification_after": {"misspecified": False}}) == ""
+    assert dg._continue_hint({k: v for k, v in c.items() if k != "budget"}) == ""
+    # a copy of the nominal run without the other tests' refits, so this refit starts from nothing
+    nominal = tmp_path / "hidden"
+    shutil.copytree(hidden, nominal, ignore=shutil.ignore_patterns("refit-*"))
+    run = load_run(nominal)
+    first = dg.confirm_effect(run, "toy-wind", {"rounds": 1, "sims_per_round": 100}, workers=1, n_null=12, max_null=12,
+                              widen=False)
+    out = Path(first["run"])
+    assert first["budget"] == {"rounds": 1, "sims_per_round": 100} and out == nominal / "refit-toy-wind"
+    theta0 = RunStore.open(out / "run.zarr", mode="r").round_data(0)["theta"].copy()
+    again = dg.confirm_effect(run, "toy-wind", {"rounds": 2, "sims_per_round": 100}, workers=1, n_null=12,
+                              max_null=12, widen=False)
+    store = RunStore.open(out / "run.zarr", mode="r")
+    assert again["budget"]["rounds"] == 2 and store.completed_rounds() == [0, 1]
+    np.testing.assert_array_equal(store.round_data(0)["theta"], theta0)
