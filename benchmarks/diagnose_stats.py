@@ -264,7 +264,8 @@ def merge_rows(results: Path, new_files: Sequence[Path], note: str | None = None
             if i is None:
                 # the same measurement stored under another protocol's id (e.g. refits at the nominal budget, now
                 # 3 x 100): kept, and the summary counts the newest (select_rows); the new row says what it follows
-                same = [r for r in rows if case_key(r) == case_key(new) and case_key(new)[0] != "row"]
+                key = case_key(new)
+                same = [r for r in rows if case_key(r) == key] if key[0] != "row" else []
                 if same:
                     new["rerun"] = note
                     new["rerun_was"] = {"called": same[-1].get("called"), "correct": same[-1].get("correct"),

@@ -888,7 +888,7 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
                   workers=workers if workers is not None else base.workers)
     recording = recording_from_run(run)
     effects = [registry().effect(e)() for e in added]
-    added_params = {p.name for e in effects for p in e.param_space()}
+    added_units = {p.name: p.unit for e in effects for p in e.param_space()}  # the added effects' parameters
 
     def fit_and_check(out: Path, cfg: FitConfig):
         # the refit, its posterior-predictive pool, check's test of it (softsbi check OUT prints the same: the
@@ -902,7 +902,7 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
         refit = PosteriorPredictive(out, workers).ensure(n_null)
         mis, _, ranking = misspecification_verdict(refit, candidate_effects(refit.run), alpha, max_null)
         return (res, refit, mis, ranking,
-                [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_params])
+                [b for b in res.report.get("posterior_at_bounds") or [] if b["param"] in added_units])
 
     out = run.path / f"refit-{effect}"
     res, refit, mis, ranking, at_bounds = fit_and_check(out, cfg)
@@ -927,10 +927,9 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     bias = refit_summary_bias(run, refit, nominal_bias, n_null) if nominal_bias else {}
     energy = energy_change(nominal_energy, energy_score(refit)) if nominal_energy else {}
     pm = pm_change(posterior_mean_chamfer(run, workers=workers), posterior_mean_chamfer(refit.run, workers=workers))
-    units = {p.name: p.unit for e in effects for p in e.param_space()}
     q05, q95 = res.report.get("posterior_q05") or {}, res.report.get("posterior_q95") or {}
     estimates = {k: {"mean": float(res.report["posterior_mean"][k]), "q05": q05.get(k), "q95": q95.get(k),
-                     "unit": units[k]} for k in units if k in res.report["posterior_mean"]}
+                     "unit": unit} for k, unit in added_units.items() if k in res.report["posterior_mean"]}
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
             "estimates": estimates, "budget": {"rounds": cfg.rounds, "sims_per_round": cfg.sims_per_round},
             "at_bounds": at_bounds, **({"widened": widened} if widened else {}),

@@ -374,7 +374,6 @@ def test_a_resumed_diagnosis_judges_a_stored_pair_refit_as_a_pair(monkeypatch, t
     assert "Refitting with both" in again["summary"]
 
 
-
 def test_a_rejected_refit_that_lowered_the_error_says_how_to_continue_it(toy_runs, tmp_path):
     """A refit that lowers the error while check still rejects it may not have converged: its sentence gives the
     command that continues it, and that command's mechanism (a refit confirmed again with more rounds) resumes the
