@@ -206,11 +206,15 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
             # per refit: effect, error drop, check's test of the refit (p, still misspecified), and the fraction of
             # the nominal's summary bias it removes with its z (None for refits made before it was kept), and the
             # drop of the posterior predictive's energy score (None for refits made before it was computed), and
-            # the drop of the posterior-mean rollout's Chamfer (None before it was computed; `pm-rollout` adds it)
+            # the drop of the posterior-mean rollout's Chamfer (None before it was computed; `pm-rollout` adds it),
+            # and for an effect seen in the local thickness (point noise) its thickness bias's fall with its z
             "refits": [[c["effect"], c.get("drop"), (c.get("misspecification_after") or {}).get("p_value"),
                         (c.get("misspecification_after") or {}).get("misspecified"), c.get("bias_fall"),
-                        c.get("bias_fall_z"), c.get("energy_drop"), c.get("pm_drop")] for c in d["confirmed"]],
-            "screening_verdict": d.get("screening_verdict", d["verdict"])}
+                        c.get("bias_fall_z"), c.get("energy_drop"), c.get("pm_drop"), c.get("thickness_bias_fall"),
+                        c.get("thickness_bias_fall_z")] for c in d["confirmed"]],
+            "screening_verdict": d.get("screening_verdict", d["verdict"]),
+            # the candidate below rule 2's share that a refit decided on (diagnose.refit_decides), or None
+            "refit_decides": d.get("refit_decides")}
 
 
 #: the fields of a stored row that define its case (:func:`make_case`); the rest come from its diagnosis
@@ -329,7 +333,7 @@ def keep_backfilled(old: Sequence[list[Any]], new: Sequence[list[Any]]) -> list[
     out = []
     for x in new:
         x, b = list(x) + [None] * (8 - len(x)), before.get(x[0], [None] * 8)
-        out.append(x[:6] + [b[i] if x[i] is None else x[i] for i in (6, 7)])
+        out.append(x[:6] + [b[i] if x[i] is None else x[i] for i in (6, 7)] + x[8:])
     return out
 
 
