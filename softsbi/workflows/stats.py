@@ -465,12 +465,11 @@ def run_thickness(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def pool_thickness(pool: PosteriorPredictive, n: int) -> np.ndarray:
-    """``(S, T')`` local thickness (m) of the first ``n`` rollouts of ``pool`` (the successful ones among them), each
-    seen as its summaries are (:func:`rollout_views`, surface samples with seed ``1000 + sample``)."""
+    """``(S, T')`` local thickness (m) of the first ``n`` successful rollouts of ``pool`` (those of
+    ``pool.features[:n]``), each seen as its summaries are (:func:`rollout_views`, surface samples with seed
+    ``1000 + sample``)."""
     out = []
-    for r in pool.rollouts:
-        if r["sample"] >= n:
-            break
+    for r in pool.rollouts[:n]:
         views, min_z = rollout_views(pool.run, r, 1000 + r["sample"])
         out.append([local_thickness(sensor_view(np.asarray(v, float), min_z)) for v in views])
     return np.array(out)

@@ -147,3 +147,21 @@ def toy_runs_refit(tmp_path_factory):
                                  n_points=16, n_eval=30, n_dense=64, seed=2,
                                  estimator_options={"max_epochs": 80, "hidden": [64, 64]}))
     return out
+
+
+def test_pool_thickness_reads_the_rollouts_of_the_first_n_summaries_as_the_sensor_sees_them():
+    """A pool of a flat sheet and a crumpled one (a fine grid with its vertices jittered by 5 mm): each rollout's
+    thickness per metric frame, for the first ``n`` successful rollouts (those of ``features[:n]``)."""
+    from softsbi.workflows.stats import pool_thickness
+    g = np.linspace(0, 0.3, 21)
+    xx, yy = np.meshgrid(g, g)
+    flat = np.column_stack([xx.ravel(), yy.ravel(), np.full(xx.size, 0.2)])
+    faces = np.array([[i * 21 + j, i * 21 + j + 1, (i + 1) * 21 + j] for i in range(20) for j in range(20)]
+                     + [[i * 21 + j + 1, (i + 1) * 21 + j + 1, (i + 1) * 21 + j] for i in range(20) for j in range(20)])
+    rough = flat + np.random.default_rng(1).normal(0, 0.005, flat.shape)
+    run = types.SimpleNamespace(dense=np.zeros((3, 800, 3)), metric_min_z=0.01, metric_frames=[1, 2], config={})
+    roll = [{"vertices": np.stack([v] * 3), "faces": faces, "sample": i, "info": {}}
+            for i, v in enumerate([flat, rough, rough])]
+    pool = types.SimpleNamespace(run=run, rollouts=roll)
+    t = pool_thickness(pool, 2)
+    assert t.shape == (2, 2) and np.all(t[0] < 1e-9) and np.all(t[1] > 0.001)
