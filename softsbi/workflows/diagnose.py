@@ -593,7 +593,9 @@ def _moves_toward(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> bo
     moved its posterior-predictive rollouts toward the measurement: it removes at least ``min_explained`` of
     the nominal fit's squared summary bias (:func:`~softsbi.workflows.stats.summary_bias`, both in the
     nominal's scale; ``bias_fall``), by at least :data:`TIE_Z` standard errors of the difference
-    (``bias_fall_z``). False for physics effects and for refits stored without these fields.
+    (``bias_fall_z``), or the same in the local thickness for an effect that asks its estimator for it
+    (``thickness_bias_fall``, ``thickness_bias_fall_z``: :func:`nominal_thickness_bias`). False for physics effects and
+    for refits stored without these fields.
 
     Why besides the Chamfer: a sensor model that adds noise or spread (point noise, an uncertain calibration
     offset) raises the Chamfer between two clouds even when it is the right model, so "the Chamfer falls"
