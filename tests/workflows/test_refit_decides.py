@@ -165,3 +165,14 @@ def test_pool_thickness_reads_the_rollouts_of_the_first_n_summaries_as_the_senso
     pool = types.SimpleNamespace(run=run, rollouts=roll)
     t = pool_thickness(pool, 2)
     assert t.shape == (2, 2) and np.all(t[0] < 1e-9) and np.all(t[1] > 0.001)
+
+
+def test_diagnose_table_marks_the_candidate_a_refit_decided_on(monkeypatch):
+    """`softsbi diagnose`'s table: the candidate below rule 2's share reads "refit" in the named column, not
+    "yes" (the screening did not name it)."""
+    from softsbi.cli import diagnosis_table_rows
+    _fake_refits(monkeypatch, {"point-noise": (0.0186, 0.71, {"bias_fall": 0.05, "bias_fall_z": 0.4}),
+                               "generic-drag": (0.017, 0.5, {})})
+    out = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), _weak_diagnosis(), 2)
+    rows = {r[1]: r for r in diagnosis_table_rows({**out, "n_null": 200})}
+    assert rows["point-noise"][6] == "refit" and rows["generic-drag"][6] == "no"
