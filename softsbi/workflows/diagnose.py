@@ -505,7 +505,7 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
                 out["partial"] = named[0]["effect"]
                 out["selected"] = None
                 out["named_effects"] = []
-        elif (named[0].get("drop") or 0) > 0 and not out.get("refit_decides"):
+        elif (named[0].get("drop") or 0) > 0:
             out["selected"] = named[0]["effect"]
     if out.get("verdict") == "missing-effect" and out.get("refit_decides") and not out.get("named_effects"):
         # a candidate below rule 2's share is named only by a refit that explains the misfit (rule 3)

@@ -455,13 +455,20 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     return views_or_highest(views, surface), None
 
 
+def trajectory_thickness(clouds: Sequence[np.ndarray], min_z: float | None = None,
+                         frames: Sequence[int] | None = None) -> np.ndarray:
+    """``(T',)`` local thickness (m, :func:`~softsbi.inference.summaries.local_thickness`) of a sequence of point
+    sets ``(P_t, 3)`` m as a sensor with visibility threshold ``min_z`` sees them, in ``frames`` (None = all): the
+    thickness twin of :func:`trajectory_features`."""
+    idx = range(len(clouds)) if frames is None else frames
+    return np.array([local_thickness(sensor_view(np.asarray(clouds[t], float), min_z)) for t in idx])
+
+
 def run_thickness(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
-    """``(T',)`` local thickness (m, :func:`~softsbi.inference.summaries.local_thickness`) of ``clouds`` in the
-    run's metric frames, as its sensor model sees them (:func:`run_features`' visibility threshold): the summary a
-    point-noise estimator conditions on, which check's 13 summaries per frame hardly see (a noise of 1 cm moves a
-    30 cm cloud's spread by under 1 mm)."""
-    return np.array([local_thickness(sensor_view(np.asarray(clouds[t], float), run.metric_min_z))
-                     for t in run_frames(run)])
+    """``(T',)`` local thickness (m) of ``clouds`` in the run's metric frames, as its sensor model sees them
+    (:func:`run_features`' visibility threshold): the summary a point-noise estimator conditions on, which check's 13
+    summaries per frame hardly see (a noise of 1 cm moves a 30 cm cloud's spread by under 1 mm)."""
+    return trajectory_thickness(clouds, run.metric_min_z, run_frames(run))
 
 
 def pool_thickness(pool: PosteriorPredictive, n: int) -> np.ndarray:
@@ -471,7 +478,7 @@ def pool_thickness(pool: PosteriorPredictive, n: int) -> np.ndarray:
     out = []
     for r in pool.rollouts[:n]:
         views, min_z = rollout_views(pool.run, r, 1000 + r["sample"])
-        out.append([local_thickness(sensor_view(np.asarray(v, float), min_z)) for v in views])
+        out.append(trajectory_thickness(views, min_z))
     return np.array(out)
 
 
