@@ -43,10 +43,13 @@ from softsbi.plugins import registry
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.stats import ALPHA
+from softsbi.workflows.stats import ALPHA, FEATURE_NAMES
 
 #: the misspecification test the verdicts below are decided with (stored with every new row)
 TEST = "joint"
+#: summaries per frame of check's and diagnose's tests (stored with every new row as ``n_summaries``; rows stored
+#: without the field had 13: no local thickness, before the twenty-sixth session)
+N_SUMMARIES = len(FEATURE_NAMES)
 
 #: the ten named candidates installed with softsbi before table-unseen (screened by the newer suites)
 NAMED_CANDIDATES = ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope", "sticky-patch",
@@ -199,6 +202,7 @@ def row_fields(case: dict[str, Any], d: dict[str, Any]) -> dict[str, Any]:
             "alternatives": [t["effect"] for t in d.get("indistinguishable") or []],
             "remaining": {k: d["remaining"][k] for k in ("fraction", "p_value")} if d.get("remaining") else None, "misspecification_p": d["misspecification"]["p_value"],
             "misspecification_p_text": d["misspecification"]["p_text"], "n_null": d["n_null"], "test": TEST,
+            "n_summaries": N_SUMMARIES,
             "omnibus_p": d["misspecification"]["omnibus"]["p_value"],
             "directional_p": (d["misspecification"].get("directional") or {}).get("p_value"),
             "ranking": [[r["effect"], round(r["explained_fraction"], 3), r["adjusted_p_value"]]
@@ -911,7 +915,8 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
             case["id"] += f"-refit{confirm}"
             if confirm_budget:
                 case["id"] += f"-{confirm_budget['rounds']}x{confirm_budget['sims_per_round']}"
-        case["id"] += f"-{TEST}" + ("" if proposal == "corrected" else f"-{proposal}")
+        case["id"] += (f"-{TEST}" + ("" if proposal == "corrected" else f"-{proposal}")
+                       + ("" if N_SUMMARIES == 13 else f"-s{N_SUMMARIES}"))
         if case["id"] in have:
             continue
         try:
@@ -929,12 +934,14 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
 
 def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
                 confirm_budget: str | None = None, test: str | None = None,
-                proposal: str | None = "corrected", alpha: float | None = None) -> list[dict[str, Any]]:
+                proposal: str | None = "corrected", alpha: float | None = None,
+                n_summaries: int | None = None) -> list[dict[str, Any]]:
     """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none;
     None: any number), with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget, and
     with ``test`` (``"joint"`` or ``"omnibus"``, rows without the field) only those decided with that
     misspecification test; with ``proposal`` only rows whose nominal fit drew its rounds so (rows without the
-    field: ``"corrected"``; None: any); with ``alpha`` only rows decided at that level (:func:`row_alpha`).
+    field: ``"corrected"``; None: any); with ``alpha`` only rows decided at that level (:func:`row_alpha`); with
+    ``n_summaries`` only rows whose tests used that many summaries per frame (rows without the field: 13).
 
     A case diagnosed under several protocols that all pass the filters (e.g. refits at the nominal budget and
     at 3 x 100: two ids, one measurement) counts once: its row stored last (:func:`one_row_per_case`)."""
@@ -945,7 +952,8 @@ def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
                              and (confirm_budget is None or budget(r) == confirm_budget)
                              and (test is None or r.get("test", "omnibus") == test)
                              and (proposal is None or r.get("proposal", "corrected") == proposal)
-                             and (alpha is None or row_alpha(r) == alpha)])
+                             and (alpha is None or row_alpha(r) == alpha)
+                             and (n_summaries is None or r.get("n_summaries", 13) == n_summaries)])
 
 
 def one_row_per_case(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -1289,6 +1297,9 @@ def main() -> None:
                    help="only rows decided with this misspecification test (omnibus: rows stored before the joint test)")
     s.add_argument("--alpha", type=float, default=None, help="only rows decided at this level (rows stored before "
                                                              "the field: 0.01; default: any)")
+    s.add_argument("--summaries", type=int, default=None, choices=[13, 14],
+                   help="only rows whose tests used this many summaries per frame (13: before the local thickness; "
+                        "default: any)")
     s.add_argument("--proposal", default="corrected", choices=["corrected", "truncated", "any"],
                    help="only rows whose nominal fit used these proposals (rows stored before the field: corrected)")
     a = ap.parse_args()
@@ -1350,7 +1361,7 @@ def main() -> None:
         rows = select_rows(load_rows(a.results),
                            None if a.confirm < 0 else a.confirm, a.confirm_budget,
                            None if a.test == "any" else a.test, None if a.proposal == "any" else a.proposal,
-                           a.alpha)
+                           a.alpha, a.summaries)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

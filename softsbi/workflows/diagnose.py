@@ -39,7 +39,7 @@ from softsbi.workflows.screening import (Screening, candidate_effects, effect_ki
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL, MCPValue,
                                      PosteriorPredictive, resolution_needed, run_features, run_frames,
                                      energy_score, pool_thickness, posterior_mean_chamfer, run_thickness,
-                                     sampled_points, summary_bias)
+                                     sampled_points, summary_bias, summary_floor)
 
 
 #: verdicts of a diagnosis (``diagnosis.json``'s ``verdict``)
@@ -295,7 +295,7 @@ def _rule3_outcome(misspecified: bool, lower: bool) -> str:
 def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: int = 20) -> dict[str, Any]:
     """When, where and in which direction the measurement leaves the posterior predictive distribution.
 
-    - frames: per frame, the mean squared standardised deviation of the measurement's 13 cloud
+    - frames: per frame, the mean squared standardised deviation of the measurement's 14 cloud
       summaries from the posterior-predictive rollouts, against the same statistic of each rollout
       (leave-one-out); a frame is flagged when the measurement exceeds the rollouts' 95% quantile.
       Reported as runs of consecutive flagged frames with their times, and per motion phase.
@@ -315,12 +315,13 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n_regions_rollouts: 
     F = pool.features.reshape(len(pool.rollouts), T, -1)
     f_obs = run_features(run, run.dense).reshape(T, -1)
     S = len(F)
-    mu, sd = F.mean(0), np.maximum(F.std(0), FEATURE_FLOOR)
+    floor = summary_floor(F.shape[-1])
+    mu, sd = F.mean(0), np.maximum(F.std(0), floor)
     z_obs = (((f_obs - mu) / sd) ** 2).mean(-1)
     z_null = np.empty((S, T))
     for i in range(S):
         o = np.delete(F, i, axis=0)
-        z_null[i] = (((F[i] - o.mean(0)) / np.maximum(o.std(0), FEATURE_FLOOR)) ** 2).mean(-1)
+        z_null[i] = (((F[i] - o.mean(0)) / np.maximum(o.std(0), floor)) ** 2).mean(-1)
     flagged = z_obs > np.quantile(z_null, 0.95, axis=0)
     times = run.scenario.times
     # spans of flagged frames that are consecutive in the recording (fit frames may skip some)
@@ -1095,8 +1096,8 @@ def bias_change(f_obs: np.ndarray, f_sims: np.ndarray, nominal_bias: dict[str, A
 
 def wants_thickness(effects: Iterable[str]) -> bool:
     """Whether any of the installed effects ``effects`` (names) asks its estimator for the local-thickness
-    summary (``estimator_options["frame_thickness"]``, e.g. point noise): an effect check's 13 summaries per frame
-    hardly see, whose refit :func:`_moves_toward` also judges in that summary."""
+    summary (``estimator_options["frame_thickness"]``, e.g. point noise), whose refit :func:`_moves_toward` also
+    judges in that summary alone (check's summaries hold it as one of 14 per frame, where its fall is diluted)."""
     reg = registry()
     return any((getattr(reg.effect(e), "estimator_options", None) or {}).get("frame_thickness")
                for e in effects if e in reg.tables["effect"])

@@ -11,7 +11,7 @@
   posterior predictive distribution?" with. Two tests on one null, Bonferroni-combined: the omnibus
   test (:func:`~softsbi.workflows.stats.misspecification_test`, a departure in any direction) and the
   directional test (the screening's largest max-T normalised statistic: a departure along an installed
-  effect's sensitivity). The omnibus test alone spends its power on every direction of the 13 summaries
+  effect's sensitivity). The omnibus test alone spends its power on every direction of the 14 summaries
   x frames; measured on 176 hidden-effect cases, 13 hidden effects that the screening put beyond all
   200 nulls were passed by the omnibus test (p 0.015-0.10) and called "nothing missing"
   (BENCHMARKS.md "Honest statistics and three verdicts", fourth session).
@@ -28,9 +28,10 @@ from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, MAX_NULL, MCPValue, PosteriorPredictive,
+from softsbi.workflows.stats import (ALPHA, MAX_NULL, MCPValue, PosteriorPredictive,
                                      max_t_adjusted, mc_pvalue, misspecification_test, pvalue_fields,
-                                     resolution_needed, resolved_side, rollout_features, run_features)
+                                     resolution_needed, resolved_side, rollout_features, run_features,
+                                     summary_floor)
 
 
 def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
@@ -142,7 +143,7 @@ class Screening:
         null_f = np.asarray(null_features)
         if len(null_f) < 5:
             raise SoftsbiError("too few successful posterior-predictive simulations for the null distribution")
-        sd = np.maximum(null_f.std(0), FEATURE_FLOOR)
+        sd = np.maximum(null_f.std(0), summary_floor(null_f.shape[1]))
         self.J_theta = np.stack([(feats[1 + j] - f0) / sd if feats[1 + j] is not None else np.zeros_like(f0)
                                  for j in range(run.space.dim)], 1)
         self.r_obs = (run_features(run, run.dense) - f0) / sd

@@ -48,9 +48,16 @@ from softsbi.workflows.runs import RunView, load_run, open_run
 
 #: names of the per-frame summary statistics
 FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10", "z_q50", "z_q90",
-                 "x_q05", "x_q95", "y_q05", "y_q95")
-#: floor of a summary's standard deviation (m): sensor resolution, keeps weights finite
+                 "x_q05", "x_q95", "y_q05", "y_q95", "thickness")
+#: floor of a position summary's standard deviation (m): sensor resolution, keeps weights finite
 FEATURE_FLOOR = 0.003
+#: floor of the local thickness's standard deviation (m): 0.1 mm, the thickness that sensor noise of 1% of the
+#: point-noise prior's range (1 cm) adds. Without it a lift's rollouts, whose thickness varies by about 0.03 mm
+#: per frame, would make a 0.1 mm difference of mesh resolution significant (another engine's lift: 0.39 against
+#: 0.30 mm); a fling's rollouts vary by about 0.5 mm, where it does not bind (BENCHMARKS.md, twenty-sixth session)
+THICKNESS_FLOOR = 1e-4
+#: the floors of :data:`FEATURE_NAMES`, in order
+FEATURE_FLOORS = np.array([FEATURE_FLOOR] * (len(FEATURE_NAMES) - 1) + [THICKNESS_FLOOR])
 #: default number of posterior-predictive simulations a test starts with
 N_NULL = 30
 #: default cap of the adaptive extension (``1 / (cap + 1)`` is the finest p-value a verdict can print)
@@ -67,16 +74,29 @@ RESOLVED_CONFIDENCE = 0.9
 
 
 def cloud_features(points: np.ndarray) -> np.ndarray:
-    """Summary statistics ``(13,)`` (m) of one point set ``(P, 3)``; see :data:`FEATURE_NAMES`."""
+    """Summary statistics ``(14,)`` (m) of one point set ``(P, 3)``; see :data:`FEATURE_NAMES`.
+
+    Thirteen place the cloud (mean, spread, height and horizontal quantiles); the fourteenth is its mean local
+    thickness (:func:`~softsbi.inference.summaries.local_thickness`, 8 neighbours; 0 for fewer than 3 points),
+    the one summary that sees independent sensor noise: a noise of 1 cm moves a 30 cm cloud's spread by under
+    1 mm, its thickness by several (BENCHMARKS.md, twenty-sixth session)."""
     p = np.asarray(points, float)
     q = np.quantile(p, [0.05, 0.95], axis=0)
+    thick = float(local_thickness(p)) if len(p) >= 3 else 0.0
     return np.concatenate([p.mean(0), p.std(0), np.quantile(p[:, 2], [0.1, 0.5, 0.9]),
-                           [q[0, 0], q[1, 0], q[0, 1], q[1, 1]]])
+                           [q[0, 0], q[1, 0], q[0, 1], q[1, 1], thick]])
+
+
+def summary_floor(n_features: int) -> "np.ndarray | float":
+    """The standard-deviation floors ``(F,)`` (m) of ``F`` summaries laid out as :func:`trajectory_features` lays
+    them out (:data:`FEATURE_FLOORS` once per frame); :data:`FEATURE_FLOOR` for any other layout."""
+    k = len(FEATURE_NAMES)
+    return np.tile(FEATURE_FLOORS, n_features // k) if n_features and n_features % k == 0 else FEATURE_FLOOR
 
 
 def trajectory_features(clouds: Sequence[np.ndarray], min_z: float | None = None,
                         frames: Sequence[int] | None = None) -> np.ndarray:
-    """``(T' * 13,)`` summaries of a sequence of ``T`` point sets ``(P_t, 3)`` m, as a sensor model sees them.
+    """``(T' * 14,)`` summaries of a sequence of ``T`` point sets ``(P_t, 3)`` m, as a sensor model sees them.
 
     Args:
         clouds: the ``T`` clouds.
@@ -90,7 +110,7 @@ def trajectory_features(clouds: Sequence[np.ndarray], min_z: float | None = None
 
 
 def run_features(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
-    """``(T' * 13,)`` summaries of ``clouds`` under the run's own sensor model: the metric's visibility
+    """``(T' * 14,)`` summaries of ``clouds`` under the run's own sensor model: the metric's visibility
     threshold (:attr:`RunView.metric_min_z`) and frames (:attr:`RunView.metric_frames`, ``T'`` of them).
 
     The misspecification test and the screening compare the measurement with simulations as the fit
@@ -101,7 +121,7 @@ def run_features(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def rollout_features(run: "RunView", rollout: dict[str, Any], seed: int) -> np.ndarray:
-    """``(T' * 13,)`` summaries of one simulated rollout (a job result with ``vertices (T, N, 3)``,
+    """``(T' * 14,)`` summaries of one simulated rollout (a job result with ``vertices (T, N, 3)``,
     ``faces``, ``gripper``) as the run's sensor model sees it (:func:`run_features`): area-weighted surface
     samples, as many per frame as the measurement's dense clouds, drawn with ``seed`` (common random
     numbers), seen through the visibility threshold; or, for a fit through the virtual depth sensor
@@ -264,7 +284,7 @@ def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, An
     """Is ``f_obs (F,)`` inside the distribution of ``f_sims (S, F)``?
 
     Statistic: mean squared standardised deviation (per-summary standard deviation from the
-    simulations, floored at :data:`FEATURE_FLOOR`). Null: each simulation against the others
+    simulations, floored at :func:`summary_floor`). Null: each simulation against the others
     (leave-one-out). p-value: :func:`mc_pvalue` (no tail model).
 
     Raises:
@@ -274,8 +294,10 @@ def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, An
     if S < 5:
         raise SoftsbiError(f"the misspecification test needs at least 5 successful posterior rollouts (got {S})")
 
+    floor = summary_floor(f_sims.shape[1])
+
     def stat(f, others):
-        sd = np.maximum(others.std(0), FEATURE_FLOOR)
+        sd = np.maximum(others.std(0), floor)
         return float((((f - others.mean(0)) / sd) ** 2).mean())
 
     d_obs = stat(f_obs, f_sims)
@@ -295,7 +317,7 @@ def summary_bias(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray | None
     unbiased MMD estimate with a linear kernel). ``scale (F,)`` is fixed by the caller: a refit is measured
     in its nominal fit's scale (:func:`~softsbi.workflows.diagnose.confirm_effect`), so a posterior predictive
     that only widens leaves ``B^2`` unchanged in expectation while one whose rollouts move toward the
-    measurement lowers it. Default scale: ``f_sims``' standard deviations floored at :data:`FEATURE_FLOOR`
+    measurement lowers it. Default scale: ``f_sims``' standard deviations floored at :func:`summary_floor`
     (the misspecification test's weights).
 
     Returns:
@@ -309,7 +331,7 @@ def summary_bias(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray | None
     if f_sims.ndim != 2 or f_sims.shape[1] != len(f_obs) or len(f_sims) < 5:
         raise SoftsbiError(f"summary_bias needs at least 5 simulations of {len(f_obs)} summaries, got {f_sims.shape}")
     if scale is None:
-        scale = np.maximum(f_sims.std(0, ddof=1), FEATURE_FLOOR)
+        scale = np.maximum(f_sims.std(0, ddof=1), summary_floor(f_sims.shape[1]))
     scale = np.asarray(scale, float)
     z = (f_sims - f_obs) / scale
 
@@ -338,7 +360,7 @@ class PosteriorPredictive:
 
     Attributes:
         rollouts: successful job results (``vertices (T, N, 3)``, ``faces``, ``chamfer (T,)``, ...).
-        features: ``(len(rollouts), T' * 13)`` summaries under the fit's sensor model
+        features: ``(len(rollouts), T' * 14)`` summaries under the fit's sensor model
             (:func:`run_features`: its visibility threshold and its ``T'`` metric frames).
         requested: rollouts simulated so far (failed ones included).
         sensitivities: the screening's finite-difference simulations at the posterior median, kept so that
@@ -365,7 +387,7 @@ class PosteriorPredictive:
 
     @property
     def features(self) -> np.ndarray:
-        """``(S, T' * 13)`` summaries of the successful rollouts (:func:`run_features`)."""
+        """``(S, T' * 14)`` summaries of the successful rollouts (:func:`run_features`)."""
         return np.array(self._feats)
 
     def _items(self, lo: int, hi: int) -> list[tuple[Any, int]]:
@@ -466,8 +488,8 @@ def trajectory_thickness(clouds: Sequence[np.ndarray], min_z: float | None = Non
 
 def run_thickness(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
     """``(T',)`` local thickness (m) of ``clouds`` in the run's metric frames, as its sensor model sees them
-    (:func:`run_features`' visibility threshold): the summary a point-noise estimator conditions on, which check's 13
-    summaries per frame hardly see (a noise of 1 cm moves a 30 cm cloud's spread by under 1 mm)."""
+    (:func:`run_features`' visibility threshold): the summary a point-noise estimator conditions on, and the last of
+    check's 14 per frame (a noise of 1 cm moves a 30 cm cloud's spread by under 1 mm, its thickness by several)."""
     return trajectory_thickness(clouds, run.metric_min_z, run_frames(run))
 
 

@@ -119,7 +119,7 @@ def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_me
     summaries see only points above the resting cloth + unseen_height (the highest 10% where none is)."""
     from softsbi.perception.pointcloud import PointCloudObserver, rollout_clouds
     from softsbi.workflows.measurement import simulate_recording
-    from softsbi.workflows.stats import trajectory_features
+    from softsbi.workflows.stats import FEATURE_NAMES, trajectory_features
     h = 0.02
     ro = _run(LIFT, ["table-unseen"], unseen_height=h)
     np.testing.assert_array_equal(ro.vertices, base["lift"])
@@ -136,7 +136,8 @@ def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_me
     # summaries: the rollout's threshold adds to the run's own (none here)
     clouds = rollout_clouds(ro, 200, np.random.default_rng(1))
     f_seen = trajectory_features(clouds, z_cut)
-    assert f_seen[mid * 13 + 8] > trajectory_features(clouds)[mid * 13 + 8]  # 50% height quantile rises
+    k = len(FEATURE_NAMES)
+    assert f_seen[mid * k + 8] > trajectory_features(clouds)[mid * k + 8]  # 50% height quantile rises
 
 
 def test_table_unseen_adds_to_the_fits_sensor_in_the_job_metric():

@@ -53,7 +53,7 @@ def test_tiny_benchmark_runs_resumes_and_summarises(tmp_path):
     for r in rows:
         assert r["verdict"] in ("nothing-missing", "missing-effect", "misspecified-unexplained")
         # check's joint test (omnibus and directional): never below its resolution 2 / (n + 1)
-        assert r["test"] == "joint" and r["id"].endswith("-joint")
+        assert r["test"] == "joint" and r["id"].endswith("-joint-s14") and r["n_summaries"] == 14
         assert r["misspecification_p"] >= 2 / (r["n_null"] + 1)
         assert r["misspecification_p"] == pytest.approx(min(1.0, 2 * min(r["omnibus_p"], r["directional_p"])))
     # the hidden effect's size in the data: the nominal model at the truth scores worse without the effect

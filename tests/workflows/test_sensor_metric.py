@@ -91,7 +91,7 @@ def test_region_errors_compare_only_what_the_sensor_sees():
 def test_summaries_see_what_the_sensor_sees():
     """The misspecification test's summary statistics use the fit's sensor model (issue 17/19): a
     measurement without the flat cloth matches a simulation that has it, under the sensor model only."""
-    from softsbi.workflows.stats import FEATURE_FLOOR, trajectory_features
+    from softsbi.workflows.stats import FEATURE_FLOOR, FEATURE_NAMES, trajectory_features
     rng = np.random.default_rng(3)
     hanging = _sheet(rng, 0.05, 0.25, 2000)
     flat = np.c_[rng.random((2000, 2)) * 0.2 + [0.0, 0.05], np.full(2000, 0.002)]
@@ -101,16 +101,16 @@ def test_summaries_see_what_the_sensor_sees():
     seen = np.abs(trajectory_features(simulated, 0.01) - trajectory_features(measured, 0.01)) / FEATURE_FLOOR
     assert full.max() > 10 and seen.max() < 3  # tens of sensor resolutions vs sampling noise
     # frames: only the named ones, in order
-    assert trajectory_features(simulated, 0.01, [2, 0]).shape == (26,)
+    assert trajectory_features(simulated, 0.01, [2, 0]).shape == (2 * len(FEATURE_NAMES),)
 
 
 def test_check_and_diagnose_summarise_the_fits_frames_only(sensor_run):
     from softsbi.workflows.runs import load_run
-    from softsbi.workflows.stats import PosteriorPredictive, run_features, run_frames
+    from softsbi.workflows.stats import FEATURE_NAMES, PosteriorPredictive, run_features, run_frames
     run = load_run(sensor_run, 12, 0)
     assert run_frames(run) == [1, 2, 3]
     pool = PosteriorPredictive(run, workers=1).ensure(6)
-    assert pool.features.shape == (len(pool.rollouts), 3 * 13)
+    assert pool.features.shape == (len(pool.rollouts), 3 * len(FEATURE_NAMES))
     f_obs = run_features(run, run.dense)
     # frame 0 (not fitted) does not enter: changing it leaves the summaries unchanged
     dense = run.dense.copy()
