@@ -1030,12 +1030,24 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
              if e == r["named"] and d is not None]
     if drops:
         out["refit_drop"] = {"n": len(drops), "median": float(np.median(drops))}
-    # the drop of the reducible error: (before - after) / (before - oracle floor), floor from add_floors
-    excess = [d * r["chamfer_nominal_m"] / (r["chamfer_nominal_m"] - r["floor_m"]) for r in rows
-              if r["correct"] and r.get("named") and r.get("floor_m") and r["chamfer_nominal_m"] > r["floor_m"]
-              for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
+    # the drop of the reducible error: (before - after) / (before - oracle floor), floor from add_floors, or the
+    # same oracle's score from add_effect_sizes (effect_size's with_m: truth_floor's computation, the same seeds)
+    def floor_and_nominal(r):
+        es = r.get("effect_size") or {}
+        if r.get("floor_m"):
+            return r["floor_m"], r["chamfer_nominal_m"]
+        return (es["with_m"], es["nominal_m"]) if es.get("with_m") and es.get("nominal_m") else (None, None)
+    named_drops = [(r, d) for r in rows if r["correct"] and r.get("named")
+                   for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
+    fn = [(floor_and_nominal(r), d) for r, d in named_drops]
+    excess = [d * nom / (nom - fl) for (fl, nom), d in fn if fl is not None and nom > fl]
     if excess:
-        out["refit_drop_of_reducible"] = {"n": len(excess), "median": float(np.median(excess))}
+        out["refit_drop_of_reducible"] = {"n": len(excess), "median": float(np.median(excess)),
+                                          # the oracle scores no better than the nominal fit: a sensor effect that
+                                          # adds spread (point noise), whose Chamfer cannot fall
+                                          "floor_at_or_above_nominal": sum(fl is not None and nom <= fl
+                                                                           for (fl, nom), _ in fn),
+                                          "without_floor": sum(fl is None for (fl, _), _ in fn)}
     # the same cases' drop of the energy score (stats.energy_score, refits[i][6]) and of the posterior-mean
     # rollout's Chamfer (the fitted point estimate, refits[i][7]), where the refit stored it; each with the Chamfer
     # drop of exactly those cases, so the two medians compare like with like
@@ -1177,7 +1189,10 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     if summary.get("refit_drop_of_reducible"):
         rd = summary["refit_drop_of_reducible"]
         out.append(f"Median refit drop of the reducible error (nominal Chamfer minus the truth's), correctly named "
-                   f"cases: {rd['median'] * 100:.0f}% (n = {rd['n']}).")
+                   f"cases: {rd['median'] * 100:.0f}% (n = {rd['n']}"
+                   + (f"; the truth scores no better than the nominal fit in {rd['floor_at_or_above_nominal']} more, "
+                      f"whose Chamfer cannot fall (sensor spread), and {rd['without_floor']} have no truth's score "
+                      f"stored" if "without_floor" in rd else "") + ").")
     if summary.get("refit_drop_energy"):
         rd = summary["refit_drop_energy"]
         out.append(f"Median refit drop of the energy score, correctly named cases that stored it: "

@@ -131,6 +131,26 @@ def test_only_and_refit_rows_keep_case_definitions(tmp_path):
     md = bench.markdown(s, [dict(r, misspecification_p_text="p", wall_s=1.0) for r in refit])
     assert "misspecified-unexplained (screening: missing-effect)" in md and "wind Chamfer -20%, check p 0.004" in md
     assert "posterior-mean rollout's Chamfer, correctly named cases that stored it: 70% (n = 1;" in md
+    # rows stored before the local thickness had 13 summaries per frame; new ones say how many
+    thick = dict(base, id="f", n_summaries=14)
+    assert [r["id"] for r in bench.select_rows(rows + [thick], n_summaries=14)] == ["f"]
+    assert [r["id"] for r in bench.select_rows(rows + [thick], n_summaries=13)] == ["a"]
+
+
+def test_the_reducible_error_uses_the_oracle_score_stored_with_the_effect_size():
+    """The drop of the reducible error takes the truth's own score from ``floor_m`` or, the same computation, from
+    ``effect_size.with_m``; rows whose truth scores no better than the nominal fit (sensor spread) are counted
+    apart, not as drops."""
+    base = {"truth_label": "wind", "named": "wind", "called": "wind", "verdict": "missing-effect", "correct": True,
+            "magnitude": 0.5, "budget": {"confirm": 2}}
+    rows = [dict(base, id="a", refits=[["wind", 0.3]], floor_m=0.01, chamfer_nominal_m=0.04),
+            dict(base, id="b", refits=[["wind", 0.5]], effect_size={"size_m": 0.01, "with_m": 0.02, "nominal_m": 0.04}),
+            dict(base, id="c", refits=[["wind", -0.1]], effect_size={"size_m": -0.01, "with_m": 0.05, "nominal_m": 0.04}),
+            dict(base, id="d", refits=[["wind", 0.2]])]
+    rd = bench.summarise(rows)["refit_drop_of_reducible"]
+    # a: 0.3 * 0.04 / 0.03 = 0.4; b: 0.5 * 0.04 / 0.02 = 1.0
+    assert rd["n"] == 2 and rd["median"] == pytest.approx(0.7)
+    assert rd["floor_at_or_above_nominal"] == 1 and rd["without_floor"] == 1
 
 
 def test_min_magnitude_runs_only_hidden_effect_cases_at_or_above_it(tmp_path, monkeypatch):
