@@ -152,7 +152,7 @@ def toy_runs_refit(tmp_path_factory):
 def test_pool_thickness_reads_the_rollouts_of_the_first_n_summaries_as_the_sensor_sees_them():
     """A pool of a flat sheet and a crumpled one (a fine grid with its vertices jittered by 5 mm): each rollout's
     thickness per metric frame, for the first ``n`` successful rollouts (those of ``features[:n]``)."""
-    from softsbi.workflows.stats import pool_thickness
+    from softsbi.workflows.stats import pool_thickness, rollout_features
     g = np.linspace(0, 0.3, 21)
     xx, yy = np.meshgrid(g, g)
     flat = np.column_stack([xx.ravel(), yy.ravel(), np.full(xx.size, 0.2)])
@@ -162,7 +162,8 @@ def test_pool_thickness_reads_the_rollouts_of_the_first_n_summaries_as_the_senso
     run = types.SimpleNamespace(dense=np.zeros((3, 800, 3)), metric_min_z=0.01, metric_frames=[1, 2], config={})
     roll = [{"vertices": np.stack([v] * 3), "faces": faces, "sample": i, "info": {}}
             for i, v in enumerate([flat, rough, rough])]
-    pool = types.SimpleNamespace(run=run, rollouts=roll)
+    pool = types.SimpleNamespace(run=run, rollouts=roll,
+                                 features=np.array([rollout_features(run, r, 1000 + r["sample"]) for r in roll]))
     t = pool_thickness(pool, 2)
     assert t.shape == (2, 2) and np.all(t[0] < 1e-9) and np.all(t[1] > 0.001)
 
