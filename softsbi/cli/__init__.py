@@ -535,8 +535,8 @@ def diagnosis_table_rows(out: dict) -> list[list]:
         Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
         rank); the drop is the posterior-predictive Chamfer's, then the posterior-mean rollout's and the energy
         score's where the refit has them (``"32% / 59% / 45%"``, ``-`` for one it lacks). ``named``: ``yes`` for an
-        effect the screening names (rule 2), ``refit`` for the candidate below rule 2's share that a refit decides on
-        (``refit_decides``; the verdict says whether it explains the misfit), else ``no``. A refitted pair
+        effect the screening names (rule 2), ``refit`` for a candidate below rule 2's share that a refit decides on
+        (``refit_decides``, ``refit_below_share``; the verdict says whether it explains the misfit), else ``no``. A refitted pair
         (``"a+b"``, rule 3 applied to two effects together) has no screening entry of its own: its row reads kind
         ``pair``, "-" for the screening's columns, and its refit's drop.
     """
@@ -562,8 +562,8 @@ def diagnosis_table_rows(out: dict) -> list[list]:
             continue
         est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
         kind = "generic" if r.get("generic") else r.get("kind", "physics")
-        named = ("refit" if r["effect"] == out.get("refit_decides") else
-                 "yes" if r["effect"] in out["significant"] else "no")
+        by_refit = r["effect"] == out.get("refit_decides") or r["effect"] in (out.get("refit_below_share") or [])
+        named = "refit" if by_refit else "yes" if r["effect"] in out["significant"] else "no"
         rows.append([i + 1, r["effect"], kind, f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r), est,
                      named, drop])
     return rows

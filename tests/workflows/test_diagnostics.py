@@ -306,20 +306,22 @@ def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfe
     adds to their distance) yet check accepts it and its rollouts' summaries moved toward the measurement
     (summary bias 41% lower, 11 standard errors): the effect is named. A refit that check accepts only through
     a wider posterior predictive (bias 4% lower, 0.5 standard errors), one whose small fall is significant
-    (8% < 10%), one stored without the bias, and a physics effect with the same numbers are not confirmed."""
+    (8% < 10%), one stored without the bias, and a physics effect with the same numbers (its Chamfer 5% higher,
+    4.3 standard errors of the difference) are not confirmed; a physics effect whose Chamfer moves less than its
+    Monte-Carlo error (+0.01 cm, standard error 0.04 cm) is, on the same bias."""
     from softsbi.workflows import diagnose as dg
 
     rank = {"effect": "point-noise", "description": "noise", "kind": "sensor", "generic": False, "statistic": 1.0,
             "explained_fraction": 0.21, "adjusted_exceed": 0, "n_null": 200, "adjusted_p_value": 1 / 201,
             "adjusted_p_text": "p <= 1/201", "estimate": {"noise_std": 0.004}}
 
-    def diagnose_with(bias):
+    def diagnose_with(bias, after=0.01205, se=0.0001):
         out = {"ranking": [rank], "significant": ["point-noise"], "alpha": 0.01, "min_explained": 0.1,
                "confirmed": [], "selected": "point-noise", "verdict": "missing-effect",
                "misspecification": {"p_text": "p <= 2/201", "misspecified": True}}
         monkeypatch.setattr(dg, "confirm_effect", lambda run, name, budget, workers, **kw: {
-            "effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.01144, "chamfer_after_m": 0.01205,
-            "chamfer_after_se_m": 0.0001, "drop": 1 - 0.01205 / 0.01144, "posterior_mean": {},
+            "effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.01144, "chamfer_after_m": after,
+            "chamfer_after_se_m": se, "chamfer_before_se_m": se, "drop": 1 - after / 0.01144, "posterior_mean": {},
             "misspecification_after": {"p_text": "p = 0.45", "misspecified": False, "alpha": 0.2}, **bias})
         return dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 1)
 
@@ -334,10 +336,21 @@ def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfe
         assert any(r.endswith("not confirmed (the error does not fall)") for r in wide["rules"])
     assert "Nor did its rollouts move toward the measurement" in diagnose_with({"bias_fall": 0.04,
                                                                                   "bias_fall_z": 0.5})["summary"]
-    # a physics effect changes the motion, which the Chamfer measures: the same numbers do not confirm it
+    # a physics effect changes the motion, which the Chamfer measures: with a Chamfer significantly higher
+    # (0.061 cm, standard error of the difference 0.014 cm) the same bias does not confirm it
     rank["kind"] = "physics"
     physics = diagnose_with({"bias_fall": 0.41, "bias_fall_z": 11.0})
-    assert physics["verdict"] == "misspecified-unexplained" and "moved toward" not in physics["summary"]
+    assert physics["verdict"] == "misspecified-unexplained" and "moved toward the measurement all" not in physics["summary"]
+    assert "with a Chamfer not higher: +0.06 cm, standard error of the difference 0.01 cm" in physics["summary"]
+    # ... nor without the nominal's standard error (a refit stored before it was kept)
+    assert dg._moves_toward({"bias_fall": 0.41, "bias_fall_z": 11.0, "chamfer_before_m": 0.01144,
+                             "chamfer_after_m": 0.01145, "chamfer_after_se_m": 0.0003}) is False
+    # a physics effect too small in the data for the Chamfer to see: it moves by less than its Monte-Carlo error
+    small = diagnose_with({"bias_fall": 0.41, "bias_fall_z": 11.0}, after=0.01145, se=0.0003)
+    assert small["verdict"] == "missing-effect" and small["selected"] == "point-noise"
+    assert "moved toward the measurement all the same" in small["summary"]
+    assert "+0.00 cm, standard error of the difference 0.04 cm" in small["summary"]
+    assert not diagnose_with({"bias_fall": 0.04, "bias_fall_z": 0.5}, after=0.01145, se=0.0003)["named_effects"]
 
 
 def test_a_resumed_diagnosis_judges_a_stored_pair_refit_as_a_pair(monkeypatch, tmp_path):

@@ -1,6 +1,7 @@
 """Rule 2's share as a screening threshold only: a significant candidate below it is refitted and named only when
-its refit explains the misfit (``diagnose.refit_decides``); a sensor effect seen in the local thickness (point
-noise) is judged in that summary too (``nominal_thickness_bias``)."""
+its refit explains the misfit (``diagnose.refit_decides``, and ``diagnose.refits_below_share`` after the refits of the
+candidates that pass fail); a sensor effect seen in the local thickness (point noise) is judged in that summary too
+(``nominal_thickness_bias``)."""
 import types
 
 import numpy as np
@@ -98,7 +99,11 @@ def test_a_sensor_refit_moves_toward_the_measurement_in_check_summaries_or_its_t
     assert not dg._moves_toward({**c, "thickness_bias_fall": 0.73, "thickness_bias_fall_z": 1.5})  # within its error
     assert not dg._moves_toward({**c, "thickness_bias_fall": 0.08, "thickness_bias_fall_z": 5.0})  # below the share
     assert not dg._moves_toward({**c, "adds_sensor_effect": False, "thickness_bias_fall": 0.73,
-                                 "thickness_bias_fall_z": 8.7})  # a physics effect: the Chamfer decides
+                                 "thickness_bias_fall_z": 8.7})  # a physics effect without the Chamfer's errors
+    physics = {**c, "adds_sensor_effect": False, "thickness_bias_fall": 0.73, "thickness_bias_fall_z": 8.7,
+               "chamfer_before_m": 0.020, "chamfer_before_se_m": 0.0004, "chamfer_after_se_m": 0.0004}
+    assert dg._moves_toward({**physics, "chamfer_after_m": 0.0210})  # 1.0 mm higher, 1.77 standard errors
+    assert not dg._moves_toward({**physics, "chamfer_after_m": 0.0212})  # 1.2 mm higher, 2.1 standard errors
 
 
 def test_only_effects_that_ask_for_the_thickness_summary_are_judged_in_it():
@@ -177,3 +182,58 @@ def test_diagnose_table_marks_the_candidate_a_refit_decided_on(monkeypatch):
     out = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), _weak_diagnosis(), 2)
     rows = {r[1]: r for r in diagnosis_table_rows({**out, "n_null": 200})}
     assert rows["point-noise"][6] == "refit" and rows["generic-drag"][6] == "no"
+
+
+def _ribbed_wipe_diagnosis():
+    """What diagnose_run leaves for the hidden anisotropic friction of a ribbed wipe (seed 1 of the slow round trip):
+    heavy hem passes rule 2 (20% of the residual), aniso-friction is significant with 8% (below the share)."""
+    sel = [{"given": [], "best": "heavy-hem", "adjusted_p_value": 0.005, "adjusted_p_text": "p <= 1/201",
+            "explained_fraction": 0.2, "accepted": True, "passed_over": []}]
+    return {"ranking": [_rank("heavy-hem", 0.2, 0.005, kind="physics"), _rank("aniso-friction", 0.08, 0.005,
+                                                                                kind="physics"),
+                        _rank("wind", 0.06, 0.005, kind="physics"), _rank("air-drag", 0.03, 0.3, kind="physics")],
+            "significant": ["heavy-hem"], "refit_decides": None, "alpha": 0.05, "min_explained": 0.1,
+            "confirmed": [], "selected": "heavy-hem", "verdict": "missing-effect", "selection": sel,
+            "misspecification": {"p_text": "p <= 2/201", "misspecified": True}}
+
+
+def test_after_the_passing_candidates_refits_fail_the_next_significant_below_the_share_is_refitted(monkeypatch):
+    """The ribbed wipe: the heavy hem's refit lowers the error but check rejects it (p 0.065), so the next significant
+    candidate, below the share, is refitted (the second of --confirm 2) and, as its refit explains the misfit
+    (Chamfer 37% lower, check p 0.90), named; the sentence says the refit decided after heavy hem's failed."""
+    calls = _fake_refits(monkeypatch, {"heavy-hem": (0.0131, 0.065, {}), "aniso-friction": (0.0110, 0.90, {}),
+                                       "wind": (0.012, 0.9, {})})
+    out = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), _ribbed_wipe_diagnosis(), 2)
+    assert calls == ["heavy-hem", "aniso-friction"]  # two single refits in all; wind (also significant) not refitted
+    assert out["refit_below_share"] == ["aniso-friction"]
+    assert (out["verdict"], out["selected"], out["named_effects"]) == ("missing-effect", "aniso-friction",
+                                                                       ["aniso-friction"])
+    assert ("so its refit decided, after the refit of heavy-hem, which the screening named, did not explain the "
+            "misfit") in out["summary"]
+    assert "ranked heavy-hem first" not in out["summary"]
+    assert "With heavy-hem instead: 1.31 cm (25% lower, but check rejects that refit: p = 0.065)" in out["summary"]
+    assert any(r.startswith("2. with refits, when no refit of a candidate that passes explains the misfit")
+               and r.endswith("aniso-friction has p = 0.005, explains 8% -> refit") for r in out["rules"])
+
+
+def test_no_refit_below_the_share_when_a_passing_candidate_explains_or_no_refit_is_left(monkeypatch):
+    # heavy hem's refit explains: no further refit
+    calls = _fake_refits(monkeypatch, {"heavy-hem": (0.0131, 0.5, {}), "aniso-friction": (0.0110, 0.90, {})})
+    out = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), _ribbed_wipe_diagnosis(), 2)
+    assert calls == ["heavy-hem"] and out["selected"] == "heavy-hem" and not out.get("refit_below_share")
+    # --confirm 1: the one refit is spent, so the third verdict stands
+    calls = _fake_refits(monkeypatch, {"heavy-hem": (0.0131, 0.065, {}), "aniso-friction": (0.0110, 0.90, {})})
+    out = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), _ribbed_wipe_diagnosis(), 1)
+    assert calls == ["heavy-hem"] and out["verdict"] == "misspecified-unexplained"
+    # the refit below the share does not explain either: the pair is built on heavy hem, which the screening named
+    # (with what check of its refit ranks first), and as it fails too, the third verdict, heavy hem (the larger
+    # drop) partial
+    calls = _fake_refits(monkeypatch, {"heavy-hem": (0.0131, 0.065, {}), "aniso-friction": (0.0170, 0.01, {}),
+                                       "heavy-hem+calibration-offset": (0.0125, 0.01, {})})
+    out = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), _ribbed_wipe_diagnosis(), 2)
+    assert calls == ["heavy-hem", "aniso-friction", "heavy-hem+calibration-offset"]
+    assert out["verdict"] == "misspecified-unexplained"
+    assert out["partial"] == "heavy-hem" and out["refit_below_share"] == ["aniso-friction"]
+    # decided again (a resumed diagnosis): the stored refits are reused, none is made twice
+    again = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert calls.count("aniso-friction") == 1 and again["verdict"] == "misspecified-unexplained"
