@@ -302,17 +302,21 @@ def find_run_dir(outs: Sequence[Path], case_id: str, marker: str = "diagnosis.js
 
 def redecide_rows(results: Path, outs: Sequence[Path], workers: int | None = 1) -> list[str]:
     """Rule 3 applied again (:func:`softsbi.workflows.diagnose.redecide`) to the stored rows it can change: those
-    with a refit that check accepted (``p > 0.2``, not misspecified) whose Chamfer did not fall. Their run
+    with a refit that check accepted (``p > 0.2``, not misspecified) whose Chamfer did not fall, and those whose
+    screening named an effect that no refit confirmed (the third verdict after refits), where refits below rule 2's
+    share may follow (:func:`softsbi.workflows.diagnose.refits_below_share`; these simulate). Their run
     directories are looked up in ``outs``; each diagnosis.json is rewritten and the row's verdict fields replaced
-    (marked ``"redecided"``). Running it again re-applies the rule without simulating (the bias is kept in
-    diagnosis.json). Returns the ids changed in verdict or name."""
+    (marked ``"redecided"``). Running it again re-applies the rule without simulating (the bias and the refits are
+    kept in diagnosis.json). Returns the ids changed in verdict or name."""
     from softsbi.workflows.diagnose import redecide
     rows = load_rows(results)
     changed = []
     for r in rows:
         acc_rise = [x for x in r.get("refits") or [] if x[2] is not None and x[3] is False and (x[1] or 0) <= 0]
+        unconfirmed = r.get("refits") and r["verdict"] == "misspecified-unexplained" \
+            and r.get("screening_verdict") == "missing-effect"
         run_dir = find_run_dir(outs, r["id"])
-        if not acc_rise or run_dir is None:
+        if not (acc_rise or unconfirmed) or run_dir is None:
             continue
         d = json.loads((run_dir / "diagnosis.json").read_text())
         confirm = r.get("budget", {}).get("confirm") or int(r["id"].split("-refit")[1][0])
@@ -1283,7 +1287,8 @@ def main() -> None:
     pm.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
     rd = sub.add_parser("redecide", help="apply rule 3 again to stored rows with a check-accepted refit whose "
-                                         "Chamfer did not fall (adds the summary bias)")
+                                         "Chamfer did not fall (adds the summary bias), or with the third verdict "
+                                         "after refits (refits below rule 2's share may follow)")
     rd.add_argument("--results", type=Path, default=Path("benchmarks/results/diagnose_stats.jsonl"))
     rd.add_argument("--out", type=Path, nargs="+", default=[Path("runs/diagnose_stats")],
                     help="folders holding the cases' run directories")
