@@ -91,8 +91,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_nu
        of the refit, ``misspecification_after``, ``p <= max(alpha, EXPLAIN_ALPHA)``) or the refit lowers neither the
        posterior-predictive Chamfer (``drop <= 0``) nor, by at least ``min_explained`` and :data:`TIE_Z` standard
        errors, the summaries' systematic deviation from the measurement (``bias_fall``, :func:`_moves_toward`;
-       ``summary_bias`` keeps the nominal's; for a refit adding a physics effect only with a Chamfer not higher by
-       :data:`TIE_Z` standard errors): the effect explains a part at most (``partial``; the
+       ``summary_bias`` keeps the nominal's; for a refit adding a physics effect only with a Chamfer higher by less
+       than :data:`TIE_Z` standard errors and ``min_explained``): the effect explains a part at most (``partial``; the
        screening's verdict stays in ``screening_verdict``). A second effect is named only when no single
        refit explains the misfit and the refit with two effects does (``confirm >= 2``): the effect whose single
        refit lowers the error most (:func:`pair_base`; else the screening's first) and the first named candidate
@@ -248,8 +248,8 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
         rules.append(f"3. a named effect explains the misfit if check's test of its refit gives p > "
                      f"{m2.get('alpha', a):g} and the refit lowers the posterior-predictive Chamfer or removes >= "
                      f"{mx * 100:.0f}% of the nominal's summary bias (or, for an effect seen in the local thickness, of "
-                     f"its thickness bias) by >= {TIE_Z:g} standard errors, adding a physics effect with a Chamfer not "
-                     f"higher by {TIE_Z:g} standard errors: "
+                     f"its thickness bias) by >= {TIE_Z:g} standard errors, adding a physics effect with a Chamfer higher "
+                     f"by less than {TIE_Z:g} standard errors and {mx * 100:.0f}%: "
                      f"{c['effect']}'s refit has {m2['p_text']}{change} -> {_rule3_outcome(m2['misspecified'], lower)}")
     for t in out.get("ties") or []:
         se = (f"standard error {t['se_m'] * 100:.2f} cm" if t.get("se_m") is not None
@@ -636,9 +636,9 @@ def _moves_toward(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> bo
     (``bias_fall_z``), or the same in the local thickness for an effect that asks its estimator for it
     (``thickness_bias_fall``, ``thickness_bias_fall_z``: :func:`nominal_thickness_bias`). For a refit that adds
     sensor effects only (``adds_sensor_effect``, set by :func:`confirm_candidates`) that suffices; a refit that adds
-    a physics effect must also leave its posterior-predictive Chamfer no higher than the nominal's by
-    :data:`TIE_Z` standard errors of the difference (:func:`_chamfer_not_higher`). False for refits stored without
-    these fields.
+    a physics effect must also leave its posterior-predictive Chamfer higher than the nominal's by less than
+    :data:`TIE_Z` standard errors of the difference and less than ``min_explained`` of it
+    (:func:`_chamfer_not_higher`). False for refits stored without these fields.
 
     Why besides the Chamfer: a sensor model that adds noise or spread (point noise, an uncertain calibration
     offset) raises the Chamfer between two clouds even when it is the right model, so "the Chamfer falls"
@@ -656,20 +656,22 @@ def _moves_toward(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> bo
         f, z = c.get(f"{prefix}_fall"), c.get(f"{prefix}_fall_z")
         return f is not None and z is not None and f >= min_explained and z >= TIE_Z
     # an effect seen in the local thickness (point noise) is judged in it too (nominal_thickness_bias)
-    return ((bool(c.get("adds_sensor_effect")) or _chamfer_not_higher(c))
+    return ((bool(c.get("adds_sensor_effect")) or _chamfer_not_higher(c, min_explained))
             and (falls("bias") or falls("thickness_bias")))
 
 
-def _chamfer_not_higher(c: dict[str, Any]) -> bool:
-    """Whether a refit's posterior-predictive Chamfer is within :data:`TIE_Z` standard errors of the difference
-    above the nominal fit's (``chamfer_after_m - chamfer_before_m < TIE_Z * sqrt(se_before^2 + se_after^2)``; each
-    mean is over independent posterior rollouts, as in :func:`_tie`). False without both standard errors (refits
+def _chamfer_not_higher(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> bool:
+    """Whether a refit's posterior-predictive Chamfer rises neither significantly nor by a practical share above the
+    nominal fit's: by less than :data:`TIE_Z` standard errors of the difference (``chamfer_after_m -
+    chamfer_before_m < TIE_Z * sqrt(se_before^2 + se_after^2)``; each mean is over independent posterior rollouts,
+    as in :func:`_tie`) and by less than ``min_explained`` of the nominal's (the share the summary bias must fall
+    by: the standard error of a lift's small Chamfer can be 14% of it). False without both standard errors (refits
     stored before ``chamfer_before_se_m`` was kept)."""
     b, a = c.get("chamfer_before_m"), c.get("chamfer_after_m")
     sb, sa = c.get("chamfer_before_se_m"), c.get("chamfer_after_se_m")
     if b is None or a is None or sb is None or sa is None:
         return False
-    return bool(a - b < TIE_Z * float(np.hypot(sb, sa)))
+    return bool(a - b < TIE_Z * float(np.hypot(sb, sa)) and a - b < min_explained * b)
 
 
 def _pct(x: float, digits: int = 0) -> str:
@@ -706,12 +708,15 @@ def _refit_sentence(c: dict[str, Any], name: str, alpha: float, min_explained: f
         if _moves_toward(c, min_explained):
             why = ("a sensor model that adds noise or spread raises the Chamfer between two clouds even when it is "
                    "the right model" if c.get("adds_sensor_effect") else
-                   f"the Chamfer is not higher by {TIE_Z:g} standard errors ({_chamfer_se_words(c)}): an effect this "
-                   f"small in the data moves the Chamfer less than its Monte-Carlo error")
+                   f"the Chamfer is higher by less than {TIE_Z:g} standard errors and {min_explained * 100:.0f}% "
+                   f"({_chamfer_se_words(c)}): an effect this small in the data moves the Chamfer less than its "
+                   f"Monte-Carlo error")
             s += f" Its rollouts moved toward the measurement all the same ({_bias_words(c)}; {need}): {why}."
         else:
             s += f" Nor did its rollouts move toward the measurement ({_bias_words(c)}; {need}"
-            s += ")." if c.get("adds_sensor_effect") else f", with a Chamfer not higher: {_chamfer_se_words(c)})."
+            s += ")." if c.get("adds_sensor_effect") else (f", with a Chamfer higher by less than {TIE_Z:g} standard "
+                                                           f"errors and {min_explained * 100:.0f}%: "
+                                                           f"{_chamfer_se_words(c)}).")
     s += _after_refit(c, name, alpha) + _continue_hint(c)
     w = c.get("widened")
     if w:

@@ -341,7 +341,8 @@ def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfe
     rank["kind"] = "physics"
     physics = diagnose_with({"bias_fall": 0.41, "bias_fall_z": 11.0})
     assert physics["verdict"] == "misspecified-unexplained" and "moved toward the measurement all" not in physics["summary"]
-    assert "with a Chamfer not higher: +0.06 cm, standard error of the difference 0.01 cm" in physics["summary"]
+    assert ("with a Chamfer higher by less than 2 standard errors and 10%: +0.06 cm, standard error of the "
+            "difference 0.01 cm") in physics["summary"]
     # ... nor without the nominal's standard error (a refit stored before it was kept)
     assert dg._moves_toward({"bias_fall": 0.41, "bias_fall_z": 11.0, "chamfer_before_m": 0.01144,
                              "chamfer_after_m": 0.01145, "chamfer_after_se_m": 0.0003}) is False

@@ -104,6 +104,9 @@ def test_a_sensor_refit_moves_toward_the_measurement_in_check_summaries_or_its_t
                "chamfer_before_m": 0.020, "chamfer_before_se_m": 0.0004, "chamfer_after_se_m": 0.0004}
     assert dg._moves_toward({**physics, "chamfer_after_m": 0.0210})  # 1.0 mm higher, 1.77 standard errors
     assert not dg._moves_toward({**physics, "chamfer_after_m": 0.0212})  # 1.2 mm higher, 2.1 standard errors
+    loose = {**physics, "chamfer_before_se_m": 0.002, "chamfer_after_se_m": 0.002}
+    assert dg._moves_toward({**loose, "chamfer_after_m": 0.0219})  # 9.5% higher, 0.7 standard errors
+    assert not dg._moves_toward({**loose, "chamfer_after_m": 0.0221})  # 10.5% higher: the share, whatever its error
 
 
 def test_only_effects_that_ask_for_the_thickness_summary_are_judged_in_it():
