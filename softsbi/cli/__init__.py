@@ -575,7 +575,9 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
              confirm: int = typer.Option(2, help="refit the top N significant candidates, re-check each refit "
                                                  "with check's test and name, among the refits check accepts, the "
-                                                 "one that lowers the error most; none accepted: "
+                                                 "one that lowers the error most (when those that pass the "
+                                                 "screening's share all fail, the next significant ones are "
+                                                 "refitted, N single refits in all); none accepted: "
                                                  "misspecified-unexplained (0 = no refit)"),
              confirm_rounds: Optional[int] = typer.Option(None, help="rounds of a confirmation refit "
                                                                      "(default: the run's)"),
