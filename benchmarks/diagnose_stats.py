@@ -1020,6 +1020,12 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     single = {eff: [r for r in rows if r["truth_label"] == eff] for eff in power if "+" not in eff}
     out["thresholds"] = {eff: detection_threshold(rs) for eff, rs in single.items()}
     out["thresholds_detected"] = {eff: detection_threshold(rs, outcome="detected") for eff, rs in single.items()}
+    # the same per task: an effect's size in the data at one magnitude depends on the motion (a soft grasp lags a
+    # lifted cloth, while a cloth hanging in a breeze barely shows it), so one threshold per effect mixes tasks
+    out["thresholds_detected_by_scenario"] = {
+        eff: {sc: detection_threshold(b, outcome="detected")
+              for sc in sorted({r["scenario"] for r in rs}) for b in [[r for r in rs if r["scenario"] == sc]]}
+        for eff, rs in single.items()}
     other = [r for r in rows if r["truth_label"] == "other-engine"]
     if other:
         out["other_engine"] = {"n": len(other), "misspecified-unexplained": sum(bool(r["correct"]) for r in other),
@@ -1167,6 +1173,23 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
                   f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
                 else ("not reached in (0, 1]", "-", "-")
             out.append(f"| {eff} | {t['n']} | {t['detected']} | {lv[0]} | {lv[1]} | {lv[2]} |")
+    tds = summary.get("thresholds_detected_by_scenario") or {}
+    if tds:
+        out.append("\nThe same criterion per task (each effect's detection curve fitted to the cases of one scenario; "
+                   "\"-\": detection never reaches 90% there, or too few cases to fit a curve):\n")
+        scs = sorted({sc for v in tds.values() for sc in v})
+        out.append("| hidden effect | " + " | ".join(f"{sc}: threshold, named above it" for sc in scs) + " |")
+        out.append("|---" * (1 + len(scs)) + "|")
+        for eff, per in tds.items():
+            cells = []
+            for sc in scs:
+                t = per.get(sc) or {}
+                cells.append(f"{t['m_level']:.2f}, {t['above_named']} of {t['above']}" if t.get("m_level") is not None
+                             else f"- (n = {t.get('n', 0)})")
+            out.append(f"| {eff} | " + " | ".join(cells) + " |")
+        cells = [t for per in tds.values() for t in per.values() if t.get("m_level") is not None and t["above"]]
+        out.append(f"\nOver the effect-task cells with a threshold: {sum(t['above_named'] for t in cells)} of "
+                   f"{sum(t['above'] for t in cells)} cases above their cell's threshold named correctly.")
     if summary.get("power_size"):
         out.append("\nBy the effect's size in the data (Chamfer to the measurement at the truth without the effect "
                    "minus with it):\n")
