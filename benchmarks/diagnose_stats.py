@@ -1024,7 +1024,8 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     # lifted cloth, while a cloth hanging in a breeze barely shows it), so one threshold per effect mixes tasks
     out["thresholds_detected_by_scenario"] = {
         eff: {sc: detection_threshold(b, outcome="detected")
-              for sc in sorted({r["scenario"] for r in rs}) for b in [[r for r in rs if r["scenario"] == sc]]}
+              for sc in sorted({r["scenario"] for r in rs if r.get("scenario")})
+              for b in [[r for r in rs if r.get("scenario") == sc]]}
         for eff, rs in single.items()}
     other = [r for r in rows if r["truth_label"] == "other-engine"]
     if other:

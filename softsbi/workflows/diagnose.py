@@ -225,7 +225,7 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
                      f"{t['explained_fraction'] * 100:.0f}% -> refit")
     for e in out.get("refit_below_share") or []:
         t = next(r for r in out["ranking"] if r["effect"] == e)
-        rules.append(f"2. with refits, when no refit of a candidate that passes explains the misfit, the next whose "
+        rules.append(f"2. with refits, when no refit so far explains the misfit, the next candidates whose "
                      f"max-T adjusted p <= {a:g} are refitted (up to --confirm single refits in all) and "
                      f"named only if rule 3 holds: {e} has {t['adjusted_p_text']}, explains "
                      f"{t['explained_fraction'] * 100:.0f}% -> refit")
@@ -813,8 +813,8 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                   f"for (a linearisation at the posterior median; the residual holds the posterior predictive's own "
                   f"spread), so its refit decided")
             failed = [n for n in out["significant"] if n != chosen]
-            s += (f", after the refit of {' and '.join(failed)}, which the screening named, did not explain the "
-                  f"misfit." if out.get("refit_decides") != chosen and failed else ".")
+            s += (f", after the refit of {' and '.join(failed)} did not explain the misfit."
+                  if out.get("refit_decides") != chosen and failed else ".")
         if chosen in confirmed:
             c = confirmed[chosen]
             s += _refit_sentence(c, chosen, a, out.get("min_explained", MIN_EXPLAINED))

@@ -392,3 +392,23 @@ def test_a_case_diagnosed_under_two_protocols_counts_once():
     assert kept == ["mujoco-more-s0-476-refit2-3x100-joint-truncated", "mujoco-more-s1-475-refit2-3x100-joint-truncated",
                     "mujoco-more-s0-475-refit2-3x100-joint-truncated", "hand-made"]
     assert bench.summarise(bench.select_rows(rows, None, proposal=None))["power"]["point-noise"]
+
+
+def test_the_criterion_per_task_fits_one_detection_curve_per_scenario():
+    """A grip detected and named in every lift from magnitude 0.3 up, never detected while the cloth hangs in a wind:
+    pooled, the effect's detection curve never reaches 90%; per task the lift has a threshold below 0.4 with every
+    case above it named, and the wind none. The summary and its Markdown table say so."""
+    mags = np.linspace(0.1, 1.0, 10)
+    rows = [{"truth_label": "grip-compliance", "scenario": "lift", "magnitude": float(m),
+             "verdict": "missing-effect" if m >= 0.3 else "nothing-missing", "called": "grip-compliance",
+             "named": "grip-compliance" if m >= 0.3 else None, "correct": bool(m >= 0.3)} for m in mags]
+    rows += [{"truth_label": "grip-compliance", "scenario": "wind", "magnitude": float(m), "verdict": "nothing-missing",
+              "called": "nothing-missing", "named": None, "correct": False} for m in mags]
+    s = bench.summarise(rows)
+    assert s["thresholds_detected"]["grip-compliance"]["m_level"] is None
+    per = s["thresholds_detected_by_scenario"]["grip-compliance"]
+    assert 0.1 < per["lift"]["m_level"] < 0.4 and per["lift"]["above_named"] == per["lift"]["above"] >= 7
+    assert per["wind"]["m_level"] is None
+    md = bench.markdown(s, [])  # the tables of the summary only (no per-case rows)
+    assert "| grip-compliance | " in md and "- (n = 10)" in md
+    assert f"{per['lift']['above']} of {per['lift']['above']} cases above their cell's threshold named correctly" in md
