@@ -153,6 +153,37 @@ def test_the_reducible_error_uses_the_oracle_score_stored_with_the_effect_size()
     assert rd["floor_at_or_above_nominal"] == 1 and rd["without_floor"] == 1
 
 
+def test_refit_drops_are_reported_per_effect_with_the_summary_bias_fall():
+    """The pooled median drop is read with its mix of effects: per hidden effect the Chamfer drop, the reducible
+    error's drop and the summary bias's fall (refits[i][4]); a point-noise refit that raises the Chamfer can still
+    remove the summary bias, and refits stored without the bias fall are counted, not taken as zero."""
+    base = {"verdict": "missing-effect", "correct": True, "magnitude": 0.5, "budget": {"confirm": 2}}
+    rows = [dict(base, id="a", truth_label="wind", named="wind", called="wind",
+                 refits=[["wind", 0.6, 0.5, False, 0.9], ["air-drag", 0.4, 0.5, False, 0.5]],
+                 floor_m=0.01, chamfer_nominal_m=0.04),
+            dict(base, id="b", truth_label="wind", named="wind", called="wind", refits=[["wind", 0.2]]),
+            dict(base, id="c", truth_label="point-noise", named="point-noise", called="point-noise",
+                 refits=[["point-noise", -0.1, 0.5, False, 0.6]],
+                 effect_size={"size_m": -0.002, "with_m": 0.05, "nominal_m": 0.04}),
+            dict(base, id="d", truth_label="wind", named=None, called="nothing-missing", correct=False,
+                 verdict="nothing-missing", refits=[["wind", 0.9, 0.5, False, 0.99]])]
+    s = bench.summarise(rows)
+    # only the named effect's refit of correctly named cases: a's wind, b's wind, c's point noise
+    assert s["refit_bias_fall"] == {"n": 2, "median": pytest.approx(0.75), "without": 1}
+    by = s["refit_drop_by_effect"]
+    assert set(by) == {"wind", "point-noise"}
+    assert by["wind"]["chamfer"] == {"n": 2, "median": pytest.approx(0.4)}
+    # a: 0.6 * 0.04 / 0.03 = 0.8; b has no truth's score
+    assert by["wind"]["reducible"] == {"n": 1, "median": pytest.approx(0.8)}
+    assert by["wind"]["bias"] == {"n": 1, "median": pytest.approx(0.9)}
+    # the truth scores worse than the nominal fit: no reducible error, but the bias fall is counted
+    assert by["point-noise"]["reducible"] == {"n": 0, "median": None}
+    assert by["point-noise"]["chamfer"]["median"] == pytest.approx(-0.1) and by["point-noise"]["bias"]["n"] == 1
+    md = bench.markdown(s, [])
+    assert "| point-noise | -10% (n = 1) | - | 60% (n = 1) |" in md
+    assert "correctly named cases: 75% (n = 2; 1 refits stored before it was kept)" in md
+
+
 def test_min_magnitude_runs_only_hidden_effect_cases_at_or_above_it(tmp_path, monkeypatch):
     """``--min-magnitude`` chooses cases on the power curve's covariate: controls and smaller effects are skipped,
     the indices keep their definitions."""
