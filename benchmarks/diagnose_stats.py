@@ -1050,15 +1050,17 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
         return (es["with_m"], es["nominal_m"]) if es.get("with_m") and es.get("nominal_m") else (None, None)
     named_drops = [(r, d) for r in rows if r["correct"] and r.get("named")
                    for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
-    fn = [(floor_and_nominal(r), d) for r, d in named_drops]
-    excess = [d * nom / (nom - fl) for (fl, nom), d in fn if fl is not None and nom > fl]
+    floors = [floor_and_nominal(r) for r, _ in named_drops]
+    reducible = [(r, d * nom / (nom - fl)) for (r, d), (fl, nom) in zip(named_drops, floors)
+                 if fl is not None and nom > fl]
+    excess = [x for _, x in reducible]
     if excess:
         out["refit_drop_of_reducible"] = {"n": len(excess), "median": float(np.median(excess)),
                                           # the oracle scores no better than the nominal fit: a sensor effect that
                                           # adds spread (point noise), whose Chamfer cannot fall
                                           "floor_at_or_above_nominal": sum(fl is not None and nom <= fl
-                                                                           for (fl, nom), _ in fn),
-                                          "without_floor": sum(fl is None for (fl, _), _ in fn)}
+                                                                           for fl, nom in floors),
+                                          "without_floor": sum(fl is None for fl, _ in floors)}
     # the fraction of the nominal's summary bias that the named refit removes (refits[i][4], diagnose's
     # bias_fall): the misfit check's test measures, in the 14 summaries per frame. A sensor effect that adds spread
     # (point noise) cannot lower a Chamfer (its optimum is the noise-free cloud), but it can remove this bias
@@ -1070,13 +1072,9 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     # per hidden effect (one or a pair): the Chamfer drop, the reducible error's drop and the summary bias's fall,
     # so that a pooled median is read with the mix of effects behind it
     by_effect: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
-    for (r, d), ((fl, nom), _) in zip(named_drops, fn):
-        e = by_effect[r["truth_label"]]
-        e["chamfer"].append(d)
-        if fl is not None and nom > fl:
-            e["reducible"].append(d * nom / (nom - fl))
-    for r, f in falls:
-        by_effect[r["truth_label"]]["bias"].append(f)
+    for key, pairs in (("chamfer", named_drops), ("reducible", reducible), ("bias", falls)):
+        for r, x in pairs:
+            by_effect[r["truth_label"]][key].append(x)
     if by_effect:
         out["refit_drop_by_effect"] = {
             k: {m: {"n": len(v[m]), "median": float(np.median(v[m])) if v[m] else None}
