@@ -757,18 +757,30 @@ def _estimates_sentence(c: dict[str, Any]) -> str:
 
 
 def _continue_hint(c: dict[str, Any]) -> str:
-    """For a refit that lowered the posterior-predictive Chamfer but that check still rejects, how to continue it:
-    a refit that has not converged looks the same (a time offset in a rope winding was found in a refit's fourth
-    round, not its third; BENCHMARKS.md "Twenty-third session"). The command resumes the stored refits (``fit``
-    raises ``rounds`` on resume, the rounds already simulated are kept) and decides again. '' otherwise, and for a
-    refit stored before its ``budget`` was kept."""
+    """How to continue a refit that may not have converged. Two cases: (1) it lowered the posterior-predictive
+    Chamfer but check still rejects it: a refit that has not converged looks the same (a time offset in a rope
+    winding was found in a refit's fourth round, not its third; BENCHMARKS.md "Twenty-third session"); (2) check
+    accepts it but the data barely inform an added parameter (``estimates[k]["informed"]`` False: its 90% interval
+    wider than :data:`~softsbi.inference.contraction.INFORMED_MAX_RATIO` of the prior's), so its error may fall
+    further (hidden soft grasps in a lift: refits at 3 x 100 left the time constant uninformed and lowered the
+    Chamfer by 4-12%; at 3 x 300 they informed it and lowered it by 15-33%, BENCHMARKS.md "Twenty-eighth session").
+    The command resumes the stored refits (``fit`` raises ``rounds`` on resume, the rounds already simulated are
+    kept) and decides again. '' otherwise, and for a refit stored before its ``budget`` was kept."""
     m, b = c.get("misspecification_after") or {}, c.get("budget")
-    if not (m.get("misspecified") and (c.get("drop") or 0) > 0 and b and c.get("run")):
+    if not (b and c.get("run") and m):
         return ""
     r, n = int(b["rounds"]), int(b["sims_per_round"])
-    return (f" A refit that has not converged looks the same: `softsbi diagnose {Path(c['run']).parent} "
-            f"--confirm-rounds {2 * r} --confirm-sims {n}` continues the stored refits from round {r + 1} to "
-            f"{2 * r} and decides again.")
+    cmd = (f"`softsbi diagnose {Path(c['run']).parent} --confirm-rounds {2 * r} --confirm-sims {n}` continues the "
+           f"stored refits from round {r + 1} to {2 * r} and decides again")
+    if m.get("misspecified") and (c.get("drop") or 0) > 0:
+        return f" A refit that has not converged looks the same: {cmd}."
+    loose = {k: e for k, e in (c.get("estimates") or {}).items() if e.get("informed") is False}
+    if not m.get("misspecified") and loose:
+        what = ", ".join(f"{k} (its 90% interval spans {e['width_ratio'] * 100:.0f}% of the prior's)"
+                         for k, e in loose.items())
+        return (f" The data barely inform {what} in this refit, so it may not have converged and its error may "
+                f"fall further: {cmd}.")
+    return ""
 
 
 def _after_refit(c: dict[str, Any], name: str, alpha: float) -> str:
@@ -1016,7 +1028,8 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
         "posterior_mean", "estimates", "budget", "misspecification_after", "at_bounds"}`` (``budget``: the refit's
         ``rounds`` and ``sims_per_round``; ``estimates``: per parameter of the
         added effects, the refit's posterior ``mean``, ``q05`` and ``q95`` (its 90% interval, None where the report
-        lacks it) and ``unit``; ``at_bounds``: the added effects' parameters
+        lacks it), ``unit`` and, where the report has them, ``width_ratio`` and ``informed`` (the 90% interval's width
+        over the prior's, :func:`~softsbi.inference.contraction.contraction`); ``at_bounds``: the added effects' parameters
         whose refit posterior presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`;
         the refit's sentence then says so), ``widened`` where the prior was widened, plus :func:`refit_summary_bias`'s fields with
         ``nominal_bias``; ``chamfer_after_se_m`` is the standard error (m) of
@@ -1079,8 +1092,10 @@ def confirm_effect(run: RunView, effect: str | Sequence[str], budget: dict[str, 
     energy = energy_change(nominal_energy, energy_score(refit)) if nominal_energy else {}
     pm = pm_change(posterior_mean_chamfer(run, workers=workers), posterior_mean_chamfer(refit.run, workers=workers))
     q05, q95 = res.report.get("posterior_q05") or {}, res.report.get("posterior_q95") or {}
+    width = res.report.get("contraction") or {}
     estimates = {k: {"mean": float(res.report["posterior_mean"][k]), "q05": q05.get(k), "q95": q95.get(k),
-                     "unit": unit} for k, unit in added_units.items() if k in res.report["posterior_mean"]}
+                     "unit": unit, **{f: width[k][f] for f in ("width_ratio", "informed") if f in width.get(k, {})}}
+                 for k, unit in added_units.items() if k in res.report["posterior_mean"]}
     return {"effect": effect, "run": str(out), "chamfer_before_m": before, "chamfer_after_m": after,
             "estimates": estimates, "budget": {"rounds": cfg.rounds, "sims_per_round": cfg.sims_per_round},
             "at_bounds": at_bounds, **({"widened": widened} if widened else {}),

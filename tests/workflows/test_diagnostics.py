@@ -402,6 +402,16 @@ def test_a_rejected_refit_that_lowered_the_error_says_how_to_continue_it(toy_run
     assert dg._continue_hint({**c, "drop": -0.1}) == ""
     assert dg._continue_hint({**c, "misspecification_after": {"misspecified": False}}) == ""
     assert dg._continue_hint({k: v for k, v in c.items() if k != "budget"}) == ""
+    # a refit that check accepts while the data barely inform its added parameter may not have converged either
+    loose = {**c, "drop": 0.04, "misspecification_after": {"misspecified": False, "p_text": "p = 1", "alpha": 0.2},
+             "estimates": {"wind_speed": {"mean": 1.0, "width_ratio": 0.68, "informed": False},
+                           "gust": {"mean": 0.1, "width_ratio": 0.3, "informed": True}}}
+    h = dg._continue_hint(loose)
+    assert "barely inform wind_speed (its 90% interval spans 68% of the prior's)" in h and "gust" not in h and hint in h
+    tight = {**loose, "estimates": {"wind_speed": {"mean": 1.0, "width_ratio": 0.3, "informed": True}}}
+    assert dg._continue_hint(tight) == ""
+    # estimates stored before their width was kept say nothing
+    assert dg._continue_hint({**loose, "estimates": {"wind_speed": {"mean": 1.0}}}) == ""
     # a copy of the nominal run without the other tests' refits, so this refit starts from nothing
     nominal = tmp_path / "hidden"
     shutil.copytree(hidden, nominal, ignore=shutil.ignore_patterns("refit-*"))
@@ -410,6 +420,12 @@ def test_a_rejected_refit_that_lowered_the_error_says_how_to_continue_it(toy_run
                               widen=False)
     out = Path(first["run"])
     assert first["budget"] == {"rounds": 1, "sims_per_round": 100} and out == nominal / "refit-toy-wind"
+    # each added parameter's estimate keeps how much the data narrowed it (the refit report's contraction)
+    report = json.loads((out / "report.json").read_text())
+    assert first["estimates"]
+    for k, e in first["estimates"].items():
+        assert e["width_ratio"] == report["contraction"][k]["width_ratio"]
+        assert e["informed"] == report["contraction"][k]["informed"]
     theta0 = RunStore.open(out / "run.zarr", mode="r").round_data(0)["theta"].copy()
     again = dg.confirm_effect(run, "toy-wind", {"rounds": 2, "sims_per_round": 100}, workers=1, n_null=12,
                               max_null=12, widen=False)
