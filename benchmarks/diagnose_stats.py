@@ -149,12 +149,14 @@ def make_case(suite: str, seed: int, i: int) -> dict[str, Any]:
 
 def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: int, max_null: int,
              confirm: int, workers: int | None, confirm_budget: dict[str, int] | None = None,
-             proposal: str = "corrected", alpha: float = ALPHA) -> dict[str, Any]:
+             proposal: str = "corrected", alpha: float = ALPHA,
+             candidates: Sequence[str] | None = None) -> dict[str, Any]:
     """Fit the nominal model to the case's measurement and diagnose it; the JSON line's fields.
 
     ``confirm_budget``: ``{"rounds", "sims_per_round"}`` of the confirmation refits (default: the
-    nominal fit's); the suite's ``candidates`` (default its ``effects``) are screened. ``proposal``: the
-    nominal fit's (rows stored before the field existed were fitted with ``"corrected"``)."""
+    nominal fit's); ``candidates`` are screened (default the suite's: :func:`suite_candidates`) and stored with
+    the row. ``proposal``: the nominal fit's (rows stored before the field existed were fitted with
+    ``"corrected"``)."""
     t0 = time.perf_counter()
     cfg = SUITES[case["suite"]]
     hidden = hidden_effects(case)
@@ -168,9 +170,10 @@ def run_case(case: dict[str, Any], out: Path, rounds: int, sims: int, n_null: in
                    proposal=proposal)
     run_dir = out / case["id"]
     run_fit(run_dir, meas, fc)
-    d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=n_null, max_null=max_null,
+    screened = list(candidates or suite_candidates(case["suite"]))
+    d = diagnose_run(run_dir, effects=screened, n_null=n_null, max_null=max_null,
                      workers=workers, confirm=confirm, confirm_budget=confirm_budget, alpha=alpha)
-    return {**row_fields(case, d), "proposal": proposal,
+    return {**row_fields(case, d), "proposal": proposal, "candidates": screened,
             "budget": {"rounds": rounds, "sims_per_round": sims, "n_null": n_null, "max_null": max_null,
                        "confirm": confirm, "confirm_budget": confirm_budget, "alpha": alpha},
             "simulations": d["simulations"], "wall_s": time.perf_counter() - t0}
@@ -692,9 +695,8 @@ def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: 
         old = run_dir / f"diagnosis.alpha{row_alpha(r):g}.json"
         if not old.exists():
             old.write_text((run_dir / "diagnosis.json").read_text())
-        cfg = SUITES[r["suite"]]
         t0 = time.perf_counter()
-        d = diagnose_run(run_dir, effects=cfg.get("candidates", cfg["effects"]), n_null=b["n_null"],
+        d = diagnose_run(run_dir, effects=r.get("candidates") or suite_candidates(r["suite"]), n_null=b["n_null"],
                          max_null=b["max_null"], workers=workers, confirm=b["confirm"],
                          confirm_budget=b.get("confirm_budget"), alpha=alpha)
         new = row_fields({k: r[k] for k in CASE_KEYS}, d)
@@ -889,12 +891,26 @@ def done_ids(results: Path) -> set[str]:
     return {r["id"] for r in load_rows(results)}
 
 
+def suite_candidates(suite: str) -> list[str]:
+    """The candidate effects a suite's cases are screened with by default: its ``candidates``, else the effects it
+    hides (the ``mujoco`` and ``cross-engine`` suites: the four built-in physics effects only)."""
+    return list(SUITES[suite].get("candidates", SUITES[suite]["effects"]))
+
+
+def row_candidates(r: dict[str, Any]) -> int | None:
+    """How many candidate effects a stored row's diagnosis screened: its ``candidates`` field, else (rows stored
+    before the field) its suite's default (:func:`suite_candidates`); None for a row of an unknown suite."""
+    if r.get("candidates") is not None:
+        return len(r["candidates"])
+    return len(suite_candidates(r["suite"])) if r.get("suite") in SUITES else None
+
+
 def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
               sims: int = 60, n_null: int = 30, max_null: int = 200, confirm: int = 0,
               workers: int | None = None, only: set[str] | None = None,
               confirm_budget: dict[str, int] | None = None,
               proposal: str = "corrected", alpha: float = ALPHA,
-              min_magnitude: float | None = None) -> list[dict[str, Any]]:
+              min_magnitude: float | None = None, all_candidates: bool = False) -> list[dict[str, Any]]:
     """Run the cases ``indices`` not yet in ``results``; append one line per case as it finishes.
 
     ``only``: run just the cases whose ``truth_label`` is in this set (e.g. ``{"control"}``); the
@@ -905,7 +921,10 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
     > 0 (refits) a case is stored under its own id with the suffix ``-refit<confirm>``: the screening-only
     and the refitted diagnosis of a case are two rows, summarised separately (:func:`select_rows`); with a
     ``confirm_budget`` the suffix also names it (``-refit2-3x100``); a nominal fit with truncated
-    proposals adds ``-truncated``."""
+    proposals adds ``-truncated``. ``all_candidates``: screen all named candidates (:data:`NAMED_CANDIDATES`, as
+    ``softsbi diagnose`` screens every installed effect) where the suite screens fewer by default; the id then ends
+    in ``-c<number of candidates>``."""
+    screened = NAMED_CANDIDATES if all_candidates else suite_candidates(suite)
     have = done_ids(results)
     results.parent.mkdir(parents=True, exist_ok=True)
     new = []
@@ -920,11 +939,13 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
             if confirm_budget:
                 case["id"] += f"-{confirm_budget['rounds']}x{confirm_budget['sims_per_round']}"
         case["id"] += (f"-{TEST}" + ("" if proposal == "corrected" else f"-{proposal}")
-                       + ("" if N_SUMMARIES == 13 else f"-s{N_SUMMARIES}"))
+                       + ("" if N_SUMMARIES == 13 else f"-s{N_SUMMARIES}")
+                       + ("" if screened == suite_candidates(suite) else f"-c{len(screened)}"))
         if case["id"] in have:
             continue
         try:
-            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget, proposal, alpha)
+            row = run_case(case, out, rounds, sims, n_null, max_null, confirm, workers, confirm_budget, proposal, alpha,
+                           screened)
         except Exception as exc:  # noqa: BLE001 - a failed case is recorded, not retried silently
             row = {**case, "error": f"{type(exc).__name__}: {exc}"}
         with results.open("a") as f:
@@ -939,13 +960,14 @@ def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path
 def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
                 confirm_budget: str | None = None, test: str | None = None,
                 proposal: str | None = "corrected", alpha: float | None = None,
-                n_summaries: int | None = None) -> list[dict[str, Any]]:
+                n_summaries: int | None = None, n_candidates: int | None = None) -> list[dict[str, Any]]:
     """The stored rows diagnosed with ``confirm`` refits (rows stored before the field existed had none;
     None: any number), with ``confirm_budget`` (``"3x100"``) only those whose refits had that budget, and
     with ``test`` (``"joint"`` or ``"omnibus"``, rows without the field) only those decided with that
     misspecification test; with ``proposal`` only rows whose nominal fit drew its rounds so (rows without the
     field: ``"corrected"``; None: any); with ``alpha`` only rows decided at that level (:func:`row_alpha`); with
-    ``n_summaries`` only rows whose tests used that many summaries per frame (rows without the field: 13).
+    ``n_summaries`` only rows whose tests used that many summaries per frame (rows without the field: 13); with
+    ``n_candidates`` only rows whose diagnosis screened that many candidate effects (:func:`row_candidates`).
 
     A case diagnosed under several protocols that all pass the filters (e.g. refits at the nominal budget and
     at 3 x 100: two ids, one measurement) counts once: its row stored last (:func:`one_row_per_case`)."""
@@ -957,7 +979,8 @@ def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
                              and (test is None or r.get("test", "omnibus") == test)
                              and (proposal is None or r.get("proposal", "corrected") == proposal)
                              and (alpha is None or row_alpha(r) == alpha)
-                             and (n_summaries is None or r.get("n_summaries", 13) == n_summaries)])
+                             and (n_summaries is None or r.get("n_summaries", 13) == n_summaries)
+                             and (n_candidates is None or row_candidates(r) == n_candidates)])
 
 
 def one_row_per_case(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -1314,6 +1337,9 @@ def main() -> None:
     r.add_argument("--alpha", type=float, default=ALPHA, help="family-wise level of the verdicts")
     r.add_argument("--min-magnitude", type=float, default=None,
                    help="run only hidden-effect cases with at least this magnitude (controls skipped)")
+    r.add_argument("--all-candidates", action="store_true",
+                   help="screen all named candidates, as `softsbi diagnose` does, where the suite screens fewer "
+                        "(mujoco, cross-engine: the four built-in physics effects); ids end in -c10")
     f = sub.add_parser("refit", help="refit stored cases' nominal runs with an effect at another budget")
     f.add_argument("--runs", default="CASE_ID:EFFECT", help="comma-separated CASE_ID:EFFECT (run dirs under --out)")
     f.add_argument("--out", type=Path, default=Path("runs/diagnose_stats"))
@@ -1379,6 +1405,8 @@ def main() -> None:
                         "default: any)")
     s.add_argument("--proposal", default="corrected", choices=["corrected", "truncated", "any"],
                    help="only rows whose nominal fit used these proposals (rows stored before the field: corrected)")
+    s.add_argument("--candidates", type=int, default=None,
+                   help="only rows whose diagnosis screened this many candidate effects (default: any)")
     a = ap.parse_args()
     if a.cmd == "merge":
         print(json.dumps(merge_rows(a.results, a.files, a.note)))
@@ -1433,12 +1461,12 @@ def main() -> None:
             cb = {"rounds": r_, "sims_per_round": n_}
         run_cases(a.suite, indices, a.results, a.out, a.seed, a.rounds, a.sims, a.n_null, a.max_null,
                   a.confirm, a.workers, set(a.only.split(",")) if a.only else None, cb, a.proposal, a.alpha,
-                  a.min_magnitude)
+                  a.min_magnitude, a.all_candidates)
     else:
         rows = select_rows(load_rows(a.results),
                            None if a.confirm < 0 else a.confirm, a.confirm_budget,
                            None if a.test == "any" else a.test, None if a.proposal == "any" else a.proposal,
-                           a.alpha, a.summaries)
+                           a.alpha, a.summaries, a.candidates)
         summ = summarise(rows)
         print(markdown(summ, rows) if a.markdown else json.dumps(summ, indent=2))
 

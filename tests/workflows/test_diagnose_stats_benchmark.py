@@ -184,6 +184,27 @@ def test_refit_drops_are_reported_per_effect_with_the_summary_bias_fall():
     assert "correctly named cases: 75% (n = 2; 1 refits stored before it was kept)" in md
 
 
+def test_all_candidates_screens_what_diagnose_screens_and_is_stored_apart(tmp_path, monkeypatch):
+    """``--all-candidates`` screens the ten named candidates where a suite screens fewer (mujoco: the four built-in
+    physics effects), as ``softsbi diagnose`` screens every installed effect; such rows carry ``-c10`` and are
+    selected apart; rows stored before the field count their suite's candidates."""
+    seen = []
+    monkeypatch.setattr(bench, "run_case", lambda case, *a: seen.append((case["id"], a[-1])) or {**case, "verdict": "x"})
+    bench.run_cases("mujoco", [1, 2], tmp_path / "r.jsonl", tmp_path / "runs", all_candidates=True)
+    bench.run_cases("mujoco", [3], tmp_path / "r.jsonl", tmp_path / "runs")
+    bench.run_cases("mujoco-more", [1], tmp_path / "r.jsonl", tmp_path / "runs", all_candidates=True)
+    assert [i.endswith("-c10") for i, _ in seen] == [True, True, False, False]
+    assert seen[0][1] == bench.NAMED_CANDIDATES and seen[2][1] == ["wind", "air-drag", "extra-damping", "grip-compliance"]
+    assert seen[3][1] == bench.NAMED_CANDIDATES
+    base = {"truth_label": "control", "verdict": "nothing-missing", "correct": True, "budget": {}}
+    rows = [dict(base, id="mujoco-s0-5", suite="mujoco", index=5),
+            dict(base, id="mujoco-s0-10-c10", suite="mujoco", index=10, candidates=bench.NAMED_CANDIDATES),
+            dict(base, id="mujoco-more-s0-7", suite="mujoco-more", index=7)]
+    assert [r["id"] for r in bench.select_rows(rows, proposal=None, n_candidates=4)] == ["mujoco-s0-5"]
+    assert [r["id"] for r in bench.select_rows(rows, proposal=None, n_candidates=10)] == ["mujoco-s0-10-c10",
+                                                                                           "mujoco-more-s0-7"]
+
+
 def test_min_magnitude_runs_only_hidden_effect_cases_at_or_above_it(tmp_path, monkeypatch):
     """``--min-magnitude`` chooses cases on the power curve's covariate: controls and smaller effects are skipped,
     the indices keep their definitions."""
