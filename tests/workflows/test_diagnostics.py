@@ -275,7 +275,7 @@ def test_refits_within_their_monte_carlo_error_are_not_told_apart(monkeypatch, t
                 "explained_fraction": 0.2, "adjusted_exceed": 0, "n_null": 200, "adjusted_p_value": 1 / 201,
                 "adjusted_p_text": "p <= 1/201", "estimate": {"k": 1.0}}
 
-    def diagnose_with(after, se):
+    def diagnose_with(after, se, estimates=None):
         out = {"ranking": [rank("time-offset"), rank("grip-compliance")], "significant": ["time-offset"],
                "alpha": 0.01, "min_explained": 0.1, "confirmed": [], "selected": "time-offset",
                "verdict": "missing-effect",
@@ -284,7 +284,7 @@ def test_refits_within_their_monte_carlo_error_are_not_told_apart(monkeypatch, t
         monkeypatch.setattr(dg, "confirm_effect", lambda run, name, budget, workers, **kw: {
             "effect": name, "run": str(tmp_path / name), "chamfer_before_m": 0.011, "chamfer_after_m": after[name],
             "chamfer_after_se_m": se, "drop": 1 - after[name] / 0.011, "posterior_mean": {},
-            "misspecification_after": accepted})
+            "misspecification_after": accepted, "estimates": (estimates or {}).get(name, {})})
         return dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
 
     close = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.01020}, 0.00035)
@@ -299,6 +299,19 @@ def test_refits_within_their_monte_carlo_error_are_not_told_apart(monkeypatch, t
     old = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.01020}, None)
     assert old["indistinguishable"] == [] and "favour grip-compliance" in old["summary"]
     assert any("no standard error stored" in r for r in old["rules"])
+    # the refit that lost also explains the misfit, but the data barely inform its added parameter: the sentence
+    # does not claim more than this budget shows (verdict and name unchanged)
+    loose = {"time-offset": {"time_offset": {"mean": 0.0, "width_ratio": 0.7, "informed": False}},
+             "grip-compliance": {"grip_timeconst": {"mean": 0.1, "width_ratio": 0.3, "informed": True}}}
+    unsettled = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.00800}, 0.00035, loose)
+    assert unsettled["selected"] == "grip-compliance" and unsettled["verdict"] == "missing-effect"
+    assert "favour grip-compliance at this refit budget." in unsettled["summary"]
+    assert "the data barely inform time_offset in it: it may not have converged" in unsettled["summary"]
+    # the winner's own parameter uninformed changes nothing in that sentence (its refit says how to continue it)
+    swapped = {"time-offset": {"time_offset": {"mean": 0.0, "width_ratio": 0.3, "informed": True}},
+               "grip-compliance": {"grip_timeconst": {"mean": 0.1, "width_ratio": 0.7, "informed": False}}}
+    settled = diagnose_with({"time-offset": 0.01079, "grip-compliance": 0.00800}, 0.00035, swapped)
+    assert "favour grip-compliance." in settled["summary"] and "in it: it may not have converged" not in settled["summary"]
 
 
 def test_a_refit_that_moves_toward_the_measurement_explains_it_though_its_chamfer_rises(monkeypatch, tmp_path):
