@@ -838,15 +838,17 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
             c = confirmed[chosen]
             s += _refit_sentence(c, chosen, a, out.get("min_explained", MIN_EXPLAINED))
             others = [o for n, o in confirmed.items() if n != chosen]
+            # competing refits that explain the misfit but have not pinned their added parameters may not have
+            # converged (a soft grasp's time constant at 3 x 100 against a time offset refitted with sensor draws;
+            # BENCHMARKS.md "Twenty-eighth session"): the comparison holds at this refit budget only
+            unsettled = [o["effect"] for o in others
+                         if _explains(o, out.get("min_explained", MIN_EXPLAINED)) and _uninformed(o)]
             if others:
                 if (c.get("drop") or 0) <= 0:
                     ending = "; no refit lowers the Chamfer."
                 elif out.get("indistinguishable"):
                     ending = "."  # the next sentence says the data cannot tell them apart
-                elif any(_explains(o, out.get("min_explained", MIN_EXPLAINED)) and _uninformed(o) for o in others):
-                    # a competing refit that explains the misfit but has not pinned its added parameter may not have
-                    # converged (a soft grasp's time constant at 3 x 100 against a time offset refitted with sensor
-                    # draws; BENCHMARKS.md "Twenty-eighth session"): the comparison holds at this budget only
+                elif unsettled:
                     ending = f", so the data favour {chosen} at this refit budget."
                 else:
                     ending = f", so the data favour {chosen}."
@@ -856,8 +858,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                                         if (o.get("misspecification_after") or {}).get("misspecified") else "")
                                      + (f", a refit that also explains the misfit while the data barely inform "
                                         f"{' and '.join(_uninformed(o))} in it: it may not have converged"
-                                        if _explains(o, out.get("min_explained", MIN_EXPLAINED)) and _uninformed(o)
-                                        else "")
+                                        if o["effect"] in unsettled else "")
                                      + ")" for o in others) + ending
             for t in out.get("indistinguishable") or []:
                 s += (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and their "
