@@ -696,7 +696,7 @@ def rediagnose_rows(results: Path, outs: Sequence[Path], alpha: float, workers: 
         if not old.exists():
             old.write_text((run_dir / "diagnosis.json").read_text())
         t0 = time.perf_counter()
-        d = diagnose_run(run_dir, effects=r.get("candidates") or suite_candidates(r["suite"]), n_null=b["n_null"],
+        d = diagnose_run(run_dir, effects=row_candidates(r), n_null=b["n_null"],
                          max_null=b["max_null"], workers=workers, confirm=b["confirm"],
                          confirm_budget=b.get("confirm_budget"), alpha=alpha)
         new = row_fields({k: r[k] for k in CASE_KEYS}, d)
@@ -897,12 +897,12 @@ def suite_candidates(suite: str) -> list[str]:
     return list(SUITES[suite].get("candidates", SUITES[suite]["effects"]))
 
 
-def row_candidates(r: dict[str, Any]) -> int | None:
-    """How many candidate effects a stored row's diagnosis screened: its ``candidates`` field, else (rows stored
-    before the field) its suite's default (:func:`suite_candidates`); None for a row of an unknown suite."""
+def row_candidates(r: dict[str, Any]) -> list[str] | None:
+    """The candidate effects a stored row's diagnosis screened: its ``candidates`` field, else (rows stored before
+    the field) its suite's default (:func:`suite_candidates`); None for a row of an unknown suite."""
     if r.get("candidates") is not None:
-        return len(r["candidates"])
-    return len(suite_candidates(r["suite"])) if r.get("suite") in SUITES else None
+        return list(r["candidates"])
+    return suite_candidates(r["suite"]) if r.get("suite") in SUITES else None
 
 
 def run_cases(suite: str, indices: "range | list[int]", results: Path, out: Path, seed: int = 0, rounds: int = 2,
@@ -980,7 +980,7 @@ def select_rows(rows: list[dict[str, Any]], confirm: int | None = 0,
                              and (proposal is None or r.get("proposal", "corrected") == proposal)
                              and (alpha is None or row_alpha(r) == alpha)
                              and (n_summaries is None or r.get("n_summaries", 13) == n_summaries)
-                             and (n_candidates is None or row_candidates(r) == n_candidates)])
+                             and (n_candidates is None or len(row_candidates(r) or []) == n_candidates)])
 
 
 def one_row_per_case(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -1071,8 +1071,10 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
         if r.get("floor_m"):
             return r["floor_m"], r["chamfer_nominal_m"]
         return (es["with_m"], es["nominal_m"]) if es.get("with_m") and es.get("nominal_m") else (None, None)
-    named_drops = [(r, d) for r in rows if r["correct"] and r.get("named")
-                   for e, d, *_ in r.get("refits") or [] if e == r["named"] and d is not None]
+    # the named effect's refit of each correctly named case, with its Chamfer drop
+    named_refits = [(r, x) for r in rows if r["correct"] and r.get("named")
+                    for x in r.get("refits") or [] if x[0] == r["named"] and x[1] is not None]
+    named_drops = [(r, x[1]) for r, x in named_refits]
     floors = [floor_and_nominal(r) for r, _ in named_drops]
     reducible = [(r, d * nom / (nom - fl)) for (r, d), (fl, nom) in zip(named_drops, floors)
                  if fl is not None and nom > fl]
@@ -1087,8 +1089,7 @@ def summarise(rows: list[dict[str, Any]], n_bins: int = 3) -> dict[str, Any]:
     # the fraction of the nominal's summary bias that the named refit removes (refits[i][4], diagnose's
     # bias_fall): the misfit check's test measures, in the 14 summaries per frame. A sensor effect that adds spread
     # (point noise) cannot lower a Chamfer (its optimum is the noise-free cloud), but it can remove this bias
-    falls = [(r, x[4]) for r, _ in named_drops for x in r.get("refits") or []
-             if x[0] == r["named"] and len(x) > 4 and x[4] is not None]
+    falls = [(r, x[4]) for r, x in named_refits if len(x) > 4 and x[4] is not None]
     if falls:
         out["refit_bias_fall"] = {"n": len(falls), "median": float(np.median([f for _, f in falls])),
                                   "without": len(named_drops) - len(falls)}
