@@ -33,6 +33,7 @@ from softsbi.inference.contraction import bound_sentence, widened_bounds
 from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
 from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.mimicry import MIMIC_SHARE, physics_mimicry
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import (Screening, candidate_effects, effect_kind, first_passing,  # noqa: F401
                                          is_generic, misspecification_verdict, passes_screening_rule, screening_of)
@@ -254,9 +255,13 @@ def decision_rules(out: dict[str, Any]) -> list[str]:
     for t in out.get("ties") or []:
         se = (f"standard error {t['se_m'] * 100:.2f} cm" if t.get("se_m") is not None
               else "no standard error stored with these refits")
+        m = t.get("mimicry")
+        cond = (f" and the sensor effect reproduces less than {MIMIC_SHARE * 100:.0f}% of the motion the physics "
+                f"effect adds at its refit's estimates" if m else "")
+        mim = f"; {m['sensor']} reproduces {_pct(m['share'])} of {m['physics']}'s" if m else ""
         rules.append(f"3. two refits that explain the misfit are told apart if their posterior-predictive Chamfers "
-                     f"differ by at least {TIE_Z:g} standard errors: {out.get('selected')} vs {t['effect']}, "
-                     f"{t['difference_m'] * 100:.2f} cm apart, {se} -> "
+                     f"differ by at least {TIE_Z:g} standard errors{cond}: {out.get('selected')} vs "
+                     f"{t['effect']}, {t['difference_m'] * 100:.2f} cm apart, {se}{mim} -> "
                      f"{'indistinguishable' if t['indistinguishable'] else 'told apart'}")
     lead = out.get("pair_lead")
     if lead:
@@ -496,6 +501,13 @@ def confirm_candidates(run: "RunView | str | Path", out: dict[str, Any], confirm
             # posterior-predictive Chamfers: the data cannot tell them apart (a time offset and a compliant
             # grip both make the cloth lag the gripper)
             out["ties"] = [_tie(explains[0], c) for c in explains[1:]]
+            for t, c in zip(out["ties"], explains[1:]):
+                # a sensor effect that reproduces most of a physics effect's motion cannot be told from it by the
+                # better fit, which then measures the refits' convergence (a time offset and a soft grasp)
+                mim = _mimicry(explains[0], c)
+                if mim is not None:
+                    t["mimicry"] = mim
+                    t["indistinguishable"] = bool(t["indistinguishable"] or mim["share"] >= MIMIC_SHARE)
             out["indistinguishable"] = [t for t in out["ties"] if t["indistinguishable"]]
             # the refit explains the misfit alone: the data call for no second effect, whatever the
             # linearised forward selection added
@@ -619,6 +631,56 @@ def _tie(best: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
     se = float(np.hypot(sa, sb)) if sa is not None and sb is not None else None
     return {"effect": other["effect"], "difference_m": float(d), "se_m": se,
             "indistinguishable": bool(se is not None and d < TIE_Z * se)}
+
+
+def _mimics(t: dict[str, Any]) -> bool:
+    """Whether tie ``t`` (:func:`_tie`) holds a sensor effect that reproduces at least :data:`MIMIC_SHARE` of the
+    other refit's physics effect."""
+    return bool(t.get("mimicry") and t["mimicry"]["share"] >= MIMIC_SHARE)
+
+
+def _tie_sentence(chosen: str, t: dict[str, Any]) -> str:
+    """Why the data cannot tell the selected effect ``chosen`` from tie ``t``'s: a sensor effect that reproduces the
+    physics effect's motion (:func:`_mimics`), or two posterior-predictive Chamfers within :data:`TIE_Z` standard
+    errors."""
+    if _mimics(t):
+        m = t["mimicry"]
+        est = ", ".join(f"{k} = {v:.3g}" for k, v in m["sensor_estimate"].items())
+        return (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and {m['sensor']} "
+                f"({est}) reproduces {_pct(m['share'])} of the motion {m['physics']} adds at its refit's estimates "
+                f"(it leaves {m['residual_m'] * 100:.2f} of {m['effect_m'] * 100:.2f} cm, the vertices' Chamfer over "
+                f"the fit's frames), so the better fit ({t['difference_m'] * 100:.2f} cm apart) says which refit went "
+                f"further at this budget, not which effect is there; {chosen} is listed first for its larger drop. "
+                f"Evidence from outside these clouds decides: an independent measurement of the {m['sensor']}, or a "
+                f"recording of a motion in which the two differ.")
+    return (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and their "
+            f"posterior-predictive Chamfers differ by {t['difference_m'] * 100:.2f} cm, less than "
+            f"{TIE_Z:g} standard errors of the difference ({TIE_Z:g} x {t['se_m'] * 100:.2f} cm); {chosen} is "
+            f"listed first for its larger drop.")
+
+
+def _mimicry(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any] | None:
+    """For two single-effect refits of which one adds a sensor effect and the other a physics effect: the share of
+    the physics effect's motion (at its refit's posterior mean) that the sensor effect reproduces
+    (:func:`~softsbi.workflows.mimicry.physics_mimicry`), kept on the physics refit (``mimicry``, by sensor effect) so
+    that a resumed diagnosis does not simulate it again; None for other pairs or where it cannot be measured."""
+    if "+" in a["effect"] + b["effect"] or not a.get("run") or not b.get("run"):
+        return None
+    try:
+        kinds = {c["effect"]: effect_kind(registry().effect(c["effect"])) for c in (a, b)}
+    except SoftsbiError:  # an effect no longer installed
+        return None
+    if sorted(kinds.values()) != ["physics", "sensor"]:
+        return None
+    phys, sens = (a, b) if kinds[a["effect"]] == "physics" else (b, a)
+    kept = phys.setdefault("mimicry", {})
+    if sens["effect"] not in kept:
+        try:
+            kept[sens["effect"]] = physics_mimicry(load_run(phys["run"]), phys["effect"], sens["effect"])
+        except (OSError, KeyError, SoftsbiError) as e:  # a refit folder moved or unreadable: no measure, no claim
+            warnings.warn(f"mimicry of {phys['effect']} by {sens['effect']} not measured: {e}", stacklevel=2)
+            kept[sens["effect"]] = None
+    return kept[sens["effect"]]
 
 
 def _explains(c: dict[str, Any], min_explained: float = MIN_EXPLAINED) -> bool:
@@ -861,10 +923,7 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
                                         if o["effect"] in unsettled else "")
                                      + ")" for o in others) + ending
             for t in out.get("indistinguishable") or []:
-                s += (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and their "
-                      f"posterior-predictive Chamfers differ by {t['difference_m'] * 100:.2f} cm, less than "
-                      f"{TIE_Z:g} standard errors of the difference ({TIE_Z:g} x {t['se_m'] * 100:.2f} cm); {chosen} is "
-                      f"listed first for its larger drop.")
+                s += _tie_sentence(chosen, t)
         if chosen != out["significant"][0] and not out.get("indistinguishable") \
                 and chosen not in (out.get("refit_below_share") or []):
             s += (f" (The linearised screening ranked {out['significant'][0]} first; the refits decide between "

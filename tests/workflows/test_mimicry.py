@@ -1,0 +1,65 @@
+"""The share of a physics effect's motion that a sensor effect reproduces (softsbi.workflows.mimicry)."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from softsbi.core.types import STATUS_DIVERGED, Rollout
+from softsbi.effects.sensor import TimeOffset
+from softsbi.workflows.mimicry import MIMIC_SHARE, best_sensor_match, motion_distance, physics_mimicry
+
+
+def _moving_sheet(speed: float = 0.3, frames: int = 25) -> Rollout:
+    """A 5 x 5 sheet rising at ``speed`` m/s with a slow sway, frames every 0.04 s."""
+    t = np.arange(frames) * 0.04
+    gx, gy = np.meshgrid(np.linspace(0, 0.2, 5), np.linspace(0, 0.2, 5))
+    base = np.stack([gx.ravel(), gy.ravel(), np.zeros(25)], axis=1)
+    verts = np.stack([base + [0.02 * np.sin(3 * ti), 0.0, speed * ti] for ti in t])
+    return Rollout(times=t, gripper=verts[:, 0], vertices=verts, faces=np.zeros((0, 3), int))
+
+
+def test_a_time_offset_is_recovered_from_the_motion_it_shifts():
+    src = _moving_sheet()
+    target = TimeOffset().observe(src, {"time_offset": -0.06}, np.random.default_rng(0))
+    dist, est = best_sensor_match(target, src, "time-offset")
+    assert dist < 1e-4 and est["time_offset"] == pytest.approx(-0.06, abs=2e-3)
+    # a calibration offset cannot shift the motion in time: it reproduces a part only
+    d_cal, _ = best_sensor_match(target, src, "calibration-offset")
+    assert d_cal > 10 * dist
+    assert motion_distance(target, src) > d_cal
+
+
+def _refit(effects, pm, frames=None):
+    from softsbi.scenarios.builtin import make_scenario
+    return SimpleNamespace(report={"posterior_mean": pm}, effects=list(effects),
+                           config={"backend": "mujoco-flex", "backend_options": {}}, scenario=make_scenario("lift"),
+                           fixed={}, metric_frames=frames)
+
+
+def test_a_time_offset_reproduces_most_of_a_soft_grasp_in_a_lift_and_little_of_a_wind():
+    """Measured with the simulator (BENCHMARKS.md, twenty-ninth session): a time offset stands in for a soft grasp
+    (time constant 0.22 s) in the lift, not for a wind."""
+    pm = {"bend": 2.4e-4, "stretch": 49.0, "friction": 0.68, "scale": 0.267, "mass": 0.202}
+    grip = physics_mimicry(_refit(["grip-compliance"], {**pm, "grip_timeconst": 0.22}), "grip-compliance",
+                           "time-offset")
+    assert grip["share"] > MIMIC_SHARE and -0.1 <= grip["sensor_estimate"]["time_offset"] < -0.03
+    assert grip["residual_m"] < grip["effect_m"]
+    wind = physics_mimicry(_refit(["wind"], {**pm, "wind_x": 1.5, "wind_y": 0.0}), "wind",
+                           "time-offset")
+    assert wind["share"] < MIMIC_SHARE
+
+
+def test_no_measure_without_an_estimate_the_effect_or_a_rollout():
+    pm = {"bend": 2.4e-4, "grip_timeconst": 0.2}
+    assert physics_mimicry(_refit(["grip-compliance"], {}), "grip-compliance", "time-offset") is None
+    assert physics_mimicry(_refit(["wind"], pm), "grip-compliance", "time-offset") is None
+    failed = Rollout(times=np.zeros(1), gripper=np.zeros((1, 3)), vertices=np.zeros((1, 1, 3)),
+                     faces=np.zeros((0, 3), int), status=STATUS_DIVERGED)
+    assert physics_mimicry(_refit(["grip-compliance"], pm), "grip-compliance", "time-offset",
+                           simulate=lambda theta, effects: failed) is None
+    # an effect that moves nothing at the estimate has no share to reproduce
+    still = _moving_sheet()
+    assert physics_mimicry(_refit(["grip-compliance"], pm), "grip-compliance", "time-offset",
+                           simulate=lambda theta, effects: still) is None
