@@ -1130,8 +1130,9 @@ def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str 
     (scipy), and the ``x`` where it reaches ``level`` (``m_level``; None when it does not within the
     range, or when the fit is degenerate: every case has the outcome or none; the range's lower end when the
     curve stays above ``level`` over the whole range). Then the criterion as
-    measured: of the cases with ``x >= m_level``, how many were named correctly (``above_named``) and
-    detected (``above_detected``: any verdict but nothing-missing).
+    measured: of the cases with ``x >= m_level``, how many were named correctly (``above_named``),
+    detected (``above_detected``: any verdict but nothing-missing) and, not named, listed as an
+    indistinguishable alternative of the named effect (``above_alternative``; the row's ``alternatives``).
 
     ``outcome="named"``: the curve of naming the hidden effect (the threshold above which it is named
     with probability ``level``). ``outcome="detected"``: the curve of detecting a misfit at all; the
@@ -1151,6 +1152,9 @@ def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str 
         lo, hi = 0.0, 1.0
     named = np.array([bool(r["correct"]) for r in rows], float)
     detected = np.array([r.get("verdict", "nothing-missing") != "nothing-missing" for r in rows], float)
+    # not named, but listed as indistinguishable from the named effect (diagnose: the data cannot tell them apart)
+    alternative = np.array([not r["correct"] and r.get("truth_label") in (r.get("alternatives") or [])
+                            for r in rows], float)
     if outcome not in ("named", "detected"):
         raise ValueError(f"outcome {outcome!r}: use 'named' or 'detected'")
     y = named if outcome == "named" else detected
@@ -1174,7 +1178,8 @@ def detection_threshold(rows: list[dict[str, Any]], level: float = 0.9, by: str 
     if m_lv is not None and m_lv <= hi:
         above = m >= m_lv
         out.update(m_level=float(10 ** m_lv if by == "size" else m_lv), above=int(above.sum()),
-                   above_named=int(named[above].sum()), above_detected=int(detected[above].sum()))
+                   above_named=int(named[above].sum()), above_detected=int(detected[above].sum()),
+                   above_alternative=int(alternative[above].sum()))
     return out
 
 
@@ -1214,8 +1219,10 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
                    "| named correctly above it |")
         out.append("|---|---|---|---|---|---|")
         for eff, t in td.items():
+            alt = (f" (+{t['above_alternative']} listed as an indistinguishable alternative)"
+                   if t.get("above_alternative") else "")
             lv = (f"{t['m_level']:.2f}", f"{t['above_detected']} of {t['above']}",
-                  f"{t['above_named']} of {t['above']}") if t.get("m_level") is not None \
+                  f"{t['above_named']} of {t['above']}{alt}") if t.get("m_level") is not None \
                 else ("not reached in (0, 1]", "-", "-")
             out.append(f"| {eff} | {t['n']} | {t['detected']} | {lv[0]} | {lv[1]} | {lv[2]} |")
     tds = summary.get("thresholds_detected_by_scenario") or {}

@@ -91,6 +91,11 @@ def test_the_criterion_above_the_detection_threshold_counts_naming_where_the_mis
     assert 0.4 < d["m_level"] < 0.7 and d["above"] == d["above_detected"] >= 5  # every case above it detected
     assert d["above_named"] <= d["above"] - 2  # ... but half of them named: the criterion fails
     assert bench.detection_threshold(rows)["m_level"] is None  # named in half: the naming curve stays below 90%
+    # a hidden effect listed as indistinguishable from the (wrong) named one is counted apart, not as named
+    rows[7].update(truth_label="grip-compliance", alternatives=["grip-compliance"])
+    rows[9].update(truth_label="grip-compliance", alternatives=["wind"])
+    d = bench.detection_threshold(rows, outcome="detected")
+    assert d["above_alternative"] == 1 and d["above_named"] <= d["above"] - 2
     every = [{"magnitude": float(m), "verdict": "missing-effect", "correct": True} for m in np.linspace(0.1, 1, 20)]
     every.append({"magnitude": 0.55, "verdict": "nothing-missing", "correct": False})  # 20 of 21 detected
     e = bench.detection_threshold(every, outcome="detected")
