@@ -76,7 +76,8 @@ def best_sensor_match(target: Rollout, source: Rollout, sensor: str,
 
 
 def physics_mimicry(refit: RunView, physics: str, sensor: str,
-                    simulate: Callable[..., Rollout] | None = None) -> dict[str, Any] | None:
+                    simulate: Callable[..., Rollout] | None = None,
+                    estimate: dict[str, float] | None = None) -> dict[str, Any] | None:
     """How much of the motion the physics effect ``physics`` adds, at the posterior mean of a refit that includes
     it, the sensor effect ``sensor`` reproduces (:data:`MIMIC_SHARE` decides "indistinguishable").
 
@@ -86,20 +87,28 @@ def physics_mimicry(refit: RunView, physics: str, sensor: str,
     ``sensor`` transform of the rollout without it (:func:`best_sensor_match`).
 
     Args:
-        refit: a finished refit whose effects include ``physics``.
-        physics, sensor: effect names (a physics effect in ``refit.effects``; a sensor effect).
-        simulate: ``simulate(theta: dict, effects: list[str]) -> Rollout`` (tests); default: the refit's simulator.
+        refit: a finished fit; without ``estimate`` a refit whose effects include ``physics``.
+        physics, sensor: effect names (a physics effect; a sensor effect).
+        simulate: ``simulate(theta: dict, effects: list[str]) -> Rollout`` (tests); default: the fit's simulator.
+        estimate: ``physics``'s parameters (physical units) for a fit without it, e.g. the nominal fit and the
+            screening's linearised estimate: the rollouts are then at the fit's posterior mean with ``physics``
+            added at ``estimate``.
 
     Returns:
         ``{"physics", "sensor", "effect_m", "residual_m", "share", "sensor_estimate"}`` (``share = 1 -
-        residual / effect``, m and the sensor parameters' units), or None when the refit has no posterior mean,
-        ``physics`` is not among its effects, a rollout fails, or the effect moves nothing at the estimate.
+        residual / effect``, m and the sensor parameters' units), or None when the fit has no posterior mean,
+        ``physics`` is neither among its effects nor given an ``estimate``, a rollout fails, or the effect moves
+        nothing at the estimate.
     """
-    pm = refit.report.get("posterior_mean")
-    if not pm or physics not in refit.effects:
+    pm = dict(refit.report.get("posterior_mean") or {})
+    effects = list(refit.effects)
+    if estimate is not None and physics not in effects:
+        pm = {**pm, **estimate} if pm else {}
+        effects.append(physics)
+    if not pm or physics not in effects:
         return None
     reg = registry()
-    phys = [e for e in refit.effects if getattr(reg.effect(e), "kind", "physics") != "sensor"]
+    phys = [e for e in effects if getattr(reg.effect(e), "kind", "physics") != "sensor"]
     c = refit.config
     if simulate is None:
         sim = reg.simulator(c["backend"])(**dict(c.get("backend_options") or {}))

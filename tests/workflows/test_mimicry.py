@@ -46,6 +46,9 @@ def test_a_time_offset_reproduces_most_of_a_soft_grasp_in_a_lift_and_little_of_a
                            "time-offset")
     assert grip["share"] > MIMIC_SHARE and -0.1 <= grip["sensor_estimate"]["time_offset"] < -0.03
     assert grip["residual_m"] < grip["effect_m"]
+    # the nominal fit (no grip) with the screening's estimate of the grip: the same two rollouts, the same share
+    nominal = physics_mimicry(_refit([], pm), "grip-compliance", "time-offset", estimate={"grip_timeconst": 0.22})
+    assert nominal["share"] == pytest.approx(grip["share"])
     wind = physics_mimicry(_refit(["wind"], {**pm, "wind_x": 1.5, "wind_y": 0.0}), "wind",
                            "time-offset")
     assert wind["share"] < MIMIC_SHARE
@@ -55,6 +58,7 @@ def test_no_measure_without_an_estimate_the_effect_or_a_rollout():
     pm = {"bend": 2.4e-4, "grip_timeconst": 0.2}
     assert physics_mimicry(_refit(["grip-compliance"], {}), "grip-compliance", "time-offset") is None
     assert physics_mimicry(_refit(["wind"], pm), "grip-compliance", "time-offset") is None
+    assert physics_mimicry(_refit([], {}), "grip-compliance", "time-offset", estimate={"grip_timeconst": 0.2}) is None
     failed = Rollout(times=np.zeros(1), gripper=np.zeros((1, 3)), vertices=np.zeros((1, 1, 3)),
                      faces=np.zeros((0, 3), int), status=STATUS_DIVERGED)
     assert physics_mimicry(_refit(["grip-compliance"], pm), "grip-compliance", "time-offset",
