@@ -603,9 +603,9 @@ def mimicked_by_sensor(view: RunView, out: dict[str, Any], named: Sequence[dict[
 
     Why: a time offset reproduces most of what a soft grasp does to a lifted cloth, and its refit, trained with
     sensor draws, explains the misfit at a budget where the soft grasp's does not converge. A hidden soft grasp in the
-    wind scenario ranked second with 9.6% of the residual (adjusted p 0.02, below rule 2's share) behind a time offset
-    (49%), whose refit alone was made and named (BENCHMARKS.md, twenty-ninth session): the soft grasp must be refitted
-    for the diagnosis to say that the data cannot tell the two apart."""
+    rope winding (scenario "wind") ranked second with 9.6% of the residual (adjusted p 0.02, below rule 2's share)
+    behind a time offset (49%), whose refit alone was made and named (BENCHMARKS.md, twenty-ninth session): the soft
+    grasp must be refitted for the diagnosis to say that the data cannot tell the two apart."""
     if not confirm:
         return []
     sensors = [c for c in named if c.get("adds_sensor_effect") and _explains(c, min_explained)]

@@ -374,7 +374,7 @@ def test_a_sensor_effect_that_reproduces_the_physics_effect_is_not_told_apart_by
 
 def test_a_significant_physics_candidate_a_named_sensor_effect_stands_in_for_is_refitted_too(monkeypatch, tmp_path):
     """Only the time offset passed rule 2 and its refit explains the misfit; the soft grasp is significant but below
-    the share (measured: a hidden soft grasp in the wind scenario, 9.6% of the residual, adjusted p 0.02). When the
+    the share (measured: a hidden soft grasp in the rope winding, 9.6% of the residual, adjusted p 0.02). When the
     time offset reproduces at least half of the soft grasp's motion at the nominal fit's estimates, the soft grasp is
     refitted too (within --confirm) and the two are listed as indistinguishable; when it reproduces little, or
     --confirm leaves no room, it is not."""
