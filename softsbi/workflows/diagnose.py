@@ -705,7 +705,11 @@ def _tie_sentence(chosen: str, t: dict[str, Any]) -> str:
     errors."""
     if _mimics(t):
         m = t["mimicry"]
-        est = ", ".join(f"{k} = {v:.3g}" for k, v in m["sensor_estimate"].items())
+        try:
+            units = {p.name: p.unit for p in registry().effect(m["sensor"])().param_space()}
+        except SoftsbiError:  # no longer installed
+            units = {}
+        est = ", ".join(f"{k} = {v:.3g}{unit_suffix(units.get(k))}" for k, v in m["sensor_estimate"].items())
         return (f" The data cannot tell {chosen} from {t['effect']}: both refits explain the misfit, and {m['sensor']} "
                 f"({est}) reproduces {_pct(m['share'])} of the motion {m['physics']} adds at its refit's estimates "
                 f"(it leaves {m['residual_m'] * 100:.2f} of {m['effect_m'] * 100:.2f} cm, the vertices' Chamfer over "
@@ -946,7 +950,9 @@ def _diagnosis_sentence(out: dict[str, Any]) -> str:
         chosen = out.get("selected") or out["significant"][0]
         t = by_name[chosen]
         est = ", ".join(f"{k} ~ {v:.3g}" for k, v in t["estimate"].items())
-        s = (f"Missing {t['kind']} effect: {chosen} ({t['description']}). {head}; {chosen} explains "
+        alt = "".join(f", or {o['effect']} ({(by_name.get(o['effect']) or {}).get('kind', 'physics')} effect): the "
+                      f"data cannot tell the two apart (below)" for o in out.get("indistinguishable") or [])
+        s = (f"Missing {t['kind']} effect: {chosen} ({t['description']}){alt}. {head}; {chosen} explains "
              f"{_pct(t['explained_fraction'])} of the residual (max-T adjusted {t['adjusted_p_text']}; linearised "
              f"estimate {est}).")
         if out.get("refit_decides") == chosen or chosen in (out.get("refit_below_share") or []):

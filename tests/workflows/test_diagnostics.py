@@ -354,6 +354,9 @@ def test_a_sensor_effect_that_reproduces_the_physics_effect_is_not_told_apart_by
     assert calls == [("grip-compliance", "time-offset")]
     assert "cannot tell time-offset from grip-compliance" in mimicked["summary"]
     assert "reproduces 90% of the motion grip-compliance adds" in mimicked["summary"]
+    assert mimicked["summary"].startswith("Missing sensor effect: time-offset (") and \
+        "), or grip-compliance (physics effect): the data cannot tell the two apart (below)." in mimicked["summary"]
+    assert "time_offset = -0.032 s" in mimicked["summary"]
     assert "favour" not in mimicked["summary"]
     assert any("time-offset reproduces 90% of grip-compliance's -> indistinguishable" in r for r in mimicked["rules"])
     # kept on the physics refit: deciding again from the stored refits does not measure it again
