@@ -44,6 +44,8 @@ def case_mimicry(suite: str, index: int, sensors: tuple[str, ...] = SENSORS, see
 
 
 def table(path: Path) -> str:
+    """The Markdown table of a results file written by ``--out`` (one row per case; shares at or above
+    :data:`~softsbi.workflows.mimicry.MIMIC_SHARE` in bold; estimates in the sensor parameters' units)."""
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     sensors = sorted({s for r in rows for s in r["sensors"]})
     out = ["| case | hidden effect | scenario, magnitude | its motion [cm] | "
@@ -62,6 +64,7 @@ def table(path: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Command line: measure ``--cases`` of ``--suite`` (appending to ``--out``), or print ``--table``."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--suite", default="mujoco")
     ap.add_argument("--cases", default="", help="comma-separated case indices of --suite (hidden physics effects)")
