@@ -626,7 +626,8 @@ def mimicked_by_sensor(view: RunView, out: dict[str, Any], named: Sequence[dict[
         if key not in kept:
             try:
                 kept[key] = physics_mimicry(view, r["effect"], lead, estimate=dict(r.get("estimate") or {}))
-            except (OSError, KeyError, SoftsbiError) as e:
+            except Exception as e:  # noqa: BLE001  a side measure (a third-party effect's transform may raise
+                # anything): no measure, no claim, and the diagnosis goes on
                 warnings.warn(f"mimicry of {r['effect']} by {lead} not measured: {e}", stacklevel=2)
                 kept[key] = None
         if kept[key] is not None and kept[key]["share"] >= MIMIC_SHARE:
@@ -741,7 +742,8 @@ def _mimicry(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any] | None:
     if sens["effect"] not in kept:
         try:
             kept[sens["effect"]] = physics_mimicry(load_run(phys["run"]), phys["effect"], sens["effect"])
-        except (OSError, KeyError, SoftsbiError) as e:  # a refit folder moved or unreadable: no measure, no claim
+        except Exception as e:  # noqa: BLE001  a refit folder moved, a third-party transform that raises: no measure,
+            # no claim, and the diagnosis goes on
             warnings.warn(f"mimicry of {phys['effect']} by {sens['effect']} not measured: {e}", stacklevel=2)
             kept[sens["effect"]] = None
     return kept[sens["effect"]]

@@ -369,6 +369,16 @@ def test_a_sensor_effect_that_reproduces_the_physics_effect_is_not_told_apart_by
     apart = diagnose_with(0.2)
     assert apart["indistinguishable"] == [] and "favour time-offset" in apart["summary"]
     assert any("reproduces 20% of grip-compliance's -> told apart" in r for r in apart["rules"])
+    # a measure that fails (a third-party transform that raises): a warning, no claim, the diagnosis goes on
+    def broken(refit, physics, sensor):
+        raise ValueError("transform failed")
+    out = {"ranking": mimicked["ranking"], "significant": ["time-offset"], "alpha": 0.01, "min_explained": 0.1,
+           "confirmed": [], "verdict": "missing-effect",
+           "misspecification": {"p_text": "p <= 2/201", "misspecified": True}}
+    monkeypatch.setattr(dg, "physics_mimicry", broken)
+    with pytest.warns(UserWarning, match="mimicry of grip-compliance by time-offset not measured: transform failed"):
+        failed = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
+    assert failed["selected"] == "time-offset" and failed["indistinguishable"] == [] and "favour" in failed["summary"]
     # two physics effects: no mimicry measured
     calls.clear()
     physics = diagnose_with(0.9, ("air-drag", "extra-damping"))
