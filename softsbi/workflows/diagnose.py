@@ -729,15 +729,11 @@ def _mimicry(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any] | None:
     the physics effect's motion (at its refit's posterior mean) that the sensor effect reproduces
     (:func:`~softsbi.workflows.mimicry.physics_mimicry`), kept on the physics refit (``mimicry``, by sensor effect) so
     that a resumed diagnosis does not simulate it again; None for other pairs or where it cannot be measured."""
-    if "+" in a["effect"] + b["effect"] or not a.get("run") or not b.get("run"):
+    # adds_sensor_effect: set on every refit by confirm_candidates from the screening's kinds
+    if "+" in a["effect"] + b["effect"] or not a.get("run") or not b.get("run") \
+            or bool(a.get("adds_sensor_effect")) == bool(b.get("adds_sensor_effect")):
         return None
-    try:
-        kinds = {c["effect"]: effect_kind(registry().effect(c["effect"])) for c in (a, b)}
-    except SoftsbiError:  # an effect no longer installed
-        return None
-    if sorted(kinds.values()) != ["physics", "sensor"]:
-        return None
-    phys, sens = (a, b) if kinds[a["effect"]] == "physics" else (b, a)
+    phys, sens = (b, a) if a.get("adds_sensor_effect") else (a, b)
     kept = phys.setdefault("mimicry", {})
     if sens["effect"] not in kept:
         try:

@@ -21,10 +21,11 @@ from typing import Any, Callable
 import numpy as np
 from scipy.optimize import minimize
 
-from softsbi.core.metrics import chamfer
+from softsbi.core.metrics import chamfer_per_frame
 from softsbi.core.types import STATUS_OK, Rollout
 from softsbi.plugins import registry
 from softsbi.workflows.runs import RunView
+from softsbi.workflows.screening import effect_kind
 
 #: a sensor effect that reproduces at least this share of the motion a physics effect adds (at the physics
 #: refit's posterior mean) cannot be told from it by a better refit. Chosen between the groups of a first set of
@@ -44,8 +45,8 @@ GRID = 21
 def motion_distance(a: Rollout, b: Rollout, frames: list[int] | None = None) -> float:
     """Mean over ``frames`` (all when None) of the per-frame Chamfer distance (m) between two rollouts' vertices
     ``(T, N, 3)``: how far apart two motions of the same mesh are, without point sampling."""
-    idx = range(len(a.vertices)) if frames is None else frames
-    return float(np.mean([chamfer(a.vertices[t], b.vertices[t]) for t in idx]))
+    idx = slice(None) if frames is None else list(frames)
+    return float(np.mean(chamfer_per_frame(a.vertices[idx], b.vertices[idx])))
 
 
 def best_sensor_match(target: Rollout, source: Rollout, sensor: str,
@@ -70,10 +71,11 @@ def best_sensor_match(target: Rollout, source: Rollout, sensor: str,
     d = len(names)
     starts = ([np.array([g]) for g in np.linspace(0.0, 1.0, GRID)] if d == 1 else
               [np.full(d, 0.5)] + [np.clip(0.5 + 0.4 * s * np.eye(d)[i], 0.0, 1.0) for i in range(d) for s in (-1, 1)])
-    best_u = min(starts, key=dist)
-    res = minimize(dist, best_u, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-7, "maxiter": 100 * d})
-    u = np.clip(res.x, 0.0, 1.0) if dist(res.x) <= dist(best_u) else best_u
-    return dist(u), at(u)
+    values = [dist(u) for u in starts]
+    k = int(np.argmin(values))
+    res = minimize(dist, starts[k], method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-7, "maxiter": 100 * d})
+    u, best = (np.clip(res.x, 0.0, 1.0), float(res.fun)) if res.fun <= values[k] else (starts[k], values[k])
+    return best, at(u)
 
 
 def physics_mimicry(refit: RunView, physics: str, sensor: str,
@@ -109,7 +111,7 @@ def physics_mimicry(refit: RunView, physics: str, sensor: str,
     if not pm or physics not in effects:
         return None
     reg = registry()
-    phys = [e for e in effects if getattr(reg.effect(e), "kind", "physics") != "sensor"]
+    phys = [e for e in effects if effect_kind(reg.effect(e)) != "sensor"]
     c = refit.config
     if simulate is None:
         sim = reg.simulator(c["backend"])(**dict(c.get("backend_options") or {}))
@@ -119,7 +121,7 @@ def physics_mimicry(refit: RunView, physics: str, sensor: str,
             for e in effects:
                 space = space + reg.effect(e)().param_space()
             values = space.midpoint()
-            values.update({k: v for k, v in {**refit.fixed, **pm}.items() if k in space.names})
+            values.update({k: v for k, v in {**refit.fixed, **theta}.items() if k in space.names})
             return sim.simulate(refit.scenario, space.check(values, within="limits"), effects=effects, seed=0)
 
     on = simulate(dict(pm), phys)
