@@ -320,7 +320,8 @@ def test_a_sensor_effect_that_reproduces_the_physics_effect_is_not_told_apart_by
     Chamfers differ by many standard errors: told apart only if the time offset reproduces less than half of the
     motion the soft grasp adds at its refit's estimates (measured: 64-90% in lifts, where the time-offset refit,
     trained with sensor draws, out-fitted the right grip refit). The measure is kept on the physics refit, so a
-    resumed diagnosis does not simulate it again; pairs of two physics effects are not measured."""
+    resumed diagnosis does not simulate it again. Pairs of two physics effects (refitted on an equal footing, where
+    the better fit is evidence: measured, thirtieth session) or two sensor effects are not measured."""
     from softsbi.workflows import diagnose as dg
 
     def rank(name, kind):
@@ -331,10 +332,12 @@ def test_a_sensor_effect_that_reproduces_the_physics_effect_is_not_told_apart_by
     calls = []
 
     def diagnose_with(share, names=("time-offset", "grip-compliance")):
-        def mimicry(refit, physics, sensor):
-            calls.append((physics, sensor))
-            return {"physics": physics, "sensor": sensor, "effect_m": 0.0046, "residual_m": 0.0046 * (1 - share),
-                    "share": share, "sensor_estimate": {"time_offset": -0.032}}
+        def mimicry(refit, physics, standin):
+            calls.append((physics, standin))
+            kind = dg.effect_kind(dg.registry().effect(standin))
+            return {"physics": physics, "standin": standin, "standin_kind": kind, "effect_m": 0.0046,
+                    "residual_m": 0.0046 * (1 - share), "share": share,
+                    "standin_estimate": {"time_offset": -0.032} if kind == "sensor" else {"damping_rate": 2.5}}
         monkeypatch.setattr(dg, "physics_mimicry", mimicry)
         monkeypatch.setattr(dg, "load_run", lambda path: path)
         out = {"ranking": [rank(n, dg.effect_kind(dg.registry().effect(n))) for n in names],
@@ -379,10 +382,12 @@ def test_a_sensor_effect_that_reproduces_the_physics_effect_is_not_told_apart_by
     with pytest.warns(UserWarning, match="mimicry of grip-compliance by time-offset not measured: transform failed"):
         failed = dg.confirm_candidates(dg.RunView.__new__(dg.RunView), out, 2)
     assert failed["selected"] == "time-offset" and failed["indistinguishable"] == [] and "favour" in failed["summary"]
-    # two physics effects: no mimicry measured
-    calls.clear()
-    physics = diagnose_with(0.9, ("air-drag", "extra-damping"))
-    assert calls == [] and physics["indistinguishable"] == [] and "mimicry" not in physics["ties"][0]
+    # two physics effects (refits on an equal footing: the better fit is evidence) or two sensor effects: no measure
+    for pair in (("air-drag", "extra-damping"), ("time-offset", "calibration-offset")):
+        calls.clear()
+        other = diagnose_with(0.9, pair)
+        assert calls == [] and other["indistinguishable"] == [] and "mimicry" not in other["ties"][0]
+        assert f"favour {pair[0]}" in other["summary"]
 
 
 def test_a_significant_physics_candidate_a_named_sensor_effect_stands_in_for_is_refitted_too(monkeypatch, tmp_path):

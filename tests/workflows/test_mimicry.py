@@ -1,4 +1,4 @@
-"""The share of a physics effect's motion that a sensor effect reproduces (softsbi.workflows.mimicry)."""
+"""The share of a physics effect's motion that another effect reproduces (softsbi.workflows.mimicry)."""
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -8,7 +8,15 @@ import pytest
 
 from softsbi.core.types import STATUS_DIVERGED, Rollout
 from softsbi.effects.sensor import TimeOffset
-from softsbi.workflows.mimicry import MIMIC_SHARE, best_sensor_match, motion_distance, physics_mimicry
+from softsbi.workflows.mimicry import (
+    MIMIC_SHARE,
+    PHYSICS_EVALS,
+    best_physics_match,
+    best_sensor_match,
+    motion_distance,
+    physics_mimicry,
+    standin_of,
+)
 
 
 def _moving_sheet(speed: float = 0.3, frames: int = 25) -> Rollout:
@@ -44,7 +52,8 @@ def test_a_time_offset_reproduces_most_of_a_soft_grasp_in_a_lift_and_little_of_a
     pm = {"bend": 2.4e-4, "stretch": 49.0, "friction": 0.68, "scale": 0.267, "mass": 0.202}
     grip = physics_mimicry(_refit(["grip-compliance"], {**pm, "grip_timeconst": 0.22}), "grip-compliance",
                            "time-offset")
-    assert grip["share"] > MIMIC_SHARE and -0.1 <= grip["sensor_estimate"]["time_offset"] < -0.03
+    assert grip["share"] > MIMIC_SHARE and -0.1 <= grip["standin_estimate"]["time_offset"] < -0.03
+    assert grip["standin"] == "time-offset" and grip["standin_kind"] == "sensor"
     assert grip["residual_m"] < grip["effect_m"]
     # the nominal fit (no grip) with the screening's estimate of the grip: the same two rollouts, the same share
     nominal = physics_mimicry(_refit([], pm), "grip-compliance", "time-offset", estimate={"grip_timeconst": 0.22})
@@ -52,6 +61,45 @@ def test_a_time_offset_reproduces_most_of_a_soft_grasp_in_a_lift_and_little_of_a
     wind = physics_mimicry(_refit(["wind"], {**pm, "wind_x": 1.5, "wind_y": 0.0}), "wind",
                            "time-offset")
     assert wind["share"] < MIMIC_SHARE
+
+
+def test_a_physics_stand_in_is_fitted_by_simulation_within_its_budget():
+    """best_physics_match simulates the stand-in at each evaluation: a motion made by the stand-in itself is found
+    again (to the search's tolerance), within PHYSICS_EVALS simulations per parameter; a stand-in whose every
+    simulation fails gives no match."""
+    src = _moving_sheet()
+    calls = []
+
+    def make(p):  # a "physics effect" whose parameter lifts the sheet by wind_x / 100 m
+        calls.append(p)
+        v = src.vertices + [0.0, 0.0, p["wind_x"] / 100.0]
+        return Rollout(times=src.times, gripper=v[:, 0], vertices=v, faces=src.faces)
+
+    target = make({"wind_x": 1.2, "wind_y": 0.0})
+    calls.clear()
+    dist, est = best_physics_match(target, make, "wind")
+    assert dist < 2e-4 and est["wind_x"] == pytest.approx(1.2, abs=0.03)
+    assert len(calls) <= 2 * PHYSICS_EVALS + 2  # wind has two parameters
+    failed = Rollout(times=np.zeros(1), gripper=np.zeros((1, 3)), vertices=np.zeros((1, 1, 3)),
+                     faces=np.zeros((0, 3), int), status=STATUS_DIVERGED)
+    assert best_physics_match(target, lambda p: failed, "wind")[0] == float("inf")
+
+
+def test_extra_damping_stands_in_for_air_drag_in_a_lift_but_a_soft_grasp_does_not():
+    """With the simulator: air drag at 4 kg/m3 in the lift, reproduced by extra damping (both slow the cloth in
+    proportion to its speed) and not by a soft grasp. The result names its stand-in; an older stored result (keys
+    ``sensor``) still reads."""
+    pm = {"bend": 2.4e-4, "stretch": 49.0, "friction": 0.68, "scale": 0.267, "mass": 0.202, "air_density": 4.0}
+    damp = physics_mimicry(_refit(["air-drag"], pm), "air-drag", "extra-damping")
+    assert damp["standin_kind"] == "physics" and damp["share"] > MIMIC_SHARE
+    assert damp["standin_estimate"]["damping_rate"] > 0
+    grip = physics_mimicry(_refit(["air-drag"], pm), "air-drag", "grip-compliance")
+    assert grip["share"] < MIMIC_SHARE
+    # the stand-in already in the fit: nothing to compare
+    assert physics_mimicry(_refit(["air-drag", "extra-damping"], {**pm, "damping_rate": 1.0}), "air-drag",
+                           "extra-damping") is None
+    assert standin_of({"sensor": "time-offset", "sensor_estimate": {"time_offset": -0.03}}) == (
+        "time-offset", {"time_offset": -0.03})
 
 
 def test_no_measure_without_an_estimate_the_effect_or_a_rollout():
