@@ -771,7 +771,7 @@ def truth_energy(run_dir: Path, case: dict[str, Any], n: int = 30) -> dict[str, 
     items = [(dict(case["truth"]), 5000 + k, list(run.effects) + hidden_effects(case)) for k in range(n)]
     res = run_jobs(run.sim_context(keep_rollout=True), items, 1)
     rollouts = [dict(r, sample=k) for k, r in enumerate(res) if r and r.get("vertices") is not None]
-    return energy_score(SimpleNamespace(run=run, rollouts=rollouts), n)
+    return energy_score(SimpleNamespace(run=run, rollouts=rollouts, energy_scores={}), n)
 
 
 def add_truth_energies(results: Path, outs: Sequence[Path]) -> int:

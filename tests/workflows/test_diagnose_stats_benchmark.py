@@ -270,7 +270,8 @@ def test_merge_replaces_a_case_run_again_keeps_its_data_fields_and_appends_new_o
 
 def test_refit_rows_keep_the_posterior_mean_rollout_drop_and_the_backfill_recomputes_it(tmp_path):
     """A refitted case stores its named refit's posterior-mean rollout drop (diagnose computes it); ``pm-rollout``
-    (:func:`add_pm_drops`) recomputes the same number from the runs on disk for rows stored without it."""
+    (:func:`add_pm_drops`) recomputes the same number from the runs on disk for rows stored without it, and
+    ``truth-energy`` (:func:`add_truth_energies`) adds the three energy scores."""
     results = tmp_path / "r.jsonl"
     rows = bench.run_cases("toy", [1], results, tmp_path / "runs", seed=3, rounds=2, sims=120, n_null=30,
                            max_null=100, confirm=1, workers=1)
@@ -286,6 +287,15 @@ def test_refit_rows_keep_the_posterior_mean_rollout_drop_and_the_backfill_recomp
     again = next(x for x in bench.load_rows(results)[0]["refits"] if x[0] == rows[0]["named"])
     assert again[7] == pytest.approx(refit[7], abs=1e-9)  # the same seeds and runs
     assert bench.add_pm_drops(results, [tmp_path / "runs"]) == 0  # stored: not measured again
+    # `truth-energy`: the nominal fit's, the named refit's and the truth's own energy scores (a proper score: the
+    # distribution the measurement came from scores lowest), and the summary's share the refit removes
+    assert bench.add_truth_energies(results, [tmp_path / "elsewhere", tmp_path / "runs"]) == 1
+    assert bench.add_truth_energies(results, [tmp_path / "runs"]) == 0  # stored: not measured again
+    e = bench.load_rows(results)[0]["energy_m"]
+    assert 0 < e["truth"] < e["refit"] < e["nominal"] and e["truth_se"] > 0
+    et = bench.summarise(bench.load_rows(results))["energy_truth"]
+    assert et["n"] == 1 and et["median_drop_of_reducible"] == pytest.approx(
+        (e["nominal"] - e["refit"]) / (e["nominal"] - e["truth"]))
 
 
 def test_a_stored_row_is_rediagnosed_at_a_new_level_only_when_one_of_its_decisions_lay_between_the_levels():
