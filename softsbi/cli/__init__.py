@@ -250,6 +250,9 @@ def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
              render_memory_gb: Optional[float] = typer.Option(None, help="cap on the rendered frames' estimated "
                                                                          "memory, GB (default 4); larger renders "
                                                                          "are refused before simulating"),
+             overwrite: bool = typer.Option(False, "--overwrite", help="replace what --out holds (an earlier "
+                                                                       "simulation); without it a non-empty --out "
+                                                                       "is refused"),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Roll a scenario out at given parameters; write Zarr and a PNG preview (and rendered frames)."""
     from softsbi.workflows.simulate import RENDER_MEMORY_GB, simulate_to_folder
@@ -258,7 +261,8 @@ def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
     doc = simulate_to_folder(out, backend=backend, scenario=scenario, recording=recording,
                              theta=_parse_kv(theta, "--theta"), effects=[e for it in effect or [] for e in it.split(",") if e],
                              backend_options=_parse_kv(backend_opt, "--backend-opt"), render=render,
-                             render_memory_gb=RENDER_MEMORY_GB if render_memory_gb is None else render_memory_gb)
+                             render_memory_gb=RENDER_MEMORY_GB if render_memory_gb is None else render_memory_gb,
+                             overwrite=overwrite)
     if as_json:
         o.emit_json(doc)
         return
@@ -470,7 +474,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
     from softsbi.workflows.check import check_run
     o = Output(as_json)
     with o.status("simulating at posterior samples ..."):
-        out = check_run(run, n_samples=n_eval, workers=workers, alpha=alpha, max_null=max_null)
+        out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null)
     if as_json:
         o.emit_json(out)
         return
@@ -624,7 +628,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     from softsbi.workflows.compare import compare_runs
     o = Output(as_json)
     with o.status("checking both runs ..."):
-        res = compare_runs(run_a, run_b, out or run_b, n_samples=n_eval, workers=workers)
+        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers)
     if as_json:
         o.emit_json(res)
         return
@@ -649,7 +653,7 @@ def view(run: Path = typer.Argument(..., help="run directory of a finished point
     from softsbi.workflows.view import write_view
     o = Output(as_json)
     with o.status(f"simulating {n_eval} posterior rollouts ..."):
-        res = write_view(run, n_samples=n_eval, workers=workers, gif=gif, rrd=rrd)
+        res = write_view(run, n_eval=n_eval, workers=workers, gif=gif, rrd=rrd)
     if as_json:
         o.emit_json(res)
         return

@@ -7,6 +7,7 @@ the problem and the fix.
 from __future__ import annotations
 
 import difflib
+import re
 from typing import Iterable
 
 
@@ -89,11 +90,15 @@ class StorageError(SoftsbiError, OSError):
 
 #: errno values that mean "the storage refused the write" (not a bug): what each needs from the user
 STORAGE_ERRNOS = {28: "no space left on the device", 122: "disk quota exceeded",
+                  27: "file too large (over the file system's or the process's file-size limit)",
                   30: "the file system is read-only", 13: "permission denied", 1: "operation not permitted"}
+#: numpy's short write (``ndarray.tofile`` inside ``numpy.save``) carries no errno: the disk filled up mid-file
+_SHORT_WRITE = re.compile(r"^\d+ requested and \d+ written$")
 
 
 def storage_error(exc: BaseException, where: object = None, resumable: bool = False) -> StorageError | None:
-    """One clear line for an ``OSError`` the storage raised (ENOSPC, EDQUOT, EROFS, EACCES, EPERM).
+    """One clear line for an ``OSError`` the storage raised (ENOSPC, EDQUOT, EFBIG, EROFS, EACCES, EPERM, and
+    numpy's short write, which has no errno and is read as ENOSPC).
 
     Args:
         exc: the exception caught.
@@ -103,18 +108,23 @@ def storage_error(exc: BaseException, where: object = None, resumable: bool = Fa
     Returns:
         a :class:`StorageError` to raise instead, or None when ``exc`` is not such an error.
     """
-    if not isinstance(exc, OSError) or isinstance(exc, SoftsbiError) or exc.errno not in STORAGE_ERRNOS:
+    if not isinstance(exc, OSError) or isinstance(exc, SoftsbiError):
         return None
-    what = STORAGE_ERRNOS[exc.errno]
+    errno = exc.errno
+    if errno is None and _SHORT_WRITE.match(str(exc)):
+        errno = 28
+    if errno not in STORAGE_ERRNOS:
+        return None
+    what = STORAGE_ERRNOS[errno]
     target = where if where is not None else exc.filename
     named = f" writing '{target}'" if target is not None else ""
-    if exc.errno in (28, 122):
+    if errno in (28, 122, 27):
         fix = "free space (or choose --out on another disk), then re-run the same command"
     else:
         fix = "choose a writable --out (or copy the run directory to one and point --out at the copy)"
     if resumable:
         fix += "; finished simulations are kept and the run resumes"
-    return StorageError(exc.errno, f"{what}{named}; {fix}")
+    return StorageError(errno, f"{what}{named}; {fix}")
 
 
 def yaml_error_parts(exc: BaseException) -> tuple[str, str]:

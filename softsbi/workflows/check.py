@@ -35,11 +35,16 @@ from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
+from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, misspecification_verdict
 from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL,  # noqa: F401 (re-exported)
                                      PosteriorPredictive, cloud_features, energy_score, misspecification_test,
                                      sampled_points, trajectory_features)
+
+#: posterior rollouts the check needs at least (its error maps and the first stage of its test's null)
+MIN_ROLLOUTS = 5
+
 
 def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Deterministic surface points ``(T, N + F, 3)``: vertices and face centroids."""
@@ -226,17 +231,17 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
 # check
 
 
-def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None = None, plot: bool = True,
+def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
               pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None) -> dict[str, Any]:
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
-        n_samples: posterior rollouts for the error maps and the start of the test's null.
+        n_eval: posterior rollouts for the error maps and the start of the test's null.
         alpha: level of the misspecification verdict (``p <= alpha``).
         max_null: cap of the adaptive extension of the null (:class:`PosteriorPredictive`): when
-            ``1 / (n_samples + 1) > alpha`` and the first stage is promising (the measurement beyond all
-            ``n_samples`` rollouts, or ``p <= EXTEND_P``: :func:`~softsbi.workflows.stats.resolution_needed`),
+            ``1 / (n_eval + 1) > alpha`` and the first stage is promising (the measurement beyond all
+            ``n_eval`` rollouts, or ``p <= EXTEND_P``: :func:`~softsbi.workflows.stats.resolution_needed`),
             the test simulates up to ``max_null`` posterior-predictive rollouts before deciding.
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply
@@ -259,17 +264,24 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
         nominal and effect parameter, about 40 for mujoco-flex's installed effects).
 
     Raises:
-        SoftsbiError: fewer than 5 posterior rollouts succeeded.
+        SoftsbiError: ``n_eval`` < :data:`MIN_ROLLOUTS` or fewer posterior rollouts succeeded (before / after
+            simulating); RunDirError: the run directory cannot be written (before simulating).
     """
     t0 = time.perf_counter()
-    run = load_run(run_dir, n_samples, seed)
+    if not isinstance(n_eval, int) or n_eval < MIN_ROLLOUTS:
+        raise SoftsbiError(f"--n-eval {n_eval}: the check needs at least {MIN_ROLLOUTS} posterior rollouts; give "
+                           f"--n-eval {MIN_ROLLOUTS} or more (default {N_NULL})")
+    run = load_run(run_dir, n_eval, seed)
+    check_out_dir(run_dir, "run directory", "check writes check.json and check.png into it: copy the run "
+                                            "directory to a writable place and check the copy")
     pool = pool or PosteriorPredictive(run, workers, seed)
-    pool.ensure(n_samples)
+    pool.ensure(n_eval)
     # the fit's own job, samples and seeds: the mean Chamfer equals report.json's
     # chamfer_posterior_m when all of the fit's evaluation samples are used
-    ok = [r for r in pool.rollouts if r["sample"] < n_samples]
-    if len(ok) < 5:
-        raise SoftsbiError(f"only {len(ok)} of {n_samples} posterior rollouts succeeded; cannot check the fit")
+    ok = [r for r in pool.rollouts if r["sample"] < n_eval]
+    if len(ok) < MIN_ROLLOUTS:
+        raise SoftsbiError(f"only {len(ok)} of {n_eval} posterior rollouts succeeded, and the check needs "
+                           f"{MIN_ROLLOUTS}; cannot check the fit")
     dense = run.dense
     T = len(dense)
     min_z, frames = run.metric_min_z, run.metric_frames
@@ -318,7 +330,7 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
     pressed = list((run.report or {}).get("posterior_at_bounds") or [])
     if pressed:
         summary += " The fit's posterior: " + " ".join(bound_sentence(e) + "." for e in pressed)
-    out = {"run": str(run.path), "n_rollouts": len(ok), "failed_rollouts": n_samples - len(ok),
+    out = {"run": str(run.path), "n_rollouts": len(ok), "failed_rollouts": n_eval - len(ok),
            "times_s": run.scenario.times.tolist(),
            "chamfer_per_frame_m": {"mean": mean_t.tolist(), "q05": np.quantile(ch, 0.05, 0).tolist(),
                                    "q95": np.quantile(ch, 0.95, 0).tolist()},
@@ -330,7 +342,7 @@ def check_run(run_dir: str | Path, n_samples: int = N_NULL, workers: int | None 
            "region_compared": np.isfinite(reg_mean).tolist(),
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
-           "misspecification": mis, "energy": energy_score(pool, n_samples), "summary": summary,
+           "misspecification": mis, "energy": energy_score(pool, n_eval), "summary": summary,
            "posterior_at_bounds": pressed, "seconds": time.perf_counter() - t0}
     run_dir = Path(run_dir)
     (run_dir / "check.json").write_text(json.dumps(out, indent=2))

@@ -17,16 +17,17 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
 from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import MAX_NULL, check_run, sensor_model
+from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import load_run
 from softsbi.workflows.stats import posterior_mean_chamfer
 
 
-def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_samples: int = 30,
+def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = 30,
                  workers: int | None = None, max_null: int = MAX_NULL) -> dict[str, Any]:
     """Posterior predictive checks of two runs of the same measurement, side by side.
 
     Writes ``compare.png`` (Chamfer per frame, error per region) and ``compare.json``.
-    ``n_samples`` and ``max_null`` go to each run's :func:`~softsbi.workflows.check.check_run`.
+    ``n_eval`` and ``max_null`` go to each run's :func:`~softsbi.workflows.check.check_run`.
 
     Returns:
         dict with ``table`` (rows ``what``, ``a``, ``b``, relative ``change``: the posterior-predictive Chamfer
@@ -39,16 +40,22 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_sa
         :func:`~softsbi.workflows.stats.posterior_mean_chamfer` or None), and the paths of the figure and the JSON.
 
     Raises:
-        SoftsbiError: the runs were fitted to different measurements.
+        SoftsbiError: the runs were fitted to different measurements; RunDirError: ``out_dir`` or a run directory
+            cannot be written (all checked before the first rollout).
     """
-    a = check_run(run_a, n_samples=n_samples, workers=workers, plot=True, max_null=max_null)
-    b = check_run(run_b, n_samples=n_samples, workers=workers, plot=True, max_null=max_null)
-    if len(a["times_s"]) != len(b["times_s"]):
-        raise SoftsbiError("the two runs have different frame counts; compare runs of the same measurement")
+    # everything that can be refused is, before the first rollout: both runs, the measurement, the folders
     ra, rb = load_run(run_a), load_run(run_b)
     if ra.config.get("observed_source") != rb.config.get("observed_source"):
         raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
                            f"{rb.config.get('observed_source')}); compare runs of the same measurement")
+    if len(ra.scenario.times) != len(rb.scenario.times):
+        raise SoftsbiError("the two runs have different frame counts; compare runs of the same measurement")
+    check_out_dir(out_dir)
+    for run in (run_a, run_b):
+        check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
+                                            "run directory to a writable place and compare the copy")
+    a = check_run(run_a, n_eval=n_eval, workers=workers, plot=True, max_null=max_null)
+    b = check_run(run_b, n_eval=n_eval, workers=workers, plot=True, max_null=max_null)
     rows = [{"what": "Chamfer, mean over the fit's frames", "a": a["chamfer_mean_m"], "b": b["chamfer_mean_m"]}]
     if a.get("chamfer_one_sided_mean_m") is not None and b.get("chamfer_one_sided_mean_m") is not None:
         rows.append({"what": "one-sided Chamfer (measured -> simulated)", "a": a["chamfer_one_sided_mean_m"],

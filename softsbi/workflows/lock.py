@@ -10,6 +10,7 @@ import contextlib
 import datetime as _dt
 import json
 import os
+import tempfile
 from pathlib import Path
 from typing import Iterator
 
@@ -86,3 +87,32 @@ def _remove_if_only_lock(run_dir: Path, lock: FileLock) -> None:
             (run_dir / n).unlink(missing_ok=True)
         with contextlib.suppress(OSError):
             run_dir.rmdir()
+
+
+def check_out_dir(path: str | Path, flag: str = "--out", fix: str = "choose a writable folder") -> Path:
+    """Check, before any work, that a command can write into the folder ``path`` (which may not exist yet).
+
+    Args:
+        flag: how the command names the folder in its message (``--out``, ``DST``, ``run directory``).
+        fix: what to do when it cannot be written.
+
+    Returns:
+        ``Path(path)``.
+
+    Raises:
+        RunDirError: ``path`` or a folder above it is a file, or the deepest existing folder refuses a
+            new file (read-only file system, no permission); one line naming the folder and ``fix``.
+    """
+    path = Path(path)
+    above = next((p for p in (path, *path.absolute().parents) if p.exists()), None)
+    if above is None:
+        return path
+    if not above.is_dir():
+        raise RunDirError(f"{flag} '{path}'" + (" is a file" if above == path else f": '{above}' is a file")
+                          + "; give a folder")
+    try:
+        with tempfile.TemporaryFile(dir=above):
+            pass
+    except OSError as exc:
+        raise RunDirError(f"{flag} '{path}' cannot be written ({exc.strerror or exc}); {fix}") from None
+    return path

@@ -233,6 +233,7 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
     Raises:
         DataError: no DiffCloud recording in ``src``, an existing non-empty destination, anything
             :func:`diffcloud_recording` raises. Everything is converted before anything is written.
+        RunDirError: a destination that is a file or cannot be written (before anything is converted).
     """
     from softsbi.data.recording import write_recording
     src, dst = Path(src), Path(dst)
@@ -246,10 +247,12 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
         if not pairs:
             raise DataError(f"'{src}' holds no DiffCloud recording (folders with 000.npy ... and "
                             f"<task>_real2sim.yaml)")
-    converted = [(d, out, *diffcloud_recording(d, scenario)) for d, out in pairs]
-    for _, out, _, _ in converted:
+    from softsbi.workflows.lock import check_out_dir
+    for _, out in pairs:  # the destinations first: nothing is converted for a destination that cannot take it
+        check_out_dir(out, "destination", "choose a writable destination")
         if out.exists() and any(out.iterdir()):
             raise DataError(f"'{out}' exists and is not empty; choose a new destination or remove it")
+    converted = [(d, out, *diffcloud_recording(d, scenario)) for d, out in pairs]
     written = []
     for d, out, meta, clouds in converted:
         if "file" in meta["scenario"]:  # relative to the recording, so the pair can move together

@@ -93,7 +93,7 @@ class RunView:
 
 
 
-def load_run(run_dir: str | Path, n_samples: int = 30, seed: int = 0) -> RunView:
+def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
     """Open a finished fit (``run.zarr`` + ``report.json``) for checking.
 
     Raises:
@@ -115,13 +115,13 @@ def load_run(run_dir: str | Path, n_samples: int = 30, seed: int = 0) -> RunView
     obs = store.read_observed()
     if store.has("evaluation"):
         ev, ev_attrs = store.read_group("evaluation")
-        theta = ev["theta"][:n_samples]
+        theta = ev["theta"][:n_eval]
         seeds = evaluation_seeds(int(cfg.get("seed", 0)), int(ev_attrs.get("rounds", cfg["rounds"])),
-                                 len(ev["theta"]))[:n_samples]
+                                 len(ev["theta"]))[:n_eval]
     else:  # fall back on the last round's draws (samples of the previous posterior)
         last = store.round_ids()[-1]
         d = store.round_data(last)
-        theta, seeds = d["theta"][:n_samples], d["seed"][:n_samples]
+        theta, seeds = d["theta"][:n_eval], d["seed"][:n_eval]
     return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta,
                    np.asarray(seeds))
 

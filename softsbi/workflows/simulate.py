@@ -10,6 +10,9 @@ reads it) and, when rendering,
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 import time
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -26,6 +29,7 @@ from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.scenarios.spec import spec_from_scenario
 from softsbi.scenarios.cameras import scenario_camera
+from softsbi.workflows.lock import check_out_dir
 
 
 #: points per frame of the recording ``softsbi simulate`` writes
@@ -68,7 +72,7 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
                        effects: Sequence[str] = (), backend_options: Mapping[str, Any] | None = None,
                        render: int | None = None,
                        render_memory_gb: float = RENDER_MEMORY_GB, cloud_points: int = CLOUD_POINTS,
-                       seed: int = 0) -> dict[str, Any]:
+                       seed: int = 0, overwrite: bool = False) -> dict[str, Any]:
     """Roll ``scenario`` out at ``theta`` (physical units; unset parameters at the prior midpoint)
     and write it into ``out``.
 
@@ -80,6 +84,11 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
             square size (px).
         render_memory_gb: cap on the estimated memory of the rendered frames
             (:func:`render_memory_bytes`), GB; a larger request is refused before simulating.
+        overwrite: ``out`` may hold files (an earlier simulation): they are replaced by this one's. Without it
+            a non-empty ``out`` is refused, so one folder never mixes two simulations.
+
+    Everything is written into a hidden sibling folder that replaces ``out`` once complete: a failure
+    (a full disk, an interrupt) leaves ``out`` as it was and no partial folder.
 
     Returns:
         ``{"backend", "scenario", "theta", "status", "reason", "frames", "vertices", "wall_s",
@@ -88,9 +97,14 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
     Raises:
         SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect;
         ParameterError: unknown parameter or a value outside its physical limits (not its prior: a widened prior is simulated); RenderingUnavailable: no OpenGL;
-        SoftsbiError: ``render`` not positive, or the frames would exceed ``render_memory_gb``.
+        SoftsbiError: ``render`` or ``render_memory_gb`` not positive, or the frames would exceed
+            ``render_memory_gb``; ``out`` is a file, or a non-empty folder without ``overwrite``.
     """
     out = Path(out)
+    check_out_folder(out, overwrite)
+    if not render_memory_gb > 0:
+        raise SoftsbiError(f"--render-memory-gb {render_memory_gb}: the cap must be a positive number of GB "
+                           f"(default {RENDER_MEMORY_GB:g})")
     try:
         sc = make_scenario(str(scenario), recording)
     except ValueError as exc:
@@ -112,7 +126,36 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
     else:
         ro = sim.simulate(sc, values, effects=list(effects))
     dt = time.perf_counter() - t0
-    out.mkdir(parents=True, exist_ok=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        doc = _write_rollout(tmp, out, ro, sc, backend, scenario, values, effects, render, cloud_points, seed, dt)
+        if out.exists():  # --overwrite (checked above): the old contents go once the new ones are complete
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return doc
+
+
+def check_out_folder(out: Path, overwrite: bool) -> None:
+    """Refuse an output folder that is a file or cannot be written, or that holds files unless ``overwrite``.
+
+    Raises:
+        SoftsbiError: one line naming the folder and the fix (:func:`~softsbi.workflows.lock.check_out_dir`).
+    """
+    check_out_dir(out)
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise SoftsbiError(f"--out '{out}' is not empty; choose a new folder, or pass --overwrite to replace its "
+                           f"contents with this simulation")
+
+
+def _write_rollout(out: Path, final: Path, ro: Any, sc: Any, backend: str, scenario: str | Path, values: dict[str, float],
+                   effects: Sequence[str], render: int | None, cloud_points: int, seed: int,
+                   dt: float) -> dict[str, Any]:
+    """Write one rollout's files into the (new, empty) folder ``out``; returns the command's summary, whose paths
+    name the ``final`` folder ``out`` becomes."""
     g = zarr.open_group(str(out / "rollout.zarr"), mode="w")
     g.attrs.update({"backend": backend, "scenario": sc.to_json(), "theta": values, "status": int(ro.status),
                     "reason": ro.reason})
@@ -120,11 +163,12 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
                              ("faces", ro.faces, "1")):
         a = g.create_array(name, shape=arr.shape, dtype=arr.dtype, attributes={"units": units})
         a[...] = arr
-    doc: dict[str, Any] = {"backend": backend, "scenario": scenario, "theta": values, "status": int(ro.status),
+    doc: dict[str, Any] = {"backend": backend, "scenario": str(scenario), "theta": values, "status": int(ro.status),
                            "reason": ro.reason, "frames": len(ro.times), "vertices": int(ro.vertices.shape[1]),
-                           "wall_s": dt, "rollout": str(out / "rollout.zarr")}
+                           "wall_s": dt, "rollout": str(final / "rollout.zarr")}
     if ro.ok:
-        doc["preview"] = str(plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}"))
+        plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}")
+        doc["preview"] = str(final / "preview.png")
         clouds = rollout_clouds(ro, int(cloud_points), np.random.default_rng(seed))
         meta = {"scenario": {"inline": spec_from_scenario(sc)}, "times": ro.times.tolist(),
                 "transform": {"matrix": np.eye(4).tolist()},
@@ -133,9 +177,9 @@ def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: 
                 "truth": values, "effects": list(effects),
                 "source": f"simulated:{backend}" + (f"+{'+'.join(effects)}" if effects else "")}
         write_recording(out, meta, list(clouds), images=ro.rgb if render else None, overwrite=True)
-        doc["recording"] = str(out)
+        doc["recording"] = str(final)
     if ro.ok and render:
         save_frames(ro.rgb, out / "frames")
         (out / "frames" / "truth.json").write_text(json.dumps(values, indent=2))
-        doc["frames_dir"] = str(out / "frames")
+        doc["frames_dir"] = str(final / "frames")
     return doc

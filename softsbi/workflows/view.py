@@ -3,13 +3,13 @@
 Two outputs from one set of simulations (:func:`posterior_rollouts`):
 
 * :func:`write_animation` - an animated GIF (``RUN/view.gif``): the measured cloud (dark grey)
-  against ``n_samples`` posterior-predictive rollouts (faded blue wireframes) and the gripper
+  against ``n_eval`` posterior-predictive rollouts (faded blue wireframes) and the gripper
   (red), seen from the side (y-z) and from above (x-y), with the per-frame Chamfer error of the
   rollouts below; one animation frame per recorded frame.
 * :func:`write_rerun` - a `rerun <https://rerun.io>`_ recording (``RUN/view.rrd``) of the same
   scene in 3-D on a ``time`` timeline (seconds), to scrub through with ``rerun RUN/view.rrd``.
 
-:func:`write_view` writes both. The rollouts are simulated at the first ``n_samples`` rows of
+:func:`write_view` writes both. The rollouts are simulated at the first ``n_eval`` rows of
 the run's posterior samples (the fit's evaluation samples) with the run's effects and the fit's
 evaluation seeds, in worker processes (:func:`~softsbi.workflows.jobs.simulate_job`). Their
 Chamfer error per frame is measured from the mesh's vertices and face centroids to the measured
@@ -36,13 +36,13 @@ from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 # simulation shared by both outputs
 
 
-def posterior_rollouts(run_dir: str | Path, n_samples: int = 5,
+def posterior_rollouts(run_dir: str | Path, n_eval: int = 5,
                        workers: int | None = None) -> tuple[RunView, list[dict[str, Any]], np.ndarray]:
-    """Simulate a finished run at its first ``n_samples`` posterior samples.
+    """Simulate a finished run at its first ``n_eval`` posterior samples.
 
     Args:
         run_dir: a finished point-cloud fit (``run.zarr`` + ``report.json``).
-        n_samples: posterior samples to simulate (rows ``0 .. n_samples-1`` of the run's
+        n_eval: posterior samples to simulate (rows ``0 .. n_eval-1`` of the run's
             posterior samples; fewer if the run stored fewer).
         workers: simulation processes (None = one per core).
 
@@ -55,13 +55,13 @@ def posterior_rollouts(run_dir: str | Path, n_samples: int = 5,
         (:func:`~softsbi.workflows.fit.simulate_job`), so the mean matches ``softsbi check``.
 
     Raises:
-        SoftsbiError: ``n_samples < 1``; not a finished point-cloud fit (see
+        SoftsbiError: ``n_eval < 1``; not a finished point-cloud fit (see
             :func:`~softsbi.workflows.runs.load_run`; SchemaError for a folder that is no run);
             every rollout failed.
     """
-    if int(n_samples) < 1:
-        raise SoftsbiError(f"n_samples must be at least 1 (got {n_samples})")
-    view = load_run(run_dir, n_samples=int(n_samples))
+    if int(n_eval) < 1:
+        raise SoftsbiError(f"n_eval must be at least 1 (got {n_eval})")
+    view = load_run(run_dir, n_eval=int(n_eval))
     # the fit's own job, evaluation samples and seeds: the rollouts are the fit's posterior-predictive
     # rollouts and their Chamfer is the fit's metric (as in `softsbi check` and report.json)
     rollouts, res = view.posterior_rollouts(workers)
@@ -77,12 +77,12 @@ def posterior_rollouts(run_dir: str | Path, n_samples: int = 5,
 
 
 
-def write_animation(run_dir: str | Path, path: str | Path | None = None, n_samples: int = 5,
+def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval: int = 5,
                     workers: int | None = None, fps: float = 5) -> Path:
     """Write an animated GIF of a finished fit's posterior-predictive rollouts against the measurement.
 
     One animation frame per recorded frame (``T`` frames): side view (y-z) and top view (x-y)
-    of the measured cloud (dark grey), ``n_samples`` posterior rollouts (faded blue mesh edges)
+    of the measured cloud (dark grey), ``n_eval`` posterior rollouts (faded blue mesh edges)
     and the gripper (red ``+``, its path faint), at fixed equal-aspect limits (m) covering
     every frame; below, the Chamfer distance (cm) of each rollout and their mean per frame with
     a marker at the current frame; the title names the run, ``frame k / T``, ``t`` (s) and the
@@ -91,7 +91,7 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_sampl
     Args:
         run_dir: a finished point-cloud fit (``run.zarr`` + ``report.json``).
         path: where to write (default ``RUN/view.gif``).
-        n_samples: posterior samples simulated (see :func:`posterior_rollouts`).
+        n_eval: posterior samples simulated (see :func:`posterior_rollouts`).
         workers: simulation processes (None = one per core).
         fps: animation frames per second.
 
@@ -101,7 +101,7 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_sampl
     Raises:
         SoftsbiError: see :func:`posterior_rollouts`.
     """
-    view, rollouts, ch = posterior_rollouts(run_dir, n_samples, workers)
+    view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     return draw_gif(view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.gif", fps)
 
 
@@ -109,7 +109,7 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_sampl
 # rerun recording
 
 
-def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_samples: int = 5,
+def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int = 5,
                 workers: int | None = None) -> Path:
     """Write a rerun recording (``.rrd``) of a finished fit's posterior-predictive rollouts.
 
@@ -125,7 +125,7 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_samples: 
     Args:
         run_dir: a finished point-cloud fit (``run.zarr`` + ``report.json``).
         path: where to write (default ``RUN/view.rrd``).
-        n_samples: posterior samples simulated (see :func:`posterior_rollouts`).
+        n_eval: posterior samples simulated (see :func:`posterior_rollouts`).
         workers: simulation processes (None = one per core).
 
     Returns:
@@ -137,7 +137,7 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_samples: 
         SoftsbiError: see :func:`posterior_rollouts`.
     """
     rr = import_rerun()
-    view, rollouts, ch = posterior_rollouts(run_dir, n_samples, workers)
+    view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     return log_rrd(rr, view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.rrd")
 
 
@@ -145,7 +145,7 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_samples: 
 # both
 
 
-def write_view(run_dir: str | Path, n_samples: int = 5, workers: int | None = None, gif: bool = True,
+def write_view(run_dir: str | Path, n_eval: int = 5, workers: int | None = None, gif: bool = True,
                rrd: bool = True, fps: float = 5) -> dict[str, Any]:
     """Simulate once and write ``RUN/view.gif`` and/or ``RUN/view.rrd`` (see :func:`write_animation`,
     :func:`write_rerun`).
@@ -161,7 +161,7 @@ def write_view(run_dir: str | Path, n_samples: int = 5, workers: int | None = No
         SoftsbiError: see :func:`posterior_rollouts`.
     """
     rr = import_rerun() if rrd else None
-    view, rollouts, ch = posterior_rollouts(run_dir, n_samples, workers)
+    view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     run_dir = Path(run_dir)
     out: dict[str, Any] = {"gif": None, "rrd": None}
     if gif:

@@ -117,6 +117,45 @@ def test_the_cli_turns_a_full_disk_into_one_line_and_exit_2(tmpfs):
     assert "no space left" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.parametrize("free_kb", [40, 160])
+def test_a_disk_filling_up_mid_simulate_or_import_is_one_line_and_leaves_no_partial_folder(tmpfs, tmp_path,
+                                                                                           free_kb):
+    """numpy's short write (the disk fills inside one .npy: no errno) reads as the full disk; the folder
+    being written is removed, so the same command works once space is freed."""
+    filler = _fill(tmpfs)
+    os.truncate(filler, filler.stat().st_size - free_kb * 1024)
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--scenario", "lift", "--out",
+                              str(tmpfs / "sim")])
+    assert res.exit_code == 2 and "no space left on the device" in res.output, res.output
+    src = tmp_path / "src" / "rec"  # a DiffCloud-layout recording of large frames, imported with a scenario
+    src.mkdir(parents=True)
+    (src / "lift_real2sim.yaml").write_text("z_rotation: 0\ntranslation: [0, 0, 0]\nscale: 1\n")
+    for i in range(3):
+        np.save(src / f"{i:03d}.npy", np.random.default_rng(i).random((4000, 3)))
+    res = runner.invoke(app, ["import", "diffcloud", str(src), str(tmpfs / "rec"), "--scenario", "lift"])
+    assert res.exit_code == 2 and "no space left on the device" in res.output, res.output
+    assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+    assert [p.name for p in tmpfs.iterdir()] == ["filler"]  # nothing half-written, no hidden temporary folder
+    filler.unlink()
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--scenario", "lift", "--out", str(tmpfs / "sim")])
+    assert res.exit_code == 0, res.output
+
+
+def test_check_on_a_read_only_run_is_refused_before_its_rollouts(tmpfs, monkeypatch):
+    import softsbi.workflows.check as check
+    run_fit(tmpfs / "done", toy_measurement(), _cfg(rounds=1, n_eval=5), make_plots=False)
+    assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
+
+    def no_rollouts(*a, **k):
+        raise AssertionError("simulated posterior rollouts for a run it cannot write to")
+    monkeypatch.setattr(check, "PosteriorPredictive", no_rollouts)
+    res = runner.invoke(app, ["check", str(tmpfs / "done"), "--n-eval", "5", "--workers", "1"])
+    assert res.exit_code == 2, res.output
+    line = " ".join(res.output.split())
+    assert f"run directory '{tmpfs / 'done'}' cannot be written (Read-only file system)" in line
+    assert "copy the run directory to a writable place" in line and "--out" not in line  # check has no --out
+
+
 def test_a_garbage_store_is_one_line_naming_the_file(tmp_path):
     out = tmp_path / "run"
     run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)

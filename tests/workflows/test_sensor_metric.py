@@ -56,7 +56,7 @@ def test_check_reproduces_the_reports_sensor_faithful_numbers(sensor_run):
     assert rep["metric_min_z_m"] == pytest.approx(0.01) and rep["metric_frames"] == [1, 2, 3]
     per_frame = np.array(rep["chamfer_posterior_per_frame_m"])
     assert len(per_frame) == 4 and np.isfinite(rep["chamfer_posterior_one_sided_m"])
-    chk = check_run(sensor_run, n_samples=12, workers=1, plot=False, max_null=12)
+    chk = check_run(sensor_run, n_eval=12, workers=1, plot=False, max_null=12)
     # the same rollouts, the same sensor model, the same frames: exactly the report's number
     assert chk["chamfer_mean_m"] == rep["chamfer_posterior_m"]
     assert chk["chamfer_one_sided_mean_m"] == rep["chamfer_posterior_one_sided_m"]

@@ -35,7 +35,7 @@ def lift_run(tmp_path_factory):
 
 
 def test_posterior_rollouts(lift_run):
-    view, rollouts, ch = posterior_rollouts(lift_run, n_samples=S, workers=1)
+    view, rollouts, ch = posterior_rollouts(lift_run, n_eval=S, workers=1)
     assert len(rollouts) == S and [r["sample"] for r in rollouts] == list(range(S))
     for r in rollouts:
         assert r["vertices"].shape == (T, 25, 3) and r["faces"].shape == (32, 3)
@@ -43,8 +43,8 @@ def test_posterior_rollouts(lift_run):
     # a fit to a simulated measurement: its posterior rollouts are within centimetres of it
     assert 0 < ch.mean() < 0.05
     assert view.dense.shape == (T, 200, 3)
-    with pytest.raises(SoftsbiError, match="n_samples"):
-        posterior_rollouts(lift_run, n_samples=0)
+    with pytest.raises(SoftsbiError, match="n_eval"):
+        posterior_rollouts(lift_run, n_eval=0)
 
 
 def test_edges_of_a_mesh_and_of_a_rope():
@@ -68,7 +68,7 @@ def _has_colour(frame: np.ndarray, rgb: tuple[int, int, int], tol: float = 30, n
 
 
 def test_gif_has_one_frame_per_recorded_frame(lift_run, tmp_path):
-    p = write_animation(lift_run, tmp_path / "anim.gif", n_samples=S, workers=1, fps=10)
+    p = write_animation(lift_run, tmp_path / "anim.gif", n_eval=S, workers=1, fps=10)
     assert p == tmp_path / "anim.gif"
     im = Image.open(p)
     assert im.n_frames == T
@@ -92,7 +92,7 @@ def test_gif_has_one_frame_per_recorded_frame(lift_run, tmp_path):
 
 
 def test_write_view_gif_only_default_path(lift_run):
-    res = write_view(lift_run, n_samples=S, workers=1, gif=True, rrd=False)
+    res = write_view(lift_run, n_eval=S, workers=1, gif=True, rrd=False)
     assert res["gif"] == lift_run / "view.gif" and res["rrd"] is None
     assert Image.open(res["gif"]).n_frames == T
     assert len(res["chamfer_per_frame_m"]) == T and len(res["times_s"]) == T
@@ -103,9 +103,9 @@ def test_write_view_gif_only_default_path(lift_run):
 def test_rrd_missing_rerun_names_the_extra(lift_run, monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun -> ImportError
     with pytest.raises(DependencyMissing, match=r'pip install "softsbi\[view\]"'):
-        write_rerun(lift_run, n_samples=S, workers=1)
+        write_rerun(lift_run, n_eval=S, workers=1)
     with pytest.raises(DependencyMissing, match="rerun"):
-        write_view(lift_run, n_samples=S, workers=1, gif=False, rrd=True)
+        write_view(lift_run, n_eval=S, workers=1, gif=False, rrd=True)
 
 
 def _read_rrd(path) -> dict[str, list]:
@@ -120,7 +120,7 @@ def _read_rrd(path) -> dict[str, list]:
 def test_rrd_has_the_entities_on_a_time_timeline(lift_run):
     pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
-    p = write_rerun(lift_run, n_samples=S, workers=1)
+    p = write_rerun(lift_run, n_eval=S, workers=1)
     assert p == lift_run / "view.rrd"
     paths = set(RrdReader(p).store().schema().entity_paths())
     expected = {"/world/measured", "/world/gripper", "/world/gripper_path", "/error/chamfer_cm"}
@@ -139,7 +139,7 @@ def test_rrd_has_the_entities_on_a_time_timeline(lift_run):
     rows = sorted((t.total_seconds(), v[0]) for c in chunks["/error/chamfer_cm"]
                   for t, v in zip(c.to_record_batch().column("time").to_pylist(),
                                   c.to_record_batch().column("Scalars:scalars").to_pylist()))
-    view, _, ch = posterior_rollouts(lift_run, n_samples=S, workers=1)
+    view, _, ch = posterior_rollouts(lift_run, n_eval=S, workers=1)
     np.testing.assert_allclose([r[0] for r in rows], view.scenario.times, atol=1e-6)
     np.testing.assert_allclose([r[1] for r in rows], ch.mean(0) * 100, rtol=1e-6)
 
@@ -150,7 +150,7 @@ def test_write_view_both_from_one_simulation(lift_run, monkeypatch):
     calls = []
     real = viewer.posterior_rollouts
     monkeypatch.setattr(viewer, "posterior_rollouts", lambda *a, **k: calls.append(a) or real(*a, **k))
-    res = viewer.write_view(lift_run, n_samples=S, workers=1)
+    res = viewer.write_view(lift_run, n_eval=S, workers=1)
     assert len(calls) == 1
     assert res["gif"] == lift_run / "view.gif" and res["rrd"] == lift_run / "view.rrd"
     assert Image.open(res["gif"]).n_frames == T and res["rrd"].stat().st_size > 10_000
@@ -162,7 +162,7 @@ def test_rrd_of_a_rope_logs_line_strips(lift_run, tmp_path):
     import rerun as rr
 
     from softsbi.report.animation import log_rrd as _log_rrd
-    view, rollouts, ch = posterior_rollouts(lift_run, n_samples=1, workers=1)
+    view, rollouts, ch = posterior_rollouts(lift_run, n_eval=1, workers=1)
     rope = [dict(rollouts[0], vertices=rollouts[0]["vertices"][:, :5], faces=np.zeros((0, 3), int))]
     p = _log_rrd(rr, view, rope, ch, tmp_path / "rope.rrd")
     names = _read_rrd(p)["/world/posterior/0"][0].to_record_batch().schema.names

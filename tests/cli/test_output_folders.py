@@ -1,0 +1,52 @@
+"""Output folders are checked before any work: `simulate` never mixes two simulations in one folder, an
+`--out` that is a file is one line for every command that writes one."""
+import pytest
+from typer.testing import CliRunner
+
+from softsbi.cli import app
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+
+runner = CliRunner()
+SIM = ["simulate", "--backend", "toy-gauss", "--scenario", "lift"]
+
+
+def _one_line(res, code=2):
+    assert res.exit_code == code, res.output
+    assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1, res.output
+    return " ".join(res.output.split())
+
+
+def test_simulate_refuses_a_non_empty_out_and_overwrite_replaces_its_contents(tmp_path):
+    out = tmp_path / "meas"
+    assert runner.invoke(app, [*SIM, "--out", str(out)]).exit_code == 0
+    (out / "frames").mkdir()
+    (out / "frames" / "000.png").write_bytes(b"an earlier simulation's frame")
+    line = _one_line(runner.invoke(app, [*SIM, "--theta", "a=0.5", "--out", str(out)]))
+    assert f"--out '{out}' is not empty" in line and "--overwrite" in line
+    assert (out / "frames" / "000.png").exists()  # refused: nothing touched
+    res = runner.invoke(app, [*SIM, "--theta", "a=0.5", "--out", str(out), "--overwrite"])
+    assert res.exit_code == 0, res.output
+    assert not (out / "frames").exists()  # the old simulation's files are gone, the new one is whole
+    assert {p.name for p in out.iterdir()} == {"rollout.zarr", "preview.png", "recording.yaml", "clouds"}
+    assert "a: 0.5" in (out / "recording.yaml").read_text()
+    assert [p.name for p in tmp_path.iterdir()] == ["meas"]  # no temporary folder left beside it
+
+
+def test_an_out_that_is_a_file_or_a_bad_render_cap_is_refused_before_simulating(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    src = tmp_path / "src"  # a DiffCloud folder by its layout (the destination is checked before its contents)
+    src.mkdir()
+    (src / "lift_real2sim.yaml").write_text("z_rotation: 0\n")
+    (src / "000.npy").write_bytes(b"")
+    line = _one_line(runner.invoke(app, [*SIM, "--out", str(afile)]))
+    assert f"--out '{afile}' is a file; give a folder" in line
+    line = _one_line(runner.invoke(app, [*SIM, "--out", str(afile / "sub")]))
+    assert f"'{afile}' is a file" in line
+    line = _one_line(runner.invoke(app, ["import", "diffcloud", str(src), str(afile)]))
+    assert f"destination '{afile}' is a file" in line
+    line = _one_line(runner.invoke(app, [*SIM, "--render", "16", "--render-memory-gb", "-1",
+                                         "--out", str(tmp_path / "r")]))
+    assert "--render-memory-gb -1.0: the cap must be a positive number of GB" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "src"]
