@@ -125,15 +125,3 @@ def storage_error(exc: BaseException, where: object = None, resumable: bool = Fa
     if resumable:
         fix += "; finished simulations are kept and the run resumes"
     return StorageError(errno, f"{what}{named}; {fix}")
-
-
-def yaml_error_parts(exc: BaseException) -> tuple[str, str]:
-    """Where and what of a PyYAML parse error, for a one-line message (no yaml import here).
-
-    Returns:
-        ``(" at line L, column C", problem)``: the location (1-based; ``""`` when the parser gave
-        none) and the parser's short description (its first line when it gave no ``problem``).
-    """
-    mark = getattr(exc, "problem_mark", None)
-    at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-    return at, getattr(exc, "problem", None) or str(exc).splitlines()[0]

@@ -42,9 +42,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from softsbi.core.arrays import read_npy
-from softsbi.core.errors import DataError, yaml_error_parts
+from softsbi.core.errors import DataError
+from softsbi.core.yamlfile import read_yaml
 from softsbi.data.frames import load_frames, save_frames
-from softsbi.data.validation import validation_line
+from softsbi.data.validation import short_repr, validation_line
 
 FORMAT = "softsbi-recording/1"
 META = "recording.yaml"
@@ -187,7 +188,7 @@ def parse_meta(data: Any, source: str) -> RecordingMeta:
     if not isinstance(data, Mapping):
         raise DataError(f"{source}: recording.yaml must be a mapping (format, scenario, times, transform, ...)")
     if data.get("format") != FORMAT:
-        raise DataError(f"{source}: field 'format' is {data.get('format')!r}; this softsbi reads {FORMAT} "
+        raise DataError(f"{source}: field 'format' is {short_repr(data.get('format'))}; this softsbi reads {FORMAT} "
                         f"(set format: {FORMAT})")
     try:
         return RecordingMeta.model_validate(dict(data))
@@ -221,17 +222,12 @@ def read_recording(folder: str | Path) -> RecordingData:
         DataError: no ``recording.yaml``; invalid YAML or fields (unknown field, wrong type, missing
             ``transform``); the number of ``times`` differs from the number of clouds; a malformed cloud.
     """
-    import yaml
     folder = Path(folder)
     meta_file = folder / META
     if not meta_file.is_file():
         raise DataError(f"'{folder}' is not a recording directory (no {META}); convert DiffCloud folders with "
                         f"`softsbi import diffcloud SRC DST`, or write one with `softsbi simulate --out DIR`")
-    try:
-        raw = yaml.safe_load(meta_file.read_text())
-    except yaml.YAMLError as exc:
-        at, _ = yaml_error_parts(exc)
-        raise DataError(f"{meta_file} is not valid YAML{at}; fix that line") from None
+    raw = read_yaml(meta_file)
     meta = parse_meta(raw, str(meta_file))
     files = _frames(folder, "clouds")
     if not files:
@@ -263,10 +259,7 @@ def read_recording(folder: str | Path) -> RecordingData:
         if not cal.is_file():
             raise DataError(f"{meta_file}: field 'calibration' names {cal}, which does not exist; add the file or "
                             f"remove the field")
-        try:
-            extras["calibration"] = yaml.safe_load(cal.read_text())
-        except yaml.YAMLError:
-            raise DataError(f"{cal} is not valid YAML; fix it or remove the field 'calibration'") from None
+        extras["calibration"] = read_yaml(cal, "fix it or remove the field 'calibration'")
     return RecordingData(folder=folder, meta=meta, clouds=clouds, times=np.asarray(meta.times, float),
                          images=images, depth=depth, extras=extras)
 

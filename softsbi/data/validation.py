@@ -1,7 +1,8 @@
 """One-line messages for pydantic validation errors (scenario and recording files)."""
 from __future__ import annotations
 
-from typing import Mapping
+import reprlib
+from typing import Any, Mapping
 
 from pydantic import ValidationError
 
@@ -31,6 +32,18 @@ def validation_line(source: str, exc: ValidationError, example: str, missing_hin
         hint = (missing_hints or {}).get(loc)
         return f"{source}: field '{loc}' is missing; add it{', ' + hint if hint else ''} (the format: {example})"
     msg = err.get("msg", "invalid").replace("Value error, ", "")
-    got = err.get("input")
-    got_s = "" if isinstance(got, (dict, list)) and len(repr(got)) > 60 else f" (got {got!r})"
+    got_s = short_repr(err.get("input"))
+    got_s = f" (got {got_s})" if len(got_s) <= 60 else ""
     return f"{source}: field '{loc}': {msg}{got_s}; fix that field (the format: {example})"
+
+
+#: a repr of bounded work and length, whatever the input (a huge or self-repeating YAML value)
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxstring, _REPR.maxother, _REPR.maxlong = 3, 50, 50, 40
+_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = 6
+
+
+def short_repr(value: Any) -> str:
+    """``repr(value)`` cut short (a few items per level, a few levels, 50 characters per string): bounded work
+    and length for messages about any input."""
+    return _REPR.repr(value)

@@ -91,7 +91,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.core.arrays import read_npy
-from softsbi.core.errors import DataError, ShapeError, yaml_error_parts
+from softsbi.core.errors import DataError, ShapeError
 from softsbi.core.types import Param, Scenario
 
 #: metres per ARCSim simulator unit (``scale`` of every lift_real2sim.yaml)
@@ -158,18 +158,12 @@ def recording_transform(recording_dir: str | Path) -> dict[str, Any]:
     Raises:
         DataError: the yaml is missing or malformed.
     """
-    import yaml
+    from softsbi.core.yamlfile import read_yaml
     path = Path(recording_dir) / "lift_real2sim.yaml"
     if not path.is_file():
         raise DataError(f"no lift_real2sim.yaml in {recording_dir}; expected a DiffCloud lift recording "
                         f"folder such as shared/data/diffcloud_lift/lift_tan")
-    try:
-        with open(path) as fh:
-            cfg = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        at, problem = yaml_error_parts(exc)
-        raise DataError(f"{path} is not valid YAML{at} ({problem}); fix that line (the file holds z_rotation, "
-                        f"translation, scale and compensation_factor)") from None
+    cfg = read_yaml(path, "fix that line (the file holds z_rotation, translation, scale and compensation_factor)")
     if not isinstance(cfg, Mapping):
         raise DataError(f"{path} is not a mapping")
     return _check_cfg(cfg)

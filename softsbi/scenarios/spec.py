@@ -40,9 +40,9 @@ from typing import Any, Literal, Mapping, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from softsbi.core.errors import DataError, yaml_error_parts
+from softsbi.core.errors import DataError
 from softsbi.core.types import Handle, Scenario
-from softsbi.data.validation import validation_line
+from softsbi.data.validation import short_repr, validation_line
 
 FORMAT = "softsbi-scenario/1"
 #: the format versions this reader understands
@@ -285,19 +285,14 @@ EXAMPLE = "softsbi/scenarios/files/lift.yaml"
 
 
 def _read_yaml(path: Path) -> Any:
-    import yaml
+    from softsbi.core.yamlfile import read_yaml
     try:
-        text = path.read_text()
+        return read_yaml(path)
     except FileNotFoundError:
         raise DataError(f"scenario file {path} does not exist; give a path to a .yaml scenario file or a "
                         f"built-in name (`softsbi scenarios` lists them)") from None
     except (IsADirectoryError, PermissionError) as exc:
         raise DataError(f"cannot read scenario file {path} ({exc.strerror}); give a readable .yaml file") from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        at, problem = yaml_error_parts(exc)
-        raise DataError(f"{path} is not valid YAML{at} ({problem}); fix that line") from None
 
 
 def parse_spec(data: Any, source: str) -> ScenarioSpec:
@@ -306,7 +301,7 @@ def parse_spec(data: Any, source: str) -> ScenarioSpec:
         raise DataError(f"{source}: a scenario file must be a YAML mapping (format, name, object, handles, "
                         f"frames, ...), got {type(data).__name__}")
     if data.get("format") not in FORMATS:
-        raise DataError(f"{source}: field 'format' is {data.get('format')!r}; this softsbi reads "
+        raise DataError(f"{source}: field 'format' is {short_repr(data.get('format'))}; this softsbi reads "
                         f"{', '.join(FORMATS)} (set format: {FORMAT})")
     try:
         return ScenarioSpec.model_validate(dict(data))

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import DataError, yaml_error_parts
+from softsbi.core.errors import DataError
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
@@ -148,19 +148,13 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
         DataError: not a DiffCloud folder, malformed frames or yaml, a frame count that disagrees with
             the lift path, another task without ``scenario``.
     """
-    import yaml
-
+    from softsbi.core.yamlfile import read_yaml
     from softsbi.scenarios.builtin import FRAME_DT, lift_scenario
     from softsbi.scenarios.spec import spec_from_scenario
     folder = Path(folder)
     clouds = load_cloud_frames(folder)
     task, yml = _diffcloud_task(folder)
-    try:
-        cfg = yaml.safe_load(yml.read_text())
-    except yaml.YAMLError as exc:
-        at, problem = yaml_error_parts(exc)
-        raise DataError(f"{yml} is not valid YAML{at} ({problem}); fix that line (the file holds z_rotation, "
-                        f"translation, scale and compensation_factor)") from None
+    cfg = read_yaml(yml, "fix that line (the file holds z_rotation, translation, scale and compensation_factor)")
     if not isinstance(cfg, Mapping) or not {"z_rotation", "translation", "scale"} <= set(cfg):
         raise DataError(f"{yml} must hold z_rotation, translation, scale and compensation_factor")
     dc = {"z_rotation": float(cfg["z_rotation"]), "translation": [float(v) for v in cfg["translation"]],
