@@ -96,7 +96,8 @@ class RunStore:
         try:
             root = zarr.open_group(str(path), mode=mode)
         except Exception as exc:  # noqa: BLE001
-            raise SchemaError(f"cannot open '{path}' as a Zarr group: {exc}") from exc
+            raise SchemaError(f"'{path / 'zarr.json'}' cannot be read ({type(exc).__name__}): the run store is "
+                              f"damaged; fit into a new --out folder") from None
         schema = root.attrs.get("schema")
         version = root.attrs.get("schema_version")
         if schema != SCHEMA:
@@ -106,6 +107,7 @@ class RunStore:
             raise SchemaError(f"run store '{path}' has schema version {version}, this softsbi reads version "
                               f"{SCHEMA_VERSION}; re-run the fit into a new --out folder with this version, or "
                               f"install the softsbi version that wrote it ({root.attrs.get('softsbi_version')})")
+        _check_metadata(path, root)
         return cls(path, root)
 
     @property
@@ -276,6 +278,37 @@ class RunStore:
                 return r, int(len(failed)), self.redo(r, failed)
         return None
 
+    def damaged_groups(self) -> dict[str, str]:
+        """Groups holding an array that cannot be read whole (a truncated or corrupt chunk), other than the
+        per-simulation arrays :meth:`damaged` repairs row by row: ``{group path: reason}``, e.g.
+        ``{"evaluation": "its 'chamfer' array cannot be read (RuntimeError)"}``; the paths are ``observed``,
+        ``rounds/<r>`` (the round's draws), ``rounds/<r>/posterior`` and the other top-level groups."""
+        out: dict[str, str] = {}
+
+        def scan(path: str, g: zarr.Group, skip: tuple[str, ...] = ()) -> None:
+            for k in sorted(g.array_keys()):
+                if k in skip:
+                    continue
+                try:
+                    g[k][...]
+                except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
+                    out.setdefault(path, f"its '{k}' array cannot be read ({type(exc).__name__})")
+
+        for name in sorted(self.root.group_keys()):
+            if name != "rounds":
+                scan(name, self.root[name])
+        for r in self.round_ids():
+            g = self._round(r)
+            scan(f"rounds/{r}", g, skip=("x", "chamfer", "status", "sensor_x"))
+            if "posterior" in g:
+                scan(f"rounds/{r}/posterior", g["posterior"])
+        return out
+
+    def remove_group(self, name: str) -> None:
+        """Remove a top-level group (e.g. ``evaluation``) and everything in it."""
+        shutil.rmtree(self.path / name, ignore_errors=True)
+        self.root = zarr.open_group(str(self.path), mode="a")
+
     def damaged(self) -> tuple[int, dict[int, str]] | None:
         """The earliest round with stored simulations that cannot be trusted: a chunk that cannot
         be read (truncated or corrupt) or a simulation marked done whose state is missing (a deleted
@@ -287,7 +320,8 @@ class RunStore:
         for r in self.round_ids():
             g = self._round(r)
             bad: dict[int, str] = {}
-            arrays = {name: _read_rows(g[name], bad, name) for name in ("status", "x", "chamfer")}
+            arrays = {name: _read_rows(g[name], bad, name) for name in ("status", "x", "chamfer", "sensor_x")
+                      if name in g}
             done = arrays["status"] == 0
             x = arrays["x"].reshape(len(done), -1)
             for i in np.nonzero(done & ~np.all(np.isfinite(x), axis=1))[0]:
@@ -343,9 +377,22 @@ class RunStore:
         if attrs:
             g.attrs.update(jsonable(dict(attrs)))
 
-    def read_group(self, name: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    def read_group(self, name: str, keys: Sequence[str] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """The arrays of group ``name`` (those named in ``keys``, default all) and its attributes.
+
+        Raises:
+            SchemaError: an array cannot be read (a damaged chunk); the message names it and the fix.
+        """
         g = self.root[name]
-        return {k: g[k][...] for k in g.array_keys()}, dict(g.attrs)
+        out = {}
+        for k in (g.array_keys() if keys is None else [k for k in keys if k in g]):
+            try:
+                out[k] = g[k][...]
+            except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
+                raise SchemaError(f"'{self.path / name / k}' cannot be read ({type(exc).__name__}: a damaged chunk); "
+                                  f"re-run the same `softsbi fit` command: it computes the group '{name}' again") \
+                    from None
+        return out, dict(g.attrs)
 
     def has(self, name: str) -> bool:
         return name in self.root
@@ -358,6 +405,39 @@ def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], uni
     arr = g.create_array(name, shape=value.shape, dtype=value.dtype, dimension_names=dims,
                          attributes={"units": units})
     arr[...] = value
+
+
+def _check_metadata(path: Path, root: zarr.Group) -> None:
+    """Every group's and array's ``zarr.json`` under the store ``path`` parses and opens.
+
+    Raises:
+        SchemaError: one line naming the first file that does not, and the fix.
+    """
+    import json
+    import os
+    for folder, dirs, files in os.walk(path):
+        here = Path(folder)
+        if "zarr.json" in files and "c" in dirs:  # an array's chunks: no metadata below
+            dirs.remove("c")
+        dirs.sort()
+        if "zarr.json" not in files or here == path:
+            continue
+        rel = here.relative_to(path).as_posix()
+        try:
+            json.loads((here / "zarr.json").read_bytes())
+            root[rel]
+        except Exception as exc:  # noqa: BLE001 - a garbage or truncated metadata file
+            top = rel.split("/")
+            if top[0] == "rounds" and len(top) > 1:
+                fix = (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
+                       f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
+            elif top[0] in ("observed",):
+                fix = "fit into a new --out folder"
+            else:
+                fix = (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
+                       f"for evaluation/): it computes it again")
+            raise SchemaError(f"run store file '{here / 'zarr.json'}' cannot be read ({type(exc).__name__}); "
+                              f"{fix}") from None
 
 
 def _read_rows(arr: zarr.Array, bad: dict[int, str], name: str) -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, RoundPosterior, TruncatedPrior
-from softsbi.core.errors import DataError, ParameterError, PosteriorError, SoftsbiError
+from softsbi.core.errors import DataError, ParameterError, PosteriorError, SchemaError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import ROUND_ARRAYS, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
@@ -734,7 +734,18 @@ def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Para
 def _repair_damaged(store: RunStore, callbacks: FitCallbacks) -> None:
     """Stored simulations whose chunks are missing or unreadable are named and simulated again
     from their stored parameters and seeds, never dropped or trained on; the rounds after the
-    first damaged one are drawn again from its new posterior."""
+    first damaged one are drawn again from its new posterior. Other groups with an unreadable array are
+    computed again (a round's posterior, the evaluation, a calibration), or named when they cannot be
+    (the observed data, a round's draws: :class:`SchemaError`)."""
+    for name, why in store.damaged_groups().items():
+        parts = name.split("/")
+        if name == "observed" or (parts[0] == "rounds" and len(parts) == 2):
+            raise SchemaError(f"'{store.path / name}' cannot be trusted ({why}); fit into a new --out folder")
+        callbacks.message(f"'{store.path / name}' cannot be trusted ({why}); computing it again")
+        if parts[0] != "rounds":
+            store.remove_group(name)
+        elif store.is_complete(int(parts[1])):  # (not when an earlier round's redo removed it)
+            store.redo(int(parts[1]), [])  # retrain the round; the rounds after it are drawn again
     found = store.damaged()
     if found is None:
         return

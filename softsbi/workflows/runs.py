@@ -114,7 +114,7 @@ def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
     space = ParamSpace.from_json(cfg["param_space"])
     obs = store.read_observed()
     if store.has("evaluation"):
-        ev, ev_attrs = store.read_group("evaluation")
+        ev, ev_attrs = store.read_group("evaluation", ("theta",))  # what is re-simulated: the samples
         theta = ev["theta"][:n_eval]
         seeds = evaluation_seeds(int(cfg.get("seed", 0)), int(ev_attrs.get("rounds", cfg["rounds"])),
                                  len(ev["theta"]))[:n_eval]

@@ -153,3 +153,62 @@ def test_an_out_that_is_a_file_or_unwritable_is_one_clear_line(tmp_path):
     with pytest.raises(SoftsbiError, match="cannot write the run directory"):
         with run_lock("/proc/softsbi-cannot-be-here"):
             pass
+
+
+def _first_chunk(group_dir):
+    files = sorted(p for p in (group_dir / "c").rglob("*") if p.is_file())
+    return files[0]
+
+
+def test_a_damaged_evaluation_or_round_posterior_is_computed_again_and_never_breaks_check(tmp_path):
+    """The chunk repair covers every group: fit computes a damaged evaluation or round posterior again (from
+    the stored simulations and seeds: the same numbers); check, view, compare and diagnose read only the
+    evaluation's samples, which they simulate again."""
+    from softsbi.workflows.runs import load_run
+    out = tmp_path / "run"
+    cfg = _cfg(n_eval=5)
+    first = run_fit(out, toy_measurement(), cfg, make_plots=False)
+    for part in ("evaluation/chamfer", "rounds/0/posterior/means"):
+        p = _first_chunk(out / "run.zarr" / part)
+        p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2])
+    assert len(load_run(out, 5).post_theta) == 5  # what check & co. open: no traceback
+    store = RunStore.open(out / "run.zarr")
+    assert set(store.damaged_groups()) == {"evaluation", "rounds/0/posterior"}
+    messages = []
+
+    class Cb:
+        def message(self, text):
+            messages.append(text)
+
+        def __getattr__(self, name):
+            return lambda *a, **k: None
+
+    again = run_fit(out, toy_measurement(), cfg, callbacks=Cb(), make_plots=False)
+    assert any("evaluation' cannot be trusted (its 'chamfer' array cannot be read" in m for m in messages), messages
+    assert any("rounds/0/posterior' cannot be trusted" in m for m in messages), messages
+    assert RunStore.open(out / "run.zarr").damaged_groups() == {}
+    assert again.report["posterior_mean"] == first.report["posterior_mean"]
+    assert again.report["chamfer_posterior_m"] == first.report["chamfer_posterior_m"]
+
+
+def test_unreadable_store_metadata_is_one_line_naming_the_file_and_the_fix(tmp_path):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from softsbi.cli import app
+    out = tmp_path / "run"
+    first = run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)
+    meta = out / "run.zarr" / "rounds" / "0" / "status" / "zarr.json"
+    meta.write_bytes(os.urandom(300))
+    with pytest.raises(SoftsbiError) as err:
+        run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)
+    line = str(err.value)
+    assert f"run store file '{meta}' cannot be read" in line and "\n" not in line
+    assert "remove the folder" in line and "rounds/0" in line
+    res = CliRunner().invoke(app, ["check", str(out), "--workers", "1"])
+    assert res.exit_code == 2 and "cannot be read" in res.output and "Traceback" not in res.output
+    for sub in ("rounds/0", "rounds/1", "evaluation"):  # the fix the message gives
+        shutil.rmtree(out / "run.zarr" / sub)
+    again = run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)
+    assert again.report["posterior_mean"] == first.report["posterior_mean"]
