@@ -38,13 +38,14 @@ def load_scenario(name_or_path: str | Path, recording: str | Path | None = None,
         raise SoftsbiError(str(exc)) from None
 
 
-def fit(recording: Recording, out: str | Path, config: FitConfig | None = None,
+def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | None = None,
         callbacks: FitCallbacks | None = None, plots: bool = True, **settings: Any) -> FitResult:
     """Fit the posterior over a simulator's physical parameters to ``recording`` (resumable).
 
     Args:
         recording: a :class:`~softsbi.core.types.Recording` (:func:`load_recording`, or a simulated
-            one from :func:`softsbi.workflows.measurement.simulate_recording`).
+            one from :func:`softsbi.workflows.measurement.simulate_recording`), or the path of a recording
+            folder, read as ``softsbi fit --observed PATH`` reads it (``n_points`` and ``seed`` from the settings).
         out: run directory (``run.zarr``, ``report.json``, figures); an existing run with the same
             settings resumes.
         config: settings; default :class:`FitConfig` (the CLI's defaults).
@@ -56,7 +57,9 @@ def fit(recording: Recording, out: str | Path, config: FitConfig | None = None,
         posterior in physical units.
 
     Raises:
-        ParameterError: a setting that is not a :class:`FitConfig` field (names the closest one).
+        ParameterError: a setting that is not a :class:`FitConfig` field (names the closest one), or a value
+            that is not of the field's type (e.g. ``rounds="two"``, ``effects="wind"`` for ``["wind"]``,
+            ``bounds={"stretch": 5}`` for ``{"stretch": (low, high)}``); ``recording`` neither a Recording nor a path.
         Everything :func:`~softsbi.workflows.fit.run_fit` raises.
     """
     names = [f.name for f in fields(FitConfig)]
@@ -64,8 +67,32 @@ def fit(recording: Recording, out: str | Path, config: FitConfig | None = None,
     if bad:
         from softsbi.core.errors import closest
         raise ParameterError(f"unknown fit setting {bad[0]!r}.{closest(bad[0], names)} Settings: {', '.join(names)}")
-    cfg = replace(config or FitConfig(), **settings)
+    if config is not None and not isinstance(config, FitConfig):
+        raise ParameterError(f"fit(config=...) takes a softsbi.FitConfig, got {type(config).__name__}")
+    cfg = typed_config(replace(config or FitConfig(), **settings))
+    if isinstance(recording, (str, Path)):
+        from softsbi.workflows.measurement import load_recording
+        recording = load_recording(recording, n_points=cfg.n_points, seed=cfg.seed)
+    elif not isinstance(recording, Recording):
+        raise ParameterError(f"fit(recording=...) takes a Recording (softsbi.load_recording(PATH)) or the path of a "
+                             f"recording folder, got {type(recording).__name__}")
     return run_fit(out, recording, cfg, callbacks=callbacks, make_plots=plots)
+
+
+def typed_config(cfg: FitConfig) -> FitConfig:
+    """``cfg`` with every setting checked against its declared type (:class:`FitConfig`'s annotations) and
+    converted where that is lossless (``"4"`` -> 4, a ``[low, high]`` list -> a tuple).
+
+    Raises:
+        ParameterError: one line naming the first setting of the wrong type, its value and the fix.
+    """
+    from pydantic import TypeAdapter, ValidationError
+
+    from softsbi.data.validation import validation_line
+    try:
+        return TypeAdapter(FitConfig).validate_python({f.name: getattr(cfg, f.name) for f in fields(FitConfig)})
+    except ValidationError as exc:
+        raise ParameterError(validation_line("fit setting", exc, "help(softsbi.FitConfig)")) from None
 
 
 def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None, backend: str = "mujoco-flex",
@@ -78,8 +105,17 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
 
     Raises:
         PluginNotFound: unknown backend or effect. ParameterError: unknown parameter or a value outside its physical limits,
-            or a backend option the backend does not have (or text where it expects a number).
+            or a backend option the backend does not have (or text where it expects a number); a ``scenario``,
+            ``effects`` or ``theta`` of the wrong type (a string where a list of effect names is expected).
     """
+    if not isinstance(scenario, (str, Path, Scenario)):
+        raise ParameterError(f"simulate(scenario=...) takes a scenario name, a scenario file path or a Scenario, got "
+                             f"{type(scenario).__name__}")
+    if isinstance(effects, str) or not all(isinstance(e, str) for e in effects):
+        raise ParameterError(f"simulate(effects=...) takes a list of effect names, e.g. [{str(effects)!r}], got "
+                             f"{type(effects).__name__} {effects!r}"[:300])
+    if theta is not None and not isinstance(theta, Mapping):
+        raise ParameterError(f"simulate(theta=...) takes a mapping {{name: value}}, got {type(theta).__name__}")
     sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     reg = registry()
     check_options(reg.simulator(backend), backend_options, f"simulator '{backend}' (backend_options)")

@@ -175,6 +175,8 @@ class FitConfig:
             raise SoftsbiError(f"--sensor must be 'height' or 'camera' (got {self.sensor!r})")
         if not 0 < self.truncation_eps < 0.5:
             raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
+        if self.seed < 0:
+            raise SoftsbiError(f"--seed must be >= 0 (got {self.seed})")
         if not isinstance(self.sensor_draws, int) or self.sensor_draws < 0:
             raise SoftsbiError(f"sensor_draws must be an integer >= 0 (got {self.sensor_draws!r})")
         if self.rounds < 1:
@@ -279,8 +281,24 @@ def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> lis
     no scenario); ``"10:25"`` / ``"0,5,10"`` / a list -> indices.
 
     Raises:
-        SoftsbiError: a spec that is not indices or ranges.
+        SoftsbiError: a spec that is not indices or ranges, or (with ``scenario``) an index outside its frames.
     """
+    out = _frame_indices(spec, scenario)
+    if out is not None and scenario is not None:
+        T = scenario.n_frames
+        bad = [i for i in out if not 0 <= i < T]
+        if bad:
+            raise SoftsbiError(f"--frames {_frames_text(spec)} selects frame {bad[0]}, but the recording has {T} frames "
+                               f"(0 to {T - 1}); give frames within them, e.g. --frames {T // 2}:{T}")
+    return out
+
+
+def _frames_text(spec: Any) -> str:
+    return ",".join(str(i) for i in spec) if isinstance(spec, (list, tuple)) else str(spec)
+
+
+def _frame_indices(spec: list[int] | str | None, scenario: Scenario | None) -> list[int] | None:
+    """:func:`parse_frames` before the range check."""
     if spec is None or spec == "all":
         return None
     if isinstance(spec, (list, tuple)):

@@ -170,3 +170,16 @@ def test_a_run_directory_passed_as_the_recording_is_named_as_such(tmp_path):
     (tmp_path / "run" / "run.zarr").mkdir(parents=True)
     with pytest.raises(DataError, match=r"is a run directory \(the output of `softsbi fit`\), not a recording"):
         load_cloud_frames(tmp_path / "run")
+
+
+def test_frames_outside_the_recording_and_a_negative_seed_are_refused_before_simulating(tmp_path):
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    meas = tmp_path / "meas"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0  # lift
+    for args, message in ((["--frames", "30:40"], "--frames 30:40 selects frame 30, but the recording has 25 frames "
+                                                  "(0 to 24); give frames within them, e.g. --frames 12:25"),
+                          (["--seed", "-1"], "--seed must be >= 0 (got -1)")):
+        out = tmp_path / "run"
+        res = runner.invoke(app, ["fit", "--observed", str(meas), "--backend", "toy-gauss", "--out", str(out), *args])
+        assert res.exit_code == 2 and message in " ".join(res.output.split()), res.output
+        assert "Traceback" not in res.output and not out.exists()

@@ -60,3 +60,41 @@ def test_fit_refuses_an_unknown_setting_and_open_run_an_unfinished_run(tmp_path)
         softsbi.fit(toy_measurement(), tmp_path / "x", backend="toy-gauss", round=2)
     with pytest.raises(SoftsbiError):
         softsbi.open_run(tmp_path / "nothing-here")
+
+
+def test_the_python_api_checks_types_and_frames_at_entry(tmp_path):
+    """Each of these raised a TypeError or IndexError (the frames only after a whole round was simulated, and
+    the run then resumed only with the same bad setting); effects="wind" was read as the effects w, i, n, d."""
+    rec = toy_measurement(T=4)
+    cases = [({"rounds": "two"}, "field 'rounds': Input should be a valid integer"),
+             ({"bounds": {"a": 5}}, "field 'bounds.a': Input should be a valid tuple (got 5)"),
+             ({"effects": "toy-wind"}, "field 'effects': Input should be a valid list (got 'toy-wind')"),
+             ({"frames": [100]}, "--frames 100 selects frame 100, but the recording has 4 frames (0 to 3)"),
+             ({"seed": -1}, "--seed must be >= 0 (got -1)")]
+    for kw, message in cases:
+        with pytest.raises(SoftsbiError) as err:
+            softsbi.fit(rec, tmp_path / "run", **{"backend": "toy-gauss", "sims_per_round": 10, "workers": 1, **kw})
+        assert message in str(err.value), (kw, str(err.value))
+        assert not (tmp_path / "run").exists(), kw
+    with pytest.raises(SoftsbiError, match="takes a Recording .* or the path of a recording folder, got int"):
+        softsbi.fit(123, tmp_path / "run")
+    with pytest.raises(SoftsbiError, match="'.*nowhere' does not exist"):
+        softsbi.fit(tmp_path / "nowhere", tmp_path / "run")  # a path is read as `fit --observed PATH` reads it
+    with pytest.raises(SoftsbiError, match="takes a scenario name, a scenario file path or a Scenario, got int"):
+        softsbi.simulate(123)
+    with pytest.raises(SoftsbiError, match=r"takes a list of effect names, e.g. \['wind'\]"):
+        softsbi.simulate("lift", effects="wind")
+
+
+def test_compare_refuses_an_out_that_is_a_file_before_checking_either_run(toy_run, tmp_path, monkeypatch):
+    import softsbi.workflows.compare as compare
+
+    def no_check(*a, **k):
+        raise AssertionError("checked a run before refusing the output folder")
+    monkeypatch.setattr(compare, "check_run", no_check)
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    with pytest.raises(SoftsbiError, match=f"--out '{afile}' is a file; give a folder"):
+        compare.compare_runs(toy_run, toy_run, afile)
+    with pytest.raises(SoftsbiError, match="not a run directory"):
+        compare.compare_runs(toy_run, tmp_path, tmp_path / "o")  # the second run, before the first's check
