@@ -12,22 +12,16 @@ The Python API (the CLI's workflows, with the same defaults)::
     post = softsbi.open_run("runs/tan").posterior     # physical units
     post.sample(100), post.mean, post.interval(0.9)
 
-The workflow functions are imported on first use, so ``import softsbi`` (e.g. by a plugin for
-``hookimpl`` and the base classes) stays light.
+Every name but :class:`SoftsbiError` is imported on first use, so ``import softsbi`` (e.g. by a plugin for
+``hookimpl`` and the base classes, or by ``softsbi --help``) stays light.
 """
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.interfaces import Effect, Executor, Observer, PosteriorEstimator, Simulator
-from softsbi.core.types import Observation, Param, ParamSpace, Recording, Rollout, Scenario
-from softsbi.plugins.hookspecs import hookimpl
-
-try:
-    from importlib.metadata import version as _v
-    __version__ = _v("softsbi")
-except Exception:  # noqa: BLE001 - running from a source tree
-    __version__ = "0.0.0"
 
 #: public API name -> module that defines it (imported on first access)
-_LAZY = {"fit": "softsbi.workflows.api", "open_run": "softsbi.workflows.api", "simulate": "softsbi.workflows.api",
+_LAZY = {**{n: "softsbi.core.interfaces" for n in ("Effect", "Executor", "Observer", "PosteriorEstimator", "Simulator")},
+         **{n: "softsbi.core.types" for n in ("Observation", "Param", "ParamSpace", "Recording", "Rollout", "Scenario")},
+         "hookimpl": "softsbi.plugins.hookspecs",
+         "fit": "softsbi.workflows.api", "open_run": "softsbi.workflows.api", "simulate": "softsbi.workflows.api",
          "load_scenario": "softsbi.workflows.api", "FitConfig": "softsbi.workflows.api",
          "FitResult": "softsbi.workflows.api", "Run": "softsbi.workflows.api",
          "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement",
@@ -36,12 +30,16 @@ _LAZY = {"fit": "softsbi.workflows.api", "open_run": "softsbi.workflows.api", "s
 
 
 def __getattr__(name: str):
+    if name == "__version__":
+        try:
+            from importlib.metadata import version
+            return version("softsbi")
+        except Exception:  # noqa: BLE001 - running from a source tree
+            return "0.0.0"
     if name in _LAZY:
         import importlib
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'softsbi' has no attribute {name!r}")
 
 
-__all__ = ["hookimpl", "Simulator", "Effect", "Observer", "PosteriorEstimator", "Executor", "Param",
-           "ParamSpace", "Scenario", "Rollout", "Observation", "Recording", "SoftsbiError", "__version__",
-           *_LAZY]
+__all__ = ["SoftsbiError", "__version__", *_LAZY]

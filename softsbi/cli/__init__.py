@@ -2,21 +2,18 @@
 compare-backends | demo``."""
 from __future__ import annotations
 
-import contextlib
 import functools
 from enum import Enum
 import sys
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import Any, Optional
 
 import typer
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.metrics import describe_change
+from softsbi.core.levels import ALPHA
 from softsbi.cli.output import Output, json_error
-from softsbi.workflows.demo import DEMO_ROUNDS, DEMO_SIMS, DemoCallbacks
-from softsbi.workflows.fit import FitCallbacks
-from softsbi.workflows.stats import ALPHA
+from softsbi.workflows import defaults as D
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="softsbi: Bayesian real-to-sim for deformable objects (BayesSim-RKHS).")
@@ -88,51 +85,15 @@ def _parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
     return out
 
 
-class ProgressHooks(FitCallbacks):
-    """Progress of :func:`softsbi.workflows.fit.run_fit` on stderr: bars on a terminal, one line per
-    round otherwise."""
-
-    def __init__(self, o: Output, progress: Any):
-        self.o, self.p = o, progress
-        self.sim_task = None
-        self.train_task = None
-
-    def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
-        label = f"round {r + 1}/{rounds} simulations" if r >= 0 else "posterior rollouts"
-        if self.sim_task is not None:
-            self.p.remove_task(self.sim_task)
-        self.sim_task = self.p.add_task(label, total=n_total, completed=n_total - n_pending)
-        if not self.o.err.is_terminal:
-            self.o.message(f"{label}: {n_pending} of {n_total} to simulate")
-
-    def simulation_done(self, r: int, done: int, total: int) -> None:
-        self.p.update(self.sim_task, completed=done)
-
-    def training_epoch(self, r: int, epoch: int, max_epochs: int, loss: float) -> None:
-        if self.train_task is None:
-            self.train_task = self.p.add_task(f"round {r + 1} training", total=max_epochs)
-        self.p.update(self.train_task, completed=epoch, description=f"round {r + 1} training (loss {loss:.3f})")
-
-    def round_end(self, r: int, s: dict[str, Any]) -> None:
-        if self.train_task is not None:
-            self.p.remove_task(self.train_task)
-            self.train_task = None
-        ch = s.get("chamfer_proposal") or {}
-        ch_txt = f", Chamfer of this round's rollouts {ch['mean_m'] * 100:.2f} cm" if ch.get("mean_m") else ""
-        mean = ", ".join(f"{k}={v:.3g}" for k, v in s["posterior_mean"].items())
-        self.o.message(f"round {r + 1}: {s['usable']} usable, {s['failed']} failed{ch_txt}; posterior mean {mean}")
-
-    def message(self, text: str) -> None:
-        self.o.message(text, style="yellow")
-
-
 def _run(o: Output, meas, cfg, out: Path, retry_failed: bool = False):
+    from softsbi.cli.progress import ProgressHooks
     from softsbi.workflows.fit import run_fit
     with o.progress() as p:
         return run_fit(out, meas, cfg, callbacks=ProgressHooks(o, p), retry_failed=retry_failed)
 
 
 def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
+    from softsbi.core.metrics import describe_change
     from softsbi.inference.contraction import (INFORMED_MAX_RATIO, bound_sentence, contraction_from_report,
                                                format_estimate)
     truth = rep.get("truth") or {}
@@ -233,8 +194,8 @@ def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
 
 @app.command()
 @_guard
-def simulate(backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
-             scenario: str = typer.Option("lift", help="scenario name (`softsbi scenarios` lists them) or scenario "
+def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
+             scenario: str = typer.Option(D.SCENARIO, help="scenario name (`softsbi scenarios` lists them) or scenario "
                                                        "file (.yaml)"),
              recording: Optional[Path] = typer.Option(None, help="real recording folder to take the scenario from"),
              theta: list[str] = typer.Option(None, "--theta", help="name=value (repeatable); unset = prior midpoint"),
@@ -291,10 +252,6 @@ def _fit_config(backend, estimator, rounds, sims_per_round, seed, points, worker
                      executor_options=dict(executor_options or {}), proposal=Proposal(proposal).value)
 
 
-DEFAULT_ROUNDS = 4
-DEFAULT_SIMS = 150
-
-
 @app.command()
 @_guard
 def fit(observed: Path = typer.Option(..., help="recording directory (recording.yaml + clouds/: `softsbi import "
@@ -302,19 +259,19 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                  "(000.npy ... + <task>_real2sim.yaml), or with an image observer "
                                                  "a folder of frames 000.png ..."),
         out: Path = typer.Option(..., help="run directory (resumes if it holds a run)"),
-        backend: str = typer.Option("mujoco-flex", help=H_BACKEND),
-        estimator: str = typer.Option("rkhs", help=H_ESTIMATOR),
-        rounds: int = typer.Option(DEFAULT_ROUNDS, help="sequential rounds (paper: 15)"),
-        sims_per_round: int = typer.Option(DEFAULT_SIMS, help="simulations per round (paper: 100)"),
-        seed: int = typer.Option(0, help=H_SEED),
-        points: int = typer.Option(64, help="K, points per frame"),
+        backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
+        estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
+        rounds: int = typer.Option(D.ROUNDS, help="sequential rounds (paper: 15)"),
+        sims_per_round: int = typer.Option(D.SIMS_PER_ROUND, help="simulations per round (paper: 100)"),
+        seed: int = typer.Option(D.SEED, help=H_SEED),
+        points: int = typer.Option(D.N_POINTS, help="K, points per frame"),
         workers: Optional[int] = typer.Option(None, help=H_WORKERS),
         effect: list[str] = typer.Option(None, "--effect", help="effects to add (their parameters are inferred)"),
         bounds: list[str] = typer.Option(None, "--bounds", help="prior bounds name=low:high"),
         fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
         backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
         estimator_opt: list[str] = typer.Option(None, "--estimator-opt", help="estimator option name=value"),
-        n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL + "; their mean Chamfer is the reported one"),
+        n_eval: int = typer.Option(D.N_EVAL, "--n-eval", help=H_N_EVAL + "; their mean Chamfer is the reported one"),
         min_height: Optional[float] = typer.Option(
             None, help="sensor model: points closer than this (m) to the table are not seen, in simulation and "
                        "recording alike (0 = all visible); default: the recording's (DiffCloud depth clouds lack "
@@ -323,12 +280,12 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                         "clear: gripper >= 10 cm above the table), 'all', or e.g. "
                                                         "10:25; default: the recording's (DiffCloud: auto); the "
                                                         "reported Chamfer is the mean over these frames"),
-        sensor: str = typer.Option("height", help="sensor model of the metric and the observed state: height (the "
+        sensor: str = typer.Option(D.SENSOR, help="sensor model of the metric and the observed state: height (the "
                                                   "--min-height cut, simulation and recording alike) or camera "
                                                   "(simulated clouds from a virtual depth sensor made like "
                                                   "DiffCloud's, from the recording's calibrated cameras; DiffCloud "
                                                   "lift folders only)"),
-        executor: str = typer.Option("local", help="where simulations run: local (process pool) or ray "
+        executor: str = typer.Option(D.EXECUTOR, help="where simulations run: local (process pool) or ray "
                                                    "(executor plugins; `softsbi plugins` lists them)"),
         ray_address: Optional[str] = typer.Option(None, help="with --executor ray: address of an existing Ray "
                                                              "cluster (head host:port or auto); default: start Ray "
@@ -337,16 +294,16 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                                "killed and the simulation retried (default: none)"),
         retries: int = typer.Option(2, help="re-runs of a simulation whose worker crashed or hung, before it is "
                                             "stored as failed"),
-        observer: str = typer.Option("pointcloud", help="observer plugin: pointcloud (3-D clouds), or heatmap / "
+        observer: str = typer.Option(D.OBSERVER, help="observer plugin: pointcloud (3-D clouds), or heatmap / "
                                                         "transporter (keypoints found in RGB frames by a trained "
                                                         "extractor)"),
         extractor: Optional[Path] = typer.Option(None, help="with --observer heatmap|transporter: the trained "
                                                             "extractor checkpoint (softsbi train-extractor)"),
         scenario: Optional[str] = typer.Option(None, help="scenario (name or file) the frames were recorded in; "
                                                           "default: the recording's own (image observers: lift)"),
-        image_size: int = typer.Option(128, help="image observers: square size (px) of the scenario's built-in "
+        image_size: int = typer.Option(D.IMAGE_SIZE, help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
-        proposal: Proposal = typer.Option(Proposal.truncated, help=H_PROPOSAL),
+        proposal: Proposal = typer.Option(Proposal(D.PROPOSAL), help=H_PROPOSAL),
         sensor_draws: int = typer.Option(0, "--sensor-draws",
                                          help="observe each simulation at N more values of the sensor effects' "
                                               "parameters (--effect time-offset, point-noise, ...): N times more "
@@ -395,55 +352,16 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         _print_report(o, res.report, out)
 
 
-class DemoPrinter(DemoCallbacks):
-    """Prints the demo's steps (results on stdout, progress on stderr)."""
-
-    def __init__(self, o: Output):
-        self.o = o
-
-    def step(self, title: str) -> None:
-        self.o.rule(title)
-
-    def line(self, text: str) -> None:
-        self.o.line(text)
-
-    @contextlib.contextmanager
-    def fitting(self) -> Iterator[FitCallbacks]:
-        with self.o.progress() as p:
-            yield ProgressHooks(self.o, p)
-
-    @contextlib.contextmanager
-    def working(self, text: str) -> Iterator[None]:
-        with self.o.status(text):
-            yield
-
-    def fit_done(self, report: dict[str, Any], run_dir: Path) -> None:
-        _print_report(self.o, report, run_dir)
-
-    def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
-        from softsbi.workflows.diagnose import format_p
-        self.o.table(["rank", "effect", "explains", f"max-T p ({diagnosis['n_null']} nulls)"],
-                     [[i + 1, r["effect"], f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r)]
-                      for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
-        self.o.line(f"verdict: {diagnosis['verdict']}")
-        self.o.line(diagnosis["summary"])
-
-    def comparison_done(self, comparison: dict[str, Any], effect: str) -> None:
-        self.o.table(["", "nominal", f"+ {effect}", "change"],
-                     [[row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm",
-                       f"{row['change'] * 100:+.0f}%"] for row in comparison["table"][:4]])
-
-
 @app.command()
 @_guard
 def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
          quick: bool = typer.Option(False, "--quick", help="only fit hidden parameters (no hidden effect)"),
-         rounds: int = typer.Option(DEMO_ROUNDS, help="sequential rounds per fit"),
-         sims_per_round: int = typer.Option(DEMO_SIMS, help="simulations per round"),
-         estimator: str = typer.Option("rkhs", help=H_ESTIMATOR),
-         seed: int = typer.Option(0, help=H_SEED),
+         rounds: int = typer.Option(D.DEMO_ROUNDS, help="sequential rounds per fit"),
+         sims_per_round: int = typer.Option(D.DEMO_SIMS, help="simulations per round"),
+         estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
+         seed: int = typer.Option(D.SEED, help=H_SEED),
          workers: Optional[int] = typer.Option(None, help=H_WORKERS),
-         proposal: Proposal = typer.Option(Proposal.truncated, help=H_PROPOSAL + "; truncated keeps the "
+         proposal: Proposal = typer.Option(Proposal(D.PROPOSAL), help=H_PROPOSAL + "; truncated keeps the "
                                                                                  "7-parameter refit's posterior tight"),
          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """The whole real-to-sim story on a built-in case that needs no data files.
@@ -454,6 +372,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     "Before" and "after" are the posterior-predictive Chamfer of the two fits: the mean over
     rollouts at their posterior samples (report.json's chamfer_posterior_m; compare shows the same).
     """
+    from softsbi.cli.progress import DemoPrinter
     from softsbi.workflows.demo import run_demo
     o = Output(as_json)
     doc = run_demo(out, quick=quick, rounds=rounds, sims_per_round=sims_per_round, estimator=estimator, seed=seed,
@@ -465,8 +384,8 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
 @app.command()
 @_guard
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
-          n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL),
-          max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
+          n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL),
+          max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL),
           alpha: float = typer.Option(ALPHA, help=H_ALPHA),
           workers: Optional[int] = typer.Option(None, help=H_WORKERS),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
@@ -498,9 +417,9 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
 @app.command()
 @_guard
 def calibrate(run: Path = typer.Argument(..., help="run directory of a finished fit"),
-              n_test: int = typer.Option(200, "--n-test", help="fresh test simulations from the run's proposals "
+              n_test: int = typer.Option(D.N_TEST, "--n-test", help="fresh test simulations from the run's proposals "
                                          "(stored in the run; a re-run resumes, a larger number adds to them)"),
-              n_draws: int = typer.Option(1000, "--n-draws", help="posterior draws per test simulation"),
+              n_draws: int = typer.Option(D.N_DRAWS, "--n-draws", help="posterior draws per test simulation"),
               workers: Optional[int] = typer.Option(None, help=H_WORKERS),
               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Simulation-based calibration of the run's posterior estimator: expected coverage, SBC ranks, TARP."""
@@ -577,7 +496,7 @@ def diagnosis_table_rows(out: dict) -> list[list]:
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
-             confirm: int = typer.Option(2, help="refit the top N significant candidates, re-check each refit "
+             confirm: int = typer.Option(D.CONFIRM, help="refit the top N significant candidates, re-check each refit "
                                                  "with check's test and name, among the refits check accepts, the "
                                                  "one that lowers the error most (when those that pass the "
                                                  "screening's share all fail, the next significant ones are "
@@ -587,8 +506,8 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                                      "(default: the run's)"),
              confirm_sims: Optional[int] = typer.Option(None, help="simulations per round of a confirmation refit "
                                                                    "(default: the run's)"),
-             n_null: int = typer.Option(30, "--n-null", help="posterior-predictive simulations the null starts with"),
-             max_null: int = typer.Option(200, "--max-null", help=H_MAX_NULL),
+             n_null: int = typer.Option(D.N_NULL, "--n-null", help="posterior-predictive simulations the null starts with"),
+             max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL),
              alpha: float = typer.Option(ALPHA, help=H_ALPHA),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
@@ -621,7 +540,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
 def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal model)"),
             run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
-            n_eval: int = typer.Option(30, "--n-eval", help=H_N_EVAL + ", per run"),
+            n_eval: int = typer.Option(D.N_EVAL, "--n-eval", help=H_N_EVAL + ", per run"),
             workers: Optional[int] = typer.Option(None, help=H_WORKERS),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Two runs side by side: error per time step and region, before vs after."""
@@ -642,7 +561,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
 @app.command()
 @_guard
 def view(run: Path = typer.Argument(..., help="run directory of a finished point-cloud fit"),
-         n_eval: int = typer.Option(5, "--n-eval", help="posterior-predictive rollouts drawn (faded) against the "
+         n_eval: int = typer.Option(D.VIEW_N_EVAL, "--n-eval", help="posterior-predictive rollouts drawn (faded) against the "
                                                           "measurement"),
          gif: bool = typer.Option(True, help="write RUN/view.gif: measured vs simulated clouds over time"),
          rrd: bool = typer.Option(True, help="write RUN/view.rrd for the rerun viewer (`rerun RUN/view.rrd`); "
@@ -673,13 +592,13 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
                     simulate: Optional[str] = typer.Option(None, help="instead of --data: render this scenario at "
                                                                       "prior samples (labels = projected cloth "
                                                                       "corners; robot masks from the segmentation)"),
-                    backend: str = typer.Option("mujoco-flex", help="with --simulate: simulator plugin"),
-                    rollouts: int = typer.Option(40, help="with --simulate: rendered rollouts"),
-                    image_size: int = typer.Option(128, help="with --simulate: square camera size (px)"),
+                    backend: str = typer.Option(D.BACKEND, help="with --simulate: simulator plugin"),
+                    rollouts: int = typer.Option(D.IMAGE_ROLLOUTS, help="with --simulate: rendered rollouts"),
+                    image_size: int = typer.Option(D.IMAGE_SIZE, help="with --simulate: square camera size (px)"),
                     mask_robot: bool = typer.Option(True, help="transporter: leave the robot out of the "
                                                                "reconstruction loss"),
                     opt: list[str] = typer.Option(None, "--opt", help="extractor option name=value (repeatable)"),
-                    seed: int = typer.Option(0, help=H_SEED),
+                    seed: int = typer.Option(D.SEED, help=H_SEED),
                     as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Train a keypoint extractor on annotated images or on rendered rollouts; report its test error."""
     from softsbi.workflows.extractor import ExtractorProgress, train_extractor as train
@@ -714,11 +633,12 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
 
 @app.command("compare-backends")
 @_guard
-def compare_backends_cmd(scenario: str = typer.Option("lift", help="scenario name: lift, wipe, wind or fling"),
+def compare_backends_cmd(scenario: str = typer.Option(D.SCENARIO, help="scenario name or file (`softsbi scenarios` "
+                                                                   "lists them)"),
                          theta: list[str] = typer.Option(None, "--theta",
                                                          help="name=value (repeatable); unset = the shared prior midpoint "
                                                               "(engine-only knobs: each backend's own)"),
-                         backends: str = typer.Option("mujoco-flex,pybullet-massspring", help="comma-separated simulators"),
+                         backends: str = typer.Option(",".join(D.COMPARED_BACKENDS), help="comma-separated simulators"),
                          backend_opt: list[str] = typer.Option(None, "--backend-opt",
                                                                help="backend:option=value, e.g. pybullet-massspring:grid=7"),
                          match: Match = typer.Option(Match.physical, help="match the engines by 'physical' "

@@ -21,7 +21,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
     TimeRemainingColumn
 from rich.table import Table
 
-from softsbi.core.types import jsonable
 
 #: width of a piped console: wide enough that no line wraps and no table cell is cut
 PIPE_WIDTH = 100_000
@@ -101,6 +100,7 @@ class Output:
     # JSON -------------------------------------------------------------------------------------
     def emit_json(self, doc: Any) -> None:
         """Write ``doc`` as the command's one JSON document on stdout (NaN/inf as null)."""
+        from softsbi.core.types import jsonable
         sys.stdout.write(json.dumps(jsonable(doc), indent=2) + "\n")
         sys.stdout.flush()
 

@@ -39,6 +39,7 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration import plot_calibration
+from softsbi.workflows import defaults
 from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
@@ -149,7 +150,7 @@ def calibration_verdict(v50: str, v90: str) -> str:
     return v50 if v50 == v90 else f"{v50} at 50%, {v90} at 90%"
 
 
-def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, workers: int | None = None,
+def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS, workers: int | None = None,
                   estimator: str | None = None, estimator_options: Mapping[str, Any] | None = None,
                   n_bins: int = 10, write: bool = True,
                   message: Callable[[str], None] | None = None) -> dict[str, Any]:

@@ -17,12 +17,13 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.metrics import describe_change
 from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import MAX_NULL, check_run, sensor_model
+from softsbi.workflows.defaults import N_EVAL
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import load_run
 from softsbi.workflows.stats import posterior_mean_chamfer
 
 
-def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = 30,
+def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = N_EVAL,
                  workers: int | None = None, max_null: int = MAX_NULL) -> dict[str, Any]:
     """Posterior predictive checks of two runs of the same measurement, side by side.
 

@@ -26,6 +26,7 @@ from softsbi.core.errors import ParameterError
 from softsbi.core.metrics import chamfer_per_frame
 from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
 from softsbi.report.figures import plot_compare_backends
+from softsbi.workflows.defaults import COMPARED_BACKENDS
 
 
 def shared_space(spaces: Sequence[ParamSpace]) -> ParamSpace:
@@ -83,7 +84,7 @@ def backend_theta(space, theta: Mapping[str, float], match: str = "physical",
 
 
 def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = None,
-                     backends: Sequence[str] = ("mujoco-flex", "pybullet-massspring"), out_dir: str | Path | None = None,
+                     backends: Sequence[str] = COMPARED_BACKENDS, out_dir: str | Path | None = None,
                      *, backend_options: Mapping[str, Mapping[str, Any]] | None = None, n_points: int = 500,
                      seed: int = 0, match: str = "physical") -> dict[str, Any]:
     """Roll ``scenario`` out on each backend at the same parameters and compare them frame by frame.

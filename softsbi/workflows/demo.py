@@ -25,6 +25,7 @@ from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows.check import check_run
+from softsbi.workflows.defaults import DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
 from softsbi.workflows.compare import compare_runs
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.stats import PosteriorPredictive
@@ -35,8 +36,6 @@ from softsbi.workflows.measurement import simulate_recording
 DEMO_TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}
 #: the demo's hidden effect: a breeze the nominal model lacks
 DEMO_HIDDEN_EFFECT = {"wind": {"wind_x": 0.0, "wind_y": 0.8}}
-DEMO_ROUNDS = 3
-DEMO_SIMS = 150
 
 
 class DemoCallbacks:
@@ -88,8 +87,8 @@ def _fit(ui: DemoCallbacks, recording: Recording, cfg: FitConfig, run_dir: Path)
 
 
 def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int = DEMO_ROUNDS,
-             sims_per_round: int = DEMO_SIMS, estimator: str = "rkhs", seed: int = 0, workers: int | None = None,
-             proposal: str = "truncated", ui: DemoCallbacks | None = None) -> dict[str, Any]:
+             sims_per_round: int = DEMO_SIMS, estimator: str = ESTIMATOR, seed: int = SEED,
+             workers: int | None = None, proposal: str = PROPOSAL, ui: DemoCallbacks | None = None) -> dict[str, Any]:
     """Run the demo into ``out`` (``nominal/``, ``with-<effect>/``, ``compare.png``).
 
     Returns:

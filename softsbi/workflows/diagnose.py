@@ -32,6 +32,7 @@ from softsbi.core.types import Recording, unit_suffix
 from softsbi.inference.contraction import bound_sentence, widened_bounds
 from softsbi.plugins import registry
 from softsbi.workflows.check import material_regions, motion_phases, rollout_region_errors
+from softsbi.workflows import defaults
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.mimicry import MIMIC_SHARE, physics_mimicry, standin_of
 from softsbi.workflows.runs import RunView, load_run
@@ -65,7 +66,7 @@ EXPLAIN_ALPHA = 0.2
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, n_null: int = N_NULL,
                  max_null: int = MAX_NULL, unit_step: float = 0.05, effect_step: float = 0.25,
                  alpha: float = ALPHA, min_explained: float = MIN_EXPLAINED, workers: int | None = None,
-                 confirm: int = 2, confirm_budget: dict[str, int] | None = None,
+                 confirm: int = defaults.CONFIRM, confirm_budget: dict[str, int] | None = None,
                  seed: int = 0, progress: Any = None, pool: PosteriorPredictive | None = None) -> dict[str, Any]:
     """Is the nominal model enough, and if not, which installed effect is missing? Writes ``diagnosis.json``.
 

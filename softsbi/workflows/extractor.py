@@ -9,6 +9,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.workflows import defaults
 from softsbi.data.keypoints import block_split, keypoint_errors, load_keypoint_folder
 from softsbi.perception.synthdata import render_training_set, visible_corner_labels
 from softsbi.plugins import registry
@@ -27,8 +28,9 @@ class ExtractorProgress:
 
 
 def train_extractor(kind: str, out: str | Path, data: str | Path | None = None, simulate: str | None = None,
-                    backend: str = "mujoco-flex", rollouts: int = 40, image_size: int = 128, mask_robot: bool = True,
-                    options: Mapping[str, Any] | None = None, seed: int = 0,
+                    backend: str = defaults.BACKEND, rollouts: int = defaults.IMAGE_ROLLOUTS,
+                    image_size: int = defaults.IMAGE_SIZE, mask_robot: bool = True,
+                    options: Mapping[str, Any] | None = None, seed: int = defaults.SEED,
                     progress: ExtractorProgress | None = None) -> dict[str, Any]:
     """Train extractor ``kind`` and save it to ``out`` (``.pt``) with a summary ``out.json``.
 

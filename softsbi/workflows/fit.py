@@ -38,6 +38,7 @@ from softsbi.perception.masks import hsv_mask
 from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
 from softsbi.scenarios.cameras import default_camera
+from softsbi.workflows import defaults
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
 from softsbi.workflows.lock import run_lock
 
@@ -140,29 +141,29 @@ class FitConfig:
             (:data:`~softsbi.workflows.diagnose.REFIT_SENSOR_DRAWS`).
     """
 
-    backend: str = _resume("mujoco-flex")
+    backend: str = _resume(defaults.BACKEND)
     backend_options: dict[str, Any] = _resume(factory=dict)
     effects: list[str] = _resume(factory=list)
-    observer: str = _resume("pointcloud")
-    n_points: int = 64
+    observer: str = _resume(defaults.OBSERVER)
+    n_points: int = defaults.N_POINTS
     observer_options: dict[str, Any] = field(default_factory=dict)
-    estimator: str = _resume("rkhs")
+    estimator: str = _resume(defaults.ESTIMATOR)
     estimator_options: dict[str, Any] = field(default_factory=dict)
-    rounds: int = 4
-    sims_per_round: int = _resume(150)
-    seed: int = _resume(0)
-    n_eval: int = 30
+    rounds: int = defaults.ROUNDS
+    sims_per_round: int = _resume(defaults.SIMS_PER_ROUND)
+    seed: int = _resume(defaults.SEED)
+    n_eval: int = defaults.N_EVAL
     n_dense: int = 600
     workers: int | None = None
-    executor: str = "local"
+    executor: str = defaults.EXECUTOR
     executor_options: dict[str, Any] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     fixed: dict[str, float] = field(default_factory=dict)
     min_height: float | None = _resume(None)
     frames: list[int] | str | None = _resume(None)
-    proposal: str = _resume("truncated")
+    proposal: str = _resume(defaults.PROPOSAL)
     truncation_eps: float = _resume(1e-3)
-    sensor: str = _resume("height")
+    sensor: str = _resume(defaults.SENSOR)
     sensor_draws: int = _resume(0)
 
     def validate(self) -> None:

@@ -11,6 +11,7 @@ from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
                                           seen_resampled)
+from softsbi.workflows.defaults import IMAGE_SIZE
 
 if TYPE_CHECKING:
     from softsbi.core.camera import Camera, RenderStyle
@@ -289,7 +290,7 @@ def simulate_recording(backend: str, scenario: Scenario, truth: Mapping[str, flo
     return Recording(scenario=scenario, x=obs.state(), dense=dense, source=src, truth=dict(truth))
 
 
-def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | None = "wipe", size: int = 128,
+def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | None = "wipe", size: int = IMAGE_SIZE,
                            camera: "Camera | None" = None) -> Recording:
     """A folder of RGB frames (real or rendered) as a :class:`Recording` for image observers.
 

@@ -29,6 +29,7 @@ from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.scenarios.spec import spec_from_scenario
 from softsbi.scenarios.cameras import scenario_camera
+from softsbi.workflows.defaults import BACKEND, SCENARIO
 from softsbi.workflows.lock import check_out_dir
 
 
@@ -67,7 +68,7 @@ def check_render_memory(size: int, frames: int, cap_gb: float) -> int:
     return need
 
 
-def simulate_to_folder(out: str | Path, backend: str = "mujoco-flex", scenario: str | Path = "lift",
+def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | Path = SCENARIO,
                        recording: str | Path | None = None, theta: Mapping[str, float] | None = None,
                        effects: Sequence[str] = (), backend_options: Mapping[str, Any] | None = None,
                        render: int | None = None,

@@ -43,6 +43,7 @@ from softsbi.inference.summaries import local_thickness
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
                                           sensor_view)
+from softsbi.workflows.defaults import MAX_NULL, N_NULL  # noqa: F401 - the tests' null sizes, re-exported
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView, load_run, open_run
 
@@ -58,10 +59,6 @@ FEATURE_FLOOR = 0.003
 THICKNESS_FLOOR = 1e-4
 #: the floors of :data:`FEATURE_NAMES`, in order
 FEATURE_FLOORS = np.array([FEATURE_FLOOR] * (len(FEATURE_NAMES) - 1) + [THICKNESS_FLOOR])
-#: default number of posterior-predictive simulations a test starts with
-N_NULL = 30
-#: default cap of the adaptive extension (``1 / (cap + 1)`` is the finest p-value a verdict can print)
-MAX_NULL = 200
 #: a first-stage p-value at or below this extends the null to its cap (:func:`resolution_needed`). A round
 #: level, not fitted: it cannot change a test's level, only its cost and power. In the statistical benchmark's
 #: stored cases that stopped at 30 nulls under the earlier rule, 0 of 72 controls and 21 of 63 hidden effects

@@ -26,6 +26,7 @@ import numpy as np
 from softsbi.workflows.runs import RunView, load_run
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.workflows.defaults import VIEW_N_EVAL
 
 from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 
@@ -36,7 +37,7 @@ from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 # simulation shared by both outputs
 
 
-def posterior_rollouts(run_dir: str | Path, n_eval: int = 5,
+def posterior_rollouts(run_dir: str | Path, n_eval: int = VIEW_N_EVAL,
                        workers: int | None = None) -> tuple[RunView, list[dict[str, Any]], np.ndarray]:
     """Simulate a finished run at its first ``n_eval`` posterior samples.
 
@@ -77,7 +78,7 @@ def posterior_rollouts(run_dir: str | Path, n_eval: int = 5,
 
 
 
-def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval: int = 5,
+def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval: int = VIEW_N_EVAL,
                     workers: int | None = None, fps: float = 5) -> Path:
     """Write an animated GIF of a finished fit's posterior-predictive rollouts against the measurement.
 
@@ -109,7 +110,7 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval:
 # rerun recording
 
 
-def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int = 5,
+def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int = VIEW_N_EVAL,
                 workers: int | None = None) -> Path:
     """Write a rerun recording (``.rrd``) of a finished fit's posterior-predictive rollouts.
 
@@ -145,7 +146,7 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int
 # both
 
 
-def write_view(run_dir: str | Path, n_eval: int = 5, workers: int | None = None, gif: bool = True,
+def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | None = None, gif: bool = True,
                rrd: bool = True, fps: float = 5) -> dict[str, Any]:
     """Simulate once and write ``RUN/view.gif`` and/or ``RUN/view.rrd`` (see :func:`write_animation`,
     :func:`write_rerun`).

@@ -1,0 +1,91 @@
+"""What the long-running commands show while they work: fit progress bars and the demo's steps (imported
+by the commands that need them, so ``softsbi --help`` does not load the workflows)."""
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+from typing import Any, Iterator
+
+from softsbi.cli.output import Output
+from softsbi.workflows.demo import DemoCallbacks
+from softsbi.workflows.fit import FitCallbacks
+
+
+class ProgressHooks(FitCallbacks):
+    """Progress of :func:`softsbi.workflows.fit.run_fit` on stderr: bars on a terminal, one line per
+    round otherwise."""
+
+    def __init__(self, o: Output, progress: Any):
+        self.o, self.p = o, progress
+        self.sim_task = None
+        self.train_task = None
+
+    def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
+        label = f"round {r + 1}/{rounds} simulations" if r >= 0 else "posterior rollouts"
+        if self.sim_task is not None:
+            self.p.remove_task(self.sim_task)
+        self.sim_task = self.p.add_task(label, total=n_total, completed=n_total - n_pending)
+        if not self.o.err.is_terminal:
+            self.o.message(f"{label}: {n_pending} of {n_total} to simulate")
+
+    def simulation_done(self, r: int, done: int, total: int) -> None:
+        self.p.update(self.sim_task, completed=done)
+
+    def training_epoch(self, r: int, epoch: int, max_epochs: int, loss: float) -> None:
+        if self.train_task is None:
+            self.train_task = self.p.add_task(f"round {r + 1} training", total=max_epochs)
+        self.p.update(self.train_task, completed=epoch, description=f"round {r + 1} training (loss {loss:.3f})")
+
+    def round_end(self, r: int, s: dict[str, Any]) -> None:
+        if self.train_task is not None:
+            self.p.remove_task(self.train_task)
+            self.train_task = None
+        ch = s.get("chamfer_proposal") or {}
+        ch_txt = f", Chamfer of this round's rollouts {ch['mean_m'] * 100:.2f} cm" if ch.get("mean_m") else ""
+        mean = ", ".join(f"{k}={v:.3g}" for k, v in s["posterior_mean"].items())
+        self.o.message(f"round {r + 1}: {s['usable']} usable, {s['failed']} failed{ch_txt}; posterior mean {mean}")
+
+    def message(self, text: str) -> None:
+        self.o.message(text, style="yellow")
+
+
+
+
+class DemoPrinter(DemoCallbacks):
+    """Prints the demo's steps (results on stdout, progress on stderr)."""
+
+    def __init__(self, o: Output):
+        self.o = o
+
+    def step(self, title: str) -> None:
+        self.o.rule(title)
+
+    def line(self, text: str) -> None:
+        self.o.line(text)
+
+    @contextlib.contextmanager
+    def fitting(self) -> Iterator[FitCallbacks]:
+        with self.o.progress() as p:
+            yield ProgressHooks(self.o, p)
+
+    @contextlib.contextmanager
+    def working(self, text: str) -> Iterator[None]:
+        with self.o.status(text):
+            yield
+
+    def fit_done(self, report: dict[str, Any], run_dir: Path) -> None:
+        from softsbi.cli import _print_report
+        _print_report(self.o, report, run_dir)
+
+    def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
+        from softsbi.workflows.diagnose import format_p
+        self.o.table(["rank", "effect", "explains", f"max-T p ({diagnosis['n_null']} nulls)"],
+                     [[i + 1, r["effect"], f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r)]
+                      for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
+        self.o.line(f"verdict: {diagnosis['verdict']}")
+        self.o.line(diagnosis["summary"])
+
+    def comparison_done(self, comparison: dict[str, Any], effect: str) -> None:
+        self.o.table(["", "nominal", f"+ {effect}", "change"],
+                     [[row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm",
+                       f"{row['change'] * 100:+.0f}%"] for row in comparison["table"][:4]])

@@ -1,0 +1,43 @@
+"""The defaults of the workflows' settings, in one place: :class:`~softsbi.workflows.fit.FitConfig` and the
+workflow functions take their defaults from here, and so do the CLI's options (``softsbi --help`` shows them
+without importing the workflows). ``tests/cli/test_cli_defaults.py`` ties every CLI default to its library one.
+"""
+from __future__ import annotations
+
+#: simulator, posterior estimator, observer and executor plugins of a fit
+BACKEND = "mujoco-flex"
+ESTIMATOR = "rkhs"
+OBSERVER = "pointcloud"
+EXECUTOR = "local"
+#: proposal scheme of later rounds and sensor model of the metric (:class:`~softsbi.workflows.fit.FitConfig`)
+PROPOSAL = "truncated"
+SENSOR = "height"
+#: random seed of every draw and simulation
+SEED = 0
+#: sequential rounds and simulations per round (the simulation budget is their product; the paper: 15 x 100)
+ROUNDS = 4
+SIMS_PER_ROUND = 150
+#: K, points per frame of the point-cloud observer's state
+N_POINTS = 64
+#: posterior-predictive rollouts of a fit's reported Chamfer, of ``check`` and of ``compare``
+N_EVAL = 30
+#: posterior-predictive simulations a misspecification test's null starts with, and the cap of its adaptive
+#: extension (``1 / (cap + 1)`` is the finest p-value a verdict can print)
+N_NULL = 30
+MAX_NULL = 200
+#: posterior rollouts ``softsbi view`` draws against the measurement
+VIEW_N_EVAL = 5
+#: refits ``diagnose`` confirms its top candidates with
+CONFIRM = 2
+#: the demo's budget per fit
+DEMO_ROUNDS = 3
+DEMO_SIMS = 150
+#: calibration: fresh test simulations and posterior draws per test simulation
+N_TEST = 200
+N_DRAWS = 1000
+#: scenario of ``softsbi simulate`` and ``compare-backends``, and the engines the latter compares
+SCENARIO = "lift"
+COMPARED_BACKENDS = ("mujoco-flex", "pybullet-massspring")
+#: ``train-extractor --simulate``: rendered rollouts and square camera size (px); also the image observers'
+IMAGE_ROLLOUTS = 40
+IMAGE_SIZE = 128
