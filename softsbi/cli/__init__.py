@@ -564,8 +564,10 @@ def view(run: Path = typer.Argument(..., help="run directory of a finished point
          n_eval: int = typer.Option(D.VIEW_N_EVAL, "--n-eval", help="posterior-predictive rollouts drawn (faded) against the "
                                                           "measurement"),
          gif: bool = typer.Option(True, help="write RUN/view.gif: measured vs simulated clouds over time"),
-         rrd: bool = typer.Option(True, help="write RUN/view.rrd for the rerun viewer (`rerun RUN/view.rrd`); "
-                                             "needs `pip install \"softsbi[view]\"`"),
+         rrd: Optional[bool] = typer.Option(None, "--rrd/--no-rrd",
+                                            help="write RUN/view.rrd for the rerun viewer (`rerun RUN/view.rrd`), "
+                                                 "which needs `pip install \"softsbi\\[view]\"`; default: when "
+                                                 "it is installed"),
          workers: Optional[int] = typer.Option(None, help=H_WORKERS),
          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """See the measured cloud move against posterior rollouts: an animation and a rerun recording."""
@@ -579,6 +581,8 @@ def view(run: Path = typer.Argument(..., help="run directory of a finished point
     for key in ("gif", "rrd"):
         if res.get(key):
             o.line(f"wrote {res[key]}" + ("  (open with `rerun " + str(res[key]) + "`)" if key == "rrd" else ""))
+    if res.get("rrd_missing"):
+        o.line('not written: view.rrd (the 3-D rerun recording needs the extra: pip install "softsbi[view]")')
 
 
 @app.command("train-extractor")

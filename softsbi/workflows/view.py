@@ -25,7 +25,7 @@ import numpy as np
 
 from softsbi.workflows.runs import RunView, load_run
 
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.workflows.defaults import VIEW_N_EVAL
 
 from softsbi.report.animation import draw_gif, import_rerun, log_rrd
@@ -147,12 +147,17 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int
 
 
 def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | None = None, gif: bool = True,
-               rrd: bool = True, fps: float = 5) -> dict[str, Any]:
+               rrd: bool | None = None, fps: float = 5) -> dict[str, Any]:
     """Simulate once and write ``RUN/view.gif`` and/or ``RUN/view.rrd`` (see :func:`write_animation`,
     :func:`write_rerun`).
 
+    Args:
+        rrd: write the rerun recording: True (rerun-sdk needed), False, or None (the default) when rerun-sdk is
+            installed; without it ``rrd_missing`` says what it needs.
+
     Returns:
-        dict with ``gif`` and ``rrd`` (Path, or None when not asked for), ``times_s`` ``(T,)``,
+        dict with ``gif`` and ``rrd`` (Path, or None when not written), ``rrd_missing`` (why the ``.rrd`` was not
+        written with ``rrd=None``, else None), ``times_s`` ``(T,)``,
         ``chamfer_per_frame_m`` ``(T,)`` (mean over the rollouts, metres; the fit's sensor model),
         ``chamfer_mean_m`` (over the fit's frames, as ``report.json``'s headline),
         ``n_rollouts`` (successful) and ``failed_rollouts``.
@@ -161,13 +166,20 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
         DependencyMissing: ``rrd`` asked for and rerun-sdk not installed (before simulating).
         SoftsbiError: see :func:`posterior_rollouts`.
     """
-    rr = import_rerun() if rrd else None
+    out: dict[str, Any] = {"gif": None, "rrd": None, "rrd_missing": None}
+    rr = None
+    if rrd or rrd is None:
+        try:
+            rr = import_rerun()
+        except DependencyMissing as exc:
+            if rrd:
+                raise
+            out["rrd_missing"] = str(exc)
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     run_dir = Path(run_dir)
-    out: dict[str, Any] = {"gif": None, "rrd": None}
     if gif:
         out["gif"] = draw_gif(view, rollouts, ch, run_dir / "view.gif", fps)
-    if rrd:
+    if rr is not None:
         out["rrd"] = log_rrd(rr, view, rollouts, ch, run_dir / "view.rrd")
     mean = ch.mean(0)
     frames = view.metric_frames  # the fit's headline averages its own frames (report.json, check)

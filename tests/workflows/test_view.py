@@ -108,6 +108,23 @@ def test_rrd_missing_rerun_names_the_extra(lift_run, monkeypatch):
         write_view(lift_run, n_eval=S, workers=1, gif=False, rrd=True)
 
 
+def test_view_without_rerun_writes_the_gif_and_names_the_extra(lift_run, monkeypatch):
+    """`softsbi view RUN` with its defaults exited 2 and wrote no GIF on a machine without rerun-sdk."""
+    from typer.testing import CliRunner
+
+    from softsbi.cli import app
+    monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun -> ImportError
+    (lift_run / "view.gif").unlink(missing_ok=True)
+    res = CliRunner().invoke(app, ["view", str(lift_run), "--n-eval", str(S), "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert Image.open(lift_run / "view.gif").n_frames == T
+    assert 'not written: view.rrd (the 3-D rerun recording needs the extra: pip install "softsbi[view]")' in \
+        " ".join(res.output.split())
+    res = CliRunner().invoke(app, ["view", str(lift_run), "--rrd", "--workers", "1"])  # asked for: refused at once
+    assert res.exit_code == 2 and 'pip install "softsbi[view]"' in " ".join(res.output.split())
+    assert 'softsbi[view]' in " ".join(CliRunner().invoke(app, ["view", "--help"]).output.split())
+
+
 def _read_rrd(path) -> dict[str, list]:
     """``{entity path: [non-static chunks]}`` of an .rrd, plus the static ones under ``"static:" + path``."""
     from rerun.chunk import RrdReader
