@@ -31,7 +31,7 @@ def speed(grids, repeats):
     for b, cls in BACKENDS.items():
         for name in SCENARIOS:
             sc = make_scenario(name)
-            rope = name == "wind"
+            rope = name == "winding"
             for g in grids:
                 sim = cls(grid=g, rope_nodes=2 * g + 2) if True else None
                 th = sim.param_space(sc).midpoint()

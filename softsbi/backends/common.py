@@ -314,7 +314,7 @@ ARM_RADIUS = 0.03
 ARM_LENGTH = 0.55
 #: height (m) of the arm's shoulder point above the table for the synthetic scenarios
 SHOULDER_HEIGHT = 0.5
-#: colour of scene geoms other than the table, cloth and robot (the wind scenario's spool), RGB 0-255
+#: colour of scene geoms other than the table, cloth and robot (the winding scenario's spool), RGB 0-255
 PROP_COLOUR = (120, 128, 150)
 
 
@@ -329,7 +329,7 @@ def robot_base(scenario: Scenario) -> np.ndarray:
     ``scenario.options["robot_base"]`` when given; ``lift``: the real robot base (robot-frame
     origin, shoulder 0.33 m up) mapped with the recording's real->lift transform; ``wipe``: 0.45 m
     beyond the stroke's far end along the drag direction +x (the cloth trails away from the robot,
-    as in the real wiping images); ``fling``/``wind``/others: behind the workspace along +y.
+    as in the real wiping images); ``fling``/``winding``/others: behind the workspace along +y.
     """
     if "robot_base" in scenario.options:
         return np.asarray(scenario.options["robot_base"], dtype=float).reshape(3)

@@ -151,7 +151,7 @@ def sensor_chamfer_per_frame(simulated: Sequence[np.ndarray], measured: Sequence
 
 def occluded_by_cylinder(points: np.ndarray, viewpoint: Sequence[float], centre: Sequence[float], radius: float,
                          z0: float, height: float) -> np.ndarray:
-    """Which points a vertical cylinder (the wind scenario's spool) hides from a viewpoint.
+    """Which points a vertical cylinder (the winding scenario's spool) hides from a viewpoint.
 
     A point is occluded when the open segment from ``viewpoint`` to it passes through the solid
     cylinder of axis z through ``centre (x, y)``, ``radius`` and ``z0 <= z <= z0 + height``.
@@ -194,7 +194,7 @@ class PointCloudObserver(Observer):
             ``table_z + min_height`` to model a depth sensor that cannot tell cloth lying flat
             from the table.
         viewpoint, occluder: with both, points hidden from ``viewpoint (3,)`` m by the cylinder
-            ``occluder = {"centre": (x, y), "radius", "z0", "height"}`` (the wind scenario's spool)
+            ``occluder = {"centre": (x, y), "radius", "z0", "height"}`` (the winding scenario's spool)
             are not observed (:func:`occluded_by_cylinder`); the fit sets them for scenarios with a
             spool.
         camera: a virtual depth sensor (:meth:`softsbi.perception.depth_sensor.VirtualDepthSensor.to_json`):

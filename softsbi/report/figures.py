@@ -625,7 +625,7 @@ def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Ma
     T = scenario.n_frames
     frames = sorted({0, T // 3, 2 * T // 3, T - 1})
     ax_i = 1 if scenario.name == "lift" else 0
-    top = scenario.name == "wind"  # the rope stays on the table: top view
+    top = scenario.name in ("winding", "wind")  # the rope stays on the table: top view ("wind": its old name)
     j = 1 if top else 2
     i = 0 if top else ax_i
     view = "top view" if top else "side view"

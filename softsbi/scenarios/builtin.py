@@ -412,10 +412,10 @@ def lift_scenario(recording: str | Path | None = None, n_frames: int = N_FRAMES,
 # overlay
 # --------------------------------------------------------------------------------------------
 # --------------------------------------------------------------------------------------------
-# the other scenarios of the paper: wipe, wind, fling (synthetic, engine-independent)
+# the other scenarios of the paper: wipe, winding, fling (synthetic, engine-independent)
 # --------------------------------------------------------------------------------------------
 #: scenario names :func:`make_scenario` builds
-SCENARIOS = ("lift", "wipe", "wind", "fling")
+SCENARIOS = ("lift", "wipe", "winding", "fling")
 
 #: table height of the synthetic scenarios (world frame, m)
 SYNTH_TABLE_Z = 0.0
@@ -499,8 +499,8 @@ def fling_scenario(n_frames: int = 36, duration: float = 1.4, size: float = 0.28
                                          "frame": "world, table top at z = 0"})
 
 
-def wind_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 0.40, turns: float = 1.25,
-                  spool_radius: float = 0.03, spool_height: float = 0.08, rope_radius: float = 0.004) -> Scenario:
+def winding_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 0.40, turns: float = 1.25,
+                     spool_radius: float = 0.03, spool_height: float = 0.08, rope_radius: float = 0.004) -> Scenario:
     """A flexible rope wound onto a spool (a fixed rigid cylinder), partly occluded by it (paper's *winding*).
 
     Geometry (world frame, m, table top z = 0): a vertical rigid cylinder (``spool``: centre (0, 0),
@@ -517,7 +517,7 @@ def wind_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 0.4
     vertices.
 
     Returns:
-        :class:`Scenario` ``"wind"`` with ``object = {"kind": "rope", "length", "radius", "start",
+        :class:`Scenario` ``"winding"`` with ``object = {"kind": "rope", "length", "radius", "start",
         "direction", "grasp": "end", "spool": {"centre", "radius", "height"}}``.
 
     Raises:
@@ -538,8 +538,8 @@ def wind_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 0.4
     obj = {"kind": "rope", "length": float(length), "radius": float(rope_radius), "start": [float(rho), 0.0],
            "direction": [0.0, -1.0], "grasp": "end",
            "spool": {"centre": [0.0, 0.0], "radius": float(spool_radius), "height": float(spool_height)}}
-    return Scenario(name="wind", times=times, gripper=gripper, table_z=SYNTH_TABLE_Z, object=obj,
-                    options={"source": "synthetic wind (softsbi.scenarios.builtin.wind_scenario)",
+    return Scenario(name="winding", times=times, gripper=gripper, table_z=SYNTH_TABLE_Z, object=obj,
+                    options={"source": "synthetic winding (softsbi.scenarios.builtin.winding_scenario)",
                              "frame": "world, table top at z = 0", "occluder": "object['spool']"})
 
 
@@ -555,7 +555,8 @@ def make_scenario(name: str, recording: str | Path | None = None, **kwargs: Any)
     name (:func:`softsbi.scenarios.catalog.load_scenario`: built-in files, plugins, or a file path);
     ``lift`` with a DiffCloud ``recording`` folder, or any built-in with constructor ``kwargs`` (e.g.
     ``n_frames``), uses the reference constructors here (:func:`lift_scenario`, :func:`wipe_scenario`,
-    :func:`wind_scenario`, :func:`fling_scenario`; the built-in files equal their defaults).
+    :func:`winding_scenario`, :func:`fling_scenario`; the built-in files equal their defaults). An old name
+    (:data:`~softsbi.scenarios.catalog.RENAMED`) builds the scenario it was renamed to, with a ``FutureWarning``.
 
     Raises:
         ValueError: unknown name (the message lists the valid ones), or a recording given for a
@@ -563,6 +564,7 @@ def make_scenario(name: str, recording: str | Path | None = None, **kwargs: Any)
         DataError: lift recording missing or malformed; an invalid scenario file.
     """
     from softsbi.core.errors import closest
+    from softsbi.scenarios.catalog import current_name
     if recording is None and not kwargs:
         from softsbi.scenarios.catalog import load_scenario
         try:
@@ -571,6 +573,7 @@ def make_scenario(name: str, recording: str | Path | None = None, **kwargs: Any)
             if str(exc).startswith("unknown scenario"):
                 raise ValueError(str(exc)) from None
             raise
+    name = current_name(name)
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario '{name}'.{closest(name, SCENARIOS)} Valid scenarios: "
                          f"{', '.join(SCENARIOS)}")
@@ -578,4 +581,4 @@ def make_scenario(name: str, recording: str | Path | None = None, **kwargs: Any)
         return lift_scenario(recording, **kwargs)
     if recording is not None:
         raise ValueError(f"scenario '{name}' is synthetic and takes no recording (only 'lift' has real recordings)")
-    return {"wipe": wipe_scenario, "wind": wind_scenario, "fling": fling_scenario}[name](**kwargs)
+    return {"wipe": wipe_scenario, "winding": winding_scenario, "fling": fling_scenario}[name](**kwargs)

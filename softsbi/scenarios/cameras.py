@@ -19,8 +19,9 @@ def default_camera(scenario_name: str, size: int = 128) -> Camera:
         "wipe": dict(eye=(-0.08, 0.075, 1.0), target=(-0.08, 0.075, 0.0), up=(1, 0, 0), fovy_deg=52.0),
         "fling": dict(eye=(0.0, -0.9, 0.75), target=(0.0, 0.0, 0.2), up=(0, 0, 1), fovy_deg=55.0),
         "lift": dict(eye=(0.0, 0.0, 1.2), target=(0.0, 0.0, 0.1), up=(1, 0, 0), fovy_deg=50.0),
-        "wind": dict(eye=(0.0, -0.8, 0.6), target=(0.0, 0.0, 0.15), up=(0, 0, 1), fovy_deg=50.0),
+        "winding": dict(eye=(0.0, -0.8, 0.6), target=(0.0, 0.0, 0.15), up=(0, 0, 1), fovy_deg=50.0),
     }
+    views["wind"] = views["winding"]  # the winding's name before it was renamed (runs stored then keep it)
     if scenario_name not in views:
         raise DataError(f"no built-in camera for scenario '{scenario_name}'; choose one of {sorted(views)} "
                         f"or pass a Camera")

@@ -9,6 +9,7 @@ A plugin admits code-defined scenarios with the hook (:mod:`softsbi.plugins.hook
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -18,10 +19,22 @@ from softsbi.scenarios.spec import load_scenario_file
 
 #: folder of the built-in scenario files (package data)
 FILES = Path(__file__).with_name("files")
+#: old name -> current name of a renamed built-in scenario (the rope ``wind`` shared its name with the effect)
+RENAMED = {"wind": "winding"}
+
+
+def current_name(name: str) -> str:
+    """The current name of a built-in scenario given by an old name (:data:`RENAMED`, with a ``FutureWarning``),
+    else ``name``. Runs stored before a rename keep the old name in their scenario; it means the same scenario."""
+    if name in RENAMED:
+        warnings.warn(f"scenario '{name}' is now called '{RENAMED[name]}'; the old name works for now",
+                      FutureWarning, stacklevel=3)
+        return RENAMED[name]
+    return name
 
 
 def builtin_files() -> dict[str, Path]:
-    """``{name: path}`` of the scenario files shipped with softsbi (``lift``, ``wipe``, ``wind``, ``fling``)."""
+    """``{name: path}`` of the scenario files shipped with softsbi (``lift``, ``wipe``, ``winding``, ``fling``)."""
     return {p.stem: p for p in sorted(FILES.glob("*.yaml"))}
 
 
@@ -75,8 +88,8 @@ def load_scenario(name_or_path: str | Path | Scenario, transforms: Mapping[str, 
     """A scenario by built-in name, plugin name or scenario file path.
 
     Args:
-        name_or_path: ``"lift"`` / ``"wipe"`` / ``"wind"`` / ``"fling"``, a name a plugin gives, or a
-            ``.yaml`` path (a :class:`Scenario` is returned unchanged).
+        name_or_path: ``"lift"`` / ``"wipe"`` / ``"winding"`` / ``"fling"`` (or an old name, :data:`RENAMED`),
+            a name a plugin gives, or a ``.yaml`` path (a :class:`Scenario` is returned unchanged).
         transforms: named frames -> scenario frame replacing a file's (a recording's calibration).
 
     Raises:
@@ -84,8 +97,10 @@ def load_scenario(name_or_path: str | Path | Scenario, transforms: Mapping[str, 
     """
     if isinstance(name_or_path, Scenario):
         return name_or_path
-    s = str(name_or_path)
     files = builtin_files()
+    s = str(name_or_path)
+    if s in RENAMED and s not in files:
+        s = current_name(s)
     if s in files:
         return load_scenario_file(files[s], transforms)
     p = Path(s).expanduser()

@@ -229,7 +229,7 @@ class BoxSpec(_Strict):
 
 class CylinderSpec(_Strict):
     """A vertical cylinder standing on the table (``centre`` [x, y] m, ``radius``, ``height`` m);
-    ``occludes``: observers hide the points behind it (the wind scenario's spool)."""
+    ``occludes``: observers hide the points behind it (the winding scenario's spool)."""
     type: Literal["cylinder"]
     name: Optional[str] = None
     centre: Vec2

@@ -24,7 +24,7 @@ from softsbi.workflows.runs import Run, open_run
 
 
 def load_scenario(name_or_path: str | Path, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
-    """A scenario by built-in name (``lift``, ``wipe``, ``wind``, ``fling``; ``softsbi scenarios`` lists
+    """A scenario by built-in name (``lift``, ``wipe``, ``winding``, ``fling``; ``softsbi scenarios`` lists
     them and those plugins add) or scenario file path (``my_fold.yaml``,
     :mod:`softsbi.scenarios.spec`); ``lift`` from a DiffCloud recording folder when ``recording`` is given.
 

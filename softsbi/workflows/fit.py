@@ -460,7 +460,7 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     elif cfg.min_height:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
     spool = (scenario.object or {}).get("spool")
-    if spool and cfg.observer == "pointcloud":  # the wind scenario: the spool hides part of the rope
+    if spool and cfg.observer == "pointcloud":  # the winding scenario: the spool hides part of the rope
         opts["viewpoint"] = [float(v) for v in default_camera(scenario.name).position]
         opts["occluder"] = {"centre": list(spool["centre"]), "radius": float(spool["radius"]),
                             "z0": float(scenario.table_z), "height": float(spool["height"])}

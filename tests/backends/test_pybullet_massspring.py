@@ -61,7 +61,7 @@ def test_param_space_names_units(sim, scenario):
         assert (sp[name].low, sp[name].high, sp[name].unit) == (mj[name].low, mj[name].high, mj[name].unit)
     assert mj["stretch"].low <= sp["stretch"].low < sp["stretch"].high <= mj["stretch"].high
     assert all(p.description for p in sp)
-    rope = sim.param_space(make_scenario("wind"))
+    rope = sim.param_space(make_scenario("winding"))
     assert rope.names == ["pb_rope_bend", "pb_rope_stretch", "friction", "scale", "mass"]
     assert rope["mass"].unit == "kg/m" and rope["scale"].description == "rope length"
 
@@ -87,7 +87,7 @@ def test_rollout_uses_the_mapping(sim, scenario, theta, base):
 def test_old_parameter_units_give_one_line_errors(sim, scenario, theta):
     with pytest.raises(ParameterError, match="now the bending rigidity in N.m.*old per-spring"):
         sim.simulate(scenario, dict(theta, bend=2.0))
-    wind = make_scenario("wind")
+    wind = make_scenario("winding")
     th = sim.param_space(wind).midpoint()
     with pytest.raises(ParameterError, match="bend -> pb_rope_bend, stretch -> pb_rope_stretch"):
         sim.simulate(wind, dict({k: v for k, v in th.items() if not k.startswith("pb_")}, bend=1.0, stretch=200.0))

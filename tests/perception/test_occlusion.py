@@ -1,4 +1,4 @@
-"""The wind scenario's spool hides part of the rope: the point-cloud observer leaves those points out."""
+"""The winding scenario's spool hides part of the rope: the point-cloud observer leaves those points out."""
 from __future__ import annotations
 
 import numpy as np
@@ -22,9 +22,9 @@ def test_cylinder_occlusion_geometry():
     assert top.tolist() == [False, True]
 
 
-def test_wind_fit_observes_only_the_visible_rope():
+def test_winding_fit_observes_only_the_visible_rope():
     from softsbi.plugins import registry
-    sc = make_scenario("wind")
+    sc = make_scenario("winding")
     opts = observer_options(FitConfig(observer="pointcloud", n_points=32), sc)
     assert set(opts) >= {"viewpoint", "occluder"}
     assert "occluder" not in observer_options(FitConfig(observer="pointcloud"), make_scenario("fling"))

@@ -1,4 +1,4 @@
-"""The four scenarios (lift, wipe, wind, fling) roll out on both backends at the prior midpoint."""
+"""The four scenarios (lift, wipe, winding, fling) roll out on both backends at the prior midpoint."""
 from __future__ import annotations
 
 import numpy as np
@@ -24,7 +24,7 @@ def test_midpoint_rollout(backend, name):
     # the grasped vertex (0) follows the gripper
     assert np.linalg.norm(r.vertices[:, 0] - r.gripper, axis=1).max() < 0.03
     assert r.vertices[..., 2].min() > sc.table_z - 0.02
-    if name == "wind":
+    if name == "winding":
         assert r.faces.shape == (0, 3)
         # the rope wraps: some vertices end within 1.5 cm of the spool surface
         sp = sc.object["spool"]
@@ -35,13 +35,13 @@ def test_midpoint_rollout(backend, name):
 
 
 def test_make_scenario_errors():
-    with pytest.raises(ValueError, match="Did you mean 'wipe'.*Valid scenarios: fling, lift, wind, wipe"):
+    with pytest.raises(ValueError, match="Did you mean 'wipe'.*Valid scenarios: fling, lift, winding, wipe"):
         make_scenario("wip")
     with pytest.raises(ValueError, match="takes no recording"):
         make_scenario("wipe", recording="x")
 
 
-@pytest.mark.parametrize("name", ["wipe", "wind", "fling"])
+@pytest.mark.parametrize("name", ["wipe", "winding", "fling"])
 def test_synthetic_paths(name):
     sc = make_scenario(name)
     assert sc.name == name and sc.table_z == 0.0

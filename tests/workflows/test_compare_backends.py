@@ -71,7 +71,7 @@ def test_default_is_the_shared_physical_midpoint():
         "mujoco-flex|pybullet-massspring"] > 0
     # wind: the rope knobs are engine-only (pb_rope_*, mujoco's Young's modulus 'young') and sit at each
     # engine's midpoint; no parameter name means two things
-    wind = compare_backends(make_scenario("wind"), {}, BACKENDS,
+    wind = compare_backends(make_scenario("winding"), {}, BACKENDS,
                             backend_options={"mujoco-flex": {"rope_nodes": 8}, "pybullet-massspring": {"rope_nodes": 8}})
     assert wind["shared_params"] == ["friction", "scale", "mass"]
     assert wind["backends"]["pybullet-massspring"]["theta_source"]["pb_rope_bend"] == "midpoint"

@@ -10,12 +10,12 @@ import pytest
 from softsbi.core.errors import SchemaError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK
-from softsbi.scenarios.builtin import wind_scenario
+from softsbi.scenarios.builtin import winding_scenario
 from softsbi.workflows.fit import FitConfig, SensorDraws, fit_param_space, run_fit
 from softsbi.workflows.jobs import SimContext, simulate_job
 from softsbi.workflows.measurement import simulate_recording
 
-SC = wind_scenario(n_frames=8)
+SC = winding_scenario(n_frames=8)
 TRUTH = {"young": 1e6, "friction": 0.4, "scale": 0.4, "mass": 0.03, "time_offset": 0.06}
 
 

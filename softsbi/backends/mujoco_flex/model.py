@@ -155,7 +155,7 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
 
 
 def rope_param_space() -> ParamSpace:
-    """Parameters of the rope (wind) scenario, SI units: ``young`` = Young's modulus E of the rope
+    """Parameters of the rope (winding) scenario, SI units: ``young`` = Young's modulus E of the rope
     material [Pa] (log 1e5-3e7): MuJoCo's ``young`` of the 1-D flex elasticity, whose bending rigidity
     is ``EI = E pi r^4 / 4`` for the rope radius ``r`` (checked by a clamped rope drooping under its
     weight, :func:`~softsbi.backends.common.rope_cantilever_scenario`; the rope is inextensible through ``<edge equality="true"/>``,
@@ -191,7 +191,7 @@ def rope_bending_rigidity(young: float, radius: float) -> float:
 def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: int, timestep: float, solver: str,
                     integrator: str, poisson: float, damping: float, iterations: int,
                     overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
-    """Model dict of the rope (``wind``) scenario, same keys as :func:`build_spec` plus ``geoms``
+    """Model dict of the rope (``winding``) scenario, same keys as :func:`build_spec` plus ``geoms``
     (the spool). The rope is a 1-D ``flexcomp`` grid of ``nodes`` vertices with
     ``<edge equality="true"/>`` (MuJoCo 4.0: a 1-D flex explodes without it, shared/MEASURED.md) and
     ``<elasticity young=young>``; vertex 0 (body ``rope_0``) is grasped at ``object["start"]`` and the

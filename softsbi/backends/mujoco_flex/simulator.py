@@ -52,7 +52,7 @@ class MujocoFlex(Simulator):
 
     name = "mujoco-flex"
     #: the built-in scenarios; any scenario file needing only :attr:`features` runs too
-    scenarios = ("lift", "wipe", "wind", "fling")
+    scenarios = ("lift", "wipe", "winding", "fling")
     #: engine features (:data:`~softsbi.backends.scenario_build.FEATURES`): grid or mesh cloth (flexcomp
     #: grid / direct), rope, any number of handles (mocap bodies + connect), box and cylinder obstacles
     features = FEATURES

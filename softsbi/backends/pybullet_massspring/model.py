@@ -35,7 +35,7 @@ from softsbi.core.types import Scenario
 from softsbi.backends.scenario_build import grid_rest_vertices, obstacles
 
 CLOTH_SCENARIOS = ("lift", "wipe", "fling")
-ROPE_SCENARIOS = ("wind",)
+ROPE_SCENARIOS = ("winding",)
 #: stability constant of the substep rule k dt^2 / m_node <= STABILITY_C (measured: ~1.8 breaks)
 STABILITY_C = 1.5
 
