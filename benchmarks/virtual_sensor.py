@@ -192,7 +192,7 @@ def compare_fits(camera_run: Path, height_report: Path) -> dict:
 
     from softsbi.workflows.jobs import run_jobs
     from softsbi.workflows.runs import load_run
-    view = load_run(camera_run, n_samples=30)
+    view = load_run(camera_run, n_eval=30)
     ctx_cam = view.sim_context(keep_rollout=False)
     table_z = view.scenario.table_z
     ctx_h = replace(ctx_cam, camera=None, min_z=float(table_z) + 0.01)

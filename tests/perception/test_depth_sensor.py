@@ -209,7 +209,7 @@ def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     per_frame = np.array(rep["chamfer_posterior_per_frame_m"])
     assert per_frame.shape == (25,) and np.all(np.isfinite(per_frame)) and 0 < rep["chamfer_posterior_m"] < 0.2
     # re-simulating the fit's evaluation samples through its stored context reproduces its camera metric
-    view = load_run(tmp_path / "run", n_samples=2)
+    view = load_run(tmp_path / "run", n_eval=2)
     renders = []
     inner = VirtualDepthSensor._camera_points
     with pytest.MonkeyPatch.context() as mp:  # count the sensor's renders (workers=1 runs in this process)

@@ -107,13 +107,13 @@ def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     out, res = toy_run
     run = tmp_path / "run"
     shutil.copytree(out, run)
-    plain = check_run(run, n_samples=10, workers=1, plot=False, max_null=10)
+    plain = check_run(run, n_eval=10, workers=1, plot=False, max_null=10)
     rep = json.loads((run / "report.json").read_text())
     assert plain["posterior_at_bounds"] == rep["posterior_at_bounds"]
     assert ("presses against" in plain["summary"]) == bool(rep["posterior_at_bounds"])
     rep["posterior_at_bounds"] = [{"param": "b", "side": "lower", "bound": -1.0, "unit": "1", "mass": 0.35}]
     (run / "report.json").write_text(json.dumps(rep))
-    pressed = check_run(run, n_samples=10, workers=1, plot=False, max_null=10)
+    pressed = check_run(run, n_eval=10, workers=1, plot=False, max_null=10)
     assert pressed["posterior_at_bounds"] == rep["posterior_at_bounds"]
     assert "The fit's posterior: b's posterior presses against its lower prior bound -1 (35% of its mass" in \
         pressed["summary"]

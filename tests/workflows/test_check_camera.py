@@ -82,10 +82,10 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     from softsbi.workflows.check import check_run, rollout_region_errors, run_sensor, sensor_model
     from softsbi.workflows.runs import load_run
     from softsbi.workflows.stats import sampled_points
-    view = load_run(lift_runs["camera"], n_samples=6)
+    view = load_run(lift_runs["camera"], n_eval=6)
     sensor = run_sensor(view)
     assert sensor is not None and sensor_model(view)["kind"] == "camera"
-    assert run_sensor(load_run(lift_runs["height"], n_samples=6)) is None
+    assert run_sensor(load_run(lift_runs["height"], n_eval=6)) is None
     ok, _ = view.posterior_rollouts(workers=1)
     labels, names = material_regions(ok[0]["vertices"][0], view.scenario.gripper[0])
     lab = np.concatenate([labels, labels[ok[0]["faces"][:, 0]]])
@@ -105,7 +105,7 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
         assert np.isfinite(cam[-1]).all()  # the cloth hanging at the end: every region is seen
     assert hidden > 0  # the lift's early frames have cloth lying on the table
     # check's region errors are these, averaged over its rollouts (the same samples and seeds)
-    chk = check_run(lift_runs["camera"], n_samples=6, workers=1, plot=False, max_null=6)
+    chk = check_run(lift_runs["camera"], n_eval=6, workers=1, plot=False, max_null=6)
     assert chk["metric_sensor"] == "camera" and "virtual depth sensor" in chk["summary"]
     reg = np.array([rollout_region_errors(view, r, labels, len(names), view.dense) for r in ok])
     with warnings.catch_warnings():
@@ -135,10 +135,10 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
 def test_compare_warns_when_the_sensor_kind_differs(lift_runs, tmp_path):
     from softsbi.workflows.compare import compare_runs
     warn = "different sensor models (--sensor / --min-height / --frames)"
-    mixed = compare_runs(lift_runs["height"], lift_runs["camera"], tmp_path / "mixed", n_samples=6, workers=1,
+    mixed = compare_runs(lift_runs["height"], lift_runs["camera"], tmp_path / "mixed", n_eval=6, workers=1,
                           max_null=6)
     assert not mixed["same_sensor"] and warn in mixed["summary"]
-    same = compare_runs(lift_runs["height"], lift_runs["height2"], tmp_path / "same", n_samples=6, workers=1,
+    same = compare_runs(lift_runs["height"], lift_runs["height2"], tmp_path / "same", n_eval=6, workers=1,
                          max_null=6)
     assert same["same_sensor"] and "different sensor models" not in same["summary"]
     assert (tmp_path / "same" / "compare.png").is_file()

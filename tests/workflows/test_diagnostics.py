@@ -73,8 +73,8 @@ def toy_runs(tmp_path_factory):
 
 def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     hidden, control = toy_runs
-    h = check_run(hidden, n_samples=30, workers=1)
-    c = check_run(control, n_samples=30, workers=1)
+    h = check_run(hidden, n_eval=30, workers=1)
+    c = check_run(control, n_eval=30, workers=1)
     assert (hidden / "check.png").stat().st_size > 10_000 and (hidden / "check.json").exists()
     assert len(h["chamfer_per_frame_m"]["mean"]) == 4
     assert np.array(h["region_error_m"]).shape == (4, 9)
