@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import DependencyMissing
-from softsbi.report.figures import ROLE_COLOURS, _plt
+from softsbi.report.figures import ROLE_COLOURS, _plt, grip_label, handle_tracks, pinned_vertices
 
 #: colours of the roles: the palette of every figure (:data:`softsbi.report.figures.ROLE_COLOURS`)
 COLOR_MEASURED = ROLE_COLOURS["measured"]
@@ -64,8 +64,10 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     sc = view.scenario
     times = sc.times
     T = len(dense)
-    grip = sc.gripper
-    lim = _limits([dense, grip] + [r["vertices"] for r in rollouts])
+    v0, rope = rollouts[0]["vertices"][0], len(rollouts[0]["faces"]) == 0  # where the first rollout's handles hold
+    grips = [p for _, p in handle_tracks(sc, v0, rope)]
+    pinned = pinned_vertices(sc, v0, rope)
+    lim = _limits([dense, *grips] + [r["vertices"] for r in rollouts])
     lim[2, 0] = min(lim[2, 0], sc.table_z - 0.01)
     views = [((1, 2), "side view (y-z)"), ((0, 1), "top view (x-y)")]
     # equal aspect in panels of the same height: widths in proportion to width / height of the data
@@ -91,7 +93,8 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
         if b == 2:
             ax.axhline(sc.table_z, color="0.6", lw=1, ls="--", zorder=0)
             ax.text(lim[a, 0], sc.table_z, " table", ha="left", va="top", fontsize=7, color="0.45")
-        ax.plot(grip[:, a], grip[:, b], color=COLOR_GRIPPER, lw=1.2, ls="--", alpha=0.5, zorder=1)
+        for grip in grips:
+            ax.plot(grip[:, a], grip[:, b], color=COLOR_GRIPPER, lw=1.2, ls="--", alpha=0.5, zorder=1)
         lcs = []
         for r in rollouts:  # outline clearly, inner mesh edges faintly
             outer = LineCollection([], colors=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA * 2, linewidths=1.3, zorder=2)
@@ -100,10 +103,13 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
             ax.add_collection(inner)
             lcs.append((outer, inner))
         m = ax.scatter(dense[0][:, a], dense[0][:, b], s=4, color=COLOR_MEASURED, alpha=0.6, lw=0, zorder=3)
-        g, = ax.plot([grip[0, a]], [grip[0, b]], "+", color=COLOR_GRIPPER, ms=14, mew=2.5, zorder=5)
+        g, = ax.plot(*_handle_xy(grips, pinned, rollouts, 0, a, b)[0], "+", color=COLOR_GRIPPER, ms=14, mew=2.5,
+                     ls="none", zorder=5)
+        h, = ax.plot(*_handle_xy(grips, pinned, rollouts, 0, a, b)[1], "x", color=COLOR_GRIPPER, ms=10, mew=2.5,
+                     ls="none", zorder=5)
         meas_art.append(m)
         roll_art.append(lcs)
-        grip_art.append(g)
+        grip_art.append((g, h))
 
     cm = ch * 100
     mean_cm = cm.mean(0)
@@ -125,8 +131,13 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     handles = [Line2D([], [], ls="", marker="o", ms=5, color=COLOR_MEASURED, label="measured cloud"),
                Line2D([], [], color=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA * 2, lw=1.5,
                       label=f"{len(rollouts)} posterior-predictive rollouts (outline + mesh)"),
-               Line2D([], [], ls="--", marker="+", ms=12, mew=2.5, color=COLOR_GRIPPER, label="gripper and its path")]
-    fig.legend(handles=handles, loc="upper center", ncol=3, fontsize=9, frameon=False, bbox_to_anchor=(0.5, 0.915))
+               Line2D([], [], ls="--", marker="+", ms=12, mew=2.5, color=COLOR_GRIPPER,
+                      label=f"{grip_label(len(grips))} and {'its path' if len(grips) == 1 else 'their paths'}")]
+    if pinned:
+        handles.append(Line2D([], [], ls="none", marker="x", ms=9, mew=2.5, color=COLOR_GRIPPER,
+                              label="held in place (first rollout)"))
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False,
+               bbox_to_anchor=(0.5, 0.915))
     label = _run_label(view)
     title = fig.suptitle("", fontsize=11, y=0.985)
 
@@ -137,7 +148,9 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
                 v = r["vertices"][k][:, [a, b]]
                 outer.set_segments(v[e_out])
                 inner.set_segments(v[e_in])
-            grip_art[ax_i].set_data([grip[k, a]], [grip[k, b]])
+            moving, held = _handle_xy(grips, pinned, rollouts, k, a, b)
+            grip_art[ax_i][0].set_data(*moving)
+            grip_art[ax_i][1].set_data(*held)
         vline.set_xdata([times[k], times[k]])
         dot.set_data([times[k]], [mean_cm[k]])
         title.set_text(f"{label}\nframe {k + 1} / {T},  t = {times[k]:.2f} s,  "
@@ -154,6 +167,15 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     finally:
         plt.close(fig)
     return path
+
+
+def _handle_xy(grips: list[np.ndarray], pinned: list[tuple[str, int]], rollouts: list[dict[str, Any]], k: int,
+               a: int, b: int) -> tuple[tuple[list[float], list[float]], tuple[list[float], list[float]]]:
+    """Frame ``k``'s handle positions on axes ``a``, ``b``: the grippers ``(xs, ys)`` and the vertices held in
+    place (in the first rollout) ``(xs, ys)``."""
+    held = [rollouts[0]["vertices"][k][i] for _, i in pinned]
+    return ([float(g[k, a]) for g in grips], [float(g[k, b]) for g in grips]), \
+        ([float(p[a]) for p in held], [float(p[b]) for p in held])
 
 
 def import_rerun():

@@ -46,6 +46,59 @@ FS_TICK = 8         # tick labels
 FS_LEGEND = 8       # legends
 
 
+def handle_tracks(scenario: Any, vertices0: np.ndarray | None = None,
+                  rope: bool = False) -> list[tuple[str, np.ndarray]]:
+    """``[(name, (T, 3) m)]``: every handle of ``scenario`` that follows a path (its grippers), the scenario's
+    gripper first; a scenario built without handles gives its ``gripper`` path, named ``gripper``. With a
+    rollout's frame-0 vertices ``vertices0 (N, 3)`` m, each path is shifted to start on its grasped vertex
+    (:func:`grasped_vertex`), as the backends shift it; else it is drawn as commanded."""
+    tracks = []
+    for h in getattr(scenario, "handles", None) or []:
+        if h.path is None:
+            continue
+        path = np.asarray(h.path, float)
+        i = None if vertices0 is None else grasped_vertex(h.grasp, vertices0, rope)
+        tracks.append((h.name, path if i is None else path + (vertices0[i] - path[0])))
+    return tracks or [("gripper", np.asarray(scenario.gripper, float))]
+
+
+def pinned_vertices(scenario: Any, vertices0: np.ndarray, rope: bool) -> list[tuple[str, int]]:
+    """``[(name, vertex index)]`` of the pinned handles of ``scenario`` in a rollout whose frame-0 vertices are
+    ``vertices0 (N, 3)`` m (:func:`grasped_vertex`; a grasp it does not locate is left out)."""
+    out = []
+    for h in getattr(scenario, "handles", None) or []:
+        i = None if h.path is not None else grasped_vertex(h.grasp, vertices0, rope)
+        if i is not None:
+            out.append((h.name, i))
+    return out
+
+
+def grasped_vertex(grasp: Mapping[str, Any], vertices0: np.ndarray, rope: bool) -> int | None:
+    """The vertex a handle's ``grasp`` holds in a rollout with frame-0 vertices ``vertices0 (N, 3)`` m: a mesh
+    ``vertex``, a rope ``end``, the vertex nearest a ``point``, a ``corner`` of a square grid
+    (:func:`~softsbi.backends.common.grid_corners`); None when the rollout does not show which."""
+    from softsbi.backends.common import grid_corners
+    N = len(vertices0)
+    n = int(round(N ** 0.5))
+    kind, v = next(iter(grasp.items()))
+    if kind == "vertex":
+        i = int(v)
+    elif kind == "end" and rope:
+        i = 0 if int(v) == 0 else N - 1
+    elif kind == "point":
+        i = int(np.argmin(np.linalg.norm(vertices0 - np.asarray(v, float), axis=1)))
+    elif kind == "corner" and not rope and n * n == N:
+        i = grid_corners(n)[int(v)]
+    else:
+        return None
+    return i if 0 <= i < N else None
+
+
+def grip_label(n: int) -> str:
+    """Legend text of ``n`` moving handles."""
+    return "gripper" if n == 1 else f"{n} grippers"
+
+
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
@@ -354,14 +407,17 @@ def plot_pairs(path: Path, space: Any, samples: np.ndarray, truth: dict[str, flo
 
 
 def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, frames: Sequence[int],
-                  title: str = "", status: str = "") -> Any:
+                  title: str = "", status: str = "", vertices: np.ndarray | None = None, rope: bool = False) -> Any:
     """Figure of :func:`plot_clouds`: ``dense (T, N, 3)`` measured, ``sim_pts (T, M, 3)`` simulated
-    (None: the simulation failed)."""
+    (None: the simulation failed), every handle of ``scenario``: its grippers ``+`` (where the simulated
+    ``vertices (T, V, 3)`` hold them, when given) and the vertices it holds in place ``x``."""
     plt = _plt()
     from matplotlib.ticker import MaxNLocator
     fig, axes = plt.subplots(2, len(frames), figsize=(3.1 * len(frames) + 0.6, 6.9), squeeze=False)
     mc, pc, gc = ROLE_COLOURS["measured"], ROLE_COLOURS["posterior"], ROLE_COLOURS["gripper"]
     views = [(1, 2, "side view", ("y [m]", "z [m]")), (0, 1, "top view", ("x [m]", "y [m]"))]
+    tracks = handle_tracks(scenario, None if vertices is None else vertices[0], rope)
+    pinned = [] if vertices is None else pinned_vertices(scenario, vertices[0], rope)
     for c, f in enumerate(frames):
         real = dense[f]
         for r, (a, b, view, lab) in enumerate(views):
@@ -370,9 +426,12 @@ def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, 
             if sim_pts is not None:
                 ax.scatter(sim_pts[f][:, a], sim_pts[f][:, b], s=4, color=pc, alpha=0.5, linewidths=0,
                            label="simulated at the posterior median")
-            g = scenario.gripper[f]
-            ax.plot(g[a], g[b], "+", color="white", ms=14, mew=4.5, zorder=4)
-            ax.plot(g[a], g[b], "+", color=gc, ms=13, mew=2.2, label="gripper", zorder=5)
+            for _, path in tracks:
+                g = path[f]
+                ax.plot(g[a], g[b], "+", color="white", ms=14, mew=4.5, zorder=4)
+                ax.plot(g[a], g[b], "+", color=gc, ms=13, mew=2.2, zorder=5)
+            for _, i in pinned:
+                ax.plot(vertices[f, i, a], vertices[f, i, b], "x", color=gc, ms=10, mew=2.2, zorder=5)
             ax.set_aspect("equal", adjustable="datalim")
             ax.set_xlabel(lab[0], fontsize=FS_LABEL)
             ax.set_ylabel(f"{view}\n{lab[1]}" if c == 0 else lab[1], fontsize=FS_LABEL)
@@ -386,7 +445,9 @@ def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, 
     handles = [Line2D([], [], color=mc, label="measured", **dot)]
     if sim_pts is not None:
         handles.append(Line2D([], [], color=pc, label="simulated at the posterior median", **dot))
-    handles.append(Line2D([], [], color=gc, ls="none", marker="+", ms=10, mew=2, label="gripper"))
+    handles.append(Line2D([], [], color=gc, ls="none", marker="+", ms=10, mew=2, label=grip_label(len(tracks))))
+    if pinned:
+        handles.append(Line2D([], [], color=gc, ls="none", marker="x", ms=8, mew=2, label="held in place"))
     frac = _header(fig, [(f"Measured vs simulated at the posterior median{status}", {"fontsize": FS_TITLE,
                                                                                       "weight": "bold"}),
                          (title, {"fontsize": FS_SUB})])
@@ -411,7 +472,8 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     sim_pts = rollout_clouds(ro, 800, np.random.default_rng(0)) if ro.ok else None
     status = "" if ro.ok else f" (simulation failed: {ro.reason})"
     title = f"fit: {fit_label(result.report)}; measurement: {_source(result.report.get('observed'))}"
-    return _save(clouds_figure(meas.scenario, meas.dense, sim_pts, frames, title, status), path)
+    return _save(clouds_figure(meas.scenario, meas.dense, sim_pts, frames, title, status,
+                               ro.vertices if ro.ok else None, len(ro.faces) == 0), path)
 
 
 def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int, ...] | None = None,
@@ -521,7 +583,8 @@ def check_figure(out: dict[str, Any], ch: np.ndarray | None = None) -> Any:
     ax.tick_params(labelsize=FS_TICK)
     ax.set_ylim(bottom=0)
     ax.set_xlim(t[0] - dt, t[-1] + dt)
-    ax.set_title("Error per frame, by phase (equal thirds of the motion)", fontsize=FS_SUB)
+    ax.set_title(f"Error per frame, by phase ({out.get('phases_from', 'equal thirds of the motion')})",
+                 fontsize=FS_SUB)
     ax.legend(fontsize=FS_LEGEND, loc="best")
     ax.grid(alpha=0.3)
     ax = axes[1]
@@ -541,7 +604,7 @@ def check_figure(out: dict[str, Any], ch: np.ndarray | None = None) -> Any:
     ax.set_yticks(range(1, reg.shape[1] + 1))
     ax.set_yticklabels([_region_short(n) for n in out["regions"]], fontsize=FS_TICK)
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
-    ax.set_ylabel("region of the cloth (R1 at the grasp)", fontsize=FS_LABEL)
+    ax.set_ylabel(f"region of the object (R1 nearest {out.get('regions_from', 'the grasp')})", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
     ax.set_title("Error per region of the cloth (dashed: phase boundaries"
                  + ("; grey: not seen by the sensor model)" if not compared.all() else ")"), fontsize=FS_SUB)
@@ -684,18 +747,32 @@ def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Ma
     return path
 
 
-def plot_rollout_preview(ro: Any, path: str | Path, title: str) -> Path:
-    """Side views (y-z, m) of a rollout's vertices at four frames, with the gripper, in the palette's
-    posterior and gripper colours (``softsbi simulate``'s ``preview.png``)."""
+def plot_rollout_preview(ro: Any, path: str | Path, title: str, scenario: Any = None) -> Path:
+    """Side views (y-z, m) of a rollout's vertices at four frames, with every handle of ``scenario`` (its
+    grippers ``+`` and the vertices it holds in place ``x``; without a scenario the rollout's gripper), in the
+    palette's posterior and gripper colours (``softsbi simulate``'s ``preview.png``)."""
+    return _save(rollout_preview_figure(ro, title, scenario), Path(path))
+
+
+def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
+    """Figure of :func:`plot_rollout_preview`."""
     plt = _plt()
     T = len(ro.times)
     frames = sorted({0, T // 3, 2 * T // 3, T - 1})
+    rope = len(ro.faces) == 0
+    tracks = (handle_tracks(scenario, ro.vertices[0], rope) if scenario is not None
+              else [("gripper", np.asarray(ro.gripper, float))])
+    pinned = pinned_vertices(scenario, ro.vertices[0], rope) if scenario is not None else []
     fig, axes = plt.subplots(1, len(frames), figsize=(3 * len(frames), 3.4), squeeze=False)
     for ax, f in zip(axes[0], frames):
         v = ro.vertices[f]
         ax.scatter(v[:, 1], v[:, 2], s=4, color=ROLE_COLOURS["posterior"], label="simulated vertices")
-        ax.plot(ro.gripper[f, 1], ro.gripper[f, 2], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2,
-                label="gripper")
+        for k, (_, p) in enumerate(tracks):
+            ax.plot(p[f, 1], p[f, 2], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2,
+                    label=grip_label(len(tracks)) if k == 0 else None)
+        for k, (_, i) in enumerate(pinned):
+            ax.plot(v[i, 1], v[i, 2], "x", color=ROLE_COLOURS["gripper"], ms=8, mew=2,
+                    label="held in place" if k == 0 else None)
         ax.set_title(f"t = {ro.times[f]:.2f} s (side view)", fontsize=FS_SUB)
         ax.set_xlabel("y [m]", fontsize=FS_LABEL)
         ax.set_ylabel("z [m]", fontsize=FS_LABEL)
@@ -704,7 +781,7 @@ def plot_rollout_preview(ro: Any, path: str | Path, title: str) -> Path:
     axes[0, 0].legend(fontsize=FS_LEGEND, loc="upper left")
     fig.suptitle(title, fontsize=FS_TITLE)
     fig.tight_layout()
-    return _save(fig, Path(path))
+    return fig
 
 
 def plot_scenario_overlay(scenario: Any, rollout: Any, real_points: np.ndarray, path: str | Path,

@@ -518,6 +518,9 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
         world["obstacles"] = obstacles
     options = dict(spec.options)
     options.setdefault("source", source)
+    moving = next(h for h in spec.handles if h.path is not None)
+    if moving.path.keyframes is not None:  # the motion's phases (check's error by phase)
+        options["keyframe_times"] = [float(k.t) for k in moving.path.keyframes]
     cams = [c.model_dump() for c in spec.cameras]
     for c in cams:
         for k, v in list(c.items()):

@@ -185,6 +185,13 @@ def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndar
                          rollout.get("gripper"))
 
 
+def _grasp_words(scenario: Scenario) -> str:
+    """Whose grasp the regions are ranked from (:func:`material_regions`: the gripper's, the first moving handle)."""
+    handles = list(getattr(scenario, "handles", None) or [])
+    moving = [h for h in handles if h.path is not None]
+    return f"the grasp of handle '{moving[0].name}'" if len(handles) > 1 and moving else "the grasp"
+
+
 def _sensor_words(min_z: float | None, frames: list[int] | None, table_z: float, T: int,
                   camera: bool = False) -> str:
     """The metric's sensor model in words, for the check's summary ("" when it sees everything)."""
@@ -211,17 +218,26 @@ def _ranges(idx: list[int]) -> str:
 
 
 def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
-    """Split the frames into three phases of equal duration, with the gripper's height."""
+    """The phases of the motion, with the gripper's height: the moves between the keyframes of the scenario's
+    gripper path (``options["keyframe_times"]``, a scenario file's keyframes: ``move 1``, ``move 2``, ... and
+    ``after the last move``), else three phases of equal duration (``early``, ``middle``, ``late``)."""
     T = scenario.n_frames
-    cuts = np.linspace(0, T, 4).round().astype(int)
-    names = ("early", "middle", "late")
+    times = np.asarray(scenario.times, float)
+    kt = sorted(float(t) for t in (scenario.options or {}).get("keyframe_times") or [])
+    if len(kt) >= 2:
+        edges = np.searchsorted(times, np.array(kt[1:-1]) - 1e-9)  # frame k belongs to the move it starts in
+        cuts = [0, *[int(e) for e in edges], int(np.searchsorted(times, kt[-1] + 1e-9)), T]
+        names = [f"move {k + 1}" for k in range(len(kt) - 1)] + ["after the last move"]
+    else:
+        cuts = list(np.linspace(0, T, 4).round().astype(int))
+        names = ["early", "middle", "late"]
     out = []
-    for k in range(3):
+    for k, name in enumerate(names):
         idx = list(range(cuts[k], cuts[k + 1]))
         if not idx:
             continue
         h = scenario.gripper[idx, 2] - scenario.table_z
-        out.append({"phase": names[k], "frames": [idx[0], idx[-1]],
+        out.append({"phase": name, "frames": [idx[0], idx[-1]],
                     "t_s": [float(scenario.times[idx[0]]), float(scenario.times[idx[-1]])],
                     "gripper_height_m": [float(h.min()), float(h.max())]})
     return out
@@ -248,7 +264,9 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
             and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
 
     Returns:
-        dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts),
+        dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts), ``regions`` ranked by their
+        distance from ``regions_from`` (the first moving handle's grasp, named when the scenario has several
+        handles), ``phases`` (:func:`motion_phases`; ``phases_from`` says how they were cut),
         ``region_error_m`` (T x R mean under the fit's sensor model, :func:`rollout_region_errors`; 0 where
         no rollout's region is seen), ``region_compared`` (T x R bool: False where it is 0 for that
         reason, not for a perfect fit), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
@@ -338,7 +356,10 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
                                              "q95": np.quantile(ch1, 0.95, 0).tolist()},
            "chamfer_mean_m": stats["mean_m"], "chamfer_one_sided_mean_m": one,
            "metric_min_z_m": min_z, "metric_frames": frames, "metric_sensor": model["kind"],
-           "regions": names, "region_error_m": np.nan_to_num(reg_mean).tolist(),
+           "regions": names, "regions_from": _grasp_words(run.scenario),
+           "phases_from": ("the scenario's keyframes" if (run.scenario.options or {}).get("keyframe_times")
+                           else "equal thirds of the motion"),
+           "region_error_m": np.nan_to_num(reg_mean).tolist(),
            "region_compared": np.isfinite(reg_mean).tolist(),
            "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
            "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,

@@ -58,8 +58,9 @@ RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "h
 
 
 #: scenario options that say where a scenario was read from, not what it is: a run resumes whatever path the
-#: same scenario file is read from now (a moved checkout, another install of softsbi)
-SCENARIO_PROVENANCE = ("source", "file")
+#: same scenario file is read from now (a moved checkout, another install of softsbi); and the keyframe times
+#: of its gripper path, which the path itself holds (runs stored before they were kept resume)
+SCENARIO_PROVENANCE = ("source", "file", "keyframe_times")
 
 
 def resume_identity(key: str, value: Any) -> Any:

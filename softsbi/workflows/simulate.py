@@ -168,7 +168,7 @@ def _write_rollout(out: Path, final: Path, ro: Any, sc: Any, backend: str, scena
                            "reason": ro.reason, "frames": len(ro.times), "vertices": int(ro.vertices.shape[1]),
                            "wall_s": dt, "rollout": str(final / "rollout.zarr")}
     if ro.ok:
-        plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}")
+        plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}", sc)
         doc["preview"] = str(final / "preview.png")
         clouds = rollout_clouds(ro, int(cloud_points), np.random.default_rng(seed))
         meta = {"scenario": {"inline": spec_from_scenario(sc)}, "times": ro.times.tolist(),

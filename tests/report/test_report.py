@@ -237,3 +237,75 @@ def test_palette_is_colour_blind_safe_and_engines_have_no_role_colour(tmp_path):
     rep = {"chamfer_m": {"mujoco-flex|pybullet-massspring": None}, "mean_chamfer_m": {"mujoco-flex|pybullet-massspring": None},
            "backends": {"mujoco-flex": {"reason": ""}, "pybullet-massspring": {"reason": "diverged"}}}
     assert compare_png(sc, ros, rep, tmp_path / "cb.png").stat().st_size > 10_000
+
+
+def _two_grip_scenario():
+    """A 3 x 3 grid cloth held by two moving grippers (corners 0 and 1) and one pinned corner (2); the second
+    path is commanded 5 cm off its corner (the backends shift it there)."""
+    from softsbi.core.types import Handle, Scenario
+    T = 4
+    up = np.linspace(0, 0.2, T)
+    p0 = np.stack([np.zeros(T), np.zeros(T), up], 1)
+    p1 = np.stack([np.zeros(T), np.full(T, 0.25), up], 1)
+    handles = [Handle("left", {"corner": 0}, p0), Handle("right", {"corner": 1}, p1), Handle("held", {"corner": 2})]
+    sc = Scenario(name="two", times=np.arange(T) * 0.1, gripper=p0, table_z=0.0,
+                  object={"kind": "cloth", "size": 0.2}, handles=handles, options={"keyframe_times": [0.0, 0.15, 0.3]})
+    xs = np.linspace(0, 0.2, 3)
+    rest = np.array([[x, y, 0.0] for x in xs for y in xs])  # x-major: corner 0 (0,0), 1 (0,0.2), 2 (0.2,0.2)
+    verts = np.repeat(rest[None], T, 0)
+    verts[:, 0, 2] = verts[:, 2, 2] = up
+    return sc, verts
+
+
+def _markers(fig, marker):
+    return [(ln.get_xdata(), ln.get_ydata()) for ax in fig.axes for ln in ax.get_lines() if ln.get_marker() == marker
+            and len(ln.get_xdata())]
+
+
+def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
+    """With two grippers, preview.png, clouds.png and view.gif drew only the first one and its path."""
+    from softsbi.core.types import Rollout
+    from softsbi.report.animation import draw_gif
+    sc, verts = _two_grip_scenario()
+    ro = Rollout(times=sc.times, gripper=sc.gripper, vertices=verts, faces=np.array([[0, 1, 3]]))
+    fig = R.rollout_preview_figure(ro, "two grippers", sc)
+    grips = _markers(fig, "+")
+    assert len(grips) == 2 * 4  # both grippers in each of the 4 panels
+    assert sorted(float(x[0]) for x, _ in grips[:2]) == pytest.approx([0.0, 0.2])  # y of corners 0 and 1
+    assert len(_markers(fig, "x")) == 4  # the pinned corner
+    assert "2 grippers" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    plt.close(fig)
+    fig = R.clouds_figure(sc, verts, verts, [0, 3], vertices=verts)
+    assert len(_markers(fig, "+")) == 2 * 2 * 2 * 2 and len(_markers(fig, "x")) == 2 * 2  # white halo + cross
+    plt.close(fig)
+    view = SimpleNamespace(path="run", config={"backend": "toy"}, effects=[], scenario=sc, dense=verts)
+    from matplotlib.animation import PillowWriter
+    frames, grab = [], PillowWriter.grab_frame
+
+    def record(self, **kw):
+        frames.append(_markers(self.fig, "+") + _markers(self.fig, "x"))
+        return grab(self, **kw)
+    with mock.patch.object(PillowWriter, "grab_frame", record):
+        draw_gif(view, [{"vertices": verts, "faces": ro.faces}], np.zeros((1, 4)), tmp_path / "view.gif", fps=5)
+    first = frames[0]
+    assert sum(len(x) for x, _ in first) == 2 * (2 + 1)  # side and top view: two grippers, one held corner
+    side = [(list(x), list(y)) for x, y in first][0]
+    assert sorted(side[0]) == pytest.approx([0.0, 0.2])  # the second gripper where its corner is, not 5 cm off
+
+
+def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_keyframes():
+    from softsbi.workflows.check import _grasp_words, motion_phases
+    sc, _ = _two_grip_scenario()
+    assert _grasp_words(sc) == "the grasp of handle 'left'"
+    assert [(p["phase"], p["frames"]) for p in motion_phases(sc)] == [("move 1", [0, 1]), ("move 2", [2, 3])]
+    sc.options.pop("keyframe_times")
+    assert [p["phase"] for p in motion_phases(sc)] == ["early", "middle", "late"]
+    out = {"times_s": list(sc.times), "region_error_m": np.zeros((4, 9)).tolist(), "regions": [f"R{i}" for i in
+                                                                                               range(1, 10)],
+           "chamfer_per_frame_m": {"mean": [0.01] * 4, "q05": [0.01] * 4, "q95": [0.01] * 4},
+           "phases": [], "regions_from": "the grasp of handle 'left'", "phases_from": "the scenario's keyframes",
+           "misspecification": {"p_text": "p = 1", "p_value": 1.0, "misspecified": False}, "chamfer_mean_m": 0.01}
+    fig = R.check_figure(out)
+    assert fig.axes[1].get_ylabel() == "region of the object (R1 nearest the grasp of handle 'left')"
+    assert "the scenario's keyframes" in fig.axes[0].get_title()
+    plt.close(fig)
