@@ -198,7 +198,8 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
              scenario: str = typer.Option(D.SCENARIO, help="scenario name (`softsbi scenarios` lists them) or scenario "
                                                        "file (.yaml)"),
              recording: Optional[Path] = typer.Option(None, help="real recording folder to take the scenario from"),
-             theta: list[str] = typer.Option(None, "--theta", help="name=value (repeatable); unset = prior midpoint"),
+             theta: list[str] = typer.Option(None, "--theta", help="name=value (repeatable); unset: scale = the scenario's object "
+                                                             "size, others = prior midpoint"),
              effect: list[str] = typer.Option(None, "--effect", help="effect names to switch on"),
              backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
              out: Path = typer.Option(Path("rollout"), help="output folder: rollout.zarr, preview.png and a "

@@ -64,7 +64,9 @@ class MeshSpec(_Strict):
 
 class ObjectSpec(_Strict):
     """The deformable object: ``cloth`` (``size`` m of a square grid, or ``mesh``) or ``rope``
-    (``length`` m, ``radius`` m)."""
+    (``length`` m, ``radius`` m). ``size`` / ``length`` is the size a single rollout (``softsbi simulate``)
+    gives the parameter ``scale`` when it is not set; a fit infers ``scale`` over its prior (``--bounds``
+    sets the prior, ``--fix scale=...`` holds it at a size)."""
     kind: Literal["cloth", "rope"]
     size: Optional[float] = Field(None, gt=0)
     mesh: Optional[MeshSpec] = None

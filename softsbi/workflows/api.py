@@ -21,6 +21,7 @@ from softsbi.scenarios.builtin import make_scenario
 from softsbi.workflows.calibrate import calibrate_run
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.runs import Run, open_run
+from softsbi.workflows.simulate import default_values
 
 
 def load_scenario(name_or_path: str | Path, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
@@ -97,8 +98,9 @@ def typed_config(cfg: FitConfig) -> FitConfig:
 
 def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None, backend: str = "mujoco-flex",
              effects: Sequence[str] = (), seed: int = 0, **backend_options: Any) -> Rollout:
-    """One rollout of ``scenario`` at ``theta`` (physical units; unset parameters at their prior
-    midpoint) on a simulator plugin.
+    """One rollout of ``scenario`` at ``theta`` (physical units; unset parameters as
+    :func:`~softsbi.workflows.simulate.default_values` sets them: ``scale`` at the scenario's object size, the
+    others at their prior midpoint) on a simulator plugin.
 
     Returns:
         :class:`~softsbi.core.types.Rollout` (``vertices (T, N, 3)`` m, ``gripper``, ``times``, status).
@@ -123,7 +125,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     space = sim.param_space(sc)
     for e in effects:
         space = space + reg.effect(e)().param_space()
-    values = space.midpoint()
+    values = default_values(space, sc)
     values.update(dict(theta or {}))
     return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))
 

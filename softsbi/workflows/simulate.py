@@ -50,6 +50,19 @@ def render_memory_bytes(size: int, frames: int) -> int:
     return int((frames + 2) * size * size * BYTES_PER_PIXEL)
 
 
+def default_values(space: Any, scenario: Any) -> dict[str, float]:
+    """The parameters a single rollout takes when not given: the scenario's declared object size for ``scale``
+    (``object.size``, a cloth's side, or ``object.length``, a rope's; when ``scale`` is a parameter), every other
+    parameter at its prior midpoint. A fit infers ``scale`` over its prior instead (``--fix scale=...`` holds
+    it at a size)."""
+    values = space.midpoint()
+    obj = getattr(scenario, "object", None) or {}
+    size = obj.get("length") if obj.get("kind") == "rope" else obj.get("size")
+    if "scale" in values and size is not None and "mesh" not in obj:
+        values["scale"] = float(size)
+    return values
+
+
 def check_render_memory(size: int, frames: int, cap_gb: float) -> int:
     """Refuse a render whose frames would exceed ``cap_gb`` GB (one line with the fix); returns the estimate.
 
@@ -74,8 +87,8 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
                        render: int | None = None,
                        render_memory_gb: float = RENDER_MEMORY_GB, cloud_points: int = CLOUD_POINTS,
                        seed: int = 0, overwrite: bool = False) -> dict[str, Any]:
-    """Roll ``scenario`` out at ``theta`` (physical units; unset parameters at the prior midpoint)
-    and write it into ``out``.
+    """Roll ``scenario`` out at ``theta`` (physical units; unset parameters: :func:`default_values`, the
+    scenario's object size and the prior midpoint) and write it into ``out``.
 
     Args:
         scenario: a scenario name (``softsbi scenarios``) or scenario file path.
@@ -116,7 +129,7 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
     space = sim.param_space(sc)
     for e in effects:
         space = space + reg.effect(e)().param_space()
-    values = space.midpoint()
+    values = default_values(space, sc)
     values.update(dict(theta or {}))
     values = space.check(values, within="limits")
     if render is not None:

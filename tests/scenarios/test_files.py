@@ -114,3 +114,16 @@ def test_the_rope_winding_is_not_named_like_the_wind_effect_and_its_old_name_sti
     with pytest.warns(FutureWarning):
         assert make_scenario("wind", n_frames=5).name == "winding"
     assert default_camera("wind").width == default_camera("winding").width  # a run stored under the old name
+
+
+def test_a_rollout_without_scale_is_simulated_at_the_scenarios_declared_size(tmp_path):
+    """object.size was silently replaced by scale's prior midpoint (0.27 m against size: 0.28)."""
+    from softsbi.workflows.simulate import default_values, simulate_to_folder
+    f = tmp_path / "s.yaml"
+    f.write_text((Path(b.__file__).with_name("files") / "wipe.yaml").read_text().replace("size: 0.30", "size: 0.28"))
+    doc = simulate_to_folder(tmp_path / "out", scenario=str(f), backend_options={"grid": 3})
+    assert doc["status"] == 0 and doc["theta"]["scale"] == pytest.approx(0.28)
+    assert doc["theta"]["friction"] == registry().simulator("mujoco-flex")().param_space(
+        load_scenario(f)).midpoint()["friction"]  # the others at their prior midpoint
+    rope = load_scenario("winding")
+    assert default_values(registry().simulator("mujoco-flex")().param_space(rope), rope)["scale"] == 0.40
