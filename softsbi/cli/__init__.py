@@ -124,6 +124,10 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
         o.line(f"Chamfer to the measurement: prior {rep['chamfer_prior_m'] * 100:.2f} cm -> posterior "
                f"predictive {rep['chamfer_posterior_m'] * 100:.2f} cm "
                f"({describe_change(rep['chamfer_prior_m'], rep['chamfer_posterior_m'])})")
+        if rep["chamfer_posterior_m"] > rep["chamfer_prior_m"]:
+            o.line("Note: rollouts at the posterior miss the measurement by more than rollouts at the prior: what "
+                   "the fit matched (the observed state) does not bring the simulated object closer, a sign that "
+                   f"the model cannot reach the data; `softsbi check {out}` shows where and when it misses")
     o.line(f"{rep['simulations']} simulations ({rep['failed_simulations']} failed), {rep['wall_time_s']:.0f} s. "
            f"Outputs in {out}: report.json, run.zarr, chamfer_rounds.png, posterior_pairs.png, clouds.png")
 
@@ -145,13 +149,14 @@ def _guard(fn):
             else:
                 Output().error(str(exc))
             raise typer.Exit(2)
-        except KeyboardInterrupt:
-            exc = KeyboardInterrupt("interrupted; finished simulations are kept: re-run the same command to resume")
+        except KeyboardInterrupt as stop:
+            what = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
+            exc = KeyboardInterrupt(f"{what}; finished simulations are kept: re-run the same command to resume")
             if as_json:
                 sys.stdout.write(json_error(exc) + "\n")
             else:
                 Output().error(str(exc))
-            raise typer.Exit(130)
+            raise typer.Exit(143 if isinstance(stop, Terminated) else 130)
         except Exception as exc:
             from softsbi.core.errors import storage_error
             err = storage_error(exc)  # a full or read-only disk is the machine's state, not a bug
@@ -449,6 +454,15 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
 
 
+#: magnitude below which an estimate prints as 0: floating-point residue of an effect switched off (exactly 0),
+#: far below any physical parameter's resolution in SI units
+ZERO_PRINTED = 1e-12
+
+
+def _value(v: float) -> str:
+    return "0" if abs(v) < ZERO_PRINTED else f"{v:.3g}"
+
+
 def diagnosis_table_rows(out: dict) -> list[list]:
     """The rows of `softsbi diagnose`'s candidate table, one per effect of ``out["final_ranking"]``.
 
@@ -484,7 +498,7 @@ def diagnosis_table_rows(out: dict) -> list[list]:
         if "statistic" not in r:
             rows.append([i + 1, r["effect"], r.get("kind", ""), "-", "-", r.get("error", ""), "", ""])
             continue
-        est = ", ".join(f"{k}={v:.3g}" for k, v in r["estimate"].items())
+        est = ", ".join(f"{k}={_value(v)}" for k, v in r["estimate"].items())
         kind = "generic" if r.get("generic") else r.get("kind", "physics")
         by_refit = r["effect"] == out.get("refit_decides") or r["effect"] in (out.get("refit_below_share") or [])
         named = "refit" if by_refit else "yes" if r["effect"] in out["significant"] else "no"
@@ -729,8 +743,18 @@ def import_diffcloud_cmd(src: Path = typer.Argument(..., help="a DiffCloud recor
         o.line(f"wrote {p}")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it stops as after Ctrl-C: finished work kept, one line."""
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point (SIGTERM stops a command as Ctrl-C does: one line, exit code 143)."""
+    import signal
+    signal.signal(signal.SIGTERM, _terminate)
     app()
 
 

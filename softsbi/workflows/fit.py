@@ -31,7 +31,7 @@ from softsbi.core.distributions import PosteriorChain, RoundPosterior, Truncated
 from softsbi.core.errors import DataError, ParameterError, PosteriorError, SchemaError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import ROUND_ARRAYS, RunStore
-from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
+from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.perception.masks import hsv_mask
@@ -792,7 +792,8 @@ def _retry_failed(store: RunStore, callbacks: FitCallbacks) -> None:
 
 
 def _resume_message(store: RunStore, spent_s: float) -> str:
-    """What a resumed fit finds: complete rounds, the partly stored round, the time already spent."""
+    """What a resumed fit finds: complete rounds, the partly stored round, stored failed simulations (and the
+    option that simulates them again), the time already spent."""
     done = store.completed_rounds()
     parts = [f"resuming run in {store.path} after round {len(done)}" if done else f"resuming run in {store.path}"]
     nxt = len(done)
@@ -800,6 +801,11 @@ def _resume_message(store: RunStore, spent_s: float) -> str:
         n = int(len(store.round_data(nxt)["status"]))
         stored = n - len(store.pending(nxt))
         parts.append(f"round {nxt + 1}: {stored} of {n} simulations already stored")
+    failed = sum(int(np.sum((st != STATUS_OK) & (st != STATUS_PENDING)))
+                 for st in (store.round_data(r, ("status",))["status"] for r in store.round_ids()))
+    if failed:
+        parts.append(f"{failed} stored simulations failed (after fixing what made them fail, --retry-failed "
+                     f"simulates them again)")
     parts.append(f"{spent_s:.0f} s spent before")
     return "; ".join(parts)
 

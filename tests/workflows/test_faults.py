@@ -264,7 +264,10 @@ SIGINT_FIT = [sys.executable, "-m", "softsbi.cli", "fit", "--backend", "toy-gaus
               "--estimator-opt", "max_epochs=10"]
 
 
-def test_ctrl_c_says_how_to_resume_and_the_same_command_resumes(tmp_path):
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),
+                                             (signal.SIGTERM, 143, "terminated (SIGTERM)")])
+def test_ctrl_c_or_sigterm_says_how_to_resume_and_the_same_command_resumes(tmp_path, sig, code, word):
+    """SIGTERM (a scheduler's or `kill`'s stop) exited silently; now it stops the command as Ctrl-C does."""
     rec = tmp_path / "rec"  # a recording directory written by `softsbi simulate`
     made = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(rec)])
     assert made.exit_code == 0, made.output
@@ -283,10 +286,11 @@ def test_ctrl_c_says_how_to_resume_and_the_same_command_resumes(tmp_path):
         if status.is_dir() and len(list(status.iterdir())) >= 5:
             break
         time.sleep(0.1)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
-    assert proc.returncode == 130, (stdout, stderr[-2000:])
-    assert "re-run the same command to resume" in stderr and "Traceback" not in stderr
+    assert proc.returncode == code, (stdout, stderr[-2000:])
+    assert f"{word}; finished simulations are kept: re-run the same command to resume" in " ".join(stderr.split())
+    assert "Traceback" not in stderr
     stored = 60 - len(RunStore.open(out / "run.zarr").pending(0))
     assert 5 <= stored < 60
     again = subprocess.run(cmd + ["--json"], capture_output=True, text=True,

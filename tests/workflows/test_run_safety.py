@@ -78,8 +78,17 @@ def test_retry_failed_resimulates_stored_failures_and_redraws_later_rounds(tmp_p
     failed0 = int(res.report["per_round"][0]["failed"])
     assert failed0 > 0
     monkeypatch.delenv("SOFTSBI_TOY_DIVERGE_ABOVE")
-    again = run_fit(out, toy_measurement(), _cfg(), make_plots=False)  # plain resume keeps the failures
+    messages = []
+
+    class Cb:
+        def message(self, text):
+            messages.append(text)
+
+        def __getattr__(self, name):
+            return lambda *a, **k: None
+    again = run_fit(out, toy_measurement(), _cfg(), callbacks=Cb(), make_plots=False)  # plain resume keeps them
     assert again.report["per_round"][0]["failed"] == failed0
+    assert any("stored simulations failed" in m and "--retry-failed" in m for m in messages), messages
     fixed = run_fit(out, toy_measurement(), _cfg(), make_plots=False, retry_failed=True)
     assert fixed.report["failed_simulations"] == 0
     store = RunStore.open(out / "run.zarr")

@@ -98,3 +98,28 @@ def test_compare_refuses_an_out_that_is_a_file_before_checking_either_run(toy_ru
         compare.compare_runs(toy_run, toy_run, afile)
     with pytest.raises(SoftsbiError, match="not a run directory"):
         compare.compare_runs(toy_run, tmp_path, tmp_path / "o")  # the second run, before the first's check
+
+
+def test_a_posterior_predictive_worse_than_the_prior_says_what_it_means(toy_run, capsys):
+    import json
+
+    from softsbi.cli import _print_report
+    from softsbi.cli.output import Output
+    rep = json.loads((toy_run / "report.json").read_text())
+    rep["chamfer_prior_m"], rep["chamfer_posterior_m"] = 0.0907, 0.0937  # the "9.07 cm -> 9.37 cm"
+    _print_report(Output(), rep, toy_run)
+    text = " ".join(capsys.readouterr().out.split())
+    assert "9.07 cm -> posterior predictive 9.37 cm (3% higher)" in text
+    assert "the model cannot reach the data; `softsbi check" in text
+    rep["chamfer_posterior_m"] = 0.05
+    _print_report(Output(), rep, toy_run)
+    assert "cannot reach" not in capsys.readouterr().out
+
+
+def test_estimates_of_switched_off_effects_print_as_zero():
+    from softsbi.cli import diagnosis_table_rows
+    entry = {"effect": "table-unseen", "kind": "sensor", "statistic": 1.0, "explained_fraction": 0.01,
+             "estimate": {"unseen_height": 8.74e-22, "hem_density": 1.29e-14, "wind_x": 0.0123}, "p_value": 0.5,
+             "n_exceed": 10, "n_null": 30}
+    rows = diagnosis_table_rows({"ranking": [entry], "significant": [], "confirmed": []})
+    assert rows[0][5] == "unseen_height=0, hem_density=0, wind_x=0.0123"
