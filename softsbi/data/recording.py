@@ -61,7 +61,8 @@ MISSING_HINTS = {
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """Every field of the format: no unknown field, no NaN or infinite number."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class ScenarioRef(_Strict):
@@ -257,8 +258,8 @@ def read_recording(folder: str | Path) -> RecordingData:
     if meta.calibration:
         cal = folder / meta.calibration
         if not cal.is_file():
-            raise DataError(f"{meta_file}: field 'calibration' names {cal}, which does not exist; add the file or "
-                            f"remove the field")
+            raise DataError(f"{meta_file}: field 'calibration' names {cal}, which "
+                            f"{'is a folder' if cal.is_dir() else 'does not exist'}; add the file or remove the field")
         extras["calibration"] = read_yaml(cal, "fix it or remove the field 'calibration'")
     return RecordingData(folder=folder, meta=meta, clouds=clouds, times=np.asarray(meta.times, float),
                          images=images, depth=depth, extras=extras)

@@ -275,6 +275,9 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
             scenario by :func:`softsbi.workflows.measurement.load_recording`.)
     """
     folder = Path(folder)
+    if folder.is_file():
+        raise DataError(f"observed data '{folder}' is a file; pass a recording folder such as "
+                        f"../shared/data/diffcloud_lift/lift_tan (frames 000.npy, 001.npy, ...)")
     if not folder.is_dir():
         raise DataError(f"observed data folder '{folder}' does not exist; pass a recording folder such as "
                         f"../shared/data/diffcloud_lift/lift_tan (frames 000.npy, 001.npy, ...)")
@@ -283,6 +286,10 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
         if (folder / "run.zarr").exists():
             raise DataError(f"'{folder}' is a run directory (the output of `softsbi fit`), not a recording; pass the "
                             f"recording it was fitted to (report.json's 'observed') or check/diagnose it")
+        if (folder / "clouds").is_dir():
+            raise DataError(f"'{folder}' holds clouds/ but no recording.yaml, which says what they are (scenario, "
+                            f"times, transform); write it (softsbi/data/recording.py shows the format) or re-create "
+                            f"the recording with `softsbi import diffcloud` / `softsbi simulate --out`")
         raise DataError(f"'{folder}' holds no frames named 000.npy, 001.npy, ...; a recording folder must "
                         f"contain one (P, 3) point cloud per frame")
     idx = [int(f.stem) for f in files]

@@ -52,8 +52,17 @@ Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
 
 
+#: most frames a scenario may have: a simulation of more takes hours and its rollouts gigabytes (a typical task
+#: has 25-100); a count above it is a mistake, not a longer recording
+MAX_FRAMES = 10_000
+#: largest gravity magnitude accepted (m/s^2), ten times Earth's: a larger one is a unit mistake (e.g. mm/s^2)
+#: that every engine fails on
+MAX_GRAVITY = 100.0
+
+
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Every field of the format: no unknown field, no NaN or infinite number."""
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class MeshSpec(_Strict):
@@ -170,10 +179,10 @@ class HandleSpec(_Strict):
 class FramesSpec(_Strict):
     """Frame times: ``count`` and ``dt`` (s, ``t = k dt``), ``count`` and ``duration`` (evenly from 0),
     or explicit ``times`` (s, strictly increasing from 0)."""
-    count: Optional[int] = Field(None, ge=2)
+    count: Optional[int] = Field(None, ge=2, le=MAX_FRAMES)
     dt: Optional[float] = Field(None, gt=0)
     duration: Optional[float] = Field(None, gt=0)
-    times: Optional[list[float]] = None
+    times: Optional[list[float]] = Field(None, max_length=MAX_FRAMES)
 
     @model_validator(mode="after")
     def _one(self) -> "FramesSpec":
@@ -241,9 +250,18 @@ class CylinderSpec(_Strict):
 
 
 class WorldSpec(_Strict):
+    """The table's height (m), gravity (m/s^2, at most :data:`MAX_GRAVITY` in magnitude) and rigid obstacles."""
     table_z: float = 0.0
     gravity: Vec3 = (0.0, 0.0, -9.81)
     obstacles: list[BoxSpec | CylinderSpec] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _gravity(self) -> "WorldSpec":
+        g = math.hypot(*self.gravity)
+        if g > MAX_GRAVITY:
+            raise ValueError(f"gravity {list(self.gravity)} is {g:.3g} m/s^2, more than {MAX_GRAVITY:g}; give it in "
+                             f"m/s^2 (Earth: [0, 0, -9.81])")
+        return self
 
 
 class CameraSpec(_Strict):
@@ -359,14 +377,18 @@ def read_mesh(path: Path, source: str, field: str) -> tuple[np.ndarray, np.ndarr
     """
     import trimesh
     if not path.is_file():
-        raise DataError(f"{source}: field '{field}': mesh {path} does not exist; give a .obj path relative to "
-                        f"the scenario file")
+        raise DataError(f"{source}: field '{field}': mesh {path} {_missing(path)}; give a .obj file path relative "
+                        f"to the scenario file")
     try:
         m = trimesh.load(str(path), process=False, force="mesh")
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds
         raise DataError(f"{source}: field '{field}': cannot read mesh {path} ({exc}); give a triangle .obj") from None
     v = np.asarray(m.vertices, dtype=float)
     f = np.asarray(m.faces, dtype=np.int64)
+    if not np.all(np.isfinite(v)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(v), axis=1))[0])
+        raise DataError(f"{source}: field '{field}': mesh {path} has a NaN or infinite coordinate (vertex {bad}); "
+                        f"fix the .obj file")
     if len(f) == 0:
         raise DataError(f"{source}: field '{field}': mesh {path} has no triangles; give a triangle .obj")
     if np.any(f[:, 0] == f[:, 1]) or np.any(f[:, 1] == f[:, 2]) or np.any(f[:, 0] == f[:, 2]) or \
@@ -381,6 +403,11 @@ def read_mesh(path: Path, source: str, field: str) -> tuple[np.ndarray, np.ndarr
                         f"is shared by {int(counts.max())} triangles); a cloth must be a surface where every edge "
                         f"borders at most two triangles: split or remove the extra triangles")
     return v, f
+
+
+def _missing(path: Path) -> str:
+    """Why ``path`` is not a file: ``"is a folder"`` or ``"does not exist"``."""
+    return "is a folder" if path.is_dir() else "does not exist"
 
 
 def _resolve_path(base: Path | None, rel: str) -> Path:
@@ -434,8 +461,8 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
             if pth.file is not None:
                 f = _resolve_path(base_dir, pth.file)
                 if not f.is_file():
-                    raise DataError(f"{source}: field '{where}.path.file': {f} does not exist; give a (T, 3) .npy "
-                                    f"relative to the scenario file")
+                    raise DataError(f"{source}: field '{where}.path.file': {f} {_missing(f)}; give a (T, 3) .npy "
+                                    f"file relative to the scenario file")
                 raw = read_npy(f, "handle path", "save a (T, 3) float array with numpy.save")
                 if raw.ndim != 2 or raw.shape[1] != 3:
                     raise DataError(f"{source}: field '{where}.path.file': {f} must be (T, 3) positions, got "

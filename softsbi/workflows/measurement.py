@@ -111,12 +111,43 @@ def recording_from_meta(meta: Mapping, clouds: Sequence[np.ndarray], base: Path,
         k = int(np.argmax(np.abs(times - sc.times)))
         raise DataError(f"{source}: frame {k} is at t = {times[k]:g} s in the recording but {sc.times[k]:g} s in "
                         f"scenario '{sc.name}'; make the scenario's frames match the recording's times")
+    check_reach(clouds, sc, source)
     rng = np.random.default_rng(seed)
     obs = PointCloudObserver(n_points).observe_clouds(list(clouds), sc.gripper, sc.times, rng, source=source)
     dense = np.stack([c[rng.choice(len(c), size=n_dense, replace=len(c) < n_dense)] for c in clouds])
     sensor = meta.get("sensor") or {}
     return Recording(scenario=sc, x=obs.state(), dense=dense, source=source, truth=meta.get("truth"),
                      min_height=sensor.get("min_height"), frames=sensor.get("frames", "all"))
+
+
+#: how far (in object extents: a cloth's diagonal, a rope's length) a frame's points may lie from the nearest
+#: gripper, by their median: a held object lies within one extent of its grasp; the real DiffCloud lifts reach
+#: 1.01 (lift_redblack2, calibration offsets), so five leaves room and still catches a cloud in the wrong frame or
+#: unit (millimetres, a shifted origin)
+PLAUSIBLE_REACH = 5.0
+
+
+def check_reach(clouds: Sequence[np.ndarray], scenario: Scenario, source: str) -> None:
+    """Refuse clouds that cannot be the scenario's object: a frame whose points' median distance to the
+    nearest gripper (the handles that follow a path) exceeds :data:`PLAUSIBLE_REACH` object extents. Objects
+    of unknown extent are not checked.
+
+    Raises:
+        DataError: naming the frame, the distance and the fix (the recording's transform and units).
+    """
+    obj = scenario.object or {}
+    extent = obj.get("length") if obj.get("kind") == "rope" else (
+        float(obj["size"]) * np.sqrt(2) if obj.get("size") else None)
+    if not extent:
+        return
+    paths = [np.asarray(h.path, float) for h in scenario.handles if h.path is not None] or [scenario.gripper]
+    for t, c in enumerate(clouds):
+        d = min(float(np.median(np.linalg.norm(np.asarray(c, float) - p[t], axis=1))) for p in paths)
+        if d > PLAUSIBLE_REACH * extent:
+            raise DataError(f"{source}: frame {t}'s points lie {d:.3g} m from the gripper (median), more than "
+                            f"{PLAUSIBLE_REACH:g} times the object's extent ({extent:.2f} m): the cloud is not in the frame "
+                            f"of scenario '{scenario.name}'; check the recording's transform and that its units are "
+                            f"metres")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -233,7 +264,8 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
     from softsbi.data.recording import write_recording
     src, dst = Path(src), Path(dst)
     if not src.is_dir():
-        raise DataError(f"'{src}' does not exist; give a DiffCloud recording folder or a folder of them")
+        raise DataError(f"'{src}' {'is a file' if src.exists() else 'does not exist'}; give a DiffCloud recording "
+                        f"folder or a folder of them")
     if sorted(src.glob("*_real2sim.yaml")) and any(f.stem.isdigit() for f in src.glob("*.npy")):
         pairs = [(src, dst)]
     else:

@@ -159,3 +159,26 @@ def test_rendered_simulation_is_an_image_recording(tmp_path):
     rec = load_image_recording(tmp_path / "m", scenario=None, size=24)
     assert rec.images.shape == (31, 24, 24, 3) and rec.scenario.name == "wipe"
     assert rec.truth == doc["theta"]
+
+
+def test_a_missing_recording_yaml_a_shifted_frame_and_a_file_as_source_are_named(tmp_path):
+    """A recording without recording.yaml was "holds no frames"; a frame shifted by 1e6 m was fitted ("Chamfer
+    4041456 cm"); a file given as the DiffCloud source "does not exist"."""
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    from softsbi.workflows.measurement import import_diffcloud, load_recording
+    from softsbi.workflows.simulate import simulate_to_folder
+    rec = tmp_path / "rec"
+    simulate_to_folder(rec, backend="toy-gauss")  # lift
+    meta = (rec / "recording.yaml").read_bytes()
+    (rec / "recording.yaml").unlink()
+    with pytest.raises(DataError, match=r"holds clouds/ but no recording\.yaml, which says what they are"):
+        load_recording(rec)
+    (rec / "recording.yaml").write_bytes(meta)
+    c = np.load(rec / "clouds" / "005.npy")
+    np.save(rec / "clouds" / "005.npy", c + [1e6, 0, 0])
+    with pytest.raises(DataError, match=r"frame 5's points lie 1e\+06 m from the gripper \(median\), more than 5 "
+                                        r"times the object's extent .* check the recording's transform and that its "
+                                        r"units are metres"):
+        load_recording(rec)
+    with pytest.raises(DataError, match=r"'.*005\.npy' is a file; give a DiffCloud recording folder"):
+        import_diffcloud(rec / "clouds" / "005.npy", tmp_path / "dst")

@@ -115,3 +115,24 @@ def test_unknown_frame_and_format(tmp_path):
     with pytest.raises(DataError, match=r"field 'format' is 'softsbi-scenario/9'; this softsbi reads "
                                         r"softsbi-scenario/1"):
         load_scenario(p)
+
+
+def test_a_folder_a_nan_vertex_an_absurd_gravity_or_frame_count_is_named_as_what_it_is(tmp_path):
+    """A folder given as the mesh read "does not exist"; a NaN vertex was reported as a bad 'direction'; gravity
+    1e9 or NaN simulated a failure and exited 0; count: 1000000 ran with no warning."""
+    (tmp_path / "meshdir").mkdir()
+    cases = [({"object": {"kind": "cloth", "mesh": {"file": "meshdir"}}}, "object.mesh.file",
+              "meshdir is a folder; give a .obj file"),
+             ({"world": {"gravity": [0, 0, -1e9]}}, "world", "is 1e+09 m/s^2, more than 100; give it in m/s^2"),
+             ({"world": {"gravity": [0, 0, float("nan")]}}, "world.gravity[2]", "Input should be a finite number"),
+             ({"frames": {"count": 1000000, "dt": 0.05}}, "frames.count", "less than or equal to 10000")]
+    for change, field, message in cases:
+        with pytest.raises(DataError) as err:
+            load_scenario(_spec(tmp_path, **change))
+        line = str(err.value)
+        assert f"field '{field}" in line and message in line and "\n" not in line, (change, line)
+    spec = _spec(tmp_path)
+    obj = tmp_path / "sheet.obj"
+    obj.write_text(obj.read_text().replace("v 0.0 0.0 0.0", "v nan 0.0 0.0", 1))
+    with pytest.raises(DataError, match=r"sheet\.obj has a NaN or infinite coordinate \(vertex 0\); fix the \.obj"):
+        load_scenario(spec)

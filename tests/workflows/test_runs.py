@@ -123,3 +123,12 @@ def test_estimates_of_switched_off_effects_print_as_zero():
              "n_exceed": 10, "n_null": 30}
     rows = diagnosis_table_rows({"ranking": [entry], "significant": [], "confirmed": []})
     assert rows[0][5] == "unseen_height=0, hem_density=0, wind_x=0.0123"
+
+
+def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, monkeypatch):
+    """`check --n-eval 3` said "only 3 of 3 rollouts succeeded" after simulating them (the rule is >= 5)."""
+    import softsbi.workflows.check as check
+    monkeypatch.setattr(check, "PosteriorPredictive", lambda *a, **k: pytest.fail("simulated before refusing"))
+    with pytest.raises(SoftsbiError, match=r"--n-eval 3: the check needs at least 5 posterior rollouts; give "
+                                           r"--n-eval 5 or more"):
+        check.check_run(toy_run, n_eval=3)
