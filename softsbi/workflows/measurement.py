@@ -205,6 +205,7 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
         p = Path(scenario)
         meta["scenario"] = {"file": str(p.resolve())} if p.suffix in (".yaml", ".yml") or p.exists() else \
             {"name": str(scenario)}
+        _check_recorded_path(folder, task, scenario, dc)
         return meta, clouds
     if task != "lift":
         raise DataError(f"'{folder}' is a DiffCloud '{task}' recording: give its scenario file (e.g. "
@@ -221,6 +222,42 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
     meta["scenario"] = {"inline": spec_from_scenario(
         sc, f"DiffCloud lift derived from {folder.name} (lift_traj.npy + grasp offset from the clouds)")}
     return meta, clouds
+
+
+#: how far (as a share of the recorded gripper path's largest displacement) a scenario's gripper path may depart
+#: from the path a DiffCloud recording's robot followed (``<task>_traj.npy``), both from their starts: the
+#: built-in lift's keyframes follow lift_traj.npy within 2% (7.7 mm of 0.37 m); a fold's path departs from a
+#: lift's by 150%
+PATH_TOLERANCE = 0.1
+
+
+def _check_recorded_path(folder: Path, task: str, scenario: str | Path, real2sim: Mapping[str, Any]) -> None:
+    """Refuse a scenario whose gripper does not follow the path the recording's robot followed (the task's
+    ``<task>_traj.npy`` beside the recording, robot frame, mapped with the recording's ``real2sim``); nothing
+    to check without that file or when the frame counts differ (the recording's loading names those).
+
+    Raises:
+        DataError: the paths' displacements from their starts differ by more than :data:`PATH_TOLERANCE` of
+            the recorded one's largest.
+    """
+    from softsbi.core.arrays import read_npy
+    from softsbi.scenarios.catalog import load_scenario
+    from softsbi.scenarios.spec import apply_transform, transform_matrix
+    traj_file = folder.parent / f"{task}_traj.npy"
+    if not traj_file.is_file():
+        return
+    m = transform_matrix({"diffcloud": dict(real2sim)})
+    sc = load_scenario(scenario, {"robot": m})
+    traj = apply_transform(m, read_npy(traj_file, "gripper path"))
+    if traj.shape != sc.gripper.shape:
+        return
+    moved = np.linalg.norm(traj - traj[0], axis=1).max()
+    off = np.linalg.norm((sc.gripper - sc.gripper[0]) - (traj - traj[0]), axis=1).max()
+    if off > PATH_TOLERANCE * moved:
+        raise DataError(f"'{folder}' is a DiffCloud {task} recording, but the gripper of scenario '{sc.name}' "
+                        f"({scenario}) does not follow its robot's path ({traj_file.name}): they part by up to "
+                        f"{off:.2f} m; give the scenario this recording was made in"
+                        + (" (a lift folder needs no --scenario)" if task == "lift" else ""))
 
 
 def diffcloud_calibration(folder: str | Path) -> dict[str, Any] | None:

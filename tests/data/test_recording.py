@@ -182,3 +182,32 @@ def test_a_missing_recording_yaml_a_shifted_frame_and_a_file_as_source_are_named
         load_recording(rec)
     with pytest.raises(DataError, match=r"'.*005\.npy' is a file; give a DiffCloud recording folder"):
         import_diffcloud(rec / "clouds" / "005.npy", tmp_path / "dst")
+
+
+def test_a_diffcloud_recording_imported_with_another_tasks_scenario_is_refused(tmp_path):
+    """A lift imported with examples/fold.yaml was fitted silently as the wrong task: the scenario's gripper path
+    is now compared with the path the recording's robot followed (<task>_traj.npy beside it)."""
+    root = tmp_path / "diffcloud_lift"
+    rec = root / "lift_x"
+    rec.mkdir(parents=True)
+    t = np.linspace(0, 1, 25)[:, None]
+    np.save(root / "lift_traj.npy", [0.56, 0.15, 0.08] + t * [0.2, 0.0, 0.3])  # up and back (robot frame)
+    (rec / "lift_real2sim.yaml").write_text("z_rotation: 90\ntranslation: [0.67, 0.15, 0.0]\nscale: 0.35\n"
+                                            "compensation_factor: [0.0, 0.0, 0.0]\n")
+    for i in range(25):
+        np.save(rec / f"{i:03d}.npy", np.random.default_rng(i).normal(0, 0.05, (50, 3)))
+
+    def scenario(path):
+        f = tmp_path / "task.yaml"
+        f.write_text(yaml.safe_dump({
+            "format": "softsbi-scenario/1", "name": "task", "object": {"kind": "cloth", "size": 0.28},
+            "handles": [{"name": "grip", "grasp": {"corner": 0}, "path": dict(path, frame="robot")}],
+            "frames": {"count": 25, "dt": 0.04}}))
+        return f
+    across = scenario({"keyframes": [{"t": 0.0, "p": [0.84, 0.18, 0.10]}, {"t": 0.96, "p": [0.55, 0.18, 0.14]}]})
+    with pytest.raises(DataError, match=r"is a DiffCloud lift recording, but the gripper of scenario 'task' .* does "
+                                        r"not follow its robot's path \(lift_traj\.npy\): they part by up to 0\.\d+ m"):
+        import_diffcloud(rec, tmp_path / "out", scenario=across)
+    assert not (tmp_path / "out").exists()
+    same = scenario({"file": str(root / "lift_traj.npy")})
+    assert import_diffcloud(rec, tmp_path / "out", scenario=same) == [tmp_path / "out"]
