@@ -507,22 +507,37 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     if as_json:
         o.emit_json(out)
         return
-    c = out["coverage"]
-    o.table(["level", "expected coverage", "calibrated range (95%)", "verdict"],
+    _print_calibration(o, out)
+    o.line(f"verdict: {out['verdict']}")
+    o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
+
+
+def _print_calibration(o: Output, out: dict[str, Any]) -> None:
+    """``softsbi calibrate``'s table and one line per diagnostic the verdict reads."""
+    from softsbi.inference.calibration import SHAPES
+    c, d = out["coverage"], out["diagnostics"]
+    conf = 100 * c["band_simultaneous_confidence"]
+    o.table(["level", "expected coverage", f"calibrated range ({conf:.1f}%, whole curve)", "verdict"],
             [[f"{int(100 * g)}%", f"{c[k]:.2f}", f"[{c[b][0]:.2f}, {c[b][1]:.2f}]", out[v]]
              for g, k, b, v in ((0.5, "at_50", "band_50", "verdict_50"), (0.9, "at_90", "band_90", "verdict_90"))],
             title=f"Calibration of '{out['estimator']}' on {out['n_test']} fresh test simulations")
-    s = out["sbc"]
-    o.line("SBC rank uniformity (KS p): " + ", ".join(f"{n} {p:.2g}" for n, p in zip(out["parameters"],
-                                                                                     s["ks_pvalue"])))
-    out_pw = c.get("outside_pointwise")
-    if out_pw is not None:
-        o.line("whole curve: " + ("inside" if c["inside_simultaneous"] else "OUTSIDE")
-               + f" the simultaneous 95% band over {len(c['levels']) - 2} levels; "
-               + (f"outside the pointwise band at {', '.join(f'{int(round(100 * g))}%' for g in out_pw)}"
-                  if out_pw else "inside the pointwise band at every level"))
-    o.line(f"verdict: {out['verdict']}")
-    o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
+    out_pw = c["outside_pointwise"]
+    o.line("joint coverage (HPD): " + ("inside" if c["inside_simultaneous"] else "OUTSIDE")
+           + f" the simultaneous {conf:.1f}% band over {len(c['levels']) - 2} levels"
+           + ("" if c["inside_simultaneous"] else f" ({d['coverage']['direction']})") + "; "
+           + (f"outside the pointwise 95% band at {', '.join(f'{int(round(100 * g))}%' for g in out_pw)}"
+              if out_pw else "inside the pointwise 95% band at every level"))
+    t = d["tarp"]
+    o.line(f"TARP: KS p={t['ks_pvalue']:.2g} (rejects below {t['level']:.3g}), ATC {t['atc']:+.3f}: "
+           + (f"rejects ({t['direction']})" if t["rejects"] else "consistent with calibrated"))
+    s = d["sbc"]
+    bad = [p for p in s["parameters"] if p["rejects"]]
+    o.line(f"SBC per parameter (KS, mean, spread and histogram band, each at {s['level']:.2g}: Bonferroni over "
+           f"{len(s['parameters'])} parameters): "
+           + ("; ".join(f"{p['name']} " + " and ".join(SHAPES[k] for k in p["shapes"]) for p in bad) if bad
+              else "every rank histogram uniform")
+           + (f"; uniform: {', '.join(p['name'] for p in s['parameters'] if not p['rejects'])}"
+              if bad and len(bad) < len(s["parameters"]) else ""))
 
 
 def diagnosis_table_rows(out: dict) -> list[list]:
