@@ -21,7 +21,7 @@ Metrics (``--metric``), all on clouds seen through the fit's sensor model unless
 * ``one``: one-sided measured -> simulated Chamfer, mean over the fit's frames;
 * ``full``: the metric before issue 17: full clouds, every frame.
 
-Needs the `cma` library: `pip install -e ".[bench]"`.
+`cma` is a core dependency of softsbi (`fit --refine`).
 
 Usage:
     python benchmarks/cmaes_baseline.py --recording lift_tan2 --metric fit --fit runs/real17/tan2 \

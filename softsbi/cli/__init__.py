@@ -98,7 +98,8 @@ class ProgressHooks(FitCallbacks):
         self.train_task = None
 
     def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
-        label = f"round {r + 1}/{rounds} simulations" if r >= 0 else "posterior rollouts"
+        label = (f"round {r + 1}/{rounds} simulations" if r >= 0 else
+                 "posterior rollouts" if r == -1 else "refinement of the best fit (CMA-ES)")
         if self.sim_task is not None:
             self.p.remove_task(self.sim_task)
         self.sim_task = self.p.add_task(label, total=n_total, completed=n_total - n_pending)
@@ -155,6 +156,7 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
            f"log-scaled ones); above {INFORMED_MAX_RATIO:g} the data do not inform the parameter")
     for e in rep.get("posterior_at_bounds") or []:
         o.line("Note: " + bound_sentence(e) + ".")
+    _print_best_fit(o, rep)
     if rep.get("mask_chamfer_prior_px") and rep.get("mask_chamfer_posterior_px"):
         o.line(f"Mask Chamfer to the measured frames: prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
                f"{rep['mask_chamfer_posterior_px']:.2f} px "
@@ -165,6 +167,25 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
                f"({describe_change(rep['chamfer_prior_m'], rep['chamfer_posterior_m'])})")
     o.line(f"{rep['simulations']} simulations ({rep['failed_simulations']} failed), {rep['wall_time_s']:.0f} s. "
            f"Outputs in {out}: report.json, run.zarr, chamfer_rounds.png, posterior_pairs.png, clouds.png")
+
+
+def _print_best_fit(o: Output, rep: dict[str, Any]) -> None:
+    """The fit's widened priors and its best fit (``report.json``'s ``widened`` and ``best_fit``)."""
+    from softsbi.workflows.widen import widening_sentence
+    for w in rep.get("widened") or []:
+        o.line("Note: " + widening_sentence(w) + ".")
+    b = rep.get("best_fit")
+    if not b:
+        return
+    units = {p["name"]: p["unit"] for p in rep["parameters"]}
+    value = (f"Chamfer {b['chamfer_m'] * 100:.2f} cm" if "chamfer_m" in b else
+             f"mask Chamfer {b.get('mask_chamfer_px', float('nan')):.2f} px")
+    ref = b.get("refine")
+    how = f"the lowest of {b['simulations_searched']} simulations" + (
+        f", {ref['simulations']} of them by CMA-ES from the posterior" if ref else "")
+    o.line("Best fit: " + ", ".join(f"{k}={v:.4g}{'' if units.get(k) in (None, '', '1') else ' ' + units[k]}"
+                                    for k, v in b["theta"].items())
+           + f"; {value} ({b['source']}; {how}; its rollout in clouds.png and softsbi view)")
 
 
 def _guard(fn):
@@ -351,6 +372,12 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),
+        refine: int = typer.Option(0, "--refine", help="polish the best fit with N more simulations by CMA-ES, "
+                                                        "started at the posterior (stored in the run; resumable; "
+                                                        "the posterior is left as it is)"),
+        widen: bool = typer.Option(False, "--widen", help="after each round, move a prior bound the posterior "
+                                                          "presses (not a physical limit) outward by the rule of the "
+                                                          "note under the table, for the following rounds"),
         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from softsbi.workflows.measurement import load_image_recording, load_recording
@@ -367,6 +394,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     cfg.observer = observer
     cfg.sensor = sensor
     cfg.sensor_draws = sensor_draws
+    cfg.refine, cfg.widen = refine, widen
     images = bool(getattr(registry().observer(observer), "needs_images", False))
     if images:
         if extractor is None:

@@ -45,6 +45,7 @@ from softsbi.report.calibration import plot_calibration
 from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
+from softsbi.workflows.widen import MappedProposal, map_mixture, round_spaces, unit_map
 
 __all__ = ["calibrate_run"]
 
@@ -56,20 +57,24 @@ BLOCK = 50
 
 def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
                counts: list[int]) -> list[tuple[Any, str]]:
-    """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description."""
+    """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description; a round
+    before a ``--widen`` widening drew in the narrower prior, sampled in the prior of record's unit cube
+    (:class:`~softsbi.workflows.widen.MappedProposal`)."""
     est_cls = registry().estimator(cfg.estimator)
     sequential = bool(getattr(est_cls, "sequential", True))
     truncated = sequential and cfg.proposal == "truncated"
     chain = PosteriorChain(space.dim, seed=cfg.seed)
+    spaces = round_spaces(space, store.config, last)
     out: list[tuple[Any, str]] = []
     for r in range(last + 1):
+        to_record = (lambda p, r=r: p if spaces[r] == space else MappedProposal(p, *unit_map(spaces[r], space)))
         if r == 0 or not sequential:
-            out.append((None, "prior"))
+            out.append((to_record(None), "prior" if spaces[r] == space else "prior before its widening"))
             continue
         if truncated:
             ch = PosteriorChain(space.dim, seed=cfg.seed)
-            ch.add_round(store.read_q(r - 1), sum(counts[:r]))
-            out.append((TruncatedPrior(ch.posterior(0), eps=cfg.truncation_eps, seed=cfg.seed + r),
+            ch.add_round(map_mixture(store.read_q(r - 1), *unit_map(spaces[r - 1], spaces[r])), sum(counts[:r]))
+            out.append((to_record(TruncatedPrior(ch.posterior(0), eps=cfg.truncation_eps, seed=cfg.seed + r)),
                         f"prior truncated to round {r}'s posterior"))
         else:
             chain.add_round(store.read_q(r - 1), counts[r - 1])
