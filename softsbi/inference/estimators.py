@@ -876,16 +876,22 @@ class NeuralMDNEstimator(PosteriorEstimator):
         is restricted to the prior box): temperature/vector scaling (Guo et al. 2017, "On calibration of modern
         neural networks") per parameter with a shift, a proper scoring rule, so a calibrated marginal keeps
         ``s = 1, b = 0`` in expectation. ``s`` in :data:`MARGINAL_SCALE_RANGE`, ``|b|`` at most
-        :data:`MARGINAL_SHIFT_MAX`. Sets ``self._marginal``.
+        :data:`MARGINAL_SHIFT_MAX`. A parameter is corrected only where the validation split shows its marginal
+        is off: the likelihood-ratio test of ``s = 1, b = 0`` rejects at :data:`~softsbi.core.levels.ALPHA`
+        (``2 n (NLL_before - NLL_after)`` against the chi-square quantile with 2 degrees of freedom; Wilks
+        1938), so a small split or a calibrated marginal leaves it as trained. Sets ``self._marginal``.
 
         Args:
             base: the validation rows' mixtures in unit coordinates, ``(n, C, D)``.
             u_val: ``(n, D)`` their truths.
 
         Returns:
-            ``{"scale" (D,), "shift" (D,), "val_nll_before" (D,), "val_nll_after" (D,)}`` (nats per case).
+            ``{"scale" (D,), "shift" (D,), "val_nll_before" (D,), "val_nll_after" (D,), "lr_pvalue" (D,)}`` (NLL in
+            nats per case, after = of the scale and shift applied; ``lr_pvalue`` of the likelihood-ratio test).
         """
-        from scipy import optimize, special
+        from scipy import optimize, special, stats
+
+        from softsbi.core.levels import ALPHA
 
         w = torch.softmax(base.logits.double(), -1).numpy()  # (n, C)
         mu = base.means.double().numpy()  # (n, C, D)
@@ -894,7 +900,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
         sd = np.sqrt(np.maximum((w[..., None] * (sig ** 2 + mu ** 2)).sum(1) - m ** 2, 1e-18))
         u = np.asarray(u_val, float)
         lo_s, hi_s = self.MARGINAL_SCALE_RANGE
-        out: dict[str, list[float]] = {"scale": [], "shift": [], "val_nll_before": [], "val_nll_after": []}
+        out: dict[str, list[float]] = {"scale": [], "shift": [], "val_nll_before": [], "val_nll_after": [],
+                                       "lr_pvalue": []}
         for d in range(u.shape[1]):
             def nll(x: np.ndarray, d: int = d) -> float:
                 s, b = float(np.exp(x[0])), float(x[1])
@@ -907,11 +914,14 @@ class NeuralMDNEstimator(PosteriorEstimator):
             res = optimize.minimize(nll, np.zeros(2), method="L-BFGS-B",
                                     bounds=[(np.log(lo_s), np.log(hi_s)), (-self.MARGINAL_SHIFT_MAX,
                                                                            self.MARGINAL_SHIFT_MAX)])
-            x = res.x if res.fun <= nll(np.zeros(2)) else np.zeros(2)
+            gain = 2 * len(u) * max(nll(np.zeros(2)) - float(res.fun), 0.0)
+            p_lr = float(stats.chi2.sf(gain, 2))
+            x = res.x if p_lr < ALPHA else np.zeros(2)
             out["scale"].append(float(np.exp(x[0])))
             out["shift"].append(float(x[1]))
             out["val_nll_before"].append(nll(np.zeros(2)))
             out["val_nll_after"].append(nll(x))
+            out["lr_pvalue"].append(p_lr)
         self._marginal = (np.array(out["scale"]), np.array(out["shift"]))
         return out
 

@@ -240,6 +240,10 @@ def calibrate_run(run_dir: str | Path, n_test: int = 200, n_draws: int = 1000, w
         lq_draws.append(q.log_prob(s))
         lq_true.append(float(q.log_prob(u_test[i][None])[0]))
     n_nomass = len(qs) - len(keep)
+    if not keep:
+        raise PosteriorError(f"the estimator's posterior has (almost) no mass in the prior box at any of the {len(qs)} "
+                             f"test simulations; it cannot be calibrated (too few training simulations: "
+                             f"{len(U)}?)")
     draws_a = np.stack(draws) if draws else np.zeros((0, n_draws, space.dim))
     hpd = cal.hpd_levels(np.array(lq_true), np.array(lq_draws).reshape(len(keep), n_draws))
     hpd = np.concatenate([hpd, np.ones(n_nomass)])  # a posterior with no mass in the box covers nothing

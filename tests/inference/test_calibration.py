@@ -245,6 +245,15 @@ def test_marginal_recalibration_fixes_too_wide_too_narrow_and_biased_marginals_a
     assert abs(info["scale"][0] - 0.5) < 0.07 and abs(info["shift"][0]) < 0.15
     assert abs(info["scale"][1] - 2.0) < 0.25 and abs(info["shift"][1] - 0.8) < 0.2
     assert all(a < b for a, b in zip(info["val_nll_after"], info["val_nll_before"]))
+    assert max(info["lr_pvalue"]) < 1e-6
+    # a calibrated marginal is left as trained: the likelihood-ratio test of s = 1, b = 0 does not reject
+    L3 = torch.zeros(n, 1, 3, 3, dtype=torch.float64)
+    L3[:, 0, :2, :2] = L[:, 0]
+    L3[:, 0, 2, 2] = 0.05
+    m3 = np.concatenate([m, 0.5 + 0.05 * rng.standard_normal((n, 1))], 1)
+    p3 = MDNParams(torch.zeros(n, 1, dtype=torch.float64), torch.as_tensor(m3[:, None, :]), L3)
+    info3 = MDNNEstimator()._recalibrate_marginals(p3, np.concatenate([truth, np.full((n, 1), 0.5)], 1))
+    assert info3["lr_pvalue"][2] > 0.05 and (info3["scale"][2], info3["shift"][2]) == (1.0, 0.0)
     q = marginal_affine(p, *est._marginal)
     np.testing.assert_allclose(q.scale_tril[:, 0, 0, 0], 0.1 * info["scale"][0])
     np.testing.assert_allclose(q.means[:, 0, 1], m[:, 1] + info["shift"][1] * 0.025, atol=1e-12)
