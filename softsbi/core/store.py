@@ -10,6 +10,12 @@ Layout (schema ``softsbi.run``, version :data:`SCHEMA_VERSION`)::
                 attrs: begun, complete, failures {i: reason}, train info
                 posterior/ weights (C,), means (C, D), scale_tril (C, D, D)   [q(u | x_obs)]
     evaluation/ theta, u, status, chamfer  (rollouts at final-posterior samples)
+    refine/     u, theta, seed, generation, status, chamfer  (``fit --refine``: CMA-ES rows, one per chunk)
+    best_fit/   theta, u, chamfer, vertices, faces, gripper  (the fit's best simulation and its rollout)
+
+A ``fit --widen`` run keeps its widenings in ``config["widenings"]`` and the widened prior in
+``config["param_space"]``; every round's ``u`` is in that prior's unit cube
+(:mod:`softsbi.workflows.widen`).
 
 Every array carries ``units`` in its attributes and dimension names. Simulation results
 are chunked one simulation per chunk and Zarr's local store writes each chunk atomically

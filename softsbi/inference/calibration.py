@@ -47,7 +47,7 @@ from softsbi.core.levels import ALPHA
 
 __all__ = ["draws_in_box", "hpd_levels", "expected_coverage", "coverage_band", "coverage_band_simultaneous",
            "curve_outside", "sbc_ranks", "rank_tests", "rank_band", "rank_band_simultaneous", "rank_shape",
-           "tarp_coverage", "coverage_verdict", "verdict", "LEVELS", "DIAGNOSTICS"]
+           "tarp_coverage", "verdict", "LEVELS", "DIAGNOSTICS"]
 
 #: credibility levels of the coverage curve
 LEVELS = np.round(np.linspace(0.0, 1.0, 21), 3)
@@ -123,17 +123,6 @@ def curve_outside(coverage: Sequence[float], lo: Sequence[float], hi: Sequence[f
     """Indices of the levels where a coverage curve lies outside a band ``(lo, hi)``."""
     c, lo, hi = (np.asarray(a, float) for a in (coverage, lo, hi))
     return [int(i) for i in np.flatnonzero((c < lo - 1e-12) | (c > hi + 1e-12))]
-
-
-def coverage_verdict(coverage: float, n: int, level: float, confidence: float = 0.95) -> str:
-    """``"calibrated"``, ``"over-confident"`` (coverage below the binomial band of a calibrated
-    estimator with ``n`` cases) or ``"under-confident"`` (above it) at credibility ``level``."""
-    lo, hi = coverage_band(n, [level], confidence)
-    if coverage < lo[0]:
-        return "over-confident"
-    if coverage > hi[0]:
-        return "under-confident"
-    return "calibrated"
 
 
 def sbc_ranks(u_true: np.ndarray, draws: np.ndarray) -> np.ndarray:

@@ -34,15 +34,20 @@ def _cases(width_factor: float, n: int = 300, L: int = 400, seed: int = 0):
 def test_coverage_and_verdict_tell_calibrated_from_over_and_under_confident(factor, verdict):
     truth, draws, hpd = _cases(factor)
     n = len(hpd)
-    for level in (0.5, 0.9):
-        cov = cal.expected_coverage(hpd, [level])[0]
-        assert cal.coverage_verdict(cov, n, level) == verdict, (level, cov)
-    ks = cal.rank_tests(cal.sbc_ranks(truth, draws), draws.shape[1], 10)["ks_pvalue"]
+    ranks = cal.sbc_ranks(truth, draws)
+    tarp = cal.tarp_coverage(truth, draws, np.random.default_rng(1))
+    v = cal.verdict(cal.expected_coverage(hpd), n, tarp, ranks, draws.shape[1], 10, ["a", "b"])
+    for level in ("at_50", "at_90"):
+        assert v["coverage"][level]["verdict"] == verdict, (level, v["coverage"][level])
+    assert v["calibrated"] == (verdict == "calibrated")
+    if verdict != "calibrated":  # both marginals are named by the width of their ranks
+        assert (v["too_narrow"] if factor < 1 else v["too_wide"]) == ["a", "b"]
+    ks = cal.rank_tests(ranks, draws.shape[1], 10)["ks_pvalue"]
     if verdict == "calibrated":
         assert min(ks) > 1e-3
     else:
         assert max(ks) < 1e-3
-    atc = cal.tarp_coverage(truth, draws, np.random.default_rng(1))["atc"]
+    atc = tarp["atc"]
     assert (abs(atc) < 0.05) if verdict == "calibrated" else ((atc < -0.02) if factor < 1 else (atc > 0.02))
 
 
