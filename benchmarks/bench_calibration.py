@@ -7,10 +7,17 @@ on that run with ``--test`` fresh simulations from the run's proposal (the prior
 in the run's ``calibration`` group and shared by every estimator variant, which are retrained on
 the run's own stored simulations (never on the test ones).
 
+``--run DIR`` calibrates an existing run instead (a real recording's fit, e.g. one of ``real_lift_all.py``):
+its own proposals give the test simulations. The last line printed is one JSON object per variant with what
+issue 56's criterion needs: the coverage at 50 / 90 % and its error, the verdict, and per parameter whether its
+SBC ranks stay inside the corrected band (:func:`softsbi.inference.calibration.verdict`) and the shape named.
+
 Usage::
 
     nice -n 15 python benchmarks/bench_calibration.py --scenario lift --out /tmp/calib/lift --train 800 --test 200
     nice -n 15 python benchmarks/bench_calibration.py --scenario wind --out /tmp/calib/wind --train 800 --test 200
+    nice -n 15 python benchmarks/bench_calibration.py --run runs/real/tan2 --out /tmp/calib/tan2 --test 200 \
+        --variants rkhs-shared rkhs-shared-joint
 """
 from __future__ import annotations
 
@@ -32,6 +39,9 @@ VARIANTS = {"rkhs": ("rkhs", ONE), "rkhs-recal": ("rkhs", {**ONE, "recalibrate":
             # members' heads on its frozen trunk, recalibrated
             "rkhs-shared": ("rkhs", {"ensemble": 5, "recalibrate": True, "ensemble_shared": "trunk", "point_subset": 8,
                                      "lr": 3e-3, "patience": 8}),
+            # the default before issue 56: the joint covariance scale alone, no per-parameter recalibration
+            "rkhs-shared-joint": ("rkhs", {"ensemble": 5, "recalibrate": True, "ensemble_shared": "trunk",
+                                           "point_subset": 8, "lr": 3e-3, "patience": 8, "recal_marginals": False}),
             # one network trained as member 0 of rkhs-shared
             "rkhs-one-fast": ("rkhs", {"ensemble": 1, "recalibrate": False, "point_subset": 8, "lr": 3e-3, "patience": 8}),
             # recalibration asking for one binomial standard error above nominal (tried, not the default)
@@ -54,6 +64,8 @@ def main() -> None:
     ap.add_argument("--fit-estimator", default="mdnn",
                     help="estimator of the one-round fit (its training does not matter: calibrate retrains each variant)")
     ap.add_argument("--stage", choices=["fit", "calibrate", "all"], default="all")
+    ap.add_argument("--run", type=Path, default=None,
+                    help="calibrate this existing run (e.g. a real recording's fit) instead of a simulated one")
     ap.add_argument("--seed", type=int, default=0,
                     help="the run's seed (FitConfig.seed: every draw and simulation seed; the measurement's noise "
                          "seed is 7 + seed): another seed is a fresh data set (0: the data sets of BENCHMARKS.md "
@@ -66,9 +78,10 @@ def main() -> None:
     from softsbi.workflows.measurement import simulate_recording
 
     out = Path(args.out)
-    run_dir = out / "run"
+    out.mkdir(parents=True, exist_ok=True)
+    run_dir = args.run or out / "run"
     bopts = {"grid": 6} if args.scenario == "lift" else {}
-    if args.stage in ("fit", "all"):
+    if args.stage in ("fit", "all") and args.run is None:
         sc = make_scenario(args.scenario)
         space = registry().simulator("mujoco-flex")(**bopts).param_space(sc)
         truth = space.as_dict(space.from_unit(np.array(TRUTH_UNIT[args.scenario])))
@@ -91,9 +104,19 @@ def main() -> None:
             cal = calibrate_run(run_dir, n_test=args.test, workers=args.workers, estimator=est,
                                 estimator_options=opts, write=False)
             cov = cal["coverage"]
+            sbc = cal["diagnostics"]["sbc"]
             results[v] = {"estimator": est, "options": opts, "n_test": cal["n_test"],
                           "n_train": cal["n_train"], "coverage_50": cov["at_50"], "coverage_90": cov["at_90"],
-                          "verdict": cal["verdict"], "train_seconds": cal["train_seconds"],
+                          "coverage_error_50": abs(cov["at_50"] - 0.5), "coverage_error_90": abs(cov["at_90"] - 0.9),
+                          "coverage_within_0.05": bool(abs(cov["at_50"] - 0.5) <= 0.05 and abs(cov["at_90"] - 0.9) <= 0.05),
+                          "verdict": cal["verdict"], "calibrated": cal["calibrated"],
+                          "sbc_inside_corrected_band": {p["name"]: not p["rejects"] for p in sbc["parameters"]},
+                          "sbc_shapes": {p["name"]: p["shapes"] for p in sbc["parameters"]},
+                          "sbc_bins_outside": {p["name"]: p["bins_outside"] for p in sbc["parameters"]},
+                          "sbc_band": sbc["band"], "sbc_test_level": sbc["level"],
+                          "too_narrow": cal["too_narrow"], "too_wide": cal["too_wide"], "biased": cal["biased"],
+                          "tarp_ks_p": cal["tarp"]["ks_pvalue"], "tarp_rejects": cal["diagnostics"]["tarp"]["rejects"],
+                          "train_seconds": cal["train_seconds"], "simulation_seconds": cal["simulation_seconds"],
                           "wall_s": time.perf_counter() - t0, "sbc_ks_p": cal["sbc"]["ks_pvalue"],
                           "tarp_atc": cal["tarp"]["atc"], "estimator_fit": cal["estimator_fit"],
                           "coverage_curve": cov.get("hpd"), "levels": cov.get("levels")}
@@ -102,6 +125,10 @@ def main() -> None:
             res_path.write_text(json.dumps(results, indent=2))
             (out / f"{v}.json").write_text(json.dumps(cal, indent=2))
             plot_calibration(out / f"{v}.png", cal)
+        keys = ("n_test", "coverage_50", "coverage_90", "coverage_within_0.05", "calibrated", "verdict",
+                "sbc_inside_corrected_band", "sbc_shapes", "tarp_ks_p", "train_seconds", "simulation_seconds")
+        print(json.dumps({"run": str(run_dir), "variants": {v: {k: results[v][k] for k in keys}
+                                                             for v in args.variants if v in results}}))
 
 
 if __name__ == "__main__":

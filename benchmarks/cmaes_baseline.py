@@ -21,17 +21,28 @@ Metrics (``--metric``), all on clouds seen through the fit's sensor model unless
 * ``one``: one-sided measured -> simulated Chamfer, mean over the fit's frames;
 * ``full``: the metric before issue 17: full clouds, every frame.
 
-Needs the `cma` library: `pip install -e ".[bench]"`.
+`cma` is a core dependency of softsbi (`fit --refine`).
+
+With ``--refine N`` (issue 56: a best fit beside the posterior), per recording in the same run: the CMA-ES
+baseline above (stored results are reused), then ``softsbi fit --refine N`` on the fit of ``--fits DIR/<r>``
+(a default fit is made first where the folder holds none), and the JSON the criterion needs: the refined best
+fit's Chamfer over CMA-ES's best (both the minimum of their own noisy evaluations, and both re-evaluated with
+``--reevaluate`` fresh seeds), whether the posterior is unchanged by refining (``report.json``'s posterior
+summaries and every round's stored ``q``), and the seconds spent.
 
 Usage:
     python benchmarks/cmaes_baseline.py --recording lift_tan2 --metric fit --fit runs/real17/tan2 \
         --out runs/cmaes17
     python benchmarks/cmaes_baseline.py --table runs/cmaes17 [--fits runs/real17]
+    python benchmarks/cmaes_baseline.py --recording lift_tan2,lift_navy2,lift_paper2,lift_polka2,lift_redblack2 \
+        --refine 150 --fits runs/real56 --out runs/cmaes56 --workers 2
 """
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import subprocess
 import sys
 import time
 import warnings
@@ -296,9 +307,72 @@ def overlay(folder: Path, result: Path, png: Path, frames=(0, 8, 14, 24)) -> Non
     fig.savefig(png, dpi=90)
 
 
+#: the posterior summaries of report.json that refining must leave as they were
+POSTERIOR_KEYS = ("posterior_mean", "posterior_std", "posterior_q05", "posterior_q95", "posterior_median", "contraction")
+
+
+def _posterior_state(fit_dir: Path) -> dict:
+    """What refining must not change: report.json's posterior summaries and every round's stored ``q``."""
+    rep = json.loads((fit_dir / "report.json").read_text())
+    store = RunStore.open(fit_dir / "run.zarr")
+    qs = [store.read_q(r) for r in store.completed_rounds()]
+    return {"report": {k: rep.get(k) for k in POSTERIOR_KEYS},
+            "q": [np.concatenate([q.weights.ravel(), q.means.ravel(), q.scale_tril.ravel()]) for q in qs]}
+
+
+def reevaluate(ctx: SimContext, theta: np.ndarray, metric: str, frames, seeds: list[int]) -> float:
+    """Mean of ``metric`` over simulations at ``theta`` with fresh ``seeds`` (the seed changes the surface sampling
+    of the Chamfer and the simulator's noise, so a minimum over noisy evaluations is optimistic)."""
+    return float(np.mean([score(simulate_job(ctx, (theta, s)), metric, frames) for s in seeds]))
+
+
+def refine_run(folder: Path, cma: dict, fit_dir: Path, n: int, workers: int, fit_args: list[str],
+               n_reeval: int) -> dict:
+    """``softsbi fit --refine n`` on ``fit_dir`` (a default fit of ``folder`` made first when it holds none) beside
+    CMA-ES's stored result ``cma`` (:func:`run`) on the fit's headline metric."""
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "softsbi.cli", "fit", "--observed", str(folder), "--out", str(fit_dir),
+           "--workers", str(workers), *fit_args]
+    fit_s = None
+    if not (fit_dir / "report.json").exists():
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+        fit_s = time.perf_counter() - t0
+    before = _posterior_state(fit_dir)
+    plain = json.loads((fit_dir / "report.json").read_text()).get("best_fit") or {}
+    t1 = time.perf_counter()
+    subprocess.run(cmd + ["--refine", str(n)], check=True, stdout=subprocess.DEVNULL)
+    refine_s = time.perf_counter() - t1
+    after = _posterior_state(fit_dir)
+    unchanged = before["report"] == after["report"] and len(before["q"]) == len(after["q"]) and all(
+        np.array_equal(a, b) for a, b in zip(before["q"], after["q"]))
+    rep = json.loads((fit_dir / "report.json").read_text())
+    best = rep["best_fit"]
+    rec, space, sensor, ctx_s, _ = contexts(folder)
+    frames = sensor["metric_frames"]
+    seeds = [int(x) for x in np.random.default_rng([56, 1]).integers(0, 2**31 - 1, size=n_reeval)]
+    out = {"recording": folder.name, "fit": str(fit_dir), "refine": n, "cma_budget": cma["simulations"],
+           "cma_best_m": cma["cma_best_m"], "best_fit_m": best["chamfer_m"],
+           "best_fit_over_cma": best["chamfer_m"] / cma["cma_best_m"],
+           "within_5pct": bool(best["chamfer_m"] <= 1.05 * cma["cma_best_m"]),
+           "best_fit_before_refine_m": plain.get("chamfer_m"), "best_fit_source": best["source"],
+           "best_fit": best["theta"], "cma_best": cma["cma_best"], "refine_info": best.get("refine"),
+           "posterior_unchanged": bool(unchanged), "chamfer_posterior_m": rep.get("chamfer_posterior_m"),
+           "chamfer_prior_m": rep.get("chamfer_prior_m"), "fit_seconds": fit_s, "refine_seconds": refine_s,
+           "fit_simulations": rep.get("simulations"), "fit_wall_time_s": rep.get("wall_time_s")}
+    if n_reeval:
+        t2 = time.perf_counter()
+        out["reevaluated"] = {"seeds": seeds,
+                              "best_fit_m": reevaluate(ctx_s, space.as_array(best["theta"]), "fit", frames, seeds),
+                              "cma_best_m": reevaluate(ctx_s, space.as_array(cma["cma_best"]), "fit", frames, seeds)}
+        out["reevaluated"]["best_fit_over_cma"] = out["reevaluated"]["best_fit_m"] / out["reevaluated"]["cma_best_m"]
+        out["reevaluate_seconds"] = time.perf_counter() - t2
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--recording", help="e.g. lift_tan2 (a folder of --data)")
+    ap.add_argument("--recording", help="e.g. lift_tan2 (a folder of --data); with --refine a comma-separated list")
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--metric", choices=METRICS, default="fit")
     ap.add_argument("--budget", type=int, default=630, help="simulations (default: a default fit's 4 x 150 + 30)")
@@ -307,7 +381,32 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--table", type=Path, help="print the table of a folder of results and exit")
     ap.add_argument("--overlay", type=Path, help="with --recording: draw this PNG from the stored result and exit")
+    ap.add_argument("--refine", type=int, default=0, help="refine each recording's fit (--fits DIR/<r>) with this "
+                                                          "many simulations and compare its best fit with CMA-ES's")
+    ap.add_argument("--fits", type=Path, default=Path("runs/real56"), help="with --refine: folder of the fits, one "
+                                                                            "per recording (lift_tan2 -> DIR/tan2)")
+    ap.add_argument("--fit-args", default="", help="with --refine: extra `softsbi fit` arguments of the fit (quoted; "
+                                                   "the default fit when empty)")
+    ap.add_argument("--workers", type=int, default=1, help="with --refine: simulation workers of the fit")
+    ap.add_argument("--reevaluate", type=int, default=3, help="with --refine: fresh seeds re-evaluating both bests")
     a = ap.parse_args()
+    if a.refine:
+        a.out.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for name in [r for r in (a.recording or "").split(",") if r]:
+            dst = a.out / f"{name}_fit.json"
+            cma_res = json.loads(dst.read_text()) if dst.exists() else run(a.data / name, "fit", a.budget, None, a.seed)
+            if cma_res["budget"] != a.budget:
+                cma_res = run(a.data / name, "fit", a.budget, None, a.seed)
+            dst.write_text(json.dumps(cma_res, indent=1))
+            row = refine_run(a.data / name, cma_res, a.fits / name.removeprefix("lift_"), a.refine, a.workers,
+                             shlex.split(a.fit_args), a.reevaluate)
+            (a.out / f"{name}_refine{a.refine}.json").write_text(json.dumps(row, indent=1))
+            rows.append(row)
+        print(json.dumps({"refine": a.refine, "cma_budget": a.budget, "recordings": rows,
+                          "within_5pct": sum(r["within_5pct"] for r in rows), "n": len(rows),
+                          "posterior_unchanged": all(r["posterior_unchanged"] for r in rows)}, indent=1))
+        return 0
     if a.overlay:
         overlay(a.data / a.recording, a.out / f"{a.recording}_{a.metric}.json", a.overlay)
         return 0

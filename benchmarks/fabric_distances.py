@@ -15,7 +15,10 @@ import numpy as np
 def material_unit_means(reps: Mapping[str, Mapping[str, Any]], names: list[str]) -> tuple[list[str], dict]:
     """``(material names, {recording: (M,) unit-cube posterior mean})`` from each run's ``report.json``."""
     from softsbi.core.types import ParamSpace
-    space = ParamSpace.from_json(next(iter(reps.values()))["parameters"])
+    first = next(iter(reps.values()))
+    space = ParamSpace.from_json(first["parameters"])
+    for w in reversed(first.get("widened") or []):  # a `fit --widen` run: the common prior is the one before it
+        space = space.with_bounds({k: tuple(v) for k, v in w["before"].items()})
     mat = [i for i, n in enumerate(names) if n != "yaw"]
     u = {r: space.to_unit(space.as_array(rep["posterior_mean"]))[mat] for r, rep in reps.items()}
     return [names[i] for i in mat], u

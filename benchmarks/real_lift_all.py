@@ -1,13 +1,14 @@
 """Fit all 10 DiffCloud lift recordings with the defaults of `softsbi fit` and tabulate.
 
 Usage: python benchmarks/real_lift_all.py --out runs/real [--data ../shared/data/diffcloud_lift]
-    [--only tan2,navy2] [--workers 1]
+    [--only tan2,navy2] [--workers 1] [--extra --refine 150 --widen]
 Each fit is resumable (re-running skips finished recordings). Prints a Markdown table
 (Chamfer prior vs posterior under each fit's sensor model, posterior/prior ratio, the one-sided
 measured -> simulated Chamfer, posterior mean ± std per parameter, wall time, failures), the
 contraction table (posterior 90% width over the prior's per parameter, "not informed" above 0.5;
 issue 16) and the distance between repeats of a fabric vs between different fabrics
-(prior-normalised units).
+(prior-normalised units). The last line is one JSON object per recording (issue 56): posterior/prior Chamfer,
+the best fit (its Chamfer, source, refinement), the widened bounds and the bounds still pressed.
 """
 from __future__ import annotations
 
@@ -75,6 +76,15 @@ def main() -> None:
             s_ = [abs(u[x][n_i] - u[y][n_i]) for x, y in itertools.combinations(u, 2) if x.rstrip("2") == y.rstrip("2")]
             d_ = [abs(u[x][n_i] - u[y][n_i]) for x, y in itertools.combinations(u, 2) if x.rstrip("2") != y.rstrip("2")]
             print(f"  {n}: repeats {np.mean(s_):.3f}, different fabrics {np.mean(d_):.3f}")
+    print(json.dumps({r: {"posterior_over_prior": rep["chamfer_posterior_m"] / rep["chamfer_prior_m"],
+                          "chamfer_prior_m": rep["chamfer_prior_m"], "chamfer_posterior_m": rep["chamfer_posterior_m"],
+                          "best_fit": {k: (rep.get("best_fit") or {}).get(k) for k in ("chamfer_m", "source", "theta",
+                                                                                       "refine")},
+                          "widened": rep.get("widened") or [],
+                          "still_pressed": [(e["param"], e["side"], e["mass"]) for e in rep.get("posterior_at_bounds")
+                                            or []],
+                          "wall_time_s": rep["wall_time_s"], "simulations": rep["simulations"]}
+                      for r, rep in reps.items()}))
 
 
 if __name__ == "__main__":

@@ -116,6 +116,7 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
            f"log-scaled ones); above {INFORMED_MAX_RATIO:g} the data do not inform the parameter")
     for e in rep.get("posterior_at_bounds") or []:
         o.line("Note: " + bound_sentence(e) + ".")
+    _print_best_fit(o, rep)
     if rep.get("mask_chamfer_prior_px") and rep.get("mask_chamfer_posterior_px"):
         o.line(f"Mask Chamfer to the measured frames: prior {rep['mask_chamfer_prior_px']:.2f} px -> posterior "
                f"{rep['mask_chamfer_posterior_px']:.2f} px "
@@ -130,6 +131,25 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
                    f"the model cannot reach the data; `softsbi check {out}` shows where and when it misses")
     o.line(f"{rep['simulations']} simulations ({rep['failed_simulations']} failed), {rep['wall_time_s']:.0f} s. "
            f"Outputs in {out}: report.json, run.zarr, chamfer_rounds.png, posterior_pairs.png, clouds.png")
+
+
+def _print_best_fit(o: Output, rep: dict[str, Any]) -> None:
+    """The fit's widened priors and its best fit (``report.json``'s ``widened`` and ``best_fit``)."""
+    from softsbi.workflows.widen import widening_sentence
+    for w in rep.get("widened") or []:
+        o.line("Note: " + widening_sentence(w) + ".")
+    b = rep.get("best_fit")
+    if not b:
+        return
+    units = {p["name"]: p["unit"] for p in rep["parameters"]}
+    value = (f"Chamfer {b['chamfer_m'] * 100:.2f} cm" if "chamfer_m" in b else
+             f"mask Chamfer {b.get('mask_chamfer_px', float('nan')):.2f} px")
+    ref = b.get("refine")
+    how = f"the lowest of {b['simulations_searched']} simulations" + (
+        f", {ref['simulations']} of them by CMA-ES from the posterior" if ref else "")
+    o.line("Best fit: " + ", ".join(f"{k}={v:.4g}{'' if units.get(k) in (None, '', '1') else ' ' + units[k]}"
+                                    for k, v in b["theta"].items())
+           + f"; {value} ({b['source']}; {how}; its rollout in clouds.png and softsbi view)")
 
 
 def _guard(fn):
@@ -318,6 +338,12 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),
+        refine: int = typer.Option(0, "--refine", help="polish the best fit with N more simulations by CMA-ES, "
+                                                        "started at the posterior (stored in the run; resumable; "
+                                                        "the posterior is left as it is)"),
+        widen: bool = typer.Option(False, "--widen", help="after each round, move a prior bound the posterior "
+                                                          "presses (not a physical limit) outward by the rule of the "
+                                                          "note under the table, for the following rounds"),
         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from softsbi.workflows.measurement import load_image_recording, load_recording
@@ -334,6 +360,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     cfg.observer = observer
     cfg.sensor = sensor
     cfg.sensor_draws = sensor_draws
+    cfg.refine, cfg.widen = refine, widen
     images = bool(getattr(registry().observer(observer), "needs_images", False))
     if images:
         if extractor is None:
@@ -436,22 +463,37 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     if as_json:
         o.emit_json(out)
         return
-    c = out["coverage"]
-    o.table(["level", "expected coverage", "calibrated range (95%)", "verdict"],
+    _print_calibration(o, out)
+    o.line(f"verdict: {out['verdict']}")
+    o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
+
+
+def _print_calibration(o: Output, out: dict[str, Any]) -> None:
+    """``softsbi calibrate``'s table and one line per diagnostic the verdict reads."""
+    from softsbi.inference.calibration import SHAPES
+    c, d = out["coverage"], out["diagnostics"]
+    conf = 100 * c["band_simultaneous_confidence"]
+    o.table(["level", "expected coverage", f"calibrated range ({conf:.1f}%, whole curve)", "verdict"],
             [[f"{int(100 * g)}%", f"{c[k]:.2f}", f"[{c[b][0]:.2f}, {c[b][1]:.2f}]", out[v]]
              for g, k, b, v in ((0.5, "at_50", "band_50", "verdict_50"), (0.9, "at_90", "band_90", "verdict_90"))],
             title=f"Calibration of '{out['estimator']}' on {out['n_test']} fresh test simulations")
-    s = out["sbc"]
-    o.line("SBC rank uniformity (KS p): " + ", ".join(f"{n} {p:.2g}" for n, p in zip(out["parameters"],
-                                                                                     s["ks_pvalue"])))
-    out_pw = c.get("outside_pointwise")
-    if out_pw is not None:
-        o.line("whole curve: " + ("inside" if c["inside_simultaneous"] else "OUTSIDE")
-               + f" the simultaneous 95% band over {len(c['levels']) - 2} levels; "
-               + (f"outside the pointwise band at {', '.join(f'{int(round(100 * g))}%' for g in out_pw)}"
-                  if out_pw else "inside the pointwise band at every level"))
-    o.line(f"verdict: {out['verdict']}")
-    o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
+    out_pw = c["outside_pointwise"]
+    o.line("joint coverage (HPD): " + ("inside" if c["inside_simultaneous"] else "OUTSIDE")
+           + f" the simultaneous {conf:.1f}% band over {len(c['levels']) - 2} levels"
+           + ("" if c["inside_simultaneous"] else f" ({d['coverage']['direction']})") + "; "
+           + (f"outside the pointwise 95% band at {', '.join(f'{int(round(100 * g))}%' for g in out_pw)}"
+              if out_pw else "inside the pointwise 95% band at every level"))
+    t = d["tarp"]
+    o.line(f"TARP: KS p={t['ks_pvalue']:.2g} (rejects below {t['level']:.3g}), ATC {t['atc']:+.3f}: "
+           + (f"rejects ({t['direction']})" if t["rejects"] else "consistent with calibrated"))
+    s = d["sbc"]
+    bad = [p for p in s["parameters"] if p["rejects"]]
+    o.line(f"SBC per parameter (KS, mean, spread and histogram band, each at {s['level']:.2g}: Bonferroni over "
+           f"{len(s['parameters'])} parameters): "
+           + ("; ".join(f"{p['name']} " + " and ".join(SHAPES[k] for k in p["shapes"]) for p in bad) if bad
+              else "every rank histogram uniform")
+           + (f"; uniform: {', '.join(p['name'] for p in s['parameters'] if not p['rejects'])}"
+              if bad and len(bad) < len(s["parameters"]) else ""))
 
 
 #: magnitude below which an estimate prints as 0: floating-point residue of an effect switched off (exactly 0),

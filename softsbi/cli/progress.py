@@ -21,7 +21,8 @@ class ProgressHooks(FitCallbacks):
         self.train_task = None
 
     def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
-        label = f"round {r + 1}/{rounds} simulations" if r >= 0 else "posterior rollouts"
+        label = (f"round {r + 1}/{rounds} simulations" if r >= 0 else
+                 "posterior rollouts" if r == -1 else "refinement of the best fit (CMA-ES)")
         if self.sim_task is not None:
             self.p.remove_task(self.sim_task)
         self.sim_task = self.p.add_task(label, total=n_total, completed=n_total - n_pending)

@@ -10,6 +10,12 @@ Layout (schema ``softsbi.run``, version :data:`SCHEMA_VERSION`)::
                 attrs: begun, complete, failures {i: reason}, train info
                 posterior/ weights (C,), means (C, D), scale_tril (C, D, D)   [q(u | x_obs)]
     evaluation/ theta, u, status, chamfer  (rollouts at final-posterior samples)
+    refine/     u, theta, seed, generation, status, chamfer  (``fit --refine``: CMA-ES rows, one per chunk)
+    best_fit/   theta, u, chamfer, vertices, faces, gripper  (the fit's best simulation and its rollout)
+
+A ``fit --widen`` run keeps its widenings in ``config["widenings"]`` and the widened prior in
+``config["param_space"]``; every round's ``u`` is in that prior's unit cube
+(:mod:`softsbi.workflows.widen`).
 
 Every array carries ``units`` in its attributes and dimension names. Simulation results
 are chunked one simulation per chunk and Zarr's local store writes each chunk atomically
@@ -305,7 +311,7 @@ class RunStore:
         return out
 
     def remove_group(self, name: str) -> None:
-        """Remove a top-level group (e.g. ``evaluation``) and everything in it."""
+        """Remove a top-level group (e.g. ``evaluation``) and everything in it (nothing when it does not exist)."""
         shutil.rmtree(self.path / name, ignore_errors=True)
         self.root = zarr.open_group(str(self.path), mode="a")
 
@@ -396,6 +402,47 @@ class RunStore:
 
     def has(self, name: str) -> bool:
         return name in self.root
+
+    # -- row groups: simulations stored one by one outside the rounds (a best fit's refinement) ----------------
+    def append_rows(self, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None,
+                    units: Mapping[str, str] | None = None) -> int:
+        """Append rows (axis 0) to the arrays of group ``name``, creating them on first use with one row per
+        chunk (so each row is written atomically, as a round's simulations are); ``arrays`` must hold a
+        ``status`` array, written last: the group's row count is ``len(status)`` (:meth:`read_rows`), so rows
+        cut short by a killed append are overwritten by the next one. ``attrs`` update the group's attributes.
+
+        Returns:
+            The index of the first appended row.
+        """
+        if "status" not in arrays:
+            raise ValueError("append_rows needs a 'status' array (it marks the rows as stored)")
+        g = self.root.require_group(name)
+        start = int(g["status"].shape[0]) if "status" in g else 0
+        for k in [k for k in arrays if k != "status"] + ["status"]:
+            v = np.asarray(arrays[k])
+            if k not in g:
+                g.create_array(k, shape=(0,) + v.shape[1:], dtype=v.dtype, chunks=(1,) + v.shape[1:],
+                               dimension_names=("row",) + tuple(f"dim_{i}" for i in range(1, v.ndim)),
+                               attributes={"units": (units or {}).get(k, "")})
+            arr = g[k]
+            arr.resize((start + len(v),) + tuple(arr.shape[1:]))
+            arr[start:start + len(v)] = v
+        if attrs:
+            g.attrs.update(jsonable(dict(attrs)))
+        return start
+
+    def write_rows(self, name: str, start: int, arrays: Mapping[str, np.ndarray]) -> None:
+        """Overwrite rows ``start..`` of group ``name``'s arrays (``status`` last, as :meth:`append_rows`)."""
+        g = self.root[name]
+        for k in [k for k in arrays if k != "status"] + (["status"] if "status" in arrays else []):
+            v = np.asarray(arrays[k])
+            g[k][start:start + len(v)] = v
+
+    def read_rows(self, name: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Group ``name``'s arrays cut to its row count ``len(status)`` (:meth:`append_rows`), and its attributes."""
+        arrays, attrs = self.read_group(name)
+        n = len(arrays["status"]) if "status" in arrays else 0
+        return {k: v[:n] for k, v in arrays.items()}, attrs
 
 
 def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], units: str) -> None:

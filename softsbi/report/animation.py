@@ -18,6 +18,7 @@ from softsbi.report.figures import ROLE_COLOURS, _plt, grip_label, handle_tracks
 COLOR_MEASURED = ROLE_COLOURS["measured"]
 COLOR_POSTERIOR = ROLE_COLOURS["posterior"]
 COLOR_GRIPPER = ROLE_COLOURS["gripper"]
+COLOR_BEST = ROLE_COLOURS["best_fit"]
 #: opacity of each posterior rollout in the GIF
 ROLLOUT_ALPHA = 0.25
 
@@ -53,7 +54,9 @@ def _limits(arrays: list[np.ndarray], margin: float = 0.06) -> np.ndarray:
 
 
 def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Path, fps: float,
-              dpi: int = 90) -> Path:
+              dpi: int = 90, best: dict[str, Any] | None = None) -> Path:
+    """The GIF of ``softsbi view`` (:func:`softsbi.workflows.view.write_animation`); ``best``: the fit's best fit
+    (``vertices (T, N, 3)`` m, ``faces``, ``chamfer (T,)`` m, ``label``), drawn in its own colour, or None."""
     from matplotlib.animation import PillowWriter
     from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
@@ -67,8 +70,9 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     v0, rope = rollouts[0]["vertices"][0], len(rollouts[0]["faces"]) == 0  # where the first rollout's handles hold
     grips = [p for _, p in handle_tracks(sc, v0, rope)]
     pinned = pinned_vertices(sc, v0, rope)
-    lim = _limits([dense, *grips] + [r["vertices"] for r in rollouts])
+    lim = _limits([dense, *grips] + [r["vertices"] for r in rollouts] + ([best["vertices"]] if best else []))
     lim[2, 0] = min(lim[2, 0], sc.table_z - 0.01)
+    best_edges = _edges(np.asarray(best["faces"], int), best["vertices"].shape[1])[0] if best else None
     views = [((1, 2), "side view (y-z)"), ((0, 1), "top view (x-y)")]
     # equal aspect in panels of the same height: widths in proportion to width / height of the data
     ratios = [max((lim[a, 1] - lim[a, 0]) / (lim[b, 1] - lim[b, 0]), 0.4) for (a, b), _ in views]
@@ -102,6 +106,9 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
             ax.add_collection(outer)
             ax.add_collection(inner)
             lcs.append((outer, inner))
+        if best is not None:  # the best fit's outline, over the posterior rollouts
+            lcs.append((ax.add_collection(LineCollection([], colors=COLOR_BEST, alpha=0.9, linewidths=1.6,
+                                                         zorder=2.5)), None))
         m = ax.scatter(dense[0][:, a], dense[0][:, b], s=4, color=COLOR_MEASURED, alpha=0.6, lw=0, zorder=3)
         g, = ax.plot(*_handle_xy(grips, pinned, rollouts, 0, a, b)[0], "+", color=COLOR_GRIPPER, ms=14, mew=2.5,
                      ls="none", zorder=5)
@@ -116,11 +123,14 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     for row in cm:
         ax_err.plot(times, row, color=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA, lw=1)
     ax_err.plot(times, mean_cm, color=COLOR_POSTERIOR, lw=2)
+    if best is not None:
+        ax_err.plot(times, np.asarray(best["chamfer"]) * 100, color=COLOR_BEST, lw=1.6)
     vline = ax_err.axvline(times[0], color="0.3", lw=1, ls=":")
     dot, = ax_err.plot([times[0]], [mean_cm[0]], "o", color=COLOR_POSTERIOR, mec="k", ms=7, zorder=5)
     pad = 0.015 * (times[-1] - times[0]) if T > 1 else 0.5
     ax_err.set_xlim(times[0] - pad, times[-1] + pad)
-    ax_err.set_ylim(0, max(float(cm.max()) * 1.12, 0.1))
+    ax_err.set_ylim(0, max(float(np.nanmax(np.concatenate([cm.ravel()] + ([np.asarray(best["chamfer"]) * 100]
+                                                                          if best else [])))) * 1.12, 0.1))
     ax_err.set_xlabel("time [s]")
     ax_err.set_ylabel("Chamfer [cm]")
     ax_err.set_title(f"Chamfer distance of the posterior rollouts to the measured cloud (thin: each rollout, "
@@ -136,8 +146,10 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     if pinned:
         handles.append(Line2D([], [], ls="none", marker="x", ms=9, mew=2.5, color=COLOR_GRIPPER,
                               label="held in place (first rollout)"))
-    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False,
-               bbox_to_anchor=(0.5, 0.915))
+    if best is not None:
+        handles.insert(2, Line2D([], [], color=COLOR_BEST, lw=1.6, label=best["label"]))
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9 if best is None else 8,
+               frameon=False, bbox_to_anchor=(0.5, 0.915))
     label = _run_label(view)
     title = fig.suptitle("", fontsize=11, y=0.985)
 
@@ -148,6 +160,8 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
                 v = r["vertices"][k][:, [a, b]]
                 outer.set_segments(v[e_out])
                 inner.set_segments(v[e_in])
+            if best is not None:
+                roll_art[ax_i][-1][0].set_segments(best["vertices"][k][:, [a, b]][best_edges])
             moving, held = _handle_xy(grips, pinned, rollouts, k, a, b)
             grip_art[ax_i][0].set_data(*moving)
             grip_art[ax_i][1].set_data(*held)
@@ -204,7 +218,10 @@ def _vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.where(norm > 0, n / np.maximum(norm, 1e-12), np.array([0.0, 0.0, 1.0]))
 
 
-def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Path) -> Path:
+def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Path,
+            best: dict[str, Any] | None = None) -> Path:
+    """The rerun recording of ``softsbi view`` (:func:`softsbi.workflows.view.write_rerun`); ``best`` as in
+    :func:`draw_gif`: logged as ``world/best_fit`` and ``error/best_fit_cm``."""
     import rerun.blueprint as rrb
 
     sc = view.scenario
@@ -231,6 +248,9 @@ def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, 
                                                       radii=0.001), static=True)
         rec.log("error/chamfer_cm", rr.SeriesLines(colors=[_rgba(COLOR_POSTERIOR)[:3]],
                                                    names=["mean Chamfer of posterior rollouts [cm]"]), static=True)
+        if best is not None:
+            rec.log("error/best_fit_cm", rr.SeriesLines(colors=[_rgba(COLOR_BEST)[:3]], names=[best["label"]]),
+                    static=True)
         for i, r in enumerate(rollouts):
             rec.log(f"error/rollouts/{i}", rr.SeriesLines(colors=[_rgba(COLOR_POSTERIOR)[:3]], widths=0.5,
                                                           names=[f"rollout {i} (posterior sample {r['sample']})"]),
@@ -251,6 +271,14 @@ def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, 
                     rec.log(f"world/posterior/{i}", rr.LineStrips3D([v], colors=[post_col], radii=0.003))
                 rec.log(f"error/rollouts/{i}", rr.Scalars(float(ch[i, k] * 100)))
             rec.log("error/chamfer_cm", rr.Scalars(float(mean_cm[k])))
+            if best is not None:
+                v, faces = best["vertices"][k], np.asarray(best["faces"], int)
+                rec.log("world/best_fit", rr.Mesh3D(vertex_positions=v, triangle_indices=faces,
+                                                    vertex_normals=_vertex_normals(v, faces),
+                                                    albedo_factor=_rgba(COLOR_BEST, 0.8)) if len(faces) else
+                        rr.LineStrips3D([v], colors=[_rgba(COLOR_BEST)], radii=0.003))
+                if np.isfinite(best["chamfer"][k]):
+                    rec.log("error/best_fit_cm", rr.Scalars(float(best["chamfer"][k] * 100)))
         rec.flush()
     finally:
         rec.disconnect()  # closes the file and writes its footer

@@ -1,9 +1,11 @@
 """The figure of ``softsbi calibrate``: expected coverage with its binomial band, and SBC rank histograms.
 
-Read in seconds: left, the coverage curve (blue) against the diagonal inside the grey band a
-calibrated estimator stays in (below the band: over-confident, above: under-confident); right, one
-rank histogram per parameter inside the grey band of a uniform histogram (a U shape: over-confident;
-a hump: under-confident; a slope: biased).
+Read in seconds: the title is the verdict (it reads all three diagnostics, naming the parameters whose
+marginals are too narrow, too wide or biased); left, the coverage curve (blue) against the diagonal
+inside the grey band a calibrated estimator stays in (below the band: over-confident, above:
+under-confident), with the whole curve's band the verdict uses (dashed) and TARP's curve; right, one
+rank histogram per parameter inside the band the verdict uses (a U shape: too narrow; a hump: too
+wide; a pile at one end: biased), titled with its verdict.
 """
 from __future__ import annotations
 
@@ -18,6 +20,17 @@ from softsbi.report.figures import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TIT
 __all__ = ["calibration_figure", "plot_calibration"]
 
 VERDICT_COLOUR = {"calibrated": "#009E73", "over-confident": "#D55E00", "under-confident": "#E69F00"}
+#: a rank histogram's shape (:data:`softsbi.inference.calibration.SHAPES`) in a panel title
+SHAPE_WORDS = {"too-narrow": "too narrow (U)", "too-wide": "too wide (hump)", "biased-high": "biased high",
+               "biased-low": "biased low"}
+
+
+def _band_words(s: Mapping[str, Any]) -> str:
+    """What the grey band of the rank histograms is (older calibration.json: a pointwise band)."""
+    if "band_level" in s:
+        return (f"grey: a uniform histogram keeps every bin inside it with probability {1 - s['band_level']:.4g}, "
+                f"the verdict's level")
+    return f"grey: {int(100 * s['band_confidence'])}% band of a uniform histogram"
 
 
 def calibration_figure(cal: Mapping[str, Any]) -> Any:
@@ -27,7 +40,7 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
     D = len(names)
     ncol = min(D, 3)
     nrow = -(-D // ncol)
-    fig = plt.figure(figsize=(4.6 + 2.3 * ncol, max(4.4, 2.0 * nrow + 1.6)))
+    fig = plt.figure(figsize=(4.6 + 2.3 * ncol, max(4.8, 2.0 * nrow + 2.0)))
     gs = fig.add_gridspec(nrow, 1 + ncol, width_ratios=[2.0] + [1.0] * ncol)
     pc, qc = ROLE_COLOURS["posterior"], ROLE_COLOURS["prior"]
     c = cal["coverage"]
@@ -36,12 +49,15 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
     ax.fill_between(g, c["band_lo"], c["band_hi"], color=qc, alpha=0.5, lw=0,
                     label=f"calibrated ({int(100 * c['band_confidence'])}% binomial band)")
     if "band_simultaneous_lo" in c:  # the whole curve's band (calibration.json before it: pointwise only)
+        conf = 100 * c.get("band_simultaneous_confidence", 0.95)
         for key in ("band_simultaneous_lo", "band_simultaneous_hi"):
             ax.plot(g, c[key], color="#8a8a8a", lw=0.9, ls="--",
-                    label="whole curve: simultaneous 95% band" if key.endswith("lo") else None)
+                    label=f"whole curve: simultaneous {conf:.3g}% band" if key.endswith("lo") else None)
     ax.plot([0, 1], [0, 1], color="#5a5a5a", lw=1, ls=":")
     ax.plot(g, c["hpd"], color=pc, lw=2.2, marker="o", ms=3, label="expected coverage (HPD)")
-    ax.plot(cal["tarp"]["levels"], cal["tarp"]["coverage"], color=pc, lw=1.2, ls="--", alpha=0.7, label="TARP")
+    tarp_p = cal["tarp"].get("ks_pvalue")
+    ax.plot(cal["tarp"]["levels"], cal["tarp"]["coverage"], color=pc, lw=1.2, ls="--", alpha=0.7,
+            label="TARP" + ("" if tarp_p is None else f" (KS p={tarp_p:.2g})"))
     for lev, key in ((0.5, "at_50"), (0.9, "at_90")):
         ax.plot([lev], [c[key]], marker="o", ms=8, color=VERDICT_COLOUR[cal[f"verdict_{int(100 * lev)}"]],
                 mec="white", zorder=5)
@@ -55,10 +71,11 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
     ax.set_xlabel("credibility level", fontsize=FS_LABEL)
     ax.set_ylabel("fraction of test truths inside the region", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
-    ax.legend(fontsize=FS_LEGEND, loc="upper left", bbox_to_anchor=(0.0, 0.84), frameon=False)
+    handles, labels = ax.get_legend_handles_labels()
     ax.set_title("Coverage", fontsize=FS_SUB, weight="bold")
     s = cal["sbc"]
     lo, hi = s["band"]
+    shapes = s.get("shapes") or [[] for _ in names]  # calibration.json before the per-parameter verdict: none
     for d, name in enumerate(names):
         a = fig.add_subplot(gs[d // ncol, 1 + d % ncol])
         h = np.asarray(s["histograms"][d])
@@ -72,17 +89,23 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
         a.tick_params(labelsize=FS_TICK)
         a.set_ylim(0, max(h.max(initial=0), hi) * 1.15)
         p = s["ks_pvalue"][d]
-        a.set_title(f"{name}  (KS p={p:.2g})", fontsize=FS_LABEL)
+        words = " + ".join(SHAPE_WORDS[k] for k in shapes[d]) or "uniform"
+        a.set_title(f"{name}: {words}\n(KS p={p:.2g})", fontsize=FS_LABEL,
+                    color=VERDICT_COLOUR["over-confident"] if shapes[d] else "black")
     v = cal["verdict"]
     opts = cal.get("estimator_options") or {}
     est = cal["estimator"] + (" (" + ", ".join(f"{k}={v}" for k, v in opts.items()) + ")" if opts else "")
+    ok = cal.get("calibrated", v == "calibrated")
     frac = _header(fig, [(f"Calibration: {v}", {"fontsize": FS_TITLE, "weight": "bold",
-                                                 "color": VERDICT_COLOUR.get(v, "black")}),
+                                                 "color": VERDICT_COLOUR["calibrated" if ok else "over-confident"]}),
                          (f"{Path(str(cal.get('run', ''))).name}: {est}, {cal['n_test']} fresh test simulations from the run's proposals "
                           f"(trained on {cal['n_train']}); SBC rank histograms right "
-                          f"(grey: {int(100 * s['band_confidence'])}% band of a uniform histogram; orange: a bin outside it)",
+                          f"({_band_words(s)}; orange: a bin outside it)",
                           {"fontsize": FS_SUB})])
-    fig.tight_layout(rect=(0, 0, 1, 1 - frac), pad=0.6)
+    leg_h = 0.45 / fig.get_figheight()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=FS_LEGEND, frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, leg_h, 1, 1 - frac), pad=0.6)
     return fig
 
 

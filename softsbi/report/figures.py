@@ -29,6 +29,7 @@ ROLE_COLOURS: dict[str, str] = {
     "gripper": "#000000",      # black: the gripper's position
     "nominal": "#E69F00",      # orange: run A of ``compare`` (before, e.g. the nominal model)
     "with_effect": "#009E73",  # bluish green: run B of ``compare`` (after, e.g. with the effect)
+    "best_fit": "#AA3377",     # purple (Paul Tol's colour-blind-safe scheme): the fit's best fit and its rollout
 }
 #: engines of ``compare-backends`` (no role: each engine is one simulation), in backend order:
 #: sky blue, reddish purple, then brown and dark teal for a third and fourth engine.
@@ -407,10 +408,12 @@ def plot_pairs(path: Path, space: Any, samples: np.ndarray, truth: dict[str, flo
 
 
 def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, frames: Sequence[int],
-                  title: str = "", status: str = "", vertices: np.ndarray | None = None, rope: bool = False) -> Any:
+                  title: str = "", status: str = "", vertices: np.ndarray | None = None, rope: bool = False,
+                  best_pts: np.ndarray | None = None, best_label: str = "") -> Any:
     """Figure of :func:`plot_clouds`: ``dense (T, N, 3)`` measured, ``sim_pts (T, M, 3)`` simulated
     (None: the simulation failed), every handle of ``scenario``: its grippers ``+`` (where the simulated
-    ``vertices (T, V, 3)`` hold them, when given) and the vertices it holds in place ``x``."""
+    ``vertices (T, V, 3)`` hold them, when given) and the vertices it holds in place ``x``; ``best_pts (T, M, 3)``
+    the best fit's rollout (None: not drawn) with its legend text ``best_label``."""
     plt = _plt()
     from matplotlib.ticker import MaxNLocator
     fig, axes = plt.subplots(2, len(frames), figsize=(3.1 * len(frames) + 0.6, 6.9), squeeze=False)
@@ -426,6 +429,9 @@ def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, 
             if sim_pts is not None:
                 ax.scatter(sim_pts[f][:, a], sim_pts[f][:, b], s=4, color=pc, alpha=0.5, linewidths=0,
                            label="simulated at the posterior median")
+            if best_pts is not None:
+                ax.scatter(best_pts[f][:, a], best_pts[f][:, b], s=4, color=ROLE_COLOURS["best_fit"], alpha=0.45,
+                           linewidths=0, label=best_label)
             for _, path in tracks:
                 g = path[f]
                 ax.plot(g[a], g[b], "+", color="white", ms=14, mew=4.5, zorder=4)
@@ -445,11 +451,13 @@ def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, 
     handles = [Line2D([], [], color=mc, label="measured", **dot)]
     if sim_pts is not None:
         handles.append(Line2D([], [], color=pc, label="simulated at the posterior median", **dot))
+    if best_pts is not None:
+        handles.append(Line2D([], [], color=ROLE_COLOURS["best_fit"], label=best_label, **dot))
     handles.append(Line2D([], [], color=gc, ls="none", marker="+", ms=10, mew=2, label=grip_label(len(tracks))))
     if pinned:
         handles.append(Line2D([], [], color=gc, ls="none", marker="x", ms=8, mew=2, label="held in place"))
-    frac = _header(fig, [(f"Measured vs simulated at the posterior median{status}", {"fontsize": FS_TITLE,
-                                                                                      "weight": "bold"}),
+    what = "the posterior median" + (" and the best fit" if best_pts is not None else "")
+    frac = _header(fig, [(f"Measured vs simulated at {what}{status}", {"fontsize": FS_TITLE, "weight": "bold"}),
                          (title, {"fontsize": FS_SUB})])
     leg_h = 0.55 / fig.get_figheight()
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=FS_LEGEND + 1, frameon=False,
@@ -458,8 +466,27 @@ def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, 
     return fig
 
 
+def best_fit_clouds(store: Any, report: Mapping[str, Any], n: int = 800) -> tuple[np.ndarray | None, str]:
+    """The best fit's stored rollout (``report["best_fit"]``, the run store's ``best_fit`` group) as surface
+    clouds ``(T, n, 3)`` m and its legend text; ``(None, "")`` when the run stored none."""
+    from softsbi.core.types import Rollout
+    from softsbi.perception.pointcloud import rollout_clouds
+    best = report.get("best_fit") or {}
+    if not best.get("rollout") or not store.has("best_fit"):
+        return None, ""
+    a, _ = store.read_group("best_fit")
+    if "vertices" not in a:
+        return None, ""
+    ro = Rollout(times=np.arange(len(a["vertices"]), dtype=float), gripper=a["gripper"], vertices=a["vertices"],
+                 faces=np.asarray(a["faces"], int))
+    value = best.get("chamfer_m")
+    what = f"best fit ({best['source']}{'' if value is None else f', Chamfer {value * 100:.2f} cm'})"
+    return rollout_clouds(ro, n, np.random.default_rng(1)), what
+
+
 def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int, ...] | None = None) -> Path:
-    """Measured (grey) vs simulated at the posterior median (blue) clouds: side view and top view."""
+    """Measured (grey) vs simulated at the posterior median (blue) clouds and the best fit's stored rollout
+    (purple, :func:`best_fit_clouds`): side view and top view."""
     from softsbi.perception.pointcloud import rollout_clouds
     from softsbi.plugins import registry
 
@@ -472,8 +499,9 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     sim_pts = rollout_clouds(ro, 800, np.random.default_rng(0)) if ro.ok else None
     status = "" if ro.ok else f" (simulation failed: {ro.reason})"
     title = f"fit: {fit_label(result.report)}; measurement: {_source(result.report.get('observed'))}"
+    best_pts, best_label = best_fit_clouds(result.store, result.report)
     return _save(clouds_figure(meas.scenario, meas.dense, sim_pts, frames, title, status,
-                               ro.vertices if ro.ok else None, len(ro.faces) == 0), path)
+                               ro.vertices if ro.ok else None, len(ro.faces) == 0, best_pts, best_label), path)
 
 
 def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int, ...] | None = None,

@@ -19,6 +19,9 @@ estimator, on fresh simulations from the run's own proposals:
 4. Per test pair, ``n_draws`` draws of ``q(. | x_i)`` restricted to the prior box give the HPD
    expected coverage at every level (with the binomial band of a calibrated estimator), SBC rank
    histograms per parameter, and TARP (:mod:`softsbi.inference.calibration`).
+5. One verdict reads all three (:func:`softsbi.inference.calibration.verdict`: family-wise level 0.05,
+   Bonferroni over the diagnostics and, within SBC, over the parameters): "calibrated" only when none
+   rejects, else what rejects, naming the parameters whose marginals are too narrow, too wide or biased.
 
 Outputs ``RUN/calibration.json`` and ``RUN/calibration.png``. All coordinates are the unit cube of
 the inferred parameters (log scale for log-scaled parameters).
@@ -43,8 +46,9 @@ from softsbi.workflows import defaults
 from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
+from softsbi.workflows.widen import MappedProposal, map_mixture, round_spaces, unit_map
 
-__all__ = ["calibrate_run", "calibration_verdict"]
+__all__ = ["calibrate_run"]
 
 GROUP = "calibration"
 #: test simulations are drawn in blocks of this size, each from its own seed, so a larger ``n_test``
@@ -54,20 +58,24 @@ BLOCK = 50
 
 def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
                counts: list[int]) -> list[tuple[Any, str]]:
-    """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description."""
+    """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description; a round
+    before a ``--widen`` widening drew in the narrower prior, sampled in the prior of record's unit cube
+    (:class:`~softsbi.workflows.widen.MappedProposal`)."""
     est_cls = registry().estimator(cfg.estimator)
     sequential = bool(getattr(est_cls, "sequential", True))
     truncated = sequential and cfg.proposal == "truncated"
     chain = PosteriorChain(space.dim, seed=cfg.seed)
+    spaces = round_spaces(space, store.config, last)
     out: list[tuple[Any, str]] = []
     for r in range(last + 1):
+        to_record = (lambda p, r=r: p if spaces[r] == space else MappedProposal(p, *unit_map(spaces[r], space)))
         if r == 0 or not sequential:
-            out.append((None, "prior"))
+            out.append((to_record(None), "prior" if spaces[r] == space else "prior before its widening"))
             continue
         if truncated:
             ch = PosteriorChain(space.dim, seed=cfg.seed)
-            ch.add_round(store.read_q(r - 1), sum(counts[:r]))
-            out.append((TruncatedPrior(ch.posterior(0), eps=cfg.truncation_eps, seed=cfg.seed + r),
+            ch.add_round(map_mixture(store.read_q(r - 1), *unit_map(spaces[r - 1], spaces[r])), sum(counts[:r]))
+            out.append((to_record(TruncatedPrior(ch.posterior(0), eps=cfg.truncation_eps, seed=cfg.seed + r)),
                         f"prior truncated to round {r}'s posterior"))
         else:
             chain.add_round(store.read_q(r - 1), counts[r - 1])
@@ -144,13 +152,8 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
     return {k: v[: n_blocks * BLOCK] for k, v in data.items()}
 
 
-def calibration_verdict(v50: str, v90: str) -> str:
-    """One verdict from those at the 50 % and 90 % levels (each ``calibrated``, ``over-confident`` or
-    ``under-confident``)."""
-    return v50 if v50 == v90 else f"{v50} at 50%, {v90} at 90%"
-
-
-def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS, workers: int | None = None,
+def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS,
+                  workers: int | None = None,
                   estimator: str | None = None, estimator_options: Mapping[str, Any] | None = None,
                   n_bins: int = 10, write: bool = True,
                   message: Callable[[str], None] | None = None) -> dict[str, Any]:
@@ -174,9 +177,12 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
 
     Returns:
         The ``calibration.json`` dict: ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
-        95 %), ``band_simultaneous_lo``/``_hi`` (the whole curve's 95 % band, Bonferroni over the levels),
-        ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``), ``verdict_50``,
-        ``verdict_90``, ``verdict``, ``sbc`` (per-parameter rank histograms, ``band``, ``ks_pvalue``,
+        95 %), ``band_simultaneous_lo``/``_hi`` (the whole curve's band at the verdict's level, Bonferroni over
+        the levels), ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``, ``band_50``,
+        ``band_90`` (the verdict's band at those levels)), ``verdict_50``, ``verdict_90``, ``verdict``,
+        ``calibrated``, ``too_narrow``/``too_wide``/``biased`` (parameter names), ``diagnostics`` (each
+        diagnostic's test, :func:`softsbi.inference.calibration.verdict`), ``sbc`` (per-parameter rank
+        histograms, ``band`` (the verdict's band of one bin), ``shapes``, ``rejects``, ``ks_pvalue``,
         ``chi2_pvalue``), ``tarp``, counts and timings.
 
     Raises:
@@ -236,6 +242,10 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         lq_draws.append(q.log_prob(s))
         lq_true.append(float(q.log_prob(u_test[i][None])[0]))
     n_nomass = len(qs) - len(keep)
+    if not keep:
+        raise PosteriorError(f"the estimator's posterior has (almost) no mass in the prior box at any of the {len(qs)} "
+                             f"test simulations; it cannot be calibrated (too few training simulations: "
+                             f"{len(U)}?)")
     draws_a = np.stack(draws) if draws else np.zeros((0, n_draws, space.dim))
     hpd = cal.hpd_levels(np.array(lq_true), np.array(lq_draws).reshape(len(keep), n_draws))
     hpd = np.concatenate([hpd, np.ones(n_nomass)])  # a posterior with no mass in the box covers nothing
@@ -243,12 +253,13 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     levels = cal.LEVELS
     cov = cal.expected_coverage(hpd, levels)
     lo, hi = cal.coverage_band(n, levels)
-    slo, shi = cal.coverage_band_simultaneous(n, levels)
     at = {g: float(cal.expected_coverage(hpd, [g])[0]) for g in (0.5, 0.9)}
-    v50, v90 = (cal.coverage_verdict(at[g], n, g) for g in (0.5, 0.9))
     ranks = cal.sbc_ranks(u_test[keep], draws_a)
     tests = cal.rank_tests(ranks, n_draws, n_bins)
     hist = [np.histogram(ranks[:, d], bins=n_bins, range=(0, n_draws + 1))[0].tolist() for d in range(space.dim)]
+    tarp = cal.tarp_coverage(u_test[keep], draws_a, np.random.default_rng([cfg.seed, 16016, 2]), levels)
+    ver = cal.verdict(cov, n, tarp, ranks, n_draws, n_bins, space.names, levels)
+    vc = ver["coverage"]
     out = {
         "run": str(run_dir), "estimator": name, "estimator_options": opts,
         "n_test": int(n), "n_test_failed": int((~ok).sum()), "n_no_mass_in_box": int(n_nomass),
@@ -259,16 +270,21 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         "parameters": space.names,
         "coverage": {"levels": levels.tolist(), "hpd": cov.tolist(), "band_lo": lo.tolist(), "band_hi": hi.tolist(),
                      "band_confidence": 0.95, "at_50": at[0.5], "at_90": at[0.9],
-                     # the whole curve is judged with the simultaneous band (Bonferroni over the levels)
-                     "band_simultaneous_lo": slo.tolist(), "band_simultaneous_hi": shi.tolist(),
+                     # the verdict judges the whole curve with the simultaneous band (Bonferroni over the levels)
+                     "band_simultaneous_lo": vc["band_lo"], "band_simultaneous_hi": vc["band_hi"],
+                     "band_simultaneous_confidence": vc["confidence"],
                      "outside_pointwise": [float(levels[i]) for i in cal.curve_outside(cov, lo, hi)],
-                     "inside_simultaneous": not cal.curve_outside(cov, slo, shi),
-                     "band_50": [float(x[0]) for x in cal.coverage_band(n, [0.5])],
-                     "band_90": [float(x[0]) for x in cal.coverage_band(n, [0.9])]},
-        "verdict_50": v50, "verdict_90": v90, "verdict": calibration_verdict(v50, v90),
-        "sbc": {"n_bins": n_bins, "histograms": hist, "band": list(cal.rank_band(len(keep), n_bins)),
-                "band_confidence": 0.99, **tests},
-        "tarp": cal.tarp_coverage(u_test[keep], draws_a, np.random.default_rng([cfg.seed, 16016, 2]), levels),
+                     "inside_simultaneous": not vc["rejects"],
+                     "band_50": vc["at_50"]["band"], "band_90": vc["at_90"]["band"]},
+        "verdict_50": vc["at_50"]["verdict"], "verdict_90": vc["at_90"]["verdict"], "verdict": ver["verdict"],
+        "calibrated": ver["calibrated"], "alpha": ver["alpha"],
+        "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
+        "diagnostics": {"coverage": {k: vc[k] for k in ("rejects", "direction", "outside", "confidence")},
+                        "tarp": ver["tarp"], "sbc": ver["sbc"]},
+        "sbc": {"n_bins": n_bins, "histograms": hist, "band": ver["sbc"]["band"], "band_level": ver["sbc"]["level"],
+                "shapes": [p["shapes"] for p in ver["sbc"]["parameters"]],
+                "rejects": [p["rejects"] for p in ver["sbc"]["parameters"]], **tests},
+        "tarp": tarp,
         "train_seconds": train_s, "simulation_seconds": sim_s,
         "estimator_fit": {k: v for k, v in dict(getattr(est, "fit_info", {}) or {}).items()
                           if k in ("epochs", "best_epoch", "val_loss", "ensemble", "recalibration")},

@@ -39,8 +39,11 @@ from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
 from softsbi.scenarios.cameras import default_camera
 from softsbi.workflows import defaults
+from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
 from softsbi.workflows.lock import run_lock
+from softsbi.workflows.widen import (check_widen, decide, map_mixture, prior_of_record, reconcile, records,
+                                     space_of_round, unit_map, widening_sentence)
 
 # ----------------------------------------------------------------------------------------
 # configuration
@@ -140,6 +143,15 @@ class FitConfig:
             transform of the fit is such a sensor effect; otherwise, and at 0 (the default), it does nothing.
             ``diagnose`` sets it for refits that add a sensor effect
             (:data:`~softsbi.workflows.diagnose.REFIT_SENSOR_DRAWS`).
+        refine: N >= 1: after the posterior, N more simulations polish the best fit by CMA-ES started at the
+            posterior's mean with its covariance, inside the prior (:func:`~softsbi.workflows.bestfit.refine`;
+            stored in the run, resumable, the posterior untouched). 0 (the default): the best fit is the best of
+            the fit's own simulations. ``report.json``'s ``best_fit`` holds it either way.
+        widen: after each round but the last, move a prior bound that the posterior presses (and that is not a
+            physical limit) outward by the rule ``fit`` prints, for the following rounds; the widened prior is
+            the run's prior of record (:mod:`~softsbi.workflows.widen`). Truncated proposals with a sequential
+            estimator only. Default False: the rounds before a widening under-weight the region beyond the old
+            bound (see that module), so it is an option.
     """
 
     backend: str = _resume(defaults.BACKEND)
@@ -166,6 +178,8 @@ class FitConfig:
     truncation_eps: float = _resume(1e-3)
     sensor: str = _resume(defaults.SENSOR)
     sensor_draws: int = _resume(0)
+    refine: int = 0
+    widen: bool = False
 
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
@@ -201,6 +215,11 @@ class FitConfig:
                                        ("estimator", self.estimator, self.estimator_options, "--estimator-opt"),
                                        ("executor", self.executor, self.executor_options, "executor option")):
             check_options(reg.get(kind, name), opts, f"{kind} '{name}' ({flag})")
+        if not isinstance(self.refine, int) or self.refine < 0:
+            raise SoftsbiError(f"--refine must be an integer >= 0 (got {self.refine!r}); 0 = no refinement")
+        if self.widen:
+            check_widen(self.proposal, bool(getattr(reg.get("estimator", self.estimator), "sequential", True)),
+                        self.sensor_draws)
 
     def to_json(self) -> dict[str, Any]:
         """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""
@@ -333,7 +352,8 @@ class FitCallbacks:
     method does nothing by default."""
 
     def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
-        """Round ``r`` (0-based; -1 = the final posterior-predictive rollouts) begins."""
+        """Round ``r`` (0-based; -1 = the final posterior-predictive rollouts; -2 = the best fit's refinement,
+        ``FitConfig.refine``) begins."""
 
     def simulation_done(self, r: int, done: int, total: int) -> None:
         """``done`` of ``total`` simulations of round ``r`` are stored."""
@@ -699,21 +719,27 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
                              f"sbi-npe) here, and '{cfg.estimator}' from Python (softsbi.plugins.registry()"
                              f".estimator('{cfg.estimator}'))")
     exe_cls = reg.executor(cfg.executor)
-    _, space = fit_param_space(cfg, recording.scenario)
+    _, base = fit_param_space(cfg, recording.scenario)
+    space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
     clock = _Clock(store, prev)
     _repair_damaged(store, callbacks)
     if retry_failed:
         _retry_failed(store, callbacks)
+    space = reconcile(store, base, callbacks.message)
     ctx = _sim_context(cfg, recording, store, space)
     loop = _Rounds(cfg, store, space, ctx, est_cls, callbacks, clock)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     try:
         for r in range(cfg.rounds):
+            loop.space = space_of_round(base, store.config, r)
             loop.run_round(r, executor)
+            _next_prior(loop, base, r)
+        space = loop.space
         post = loop.chain.posterior(len(loop.chain) - 1)
         ev_stats = _evaluate(store, post, space, ctx, executor, cfg, callbacks)
         loop.summaries[-1]["chamfer_posterior"] = ev_stats
+        best = _best_fit(store, post, space, ctx, executor, cfg, callbacks) if loop.scored else None
     finally:
         executor.close()
         with contextlib.suppress(OSError):  # also when interrupted: the next session's resume message counts it
@@ -721,12 +747,61 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     samples = space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99])))
     wall = clock.save(force=True)
     report = _report(recording, cfg, space, loop, ev_stats, samples, wall, store.config.get("metric", "chamfer_m"))
+    report.update(best_fit=best, widened=records(store.config))
     (out_dir / "report.json").write_text(json.dumps(report, indent=2))
     result = FitResult(store=store, param_space=space, posterior=post, report=report, rounds=loop.summaries)
     if make_plots:
         write_fit_plots(out_dir, result, recording, cfg, samples,
                         observer_options=observer_options(cfg, recording.scenario))
     return result
+
+
+def _next_prior(loop: _Rounds, base: ParamSpace, r: int) -> None:
+    """After round ``r``: with ``--widen`` (and a round to follow) widen the bounds its posterior presses unless
+    the run already decided after this round (:func:`~softsbi.workflows.widen.decide`); then, when round ``r + 1``
+    draws in another prior, express the posterior its proposal truncates to in that prior's unit cube."""
+    cfg, store = loop.cfg, loop.store
+    if r + 1 >= cfg.rounds:
+        return
+    if cfg.widen and not any(int(w["after_round"]) == r for w in records(store.config)):
+        post = loop.chain.posterior(len(loop.chain) - 1)
+        samples = loop.space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99, r])))
+        keep = {k: v for e in cfg.effects for k, v in registry().effect(e)().nominal().items()}
+        if decide(store, loop.space, samples, r, keep) is not None:
+            loop.cb.message(widening_sentence(records(store.config)[-1]))
+    nxt = space_of_round(base, store.config, r + 1)
+    if nxt != loop.space:
+        q, count = loop.chain.qs[-1], loop.chain.counts[-1]
+        loop.chain = PosteriorChain(nxt.dim, seed=cfg.seed)
+        loop.chain.add_round(map_mixture(q, *unit_map(loop.space, nxt)), count)
+        loop.space = nxt
+
+
+def _best_fit(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: SimContext, executor: Any,
+              cfg: FitConfig, hooks: FitCallbacks) -> dict[str, Any] | None:
+    """``report.json``'s ``best_fit``: the best of the fit's simulations, after ``cfg.refine`` more by CMA-ES
+    from the posterior (:mod:`~softsbi.workflows.bestfit`), with its rollout stored in the run."""
+    frames = store.config.get("metric_frames")
+    metric = store.config.get("metric", "chamfer_m")
+    refined = None
+    if cfg.refine > 0:
+        before = best_stored(store, cfg.rounds, cfg.seed, frames)
+        mean, cov = post.moments(20000, seed=cfg.seed + 20_000)
+        have = len(store.read_rows(REFINE)[0]["status"]) if store.has(REFINE) else 0
+        hooks.round_start(-2, cfg.rounds, max(cfg.refine - have, 0), cfg.refine)
+        refined = refine(store, space, mean, cov, ctx, executor, cfg.refine, cfg.seed, cfg.rounds, frames,
+                         progress=lambda d, n: hooks.simulation_done(-2, d, n), message=hooks.message)
+        refined.update(requested=cfg.refine, start_mean=space.as_dict(space.from_unit(mean)),
+                       best_before=None if before is None else before["score"])
+    best = best_stored(store, cfg.rounds, cfg.seed, frames, cfg.refine)
+    if best is None:
+        return None
+    stored = store_best_fit(store, best, space, ctx, executor, cfg.fixed)
+    return {"theta": space.as_dict(best["theta"]), metric: best["score"],
+            metric.replace("_m", "_per_frame_m").replace("_px", "_per_frame_px"): best["chamfer"].tolist(),
+            "source": best["source"], "simulation": best["index"], "seed": best["seed"],
+            "simulations_searched": best["simulations"], "rollout": "run.zarr/best_fit" if stored else None,
+            "refine": refined}
 
 
 def _open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: ParamSpace,

@@ -13,6 +13,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
+from softsbi.workflows.bestfit import BestFit, read_best_fit
 from softsbi.workflows.fit import FitConfig, _usable
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
 
@@ -204,6 +205,8 @@ class Run:
         path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.FitConfig`).
         report: ``report.json`` (None while the fit has not finished). space: the inferred parameters.
         posterior: the final posterior in physical units (:class:`Posterior`).
+        best_fit: the best-fitting parameters the fit found and their rollout
+            (:class:`~softsbi.workflows.bestfit.BestFit`), None for a run that stored none.
     """
 
     path: Path
@@ -211,10 +214,11 @@ class Run:
     report: dict[str, Any] | None
     space: ParamSpace
     posterior: Posterior
+    best_fit: BestFit | None = None
 
 
 def open_run(run_dir: str | Path) -> Run:
-    """Open a fit's run directory: its settings, report and final posterior in physical units.
+    """Open a fit's run directory: its settings, report, final posterior in physical units and best fit.
 
     The posterior is rebuilt from the stored rounds exactly as the fit built it (the corrected
     chain of round posteriors, or the last round's ``q`` restricted to the prior box for truncated
@@ -242,4 +246,5 @@ def open_run(run_dir: str | Path) -> Run:
         chain.add_round(store.read_q(rounds[-1]), sum(counts))
     rep_path = run_dir / "report.json"
     report = json.loads(rep_path.read_text()) if rep_path.exists() else None
-    return Run(run_dir, cfg, report, space, Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed))
+    return Run(run_dir, cfg, report, space, Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed),
+               best_fit=read_best_fit(store))

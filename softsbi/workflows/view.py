@@ -15,6 +15,9 @@ evaluation seeds, in worker processes (:func:`~softsbi.workflows.jobs.simulate_j
 Chamfer error per frame is measured from the mesh's vertices and face centroids to the measured
 cloud (deterministic; ``softsbi check`` samples the surface like the fit, so its numbers can differ
 by a few millimetres).
+
+A fit's best fit (:mod:`~softsbi.workflows.bestfit`; its rollout stored in the run) is drawn in both
+outputs beside the posterior rollouts, in its own colour (purple), with its Chamfer per frame.
 """
 from __future__ import annotations
 
@@ -23,9 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from softsbi.workflows.bestfit import read_best_fit
 from softsbi.workflows.runs import RunView, load_run
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
+from softsbi.core.store import RunStore
 from softsbi.workflows.defaults import VIEW_N_EVAL
 
 from softsbi.report.animation import draw_gif, import_rerun, log_rrd
@@ -35,6 +40,18 @@ from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 
 # ----------------------------------------------------------------------------------------
 # simulation shared by both outputs
+
+
+def best_fit_rollout(run_dir: str | Path) -> dict[str, Any] | None:
+    """The fit's stored best fit (:func:`~softsbi.workflows.bestfit.read_best_fit`) as the animation draws it:
+    ``{"vertices", "faces", "chamfer" (T,) m, "label"}``; None when the run stored no best-fit rollout."""
+    b = read_best_fit(RunStore.open(Path(run_dir) / "run.zarr"))
+    if b is None or b.vertices is None:
+        return None
+    unit = "cm" if b.unit == "m" else b.unit
+    value = b.value * 100 if b.unit == "m" else b.value
+    return {"vertices": np.asarray(b.vertices, float), "faces": np.asarray(b.faces, int),
+            "chamfer": np.asarray(b.per_frame, float), "label": f"best fit ({b.source}, {value:.2f} {unit})"}
 
 
 def posterior_rollouts(run_dir: str | Path, n_eval: int = VIEW_N_EVAL,
@@ -103,7 +120,8 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval:
         SoftsbiError: see :func:`posterior_rollouts`.
     """
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
-    return draw_gif(view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.gif", fps)
+    return draw_gif(view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.gif", fps,
+                    best=best_fit_rollout(run_dir))
 
 
 # ----------------------------------------------------------------------------------------
@@ -139,7 +157,8 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int
     """
     rr = import_rerun()
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
-    return log_rrd(rr, view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.rrd")
+    return log_rrd(rr, view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.rrd",
+                   best=best_fit_rollout(run_dir))
 
 
 # ----------------------------------------------------------------------------------------
@@ -177,10 +196,11 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
             out["rrd_missing"] = str(exc)
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     run_dir = Path(run_dir)
+    best = best_fit_rollout(run_dir)
     if gif:
-        out["gif"] = draw_gif(view, rollouts, ch, run_dir / "view.gif", fps)
+        out["gif"] = draw_gif(view, rollouts, ch, run_dir / "view.gif", fps, best=best)
     if rr is not None:
-        out["rrd"] = log_rrd(rr, view, rollouts, ch, run_dir / "view.rrd")
+        out["rrd"] = log_rrd(rr, view, rollouts, ch, run_dir / "view.rrd", best=best)
     mean = ch.mean(0)
     frames = view.metric_frames  # the fit's headline averages its own frames (report.json, check)
     out.update({"times_s": view.scenario.times.tolist(), "chamfer_per_frame_m": mean.tolist(),

@@ -34,15 +34,20 @@ def _cases(width_factor: float, n: int = 300, L: int = 400, seed: int = 0):
 def test_coverage_and_verdict_tell_calibrated_from_over_and_under_confident(factor, verdict):
     truth, draws, hpd = _cases(factor)
     n = len(hpd)
-    for level in (0.5, 0.9):
-        cov = cal.expected_coverage(hpd, [level])[0]
-        assert cal.coverage_verdict(cov, n, level) == verdict, (level, cov)
-    ks = cal.rank_tests(cal.sbc_ranks(truth, draws), draws.shape[1], 10)["ks_pvalue"]
+    ranks = cal.sbc_ranks(truth, draws)
+    tarp = cal.tarp_coverage(truth, draws, np.random.default_rng(1))
+    v = cal.verdict(cal.expected_coverage(hpd), n, tarp, ranks, draws.shape[1], 10, ["a", "b"])
+    for level in ("at_50", "at_90"):
+        assert v["coverage"][level]["verdict"] == verdict, (level, v["coverage"][level])
+    assert v["calibrated"] == (verdict == "calibrated")
+    if verdict != "calibrated":  # both marginals are named by the width of their ranks
+        assert (v["too_narrow"] if factor < 1 else v["too_wide"]) == ["a", "b"]
+    ks = cal.rank_tests(ranks, draws.shape[1], 10)["ks_pvalue"]
     if verdict == "calibrated":
         assert min(ks) > 1e-3
     else:
         assert max(ks) < 1e-3
-    atc = cal.tarp_coverage(truth, draws, np.random.default_rng(1))["atc"]
+    atc = tarp["atc"]
     assert (abs(atc) < 0.05) if verdict == "calibrated" else ((atc < -0.02) if factor < 1 else (atc > 0.02))
 
 
@@ -74,6 +79,63 @@ def test_binomial_band_and_ranks():
     np.testing.assert_array_equal(ranks, [[2, 1]])
     b_lo, b_hi = cal.rank_band(200, 10)
     assert b_lo < 20 < b_hi
+
+
+def _ranks(u: np.ndarray, L: int = 1000) -> np.ndarray:
+    """SBC ranks ``0..L`` whose normalised values are ``u``."""
+    return np.floor(np.asarray(u) * (L + 1)).clip(0, L).astype(int)
+
+
+def test_verdict_names_too_narrow_too_wide_and_biased_parameters_and_never_says_calibrated_when_one_rejects():
+    """Hand-built SBC ranks: uniform, U-shaped (too narrow), hump-shaped (too wide), piled at the low end (biased
+    high); a calibrated coverage curve and TARP. The verdict names each by its shape and is not "calibrated"."""
+    rng = np.random.default_rng(0)
+    N, L = 300, 1000
+    ranks = np.stack([_ranks(rng.random(N)), _ranks(rng.beta(0.6, 0.6, N)), _ranks(rng.beta(2.5, 2.5, N)),
+                      _ranks(rng.beta(0.8, 1.6, N)), _ranks(1 - rng.beta(0.8, 1.6, N))], 1)
+    names = ["uniform", "yaw", "friction", "stretch", "mass"]
+    cov = cal.expected_coverage(np.linspace(0, 1, N, endpoint=False) + 0.5 / N)  # exactly calibrated
+    v = cal.verdict(cov, N, {"ks_pvalue": 0.5, "atc": 0.0}, ranks, L, 10, names)
+    assert not v["calibrated"] and v["verdict"].startswith("not calibrated: ")
+    assert v["too_narrow"] == ["yaw"] and v["too_wide"] == ["friction"] and v["biased"] == ["stretch", "mass"]
+    shapes = {p["name"]: p["shapes"] for p in v["sbc"]["parameters"]}
+    assert shapes["uniform"] == [] and shapes["stretch"][0] == "biased-high" and shapes["mass"][0] == "biased-low"
+    for n in names[1:]:
+        assert n in v["verdict"]
+    assert "uniform" not in v["verdict"] and "TARP" not in v["verdict"] and "joint coverage" not in v["verdict"]
+    assert not v["coverage"]["rejects"] and v["coverage"]["at_50"]["verdict"] == "calibrated"
+    # the level of each SBC test: alpha split over the 3 diagnostics, then over 4 tests x 5 parameters
+    assert np.isclose(v["sbc"]["level"], 0.05 / 3 / (4 * 5))
+    # every diagnostic alone keeps the verdict from "calibrated"
+    uni = _ranks(rng.random((N, 2)))
+    ok = cal.verdict(cov, N, {"ks_pvalue": 0.5, "atc": 0.0}, uni, L, 10, ["a", "b"])
+    assert ok["calibrated"] and ok["verdict"] == "calibrated" and not ok["too_narrow"] + ok["too_wide"] + ok["biased"]
+    tarp = cal.verdict(cov, N, {"ks_pvalue": 1e-6, "atc": -0.09}, uni, L, 10, ["a", "b"])
+    assert not tarp["calibrated"] and "TARP rejects (over-confident" in tarp["verdict"]
+    low = np.clip(cov - 0.12 * np.sin(np.pi * cal.LEVELS), 0, 1)  # below the diagonal: over-confident
+    joint = cal.verdict(low, N, {"ks_pvalue": 0.5, "atc": 0.0}, uni, L, 10, ["a", "b"])
+    assert not joint["calibrated"] and joint["coverage"]["direction"] == "over-confident"
+    assert joint["coverage"]["at_50"]["verdict"] == "over-confident" and "joint coverage over-confident" in joint["verdict"]
+    # a histogram with one bin outside the band the figure draws is named even when its moments look uniform
+    spike = uni.copy()
+    spike[:60, 1] = 455  # 60 of 300 ranks in bin 4 (expected 30)
+    sp = cal.verdict(cov, N, {"ks_pvalue": 0.5, "atc": 0.0}, spike, L, 10, ["a", "b"])
+    b = sp["sbc"]["parameters"][1]
+    assert 4 in b["bins_outside"] and b["rejects"] and not sp["calibrated"]
+    lo, hi = sp["sbc"]["band"]
+    assert (lo, hi) == cal.rank_band_simultaneous(N, 10, sp["sbc"]["level"]) and lo < 30 < hi < 60
+
+
+def test_verdict_keeps_its_family_wise_level_on_calibrated_estimators():
+    """Calibrated test sets (uniform HPD levels and ranks, TARP p uniform): "calibrated" in >= 95 % of them."""
+    N, L, n_sets = 200, 500, 300
+    wrong = 0
+    for k in range(n_sets):
+        rng = np.random.default_rng(100 + k)
+        v = cal.verdict(cal.expected_coverage(rng.random(N)), N, {"ks_pvalue": rng.random(), "atc": 0.0},
+                        _ranks(rng.random((N, 6)), L), L, 10, list("abcdef"))
+        wrong += not v["calibrated"]
+    assert wrong / n_sets <= 0.05 + 2 * np.sqrt(0.05 * 0.95 / n_sets), wrong
 
 
 def test_draws_in_box_stay_in_the_box_and_fail_without_mass():
@@ -142,7 +204,7 @@ def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validati
     cfg = {**FAST, "max_epochs": 15, "min_epochs": 2, "n_components": 2}
     plain = MDNNEstimator(**cfg)
     plain.fit(u, x, seed=2)
-    rec = MDNNEstimator(**{**cfg, "recalibrate": True})
+    rec = MDNNEstimator(**{**cfg, "recalibrate": True, "recal_marginals": False})  # the joint scale alone
     info = rec.fit(u, x, seed=2)["recalibration"]
     s = info["cov_scale"]
     assert s in MDNNEstimator.RECAL_SCALES and info["n_val"] == 24
@@ -157,7 +219,7 @@ def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validati
     by_scale = dict(zip(info["scales"], info["val_coverage_by_scale"]))
     assert all(any(c < r for c, r in zip(by_scale[t], info["required"])) for t in info["scales"] if t < s)
     # a margin of one binomial standard error asks for more coverage: the scale is never smaller
-    rec1 = MDNNEstimator(**{**cfg, "recalibrate": True, "recal_margin": 1.0})
+    rec1 = MDNNEstimator(**{**cfg, "recalibrate": True, "recal_margin": 1.0, "recal_marginals": False})
     info1 = rec1.fit(u, x, seed=2)["recalibration"]
     np.testing.assert_allclose(info1["required"], g + np.sqrt(g * (1 - g) / 24))
     assert info1["cov_scale"] >= s
@@ -169,10 +231,68 @@ def test_recalibrate_scales_the_covariances_by_the_factor_chosen_on_the_validati
     np.testing.assert_allclose(other.posterior_at(xt[0]).covariances, b.covariances, rtol=1e-6)
 
 
+def test_marginal_recalibration_fixes_too_wide_too_narrow_and_biased_marginals_and_keeps_a_mixture():
+    """Posteriors N(m_i, diag(0.1, 0.025)^2) of truths N(m_i + (0, 0.02), 0.05^2 I): parameter a's marginal is
+    twice too wide, b's twice too narrow and biased. The per-parameter scale and shift fitted on them (maximum
+    likelihood of the truths) are about (0.5, 0) and (2, 0.8 sd), and the recalibrated posteriors pass the
+    calibration verdict that rejected the original ones."""
+    from softsbi.inference.estimators import marginal_affine
+    from softsbi.inference.mdn import MDNParams
+    rng = np.random.default_rng(0)
+    n = 300
+    m = 0.3 + 0.4 * rng.random((n, 2))
+    truth = m + 0.05 * rng.standard_normal((n, 2)) + np.array([0.0, 0.02])
+    L = torch.zeros(n, 1, 2, 2, dtype=torch.float64)
+    L[:, 0, 0, 0], L[:, 0, 1, 1] = 0.1, 0.025
+    p = MDNParams(torch.zeros(n, 1, dtype=torch.float64), torch.as_tensor(m[:, None, :]), L)
+    est = MDNNEstimator()
+    info = est._recalibrate_marginals(p, truth)
+    assert abs(info["scale"][0] - 0.5) < 0.07 and abs(info["shift"][0]) < 0.15
+    assert abs(info["scale"][1] - 2.0) < 0.25 and abs(info["shift"][1] - 0.8) < 0.2
+    assert all(a < b for a, b in zip(info["val_nll_after"], info["val_nll_before"]))
+    assert max(info["lr_pvalue"]) < 1e-6
+    # a calibrated marginal is left as trained: the likelihood-ratio test of s = 1, b = 0 does not reject
+    L3 = torch.zeros(n, 1, 3, 3, dtype=torch.float64)
+    L3[:, 0, :2, :2] = L[:, 0]
+    L3[:, 0, 2, 2] = 0.05
+    m3 = np.concatenate([m, 0.5 + 0.05 * rng.standard_normal((n, 1))], 1)
+    p3 = MDNParams(torch.zeros(n, 1, dtype=torch.float64), torch.as_tensor(m3[:, None, :]), L3)
+    info3 = MDNNEstimator()._recalibrate_marginals(p3, np.concatenate([truth, np.full((n, 1), 0.5)], 1))
+    assert info3["lr_pvalue"][2] > 0.05 and (info3["scale"][2], info3["shift"][2]) == (1.0, 0.0)
+    q = marginal_affine(p, *est._marginal)
+    np.testing.assert_allclose(q.scale_tril[:, 0, 0, 0], 0.1 * info["scale"][0])
+    np.testing.assert_allclose(q.means[:, 0, 1], m[:, 1] + info["shift"][1] * 0.025, atol=1e-12)
+
+    def judged(params: MDNParams) -> dict:
+        draws = np.stack([cal.draws_in_box(mix, 400, rng) for mix in params.to_mixtures()])
+        return cal.verdict(cal.expected_coverage(rng.random(n)), n, {"ks_pvalue": 0.5, "atc": 0.0},
+                           cal.sbc_ranks(truth, draws), 400, 10, ["a", "b"])
+
+    before, after = judged(p), judged(q)
+    assert before["too_wide"] == ["a"] and before["too_narrow"] + before["biased"] == ["b"] * 2
+    assert after["calibrated"], after["verdict"]
+
+
+def test_recal_marginals_is_stored_and_restored_with_the_estimator():
+    u, x = blob_task(160, seed=0)
+    _, xt = blob_task(2, seed=1)
+    cfg = {**FAST, "max_epochs": 15, "min_epochs": 2, "n_components": 2, "recalibrate": True}
+    est = MDNNEstimator(**cfg)
+    info = est.fit(u, x, seed=2)["recalibration"]
+    marg = info["marginals"]
+    assert len(marg["scale"]) == 2 and all(1 / 3 <= s <= 3 for s in marg["scale"])
+    again = MDNNEstimator()
+    again.load_state_dict(est.state_dict())
+    np.testing.assert_allclose(again.posterior_at(xt[0]).means, est.posterior_at(xt[0]).means, rtol=1e-6)
+    joint = MDNNEstimator(**{**cfg, "recal_marginals": False})
+    assert "marginals" not in joint.fit(u, x, seed=2)["recalibration"]
+
+
 def test_rkhs_defaults_to_a_recalibrated_ensemble_and_the_baselines_to_one_network():
     from softsbi.inference.baselines import NNBulkEstimator
     from softsbi.inference.estimators import RKHSEstimator
     assert RKHSEstimator.defaults()["ensemble"] == 5 and RKHSEstimator.defaults()["recalibrate"] is True
+    assert RKHSEstimator.defaults()["recal_marginals"] is True  # issue 56: each marginal recalibrated first
     # issue 16: the shared-trunk ensemble is the default (calibrated on four fresh data sets, 7-8x cheaper)
     assert {k: RKHSEstimator.defaults()[k] for k in RKHSEstimator.SHARED_TRUNK} == RKHSEstimator.SHARED_TRUNK
     for cls in (NNBulkEstimator, BayesZoomRKHSEstimator, MDNNEstimator):

@@ -71,7 +71,8 @@ def test_cli_calibrate_table_and_json(toy_run):
     res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1"])
     assert res.exit_code == 0, res.output
     assert "verdict:" in res.output and "90%" in res.output and "calibration.png" in res.output
-    assert "whole curve:" in res.output and "simultaneous 95% band over 19 levels" in res.output
+    assert "joint coverage (HPD):" in res.output and "simultaneous 98.3% band over 19 levels" in res.output
+    assert "TARP: KS p=" in res.output and "SBC per parameter" in res.output
     res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1",
                               "--json"])
     assert res.exit_code == 0, res.output

@@ -1,6 +1,7 @@
 """``softsbi view``: the GIF and the rerun recording of a finished fit's posterior-predictive rollouts."""
 from __future__ import annotations
 
+import json
 import sys
 
 import numpy as np
@@ -142,9 +143,11 @@ def test_rrd_has_the_entities_on_a_time_timeline(lift_run):
     paths = set(RrdReader(p).store().schema().entity_paths())
     expected = {"/world/measured", "/world/gripper", "/world/gripper_path", "/error/chamfer_cm"}
     expected |= {f"/world/posterior/{i}" for i in range(S)} | {f"/error/rollouts/{i}" for i in range(S)}
+    expected |= {"/world/best_fit", "/error/best_fit_cm"}  # the fit's best fit, its rollout stored in the run
     assert expected <= paths
     chunks = _read_rrd(p)
-    for ent in ("/world/measured", "/world/gripper", "/world/posterior/0", "/error/chamfer_cm"):
+    for ent in ("/world/measured", "/world/gripper", "/world/posterior/0", "/error/chamfer_cm", "/world/best_fit",
+                "/error/best_fit_cm"):
         rows = sum(c.num_rows for c in chunks[ent])
         assert rows == T, ent
         assert all(c.timeline_names == ["time"] for c in chunks[ent])
@@ -159,6 +162,10 @@ def test_rrd_has_the_entities_on_a_time_timeline(lift_run):
     view, _, ch = posterior_rollouts(lift_run, n_eval=S, workers=1)
     np.testing.assert_allclose([r[0] for r in rows], view.scenario.times, atol=1e-6)
     np.testing.assert_allclose([r[1] for r in rows], ch.mean(0) * 100, rtol=1e-6)
+    # the best fit's Chamfer per frame is the fit's own metric of its stored simulation (report.json)
+    best = [v[0] for c in chunks["/error/best_fit_cm"] for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
+    rep = json.loads((lift_run / "report.json").read_text())["best_fit"]
+    np.testing.assert_allclose(best, np.array(rep["chamfer_per_frame_m"]) * 100, rtol=1e-5)
 
 
 def test_write_view_both_from_one_simulation(lift_run, monkeypatch):
