@@ -27,10 +27,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from softsbi.core.distributions import PosteriorChain, RoundPosterior, TruncatedPrior
-from softsbi.core.errors import DataError, ParameterError, PosteriorError, SoftsbiError
+from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, RoundPosterior, TruncatedPrior
+from softsbi.core.errors import DataError, ParameterError, PosteriorDamaged, PosteriorError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
-from softsbi.core.store import ROUND_ARRAYS, RunStore
+from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
@@ -168,7 +168,8 @@ class FitConfig:
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
         plugin option that its plugin does not have or that is text where a number is expected
-        (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin)."""
+        (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin), or an
+        estimator that cannot be constructed (``DependencyMissing`` for its optional dependency)."""
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
         if self.sensor not in ("height", "camera"):
@@ -197,6 +198,7 @@ class FitConfig:
                                        ("estimator", self.estimator, self.estimator_options, "--estimator-opt"),
                                        ("executor", self.executor, self.executor_options, "executor option")):
             check_options(reg.get(kind, name), opts, f"{kind} '{name}' ({flag})")
+        reg.estimator(self.estimator)(**self.estimator_options)  # e.g. a missing optional dependency, named now
 
     def to_json(self) -> dict[str, Any]:
         """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""
@@ -673,11 +675,6 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     """:func:`run_fit` with the run directory's lock held."""
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
-    if not est_cls.mixture_posterior:
-        raise PosteriorError(f"estimator '{cfg.estimator}' gives a posterior that is not a Gaussian mixture, which "
-                             f"the run store of 'softsbi fit' keeps for every round; use --estimator rkhs (or mdnn, "
-                             f"sbi-npe) here, and '{cfg.estimator}' from Python (softsbi.plugins.registry()"
-                             f".estimator('{cfg.estimator}'))")
     exe_cls = reg.executor(cfg.executor)
     _, space = fit_param_space(cfg, recording.scenario)
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
@@ -878,8 +875,12 @@ class _Rounds:
         """The posterior at the observation after round ``r`` (stored once trained)."""
         cfg, store = self.cfg, self.store
         if store.is_complete(r):
-            return store.read_q(r), store.round_attrs(r).get("info", {})
-        est = self.est_cls(**estimator_options(cfg, self.est_cls))
+            try:
+                return round_posterior(store, r, cfg), store.round_attrs(r).get("info", {})
+            except PosteriorDamaged as exc:  # train the round again from its intact simulations
+                self.cb.message(f"{exc.problem}: training that round again from its stored simulations")
+        opts = estimator_options(cfg, self.est_cls)
+        est = self.est_cls(**opts)
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
         n_sensor, kw = 0, {}
         if self.sensor is not None:  # one simulation, K more observations at other sensor parameters
@@ -894,7 +895,8 @@ class _Rounds:
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
         info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
                     **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))
-        store.finish_round(r, q, info)
+        state = None if isinstance(q, MixtureOfGaussians) else EstimatorState(cfg.estimator, opts, est.state_dict())
+        store.finish_round(r, q, info, estimator=state)
         return q, info
 
     def _add_posterior(self, r: int, q: Any, counts: list[int]) -> RoundPosterior:
@@ -904,6 +906,26 @@ class _Rounds:
         # restricted to the prior box, with no importance weights
         self.chain = PosteriorChain(self.space.dim, seed=self.cfg.seed)
         return self.chain.add_round(q, sum(counts))
+
+
+def round_posterior(store: RunStore, r: int, cfg: FitConfig) -> Any:
+    """Round ``r``'s posterior ``q(u | x_obs)`` as the fit stored it (unit cube): the Gaussian mixture, or
+    the estimator restored from its stored state through the plugin registry (by name and options) and
+    conditioned on the run's observation at the fit's frames (``cfg``: the run's settings,
+    :meth:`FitConfig.from_run_config`).
+
+    Raises:
+        PosteriorDamaged: the stored posterior is missing or damaged (:meth:`RunStore.read_posterior`).
+        PluginNotFound: the estimator that wrote it is not installed. DependencyMissing: its optional
+            dependency is not.
+    """
+    stored = store.read_posterior(r)
+    if isinstance(stored, MixtureOfGaussians):
+        return stored
+    est = registry().estimator(stored.name)(**stored.options)
+    est.load_state_dict(stored.state)
+    fr = slice(None) if cfg.frames is None else list(cfg.frames)
+    return est.posterior_at(store.read_observed()["x"][fr])
 
 
 def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Rounds, ev_stats: dict[str, Any],
