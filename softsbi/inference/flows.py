@@ -27,6 +27,7 @@ command otherwise, so ``softsbi fit`` says so before simulating). Registered thr
 """
 from __future__ import annotations
 
+import copy
 import time
 from typing import Any, Callable, ClassVar, Mapping
 
@@ -46,6 +47,8 @@ __all__ = ["FlowEstimator", "FlowPosterior", "FlowNetwork", "zuko_available", "s
 
 STATE_FORMAT = "softsbi.flow/1"
 MIN_SAMPLES = 10
+#: rows per batch when a posterior draws or evaluates its density (bounds memory)
+BATCH = 16384
 FLOW_TYPES = ("nsf", "maf")
 
 def zuko_available() -> bool:
@@ -98,9 +101,36 @@ class FlowNetwork(nn.Module):
         """``log q(u_i | z_i)`` ``(B,)`` for standardised ``u (B, D)`` and inputs ``z (B, F)``."""
         return self.flow(self.embedding(z)).log_prob(u)
 
-    def sample(self, n: int, z: torch.Tensor) -> torch.Tensor:
-        """``(n, D)`` draws of standardised ``u`` at one input ``z (1, F)``."""
-        return self.flow(self.embedding(z)[0]).sample((n,))
+    def at(self, z: torch.Tensor) -> Any:
+        """The flow ``p(u | z)`` at one input ``z (1, F)``: a zuko ``NormalizingFlow`` (``sample(shape)``,
+        ``log_prob(u (B, D))``) over standardised ``u``.
+
+        Every conditioner's input layer gets the context's share folded into its bias,
+        ``W [u; c] + b = W_u u + (W_c c + b)``: the same density, but no draw carries the ``F`` context
+        features through it (an autoregressive flow runs its conditioners ``D`` times per draw, so with
+        BayesSim summaries, ``F`` ~ 10^3, this makes sampling several times faster). A transform that is not
+        a masked autoregressive one (``D = 1``) keeps the context as it is.
+        """
+        from zuko.distributions import NormalizingFlow
+        from zuko.nn import MaskedLinear
+        from zuko.transforms import ComposedTransform
+
+        c = self.embedding(z)[0]
+        parts = []
+        for t in self.flow.transform.transforms:
+            first = getattr(t, "hyper", [None])[0]
+            if not isinstance(first, MaskedLinear):
+                parts.append(t(c))
+                continue
+            w = first.mask * first.weight  # columns: the D features, then the context (zuko's layout)
+            d = w.shape[1] - c.shape[-1]
+            lin = torch.nn.utils.skip_init(nn.Linear, d, w.shape[0])  # no draw from torch's generator
+            lin.weight, lin.bias = nn.Parameter(w[:, :d]), nn.Parameter(first.bias + w[:, d:] @ c)
+            folded = copy.copy(t)
+            folded._modules = dict(t._modules)  # a copy of the module table: the estimator's own stays intact
+            folded.hyper = nn.Sequential(lin, *list(t.hyper)[1:])
+            parts.append(folded(None))
+        return NormalizingFlow(ComposedTransform(*parts), self.flow.base(None))
 
 
 class FlowPosterior(Distribution):
@@ -116,13 +146,25 @@ class FlowPosterior(Distribution):
         self._est = estimator
         self._z = np.asarray(z, np.float32).reshape(1, -1)
         self.dim = int(estimator._u_mean.shape[0])
+        self._flow: Any = None
+
+    def _at(self) -> Any:
+        """The network's flow at this observation (:meth:`FlowNetwork.at`), built once."""
+        if self._flow is None:
+            with torch.no_grad():
+                self._flow = self._est._net.at(torch.as_tensor(self._z))
+        return self._flow
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` draws ``(n, D)`` (float64, unit-cube coordinates); seeded by ``rng``."""
         est = self._est
+        out = []
         with torch_threads(est._threads()), torch.no_grad(), torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(rng.integers(2**62)))  # zuko draws from torch's global generator
-            s = est._net.sample(int(n), torch.as_tensor(self._z)).double().numpy()
+            flow = self._at()
+            for i in range(0, int(n), BATCH):
+                out.append(flow.sample((min(BATCH, int(n) - i),)).double().numpy())
+        s = np.concatenate(out) if out else np.zeros((0, self.dim))
         return s * est._u_std.astype(np.float64) + est._u_mean.astype(np.float64)
 
     def log_prob(self, u: np.ndarray) -> np.ndarray:
@@ -134,9 +176,9 @@ class FlowPosterior(Distribution):
         us = ((u - est._u_mean) / est._u_std).astype(np.float32)
         out = []
         with torch_threads(est._threads()), torch.no_grad():
-            for i in range(0, len(us), 4096):
-                b = torch.as_tensor(us[i:i + 4096])
-                out.append(est._net.log_prob(b, torch.as_tensor(self._z).expand(len(b), -1)).double().numpy())
+            flow = self._at()
+            for i in range(0, len(us), BATCH):
+                out.append(flow.log_prob(torch.as_tensor(us[i:i + BATCH])).double().numpy())
         lp = np.concatenate(out) if out else np.zeros(0)
         return lp - float(np.log(est._u_std.astype(np.float64)).sum())
 

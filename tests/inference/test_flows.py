@@ -60,6 +60,27 @@ def test_sampling_is_seeded(fitted: FlowEstimator) -> None:
     assert not np.allclose(a, c)
 
 
+@pytest.mark.parametrize("kind", ["nsf", "maf"])
+def test_the_flow_at_an_observation_is_the_conditional_flow(kind: str) -> None:
+    """FlowNetwork.at folds the context into the conditioners' biases: the same density as the network's own
+    conditional flow, and the network is left as it was."""
+    import torch
+
+    from softsbi.inference.flows import FlowNetwork
+
+    torch.manual_seed(0)
+    net = FlowNetwork(40, 3, kind, transforms=2, hidden=(16, 16), bins=4, embedding=(8,))
+    z = torch.randn(1, 40)
+    u = torch.randn(50, 3)
+    with torch.no_grad():
+        before = net.log_prob(u, z.expand(50, -1))
+        flow = net.at(z)
+        torch.testing.assert_close(flow.log_prob(u), before, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(net.log_prob(u, z.expand(50, -1)), before)
+        s = flow.sample((7,))
+        assert s.shape == (7, 3) and torch.isfinite(s).all()
+
+
 def test_state_dict_round_trip(fitted: FlowEstimator) -> None:
     state = fitted.state_dict()
     other = FlowEstimator()
