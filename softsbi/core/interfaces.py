@@ -356,7 +356,7 @@ class Simulator(ABC):
         from softsbi.core.camera import Camera, RenderStyle
         from softsbi.core.errors import DataError
         if not isinstance(camera, Camera):
-            raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. default_camera('wipe', 128)), "
+            raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. scenario_camera(load_scenario('wipe'), 128)), "
                             f"got {type(camera).__name__}")
         if np.linalg.det(camera.R) < 0:
             raise DataError("camera.world_to_cam's 3x3 block is a reflection (det = -1), not a rotation: the "

@@ -37,7 +37,7 @@ from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, co
 from softsbi.perception.masks import hsv_mask
 from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
 from softsbi.workflows.lock import run_lock
 
@@ -59,13 +59,21 @@ RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "h
 #: scenario options that say where a scenario was read from, not what it is: a run resumes whatever path the
 #: same scenario file is read from now (a moved checkout, another install of softsbi)
 SCENARIO_PROVENANCE = ("source", "file")
+#: what a scenario declares for seeing it: its cameras and figures' view, and where the visual arm of rendered
+#: images stands. The simulated states do not depend on them (rendered images do, and an image fit compares its
+#: camera through its observer options); runs written before scenarios declared them derived the same from the
+#: scenario's name
+SCENARIO_PRESENTATION = ("cameras", "view")
+SCENARIO_PRESENTATION_OPTIONS = ("robot_base",)
 
 
 def resume_identity(key: str, value: Any) -> Any:
     """What a resume compares of a stored setting: the value itself, except the scenario without its
-    provenance options (:data:`SCENARIO_PROVENANCE`)."""
+    provenance options (:data:`SCENARIO_PROVENANCE`) and presentation (:data:`SCENARIO_PRESENTATION`)."""
     if key == "scenario" and isinstance(value, dict) and isinstance(value.get("options"), dict):
-        return {**value, "options": {k: v for k, v in value["options"].items() if k not in SCENARIO_PROVENANCE}}
+        drop = SCENARIO_PROVENANCE + SCENARIO_PRESENTATION_OPTIONS
+        return {**{k: v for k, v in value.items() if k not in SCENARIO_PRESENTATION},
+                "options": {k: v for k, v in value["options"].items() if k not in drop}}
     return value
 
 
@@ -430,10 +438,16 @@ def needs_images(cfg: FitConfig) -> bool:
 
 def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     """Constructor options of the observer for this fit: K and the sensor's visibility for point
-    clouds; extractor checkpoint, camera and scenario for image observers."""
+    clouds (with an occluding obstacle, the scenario camera's position as the viewpoint); extractor
+    checkpoint and camera (the scenario's, :func:`~softsbi.scenarios.cameras.scenario_camera`) for image
+    observers.
+
+    Raises:
+        DataError: the scenario declares no camera where one is needed."""
     if needs_images(cfg):
         opts = dict(cfg.observer_options)
-        opts.setdefault("scenario", scenario.name)
+        if "camera" not in opts:  # the scenario's own camera (its file's cameras:)
+            opts["camera"] = scenario_camera(scenario, int(opts.get("size", 128))).to_json()
         if "extractor" in opts:
             opts["extractor"] = str(Path(opts["extractor"]).resolve())
         return opts
@@ -443,8 +457,8 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     elif cfg.min_height:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
     spool = (scenario.object or {}).get("spool")
-    if spool and cfg.observer == "pointcloud":  # the wind scenario: the spool hides part of the rope
-        opts["viewpoint"] = [float(v) for v in default_camera(scenario.name).position]
+    if spool and cfg.observer == "pointcloud":  # an occluding obstacle (wind's spool) hides what is behind it
+        opts["viewpoint"] = [float(v) for v in scenario_camera(scenario).position]  # as seen by its camera
         opts["occluder"] = {"centre": list(spool["centre"]), "radius": float(spool["radius"]),
                             "z0": float(scenario.table_z), "height": float(spool["height"])}
     opts.update(cfg.observer_options)
