@@ -49,6 +49,7 @@ VARIANTS = {"rkhs": ("rkhs", ONE), "rkhs-recal": ("rkhs", {**ONE, "recalibrate":
             # the default ensemble trained as one stacked network
             "rkhs-ens5-recal-stacked": ("rkhs", {**OLD, "ensemble": 5, "recalibrate": True, "stack_members": True}),
             "mdnn": ("mdnn", {}), "mdnn-recal": ("mdnn", {"recalibrate": True}),
+            "flow": ("flow", {}),  # neural posterior estimation with a zuko NSF, its defaults
             "mdnn-ens5": ("mdnn", {"ensemble": 5}), "mdnn-ens5-recal": ("mdnn", {"ensemble": 5, "recalibrate": True})}
 
 

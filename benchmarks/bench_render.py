@@ -27,7 +27,7 @@ import numpy as np
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import wipe_scenario
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.perception.render import save_frames_png
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +55,7 @@ def bench(sizes, repeats, grid=9):
         sim.simulate(sc, th)  # warm-up (imports, clients)
         t_sim, _ = _median_time(lambda sim=sim, th=th: sim.simulate(sc, th), repeats)
         for size in sizes:
-            cam = default_camera("wipe", size)
+            cam = scenario_camera(sc, size)
             sim.simulate_images(sc, th, cam)  # warm-up (GL context)
             renders = []
             t_img, _ = _median_time(lambda sim=sim, th=th, cam=cam: sim.simulate_images(sc, th, cam), repeats)
@@ -85,7 +85,7 @@ def table(rows):
 
 def figures(size=192, n=6, grid=9):
     sc = wipe_scenario()
-    cam = default_camera("wipe", size)  # +x (the drag direction, towards the robot) at the image top
+    cam = scenario_camera(sc, size)  # +x (the drag direction, towards the robot) at the image top
     idx = np.linspace(0, sc.n_frames - 1, n).round().astype(int)
     for name, cls in BACKENDS.items():
         sim = cls(grid=grid)

@@ -6,7 +6,7 @@ only ``masks`` differs.
 
 Data (``--data``):
     * ``rendered`` (default when available): ``MujocoFlex().simulate_images`` of the ``wipe`` scenario
-      (``make_scenario('wipe')``) through ``default_camera('wipe', size)``, at parameters drawn
+      (``make_scenario('wipe')``) through its camera (``scenario_camera(scenario, size)``), at parameters drawn
       uniformly within ``MujocoFlex().param_space(scenario)`` (``ParamSpace.sample_prior``, log-uniform
       for log-scaled parameters). Robot mask = ``segmentation == SEG_ROBOT``; cloth mask =
       ``segmentation == SEG_OBJECT``.
@@ -95,12 +95,12 @@ def rendered_sequences(n_rollouts: int, size: int, seed: int, grid: int) -> dict
     """Rendered mujoco-flex wipe rollouts at prior samples (failed rollouts skipped, at most 2x tries)."""
     from softsbi.backends.mujoco_flex import MujocoFlex
     from softsbi.scenarios.builtin import make_scenario
-    from softsbi.scenarios.cameras import default_camera
+    from softsbi.scenarios.cameras import scenario_camera
     from softsbi.perception.render import robot_mask_from_depth
 
     sim = MujocoFlex(grid=grid)
     sc = make_scenario("wipe")
-    cam = default_camera("wipe", size)
+    cam = scenario_camera(sc, size)
     space = sim.param_space(sc)
     rng = np.random.default_rng(seed)
     out: dict[str, list] = {k: [] for k in ("images", "cloth_masks", "robot_masks", "sequence_ids", "theta")}
@@ -219,8 +219,8 @@ def main() -> None:
     n_all = args.rollouts + args.test_rollouts
     if data == "rendered":
         ds = rendered_sequences(n_all, args.size, args.seed, args.grid)
-        source = (f"mujoco-flex (grid {args.grid}) simulate_images, scenario wipe, default_camera('wipe', "
-                  f"{args.size}), theta ~ uniform/log-uniform prior of MujocoFlex().param_space")
+        source = (f"mujoco-flex (grid {args.grid}) simulate_images, scenario wipe, its camera at "
+                  f"{args.size} px, theta ~ uniform/log-uniform prior of MujocoFlex().param_space")
     else:
         ds = synthetic_sequences(n_all, 31, args.size, args.seed)
         source = ("synthetic cv2 sequences (benchmarks/bench_transporter.py:synthetic_sequences): salmon table, "

@@ -326,22 +326,14 @@ def rgba(c: Sequence[int]) -> list[float]:
 def robot_base(scenario: Scenario) -> np.ndarray:
     """World point ``(3,)`` m the visual arm reaches towards (the robot's shoulder).
 
-    ``scenario.options["robot_base"]`` when given; ``lift``: the real robot base (robot-frame
-    origin, shoulder 0.33 m up) mapped with the recording's real->lift transform; ``wipe``: 0.45 m
-    beyond the stroke's far end along the drag direction +x (the cloth trails away from the robot,
-    as in the real wiping images); ``fling``/``winding``/others: behind the workspace along +y.
+    ``scenario.options["robot_base"]``, which a scenario file declares with ``robot: {base, frame}``
+    (the built-in lift: the real robot's shoulder mapped from the robot frame; wipe: beyond the stroke's
+    far end); otherwise behind the workspace along +y, :data:`SHOULDER_HEIGHT` above the table.
     """
     if "robot_base" in scenario.options:
         return np.asarray(scenario.options["robot_base"], dtype=float).reshape(3)
     g = scenario.gripper
-    tz = float(scenario.table_z)
-    if scenario.name == "lift":
-        from softsbi.scenarios.builtin import DEFAULT_TRANSFORM, real_to_lift_frame
-        cfg = scenario.options.get("transform", DEFAULT_TRANSFORM)
-        return real_to_lift_frame(np.array([0.0, 0.0, 0.33]), cfg)
-    if scenario.name == "wipe":
-        return np.array([g[:, 0].max() + 0.45, g[:, 1].mean(), tz + SHOULDER_HEIGHT])
-    return np.array([g[:, 0].mean(), g[:, 1].max() + 0.55, tz + SHOULDER_HEIGHT])
+    return np.array([g[:, 0].mean(), g[:, 1].max() + 0.55, float(scenario.table_z) + SHOULDER_HEIGHT])
 
 
 def _frame_from_x(x: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ H_MAX_NULL = ("cap of the adaptive null: when 1/(n+1) > alpha and the first n po
               "p <= 0.1, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
 H_ALPHA = "family-wise significance level of the verdicts (the tolerated false-alarm rate)"
 H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
-H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
+H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, flow, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
                "sbi-npe (`softsbi plugins` lists the installed ones)")
 H_PROPOSAL = ("how later rounds draw parameters: truncated (TSNPE: from the prior truncated to the posterior's "
               "99.9% region; robust in many dimensions) or corrected (the paper's BayesSim: from the posterior "

@@ -98,7 +98,9 @@ class MixtureOfGaussians:
 
 
 class Distribution:
-    """Interface of a proposal / posterior over the unit cube."""
+    """Interface of a proposal / posterior over the unit cube: ``dim``, ``sample(n, rng)`` ``(n, D)`` and
+    ``log_prob(u (n, D))`` ``(n,)``. Everything in this module (the proposal correction, truncated
+    proposals) uses a round's posterior through these alone."""
 
     def log_prob(self, u: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -159,7 +161,7 @@ class PosteriorChain:
         self.dim = dim
         self.n_norm = n_norm
         self.seed = seed
-        self.qs: list[MixtureOfGaussians] = []
+        self.qs: list[Distribution] = []
         self.counts: list[float] = []
         self.log_z: list[float] = []
 
@@ -184,9 +186,10 @@ class PosteriorChain:
             posts.append(np.where(inside, lp, -np.inf))
         raise AssertionError("unreachable")
 
-    def add_round(self, q: MixtureOfGaussians, count: float) -> "RoundPosterior":
-        """Append round ``k = len(self)`` trained on data whose newest ``count`` usable
-        simulations came from the current proposal; returns ``post_k``."""
+    def add_round(self, q: "Distribution", count: float) -> "RoundPosterior":
+        """Append round ``k = len(self)``, whose ``q(u | x_obs)`` (a :class:`MixtureOfGaussians` or any
+        :class:`Distribution` with ``dim``) was trained on data whose newest ``count`` usable simulations
+        came from the current proposal; returns ``post_k``."""
         if q.dim != self.dim:
             raise ShapeError(f"q has dimension {q.dim}, chain has {self.dim}")
         k = len(self.qs)
@@ -214,7 +217,8 @@ class RoundPosterior(Distribution):
         self.chain, self.k = chain, k
 
     @property
-    def q(self) -> MixtureOfGaussians:
+    def q(self) -> Distribution:
+        """The estimator's ``q(u | x_obs)`` of this round."""
         return self.chain.qs[self.k]
 
     def _log_w(self, u: np.ndarray) -> np.ndarray:

@@ -39,6 +39,18 @@ class SchemaError(SoftsbiError):
     """A run store or data folder does not have the expected layout or version."""
 
 
+class PosteriorDamaged(SchemaError):
+    """A round's posterior in a run store is missing, unreadable or does not match its checksum.
+
+    Attributes:
+        problem: what is wrong, without the fix (the message is ``"<problem>; <fix>"``).
+    """
+
+    def __init__(self, problem: str, fix: str):
+        super().__init__(f"{problem}; {fix}")
+        self.problem = problem
+
+
 class DataError(SoftsbiError, ValueError):
     """Observed data is missing, malformed or non-finite."""
 

@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterable, Mapping, Se
 
 import numpy as np
 
-from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.types import Observation, ParamSpace, Rollout, Scenario
 
 if TYPE_CHECKING:
@@ -357,7 +356,7 @@ class Simulator(ABC):
         from softsbi.core.camera import Camera, RenderStyle
         from softsbi.core.errors import DataError
         if not isinstance(camera, Camera):
-            raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. default_camera('wipe', 128)), "
+            raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. scenario_camera(load_scenario('wipe'), 128)), "
                             f"got {type(camera).__name__}")
         if np.linalg.det(camera.R) < 0:
             raise DataError("camera.world_to_cam's 3x3 block is a reflection (det = -1), not a rotation: the "
@@ -456,9 +455,12 @@ class PosteriorEstimator(ABC):
     unordered points). The sequential loop applies the proposal correction; estimators only fit
     ``q`` (BayesSim, Ramos et al. RSS 2019, Sec. 3; Antonova et al. RA-L 2022, Sec. IV).
 
-    Implementing one: subclass, implement :meth:`fit` and :meth:`posterior_at` (and
-    :meth:`state_dict` / :meth:`load_state_dict` to persist), and register the class through the
-    ``softsbi_estimators`` hook.
+    Implementing one: subclass, implement :meth:`fit`, :meth:`posterior_at`, :meth:`state_dict` and
+    :meth:`load_state_dict`, and register the class through the ``softsbi_estimators`` hook. The
+    posterior may be any distribution over the unit-cube coordinates with ``dim``, ``sample(n, rng)``
+    and ``log_prob(u)`` (:class:`~softsbi.core.distributions.Distribution`); the run store of
+    ``softsbi fit`` keeps a Gaussian mixture as its arrays and any other posterior as the estimator's
+    state, restored by plugin name and options (:meth:`~softsbi.core.store.RunStore.finish_round`).
 
     Renamed method (rule for estimators written before the rename): ``conditional(x_obs)`` is now
     :meth:`posterior_at`. The base class keeps :meth:`conditional` as a deprecated alias that calls
@@ -470,15 +472,10 @@ class PosteriorEstimator(ABC):
     Class attributes:
         name: plugin name (``"rkhs"``).
         sequential: whether the estimator is meant for rounds (False for bulk baselines).
-        mixture_posterior: whether :meth:`posterior_at` gives a Gaussian mixture
-            (:class:`~softsbi.core.distributions.MixtureOfGaussians`). The run store of ``softsbi fit``
-            keeps every round's posterior as one, so the fit workflow refuses an estimator with
-            False before simulating; such an estimator (e.g. a normalising flow) is for the Python API.
     """
 
     name: ClassVar[str]
     sequential: ClassVar[bool] = True
-    mixture_posterior: ClassVar[bool] = True
 
     def __new__(cls, *args: Any, **kwargs: Any):
         if not (cls._overrides("posterior_at") or cls._overrides("conditional")):
@@ -516,9 +513,10 @@ class PosteriorEstimator(ABC):
             ShapeError: shapes not as above. DataError: non-finite values or too few simulations.
         """
 
-    def posterior_at(self, x_obs: np.ndarray) -> MixtureOfGaussians:
-        """The posterior ``q(theta_unit | x_o)`` at one observation ``x_o = x_obs`` ``(T, 1+K, 3)``, as a
-        Gaussian mixture over the (unbounded) unit-cube coordinates.
+    def posterior_at(self, x_obs: np.ndarray) -> Any:
+        """The posterior ``q(theta_unit | x_o)`` at one observation ``x_o = x_obs`` ``(T, 1+K, 3)`` over the
+        (unbounded) unit-cube coordinates: a :class:`~softsbi.core.distributions.MixtureOfGaussians`, or any
+        distribution with ``dim``, ``sample(n, rng)`` and ``log_prob(u)`` (e.g. a normalising flow).
 
         Subclasses implement this. The default exists only for estimators written before the rename:
         it calls their overridden :meth:`conditional`.
@@ -531,7 +529,7 @@ class PosteriorEstimator(ABC):
             return self.conditional(x_obs)
         raise NotImplementedError(f"{type(self).__name__} must implement posterior_at(x_obs)")
 
-    def conditional(self, x_obs: np.ndarray) -> MixtureOfGaussians:
+    def conditional(self, x_obs: np.ndarray) -> Any:
         """Deprecated alias of :meth:`posterior_at` (same arguments, result and errors).
 
         Warns:
@@ -544,7 +542,9 @@ class PosteriorEstimator(ABC):
         return self.posterior_at(x_obs)
 
     def state_dict(self) -> dict[str, Any]:
-        """Everything needed to restore the fitted estimator (for the run store)."""
+        """Everything needed to restore the fitted estimator: NumPy arrays, numbers, strings, None, and
+        dicts and lists of them (the run store keeps it for a posterior that is not a Gaussian mixture;
+        :meth:`load_state_dict` then receives the arrays as NumPy arrays and tuples as lists)."""
         return {}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:

@@ -8,7 +8,11 @@ Layout (schema ``softsbi.run``, version :data:`SCHEMA_VERSION`)::
     rounds/<r>/ theta (N, D) physical units, u (N, D) unit cube, seed (N,),
                 x (N, T, 1+K, 3) m, status (N,) uint8 (255 = pending), chamfer (N, T) m
                 attrs: begun, complete, failures {i: reason}, train info
-                posterior/ weights (C,), means (C, D), scale_tril (C, D, D)   [q(u | x_obs)]
+                posterior/   q(u | x_obs), format POSTERIOR_FORMAT, sha256 checksum of its content:
+                    kind "mixture": weights (C,), means (C, D), scale_tril (C, D, D) (unit cube)
+                    kind "estimator": the state of the estimator that gives it (any estimator):
+                        attrs estimator (plugin name), options, state (the state dict with
+                        every array replaced by {"$array": name}); state/<name> the arrays
     evaluation/ theta, u, status, chamfer  (rollouts at final-posterior samples)
     refine/     u, theta, seed, generation, status, chamfer  (``fit --refine``: CMA-ES rows, one per chunk)
     best_fit/   theta, u, chamfer, vertices, faces, gripper  (the fit's best simulation and its rollout)
@@ -21,11 +25,19 @@ Every array carries ``units`` in its attributes and dimension names. Simulation 
 are chunked one simulation per chunk and Zarr's local store writes each chunk atomically
 (temporary file + rename), so a run killed at any point resumes with every finished
 simulation kept; a round is marked ``complete`` only after its posterior is written.
+A round's posterior is read back only when its checksum matches (:meth:`RunStore.read_posterior`):
+a damaged or missing posterior is named in one line, never used.
+
+Version 2 added the posterior's ``kind``, ``format`` and ``checksum``; version-1 runs (every
+posterior a mixture, no checksum) are read as they are.
 """
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
+import json
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -33,12 +45,15 @@ import numpy as np
 import zarr
 
 from softsbi.core.distributions import MixtureOfGaussians
-from softsbi.core.errors import SchemaError
+from softsbi.core.errors import PosteriorDamaged, SchemaError
 from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
-SCHEMA_VERSION = 1
-
+SCHEMA_VERSION = 2
+#: the schema versions this softsbi reads (version 1: no posterior kinds or checksums)
+READABLE_VERSIONS = (1, 2)
+#: format of a round's ``posterior`` group
+POSTERIOR_FORMAT = "softsbi.posterior/1"
 
 
 #: the arrays every round holds (:meth:`RunStore.round_data`); a fit with sensor draws adds ``sensor_u``, ``sensor_x``
@@ -109,9 +124,9 @@ class RunStore:
         if schema != SCHEMA:
             raise SchemaError(f"'{path}' is a Zarr store but not a softsbi run (schema={schema!r}); "
                               f"point at a run.zarr written by `softsbi fit`")
-        if version != SCHEMA_VERSION:
-            raise SchemaError(f"run store '{path}' has schema version {version}, this softsbi reads version "
-                              f"{SCHEMA_VERSION}; re-run the fit into a new --out folder with this version, or "
+        if version not in READABLE_VERSIONS:
+            raise SchemaError(f"run store '{path}' has schema version {version}, this softsbi reads versions "
+                              f"{list(READABLE_VERSIONS)}; re-run the fit into a new --out folder with this version, or "
                               f"install the softsbi version that wrote it ({root.attrs.get('softsbi_version')})")
         _check_metadata(path, root)
         return cls(path, root)
@@ -255,19 +270,87 @@ class RunStore:
     def pending(self, r: int) -> np.ndarray:
         return np.nonzero(self._round(r)["status"][...] == STATUS_PENDING)[0]
 
-    def finish_round(self, r: int, q: MixtureOfGaussians, info: Mapping[str, Any]) -> None:
-        """Write ``q(u | x_obs)`` and training info, then mark the round complete."""
+    def finish_round(self, r: int, q: Any, info: Mapping[str, Any],
+                     estimator: "EstimatorState | None" = None) -> None:
+        """Write round ``r``'s posterior ``q(u | x_obs)`` and training info, then mark the round complete.
+
+        A :class:`MixtureOfGaussians` ``q`` is kept as its arrays. Any other ``q`` (e.g. a normalising
+        flow) is kept as the state of the estimator that gives it, ``estimator`` (its plugin name,
+        constructor options and ``state_dict()``: NumPy arrays, numbers, strings, None, and dicts and
+        lists of them; array-likes such as CPU tensors are stored as NumPy arrays), from which
+        :meth:`read_posterior` restores it.
+
+        Raises:
+            SchemaError: ``q`` is not a mixture and no ``estimator`` state is given, or the state holds a
+                value that is none of the above.
+        """
+        if not isinstance(q, MixtureOfGaussians) and estimator is None:
+            raise SchemaError(f"round {r + 1}: a posterior of type {type(q).__name__} is stored as the state of "
+                              f"its estimator; pass estimator=EstimatorState(name, options, state_dict())")
+        if isinstance(q, MixtureOfGaussians):
+            arrays = {"weights": q.weights, "means": q.means, "scale_tril": q.scale_tril}
+            attrs: dict[str, Any] = {"kind": "mixture"}
+        else:  # encoded before anything is written: a state that cannot be stored changes nothing
+            arrays = {}
+            attrs = {"kind": "estimator", "estimator": estimator.name, "options": jsonable(dict(estimator.options)),
+                     "state": _encode_state(estimator.state, arrays, f"round {r + 1}'s estimator state")}
         g = self._round(r)
+        g.attrs["complete"] = False
+        if "posterior" in g:  # a half-written posterior of an interrupted session, or one trained again
+            shutil.rmtree(self.path / "rounds" / str(r) / "posterior", ignore_errors=True)
+            self.root = zarr.open_group(str(self.path), mode="a")
+            g = self._round(r)
         p = g.require_group("posterior")
-        _put(p, "weights", q.weights, ("component",), "1")
-        _put(p, "means", q.means, ("component", "parameter"), "unit cube")
-        _put(p, "scale_tril", q.scale_tril, ("component", "parameter", "parameter2"), "unit cube")
+        if attrs["kind"] == "mixture":
+            _put(p, "weights", q.weights, ("component",), "1")
+            _put(p, "means", q.means, ("component", "parameter"), "unit cube")
+            _put(p, "scale_tril", q.scale_tril, ("component", "parameter", "parameter2"), "unit cube")
+        else:
+            s = p.require_group("state")
+            for name, a in arrays.items():
+                _put(s, name, a, tuple(f"dim_{i}" for i in range(a.ndim)), "")
+        attrs = {**attrs, "format": POSTERIOR_FORMAT}
+        attrs["checksum"] = _checksum(attrs, arrays)
+        p.attrs.update(attrs)
         g.attrs["info"] = jsonable(dict(info))
         g.attrs["complete"] = True
 
-    def read_q(self, r: int) -> MixtureOfGaussians:
-        p = self._round(r)["posterior"]
-        return MixtureOfGaussians(p["weights"][...], p["means"][...], p["scale_tril"][...])
+    def read_posterior(self, r: int) -> "MixtureOfGaussians | EstimatorState":
+        """Round ``r``'s stored posterior: the mixture, or the :class:`EstimatorState` to restore the
+        estimator from (:meth:`finish_round`), after checking the stored checksum.
+
+        Raises:
+            PosteriorDamaged: the posterior is missing, cannot be read, or does not match its checksum (one line
+                naming the round and the fix: the fit trains the round again from its stored simulations).
+            SchemaError: a posterior format this softsbi does not read.
+        """
+        where = f"run '{self.path}': round {r + 1}'s stored posterior"
+        fix = ("re-run the same `softsbi fit` command: it trains that round again from its stored simulations, "
+               "which are intact")
+        try:
+            p = self._round(r)["posterior"]
+            attrs = dict(p.attrs)
+            kind = attrs.get("kind", "mixture")  # version-1 runs: mixtures without kind or checksum
+            if attrs.get("format", POSTERIOR_FORMAT) != POSTERIOR_FORMAT:
+                raise SchemaError(f"{where} has format {attrs['format']!r}, this softsbi reads {POSTERIOR_FORMAT}; "
+                                  f"install the softsbi version that wrote it ({self.root.attrs.get('softsbi_version')})")
+            if kind == "mixture":
+                arrays = {k: p[k][...] for k in ("weights", "means", "scale_tril")}
+            else:
+                s = p["state"]
+                arrays = {k: s[k][...] for k in s.array_keys()}
+        except SchemaError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a deleted group/array (KeyError) or an unreadable chunk
+            raise PosteriorDamaged(f"{where} is missing or cannot be read ({type(exc).__name__}: {exc})", fix) from None
+        if "checksum" in attrs:
+            content = {k: v for k, v in attrs.items() if k != "checksum"}
+            if _checksum(content, arrays) != attrs["checksum"]:
+                raise PosteriorDamaged(f"{where} does not match its checksum (a damaged or changed file)", fix)
+        if kind == "mixture":
+            return MixtureOfGaussians(arrays["weights"], arrays["means"], arrays["scale_tril"])
+        return EstimatorState(str(attrs["estimator"]), dict(attrs.get("options") or {}),
+                              _decode_state(attrs["state"], arrays))
 
     def reset_failures(self) -> tuple[int, int, int] | None:
         """Make the failed simulations of the earliest round that has any pending again
@@ -443,6 +526,62 @@ class RunStore:
         arrays, attrs = self.read_group(name)
         n = len(arrays["status"]) if "status" in arrays else 0
         return {k: v[:n] for k, v in arrays.items()}, attrs
+
+
+@dataclass
+class EstimatorState:
+    """What restores a fitted posterior estimator: its plugin ``name``, the constructor ``options`` and
+    ``state`` (its :meth:`~softsbi.core.interfaces.PosteriorEstimator.state_dict`)."""
+
+    name: str
+    options: dict[str, Any]
+    state: dict[str, Any]
+
+
+#: marks an array in a stored state dict (its name under ``posterior/state``)
+_ARRAY = "$array"
+
+
+def _encode_state(obj: Any, arrays: dict[str, np.ndarray], what: str) -> Any:
+    """JSON skeleton of a state dict; every array goes to ``arrays`` under a new name."""
+    if isinstance(obj, Mapping):
+        if _ARRAY in obj:
+            raise SchemaError(f"{what} uses the reserved key {_ARRAY!r}; rename it")
+        return {str(k): _encode_state(v, arrays, what) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_encode_state(v, arrays, what) for v in obj]
+    if obj is None or isinstance(obj, (bool, int, float, str, np.generic)):
+        return jsonable(obj)
+    if hasattr(obj, "__array__"):
+        a = np.asarray(obj.detach() if hasattr(obj, "detach") else obj)
+        if a.dtype == object:
+            raise SchemaError(f"{what} holds an array of Python objects; give numbers")
+        name = str(len(arrays))
+        arrays[name] = a
+        return {_ARRAY: name}
+    raise SchemaError(f"{what} holds a {type(obj).__name__}; a state dict holds NumPy arrays, numbers, strings, "
+                      f"None, and dicts and lists of them")
+
+
+def _decode_state(skeleton: Any, arrays: Mapping[str, np.ndarray]) -> Any:
+    """Inverse of :func:`_encode_state` (tuples come back as lists)."""
+    if isinstance(skeleton, Mapping):
+        if set(skeleton) == {_ARRAY}:
+            return arrays[skeleton[_ARRAY]]
+        return {k: _decode_state(v, arrays) for k, v in skeleton.items()}
+    if isinstance(skeleton, list):
+        return [_decode_state(v, arrays) for v in skeleton]
+    return skeleton
+
+
+def _checksum(attrs: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
+    """``sha256:<hex>`` of a group's attributes (canonical JSON) and arrays (name, dtype, shape, bytes)."""
+    h = hashlib.sha256(json.dumps(jsonable(dict(attrs)), sort_keys=True).encode())
+    for k in sorted(arrays):
+        a = np.ascontiguousarray(arrays[k])
+        h.update(f"{k}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return "sha256:" + h.hexdigest()
 
 
 def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], units: str) -> None:

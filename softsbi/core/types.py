@@ -300,6 +300,10 @@ class Handle:
                    path=None if d.get("path") is None else np.asarray(d["path"], dtype=float))
 
 
+#: the planes a scenario's 2-D figures can show (:attr:`Scenario.view`)
+VIEWS = ("xz", "yz", "xy")
+
+
 @dataclass
 class Scenario:
     """A manipulation task: what the robot does to the object, independent of the engine.
@@ -321,7 +325,12 @@ class Scenario:
             (cloth) or end (rope) following ``gripper``.
         world: ``{"gravity": [gx, gy, gz] m/s^2, "obstacles": [{"type": "box"|"cylinder", ...}]}``
             (defaults: -9.81 m/s^2 along z, no obstacles besides the table).
-        cameras: optional ``[{"name", "eye", "target", "up", "fovy_deg", "width", "height"}]``.
+        cameras: ``[{"name", "eye", "target", "up", "fovy_deg", "width", "height"}]`` (look-at) or with
+            ``"intrinsics": {"fx", "fy", "cx", "cy"}`` px and ``"world_to_cam"`` 3x4 instead of eye/target
+            (calibrated); the first renders the scenario's images and is the viewpoint of occlusion
+            (:func:`softsbi.scenarios.cameras.scenario_camera`). Empty: the scenario cannot be rendered.
+        view: the plane of its 2-D figures: ``"xz"`` (side view across y, the default), ``"yz"`` (side
+            view across x) or ``"xy"`` (top view).
 
     Raises:
         ShapeError: times not ``(T,)`` strictly increasing, a path not ``(T, 3)``, no handle.
@@ -336,8 +345,11 @@ class Scenario:
     handles: list[Handle] = field(default_factory=list)
     world: dict[str, Any] = field(default_factory=dict)
     cameras: list[dict[str, Any]] = field(default_factory=list)
+    view: str = "xz"
 
     def __post_init__(self) -> None:
+        if self.view not in VIEWS:
+            raise ShapeError(f"scenario '{self.name}': view must be one of {list(VIEWS)}, got {self.view!r}")
         self.times = np.asarray(self.times, dtype=float)
         if self.times.ndim != 1:
             raise ShapeError(f"scenario '{self.name}': times must be (T,), got {self.times.shape}")
@@ -378,8 +390,8 @@ class Scenario:
         return [float(v) for v in self.world.get("gravity", (0.0, 0.0, -9.81))]
 
     def to_json(self) -> dict[str, Any]:
-        """JSON-able mapping; ``handles``, ``world`` and ``cameras`` only when they are not the defaults
-        (one handle on the grasped corner/end following ``gripper``, default world, no camera), so a
+        """JSON-able mapping; ``handles``, ``world``, ``cameras`` and ``view`` only when they are not the defaults
+        (one handle on the grasped corner/end following ``gripper``, default world, no camera, ``"xz"``), so a
         single-gripper scenario serialises as it did before handles existed."""
         d = {"name": self.name, "times": self.times.tolist(), "gripper": self.gripper.tolist(),
              "table_z": float(self.table_z), "object": jsonable(self.object), "options": jsonable(self.options)}
@@ -392,6 +404,8 @@ class Scenario:
             d["world"] = jsonable(self.world)
         if self.cameras:
             d["cameras"] = jsonable(self.cameras)
+        if self.view != "xz":
+            d["view"] = self.view
         return d
 
     @classmethod
@@ -400,7 +414,8 @@ class Scenario:
                    table_z=float(d["table_z"]), object=dict(d.get("object", {})),
                    options=dict(d.get("options", {})),
                    handles=[Handle.from_json(h) for h in d.get("handles", [])],
-                   world=dict(d.get("world", {})), cameras=list(d.get("cameras", [])))
+                   world=dict(d.get("world", {})), cameras=list(d.get("cameras", [])),
+                   view=str(d.get("view", "xz")))
 
 
 def jsonable(x: Any) -> Any:

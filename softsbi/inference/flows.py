@@ -16,19 +16,18 @@ What it is conditioned on: the same inputs as the ``mdnn`` estimator -- states
 the training statistics; an optional MLP embedding net (``embedding`` widths) is trained
 jointly with the flow.
 
-What it cannot do: its posterior :class:`FlowPosterior` is not a Gaussian mixture. softsbi's
-run store keeps every round's posterior as a mixture (weights, means, Cholesky factors), and
-the ``softsbi fit`` workflow stores and re-reads it on resume, so in that workflow this
-estimator refuses with one line naming the alternatives (``--estimator mdnn`` / ``rkhs`` /
-``sbi-npe``). Use it from Python: ``FlowEstimator().fit(theta_unit, x)`` then
-``posterior_at(x_o).sample(n, rng)`` / ``.log_prob(u)``.
+In ``softsbi fit`` the run store keeps each round's flow as the estimator's state
+(:meth:`FlowEstimator.state_dict`), so fits, truncated proposals (whose region is the flow's
+highest-density region, found from its ``sample`` and ``log_prob``), ``open_run``, ``check``,
+``diagnose`` and ``calibrate`` work with it as with any estimator.
 
-``zuko`` is an optional extra (``pip install 'softsbi[flows]'``); it is imported only when the
-estimator is fitted or loaded (:class:`~softsbi.core.errors.DependencyMissing` names the
-install command otherwise). Registered through the ``softsbi_estimators`` hook as ``flow``.
+``zuko`` is an optional extra (``pip install "softsbi[flows]"``); it is imported when the
+estimator is constructed (:class:`~softsbi.core.errors.DependencyMissing` names the install
+command otherwise, so ``softsbi fit`` says so before simulating). Registered through the ``softsbi_estimators`` hook as ``flow``.
 """
 from __future__ import annotations
 
+import copy
 import time
 from typing import Any, Callable, ClassVar, Mapping
 
@@ -37,26 +36,20 @@ import torch
 from torch import nn
 
 from softsbi.core.distributions import Distribution
-from softsbi.core.errors import DataError, DependencyMissing, ParameterError, PosteriorError, ShapeError
+from softsbi.core.errors import DataError, DependencyMissing, ParameterError, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
 from softsbi.inference.estimators import merge_config, threads_option
 from softsbi.inference.summaries import bayessim_summaries
 from softsbi.inference.training import fit_early_stopping, minibatches, torch_threads, train_val_split
 from softsbi.plugins.hookspecs import hookimpl
 
-__all__ = ["FlowEstimator", "FlowPosterior", "FlowNetwork", "zuko_available", "softsbi_estimators",
-           "WORKFLOW_REFUSAL"]
+__all__ = ["FlowEstimator", "FlowPosterior", "FlowNetwork", "zuko_available", "softsbi_estimators"]
 
 STATE_FORMAT = "softsbi.flow/1"
 MIN_SAMPLES = 10
+#: rows per batch when a posterior draws or evaluates its density (bounds memory)
+BATCH = 16384
 FLOW_TYPES = ("nsf", "maf")
-
-#: the one-line refusal where softsbi needs a Gaussian-mixture posterior (the run store of ``softsbi fit``)
-WORKFLOW_REFUSAL = ("estimator 'flow' gives a normalising-flow posterior, not the Gaussian mixture that "
-                    "softsbi's run store keeps for every round of 'softsbi fit' (and its proposal correction "
-                    "re-reads on resume); use --estimator mdnn (or rkhs, sbi-npe) there, and the flow from "
-                    "Python (FlowEstimator.posterior_at(x_o).sample / .log_prob)")
-
 
 def zuko_available() -> bool:
     """Whether ``zuko`` can be imported."""
@@ -71,8 +64,7 @@ def _require_zuko():
     try:
         import zuko
     except ImportError as exc:
-        raise DependencyMissing("estimator 'flow' needs the zuko package: pip install 'softsbi[flows]' "
-                                "(or pip install zuko after installing the CPU torch wheel)") from exc
+        raise DependencyMissing('estimator \'flow\' needs the zuko package: pip install "softsbi[flows]"') from exc
     return zuko
 
 
@@ -109,9 +101,36 @@ class FlowNetwork(nn.Module):
         """``log q(u_i | z_i)`` ``(B,)`` for standardised ``u (B, D)`` and inputs ``z (B, F)``."""
         return self.flow(self.embedding(z)).log_prob(u)
 
-    def sample(self, n: int, z: torch.Tensor) -> torch.Tensor:
-        """``(n, D)`` draws of standardised ``u`` at one input ``z (1, F)``."""
-        return self.flow(self.embedding(z)[0]).sample((n,))
+    def at(self, z: torch.Tensor) -> Any:
+        """The flow ``p(u | z)`` at one input ``z (1, F)``: a zuko ``NormalizingFlow`` (``sample(shape)``,
+        ``log_prob(u (B, D))``) over standardised ``u``.
+
+        Every conditioner's input layer gets the context's share folded into its bias,
+        ``W [u; c] + b = W_u u + (W_c c + b)``: the same density, but no draw carries the ``F`` context
+        features through it (an autoregressive flow runs its conditioners ``D`` times per draw, so with
+        BayesSim summaries, ``F`` ~ 10^3, this makes sampling several times faster). A transform that is not
+        a masked autoregressive one (``D = 1``) keeps the context as it is.
+        """
+        from zuko.distributions import NormalizingFlow
+        from zuko.nn import MaskedLinear
+        from zuko.transforms import ComposedTransform
+
+        c = self.embedding(z)[0]
+        parts = []
+        for t in self.flow.transform.transforms:
+            first = getattr(t, "hyper", [None])[0]
+            if not isinstance(first, MaskedLinear):
+                parts.append(t(c))
+                continue
+            w = first.mask * first.weight  # columns: the D features, then the context (zuko's layout)
+            d = w.shape[1] - c.shape[-1]
+            lin = torch.nn.utils.skip_init(nn.Linear, d, w.shape[0])  # no draw from torch's generator
+            lin.weight, lin.bias = nn.Parameter(w[:, :d]), nn.Parameter(first.bias + w[:, d:] @ c)
+            folded = copy.copy(t)
+            folded._modules = dict(t._modules)  # a copy of the module table: the estimator's own stays intact
+            folded.hyper = nn.Sequential(lin, *list(t.hyper)[1:])
+            parts.append(folded(None))
+        return NormalizingFlow(ComposedTransform(*parts), self.flow.base(None))
 
 
 class FlowPosterior(Distribution):
@@ -119,24 +138,33 @@ class FlowPosterior(Distribution):
     coordinates (like :class:`~softsbi.core.distributions.MixtureOfGaussians`: restrict draws to
     ``[0, 1]^D`` for the prior's support).
 
-    It offers the parts of the mixture API that a flow can give exactly -- ``dim``,
-    :meth:`sample`, :meth:`log_prob` -- and Monte-Carlo :meth:`mean` / :meth:`cov`. The mixture
-    parameters (``weights``, ``means``, ``scale_tril``, ``to_dict``) do not exist for a flow:
-    asking for them raises :class:`~softsbi.core.errors.PosteriorError` with
-    :data:`WORKFLOW_REFUSAL` (this is where ``softsbi fit``'s run store would need them).
+    It offers ``dim``, :meth:`sample` and :meth:`log_prob` (exact) and Monte-Carlo :meth:`mean` /
+    :meth:`cov`.
     """
 
     def __init__(self, estimator: "FlowEstimator", z: np.ndarray):
         self._est = estimator
         self._z = np.asarray(z, np.float32).reshape(1, -1)
         self.dim = int(estimator._u_mean.shape[0])
+        self._flow: Any = None
+
+    def _at(self) -> Any:
+        """The network's flow at this observation (:meth:`FlowNetwork.at`), built once."""
+        if self._flow is None:
+            with torch.no_grad():
+                self._flow = self._est._net.at(torch.as_tensor(self._z))
+        return self._flow
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` draws ``(n, D)`` (float64, unit-cube coordinates); seeded by ``rng``."""
         est = self._est
+        out = []
         with torch_threads(est._threads()), torch.no_grad(), torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(rng.integers(2**62)))  # zuko draws from torch's global generator
-            s = est._net.sample(int(n), torch.as_tensor(self._z)).double().numpy()
+            flow = self._at()
+            for i in range(0, int(n), BATCH):
+                out.append(flow.sample((min(BATCH, int(n) - i),)).double().numpy())
+        s = np.concatenate(out) if out else np.zeros((0, self.dim))
         return s * est._u_std.astype(np.float64) + est._u_mean.astype(np.float64)
 
     def log_prob(self, u: np.ndarray) -> np.ndarray:
@@ -148,9 +176,9 @@ class FlowPosterior(Distribution):
         us = ((u - est._u_mean) / est._u_std).astype(np.float32)
         out = []
         with torch_threads(est._threads()), torch.no_grad():
-            for i in range(0, len(us), 4096):
-                b = torch.as_tensor(us[i:i + 4096])
-                out.append(est._net.log_prob(b, torch.as_tensor(self._z).expand(len(b), -1)).double().numpy())
+            flow = self._at()
+            for i in range(0, len(us), BATCH):
+                out.append(flow.log_prob(torch.as_tensor(us[i:i + BATCH])).double().numpy())
         lp = np.concatenate(out) if out else np.zeros(0)
         return lp - float(np.log(est._u_std.astype(np.float64)).sum())
 
@@ -162,17 +190,6 @@ class FlowPosterior(Distribution):
         """Monte-Carlo covariance ``(D, D)`` from ``n`` draws."""
         return np.atleast_2d(np.cov(self.sample(n, np.random.default_rng(seed)).T))
 
-    def _refuse(self) -> None:
-        raise PosteriorError(WORKFLOW_REFUSAL)
-
-    weights = property(lambda self: self._refuse())
-    means = property(lambda self: self._refuse())
-    scale_tril = property(lambda self: self._refuse())
-
-    def to_dict(self) -> dict:
-        """Not available for a flow (raises :class:`PosteriorError` with :data:`WORKFLOW_REFUSAL`)."""
-        self._refuse()
-        return {}
 
 
 class FlowEstimator(PosteriorEstimator):
@@ -190,20 +207,19 @@ class FlowEstimator(PosteriorEstimator):
         num_threads: torch threads (restored afterwards), default 1.
 
     Raises:
-        ParameterError: unknown or bad option. DependencyMissing: ``zuko`` not installed (fit/load).
+        ParameterError: unknown or bad option. DependencyMissing: ``zuko`` not installed.
         ShapeError, DataError: bad inputs (see :meth:`fit`).
     """
 
     name: ClassVar[str] = "flow"
     sequential: ClassVar[bool] = True
-    #: its posterior is a flow: ``softsbi fit`` refuses it before simulating (``PosteriorEstimator``)
-    mixture_posterior: ClassVar[bool] = False
     DEFAULTS: ClassVar[dict[str, Any]] = {
         "flow": "nsf", "transforms": 5, "hidden": (50, 50), "bins": 10, "embedding": (),
         "lr": 5e-4, "batch_size": 200, "val_fraction": 0.1, "patience": 20, "max_epochs": 2000,
         "min_epochs": 1, "grad_clip": 5.0, "max_seconds": None, "num_threads": 1}
 
     def __init__(self, **config: Any):
+        _require_zuko()
         cfg = merge_config(self.name, self.DEFAULTS, config)
         cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
         cfg["embedding"] = tuple(int(h) for h in cfg["embedding"])
@@ -324,7 +340,7 @@ class FlowEstimator(PosteriorEstimator):
 
     def posterior_at(self, x_obs: np.ndarray) -> FlowPosterior:  # type: ignore[override]
         """The posterior ``q(theta_unit | x_o)`` at ``x_o = x_obs`` (training event shape, optionally with a
-        leading 1), as a :class:`FlowPosterior` (``sample``, ``log_prob``; not a Gaussian mixture).
+        leading 1), as a :class:`FlowPosterior` (``sample``, ``log_prob``).
 
         Raises:
             RuntimeError: not fitted. ShapeError: wrong shape. DataError: non-finite values.

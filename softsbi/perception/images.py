@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from softsbi.core.camera import Camera, RenderStyle
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import DataError, ShapeError, SoftsbiError
 from softsbi.core.interfaces import Observer
 from softsbi.core.types import Observation, Rollout
@@ -35,10 +35,12 @@ class ImageKeypointObserver(Observer):
     Args:
         extractor: path of the extractor checkpoint (``.pt`` written by its ``save`` or by
             ``softsbi train-extractor``).
-        size: square image size (px) of the built-in scenario camera, used when ``camera`` is None.
-        camera: a :class:`~softsbi.core.camera.Camera` as JSON (``Camera.to_json()``); None = the
-            scenario's built-in overhead camera :func:`~softsbi.core.camera.default_camera`.
-        scenario: scenario name (for the built-in camera).
+        size: square image size (px) of the scenario's camera, used when ``camera`` is None.
+        camera: a :class:`~softsbi.core.camera.Camera` as JSON (``Camera.to_json()``; ``softsbi fit`` passes
+            its scenario's); None = the camera of the scenario named ``scenario``
+            (:func:`~softsbi.scenarios.cameras.scenario_camera`).
+        scenario: a scenario name or file (:func:`~softsbi.scenarios.load_scenario`), read when
+            ``camera`` is None (runs stored before the fit passed the camera name their scenario).
         style: :class:`~softsbi.core.camera.RenderStyle` as JSON (colours of the rendered scene).
 
     Raises:
@@ -64,7 +66,11 @@ class ImageKeypointObserver(Observer):
                             f"`softsbi train-extractor {self.extractor_kind} --out {extractor}`")
         self.extractor_path = str(extractor)
         self.extractor = registry().extractor(self.extractor_kind).load(extractor)
-        self.camera = Camera.from_json(camera) if camera else default_camera(scenario, int(size))
+        if camera:
+            self.camera = Camera.from_json(camera)
+        else:
+            from softsbi.scenarios.catalog import load_scenario
+            self.camera = scenario_camera(load_scenario(scenario), int(size))
         self.style = RenderStyle.from_json(style)
 
     @property

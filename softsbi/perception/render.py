@@ -12,7 +12,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from softsbi.core.camera import Camera, RenderStyle
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import DataError, DependencyMissing, ShapeError
 from softsbi.core.types import Rollout, Scenario
 
@@ -147,8 +147,8 @@ def render_rollout(backend_name: str, scenario: Scenario | str, theta: Mapping[s
         scenario: a :class:`Scenario` or a scenario name (built with
             :func:`softsbi.scenarios.builtin.make_scenario`).
         theta: parameters (physical units); None -> the midpoint of the backend's prior box.
-        camera: None -> ``default_camera(scenario.name, size)``.
-        size: image side, px, of the default camera.
+        camera: None -> the scenario's camera (:func:`~softsbi.scenarios.cameras.scenario_camera`).
+        size: image side, px, of the scenario's camera (None: its declared size).
         style: colours / ``show_robot`` (default :class:`RenderStyle`).
         effects, seed: as in :meth:`Simulator.simulate`.
         backend_options: passed to the backend's constructor (``grid=7``...).
@@ -157,7 +157,7 @@ def render_rollout(backend_name: str, scenario: Scenario | str, theta: Mapping[s
         The rollout with ``rgb (T, H, W, 3)``, ``depth (T, H, W)`` m and ``segmentation (T, H, W)``.
 
     Raises:
-        PluginNotFound: unknown backend. DataError: no default camera for the scenario.
+        PluginNotFound: unknown backend. DataError: no camera given and none declared by the scenario.
         NotImplementedError: the backend cannot render.
     """
     from softsbi.plugins import registry
@@ -172,7 +172,7 @@ def render_rollout(backend_name: str, scenario: Scenario | str, theta: Mapping[s
     if theta is None:
         space = sim.full_space(scenario, effects) if hasattr(sim, "full_space") else sim.param_space(scenario)
         theta = space.midpoint()
-    cam = default_camera(scenario.name, size) if camera is None else camera
+    cam = scenario_camera(scenario, size) if camera is None else camera
     try:
         return sim.simulate_images(scenario, theta, cam, effects=effects, seed=seed, style=style)
     finally:

@@ -12,7 +12,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from softsbi.core.camera import Camera, RenderStyle
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import SimulationFailed, SoftsbiError
 from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Scenario
 
@@ -43,7 +43,7 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
         backend: simulator plugin that implements ``simulate_images``.
         scenario: a :class:`Scenario` or a scenario name for :func:`~softsbi.scenarios.builtin.make_scenario`.
         n_rollouts: rollouts (failed ones are skipped and replaced, at most ``2 n_rollouts`` tries).
-        size: square image size when ``camera`` is None (scenario's built-in camera).
+        size: square image size when ``camera`` is None (the scenario's camera).
         fixed: parameters held at a value instead of drawn.
         frames: frame indices kept per rollout (None = all).
         progress: ``progress(done, total)`` after each rollout.
@@ -60,7 +60,7 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
     from softsbi.plugins import registry
 
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
-    cam = camera or default_camera(sc.name, size)
+    cam = camera or scenario_camera(sc, size)
     sim = registry().simulator(backend)(**dict(backend_options or {}))
     space = sim.param_space(sc)
     rng = np.random.default_rng([seed, 4242])

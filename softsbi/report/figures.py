@@ -703,8 +703,8 @@ def plot_compare(path: Path, a: dict, b: dict, la: str, lb: str) -> Path:
 
 def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Mapping[str, Any],
                           path: str | Path) -> Path:
-    """Side-by-side PNG: the side view (y-z for lift, x-z otherwise; top view x-y for the rope on
-    the table) of 4 frames with every backend overlaid, and the per-frame Chamfer on the right.
+    """Side-by-side PNG: the scenario's view (:attr:`~softsbi.core.types.Scenario.view`: a side view x-z or
+    y-z, or the top view x-y) of 4 frames with every backend overlaid, and the per-frame Chamfer on the right.
 
     Colours: each engine one of :data:`softsbi.report.ENGINE_COLOURS` in backend order (first:
     sky blue, second: reddish purple), none of them a role colour of the fit figures; the gripper
@@ -715,11 +715,8 @@ def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Ma
 
     T = scenario.n_frames
     frames = sorted({0, T // 3, 2 * T // 3, T - 1})
-    ax_i = 1 if scenario.name == "lift" else 0
-    top = scenario.name in ("winding", "wind")  # the rope stays on the table: top view ("wind": its old name)
-    j = 1 if top else 2
-    i = 0 if top else ax_i
-    view = "top view" if top else "side view"
+    i, j = ("xyz".index(a) for a in scenario.view)  # the plane the scenario file declares (view:)
+    view = "top view" if scenario.view == "xy" else "side view"
     names = list(rollouts)
     colours = {b: ENGINE_COLOURS[k % len(ENGINE_COLOURS)] for k, b in enumerate(names)}
     fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3.0 * len(frames) + 3.6, 4.3),

@@ -117,6 +117,8 @@ N_FRAMES = 25
 #: default lift_real2sim.yaml (shared/data/diffcloud_lift/lift_real2sim.yaml)
 DEFAULT_TRANSFORM: dict[str, Any] = {"z_rotation": 90.0, "translation": [0.67, 0.15, 0.0], "scale": 0.35,
                                      "compensation_factor": [-0.02, 0.0, 0.0]}
+#: the real robot's shoulder in its base frame (m): where the visual arm of rendered lift images stands
+ROBOT_BASE_REAL = (0.0, 0.0, 0.33)
 #: first and last rows of lift_traj.npy (robot frame, m): the only recorded numbers the default uses
 _TRAJ_START = (0.56344985, 0.15072625, 0.07796145)
 _TRAJ_END = (0.75582497, 0.15036571, 0.38734047)
@@ -404,8 +406,9 @@ def lift_scenario(recording: str | Path | None = None, n_frames: int = N_FRAMES,
            "direction": [float(NOMINAL_DIRECTION[0]), float(NOMINAL_DIRECTION[1])], "grasp": "corner"}
     if recording is not None:  # the real placement is unknown: infer its yaw (module docstring)
         obj["yaw_bounds"] = [float(YAW_BOUNDS[0]), float(YAW_BOUNDS[1])]
+    options["robot_base"] = real_to_lift_frame(np.asarray(ROBOT_BASE_REAL), cfg).tolist()
     return Scenario(name="lift", times=times, gripper=gripper, table_z=float(table_z), object=obj,
-                    options=options)
+                    options=options, **declared("lift"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -466,9 +469,14 @@ def wipe_scenario(n_frames: int = 31, duration: float = 1.5, size: float = 0.30,
     key_p[:, 2] += SYNTH_TABLE_Z
     obj = {"kind": "cloth", "size": float(size), "corner": [0.0, 0.0], "direction": [-1.0, 0.0],
            "grasp": "corner", "fabric": "thick"}
-    return Scenario(name="wipe", times=times, gripper=_keyframe_path(key_t, key_p, times), table_z=SYNTH_TABLE_Z,
+    gripper = _keyframe_path(key_t, key_p, times)
+    # the visual arm: 0.45 m beyond the stroke's far end along the drag direction +x (the cloth trails away
+    # from the robot, as in the real wiping images), 0.5 m above the table
+    base = [float(gripper[:, 0].max() + 0.45), float(gripper[:, 1].mean()), SYNTH_TABLE_Z + 0.5]
+    return Scenario(name="wipe", times=times, gripper=gripper, table_z=SYNTH_TABLE_Z,
                     object=obj, options={"source": "synthetic wipe (softsbi.scenarios.builtin.wipe_scenario)",
-                                         "frame": "world, table top at z = 0"})
+                                         "frame": "world, table top at z = 0", "robot_base": base},
+                    **declared("wipe"))
 
 
 def fling_scenario(n_frames: int = 36, duration: float = 1.4, size: float = 0.28) -> Scenario:
@@ -496,7 +504,7 @@ def fling_scenario(n_frames: int = 36, duration: float = 1.4, size: float = 0.28
     obj = {"kind": "cloth", "size": float(size), "corner": [0.0, 0.0], "direction": [-1.0, 0.0], "grasp": "corner"}
     return Scenario(name="fling", times=times, gripper=_keyframe_path(key_t, key_p, times), table_z=SYNTH_TABLE_Z,
                     object=obj, options={"source": "synthetic fling (softsbi.scenarios.builtin.fling_scenario)",
-                                         "frame": "world, table top at z = 0"})
+                                         "frame": "world, table top at z = 0"}, **declared("fling"))
 
 
 def winding_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 0.40, turns: float = 1.25,
@@ -540,7 +548,18 @@ def winding_scenario(n_frames: int = 26, duration: float = 2.0, length: float = 
            "spool": {"centre": [0.0, 0.0], "radius": float(spool_radius), "height": float(spool_height)}}
     return Scenario(name="winding", times=times, gripper=gripper, table_z=SYNTH_TABLE_Z, object=obj,
                     options={"source": "synthetic winding (softsbi.scenarios.builtin.winding_scenario)",
-                             "frame": "world, table top at z = 0", "occluder": "object['spool']"})
+                             "frame": "world, table top at z = 0", "occluder": "object['spool']"},
+                    **declared("winding"))
+
+
+def declared(name: str) -> dict[str, Any]:
+    """What the built-in scenario file ``files/<name>.yaml`` declares for seeing the scenario, ``cameras`` and
+    ``view`` (:class:`Scenario` fields), so the reference constructors here render and draw it as the file
+    does."""
+    from softsbi.scenarios.spec import _read_yaml, camera_dicts, parse_spec
+    path = Path(__file__).parent / "files" / f"{name}.yaml"
+    spec = parse_spec(_read_yaml(path), str(path))
+    return {"cameras": camera_dicts(spec.cameras), "view": spec.view}
 
 
 def _check_synth(n_frames: int, duration: float, size: float) -> None:

@@ -1,43 +1,47 @@
-"""The built-in cameras of the built-in scenarios (scenario facts, not kernel facts)."""
+"""A scenario's camera: the first of the cameras its file declares (``cameras:``, :class:`~softsbi.scenarios.spec.CameraSpec`)."""
 from __future__ import annotations
+
+from typing import Any, Mapping
 
 from softsbi.core.camera import Camera
 from softsbi.core.errors import DataError
+from softsbi.core.types import Scenario
 
 
-def default_camera(scenario_name: str, size: int = 128) -> Camera:
-    """The built-in camera of a scenario: overhead, looking straight down at its workspace (like the
-    paper's wiping images), ``size x size`` px.
+def camera_from_dict(c: Mapping[str, Any], size: int | None = None) -> Camera:
+    """The :class:`Camera` of one entry of :attr:`Scenario.cameras`.
 
-    Raises:
-        DataError: a scenario without a built-in camera.
-    """
-    views = {
-        # wipe: the grasped corner starts at the origin and the cloth (side <= 0.34 m) trails along -x;
-        # the stroke goes +0.30 m in x then +0.15 m in y: workspace x in [-0.48, 0.32], y in [-0.24, 0.39];
-        # fovy 52 deg shows x in [-0.57, 0.41], so the gripper and the arm stay in view
-        "wipe": dict(eye=(-0.08, 0.075, 1.0), target=(-0.08, 0.075, 0.0), up=(1, 0, 0), fovy_deg=52.0),
-        "fling": dict(eye=(0.0, -0.9, 0.75), target=(0.0, 0.0, 0.2), up=(0, 0, 1), fovy_deg=55.0),
-        "lift": dict(eye=(0.0, 0.0, 1.2), target=(0.0, 0.0, 0.1), up=(1, 0, 0), fovy_deg=50.0),
-        "winding": dict(eye=(0.0, -0.8, 0.6), target=(0.0, 0.0, 0.15), up=(0, 0, 1), fovy_deg=50.0),
-    }
-    views["wind"] = views["winding"]  # the winding's name before it was renamed (runs stored then keep it)
-    if scenario_name not in views:
-        raise DataError(f"no built-in camera for scenario '{scenario_name}'; choose one of {sorted(views)} "
-                        f"or pass a Camera")
-    return Camera.look_at(width=size, height=size, **views[scenario_name])
-
-
-def scenario_camera(scenario, size: int = 128) -> Camera:
-    """The first camera of ``scenario.cameras`` (a scenario file's ``cameras``) at ``size x size`` px, else
-    :func:`default_camera` of its name.
+    Args:
+        c: look-at (``eye``, ``target``, ``up``, ``fovy_deg``) or calibrated (``intrinsics`` ``{fx, fy, cx, cy}``
+            px, ``world_to_cam`` 3x4), with ``width``, ``height`` px (default 128).
+        size: None: the declared image size; else a look-at camera renders ``size x size`` px and a calibrated
+            one is rescaled to ``size`` px wide, keeping its aspect ratio.
 
     Raises:
-        DataError: no camera in the scenario and no built-in one for its name.
+        DataError: neither kind of camera, or an invalid one (e.g. ``eye == target``).
     """
-    cams = getattr(scenario, "cameras", None) or []
-    if cams:
-        c = cams[0]
-        return Camera.look_at(width=size, height=size, eye=tuple(c["eye"]), target=tuple(c["target"]),
+    w, h = int(c.get("width", 128)), int(c.get("height", 128))
+    if "intrinsics" in c and "world_to_cam" in c:
+        k = c["intrinsics"]
+        cam = Camera(w, h, float(k["fx"]), float(k["fy"]), float(k["cx"]), float(k["cy"]),
+                     tuple(tuple(float(v) for v in r) for r in c["world_to_cam"]))
+        return cam if size is None else cam.resized(int(size), max(8, round(int(size) * h / w)))
+    if "eye" in c and "target" in c:
+        return Camera.look_at(width=int(size or w), height=int(size or h), eye=tuple(c["eye"]), target=tuple(c["target"]),
                               up=tuple(c.get("up", (0, 0, 1))), fovy_deg=float(c.get("fovy_deg", 50.0)))
-    return default_camera(scenario.name, size)
+    raise DataError(f"camera {c.get('name', '')!r} has neither eye and target (look-at) nor intrinsics and world_to_cam "
+                    f"(calibrated); give one of them")
+
+
+def scenario_camera(scenario: Scenario, size: int | None = 128) -> Camera:
+    """The scenario's camera: the first of :attr:`Scenario.cameras` (:func:`camera_from_dict`; ``size`` px,
+    None = the declared size). It renders the scenario's images and is the viewpoint the point-cloud
+    observer hides occluded points from.
+
+    Raises:
+        DataError: the scenario declares no camera.
+    """
+    if not scenario.cameras:
+        raise DataError(f"scenario '{scenario.name}' declares no camera; add one under 'cameras:' in its scenario "
+                        f"file (eye, target, up, fovy_deg; or intrinsics and world_to_cam) or pass a camera")
+    return camera_from_dict(scenario.cameras[0], size)

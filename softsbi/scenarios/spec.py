@@ -20,7 +20,10 @@ data")::
       robot: {diffcloud: {z_rotation: 90, translation: [0.55, 0.18, 0], scale: 0.35,
                           compensation_factor: [0, 0, 0]}}     # or {matrix: 4x4}
     world: {table_z: 0.075, gravity: [0, 0, -9.81], obstacles: [{type: cylinder, ...}]}
-    cameras: [{name: top, eye: [..], target: [..], up: [..], fovy_deg: 50, width: 128, height: 128}]
+    cameras:                      # look-at, or calibrated: intrinsics {fx, fy, cx, cy} px + world_to_cam 3x4
+      - {name: top, eye: [..], target: [..], up: [..], fovy_deg: 50, width: 128, height: 128}
+    view: yz                      # the plane of 2-D figures: xz (default), yz (side views) or xy (top view)
+    robot: {base: [0, 0, 0.33], frame: robot}  # the shoulder of the visual arm drawn in rendered images
 
 Units: metres, seconds, degrees for angles. Every error is one line naming the file, the field and
 the fix (:class:`~softsbi.core.errors.DataError`); nothing is built from an invalid file.
@@ -264,14 +267,48 @@ class WorldSpec(_Strict):
         return self
 
 
+class IntrinsicsSpec(_Strict):
+    """Pinhole intrinsics (px): focal lengths ``fx``, ``fy`` and principal point ``cx``, ``cy``."""
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+
+
 class CameraSpec(_Strict):
+    """A camera of the scenario (the first one renders its images and is the occlusion viewpoint): look-at
+    (``eye``, ``target`` m, ``up``, ``fovy_deg``) or calibrated (``intrinsics`` px and ``world_to_cam``, the
+    3x4 ``[R | t]`` from the scenario frame to the camera's OpenCV axes, m), ``width x height`` px
+    (:class:`~softsbi.core.camera.Camera`)."""
     name: str
-    eye: Vec3
-    target: Vec3
+    eye: Optional[Vec3] = None
+    target: Optional[Vec3] = None
     up: Vec3 = (0.0, 0.0, 1.0)
     fovy_deg: float = Field(50.0, gt=0, lt=180)
-    width: int = Field(128, ge=1)
-    height: int = Field(128, ge=1)
+    intrinsics: Optional[IntrinsicsSpec] = None
+    world_to_cam: Optional[list[list[float]]] = None
+    width: int = Field(128, ge=8)
+    height: int = Field(128, ge=8)
+
+    @model_validator(mode="after")
+    def _one(self) -> "CameraSpec":
+        look_at = self.eye is not None and self.target is not None
+        calibrated = self.intrinsics is not None and self.world_to_cam is not None
+        if look_at == calibrated or (self.eye is None) != (self.target is None) or \
+                (self.intrinsics is None) != (self.world_to_cam is None):
+            raise ValueError("give a camera either 'eye' and 'target' (look-at) or 'intrinsics' and 'world_to_cam' "
+                             "(calibrated)")
+        if self.world_to_cam is not None and np.asarray(self.world_to_cam, dtype=float).shape != (3, 4):
+            raise ValueError("world_to_cam must be 3x4 [R | t] (scenario frame -> camera, m)")
+        return self
+
+
+class RobotSpec(_Strict):
+    """Where the visual-only robot arm drawn in rendered images stands: its shoulder ``base`` (m) in
+    ``frame`` (``scenario`` or a name under ``transforms``). Without it the arm stands behind the
+    workspace along +y (:func:`softsbi.backends.common.robot_base`)."""
+    base: Vec3
+    frame: str = "scenario"
 
 
 class ScenarioSpec(_Strict):
@@ -286,6 +323,10 @@ class ScenarioSpec(_Strict):
     transforms: dict[str, TransformSpec] = Field(default_factory=dict)
     world: WorldSpec = Field(default_factory=WorldSpec)
     cameras: list[CameraSpec] = Field(default_factory=list)
+    #: the plane of the scenario's 2-D figures: ``xz`` (side view across y), ``yz`` (side view across x) or
+    #: ``xy`` (top view, e.g. a rope that stays on the table)
+    view: Literal["xz", "yz", "xy"] = "xz"
+    robot: Optional[RobotSpec] = None
     options: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="after")
@@ -550,13 +591,22 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
     moving = next(h for h in spec.handles if h.path is not None)
     if moving.path.keyframes is not None:  # the motion's phases (check's error by phase)
         options["keyframe_times"] = [float(k.t) for k in moving.path.keyframes]
-    cams = [c.model_dump() for c in spec.cameras]
-    for c in cams:
-        for k, v in list(c.items()):
-            if isinstance(v, tuple):
-                c[k] = list(v)
+    if spec.robot is not None:
+        if "robot_base" in options:
+            raise DataError(f"{source}: field 'robot' and options.robot_base both place the arm; keep one")
+        if spec.robot.frame not in mats:
+            raise DataError(f"{source}: field 'robot.frame': unknown frame '{spec.robot.frame}'; use 'scenario' or one "
+                            f"of the names under 'transforms' ({', '.join(sorted(mats))})")
+        options["robot_base"] = apply_transform(mats[spec.robot.frame], np.asarray(spec.robot.base, float)).tolist()
     return Scenario(name=spec.name, times=times, gripper=gripper, table_z=float(spec.world.table_z), object=obj,
-                    options=options, handles=handles, world=world, cameras=cams)
+                    options=options, handles=handles, world=world, cameras=camera_dicts(spec.cameras),
+                    view=spec.view)
+
+
+def camera_dicts(cameras: list[CameraSpec]) -> list[dict[str, Any]]:
+    """The cameras of a scenario file as :attr:`Scenario.cameras` keeps them (plain lists, no unset keys)."""
+    from softsbi.core.types import jsonable
+    return [jsonable(c.model_dump(exclude_none=True)) for c in cameras]
 
 
 def load_scenario_file(path: str | Path, transforms: Mapping[str, Any] | None = None) -> Scenario:
@@ -632,4 +682,6 @@ def spec_from_scenario(sc: Scenario, description: str = "") -> dict[str, Any]:
            "world": world, "options": {k: v for k, v in jsonable(sc.options).items() if k != "transforms"}}
     if sc.cameras:
         out["cameras"] = jsonable(sc.cameras)
+    if sc.view != "xz":
+        out["view"] = sc.view
     return out

@@ -5,7 +5,8 @@ Simulation-based calibration (Talts et al. 2018; expected coverage as in Hermans
 estimator, on fresh simulations from the run's own proposals:
 
 1. The final round's estimator is trained again exactly as the fit trained it (same stored
-   simulations, options and seed; the run keeps ``q`` at the measurement only, not the network).
+   simulations, options and seed; a mixture's run keeps ``q`` at the measurement only, and every
+   estimator is retrained alike), and compared with the run's own final ``q``.
 2. ``n_test`` test parameters are drawn from the distribution the training simulations came from:
    the run's proposals, each round's with the weight of its usable simulations (round 1: the
    prior; later rounds: the previous round's posterior, or the truncated prior of TSNPE). The
@@ -43,7 +44,7 @@ from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration import plot_calibration
 from softsbi.workflows import defaults
-from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options
+from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options, round_posterior
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.widen import MappedProposal, map_mixture, round_spaces, unit_map
@@ -74,11 +75,12 @@ def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
             continue
         if truncated:
             ch = PosteriorChain(space.dim, seed=cfg.seed)
-            ch.add_round(map_mixture(store.read_q(r - 1), *unit_map(spaces[r - 1], spaces[r])), sum(counts[:r]))
+            ch.add_round(map_mixture(round_posterior(store, r - 1, cfg), *unit_map(spaces[r - 1], spaces[r])),
+                         sum(counts[:r]))
             out.append((to_record(TruncatedPrior(ch.posterior(0), eps=cfg.truncation_eps, seed=cfg.seed + r)),
                         f"prior truncated to round {r}'s posterior"))
         else:
-            chain.add_round(store.read_q(r - 1), counts[r - 1])
+            chain.add_round(round_posterior(store, r - 1, cfg), counts[r - 1])
             out.append((chain.posterior(r - 1), f"posterior of round {r}"))
     return out
 
@@ -221,7 +223,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     x_obs = store.read_observed()["x"]
     refit = None
     if estimator is None and estimator_options is None:  # does the re-trained estimator reproduce the run?
-        q_run, q_new = store.read_q(last), est.posterior_at(x_obs[fr])
+        q_run, q_new = round_posterior(store, last, cfg), est.posterior_at(x_obs[fr])
         refit = float(np.abs(q_run.mean() - q_new.mean()).max())
         if refit > 1e-3:
             msg(f"the estimator trained now differs from the run's final one (posterior means {refit:.3g} apart in "

@@ -27,17 +27,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from softsbi.core.distributions import PosteriorChain, RoundPosterior, TruncatedPrior
-from softsbi.core.errors import DataError, ParameterError, PosteriorError, SchemaError, SoftsbiError
+from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, RoundPosterior, TruncatedPrior
+from softsbi.core.errors import DataError, ParameterError, PosteriorDamaged, PosteriorError, SchemaError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
-from softsbi.core.store import ROUND_ARRAYS, RunStore
+from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.perception.masks import hsv_mask
 from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows import defaults
 from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
@@ -64,13 +64,21 @@ RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "h
 #: same scenario file is read from now (a moved checkout, another install of softsbi); and the keyframe times
 #: of its gripper path, which the path itself holds (runs stored before they were kept resume)
 SCENARIO_PROVENANCE = ("source", "file", "keyframe_times")
+#: what a scenario declares for seeing it: its cameras and figures' view, and where the visual arm of rendered
+#: images stands. The simulated states do not depend on them (rendered images do, and an image fit compares its
+#: camera through its observer options); runs written before scenarios declared them derived the same from the
+#: scenario's name
+SCENARIO_PRESENTATION = ("cameras", "view")
+SCENARIO_PRESENTATION_OPTIONS = ("robot_base",)
 
 
 def resume_identity(key: str, value: Any) -> Any:
     """What a resume compares of a stored setting: the value itself, except the scenario without its
-    provenance options (:data:`SCENARIO_PROVENANCE`)."""
+    provenance options (:data:`SCENARIO_PROVENANCE`) and presentation (:data:`SCENARIO_PRESENTATION`)."""
     if key == "scenario" and isinstance(value, dict) and isinstance(value.get("options"), dict):
-        return {**value, "options": {k: v for k, v in value["options"].items() if k not in SCENARIO_PROVENANCE}}
+        drop = SCENARIO_PROVENANCE + SCENARIO_PRESENTATION_OPTIONS
+        return {**{k: v for k, v in value.items() if k not in SCENARIO_PRESENTATION},
+                "options": {k: v for k, v in value["options"].items() if k not in drop}}
     return value
 
 
@@ -184,7 +192,8 @@ class FitConfig:
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
         plugin option that its plugin does not have or that is text where a number is expected
-        (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin)."""
+        (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin), or an
+        estimator that cannot be constructed (``DependencyMissing`` for its optional dependency)."""
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
         if self.sensor not in ("height", "camera"):
@@ -220,6 +229,7 @@ class FitConfig:
         if self.widen:
             check_widen(self.proposal, bool(getattr(reg.get("estimator", self.estimator), "sequential", True)),
                         self.sensor_draws)
+        reg.estimator(self.estimator)(**self.estimator_options)  # e.g. a missing optional dependency, named now
 
     def to_json(self) -> dict[str, Any]:
         """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""
@@ -468,10 +478,16 @@ def needs_images(cfg: FitConfig) -> bool:
 
 def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     """Constructor options of the observer for this fit: K and the sensor's visibility for point
-    clouds; extractor checkpoint, camera and scenario for image observers."""
+    clouds (with an occluding obstacle, the scenario camera's position as the viewpoint); extractor
+    checkpoint and camera (the scenario's, :func:`~softsbi.scenarios.cameras.scenario_camera`) for image
+    observers.
+
+    Raises:
+        DataError: the scenario declares no camera where one is needed."""
     if needs_images(cfg):
         opts = dict(cfg.observer_options)
-        opts.setdefault("scenario", scenario.name)
+        if "camera" not in opts:  # the scenario's own camera (its file's cameras:)
+            opts["camera"] = scenario_camera(scenario, int(opts.get("size", 128))).to_json()
         if "extractor" in opts:
             opts["extractor"] = str(Path(opts["extractor"]).resolve())
         return opts
@@ -481,8 +497,8 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     elif cfg.min_height:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
     spool = (scenario.object or {}).get("spool")
-    if spool and cfg.observer == "pointcloud":  # the winding scenario: the spool hides part of the rope
-        opts["viewpoint"] = [float(v) for v in default_camera(scenario.name).position]
+    if spool and cfg.observer == "pointcloud":  # an occluding obstacle (the winding's spool) hides what is behind it
+        opts["viewpoint"] = [float(v) for v in scenario_camera(scenario).position]  # as seen by its camera
         opts["occluder"] = {"centre": list(spool["centre"]), "radius": float(spool["radius"]),
                             "z0": float(scenario.table_z), "height": float(spool["height"])}
     opts.update(cfg.observer_options)
@@ -713,11 +729,6 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     """:func:`run_fit` with the run directory's lock held."""
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
-    if not est_cls.mixture_posterior:
-        raise PosteriorError(f"estimator '{cfg.estimator}' gives a posterior that is not a Gaussian mixture, which "
-                             f"the run store of 'softsbi fit' keeps for every round; use --estimator rkhs (or mdnn, "
-                             f"sbi-npe) here, and '{cfg.estimator}' from Python (softsbi.plugins.registry()"
-                             f".estimator('{cfg.estimator}'))")
     exe_cls = reg.executor(cfg.executor)
     _, base = fit_param_space(cfg, recording.scenario)
     space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
@@ -990,8 +1001,12 @@ class _Rounds:
         """The posterior at the observation after round ``r`` (stored once trained)."""
         cfg, store = self.cfg, self.store
         if store.is_complete(r):
-            return store.read_q(r), store.round_attrs(r).get("info", {})
-        est = self.est_cls(**estimator_options(cfg, self.est_cls))
+            try:
+                return round_posterior(store, r, cfg), store.round_attrs(r).get("info", {})
+            except PosteriorDamaged as exc:  # train the round again from its intact simulations
+                self.cb.message(f"{exc.problem}: training that round again from its stored simulations")
+        opts = estimator_options(cfg, self.est_cls)
+        est = self.est_cls(**opts)
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
         n_sensor, kw = 0, {}
         if self.sensor is not None:  # one simulation, K more observations at other sensor parameters
@@ -1006,7 +1021,8 @@ class _Rounds:
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
         info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
                     **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))
-        store.finish_round(r, q, info)
+        state = None if isinstance(q, MixtureOfGaussians) else EstimatorState(cfg.estimator, opts, est.state_dict())
+        store.finish_round(r, q, info, estimator=state)
         return q, info
 
     def _add_posterior(self, r: int, q: Any, counts: list[int]) -> RoundPosterior:
@@ -1016,6 +1032,26 @@ class _Rounds:
         # restricted to the prior box, with no importance weights
         self.chain = PosteriorChain(self.space.dim, seed=self.cfg.seed)
         return self.chain.add_round(q, sum(counts))
+
+
+def round_posterior(store: RunStore, r: int, cfg: FitConfig) -> Any:
+    """Round ``r``'s posterior ``q(u | x_obs)`` as the fit stored it (unit cube): the Gaussian mixture, or
+    the estimator restored from its stored state through the plugin registry (by name and options) and
+    conditioned on the run's observation at the fit's frames (``cfg``: the run's settings,
+    :meth:`FitConfig.from_run_config`).
+
+    Raises:
+        PosteriorDamaged: the stored posterior is missing or damaged (:meth:`RunStore.read_posterior`).
+        PluginNotFound: the estimator that wrote it is not installed. DependencyMissing: its optional
+            dependency is not.
+    """
+    stored = store.read_posterior(r)
+    if isinstance(stored, MixtureOfGaussians):
+        return stored
+    est = registry().estimator(stored.name)(**stored.options)
+    est.load_state_dict(stored.state)
+    fr = slice(None) if cfg.frames is None else list(cfg.frames)
+    return est.posterior_at(store.read_observed()["x"][fr])
 
 
 def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Rounds, ev_stats: dict[str, Any],

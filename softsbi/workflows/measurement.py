@@ -371,7 +371,7 @@ def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | N
             directory with ``images/`` (its scenario, calibration and truth are used).
         scenario: the task (name, file or :class:`Scenario`) the frames were recorded in; None: the
             recording directory's own (``lift`` for a plain folder of frames).
-        size: square size of the built-in scenario camera when ``camera`` is None; frames are
+        size: square size of the scenario's camera when ``camera`` is None; frames are
             resized to the camera's size.
 
     Returns:
@@ -386,7 +386,7 @@ def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | N
     import json
 
     from softsbi.scenarios.builtin import make_scenario
-    from softsbi.scenarios.cameras import default_camera, scenario_camera
+    from softsbi.scenarios.cameras import scenario_camera
     from softsbi.perception.images import load_frames
 
     from softsbi.data.recording import is_recording, read_recording
@@ -407,7 +407,7 @@ def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | N
         return Recording(scenario=sc, x=None, dense=None, source=str(folder), truth=data.meta.truth, images=images)
     scenario = "lift" if scenario is None else scenario
     sc = make_scenario(str(scenario)) if isinstance(scenario, (str, Path)) else scenario
-    cam = camera or default_camera(sc.name, size)
+    cam = camera or scenario_camera(sc, size)
     images = load_frames(folder, size=(cam.width, cam.height))
     if len(images) != sc.n_frames:
         raise DataError(f"'{folder}' has {len(images)} frames but scenario '{sc.name}' records {sc.n_frames}; "
@@ -430,11 +430,11 @@ def render_recording(backend: str, scenario: Scenario, truth: Mapping[str, float
     Raises:
         SimulationFailed: the hidden-parameter simulation failed.
     """
-    from softsbi.scenarios.cameras import default_camera
+    from softsbi.scenarios.cameras import scenario_camera
     from softsbi.core.errors import SimulationFailed
     from softsbi.plugins import registry
 
-    cam = camera or default_camera(scenario.name, size)
+    cam = camera or scenario_camera(scenario, size)
     sim = registry().simulator(backend)(**dict(backend_options or {}))
     ro = sim.simulate_images(scenario, dict(truth), camera=cam, style=style, effects=list(effects), seed=seed)
     if not ro.ok:

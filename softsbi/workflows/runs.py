@@ -14,7 +14,7 @@ from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.workflows.bestfit import BestFit, read_best_fit
-from softsbi.workflows.fit import FitConfig, _usable
+from softsbi.workflows.fit import FitConfig, _usable, round_posterior
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
 
 
@@ -222,10 +222,13 @@ def open_run(run_dir: str | Path) -> Run:
 
     The posterior is rebuilt from the stored rounds exactly as the fit built it (the corrected
     chain of round posteriors, or the last round's ``q`` restricted to the prior box for truncated
-    proposals and bulk estimators).
+    proposals and bulk estimators), whatever the estimator: a Gaussian mixture from its stored arrays,
+    any other posterior (e.g. ``flow``) from the estimator's stored state
+    (:func:`~softsbi.workflows.fit.round_posterior`).
 
     Raises:
-        SchemaError: not a run directory (no ``run.zarr``) or an unreadable schema version.
+        SchemaError: not a run directory (no ``run.zarr``) or an unreadable schema version;
+            ``PosteriorDamaged`` (a SchemaError): a stored posterior is missing or damaged.
         SoftsbiError: no round has finished yet (resume the fit first).
     """
     run_dir = Path(run_dir)
@@ -241,9 +244,9 @@ def open_run(run_dir: str | Path) -> Run:
     chain = PosteriorChain(space.dim, seed=cfg.seed)
     if sequential and cfg.proposal != "truncated":
         for r in rounds:
-            chain.add_round(store.read_q(r), counts[r])
+            chain.add_round(round_posterior(store, r, cfg), counts[r])
     else:
-        chain.add_round(store.read_q(rounds[-1]), sum(counts))
+        chain.add_round(round_posterior(store, rounds[-1], cfg), sum(counts))
     rep_path = run_dir / "report.json"
     report = json.loads(rep_path.read_text()) if rep_path.exists() else None
     return Run(run_dir, cfg, report, space, Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed),

@@ -34,7 +34,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.distributions import MixtureOfGaussians
+from softsbi.core.distributions import Distribution, MixtureOfGaussians
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import ParamSpace
@@ -84,9 +84,26 @@ def unit_map(src: ParamSpace, dst: ParamSpace) -> tuple[np.ndarray, np.ndarray]:
     return a, (lo_s - lo_d) / (hi_d - lo_d)
 
 
-def map_mixture(q: MixtureOfGaussians, a: np.ndarray, b: np.ndarray) -> MixtureOfGaussians:
-    """The mixture ``q`` of ``u`` as a mixture of ``a * u + b`` (exact: means ``a mu + b``, Cholesky ``diag(a) L``)."""
-    return MixtureOfGaussians(q.weights, q.means * a + b, q.scale_tril * a[:, None])
+def map_mixture(q: Distribution, a: np.ndarray, b: np.ndarray) -> Distribution:
+    """The distribution ``q`` of ``u`` as the distribution of ``a * u + b``: for a Gaussian mixture exact (means
+    ``a mu + b``, Cholesky ``diag(a) L``), for any other posterior (a flow) through its ``sample`` and ``log_prob``
+    with the change of variables' Jacobian."""
+    if isinstance(q, MixtureOfGaussians):
+        return MixtureOfGaussians(q.weights, q.means * a + b, q.scale_tril * a[:, None])
+    return _Mapped(q, a, b)
+
+
+class _Mapped(Distribution):
+    """``a * u + b`` for ``u ~ q`` (:func:`map_mixture` of a posterior that is not a mixture)."""
+
+    def __init__(self, q: Distribution, a: np.ndarray, b: np.ndarray):
+        self.q, self.a, self.b, self.dim = q, np.asarray(a, float), np.asarray(b, float), len(a)
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        return self.q.sample(n, rng) * self.a + self.b
+
+    def log_prob(self, u: np.ndarray) -> np.ndarray:
+        return self.q.log_prob((np.atleast_2d(u) - self.b) / self.a) - float(np.log(np.abs(self.a)).sum())
 
 
 def round_spaces(record: ParamSpace, config: Mapping[str, Any], last: int) -> list[ParamSpace]:

@@ -8,7 +8,7 @@ from softsbi.backends.mujoco_flex import MujocoFlex, grid_corners
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import wipe_scenario
 from softsbi.core.camera import Camera, RenderStyle
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import DataError, ShapeError
 from softsbi.core.interfaces import Simulator
 from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Param, ParamSpace, Rollout
@@ -32,8 +32,8 @@ def scenario():
 
 
 @pytest.fixture(scope="module")
-def camera():
-    return default_camera("wipe", SIZE)
+def camera(scenario):
+    return scenario_camera(scenario, SIZE)
 
 
 @pytest.fixture(scope="module")
@@ -153,8 +153,8 @@ def test_bad_camera_or_style(rendered, scenario):
     with pytest.raises(DataError, match="Camera"):
         sim.simulate_images(scenario, theta, camera="top")
     with pytest.raises(DataError, match="RenderStyle"):
-        sim.simulate_images(scenario, theta, default_camera("wipe", 32), style={"cloth": (0, 255, 0)})
-    cam = default_camera("wipe", 32)
+        sim.simulate_images(scenario, theta, scenario_camera(wipe_scenario(n_frames=7), 32), style={"cloth": (0, 255, 0)})
+    cam = scenario_camera(wipe_scenario(n_frames=7), 32)
     with pytest.raises(DataError, match="reflection"):  # a mirrored camera is refused when it is built
         Camera(32, 32, cam.fx, cam.fy, cam.cx, cam.cy, np.diag([-1.0, 1.0, 1.0]) @ np.asarray(cam.world_to_cam))
 
@@ -194,7 +194,7 @@ def test_render_rollout_convenience_and_outputs(tmp_path):
     with pytest.raises(ShapeError):
         save_frames_png(ro.rgb, tmp_path / "bad.png", labels=["a"])
     with pytest.raises(ShapeError):
-        robot_mask_from_depth(ro.depth[:, :10], default_camera("wipe", 48), 0.0)
+        robot_mask_from_depth(ro.depth[:, :10], scenario_camera(wipe_scenario(n_frames=7), 48), 0.0)
 
 
 def test_backproject_depth_inverts_project():
@@ -215,5 +215,5 @@ def test_failed_rollout_has_no_images(scenario):
     """A diverged rollout is returned (not raised) without images, and the GL context is released."""
     sim = MujocoFlex(grid=GRID, integrator="Euler", overrides={"young": 1e10})
     theta = sim.param_space(scenario).midpoint()
-    ro = sim.simulate_images(scenario, theta, default_camera("wipe", 32))
+    ro = sim.simulate_images(scenario, theta, scenario_camera(wipe_scenario(n_frames=7), 32))
     assert not ro.ok and ro.rgb is None and ro.depth is None and ro.segmentation is None

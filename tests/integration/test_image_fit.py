@@ -9,7 +9,8 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.core.camera import Camera, RenderStyle
-from softsbi.scenarios.cameras import default_camera
+from softsbi.scenarios.cameras import scenario_camera
+from softsbi.scenarios import load_scenario
 from softsbi.core.errors import DataError, ShapeError, SoftsbiError
 from softsbi.core.types import Observation
 from toy_helpers import DATA
@@ -33,7 +34,7 @@ def test_look_at_puts_up_at_the_image_top_and_right_handed():
 
 
 def test_camera_resize_json_and_calibration_files():
-    cam = default_camera("wipe", 128)
+    cam = scenario_camera(load_scenario("wipe"), 128)
     small = cam.resized(64, 64)
     p = np.array([[0.1, 0.05, 0.0]])
     assert np.allclose((cam.project(p)[0] + 0.5) / 2 - 0.5, small.project(p)[0])
@@ -46,8 +47,6 @@ def test_camera_resize_json_and_calibration_files():
         Camera.from_calibration(DATA)
     with pytest.raises(DataError, match="rotation"):
         Camera(64, 64, 50, 50, 32, 32, ((2, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0)))
-    with pytest.raises(DataError, match="no built-in camera"):
-        default_camera("juggle")
     assert RenderStyle.from_json(RenderStyle(cloth=(1, 2, 3)).to_json()).cloth == (1, 2, 3)
 
 
@@ -114,8 +113,7 @@ def test_training_set_labels_and_masks(rendered):
     assert d["robot_masks"].any() and d["cloth_masks"].any()
     assert set(np.unique(d["sequence_ids"])) == {0, 1}
     # the grasped corner sits under the gripper: it is on or next to robot pixels in the first frame
-    from softsbi.scenarios.cameras import default_camera
-    uv, _ = default_camera("wipe", SIZE).project(np.array([[0.0, 0.0, 0.0]]))
+    uv, _ = scenario_camera(load_scenario("wipe"), SIZE).project(np.array([[0.0, 0.0, 0.0]]))
     assert np.min(np.linalg.norm(d["corners"][0] - uv[0], axis=1)) < 2.0
 
 

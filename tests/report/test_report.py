@@ -166,9 +166,9 @@ def test_compare_uses_the_before_after_roles(tmp_path):
     assert R.plot_compare(tmp_path / "compare.png", a, b, "A", "B").stat().st_size > 10_000
 
 
-def _scenario(T=12, name="lift"):
+def _scenario(T=12, name="lift", view="yz"):
     t = np.linspace(0, 1, T)
-    return SimpleNamespace(name=name, n_frames=T, times=t,
+    return SimpleNamespace(name=name, n_frames=T, times=t, view=view,
                            gripper=np.stack([np.zeros(T), 0.1 - 0.1 * t, 0.08 + 0.3 * t], 1))
 
 

@@ -105,15 +105,15 @@ def test_api_loads_a_file_path_and_json_round_trip():
 
 
 def test_the_rope_winding_is_not_named_like_the_wind_effect_and_its_old_name_still_loads():
-    from softsbi.scenarios.cameras import default_camera
     from softsbi.scenarios.builtin import make_scenario
+    from softsbi.scenarios.cameras import scenario_camera
     assert "wind" not in {r["name"] for r in list_scenarios()}  # the effect 'wind' is a force, not this task
     with pytest.warns(FutureWarning, match="scenario 'wind' is now called 'winding'"):
         old = load_scenario("wind")
     assert old.name == "winding" and old.object["kind"] == "rope"
     with pytest.warns(FutureWarning):
         assert make_scenario("wind", n_frames=5).name == "winding"
-    assert default_camera("wind").width == default_camera("winding").width  # a run stored under the old name
+    assert scenario_camera(old).position.tolist() == scenario_camera(load_scenario("winding")).position.tolist()
 
 
 def test_a_rollout_without_scale_is_simulated_at_the_scenarios_declared_size(tmp_path):

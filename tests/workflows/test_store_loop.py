@@ -36,7 +36,7 @@ def test_store_round_trip_and_schema_errors(tmp_path):
     np.testing.assert_allclose(d["theta"], th)
     assert s2.round_attrs(0)["failures"] == {"4": "diverged: BADQACC"}
     assert s2.completed_rounds() == [0]
-    np.testing.assert_allclose(s2.read_q(0).means, [[0.5, 0.5]])
+    np.testing.assert_allclose(s2.read_posterior(0).means, [[0.5, 0.5]])
     assert s2.root["rounds"]["0"]["x"].metadata.dimension_names == ("simulation", "frame", "point", "xyz")
     assert s2.root["observed"]["times"].attrs["units"] == "s"
     # another schema version -> clear error naming the fix
