@@ -136,8 +136,7 @@ class FitConfig:
             the same joint proposal, correlated within a simulation. Only for the point-cloud observer with
             the height sensor model, truncated proposals or bulk estimators, and when every observation
             transform of the fit is such a sensor effect; otherwise, and at 0 (the default), it does nothing.
-            ``diagnose`` sets it for refits that add a sensor effect
-            (:data:`~softsbi.workflows.diagnose.REFIT_SENSOR_DRAWS`).
+            ``diagnose``'s refits use 0, so that physics and sensor effects are refitted on the same footing.
     """
 
     backend: str = _resume("mujoco-flex")
