@@ -195,7 +195,7 @@ def diagnosis_summary(d: Diagnosis) -> str:
               f"({cm(d.nominal.energy_m if d.nominal else None)} -> {cm(r.score.energy_m if r.score else None)}), "
               f"but the measurement stays outside its posterior predictive distribution ({r.test.text()}).")
     else:
-        s += " No refit lowers the energy score by more than its standard errors."
+        s += f" No refit lowers the energy score by more than {d.k_se:g} standard errors."
     return s
 
 
@@ -235,7 +235,8 @@ def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
     rows = []
     for c in d.ranking:
         r = d.refit((c.effect,))
-        rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""), pct(c.explained),
+        rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
+                     pct(None if c.explained is None else max(c.explained, 0.0)),
                      c.adjusted.short() if c.adjusted else (c.error or "-"),
                      r.test.short() if r else "-", cm(r.score.energy_m) if r and r.score else "-",
                      candidate_role(d, c)])

@@ -358,9 +358,9 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     space = sim.param_space(scenario)
     for e in cfg.effects:
         eff_cls = reg.effect(e)
-        if e not in sim_cls.effects:
-            raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}'; it supports "
-                                 f"{list(sim_cls.effects) or 'no effects'}")
+        missing = sim_cls.supports(eff_cls)
+        if missing is not None:
+            raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}': it needs {missing}")
         space = space + eff_cls().param_space()
     if cfg.bounds:
         space = space.with_bounds(cfg.bounds)
