@@ -402,6 +402,7 @@ class CheckResult:
             family, by evidence); energy: the posterior predictive's energy score.
         posterior_mean: the posterior-mean rollout's Chamfer ``{"chamfer_m", "chamfer_se_m", "n"}`` (m), the error
             of the fitted point estimate; None for a fit without one.
+        residual: where, when and in which direction the fit misses the measurement (when the test rejects).
         posterior_at_bounds: the fit's parameters whose posterior presses a prior bound (report.json's).
         key: what determines the result (run, settings), so that a stored result is reused only for them.
         seconds: wall time.
@@ -430,6 +431,7 @@ class CheckResult:
     ranking: tuple[Candidate, ...]
     energy: Score | None
     posterior_mean: Mapping[str, float] | None = None
+    residual: ResidualShape | None = None
     posterior_at_bounds: tuple[Mapping[str, Any], ...] = ()
     key: Mapping[str, Any] = field(default_factory=dict)
     seconds: float = 0.0

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import Band, CheckResult, Phase, from_json, write_result
+from softsbi.core.results import Band, CheckResult, Phase, ResidualShape, from_json, write_result
 from softsbi.core.types import STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
@@ -38,8 +38,8 @@ from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, check_resolution, misspecification_verdict
-from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
-                                     posterior_mean_chamfer)
+from softsbi.workflows.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
+                                     posterior_mean_chamfer, run_features, run_frames, sampled_points, summary_floor)
 
 #: the fewest successful posterior rollouts a check (and its null) works with
 MIN_ROLLOUTS = 5
@@ -200,6 +200,70 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
     return out
 
 
+def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_regions: int = 20) -> ResidualShape:
+    """When, where and in which direction the measurement leaves the posterior predictive distribution.
+
+    - frames: per frame, the mean squared standardised deviation of the measurement's summaries from the
+      posterior-predictive rollouts, against the same statistic of each rollout (leave-one-out); a frame is
+      flagged when the measurement exceeds the rollouts' 95% quantile.
+    - direction: the measured centroid minus the rollouts' mean centroid (cm), over the flagged frames.
+    - regions: per region of the cloth (:func:`~softsbi.workflows.check.material_regions`), the nearest-neighbour
+      error of the measurement to the rollouts minus that of another rollout to them (cm; the first
+      ``n_regions`` rollouts): the error the nominal model's own spread does not produce.
+
+    Uses the first ``n`` successful rollouts of ``pool`` (the null's first stage), so the shape does not depend on
+    whether the null was extended.
+    """
+    fit_frames = np.array(run_frames(run))
+    T = len(fit_frames)
+    F = pool.features[:n].reshape(min(n, len(pool.rollouts)), T, -1)
+    f_obs = run_features(run, run.dense).reshape(T, -1)
+    floor = summary_floor(F.shape[-1])
+    mu, sd = F.mean(0), np.maximum(F.std(0), floor)
+    z_obs = (((f_obs - mu) / sd) ** 2).mean(-1)
+    z_null = np.array([(((F[i] - o.mean(0)) / np.maximum(o.std(0), floor)) ** 2).mean(-1)
+                       for i, o in ((i, np.delete(F, i, axis=0)) for i in range(len(F)))])
+    flagged = z_obs > np.quantile(z_null, 0.95, axis=0)
+    times = run.scenario.times
+    spans, t = [], 0
+    while t < T:  # runs of flagged frames that are consecutive in the recording (fit frames may skip some)
+        if not flagged[t]:
+            t += 1
+            continue
+        e = t
+        while e + 1 < T and flagged[e + 1] and fit_frames[e + 1] == fit_frames[e] + 1:
+            e += 1
+        spans.append((int(fit_frames[t]), int(fit_frames[e]), float(times[fit_frames[t]]), float(times[fit_frames[e]])))
+        t = e + 1
+    phases = []
+    for ph in motion_phases(run.scenario):
+        inside = (fit_frames >= ph["frames"][0]) & (fit_frames <= ph["frames"][1])
+        phases.append({"phase": ph["phase"], "frames": list(ph["frames"]),
+                       "fraction_flagged": float(flagged[inside].mean()) if inside.any() else None})
+    sel = flagged if flagged.any() else np.ones(T, bool)
+    off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
+    axis = int(np.argmax(np.abs(off)))
+    direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + ((" (up)" if off[2] > 0 else " (down)") if axis == 2
+                                                               else "")
+    zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
+    ro = pool.rollouts[:max(2, min(n, n_regions))]
+    labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
+    exc = []
+    for k, r in enumerate(ro):
+        j = (k + 1) % len(ro)
+        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], run.dense.shape[1], 1000 + ro[j]["sample"])
+        exc.append(rollout_region_errors(run, r, labels, len(names), run.dense)
+                   - rollout_region_errors(run, r, labels, len(names), other, ro[j]))
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        per_region = np.nanmean(np.array(exc)[:, fit_frames[sel]], axis=(0, 1)) * 100
+    per_region = np.nan_to_num(per_region, nan=-np.inf)
+    return ResidualShape(tuple(int(fit_frames[i]) for i in np.flatnonzero(flagged)), tuple(spans), tuple(phases),
+                         tuple(float(v) for v in off), direction, FEATURE_NAMES[int(np.argmax(zf))],
+                         {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
+                         tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]))
+
+
 # ----------------------------------------------------------------------------------------
 # check
 
@@ -240,7 +304,8 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         the :class:`~softsbi.core.results.CheckResult`: Chamfer per frame with its band, error per region and
         phase under the fit's sensor model, the joint misspecification test
         (:func:`~softsbi.workflows.screening.misspecification_verdict`, the test ``diagnose`` detects with) and the
-        posterior predictive's energy score and the posterior-mean rollout's Chamfer.
+        posterior predictive's energy score, the posterior-mean rollout's Chamfer and, when the test rejects, the
+        residual's shape (:func:`residual_shape`).
 
     Raises:
         SoftsbiError: a null cap that cannot resolve ``alpha``; fewer than 5 posterior rollouts succeeded.
@@ -304,6 +369,7 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         tuple(phases), tuple(int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]]),
         tuple(names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]),
         test, ranking, energy_score(pool, n_eval), posterior_mean_chamfer(run, workers=workers),
+        residual_shape(run, pool, n_eval) if test.misspecified else None,
         tuple((run.report or {}).get("posterior_at_bounds") or ()), key, time.perf_counter() - t0)
     run_dir = Path(run_dir)
     write_result(run_dir / "check.json", result)

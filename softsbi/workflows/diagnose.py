@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import time
-import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -25,18 +24,16 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit,
-                                  ResidualShape, Score, from_json, write_result)
+from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit, Score,
+                                  from_json, write_result)
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
-from softsbi.workflows.check import (check_run, material_regions, motion_phases, result_key,
-                                    rollout_region_errors, stored_result)
+from softsbi.workflows.check import check_run, result_key, stored_result
 from softsbi.workflows.decide import K_SE, decide, next_refit
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, check_resolution
-from softsbi.workflows.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
-                                     run_frames, sampled_points, summary_floor)
+from softsbi.workflows.stats import ALPHA, MAX_NULL, N_NULL, PosteriorPredictive
 
 #: proposal of a refit: truncated (TSNPE, Deistler et al. 2022). A refit adds parameters to a model whose others the
 #: nominal fit has already narrowed; truncated proposals spend its rounds inside the posterior's region, where the
@@ -96,11 +93,10 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
         refits.append(refit_model(run, nxt, family, alpha, refit_rounds, refit_sims, n_null, max_null, workers, seed))
     decision = decide(chk.test, chk.energy, refits, k_se)
-    residual = residual_shape(run, pool.ensure(n_null), n_null) if chk.test.misspecified else None
     generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
-    sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())
+    sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())  # 0 when check's result was stored
     d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, chk.energy, tuple(refits), decision,
-                  residual, generic, sims, key, time.perf_counter() - t0)
+                  chk.residual, generic, sims, key, time.perf_counter() - t0)
     write_result(Path(run_dir) / "diagnosis.json", d)
     return d
 
@@ -153,70 +149,6 @@ def estimates(report: dict[str, Any], effects: Sequence[str]) -> tuple[Estimate,
                                 (width.get(p.name) or {}).get("width_ratio"), b.get("side"),
                                 tuple(b["suggested_bounds"]) if b.get("suggested_bounds") else None))
     return tuple(out)
-
-
-def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_regions: int = 20) -> ResidualShape:
-    """When, where and in which direction the measurement leaves the posterior predictive distribution.
-
-    - frames: per frame, the mean squared standardised deviation of the measurement's summaries from the
-      posterior-predictive rollouts, against the same statistic of each rollout (leave-one-out); a frame is
-      flagged when the measurement exceeds the rollouts' 95% quantile.
-    - direction: the measured centroid minus the rollouts' mean centroid (cm), over the flagged frames.
-    - regions: per region of the cloth (:func:`~softsbi.workflows.check.material_regions`), the nearest-neighbour
-      error of the measurement to the rollouts minus that of another rollout to them (cm; the first
-      ``n_regions`` rollouts): the error the nominal model's own spread does not produce.
-
-    Uses the first ``n`` successful rollouts of ``pool`` (the null's first stage), so the shape does not depend on
-    whether the null was extended.
-    """
-    fit_frames = np.array(run_frames(run))
-    T = len(fit_frames)
-    F = pool.features[:n].reshape(min(n, len(pool.rollouts)), T, -1)
-    f_obs = run_features(run, run.dense).reshape(T, -1)
-    floor = summary_floor(F.shape[-1])
-    mu, sd = F.mean(0), np.maximum(F.std(0), floor)
-    z_obs = (((f_obs - mu) / sd) ** 2).mean(-1)
-    z_null = np.array([(((F[i] - o.mean(0)) / np.maximum(o.std(0), floor)) ** 2).mean(-1)
-                       for i, o in ((i, np.delete(F, i, axis=0)) for i in range(len(F)))])
-    flagged = z_obs > np.quantile(z_null, 0.95, axis=0)
-    times = run.scenario.times
-    spans, t = [], 0
-    while t < T:  # runs of flagged frames that are consecutive in the recording (fit frames may skip some)
-        if not flagged[t]:
-            t += 1
-            continue
-        e = t
-        while e + 1 < T and flagged[e + 1] and fit_frames[e + 1] == fit_frames[e] + 1:
-            e += 1
-        spans.append((int(fit_frames[t]), int(fit_frames[e]), float(times[fit_frames[t]]), float(times[fit_frames[e]])))
-        t = e + 1
-    phases = []
-    for ph in motion_phases(run.scenario):
-        inside = (fit_frames >= ph["frames"][0]) & (fit_frames <= ph["frames"][1])
-        phases.append({"phase": ph["phase"], "frames": list(ph["frames"]),
-                       "fraction_flagged": float(flagged[inside].mean()) if inside.any() else None})
-    sel = flagged if flagged.any() else np.ones(T, bool)
-    off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
-    axis = int(np.argmax(np.abs(off)))
-    direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + ((" (up)" if off[2] > 0 else " (down)") if axis == 2
-                                                               else "")
-    zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
-    ro = pool.rollouts[:max(2, min(n, n_regions))]
-    labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
-    exc = []
-    for k, r in enumerate(ro):
-        j = (k + 1) % len(ro)
-        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], run.dense.shape[1], 1000 + ro[j]["sample"])
-        exc.append(rollout_region_errors(run, r, labels, len(names), run.dense)
-                   - rollout_region_errors(run, r, labels, len(names), other, ro[j]))
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        per_region = np.nanmean(np.array(exc)[:, fit_frames[sel]], axis=(0, 1)) * 100
-    per_region = np.nan_to_num(per_region, nan=-np.inf)
-    return ResidualShape(tuple(int(fit_frames[i]) for i in np.flatnonzero(flagged)), tuple(spans), tuple(phases),
-                         tuple(float(v) for v in off), direction, FEATURE_NAMES[int(np.argmax(zf))],
-                         {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
-                         tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]))
 
 
 def load_diagnosis(path: str | Path) -> Diagnosis:
