@@ -202,7 +202,7 @@ class Estimate:
         name, unit: the parameter and its unit.
         mean, q05, q95: posterior mean and 90% interval (physical units).
         width_ratio: the 90% interval's width over the prior's (in the parameter's own scale); None if unknown.
-        pressed: ``"low"`` or ``"high"`` when the posterior presses that prior bound, else None.
+        pressed: ``"lower"`` or ``"upper"`` when the posterior presses that prior bound, else None.
         suggested_bounds: the wider prior to try when it presses a bound that is not a physical limit.
     """
 

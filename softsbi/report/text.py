@@ -116,7 +116,7 @@ def refit_words(r: Refit, base: Score | None) -> str:
          f"({r.test.text()}), energy score {score_change(base, r.score)}.")
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
-    for e in r.estimates:
+    for e in r.estimates:  # a bound that is a physical limit (or the effect's switched-off side) gets no advice
         if e.pressed and e.suggested_bounds:
             s += (f" Its {e.name} presses the {e.pressed} prior bound: refit with --bounds "
                   f"{e.name}={e.suggested_bounds[0]:.4g}:{e.suggested_bounds[1]:.4g} if such values are physical.")

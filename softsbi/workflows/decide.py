@@ -60,10 +60,6 @@ def _best(refits: Sequence[Refit]) -> Refit | None:
     return min(refits, key=lambda r: r.score.energy_m, default=None)  # type: ignore[union-attr]
 
 
-def _single(refits: Sequence[Refit], effect: str) -> Refit | None:
-    return next((r for r in refits if r.effects == (effect,)), None)
-
-
 def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float = K_SE) -> Decision:
     """The verdict on a diagnosis' refits (module docstring): ``nothing-missing``, ``missing-effect`` (the
     named effect or pair, with the indistinguishable alternatives) or ``misspecified-unexplained`` (with the
@@ -86,8 +82,8 @@ def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se
         return Decision("missing-effect", named=best.effects, alternatives=ties, gain=gain(nominal, best.score))
     base = _best(better)
     for pair in (r for r in refits if len(r.effects) == 2 and r.score is not None):
-        first = _single(refits, pair.effects[0])
-        if first is base and pair.adequate and improves(base.score, pair.score, k_se):
+        if base is not None and set(base.effects) < set(pair.effects) and pair.adequate \
+                and improves(base.score, pair.score, k_se):
             return Decision("missing-effect", named=pair.effects, gain=gain(base.score, pair.score))
     if base is None:
         return Decision("misspecified-unexplained")

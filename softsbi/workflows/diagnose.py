@@ -87,7 +87,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
     pool = pool or PosteriorPredictive(run, workers, seed)
     chk = check_run(run.path, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
-                    effects=family)
+                    effects=family, recompute=recompute)
     refits: list[Refit] = []
     while (nxt := next_refit(chk.test, chk.ranking, chk.energy, refits, confirm, k_se)) is not None:
         say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")

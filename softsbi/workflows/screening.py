@@ -31,22 +31,24 @@ from softsbi.workflows.stats import (ALPHA, MAX_NULL, PosteriorPredictive, max_t
 
 def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
     """Instances of the candidate effects of a run: ``names`` (each must be applicable by the run's
-    backend), or by default every installed effect the backend supports, generic force terms included;
-    effects the run already has are left out.
+    backend; an empty list is no candidate), or by default (None) every installed effect the backend supports,
+    generic force terms included; effects the run already has are left out.
 
     Raises:
         SoftsbiError: a named effect the backend cannot apply (naming the door it needs).
     """
     reg = registry()
     sim_cls = reg.simulator(run.config["backend"])
-    if names:
+    if isinstance(names, str):
+        raise SoftsbiError(f"candidate effects must be a list of names, e.g. [{names!r}]")
+    if names is not None:
         cands = [reg.effect(n) for n in names]
         bad = [f"{c.name} (it needs {sim_cls.supports(c)})" for c in cands if sim_cls.supports(c) is not None]
         if bad:
             raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
     else:
-        # generic force terms are screened too (in the max-T family), but only for the third verdict: forward
-        # selection names non-generic effects only (Screening.forward_selection)
+        # generic force terms are screened too (in the max-T family), but only for the third verdict: the diagnosis
+        # refits and names non-generic effects only
         cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
     return [c() for c in cands if c.name not in run.effects]
 

@@ -75,6 +75,7 @@ class _Shift(Effect):
     """A toy effect seen through the observation door: every observed vertex moves by ``amount * profile(s_t)``
     along ``axis`` (``s_t = t / (T - 1)``), so any backend that applies observation transforms runs it."""
 
+    kind = "sensor"
     axis: int = 0
     unit_name: str = "amount"
 
