@@ -135,9 +135,9 @@ def run_case(case: dict[str, Any], out: Path, workers: int | None, old: Path | N
     row.update(verdict=d.verdict, named=list(d.decision.named), alternatives=[list(a) for a in d.decision.alternatives],
                partial=list(d.decision.partial), p_value=d.test.p_value, n_null=d.test.n_null,
                refits=[{"effects": list(r.effects), "adequate": r.adequate, "p_value": r.test.p_value,
-                        "energy_m": r.score.energy_m if r.score else None} for r in d.refits],
-               energy_nominal_m=d.nominal.energy_m if d.nominal else None,
-               energy_named_m=named.score.energy_m if named and named.score else None,
+                        "score": r.score.value if r.score else None, "chamfer_m": r.chamfer_m} for r in d.refits],
+               score_nominal=d.nominal.value if d.nominal else None,
+               score_named=named.score.value if named and named.score else None,
                right=right(case["label"], d.verdict, d.decision.named, d.decision.alternatives),
                seconds=time.perf_counter() - t1, wall_s=time.perf_counter() - t0)
     return row
@@ -217,7 +217,7 @@ def interval(k: int, n: int) -> list[float]:
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Rates of a split: per label the cases, detections (any verdict but ``nothing-missing``) and right verdicts
     with their 95% intervals, for the new rule and (where stored) the old one on the same cases; the confusion
-    of labels and what was called; detection against magnitude; the energy score's fall in right named cases."""
+    of labels and what was called; detection against magnitude; the score's fall in right named cases."""
     ok = [r for r in rows if "verdict" in r]
     out: dict[str, Any] = {"cases": len(rows), "failed": len(rows) - len(ok), "by_label": {}, "confusion": {}}
     for label in ["control", *EFFECTS, "other-engine"]:
@@ -237,9 +237,9 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     if ctl:
         out["false_alarms"] = ctl["n"] - ctl["right"]
         out["false_alarm_ci95"] = interval(out["false_alarms"], ctl["n"])
-    drops = [1 - r["energy_named_m"] / r["energy_nominal_m"] for r in ok
-             if r["right"] and r.get("energy_named_m") and r.get("energy_nominal_m")]
-    out["energy_drop_median"] = float(np.median(drops)) if drops else None
+    drops = [1 - r["score_named"] / r["score_nominal"] for r in ok
+             if r["right"] and r.get("score_named") and r.get("score_nominal")]
+    out["score_drop_median"] = float(np.median(drops)) if drops else None
     eff = [r for r in ok if r.get("magnitude") is not None]
     bins = [(0.25, 0.5), (0.5, 0.75), (0.75, 1.0001)]
     out["detection_by_magnitude"] = {f"{a:.2f}-{min(b, 1):.2f}": [sum(r["verdict"] != "nothing-missing" for r in eff
@@ -267,9 +267,9 @@ def markdown(s: dict[str, Any], split: str) -> str:
         f"{k}: " + ", ".join(f"{c} {n}" for c, n in v.items()) for k, v in s["confusion"].items()) + ".",
         "", "Detected against magnitude: " + ", ".join(f"{k}: {d} of {n}" for k, (d, n)
                                                        in s["detection_by_magnitude"].items()) + "."]
-    if s.get("energy_drop_median") is not None:
-        lines.append(f"Median fall of the energy score from the nominal fit to the named refit, right cases: "
-                     f"{s['energy_drop_median'] * 100:.0f}%.")
+    if s.get("score_drop_median") is not None:
+        lines.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
+                     f"cases: {s['score_drop_median'] * 100:.0f}%.")
     return "\n".join(lines)
 
 

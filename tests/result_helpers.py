@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from softsbi.core.results import (Band, Candidate, CheckResult, JointTest, MCPValue, Phase, Refit, Score)
+from softsbi.core.results import Band, Candidate, CheckResult, EnergyScore, JointTest, MCPValue, Phase, Refit, Score
 
 #: region names as check_run writes them (R1 nearest the first handle's grasp)
 REGIONS = tuple(f"R{r + 1}" + (" (at the grasp)" if r == 0 else " (farthest from the grasp)" if r == 8 else "")
@@ -21,9 +21,14 @@ def joint(omnibus: int = 0, directional: int | None = 0, n: int = 200, alpha: fl
                      None if directional is None else effect, family, alpha, 200, 3.2)
 
 
-def score(energy_m: float, se_m: float = 0.0004, spread_m: float = 0.004, n: int = 30) -> Score:
-    """An energy score with its terms consistent: ``chamfer = energy + spread / 2``."""
-    return Score(energy_m, se_m, energy_m + spread_m / 2, spread_m, n)
+def score(value: float, se: float = 0.4, n: int = 30) -> Score:
+    """An energy score of the summaries (dimensionless), the score a diagnosis decides on."""
+    return Score(value, se, n)
+
+
+def energy(energy_m: float, se_m: float = 0.0004, spread_m: float = 0.004, n: int = 30) -> EnergyScore:
+    """An energy score of the clouds with its terms consistent: ``chamfer = energy + spread / 2``."""
+    return EnergyScore(energy_m, se_m, energy_m + spread_m / 2, spread_m, n)
 
 
 def candidate(effect: str, explained: float = 0.3, exceed: int = 0, kind: str = "physics", generic: bool = False,
@@ -31,8 +36,9 @@ def candidate(effect: str, explained: float = 0.3, exceed: int = 0, kind: str = 
     return Candidate(effect, kind, generic, description, explained, MCPValue(exceed, n), estimate)
 
 
-def refit(effects: tuple[str, ...], energy_m: float, test: JointTest, **fields) -> Refit:
-    return Refit(effects, f"run/refit-{'+'.join(effects)}", test, score(energy_m), energy_m + 0.002, **fields)
+def refit(effects: tuple[str, ...], value: float, test: JointTest, **fields) -> Refit:
+    """A refit whose score of the summaries is ``value`` (its posterior-predictive Chamfer ``value / 1000 + 0.002`` m)."""
+    return Refit(effects, f"run/refit-{'+'.join(effects)}", test, score(value), value / 1000 + 0.002, **fields)
 
 
 def check_result(T: int = 25, long: bool = False, test: JointTest | None = None, **fields) -> CheckResult:
@@ -50,5 +56,5 @@ def check_result(T: int = 25, long: bool = False, test: JointTest | None = None,
                       None, "none", 0.0, REGIONS, tuple(map(tuple, region.tolist())),
                       tuple(tuple([True] * 9) for _ in range(T)), dict(zip(REGIONS, region.mean(0).tolist())),
                       phases, (T - 1, T - 2, T - 3), (REGIONS[8], REGIONS[7]), test or joint(), (),
-                      score(float(mean.mean()) - 0.002))
+                      energy(float(mean.mean()) - 0.002))
     return replace(out, **fields)

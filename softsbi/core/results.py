@@ -175,12 +175,12 @@ class Candidate:
 
 
 @dataclass(frozen=True)
-class Score:
-    """The energy score of a posterior predictive distribution against the measurement (Gneiting & Raftery
+class EnergyScore:
+    """The energy score of a posterior predictive distribution against the measured clouds (Gneiting & Raftery
     2007, eq. 22), with the fit's Chamfer distance as the distance: ``ES = chamfer - spread / 2`` (m).
 
     Attributes:
-        energy_m: the score (lower is better; a proper score).
+        energy_m: the score (lower is better).
         se_m: its Monte-Carlo standard error (jackknife over rollouts).
         chamfer_m: mean Chamfer between a rollout and the measurement (the posterior-predictive Chamfer).
         spread_m: mean Chamfer between two rollouts.
@@ -191,6 +191,25 @@ class Score:
     se_m: float
     chamfer_m: float
     spread_m: float
+    n: int
+
+
+@dataclass(frozen=True)
+class Score:
+    """The energy score of a posterior predictive distribution of ``check``'s summary statistics against the
+    measurement's (Gneiting & Raftery 2007, eq. 22, Euclidean distance): ``mean_i |z_i - z| - mean_ij |z_i - z_j| / 2``
+    with ``z`` the summaries divided by one fixed scale per summary for every model compared (the nominal fit's
+    posterior-predictive standard deviation, floored: the scale of ``check``'s omnibus test). A strictly proper
+    score: in expectation no forecast scores lower than the distribution the measurement comes from.
+
+    Attributes:
+        value: the score (dimensionless; lower is better).
+        se: its Monte-Carlo standard error (jackknife over rollouts).
+        n: rollouts scored.
+    """
+
+    value: float
+    se: float
     n: int
 
 
@@ -229,7 +248,8 @@ class Refit:
         effects: the added effects.
         run: its run directory.
         test: ``check``'s test of the refit (same level and family as the diagnosis, less its own effects).
-        score: energy score of its posterior predictive (None when too few rollouts succeeded).
+        score: the energy score of its posterior predictive of the summaries, in the nominal fit's scale (None when too
+            few rollouts succeeded).
         chamfer_m: its posterior-predictive Chamfer (m).
         estimates: its posterior of the added effects' parameters.
         ranking: its own screening of the remaining candidates (what it leaves unexplained).
@@ -322,7 +342,7 @@ class Diagnosis:
         alpha, k_se: the level of every test and the standard-error margin of every score comparison.
         test: ``check``'s test of the nominal fit (detect).
         ranking: the screening's candidates by evidence (propose).
-        nominal: the nominal fit's energy score.
+        nominal: the nominal fit's energy score of the summaries (:class:`Score`).
         refits: the refits made, in order.
         decision: the verdict (decide).
         residual: the nominal fit's residual shape (None for ``nothing-missing``).
@@ -399,7 +419,7 @@ class CheckResult:
             the cloth (regions counted from the first handle's grasp).
         phases: per phase of the motion; worst_frames, worst_regions: where it misses most.
         test: the misspecification test; ranking: its screening of the candidate effects (the directional test's
-            family, by evidence); energy: the posterior predictive's energy score.
+            family, by evidence); energy: the posterior predictive's energy score against the measured clouds.
         posterior_mean: the posterior-mean rollout's Chamfer ``{"chamfer_m", "chamfer_se_m", "n"}`` (m), the error
             of the fitted point estimate; None for a fit without one.
         residual: where, when and in which direction the fit misses the measurement (when the test rejects).
@@ -429,7 +449,7 @@ class CheckResult:
     worst_regions: tuple[str, ...]
     test: JointTest
     ranking: tuple[Candidate, ...]
-    energy: Score | None
+    energy: EnergyScore | None
     posterior_mean: Mapping[str, float] | None = None
     residual: ResidualShape | None = None
     posterior_at_bounds: tuple[Mapping[str, Any], ...] = ()

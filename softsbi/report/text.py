@@ -91,13 +91,13 @@ def estimate_words(e: Estimate) -> str:
 
 
 def score_change(base: Score | None, new: Score | None, joiner: str = " -> ") -> str:
-    """``"2.10 cm -> 0.80 cm (62% lower, 9.1 standard errors)"`` (``joiner`` between the two scores)."""
+    """``"28.5 -> 14.3 (50% lower, 6.1 standard errors)"`` (``joiner`` between the two scores)."""
     if base is None or new is None:
         return "n/a"
-    d = base.energy_m - new.energy_m
-    se = (base.se_m ** 2 + new.se_m ** 2) ** 0.5
+    d = base.value - new.value
+    se = (base.se ** 2 + new.se ** 2) ** 0.5
     z = f", {d / se:.1f} standard errors" if se > 0 else ""
-    return f"{cm(base.energy_m)}{joiner}{cm(new.energy_m)} ({describe_change(base.energy_m, new.energy_m)}{z})"
+    return f"{base.value:.3g}{joiner}{new.value:.3g} ({describe_change(base.value, new.value)}{z})"
 
 
 def extended(d: Diagnosis, r: Refit) -> Score | None:
@@ -113,7 +113,8 @@ def refit_words(r: Refit, base: Score | None) -> str:
     """One refit: is it adequate, does it improve, what it estimates, which prior bounds it presses."""
     ok = "inside" if r.adequate else "still outside"
     s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
-         f"({r.test.text()}), energy score {score_change(base, r.score)}.")
+         f"({r.test.text()}), energy score {score_change(base, r.score)}"
+         + (f", posterior-predictive Chamfer {cm(r.chamfer_m)}." if r.chamfer_m is not None else "."))
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
     for e in r.estimates:  # a bound that is a physical limit (or the effect's switched-off side) gets no advice
@@ -133,8 +134,9 @@ def rule_words(d: Diagnosis) -> str:
     s += (f" Propose: the screening ranked {len(d.candidates)} candidates; refitted "
           + (", ".join(singles) if singles else "none") + " (the top named ones by evidence)"
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
-    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its energy score "
-          f"falls by more than {d.k_se:g} standard errors below the model it extends.")
+    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and the energy score of "
+          f"its posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more "
+          f"than {d.k_se:g} standard errors below the model it extends.")
     return s
 
 
@@ -191,8 +193,8 @@ def diagnosis_summary(d: Diagnosis) -> str:
     s += f", and no refit of {', '.join(r.label for r in d.refits)} explains it."
     if dec.partial:
         r = d.refit(dec.partial)
-        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the energy score most "
-              f"({cm(d.nominal.energy_m if d.nominal else None)} -> {cm(r.score.energy_m if r.score else None)}), "
+        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the energy score most, from "
+              f"{score_change(d.nominal, r.score, ' to ')}, "
               f"but the measurement stays outside its posterior predictive distribution ({r.test.text()}).")
     else:
         s += f" No refit lowers the energy score by more than {d.k_se:g} standard errors."
@@ -238,12 +240,12 @@ def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
         rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
                      pct(None if c.explained is None else max(c.explained, 0.0)),
                      c.adjusted.short() if c.adjusted else (c.error or "-"),
-                     r.test.short() if r else "-", cm(r.score.energy_m) if r and r.score else "-",
+                     r.test.short() if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
                      candidate_role(d, c)])
     return rows
 
 
-DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", "refit energy score", "verdict"]
+DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", "refit score", "verdict"]
 
 
 def compare_summary(c: CompareResult) -> str:

@@ -7,9 +7,10 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
    refitted, in that order (:func:`next_refit`). The ranking spends the refit budget; it decides nothing.
 3. *Decide* on the refits by two criteria only (:func:`decide`):
    - *adequate*: ``check``'s test of the refit does not reject at the same ``alpha``;
-   - *improves*: the refit lowers the energy score of the posterior predictive (a proper score, Gneiting &
-     Raftery 2007) below the model it extends by more than ``k_se`` standard errors of the difference
-     (:func:`gain`).
+   - *improves*: the refit lowers the energy score of the posterior predictive of ``check``'s summary statistics
+     (a strictly proper score, Gneiting & Raftery 2007; every model in the nominal fit's scale,
+     :class:`~softsbi.core.results.Score`) below the model it extends by more than ``k_se`` standard errors of the
+     difference (:func:`gain`).
    The adequate, improving single refit with the lowest score is named; every other adequate, improving refit
    whose score is not ``k_se`` standard errors above it is listed as indistinguishable. When no single refit
    qualifies, one greedy step: the improving single refit with the lowest score is extended by the first
@@ -17,10 +18,11 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
    refit by the same margin. Otherwise ``misspecified-unexplained``, naming the improving refit with the lowest
    score as explaining a part.
 
-Why the energy score: it is a proper score, so no forecast scores better in expectation than the distribution
-the measurement comes from. The posterior-predictive Chamfer is not: a model that predicts no spread minimises
-it, and a correct noise model raises it. An added parameter the data do not inform widens the posterior
-predictive, which the energy score charges for unless the measurement needs that spread.
+Why the energy score of the summaries: it is a strictly proper score, so no forecast scores better in expectation
+than the distribution the measurement comes from, and it lives in the space ``check``'s test detects the misfit in.
+The posterior-predictive Chamfer is not proper: a model that predicts no spread minimises it, and a correct noise
+model raises it. An added parameter the data do not inform widens the posterior predictive, which the energy score
+charges for unless the measurement needs that spread.
 
 Knobs: ``alpha`` (the level of every test: the false-alarm rate tolerated), ``k_se`` (:data:`K_SE`) and the
 refit budget (``confirm`` refits, their rounds and simulations).
@@ -45,8 +47,8 @@ def gain(base: Score | None, new: Score | None) -> Gain | None:
     against the same measurement) and ``z``; None when either is missing."""
     if base is None or new is None:
         return None
-    d = base.energy_m - new.energy_m
-    se = float(np.hypot(base.se_m, new.se_m))
+    d = base.value - new.value
+    se = float(np.hypot(base.se, new.se))
     return Gain(float(d), se, float(d / se) if se > 0 else (np.inf if d > 0 else -np.inf if d < 0 else 0.0))
 
 
@@ -57,7 +59,7 @@ def improves(base: Score | None, new: Score | None, k_se: float = K_SE) -> bool:
 
 
 def _best(refits: Sequence[Refit]) -> Refit | None:
-    return min(refits, key=lambda r: r.score.energy_m, default=None)  # type: ignore[union-attr]
+    return min(refits, key=lambda r: r.score.value, default=None)  # type: ignore[union-attr]
 
 
 def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float = K_SE) -> Decision:

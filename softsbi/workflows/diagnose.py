@@ -24,8 +24,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit, Score,
-                                  from_json, write_result)
+from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit, from_json,
+                                  write_result)
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.workflows.check import check_run, result_key, stored_result
@@ -33,7 +33,8 @@ from softsbi.workflows.decide import K_SE, decide, next_refit
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, check_resolution
-from softsbi.workflows.stats import ALPHA, MAX_NULL, N_NULL, PosteriorPredictive
+from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
+                                     summary_energy_score, summary_scale)
 
 #: proposal of a refit: truncated (TSNPE, Deistler et al. 2022). A refit adds parameters to a model whose others the
 #: nominal fit has already narrowed; truncated proposals spend its rounds inside the posterior's region, where the
@@ -88,14 +89,19 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     pool = pool or PosteriorPredictive(run, workers, seed)
     chk = check_run(run.path, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
                     effects=family, recompute=recompute)
+    # the score every model is compared on: the energy score of check's summaries in the nominal's scale
+    f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
+    scale = summary_scale(f_nom)
+    nominal = summary_energy_score(run_features(run, run.dense), f_nom, scale)
     refits: list[Refit] = []
-    while (nxt := next_refit(chk.test, chk.ranking, chk.energy, refits, confirm, k_se)) is not None:
+    while (nxt := next_refit(chk.test, chk.ranking, nominal, refits, confirm, k_se)) is not None:
         say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
-        refits.append(refit_model(run, nxt, family, alpha, refit_rounds, refit_sims, n_null, max_null, workers, seed))
-    decision = decide(chk.test, chk.energy, refits, k_se)
+        refits.append(refit_model(run, nxt, family, scale, alpha, refit_rounds, refit_sims, n_null, max_null, workers,
+                                  seed))
+    decision = decide(chk.test, nominal, refits, k_se)
     generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
     sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())  # 0 when check's result was stored
-    d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, chk.energy, tuple(refits), decision,
+    d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, nominal, tuple(refits), decision,
                   chk.residual, generic, sims, key, time.perf_counter() - t0)
     write_result(Path(run_dir) / "diagnosis.json", d)
     return d
@@ -107,7 +113,7 @@ def recording_from_run(run: RunView) -> Recording:
                      source=run.config.get("observed_source", ""), truth=run.config.get("truth"))
 
 
-def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], alpha: float = ALPHA,
+def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], scale: np.ndarray, alpha: float = ALPHA,
                 rounds: int | None = None, sims_per_round: int | None = None, n_null: int = N_NULL,
                 max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
@@ -117,7 +123,8 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], alp
     and sensor effects alike) and, where given, its own rounds and simulations per round; it is stored in
     ``RUN/refit-<a>+<b>`` and resumes from there. It is checked by :func:`~softsbi.workflows.check.check_run` (so
     ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
-    its score is the energy score of its posterior predictive.
+    its score is the energy score of its first ``n_null`` posterior-predictive rollouts' summaries in ``scale``
+    (the nominal fit's, :func:`~softsbi.workflows.stats.summary_energy_score`).
 
     Raises:
         everything :func:`~softsbi.workflows.fit.run_fit` raises (e.g. a stored refit with other settings).
@@ -129,9 +136,12 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], alp
                   sensor_draws=0, workers=workers if workers is not None else base.workers)
     out = run.path / f"refit-{'+'.join(effects)}"
     res = run_fit(out, recording_from_run(run), cfg)
-    chk = check_run(out, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
+    pool = PosteriorPredictive(out, workers, seed)
+    chk = check_run(out, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
                     effects=[e for e in family if e not in effects])
-    return Refit(effects, str(out), chk.test, chk.energy, res.report.get("chamfer_posterior_m"),
+    f = pool.ensure(n_null).features[:n_null]
+    score = summary_energy_score(run_features(pool.run, pool.run.dense), f, scale) if len(f) >= 3 else None
+    return Refit(effects, str(out), chk.test, score, res.report.get("chamfer_posterior_m"),
                  estimates(res.report, effects), chk.ranking, cfg.rounds, cfg.sims_per_round)
 
 
@@ -181,14 +191,12 @@ def _legacy_diagnosis(old: dict[str, Any]) -> Diagnosis:
                            r.get("explained_fraction"),
                            MCPValue(r["adjusted_exceed"], r["n_null"]) if "adjusted_exceed" in r else None,
                            r.get("estimate") or {}, r.get("error")) for r in old.get("ranking") or ())
-    e = old.get("energy")
     refits = tuple(Refit(tuple(c["effect"].split("+")), c.get("run", ""), _legacy_test(c["misspecification_after"], fam),
-                         Score(c["energy_after_m"], c["energy_after_se_m"], c.get("chamfer_after_m", np.nan),
-                               np.nan, 0) if c.get("energy_after_m") is not None else None, c.get("chamfer_after_m"))
+                         None, c.get("chamfer_after_m"))  # an older file has no score of the summaries
                    for c in old.get("confirmed") or () if c.get("misspecification_after"))
     named = tuple(old.get("named_effects") or ([old["selected"]] if old.get("selected") else []))
     decision = Decision(old["verdict"], named if old["verdict"] == "missing-effect" else (),
                         partial=(old["partial"],) if old.get("partial") else ())
     return Diagnosis(old.get("run", ""), fam, float(old["alpha"]), K_SE, _legacy_test(old["misspecification"], fam),
-                     rank, Score(e["energy_m"], e["energy_se_m"], e["chamfer_m"], e["spread_m"], e["n"]) if e else None,
+                     rank, None,
                      refits, decision, simulations=int(old.get("simulations", 0)), seconds=float(old.get("seconds", 0)))

@@ -32,7 +32,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import MCPValue, Score
+from softsbi.core.results import EnergyScore, MCPValue, Score
 from softsbi.core.levels import ALPHA  # noqa: F401 (re-exported)
 from softsbi.core.types import STATUS_OK
 from softsbi.inference.summaries import local_thickness
@@ -275,7 +275,7 @@ class PosteriorPredictive:
         self.sensitivities: dict[tuple, Any] = {}
         #: :func:`energy_score` results, by (n, the rollouts' samples), so that check and diagnose sharing this
         #: pool score it once
-        self.energy_scores: dict[tuple, Score] = {}
+        self.energy_scores: dict[tuple, EnergyScore] = {}
 
     @property
     def features(self) -> np.ndarray:
@@ -345,7 +345,7 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     return views_or_highest(views, surface), None
 
 
-def energy_score(pool: PosteriorPredictive, n: int | None = None) -> Score | None:
+def energy_score(pool: PosteriorPredictive, n: int | None = None) -> EnergyScore | None:
     """The posterior predictive's energy score against the measurement, with the fit's metric as distance.
 
     ``ES = mean_i d(X_i, y) - 1/2 mean_(i,j) d(X_i, X_j)`` (Gneiting & Raftery 2007, eq. 22, with the
@@ -364,7 +364,7 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> Score | Non
             is the report's ``chamfer_posterior_m``).
 
     Returns:
-        a :class:`~softsbi.core.results.Score` (m): the score, its jackknife standard error over rollouts, the two
+        an :class:`~softsbi.core.results.EnergyScore` (m): the score, its jackknife standard error over rollouts, the two
         terms (``spread_m`` is the mean distance between two rollouts) and the rollouts scored; None with fewer
         than 3 successful rollouts or an image fit (no clouds).
     """
@@ -392,8 +392,41 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> Score | Non
     full = score(np.ones(m, bool))
     loo = np.array([score(np.arange(m) != i) for i in range(m)])
     se = float(np.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2)))
-    pool.energy_scores[key] = Score(full, se, float(d_obs.mean()), float(d_pair.mean()), m)
+    pool.energy_scores[key] = EnergyScore(full, se, float(d_obs.mean()), float(d_pair.mean()), m)
     return pool.energy_scores[key]
+
+
+def summary_scale(f_sims: np.ndarray) -> np.ndarray:
+    """``(F,)`` the scale of summaries ``f_sims (S, F)``: their standard deviation floored at :func:`summary_floor` (the
+    omnibus test's weights)."""
+    f_sims = np.asarray(f_sims, float)
+    return np.maximum(f_sims.std(0), summary_floor(f_sims.shape[1]))
+
+
+def summary_energy_score(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray) -> Score:
+    """The energy score of posterior-predictive summaries ``f_sims (S, F)`` against the measurement's ``f_obs (F,)``
+    in a fixed ``scale (F,)``: ``mean_i |z_i - z| - mean_(i<j) |z_i - z_j| / 2`` with ``z = f / scale`` (Gneiting &
+    Raftery 2007, eq. 22; strictly proper for the Euclidean norm), with its jackknife standard error over rollouts.
+
+    Raises:
+        SoftsbiError: fewer than 3 rollouts or shapes that disagree.
+    """
+    z = np.asarray(f_sims, float) / scale
+    z_obs = np.asarray(f_obs, float) / scale
+    S = len(z)
+    if S < 3 or z.ndim != 2 or z.shape[1] != len(z_obs):
+        raise SoftsbiError(f"an energy score needs at least 3 rollouts of {len(z_obs)} summaries, got {z.shape}")
+    d_obs = np.linalg.norm(z - z_obs, axis=1)
+    sq = (z * z).sum(1)
+    d_pair = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2 * z @ z.T, 0.0))
+
+    def score(keep: np.ndarray) -> float:
+        m = int(keep.sum())
+        return float(d_obs[keep].mean() - 0.5 * d_pair[np.ix_(keep, keep)].sum() / (m * (m - 1)))
+
+    loo = np.array([score(np.arange(S) != i) for i in range(S)])
+    se = float(np.sqrt((S - 1) / S * np.sum((loo - loo.mean()) ** 2)))
+    return Score(score(np.ones(S, bool)), se, S)
 
 
 #: rollouts at the posterior mean whose mean Chamfer is a fit's posterior-mean rollout error

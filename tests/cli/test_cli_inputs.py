@@ -107,9 +107,9 @@ def _unexplained_with_a_pair(tmp_path):
     ranking = (candidate("time-offset", 0.14, kind="sensor"), candidate("wind", 0.12),
                candidate("table-unseen", 0.05, 60, kind="sensor"))
     still = joint(0, 2, family=("time-offset", "wind", "table-unseen"))
-    refits = (refit(("time-offset",), 0.0250, still), refit(("wind",), 0.0336, still),
-              refit(("time-offset", "wind"), 0.0405, still))
-    nominal = score(0.0285)
+    refits = (refit(("time-offset",), 25.0, still), refit(("wind",), 33.6, still),
+              refit(("time-offset", "wind"), 40.5, still))
+    nominal = score(28.5)
     return Diagnosis(str(tmp_path), ("time-offset", "wind", "table-unseen"), 0.05, 2.0, joint(0, 0), ranking, nominal,
                      refits, decide(joint(0, 0), nominal, refits))
 
@@ -125,7 +125,7 @@ def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
     res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1"])
     assert res.exit_code == 0, res.output
     line = next(ln for ln in res.output.splitlines() if "With time-offset + wind:" in ln)
-    assert "still outside" in line and "2.50 cm -> 4.05 cm (62% higher" in line
+    assert "still outside" in line and "25 -> 40.5 (62% higher" in line
     rows = {ln.split("|")[1].strip(): ln for ln in res.output.splitlines() if ln.startswith("|")}
     assert rows["time-offset"].rstrip(" |").endswith("explains a part")
     assert not any(ln.rstrip(" |").endswith(("named", "named (pair)")) for ln in rows.values())

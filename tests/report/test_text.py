@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import pytest
 
-from result_helpers import REGIONS, candidate, check_result, joint, refit, score
+from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
 from softsbi.core.results import CompareResult, Diagnosis, Estimate, ResidualShape, Row
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text)
@@ -21,23 +21,23 @@ RANKING = (candidate("generic-constant", 0.62, generic=True, description="a cons
            candidate("wind", 0.55, description="a steady wind", wind_x=0.1, wind_y=0.8),
            candidate("extra-damping", 0.31, description="extra velocity damping", damping_rate=2.0),
            candidate("time-offset", 0.05, 80, kind="sensor", description="a time offset", time_offset=0.01))
-NOMINAL = score(0.0210, 0.0005)
+NOMINAL = score(21.0, 0.5)
 REJECTS = joint(0, 0)  # beyond all 200 nulls: p <= 2/201
 ACCEPTS = joint(40, 60, family=("extra-damping", "time-offset", "generic-constant"), effect="extra-damping")
 REJECTS_REFIT = joint(0, 30, family=("extra-damping", "time-offset", "generic-constant"), effect="extra-damping")
 
 #: the wind's refit: adequate, 62% lower, its wind_y pressing the upper prior bound (not a physical limit)
-WIND = refit(("wind",), 0.0080, ACCEPTS,
+WIND = refit(("wind",), 8, ACCEPTS,
              estimates=(Estimate("wind_x", "m/s", 0.05, -0.2, 0.3, 0.12),
                         Estimate("wind_y", "m/s", 1.79, 1.55, 1.98, 0.11, "upper", (-2.0, 4.0))))
 #: extra damping's refit: adequate, 0.84 cm, within 2 standard errors of the wind's; its parameter not informed
-DAMPING = refit(("extra-damping",), 0.0084, joint(50, 70, family=("wind", "time-offset", "generic-constant")),
+DAMPING = refit(("extra-damping",), 8.4, joint(50, 70, family=("wind", "time-offset", "generic-constant")),
                 estimates=(Estimate("damping_rate", "1/s", 3.1, 0.4, 7.9, 0.8),))
 #: single refits that lower the score but leave the measurement outside, and the pair that explains it
-WIND_PART = refit(("wind",), 0.0150, REJECTS_REFIT,
+WIND_PART = refit(("wind",), 15, REJECTS_REFIT,
                   ranking=(candidate("generic-constant", 0.5, generic=True), candidate("extra-damping", 0.4, 1)))
-DAMPING_PART = refit(("extra-damping",), 0.0170, joint(0, 5, family=("wind", "time-offset", "generic-constant")))
-PAIR = refit(("wind", "extra-damping"), 0.0090,
+DAMPING_PART = refit(("extra-damping",), 17, joint(0, 5, family=("wind", "time-offset", "generic-constant")))
+PAIR = refit(("wind", "extra-damping"), 9,
              joint(60, 45, family=("time-offset", "generic-constant"), effect="time-offset"))
 RESIDUAL = ResidualShape(
     tuple(range(10, 22)) + (24,), ((10, 21, 0.40, 0.84), (24, 24, 0.96, 0.96)),
@@ -60,8 +60,8 @@ PAIRED = diagnosis([WIND_PART, DAMPING_PART, PAIR])
 PARTIAL = diagnosis([WIND_PART, DAMPING_PART, replace(PAIR, test=joint(0, 3, family=PAIR.test.family))],
                     residual=RESIDUAL, generic=RANKING[0])
 NO_REFIT = diagnosis(residual=RESIDUAL, generic=RANKING[0])
-NONE_LOWER = diagnosis([refit(("wind",), 0.0215, REJECTS_REFIT),
-                        refit(("extra-damping",), 0.0230, joint(0, 5, family=("wind", "time-offset",
+NONE_LOWER = diagnosis([refit(("wind",), 21.5, REJECTS_REFIT),
+                        refit(("extra-damping",), 23, joint(0, 5, family=("wind", "time-offset",
                                                                                "generic-constant")))],
                        residual=RESIDUAL, generic=RANKING[0])
 ALL = {"nothing": NOTHING, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial": PARTIAL, "no refit": NO_REFIT,
@@ -71,16 +71,17 @@ ALL = {"nothing": NOTHING, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial"
 P_FLOOR = "p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null simulations)"
 P_WIND = "p = 0.41 (two tests, Bonferroni: 2 x the omnibus test's p = 0.2; 200 null simulations)"
 DETECT = f"Detect: check's joint test of the nominal fit, {P_FLOOR} <= 0.05."
-DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and its energy score falls by "
-          "more than 2 standard errors below the model it extends.")
+DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and the energy score of its "
+          "posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more than 2 "
+          "standard errors below the model it extends.")
 WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-              "energy score 2.10 cm -> 0.80 cm (62% lower, 20.3 standard errors). The refit estimates wind_x = 0.05 "
+              "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm. The refit estimates wind_x = 0.05 "
               "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
               "presses the upper prior bound: refit with --bounds wind_y=-2:4 if such values are physical.")
 PART_WORDS = [f"With wind: the measurement is still outside the refit's posterior predictive distribution ({P_FLOOR}), "
-              "energy score 2.10 cm -> 1.50 cm (29% lower, 9.4 standard errors).",
+              "energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm.",
               "With extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-              f"({P_FLOOR}), energy score 2.10 cm -> 1.70 cm (19% lower, 6.2 standard errors)."]
+              f"({P_FLOOR}), energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm."]
 RESIDUAL_WORDS = ("The residual lives in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s), mostly the middle phase; the "
                   "measured centroid is displaced by (+0.3, +0.7, -0.4) cm, mostly +y; the most deviant summary is "
                   "y_q95; regions with the most unexplained error: R9 (farthest from the grasp), R8.")
@@ -116,18 +117,18 @@ def test_missing_effect_with_a_refit_pressing_a_prior_bound():
     assert NAMED.verdict == "missing-effect" and NAMED.decision.named == ("wind",)
     assert diagnosis_text(NAMED) == [
         "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
-        f"distribution ({P_WIND}) and lowers the energy score from 2.10 cm to 0.80 cm (62% lower, 20.3 standard "
+        f"distribution ({P_WIND}) and lowers the energy score from 21 to 8 (62% lower, 20.3 standard "
         "errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind (the top named ones by evidence). {DECIDE}",
         WIND_WORDS]
-    assert diagnosis_rows(NAMED) == rows(NO_ROW, ("p = 0.41", "0.80 cm", "named"), NO_ROW, NO_ROW)
+    assert diagnosis_rows(NAMED) == rows(NO_ROW, ("p = 0.41", "8", "named"), NO_ROW, NO_ROW)
 
 
 def test_missing_effect_with_an_indistinguishable_alternative():
     assert TIE.decision.named == ("wind",) and TIE.decision.alternatives == (("extra-damping",),)
     assert diagnosis_text(TIE) == [
         "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
-        f"distribution ({P_WIND}) and lowers the energy score from 2.10 cm to 0.80 cm (62% lower, 20.3 standard "
+        f"distribution ({P_WIND}) and lowers the energy score from 21 to 8 (62% lower, 20.3 standard "
         "errors). The data cannot tell it from extra-damping: that refit explains the misfit too, with an energy "
         "score within 2 standard errors; evidence these recordings lack (an independent measurement of the effect, "
         "or a motion in which the two differ) would decide.",
@@ -135,11 +136,11 @@ def test_missing_effect_with_an_indistinguishable_alternative():
         f"evidence). {DECIDE}",
         WIND_WORDS,
         "With extra-damping: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
-        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), energy score 2.10 cm -> 0.84 cm "
-        "(60% lower, 19.7 standard errors). The refit estimates damping_rate = 3.1 1/s (90% interval 0.4 to 7.9 1/s, "
-        "not informed by the data)."]
-    assert diagnosis_rows(TIE) == rows(NO_ROW, ("p = 0.41", "0.80 cm", "named"),
-                                       ("p = 0.51", "0.84 cm", "indistinguishable"), NO_ROW)
+        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), energy score 21 -> 8.4 (60% lower, "
+        "19.7 standard errors), posterior-predictive Chamfer 1.04 cm. The refit estimates damping_rate = 3.1 1/s (90% "
+        "interval 0.4 to 7.9 1/s, not informed by the data)."]
+    assert diagnosis_rows(TIE) == rows(NO_ROW, ("p = 0.41", "8", "named"),
+                                       ("p = 0.51", "8.4", "indistinguishable"), NO_ROW)
 
 
 def test_missing_pair():
@@ -148,14 +149,14 @@ def test_missing_pair():
     assert diagnosis_text(PAIRED) == [
         "Missing physics effects: wind + extra-damping. Neither refit alone explains the misfit; with both, the refit "
         f"puts the measurement inside its posterior predictive distribution ({p_pair}) and lowers the energy score "
-        "from 1.50 cm to 0.90 cm (40% lower, 10.6 standard errors).",
+        "from 15 to 9 (40% lower, 10.6 standard errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         f"With wind + extra-damping: the measurement is inside the refit's posterior predictive distribution "
-        f"({p_pair}), energy score 1.50 cm -> 0.90 cm (40% lower, 10.6 standard errors)."]
-    assert diagnosis_rows(PAIRED) == rows(NO_ROW, ("p <= 2/201", "1.50 cm", "named (pair)"),
-                                          ("p <= 2/201", "1.70 cm", "named (pair)"), NO_ROW)
+        f"({p_pair}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm."]
+    assert diagnosis_rows(PAIRED) == rows(NO_ROW, ("p <= 2/201", "15", "named (pair)"),
+                                          ("p <= 2/201", "17", "named (pair)"), NO_ROW)
 
 
 def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_the_generic_term():
@@ -163,17 +164,17 @@ def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_th
     assert diagnosis_text(PARTIAL) == [
         "Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
         f"distribution ({P_FLOOR} <= 0.05), and no refit of wind, extra-damping, wind+extra-damping explains it. wind "
-        "explains a part: its refit lowers the energy score most (2.10 cm -> 1.50 cm), but the measurement stays "
+        "explains a part: its refit lowers the energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
         f"outside its posterior predictive distribution ({P_FLOOR}).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         "With wind + extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), energy score 1.50 cm -> 0.90 cm (40% lower, 10.6 standard errors).",
+        f"({P_FLOOR}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm.",
         RESIDUAL_WORDS,
         GENERIC_WORDS]
-    assert diagnosis_rows(PARTIAL) == rows(NO_ROW, ("p <= 2/201", "1.50 cm", "explains a part"),
-                                           ("p <= 2/201", "1.70 cm", "refit: misfit remains"), NO_ROW)
+    assert diagnosis_rows(PARTIAL) == rows(NO_ROW, ("p <= 2/201", "15", "explains a part"),
+                                           ("p <= 2/201", "17", "refit: misfit remains"), NO_ROW)
 
 
 def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_score():
@@ -189,25 +190,25 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
                                              "lowers the energy score by more than 2 standard errors.")
     assert diagnosis_text(NONE_LOWER)[2] == (
         "With wind: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), energy score 2.10 cm -> 2.15 cm (2% higher, -0.8 standard errors).")
-    assert diagnosis_rows(NONE_LOWER) == rows(NO_ROW, ("p <= 2/201", "2.15 cm", "refit: misfit remains"),
-                                              ("p <= 2/201", "2.30 cm", "refit: misfit remains"), NO_ROW)
+        f"({P_FLOOR}), energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm.")
+    assert diagnosis_rows(NONE_LOWER) == rows(NO_ROW, ("p <= 2/201", "21.5", "refit: misfit remains"),
+                                              ("p <= 2/201", "23", "refit: misfit remains"), NO_ROW)
     # a refit that check accepts but whose score does not fall: explains nothing, and the table says why
-    flat = diagnosis([refit(("wind",), 0.0205, ACCEPTS)])
+    flat = diagnosis([refit(("wind",), 20.5, ACCEPTS)])
     assert flat.verdict == "misspecified-unexplained" and flat.decision.partial == ()
-    assert diagnosis_rows(flat)[1][-3:] == ["p = 0.41", "2.05 cm", "refit: no lower score"]
+    assert diagnosis_rows(flat)[1][-3:] == ["p = 0.41", "20.5", "refit: no lower score"]
 
 
 def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
     """A sensor refit whose noise presses the upper bound (widening named) and whose dropout presses 0, a physical
     limit (nothing to widen: no --bounds advice)."""
-    r = refit(("point-noise",), 0.008, ACCEPTS,
+    r = refit(("point-noise",), 8, ACCEPTS,
               estimates=(Estimate("noise_std", "m", 0.0049, 0.0041, 0.0058, 0.2, "upper", (0.0, 0.015)),
                          Estimate("dropout", "1", 0.0, 0.0, 0.02, 0.1, "lower", None)))
     d = diagnosis([r])
     assert diagnosis_text(d)[2] == (
         f"With point-noise: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-        "energy score 2.10 cm -> 0.80 cm (62% lower, 20.3 standard errors). The refit estimates noise_std = 0.0049 m "
+        "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm. The refit estimates noise_std = 0.0049 m "
         "(90% interval 0.0041 to 0.0058 m); dropout = 0 (90% interval 0 to 0.02). Its noise_std presses the upper "
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
 
@@ -271,7 +272,7 @@ def test_check_summary_through_the_virtual_depth_sensor_without_an_energy_score(
 
 def test_compare_summary():
     a = check_result(posterior_mean={"chamfer_m": 0.02, "chamfer_se_m": 0.001, "n": 3})
-    b = check_result(test=joint(40, 70), chamfer_mean_m=0.012, energy=score(0.009),
+    b = check_result(test=joint(40, 70), chamfer_mean_m=0.012, energy=energy(0.009),
                      posterior_mean={"chamfer_m": 0.009, "chamfer_se_m": 0.001, "n": 3})
     table = (Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m),
              Row("energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",

@@ -16,7 +16,7 @@ REJECTS, ACCEPTS = joint(0), joint(150, 200)
 
 
 def score(e: float, se: float = 0.01) -> Score:
-    return Score(e, se, e, 0.0, 30)
+    return Score(e, se, 30)
 
 
 def cand(name: str, generic: bool = False, p: int = 0) -> Candidate:

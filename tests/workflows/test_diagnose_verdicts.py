@@ -58,20 +58,20 @@ def test_generic_force_terms_give_the_third_verdict_with_where_and_how_much(tmp_
 # ---------------------------------------------------------------------------------------------------------------
 # the decision on hand-built refits: the nominal fit misses the measurement (joint test beyond all 200 nulls)
 
-NOMINAL = score(0.030, 0.0005)
+NOMINAL = score(30, 0.5)
 REJECTS = joint(0, 0)
 RANKING = (candidate("wind", 0.28), candidate("extra-damping", 0.15), candidate("calibration-offset", 0.12,
                                                                                kind="sensor"))
 
 
-def _outside(energy_m, ranking=()):
-    """A refit check rejects (p <= 2/201) with energy score ``energy_m``."""
-    return lambda effects: refit(effects, energy_m, joint(0, 0), ranking=ranking)
+def _outside(value, ranking=()):
+    """A refit check rejects (p <= 2/201) with energy score ``value``."""
+    return lambda effects: refit(effects, value, joint(0, 0), ranking=ranking)
 
 
-def _inside(energy_m, p_exceed=100):
-    """A refit check accepts (joint p = 2 (p_exceed + 1) / 201) with energy score ``energy_m``."""
-    return lambda effects: refit(effects, energy_m, joint(p_exceed, p_exceed))
+def _inside(value, p_exceed=100):
+    """A refit check accepts (joint p = 2 (p_exceed + 1) / 201) with energy score ``value``."""
+    return lambda effects: refit(effects, value, joint(p_exceed, p_exceed))
 
 
 def diagnose_with(refits: dict, confirm: int = 2, ranking=RANKING) -> Diagnosis:
@@ -91,8 +91,8 @@ def test_a_named_effect_whose_refit_is_still_misspecified_gives_the_third_verdic
     """The refit re-checked with check's test separates 'the effect explains the misfit' from 'it explains a part
     but the model is still misspecified' (data from another engine): both refits lower the score, check rejects
     both and the pair built on the better one; the one lowering the score most explains a part."""
-    d = diagnose_with({("wind",): _outside(0.025, RANKING[1:]), ("extra-damping",): _outside(0.028),
-                       ("wind", "extra-damping"): _outside(0.024)})
+    d = diagnose_with({("wind",): _outside(25, RANKING[1:]), ("extra-damping",): _outside(28),
+                       ("wind", "extra-damping"): _outside(24)})
     assert [r.effects for r in d.refits] == [("wind",), ("extra-damping",), ("wind", "extra-damping")]
     assert d.verdict == "misspecified-unexplained" and d.decision.partial == ("wind",) and d.decision.named == ()
     assert "wind explains a part" in diagnosis_summary(d)
@@ -103,20 +103,20 @@ def test_a_named_effect_whose_refit_is_still_misspecified_gives_the_third_verdic
 def test_refits_that_raise_the_score_explain_no_part_and_build_no_pair():
     """Where every refit raises the energy score (real lift_tan: the time-offset refit 5% higher), no refit is
     said to explain a part and no pair is built on one."""
-    d = diagnose_with({("wind",): _outside(0.0315, RANKING[1:]), ("extra-damping",): _outside(0.034)})
+    d = diagnose_with({("wind",): _outside(31.5, RANKING[1:]), ("extra-damping",): _outside(34)})
     assert len(d.refits) == 2 and d.verdict == "misspecified-unexplained" and d.decision.partial == ()
     assert "No refit lowers the energy score by more than 2 standard errors" in diagnosis_summary(d)
 
 
 def test_a_refit_that_check_accepts_is_named_over_one_with_a_lower_score_that_check_rejects():
-    d = diagnose_with({("wind",): _outside(0.020), ("extra-damping",): _inside(0.022)})
+    d = diagnose_with({("wind",): _outside(20), ("extra-damping",): _inside(22)})
     assert d.verdict == "missing-effect" and d.decision.named == ("extra-damping",) and d.decision.partial == ()
     assert diagnosis_summary(d).startswith("Missing physics effect: extra-damping")
     assert _roles(d)["wind"] == "refit: misfit remains"
 
 
 def test_a_refit_that_check_accepts_and_that_lowers_the_score_names_the_effect():
-    d = diagnose_with({("wind",): _inside(0.012)}, confirm=1)
+    d = diagnose_with({("wind",): _inside(12)}, confirm=1)
     assert d.verdict == "missing-effect" and d.decision.named == ("wind",) and len(d.refits) == 1
     assert d.decision.gain.z > 2 and _roles(d)["wind"] == "named"
 
@@ -124,7 +124,7 @@ def test_a_refit_that_check_accepts_and_that_lowers_the_score_names_the_effect()
 def test_a_refit_check_accepts_but_whose_score_rises_explains_nothing():
     """Check accepts a refit whose posterior predictive is only wider (real lift_tan2 with time-offset: p = 0.32,
     the error 26% higher): the score does not fall, so the third verdict, with nothing explaining a part."""
-    d = diagnose_with({("wind",): _inside(0.057)}, confirm=1)
+    d = diagnose_with({("wind",): _inside(57)}, confirm=1)
     assert d.verdict == "misspecified-unexplained" and d.decision.partial == ()
     assert _roles(d)["wind"] == "refit: no lower score"
 
@@ -144,17 +144,17 @@ def test_a_pair_is_named_only_when_no_single_refit_explains_and_the_pair_does():
     """Singles outside, the pair with the first effect's refit's next candidate inside and lower -> the pair is
     named; the pair outside too -> the third verdict; a single refit that explains the misfit -> no pair refit."""
     lead = (candidate("extra-damping", 0.4), candidate("calibration-offset", 0.1, kind="sensor"))
-    refits = {("wind",): _outside(0.025, lead), ("extra-damping",): _outside(0.028),
-              ("wind", "extra-damping"): _inside(0.015)}
+    refits = {("wind",): _outside(25, lead), ("extra-damping",): _outside(28),
+              ("wind", "extra-damping"): _inside(15)}
     d = diagnose_with(refits)
     assert [r.effects for r in d.refits] == [("wind",), ("extra-damping",), ("wind", "extra-damping")]
     assert d.verdict == "missing-effect" and d.decision.named == ("wind", "extra-damping")
     assert diagnosis_summary(d).startswith("Missing physics effects: wind + extra-damping.")
     assert set(_roles(d).values()) == {"named (pair)", "-"}
-    refits[("wind", "extra-damping")] = _outside(0.020)
+    refits[("wind", "extra-damping")] = _outside(20)
     d = diagnose_with(refits)
     assert d.verdict == "misspecified-unexplained" and d.decision.named == () and d.decision.partial == ("wind",)
-    refits[("wind",)] = _inside(0.012)
+    refits[("wind",)] = _inside(12)
     d = diagnose_with(refits)
     assert d.decision.named == ("wind",) and not any(len(r.effects) == 2 for r in d.refits)
 
@@ -166,12 +166,12 @@ def test_the_second_effect_of_a_pair_is_what_check_of_the_first_refit_still_find
     ranking = (RANKING[0], RANKING[2], RANKING[1])  # wind, calibration-offset, extra-damping
     lead = (candidate("generic-drag", 0.6, generic=True), candidate("extra-damping", 0.4, 2),
             candidate("calibration-offset", 0.1, 60, kind="sensor"))
-    refits = {("wind",): _outside(0.025, lead), ("calibration-offset",): _outside(0.029),
-              ("wind", "extra-damping"): _inside(0.012)}
+    refits = {("wind",): _outside(25, lead), ("calibration-offset",): _outside(29),
+              ("wind", "extra-damping"): _inside(12)}
     d = diagnose_with(refits, ranking=ranking)
     assert [r.effects for r in d.refits] == [("wind",), ("calibration-offset",), ("wind", "extra-damping")]
     assert d.decision.named == ("wind", "extra-damping")
-    refits[("wind",)] = _outside(0.025, lead[:1])
+    refits[("wind",)] = _outside(25, lead[:1])
     d = diagnose_with(refits, ranking=ranking)
     assert len(d.refits) == 2 and d.verdict == "misspecified-unexplained" and d.decision.partial == ("wind",)
 
@@ -181,12 +181,12 @@ def test_a_pair_builds_on_the_refit_that_lowers_the_score_most_not_the_screening
     them apart: the damping refit lowers the score most, so the pair builds on it (hidden: extra damping +
     calibration offset). With no refit lowering the score, no pair is built."""
     lead = (candidate("calibration-offset", 0.4, kind="sensor"),)
-    refits = {("wind",): _outside(0.028, lead), ("extra-damping",): _outside(0.015, lead),
-              ("extra-damping", "calibration-offset"): _inside(0.010)}
+    refits = {("wind",): _outside(28, lead), ("extra-damping",): _outside(15, lead),
+              ("extra-damping", "calibration-offset"): _inside(10)}
     d = diagnose_with(refits)
     assert d.refits[-1].effects == ("extra-damping", "calibration-offset")
     assert d.verdict == "missing-effect" and d.decision.named == ("extra-damping", "calibration-offset")
-    refits.update({("wind",): _outside(0.031, lead), ("extra-damping",): _outside(0.032, lead)})
+    refits.update({("wind",): _outside(31, lead), ("extra-damping",): _outside(32, lead)})
     d = diagnose_with(refits)
     assert len(d.refits) == 2 and d.verdict == "misspecified-unexplained" and d.decision.partial == ()
 
@@ -219,13 +219,13 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
         lambda cls, c: cls(rounds=2, sims_per_round=10, proposal="corrected", sensor_draws=4,
                            effects=["time-offset"])))
     with pytest.raises(_Stop):
-        dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"])
+        dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], None)
     cfg = seen["cfg"]
     assert seen["out"] == tmp_path / "refit-point-noise"
     assert cfg.proposal == "truncated" == dg.REFIT_PROPOSAL and cfg.sensor_draws == 0
     assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 10)
     with pytest.raises(_Stop):
-        dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], rounds=3, sims_per_round=40)
+        dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], None, rounds=3, sims_per_round=40)
     assert seen["out"] == tmp_path / "refit-wind+point-noise"
     assert (seen["cfg"].rounds, seen["cfg"].sims_per_round, seen["cfg"].sensor_draws) == (3, 40, 0)
 

@@ -37,14 +37,14 @@ def test_the_summary_counts_false_alarms_and_compares_the_old_rule_on_the_same_c
     rows.append({"label": "control", "verdict": "missing-effect", "named": ["wind"], "right": False, "magnitude": None,
                  "seconds": 10, "old": {"verdict": "nothing-missing", "right": True}})
     rows.append({"label": "wind", "verdict": "missing-effect", "named": ["wind"], "right": True, "magnitude": 0.8,
-                 "energy_nominal_m": 0.02, "energy_named_m": 0.01, "seconds": 10,
+                 "score_nominal": 20.0, "score_named": 10.0, "seconds": 10,
                  "old": {"verdict": "misspecified-unexplained", "right": False}})
     rows.append({"id": "x", "label": "wind", "error": "boom"})
     s = bench.summary(rows)
     assert s["cases"] == 22 and s["failed"] == 1
     assert s["false_alarms"] == 1 and 0 < s["false_alarm_ci95"][0] < 0.05 < s["false_alarm_ci95"][1] < 0.3
     assert s["by_label"]["wind"]["right"] == 1 and s["by_label"]["wind"]["old_right"] == 0
-    assert s["energy_drop_median"] == 0.5 and s["detection_by_magnitude"]["0.75-1.00"] == [1, 1]
+    assert s["score_drop_median"] == 0.5 and s["detection_by_magnitude"]["0.75-1.00"] == [1, 1]
     assert s["confusion"]["control"] == {"nothing-missing": 19, "wind": 1}
     text = bench.markdown(s, "test")
     assert "1 of 20 controls" in text and "| wind | 1 | 1 | 1 |" in text
