@@ -26,7 +26,8 @@ _LAZY = {**{n: "softsbi.core.interfaces" for n in ("Effect", "Executor", "Observ
          "FitResult": "softsbi.workflows.api", "Run": "softsbi.workflows.api",
          "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement",
          "import_diffcloud": "softsbi.workflows.measurement",
-         "calibrate_run": "softsbi.workflows.api"}
+         "calibrate_run": "softsbi.workflows.api", "check": "softsbi.workflows.api",
+         "diagnose": "softsbi.workflows.api", "compare": "softsbi.workflows.api"}
 
 
 def __getattr__(name: str):

@@ -25,6 +25,7 @@ H_SEED = "random seed: fixes every parameter draw and every simulation"
 H_N_EVAL = "rollouts at posterior samples (the posterior-predictive check's sample size)"
 H_MAX_NULL = ("cap of the adaptive null: when 1/(n+1) > alpha and the first n posterior-predictive rollouts give "
               "p <= 0.1, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
+H_RECOMPUTE = "compute again even when the run holds this command's result for the same fit and settings"
 H_ALPHA = "family-wise significance level of the verdicts (the tolerated false-alarm rate)"
 H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
 H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, flow, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
@@ -334,7 +335,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                          help="observe each simulation at N more values of the sensor effects' "
                                               "parameters (--effect time-offset, point-noise, ...): N times more "
                                               "training pairs along them at no simulation cost (truncated "
-                                              "proposals; diagnose's refits use 4)"),
+                                              "proposals)"),
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),
@@ -421,29 +422,27 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
           max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL),
           alpha: float = typer.Option(ALPHA, help=H_ALPHA),
           workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+          recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
+    from softsbi.core.results import to_json
+    from softsbi.report.text import check_summary
     from softsbi.workflows.check import check_run
     o = Output(as_json)
     with o.status("simulating at posterior samples ..."):
-        out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null)
+        out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute)
     if as_json:
-        o.emit_json(out)
+        o.emit_json(to_json(out))
         return
-    o.table(["phase", "time [s]", "gripper height [cm]", "Chamfer [cm]", "worst region"],
-            [[ph["phase"] + ("" if ph.get("in_fit", True) else " (not fitted)"),
-              f"{ph['t_s'][0]:.2f}-{ph['t_s'][1]:.2f}",
-              f"{ph['gripper_height_m'][0] * 100:.1f}-{ph['gripper_height_m'][1] * 100:.1f}",
-              f"{ph['chamfer_m'] * 100:.2f}", ph["worst_region"]] for ph in out["phases"]],
+    o.table(["phase", "time [s]", "Chamfer [cm]", "worst region"],
+            [[ph.phase + ("" if ph.in_fit else " (not fitted)"), f"{ph.t_s[0]:.2f}-{ph.t_s[1]:.2f}",
+              f"{ph.chamfer_m * 100:.2f}", ph.worst_region] for ph in out.phases],
             title="Error by phase of the motion")
-    m = out["misspecification"]
-    d = m.get("directional")
-    o.line(f"misspecification test: omnibus statistic {m['statistic']:.2f} (null mean {m['null_mean']:.2f}), "
-           f"{m['omnibus']['p_text']}" + (f"; directional (max-T over {d['family']} installed "
-                                          f"effect{'s' if d['family'] != 1 else ''}, strongest {d['effect']}) "
-                                          f"{d['p_text']}" if d else ""))
-    o.line(f"decision rule: {m['rule']}")
-    o.line(out["summary"])
+    t = out.test
+    o.line(f"misspecification test: omnibus {t.omnibus.text()}"
+           + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
+              f"{t.directional.text()}" if t.directional else ""))
+    o.line(check_summary(out))
     o.line(f"wrote {run / 'check.json'} and {run / 'check.png'}")
 
 
@@ -505,90 +504,43 @@ def _value(v: float) -> str:
     return "0" if abs(v) < ZERO_PRINTED else f"{v:.3g}"
 
 
-def diagnosis_table_rows(out: dict) -> list[list]:
-    """The rows of `softsbi diagnose`'s candidate table, one per effect of ``out["final_ranking"]``.
-
-    Args:
-        out: a diagnosis (:func:`softsbi.workflows.diagnose.diagnose_run`, refits included).
-
-    Returns:
-        Rows ``[rank, effect, kind, explains, max-T p, estimate, named, refit error drop]`` (strings but the
-        rank); the drop is the posterior-predictive Chamfer's, then the posterior-mean rollout's and the energy
-        score's where the refit has them (``"32% / 59% / 45%"``, ``-`` for one it lacks). ``named``: ``yes`` for an
-        effect the screening names (rule 2), ``refit`` for a candidate below rule 2's share that a refit decides on
-        (``refit_decides``, ``refit_below_share``; the verdict says whether it explains the misfit), else ``no``. A refitted pair
-        (``"a+b"``, rule 3 applied to two effects together) has no screening entry of its own: its row reads kind
-        ``pair``, "-" for the screening's columns, and its refit's drop.
-    """
-    from softsbi.workflows.diagnose import format_p
-    by_name = {r["effect"]: r for r in out["ranking"]}
-    drops = {c["effect"]: (c.get("drop"), c.get("pm_drop"), c.get("energy_drop")) for c in out["confirmed"]}
-    rows = []
-
-    def pct(x: float | None) -> str:
-        return "-" if x is None else f"{x * 100:.0f}%"
-
-    for i, name in enumerate(out.get("final_ranking") or list(by_name)):
-        d, pm, e = drops.get(name, (None, None, None))
-        drop = "" if d is None else pct(d) + ("" if pm is None and e is None else f" / {pct(pm)} / {pct(e)}")
-        r = by_name.get(name)
-        if r is None:  # a refitted pair
-            parts = name.split("+")
-            named = "yes" if all(p_ in out["significant"] for p_ in parts) else "no"
-            rows.append([i + 1, name, "pair", "-", "-", "-", named, drop])
-            continue
-        if "statistic" not in r:
-            rows.append([i + 1, r["effect"], r.get("kind", ""), "-", "-", r.get("error", ""), "", ""])
-            continue
-        est = ", ".join(f"{k}={_value(v)}" for k, v in r["estimate"].items())
-        kind = "generic" if r.get("generic") else r.get("kind", "physics")
-        by_refit = r["effect"] == out.get("refit_decides") or r["effect"] in (out.get("refit_below_share") or [])
-        named = "refit" if by_refit else "yes" if r["effect"] in out["significant"] else "no"
-        rows.append([i + 1, r["effect"], kind, f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r), est,
-                     named, drop])
-    return rows
-
-
 @app.command()
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
-             confirm: int = typer.Option(D.CONFIRM, help="refit the top N significant candidates, re-check each refit "
-                                                 "with check's test and name, among the refits check accepts, the "
-                                                 "one that lowers the error most (when those that pass the "
-                                                 "screening's share all fail, the next significant ones are "
-                                                 "refitted, N single refits in all); none accepted: "
-                                                 "misspecified-unexplained (0 = no refit)"),
-             confirm_rounds: Optional[int] = typer.Option(None, help="rounds of a confirmation refit "
-                                                                     "(default: the run's)"),
-             confirm_sims: Optional[int] = typer.Option(None, help="simulations per round of a confirmation refit "
-                                                                   "(default: the run's)"),
-             n_null: int = typer.Option(D.N_NULL, "--n-null", help="posterior-predictive simulations the null starts with"),
+             confirm: int = typer.Option(D.CONFIRM, help="refit the top N named candidates by evidence (and at most "
+                                                          "one pair when none explains the misfit alone; 0 = no "
+                                                          "refit)"),
+             refit_rounds: Optional[int] = typer.Option(None, help="rounds of a refit (default: the run's)"),
+             refit_sims: Optional[int] = typer.Option(None, help="simulations per round of a refit "
+                                                                 "(default: the run's)"),
+             k_se: float = typer.Option(D.K_SE, "--k-se", help="standard errors by which a refit's energy score "
+                                                               "must fall to count, and within which two refits tie"),
+             n_null: int = typer.Option(D.N_NULL, "--n-null", help="posterior-predictive simulations the null "
+                                                                   "starts with"),
              max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL),
              alpha: float = typer.Option(ALPHA, help=H_ALPHA),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+             recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
-    """Three verdicts: nothing missing; a named installed effect is missing; misspecified by nothing
-    installed (where and when the residual lives, and the best generic force term)."""
+    """Is an effect missing, and which? Detect (check's test), propose (the screening ranks the candidates and the
+    top ones are refitted), decide (a refit explains the misfit when check accepts it and its energy score falls)."""
+    from softsbi.core.results import to_json
+    from softsbi.report.text import DIAGNOSIS_COLUMNS, diagnosis_rows, diagnosis_text
     from softsbi.workflows.diagnose import diagnose_run
     o = Output(as_json)
     names = [e for it in effect or [] for e in it.split(",") if e] or None
-    budget = {k: v for k, v in (("rounds", confirm_rounds), ("sims_per_round", confirm_sims)) if v}
-    with o.status("screening candidate effects ..."):
-        out = diagnose_run(run, effects=names, confirm=confirm, confirm_budget=budget or None, workers=workers,
-                           n_null=n_null, max_null=max_null, alpha=alpha,
-                           progress=lambda name: o.message(f"confirming {name} with a refit ..."))
+    with o.status("diagnosing ..."):
+        out = diagnose_run(run, effects=names, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims,
+                           k_se=k_se, workers=workers, n_null=n_null, max_null=max_null, alpha=alpha,
+                           progress=o.message, recompute=recompute)
     if as_json:
-        o.emit_json(out)
+        o.emit_json(to_json(out))
         return
-    rows = diagnosis_table_rows(out)
-    o.table(["rank", "effect", "kind", "explains", f"max-T p ({out['n_null']} nulls)", "estimate", "named",
-             "refit drop: Chamfer / mean rollout / energy"], rows,
-            title="Candidate effects, ranked (refitted ones by their error drop, then by evidence)")
-    o.line(f"verdict: {out['verdict']}")
-    o.line(out["summary"])
-    for rule in out["rules"]:
-        o.line(f"decision rule {rule}")
+    o.table(DIAGNOSIS_COLUMNS, diagnosis_rows(out), title="Candidate effects, by the screening's evidence")
+    o.line(f"verdict: {out.verdict}")
+    for paragraph in diagnosis_text(out):
+        o.line(paragraph)
     o.line(f"wrote {run / 'diagnosis.json'}")
 
 
@@ -597,22 +549,25 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
 def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal model)"),
             run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
-            n_eval: int = typer.Option(D.N_EVAL, "--n-eval", help=H_N_EVAL + ", per run"),
+            n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run"),
             workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+            recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Two runs side by side: error per time step and region, before vs after."""
+    from softsbi.core.results import to_json
+    from softsbi.report.text import compare_summary
     from softsbi.workflows.compare import compare_runs
     o = Output(as_json)
     with o.status("checking both runs ..."):
-        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers)
+        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, recompute=recompute)
     if as_json:
-        o.emit_json(res)
+        o.emit_json(to_json(res))
         return
     o.table(["", str(run_a), str(run_b), "change"],
-            [[row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm", f"{row['change'] * 100:+.0f}%"]
-             for row in res["table"]], title="Posterior-predictive error")
-    o.line(res["summary"])
-    o.line(f"wrote {res['png']} and {res['json']}")
+            [[row.what, f"{row.a * 100:.2f} cm", f"{row.b * 100:.2f} cm", f"{row.change * 100:+.0f}%"]
+             for row in res.rows], title="Posterior-predictive error")
+    o.line(compare_summary(res))
+    o.line(f"wrote {res.png} and {Path(res.png).with_name('compare.json')}")
 
 
 @app.command()

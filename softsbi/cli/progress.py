@@ -78,15 +78,15 @@ class DemoPrinter(DemoCallbacks):
         from softsbi.cli import _print_report
         _print_report(self.o, report, run_dir)
 
-    def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
-        from softsbi.workflows.diagnose import format_p
-        self.o.table(["rank", "effect", "explains", f"max-T p ({diagnosis['n_null']} nulls)"],
-                     [[i + 1, r["effect"], f"{max(r['explained_fraction'], 0.0) * 100:.0f}%", format_p(r)]
-                      for i, r in enumerate(diagnosis["ranking"]) if "statistic" in r])
-        self.o.line(f"verdict: {diagnosis['verdict']}")
-        self.o.line(diagnosis["summary"])
+    def diagnosis_done(self, diagnosis: Any) -> None:
+        from softsbi.report.text import DIAGNOSIS_COLUMNS, diagnosis_rows, diagnosis_text
+        self.o.table(DIAGNOSIS_COLUMNS, diagnosis_rows(diagnosis), title="Candidate effects, by the screening's "
+                                                                          "evidence")
+        self.o.line(f"verdict: {diagnosis.verdict}")
+        for paragraph in diagnosis_text(diagnosis):
+            self.o.line(paragraph)
 
-    def comparison_done(self, comparison: dict[str, Any], effect: str) -> None:
+    def comparison_done(self, comparison: Any, effect: str) -> None:
         self.o.table(["", "nominal", f"+ {effect}", "change"],
-                     [[row["what"], f"{row['a'] * 100:.2f} cm", f"{row['b'] * 100:.2f} cm",
-                       f"{row['change'] * 100:+.0f}%"] for row in comparison["table"][:4]])
+                     [[row.what, f"{row.a * 100:.2f} cm", f"{row.b * 100:.2f} cm", f"{row.change * 100:+.0f}%"]
+                      for row in comparison.rows[:4]])

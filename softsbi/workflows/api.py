@@ -18,7 +18,11 @@ from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import Recording, Rollout, Scenario
 from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
+from softsbi.core.results import CheckResult, CompareResult, Diagnosis
 from softsbi.workflows.calibrate import calibrate_run
+from softsbi.workflows.check import check_run
+from softsbi.workflows.compare import compare_runs
+from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.runs import Run, open_run
 from softsbi.workflows.simulate import default_values
@@ -130,4 +134,31 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))
 
 
-__all__ = ["FitConfig", "FitResult", "Run", "calibrate_run", "fit", "load_scenario", "open_run", "simulate"]
+def check(run: str | Path, **settings: Any) -> CheckResult:
+    """``softsbi check RUN``: the posterior predictive check of a finished fit
+    (:func:`~softsbi.workflows.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
+    ``recompute``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in ``RUN/check.json``)."""
+    return check_run(run, **settings)
+
+
+def diagnose(run: str | Path, effects: Sequence[str] | None = None, **settings: Any) -> Diagnosis:
+    """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.diagnose.diagnose_run`;
+    ``settings``: ``alpha``, ``k_se``, ``confirm``, ``refit_rounds``, ``refit_sims``, ``workers``, ...). Returns the
+    :class:`~softsbi.core.results.Diagnosis` (also in ``RUN/diagnosis.json``).
+
+    Raises:
+        SoftsbiError: ``effects`` given as one string (name them in a list), and everything ``diagnose_run`` raises.
+    """
+    if isinstance(effects, str):
+        raise SoftsbiError(f"effects must be a list of effect names, e.g. effects=[{effects!r}]")
+    return diagnose_run(run, effects=effects, **settings)
+
+
+def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, **settings: Any) -> CompareResult:
+    """``softsbi compare A B``: two fits of one measurement side by side (:func:`~softsbi.workflows.compare.compare_runs`;
+    the figure and JSON go to ``out``, default ``run_b``). Returns the :class:`~softsbi.core.results.CompareResult`."""
+    return compare_runs(run_a, run_b, run_b if out is None else out, **settings)
+
+
+__all__ = ["FitConfig", "FitResult", "Run", "calibrate_run", "check", "compare", "diagnose", "fit", "load_scenario",
+           "open_run", "simulate"]

@@ -19,6 +19,7 @@ horizontal extent), which both simulated surfaces and real partial clouds have.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 import warnings
@@ -29,18 +30,20 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.results import Band, CheckResult, Phase, ResidualShape, from_json, write_result
 from softsbi.core.types import STATUS_OK, Scenario
-from softsbi.inference.contraction import bound_sentence
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import RunView, load_run
-from softsbi.workflows.screening import candidate_effects, misspecification_verdict
-from softsbi.workflows.stats import (ALPHA, FEATURE_FLOOR, FEATURE_NAMES, MAX_NULL, N_NULL,  # noqa: F401 (re-exported)
-                                     PosteriorPredictive, cloud_features, energy_score, misspecification_test,
-                                     sampled_points, trajectory_features)
+from softsbi.workflows.screening import candidate_effects, check_resolution, misspecification_verdict
+from softsbi.workflows.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
+                                     posterior_mean_chamfer, run_features, run_frames, sampled_points, summary_floor)
+
+#: the fewest successful posterior rollouts a check (and its null) works with
+MIN_ROLLOUTS = 5
 
 #: posterior rollouts the check needs at least (its error maps and the first stage of its test's null)
 MIN_ROLLOUTS = 5
@@ -192,31 +195,6 @@ def _grasp_words(scenario: Scenario) -> str:
     return f"the grasp of handle '{moving[0].name}'" if len(handles) > 1 and moving else "the grasp"
 
 
-def _sensor_words(min_z: float | None, frames: list[int] | None, table_z: float, T: int,
-                  camera: bool = False) -> str:
-    """The metric's sensor model in words, for the check's summary ("" when it sees everything)."""
-    parts = []
-    if camera:
-        parts.append("simulated clouds made by the recording's virtual depth sensor")
-    elif min_z is not None:
-        parts.append(f"points within {(min_z - table_z) * 100:.1f} cm of the table unseen")
-    if frames is not None and len(frames) < T:
-        parts.append(f"frames {_ranges(frames)}")
-    return f" under the fit's sensor model: {', '.join(parts)}" if parts else ""
-
-
-def _ranges(idx: list[int]) -> str:
-    """``[10, 11, 12, 20]`` -> ``"10-12, 20"``."""
-    out, start = [], None
-    s = sorted(int(i) for i in idx)
-    for k, i in enumerate(s):
-        start = i if start is None else start
-        if k == len(s) - 1 or s[k + 1] != i + 1:
-            out.append(f"{start}-{i}" if i > start else f"{i}")
-            start = None
-    return ", ".join(out)
-
-
 def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
     """The phases of the motion, with the gripper's height: the moves between the keyframes of the scenario's
     gripper path (``options["keyframe_times"]``, a scenario file's keyframes: ``move 1``, ``move 2``, ... and
@@ -243,66 +221,144 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
     return out
 
 
+def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_regions: int = 20) -> ResidualShape:
+    """When, where and in which direction the measurement leaves the posterior predictive distribution.
+
+    - frames: per frame, the mean squared standardised deviation of the measurement's summaries from the
+      posterior-predictive rollouts, against the same statistic of each rollout (leave-one-out); a frame is
+      flagged when the measurement exceeds the rollouts' 95% quantile.
+    - direction: the measured centroid minus the rollouts' mean centroid (cm), over the flagged frames.
+    - regions: per region of the cloth (:func:`~softsbi.workflows.check.material_regions`), the nearest-neighbour
+      error of the measurement to the rollouts minus that of another rollout to them (cm; the first
+      ``n_regions`` rollouts): the error the nominal model's own spread does not produce.
+
+    Uses the first ``n`` successful rollouts of ``pool`` (the null's first stage), so the shape does not depend on
+    whether the null was extended.
+    """
+    fit_frames = np.array(run_frames(run))
+    T = len(fit_frames)
+    F = pool.features[:n].reshape(min(n, len(pool.rollouts)), T, -1)
+    f_obs = run_features(run, run.dense).reshape(T, -1)
+    floor = summary_floor(F.shape[-1])
+    mu, sd = F.mean(0), np.maximum(F.std(0), floor)
+    z_obs = (((f_obs - mu) / sd) ** 2).mean(-1)
+    z_null = np.array([(((F[i] - o.mean(0)) / np.maximum(o.std(0), floor)) ** 2).mean(-1)
+                       for i, o in ((i, np.delete(F, i, axis=0)) for i in range(len(F)))])
+    flagged = z_obs > np.quantile(z_null, 0.95, axis=0)
+    times = run.scenario.times
+    spans, t = [], 0
+    while t < T:  # runs of flagged frames that are consecutive in the recording (fit frames may skip some)
+        if not flagged[t]:
+            t += 1
+            continue
+        e = t
+        while e + 1 < T and flagged[e + 1] and fit_frames[e + 1] == fit_frames[e] + 1:
+            e += 1
+        spans.append((int(fit_frames[t]), int(fit_frames[e]), float(times[fit_frames[t]]), float(times[fit_frames[e]])))
+        t = e + 1
+    phases = []
+    for ph in motion_phases(run.scenario):
+        inside = (fit_frames >= ph["frames"][0]) & (fit_frames <= ph["frames"][1])
+        phases.append({"phase": ph["phase"], "frames": list(ph["frames"]),
+                       "fraction_flagged": float(flagged[inside].mean()) if inside.any() else None})
+    sel = flagged if flagged.any() else np.ones(T, bool)
+    off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
+    axis = int(np.argmax(np.abs(off)))
+    direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + ((" (up)" if off[2] > 0 else " (down)") if axis == 2
+                                                               else "")
+    zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
+    ro = pool.rollouts[:max(2, min(n, n_regions))]
+    labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
+    exc = []
+    for k, r in enumerate(ro):
+        j = (k + 1) % len(ro)
+        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], run.dense.shape[1], 1000 + ro[j]["sample"])
+        exc.append(rollout_region_errors(run, r, labels, len(names), run.dense)
+                   - rollout_region_errors(run, r, labels, len(names), other, ro[j]))
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        per_region = np.nanmean(np.array(exc)[:, fit_frames[sel]], axis=(0, 1)) * 100
+    per_region = np.nan_to_num(per_region, nan=-np.inf)
+    return ResidualShape(tuple(int(fit_frames[i]) for i in np.flatnonzero(flagged)), tuple(spans), tuple(phases),
+                         tuple(float(v) for v in off), direction, FEATURE_NAMES[int(np.argmax(zf))],
+                         {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
+                         tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]))
+
+
 # ----------------------------------------------------------------------------------------
 # check
 
 
+def result_key(run: RunView, **settings: Any) -> dict[str, Any]:
+    """What determines a check or a diagnosis of ``run``: a digest of the fit's ``report.json`` (it changes
+    whenever the fit does) and the command's ``settings``. A stored result is reused only under the same key."""
+    digest = hashlib.sha256((run.path / "report.json").read_bytes()).hexdigest()[:16]
+    return {"report": digest, **{k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.items()}}
+
+
+def stored_result(path: Path, cls: type, key: dict[str, Any]) -> Any:
+    """The result stored at ``path`` if it was computed under ``key`` (:func:`result_key`), else None (also for
+    a file from an older softsbi or a damaged one: the caller computes it again)."""
+    try:
+        data = json.loads(path.read_text())
+        return from_json(cls, data) if data.get("key") == key else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
 def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
-              pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None) -> dict[str, Any]:
+              pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None,
+              recompute: bool = False) -> CheckResult:
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
         n_eval: posterior rollouts for the error maps and the start of the test's null.
         alpha: level of the misspecification verdict (``p <= alpha``).
-        max_null: cap of the adaptive extension of the null (:class:`PosteriorPredictive`): when
-            ``1 / (n_eval + 1) > alpha`` and the first stage is promising (the measurement beyond all
-            ``n_eval`` rollouts, or ``p <= EXTEND_P``: :func:`~softsbi.workflows.stats.resolution_needed`),
-            the test simulates up to ``max_null`` posterior-predictive rollouts before deciding.
+        max_null: cap of the adaptive extension of the null (:func:`~softsbi.workflows.stats.resolution_needed`).
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply
             and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
+        recompute: simulate again even when ``check.json`` holds the result for the same fit and settings.
 
     Returns:
-        dict with ``chamfer_per_frame_m`` (mean and 5/95% band over posterior rollouts), ``regions`` ranked by their
-        distance from ``regions_from`` (the first moving handle's grasp, named when the scenario has several
-        handles), ``phases`` (:func:`motion_phases`; ``phases_from`` says how they were cut),
-        ``region_error_m`` (T x R mean under the fit's sensor model, :func:`rollout_region_errors`; 0 where
-        no rollout's region is seen), ``region_compared`` (T x R bool: False where it is 0 for that
-        reason, not for a perfect fit), ``regions``, ``phases`` (mean error per phase), ``metric_sensor``
-        (``"camera"``, ``"height"`` or ``"none"``, :func:`sensor_model`),
-        ``worst_frames``, ``worst_regions``, ``energy`` (the same rollouts'
-        :func:`~softsbi.workflows.stats.energy_score`; None for an image fit), ``misspecification`` (the omnibus and the directional test,
-        each a Monte-Carlo p-value, their Bonferroni-combined ``p_value`` with ``p_text`` stating its
-        resolution, ``misspecified``, ``rule``), ``posterior_at_bounds`` (the fit's parameters whose posterior
-        presses against a prior bound, :func:`~softsbi.inference.contraction.bound_pressure`, from its
-        ``report.json``; the summary then says so) and a ``summary`` sentence. The misspecification verdict is
-        :func:`~softsbi.workflows.screening.misspecification_verdict`, the same test ``diagnose`` uses as its
-        first verdict; its directional part simulates the screening's finite differences (one simulation per
-        nominal and effect parameter, about 40 for mujoco-flex's installed effects).
+        the :class:`~softsbi.core.results.CheckResult`: Chamfer per frame with its band, error per region (ranked
+        from ``regions_from``, the first moving handle's grasp) and phase (``phases_from`` says how they were cut)
+        under the fit's sensor model, the joint misspecification test
+        (:func:`~softsbi.workflows.screening.misspecification_verdict`, the test ``diagnose`` detects with) and the
+        posterior predictive's energy score, the posterior-mean rollout's Chamfer and, when the test rejects, the
+        residual's shape (:func:`residual_shape`).
 
     Raises:
-        SoftsbiError: ``n_eval`` < :data:`MIN_ROLLOUTS` or fewer posterior rollouts succeeded (before / after
-            simulating); RunDirError: the run directory cannot be written (before simulating).
+        SoftsbiError: ``n_eval`` < :data:`MIN_ROLLOUTS`, or a null cap that cannot resolve ``alpha`` (before
+            simulating); fewer posterior rollouts succeeded; RunDirError: the run directory cannot be written (before
+            simulating).
     """
     t0 = time.perf_counter()
     if not isinstance(n_eval, int) or n_eval < MIN_ROLLOUTS:
         raise SoftsbiError(f"--n-eval {n_eval}: the check needs at least {MIN_ROLLOUTS} posterior rollouts; give "
                            f"--n-eval {MIN_ROLLOUTS} or more (default {N_NULL})")
+    check_resolution(alpha, max_null, 2)
     run = load_run(run_dir, n_eval, seed)
+    cands = candidate_effects(run, effects)
+    key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
+                     family=sorted(c.name for c in cands))
+    stored = None if recompute else stored_result(run.path / "check.json", CheckResult, key)
+    if stored is not None:
+        if plot and not (run.path / "check.png").exists():
+            plot_check(run.path / "check.png", stored)
+        return stored
     check_out_dir(run_dir, "run directory", "check writes check.json and check.png into it: copy the run "
                                             "directory to a writable place and check the copy")
-    pool = pool or PosteriorPredictive(run, workers, seed)
-    pool.ensure(n_eval)
-    # the fit's own job, samples and seeds: the mean Chamfer equals report.json's
-    # chamfer_posterior_m when all of the fit's evaluation samples are used
+    pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_eval)
+    # the fit's own job, samples and seeds: the mean Chamfer equals report.json's chamfer_posterior_m
     ok = [r for r in pool.rollouts if r["sample"] < n_eval]
     if len(ok) < MIN_ROLLOUTS:
         raise SoftsbiError(f"only {len(ok)} of {n_eval} posterior rollouts succeeded, and the check needs "
-                           f"{MIN_ROLLOUTS}; cannot check the fit")
+                           f"{MIN_ROLLOUTS}; look at why the simulations fail (report.json)")
     dense = run.dense
     T = len(dense)
-    min_z, frames = run.metric_min_z, run.metric_frames
+    frames = run.metric_frames
     in_fit = np.zeros(T, bool)
     in_fit[slice(None) if frames is None else frames] = True
     ch = np.array([r["chamfer"] for r in ok])
@@ -310,65 +366,45 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
                     for r in ok])
     stats = chamfer_stats(ch, np.full(len(ok), STATUS_OK), frames, ch1)
     labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
-    reg = np.zeros((len(ok), T, len(names)))
-    for k, r in enumerate(ok):
-        reg[k] = rollout_region_errors(run, r, labels, len(names), dense)
-    mis = misspecification_verdict(pool, candidate_effects(run, effects), alpha, max_null)[0]
-    warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)  # regions a small mesh lacks
-    reg_mean = np.nanmean(reg, axis=0)
-    phases = motion_phases(run.scenario)
-    mean_t = ch.mean(0)
-    mean_t1 = ch1.mean(0)
-    for ph in phases:
+    reg = np.array([rollout_region_errors(run, r, labels, len(names), dense) for r in ok])
+    test, _, ranking = misspecification_verdict(pool, cands, alpha, max_null)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # regions a small mesh lacks, or the sensor never sees
+        reg_mean = np.nanmean(reg, axis=0)
+        reg_avg = np.nanmean(reg_mean[in_fit], axis=0)
+    mean_t, mean_t1 = ch.mean(0), ch1.mean(0)
+    phases = []
+    for ph in motion_phases(run.scenario):
         a, b = ph["frames"]
-        ph["chamfer_m"] = float(mean_t[a:b + 1].mean())
-        ph["chamfer_one_sided_m"] = float(mean_t1[a:b + 1].mean())
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            worst = int(np.nanargmax(np.nan_to_num(np.nanmean(reg_mean[a:b + 1], axis=0), nan=-np.inf)))
         # frames the fit's sensor model does not use (e.g. the cloth still flat) are reported, not blamed
-        ph["in_fit"] = bool(in_fit[a:b + 1].any())
-        ph["worst_region"] = names[int(np.nanargmax(np.nan_to_num(np.nanmean(reg_mean[a:b + 1], axis=0),
-                                                                  nan=-np.inf)))]
+        phases.append(Phase(ph["phase"], (a, b), tuple(ph["t_s"]), float(mean_t[a:b + 1].mean()),
+                            float(mean_t1[a:b + 1].mean()), bool(in_fit[a:b + 1].any()), names[worst]))
     fit_idx = np.nonzero(in_fit)[0]
-    worst_frames = [int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]]]
-    reg_avg = np.nanmean(reg_mean[in_fit], axis=0)
-    # regions a small mesh lacks (or the sensor never sees) are NaN: never the worst
-    worst_regions = [names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]]
-    worst_phase = max((p for p in phases if p["in_fit"]), key=lambda p: p["chamfer_m"])
-    verdict = (f"the measurement is NOT explained by the model ({mis['p_text']} <= {alpha:g})" if mis["misspecified"]
-               else f"no evidence of misspecification ({mis['p_text']} > {alpha:g})")
-    model = sensor_model(run)
-    sensor = _sensor_words(min_z, frames, run.scenario.table_z, T, model["kind"] == "camera")
     one = stats.get("one_sided_mean_m")
-    summary = (f"Posterior rollouts miss the measurement by {stats['mean_m'] * 100:.2f} cm on average (Chamfer"
-               f"{sensor}" + (f"; measured -> simulated {one * 100:.2f} cm" if one is not None and np.isfinite(one)
-                              else "") + "); "
-               f"worst in the {worst_phase['phase']} phase (t {worst_phase['t_s'][0]:.2f}-"
-               f"{worst_phase['t_s'][1]:.2f} s, {worst_phase['chamfer_m'] * 100:.2f} cm) and in region "
-               f"{worst_regions[0]}; {verdict}.")
-    # a posterior piled against a prior bound: too narrow a prior, or the model compensating for what it lacks
-    pressed = list((run.report or {}).get("posterior_at_bounds") or [])
-    if pressed:
-        summary += " The fit's posterior: " + " ".join(bound_sentence(e) + "." for e in pressed)
-    out = {"run": str(run.path), "n_rollouts": len(ok), "failed_rollouts": n_eval - len(ok),
-           "times_s": run.scenario.times.tolist(),
-           "chamfer_per_frame_m": {"mean": mean_t.tolist(), "q05": np.quantile(ch, 0.05, 0).tolist(),
-                                   "q95": np.quantile(ch, 0.95, 0).tolist()},
-           "chamfer_one_sided_per_frame_m": {"mean": mean_t1.tolist(), "q05": np.quantile(ch1, 0.05, 0).tolist(),
-                                             "q95": np.quantile(ch1, 0.95, 0).tolist()},
-           "chamfer_mean_m": stats["mean_m"], "chamfer_one_sided_mean_m": one,
-           "metric_min_z_m": min_z, "metric_frames": frames, "metric_sensor": model["kind"],
-           "regions": names, "regions_from": _grasp_words(run.scenario),
-           "phases_from": ("the scenario's keyframes" if (run.scenario.options or {}).get("keyframe_times")
-                           else "equal thirds of the motion"),
-           "region_error_m": np.nan_to_num(reg_mean).tolist(),
-           "region_compared": np.isfinite(reg_mean).tolist(),
-           "region_mean_m": dict(zip(names, np.nan_to_num(reg_avg).tolist())),
-           "phases": phases, "worst_frames": worst_frames, "worst_regions": worst_regions,
-           "misspecification": mis, "energy": energy_score(pool, n_eval), "summary": summary,
-           "posterior_at_bounds": pressed, "seconds": time.perf_counter() - t0}
+
+    def band(c: np.ndarray) -> Band:
+        return Band(tuple(c.mean(0).tolist()), tuple(np.quantile(c, 0.05, 0).tolist()),
+                    tuple(np.quantile(c, 0.95, 0).tolist()))
+
+    result = CheckResult(
+        str(run.path), len(ok), n_eval - len(ok), tuple(run.scenario.times.tolist()), band(ch), band(ch1),
+        float(stats["mean_m"]), float(one) if one is not None and np.isfinite(one) else None, run.metric_min_z,
+        None if frames is None else tuple(frames), sensor_model(run)["kind"], float(run.scenario.table_z),
+        tuple(names), tuple(map(tuple, np.nan_to_num(reg_mean).tolist())),
+        tuple(map(tuple, np.isfinite(reg_mean).tolist())), dict(zip(names, np.nan_to_num(reg_avg).tolist())),
+        tuple(phases), tuple(int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]]),
+        tuple(names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]),
+        test, ranking, energy_score(pool, n_eval), posterior_mean_chamfer(run, workers=workers),
+        residual_shape(run, pool, n_eval) if test.misspecified else None,
+        tuple((run.report or {}).get("posterior_at_bounds") or ()), key, time.perf_counter() - t0,
+        regions_from=_grasp_words(run.scenario),
+        phases_from=("the scenario's keyframes" if (run.scenario.options or {}).get("keyframe_times")
+                     else "equal thirds of the motion"))
     run_dir = Path(run_dir)
-    (run_dir / "check.json").write_text(json.dumps(out, indent=2))
+    write_result(run_dir / "check.json", result)
     if plot:
-        plot_check(run_dir / "check.png", out, ch)
-    return out
-
-
+        plot_check(run_dir / "check.png", result)
+    return result

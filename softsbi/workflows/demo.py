@@ -2,7 +2,8 @@
 
 A lift recording is simulated at parameters the fit is not shown, with a hidden breeze the
 nominal model lacks. The demo fits the nominal model, checks it against the recording, diagnoses
-the missing effect among all installed ones, refits with it and compares. "Before" and "after"
+the missing effect among all installed ones (refitting the top candidates) and compares the nominal fit with
+the named effect's refit. "Before" and "after"
 are the posterior-predictive Chamfer of the two fits: the mean over rollouts at their posterior
 samples (report.json's ``chamfer_posterior_m``, which ``compare`` reproduces exactly).
 
@@ -12,17 +13,19 @@ every number as one dict.
 from __future__ import annotations
 
 import contextlib
+import json
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 
 from softsbi.core.metrics import describe_change
+from softsbi.core.results import CompareResult, Diagnosis, to_json
 from softsbi.inference.contraction import contraction_from_report
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
+from softsbi.report.text import check_summary
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows.check import check_run
 from softsbi.workflows.defaults import DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
@@ -60,10 +63,10 @@ class DemoCallbacks:
     def fit_done(self, report: dict[str, Any], run_dir: Path) -> None:
         """A fit finished; ``report`` is its report.json."""
 
-    def diagnosis_done(self, diagnosis: dict[str, Any]) -> None:
-        """The screening finished (``diagnose_run``'s result)."""
+    def diagnosis_done(self, diagnosis: Diagnosis) -> None:
+        """The diagnosis finished (``diagnose_run``'s result)."""
 
-    def comparison_done(self, comparison: dict[str, Any], effect: str) -> None:
+    def comparison_done(self, comparison: CompareResult, effect: str) -> None:
         """``compare_runs``' result of the nominal fit and the refit with ``effect``."""
 
 
@@ -121,49 +124,52 @@ def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int 
 
 def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Recording, cfg: FitConfig, out: Path,
                          res: FitResult, workers: int | None, t0: float) -> dict[str, Any]:
-    """Steps 2-5: check, diagnose, refit with the named effect, compare."""
+    """Steps 2-5: check, diagnose (with its refits), the named effect's refit, compare."""
     nominal = out / "nominal"
     ui.step("2. check: where does the model miss the measurement?")
     pool = PosteriorPredictive(nominal, workers)  # one null for check and diagnose
     with ui.working("posterior predictive check ..."):
-        doc["check"] = check_run(nominal, workers=workers, pool=pool)
-    ui.line(doc["check"]["summary"])
+        chk = check_run(nominal, workers=workers, pool=pool)
+    doc["check"] = to_json(chk)
+    ui.line(check_summary(chk))
     ui.step("3. diagnose: which installed effect explains the residual?")
-    with ui.working("screening candidate effects ..."):
-        diag = doc["diagnosis"] = diagnose_run(nominal, confirm=0, workers=workers, pool=pool)
+    with ui.working("screening candidate effects and refitting the top ones ..."):
+        diag = diagnose_run(nominal, workers=workers, pool=pool, progress=ui.line)
+    doc["diagnosis"] = to_json(diag)
     ui.diagnosis_done(diag)
-    if diag.get("verdict", "missing-effect") != "missing-effect" or not diag["significant"]:
-        ui.line(f"verdict {diag.get('verdict')}: no named effect to add; stopping here")
+    if diag.verdict != "missing-effect":
+        ui.line(f"verdict {diag.verdict}: no named effect to add; stopping here")
         return doc
-    eff = diag["selected"]
-    ui.step(f"4. add the effect: refit with --effect {eff}")
-    refit = out / f"with-{eff}"
-    res2 = _fit(ui, recording, replace(cfg, effects=[eff]), refit)
+    eff = "+".join(diag.decision.named)
+    refit = Path(diag.refit(diag.decision.named).run)
+    ui.step(f"4. add the effect: the refit with {eff} (what `softsbi fit ... --effect {eff}` gives)")
+    ui.fit_done(json.loads((refit / "report.json").read_text()), refit)
     ui.step("5. compare: error before and after")
-    with ui.working("checking both runs ..."):
+    with ui.working("comparing the two fits ..."):
         comp = compare_runs(nominal, refit, out, workers=workers)
     ui.comparison_done(comp, eff)
-    before, after = comp["table"][0]["a"], comp["table"][0]["b"]
-    doc.update(refit=res2.report, compare={k: v for k, v in comp.items() if k not in ("check_a", "check_b")},
-               named=eff, named_correctly=eff in DEMO_HIDDEN_EFFECT, chamfer_before_m=before, chamfer_after_m=after)
+    a, b = comp.check_a, comp.check_b
+    before, after = comp.rows[0].a, comp.rows[0].b
+    doc.update(refit=json.loads((refit / "report.json").read_text()), compare=to_json(comp), named=eff,
+               named_correctly=set(diag.decision.named) == set(DEMO_HIDDEN_EFFECT), chamfer_before_m=before,
+               chamfer_after_m=after)
     ui.step("the numbers")
     ui.line(f"hidden effect: {', '.join(DEMO_HIDDEN_EFFECT)}; diagnosis named: {eff} "
             f"({'correct' if doc['named_correctly'] else 'WRONG'}).")
     ui.line(f"posterior-predictive Chamfer: {before * 100:.2f} cm (nominal) -> {after * 100:.2f} cm (with {eff}), "
             f"{describe_change(before, after)}.")
-    ea, eb = (comp[k].get("energy") for k in ("check_a", "check_b"))
-    if ea and eb:
-        ui.line(f"energy score (the Chamfer less half the mean Chamfer between two rollouts, a proper score): "
-                f"{ea['energy_m'] * 100:.2f} cm -> {eb['energy_m'] * 100:.2f} cm, "
-                f"{describe_change(ea['energy_m'], eb['energy_m'])}.")
-    pa, pb = (comp["posterior_mean_chamfer"][k] for k in ("a", "b"))
-    if pa and pb:
-        a, b = pa["chamfer_m"], pb["chamfer_m"]
+    if a.energy and b.energy:
+        ea, eb = a.energy.energy_m, b.energy.energy_m
+        ui.line(f"energy score (a proper score: the Chamfer less half the mean Chamfer between two rollouts): "
+                f"{ea * 100:.2f} cm -> {eb * 100:.2f} cm, {describe_change(ea, eb)}.")
+        doc.update(energy_before_m=ea, energy_after_m=eb)
+    if a.posterior_mean and b.posterior_mean:
+        pa, pb = a.posterior_mean["chamfer_m"], b.posterior_mean["chamfer_m"]
         ui.line(f"posterior-mean rollout Chamfer (the fitted point estimate, without the posterior's width): "
-                f"{a * 100:.2f} cm -> {b * 100:.2f} cm, {describe_change(a, b)}.")
-        doc.update(pm_chamfer_before_m=a, pm_chamfer_after_m=b)
+                f"{pa * 100:.2f} cm -> {pb * 100:.2f} cm, {describe_change(pa, pb)}.")
+        doc.update(pm_chamfer_before_m=pa, pm_chamfer_after_m=pb)
     figures = f" Figures: {out}/compare.png, {nominal}/check.png, {refit}/posterior_pairs.png"
-    return _finish(ui, doc, res2.report, t0, figures, what="the refit's ")
+    return _finish(ui, doc, doc["refit"], t0, figures, what="the refit's ")
 
 
 def _finish(ui: DemoCallbacks, doc: dict[str, Any], report: dict[str, Any], t0: float, figures: str,

@@ -149,8 +149,7 @@ class FitConfig:
             the same joint proposal, correlated within a simulation. Only for the point-cloud observer with
             the height sensor model, truncated proposals or bulk estimators, and when every observation
             transform of the fit is such a sensor effect; otherwise, and at 0 (the default), it does nothing.
-            ``diagnose`` sets it for refits that add a sensor effect
-            (:data:`~softsbi.workflows.diagnose.REFIT_SENSOR_DRAWS`).
+            ``diagnose``'s refits use 0, so that physics and sensor effects are refitted on the same footing.
         refine: N >= 1: after the posterior, N more simulations polish the best fit by CMA-ES started at the
             posterior's mean with its covariance, inside the prior (:func:`~softsbi.workflows.bestfit.refine`;
             stored in the run, resumable, the posterior untouched). 0 (the default): the best fit is the best of
@@ -409,9 +408,9 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     space = sim.param_space(scenario)
     for e in cfg.effects:
         eff_cls = reg.effect(e)
-        if e not in sim_cls.effects:
-            raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}'; it supports "
-                                 f"{list(sim_cls.effects) or 'no effects'}")
+        missing = sim_cls.supports(eff_cls)
+        if missing is not None:
+            raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}': it needs {missing}")
         space = space + eff_cls().param_space()
     if cfg.bounds:
         space = space.with_bounds(cfg.bounds)

@@ -1,20 +1,16 @@
-"""The linearised screening of installed effects and the misspecification test that ``check`` and
-``diagnose`` share.
+"""The linearised screening of candidate effects and the misspecification test ``check`` and ``diagnose`` share.
 
-- :func:`candidate_effects`, :func:`sensitivity_jobs`, :class:`Screening`: every candidate effect's
-  sensitivity of the summary statistics (finite differences at the posterior median, one simulation per
-  direction) and the added-variable statistic: the drop of the weighted residual sum of squares when the
-  effect's sensitivities join the nominal parameters' (a linearised test; Cook & Weisberg 1982, ch. 2.3
-  for the added-variable idea), with its null from the posterior-predictive rollouts and max-T
+- :class:`Screening`: every candidate effect's sensitivity of the summary statistics (finite differences at the
+  posterior median, one simulation per direction) and the added-variable statistic: the drop of the weighted
+  residual sum of squares when the effect's sensitivities join the nominal parameters' (a linearised test; Cook
+  & Weisberg 1982, ch. 2.3), with its null from the posterior-predictive rollouts and the Westfall-Young max-T
   adjustment over the family (:func:`~softsbi.workflows.stats.max_t_adjusted`).
-- :func:`misspecification_verdict`: the test both commands decide "is the measurement inside the
-  posterior predictive distribution?" with. Two tests on one null, Bonferroni-combined: the omnibus
-  test (:func:`~softsbi.workflows.stats.misspecification_test`, a departure in any direction) and the
-  directional test (the screening's largest max-T normalised statistic: a departure along an installed
-  effect's sensitivity). The omnibus test alone spends its power on every direction of the 14 summaries
-  x frames; measured on 176 hidden-effect cases, 13 hidden effects that the screening put beyond all
-  200 nulls were passed by the omnibus test (p 0.015-0.10) and called "nothing missing"
-  (BENCHMARKS.md "Honest statistics and three verdicts", fourth session).
+- :func:`misspecification_verdict`: "is the measurement inside the posterior predictive distribution?". Two tests
+  on one null, Bonferroni-combined (:class:`~softsbi.core.results.JointTest`): the omnibus test
+  (:func:`~softsbi.workflows.stats.misspecification_test`, a departure in any direction) and the directional test
+  (the screening's largest max-T statistic: a departure along a candidate's sensitivity). The omnibus test alone
+  spreads its power over every direction of the summaries x frames; the directional test concentrates it on the
+  directions the installed effects can move the cloth in.
 """
 from __future__ import annotations
 
@@ -24,34 +20,35 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.results import Candidate, JointTest
 from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import (ALPHA, MAX_NULL, MCPValue, PosteriorPredictive,
-                                     max_t_adjusted, mc_pvalue, misspecification_test, pvalue_fields,
-                                     resolution_needed, resolved_side, rollout_features, run_features,
-                                     summary_floor)
+from softsbi.workflows.stats import (ALPHA, MAX_NULL, PosteriorPredictive, max_t_adjusted, misspecification_test,
+                                     resolution_needed, rollout_features, run_features, summary_floor)
 
 
 def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
     """Instances of the candidate effects of a run: ``names`` (each must be applicable by the run's
-    backend), or by default every installed effect the backend supports, generic force terms included;
-    effects the run already has are left out.
+    backend; an empty list is no candidate), or by default (None) every installed effect the backend supports,
+    generic force terms included; effects the run already has are left out.
 
     Raises:
         SoftsbiError: a named effect the backend cannot apply (naming the door it needs).
     """
     reg = registry()
     sim_cls = reg.simulator(run.config["backend"])
-    if names:
+    if isinstance(names, str):
+        raise SoftsbiError(f"candidate effects must be a list of names, e.g. [{names!r}]")
+    if names is not None:
         cands = [reg.effect(n) for n in names]
         bad = [f"{c.name} (it needs {sim_cls.supports(c)})" for c in cands if sim_cls.supports(c) is not None]
         if bad:
             raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
     else:
-        # generic force terms are screened too (in the max-T family), but only for the third verdict: forward
-        # selection names non-generic effects only (Screening.forward_selection)
+        # generic force terms are screened too (in the max-T family), but only for the third verdict: the diagnosis
+        # refits and names non-generic effects only
         cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
     return [c() for c in cands if c.name not in run.effects]
 
@@ -59,22 +56,6 @@ def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[
 def effect_kind(effect: Any) -> str:
     """``"physics"`` or ``"sensor"``: an effect class's ``kind`` attribute (default physics)."""
     return str(getattr(type(effect), "kind", getattr(effect, "kind", "physics")) or "physics")
-
-
-def passes_screening_rule(entry: dict[str, Any], level: float, min_explained: float) -> bool:
-    """Rule 2 of a diagnosis for one screening entry (:meth:`Screening.ranking`, :meth:`Screening.family`): its
-    max-T adjusted Monte-Carlo p-value is at most ``level`` and it explains at least ``min_explained`` (a fraction)
-    of the residual sum of squares. False for an entry without a p-value (a candidate whose screening failed)."""
-    p = entry.get("adjusted_p_value")
-    return p is not None and p <= level and (entry.get("explained_fraction") or 0.0) >= min_explained
-
-
-def first_passing(entries: Sequence[dict[str, Any]], level: float, min_explained: float) -> dict[str, Any] | None:
-    """Rule 2 applied to a family's named candidates ``entries`` in evidence order: the first that passes
-    (:func:`passes_screening_rule`), so that a candidate ranked above it that explains less than ``min_explained``
-    is passed over; None when none passes. Used by :meth:`Screening.forward_selection` and, on check of a refit,
-    by :func:`softsbi.workflows.diagnose.next_effect`."""
-    return next((e for e in entries if passes_screening_rule(e, level, min_explained)), None)
 
 
 def is_generic(effect: Any) -> bool:
@@ -120,6 +101,7 @@ def sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
 
 
 
+
 class Screening:
     """The linearised added-variable test of every candidate.
 
@@ -149,16 +131,17 @@ class Screening:
         self.r_obs = (run_features(run, run.dense) - f0) / sd
         self.r_null = (null_f - f0) / sd
         self.design: dict[str, dict[str, Any]] = {}
-        self.failed: list[dict[str, Any]] = []
+        self.failed: list[Candidate] = []
         for eff in cands:
             self._add_design(eff, [c for c in eff_cols if c[0] is eff], feats, f0, sd, effect_step)
+        self.n_simulations = len(res)
 
     def _add_design(self, eff: Any, cols: list[tuple[Any, str, int, int]], feats: list[Any], f0: np.ndarray,
                     sd: np.ndarray, effect_step: float) -> None:
         # offset: the effect switched on at its nominal value (e.g. wind at 0 m/s still adds air)
         if not cols or any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
-            self.failed.append({"effect": eff.name, "kind": effect_kind(eff), "generic": is_generic(eff),
-                                "error": "a sensitivity simulation failed"})
+            self.failed.append(Candidate(eff.name, effect_kind(eff), is_generic(eff), eff.description,
+                                         error="a sensitivity simulation failed"))
             return
         es = eff.param_space()
         lo, hi, steps = [], [], []
@@ -185,94 +168,36 @@ class Screening:
         fit = lsq_linear(A, rr, bounds=(lb, ub))
         return float(((rr - A @ fit.x) ** 2).sum()), fit.x[J_theta.shape[1]:]
 
-    def statistic(self, name: str, given: list[str]) -> dict[str, Any]:
-        """Residual drop of effect ``name`` beyond the effects ``given``, on the measurement and on
-        every null rollout (``null (n,)``), with the explained fraction and the linearised estimate."""
-        base_obs, _ = self.sse(self.r_obs, given)
-        with_obs, coef = self.sse(self.r_obs, given + [name])
-        d_obs = base_obs - with_obs
-        base_null = [self.sse(r, given)[0] for r in self.r_null]
-        null = np.array([b - self.sse(r, given + [name])[0] for b, r in zip(base_null, self.r_null)])
-        est = {}
+    def statistic(self, name: str) -> tuple[float, float, np.ndarray, dict[str, float]]:
+        """Residual drop of effect ``name`` on the measurement, the fraction of the residual it explains, the same
+        drop on every null rollout ``(n,)`` and the linearised estimate of its parameters (physical units)."""
+        base_obs, _ = self.sse(self.r_obs, [])
+        with_obs, coef = self.sse(self.r_obs, [name])
+        null = np.array([self.sse(r, [])[0] - self.sse(r, [name])[0] for r in self.r_null])
         dsg = self.design[name]
-        k = len(coef) - len(dsg["steps"])
-        for (pname, u0, step), cval in zip(dsg["steps"], coef[k:]):
+        est = {}
+        for (pname, u0, step), cval in zip(dsg["steps"], coef):
             ps1 = dsg["effect"].param_space().subset([pname])
             est[pname] = float(ps1.from_unit(np.array([np.clip(u0 + cval * step, 0, 1)]))[0])
-        eff = dsg["effect"]
-        return {"effect": name, "description": eff.description, "kind": effect_kind(eff), "generic": is_generic(eff),
-                "statistic": float(d_obs), "explained_fraction": float(d_obs / max(base_obs, 1e-12)),
-                "null_mean": float(null.mean()), "null": null, "estimate": est}
+        d_obs = base_obs - with_obs
+        return float(d_obs), float(d_obs / max(base_obs, 1e-12)), null, est
 
-    def family(self, names: Sequence[str], given: list[str]) -> list[dict[str, Any]]:
-        """Every candidate in ``names`` tested beyond ``given``, with max-T adjusted p-values over
-        the family (``adjusted_p_value``, ``adjusted_p_text``, ...), its own Monte-Carlo p-value
-        (``p_value``) and the normalised statistic ``z``; ordered by evidence (adjusted p, then z; among
-        candidates beyond all nulls, where z saturates at ``sqrt(n)``, by the fraction explained)."""
-        tests = [self.statistic(n, given) for n in names]
-        if not tests:
-            return []
-        adj, z = max_t_adjusted(np.array([t["statistic"] for t in tests]), np.stack([t["null"] for t in tests], 1))
-        for t, p, zz in zip(tests, adj, z):
-            own = mc_pvalue(t["statistic"], t.pop("null"))
-            t.update(z=float(zz), p_value=own.value, p_text=own.text(), **pvalue_fields(p, "adjusted_"))
-            t["adjusted_exceed"], t["n_null"] = p.exceed, p.n
-        # beyond all nulls the normalised statistic saturates (an outlier among n + 1 values has z <= sqrt(n)),
-        # so there the effect size decides: the fraction of the residual explained
-        tests.sort(key=lambda t: (t["adjusted_p_value"], 0.0 if t["adjusted_exceed"] == 0 else -t["z"],
-                                  -t["explained_fraction"]))
-        return tests
-
-    def ranking(self) -> list[dict[str, Any]]:
-        """Every candidate tested alone, by evidence; failed candidates last."""
-        return self.family(list(self.design), []) + self.failed
-
-    def remaining(self, names: list[str]) -> dict[str, Any]:
-        """What the effects ``names`` leave unexplained: the residual sum of squares after the
-        linearised fit with them, its fraction of the nominal fit's, and its Monte-Carlo p-value
-        against the same quantity on the null rollouts (``p_text``)."""
-        obs = self.sse(self.r_obs, names)[0]
-        null = np.array([self.sse(r, names)[0] for r in self.r_null])
-        p = mc_pvalue(obs, null)
-        return {"effects": list(names), "sse": obs, "fraction": obs / max(self.sse(self.r_obs, [])[0], 1e-12),
-                **p.as_dict()}
-
-    def forward_selection(self, ranking: list[dict[str, Any]], alpha: float,
-                          min_explained: float) -> tuple[list[str], list[dict[str, Any]]]:
-        """Named (non-generic) effects selected forward: at each step the named candidate with the strongest
-        evidence among those that pass rule 2 (:func:`passes_screening_rule`: max-T adjusted p-value, over every
-        remaining candidate given those chosen, at most ``alpha``, and at least ``min_explained`` of the remaining
-        residual explained) joins; the selection stops when none passes. Returns the chosen names and one log
-        entry per step (``best``: the candidate that joined, or the strongest named one when none passed;
-        ``passed_over``: named candidates ranked above it that fail the rule).
-
-        Why among those that pass, not the first ranked: candidates tied at the same adjusted p-value are
-        ordered by their normalised statistic, which a candidate whose null is narrow can win while explaining
-        little (a fresh case, mujoco-more 656, a time offset in the rope winding: point noise first with 2% of
-        the residual, time offset second with 66%, both at adjusted p = 2/201); stopping at the first ranked
-        then named nothing. The max-T adjustment holds the family-wise error whichever significant candidate is
-        chosen."""
-        chosen: list[str] = []
-        remaining = [r["effect"] for r in ranking if "statistic" in r]
-        log = []
-        tests = [r for r in ranking if "statistic" in r]
-        while remaining:
-            if chosen:
-                tests = self.family(remaining, chosen)
-            named = [t for t in tests if not t["generic"]]
-            if not named:
-                break
-            passing = first_passing(named, alpha, min_explained)
-            best = passing or named[0]
-            ok = passing is not None
-            log.append({"given": list(chosen), "best": best["effect"], "adjusted_p_value": best["adjusted_p_value"],
-                        "adjusted_p_text": best["adjusted_p_text"], "explained_fraction": best["explained_fraction"],
-                        "accepted": ok, "passed_over": [t["effect"] for t in named[:named.index(best)]]})
-            if not ok:
-                break
-            chosen.append(best["effect"])
-            remaining.remove(best["effect"])
-        return chosen, log
+    def ranking(self) -> tuple[Candidate, ...]:
+        """Every candidate tested alone, with max-T adjusted p-values over the family, by evidence (adjusted p;
+        among candidates beyond all nulls, where the normalised statistic saturates at ``sqrt(n)``, by the
+        fraction explained; else by the normalised statistic); failed candidates last."""
+        names = list(self.design)
+        if not names:
+            return tuple(self.failed)
+        tests = [self.statistic(n) for n in names]
+        adj, z = max_t_adjusted(np.array([t[0] for t in tests]), np.stack([t[2] for t in tests], 1))
+        rows = []
+        for name, (_, frac, _, est), p, zz in zip(names, tests, adj, z):
+            eff = self.design[name]["effect"]
+            rows.append((p.value, 0.0 if p.at_floor else -float(zz), -frac,
+                         Candidate(name, effect_kind(eff), is_generic(eff), eff.description, frac, p, est)))
+        rows.sort(key=lambda t: t[:3])
+        return tuple(r[3] for r in rows) + tuple(self.failed)
 
 
 # ----------------------------------------------------------------------------------------
@@ -299,168 +224,77 @@ def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: flo
         pool.sensitivities[key] = (list(cands), eff_cols, res)
     # the stored effect instances: the design's columns refer to them
     first, eff_cols, res = pool.sensitivities[key]
-    screen = Screening(pool.run, first, res, eff_cols, effect_step, pool.features)
-    screen.n_simulations = len(res)
-    return screen
+    return Screening(pool.run, first, res, eff_cols, effect_step, pool.features)
 
 
-def _directional_fields(top: dict[str, Any], n_family: int) -> dict[str, Any]:
-    p = MCPValue(top["adjusted_exceed"], top["n_null"])
-    return {**p.as_dict(), "effect": top["effect"], "explained_fraction": top["explained_fraction"],
-            "family": n_family}
+
+def smallest_null(alpha: float, tests: int = 2) -> int:
+    """The smallest null size whose joint p-value can reach ``alpha`` with ``tests`` Bonferroni-combined tests:
+    ``tests / (n + 1) <= alpha``, i.e. ``n = ceil(tests / alpha) - 1`` (39 for two tests at 0.05)."""
+    return int(np.ceil(tests / alpha - 1e-9)) - 1
 
 
-def joint_resolved(pvals: Sequence[MCPValue], level: float) -> bool:
-    """Does the first stage resolve the Bonferroni decision at ``level`` per test? Yes when one test lies
-    below ``level`` with confidence (that alone rejects) or every test lies above it
-    (:func:`~softsbi.workflows.stats.resolved_side`); otherwise the decision is within its Monte-Carlo error and
-    :func:`misspecification_verdict` grows the null. At the verdicts' level (0.025 per test, where 30 nulls cannot
-    reject) this adds nothing to :func:`~softsbi.workflows.stats.resolution_needed`; it matters where the first
-    stage can decide, e.g. rule 3's 0.2 (0.1 per test): 1 to 6 exceedances in 30 are not resolved there."""
-    sides = [resolved_side(p, level) for p in pvals]
-    return "below" in sides or all(s == "above" for s in sides)
+def check_resolution(alpha: float, max_null: int, tests: int = 2) -> None:
+    """Refuse a null cap that cannot resolve ``alpha`` (before any simulation).
 
-
-def joint_decision(omnibus: MCPValue, directional: MCPValue | None, alpha: float) -> dict[str, Any]:
-    """Bonferroni combination of the omnibus and the directional test on one null of ``n`` rollouts.
-
-    The joint p-value is ``min(1, k * min(p_omnibus, p_directional))`` with ``k = 2`` tests (``k = 1``,
-    the omnibus alone, when no candidate could be screened). It controls the family-wise error at any level
-    whatever the two tests' dependence (Bonferroni), and it is never below its resolution ``k / (n + 1)``:
-    with the default cap of 200 nulls the finest joint p-value is ``2/201 < 0.01``.
-
-    Returns:
-        ``p_value``, ``resolution``, ``at_floor`` (the deciding test lies beyond every null), ``tests`` (k)
-        and ``p_text`` (for people, with its resolution and both components).
+    Raises:
+        SoftsbiError: ``alpha`` outside ``(0, 1)``, or ``max_null < smallest_null(alpha, tests)``: with that cap
+            no measurement could ever be found misspecified.
     """
-    k = 1 if directional is None else 2
-    parts = [("omnibus", omnibus)] + ([] if directional is None else [("directional", directional)])
-    name, best = min(parts, key=lambda t: t[1].value)
-    n = omnibus.n
-    value = min(1.0, k * best.value)
-    res = k / (n + 1)
-
-    def short(p: MCPValue) -> str:
-        return f"p <= 1/{p.n + 1}" if p.at_floor else f"p = {p.value:.2g}"
-
-    if k == 1:
-        text = omnibus.text()
-    elif best.at_floor:
-        text = f"p <= 2/{n + 1} (two tests, Bonferroni; the {name} test beyond all {n} null simulations)"
-    else:
-        text = f"p = {value:.2g} (two tests, Bonferroni: 2 x the {name} test's {short(best)}; {n} null simulations)"
-    return {"p_value": value, "resolution": res, "at_floor": bool(best.at_floor), "tests": k,
-            "deciding_test": name, "p_text": text}
-
-
-def near_miss_advice(tests: Sequence[tuple[str, MCPValue]], alpha: float, max_null: int) -> str:
-    """The rule's advice for a test that stopped at its cap just short of ``alpha``: ``""`` unless some test
-    of ``tests`` (``(name, p)``, Bonferroni over ``k = len(tests)``) could still reject at ``alpha / k`` with a
-    cap twice as large, i.e. ``(exceed + 1) / (2 max_null + 1) <= alpha / k`` (e.g. 1 of 200 nulls as
-    extreme, joint p = 0.02 at alpha = 0.01). A larger cap keeps the level (the test rejects only at its
-    cap, :func:`~softsbi.workflows.stats.resolution_needed`), but it helps only when the true exceedance
-    probability is below ``alpha / k``: on the benchmark's 13 such near misses, 3 were then detected
-    (BENCHMARKS.md, "A larger null for near misses")."""
-    k = len(tests)
-    cap = 2 * max_null
-    worth = [(name, p) for name, p in tests if p.n >= max_null and p.exceed > 0 and (p.exceed + 1) / (cap + 1) <= alpha / k]
-    if not worth:
-        return ""
-    name, p = min(worth, key=lambda t: t[1].exceed)
-    most = int(np.floor(alpha / k * (cap + 1))) - 1
-    return (f"; {p.exceed} of {p.n} nulls are as extreme in the {name} test, so more nulls could still decide it: "
-            f"with --max-null {cap} it rejects if at most {most} of {cap} are")
+    if not 0 < alpha < 1:
+        raise SoftsbiError(f"alpha must lie in (0, 1), got {alpha}")
+    need = smallest_null(alpha, tests)
+    if max_null < need:
+        raise SoftsbiError(f"max_null {max_null} cannot resolve alpha {alpha:g}: the smallest joint p-value of "
+                           f"{tests} test{'s' if tests > 1 else ''} from {max_null} null simulations is "
+                           f"{tests}/{max_null + 1} = {tests / (max_null + 1):.3g}; use max_null >= {need}")
 
 
 def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], alpha: float = ALPHA,
                              max_null: int = MAX_NULL, unit_step: float = 0.05,
-                             effect_step: float = 0.25) -> tuple[dict[str, Any], Screening | None, list[dict[str, Any]]]:
-    """Is the run's measurement inside the posterior predictive distribution? ``check``'s test and
-    ``diagnose``'s first verdict (one function, one null: the two commands never disagree).
+                             effect_step: float = 0.25) -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
+    """Is the run's measurement inside the posterior predictive distribution? ``check``'s test, ``diagnose``'s
+    detection step and the adequacy of every refit (one function, one null: the commands never disagree).
 
-    Two tests on the pool's posterior-predictive rollouts, each a Monte-Carlo p-value:
-
-    - omnibus: :func:`~softsbi.workflows.stats.misspecification_test` (mean squared standardised deviation of
-      the summaries; leave-one-out null);
-    - directional: the screening's strongest candidate, max-T adjusted over the family of ``cands``
-      (:meth:`Screening.family`: does the residual point along an installed effect's sensitivity more than
-      the nominal model's own rollouts do?). Generic force terms are in the family: they describe residual
-      directions, whatever their cause.
-
-    Misspecified when the Bonferroni-combined p-value (:func:`joint_decision`) is ``<= alpha``. Adaptive
-    resolution as in :func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``: when either
-    test's first stage is promising (beyond all of the first nulls, or ``p <= EXTEND_P``), the null grows to ``max_null``
-    successful rollouts once (:meth:`~softsbi.workflows.stats.PosteriorPredictive.ensure_successful`) and both
-    tests are decided there (the first stage cannot reject: ``2 / 31 > 0.05``), so the level holds. At a level the
-    first stage can resolve (rule 3's ``EXPLAIN_ALPHA = 0.2``), the null also grows when the first stage's
-    decision lies inside its own Monte-Carlo error (:func:`joint_resolved`): a refit is not turned away, or
-    accepted, on 1 exceedance in 30.
+    The omnibus test (:func:`~softsbi.workflows.stats.misspecification_test`) and the directional test (the
+    screening's strongest candidate, max-T adjusted over ``cands``) on the pool's rollouts, Bonferroni-combined.
+    Adaptive resolution (:func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``): when a
+    first stage that cannot reject is promising, the null grows once to ``max_null`` successful rollouts and
+    both tests are decided there, so the level holds.
 
     Args:
         pool: the run's posterior-predictive rollouts (at least 5 successful; more are simulated on demand).
         cands: candidate effect instances (:func:`candidate_effects`); empty = the omnibus test alone.
 
     Returns:
-        ``(test, screening, ranking)``: ``test`` holds the omnibus statistic's fields (``statistic``,
-        ``null_mean``, ``null_q95``, ``n_simulations``), ``omnibus`` and ``directional`` (each a Monte-Carlo
-        p-value with ``p_text``; the directional one names its ``effect`` and ``family`` size, or is None),
-        the joint ``p_value``, ``resolution``, ``p_text``, ``n_null``, ``alpha``, ``misspecified``,
-        ``extended``, ``max_null`` and ``rule`` (the decision rule as applied); ``screening`` the
-        :class:`Screening` (None without candidates or when the simulation at the posterior median
-        failed: ``directional_error`` says so) and ``ranking`` (:meth:`Screening.ranking`).
+        ``(test, screening, ranking)``: the :class:`~softsbi.core.results.JointTest`, the :class:`Screening`
+        (None without candidates or when the simulation at the posterior median failed) and its ranking.
 
     Raises:
-        SoftsbiError: fewer than 5 successful posterior-predictive rollouts.
+        SoftsbiError: ``max_null`` cannot resolve ``alpha`` (:func:`check_resolution`); fewer than 5 successful
+            posterior-predictive rollouts.
     """
+    check_resolution(alpha, max_null, 2 if cands else 1)
     f_obs = run_features(pool.run, pool.run.dense)
+    family = tuple(c.name for c in cands)
 
-    def evaluate():
-        omni = misspecification_test(f_obs, pool.features)
-        screen, ranking, err = None, [], None
+    def evaluate() -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
+        statistic, omnibus = misspecification_test(f_obs, pool.features)
+        screen, ranking = None, ()
         if cands:
             try:
                 screen = screening_of(pool, cands, unit_step, effect_step)
                 ranking = screen.ranking()
-            except SoftsbiError as exc:  # the posterior median's simulation failed: the omnibus test alone
-                screen, err = None, str(exc)
-        tested = [r for r in ranking if "statistic" in r]
-        return omni, screen, ranking, tested, err
+            except SoftsbiError:  # the posterior median's simulation failed: the omnibus test alone
+                screen = None
+        top = next((c for c in ranking if c.screened), None)
+        test = JointTest(omnibus, top.adjusted if top else None, top.effect if top else None, family, alpha,
+                         max_null, statistic)
+        return test, screen, ranking
 
-    omni, screen, ranking, tested, err = evaluate()
-
-    def pvals():
-        p_o = MCPValue(omni["exceed"], omni["n_simulations"])
-        p_d = MCPValue(tested[0]["adjusted_exceed"], tested[0]["n_null"]) if tested else None
-        return p_o, p_d
-
-    p_o, p_d = pvals()
-    k = 2 if p_d is not None else 1
-    if len(pool.rollouts) < max_null and (any(resolution_needed(p, alpha / k, max_null) for p in (p_o, p_d) if p)
-                                          or not joint_resolved([p for p in (p_o, p_d) if p], alpha / k)):
+    test, screen, ranking = evaluate()
+    parts = [p for p in (test.omnibus, test.directional) if p is not None]
+    if len(pool.rollouts) < max_null and any(resolution_needed(p, alpha / len(parts), max_null) for p in parts):
         pool.ensure_successful(max_null)  # the cap counts successful rollouts: failures would cost resolution
-        omni, screen, ranking, tested, err = evaluate()
-        p_o, p_d = pvals()
-        k = 2 if p_d is not None else 1
-    joint = joint_decision(p_o, p_d, alpha)
-    rej = joint["p_value"] <= alpha
-    family = f"{len(tested)} installed effect{'s' if len(tested) != 1 else ''}"
-    what = ("the measurement's summaries are outside the posterior predictive distribution if "
-            + (f"the joint test gives p <= {alpha:g} (Bonferroni over the omnibus test and the directional max-T "
-               f"test over {family})" if k == 2 else f"p <= {alpha:g}"))
-    rule = f"{what}: {joint['p_text']} {'<=' if rej else '>'} {alpha:g}"
-    n = p_o.n
-    if not rej and joint["at_floor"] and joint["resolution"] > alpha and n >= max_null:
-        rule += (f"; {n} null simulations cannot resolve p <= {alpha:g} (cap {max_null}): raise the cap "
-                 f"(--max-null) to at least {int(np.ceil(k / alpha)) - 1}")
-    elif not rej and n >= max_null:
-        rule += near_miss_advice([t for t in (("omnibus", p_o), ("directional", p_d)) if t[1] is not None],
-                                 alpha, max_null)
-    test = {"statistic": omni["statistic"], "null_mean": omni["null_mean"], "null_q95": omni["null_q95"],
-            "n_simulations": omni["n_simulations"], "n_null": n,
-            "omnibus": {**p_o.as_dict(), "statistic": omni["statistic"]},
-            "directional": _directional_fields(tested[0], len(tested)) if tested else None,
-            **joint, "alpha": alpha, "misspecified": bool(rej), "extended": pool.requested > pool.first,
-            "max_null": max_null, "rule": rule}
-    if err:
-        test["directional_error"] = err
+        test, screen, ranking = evaluate()
     return test, screen, ranking

@@ -16,9 +16,6 @@ the same run:
 - :func:`misspecification_test`: the posterior predictive check's test (Gelman et al., *BDA*
   ch. 6): mean squared standardised deviation of the measurement's summaries from the posterior
   predictive ones, against leave-one-out nulls.
-- :func:`summary_bias`: how far the posterior predictive's mean summaries lie from the measurement's,
-  whatever its spread (rule 3 of ``diagnose``: a refit that only widens its posterior predictive does not
-  lower it).
 - :class:`PosteriorPredictive`: the posterior-predictive rollouts of a run, the null of both
   tests: the fit's own evaluation samples with their seeds first, then further posterior draws,
   simulated on demand (:meth:`PosteriorPredictive.ensure`).
@@ -29,15 +26,14 @@ the same run:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
-from scipy.stats import binomtest
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.levels import ALPHA
+from softsbi.core.results import EnergyScore, MCPValue, Score
+from softsbi.core.levels import ALPHA  # noqa: F401 (re-exported)
 from softsbi.core.types import STATUS_OK
 from softsbi.inference.summaries import local_thickness
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
@@ -53,21 +49,14 @@ FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10
 #: floor of a position summary's standard deviation (m): sensor resolution, keeps weights finite
 FEATURE_FLOOR = 0.003
 #: floor of the local thickness's standard deviation (m): 0.1 mm, the thickness that sensor noise of 1% of the
-#: point-noise prior's range (1 cm) adds. Without it a lift's rollouts, whose thickness varies by about 0.03 mm
-#: per frame, would make a 0.1 mm difference of mesh resolution significant (another engine's lift: 0.39 against
-#: 0.30 mm); a fling's rollouts vary by about 0.5 mm, where it does not bind (BENCHMARKS.md, twenty-sixth session)
+#: point-noise prior's range (1 cm) adds. A lift's rollouts vary by about 0.03 mm per frame in thickness, so
+#: without the floor a 0.1 mm difference of mesh resolution between two engines would count as a misfit
 THICKNESS_FLOOR = 1e-4
 #: the floors of :data:`FEATURE_NAMES`, in order
 FEATURE_FLOORS = np.array([FEATURE_FLOOR] * (len(FEATURE_NAMES) - 1) + [THICKNESS_FLOOR])
 #: a first-stage p-value at or below this extends the null to its cap (:func:`resolution_needed`). A round
-#: level, not fitted: it cannot change a test's level, only its cost and power. In the statistical benchmark's
-#: stored cases that stopped at 30 nulls under the earlier rule, 0 of 72 controls and 21 of 63 hidden effects
-#: had a first-stage p at or below it (BENCHMARKS.md, "Eager extension")
+#: level, not fitted: it cannot change a test's level, only its cost and power
 EXTEND_P = 0.1
-#: confidence of the Clopper-Pearson interval that says whether a first-stage Monte-Carlo decision is resolved
-#: (:func:`resolved_side`). At 30 nulls and a per-test level of 0.1 (rule 3's 0.2 over two tests) it leaves 1-6
-#: exceedances undecided; at the verdicts' 0.025 per test it leaves 0-2, the cases :data:`EXTEND_P` already extends
-RESOLVED_CONFIDENCE = 0.9
 
 
 def cloud_features(points: np.ndarray) -> np.ndarray:
@@ -76,7 +65,7 @@ def cloud_features(points: np.ndarray) -> np.ndarray:
     Thirteen place the cloud (mean, spread, height and horizontal quantiles); the fourteenth is its mean local
     thickness (:func:`~softsbi.inference.summaries.local_thickness`, 8 neighbours; 0 for fewer than 3 points),
     the one summary that sees independent sensor noise: a noise of 1 cm moves a 30 cm cloud's spread by under
-    1 mm, its thickness by several (BENCHMARKS.md, twenty-sixth session)."""
+    1 mm, its thickness by several."""
     p = np.asarray(points, float)
     q = np.quantile(p, [0.05, 0.95], axis=0)
     thick = float(local_thickness(p)) if len(p) >= 3 else 0.0
@@ -152,47 +141,6 @@ def sampled_points(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int,
 # Monte-Carlo p-values
 
 
-@dataclass(frozen=True)
-class MCPValue:
-    """A Monte-Carlo p-value ``(exceed + 1) / (n + 1)``.
-
-    Attributes:
-        exceed: null simulations whose statistic is at least the observed one.
-        n: null simulations.
-    """
-
-    exceed: int
-    n: int
-
-    @property
-    def value(self) -> float:
-        """``(exceed + 1) / (n + 1)``: an upper bound on the true p-value's estimate, never below
-        :attr:`floor`."""
-        return (self.exceed + 1) / (self.n + 1)
-
-    @property
-    def floor(self) -> float:
-        """The resolution ``1 / (n + 1)``: the smallest p-value ``n`` simulations can give."""
-        return 1.0 / (self.n + 1)
-
-    @property
-    def at_floor(self) -> bool:
-        """True when the observation lies beyond every null simulation."""
-        return self.exceed == 0
-
-    def text(self) -> str:
-        """For people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or
-        ``p = 0.13 (3 of 30 null simulations as extreme)``."""
-        if self.at_floor:
-            return f"p <= 1/{self.n + 1} (beyond all {self.n} null simulations)"
-        return f"p = {self.value:.2g} ({self.exceed} of {self.n} null simulations as extreme)"
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON fields: ``p_value``, ``exceed``, ``n_null``, ``resolution``, ``p_text``."""
-        return {"p_value": self.value, "exceed": self.exceed, "n_null": self.n, "resolution": self.floor,
-                "p_text": self.text()}
-
-
 def mc_pvalue(observed: float, null: np.ndarray) -> MCPValue:
     """Monte-Carlo p-value of ``observed`` against the null statistics ``null (n,)`` (larger is
     more extreme; NaNs are not allowed).
@@ -258,31 +206,15 @@ def resolution_needed(p: MCPValue, alpha: float, cap: int, promising: float = EX
     return p.floor > alpha and p.n < cap and ((p.exceed + 1) / (cap + 1) <= alpha or p.value <= promising)
 
 
-def resolved_side(p: MCPValue, level: float, confidence: float = RESOLVED_CONFIDENCE) -> str | None:
-    """Which side of ``level`` the true p-value of ``p`` lies on, when ``p``'s ``n`` nulls resolve it.
-
-    The ``exceed`` of ``n`` null statistics at least as extreme as the observation estimate the exceedance
-    probability; its ``confidence`` Clopper-Pearson interval (``scipy.stats.binomtest``, exact) is compared with
-    ``level``: ``"below"`` when the interval lies below it (a rejection at ``level`` that more nulls would not
-    overturn, at that confidence), ``"above"`` when it lies above, None when it contains ``level``: the
-    decision is inside its own Monte-Carlo error and needs more nulls. Example: 1 exceedance in 30 has the 90%
-    interval 0.002-0.149, so ``p = 2/31 <= 0.1`` is not resolved at level 0.1; 0 in 30 (0-0.095) is.
-
-    Raises:
-        ValueError: ``level`` or ``confidence`` outside ``(0, 1)``.
-    """
-    if not (0 < level < 1 and 0 < confidence < 1):
-        raise ValueError(f"level and confidence must lie in (0, 1), got {level} and {confidence}")
-    ci = binomtest(p.exceed, p.n).proportion_ci(confidence_level=confidence, method="exact")
-    return "below" if ci.high < level else "above" if ci.low > level else None
-
-
-def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, Any]:
+def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> tuple[float, MCPValue]:
     """Is ``f_obs (F,)`` inside the distribution of ``f_sims (S, F)``?
 
     Statistic: mean squared standardised deviation (per-summary standard deviation from the
     simulations, floored at :func:`summary_floor`). Null: each simulation against the others
     (leave-one-out). p-value: :func:`mc_pvalue` (no tail model).
+
+    Returns:
+        the measurement's statistic and its Monte-Carlo p-value.
 
     Raises:
         SoftsbiError: fewer than 5 simulations.
@@ -299,47 +231,7 @@ def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> dict[str, An
 
     d_obs = stat(f_obs, f_sims)
     null = np.array([stat(f_sims[i], np.delete(f_sims, i, axis=0)) for i in range(S)])
-    p = mc_pvalue(d_obs, null)
-    return {"statistic": d_obs, "null_mean": float(null.mean()), "null_q95": float(np.quantile(null, 0.95)),
-            **p.as_dict(), "n_simulations": S}
-
-
-def summary_bias(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray | None = None, n_boot: int = 400,
-                 seed: int = 0) -> dict[str, Any]:
-    """How far the posterior predictive's *mean* summaries lie from the measurement's, whatever its spread.
-
-    ``B^2 = ||(mean_i f_i - f_obs) / scale||^2 - tr(Cov(f / scale)) / S``: the squared standardised distance of
-    the rollouts' mean summaries ``f_sims (S, F)`` from ``f_obs (F,)``, minus the sampling noise of the mean,
-    so that it estimates ``||(E f - f_obs) / scale||^2`` without bias whatever ``S`` (the same correction as an
-    unbiased MMD estimate with a linear kernel). ``scale (F,)`` is fixed by the caller: a refit is measured
-    in its nominal fit's scale (:func:`~softsbi.workflows.diagnose.confirm_effect`), so a posterior predictive
-    that only widens leaves ``B^2`` unchanged in expectation while one whose rollouts move toward the
-    measurement lowers it. Default scale: ``f_sims``' standard deviations floored at :func:`summary_floor`
-    (the misspecification test's weights).
-
-    Returns:
-        ``{"b2", "se", "n", "scale"}``: ``b2`` (dimensionless), its bootstrap standard error over the
-        rollouts (``n_boot`` resamples, seeded), ``n = S`` and the scale used (list of ``F`` floats).
-
-    Raises:
-        SoftsbiError: fewer than 5 simulations or shapes that disagree.
-    """
-    f_obs, f_sims = np.asarray(f_obs, float).ravel(), np.asarray(f_sims, float)
-    if f_sims.ndim != 2 or f_sims.shape[1] != len(f_obs) or len(f_sims) < 5:
-        raise SoftsbiError(f"summary_bias needs at least 5 simulations of {len(f_obs)} summaries, got {f_sims.shape}")
-    if scale is None:
-        scale = np.maximum(f_sims.std(0, ddof=1), summary_floor(f_sims.shape[1]))
-    scale = np.asarray(scale, float)
-    z = (f_sims - f_obs) / scale
-
-    def b2(zz: np.ndarray) -> float:
-        m = zz.mean(0)
-        return float(m @ m - zz.var(0, ddof=1).sum() / len(zz))
-
-    rng = np.random.default_rng(seed)
-    S = len(z)
-    boots = np.array([b2(z[rng.integers(0, S, S)]) for _ in range(n_boot)])
-    return {"b2": b2(z), "se": float(boots.std(ddof=1)), "n": S, "scale": scale.tolist()}
+    return d_obs, mc_pvalue(d_obs, null)
 
 
 # ----------------------------------------------------------------------------------------
@@ -380,7 +272,7 @@ class PosteriorPredictive:
         self.sensitivities: dict[tuple, Any] = {}
         #: :func:`energy_score` results, by (n, the rollouts' samples), so that check and diagnose sharing this
         #: pool score it once
-        self.energy_scores: dict[tuple, dict[str, Any]] = {}
+        self.energy_scores: dict[tuple, EnergyScore] = {}
 
     @property
     def features(self) -> np.ndarray:
@@ -424,30 +316,6 @@ class PosteriorPredictive:
             self.ensure(min(limit, self.requested + n - len(self.rollouts)))
         return self
 
-    def misspecification(self, alpha: float = ALPHA, max_null: int = MAX_NULL) -> dict[str, Any]:
-        """The omnibus misspecification test alone (:func:`misspecification_test`); ``check`` and
-        ``diagnose`` decide with :func:`softsbi.workflows.screening.misspecification_verdict`, which combines
-        it with the directional test over the installed effects. With adaptive resolution: when it cannot decide at ``alpha`` with the rollouts so far,
-        simulate up to ``max_null`` first (:func:`resolution_needed`).
-
-        Returns:
-            the test's fields plus ``alpha``, ``misspecified`` (``p <= alpha``), ``extended``
-            (whether the null grew beyond its first size), ``max_null`` and ``rule`` (the decision rule as
-            applied, in words).
-
-        Raises:
-            SoftsbiError: fewer than 5 successful rollouts.
-        """
-        f_obs = run_features(self.run, self.run.dense)
-        m = misspecification_test(f_obs, self.features)
-        if resolution_needed(MCPValue(m["exceed"], m["n_simulations"]), alpha, max_null) \
-                and len(self.rollouts) < max_null:
-            self.ensure_successful(max_null)
-            m = misspecification_test(f_obs, self.features)
-        return decided(m, alpha, max_null, self.requested > self.first,
-                       "the measurement's summaries are outside the posterior predictive distribution")
-
-
 #: the energy score's spread term compares each posterior-predictive rollout with the next ``ENERGY_PAIRS``
 #: ones (cyclically): about ``ENERGY_PAIRS * n`` pairs instead of all ``n (n - 1) / 2``, an unbiased estimate of
 #: the same mean at a tenth of the cost for ``n = 30`` (each pair is a Chamfer per metric frame)
@@ -474,31 +342,7 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     return views_or_highest(views, surface), None
 
 
-def trajectory_thickness(clouds: Sequence[np.ndarray], min_z: float | None = None,
-                         frames: Sequence[int] | None = None) -> np.ndarray:
-    """``(T',)`` local thickness (m, :func:`~softsbi.inference.summaries.local_thickness`) of a sequence of point
-    sets ``(P_t, 3)`` m as a sensor with visibility threshold ``min_z`` sees them, in ``frames`` (None = all): the
-    thickness twin of :func:`trajectory_features`."""
-    idx = range(len(clouds)) if frames is None else frames
-    return np.array([local_thickness(sensor_view(np.asarray(clouds[t], float), min_z)) for t in idx])
-
-
-def run_thickness(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
-    """``(T',)`` local thickness (m) of ``clouds`` in the run's metric frames, as its sensor model sees them
-    (:func:`run_features`' visibility threshold): the summary a point-noise estimator conditions on, and the last of
-    check's 14 per frame (a noise of 1 cm moves a 30 cm cloud's spread by under 1 mm, its thickness by several)."""
-    return trajectory_thickness(clouds, run.metric_min_z, run_frames(run))
-
-
-def pool_thickness(pool: PosteriorPredictive, n: int) -> np.ndarray:
-    """``(S, T')`` local thickness (m) of the first ``n`` successful rollouts of ``pool``: the last of each frame's
-    summaries in ``pool.features[:n]`` (:func:`cloud_features`), so exactly as check's test sees them, without
-    sampling and summarising the rollouts again."""
-    k = len(FEATURE_NAMES)
-    return np.asarray(pool.features[:n])[:, k - 1::k]
-
-
-def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, Any] | None:
+def energy_score(pool: PosteriorPredictive, n: int | None = None) -> EnergyScore | None:
     """The posterior predictive's energy score against the measurement, with the fit's metric as distance.
 
     ``ES = mean_i d(X_i, y) - 1/2 mean_(i,j) d(X_i, X_j)`` (Gneiting & Raftery 2007, eq. 22, with the
@@ -517,9 +361,9 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
             is the report's ``chamfer_posterior_m``).
 
     Returns:
-        ``{"energy_m", "energy_se_m", "chamfer_m", "spread_m", "n", "pairs"}`` (m): the score, its jackknife
-        standard error over rollouts, the two terms (``spread_m`` is the mean distance between two rollouts)
-        and the counts; None with fewer than 3 successful rollouts or an image fit (no clouds).
+        an :class:`~softsbi.core.results.EnergyScore` (m): the score, its jackknife standard error over rollouts, the two
+        terms (``spread_m`` is the mean distance between two rollouts) and the rollouts scored; None with fewer
+        than 3 successful rollouts or an image fit (no clouds).
     """
     run = pool.run
     n = len(run.post_theta) if n is None else n
@@ -529,7 +373,7 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
         return None
     key = (n, tuple(int(r["sample"]) for r in ok))
     if key in pool.energy_scores:  # check and diagnose sharing one pool score it once
-        return dict(pool.energy_scores[key])
+        return pool.energy_scores[key]
     frames = run_frames(run)
     d_obs = np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in ok])
     views = [rollout_views(run, r, 2000 + int(r["sample"])) for r in ok]
@@ -545,9 +389,41 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> dict[str, A
     full = score(np.ones(m, bool))
     loo = np.array([score(np.arange(m) != i) for i in range(m)])
     se = float(np.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2)))
-    pool.energy_scores[key] = {"energy_m": full, "energy_se_m": se, "chamfer_m": float(d_obs.mean()),
-                               "spread_m": float(d_pair.mean()), "n": m, "pairs": len(pairs)}
-    return dict(pool.energy_scores[key])
+    pool.energy_scores[key] = EnergyScore(full, se, float(d_obs.mean()), float(d_pair.mean()), m)
+    return pool.energy_scores[key]
+
+
+def summary_scale(f_sims: np.ndarray) -> np.ndarray:
+    """``(F,)`` the scale of summaries ``f_sims (S, F)``: their standard deviation floored at :func:`summary_floor` (the
+    omnibus test's weights)."""
+    f_sims = np.asarray(f_sims, float)
+    return np.maximum(f_sims.std(0), summary_floor(f_sims.shape[1]))
+
+
+def summary_energy_score(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray) -> Score:
+    """The energy score of posterior-predictive summaries ``f_sims (S, F)`` against the measurement's ``f_obs (F,)``
+    in a fixed ``scale (F,)``: ``mean_i |z_i - z| - mean_(i<j) |z_i - z_j| / 2`` with ``z = f / scale`` (Gneiting &
+    Raftery 2007, eq. 22; strictly proper for the Euclidean norm), with its jackknife standard error over rollouts.
+
+    Raises:
+        SoftsbiError: fewer than 3 rollouts or shapes that disagree.
+    """
+    z = np.asarray(f_sims, float) / scale
+    z_obs = np.asarray(f_obs, float) / scale
+    S = len(z)
+    if S < 3 or z.ndim != 2 or z.shape[1] != len(z_obs):
+        raise SoftsbiError(f"an energy score needs at least 3 rollouts of {len(z_obs)} summaries, got {z.shape}")
+    d_obs = np.linalg.norm(z - z_obs, axis=1)
+    sq = (z * z).sum(1)
+    d_pair = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2 * z @ z.T, 0.0))
+
+    def score(keep: np.ndarray) -> float:
+        m = int(keep.sum())
+        return float(d_obs[keep].mean() - 0.5 * d_pair[np.ix_(keep, keep)].sum() / (m * (m - 1)))
+
+    loo = np.array([score(np.arange(S) != i) for i in range(S)])
+    se = float(np.sqrt((S - 1) / S * np.sum((loo - loo.mean()) ** 2)))
+    return Score(score(np.ones(S, bool)), se, S)
 
 
 #: rollouts at the posterior mean whose mean Chamfer is a fit's posterior-mean rollout error
@@ -608,34 +484,3 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
     return {"chamfer_m": float(vals.mean()), "chamfer_se_m": se, "n": int(len(vals))}
 
 
-def decided(test: dict[str, Any], alpha: float, max_null: int, extended: bool, what: str) -> dict[str, Any]:
-    """Add the decision at level ``alpha`` to a test's fields (``p_value``, ``exceed``, ``n_null``),
-    with the rule as applied in words (``rule``) and whether the cap left it undecidable."""
-    p = MCPValue(test["exceed"], test["n_null"])
-    rej = p.value <= alpha
-    rule = f"{what} if p <= {alpha:g}: {p.text()} {'<=' if rej else '>'} {alpha:g}"
-    # only when the observation lies beyond every null is the resolution what keeps p above alpha; with
-    # exceedances already seen, more nulls add exceedances too (p = 0.13 from 3 of 30 is no near miss)
-    if not rej and p.at_floor and p.floor > alpha and p.n >= max_null:
-        rule += (f"; {p.n} null simulations cannot resolve p <= {alpha:g} (cap {max_null}): raise the cap "
-                 f"(--max-null) to at least {int(np.ceil(1 / alpha)) - 1}")
-    return {**test, "alpha": alpha, "misspecified": bool(rej), "extended": extended, "max_null": max_null,
-            "rule": rule}
-
-
-def pvalue_fields(p: MCPValue, prefix: str = "") -> dict[str, Any]:
-    """:meth:`MCPValue.as_dict` with keys prefixed (``adjusted_p_value`` ...)."""
-    return {prefix + k: v for k, v in p.as_dict().items()}
-
-
-def apply_max_t(stats_obs: dict[str, float], stats_null: dict[str, np.ndarray]) -> dict[str, MCPValue]:
-    """:func:`max_t_adjusted` over named candidates: ``{name: statistic}`` and ``{name: (n,)}``."""
-    names = list(stats_obs)
-    if not names:
-        return {}
-    ps, _ = max_t_adjusted(np.array([stats_obs[n] for n in names]), np.stack([stats_null[n] for n in names], 1))
-    return dict(zip(names, ps))
-
-
-#: the callable type of a statistic over a residual vector (for documentation)
-Statistic = Callable[[np.ndarray], float]

@@ -97,33 +97,70 @@ def test_area_weighted_sampling_is_uniform_on_the_surface():
     assert (small[:, 0] >= -1e-12).all() and (small.sum(1) <= 1 + 1e-12).all()
 
 
-def test_diagnose_prints_a_refitted_pair(tmp_path, monkeypatch):
-    """A pair refit ("wind+time-offset", rule 3 on two effects) has no screening entry of its own; the
-    printed table must still list it (it raised KeyError on the real lift_tan recording)."""
+def _unexplained_with_a_pair(tmp_path):
+    """A diagnosis of the real lift_tan's kind: time offset and wind refitted alone, then as a pair on the time offset
+    (its refit lowers the score, but the misfit remains), none explains the misfit (the pair has no screening entry of
+    its own); table-unseen screened but not refitted."""
+    from result_helpers import candidate, joint, refit, score
+    from softsbi.core.results import Diagnosis
+    from softsbi.workflows.decide import decide
+    ranking = (candidate("time-offset", 0.14, kind="sensor"), candidate("wind", 0.12),
+               candidate("table-unseen", 0.05, 60, kind="sensor"))
+    still = joint(0, 2, family=("time-offset", "wind", "table-unseen"))
+    refits = (refit(("time-offset",), 25.0, still), refit(("wind",), 33.6, still),
+              refit(("time-offset", "wind"), 40.5, still))
+    nominal = score(28.5)
+    return Diagnosis(str(tmp_path), ("time-offset", "wind", "table-unseen"), 0.05, 2.0, joint(0, 0), ranking, nominal,
+                     refits, decide(joint(0, 0), nominal, refits))
+
+
+def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
+    """A pair refit ("time-offset+wind") has no screening entry of its own; the printed diagnosis still says what
+    its refit did (it raised KeyError on the real lift_tan recording), and --json is the typed result, schema
+    included, on stdout alone."""
     import softsbi.workflows.diagnose as dg
-
-    def entry(name, frac, p):
-        return {"effect": name, "kind": "physics", "statistic": 1.0, "explained_fraction": frac,
-                "estimate": {"x": 0.5}, "p_value": p, "n_exceed": 0, "n_null": 200}
-
-    def refit(name, drop):
-        return {"effect": name, "run": str(tmp_path / f"refit-{name}"), "chamfer_before_m": 0.0285,
-                "chamfer_after_m": 0.0285 * (1 - drop), "drop": drop, "posterior_mean": {},
-                "misspecification_after": {"misspecified": True}}
-
-    out = {"ranking": [entry("time-offset", 0.14, 1 / 201), entry("wind", 0.12, 1 / 201),
-                       entry("table-unseen", 0.05, 0.3)],
-           "significant": ["time-offset", "wind"],
-           "confirmed": [refit("time-offset", -0.05), refit("wind", -0.18), refit("wind+time-offset", -0.42)],
-           "final_ranking": ["time-offset", "wind", "wind+time-offset", "table-unseen"],
-           "n_null": 200, "verdict": "misspecified-unexplained", "summary": "Misspecified by nothing installed.",
-           "rules": ["3. no refitted named effect explains the misfit -> misspecified-unexplained"]}
-    monkeypatch.setattr(dg, "diagnose_run", lambda *a, **k: out)
+    d = _unexplained_with_a_pair(tmp_path)
+    assert d.verdict == "misspecified-unexplained" and d.decision.partial == ("time-offset",)
+    monkeypatch.setattr(dg, "diagnose_run", lambda *a, **k: d)
     res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1"])
     assert res.exit_code == 0, res.output
-    line = next(ln for ln in res.output.splitlines() if "wind+time-offset" in ln)
-    assert "pair" in line and "-42%" in line and "yes" in line
-    assert "table-unseen" in res.output and "verdict: misspecified-unexplained" in res.output
+    line = next(ln for ln in res.output.splitlines() if "With time-offset + wind:" in ln)
+    assert "still outside" in line and "25 -> 40.5 (62% higher" in line
+    rows = {ln.split("|")[1].strip(): ln for ln in res.output.splitlines() if ln.startswith("|")}
+    assert rows["time-offset"].rstrip(" |").endswith("explains a part")
+    assert not any(ln.rstrip(" |").endswith(("named", "named (pair)")) for ln in rows.values())
+    assert rows["wind"].rstrip(" |").endswith("refit: misfit remains") and rows["table-unseen"].rstrip(" |")[-1] == "-"
+    assert "verdict: misspecified-unexplained" in res.output and f"wrote {tmp_path / 'diagnosis.json'}" in res.output
+    res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1", "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["schema"] >= 2 and doc["type"] == "Diagnosis" and doc["decision"]["verdict"] == d.verdict
+    assert [r["effects"] for r in doc["refits"]] == [["time-offset"], ["wind"], ["time-offset", "wind"]]
+
+
+def test_a_null_too_small_for_the_level_is_refused_in_one_line_before_any_work(tmp_path):
+    """check and diagnose with --max-null 30 at the default level 0.05: two Bonferroni-combined tests can never
+    reach it (2/31 > 0.05), so the command refuses in one line naming the smallest cap that can, exit code 2,
+    before opening the run (none here); --json gives the same message as a JSON error."""
+    for cmd in (["check", str(tmp_path / "no-run"), "--max-null", "30"],
+                ["diagnose", str(tmp_path / "no-run"), "--max-null", "30"]):
+        res = runner.invoke(app, cmd)
+        assert res.exit_code == 2, res.output
+        msg = " ".join(res.output.split())
+        assert "max_null 30 cannot resolve alpha 0.05" in msg and "use max_null >= 39" in msg, res.output
+        errors = [ln for ln in res.output.splitlines() if "max_null" in ln]
+        assert "Traceback" not in res.output and len(errors) == 1 and errors[0].startswith("error: "), res.output
+        res = runner.invoke(app, cmd + ["--json"])
+        assert res.exit_code == 2 and "use max_null >= 39" in json.loads(res.stdout)["error"]
+    res = runner.invoke(app, ["check", str(tmp_path / "no-run"), "--alpha", "0.01", "--max-null", "199"])
+    assert res.exit_code == 2 and "does not exist" in res.output  # 199 resolves 0.01: the run is opened
+    # the Python API refuses the same way
+    import softsbi
+    from softsbi.core.errors import SoftsbiError
+    with pytest.raises(SoftsbiError, match="use max_null >= 39"):
+        softsbi.diagnose(tmp_path / "no-run", max_null=30)
+    with pytest.raises(SoftsbiError, match=r"effects must be a list of effect names, e.g. effects=\['wind'\]"):
+        softsbi.diagnose(tmp_path / "no-run", effects="wind")
 
 
 def test_plugin_options_and_parameter_values_are_checked_before_anything_runs(tmp_path):

@@ -101,13 +101,21 @@ def test_diagnose_candidates_come_through_the_door():
     names = {c.name for c in candidate_effects(run, None)}
     assert {"air-drag", "extra-damping", "heavy-hem", "sticky-patch", "table-slope", "point-noise"} <= names
     assert "wind" not in names
-    # generic force terms are screened too (for the third verdict); forward selection never names them
+    # generic force terms are screened too (for the third verdict); the diagnosis never refits or names them
     generic = {c.name for c in candidate_effects(run, None) if c.generic}
     assert generic and all(n.startswith("generic-") for n in generic)
     assert [c.name for c in candidate_effects(run, ["generic-constant"])] == ["generic-constant"]  # asked by name
     pb = SimpleNamespace(config={"backend": "pybullet-massspring"}, effects=[])
     with pytest.raises(SoftsbiError, match="heavy-hem \\(it needs a force field"):
         candidate_effects(pb, ["heavy-hem"])
+
+
+def test_an_empty_candidate_family_is_no_family():
+    """An empty family means check's omnibus test alone, not every installed effect: the check of a refit that adds
+    all of a diagnosis' candidates (`diagnose --effect heavy-hem`, or the pair of `--effect a --effect b`) screens
+    the family less the refit's effects, so the family never grows between the steps of one diagnosis."""
+    run = SimpleNamespace(config={"backend": "mujoco-flex"}, effects=["heavy-hem"])
+    assert candidate_effects(run, []) == []
 
 
 class _Recorder(Effect):

@@ -288,9 +288,9 @@ def test_same_seed_same_store_whatever_the_executor(ray_cluster, tmp_path):
 
 @needs_ray
 def test_a_diagnose_refit_of_a_ray_fit_runs_on_ray_with_the_run_executor_options(ray_cluster, tmp_path):
-    """FitConfig round trip: the confirmation refit rebuilds the run's settings from the store
+    """FitConfig round trip: the diagnosis' refit rebuilds the run's settings from the store
     (FitConfig.from_run_config), so it keeps the executor and its options instead of running locally."""
-    from softsbi.workflows.diagnose import confirm_effect
+    from softsbi.workflows.diagnose import refit_model
     from softsbi.workflows.runs import load_run
     opts = {"address": ray_cluster, "retries": 1, "timeout": 120}
     cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=1, sims_per_round=30, workers=2, n_points=8,
@@ -299,8 +299,8 @@ def test_a_diagnose_refit_of_a_ray_fit_runs_on_ray_with_the_run_executor_options
     out = tmp_path / "run"
     run_fit(out, toy_measurement(), cfg, make_plots=False)
     assert FitConfig.from_run_config(RunStore.open(out / "run.zarr").config) == cfg
-    res = confirm_effect(load_run(out), "toy-wind", budget={"rounds": 1, "sims_per_round": 20})
-    refit = FitConfig.from_run_config(RunStore.open(Path(res["run"]) / "run.zarr").config)
+    res = refit_model(load_run(out), ["toy-wind"], ["toy-wind"], rounds=1, sims_per_round=20)
+    refit = FitConfig.from_run_config(RunStore.open(Path(res.run) / "run.zarr").config)
     assert refit.executor == "ray" and refit.executor_options == opts
     assert refit.effects == ["toy-wind"] and refit.sims_per_round == 20 and refit.workers == 2
     assert refit.estimator_options == cfg.estimator_options and refit.seed == cfg.seed

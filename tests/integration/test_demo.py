@@ -25,6 +25,10 @@ def test_quick_demo_fits_hidden_parameters(tmp_path):
 def test_full_demo_story(tmp_path):
     res = runner.invoke(app, ["demo", "--out", str(tmp_path), "--rounds", "2", "--sims-per-round", "100"])
     assert res.exit_code == 0, res.output
-    for step in ("1. fit the nominal model", "2. check", "3. diagnose"):
+    for step in ("1. fit the nominal model", "2. check", "3. diagnose", "4. add the effect", "5. compare"):
         assert step in res.output
+    # the story: the hidden breeze is detected, refitted by the diagnosis and named; the named refit is compared
+    assert "verdict: missing-effect" in res.output and "diagnosis named: wind (correct)" in res.output
     assert (tmp_path / "nominal" / "check.json").exists() and (tmp_path / "nominal" / "diagnosis.json").exists()
+    assert (tmp_path / "nominal" / "refit-wind" / "report.json").exists()
+    assert (tmp_path / "compare.json").exists() and (tmp_path / "compare.png").stat().st_size > 10_000

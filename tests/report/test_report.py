@@ -1,5 +1,6 @@
 """Figures: readable pair plots at D = 2..8, the prior box and truth drawn, headlines that fit the
 figure, one role palette across the figures."""
+import dataclasses
 from types import SimpleNamespace
 from unittest import mock
 
@@ -13,8 +14,10 @@ from matplotlib.colors import to_rgba
 from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 
-from softsbi.report import figures as R
+from result_helpers import check_result, joint
+from softsbi.core.results import CompareResult
 from softsbi.core.types import Param, ParamSpace
+from softsbi.report import figures as R
 
 PARAMS = [Param("bend", 1e-6, 1e-3, "N*m", log=True), Param("stretch", 5.0, 1000.0, "N/m", log=True),
           Param("friction", 0.05, 1.5, "1"), Param("scale", 0.20, 0.34, "m"), Param("mass", 0.1, 0.35, "kg/m^2"),
@@ -118,34 +121,13 @@ def test_param_ticks_are_round_and_labels_consistent():
     assert R._tick_texts([-2.0, 0.0, 2.0]) == ["\u22122", "0", "2"]
 
 
-def _check_out(T=25, long=False):
-    t = np.linspace(0, 0.96, T)
-    mean = 0.01 + 0.15 * t ** 2
-    names = [f"R{r + 1}" + (" (at the grasp)" if r == 0 else " (farthest from the grasp)" if r == 8 else "")
-             for r in range(9)]
-    cuts = np.linspace(0, T, 4).round().astype(int)
-    phases = [{"phase": p, "frames": [int(cuts[k]), int(cuts[k + 1] - 1)], "t_s": [float(t[cuts[k]]),
-               float(t[cuts[k + 1] - 1])], "chamfer_m": float(mean[cuts[k]:cuts[k + 1]].mean()),
-               "worst_region": "R9"} for k, p in enumerate(["early", "middle", "late"])]
-    run = "/very/long/path/to/a/run/directory/" + ("with_a_really_long_name_" * 6 if long else "run")
-    return {"run": run, "n_rollouts": 30, "times_s": t.tolist(),
-            "chamfer_per_frame_m": {"mean": mean.tolist(), "q05": (0.8 * mean).tolist(), "q95": (1.2 * mean).tolist()},
-            "chamfer_mean_m": float(mean.mean()), "regions": names,
-            "region_error_m": (mean[:, None] * np.linspace(0.5, 1.5, 9)).tolist(),
-            "region_mean_m": dict(zip(names, (mean.mean() * np.linspace(0.5, 1.5, 9)).tolist())),
-            "phases": phases, "worst_frames": [24, 23, 22], "worst_regions": [names[8], names[7]],
-            "misspecification": {"p_value": 1 / 201, "exceed": 0, "n_null": 200, "misspecified": True,
-                                 "p_text": "p <= 1/201 (beyond all 200 null simulations)"},
-            "summary": "Posterior rollouts miss the measurement by ... " * 8}
-
-
 @pytest.mark.parametrize("long", [False, True])
 def test_check_headline_gives_the_verdict_and_fits_the_figure(tmp_path, long):
-    out = _check_out(long=long)
+    out = check_result(long=long)
     fig = R.check_figure(out)
     texts = [t.get_text() for t in fig.texts]
     head = texts[0].replace("\n", " ")
-    assert f"{out['chamfer_mean_m'] * 100:.2f} cm" in head and "late phase" in head and "p ≤ 1/201" in head
+    assert f"{out.chamfer_mean_m * 100:.2f} cm" in head and "late phase" in head and "p ≤ 2/201" in head
     assert "NOT" in head
     _assert_texts_inside(fig)
     plt.close(fig)
@@ -153,9 +135,10 @@ def test_check_headline_gives_the_verdict_and_fits_the_figure(tmp_path, long):
 
 
 def test_compare_uses_the_before_after_roles(tmp_path):
-    a, b = _check_out(), _check_out()
-    b["misspecification"] = {"p_value": 0.42, "exceed": 12, "n_null": 30, "misspecified": False}
-    fig = R.compare_figure(a, b, "mujoco-flex (nominal)", "mujoco-flex + wind")
+    a, b = check_result(), check_result(test=joint(12, 20, n=30))
+    res = CompareResult("a", "b", "mujoco-flex (nominal)", "mujoco-flex + wind", (), True, a, b)
+    fig = R.compare_figure(res)
+    assert "p ≤ 2/201 → p = 0.84 (30 sims)" in fig.texts[0].get_text().replace("\n", " ")
     cols = [ln.get_color() for ln in fig.axes[0].lines]
     assert _same_colour(cols[0], R.ROLE_COLOURS["nominal"]) and _same_colour(cols[1], R.ROLE_COLOURS["with_effect"])
     bars = fig.axes[1].patches
@@ -163,7 +146,7 @@ def test_compare_uses_the_before_after_roles(tmp_path):
     assert _same_colour(bars[-1].get_facecolor(), R.ROLE_COLOURS["with_effect"])
     _assert_texts_inside(fig)
     plt.close(fig)
-    assert R.plot_compare(tmp_path / "compare.png", a, b, "A", "B").stat().st_size > 10_000
+    assert R.plot_compare(tmp_path / "compare.png", res).stat().st_size > 10_000
 
 
 def _scenario(T=12, name="lift", view="yz"):
@@ -300,11 +283,8 @@ def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_key
     assert [(p["phase"], p["frames"]) for p in motion_phases(sc)] == [("move 1", [0, 1]), ("move 2", [2, 3])]
     sc.options.pop("keyframe_times")
     assert [p["phase"] for p in motion_phases(sc)] == ["early", "middle", "late"]
-    out = {"times_s": list(sc.times), "region_error_m": np.zeros((4, 9)).tolist(), "regions": [f"R{i}" for i in
-                                                                                               range(1, 10)],
-           "chamfer_per_frame_m": {"mean": [0.01] * 4, "q05": [0.01] * 4, "q95": [0.01] * 4},
-           "phases": [], "regions_from": "the grasp of handle 'left'", "phases_from": "the scenario's keyframes",
-           "misspecification": {"p_text": "p = 1", "p_value": 1.0, "misspecified": False}, "chamfer_mean_m": 0.01}
+    out = dataclasses.replace(check_result(T=4, test=joint(150, 150)), regions_from="the grasp of handle 'left'",
+                              phases_from="the scenario's keyframes")
     fig = R.check_figure(out)
     assert fig.axes[1].get_ylabel() == "region of the object (R1 nearest the grasp of handle 'left')"
     assert "the scenario's keyframes" in fig.axes[0].get_title()

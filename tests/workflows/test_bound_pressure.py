@@ -1,5 +1,5 @@
 """A posterior that presses against a prior bound (softsbi.inference.contraction.bound_pressure): the fit's
-report, its printed table and a diagnosis refit's sentence say so, with the fix."""
+report, its printed table, check's summary and a diagnosis refit's sentence say so, with the fix."""
 import json
 
 import numpy as np
@@ -84,9 +84,11 @@ def test_the_fit_report_holds_the_bound_pressure_of_its_own_posterior(toy_run):
 
 
 def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
+    from result_helpers import joint, refit, score
     from softsbi.cli import _print_report
     from softsbi.cli.output import Output
-    from softsbi.workflows.diagnose import _refit_sentence
+    from softsbi.core.results import Estimate
+    from softsbi.report.text import refit_words
     out, res = toy_run
     pressed = {"param": "a", "side": "upper", "bound": 0.05, "unit": "1", "mass": 0.42}
     _print_report(Output(), dict(res.report, posterior_at_bounds=[pressed]), out)
@@ -95,29 +97,35 @@ def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
     assert "--bounds a=LOW:HIGHER" in printed
     _print_report(Output(), dict(res.report, posterior_at_bounds=[]), out)
     assert "presses" not in capsys.readouterr().out
-    c = {"chamfer_before_m": 0.02, "chamfer_after_m": 0.015, "at_bounds": [pressed]}
-    assert "In this refit a's posterior presses against its upper prior bound 0.05" in _refit_sentence(c, "toy", 0.05)
-    assert "presses" not in _refit_sentence(dict(c, at_bounds=[]), "toy", 0.05)
+    # a diagnosis refit whose added parameter presses its prior bound names the wider prior to try
+    est = Estimate("wind", "m", 0.49, 0.41, 0.5, 0.2, "upper", (0.0, 0.75))
+    r = refit(("toy-wind",), 0.01, joint(50, 50), estimates=(est,))
+    assert ("Its wind presses the upper prior bound: refit with --bounds wind=0:0.75 if such values are physical."
+            in refit_words(r, score(0.02)))
+    assert "presses" not in refit_words(refit(("toy-wind",), 0.01, joint(50, 50),
+                                              estimates=(Estimate("wind", "m", 0.3, 0.2, 0.4, 0.2),)), score(0.02))
 
 
 def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     import shutil
 
+    from softsbi.report.text import check_summary
     from softsbi.workflows.check import check_run
     out, res = toy_run
     run = tmp_path / "run"
     shutil.copytree(out, run)
-    plain = check_run(run, n_eval=10, workers=1, plot=False, max_null=10)
+    # a level the 10-rollout null resolves (2/11 <= 0.5): the test is not what this checks
+    plain = check_run(run, n_eval=10, workers=1, plot=False, alpha=0.5, max_null=10)
     rep = json.loads((run / "report.json").read_text())
-    assert plain["posterior_at_bounds"] == rep["posterior_at_bounds"]
-    assert ("presses against" in plain["summary"]) == bool(rep["posterior_at_bounds"])
+    assert list(plain.posterior_at_bounds) == rep["posterior_at_bounds"]
+    assert ("presses its" in check_summary(plain)) == bool(rep["posterior_at_bounds"])
     rep["posterior_at_bounds"] = [{"param": "b", "side": "lower", "bound": -1.0, "unit": "1", "mass": 0.35}]
     (run / "report.json").write_text(json.dumps(rep))
-    pressed = check_run(run, n_eval=10, workers=1, plot=False, max_null=10)
-    assert pressed["posterior_at_bounds"] == rep["posterior_at_bounds"]
-    assert "The fit's posterior: b's posterior presses against its lower prior bound -1 (35% of its mass" in \
-        pressed["summary"]
-    assert pressed["misspecification"]["p_value"] == plain["misspecification"]["p_value"]  # the test is unchanged
+    pressed = check_run(run, n_eval=10, workers=1, plot=False, alpha=0.5, max_null=10)
+    assert list(pressed.posterior_at_bounds) == rep["posterior_at_bounds"]
+    assert ("The fit's posterior: b's posterior presses its lower prior bound -1 (35% of its mass near it): the bound "
+            "is a physical limit, so suspect an effect the model lacks.") in check_summary(pressed)
+    assert pressed.test == plain.test  # the test is unchanged
 
 
 def test_widened_bounds_move_a_pressed_bound_half_the_range_outward_but_never_past_an_edge():

@@ -24,7 +24,6 @@ import time
 import numpy as np
 
 from softsbi import hookimpl
-from softsbi.core.errors import ParameterError
 from softsbi.core.interfaces import Effect, Simulator
 from softsbi.core.types import STATUS_DIVERGED, Param, ParamSpace, Rollout, Scenario
 
@@ -71,12 +70,65 @@ class ToyWind(Effect):
         return ParamSpace([Param("wind", 0.0, 0.5, "m", description="toy wind displacement at the end")])
 
 
+class _Shift(Effect):
+    """A toy effect seen through the observation door: every observed vertex moves by ``amount * profile(s_t)``
+    along ``axis`` (``s_t = t / (T - 1)``), so any backend that applies observation transforms runs it."""
+
+    kind = "sensor"
+    axis: int = 0
+    unit_name: str = "amount"
+
+    def profile(self, s: np.ndarray) -> np.ndarray:
+        return s
+
+    def param_space(self) -> ParamSpace:
+        return ParamSpace([Param(self.unit_name, 0.0, 0.5, "m", description=self.description)])
+
+    def observe(self, rollout: Rollout, theta, rng) -> Rollout:
+        T = len(rollout.vertices)
+        s = np.linspace(0, 1, T) if T > 1 else np.zeros(1)
+        v = np.array(rollout.vertices, float)
+        v[:, :, self.axis] += theta[self.unit_name] * self.profile(s)[:, None]
+        return Rollout(times=rollout.times, gripper=rollout.gripper, vertices=v, faces=rollout.faces,
+                       status=rollout.status, reason=rollout.reason, info=dict(rollout.info))
+
+
+class ToyDrift(_Shift):
+    """Toy: the patch drifts along +y in proportion to time."""
+
+    name = "toy-drift"
+    description = "toy effect: shifts the patch by drift * t/T along y"
+    axis, unit_name = 1, "drift"
+
+
+class ToyRise(_Shift):
+    """Toy: the patch rises along +z in proportion to time."""
+
+    name = "toy-rise"
+    description = "toy effect: shifts the patch by rise * t/T along z"
+    axis, unit_name = 2, "rise"
+
+
+class ToyMagnet(_Shift):
+    """Toy: a magnet passing overhead lifts the patch mid-motion, ``pull * sin(pi t/T)`` along z; no combination of
+    the other toy effects (linear in time) reproduces it."""
+
+    name = "toy-magnet"
+    description = "toy effect: lifts the patch by pull * sin(pi t/T) along z"
+    axis, unit_name = 2, "pull"
+
+    def profile(self, s: np.ndarray) -> np.ndarray:
+        return np.sin(np.pi * s)
+
+
 class ToyGauss(Simulator):
-    """Linear-Gaussian toy simulator with an analytic posterior."""
+    """Linear-Gaussian toy simulator with an analytic posterior; ``toy-wind`` is its own effect, and it applies
+    any effect's observation transform (``toy-drift``, ``toy-rise``, ``toy-magnet``, the built-in sensor effects)."""
 
     name = "toy-gauss"
     scenarios = ("toy", "lift")
     effects = ("toy-wind",)
+    effect_kinds = ("observation",)
 
     def __init__(self, sigma: float = SIGMA):
         self.sigma = float(sigma)
@@ -88,12 +140,13 @@ class ToyGauss(Simulator):
     def simulate(self, scenario, theta, effects=(), seed=0):
         if scenario.name not in self.scenarios:
             raise ValueError(f"toy-gauss cannot run scenario '{scenario.name}'; it runs {list(self.scenarios)}")
-        for e in effects:
-            if e not in self.effects:
-                raise ParameterError(f"toy-gauss does not support effect '{e}'; supported: {list(self.effects)}")
+        from softsbi.backends.common import check_effects
+        plan = check_effects(self, [e for e in effects if e not in self.effects])
         space = self.param_space(scenario)
         if "toy-wind" in effects:
             space = space + ToyWind().param_space()
+        for e in plan.effects:
+            space = space + e.param_space()
         vals = space.check({k: v for k, v in theta.items() if k in space.names}, within="limits")
         T = scenario.n_frames
         # test hooks: slow simulations (to kill a fit mid-round) and a divergence region
@@ -126,8 +179,9 @@ class ToyGauss(Simulator):
         sq = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
         verts = c[:, None, :] + sq[None]
         faces = np.array([[0, 1, 2], [0, 2, 3]])
-        return Rollout(times=scenario.times.copy(), gripper=scenario.gripper.copy(), vertices=verts, faces=faces,
-                       info={"centres": c})
+        ro = Rollout(times=scenario.times.copy(), gripper=scenario.gripper.copy(), vertices=verts, faces=faces,
+                     info={"centres": c})
+        return plan.observe(ro, vals, seed)
 
 
 @hookimpl
@@ -137,4 +191,4 @@ def softsbi_simulators():
 
 @hookimpl
 def softsbi_effects():
-    return [ToyWind]
+    return [ToyWind, ToyDrift, ToyRise, ToyMagnet]

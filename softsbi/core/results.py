@@ -1,0 +1,571 @@
+"""Typed results of the model-error workflow: ``check``, ``diagnose`` and ``compare``.
+
+Every result is a frozen dataclass. Workflows return them, :mod:`softsbi.report` renders sentences and
+figures from them, and their JSON form (``check.json``, ``diagnosis.json``, ``compare.json``) carries a
+schema version (:data:`SCHEMA`). :func:`to_json` / :func:`from_json` convert any of them, nested ones
+included, from their type hints alone.
+
+Units: distances in metres, like every stored number of softsbi.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+#: schema version of the JSON form of these results
+SCHEMA = 2
+
+#: the verdicts of a diagnosis, in the order they are tested
+VERDICTS = ("nothing-missing", "missing-effect", "misspecified-unexplained")
+
+
+@dataclass(frozen=True)
+class MCPValue:
+    """A Monte-Carlo p-value ``(exceed + 1) / (n + 1)`` (Davison & Hinkley 1997, eq. 4.11).
+
+    Attributes:
+        exceed: null simulations whose statistic is at least the observed one.
+        n: null simulations.
+    """
+
+    exceed: int
+    n: int
+
+    @property
+    def value(self) -> float:
+        """``(exceed + 1) / (n + 1)``, never below :attr:`floor`."""
+        return (self.exceed + 1) / (self.n + 1)
+
+    @property
+    def floor(self) -> float:
+        """The resolution ``1 / (n + 1)``: the smallest p-value ``n`` simulations can give."""
+        return 1.0 / (self.n + 1)
+
+    @property
+    def at_floor(self) -> bool:
+        """True when the observation lies beyond every null simulation."""
+        return self.exceed == 0
+
+    def text(self) -> str:
+        """For people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or
+        ``p = 0.13 (3 of 30 null simulations as extreme)``."""
+        if self.at_floor:
+            return f"p <= 1/{self.n + 1} (beyond all {self.n} null simulations)"
+        return f"p = {self.value:.2g} ({self.exceed} of {self.n} null simulations as extreme)"
+
+    def short(self) -> str:
+        """``p <= 1/31`` or ``p = 0.13``."""
+        return f"p <= 1/{self.n + 1}" if self.at_floor else f"p = {self.value:.2g}"
+
+
+@dataclass(frozen=True)
+class JointTest:
+    """``check``'s misspecification test: is the measurement inside the posterior predictive distribution?
+
+    Two Monte-Carlo tests on one null of posterior-predictive rollouts, Bonferroni-combined: the *omnibus*
+    test (mean squared standardised deviation of the summary statistics, a departure in any direction) and
+    the *directional* test (the largest Westfall-Young max-T statistic over the candidate family: a departure
+    along an effect's sensitivity). ``p = min(1, k min(p_omnibus, p_directional))`` with ``k`` tests.
+
+    Attributes:
+        omnibus: the omnibus test's p-value.
+        directional: the directional test's max-T adjusted p-value; None without a family (or when the
+            simulation at the posterior median failed).
+        directional_effect: the effect the directional test points along.
+        family: the candidate effects of the directional test.
+        alpha: the level the test decides at.
+        max_null: the cap of the adaptive null.
+        statistic: the omnibus statistic of the measurement (dimensionless).
+    """
+
+    omnibus: MCPValue
+    directional: MCPValue | None
+    directional_effect: str | None
+    family: tuple[str, ...]
+    alpha: float
+    max_null: int
+    statistic: float = float("nan")
+
+    @property
+    def tests(self) -> int:
+        """Number of combined tests ``k`` (1 or 2)."""
+        return 1 if self.directional is None else 2
+
+    @property
+    def n_null(self) -> int:
+        """Null simulations the decision used."""
+        return self.omnibus.n
+
+    @property
+    def deciding(self) -> str:
+        """``"omnibus"`` or ``"directional"``: the test with the smaller p-value."""
+        if self.directional is not None and self.directional.value < self.omnibus.value:
+            return "directional"
+        return "omnibus"
+
+    @property
+    def p_value(self) -> float:
+        """The Bonferroni-combined p-value, never below :attr:`resolution`."""
+        best = self.directional if self.deciding == "directional" else self.omnibus
+        return min(1.0, self.tests * best.value)
+
+    @property
+    def resolution(self) -> float:
+        """The smallest joint p-value the null can give: ``k / (n + 1)``."""
+        return self.tests / (self.n_null + 1)
+
+    @property
+    def misspecified(self) -> bool:
+        """True when the test rejects at :attr:`alpha` (``p <= alpha``)."""
+        return self.p_value <= self.alpha
+
+    def short(self) -> str:
+        """``p <= 2/201`` or ``p = 0.34``."""
+        if self.p_value <= self.resolution:
+            return f"p <= {self.tests}/{self.n_null + 1}"
+        return f"p = {self.p_value:.2g}"
+
+    def text(self) -> str:
+        """The p-value for people, with its resolution and both components."""
+        best = self.directional if self.deciding == "directional" else self.omnibus
+        if self.tests == 1:
+            return self.omnibus.text()
+        n = self.n_null
+        if best.at_floor:
+            return f"p <= 2/{n + 1} (two tests, Bonferroni; the {self.deciding} test beyond all {n} null simulations)"
+        return (f"p = {self.p_value:.2g} (two tests, Bonferroni: 2 x the {self.deciding} test's {best.short()}; "
+                f"{n} null simulations)")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect of the linearised screening.
+
+    Attributes:
+        effect: the effect's name.
+        kind: ``"physics"`` or ``"sensor"``.
+        generic: a generic force term (describes a residual, names no cause).
+        description: the effect's one line.
+        explained: fraction of the residual sum of squares it explains (None when its screening failed).
+        adjusted: its max-T adjusted Monte-Carlo p-value over the family (None when its screening failed).
+        estimate: the linearised estimate of its parameters (physical units).
+        error: why its screening failed, else None.
+    """
+
+    effect: str
+    kind: str = "physics"
+    generic: bool = False
+    description: str = ""
+    explained: float | None = None
+    adjusted: MCPValue | None = None
+    estimate: Mapping[str, float] = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def screened(self) -> bool:
+        """True when its screening statistic was computed."""
+        return self.adjusted is not None
+
+
+@dataclass(frozen=True)
+class EnergyScore:
+    """The energy score of a posterior predictive distribution against the measured clouds (Gneiting & Raftery
+    2007, eq. 22), with the fit's Chamfer distance as the distance: ``ES = chamfer - spread / 2`` (m).
+
+    Attributes:
+        energy_m: the score (lower is better).
+        se_m: its Monte-Carlo standard error (jackknife over rollouts).
+        chamfer_m: mean Chamfer between a rollout and the measurement (the posterior-predictive Chamfer).
+        spread_m: mean Chamfer between two rollouts.
+        n: rollouts scored.
+    """
+
+    energy_m: float
+    se_m: float
+    chamfer_m: float
+    spread_m: float
+    n: int
+
+
+@dataclass(frozen=True)
+class Score:
+    """The energy score of a posterior predictive distribution of ``check``'s summary statistics against the
+    measurement's (Gneiting & Raftery 2007, eq. 22, Euclidean distance): ``mean_i |z_i - z| - mean_ij |z_i - z_j| / 2``
+    with ``z`` the summaries divided by one fixed scale per summary for every model compared (the nominal fit's
+    posterior-predictive standard deviation, floored: the scale of ``check``'s omnibus test). A strictly proper
+    score: in expectation no forecast scores lower than the distribution the measurement comes from.
+
+    Attributes:
+        value: the score (dimensionless; lower is better).
+        se: its Monte-Carlo standard error (jackknife over rollouts).
+        n: rollouts scored.
+    """
+
+    value: float
+    se: float
+    n: int
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A refit's posterior of one parameter of an added effect.
+
+    Attributes:
+        name, unit: the parameter and its unit.
+        mean, q05, q95: posterior mean and 90% interval (physical units).
+        width_ratio: the 90% interval's width over the prior's (in the parameter's own scale); None if unknown.
+        pressed: ``"lower"`` or ``"upper"`` when the posterior presses that prior bound, else None.
+        suggested_bounds: the wider prior to try when it presses a bound that is not a physical limit.
+    """
+
+    name: str
+    unit: str
+    mean: float
+    q05: float | None = None
+    q95: float | None = None
+    width_ratio: float | None = None
+    pressed: str | None = None
+    suggested_bounds: tuple[float, float] | None = None
+
+    @property
+    def informed(self) -> bool | None:
+        """Whether the data narrowed it (90% interval narrower than half the prior's)."""
+        return None if self.width_ratio is None else self.width_ratio <= 0.5
+
+
+@dataclass(frozen=True)
+class Refit:
+    """The nominal model with added effects, fitted to the same measurement and checked.
+
+    Attributes:
+        effects: the added effects.
+        run: its run directory.
+        test: ``check``'s test of the refit (same level and family as the diagnosis, less its own effects).
+        score: the energy score of its posterior predictive of the summaries, in the nominal fit's scale (None when too
+            few rollouts succeeded).
+        chamfer_m: its posterior-predictive Chamfer (m).
+        estimates: its posterior of the added effects' parameters.
+        ranking: its own screening of the remaining candidates (what it leaves unexplained).
+        rounds, sims_per_round: its simulation budget.
+    """
+
+    effects: tuple[str, ...]
+    run: str
+    test: JointTest
+    score: Score | None
+    chamfer_m: float | None = None
+    estimates: tuple[Estimate, ...] = ()
+    ranking: tuple[Candidate, ...] = ()
+    rounds: int = 0
+    sims_per_round: int = 0
+
+    @property
+    def label(self) -> str:
+        """``"wind"`` or ``"wind+point-noise"``."""
+        return "+".join(self.effects)
+
+    @property
+    def adequate(self) -> bool:
+        """The measurement lies inside the refit's posterior predictive distribution (its test does not reject)."""
+        return not self.test.misspecified
+
+
+@dataclass(frozen=True)
+class Gain:
+    """How much lower model B's score is than model A's: ``difference_m = A - B`` (m), its standard error and
+    ``z = difference / se``."""
+
+    difference_m: float
+    se_m: float
+    z: float
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What a diagnosis concludes (:func:`softsbi.workflows.decide.decide`).
+
+    Attributes:
+        verdict: one of :data:`VERDICTS`.
+        named: the effects the verdict names (one, or two for a pair); empty unless ``missing-effect``.
+        alternatives: refits the data cannot tell from the named one (each a tuple of effects).
+        partial: for ``misspecified-unexplained``: the refit that lowers the score most while the measurement
+            stays outside its posterior predictive distribution (it explains a part), else empty.
+        gain: the named (or partial) refit's score against the model it extends.
+    """
+
+    verdict: str
+    named: tuple[str, ...] = ()
+    alternatives: tuple[tuple[str, ...], ...] = ()
+    partial: tuple[str, ...] = ()
+    gain: Gain | None = None
+
+
+@dataclass(frozen=True)
+class ResidualShape:
+    """When, where and in which direction the nominal fit misses the measurement.
+
+    Attributes:
+        frames_flagged: frames whose summaries lie beyond the posterior predictive's 95% quantile.
+        frame_spans: runs of consecutive flagged frames ``(first, last, t_first_s, t_last_s)``.
+        phases: per phase of the motion ``{"phase", "frames": [a, b], "fraction_flagged"}`` (None: no fitted frame).
+        centroid_offset_cm: measured minus simulated centroid over the flagged frames ``(x, y, z)`` (cm).
+        direction: its dominant axis in words (``"+y"``, ``"-z (down)"``).
+        worst_summary: the summary statistic that departs most.
+        region_excess_cm: per region of the cloth, the error the model's own spread does not produce (cm).
+        worst_regions: the two regions with the largest excess.
+    """
+
+    frames_flagged: tuple[int, ...]
+    frame_spans: tuple[tuple[int, int, float, float], ...]
+    phases: tuple[Mapping[str, Any], ...]
+    centroid_offset_cm: tuple[float, float, float]
+    direction: str
+    worst_summary: str
+    region_excess_cm: Mapping[str, float | None]
+    worst_regions: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The result of ``diagnose``: detect, propose, decide (:mod:`softsbi.workflows.diagnose`).
+
+    Attributes:
+        run: the nominal fit's run directory.
+        candidates: the candidate family (used in every step).
+        alpha, k_se: the level of every test and the standard-error margin of every score comparison.
+        test: ``check``'s test of the nominal fit (detect).
+        ranking: the screening's candidates by evidence (propose).
+        nominal: the nominal fit's energy score of the summaries (:class:`Score`).
+        refits: the refits made, in order.
+        decision: the verdict (decide).
+        residual: the nominal fit's residual shape (None for ``nothing-missing``).
+        generic: the generic force term that explains most of the residual, or None.
+        simulations: simulations spent (refits' fits excluded).
+        key: what determines the result (the fit, the settings), so that a stored result is reused only for them.
+        seconds: wall time.
+    """
+
+    run: str
+    candidates: tuple[str, ...]
+    alpha: float
+    k_se: float
+    test: JointTest
+    ranking: tuple[Candidate, ...]
+    nominal: Score | None
+    refits: tuple[Refit, ...]
+    decision: Decision
+    residual: ResidualShape | None = None
+    generic: Candidate | None = None
+    simulations: int = 0
+    key: Mapping[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def verdict(self) -> str:
+        """The decision's verdict."""
+        return self.decision.verdict
+
+    def refit(self, effects: tuple[str, ...] | list[str]) -> Refit | None:
+        """The refit that added ``effects`` (any order), or None."""
+        want = set(effects)
+        return next((r for r in self.refits if set(r.effects) == want), None)
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One phase of the motion: ``phase`` name, ``frames`` ``(first, last)``, ``t_s`` ``(start, end)``, the mean
+    Chamfer (m) of the posterior rollouts over it (and the one-sided one), whether the fit's frames include it
+    and its worst region."""
+
+    phase: str
+    frames: tuple[int, int]
+    t_s: tuple[float, float]
+    chamfer_m: float
+    chamfer_one_sided_m: float | None
+    in_fit: bool
+    worst_region: str
+
+
+@dataclass(frozen=True)
+class Band:
+    """A per-frame curve with its 5-95% band over posterior rollouts: ``mean``, ``q05``, ``q95`` ``(T,)`` (m)."""
+
+    mean: tuple[float, ...]
+    q05: tuple[float, ...]
+    q95: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """The result of ``check``: where a fit misses the measurement, and whether it can produce it.
+
+    Attributes:
+        run: the run directory.
+        n_rollouts, failed_rollouts: posterior-predictive rollouts that succeeded / failed.
+        times_s: frame times (s).
+        chamfer: Chamfer per frame with its band (m); ``chamfer_one_sided``: measured -> simulated.
+        chamfer_mean_m: mean over the fit's frames (the report's posterior-predictive Chamfer).
+        chamfer_one_sided_mean_m: the same for the one-sided Chamfer (None if unavailable).
+        metric_min_z_m, metric_frames, metric_sensor: the fit's sensor model (``"camera"``, ``"height"``,
+            ``"none"``); table_z_m: the table's height (m).
+        regions, region_error_m ``(T, R)``, region_compared ``(T, R)``, region_mean_m: error per region of
+            the cloth (regions counted from the first handle's grasp).
+        phases: per phase of the motion; worst_frames, worst_regions: where it misses most.
+        test: the misspecification test; ranking: its screening of the candidate effects (the directional test's
+            family, by evidence); energy: the posterior predictive's energy score against the measured clouds.
+        posterior_mean: the posterior-mean rollout's Chamfer ``{"chamfer_m", "chamfer_se_m", "n"}`` (m), the error
+            of the fitted point estimate; None for a fit without one.
+        residual: where, when and in which direction the fit misses the measurement (when the test rejects).
+        posterior_at_bounds: the fit's parameters whose posterior presses a prior bound (report.json's).
+        key: what determines the result (run, settings), so that a stored result is reused only for them.
+        seconds: wall time.
+        regions_from: whose grasp the regions are ranked from (``"the grasp of handle 'left'"``).
+        phases_from: how the phases were cut (``"the scenario's keyframes"`` or ``"equal thirds of the motion"``).
+    """
+
+    run: str
+    n_rollouts: int
+    failed_rollouts: int
+    times_s: tuple[float, ...]
+    chamfer: Band
+    chamfer_one_sided: Band
+    chamfer_mean_m: float
+    chamfer_one_sided_mean_m: float | None
+    metric_min_z_m: float | None
+    metric_frames: tuple[int, ...] | None
+    metric_sensor: str
+    table_z_m: float
+    regions: tuple[str, ...]
+    region_error_m: tuple[tuple[float, ...], ...]
+    region_compared: tuple[tuple[bool, ...], ...]
+    region_mean_m: Mapping[str, float]
+    phases: tuple[Phase, ...]
+    worst_frames: tuple[int, ...]
+    worst_regions: tuple[str, ...]
+    test: JointTest
+    ranking: tuple[Candidate, ...]
+    energy: EnergyScore | None
+    posterior_mean: Mapping[str, float] | None = None
+    residual: ResidualShape | None = None
+    posterior_at_bounds: tuple[Mapping[str, Any], ...] = ()
+    key: Mapping[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+    regions_from: str = "the grasp"
+    phases_from: str = "equal thirds of the motion"
+
+
+@dataclass(frozen=True)
+class Row:
+    """One row of a comparison: ``what`` is compared, values ``a`` and ``b`` (m)."""
+
+    what: str
+    a: float
+    b: float
+
+    @property
+    def change(self) -> float:
+        """Relative change ``(b - a) / a`` (0 when ``a`` is 0)."""
+        return (self.b - self.a) / self.a if self.a else 0.0
+
+
+@dataclass(frozen=True)
+class CompareResult:
+    """The result of ``compare``: two fits of one measurement side by side.
+
+    Attributes:
+        run_a, run_b, label_a, label_b: the runs and their labels (the effects each adds).
+        rows: posterior-predictive Chamfer first, then one-sided Chamfer, energy score, posterior-mean rollout,
+            per phase, per region.
+        same_sensor: whether both fits see the clouds through the same sensor model.
+        check_a, check_b: the two checks.
+        png: the figure.
+    """
+
+    run_a: str
+    run_b: str
+    label_a: str
+    label_b: str
+    rows: tuple[Row, ...]
+    same_sensor: bool
+    check_a: CheckResult
+    check_b: CheckResult
+    png: str = ""
+
+
+# ----------------------------------------------------------------------------------------
+# JSON form
+
+
+def to_json(obj: Any) -> Any:
+    """A result (or any nesting of dataclasses, tuples, mappings, numpy scalars) as plain JSON values; the
+    top-level dataclass gets ``"schema": SCHEMA`` and ``"type"``."""
+    out = _plain(obj)
+    if dataclasses.is_dataclass(obj) and isinstance(out, dict):
+        out = {"schema": SCHEMA, "type": type(obj).__name__, **out}
+    return out
+
+
+def _plain(obj: Any) -> Any:
+    if dataclasses.is_dataclass(obj):
+        return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def from_json(cls: type, data: Any) -> Any:
+    """Rebuild a ``cls`` (a dataclass of this module) from :func:`to_json`'s form.
+
+    Raises:
+        ValueError: the data were written with a newer schema, or are not a ``cls``.
+    """
+    if isinstance(data, Mapping) and int(data.get("schema", SCHEMA)) > SCHEMA:
+        raise ValueError(f"written by a newer softsbi (schema {data['schema']} > {SCHEMA}): upgrade softsbi")
+    return _build(cls, data)
+
+
+def _build(tp: Any, data: Any) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        if data is None:
+            return None
+        inner = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _build(inner[0], data)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(data, Mapping):
+            raise ValueError(f"expected a {tp.__name__} object, got {type(data).__name__}")
+        hints = typing.get_type_hints(tp)
+        return tp(**{f.name: _build(hints[f.name], data[f.name]) for f in dataclasses.fields(tp) if f.name in data})
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_build(args[0], v) for v in data)
+        return tuple(_build(a, v) for a, v in zip(args, data))
+    if origin in (Mapping, dict, typing.Mapping) or tp in (dict, Mapping):
+        args = typing.get_args(tp)
+        return {k: (_build(args[1], v) if args else v) for k, v in data.items()}
+    if tp in (int, float) and data is not None:
+        return tp(data)
+    return data
+
+
+def write_result(path: str | Path, result: Any) -> None:
+    """Write a result's JSON form (:func:`to_json`) to ``path`` atomically: a kill leaves the old file or the
+    new one, never half of one."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(to_json(result), indent=2))
+    tmp.replace(path)

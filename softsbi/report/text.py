@@ -1,0 +1,264 @@
+"""Every sentence ``check``, ``diagnose`` and ``compare`` print, rendered from their typed results
+(:mod:`softsbi.core.results`). Pure functions: tested against fixed result objects."""
+from __future__ import annotations
+
+from typing import Sequence
+
+from softsbi.core.metrics import describe_change
+from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Refit,
+                                  ResidualShape, Score)
+from softsbi.core.types import unit_suffix
+
+
+def cm(x: float | None, digits: int = 2) -> str:
+    """A length in metres as centimetres: ``"1.23 cm"`` (``"n/a"`` for None)."""
+    return "n/a" if x is None else f"{x * 100:.{digits}f} cm"
+
+
+def pct(x: float | None) -> str:
+    """A fraction as a percentage: ``"37%"``."""
+    return "n/a" if x is None else f"{x * 100:.0f}%"
+
+
+def ranges(idx: Sequence[int]) -> str:
+    """``[10, 11, 12, 20]`` -> ``"10-12, 20"``."""
+    out, start = [], None
+    s = sorted(int(i) for i in idx)
+    for k, i in enumerate(s):
+        start = i if start is None else start
+        if k == len(s) - 1 or s[k + 1] != i + 1:
+            out.append(f"{start}-{i}" if i > start else f"{i}")
+            start = None
+    return ", ".join(out)
+
+
+def test_verdict(test: JointTest) -> str:
+    """``check``'s verdict in words, with its p-value and level."""
+    if test.misspecified:
+        return f"the measurement is NOT explained by the model ({test.text()} <= {test.alpha:g})"
+    return f"no evidence of misspecification ({test.text()} > {test.alpha:g})"
+
+
+def sensor_words(c: CheckResult) -> str:
+    """The metric's sensor model in words (``""`` when it sees everything)."""
+    parts = []
+    if c.metric_sensor == "camera":
+        parts.append("simulated clouds made by the recording's virtual depth sensor")
+    elif c.metric_min_z_m is not None:
+        parts.append(f"points within {(c.metric_min_z_m - c.table_z_m) * 100:.1f} cm of the table unseen")
+    if c.metric_frames is not None and len(c.metric_frames) < len(c.times_s):
+        parts.append(f"frames {ranges(c.metric_frames)}")
+    return f" under the fit's sensor model: {', '.join(parts)}" if parts else ""
+
+
+def bound_words(e: dict) -> str:
+    """A fit's posterior pressing a prior bound (a ``posterior_at_bounds`` entry), with the advice."""
+    head = (f"{e['param']}'s posterior presses its {e['side']} prior bound {e['bound']:.4g}{unit_suffix(e.get('unit'))} "
+            f"({pct(e['mass'])} of its mass near it)")
+    wide = e.get("suggested_bounds")
+    if wide:
+        return (head + f": widen the prior (--bounds {e['param']}={wide[0]:.4g}:{wide[1]:.4g}) if such values are "
+                       f"physical, or suspect an effect the model lacks")
+    return head + ": the bound is a physical limit, so suspect an effect the model lacks"
+
+
+def check_summary(c: CheckResult) -> str:
+    """``check``'s paragraph: the error, where it is worst, the verdict, and prior bounds the posterior presses."""
+    one = f"; measured -> simulated {cm(c.chamfer_one_sided_mean_m)}" if c.chamfer_one_sided_mean_m is not None else ""
+    s = f"Posterior rollouts miss the measurement by {cm(c.chamfer_mean_m)} on average (Chamfer{sensor_words(c)}{one})"
+    fitted = [p for p in c.phases if p.in_fit]
+    if fitted:
+        w = max(fitted, key=lambda p: p.chamfer_m)
+        s += f"; worst in the {w.phase} phase (t {w.t_s[0]:.2f}-{w.t_s[1]:.2f} s, {cm(w.chamfer_m)})"
+    if c.worst_regions:
+        s += f" and in region {c.worst_regions[0]}"
+    s += f"; {test_verdict(c.test)}."
+    if c.energy:
+        s += f" Energy score {cm(c.energy.energy_m)}."
+    for e in c.posterior_at_bounds:
+        s += f" The fit's posterior: {bound_words(dict(e))}."
+    return s
+
+
+def estimate_words(e: Estimate) -> str:
+    """``"wind_y = 0.81 m/s (90% interval 0.62 to 0.97 m/s)"``."""
+    u = unit_suffix(e.unit)
+    s = f"{e.name} = {e.mean:.3g}{u}"
+    if e.q05 is not None and e.q95 is not None:
+        s += f" (90% interval {e.q05:.3g} to {e.q95:.3g}{u}"
+        s += ", not informed by the data)" if e.informed is False else ")"
+    return s
+
+
+def score_change(base: Score | None, new: Score | None, joiner: str = " -> ") -> str:
+    """``"28.5 -> 14.3 (50% lower, 6.1 standard errors)"`` (``joiner`` between the two scores)."""
+    if base is None or new is None:
+        return "n/a"
+    d = base.value - new.value
+    se = (base.se ** 2 + new.se ** 2) ** 0.5
+    z = f", {d / se:.1f} standard errors" if se > 0 else ""
+    return f"{base.value:.3g}{joiner}{new.value:.3g} ({describe_change(base.value, new.value)}{z})"
+
+
+def extended(d: Diagnosis, r: Refit) -> Score | None:
+    """The score of the model refit ``r`` extends: the nominal fit's for a single effect, the first effect's refit
+    for a pair."""
+    if len(r.effects) == 1:
+        return d.nominal
+    first = d.refit(r.effects[:1])
+    return first.score if first else None
+
+
+def refit_words(r: Refit, base: Score | None) -> str:
+    """One refit: is it adequate, does it improve, what it estimates, which prior bounds it presses."""
+    ok = "inside" if r.adequate else "still outside"
+    s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
+         f"({r.test.text()}), energy score {score_change(base, r.score)}"
+         + (f", posterior-predictive Chamfer {cm(r.chamfer_m)}." if r.chamfer_m is not None else "."))
+    if r.estimates:
+        s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
+    for e in r.estimates:  # a bound that is a physical limit (or the effect's switched-off side) gets no advice
+        if e.pressed and e.suggested_bounds:
+            s += (f" Its {e.name} presses the {e.pressed} prior bound: refit with --bounds "
+                  f"{e.name}={e.suggested_bounds[0]:.4g}:{e.suggested_bounds[1]:.4g} if such values are physical.")
+    return s
+
+
+def rule_words(d: Diagnosis) -> str:
+    """The decision rule as applied, in three sentences."""
+    s = (f"Detect: check's joint test of the nominal fit, {d.test.text()} "
+         f"{'<=' if d.test.misspecified else '>'} {d.alpha:g}.")
+    if not d.test.misspecified:
+        return s
+    singles = [r.label for r in d.refits if len(r.effects) == 1]
+    s += (f" Propose: the screening ranked {len(d.candidates)} candidates; refitted "
+          + (", ".join(singles) if singles else "none") + " (the top named ones by evidence)"
+          + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
+    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and the energy score of "
+          f"its posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more "
+          f"than {d.k_se:g} standard errors below the model it extends.")
+    return s
+
+
+def residual_words(res: ResidualShape) -> str:
+    """Where, when and in which direction the nominal fit misses the measurement."""
+    if res.frame_spans:
+        sp = ", ".join(f"frames {a}-{b} (t {t0:.2f}-{t1:.2f} s)" if b != a else f"frame {a} (t {t0:.2f} s)"
+                       for a, b, t0, t1 in res.frame_spans[:3])
+        judged = [p for p in res.phases if p.get("fraction_flagged") is not None]
+        worst = max(judged, key=lambda p: p["fraction_flagged"]) if judged else None
+        s = f"The residual lives in {sp}" + (f", mostly the {worst['phase']} phase" if worst else "")
+    else:
+        s = "No single frame is outside the rollouts' 95% range; the residual is spread over the motion"
+    o = res.centroid_offset_cm
+    return (s + f"; the measured centroid is displaced by ({o[0]:+.1f}, {o[1]:+.1f}, {o[2]:+.1f}) cm, mostly "
+                f"{res.direction}; the most deviant summary is {res.worst_summary}; regions with the most unexplained "
+                f"error: {', '.join(res.worst_regions)}.")
+
+
+def _kind(d: Diagnosis, effects: Sequence[str]) -> str:
+    kinds = {c.effect: c.kind for c in d.ranking}
+    ks = {kinds.get(e, "physics") for e in effects}
+    return ks.pop() if len(ks) == 1 else "physics and sensor"
+
+
+def diagnosis_summary(d: Diagnosis) -> str:
+    """The verdict in one or two sentences."""
+    dec = d.decision
+    if dec.verdict == "nothing-missing":
+        return (f"Nothing missing: the measurement lies inside the nominal model's posterior predictive distribution "
+                f"({d.test.text()} > {d.alpha:g}).")
+    if dec.verdict == "missing-effect":
+        r = d.refit(dec.named)
+        names = " + ".join(dec.named)
+        desc = {c.effect: c.description for c in d.ranking}
+        s = (f"Missing {_kind(d, dec.named)} effect{'s' if len(dec.named) > 1 else ''}: {names}"
+             + (f" ({desc[dec.named[0]]})" if len(dec.named) == 1 and desc.get(dec.named[0]) else "") + ". ")
+        if len(dec.named) == 2:
+            s += ("Neither refit alone explains the misfit; with both, the refit puts the measurement inside its "
+                  "posterior predictive distribution ")
+        else:
+            s += "Its refit puts the measurement inside its posterior predictive distribution "
+        s += f"({r.test.text()}) and lowers the energy score from {score_change(extended(d, r), r.score, ' to ')}."
+        if dec.alternatives:
+            alts = " or ".join(" + ".join(a) for a in dec.alternatives)
+            s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with an energy score "
+                  f"within {d.k_se:g} standard errors; evidence these recordings lack (an independent measurement of "
+                  f"the effect, or a motion in which the two differ) would decide.")
+        return s
+    s = (f"Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
+         f"distribution ({d.test.text()} <= {d.alpha:g})")
+    if not d.refits:
+        return s + ", and no candidate was refitted."
+    s += f", and no refit of {', '.join(r.label for r in d.refits)} explains it."
+    if dec.partial:
+        r = d.refit(dec.partial)
+        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the energy score most, from "
+              f"{score_change(d.nominal, r.score, ' to ')}, "
+              f"but the measurement stays outside its posterior predictive distribution ({r.test.text()}).")
+    else:
+        s += f" No refit lowers the energy score by more than {d.k_se:g} standard errors."
+    return s
+
+
+def diagnosis_text(d: Diagnosis) -> list[str]:
+    """Everything ``diagnose`` says, one paragraph per item: the verdict, the rule as applied, each refit,
+    the residual's shape and the best generic force term."""
+    out = [diagnosis_summary(d), rule_words(d)]
+    out += [refit_words(r, extended(d, r)) for r in d.refits]
+    if d.decision.verdict == "misspecified-unexplained" and d.residual:
+        out.append(residual_words(d.residual))
+    if d.decision.verdict == "misspecified-unexplained" and d.generic:
+        g = d.generic
+        out.append(f"Best generic force term: {g.effect} explains {pct(g.explained)} of the residual in the "
+                   f"linearised screening (max-T adjusted {g.adjusted.text() if g.adjusted else 'n/a'}).")
+    return out
+
+
+def candidate_role(d: Diagnosis, c: Candidate) -> str:
+    """The ``verdict`` column of ``diagnose``'s table: what the decision says of the candidate (never more)."""
+    dec = d.decision
+    if c.effect in dec.named:
+        return "named" if len(dec.named) == 1 else "named (pair)"
+    if any(c.effect in a for a in dec.alternatives):
+        return "indistinguishable"
+    if c.effect in dec.partial:
+        return "explains a part"
+    r = d.refit((c.effect,))
+    if r is None:
+        return "-"
+    return "refit: misfit remains" if not r.adequate else "refit: no lower score"
+
+
+def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
+    """``diagnose``'s table, one row per candidate in the screening's order: effect, kind, share of the residual
+    explained in the screening, max-T adjusted p, the refit's check p and energy score, and the verdict column
+    (:func:`candidate_role`)."""
+    rows = []
+    for c in d.ranking:
+        r = d.refit((c.effect,))
+        rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
+                     pct(None if c.explained is None else max(c.explained, 0.0)),
+                     c.adjusted.short() if c.adjusted else (c.error or "-"),
+                     r.test.short() if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
+                     candidate_role(d, c)])
+    return rows
+
+
+DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", "refit score", "verdict"]
+
+
+def compare_summary(c: CompareResult) -> str:
+    """``compare``'s sentence: the error before -> after, the energy score, the point estimate, the tests."""
+    first = c.rows[0]
+    s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)} -> {cm(first.b)} "
+         f"({describe_change(first.a, first.b)})")
+    for row, name in ((next((r for r in c.rows if r.what.startswith("energy score")), None), "energy score"),
+                      (next((r for r in c.rows if r.what.startswith("posterior-mean")), None), "posterior-mean rollout")):
+        if row is not None:
+            s += f", {name} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
+    s += f"; misspecification {c.check_a.test.text()} -> {c.check_b.test.text()}."
+    if not c.same_sensor:
+        s += (" The two fits use different sensor models (--sensor / --min-height / --frames), so their Chamfer values "
+              "measure different things.")
+    return s

@@ -1,0 +1,133 @@
+"""The diagnosis' decision: sequential model criticism and selection among M0, M0+E_k and M0+E_j+E_k.
+
+Pure functions of typed results (:mod:`softsbi.core.results`); no simulation here. The rule:
+
+1. *Detect.* ``nothing-missing`` iff ``check``'s joint test of the nominal fit does not reject at ``alpha``.
+2. *Propose.* The screening ranks the candidates by evidence; the top ``confirm`` named (non-generic) ones are
+   refitted, in that order (:func:`next_refit`). The ranking spends the refit budget; it decides nothing.
+3. *Decide* on the refits by two criteria only (:func:`decide`):
+   - *adequate*: ``check``'s test of the refit does not reject at the same ``alpha``;
+   - *improves*: the refit lowers the energy score of the posterior predictive of ``check``'s summary statistics
+     (a strictly proper score, Gneiting & Raftery 2007; every model in the nominal fit's scale,
+     :class:`~softsbi.core.results.Score`) below the model it extends by more than ``k_se`` standard errors of the
+     difference (:func:`gain`).
+   The adequate, improving single refit with the lowest score is named; every other adequate, improving refit
+   whose score is not ``k_se`` standard errors above it is listed as indistinguishable. When no single refit
+   qualifies, one greedy step: the improving single refit with the lowest score is extended by the first
+   named candidate of its own screening, and the pair is named if it is adequate and improves on that single
+   refit by the same margin. Otherwise ``misspecified-unexplained``, naming the improving refit with the lowest
+   score as explaining a part.
+
+Why the energy score of the summaries: it is a strictly proper score, so no forecast scores better in expectation
+than the distribution the measurement comes from, and it lives in the space ``check``'s test detects the misfit in.
+The posterior-predictive Chamfer is not proper: a model that predicts no spread minimises it, and a correct noise
+model raises it. An added parameter the data do not inform widens the posterior predictive, which the energy score
+charges for unless the measurement needs that spread.
+
+Knobs: ``alpha`` (the level of every test: the false-alarm rate tolerated), ``k_se`` (:data:`K_SE`) and the
+refit budget (``confirm`` refits, their rounds and simulations).
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from softsbi.core.results import Candidate, Decision, Gain, JointTest, Refit, Score
+from softsbi.workflows import defaults
+
+#: standard errors by which a score must fall to count as an improvement, and within which two refits are
+#: indistinguishable (:data:`softsbi.workflows.defaults.K_SE`)
+K_SE = defaults.K_SE
+
+
+def gain(base: Score | None, new: Score | None) -> Gain | None:
+    """How much lower ``new``'s energy score is than ``base``'s: the difference (m), its standard error
+    ``sqrt(se_base^2 + se_new^2)`` (the two posterior predictives are independent Monte-Carlo samples scored
+    against the same measurement) and ``z``; None when either is missing."""
+    if base is None or new is None:
+        return None
+    d = base.value - new.value
+    se = float(np.hypot(base.se, new.se))
+    return Gain(float(d), se, float(d / se) if se > 0 else (np.inf if d > 0 else -np.inf if d < 0 else 0.0))
+
+
+def improves(base: Score | None, new: Score | None, k_se: float = K_SE) -> bool:
+    """True when ``new`` scores more than ``k_se`` standard errors below ``base`` (:func:`gain`)."""
+    g = gain(base, new)
+    return g is not None and g.z > k_se
+
+
+def _best(refits: Sequence[Refit]) -> Refit | None:
+    return min(refits, key=lambda r: r.score.value, default=None)  # type: ignore[union-attr]
+
+
+def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float = K_SE) -> Decision:
+    """The verdict on a diagnosis' refits (module docstring): ``nothing-missing``, ``missing-effect`` (the
+    named effect or pair, with the indistinguishable alternatives) or ``misspecified-unexplained`` (with the
+    refit that explains a part, if any).
+
+    Args:
+        test: ``check``'s test of the nominal fit.
+        nominal: the nominal fit's energy score.
+        refits: the refits made (singles and at most one pair), each tested at the nominal test's level.
+        k_se: standard-error margin of every score comparison.
+    """
+    if not test.misspecified:
+        return Decision("nothing-missing")
+    singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
+    better = [r for r in singles if improves(nominal, r.score, k_se)]
+    good = [r for r in better if r.adequate]
+    if good:
+        best = _best(good)
+        ties = tuple(r.effects for r in good if r is not best and not improves(r.score, best.score, k_se))
+        return Decision("missing-effect", named=best.effects, alternatives=ties, gain=gain(nominal, best.score))
+    base = _best(better)
+    for pair in (r for r in refits if len(r.effects) == 2 and r.score is not None):
+        if base is not None and set(base.effects) < set(pair.effects) and pair.adequate \
+                and improves(base.score, pair.score, k_se):
+            return Decision("missing-effect", named=pair.effects, gain=gain(base.score, pair.score))
+    if base is None:
+        return Decision("misspecified-unexplained")
+    return Decision("misspecified-unexplained", partial=base.effects, gain=gain(nominal, base.score))
+
+
+def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | None, refits: Sequence[Refit],
+               confirm: int, k_se: float = K_SE) -> tuple[str, ...] | None:
+    """The refit to spend the budget on next, or None when the diagnosis is complete.
+
+    First the top ``confirm`` named (non-generic) screened candidates, in the screening's order of evidence;
+    then, when no single refit is adequate and improving, one pair: the improving single refit with the lowest
+    score and the first named candidate of that refit's own screening (its check's ranking over the same
+    family, less its effect). Nothing for a fit the test does not reject.
+    """
+    if not test.misspecified or confirm <= 0:
+        return None
+    done = {frozenset(r.effects) for r in refits}
+    for c in [c for c in ranking if c.screened and not c.generic][:confirm]:
+        if frozenset([c.effect]) not in done:
+            return (c.effect,)
+    if decide(test, nominal, refits, k_se).verdict == "missing-effect" or confirm < 2:
+        return None
+    singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
+    base = _best([r for r in singles if improves(nominal, r.score, k_se)])
+    if base is None:
+        return None
+    second = next((c.effect for c in base.ranking if c.screened and not c.generic and c.effect not in base.effects),
+                  None)
+    if second is None or frozenset(base.effects + (second,)) in done:
+        return None
+    return base.effects + (second,)
+
+
+def role(decision: Decision, effects: tuple[str, ...]) -> str:
+    """What the decision says of the refit adding ``effects`` (for tables): ``"named"``,
+    ``"indistinguishable"``, ``"explains a part"`` or ``"not named"``."""
+    s = set(effects)
+    if s == set(decision.named):
+        return "named"
+    if any(s == set(a) for a in decision.alternatives):
+        return "indistinguishable"
+    if s == set(decision.partial):
+        return "explains a part"
+    return "not named"

@@ -1,0 +1,290 @@
+"""Snapshot tests of every sentence check, diagnose and compare print (softsbi.report.text), rendered from fixed,
+hand-built typed results: any change of wording shows here as a diff. And the table's verdict column never says
+more than the verdict."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
+from softsbi.core.results import CompareResult, Diagnosis, Estimate, ResidualShape, Row
+from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
+                                 diagnosis_rows, diagnosis_summary, diagnosis_text)
+from softsbi.workflows.decide import decide
+
+# ---------------------------------------------------------------------------------------------------------------
+# fixed results: a nominal fit the joint test rejects, four candidates, refits
+
+FAMILY = ("wind", "extra-damping", "time-offset", "generic-constant")
+RANKING = (candidate("generic-constant", 0.62, generic=True, description="a constant force"),
+           candidate("wind", 0.55, description="a steady wind", wind_x=0.1, wind_y=0.8),
+           candidate("extra-damping", 0.31, description="extra velocity damping", damping_rate=2.0),
+           candidate("time-offset", 0.05, 80, kind="sensor", description="a time offset", time_offset=0.01))
+NOMINAL = score(21.0, 0.5)
+REJECTS = joint(0, 0)  # beyond all 200 nulls: p <= 2/201
+ACCEPTS = joint(40, 60, family=("extra-damping", "time-offset", "generic-constant"), effect="extra-damping")
+REJECTS_REFIT = joint(0, 30, family=("extra-damping", "time-offset", "generic-constant"), effect="extra-damping")
+
+#: the wind's refit: adequate, 62% lower, its wind_y pressing the upper prior bound (not a physical limit)
+WIND = refit(("wind",), 8, ACCEPTS,
+             estimates=(Estimate("wind_x", "m/s", 0.05, -0.2, 0.3, 0.12),
+                        Estimate("wind_y", "m/s", 1.79, 1.55, 1.98, 0.11, "upper", (-2.0, 4.0))))
+#: extra damping's refit: adequate, 0.84 cm, within 2 standard errors of the wind's; its parameter not informed
+DAMPING = refit(("extra-damping",), 8.4, joint(50, 70, family=("wind", "time-offset", "generic-constant")),
+                estimates=(Estimate("damping_rate", "1/s", 3.1, 0.4, 7.9, 0.8),))
+#: single refits that lower the score but leave the measurement outside, and the pair that explains it
+WIND_PART = refit(("wind",), 15, REJECTS_REFIT,
+                  ranking=(candidate("generic-constant", 0.5, generic=True), candidate("extra-damping", 0.4, 1)))
+DAMPING_PART = refit(("extra-damping",), 17, joint(0, 5, family=("wind", "time-offset", "generic-constant")))
+PAIR = refit(("wind", "extra-damping"), 9,
+             joint(60, 45, family=("time-offset", "generic-constant"), effect="time-offset"))
+RESIDUAL = ResidualShape(
+    tuple(range(10, 22)) + (24,), ((10, 21, 0.40, 0.84), (24, 24, 0.96, 0.96)),
+    ({"phase": "early", "frames": [0, 7], "fraction_flagged": 0.0},
+     {"phase": "middle", "frames": [8, 16], "fraction_flagged": 0.78},
+     {"phase": "late", "frames": [17, 24], "fraction_flagged": 0.75}),
+    (0.3, 0.7, -0.4), "+y", "y_q95", {n: 0.1 * i for i, n in enumerate(REGIONS)}, (REGIONS[8], REGIONS[7]))
+
+
+def diagnosis(refits=(), test=REJECTS, **fields) -> Diagnosis:
+    """A diagnosis of the fixed nominal fit whose decision is decide()'s on ``refits``."""
+    return Diagnosis("run/nominal", FAMILY, 0.05, 2.0, test, RANKING, NOMINAL, tuple(refits),
+                     decide(test, NOMINAL, refits, 2.0), **fields)
+
+
+NOTHING = diagnosis(test=joint(90, 100))
+NAMED = diagnosis([WIND])
+TIE = diagnosis([WIND, DAMPING])
+PAIRED = diagnosis([WIND_PART, DAMPING_PART, PAIR])
+PARTIAL = diagnosis([WIND_PART, DAMPING_PART, replace(PAIR, test=joint(0, 3, family=PAIR.test.family))],
+                    residual=RESIDUAL, generic=RANKING[0])
+NO_REFIT = diagnosis(residual=RESIDUAL, generic=RANKING[0])
+NONE_LOWER = diagnosis([refit(("wind",), 21.5, REJECTS_REFIT),
+                        refit(("extra-damping",), 23, joint(0, 5, family=("wind", "time-offset",
+                                                                               "generic-constant")))],
+                       residual=RESIDUAL, generic=RANKING[0])
+ALL = {"nothing": NOTHING, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial": PARTIAL, "no refit": NO_REFIT,
+       "none lower": NONE_LOWER}
+
+# recurring phrases of the joint test
+P_FLOOR = "p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null simulations)"
+P_WIND = "p = 0.41 (two tests, Bonferroni: 2 x the omnibus test's p = 0.2; 200 null simulations)"
+DETECT = f"Detect: check's joint test of the nominal fit, {P_FLOOR} <= 0.05."
+DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and the energy score of its "
+          "posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more than 2 "
+          "standard errors below the model it extends.")
+WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
+              "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm. The refit estimates wind_x = 0.05 "
+              "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
+              "presses the upper prior bound: refit with --bounds wind_y=-2:4 if such values are physical.")
+PART_WORDS = [f"With wind: the measurement is still outside the refit's posterior predictive distribution ({P_FLOOR}), "
+              "energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm.",
+              "With extra-damping: the measurement is still outside the refit's posterior predictive distribution "
+              f"({P_FLOOR}), energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm."]
+RESIDUAL_WORDS = ("The residual lives in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s), mostly the middle phase; the "
+                  "measured centroid is displaced by (+0.3, +0.7, -0.4) cm, mostly +y; the most deviant summary is "
+                  "y_q95; regions with the most unexplained error: R9 (farthest from the grasp), R8.")
+GENERIC_WORDS = ("Best generic force term: generic-constant explains 62% of the residual in the linearised screening "
+                 "(max-T adjusted p <= 1/201 (beyond all 200 null simulations)).")
+SCREENED = [["generic-constant", "physics (generic)", "62%", "p <= 1/201"], ["wind", "physics", "55%", "p <= 1/201"],
+            ["extra-damping", "physics", "31%", "p <= 1/201"], ["time-offset", "sensor", "5%", "p = 0.4"]]
+
+
+def rows(*refit_columns):
+    """The expected table: the screening's columns, then per candidate (refit check p, refit score, verdict)."""
+    return [s + list(r) for s, r in zip(SCREENED, refit_columns)]
+
+
+NO_ROW = ("-", "-", "-")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# diagnose
+
+
+def test_nothing_missing():
+    assert NOTHING.verdict == "nothing-missing"
+    p = "p = 0.91 (two tests, Bonferroni: 2 x the omnibus test's p = 0.45; 200 null simulations)"
+    assert diagnosis_text(NOTHING) == [
+        f"Nothing missing: the measurement lies inside the nominal model's posterior predictive distribution ({p} > "
+        "0.05).",
+        f"Detect: check's joint test of the nominal fit, {p} > 0.05."]
+    assert diagnosis_rows(NOTHING) == rows(NO_ROW, NO_ROW, NO_ROW, NO_ROW)
+
+
+def test_missing_effect_with_a_refit_pressing_a_prior_bound():
+    assert NAMED.verdict == "missing-effect" and NAMED.decision.named == ("wind",)
+    assert diagnosis_text(NAMED) == [
+        "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
+        f"distribution ({P_WIND}) and lowers the energy score from 21 to 8 (62% lower, 20.3 standard "
+        "errors).",
+        f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind (the top named ones by evidence). {DECIDE}",
+        WIND_WORDS]
+    assert diagnosis_rows(NAMED) == rows(NO_ROW, ("p = 0.41", "8", "named"), NO_ROW, NO_ROW)
+
+
+def test_missing_effect_with_an_indistinguishable_alternative():
+    assert TIE.decision.named == ("wind",) and TIE.decision.alternatives == (("extra-damping",),)
+    assert diagnosis_text(TIE) == [
+        "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
+        f"distribution ({P_WIND}) and lowers the energy score from 21 to 8 (62% lower, 20.3 standard "
+        "errors). The data cannot tell it from extra-damping: that refit explains the misfit too, with an energy "
+        "score within 2 standard errors; evidence these recordings lack (an independent measurement of the effect, "
+        "or a motion in which the two differ) would decide.",
+        f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
+        f"evidence). {DECIDE}",
+        WIND_WORDS,
+        "With extra-damping: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
+        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), energy score 21 -> 8.4 (60% lower, "
+        "19.7 standard errors), posterior-predictive Chamfer 1.04 cm. The refit estimates damping_rate = 3.1 1/s (90% "
+        "interval 0.4 to 7.9 1/s, not informed by the data)."]
+    assert diagnosis_rows(TIE) == rows(NO_ROW, ("p = 0.41", "8", "named"),
+                                       ("p = 0.51", "8.4", "indistinguishable"), NO_ROW)
+
+
+def test_missing_pair():
+    assert PAIRED.decision.named == ("wind", "extra-damping")
+    p_pair = "p = 0.46 (two tests, Bonferroni: 2 x the directional test's p = 0.23; 200 null simulations)"
+    assert diagnosis_text(PAIRED) == [
+        "Missing physics effects: wind + extra-damping. Neither refit alone explains the misfit; with both, the refit "
+        f"puts the measurement inside its posterior predictive distribution ({p_pair}) and lowers the energy score "
+        "from 15 to 9 (40% lower, 10.6 standard errors).",
+        f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
+        f"evidence), then the pair wind+extra-damping. {DECIDE}",
+        *PART_WORDS,
+        f"With wind + extra-damping: the measurement is inside the refit's posterior predictive distribution "
+        f"({p_pair}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm."]
+    assert diagnosis_rows(PAIRED) == rows(NO_ROW, ("p <= 2/201", "15", "named (pair)"),
+                                          ("p <= 2/201", "17", "named (pair)"), NO_ROW)
+
+
+def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_the_generic_term():
+    assert PARTIAL.verdict == "misspecified-unexplained" and PARTIAL.decision.partial == ("wind",)
+    assert diagnosis_text(PARTIAL) == [
+        "Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
+        f"distribution ({P_FLOOR} <= 0.05), and no refit of wind, extra-damping, wind+extra-damping explains it. wind "
+        "explains a part: its refit lowers the energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
+        f"outside its posterior predictive distribution ({P_FLOOR}).",
+        f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
+        f"evidence), then the pair wind+extra-damping. {DECIDE}",
+        *PART_WORDS,
+        "With wind + extra-damping: the measurement is still outside the refit's posterior predictive distribution "
+        f"({P_FLOOR}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm.",
+        RESIDUAL_WORDS,
+        GENERIC_WORDS]
+    assert diagnosis_rows(PARTIAL) == rows(NO_ROW, ("p <= 2/201", "15", "explains a part"),
+                                           ("p <= 2/201", "17", "refit: misfit remains"), NO_ROW)
+
+
+def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_score():
+    head = ("Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
+            f"distribution ({P_FLOOR} <= 0.05)")
+    assert diagnosis_text(NO_REFIT) == [
+        head + ", and no candidate was refitted.",
+        f"{DETECT} Propose: the screening ranked 4 candidates; refitted none (the top named ones by evidence). "
+        f"{DECIDE}",
+        RESIDUAL_WORDS, GENERIC_WORDS]
+    assert NONE_LOWER.decision.partial == ()
+    assert diagnosis_summary(NONE_LOWER) == (head + ", and no refit of wind, extra-damping explains it. No refit "
+                                             "lowers the energy score by more than 2 standard errors.")
+    assert diagnosis_text(NONE_LOWER)[2] == (
+        "With wind: the measurement is still outside the refit's posterior predictive distribution "
+        f"({P_FLOOR}), energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm.")
+    assert diagnosis_rows(NONE_LOWER) == rows(NO_ROW, ("p <= 2/201", "21.5", "refit: misfit remains"),
+                                              ("p <= 2/201", "23", "refit: misfit remains"), NO_ROW)
+    # a refit that check accepts but whose score does not fall: explains nothing, and the table says why
+    flat = diagnosis([refit(("wind",), 20.5, ACCEPTS)])
+    assert flat.verdict == "misspecified-unexplained" and flat.decision.partial == ()
+    assert diagnosis_rows(flat)[1][-3:] == ["p = 0.41", "20.5", "refit: no lower score"]
+
+
+def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
+    """A sensor refit whose noise presses the upper bound (widening named) and whose dropout presses 0, a physical
+    limit (nothing to widen: no --bounds advice)."""
+    r = refit(("point-noise",), 8, ACCEPTS,
+              estimates=(Estimate("noise_std", "m", 0.0049, 0.0041, 0.0058, 0.2, "upper", (0.0, 0.015)),
+                         Estimate("dropout", "1", 0.0, 0.0, 0.02, 0.1, "lower", None)))
+    d = diagnosis([r])
+    assert diagnosis_text(d)[2] == (
+        f"With point-noise: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
+        "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm. The refit estimates noise_std = 0.0049 m "
+        "(90% interval 0.0041 to 0.0058 m); dropout = 0 (90% interval 0 to 0.02). Its noise_std presses the upper "
+        "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
+
+
+@pytest.mark.parametrize("name", list(ALL))
+def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name):
+    d = ALL[name]
+    table = diagnosis_rows(d)
+    assert len(DIAGNOSIS_COLUMNS) == len(table[0]) and DIAGNOSIS_COLUMNS[-1] == "verdict"
+    for c, row in zip(d.ranking, table):
+        assert row[0] == c.effect and row[-1] == candidate_role(d, c)
+        assert row[-1].startswith("named") == (c.effect in d.decision.named), (name, row)
+        if d.verdict != "missing-effect":
+            assert row[-1] not in ("named", "named (pair)", "indistinguishable"), (name, row)
+        if c.generic:
+            assert row[-1] == "-", (name, row)  # a generic term is never refitted nor named
+    assert {d.verdict for d in ALL.values()} == {"nothing-missing", "missing-effect", "misspecified-unexplained"}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# check and compare
+
+
+def test_check_summary():
+    assert check_summary(check_result()) == (
+        "Posterior rollouts miss the measurement by 5.70 cm on average (Chamfer; measured -> simulated 4.56 cm); "
+        "worst in the late phase (t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp); the "
+        f"measurement is NOT explained by the model ({P_FLOOR} <= 0.05). Energy score 5.50 cm.")
+
+
+def test_check_summary_with_the_height_sensor_model_and_pressed_prior_bounds():
+    """The fit saw the clouds through a 1 cm height cut on frames 8-24 (the early phase not fitted, never named
+    worst); its posterior presses bend's lower bound (widening suggested) and friction's 0 (a physical limit)."""
+    c = check_result(metric_min_z_m=0.01, metric_frames=tuple(range(8, 25)), metric_sensor="height", table_z_m=0.0,
+                     phases=tuple(replace(p, in_fit=k > 0) for k, p in enumerate(check_result().phases)),
+                     posterior_at_bounds=(
+                         {"param": "bend", "side": "lower", "bound": 1e-6, "unit": "N*m", "mass": 0.42,
+                          "suggested_bounds": [3.16e-8, 1e-3]},
+                         {"param": "friction", "side": "lower", "bound": 0.0, "unit": "1", "mass": 0.3,
+                          "suggested_bounds": None}),
+                     test=joint(40, 70))
+    assert check_summary(c) == (
+        "Posterior rollouts miss the measurement by 5.70 cm on average (Chamfer under the fit's sensor model: points "
+        "within 1.0 cm of the table unseen, frames 8-24; measured -> simulated 4.56 cm); worst in the late phase "
+        "(t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp); no evidence of misspecification "
+        f"({P_WIND} > 0.05). Energy score 5.50 cm. The fit's posterior: bend's posterior presses its lower prior "
+        "bound 1e-06 N*m (42% of its mass near it): widen the prior (--bounds bend=3.16e-08:0.001) if such values are "
+        "physical, or suspect an effect the model lacks. The fit's posterior: friction's posterior presses its lower "
+        "prior bound 0 (30% of its mass near it): the bound is a physical limit, so suspect an effect the model "
+        "lacks.")
+
+
+def test_check_summary_through_the_virtual_depth_sensor_without_an_energy_score():
+    c = check_result(metric_sensor="camera", energy=None, chamfer_one_sided_mean_m=None)
+    assert check_summary(c) == (
+        "Posterior rollouts miss the measurement by 5.70 cm on average (Chamfer under the fit's sensor model: "
+        "simulated clouds made by the recording's virtual depth sensor); worst in the late phase (t 0.68-0.96 s, "
+        "11.21 cm) and in region R9 (farthest from the grasp); the measurement is NOT explained by the model "
+        f"({P_FLOOR} <= 0.05).")
+
+
+def test_compare_summary():
+    a = check_result(posterior_mean={"chamfer_m": 0.02, "chamfer_se_m": 0.001, "n": 3})
+    b = check_result(test=joint(40, 70), chamfer_mean_m=0.012, energy=energy(0.009),
+                     posterior_mean={"chamfer_m": 0.009, "chamfer_se_m": 0.001, "n": 3})
+    table = (Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m),
+             Row("energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+                 a.energy.energy_m, b.energy.energy_m),
+             Row("posterior-mean rollout Chamfer (the fitted point estimate)", 0.02, 0.009))
+    res = CompareResult("run/nominal", "run/refit-wind", "mujoco-flex (nominal)", "mujoco-flex + wind", table, True,
+                        a, b, "run/refit-wind/compare.png")
+    assert compare_summary(res) == (
+        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm -> 1.20 cm (79% lower), "
+        "energy score 5.50 cm -> 0.90 cm (84% lower), posterior-mean rollout 2.00 cm -> 0.90 cm (55% lower); "
+        f"misspecification {P_FLOOR} -> {P_WIND}.")
+    assert compare_summary(replace(res, same_sensor=False, rows=table[:1])) == (
+        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm -> 1.20 cm (79% lower); "
+        f"misspecification {P_FLOOR} -> {P_WIND}. The two fits use different sensor models (--sensor / --min-height "
+        "/ --frames), so their Chamfer values measure different things.")

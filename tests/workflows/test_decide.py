@@ -1,0 +1,108 @@
+"""The diagnosis' decision (softsbi.workflows.decide) on hand-built typed results: no simulation."""
+from __future__ import annotations
+
+from softsbi.core.results import Candidate, Decision, JointTest, MCPValue, Refit, Score
+from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit, role
+
+ALPHA = 0.05
+
+
+def joint(p_exceed: int = 0, n: int = 200) -> JointTest:
+    """A joint test whose omnibus and directional p-values both come from ``p_exceed`` of ``n`` nulls."""
+    return JointTest(MCPValue(p_exceed, n), MCPValue(p_exceed, n), "x", ("a", "b"), ALPHA, 200)
+
+
+REJECTS, ACCEPTS = joint(0), joint(150, 200)
+
+
+def score(e: float, se: float = 0.01) -> Score:
+    return Score(e, se, 30)
+
+
+def cand(name: str, generic: bool = False, p: int = 0) -> Candidate:
+    return Candidate(name, "physics", generic, name, 0.3, MCPValue(p, 200), {})
+
+
+def refit(effects: tuple[str, ...], e: float, adequate: bool = True, ranking: tuple[Candidate, ...] = ()) -> Refit:
+    return Refit(effects, f"refit-{'+'.join(effects)}", ACCEPTS if adequate else REJECTS, score(e), e,
+                 ranking=ranking)
+
+
+NOMINAL = score(1.0)
+
+
+def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_never_below_its_resolution():
+    t = JointTest(MCPValue(0, 200), MCPValue(3, 200), "wind", ("wind",), ALPHA, 200)
+    assert t.deciding == "omnibus" and t.p_value == 2 / 201 and t.resolution == 2 / 201 and t.misspecified
+    assert t.short() == "p <= 2/201"
+    assert "beyond all 200 null simulations" in t.text()
+    one = JointTest(MCPValue(0, 30), None, None, (), ALPHA, 200)
+    assert one.tests == 1 and one.p_value == 1 / 31 and one.misspecified
+    # 30 nulls cannot reach 0.05 with two tests: the smallest joint p is 2/31 > 0.05
+    assert not JointTest(MCPValue(0, 30), MCPValue(0, 30), "x", ("x",), ALPHA, 30).misspecified
+
+
+def test_nothing_missing_iff_the_nominal_test_does_not_reject():
+    assert decide(ACCEPTS, NOMINAL, [refit(("a",), 0.2)]).verdict == "nothing-missing"
+    assert decide(REJECTS, NOMINAL, []).verdict == "misspecified-unexplained"
+
+
+def test_the_adequate_refit_with_the_lowest_energy_score_is_named():
+    d = decide(REJECTS, NOMINAL, [refit(("a",), 0.6), refit(("b",), 0.3)])
+    assert d == Decision("missing-effect", named=("b",), gain=gain(NOMINAL, score(0.3)))
+    assert role(d, ("b",)) == "named" and role(d, ("a",)) == "not named"
+
+
+def test_an_inadequate_refit_is_never_named_however_low_its_score():
+    d = decide(REJECTS, NOMINAL, [refit(("a",), 0.6), refit(("b",), 0.1, adequate=False)])
+    assert d.named == ("a",)
+
+
+def test_an_adequate_refit_that_does_not_lower_the_score_by_k_se_explains_nothing():
+    # a refit that check accepts only because its posterior predictive is wider: the score does not fall
+    flat = refit(("a",), 1.0 - K_SE * 0.01)  # k_se of one score's se, under k_se of the difference's
+    assert not improves(NOMINAL, flat.score)
+    d = decide(REJECTS, NOMINAL, [flat])
+    assert d.verdict == "misspecified-unexplained" and d.partial == ()
+
+
+def test_refits_within_k_se_of_the_best_are_indistinguishable():
+    d = decide(REJECTS, NOMINAL, [refit(("a",), 0.30), refit(("b",), 0.31), refit(("c",), 0.60)])
+    assert d.named == ("a",) and d.alternatives == (("b",),)
+    assert role(d, ("b",)) == "indistinguishable"
+
+
+def test_an_improving_refit_that_check_rejects_explains_a_part():
+    d = decide(REJECTS, NOMINAL, [refit(("a",), 0.5, adequate=False), refit(("b",), 0.7, adequate=False)])
+    assert d.verdict == "misspecified-unexplained" and d.partial == ("a",)
+    assert role(d, ("a",)) == "explains a part"
+
+
+def test_a_pair_is_named_only_when_it_is_adequate_and_improves_on_its_first_effects_refit():
+    base = refit(("a",), 0.5, adequate=False)
+    good_pair = refit(("a", "b"), 0.2)
+    assert decide(REJECTS, NOMINAL, [base, good_pair]).named == ("a", "b")
+    # adequate but no better than the single refit it extends: the added effect buys nothing
+    no_gain = refit(("a", "b"), 0.49)
+    d = decide(REJECTS, NOMINAL, [base, no_gain])
+    assert d.verdict == "misspecified-unexplained" and d.partial == ("a",)
+    # improves but check still rejects the pair
+    assert decide(REJECTS, NOMINAL, [base, refit(("a", "b"), 0.2, adequate=False)]).named == ()
+
+
+def test_the_refits_proposed_are_the_top_named_candidates_then_one_pair():
+    ranking = (cand("g", generic=True), cand("a"), cand("b"), cand("c", p=150))
+    assert next_refit(ACCEPTS, ranking, NOMINAL, [], confirm=2) is None
+    assert next_refit(REJECTS, ranking, NOMINAL, [], confirm=2) == ("a",)
+    done = [refit(("a",), 0.5, adequate=False, ranking=(cand("g", True), cand("b"), cand("c"))),
+            refit(("b",), 0.8, adequate=False)]
+    assert next_refit(REJECTS, ranking, NOMINAL, done[:1], confirm=2) == ("b",)
+    # neither single explains: the improving one with the lowest score and the first named candidate its own
+    # screening ranks (not the generic term)
+    assert next_refit(REJECTS, ranking, NOMINAL, done, confirm=2) == ("a", "b")
+    assert next_refit(REJECTS, ranking, NOMINAL, done + [refit(("b", "a"), 0.4)], confirm=2) is None
+    # a single refit that explains the misfit: no pair
+    assert next_refit(REJECTS, ranking, NOMINAL, [refit(("a",), 0.3), refit(("b",), 0.8)], confirm=2) is None
+    # no refit lowers the score: no pair is built on nothing
+    assert next_refit(REJECTS, ranking, NOMINAL, [refit(("a",), 1.0, False), refit(("b",), 1.0, False)], 2) is None
+    assert next_refit(REJECTS, ranking, NOMINAL, [], confirm=0) is None

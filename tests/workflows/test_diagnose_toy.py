@@ -1,0 +1,54 @@
+"""The whole diagnosis on a toy-sized case (the toy plugin, tests/plugins/softsbi_toy): a third-party effect is
+named when it is a candidate, and without it the verdict is the third one, not a pair of flexible candidates."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from softsbi.core.results import Diagnosis, from_json
+from softsbi.workflows.diagnose import diagnose_run, load_diagnosis
+from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.measurement import simulate_recording
+
+#: flexible candidates (linear in time along x, y, z) and the third-party effect (a hump in time along z)
+FLEXIBLE = ["toy-wind", "toy-drift", "toy-rise"]
+MAGNET = "toy-magnet"
+
+
+@pytest.fixture(scope="module")
+def magnet_run(tmp_path_factory):
+    """A nominal fit of a toy measurement with a hidden magnet (pull 0.3 m at mid-motion; 8 frames with 2 cm of noise
+    each, so that the hump is told from a line)."""
+    toy = pytest.importorskip("softsbi_toy.plugin")
+    rec = simulate_recording("toy-gauss", toy.toy_scenario(8), {"a": 0.3, "b": -0.4, "pull": 0.3}, effects=[MAGNET],
+                             n_points=16, n_dense=64, seed=5, backend_options={"sigma": 0.02})
+    cfg = FitConfig(backend="toy-gauss", backend_options={"sigma": 0.02}, rounds=2, sims_per_round=80, workers=1, n_points=16, n_dense=64, n_eval=30,
+                    estimator_options={"max_epochs": 60, "hidden": [64, 64]})
+    out = tmp_path_factory.mktemp("magnet") / "nominal"
+    run_fit(out, rec, cfg)
+    return out
+
+
+def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
+    d = diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1)
+    assert d.test.misspecified
+    assert d.verdict == "missing-effect" and d.decision.named == (MAGNET,)
+    named = d.refit((MAGNET,))
+    assert named.adequate and named.score.value < d.nominal.value
+    # the same candidate family in every step: each refit's test screens the family less its own effects
+    assert set(named.test.family) == set(FLEXIBLE)
+    # the stored result is the returned one, and a second call with the same settings reads it back
+    stored = from_json(Diagnosis, json.loads((magnet_run / "diagnosis.json").read_text()))
+    assert stored == d and load_diagnosis(magnet_run) == d
+    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1) == d
+
+
+def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(magnet_run):
+    d = diagnose_run(magnet_run, effects=FLEXIBLE, workers=1)
+    assert d.test.misspecified and set(d.test.family) == set(FLEXIBLE)
+    assert d.verdict == "misspecified-unexplained" and d.decision.named == ()
+    assert all(MAGNET not in r.effects for r in d.refits)
+    # a flexible candidate explains a part; the pair built on it is refitted and explains no more
+    assert d.decision.partial and any(len(r.effects) == 2 for r in d.refits)
+    assert d.residual is not None and d.residual.frames_flagged
