@@ -20,6 +20,9 @@ def lift_dir() -> Path:
 
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+# no simulation bank unless a test asks for one: a bank shared by tests would hand one test's stored rollouts to
+# another that injects faults into the simulator (tests/workflows/test_bank.py switches it on where it is tested)
+os.environ.setdefault("SOFTSBI_SIM_BANK", "off")
 
 
 def _kill_when_stored(script: str, out: Path, n: int, env: dict | None = None, timeout: float = 120) -> int:

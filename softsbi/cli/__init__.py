@@ -345,6 +345,10 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         widen: bool = typer.Option(False, "--widen", help="after each round, move a prior bound the posterior "
                                                           "presses (not a physical limit) outward by the rule of the "
                                                           "note under the table, for the following rounds"),
+        sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help="simulation bank of the first round: fits of "
+                                     "other recordings of the same task read its rollouts instead of simulating "
+                                     "them ('default': the user's cache folder; or a folder)"),
+        no_sim_bank: bool = typer.Option(False, "--no-sim-bank", help="simulate the first round without a bank"),
         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from softsbi.workflows.measurement import load_image_recording, load_recording
@@ -362,6 +366,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     cfg.sensor = sensor
     cfg.sensor_draws = sensor_draws
     cfg.refine, cfg.widen = refine, widen
+    cfg.sim_bank = "off" if no_sim_bank else sim_bank
     images = bool(getattr(registry().observer(observer), "needs_images", False))
     if images:
         if extractor is None:

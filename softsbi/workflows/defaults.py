@@ -19,6 +19,8 @@ ROUNDS = 4
 SIMS_PER_ROUND = 150
 #: K, points per frame of the point-cloud observer's state
 N_POINTS = 64
+#: the simulation bank a fit's first round reads and fills: "default" (the user's cache folder), "off", or a folder
+SIM_BANK = "default"
 #: posterior-predictive rollouts of a fit's reported Chamfer, of ``check`` and of ``compare``
 N_EVAL = 30
 #: posterior-predictive simulations a misspecification test's null starts with, and the cap of its adaptive

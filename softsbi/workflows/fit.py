@@ -39,6 +39,7 @@ from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows import defaults
+from softsbi.workflows.bank import banks_enabled, default_bank
 from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
 from softsbi.workflows.lock import run_lock
@@ -187,6 +188,7 @@ class FitConfig:
     sensor_draws: int = _resume(0)
     refine: int = 0
     widen: bool = False
+    sim_bank: str = defaults.SIM_BANK
 
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
@@ -915,6 +917,15 @@ class _Clock:
         return self.spent()
 
 
+def sim_bank(cfg: FitConfig) -> Path | None:
+    """The simulation bank a fit's first round reads and fills (:mod:`~softsbi.workflows.bank`): ``cfg.sim_bank``
+    ``"default"`` the user's (:func:`~softsbi.workflows.bank.default_bank`), ``"off"`` none, else that folder;
+    none when ``$SOFTSBI_SIM_BANK`` is ``off``."""
+    if cfg.sim_bank == "off" or not banks_enabled():
+        return None
+    return default_bank() if cfg.sim_bank == "default" else Path(cfg.sim_bank).expanduser()
+
+
 def _sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: ParamSpace) -> SimContext:
     """What every simulation job of this fit needs: simulator, observer, the metric's reference."""
     observed = store.read_observed()
@@ -950,7 +961,9 @@ class _Rounds:
         if not store.is_begun(r):
             self._begin(r)
         self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
-        _simulate_missing(store, r, self.ctx, executor, self.cb, self.clock, self.sensor)
+        bank = sim_bank(cfg) if r == 0 else None  # the first round's draws depend on the task and the seed alone
+        ctx = self.ctx if bank is None else replace(self.ctx, bank=str(bank))
+        _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
         d = store.round_data(r)
         stats = chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
         if r == 0:
@@ -1143,7 +1156,9 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     status = np.full(cfg.n_eval, STATUS_ERROR, np.uint8)
     hooks.round_start(-1, cfg.rounds, cfg.n_eval, cfg.n_eval)
     done = 0
-    for i, res in executor.map_unordered(simulate_job, list(zip(theta, seeds)), context=ctx):
+    # the run's own bank: check, diagnose, compare and view re-simulate these rollouts first (RunView.sim_context)
+    bank = str(store.path.parent / "sims.zarr") if banks_enabled() and ctx.ref_masks is None else None
+    for i, res in executor.map_unordered(simulate_job, list(zip(theta, seeds)), context=replace(ctx, bank=bank)):
         done += 1
         hooks.simulation_done(-1, done, cfg.n_eval)
         if isinstance(res, SoftsbiError):  # an environment fault: stop, nothing stored

@@ -22,6 +22,7 @@ from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_fro
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
+from softsbi.workflows.bank import SimulationBank, rollout_key
 
 
 @dataclass
@@ -49,6 +50,9 @@ class SimContext:
     min_z: float | None = None
     #: the fit's virtual depth sensor for the metric (``VirtualDepthSensor.to_json``), None = height cut
     camera: dict[str, Any] | None = None
+    #: a simulation bank (:class:`~softsbi.workflows.bank.SimulationBank` folder) whose stored rollouts are
+    #: read instead of simulated, and which keeps the new ones; None = simulate everything
+    bank: str | None = None
 
 
 _WORKER_CACHE: dict[str, Any] = {}
@@ -64,6 +68,20 @@ def _objects(ctx: SimContext) -> tuple[Any, Any, Scenario]:
         _WORKER_CACHE.clear()
         _WORKER_CACHE[key] = (sim, obs, Scenario.from_json(ctx.scenario))
     return _WORKER_CACHE[key]
+
+
+def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
+              seed: int) -> Any:
+    """``sim.simulate``, through the context's simulation bank when it has one."""
+    if ctx.bank is None:
+        return sim.simulate(scenario, values, effects=effects, seed=seed)
+    bank = SimulationBank(ctx.bank)
+    key = rollout_key(ctx.backend, ctx.backend_options, ctx.scenario, effects, values, seed)
+    ro = bank.get(key)
+    if ro is None:
+        ro = sim.simulate(scenario, values, effects=effects, seed=seed)
+        bank.put(key, ro)
+    return ro
 
 
 def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
@@ -108,11 +126,11 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
         elif draws:  # simulate without the observation transforms, then observe once per draw
             plan = check_effects(sim, draws["effects"])
             own = {p.name for e in plan.effects for p in e.param_space()}
-            raw = sim.simulate(scenario, {k: v for k, v in values.items() if k not in own},
-                               effects=[e for e in effects if e not in draws["effects"]], seed=int(seed))
+            raw = _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
+                            [e for e in effects if e not in draws["effects"]], int(seed))
             ro = plan.observe(raw, values, int(seed))
         else:
-            ro = sim.simulate(scenario, values, effects=effects, seed=int(seed))
+            ro = _simulate(ctx, sim, scenario, values, effects, int(seed))
     except SoftsbiError:
         raise
     except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed

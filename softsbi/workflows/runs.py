@@ -13,6 +13,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
+from softsbi.workflows.bank import banks_enabled
 from softsbi.workflows.bestfit import BestFit, read_best_fit
 from softsbi.workflows.fit import FitConfig, _usable, round_posterior
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
@@ -34,13 +35,16 @@ class RunView:
 
     def sim_context(self, keep_rollout: bool = True) -> Any:
         """The fit's own worker context (:class:`~softsbi.workflows.fit.SimContext`): same simulator,
-        observer and metric, so re-simulating the fit's evaluation samples reproduces its Chamfer."""
+        observer and metric, so re-simulating the fit's evaluation samples reproduces its Chamfer. Its rollouts go
+        through the run's own simulation bank (``RUN/sims.zarr``): ``check``, ``diagnose``, ``compare`` and
+        ``view`` simulate each posterior-predictive rollout and finite difference once."""
         c = self.config
         return SimContext(backend=c["backend"], backend_options=dict(c.get("backend_options") or {}),
                           scenario=c["scenario"], effects=list(self.effects), observer=c["observer"],
                           observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
                           fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
-                          keep_rollout=keep_rollout, min_z=c.get("metric_min_z"), camera=c.get("metric_camera"))
+                          keep_rollout=keep_rollout, min_z=c.get("metric_min_z"), camera=c.get("metric_camera"),
+                          bank=str(self.path / "sims.zarr") if banks_enabled() else None)
 
     @property
     def metric_min_z(self) -> float | None:

@@ -51,7 +51,7 @@ LIBRARY = {
 }
 #: options only the CLI has, with a default of its own
 CLI_ONLY = {"as_json", "out", "recording", "theta", "extractor", "observed", "ray_address", "retry_failed",
-            "refit_rounds", "refit_sims", "data", "match", "effect", "backend_opt"}
+            "refit_rounds", "refit_sims", "data", "match", "effect", "backend_opt", "no_sim_bank"}
 
 
 def _commands():

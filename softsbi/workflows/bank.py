@@ -1,0 +1,150 @@
+"""The simulation bank: rollouts stored by what determines them, so that no simulation runs twice.
+
+A rollout is determined by the simulator and its options, the scenario, the effects switched on, the parameters
+and the seed (the engines are deterministic). :func:`rollout_key` hashes exactly these; :class:`SimulationBank`
+keeps each rollout under its key in a Zarr store (one group per rollout: ``vertices``, ``gripper``, ``faces``,
+``times`` and the status, reason and info in its attributes). The observation, the metric and the sensor model
+are computed from the rollout afterwards, so two fits of different recordings of the same task share the
+simulations of their first round (drawn from the same prior with the same seed), and ``check``, ``diagnose``,
+``compare`` and ``view`` of one run share its posterior-predictive rollouts.
+
+Integrity as for a run store: a rollout is written into a temporary group and renamed into place when complete
+(atomic on one file system), so a killed writer leaves nothing half-written; each group carries a SHA-256 of
+its arrays, checked on reading, and a damaged or unreadable entry counts as absent (the rollout is simulated
+again and stored anew). Writers need no lock: two processes storing the same key store the same rollout, and
+the first rename wins.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import zarr
+
+from softsbi.core.types import Rollout
+
+#: bank format version (part of every key: a new format starts a new bank)
+BANK_FORMAT = 1
+
+
+#: values of ``$SOFTSBI_SIM_BANK`` that switch every bank off (the user's and the runs' own)
+OFF = ("off", "none", "0")
+
+
+def banks_enabled() -> bool:
+    """False when ``$SOFTSBI_SIM_BANK`` is ``off`` (or ``none``, ``0``): nothing is read from or stored in a bank."""
+    return os.environ.get("SOFTSBI_SIM_BANK", "").strip().lower() not in OFF
+
+
+def default_bank() -> Path | None:
+    """The user's simulation bank: ``$SOFTSBI_SIM_BANK``, else ``$XDG_CACHE_HOME/softsbi/sim-bank`` (default
+    ``~/.cache/softsbi/sim-bank``); None when banks are off (:func:`banks_enabled`)."""
+    if not banks_enabled():
+        return None
+    if os.environ.get("SOFTSBI_SIM_BANK"):
+        return Path(os.environ["SOFTSBI_SIM_BANK"]).expanduser()
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "softsbi" / "sim-bank"
+
+
+def _engine_version(backend: str) -> str:
+    try:
+        from importlib.metadata import version
+        return {"mujoco-flex": "mujoco " + version("mujoco"),
+                "pybullet-massspring": "pybullet " + version("pybullet")}.get(backend, "")
+    except Exception:  # noqa: BLE001 - an unknown engine version only narrows the key
+        return ""
+
+
+def rollout_key(backend: str, backend_options: Mapping[str, Any], scenario: Mapping[str, Any],
+                effects: Sequence[str], values: Mapping[str, float], seed: int) -> str:
+    """The SHA-256 (hex) of everything a rollout depends on: the simulator (name, options, engine version), the
+    scenario (its JSON form), the effects in order, every parameter value (exactly, as ``float.hex``) and the seed."""
+    doc = [BANK_FORMAT, backend, _engine_version(backend), dict(backend_options), dict(scenario), list(effects),
+           sorted((k, float(v).hex()) for k, v in values.items()), int(seed)]
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _digest(arrays: Mapping[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(name.encode() + str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
+    return h.hexdigest()
+
+
+def _plain(info: Mapping[str, Any]) -> dict[str, Any]:
+    """The JSON-able part of a rollout's ``info`` (scalars and strings; arrays are dropped)."""
+    out = {}
+    for k, v in info.items():
+        if isinstance(v, (bool, int, float, str)) or v is None:
+            out[k] = v
+        elif isinstance(v, np.generic):
+            out[k] = v.item()
+    return out
+
+
+class SimulationBank:
+    """Rollouts by :func:`rollout_key` in a Zarr store at ``path`` (created on the first store).
+
+    Args:
+        path: the store's folder.
+        writable: False: read only (a bank on a read-only file system, or one shared by others).
+    """
+
+    def __init__(self, path: str | Path, writable: bool = True):
+        self.path = Path(path)
+        self.writable = writable
+
+    def _where(self, key: str) -> Path:
+        return self.path / key[:2] / key
+
+    def get(self, key: str) -> Rollout | None:
+        """The stored rollout of ``key``, or None when absent, incomplete or damaged."""
+        where = self._where(key)
+        if not where.is_dir():
+            return None
+        try:
+            g = zarr.open_group(str(where), mode="r")
+            arrays = {n: np.asarray(g[n][...]) for n in ("times", "gripper", "vertices", "faces")}
+            attrs = dict(g.attrs)
+            if attrs.get("sha256") != _digest(arrays):
+                return None
+            return Rollout(times=arrays["times"], gripper=arrays["gripper"], vertices=arrays["vertices"],
+                           faces=arrays["faces"].astype(int), status=int(attrs["status"]), reason=str(attrs["reason"]),
+                           info=dict(attrs.get("info") or {}))
+        except Exception:  # noqa: BLE001 - a damaged entry is an absent one: simulated again
+            return None
+
+    def put(self, key: str, ro: Rollout) -> bool:
+        """Store ``ro`` under ``key`` (a rollout with images is not stored: the bank keeps states). Returns whether
+        it was stored; a bank that cannot be written (read-only, full disk) stores nothing and says False."""
+        if not self.writable or ro.rgb is not None:
+            return False
+        arrays = {"times": np.asarray(ro.times, float), "gripper": np.asarray(ro.gripper, float),
+                  "vertices": np.asarray(ro.vertices, float), "faces": np.asarray(ro.faces, np.int64)}
+        where = self._where(key)
+        tmp = self.path / "tmp" / f"{key}-{uuid.uuid4().hex}"
+        try:
+            tmp.parent.mkdir(parents=True, exist_ok=True)
+            g = zarr.open_group(str(tmp), mode="w")
+            for name, a in arrays.items():
+                g.create_array(name, data=a)
+            g.attrs.update({"status": int(ro.status), "reason": str(ro.reason), "info": _plain(ro.info),
+                            "sha256": _digest(arrays)})
+            where.parent.mkdir(parents=True, exist_ok=True)
+            if where.exists():  # a damaged entry (get() turned it down) is replaced
+                shutil.rmtree(where, ignore_errors=True)
+            os.rename(tmp, where)
+            return True
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            return False
+
+    def __len__(self) -> int:
+        return sum(1 for d in self.path.glob("??/*") if d.is_dir()) if self.path.is_dir() else 0
