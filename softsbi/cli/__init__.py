@@ -434,7 +434,8 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
     from softsbi.report.text import check_summary
     from softsbi.workflows.check import check_run
     o = Output(as_json)
-    with o.status("simulating at posterior samples ..."):
+    from softsbi.cli.progress import shown
+    with shown(o):
         out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute)
     if as_json:
         o.emit_json(to_json(out))
@@ -462,7 +463,8 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     """Simulation-based calibration of the run's posterior estimator: expected coverage, SBC ranks, TARP."""
     from softsbi.workflows.calibrate import calibrate_run
     o = Output(as_json)
-    with o.status("simulating test cases and training the estimator again ..."):
+    from softsbi.cli.progress import shown
+    with shown(o):
         out = calibrate_run(run, n_test=n_test, n_draws=n_draws, workers=workers, message=o.message)
     if as_json:
         o.emit_json(out)
@@ -535,7 +537,8 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     from softsbi.workflows.diagnose import diagnose_run
     o = Output(as_json)
     names = [e for it in effect or [] for e in it.split(",") if e] or None
-    with o.status("diagnosing ..."):
+    from softsbi.cli.progress import shown
+    with shown(o):
         out = diagnose_run(run, effects=names, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims,
                            k_se=k_se, workers=workers, n_null=n_null, max_null=max_null, alpha=alpha,
                            progress=o.message, recompute=recompute)
@@ -563,7 +566,8 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     from softsbi.report.text import compare_summary
     from softsbi.workflows.compare import compare_runs
     o = Output(as_json)
-    with o.status("checking both runs ..."):
+    from softsbi.cli.progress import shown
+    with shown(o):
         res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, recompute=recompute)
     if as_json:
         o.emit_json(to_json(res))
@@ -590,7 +594,8 @@ def view(run: Path = typer.Argument(..., help="run directory of a finished point
     """See the measured cloud move against posterior rollouts: an animation and a rerun recording."""
     from softsbi.workflows.view import write_view
     o = Output(as_json)
-    with o.status(f"simulating {n_eval} posterior rollouts ..."):
+    from softsbi.cli.progress import shown
+    with shown(o):
         res = write_view(run, n_eval=n_eval, workers=workers, gif=gif, rrd=rrd)
     if as_json:
         o.emit_json(res)

@@ -6,9 +6,41 @@ import contextlib
 from pathlib import Path
 from typing import Any, Iterator
 
+import time
+
 from softsbi.cli.output import Output
 from softsbi.workflows.demo import DemoCallbacks
 from softsbi.workflows.fit import FitCallbacks
+from softsbi.workflows.progress import Reporter, reporting
+
+
+class PhaseReporter(Reporter):
+    """Every phase that simulates on stderr: a bar with counts and time left on a terminal, one line when it begins
+    and one when it ends in a pipe."""
+
+    def __init__(self, o: Output, progress: Any):
+        self.o, self.p = o, progress
+
+    def start(self, label: str, total: int) -> Any:
+        if not self.o.err.is_terminal:
+            self.o.message(f"{label}: {total} simulations ...")
+        return self.p.add_task(label, total=total), label, time.perf_counter()
+
+    def advance(self, handle: Any, done: int) -> None:
+        self.p.update(handle[0], completed=done)
+
+    def end(self, handle: Any) -> None:
+        task, label, t0 = handle
+        self.p.remove_task(task)
+        if not self.o.err.is_terminal:
+            self.o.message(f"{label}: done in {time.perf_counter() - t0:.0f} s")
+
+
+@contextlib.contextmanager
+def shown(o: Output) -> Iterator[None]:
+    """Show every simulating phase of the command run inside the block (:class:`PhaseReporter`)."""
+    with o.progress() as p, reporting(PhaseReporter(o, p)):
+        yield
 
 
 class ProgressHooks(FitCallbacks):
@@ -71,7 +103,8 @@ class DemoPrinter(DemoCallbacks):
 
     @contextlib.contextmanager
     def working(self, text: str) -> Iterator[None]:
-        with self.o.status(text):
+        self.o.message(text)
+        with shown(self.o):
             yield
 
     def fit_done(self, report: dict[str, Any], run_dir: Path) -> None:

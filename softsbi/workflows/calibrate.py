@@ -134,7 +134,8 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
         u, which, seeds = _draw_block(b, proposals, counts, cfg.seed, last, space.dim)
         theta = space.from_unit(u)
         message(f"test simulations {b * BLOCK + 1}-{(b + 1) * BLOCK} of {n_blocks * BLOCK}")
-        res = run_jobs(ctx, list(zip(theta, seeds)), workers, cfg.executor, cfg.executor_options)
+        res = run_jobs(ctx, list(zip(theta, seeds)), workers, cfg.executor, cfg.executor_options,
+                       label="calibration test simulations")
         status = np.array([r["status"] for r in res], np.uint8)
         x = np.full((BLOCK,) + x_shape, np.nan, np.float32)
         for i, r in enumerate(res):

@@ -31,6 +31,7 @@ from softsbi.plugins import registry
 from softsbi.workflows.check import check_run, result_key, stored_result
 from softsbi.workflows import defaults
 from softsbi.workflows.decide import K_SE, decide, next_refit
+from softsbi.workflows.progress import fit_callbacks
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, check_resolution
@@ -136,7 +137,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
                   sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
                   sensor_draws=0, workers=workers if workers is not None else base.workers)
     out = run.path / f"refit-{'+'.join(effects)}"
-    res = run_fit(out, recording_from_run(run), cfg)
+    res = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
     pool = PosteriorPredictive(out, workers, seed)
     chk = check_run(out, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
                     effects=[e for e in family if e not in effects])

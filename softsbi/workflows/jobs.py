@@ -23,6 +23,7 @@ from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
 from softsbi.workflows.bank import SimulationBank, rollout_key
+from softsbi.workflows.progress import phase
 
 
 @dataclass
@@ -190,8 +191,9 @@ def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
 
 
 def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
-             executor_options: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
-    """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order.
+             executor_options: Mapping[str, Any] | None = None, label: str = "simulations") -> list[dict[str, Any]]:
+    """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order. The phase is told to
+    the current progress reporter as ``label`` (:mod:`~softsbi.workflows.progress`).
 
     A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised; any other
     exception, or a crashed worker, becomes a failed result ``{"status": STATUS_ERROR, "reason"}``.
@@ -199,12 +201,15 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
     exe = registry().executor(executor)(workers=workers, **dict(executor_options or {}))
     out: list[dict[str, Any] | None] = [None] * len(items)
     try:
-        for i, res in exe.map_unordered(simulate_job, items, context=ctx):
-            if isinstance(res, BaseException):
-                if isinstance(res, SoftsbiError):
-                    raise res
-                res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None, "chamfer": None}
-            out[i] = res
+        with phase(label, len(items)) as advance:
+            for done, (i, res) in enumerate(exe.map_unordered(simulate_job, items, context=ctx), start=1):
+                if isinstance(res, BaseException):
+                    if isinstance(res, SoftsbiError):
+                        raise res
+                    res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None,
+                           "chamfer": None}
+                out[i] = res
+                advance(done)
     finally:
         exe.close()
     return out  # type: ignore[return-value]

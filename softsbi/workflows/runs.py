@@ -69,7 +69,7 @@ class RunView:
             :attr:`post_theta` and ``seed``) and every job result, in sample order.
         """
         items = list(zip(self.post_theta, self.post_seeds))
-        res = run_jobs(self.sim_context(keep_rollout=True), items, workers)
+        res = run_jobs(self.sim_context(keep_rollout=True), items, workers, label="posterior rollouts")
         ok = [dict(r, sample=i, seed=int(items[i][1])) for i, r in enumerate(res)
               if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
         return ok, res

@@ -220,7 +220,8 @@ def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: flo
     key = (tuple(c.name for c in cands), float(unit_step), float(effect_step))
     if key not in pool.sensitivities:
         jobs, eff_cols, _ = sensitivity_jobs(pool.run, list(cands), unit_step, effect_step)
-        res = run_jobs(pool.run.sim_context(keep_rollout=True), jobs, pool.workers)
+        res = run_jobs(pool.run.sim_context(keep_rollout=True), jobs, pool.workers,
+                       label="finite differences of the screening")
         pool.sensitivities[key] = (list(cands), eff_cols, res)
     # the stored effect instances: the design's columns refer to them
     first, eff_cols, res = pool.sensitivities[key]

@@ -297,7 +297,8 @@ class PosteriorPredictive:
         if n <= self.requested:
             return self
         self.first = self.first or n
-        res = run_jobs(self.run.sim_context(keep_rollout=True), self._items(self.requested, n), self.workers)
+        res = run_jobs(self.run.sim_context(keep_rollout=True), self._items(self.requested, n), self.workers,
+                       label=f"posterior-predictive rollouts {self.requested + 1}-{n}")
         for i, r in enumerate(res, start=self.requested):
             if r is None or r["status"] != STATUS_OK or r.get("vertices") is None:
                 continue
@@ -446,7 +447,7 @@ def rollout_chamfers(run: RunView, items: Sequence[tuple], workers: int | None =
     Returns:
         ``(k,)`` scores of the ``k <= len(items)`` rollouts that succeeded, in item order.
     """
-    res = run_jobs(run.sim_context(keep_rollout=False), list(items), workers)
+    res = run_jobs(run.sim_context(keep_rollout=False), list(items), workers, label="posterior-mean rollouts")
     frames = run_frames(run)
     return np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in res
                      if r is not None and r["status"] == STATUS_OK and r.get("chamfer") is not None])

@@ -1,0 +1,83 @@
+"""Progress of every phase that simulates, told to whoever shows it.
+
+The library reports and never prints: :func:`~softsbi.workflows.jobs.run_jobs` (the posterior-predictive
+rollouts, nulls and finite differences of ``check``, ``diagnose``, ``compare``, ``view``) and the rounds of a
+fit run without callbacks of their own (a ``diagnose`` refit) tell the current :class:`Reporter`, which the CLI
+installs with :func:`reporting` (bars with counts and time left on a terminal, one line per phase in a pipe).
+Without one, nothing is shown.
+"""
+from __future__ import annotations
+
+import contextlib
+from contextvars import ContextVar
+from typing import Any, Callable, Iterator
+
+#: the reporter of the current command (None: silent)
+_CURRENT: ContextVar["Reporter | None"] = ContextVar("softsbi_progress", default=None)
+
+
+class Reporter:
+    """Shows phases. Subclasses override :meth:`start`, :meth:`advance` and :meth:`end` (each does nothing
+    here)."""
+
+    def start(self, label: str, total: int) -> Any:
+        """A phase of ``total`` simulations begins; returns a handle for :meth:`advance` and :meth:`end`."""
+
+    def advance(self, handle: Any, done: int) -> None:
+        """``done`` of the phase's simulations are finished."""
+
+    def end(self, handle: Any) -> None:
+        """The phase is over."""
+
+
+@contextlib.contextmanager
+def reporting(reporter: Reporter | None) -> Iterator[None]:
+    """Make ``reporter`` the current one inside the block."""
+    token = _CURRENT.set(reporter)
+    try:
+        yield
+    finally:
+        _CURRENT.reset(token)
+
+
+@contextlib.contextmanager
+def phase(label: str, total: int) -> Iterator[Callable[[int], None]]:
+    """A phase of ``total`` simulations, told to the current reporter; yields ``advance(done)``."""
+    rep = _CURRENT.get()
+    if rep is None or total <= 0:
+        yield lambda done: None
+        return
+    handle = rep.start(label, total)
+    try:
+        yield lambda done: rep.advance(handle, done)
+    finally:
+        rep.end(handle)
+
+
+def fit_callbacks(label: str) -> Any:
+    """:class:`~softsbi.workflows.fit.FitCallbacks` that tell the current reporter each round's simulations (a fit
+    run inside another command, e.g. a ``diagnose`` refit, labelled ``label``); None without a reporter."""
+    rep = _CURRENT.get()
+    if rep is None:
+        return None
+    from softsbi.workflows.fit import FitCallbacks
+
+    class _Rounds(FitCallbacks):
+        handle: Any = None
+
+        def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
+            if self.handle is not None:
+                rep.end(self.handle)
+            what = f"round {r + 1}/{rounds}" if r >= 0 else "posterior rollouts" if r == -1 else "refinement"
+            self.handle = rep.start(f"{label}: {what}", n_total)
+            rep.advance(self.handle, n_total - n_pending)
+
+        def simulation_done(self, r: int, done: int, total: int) -> None:
+            rep.advance(self.handle, done)
+
+        def round_end(self, r: int, s: dict[str, Any]) -> None:
+            if self.handle is not None:
+                rep.end(self.handle)
+                self.handle = None
+
+    return _Rounds()
