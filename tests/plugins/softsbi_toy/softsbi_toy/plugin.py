@@ -71,10 +71,10 @@ class ToyWind(Effect):
 
 
 class _Shift(Effect):
-    """A toy effect seen through the observation door: every observed vertex moves by ``amount * profile(s_t)``
-    along ``axis`` (``s_t = t / (T - 1)``), so any backend that applies observation transforms runs it."""
+    """A toy effect that toy-gauss applies by name (it has no door of its own, so no other backend is offered it):
+    the patch moves by ``amount * profile(s_t)`` along ``axis`` (``s_t = t / (T - 1)``)."""
 
-    kind = "sensor"
+    backends = ("toy-gauss",)
     axis: int = 0
     unit_name: str = "amount"
 
@@ -84,13 +84,11 @@ class _Shift(Effect):
     def param_space(self) -> ParamSpace:
         return ParamSpace([Param(self.unit_name, 0.0, 0.5, "m", description=self.description)])
 
-    def observe(self, rollout: Rollout, theta, rng) -> Rollout:
-        T = len(rollout.vertices)
-        s = np.linspace(0, 1, T) if T > 1 else np.zeros(1)
-        v = np.array(rollout.vertices, float)
-        v[:, :, self.axis] += theta[self.unit_name] * self.profile(s)[:, None]
-        return Rollout(times=rollout.times, gripper=rollout.gripper, vertices=v, faces=rollout.faces,
-                       status=rollout.status, reason=rollout.reason, info=dict(rollout.info))
+    def shift(self, T: int, theta) -> np.ndarray:
+        """``(T, 3)`` displacement of the patch (m)."""
+        out = np.zeros((T, 3))
+        out[:, self.axis] = theta[self.unit_name] * self.profile(np.linspace(0, 1, T) if T > 1 else np.zeros(1))
+        return out
 
 
 class ToyDrift(_Shift):
@@ -121,13 +119,18 @@ class ToyMagnet(_Shift):
         return np.sin(np.pi * s)
 
 
+#: the shifts toy-gauss applies by name
+SHIFTS = {e.name: e for e in (ToyDrift, ToyRise, ToyMagnet)}
+
+
 class ToyGauss(Simulator):
-    """Linear-Gaussian toy simulator with an analytic posterior; ``toy-wind`` is its own effect, and it applies
-    any effect's observation transform (``toy-drift``, ``toy-rise``, ``toy-magnet``, the built-in sensor effects)."""
+    """Linear-Gaussian toy simulator with an analytic posterior; its own effects are ``toy-wind`` and the shifts
+    ``toy-drift``, ``toy-rise`` and ``toy-magnet`` (applied by name), and it applies any effect's observation
+    transform (the built-in sensor effects)."""
 
     name = "toy-gauss"
     scenarios = ("toy", "lift")
-    effects = ("toy-wind",)
+    effects = ("toy-wind", *SHIFTS)
     effect_kinds = ("observation",)
 
     def __init__(self, sigma: float = SIGMA):
@@ -145,6 +148,9 @@ class ToyGauss(Simulator):
         space = self.param_space(scenario)
         if "toy-wind" in effects:
             space = space + ToyWind().param_space()
+        for e in effects:
+            if e in SHIFTS:
+                space = space + SHIFTS[e]().param_space()
         for e in plan.effects:
             space = space + e.param_space()
         vals = space.check({k: v for k, v in theta.items() if k in space.names}, within="limits")
@@ -176,6 +182,9 @@ class ToyGauss(Simulator):
         c = design(T) @ th + rng.normal(0, self.sigma, (T, 3))
         if "toy-wind" in effects:
             c[:, 0] += vals["wind"] * (np.linspace(0, 1, T) if T > 1 else 0)
+        for e in effects:
+            if e in SHIFTS:
+                c += SHIFTS[e]().shift(T, vals)
         sq = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
         verts = c[:, None, :] + sq[None]
         faces = np.array([[0, 1, 2], [0, 2, 3]])
