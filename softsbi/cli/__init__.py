@@ -520,7 +520,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                           "refit)"),
              refit_rounds: Optional[int] = typer.Option(None, help="rounds of a refit (default: the run's)"),
              refit_sims: Optional[int] = typer.Option(None, help="simulations per round of a refit "
-                                                                 "(default: the run's)"),
+                                                                 "(default: half the run's)"),
              k_se: float = typer.Option(D.K_SE, "--k-se", help="standard errors by which a refit's energy score "
                                                                "must fall to count, and within which two refits tie"),
              n_null: int = typer.Option(D.N_NULL, "--n-null", help="posterior-predictive simulations the null "

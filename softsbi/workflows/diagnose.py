@@ -58,7 +58,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         alpha: the level of every test (the false-alarm rate tolerated).
         k_se: standard errors by which a refit's energy score must fall (:data:`~softsbi.workflows.decide.K_SE`).
         confirm: single refits at most (the top named candidates by evidence); a pair is one more (0: no refit).
-        refit_rounds, refit_sims: a refit's budget (default: the nominal fit's).
+        refit_rounds, refit_sims: a refit's budget (default: the nominal fit's rounds and
+            :data:`~softsbi.workflows.defaults.REFIT_SIMS_SHARE` of its simulations per round).
         n_null, max_null: start and cap of the posterior-predictive null.
         workers: simulation processes.
         progress: told each step (``callable(str)``).
@@ -122,7 +123,8 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
 
     The refit has the nominal fit's settings (:meth:`FitConfig.from_run_config`) with the effects switched on,
     :data:`REFIT_PROPOSAL` proposals, no extra sensor draws (every refit observes each simulation once, physics
-    and sensor effects alike) and, where given, its own rounds and simulations per round; it is stored in
+    and sensor effects alike) and its own rounds and simulations per round (default: the nominal fit's rounds and
+    :data:`~softsbi.workflows.defaults.REFIT_SIMS_SHARE` of its simulations per round); it is stored in
     ``RUN/refit-<a>+<b>`` and resumes from there. It is checked by :func:`~softsbi.workflows.check.check_run` (so
     ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
     its score is the energy score of its first ``n_null`` posterior-predictive rollouts' summaries in ``scale``
@@ -133,8 +135,9 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     """
     effects = tuple(effects)
     base = FitConfig.from_run_config(run.config)
+    sims = int(sims_per_round or max(10, round(base.sims_per_round * defaults.REFIT_SIMS_SHARE)))
     cfg = replace(base, effects=list(run.effects) + list(effects), rounds=int(rounds or base.rounds),
-                  sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
+                  sims_per_round=sims, proposal=REFIT_PROPOSAL,
                   sensor_draws=0, workers=workers if workers is not None else base.workers)
     out = run.path / f"refit-{'+'.join(effects)}"
     res = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))

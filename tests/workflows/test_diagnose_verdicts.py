@@ -216,14 +216,15 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
     monkeypatch.setattr(dg, "run_fit", fake_fit)
     monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
     monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(
-        lambda cls, c: cls(rounds=2, sims_per_round=10, proposal="corrected", sensor_draws=4,
+        lambda cls, c: cls(rounds=2, sims_per_round=40, proposal="corrected", sensor_draws=4,
                            effects=["time-offset"])))
     with pytest.raises(_Stop):
         dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], None)
     cfg = seen["cfg"]
     assert seen["out"] == tmp_path / "refit-point-noise"
     assert cfg.proposal == "truncated" == dg.REFIT_PROPOSAL and cfg.sensor_draws == 0
-    assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 10)
+    # by default the nominal fit's rounds at half its simulations per round
+    assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 20)
     with pytest.raises(_Stop):
         dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], None, rounds=3, sims_per_round=40)
     assert seen["out"] == tmp_path / "refit-wind+point-noise"
