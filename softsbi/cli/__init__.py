@@ -248,7 +248,7 @@ def params(scenario: str = typer.Argument(..., help="scenario name (`softsbi sce
            as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Every parameter a fit of SCENARIO infers: unit, prior bounds, scale and physical limits (`fit --bounds` moves
     a prior up to the limits, `fit --fix` holds a parameter)."""
-    from softsbi.workflows.api import load_scenario
+    from softsbi.scenarios import load_scenario
     from softsbi.workflows.fit import FitConfig, parameter_table
     from softsbi.workflows.measurement import load_recording
     effects = [e for it in effect or [] for e in it.split(",") if e]
