@@ -1,4 +1,4 @@
-"""Command-line interface: ``softsbi plugins | simulate | fit | train-extractor | check | diagnose | compare |
+"""Command-line interface: ``softsbi plugins | params | simulate | fit | train-extractor | check | diagnose | compare |
 compare-backends | demo``."""
 from __future__ import annotations
 
@@ -197,7 +197,8 @@ def _guard(fn):
 @app.command()
 @_guard
 def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
-    """List installed simulators, effects, observers, estimators and executors."""
+    """List installed simulators, effects (with the backends that can apply each and its parameters), observers,
+    estimators and executors."""
     from softsbi.plugins import registry
     from softsbi.plugins.manager import LOAD_ERRORS
     desc = registry().describe()
@@ -210,12 +211,58 @@ def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     for kind, rows in desc.items():
         if kind == "load_errors":
             continue
+        if kind == "effects":
+            o.table(["name", "kind", "applied by", "parameters [prior] unit", "package", "description"],
+                    [[r["name"], r["kind"] + (" (generic)" if r.get("generic") else ""),
+                      ", ".join(r["backends"]) or "none installed",
+                      "; ".join(_param_text(p) for p in r["parameters"]), r["package"],
+                      r.get("description") or r.get("doc") or ""]
+                     for r in rows], title=kind)
+            continue
         o.table(["name", "package", "description"],
                 [[r["name"], r["package"], (r.get("doc") or "") +
                   (f" scenarios: {', '.join(r['scenarios'])}" if r.get("scenarios") else "")] for r in rows],
                 title=kind)
     for name, err in LOAD_ERRORS.items():
         o.line(f"plugin '{name}' failed to load: {err}")
+
+
+def _param_text(p: dict[str, Any]) -> str:
+    """``wind_x [-2, 2] m/s`` (``log`` added for a log-uniform prior)."""
+    unit = "" if p["unit"] in ("", "1") else f" {p['unit']}"
+    return f"{p['name']} [{p['prior'][0]:g}, {p['prior'][1]:g}]{unit}{' log' if p['scale'] == 'log' else ''}"
+
+
+def _limit_text(limits: list[Any]) -> str:
+    lo, hi = ("-inf" if limits[0] is None else f"{limits[0]:g}"), ("inf" if limits[1] is None else f"{limits[1]:g}")
+    return f"{lo} to {hi}"
+
+
+@app.command()
+@_guard
+def params(scenario: str = typer.Argument(..., help="scenario name (`softsbi scenarios` lists them), scenario file "
+                                                    "(.yaml) or recording folder (its scenario)"),
+           effect: list[str] = typer.Option(None, "--effect", help="effects to add (their parameters join the "
+                                                                   "backend's)"),
+           backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
+           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """Every parameter a fit of SCENARIO infers: unit, prior bounds, scale and physical limits (`fit --bounds` moves
+    a prior up to the limits, `fit --fix` holds a parameter)."""
+    from softsbi.scenarios import load_scenario
+    from softsbi.workflows.fit import FitConfig, parameter_table
+    from softsbi.workflows.measurement import load_recording
+    effects = [e for it in effect or [] for e in it.split(",") if e]
+    sc = (load_recording(scenario, n_points=8, n_dense=8).scenario if Path(scenario).is_dir()
+          else load_scenario(scenario))
+    rows = parameter_table(FitConfig(backend=backend, effects=effects), sc)
+    o = Output(as_json)
+    if as_json:
+        o.emit_json({"scenario": sc.name, "backend": backend, "effects": effects, "parameters": rows})
+        return
+    o.table(["parameter", "from", "unit", "prior", "scale", "physical limits", "description"],
+            [[r["name"], r["source"], r["unit"], f"{r['prior'][0]:g} to {r['prior'][1]:g}", r["scale"],
+              _limit_text(r["limits"]), r["description"]] for r in rows],
+            title=f"Parameters of a fit of '{sc.name}' on {backend}" + (f" with {', '.join(effects)}" if effects else ""))
 
 
 @app.command()
@@ -558,6 +605,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
             run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
             n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run"),
+            max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL + " (each run's check)"),
             workers: Optional[int] = typer.Option(None, help=H_WORKERS),
             recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
@@ -568,7 +616,8 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     o = Output(as_json)
     from softsbi.cli.progress import shown
     with shown(o):
-        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, recompute=recompute)
+        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, max_null=max_null,
+                           recompute=recompute)
     if as_json:
         o.emit_json(to_json(res))
         return

@@ -76,6 +76,17 @@ class Param:
             return self.limits
         return (0.0, math.inf) if (self.log or self.low >= 0) else (-math.inf, math.inf)
 
+    def summary(self) -> dict[str, Any]:
+        """The parameter as ``softsbi params`` and ``softsbi plugins`` list it (JSON-able): ``name``, ``unit``,
+        ``prior`` ``[low, high]``, ``scale`` (``"log"``: log-uniform prior, inferred as ``log(value)``;
+        ``"linear"``: uniform), the physical ``limits`` (:attr:`physical_limits`, an infinite end as None) and
+        the ``description``."""
+        lo, hi = self.physical_limits
+        return {"name": self.name, "unit": self.unit, "prior": [self.low, self.high],
+                "scale": "log" if self.log else "linear",
+                "limits": [None if math.isinf(lo) else lo, None if math.isinf(hi) else hi],
+                "description": self.description}
+
 
 class ParamSpace:
     """An ordered set of :class:`Param` with a uniform (or log-uniform) box prior.

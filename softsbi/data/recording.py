@@ -70,9 +70,9 @@ class ScenarioRef(_Strict):
     folder) or ``inline`` scenario mapping (the scenario file format). A plain string is shorthand:
     ``scenario: lift`` is ``{name: lift}``, ``scenario: my_task.yaml`` (ending in ``.yaml``/``.yml``) is
     ``{file: my_task.yaml}``."""
-    name: Optional[str] = None
-    file: Optional[str] = None
-    inline: Optional[dict[str, Any]] = None
+    name: Optional[str] = Field(None, description="a built-in or plugin scenario (`softsbi scenarios`)")
+    file: Optional[str] = Field(None, description="a scenario file, relative to the recording folder")
+    inline: Optional[dict[str, Any]] = Field(None, description="the scenario file's mapping itself")
 
     @model_validator(mode="before")
     @classmethod
@@ -89,16 +89,17 @@ class ScenarioRef(_Strict):
 
 
 class DiffCloudTransform(_Strict):
-    z_rotation: float
-    translation: tuple[float, float, float]
-    scale: float = Field(gt=0)
-    compensation_factor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """DiffCloud's real2sim fields (``<task>_real2sim.yaml``): ``p -> (p + c - t) @ Rz(a)`` in metres."""
+    z_rotation: float = Field(description="a, deg about z")
+    translation: tuple[float, float, float] = Field(description="t, m")
+    scale: float = Field(gt=0, description="DiffCloud's units per m (cancels in the scenario frame)")
+    compensation_factor: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="c, m")
 
 
 class Transform(_Strict):
     """A 4x4 ``matrix`` (column vectors, metres) or DiffCloud's real2sim fields; maps into the scenario frame."""
-    matrix: Optional[list[list[float]]] = None
-    diffcloud: Optional[DiffCloudTransform] = None
+    matrix: Optional[list[list[float]]] = Field(None, description="4x4, last row [0, 0, 0, 1]")
+    diffcloud: Optional[DiffCloudTransform] = Field(None, description="DiffCloud's real2sim fields")
 
     @model_validator(mode="after")
     def _one(self) -> "Transform":
@@ -124,31 +125,42 @@ class Transform(_Strict):
 
 
 class Units(_Strict):
-    length: Literal["m"] = "m"
-    time: Literal["s"] = "s"
+    """The units of the files (only SI is read)."""
+    length: Literal["m"] = Field("m", description="clouds and depth images in metres")
+    time: Literal["s"] = Field("s", description="times in seconds")
 
 
 class Sensor(_Strict):
     """The sensor model a fit uses by default: points within ``min_height`` m of the table are not seen
     (None: all are); ``frames`` that inform the posterior (``auto``, ``all`` or indices)."""
-    kind: str = "point cloud"
-    min_height: Optional[float] = Field(None, ge=0)
-    frames: Union[Literal["auto", "all"], list[int]] = "all"
+    kind: str = Field("point cloud", description="what recorded the clouds (a label)")
+    min_height: Optional[float] = Field(None, ge=0, description="m: points this close to the table are not seen, in "
+                                                                "simulation and recording alike (None: all are)")
+    frames: Union[Literal["auto", "all"], list[int]] = Field("all", description="frames that inform the posterior: "
+                                                                                "auto (the gripper at least 10 cm "
+                                                                                "above the table), all, or indices")
 
 
 class RecordingMeta(_Strict):
-    """``recording.yaml`` (module docstring)."""
-    format: Literal["softsbi-recording/1"]
-    scenario: ScenarioRef
-    units: Units = Field(default_factory=Units)
-    times: list[float] = Field(min_length=1)
-    transform: Transform
-    frames_of_reference: dict[str, Transform] = Field(default_factory=dict)
-    sensor: Sensor = Field(default_factory=Sensor)
-    truth: Optional[dict[str, float]] = None
-    effects: list[str] = Field(default_factory=list)
-    source: str = ""
-    calibration: Optional[str] = None
+    """``recording.yaml``: what the clouds are and how they map into the scenario."""
+    format: Literal["softsbi-recording/1"] = Field(description="the format and its version")
+    scenario: ScenarioRef = Field(description="the task: a name, a file or inline (a plain string: name, or file "
+                                              "if it ends in .yaml)")
+    units: Units = Field(default_factory=Units, description="the files' units")
+    times: list[float] = Field(min_length=1, description="one time per frame, s, strictly increasing")
+    transform: Transform = Field(description="the clouds' frame -> the scenario frame")
+    frames_of_reference: dict[str, Transform] = Field(default_factory=dict, description="named frames of the "
+                                                                                        "scenario's paths (e.g. "
+                                                                                        "robot) -> scenario frame, "
+                                                                                        "replacing the scenario "
+                                                                                        "file's (this recording's "
+                                                                                        "calibration)")
+    sensor: Sensor = Field(default_factory=Sensor, description="the sensor model a fit uses by default")
+    truth: Optional[dict[str, float]] = Field(None, description="a simulated recording's hidden parameters "
+                                                                "(physical units)")
+    effects: list[str] = Field(default_factory=list, description="a simulated recording's effects switched on")
+    source: str = Field("", description="where the data come from (one line)")
+    calibration: Optional[str] = Field(None, description="a camera calibration file in the folder, read as is")
 
     @model_validator(mode="after")
     def _times(self) -> "RecordingMeta":

@@ -1151,12 +1151,12 @@ class RKHSEstimator(NeuralMDNEstimator):
         frame_moments: append each frame's first and raw second point moments (:func:`point_moments`, 9
             numbers: centroid and spread) to its embedding, default False (on the well-specified lift twins
             the posterior-mean rollout was no closer to the truth's own score: 1.24 / 1.07 x the floor
-            against the default's 1.11 / 1.08, three training seeds each; BENCHMARKS.md, fifteenth session).
+            against the default's 1.11 / 1.08, three training seeds each).
         frame_thickness: append each frame's :func:`~softsbi.inference.summaries.local_thickness` (log10 mm,
             computed from every point) to its embedding, default False. Switched on by a fit whose model has an
             effect that asks for it (``Effect.estimator_options``: point noise), because the random-Fourier-
             feature embedding cannot see centimetre noise: without it the posterior of the noise's standard
-            deviation stayed the prior (BENCHMARKS.md, fifteenth session).
+            deviation stayed the prior.
 
     ``posterior_at`` accepts any number of points K' >= 1 per frame (same T).
     """

@@ -313,7 +313,10 @@ class Registry:
 
     def describe(self) -> dict[str, list[dict[str, Any]]]:
         """JSON-able listing used by ``softsbi plugins --json`` (``aliases`` for classes that have them; for
-        simulators the effects they support and their ``effect_kinds``, for effects ``kind`` and ``generic``)."""
+        simulators the effects they support and their ``effect_kinds``; for effects ``kind``, ``generic``, the
+        ``doors`` they act through (``model_edits``: the backends with a model edit), the installed ``backends``
+        that can apply them (:meth:`Simulator.supports`) and their ``parameters``
+        (:meth:`~softsbi.core.types.Param.summary`))."""
         out: dict[str, list[dict[str, Any]]] = {}
         for kind, table in self.tables.items():
             old_names: dict[str, list[str]] = {}
@@ -330,9 +333,21 @@ class Registry:
                         row[attr] = list(v) if isinstance(v, tuple) else v
                 if name in old_names:
                     row["aliases"] = sorted(old_names[name])
+                if kind == "effect":
+                    row.update(self._effect_row(cls))
                 rows.append(row)
             out[kind + "s"] = rows
         return out
+
+    def _effect_row(self, cls: type) -> dict[str, Any]:
+        """An effect's doors, model-edit backends, the installed backends that apply it and its parameters."""
+        eff = cls()
+        doors: list[str] = []
+        for b in [*self.tables["simulator"], *eff.model_edits]:
+            doors += [d for d in eff.doors(b) if d not in doors]
+        return {"doors": doors, "model_edits": list(eff.model_edits),
+                "backends": [s for s, sim in sorted(self.tables["simulator"].items()) if sim.supports(eff) is None],
+                "parameters": [p.summary() for p in eff.param_space()]}
 
 
 def _aliases_of(cls: type, who: str, hook: str) -> list[str]:

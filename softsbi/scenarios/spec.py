@@ -70,8 +70,8 @@ class _Strict(BaseModel):
 
 class MeshSpec(_Strict):
     """A triangle mesh file (``.obj``) relative to the scenario file; ``units`` metres per mesh unit."""
-    file: str
-    units: float = Field(1.0, gt=0)
+    file: str = Field(description="triangle mesh (.obj), relative to the scenario file; vertex indices are its order")
+    units: float = Field(1.0, gt=0, description="metres per mesh unit")
 
 
 class ObjectSpec(_Strict):
@@ -79,12 +79,15 @@ class ObjectSpec(_Strict):
     (``length`` m, ``radius`` m). ``size`` / ``length`` is the size a single rollout (``softsbi simulate``)
     gives the parameter ``scale`` when it is not set; a fit infers ``scale`` over its prior (``--bounds``
     sets the prior, ``--fix scale=...`` holds it at a size)."""
-    kind: Literal["cloth", "rope"]
-    size: Optional[float] = Field(None, gt=0)
-    mesh: Optional[MeshSpec] = None
-    length: Optional[float] = Field(None, gt=0)
-    radius: Optional[float] = Field(None, gt=0)
-    fabric: Optional[str] = None
+    kind: Literal["cloth", "rope"] = Field(description="the object: a cloth (square grid or mesh) or a rope")
+    size: Optional[float] = Field(None, gt=0, description="cloth: side of a square grid, m (corners 0-3 in order "
+                                                          "round the square: 0 at placement.corner, 2 opposite it "
+                                                          "along placement.direction, 1 left of that diagonal seen "
+                                                          "from above)")
+    mesh: Optional[MeshSpec] = Field(None, description="cloth: a triangle mesh instead of a grid")
+    length: Optional[float] = Field(None, gt=0, description="rope: length, m")
+    radius: Optional[float] = Field(None, gt=0, description="rope: radius, m (default 0.004)")
+    fabric: Optional[str] = Field(None, description="a label of the material (e.g. thick), for figures and reports")
 
     @model_validator(mode="after")
     def _shape(self) -> "ObjectSpec":
@@ -99,12 +102,14 @@ class PlacementSpec(_Strict):
     """Rest pose: the grid cloth's placed corner / the rope's start (``corner``, m; default under the
     first moving handle's start), the direction of the cloth's diagonal / rope from it, and
     ``yaw_bounds`` (deg) when the fit infers the rotation about the grasped vertex."""
-    corner: Optional[Vec2] = None
-    direction: Optional[Vec2] = None
-    yaw_bounds: Optional[Vec2] = None
-    #: mesh cloth: ``flat`` lays every vertex on the table; ``mesh`` keeps the file's heights above its
-    #: lowest vertex (e.g. a corner already raised into the gripper)
-    rest: Literal["flat", "mesh"] = "flat"
+    corner: Optional[Vec2] = Field(None, description="[x, y] m of the grid cloth's corner 0 / the rope's end 0; "
+                                                     "default: under the first moving handle's start")
+    direction: Optional[Vec2] = Field(None, description="[dx, dy]: direction of the cloth's diagonal from corner 0 "
+                                                        "(default [1, 0]) / of the rope (default [0, -1])")
+    yaw_bounds: Optional[Vec2] = Field(None, description="[low, high] deg: the fit infers the parameter yaw, the "
+                                                         "rotation about the grasped vertex, over this prior")
+    rest: Literal["flat", "mesh"] = Field("flat", description="mesh cloth: flat lays every vertex on the table; mesh "
+                                                              "keeps the file's heights above its lowest vertex")
 
     @model_validator(mode="after")
     def _check(self) -> "PlacementSpec":
@@ -118,10 +123,10 @@ class PlacementSpec(_Strict):
 class GraspSpec(_Strict):
     """Which vertex a handle holds: exactly one of ``vertex`` (mesh index), ``corner`` (grid corner
     0-3), ``end`` (rope end 0/1) or ``point`` (nearest rest vertex to this scenario-frame point, m)."""
-    vertex: Optional[int] = Field(None, ge=0)
-    corner: Optional[int] = Field(None, ge=0, le=3)
-    end: Optional[int] = Field(None, ge=0, le=1)
-    point: Optional[Vec3] = None
+    vertex: Optional[int] = Field(None, ge=0, description="mesh cloth: vertex index in the .obj file's order")
+    corner: Optional[int] = Field(None, ge=0, le=3, description="grid cloth: corner 0-3 (object.size)")
+    end: Optional[int] = Field(None, ge=0, le=1, description="rope: end 0 or 1")
+    point: Optional[Vec3] = Field(None, description="[x, y, z] m, scenario frame: the nearest vertex at rest")
 
     @model_validator(mode="after")
     def _one(self) -> "GraspSpec":
@@ -137,20 +142,24 @@ class GraspSpec(_Strict):
 
 
 class Keyframe(_Strict):
-    t: float = Field(ge=0)
-    p: Vec3
+    """One point of a handle's path: where the handle is at a time."""
+    t: float = Field(ge=0, description="time, s")
+    p: Vec3 = Field(description="[x, y, z] m in the path's frame")
 
 
 class PathSpec(_Strict):
     """A handle's path: a ``(T, 3)`` ``.npy`` ``file`` or inline ``points`` (one row per frame), or
     ``keyframes`` sampled at the frame times (``easing`` between them), in ``frame``, plus an ``offset``
     (m, scenario frame)."""
-    file: Optional[str] = None
-    points: Optional[list[Vec3]] = None
-    keyframes: Optional[list[Keyframe]] = None
-    frame: str = "scenario"
-    easing: Literal["smoothstep", "linear"] = "smoothstep"
-    offset: Vec3 = (0.0, 0.0, 0.0)
+    file: Optional[str] = Field(None, description="(T, 3) .npy positions in m, one row per frame, relative to the "
+                                                  "scenario file")
+    points: Optional[list[Vec3]] = Field(None, description="one [x, y, z] m per frame")
+    keyframes: Optional[list[Keyframe]] = Field(None, description="at least two, times not decreasing; held before "
+                                                                  "the first and after the last")
+    frame: str = Field("scenario", description="the frame of the positions: scenario, or a name under transforms")
+    easing: Literal["smoothstep", "linear"] = Field("smoothstep", description="between keyframes: smoothstep (zero "
+                                                                              "velocity at each keyframe) or linear")
+    offset: Vec3 = Field((0.0, 0.0, 0.0), description="[x, y, z] m added to every position (scenario frame)")
 
     @model_validator(mode="after")
     def _one(self) -> "PathSpec":
@@ -167,10 +176,12 @@ class PathSpec(_Strict):
 
 
 class HandleSpec(_Strict):
-    name: str
-    grasp: GraspSpec
-    pinned: bool = False
-    path: Optional[PathSpec] = None
+    """A vertex held by the robot: pinned where it rests, or following a path (the backends shift a path by a
+    constant so that it starts on its vertex)."""
+    name: str = Field(description="unique name of the handle (figures draw each)")
+    grasp: GraspSpec = Field(description="the vertex it holds")
+    pinned: bool = Field(False, description="held in place at rest (no path)")
+    path: Optional[PathSpec] = Field(None, description="the path it follows (not with pinned)")
 
     @model_validator(mode="after")
     def _one(self) -> "HandleSpec":
@@ -182,10 +193,11 @@ class HandleSpec(_Strict):
 class FramesSpec(_Strict):
     """Frame times: ``count`` and ``dt`` (s, ``t = k dt``), ``count`` and ``duration`` (evenly from 0),
     or explicit ``times`` (s, strictly increasing from 0)."""
-    count: Optional[int] = Field(None, ge=2, le=MAX_FRAMES)
-    dt: Optional[float] = Field(None, gt=0)
-    duration: Optional[float] = Field(None, gt=0)
-    times: Optional[list[float]] = Field(None, max_length=MAX_FRAMES)
+    count: Optional[int] = Field(None, ge=2, le=MAX_FRAMES, description="number of recorded frames")
+    dt: Optional[float] = Field(None, gt=0, description="s between frames (t = k dt)")
+    duration: Optional[float] = Field(None, gt=0, description="s from the first frame to the last")
+    times: Optional[list[float]] = Field(None, max_length=MAX_FRAMES, description="explicit frame times, s, strictly "
+                                                                                  "increasing")
 
     @model_validator(mode="after")
     def _one(self) -> "FramesSpec":
@@ -209,17 +221,18 @@ class FramesSpec(_Strict):
 
 
 class DiffCloudTransform(_Strict):
-    z_rotation: float
-    translation: Vec3
-    scale: float = Field(gt=0)
-    compensation_factor: Vec3 = (0.0, 0.0, 0.0)
+    """DiffCloud's real2sim fields (``<task>_real2sim.yaml``): ``p -> (p + c - t) @ Rz(a)`` in metres."""
+    z_rotation: float = Field(description="a, deg about z")
+    translation: Vec3 = Field(description="t, m")
+    scale: float = Field(gt=0, description="DiffCloud's units per m (cancels in the scenario frame)")
+    compensation_factor: Vec3 = Field((0.0, 0.0, 0.0), description="c, m")
 
 
 class TransformSpec(_Strict):
     """A named frame -> scenario frame: a 4x4 homogeneous ``matrix`` (column vectors, metres) or the
-    DiffCloud real2sim fields (module docstring)."""
-    matrix: Optional[list[list[float]]] = None
-    diffcloud: Optional[DiffCloudTransform] = None
+    DiffCloud real2sim fields (``diffcloud``)."""
+    matrix: Optional[list[list[float]]] = Field(None, description="4x4, last row [0, 0, 0, 1]")
+    diffcloud: Optional[DiffCloudTransform] = Field(None, description="DiffCloud's real2sim fields")
 
     @model_validator(mode="after")
     def _one(self) -> "TransformSpec":
@@ -234,29 +247,30 @@ class TransformSpec(_Strict):
 
 
 class BoxSpec(_Strict):
-    type: Literal["box"]
-    name: Optional[str] = None
-    centre: Vec3
-    half_size: Vec3
-    yaw: float = 0.0
+    """A rigid box obstacle."""
+    type: Literal["box"] = Field(description="box")
+    name: Optional[str] = Field(None, description="a label")
+    centre: Vec3 = Field(description="[x, y, z] m")
+    half_size: Vec3 = Field(description="half extents, m")
+    yaw: float = Field(0.0, description="rotation about z, deg")
 
 
 class CylinderSpec(_Strict):
     """A vertical cylinder standing on the table (``centre`` [x, y] m, ``radius``, ``height`` m);
     ``occludes``: observers hide the points behind it (the winding scenario's spool)."""
-    type: Literal["cylinder"]
-    name: Optional[str] = None
-    centre: Vec2
-    radius: float = Field(gt=0)
-    height: float = Field(gt=0)
-    occludes: bool = False
+    type: Literal["cylinder"] = Field(description="cylinder")
+    name: Optional[str] = Field(None, description="a label")
+    centre: Vec2 = Field(description="[x, y] m on the table")
+    radius: float = Field(gt=0, description="m")
+    height: float = Field(gt=0, description="m above the table")
+    occludes: bool = Field(False, description="observers hide the points it hides from the first camera")
 
 
 class WorldSpec(_Strict):
     """The table's height (m), gravity (m/s^2, at most :data:`MAX_GRAVITY` in magnitude) and rigid obstacles."""
-    table_z: float = 0.0
-    gravity: Vec3 = (0.0, 0.0, -9.81)
-    obstacles: list[BoxSpec | CylinderSpec] = Field(default_factory=list)
+    table_z: float = Field(0.0, description="height of the table top, m")
+    gravity: Vec3 = Field((0.0, 0.0, -9.81), description="m/s^2")
+    obstacles: list[BoxSpec | CylinderSpec] = Field(default_factory=list, description="rigid boxes and cylinders")
 
     @model_validator(mode="after")
     def _gravity(self) -> "WorldSpec":
@@ -269,10 +283,10 @@ class WorldSpec(_Strict):
 
 class IntrinsicsSpec(_Strict):
     """Pinhole intrinsics (px): focal lengths ``fx``, ``fy`` and principal point ``cx``, ``cy``."""
-    fx: float = Field(gt=0)
-    fy: float = Field(gt=0)
-    cx: float
-    cy: float
+    fx: float = Field(gt=0, description="focal length along x, px")
+    fy: float = Field(gt=0, description="focal length along y, px")
+    cx: float = Field(description="principal point x, px")
+    cy: float = Field(description="principal point y, px")
 
 
 class CameraSpec(_Strict):
@@ -280,15 +294,16 @@ class CameraSpec(_Strict):
     (``eye``, ``target`` m, ``up``, ``fovy_deg``) or calibrated (``intrinsics`` px and ``world_to_cam``, the
     3x4 ``[R | t]`` from the scenario frame to the camera's OpenCV axes, m), ``width x height`` px
     (:class:`~softsbi.core.camera.Camera`)."""
-    name: str
-    eye: Optional[Vec3] = None
-    target: Optional[Vec3] = None
-    up: Vec3 = (0.0, 0.0, 1.0)
-    fovy_deg: float = Field(50.0, gt=0, lt=180)
-    intrinsics: Optional[IntrinsicsSpec] = None
-    world_to_cam: Optional[list[list[float]]] = None
-    width: int = Field(128, ge=8)
-    height: int = Field(128, ge=8)
+    name: str = Field(description="the camera's name")
+    eye: Optional[Vec3] = Field(None, description="look-at: camera position, m")
+    target: Optional[Vec3] = Field(None, description="look-at: the point it looks at, m")
+    up: Vec3 = Field((0.0, 0.0, 1.0), description="look-at: the image's up direction")
+    fovy_deg: float = Field(50.0, gt=0, lt=180, description="look-at: vertical field of view, deg")
+    intrinsics: Optional[IntrinsicsSpec] = Field(None, description="calibrated: pinhole intrinsics, px")
+    world_to_cam: Optional[list[list[float]]] = Field(None, description="calibrated: 3x4 [R | t], scenario frame -> "
+                                                                        "OpenCV camera axes, m")
+    width: int = Field(128, ge=8, description="image width, px")
+    height: int = Field(128, ge=8, description="image height, px")
 
     @model_validator(mode="after")
     def _one(self) -> "CameraSpec":
@@ -307,27 +322,28 @@ class RobotSpec(_Strict):
     """Where the visual-only robot arm drawn in rendered images stands: its shoulder ``base`` (m) in
     ``frame`` (``scenario`` or a name under ``transforms``). Without it the arm stands behind the
     workspace along +y (:func:`softsbi.backends.common.robot_base`)."""
-    base: Vec3
-    frame: str = "scenario"
+    base: Vec3 = Field(description="[x, y, z] m: the arm's shoulder")
+    frame: str = Field("scenario", description="scenario, or a name under transforms")
 
 
 class ScenarioSpec(_Strict):
-    """The whole scenario file (module docstring)."""
-    format: Literal["softsbi-scenario/1"]
-    name: str = Field(min_length=1)
-    description: str = ""
-    object: ObjectSpec
-    placement: PlacementSpec = Field(default_factory=PlacementSpec)
-    handles: list[HandleSpec] = Field(min_length=1)
-    frames: FramesSpec
-    transforms: dict[str, TransformSpec] = Field(default_factory=dict)
-    world: WorldSpec = Field(default_factory=WorldSpec)
-    cameras: list[CameraSpec] = Field(default_factory=list)
-    #: the plane of the scenario's 2-D figures: ``xz`` (side view across y), ``yz`` (side view across x) or
-    #: ``xy`` (top view, e.g. a rope that stays on the table)
-    view: Literal["xz", "yz", "xy"] = "xz"
-    robot: Optional[RobotSpec] = None
-    options: dict[str, Any] = Field(default_factory=dict)
+    """A scenario file: the task as data."""
+    format: Literal["softsbi-scenario/1"] = Field(description="the format and its version")
+    name: str = Field(min_length=1, description="the task's name (runs and figures carry it)")
+    description: str = Field("", description="one line for `softsbi scenarios`")
+    object: ObjectSpec = Field(description="the deformable object")
+    placement: PlacementSpec = Field(default_factory=PlacementSpec, description="its rest pose")
+    handles: list[HandleSpec] = Field(min_length=1, description="the grasps; at least one follows a path")
+    frames: FramesSpec = Field(description="the recorded frame times")
+    transforms: dict[str, TransformSpec] = Field(default_factory=dict, description="named frames (e.g. robot) -> "
+                                                                                   "scenario frame")
+    world: WorldSpec = Field(default_factory=WorldSpec, description="table, gravity and obstacles")
+    cameras: list[CameraSpec] = Field(default_factory=list, description="the first renders images and is the "
+                                                                        "occlusion viewpoint")
+    view: Literal["xz", "yz", "xy"] = Field("xz", description="the plane of 2-D figures: xz (side view across y), yz "
+                                                              "(side view across x) or xy (top view)")
+    robot: Optional[RobotSpec] = Field(None, description="where the arm drawn in rendered images stands")
+    options: dict[str, Any] = Field(default_factory=dict, description="free-form notes kept with the scenario")
 
     @model_validator(mode="after")
     def _handles(self) -> "ScenarioSpec":

@@ -15,7 +15,8 @@ from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import load_run
-from softsbi.workflows.stats import MAX_NULL, N_NULL
+from softsbi.workflows.screening import check_resolution
+from softsbi.workflows.stats import ALPHA, MAX_NULL, N_NULL
 
 
 def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = N_NULL,
@@ -37,9 +38,10 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         both runs have them, per phase, per region) and both checks.
 
     Raises:
-        SoftsbiError: either is not a finished fit, or the runs were fitted to different measurements; RunDirError:
-            ``out_dir`` or a run directory cannot be written.
+        SoftsbiError: a null cap that cannot resolve the checks' level; either is not a finished fit, or the runs
+            were fitted to different measurements; RunDirError: ``out_dir`` or a run directory cannot be written.
     """
+    check_resolution(ALPHA, max_null, 2)
     ra, rb = load_run(run_a), load_run(run_b)
     if ra.config.get("observed_source") != rb.config.get("observed_source") or len(ra.dense) != len(rb.dense):
         raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "

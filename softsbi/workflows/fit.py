@@ -426,6 +426,22 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     return space, inferred
 
 
+def parameter_table(cfg: FitConfig, scenario: Scenario) -> list[dict[str, Any]]:
+    """Every parameter a fit of ``scenario`` with ``cfg``'s backend and effects infers or holds (``softsbi
+    params``): the backend's parameter space for the scenario, then each effect's, with ``cfg.bounds`` applied;
+    each row is :meth:`~softsbi.core.types.Param.summary` with its ``source`` (the backend's or the effect's
+    name).
+
+    Raises:
+        as :func:`fit_param_space`.
+    """
+    space, _ = fit_param_space(cfg, scenario)
+    source = dict.fromkeys(space.names, cfg.backend)
+    for e in cfg.effects:
+        source.update(dict.fromkeys(registry().effect(e)().param_space().names, e))
+    return [{**p.summary(), "source": source[p.name]} for p in space]
+
+
 def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     """The fit's sensor model as the metric applies it (issue 17: one definition of the per-frame
     distance for the fit's report, ``check``, ``compare`` and ``diagnose``).

@@ -48,6 +48,7 @@ LIBRARY = {
     "compare-backends": {**_sig(compare_backends), "scenario": _sig(simulate_to_folder)["scenario"],
                          "backends": ",".join(_sig(compare_backends)["backends"])},
     "diffcloud": _sig(import_diffcloud),
+    "params": {"backend": FIT["backend"]},
 }
 #: options only the CLI has, with a default of its own
 CLI_ONLY = {"as_json", "out", "recording", "theta", "extractor", "observed", "ray_address", "retry_failed",

@@ -139,11 +139,12 @@ def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
 
 
 def test_a_null_too_small_for_the_level_is_refused_in_one_line_before_any_work(tmp_path):
-    """check and diagnose with --max-null 30 at the default level 0.05: two Bonferroni-combined tests can never
+    """check, diagnose and compare with --max-null 30 at the default level 0.05: two Bonferroni-combined tests can never
     reach it (2/31 > 0.05), so the command refuses in one line naming the smallest cap that can, exit code 2,
     before opening the run (none here); --json gives the same message as a JSON error."""
     for cmd in (["check", str(tmp_path / "no-run"), "--max-null", "30"],
-                ["diagnose", str(tmp_path / "no-run"), "--max-null", "30"]):
+                ["diagnose", str(tmp_path / "no-run"), "--max-null", "30"],
+                ["compare", str(tmp_path / "no-run"), str(tmp_path / "no-run-b"), "--max-null", "30"]):
         res = runner.invoke(app, cmd)
         assert res.exit_code == 2, res.output
         msg = " ".join(res.output.split())
