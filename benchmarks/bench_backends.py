@@ -1,12 +1,8 @@
-"""Backend benchmarks (issue 3): speed per backend x scenario x mesh size, softsbi overhead over a
-raw engine loop, 2-worker throughput and memory over many rollouts.
+"""The backends suite: speed per backend x scenario x mesh size, softsbi's overhead over a raw engine loop,
+throughput with one and two LocalExecutor workers, and memory over many consecutive rollouts.
 
-Usage::
-
-    python benchmarks/bench_backends.py [--grids 7 11] [--repeats 3] [--n-throughput 16] [--n-memory 500]
-
-Prints markdown tables (paste into BENCHMARKS.md). Single-threaded engines; the machine is
-shared, so every figure is the median of ``--repeats`` runs.
+Single-threaded engines; every timing is the median of ``--repeats`` runs (the overhead: of at least 5, interleaved
+with the raw loop so machine load affects both alike).
 """
 from __future__ import annotations
 
@@ -22,25 +18,59 @@ from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import SCENARIOS, make_scenario
 from softsbi.executors.local import LocalExecutor
 
+from benchmarks.runner import table
+
 BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-massspring": PybulletMassSpring}
 
 
+FULL = {"grids": [7, 11], "repeats": 3, "n_throughput": 16, "n_memory": 500}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--grids", type=int, nargs="+", default=[7], help="cloth grids (rope: 2 grid + 2 nodes)")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--n-throughput", type=int, default=8, help="rollouts per throughput measurement")
+    ap.add_argument("--n-memory", type=int, default=100, help="consecutive rollouts of the memory measurement")
+    ap.add_argument("--only", nargs="+", default=["speed", "overhead", "throughput", "memory"],
+                    choices=["speed", "overhead", "throughput", "memory"])
+
+
+def suite(a: argparse.Namespace) -> dict:
+    tables = []
+    if "speed" in a.only:
+        tables.append(table(f"Wall time per simulated second, prior midpoint, median of {a.repeats}",
+                            ["backend", "scenario", "mesh", "vertices", "wall s / sim s"], speed(a.grids, a.repeats)))
+    if "overhead" in a.only:
+        g, r = a.grids[0], max(a.repeats, 5)
+        tables.append(table(f"softsbi rollout against a raw engine loop (lift {g}x{g}), median of {r}",
+                            ["backend", "softsbi s", "raw s", "overhead %"], overhead(g, r)))
+    if "throughput" in a.only:
+        g = a.grids[0]
+        tables.append(table(f"Throughput, {a.n_throughput} lift rollouts ({g}x{g}), LocalExecutor",
+                            ["backend", "1 worker rollouts/s", "2 workers rollouts/s", "speed-up"],
+                            throughput(a.n_throughput, g)))
+    if "memory" in a.only:
+        tables.append(table(f"Memory over {a.n_memory} consecutive rollouts (lift 5x5, 0.2 s each, one instance)",
+                            ["backend", "RSS after 10 (MB)", "RSS after all (MB)", "growth (MB)"],
+                            memory(a.n_memory, 5)))
+    return {"tables": tables}
+
+
 def speed(grids, repeats):
-    print("\n### Wall time per simulated second (s), prior midpoint, median of", repeats)
-    print("| backend | scenario | mesh | vertices | wall s / sim s |\n|---|---|---|---|---|")
+    rows = []
     for b, cls in BACKENDS.items():
         for name in SCENARIOS:
             sc = make_scenario(name)
             rope = name == "winding"
             for g in grids:
-                sim = cls(grid=g, rope_nodes=2 * g + 2) if True else None
+                sim = cls(grid=g, rope_nodes=2 * g + 2)
                 th = sim.param_space(sc).midpoint()
                 sim.simulate(sc, th)
-                walls = [sim.simulate(sc, th).info["wall_s"] for _ in range(repeats)]
-                r = sim.simulate(sc, th)
+                ros = [sim.simulate(sc, th) for _ in range(repeats)]
+                walls, r = [ro.info["wall_s"] for ro in ros], ros[-1]
                 mesh = f"rope {2 * g + 2}" if rope else f"{g}x{g}"
-                print(f"| {b} | {name} | {mesh} | {r.vertices.shape[1]} | "
-                      f"{statistics.median(walls) / sc.duration:.3f} |", flush=True)
+                rows.append([b, name, mesh, r.vertices.shape[1], round(statistics.median(walls) / sc.duration, 3)])
+    return rows
 
 
 def raw_mujoco(sim, sc, th):
@@ -77,7 +107,6 @@ def raw_pybullet(sim, sc, th):
     n = sim.grid
     v0 = cloth_vertices(sc, L, n, sc.table_z + sim.margin)
     mass = th["mass"] * L * L
-    sub = sim.simulate.__self__ and 1
     m_node = mass / len(v0)
     import math
     sub = min(sim.max_substeps, max(1, math.ceil(math.sqrt(max(th["stretch"], th["bend"]) * sim.timestep ** 2
@@ -112,8 +141,7 @@ def raw_pybullet(sim, sc, th):
 
 
 def overhead(grid, repeats):
-    print(f"\n### softsbi rollout vs a raw engine loop (lift, {grid}x{grid}), median of {repeats}")
-    print("| backend | softsbi s | raw s | overhead |\n|---|---|---|---|")
+    rows = []
     sc = make_scenario("lift")
     for b, raw in (("mujoco-flex", raw_mujoco), ("pybullet-massspring", raw_pybullet)):
         sim = BACKENDS[b](grid=grid)
@@ -126,7 +154,8 @@ def overhead(grid, repeats):
             a.append(time.perf_counter() - t0)
             r.append(raw(sim, sc, th))
         ma, mr = statistics.median(a), statistics.median(r)
-        print(f"| {b} | {ma:.3f} | {mr:.3f} | {100 * (ma / mr - 1):+.1f}% |", flush=True)
+        rows.append([b, round(ma, 3), round(mr, 3), round(100 * (ma / mr - 1), 1)])
+    return rows
 
 
 def _job(ctx, item):
@@ -135,8 +164,7 @@ def _job(ctx, item):
 
 
 def throughput(n, grid):
-    print(f"\n### Throughput, {n} lift rollouts ({grid}x{grid}), LocalExecutor")
-    print("| backend | 1 worker rollouts/s | 2 workers rollouts/s | speed-up |\n|---|---|---|---|")
+    rows = []
     sc = make_scenario("lift")
     for b, cls in BACKENDS.items():
         th = cls(grid=grid).param_space(sc).midpoint()
@@ -151,12 +179,12 @@ def throughput(n, grid):
             rates.append(n / (time.perf_counter() - t0))
             ex.close()
             assert all(r == 0 for r in res), res
-        print(f"| {b} | {rates[0]:.2f} | {rates[1]:.2f} | {rates[1] / rates[0]:.2f}x |", flush=True)
+        rows.append([b, round(rates[0], 2), round(rates[1], 2), round(rates[1] / rates[0], 2)])
+    return rows
 
 
 def memory(n, grid):
-    print(f"\n### Memory over {n} consecutive rollouts (lift, {grid}x{grid}, one instance)")
-    print("| backend | RSS after 10 (MB) | RSS after all (MB) | growth (MB) |\n|---|---|---|---|")
+    rows = []
     sc = make_scenario("lift", n_frames=5, frame_dt=0.05)  # short rollouts: 0.2 s each
     for b, cls in BACKENDS.items():
         sim = cls(grid=grid)
@@ -168,30 +196,5 @@ def memory(n, grid):
                 gc.collect()
                 with open("/proc/self/status") as fh:
                     rss.append(int(next(l for l in fh if l.startswith("VmRSS")).split()[1]) / 1024)
-        print(f"| {b} | {rss[0]:.1f} | {rss[1]:.1f} | {rss[1] - rss[0]:+.1f} |", flush=True)
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--grids", type=int, nargs=2, default=[7, 11])
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--n-throughput", type=int, default=16)
-    ap.add_argument("--n-memory", type=int, default=500)
-    ap.add_argument("--only", nargs="*", default=["speed", "overhead", "throughput", "memory"])
-    a = ap.parse_args()
-    with open("/proc/loadavg") as fh:
-        print(f"load average at start: {fh.read().split()[:3]}")
-    if "speed" in a.only:
-        speed(a.grids, a.repeats)
-    if "overhead" in a.only:
-        overhead(a.grids[0], max(a.repeats, 5))
-    if "throughput" in a.only:
-        throughput(a.n_throughput, a.grids[0])
-    if "memory" in a.only:
-        memory(a.n_memory, 5)
-    with open("/proc/loadavg") as fh:
-        print(f"\nload average at end: {fh.read().split()[:3]}")
-
-
-if __name__ == "__main__":
-    main()
+        rows.append([b, round(rss[0], 1), round(rss[1], 1), round(rss[1] - rss[0], 1)])
+    return rows
