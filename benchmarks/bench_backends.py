@@ -95,48 +95,33 @@ def raw_mujoco(sim, sc, th):
 
 
 def raw_pybullet(sim, sc, th):
-    """The same scene as PybulletMassSpring.simulate, written as a plain pybullet loop (no softsbi checks)."""
-    import os
-    import tempfile
+    """The cloth scene of PybulletMassSpring.simulate (the same model helpers: vertices, spring constants, substeps,
+    world), stepped by a plain pybullet loop: no parameter or plausibility checks, no effects, no Rollout."""
     import pybullet as p
     from softsbi.backends.common import grid_faces
-    from softsbi.backends.pybullet_massspring import cloth_vertices, write_obj
+    from softsbi.backends.pybullet_massspring.model import build_world, cloth_vertices, spring_constants, substeps
+    from softsbi.backends.scenario_build import handle_targets, handle_vertices
     t0 = time.perf_counter()
     cid = sim._client()
-    L = th["scale"]
-    n = sim.grid
-    v0 = cloth_vertices(sc, L, n, sc.table_z + sim.margin)
+    L, n, dt = th["scale"], sim.grid, sim.timestep
+    v0 = cloth_vertices(sc, L, n, sc.table_z + sim.margin, th)
     mass = th["mass"] * L * L
-    m_node = mass / len(v0)
-    import math
-    sub = min(sim.max_substeps, max(1, math.ceil(math.sqrt(max(th["stretch"], th["bend"]) * sim.timestep ** 2
-                                                            / (1.5 * m_node)))))
-    p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=cid)
-    p.setGravity(0, 0, -9.81, physicsClientId=cid)
-    p.setTimeStep(sim.timestep / sub, physicsClientId=cid)
-    box = p.createCollisionShape(p.GEOM_BOX, halfExtents=[3, 3, 0.05], physicsClientId=cid)
-    p.createMultiBody(0, box, basePosition=[0, 0, sc.table_z - 0.05], physicsClientId=cid)
-    fd, path = tempfile.mkstemp(suffix=".obj")
-    os.close(fd)
-    write_obj(path, v0, grid_faces(n))
-    sb = p.loadSoftBody(path, mass=mass, useNeoHookean=0, useMassSpring=1, useBendingSprings=1,
-                        springElasticStiffness=th["stretch"], springBendingStiffness=th["bend"],
-                        springDampingStiffness=sim.damping, springDampingAllDirections=1, frictionCoeff=th["friction"],
-                        useFaceContact=1, collisionMargin=sim.margin, physicsClientId=cid)
-    os.unlink(path)
-    g = p.createMultiBody(0, -1, basePosition=v0[0].tolist(), physicsClientId=cid)
-    p.createSoftBodyAnchor(sb, 0, g, -1, physicsClientId=cid)
-    tgt = sc.gripper + (v0[0] - sc.gripper[0])
-    dt = sim.timestep
+    k_el, k_be = spring_constants(th["bend"], th["stretch"], L / (n - 1))
+    sub = substeps(max(k_el, k_be), dt, mass / len(v0), sim.max_substeps)
+    bodies, grips, starts = build_world(p, cid, sc, v0, grid_faces(n), rope=False, total_mass=mass,
+                                        friction=th["friction"], k_el=k_el, k_be=k_be, k_da=sim.damping,
+                                        margin=sim.margin, step=dt / sub,
+                                        grasps=[[v] for v in handle_vertices(sc, v0, n)])
+    tgt = handle_targets(sc, starts)[0]
     nsteps = int(round(sc.times[-1] / dt))
     fs = set(np.round(sc.times / dt).astype(int).tolist())
     for s in range(1, nsteps + 1):
-        p.resetBasePositionAndOrientation(g, [float(np.interp(s * dt, sc.times, tgt[:, c])) for c in range(3)],
+        p.resetBasePositionAndOrientation(grips[0], [float(np.interp(s * dt, sc.times, tgt[:, c])) for c in range(3)],
                                           [0, 0, 0, 1], physicsClientId=cid)
         for _ in range(sub):
             p.stepSimulation(physicsClientId=cid)
         if s in fs:
-            p.getMeshData(sb, -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=cid)
+            p.getMeshData(bodies["soft"], -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=cid)
     return time.perf_counter() - t0
 
 
