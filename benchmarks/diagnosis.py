@@ -251,6 +251,8 @@ def report(s: dict[str, Any], split: str) -> dict[str, Any]:
                if "old_n" in e else [None, None])
         rows.append([label, e["n"], e["detected"], e["right"], f"{e['right_ci95'][0]:.2f}-{e['right_ci95'][1]:.2f}",
                      *old])
+    if not s["cases"]:
+        return {"tables": [], "notes": [f"No case of the {split} split is stored yet."]}
     notes = [f"{s['cases']} cases ({s['failed']} failed to run). False alarms: "
              + (f"{s['false_alarms']} of {s['by_label']['control']['n']} controls (95% interval "
                 f"{s['false_alarm_ci95'][0]:.2f}-{s['false_alarm_ci95'][1]:.2f})." if "false_alarms" in s else "-"),
