@@ -97,7 +97,7 @@ _SUITES = [
           "benchmarks.bench_estimators_gauss"),
     Suite("estimators-sim", "Estimators and calibration", "the paper's six-method comparison in simulation",
           "A cloth lift (or the rope winding) simulated by mujoco-flex at hidden parameters and seen as noisy "
-          "unordered points; each estimator fits it round by round (the paper's corrected proposals) and 10 "
+          "unordered points; each estimator fits it round by round (the paper's corrected proposals) and "
           "rollouts at posterior samples are compared with the truth's dense clouds (Chamfer, mean over frames).",
           "benchmarks.bench_estimators_sim"),
     Suite("estimators-speed", "Estimators and calibration", "training time of one round",
