@@ -10,5 +10,5 @@ from __future__ import annotations
 #: false-alarm rate a user tolerates (issue 19: at most 5%), not fitted. The posterior-predictive test is
 #: conservative (the measurement was fitted; Bayarri & Berger 2000), so the rate it gives is lower: on the
 #: statistical benchmark's controls 1 of 90 joint p-values is at or below 0.05 (0.03); the next is 0.26.
-#: Until the tenth session it was 0.01 (BENCHMARKS.md, "Tenth session: the verdicts' level").
+#: An earlier rule used 0.01.
 ALPHA = 0.05
