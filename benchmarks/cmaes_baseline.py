@@ -36,7 +36,7 @@ warnings.filterwarnings("ignore", message="Could not import matplotlib")
 import cma  # noqa: E402
 
 from softsbi.core.store import RunStore  # noqa: E402
-from softsbi.perception.pointcloud import rollout_clouds, sensor_view  # noqa: E402
+from softsbi.perception.pointcloud import rollout_clouds  # noqa: E402
 from softsbi.workflows.fit import FitConfig, fit_param_space, metric_sensor, observer_options  # noqa: E402
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, simulate_job  # noqa: E402
 from softsbi.workflows.measurement import load_recording  # noqa: E402
