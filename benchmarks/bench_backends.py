@@ -1,12 +1,8 @@
-"""Backend benchmarks (issue 3): speed per backend x scenario x mesh size, softsbi overhead over a
-raw engine loop, 2-worker throughput and memory over many rollouts.
+"""The backends suite: speed per backend x scenario x mesh size, softsbi's overhead over a raw engine loop,
+throughput with one and two LocalExecutor workers, and memory over many consecutive rollouts.
 
-Usage::
-
-    python benchmarks/bench_backends.py [--grids 7 11] [--repeats 3] [--n-throughput 16] [--n-memory 500]
-
-Prints markdown tables (paste into BENCHMARKS.md). Single-threaded engines; the machine is
-shared, so every figure is the median of ``--repeats`` runs.
+Single-threaded engines; every timing is the median of ``--repeats`` runs (the overhead: of at least 5, interleaved
+with the raw loop so machine load affects both alike).
 """
 from __future__ import annotations
 
@@ -22,25 +18,59 @@ from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import SCENARIOS, make_scenario
 from softsbi.executors.local import LocalExecutor
 
+from benchmarks.runner import table
+
 BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-massspring": PybulletMassSpring}
 
 
+FULL = {"grids": [7, 11], "repeats": 3, "n_throughput": 16, "n_memory": 500}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--grids", type=int, nargs="+", default=[7], help="cloth grids (rope: 2 grid + 2 nodes)")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--n-throughput", type=int, default=8, help="rollouts per throughput measurement")
+    ap.add_argument("--n-memory", type=int, default=100, help="consecutive rollouts of the memory measurement")
+    ap.add_argument("--only", nargs="+", default=["speed", "overhead", "throughput", "memory"],
+                    choices=["speed", "overhead", "throughput", "memory"])
+
+
+def suite(a: argparse.Namespace) -> dict:
+    tables = []
+    if "speed" in a.only:
+        tables.append(table(f"Wall time per simulated second, prior midpoint, median of {a.repeats}",
+                            ["backend", "scenario", "mesh", "vertices", "wall s / sim s"], speed(a.grids, a.repeats)))
+    if "overhead" in a.only:
+        g, r = a.grids[0], max(a.repeats, 5)
+        tables.append(table(f"softsbi rollout against a raw engine loop (lift {g}x{g}), median of {r}",
+                            ["backend", "softsbi s", "raw s", "overhead %"], overhead(g, r)))
+    if "throughput" in a.only:
+        g = a.grids[0]
+        tables.append(table(f"Throughput, {a.n_throughput} lift rollouts ({g}x{g}), LocalExecutor",
+                            ["backend", "1 worker rollouts/s", "2 workers rollouts/s", "speed-up"],
+                            throughput(a.n_throughput, g)))
+    if "memory" in a.only:
+        tables.append(table(f"Memory over {a.n_memory} consecutive rollouts (lift 5x5, 0.2 s each, one instance)",
+                            ["backend", "RSS after 10 (MB)", "RSS after all (MB)", "growth (MB)"],
+                            memory(a.n_memory, 5)))
+    return {"tables": tables}
+
+
 def speed(grids, repeats):
-    print("\n### Wall time per simulated second (s), prior midpoint, median of", repeats)
-    print("| backend | scenario | mesh | vertices | wall s / sim s |\n|---|---|---|---|---|")
+    rows = []
     for b, cls in BACKENDS.items():
         for name in SCENARIOS:
             sc = make_scenario(name)
             rope = name == "winding"
             for g in grids:
-                sim = cls(grid=g, rope_nodes=2 * g + 2) if True else None
+                sim = cls(grid=g, rope_nodes=2 * g + 2)
                 th = sim.param_space(sc).midpoint()
                 sim.simulate(sc, th)
-                walls = [sim.simulate(sc, th).info["wall_s"] for _ in range(repeats)]
-                r = sim.simulate(sc, th)
+                ros = [sim.simulate(sc, th) for _ in range(repeats)]
+                walls, r = [ro.info["wall_s"] for ro in ros], ros[-1]
                 mesh = f"rope {2 * g + 2}" if rope else f"{g}x{g}"
-                print(f"| {b} | {name} | {mesh} | {r.vertices.shape[1]} | "
-                      f"{statistics.median(walls) / sc.duration:.3f} |", flush=True)
+                rows.append([b, name, mesh, r.vertices.shape[1], round(statistics.median(walls) / sc.duration, 3)])
+    return rows
 
 
 def raw_mujoco(sim, sc, th):
@@ -65,55 +95,38 @@ def raw_mujoco(sim, sc, th):
 
 
 def raw_pybullet(sim, sc, th):
-    """The same scene as PybulletMassSpring.simulate, written as a plain pybullet loop (no softsbi checks)."""
-    import os
-    import tempfile
+    """The cloth scene of PybulletMassSpring.simulate (the same model helpers: vertices, spring constants, substeps,
+    world), stepped by a plain pybullet loop: no parameter or plausibility checks, no effects, no Rollout."""
     import pybullet as p
     from softsbi.backends.common import grid_faces
-    from softsbi.backends.pybullet_massspring import cloth_vertices, write_obj
+    from softsbi.backends.pybullet_massspring.model import build_world, cloth_vertices, spring_constants, substeps
+    from softsbi.backends.scenario_build import handle_targets, handle_vertices
     t0 = time.perf_counter()
     cid = sim._client()
-    L = th["scale"]
-    n = sim.grid
-    v0 = cloth_vertices(sc, L, n, sc.table_z + sim.margin)
+    L, n, dt = th["scale"], sim.grid, sim.timestep
+    v0 = cloth_vertices(sc, L, n, sc.table_z + sim.margin, th)
     mass = th["mass"] * L * L
-    sub = sim.simulate.__self__ and 1
-    m_node = mass / len(v0)
-    import math
-    sub = min(sim.max_substeps, max(1, math.ceil(math.sqrt(max(th["stretch"], th["bend"]) * sim.timestep ** 2
-                                                            / (1.5 * m_node)))))
-    p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=cid)
-    p.setGravity(0, 0, -9.81, physicsClientId=cid)
-    p.setTimeStep(sim.timestep / sub, physicsClientId=cid)
-    box = p.createCollisionShape(p.GEOM_BOX, halfExtents=[3, 3, 0.05], physicsClientId=cid)
-    p.createMultiBody(0, box, basePosition=[0, 0, sc.table_z - 0.05], physicsClientId=cid)
-    fd, path = tempfile.mkstemp(suffix=".obj")
-    os.close(fd)
-    write_obj(path, v0, grid_faces(n))
-    sb = p.loadSoftBody(path, mass=mass, useNeoHookean=0, useMassSpring=1, useBendingSprings=1,
-                        springElasticStiffness=th["stretch"], springBendingStiffness=th["bend"],
-                        springDampingStiffness=sim.damping, springDampingAllDirections=1, frictionCoeff=th["friction"],
-                        useFaceContact=1, collisionMargin=sim.margin, physicsClientId=cid)
-    os.unlink(path)
-    g = p.createMultiBody(0, -1, basePosition=v0[0].tolist(), physicsClientId=cid)
-    p.createSoftBodyAnchor(sb, 0, g, -1, physicsClientId=cid)
-    tgt = sc.gripper + (v0[0] - sc.gripper[0])
-    dt = sim.timestep
+    k_el, k_be = spring_constants(th["bend"], th["stretch"], L / (n - 1))
+    sub = substeps(max(k_el, k_be), dt, mass / len(v0), sim.max_substeps)
+    bodies, grips, starts = build_world(p, cid, sc, v0, grid_faces(n), rope=False, total_mass=mass,
+                                        friction=th["friction"], k_el=k_el, k_be=k_be, k_da=sim.damping,
+                                        margin=sim.margin, step=dt / sub,
+                                        grasps=[[v] for v in handle_vertices(sc, v0, n)])
+    tgt = handle_targets(sc, starts)[0]
     nsteps = int(round(sc.times[-1] / dt))
     fs = set(np.round(sc.times / dt).astype(int).tolist())
     for s in range(1, nsteps + 1):
-        p.resetBasePositionAndOrientation(g, [float(np.interp(s * dt, sc.times, tgt[:, c])) for c in range(3)],
+        p.resetBasePositionAndOrientation(grips[0], [float(np.interp(s * dt, sc.times, tgt[:, c])) for c in range(3)],
                                           [0, 0, 0, 1], physicsClientId=cid)
         for _ in range(sub):
             p.stepSimulation(physicsClientId=cid)
         if s in fs:
-            p.getMeshData(sb, -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=cid)
+            p.getMeshData(bodies["soft"], -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=cid)
     return time.perf_counter() - t0
 
 
 def overhead(grid, repeats):
-    print(f"\n### softsbi rollout vs a raw engine loop (lift, {grid}x{grid}), median of {repeats}")
-    print("| backend | softsbi s | raw s | overhead |\n|---|---|---|---|")
+    rows = []
     sc = make_scenario("lift")
     for b, raw in (("mujoco-flex", raw_mujoco), ("pybullet-massspring", raw_pybullet)):
         sim = BACKENDS[b](grid=grid)
@@ -126,7 +139,8 @@ def overhead(grid, repeats):
             a.append(time.perf_counter() - t0)
             r.append(raw(sim, sc, th))
         ma, mr = statistics.median(a), statistics.median(r)
-        print(f"| {b} | {ma:.3f} | {mr:.3f} | {100 * (ma / mr - 1):+.1f}% |", flush=True)
+        rows.append([b, round(ma, 3), round(mr, 3), round(100 * (ma / mr - 1), 1)])
+    return rows
 
 
 def _job(ctx, item):
@@ -135,8 +149,7 @@ def _job(ctx, item):
 
 
 def throughput(n, grid):
-    print(f"\n### Throughput, {n} lift rollouts ({grid}x{grid}), LocalExecutor")
-    print("| backend | 1 worker rollouts/s | 2 workers rollouts/s | speed-up |\n|---|---|---|---|")
+    rows = []
     sc = make_scenario("lift")
     for b, cls in BACKENDS.items():
         th = cls(grid=grid).param_space(sc).midpoint()
@@ -151,12 +164,12 @@ def throughput(n, grid):
             rates.append(n / (time.perf_counter() - t0))
             ex.close()
             assert all(r == 0 for r in res), res
-        print(f"| {b} | {rates[0]:.2f} | {rates[1]:.2f} | {rates[1] / rates[0]:.2f}x |", flush=True)
+        rows.append([b, round(rates[0], 2), round(rates[1], 2), round(rates[1] / rates[0], 2)])
+    return rows
 
 
 def memory(n, grid):
-    print(f"\n### Memory over {n} consecutive rollouts (lift, {grid}x{grid}, one instance)")
-    print("| backend | RSS after 10 (MB) | RSS after all (MB) | growth (MB) |\n|---|---|---|---|")
+    rows = []
     sc = make_scenario("lift", n_frames=5, frame_dt=0.05)  # short rollouts: 0.2 s each
     for b, cls in BACKENDS.items():
         sim = cls(grid=grid)
@@ -168,30 +181,5 @@ def memory(n, grid):
                 gc.collect()
                 with open("/proc/self/status") as fh:
                     rss.append(int(next(l for l in fh if l.startswith("VmRSS")).split()[1]) / 1024)
-        print(f"| {b} | {rss[0]:.1f} | {rss[1]:.1f} | {rss[1] - rss[0]:+.1f} |", flush=True)
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--grids", type=int, nargs=2, default=[7, 11])
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--n-throughput", type=int, default=16)
-    ap.add_argument("--n-memory", type=int, default=500)
-    ap.add_argument("--only", nargs="*", default=["speed", "overhead", "throughput", "memory"])
-    a = ap.parse_args()
-    with open("/proc/loadavg") as fh:
-        print(f"load average at start: {fh.read().split()[:3]}")
-    if "speed" in a.only:
-        speed(a.grids, a.repeats)
-    if "overhead" in a.only:
-        overhead(a.grids[0], max(a.repeats, 5))
-    if "throughput" in a.only:
-        throughput(a.n_throughput, a.grids[0])
-    if "memory" in a.only:
-        memory(a.n_memory, 5)
-    with open("/proc/loadavg") as fh:
-        print(f"\nload average at end: {fh.read().split()[:3]}")
-
-
-if __name__ == "__main__":
-    main()
+        rows.append([b, round(rss[0], 1), round(rss[1], 1), round(rss[1] - rss[0], 1)])
+    return rows

@@ -1,5 +1,5 @@
-"""Linear-Gaussian validation of all estimators (issue 4) on the ``toy-gauss`` simulator
-(tests/plugins/softsbi_toy; analytic posterior), and expected coverage.
+"""The estimators-gauss suite: estimators on the ``toy-gauss`` simulator (tests/plugins/softsbi_toy; analytic
+posterior), and their expected coverage.
 
 (a) Sequential fit through ``run_fit`` (rounds 1..R, each call resumes and adds a round;
     bulk estimators draw every round from the prior): C2ST between the proposal-corrected
@@ -10,22 +10,18 @@
     the truth is inside the 50 % / 90 % highest-density region of q (truncated to the prior
     box, 2000 samples) in the stated fraction of cases when q is calibrated.
 
-Usage::
-
-    nice -n 15 python benchmarks/bench_estimators_gauss.py [--rounds 3 --sims 200] [--train 600 --test 200]
-    # coverage only, toy posterior well inside the prior box / on a bulk lift run's prior sims:
-    nice -n 15 python benchmarks/bench_estimators_gauss.py --skip c2st --toy-sigma 0.01 --out /tmp/cov_toy01
-    nice -n 15 python benchmarks/bench_estimators_gauss.py --skip c2st --lift-store /tmp/bench_lift/nn-bulk/run.zarr \
-        --test 60 --out /tmp/cov_lift
+``--lift-store RUN.zarr`` takes the coverage pool from the prior simulations of a bulk lift run instead of the toy.
 """
 from __future__ import annotations
 
 import argparse
-import json
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.runner import table
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
 
@@ -63,34 +59,47 @@ def coverage(est, u_test, x_test, n=2000, seed=0):
     return {"cov50": float(np.mean(ranks < 0.5)), "cov90": float(np.mean(ranks < 0.9))}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="/tmp/bench_gauss")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--sims", type=int, default=200)
-    ap.add_argument("--train", type=int, default=600)
-    ap.add_argument("--test", type=int, default=200)
-    ap.add_argument("--methods", nargs="+", default=METHODS)
+FULL = {"rounds": 3, "sims": 200, "train": 600, "test": 200, "methods": METHODS}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--out", type=Path, default=None, help="folder of the fits (default: a temporary one)")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--sims", type=int, default=100)
+    ap.add_argument("--train", type=int, default=300)
+    ap.add_argument("--test", type=int, default=100)
+    ap.add_argument("--methods", nargs="+", default=["rkhs", "mdnn"])
     ap.add_argument("--skip", nargs="*", default=[], choices=["c2st", "coverage"])
     ap.add_argument("--toy-sigma", type=float, default=None,
                     help="noise of toy-gauss for the coverage pool (default 0.05: the posterior is wide and "
                          "truncated by the prior box; 0.01 keeps it inside)")
     ap.add_argument("--lift-store", default=None,
                     help="coverage on the prior simulations (round data) of a bulk lift run store instead of toy")
-    args = ap.parse_args()
+
+
+def suite(args: argparse.Namespace) -> dict:
+    if args.out is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            return measure(args, Path(tmp))
+    return measure(args, args.out)
+
+
+def measure(args: argparse.Namespace, out: Path) -> dict:
+    """(a) and (b) of the module's docstring, fits in ``out``."""
     import softsbi_toy.plugin as toy
     from softsbi.workflows.fit import FitConfig, run_fit
     from softsbi.inference.c2st import c2st
     from softsbi.workflows.measurement import simulate_recording
+    from softsbi.core.errors import DependencyMissing
     from softsbi.plugins import registry
 
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results: dict = {"config": vars(args), "c2st": {}, "coverage": {}}
+    results: dict = {"c2st": {}, "coverage": {}}
+    tables, notes = [], []
     T, K = 3, 16
     if "c2st" not in args.skip:
         meas = simulate_recording("toy-gauss", toy.toy_scenario(T), {"a": 0.3, "b": -0.4}, n_points=K, n_dense=64,
-                                    seed=5)
+                                  seed=5)
         mean, cov = toy.analytic_posterior(meas.x[:, 1:, :].mean(1))
         rng = np.random.default_rng(0)
         ref = rng.multivariate_normal(mean, cov, 20000)
@@ -102,10 +111,12 @@ def main() -> None:
                                 n_points=K, n_eval=5, n_dense=64, seed=1, proposal="corrected")  # the paper's BayesSim rounds
                 res = run_fit(out / m, meas, cfg, make_plots=False)
                 th = res.param_space.from_unit(res.posterior.sample(2000, np.random.default_rng(R)))
-                accs.append(c2st(th, ref, seed=R, max_n=2000))
+                accs.append(round(c2st(th, ref, seed=R, max_n=2000), 3))
             results["c2st"][m] = accs
-            print(f"{m:15s} C2ST per round: {' '.join(f'{a:.3f}' for a in accs)}", flush=True)
-            (out / "results.json").write_text(json.dumps(results, indent=1))
+        tables.append(table(f"C2ST against the analytic posterior after each round ({args.sims} simulations per round, "
+                            f"T={T}, K={K}, truth (0.3, -0.4); 0.5 = indistinguishable)",
+                            ["estimator", *[f"round {r}" for r in range(1, args.rounds + 1)]],
+                            [[m, *a] for m, a in results["c2st"].items()]))
     if "coverage" not in args.skip:
         if args.lift_store:
             from softsbi.workflows.fit import _usable
@@ -116,21 +127,20 @@ def main() -> None:
         else:
             u, x = toy_pool(args.train + args.test, T, K, seed=11, sigma=args.toy_sigma)
         reg = registry()
-        names = list(args.methods) + ["sbi-npe"]
-        for m in names:
+        for m in list(args.methods) + ["sbi-npe"]:
+            t0 = time.perf_counter()
             try:
                 est = reg.estimator(m)()
-            except Exception as exc:  # noqa: BLE001 - e.g. sbi missing
-                print(m, "skipped:", exc)
+                est.fit(u[:args.train], x[:args.train], seed=0)
+            except DependencyMissing as exc:  # e.g. sbi-npe without sbi
+                notes.append(f"{m} skipped: {exc}")
                 continue
-            t0 = time.perf_counter()
-            est.fit(u[:args.train], x[:args.train], seed=0)
             cv = coverage(est, u[args.train:], x[args.train:])
             cv["train_s"] = time.perf_counter() - t0
             results["coverage"][m] = cv
-            print(f"{m:15s} coverage 50%: {cv['cov50']:.2f}  90%: {cv['cov90']:.2f}", flush=True)
-            (out / "results.json").write_text(json.dumps(results, indent=1))
-
-
-if __name__ == "__main__":
-    main()
+        pool = "a bulk lift run's prior simulations" if args.lift_store else "toy-gauss prior simulations"
+        tables.append(table(f"Expected coverage of the amortised posterior ({pool}: {args.train} train, {args.test} "
+                            "test; calibrated: 0.50 / 0.90)", ["estimator", "at 50 %", "at 90 %", "train + test s"],
+                            [[m, round(c["cov50"], 3), round(c["cov90"], 3), round(c["train_s"], 1)]
+                             for m, c in results["coverage"].items()]))
+    return {"tables": tables, "notes": notes, "data": results}

@@ -1,4 +1,4 @@
-"""The paper's six-method comparison in simulation (issue 4): cloth lift or rope winding.
+"""The estimators-sim suite: the paper's six-method comparison in simulation, cloth lift or rope winding.
 
 A measurement of ``--scenario lift`` (cloth lift) or ``--scenario wind`` (the paper's
 *winding*: a rope wound onto a spool, partly occluded by it) is simulated with
@@ -10,21 +10,18 @@ clouds (bidirectional Chamfer, mean over frames) -> mean +- std per round and me
 Bulk methods (``sequential = False``) draw every round from the prior, so their round r is
 "bulk with r x sims_per_round simulations".
 
-Usage::
-
-    nice -n 15 python benchmarks/bench_estimators_sim.py --out /tmp/bench_lift [--scenario lift]
-        [--rounds 3] [--sims 100] [--eval 10] [--grid 6] [--points 32] [--methods rkhs mdnn ...]
-
-Writes ``<out>/results.json`` and ``<out>/chamfer_per_round.png`` and prints a table.
+``--figure PATH`` also draws the Chamfer per round and method.
 """
 from __future__ import annotations
 
 import argparse
-import json
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.runner import REPO, table
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
 #: hidden parameters (unit-cube position in the backend's parameter order) per scenario
@@ -33,28 +30,39 @@ TRUTH_UNIT = {"lift": [0.6, 0.4, 0.5, 0.5, 0.6],  # bend, stretch, friction, sca
 TITLE = {"lift": "cloth lift", "wind": "rope winding (spool occludes part of the rope)"}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="/tmp/bench_lift")
+FULL = {"rounds": 3, "sims": 100, "eval": 10, "methods": METHODS}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--out", type=Path, default=None, help="folder of the fits (default: a temporary one)")
     ap.add_argument("--scenario", default="lift", choices=sorted(TRUTH_UNIT))
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--sims", type=int, default=100)
-    ap.add_argument("--eval", type=int, default=10)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--sims", type=int, default=50)
+    ap.add_argument("--eval", type=int, default=5)
     ap.add_argument("--grid", type=int, default=6)
     ap.add_argument("--points", type=int, default=32)
     ap.add_argument("--noise", type=float, default=0.005)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--methods", nargs="+", default=METHODS)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--methods", nargs="+", default=["rkhs", "mdnn"])
     ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args()
+    ap.add_argument("--figure", type=Path, default=None, help="also draw the Chamfer per round into this PNG")
 
+
+def suite(args: argparse.Namespace) -> dict:
+    if args.out is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            return measure(args, Path(tmp))
+    return measure(args, args.out)
+
+
+def measure(args: argparse.Namespace, out: Path) -> dict:
+    """Every method's fit round by round in ``out``; the Chamfer table."""
     from softsbi.scenarios.builtin import make_scenario
     from softsbi.core.errors import PosteriorError
     from softsbi.workflows.fit import FitConfig, run_fit
     from softsbi.workflows.measurement import simulate_recording
     from softsbi.plugins import registry
 
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sc = make_scenario(args.scenario)
     bopts = {"grid": args.grid}
@@ -62,8 +70,9 @@ def main() -> None:
     space = sim.param_space(sc)
     truth = space.as_dict(space.from_unit(np.array(TRUTH_UNIT[args.scenario])))
     meas = simulate_recording("mujoco-flex", sc, truth, backend_options=bopts, n_points=args.points,
-                                n_dense=300, noise=args.noise, seed=7)
-    results = {"truth": truth, "config": vars(args), "methods": {}}
+                              n_dense=300, noise=args.noise, seed=7)
+    results = {"truth": truth, "config": {k: v for k, v in vars(args).items() if k not in ("out", "figure")},
+               "methods": {}}
     for m in args.methods:
         rows = []
         for R in range(1, args.rounds + 1):
@@ -75,7 +84,6 @@ def main() -> None:
                 res = run_fit(out / m, meas, cfg, make_plots=False)
             except PosteriorError as exc:  # e.g. q with no mass in the prior box: the method fails here
                 rows.append({"round": R, "simulations": R * args.sims, "failed": str(exc)})
-                print(f"{m:15s} round {R}: FAILED ({exc})", flush=True)
                 break
             rep = res.report
             rows.append({"round": R, "simulations": R * args.sims,
@@ -83,12 +91,25 @@ def main() -> None:
                          "chamfer_prior_m": rep["chamfer_prior_m"],
                          "train_seconds": rep["per_round"][-1]["train_seconds"], "wall_s": time.perf_counter() - t0,
                          "posterior_mean": rep["posterior_mean"], "posterior_std": rep["posterior_std"]})
-            print(f"{m:15s} round {R}: chamfer {100 * rows[-1]['chamfer_mean_m']:.2f} +- "
-                  f"{100 * rows[-1]['chamfer_std_m']:.2f} cm (prior {100 * rep['chamfer_prior_m']:.2f}), "
-                  f"train {rows[-1]['train_seconds']:.1f} s, wall {rows[-1]['wall_s']:.0f} s", flush=True)
         results["methods"][m] = rows
-        (out / "results.json").write_text(json.dumps(results, indent=2))
-    plot(results, out / "chamfer_per_round.png")
+    figures = []
+    if args.figure is not None:
+        plot(results, args.figure)
+        if args.figure.resolve().is_relative_to(REPO / "docs"):
+            figures.append({"path": str(args.figure.resolve().relative_to(REPO / "docs")),
+                            "caption": f"estimators on {TITLE[args.scenario]}"})
+    cm = lambda r: ("failed" if "failed" in r else  # noqa: E731
+                    f"{100 * r['chamfer_mean_m']:.2f} ± {100 * r['chamfer_std_m']:.2f}")
+    rows = [[m, *[cm(r) for r in rs], *["-"] * (args.rounds - len(rs)),
+             next((round(r["train_seconds"], 1) for r in reversed(rs) if "failed" not in r), None)]
+            for m, rs in results["methods"].items()]
+    prior = next((r["chamfer_prior_m"] for rs in results["methods"].values() for r in rs if "failed" not in r), None)
+    return {"tables": [table(f"{TITLE[args.scenario]}: Chamfer [cm] of {args.eval} rollouts at posterior samples to "
+                             f"the truth's dense clouds (mean ± std) after each round of {args.sims} simulations",
+                             ["estimator", *[f"{r * args.sims} simulations" for r in range(1, args.rounds + 1)],
+                              "train s (last round)"], rows,
+                             note=None if prior is None else f"Prior rollouts: {100 * prior:.2f} cm.")],
+            "figures": figures, "data": results}
 
 
 def plot(results: dict, path: Path) -> None:
@@ -120,6 +141,3 @@ def plot(results: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
-
-if __name__ == "__main__":
-    main()

@@ -1,9 +1,4 @@
-"""Throughput of softsbi's executors on mujoco-flex lift simulations (issue 7).
-
-Usage::
-
-    nice -n 15 python benchmarks/bench_executors.py [--observed ../shared/data/diffcloud_lift/lift_tan]
-        [--n 24] [--modes local1 local2 bare2 ray2] [--json out.json]
+"""The executors suite: throughput of softsbi's executors on mujoco-flex lift simulations.
 
 For each mode, the workers are started and warmed up first (one simulation each, so
 imports and plugin loading are not timed), then ``--n`` prior draws of the lift (the real
@@ -11,13 +6,13 @@ recording's scenario and dense clouds, so each job also computes its Chamfer dis
 a fit) are simulated and timed. Modes: ``localW`` = softsbi's LocalExecutor with W worker
 processes (a pool even for W=1), ``bareW`` = a bare ``multiprocessing.Pool(W)`` (spawn,
 ``imap_unordered``, chunksize 1) running the same ``simulate_job``, ``rayW`` = RayExecutor
-with W workers on a local Ray. Prints a Markdown table (simulations/s, speed-up vs local1,
-peak RSS per worker) and the machine load (``os.getloadavg``).
+with W workers on a local Ray (skipped when ray is not installed). Reports simulations/s, the speed-up
+over local1, the peak RSS per worker and the machine load (``os.getloadavg``) after each mode.
 """
 from __future__ import annotations
 
 import argparse
-import json
+import importlib.util
 import multiprocessing as mp
 import os
 import time
@@ -26,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from softsbi.workflows.fit import FitConfig, SimContext, fit_param_space, observer_options, simulate_job
+
+from benchmarks.runner import REPO, table
 
 _CTX = None
 
@@ -114,31 +111,32 @@ def run_mode(mode: str, ctx, items) -> dict:
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--observed", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"
-                                              / "diffcloud_lift" / "lift_tan"))
+FULL = {"n": 240}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--observed", type=Path, default=REPO.parent / "shared" / "data" / "diffcloud_lift" / "lift_tan",
+                    help="the recording whose scenario and dense clouds the jobs use")
     ap.add_argument("--n", type=int, default=24, help="simulations per mode")
     ap.add_argument("--modes", nargs="+", default=["local1", "local2", "bare2", "ray2"])
-    ap.add_argument("--json", default=None)
-    args = ap.parse_args()
-    ctx, items = build(args.observed, args.n)
-    rows = []
-    for m in args.modes:
-        r = run_mode(m, ctx, items)
-        rows.append(r)
-        print(json.dumps(r), flush=True)
+
+
+def suite(a: argparse.Namespace) -> dict:
+    ctx, items = build(str(a.observed), a.n)
+    rows, notes = [], []
+    for m in a.modes:
+        if m.startswith("ray") and importlib.util.find_spec("ray") is None:
+            notes.append(f"{m} skipped: ray is not installed (pip install 'softsbi[ray]').")
+            continue
+        rows.append(run_mode(m, ctx, items))
     base = {r["mode"]: r for r in rows}
-    print("\n| mode | workers | sims | s | sims/s | vs local1 | peak RSS/worker (MB) | load (1/5/15 min) |")
-    print("|---|---|---|---|---|---|---|---|")
+    out = []
     for r in rows:
-        ratio = r["sims_per_s"] / base["local1"]["sims_per_s"] if "local1" in base else float("nan")
-        load = "/".join(f"{x:.1f}" for x in r["load"])
-        print(f"| {r['mode']} | {r['workers']} | {r['n']} ({r['ok']} ok) | {r['seconds']:.1f} | "
-              f"{r['sims_per_s']:.2f} | {ratio:.2f}x | {r['peak_rss_mb']:.0f} | {load} |")
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=2))
-
-
-if __name__ == "__main__":
-    main()
+        ratio = r["sims_per_s"] / base["local1"]["sims_per_s"] if "local1" in base else None
+        out.append([r["mode"], r["workers"], r["n"], r["ok"], round(r["seconds"], 1), round(r["sims_per_s"], 2),
+                    None if ratio is None else round(ratio, 2), round(r["peak_rss_mb"]),
+                    "/".join(f"{x:.1f}" for x in r["load"])])
+    return {"tables": [table(f"{a.n} prior draws of the {a.observed.name} scenario on mujoco-flex per mode",
+                             ["mode", "workers", "simulations", "ok", "s", "simulations/s", "vs local1",
+                              "peak RSS/worker (MB)", "load after (1/5/15 min)"], out)],
+            "notes": notes, "data": {"rows": rows}}

@@ -1,38 +1,36 @@
-"""Wall time of one mujoco-flex lift rollout (1 s simulated, 25 frames) vs grid size.
+"""The mujoco-lift suite: wall time of one mujoco-flex lift rollout (1 s simulated, 25 frames) against grid size.
 
-Usage::
-
-    python benchmarks/bench_mujoco_lift.py [--grids 6 9 12 15] [--repeats 5]
-
-Prints a table: grid, vertices, median / min wall seconds per rollout (XML build + compile +
-simulate) at the prior midpoint, built-in default scenario, single thread. Stiff corners of the
-prior take up to ~1.5x the midpoint time.
+Median and minimum wall seconds per rollout (XML build + compile + simulate) at the prior midpoint of the built-in
+lift, single thread, after one warm-up rollout. Stiff corners of the prior take up to ~1.5x the midpoint time.
 """
 from __future__ import annotations
 
 import argparse
 import statistics
 
-from softsbi.backends.mujoco_flex import MujocoFlex
-from softsbi.scenarios.builtin import lift_scenario
+from benchmarks.runner import table
+
+FULL = {"grids": [6, 9, 12, 15], "repeats": 5}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--grids", type=int, nargs="+", default=[6, 9, 12, 15])
-    ap.add_argument("--repeats", type=int, default=5)
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--grids", type=int, nargs="+", default=[6, 9])
+    ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--timestep", type=float, default=0.004)
-    args = ap.parse_args()
+
+
+def suite(a: argparse.Namespace) -> dict:
+    from softsbi.backends.mujoco_flex import MujocoFlex
+    from softsbi.scenarios.builtin import lift_scenario
+
     sc = lift_scenario(None)
-    print(f"{'grid':>5} {'verts':>6} {'median_s':>9} {'min_s':>7} {'status':>7}")
-    for g in args.grids:
-        sim = MujocoFlex(grid=g, timestep=args.timestep)
+    rows = []
+    for g in a.grids:
+        sim = MujocoFlex(grid=g, timestep=a.timestep)
         theta = sim.param_space(sc).midpoint()
         sim.simulate(sc, theta)  # warm-up
-        runs = [sim.simulate(sc, theta) for _ in range(args.repeats)]
+        runs = [sim.simulate(sc, theta) for _ in range(a.repeats)]
         walls = [r.info["wall_s"] for r in runs]
-        print(f"{g:>5} {g * g:>6} {statistics.median(walls):>9.3f} {min(walls):>7.3f} {runs[0].status:>7}")
-
-
-if __name__ == "__main__":
-    main()
+        rows.append([g, g * g, round(statistics.median(walls), 3), round(min(walls), 3), runs[0].status])
+    return {"tables": [table(f"One lift rollout (timestep {a.timestep} s), {a.repeats} repeats",
+                             ["grid", "vertices", "median s", "min s", "status"], rows)]}

@@ -1,23 +1,15 @@
-"""Rendering benchmark (issue 6): ms per rendered frame of each backend at 64, 128 and 320 px, and the
-rollout overhead of ``simulate_images`` over ``simulate`` (wipe scenario, grid 9, 31 frames).
+"""The render suite: ms per rendered frame of each backend at a few image sizes, and the rollout overhead of
+``simulate_images`` over ``simulate`` (wipe scenario, grid 9, 31 frames).
 
-Usage::
-
-    nice -n 15 python benchmarks/bench_render.py [--repeats 3] [--sizes 64 128 320] [--no-figures]
-
-Writes ``benchmarks/results/render.json`` and prints a markdown table; also writes the contact
-sheets ``docs/figures/render_wipe_mujoco.png`` and ``docs/figures/render_wipe_pybullet.png``.
-``ms/frame`` is the time inside the per-frame render hook (colour + depth + segmentation, robot
-included) divided by the number of frames, without the once-per-rollout set-up (GL context,
-colours, robot bodies: ``set-up ms``); ``overhead`` is the extra wall time of the whole
-rendered rollout (model/GL set-up included) over a plain ``simulate``. Medians of ``--repeats``
-runs on a shared machine.
+With ``--figures`` it also writes the contact sheets ``docs/figures/render_wipe_mujoco.png`` and
+``docs/figures/render_wipe_pybullet.png``. ``ms/frame`` is the time inside the per-frame render hook (colour + depth
++ segmentation, robot included) divided by the number of frames, without the once-per-rollout set-up (GL context,
+colours, robot bodies: ``set-up ms``); ``overhead`` is the extra wall time of the whole rendered rollout (model/GL
+set-up included) over a plain ``simulate``. Medians of ``--repeats`` runs on a shared machine.
 """
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import statistics
 import time
 from pathlib import Path
@@ -29,6 +21,8 @@ from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import wipe_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.perception.render import save_frames_png
+
+from benchmarks.runner import table
 
 ROOT = Path(__file__).resolve().parents[1]
 BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-massspring": PybulletMassSpring}
@@ -69,18 +63,7 @@ def bench(sizes, repeats, grid=9):
                          "setup_ms": round(1000.0 * statistics.median(setups), 1),
                          "simulate_s": round(t_sim, 3), "simulate_images_s": round(t_img, 3),
                          "overhead_s": round(t_img - t_sim, 3), "overhead_x": round(t_img / t_sim, 2)})
-            print(f"{name} {size}px: {ms:.1f} ms/frame, simulate {t_sim:.2f} s, with images {t_img:.2f} s", flush=True)
     return rows
-
-
-def table(rows):
-    lines = ["| backend | px | ms / frame | set-up ms | simulate s | simulate_images s | overhead |",
-             "|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['backend']} | {r['size']} | {r['ms_per_frame']:.1f} | {r['setup_ms']:.0f} | "
-                     f"{r['simulate_s']:.2f} | {r['simulate_images_s']:.2f} | "
-                     f"+{r['overhead_s']:.2f} s (x{r['overhead_x']:.2f}) |")
-    return "\n".join(lines)
 
 
 def figures(size=192, n=6, grid=9):
@@ -93,29 +76,27 @@ def figures(size=192, n=6, grid=9):
         path = ROOT / "docs" / "figures" / FIGURES[name]
         save_frames_png(ro.rgb[idx], path, ncols=n, labels=[f"t = {ro.times[k]:.2f} s" for k in idx],
                         title=f"{name}: wipe, grid {grid}, prior midpoint, {size} px", scale=1.0)
-        print("wrote", path.relative_to(ROOT))
+        yield {"path": "figures/" + FIGURES[name], "caption": f"{name}: wipe, grid {grid}, prior midpoint"}
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 320])
-    ap.add_argument("--no-figures", action="store_true")
-    a = ap.parse_args()
-    rows = bench(a.sizes, a.repeats)
+FULL = {"sizes": [64, 128, 320], "repeats": 3, "figures": True}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
+    ap.add_argument("--figures", action="store_true", help="write the contact sheets into docs/figures")
+
+
+def suite(a: argparse.Namespace) -> dict:
     import mujoco
     import pybullet
-    out = {"benchmark": "render", "scenario": "wipe (31 frames, 1.5 s)", "repeats": a.repeats,
-           "machine": f"{platform.machine()}, {platform.processor() or 'cpu'}, shared 2-core, niced",
-           "mujoco": mujoco.__version__, "pybullet_api": pybullet.getAPIVersion(), "rows": rows}
-    res = ROOT / "benchmarks" / "results" / "render.json"
-    res.parent.mkdir(parents=True, exist_ok=True)
-    res.write_text(json.dumps(out, indent=1))
-    print("\n" + table(rows))
-    print("\nwrote", res.relative_to(ROOT))
-    if not a.no_figures:
-        figures()
 
-
-if __name__ == "__main__":
-    main()
+    rows = bench(a.sizes, a.repeats)
+    out = [[r["backend"], r["size"], r["ms_per_frame"], r["setup_ms"], r["simulate_s"], r["simulate_images_s"],
+            r["overhead_x"]] for r in rows]
+    return {"tables": [table(f"Rendered wipe rollouts (grid 9, 31 frames), median of {a.repeats}",
+                             ["backend", "px", "ms / frame", "set-up ms", "simulate s", "simulate_images s",
+                              "rendered / plain"], out)],
+            "figures": list(figures()) if a.figures else [],
+            "data": {"rows": rows, "mujoco": mujoco.__version__, "pybullet_api": pybullet.getAPIVersion()}}

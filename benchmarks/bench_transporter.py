@@ -1,4 +1,4 @@
-"""Benchmark: unsupervised Transporter keypoints on wipe frames, robot masked out of the loss vs not.
+"""The transporter suite: unsupervised Transporter keypoints on wipe frames, robot masked out of the loss vs not.
 
 Question: does ignoring the robot/gripper pixels in the reconstruction loss keep the Transporter's
 keypoints (Kulkarni et al. 2019) on the cloth? Both models get the same data, seed, config and budget;
@@ -17,20 +17,13 @@ Metric: fraction of predicted keypoints on held-out rollouts that fall inside th
 dilated by 2 px, square element) and inside the robot mask; training time; inference frames/s at 64 and
 128 px input frames (1 torch thread, model input resized to ``image_size``).
 
-Outputs: ``benchmarks/results/transporter.json``, ``benchmarks/results/transporter_wipe.pt`` (masked
-model), ``docs/figures/transporter_keypoints.png`` (held-out frames, masked model top, unmasked bottom).
-
-Run (shared machine: nice, one thread)::
-
-    nice -n 15 python benchmarks/bench_transporter.py            # ~30 min on 1 CPU core
-    nice -n 15 python benchmarks/bench_transporter.py --quick    # smoke run, ~1 min
+With ``--outputs`` (the full configuration, ~30 min on one core) the masked model is saved as
+``benchmarks/results/transporter_wipe.pt`` and the held-out frames drawn into ``docs/figures/transporter_keypoints.png``
+(masked model top, unmasked bottom); the default configuration is a smoke run (~1 min).
 """
 from __future__ import annotations
 
 import argparse
-import json
-import platform
-import sys
 import time
 from pathlib import Path
 
@@ -38,11 +31,10 @@ import cv2
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from softsbi.core.types import SEG_OBJECT, SEG_ROBOT
+from softsbi.perception.keypoints.transporter import TransporterExtractor, keypoints_in_mask
 
-from softsbi.core.types import SEG_OBJECT, SEG_ROBOT  # noqa: E402
-from softsbi.perception.keypoints.transporter import TransporterExtractor, keypoints_in_mask  # noqa: E402
+from benchmarks.runner import REPO as ROOT, table
 
 RESULTS = ROOT / "benchmarks" / "results"
 FIGURES = ROOT / "docs" / "figures"
@@ -123,7 +115,6 @@ def rendered_sequences(n_rollouts: int, size: int, seed: int, grid: int) -> dict
         iou.append(inter / max(union, 1))
         out["sequence_ids"].append(np.full(len(seg), i))
         out["theta"].append(space.as_array(theta))
-        print(f"  rendered {i + 1}/{n_rollouts} ({time.perf_counter() - t0:.0f} s)", flush=True)
     res = {k: np.concatenate(v) if k != "theta" else np.asarray(v) for k, v in out.items()}
     res["failed"] = failed
     res["names"] = space.names
@@ -193,48 +184,42 @@ def figure(models: dict[str, TransporterExtractor], test: dict[str, np.ndarray],
     cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(rows), cv2.COLOR_RGB2BGR))
 
 
-# ------------------------------------------------------------------ main
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+# ------------------------------------------------------------------ suite
+FULL = {"rollouts": 48, "test_rollouts": 8, "epochs": 40, "max_seconds": 600.0, "outputs": True}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--data", choices=["auto", "rendered", "synthetic"], default="auto")
-    ap.add_argument("--rollouts", type=int, default=48, help="training rollouts (sequences)")
-    ap.add_argument("--test-rollouts", type=int, default=8)
+    ap.add_argument("--rollouts", type=int, default=6, help="training rollouts (sequences)")
+    ap.add_argument("--test-rollouts", type=int, default=2)
     ap.add_argument("--size", type=int, default=64, help="rendered frame size, px")
     ap.add_argument("--grid", type=int, default=9, help="mujoco-flex cloth grid")
-    ap.add_argument("--epochs", type=int, default=40)
-    ap.add_argument("--max-seconds", type=float, default=600.0, help="training budget per model, s")
+    ap.add_argument("--epochs", type=int, default=2)
+    ap.add_argument("--max-seconds", type=float, default=60.0, help="training budget per model, s")
     ap.add_argument("--keypoints", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--suffix", default="", help="appended to the output file names (e.g. _synthetic)")
-    ap.add_argument("--quick", action="store_true", help="smoke run: few rollouts, 2 epochs, no outputs kept")
-    args = ap.parse_args()
-    torch.set_num_threads(1)
-    if args.quick:
-        args.rollouts, args.test_rollouts, args.epochs, args.max_seconds = 6, 2, 2, 60.0
+    ap.add_argument("--outputs", action="store_true", help="save the masked model and the figure")
 
+
+def suite(args: argparse.Namespace) -> dict:
+    torch.set_num_threads(1)
     data = args.data
     if data == "auto":
         data = "rendered" if rendering_available() else "synthetic"
-    print(f"data: {data}", flush=True)
     n_all = args.rollouts + args.test_rollouts
     if data == "rendered":
         ds = rendered_sequences(n_all, args.size, args.seed, args.grid)
-        source = (f"mujoco-flex (grid {args.grid}) simulate_images, scenario wipe, its camera at "
-                  f"{args.size} px, theta ~ uniform/log-uniform prior of MujocoFlex().param_space")
+        source = (f"mujoco-flex (grid {args.grid}) simulate_images of the wipe scenario through its camera at "
+                  f"{args.size} px, parameters from the prior")
     else:
         ds = synthetic_sequences(n_all, 31, args.size, args.seed)
-        source = ("synthetic cv2 sequences (benchmarks/bench_transporter.py:synthetic_sequences): salmon table, "
-                  "green deforming quadrilateral cloth, white arm + black gripper moving independently")
+        source = "synthetic cv2 sequences: table, deforming quadrilateral cloth, arm and gripper moving independently"
     seq = ds["sequence_ids"]
     n_seq = len(np.unique(seq))
     test_ids = np.unique(seq)[-args.test_rollouts:]
     is_test = np.isin(seq, test_ids)
     train = {k: ds[k][~is_test] for k in ("images", "cloth_masks", "robot_masks", "sequence_ids")}
     test = {k: ds[k][is_test] for k in ("images", "cloth_masks", "robot_masks", "sequence_ids")}
-    print(f"frames: train {len(train['images'])} ({n_seq - len(test_ids)} rollouts), test {len(test['images'])} "
-          f"({len(test_ids)} rollouts), {ds['images'].shape[1]}x{ds['images'].shape[2]} px; robot covers "
-          f"{ds['robot_masks'].mean():.1%} of pixels, cloth {ds['cloth_masks'].mean():.1%}", flush=True)
-
     cfg = dict(image_size=64, n_keypoints=args.keypoints, channels=32, hidden=32, std=0.1, epochs=args.epochs,
                batch_size=16, lr=1e-3, patience=6, min_epochs=5, val_fraction=0.15, max_gap=10, mask_dilate=1,
                max_seconds=args.max_seconds, num_threads=1)
@@ -242,49 +227,35 @@ def main() -> None:
     models: dict[str, TransporterExtractor] = {}
     for label, masks in (("masked", train["robot_masks"]), ("unmasked", None)):
         ext = TransporterExtractor(**cfg)
-        t = time.perf_counter()
-        info = ext.fit(train["images"], masks=masks, sequence_ids=train["sequence_ids"], seed=args.seed,
-                       progress=lambda e, m, l: print(f"  [{label}] epoch {e}/{m} train {l:.5f} "
-                                                      f"({time.perf_counter() - t:.0f} s)", flush=True))
+        info = ext.fit(train["images"], masks=masks, sequence_ids=train["sequence_ids"], seed=args.seed)
         ev = evaluate(ext, test)
         ev.update(train_seconds=info["seconds"], epochs=info["epochs"], best_epoch=info["best_epoch"],
                   val_loss=info["val_loss"], train_loss=info["train_loss"],
                   fps_64px=fps(ext, test["images"], 64), fps_128px=fps(ext, test["images"], 128))
-        print(f"  [{label}] {json.dumps(ev)}", flush=True)
         results[label] = ev
         models[label] = ext
-
-    out = {"benchmark": "transporter keypoints in cloth, robot masked vs unmasked in the loss",
-           "data": data, "data_source": source, "n_train_rollouts": int(n_seq - len(test_ids)),
-           "n_test_rollouts": int(len(test_ids)), "frames_per_rollout": int(np.bincount(seq).max()),
-           "frame_size_px": list(ds["images"].shape[1:3]), "config": cfg, "seed": args.seed,
-           "metric": ("fraction of predicted keypoints (N x K) on held-out rollouts inside the cloth mask "
-                      "(segmentation == cloth; exact and dilated by 2 px); in_robot: inside the robot mask"),
-           "fps_note": "predict() on held-out frames resized to 64/128 px, 1 torch thread, batch 64, incl. resize",
-           "cloth_pixel_fraction_test": float(test["cloth_masks"].mean()),
-           "robot_pixel_fraction_test": float(test["robot_masks"].mean()),
-           "results": results, "machine": f"{platform.processor() or platform.machine()}, torch "
-                                          f"{torch.__version__}, 1 thread, shared 2-core host (nice 15)"}
-    if data == "rendered":
-        out["failed_rollouts"] = int(ds["failed"])
-        out["render_seconds"] = float(ds["render_seconds"])
-        out["robot_mask"] = ("segmentation == SEG_ROBOT; for reference, robot_mask_from_depth(depth, camera, "
-                             f"table_z) agrees with it at mean IoU {ds['depth_mask_iou']:.3f}")
-    if args.quick:
-        print(json.dumps(out, indent=1))
-        return
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    suffix = args.suffix
-    (RESULTS / f"transporter{suffix}.json").write_text(json.dumps(out, indent=1))
-    models["masked"].save(RESULTS / f"transporter_wipe{suffix}.pt")
-    r = results
-    figure({f"robot masked out of the loss: {r['masked']['in_cloth']:.0%} of keypoints in cloth "
-            f"({r['masked']['in_cloth_dilated2']:.0%} within 2 px)": models["masked"],
-            f"no mask: {r['unmasked']['in_cloth']:.0%} in cloth ({r['unmasked']['in_cloth_dilated2']:.0%} "
-            f"within 2 px)": models["unmasked"]}, test,
-           FIGURES / f"transporter_keypoints{suffix}.png")
-    print(json.dumps(out, indent=1))
-
-
-if __name__ == "__main__":
-    main()
+    figures = []
+    if args.outputs:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        models["masked"].save(RESULTS / "transporter_wipe.pt")
+        r = results
+        figure({f"robot masked out of the loss: {r['masked']['in_cloth']:.0%} of keypoints in cloth "
+                f"({r['masked']['in_cloth_dilated2']:.0%} within 2 px)": models["masked"],
+                f"no mask: {r['unmasked']['in_cloth']:.0%} in cloth ({r['unmasked']['in_cloth_dilated2']:.0%} "
+                f"within 2 px)": models["unmasked"]}, test, FIGURES / "transporter_keypoints.png")
+        figures.append({"path": "figures/transporter_keypoints.png",
+                        "caption": "held-out frames: robot masked out of the loss (top), no mask (bottom)"})
+    pct = lambda v: round(100 * v, 1)  # noqa: E731
+    what = {"masked": "masked out of the loss", "unmasked": "in the loss"}
+    rows = [[what[label], pct(r["in_cloth"]), pct(r["in_cloth_dilated2"]), pct(r["in_robot"]), round(r["train_seconds"]),
+             r["epochs"], round(r["fps_64px"]), round(r["fps_128px"])] for label, r in results.items()]
+    n_test = len(test_ids)
+    return {"tables": [table(f"{args.keypoints} keypoints on {n_test} held-out rollouts ({n_seq - n_test} for "
+                             f"training, {data} {args.size} px frames)",
+                             ["robot pixels", "% in the cloth", "% within 2 px of the cloth",
+                              "% on the robot", "training s", "epochs", "frames/s at 64 px", "frames/s at 128 px"],
+                             rows, note=f"The cloth covers {test['cloth_masks'].mean():.1%} of the held-out pixels, "
+                                        f"the robot {test['robot_masks'].mean():.1%}.")],
+            "figures": figures,
+            "data": {"data_source": source, "config": cfg, "results": results,
+                     "failed_rollouts": int(ds.get("failed", 0))}}

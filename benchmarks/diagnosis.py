@@ -1,4 +1,4 @@
-"""The diagnosis benchmark: how often ``diagnose`` is right, under a frozen rule, on cases it was not chosen on.
+"""The diagnosis suite: how often ``diagnose`` is right, under a frozen rule, on cases it was not chosen on.
 
 Cases are measurements simulated by mujoco-flex (grid 7) in a built-in scenario (lift, wipe, fling, winding) at random
 parameters (the middle 60% of each prior): *controls* (the nominal model is true; right: ``nothing-missing``), one
@@ -16,17 +16,16 @@ CHECKOUT`` the same case is first diagnosed by the code in CHECKOUT (e.g. the ru
 reuses that nominal fit, so both decide on the same fit.
 
 Usage:
-    python benchmarks/diagnosis.py run --split test --cases 0:36 [--old ../softsbi-old] [--workers 2]
-    python benchmarks/diagnosis.py summary --split test [--markdown]
+    python -m benchmarks run diagnosis --split test --cases 0:36 [--old ../softsbi-old] [--workers 2]
+    python -m benchmarks run diagnosis --split test --cases none    # the summary of the stored rows only
 Rows go to ``benchmarks/results/diagnosis-<split>.jsonl`` (one per case, with commit, machine and command); a case
-already there is skipped, so a run resumes.
+already there is skipped, so a run resumes. The suite's result is the summary of every stored row of the split.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -43,7 +42,9 @@ from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
-RESULTS = Path(__file__).resolve().parent / "results"
+from benchmarks import runner
+
+RESULTS = runner.RESULTS
 SPLIT_SEEDS = {"dev": 0, "test": 1}
 SCENARIOS = ["lift", "wipe", "fling", "winding"]
 EFFECTS = ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope", "sticky-patch", "heavy-hem",
@@ -176,21 +177,13 @@ def run_old(case: dict[str, Any], out: Path, workers: int | None, checkout: Path
     return {**r, "right": right(case["label"], r["verdict"], named if r["verdict"] == "missing-effect" else [], alts)}
 
 
-def provenance(argv: Sequence[str]) -> dict[str, Any]:
-    """Commit, machine kind and command of a row."""
-    repo = Path(__file__).resolve().parents[1]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True).stdout
-    return {"commit": commit.strip(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-            "command": "python benchmarks/diagnosis.py " + " ".join(argv)}
-
-
 def run(split: str, indices: Sequence[int], out: Path, workers: int | None, old: Path | None,
-        argv: Sequence[str], path: Path | None = None) -> None:
+        command: str, path: Path | None = None) -> None:
     """Run the cases of ``indices`` not yet stored in ``path`` (default ``results/diagnosis-<split>.jsonl``);
     append each row as it finishes."""
     path = path or RESULTS / f"diagnosis-{split}.jsonl"
     done = {json.loads(x)["id"] for x in path.read_text().splitlines() if x.strip()} if path.exists() else set()
-    prov = provenance(argv)
+    prov = {**runner.commit(), "machine": runner.machine(), "command": command}
     for i in indices:
         case = make_case(split, i)
         if case["id"] in done:
@@ -203,7 +196,7 @@ def run(split: str, indices: Sequence[int], out: Path, workers: int | None, old:
         with path.open("a") as f:
             f.write(json.dumps({**row, **prov}) + "\n")
         print(json.dumps({k: row.get(k) for k in ("id", "label", "verdict", "named", "right", "wall_s", "error")}),
-              flush=True)
+              file=sys.stderr, flush=True)
 
 
 def interval(k: int, n: int) -> list[float]:
@@ -250,55 +243,55 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def markdown(s: dict[str, Any], split: str) -> str:
-    """The summary as a Markdown section."""
-    lines = [f"### Diagnosis, {split} split", "",
-             f"{s['cases']} cases ({s['failed']} failed to run). False alarms: "
+def report(s: dict[str, Any], split: str) -> dict[str, Any]:
+    """The summary as the suite's tables and notes."""
+    rows = []
+    for label, e in s["by_label"].items():
+        old = ([f"{e['old_right']} of {e['old_n']}", f"{e['old_right_ci95'][0]:.2f}-{e['old_right_ci95'][1]:.2f}"]
+               if "old_n" in e else [None, None])
+        rows.append([label, e["n"], e["detected"], e["right"], f"{e['right_ci95'][0]:.2f}-{e['right_ci95'][1]:.2f}",
+                     *old])
+    if not s["cases"]:
+        return {"tables": [], "notes": [f"No case of the {split} split is stored yet."]}
+    notes = [f"{s['cases']} cases ({s['failed']} failed to run). False alarms: "
              + (f"{s['false_alarms']} of {s['by_label']['control']['n']} controls (95% interval "
                 f"{s['false_alarm_ci95'][0]:.2f}-{s['false_alarm_ci95'][1]:.2f})." if "false_alarms" in s else "-"),
-             "", "| truth | cases | detected | right (new rule) | 95% interval | right (old rules) | 95% interval |",
-             "|---|---|---|---|---|---|---|"]
-    for label, e in s["by_label"].items():
-        old = (f"{e['old_right']} of {e['old_n']} | {e['old_right_ci95'][0]:.2f}-{e['old_right_ci95'][1]:.2f}"
-               if "old_n" in e else "- | -")
-        lines.append(f"| {label} | {e['n']} | {e['detected']} | {e['right']} | {e['right_ci95'][0]:.2f}-"
-                     f"{e['right_ci95'][1]:.2f} | {old} |")
-    lines += ["", "What was called, per truth: " + "; ".join(
-        f"{k}: " + ", ".join(f"{c} {n}" for c, n in v.items()) for k, v in s["confusion"].items()) + ".",
-        "", "Detected against magnitude: " + ", ".join(f"{k}: {d} of {n}" for k, (d, n)
+             "What was called, per truth: " + "; ".join(f"{k}: " + ", ".join(f"{c} {n}" for c, n in v.items())
+                                                       for k, v in s["confusion"].items()) + ".",
+             "Detected against magnitude: " + ", ".join(f"{k}: {d} of {n}" for k, (d, n)
                                                        in s["detection_by_magnitude"].items()) + "."]
     if s.get("score_drop_median") is not None:
-        lines.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
+        notes.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
                      f"cases: {s['score_drop_median'] * 100:.0f}%.")
-    return "\n".join(lines)
+    return {"tables": [runner.table(f"Diagnosis, {split} split: right verdicts per truth",
+                                    ["truth", "cases", "detected", "right (this rule)", "95% interval",
+                                     "right (old rules, same cases)", "95% interval"], rows)],
+            "notes": notes}
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run")
-    r.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="test")
-    r.add_argument("--cases", default="0:18", help="start:stop or i,j,k")
-    r.add_argument("--out", type=Path, default=Path("runs/diagnosis"))
-    r.add_argument("--workers", type=int, default=None)
-    r.add_argument("--old", type=Path, default=None, help="a checkout whose rules diagnose the same cases first")
-    r.add_argument("--results", type=Path, default=None, help="rows file (default results/diagnosis-SPLIT.jsonl)")
-    s = sub.add_parser("summary")
-    s.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="test")
-    s.add_argument("--markdown", action="store_true")
-    s.add_argument("--results", type=Path, default=None)
-    a = ap.parse_args(argv)
-    if a.cmd == "run":
+FULL = {"cases": "0:36"}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="test")
+    ap.add_argument("--cases", default="0:18", help="start:stop or i,j,k: the cases to run where not yet stored "
+                                                   "(none: only summarise the stored rows)")
+    ap.add_argument("--out", type=Path, default=runner.REPO / "runs" / "diagnosis", help="folder of the cases' runs")
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--old", type=Path, default=None, help="a checkout whose rules diagnose the same cases first")
+    ap.add_argument("--results", type=Path, default=None, help="rows file (default results/diagnosis-SPLIT.jsonl)")
+
+
+def suite(a: argparse.Namespace) -> dict[str, Any]:
+    path = a.results or RESULTS / f"diagnosis-{a.split}.jsonl"
+    if a.cases != "none":
         lo, _, hi = a.cases.partition(":")
         idx = range(int(lo), int(hi)) if hi else [int(x) for x in a.cases.split(",")]
-        run(a.split, idx, a.out, a.workers, a.old, argv, a.results)
-        return
-    path = a.results or RESULTS / f"diagnosis-{a.split}.jsonl"
+        run(a.split, idx, a.out, a.workers, a.old, a.command, path)
     rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()] if path.exists() else []
-    s_ = summary(rows)
-    print(markdown(s_, a.split) if a.markdown else json.dumps(s_, indent=2))
-
-
-if __name__ == "__main__":
-    main()
+    s = summary(rows)
+    out = report(s, a.split)
+    commits = Counter(r.get("commit", "unknown") for r in rows)
+    if commits:
+        out["notes"].append("Rows measured at " + ", ".join(f"commit `{c}` ({n})" for c, n in commits.items()) + ".")
+    return {**out, "data": s}

@@ -1,4 +1,4 @@
-"""Repeats vs fabrics for the DiffCloud tables (``real_lift_all.py``, ``fold_table.py``).
+"""Repeats vs fabrics for the DiffCloud tables (the real-lift and fold suites).
 
 Recordings are named ``<fabric>`` and ``<fabric>2`` (a repeat). Posterior means are compared in
 prior-normalised (unit-cube) units over the material parameters only: the placement ``yaw`` is how

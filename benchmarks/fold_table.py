@@ -1,22 +1,15 @@
-"""Fit the 10 DiffCloud fold recordings through the generic path and tabulate.
+"""The fold suite: fit the DiffCloud fold recordings through the generic path and tabulate.
 
-Usage::
-
-    python benchmarks/fold_table.py --out runs/fold [--data ../shared/data/diffcloud_fold]
-        [--recs tan navy2] [--extra --rounds 2 --sims-per-round 60]
-    python benchmarks/fold_table.py --out runs/fold56 --workers 2 --extra --widen
-
-The generic path: ``softsbi import diffcloud DATA OUT/recordings --scenario examples/fold.yaml`` (once),
-then ``softsbi fit --observed OUT/recordings/fold_<rec> --out OUT/<rec>`` with the defaults of
-``softsbi fit`` (plus ``--extra``). No fold-specific code: the task is ``examples/fold.yaml``. Each fit
-is resumable (finished recordings are skipped). Prints a Markdown table (Chamfer prior vs posterior,
-posterior/prior ratio, posterior mean ± std per parameter, wall time, failed simulations), how many
-recordings reach posterior/prior <= 0.70, and the distance between repeats of a fabric vs between
-different fabrics (posterior means in prior-normalised units, material parameters only). The last line is
-one JSON object with, per recording, what limits a fit that misses 0.70 (issue 56): the bounds ``--widen``
-moved, the bounds its posterior still presses (and whether each is a physical limit), the parameters the
-data did not inform, the best fit's Chamfer over the prior's, and the mass of the last round's posterior
-inside the prior box.
+The generic path: ``softsbi import diffcloud DATA OUT/recordings --scenario examples/fold.yaml`` (once), then
+``softsbi fit --observed OUT/recordings/fold_<rec> --out OUT/<rec>`` with the defaults of ``softsbi fit`` (plus
+``--extra``). No fold-specific code: the task is ``examples/fold.yaml``. A fit already finished in ``--out`` is
+reused (resumable). Tables: Chamfer prior vs posterior (headline metric), posterior/prior ratio, posterior mean ± std
+per parameter, wall time, failed simulations; how many recordings reach posterior/prior <= 0.70; with both repeats
+of a fabric and two fabrics, the distance between repeats of a fabric vs between different fabrics (posterior means
+in prior-normalised units, material parameters only). Per recording the data also hold what limits a fit that
+misses 0.70: the bounds ``--widen`` moved, the bounds its posterior still presses (and whether each is a physical
+limit), the parameters the data did not inform, the best fit's Chamfer over the prior's, and the mass of the last
+round's posterior inside the prior box.
 """
 from __future__ import annotations
 
@@ -24,70 +17,78 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from fabric_distances import material_unit_means, repeat_fabric_distances
+from benchmarks.fabric_distances import material_unit_means, repeat_fabric_distances
+from benchmarks.runner import REPO, table
 
 RECS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
-REPO = Path(__file__).resolve().parents[1]
+FULL = {"recs": RECS}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", type=Path, default=Path("runs/fold"))
-    ap.add_argument("--data", type=Path, default=REPO.parent / "shared/data/diffcloud_fold")
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--out", type=Path, default=None, help="folder of the recordings and fits (resumable; default: a "
+                                                           "temporary one)")
+    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "diffcloud_fold")
     ap.add_argument("--scenario", type=Path, default=REPO / "examples" / "fold.yaml")
-    ap.add_argument("--recs", nargs="+", default=RECS)
-    ap.add_argument("--workers", type=int, default=None, help="simulation workers per fit")
-    ap.add_argument("--extra", nargs=argparse.REMAINDER, default=[], help="extra arguments for softsbi fit")
-    a = ap.parse_args()
-    recordings = a.out / "recordings"
+    ap.add_argument("--recs", nargs="+", default=["tan"], choices=RECS)
+    ap.add_argument("--workers", type=int, default=1, help="simulation workers per fit")
+    ap.add_argument("--extra", nargs=argparse.REMAINDER, default=[], help="extra arguments for softsbi fit (last)")
+
+
+def suite(a: argparse.Namespace) -> dict:
+    if a.out is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            return measure(a, Path(tmp))
+    return measure(a, a.out)
+
+
+def measure(a: argparse.Namespace, out: Path) -> dict:
+    recordings = out / "recordings"
     if not recordings.is_dir():
         subprocess.run([sys.executable, "-m", "softsbi.cli", "import", "diffcloud", str(a.data), str(recordings),
                         "--scenario", str(a.scenario)], check=True, stdout=subprocess.DEVNULL)
     for r in a.recs:
-        out = a.out / r
-        if (out / "report.json").exists():
+        if (out / r / "report.json").exists():
             continue
         subprocess.run([sys.executable, "-m", "softsbi.cli", "fit", "--observed", str(recordings / f"fold_{r}"),
-                        "--out", str(out), *a.extra, *(["--workers", str(a.workers)] if a.workers else [])],
+                        "--out", str(out / r), "--workers", str(a.workers), *a.extra],
                        check=True, stdout=subprocess.DEVNULL)
-    reps = {r: json.loads((a.out / r / "report.json").read_text()) for r in a.recs if (a.out / r / "report.json").exists()}
+    reps = {r: json.loads((out / r / "report.json").read_text()) for r in RECS if r in a.recs}
     first = next(iter(reps.values()))
     names = [p["name"] for p in first["parameters"]]
-    print(f"fits: {first['rounds']} rounds x {first['sims_per_round']} simulations, {first['backend']}, "
-          f"{first['estimator']}")
-    print("| recording | Chamfer prior [cm] | Chamfer posterior [cm] | posterior/prior | " + " | ".join(names) +
-          " | wall [s] | failed |")
-    print("|" + "---|" * (6 + len(names)))
-    ratios = []
+    rows, ratios = [], []
     for r, rep in reps.items():
         ratio = rep["chamfer_posterior_m"] / rep["chamfer_prior_m"]
         ratios.append(ratio)
-        cells = [f"{rep['posterior_mean'][n]:.3g} ± {rep['posterior_std'][n]:.2g}" for n in names]
-        print(f"| {r} | {rep['chamfer_prior_m'] * 100:.2f} | {rep['chamfer_posterior_m'] * 100:.2f} | {ratio:.2f} | "
-              + " | ".join(cells) + f" | {rep['wall_time_s']:.0f} | {rep['failed_simulations']} |")
-    print(f"\nposterior/prior Chamfer <= 0.70 on {sum(x <= 0.70 for x in ratios)} of {len(ratios)} recordings")
-    mat_names, u = material_unit_means(reps, names)
+        rows.append([r, round(rep["chamfer_prior_m"] * 100, 2), round(rep["chamfer_posterior_m"] * 100, 2),
+                     round(ratio, 2), *[f"{rep['posterior_mean'][n]:.3g} ± {rep['posterior_std'][n]:.2g}"
+                                        for n in names], round(rep["wall_time_s"]), rep["failed_simulations"]])
+    tables = [table(f"Fits ({first['rounds']} x {first['sims_per_round']} simulations + posterior rollouts, "
+                    f"{first['backend']}, {first['estimator']}): headline Chamfer [cm] and posterior mean ± std",
+                    ["recording", "prior", "posterior predictive", "posterior/prior", *names, "wall s", "failed"],
+                    rows, note=f"posterior/prior <= 0.70 on {sum(x <= 0.70 for x in ratios)} of {len(ratios)} "
+                               "recordings.")]
+    mat, u = material_unit_means(reps, names)
     same, diff = repeat_fabric_distances(u)
+    notes = []
     if same and diff:
-        print(f"distance between posterior means (unit-cube units, {', '.join(mat_names)}): repeats of a "
-              f"fabric {np.mean(same):.3f} (n={len(same)}), different fabrics {np.mean(diff):.3f} (n={len(diff)})")
-    else:
-        print("repeats vs fabrics: needs both repeats of at least one fabric and two fabrics")
-    print(json.dumps({"n": len(ratios), "at_most_0.70": sum(x <= 0.70 for x in ratios),
-                      "recordings": {r: limits(rep) for r, rep in reps.items()}}))
+        notes.append(f"Distance between posterior means (unit-cube units, {', '.join(mat)}): repeats of a fabric "
+                     f"{np.mean(same):.3f} ({len(same)} pairs), different fabrics {np.mean(diff):.3f} ({len(diff)}).")
+    return {"tables": tables, "notes": notes, "data": {r: limits(rep) for r, rep in reps.items()}}
 
 
 def limits(rep: dict) -> dict:
-    """One fit's numbers for issue 56: its posterior/prior Chamfer, what widened, what still limits it."""
+    """One fit's numbers: its posterior/prior Chamfer, what widened, what still limits it."""
     ratio = rep["chamfer_posterior_m"] / rep["chamfer_prior_m"]
     best = rep.get("best_fit") or {}
     con = rep.get("contraction") or {}
     return {"posterior_over_prior": ratio, "at_most_0.70": bool(ratio <= 0.70),
             "chamfer_prior_m": rep["chamfer_prior_m"], "chamfer_posterior_m": rep["chamfer_posterior_m"],
+            "posterior_mean": rep["posterior_mean"], "posterior_std": rep["posterior_std"],
             "best_fit_m": best.get("chamfer_m"),
             "best_fit_over_prior": best["chamfer_m"] / rep["chamfer_prior_m"] if best.get("chamfer_m") else None,
             "widened": [{"after_round": w["after_round"], "before": w["before"], "bounds": w["bounds"]}
@@ -100,7 +101,3 @@ def limits(rep: dict) -> dict:
             "mass_in_box_last_round": (rep.get("per_round") or [{}])[-1].get("mass_in_box"),
             "simulations": rep.get("simulations"), "wall_time_s": rep.get("wall_time_s"),
             "failed_simulations": rep.get("failed_simulations")}
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,12 +1,7 @@
-"""Identifiability table: for each backend x scenario, the mean vertex displacement (cm, over all
-frames and vertices) between a rollout at a parameter's low and its high bound, the others at the
-prior midpoint. Small numbers mean the parameter is hard to infer from that scenario.
-
-Usage::
-
-    python benchmarks/identifiability.py [--grid 7] [--rope-nodes 24]
-
-A parameter a backend does not have prints "-"; a failed rollout prints "fail".
+"""The identifiability suite: for each backend x scenario, the mean vertex displacement (cm, over all frames and
+vertices) between a rollout at a parameter's low and its high bound, the others at the prior midpoint. Small numbers
+mean the parameter is hard to infer from that scenario. A parameter a backend does not have is "-"; a failed rollout
+is "fail".
 """
 from __future__ import annotations
 
@@ -17,6 +12,8 @@ import numpy as np
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import SCENARIOS, make_scenario
+
+from benchmarks import runner
 
 PARAMS = ("bend", "young", "stretch", "friction", "scale", "mass")  # young: the mujoco-flex rope
 
@@ -42,24 +39,19 @@ def table(grid: int = 7, rope_nodes: int = 24) -> list[dict]:
     return rows
 
 
-def render(rows: list[dict]) -> str:
-    head = f"| backend | scenario | {' | '.join(PARAMS)} |\n|---|---|{'---|' * len(PARAMS)}\n"
-    body = ""
-    for r in rows:
-        cells = ["-" if r[n] is None else (r[n] if isinstance(r[n], str) else f"{r[n]:.2f}") for n in PARAMS]
-        body += f"| {r['backend']} | {r['scenario']} | {' | '.join(cells)} |\n"
-    return head + body
+FULL = None
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--grid", type=int, default=7)
     ap.add_argument("--rope-nodes", type=int, default=24)
-    a = ap.parse_args()
-    print(f"mean vertex displacement [cm], low vs high bound, others at midpoint (grid {a.grid}, "
-          f"rope {a.rope_nodes} nodes)")
-    print(render(table(a.grid, a.rope_nodes)))
 
 
-if __name__ == "__main__":
-    main()
+def suite(a: argparse.Namespace) -> dict:
+    rows = table(a.grid, a.rope_nodes)
+    cells = [[r["backend"], r["scenario"], *[r[n] if isinstance(r[n], str) or r[n] is None else round(r[n], 2)
+                                             for n in PARAMS]] for r in rows]
+    return {"tables": [runner.table(f"Mean vertex displacement [cm] between a rollout at a parameter's low and at "
+                                    f"its high bound, the others at the prior midpoint (grid {a.grid}, rope "
+                                    f"{a.rope_nodes} nodes)", ["backend", "scenario", *PARAMS], cells)],
+            "data": {"rows": rows}}

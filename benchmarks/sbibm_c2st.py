@@ -1,8 +1,8 @@
-"""C2ST of softsbi's estimators and of sbi's own NPE on SBI-benchmark tasks, against sbibm's
+"""The sbibm suite: C2ST of softsbi's estimators and of sbi's own NPE on SBI-benchmark tasks, against sbibm's
 reference posteriors, on the same simulations, observations and C2ST.
 
-Needs the .npy/.npz files written by ``benchmarks/sbibm_export.py`` (run in a separate venv
-with sbibm). Amortised, one round: q(theta | x) is trained on the first ``sims`` prior
+Needs the .npy/.npz files written by ``benchmarks/sbibm_export.py`` (run in a separate environment
+with sbibm; ``--ref``). Amortised, one round: q(theta | x) is trained on the first ``sims`` prior
 simulations of sbibm's simulators (the same ones for every estimator); posterior samples are
 drawn at the observation and rejected outside the prior's support (two_moons, slcp have box
 priors; gaussian_linear's prior is Gaussian, unbounded).
@@ -19,18 +19,10 @@ Estimators (``--estimators``):
 C2ST: :func:`softsbi.inference.c2st.c2st` (sbibm's recipe, scikit-learn ``MLPClassifier`` when
 installed), ``--c2st-n`` samples of each (sbibm uses 10k vs 10k; 2k scatters by about +-0.04).
 One torch thread per process (``--threads``).
-
-Usage::
-
-    nice -n 15 python benchmarks/sbibm_c2st.py --ref /tmp/sbibm_ref --budgets 1000 10000 --obs 1 2 3 \
-        --estimators flow mdnn-flat sbi-nsf --out benchmarks/results/sbibm_c2st.json
-
-Rows already in ``--out`` are kept; a row with the same (task, sims, estimator, obs) is replaced.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -39,6 +31,8 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one
     os.environ.setdefault(_v, "1")  # a 2-thread OpenBLAS made one gaussian_linear C2ST 30x slower on a loaded machine
 
 import numpy as np  # noqa: E402
+
+from benchmarks.runner import REPO, table  # noqa: E402
 
 PUBLISHED_NPE = {"two_moons": (0.725, 0.606), "slcp": (0.975, 0.901), "gaussian_linear": (0.694, 0.552)}
 BOX = {"two_moons": (-1.0, 1.0), "slcp": (-3.0, 3.0), "gaussian_linear": None}
@@ -111,53 +105,71 @@ def draw(est, name: str, task: str, xo: np.ndarray, n: int, seed: int) -> np.nda
     return np.concatenate(out)[:n]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--ref", default="/tmp/sbibm_ref")
-    ap.add_argument("--tasks", nargs="+", default=list(PUBLISHED_NPE))
-    ap.add_argument("--budgets", type=int, nargs="+", default=[1000, 10000])
+FULL = {"tasks": list(PUBLISHED_NPE), "budgets": [1000, 10000], "obs": [1, 2, 3],
+        "estimators": ["flow", "mdnn-flat", "sbi-nsf"]}
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--ref", type=Path, default=REPO / "runs" / "sbibm_ref",
+                    help="the folder benchmarks/sbibm_export.py wrote")
+    ap.add_argument("--tasks", nargs="+", default=["two_moons"], choices=list(PUBLISHED_NPE))
+    ap.add_argument("--budgets", type=int, nargs="+", default=[1000])
     ap.add_argument("--obs", type=int, nargs="+", default=[1])
-    ap.add_argument("--estimators", nargs="+", default=["flow", "mdnn-flat", "sbi-nsf"])
+    ap.add_argument("--estimators", nargs="+", default=["flow", "mdnn-flat"], choices=ESTIMATORS)
     ap.add_argument("--c2st-n", type=int, default=2000)
     ap.add_argument("--max-seconds", type=float, default=600.0, help="training budget of softsbi's estimators")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--out", default="/tmp/sbibm_c2st.json")
-    ap.add_argument("--save-samples", default=None, help="folder for the posterior samples (.npy)")
-    args = ap.parse_args()
 
+
+def suite(args: argparse.Namespace) -> dict:
     import torch
 
     from softsbi.inference.c2st import c2st
 
+    if not (args.ref / f"{args.tasks[0]}_sims.npz").exists():
+        raise SystemExit(f"no sbibm reference files in {args.ref}: write them with benchmarks/sbibm_export.py (in an "
+                         "environment with sbibm) and pass --ref")
     torch.set_num_threads(args.threads)
-    ref = Path(args.ref)
-    out = Path(args.out)
-    rows = json.loads(out.read_text()) if out.exists() else []
+    rows = []
     for task in args.tasks:
-        sims = np.load(ref / f"{task}_sims.npz")
+        sims = np.load(args.ref / f"{task}_sims.npz")
         for n in args.budgets:
             for name in args.estimators:
                 theta, x = sims["theta"][:n].astype(np.float64), sims["x"][:n].astype(np.float64)
                 est = make(name, task, args.max_seconds)
                 info = est.fit(theta, x, seed=0)
                 for k in args.obs:
-                    xo = np.load(ref / f"{task}_obs{k}.npy")
+                    xo = np.load(args.ref / f"{task}_obs{k}.npy")
                     s = draw(est, name, task, xo, args.c2st_n, seed=k)
-                    refs = np.load(ref / f"{task}_ref{k}.npy")
-                    if args.save_samples:
-                        Path(args.save_samples).mkdir(parents=True, exist_ok=True)
-                        np.save(Path(args.save_samples) / f"{task}_{name}_{n}_obs{k}.npy", s)
+                    refs = np.load(args.ref / f"{task}_ref{k}.npy")
                     t0 = time.perf_counter()
                     acc = c2st(s, refs, max_n=args.c2st_n, seed=k)
                     pub = PUBLISHED_NPE[task][0 if n == 1000 else 1] if n in (1000, 10000) else None
-                    row = {"task": task, "sims": n, "estimator": name, "obs": k, "c2st": acc,
-                           "published_npe": pub, "train_s": info["seconds"], "epochs": info.get("epochs"),
-                           "c2st_s": time.perf_counter() - t0, "threads": args.threads}
-                    key = (task, n, name, k)
-                    rows = [r for r in rows if (r["task"], r["sims"], r["estimator"], r["obs"]) != key] + [row]
-                    print(json.dumps(row), flush=True)
-                    out.write_text(json.dumps(rows, indent=1))
+                    rows.append({"task": task, "sims": n, "estimator": name, "obs": k, "c2st": acc,
+                                 "published_npe": pub, "train_s": info["seconds"], "epochs": info.get("epochs"),
+                                 "c2st_s": time.perf_counter() - t0, "threads": args.threads})
+    return tables(rows)
 
 
-if __name__ == "__main__":
-    main()
+def tables(rows: list[dict]) -> dict:
+    """The C2ST table (mean over the observations, each observation in brackets) and training seconds, from the
+    rows (one per task, budget, estimator and observation)."""
+    order = list(PUBLISHED_NPE)
+    keys = sorted({(r["task"], r["sims"]) for r in rows}, key=lambda k: (order.index(k[0]), k[1]))
+    ests = list(dict.fromkeys(r["estimator"] for r in rows))
+    out = []
+    for task, n in keys:
+        cells, secs = [], []
+        for e in ests:
+            rs = [r for r in rows if (r["task"], r["sims"], r["estimator"]) == (task, n, e)]
+            cells.append(f"{np.mean([r['c2st'] for r in rs]):.3f} (" + " / ".join(f"{r['c2st']:.3f}" for r in rs)
+                         + ")" if rs else None)
+            secs.append(f"{rs[0]['train_s']:.0f}" if rs else "-")
+        pub = next((r["published_npe"] for r in rows if (r["task"], r["sims"]) == (task, n)), None)
+        out.append([task, n, *cells, pub, " / ".join(secs)])
+    obs = sorted({r["obs"] for r in rows})
+    return {"tables": [table("C2ST against sbibm's reference posterior: mean over observations "
+                             f"{', '.join(map(str, obs))} (each in brackets); lower is better, 0.5 = indistinguishable",
+                             ["task", "simulations", *ests, "sbi NPE published (10 observations, 10k vs 10k)",
+                              "training s: " + " / ".join(ests)], out)],
+            "data": {"rows": rows}}

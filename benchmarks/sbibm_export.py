@@ -1,11 +1,13 @@
-"""Export SBI-benchmark observations and reference posterior samples to .npy (run in a
-SEPARATE venv with sbibm; sbibm pins sbi 0.21, which conflicts with the main venv's sbi).
+"""Export SBI-benchmark observations and reference posterior samples to .npy for the sbibm suite (run in a
+SEPARATE virtual environment with sbibm; sbibm pins sbi 0.21, which conflicts with softsbi's sbi). A standalone
+script, not a suite: it imports sbibm.
 
-Usage::
+Usage (from the repository root)::
 
-    python3 -m venv /tmp/sbibm-venv && /tmp/sbibm-venv/bin/pip install torch==2.13.0 &&
-    /tmp/sbibm-venv/bin/pip install sbibm future torch==2.13.0
-    /tmp/sbibm-venv/bin/python benchmarks/sbibm_export.py --out /tmp/sbibm_ref [--obs 1 2 3]
+    python3 -m venv .venv-sbibm && .venv-sbibm/bin/pip install torch==2.13.0 &&
+    .venv-sbibm/bin/pip install sbibm future torch==2.13.0
+    .venv-sbibm/bin/python benchmarks/sbibm_export.py --out runs/sbibm_ref [--obs 1 2 3]
+    python -m benchmarks run sbibm --ref runs/sbibm_ref
 
 Writes ``<task>_obs<k>.npy`` (1, F) and ``<task>_ref<k>.npy`` (10000, D) for two_moons,
 slcp and gaussian_linear (observations 1-10 by default), plus ``<task>_sims.npz``: ``--n-sims``
@@ -20,7 +22,7 @@ import sbibm
 import torch
 
 ap = argparse.ArgumentParser()
-ap.add_argument("--out", default="/tmp/sbibm_ref")
+ap.add_argument("--out", default="runs/sbibm_ref")
 ap.add_argument("--obs", type=int, nargs="+", default=list(range(1, 11)))
 ap.add_argument("--n-sims", type=int, default=10000)
 args = ap.parse_args()

@@ -34,8 +34,8 @@ _PRIOR_WIDTH = 0.9
 #: width of the slab next to each prior bound, as a fraction of the range in the parameter's own scale
 BOUND_SLAB = 0.05
 #: posterior mass in a bound's slab (:data:`BOUND_SLAB`) from which the posterior "presses against" that bound:
-#: four times what a posterior the data left flat puts there. Chosen on the statistical benchmark's stored fits
-#: (BENCHMARKS.md, "A posterior that presses against a prior bound"): the largest slab mass of any parameter in 24
+#: four times what a posterior the data left flat puts there. Chosen on the statistical benchmark's stored fits:
+#: the largest slab mass of any parameter in 24
 #: correctly specified fits was 0.08; 6 of 111 misspecified nominal fits and 9 of 24 refitted effect parameters
 #: whose hidden value lay within 10% of a bound reached 0.2
 BOUND_MASS_MIN = 0.2

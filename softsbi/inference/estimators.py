@@ -311,8 +311,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
             SBC ranks). ``fit_info["recalibration"]["marginals"]`` holds the scales and shifts.
         recal_margin: ``m`` of ``recalibrate``: the validation coverage at level ``g`` must reach
             ``g + m * sqrt(g (1 - g) / n_val)`` (``m`` binomial standard errors above nominal). Default 0
-            (nominal). Measured on lift and wind (BENCHMARKS.md, issue 16): ``m = 1`` over-widened the
-            default ensemble (test coverage 0.59 / 0.565 at 50 %), ``m = 0`` gave 0.505 / 0.48.
+            (nominal). Measured on simulated lift and winding data (the calibration suite): ``m = 1``
+            over-widened the default ensemble (test coverage 0.59 / 0.565 at 50 %), ``m = 0`` gave 0.505 / 0.48.
         embedding_epochs: train the embedding net end to end for this many epochs only, then freeze it:
             its features of the training and validation simulations are computed once and the MLP and
             head train on until early stopping (the embedding's share of an epoch is then never paid
@@ -326,8 +326,8 @@ class NeuralMDNEstimator(PosteriorEstimator):
             members train only the remaining layers and the head (small: cheap to train, all members at
             once as one stacked network). A deep ensemble of the heads on one learned representation
             (Lakshminarayanan et al. 2017 for the ensemble; sharing the trunk is this project's own
-            variant, measured in BENCHMARKS.md, issue 16). Does not combine with ``stack_members`` or
-            ``embedding_epochs``; needs a network without batch normalisation.
+            variant, measured by the calibration and estimators-speed suites, docs/benchmarks.md). Does not
+            combine with ``stack_members`` or ``embedding_epochs``; needs a network without batch normalisation.
         num_threads: torch threads during fit/posterior_at (restored afterwards), default 1
             (measured: robust on a shared 2-core machine; raise it on an idle many-core one). On an oversubscribed machine (other processes busy) use 1:
             OpenMP spin-waiting made a 2-thread fit ~8x slower than 1 thread there.
@@ -761,9 +761,9 @@ class NeuralMDNEstimator(PosteriorEstimator):
         best epoch and patience). This is a deep ensemble
         (Lakshminarayanan et al. 2017) of the heads only, on one learned representation (a
         "multi-head"/last-layers ensemble; the choice of what to share and the rest of this procedure
-        are this project's own, measured in BENCHMARKS.md, issue 16): the members no longer differ in
-        their embedding, but training them costs a few small MLPs instead of ``E - 1`` embeddings of
-        every point of every frame in every epoch.
+        are this project's own, measured by the calibration and estimators-speed suites, docs/benchmarks.md):
+        the members no longer differ in their embedding, but training them costs a few small MLPs instead of
+        ``E - 1`` embeddings of every point of every frame in every epoch.
 
         Returns:
             ``(members, epochs)``: per trained member ``{"epochs", "best_epoch", "val_loss", "train_loss",
@@ -1129,7 +1129,7 @@ class RKHSEstimator(NeuralMDNEstimator):
     prediction), the other members' heads train together on its frozen trunk's features, then every
     component's covariance is scaled on the validation split. The variant and its rule were fixed on a
     synthetic task before any test case was simulated; on four fresh data sets (lift and wind, 800
-    training / 200 test simulations each, BENCHMARKS.md) it covers the truth 0.46-0.545 / 0.86-0.92 of
+    training / 200 test simulations each, docs/benchmarks.md) it covers the truth 0.46-0.545 / 0.86-0.92 of
     the time at the 50 % / 90 % levels (error <= 0.05 everywhere), where one network gives 0.30-0.40 /
     0.73-0.79 (over-confident) and the previous default (5 independent networks) 0.515-0.63 / 0.905-0.93
     (under-confident at 50 % on both wind sets); it has the best held-out NLL of the three and costs
@@ -1151,7 +1151,7 @@ class RKHSEstimator(NeuralMDNEstimator):
         frame_moments: append each frame's first and raw second point moments (:func:`point_moments`, 9
             numbers: centroid and spread) to its embedding, default False (on the well-specified lift twins
             the posterior-mean rollout was no closer to the truth's own score: 1.24 / 1.07 x the floor
-            against the default's 1.11 / 1.08, three training seeds each).
+            against the default's 1.11 / 1.08, three training seeds each; benchmarks/studies/cmaes_twin.py).
         frame_thickness: append each frame's :func:`~softsbi.inference.summaries.local_thickness` (log10 mm,
             computed from every point) to its embedding, default False. Switched on by a fit whose model has an
             effect that asks for it (``Effect.estimator_options``: point noise), because the random-Fourier-
@@ -1163,14 +1163,14 @@ class RKHSEstimator(NeuralMDNEstimator):
 
     name: ClassVar[str] = "rkhs"
     #: the shared-trunk ensemble (issue 16): 7-8x less training CPU time than 5 independent networks, calibrated
-    #: on four fresh data sets, a better held-out NLL (BENCHMARKS.md); 4.6-6.7x sbi-npe's CPU time at 1500
+    #: on four fresh data sets, a better held-out NLL (docs/benchmarks.md); 4.6-6.7x sbi-npe's CPU time at 1500
     #: simulations. Part of the default.
     SHARED_TRUNK: ClassVar[dict[str, Any]] = {"ensemble_shared": "trunk", "point_subset": 8, "lr": 3e-3, "patience": 8}
     #: every network trained end to end on every point, the base's learning rate and patience: the previous
     #: default's training (with ``ensemble=5, recalibrate=True``) and the baselines' (nn-bulk, bayeszoom-rkhs)
     END_TO_END: ClassVar[dict[str, Any]] = {"ensemble_shared": "none", "point_subset": None, "lr": 1e-3, "patience": 15}
-    #: ``ensemble=5, recalibrate=True`` with :data:`SHARED_TRUNK`: the calibrated default (BENCHMARKS.md,
-    #: "Calibration of the default estimator")
+    #: ``ensemble=5, recalibrate=True`` with :data:`SHARED_TRUNK`: the calibrated default (docs/benchmarks.md,
+    #: calibration)
     EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"ensemble": 5, "recalibrate": True,
                                                 "rkhs_features": 32, "rkhs_sigma": 0.5, "rkhs_learn": True,
                                                 "batch_norm": False, "frame_moments": False, "frame_thickness": False,
@@ -1194,8 +1194,8 @@ class RKHSEstimator(NeuralMDNEstimator):
         The mean of the random Fourier features over a uniform random subset is an unbiased estimate of
         their mean over all K points, so each gradient step sees an unbiased, noisier kernel mean
         embedding at ``k / K`` of the cost (a stochastic embedding; this use of subsampling is this
-        project's own, measured in BENCHMARKS.md, issue 16). Validation and prediction embed every
-        point. ``point_subset`` None or ``>= K``: ``zb`` unchanged."""
+        project's own, measured by the estimators-speed suite, docs/benchmarks.md). Validation and prediction
+        embed every point. ``point_subset`` None or ``>= K``: ``zb`` unchanged."""
         k = self.config.get("point_subset")
         B, T, R, d = zb.shape
         h = self._head_rows()

@@ -58,8 +58,8 @@ Modelling choices, stated (the source does not fix them):
   standard deviations of the k-nearest-neighbour distances) depends on the real depth noise, which the
   noiseless render lacks: on the five first-repeat lift recordings at their fits' posterior means it
   removes edges the real clouds keep (one-sided measured -> simulated Chamfer of the hanging frames 1.95
-  cm with it, 1.85 cm without; the second repeats agree, 1.70 vs 1.52 cm; BENCHMARKS.md "Virtual depth
-  sensor").
+  cm with it, 1.85 cm without; the second repeats agree, 1.70 vs 1.52 cm;
+  ``benchmarks/studies/virtual_sensor.py``).
 * **Resolution.** 160x120 px (intrinsics scaled from 640x480); 320x240 changes the per-phase Chamfer of the
   same benchmark by <= 0.06 cm at 1.5x the cost.
 """

@@ -132,7 +132,7 @@ class FitConfig:
             posterior is ``q`` itself (no importance weights, robust when the rounds narrow
             down fast in many dimensions); ``"corrected"`` (BayesSim, the paper's Alg. 1): from
             round r's posterior, the final posterior ``p/p~ * q``. The default was chosen on the
-            real lift recordings (BENCHMARKS.md, "Truncated proposals as the default"): tuned on
+            real lift recordings (the real-lift suite's recordings and metric): tuned on
             the first repeat of each fabric, checked on the second; runs stored before the field
             existed resume as ``"corrected"``.
         truncation_eps: posterior mass outside the truncated proposal's region.

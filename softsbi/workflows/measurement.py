@@ -24,7 +24,7 @@ N_DENSE = 1000
 #: Real depth clouds contain no cloth lying flat on the table (checked on all 10 DiffCloud
 #: recordings). With the placement yaw inferred, fitting every frame without this sensor model lowers
 #: lift_tan's total Chamfer further (3.35 vs 3.65 cm) but only by covering the early fragments with a
-#: rotated cloth that then hangs crossed to the real one (frames 15-24: 4.77 vs 3.11 cm); BENCHMARKS.md
+#: rotated cloth that then hangs crossed to the real one (frames 15-24: 4.77 vs 3.11 cm)
 DIFFCLOUD_MIN_HEIGHT = 0.01
 
 

@@ -1,7 +1,7 @@
 """One physical meaning per parameter across backends (issue 15 item 6): the bending mapping checked
 on a static case, a clamped strip drooping under its own weight (:func:`cantilever_scenario`).
 
-Calibration (benchmarks/bench_backend_units.py, BENCHMARKS.md "One physical meaning per parameter"):
+Calibration (the backend-units suite, benchmarks/bench_backend_units.py; docs/benchmarks.md):
 ``C_BEND`` of pybullet-massspring's :func:`spring_constants` was set at D = 3e-4 N m; this test checks
 it at D = 2e-4 N m, which it was not fitted to.
 """
@@ -51,7 +51,7 @@ def test_mujoco_cantilever_converges_to_the_analytic_droop():
 def test_mujoco_rope_young_is_the_material_modulus():
     """The mujoco-flex rope's ``young`` is Young's modulus: a clamped rope (0.3 m, 31 nodes, 0.25 m
     overhang, 0.03 kg/m) droops like an Euler-Bernoulli rod of bending rigidity ``E pi r^4 / 4``. Measured
-    (BENCHMARKS.md): 1.13x the analytic droop at E = 1e6 Pa, 1.21x at 1e7 (gravity scaled so the
+    once: 1.13x the analytic droop at E = 1e6 Pa, 1.21x at 1e7 (gravity scaled so the
     analytic droop is 1.8 cm in both). A second moment of area ``r^4`` (no pi/4) would read 1.44-1.54x,
     one of the diameter (16x) 18-19x: both fail. The rope's old name ``bend`` is refused in one line."""
     from softsbi.backends.common import rope_cantilever_scenario, rope_cantilever_tip_deflection

@@ -1,4 +1,4 @@
-"""`softsbi demo` end to end on a tiny budget (the real budget is measured in BENCHMARKS.md)."""
+"""`softsbi demo` end to end on a tiny budget (timings belong to the benchmark suites, docs/benchmarks.md)."""
 import json
 
 import pytest

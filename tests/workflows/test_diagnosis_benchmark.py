@@ -1,12 +1,13 @@
-"""benchmarks/diagnosis.py: the split's cases, the scoring rule and the summary (no simulation)."""
+"""The diagnosis suite (benchmarks/diagnosis.py): the split's cases, the scoring rule and the summary (no
+simulation)."""
 from __future__ import annotations
 
 import sys
 
 from toy_helpers import REPO
 
-sys.path.insert(0, str(REPO / "benchmarks"))
-import diagnosis as bench  # noqa: E402
+sys.path.insert(0, str(REPO))
+from benchmarks import diagnosis as bench  # noqa: E402
 
 
 def test_cases_are_fixed_by_split_and_index_and_cycle_through_every_label():
@@ -46,5 +47,6 @@ def test_the_summary_counts_false_alarms_and_compares_the_old_rule_on_the_same_c
     assert s["by_label"]["wind"]["right"] == 1 and s["by_label"]["wind"]["old_right"] == 0
     assert s["score_drop_median"] == 0.5 and s["detection_by_magnitude"]["0.75-1.00"] == [1, 1]
     assert s["confusion"]["control"] == {"nothing-missing": 19, "wind": 1}
-    text = bench.markdown(s, "test")
-    assert "1 of 20 controls" in text and "| wind | 1 | 1 | 1 |" in text
+    rep = bench.report(s, "test")
+    assert "1 of 20 controls" in rep["notes"][0]
+    assert ["wind", 1, 1, 1] == rep["tables"][0]["rows"][1][:4]

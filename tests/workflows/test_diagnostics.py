@@ -138,7 +138,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert r.test.family == () and "inside its posterior predictive distribution" in summary
     assert (r.rounds, r.sims_per_round) == (2, 75)  # the nominal fit's rounds, half its simulations per round
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
-    # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/hidden_effect.py)
+    # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/diagnosis.py)
     assert chk.energy.chamfer_m == pytest.approx(load_run(hidden).report["chamfer_posterior_m"])
     assert r.chamfer_m < 0.8 * chk.energy.chamfer_m
     # the energy score of the two posterior predictives of check's summaries, in the nominal's scale: the refit's is

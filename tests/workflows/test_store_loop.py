@@ -130,7 +130,7 @@ def test_resume_refuses_changed_settings(tmp_path):
     cfg.seed = 99
     with pytest.raises(SchemaError, match="different settings.*seed"):
         run_fit(tmp_path / "r", meas, cfg, make_plots=False)
-    assert FitConfig().proposal == "truncated"  # the default (BENCHMARKS.md, "Truncated proposals as the default")
+    assert FitConfig().proposal == "truncated"  # the default (chosen on the real lift recordings)
     cfg.seed, cfg.proposal = 0, "corrected"
     with pytest.raises(SchemaError, match="different settings.*proposal"):
         run_fit(tmp_path / "r", meas, cfg, make_plots=False)

@@ -66,8 +66,8 @@ def plate_mapping(bend: float, stretch: float, poisson: float) -> tuple[float, f
     ``E t^3 / (12 (1 - nu^2)) = D``. ``bend`` and ``stretch`` have the same meaning on every backend
     (:func:`softsbi.backends.common.cloth_material_params`). Measured (clamped strip,
     :func:`~softsbi.backends.common.cantilever_scenario`, small deflection): the flex droops 2.0x the
-    Euler-Bernoulli value at a 9x9 grid and 1.5x at 17x17 (discretisation, converging; BENCHMARKS.md
-    "One physical meaning per parameter").
+    Euler-Bernoulli value at a 9x9 grid and 1.5x at 17x17 (discretisation, converging; the backend-units
+    suite, docs/benchmarks.md).
 
     Raises:
         ParameterError: ``bend`` or ``stretch`` not > 0.

@@ -142,7 +142,7 @@ def spring_constants(bend: float, stretch: float, spacing: float, *, c_bend: flo
         (N/m): ``k_be = c_bend * D / h^2``. A distance spring resists bending only at second order
         (no linear stiffness when flat), so no exact constant exists: ``c_bend`` is calibrated by
         measurement (a clamped strip drooping under gravity, ``benchmarks/bench_backend_units.py``,
-        against mujoco-flex; BENCHMARKS.md "One physical meaning per parameter") at one rigidity
+        against mujoco-flex; the backend-units suite of docs/benchmarks.md) at one rigidity
         and checked at the others.
 
     Raises:

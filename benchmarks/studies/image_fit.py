@@ -1,4 +1,12 @@
-"""Image-based real-to-sim on a rendered measurement (issue 6, "Done when", third item).
+"""Study: image-based real-to-sim on a rendered measurement, from camera frames to a posterior.
+
+Conclusion. On a wipe rendered by mujoco-flex at hidden parameters (the built-in overhead camera, 128 px), fits on
+extractor keypoints (rkhs, 3 rounds x 100 simulations, 20 posterior rollouts) lowered the HSV cloth-mask Chamfer from
+0.491 px (prior rollouts) to 0.0145 px with heatmap keypoints (an extractor trained on 640 rendered frames, 0.33 px
+held-out error) and to 0.057 px with Transporter keypoints (the transporter suite's masked model), every hidden value
+inside its 90 % interval. Only the cloth's size is identified from overhead keypoints of a wipe (posterior standard
+deviation of scale 0.05 and 0.24 of the prior's); bend, friction and mass barely change a cloth dragged flat over the
+table as seen from above, so their posteriors stay near the prior. 0 of 640 simulations failed.
 
 Pipeline: the wipe scenario is rendered at hidden parameters the fit does not see -> a keypoint
 extractor (``heatmap`` trained on rendered frames with the projected cloth corners as labels, or
@@ -9,9 +17,10 @@ prior and posterior rollouts.
 
 Usage::
 
-    python benchmarks/image_fit.py --extractor heatmap transporter --rounds 3 --sims 100
+    python -m benchmarks.studies.image_fit --extractor heatmap transporter --rounds 3 --sims 100
 
-Writes ``benchmarks/results/image_fit.json`` and ``docs/figures/image_fit_<extractor>.png``.
+Writes ``OUT/image_fit.json`` and ``docs/figures/image_fit_<extractor>.png``; the extractor checkpoints are read from
+(or trained into) ``benchmarks/results``.
 """
 from __future__ import annotations
 
@@ -22,14 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
 FIGS = ROOT / "docs" / "figures"
 
 #: hidden parameter values as prior (unit-cube) positions
 TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}
 
-#: extractor checkpoints (the transporter's is trained by benchmarks/bench_transporter.py on the same
+#: extractor checkpoints (the transporter's is trained by the transporter suite's --full on the same
 #: rendered wipe scene at 64 px, robot masked out of its loss; it resizes 128 px frames to 64 itself)
 CHECKPOINTS = {"heatmap": "heatmap_wipe_sim.pt", "transporter": "transporter_wipe.pt"}
 
@@ -91,7 +100,7 @@ def main() -> None:
     ap.add_argument("--sims", type=int, default=100)
     ap.add_argument("--n-eval", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=Path("/tmp/softsbi_image_fit"))
+    ap.add_argument("--out", type=Path, default=Path("runs/image_fit"))
     ap.add_argument("--retrain", action="store_true", help="train extractors even if a checkpoint exists")
     ap.add_argument("--eval-only", action="store_true", help="only evaluate the extractors on held-out renders")
     args = ap.parse_args()
@@ -109,7 +118,7 @@ def main() -> None:
     space = registry().simulator("mujoco-flex")().param_space(sc)
     truth = space.as_dict(space.from_unit(np.array([TRUTH_UNIT[n] for n in space.names])))
     meas = render_recording("mujoco-flex", sc, truth, size=args.size)
-    out_json = RESULTS / "image_fit.json"
+    out_json = args.out / "image_fit.json"
     results = json.loads(out_json.read_text()) if out_json.exists() else {}
     data = None
     for kind in args.extractor:

@@ -1,4 +1,15 @@
-"""The cloth before the lift (issue 17, item 5): what the real pre-lift frames show of the cloth on the table.
+"""Study: the cloth before the lift, what the real pre-lift frames show of the cloth on the table.
+
+Conclusion. On the ten DiffCloud lift recordings, with the cloth placed where the default (truncated) fits put it,
+the sensor saw 0-20 % of the cloth lying on the table before the lift, and 0 % on six of ten: a flat cloth lies
+below DiffCloud's crop plane (the table), as the virtual depth sensor reproduces. Most frame-0 points are not the
+cloth but scene clutter (a streak beside the gripper at the same place in six recordings made together, whatever the
+fabric), gone by frame 5-10. The raised cloth that is seen (a 1.7 cm curl over 13 % of tan's footprint, a 0.4 cm
+wrinkle on tan2, a patch 2 cm up on paper and paper2) lies in frames 0-9, which the headline metric leaves out,
+under a fifth of the cloth. So the lift scenario has no flatness or wrinkle parameter; the placement the data
+support is the yaw, inferred from the hanging frames. Run it again on a recording whose pre-lift cloud shows the
+cloth (another crop, a camera closer to the table); such a cloud could enter as a mesh cloth's initial shape
+(``placement: {rest: mesh}``).
 
 For each DiffCloud lift recording, frame 0 (the gripper has not moved: the path's first two frames are
 equal) is compared with where the scenario puts the cloth: the square of side ``scale`` whose diagonal
@@ -16,8 +27,8 @@ nominal placement (side 0.278 m, yaw 0). Per recording it reports
 * the fraction of frame 5's and frame 10's points within 0.5 cm of a frame-0 point (static fragments that
   stay where they were, e.g. scene clutter, vs fragments that leave with the cloth).
 
-Usage:
-    python benchmarks/prelift_evidence.py [--fits /work/bench_runs/trunc] [--figure docs/figures/prelift_frame0.png]
+Usage (``--fits``: e.g. the real-lift suite's ``--full --out DIR``):
+    python -m benchmarks.studies.prelift_evidence [--fits DIR] [--figure docs/figures/prelift_frame0.png]
 """
 from __future__ import annotations
 
@@ -31,7 +42,7 @@ from scipy.spatial import cKDTree
 
 from softsbi.scenarios.builtin import NOMINAL_SIZE, lift_scenario, placed_direction
 
-DATA = Path(__file__).resolve().parents[2] / "shared/data/diffcloud_lift"
+DATA = Path(__file__).resolve().parents[3] / "shared/data/diffcloud_lift"
 RECS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
 
 
