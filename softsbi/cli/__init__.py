@@ -549,15 +549,6 @@ def _print_calibration(o: Output, out: dict[str, Any]) -> None:
               if bad and len(bad) < len(s["parameters"]) else ""))
 
 
-#: magnitude below which an estimate prints as 0: floating-point residue of an effect switched off (exactly 0),
-#: far below any physical parameter's resolution in SI units
-ZERO_PRINTED = 1e-12
-
-
-def _value(v: float) -> str:
-    return "0" if abs(v) < ZERO_PRINTED else f"{v:.3g}"
-
-
 @app.command()
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
@@ -567,7 +558,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                           "refit)"),
              refit_rounds: Optional[int] = typer.Option(None, help="rounds of a refit (default: the run's)"),
              refit_sims: Optional[int] = typer.Option(None, help="simulations per round of a refit "
-                                                                 "(default: half the run's)"),
+                                                                 "(default: the run's)"),
              k_se: float = typer.Option(D.K_SE, "--k-se", help="standard errors by which a refit's energy score "
                                                                "must fall to count, and within which two refits tie"),
              n_null: int = typer.Option(D.N_NULL, "--n-null", help="posterior-predictive simulations the null "

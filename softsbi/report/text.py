@@ -80,12 +80,21 @@ def check_summary(c: CheckResult) -> str:
     return s
 
 
+#: magnitudes below this print as 0: a switched-off effect's estimate at its off value (8.7e-22 is rounding)
+ZERO_PRINTED = 1e-12
+
+
+def num(v: float) -> str:
+    """A parameter value for people: three significant digits, ``"0"`` below :data:`ZERO_PRINTED`."""
+    return "0" if abs(v) < ZERO_PRINTED else f"{v:.3g}"
+
+
 def estimate_words(e: Estimate) -> str:
     """``"wind_y = 0.81 m/s (90% interval 0.62 to 0.97 m/s)"``."""
     u = unit_suffix(e.unit)
-    s = f"{e.name} = {e.mean:.3g}{u}"
+    s = f"{e.name} = {num(e.mean)}{u}"
     if e.q05 is not None and e.q95 is not None:
-        s += f" (90% interval {e.q05:.3g} to {e.q95:.3g}{u}"
+        s += f" (90% interval {num(e.q05)} to {num(e.q95)}{u}"
         s += ", not informed by the data)" if e.informed is False else ")"
     return s
 

@@ -34,9 +34,6 @@ VIEW_N_EVAL = 5
 #: an improvement, a two-sided one at about 5% for a tie; the standard errors are the scores' Monte-Carlo ones)
 CONFIRM = 2
 K_SE = 2.0
-#: a refit's simulations per round as a share of the nominal fit's (its rounds are the nominal's): a refit starts
-#: from a model the nominal fit has already narrowed, and two refits at half the budget cost about one fit
-REFIT_SIMS_SHARE = 0.5
 #: the demo's budget per fit
 DEMO_ROUNDS = 3
 DEMO_SIMS = 150

@@ -16,6 +16,17 @@ FLEXIBLE = ["toy-wind", "toy-drift", "toy-rise"]
 MAGNET = "toy-magnet"
 
 
+@pytest.fixture(scope="module", autouse=True)
+def shifts():
+    """The toy shifts loaded as an effect file is tried (``SOFTSBI_PLUGINS``), for this module only."""
+    from softsbi.plugins.manager import registry
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SOFTSBI_PLUGINS", "softsbi_toy.shifts")
+        registry.cache_clear()
+        yield
+    registry.cache_clear()
+
+
 @pytest.fixture(scope="module")
 def magnet_run(tmp_path_factory):
     """A nominal fit of a toy measurement with a hidden magnet (pull 0.3 m at mid-motion; 8 frames with 2 cm of noise

@@ -47,10 +47,12 @@ def test_generic_force_terms_give_the_third_verdict_with_where_and_how_much(tmp_
     assert res.frames_flagged and len(res.worst_regions) == 2
     # the wind blows along +y: the measured cloth is displaced that way
     assert res.direction == "+y" and res.centroid_offset_cm[1] > 0
-    # without the flag the same candidates: the wind is refitted and its refit explains the misfit
+    # without the flag the same candidates: the wind is refitted and its refit explains the misfit (recompute: the
+    # stored check keeps the candidates' flags as they were)
     monkeypatch.setattr(Wind, "generic", False)
     monkeypatch.setattr(ExtraDamping, "generic", False)
-    d2 = diagnose_run(run, effects=["wind", "extra-damping"], workers=1, confirm=1, refit_rounds=2, refit_sims=60)
+    d2 = diagnose_run(run, effects=["wind", "extra-damping"], workers=1, confirm=1, refit_rounds=2, refit_sims=60,
+                      recompute=True)
     assert d2.verdict == "missing-effect" and d2.decision.named == ("wind",)
     assert diagnosis_summary(d2).startswith("Missing physics effect: wind")
 
@@ -204,7 +206,7 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
     class _Stop(Exception):
         pass
 
-    def fake_fit(out, rec, cfg):
+    def fake_fit(out, rec, cfg, **kwargs):
         seen["out"], seen["cfg"] = out, cfg
         raise _Stop
 
@@ -223,8 +225,8 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
     cfg = seen["cfg"]
     assert seen["out"] == tmp_path / "refit-point-noise"
     assert cfg.proposal == "truncated" == dg.REFIT_PROPOSAL and cfg.sensor_draws == 0
-    # by default the nominal fit's rounds at half its simulations per round
-    assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 20)
+    # by default the nominal fit's budget
+    assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 40)
     with pytest.raises(_Stop):
         dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], None, rounds=3, sims_per_round=40)
     assert seen["out"] == tmp_path / "refit-wind+point-noise"

@@ -136,7 +136,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     # the refit with the named effect passes check's test at the diagnosis' level, over the family less its effect
     assert r.effects == ("toy-wind",) and r.adequate and r.test.alpha == d.alpha and r.test.p_value > d.alpha
     assert r.test.family == () and "inside its posterior predictive distribution" in summary
-    assert (r.rounds, r.sims_per_round) == (2, 75)  # the nominal fit's rounds, half its simulations per round
+    assert (r.rounds, r.sims_per_round) == (2, 150)
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
     # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/diagnosis.py)
     assert chk.energy.chamfer_m == pytest.approx(load_run(hidden).report["chamfer_posterior_m"])

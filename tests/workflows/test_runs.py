@@ -117,12 +117,11 @@ def test_a_posterior_predictive_worse_than_the_prior_says_what_it_means(toy_run,
 
 
 def test_estimates_of_switched_off_effects_print_as_zero():
-    from softsbi.cli import diagnosis_table_rows
-    entry = {"effect": "table-unseen", "kind": "sensor", "statistic": 1.0, "explained_fraction": 0.01,
-             "estimate": {"unseen_height": 8.74e-22, "hem_density": 1.29e-14, "wind_x": 0.0123}, "p_value": 0.5,
-             "n_exceed": 10, "n_null": 30}
-    rows = diagnosis_table_rows({"ranking": [entry], "significant": [], "confirmed": []})
-    assert rows[0][5] == "unseen_height=0, hem_density=0, wind_x=0.0123"
+    from softsbi.core.results import Estimate
+    from softsbi.report.text import estimate_words
+    assert estimate_words(Estimate("unseen_height", "m", 8.74e-22, 0.0, 1.29e-14)) == \
+        "unseen_height = 0 m (90% interval 0 to 0 m)"
+    assert estimate_words(Estimate("wind_x", "m/s", 0.0123)) == "wind_x = 0.0123 m/s"
 
 
 def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, monkeypatch):

@@ -70,67 +70,13 @@ class ToyWind(Effect):
         return ParamSpace([Param("wind", 0.0, 0.5, "m", description="toy wind displacement at the end")])
 
 
-class _Shift(Effect):
-    """A toy effect that toy-gauss applies by name (it has no door of its own, so no other backend is offered it):
-    the patch moves by ``amount * profile(s_t)`` along ``axis`` (``s_t = t / (T - 1)``)."""
-
-    backends = ("toy-gauss",)
-    axis: int = 0
-    unit_name: str = "amount"
-
-    def profile(self, s: np.ndarray) -> np.ndarray:
-        return s
-
-    def param_space(self) -> ParamSpace:
-        return ParamSpace([Param(self.unit_name, 0.0, 0.5, "m", description=self.description)])
-
-    def shift(self, T: int, theta) -> np.ndarray:
-        """``(T, 3)`` displacement of the patch (m)."""
-        out = np.zeros((T, 3))
-        out[:, self.axis] = theta[self.unit_name] * self.profile(np.linspace(0, 1, T) if T > 1 else np.zeros(1))
-        return out
-
-
-class ToyDrift(_Shift):
-    """Toy: the patch drifts along +y in proportion to time."""
-
-    name = "toy-drift"
-    description = "toy effect: shifts the patch by drift * t/T along y"
-    axis, unit_name = 1, "drift"
-
-
-class ToyRise(_Shift):
-    """Toy: the patch rises along +z in proportion to time."""
-
-    name = "toy-rise"
-    description = "toy effect: shifts the patch by rise * t/T along z"
-    axis, unit_name = 2, "rise"
-
-
-class ToyMagnet(_Shift):
-    """Toy: a magnet passing overhead lifts the patch mid-motion, ``pull * sin(pi t/T)`` along z; no combination of
-    the other toy effects (linear in time) reproduces it."""
-
-    name = "toy-magnet"
-    description = "toy effect: lifts the patch by pull * sin(pi t/T) along z"
-    axis, unit_name = 2, "pull"
-
-    def profile(self, s: np.ndarray) -> np.ndarray:
-        return np.sin(np.pi * s)
-
-
-#: the shifts toy-gauss applies by name
-SHIFTS = {e.name: e for e in (ToyDrift, ToyRise, ToyMagnet)}
-
-
 class ToyGauss(Simulator):
-    """Linear-Gaussian toy simulator with an analytic posterior; its own effects are ``toy-wind`` and the shifts
-    ``toy-drift``, ``toy-rise`` and ``toy-magnet`` (applied by name), and it applies any effect's observation
-    transform (the built-in sensor effects)."""
+    """Linear-Gaussian toy simulator with an analytic posterior; its own effect is ``toy-wind``, and it applies any
+    effect's observation transform (the built-in sensor effects, the shifts of :mod:`softsbi_toy.shifts`)."""
 
     name = "toy-gauss"
     scenarios = ("toy", "lift")
-    effects = ("toy-wind", *SHIFTS)
+    effects = ("toy-wind",)
     effect_kinds = ("observation",)
 
     def __init__(self, sigma: float = SIGMA):
@@ -148,9 +94,6 @@ class ToyGauss(Simulator):
         space = self.param_space(scenario)
         if "toy-wind" in effects:
             space = space + ToyWind().param_space()
-        for e in effects:
-            if e in SHIFTS:
-                space = space + SHIFTS[e]().param_space()
         for e in plan.effects:
             space = space + e.param_space()
         vals = space.check({k: v for k, v in theta.items() if k in space.names}, within="limits")
@@ -182,9 +125,6 @@ class ToyGauss(Simulator):
         c = design(T) @ th + rng.normal(0, self.sigma, (T, 3))
         if "toy-wind" in effects:
             c[:, 0] += vals["wind"] * (np.linspace(0, 1, T) if T > 1 else 0)
-        for e in effects:
-            if e in SHIFTS:
-                c += SHIFTS[e]().shift(T, vals)
         sq = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
         verts = c[:, None, :] + sq[None]
         faces = np.array([[0, 1, 2], [0, 2, 3]])
@@ -200,4 +140,4 @@ def softsbi_simulators():
 
 @hookimpl
 def softsbi_effects():
-    return [ToyWind, ToyDrift, ToyRise, ToyMagnet]
+    return [ToyWind]
