@@ -16,6 +16,7 @@ from softsbi.backends.pybullet_massspring import PybulletMassSpring
 THETA = {"stretch": 100.0, "friction": 0.5, "scale": 0.2, "mass": 0.2}
 
 
+@pytest.mark.slow
 def test_cantilever_both_engines_agree_at_a_check_rigidity():
     """Tip droop at D = 2e-4 N m (9.81 m/s^2, 10 s): mujoco-flex 8.8 cm, pybullet-massspring 8.2 cm; the
     engines must agree within 0.7 cm (PyBullet with C_BEND = 1 is 0.8 cm off, with C_BEND = 200 2.1 cm:
@@ -32,6 +33,7 @@ def test_cantilever_both_engines_agree_at_a_check_rigidity():
     assert abs(out["mj"][0] - out["pb"][0]) < 0.007, out
 
 
+@pytest.mark.slow
 def test_mujoco_cantilever_converges_to_the_analytic_droop():
     """Small deflection (g = 1 m/s^2, D = 1e-3 N m: analytic 2.5 mm): mujoco-flex droops 2.0x the
     Euler-Bernoulli value at 9x9 and 1.5x at 17x17 (measured); refining must move it towards it."""

@@ -148,6 +148,7 @@ def test_implausible_detected(scenario, theta):
     assert r.reason
 
 
+@pytest.mark.slow
 def test_prior_corners_stable(scenario):
     """Every corner of the prior box runs without divergence at the default options."""
     sim = MujocoFlex()

@@ -59,9 +59,10 @@ def test_simulation_loads_no_opengl_even_with_mujoco_gl_osmesa_and_no_library():
     assert r.stdout.strip() == "True [] []", r.stdout
 
 
-@pytest.mark.parametrize("mujoco_gl, expected", [(None, "apt-get install -y libosmesa6"),
-                                                 ("osmesa", "apt-get install -y libosmesa6"),
-                                                 ("bogus", "MUJOCO_GL='bogus'")])
+@pytest.mark.parametrize("mujoco_gl, expected", [
+    (None, "apt-get install -y libosmesa6"),
+    pytest.param("osmesa", "apt-get install -y libosmesa6", marks=pytest.mark.slow),
+    pytest.param("bogus", "MUJOCO_GL='bogus'", marks=pytest.mark.slow)])
 def test_a_render_request_without_gl_is_one_clear_line(tmp_path, mujoco_gl, expected):
     r = _softsbi(["simulate", "--backend-opt", "grid=5", "--render", "32", "--out", str(tmp_path / "r")],
                  _env(mujoco_gl=mujoco_gl), timeout=120)
@@ -84,6 +85,7 @@ def test_bogus_mujoco_gl_does_not_stop_simulation(tmp_path):
     assert json.loads(r.stdout)["status"] == 0
 
 
+@pytest.mark.slow
 def test_demo_quick_runs_with_every_gl_library_blocked(tmp_path):
     """README command 1's job on a machine without any OpenGL (a small budget; the full demo is
     timed in the closing note and run by CI through the README)."""
@@ -96,6 +98,7 @@ def test_demo_quick_runs_with_every_gl_library_blocked(tmp_path):
     assert (tmp_path / "demo" / "nominal" / "report.json").exists()
 
 
+@pytest.mark.slow
 def test_an_environment_fault_stores_nothing_as_failed_and_the_fit_resumes(tmp_path):
     from softsbi.scenarios.builtin import lift_scenario
     from softsbi.workflows.fit import FitConfig, run_fit

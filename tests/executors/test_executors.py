@@ -59,6 +59,7 @@ def ray_cluster():
 
 # ---------------------------------------------------------------------------------------- local
 
+@pytest.mark.slow
 def test_local_worker_crash_is_retried_and_hang_times_out(tmp_path, monkeypatch):
     monkeypatch.setenv("SOFTSBI_TOY_CRASH_ONCE", str(tmp_path))
     monkeypatch.setenv("SOFTSBI_TOY_HANG_ABOVE", "0.8")
@@ -84,6 +85,7 @@ def test_local_worker_crash_is_retried_and_hang_times_out(tmp_path, monkeypatch)
         ex.close()
 
 
+@pytest.mark.slow
 def test_fit_round_completes_with_crashing_simulations_marked_failed(tmp_path, monkeypatch):
     """Simulations whose worker dies on every attempt are stored as STATUS_ERROR with the
     reason; the round and the fit complete with the others."""
@@ -214,6 +216,7 @@ def test_cli_fit_workers_zero_and_ray_address_without_ray_executor(tmp_path):
 
 # ---------------------------------------------------------------------------------------- ray
 
+@pytest.mark.slow
 @needs_ray
 def test_ray_crash_is_retried_and_hang_times_out(ray_cluster, tmp_path):
     from softsbi.executors.ray_executor import RayExecutor
@@ -246,6 +249,7 @@ run_fit({out!r}, toy_measurement(), cfg, make_plots=False)
 """
 
 
+@pytest.mark.slow
 @needs_ray
 def test_ray_fit_resumes_after_sigkill_of_the_driver(ray_cluster, tmp_path, kill_when_stored):
     out = tmp_path / "run"
@@ -275,6 +279,7 @@ def _fit_arrays(path, executor, workers, address=None):
             for r in (0, 1)]
 
 
+@pytest.mark.slow
 @needs_ray
 def test_same_seed_same_store_whatever_the_executor(ray_cluster, tmp_path):
     ref = _fit_arrays(tmp_path / "l1", "local", 1)

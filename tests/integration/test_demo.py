@@ -9,6 +9,7 @@ from softsbi.cli import app
 runner = CliRunner()
 
 
+@pytest.mark.slow
 def test_quick_demo_fits_hidden_parameters(tmp_path):
     res = runner.invoke(app, ["demo", "--quick", "--out", str(tmp_path), "--rounds", "1", "--sims-per-round", "24",
                               "--workers", "2"])

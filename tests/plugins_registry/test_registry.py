@@ -211,6 +211,7 @@ def softsbi_effects():
 '''
 
 
+@pytest.mark.slow
 def test_an_effect_in_one_file_plugs_in_through_softsbi_plugins_without_a_package(tmp_path):
     """SOFTSBI_PLUGINS=my_effect.py: listed, simulated, and fitted with spawned workers (which load the same
     file); a path that does not exist is one line naming the variable and the fix."""

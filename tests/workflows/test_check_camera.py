@@ -77,6 +77,7 @@ def lift_runs(tmp_path_factory):
     return runs
 
 
+@pytest.mark.slow
 @needs_data
 def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     from softsbi.report.text import check_summary
@@ -133,6 +134,7 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     assert list(exc) == names and any(v is not None and np.isfinite(v) for v in exc.values())
 
 
+@pytest.mark.slow
 @needs_data
 def test_compare_warns_when_the_sensor_kind_differs(lift_runs, tmp_path):
     from softsbi.report.text import compare_summary

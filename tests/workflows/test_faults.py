@@ -264,6 +264,7 @@ SIGINT_FIT = [sys.executable, "-m", "softsbi.cli", "fit", "--backend", "toy-gaus
               "--estimator-opt", "max_epochs=10"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),
                                              (signal.SIGTERM, 143, "terminated (SIGTERM)")])
 def test_ctrl_c_or_sigterm_says_how_to_resume_and_the_same_command_resumes(tmp_path, sig, code, word):
