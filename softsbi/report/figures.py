@@ -670,6 +670,8 @@ def compare_figure(res: CompareResult) -> Any:
     x = np.arange(len(names))
     ax.bar(x - 0.2, [a.region_mean_m[n] * 100 for n in names], 0.4, color=ca, label=f"A (before): {la}")
     ax.bar(x + 0.2, [b.region_mean_m.get(n, 0) * 100 for n in names], 0.4, color=cb, label=f"B (after): {lb}")
+    top = max([a.region_mean_m[n] * 100 for n in names] + [b.region_mean_m.get(n, 0) * 100 for n in names] + [0.1])
+    ax.set_ylim(0, 1.3 * top)  # room for the legend above the bars
     ax.set_xticks(x)
     ax.set_xticklabels([n.split(" ")[0] for n in names], fontsize=FS_TICK)
     ax.tick_params(labelsize=FS_TICK)
