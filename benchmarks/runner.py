@@ -149,7 +149,10 @@ _SUITES = [
           "(benchmarks/results/diagnosis-SPLIT.jsonl), so a run resumes.", "benchmarks.diagnosis"),
     Suite("speed", "Speed", "what a user waits for",
           "Wall seconds of the command-line tool: startup (`softsbi --help`, `softsbi plugins`), one fit of the toy "
-          "simulator and a `check` of it, each in a fresh process.", "benchmarks.speed"),
+          "simulator and a `check` of it, each in a fresh process; with --full also the demo (against an older "
+          "checkout's with --old), check, diagnose and compare on the demo's nominal run against its fit time, fits "
+          "of several recordings of one task with and without a simulation bank, and the test tiers.",
+          "benchmarks.speed"),
 ]
 SUITES: dict[str, Suite] = {s.name: s for s in _SUITES}
 
