@@ -6,7 +6,7 @@ from typing import Sequence
 
 from softsbi.core.metrics import describe_change
 from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Refit,
-                                  ResidualShape, Score)
+                                  ResidualShape, Row, Score)
 from softsbi.core.types import unit_suffix
 
 
@@ -53,7 +53,8 @@ def sensor_words(c: CheckResult) -> str:
 
 def bound_words(e: dict) -> str:
     """A fit's posterior pressing a prior bound (a ``posterior_at_bounds`` entry), with the advice."""
-    head = (f"{e['param']}'s posterior presses its {e['side']} prior bound {e['bound']:.4g}{unit_suffix(e.get('unit'))} "
+    bound = f"{e['bound']:.4g}{unit_suffix(e.get('unit'))}"
+    head = (f"{e['param']}'s posterior presses its {e['side']} prior bound {bound} "
             f"({pct(e['mass'])} of its mass near it)")
     wide = e.get("suggested_bounds")
     if wide:
@@ -262,8 +263,10 @@ def compare_summary(c: CompareResult) -> str:
     first = c.rows[0]
     s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)} -> {cm(first.b)} "
          f"({describe_change(first.a, first.b)})")
-    for row, name in ((next((r for r in c.rows if r.what.startswith("energy score")), None), "energy score"),
-                      (next((r for r in c.rows if r.what.startswith("posterior-mean")), None), "posterior-mean rollout")):
+    def row_of(start: str) -> Row | None:
+        return next((r for r in c.rows if r.what.startswith(start)), None)
+
+    for row, name in ((row_of("energy score"), "energy score"), (row_of("posterior-mean"), "posterior-mean rollout")):
         if row is not None:
             s += f", {name} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
     s += f"; misspecification {c.check_a.test.text()} -> {c.check_b.test.text()}."

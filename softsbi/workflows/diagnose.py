@@ -197,7 +197,8 @@ def _legacy_diagnosis(old: dict[str, Any]) -> Diagnosis:
                            r.get("explained_fraction"),
                            MCPValue(r["adjusted_exceed"], r["n_null"]) if "adjusted_exceed" in r else None,
                            r.get("estimate") or {}, r.get("error")) for r in old.get("ranking") or ())
-    refits = tuple(Refit(tuple(c["effect"].split("+")), c.get("run", ""), _legacy_test(c["misspecification_after"], fam),
+    refits = tuple(Refit(tuple(c["effect"].split("+")), c.get("run", ""),
+                         _legacy_test(c["misspecification_after"], fam),
                          None, c.get("chamfer_after_m"))  # an older file has no score of the summaries
                    for c in old.get("confirmed") or () if c.get("misspecification_after"))
     named = tuple(old.get("named_effects") or ([old["selected"]] if old.get("selected") else []))

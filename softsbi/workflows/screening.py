@@ -29,6 +29,16 @@ from softsbi.workflows.stats import (ALPHA, MAX_NULL, PosteriorPredictive, max_t
                                      resolution_needed, rollout_features, run_features, summary_floor)
 
 
+#: finite-difference step of a nominal parameter (unit-cube units): small enough that the summaries respond linearly
+#: about the posterior median (whose spread in the unit cube is usually 0.1-0.3), large enough that the step moves
+#: them well above the float noise of a deterministic engine
+UNIT_STEP = 0.05
+#: finite-difference step of an effect parameter (fraction of its range) from its switched-off value: an effect is
+#: screened where it is off, so the step must switch it on enough to move the cloth measurably (a quarter of its
+#: prior); the screening ranks candidates and spends the refit budget, the refits decide
+EFFECT_STEP = 0.25
+
+
 def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
     """Instances of the candidate effects of a run: ``names`` (each must be applicable by the run's
     backend; an empty list is no candidate), or by default (None) every installed effect the backend supports,
@@ -204,8 +214,8 @@ class Screening:
 # the misspecification test of check and diagnose
 
 
-def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: float = 0.05,
-                 effect_step: float = 0.25) -> Screening:
+def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: float = UNIT_STEP,
+                 effect_step: float = EFFECT_STEP) -> Screening:
     """The :class:`Screening` of ``cands`` against ``pool``'s current null rollouts.
 
     The finite-difference simulations (:func:`sensitivity_jobs`: ``1 + dim`` nominal directions plus, per
@@ -252,8 +262,8 @@ def check_resolution(alpha: float, max_null: int, tests: int = 2) -> None:
 
 
 def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], alpha: float = ALPHA,
-                             max_null: int = MAX_NULL, unit_step: float = 0.05,
-                             effect_step: float = 0.25) -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
+                             max_null: int = MAX_NULL, unit_step: float = UNIT_STEP, effect_step: float = EFFECT_STEP
+                             ) -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
     """Is the run's measurement inside the posterior predictive distribution? ``check``'s test, ``diagnose``'s
     detection step and the adequacy of every refit (one function, one null: the commands never disagree).
 
