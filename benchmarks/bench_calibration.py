@@ -15,13 +15,12 @@ own proposals give the test simulations. Per variant: the coverage at 50 / 90 % 
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.runner import table
+from benchmarks.runner import in_out_folder, table
 
 TRUTH_UNIT = {"lift": [0.6, 0.4, 0.5, 0.5, 0.6], "winding": [0.6, 0.4, 0.5, 0.6]}
 # rkhs's training before the shared trunk (every point, lr 1e-3, patience 15, independent members)
@@ -71,10 +70,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def suite(args: argparse.Namespace) -> dict:
-    if args.out is None:
-        with tempfile.TemporaryDirectory() as tmp:
-            return measure(args, Path(tmp))
-    return measure(args, args.out)
+    return in_out_folder(measure, args)
 
 
 def measure(args: argparse.Namespace, out: Path) -> dict:

@@ -15,13 +15,12 @@ posterior), and their expected coverage.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.runner import table
+from benchmarks.runner import in_out_folder, table
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
 
@@ -78,10 +77,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def suite(args: argparse.Namespace) -> dict:
-    if args.out is None:
-        with tempfile.TemporaryDirectory() as tmp:
-            return measure(args, Path(tmp))
-    return measure(args, args.out)
+    return in_out_folder(measure, args)
 
 
 def measure(args: argparse.Namespace, out: Path) -> dict:

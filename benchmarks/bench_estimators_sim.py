@@ -15,13 +15,12 @@ Bulk methods (``sequential = False``) draw every round from the prior, so their 
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.runner import REPO, table
+from benchmarks.runner import REPO, in_out_folder, table
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk"]
 #: hidden parameters (unit-cube position in the backend's parameter order) per scenario
@@ -49,10 +48,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def suite(args: argparse.Namespace) -> dict:
-    if args.out is None:
-        with tempfile.TemporaryDirectory() as tmp:
-            return measure(args, Path(tmp))
-    return measure(args, args.out)
+    return in_out_folder(measure, args)
 
 
 def measure(args: argparse.Namespace, out: Path) -> dict:

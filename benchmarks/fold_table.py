@@ -17,13 +17,12 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.fabric_distances import material_unit_means, repeat_fabric_distances
-from benchmarks.runner import REPO, table
+from benchmarks.runner import REPO, in_out_folder, table
 
 RECS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
 FULL = {"recs": RECS}
@@ -40,10 +39,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def suite(a: argparse.Namespace) -> dict:
-    if a.out is None:
-        with tempfile.TemporaryDirectory() as tmp:
-            return measure(a, Path(tmp))
-    return measure(a, a.out)
+    return in_out_folder(measure, a)
 
 
 def measure(a: argparse.Namespace, out: Path) -> dict:

@@ -371,3 +371,13 @@ def render(results: Path = RESULTS, doc: Path = DOC) -> Path:
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text(render_text(results))
     return doc
+
+
+def in_out_folder(measure: Any, args: argparse.Namespace) -> dict:
+    """``measure(args, folder)`` in ``args.out``, or in a temporary folder removed afterwards when ``args.out`` is
+    None (the suites whose runs are kept only when asked)."""
+    import tempfile
+    if args.out is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            return measure(args, Path(tmp))
+    return measure(args, args.out)
