@@ -165,9 +165,11 @@ print("ROW " + json.dumps({k: row.get(k) for k in ("verdict", "named", "named_al
 def run_old(case: dict[str, Any], out: Path, workers: int | None, checkout: Path) -> dict[str, Any]:
     """The old rule's verdict on ``case``: ``diagnose_stats.run_case`` of ``checkout`` in a subprocess, its run in
     ``out`` (``out/old`` holds the nominal fit)."""
-    env = dict(os.environ, PYTHONPATH=str(checkout))
-    res = subprocess.run([sys.executable, "-c", OLD_DRIVER, str(checkout), json.dumps(case), str(out.parent),
-                          str(workers)], env=env, capture_output=True, text=True)
+    checkout = checkout.resolve()
+    env = dict(os.environ, PYTHONPATH=str(checkout))  # and its folder as the working one: `-c` puts that first
+    res = subprocess.run([sys.executable, "-c", OLD_DRIVER, str(checkout), json.dumps(case),
+                          str(out.parent.resolve()), str(workers)], env=env, cwd=checkout, capture_output=True,
+                         text=True)
     line = next((x for x in res.stdout.splitlines() if x.startswith("ROW ")), None)
     if line is None:
         return {"error": (res.stderr or res.stdout)[-800:]}
