@@ -209,14 +209,17 @@ def machine() -> dict[str, Any]:
 
 
 def portable(value: Any) -> Any:
-    """``value`` with every absolute path made relative to the repository (options and commands name no machine's
-    folders); nested lists and dicts too."""
+    """``value`` with every path made relative to the repository (``../shared/...`` for the shared data beside it),
+    and any other path outside it shown as ``OUTSIDE/NAME``: options and commands name no machine's folders; nested
+    lists and dicts too."""
     if isinstance(value, dict):
         return {k: portable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [portable(v) for v in value]
     if isinstance(value, Path) or (isinstance(value, str) and os.path.isabs(value)):
-        return os.path.relpath(value, REPO)
+        rel = os.path.relpath(Path(value).resolve(), REPO)
+        inside = not rel.startswith("..") or rel.startswith(os.path.join("..", "shared", ""))
+        return rel if inside else f"OUTSIDE/{Path(value).name}"
     return value
 
 

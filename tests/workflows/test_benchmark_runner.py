@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import subprocess
 import sys
@@ -93,7 +94,8 @@ def test_commands_and_options_name_no_absolute_path(tmp_path):
     cmd = runner.command(["run", "real-lift", "--data", str(REPO.parent / "shared" / "data"), "--out", str(tmp_path)])
     assert cmd.startswith("python -m benchmarks run real-lift --data ../shared/data --out ")
     assert not re.search(r"(^| )/", cmd)
-    assert runner.portable({"out": tmp_path, "n": [1, "x"]})["n"] == [1, "x"]
+    assert runner.portable({"out": tmp_path, "n": [1, "x"]}) == {"out": f"OUTSIDE/{tmp_path.name}", "n": [1, "x"]}
+    assert runner.portable(REPO / "runs" / "x") == os.path.join("runs", "x")
 
 
 def test_the_committed_page_is_what_the_stored_results_render():
