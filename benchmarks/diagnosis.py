@@ -285,15 +285,23 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def suite(a: argparse.Namespace) -> dict[str, Any]:
+    """Run ``--split``'s cases not yet stored, then summarise every split with stored rows (dev, then test)."""
     path = a.results or RESULTS / f"diagnosis-{a.split}.jsonl"
     if a.cases != "none":
         lo, _, hi = a.cases.partition(":")
         idx = range(int(lo), int(hi)) if hi else [int(x) for x in a.cases.split(",")]
         run(a.split, idx, a.out, a.workers, a.old, a.command, path)
-    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()] if path.exists() else []
-    s = summary(rows)
-    out = report(s, a.split)
-    commits = Counter(r.get("commit", "unknown") for r in rows)
-    if commits:
-        out["notes"].append("Rows measured at " + ", ".join(f"commit `{c}` ({n})" for c, n in commits.items()) + ".")
-    return {**out, "data": s}
+    out: dict[str, Any] = {"tables": [], "notes": [], "data": {}}
+    for split in SPLIT_SEEDS:
+        p = path if split == a.split else RESULTS / f"diagnosis-{split}.jsonl"
+        rows = [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
+        if not rows:
+            continue
+        s = summary(rows)
+        rep = report(s, split)
+        commits = Counter(r.get("commit", "unknown") for r in rows)
+        rep["notes"].append("Rows measured at " + ", ".join(f"commit `{c}` ({n})" for c, n in commits.items()) + ".")
+        out["tables"] += rep["tables"]
+        out["notes"] += [f"{split.capitalize()} split: {n}" for n in rep["notes"]]
+        out["data"][split] = s
+    return out
