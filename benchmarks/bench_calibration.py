@@ -51,7 +51,7 @@ VARIANTS = {"default": ("rkhs", {}),  # rkhs with its defaults (= rkhs-shared)
 
 
 FULL = {"scenarios": ["lift", "winding"], "seeds": [1, 2], "train": 800, "test": 200,
-        "variants": ["default", "rkhs-shared-marginals"]}
+        "variants": ["default", "rkhs-shared-marginals", "flow"]}
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
