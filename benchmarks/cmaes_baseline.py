@@ -156,9 +156,28 @@ def _posterior_state(fit_dir: Path) -> dict:
     """What refining must not change: report.json's posterior summaries and every round's stored ``q``."""
     rep = json.loads((fit_dir / "report.json").read_text())
     store = RunStore.open(fit_dir / "run.zarr")
-    qs = [store.read_q(r) for r in store.completed_rounds()]
     return {"report": {k: rep.get(k) for k in POSTERIOR_KEYS},
-            "q": [np.concatenate([q.weights.ravel(), q.means.ravel(), q.scale_tril.ravel()]) for q in qs]}
+            "q": [_flat(store.read_posterior(r)) for r in store.completed_rounds()]}
+
+
+def _flat(q) -> np.ndarray:
+    """A stored posterior's numbers, flattened: a mixture's arrays, or every array of an estimator's state."""
+    if hasattr(q, "means"):
+        return np.concatenate([q.weights.ravel(), q.means.ravel(), q.scale_tril.ravel()])
+    arrays: list[np.ndarray] = []
+
+    def walk(x) -> None:
+        if isinstance(x, dict):
+            for k in sorted(x):
+                walk(x[k])
+        elif isinstance(x, (list, tuple)):
+            for v in x:
+                walk(v)
+        elif hasattr(x, "shape"):
+            arrays.append(np.asarray(x, float).ravel())
+
+    walk(q.state)
+    return np.concatenate(arrays) if arrays else np.zeros(0)
 
 
 def reevaluate(ctx: SimContext, theta: np.ndarray, metric: str, frames, seeds: list[int]) -> float:
