@@ -14,8 +14,9 @@
 * with ``--tests`` (``--full``): README command 2's tests (``pytest -m "not slow" -n 2``) and the unit tier.
 
 Every timing is one row ``(what, command, seconds)`` made by :func:`timed`; a new timing (another command, or the same
-commands of another checkout) is one more call of it in :func:`suite`. Every command runs with ``SOFTSBI_SIM_BANK``
-off (a fresh machine) except the bank's own rows.
+commands of another checkout) is one more call of it in :func:`suite`. Every command runs as on a fresh machine: the
+user's simulation bank is a new, empty folder (``SOFTSBI_SIM_BANK``), a run's own bank is on as by default; the bank's
+rows fit once without any bank (``--no-sim-bank``).
 """
 from __future__ import annotations
 
@@ -69,7 +70,9 @@ def suite(opts: argparse.Namespace) -> dict:
 
     if "toy-gauss" not in registry().names("simulator"):
         raise SystemExit("the speed suite's fit needs the toy simulator: pip install -e tests/plugins/softsbi_toy")
-    env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"), SOFTSBI_SIM_BANK="off")
+    fresh_bank = tempfile.TemporaryDirectory()  # the user's bank of a fresh machine: empty
+    env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"),
+               SOFTSBI_SIM_BANK=str(Path(fresh_bank.name) / "bank"))
     rows = []
 
     def add(what: str, args: list[str], repeats: int = 1, shown: list[str] | None = None, **kw) -> None:
@@ -92,6 +95,7 @@ def suite(opts: argparse.Namespace) -> dict:
         data["bank"] = _bank(opts, env, tables)
     if opts.tests:
         data["tests"] = _tests(env, tables)
+    fresh_bank.cleanup()
     return {"tables": tables, "data": data}
 
 
@@ -117,6 +121,7 @@ def _demo(opts: argparse.Namespace, env: dict, tables: list) -> dict:
             out.update(old_demo_s=round(old, 1), demo_ratio=round(demo / old, 2))
             rows.append([f"demo ({_commit(opts.old)})", "softsbi demo", round(old, 1), f"new / old {demo / old:.2f}"])
         nominal = _strip(tmp / "demo" / "nominal", tmp / "nominal")
+        env = dict(env, SOFTSBI_SIM_BANK=str(tmp / "empty-bank"))  # not the one the demo's own refits filled
         fit = report["wall_time_s"]
         rows.append(["the demo's nominal fit", "(report.json wall_time_s)", round(fit, 1), ""])
         for what, args in (("check", ["check", "nominal"]), ("diagnose", ["diagnose", "nominal"]),
@@ -147,10 +152,10 @@ def _bank(opts: argparse.Namespace, env: dict, tables: list) -> dict:
             theta = ["--theta", f"stretch={20 + 40 * i}", "--theta", f"friction={0.3 + 0.2 * i}"]
             timed(["simulate", "--scenario", "lift", *theta, "--out", f"rec{i}"], cwd=tmp, env=env)
         for mode in ("without a bank", "with a bank"):
-            envb = dict(env, SOFTSBI_SIM_BANK=str(tmp / "bank")) if mode == "with a bank" else env
+            envb = dict(env, SOFTSBI_SIM_BANK=str(tmp / "bank") if mode == "with a bank" else "off")
             total, read = 0.0, 0
             for i in range(opts.bank):
-                run = f"{mode[0:4]}{i}"
+                run = f"{'bank' if mode == 'with a bank' else 'nobank'}{i}"  # a run of its own: never resumed
                 before = len(SimulationBank(tmp / "bank"))
                 total += timed(["fit", "--observed", f"rec{i}", "--out", run], cwd=tmp, env=envb)
                 if mode == "with a bank":  # first-round simulations not added to the bank were read from it
