@@ -217,7 +217,7 @@ def portable(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [portable(v) for v in value]
     if isinstance(value, Path) or (isinstance(value, str) and os.path.isabs(value)):
-        rel = os.path.relpath(Path(value).resolve(), REPO)
+        rel = os.path.relpath(os.path.abspath(value), REPO)  # symbolic links kept: ../shared may be one
         inside = not rel.startswith("..") or rel.startswith(os.path.join("..", "shared", ""))
         return rel if inside else f"OUTSIDE/{Path(value).name}"
     return value
