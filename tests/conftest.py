@@ -43,8 +43,9 @@ def pytest_collection_modifyitems(config, items):
         if item.path.name in INTEGRATION and "slow" not in item.keywords:
             item.add_marker(pytest.mark.integration)
 # no simulation bank unless a test asks for one: a bank shared by tests would hand one test's stored rollouts to
-# another that injects faults into the simulator (tests/workflows/test_bank.py switches it on where it is tested)
-os.environ.setdefault("SOFTSBI_SIM_BANK", "off")
+# another that injects faults into the simulator (tests/workflows/test_bank.py switches it on where it is tested);
+# set, not defaulted, so that a user's own bank in the environment cannot reach the tests either
+os.environ["SOFTSBI_SIM_BANK"] = "off"
 
 
 def _kill_when_stored(script: str, out: Path, n: int, env: dict | None = None, timeout: float = 120) -> int:

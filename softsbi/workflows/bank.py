@@ -3,7 +3,9 @@
 A rollout is determined by the simulator and its options, the scenario, the effects switched on, the parameters
 and the seed (the engines are deterministic). :func:`rollout_key` hashes exactly these; :class:`SimulationBank`
 keeps each rollout under its key in a Zarr store (one group per rollout: ``vertices``, ``gripper``, ``faces``,
-``times`` and the status, reason and info in its attributes). The observation, the metric and the sensor model
+``times`` and the reason and info in its attributes). Only successful rollouts are kept: a failure may come from
+the environment (a timeout, memory) rather than the parameters, and ``fit --retry-failed`` must simulate it again.
+The observation, the metric and the sensor model
 are computed from the rollout afterwards, so two fits of different recordings of the same task share the
 simulations of their first round (drawn from the same prior with the same seed), and ``check``, ``diagnose``,
 ``compare`` and ``view`` of one run share its posterior-predictive rollouts.
@@ -27,7 +29,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import zarr
 
-from softsbi.core.types import Rollout
+from softsbi.core.types import STATUS_OK, Rollout
 
 #: bank format version (part of every key: a new format starts a new bank)
 BANK_FORMAT = 1
@@ -105,7 +107,7 @@ class SimulationBank:
         return self.path / key[:2] / key
 
     def get(self, key: str) -> Rollout | None:
-        """The stored rollout of ``key``, or None when absent, incomplete or damaged."""
+        """The stored rollout of ``key``, or None when absent, incomplete, damaged or a failure."""
         where = self._where(key)
         if not where.is_dir():
             return None
@@ -113,7 +115,7 @@ class SimulationBank:
             g = zarr.open_group(str(where), mode="r")
             arrays = {n: np.asarray(g[n][...]) for n in ("times", "gripper", "vertices", "faces")}
             attrs = dict(g.attrs)
-            if attrs.get("sha256") != _digest(arrays):
+            if attrs.get("sha256") != _digest(arrays) or int(attrs["status"]) != STATUS_OK:
                 return None
             return Rollout(times=arrays["times"], gripper=arrays["gripper"], vertices=arrays["vertices"],
                            faces=arrays["faces"].astype(int), status=int(attrs["status"]), reason=str(attrs["reason"]),
@@ -122,9 +124,10 @@ class SimulationBank:
             return None
 
     def put(self, key: str, ro: Rollout) -> bool:
-        """Store ``ro`` under ``key`` (a rollout with images is not stored: the bank keeps states). Returns whether
-        it was stored; a bank that cannot be written (read-only, full disk) stores nothing and says False."""
-        if not self.writable or ro.rgb is not None:
+        """Store ``ro`` under ``key`` (a failed rollout or one with images is not stored: the bank keeps successful
+        states). Returns whether it was stored; a bank that cannot be written (read-only, full disk) stores nothing
+        and says False."""
+        if not self.writable or ro.rgb is not None or int(ro.status) != STATUS_OK:
             return False
         arrays = {"times": np.asarray(ro.times, float), "gripper": np.asarray(ro.gripper, float),
                   "vertices": np.asarray(ro.vertices, float), "faces": np.asarray(ro.faces, np.int64)}

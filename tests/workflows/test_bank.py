@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softsbi.core.types import Rollout
+from softsbi.core.types import STATUS_DIVERGED, Rollout
 from softsbi.workflows.bank import SimulationBank, rollout_key
 
 
@@ -39,6 +39,14 @@ def test_a_stored_rollout_reads_back_identical_and_a_damaged_one_counts_as_absen
     assert bank.get("ab" * 32) is None
     assert bank.put("ab" * 32, ro) and bank.get("ab" * 32) is not None  # stored anew
     assert not list((tmp_path / "bank" / "tmp").iterdir())  # nothing half-written is left
+
+
+def test_a_failed_rollout_is_not_kept(tmp_path):
+    """A failure may come from the environment, not the parameters: a retry must simulate it again."""
+    bank = SimulationBank(tmp_path / "bank")
+    failed = _rollout()
+    failed.status, failed.reason = STATUS_DIVERGED, "diverged"
+    assert not bank.put("cd" * 32, failed) and len(bank) == 0 and bank.get("cd" * 32) is None
 
 
 def test_a_read_only_bank_stores_nothing(tmp_path):

@@ -73,6 +73,7 @@ def test_the_lock_is_released_after_a_fit_and_refused_inside_one(tmp_path):
 
 def test_retry_failed_resimulates_stored_failures_and_redraws_later_rounds(tmp_path, monkeypatch):
     out = tmp_path / "run"
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))  # with the user's bank on, as by default
     monkeypatch.setenv("SOFTSBI_TOY_DIVERGE_ABOVE", "0.5")  # a > 0.5 "diverges": stored as failed
     res = run_fit(out, toy_measurement(), _cfg(), make_plots=False)
     failed0 = int(res.report["per_round"][0]["failed"])
