@@ -79,15 +79,8 @@ def test_retry_failed_resimulates_stored_failures_and_redraws_later_rounds(tmp_p
     failed0 = int(res.report["per_round"][0]["failed"])
     assert failed0 > 0
     monkeypatch.delenv("SOFTSBI_TOY_DIVERGE_ABOVE")
-    messages = []
-
-    class Cb:
-        def message(self, text):
-            messages.append(text)
-
-        def __getattr__(self, name):
-            return lambda *a, **k: None
-    again = run_fit(out, toy_measurement(), _cfg(), callbacks=Cb(), make_plots=False)  # plain resume keeps them
+    messages, cb = _recording_callbacks()
+    again = run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)  # plain resume keeps them
     assert again.report["per_round"][0]["failed"] == failed0
     assert any("stored simulations failed" in m and "--retry-failed" in m for m in messages), messages
     fixed = run_fit(out, toy_measurement(), _cfg(), make_plots=False, retry_failed=True)
@@ -105,6 +98,20 @@ def test_reset_failures_without_failures_changes_nothing(tmp_path):
     assert store.reset_failures() is None
     assert store.completed_rounds() == [0] and not np.any(store.round_data(0)["status"] == STATUS_PENDING)
     assert json.loads((out / "run.lock.json").read_text())["pid"] == os.getpid()
+
+
+def _recording_callbacks():
+    """Fit callbacks that keep every message (``(messages, callbacks)``) and ignore every other hook."""
+    messages = []
+
+    class Recorder:
+        def message(self, text):
+            messages.append(text)
+
+        def __getattr__(self, name):
+            return lambda *a, **k: None
+
+    return messages, Recorder()
 
 
 def _chunk(out, r, name, i):
@@ -128,16 +135,9 @@ def test_missing_and_damaged_chunks_are_named_resimulated_and_never_trained_on(t
     r, bad = store.damaged()
     assert r == 0 and sorted(bad) == [3, 5, 7], bad
     assert "cannot be read" in bad[5] and "missing" in bad[3] and "status" in bad[7]
-    messages = []
+    messages, cb = _recording_callbacks()
 
-    class Cb:
-        def message(self, text):
-            messages.append(text)
-
-        def __getattr__(self, name):
-            return lambda *a, **k: None
-
-    again = run_fit(out, toy_measurement(), cfg, callbacks=Cb(), make_plots=False)
+    again = run_fit(out, toy_measurement(), cfg, callbacks=cb, make_plots=False)
     assert any("simulations [3, 5, 7]" in m and "again" in m for m in messages), messages
     after = RunStore.open(out / "run.zarr")
     assert after.damaged() is None and after.completed_rounds() == [0, 1]
@@ -184,16 +184,9 @@ def test_a_damaged_evaluation_or_round_posterior_is_computed_again_and_never_bre
     assert len(load_run(out, 5).post_theta) == 5  # what check & co. open: no traceback
     store = RunStore.open(out / "run.zarr")
     assert set(store.damaged_groups()) == {"evaluation", "rounds/0/posterior"}
-    messages = []
+    messages, cb = _recording_callbacks()
 
-    class Cb:
-        def message(self, text):
-            messages.append(text)
-
-        def __getattr__(self, name):
-            return lambda *a, **k: None
-
-    again = run_fit(out, toy_measurement(), cfg, callbacks=Cb(), make_plots=False)
+    again = run_fit(out, toy_measurement(), cfg, callbacks=cb, make_plots=False)
     assert any("evaluation' cannot be trusted (its 'chamfer' array cannot be read" in m for m in messages), messages
     assert any("rounds/0/posterior' cannot be trusted" in m for m in messages), messages
     assert RunStore.open(out / "run.zarr").damaged_groups() == {}
