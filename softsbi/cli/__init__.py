@@ -399,6 +399,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from softsbi.workflows.measurement import load_image_recording, load_recording
+    from softsbi.workflows.bank import check_bank_path
     from softsbi.plugins import registry
     exe_opts: dict[str, Any] = {"retries": retries}
     if sim_timeout is not None:
@@ -423,6 +424,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     elif extractor is not None:
         raise SoftsbiError(f"--extractor is for image observers (heatmap, transporter), not '{observer}'")
     cfg.validate()  # fail fast (e.g. --workers 0) before loading the recording
+    check_bank_path(cfg.sim_bank, {"--out": out, "--observed": observed})
     if executor == "ray":
         from softsbi.executors.ray_executor import _import_ray
         _import_ray()  # DependencyMissing naming `pip install softsbi[ray]`

@@ -35,6 +35,12 @@ class PhaseReporter(Reporter):
         if not self.o.err.is_terminal:
             self.o.message(f"{label}: done in {time.perf_counter() - t0:.0f} s")
 
+    def read_from_bank(self, handle: Any, hits: int, total: int) -> None:
+        self.o.message(f"{handle[1]}: {hits} of {total} read from the bank")
+
+    def message(self, text: str) -> None:
+        self.o.message(text, style="yellow")
+
 
 @contextlib.contextmanager
 def shown(o: Output) -> Iterator[None]:
@@ -51,15 +57,19 @@ class ProgressHooks(FitCallbacks):
         self.o, self.p = o, progress
         self.sim_task = None
         self.train_task = None
+        self.label = ""
 
     def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
-        label = (f"round {r + 1}/{rounds} simulations" if r >= 0 else
-                 "posterior rollouts" if r == -1 else "refinement of the best fit (CMA-ES)")
+        self.label = label = (f"round {r + 1}/{rounds} simulations" if r >= 0 else
+                              "posterior rollouts" if r == -1 else "refinement of the best fit (CMA-ES)")
         if self.sim_task is not None:
             self.p.remove_task(self.sim_task)
         self.sim_task = self.p.add_task(label, total=n_total, completed=n_total - n_pending)
-        if not self.o.err.is_terminal:
-            self.o.message(f"{label}: {n_pending} of {n_total} to simulate")
+        if not self.o.err.is_terminal:  # to run: simulated, or read from the simulation bank (read_from_bank)
+            self.o.message(f"{label}: {n_pending} of {n_total} to run")
+
+    def read_from_bank(self, r: int, hits: int, total: int) -> None:
+        self.o.message(f"{self.label}: {hits} of {total} read from the bank")
 
     def simulation_done(self, r: int, done: int, total: int) -> None:
         self.p.update(self.sim_task, completed=done)

@@ -267,6 +267,12 @@ class RunStore:
     def round_attrs(self, r: int) -> dict[str, Any]:
         return dict(self._round(r).attrs)
 
+    def add_bank_hits(self, r: int, n: int) -> None:
+        """Count ``n`` more of round ``r``'s simulations as read from a simulation bank (round attribute
+        ``bank_hits``, at most the round's size; a redone row read again is not counted twice over the size)."""
+        g = self._round(r)
+        g.attrs["bank_hits"] = min(int(g.attrs.get("bank_hits", 0)) + int(n), int(g["status"].shape[0]))
+
     def pending(self, r: int) -> np.ndarray:
         return np.nonzero(self._round(r)["status"][...] == STATUS_PENDING)[0]
 

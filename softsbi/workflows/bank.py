@@ -11,10 +11,12 @@ simulations of their first round (drawn from the same prior with the same seed),
 ``compare`` and ``view`` of one run share its posterior-predictive rollouts.
 
 Integrity as for a run store: a rollout is written into a temporary group and renamed into place when complete
-(atomic on one file system), so a killed writer leaves nothing half-written; each group carries a SHA-256 of
-its arrays, checked on reading, and a damaged or unreadable entry counts as absent (the rollout is simulated
-again and stored anew). Writers need no lock: two processes storing the same key store the same rollout, and
-the first rename wins.
+(atomic on one file system), so a killed writer leaves nothing half-written; each group carries its key and a
+SHA-256 of the key and its arrays, both checked on reading. A damaged or unreadable entry counts as absent, and so
+does an entry of the first format, which stored no key (the rollout is simulated again and stored anew); an entry
+stored under another key (a folder moved or copied) is not used either, and :class:`BankCount` tells the user how
+many there were. Writers need no lock: two processes storing the same key store the same rollout, and the first
+rename wins.
 """
 from __future__ import annotations
 
@@ -23,12 +25,14 @@ import json
 import os
 import shutil
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 import zarr
 
+from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK, Rollout
 
 #: bank format version (part of every key: a new format starts a new bank)
@@ -37,6 +41,14 @@ BANK_FORMAT = 1
 
 #: values of ``$SOFTSBI_SIM_BANK`` that switch every bank off (the user's and the runs' own)
 OFF = ("off", "none", "0")
+
+
+#: what :meth:`SimulationBank.lookup` found: the rollout; nothing usable (absent, incomplete, damaged, a failure
+#: or an entry of the first format); an intact entry whose stored key is another one (moved or copied there)
+HIT, MISS, WRONG_KEY = "hit", "miss", "wrong key"
+
+#: the variable that names the user's bank (or switches every bank off, :data:`OFF`)
+ENV = "SOFTSBI_SIM_BANK"
 
 
 def banks_enabled() -> bool:
@@ -49,9 +61,55 @@ def default_bank() -> Path | None:
     ``~/.cache/softsbi/sim-bank``); None when banks are off (:func:`banks_enabled`)."""
     if not banks_enabled():
         return None
-    if os.environ.get("SOFTSBI_SIM_BANK"):
-        return Path(os.environ["SOFTSBI_SIM_BANK"]).expanduser()
+    if os.environ.get(ENV, "").strip():
+        return Path(os.environ[ENV]).expanduser()
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "softsbi" / "sim-bank"
+
+
+def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> None:
+    """Check a fit's simulation bank before any work: ``setting`` is ``--sim-bank`` (``"default"``: the user's
+    bank, :func:`default_bank`; ``"off"``; or a folder), ``folders`` the folders the bank must stay out of, by the
+    flag that names them (``{"--out": run_dir, "--observed": recording_dir}``, existing or not; None or ``""``
+    is skipped). A bank folder that does not exist is created.
+
+    Raises:
+        SoftsbiError: one line naming ``--sim-bank`` or ``$SOFTSBI_SIM_BANK`` and the fix when the setting is
+            empty; when the bank and one of ``folders`` lie inside one another; when the bank (given by the flag or
+            the variable) is a file or cannot be created. The default folder is only checked against ``folders``:
+            a cache that cannot be written only stores nothing.
+    """
+    if not str(setting).strip():
+        raise SoftsbiError("--sim-bank is empty: give the simulation bank's folder, 'default' (the user's bank) "
+                           "or 'off' (or --no-sim-bank)")
+    if setting == "off" or not banks_enabled():
+        return
+    if setting == "default":
+        path = default_bank()
+        name = ENV if os.environ.get(ENV, "").strip() else "the default simulation bank"
+        off = f"{ENV}=off" if name == ENV else "--no-sim-bank"
+    else:
+        path, name, off = Path(setting).expanduser(), "--sim-bank", "--no-sim-bank"
+    assert path is not None  # banks are enabled
+    where = path.resolve()
+    for flag, folder in folders.items():
+        if folder is None or not str(folder):
+            continue
+        f = Path(folder).resolve()
+        if where == f or f in where.parents or where in f.parents:
+            what = f"{name} {path} is inside {flag} {folder}" if where == f or f in where.parents else \
+                f"{flag} {folder} is inside {name} {path}"
+            raise SoftsbiError(f"{what}: keep the simulation bank in a folder of its own, outside every run and "
+                               f"recording (or {off})")
+    if name == "the default simulation bank":
+        return
+    if path.exists() and not path.is_dir():
+        raise SoftsbiError(f"{name} {path} is a file: give a folder for the simulation bank (created if missing), "
+                           f"or {off}")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SoftsbiError(f"{name} {path} cannot be created ({exc.strerror or exc}): give a folder you can write, "
+                           f"or {off}") from exc
 
 
 def _engine_version(backend: str) -> str:
@@ -72,8 +130,8 @@ def rollout_key(backend: str, backend_options: Mapping[str, Any], scenario: Mapp
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _digest(arrays: Mapping[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
+def _digest(key: str, arrays: Mapping[str, np.ndarray]) -> str:
+    h = hashlib.sha256(key.encode())
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
         h.update(name.encode() + str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
@@ -107,21 +165,33 @@ class SimulationBank:
         return self.path / key[:2] / key
 
     def get(self, key: str) -> Rollout | None:
-        """The stored rollout of ``key``, or None when absent, incomplete, damaged or a failure."""
+        """The stored rollout of ``key``, or None when absent, incomplete, damaged, a failure, of the first format
+        or stored under another key (:meth:`lookup`)."""
+        return self.lookup(key)[0]
+
+    def lookup(self, key: str) -> tuple[Rollout | None, str]:
+        """``(rollout, what)``: the stored rollout of ``key`` and :data:`HIT`; or None and :data:`WRONG_KEY` when
+        the entry in ``key``'s place is intact but was stored under another key (moved or copied there); or None
+        and :data:`MISS` otherwise (absent, incomplete, damaged, a failure, an entry of the first format)."""
         where = self._where(key)
         if not where.is_dir():
-            return None
+            return None, MISS
         try:
             g = zarr.open_group(str(where), mode="r")
             arrays = {n: np.asarray(g[n][...]) for n in ("times", "gripper", "vertices", "faces")}
             attrs = dict(g.attrs)
-            if attrs.get("sha256") != _digest(arrays) or int(attrs["status"]) != STATUS_OK:
-                return None
+            stored = attrs.get("key")
+            if not isinstance(stored, str) or attrs.get("sha256") != _digest(stored, arrays):
+                return None, MISS
+            if stored != key:
+                return None, WRONG_KEY
+            if int(attrs["status"]) != STATUS_OK:
+                return None, MISS
             return Rollout(times=arrays["times"], gripper=arrays["gripper"], vertices=arrays["vertices"],
                            faces=arrays["faces"].astype(int), status=int(attrs["status"]), reason=str(attrs["reason"]),
-                           info=dict(attrs.get("info") or {}))
+                           info=dict(attrs.get("info") or {})), HIT
         except Exception:  # noqa: BLE001 - a damaged entry is an absent one: simulated again
-            return None
+            return None, MISS
 
     def put(self, key: str, ro: Rollout) -> bool:
         """Store ``ro`` under ``key`` (a failed rollout or one with images is not stored: the bank keeps successful
@@ -139,9 +209,9 @@ class SimulationBank:
             for name, a in arrays.items():
                 g.create_array(name, data=a)
             g.attrs.update({"status": int(ro.status), "reason": str(ro.reason), "info": _plain(ro.info),
-                            "sha256": _digest(arrays)})
+                            "key": key, "sha256": _digest(key, arrays)})
             where.parent.mkdir(parents=True, exist_ok=True)
-            if where.exists():  # a damaged entry (get() turned it down) is replaced
+            if where.exists():  # an entry lookup() turned down (damaged, old, another key's) is replaced
                 shutil.rmtree(where, ignore_errors=True)
             os.rename(tmp, where)
             return True
@@ -151,3 +221,25 @@ class SimulationBank:
 
     def __len__(self) -> int:
         return sum(1 for d in self.path.glob("??/*") if d.is_dir()) if self.path.is_dir() else 0
+
+
+@dataclass
+class BankCount:
+    """What one phase's simulations found in their bank: ``hits`` read instead of simulated, ``wrong_key`` entries
+    stored under another key that were simulated again and replaced (:meth:`SimulationBank.lookup`)."""
+
+    hits: int = 0
+    wrong_key: int = 0
+
+    def add(self, what: str | None) -> None:
+        """Count one simulation's lookup (a job result's ``"bank"``: :data:`HIT`, :data:`MISS`, :data:`WRONG_KEY`
+        or None without a bank)."""
+        self.hits += what == HIT
+        self.wrong_key += what == WRONG_KEY
+
+    def warning(self, bank: str | Path | None) -> str | None:
+        """The one line that tells the user of entries under the wrong key (None when there were none)."""
+        if not self.wrong_key:
+            return None
+        return (f"simulation bank {bank}: {self.wrong_key} stored rollout(s) sat under another rollout's key (moved "
+                f"or copied); they were not used but simulated again and replaced")

@@ -39,7 +39,7 @@ from softsbi.plugins import check_options, registry
 from softsbi.report import write_fit_plots
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows import defaults
-from softsbi.workflows.bank import banks_enabled, default_bank
+from softsbi.workflows.bank import BankCount, banks_enabled, check_bank_path, default_bank
 from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.jobs import SimContext, _round_seeds, evaluation_seeds, simulate_job
 from softsbi.workflows.lock import run_lock
@@ -372,6 +372,10 @@ class FitCallbacks:
     def training_epoch(self, r: int, epoch: int, max_epochs: int, loss: float) -> None:
         """The estimator finished an epoch on round ``r``'s data."""
 
+    def read_from_bank(self, r: int, hits: int, total: int) -> None:
+        """``hits`` of the ``total`` simulations of round ``r`` run in this call were read from the simulation bank
+        instead of simulated (told once they are all done, only when ``hits > 0``)."""
+
     def round_end(self, r: int, summary: dict[str, Any]) -> None:
         """Round ``r`` is complete; ``summary`` as in ``report.json``'s ``per_round``."""
 
@@ -547,6 +551,29 @@ def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
                       clock: _Clock | None = None, sensor: "SensorDraws | None" = None) -> None:
+    """Simulate round ``r``'s pending simulations and store them; those read from the context's simulation bank
+    are counted in the round (:meth:`RunStore.add_bank_hits`, also when interrupted) and told to ``hooks``."""
+    count, n = BankCount(), len(store.pending(r))
+    try:
+        _simulate_pending(store, r, ctx, executor, hooks, count, clock, sensor)
+    finally:
+        if count.hits:
+            with contextlib.suppress(OSError):
+                store.add_bank_hits(r, count.hits)
+    _tell_bank(hooks, r, count, n, ctx.bank)
+
+
+def _tell_bank(hooks: FitCallbacks, r: int, count: BankCount, n: int, bank: str | None) -> None:
+    """Tell ``hooks`` how many of phase ``r``'s ``n`` simulations were read from ``bank``, and warn once of entries
+    stored there under another key."""
+    if count.hits:
+        hooks.read_from_bank(r, count.hits, n)
+    if count.wrong_key:
+        hooks.message(count.warning(bank))
+
+
+def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
+                      count: BankCount, clock: _Clock | None, sensor: "SensorDraws | None") -> None:
     data = store.round_data(r, ROUND_ARRAYS + (("sensor_u",) if sensor is not None else ()))
     extra = "sensor_u" in data
     for attempt in range(2):  # one retry for jobs whose worker crashed
@@ -573,6 +600,7 @@ def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                 continue
             store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"],
                                    sensor_x=res.get("sensor_x"))
+            count.add(res.get("bank"))
             if clock is not None:
                 clock.save()
             done += 1
@@ -733,10 +761,14 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
         PluginNotFound, ParameterError: bad plugin names, effects or bounds.
         EnvironmentFault: the machine cannot simulate; nothing is stored as failed.
         PosteriorError: a round's posterior has no mass in the prior box.
+        SoftsbiError: a simulation bank that is empty, a file, cannot be created, or lies inside or around
+            ``out_dir`` or the recording (:func:`~softsbi.workflows.bank.check_bank_path`).
     """
     callbacks = callbacks or FitCallbacks()
     cfg = (cfg or FitConfig()).resolved(recording)
     cfg.validate()
+    observed = recording.source if recording.source and Path(recording.source).is_dir() else None
+    check_bank_path(cfg.sim_bank, {"--out": out_dir, "--observed": observed})
     with run_lock(out_dir):
         return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
 
@@ -1003,6 +1035,7 @@ class _Rounds:
                                  f"the finished simulations are kept in {store.path}") from exc
         self.summaries.append({"round": r, "simulations": int(len(d["status"])), "usable": counts[r],
                                "failed": int((d["status"] != STATUS_OK).sum()),
+                               "bank_hits": int(store.round_attrs(r).get("bank_hits", 0)),
                                "chamfer_proposal": stats, "train": info, "mass_in_box": post.mass_in_box,
                                "posterior_mean": self.space.as_dict(self.space.from_unit(mean_u))})
         self.cb.round_end(r, self.summaries[-1])
@@ -1097,6 +1130,8 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         "proposal": cfg.proposal if loop.sequential else "prior",
         "min_height_m": cfg.min_height, "frames": cfg.frames,
         "failed_simulations": failed,
+        # simulations of the rounds read from the simulation bank instead of simulated (per round in per_round)
+        "bank_hits": sum(s["bank_hits"] for s in summaries),
         "chamfer_prior_m": (prior_stats or {}).get("mean_m"),
         "chamfer_prior_std_m": (prior_stats or {}).get("std_m"),
         "chamfer_posterior_m": ev_stats.get("mean_m"),
@@ -1122,7 +1157,7 @@ def _report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: _Roun
         # parameters whose posterior piles up at a prior bound: a prior too narrow, or a misspecified model
         "posterior_at_bounds": bound_pressure(space, samples),
         "truth": recording.truth,
-        "per_round": [{"round": s["round"], "usable": s["usable"], "failed": s["failed"],
+        "per_round": [{"round": s["round"], "usable": s["usable"], "failed": s["failed"], "bank_hits": s["bank_hits"],
                        "chamfer_posterior_m": (s.get("chamfer_posterior") or {}).get("mean_m"),
                        "chamfer_posterior_std_m": (s.get("chamfer_posterior") or {}).get("std_m"),
                        "mass_in_box": s["mass_in_box"], "train_seconds": s["train"].get("seconds"),
@@ -1174,6 +1209,7 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     done = 0
     # the run's own bank: check, diagnose, compare and view re-simulate these rollouts first (RunView.sim_context)
     bank = str(store.path.parent / "sims.zarr") if banks_enabled() and ctx.ref_masks is None else None
+    count = BankCount()
     for i, res in executor.map_unordered(simulate_job, list(zip(theta, seeds)), context=replace(ctx, bank=bank)):
         done += 1
         hooks.simulation_done(-1, done, cfg.n_eval)
@@ -1181,11 +1217,13 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
             raise res
         if isinstance(res, BaseException):
             continue
+        count.add(res.get("bank"))
         status[i] = res["status"]
         if res["chamfer"] is not None:
             chamfer[i] = res["chamfer"]
         if res.get("chamfer_one_sided") is not None:
             one_sided[i] = res["chamfer_one_sided"]
+    _tell_bank(hooks, -1, count, cfg.n_eval, bank)
     arrays = {"theta": theta, "u": u, "status": status, "chamfer": chamfer}
     if ctx.ref_masks is None:
         arrays["chamfer_one_sided"] = one_sided

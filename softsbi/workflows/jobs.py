@@ -22,8 +22,8 @@ from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_fro
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
-from softsbi.workflows.bank import SimulationBank, rollout_key
-from softsbi.workflows.progress import phase
+from softsbi.workflows.bank import BankCount, SimulationBank, rollout_key
+from softsbi.workflows.progress import notify, phase
 
 
 @dataclass
@@ -72,17 +72,18 @@ def _objects(ctx: SimContext) -> tuple[Any, Any, Scenario]:
 
 
 def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
-              seed: int) -> Any:
-    """``sim.simulate``, through the context's simulation bank when it has one."""
+              seed: int) -> tuple[Any, str | None]:
+    """``(rollout, what the bank found)``: ``sim.simulate``, through the context's simulation bank when it has one
+    (:meth:`~softsbi.workflows.bank.SimulationBank.lookup`; None without a bank)."""
     if ctx.bank is None:
-        return sim.simulate(scenario, values, effects=effects, seed=seed)
+        return sim.simulate(scenario, values, effects=effects, seed=seed), None
     bank = SimulationBank(ctx.bank)
     key = rollout_key(ctx.backend, ctx.backend_options, ctx.scenario, effects, values, seed)
-    ro = bank.get(key)
+    ro, what = bank.lookup(key)
     if ro is None:
         ro = sim.simulate(scenario, values, effects=effects, seed=seed)
         bank.put(key, ro)
-    return ro
+    return ro, what
 
 
 def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
@@ -103,7 +104,8 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     Returns:
         ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
         or None, "seconds"}``, plus ``sensor_x`` ``(K, T, 1+K, 3)`` with ``sensor_draws`` (the observations at
-        the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``;
+        the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``; ``"bank"``: what the
+        simulation bank found (:data:`~softsbi.workflows.bank.HIT`, ``MISS``, ``WRONG_KEY``; None without one);
         ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
         seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
         half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
@@ -120,6 +122,7 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     else:
         values = dict(zip(ctx.param_names, map(float, theta)))
     values.update(ctx.fixed)
+    banked = None
     try:
         if getattr(obs, "needs_images", False):
             ro = sim.simulate_images(scenario, values, camera=obs.camera, effects=effects, seed=int(seed),
@@ -127,11 +130,11 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
         elif draws:  # simulate without the observation transforms, then observe once per draw
             plan = check_effects(sim, draws["effects"])
             own = {p.name for e in plan.effects for p in e.param_space()}
-            raw = _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
+            raw, banked = _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
                             [e for e in effects if e not in draws["effects"]], int(seed))
             ro = plan.observe(raw, values, int(seed))
         else:
-            ro = _simulate(ctx, sim, scenario, values, effects, int(seed))
+            ro, banked = _simulate(ctx, sim, scenario, values, effects, int(seed))
     except SoftsbiError:
         raise
     except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed
@@ -139,10 +142,10 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
                                f"fix the installation and re-run the same command to resume") from exc
     except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
         return {"status": STATUS_ERROR, "reason": f"{type(exc).__name__}: {exc}", "x": None, "chamfer": None,
-                "seconds": time.perf_counter() - t0}
+                "seconds": time.perf_counter() - t0, "bank": banked}
     if not ro.ok:
         return {"status": int(ro.status), "reason": ro.reason, "x": None, "chamfer": None,
-                "seconds": time.perf_counter() - t0}
+                "seconds": time.perf_counter() - t0, "bank": banked}
     rng = np.random.default_rng([int(seed), 17])
     effect_z = rollout_min_z(ro)  # a sensor effect's visibility threshold (table-unseen), else None
     # a camera fit: the virtual depth sensor makes the simulated clouds of the metric (FitConfig.sensor) and
@@ -163,7 +166,7 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
             else:  # a sensor effect's threshold (table-unseen) adds to the fit's own
                 ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, effect_z))
     out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
-           "seconds": time.perf_counter() - t0}
+           "seconds": time.perf_counter() - t0, "bank": banked}
     if draws:
         # each draw: the sensor effects' own randomness (point noise) drawn afresh, the observer's point
         # sampling the primary's (so a draw at theta's own sensor parameters repeats x when they are deterministic)
@@ -200,6 +203,7 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
     """
     exe = registry().executor(executor)(workers=workers, **dict(executor_options or {}))
     out: list[dict[str, Any] | None] = [None] * len(items)
+    count = BankCount()
     try:
         with phase(label, len(items)) as advance:
             for done, (i, res) in enumerate(exe.map_unordered(simulate_job, items, context=ctx), start=1):
@@ -209,7 +213,10 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
                     res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None,
                            "chamfer": None}
                 out[i] = res
-                advance(done)
+                count.add(res.get("bank"))
+                advance(done, count.hits)
+            if count.wrong_key:
+                notify(count.warning(ctx.bank))
     finally:
         exe.close()
     return out  # type: ignore[return-value]

@@ -29,6 +29,13 @@ class Reporter:
     def end(self, handle: Any) -> None:
         """The phase is over."""
 
+    def read_from_bank(self, handle: Any, hits: int, total: int) -> None:
+        """``hits`` of the phase's ``total`` simulations were read from the simulation bank (told once, when they
+        are all done, and only when ``hits > 0``)."""
+
+    def message(self, text: str) -> None:
+        """A notice for the user (e.g. bank entries under another key, :class:`~softsbi.workflows.bank.BankCount`)."""
+
 
 @contextlib.contextmanager
 def reporting(reporter: Reporter | None) -> Iterator[None]:
@@ -40,16 +47,31 @@ def reporting(reporter: Reporter | None) -> Iterator[None]:
         _CURRENT.reset(token)
 
 
+def notify(text: str) -> None:
+    """Tell the current reporter a notice (nothing without one)."""
+    rep = _CURRENT.get()
+    if rep is not None:
+        rep.message(text)
+
+
 @contextlib.contextmanager
-def phase(label: str, total: int) -> Iterator[Callable[[int], None]]:
-    """A phase of ``total`` simulations, told to the current reporter; yields ``advance(done)``."""
+def phase(label: str, total: int) -> Iterator[Callable[..., None]]:
+    """A phase of ``total`` simulations, told to the current reporter; yields ``advance(done, hits=0)``
+    (``hits`` of the ``done`` were read from the simulation bank: told with :meth:`Reporter.read_from_bank`
+    once all ``total`` are done)."""
     rep = _CURRENT.get()
     if rep is None or total <= 0:
-        yield lambda done: None
+        yield lambda done, hits=0: None
         return
     handle = rep.start(label, total)
+
+    def advance(done: int, hits: int = 0) -> None:
+        rep.advance(handle, done)
+        if done == total and hits:
+            rep.read_from_bank(handle, hits, total)
+
     try:
-        yield lambda done: rep.advance(handle, done)
+        yield advance
     finally:
         rep.end(handle)
 
@@ -74,6 +96,12 @@ def fit_callbacks(label: str) -> Any:
 
         def simulation_done(self, r: int, done: int, total: int) -> None:
             rep.advance(self.handle, done)
+
+        def read_from_bank(self, r: int, hits: int, total: int) -> None:
+            rep.read_from_bank(self.handle, hits, total)
+
+        def message(self, text: str) -> None:
+            rep.message(text)
 
         def round_end(self, r: int, s: dict[str, Any]) -> None:
             if self.handle is not None:

@@ -72,3 +72,186 @@ def test_a_second_fit_of_the_same_task_reads_its_first_round_from_the_bank(tmp_p
     assert first >= 40 and len(calls) - first < 40  # the second fit's 40 first-round rollouts came from the bank
     off = run_fit(tmp_path / "c", toy_measurement(truth=(-0.2, 0.1)), FitConfig(**{**cfg.__dict__, "sim_bank": "off"}))
     np.testing.assert_array_equal(b.store.round_data(0)["x"], off.store.round_data(0)["x"])
+
+
+def _move(bank, src: str, dst: str) -> None:
+    """Put ``src``'s entry folder in ``dst``'s place, as a user moving or copying folders by hand would."""
+    import shutil
+    shutil.rmtree(bank._where(dst), ignore_errors=True)
+    bank._where(dst).parent.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(bank._where(src), bank._where(dst))
+
+
+def test_an_entry_under_another_key_is_detected_and_an_old_one_is_a_miss(tmp_path):
+    """The checksum covers the key: an intact entry copied into another key's place is not read as that key's."""
+    import zarr
+    from softsbi.workflows.bank import HIT, MISS, WRONG_KEY
+    bank = SimulationBank(tmp_path / "bank")
+    a, b = "ab" * 32, "cd" * 32
+    assert bank.put(a, _rollout(0)) and bank.put(b, _rollout(1))
+    _move(bank, a, b)
+    assert bank.lookup(b) == (None, WRONG_KEY) and bank.get(b) is None
+    assert bank.lookup(a)[1] == HIT
+    assert bank.put(b, _rollout(1)) and bank.lookup(b)[1] == HIT  # replaced
+    np.testing.assert_array_equal(bank.get(b).vertices, _rollout(1).vertices)
+    g = zarr.open_group(str(bank._where(a)), mode="a")  # an entry of the first format stored no key
+    del g.attrs["key"]
+    assert bank.lookup(a) == (None, MISS)
+
+
+def _fit_cfg(**kw):
+    from softsbi.workflows.fit import FitConfig
+    return FitConfig(backend="toy-gauss", rounds=1, sims_per_round=20, workers=1, n_points=16, n_dense=64, n_eval=5,
+                     estimator="mdnn", estimator_options={"max_epochs": 5}, **kw)
+
+
+def test_a_fit_reports_its_bank_hits_and_replaces_entries_under_another_key(tmp_path, monkeypatch):
+    """Report and progress count what the bank gave; two swapped entries are simulated again and replaced, with
+    one warning line, and the round equals a fit without a bank."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.bank import HIT
+    from softsbi.workflows.fit import FitCallbacks, run_fit
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+
+    class Told(FitCallbacks):
+        def __init__(self):
+            self.messages, self.read = [], []
+
+        def message(self, text):
+            self.messages.append(text)
+
+        def read_from_bank(self, r, hits, total):
+            self.read.append((r, hits, total))
+
+    a = run_fit(tmp_path / "a", toy_measurement(), _fit_cfg(), callbacks=(told_a := Told()), make_plots=False)
+    assert a.report["bank_hits"] == 0 and a.report["per_round"][0]["bank_hits"] == 0 and not told_a.read
+    bank = SimulationBank(tmp_path / "bank")
+    keys = sorted(p.name for p in (tmp_path / "bank").glob("??/*"))
+    assert len(keys) == 20
+    _move(bank, keys[0], keys[1])
+    _move(bank, keys[2], keys[3])
+    b = run_fit(tmp_path / "b", toy_measurement(), _fit_cfg(), callbacks=(told := Told()), make_plots=False)
+    assert b.report["bank_hits"] == 18 and b.report["per_round"][0]["bank_hits"] == 18
+    assert told.read == [(0, 18, 20)]
+    warned = [m for m in told.messages if "another rollout's key" in m]
+    assert len(warned) == 1 and "2 stored" in warned[0]
+    assert all(bank.lookup(k)[1] == HIT for k in keys)  # replaced by what the keys' parameters give
+    off = run_fit(tmp_path / "c", toy_measurement(), _fit_cfg(sim_bank="off"), make_plots=False)
+    np.testing.assert_array_equal(b.store.round_data(0)["x"], off.store.round_data(0)["x"])
+    # a resumed fit keeps the count (stored with the round)
+    again = run_fit(tmp_path / "b", toy_measurement(), _fit_cfg(), make_plots=False)
+    assert again.report["per_round"][0]["bank_hits"] == 18
+
+
+@pytest.mark.parametrize("terminal", [False, True])
+def test_progress_says_how_many_were_read_from_the_bank(terminal):
+    """On a terminal and in a pipe: "N of M read from the bank", and a phase never claims "to simulate"."""
+    import io
+    from rich.console import Console
+    from softsbi.cli.output import Output
+    from softsbi.cli.progress import PhaseReporter, ProgressHooks
+    from softsbi.workflows.progress import phase, reporting
+    o = Output()
+    buf = io.StringIO()
+    o.err = Console(file=buf, force_terminal=terminal, width=200, highlight=False, markup=False)
+    with o.progress() as p:
+        hooks = ProgressHooks(o, p)
+        hooks.round_start(0, 2, 20, 20)
+        hooks.read_from_bank(0, 20, 20)
+        with reporting(PhaseReporter(o, p)), phase("posterior-predictive rollouts", 10) as advance:
+            for done in range(1, 11):
+                advance(done, min(done, 7))
+    text = buf.getvalue()
+    assert "round 1/2 simulations: 20 of 20 read from the bank" in text
+    assert "posterior-predictive rollouts: 7 of 10 read from the bank" in text
+    assert "to simulate" not in text
+
+
+def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_key(tmp_path):
+    """check, diagnose, compare and view re-simulate through the run's bank: the phase is told its hits, and a
+    swapped entry is one warning line."""
+    toy = pytest.importorskip("softsbi_toy.plugin")
+    from softsbi.workflows.jobs import SimContext, run_jobs
+    from softsbi.workflows.progress import Reporter, reporting
+
+    class Told(Reporter):
+        def __init__(self):
+            self.read, self.messages = [], []
+
+        def read_from_bank(self, handle, hits, total):
+            self.read.append((hits, total))
+
+        def message(self, text):
+            self.messages.append(text)
+
+    sc = toy.toy_scenario(3)
+    ctx = SimContext(backend="toy-gauss", backend_options={}, scenario=sc.to_json(), effects=[], observer="pointcloud",
+                     observer_options={"n_points": 16}, param_names=["a", "b"], fixed={}, dense=None, n_dense=64,
+                     bank=str(tmp_path / "bank"))
+    items = [(np.array([0.1 * i, -0.1 * i]), i) for i in range(4)]
+    with reporting(first := Told()):
+        run_jobs(ctx, items, workers=1)
+    assert first.read == [] and first.messages == []
+    bank = SimulationBank(tmp_path / "bank")
+    keys = sorted(p.name for p in (tmp_path / "bank").glob("??/*"))
+    _move(bank, keys[0], keys[1])
+    with reporting(second := Told()):
+        res = run_jobs(ctx, items, workers=1)
+    assert second.read == [(3, 4)] and len(second.messages) == 1 and "1 stored" in second.messages[0]
+    assert sorted(r["bank"] for r in res) == ["hit", "hit", "hit", "wrong key"]
+
+
+def _refused(args, tmp_path):
+    from typer.testing import CliRunner
+    from softsbi.cli import app
+    res = CliRunner().invoke(app, ["fit", "--backend", "toy-gauss", "--observed", str(tmp_path / "rec"), "--out",
+                                   str(tmp_path / "run"), *args])
+    assert res.exit_code != 0 and "Traceback" not in res.output, res.output
+    return " ".join(res.output.split())
+
+
+def test_bank_paths_are_checked_before_any_work(tmp_path, monkeypatch):
+    """An empty --sim-bank, a bank inside the run or the recording, a bank that is a file or cannot be created:
+    one line naming the flag, before the recording is read (it does not exist here) and before anything is
+    written."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "user-bank"))
+    (tmp_path / "rec").mkdir()
+    (tmp_path / "file").write_text("not a folder")
+    assert "--sim-bank is empty" in _refused(["--sim-bank", ""], tmp_path)
+    assert "is inside --out" in _refused(["--sim-bank", str(tmp_path / "run" / "bank")], tmp_path)
+    assert "is inside --observed" in _refused(["--sim-bank", str(tmp_path / "rec" / "bank")], tmp_path)
+    assert f"--out {tmp_path / 'run'} is inside --sim-bank" in _refused(["--sim-bank", str(tmp_path)], tmp_path)
+    assert "--sim-bank " + str(tmp_path / "file") + " is a file" in _refused(["--sim-bank", str(tmp_path / "file")],
+                                                                             tmp_path)
+    assert "cannot be created" in _refused(["--sim-bank", str(tmp_path / "file" / "bank")], tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "rec"]  # nothing written, no run begun
+
+
+def test_the_bank_named_by_the_environment_is_checked_alike(tmp_path, monkeypatch):
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.bank import check_bank_path
+    (tmp_path / "file").write_text("not a folder")
+    for bad, why in [(tmp_path / "file", "is a file"), (tmp_path / "file" / "b", "cannot be created"),
+                     (tmp_path / "run" / "b", "is inside --out")]:
+        monkeypatch.setenv("SOFTSBI_SIM_BANK", str(bad))
+        assert f"SOFTSBI_SIM_BANK {bad} {why}" in _refused([], tmp_path)
+        assert "SOFTSBI_SIM_BANK=off" in _refused([], tmp_path)
+        with pytest.raises(SoftsbiError, match="SOFTSBI_SIM_BANK"):  # the API checks it too
+            check_bank_path("default", {"--out": tmp_path / "run"})
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "new" / "bank"))
+    check_bank_path("default", {"--out": tmp_path / "run", "--observed": None})
+    assert (tmp_path / "new" / "bank").is_dir()  # created
+
+
+def test_the_api_refuses_an_empty_bank_before_any_work(tmp_path, monkeypatch):
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.fit import run_fit
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "user-bank"))
+    with pytest.raises(SoftsbiError, match="--sim-bank is empty"):
+        run_fit(tmp_path / "run", toy_measurement(), _fit_cfg(sim_bank=""))
+    assert not (tmp_path / "run").exists() and not list(tmp_path.glob("??"))
