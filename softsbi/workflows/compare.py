@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import CompareResult, Row, write_result
+from softsbi.core.results import CompareResult, Row, check_result_path, write_result
 from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
@@ -47,6 +47,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
                            f"{rb.config.get('observed_source')}); compare runs of the same measurement")
     check_out_dir(out_dir)
+    check_result_path(Path(out_dir) / "compare.json")
     for run in (run_a, run_b):
         check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
                                             "run directory to a writable place and compare the copy")
