@@ -609,7 +609,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     from softsbi.cli.progress import shown
     with shown(o):
         res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, max_null=max_null,
-                           recompute=recompute)
+                           recompute=recompute, message=o.message)
     if as_json:
         o.emit_json(to_json(res))
         return

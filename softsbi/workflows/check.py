@@ -303,7 +303,7 @@ def stored_result(path: Path, cls: type, key: dict[str, Any], say: Callable[[str
     if not path.is_file():
         return None
     try:
-        data = read_json(path, "")
+        data = read_json(path, "", ("key",))
         return from_json(cls, data) if data.get("key") == key else None
     except ResultDamaged as exc:
         problem = exc.problem

@@ -30,7 +30,7 @@ from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, Round
 from softsbi.core.errors import DataError, ParameterError, PosteriorDamaged, PosteriorError, SchemaError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
-from softsbi.core.results import ResultDamaged, read_json, write_json_atomic
+from softsbi.core.results import ResultDamaged, check_result_path, read_json, write_json_atomic
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
@@ -766,6 +766,7 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
     cfg = (cfg or FitConfig()).resolved(recording)
     cfg.validate()
     with run_lock(out_dir):
+        check_result_path(Path(out_dir) / "report.json")  # a folder in its place: refused before any simulation
         return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
 
 

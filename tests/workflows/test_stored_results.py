@@ -167,3 +167,21 @@ def test_diagnose_out_keeps_a_second_diagnosis_apart(run, tmp_path):
     d = softsbi.diagnose(run, out=tmp_path / "second", progress=said.append, **DIAG)
     assert said[-1].startswith(f"reused {tmp_path / 'second' / 'diagnosis.json'}") and d.run == str(run)
     assert not (run / "diagnosis.json").exists()
+
+
+def test_compare_computes_a_damaged_check_again_saying_so(run, tmp_path):
+    (run / "check.json").write_text("{}")
+    res = runner.invoke(app, ["compare", str(run), str(run), "--out", str(tmp_path / "cmp"), "--n-eval", "5",
+                              "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert f"{run / 'check.json'} cannot be used (it lacks 'key'): computing it again" in res.output
+    assert f"reused {run / 'check.json'}" in res.output  # the second run's check: the one just written
+    assert json.loads((run / "check.json").read_text())["type"] == "CheckResult"
+
+
+def test_a_fit_whose_report_json_is_a_folder_is_refused_before_simulating(tmp_path):
+    out = tmp_path / "run"
+    (out / "report.json").mkdir(parents=True)
+    with pytest.raises(SoftsbiError, match="report.json' is a folder, not a file"):
+        run_fit(out, toy_measurement(), _cfg(), make_plots=False)
+    assert not (out / "run.zarr").exists()
