@@ -485,7 +485,8 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
     o = Output(as_json)
     from softsbi.cli.progress import shown
     with shown(o):
-        out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute)
+        out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute,
+                        message=o.message)
     if as_json:
         o.emit_json(to_json(out))
         return
@@ -498,7 +499,6 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
            + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
               f"{t.directional.text()}" if t.directional else ""))
     o.line(check_summary(out))
-    o.line(f"wrote {run / 'check.json'} and {run / 'check.png'}")
 
 
 @app.command()
@@ -569,6 +569,8 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
              alpha: float = typer.Option(ALPHA, help=H_ALPHA),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
              recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
+             out_dir: Optional[Path] = typer.Option(None, "--out", help="output folder of diagnosis.json and the "
+                                                    "refits (default: RUN), to keep two diagnoses of one run apart"),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Is an effect missing, and which? Detect (check's test), propose (the screening ranks the candidates and the
     top ones are refitted), decide (a refit explains the misfit when check accepts it and its energy score falls)."""
@@ -581,7 +583,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     with shown(o):
         out = diagnose_run(run, effects=names, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims,
                            k_se=k_se, workers=workers, n_null=n_null, max_null=max_null, alpha=alpha,
-                           progress=o.message, recompute=recompute)
+                           progress=o.message, recompute=recompute, out_dir=out_dir)
     if as_json:
         o.emit_json(to_json(out))
         return
@@ -589,7 +591,6 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     o.line(f"verdict: {out.verdict}")
     for paragraph in diagnosis_text(out):
         o.line(paragraph)
-    o.line(f"wrote {run / 'diagnosis.json'}")
 
 
 @app.command()
@@ -610,7 +611,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     from softsbi.cli.progress import shown
     with shown(o):
         res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, max_null=max_null,
-                           recompute=recompute)
+                           recompute=recompute, message=o.message)
     if as_json:
         o.emit_json(to_json(res))
         return

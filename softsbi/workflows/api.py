@@ -141,17 +141,19 @@ def check(run: str | Path, **settings: Any) -> CheckResult:
     return check_run(run, **settings)
 
 
-def diagnose(run: str | Path, effects: Sequence[str] | None = None, **settings: Any) -> Diagnosis:
+def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | Path | None = None,
+             **settings: Any) -> Diagnosis:
     """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.diagnose.diagnose_run`;
     ``settings``: ``alpha``, ``k_se``, ``confirm``, ``refit_rounds``, ``refit_sims``, ``workers``, ...). Returns the
-    :class:`~softsbi.core.results.Diagnosis` (also in ``RUN/diagnosis.json``).
+    :class:`~softsbi.core.results.Diagnosis` (also in ``OUT/diagnosis.json``; ``out``, as ``diagnose --out``: the
+    folder of the diagnosis and its refits, default ``run``).
 
     Raises:
         SoftsbiError: ``effects`` given as one string (name them in a list), and everything ``diagnose_run`` raises.
     """
     if isinstance(effects, str):
         raise SoftsbiError(f"effects must be a list of effect names, e.g. effects=[{effects!r}]")
-    return diagnose_run(run, effects=effects, **settings)
+    return diagnose_run(run, effects=effects, out_dir=out, **settings)
 
 
 def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, **settings: Any) -> CompareResult:

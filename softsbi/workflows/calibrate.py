@@ -29,7 +29,6 @@ the inferred parameters (log scale for log-scaled parameters).
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -38,6 +37,7 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, TruncatedPrior
 from softsbi.core.errors import PosteriorError, SoftsbiError
+from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
@@ -197,6 +197,8 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     if n_test < 20:
         raise SoftsbiError(f"--n-test must be >= 20 (got {n_test}); 200 or more resolves the 90% coverage")
     store = RunStore.open(run_dir / "run.zarr")
+    if write:
+        check_result_path(run_dir / "calibration.json")
     cfg = FitConfig.from_run_config(store.config)
     space = ParamSpace.from_json(store.config["param_space"])
     rounds = store.completed_rounds()
@@ -295,6 +297,6 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     }
     if write:
         with run_lock(run_dir):
-            (run_dir / "calibration.json").write_text(json.dumps(out, indent=2))
+            write_json_atomic(run_dir / "calibration.json", out)
             plot_calibration(run_dir / "calibration.png", out)
     return out

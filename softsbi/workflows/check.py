@@ -20,17 +20,17 @@ horizontal extent), which both simulated surfaces and real partial clouds have.
 from __future__ import annotations
 
 import hashlib
-import json
 import time
 import warnings
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import Band, CheckResult, Phase, ResidualShape, from_json, write_result
+from softsbi.core.results import (Band, CheckResult, Phase, ResidualShape, ResultDamaged, check_result_path, from_json,
+                                  read_json, write_result)
 from softsbi.core.types import STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
@@ -296,20 +296,32 @@ def result_key(run: RunView, **settings: Any) -> dict[str, Any]:
     return {"report": digest, **{k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.items()}}
 
 
-def stored_result(path: Path, cls: type, key: dict[str, Any]) -> Any:
-    """The result stored at ``path`` if it was computed under ``key`` (:func:`result_key`), else None (also for
-    a file from an older softsbi or a damaged one: the caller computes it again)."""
-    try:
-        data = json.loads(path.read_text())
-        return from_json(cls, data) if data.get("key") == key else None
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+def stored_result(path: Path, cls: type, key: dict[str, Any], say: Callable[[str], None] | None = None) -> Any:
+    """The result stored at ``path`` if it was computed under ``key`` (:func:`result_key`), else None: no file,
+    other settings, or a file that cannot be used (damaged, or from another softsbi), which is told to ``say`` in
+    one line (the caller computes it again and replaces the file)."""
+    if not path.is_file():
         return None
+    try:
+        data = read_json(path, "", ("key",))
+        return from_json(cls, data) if data.get("key") == key else None
+    except ResultDamaged as exc:
+        problem = exc.problem
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        problem = f"not a {cls.__name__}: {exc}"
+    (say or (lambda _: None))(f"{path} cannot be used ({problem}): computing it again")
+    return None
+
+
+def reused(path: Path) -> str:
+    """The line that says a stored result was reused rather than written."""
+    return f"reused {path} (computed before for this fit and these settings; --recompute computes it again)"
 
 
 def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
               pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None,
-              recompute: bool = False) -> CheckResult:
+              recompute: bool = False, message: Callable[[str], None] | None = None) -> CheckResult:
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
@@ -320,6 +332,7 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         effects: the directional test's family (default: every installed effect the run's backend can apply
             and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
         recompute: simulate again even when ``check.json`` holds the result for the same fit and settings.
+        message: told in one line what was written, or that the stored result was reused (or could not be).
 
     Returns:
         the :class:`~softsbi.core.results.CheckResult`: Chamfer per frame with its band, error per region (ranked
@@ -331,8 +344,8 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
 
     Raises:
         SoftsbiError: ``n_eval`` < :data:`MIN_ROLLOUTS`, or a null cap that cannot resolve ``alpha`` (before
-            simulating); fewer posterior rollouts succeeded; RunDirError: the run directory cannot be written (before
-            simulating).
+            simulating); fewer posterior rollouts succeeded; RunDirError, ResultUnwritable: the run directory or its
+            check.json cannot be written (before simulating; ResultUnwritable also when the disk fills up at the end).
     """
     t0 = time.perf_counter()
     if not isinstance(n_eval, int) or n_eval < MIN_ROLLOUTS:
@@ -343,10 +356,14 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
     cands = candidate_effects(run, effects)
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
                      family=sorted(c.name for c in cands))
-    stored = None if recompute else stored_result(run.path / "check.json", CheckResult, key)
+    say = message or (lambda _: None)
+    json_path = check_result_path(run.path / "check.json")
+    stored = None if recompute else stored_result(json_path, CheckResult, key, say)
     if stored is not None:
         if plot and not (run.path / "check.png").exists():
             plot_check(run.path / "check.png", stored)
+            say(f"wrote {run.path / 'check.png'}")
+        say(reused(json_path))
         return stored
     check_out_dir(run_dir, "run directory", "check writes check.json and check.png into it: copy the run "
                                             "directory to a writable place and check the copy")
@@ -403,8 +420,8 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         regions_from=_grasp_words(run.scenario),
         phases_from=("the scenario's keyframes" if (run.scenario.options or {}).get("keyframe_times")
                      else "equal thirds of the motion"))
-    run_dir = Path(run_dir)
-    write_result(run_dir / "check.json", result)
+    write_result(json_path, result)
     if plot:
-        plot_check(run_dir / "check.png", result)
+        plot_check(run.path / "check.png", result)
+    say(f"wrote {json_path}" + (f" and {run.path / 'check.png'}" if plot else ""))
     return result

@@ -8,9 +8,10 @@ headline averaged over the fit's frames; runs whose sensor models differ
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import CompareResult, Row, write_result
+from softsbi.core.results import CompareResult, Row, check_result_path, write_result
 from softsbi.report import fit_label, plot_compare
 from softsbi.workflows.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
@@ -20,7 +21,8 @@ from softsbi.workflows.stats import ALPHA, MAX_NULL, N_NULL
 
 
 def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = N_NULL,
-                 workers: int | None = None, max_null: int = MAX_NULL, recompute: bool = False) -> CompareResult:
+                 workers: int | None = None, max_null: int = MAX_NULL, recompute: bool = False,
+                 message: Callable[[str], None] | None = None) -> CompareResult:
     """Posterior predictive checks of two runs of the same measurement, side by side.
 
     Writes ``compare.png`` (Chamfer per frame, error per region) and ``compare.json``. Everything that can be refused
@@ -31,6 +33,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         out_dir: where the figure and the JSON go.
         n_eval, max_null: each run's :func:`~softsbi.workflows.check.check_run` settings.
         recompute: check both runs again even when their ``check.json`` hold the same settings.
+        message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).
 
     Returns:
         the :class:`~softsbi.core.results.CompareResult`: rows ``what``, ``a``, ``b`` (posterior-predictive
@@ -47,11 +50,12 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
                            f"{rb.config.get('observed_source')}); compare runs of the same measurement")
     check_out_dir(out_dir)
+    check_result_path(Path(out_dir) / "compare.json")
     for run in (run_a, run_b):
         check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
                                             "run directory to a writable place and compare the copy")
-    a = check_run(run_a, n_eval=n_eval, workers=workers, max_null=max_null, recompute=recompute)
-    b = check_run(run_b, n_eval=n_eval, workers=workers, max_null=max_null, recompute=recompute)
+    a = check_run(run_a, n_eval=n_eval, workers=workers, max_null=max_null, recompute=recompute, message=message)
+    b = check_run(run_b, n_eval=n_eval, workers=workers, max_null=max_null, recompute=recompute, message=message)
     rows = [Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m)]
     if a.chamfer_one_sided_mean_m is not None and b.chamfer_one_sided_mean_m is not None:
         rows.append(Row("one-sided Chamfer (measured -> simulated)", a.chamfer_one_sided_mean_m,

@@ -16,7 +16,6 @@ Antonova et al. 2022, Sec. V) between area-weighted surface samples of the two m
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -24,6 +23,7 @@ import numpy as np
 
 from softsbi.core.errors import ParameterError
 from softsbi.core.metrics import chamfer_per_frame
+from softsbi.core.results import write_json_atomic
 from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
 from softsbi.report.figures import plot_compare_backends
 from softsbi.workflows.defaults import COMPARED_BACKENDS
@@ -167,5 +167,5 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
         out.mkdir(parents=True, exist_ok=True)
         png = plot_compare_backends(scenario, rollouts, report, out / "compare.png")
         report["files"] = [str(out / "compare.json"), str(png)]
-        (out / "compare.json").write_text(json.dumps(report, indent=2))
+        write_json_atomic(out / "compare.json", report)
     return report

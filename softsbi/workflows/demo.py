@@ -13,7 +13,6 @@ every number as one dict.
 from __future__ import annotations
 
 import contextlib
-import json
 import time
 from pathlib import Path
 from typing import Any, Iterator
@@ -32,7 +31,7 @@ from softsbi.workflows.defaults import DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOS
 from softsbi.workflows.compare import compare_runs
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.stats import PosteriorPredictive
-from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
+from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, read_report, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 #: the demo's hidden parameter values (unit-cube positions; the user is not told them before the fit ends)
@@ -145,14 +144,14 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     eff = "+".join(diag.decision.named)
     refit = Path(diag.refit(diag.decision.named).run)
     ui.step(f"4. add the effect: the refit with {eff} (what `softsbi fit ... --effect {eff}` gives)")
-    ui.fit_done(json.loads((refit / "report.json").read_text()), refit)
+    ui.fit_done(read_report(refit), refit)
     ui.step("5. compare: error before and after")
     with ui.working("comparing the two fits ..."):
         comp = compare_runs(nominal, refit, out, workers=workers)
     ui.comparison_done(comp, eff)
     a, b = comp.check_a, comp.check_b
     before, after = comp.rows[0].a, comp.rows[0].b
-    doc.update(refit=json.loads((refit / "report.json").read_text()), compare=to_json(comp), named=eff,
+    doc.update(refit=read_report(refit), compare=to_json(comp), named=eff,
                named_correctly=set(diag.decision.named) == set(DEMO_HIDDEN_EFFECT), chamfer_before_m=before,
                chamfer_after_m=after)
     ui.step("the numbers")

@@ -15,7 +15,6 @@ rendered by :mod:`softsbi.report.text`.
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -24,15 +23,16 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit, from_json,
-                                  write_result)
+from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit,
+                                  ResultDamaged, check_result_path, from_json, read_json, write_result)
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
-from softsbi.workflows.check import check_run, result_key, stored_result
+from softsbi.workflows.check import check_run, result_key, reused, stored_result
 from softsbi.workflows import defaults
 from softsbi.workflows.decide import K_SE, decide, next_refit
 from softsbi.workflows.progress import fit_callbacks
 from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.lock import run_lock
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, check_resolution
 from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
@@ -48,7 +48,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
                  k_se: float = K_SE, confirm: int = defaults.CONFIRM, refit_rounds: int | None = None,
                  refit_sims: int | None = None, n_null: int = N_NULL, max_null: int = MAX_NULL,
                  workers: int | None = None, seed: int = 0, progress: Callable[[str], None] | None = None,
-                 pool: PosteriorPredictive | None = None, recompute: bool = False) -> Diagnosis:
+                 pool: PosteriorPredictive | None = None, recompute: bool = False,
+                 out_dir: str | Path | None = None) -> Diagnosis:
     """Is the nominal model enough, and if not, which candidate effect is missing? Writes ``diagnosis.json``.
 
     Args:
@@ -63,9 +64,11 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
             candidate refitted at half the budget passed where at the full budget it did not).
         n_null, max_null: start and cap of the posterior-predictive null.
         workers: simulation processes.
-        progress: told each step (``callable(str)``).
+        progress: told each step (``callable(str)``), and what was written or reused.
         pool: posterior-predictive rollouts of this run already simulated (``check``'s, same ``seed``).
         recompute: diagnose again even when ``diagnosis.json`` holds the result for the same fit and settings.
+        out_dir: the folder of ``diagnosis.json`` and the refits (default: the run directory), so that two
+            diagnoses of one run can be kept; the nominal fit's own ``check.json`` stays in the run directory.
 
     Returns:
         the :class:`~softsbi.core.results.Diagnosis`.
@@ -73,6 +76,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     Raises:
         SoftsbiError: no candidates; a null cap that cannot resolve ``alpha``; ``confirm < 0`` or ``k_se <= 0``;
             the nominal fit has too few successful rollouts.
+        RunLocked: another process writes ``out_dir`` (e.g. a second diagnose of the run), before any work.
+        ResultUnwritable, RunDirError: ``diagnosis.json`` or ``out_dir`` cannot be written (a folder in the
+            file's place: before any work; a full disk: when the result is written, the refits kept).
     """
     t0 = time.perf_counter()
     if confirm < 0 or k_se <= 0:
@@ -85,29 +91,36 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     family = tuple(c.name for c in cands)
     key = result_key(run, family=sorted(family), alpha=alpha, k_se=k_se, confirm=confirm, refit_rounds=refit_rounds,
                      refit_sims=refit_sims, n_null=n_null, max_null=max_null, seed=seed)
-    stored = None if recompute else stored_result(run.path / "diagnosis.json", Diagnosis, key)
-    if stored is not None:
-        return stored
     say = progress or (lambda _: None)
-    say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
-    pool = pool or PosteriorPredictive(run, workers, seed)
-    chk = check_run(run.path, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
-                    effects=family, recompute=recompute)
-    # the score every model is compared on: the energy score of check's summaries in the nominal's scale
-    f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
-    scale = summary_scale(f_nom)
-    nominal = summary_energy_score(run_features(run, run.dense), f_nom, scale)
-    refits: list[Refit] = []
-    while (nxt := next_refit(chk.test, chk.ranking, nominal, refits, confirm, k_se)) is not None:
-        say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
-        refits.append(refit_model(run, nxt, family, scale, alpha, refit_rounds, refit_sims, n_null, max_null, workers,
-                                  seed))
-    decision = decide(chk.test, nominal, refits, k_se)
-    generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
-    sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())  # 0 when check's result was stored
-    d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, nominal, tuple(refits), decision,
-                  chk.residual, generic, sims, key, time.perf_counter() - t0)
-    write_result(Path(run_dir) / "diagnosis.json", d)
+    out = run.path if out_dir is None else Path(out_dir)
+    json_path = check_result_path(out / "diagnosis.json")
+    stored = None if recompute else stored_result(json_path, Diagnosis, key, say)
+    if stored is not None:
+        say(reused(json_path))
+        return stored
+    busy = (f"wait for it to finish (a diagnose with the same settings then reuses its result), or keep a second "
+            f"diagnosis apart with `softsbi diagnose {run.path} --out OTHER_FOLDER`")
+    with run_lock(out, command="diagnose", busy=busy):
+        say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
+        pool = pool or PosteriorPredictive(run, workers, seed)
+        chk = check_run(run.path, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
+                        pool=pool, effects=family, recompute=recompute, message=say)
+        # the score every model is compared on: the energy score of check's summaries in the nominal's scale
+        f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
+        scale = summary_scale(f_nom)
+        nominal = summary_energy_score(run_features(run, run.dense), f_nom, scale)
+        refits: list[Refit] = []
+        while (nxt := next_refit(chk.test, chk.ranking, nominal, refits, confirm, k_se)) is not None:
+            say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
+            refits.append(refit_model(run, nxt, family, scale, alpha, refit_rounds, refit_sims, n_null, max_null,
+                                      workers, seed, out))
+        decision = decide(chk.test, nominal, refits, k_se)
+        generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
+        sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())  # 0 when check's result was stored
+        d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, nominal, tuple(refits), decision,
+                      chk.residual, generic, sims, key, time.perf_counter() - t0)
+        write_result(json_path, d)
+    say(f"wrote {json_path}")
     return d
 
 
@@ -119,14 +132,16 @@ def recording_from_run(run: RunView) -> Recording:
 
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], scale: np.ndarray | None = None,
                 alpha: float = ALPHA, rounds: int | None = None, sims_per_round: int | None = None,
-                n_null: int = N_NULL, max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0) -> Refit:
+                n_null: int = N_NULL, max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0,
+                out_root: str | Path | None = None) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
     The refit has the nominal fit's settings (:meth:`FitConfig.from_run_config`) with the effects switched on,
     :data:`REFIT_PROPOSAL` proposals, no extra sensor draws (every refit observes each simulation once, physics
     and sensor effects alike) and its own rounds and simulations per round (default: the nominal fit's, so that an
     added effect is fitted as well as the model it extends); it is stored in
-    ``RUN/refit-<a>+<b>`` and resumes from there. It is checked by :func:`~softsbi.workflows.check.check_run` (so
+    ``RUN/refit-<a>+<b>`` (``out_root/refit-<a>+<b>`` when given) and resumes from there. It is checked by
+    :func:`~softsbi.workflows.check.check_run` (so
     ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
     its score is the energy score of its first ``n_null`` posterior-predictive rollouts' summaries in ``scale``
     (the nominal fit's, :func:`~softsbi.workflows.stats.summary_energy_score`; no score without ``scale``).
@@ -139,7 +154,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     cfg = replace(base, effects=list(run.effects) + list(effects), rounds=int(rounds or base.rounds),
                   sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
                   sensor_draws=0, workers=workers if workers is not None else base.workers)
-    out = run.path / f"refit-{'+'.join(effects)}"
+    out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
     res = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
     pool = PosteriorPredictive(out, workers, seed)
     chk = check_run(out, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
@@ -172,15 +187,19 @@ def load_diagnosis(path: str | Path) -> Diagnosis:
     ranking, refits' tests and scores.
 
     Raises:
-        SoftsbiError: no such file, or one that is not a diagnosis.
+        SoftsbiError: no such file; ResultDamaged: one that cannot be read or is not a diagnosis (one line naming
+            it and the command that writes it again).
     """
     path = Path(path)
-    path = path / "diagnosis.json" if path.is_dir() else path
+    path = path / "diagnosis.json" if path.is_dir() and not path.name == "diagnosis.json" else path
+    rewrite = f"`softsbi diagnose {path.parent}`"
+    if not path.exists():
+        raise SoftsbiError(f"no diagnosis at '{path}'; {rewrite} writes it")
+    data = read_json(path, rewrite)
     try:
-        data = json.loads(path.read_text())
         return from_json(Diagnosis, data) if "schema" in data else _legacy_diagnosis(data)
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise SoftsbiError(f"cannot read the diagnosis '{path}' ({e}); run `softsbi diagnose` on the run again") from e
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ResultDamaged(path, f"not a diagnosis: {e}", rewrite) from e
 
 
 def _legacy_test(m: dict[str, Any], family: Sequence[str]) -> JointTest:

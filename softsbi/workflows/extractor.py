@@ -2,13 +2,14 @@
 rollouts, and measure its test error."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.results import write_json_atomic
+from softsbi.core.types import jsonable
 from softsbi.workflows import defaults
 from softsbi.data.keypoints import block_split, keypoint_errors, load_keypoint_folder
 from softsbi.perception.synthdata import render_training_set, visible_corner_labels
@@ -74,7 +75,7 @@ def train_extractor(kind: str, out: str | Path, data: str | Path | None = None, 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ext.save(out)
-    out.with_suffix(".json").write_text(json.dumps(summary, indent=2, default=float))
+    write_json_atomic(out.with_suffix(".json"), jsonable(summary))
     return dict(summary, checkpoint=str(out))
 
 

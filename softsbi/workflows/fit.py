@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import inspect
-import json
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -31,6 +30,7 @@ from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, Round
 from softsbi.core.errors import DataError, ParameterError, PosteriorDamaged, PosteriorError, SchemaError, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
+from softsbi.core.results import ResultDamaged, check_result_path, read_json, write_json_atomic
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
@@ -735,6 +735,34 @@ def chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | N
 
 
 
+#: what every reader of a fit's ``report.json`` needs in it (a file without them is damaged)
+REPORT_KEYS = ("parameters", "posterior_median")
+
+
+def read_report(run_dir: str | Path) -> dict[str, Any]:
+    """A finished fit's ``report.json``.
+
+    Raises:
+        ResultDamaged: it is empty, cut short, not JSON or lacks :data:`REPORT_KEYS`; one line naming it and the
+            command that writes it again (the fit's own, which resumes the finished run and rewrites only the
+            report).
+    """
+    run_dir = Path(run_dir)
+    return read_json(run_dir / "report.json", f"re-running the fit with the same `softsbi fit ... --out {run_dir}` "
+                                              f"command", REPORT_KEYS)
+
+
+def _damaged_report(run_dir: Path) -> ResultDamaged | None:
+    """The error :func:`read_report` raises for ``run_dir``'s ``report.json``; None when it is sound or absent."""
+    if not (run_dir / "report.json").exists():
+        return None
+    try:
+        read_report(run_dir)
+    except ResultDamaged as exc:
+        return exc
+    return None
+
+
 def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
             callbacks: FitCallbacks | None = None, make_plots: bool = True, retry_failed: bool = False) -> FitResult:
     """Run (or resume) a sequential fit into ``out_dir``.
@@ -770,6 +798,7 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
     observed = recording.source if recording.source and Path(recording.source).is_dir() else None
     check_bank_path(cfg.sim_bank, {"--out": out_dir, "--observed": observed})
     with run_lock(out_dir):
+        check_result_path(Path(out_dir) / "report.json")  # a folder in its place: refused before any simulation
         return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
 
 
@@ -782,6 +811,9 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     _, base = fit_param_space(cfg, recording.scenario)
     space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
     store, prev = _open_store(out_dir, recording, cfg, space, callbacks)
+    damaged = _damaged_report(out_dir)
+    if damaged is not None:
+        callbacks.message(f"{damaged}: this fit resumes the run and writes it again")
     clock = _Clock(store, prev)
     _repair_damaged(store, callbacks)
     if retry_failed:
@@ -808,7 +840,9 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     wall = clock.save(force=True)
     report = _report(recording, cfg, space, loop, ev_stats, samples, wall, store.config.get("metric", "chamfer_m"))
     report.update(best_fit=best, widened=records(store.config))
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2))
+    write_json_atomic(out_dir / "report.json", report)
+    if damaged is not None:
+        callbacks.message(f"rewrote {damaged.path}, which was damaged ({damaged.problem})")
     result = FitResult(store=store, param_space=space, posterior=post, report=report, rounds=loop.summaries)
     if make_plots:
         write_fit_plots(out_dir, result, recording, cfg, samples,

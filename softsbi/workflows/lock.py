@@ -34,11 +34,15 @@ def _storage_line(exc: OSError, run_dir: Path) -> SoftsbiError:
 
 
 @contextlib.contextmanager
-def run_lock(run_dir: str | Path) -> Iterator[None]:
+def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None) -> Iterator[None]:
     """Hold the run directory's write lock for the ``with`` block (creating the directory).
 
+    Args:
+        command: the softsbi command taking the lock (a second writer's message names it).
+        busy: what a second writer is told to do (default: wait, or fit into another ``--out``).
+
     Raises:
-        RunLocked: another process holds it; the message names its pid, since when, and the fix.
+        RunLocked: another process holds it; the message names its command, pid, since when, and the fix.
         RunDirError: the path is a file, or the directory cannot be created or written.
     """
     run_dir = Path(run_dir)
@@ -53,17 +57,19 @@ def run_lock(run_dir: str | Path) -> Iterator[None]:
     except Timeout:
         try:
             holder = json.loads(info.read_text())
-            who = f"pid {holder.get('pid')}, since {holder.get('since')}"
-        except (OSError, ValueError):
+            who = f"`softsbi {holder.get('command', 'fit')}`, pid {holder.get('pid')}, since {holder.get('since')}"
+        except (OSError, ValueError, AttributeError):
             who = "pid unknown"
-        raise RunLocked(f"run directory '{run_dir}' is being written by another softsbi process ({who}); wait "
-                        f"for it to finish (then the same command resumes) or fit into another --out") from None
+        raise RunLocked(f"run directory '{run_dir}' is being written by another softsbi process ({who}); "
+                        + (busy or "wait for it to finish (then the same command resumes) or fit into another --out")
+                        ) from None
     except OSError as exc:  # after Timeout, which is an OSError (TimeoutError) too
         if isinstance(exc, SoftsbiError):
             raise
         raise _storage_line(exc, run_dir) from None
     try:
-        info.write_text(json.dumps({"pid": os.getpid(), "since": _dt.datetime.now().isoformat(timespec="seconds")}))
+        info.write_text(json.dumps({"pid": os.getpid(), "since": _dt.datetime.now().isoformat(timespec="seconds"),
+                                    "command": command}))
         yield
     except BaseException as exc:
         if created:

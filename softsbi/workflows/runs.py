@@ -1,7 +1,6 @@
 """Finished runs: open a run directory for checking, diagnosing, viewing, or its posterior."""
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,7 @@ from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.workflows.bank import banks_enabled
 from softsbi.workflows.bestfit import BestFit, read_best_fit
-from softsbi.workflows.fit import FitConfig, _usable, round_posterior
+from softsbi.workflows.fit import FitConfig, _usable, read_report, round_posterior
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
 
 
@@ -102,7 +101,8 @@ def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
     """Open a finished fit (``run.zarr`` + ``report.json``) for checking.
 
     Raises:
-        SchemaError: not a run; SoftsbiError: the fit has not finished (no report.json).
+        SchemaError: not a run; SoftsbiError: the fit has not finished (no report.json); ResultDamaged: its
+            report.json is damaged (:func:`read_report`).
     """
     run_dir = Path(run_dir)
     store = RunStore.open(run_dir / "run.zarr")
@@ -110,7 +110,7 @@ def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
     if not rep_path.exists():
         raise SoftsbiError(f"'{run_dir}' has no report.json: the fit has not finished; resume it with the same "
                            f"`softsbi fit ... --out {run_dir}` command first")
-    report = json.loads(rep_path.read_text())
+    report = read_report(run_dir)
     cfg = store.config
     if cfg.get("metric") == "mask_chamfer_px" or "dense" not in store.read_observed():
         raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.get('observer')}'): check, diagnose and "
@@ -251,7 +251,6 @@ def open_run(run_dir: str | Path) -> Run:
             chain.add_round(round_posterior(store, r, cfg), counts[r])
     else:
         chain.add_round(round_posterior(store, rounds[-1], cfg), sum(counts))
-    rep_path = run_dir / "report.json"
-    report = json.loads(rep_path.read_text()) if rep_path.exists() else None
+    report = read_report(run_dir) if (run_dir / "report.json").exists() else None
     return Run(run_dir, cfg, report, space, Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed),
                best_fit=read_best_fit(store))

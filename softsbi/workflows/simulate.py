@@ -9,7 +9,6 @@ reads it) and, when rendering,
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
@@ -21,6 +20,7 @@ import numpy as np
 import zarr
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.results import write_json_atomic
 from softsbi.perception.images import save_frames
 from softsbi.plugins import check_options, registry
 from softsbi.report import plot_rollout_preview
@@ -194,6 +194,6 @@ def _write_rollout(out: Path, final: Path, ro: Any, sc: Any, backend: str, scena
         doc["recording"] = str(final)
     if ro.ok and render:
         save_frames(ro.rgb, out / "frames")
-        (out / "frames" / "truth.json").write_text(json.dumps(values, indent=2))
+        write_json_atomic(out / "frames" / "truth.json", values)
         doc["frames_dir"] = str(final / "frames")
     return doc

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from softsbi.cli import app
-from softsbi.core.errors import ParameterError
+from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.results import CompareResult, from_json
 from softsbi.core.store import RunStore
 from softsbi.report.text import check_summary, diagnosis_summary, diagnosis_text
@@ -291,5 +291,6 @@ def test_a_diagnosis_written_before_typed_results_still_reads(tmp_path):
     assert d.nominal is None and d.simulations == 260
     assert diagnosis_summary(d).startswith("Missing physics effect: wind (a wind).")
     (tmp_path / "diagnosis.json").write_text("{not json")
-    with pytest.raises(Exception, match="cannot read the diagnosis .*run `softsbi diagnose` on the run again"):
+    with pytest.raises(SoftsbiError, match=r"diagnosis\.json' is damaged \(not valid JSON .*\); `softsbi diagnose "
+                                           r".*` writes it again"):
         load_diagnosis(tmp_path)

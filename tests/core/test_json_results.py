@@ -1,0 +1,50 @@
+"""One atomic writer and one reader for every JSON result (check.json, diagnosis.json, report.json, ...): a failed
+write leaves the old file and no ``.tmp``; a damaged file is one line naming it and the command that rewrites it."""
+import errno
+import json
+
+import pytest
+
+import softsbi.core.results as results
+from softsbi.core.errors import SoftsbiError
+from softsbi.core.results import write_result
+from result_helpers import check_result
+
+
+def test_a_result_over_a_folder_is_one_line_and_leaves_no_tmp(tmp_path):
+    target = tmp_path / "diagnosis.json"
+    target.mkdir()
+    with pytest.raises(SoftsbiError) as err:
+        write_result(target, check_result())
+    assert str(target) in str(err.value) and "is a folder" in str(err.value) and "\n" not in str(err.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["diagnosis.json"] and target.is_dir()
+
+
+def test_a_full_disk_keeps_the_old_file_and_leaves_no_tmp(tmp_path, monkeypatch):
+    from softsbi.core.results import ResultUnwritable, write_json_atomic
+    target = tmp_path / "check.json"
+    write_json_atomic(target, {"old": 1})
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(results.os, "fsync", full)
+    with pytest.raises(ResultUnwritable) as err:
+        write_json_atomic(target, {"new": 2})
+    line = str(err.value)
+    assert f"cannot write '{target}' (no space left on the device)" in line and "free space" in line
+    assert "--out" not in line and err.value.errno == errno.ENOSPC
+    assert json.loads(target.read_text()) == {"old": 1} and not (tmp_path / "check.json.tmp").exists()
+
+
+@pytest.mark.parametrize("text, problem", [("{bad", "not valid JSON"), ('{"parameters": [1, 2', "not valid JSON"),
+                                           ("", "empty"), ("{}", "lacks 'parameters', 'posterior_median'"),
+                                           ("[1]", "not an object")])
+def test_a_damaged_file_is_one_line_naming_it_and_the_command_that_rewrites_it(tmp_path, text, problem):
+    from softsbi.core.results import ResultDamaged, read_json
+    path = tmp_path / "report.json"
+    path.write_text(text)
+    with pytest.raises(ResultDamaged) as err:
+        read_json(path, "`softsbi fit ...`", ("parameters", "posterior_median"))
+    line = str(err.value)
+    assert line.startswith(f"'{path}' is damaged (") and problem in err.value.problem
+    assert line.endswith("`softsbi fit ...` writes it again") and "\n" not in line

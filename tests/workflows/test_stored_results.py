@@ -1,0 +1,187 @@
+"""Damaged, missing or unwritable stored results (report.json, check.json, diagnosis.json) and two diagnoses of one
+run: one line naming the file and the command that rewrites it, never a traceback, never a ``.tmp`` left; a reused
+result says so; a second diagnose is refused before any work; ``diagnose --out`` keeps two diagnoses apart."""
+import errno
+import json
+import shutil
+import subprocess
+
+import pytest
+from typer.testing import CliRunner
+
+import softsbi
+import softsbi.core.results as results
+from softsbi.cli import app
+from softsbi.core.errors import SoftsbiError
+from softsbi.workflows import check, diagnose
+from softsbi.workflows.fit import FitCallbacks, FitConfig, run_fit
+from softsbi.workflows.lock import RunLocked, run_lock
+
+pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+from toy_helpers import toy_measurement  # noqa: E402
+
+runner = CliRunner()
+#: the diagnose settings of every test here: no refit, the check's own null (so the stored check.json is reused)
+DIAG = dict(confirm=0, n_null=5, workers=1)
+
+
+def _cfg():
+    return FitConfig(backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=60, n_points=8, n_eval=5,
+                     n_dense=32, workers=1, seed=3, estimator_options={"max_epochs": 30, "hidden": [16]})
+
+
+@pytest.fixture(scope="module")
+def checked(tmp_path_factory):
+    """A finished toy fit with its check.json (n_eval 5)."""
+    out = tmp_path_factory.mktemp("stored") / "run"
+    run_fit(out, toy_measurement(), _cfg(), make_plots=False)
+    check.check_run(out, n_eval=5, workers=1, plot=False)
+    return out
+
+
+@pytest.fixture
+def run(checked, tmp_path):
+    """A copy of :func:`checked` to damage."""
+    return shutil.copytree(checked, tmp_path / "run")
+
+
+def _no_work(monkeypatch):
+    def fail(*a, **k):
+        raise AssertionError("work was spent before the refusal")
+    for mod in (check, diagnose):
+        monkeypatch.setattr(mod, "PosteriorPredictive", fail)
+
+
+def _error_line(res):
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output and (res.exception is None or isinstance(res.exception, SystemExit))
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, res.output
+    return " ".join(res.output[res.output.index("error:"):].split())
+
+
+@pytest.mark.parametrize("text", ["{bad", '{"parameters": [{"name": "a"', "", "{}"])
+def test_a_damaged_report_is_one_line_from_every_command(run, tmp_path, text, monkeypatch):
+    _no_work(monkeypatch)
+    (run / "report.json").write_text(text)
+    for argv in (["check", str(run)], ["diagnose", str(run)], ["view", str(run), "--no-rrd"],
+                 ["compare", str(run), str(run), "--out", str(tmp_path / "cmp")]):
+        line = _error_line(runner.invoke(app, argv))
+        assert f"'{run / 'report.json'}' is damaged" in line, argv
+        assert f"`softsbi fit ... --out {run}` command writes it again" in line, argv
+    with pytest.raises(SoftsbiError, match="report.json' is damaged"):
+        softsbi.open_run(run)
+
+
+def test_re_running_the_fit_repairs_a_damaged_report_and_says_so(run):
+    good = json.loads((run / "report.json").read_text())
+    (run / "report.json").write_text('{"parameters": [')
+    said = []
+
+    class Said(FitCallbacks):
+        def message(self, text):
+            said.append(text)
+    run_fit(run, toy_measurement(), _cfg(), callbacks=Said(), make_plots=False)
+    assert json.loads((run / "report.json").read_text())["posterior_median"] == good["posterior_median"]
+    assert any(f"'{run / 'report.json'}' is damaged (not valid JSON" in s for s in said), said
+    assert any(s.startswith(f"rewrote {run / 'report.json'}") for s in said), said
+
+
+@pytest.mark.parametrize("name, argv", [("check.json", ["check", "{run}", "--n-eval", "5"]),
+                                        ("diagnosis.json", ["diagnose", "{run}", "--n-null", "5", "--confirm", "0"])])
+def test_a_result_file_that_is_a_folder_is_refused_before_any_work(run, monkeypatch, name, argv):
+    _no_work(monkeypatch)
+    (run / name).unlink(missing_ok=True)
+    (run / name).mkdir()
+    line = _error_line(runner.invoke(app, [a.format(run=run) for a in argv]))
+    assert f"'{run / name}' is a folder, not a file" in line
+    assert not (run / f"{name}.tmp").exists()
+
+
+def test_a_damaged_check_is_computed_again_and_a_full_disk_names_the_file_and_leaves_no_tmp(run, monkeypatch):
+    """check has no --out: the full disk's line names check.json; the damaged file it would replace is left."""
+    (run / "check.json").write_text("{bad")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(results.os, "fsync", full)
+    res = runner.invoke(app, ["check", str(run), "--n-eval", "5", "--workers", "1"])
+    line = _error_line(res)
+    assert f"{run / 'check.json'} cannot be used (not valid JSON" in res.output and "computing it again" in res.output
+    assert f"cannot write '{run / 'check.json'}' (no space left on the device); free space" in line
+    assert "--out" not in line
+    assert (run / "check.json").read_text() == "{bad" and not (run / "check.json.tmp").exists()
+    assert f"wrote {run / 'check.json'}" not in res.output
+
+
+def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_path, monkeypatch):
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    with monkeypatch.context() as m:
+        m.setattr(results.os, "fsync", full)
+        with pytest.raises(SoftsbiError) as err:
+            diagnose.diagnose_run(run, **DIAG)
+    assert f"cannot write '{run / 'diagnosis.json'}' (no space left on the device)" in str(err.value)
+    assert not (run / "diagnosis.json").exists() and not (run / "diagnosis.json.tmp").exists()
+    (run / "diagnosis.json").write_text("")  # damaged: computed again, saying so
+    said = []
+    first = diagnose.diagnose_run(run, progress=said.append, **DIAG)
+    assert f"{run / 'diagnosis.json'} cannot be used (it is empty): computing it again" in said
+    assert said[-1] == f"wrote {run / 'diagnosis.json'}"
+    said.clear()
+    assert diagnose.diagnose_run(run, progress=said.append, **DIAG) == first
+    assert not any(s.startswith("wrote") for s in said) and said[-1].startswith(f"reused {run / 'diagnosis.json'}")
+    # a read-only run directory: the stored result is reused, and nothing claims to have been written
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs", str(disk)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs root with CAP_SYS_ADMIN): {r.stderr.strip()[:120]}")
+    try:
+        ro = shutil.copytree(run, disk / "run")
+        assert subprocess.run(["mount", "-o", "remount,ro", str(disk)]).returncode == 0
+        res = runner.invoke(app, ["diagnose", str(ro), "--n-null", "5", "--confirm", "0", "--workers", "1"])
+        assert res.exit_code == 0, res.output
+        assert f"reused {ro / 'diagnosis.json'}" in res.output and "wrote" not in res.output
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+def test_a_second_diagnose_is_refused_at_once_and_told_to_wait_or_use_out(run, monkeypatch):
+    _no_work(monkeypatch)
+    with run_lock(run, command="diagnose"):
+        with pytest.raises(RunLocked) as err:
+            diagnose.diagnose_run(run, **DIAG)
+    line = str(err.value)
+    assert "another softsbi process (`softsbi diagnose`, pid" in line and "wait for it to finish" in line
+    assert f"`softsbi diagnose {run} --out OTHER_FOLDER`" in line and "fit into another --out" not in line
+
+
+def test_diagnose_out_keeps_a_second_diagnosis_apart(run, tmp_path):
+    res = runner.invoke(app, ["diagnose", str(run), "--n-null", "5", "--confirm", "0", "--workers", "1",
+                              "--out", str(tmp_path / "second")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "second" / "diagnosis.json").is_file() and not (run / "diagnosis.json").exists()
+    assert f"wrote {tmp_path / 'second' / 'diagnosis.json'}" in res.output
+    said = []  # the Python API takes the same folder and reuses the result there
+    d = softsbi.diagnose(run, out=tmp_path / "second", progress=said.append, **DIAG)
+    assert said[-1].startswith(f"reused {tmp_path / 'second' / 'diagnosis.json'}") and d.run == str(run)
+    assert not (run / "diagnosis.json").exists()
+
+
+def test_compare_computes_a_damaged_check_again_saying_so(run, tmp_path):
+    (run / "check.json").write_text("{}")
+    res = runner.invoke(app, ["compare", str(run), str(run), "--out", str(tmp_path / "cmp"), "--n-eval", "5",
+                              "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert f"{run / 'check.json'} cannot be used (it lacks 'key'): computing it again" in res.output
+    assert f"reused {run / 'check.json'}" in res.output  # the second run's check: the one just written
+    assert json.loads((run / "check.json").read_text())["type"] == "CheckResult"
+
+
+def test_a_fit_whose_report_json_is_a_folder_is_refused_before_simulating(tmp_path):
+    out = tmp_path / "run"
+    (out / "report.json").mkdir(parents=True)
+    with pytest.raises(SoftsbiError, match="report.json' is a folder, not a file"):
+        run_fit(out, toy_measurement(), _cfg(), make_plots=False)
+    assert not (out / "run.zarr").exists()
