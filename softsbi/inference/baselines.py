@@ -46,11 +46,11 @@ from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import DataError, DependencyMissing, ParameterError, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
 from softsbi.plugins.hookspecs import hookimpl
-from softsbi.inference.estimators import (NeuralMDNEstimator, RKHSEstimator, check_training_pair, merge_config,
-                                         threads_option)
+from softsbi.inference.estimators import RKHSEstimator
+from softsbi.inference.neural_mdn import NeuralMDNEstimator, check_training_pair, merge_config
 from softsbi.inference.mdn import MDNParams
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import torch_threads, train_val_split
+from softsbi.inference.training import threads_option, torch_threads, train_val_split
 
 __all__ = ["FlatMDNEstimator", "MDRFFEstimator", "BayesZoomRKHSEstimator", "NNBulkEstimator",
            "GPBulkEstimator", "RandomFourierFeatures", "MeanHead", "softsbi_estimators"]

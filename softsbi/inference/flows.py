@@ -38,9 +38,10 @@ from torch import nn
 from softsbi.core.distributions import Distribution
 from softsbi.core.errors import DataError, DependencyMissing, ParameterError, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
-from softsbi.inference.estimators import merge_config, threads_option
+from softsbi.inference.neural_mdn import merge_config
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import fit_early_stopping, minibatches, torch_threads, train_val_split
+from softsbi.inference.training import (fit_early_stopping, minibatches, threads_option, torch_threads,
+                                        train_val_split)
 from softsbi.plugins.hookspecs import hookimpl
 
 __all__ = ["FlowEstimator", "FlowPosterior", "FlowNetwork", "zuko_available", "softsbi_estimators"]

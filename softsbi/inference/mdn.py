@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import nn
@@ -136,3 +137,38 @@ class MDNHead(nn.Module):
             L = L + (off.reshape(B, self.C, self.n_off) @ self._place).view(B, self.C, self.D, self.D)
         return MDNParams(logits, means, L)
 
+
+#: the MLP nonlinearities of :class:`MDNNetwork` by name (the ``activation`` option)
+ACTIVATIONS: dict[str, Callable[[], nn.Module]] = {
+    "relu": nn.ReLU, "elu": nn.ELU, "silu": nn.SiLU, "tanh": nn.Tanh, "gelu": nn.GELU}
+
+
+class MDNNetwork(nn.Module):
+    """``embedding net -> MLP -> MDNHead`` (BayesSim, Ramos et al. 2019, Sec. 3-4).
+
+    Args:
+        features: embedding net mapping a standardised input batch ``(B, ...)`` to ``(B, F)``.
+        feat_dim: ``F``.
+        hidden: MLP layer widths (empty: the head sits directly on the features).
+        out_dim: parameter dimension ``D``.
+        n_components: mixture components ``C``.
+        activation: one of ``relu, elu, silu, tanh, gelu``.
+        min_scale: Cholesky-diagonal floor of the head (standardised target units).
+    """
+
+    def __init__(self, features: nn.Module, feat_dim: int, hidden: tuple[int, ...], out_dim: int,
+                 n_components: int, activation: str = "relu", min_scale: float = 1e-3):
+        super().__init__()
+        self.features = features
+        layers: list[nn.Module] = []
+        last = feat_dim
+        for h in hidden:
+            layers += [nn.Linear(last, int(h)), ACTIVATIONS[activation]()]
+            last = int(h)
+        self.mlp = nn.Sequential(*layers)
+        self.head = MDNHead(last, out_dim, n_components, min_scale)
+
+    def forward(self, z: torch.Tensor, embedded: bool = False) -> MDNParams:
+        """Mixture parameters (standardised target units) of a standardised batch ``z (B, ...)``, or of
+        its embedding-net features ``z (B, F)`` when ``embedded`` (the frozen-embedding training phase)."""
+        return self.head(self.mlp(z if embedded else self.features(z)))

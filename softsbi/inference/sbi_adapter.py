@@ -29,9 +29,9 @@ import torch
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import DependencyMissing, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
-from softsbi.inference.estimators import check_training_pair, merge_config, threads_option
+from softsbi.inference.neural_mdn import check_training_pair, merge_config
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import torch_threads
+from softsbi.inference.training import threads_option, torch_threads
 
 __all__ = ["SbiNPEEstimator", "sbi_available"]
 
