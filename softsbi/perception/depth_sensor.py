@@ -75,7 +75,7 @@ import numpy as np
 
 from softsbi.core.camera import Camera
 from softsbi.core.errors import DataError, ShapeError
-from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_indices
+from softsbi.perception.clouds import sensor_chamfer_per_frame, sensor_indices
 
 #: DiffCloud's lift crop box in the robot base frame, m (``filter_pointcloud`` of the post-processing,
 #: repository version): ``(min (3,), max (3,))``. The recordings tan2, redblack, redblack2 end exactly on
