@@ -19,12 +19,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import ParameterError, ShapeError
+from softsbi.core.errors import ParameterError, PluginNotFound, ShapeError
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Effect, VertexContext
 from softsbi.core.types import Param, ParamSpace, Rollout, Scenario
 from softsbi.backends.grid import grid_corners, grid_faces  # noqa: F401 - the backends import them from here
 from softsbi.backends.scenario_build import check_features
+from softsbi.plugins import registry
 from softsbi.scenarios.builtin import placement_params
+from softsbi.scenarios.spec import load_scenario_data
 
 
 #: shared physical cloth parameters: name -> (low, high, unit, log, description); one meaning on every backend
@@ -77,7 +79,6 @@ def cantilever_scenario(L: float = 0.2, grid: int = 9, clamp_rows: int = 5, g: f
     Raises:
         DataError: invalid values (the scenario-file validation).
     """
-    from softsbi.scenarios.spec import load_scenario_data
     h = L / (grid - 1)
     handles: list[dict[str, Any]] = []
     for i in range(clamp_rows):
@@ -125,7 +126,6 @@ def rope_cantilever_scenario(L: float = 0.3, nodes: int = 31, clamp_nodes: int =
     Raises:
         DataError: invalid values (the scenario-file validation).
     """
-    from softsbi.scenarios.spec import load_scenario_data
     h = L / (nodes - 1)
     handles: list[dict[str, Any]] = []
     for i in range(clamp_nodes):
@@ -186,7 +186,6 @@ class EffectsThroughDoor:
     by name."""
 
     def __get__(self, obj: Any, cls: type) -> tuple[str, ...]:
-        from softsbi.plugins import registry
         table = registry().tables["effect"]
         return tuple(n for n in sorted(table) if cls.supports(table[n]) is None)
 
@@ -260,8 +259,6 @@ def check_effects(sim: Any, effects: Sequence[str]) -> EffectPlan:
         ParameterError: one line naming the backend, the effect and the missing door (or that no such
             effect is installed), and the effects it supports.
     """
-    from softsbi.core.errors import PluginNotFound
-    from softsbi.plugins import registry
 
     plan = EffectPlan(sim.name)
     problems = []

@@ -48,6 +48,7 @@ from softsbi.core.interfaces import PosteriorEstimator
 from softsbi.plugins.hookspecs import hookimpl
 from softsbi.inference.estimators import RKHSEstimator
 from softsbi.inference.neural_mdn import NeuralMDNEstimator, check_training_pair, merge_config
+from softsbi.inference.sbi_adapter import SbiNPEEstimator
 from softsbi.inference.mdn import MDNParams
 from softsbi.inference.summaries import bayessim_summaries
 from softsbi.inference.training import threads_option, torch_threads, train_val_split
@@ -239,7 +240,7 @@ GP_STATE_FORMAT = "softsbi.gp-bulk/1"
 
 def _require_gpytorch():
     try:
-        import gpytorch  # noqa: F401
+        import gpytorch  # noqa: F401 - heavy (gpytorch pulls scikit-learn): only gp-bulk loads it
     except ImportError as exc:  # pragma: no cover - gpytorch is a dependency
         raise DependencyMissing("estimator 'gp-bulk' needs GPyTorch: pip install gpytorch") from exc
     return gpytorch
@@ -486,6 +487,5 @@ def softsbi_estimators() -> list[type[PosteriorEstimator]]:
     """Estimators of this module (``mdrff``, ``bayeszoom-rkhs``, ``nn-bulk``, ``gp-bulk``) and,
     when ``sbi`` is importable, ``sbi-npe`` (:mod:`softsbi.inference.sbi_adapter`)."""
     out: list[type[PosteriorEstimator]] = [MDRFFEstimator, BayesZoomRKHSEstimator, NNBulkEstimator, GPBulkEstimator]
-    from softsbi.inference.sbi_adapter import SbiNPEEstimator
     out.append(SbiNPEEstimator)
     return out

@@ -55,7 +55,7 @@ FLOW_TYPES = ("nsf", "maf")
 def zuko_available() -> bool:
     """Whether ``zuko`` can be imported."""
     try:
-        import zuko  # noqa: F401
+        import zuko  # noqa: F401 - optional: zuko
     except ImportError:
         return False
     return True
@@ -63,7 +63,7 @@ def zuko_available() -> bool:
 
 def _require_zuko():
     try:
-        import zuko
+        import zuko  # optional: zuko
     except ImportError as exc:
         raise DependencyMissing('estimator \'flow\' needs the zuko package: pip install "softsbi[flows]"') from exc
     return zuko
@@ -112,6 +112,7 @@ class FlowNetwork(nn.Module):
         BayesSim summaries, ``F`` ~ 10^3, this makes sampling several times faster). A transform that is not
         a masked autoregressive one (``D = 1``) keeps the context as it is.
         """
+        # optional: zuko
         from zuko.distributions import NormalizingFlow
         from zuko.nn import MaskedLinear
         from zuko.transforms import ComposedTransform

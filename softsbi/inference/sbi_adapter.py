@@ -39,7 +39,7 @@ __all__ = ["SbiNPEEstimator", "sbi_available"]
 def sbi_available() -> bool:
     """Whether ``sbi`` can be imported."""
     try:
-        import sbi  # noqa: F401
+        import sbi  # noqa: F401 - optional: sbi
     except ImportError:
         return False
     return True
@@ -47,7 +47,7 @@ def sbi_available() -> bool:
 
 def _require_sbi():
     try:
-        import sbi
+        import sbi  # optional: sbi (and its submodules below)
         from sbi.inference import NPE
         from sbi.neural_nets import posterior_nn
     except ImportError as exc:

@@ -15,6 +15,8 @@ from softsbi.core.camera import Camera, RenderStyle
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import SimulationFailed, SoftsbiError
 from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Scenario
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import make_scenario
 
 
 def corner_keypoints(rollout: Any, camera: Camera) -> np.ndarray:
@@ -56,9 +58,6 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
     Raises:
         SimulationFailed: more than half the rollouts failed. PluginNotFound: unknown backend.
     """
-    from softsbi.scenarios.builtin import make_scenario
-    from softsbi.plugins import registry
-
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
     cam = camera or scenario_camera(sc, size)
     sim = registry().simulator(backend)(**dict(backend_options or {}))

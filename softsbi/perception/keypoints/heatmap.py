@@ -25,12 +25,14 @@ Registered through ``softsbi_extractors`` as ``heatmap``.
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -39,6 +41,7 @@ from softsbi.core.errors import DataError, ParameterError, ShapeError, closest
 from softsbi.core.interfaces import KeypointExtractor
 from softsbi.plugins.hookspecs import hookimpl
 from softsbi.data.keypoints import check_images, check_keypoints, keypoint_distances
+from softsbi.inference.neural_mdn import merge_config as _merge
 from softsbi.inference.training import fit_early_stopping, minibatches, predict_batched, torch_threads, train_val_split
 from softsbi.perception.keypoints.nets import HeatmapNet
 
@@ -56,7 +59,6 @@ def merge_config(defaults: Mapping[str, Any], config: Mapping[str, Any]) -> dict
     Raises:
         ParameterError: a key is not an option (names the closest one and lists all).
     """
-    from softsbi.inference.estimators import merge_config as _merge
     return _merge("heatmap", defaults, config, kind="extractor")
 
 
@@ -103,7 +105,6 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
     Returns:
         ``(image (H, W, 3) uint8, points (K, 2) float64, mask or None)``.
     """
-    import cv2
 
     H, W = image.shape[:2]
     pts = np.asarray(points, np.float64)
@@ -138,7 +139,6 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
 
 
 def _resize_batch(images: np.ndarray, size: int) -> np.ndarray:
-    import cv2
 
     H, W = images.shape[1:3]
     if (H, W) == (size, size):
@@ -285,7 +285,6 @@ class HeatmapExtractor(KeypointExtractor):
             raise ParameterError(f"loss must be 'bce' or 'mse', got {cfg['loss']!r}")
         if len(cfg["layers"]) != 4 or min(cfg["layers"]) < 1:
             raise ParameterError(f"layers must be 4 positive block counts (e.g. [3, 4, 6, 3]), got {cfg['layers']}")
-        import inspect
         bad = [k for k in cfg["augment_options"] if k not in inspect.signature(augment).parameters
                or k in ("image", "points", "rng", "mask")]
         if bad:
@@ -354,7 +353,7 @@ class HeatmapExtractor(KeypointExtractor):
                 return per.mean()
             w = weight[:, None].expand_as(per)
             return (per * w).sum() / w.sum().clamp_min(1.0)
-        from scipy.optimize import linear_sum_assignment
+        from scipy.optimize import linear_sum_assignment  # heavy (~1 s): only the unordered loss needs it
 
         per = self._per_pixel(logits[:, :, None], target[:, None])  # (B, K pred, K target, h, w)
         if weight is None:
@@ -435,7 +434,6 @@ class HeatmapExtractor(KeypointExtractor):
         p_tr = _scale_points(kp[tr_idx], (H, W), (S, S))
         m_tr = None
         if masks is not None:
-            import cv2
             m_tr = np.stack([cv2.resize(m.astype(np.uint8), (S, S), interpolation=cv2.INTER_NEAREST)
                              for m in masks[tr_idx]]).astype(bool)
         x_va = _to_tensor(_resize_batch(vimg, S))

@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping
 
+import cv2
 import numpy as np
 import torch
 from torch.nn import functional as F
@@ -148,7 +149,6 @@ class TransporterExtractor(KeypointExtractor):
         """``(N, H, W, 3)`` uint8 -> ``(N, S, S, 3)`` uint8 tensor (area resize when shrinking)."""
         s = int(self.config["image_size"])
         if images.shape[1:3] != (s, s):
-            import cv2
             interp = cv2.INTER_AREA if min(images.shape[1:3]) >= s else cv2.INTER_LINEAR
             images = np.stack([cv2.resize(im, (s, s), interpolation=interp) for im in images])
         return torch.from_numpy(np.ascontiguousarray(images))

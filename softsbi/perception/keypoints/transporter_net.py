@@ -6,6 +6,7 @@ transport operation, the masked reconstruction loss, the sampling of training pa
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -177,7 +178,6 @@ def keypoints_in_mask(keypoints: np.ndarray, masks: np.ndarray, dilate: int = 0)
     if kp.size == 0:
         return float("nan")
     if dilate > 0:
-        import cv2
         ker = np.ones((2 * dilate + 1, 2 * dilate + 1), np.uint8)
         m = np.stack([cv2.dilate(f.astype(np.uint8), ker) > 0 for f in m])
     n, h, w = m.shape
