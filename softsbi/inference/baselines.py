@@ -56,6 +56,10 @@ from softsbi.inference.training import threads_option, torch_threads, train_val_
 __all__ = ["FlatMDNEstimator", "MDRFFEstimator", "BayesZoomRKHSEstimator", "NNBulkEstimator",
            "GPBulkEstimator", "RandomFourierFeatures", "MeanHead", "softsbi_estimators"]
 
+#: gp-bulk's Gaussian likelihood: the noise variance's lower bound and its start value (standardised targets)
+GP_NOISE_MIN = 1e-5
+GP_NOISE_INIT = 0.01
+
 
 # ---------------------------------------------------------------------------------------- flat MDN
 class FlatMDNEstimator(NeuralMDNEstimator):
@@ -257,11 +261,11 @@ def _make_gp(gpytorch, X: torch.Tensor, y: torch.Tensor):
         def forward(self, z):
             return gpytorch.distributions.MultivariateNormal(self.mean_module(z), self.covar_module(z))
 
-    lik = gpytorch.likelihoods.GaussianLikelihood(noise_constraint=gpytorch.constraints.GreaterThan(1e-5))
+    lik = gpytorch.likelihoods.GaussianLikelihood(noise_constraint=gpytorch.constraints.GreaterThan(GP_NOISE_MIN))
     model = _ExactGP(X, y, lik)
     # start from a small noise and unit lengthscales (inputs are whitened PCA scores, targets
     # standardised): the default noise 0.69 needs hundreds of Adam steps to come down
-    lik.noise = 0.01
+    lik.noise = GP_NOISE_INIT
     model.covar_module.base_kernel.lengthscale = 1.0
     return model, lik
 

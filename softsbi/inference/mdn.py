@@ -22,6 +22,9 @@ from torch.nn import functional as F
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import ShapeError
 
+#: the logits, scale and correlation layers start with their default weights times this (a near-uniform,
+#: near-unit mixture at the start)
+HEAD_INIT_GAIN = 0.1
 _SOFTPLUS_ONE = math.log(math.e - 1.0)  # softplus(_SOFTPLUS_ONE) == 1
 
 
@@ -112,7 +115,7 @@ class MDNHead(nn.Module):
         self.off = nn.Linear(in_dim, self.C * self.n_off) if self.n_off else None
         with torch.no_grad():
             for lin in (self.logits, self.diag) + ((self.off,) if self.off is not None else ()):
-                lin.weight.mul_(0.1)
+                lin.weight.mul_(HEAD_INIT_GAIN)
                 lin.bias.zero_()
             self.diag.bias.fill_(_SOFTPLUS_ONE)
         rows, cols = torch.tril_indices(self.D, self.D, offset=-1)

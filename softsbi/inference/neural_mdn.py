@@ -27,10 +27,18 @@ from softsbi.inference.mdn_posterior import STATE_FORMAT, MDNPosterior
 from softsbi.inference.recalibration import choose_cov_scale, fit_marginals
 from softsbi.inference.training import threads_option, torch_threads, train_val_split
 
-__all__ = ["NeuralMDNEstimator", "merge_config", "check_training_pair", "threads_option", "MIN_SAMPLES", "STATE_FORMAT"]
+__all__ = ["NeuralMDNEstimator", "merge_config", "check_training_pair", "threads_option", "MIN_SAMPLES", "STATE_FORMAT",
+           "TARGET_STD_FLOOR", "CONSTANT_FEATURE_RTOL", "MAX_VAL_FRACTION"]
 
 #: the fewest simulations an estimator fits on
 MIN_SAMPLES = 10
+#: a parameter's training standard deviation is floored at this fraction of the largest one (unit cube), so a
+#: parameter the proposal barely varies is not standardised by a near-zero scale
+TARGET_STD_FLOOR = 1e-3
+#: an input element whose training standard deviation is below this fraction of the largest is constant (std 1)
+CONSTANT_FEATURE_RTOL = 1e-7
+#: the validation fraction must lie in (0, MAX_VAL_FRACTION): the rest trains
+MAX_VAL_FRACTION = 0.9
 #: seeds the generator of the covariance-scale recalibration's draws apart from the other streams of a seed
 RECAL_STREAM = 4242
 #: spaces the torch seeds of the ensemble members' initialisations
@@ -180,8 +188,8 @@ class NeuralMDNEstimator(MDNPosterior):
         cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
         if cfg["activation"] not in ACTIVATIONS:
             raise ParameterError(f"activation '{cfg['activation']}' not in {sorted(ACTIVATIONS)}")
-        if not 0.0 < float(cfg["val_fraction"]) < 0.9:
-            raise ParameterError(f"val_fraction must be in (0, 0.9), got {cfg['val_fraction']}")
+        if not 0.0 < float(cfg["val_fraction"]) < MAX_VAL_FRACTION:
+            raise ParameterError(f"val_fraction must be in (0, {MAX_VAL_FRACTION}), got {cfg['val_fraction']}")
         super().__init__(**cfg)
         if int(cfg["ensemble"]) < 1:
             raise ParameterError(f"ensemble must be an integer >= 1 (got {cfg['ensemble']}); 1 = a single network")
@@ -215,7 +223,7 @@ class NeuralMDNEstimator(MDNPosterior):
         """
         mean = z.mean(axis=0)
         std = z.std(axis=0)
-        tiny = 1e-7 * max(float(std.max()), 1e-30)
+        tiny = CONSTANT_FEATURE_RTOL * max(float(std.max()), 1e-30)
         std = np.where(std > tiny, std, 1.0)
         return mean.astype(np.float32), std.astype(np.float32)
 
@@ -321,7 +329,7 @@ class NeuralMDNEstimator(MDNPosterior):
             zs = self._standardise(z)
             um = u[tr_idx].mean(0)
             us = u[tr_idx].std(0)
-            us = np.where(us > 1e-9, np.maximum(us, 1e-3 * float(us.max())), 1.0)
+            us = np.where(us > 1e-9, np.maximum(us, TARGET_STD_FLOOR * float(us.max())), 1.0)
             self._u_mean, self._u_std = um.astype(np.float32), us.astype(np.float32)
             us_log = float(np.log(self._u_std.astype(np.float64)).sum())  # NLL shift to unit-cube units
             uz = ((u - um) / us).astype(np.float32)

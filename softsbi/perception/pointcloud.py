@@ -24,6 +24,10 @@ from softsbi.perception.clouds import (FALLBACK_SHARE, combined_min_z, occluded_
                                        sensor_indices, sensor_view, visible_subset)
 from softsbi.perception.depth_sensor import sensor_from_json
 
+#: surface points sampled per observed point where a view (sensor threshold, occluder, camera) keeps only some:
+#: the kept points are drawn from this denser cloud
+DENSE_FACTOR = 8
+
 
 class PointCloudObserver(Observer):
     """K points per frame sampled area-weighted on the simulated surface.
@@ -75,14 +79,14 @@ class PointCloudObserver(Observer):
         # a sensor effect's threshold (table-unseen) adds to the observer's own
         min_z = combined_min_z(self.min_z, rollout_min_z(rollout))
         if self.camera is not None:
-            dense = rollout_clouds(rollout, 8 * self.n_points, rng)
+            dense = rollout_clouds(rollout, DENSE_FACTOR * self.n_points, rng)
             views = [self.camera.observe(v, rollout.faces, g, rng) for v, g in zip(rollout.vertices, rollout.gripper)]
             pts = np.stack([visible_subset(c if len(c) else d[sensor_indices(d, np.inf)], self.n_points, rng, None)
                             for c, d in zip(views, dense)])
         elif min_z is None and self.occluder is None:
             pts = rollout_clouds(rollout, self.n_points, rng)
         else:
-            dense = rollout_clouds(rollout, 8 * self.n_points, rng)
+            dense = rollout_clouds(rollout, DENSE_FACTOR * self.n_points, rng)
             pts = np.stack([visible_subset(self._unoccluded(c), self.n_points, rng, min_z) for c in dense])
         if self.noise > 0:
             pts = pts + rng.normal(0, self.noise, pts.shape)

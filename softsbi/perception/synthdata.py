@@ -18,6 +18,9 @@ from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Scenario
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import make_scenario
 
+#: seeds the draws of the synthetic data set apart from the other streams of a seed
+SYNTH_STREAM = 4242
+
 
 def corner_keypoints(rollout: Any, camera: Camera) -> np.ndarray:
     """Pixel positions ``(T, 4, 2)`` (u, v) of the cloth's four corners in every rendered frame.
@@ -62,7 +65,7 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
     cam = camera or scenario_camera(sc, size)
     sim = registry().simulator(backend)(**dict(backend_options or {}))
     space = sim.param_space(sc)
-    rng = np.random.default_rng([seed, 4242])
+    rng = np.random.default_rng([seed, SYNTH_STREAM])
     keep = slice(None) if frames is None else list(frames)
     out: dict[str, list] = {k: [] for k in ("images", "corners", "robot_masks", "cloth_masks", "depth", "sequence_ids")}
     thetas, tries = [], 0

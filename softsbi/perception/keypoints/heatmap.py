@@ -45,6 +45,13 @@ from softsbi.inference.neural_mdn import merge_config as _merge
 from softsbi.inference.training import fit_early_stopping, minibatches, predict_batched, torch_threads, train_val_split
 from softsbi.perception.keypoints.nets import HeatmapNet
 
+#: the cosine learning-rate schedule ends at this fraction of ``lr``
+LR_FLOOR_FRACTION = 0.02
+#: OpenCV's 8-bit hue range (degrees / 2)
+HUE_RANGE = 180
+#: grey levels ``[low, high)`` of the border an augmenting affine warp fills in
+BORDER_GREY = (60, 200)
+
 __all__ = ["HeatmapExtractor", "augment", "gaussian_heatmaps", "softsbi_extractors"]
 
 FORMAT = "softsbi.heatmap-extractor/1"
@@ -118,7 +125,7 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
             new = pts @ M[:, :2].T + M[:, 2]
             ok = (new[:, 0] >= 0) & (new[:, 0] <= W - 1) & (new[:, 1] >= 0) & (new[:, 1] <= H - 1)
             if (ok | ~inside).all():
-                fill = int(rng.integers(60, 200))
+                fill = int(rng.integers(*BORDER_GREY))
                 out_img = cv2.warpAffine(image, M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                          borderValue=(fill, fill, fill))
                 out_pts = new
@@ -128,7 +135,7 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
                 break
     if rng.random() < p_colour:
         hsv = cv2.cvtColor(out_img, cv2.COLOR_RGB2HSV).astype(np.int16)
-        hsv[..., 0] = (hsv[..., 0] + int(round(rng.uniform(-hue, hue) * 180))) % 180
+        hsv[..., 0] = (hsv[..., 0] + int(round(rng.uniform(-hue, hue) * HUE_RANGE))) % HUE_RANGE
         hsv[..., 1] = np.clip(hsv[..., 1] * rng.uniform(1 - saturation, 1 + saturation), 0, 255)
         img = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB).astype(np.float32)
         img *= rng.uniform(1 - brightness, 1 + brightness)
@@ -467,7 +474,7 @@ class HeatmapExtractor(KeypointExtractor):
             opt = torch.optim.Adam(net.parameters(), lr=float(c["lr"]), weight_decay=float(c["weight_decay"]))
             max_epochs = int(c["epochs"])
             sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, max_epochs),
-                                                               eta_min=float(c["lr"]) * 0.02)
+                                                               eta_min=float(c["lr"]) * LR_FLOOR_FRACTION)
             monitor = self.monitor
             monitor_key = {"mean_px": "val_mean_px", "hungarian_px": "val_hungarian_px", "loss": "val_loss"}[monitor]
             self.history = []
