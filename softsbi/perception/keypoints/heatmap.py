@@ -41,7 +41,7 @@ from softsbi.core.errors import DataError, ParameterError, ShapeError, closest
 from softsbi.core.interfaces import KeypointExtractor
 from softsbi.plugins.hookspecs import hookimpl
 from softsbi.data.keypoints import check_images, check_keypoints, keypoint_distances
-from softsbi.inference.neural_mdn import merge_config as _merge
+from softsbi.inference.neural_mdn import merge_config
 from softsbi.inference.training import fit_early_stopping, minibatches, predict_batched, torch_threads, train_val_split
 from softsbi.perception.keypoints.nets import HeatmapNet
 
@@ -58,15 +58,6 @@ FORMAT = "softsbi.heatmap-extractor/1"
 #: image size at which ``sigma`` is given (the 320x320 frames of the original configuration)
 SIGMA_REFERENCE_PX = 320.0
 _MEAN, _STD = 0.5, 0.25  # input normalisation of uint8/255
-
-
-def merge_config(defaults: Mapping[str, Any], config: Mapping[str, Any]) -> dict[str, Any]:
-    """``defaults`` updated by ``config``; see :func:`softsbi.inference.estimators.merge_config`.
-
-    Raises:
-        ParameterError: a key is not an option (names the closest one and lists all).
-    """
-    return _merge("heatmap", defaults, config, kind="extractor")
 
 
 # ---------------------------------------------------------------------------------------- helpers
@@ -280,7 +271,7 @@ class HeatmapExtractor(KeypointExtractor):
                 "num_threads": None, "max_seconds": None, "predict_batch": 32}
 
     def __init__(self, **config: Any):
-        cfg = merge_config(self.defaults(), config)
+        cfg = merge_config("heatmap", self.defaults(), config, kind="extractor")
         cfg["layers"] = [int(n) for n in cfg["layers"]]
         cfg["augment_options"] = dict(cfg["augment_options"] or {})
         if int(cfg["input_size"]) < 32 or int(cfg["input_size"]) % 32:
