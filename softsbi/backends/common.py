@@ -1,7 +1,8 @@
 """Code shared by the simulator backends (``mujoco-flex``, ``pybullet-massspring``).
 
-* the cloth grid layout both engines use (:func:`grid_faces`, :func:`grid_corners`), so that
-  ``rollout.info["corners"]`` and vertex indices agree across engines;
+* the cloth grid layout both engines use (:func:`~softsbi.backends.grid.grid_faces`,
+  :func:`~softsbi.backends.grid.grid_corners`, importable from here too), so that ``rollout.info["corners"]``
+  and vertex indices agree across engines;
 * the visual-only robot drawn by both renderers (:func:`robot_base`, :func:`visual_robot`) and
   the colour helpers (:data:`PROP_COLOUR`, :func:`rgba`);
 * the size/density/placement parameters every engine shares (:func:`size_params`);
@@ -18,29 +19,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import ParameterError, ShapeError
+from softsbi.core.errors import ParameterError, PluginNotFound, ShapeError
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Effect, VertexContext
 from softsbi.core.types import Param, ParamSpace, Rollout, Scenario
+from softsbi.backends.grid import grid_corners, grid_faces  # noqa: F401 - the backends import them from here
+from softsbi.backends.scenario_build import check_features
+from softsbi.plugins import registry
 from softsbi.scenarios.builtin import placement_params
-
-
-# -- the cloth grid (x-major, vertex i * n + j) -----------------------------------------------
-def grid_faces(n: int) -> np.ndarray:
-    """Triangles ``(2 (n-1)^2, 3)`` int64 of an ``n x n`` x-major vertex grid (index ``i * n + j``)."""
-    f = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
-            f.append((a, b, c))
-            f.append((a, c, d))
-    return np.asarray(f, dtype=np.int64).reshape(-1, 3)
-
-
-def grid_corners(n: int) -> list[int]:
-    """Vertex indices of the 4 corners of an ``n x n`` x-major grid, in the order grid ``(0, 0)``,
-    ``(0, n-1)``, ``(n-1, n-1)``, ``(n-1, 0)`` (index ``i * n + j``); index 0 is the grasped corner.
-    Both backends use this layout, so ``rollout.info["corners"]`` agrees across them."""
-    return [0, n - 1, n * n - 1, (n - 1) * n]
+from softsbi.scenarios.spec import load_scenario_data
 
 
 #: shared physical cloth parameters: name -> (low, high, unit, log, description); one meaning on every backend
@@ -93,7 +79,6 @@ def cantilever_scenario(L: float = 0.2, grid: int = 9, clamp_rows: int = 5, g: f
     Raises:
         DataError: invalid values (the scenario-file validation).
     """
-    from softsbi.scenarios.spec import load_scenario_data
     h = L / (grid - 1)
     handles: list[dict[str, Any]] = []
     for i in range(clamp_rows):
@@ -141,7 +126,6 @@ def rope_cantilever_scenario(L: float = 0.3, nodes: int = 31, clamp_nodes: int =
     Raises:
         DataError: invalid values (the scenario-file validation).
     """
-    from softsbi.scenarios.spec import load_scenario_data
     h = L / (nodes - 1)
     handles: list[dict[str, Any]] = []
     for i in range(clamp_nodes):
@@ -192,7 +176,6 @@ def check_scenario(sim: Any, scenario: Scenario) -> None:
     Raises:
         ValueError: names the backend, the scenario and the missing feature.
     """
-    from softsbi.backends.scenario_build import check_features
     check_features(sim, scenario)
 
 
@@ -203,7 +186,6 @@ class EffectsThroughDoor:
     by name."""
 
     def __get__(self, obj: Any, cls: type) -> tuple[str, ...]:
-        from softsbi.plugins import registry
         table = registry().tables["effect"]
         return tuple(n for n in sorted(table) if cls.supports(table[n]) is None)
 
@@ -277,8 +259,6 @@ def check_effects(sim: Any, effects: Sequence[str]) -> EffectPlan:
         ParameterError: one line naming the backend, the effect and the missing door (or that no such
             effect is installed), and the effects it supports.
     """
-    from softsbi.core.errors import PluginNotFound
-    from softsbi.plugins import registry
 
     plan = EffectPlan(sim.name)
     problems = []

@@ -21,6 +21,7 @@ import numpy as np
 
 from softsbi.core.errors import ParameterError
 from softsbi.core.types import Scenario
+from softsbi.backends.grid import grid_corners
 from softsbi.scenarios.builtin import placed_direction
 
 #: every feature name :func:`required_features` can return
@@ -122,13 +123,12 @@ def mesh_rest(scenario: Scenario, theta: Mapping[str, float], z: float) -> tuple
 def handle_vertices(scenario: Scenario, rest: np.ndarray, n: int | None = None) -> list[int]:
     """Vertex index of each handle of ``scenario`` in a body whose rest positions are ``rest (N, 3)``.
 
-    ``corner`` k: :func:`~softsbi.backends.common.grid_corners` of the ``n x n`` grid; ``end`` 0/1: first
+    ``corner`` k: :func:`~softsbi.backends.grid.grid_corners` of the ``n x n`` grid; ``end`` 0/1: first
     or last rope vertex; ``vertex`` i: as given (mesh order); ``point``: the nearest rest vertex.
 
     Raises:
         ParameterError: a vertex index out of range.
     """
-    from softsbi.backends.common import grid_corners
     out = []
     N = len(rest)
     for h in scenario.handles:

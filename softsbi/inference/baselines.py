@@ -46,14 +46,19 @@ from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import DataError, DependencyMissing, ParameterError, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
 from softsbi.plugins.hookspecs import hookimpl
-from softsbi.inference.estimators import (NeuralMDNEstimator, RKHSEstimator, check_training_pair, merge_config,
-                                         threads_option)
+from softsbi.inference.estimators import RKHSEstimator
+from softsbi.inference.neural_mdn import NeuralMDNEstimator, check_training_pair, merge_config
+from softsbi.inference.sbi_adapter import SbiNPEEstimator
 from softsbi.inference.mdn import MDNParams
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import torch_threads, train_val_split
+from softsbi.inference.training import threads_option, torch_threads, train_val_split
 
 __all__ = ["FlatMDNEstimator", "MDRFFEstimator", "BayesZoomRKHSEstimator", "NNBulkEstimator",
            "GPBulkEstimator", "RandomFourierFeatures", "MeanHead", "softsbi_estimators"]
+
+#: gp-bulk's Gaussian likelihood: the noise variance's lower bound and its start value (standardised targets)
+GP_NOISE_MIN = 1e-5
+GP_NOISE_INIT = 0.01
 
 
 # ---------------------------------------------------------------------------------------- flat MDN
@@ -239,7 +244,7 @@ GP_STATE_FORMAT = "softsbi.gp-bulk/1"
 
 def _require_gpytorch():
     try:
-        import gpytorch  # noqa: F401
+        import gpytorch  # noqa: F401 - heavy (gpytorch pulls scikit-learn): only gp-bulk loads it
     except ImportError as exc:  # pragma: no cover - gpytorch is a dependency
         raise DependencyMissing("estimator 'gp-bulk' needs GPyTorch: pip install gpytorch") from exc
     return gpytorch
@@ -256,11 +261,11 @@ def _make_gp(gpytorch, X: torch.Tensor, y: torch.Tensor):
         def forward(self, z):
             return gpytorch.distributions.MultivariateNormal(self.mean_module(z), self.covar_module(z))
 
-    lik = gpytorch.likelihoods.GaussianLikelihood(noise_constraint=gpytorch.constraints.GreaterThan(1e-5))
+    lik = gpytorch.likelihoods.GaussianLikelihood(noise_constraint=gpytorch.constraints.GreaterThan(GP_NOISE_MIN))
     model = _ExactGP(X, y, lik)
     # start from a small noise and unit lengthscales (inputs are whitened PCA scores, targets
     # standardised): the default noise 0.69 needs hundreds of Adam steps to come down
-    lik.noise = 0.01
+    lik.noise = GP_NOISE_INIT
     model.covar_module.base_kernel.lengthscale = 1.0
     return model, lik
 
@@ -486,6 +491,5 @@ def softsbi_estimators() -> list[type[PosteriorEstimator]]:
     """Estimators of this module (``mdrff``, ``bayeszoom-rkhs``, ``nn-bulk``, ``gp-bulk``) and,
     when ``sbi`` is importable, ``sbi-npe`` (:mod:`softsbi.inference.sbi_adapter`)."""
     out: list[type[PosteriorEstimator]] = [MDRFFEstimator, BayesZoomRKHSEstimator, NNBulkEstimator, GPBulkEstimator]
-    from softsbi.inference.sbi_adapter import SbiNPEEstimator
     out.append(SbiNPEEstimator)
     return out

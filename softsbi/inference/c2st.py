@@ -107,6 +107,7 @@ def c2st(X: np.ndarray, Y: np.ndarray, *, folds: int = 5, seed: int = 0, max_n: 
         raise ValueError(f"backend must be 'auto', 'sklearn' or 'torch', got {backend!r}")
     if backend != "torch":
         try:
+            # optional: scikit-learn (the torch classifier stands in without it)
             from sklearn.model_selection import PredefinedSplit, cross_val_score
             from sklearn.neural_network import MLPClassifier
         except ImportError:

@@ -38,9 +38,10 @@ from torch import nn
 from softsbi.core.distributions import Distribution
 from softsbi.core.errors import DataError, DependencyMissing, ParameterError, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
-from softsbi.inference.estimators import merge_config, threads_option
+from softsbi.inference.neural_mdn import CONSTANT_FEATURE_RTOL, MAX_VAL_FRACTION, TARGET_STD_FLOOR, merge_config
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import fit_early_stopping, minibatches, torch_threads, train_val_split
+from softsbi.inference.training import (fit_early_stopping, minibatches, threads_option, torch_threads,
+                                        train_val_split)
 from softsbi.plugins.hookspecs import hookimpl
 
 __all__ = ["FlowEstimator", "FlowPosterior", "FlowNetwork", "zuko_available", "softsbi_estimators"]
@@ -54,7 +55,7 @@ FLOW_TYPES = ("nsf", "maf")
 def zuko_available() -> bool:
     """Whether ``zuko`` can be imported."""
     try:
-        import zuko  # noqa: F401
+        import zuko  # noqa: F401 - optional: zuko
     except ImportError:
         return False
     return True
@@ -62,7 +63,7 @@ def zuko_available() -> bool:
 
 def _require_zuko():
     try:
-        import zuko
+        import zuko  # optional: zuko
     except ImportError as exc:
         raise DependencyMissing('estimator \'flow\' needs the zuko package: pip install "softsbi[flows]"') from exc
     return zuko
@@ -111,6 +112,7 @@ class FlowNetwork(nn.Module):
         BayesSim summaries, ``F`` ~ 10^3, this makes sampling several times faster). A transform that is not
         a masked autoregressive one (``D = 1``) keeps the context as it is.
         """
+        # optional: zuko
         from zuko.distributions import NormalizingFlow
         from zuko.nn import MaskedLinear
         from zuko.transforms import ComposedTransform
@@ -225,8 +227,8 @@ class FlowEstimator(PosteriorEstimator):
         cfg["embedding"] = tuple(int(h) for h in cfg["embedding"])
         if cfg["flow"] not in FLOW_TYPES:
             raise ParameterError(f"flow must be one of {list(FLOW_TYPES)} (got {cfg['flow']!r})")
-        if not 0.0 < float(cfg["val_fraction"]) < 0.9:
-            raise ParameterError(f"val_fraction must be in (0, 0.9), got {cfg['val_fraction']}")
+        if not 0.0 < float(cfg["val_fraction"]) < MAX_VAL_FRACTION:
+            raise ParameterError(f"val_fraction must be in (0, {MAX_VAL_FRACTION}), got {cfg['val_fraction']}")
         if int(cfg["transforms"]) < 1:
             raise ParameterError(f"transforms must be an integer >= 1 (got {cfg['transforms']})")
         super().__init__(**cfg)
@@ -300,9 +302,9 @@ class FlowEstimator(PosteriorEstimator):
         rng = np.random.default_rng(seed)
         tr, va = train_val_split(len(u), float(c["val_fraction"]), rng, min_train=2, groups=groups)
         zm, zsd = z[tr].mean(0), z[tr].std(0)
-        zsd = np.where(zsd > 1e-7 * max(float(zsd.max()), 1e-30), zsd, 1.0)
+        zsd = np.where(zsd > CONSTANT_FEATURE_RTOL * max(float(zsd.max()), 1e-30), zsd, 1.0)
         um, usd = u[tr].mean(0), u[tr].std(0)
-        usd = np.where(usd > 1e-9, np.maximum(usd, 1e-3 * float(usd.max())), 1.0)
+        usd = np.where(usd > 1e-9, np.maximum(usd, TARGET_STD_FLOOR * float(usd.max())), 1.0)
         self._in_mean, self._in_std = zm.astype(np.float32), zsd.astype(np.float32)
         self._u_mean, self._u_std = um.astype(np.float32), usd.astype(np.float32)
         self._x_shape = tuple(np.shape(x)[1:])

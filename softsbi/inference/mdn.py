@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import nn
@@ -21,6 +22,9 @@ from torch.nn import functional as F
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import ShapeError
 
+#: the logits, scale and correlation layers start with their default weights times this (a near-uniform,
+#: near-unit mixture at the start)
+HEAD_INIT_GAIN = 0.1
 _SOFTPLUS_ONE = math.log(math.e - 1.0)  # softplus(_SOFTPLUS_ONE) == 1
 
 
@@ -111,7 +115,7 @@ class MDNHead(nn.Module):
         self.off = nn.Linear(in_dim, self.C * self.n_off) if self.n_off else None
         with torch.no_grad():
             for lin in (self.logits, self.diag) + ((self.off,) if self.off is not None else ()):
-                lin.weight.mul_(0.1)
+                lin.weight.mul_(HEAD_INIT_GAIN)
                 lin.bias.zero_()
             self.diag.bias.fill_(_SOFTPLUS_ONE)
         rows, cols = torch.tril_indices(self.D, self.D, offset=-1)
@@ -136,3 +140,38 @@ class MDNHead(nn.Module):
             L = L + (off.reshape(B, self.C, self.n_off) @ self._place).view(B, self.C, self.D, self.D)
         return MDNParams(logits, means, L)
 
+
+#: the MLP nonlinearities of :class:`MDNNetwork` by name (the ``activation`` option)
+ACTIVATIONS: dict[str, Callable[[], nn.Module]] = {
+    "relu": nn.ReLU, "elu": nn.ELU, "silu": nn.SiLU, "tanh": nn.Tanh, "gelu": nn.GELU}
+
+
+class MDNNetwork(nn.Module):
+    """``embedding net -> MLP -> MDNHead`` (BayesSim, Ramos et al. 2019, Sec. 3-4).
+
+    Args:
+        features: embedding net mapping a standardised input batch ``(B, ...)`` to ``(B, F)``.
+        feat_dim: ``F``.
+        hidden: MLP layer widths (empty: the head sits directly on the features).
+        out_dim: parameter dimension ``D``.
+        n_components: mixture components ``C``.
+        activation: one of ``relu, elu, silu, tanh, gelu``.
+        min_scale: Cholesky-diagonal floor of the head (standardised target units).
+    """
+
+    def __init__(self, features: nn.Module, feat_dim: int, hidden: tuple[int, ...], out_dim: int,
+                 n_components: int, activation: str = "relu", min_scale: float = 1e-3):
+        super().__init__()
+        self.features = features
+        layers: list[nn.Module] = []
+        last = feat_dim
+        for h in hidden:
+            layers += [nn.Linear(last, int(h)), ACTIVATIONS[activation]()]
+            last = int(h)
+        self.mlp = nn.Sequential(*layers)
+        self.head = MDNHead(last, out_dim, n_components, min_scale)
+
+    def forward(self, z: torch.Tensor, embedded: bool = False) -> MDNParams:
+        """Mixture parameters (standardised target units) of a standardised batch ``z (B, ...)``, or of
+        its embedding-net features ``z (B, F)`` when ``embedded`` (the frozen-embedding training phase)."""
+        return self.head(self.mlp(z if embedded else self.features(z)))

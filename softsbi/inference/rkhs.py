@@ -143,3 +143,50 @@ class RKHSNet(nn.Module):
 
     def extra_repr(self) -> str:
         return f"in_dim={self.in_dim}, n_features={self.n_features}, sigma={float(self.sigma):.3g}"
+
+
+class RKHSFrameFeatures(nn.Module):
+    """Per-frame RKHS-net embedding of the points, concatenated with the gripper, flattened.
+
+    Input ``(B, T, 1+K, 3)`` standardised states (row 0 gripper); output
+    ``(B, T * (2M + 3))``, plus 9 per frame with ``moments`` (each frame's :func:`point_moments`)
+    and 1 with ``thickness`` (then row 1 holds the frame's log thickness in its first entry and the
+    points follow: ``(B, T, 2+K, 3)``, :meth:`~softsbi.inference.estimators.RKHSEstimator.summary_statistics`). One
+    :class:`RKHSNet` is shared by all frames (Antonova et al. 2022, Sec. IV),
+    so the output is invariant to the order of the K points within each frame, and K may differ
+    between fit and use.
+    """
+
+    def __init__(self, n_features: int = 32, sigma: float = 0.5, learn: bool = True, batch_norm: bool = False,
+                 n_frames: int | None = None, moments: bool = False, thickness: bool = False):
+        super().__init__()
+        self.rkhs = RKHSNet(3, n_features, sigma, learn_frequencies=learn, learn_bandwidth=learn)
+        self.moments, self.thickness = bool(moments), bool(thickness)
+        per_frame = 2 * n_features + 3 + (9 if self.moments else 0) + (1 if self.thickness else 0)
+        self.norm = nn.BatchNorm1d(n_frames * per_frame) if batch_norm and n_frames else None
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        pts = z[:, :, 2:, :] if self.thickness else z[:, :, 1:, :]
+        parts = [self.rkhs(pts), z[:, :, 0, :]]  # (B, T, 2M), (B, T, 3)
+        if self.moments:
+            parts.append(point_moments(pts))  # (B, T, 9)
+        if self.thickness:
+            parts.append(z[:, :, 1, :1])  # (B, T, 1): the frame's log thickness (RKHSEstimator.summary_statistics)
+        f = torch.cat(parts, dim=-1).flatten(1)
+        return self.norm(f) if self.norm is not None else f
+
+
+#: index pairs of the upper triangle of a 3 x 3 matrix (xx, xy, xz, yy, yz, zz)
+_UPPER = torch.triu_indices(3, 3)
+
+
+def point_moments(points: torch.Tensor) -> torch.Tensor:
+    """First and raw second moments of each point set: ``(..., K, 3) -> (..., 9)``, ``mean_k p_k`` (3) and the
+    upper triangle of ``mean_k p_k p_k^T`` (6), in the units of ``points``.
+
+    They are the mean embedding under the polynomial kernel of degree 2 (centroid and spread of the cloud per
+    frame). Raw, not central, moments: their mean over a uniform random subset of the points is an unbiased
+    estimate of their mean over all of them, as the random-Fourier-feature embedding's is
+    (:meth:`~softsbi.inference.estimators.RKHSEstimator.training_view`)."""
+    second = points.unsqueeze(-1) * points.unsqueeze(-2)  # (..., K, 3, 3)
+    return torch.cat([points.mean(-2), second[..., _UPPER[0], _UPPER[1]].mean(-2)], dim=-1)

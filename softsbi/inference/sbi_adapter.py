@@ -29,9 +29,9 @@ import torch
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import DependencyMissing, ShapeError
 from softsbi.core.interfaces import PosteriorEstimator
-from softsbi.inference.estimators import check_training_pair, merge_config, threads_option
+from softsbi.inference.neural_mdn import check_training_pair, merge_config
 from softsbi.inference.summaries import bayessim_summaries
-from softsbi.inference.training import torch_threads
+from softsbi.inference.training import threads_option, torch_threads
 
 __all__ = ["SbiNPEEstimator", "sbi_available"]
 
@@ -39,7 +39,7 @@ __all__ = ["SbiNPEEstimator", "sbi_available"]
 def sbi_available() -> bool:
     """Whether ``sbi`` can be imported."""
     try:
-        import sbi  # noqa: F401
+        import sbi  # noqa: F401 - optional: sbi
     except ImportError:
         return False
     return True
@@ -47,7 +47,7 @@ def sbi_available() -> bool:
 
 def _require_sbi():
     try:
-        import sbi
+        import sbi  # optional: sbi (and its submodules below)
         from sbi.inference import NPE
         from sbi.neural_nets import posterior_nn
     except ImportError as exc:

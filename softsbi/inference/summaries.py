@@ -76,7 +76,7 @@ def local_thickness(clouds: np.ndarray, k: int = 8) -> np.ndarray:
     Raises:
         ShapeError: not ``(..., P, 3)`` with ``P >= 2``.
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # heavy (~1 s): only the thickness summary needs it
     c = np.asarray(clouds, dtype=np.float64)
     if c.ndim < 2 or c.shape[-1] != 3 or c.shape[-2] < 2:
         raise ShapeError(f"local_thickness needs clouds of shape (..., P, 3) with P >= 2, got {c.shape}")

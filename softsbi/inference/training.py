@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["available_cpus", "torch_threads", "train_val_split", "minibatches", "fit_early_stopping",
+__all__ = ["available_cpus", "threads_option", "torch_threads", "train_val_split", "minibatches", "fit_early_stopping",
            "fit_early_stopping_stacked", "predict_batched"]
 
 B = TypeVar("B")
@@ -49,6 +49,11 @@ def available_cpus() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - non-Linux
         return max(1, os.cpu_count() or 1)
+
+
+def threads_option(n: int | None) -> int:
+    """The ``num_threads`` option of an estimator: ``n``, or every available CPU when None/0."""
+    return int(n) if n else available_cpus()
 
 
 @contextlib.contextmanager

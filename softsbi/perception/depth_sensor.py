@@ -75,7 +75,8 @@ import numpy as np
 
 from softsbi.core.camera import Camera
 from softsbi.core.errors import DataError, ShapeError
-from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_indices
+from softsbi.perception.clouds import sensor_chamfer_per_frame, sensor_indices
+from softsbi.scenarios.builtin import load_recording, recording_transform
 
 #: DiffCloud's lift crop box in the robot base frame, m (``filter_pointcloud`` of the post-processing,
 #: repository version): ``(min (3,), max (3,))``. The recordings tan2, redblack, redblack2 end exactly on
@@ -173,7 +174,7 @@ def statistical_outliers(points: np.ndarray, k: int, std_mul: float) -> np.ndarr
     Returns:
         ``(P,)`` bool, True = outlier (removed). Nothing is removed when ``P <= 2`` or ``k < 1``.
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # heavy (~1 s): only outlier removal needs it
     n = len(points)
     k = min(int(k), n - 1)
     if n <= 2 or k < 1:
@@ -312,7 +313,6 @@ class VirtualDepthSensor:
         Raises:
             DataError: missing yaml, calibration or frames.
         """
-        from softsbi.scenarios.builtin import load_recording, recording_transform
         rec = Path(recording)
         cfg = recording_transform(rec)
         calib = Path(calibration) if calibration is not None else rec.parent
@@ -482,7 +482,7 @@ class VirtualDepthSensor:
 def diffcloud_scene_to_robot(cfg) -> np.ndarray:
     """``(4, 4)`` lift frame -> robot base frame of a DiffCloud real2sim transform ``cfg``
     (:func:`softsbi.scenarios.builtin.recording_transform`): ``p_robot = p_lift Rz(a)^T + t - c`` (m)."""
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # heavy (~1 s): only the DiffCloud transform needs it
     rz = Rotation.from_euler("z", float(cfg["z_rotation"]), degrees=True).as_matrix()
     m = np.eye(4)
     m[:3, :3] = rz

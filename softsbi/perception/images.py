@@ -25,6 +25,8 @@ from softsbi.core.types import Observation, Rollout
 from softsbi.plugins.hookspecs import hookimpl
 from softsbi.data.frames import load_frames, save_frames
 from softsbi.data.keypoints import check_images
+from softsbi.plugins import registry
+from softsbi.scenarios.catalog import load_scenario
 
 __all__ = ["HeatmapObserver", "ImageKeypointObserver", "TransporterObserver", "check_images", "load_frames",
            "save_frames"]
@@ -56,8 +58,6 @@ class ImageKeypointObserver(Observer):
     def __init__(self, extractor: str | Path | None = None, size: int = 128,
                  camera: Mapping[str, Any] | None = None, scenario: str = "wipe",
                  style: Mapping[str, Any] | None = None):
-        from softsbi.plugins import registry
-
         if not extractor:
             raise SoftsbiError(f"observer '{self.name}' needs a trained extractor checkpoint: pass --extractor "
                                f"PATH.pt (train one with `softsbi train-extractor {self.extractor_kind} ...`)")
@@ -69,7 +69,6 @@ class ImageKeypointObserver(Observer):
         if camera:
             self.camera = Camera.from_json(camera)
         else:
-            from softsbi.scenarios.catalog import load_scenario
             self.camera = scenario_camera(load_scenario(scenario), int(size))
         self.style = RenderStyle.from_json(style)
 

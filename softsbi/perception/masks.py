@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import cv2
 import numpy as np
 
 from softsbi.core.errors import DataError, ShapeError
@@ -79,7 +80,6 @@ def hsv_mask(images: np.ndarray, lo: Sequence[int] = CLOTH_HSV_LO, hi: Sequence[
         ShapeError: not ``(..., H, W, 3)``, or bounds not triples.
         DataError: dtype not uint8, bounds out of range.
     """
-    import cv2
 
     a = _check_images(images)
     lo_a, hi_a = _check_bounds(lo, hi)
@@ -113,7 +113,6 @@ def _check_mask(m: np.ndarray, name: str, ndim: int) -> np.ndarray:
 
 def _dist_to(mask: np.ndarray) -> np.ndarray:
     """Euclidean distance (px) of every pixel to the nearest True pixel of ``mask`` (non-empty)."""
-    import cv2
     return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 

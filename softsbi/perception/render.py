@@ -15,6 +15,8 @@ from softsbi.core.camera import Camera, RenderStyle
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import DataError, DependencyMissing, ShapeError
 from softsbi.core.types import Rollout, Scenario
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import make_scenario
 
 
 def backproject_depth(depth: np.ndarray, camera: Camera) -> np.ndarray:
@@ -76,7 +78,7 @@ def save_frames_png(frames: np.ndarray, path: str | Path, ncols: int = 6, labels
         ShapeError: frames not ``(T, H, W)`` or ``(T, H, W, 3)`` (a ``(T, H, 3)`` stack is taken for
             one RGB image and refused), or ``len(labels) != T``.
     """
-    import matplotlib
+    import matplotlib  # heavy (~1.7 s with pyplot): only the contact sheet draws
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -127,7 +129,7 @@ def save_gif(frames: np.ndarray, path: str | Path, fps: float = 10.0, loop: int 
     if f.ndim != 4 or f.shape[-1] != 3 or f.dtype != np.uint8 or len(f) == 0:
         raise ShapeError(f"frames must be (T, H, W, 3) uint8 with T >= 1, got {f.shape} {f.dtype}")
     try:
-        from PIL import Image
+        from PIL import Image  # optional: Pillow
     except ImportError as exc:  # pragma: no cover - Pillow comes with matplotlib
         raise DependencyMissing("writing GIFs needs Pillow: pip install pillow") from exc
     path = Path(path)
@@ -160,10 +162,7 @@ def render_rollout(backend_name: str, scenario: Scenario | str, theta: Mapping[s
         PluginNotFound: unknown backend. DataError: no camera given and none declared by the scenario.
         NotImplementedError: the backend cannot render.
     """
-    from softsbi.plugins import registry
-
     if isinstance(scenario, str):
-        from softsbi.scenarios.builtin import make_scenario
         scenario = make_scenario(scenario)
     if not isinstance(scenario, Scenario):
         raise DataError(f"scenario must be a Scenario or a scenario name, got {type(scenario).__name__}")

@@ -15,6 +15,11 @@ from softsbi.core.camera import Camera, RenderStyle
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import SimulationFailed, SoftsbiError
 from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Scenario
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import make_scenario
+
+#: seeds the draws of the synthetic data set apart from the other streams of a seed
+SYNTH_STREAM = 4242
 
 
 def corner_keypoints(rollout: Any, camera: Camera) -> np.ndarray:
@@ -56,14 +61,11 @@ def render_training_set(backend: str = "mujoco-flex", scenario: Scenario | str =
     Raises:
         SimulationFailed: more than half the rollouts failed. PluginNotFound: unknown backend.
     """
-    from softsbi.scenarios.builtin import make_scenario
-    from softsbi.plugins import registry
-
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
     cam = camera or scenario_camera(sc, size)
     sim = registry().simulator(backend)(**dict(backend_options or {}))
     space = sim.param_space(sc)
-    rng = np.random.default_rng([seed, 4242])
+    rng = np.random.default_rng([seed, SYNTH_STREAM])
     keep = slice(None) if frames is None else list(frames)
     out: dict[str, list] = {k: [] for k in ("images", "corners", "robot_masks", "cloth_masks", "depth", "sequence_ids")}
     thetas, tries = [], 0

@@ -355,7 +355,8 @@ def test_shared_trunk_ensemble_members_share_member_0s_trunk_and_their_stacked_h
     """ensemble_shared='trunk': every member carries member 0's embedding and first MLP layer; the other
     members' heads differ (own initialisation and batches), and the stacked heads used in training give,
     after write-back, exactly each member's own forward pass on the cached trunk features."""
-    from softsbi.inference.estimators import RKHSEstimator, _StackedTails
+    from softsbi.inference.ensembles import _StackedTails
+    from softsbi.inference.estimators import RKHSEstimator
     u, x = blob_task(150, seed=0)
     est = RKHSEstimator(**{**FAST, "ensemble": 3, "recalibrate": True, "ensemble_shared": "trunk", "point_subset": 8,
                            "rkhs_features": 8, "n_components": 2, "max_epochs": 6, "min_epochs": 1})

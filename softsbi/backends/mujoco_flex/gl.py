@@ -50,7 +50,7 @@ def import_mujoco() -> Any:
     saved = os.environ.get("MUJOCO_GL")
     os.environ["MUJOCO_GL"] = "disable"
     try:
-        import mujoco
+        import mujoco  # engine: imported once with MUJOCO_GL set for this process
     except Exception as exc:  # noqa: BLE001 - any import failure is an environment fault
         raise EnvironmentFault(f"MuJoCo cannot be loaded ({type(exc).__name__}: {exc}); reinstall it with "
                                f"`pip install --force-reinstall mujoco`") from exc

@@ -30,7 +30,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from softsbi.core.errors import EnvironmentFault
+from softsbi.core.errors import EnvironmentFault, ParameterError
 from softsbi.core.types import Scenario
 from softsbi.backends.scenario_build import grid_rest_vertices, obstacles
 
@@ -54,7 +54,7 @@ def import_pybullet() -> Any:
     saved = os.dup(1)
     try:
         os.dup2(2, 1)
-        import pybullet
+        import pybullet  # engine: imported once with its start-up banner sent to stderr
         ctypes.CDLL(None).fflush(None)  # flush C stdio while fd 1 still points at stderr
     except ImportError as exc:
         raise EnvironmentFault(f"PyBullet cannot be loaded ({exc}); reinstall it with "
@@ -148,7 +148,6 @@ def spring_constants(bend: float, stretch: float, spacing: float, *, c_bend: flo
     Raises:
         ParameterError: a value not > 0.
     """
-    from softsbi.core.errors import ParameterError
     if not (bend > 0 and stretch > 0 and spacing > 0):
         raise ParameterError(f"bend, stretch and mesh spacing must be > 0 (got {bend}, {stretch}, {spacing})")
     cb = C_BEND if c_bend is None else float(c_bend)

@@ -101,7 +101,7 @@ class PbFrameRenderer(FrameRenderer):
     def __call__(self, k: int, state: PbState) -> None:
         """Render frame ``k`` (colour, depth, segmentation) from ``state = (cid, bodies, grip)``."""
         cid, bodies, grip = state
-        from scipy.spatial.transform import Rotation
+        from scipy.spatial.transform import Rotation  # heavy (~1 s): only rendering needs it
         p = import_pybullet()
         t0 = time.perf_counter()
         if k == 0:

@@ -25,12 +25,14 @@ Registered through ``softsbi_extractors`` as ``heatmap``.
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -39,8 +41,16 @@ from softsbi.core.errors import DataError, ParameterError, ShapeError, closest
 from softsbi.core.interfaces import KeypointExtractor
 from softsbi.plugins.hookspecs import hookimpl
 from softsbi.data.keypoints import check_images, check_keypoints, keypoint_distances
+from softsbi.inference.neural_mdn import merge_config
 from softsbi.inference.training import fit_early_stopping, minibatches, predict_batched, torch_threads, train_val_split
 from softsbi.perception.keypoints.nets import HeatmapNet
+
+#: the cosine learning-rate schedule ends at this fraction of ``lr``
+LR_FLOOR_FRACTION = 0.02
+#: OpenCV's 8-bit hue range (degrees / 2)
+HUE_RANGE = 180
+#: grey levels ``[low, high)`` of the border an augmenting affine warp fills in
+BORDER_GREY = (60, 200)
 
 __all__ = ["HeatmapExtractor", "augment", "gaussian_heatmaps", "softsbi_extractors"]
 
@@ -48,16 +58,6 @@ FORMAT = "softsbi.heatmap-extractor/1"
 #: image size at which ``sigma`` is given (the 320x320 frames of the original configuration)
 SIGMA_REFERENCE_PX = 320.0
 _MEAN, _STD = 0.5, 0.25  # input normalisation of uint8/255
-
-
-def merge_config(defaults: Mapping[str, Any], config: Mapping[str, Any]) -> dict[str, Any]:
-    """``defaults`` updated by ``config``; see :func:`softsbi.inference.estimators.merge_config`.
-
-    Raises:
-        ParameterError: a key is not an option (names the closest one and lists all).
-    """
-    from softsbi.inference.estimators import merge_config as _merge
-    return _merge("heatmap", defaults, config, kind="extractor")
 
 
 # ---------------------------------------------------------------------------------------- helpers
@@ -103,7 +103,6 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
     Returns:
         ``(image (H, W, 3) uint8, points (K, 2) float64, mask or None)``.
     """
-    import cv2
 
     H, W = image.shape[:2]
     pts = np.asarray(points, np.float64)
@@ -117,7 +116,7 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
             new = pts @ M[:, :2].T + M[:, 2]
             ok = (new[:, 0] >= 0) & (new[:, 0] <= W - 1) & (new[:, 1] >= 0) & (new[:, 1] <= H - 1)
             if (ok | ~inside).all():
-                fill = int(rng.integers(60, 200))
+                fill = int(rng.integers(*BORDER_GREY))
                 out_img = cv2.warpAffine(image, M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                          borderValue=(fill, fill, fill))
                 out_pts = new
@@ -127,7 +126,7 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
                 break
     if rng.random() < p_colour:
         hsv = cv2.cvtColor(out_img, cv2.COLOR_RGB2HSV).astype(np.int16)
-        hsv[..., 0] = (hsv[..., 0] + int(round(rng.uniform(-hue, hue) * 180))) % 180
+        hsv[..., 0] = (hsv[..., 0] + int(round(rng.uniform(-hue, hue) * HUE_RANGE))) % HUE_RANGE
         hsv[..., 1] = np.clip(hsv[..., 1] * rng.uniform(1 - saturation, 1 + saturation), 0, 255)
         img = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB).astype(np.float32)
         img *= rng.uniform(1 - brightness, 1 + brightness)
@@ -138,7 +137,6 @@ def augment(image: np.ndarray, points: np.ndarray, rng: np.random.Generator, mas
 
 
 def _resize_batch(images: np.ndarray, size: int) -> np.ndarray:
-    import cv2
 
     H, W = images.shape[1:3]
     if (H, W) == (size, size):
@@ -273,7 +271,7 @@ class HeatmapExtractor(KeypointExtractor):
                 "num_threads": None, "max_seconds": None, "predict_batch": 32}
 
     def __init__(self, **config: Any):
-        cfg = merge_config(self.defaults(), config)
+        cfg = merge_config("heatmap", self.defaults(), config, kind="extractor")
         cfg["layers"] = [int(n) for n in cfg["layers"]]
         cfg["augment_options"] = dict(cfg["augment_options"] or {})
         if int(cfg["input_size"]) < 32 or int(cfg["input_size"]) % 32:
@@ -285,7 +283,6 @@ class HeatmapExtractor(KeypointExtractor):
             raise ParameterError(f"loss must be 'bce' or 'mse', got {cfg['loss']!r}")
         if len(cfg["layers"]) != 4 or min(cfg["layers"]) < 1:
             raise ParameterError(f"layers must be 4 positive block counts (e.g. [3, 4, 6, 3]), got {cfg['layers']}")
-        import inspect
         bad = [k for k in cfg["augment_options"] if k not in inspect.signature(augment).parameters
                or k in ("image", "points", "rng", "mask")]
         if bad:
@@ -354,7 +351,7 @@ class HeatmapExtractor(KeypointExtractor):
                 return per.mean()
             w = weight[:, None].expand_as(per)
             return (per * w).sum() / w.sum().clamp_min(1.0)
-        from scipy.optimize import linear_sum_assignment
+        from scipy.optimize import linear_sum_assignment  # heavy (~1 s): only the unordered loss needs it
 
         per = self._per_pixel(logits[:, :, None], target[:, None])  # (B, K pred, K target, h, w)
         if weight is None:
@@ -435,7 +432,6 @@ class HeatmapExtractor(KeypointExtractor):
         p_tr = _scale_points(kp[tr_idx], (H, W), (S, S))
         m_tr = None
         if masks is not None:
-            import cv2
             m_tr = np.stack([cv2.resize(m.astype(np.uint8), (S, S), interpolation=cv2.INTER_NEAREST)
                              for m in masks[tr_idx]]).astype(bool)
         x_va = _to_tensor(_resize_batch(vimg, S))
@@ -469,7 +465,7 @@ class HeatmapExtractor(KeypointExtractor):
             opt = torch.optim.Adam(net.parameters(), lr=float(c["lr"]), weight_decay=float(c["weight_decay"]))
             max_epochs = int(c["epochs"])
             sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, max_epochs),
-                                                               eta_min=float(c["lr"]) * 0.02)
+                                                               eta_min=float(c["lr"]) * LR_FLOOR_FRACTION)
             monitor = self.monitor
             monitor_key = {"mean_px": "val_mean_px", "hungarian_px": "val_hungarian_px", "loss": "val_loss"}[monitor]
             self.history = []

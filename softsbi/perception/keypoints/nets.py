@@ -28,6 +28,10 @@ from torch import nn
 __all__ = ["BasicBlock", "FPNDecoder", "HeatmapNet", "ResNetBackbone"]
 
 
+#: the heatmap head's initial logit: sigmoid(-4.6) ~ 0.01 everywhere
+HEAD_BIAS_INIT = -4.6
+
+
 def _conv_bn_relu(c_in: int, c_out: int, k: int = 3, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(c_in, c_out, k, stride, k // 2, bias=False), nn.BatchNorm2d(c_out),
                          nn.ReLU(inplace=True))
@@ -166,8 +170,8 @@ class HeatmapNet(nn.Module):
         d = int(dec_channels) if dec_channels else max(int(width), 16)
         self.decoder = FPNDecoder(self.backbone.channels, d)
         self.head = nn.Sequential(_conv_bn_relu(d, d), nn.Conv2d(d, int(n_keypoints), 1))
-        # start from a low heatmap everywhere (sigmoid ~ 0.01): stabilises BCE on sparse targets
-        nn.init.constant_(self.head[-1].bias, -4.6)
+        # start from a low heatmap everywhere: stabilises BCE on sparse targets
+        nn.init.constant_(self.head[-1].bias, HEAD_BIAS_INIT)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[-1] % 32 or x.shape[-2] % 32:
