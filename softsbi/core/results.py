@@ -49,6 +49,12 @@ class MCPValue:
         return (self.exceed + 1) / (self.n + 1)
 
     @property
+    def p_value(self) -> float:
+        """The same as :attr:`value` (the name :attr:`JointTest.p_value` has): the probability, under the null of
+        posterior-predictive simulations, of a statistic at least as extreme as the observed one."""
+        return self.value
+
+    @property
     def floor(self) -> float:
         """The resolution ``1 / (n + 1)``: the smallest p-value ``n`` simulations can give."""
         return 1.0 / (self.n + 1)
