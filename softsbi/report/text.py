@@ -87,6 +87,8 @@ def check_summary(c: CheckResult) -> str:
     if c.worst_regions:
         r = c.worst_regions[0]
         s += f" and in region {region_value(r, cm(c.region_mean_m[r])) if r in c.region_mean_m else r}"
+        if c.regions_from != "the grasp":  # several handles: say whose grasp the regions are numbered from
+            s += f" (regions numbered from {c.regions_from})"
     s += f"; {test_verdict(c.test)}."
     if c.energy:
         s += f" Energy score {cm(c.energy.energy_m)}."

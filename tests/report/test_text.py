@@ -331,6 +331,13 @@ def test_an_adequate_refit_with_a_higher_chamfer_than_the_nominal_is_not_describ
     assert "is inside the refit's posterior predictive distribution" in diagnosis_text(PAIRED)[4]
 
 
+def test_with_several_handles_the_check_says_whose_grasp_the_regions_are_numbered_from():
+    c = check_result(regions_from="the grasp of handle 'left'")
+    assert ("in region R9 (farthest from the grasp; 8.56 cm) (regions numbered from the grasp of handle 'left');"
+            in check_summary(c))
+    assert "numbered from" not in check_summary(check_result())
+
+
 def test_every_posterior_predictive_chamfer_says_its_number_of_rollouts():
     c = check_result(n_rollouts=12)
     assert "5.70 cm on average over 12 rollouts" in check_summary(c)
