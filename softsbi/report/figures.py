@@ -11,7 +11,7 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -565,6 +565,21 @@ def check_headline(out: CheckResult) -> str:
     return s + f"  ·  misspecification {short_p(out.test)}: {verdict}"
 
 
+#: the angle (deg) of phase labels that would overlap side by side (short phases)
+PHASE_LABEL_ROTATION = 35
+
+
+def _unoverlap(fig: Any, ax: Any, labels: Sequence[Any]) -> None:
+    """Tilt tick ``labels`` by :data:`PHASE_LABEL_ROTATION` when any two overlap side by side (measured on the
+    figure's canvas with the axes' final width), so that short phases keep readable names."""
+    fig.tight_layout()
+    renderer = fig.canvas.get_renderer()
+    boxes = sorted((lab.get_window_extent(renderer) for lab in labels if lab.get_text()), key=lambda b: b.x0)
+    if any(a.x1 > b.x0 - 2 for a, b in zip(boxes, boxes[1:])):
+        for lab in labels:
+            lab.set(rotation=PHASE_LABEL_ROTATION, ha="left", rotation_mode="anchor")
+
+
 def _region_short(name: str) -> str:
     return name.replace(" (at the grasp)", " grasp").replace(" (farthest from the grasp)", " farthest")
 
@@ -593,11 +608,12 @@ def check_figure(out: CheckResult) -> Any:
         top = ax.secondary_xaxis("top")
         top.set_xticks([float(np.mean(ph.t_s)) for ph in phases])
         top.set_xticklabels([f"{ph.phase}{' (worst)' if ph is worst else ''}"
-                             f"{'' if ph.in_fit else ' (not fitted)'}: {ph.chamfer_m * 100:.2f} cm"
-                             for ph in phases], fontsize=FS_TICK)
+                             f"{'' if ph.in_fit else ' (not fitted)'}\n{ph.chamfer_m * 100:.2f} cm"
+                             for ph in phases], fontsize=FS_TICK, linespacing=1.1)
         top.tick_params(length=0)
         for lab, ph in zip(top.get_xticklabels(), phases):
             lab.set_weight("bold" if ph is worst else "normal")
+        _unoverlap(fig, ax, top.get_xticklabels())
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
     ax.set_ylabel("Chamfer to the measurement [cm]", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)

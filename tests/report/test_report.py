@@ -14,7 +14,7 @@ from matplotlib.colors import to_rgba
 from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 
-from result_helpers import check_result, joint
+from result_helpers import REGIONS, check_result, joint
 from softsbi.core.results import CompareResult
 from softsbi.core.types import Param, ParamSpace
 from softsbi.report import figures as R
@@ -288,4 +288,34 @@ def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_key
     fig = R.check_figure(out)
     assert fig.axes[1].get_ylabel() == "region of the object (R1 nearest the grasp of handle 'left')"
     assert "the scenario's keyframes" in fig.axes[0].get_title()
+    plt.close(fig)
+
+
+def test_check_phase_labels_stay_readable_when_the_phases_are_short():
+    """Seven phases of three or four frames (a scenario with many keyframes): side by side their labels ran into
+    each other; they are tilted, and parallel tilted labels lie more than a label's height apart."""
+    import math
+
+    from softsbi.core.results import Phase
+    base = check_result()
+    t, mean = np.array(base.times_s), np.array(base.chamfer.mean)
+    cuts = [0, 3, 6, 9, 12, 15, 18, 25]
+    names = [f"move {k + 1}" for k in range(6)] + ["after the last move"]
+    phases = tuple(Phase(n, (a, b - 1), (float(t[a]), float(t[b - 1])), float(mean[a:b].mean()), None, True,
+                         REGIONS[8]) for n, a, b in zip(names, cuts[:-1], cuts[1:]))
+    fig = R.check_figure(dataclasses.replace(base, phases=phases))
+    fig.canvas.draw()
+    top = next(a for a in fig.axes[0].child_axes)
+    labels = [lab for lab in top.get_xticklabels() if lab.get_text()]
+    assert labels[0].get_text().startswith("move 1") and labels[-1].get_text().startswith("after the last move")
+    r = fig.canvas.get_renderer()
+    boxes = [lab.get_window_extent(r) for lab in labels]
+    overlap = any(a.x1 > b.x0 for a, b in zip(boxes, boxes[1:]))
+    if overlap:
+        angle = math.radians(labels[0].get_rotation())
+        assert angle > 0 and all(lab.get_rotation() == labels[0].get_rotation() for lab in labels)
+        height = max(lab.get_fontsize() for lab in labels) * 2 * 1.1 * fig.dpi / 72  # two lines, in pixels
+        xs = [float(top.transData.transform((x, 0))[0]) for x in top.get_xticks()]
+        assert min(np.diff(xs)) * math.sin(angle) > height
+    _assert_texts_inside(fig)
     plt.close(fig)
