@@ -253,10 +253,10 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
     ro = Rollout(times=sc.times, gripper=sc.gripper, vertices=verts, faces=np.array([[0, 1, 3]]))
     fig = R.rollout_preview_figure(ro, "two grippers", sc)
     grips = _markers(fig, "+")
-    assert len(grips) == 2 * 4  # both grippers in each of the 4 panels
-    assert sorted(float(x[0]) for x, _ in grips[:2]) == pytest.approx([0.0, 0.2])  # y of corners 0 and 1
-    assert len(_markers(fig, "x")) == 4  # the pinned corner
-    assert "2 grippers" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert len(grips) == 2 * 5  # both grippers in the view from above and each of the 4 side views
+    assert sorted(float(x[0]) for x, _ in grips[2:4]) == pytest.approx([0.0, 0.2])  # y of corners 0 and 1
+    assert len(_markers(fig, "x")) == 5  # the pinned corner
+    assert "2 grippers" in [t.get_text() for t in fig.axes[1].get_legend().get_texts()]
     plt.close(fig)
     fig = R.clouds_figure(sc, verts, verts, [0, 3], vertices=verts)
     assert len(_markers(fig, "+")) == 2 * 2 * 2 * 2 and len(_markers(fig, "x")) == 2 * 2  # white halo + cross
@@ -274,6 +274,24 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
     assert sum(len(x) for x, _ in first) == 2 * (2 + 1)  # side and top view: two grippers, one held corner
     side = [(list(x), list(y)) for x, y in first][0]
     assert sorted(side[0]) == pytest.approx([0.0, 0.2])  # the second gripper where its corner is, not 5 cm off
+
+
+def test_the_preview_shows_the_rest_pose_from_above_with_corners_and_handles_labelled():
+    """Placing a cloth by hand needs to see where corners 0-3 and each handle are at rest, from above (a scenario's
+    side views alone do not show it)."""
+    from softsbi.backends.common import grid_corners
+    from softsbi.core.types import Rollout
+    sc, verts = _two_grip_scenario()
+    ro = Rollout(times=sc.times, gripper=sc.gripper, vertices=verts, faces=np.array([[0, 1, 3]]),
+                 info={"corners": grid_corners(3)})
+    fig = R.rollout_preview_figure(ro, "two grippers", sc)
+    top = fig.axes[0]
+    assert top.get_title() == "rest pose from above" and (top.get_xlabel(), top.get_ylabel()) == ("x [m]", "y [m]")
+    labels = {t.get_text(): t.xy for t in top.texts}
+    assert labels == {"corner 0, left": pytest.approx((0.0, 0.0)), "corner 1, right": pytest.approx((0.0, 0.2)),
+                      "corner 2, held": pytest.approx((0.2, 0.2)), "corner 3": pytest.approx((0.2, 0.0))}
+    _assert_texts_inside(fig)
+    plt.close(fig)
 
 
 def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_keyframes():
