@@ -673,7 +673,7 @@ def compare_figure(res: CompareResult) -> Any:
     for chk, lab, col in ((a, f"A (before): {la}", ca), (b, f"B (after): {lb}", cb)):
         c = chk.chamfer
         ax.fill_between(t, np.array(c.q05) * 100, np.array(c.q95) * 100, color=col, alpha=0.22, lw=0)
-        ax.plot(t, np.array(c.mean) * 100, color=col, lw=2, label=f"{lab}, mean {chk.chamfer_mean_m * 100:.2f} cm")
+        ax.plot(t, np.array(c.mean) * 100, color=col, lw=2, label=f"{lab}, mean {chk.chamfer_mean_m * 100:.2f} cm (n={chk.n_rollouts} rollouts)")
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
     ax.set_ylabel("Chamfer to the measurement [cm]", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
