@@ -112,6 +112,10 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
             row += [f"{truth[n]:.4g}" if n in truth else "-", "-" if ok is None else ("yes" if ok else "NO")]
         rows.append(row)
     o.table(cols, rows, title="Posterior (physical units)")
+    from softsbi.report.text import rollouts, truth_miss_hint
+    hint = truth_miss_hint(rep.get("truth_in_90pct_interval") or {}, str(out)) if truth else None
+    if hint:
+        o.line(hint)
     o.line(f"estimate: mean ± std, or geometric mean ×/÷ multiplicative spread for log-scaled parameters; "
            f"width / prior: the 90% interval's width over the prior's in the parameter's own scale (log for "
            f"log-scaled ones); above {INFORMED_MAX_RATIO:g} the data do not inform the parameter")
@@ -124,7 +128,7 @@ def _print_report(o: Output, rep: dict[str, Any], out: Path) -> None:
                f"({describe_change(rep['mask_chamfer_prior_px'], rep['mask_chamfer_posterior_px'])})")
     if rep.get("chamfer_prior_m") and rep.get("chamfer_posterior_m"):
         o.line(f"Chamfer to the measurement: prior {rep['chamfer_prior_m'] * 100:.2f} cm -> posterior "
-               f"predictive {rep['chamfer_posterior_m'] * 100:.2f} cm "
+               f"predictive {rep['chamfer_posterior_m'] * 100:.2f} cm{rollouts(rep.get('chamfer_posterior_n'))} "
                f"({describe_change(rep['chamfer_prior_m'], rep['chamfer_posterior_m'])})")
         if rep["chamfer_posterior_m"] > rep["chamfer_prior_m"]:
             o.line("Note: rollouts at the posterior miss the measurement by more than rollouts at the prior: what "

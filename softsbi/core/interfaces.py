@@ -38,8 +38,16 @@ class VertexContext:
         spacing: rest distance between neighbouring vertices, m.
         shape: vertex layout: ``(n, n)`` for a cloth grid (vertex ``i * n + j``, x-major,
             :func:`softsbi.backends.common.grid_faces`), ``(n,)`` for a rope (vertex 0 grasped).
-        grasped: indices of the grasped vertices.
+        grasped: indices of the grasped vertices (one per handle, in the scenario's order of handles).
         gravity: ``(3,)`` m/s^2.
+        handles: ``(H, 3)`` m, each handle's current position (its grasp target at this step), in the scenario's
+            order of handles (:attr:`~softsbi.core.types.Scenario.handles`, names in ``handle_names``); the
+            backend updates it in place before every call of :meth:`Effect.force`, so read it there, not once.
+            ``(0, 3)`` where the backend does not say.
+        handle_names: the handles' names, as ``handles``.
+        corners: vertex indices of a grid cloth's corners 0-3 (:func:`softsbi.backends.common.grid_corners`:
+            ``(0, 0)``, ``(0, n-1)``, ``(n-1, n-1)``, ``(n-1, 0)``; corner 0 is the placed one); ``()`` for a rope
+            or a mesh cloth.
     """
 
     mass: np.ndarray
@@ -50,6 +58,9 @@ class VertexContext:
     shape: tuple[int, ...]
     grasped: tuple[int, ...] = (0,)
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    handles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    handle_names: tuple[str, ...] = ()
+    corners: tuple[int, ...] = ()
 
     @property
     def edges(self) -> np.ndarray:
@@ -130,7 +141,8 @@ class Effect(ABC):
             v: ``(N, 3)`` vertex velocities, m/s.
             t: time since the start of the rollout, s.
             theta: this effect's own parameters (physical units).
-            ctx: masses, areas, rest positions, table height and layout (:class:`VertexContext`).
+            ctx: masses, areas, rest positions, table height, layout, the handles' current positions and the
+                cloth's corner vertices (:class:`VertexContext`).
 
         Returns:
             ``(N, 3)`` forces in newtons, applied at the vertices until the next step.

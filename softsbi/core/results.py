@@ -23,8 +23,13 @@ import numpy as np
 
 from softsbi.core.errors import STORAGE_ERRNOS, SoftsbiError
 
-#: schema version of the JSON form of these results
-SCHEMA = 2
+#: schema version of the JSON form of these results (3: ``Gain``'s ``difference`` and ``se`` lost their ``_m``: the
+#: diagnosis score has no unit; files of older schemas are read through :data:`RENAMED`)
+SCHEMA = 3
+
+#: fields renamed since an older schema, per dataclass: ``{class name: {old name: new name}}``; :func:`from_json`
+#: reads an old file's fields under their new names
+RENAMED: dict[str, dict[str, str]] = {"Gain": {"difference_m": "difference", "se_m": "se"}}
 
 #: the verdicts of a diagnosis, in the order they are tested
 VERDICTS = ("nothing-missing", "missing-effect", "misspecified-unexplained")
@@ -46,6 +51,12 @@ class MCPValue:
     def value(self) -> float:
         """``(exceed + 1) / (n + 1)``, never below :attr:`floor`."""
         return (self.exceed + 1) / (self.n + 1)
+
+    @property
+    def p_value(self) -> float:
+        """The same as :attr:`value` (the name :attr:`JointTest.p_value` has): the probability, under the null of
+        posterior-predictive simulations, of a statistic at least as extreme as the observed one."""
+        return self.value
 
     @property
     def floor(self) -> float:
@@ -254,7 +265,8 @@ class Refit:
         test: ``check``'s test of the refit (same level and family as the diagnosis, less its own effects).
         score: the energy score of its posterior predictive of the summaries, in the nominal fit's scale (None when too
             few rollouts succeeded).
-        chamfer_m: its posterior-predictive Chamfer (m).
+        chamfer_m: its posterior-predictive Chamfer (m), from its check (as the nominal's :attr:`Diagnosis.chamfer_m`).
+        chamfer_n: the posterior-predictive rollouts that Chamfer averages (0: unknown).
         estimates: its posterior of the added effects' parameters.
         ranking: its own screening of the remaining candidates (what it leaves unexplained).
         rounds, sims_per_round: its simulation budget.
@@ -269,6 +281,7 @@ class Refit:
     ranking: tuple[Candidate, ...] = ()
     rounds: int = 0
     sims_per_round: int = 0
+    chamfer_n: int = 0
 
     @property
     def label(self) -> str:
@@ -283,11 +296,11 @@ class Refit:
 
 @dataclass(frozen=True)
 class Gain:
-    """How much lower model B's score is than model A's: ``difference_m = A - B`` (m), its standard error and
-    ``z = difference / se``."""
+    """How much lower model B's score is than model A's: ``difference = A - B``, its standard error ``se`` and
+    ``z = difference / se`` (all dimensionless, as the :class:`Score` they compare)."""
 
-    difference_m: float
-    se_m: float
+    difference: float
+    se: float
     z: float
 
 
@@ -318,7 +331,9 @@ class ResidualShape:
     Attributes:
         frames_flagged: frames whose summaries lie beyond the posterior predictive's 95% quantile.
         frame_spans: runs of consecutive flagged frames ``(first, last, t_first_s, t_last_s)``.
-        phases: per phase of the motion ``{"phase", "frames": [a, b], "fraction_flagged"}`` (None: no fitted frame).
+        phases: per phase of the motion ``{"phase", "frames": [a, b], "fraction_flagged", "chamfer_m"}``
+            (``fraction_flagged`` None: no fitted frame; ``chamfer_m``: the phase's posterior-predictive Chamfer, m,
+            the number ``check``'s phase table shows; absent in older files).
         centroid_offset_cm: measured minus simulated centroid over the flagged frames ``(x, y, z)`` (cm).
         direction: its dominant axis in words (``"+y"``, ``"-z (down)"``).
         worst_summary: the summary statistic that departs most.
@@ -352,6 +367,9 @@ class Diagnosis:
         residual: the nominal fit's residual shape (None for ``nothing-missing``).
         generic: the generic force term that explains most of the residual, or None.
         simulations: simulations spent (refits' fits excluded).
+        chamfer_m, chamfer_n: the nominal fit's posterior-predictive Chamfer (m, from its check) and the rollouts it
+            averages (0: unknown), which each refit's is compared with.
+        confirm: the refit budget (``--confirm``: the top named candidates refitted; None: unknown).
         key: what determines the result (the fit, the settings), so that a stored result is reused only for them.
         seconds: wall time.
     """
@@ -370,6 +388,9 @@ class Diagnosis:
     simulations: int = 0
     key: Mapping[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
+    chamfer_m: float | None = None
+    chamfer_n: int = 0
+    confirm: int | None = None
 
     @property
     def verdict(self) -> str:
@@ -552,6 +573,8 @@ def _build(tp: Any, data: Any) -> Any:
         if not isinstance(data, Mapping):
             raise ValueError(f"expected a {tp.__name__} object, got {type(data).__name__}")
         hints = typing.get_type_hints(tp)
+        renamed = RENAMED.get(tp.__name__, {})
+        data = {renamed.get(k, k): v for k, v in data.items()}
         return tp(**{f.name: _build(hints[f.name], data[f.name]) for f in dataclasses.fields(tp) if f.name in data})
     if origin is tuple:
         args = typing.get_args(tp)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -565,6 +565,21 @@ def check_headline(out: CheckResult) -> str:
     return s + f"  ·  misspecification {short_p(out.test)}: {verdict}"
 
 
+#: the angle (deg) of phase labels that would overlap side by side (short phases)
+PHASE_LABEL_ROTATION = 35
+
+
+def _unoverlap(fig: Any, ax: Any, labels: Sequence[Any]) -> None:
+    """Tilt tick ``labels`` by :data:`PHASE_LABEL_ROTATION` when any two overlap side by side (measured on the
+    figure's canvas with the axes' final width), so that short phases keep readable names."""
+    fig.tight_layout()
+    renderer = fig.canvas.get_renderer()
+    boxes = sorted((lab.get_window_extent(renderer) for lab in labels if lab.get_text()), key=lambda b: b.x0)
+    if any(a.x1 > b.x0 - 2 for a, b in zip(boxes, boxes[1:])):
+        for lab in labels:
+            lab.set(rotation=PHASE_LABEL_ROTATION, ha="left", rotation_mode="anchor")
+
+
 def _region_short(name: str) -> str:
     return name.replace(" (at the grasp)", " grasp").replace(" (farthest from the grasp)", " farthest")
 
@@ -593,11 +608,12 @@ def check_figure(out: CheckResult) -> Any:
         top = ax.secondary_xaxis("top")
         top.set_xticks([float(np.mean(ph.t_s)) for ph in phases])
         top.set_xticklabels([f"{ph.phase}{' (worst)' if ph is worst else ''}"
-                             f"{'' if ph.in_fit else ' (not fitted)'}: {ph.chamfer_m * 100:.2f} cm"
-                             for ph in phases], fontsize=FS_TICK)
+                             f"{'' if ph.in_fit else ' (not fitted)'}\n{ph.chamfer_m * 100:.2f} cm"
+                             for ph in phases], fontsize=FS_TICK, linespacing=1.1)
         top.tick_params(length=0)
         for lab, ph in zip(top.get_xticklabels(), phases):
             lab.set_weight("bold" if ph is worst else "normal")
+        _unoverlap(fig, ax, top.get_xticklabels())
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
     ax.set_ylabel("Chamfer to the measurement [cm]", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
@@ -657,7 +673,7 @@ def compare_figure(res: CompareResult) -> Any:
     for chk, lab, col in ((a, f"A (before): {la}", ca), (b, f"B (after): {lb}", cb)):
         c = chk.chamfer
         ax.fill_between(t, np.array(c.q05) * 100, np.array(c.q95) * 100, color=col, alpha=0.22, lw=0)
-        ax.plot(t, np.array(c.mean) * 100, color=col, lw=2, label=f"{lab}, mean {chk.chamfer_mean_m * 100:.2f} cm")
+        ax.plot(t, np.array(c.mean) * 100, color=col, lw=2, label=f"{lab}, mean {chk.chamfer_mean_m * 100:.2f} cm (n={chk.n_rollouts} rollouts)")
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
     ax.set_ylabel("Chamfer to the measurement [cm]", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
@@ -768,9 +784,10 @@ def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Ma
 
 
 def plot_rollout_preview(ro: Any, path: str | Path, title: str, scenario: Any = None) -> Path:
-    """Side views (y-z, m) of a rollout's vertices at four frames, with every handle of ``scenario`` (its
-    grippers ``+`` and the vertices it holds in place ``x``; without a scenario the rollout's gripper), in the
-    palette's posterior and gripper colours (``softsbi simulate``'s ``preview.png``)."""
+    """The rest pose from above (x-y, m) with a grid cloth's corners 0-3 (``ro.info["corners"]``) and every
+    handle labelled by name, then side views (y-z, m) of a rollout's vertices at four frames, with every handle of
+    ``scenario`` (its grippers ``+`` and the vertices it holds in place ``x``; without a scenario the rollout's
+    gripper), in the palette's posterior and gripper colours (``softsbi simulate``'s ``preview.png``)."""
     return _save(rollout_preview_figure(ro, title, scenario), Path(path))
 
 
@@ -783,8 +800,10 @@ def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
     tracks = (handle_tracks(scenario, ro.vertices[0], rope) if scenario is not None
               else [("gripper", np.asarray(ro.gripper, float))])
     pinned = pinned_vertices(scenario, ro.vertices[0], rope) if scenario is not None else []
-    fig, axes = plt.subplots(1, len(frames), figsize=(3 * len(frames), 3.4), squeeze=False)
-    for ax, f in zip(axes[0], frames):
+    fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3 * len(frames) + 4, 3.4), squeeze=False,
+                             gridspec_kw={"width_ratios": [4 / 3] + [1] * len(frames)})
+    _rest_from_above(axes[0, 0], ro, tracks, pinned)
+    for ax, f in zip(axes[0, 1:], frames):
         v = ro.vertices[f]
         ax.scatter(v[:, 1], v[:, 2], s=4, color=ROLE_COLOURS["posterior"], label="simulated vertices")
         for k, (_, p) in enumerate(tracks):
@@ -798,10 +817,48 @@ def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
         ax.set_ylabel("z [m]", fontsize=FS_LABEL)
         ax.tick_params(labelsize=FS_TICK)
         ax.set_aspect("equal", adjustable="datalim")
-    axes[0, 0].legend(fontsize=FS_LEGEND, loc="upper left")
+    axes[0, 1].legend(fontsize=FS_LEGEND, loc="upper left")
     fig.suptitle(title, fontsize=FS_TITLE)
     fig.tight_layout()
     return fig
+
+
+#: room around the cloth in the preview's view from above, for the corner and handle labels (fraction of its size)
+PREVIEW_LABEL_ROOM = 0.45
+
+
+def _rest_from_above(ax: Any, ro: Any, tracks: list[tuple[str, np.ndarray]], pinned: list[tuple[str, int]]) -> None:
+    """The first frame's vertices from above (x-y), each corner (``corner k``) and handle (its name) labelled
+    beside its vertex, away from the cloth's centre: where a scenario file's corners and handles end up."""
+    v = np.asarray(ro.vertices[0], float)
+    ax.scatter(v[:, 0], v[:, 1], s=4, color=ROLE_COLOURS["posterior"])
+    names: dict[int, list[str]] = {}
+    for k, i in enumerate((getattr(ro, "info", None) or {}).get("corners") or []):
+        names.setdefault(int(i), []).append(f"corner {k}")
+        ax.plot(v[i, 0], v[i, 1], "o", mfc="none", color="0.25", ms=7, mew=1.2)
+    for name, p in tracks:
+        i = int(np.argmin(np.linalg.norm(v - p[0], axis=1)))
+        names.setdefault(i, []).append(name)
+        ax.plot(p[0, 0], p[0, 1], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2)
+    for name, i in pinned:
+        names.setdefault(int(i), []).append(name)
+        ax.plot(v[i, 0], v[i, 1], "x", color=ROLE_COLOURS["gripper"], ms=8, mew=2)
+    centre = v[:, :2].mean(0)
+    for i, labels in names.items():
+        d = v[i, :2] - centre
+        d = d / (np.linalg.norm(d) or 1.0)
+        ax.annotate(", ".join(labels), v[i, :2], xytext=tuple(10 * d), textcoords="offset points",
+                    fontsize=FS_TICK, ha="left" if d[0] >= 0 else "right", va="bottom" if d[1] >= 0 else "top")
+    ax.set_title("rest pose from above", fontsize=FS_SUB)
+    ax.set_xlabel("x [m]", fontsize=FS_LABEL)
+    ax.set_ylabel("y [m]", fontsize=FS_LABEL)
+    ax.tick_params(labelsize=FS_TICK)
+    lo, hi = v[:, :2].min(0), v[:, :2].max(0)
+    half = 0.5 * float(max(hi - lo)) * (1 + 2 * PREVIEW_LABEL_ROOM)  # a square view, room for the labels
+    mid = (lo + hi) / 2
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_aspect("equal", adjustable="box")
 
 
 def plot_scenario_overlay(scenario: Any, rollout: Any, real_points: np.ndarray, path: str | Path,

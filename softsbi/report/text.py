@@ -2,7 +2,9 @@
 (:mod:`softsbi.core.results`). Pure functions: tested against fixed result objects."""
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Mapping, Sequence
+
+from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change
 from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Refit,
@@ -18,6 +20,16 @@ def cm(x: float | None, digits: int = 2) -> str:
 def pct(x: float | None) -> str:
     """A fraction as a percentage: ``"37%"``."""
     return "n/a" if x is None else f"{x * 100:.0f}%"
+
+
+def rollouts(n: int | None) -> str:
+    """How many posterior-predictive rollouts a Chamfer figure averages: ``" (n=30 rollouts)"`` (``""`` unknown)."""
+    return f" (n={n} rollouts)" if n else ""
+
+
+def region_value(name: str, value: str) -> str:
+    """A region's name with the number that ranks it: ``"R9 (farthest from the grasp; 8.56 cm)"``, ``"R8 (8.1 cm)"``."""
+    return f"{name[:-1]}; {value})" if name.endswith(")") else f"{name} ({value})"
 
 
 def ranges(idx: Sequence[int]) -> str:
@@ -66,19 +78,46 @@ def bound_words(e: dict) -> str:
 def check_summary(c: CheckResult) -> str:
     """``check``'s paragraph: the error, where it is worst, the verdict, and prior bounds the posterior presses."""
     one = f"; measured -> simulated {cm(c.chamfer_one_sided_mean_m)}" if c.chamfer_one_sided_mean_m is not None else ""
-    s = f"Posterior rollouts miss the measurement by {cm(c.chamfer_mean_m)} on average (Chamfer{sensor_words(c)}{one})"
+    s = (f"Posterior rollouts miss the measurement by {cm(c.chamfer_mean_m)} on average over {c.n_rollouts} rollouts "
+         f"(Chamfer{sensor_words(c)}{one})")
     fitted = [p for p in c.phases if p.in_fit]
     if fitted:
         w = max(fitted, key=lambda p: p.chamfer_m)
         s += f"; worst in the {w.phase} phase (t {w.t_s[0]:.2f}-{w.t_s[1]:.2f} s, {cm(w.chamfer_m)})"
     if c.worst_regions:
-        s += f" and in region {c.worst_regions[0]}"
+        r = c.worst_regions[0]
+        s += f" and in region {region_value(r, cm(c.region_mean_m[r])) if r in c.region_mean_m else r}"
+        if c.regions_from != "the grasp":  # several handles: say whose grasp the regions are numbered from
+            s += f" (regions numbered from {c.regions_from})"
     s += f"; {test_verdict(c.test)}."
     if c.energy:
         s += f" Energy score {cm(c.energy.energy_m)}."
     for e in c.posterior_at_bounds:
         s += f" The fit's posterior: {bound_words(dict(e))}."
     return s
+
+
+#: the level at which a fit's 90% intervals miss more hidden values than chance allows: the hint to run ``check``
+#: shows when ``P(X >= misses) <= TRUTH_MISS_LEVEL`` for ``X ~ Binomial(n values, 1 - 0.9)`` (each interval covering
+#: its value with probability 0.9); with 5 values: 3 misses or more (2 misses happen by chance 8% of the time)
+TRUTH_MISS_LEVEL = 0.05
+
+
+def truth_miss_hint(inside: Mapping[str, bool | None], run: str, level: float = TRUTH_MISS_LEVEL,
+                    coverage: float = 0.9) -> str | None:
+    """The fit report's hint that the model may lack something: its ``coverage`` intervals miss more of the hidden
+    values of a simulated recording (``inside``: report.json's ``truth_in_90pct_interval``, None = no hidden value)
+    than chance allows at ``level`` (:data:`TRUTH_MISS_LEVEL`); None when they do not."""
+    judged = [bool(v) for v in inside.values() if v is not None]
+    n, k = len(judged), sum(not v for v in judged)
+    if k == 0:
+        return None
+    p = float(binom.sf(k - 1, n, 1 - coverage))
+    if p > level:
+        return None
+    return (f"Note: the {coverage:.0%} intervals miss {k} of {n} hidden values, more than chance allows "
+            f"(p = {p:.2g} <= {level:g}): the model may lack an effect; `softsbi check {run}` shows where and when "
+            f"it misses the measurement.")
 
 
 #: magnitudes below this print as 0: a switched-off effect's estimate at its off value (8.7e-22 is rounding)
@@ -119,12 +158,22 @@ def extended(d: Diagnosis, r: Refit) -> Score | None:
     return first.score if first else None
 
 
-def refit_words(r: Refit, base: Score | None) -> str:
-    """One refit: is it adequate, does it improve, what it estimates, which prior bounds it presses."""
-    ok = "inside" if r.adequate else "still outside"
-    s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
-         f"({r.test.text()}), energy score {score_change(base, r.score)}"
-         + (f", posterior-predictive Chamfer {cm(r.chamfer_m)}." if r.chamfer_m is not None else "."))
+def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = None, nominal_n: int = 0) -> str:
+    """One refit: is it adequate, does it improve, what it estimates, which prior bounds it presses. An adequate
+    refit whose posterior-predictive Chamfer is higher than the nominal fit's (``nominal_chamfer_m``) is called
+    adequate with a higher error, not "inside" (which reads like a win)."""
+    worse = (r.adequate and r.chamfer_m is not None and nominal_chamfer_m is not None
+             and r.chamfer_m > nominal_chamfer_m)
+    chamfer = f"posterior-predictive Chamfer {cm(r.chamfer_m)}{rollouts(r.chamfer_n)}"
+    if worse:
+        s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {r.test.text()}), but its error is "
+             f"higher than the nominal fit's: {chamfer} against {cm(nominal_chamfer_m)}{rollouts(nominal_n)}; "
+             f"energy score {score_change(base, r.score)}.")
+    else:
+        ok = "inside" if r.adequate else "still outside"
+        s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
+             f"({r.test.text()}), energy score {score_change(base, r.score)}"
+             + (f", {chamfer}." if r.chamfer_m is not None else "."))
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
     for e in r.estimates:  # a bound that is a physical limit (or the effect's switched-off side) gets no advice
@@ -151,19 +200,29 @@ def rule_words(d: Diagnosis) -> str:
 
 
 def residual_words(res: ResidualShape) -> str:
-    """Where, when and in which direction the nominal fit misses the measurement."""
+    """Where, when and in which direction the nominal fit misses the measurement. Each phase or region it names comes
+    with the number that ranks it: the flagged frames' share of a phase, the phase's posterior-predictive Chamfer (the
+    number of ``check``'s phase table), a region's error beyond the model's own spread."""
+    judged = [p for p in res.phases if p.get("fraction_flagged") is not None]
     if res.frame_spans:
         sp = ", ".join(f"frames {a}-{b} (t {t0:.2f}-{t1:.2f} s)" if b != a else f"frame {a} (t {t0:.2f} s)"
                        for a, b, t0, t1 in res.frame_spans[:3])
-        judged = [p for p in res.phases if p.get("fraction_flagged") is not None]
-        worst = max(judged, key=lambda p: p["fraction_flagged"]) if judged else None
-        s = f"The residual lives in {sp}" + (f", mostly the {worst['phase']} phase" if worst else "")
+        most = max(judged, key=lambda p: p["fraction_flagged"]) if judged else None
+        s = f"The summaries leave the rollouts' 95% range in {sp}" + (
+            f" ({pct(most['fraction_flagged'])} of the {most['phase']} phase's frames)" if most else "")
     else:
         s = "No single frame is outside the rollouts' 95% range; the residual is spread over the motion"
+    with_chamfer = [p for p in judged if p.get("chamfer_m") is not None]
+    if with_chamfer:
+        w = max(with_chamfer, key=lambda p: p["chamfer_m"])
+        s += f"; the Chamfer is largest in the {w['phase']} phase ({cm(w['chamfer_m'])}, as in check's table)"
     o = res.centroid_offset_cm
+    exc = res.region_excess_cm
+    regions = ", ".join(region_value(r, f"{exc[r]:+.2f} cm") if exc.get(r) is not None else r
+                        for r in res.worst_regions)
     return (s + f"; the measured centroid is displaced by ({o[0]:+.1f}, {o[1]:+.1f}, {o[2]:+.1f}) cm, mostly "
-                f"{res.direction}; the most deviant summary is {res.worst_summary}; regions with the most unexplained "
-                f"error: {', '.join(res.worst_regions)}.")
+                f"{res.direction}; the most deviant summary is {res.worst_summary}; regions with the most error "
+                f"beyond the model's own spread: {regions}.")
 
 
 def _kind(d: Diagnosis, effects: Sequence[str]) -> str:
@@ -215,7 +274,7 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
     """Everything ``diagnose`` says, one paragraph per item: the verdict, the rule as applied, each refit,
     the residual's shape and the best generic force term."""
     out = [diagnosis_summary(d), rule_words(d)]
-    out += [refit_words(r, extended(d, r)) for r in d.refits]
+    out += [refit_words(r, extended(d, r), d.chamfer_m, d.chamfer_n) for r in d.refits]
     if d.decision.verdict == "misspecified-unexplained" and d.residual:
         out.append(residual_words(d.residual))
     if d.decision.verdict == "misspecified-unexplained" and d.generic:
@@ -236,8 +295,23 @@ def candidate_role(d: Diagnosis, c: Candidate) -> str:
         return "explains a part"
     r = d.refit((c.effect,))
     if r is None:
-        return "-"
+        return not_refitted(d, c)
     return "refit: misfit remains" if not r.adequate else "refit: no lower score"
+
+
+def not_refitted(d: Diagnosis, c: Candidate) -> str:
+    """Why ``diagnose`` did not refit candidate ``c`` (its verdict column): nothing is missing, a generic term
+    (describes the residual, names no cause), its screening failed, or the refit budget ``--confirm`` ended above it
+    (:func:`softsbi.workflows.decide.next_refit` refits the top named screened candidates)."""
+    if not d.test.misspecified:
+        return "not refitted: nothing missing"
+    if c.generic:
+        return "not refitted: generic term"
+    if not c.screened:
+        return "not refitted: screening failed"
+    if d.confirm is None:
+        return "not refitted: beyond the refit budget"
+    return f"not refitted: beyond --confirm {d.confirm}"
 
 
 def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
@@ -261,8 +335,8 @@ DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p"
 def compare_summary(c: CompareResult) -> str:
     """``compare``'s sentence: the error before -> after, the energy score, the point estimate, the tests."""
     first = c.rows[0]
-    s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)} -> {cm(first.b)} "
-         f"({describe_change(first.a, first.b)})")
+    s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)}{rollouts(c.check_a.n_rollouts)} -> "
+         f"{cm(first.b)}{rollouts(c.check_b.n_rollouts)} ({describe_change(first.a, first.b)})")
     def row_of(start: str) -> Row | None:
         return next((r for r in c.rows if r.what.startswith(start)), None)
 

@@ -7,12 +7,16 @@
     post = softsbi.open_run("runs/tan").posterior          # physical units
     theta = post.sample(100); post.log_prob(theta); post.mean; post.interval(0.9)
     roll = softsbi.simulate("lift", dict(zip(post.names, theta[0])))
+
+``fit``, ``check``, ``diagnose`` and ``compare`` show their progress as the CLI does in a pipe: one line on stderr
+when a phase of simulations begins and one when it ends (:class:`~softsbi.workflows.progress.LineReporter`);
+``progress=False`` keeps them silent.
 """
 from __future__ import annotations
 
 from dataclasses import fields, replace
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import Recording, Rollout, Scenario
@@ -24,6 +28,7 @@ from softsbi.workflows.check import check_run
 from softsbi.workflows.compare import compare_runs
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
+from softsbi.workflows.progress import fit_callbacks, say, shown_unless_shown
 from softsbi.workflows.runs import Run, open_run
 from softsbi.workflows.simulate import default_values
 
@@ -44,7 +49,8 @@ def load_scenario(name_or_path: str | Path, recording: str | Path | None = None,
 
 
 def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | None = None,
-        callbacks: FitCallbacks | None = None, plots: bool = True, **settings: Any) -> FitResult:
+        callbacks: FitCallbacks | None = None, plots: bool = True, progress: bool = True,
+        **settings: Any) -> FitResult:
     """Fit the posterior over a simulator's physical parameters to ``recording`` (resumable).
 
     Args:
@@ -56,6 +62,8 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
         config: settings; default :class:`FitConfig` (the CLI's defaults).
         settings: :class:`FitConfig` fields overriding ``config``, e.g. ``backend="mujoco-flex"``,
             ``estimator="rkhs"``, ``rounds=4``, ``effects=["wind"]``.
+        callbacks: progress callbacks of your own (then ``progress`` is not used).
+        progress: one line on stderr when each round's simulations begin and end (module docstring).
 
     Returns:
         :class:`~softsbi.workflows.fit.FitResult`; :func:`open_run` ``(out).posterior`` gives the
@@ -81,7 +89,8 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
     elif not isinstance(recording, Recording):
         raise ParameterError(f"fit(recording=...) takes a Recording (softsbi.load_recording(PATH)) or the path of a "
                              f"recording folder, got {type(recording).__name__}")
-    return run_fit(out, recording, cfg, callbacks=callbacks, make_plots=plots)
+    with shown_unless_shown(progress and callbacks is None):
+        return run_fit(out, recording, cfg, callbacks=callbacks or fit_callbacks("fit"), make_plots=plots)
 
 
 def typed_config(cfg: FitConfig) -> FitConfig:
@@ -134,32 +143,41 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))
 
 
-def check(run: str | Path, **settings: Any) -> CheckResult:
+def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResult:
     """``softsbi check RUN``: the posterior predictive check of a finished fit
     (:func:`~softsbi.workflows.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
-    ``recompute``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in ``RUN/check.json``)."""
-    return check_run(run, **settings)
+    ``recompute``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in ``RUN/check.json``).
+    ``progress``: one line on stderr per phase of simulations (module docstring)."""
+    with shown_unless_shown(progress):
+        return check_run(run, **settings)
 
 
 def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | Path | None = None,
-             **settings: Any) -> Diagnosis:
+             progress: bool | Callable[[str], None] = True, **settings: Any) -> Diagnosis:
     """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.diagnose.diagnose_run`;
     ``settings``: ``alpha``, ``k_se``, ``confirm``, ``refit_rounds``, ``refit_sims``, ``workers``, ...). Returns the
     :class:`~softsbi.core.results.Diagnosis` (also in ``OUT/diagnosis.json``; ``out``, as ``diagnose --out``: the
-    folder of the diagnosis and its refits, default ``run``).
+    folder of the diagnosis and its refits, default ``run``). ``progress``: one line on stderr per phase of
+    simulations, the refits' rounds included, and per step (detect, each refit) as the CLI prints them (module
+    docstring); a callable gets the step lines instead.
 
     Raises:
         SoftsbiError: ``effects`` given as one string (name them in a list), and everything ``diagnose_run`` raises.
     """
     if isinstance(effects, str):
         raise SoftsbiError(f"effects must be a list of effect names, e.g. effects=[{effects!r}]")
-    return diagnose_run(run, effects=effects, out_dir=out, **settings)
+    steps = progress if callable(progress) else say if progress else None
+    with shown_unless_shown(bool(progress)):
+        return diagnose_run(run, effects=effects, out_dir=out, progress=steps, **settings)
 
 
-def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, **settings: Any) -> CompareResult:
+def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, progress: bool = True,
+            **settings: Any) -> CompareResult:
     """``softsbi compare A B``: two fits of one measurement side by side (:func:`~softsbi.workflows.compare.compare_runs`;
-    the figure and JSON go to ``out``, default ``run_b``). Returns the :class:`~softsbi.core.results.CompareResult`."""
-    return compare_runs(run_a, run_b, run_b if out is None else out, **settings)
+    the figure and JSON go to ``out``, default ``run_b``). Returns the :class:`~softsbi.core.results.CompareResult`.
+    ``progress``: one line on stderr per phase of simulations (module docstring)."""
+    with shown_unless_shown(progress):
+        return compare_runs(run_a, run_b, run_b if out is None else out, **settings)
 
 
 __all__ = ["FitConfig", "FitResult", "Run", "calibrate_run", "check", "compare", "diagnose", "fit", "load_scenario",

@@ -221,7 +221,8 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
     return out
 
 
-def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_regions: int = 20) -> ResidualShape:
+def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_regions: int = 20,
+                   phase_chamfer: dict[str, float] | None = None) -> ResidualShape:
     """When, where and in which direction the measurement leaves the posterior predictive distribution.
 
     - frames: per frame, the mean squared standardised deviation of the measurement's summaries from the
@@ -233,7 +234,8 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
       ``n_regions`` rollouts): the error the nominal model's own spread does not produce.
 
     Uses the first ``n`` successful rollouts of ``pool`` (the null's first stage), so the shape does not depend on
-    whether the null was extended.
+    whether the null was extended. ``phase_chamfer`` (phase name -> m): the posterior-predictive Chamfer of each
+    phase as ``check``'s table shows it, stored with the phase so that the words name the table's worst phase.
     """
     fit_frames = np.array(run_frames(run))
     T = len(fit_frames)
@@ -260,7 +262,8 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
     for ph in motion_phases(run.scenario):
         inside = (fit_frames >= ph["frames"][0]) & (fit_frames <= ph["frames"][1])
         phases.append({"phase": ph["phase"], "frames": list(ph["frames"]),
-                       "fraction_flagged": float(flagged[inside].mean()) if inside.any() else None})
+                       "fraction_flagged": float(flagged[inside].mean()) if inside.any() else None,
+                       "chamfer_m": (phase_chamfer or {}).get(ph["phase"])})
     sel = flagged if flagged.any() else np.ones(T, bool)
     off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
     axis = int(np.argmax(np.abs(off)))
@@ -415,7 +418,8 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         tuple(phases), tuple(int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]]),
         tuple(names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]),
         test, ranking, energy_score(pool, n_eval), posterior_mean_chamfer(run, workers=workers),
-        residual_shape(run, pool, n_eval) if test.misspecified else None,
+        residual_shape(run, pool, n_eval, phase_chamfer={p.phase: p.chamfer_m for p in phases})
+        if test.misspecified else None,
         tuple((run.report or {}).get("posterior_at_bounds") or ()), key, time.perf_counter() - t0,
         regions_from=_grasp_words(run.scenario),
         phases_from=("the scenario's keyframes" if (run.scenario.options or {}).get("keyframe_times")

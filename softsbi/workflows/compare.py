@@ -56,7 +56,9 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
                                             "run directory to a writable place and compare the copy")
     a = check_run(run_a, n_eval=n_eval, workers=workers, max_null=max_null, recompute=recompute, message=message)
     b = check_run(run_b, n_eval=n_eval, workers=workers, max_null=max_null, recompute=recompute, message=message)
-    rows = [Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m)]
+    n = f"n={a.n_rollouts}" + ("" if b.n_rollouts == a.n_rollouts else f" and {b.n_rollouts}")
+    rows = [Row(f"posterior-predictive Chamfer, mean over the fit's frames ({n} rollouts)", a.chamfer_mean_m,
+                b.chamfer_mean_m)]
     if a.chamfer_one_sided_mean_m is not None and b.chamfer_one_sided_mean_m is not None:
         rows.append(Row("one-sided Chamfer (measured -> simulated)", a.chamfer_one_sided_mean_m,
                         b.chamfer_one_sided_mean_m))

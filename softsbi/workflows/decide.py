@@ -42,7 +42,7 @@ K_SE = defaults.K_SE
 
 
 def gain(base: Score | None, new: Score | None) -> Gain | None:
-    """How much lower ``new``'s energy score is than ``base``'s: the difference (m), its standard error
+    """How much lower ``new``'s energy score is than ``base``'s: the difference (dimensionless), its standard error
     ``sqrt(se_base^2 + se_new^2)`` (the two posterior predictives are independent Monte-Carlo samples scored
     against the same measurement) and ``z``; None when either is missing."""
     if base is None or new is None:

@@ -157,7 +157,8 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     ui.step("the numbers")
     ui.line(f"hidden effect: {', '.join(DEMO_HIDDEN_EFFECT)}; diagnosis named: {eff} "
             f"({'correct' if doc['named_correctly'] else 'WRONG'}).")
-    ui.line(f"posterior-predictive Chamfer: {before * 100:.2f} cm (nominal) -> {after * 100:.2f} cm (with {eff}), "
+    ui.line(f"posterior-predictive Chamfer: {before * 100:.2f} cm (nominal, n={a.n_rollouts} rollouts) -> "
+            f"{after * 100:.2f} cm (with {eff}, n={b.n_rollouts} rollouts), "
             f"{describe_change(before, after)}.")
     if a.energy and b.energy:
         ea, eb = a.energy.energy_m, b.energy.energy_m

@@ -118,7 +118,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
         sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())  # 0 when check's result was stored
         d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, nominal, tuple(refits), decision,
-                      chk.residual, generic, sims, key, time.perf_counter() - t0)
+                      chk.residual, generic, sims, key, time.perf_counter() - t0, chk.chamfer_mean_m,
+                      chk.n_rollouts, confirm)
         write_result(json_path, d)
     say(f"wrote {json_path}")
     return d
@@ -162,8 +163,9 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     f = pool.ensure(n_null).features[:n_null]
     score = (summary_energy_score(run_features(pool.run, pool.run.dense), f, scale)
              if scale is not None and len(f) >= 3 else None)
-    return Refit(effects, str(out), chk.test, score, res.report.get("chamfer_posterior_m"),
-                 estimates(res.report, effects), chk.ranking, cfg.rounds, cfg.sims_per_round)
+    # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
+    return Refit(effects, str(out), chk.test, score, chk.chamfer_mean_m, estimates(res.report, effects), chk.ranking,
+                 cfg.rounds, cfg.sims_per_round, chk.n_rollouts)
 
 
 def estimates(report: dict[str, Any], effects: Sequence[str]) -> tuple[Estimate, ...]:

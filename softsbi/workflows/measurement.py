@@ -11,7 +11,7 @@ from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
                                           seen_resampled)
-from softsbi.workflows.defaults import IMAGE_SIZE
+from softsbi.workflows.defaults import BACKEND, IMAGE_SIZE, SCENARIO
 
 if TYPE_CHECKING:
     from softsbi.core.camera import Camera, RenderStyle
@@ -326,24 +326,39 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
     return written
 
 
-def simulate_recording(backend: str, scenario: Scenario, truth: Mapping[str, float],
-                         backend_options: Mapping | None = None, effects: Sequence[str] = (),
-                         n_points: int = 64, n_dense: int = N_DENSE, noise: float = 0.0,
+def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path = SCENARIO,
+                         truth: Mapping[str, float] | None = None, backend_options: Mapping | None = None,
+                         effects: Sequence[str] = (), n_points: int = 64, n_dense: int = N_DENSE, noise: float = 0.0,
                          seed: int = 12345) -> Recording:
     """A synthetic measurement: ``scenario`` simulated at hidden parameters ``truth``.
 
     Args:
-        backend: simulator plugin name; ``truth`` must give all its parameters (and those of
-            ``effects``; hidden effects make a measurement the nominal model cannot explain).
+        backend: simulator plugin name.
+        scenario: a :class:`Scenario`, or a built-in scenario's name or a scenario file's path.
+        truth: hidden values of the backend's parameters and those of ``effects`` (hidden effects make a
+            measurement the nominal model cannot explain); a parameter not given takes the value ``softsbi
+            simulate`` gives it (:func:`~softsbi.workflows.simulate.default_values`: ``scale`` at the scenario's
+            object size, the others at their prior midpoint). The recording's ``truth`` holds every value used.
         noise: Gaussian noise std (m) added to the observed points.
 
     Raises:
-        SimulationFailed: the hidden-parameter simulation itself failed.
+        SimulationFailed: the hidden-parameter simulation itself failed. ParameterError: a value of ``truth`` outside
+            its physical limits, or a name that is not a parameter. PluginNotFound: unknown backend or effect.
     """
     from softsbi.core.errors import SimulationFailed
     from softsbi.plugins import registry
+    from softsbi.workflows.simulate import default_values
 
-    sim = registry().simulator(backend)(**dict(backend_options or {}))
+    if not isinstance(scenario, Scenario):
+        from softsbi.scenarios.builtin import make_scenario
+        scenario = make_scenario(str(scenario))
+    reg = registry()
+    sim = reg.simulator(backend)(**dict(backend_options or {}))
+    space = sim.param_space(scenario)
+    for e in effects:
+        space = space + reg.effect(e)().param_space()
+    values = {**default_values(space, scenario), **dict(truth or {})}
+    truth = space.check(values, within="limits")
     ro = sim.simulate(scenario, dict(truth), effects=list(effects), seed=seed)
     if not ro.ok:
         raise SimulationFailed(f"the measurement simulation failed: {ro.reason}")

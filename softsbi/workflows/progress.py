@@ -4,13 +4,17 @@ The library reports and never prints: :func:`~softsbi.workflows.jobs.run_jobs` (
 rollouts, nulls and finite differences of ``check``, ``diagnose``, ``compare``, ``view``) and the rounds of a
 fit run without callbacks of their own (a ``diagnose`` refit) tell the current :class:`Reporter`, which the CLI
 installs with :func:`reporting` (bars with counts and time left on a terminal, one line per phase in a pipe).
-Without one, nothing is shown.
+Without one, nothing is shown. The Python API (:mod:`softsbi.workflows.api`) installs a :class:`LineReporter`
+(the CLI's plain mode: one line on stderr when a phase begins and one when it ends) unless called with
+``progress=False`` or inside another reporter.
 """
 from __future__ import annotations
 
 import contextlib
+import sys
+import time
 from contextvars import ContextVar
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, TextIO
 
 #: the reporter of the current command (None: silent)
 _CURRENT: ContextVar["Reporter | None"] = ContextVar("softsbi_progress", default=None)
@@ -35,6 +39,38 @@ class Reporter:
 
     def message(self, text: str) -> None:
         """A notice for the user (e.g. bank entries under another key, :class:`~softsbi.workflows.bank.BankCount`)."""
+
+
+def say(text: str, stream: TextIO | None = None) -> None:
+    """One progress line on ``stream`` (default: ``sys.stderr`` at the time of writing)."""
+    print(text, file=stream or sys.stderr, flush=True)
+
+
+class LineReporter(Reporter):
+    """One line when a phase begins (``"fit: round 1/4: 150 simulations ..."``) and one when it ends (``"...: done
+    in 12 s"``) on ``stream`` (default: ``sys.stderr`` at the time of writing): the CLI's plain mode."""
+
+    def __init__(self, stream: TextIO | None = None):
+        self.stream = stream
+
+    def start(self, label: str, total: int) -> Any:
+        say(f"{label}: {total} simulations ...", self.stream)
+        return label, time.perf_counter()
+
+    def end(self, handle: Any) -> None:
+        label, t0 = handle
+        say(f"{label}: done in {time.perf_counter() - t0:.0f} s", self.stream)
+
+
+@contextlib.contextmanager
+def shown_unless_shown(progress: bool = True) -> Iterator[None]:
+    """Inside the block, phases are shown one line each on stderr (:class:`LineReporter`) when ``progress`` is
+    True and no reporter is current yet (a caller that shows progress its own way keeps it)."""
+    if not progress or _CURRENT.get() is not None:
+        yield
+        return
+    with reporting(LineReporter()):
+        yield
 
 
 @contextlib.contextmanager

@@ -129,7 +129,8 @@ def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
     rows = {ln.split("|")[1].strip(): ln for ln in res.output.splitlines() if ln.startswith("|")}
     assert rows["time-offset"].rstrip(" |").endswith("explains a part")
     assert not any(ln.rstrip(" |").endswith(("named", "named (pair)")) for ln in rows.values())
-    assert rows["wind"].rstrip(" |").endswith("refit: misfit remains") and rows["table-unseen"].rstrip(" |")[-1] == "-"
+    assert rows["wind"].rstrip(" |").endswith("refit: misfit remains") and rows["table-unseen"].rstrip(" |").endswith(
+        "not refitted: beyond the refit budget")
     assert "verdict: misspecified-unexplained" in res.output
     assert "wrote" not in res.output  # said only by diagnose_run, when it writes the file (here: nothing written)
     res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1", "--json"])

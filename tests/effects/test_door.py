@@ -192,3 +192,40 @@ def test_builtin_force_fields_match_their_model_edits(monkeypatch, name, values)
     gap = np.linalg.norm(edit - force, axis=-1).mean()
     effect = np.linalg.norm(edit - nominal, axis=-1).mean()
     assert gap < 0.01 and effect > 10 * gap, (gap, effect)  # measured: wind 5.5 mm of 130 mm
+
+
+class _Spy(Effect):
+    """A force field of zero that records what its context says of the handles and corners. Off at 0."""
+
+    name = "spy"
+
+    def __init__(self):
+        self.seen = []
+
+    def param_space(self):
+        return ParamSpace([Param("k", 0.0, 1.0, "N")])
+
+    def force(self, x, v, t, theta, ctx):
+        self.seen.append((t, ctx.handles.copy(), ctx.handle_names, ctx.corners))
+        return np.zeros_like(x)
+
+
+def test_a_force_field_sees_the_handles_current_positions_and_the_cloth_corners(monkeypatch):
+    """The context tells an effect where each handle is at every step (the gripper's path, not its rest) and which
+    vertices are the cloth's corners 0-3."""
+    import softsbi.backends.mujoco_flex.simulator as mj
+    from softsbi.backends.common import grid_corners
+    spy = _Spy()
+    monkeypatch.setattr(mj, "check_effects", lambda sim, effects: EffectPlan("mujoco-flex", [spy], forces=[spy]))
+    sim = MujocoFlex(grid=5)
+    ro = sim.simulate(LIFT, {**sim.param_space(LIFT).midpoint(), "k": 0.5}, effects=["spy"])
+    assert len(spy.seen) > 10
+    names = tuple(h.name for h in LIFT.handles)
+    for t, handles, seen_names, corners in spy.seen:
+        assert handles.shape == (len(LIFT.handles), 3) and seen_names == names
+        assert corners == tuple(grid_corners(5))
+    dt = ro.info["timestep"]
+    for k in (3, len(LIFT.times) - 1):  # the step that ends at frame k: the grasp target of frame k
+        t, handles, _, _ = min(spy.seen, key=lambda s: abs(s[0] + dt - LIFT.times[k]))
+        np.testing.assert_allclose(handles[0], ro.gripper[k], atol=1e-9)
+    assert np.ptp([s[1][0, 2] for s in spy.seen]) > 0.05  # the handle moves: not its rest position

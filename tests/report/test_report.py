@@ -14,7 +14,7 @@ from matplotlib.colors import to_rgba
 from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 
-from result_helpers import check_result, joint
+from result_helpers import REGIONS, check_result, joint
 from softsbi.core.results import CompareResult
 from softsbi.core.types import Param, ParamSpace
 from softsbi.report import figures as R
@@ -253,10 +253,10 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
     ro = Rollout(times=sc.times, gripper=sc.gripper, vertices=verts, faces=np.array([[0, 1, 3]]))
     fig = R.rollout_preview_figure(ro, "two grippers", sc)
     grips = _markers(fig, "+")
-    assert len(grips) == 2 * 4  # both grippers in each of the 4 panels
-    assert sorted(float(x[0]) for x, _ in grips[:2]) == pytest.approx([0.0, 0.2])  # y of corners 0 and 1
-    assert len(_markers(fig, "x")) == 4  # the pinned corner
-    assert "2 grippers" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert len(grips) == 2 * 5  # both grippers in the view from above and each of the 4 side views
+    assert sorted(float(x[0]) for x, _ in grips[2:4]) == pytest.approx([0.0, 0.2])  # y of corners 0 and 1
+    assert len(_markers(fig, "x")) == 5  # the pinned corner
+    assert "2 grippers" in [t.get_text() for t in fig.axes[1].get_legend().get_texts()]
     plt.close(fig)
     fig = R.clouds_figure(sc, verts, verts, [0, 3], vertices=verts)
     assert len(_markers(fig, "+")) == 2 * 2 * 2 * 2 and len(_markers(fig, "x")) == 2 * 2  # white halo + cross
@@ -276,6 +276,24 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
     assert sorted(side[0]) == pytest.approx([0.0, 0.2])  # the second gripper where its corner is, not 5 cm off
 
 
+def test_the_preview_shows_the_rest_pose_from_above_with_corners_and_handles_labelled():
+    """Placing a cloth by hand needs to see where corners 0-3 and each handle are at rest, from above (a scenario's
+    side views alone do not show it)."""
+    from softsbi.backends.common import grid_corners
+    from softsbi.core.types import Rollout
+    sc, verts = _two_grip_scenario()
+    ro = Rollout(times=sc.times, gripper=sc.gripper, vertices=verts, faces=np.array([[0, 1, 3]]),
+                 info={"corners": grid_corners(3)})
+    fig = R.rollout_preview_figure(ro, "two grippers", sc)
+    top = fig.axes[0]
+    assert top.get_title() == "rest pose from above" and (top.get_xlabel(), top.get_ylabel()) == ("x [m]", "y [m]")
+    labels = {t.get_text(): t.xy for t in top.texts}
+    assert labels == {"corner 0, left": pytest.approx((0.0, 0.0)), "corner 1, right": pytest.approx((0.0, 0.2)),
+                      "corner 2, held": pytest.approx((0.2, 0.2)), "corner 3": pytest.approx((0.2, 0.0))}
+    _assert_texts_inside(fig)
+    plt.close(fig)
+
+
 def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_keyframes():
     from softsbi.workflows.check import _grasp_words, motion_phases
     sc, _ = _two_grip_scenario()
@@ -288,4 +306,34 @@ def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_key
     fig = R.check_figure(out)
     assert fig.axes[1].get_ylabel() == "region of the object (R1 nearest the grasp of handle 'left')"
     assert "the scenario's keyframes" in fig.axes[0].get_title()
+    plt.close(fig)
+
+
+def test_check_phase_labels_stay_readable_when_the_phases_are_short():
+    """Seven phases of three or four frames (a scenario with many keyframes): side by side their labels ran into
+    each other; they are tilted, and parallel tilted labels lie more than a label's height apart."""
+    import math
+
+    from softsbi.core.results import Phase
+    base = check_result()
+    t, mean = np.array(base.times_s), np.array(base.chamfer.mean)
+    cuts = [0, 3, 6, 9, 12, 15, 18, 25]
+    names = [f"move {k + 1}" for k in range(6)] + ["after the last move"]
+    phases = tuple(Phase(n, (a, b - 1), (float(t[a]), float(t[b - 1])), float(mean[a:b].mean()), None, True,
+                         REGIONS[8]) for n, a, b in zip(names, cuts[:-1], cuts[1:]))
+    fig = R.check_figure(dataclasses.replace(base, phases=phases))
+    fig.canvas.draw()
+    top = next(a for a in fig.axes[0].child_axes)
+    labels = [lab for lab in top.get_xticklabels() if lab.get_text()]
+    assert labels[0].get_text().startswith("move 1") and labels[-1].get_text().startswith("after the last move")
+    r = fig.canvas.get_renderer()
+    boxes = [lab.get_window_extent(r) for lab in labels]
+    overlap = any(a.x1 > b.x0 for a, b in zip(boxes, boxes[1:]))
+    if overlap:
+        angle = math.radians(labels[0].get_rotation())
+        assert angle > 0 and all(lab.get_rotation() == labels[0].get_rotation() for lab in labels)
+        height = max(lab.get_fontsize() for lab in labels) * 2 * 1.1 * fig.dpi / 72  # two lines, in pixels
+        xs = [float(top.transData.transform((x, 0))[0]) for x in top.get_xticks()]
+        assert min(np.diff(xs)) * math.sin(angle) > height
+    _assert_texts_inside(fig)
     plt.close(fig)

@@ -41,14 +41,16 @@ PAIR = refit(("wind", "extra-damping"), 9,
              joint(60, 45, family=("time-offset", "generic-constant"), effect="time-offset"))
 RESIDUAL = ResidualShape(
     tuple(range(10, 22)) + (24,), ((10, 21, 0.40, 0.84), (24, 24, 0.96, 0.96)),
-    ({"phase": "early", "frames": [0, 7], "fraction_flagged": 0.0},
-     {"phase": "middle", "frames": [8, 16], "fraction_flagged": 0.78},
-     {"phase": "late", "frames": [17, 24], "fraction_flagged": 0.75}),
+    ({"phase": "early", "frames": [0, 7], "fraction_flagged": 0.0, "chamfer_m": 0.011},
+     {"phase": "middle", "frames": [8, 16], "fraction_flagged": 0.78, "chamfer_m": 0.035},
+     {"phase": "late", "frames": [17, 24], "fraction_flagged": 0.75, "chamfer_m": 0.084}),
     (0.3, 0.7, -0.4), "+y", "y_q95", {n: 0.1 * i for i, n in enumerate(REGIONS)}, (REGIONS[8], REGIONS[7]))
 
 
 def diagnosis(refits=(), test=REJECTS, **fields) -> Diagnosis:
-    """A diagnosis of the fixed nominal fit whose decision is decide()'s on ``refits``."""
+    """A diagnosis of the fixed nominal fit (posterior-predictive Chamfer 2.5 cm over 30 rollouts; the refit budget
+    --confirm is the number of single refits) whose decision is decide()'s on ``refits``."""
+    fields = {"chamfer_m": 0.025, "chamfer_n": 30, "confirm": sum(len(r.effects) == 1 for r in refits), **fields}
     return Diagnosis("run/nominal", FAMILY, 0.05, 2.0, test, RANKING, NOMINAL, tuple(refits),
                      decide(test, NOMINAL, refits, 2.0), **fields)
 
@@ -75,16 +77,20 @@ DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p >
           "posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more than 2 "
           "standard errors below the model it extends.")
 WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-              "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm. The refit estimates wind_x = 0.05 "
+              "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
               "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
               "presses the upper prior bound: refit with --bounds wind_y=-2:4 if such values are physical.")
 PART_WORDS = [f"With wind: the measurement is still outside the refit's posterior predictive distribution ({P_FLOOR}), "
-              "energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm.",
+              "energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm (n=30 rollouts).",
               "With extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-              f"({P_FLOOR}), energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm."]
-RESIDUAL_WORDS = ("The residual lives in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s), mostly the middle phase; the "
-                  "measured centroid is displaced by (+0.3, +0.7, -0.4) cm, mostly +y; the most deviant summary is "
-                  "y_q95; regions with the most unexplained error: R9 (farthest from the grasp), R8.")
+              f"({P_FLOOR}), energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm (n=30 rollouts)."]
+#: the summaries flag the middle phase most, while the Chamfer (check's phase table) is largest late: each named with
+#: its own number, never "mostly the middle phase" beside a table whose worst phase is the late one
+RESIDUAL_WORDS = ("The summaries leave the rollouts' 95% range in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s) "
+                  "(78% of the middle phase's frames); the Chamfer is largest in the late phase (8.40 cm, as in "
+                  "check's table); the measured centroid is displaced by (+0.3, +0.7, -0.4) cm, mostly +y; the most "
+                  "deviant summary is y_q95; regions with the most error beyond the model's own spread: R9 (farthest "
+                  "from the grasp; +0.80 cm), R8 (+0.70 cm).")
 GENERIC_WORDS = ("Best generic force term: generic-constant explains 62% of the residual in the linearised screening "
                  "(max-T adjusted p <= 1/201 (beyond all 200 null simulations)).")
 SCREENED = [["generic-constant", "physics (generic)", "62%", "p <= 1/201"], ["wind", "physics", "55%", "p <= 1/201"],
@@ -96,7 +102,12 @@ def rows(*refit_columns):
     return [s + list(r) for s, r in zip(SCREENED, refit_columns)]
 
 
-NO_ROW = ("-", "-", "-")
+def not_refitted(why: str) -> tuple[str, str, str]:
+    """A candidate's refit columns when it was not refitted, with the reason."""
+    return "-", "-", f"not refitted: {why}"
+
+
+GENERIC, BUDGET = not_refitted("generic term"), not_refitted("beyond --confirm 2")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -110,7 +121,7 @@ def test_nothing_missing():
         f"Nothing missing: the measurement lies inside the nominal model's posterior predictive distribution ({p} > "
         "0.05).",
         f"Detect: check's joint test of the nominal fit, {p} > 0.05."]
-    assert diagnosis_rows(NOTHING) == rows(NO_ROW, NO_ROW, NO_ROW, NO_ROW)
+    assert diagnosis_rows(NOTHING) == rows(*[not_refitted("nothing missing")] * 4)
 
 
 def test_missing_effect_with_a_refit_pressing_a_prior_bound():
@@ -121,7 +132,8 @@ def test_missing_effect_with_a_refit_pressing_a_prior_bound():
         "errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind (the top named ones by evidence). {DECIDE}",
         WIND_WORDS]
-    assert diagnosis_rows(NAMED) == rows(NO_ROW, ("p = 0.41", "8", "named"), NO_ROW, NO_ROW)
+    assert diagnosis_rows(NAMED) == rows(GENERIC, ("p = 0.41", "8", "named"),
+                                         not_refitted("beyond --confirm 1"), not_refitted("beyond --confirm 1"))
 
 
 def test_missing_effect_with_an_indistinguishable_alternative():
@@ -137,10 +149,10 @@ def test_missing_effect_with_an_indistinguishable_alternative():
         WIND_WORDS,
         "With extra-damping: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
         "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), energy score 21 -> 8.4 (60% lower, "
-        "19.7 standard errors), posterior-predictive Chamfer 1.04 cm. The refit estimates damping_rate = 3.1 1/s (90% "
+        "19.7 standard errors), posterior-predictive Chamfer 1.04 cm (n=30 rollouts). The refit estimates damping_rate = 3.1 1/s (90% "
         "interval 0.4 to 7.9 1/s, not informed by the data)."]
-    assert diagnosis_rows(TIE) == rows(NO_ROW, ("p = 0.41", "8", "named"),
-                                       ("p = 0.51", "8.4", "indistinguishable"), NO_ROW)
+    assert diagnosis_rows(TIE) == rows(GENERIC, ("p = 0.41", "8", "named"),
+                                       ("p = 0.51", "8.4", "indistinguishable"), BUDGET)
 
 
 def test_missing_pair():
@@ -154,9 +166,9 @@ def test_missing_pair():
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         f"With wind + extra-damping: the measurement is inside the refit's posterior predictive distribution "
-        f"({p_pair}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm."]
-    assert diagnosis_rows(PAIRED) == rows(NO_ROW, ("p <= 2/201", "15", "named (pair)"),
-                                          ("p <= 2/201", "17", "named (pair)"), NO_ROW)
+        f"({p_pair}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts)."]
+    assert diagnosis_rows(PAIRED) == rows(GENERIC, ("p <= 2/201", "15", "named (pair)"),
+                                          ("p <= 2/201", "17", "named (pair)"), BUDGET)
 
 
 def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_the_generic_term():
@@ -170,11 +182,11 @@ def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_th
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         "With wind + extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm.",
+        f"({P_FLOOR}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts).",
         RESIDUAL_WORDS,
         GENERIC_WORDS]
-    assert diagnosis_rows(PARTIAL) == rows(NO_ROW, ("p <= 2/201", "15", "explains a part"),
-                                           ("p <= 2/201", "17", "refit: misfit remains"), NO_ROW)
+    assert diagnosis_rows(PARTIAL) == rows(GENERIC, ("p <= 2/201", "15", "explains a part"),
+                                           ("p <= 2/201", "17", "refit: misfit remains"), BUDGET)
 
 
 def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_score():
@@ -190,9 +202,9 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
                                              "lowers the energy score by more than 2 standard errors.")
     assert diagnosis_text(NONE_LOWER)[2] == (
         "With wind: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm.")
-    assert diagnosis_rows(NONE_LOWER) == rows(NO_ROW, ("p <= 2/201", "21.5", "refit: misfit remains"),
-                                              ("p <= 2/201", "23", "refit: misfit remains"), NO_ROW)
+        f"({P_FLOOR}), energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm (n=30 rollouts).")
+    assert diagnosis_rows(NONE_LOWER) == rows(GENERIC, ("p <= 2/201", "21.5", "refit: misfit remains"),
+                                              ("p <= 2/201", "23", "refit: misfit remains"), BUDGET)
     # a refit that check accepts but whose score does not fall: explains nothing, and the table says why
     flat = diagnosis([refit(("wind",), 20.5, ACCEPTS)])
     assert flat.verdict == "misspecified-unexplained" and flat.decision.partial == ()
@@ -208,7 +220,7 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
     d = diagnosis([r])
     assert diagnosis_text(d)[2] == (
         f"With point-noise: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-        "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm. The refit estimates noise_std = 0.0049 m "
+        "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates noise_std = 0.0049 m "
         "(90% interval 0.0041 to 0.0058 m); dropout = 0 (90% interval 0 to 0.02). Its noise_std presses the upper "
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
 
@@ -224,7 +236,7 @@ def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name
         if d.verdict != "missing-effect":
             assert row[-1] not in ("named", "named (pair)", "indistinguishable"), (name, row)
         if c.generic:
-            assert row[-1] == "-", (name, row)  # a generic term is never refitted nor named
+            assert row[-1].startswith("not refitted: "), (name, row)  # a generic term is never refitted nor named
     assert {d.verdict for d in ALL.values()} == {"nothing-missing", "missing-effect", "misspecified-unexplained"}
 
 
@@ -234,8 +246,8 @@ def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name
 
 def test_check_summary():
     assert check_summary(check_result()) == (
-        "Posterior rollouts miss the measurement by 5.70 cm on average (Chamfer; measured -> simulated 4.56 cm); "
-        "worst in the late phase (t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp); the "
+        "Posterior rollouts miss the measurement by 5.70 cm on average over 30 rollouts (Chamfer; measured -> simulated 4.56 cm); "
+        "worst in the late phase (t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp; 8.56 cm); the "
         f"measurement is NOT explained by the model ({P_FLOOR} <= 0.05). Energy score 5.50 cm.")
 
 
@@ -251,9 +263,9 @@ def test_check_summary_with_the_height_sensor_model_and_pressed_prior_bounds():
                           "suggested_bounds": None}),
                      test=joint(40, 70))
     assert check_summary(c) == (
-        "Posterior rollouts miss the measurement by 5.70 cm on average (Chamfer under the fit's sensor model: points "
+        "Posterior rollouts miss the measurement by 5.70 cm on average over 30 rollouts (Chamfer under the fit's sensor model: points "
         "within 1.0 cm of the table unseen, frames 8-24; measured -> simulated 4.56 cm); worst in the late phase "
-        "(t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp); no evidence of misspecification "
+        "(t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp; 8.56 cm); no evidence of misspecification "
         f"({P_WIND} > 0.05). Energy score 5.50 cm. The fit's posterior: bend's posterior presses its lower prior "
         "bound 1e-06 N*m (42% of its mass near it): widen the prior (--bounds bend=3.16e-08:0.001) if such values are "
         "physical, or suspect an effect the model lacks. The fit's posterior: friction's posterior presses its lower "
@@ -264,9 +276,9 @@ def test_check_summary_with_the_height_sensor_model_and_pressed_prior_bounds():
 def test_check_summary_through_the_virtual_depth_sensor_without_an_energy_score():
     c = check_result(metric_sensor="camera", energy=None, chamfer_one_sided_mean_m=None)
     assert check_summary(c) == (
-        "Posterior rollouts miss the measurement by 5.70 cm on average (Chamfer under the fit's sensor model: "
+        "Posterior rollouts miss the measurement by 5.70 cm on average over 30 rollouts (Chamfer under the fit's sensor model: "
         "simulated clouds made by the recording's virtual depth sensor); worst in the late phase (t 0.68-0.96 s, "
-        "11.21 cm) and in region R9 (farthest from the grasp); the measurement is NOT explained by the model "
+        "11.21 cm) and in region R9 (farthest from the grasp; 8.56 cm); the measurement is NOT explained by the model "
         f"({P_FLOOR} <= 0.05).")
 
 
@@ -281,10 +293,76 @@ def test_compare_summary():
     res = CompareResult("run/nominal", "run/refit-wind", "mujoco-flex (nominal)", "mujoco-flex + wind", table, True,
                         a, b, "run/refit-wind/compare.png")
     assert compare_summary(res) == (
-        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm -> 1.20 cm (79% lower), "
+        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
+        "(n=30 rollouts) (79% lower), "
         "energy score 5.50 cm -> 0.90 cm (84% lower), posterior-mean rollout 2.00 cm -> 0.90 cm (55% lower); "
         f"misspecification {P_FLOOR} -> {P_WIND}.")
     assert compare_summary(replace(res, same_sensor=False, rows=table[:1])) == (
-        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm -> 1.20 cm (79% lower); "
+        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
+        "(n=30 rollouts) (79% lower); "
         f"misspecification {P_FLOOR} -> {P_WIND}. The two fits use different sensor models (--sensor / --min-height "
         "/ --frames), so their Chamfer values measure different things.")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# words that agree with the tables beside them
+
+
+def test_the_residual_names_the_phase_check_s_table_gives_as_worst():
+    """The summaries flag the middle phase most, the table's Chamfer is worst late: the words name the late phase as
+    the one with the largest Chamfer, with the table's number, and the middle one only with its share of flagged
+    frames (never "mostly the middle phase")."""
+    words = diagnosis_text(NO_REFIT)[2]
+    worst = max(RESIDUAL.phases, key=lambda p: p["chamfer_m"])
+    assert worst["phase"] == "late" and "the Chamfer is largest in the late phase (8.40 cm" in words
+    assert "mostly the middle phase" not in words and "78% of the middle phase's frames" in words
+
+
+def test_an_adequate_refit_with_a_higher_chamfer_than_the_nominal_is_not_described_as_a_win():
+    """A pair refit check accepts, its posterior-predictive Chamfer 4.19 cm against the nominal fit's 3.63 cm."""
+    pair = replace(PAIR, chamfer_m=0.0419, chamfer_n=30)
+    d = diagnosis([WIND_PART, DAMPING_PART, pair], chamfer_m=0.0363, chamfer_n=30)
+    words = diagnosis_text(d)[4]
+    assert words.startswith("With wind + extra-damping: adequate (check does not reject it, p = 0.46")
+    assert ("but its error is higher than the nominal fit's: posterior-predictive Chamfer 4.19 cm (n=30 rollouts) "
+            "against 3.63 cm (n=30 rollouts); energy score 15 -> 9") in words
+    assert "inside the refit's posterior predictive" not in words
+    # lower than the nominal's: the usual words
+    assert "is inside the refit's posterior predictive distribution" in diagnosis_text(PAIRED)[4]
+
+
+def test_with_several_handles_the_check_says_whose_grasp_the_regions_are_numbered_from():
+    c = check_result(regions_from="the grasp of handle 'left'")
+    assert ("in region R9 (farthest from the grasp; 8.56 cm) (regions numbered from the grasp of handle 'left');"
+            in check_summary(c))
+    assert "numbered from" not in check_summary(check_result())
+
+
+def test_every_posterior_predictive_chamfer_says_its_number_of_rollouts():
+    c = check_result(n_rollouts=12)
+    assert "5.70 cm on average over 12 rollouts" in check_summary(c)
+    for paragraph in diagnosis_text(PAIRED)[2:]:
+        assert "posterior-predictive Chamfer" in paragraph and "(n=30 rollouts)" in paragraph
+
+
+def test_a_diagnosis_gain_is_dimensionless_and_an_older_file_still_reads():
+    from softsbi.core.results import SCHEMA, Gain, from_json, to_json
+    data = to_json(NAMED)
+    assert data["schema"] == SCHEMA >= 3 and set(data["decision"]["gain"]) == {"difference", "se", "z"}
+    old = {**data, "schema": 2, "decision": {**data["decision"], "gain": {"difference_m": 13.0, "se_m": 0.64,
+                                                                            "z": 20.3}}}
+    assert from_json(Diagnosis, old).decision.gain == Gain(13.0, 0.64, 20.3)
+
+
+def test_the_fit_report_hints_at_check_when_the_90_intervals_miss_more_hidden_values_than_chance():
+    from softsbi.report.text import TRUTH_MISS_LEVEL, truth_miss_hint
+    three = {"a": False, "b": False, "c": False, "d": True, "e": True}
+    hint = truth_miss_hint(three, "runs/shake")
+    assert hint == ("Note: the 90% intervals miss 3 of 5 hidden values, more than chance allows (p = 0.0086 <= 0.05): "
+                    "the model may lack an effect; `softsbi check runs/shake` shows where and when it misses the "
+                    "measurement.")
+    # two misses of five happen by chance 8% of the time; one is expected; a parameter without hidden value is
+    # not counted
+    assert truth_miss_hint({**three, "c": True}, "r") is None and TRUTH_MISS_LEVEL == 0.05
+    assert truth_miss_hint({"a": False, "b": True, "c": None}, "r") is None
+    assert truth_miss_hint({**three, "c": True}, "r", level=0.1) is not None

@@ -82,7 +82,7 @@ def diagnose_with(refits: dict, confirm: int = 2, ranking=RANKING) -> Diagnosis:
     while (nxt := next_refit(REJECTS, ranking, NOMINAL, made, confirm)) is not None:
         made.append(refits[nxt](nxt))
     return Diagnosis("run", tuple(c.effect for c in ranking), 0.05, 2.0, REJECTS, ranking, NOMINAL, tuple(made),
-                     decide(REJECTS, NOMINAL, made))
+                     decide(REJECTS, NOMINAL, made), confirm=confirm)
 
 
 def _roles(d):
@@ -99,7 +99,7 @@ def test_a_named_effect_whose_refit_is_still_misspecified_gives_the_third_verdic
     assert d.verdict == "misspecified-unexplained" and d.decision.partial == ("wind",) and d.decision.named == ()
     assert "wind explains a part" in diagnosis_summary(d)
     assert _roles(d) == {"wind": "explains a part", "extra-damping": "refit: misfit remains",
-                         "calibration-offset": "-"}
+                         "calibration-offset": "not refitted: beyond --confirm 2"}
 
 
 def test_refits_that_raise_the_score_explain_no_part_and_build_no_pair():
@@ -152,7 +152,7 @@ def test_a_pair_is_named_only_when_no_single_refit_explains_and_the_pair_does():
     assert [r.effects for r in d.refits] == [("wind",), ("extra-damping",), ("wind", "extra-damping")]
     assert d.verdict == "missing-effect" and d.decision.named == ("wind", "extra-damping")
     assert diagnosis_summary(d).startswith("Missing physics effects: wind + extra-damping.")
-    assert set(_roles(d).values()) == {"named (pair)", "-"}
+    assert set(_roles(d).values()) == {"named (pair)", "not refitted: beyond --confirm 2"}
     refits[("wind", "extra-damping")] = _outside(20)
     d = diagnose_with(refits)
     assert d.verdict == "misspecified-unexplained" and d.decision.named == () and d.decision.partial == ("wind",)

@@ -252,7 +252,8 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
     assert (first.rounds, first.sims_per_round) == (1, 100) and out == nominal / "refit-toy-wind"
     assert first.test.n_null == 12 and first.test.alpha == 0.2 and first.score.n == 12
     report = json.loads((out / "report.json").read_text())
-    assert first.estimates and first.chamfer_m == report["chamfer_posterior_m"]
+    chk = json.loads((out / "check.json").read_text())  # its Chamfer is its check's, over the nominal's rollouts
+    assert first.estimates and (first.chamfer_m, first.chamfer_n) == (chk["chamfer_mean_m"], chk["n_rollouts"])
     for e in first.estimates:
         assert e.width_ratio == report["contraction"][e.name]["width_ratio"]
         assert e.informed == report["contraction"][e.name]["informed"]

@@ -109,7 +109,8 @@ def test_a_posterior_predictive_worse_than_the_prior_says_what_it_means(toy_run,
     rep["chamfer_prior_m"], rep["chamfer_posterior_m"] = 0.0907, 0.0937  # the "9.07 cm -> 9.37 cm"
     _print_report(Output(), rep, toy_run)
     text = " ".join(capsys.readouterr().out.split())
-    assert "9.07 cm -> posterior predictive 9.37 cm (3% higher)" in text
+    n = rep["chamfer_posterior_n"]  # every posterior-predictive Chamfer says its rollouts
+    assert n and f"9.07 cm -> posterior predictive 9.37 cm (n={n} rollouts) (3% higher)" in text
     assert "the model cannot reach the data; `softsbi check" in text
     rep["chamfer_posterior_m"] = 0.05
     _print_report(Output(), rep, toy_run)
@@ -131,3 +132,20 @@ def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, m
     with pytest.raises(SoftsbiError, match=r"--n-eval 3: the check needs at least 5 posterior rollouts; give "
                                            r"--n-eval 5 or more"):
         check.check_run(toy_run, n_eval=3)
+
+
+def test_the_fit_report_points_to_check_when_the_intervals_miss_more_hidden_values_than_chance(toy_run, capsys):
+    import json
+
+    from softsbi.cli import _print_report
+    from softsbi.cli.output import Output
+    rep = json.loads((toy_run / "report.json").read_text())
+    names = [p["name"] for p in rep["parameters"]]
+    rep["truth"] = {n: 0.0 for n in names}
+    rep["truth_in_90pct_interval"] = {n: False for n in names}  # both missed: p = 0.01
+    _print_report(Output(), rep, toy_run)
+    text = " ".join(capsys.readouterr().out.split())
+    assert "miss 2 of 2 hidden values, more than chance allows" in text and f"`softsbi check {toy_run}`" in text
+    rep["truth_in_90pct_interval"] = {n: k > 0 for k, n in enumerate(names)}  # one missed: chance
+    _print_report(Output(), rep, toy_run)
+    assert "more than chance allows" not in capsys.readouterr().out

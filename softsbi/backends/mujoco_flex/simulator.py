@@ -281,11 +281,14 @@ class MujocoFlex(Simulator):
         vadr = m.jnt_dofadr[jnt]
         q0 = d.qpos[qadr].copy()
         x0 = d.xpos[ids].copy()
+        mocaps = list(spec["handle_mocaps"])
         if np.allclose(axes, np.eye(3)[None]):  # flexcomp's vertex joints are world-aligned: skip the rotation
             def push(t: float) -> None:
+                vctx.handles[:] = d.mocap_pos[mocaps]
                 d.xfrc_applied[ids, :3] = total(x0 + (d.qpos[qadr] - q0), d.qvel[vadr], t)
         else:
             def push(t: float) -> None:
+                vctx.handles[:] = d.mocap_pos[mocaps]
                 x = x0 + np.einsum("njc,nj->nc", axes, d.qpos[qadr] - q0)
                 v = np.einsum("njc,nj->nc", axes, d.qvel[vadr])
                 d.xfrc_applied[ids, :3] = total(x, v, t)
@@ -302,10 +305,14 @@ class MujocoFlex(Simulator):
         area = (np.asarray(lay["area"], float) if lay else
                 np.full(n, h * 2.0 * float(fc["radius"]) if rope else h * h))
         shape = (n,) if rope or lay else (int(fc["count"][0]), int(fc["count"][1]))
+        mocaps = list(spec["handle_mocaps"])
+        names = tuple(h.name for h in scenario.handles) if len(scenario.handles) == len(mocaps) else ()
         return VertexContext(mass=np.asarray(m.body_mass[ids], dtype=float).copy(), area=area,
                              x0=np.asarray(d.xpos[ids], dtype=float).copy(), table_z=float(scenario.table_z),
                              spacing=h, shape=shape, grasped=tuple(int(v) for v in spec.get("handle_vertices", (0,))),
-                             gravity=np.asarray(m.opt.gravity, float).copy())
+                             gravity=np.asarray(m.opt.gravity, float).copy(),
+                             handles=np.asarray(d.mocap_pos[mocaps], dtype=float).copy(), handle_names=names,
+                             corners=() if len(shape) != 2 else tuple(grid_corners(shape[0])))
 
     def _plausibility(self, scenario: Scenario, theta: Mapping[str, float], verts: np.ndarray,
                       grip: np.ndarray) -> tuple[int, str]:
