@@ -7,7 +7,9 @@ the problem and the fix.
 from __future__ import annotations
 
 import difflib
+import os
 import re
+from pathlib import Path
 from typing import Iterable
 
 
@@ -137,3 +139,18 @@ def storage_error(exc: BaseException, where: object = None, resumable: bool = Fa
     if resumable:
         fix += "; finished simulations are kept and the run resumes"
     return StorageError(errno, f"{what}{named}; {fix}")
+
+
+def as_path(value: object, argument: str, example: str) -> Path:
+    """``value`` as a :class:`~pathlib.Path`, for a public function's path argument.
+
+    Args:
+        value: what the caller passed (``str`` or ``os.PathLike``).
+        argument: the call and argument, e.g. ``"open_run(run_dir)"``; example: a valid call, for the message.
+
+    Raises:
+        ParameterError: ``value`` is not a path (e.g. ``None``): one line naming the argument and the fix.
+    """
+    if isinstance(value, (str, os.PathLike)) and str(value):
+        return Path(value)
+    raise ParameterError(f"{argument} must be a folder path (str or pathlib.Path), got {value!r}; e.g. {example}")

@@ -207,8 +207,9 @@ class FitConfig:
             raise SoftsbiError(f"sensor_draws must be an integer >= 0 (got {self.sensor_draws!r})")
         if self.rounds < 1:
             raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
-        if self.sims_per_round < 10:
-            raise SoftsbiError(f"--sims-per-round must be >= 10 (got {self.sims_per_round}); the estimator needs data")
+        if self.sims_per_round < defaults.MIN_SIMS_PER_ROUND:
+            raise SoftsbiError(f"--sims-per-round must be >= {defaults.MIN_SIMS_PER_ROUND} (got {self.sims_per_round}); "
+                               f"the estimator needs data")
         if self.workers is not None and self.workers < 1:
             raise SoftsbiError(f"--workers must be >= 1 (got {self.workers})")
         if self.n_points < 1:

@@ -216,8 +216,63 @@ def test_frames_outside_the_recording_and_a_negative_seed_are_refused_before_sim
     assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0  # lift
     for args, message in ((["--frames", "30:40"], "--frames 30:40 selects frame 30, but the recording has 25 frames "
                                                   "(0 to 24); give frames within them, e.g. --frames 12:25"),
-                          (["--seed", "-1"], "--seed must be >= 0 (got -1)")):
+                          (["--seed", "-1"], "'--seed': must be >= 0 (got -1)")):
         out = tmp_path / "run"
         res = runner.invoke(app, ["fit", "--observed", str(meas), "--backend", "toy-gauss", "--out", str(out), *args])
         assert res.exit_code == 2 and message in " ".join(res.output.split()), res.output
         assert "Traceback" not in res.output and not out.exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["calibrate", "RUN", "--n-draws", "0"], "'--n-draws': must be >= 10 (got 0): one draw per bin"),
+    (["calibrate", "RUN", "--n-draws", "1"], "'--n-draws': must be >= 10 (got 1)"),
+    (["calibrate", "RUN", "--n-test", "5"], "'--n-test': must be >= 20 (got 5)"),
+    (["diagnose", "RUN", "--n-null", "0"], "'--n-null': must be >= 5 (got 0)"),
+    (["diagnose", "RUN", "--refit-sims", "1"], "'--refit-sims': must be >= 10 (got 1)"),
+    (["diagnose", "RUN", "--refit-rounds", "-2"], "'--refit-rounds': must be >= 1 (got -2)"),
+    (["diagnose", "RUN", "--refit-rounds", "0"], "'--refit-rounds': must be >= 1 (got 0): leave it out for the "
+                                                 "run's own"),
+    (["diagnose", "RUN", "--confirm", "-1"], "'--confirm': must be >= 0 (got -1)"),
+    (["diagnose", "RUN", "--k-se", "0"], "'--k-se': must be > 0 (got 0)"),
+    (["check", "RUN", "--alpha", "1.5"], "'--alpha': must be > 0 and < 1 (got 1.5)"),
+    (["check", "RUN", "--n-eval", "2"], "'--n-eval': must be >= 5 (got 2)"),
+    (["compare", "RUN", "RUN", "--n-eval", "0"], "'--n-eval': must be >= 5 (got 0)"),
+    (["view", "RUN", "--n-eval", "0"], "'--n-eval': must be >= 1 (got 0)"),
+    (["demo", "--sims-per-round", "3"], "'--sims-per-round': must be >= 10 (got 3)"),
+    (["fit", "--observed", "REC", "--out", "RUN", "--rounds", "0"], "'--rounds': must be >= 1 (got 0)"),
+    (["fit", "--observed", "REC", "--out", "RUN", "--points", "0"], "'--points': must be >= 1 (got 0)"),
+    (["simulate", "--out", "RUN", "--render", "0"], "'--render': must be >= 1 (got 0)"),
+    (["train-extractor", "heatmap", "--out", "RUN", "--rollouts", "0"], "'--rollouts': must be >= 1 (got 0)"),
+])
+def test_every_numeric_flag_is_refused_at_parse_time_naming_the_flag_typed(tmp_path, args, message):
+    """A value out of range is refused when the flags are parsed: exit code 2, the flag the user typed, the bound and
+    why, before the command opens anything (the run named here does not exist, and its absence is not what is
+    reported). Before, --n-draws 0 exited 0 with a verdict from no draws, and diagnose named --n-eval, --rounds or
+    --sims-per-round, after its detect stage."""
+    args = [str(tmp_path / a) if a in ("RUN", "REC") else a for a in args]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert message in " ".join(res.output.replace("│", " ").split()), res.output
+    assert "does not exist" not in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "RUN").exists()
+
+
+def test_the_python_api_refuses_a_diagnose_setting_naming_its_flag_before_opening_the_run(tmp_path):
+    import softsbi
+    from softsbi.core.errors import SoftsbiError
+    for kw, message in (({"refit_rounds": 0}, "--refit-rounds must be >= 1 (got 0)"),
+                        ({"refit_sims": 1}, "--refit-sims must be >= 10 (got 1)"),
+                        ({"n_null": 0}, "--n-null must be >= 5 (got 0)")):
+        with pytest.raises(SoftsbiError, match=message.replace("(", r"\(").replace(")", r"\)")):
+            softsbi.diagnose(tmp_path / "no-run", **kw)
+
+
+def test_a_missing_path_argument_of_the_python_api_is_named_with_the_fix():
+    """fit(rec, out=None) and open_run(None) raised a bare TypeError from pathlib; now one line naming the argument."""
+    import softsbi
+    from softsbi.core.errors import ParameterError
+    with pytest.raises(ParameterError, match=r"fit\(out\) must be a folder path .*got None; e\.g\. softsbi\.fit\(rec, "
+                                             r"out=\"runs/tan\"\)"):
+        softsbi.fit("no-recording", out=None)
+    with pytest.raises(ParameterError, match=r"open_run\(run_dir\) must be a folder path .*got None"):
+        softsbi.open_run(None)

@@ -53,6 +53,8 @@ def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
     stored = from_json(Diagnosis, json.loads((magnet_run / "diagnosis.json").read_text()))
     assert stored == d and load_diagnosis(magnet_run) == d
     assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1) == d
+    # a refit budget given as the run's own (2 x 80) is the default's: the stored result is read back, not recomputed
+    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, refit_rounds=2, refit_sims=80) == d
 
 
 def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(magnet_run):
