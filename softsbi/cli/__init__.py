@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 from enum import Enum
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, Optional
 
@@ -177,6 +178,16 @@ def _print_best_fit(o: Output, rep: dict[str, Any]) -> None:
            + f"; {value} ({b['source']}; {how}; its rollout in clouds.png and softsbi view)")
 
 
+def _show_warning(default, message, category, filename, lineno, file=None, line=None) -> None:
+    """A :class:`~softsbi.core.errors.SoftsbiWarning` as one ``warning:`` line on stderr; other warnings as
+    ``default`` (Python's ``warnings.showwarning``) shows them."""
+    from softsbi.core.errors import SoftsbiWarning
+    if issubclass(category, SoftsbiWarning):
+        Output().err.print(f"warning: {message}", soft_wrap=True)
+    else:
+        default(message, category, filename, lineno, file, line)
+
+
 def _guard(fn):
     """Run a command: a SoftsbiError prints one line (or a JSON error under ``--json``) and exits 2;
     Ctrl-C says how to resume; under ``--json`` any other error is a JSON error with exit 1."""
@@ -185,7 +196,9 @@ def _guard(fn):
     def wrapper(*a, **kw):
         as_json = bool(kw.get("as_json"))
         try:
-            return fn(*a, **kw)
+            with warnings.catch_warnings():
+                warnings.showwarning = functools.partial(_show_warning, warnings.showwarning)
+                return fn(*a, **kw)
         except (typer.Exit, typer.Abort):
             raise
         except SoftsbiError as exc:
@@ -274,10 +287,9 @@ def params(scenario: str = typer.Argument(..., help="scenario name (`softsbi sce
     a prior up to the limits, `fit --fix` holds a parameter)."""
     from softsbi.scenarios import load_scenario
     from softsbi.workflows.fit import FitConfig, parameter_table
-    from softsbi.workflows.measurement import load_recording
+    from softsbi.workflows.measurement import recording_scenario
     effects = [e for it in effect or [] for e in it.split(",") if e]
-    sc = (load_recording(scenario, n_points=8, n_dense=8).scenario if Path(scenario).is_dir()
-          else load_scenario(scenario))
+    sc = recording_scenario(scenario) if Path(scenario).is_dir() else load_scenario(scenario)
     rows = parameter_table(FitConfig(backend=backend, effects=effects), sc)
     o = Output(as_json)
     if as_json:
@@ -324,9 +336,14 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
                              overwrite=overwrite)
     if as_json:
         o.emit_json(doc)
+        if doc["status"] != 0:
+            raise typer.Exit(1)
         return
     o.line(f"{backend} {scenario}: status {'ok' if doc['status'] == 0 else doc['reason']}, {doc['frames']} frames, "
            f"{doc['vertices']} vertices, {doc['wall_s']:.2f} s wall -> {doc['rollout']}")
+    if doc["status"] != 0:  # the failed rollout is kept for a look, but there is no recording to fit
+        o.error(f"the simulation failed ({doc['reason']}); no recording was written")
+        raise typer.Exit(1)
     if doc.get("recording"):
         o.line(f"recording: {doc['recording']} (`softsbi fit --observed {doc['recording']} --out RUN` fits it)")
     if doc.get("preview"):

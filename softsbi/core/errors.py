@@ -17,6 +17,10 @@ class SoftsbiError(Exception):
     """Base class of all deliberate softsbi errors."""
 
 
+class SoftsbiWarning(UserWarning):
+    """An input softsbi accepts but that is likely a mistake (the CLI prints it as one ``warning:`` line)."""
+
+
 class PluginNotFound(SoftsbiError, KeyError):
     """A simulator / effect / observer / estimator / executor name is not registered."""
 

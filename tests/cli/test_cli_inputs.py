@@ -276,3 +276,65 @@ def test_a_missing_path_argument_of_the_python_api_is_named_with_the_fix():
         softsbi.fit("no-recording", out=None)
     with pytest.raises(ParameterError, match=r"open_run\(run_dir\) must be a folder path .*got None"):
         softsbi.open_run(None)
+
+
+def test_simulate_exits_non_zero_when_the_simulation_fails(tmp_path, monkeypatch):
+    """A failed rollout printed its reason as a status and exited 0; now an error line and exit code 1 (the JSON
+    document still comes, with its status)."""
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    monkeypatch.setenv("SOFTSBI_TOY_DIVERGE_ABOVE", "0")
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--theta", "a=0.5", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1, res.output
+    assert "error: the simulation failed (toy divergence: a = 0.500 > 0); no recording was written" in res.output
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--theta", "a=0.5", "--out", str(tmp_path / "j"),
+                              "--json"])
+    assert res.exit_code == 1 and json.loads(res.stdout)["status"] != 0
+
+
+def test_simulate_keeps_the_scenario_files_description_in_the_recording(tmp_path):
+    import yaml
+    from softsbi.scenarios.catalog import builtin_files
+    spec = yaml.safe_load(builtin_files()["lift"].read_text())
+    assert spec["description"]
+    res = runner.invoke(app, ["simulate", "--scenario", "lift", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    rec = yaml.safe_load((tmp_path / "o" / "recording.yaml").read_text())
+    assert rec["scenario"]["inline"]["description"] == spec["description"]
+
+
+def test_a_recording_below_the_table_warns_in_one_line_and_params_takes_recording_folders(tmp_path):
+    """A recording whose points all lie 1 m below the table loaded without a word; `softsbi params` of a folder that
+    is not a recording complained about missing frames. Now one warning line, and params says what it takes."""
+    import yaml
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    meas = tmp_path / "meas"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0
+    res = runner.invoke(app, ["params", str(meas), "--backend", "toy-gauss"])
+    assert res.exit_code == 0 and "warning" not in res.output, res.output
+    meta = yaml.safe_load((meas / "recording.yaml").read_text())
+    shift = np.eye(4)
+    shift[2, 3] = -1.0
+    meta["transform"] = {"matrix": shift.tolist()}
+    (meas / "recording.yaml").write_text(yaml.safe_dump(meta))
+    res = runner.invoke(app, ["params", str(meas), "--backend", "toy-gauss"])  # reads the scenario only
+    assert res.exit_code == 0 and "| a " in res.output, res.output
+    res = runner.invoke(app, ["fit", "--observed", str(meas), "--backend", "toy-gauss", "--out", str(tmp_path / "run"),
+                              "--rounds", "1", "--sims-per-round", "10", "--n-eval", "1", "--points", "8",
+                              "--workers", "1", "--estimator", "mdnn", "--estimator-opt", "max_epochs=2"])
+    warnings = [ln for ln in res.output.splitlines() if ln.startswith("warning: ")]
+    assert len(warnings) == 1 and "every point lies below the table" in warnings[0], res.output
+    assert "check the recording's transform" in warnings[0]
+    from softsbi.core.errors import SoftsbiWarning
+    with pytest.warns(SoftsbiWarning, match="every point lies below the table"):
+        load_recording(meas, n_points=8, n_dense=8)
+    # a folder of recordings is named as such, and any other folder is told what params takes
+    res = runner.invoke(app, ["params", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "neither a recording directory" in res.output, res.output
+    import shutil
+    shutil.rmtree(tmp_path / "run")
+    res = runner.invoke(app, ["params", str(tmp_path)])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "it holds recordings (meas): give one of them" in msg, res.output
+    res = runner.invoke(app, ["params", str(meas / "clouds")])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "give a scenario name (`softsbi scenarios` lists them), a scenario file" in msg
