@@ -336,7 +336,8 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
         the written recording directories.
 
     Raises:
-        DataError: no DiffCloud recording in ``src``, an existing non-empty destination, anything
+        DataError: no DiffCloud recording in ``src`` (or ``src`` is already a recording), an existing non-empty
+            destination, anything
             :func:`diffcloud_recording` raises. Everything is converted before anything is written.
         RunDirError: a destination that is a file or cannot be written (before anything is converted).
     """
@@ -345,6 +346,10 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
     if not src.is_dir():
         raise DataError(f"'{src}' {'is a file' if src.exists() else 'does not exist'}; give a DiffCloud recording "
                         f"folder or a folder of them")
+    from softsbi.data.recording import is_recording
+    if is_recording(src):
+        raise DataError(f"'{src}' is already a softsbi recording (it holds recording.yaml): nothing to import; fit it "
+                        f"directly with `softsbi fit --observed {src} --out RUN`")
     if sorted(src.glob("*_real2sim.yaml")) and any(f.stem.isdigit() for f in src.glob("*.npy")):
         pairs = [(src, dst)]
     else:

@@ -338,3 +338,19 @@ def test_a_recording_below_the_table_warns_in_one_line_and_params_takes_recordin
     res = runner.invoke(app, ["params", str(meas / "clouds")])
     msg = " ".join(res.output.split())
     assert res.exit_code == 2 and "give a scenario name (`softsbi scenarios` lists them), a scenario file" in msg
+
+
+def test_view_with_nothing_to_write_and_import_of_a_recording_say_so_before_any_work(tmp_path):
+    """`view --no-rrd --no-gif` simulated, wrote nothing and said nothing; `import diffcloud` of a softsbi recording
+    said "give a recording directory". Now each is one line saying what is wrong and what to do instead."""
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    res = runner.invoke(app, ["view", str(tmp_path / "no-run"), "--no-rrd", "--no-gif"])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "--no-gif leaves nothing to write: --no-rrd switches off the rerun recording too; " \
+                                  "drop one of them" in msg, res.output
+    meas = tmp_path / "meas"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0
+    res = runner.invoke(app, ["import", "diffcloud", str(meas), str(tmp_path / "dst")])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and f"'{meas}' is already a softsbi recording" in msg, res.output
+    assert f"softsbi fit --observed {meas} --out RUN" in msg and not (tmp_path / "dst").exists()
