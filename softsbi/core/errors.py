@@ -95,6 +95,12 @@ def closest(name: str, choices: Iterable[str]) -> str:
     return f" Did you mean '{close[0]}'?" if close else ""
 
 
+class EffectFault(RuntimeError):
+    """An effect plugin's code gave an unusable value during a rollout (e.g. a non-finite force). Not a
+    :class:`SoftsbiError`: the rollout is a failed simulation whose reason names the effect (a parameter region
+    may trigger it), and the command goes on."""
+
+
 class PluginError(SoftsbiError, TypeError):
     """A plugin is malformed: wrong base class, duplicate name, unknown hook."""
 

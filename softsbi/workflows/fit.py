@@ -28,7 +28,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, RoundPosterior, TruncatedPrior
-from softsbi.core.errors import DataError, ParameterError, PosteriorDamaged, PosteriorError, SchemaError, SoftsbiError
+from softsbi.core.errors import (DataError, EffectFault, ParameterError, PosteriorDamaged, PosteriorError, SchemaError,
+                                  SoftsbiError)
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
@@ -990,8 +991,11 @@ class _Rounds:
         U, X, counts = _usable(store, r)
         if counts[r] == 0:
             reasons = sorted(set(store.round_attrs(r)["failures"].values()))
-            raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; narrow the prior "
-                               f"bounds with --bounds or change backend options; if the environment made them "
+            effect_code = all(x.startswith(EffectFault.__name__) for x in reasons)  # an effect's code, not physics
+            raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; "
+                               + ("fix the effect's code named there" if effect_code else
+                                  "narrow the prior bounds with --bounds or change backend options")
+                               + f"; if the environment made them "
                                f"fail, fix it and re-run with --retry-failed (finished simulations are kept in "
                                f"{store.path})")
         q, info = self._train(r, U, X, counts)
