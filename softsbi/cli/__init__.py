@@ -514,7 +514,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
 @_guard
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
           n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL, callback=N_NULL_OK),
-          max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=N_NULL_OK, help=H_MAX_NULL),
+          max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL),
           alpha: float = typer.Option(ALPHA, help=H_ALPHA, callback=ALPHA_OK),
           workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
           recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
@@ -613,7 +613,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                                "must fall to count, and within which two refits tie"),
              n_null: int = typer.Option(D.N_NULL, "--n-null", callback=N_NULL_OK, help="posterior-predictive simulations the null "
                                                                    "starts with"),
-             max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=N_NULL_OK, help=H_MAX_NULL),
+             max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL),
              alpha: float = typer.Option(ALPHA, help=H_ALPHA, callback=ALPHA_OK),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
              recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
@@ -646,7 +646,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
             run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
             n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run", callback=N_NULL_OK),
-            max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=N_NULL_OK, help=H_MAX_NULL + " (each run's check)"),
+            max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL + " (each run's check)"),
             workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
             recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
