@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import ParameterError, PluginNotFound, ShapeError
+from softsbi.core.errors import EffectFault, ParameterError, PluginNotFound, ShapeError
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Effect, VertexContext
 from softsbi.core.types import Param, ParamSpace, Rollout, Scenario
 from softsbi.backends.grid import grid_corners, grid_faces  # noqa: F401 - the backends import them from here
@@ -223,6 +223,8 @@ class EffectPlan:
 
         Raises (when called):
             ShapeError: a force field returned an array whose shape is not ``(N, 3)``.
+            EffectFault: a force field returned a non-finite value (the rollout fails naming the effect, where the
+                engine would otherwise diverge and be blamed).
         """
         if not self.forces:
             return None
@@ -235,6 +237,11 @@ class EffectPlan:
                 if fe.shape != x.shape:
                     raise ShapeError(f"effect '{e.name}': force() must return ({len(x)}, 3) newtons, got "
                                      f"shape {fe.shape}")
+                if not np.all(np.isfinite(fe)):
+                    at = ", ".join(f"{name}={val:.4g}" for name, val in th.items()) or "no parameters"
+                    raise EffectFault(f"effect '{e.name}': force() returned a non-finite force (NaN or inf) at "
+                                      f"t={t:.3f} s, {at}; a fault of the effect's code, not of the engine: fix "
+                                      f"its force()")
                 f += fe
             return f
         return total

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 from enum import Enum
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, Optional
 
@@ -46,6 +47,30 @@ class Match(str, Enum):
     physical = "physical"
     unit = "unit"
 
+
+
+def _bound(low: float, why: str = "", strict: bool = False, below: float | None = None):
+    """A typer option callback that refuses, when the flags are parsed (before any work), a value under ``low`` (at
+    or under it when ``strict``; at or above ``below`` when given): "Invalid value for '--n-draws': must be >= 10
+    (got 1): why", exit code 2. ``None`` (an unset optional flag) passes."""
+
+    def check(ctx: typer.Context, param: typer.CallbackParam, value: float | None) -> float | None:
+        if value is not None and (value < low or (strict and value <= low) or (below is not None and value >= below)):
+            bound = (f"> {low:g}" if strict else f">= {low:g}") + ("" if below is None else f" and < {below:g}")
+            raise typer.BadParameter(f"must be {bound} (got {value:g})" + (f": {why}" if why else ""), ctx=ctx,
+                                     param=param)
+        return value
+    return check
+
+
+#: the option callbacks shared by several commands
+AT_LEAST_1_WORKER = _bound(1, "one simulation process at least; leave it out for one per core")
+SEED_OK = _bound(0, "seeds are non-negative integers")
+ALPHA_OK = _bound(0, "a probability", strict=True, below=1)
+N_NULL_OK = _bound(D.MIN_ROLLOUTS, "the null's first stage and the check's error maps need that many posterior "
+                                   "rollouts")
+ROUNDS_OK = _bound(1, "one round at least")
+SIMS_OK = _bound(D.MIN_SIMS_PER_ROUND, "the estimator needs data")
 
 
 def _parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
@@ -157,6 +182,16 @@ def _print_best_fit(o: Output, rep: dict[str, Any]) -> None:
            + f"; {value} ({b['source']}; {how}; its rollout in clouds.png and softsbi view)")
 
 
+def _show_warning(default, message, category, filename, lineno, file=None, line=None) -> None:
+    """A :class:`~softsbi.core.errors.SoftsbiWarning` as one ``warning:`` line on stderr; other warnings as
+    ``default`` (Python's ``warnings.showwarning``) shows them."""
+    from softsbi.core.errors import SoftsbiWarning
+    if issubclass(category, SoftsbiWarning):
+        Output().err.print(f"warning: {message}", soft_wrap=True)
+    else:
+        default(message, category, filename, lineno, file, line)
+
+
 def _guard(fn):
     """Run a command: a SoftsbiError prints one line (or a JSON error under ``--json``) and exits 2;
     Ctrl-C says how to resume; under ``--json`` any other error is a JSON error with exit 1."""
@@ -165,7 +200,9 @@ def _guard(fn):
     def wrapper(*a, **kw):
         as_json = bool(kw.get("as_json"))
         try:
-            return fn(*a, **kw)
+            with warnings.catch_warnings():
+                warnings.showwarning = functools.partial(_show_warning, warnings.showwarning)
+                return fn(*a, **kw)
         except (typer.Exit, typer.Abort):
             raise
         except SoftsbiError as exc:
@@ -254,10 +291,9 @@ def params(scenario: str = typer.Argument(..., help="scenario name (`softsbi sce
     a prior up to the limits, `fit --fix` holds a parameter)."""
     from softsbi.scenarios import load_scenario
     from softsbi.workflows.fit import FitConfig, parameter_table
-    from softsbi.workflows.measurement import load_recording
+    from softsbi.workflows.measurement import recording_scenario
     effects = [e for it in effect or [] for e in it.split(",") if e]
-    sc = (load_recording(scenario, n_points=8, n_dense=8).scenario if Path(scenario).is_dir()
-          else load_scenario(scenario))
+    sc = recording_scenario(scenario) if Path(scenario).is_dir() else load_scenario(scenario)
     rows = parameter_table(FitConfig(backend=backend, effects=effects), sc)
     o = Output(as_json)
     if as_json:
@@ -282,11 +318,11 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
              out: Path = typer.Option(Path("rollout"), help="output folder: rollout.zarr, preview.png and a "
                                                             "recording (recording.yaml + clouds/) that `softsbi fit "
                                                             "--observed OUT` reads"),
-             render: Optional[int] = typer.Option(None, help="also render every frame through the scenario's "
+             render: Optional[int] = typer.Option(None, callback=_bound(1), help="also render every frame through the scenario's "
                                                              "overhead camera at this square size (px): "
                                                              "OUT/frames/000.png ... + truth.json, a measurement "
                                                              "for `fit --observer heatmap|transporter`"),
-             render_memory_gb: Optional[float] = typer.Option(None, help="cap on the rendered frames' estimated "
+             render_memory_gb: Optional[float] = typer.Option(None, callback=_bound(0, strict=True), help="cap on the rendered frames' estimated "
                                                                          "memory, GB (default 4); larger renders "
                                                                          "are refused before simulating"),
              overwrite: bool = typer.Option(False, "--overwrite", help="replace what --out holds (an earlier "
@@ -304,9 +340,14 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
                              overwrite=overwrite)
     if as_json:
         o.emit_json(doc)
+        if doc["status"] != 0:
+            raise typer.Exit(1)
         return
     o.line(f"{backend} {scenario}: status {'ok' if doc['status'] == 0 else doc['reason']}, {doc['frames']} frames, "
            f"{doc['vertices']} vertices, {doc['wall_s']:.2f} s wall -> {doc['rollout']}")
+    if doc["status"] != 0:  # the failed rollout is kept for a look, but there is no recording to fit
+        o.error(f"the simulation failed ({doc['reason']}); no recording was written")
+        raise typer.Exit(1)
     if doc.get("recording"):
         o.line(f"recording: {doc['recording']} (`softsbi fit --observed {doc['recording']} --out RUN` fits it)")
     if doc.get("preview"):
@@ -339,19 +380,21 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         out: Path = typer.Option(..., help="run directory (resumes if it holds a run)"),
         backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
         estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
-        rounds: int = typer.Option(D.ROUNDS, help="sequential rounds (paper: 15)"),
-        sims_per_round: int = typer.Option(D.SIMS_PER_ROUND, help="simulations per round (paper: 100)"),
-        seed: int = typer.Option(D.SEED, help=H_SEED),
-        points: int = typer.Option(D.N_POINTS, help="K, points per frame"),
-        workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+        rounds: int = typer.Option(D.ROUNDS, help="sequential rounds (paper: 15)", callback=ROUNDS_OK),
+        sims_per_round: int = typer.Option(D.SIMS_PER_ROUND, help="simulations per round (paper: 100)",
+                                           callback=SIMS_OK),
+        seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
+        points: int = typer.Option(D.N_POINTS, help="K, points per frame", callback=_bound(1)),
+        workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
         effect: list[str] = typer.Option(None, "--effect", help="effects to add (their parameters are inferred)"),
         bounds: list[str] = typer.Option(None, "--bounds", help="prior bounds name=low:high"),
         fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
         backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
         estimator_opt: list[str] = typer.Option(None, "--estimator-opt", help="estimator option name=value"),
-        n_eval: int = typer.Option(D.N_EVAL, "--n-eval", help=H_N_EVAL + "; their mean Chamfer is the reported one"),
+        n_eval: int = typer.Option(D.N_EVAL, "--n-eval", help=H_N_EVAL + "; their mean Chamfer is the reported one",
+                                   callback=_bound(1, "one rollout at least")),
         min_height: Optional[float] = typer.Option(
-            None, help="sensor model: points closer than this (m) to the table are not seen, in simulation and "
+            None, callback=_bound(0, "0 = every point visible"), help="sensor model: points closer than this (m) to the table are not seen, in simulation and "
                        "recording alike (0 = all visible); default: the recording's (DiffCloud depth clouds lack "
                        "cloth lying flat: 0.01)"),
         frames: Optional[str] = typer.Option(None, help="frames that inform the posterior: 'auto' (the cloth hangs "
@@ -368,9 +411,9 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         ray_address: Optional[str] = typer.Option(None, help="with --executor ray: address of an existing Ray "
                                                              "cluster (head host:port or auto); default: start Ray "
                                                              "on this machine"),
-        sim_timeout: Optional[float] = typer.Option(None, help="seconds after which a hung simulation's worker is "
+        sim_timeout: Optional[float] = typer.Option(None, callback=_bound(0, strict=True), help="seconds after which a hung simulation's worker is "
                                                                "killed and the simulation retried (default: none)"),
-        retries: int = typer.Option(2, help="re-runs of a simulation whose worker crashed or hung, before it is "
+        retries: int = typer.Option(2, callback=_bound(0), help="re-runs of a simulation whose worker crashed or hung, before it is "
                                             "stored as failed"),
         observer: str = typer.Option(D.OBSERVER, help="observer plugin: pointcloud (3-D clouds), or heatmap / "
                                                         "transporter (keypoints found in RGB frames by a trained "
@@ -379,10 +422,10 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                             "extractor checkpoint (softsbi train-extractor)"),
         scenario: Optional[str] = typer.Option(None, help="scenario (name or file) the frames were recorded in; "
                                                           "default: the recording's own (image observers: lift)"),
-        image_size: int = typer.Option(D.IMAGE_SIZE, help="image observers: square size (px) of the scenario's built-in "
+        image_size: int = typer.Option(D.IMAGE_SIZE, callback=_bound(1), help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
         proposal: Proposal = typer.Option(Proposal(D.PROPOSAL), help=H_PROPOSAL),
-        sensor_draws: int = typer.Option(0, "--sensor-draws",
+        sensor_draws: int = typer.Option(0, "--sensor-draws", callback=_bound(0),
                                          help="observe each simulation at N more values of the sensor effects' "
                                               "parameters (--effect time-offset, point-noise, ...): N times more "
                                               "training pairs along them at no simulation cost (truncated "
@@ -390,7 +433,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),
-        refine: int = typer.Option(0, "--refine", help="polish the best fit with N more simulations by CMA-ES, "
+        refine: int = typer.Option(0, "--refine", callback=_bound(0, "0 = no refinement"), help="polish the best fit with N more simulations by CMA-ES, "
                                                         "started at the posterior (stored in the run; resumable; "
                                                         "the posterior is left as it is)"),
         widen: bool = typer.Option(False, "--widen", help="after each round, move a prior bound the posterior "
@@ -448,11 +491,11 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
 @_guard
 def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
          quick: bool = typer.Option(False, "--quick", help="only fit hidden parameters (no hidden effect)"),
-         rounds: int = typer.Option(D.DEMO_ROUNDS, help="sequential rounds per fit"),
-         sims_per_round: int = typer.Option(D.DEMO_SIMS, help="simulations per round"),
+         rounds: int = typer.Option(D.DEMO_ROUNDS, help="sequential rounds per fit", callback=ROUNDS_OK),
+         sims_per_round: int = typer.Option(D.DEMO_SIMS, help="simulations per round", callback=SIMS_OK),
          estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
-         seed: int = typer.Option(D.SEED, help=H_SEED),
-         workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+         seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
+         workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
          proposal: Proposal = typer.Option(Proposal(D.PROPOSAL), help=H_PROPOSAL + "; truncated keeps the "
                                                                                  "7-parameter refit's posterior tight"),
          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
@@ -476,10 +519,10 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
 @app.command()
 @_guard
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
-          n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL),
-          max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL),
-          alpha: float = typer.Option(ALPHA, help=H_ALPHA),
-          workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+          n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL, callback=N_NULL_OK),
+          max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL),
+          alpha: float = typer.Option(ALPHA, help=H_ALPHA, callback=ALPHA_OK),
+          workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
           recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
@@ -508,10 +551,14 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
 @app.command()
 @_guard
 def calibrate(run: Path = typer.Argument(..., help="run directory of a finished fit"),
-              n_test: int = typer.Option(D.N_TEST, "--n-test", help="fresh test simulations from the run's proposals "
+              n_test: int = typer.Option(D.N_TEST, "--n-test", callback=_bound(D.MIN_TEST, "200 or more resolves "
+                                         "the 90% coverage"), help="fresh test simulations from the run's proposals "
                                          "(stored in the run; a re-run resumes, a larger number adds to them)"),
-              n_draws: int = typer.Option(D.N_DRAWS, "--n-draws", help="posterior draws per test simulation"),
-              workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+              n_draws: int = typer.Option(D.N_DRAWS, "--n-draws", help="posterior draws per test simulation",
+                                          callback=_bound(D.MIN_DRAWS, f"one draw per bin of the {D.N_BINS}-bin SBC "
+                                                          f"rank histogram, HPD levels (coverage, TARP) resolved to "
+                                                          f"1/{D.N_BINS}")),
+              workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Simulation-based calibration of the run's posterior estimator: expected coverage, SBC ranks, TARP."""
     from softsbi.workflows.calibrate import calibrate_run
@@ -559,19 +606,22 @@ def _print_calibration(o: Output, out: dict[str, Any]) -> None:
 @_guard
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
-             confirm: int = typer.Option(D.CONFIRM, help="refit the top N named candidates by evidence (and at most "
+             confirm: int = typer.Option(D.CONFIRM, callback=_bound(0, "0 = no refit"), help="refit the top N named candidates by evidence (and at most "
                                                           "one pair when none explains the misfit alone; 0 = no "
                                                           "refit)"),
-             refit_rounds: Optional[int] = typer.Option(None, help="rounds of a refit (default: the run's)"),
+             refit_rounds: Optional[int] = typer.Option(None, help="rounds of a refit (default: the run's)",
+                                                        callback=_bound(1, "leave it out for the run's own")),
              refit_sims: Optional[int] = typer.Option(None, help="simulations per round of a refit "
-                                                                 "(default: the run's)"),
-             k_se: float = typer.Option(D.K_SE, "--k-se", help="standard errors by which a refit's energy score "
+                                                                 "(default: the run's)",
+                                                      callback=_bound(D.MIN_SIMS_PER_ROUND, "the estimator needs "
+                                                                      "data; leave it out for the run's own")),
+             k_se: float = typer.Option(D.K_SE, "--k-se", callback=_bound(0, strict=True), help="standard errors by which a refit's energy score "
                                                                "must fall to count, and within which two refits tie"),
-             n_null: int = typer.Option(D.N_NULL, "--n-null", help="posterior-predictive simulations the null "
+             n_null: int = typer.Option(D.N_NULL, "--n-null", callback=N_NULL_OK, help="posterior-predictive simulations the null "
                                                                    "starts with"),
-             max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL),
-             alpha: float = typer.Option(ALPHA, help=H_ALPHA),
-             workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+             max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL),
+             alpha: float = typer.Option(ALPHA, help=H_ALPHA, callback=ALPHA_OK),
+             workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
              recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
              out_dir: Optional[Path] = typer.Option(None, "--out", help="output folder of diagnosis.json and the "
                                                     "refits (default: RUN), to keep two diagnoses of one run apart"),
@@ -602,9 +652,9 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
 def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal model)"),
             run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
-            n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run"),
-            max_null: int = typer.Option(D.MAX_NULL, "--max-null", help=H_MAX_NULL + " (each run's check)"),
-            workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+            n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run", callback=N_NULL_OK),
+            max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL + " (each run's check)"),
+            workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
             recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Two runs side by side: error per time step and region, before vs after."""
@@ -629,14 +679,14 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
 @app.command()
 @_guard
 def view(run: Path = typer.Argument(..., help="run directory of a finished point-cloud fit"),
-         n_eval: int = typer.Option(D.VIEW_N_EVAL, "--n-eval", help="posterior-predictive rollouts drawn (faded) against the "
+         n_eval: int = typer.Option(D.VIEW_N_EVAL, "--n-eval", callback=_bound(1), help="posterior-predictive rollouts drawn (faded) against the "
                                                           "measurement"),
          gif: bool = typer.Option(True, help="write RUN/view.gif: measured vs simulated clouds over time"),
          rrd: Optional[bool] = typer.Option(None, "--rrd/--no-rrd",
                                             help="write RUN/view.rrd for the rerun viewer (`rerun RUN/view.rrd`), "
                                                  "which needs `pip install \"softsbi\\[view]\"`; default: when "
                                                  "it is installed"),
-         workers: Optional[int] = typer.Option(None, help=H_WORKERS),
+         workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """See the measured cloud move against posterior rollouts: an animation and a rerun recording."""
     from softsbi.workflows.view import write_view
@@ -666,12 +716,14 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
                                                                       "prior samples (labels = projected cloth "
                                                                       "corners; robot masks from the segmentation)"),
                     backend: str = typer.Option(D.BACKEND, help="with --simulate: simulator plugin"),
-                    rollouts: int = typer.Option(D.IMAGE_ROLLOUTS, help="with --simulate: rendered rollouts"),
-                    image_size: int = typer.Option(D.IMAGE_SIZE, help="with --simulate: square camera size (px)"),
+                    rollouts: int = typer.Option(D.IMAGE_ROLLOUTS, help="with --simulate: rendered rollouts",
+                                                 callback=_bound(1)),
+                    image_size: int = typer.Option(D.IMAGE_SIZE, help="with --simulate: square camera size (px)",
+                                                   callback=_bound(1)),
                     mask_robot: bool = typer.Option(True, help="transporter: leave the robot out of the "
                                                                "reconstruction loss"),
                     opt: list[str] = typer.Option(None, "--opt", help="extractor option name=value (repeatable)"),
-                    seed: int = typer.Option(D.SEED, help=H_SEED),
+                    seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
                     as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Train a keypoint extractor on annotated images or on rendered rollouts; report its test error."""
     from softsbi.workflows.extractor import ExtractorProgress, train_extractor as train

@@ -7,12 +7,18 @@ the problem and the fix.
 from __future__ import annotations
 
 import difflib
+import os
 import re
+from pathlib import Path
 from typing import Iterable
 
 
 class SoftsbiError(Exception):
     """Base class of all deliberate softsbi errors."""
+
+
+class SoftsbiWarning(UserWarning):
+    """An input softsbi accepts but that is likely a mistake (the CLI prints it as one ``warning:`` line)."""
 
 
 class PluginNotFound(SoftsbiError, KeyError):
@@ -89,6 +95,12 @@ def closest(name: str, choices: Iterable[str]) -> str:
     return f" Did you mean '{close[0]}'?" if close else ""
 
 
+class EffectFault(RuntimeError):
+    """An effect plugin's code gave an unusable value during a rollout (e.g. a non-finite force). Not a
+    :class:`SoftsbiError`: the rollout is a failed simulation whose reason names the effect (a parameter region
+    may trigger it), and the command goes on."""
+
+
 class PluginError(SoftsbiError, TypeError):
     """A plugin is malformed: wrong base class, duplicate name, unknown hook."""
 
@@ -137,3 +149,18 @@ def storage_error(exc: BaseException, where: object = None, resumable: bool = Fa
     if resumable:
         fix += "; finished simulations are kept and the run resumes"
     return StorageError(errno, f"{what}{named}; {fix}")
+
+
+def as_path(value: object, argument: str, example: str) -> Path:
+    """``value`` as a :class:`~pathlib.Path`, for a public function's path argument.
+
+    Args:
+        value: what the caller passed (``str`` or ``os.PathLike``).
+        argument: the call and argument, e.g. ``"open_run(run_dir)"``; example: a valid call, for the message.
+
+    Raises:
+        ParameterError: ``value`` is not a path (e.g. ``None``): one line naming the argument and the fix.
+    """
+    if isinstance(value, (str, os.PathLike)) and str(value):
+        return Path(value)
+    raise ParameterError(f"{argument} must be a folder path (str or pathlib.Path), got {value!r}; e.g. {example}")

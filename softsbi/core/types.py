@@ -342,6 +342,8 @@ class Scenario:
             (:func:`softsbi.scenarios.cameras.scenario_camera`). Empty: the scenario cannot be rendered.
         view: the plane of its 2-D figures: ``"xz"`` (side view across y, the default), ``"yz"`` (side
             view across x) or ``"xy"`` (top view).
+        description: one line for humans (the scenario file's ``description``); not in :meth:`to_json` and not
+            compared, as it changes no simulation.
 
     Raises:
         ShapeError: times not ``(T,)`` strictly increasing, a path not ``(T, 3)``, no handle.
@@ -357,6 +359,7 @@ class Scenario:
     world: dict[str, Any] = field(default_factory=dict)
     cameras: list[dict[str, Any]] = field(default_factory=list)
     view: str = "xz"
+    description: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
         if self.view not in VIEWS:

@@ -58,6 +58,10 @@ Vec3 = tuple[float, float, float]
 #: most frames a scenario may have: a simulation of more takes hours and its rollouts gigabytes (a typical task
 #: has 25-100); a count above it is a mistake, not a longer recording
 MAX_FRAMES = 10_000
+#: farthest a handle's path may reach from the scenario origin (m, after its frame's transform): a cloth task spans a
+#: few metres of a lab, and a position beyond this is a unit mistake (mm for m, a missing scale) that every engine
+#: fails on
+MAX_POSITION = 100.0
 #: largest gravity magnitude accepted (m/s^2), ten times Earth's: a larger one is a unit mistake (e.g. mm/s^2)
 #: that every engine fails on
 MAX_GRAVITY = 100.0
@@ -172,6 +176,11 @@ class PathSpec(_Strict):
             ts = [k.t for k in self.keyframes]
             if any(b < a for a, b in zip(ts, ts[1:])):
                 raise ValueError(f"keyframe times must not decrease, got {ts}")
+            for a, b in zip(self.keyframes, self.keyframes[1:]):
+                if a.t == b.t and a.p != b.p:
+                    raise ValueError(f"two keyframes at t = {a.t:g} s have different positions ({list(a.p)} and "
+                                     f"{list(b.p)}): a handle cannot be in two places at once; give one of them "
+                                     f"another time")
         return self
 
 
@@ -484,7 +493,8 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
             file's (a recording's calibration).
 
     Raises:
-        DataError: unknown frame name, a path whose length disagrees with the frames, a handle vertex out
+        DataError: unknown frame name, a path whose length disagrees with the frames or that reaches beyond
+            :data:`MAX_POSITION` from the origin, a handle vertex out
             of range or a grasp kind that does not fit the object, a missing or non-manifold mesh.
     """
     from softsbi.core.arrays import read_npy
@@ -539,6 +549,12 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
                                     f"is after the last frame (t = {times[-1]:g} s); end the keyframes by then")
                 raw = ease_keyframes(kt, np.array([k.p for k in pth.keyframes], dtype=float), times, pth.easing)
             path = apply_transform(mats[pth.frame], raw) + np.asarray(pth.offset, dtype=float)
+            far = np.linalg.norm(path, axis=1)
+            if not np.all(far <= MAX_POSITION):
+                k = int(np.argmax(np.where(np.isfinite(far), far, np.inf)))
+                raise DataError(f"{source}: field '{where}.path': the handle is {far[k]:.3g} m from the scenario origin "
+                                f"at t = {times[k]:g} s, beyond the {MAX_POSITION:g} m a task can span; positions are "
+                                f"metres in the path's frame (check the units and the frame's transform)")
         handles.append(Handle(h.name, h.grasp.as_dict(), path))
     gripper = next(h.path for h in handles if h.path is not None)
 
@@ -616,7 +632,7 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
         options["robot_base"] = apply_transform(mats[spec.robot.frame], np.asarray(spec.robot.base, float)).tolist()
     return Scenario(name=spec.name, times=times, gripper=gripper, table_z=float(spec.world.table_z), object=obj,
                     options=options, handles=handles, world=world, cameras=camera_dicts(spec.cameras),
-                    view=spec.view)
+                    view=spec.view, description=spec.description)
 
 
 def camera_dicts(cameras: list[CameraSpec]) -> list[dict[str, Any]]:
@@ -651,7 +667,7 @@ def load_scenario_data(data: Mapping[str, Any], source: str, base_dir: Path | No
 
 def spec_from_scenario(sc: Scenario, description: str = "") -> dict[str, Any]:
     """A scenario-file mapping (inline in a recording) that builds ``sc`` again: paths as ``points`` in
-    the scenario frame (exact), the object, placement, world and cameras; ``options`` kept when they are
+    the scenario frame (exact), its ``description`` (``description`` replaces it when given), the object, placement, world and cameras; ``options`` kept when they are
     plain data. A mesh cloth refers to its ``.obj`` by absolute path.
 
     Raises:
@@ -693,7 +709,7 @@ def spec_from_scenario(sc: Scenario, description: str = "") -> dict[str, Any]:
                 "height": float(sp["height"]), "occludes": True}]
     if obs:
         world["obstacles"] = jsonable(obs)
-    out = {"format": FORMAT, "name": sc.name, "description": description,
+    out = {"format": FORMAT, "name": sc.name, "description": description or sc.description,
            "object": o, "placement": placement, "handles": handles, "frames": {"times": sc.times.tolist()},
            "world": world, "options": {k: v for k, v in jsonable(sc.options).items() if k != "transforms"}}
     if sc.cameras:

@@ -18,7 +18,7 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from softsbi.core.errors import ParameterError, SoftsbiError
+from softsbi.core.errors import ParameterError, SoftsbiError, as_path
 from softsbi.core.types import Recording, Rollout, Scenario
 from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
@@ -72,7 +72,8 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
     Raises:
         ParameterError: a setting that is not a :class:`FitConfig` field (names the closest one), or a value
             that is not of the field's type (e.g. ``rounds="two"``, ``effects="wind"`` for ``["wind"]``,
-            ``bounds={"stretch": 5}`` for ``{"stretch": (low, high)}``); ``recording`` neither a Recording nor a path.
+            ``bounds={"stretch": 5}`` for ``{"stretch": (low, high)}``); ``recording`` neither a Recording nor a path;
+            ``out`` not a path (e.g. None).
         Everything :func:`~softsbi.workflows.fit.run_fit` raises.
     """
     names = [f.name for f in fields(FitConfig)]
@@ -83,6 +84,7 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
     if config is not None and not isinstance(config, FitConfig):
         raise ParameterError(f"fit(config=...) takes a softsbi.FitConfig, got {type(config).__name__}")
     cfg = typed_config(replace(config or FitConfig(), **settings))
+    out = as_path(out, "fit(out)", 'softsbi.fit(rec, out="runs/tan")')
     if isinstance(recording, (str, Path)):
         from softsbi.workflows.measurement import load_recording
         recording = load_recording(recording, n_points=cfg.n_points, seed=cfg.seed)

@@ -158,7 +158,7 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
 def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS,
                   workers: int | None = None,
                   estimator: str | None = None, estimator_options: Mapping[str, Any] | None = None,
-                  n_bins: int = 10, write: bool = True,
+                  n_bins: int = defaults.N_BINS, write: bool = True,
                   message: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Simulation-based calibration of a finished run's final estimator (module docstring).
 
@@ -189,13 +189,18 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         ``chi2_pvalue``), ``tarp``, counts and timings.
 
     Raises:
-        SchemaError: not a run directory. SoftsbiError: no finished round, or ``n_test`` < 20.
+        SchemaError: not a run directory. SoftsbiError: no finished round, ``n_test`` < 20 or ``n_draws`` < ``n_bins``.
         RunLocked: another process writes the run.
     """
     msg = message or (lambda s: None)
     run_dir = Path(run_dir)
-    if n_test < 20:
-        raise SoftsbiError(f"--n-test must be >= 20 (got {n_test}); 200 or more resolves the 90% coverage")
+    if n_test < defaults.MIN_TEST:
+        raise SoftsbiError(f"--n-test must be >= {defaults.MIN_TEST} (got {n_test}); 200 or more resolves the 90% "
+                           f"coverage")
+    if n_draws < max(defaults.MIN_DRAWS, n_bins):
+        raise SoftsbiError(f"--n-draws must be >= {max(defaults.MIN_DRAWS, n_bins)} (got {n_draws}): one posterior "
+                           f"draw per bin of the {n_bins}-bin SBC rank histogram, and HPD levels (coverage, TARP) "
+                           f"resolved to 1/{n_bins}")
     store = RunStore.open(run_dir / "run.zarr")
     if write:
         check_result_path(run_dir / "calibration.json")

@@ -35,6 +35,7 @@ from softsbi.core.types import STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
+from softsbi.workflows import defaults
 from softsbi.workflows.fit import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import RunView, load_run
@@ -42,11 +43,8 @@ from softsbi.workflows.screening import candidate_effects, check_resolution, mis
 from softsbi.workflows.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
                                      posterior_mean_chamfer, run_features, run_frames, sampled_points, summary_floor)
 
-#: the fewest successful posterior rollouts a check (and its null) works with
-MIN_ROLLOUTS = 5
-
 #: posterior rollouts the check needs at least (its error maps and the first stage of its test's null)
-MIN_ROLLOUTS = 5
+MIN_ROLLOUTS = defaults.MIN_ROLLOUTS
 
 
 def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

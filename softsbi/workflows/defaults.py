@@ -47,3 +47,15 @@ COMPARED_BACKENDS = ("mujoco-flex", "pybullet-massspring")
 #: ``train-extractor --simulate``: rendered rollouts and square camera size (px); also the image observers'
 IMAGE_ROLLOUTS = 40
 IMAGE_SIZE = 128
+
+#: the smallest values the settings accept (the CLI refuses smaller ones when it parses the flags, the workflows
+#: when they are called): a round needs simulations to train on, a check a few rollouts for its error maps and the
+#: first stage of its null, a calibration test simulations for its coverage curve
+MIN_SIMS_PER_ROUND = 10
+MIN_ROLLOUTS = 5
+MIN_TEST = 20
+#: calibration's rank-histogram bins, and the fewest posterior draws per test simulation: one per bin, so that
+#: every bin of the SBC histogram holds a possible rank and the HPD levels of the coverage curve and of TARP are
+#: resolved to ``1 / N_BINS`` (with 1 draw every rank and level is 0 or 1)
+N_BINS = 10
+MIN_DRAWS = N_BINS

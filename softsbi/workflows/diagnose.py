@@ -59,9 +59,10 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         alpha: the level of every test (the false-alarm rate tolerated).
         k_se: standard errors by which a refit's energy score must fall (:data:`~softsbi.workflows.decide.K_SE`).
         confirm: single refits at most (the top named candidates by evidence); a pair is one more (0: no refit).
-        refit_rounds, refit_sims: a refit's budget (default: the nominal fit's; a refit at a smaller budget has a
-            wider posterior predictive, which ``check`` rejects less often: measured on a toy magnet, a flexible
-            candidate refitted at half the budget passed where at the full budget it did not).
+        refit_rounds, refit_sims: a refit's budget (default None: the nominal fit's; its own values are stored
+            under the same key as None; a refit at a smaller budget has a wider posterior predictive, which
+            ``check`` rejects less often: measured on a toy magnet, a flexible candidate refitted at half the
+            budget passed where at the full budget it did not).
         n_null, max_null: start and cap of the posterior-predictive null.
         workers: simulation processes.
         progress: told each step (``callable(str)``), and what was written or reused.
@@ -74,17 +75,21 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         the :class:`~softsbi.core.results.Diagnosis`.
 
     Raises:
-        SoftsbiError: no candidates; a null cap that cannot resolve ``alpha``; ``confirm < 0`` or ``k_se <= 0``;
+        SoftsbiError: no candidates; a null cap that cannot resolve ``alpha``; a setting below its smallest value
+            (:func:`check_settings`: ``confirm < 0``, ``k_se <= 0``, ``refit_rounds < 1``, ``refit_sims < 10``,
+            ``n_null < 5``);
             the nominal fit has too few successful rollouts.
         RunLocked: another process writes ``out_dir`` (e.g. a second diagnose of the run), before any work.
         ResultUnwritable, RunDirError: ``diagnosis.json`` or ``out_dir`` cannot be written (a folder in the
             file's place: before any work; a full disk: when the result is written, the refits kept).
     """
     t0 = time.perf_counter()
-    if confirm < 0 or k_se <= 0:
-        raise SoftsbiError(f"confirm must be >= 0 and k_se > 0 (got {confirm} and {k_se})")
+    check_settings(confirm=confirm, k_se=k_se, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null)
     check_resolution(alpha, max_null, 2)
     run = load_run(run_dir, n_null, seed)
+    base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
+    refit_rounds = None if refit_rounds == base.rounds else refit_rounds
+    refit_sims = None if refit_sims == base.sims_per_round else refit_sims
     cands = candidate_effects(run, effects)
     if not cands:
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
@@ -123,6 +128,31 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         write_result(json_path, d)
     say(f"wrote {json_path}")
     return d
+
+
+#: diagnose's settings, each with the flag that sets it, its smallest value and why (``None``: a budget left to
+#: the nominal run's)
+SETTINGS = {
+    "confirm": ("--confirm", 0, "0 = no refit"),
+    "k_se": ("--k-se", 0.0, "a positive number of standard errors"),
+    "refit_rounds": ("--refit-rounds", 1, "leave it out for the run's own rounds"),
+    "refit_sims": ("--refit-sims", defaults.MIN_SIMS_PER_ROUND, "the estimator needs data; leave it out for the "
+                                                               "run's own"),
+    "n_null": ("--n-null", defaults.MIN_ROLLOUTS, "the null's first stage and the check's error maps"),
+}
+
+
+def check_settings(**values: float | None) -> None:
+    """Refuse a :func:`diagnose_run` setting below its smallest value (:data:`SETTINGS`; ``k_se`` must exceed 0).
+
+    Raises:
+        SoftsbiError: naming the flag, the value and the smallest one allowed.
+    """
+    for name, value in values.items():
+        flag, low, why = SETTINGS[name]
+        if value is not None and (value < low or (isinstance(low, float) and value <= low)):
+            rel = ">" if isinstance(low, float) else ">="
+            raise SoftsbiError(f"{flag} must be {rel} {low:g} (got {value:g}): {why}")
 
 
 def recording_from_run(run: RunView) -> Recording:

@@ -27,7 +27,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, RoundPosterior, TruncatedPrior
-from softsbi.core.errors import DataError, ParameterError, PosteriorDamaged, PosteriorError, SchemaError, SoftsbiError
+from softsbi.core.errors import (DataError, EffectFault, ParameterError, PosteriorDamaged, PosteriorError, SchemaError,
+                                  SoftsbiError)
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
 from softsbi.core.results import ResultDamaged, check_result_path, read_json, write_json_atomic
@@ -207,8 +208,9 @@ class FitConfig:
             raise SoftsbiError(f"sensor_draws must be an integer >= 0 (got {self.sensor_draws!r})")
         if self.rounds < 1:
             raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
-        if self.sims_per_round < 10:
-            raise SoftsbiError(f"--sims-per-round must be >= 10 (got {self.sims_per_round}); the estimator needs data")
+        if self.sims_per_round < defaults.MIN_SIMS_PER_ROUND:
+            raise SoftsbiError(f"--sims-per-round must be >= {defaults.MIN_SIMS_PER_ROUND} (got {self.sims_per_round}); "
+                               f"the estimator needs data")
         if self.workers is not None and self.workers < 1:
             raise SoftsbiError(f"--workers must be >= 1 (got {self.workers})")
         if self.n_points < 1:
@@ -1055,8 +1057,11 @@ class _Rounds:
         U, X, counts = _usable(store, r)
         if counts[r] == 0:
             reasons = sorted(set(store.round_attrs(r)["failures"].values()))
-            raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; narrow the prior "
-                               f"bounds with --bounds or change backend options; if the environment made them "
+            effect_code = all(x.startswith(EffectFault.__name__) for x in reasons)  # an effect's code, not physics
+            raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; "
+                               + ("fix the effect's code named there" if effect_code else
+                                  "narrow the prior bounds with --bounds or change backend options")
+                               + f"; if the environment made them "
                                f"fail, fix it and re-run with --retry-failed (finished simulations are kept in "
                                f"{store.path})")
         q, info = self._train(r, U, X, counts)

@@ -1,12 +1,13 @@
 """Building the measurement a fit conditions on: real recordings or a hidden-parameter simulation."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import DataError
+from softsbi.core.errors import DataError, SoftsbiWarning
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
@@ -71,6 +72,29 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
                                scenario=scenario, source=str(folder))
 
 
+def recording_scenario(folder: str | Path) -> Scenario:
+    """The scenario of a recording directory (from its ``recording.yaml``; the clouds are not read) or of a
+    DiffCloud lift folder (derived from its data, as :func:`load_recording` derives it).
+
+    Raises:
+        DataError: ``folder`` is neither (one line saying what is accepted), or its scenario is invalid.
+    """
+    from softsbi.core.yamlfile import read_yaml
+    from softsbi.data.recording import META, is_recording, parse_meta
+    folder = Path(folder)
+    if is_recording(folder):
+        meta = parse_meta(read_yaml(folder / META), str(folder / META)).model_dump(mode="json", exclude_none=True)
+        return scenario_of(meta, folder, str(folder))
+    if not (any(folder.glob("*_real2sim.yaml")) and any(f.stem.isdigit() for f in folder.glob("*.npy"))):
+        inside = sorted(p.name for p in folder.iterdir() if p.is_dir() and (is_recording(p) or any(p.glob("0*.npy"))))
+        raise DataError(f"'{folder}' is neither a recording directory (no recording.yaml) nor a DiffCloud recording "
+                        f"folder (no <task>_real2sim.yaml with 000.npy ...)"
+                        + (f"; it holds recordings ({', '.join(inside[:3])}{', ...' if len(inside) > 3 else ''}): "
+                           f"give one of them" if inside else "; give a scenario name (`softsbi scenarios` lists "
+                                                              "them), a scenario file (.yaml) or a recording directory"))
+    return load_recording(folder, n_points=8, n_dense=8).scenario
+
+
 def scenario_of(meta: Mapping, base: Path, source: str, override: str | Path | Scenario | None = None) -> Scenario:
     """The scenario a recording's ``scenario`` entry names (or ``override``: a name, file or
     :class:`Scenario`), with the recording's ``frames_of_reference`` replacing the scenario's transforms
@@ -112,6 +136,7 @@ def recording_from_meta(meta: Mapping, clouds: Sequence[np.ndarray], base: Path,
         raise DataError(f"{source}: frame {k} is at t = {times[k]:g} s in the recording but {sc.times[k]:g} s in "
                         f"scenario '{sc.name}'; make the scenario's frames match the recording's times")
     check_reach(clouds, sc, source)
+    check_table(clouds, sc, source)
     rng = np.random.default_rng(seed)
     obs = PointCloudObserver(n_points).observe_clouds(list(clouds), sc.gripper, sc.times, rng, source=source)
     dense = np.stack([c[rng.choice(len(c), size=n_dense, replace=len(c) < n_dense)] for c in clouds])
@@ -148,6 +173,23 @@ def check_reach(clouds: Sequence[np.ndarray], scenario: Scenario, source: str) -
                             f"{PLAUSIBLE_REACH:g} times the object's extent ({extent:.2f} m): the cloud is not in the frame "
                             f"of scenario '{scenario.name}'; check the recording's transform and that its units are "
                             f"metres")
+
+
+#: how far below the table (m) a recording's highest point may lie before :func:`check_table` warns: a few times a
+#: depth sensor's noise on a table-top point
+BELOW_TABLE = 0.02
+
+
+def check_table(clouds: Sequence[np.ndarray], scenario: Scenario, source: str) -> None:
+    """Warn (:class:`~softsbi.core.errors.SoftsbiWarning`, one line) when every point of every frame lies more than
+    :data:`BELOW_TABLE` m below the scenario's table: the object rests on the table, so the recording's transform
+    or units (or the scenario's ``world.table_z``) are likely wrong."""
+    top = max(float(np.asarray(c, float)[:, 2].max()) for c in clouds)
+    if top < scenario.table_z - BELOW_TABLE:
+        warnings.warn(SoftsbiWarning(
+            f"{source}: every point lies below the table (highest {top:.3g} m, table at {scenario.table_z:.3g} m "
+            f"in scenario '{scenario.name}'): check the recording's transform (its z axis and origin) and units, "
+            f"or the scenario's world.table_z"), stacklevel=2)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -294,7 +336,8 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
         the written recording directories.
 
     Raises:
-        DataError: no DiffCloud recording in ``src``, an existing non-empty destination, anything
+        DataError: no DiffCloud recording in ``src`` (or ``src`` is already a recording), an existing non-empty
+            destination, anything
             :func:`diffcloud_recording` raises. Everything is converted before anything is written.
         RunDirError: a destination that is a file or cannot be written (before anything is converted).
     """
@@ -303,6 +346,10 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
     if not src.is_dir():
         raise DataError(f"'{src}' {'is a file' if src.exists() else 'does not exist'}; give a DiffCloud recording "
                         f"folder or a folder of them")
+    from softsbi.data.recording import is_recording
+    if is_recording(src):
+        raise DataError(f"'{src}' is already a softsbi recording (it holds recording.yaml): nothing to import; fit it "
+                        f"directly with `softsbi fit --observed {src} --out RUN`")
     if sorted(src.glob("*_real2sim.yaml")) and any(f.stem.isdigit() for f in src.glob("*.npy")):
         pairs = [(src, dst)]
     else:

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.distributions import PosteriorChain
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import SoftsbiError, as_path
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
@@ -233,9 +233,10 @@ def open_run(run_dir: str | Path) -> Run:
     Raises:
         SchemaError: not a run directory (no ``run.zarr``) or an unreadable schema version;
             ``PosteriorDamaged`` (a SchemaError): a stored posterior is missing or damaged.
-        SoftsbiError: no round has finished yet (resume the fit first).
+        SoftsbiError: no round has finished yet (resume the fit first). ParameterError: ``run_dir`` is not a path
+            (e.g. None).
     """
-    run_dir = Path(run_dir)
+    run_dir = as_path(run_dir, "open_run(run_dir)", 'softsbi.open_run("runs/tan")')
     store = RunStore.open(run_dir / "run.zarr")
     cfg = FitConfig.from_run_config(store.config)
     space = ParamSpace.from_json(store.config["param_space"])

@@ -112,6 +112,11 @@ def sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
 
 
 
+def failed_candidate(eff: Any, error: str) -> Candidate:
+    """The ranking's row of a candidate the screening could not test, with ``error`` saying why."""
+    return Candidate(eff.name, effect_kind(eff), is_generic(eff), eff.description, error=error)
+
+
 class Screening:
     """The linearised added-variable test of every candidate.
 
@@ -143,15 +148,15 @@ class Screening:
         self.design: dict[str, dict[str, Any]] = {}
         self.failed: list[Candidate] = []
         for eff in cands:
-            self._add_design(eff, [c for c in eff_cols if c[0] is eff], feats, f0, sd, effect_step)
+            self._add_design(eff, [c for c in eff_cols if c[0] is eff], feats, f0, sd, effect_step, res)
         self.n_simulations = len(res)
 
     def _add_design(self, eff: Any, cols: list[tuple[Any, str, int, int]], feats: list[Any], f0: np.ndarray,
-                    sd: np.ndarray, effect_step: float) -> None:
+                    sd: np.ndarray, effect_step: float, res: list[dict[str, Any] | None]) -> None:
         # offset: the effect switched on at its nominal value (e.g. wind at 0 m/s still adds air)
         if not cols or any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
-            self.failed.append(Candidate(eff.name, effect_kind(eff), is_generic(eff), eff.description,
-                                         error="a sensitivity simulation failed"))
+            why = next(((res[i] or {}).get("reason") for c in cols for i in (c[3], c[2]) if feats[i] is None), None)
+            self.failed.append(failed_candidate(eff, "a sensitivity simulation failed" + (f": {why}" if why else "")))
             return
         es = eff.param_space()
         lo, hi, steps = [], [], []
@@ -296,8 +301,9 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
             try:
                 screen = screening_of(pool, cands, unit_step, effect_step)
                 ranking = screen.ranking()
-            except SoftsbiError:  # the posterior median's simulation failed: the omnibus test alone
-                screen = None
+            except SoftsbiError as exc:  # e.g. the posterior median's simulation failed: the omnibus test alone,
+                screen = None                # and every candidate in the table with the reason
+                ranking = tuple(failed_candidate(c, f"not screened: {exc}") for c in cands)
         top = next((c for c in ranking if c.screened), None)
         test = JointTest(omnibus, top.adjusted if top else None, top.effect if top else None, family, alpha,
                          max_null, statistic)

@@ -183,7 +183,8 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
 
     Raises:
         DependencyMissing: ``rrd`` asked for and rerun-sdk not installed (before simulating).
-        SoftsbiError: see :func:`posterior_rollouts`.
+        SoftsbiError: nothing to write (``gif`` False and no rerun recording; before simulating); see
+            :func:`posterior_rollouts`.
     """
     out: dict[str, Any] = {"gif": None, "rrd": None, "rrd_missing": None}
     rr = None
@@ -194,6 +195,10 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
             if rrd:
                 raise
             out["rrd_missing"] = str(exc)
+    if not gif and rr is None:  # before simulating: nothing would be written
+        raise SoftsbiError("--no-gif leaves nothing to write: " + (
+            "--no-rrd switches off the rerun recording too; drop one of them" if rrd is False else
+            f"the rerun recording is not written ({out['rrd_missing']}); drop --no-gif or install the extra"))
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     run_dir = Path(run_dir)
     best = best_fit_rollout(run_dir)

@@ -218,8 +218,141 @@ def test_frames_outside_the_recording_and_a_negative_seed_are_refused_before_sim
     assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0  # lift
     for args, message in ((["--frames", "30:40"], "--frames 30:40 selects frame 30, but the recording has 25 frames "
                                                   "(0 to 24); give frames within them, e.g. --frames 12:25"),
-                          (["--seed", "-1"], "--seed must be >= 0 (got -1)")):
+                          (["--seed", "-1"], "'--seed': must be >= 0 (got -1)")):
         out = tmp_path / "run"
         res = runner.invoke(app, ["fit", "--observed", str(meas), "--backend", "toy-gauss", "--out", str(out), *args])
         assert res.exit_code == 2 and message in " ".join(res.output.split()), res.output
         assert "Traceback" not in res.output and not out.exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["calibrate", "RUN", "--n-draws", "0"], "'--n-draws': must be >= 10 (got 0): one draw per bin"),
+    (["calibrate", "RUN", "--n-draws", "1"], "'--n-draws': must be >= 10 (got 1)"),
+    (["calibrate", "RUN", "--n-test", "5"], "'--n-test': must be >= 20 (got 5)"),
+    (["diagnose", "RUN", "--n-null", "0"], "'--n-null': must be >= 5 (got 0)"),
+    (["diagnose", "RUN", "--refit-sims", "1"], "'--refit-sims': must be >= 10 (got 1)"),
+    (["diagnose", "RUN", "--refit-rounds", "-2"], "'--refit-rounds': must be >= 1 (got -2)"),
+    (["diagnose", "RUN", "--refit-rounds", "0"], "'--refit-rounds': must be >= 1 (got 0): leave it out for the "
+                                                 "run's own"),
+    (["diagnose", "RUN", "--confirm", "-1"], "'--confirm': must be >= 0 (got -1)"),
+    (["diagnose", "RUN", "--k-se", "0"], "'--k-se': must be > 0 (got 0)"),
+    (["check", "RUN", "--alpha", "1.5"], "'--alpha': must be > 0 and < 1 (got 1.5)"),
+    (["check", "RUN", "--n-eval", "2"], "'--n-eval': must be >= 5 (got 2)"),
+    (["compare", "RUN", "RUN", "--n-eval", "0"], "'--n-eval': must be >= 5 (got 0)"),
+    (["view", "RUN", "--n-eval", "0"], "'--n-eval': must be >= 1 (got 0)"),
+    (["demo", "--sims-per-round", "3"], "'--sims-per-round': must be >= 10 (got 3)"),
+    (["fit", "--observed", "REC", "--out", "RUN", "--rounds", "0"], "'--rounds': must be >= 1 (got 0)"),
+    (["fit", "--observed", "REC", "--out", "RUN", "--points", "0"], "'--points': must be >= 1 (got 0)"),
+    (["simulate", "--out", "RUN", "--render", "0"], "'--render': must be >= 1 (got 0)"),
+    (["train-extractor", "heatmap", "--out", "RUN", "--rollouts", "0"], "'--rollouts': must be >= 1 (got 0)"),
+])
+def test_every_numeric_flag_is_refused_at_parse_time_naming_the_flag_typed(tmp_path, args, message):
+    """A value out of range is refused when the flags are parsed: exit code 2, the flag the user typed, the bound and
+    why, before the command opens anything (the run named here does not exist, and its absence is not what is
+    reported). Before, --n-draws 0 exited 0 with a verdict from no draws, and diagnose named --n-eval, --rounds or
+    --sims-per-round, after its detect stage."""
+    args = [str(tmp_path / a) if a in ("RUN", "REC") else a for a in args]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert message in " ".join(res.output.replace("│", " ").split()), res.output
+    assert "does not exist" not in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "RUN").exists()
+
+
+def test_the_python_api_refuses_a_diagnose_setting_naming_its_flag_before_opening_the_run(tmp_path):
+    import softsbi
+    from softsbi.core.errors import SoftsbiError
+    for kw, message in (({"refit_rounds": 0}, "--refit-rounds must be >= 1 (got 0)"),
+                        ({"refit_sims": 1}, "--refit-sims must be >= 10 (got 1)"),
+                        ({"n_null": 0}, "--n-null must be >= 5 (got 0)")):
+        with pytest.raises(SoftsbiError, match=message.replace("(", r"\(").replace(")", r"\)")):
+            softsbi.diagnose(tmp_path / "no-run", **kw)
+
+
+def test_a_missing_path_argument_of_the_python_api_is_named_with_the_fix():
+    """fit(rec, out=None) and open_run(None) raised a bare TypeError from pathlib; now one line naming the argument."""
+    import softsbi
+    from softsbi.core.errors import ParameterError
+    with pytest.raises(ParameterError, match=r"fit\(out\) must be a folder path .*got None; e\.g\. softsbi\.fit\(rec, "
+                                             r"out=\"runs/tan\"\)"):
+        softsbi.fit("no-recording", out=None)
+    with pytest.raises(ParameterError, match=r"open_run\(run_dir\) must be a folder path .*got None"):
+        softsbi.open_run(None)
+
+
+def test_simulate_exits_non_zero_when_the_simulation_fails(tmp_path, monkeypatch):
+    """A failed rollout printed its reason as a status and exited 0; now an error line and exit code 1 (the JSON
+    document still comes, with its status)."""
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    monkeypatch.setenv("SOFTSBI_TOY_DIVERGE_ABOVE", "0")
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--theta", "a=0.5", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 1, res.output
+    assert "error: the simulation failed (toy divergence: a = 0.500 > 0); no recording was written" in res.output
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--theta", "a=0.5", "--out", str(tmp_path / "j"),
+                              "--json"])
+    assert res.exit_code == 1 and json.loads(res.stdout)["status"] != 0
+
+
+def test_simulate_keeps_the_scenario_files_description_in_the_recording(tmp_path):
+    import yaml
+    from softsbi.scenarios.catalog import builtin_files
+    spec = yaml.safe_load(builtin_files()["lift"].read_text())
+    assert spec["description"]
+    res = runner.invoke(app, ["simulate", "--scenario", "lift", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    rec = yaml.safe_load((tmp_path / "o" / "recording.yaml").read_text())
+    assert rec["scenario"]["inline"]["description"] == spec["description"]
+
+
+def test_a_recording_below_the_table_warns_in_one_line_and_params_takes_recording_folders(tmp_path):
+    """A recording whose points all lie 1 m below the table loaded without a word; `softsbi params` of a folder that
+    is not a recording complained about missing frames. Now one warning line, and params says what it takes."""
+    import yaml
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    meas = tmp_path / "meas"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0
+    res = runner.invoke(app, ["params", str(meas), "--backend", "toy-gauss"])
+    assert res.exit_code == 0 and "warning" not in res.output, res.output
+    meta = yaml.safe_load((meas / "recording.yaml").read_text())
+    shift = np.eye(4)
+    shift[2, 3] = -1.0
+    meta["transform"] = {"matrix": shift.tolist()}
+    (meas / "recording.yaml").write_text(yaml.safe_dump(meta))
+    res = runner.invoke(app, ["params", str(meas), "--backend", "toy-gauss"])  # reads the scenario only
+    assert res.exit_code == 0 and "| a " in res.output, res.output
+    res = runner.invoke(app, ["fit", "--observed", str(meas), "--backend", "toy-gauss", "--out", str(tmp_path / "run"),
+                              "--rounds", "1", "--sims-per-round", "10", "--n-eval", "1", "--points", "8",
+                              "--workers", "1", "--estimator", "mdnn", "--estimator-opt", "max_epochs=2"])
+    warnings = [ln for ln in res.output.splitlines() if ln.startswith("warning: ")]
+    assert len(warnings) == 1 and "every point lies below the table" in warnings[0], res.output
+    assert "check the recording's transform" in warnings[0]
+    from softsbi.core.errors import SoftsbiWarning
+    with pytest.warns(SoftsbiWarning, match="every point lies below the table"):
+        load_recording(meas, n_points=8, n_dense=8)
+    # a folder of recordings is named as such, and any other folder is told what params takes
+    res = runner.invoke(app, ["params", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "neither a recording directory" in res.output, res.output
+    import shutil
+    shutil.rmtree(tmp_path / "run")
+    res = runner.invoke(app, ["params", str(tmp_path)])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "it holds recordings (meas): give one of them" in msg, res.output
+    res = runner.invoke(app, ["params", str(meas / "clouds")])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "give a scenario name (`softsbi scenarios` lists them), a scenario file" in msg
+
+
+def test_view_with_nothing_to_write_and_import_of_a_recording_say_so_before_any_work(tmp_path):
+    """`view --no-rrd --no-gif` simulated, wrote nothing and said nothing; `import diffcloud` of a softsbi recording
+    said "give a recording directory". Now each is one line saying what is wrong and what to do instead."""
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    res = runner.invoke(app, ["view", str(tmp_path / "no-run"), "--no-rrd", "--no-gif"])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "--no-gif leaves nothing to write: --no-rrd switches off the rerun recording too; " \
+                                  "drop one of them" in msg, res.output
+    meas = tmp_path / "meas"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0
+    res = runner.invoke(app, ["import", "diffcloud", str(meas), str(tmp_path / "dst")])
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and f"'{meas}' is already a softsbi recording" in msg, res.output
+    assert f"softsbi fit --observed {meas} --out RUN" in msg and not (tmp_path / "dst").exists()

@@ -229,3 +229,29 @@ def test_a_force_field_sees_the_handles_current_positions_and_the_cloth_corners(
         t, handles, _, _ = min(spy.seen, key=lambda s: abs(s[0] + dt - LIFT.times[k]))
         np.testing.assert_allclose(handles[0], ro.gripper[k], atol=1e-9)
     assert np.ptp([s[1][0, 2] for s in spy.seen]) > 0.05  # the handle moves: not its rest position
+
+
+class _NaNForce(Effect):
+    """Returns NaN forces once switched on (k > 0)."""
+
+    name = "nan-force"
+
+    def param_space(self):
+        return ParamSpace([Param("k", 0.0, 1.0, "N")])
+
+    def force(self, x, v, t, theta, ctx):
+        return np.full_like(x, np.nan if theta["k"] > 0 else 0.0)
+
+
+def test_a_non_finite_force_fails_the_rollout_naming_the_effect_not_the_engine(monkeypatch):
+    """A plugin force() returning NaN was reported as a MuJoCo instability (bad accelerations) with a "narrow the
+    prior bounds" hint; now the rollout fails with the effect named, through the same door on the real engine."""
+    from softsbi.core.errors import EffectFault
+    plan = EffectPlan("mujoco-flex", effects=[_NaNForce()], forces=[_NaNForce()])
+    ctx = VertexContext(mass=np.ones(4), area=np.ones(4), x0=np.zeros((4, 3)), table_z=0.0, spacing=0.1, shape=(2, 2))
+    with pytest.raises(EffectFault, match=r"effect 'nan-force': force\(\) returned a non-finite force .* k=0\.5"):
+        plan.force_fn({"k": 0.5}, ctx)(np.zeros((4, 3)), np.zeros((4, 3)), 0.0)
+    monkeypatch.setitem(registry().tables["effect"], "nan-force", _NaNForce)
+    sim = MujocoFlex(grid=5)
+    with pytest.raises(EffectFault, match="effect 'nan-force'"):
+        sim.simulate(LIFT, {**sim.param_space(LIFT).midpoint(), "k": 0.5}, effects=["nan-force"])

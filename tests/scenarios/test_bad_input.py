@@ -136,3 +136,29 @@ def test_a_folder_a_nan_vertex_an_absurd_gravity_or_frame_count_is_named_as_what
     obj.write_text(obj.read_text().replace("v 0.0 0.0 0.0", "v nan 0.0 0.0", 1))
     with pytest.raises(DataError, match=r"sheet\.obj has a NaN or infinite coordinate \(vertex 0\); fix the \.obj"):
         load_scenario(spec)
+
+
+def test_a_keyframe_far_beyond_a_task_and_two_positions_at_one_time_are_refused(tmp_path):
+    """A keyframe at 1e9 m was accepted (the simulation then failed while `softsbi simulate` exited 0), and two
+    keyframes at one time with different positions were accepted; each is now one line naming the field."""
+    from softsbi.scenarios.spec import MAX_POSITION
+    grip = {"name": "grip", "grasp": {"vertex": 8}}
+    held = {"name": "held", "grasp": {"vertex": 0}, "pinned": True}
+    far = _spec(tmp_path, handles=[dict(grip, path={"keyframes": [{"t": 0.0, "p": [0.3, 0.3, 0.0]},
+                                                                  {"t": 0.5, "p": [1e9, 0.3, 0.1]}]}), held])
+    with pytest.raises(DataError) as err:
+        load_scenario(far)
+    msg = _one_line(err)
+    assert "field 'handles[0].path'" in msg and "1e+09 m from the scenario origin at t = 0.5 s" in msg
+    assert f"beyond the {MAX_POSITION:g} m" in msg
+    twice = _spec(tmp_path, handles=[dict(grip, path={"keyframes": [{"t": 0.0, "p": [0.3, 0.3, 0.0]},
+                                                                    {"t": 0.25, "p": [0.4, 0.3, 0.1]},
+                                                                    {"t": 0.25, "p": [0.2, 0.3, 0.1]}]}), held])
+    with pytest.raises(DataError) as err:
+        load_scenario(twice)
+    assert "two keyframes at t = 0.25 s have different positions" in _one_line(err)
+    # the same position twice (a pause written out) stays valid
+    same = _spec(tmp_path, handles=[dict(grip, path={"keyframes": [{"t": 0.0, "p": [0.3, 0.3, 0.0]},
+                                                                   {"t": 0.25, "p": [0.4, 0.3, 0.1]},
+                                                                   {"t": 0.25, "p": [0.4, 0.3, 0.1]}]}), held])
+    assert load_scenario(same).n_frames == 11

@@ -53,6 +53,8 @@ def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
     stored = from_json(Diagnosis, json.loads((magnet_run / "diagnosis.json").read_text()))
     assert stored == d and load_diagnosis(magnet_run) == d
     assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1) == d
+    # a refit budget given as the run's own (2 x 80) is the default's: the stored result is read back, not recomputed
+    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, refit_rounds=2, refit_sims=80) == d
 
 
 def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(magnet_run):
@@ -63,3 +65,24 @@ def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(m
     # a flexible candidate explains a part; the pair built on it is refitted and explains no more
     assert d.decision.partial and any(len(r.effects) == 2 for r in d.refits)
     assert d.residual is not None and d.residual.frames_flagged
+
+
+def test_a_failing_plugin_effect_as_the_only_candidate_stays_in_the_table_with_its_reason(magnet_run, monkeypatch):
+    """A candidate whose code fails disappeared from the candidate table (the screening's error dropped every row);
+    now it is listed, not screened, with the reason, and the verdict rests on the omnibus test."""
+    import os
+    from pathlib import Path
+    from softsbi.plugins.manager import registry
+    from softsbi.report.text import diagnosis_rows
+    monkeypatch.setenv("SOFTSBI_PLUGINS", os.pathsep.join([os.environ["SOFTSBI_PLUGINS"],
+                                                          str(Path(__file__).with_name("broken_effect.py"))]))
+    registry.cache_clear()
+    try:
+        d = diagnose_run(magnet_run, effects=["toy-broken"], confirm=0, workers=1)
+    finally:
+        monkeypatch.undo()
+        registry.cache_clear()
+    (c,) = d.ranking
+    assert c.effect == "toy-broken" and not c.screened
+    assert "observe() must return a Rollout of the same shape" in c.error
+    assert diagnosis_rows(d)[0][0] == "toy-broken" and "toy-broken" in diagnosis_rows(d)[0][3]
