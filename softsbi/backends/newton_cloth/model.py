@@ -9,7 +9,6 @@
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -32,16 +31,13 @@ def import_newton() -> tuple[Any, Any]:
     Raises:
         DependencyMissing: Newton or Warp is not installed (names :data:`INSTALL_HINT`).
     """
-    if "newton" not in sys.modules:
-        try:
-            import warp as wp
-            wp.config.quiet = True
-            import newton  # noqa: F401
-        except ImportError as exc:
-            raise DependencyMissing(f"backend 'newton-cloth' needs Newton {NEWTON_VERSION} (and Warp), which is not "
-                                    f"installed ({exc}): {INSTALL_HINT}") from exc
-    import newton
-    import warp as wp
+    try:
+        import warp as wp
+        wp.config.quiet = True
+        import newton
+    except ImportError as exc:
+        raise DependencyMissing(f"backend 'newton-cloth' needs Newton {NEWTON_VERSION} (and Warp), which is not "
+                                f"installed ({exc}): {INSTALL_HINT}") from exc
     return newton, wp
 
 
