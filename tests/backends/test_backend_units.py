@@ -69,3 +69,33 @@ def test_mujoco_rope_young_is_the_material_modulus():
         assert 1.0 < tip / analytic < 1.35, (young, tip, analytic)
     with pytest.raises(ParameterError, match="now 'young'"):
         sim.simulate(rope_cantilever_scenario(), {"bend": 1e6, "friction": 0.5, "scale": 0.3, "mass": 0.03})
+
+
+@pytest.fixture(scope="module")
+def newton_droop():
+    """newton-cloth's tip droop over the Euler-Bernoulli value at g = 1 m/s^2, D = 1e-3 N m (analytic 2.5 mm), 9x9
+    grid, settled (VBD 20 iterations at 4 ms, damping 0.05 s, 2 s: the tip is constant over the last frames)."""
+    pytest.importorskip("newton", reason='newton-cloth needs Newton: pip install "softsbi[newton]"')
+    from softsbi.backends.newton_cloth import NewtonCloth
+    sc = cantilever_scenario(grid=9, clamp_rows=5, g=1.0, duration=2.0, frames=5)
+    ro = NewtonCloth(grid=9, timestep=0.004, iterations=20, damping=0.05).simulate(sc, dict(THETA, bend=1e-3))
+    assert ro.ok, ro.reason
+    tips = [cantilever_tip_deflection(ro.vertices[:k + 1], 9) for k in (3, 4)]
+    assert tips[1] == pytest.approx(tips[0], rel=0.02), tips  # settled
+    return tips[1] / cantilever_analytic(1e-3, 0.2, grid=9, clamp_rows=5, g=1.0)
+
+
+@pytest.mark.slow
+def test_newton_cloth_droop_as_measured(newton_droop):
+    """Measured: newton-cloth droops 4.85x the Euler-Bernoulli value (1.21 cm against 0.25 cm) where mujoco-flex
+    droops 2.0x; most of it is a kink at the clamp line (the first free row rises 1.8 mm, 6.9x the analytic
+    0.26 mm). The hinge mapping edge_ke = D / h (:func:`bend_edge_stiffness`) is the continuum one, not fitted."""
+    assert 3.5 < newton_droop < 6.0, newton_droop
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 65 done-when not met: newton-cloth droops 4.85x Euler-Bernoulli and "
+                                       "2.4x mujoco-flex at the shared rigidity (needs within 10% of both)")
+def test_newton_cloth_droop_within_ten_percent_of_euler_bernoulli_and_mujoco(newton_droop):
+    mujoco_ratio = 2.0  # measured, test_mujoco_cantilever_converges_to_the_analytic_droop (9x9)
+    assert newton_droop == pytest.approx(1.0, rel=0.1) and newton_droop == pytest.approx(mujoco_ratio, rel=0.1)
