@@ -231,8 +231,8 @@ class NewtonCloth(Simulator):
         steps = 0
         for k in range(1, T):
             while steps < frame_steps[k]:
-                wp.launch(kernel, dim=len(kin), inputs=[s0.particle_q, s0.particle_qd, kin_d, path_d, steps, 1.0 / dt],
-                          device=self.device)
+                wp.launch(kernel, dim=len(kin), device=self.device,
+                          inputs=[s0.particle_q, s0.particle_qd, kin_d, path_d, steps, 1.0 / dt])
                 if forces is not None:
                     s0.clear_forces()
                     forces(steps * dt)
@@ -255,7 +255,8 @@ class NewtonCloth(Simulator):
             if status != STATUS_OK:
                 v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
             info = {"wall_s": wall / B, "steps": steps, "backend": self.name, "grid": self.grid, "timestep": dt,
-                    "iterations": self.iterations, "device": self.device, "batch": B, "effects": list(plan_names(plan)),
+                    "iterations": self.iterations, "device": self.device, "batch": B,
+                    "effects": [e.name for e in plan.effects],
                     "handle_vertices": list(w.handles), "corners": grid_corners(self.grid)}
             ro = Rollout(times=times.copy(), gripper=grip.copy(), vertices=v, faces=grid_faces(self.grid),
                          status=status, reason=reason, info=info)
@@ -278,12 +279,9 @@ class NewtonCloth(Simulator):
                                         f"cloth diagonal ({L * math.sqrt(2):.2f} m): torn or exploded")
         g = self.grid
         last = verts[-1].reshape(g, g, 3)
-        edge = max(np.linalg.norm(np.diff(last, axis=0), axis=-1).max(), np.linalg.norm(np.diff(last, axis=1), axis=-1).max())
+        edge = max(np.linalg.norm(np.diff(last, axis=0), axis=-1).max(),
+                   np.linalg.norm(np.diff(last, axis=1), axis=-1).max())
         if edge > 3.0 * L / (g - 1):
             return STATUS_IMPLAUSIBLE, f"an edge is stretched to {edge * (g - 1) / L:.1f}x its rest length"
         return STATUS_OK, ""
 
-
-def plan_names(plan: EffectPlan) -> list[str]:
-    """The effect names of ``plan``, in the order given."""
-    return [e.name for e in plan.effects]
