@@ -43,13 +43,15 @@ def _check_device(device: str) -> str:
     """Newton's import and the device, checked before any work; returns the device's name.
 
     Raises:
-        SystemExit: Newton is missing, or the device does not exist (one line naming the fix).
+        SystemExit: Newton or MuJoCo is missing, or the device does not exist (one line naming the fix).
     """
+    from softsbi.backends.mujoco_flex.gl import import_mujoco
     from softsbi.backends.newton_cloth import import_newton
-    from softsbi.core.errors import DependencyMissing
+    from softsbi.core.errors import DependencyMissing, EnvironmentFault
     try:
+        import_mujoco()  # the baseline of the same run
         _, wp = import_newton()
-    except DependencyMissing as exc:
+    except (DependencyMissing, EnvironmentFault) as exc:
         raise SystemExit(str(exc)) from None
     try:
         dev = wp.get_device(device)
