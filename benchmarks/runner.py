@@ -10,6 +10,9 @@ A suite is a module of this package with three names:
   "figures": [...]}`` (every key optional; a table is :func:`table`'s dict, a figure ``{"path", "caption"}`` with
   ``path`` relative to ``docs/``).
 
+and optionally ``config(options) -> str``: the name its run is stored under, for a suite whose runs differ by more
+than ``--full`` (newton-throughput: ``default-cuda`` for a GPU run); ``default`` / ``full`` otherwise.
+
 ``python -m benchmarks run SUITE [--full] [options]`` runs one and stores the run in ``benchmarks/results/SUITE.json``
 under its configuration (``default`` or ``full``; a run of the other configuration is kept), with the commit, the
 machine kind (cores, CPU model, OS: never a path) and the exact command; then it renders ``docs/benchmarks.md`` from
@@ -70,6 +73,11 @@ _SUITES = [
           "deflection against the Euler-Bernoulli value w a^4 / (8 D) for overhang a. pybullet-massspring's "
           "bending-spring factor was calibrated on one rigidity (D = 3e-4 N m, g = 9.81) against mujoco-flex.",
           "benchmarks.bench_backend_units"),
+    Suite("newton-throughput", "Engines", "lift rollouts per second: newton-cloth one by one and batched",
+          "Lift rollouts per second for N = 1, 8 (64 with --full) parameter sets from the prior: mujoco-flex and "
+          "newton-cloth one by one, and newton-cloth as one batch of N worlds in one Newton model; --device cuda "
+          "runs newton-cloth on a GPU (stored as its own configuration). Needs the optional Newton package.",
+          "benchmarks.bench_newton_throughput"),
     Suite("identifiability", "Engines", "how far each parameter moves the object, per backend and scenario",
           "Mean vertex displacement over all frames and vertices between a rollout at a parameter's low and at its "
           "high prior bound, the others at the prior midpoint: a parameter that barely moves the object in a "
@@ -260,6 +268,8 @@ def run(name: str, argv: Sequence[str] = (), results: Path = RESULTS, doc: Path 
     module = suite.load()
     opts = options(suite, module, argv)
     config = "full" if getattr(opts, "full", False) else "default"
+    if hasattr(module, "config"):  # a suite whose runs differ by more than --full (the device) names its own
+        config = module.config(opts)
     prov = {**commit(), "machine": machine(), "command": command(["run", name, *argv])}
     stored = portable({k: v for k, v in vars(opts).items() if k != "full"})
     opts.command = prov["command"]  # for a suite whose rows carry their own provenance

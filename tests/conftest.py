@@ -34,7 +34,7 @@ INTEGRATION = {
     "test_render.py", "test_run_safety.py", "test_runs.py", "test_scenarios_all.py", "test_sensor_draws.py",
     "test_sensor_metric.py", "test_store_loop.py", "test_tutorial.py", "test_view.py", "test_heatmap.py",
     "test_transporter.py", "test_occlusion.py", "test_bound_pressure.py", "test_builtin_regression.py",
-    "test_door.py", "test_files.py", "test_stored_results.py",
+    "test_door.py", "test_files.py", "test_stored_results.py", "test_newton_cloth.py",
 }
 
 

@@ -69,3 +69,39 @@ def test_mujoco_rope_young_is_the_material_modulus():
         assert 1.0 < tip / analytic < 1.35, (young, tip, analytic)
     with pytest.raises(ParameterError, match="now 'young'"):
         sim.simulate(rope_cantilever_scenario(), {"bend": 1e6, "friction": 0.5, "scale": 0.3, "mass": 0.03})
+
+
+
+@pytest.fixture(scope="module")
+def droop_ratios():
+    """Tip droop over the Euler-Bernoulli value at g = 1 m/s^2, D = 1e-3 N m (analytic 2.5 mm), 9x9 grid, settled:
+    ``{"newton-cloth": ..., "mujoco-flex": ...}``. newton-cloth runs VBD to convergence (80 iterations at 4 ms); at
+    fewer iterations VBD's unfinished solve each step leaves the strip softer (measured 4.85x at 20 iterations,
+    1.85x at 20 iterations and 1 ms), so the check is of the mapping, not of the default speed setting."""
+    pytest.importorskip("newton", reason='newton-cloth needs Newton: pip install "softsbi[newton]"')
+    from softsbi.backends.newton_cloth import NewtonCloth
+    analytic = cantilever_analytic(1e-3, 0.2, grid=9, clamp_rows=5, g=1.0)
+    sc = cantilever_scenario(grid=9, clamp_rows=5, g=1.0, duration=2.0, frames=5)
+    ro = NewtonCloth(grid=9, timestep=0.004, iterations=80, damping=0.05).simulate(sc, dict(THETA, bend=1e-3))
+    assert ro.ok, ro.reason
+    tips = [cantilever_tip_deflection(ro.vertices[:k + 1], 9) for k in (3, 4)]
+    assert tips[1] == pytest.approx(tips[0], rel=0.02), tips  # settled
+    mj = MujocoFlex(grid=9, damping=0.01).simulate(cantilever_scenario(grid=9, clamp_rows=5, g=1.0, duration=6.0,
+                                                                       frames=3), dict(THETA, bend=1e-3))
+    assert mj.ok, mj.reason
+    return {"newton-cloth": tips[1] / analytic, "mujoco-flex": cantilever_tip_deflection(mj.vertices, 9) / analytic}
+
+
+@pytest.mark.slow
+def test_newton_cloth_droops_like_mujoco_flex_at_the_shared_rigidity(droop_ratios):
+    """Measured: newton-cloth 2.05x the Euler-Bernoulli droop, mujoco-flex 2.0x (both the 9x9 discretisation); within
+    10% of each other. The hinge mapping edge_ke = D / h (:func:`bend_edge_stiffness`) is the continuum one, not
+    fitted; a mapping off by 2x (D / 2h or 2 D / h) misses by far more than 10%."""
+    assert droop_ratios["newton-cloth"] == pytest.approx(droop_ratios["mujoco-flex"], rel=0.1), droop_ratios
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 65 done-when not met at a 9x9 grid: newton-cloth droops 2.05x "
+                                       "Euler-Bernoulli (mujoco-flex 2.0x); both converge only with a finer grid")
+def test_newton_cloth_droop_within_ten_percent_of_euler_bernoulli(droop_ratios):
+    assert droop_ratios["newton-cloth"] == pytest.approx(1.0, rel=0.1), droop_ratios
