@@ -32,9 +32,9 @@ def import_newton() -> tuple[Any, Any]:
         DependencyMissing: Newton or Warp is not installed (names :data:`INSTALL_HINT`).
     """
     try:
-        import warp as wp
+        import warp as wp  # optional: the 'newton' extra
         wp.config.quiet = True
-        import newton
+        import newton  # optional: the 'newton' extra
     except ImportError as exc:
         raise DependencyMissing(f"backend 'newton-cloth' needs Newton {NEWTON_VERSION} (and Warp), which is not "
                                 f"installed ({exc}): {INSTALL_HINT}") from exc
