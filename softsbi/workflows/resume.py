@@ -124,9 +124,12 @@ class RunClock:
         self.saved_at = self.t0
 
     def spent(self) -> float:
+        """The run's wall time so far (s): the earlier sessions' and this one's."""
         return self.before + time.perf_counter() - self.t0
 
     def save(self, force: bool = False) -> float:
+        """Store :meth:`spent` as the run's ``wall_time_s`` when ``every`` seconds passed since the last save (or
+        ``force``); returns it."""
         now = time.perf_counter()
         if force or now - self.saved_at >= self.every:
             self.saved_at = now
