@@ -18,7 +18,7 @@ the plugin registry: it imports no simulator. :class:`FitConfig` is the one set 
 This module runs the steps; each lives in its own module: the settings in
 :mod:`~softsbi.workflows.fitconfig`, what the fit sees in :mod:`~softsbi.workflows.observe`, opening and
 repairing a stored run in :mod:`~softsbi.workflows.resume`, the rounds in :mod:`~softsbi.workflows.rounds`,
-``report.json`` in :mod:`~softsbi.workflows.fitreport`. Their public names are importable from here too.
+``report.json`` in :mod:`~softsbi.workflows.fitreport`. The names callers use stay importable from here (``__all__``).
 """
 from __future__ import annotations
 
