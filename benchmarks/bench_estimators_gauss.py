@@ -115,10 +115,10 @@ def measure(args: argparse.Namespace, out: Path) -> dict:
                             [[m, *a] for m, a in results["c2st"].items()]))
     if "coverage" not in args.skip:
         if args.lift_store:
-            from softsbi.workflows.fit import _usable
+            from softsbi.workflows.rounds import usable_simulations
             from softsbi.core.store import RunStore
             st = RunStore.open(args.lift_store)
-            u, x, _ = _usable(st, len(st.completed_rounds()) - 1)
+            u, x, _ = usable_simulations(st, len(st.completed_rounds()) - 1)
             args.train = min(args.train, len(u) - args.test)
         else:
             u, x = toy_pool(args.train + args.test, T, K, seed=11, sigma=args.toy_sigma)

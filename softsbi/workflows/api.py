@@ -18,8 +18,11 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from softsbi.core.errors import ParameterError, SoftsbiError, as_path
+from pydantic import TypeAdapter, ValidationError
+
+from softsbi.core.errors import ParameterError, SoftsbiError, as_path, closest
 from softsbi.core.types import Recording, Rollout, Scenario
+from softsbi.data.validation import validation_line
 from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.core.results import CheckResult, CompareResult, Diagnosis
@@ -28,6 +31,7 @@ from softsbi.workflows.check import check_run
 from softsbi.workflows.compare import compare_runs
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
+from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.progress import fit_callbacks, say, shown_unless_shown
 from softsbi.workflows.runs import Run, open_run
 from softsbi.workflows.simulate import default_values
@@ -79,14 +83,12 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
     names = [f.name for f in fields(FitConfig)]
     bad = [k for k in settings if k not in names]
     if bad:
-        from softsbi.core.errors import closest
         raise ParameterError(f"unknown fit setting {bad[0]!r}.{closest(bad[0], names)} Settings: {', '.join(names)}")
     if config is not None and not isinstance(config, FitConfig):
         raise ParameterError(f"fit(config=...) takes a softsbi.FitConfig, got {type(config).__name__}")
     cfg = typed_config(replace(config or FitConfig(), **settings))
     out = as_path(out, "fit(out)", 'softsbi.fit(rec, out="runs/tan")')
     if isinstance(recording, (str, Path)):
-        from softsbi.workflows.measurement import load_recording
         recording = load_recording(recording, n_points=cfg.n_points, seed=cfg.seed)
     elif not isinstance(recording, Recording):
         raise ParameterError(f"fit(recording=...) takes a Recording (softsbi.load_recording(PATH)) or the path of a "
@@ -102,9 +104,6 @@ def typed_config(cfg: FitConfig) -> FitConfig:
     Raises:
         ParameterError: one line naming the first setting of the wrong type, its value and the fix.
     """
-    from pydantic import TypeAdapter, ValidationError
-
-    from softsbi.data.validation import validation_line
     try:
         return TypeAdapter(FitConfig).validate_python({f.name: getattr(cfg, f.name) for f in fields(FitConfig)})
     except ValidationError as exc:

@@ -26,6 +26,7 @@ import os
 import shutil
 import uuid
 from dataclasses import dataclass
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -114,7 +115,6 @@ def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> N
 
 def _engine_version(backend: str) -> str:
     try:
-        from importlib.metadata import version
         return {"mujoco-flex": "mujoco " + version("mujoco"),
                 "pybullet-massspring": "pybullet " + version("pybullet")}.get(backend, "")
     except Exception:  # noqa: BLE001 - an unknown engine version only narrows the key

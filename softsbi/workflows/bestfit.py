@@ -107,7 +107,7 @@ def _numpy_seed(seed: list[int]) -> Iterator[None]:
 def _strategy(mean: np.ndarray, cov: np.ndarray) -> Any:
     """A CMA-ES (``cma``) in the unit cube started at ``mean (D,)`` with covariance ``cov (D, D)``: step size
     ``sigma0 = sqrt(trace(cov) / D)``, covariance matrix ``cov / sigma0^2``, bounds ``[0, 1]``."""
-    import cma  # a core dependency; imported here so that importing softsbi does not load it
+    import cma  # heavy to import (seconds); only --refine needs it
     D = len(mean)
     cov = np.atleast_2d(np.asarray(cov, float))
     cov = (cov + cov.T) / 2 + 1e-12 * np.eye(D)

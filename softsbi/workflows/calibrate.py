@@ -44,7 +44,8 @@ from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration import plot_calibration
 from softsbi.workflows import defaults
-from softsbi.workflows.fit import FitConfig, _usable, estimator_options as fit_estimator_options, round_posterior
+from softsbi.workflows.fitconfig import FitConfig, estimator_options as fit_estimator_options
+from softsbi.workflows.rounds import round_posterior, usable_simulations
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.widen import MappedProposal, map_mixture, round_spaces, unit_map
@@ -211,7 +212,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
                            f"command first")
     last = rounds[-1]
-    U, X, counts = _usable(store, last)
+    U, X, counts = usable_simulations(store, last)
     t0 = time.perf_counter()
     with run_lock(run_dir):  # only the writes need the lock: training and evaluating read the store
         data = _test_simulations(store, cfg, space, last, counts, n_test, workers, msg)

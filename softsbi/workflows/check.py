@@ -36,7 +36,7 @@ from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows import defaults
-from softsbi.workflows.fit import chamfer_stats
+from softsbi.workflows.fitreport import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import RunView, load_run
 from softsbi.workflows.screening import candidate_effects, check_resolution, misspecification_verdict

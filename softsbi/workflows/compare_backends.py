@@ -21,10 +21,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from softsbi.backends.scenario_build import unsupported
 from softsbi.core.errors import ParameterError
 from softsbi.core.metrics import chamfer_per_frame
 from softsbi.core.results import write_json_atomic
 from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
+from softsbi.perception.pointcloud import rollout_clouds
+from softsbi.plugins import registry
 from softsbi.report.figures import plot_compare_backends
 from softsbi.workflows.defaults import COMPARED_BACKENDS
 
@@ -110,9 +113,6 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
         PluginNotFound: unknown backend. ValueError: a backend cannot run the scenario, fewer than
         two backends. ParameterError: unknown parameter name or value out of a backend's bounds.
     """
-    from softsbi.perception.pointcloud import rollout_clouds
-    from softsbi.plugins import registry
-
     if len(backends) < 2:
         raise ValueError(f"compare_backends needs at least two backends, got {list(backends)}")
     theta = dict(theta or {})
@@ -120,7 +120,6 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
     sims = {}
     for b in backends:
         cls = reg.simulator(b)
-        from softsbi.backends.scenario_build import unsupported
         why = unsupported(cls, scenario)
         if why:
             raise ValueError(why)

@@ -15,6 +15,8 @@ import numpy as np
 from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.interfaces import Simulator
 from softsbi.core.types import STATUS_NAMES, STATUS_OK, ParamSpace, Rollout, Scenario
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import SCENARIOS, make_scenario
 
 
 class ConformanceError(SoftsbiError, AssertionError):
@@ -29,7 +31,6 @@ class ConformanceError(SoftsbiError, AssertionError):
 def default_scenario(name: str) -> Scenario:
     """A scenario by name: the built-in ones from :func:`softsbi.scenarios.builtin.make_scenario`,
     else a minimal 3-frame scenario of that name (for third-party scenario names)."""
-    from softsbi.scenarios.builtin import SCENARIOS, make_scenario
     if name in SCENARIOS:
         return make_scenario(name)
     return Scenario(name=name, times=np.arange(3) * 0.1, gripper=np.zeros((3, 3)), table_z=0.0)
@@ -185,7 +186,6 @@ def _finish(name: str, problems: list[str], raise_on_error: bool) -> list[str]:
 
 def check_registered(**kw: Any) -> dict[tuple[str, str], list[str]]:
     """:func:`check_simulator` over every registered simulator and each scenario it lists."""
-    from softsbi.plugins import registry
     out = {}
     for name, cls in sorted(registry().tables["simulator"].items()):
         for sc in cls.scenarios:

@@ -1,18 +1,31 @@
 """Building the measurement a fit conditions on: real recordings or a hidden-parameter simulation."""
 from __future__ import annotations
 
+import json
+import os
 import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
+import cv2
 import numpy as np
 
-from softsbi.core.errors import DataError, SoftsbiWarning
+from softsbi.core.arrays import read_npy
+from softsbi.core.errors import DataError, SimulationFailed, SoftsbiWarning
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
+from softsbi.core.yamlfile import read_yaml
+from softsbi.data.recording import META, Transform, is_recording, parse_meta, read_recording, write_recording
+from softsbi.perception.images import load_frames
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
                                           seen_resampled)
+from softsbi.plugins import registry
+from softsbi.scenarios.builtin import FRAME_DT, lift_scenario, make_scenario
+from softsbi.scenarios.cameras import scenario_camera
+from softsbi.scenarios.catalog import load_scenario
+from softsbi.scenarios.spec import apply_transform, load_scenario_data, spec_from_scenario, transform_matrix
 from softsbi.workflows.defaults import BACKEND, IMAGE_SIZE, SCENARIO
+from softsbi.workflows.lock import check_out_dir
 
 if TYPE_CHECKING:
     from softsbi.core.camera import Camera, RenderStyle
@@ -52,7 +65,6 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
         DataError: missing/malformed folder, files or fields (one line naming the file, field and fix);
             a frame count or times that disagree with the scenario's frames.
     """
-    from softsbi.data.recording import is_recording, read_recording
     folder = Path(folder)
     if is_recording(folder):
         data = read_recording(folder)
@@ -63,7 +75,6 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
             raise DataError(f"'{folder}' holds image frames (000.png ...), not point clouds; fit them with an image "
                             f"observer (--observer heatmap|transporter --extractor PATH.pt)")
         meta, clouds = diffcloud_recording(folder, scenario if isinstance(scenario, (str, Path)) else None)
-        from softsbi.data.recording import Transform, parse_meta
         parsed = parse_meta(meta, str(folder))
         m = Transform.model_validate(parsed.model_dump()["transform"]).as_matrix()
         clouds = [c @ m[:3, :3].T + m[:3, 3] for c in clouds]
@@ -79,8 +90,6 @@ def recording_scenario(folder: str | Path) -> Scenario:
     Raises:
         DataError: ``folder`` is neither (one line saying what is accepted), or its scenario is invalid.
     """
-    from softsbi.core.yamlfile import read_yaml
-    from softsbi.data.recording import META, is_recording, parse_meta
     folder = Path(folder)
     if is_recording(folder):
         meta = parse_meta(read_yaml(folder / META), str(folder / META)).model_dump(mode="json", exclude_none=True)
@@ -103,9 +112,6 @@ def scenario_of(meta: Mapping, base: Path, source: str, override: str | Path | S
     Raises:
         DataError: an unknown name or an invalid scenario file / inline scenario.
     """
-    from softsbi.data.recording import Transform
-    from softsbi.scenarios.catalog import load_scenario
-    from softsbi.scenarios.spec import load_scenario_data
     frames = {k: Transform.model_validate(v).as_matrix() for k, v in (meta.get("frames_of_reference") or {}).items()}
     if override is not None:
         return override if isinstance(override, Scenario) else load_scenario(override, frames)
@@ -222,9 +228,6 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
         DataError: not a DiffCloud folder, malformed frames or yaml, a frame count that disagrees with
             the lift path, another task without ``scenario``.
     """
-    from softsbi.core.yamlfile import read_yaml
-    from softsbi.scenarios.builtin import FRAME_DT, lift_scenario
-    from softsbi.scenarios.spec import spec_from_scenario
     folder = Path(folder)
     clouds = load_cloud_frames(folder)
     task, yml = _diffcloud_task(folder)
@@ -282,9 +285,6 @@ def _check_recorded_path(folder: Path, task: str, scenario: str | Path, real2sim
         DataError: the paths' displacements from their starts differ by more than :data:`PATH_TOLERANCE` of
             the recorded one's largest.
     """
-    from softsbi.core.arrays import read_npy
-    from softsbi.scenarios.catalog import load_scenario
-    from softsbi.scenarios.spec import apply_transform, transform_matrix
     traj_file = folder.parent / f"{task}_traj.npy"
     if not traj_file.is_file():
         return
@@ -306,7 +306,6 @@ def diffcloud_calibration(folder: str | Path) -> dict[str, Any] | None:
     """The RealSense calibration beside a DiffCloud recording (``calib_<camera>/`` in its parent folder:
     ``intrinsics.npy`` ``(fx, fy, cx, cy)`` px and ``tcr.npy``, the 3x4 camera -> robot-base transform, m),
     or None when there is none."""
-    from softsbi.core.arrays import read_npy
     cams = {}
     for d in sorted(Path(folder).parent.glob("calib_*")):
         if (d / "intrinsics.npy").is_file() and (d / "tcr.npy").is_file():
@@ -341,12 +340,10 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
             :func:`diffcloud_recording` raises. Everything is converted before anything is written.
         RunDirError: a destination that is a file or cannot be written (before anything is converted).
     """
-    from softsbi.data.recording import write_recording
     src, dst = Path(src), Path(dst)
     if not src.is_dir():
         raise DataError(f"'{src}' {'is a file' if src.exists() else 'does not exist'}; give a DiffCloud recording "
                         f"folder or a folder of them")
-    from softsbi.data.recording import is_recording
     if is_recording(src):
         raise DataError(f"'{src}' is already a softsbi recording (it holds recording.yaml): nothing to import; fit it "
                         f"directly with `softsbi fit --observed {src} --out RUN`")
@@ -358,7 +355,6 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
         if not pairs:
             raise DataError(f"'{src}' holds no DiffCloud recording (folders with 000.npy ... and "
                             f"<task>_real2sim.yaml)")
-    from softsbi.workflows.lock import check_out_dir
     for _, out in pairs:  # the destinations first: nothing is converted for a destination that cannot take it
         check_out_dir(out, "destination", "choose a writable destination")
         if out.exists() and any(out.iterdir()):
@@ -367,7 +363,6 @@ def import_diffcloud(src: str | Path, dst: str | Path, scenario: str | Path | No
     written = []
     for d, out, meta, clouds in converted:
         if "file" in meta["scenario"]:  # relative to the recording, so the pair can move together
-            import os
             meta["scenario"]["file"] = os.path.relpath(meta["scenario"]["file"], out.resolve())
         written.append(write_recording(out, meta, clouds, calibration=diffcloud_calibration(d)))
     return written
@@ -392,12 +387,10 @@ def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path =
         SimulationFailed: the hidden-parameter simulation itself failed. ParameterError: a value of ``truth`` outside
             its physical limits, or a name that is not a parameter. PluginNotFound: unknown backend or effect.
     """
-    from softsbi.core.errors import SimulationFailed
-    from softsbi.plugins import registry
+    # CLI start-up: workflows.simulate loads report/ (matplotlib), which `import` and `params` do not need
     from softsbi.workflows.simulate import default_values
 
     if not isinstance(scenario, Scenario):
-        from softsbi.scenarios.builtin import make_scenario
         scenario = make_scenario(str(scenario))
     reg = registry()
     sim = reg.simulator(backend)(**dict(backend_options or {}))
@@ -445,13 +438,6 @@ def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | N
         DataError: see :func:`~softsbi.perception.images.load_frames`; a frame count different from
             the scenario's.
     """
-    import json
-
-    from softsbi.scenarios.builtin import make_scenario
-    from softsbi.scenarios.cameras import scenario_camera
-    from softsbi.perception.images import load_frames
-
-    from softsbi.data.recording import is_recording, read_recording
     if is_recording(folder):
         data = read_recording(folder)
         if data.images is None:
@@ -460,7 +446,6 @@ def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | N
         meta = data.meta.model_dump(mode="json", exclude_none=True)
         sc = scenario_of(meta, Path(folder), str(folder), scenario)
         cam = camera or scenario_camera(sc, size)
-        import cv2
         images = np.stack([im if im.shape[:2] == (cam.height, cam.width) else
                            cv2.resize(im, (cam.width, cam.height), interpolation=cv2.INTER_AREA) for im in data.images])
         if len(images) != sc.n_frames:
@@ -492,10 +477,6 @@ def render_recording(backend: str, scenario: Scenario, truth: Mapping[str, float
     Raises:
         SimulationFailed: the hidden-parameter simulation failed.
     """
-    from softsbi.scenarios.cameras import scenario_camera
-    from softsbi.core.errors import SimulationFailed
-    from softsbi.plugins import registry
-
     cam = camera or scenario_camera(scenario, size)
     sim = registry().simulator(backend)(**dict(backend_options or {}))
     ro = sim.simulate_images(scenario, dict(truth), camera=cam, style=style, effects=list(effects), seed=seed)

@@ -41,6 +41,31 @@ class Reporter:
         """A notice for the user (e.g. bank entries under another key, :class:`~softsbi.workflows.bank.BankCount`)."""
 
 
+class FitCallbacks:
+    """Progress callbacks of :func:`~softsbi.workflows.fit.run_fit` (the CLI draws progress bars with them); every
+    method does nothing by default."""
+
+    def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:
+        """Round ``r`` (0-based; -1 = the final posterior-predictive rollouts; -2 = the best fit's refinement,
+        ``FitConfig.refine``) begins."""
+
+    def simulation_done(self, r: int, done: int, total: int) -> None:
+        """``done`` of ``total`` simulations of round ``r`` are stored."""
+
+    def training_epoch(self, r: int, epoch: int, max_epochs: int, loss: float) -> None:
+        """The estimator finished an epoch on round ``r``'s data."""
+
+    def read_from_bank(self, r: int, hits: int, total: int) -> None:
+        """``hits`` of the ``total`` simulations of round ``r`` run in this call were read from the simulation bank
+        instead of simulated (told once they are all done, only when ``hits > 0``)."""
+
+    def round_end(self, r: int, summary: dict[str, Any]) -> None:
+        """Round ``r`` is complete; ``summary`` as in ``report.json``'s ``per_round``."""
+
+    def message(self, text: str) -> None:
+        """A notice for the user (resuming, retries)."""
+
+
 def say(text: str, stream: TextIO | None = None) -> None:
     """One progress line on ``stream`` (default: ``sys.stderr`` at the time of writing)."""
     print(text, file=stream or sys.stderr, flush=True)
@@ -113,12 +138,11 @@ def phase(label: str, total: int) -> Iterator[Callable[..., None]]:
 
 
 def fit_callbacks(label: str) -> Any:
-    """:class:`~softsbi.workflows.fit.FitCallbacks` that tell the current reporter each round's simulations (a fit
+    """:class:`FitCallbacks` that tell the current reporter each round's simulations (a fit
     run inside another command, e.g. a ``diagnose`` refit, labelled ``label``); None without a reporter."""
     rep = _CURRENT.get()
     if rep is None:
         return None
-    from softsbi.workflows.fit import FitCallbacks
 
     class _Rounds(FitCallbacks):
         handle: Any = None

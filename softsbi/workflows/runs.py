@@ -14,7 +14,9 @@ from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.workflows.bank import banks_enabled
 from softsbi.workflows.bestfit import BestFit, read_best_fit
-from softsbi.workflows.fit import FitConfig, _usable, read_report, round_posterior
+from softsbi.workflows.fitconfig import FitConfig
+from softsbi.workflows.fitreport import read_report
+from softsbi.workflows.rounds import round_posterior, usable_simulations
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
 
 
@@ -245,7 +247,7 @@ def open_run(run_dir: str | Path) -> Run:
         raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
                            f"command first")
     sequential = bool(getattr(registry().estimator(cfg.estimator), "sequential", True))
-    _, _, counts = _usable(store, rounds[-1])
+    _, _, counts = usable_simulations(store, rounds[-1])
     chain = PosteriorChain(space.dim, seed=cfg.seed)
     if sequential and cfg.proposal != "truncated":
         for r in rounds:

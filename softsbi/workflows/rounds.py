@@ -1,0 +1,334 @@
+"""The sequential rounds of a fit (:class:`Rounds`): draw each round's proposal, simulate what is pending (through
+the simulation bank for the first round), train the estimator on every usable simulation so far and condition it
+on the observation; ``sensor_draws`` (:class:`SensorDraws`); the stored posterior of a round
+(:func:`round_posterior`).
+"""
+from __future__ import annotations
+
+import contextlib
+import inspect
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softsbi.core.distributions import MixtureOfGaussians, PosteriorChain, RoundPosterior, TruncatedPrior
+from softsbi.core.errors import EffectFault, PosteriorDamaged, PosteriorError, SoftsbiError
+from softsbi.core.interfaces import OBSERVATION
+from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
+from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace
+from softsbi.executors.local import WorkerFailure
+from softsbi.plugins import registry
+from softsbi.workflows.bank import BankCount, banks_enabled, default_bank
+from softsbi.workflows.fitconfig import FitConfig, estimator_options
+from softsbi.workflows.fitreport import chamfer_stats
+from softsbi.workflows.jobs import SimContext, _round_seeds, simulate_job
+from softsbi.workflows.progress import FitCallbacks
+from softsbi.workflows.resume import RunClock
+
+
+def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
+                      clock: RunClock | None = None, sensor: "SensorDraws | None" = None) -> None:
+    """Simulate round ``r``'s pending simulations and store them; those read from the context's simulation bank
+    are counted in the round (:meth:`RunStore.add_bank_hits`, also when interrupted) and told to ``hooks``."""
+    count, n = BankCount(), len(store.pending(r))
+    try:
+        _simulate_pending(store, r, ctx, executor, hooks, count, clock, sensor)
+    finally:
+        if count.hits:
+            with contextlib.suppress(OSError):
+                store.add_bank_hits(r, count.hits)
+    tell_bank(hooks, r, count, n, ctx.bank)
+
+
+def tell_bank(hooks: FitCallbacks, r: int, count: BankCount, n: int, bank: str | None) -> None:
+    """Tell ``hooks`` how many of phase ``r``'s ``n`` simulations were read from ``bank``, and warn once of entries
+    stored there under another key."""
+    if count.hits:
+        hooks.read_from_bank(r, count.hits, n)
+    if count.wrong_key:
+        hooks.message(count.warning(bank))
+
+
+def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
+                      count: BankCount, clock: RunClock | None, sensor: "SensorDraws | None") -> None:
+    data = store.round_data(r, ROUND_ARRAYS + (("sensor_u",) if sensor is not None else ()))
+    extra = "sensor_u" in data
+    for attempt in range(2):  # one retry for jobs whose worker crashed
+        pending = store.pending(r)
+        if len(pending) == 0:
+            return
+        items = [(data["theta"][i], int(data["seed"][i])) + ((None, sensor.job_draws(data["sensor_u"][i]),)
+                                                              if extra else ()) for i in pending]
+        done = len(data["status"]) - len(pending)
+        errors = []
+        for j, res in executor.map_unordered(simulate_job, items, context=ctx):
+            i = int(pending[j])
+            if isinstance(res, SoftsbiError):
+                raise res
+            if isinstance(res, WorkerFailure):  # crashed/hung on every attempt the executor allowed
+                store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                done += 1
+                hooks.simulation_done(r, done, len(data["status"]))
+                continue
+            if isinstance(res, BaseException):
+                errors.append(i)
+                if attempt == 1:
+                    store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                continue
+            store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"],
+                                   sensor_x=res.get("sensor_x"))
+            count.add(res.get("bank"))
+            if clock is not None:
+                clock.save()
+            done += 1
+            hooks.simulation_done(r, done, len(data["status"]))
+        if not errors:
+            return
+        hooks.message(f"round {r + 1}: {len(errors)} simulations raised in their worker; retrying them once")
+
+
+class SensorDraws:
+    """``FitConfig.sensor_draws`` of one fit: which parameters are the sensor effects', how to draw them.
+
+    Attributes:
+        k: draws per simulation.
+        effects: the sensor effects' names, in the fit's order (every observation transform of the fit).
+        dims: their inferred parameters' indices in the fit's parameter space.
+    """
+
+    def __init__(self, k: int, effects: list[str], dims: list[int], space: ParamSpace):
+        self.k, self.effects, self.dims, self.space = k, effects, dims, space
+
+    @classmethod
+    def of(cls, cfg: FitConfig, space: ParamSpace, ctx: SimContext, usable: bool) -> "SensorDraws | None":
+        """None unless ``cfg.sensor_draws >= 1``, ``usable`` (truncated proposals or a bulk estimator), a
+        point-cloud fit with the height sensor model, and every observation transform of ``cfg.effects`` is
+        an observation-only effect with an inferred parameter."""
+        if cfg.sensor_draws < 1 or not usable or ctx.ref_masks is not None or ctx.camera is not None \
+                or getattr(registry().observer(cfg.observer), "needs_images", False):
+            return None
+        reg, sim = registry(), registry().simulator(cfg.backend)
+        names, dims = [], []
+        for name in cfg.effects:
+            eff = reg.effect(name)()
+            doors = set(eff.doors(sim.name))
+            if OBSERVATION not in doors:
+                continue
+            if doors != {OBSERVATION}:
+                return None  # an observation transform that also acts on the physics: simulate each time
+            names.append(name)
+            dims += [space.names.index(p.name) for p in eff.param_space() if p.name in space.names]
+        return cls(cfg.sensor_draws, names, dims, space) if dims else None
+
+    def draw(self, u: np.ndarray, proposal: Any, rng: np.random.Generator) -> np.ndarray:
+        """``(n, K, D)`` unit-cube draws: each row of ``u (n, D)`` with its sensor dimensions drawn again from
+        ``proposal`` given the others (None: the prior, uniform; a
+        :class:`~softsbi.core.distributions.TruncatedPrior`: uniform within its region, by rejection; a row
+        whose region admits too few after 20 tries keeps its own values for the rest)."""
+        out = np.repeat(u[:, None, :], self.k, axis=1)
+        for i in range(len(u)):
+            got: list[np.ndarray] = []
+            for _ in range(20):
+                cand = np.repeat(u[i][None], 64 * self.k, axis=0)
+                cand[:, self.dims] = rng.random((len(cand), len(self.dims)))
+                if proposal is not None:
+                    cand = cand[proposal.in_region(cand)]
+                got += list(cand[: self.k - len(got)])
+                if len(got) >= self.k:
+                    break
+            if got:
+                out[i, : len(got)] = np.array(got)
+        return out
+
+    def job_draws(self, sensor_u: np.ndarray) -> dict[str, Any]:
+        """The worker's ``sensor_draws`` item (:func:`~softsbi.workflows.jobs.simulate_job`) of one simulation's
+        ``(K, D)`` unit-cube draws: their sensor parameters in physical units."""
+        names = [self.space.names[d] for d in self.dims]
+        return {"effects": list(self.effects),
+                "draws": [{n: float(v) for n, v in zip(names, self.space.from_unit(row[None])[0][self.dims])}
+                          for row in sensor_u]}
+
+
+def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stored ``sensor_draws`` pairs of rounds ``<= upto``: ``(m, D)`` unit-cube parameters, their
+    ``(m, T, 1+K, 3)`` observations and ``(m,)`` the index of their simulation among :func:`usable_simulations`'s rows; pairs
+    of simulations :func:`usable_simulations` keeps, with finite observations (empty when none)."""
+    us, xs, gs = [], [], []
+    offset = 0
+    for r in range(upto + 1):
+        d = store.round_data(r, ("status", "x", "sensor_u", "sensor_x"))
+        ok = _usable_rows(d)
+        if "sensor_u" in d:
+            u, x = d["sensor_u"][ok], d["sensor_x"][ok]  # (n_ok, K, D), (n_ok, K, ...)
+            row = np.repeat(offset + np.arange(len(u)), u.shape[1])
+            u, x = u.reshape(-1, u.shape[-1]), x.reshape(-1, *x.shape[2:])
+            fin = np.all(np.isfinite(x.reshape(len(x), -1)), axis=1)
+            us.append(u[fin])
+            xs.append(x[fin])
+            gs.append(row[fin])
+        offset += int(ok.sum())
+    if not us:
+        return np.zeros((0, 0)), np.zeros((0,)), np.zeros(0, int)
+    return np.concatenate(us), np.concatenate(xs), np.concatenate(gs)
+
+
+def _usable_rows(d: dict[str, np.ndarray]) -> np.ndarray:
+    """``(n,)`` bool: the simulations of a round's arrays ``d`` that training uses (status ok, finite state)."""
+    return (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+
+
+def usable_simulations(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """The simulations of rounds ``<= upto`` that training uses (status ok, finite state), in round order:
+    ``U (n, D)`` their unit-cube parameters, ``X (n, T, 1+K, 3)`` their observations and the number of them per
+    round (``upto + 1`` ints). Raises ``KeyError`` for a round that is not stored."""
+    us, xs, counts = [], [], []
+    for r in range(upto + 1):
+        d = store.round_data(r)
+        ok = _usable_rows(d)
+        us.append(d["u"][ok])
+        xs.append(d["x"][ok])
+        counts.append(int(ok.sum()))
+    return np.concatenate(us), np.concatenate(xs), counts
+
+
+def sim_bank(cfg: FitConfig) -> Path | None:
+    """The simulation bank a fit's first round reads and fills (:mod:`~softsbi.workflows.bank`): ``cfg.sim_bank``
+    ``"default"`` the user's (:func:`~softsbi.workflows.bank.default_bank`), ``"off"`` none, else that folder;
+    none when ``$SOFTSBI_SIM_BANK`` is ``off``."""
+    if cfg.sim_bank == "off" or not banks_enabled():
+        return None
+    return default_bank() if cfg.sim_bank == "default" else Path(cfg.sim_bank).expanduser()
+
+
+class Rounds:
+    """The sequential rounds of one fit: draw the proposal, simulate, train, condition."""
+
+    def __init__(self, cfg: FitConfig, store: RunStore, space: ParamSpace, ctx: SimContext, est_cls: type,
+                 callbacks: FitCallbacks, clock: RunClock | None = None):
+        self.cfg, self.store, self.space, self.ctx, self.est_cls, self.cb = cfg, store, space, ctx, est_cls, callbacks
+        self.clock = clock
+        self.sequential = bool(getattr(est_cls, "sequential", True))
+        self.truncated = self.sequential and cfg.proposal == "truncated"
+        self.chain = PosteriorChain(space.dim, seed=cfg.seed)
+        self.summaries: list[dict[str, Any]] = []
+        self.prior_stats: dict[str, Any] | None = None
+        self.x_obs = store.read_observed()["x"]
+        self.scored = ctx.dense is not None or ctx.ref_masks is not None
+        self.sensor = SensorDraws.of(cfg, space, ctx, self.truncated or not self.sequential)
+
+    def run_round(self, r: int, executor: Any) -> None:
+        """Round ``r``: begin it (draw and store its parameters) unless stored, simulate what is
+        pending, train the estimator unless the round is complete, add its posterior."""
+        cfg, store = self.cfg, self.store
+        if not store.is_begun(r):
+            self._begin(r)
+        self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
+        bank = sim_bank(cfg) if r == 0 else None  # the first round's draws depend on the task and the seed alone
+        ctx = self.ctx if bank is None else replace(self.ctx, bank=str(bank))
+        _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
+        d = store.round_data(r)
+        stats = chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
+        if r == 0:
+            self.prior_stats = stats
+        elif self.summaries:
+            self.summaries[-1]["chamfer_posterior"] = stats  # round r draws from posterior r-1
+        U, X, counts = usable_simulations(store, r)
+        if counts[r] == 0:
+            reasons = sorted(set(store.round_attrs(r)["failures"].values()))
+            effect_code = all(x.startswith(EffectFault.__name__) for x in reasons)  # an effect's code, not physics
+            raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; "
+                               + ("fix the effect's code named there" if effect_code else
+                                  "narrow the prior bounds with --bounds or change backend options")
+                               + f"; if the environment made them "
+                               f"fail, fix it and re-run with --retry-failed (finished simulations are kept in "
+                               f"{store.path})")
+        q, info = self._train(r, U, X, counts)
+        post = self._add_posterior(r, q, counts)
+        try:
+            mean_u, _ = post.moments(4000, seed=cfg.seed + r)
+        except PosteriorError as exc:
+            raise PosteriorError(f"round {r + 1}: estimator '{cfg.estimator}' conditioned on the measurement: {exc}. "
+                                 f"Try another estimator (e.g. rkhs), more --sims-per-round or wider --bounds; "
+                                 f"the finished simulations are kept in {store.path}") from exc
+        self.summaries.append({"round": r, "simulations": int(len(d["status"])), "usable": counts[r],
+                               "failed": int((d["status"] != STATUS_OK).sum()),
+                               "bank_hits": int(store.round_attrs(r).get("bank_hits", 0)),
+                               "chamfer_proposal": stats, "train": info, "mass_in_box": post.mass_in_box,
+                               "posterior_mean": self.space.as_dict(self.space.from_unit(mean_u))})
+        self.cb.round_end(r, self.summaries[-1])
+
+    def _begin(self, r: int) -> None:
+        """Draw round ``r``'s parameters from its proposal and store them (with their seeds)."""
+        cfg, space = self.cfg, self.space
+        proposal = None  # bulk estimators (sequential = False): every round draws from the prior
+        if r > 0 and self.sequential:
+            proposal = self.chain.posterior(len(self.chain) - 1)
+            if self.truncated:
+                proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
+        rng = np.random.default_rng([cfg.seed, r, 0])
+        u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
+        what = "prior" if proposal is None else (
+            f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
+            f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r}")
+        sensor_u = (self.sensor.draw(u, proposal, np.random.default_rng([cfg.seed, r, 1]))
+                    if self.sensor is not None else None)
+        self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
+                               self.x_obs.shape, what, sensor_u=sensor_u)
+
+    def _train(self, r: int, U: np.ndarray, X: np.ndarray, counts: list[int]) -> tuple[Any, dict[str, Any]]:
+        """The posterior at the observation after round ``r`` (stored once trained)."""
+        cfg, store = self.cfg, self.store
+        if store.is_complete(r):
+            try:
+                return round_posterior(store, r, cfg), store.round_attrs(r).get("info", {})
+            except PosteriorDamaged as exc:  # train the round again from its intact simulations
+                self.cb.message(f"{exc.problem}: training that round again from its stored simulations")
+        opts = estimator_options(cfg, self.est_cls)
+        est = self.est_cls(**opts)
+        fr = slice(None) if cfg.frames is None else list(cfg.frames)
+        n_sensor, kw = 0, {}
+        if self.sensor is not None:  # one simulation, K more observations at other sensor parameters
+            su, sx, sg = _sensor_pairs(store, r)
+            n_sensor = len(su)
+            if n_sensor:
+                U, X = np.concatenate([U, su]), np.concatenate([X, sx])
+                if "groups" in inspect.signature(est.fit).parameters:  # hold out whole simulations
+                    kw["groups"] = np.concatenate([np.arange(len(U) - n_sensor), sg])
+        info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
+                       progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l), **kw)
+        q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
+        info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
+                    **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))
+        state = None if isinstance(q, MixtureOfGaussians) else EstimatorState(cfg.estimator, opts, est.state_dict())
+        store.finish_round(r, q, info, estimator=state)
+        return q, info
+
+    def _add_posterior(self, r: int, q: Any, counts: list[int]) -> RoundPosterior:
+        if self.sequential and not self.truncated:
+            return self.chain.add_round(q, counts[r])
+        # bulk (all data from the prior) or truncated proposals (TSNPE): the posterior is q
+        # restricted to the prior box, with no importance weights
+        self.chain = PosteriorChain(self.space.dim, seed=self.cfg.seed)
+        return self.chain.add_round(q, sum(counts))
+
+
+def round_posterior(store: RunStore, r: int, cfg: FitConfig) -> Any:
+    """Round ``r``'s posterior ``q(u | x_obs)`` as the fit stored it (unit cube): the Gaussian mixture, or
+    the estimator restored from its stored state through the plugin registry (by name and options) and
+    conditioned on the run's observation at the fit's frames (``cfg``: the run's settings,
+    :meth:`FitConfig.from_run_config`).
+
+    Raises:
+        PosteriorDamaged: the stored posterior is missing or damaged (:meth:`RunStore.read_posterior`).
+        PluginNotFound: the estimator that wrote it is not installed. DependencyMissing: its optional
+            dependency is not.
+    """
+    stored = store.read_posterior(r)
+    if isinstance(stored, MixtureOfGaussians):
+        return stored
+    est = registry().estimator(stored.name)(**stored.options)
+    est.load_state_dict(stored.state)
+    fr = slice(None) if cfg.frames is None else list(cfg.frames)
+    return est.posterior_at(store.read_observed()["x"][fr])
