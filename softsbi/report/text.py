@@ -7,9 +7,16 @@ from typing import Mapping, Sequence
 from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Refit,
-                                  ResidualShape, Row, Score)
+from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Metric,
+                                  Refit, ResidualShape, Score)
 from softsbi.core.types import unit_suffix
+
+#: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,
+#: table and figure: ``check`` and ``compare`` score the posterior predictive's clouds with the Chamfer distance (cm,
+#: :class:`~softsbi.core.results.EnergyScore`); ``diagnose`` decides on the score of ``check``'s summary statistics,
+#: Euclidean in the nominal fit's scale (dimensionless, :class:`~softsbi.core.results.Score`)
+CHAMFER_ENERGY = "Chamfer energy score"
+SUMMARY_ENERGY = "summary energy score"
 
 
 def cm(x: float | None, digits: int = 2) -> str:
@@ -91,7 +98,7 @@ def check_summary(c: CheckResult) -> str:
             s += f" (regions numbered from {c.regions_from})"
     s += f"; {test_verdict(c.test)}."
     if c.energy:
-        s += f" Energy score {cm(c.energy.energy_m)}."
+        s += f" {CHAMFER_ENERGY} {cm(c.energy.energy_m)}."
     for e in c.posterior_at_bounds:
         s += f" The fit's posterior: {bound_words(dict(e))}."
     return s
@@ -168,11 +175,11 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
     if worse:
         s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {r.test.text()}), but its error is "
              f"higher than the nominal fit's: {chamfer} against {cm(nominal_chamfer_m)}{rollouts(nominal_n)}; "
-             f"energy score {score_change(base, r.score)}.")
+             f"{SUMMARY_ENERGY} {score_change(base, r.score)}.")
     else:
         ok = "inside" if r.adequate else "still outside"
         s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
-             f"({r.test.text()}), energy score {score_change(base, r.score)}"
+             f"({r.test.text()}), {SUMMARY_ENERGY} {score_change(base, r.score)}"
              + (f", {chamfer}." if r.chamfer_m is not None else "."))
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
@@ -193,9 +200,9 @@ def rule_words(d: Diagnosis) -> str:
     s += (f" Propose: the screening ranked {len(d.candidates)} candidates; refitted "
           + (", ".join(singles) if singles else "none") + " (the top named ones by evidence)"
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
-    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and the energy score of "
-          f"its posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more "
-          f"than {d.k_se:g} standard errors below the model it extends.")
+    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
+          f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's scale, a proper "
+          f"score) falls by more than {d.k_se:g} standard errors below the model it extends.")
     return s
 
 
@@ -248,10 +255,10 @@ def diagnosis_summary(d: Diagnosis) -> str:
                   "posterior predictive distribution ")
         else:
             s += "Its refit puts the measurement inside its posterior predictive distribution "
-        s += f"({r.test.text()}) and lowers the energy score from {score_change(extended(d, r), r.score, ' to ')}."
+        s += f"({r.test.text()}) and lowers the {SUMMARY_ENERGY} from {score_change(extended(d, r), r.score, ' to ')}."
         if dec.alternatives:
             alts = " or ".join(" + ".join(a) for a in dec.alternatives)
-            s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with an energy score "
+            s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with a {SUMMARY_ENERGY} "
                   f"within {d.k_se:g} standard errors; evidence these recordings lack (an independent measurement of "
                   f"the effect, or a motion in which the two differ) would decide.")
         return s
@@ -262,11 +269,11 @@ def diagnosis_summary(d: Diagnosis) -> str:
     s += f", and no refit of {', '.join(r.label for r in d.refits)} explains it."
     if dec.partial:
         r = d.refit(dec.partial)
-        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the energy score most, from "
+        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the {SUMMARY_ENERGY} most, from "
               f"{score_change(d.nominal, r.score, ' to ')}, "
               f"but the measurement stays outside its posterior predictive distribution ({r.test.text()}).")
     else:
-        s += f" No refit lowers the energy score by more than {d.k_se:g} standard errors."
+        s += f" No refit lowers the {SUMMARY_ENERGY} by more than {d.k_se:g} standard errors."
     return s
 
 
@@ -316,7 +323,7 @@ def not_refitted(d: Diagnosis, c: Candidate) -> str:
 
 def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
     """``diagnose``'s table, one row per candidate in the screening's order: effect, kind, share of the residual
-    explained in the screening, max-T adjusted p, the refit's check p and energy score, and the verdict column
+    explained in the screening, max-T adjusted p, the refit's check p and summary energy score, and the verdict column
     (:func:`candidate_role`)."""
     rows = []
     for c in d.ranking:
@@ -329,20 +336,42 @@ def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
     return rows
 
 
-DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", "refit score", "verdict"]
+DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", f"refit {SUMMARY_ENERGY}",
+                     "verdict"]
+
+
+def row_label(metric: Metric, a: CheckResult, b: CheckResult, part: str = "") -> str:
+    """A ``compare`` row's label in words, for checks ``a`` and ``b`` (``part``: the phase or region of a ``PHASE`` or
+    ``REGION`` row)."""
+    if metric is Metric.CHAMFER:
+        n = f"n={a.n_rollouts}" + ("" if b.n_rollouts == a.n_rollouts else f" and {b.n_rollouts}")
+        return f"posterior-predictive Chamfer, mean over the fit's frames ({n} rollouts)"
+    if metric is Metric.PHASE:
+        t = next(p.t_s for p in a.phases if p.phase == part)
+        return f"{part} phase ({t[0]:.2f}-{t[1]:.2f} s)"
+    if metric is Metric.REGION:
+        return f"region {part}"
+    return ROW_NAMES[metric] + ROW_NOTES[metric]
+
+
+#: the short name of each single-row metric of ``compare`` (its label, less :data:`ROW_NOTES`; the summary's words)
+ROW_NAMES = {Metric.CHAMFER: "posterior-predictive Chamfer", Metric.CHAMFER_ONE_SIDED: "one-sided Chamfer",
+             Metric.ENERGY_CHAMFER: CHAMFER_ENERGY, Metric.POSTERIOR_MEAN: "posterior-mean rollout"}
+#: what the label of each single-row metric adds to its name
+ROW_NOTES = {Metric.CHAMFER: "", Metric.CHAMFER_ONE_SIDED: " (measured -> simulated)",
+             Metric.ENERGY_CHAMFER: " (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+             Metric.POSTERIOR_MEAN: " Chamfer (the fitted point estimate)"}
 
 
 def compare_summary(c: CompareResult) -> str:
-    """``compare``'s sentence: the error before -> after, the energy score, the point estimate, the tests."""
-    first = c.rows[0]
+    """``compare``'s sentence: the error before -> after, the Chamfer energy score, the point estimate, the tests."""
+    first = c.row(Metric.CHAMFER)
     s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)}{rollouts(c.check_a.n_rollouts)} -> "
          f"{cm(first.b)}{rollouts(c.check_b.n_rollouts)} ({describe_change(first.a, first.b)})")
-    def row_of(start: str) -> Row | None:
-        return next((r for r in c.rows if r.what.startswith(start)), None)
-
-    for row, name in ((row_of("energy score"), "energy score"), (row_of("posterior-mean"), "posterior-mean rollout")):
+    for metric in (Metric.ENERGY_CHAMFER, Metric.POSTERIOR_MEAN):
+        row = c.row(metric)
         if row is not None:
-            s += f", {name} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
+            s += f", {ROW_NAMES[metric]} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
     s += f"; misspecification {c.check_a.test.text()} -> {c.check_b.test.text()}."
     if not c.same_sensor:
         s += (" The two fits use different sensor models (--sensor / --min-height / --frames), so their Chamfer values "

@@ -344,7 +344,8 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
 
 
 def energy_score(pool: PosteriorPredictive, n: int | None = None) -> EnergyScore | None:
-    """The posterior predictive's energy score against the measurement, with the fit's metric as distance.
+    """The Chamfer energy score: the posterior predictive's energy score against the measured clouds, with the fit's
+    metric as distance.
 
     ``ES = mean_i d(X_i, y) - 1/2 mean_(i,j) d(X_i, X_j)`` (Gneiting & Raftery 2007, eq. 22, with the
     Chamfer of :func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`, averaged over the metric frames,
@@ -402,9 +403,10 @@ def summary_scale(f_sims: np.ndarray) -> np.ndarray:
 
 
 def summary_energy_score(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray) -> Score:
-    """The energy score of posterior-predictive summaries ``f_sims (S, F)`` against the measurement's ``f_obs (F,)``
-    in a fixed ``scale (F,)``: ``mean_i |z_i - z| - mean_(i<j) |z_i - z_j| / 2`` with ``z = f / scale`` (Gneiting &
-    Raftery 2007, eq. 22; strictly proper for the Euclidean norm), with its jackknife standard error over rollouts.
+    """The summary energy score: the energy score of posterior-predictive summaries ``f_sims (S, F)`` against the
+    measurement's ``f_obs (F,)`` in a fixed ``scale (F,)``: ``mean_i |z_i - z| - mean_(i<j) |z_i - z_j| / 2`` with
+    ``z = f / scale`` (Gneiting & Raftery 2007, eq. 22; strictly proper for the Euclidean norm), with its jackknife
+    standard error over rollouts.
 
     Raises:
         SoftsbiError: fewer than 3 rollouts or shapes that disagree.
