@@ -527,7 +527,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
     from softsbi.core.results import to_json
-    from softsbi.report.text import check_summary
+    from softsbi.report.text import check_summary, joint_test_line
     from softsbi.workflows.check import check_run
     o = Output(as_json)
     from softsbi.cli.progress import shown
@@ -541,10 +541,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
             [[ph.phase + ("" if ph.in_fit else " (not fitted)"), f"{ph.t_s[0]:.2f}-{ph.t_s[1]:.2f}",
               f"{ph.chamfer_m * 100:.2f}", ph.worst_region] for ph in out.phases],
             title="Error by phase of the motion")
-    t = out.test
-    o.line(f"misspecification test: omnibus {t.omnibus.text()}"
-           + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
-              f"{t.directional.text()}" if t.directional else ""))
+    o.line(joint_test_line(out.test))
     o.line(check_summary(out))
 
 

@@ -33,7 +33,8 @@ SCHEMA = 3
 RENAMED: dict[str, dict[str, str]] = {"Gain": {"difference_m": "difference", "se_m": "se"}}
 
 #: fields added since an older schema, per dataclass: ``{class name: fill(data) -> data}`` fills an old file's
-#: missing fields (after :data:`RENAMED`); filled here: each compare row's ``metric`` (:func:`_legacy_row`)
+#: missing fields (after :data:`RENAMED`): a check's words on its regions and phases (:func:`_legacy_check`), each
+#: compare row's ``metric`` (:func:`_legacy_row`)
 UPGRADED: dict[str, typing.Callable[[dict[str, Any]], dict[str, Any]]] = {}
 
 #: the verdicts of a diagnosis, in the order they are tested
@@ -72,17 +73,6 @@ class MCPValue:
     def at_floor(self) -> bool:
         """True when the observation lies beyond every null simulation."""
         return self.exceed == 0
-
-    def text(self) -> str:
-        """For people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or
-        ``p = 0.13 (3 of 30 null simulations as extreme)``."""
-        if self.at_floor:
-            return f"p <= 1/{self.n + 1} (beyond all {self.n} null simulations)"
-        return f"p = {self.value:.2g} ({self.exceed} of {self.n} null simulations as extreme)"
-
-    def short(self) -> str:
-        """``p <= 1/31`` or ``p = 0.13``."""
-        return f"p <= 1/{self.n + 1}" if self.at_floor else f"p = {self.value:.2g}"
 
 
 @dataclass(frozen=True)
@@ -131,10 +121,14 @@ class JointTest:
         return "omnibus"
 
     @property
+    def best(self) -> MCPValue:
+        """The :attr:`deciding` test's own p-value."""
+        return self.directional if self.deciding == "directional" and self.directional else self.omnibus
+
+    @property
     def p_value(self) -> float:
         """The Bonferroni-combined p-value, never below :attr:`resolution`."""
-        best = self.directional if self.deciding == "directional" else self.omnibus
-        return min(1.0, self.tests * best.value)
+        return min(1.0, self.tests * self.best.value)
 
     @property
     def resolution(self) -> float:
@@ -145,23 +139,6 @@ class JointTest:
     def misspecified(self) -> bool:
         """True when the test rejects at :attr:`alpha` (``p <= alpha``)."""
         return self.p_value <= self.alpha
-
-    def short(self) -> str:
-        """``p <= 2/201`` or ``p = 0.34``."""
-        if self.p_value <= self.resolution:
-            return f"p <= {self.tests}/{self.n_null + 1}"
-        return f"p = {self.p_value:.2g}"
-
-    def text(self) -> str:
-        """The p-value for people, with its resolution and both components."""
-        best = self.directional if self.deciding == "directional" else self.omnibus
-        if self.tests == 1:
-            return self.omnibus.text()
-        n = self.n_null
-        if best.at_floor:
-            return f"p <= 2/{n + 1} (two tests, Bonferroni; the {self.deciding} test beyond all {n} null simulations)"
-        return (f"p = {self.p_value:.2g} (two tests, Bonferroni: 2 x the {self.deciding} test's {best.short()}; "
-                f"{n} null simulations)")
 
 
 @dataclass(frozen=True)
@@ -219,9 +196,10 @@ class EnergyScore:
 class Score:
     """The summary energy score (``diagnose``): the energy score of a posterior predictive distribution of ``check``'s
     summary statistics against the measurement's (Gneiting & Raftery 2007, eq. 22, Euclidean distance):
-    ``mean_i |z_i - z| - mean_ij |z_i - z_j| / 2`` with ``z`` the summaries divided by one fixed scale per summary for every model compared (the nominal fit's
-    posterior-predictive standard deviation, floored: the scale of ``check``'s omnibus test). A strictly proper
-    score: in expectation no forecast scores lower than the distribution the measurement comes from.
+    ``mean_i |z_i - z| - mean_ij |z_i - z_j| / 2`` with ``z`` the summaries divided by one fixed scale per summary for
+    every model compared (the nominal fit's posterior-predictive standard deviation, floored: the scale of ``check``'s
+    omnibus test). A strictly proper score: in expectation no forecast scores lower than the distribution the
+    measurement comes from.
 
     Attributes:
         value: the score (dimensionless; lower is better).
@@ -457,8 +435,10 @@ class CheckResult:
         posterior_at_bounds: the fit's parameters whose posterior presses a prior bound (report.json's).
         key: what determines the result (run, settings), so that a stored result is reused only for them.
         seconds: wall time.
-        regions_from: whose grasp the regions are ranked from (``"the grasp of handle 'left'"``).
-        phases_from: how the phases were cut (``"the scenario's keyframes"`` or ``"equal thirds of the motion"``).
+        grasp_handle: with several handles, the moving handle whose grasp the regions are ranked from (``"left"``);
+            None: the scenario's one grasp.
+        phases_at_keyframes: the phases are the moves between the scenario's keyframes (False: equal thirds of the
+            motion).
     """
 
     run: str
@@ -488,8 +468,26 @@ class CheckResult:
     posterior_at_bounds: tuple[Mapping[str, Any], ...] = ()
     key: Mapping[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
-    regions_from: str = "the grasp"
-    phases_from: str = "equal thirds of the motion"
+    grasp_handle: str | None = None
+    phases_at_keyframes: bool = False
+
+
+#: how ``check.json`` files of schema <= 3 said whose grasp the regions count from (``regions_from``, in words)
+LEGACY_GRASP = "the grasp of handle '"
+
+
+def _legacy_check(data: dict[str, Any]) -> dict[str, Any]:
+    """A ``check.json`` of schema <= 3 (``regions_from`` and ``phases_from`` in words) with typed fields instead."""
+    data = dict(data)
+    regions, phases = data.pop("regions_from", None), data.pop("phases_from", None)
+    if isinstance(regions, str) and regions.startswith(LEGACY_GRASP) and "grasp_handle" not in data:
+        data["grasp_handle"] = regions[len(LEGACY_GRASP):].rstrip("'")
+    if phases is not None and "phases_at_keyframes" not in data:
+        data["phases_at_keyframes"] = phases == "the scenario's keyframes"
+    return data
+
+
+UPGRADED["CheckResult"] = _legacy_check
 
 
 class Metric(str, Enum):

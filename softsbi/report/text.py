@@ -7,8 +7,8 @@ from typing import Mapping, Sequence
 from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Metric,
-                                  Refit, ResidualShape, Score)
+from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, MCPValue,
+                                  Metric, Refit, ResidualShape, Score)
 from softsbi.core.types import unit_suffix
 
 #: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,
@@ -51,11 +51,43 @@ def ranges(idx: Sequence[int]) -> str:
     return ", ".join(out)
 
 
+def p_short(p: MCPValue | JointTest) -> str:
+    """A p-value in a table cell, floored at its resolution: ``p <= 1/31`` or ``p = 0.13`` (a Monte-Carlo p-value),
+    ``p <= 2/201`` or ``p = 0.34`` (a joint test)."""
+    if isinstance(p, JointTest):
+        return f"p <= {p.tests}/{p.n_null + 1}" if p.p_value <= p.resolution else f"p = {p.p_value:.2g}"
+    return f"p <= 1/{p.n + 1}" if p.at_floor else f"p = {p.value:.2g}"
+
+
+def p_words(p: MCPValue | JointTest) -> str:
+    """A p-value for people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or ``p = 0.13 (3 of
+    30 null simulations as extreme)``; a joint test of two also names the deciding test and the Bonferroni factor."""
+    if isinstance(p, MCPValue):
+        if p.at_floor:
+            return f"p <= 1/{p.n + 1} (beyond all {p.n} null simulations)"
+        return f"p = {p.value:.2g} ({p.exceed} of {p.n} null simulations as extreme)"
+    if p.tests == 1:
+        return p_words(p.omnibus)
+    n = p.n_null
+    if p.best.at_floor:
+        return f"p <= 2/{n + 1} (two tests, Bonferroni; the {p.deciding} test beyond all {n} null simulations)"
+    return (f"p = {p.p_value:.2g} (two tests, Bonferroni: 2 x the {p.deciding} test's {p_short(p.best)}; "
+            f"{n} null simulations)")
+
+
+def joint_test_line(t: JointTest) -> str:
+    """``check``'s line on the two tests of its joint test: the omnibus p-value, then the directional one with its
+    family and strongest effect."""
+    return (f"misspecification test: omnibus {p_words(t.omnibus)}"
+            + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
+               f"{p_words(t.directional)}" if t.directional else ""))
+
+
 def test_verdict(test: JointTest) -> str:
     """``check``'s verdict in words, with its p-value and level."""
     if test.misspecified:
-        return f"the measurement is NOT explained by the model ({test.text()} <= {test.alpha:g})"
-    return f"no evidence of misspecification ({test.text()} > {test.alpha:g})"
+        return f"the measurement is NOT explained by the model ({p_words(test)} <= {test.alpha:g})"
+    return f"no evidence of misspecification ({p_words(test)} > {test.alpha:g})"
 
 
 def sensor_words(c: CheckResult) -> str:
@@ -82,6 +114,17 @@ def bound_words(e: dict) -> str:
     return head + ": the bound is a physical limit, so suspect an effect the model lacks"
 
 
+def regions_from(c: CheckResult) -> str:
+    """Whose grasp a check's regions are numbered from: ``"the grasp"``, or ``"the grasp of handle 'left'"`` when the
+    scenario has several handles."""
+    return "the grasp" if c.grasp_handle is None else f"the grasp of handle '{c.grasp_handle}'"
+
+
+def phases_from(c: CheckResult) -> str:
+    """How a check's phases were cut: ``"the scenario's keyframes"`` or ``"equal thirds of the motion"``."""
+    return "the scenario's keyframes" if c.phases_at_keyframes else "equal thirds of the motion"
+
+
 def check_summary(c: CheckResult) -> str:
     """``check``'s paragraph: the error, where it is worst, the verdict, and prior bounds the posterior presses."""
     one = f"; measured -> simulated {cm(c.chamfer_one_sided_mean_m)}" if c.chamfer_one_sided_mean_m is not None else ""
@@ -94,8 +137,8 @@ def check_summary(c: CheckResult) -> str:
     if c.worst_regions:
         r = c.worst_regions[0]
         s += f" and in region {region_value(r, cm(c.region_mean_m[r])) if r in c.region_mean_m else r}"
-        if c.regions_from != "the grasp":  # several handles: say whose grasp the regions are numbered from
-            s += f" (regions numbered from {c.regions_from})"
+        if c.grasp_handle is not None:  # several handles: say whose grasp the regions are numbered from
+            s += f" (regions numbered from {regions_from(c)})"
     s += f"; {test_verdict(c.test)}."
     if c.energy:
         s += f" {CHAMFER_ENERGY} {cm(c.energy.energy_m)}."
@@ -173,13 +216,13 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
              and r.chamfer_m > nominal_chamfer_m)
     chamfer = f"posterior-predictive Chamfer {cm(r.chamfer_m)}{rollouts(r.chamfer_n)}"
     if worse:
-        s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {r.test.text()}), but its error is "
+        s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {p_words(r.test)}), but its error is "
              f"higher than the nominal fit's: {chamfer} against {cm(nominal_chamfer_m)}{rollouts(nominal_n)}; "
              f"{SUMMARY_ENERGY} {score_change(base, r.score)}.")
     else:
         ok = "inside" if r.adequate else "still outside"
         s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
-             f"({r.test.text()}), {SUMMARY_ENERGY} {score_change(base, r.score)}"
+             f"({p_words(r.test)}), {SUMMARY_ENERGY} {score_change(base, r.score)}"
              + (f", {chamfer}." if r.chamfer_m is not None else "."))
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
@@ -192,7 +235,7 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
 
 def rule_words(d: Diagnosis) -> str:
     """The decision rule as applied, in three sentences."""
-    s = (f"Detect: check's joint test of the nominal fit, {d.test.text()} "
+    s = (f"Detect: check's joint test of the nominal fit, {p_words(d.test)} "
          f"{'<=' if d.test.misspecified else '>'} {d.alpha:g}.")
     if not d.test.misspecified:
         return s
@@ -201,8 +244,8 @@ def rule_words(d: Diagnosis) -> str:
           + (", ".join(singles) if singles else "none") + " (the top named ones by evidence)"
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
-          f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's scale, a proper "
-          f"score) falls by more than {d.k_se:g} standard errors below the model it extends.")
+          f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's "
+          f"scale, a proper score) falls by more than {d.k_se:g} standard errors below the model it extends.")
     return s
 
 
@@ -243,7 +286,7 @@ def diagnosis_summary(d: Diagnosis) -> str:
     dec = d.decision
     if dec.verdict == "nothing-missing":
         return (f"Nothing missing: the measurement lies inside the nominal model's posterior predictive distribution "
-                f"({d.test.text()} > {d.alpha:g}).")
+                f"({p_words(d.test)} > {d.alpha:g}).")
     if dec.verdict == "missing-effect":
         r = d.refit(dec.named)
         names = " + ".join(dec.named)
@@ -255,7 +298,8 @@ def diagnosis_summary(d: Diagnosis) -> str:
                   "posterior predictive distribution ")
         else:
             s += "Its refit puts the measurement inside its posterior predictive distribution "
-        s += f"({r.test.text()}) and lowers the {SUMMARY_ENERGY} from {score_change(extended(d, r), r.score, ' to ')}."
+        s += (f"({p_words(r.test)}) and lowers the {SUMMARY_ENERGY} from "
+              f"{score_change(extended(d, r), r.score, ' to ')}.")
         if dec.alternatives:
             alts = " or ".join(" + ".join(a) for a in dec.alternatives)
             s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with a {SUMMARY_ENERGY} "
@@ -263,7 +307,7 @@ def diagnosis_summary(d: Diagnosis) -> str:
                   f"the effect, or a motion in which the two differ) would decide.")
         return s
     s = (f"Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
-         f"distribution ({d.test.text()} <= {d.alpha:g})")
+         f"distribution ({p_words(d.test)} <= {d.alpha:g})")
     if not d.refits:
         return s + ", and no candidate was refitted."
     s += f", and no refit of {', '.join(r.label for r in d.refits)} explains it."
@@ -271,7 +315,7 @@ def diagnosis_summary(d: Diagnosis) -> str:
         r = d.refit(dec.partial)
         s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the {SUMMARY_ENERGY} most, from "
               f"{score_change(d.nominal, r.score, ' to ')}, "
-              f"but the measurement stays outside its posterior predictive distribution ({r.test.text()}).")
+              f"but the measurement stays outside its posterior predictive distribution ({p_words(r.test)}).")
     else:
         s += f" No refit lowers the {SUMMARY_ENERGY} by more than {d.k_se:g} standard errors."
     return s
@@ -287,7 +331,7 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
     if d.decision.verdict == "misspecified-unexplained" and d.generic:
         g = d.generic
         out.append(f"Best generic force term: {g.effect} explains {pct(g.explained)} of the residual in the "
-                   f"linearised screening (max-T adjusted {g.adjusted.text() if g.adjusted else 'n/a'}).")
+                   f"linearised screening (max-T adjusted {p_words(g.adjusted) if g.adjusted else 'n/a'}).")
     return out
 
 
@@ -330,8 +374,8 @@ def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
         r = d.refit((c.effect,))
         rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
                      pct(None if c.explained is None else max(c.explained, 0.0)),
-                     c.adjusted.short() if c.adjusted else (c.error or "-"),
-                     r.test.short() if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
+                     p_short(c.adjusted) if c.adjusted else (c.error or "-"),
+                     p_short(r.test) if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
                      candidate_role(d, c)])
     return rows
 
@@ -372,7 +416,7 @@ def compare_summary(c: CompareResult) -> str:
         row = c.row(metric)
         if row is not None:
             s += f", {ROW_NAMES[metric]} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
-    s += f"; misspecification {c.check_a.test.text()} -> {c.check_b.test.text()}."
+    s += f"; misspecification {p_words(c.check_a.test)} -> {p_words(c.check_b.test)}."
     if not c.same_sensor:
         s += (" The two fits use different sensor models (--sensor / --min-height / --frames), so their Chamfer values "
               "measure different things.")

@@ -8,9 +8,9 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.results import CompareResult, Diagnosis, Estimate, Metric, ResidualShape, Row
+from softsbi.core.results import CompareResult, Diagnosis, Estimate, MCPValue, Metric, ResidualShape, Row
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
-                                 diagnosis_rows, diagnosis_summary, diagnosis_text)
+                                 diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
 from softsbi.workflows.decide import decide
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -343,6 +343,25 @@ def test_compare_rows_are_keyed_by_their_metric_and_labelled_as_before():
     with pytest.raises(ValueError, match="a compare row of unknown kind: 'mystery'"):
         from_json(CompareResult, {**doc, "rows": [{"what": "mystery", "a": 1.0, "b": 1.0}]})
 
+
+def test_p_values_in_words_and_in_table_cells_say_their_resolution():
+    """The words of a Monte-Carlo p-value and of check's joint test (formerly MCPValue.text / JointTest.text, with the
+    tests of softsbi.workflows.stats and decide): never below the resolution of the null that gave them."""
+    assert p_words(MCPValue(3, 30)) == "p = 0.13 (3 of 30 null simulations as extreme)"
+    assert p_words(MCPValue(0, 30)) == "p <= 1/31 (beyond all 30 null simulations)"
+    assert (p_short(MCPValue(3, 30)), p_short(MCPValue(0, 30))) == ("p = 0.13", "p <= 1/31")
+    assert p_words(joint(0, 30)) == ("p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null "
+                                     "simulations)")
+    assert p_words(joint(12, 3)) == ("p = 0.04 (two tests, Bonferroni: 2 x the directional test's p = 0.02; 200 null "
+                                     "simulations)")
+    assert p_words(joint(60, None)) == "p = 0.3 (60 of 200 null simulations as extreme)"
+    assert (p_short(joint(0, 3)), p_short(joint(67, 70)), p_short(joint(0, None, n=30))) == \
+        ("p <= 2/201", "p = 0.68", "p <= 1/31")
+    assert joint_test_line(joint(12, 3)) == (
+        "misspecification test: omnibus p = 0.065 (12 of 200 null simulations as extreme); directional (max-T over 2 "
+        "candidate effects, strongest wind) p = 0.02 (3 of 200 null simulations as extreme)")
+    assert joint_test_line(joint(12, None)) == "misspecification test: omnibus p = 0.065 (12 of 200 null simulations as extreme)"
+
 # ---------------------------------------------------------------------------------------------------------------
 # words that agree with the tables beside them
 
@@ -371,7 +390,7 @@ def test_an_adequate_refit_with_a_higher_chamfer_than_the_nominal_is_not_describ
 
 
 def test_with_several_handles_the_check_says_whose_grasp_the_regions_are_numbered_from():
-    c = check_result(regions_from="the grasp of handle 'left'")
+    c = check_result(grasp_handle="left")
     assert ("in region R9 (farthest from the grasp; 8.56 cm) (regions numbered from the grasp of handle 'left');"
             in check_summary(c))
     assert "numbered from" not in check_summary(check_result())
