@@ -11,7 +11,7 @@ Every distance sees the simulated and the measured clouds through the fit's own 
 (:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, or for
 ``--sensor camera`` the recording's virtual depth sensor, and the headline averages the fit's
 ``frames``), so the check's mean Chamfer is the fit's ``chamfer_posterior_m`` and neither it nor the
-per-region errors blame what the sensor cannot see (issue 17). Both the bidirectional and the
+per-region errors blame what the sensor cannot see. Both the bidirectional and the
 one-sided (measured -> simulated) Chamfer are reported per frame.
 
 Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,

@@ -294,3 +294,16 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
     for r in p.rollouts:
         r["chamfer"] = np.zeros_like(r["chamfer"])  # a recomputation would now give another Chamfer term
     assert energy_score(p) == first
+
+
+def test_the_null_accepts_as_few_rollouts_as_check_simulates_and_no_fewer():
+    """The misspecification test's minimum is the named MIN_NULL, the smallest `--n-eval` check accepts: a check at
+    that setting whose rollouts all succeed is tested, one failed rollout is refused in one line."""
+    from softsbi.workflows.defaults import MIN_ROLLOUTS
+    from softsbi.workflows.stats import MIN_NULL
+    assert MIN_NULL == MIN_ROLLOUTS
+    rng = np.random.default_rng(1)
+    _, p = misspecification_test(rng.normal(size=6), rng.normal(size=(MIN_NULL, 6)))
+    assert p.n == MIN_NULL
+    with pytest.raises(SoftsbiError, match=f"at least {MIN_NULL} successful posterior rollouts \\(got {MIN_NULL - 1}\\)"):
+        misspecification_test(rng.normal(size=6), rng.normal(size=(MIN_NULL - 1, 6)))
