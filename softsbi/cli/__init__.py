@@ -527,7 +527,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
     from softsbi.core.results import to_json
-    from softsbi.report.text import check_summary
+    from softsbi.report.text import check_summary, joint_test_line
     from softsbi.workflows.check import check_run
     o = Output(as_json)
     from softsbi.cli.progress import shown
@@ -541,10 +541,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
             [[ph.phase + ("" if ph.in_fit else " (not fitted)"), f"{ph.t_s[0]:.2f}-{ph.t_s[1]:.2f}",
               f"{ph.chamfer_m * 100:.2f}", ph.worst_region] for ph in out.phases],
             title="Error by phase of the motion")
-    t = out.test
-    o.line(f"misspecification test: omnibus {t.omnibus.text()}"
-           + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
-              f"{t.directional.text()}" if t.directional else ""))
+    o.line(joint_test_line(out.test))
     o.line(check_summary(out))
 
 
@@ -615,7 +612,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                                  "(default: the run's)",
                                                       callback=_bound(D.MIN_SIMS_PER_ROUND, "the estimator needs "
                                                                       "data; leave it out for the run's own")),
-             k_se: float = typer.Option(D.K_SE, "--k-se", callback=_bound(0, strict=True), help="standard errors by which a refit's energy score "
+             k_se: float = typer.Option(D.K_SE, "--k-se", callback=_bound(0, strict=True), help="standard errors by which a refit's summary energy score "
                                                                "must fall to count, and within which two refits tie"),
              n_null: int = typer.Option(D.N_NULL, "--n-null", callback=N_NULL_OK, help="posterior-predictive simulations the null "
                                                                    "starts with"),
@@ -627,7 +624,8 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
                                                     "refits (default: RUN), to keep two diagnoses of one run apart"),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Is an effect missing, and which? Detect (check's test), propose (the screening ranks the candidates and the
-    top ones are refitted), decide (a refit explains the misfit when check accepts it and its energy score falls)."""
+    top ones are refitted), decide (a refit explains the misfit when check accepts it and its summary energy score
+    falls)."""
     from softsbi.core.results import to_json
     from softsbi.report.text import DIAGNOSIS_COLUMNS, diagnosis_rows, diagnosis_text
     from softsbi.workflows.diagnose import diagnose_run
@@ -654,6 +652,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
             n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run", callback=N_NULL_OK),
             max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=_bound(D.MIN_ROLLOUTS), help=H_MAX_NULL + " (each run's check)"),
+            alpha: float = typer.Option(ALPHA, help=H_ALPHA + " (each run's check)", callback=ALPHA_OK),
             workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
             recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
@@ -664,8 +663,8 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     o = Output(as_json)
     from softsbi.cli.progress import shown
     with shown(o):
-        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, max_null=max_null,
-                           recompute=recompute, message=o.message)
+        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, alpha=alpha,
+                           max_null=max_null, recompute=recompute, message=o.message)
     if as_json:
         o.emit_json(to_json(res))
         return

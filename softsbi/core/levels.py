@@ -6,8 +6,8 @@ here, so the two cannot disagree.
 """
 from __future__ import annotations
 
-#: default family-wise level of the verdicts (check's misspecification test and diagnose's tests). Chosen as the
-#: false-alarm rate a user tolerates (issue 19: at most 5%), not fitted. The posterior-predictive test is
-#: conservative (the measurement was fitted; Bayarri & Berger 2000), so the rate it gives is lower: on the
-#: statistical benchmark's controls 1 of 90 joint p-values is at or below 0.05 (0.03); the next is 0.26.
+#: default family-wise level of the verdicts (check's misspecification test and diagnose's tests): the false-alarm
+#: rate a user tolerates, the conventional 5%, chosen and not fitted. The posterior-predictive test is conservative
+#: (the measurement was fitted, so it sits nearer the posterior predictive's centre than a fresh draw; Bayarri &
+#: Berger 2000), so its false-alarm rate is at most this level; docs/benchmarks.md gives the rate on controls.
 ALPHA = 0.05

@@ -16,6 +16,7 @@ import os
 import types
 import typing
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -30,6 +31,11 @@ SCHEMA = 3
 #: fields renamed since an older schema, per dataclass: ``{class name: {old name: new name}}``; :func:`from_json`
 #: reads an old file's fields under their new names
 RENAMED: dict[str, dict[str, str]] = {"Gain": {"difference_m": "difference", "se_m": "se"}}
+
+#: fields added since an older schema, per dataclass: ``{class name: fill(data) -> data}`` fills an old file's
+#: missing fields (after :data:`RENAMED`): a check's words on its regions and phases (:func:`_legacy_check`), each
+#: compare row's ``metric`` (:func:`_legacy_row`)
+UPGRADED: dict[str, typing.Callable[[dict[str, Any]], dict[str, Any]]] = {}
 
 #: the verdicts of a diagnosis, in the order they are tested
 VERDICTS = ("nothing-missing", "missing-effect", "misspecified-unexplained")
@@ -67,17 +73,6 @@ class MCPValue:
     def at_floor(self) -> bool:
         """True when the observation lies beyond every null simulation."""
         return self.exceed == 0
-
-    def text(self) -> str:
-        """For people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or
-        ``p = 0.13 (3 of 30 null simulations as extreme)``."""
-        if self.at_floor:
-            return f"p <= 1/{self.n + 1} (beyond all {self.n} null simulations)"
-        return f"p = {self.value:.2g} ({self.exceed} of {self.n} null simulations as extreme)"
-
-    def short(self) -> str:
-        """``p <= 1/31`` or ``p = 0.13``."""
-        return f"p <= 1/{self.n + 1}" if self.at_floor else f"p = {self.value:.2g}"
 
 
 @dataclass(frozen=True)
@@ -126,10 +121,14 @@ class JointTest:
         return "omnibus"
 
     @property
+    def best(self) -> MCPValue:
+        """The :attr:`deciding` test's own p-value."""
+        return self.directional if self.deciding == "directional" and self.directional else self.omnibus
+
+    @property
     def p_value(self) -> float:
         """The Bonferroni-combined p-value, never below :attr:`resolution`."""
-        best = self.directional if self.deciding == "directional" else self.omnibus
-        return min(1.0, self.tests * best.value)
+        return min(1.0, self.tests * self.best.value)
 
     @property
     def resolution(self) -> float:
@@ -140,23 +139,6 @@ class JointTest:
     def misspecified(self) -> bool:
         """True when the test rejects at :attr:`alpha` (``p <= alpha``)."""
         return self.p_value <= self.alpha
-
-    def short(self) -> str:
-        """``p <= 2/201`` or ``p = 0.34``."""
-        if self.p_value <= self.resolution:
-            return f"p <= {self.tests}/{self.n_null + 1}"
-        return f"p = {self.p_value:.2g}"
-
-    def text(self) -> str:
-        """The p-value for people, with its resolution and both components."""
-        best = self.directional if self.deciding == "directional" else self.omnibus
-        if self.tests == 1:
-            return self.omnibus.text()
-        n = self.n_null
-        if best.at_floor:
-            return f"p <= 2/{n + 1} (two tests, Bonferroni; the {self.deciding} test beyond all {n} null simulations)"
-        return (f"p = {self.p_value:.2g} (two tests, Bonferroni: 2 x the {self.deciding} test's {best.short()}; "
-                f"{n} null simulations)")
 
 
 @dataclass(frozen=True)
@@ -191,8 +173,9 @@ class Candidate:
 
 @dataclass(frozen=True)
 class EnergyScore:
-    """The energy score of a posterior predictive distribution against the measured clouds (Gneiting & Raftery
-    2007, eq. 22), with the fit's Chamfer distance as the distance: ``ES = chamfer - spread / 2`` (m).
+    """The Chamfer energy score (``check``, ``compare``): the energy score of a posterior predictive distribution
+    against the measured clouds (Gneiting & Raftery 2007, eq. 22), with the fit's Chamfer distance as the distance:
+    ``ES = chamfer - spread / 2`` (m).
 
     Attributes:
         energy_m: the score (lower is better).
@@ -211,11 +194,12 @@ class EnergyScore:
 
 @dataclass(frozen=True)
 class Score:
-    """The energy score of a posterior predictive distribution of ``check``'s summary statistics against the
-    measurement's (Gneiting & Raftery 2007, eq. 22, Euclidean distance): ``mean_i |z_i - z| - mean_ij |z_i - z_j| / 2``
-    with ``z`` the summaries divided by one fixed scale per summary for every model compared (the nominal fit's
-    posterior-predictive standard deviation, floored: the scale of ``check``'s omnibus test). A strictly proper
-    score: in expectation no forecast scores lower than the distribution the measurement comes from.
+    """The summary energy score (``diagnose``): the energy score of a posterior predictive distribution of ``check``'s
+    summary statistics against the measurement's (Gneiting & Raftery 2007, eq. 22, Euclidean distance):
+    ``mean_i |z_i - z| - mean_ij |z_i - z_j| / 2`` with ``z`` the summaries divided by one fixed scale per summary for
+    every model compared (the nominal fit's posterior-predictive standard deviation, floored: the scale of ``check``'s
+    omnibus test). A strictly proper score: in expectation no forecast scores lower than the distribution the
+    measurement comes from.
 
     Attributes:
         value: the score (dimensionless; lower is better).
@@ -263,8 +247,8 @@ class Refit:
         effects: the added effects.
         run: its run directory.
         test: ``check``'s test of the refit (same level and family as the diagnosis, less its own effects).
-        score: the energy score of its posterior predictive of the summaries, in the nominal fit's scale (None when too
-            few rollouts succeeded).
+        score: its summary energy score (of its posterior predictive of the summaries, in the nominal fit's scale;
+            None when too few rollouts succeeded).
         chamfer_m: its posterior-predictive Chamfer (m), from its check (as the nominal's :attr:`Diagnosis.chamfer_m`).
         chamfer_n: the posterior-predictive rollouts that Chamfer averages (0: unknown).
         estimates: its posterior of the added effects' parameters.
@@ -361,7 +345,7 @@ class Diagnosis:
         alpha, k_se: the level of every test and the standard-error margin of every score comparison.
         test: ``check``'s test of the nominal fit (detect).
         ranking: the screening's candidates by evidence (propose).
-        nominal: the nominal fit's energy score of the summaries (:class:`Score`).
+        nominal: the nominal fit's summary energy score (:class:`Score`).
         refits: the refits made, in order.
         decision: the verdict (decide).
         residual: the nominal fit's residual shape (None for ``nothing-missing``).
@@ -444,15 +428,17 @@ class CheckResult:
             the cloth (regions counted from the first handle's grasp).
         phases: per phase of the motion; worst_frames, worst_regions: where it misses most.
         test: the misspecification test; ranking: its screening of the candidate effects (the directional test's
-            family, by evidence); energy: the posterior predictive's energy score against the measured clouds.
+            family, by evidence); energy: the posterior predictive's Chamfer energy score (:class:`EnergyScore`).
         posterior_mean: the posterior-mean rollout's Chamfer ``{"chamfer_m", "chamfer_se_m", "n"}`` (m), the error
             of the fitted point estimate; None for a fit without one.
         residual: where, when and in which direction the fit misses the measurement (when the test rejects).
         posterior_at_bounds: the fit's parameters whose posterior presses a prior bound (report.json's).
         key: what determines the result (run, settings), so that a stored result is reused only for them.
         seconds: wall time.
-        regions_from: whose grasp the regions are ranked from (``"the grasp of handle 'left'"``).
-        phases_from: how the phases were cut (``"the scenario's keyframes"`` or ``"equal thirds of the motion"``).
+        grasp_handle: with several handles, the moving handle whose grasp the regions are ranked from (``"left"``);
+            None: the scenario's one grasp.
+        phases_at_keyframes: the phases are the moves between the scenario's keyframes (False: equal thirds of the
+            motion).
     """
 
     run: str
@@ -482,22 +468,90 @@ class CheckResult:
     posterior_at_bounds: tuple[Mapping[str, Any], ...] = ()
     key: Mapping[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
-    regions_from: str = "the grasp"
-    phases_from: str = "equal thirds of the motion"
+    grasp_handle: str | None = None
+    phases_at_keyframes: bool = False
+
+
+#: how ``check.json`` files of schema <= 3 said whose grasp the regions count from (``regions_from``, in words)
+LEGACY_GRASP = "the grasp of handle '"
+
+
+def _legacy_check(data: dict[str, Any]) -> dict[str, Any]:
+    """A ``check.json`` of schema <= 3 (``regions_from`` and ``phases_from`` in words) with typed fields instead."""
+    data = dict(data)
+    regions, phases = data.pop("regions_from", None), data.pop("phases_from", None)
+    if isinstance(regions, str) and regions.startswith(LEGACY_GRASP) and "grasp_handle" not in data:
+        data["grasp_handle"] = regions[len(LEGACY_GRASP):].rstrip("'")
+    if phases is not None and "phases_at_keyframes" not in data:
+        data["phases_at_keyframes"] = phases == "the scenario's keyframes"
+    return data
+
+
+UPGRADED["CheckResult"] = _legacy_check
+
+
+class Metric(str, Enum):
+    """What a row of ``compare`` measures: its key (the row's label in words is :attr:`Row.what`).
+
+    ``CHAMFER``: the posterior-predictive Chamfer, mean over the fit's frames; ``CHAMFER_ONE_SIDED``: the same,
+    measured -> simulated; ``ENERGY_CHAMFER``: the Chamfer energy score (:class:`EnergyScore`); ``POSTERIOR_MEAN``:
+    the posterior-mean rollout's Chamfer; ``PHASE``, ``REGION``: the Chamfer of one phase or region (:attr:`Row.part`).
+    """
+
+    CHAMFER = "chamfer"
+    CHAMFER_ONE_SIDED = "chamfer_one_sided"
+    ENERGY_CHAMFER = "energy_chamfer"
+    POSTERIOR_MEAN = "posterior_mean_chamfer"
+    PHASE = "phase"
+    REGION = "region"
 
 
 @dataclass(frozen=True)
 class Row:
-    """One row of a comparison: ``what`` is compared, values ``a`` and ``b`` (m)."""
+    """One row of a comparison: values ``a`` and ``b`` (m) of one ``metric``.
+
+    Attributes:
+        what: the row's label in words (:func:`softsbi.report.text.row_label`), for people reading ``compare.json``.
+        a, b: the two runs' values (m).
+        metric: what it measures (the key rows are found by).
+        part: the phase or region of a ``PHASE`` or ``REGION`` row, else ``""``.
+    """
 
     what: str
     a: float
     b: float
+    metric: Metric
+    part: str = ""
 
     @property
     def change(self) -> float:
         """Relative change ``(b - a) / a`` (0 when ``a`` is 0)."""
         return (self.b - self.a) / self.a if self.a else 0.0
+
+
+#: the label prefixes of ``compare.json`` rows written before rows had a ``metric`` (schema 3), in the order they are
+#: tried: how :func:`from_json` reads an old file's rows (a phase row is ``"<phase> phase (t0-t1 s)"``)
+LEGACY_ROW_LABELS = (("posterior-predictive Chamfer", Metric.CHAMFER), ("one-sided Chamfer", Metric.CHAMFER_ONE_SIDED),
+                     ("energy score", Metric.ENERGY_CHAMFER), ("posterior-mean rollout", Metric.POSTERIOR_MEAN),
+                     ("region ", Metric.REGION))
+
+
+def _legacy_row(data: dict[str, Any]) -> dict[str, Any]:
+    """A row of an old ``compare.json`` (no ``metric``) with its metric and part read from its label."""
+    if "metric" in data:
+        return data
+    what = str(data.get("what", ""))
+    metric = next((m for prefix, m in LEGACY_ROW_LABELS if what.startswith(prefix)), None)
+    if metric is Metric.REGION:
+        return {**data, "metric": metric, "part": what[len("region "):]}
+    if metric is None and " phase (" in what:
+        return {**data, "metric": Metric.PHASE, "part": what.split(" phase (")[0]}
+    if metric is None:
+        raise ValueError(f"a compare row of unknown kind: {what!r}")
+    return {**data, "metric": metric}
+
+
+UPGRADED["Row"] = _legacy_row
 
 
 @dataclass(frozen=True)
@@ -506,8 +560,8 @@ class CompareResult:
 
     Attributes:
         run_a, run_b, label_a, label_b: the runs and their labels (the effects each adds).
-        rows: posterior-predictive Chamfer first, then one-sided Chamfer, energy score, posterior-mean rollout,
-            per phase, per region.
+        rows: keyed by :class:`Metric`: posterior-predictive Chamfer first, then one-sided Chamfer, Chamfer energy
+            score, posterior-mean rollout, per phase, per region (:meth:`row` finds one).
         same_sensor: whether both fits see the clouds through the same sensor model.
         check_a, check_b: the two checks.
         png: the figure.
@@ -522,6 +576,10 @@ class CompareResult:
     check_a: CheckResult
     check_b: CheckResult
     png: str = ""
+
+    def row(self, metric: Metric) -> Row | None:
+        """The first row of ``metric`` (None when the comparison has none, e.g. no energy score)."""
+        return next((r for r in self.rows if r.metric == metric), None)
 
 
 # ----------------------------------------------------------------------------------------
@@ -538,6 +596,8 @@ def to_json(obj: Any) -> Any:
 
 
 def _plain(obj: Any) -> Any:
+    if isinstance(obj, Enum):
+        return obj.value
     if dataclasses.is_dataclass(obj):
         return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, Mapping):
@@ -575,6 +635,8 @@ def _build(tp: Any, data: Any) -> Any:
         hints = typing.get_type_hints(tp)
         renamed = RENAMED.get(tp.__name__, {})
         data = {renamed.get(k, k): v for k, v in data.items()}
+        if tp.__name__ in UPGRADED:
+            data = UPGRADED[tp.__name__](data)
         return tp(**{f.name: _build(hints[f.name], data[f.name]) for f in dataclasses.fields(tp) if f.name in data})
     if origin is tuple:
         args = typing.get_args(tp)
@@ -584,6 +646,8 @@ def _build(tp: Any, data: Any) -> Any:
     if origin in (Mapping, dict, typing.Mapping) or tp in (dict, Mapping):
         args = typing.get_args(tp)
         return {k: (_build(args[1], v) if args else v) for k, v in data.items()}
+    if isinstance(tp, type) and issubclass(tp, Enum):
+        return tp(data)
     if tp in (int, float) and data is not None:
         return tp(data)
     return data

@@ -215,7 +215,7 @@ def wiping_frame_labels(n: int = 449) -> dict[str, np.ndarray]:
         ``"real": (n,) bool`` (a real photograph or a copy of one), ``"augmented": (n,) bool``
         (frames >= 61)``}``.
 
-    Source: visual inspection of all 449 frames in this repository (issue 6); the copy groups
+    Source: visual inspection of all 449 frames of the wiping data set; the copy groups
     are confirmed by frames whose keypoints equal their source's exactly.
     """
     idx = np.arange(n)

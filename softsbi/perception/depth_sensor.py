@@ -530,7 +530,7 @@ def views_or_highest(views: Sequence[np.ndarray], surface: Sequence[np.ndarray])
     flat): that frame's highest :data:`~softsbi.perception.pointcloud.FALLBACK_SHARE` of ``surface[t]`` stand
     in (:func:`~softsbi.perception.pointcloud.sensor_indices` with no height cut), so every frame has a
     defined distance. The one place this convention lives for camera fits (the fit's metric, ``check``'s
-    regions, the posterior-predictive summaries and energy score).
+    regions, the posterior-predictive summaries and Chamfer energy score).
 
     Args:
         views: ``T`` clouds ``(P_t, 3)`` m seen by the sensor (``P_t`` may be 0).

@@ -17,6 +17,7 @@ import numpy as np
 
 from softsbi.core.metrics import describe_change
 from softsbi.core.results import CheckResult, CompareResult, JointTest
+from softsbi.report.text import phases_from, regions_from
 
 #: one colour per role, in every figure of a fit, of ``check``, ``compare`` and ``compare-backends``.
 #: Measured data is neutral grey, everything simulated is coloured; the prior is a light grey;
@@ -619,7 +620,7 @@ def check_figure(out: CheckResult) -> Any:
     ax.tick_params(labelsize=FS_TICK)
     ax.set_ylim(bottom=0)
     ax.set_xlim(t[0] - dt, t[-1] + dt)
-    ax.set_title(f"Error per frame, by phase ({out.phases_from})",
+    ax.set_title(f"Error per frame, by phase ({phases_from(out)})",
                  fontsize=FS_SUB)
     ax.legend(fontsize=FS_LEGEND, loc="best")
     ax.grid(alpha=0.3)
@@ -640,7 +641,7 @@ def check_figure(out: CheckResult) -> Any:
     ax.set_yticks(range(1, reg.shape[1] + 1))
     ax.set_yticklabels([_region_short(n) for n in out.regions], fontsize=FS_TICK)
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
-    ax.set_ylabel(f"region of the object (R1 nearest {out.regions_from})", fontsize=FS_LABEL)
+    ax.set_ylabel(f"region of the object (R1 nearest {regions_from(out)})", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
     ax.set_title("Error per region of the cloth (dashed: phase boundaries"
                  + ("; grey: not seen by the sensor model)" if not compared.all() else ")"), fontsize=FS_SUB)

@@ -7,9 +7,16 @@ from typing import Mapping, Sequence
 from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, Refit,
-                                  ResidualShape, Row, Score)
+from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, MCPValue,
+                                  Metric, Refit, ResidualShape, Score)
 from softsbi.core.types import unit_suffix
+
+#: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,
+#: table and figure: ``check`` and ``compare`` score the posterior predictive's clouds with the Chamfer distance (cm,
+#: :class:`~softsbi.core.results.EnergyScore`); ``diagnose`` decides on the score of ``check``'s summary statistics,
+#: Euclidean in the nominal fit's scale (dimensionless, :class:`~softsbi.core.results.Score`)
+CHAMFER_ENERGY = "Chamfer energy score"
+SUMMARY_ENERGY = "summary energy score"
 
 
 def cm(x: float | None, digits: int = 2) -> str:
@@ -44,11 +51,43 @@ def ranges(idx: Sequence[int]) -> str:
     return ", ".join(out)
 
 
+def p_short(p: MCPValue | JointTest) -> str:
+    """A p-value in a table cell, floored at its resolution: ``p <= 1/31`` or ``p = 0.13`` (a Monte-Carlo p-value),
+    ``p <= 2/201`` or ``p = 0.34`` (a joint test)."""
+    if isinstance(p, JointTest):
+        return f"p <= {p.tests}/{p.n_null + 1}" if p.p_value <= p.resolution else f"p = {p.p_value:.2g}"
+    return f"p <= 1/{p.n + 1}" if p.at_floor else f"p = {p.value:.2g}"
+
+
+def p_words(p: MCPValue | JointTest) -> str:
+    """A p-value for people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or ``p = 0.13 (3 of
+    30 null simulations as extreme)``; a joint test of two also names the deciding test and the Bonferroni factor."""
+    if isinstance(p, MCPValue):
+        if p.at_floor:
+            return f"p <= 1/{p.n + 1} (beyond all {p.n} null simulations)"
+        return f"p = {p.value:.2g} ({p.exceed} of {p.n} null simulations as extreme)"
+    if p.tests == 1:
+        return p_words(p.omnibus)
+    n = p.n_null
+    if p.best.at_floor:
+        return f"p <= 2/{n + 1} (two tests, Bonferroni; the {p.deciding} test beyond all {n} null simulations)"
+    return (f"p = {p.p_value:.2g} (two tests, Bonferroni: 2 x the {p.deciding} test's {p_short(p.best)}; "
+            f"{n} null simulations)")
+
+
+def joint_test_line(t: JointTest) -> str:
+    """``check``'s line on the two tests of its joint test: the omnibus p-value, then the directional one with its
+    family and strongest effect."""
+    return (f"misspecification test: omnibus {p_words(t.omnibus)}"
+            + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
+               f"{p_words(t.directional)}" if t.directional else ""))
+
+
 def test_verdict(test: JointTest) -> str:
     """``check``'s verdict in words, with its p-value and level."""
     if test.misspecified:
-        return f"the measurement is NOT explained by the model ({test.text()} <= {test.alpha:g})"
-    return f"no evidence of misspecification ({test.text()} > {test.alpha:g})"
+        return f"the measurement is NOT explained by the model ({p_words(test)} <= {test.alpha:g})"
+    return f"no evidence of misspecification ({p_words(test)} > {test.alpha:g})"
 
 
 def sensor_words(c: CheckResult) -> str:
@@ -75,6 +114,17 @@ def bound_words(e: dict) -> str:
     return head + ": the bound is a physical limit, so suspect an effect the model lacks"
 
 
+def regions_from(c: CheckResult) -> str:
+    """Whose grasp a check's regions are numbered from: ``"the grasp"``, or ``"the grasp of handle 'left'"`` when the
+    scenario has several handles."""
+    return "the grasp" if c.grasp_handle is None else f"the grasp of handle '{c.grasp_handle}'"
+
+
+def phases_from(c: CheckResult) -> str:
+    """How a check's phases were cut: ``"the scenario's keyframes"`` or ``"equal thirds of the motion"``."""
+    return "the scenario's keyframes" if c.phases_at_keyframes else "equal thirds of the motion"
+
+
 def check_summary(c: CheckResult) -> str:
     """``check``'s paragraph: the error, where it is worst, the verdict, and prior bounds the posterior presses."""
     one = f"; measured -> simulated {cm(c.chamfer_one_sided_mean_m)}" if c.chamfer_one_sided_mean_m is not None else ""
@@ -87,11 +137,11 @@ def check_summary(c: CheckResult) -> str:
     if c.worst_regions:
         r = c.worst_regions[0]
         s += f" and in region {region_value(r, cm(c.region_mean_m[r])) if r in c.region_mean_m else r}"
-        if c.regions_from != "the grasp":  # several handles: say whose grasp the regions are numbered from
-            s += f" (regions numbered from {c.regions_from})"
+        if c.grasp_handle is not None:  # several handles: say whose grasp the regions are numbered from
+            s += f" (regions numbered from {regions_from(c)})"
     s += f"; {test_verdict(c.test)}."
     if c.energy:
-        s += f" Energy score {cm(c.energy.energy_m)}."
+        s += f" {CHAMFER_ENERGY} {cm(c.energy.energy_m)}."
     for e in c.posterior_at_bounds:
         s += f" The fit's posterior: {bound_words(dict(e))}."
     return s
@@ -166,13 +216,13 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
              and r.chamfer_m > nominal_chamfer_m)
     chamfer = f"posterior-predictive Chamfer {cm(r.chamfer_m)}{rollouts(r.chamfer_n)}"
     if worse:
-        s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {r.test.text()}), but its error is "
+        s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {p_words(r.test)}), but its error is "
              f"higher than the nominal fit's: {chamfer} against {cm(nominal_chamfer_m)}{rollouts(nominal_n)}; "
-             f"energy score {score_change(base, r.score)}.")
+             f"{SUMMARY_ENERGY} {score_change(base, r.score)}.")
     else:
         ok = "inside" if r.adequate else "still outside"
         s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
-             f"({r.test.text()}), energy score {score_change(base, r.score)}"
+             f"({p_words(r.test)}), {SUMMARY_ENERGY} {score_change(base, r.score)}"
              + (f", {chamfer}." if r.chamfer_m is not None else "."))
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
@@ -185,7 +235,7 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
 
 def rule_words(d: Diagnosis) -> str:
     """The decision rule as applied, in three sentences."""
-    s = (f"Detect: check's joint test of the nominal fit, {d.test.text()} "
+    s = (f"Detect: check's joint test of the nominal fit, {p_words(d.test)} "
          f"{'<=' if d.test.misspecified else '>'} {d.alpha:g}.")
     if not d.test.misspecified:
         return s
@@ -193,9 +243,9 @@ def rule_words(d: Diagnosis) -> str:
     s += (f" Propose: the screening ranked {len(d.candidates)} candidates; refitted "
           + (", ".join(singles) if singles else "none") + " (the top named ones by evidence)"
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
-    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and the energy score of "
-          f"its posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more "
-          f"than {d.k_se:g} standard errors below the model it extends.")
+    s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
+          f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's "
+          f"scale, a proper score) falls by more than {d.k_se:g} standard errors below the model it extends.")
     return s
 
 
@@ -236,7 +286,7 @@ def diagnosis_summary(d: Diagnosis) -> str:
     dec = d.decision
     if dec.verdict == "nothing-missing":
         return (f"Nothing missing: the measurement lies inside the nominal model's posterior predictive distribution "
-                f"({d.test.text()} > {d.alpha:g}).")
+                f"({p_words(d.test)} > {d.alpha:g}).")
     if dec.verdict == "missing-effect":
         r = d.refit(dec.named)
         names = " + ".join(dec.named)
@@ -248,25 +298,26 @@ def diagnosis_summary(d: Diagnosis) -> str:
                   "posterior predictive distribution ")
         else:
             s += "Its refit puts the measurement inside its posterior predictive distribution "
-        s += f"({r.test.text()}) and lowers the energy score from {score_change(extended(d, r), r.score, ' to ')}."
+        s += (f"({p_words(r.test)}) and lowers the {SUMMARY_ENERGY} from "
+              f"{score_change(extended(d, r), r.score, ' to ')}.")
         if dec.alternatives:
             alts = " or ".join(" + ".join(a) for a in dec.alternatives)
-            s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with an energy score "
+            s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with a {SUMMARY_ENERGY} "
                   f"within {d.k_se:g} standard errors; evidence these recordings lack (an independent measurement of "
                   f"the effect, or a motion in which the two differ) would decide.")
         return s
     s = (f"Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
-         f"distribution ({d.test.text()} <= {d.alpha:g})")
+         f"distribution ({p_words(d.test)} <= {d.alpha:g})")
     if not d.refits:
         return s + ", and no candidate was refitted."
     s += f", and no refit of {', '.join(r.label for r in d.refits)} explains it."
     if dec.partial:
         r = d.refit(dec.partial)
-        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the energy score most, from "
+        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the {SUMMARY_ENERGY} most, from "
               f"{score_change(d.nominal, r.score, ' to ')}, "
-              f"but the measurement stays outside its posterior predictive distribution ({r.test.text()}).")
+              f"but the measurement stays outside its posterior predictive distribution ({p_words(r.test)}).")
     else:
-        s += f" No refit lowers the energy score by more than {d.k_se:g} standard errors."
+        s += f" No refit lowers the {SUMMARY_ENERGY} by more than {d.k_se:g} standard errors."
     return s
 
 
@@ -280,7 +331,7 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
     if d.decision.verdict == "misspecified-unexplained" and d.generic:
         g = d.generic
         out.append(f"Best generic force term: {g.effect} explains {pct(g.explained)} of the residual in the "
-                   f"linearised screening (max-T adjusted {g.adjusted.text() if g.adjusted else 'n/a'}).")
+                   f"linearised screening (max-T adjusted {p_words(g.adjusted) if g.adjusted else 'n/a'}).")
     return out
 
 
@@ -316,34 +367,56 @@ def not_refitted(d: Diagnosis, c: Candidate) -> str:
 
 def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
     """``diagnose``'s table, one row per candidate in the screening's order: effect, kind, share of the residual
-    explained in the screening, max-T adjusted p, the refit's check p and energy score, and the verdict column
+    explained in the screening, max-T adjusted p, the refit's check p and summary energy score, and the verdict column
     (:func:`candidate_role`)."""
     rows = []
     for c in d.ranking:
         r = d.refit((c.effect,))
         rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
                      pct(None if c.explained is None else max(c.explained, 0.0)),
-                     c.adjusted.short() if c.adjusted else (c.error or "-"),
-                     r.test.short() if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
+                     p_short(c.adjusted) if c.adjusted else (c.error or "-"),
+                     p_short(r.test) if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
                      candidate_role(d, c)])
     return rows
 
 
-DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", "refit score", "verdict"]
+DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", f"refit {SUMMARY_ENERGY}",
+                     "verdict"]
+
+
+def row_label(metric: Metric, a: CheckResult, b: CheckResult, part: str = "") -> str:
+    """A ``compare`` row's label in words, for checks ``a`` and ``b`` (``part``: the phase or region of a ``PHASE`` or
+    ``REGION`` row)."""
+    if metric is Metric.CHAMFER:
+        n = f"n={a.n_rollouts}" + ("" if b.n_rollouts == a.n_rollouts else f" and {b.n_rollouts}")
+        return f"posterior-predictive Chamfer, mean over the fit's frames ({n} rollouts)"
+    if metric is Metric.PHASE:
+        t = next(p.t_s for p in a.phases if p.phase == part)
+        return f"{part} phase ({t[0]:.2f}-{t[1]:.2f} s)"
+    if metric is Metric.REGION:
+        return f"region {part}"
+    return ROW_NAMES[metric] + ROW_NOTES[metric]
+
+
+#: the short name of each single-row metric of ``compare`` (its label, less :data:`ROW_NOTES`; the summary's words)
+ROW_NAMES = {Metric.CHAMFER: "posterior-predictive Chamfer", Metric.CHAMFER_ONE_SIDED: "one-sided Chamfer",
+             Metric.ENERGY_CHAMFER: CHAMFER_ENERGY, Metric.POSTERIOR_MEAN: "posterior-mean rollout"}
+#: what the label of each single-row metric adds to its name
+ROW_NOTES = {Metric.CHAMFER: "", Metric.CHAMFER_ONE_SIDED: " (measured -> simulated)",
+             Metric.ENERGY_CHAMFER: " (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+             Metric.POSTERIOR_MEAN: " Chamfer (the fitted point estimate)"}
 
 
 def compare_summary(c: CompareResult) -> str:
-    """``compare``'s sentence: the error before -> after, the energy score, the point estimate, the tests."""
-    first = c.rows[0]
+    """``compare``'s sentence: the error before -> after, the Chamfer energy score, the point estimate, the tests."""
+    first = c.row(Metric.CHAMFER)
     s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)}{rollouts(c.check_a.n_rollouts)} -> "
          f"{cm(first.b)}{rollouts(c.check_b.n_rollouts)} ({describe_change(first.a, first.b)})")
-    def row_of(start: str) -> Row | None:
-        return next((r for r in c.rows if r.what.startswith(start)), None)
-
-    for row, name in ((row_of("energy score"), "energy score"), (row_of("posterior-mean"), "posterior-mean rollout")):
+    for metric in (Metric.ENERGY_CHAMFER, Metric.POSTERIOR_MEAN):
+        row = c.row(metric)
         if row is not None:
-            s += f", {name} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
-    s += f"; misspecification {c.check_a.test.text()} -> {c.check_b.test.text()}."
+            s += f", {ROW_NAMES[metric]} {cm(row.a)} -> {cm(row.b)} ({describe_change(row.a, row.b)})"
+    s += f"; misspecification {p_words(c.check_a.test)} -> {p_words(c.check_b.test)}."
     if not c.same_sensor:
         s += (" The two fits use different sensor models (--sensor / --min-height / --frames), so their Chamfer values "
               "measure different things.")

@@ -174,9 +174,11 @@ def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | P
 
 def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, progress: bool = True,
             **settings: Any) -> CompareResult:
-    """``softsbi compare A B``: two fits of one measurement side by side (:func:`~softsbi.workflows.compare.compare_runs`;
-    the figure and JSON go to ``out``, default ``run_b``). Returns the :class:`~softsbi.core.results.CompareResult`.
-    ``progress``: one line on stderr per phase of simulations (module docstring)."""
+    """``softsbi compare A B``: two fits of one measurement side by side
+    (:func:`~softsbi.workflows.compare.compare_runs`; the runs and ``out`` as ``str`` or ``Path``; the figure and JSON go to ``out``, default ``run_b``; ``settings``:
+    ``n_eval``, ``alpha`` (the level of both checks), ``max_null``, ``workers``, ``recompute``). Returns the
+    :class:`~softsbi.core.results.CompareResult`. ``progress``: one line on stderr per phase of simulations (module
+    docstring)."""
     with shown_unless_shown(progress):
         return compare_runs(run_a, run_b, run_b if out is None else out, **settings)
 

@@ -11,7 +11,7 @@ Every distance sees the simulated and the measured clouds through the fit's own 
 (:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, or for
 ``--sensor camera`` the recording's virtual depth sensor, and the headline averages the fit's
 ``frames``), so the check's mean Chamfer is the fit's ``chamfer_posterior_m`` and neither it nor the
-per-region errors blame what the sensor cannot see (issue 17). Both the bidirectional and the
+per-region errors blame what the sensor cannot see. Both the bidirectional and the
 one-sided (measured -> simulated) Chamfer are reported per frame.
 
 Summaries are per-frame statistics of the point cloud (centroid, spread, height quantiles,
@@ -186,11 +186,12 @@ def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndar
                          rollout.get("gripper"))
 
 
-def _grasp_words(scenario: Scenario) -> str:
-    """Whose grasp the regions are ranked from (:func:`material_regions`: the gripper's, the first moving handle)."""
+def grasp_handle(scenario: Scenario) -> str | None:
+    """The handle whose grasp the regions are ranked from (:func:`material_regions`: the first moving handle) when the
+    scenario has several handles; None with one grasp."""
     handles = list(getattr(scenario, "handles", None) or [])
     moving = [h for h in handles if h.path is not None]
-    return f"the grasp of handle '{moving[0].name}'" if len(handles) > 1 and moving else "the grasp"
+    return moving[0].name if len(handles) > 1 and moving else None
 
 
 def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
@@ -337,10 +338,10 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
 
     Returns:
         the :class:`~softsbi.core.results.CheckResult`: Chamfer per frame with its band, error per region (ranked
-        from ``regions_from``, the first moving handle's grasp) and phase (``phases_from`` says how they were cut)
+        from ``grasp_handle``, the first moving handle's grasp) and phase (``phases_at_keyframes``: how they were cut)
         under the fit's sensor model, the joint misspecification test
         (:func:`~softsbi.workflows.screening.misspecification_verdict`, the test ``diagnose`` detects with) and the
-        posterior predictive's energy score, the posterior-mean rollout's Chamfer and, when the test rejects, the
+        posterior predictive's Chamfer energy score, the posterior-mean rollout's Chamfer and, when the test rejects, the
         residual's shape (:func:`residual_shape`).
 
     Raises:
@@ -419,9 +420,8 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         residual_shape(run, pool, n_eval, phase_chamfer={p.phase: p.chamfer_m for p in phases})
         if test.misspecified else None,
         tuple((run.report or {}).get("posterior_at_bounds") or ()), key, time.perf_counter() - t0,
-        regions_from=_grasp_words(run.scenario),
-        phases_from=("the scenario's keyframes" if (run.scenario.options or {}).get("keyframe_times")
-                     else "equal thirds of the motion"))
+        grasp_handle=grasp_handle(run.scenario),
+        phases_at_keyframes=bool((run.scenario.options or {}).get("keyframe_times")))
     write_result(json_path, result)
     if plot:
         plot_check(run.path / "check.png", result)

@@ -1,7 +1,7 @@
 """Cross-simulator comparison: the same scenario at the same *physical* parameters on several engines.
 
-Shared physical parameters have one name, unit and meaning on every backend (issue 15 item 6:
-cloth ``bend`` N m, ``stretch`` N/m, ``friction``, ``scale`` m, ``mass`` kg/m^2, see
+Shared physical parameters have one name, unit and meaning on every backend (so that one value means
+the same cloth on each: ``bend`` N m, ``stretch`` N/m, ``friction``, ``scale`` m, ``mass`` kg/m^2, see
 :func:`softsbi.backends.common.cloth_material_params`; each backend maps them to its own knobs).
 :func:`shared_space` is the box every backend honours: the parameters all backends have with the
 same unit, bounds intersected. By default every backend gets the *shared prior midpoint* (the

@@ -7,8 +7,8 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
    refitted, in that order (:func:`next_refit`). The ranking spends the refit budget; it decides nothing.
 3. *Decide* on the refits by two criteria only (:func:`decide`):
    - *adequate*: ``check``'s test of the refit does not reject at the same ``alpha``;
-   - *improves*: the refit lowers the energy score of the posterior predictive of ``check``'s summary statistics
-     (a strictly proper score, Gneiting & Raftery 2007; every model in the nominal fit's scale,
+   - *improves*: the refit lowers the summary energy score (of the posterior predictive of ``check``'s summary
+     statistics, a strictly proper score, Gneiting & Raftery 2007; every model in the nominal fit's scale,
      :class:`~softsbi.core.results.Score`) below the model it extends by more than ``k_se`` standard errors of the
      difference (:func:`gain`).
    The adequate, improving single refit with the lowest score is named; every other adequate, improving refit
@@ -18,10 +18,11 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
    refit by the same margin. Otherwise ``misspecified-unexplained``, naming the improving refit with the lowest
    score as explaining a part.
 
-Why the energy score of the summaries: it is a strictly proper score, so no forecast scores better in expectation
-than the distribution the measurement comes from, and it lives in the space ``check``'s test detects the misfit in.
+Why the summary energy score (not ``check``'s and ``compare``'s Chamfer energy score): it is a strictly proper score,
+so no forecast scores better in expectation than the distribution the measurement comes from, and it lives in the
+space ``check``'s test detects the misfit in.
 The posterior-predictive Chamfer is not proper: a model that predicts no spread minimises it, and a correct noise
-model raises it. An added parameter the data do not inform widens the posterior predictive, which the energy score
+model raises it. An added parameter the data do not inform widens the posterior predictive, which the score
 charges for unless the measurement needs that spread.
 
 Knobs: ``alpha`` (the level of every test: the false-alarm rate tolerated), ``k_se`` (:data:`K_SE`) and the
@@ -42,8 +43,8 @@ K_SE = defaults.K_SE
 
 
 def gain(base: Score | None, new: Score | None) -> Gain | None:
-    """How much lower ``new``'s energy score is than ``base``'s: the difference (dimensionless), its standard error
-    ``sqrt(se_base^2 + se_new^2)`` (the two posterior predictives are independent Monte-Carlo samples scored
+    """How much lower ``new``'s summary energy score is than ``base``'s: the difference (dimensionless), its standard
+    error ``sqrt(se_base^2 + se_new^2)`` (the two posterior predictives are independent Monte-Carlo samples scored
     against the same measurement) and ``z``; None when either is missing."""
     if base is None or new is None:
         return None
@@ -69,7 +70,7 @@ def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se
 
     Args:
         test: ``check``'s test of the nominal fit.
-        nominal: the nominal fit's energy score.
+        nominal: the nominal fit's summary energy score.
         refits: the refits made (singles and at most one pair), each tested at the nominal test's level.
         k_se: standard-error margin of every score comparison.
     """

@@ -30,8 +30,8 @@ MAX_NULL = 200
 #: posterior rollouts ``softsbi view`` draws against the measurement
 VIEW_N_EVAL = 5
 #: ``diagnose``: single refits of the top named candidates (a pair may follow), and the standard errors by which a
-#: refit's energy score must fall to count, and within which two refits tie (2: a one-sided z-test at about 2.3% for
-#: an improvement, a two-sided one at about 5% for a tie; the standard errors are the scores' Monte-Carlo ones)
+#: refit's summary energy score must fall to count, and within which two refits tie (2: a one-sided z-test at about
+#: 2.3% for an improvement, a two-sided one at about 5% for a tie; the standard errors are the scores' Monte-Carlo ones)
 CONFIRM = 2
 K_SE = 2.0
 #: the demo's budget per fit (3 x 100: the demo, its diagnosis and its refit run in about 3.5 minutes on 2 cores

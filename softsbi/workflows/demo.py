@@ -20,7 +20,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import CompareResult, Diagnosis, to_json
+from softsbi.core.results import CompareResult, Diagnosis, Metric, to_json
 from softsbi.inference.contraction import contraction_from_report
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
@@ -150,7 +150,8 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
         comp = compare_runs(nominal, refit, out, workers=workers)
     ui.comparison_done(comp, eff)
     a, b = comp.check_a, comp.check_b
-    before, after = comp.rows[0].a, comp.rows[0].b
+    chamfer = comp.row(Metric.CHAMFER)
+    before, after = chamfer.a, chamfer.b
     doc.update(refit=read_report(refit), compare=to_json(comp), named=eff,
                named_correctly=set(diag.decision.named) == set(DEMO_HIDDEN_EFFECT), chamfer_before_m=before,
                chamfer_after_m=after)
@@ -162,7 +163,7 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
             f"{describe_change(before, after)}.")
     if a.energy and b.energy:
         ea, eb = a.energy.energy_m, b.energy.energy_m
-        ui.line(f"energy score (a proper score: the Chamfer less half the mean Chamfer between two rollouts): "
+        ui.line(f"Chamfer energy score (a proper score: the Chamfer less half the mean Chamfer between two rollouts): "
                 f"{ea * 100:.2f} cm -> {eb * 100:.2f} cm, {describe_change(ea, eb)}.")
         doc.update(energy_before_m=ea, energy_after_m=eb)
     if a.posterior_mean and b.posterior_mean:

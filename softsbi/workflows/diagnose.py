@@ -7,7 +7,7 @@
 2. *propose*: the linearised screening ranks the candidate effects
    (:class:`~softsbi.workflows.screening.Screening`), and the top ones are refitted
    (:func:`refit_model`; :func:`~softsbi.workflows.decide.next_refit` says which);
-3. *decide*: :func:`~softsbi.workflows.decide.decide` on the refits' adequacy (the same test) and energy scores.
+3. *decide*: :func:`~softsbi.workflows.decide.decide` on the refits' adequacy (the same test) and summary energy scores.
 
 One candidate family is used in every step: the refits' tests screen the same candidates less their own effects.
 The result is a :class:`~softsbi.core.results.Diagnosis`, written to ``RUN/diagnosis.json``; its sentences are
@@ -57,7 +57,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         effects: the candidate family (default: every installed effect the backend can apply and the run lacks,
             generic force terms included).
         alpha: the level of every test (the false-alarm rate tolerated).
-        k_se: standard errors by which a refit's energy score must fall (:data:`~softsbi.workflows.decide.K_SE`).
+        k_se: standard errors by which a refit's summary energy score must fall
+            (:data:`~softsbi.workflows.decide.K_SE`).
         confirm: single refits at most (the top named candidates by evidence); a pair is one more (0: no refit).
         refit_rounds, refit_sims: a refit's budget (default None: the nominal fit's; its own values are stored
             under the same key as None; a refit at a smaller budget has a wider posterior predictive, which

@@ -25,8 +25,9 @@ from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import (ALPHA, MAX_NULL, PosteriorPredictive, max_t_adjusted, misspecification_test,
-                                     resolution_needed, rollout_features, run_features, summary_floor)
+from softsbi.workflows.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,
+                                     misspecification_test, resolution_needed, rollout_features, run_features,
+                                     summary_floor)
 
 
 #: finite-difference step of a nominal parameter (unit-cube units): small enough that the summaries respond linearly
@@ -37,6 +38,11 @@ UNIT_STEP = 0.05
 #: screened where it is off, so the step must switch it on enough to move the cloth measurably (a quarter of its
 #: prior); the screening ranks candidates and spends the refit budget, the refits decide
 EFFECT_STEP = 0.25
+#: bound on the nominal parameters' coefficients in the linearised fit (in finite-difference steps of
+#: :data:`UNIT_STEP`): the added-variable test profiles them out, so they are free in effect; 1e3 steps are 50 prior
+#: widths, which no fit about a posterior median inside the prior reaches where the linearisation holds, while a
+#: parameter the summaries barely respond to (a near-zero column) cannot take an unbounded coefficient
+NOMINAL_COEF_BOUND = 1e3
 
 
 def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
@@ -138,8 +144,9 @@ class Screening:
             raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
         f0 = feats[0]
         null_f = np.asarray(null_features)
-        if len(null_f) < 5:
-            raise SoftsbiError("too few successful posterior-predictive simulations for the null distribution")
+        if len(null_f) < MIN_NULL:
+            raise SoftsbiError(f"too few successful posterior-predictive simulations for the null distribution "
+                               f"({len(null_f)}, at least {MIN_NULL} needed)")
         sd = np.maximum(null_f.std(0), summary_floor(null_f.shape[1]))
         self.J_theta = np.stack([(feats[1 + j] - f0) / sd if feats[1 + j] is not None else np.zeros_like(f0)
                                  for j in range(run.space.dim)], 1)
@@ -174,7 +181,7 @@ class Screening:
     def sse(self, r: np.ndarray, names: Sequence[str]) -> tuple[float, np.ndarray]:
         """Weighted residual sum of squares of the best linearised fit with effects ``names``, and
         the effects' coefficients."""
-        big = 1e3
+        big = NOMINAL_COEF_BOUND
         design, J_theta = self.design, self.J_theta
         rr = r - sum((design[n]["offset"] for n in names), np.zeros_like(r))
         A = np.concatenate([J_theta] + [design[n]["J"] for n in names], 1)

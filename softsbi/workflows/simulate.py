@@ -38,8 +38,8 @@ CLOUD_POINTS = 2000
 #: default cap on the memory of rendered frames held at once (GB); override with ``render_memory_gb``
 RENDER_MEMORY_GB = 4.0
 #: peak bytes per rendered pixel and frame: 8 stored (rgb 3 x uint8, depth float32, segmentation uint8) plus
-#: the copies made while rendering and saving; measured peak RSS over a plain simulation, lift (25 frames):
-#: 362 MB at 1024 px, 1197 MB at 2048 px (10.6-12.8 B), 7.2 GB at 5000 px (issue 18's probe: 10.7 B)
+#: the copies made while rendering and saving: a lift's peak memory over a plain simulation, divided by its pixels
+#: x frames, lies between 10.6 and 12.8 B from 1024 to 5000 px
 BYTES_PER_PIXEL = 11
 
 

@@ -39,7 +39,7 @@ from softsbi.inference.summaries import local_thickness
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
                                           sensor_view)
-from softsbi.workflows.defaults import MAX_NULL, N_NULL  # noqa: F401 - the tests' null sizes, re-exported
+from softsbi.workflows.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
 from softsbi.workflows.jobs import run_jobs
 from softsbi.workflows.runs import RunView, load_run, open_run
 
@@ -57,6 +57,10 @@ FEATURE_FLOORS = np.array([FEATURE_FLOOR] * (len(FEATURE_NAMES) - 1) + [THICKNES
 #: a first-stage p-value at or below this extends the null to its cap (:func:`resolution_needed`). A round
 #: level, not fitted: it cannot change a test's level, only its cost and power
 EXTEND_P = 0.1
+#: the fewest successful posterior-predictive rollouts a null may hold: the fewest ``check`` simulates
+#: (:data:`~softsbi.workflows.defaults.MIN_ROLLOUTS`, the smallest ``--n-eval``), so that the test refuses only
+#: rollouts that failed; each leave-one-out statistic then standardises by the spread of at least 4 others
+MIN_NULL = MIN_ROLLOUTS
 
 
 def cloud_features(points: np.ndarray) -> np.ndarray:
@@ -100,7 +104,7 @@ def run_features(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
     threshold (:attr:`RunView.metric_min_z`) and frames (:attr:`RunView.metric_frames`, ``T'`` of them).
 
     The misspecification test and the screening compare the measurement with simulations as the fit
-    compared them (issue 17): a real depth cloud lacks the cloth lying flat on the table, so summaries
+    compared them: a real depth cloud lacks the cloth lying flat on the table, so summaries
     of full simulated clouds would reject every real recording for the sensor's sake.
     """
     return trajectory_features(clouds, run.metric_min_z, run.metric_frames)
@@ -202,7 +206,7 @@ def resolution_needed(p: MCPValue, alpha: float, cap: int, promising: float = EX
     P(p_cap <= alpha) <= alpha``. The rule sets only the cost and the power. The second clause matters
     because the tests' exceedance counts are not monotone in ``n``: max-T renormalises every column over
     all ``n + 1`` values and the omnibus test's leave-one-out null re-standardises, so 1 exceedance in 30
-    can become 0 in 200 (measured: a hidden heavy hem in a fling, directional p 2/31 -> 1/201)."""
+    can become 0 in 200, and a first stage of ``p = 2/31`` can end at ``p = 1/201``."""
     return p.floor > alpha and p.n < cap and ((p.exceed + 1) / (cap + 1) <= alpha or p.value <= promising)
 
 
@@ -217,11 +221,12 @@ def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> tuple[float,
         the measurement's statistic and its Monte-Carlo p-value.
 
     Raises:
-        SoftsbiError: fewer than 5 simulations.
+        SoftsbiError: fewer than :data:`MIN_NULL` simulations.
     """
     S = len(f_sims)
-    if S < 5:
-        raise SoftsbiError(f"the misspecification test needs at least 5 successful posterior rollouts (got {S})")
+    if S < MIN_NULL:
+        raise SoftsbiError(f"the misspecification test needs at least {MIN_NULL} successful posterior rollouts "
+                           f"(got {S})")
 
     floor = summary_floor(f_sims.shape[1])
 
@@ -344,7 +349,8 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
 
 
 def energy_score(pool: PosteriorPredictive, n: int | None = None) -> EnergyScore | None:
-    """The posterior predictive's energy score against the measurement, with the fit's metric as distance.
+    """The Chamfer energy score: the posterior predictive's energy score against the measured clouds, with the fit's
+    metric as distance.
 
     ``ES = mean_i d(X_i, y) - 1/2 mean_(i,j) d(X_i, X_j)`` (Gneiting & Raftery 2007, eq. 22, with the
     Chamfer of :func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`, averaged over the metric frames,
@@ -402,9 +408,10 @@ def summary_scale(f_sims: np.ndarray) -> np.ndarray:
 
 
 def summary_energy_score(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarray) -> Score:
-    """The energy score of posterior-predictive summaries ``f_sims (S, F)`` against the measurement's ``f_obs (F,)``
-    in a fixed ``scale (F,)``: ``mean_i |z_i - z| - mean_(i<j) |z_i - z_j| / 2`` with ``z = f / scale`` (Gneiting &
-    Raftery 2007, eq. 22; strictly proper for the Euclidean norm), with its jackknife standard error over rollouts.
+    """The summary energy score: the energy score of posterior-predictive summaries ``f_sims (S, F)`` against the
+    measurement's ``f_obs (F,)`` in a fixed ``scale (F,)``: ``mean_i |z_i - z| - mean_(i<j) |z_i - z_j| / 2`` with
+    ``z = f / scale`` (Gneiting & Raftery 2007, eq. 22; strictly proper for the Euclidean norm), with its jackknife
+    standard error over rollouts.
 
     Raises:
         SoftsbiError: fewer than 3 rollouts or shapes that disagree.
@@ -430,7 +437,7 @@ def summary_energy_score(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarra
 #: rollouts at the posterior mean whose mean Chamfer is a fit's posterior-mean rollout error
 #: (:func:`posterior_mean_chamfer`); they differ only in their simulation seeds (point sampling, sensor noise)
 PM_ROLLOUTS = 3
-#: the seeds of those rollouts are ``PM_SEED + k`` (apart from the fit's, the null's and the benchmark's)
+#: the seeds of those rollouts are ``PM_SEED + k``, apart from the fit's and the null's
 PM_SEED = 3000
 
 
@@ -461,8 +468,8 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
     The posterior-predictive Chamfer averages the Chamfer over posterior draws, so it carries the posterior's
     width too: an honest posterior from a small simulation budget is wide, and its draws usually score worse
     than its mean (not always: a misspecified fit's mean can miss more than its draws do).
-    This is the number a user who simulates with the fitted parameters sees, and the one issue 17 compares
-    with CMA-ES's best ("the posterior-mean rollout").
+    This is the number a user who simulates with the fitted parameters sees, the one to set beside an
+    optimiser's best simulation ("the posterior-mean rollout").
 
     Args:
         run: a finished fit (:class:`~softsbi.workflows.runs.RunView`) with a point-cloud measurement.

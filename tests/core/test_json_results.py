@@ -48,3 +48,19 @@ def test_a_damaged_file_is_one_line_naming_it_and_the_command_that_rewrites_it(t
     line = str(err.value)
     assert line.startswith(f"'{path}' is damaged (") and problem in err.value.problem
     assert line.endswith("`softsbi fit ...` writes it again") and "\n" not in line
+
+
+def test_a_check_json_of_schema_3_reads_its_regions_and_phases_words_as_typed_fields():
+    """check.json files kept ``regions_from`` / ``phases_from`` in words; a check now stores the handle and whether
+    the phases are the keyframes' (the words are report.text's), and an old file reads back with the same meaning."""
+    new = check_result(grasp_handle="left", phases_at_keyframes=True)
+    doc = json.loads(json.dumps(results.to_json(new)))
+    assert doc["grasp_handle"] == "left" and doc["phases_at_keyframes"] is True and "regions_from" not in doc
+    assert results.from_json(results.CheckResult, doc) == new
+    old = {k: v for k, v in doc.items() if k not in ("grasp_handle", "phases_at_keyframes")}
+    back = results.from_json(results.CheckResult, {**old, "schema": 3, "regions_from": "the grasp of handle 'left'",
+                                                   "phases_from": "the scenario's keyframes"})
+    assert back == new
+    one = results.from_json(results.CheckResult, {**old, "schema": 3, "regions_from": "the grasp",
+                                                  "phases_from": "equal thirds of the motion"})
+    assert one.grasp_handle is None and one.phases_at_keyframes is False

@@ -295,14 +295,13 @@ def test_the_preview_shows_the_rest_pose_from_above_with_corners_and_handles_lab
 
 
 def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_keyframes():
-    from softsbi.workflows.check import _grasp_words, motion_phases
+    from softsbi.workflows.check import grasp_handle, motion_phases
     sc, _ = _two_grip_scenario()
-    assert _grasp_words(sc) == "the grasp of handle 'left'"
+    assert grasp_handle(sc) == "left"
     assert [(p["phase"], p["frames"]) for p in motion_phases(sc)] == [("move 1", [0, 1]), ("move 2", [2, 3])]
     sc.options.pop("keyframe_times")
     assert [p["phase"] for p in motion_phases(sc)] == ["early", "middle", "late"]
-    out = dataclasses.replace(check_result(T=4, test=joint(150, 150)), regions_from="the grasp of handle 'left'",
-                              phases_from="the scenario's keyframes")
+    out = dataclasses.replace(check_result(T=4, test=joint(150, 150)), grasp_handle="left", phases_at_keyframes=True)
     fig = R.check_figure(out)
     assert fig.axes[1].get_ylabel() == "region of the object (R1 nearest the grasp of handle 'left')"
     assert "the scenario's keyframes" in fig.axes[0].get_title()

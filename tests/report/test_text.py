@@ -8,9 +8,9 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.results import CompareResult, Diagnosis, Estimate, ResidualShape, Row
+from softsbi.core.results import CompareResult, Diagnosis, Estimate, MCPValue, Metric, ResidualShape, Row
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
-                                 diagnosis_rows, diagnosis_summary, diagnosis_text)
+                                 diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
 from softsbi.workflows.decide import decide
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -73,17 +73,17 @@ ALL = {"nothing": NOTHING, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial"
 P_FLOOR = "p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null simulations)"
 P_WIND = "p = 0.41 (two tests, Bonferroni: 2 x the omnibus test's p = 0.2; 200 null simulations)"
 DETECT = f"Detect: check's joint test of the nominal fit, {P_FLOOR} <= 0.05."
-DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and the energy score of its "
-          "posterior predictive of check's summaries (in the nominal fit's scale, a proper score) falls by more than 2 "
+DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and its summary energy score (the energy score of its "
+          "posterior predictive of check's summaries in the nominal fit's scale, a proper score) falls by more than 2 "
           "standard errors below the model it extends.")
 WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-              "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
+              "summary energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
               "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
               "presses the upper prior bound: refit with --bounds wind_y=-2:4 if such values are physical.")
 PART_WORDS = [f"With wind: the measurement is still outside the refit's posterior predictive distribution ({P_FLOOR}), "
-              "energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm (n=30 rollouts).",
+              "summary energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm (n=30 rollouts).",
               "With extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-              f"({P_FLOOR}), energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm (n=30 rollouts)."]
+              f"({P_FLOOR}), summary energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm (n=30 rollouts)."]
 #: the summaries flag the middle phase most, while the Chamfer (check's phase table) is largest late: each named with
 #: its own number, never "mostly the middle phase" beside a table whose worst phase is the late one
 RESIDUAL_WORDS = ("The summaries leave the rollouts' 95% range in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s) "
@@ -98,7 +98,7 @@ SCREENED = [["generic-constant", "physics (generic)", "62%", "p <= 1/201"], ["wi
 
 
 def rows(*refit_columns):
-    """The expected table: the screening's columns, then per candidate (refit check p, refit score, verdict)."""
+    """The expected table: the screening's columns, then per candidate (refit check p, refit summary energy score, verdict)."""
     return [s + list(r) for s, r in zip(SCREENED, refit_columns)]
 
 
@@ -128,7 +128,7 @@ def test_missing_effect_with_a_refit_pressing_a_prior_bound():
     assert NAMED.verdict == "missing-effect" and NAMED.decision.named == ("wind",)
     assert diagnosis_text(NAMED) == [
         "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
-        f"distribution ({P_WIND}) and lowers the energy score from 21 to 8 (62% lower, 20.3 standard "
+        f"distribution ({P_WIND}) and lowers the summary energy score from 21 to 8 (62% lower, 20.3 standard "
         "errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind (the top named ones by evidence). {DECIDE}",
         WIND_WORDS]
@@ -140,15 +140,15 @@ def test_missing_effect_with_an_indistinguishable_alternative():
     assert TIE.decision.named == ("wind",) and TIE.decision.alternatives == (("extra-damping",),)
     assert diagnosis_text(TIE) == [
         "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
-        f"distribution ({P_WIND}) and lowers the energy score from 21 to 8 (62% lower, 20.3 standard "
-        "errors). The data cannot tell it from extra-damping: that refit explains the misfit too, with an energy "
-        "score within 2 standard errors; evidence these recordings lack (an independent measurement of the effect, "
+        f"distribution ({P_WIND}) and lowers the summary energy score from 21 to 8 (62% lower, 20.3 standard "
+        "errors). The data cannot tell it from extra-damping: that refit explains the misfit too, with a summary "
+        "energy score within 2 standard errors; evidence these recordings lack (an independent measurement of the effect, "
         "or a motion in which the two differ) would decide.",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence). {DECIDE}",
         WIND_WORDS,
         "With extra-damping: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
-        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), energy score 21 -> 8.4 (60% lower, "
+        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), summary energy score 21 -> 8.4 (60% lower, "
         "19.7 standard errors), posterior-predictive Chamfer 1.04 cm (n=30 rollouts). The refit estimates damping_rate = 3.1 1/s (90% "
         "interval 0.4 to 7.9 1/s, not informed by the data)."]
     assert diagnosis_rows(TIE) == rows(GENERIC, ("p = 0.41", "8", "named"),
@@ -160,13 +160,13 @@ def test_missing_pair():
     p_pair = "p = 0.46 (two tests, Bonferroni: 2 x the directional test's p = 0.23; 200 null simulations)"
     assert diagnosis_text(PAIRED) == [
         "Missing physics effects: wind + extra-damping. Neither refit alone explains the misfit; with both, the refit "
-        f"puts the measurement inside its posterior predictive distribution ({p_pair}) and lowers the energy score "
+        f"puts the measurement inside its posterior predictive distribution ({p_pair}) and lowers the summary energy score "
         "from 15 to 9 (40% lower, 10.6 standard errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         f"With wind + extra-damping: the measurement is inside the refit's posterior predictive distribution "
-        f"({p_pair}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts)."]
+        f"({p_pair}), summary energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts)."]
     assert diagnosis_rows(PAIRED) == rows(GENERIC, ("p <= 2/201", "15", "named (pair)"),
                                           ("p <= 2/201", "17", "named (pair)"), BUDGET)
 
@@ -176,13 +176,13 @@ def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_th
     assert diagnosis_text(PARTIAL) == [
         "Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
         f"distribution ({P_FLOOR} <= 0.05), and no refit of wind, extra-damping, wind+extra-damping explains it. wind "
-        "explains a part: its refit lowers the energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
+        "explains a part: its refit lowers the summary energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
         f"outside its posterior predictive distribution ({P_FLOOR}).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         "With wind + extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts).",
+        f"({P_FLOOR}), summary energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts).",
         RESIDUAL_WORDS,
         GENERIC_WORDS]
     assert diagnosis_rows(PARTIAL) == rows(GENERIC, ("p <= 2/201", "15", "explains a part"),
@@ -199,10 +199,10 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
         RESIDUAL_WORDS, GENERIC_WORDS]
     assert NONE_LOWER.decision.partial == ()
     assert diagnosis_summary(NONE_LOWER) == (head + ", and no refit of wind, extra-damping explains it. No refit "
-                                             "lowers the energy score by more than 2 standard errors.")
+                                             "lowers the summary energy score by more than 2 standard errors.")
     assert diagnosis_text(NONE_LOWER)[2] == (
         "With wind: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm (n=30 rollouts).")
+        f"({P_FLOOR}), summary energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm (n=30 rollouts).")
     assert diagnosis_rows(NONE_LOWER) == rows(GENERIC, ("p <= 2/201", "21.5", "refit: misfit remains"),
                                               ("p <= 2/201", "23", "refit: misfit remains"), BUDGET)
     # a refit that check accepts but whose score does not fall: explains nothing, and the table says why
@@ -220,7 +220,7 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
     d = diagnosis([r])
     assert diagnosis_text(d)[2] == (
         f"With point-noise: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-        "energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates noise_std = 0.0049 m "
+        "summary energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates noise_std = 0.0049 m "
         "(90% interval 0.0041 to 0.0058 m); dropout = 0 (90% interval 0 to 0.02). Its noise_std presses the upper "
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
 
@@ -248,7 +248,7 @@ def test_check_summary():
     assert check_summary(check_result()) == (
         "Posterior rollouts miss the measurement by 5.70 cm on average over 30 rollouts (Chamfer; measured -> simulated 4.56 cm); "
         "worst in the late phase (t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp; 8.56 cm); the "
-        f"measurement is NOT explained by the model ({P_FLOOR} <= 0.05). Energy score 5.50 cm.")
+        f"measurement is NOT explained by the model ({P_FLOOR} <= 0.05). Chamfer energy score 5.50 cm.")
 
 
 def test_check_summary_with_the_height_sensor_model_and_pressed_prior_bounds():
@@ -266,7 +266,7 @@ def test_check_summary_with_the_height_sensor_model_and_pressed_prior_bounds():
         "Posterior rollouts miss the measurement by 5.70 cm on average over 30 rollouts (Chamfer under the fit's sensor model: points "
         "within 1.0 cm of the table unseen, frames 8-24; measured -> simulated 4.56 cm); worst in the late phase "
         "(t 0.68-0.96 s, 11.21 cm) and in region R9 (farthest from the grasp; 8.56 cm); no evidence of misspecification "
-        f"({P_WIND} > 0.05). Energy score 5.50 cm. The fit's posterior: bend's posterior presses its lower prior "
+        f"({P_WIND} > 0.05). Chamfer energy score 5.50 cm. The fit's posterior: bend's posterior presses its lower prior "
         "bound 1e-06 N*m (42% of its mass near it): widen the prior (--bounds bend=3.16e-08:0.001) if such values are "
         "physical, or suspect an effect the model lacks. The fit's posterior: friction's posterior presses its lower "
         "prior bound 0 (30% of its mass near it): the bound is a physical limit, so suspect an effect the model "
@@ -286,16 +286,17 @@ def test_compare_summary():
     a = check_result(posterior_mean={"chamfer_m": 0.02, "chamfer_se_m": 0.001, "n": 3})
     b = check_result(test=joint(40, 70), chamfer_mean_m=0.012, energy=energy(0.009),
                      posterior_mean={"chamfer_m": 0.009, "chamfer_se_m": 0.001, "n": 3})
-    table = (Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m),
-             Row("energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
-                 a.energy.energy_m, b.energy.energy_m),
-             Row("posterior-mean rollout Chamfer (the fitted point estimate)", 0.02, 0.009))
+    table = (Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m,
+                 Metric.CHAMFER),
+             Row("posterior-mean rollout Chamfer (the fitted point estimate)", 0.02, 0.009, Metric.POSTERIOR_MEAN),
+             Row("Chamfer energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+                 a.energy.energy_m, b.energy.energy_m, Metric.ENERGY_CHAMFER))
     res = CompareResult("run/nominal", "run/refit-wind", "mujoco-flex (nominal)", "mujoco-flex + wind", table, True,
                         a, b, "run/refit-wind/compare.png")
     assert compare_summary(res) == (
         "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
         "(n=30 rollouts) (79% lower), "
-        "energy score 5.50 cm -> 0.90 cm (84% lower), posterior-mean rollout 2.00 cm -> 0.90 cm (55% lower); "
+        "Chamfer energy score 5.50 cm -> 0.90 cm (84% lower), posterior-mean rollout 2.00 cm -> 0.90 cm (55% lower); "
         f"misspecification {P_FLOOR} -> {P_WIND}.")
     assert compare_summary(replace(res, same_sensor=False, rows=table[:1])) == (
         "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
@@ -303,6 +304,63 @@ def test_compare_summary():
         f"misspecification {P_FLOOR} -> {P_WIND}. The two fits use different sensor models (--sensor / --min-height "
         "/ --frames), so their Chamfer values measure different things.")
 
+
+
+def test_compare_rows_are_keyed_by_their_metric_and_labelled_as_before():
+    """Rows are found by their metric, never by their English label; the labels (compare.json's ``what``) are the
+    ones compare always wrote, and an old compare.json (rows without ``metric``) reads back with the same keys."""
+    import json
+
+    from softsbi.core.results import from_json, to_json
+    from softsbi.workflows.compare import compare_rows
+    a = check_result(posterior_mean={"chamfer_m": 0.02, "chamfer_se_m": 0.001, "n": 3})
+    b = check_result(chamfer_mean_m=0.012, energy=energy(0.009), n_rollouts=28,
+                     posterior_mean={"chamfer_m": 0.009, "chamfer_se_m": 0.001, "n": 3})
+    rows = compare_rows(a, b)
+    assert [(r.metric, r.part) for r in rows[:4]] == [(Metric.CHAMFER, ""), (Metric.CHAMFER_ONE_SIDED, ""),
+                                                      (Metric.ENERGY_CHAMFER, ""), (Metric.POSTERIOR_MEAN, "")]
+    assert [r.what for r in rows[:5]] == [
+        "posterior-predictive Chamfer, mean over the fit's frames (n=30 and 28 rollouts)",
+        "one-sided Chamfer (measured -> simulated)",
+        "Chamfer energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+        "posterior-mean rollout Chamfer (the fitted point estimate)", "early phase (0.00-0.28 s)"]
+    assert [(r.metric, r.part) for r in rows[4:7]] == [(Metric.PHASE, p) for p in ("early", "middle", "late")]
+    assert [(r.metric, r.part, r.what) for r in rows[7:9]] == [(Metric.REGION, REGIONS[0], f"region {REGIONS[0]}"),
+                                                               (Metric.REGION, "R2", "region R2")]
+    res = CompareResult("a", "b", "nominal", "+ wind", rows, True, a, b)
+    assert res.row(Metric.ENERGY_CHAMFER).b == 0.009 and replace(res, rows=rows[:2]).row(Metric.ENERGY_CHAMFER) is None
+    doc = json.loads(json.dumps(to_json(res)))
+    assert doc["rows"][2]["metric"] == "energy_chamfer"
+    assert from_json(CompareResult, doc) == res
+    old = [{"what": w, "a": r.a, "b": r.b} for w, r in zip(
+        ["posterior-predictive Chamfer, mean over the fit's frames (n=30 and 28 rollouts)",
+         "one-sided Chamfer (measured -> simulated)",
+         "energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+         "posterior-mean rollout Chamfer (the fitted point estimate)", "early phase (0.00-0.28 s)",
+         "middle phase (0.32-0.60 s)", "late phase (0.64-0.96 s)"] + [f"region {n}" for n in REGIONS], rows)]
+    back = from_json(CompareResult, {**doc, "rows": old})
+    assert [(r.metric, r.part) for r in back.rows] == [(r.metric, r.part) for r in rows]
+    with pytest.raises(ValueError, match="a compare row of unknown kind: 'mystery'"):
+        from_json(CompareResult, {**doc, "rows": [{"what": "mystery", "a": 1.0, "b": 1.0}]})
+
+
+def test_p_values_in_words_and_in_table_cells_say_their_resolution():
+    """The words of a Monte-Carlo p-value and of check's joint test (formerly MCPValue.text / JointTest.text, with the
+    tests of softsbi.workflows.stats and decide): never below the resolution of the null that gave them."""
+    assert p_words(MCPValue(3, 30)) == "p = 0.13 (3 of 30 null simulations as extreme)"
+    assert p_words(MCPValue(0, 30)) == "p <= 1/31 (beyond all 30 null simulations)"
+    assert (p_short(MCPValue(3, 30)), p_short(MCPValue(0, 30))) == ("p = 0.13", "p <= 1/31")
+    assert p_words(joint(0, 30)) == ("p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null "
+                                     "simulations)")
+    assert p_words(joint(12, 3)) == ("p = 0.04 (two tests, Bonferroni: 2 x the directional test's p = 0.02; 200 null "
+                                     "simulations)")
+    assert p_words(joint(60, None)) == "p = 0.3 (60 of 200 null simulations as extreme)"
+    assert (p_short(joint(0, 3)), p_short(joint(67, 70)), p_short(joint(0, None, n=30))) == \
+        ("p <= 2/201", "p = 0.68", "p <= 1/31")
+    assert joint_test_line(joint(12, 3)) == (
+        "misspecification test: omnibus p = 0.065 (12 of 200 null simulations as extreme); directional (max-T over 2 "
+        "candidate effects, strongest wind) p = 0.02 (3 of 200 null simulations as extreme)")
+    assert joint_test_line(joint(12, None)) == "misspecification test: omnibus p = 0.065 (12 of 200 null simulations as extreme)"
 
 # ---------------------------------------------------------------------------------------------------------------
 # words that agree with the tables beside them
@@ -325,14 +383,14 @@ def test_an_adequate_refit_with_a_higher_chamfer_than_the_nominal_is_not_describ
     words = diagnosis_text(d)[4]
     assert words.startswith("With wind + extra-damping: adequate (check does not reject it, p = 0.46")
     assert ("but its error is higher than the nominal fit's: posterior-predictive Chamfer 4.19 cm (n=30 rollouts) "
-            "against 3.63 cm (n=30 rollouts); energy score 15 -> 9") in words
+            "against 3.63 cm (n=30 rollouts); summary energy score 15 -> 9") in words
     assert "inside the refit's posterior predictive" not in words
     # lower than the nominal's: the usual words
     assert "is inside the refit's posterior predictive distribution" in diagnosis_text(PAIRED)[4]
 
 
 def test_with_several_handles_the_check_says_whose_grasp_the_regions_are_numbered_from():
-    c = check_result(regions_from="the grasp of handle 'left'")
+    c = check_result(grasp_handle="left")
     assert ("in region R9 (farthest from the grasp; 8.56 cm) (regions numbered from the grasp of handle 'left');"
             in check_summary(c))
     assert "numbered from" not in check_summary(check_result())

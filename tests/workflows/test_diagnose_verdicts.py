@@ -107,7 +107,7 @@ def test_refits_that_raise_the_score_explain_no_part_and_build_no_pair():
     said to explain a part and no pair is built on one."""
     d = diagnose_with({("wind",): _outside(31.5, RANKING[1:]), ("extra-damping",): _outside(34)})
     assert len(d.refits) == 2 and d.verdict == "misspecified-unexplained" and d.decision.partial == ()
-    assert "No refit lowers the energy score by more than 2 standard errors" in diagnosis_summary(d)
+    assert "No refit lowers the summary energy score by more than 2 standard errors" in diagnosis_summary(d)
 
 
 def test_a_refit_that_check_accepts_is_named_over_one_with_a_lower_score_that_check_rejects():

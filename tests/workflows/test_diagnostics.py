@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.core.errors import ParameterError, SoftsbiError
-from softsbi.core.results import CompareResult, from_json
+from softsbi.core.results import CompareResult, Metric, from_json
 from softsbi.core.store import RunStore
 from softsbi.report.text import check_summary, diagnosis_summary, diagnosis_text
 from softsbi.workflows.check import check_run
@@ -87,7 +87,7 @@ def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     # two tests on one null, Bonferroni-combined: the joint p is twice the smaller one, never below 2/201
     assert ht.directional_effect == "toy-wind" and ht.family == ("toy-wind",) and o.n == d.n == 200
     assert ht.p_value == pytest.approx(min(1.0, 2 * min(o.value, d.value)))
-    assert ht.p_value >= 2 / 201 and "200 null simulations" in ht.text()
+    assert ht.p_value >= 2 / 201 == ht.resolution
     assert not ct.misspecified and ct.p_value > 0.05 and ct.p_value >= 2 / (ct.n_null + 1)
     assert ct.p_value == pytest.approx(min(1.0, 2 * min(ct.omnibus.value, ct.directional.value)))
     assert "null simulations" in check_summary(h) and "NOT explained" in check_summary(h)
@@ -168,15 +168,15 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     res = runner.invoke(app, ["compare", str(hidden), r.run, "--workers", "1", "--n-eval", "20"])
     assert res.exit_code == 0, res.output
     out = from_json(CompareResult, json.loads((hidden / "refit-toy-wind" / "compare.json").read_text()))
-    assert out.rows[0].what.startswith("posterior-predictive Chamfer") and out.rows[0].b < out.rows[0].a
+    assert out.rows[0].metric is Metric.CHAMFER and out.rows[0].b < out.rows[0].a
     assert out.label_b.endswith("toy-wind") and out.same_sensor
-    energy = next(row for row in out.rows if row.what.startswith("energy score"))
+    energy = out.row(Metric.ENERGY_CHAMFER)
     assert energy.b < energy.a and energy.a == pytest.approx(out.rows[0].a - out.check_a.energy.spread_m / 2)
     # the fitted point estimates: rollouts at the nominal fit's and the refit's posterior means (seeds PM_SEED + k)
     # through the fit's own job; the refit's is lower
     pm = posterior_mean_chamfer(load_run(hidden), workers=1)
     refit_pm = posterior_mean_chamfer(load_run(hidden / "refit-toy-wind"), workers=1)
-    pm_row = next(row for row in out.rows if row.what.startswith("posterior-mean rollout"))
+    pm_row = out.row(Metric.POSTERIOR_MEAN)
     assert pm["n"] == PM_ROLLOUTS and (pm_row.a, pm_row.b) == (pm["chamfer_m"], refit_pm["chamfer_m"])
     assert pm_row.b < 0.8 * pm_row.a
     assert [ch.posterior_mean["chamfer_m"] for ch in (out.check_a, out.check_b)] == [pm_row.a, pm_row.b]

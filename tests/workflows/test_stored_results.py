@@ -185,3 +185,26 @@ def test_a_fit_whose_report_json_is_a_folder_is_refused_before_simulating(tmp_pa
     with pytest.raises(SoftsbiError, match="report.json' is a folder, not a file"):
         run_fit(out, toy_measurement(), _cfg(), make_plots=False)
     assert not (out / "run.zarr").exists()
+
+
+def test_the_python_api_compares_runs_given_as_plain_strings(checked, tmp_path):
+    """`softsbi.compare("a", "b")` failed at `str.mkdir` after both checks had run; it takes str like Path, and its
+    `alpha` reaches both checks (a level other than the stored check.json's computes them again)."""
+    a, b = (str(shutil.copytree(checked, tmp_path / name)) for name in ("a", "b"))
+    res = softsbi.compare(a, b, out=str(tmp_path / "cmp"), n_eval=5, workers=1, progress=False)
+    assert (res.run_a, res.run_b) == (a, b) and res.png == str(tmp_path / "cmp" / "compare.png")
+    assert (tmp_path / "cmp" / "compare.json").is_file() and (tmp_path / "cmp" / "compare.png").is_file()
+    assert res.row(results.Metric.CHAMFER).a == res.check_a.chamfer_mean_m
+    res = softsbi.compare(a, b, n_eval=5, workers=1, alpha=0.2, max_null=20, progress=False)
+    assert res.check_a.test.alpha == res.check_b.test.alpha == 0.2 and res.png == str(tmp_path / "b" / "compare.png")
+    stored = results.from_json(results.CheckResult, json.loads((tmp_path / "a" / "check.json").read_text()))
+    assert stored.test.alpha == 0.2
+
+
+def test_compare_refuses_an_alpha_out_of_range_before_any_work(checked, tmp_path, monkeypatch):
+    _no_work(monkeypatch)
+    with pytest.raises(SoftsbiError, match=r"alpha must lie in \(0, 1\), got 1.5"):
+        softsbi.compare(str(checked), str(checked), out=str(tmp_path / "cmp"), alpha=1.5, progress=False)
+    assert not (tmp_path / "cmp").exists()
+    res = runner.invoke(app, ["compare", str(checked), str(checked), "--alpha", "1.5"])
+    assert res.exit_code == 2 and "--alpha" in res.output, res.output
