@@ -101,7 +101,7 @@ def build_report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: 
         "chamfer_posterior_m": ev_stats.get("mean_m"),
         "chamfer_posterior_std_m": ev_stats.get("std_m"),
         "chamfer_posterior_n": ev_stats.get("n"),
-        # the metric (issue 17): per frame, simulated and measured clouds seen through the fit's sensor
+        # the metric: per frame, simulated and measured clouds seen through the fit's sensor
         # model; the headline values above are the mean over metric_frames
         # the sensor model stored with the run, which its simulations' per-frame metric used (_sim_context)
         "metric_min_z_m": loop.store.config.get("metric_min_z") if metric == "chamfer_m" else None,

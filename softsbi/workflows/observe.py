@@ -20,7 +20,7 @@ from softsbi.workflows.jobs import SimContext
 
 
 def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
-    """The fit's sensor model as the metric applies it (issue 17: one definition of the per-frame
+    """The fit's sensor model as the metric applies it (one definition of the per-frame
     distance for the fit's report, ``check``, ``compare`` and ``diagnose``).
 
     ``metric_min_z``: simulated and measured points at or below ``table_z + min_height`` (m) are not
