@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import DependencyMissing
-from softsbi.report.figures import ROLE_COLOURS, _plt, grip_label, handle_tracks, pinned_vertices
+from softsbi.report.style import ROLE_COLOURS, _plt, grip_label
+from softsbi.scenarios.handles import handle_tracks, pinned_vertices
 
-#: colours of the roles: the palette of every figure (:data:`softsbi.report.figures.ROLE_COLOURS`)
+#: colours of the roles: the palette of every figure (:data:`softsbi.report.style.ROLE_COLOURS`)
 COLOR_MEASURED = ROLE_COLOURS["measured"]
 COLOR_POSTERIOR = ROLE_COLOURS["posterior"]
 COLOR_GRIPPER = ROLE_COLOURS["gripper"]

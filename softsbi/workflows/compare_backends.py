@@ -25,7 +25,7 @@ from softsbi.core.errors import ParameterError
 from softsbi.core.metrics import chamfer_per_frame
 from softsbi.core.results import write_json_atomic
 from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
-from softsbi.report.figures import plot_compare_backends
+from softsbi.report import plot_compare_backends
 from softsbi.workflows.defaults import COMPARED_BACKENDS
 
 

@@ -37,7 +37,7 @@ from softsbi.executors.local import WorkerFailure
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.perception.masks import hsv_mask
 from softsbi.plugins import check_options, registry
-from softsbi.report import write_fit_plots
+from softsbi.workflows.fitplots import write_fit_plots
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows import defaults
 from softsbi.workflows.bank import BankCount, banks_enabled, check_bank_path, default_bank
