@@ -289,7 +289,8 @@ class RunStore:
             SchemaError: ``q`` is not a mixture and no ``estimator`` state is given, or the state holds a
                 value that is none of the above.
         """
-        arrays, attrs = encode_posterior(q, estimator, f"round {r + 1}")  # a state that cannot be stored changes nothing
+        # encoded before anything is written: a state that cannot be stored changes nothing
+        arrays, attrs = encode_posterior(q, estimator, f"round {r + 1}")
         g = self._round(r)
         g.attrs["complete"] = False
         if "posterior" in g:  # a half-written posterior of an interrupted session, or one trained again

@@ -5,7 +5,7 @@ from softsbi.report.check_figures import (PHASE_LABEL_ROTATION, check_figure, ch
                                           plot_check, plot_compare, short_p)
 from softsbi.report.engine_figures import (PREVIEW_LABEL_ROOM, plot_compare_backends, plot_rollout_preview,
                                            plot_scenario_overlay, rollout_preview_figure)
-from softsbi.report.fit_figures import (_param_ticks, _tick_texts, chamfer_rounds_figure, clouds_figure,
+from softsbi.report.fit_figures import (_param_ticks, _tick_texts, chamfer_rounds_figure, clouds_figure,  # noqa: F401
                                         frames_figure, pairs_figure, plot_chamfer_rounds, plot_pairs)
 from softsbi.report.style import (DPI, ENGINE_COLOURS, FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS,
                                   fit_label, grip_label, save_figure, source_name)
