@@ -165,7 +165,7 @@ def main() -> None:
         })
         results[kind] = row
         out_json.write_text(json.dumps(results, indent=2))
-        from softsbi.report import plot_frames
+        from softsbi.workflows.fitplots import plot_frames
         plot_frames(FIGS / f"image_fit_{kind}.png", res, meas, cfg)
         print(json.dumps({k: row[k] for k in ("mask_chamfer_prior_px", "mask_chamfer_posterior_px",
                                               "truth_in_90pct_interval", "std_ratio_posterior_to_prior")}, indent=1))

@@ -1,7 +1,7 @@
 """Code shared by the simulator backends (``mujoco-flex``, ``pybullet-massspring``).
 
-* the cloth grid layout both engines use (:func:`~softsbi.backends.grid.grid_faces`,
-  :func:`~softsbi.backends.grid.grid_corners`, importable from here too), so that ``rollout.info["corners"]``
+* the cloth grid layout both engines use (:func:`~softsbi.scenarios.grid.grid_faces`,
+  :func:`~softsbi.scenarios.grid.grid_corners`, importable from here too), so that ``rollout.info["corners"]``
   and vertex indices agree across engines;
 * the visual-only robot drawn by both renderers (:func:`robot_base`, :func:`visual_robot`) and
   the colour helpers (:data:`PROP_COLOUR`, :func:`rgba`);
@@ -22,7 +22,7 @@ import numpy as np
 from softsbi.core.errors import EffectFault, ParameterError, PluginNotFound, ShapeError
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Effect, VertexContext
 from softsbi.core.types import Param, ParamSpace, Rollout, Scenario
-from softsbi.backends.grid import grid_corners, grid_faces  # noqa: F401 - the backends import them from here
+from softsbi.scenarios.grid import grid_corners, grid_faces  # noqa: F401 - the backends import them from here
 from softsbi.backends.scenario_build import check_features
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import placement_params

@@ -21,7 +21,7 @@ import numpy as np
 
 from softsbi.core.errors import ParameterError
 from softsbi.core.types import Scenario
-from softsbi.backends.grid import grid_corners
+from softsbi.scenarios.grid import grid_corners
 from softsbi.scenarios.builtin import placed_direction
 
 #: every feature name :func:`required_features` can return
@@ -123,7 +123,7 @@ def mesh_rest(scenario: Scenario, theta: Mapping[str, float], z: float) -> tuple
 def handle_vertices(scenario: Scenario, rest: np.ndarray, n: int | None = None) -> list[int]:
     """Vertex index of each handle of ``scenario`` in a body whose rest positions are ``rest (N, 3)``.
 
-    ``corner`` k: :func:`~softsbi.backends.grid.grid_corners` of the ``n x n`` grid; ``end`` 0/1: first
+    ``corner`` k: :func:`~softsbi.scenarios.grid.grid_corners` of the ``n x n`` grid; ``end`` 0/1: first
     or last rope vertex; ``vertex`` i: as given (mesh order); ``point``: the nearest rest vertex.
 
     Raises:

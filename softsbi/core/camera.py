@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError, ShapeError
 
 
@@ -87,7 +88,6 @@ class Camera:
             DataError: missing files or wrong shapes.
         """
         folder = Path(folder)
-        from softsbi.core.arrays import read_npy
         fix = f"calibration folder '{folder}' needs intrinsics.npy (4,) and trc.npy (3, 4)"
         k = read_npy(folder / "intrinsics.npy", "camera intrinsics", fix)
         trc = read_npy(folder / "trc.npy", "camera pose", fix)

@@ -6,17 +6,18 @@ contract and are checked by :func:`softsbi.workflows.conformance.check_simulator
 """
 from __future__ import annotations
 
+import inspect
+import warnings
 from abc import ABC, abstractmethod
 from pathlib import Path
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterable, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from softsbi.core.camera import Camera, RenderStyle
+from softsbi.core.errors import DataError
 from softsbi.core.types import Observation, ParamSpace, Rollout, Scenario
-
-if TYPE_CHECKING:
-    from softsbi.core.camera import Camera, RenderStyle
 
 
 #: the ways an effect can act on a simulation (see :class:`Effect`); a backend lists those it
@@ -247,8 +248,6 @@ class Simulator(ABC):
         An effect this backend lists by name in a plain ``effects`` tuple is its own (applied by name).
         Otherwise the backend must implement every kind the effect uses on it (:meth:`Effect.doors`).
         """
-        import inspect
-
         eff = effect() if isinstance(effect, type) else effect
         own = inspect.getattr_static(cls, "effects", ())
         if isinstance(own, (tuple, list)) and eff.name in own:
@@ -365,8 +364,6 @@ class Simulator(ABC):
             DataError: ``camera`` not a :class:`~softsbi.core.camera.Camera` or mirrored (det R < 0),
                 ``style`` neither a :class:`~softsbi.core.camera.RenderStyle` nor None.
         """
-        from softsbi.core.camera import Camera, RenderStyle
-        from softsbi.core.errors import DataError
         if not isinstance(camera, Camera):
             raise DataError(f"camera must be a softsbi.core.camera.Camera (e.g. scenario_camera(load_scenario('wipe'), 128)), "
                             f"got {type(camera).__name__}")
@@ -547,8 +544,6 @@ class PosteriorEstimator(ABC):
         Warns:
             DeprecationWarning: always; call :meth:`posterior_at`.
         """
-        import warnings
-
         warnings.warn(f"{type(self).__name__}.conditional(x_obs) is deprecated; use posterior_at(x_obs)",
                       DeprecationWarning, stacklevel=2)
         return self.posterior_at(x_obs)

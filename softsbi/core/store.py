@@ -34,10 +34,8 @@ posterior a mixture, no checksum) are read as they are.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
-import json
 import shutil
-from dataclasses import dataclass
+from importlib.metadata import version as _installed_version
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -45,15 +43,17 @@ import numpy as np
 import zarr
 
 from softsbi.core.distributions import MixtureOfGaussians
-from softsbi.core.errors import PosteriorDamaged, SchemaError
+from softsbi.core.errors import SchemaError
+# a round's posterior (EstimatorState and POSTERIOR_FORMAT are importable from here too)
+from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
+                                          put_array, read_posterior_group, write_posterior)
+from softsbi.core.store_damage import check_metadata, damaged_rows, unreadable_groups
 from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
 SCHEMA_VERSION = 2
 #: the schema versions this softsbi reads (version 1: no posterior kinds or checksums)
 READABLE_VERSIONS = (1, 2)
-#: format of a round's ``posterior`` group
-POSTERIOR_FORMAT = "softsbi.posterior/1"
 
 
 #: the arrays every round holds (:meth:`RunStore.round_data`); a fit with sensor draws adds ``sensor_u``, ``sensor_x``
@@ -62,8 +62,7 @@ ROUND_ARRAYS = ("theta", "u", "seed", "x", "status", "chamfer")
 
 def _version() -> str:
     try:
-        from importlib.metadata import version
-        return version("softsbi")
+        return _installed_version("softsbi")
     except Exception:  # noqa: BLE001 - not installed (source tree)
         return "unknown"
 
@@ -128,7 +127,7 @@ class RunStore:
             raise SchemaError(f"run store '{path}' has schema version {version}, this softsbi reads versions "
                               f"{list(READABLE_VERSIONS)}; re-run the fit into a new --out folder with this version, or "
                               f"install the softsbi version that wrote it ({root.attrs.get('softsbi_version')})")
-        _check_metadata(path, root)
+        check_metadata(path, root)
         return cls(path, root)
 
     @property
@@ -166,14 +165,14 @@ class RunStore:
         (T, H, W)`` bool (references of the 3-D and the mask Chamfer metric)."""
         g = self.root.require_group("observed")
         if images is not None:
-            _put(g, "images", np.asarray(images, np.uint8), ("frame", "row", "col", "rgb"), "1")
+            put_array(g, "images", np.asarray(images, np.uint8), ("frame", "row", "col", "rgb"), "1")
         if masks is not None:
-            _put(g, "masks", np.asarray(masks, bool), ("frame", "row", "col"), "1")
-        _put(g, "x", x, ("frame", "point", "xyz"), "m")
-        _put(g, "gripper", gripper, ("frame", "xyz"), "m")
-        _put(g, "times", times, ("frame",), "s")
+            put_array(g, "masks", np.asarray(masks, bool), ("frame", "row", "col"), "1")
+        put_array(g, "x", x, ("frame", "point", "xyz"), "m")
+        put_array(g, "gripper", gripper, ("frame", "xyz"), "m")
+        put_array(g, "times", times, ("frame",), "s")
         if dense is not None:
-            _put(g, "dense", dense, ("frame", "point", "xyz"), "m")
+            put_array(g, "dense", dense, ("frame", "point", "xyz"), "m")
         g.attrs["source"] = source
 
     def read_observed(self) -> dict[str, np.ndarray]:
@@ -222,16 +221,16 @@ class RunStore:
         g = rounds.require_group(str(r))
         n, d = theta.shape
         T = x_shape[0]
-        _put(g, "theta", theta, ("simulation", "parameter"), "physical (see param_space)")
-        _put(g, "u", u, ("simulation", "parameter"), "unit cube")
-        _put(g, "seed", np.asarray(seeds, np.int64), ("simulation",), "1")
+        put_array(g, "theta", theta, ("simulation", "parameter"), "physical (see param_space)")
+        put_array(g, "u", u, ("simulation", "parameter"), "unit cube")
+        put_array(g, "seed", np.asarray(seeds, np.int64), ("simulation",), "1")
         g.create_array("x", shape=(n, *x_shape), dtype="float32", chunks=(1, *x_shape), fill_value=np.nan,
                        dimension_names=("simulation", "frame", "point", "xyz"), attributes={"units": "m"})
         g.create_array("chamfer", shape=(n, T), dtype="float32", chunks=(1, T), fill_value=np.nan,
                        dimension_names=("simulation", "frame"), attributes={"units": "m"})
         if sensor_u is not None:
             k = sensor_u.shape[1]
-            _put(g, "sensor_u", sensor_u, ("simulation", "draw", "parameter"), "unit cube")
+            put_array(g, "sensor_u", sensor_u, ("simulation", "draw", "parameter"), "unit cube")
             g.create_array("sensor_x", shape=(n, k, *x_shape), dtype="float32", chunks=(1, k, *x_shape),
                            fill_value=np.nan, dimension_names=("simulation", "draw", "frame", "point", "xyz"),
                            attributes={"units": "m"})
@@ -290,34 +289,15 @@ class RunStore:
             SchemaError: ``q`` is not a mixture and no ``estimator`` state is given, or the state holds a
                 value that is none of the above.
         """
-        if not isinstance(q, MixtureOfGaussians) and estimator is None:
-            raise SchemaError(f"round {r + 1}: a posterior of type {type(q).__name__} is stored as the state of "
-                              f"its estimator; pass estimator=EstimatorState(name, options, state_dict())")
-        if isinstance(q, MixtureOfGaussians):
-            arrays = {"weights": q.weights, "means": q.means, "scale_tril": q.scale_tril}
-            attrs: dict[str, Any] = {"kind": "mixture"}
-        else:  # encoded before anything is written: a state that cannot be stored changes nothing
-            arrays = {}
-            attrs = {"kind": "estimator", "estimator": estimator.name, "options": jsonable(dict(estimator.options)),
-                     "state": _encode_state(estimator.state, arrays, f"round {r + 1}'s estimator state")}
+        # encoded before anything is written: a state that cannot be stored changes nothing
+        arrays, attrs = encode_posterior(q, estimator, f"round {r + 1}")
         g = self._round(r)
         g.attrs["complete"] = False
         if "posterior" in g:  # a half-written posterior of an interrupted session, or one trained again
             shutil.rmtree(self.path / "rounds" / str(r) / "posterior", ignore_errors=True)
             self.root = zarr.open_group(str(self.path), mode="a")
             g = self._round(r)
-        p = g.require_group("posterior")
-        if attrs["kind"] == "mixture":
-            _put(p, "weights", q.weights, ("component",), "1")
-            _put(p, "means", q.means, ("component", "parameter"), "unit cube")
-            _put(p, "scale_tril", q.scale_tril, ("component", "parameter", "parameter2"), "unit cube")
-        else:
-            s = p.require_group("state")
-            for name, a in arrays.items():
-                _put(s, name, a, tuple(f"dim_{i}" for i in range(a.ndim)), "")
-        attrs = {**attrs, "format": POSTERIOR_FORMAT}
-        attrs["checksum"] = _checksum(attrs, arrays)
-        p.attrs.update(attrs)
+        write_posterior(g.require_group("posterior"), arrays, attrs)
         g.attrs["info"] = jsonable(dict(info))
         g.attrs["complete"] = True
 
@@ -333,30 +313,8 @@ class RunStore:
         where = f"run '{self.path}': round {r + 1}'s stored posterior"
         fix = ("re-run the same `softsbi fit` command: it trains that round again from its stored simulations, "
                "which are intact")
-        try:
-            p = self._round(r)["posterior"]
-            attrs = dict(p.attrs)
-            kind = attrs.get("kind", "mixture")  # version-1 runs: mixtures without kind or checksum
-            if attrs.get("format", POSTERIOR_FORMAT) != POSTERIOR_FORMAT:
-                raise SchemaError(f"{where} has format {attrs['format']!r}, this softsbi reads {POSTERIOR_FORMAT}; "
-                                  f"install the softsbi version that wrote it ({self.root.attrs.get('softsbi_version')})")
-            if kind == "mixture":
-                arrays = {k: p[k][...] for k in ("weights", "means", "scale_tril")}
-            else:
-                s = p["state"]
-                arrays = {k: s[k][...] for k in s.array_keys()}
-        except SchemaError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - a deleted group/array (KeyError) or an unreadable chunk
-            raise PosteriorDamaged(f"{where} is missing or cannot be read ({type(exc).__name__}: {exc})", fix) from None
-        if "checksum" in attrs:
-            content = {k: v for k, v in attrs.items() if k != "checksum"}
-            if _checksum(content, arrays) != attrs["checksum"]:
-                raise PosteriorDamaged(f"{where} does not match its checksum (a damaged or changed file)", fix)
-        if kind == "mixture":
-            return MixtureOfGaussians(arrays["weights"], arrays["means"], arrays["scale_tril"])
-        return EstimatorState(str(attrs["estimator"]), dict(attrs.get("options") or {}),
-                              _decode_state(attrs["state"], arrays))
+        return read_posterior_group(lambda: self._round(r)["posterior"], where, fix,
+                                    str(self.root.attrs.get("softsbi_version")))
 
     def reset_failures(self) -> tuple[int, int, int] | None:
         """Make the failed simulations of the earliest round that has any pending again
@@ -378,26 +336,7 @@ class RunStore:
         per-simulation arrays :meth:`damaged` repairs row by row: ``{group path: reason}``, e.g.
         ``{"evaluation": "its 'chamfer' array cannot be read (RuntimeError)"}``; the paths are ``observed``,
         ``rounds/<r>`` (the round's draws), ``rounds/<r>/posterior`` and the other top-level groups."""
-        out: dict[str, str] = {}
-
-        def scan(path: str, g: zarr.Group, skip: tuple[str, ...] = ()) -> None:
-            for k in sorted(g.array_keys()):
-                if k in skip:
-                    continue
-                try:
-                    g[k][...]
-                except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
-                    out.setdefault(path, f"its '{k}' array cannot be read ({type(exc).__name__})")
-
-        for name in sorted(self.root.group_keys()):
-            if name != "rounds":
-                scan(name, self.root[name])
-        for r in self.round_ids():
-            g = self._round(r)
-            scan(f"rounds/{r}", g, skip=("x", "chamfer", "status", "sensor_x"))
-            if "posterior" in g:
-                scan(f"rounds/{r}/posterior", g["posterior"])
-        return out
+        return unreadable_groups(self.root, self.round_ids())
 
     def remove_group(self, name: str) -> None:
         """Remove a top-level group (e.g. ``evaluation``) and everything in it (nothing when it does not exist)."""
@@ -413,20 +352,7 @@ class RunStore:
             ``(round, {simulation: reason})``, or None when every stored simulation is intact.
         """
         for r in self.round_ids():
-            g = self._round(r)
-            bad: dict[int, str] = {}
-            arrays = {name: _read_rows(g[name], bad, name) for name in ("status", "x", "chamfer", "sensor_x")
-                      if name in g}
-            done = arrays["status"] == 0
-            x = arrays["x"].reshape(len(done), -1)
-            for i in np.nonzero(done & ~np.all(np.isfinite(x), axis=1))[0]:
-                bad.setdefault(int(i), "its stored state is missing (a deleted chunk)")
-            complete = self.is_complete(r)
-            if complete:  # a complete round has no pending simulation: its status chunk is gone
-                for i in np.nonzero(arrays["status"] == STATUS_PENDING)[0]:
-                    bad.setdefault(int(i), "its status is missing (a deleted chunk)")
-            else:  # a pending simulation is (re)written whole when it is simulated
-                bad = {i: why for i, why in bad.items() if arrays["status"][i] != STATUS_PENDING}
+            bad = damaged_rows(self._round(r), self.is_complete(r))
             if bad:
                 return r, bad
         return None
@@ -468,7 +394,7 @@ class RunStore:
         g = self.root.require_group(name)
         for k, v in arrays.items():
             v = np.asarray(v)
-            _put(g, k, v, tuple(f"dim_{i}" for i in range(v.ndim)), (units or {}).get(k, ""))
+            put_array(g, k, v, tuple(f"dim_{i}" for i in range(v.ndim)), (units or {}).get(k, ""))
         if attrs:
             g.attrs.update(jsonable(dict(attrs)))
 
@@ -532,116 +458,3 @@ class RunStore:
         arrays, attrs = self.read_group(name)
         n = len(arrays["status"]) if "status" in arrays else 0
         return {k: v[:n] for k, v in arrays.items()}, attrs
-
-
-@dataclass
-class EstimatorState:
-    """What restores a fitted posterior estimator: its plugin ``name``, the constructor ``options`` and
-    ``state`` (its :meth:`~softsbi.core.interfaces.PosteriorEstimator.state_dict`)."""
-
-    name: str
-    options: dict[str, Any]
-    state: dict[str, Any]
-
-
-#: marks an array in a stored state dict (its name under ``posterior/state``)
-_ARRAY = "$array"
-
-
-def _encode_state(obj: Any, arrays: dict[str, np.ndarray], what: str) -> Any:
-    """JSON skeleton of a state dict; every array goes to ``arrays`` under a new name."""
-    if isinstance(obj, Mapping):
-        if _ARRAY in obj:
-            raise SchemaError(f"{what} uses the reserved key {_ARRAY!r}; rename it")
-        return {str(k): _encode_state(v, arrays, what) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_encode_state(v, arrays, what) for v in obj]
-    if obj is None or isinstance(obj, (bool, int, float, str, np.generic)):
-        return jsonable(obj)
-    if hasattr(obj, "__array__"):
-        a = np.asarray(obj.detach() if hasattr(obj, "detach") else obj)
-        if a.dtype == object:
-            raise SchemaError(f"{what} holds an array of Python objects; give numbers")
-        name = str(len(arrays))
-        arrays[name] = a
-        return {_ARRAY: name}
-    raise SchemaError(f"{what} holds a {type(obj).__name__}; a state dict holds NumPy arrays, numbers, strings, "
-                      f"None, and dicts and lists of them")
-
-
-def _decode_state(skeleton: Any, arrays: Mapping[str, np.ndarray]) -> Any:
-    """Inverse of :func:`_encode_state` (tuples come back as lists)."""
-    if isinstance(skeleton, Mapping):
-        if set(skeleton) == {_ARRAY}:
-            return arrays[skeleton[_ARRAY]]
-        return {k: _decode_state(v, arrays) for k, v in skeleton.items()}
-    if isinstance(skeleton, list):
-        return [_decode_state(v, arrays) for v in skeleton]
-    return skeleton
-
-
-def _checksum(attrs: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
-    """``sha256:<hex>`` of a group's attributes (canonical JSON) and arrays (name, dtype, shape, bytes)."""
-    h = hashlib.sha256(json.dumps(jsonable(dict(attrs)), sort_keys=True).encode())
-    for k in sorted(arrays):
-        a = np.ascontiguousarray(arrays[k])
-        h.update(f"{k}|{a.dtype.str}|{a.shape}|".encode())
-        h.update(a.tobytes())
-    return "sha256:" + h.hexdigest()
-
-
-def _put(g: zarr.Group, name: str, value: np.ndarray, dims: tuple[str, ...], units: str) -> None:
-    value = np.asarray(value)
-    if name in g:
-        del g[name]
-    arr = g.create_array(name, shape=value.shape, dtype=value.dtype, dimension_names=dims,
-                         attributes={"units": units})
-    arr[...] = value
-
-
-def _check_metadata(path: Path, root: zarr.Group) -> None:
-    """Every group's and array's ``zarr.json`` under the store ``path`` parses and opens.
-
-    Raises:
-        SchemaError: one line naming the first file that does not, and the fix.
-    """
-    import json
-    import os
-    for folder, dirs, files in os.walk(path):
-        here = Path(folder)
-        if "zarr.json" in files and "c" in dirs:  # an array's chunks: no metadata below
-            dirs.remove("c")
-        dirs.sort()
-        if "zarr.json" not in files or here == path:
-            continue
-        rel = here.relative_to(path).as_posix()
-        try:
-            json.loads((here / "zarr.json").read_bytes())
-            root[rel]
-        except Exception as exc:  # noqa: BLE001 - a garbage or truncated metadata file
-            top = rel.split("/")
-            if top[0] == "rounds" and len(top) > 1:
-                fix = (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
-                       f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
-            elif top[0] in ("observed",):
-                fix = "fit into a new --out folder"
-            else:
-                fix = (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
-                       f"for evaluation/): it computes it again")
-            raise SchemaError(f"run store file '{here / 'zarr.json'}' cannot be read ({type(exc).__name__}); "
-                              f"{fix}") from None
-
-
-def _read_rows(arr: zarr.Array, bad: dict[int, str], name: str) -> np.ndarray:
-    """``arr[...]``; when a chunk cannot be read, row by row, with the unreadable rows filled
-    (``arr.fill_value``) and named in ``bad``."""
-    try:
-        return arr[...]
-    except Exception:  # noqa: BLE001 - a truncated or corrupt chunk fails with the codec's error
-        out = np.full(arr.shape, arr.fill_value, dtype=arr.dtype)
-        for i in range(arr.shape[0]):
-            try:
-                out[i] = arr[i]
-            except Exception as exc:  # noqa: BLE001
-                bad.setdefault(i, f"its '{name}' chunk cannot be read ({type(exc).__name__})")
-        return out

@@ -10,6 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from softsbi.core.errors import DataError
 
 #: largest YAML file read (bytes): scenario files and recordings hold settings and short paths; long paths
@@ -45,8 +47,6 @@ def read_yaml(path: str | Path, hint: str = "fix that line") -> Any:
 
 def load_yaml(text: str, source: str, hint: str = "fix that line") -> Any:
     """:func:`read_yaml` for text already read; ``source`` names it in messages."""
-    import yaml
-
     class Loader(yaml.SafeLoader):
         """The safe loader, counting what aliases add while it composes the document."""
 

@@ -26,7 +26,7 @@ def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.n
         DataError: missing folder, no numbered frames, gaps in the numbering, unreadable files,
             frames of different sizes, or a resize that changes the aspect ratio by more than 2 %.
     """
-    import cv2
+    import cv2  # heavy (OpenCV): loaded only to read or write image frames
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -63,7 +63,7 @@ def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.n
 
 def save_frames(images: np.ndarray, folder: str | Path) -> list[Path]:
     """Write ``images (T, H, W, 3)`` uint8 RGB as ``folder/000.png, 001.png, ...``; returns the paths."""
-    import cv2
+    import cv2  # heavy (OpenCV): loaded only to read or write image frames
 
     images = check_images(images)
     folder = Path(folder)

@@ -154,7 +154,7 @@ def load_keypoint_folder(folder: str | Path, outside_margin: float = 0.25) -> tu
             a K different from the others, points outside their image, images of mixed sizes, or
             images that are not 3-channel colour.
     """
-    import cv2
+    import cv2  # heavy (OpenCV): loaded only to draw or read images
 
     folder = Path(folder)
     img_dir, kp_dir = folder / "images", folder / "keypoints"
@@ -332,7 +332,7 @@ def keypoint_distances(pred: np.ndarray, true: np.ndarray, match: str = "index")
         return np.linalg.norm(p - t, axis=-1)
     if match != "hungarian":
         raise ValueError(f"match must be 'index' or 'hungarian', got {match!r}")
-    from scipy.optimize import linear_sum_assignment
+    from scipy.optimize import linear_sum_assignment  # heavy (scipy): loaded only to match keypoints
 
     out = np.empty(p.shape[:2])
     for i in range(len(p)):
@@ -359,7 +359,7 @@ def match_keypoints(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
     p, t = np.asarray(pred, np.float64), np.asarray(true, np.float64)
     if p.shape != t.shape or p.ndim != 3 or p.shape[-1] != 2:
         raise ShapeError(f"pred and true must both be (N, K, 2), got {p.shape} and {t.shape}")
-    from scipy.optimize import linear_sum_assignment
+    from scipy.optimize import linear_sum_assignment  # heavy (scipy): loaded only to match keypoints
 
     out = np.empty_like(p)
     for i in range(len(p)):
@@ -426,7 +426,7 @@ def draw_keypoints(images: np.ndarray, pred: np.ndarray, true: np.ndarray | None
     Raises:
         ShapeError: bad images, or keypoints not ``(N, K, 2)`` for those images.
     """
-    import cv2
+    import cv2  # heavy (OpenCV): loaded only to draw or read images
 
     images = check_images(images)
     N, H, W = images.shape[:3]

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any, Literal, Mapping, Optional, Sequence, Union
 
 import numpy as np
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from softsbi.core.arrays import read_npy
@@ -115,7 +116,7 @@ class Transform(_Strict):
         """4x4 homogeneous matrix; DiffCloud: ``p -> (p + c - t) @ Rz(a)`` (rows; metres, the scale cancels)."""
         if self.matrix is not None:
             return np.asarray(self.matrix, dtype=float)
-        from scipy.spatial.transform import Rotation
+        from scipy.spatial.transform import Rotation  # heavy (scipy): loaded only for a diffcloud transform
         d = self.diffcloud
         rz = Rotation.from_euler("z", float(d.z_rotation), degrees=True).as_matrix()
         m = np.eye(4)
@@ -297,7 +298,6 @@ def write_recording(folder: str | Path, meta: Mapping[str, Any], clouds: Sequenc
         DataError: invalid meta, times vs clouds disagree, malformed clouds, ``folder`` exists and is
             not empty (unless ``overwrite``).
     """
-    import yaml
     folder = Path(folder)
     meta = dict(meta)
     meta.setdefault("format", FORMAT)

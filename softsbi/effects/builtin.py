@@ -38,6 +38,9 @@ import numpy as np
 
 from softsbi.core.interfaces import Effect, VertexContext
 from softsbi.core.types import Param, ParamSpace
+from softsbi.effects.generic import GENERIC_EFFECTS
+from softsbi.effects.physics import PHYSICS_EFFECTS
+from softsbi.effects.sensor import SENSOR_EFFECTS
 from softsbi.plugins.hookspecs import hookimpl
 
 AIR_VISCOSITY = 1.8e-5  # Pa s
@@ -193,7 +196,4 @@ BUILTIN_EFFECTS = (AirDrag, Wind, ExtraDamping, GripCompliance)
 @hookimpl
 def softsbi_effects():
     """Every built-in effect: the four above, the physical and sensor candidates and the generic terms."""
-    from softsbi.effects.generic import GENERIC_EFFECTS
-    from softsbi.effects.physics import PHYSICS_EFFECTS
-    from softsbi.effects.sensor import SENSOR_EFFECTS
     return [*BUILTIN_EFFECTS, *PHYSICS_EFFECTS, *SENSOR_EFFECTS, *GENERIC_EFFECTS]

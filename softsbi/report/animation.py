@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import DependencyMissing
-from softsbi.report.figures import ROLE_COLOURS, _plt, grip_label, handle_tracks, pinned_vertices
+from softsbi.report.style import ROLE_COLOURS, _plt, grip_label
+from softsbi.scenarios.handles import handle_tracks, pinned_vertices
 
-#: colours of the roles: the palette of every figure (:data:`softsbi.report.figures.ROLE_COLOURS`)
+#: colours of the roles: the palette of every figure (:data:`softsbi.report.style.ROLE_COLOURS`)
 COLOR_MEASURED = ROLE_COLOURS["measured"]
 COLOR_POSTERIOR = ROLE_COLOURS["posterior"]
 COLOR_GRIPPER = ROLE_COLOURS["gripper"]
@@ -57,9 +58,9 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
               dpi: int = 90, best: dict[str, Any] | None = None) -> Path:
     """The GIF of ``softsbi view`` (:func:`softsbi.workflows.view.write_animation`); ``best``: the fit's best fit
     (``vertices (T, N, 3)`` m, ``faces``, ``chamfer (T,)`` m, ``label``), drawn in its own colour, or None."""
-    from matplotlib.animation import PillowWriter
-    from matplotlib.collections import LineCollection
-    from matplotlib.lines import Line2D
+    from matplotlib.animation import PillowWriter  # heavy: loaded on the first figure only
+    from matplotlib.collections import LineCollection  # heavy: loaded on the first figure only
+    from matplotlib.lines import Line2D  # heavy: loaded on the first figure only
 
 
     plt = _plt()
@@ -194,7 +195,7 @@ def _handle_xy(grips: list[np.ndarray], pinned: list[tuple[str, int]], rollouts:
 
 def import_rerun():
     try:
-        import rerun as rr
+        import rerun as rr  # optional dependency (softsbi[rerun])
     except ImportError as exc:
         raise DependencyMissing(f"writing a rerun recording (.rrd) needs the rerun SDK, which is not installed "
                                 f"({exc}); install it with: pip install \"softsbi[view]\" (or pip install "
@@ -203,7 +204,7 @@ def import_rerun():
 
 
 def _rgba(spec: str, alpha: float = 1.0) -> list[int]:
-    from matplotlib.colors import to_rgba
+    from matplotlib.colors import to_rgba  # heavy: loaded on the first figure only
     r, g, b, _ = to_rgba(spec)
     return [round(255 * c) for c in (r, g, b, alpha)]
 
@@ -222,7 +223,7 @@ def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, 
             best: dict[str, Any] | None = None) -> Path:
     """The rerun recording of ``softsbi view`` (:func:`softsbi.workflows.view.write_rerun`); ``best`` as in
     :func:`draw_gif`: logged as ``world/best_fit`` and ``error/best_fit_cm``."""
-    import rerun.blueprint as rrb
+    import rerun.blueprint as rrb  # optional dependency (softsbi[rerun])
 
     sc = view.scenario
     dense = view.dense

@@ -14,8 +14,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from softsbi.report.figures import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS, _header,
-                                    _plt, _save)
+from softsbi.report.style import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS, _header, _plt,
+                                  save_figure)
 
 __all__ = ["calibration_figure", "plot_calibration"]
 
@@ -111,4 +111,4 @@ def calibration_figure(cal: Mapping[str, Any]) -> Any:
 
 def plot_calibration(path: str | Path, cal: Mapping[str, Any]) -> Path:
     """Save :func:`calibration_figure` of a ``calibration.json`` dict to ``path`` (PNG)."""
-    return _save(calibration_figure(cal), Path(path))
+    return save_figure(calibration_figure(cal), Path(path))

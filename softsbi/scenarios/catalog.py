@@ -13,8 +13,11 @@ import warnings
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from softsbi.core.errors import DataError, closest
+import yaml
+
+from softsbi.core.errors import DataError, PluginError, closest
 from softsbi.core.types import Scenario
+from softsbi.plugins import registry
 from softsbi.scenarios.spec import load_scenario_file
 
 #: folder of the built-in scenario files (package data)
@@ -45,8 +48,6 @@ def plugin_scenarios() -> dict[str, tuple[Any, str]]:
         PluginError: a hook returns something that is not a mapping of names to scenarios, callables or
             paths, or two plugins give the same name.
     """
-    from softsbi.core.errors import PluginError
-    from softsbi.plugins import registry
     reg = registry()
     out: dict[str, tuple[Any, str]] = {}
     for impl in reg.pm.hook.softsbi_scenarios.get_hookimpls():
@@ -71,7 +72,6 @@ def plugin_scenarios() -> dict[str, tuple[Any, str]]:
 
 def list_scenarios() -> list[dict[str, Any]]:
     """Every known scenario: ``[{"name", "source" ("built-in" or the plugin), "file", "description"}]``."""
-    import yaml
     rows = []
     for name, p in builtin_files().items():
         desc = (yaml.safe_load(p.read_text()) or {}).get("description", "")

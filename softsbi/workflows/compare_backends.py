@@ -28,7 +28,7 @@ from softsbi.core.results import write_json_atomic
 from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
 from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.plugins import registry
-from softsbi.report.figures import plot_compare_backends
+from softsbi.report import plot_compare_backends
 from softsbi.workflows.defaults import COMPARED_BACKENDS
 
 

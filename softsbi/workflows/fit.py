@@ -35,7 +35,7 @@ from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
 from softsbi.plugins import registry
-from softsbi.report import write_fit_plots
+from softsbi.workflows.fitplots import write_fit_plots
 from softsbi.workflows.bank import BankCount, banks_enabled, check_bank_path
 from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, parameter_table

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-import softsbi.core.results as results
+import softsbi.core.jsonfile as jsonfile
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import write_result
 from result_helpers import check_result
@@ -27,7 +27,7 @@ def test_a_full_disk_keeps_the_old_file_and_leaves_no_tmp(tmp_path, monkeypatch)
 
     def full(fd):
         raise OSError(errno.ENOSPC, "No space left on device")
-    monkeypatch.setattr(results.os, "fsync", full)
+    monkeypatch.setattr(jsonfile.os, "fsync", full)
     with pytest.raises(ResultUnwritable) as err:
         write_json_atomic(target, {"new": 2})
     line = str(err.value)

@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 import softsbi
-import softsbi.core.results as results
+import softsbi.core.jsonfile as jsonfile
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
 from softsbi.workflows import check, diagnose
@@ -104,7 +104,7 @@ def test_a_damaged_check_is_computed_again_and_a_full_disk_names_the_file_and_le
 
     def full(fd):
         raise OSError(errno.ENOSPC, "No space left on device")
-    monkeypatch.setattr(results.os, "fsync", full)
+    monkeypatch.setattr(jsonfile.os, "fsync", full)
     res = runner.invoke(app, ["check", str(run), "--n-eval", "5", "--workers", "1"])
     line = _error_line(res)
     assert f"{run / 'check.json'} cannot be used (not valid JSON" in res.output and "computing it again" in res.output
@@ -118,7 +118,7 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
     def full(fd):
         raise OSError(errno.ENOSPC, "No space left on device")
     with monkeypatch.context() as m:
-        m.setattr(results.os, "fsync", full)
+        m.setattr(jsonfile.os, "fsync", full)
         with pytest.raises(SoftsbiError) as err:
             diagnose.diagnose_run(run, **DIAG)
     assert f"cannot write '{run / 'diagnosis.json'}' (no space left on the device)" in str(err.value)

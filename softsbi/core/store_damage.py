@@ -1,0 +1,108 @@
+"""What in a run store cannot be read: its metadata files (:func:`check_metadata`, on opening), whole arrays of a
+group (:func:`unreadable_groups`) and single simulations of a round (:func:`damaged_rows`, which the fit simulates
+again). :class:`~softsbi.core.store.RunStore` asks these; each names what is damaged, never repairs it."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import zarr
+
+from softsbi.core.errors import SchemaError
+from softsbi.core.types import STATUS_PENDING
+
+#: a round's per-simulation arrays: repaired row by row (:func:`damaged_rows`), not as whole groups
+ROW_ARRAYS = ("status", "x", "chamfer", "sensor_x")
+
+
+def check_metadata(path: Path, root: zarr.Group) -> None:
+    """Every group's and array's ``zarr.json`` under the store ``path`` parses and opens.
+
+    Raises:
+        SchemaError: one line naming the first file that does not, and the fix.
+    """
+    for folder, dirs, files in os.walk(path):
+        here = Path(folder)
+        if "zarr.json" in files and "c" in dirs:  # an array's chunks: no metadata below
+            dirs.remove("c")
+        dirs.sort()
+        if "zarr.json" not in files or here == path:
+            continue
+        rel = here.relative_to(path).as_posix()
+        try:
+            json.loads((here / "zarr.json").read_bytes())
+            root[rel]
+        except Exception as exc:  # noqa: BLE001 - a garbage or truncated metadata file
+            top = rel.split("/")
+            if top[0] == "rounds" and len(top) > 1:
+                fix = (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
+                       f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
+            elif top[0] in ("observed",):
+                fix = "fit into a new --out folder"
+            else:
+                fix = (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
+                       f"for evaluation/): it computes it again")
+            raise SchemaError(f"run store file '{here / 'zarr.json'}' cannot be read ({type(exc).__name__}); "
+                              f"{fix}") from None
+
+
+def _read_rows(arr: zarr.Array, bad: dict[int, str], name: str) -> np.ndarray:
+    """``arr[...]``; when a chunk cannot be read, row by row, with the unreadable rows filled
+    (``arr.fill_value``) and named in ``bad``."""
+    try:
+        return arr[...]
+    except Exception:  # noqa: BLE001 - a truncated or corrupt chunk fails with the codec's error
+        out = np.full(arr.shape, arr.fill_value, dtype=arr.dtype)
+        for i in range(arr.shape[0]):
+            try:
+                out[i] = arr[i]
+            except Exception as exc:  # noqa: BLE001
+                bad.setdefault(i, f"its '{name}' chunk cannot be read ({type(exc).__name__})")
+        return out
+
+
+def unreadable_groups(root: zarr.Group, rounds: Sequence[int]) -> dict[str, str]:
+    """Groups of the store ``root`` holding an array that cannot be read whole (a truncated or corrupt chunk),
+    other than the per-simulation arrays of ``rounds`` (:data:`ROW_ARRAYS`): ``{group path: reason}``; the paths
+    are ``observed``, ``rounds/<r>``, ``rounds/<r>/posterior`` and the other top-level groups."""
+    out: dict[str, str] = {}
+
+    def scan(path: str, g: zarr.Group, skip: tuple[str, ...] = ()) -> None:
+        for k in sorted(g.array_keys()):
+            if k in skip:
+                continue
+            try:
+                g[k][...]
+            except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
+                out.setdefault(path, f"its '{k}' array cannot be read ({type(exc).__name__})")
+
+    for name in sorted(root.group_keys()):
+        if name != "rounds":
+            scan(name, root[name])
+    for r in rounds:
+        g = root["rounds"][str(r)]
+        scan(f"rounds/{r}", g, skip=ROW_ARRAYS)
+        if "posterior" in g:
+            scan(f"rounds/{r}/posterior", g["posterior"])
+    return out
+
+
+def damaged_rows(g: zarr.Group, complete: bool) -> dict[int, str]:
+    """The simulations of the round group ``g`` that cannot be trusted, ``{simulation: reason}``: a chunk that
+    cannot be read (truncated or corrupt), or one marked done whose state is missing (a deleted chunk reads as its
+    fill value); in a ``complete`` round also a pending one (its status chunk is gone)."""
+    bad: dict[int, str] = {}
+    arrays = {name: _read_rows(g[name], bad, name) for name in ROW_ARRAYS if name in g}
+    done = arrays["status"] == 0
+    x = arrays["x"].reshape(len(done), -1)
+    for i in np.nonzero(done & ~np.all(np.isfinite(x), axis=1))[0]:
+        bad.setdefault(int(i), "its stored state is missing (a deleted chunk)")
+    if complete:  # a complete round has no pending simulation: its status chunk is gone
+        for i in np.nonzero(arrays["status"] == STATUS_PENDING)[0]:
+            bad.setdefault(int(i), "its status is missing (a deleted chunk)")
+    else:  # a pending simulation is (re)written whole when it is simulated
+        bad = {i: why for i, why in bad.items() if arrays["status"][i] != STATUS_PENDING}
+    return bad
