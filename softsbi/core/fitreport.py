@@ -283,8 +283,11 @@ class FitReport:
             d = {k: v for k, v in data.items() if k in known}
             report = _build(cls, d)
             best = data.get("best_fit")
+            # _build leaves a Mapping's values as read: the contraction's entries are typed here
+            widths = {str(k): _build(Contraction, v) for k, v in (data.get("contraction") or {}).items()}
             return dataclasses.replace(
                 report, metric=metric, best_fit=None if best is None else BestFitRow.from_json(best, metric),
+                contraction=widths,
                 extra={k: v for k, v in data.items() if k not in known and k != "best_fit"})
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ResultDamaged(path, f"not a fit report: {exc}", rewrite) from None
@@ -307,6 +310,16 @@ class FitReport:
                 out[name] = _plain(value)
         out.update(_plain(self.extra))
         return out
+
+    def interval(self, name: str) -> tuple[float | None, float | None]:
+        """Parameter ``name``'s 90% posterior interval ``(q05, q95)`` (own units; None where the report lacks it)."""
+        return tuple(None if name not in q else float(q[name])  # type: ignore[return-value]
+                     for q in (self.posterior_q05, self.posterior_q95))
+
+    def width_ratio(self, name: str) -> float | None:
+        """Parameter ``name``'s 90% interval width over the prior's (:class:`Contraction`; None where the report
+        lacks it: a report written before contraction, or a parameter it does not infer)."""
+        return self.contraction[name].width_ratio if name in self.contraction else None
 
     def space_json(self) -> list[dict[str, Any]]:
         """:attr:`parameters` as :meth:`~softsbi.core.types.ParamSpace.from_json` takes them."""
