@@ -124,7 +124,8 @@ def calibrate_variant(run_dir: Path, v: str, n_test: int, workers: int) -> dict:
 
     est, opts = VARIANTS[v]
     t0 = time.perf_counter()
-    cal = calibrate_run(run_dir, n_test=n_test, workers=workers, estimator=est, estimator_options=opts, write=False)
+    cal = calibrate_run(run_dir, n_test=n_test, workers=workers, estimator=est, estimator_options=opts,
+                        write=False).to_json()
     cov = cal["coverage"]
     sbc = cal["diagnostics"]["sbc"]
     return {"estimator": est, "options": opts, "n_test": cal["n_test"],

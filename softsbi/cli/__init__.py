@@ -564,26 +564,27 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
     with shown(o):
         out = calibrate_run(run, n_test=n_test, n_draws=n_draws, workers=workers, message=o.message)
     if as_json:
-        o.emit_json(out)
+        o.emit_json(out.to_json())
         return
     _print_calibration(o, out)
-    o.line(f"verdict: {out['verdict']}")
+    o.line(f"verdict: {out.verdict}")
     o.line(f"wrote {run / 'calibration.json'} and {run / 'calibration.png'}")
 
 
-def _print_calibration(o: Output, out: dict[str, Any]) -> None:
-    """``softsbi calibrate``'s table and one line per diagnostic the verdict reads."""
+def _print_calibration(o: Output, out: Any) -> None:
+    """``softsbi calibrate``'s table and one line per diagnostic the verdict reads (``out``: a
+    :class:`~softsbi.core.fitreport.CalibrationResult`)."""
     from softsbi.inference.calibration import SHAPES
-    c, d = out["coverage"], out["diagnostics"]
-    conf = 100 * c["band_simultaneous_confidence"]
+    c, d = out.coverage, out.diagnostics
+    conf = 100 * c.band_simultaneous_confidence
     o.table(["level", "expected coverage", f"calibrated range ({conf:.1f}%, whole curve)", "verdict"],
-            [[f"{int(100 * g)}%", f"{c[k]:.2f}", f"[{c[b][0]:.2f}, {c[b][1]:.2f}]", out[v]]
-             for g, k, b, v in ((0.5, "at_50", "band_50", "verdict_50"), (0.9, "at_90", "band_90", "verdict_90"))],
-            title=f"Calibration of '{out['estimator']}' on {out['n_test']} fresh test simulations")
-    out_pw = c["outside_pointwise"]
-    o.line("joint coverage (HPD): " + ("inside" if c["inside_simultaneous"] else "OUTSIDE")
-           + f" the simultaneous {conf:.1f}% band over {len(c['levels']) - 2} levels"
-           + ("" if c["inside_simultaneous"] else f" ({d['coverage']['direction']})") + "; "
+            [[f"{int(100 * g)}%", f"{at:.2f}", f"[{b[0]:.2f}, {b[1]:.2f}]", v]
+             for g, at, b, v in ((0.5, c.at_50, c.band_50, out.verdict_50), (0.9, c.at_90, c.band_90, out.verdict_90))],
+            title=f"Calibration of '{out.estimator}' on {out.n_test} fresh test simulations")
+    out_pw = c.outside_pointwise
+    o.line("joint coverage (HPD): " + ("inside" if c.inside_simultaneous else "OUTSIDE")
+           + f" the simultaneous {conf:.1f}% band over {len(c.levels) - 2} levels"
+           + ("" if c.inside_simultaneous else f" ({d['coverage']['direction']})") + "; "
            + (f"outside the pointwise 95% band at {', '.join(f'{int(round(100 * g))}%' for g in out_pw)}"
               if out_pw else "inside the pointwise 95% band at every level"))
     t = d["tarp"]

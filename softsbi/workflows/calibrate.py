@@ -37,6 +37,7 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, TruncatedPrior
 from softsbi.core.errors import PosteriorError, SoftsbiError
+from softsbi.core.fitreport import CalibrationResult
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
@@ -160,7 +161,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
                   workers: int | None = None,
                   estimator: str | None = None, estimator_options: Mapping[str, Any] | None = None,
                   n_bins: int = defaults.N_BINS, write: bool = True,
-                  message: Callable[[str], None] | None = None) -> dict[str, Any]:
+                  message: Callable[[str], None] | None = None) -> CalibrationResult:
     """Simulation-based calibration of a finished run's final estimator (module docstring).
 
     Args:
@@ -180,7 +181,8 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         message: progress notices.
 
     Returns:
-        The ``calibration.json`` dict: ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
+        The :class:`~softsbi.core.fitreport.CalibrationResult` (``calibration.json`` is its
+        :meth:`~softsbi.core.fitreport.CalibrationResult.to_json`): ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
         95 %), ``band_simultaneous_lo``/``_hi`` (the whole curve's band at the verdict's level, Bonferroni over
         the levels), ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``, ``band_50``,
         ``band_90`` (the verdict's band at those levels)), ``verdict_50``, ``verdict_90``, ``verdict``,
@@ -301,8 +303,9 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
                           if k in ("epochs", "best_epoch", "val_loss", "ensemble", "recalibration")},
         "refit_max_mean_difference": refit,
     }
+    result = CalibrationResult.from_json(out, run_dir / "calibration.json")
     if write:
         with run_lock(run_dir):
-            write_json_atomic(run_dir / "calibration.json", out)
-            plot_calibration(run_dir / "calibration.png", out)
-    return out
+            write_json_atomic(run_dir / "calibration.json", result.to_json())
+            plot_calibration(run_dir / "calibration.png", result)
+    return result

@@ -291,6 +291,17 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
 # check
 
 
+def loaded(run: str | Path | RunView, pool: PosteriorPredictive | None = None, seed: int = 0) -> RunView:
+    """The run a command works on, loaded once: ``run`` itself when loaded already, else ``pool``'s when it is the
+    same run directory, else :func:`~softsbi.workflows.runs.load_run` with every evaluation sample (so that the
+    posterior-predictive null is built on it without loading it again)."""
+    if isinstance(run, RunView):
+        return run
+    if pool is not None and Path(pool.run.path).resolve() == Path(run).resolve():
+        return pool.run
+    return load_run(run, None, seed)
+
+
 def result_key(run: RunView, **settings: Any) -> dict[str, Any]:
     """What determines a check or a diagnosis of ``run``: a digest of the fit's ``report.json`` (it changes
     whenever the fit does) and the command's ``settings``. A stored result is reused only under the same key."""
@@ -306,7 +317,7 @@ def stored_result(path: Path, cls: type, key: dict[str, Any], say: Callable[[str
         return None
     try:
         data = read_json(path, "", ("key",))
-        return from_json(cls, data) if data.get("key") == key else None
+        return from_json(cls, data) if data["key"] == key else None  # read_json requires the key
     except ResultDamaged as exc:
         problem = exc.problem
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
@@ -320,13 +331,15 @@ def reused(path: Path) -> str:
     return f"reused {path} (computed before for this fit and these settings; --recompute computes it again)"
 
 
-def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
+def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
               pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None,
               recompute: bool = False, message: Callable[[str], None] | None = None) -> CheckResult:
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
+        run_dir: the run directory, or the run already loaded (:func:`~softsbi.workflows.runs.load_run`), which is
+            then not loaded again (nor when ``pool`` holds it).
         n_eval: posterior rollouts for the error maps and the start of the test's null.
         alpha: level of the misspecification verdict (``p <= alpha``).
         max_null: cap of the adaptive extension of the null (:func:`~softsbi.workflows.stats.resolution_needed`).
@@ -354,7 +367,7 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         raise SoftsbiError(f"--n-eval {n_eval}: the check needs at least {MIN_ROLLOUTS} posterior rollouts; give "
                            f"--n-eval {MIN_ROLLOUTS} or more (default {N_NULL})")
     check_resolution(alpha, max_null, 2)
-    run = load_run(run_dir, n_eval, seed)
+    run = loaded(run_dir, pool, seed)
     cands = candidate_effects(run, effects)
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
                      family=sorted(c.name for c in cands))
@@ -367,7 +380,7 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
             say(f"wrote {run.path / 'check.png'}")
         say(reused(json_path))
         return stored
-    check_out_dir(run_dir, "run directory", "check writes check.json and check.png into it: copy the run "
+    check_out_dir(run.path, "run directory", "check writes check.json and check.png into it: copy the run "
                                             "directory to a writable place and check the copy")
     pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_eval)
     # the fit's own job, samples and seeds: the mean Chamfer equals report.json's chamfer_posterior_m
@@ -402,7 +415,7 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         phases.append(Phase(ph["phase"], (a, b), tuple(ph["t_s"]), float(mean_t[a:b + 1].mean()),
                             float(mean_t1[a:b + 1].mean()), bool(in_fit[a:b + 1].any()), names[worst]))
     fit_idx = np.nonzero(in_fit)[0]
-    one = stats.get("one_sided_mean_m")
+    one = stats["one_sided_mean_m"]  # chamfer_stats of one-sided Chamfers: always there
 
     def band(c: np.ndarray) -> Band:
         return Band(tuple(c.mean(0).tolist()), tuple(np.quantile(c, 0.05, 0).tolist()),
@@ -419,7 +432,7 @@ def check_run(run_dir: str | Path, n_eval: int = N_NULL, workers: int | None = N
         test, ranking, energy_score(pool, n_eval), posterior_mean_chamfer(run, workers=workers),
         residual_shape(run, pool, n_eval, phase_chamfer={p.phase: p.chamfer_m for p in phases})
         if test.misspecified else None,
-        tuple((run.report or {}).get("posterior_at_bounds") or ()), key, time.perf_counter() - t0,
+        tuple(b.to_json() for b in run.report.posterior_at_bounds), key, time.perf_counter() - t0,
         grasp_handle=grasp_handle(run.scenario),
         phases_at_keyframes=bool((run.scenario.options or {}).get("keyframe_times")))
     write_result(json_path, result)

@@ -27,13 +27,14 @@ from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, Join
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
-from softsbi.workflows.check import check_run, result_key, reused, stored_result
+from softsbi.core.fitreport import FitReport
+from softsbi.workflows.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import defaults
 from softsbi.workflows.decide import K_SE, decide, next_refit
 from softsbi.workflows.progress import fit_callbacks
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.lock import run_lock
-from softsbi.workflows.runs import RunView, load_run
+from softsbi.workflows.runs import RunView
 from softsbi.workflows.screening import candidate_effects, check_resolution
 from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
@@ -87,7 +88,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     t0 = time.perf_counter()
     check_settings(confirm=confirm, k_se=k_se, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null)
     check_resolution(alpha, max_null, 2)
-    run = load_run(run_dir, n_null, seed)
+    run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
     base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
     refit_rounds = None if refit_rounds == base.rounds else refit_rounds
     refit_sims = None if refit_sims == base.sims_per_round else refit_sims
@@ -109,7 +110,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     with run_lock(out, command="diagnose", busy=busy):
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
-        chk = check_run(run.path, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
+        chk = check_run(run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
                         pool=pool, effects=family, recompute=recompute, message=say)
         # the score every model is compared on: the energy score of check's summaries in the nominal's scale
         f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
@@ -187,31 +188,30 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
                   sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
                   sensor_draws=0, workers=workers if workers is not None else base.workers)
     out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
-    res = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
-    pool = PosteriorPredictive(out, workers, seed)
-    chk = check_run(out, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
+    run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
+    pool = PosteriorPredictive(out, workers, seed)  # the refit, loaded once: its check and score share it
+    chk = check_run(pool.run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
                     effects=[e for e in family if e not in effects])
     f = pool.ensure(n_null).features[:n_null]
     score = (summary_energy_score(run_features(pool.run, pool.run.dense), f, scale)
              if scale is not None and len(f) >= 3 else None)
     # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
-    return Refit(effects, str(out), chk.test, score, chk.chamfer_mean_m, estimates(res.report, effects), chk.ranking,
+    return Refit(effects, str(out), chk.test, score, chk.chamfer_mean_m, estimates(pool.run.report, effects), chk.ranking,
                  cfg.rounds, cfg.sims_per_round, chk.n_rollouts)
 
 
-def estimates(report: dict[str, Any], effects: Sequence[str]) -> tuple[Estimate, ...]:
+def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]:
     """A fit's posterior of the parameters of ``effects`` (from its ``report.json``): mean, 90% interval, width
-    over the prior's and the prior bound it presses, with the prior to try instead."""
-    mean, q05, q95 = (report.get(k) or {} for k in ("posterior_mean", "posterior_q05", "posterior_q95"))
-    width = report.get("contraction") or {}
-    pressed = {b["param"]: b for b in report.get("posterior_at_bounds") or []}
+    over the prior's and the prior bound it presses, with the prior to try instead (None where the report lacks
+    them: an older report)."""
+    pressed = {b.param: b for b in report.posterior_at_bounds}
     out = []
     for p in (p for e in effects for p in registry().effect(e)().param_space()):
-        if p.name in mean:
-            b = pressed.get(p.name) or {}
-            out.append(Estimate(p.name, p.unit, float(mean[p.name]), q05.get(p.name), q95.get(p.name),
-                                (width.get(p.name) or {}).get("width_ratio"), b.get("side"),
-                                tuple(b["suggested_bounds"]) if b.get("suggested_bounds") else None))
+        if p.name in report.posterior_mean:
+            b = pressed.get(p.name)
+            out.append(Estimate(p.name, p.unit, float(report.posterior_mean[p.name]), *report.interval(p.name),
+                                report.width_ratio(p.name), None if b is None else b.side,
+                                None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds)))
     return tuple(out)
 
 

@@ -1,7 +1,7 @@
 """Finished runs: open a run directory for checking, diagnosing, viewing, or its posterior."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain
 from softsbi.core.errors import SoftsbiError, as_path
+from softsbi.core.fitreport import FitReport
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
@@ -20,9 +21,28 @@ from softsbi.workflows.rounds import round_posterior, usable_simulations
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
 
 
+def read_fit_report(run_dir: str | Path) -> FitReport:
+    """A finished fit's ``report.json``, typed (:class:`~softsbi.core.fitreport.FitReport`).
+
+    Raises:
+        ResultDamaged: it is empty, cut short, not JSON, lacks a required key or holds a value of the wrong kind;
+            one line naming it and the fit's own command, which writes it again.
+    """
+    run_dir = Path(run_dir)
+    return FitReport.from_json(read_report(run_dir), run_dir / "report.json")
+
+
 @dataclass
 class RunView:
-    """What the diagnostics need from a finished run."""
+    """What the diagnostics need from a finished run, loaded once (:func:`load_run`) and passed down a command.
+
+    Attributes:
+        path: the run directory. config: the run store's settings. space: the inferred parameters.
+        scenario, dense (``T`` clouds ``(m, 3)`` m), x_obs: the measurement as fitted.
+        report: ``report.json`` (:class:`~softsbi.core.fitreport.FitReport`).
+        post_theta: ``(S, D)`` the fit's evaluation samples (physical units), the first ``n_eval``.
+        post_seeds: ``(S,)`` their simulation seeds. post_complete: ``post_theta`` holds every stored sample.
+    """
 
     path: Path
     config: dict[str, Any]
@@ -30,9 +50,17 @@ class RunView:
     scenario: Scenario
     dense: np.ndarray
     x_obs: np.ndarray
-    report: dict[str, Any]
+    report: FitReport
     post_theta: np.ndarray  # (S, D) posterior samples (inferred params), physical units
     post_seeds: np.ndarray | None = None  # (S,) their simulation seeds in the fit's evaluation
+    post_complete: bool = True
+    _posterior: "Posterior | None" = field(default=None, repr=False, compare=False)
+
+    def posterior(self) -> "Posterior":
+        """The fit's final posterior in physical units (:class:`Posterior`, built from the store once)."""
+        if self._posterior is None:
+            self._posterior = final_posterior(self.path, RunStore.open(self.path / "run.zarr"))
+        return self._posterior
 
     def sim_context(self, keep_rollout: bool = True) -> Any:
         """The fit's own worker context (:class:`~softsbi.workflows.fit.SimContext`): same simulator,
@@ -93,14 +121,15 @@ class RunView:
 
     def median(self) -> dict[str, float]:
         """Posterior median (physical units) plus the fixed parameters."""
-        v = {k: float(x) for k, x in self.report["posterior_median"].items()}
+        v = {k: float(x) for k, x in self.report.posterior_median.items()}
         v.update(self.fixed)
         return v
 
 
 
-def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
-    """Open a finished fit (``run.zarr`` + ``report.json``) for checking.
+def load_run(run_dir: str | Path, n_eval: int | None = 30, seed: int = 0) -> RunView:
+    """Open a finished fit (``run.zarr`` + ``report.json``) for checking: its first ``n_eval`` evaluation samples
+    (None: all of them, what ``check`` and ``diagnose`` load so that their null shares the run).
 
     Raises:
         SchemaError: not a run; SoftsbiError: the fit has not finished (no report.json); ResultDamaged: its
@@ -112,7 +141,7 @@ def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
     if not rep_path.exists():
         raise SoftsbiError(f"'{run_dir}' has no report.json: the fit has not finished; resume it with the same "
                            f"`softsbi fit ... --out {run_dir}` command first")
-    report = read_report(run_dir)
+    report = read_fit_report(run_dir)
     cfg = store.config
     if cfg.get("metric") == "mask_chamfer_px" or "dense" not in store.read_observed():
         raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.get('observer')}'): check, diagnose and "
@@ -122,15 +151,17 @@ def load_run(run_dir: str | Path, n_eval: int = 30, seed: int = 0) -> RunView:
     obs = store.read_observed()
     if store.has("evaluation"):
         ev, ev_attrs = store.read_group("evaluation", ("theta",))  # what is re-simulated: the samples
+        stored = len(ev["theta"])
         theta = ev["theta"][:n_eval]
         seeds = evaluation_seeds(int(cfg.get("seed", 0)), int(ev_attrs.get("rounds", cfg["rounds"])),
                                  len(ev["theta"]))[:n_eval]
     else:  # fall back on the last round's draws (samples of the previous posterior)
         last = store.round_ids()[-1]
         d = store.round_data(last)
+        stored = len(d["theta"])
         theta, seeds = d["theta"][:n_eval], d["seed"][:n_eval]
     return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta,
-                   np.asarray(seeds))
+                   np.asarray(seeds), post_complete=len(theta) == stored)
 
 
 
@@ -209,7 +240,8 @@ class Run:
 
     Attributes:
         path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.FitConfig`).
-        report: ``report.json`` (None while the fit has not finished). space: the inferred parameters.
+        report: ``report.json`` (:class:`~softsbi.core.fitreport.FitReport`, e.g. ``run.report.chamfer_posterior_m``;
+            None while the fit has not finished). space: the inferred parameters.
         posterior: the final posterior in physical units (:class:`Posterior`).
         best_fit: the best-fitting parameters the fit found and their rollout
             (:class:`~softsbi.workflows.bestfit.BestFit`), None for a run that stored none.
@@ -217,7 +249,7 @@ class Run:
 
     path: Path
     config: Any
-    report: dict[str, Any] | None
+    report: FitReport | None
     space: ParamSpace
     posterior: Posterior
     best_fit: BestFit | None = None
@@ -240,6 +272,19 @@ def open_run(run_dir: str | Path) -> Run:
     """
     run_dir = as_path(run_dir, "open_run(run_dir)", 'softsbi.open_run("runs/tan")')
     store = RunStore.open(run_dir / "run.zarr")
+    post = final_posterior(run_dir, store)
+    report = read_fit_report(run_dir) if (run_dir / "report.json").exists() else None
+    return Run(run_dir, FitConfig.from_run_config(store.config), report, post.space, post,
+               best_fit=read_best_fit(store))
+
+
+def final_posterior(run_dir: Path, store: RunStore) -> Posterior:
+    """The run's final posterior in physical units, rebuilt from its stored rounds as the fit built it
+    (:func:`open_run`).
+
+    Raises:
+        SoftsbiError: no round has finished yet. PosteriorDamaged: a stored posterior is missing or damaged.
+    """
     cfg = FitConfig.from_run_config(store.config)
     space = ParamSpace.from_json(store.config["param_space"])
     rounds = [r for r in store.completed_rounds()]
@@ -254,6 +299,4 @@ def open_run(run_dir: str | Path) -> Run:
             chain.add_round(round_posterior(store, r, cfg), counts[r])
     else:
         chain.add_round(round_posterior(store, rounds[-1], cfg), sum(counts))
-    report = read_report(run_dir) if (run_dir / "report.json").exists() else None
-    return Run(run_dir, cfg, report, space, Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed),
-               best_fit=read_best_fit(store))
+    return Posterior(space, chain.posterior(len(chain) - 1), seed=cfg.seed)

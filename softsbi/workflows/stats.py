@@ -41,7 +41,7 @@ from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample
                                           sensor_view)
 from softsbi.workflows.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
 from softsbi.workflows.jobs import run_jobs
-from softsbi.workflows.runs import RunView, load_run, open_run
+from softsbi.workflows.runs import RunView, load_run
 
 #: names of the per-frame summary statistics
 FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10", "z_q50", "z_q90",
@@ -248,7 +248,7 @@ class PosteriorPredictive:
 
     Rollout ``i < len(run.post_theta)`` is the fit's own evaluation sample ``i`` with its seed
     (so check's mean Chamfer is the fit's); further rollouts are posterior draws
-    (:func:`~softsbi.workflows.runs.open_run`'s posterior, draw seed ``seed``) with simulation
+    (:meth:`~softsbi.workflows.runs.RunView.posterior`, draw seed ``seed``) with simulation
     seeds ``10_000 + i``. Each rollout's summaries use surface samples with seed ``1000 + i``, so
     the same run gives the same null in both commands.
 
@@ -263,9 +263,11 @@ class PosteriorPredictive:
     """
 
     def __init__(self, run: "RunView | str | Path", workers: int | None = None, seed: int = 0):
-        # every stored evaluation sample, whatever the caller loaded: the null's order is the run's
-        path = run.path if isinstance(run, RunView) else Path(run)
-        self.run: RunView = load_run(path, 10**9, seed)
+        # every stored evaluation sample: the null's order is the run's. A run loaded with all of them
+        # (load_run(path, None)) is used as it is, so a command loads its run once
+        if not (isinstance(run, RunView) and run.post_complete):
+            run = load_run(run.path if isinstance(run, RunView) else Path(run), None, seed)
+        self.run: RunView = run
         self.workers, self.seed = workers, seed
         self.rollouts: list[dict[str, Any]] = []
         self._feats: list[np.ndarray] = []
@@ -293,7 +295,7 @@ class PosteriorPredictive:
                 items.append((run.post_theta[i], int(run.post_seeds[i])))
             else:
                 if self._extra is None or len(self._extra) < hi - n_ev:
-                    self._extra = open_run(run.path).posterior.sample(max(hi - n_ev, 2 * MAX_NULL), seed=self.seed)
+                    self._extra = run.posterior().sample(max(hi - n_ev, 2 * MAX_NULL), seed=self.seed)
                 items.append((self._extra[i - n_ev], 10_000 + i))
         return items
 
@@ -481,7 +483,7 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
         ``{"chamfer_m", "chamfer_se_m", "n"}`` (m; the standard error over the ``n`` seeds, 0 with one), or None
         for an image fit, a report without a posterior mean, or when every rollout fails.
     """
-    pm = run.report.get("posterior_mean")
+    pm = run.report.posterior_mean
     if not pm or run.dense is None or any(name not in pm for name in run.space.names):
         return None
     theta = run.space.as_array(pm)

@@ -151,7 +151,7 @@ def test_hidden_aniso_is_screened_and_its_refit_lowers_the_error(tmp_path):
     rows = {c.effect: c for c in d.ranking}
     assert set(rows) == {NAME, "wind"} and rows[NAME].explained > 0
     assert rows[NAME].adjusted.value >= 1 / 13 and "rib_friction" in rows[NAME].estimate
-    before = load_run(tmp_path / "nominal").report["chamfer_posterior_m"]
+    before = load_run(tmp_path / "nominal").report.chamfer_posterior_m
     assert refit.chamfer_m < 0.95 * before, (refit.chamfer_m, before)
     # check's test of the refit, over the family less the effect: the measurement no longer beyond all 12 rollouts
     # in the omnibus test (the joint p's resolution at 12 nulls is 2/13)

@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 import softsbi
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.fitreport import CalibrationResult
 from softsbi.core.store import RunStore
 from softsbi.workflows.lock import RunLocked, run_lock
 
@@ -29,18 +30,20 @@ def test_calibrate_run_writes_json_and_png_and_resumes(toy_run):
     said = []
     out = softsbi.calibrate_run(toy_run, n_test=50, n_draws=300, workers=1, message=said.append)
     assert sum("test simulations" in s for s in said) == 1
-    assert out["n_test"] + out["n_test_failed"] == 50 and out["n_train"] == 120
-    assert out["refit_max_mean_difference"] < 1e-6  # the re-trained estimator is the run's
-    c = out["coverage"]
-    assert c["levels"][0] == 0 and c["hpd"][-1] == 1 and np.all(np.diff(c["hpd"]) >= 0)
-    assert c["band_lo"][18] < 0.9 < c["band_hi"][18]
-    assert c["band_simultaneous_lo"][18] <= c["band_lo"][18] and c["band_simultaneous_hi"][18] >= c["band_hi"][18]
-    outside = [g for g, h, lo, hi in zip(c["levels"], c["hpd"], c["band_lo"], c["band_hi"]) if not lo <= h <= hi]
-    assert c["outside_pointwise"] == outside and isinstance(c["inside_simultaneous"], bool)
-    assert out["verdict_90"] in ("calibrated", "over-confident", "under-confident")
-    assert len(out["sbc"]["histograms"]) == 2 and sum(out["sbc"]["histograms"][0]) == out["n_test"]
+    assert isinstance(out, CalibrationResult)
+    assert out.n_test + out.n_test_failed == 50 and out.n_train == 120
+    assert out.refit_max_mean_difference < 1e-6  # the re-trained estimator is the run's
+    c = out.coverage
+    assert c.levels[0] == 0 and c.hpd[-1] == 1 and np.all(np.diff(c.hpd) >= 0)
+    assert c.band_lo[18] < 0.9 < c.band_hi[18]
+    assert c.band_simultaneous_lo[18] <= c.band_lo[18] and c.band_simultaneous_hi[18] >= c.band_hi[18]
+    outside = [g for g, h, lo, hi in zip(c.levels, c.hpd, c.band_lo, c.band_hi) if not lo <= h <= hi]
+    assert list(c.outside_pointwise) == outside and isinstance(c.inside_simultaneous, bool)
+    assert out.verdict_90 in ("calibrated", "over-confident", "under-confident")
+    assert len(out.sbc.histograms) == 2 and sum(out.sbc.histograms[0]) == out.n_test
     doc = json.loads((toy_run / "calibration.json").read_text())
-    assert doc["coverage"]["at_90"] == c["at_90"]
+    assert doc["coverage"]["at_90"] == c.at_90
+    assert CalibrationResult.from_json(doc) == out and doc == out.to_json()  # the file is the result
     assert (toy_run / "calibration.png").stat().st_size > 20_000
     # test cases come from both rounds' proposals (the prior and round 1's posterior), as the training data
     arrays, attrs = RunStore.open(toy_run / "run.zarr").read_group("calibration")
@@ -48,14 +51,14 @@ def test_calibrate_run_writes_json_and_png_and_resumes(toy_run):
     # a larger n_test adds to the stored test simulations; the first 50 are kept
     said.clear()
     out2 = softsbi.calibrate_run(toy_run, n_test=100, n_draws=300, workers=1, message=said.append, write=False)
-    assert sum("test simulations" in s for s in said) == 1 and out2["n_test"] + out2["n_test_failed"] == 100
+    assert sum("test simulations" in s for s in said) == 1 and out2.n_test + out2.n_test_failed == 100
     arrays2, _ = RunStore.open(toy_run / "run.zarr").read_group("calibration")
     np.testing.assert_array_equal(arrays2["u"][:50], arrays["u"])
     # a different estimator setting is trained on the same stored simulations and shares the test cases
     said.clear()
     ens = softsbi.calibrate_run(toy_run, n_test=100, n_draws=300, workers=1, estimator="mdnn",
                                 estimator_options={**OPTS, "ensemble": 2}, message=said.append, write=False)
-    assert not any("test simulations" in s for s in said) and ens["estimator_options"]["ensemble"] == 2
+    assert not any("test simulations" in s for s in said) and ens.estimator_options["ensemble"] == 2
 
 
 def test_calibrate_refuses_a_locked_run_and_a_tiny_test_set(toy_run):
@@ -106,5 +109,5 @@ def test_calibrate_retrains_with_the_options_the_runs_effects_asked_for(tmp_path
     softsbi.fit(toy_measurement(), out, backend="toy-gauss", estimator="mdnn", effects=["toy-wind"], rounds=1,
                 sims_per_round=60, n_points=8, n_eval=5, n_dense=32, workers=1, seed=3, plots=False)
     cal = softsbi.calibrate_run(out, n_test=20, n_draws=200, workers=1)
-    assert cal["estimator_options"] == OPTS
-    assert cal["refit_max_mean_difference"] < 1e-6  # the re-trained estimator is the run's
+    assert cal.estimator_options == OPTS
+    assert cal.refit_max_mean_difference < 1e-6  # the re-trained estimator is the run's

@@ -2,6 +2,8 @@
 import dataclasses
 import json
 import shutil
+import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -109,15 +111,16 @@ def test_posterior_mean_rollout_scores_the_point_estimate_with_the_fits_metric(t
     run = load_run(control)
     pm = posterior_mean_chamfer(run, workers=1)
     assert pm["n"] == PM_ROLLOUTS and pm["chamfer_se_m"] > 0  # the seeds change the toy's per-frame noise
-    assert pm["chamfer_m"] <= run.report["chamfer_posterior_m"] + 2 * pm["chamfer_se_m"]
+    assert pm["chamfer_m"] <= run.report.chamfer_posterior_m + 2 * pm["chamfer_se_m"]
     assert posterior_mean_chamfer(run, n=1, workers=1)["chamfer_m"] == pytest.approx(
         posterior_mean_chamfer(run, n=1, workers=1)["chamfer_m"])  # fixed seeds: reproducible
-    far = dict(run.report["posterior_mean"])
+    far = dict(run.report.posterior_mean)
     q = run.space.params[0]
     far[q.name] = q.high if far[q.name] < (q.low + q.high) / 2 else q.low
-    moved = dataclasses.replace(run, report=dict(run.report, posterior_mean=far))
+    moved = dataclasses.replace(run, report=dataclasses.replace(run.report, posterior_mean=far))
     assert posterior_mean_chamfer(moved, workers=1)["chamfer_m"] > pm["chamfer_m"]
-    assert posterior_mean_chamfer(dataclasses.replace(run, report={}), workers=1) is None
+    no_mean = dataclasses.replace(run.report, posterior_mean={})  # a report without a posterior mean
+    assert posterior_mean_chamfer(dataclasses.replace(run, report=no_mean), workers=1) is None
 
 
 def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
@@ -139,7 +142,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert (r.rounds, r.sims_per_round) == (2, 150)
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
     # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/diagnosis.py)
-    assert chk.energy.chamfer_m == pytest.approx(load_run(hidden).report["chamfer_posterior_m"])
+    assert chk.energy.chamfer_m == pytest.approx(load_run(hidden).report.chamfer_posterior_m)
     assert r.chamfer_m < 0.8 * chk.energy.chamfer_m
     # the energy score of the two posterior predictives of check's summaries, in the nominal's scale: the refit's is
     # lower by more than k_se standard errors, and the sentence gives both numbers
@@ -234,6 +237,37 @@ def test_cli_check_and_diagnose(toy_runs):
     assert row.rstrip(" |").endswith("named")
     res = runner.invoke(app, ["diagnose", str(hidden), "--effect", "wind", "--workers", "1"])
     assert res.exit_code == 2 and "cannot apply" in res.output
+
+
+def count_run_loads(monkeypatch) -> list[Path]:
+    """Record the run directory of every ``load_run`` / ``open_run`` call, wherever softsbi imported them from."""
+    import softsbi.workflows.runs as runs
+    loads: list[Path] = []
+    for name in ("load_run", "open_run"):
+        orig = getattr(runs, name)
+
+        def counted(run_dir, *args, _orig=orig, **kwargs):
+            loads.append(Path(run_dir).resolve())
+            return _orig(run_dir, *args, **kwargs)
+        for mod in [m for n, m in sys.modules.items() if n.startswith("softsbi")]:
+            if getattr(mod, name, None) is orig:
+                monkeypatch.setattr(mod, name, counted)
+    return loads
+
+
+def test_a_diagnosis_loads_the_nominal_run_and_each_refit_once(toy_runs, tmp_path, monkeypatch):
+    """One loaded run per command: the nominal fit is loaded once per diagnosis (its null, its check, its score and
+    the posterior draws that extend the null share it) and each refit once (its check and score share it); they
+    were loaded 4 and 3 times."""
+    hidden, _ = toy_runs
+    nominal = tmp_path / "hidden"
+    shutil.copytree(hidden, nominal, ignore=shutil.ignore_patterns("refit-*", "check.json", "diagnosis.json"))
+    loads = count_run_loads(monkeypatch)
+    # a null of 12 extended to 40: beyond the fit's 30 evaluation samples, so posterior draws are made too
+    d = diagnose_run(nominal, workers=1, confirm=1, refit_rounds=1, refit_sims=100, n_null=12, max_null=40)
+    refits = [Path(r.run).resolve() for r in d.refits]
+    assert d.test.n_null > 30 and refits
+    assert Counter(loads) == {nominal.resolve(): 1, **{r: 1 for r in refits}}
 
 
 def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_each_estimate(toy_runs, tmp_path):

@@ -110,9 +110,9 @@ def test_calibrate_runs_on_a_flow_run(flow_run, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(flow_run[0], run)
     out = calibrate_run(run, n_test=20, n_draws=100, workers=1, write=False)
-    assert out["estimator"] == "flow" and out["n_test"] + out["n_test_failed"] == 50
-    assert out["refit_max_mean_difference"] < 1e-6  # retrained as the fit trained it: the stored flow again
-    assert 0 <= out["coverage"]["at_50"] <= out["coverage"]["at_90"] <= 1
+    assert out.estimator == "flow" and out.n_test + out.n_test_failed == 50
+    assert out.refit_max_mean_difference < 1e-6  # retrained as the fit trained it: the stored flow again
+    assert 0 <= out.coverage.at_50 <= out.coverage.at_90 <= 1
 
 
 def test_a_run_written_before_estimator_states_opens_as_before(tmp_path):

@@ -26,10 +26,34 @@ def test_open_run_posterior_matches_the_report_in_physical_units(toy_run):
     s = post.sample(4000)
     assert s.shape == (4000, 2) and np.all((s >= -1) & (s <= 1))
     for n in post.names:  # the fit's own summaries, from an independent set of draws
-        sd = run.report["posterior_std"][n]
-        assert abs(post.mean[n] - run.report["posterior_mean"][n]) < 0.1 * sd + 1e-9
+        sd = run.report.posterior_std[n]
+        assert abs(post.mean[n] - run.report.posterior_mean[n]) < 0.1 * sd + 1e-9
         lo, hi = post.interval(0.9)[n]
-        assert abs(lo - run.report["posterior_q05"][n]) < 0.2 * sd and abs(hi - run.report["posterior_q95"][n]) < 0.2 * sd
+        assert abs(lo - run.report.posterior_q05[n]) < 0.2 * sd and abs(hi - run.report.posterior_q95[n]) < 0.2 * sd
+
+
+def test_open_run_and_load_run_give_the_typed_report_json(toy_run, tmp_path):
+    """run.report is a FitReport (attributes, as the README's example reads it) that gives back report.json; a
+    report.json without its posterior median is refused in one line naming the fit's command."""
+    import json
+    import shutil
+
+    from softsbi.core.fitreport import FitReport
+    from softsbi.core.results import ResultDamaged
+    from softsbi.workflows.runs import load_run
+    doc = json.loads((toy_run / "report.json").read_text())
+    run = softsbi.open_run(toy_run)
+    assert isinstance(run.report, FitReport) and run.report.to_json() == doc
+    assert run.report.chamfer_posterior_m == doc["chamfer_posterior_m"] and run.report.names == ["a", "b"]
+    assert run.report.per_round[-1].round == 1 and run.report.best_fit.theta == doc["best_fit"]["theta"]
+    view = load_run(toy_run, None)
+    assert view.report == run.report and view.post_complete and len(view.post_theta) == 5
+    assert not load_run(toy_run, 3).post_complete
+    broken = tmp_path / "run"
+    shutil.copytree(toy_run, broken)
+    (broken / "report.json").write_text(json.dumps({k: v for k, v in doc.items() if k != "posterior_median"}))
+    with pytest.raises(ResultDamaged, match=r"lacks 'posterior_median'.*`softsbi fit \.\.\. --out "):
+        softsbi.open_run(broken)
 
 
 def test_log_prob_is_a_normalised_density_in_physical_units(toy_run):
