@@ -53,7 +53,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     check_result_path(out_dir / "compare.json")
     check_resolution(alpha, max_null, 2)
     run_a, run_b = Path(run_a), Path(run_b)
-    ra, rb = load_run(run_a), load_run(run_b)
+    ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
     if ra.config.get("observed_source") != rb.config.get("observed_source") or len(ra.dense) != len(rb.dense):
         raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
                            f"{rb.config.get('observed_source')}); compare runs of the same measurement")
@@ -62,7 +62,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
                                             "run directory to a writable place and compare the copy")
     settings = dict(n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute,
                     message=message)
-    a, b = check_run(run_a, **settings), check_run(run_b, **settings)
+    a, b = check_run(ra, **settings), check_run(rb, **settings)
     rows = compare_rows(a, b)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"

@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 import softsbi
 import softsbi.core.jsonfile as jsonfile
+import softsbi.core.results as results
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
 from softsbi.workflows import check, diagnose
