@@ -5,6 +5,3 @@ from softsbi.cli.app import app, main
 from softsbi.cli.fit_cmd import print_fit_report as _print_report  # the name the tests of the fit report import
 
 __all__ = ["app", "main"]
-
-if __name__ == "__main__":
-    main()
