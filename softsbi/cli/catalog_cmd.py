@@ -16,7 +16,7 @@ def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """List installed simulators, effects (with the backends that can apply each and its parameters), observers,
     estimators and executors."""
     from softsbi.plugins import registry  # start-up: loads every plugin
-    from softsbi.plugins.manager import LOAD_ERRORS  # start-up: filled by registry()
+    from softsbi.plugins.manager import LOAD_ERRORS  # start-up: the plugin manager
     desc = registry().describe()
     if LOAD_ERRORS:
         desc["load_errors"] = dict(LOAD_ERRORS)
