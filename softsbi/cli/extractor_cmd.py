@@ -32,7 +32,7 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
                     seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
                     as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Train a keypoint extractor on annotated images or on rendered rollouts; report its test error."""
-    from softsbi.workflows.extractor import ExtractorProgress, train_extractor as train  # start-up: numpy, the keypoint trainers
+    from softsbi.workflows.extractor import ExtractorProgress, train_extractor as train  # start-up: numpy, keypoints
 
     class Bars(ExtractorProgress):
         def __init__(self, p: Any):
