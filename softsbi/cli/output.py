@@ -100,7 +100,7 @@ class Output:
     # JSON -------------------------------------------------------------------------------------
     def emit_json(self, doc: Any) -> None:
         """Write ``doc`` as the command's one JSON document on stdout (NaN/inf as null)."""
-        from softsbi.core.types import jsonable
+        from softsbi.core.types import jsonable  # start-up: numpy
         sys.stdout.write(json.dumps(jsonable(doc), indent=2) + "\n")
         sys.stdout.flush()
 

@@ -1,15 +1,12 @@
-"""What the long-running commands show while they work: fit progress bars and the demo's steps (imported
-by the commands that need them, so ``softsbi --help`` does not load the workflows)."""
+"""What the long-running commands show while they work: progress bars of the fit and of every phase that
+simulates (imported by the commands that need them, so ``softsbi --help`` does not load the workflows)."""
 from __future__ import annotations
 
 import contextlib
-from pathlib import Path
+import time
 from typing import Any, Iterator
 
-import time
-
 from softsbi.cli.output import Output
-from softsbi.workflows.demo import DemoCallbacks
 from softsbi.workflows.fit import FitCallbacks
 from softsbi.workflows.progress import Reporter, reporting
 
@@ -90,46 +87,3 @@ class ProgressHooks(FitCallbacks):
 
     def message(self, text: str) -> None:
         self.o.message(text, style="yellow")
-
-
-
-
-class DemoPrinter(DemoCallbacks):
-    """Prints the demo's steps (results on stdout, progress on stderr)."""
-
-    def __init__(self, o: Output):
-        self.o = o
-
-    def step(self, title: str) -> None:
-        self.o.rule(title)
-
-    def line(self, text: str) -> None:
-        self.o.line(text)
-
-    @contextlib.contextmanager
-    def fitting(self) -> Iterator[FitCallbacks]:
-        with self.o.progress() as p:
-            yield ProgressHooks(self.o, p)
-
-    @contextlib.contextmanager
-    def working(self, text: str) -> Iterator[None]:
-        self.o.message(text)
-        with shown(self.o):
-            yield
-
-    def fit_done(self, report: dict[str, Any], run_dir: Path) -> None:
-        from softsbi.cli import _print_report
-        _print_report(self.o, report, run_dir)
-
-    def diagnosis_done(self, diagnosis: Any) -> None:
-        from softsbi.report.text import DIAGNOSIS_COLUMNS, diagnosis_rows, diagnosis_text
-        self.o.table(DIAGNOSIS_COLUMNS, diagnosis_rows(diagnosis), title="Candidate effects, by the screening's "
-                                                                          "evidence")
-        self.o.line(f"verdict: {diagnosis.verdict}")
-        for paragraph in diagnosis_text(diagnosis):
-            self.o.line(paragraph)
-
-    def comparison_done(self, comparison: Any, effect: str) -> None:
-        self.o.table(["", "nominal", f"+ {effect}", "change"],
-                     [[row.what, f"{row.a * 100:.2f} cm", f"{row.b * 100:.2f} cm", f"{row.change * 100:+.0f}%"]
-                      for row in comparison.rows[:4]])

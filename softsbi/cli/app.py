@@ -1,0 +1,48 @@
+"""The ``softsbi`` typer app: every command registered in the order ``--help`` lists them, and :func:`main`, the
+console script. Each command lives in its own module (``*_cmd.py``) and imports the workflows only when it runs,
+so that ``softsbi --help`` stays fast."""
+from __future__ import annotations
+
+import signal
+
+import typer
+
+from softsbi.cli.calibrate_cmd import calibrate
+from softsbi.cli.catalog_cmd import params, plugins, scenarios
+from softsbi.cli.check_cmd import check, compare
+from softsbi.cli.command import guard, terminate
+from softsbi.cli.demo_cmd import demo
+from softsbi.cli.diagnose_cmd import diagnose
+from softsbi.cli.extractor_cmd import train_extractor
+from softsbi.cli.fit_cmd import fit
+from softsbi.cli.import_cmd import diffcloud
+from softsbi.cli.simulate_cmd import compare_backends, simulate
+from softsbi.cli.view_cmd import view
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="softsbi: Bayesian real-to-sim for deformable objects (BayesSim-RKHS).")
+
+app.command("plugins")(guard(plugins))
+app.command("params")(guard(params))
+app.command("simulate")(guard(simulate))
+app.command("fit")(guard(fit))
+app.command("demo")(guard(demo))
+app.command("check")(guard(check))
+app.command("calibrate")(guard(calibrate))
+app.command("diagnose")(guard(diagnose))
+app.command("compare")(guard(compare))
+app.command("view")(guard(view))
+app.command("train-extractor")(guard(train_extractor))
+app.command("compare-backends")(guard(compare_backends))
+app.command("scenarios")(guard(scenarios))
+
+import_app = typer.Typer(help="Convert recordings from other layouts into recording directories.",
+                         no_args_is_help=True)
+import_app.command("diffcloud")(guard(diffcloud))
+app.add_typer(import_app, name="import")
+
+
+def main() -> None:
+    """Console-script entry point (SIGTERM stops a command as Ctrl-C does: one line, exit code 143)."""
+    signal.signal(signal.SIGTERM, terminate)
+    app()

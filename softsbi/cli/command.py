@@ -1,0 +1,78 @@
+"""What every command shares when it runs: :func:`guard` (errors, Ctrl-C and SIGTERM as one line or one JSON
+error) and :func:`json_done` (the ``--json`` epilogue)."""
+from __future__ import annotations
+
+import functools
+import sys
+import warnings
+from typing import Any, Callable
+
+import typer
+
+from softsbi.cli.output import Output, json_error
+from softsbi.core.errors import SoftsbiError, SoftsbiWarning, storage_error
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it stops as after Ctrl-C: finished work kept, one line."""
+
+
+def terminate(signum: int, frame: Any) -> None:
+    """The SIGTERM handler of the ``softsbi`` command: raise :class:`Terminated`."""
+    raise Terminated()
+
+
+def json_done(o: Output, doc: Any) -> bool:
+    """The epilogue every command shares: under ``--json`` write ``doc`` as the command's one JSON document and
+    return True (the command returns; nothing else goes to stdout); otherwise False (the command prints its
+    tables and sentences)."""
+    if o.as_json:
+        o.emit_json(doc)
+    return o.as_json
+
+
+def _show_warning(default, message, category, filename, lineno, file=None, line=None) -> None:
+    """A :class:`~softsbi.core.errors.SoftsbiWarning` as one ``warning:`` line on stderr; other warnings as
+    ``default`` (Python's ``warnings.showwarning``) shows them."""
+    if issubclass(category, SoftsbiWarning):
+        Output().err.print(f"warning: {message}", soft_wrap=True)
+    else:
+        default(message, category, filename, lineno, file, line)
+
+
+def _fail(as_json: bool, exc: BaseException, code: int) -> typer.Exit:
+    """Say ``exc`` in one line on stderr (a JSON error on stdout under ``--json``); the exit with ``code``."""
+    if as_json:
+        sys.stdout.write(json_error(exc) + "\n")
+    else:
+        Output().error(str(exc))
+    return typer.Exit(code)
+
+
+def guard(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Run a command: a SoftsbiError prints one line (or a JSON error under ``--json``) and exits 2;
+    Ctrl-C says how to resume; under ``--json`` any other error is a JSON error with exit 1."""
+
+    @functools.wraps(fn)
+    def wrapper(*a, **kw):
+        as_json = bool(kw.get("as_json"))
+        try:
+            with warnings.catch_warnings():
+                warnings.showwarning = functools.partial(_show_warning, warnings.showwarning)
+                return fn(*a, **kw)
+        except (typer.Exit, typer.Abort):
+            raise
+        except SoftsbiError as exc:
+            raise _fail(as_json, exc, 2)
+        except KeyboardInterrupt as stop:
+            what = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
+            exc = KeyboardInterrupt(f"{what}; finished simulations are kept: re-run the same command to resume")
+            raise _fail(as_json, exc, 143 if isinstance(stop, Terminated) else 130)
+        except Exception as exc:
+            err = storage_error(exc)  # a full or read-only disk is the machine's state, not a bug
+            if err is not None:
+                raise _fail(as_json, err, 2)
+            if as_json:
+                raise _fail(True, exc, 1)
+            raise
+    return wrapper

@@ -1,0 +1,105 @@
+"""What several commands' options share: one help text per quantity, the parse-time bounds (typer callbacks) and the
+parsers of ``name=value`` lists."""
+from __future__ import annotations
+
+import re
+from enum import Enum
+from typing import Any
+
+import typer
+
+from softsbi.core.errors import SoftsbiError
+from softsbi.workflows import defaults as D
+
+#: help texts shared by several commands (one option name and one text per quantity)
+H_JSON = "print one JSON document on stdout (results, or the error) instead of tables"
+H_WORKERS = "simulation worker processes (default: one per core)"
+H_SEED = "random seed: fixes every parameter draw and every simulation"
+H_N_EVAL = "rollouts at posterior samples (the posterior-predictive check's sample size)"
+H_MAX_NULL = ("cap of the adaptive null: when 1/(n+1) > alpha and the first n posterior-predictive rollouts give "
+              "p <= 0.1, simulate up to this many before deciding (p is never printed below 1/(cap+1))")
+H_RECOMPUTE = "compute again even when the run holds this command's result for the same fit and settings"
+H_ALPHA = "family-wise significance level of the verdicts (the tolerated false-alarm rate)"
+H_BACKEND = "simulator plugin: mujoco-flex or pybullet-massspring built in (`softsbi plugins` lists the installed ones)"
+H_ESTIMATOR = ("posterior estimator plugin: rkhs (the paper's), mdnn, flow, mdrff, bayeszoom-rkhs, nn-bulk, gp-bulk, "
+               "sbi-npe (`softsbi plugins` lists the installed ones)")
+H_PROPOSAL = ("how later rounds draw parameters: truncated (TSNPE: from the prior truncated to the posterior's "
+              "99.9% region; robust in many dimensions) or corrected (the paper's BayesSim: from the posterior "
+              "p/p~*q)")
+
+
+class Proposal(str, Enum):
+    """Choices of ``--proposal`` (listed by ``--help``)."""
+    corrected = "corrected"
+    truncated = "truncated"
+
+
+def bound(low: float, why: str = "", strict: bool = False, below: float | None = None):
+    """A typer option callback that refuses, when the flags are parsed (before any work), a value under ``low`` (at
+    or under it when ``strict``; at or above ``below`` when given): "Invalid value for '--n-draws': must be >= 10
+    (got 1): why", exit code 2. ``None`` (an unset optional flag) passes."""
+
+    def check(ctx: typer.Context, param: typer.CallbackParam, value: float | None) -> float | None:
+        if value is not None and (value < low or (strict and value <= low) or (below is not None and value >= below)):
+            limit = (f"> {low:g}" if strict else f">= {low:g}") + ("" if below is None else f" and < {below:g}")
+            raise typer.BadParameter(f"must be {limit} (got {value:g})" + (f": {why}" if why else ""), ctx=ctx,
+                                     param=param)
+        return value
+    return check
+
+
+#: the option callbacks shared by several commands
+AT_LEAST_1_WORKER = bound(1, "one simulation process at least; leave it out for one per core")
+SEED_OK = bound(0, "seeds are non-negative integers")
+ALPHA_OK = bound(0, "a probability", strict=True, below=1)
+N_NULL_OK = bound(D.MIN_ROLLOUTS, "the null's first stage and the check's error maps need that many posterior "
+                                  "rollouts")
+MAX_NULL_OK = bound(D.MIN_ROLLOUTS)
+ROUNDS_OK = bound(1, "one round at least")
+SIMS_OK = bound(D.MIN_SIMS_PER_ROUND, "the estimator needs data")
+
+
+def names(items: list[str] | None) -> list[str]:
+    """The names of a repeatable, comma-separated option (``--effect wind --effect a,b`` -> ``[wind, a, b]``)."""
+    return [n for it in items or [] for n in it.split(",") if n]
+
+
+def parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
+    """``name=value`` items of option ``what`` (repeatable, comma-separated; lists as ``name=[1,2]``) as a dict of
+    numbers, booleans or strings. Raises SoftsbiError naming ``what`` on an item without ``=``."""
+    out: dict[str, Any] = {}
+    for it in items or []:
+        for part in re.split(r",(?![^\[]*\])", it):  # commas inside [..] belong to a list value
+            if not part:
+                continue
+            if "=" not in part:
+                raise SoftsbiError(f"{what} '{part}' must look like name=value (lists as name=[1,2])")
+            k, v = part.split("=", 1)
+            out[k.strip()] = _num(v.strip())
+    return out
+
+
+def _num(v: str) -> Any:
+    if v.startswith("[") and v.endswith("]"):
+        return [_num(x.strip()) for x in v[1:-1].split(",") if x.strip()]
+    for cast in (int, float):
+        try:
+            return cast(v)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(v.lower(), v)
+
+
+def parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
+    """``--bounds name=low:high`` items (repeatable, comma-separated) as ``{name: (low, high)}``. Raises SoftsbiError
+    on an item of another shape."""
+    out = {}
+    for it in items or []:
+        for part in it.split(","):
+            try:
+                k, rng = part.split("=", 1)
+                lo, hi = rng.split(":")
+                out[k.strip()] = (float(lo), float(hi))
+            except ValueError:
+                raise SoftsbiError(f"--bounds '{part}' must look like name=low:high (e.g. friction=0.1:1.5)") from None
+    return out
