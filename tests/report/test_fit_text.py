@@ -1,6 +1,7 @@
 """The fit's and calibrate's tables and sentences (softsbi/report/fit_text.py), rendered from hand-built results."""
 from pathlib import Path
 
+from softsbi.core.fitreport import CalibrationResult
 from softsbi.report.fit_text import (TextTable, best_fit_lines, calibration_lines, calibration_table,
                                      fit_report_lines, posterior_table)
 
@@ -60,9 +61,18 @@ def test_a_posterior_worse_than_the_prior_adds_a_note_and_no_best_fit_adds_no_li
 
 
 def _calibration(inside=True, rejects=False):
-    return {"estimator": "rkhs", "n_test": 200, "verdict_50": "calibrated", "verdict_90": "overconfident",
+    return CalibrationResult.from_json(_calibration_json(inside, rejects))
+
+
+def _calibration_json(inside, rejects):
+    levels = [0.0] + [0.1 * k for k in range(1, 10)] + [1.0]
+    return {"run": "runs/x", "n_train": 800, "parameters": ["bend", "mass"],
+            "sbc": {"n_bins": 10, "histograms": [[20] * 10, [20] * 10], "band": [10.0, 30.0], "ks_pvalue": [0.5, 0.5]},
+            "tarp": {"levels": levels, "coverage": levels},
+            "estimator": "rkhs", "n_test": 200, "verdict_50": "calibrated", "verdict_90": "overconfident",
             "verdict": "overconfident",
-            "coverage": {"band_simultaneous_confidence": 0.95, "at_50": 0.48, "band_50": [0.41, 0.59],
+            "coverage": {"hpd": [0.0] * 11, "band_lo": [0.0] * 11, "band_hi": [1.0] * 11,
+                         "band_simultaneous_confidence": 0.95, "at_50": 0.48, "band_50": [0.41, 0.59],
                          "at_90": 0.81, "band_90": [0.85, 0.95], "levels": [0.0] + [0.1 * k for k in range(1, 10)]
                          + [1.0], "inside_simultaneous": inside, "outside_pointwise": [] if inside else [0.9]},
             "diagnostics": {"coverage": {"direction": "overconfident"},
