@@ -12,6 +12,8 @@ from softsbi.perception.pointcloud import load_cloud_frames, sample_surface
 from softsbi.plugins import registry
 from toy_helpers import copy_lift_recording
 
+pytestmark = pytest.mark.integration
+
 runner = CliRunner()
 
 

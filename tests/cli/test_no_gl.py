@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from toy_helpers import FAULT_ENV
 
-
+pytestmark = pytest.mark.integration
 
 
 def _env(block: str = "gl", mujoco_gl: str | None = "osmesa") -> dict:

@@ -5,6 +5,8 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 
 runner = CliRunner()

@@ -16,8 +16,9 @@ from softsbi.plugins import registry
 runner = CliRunner()
 NAME = "aniso-friction"
 
-pytestmark = pytest.mark.skipif(NAME not in registry().tables["effect"],
-                                reason="pip install -e tests/plugins/softsbi_aniso (README's install line)")
+pytestmark = [pytest.mark.integration,
+              pytest.mark.skipif(NAME not in registry().tables["effect"],
+                                 reason="pip install -e tests/plugins/softsbi_aniso (README's install line)")]
 
 
 def test_listed_by_plugins():

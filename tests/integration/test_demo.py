@@ -6,6 +6,8 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 
+pytestmark = pytest.mark.integration
+
 runner = CliRunner()
 
 

@@ -15,6 +15,8 @@ from softsbi.core.errors import DataError, ShapeError, SoftsbiError
 from softsbi.core.types import Observation
 from toy_helpers import DATA
 
+pytestmark = pytest.mark.integration
+
 
 runner = CliRunner()
 SIZE = 48

@@ -11,6 +11,8 @@ from softsbi.core.errors import DataError
 from softsbi.perception.depth_sensor import VirtualDepthSensor, rasterize_depth
 from softsbi.perception.pointcloud import sample_surface
 
+pytestmark = pytest.mark.integration
+
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "diffcloud_lift"
 OPEN = ((-np.inf,) * 3, (np.inf,) * 3)
 

@@ -16,6 +16,8 @@ from softsbi.core.types import ParamSpace
 from softsbi.effects import builtin
 from softsbi.plugins import Registry, get_plugin_manager, hookimpl, manager, registry
 
+pytestmark = pytest.mark.integration
+
 
 def _plugin(module: str, **hooks) -> types.ModuleType:
     """An in-memory plugin module whose hooks return the given lists of classes."""

@@ -7,6 +7,8 @@ import pytest
 from softsbi.core.types import STATUS_DIVERGED, Rollout
 from softsbi.workflows.bank import SimulationBank, rollout_key
 
+pytestmark = pytest.mark.integration
+
 
 def _rollout(seed: int = 0) -> Rollout:
     rng = np.random.default_rng(seed)

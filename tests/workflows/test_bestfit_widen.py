@@ -18,6 +18,8 @@ from softsbi.workflows.fit import FitConfig
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.widen import decide, records
 
+pytestmark = pytest.mark.integration
+
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 
 OPTS = dict(hidden=(32, 32), max_epochs=60, patience=10, batch_size=32, lr=3e-3, ensemble=1, recalibrate=False,

@@ -9,6 +9,8 @@ import softsbi
 from softsbi.core.types import Param, ParamSpace
 from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence, widened_bounds
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402
 

@@ -10,6 +10,8 @@ from softsbi.core.camera import Camera
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.workflows.check import material_regions, region_errors, surface_points
 
+pytestmark = pytest.mark.integration
+
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "diffcloud_lift"
 needs_data = pytest.mark.skipif(not (DATA / "calib_overhead").is_dir(), reason="needs ../shared/data/diffcloud_lift")
 

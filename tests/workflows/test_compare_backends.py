@@ -12,6 +12,8 @@ from softsbi.scenarios.builtin import make_scenario
 from softsbi.cli import app
 from softsbi.core.errors import ParameterError, PluginNotFound
 
+pytestmark = pytest.mark.integration
+
 BACKENDS = ("mujoco-flex", "pybullet-massspring")
 SMALL = ["--backends", ",".join(BACKENDS), "--backend-opt", "mujoco-flex:grid=5",
          "--backend-opt", "pybullet-massspring:grid=5"]

@@ -11,6 +11,8 @@ from softsbi.workflows.diagnose import diagnose_run, load_diagnosis
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
+pytestmark = pytest.mark.integration
+
 #: flexible candidates (linear in time along x, y, z) and the third-party effect (a hump in time along z)
 FLEXIBLE = ["toy-wind", "toy-drift", "toy-rise"]
 MAGNET = "toy-magnet"

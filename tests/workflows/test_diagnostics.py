@@ -21,6 +21,8 @@ from softsbi.workflows.runs import load_run
 from softsbi.workflows.stats import PM_ROLLOUTS, posterior_mean_chamfer, run_features
 from softsbi.plugins import registry
 
+pytestmark = pytest.mark.integration
+
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 runner = CliRunner()
 

@@ -24,6 +24,8 @@ from softsbi.core.store import RunStore
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.simulate import check_render_memory, render_memory_bytes
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import DATA, REPO, copy_lift_recording, toy_measurement  # noqa: E402
 

@@ -15,6 +15,8 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked, run_lock
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import TESTS_DIR, toy_measurement  # noqa: E402
 

@@ -11,6 +11,8 @@ from softsbi.workflows.check import check_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
+pytestmark = pytest.mark.integration
+
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 
 

@@ -17,6 +17,8 @@ from softsbi.workflows import check, diagnose
 from softsbi.workflows.fit import FitCallbacks, FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked, run_lock
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402
 

@@ -16,6 +16,8 @@ from softsbi.workflows.measurement import simulate_recording
 from softsbi.report.animation import _edges
 from softsbi.workflows.view import posterior_rollouts, write_animation, write_rerun, write_view
 
+pytestmark = pytest.mark.integration
+
 T = 8  # recorded frames of the small lift
 S = 3  # posterior rollouts shown
 
