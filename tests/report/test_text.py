@@ -225,13 +225,29 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
 
 
+#: the verdict column of each fixed diagnosis, written out by hand, in the screening's order (generic-constant, wind,
+#: extra-damping, time-offset)
+ROLES = {"nothing": ["not refitted: nothing missing"] * 4,
+         "named": ["not refitted: generic term", "named", "not refitted: beyond --confirm 1",
+                   "not refitted: beyond --confirm 1"],
+         "tie": ["not refitted: generic term", "named", "indistinguishable", "not refitted: beyond --confirm 2"],
+         "pair": ["not refitted: generic term", "named (pair)", "named (pair)", "not refitted: beyond --confirm 2"],
+         "partial": ["not refitted: generic term", "explains a part", "refit: misfit remains",
+                     "not refitted: beyond --confirm 2"],
+         "no refit": ["not refitted: generic term", "not refitted: beyond --confirm 0",
+                      "not refitted: beyond --confirm 0", "not refitted: beyond --confirm 0"],
+         "none lower": ["not refitted: generic term", "refit: misfit remains", "refit: misfit remains",
+                        "not refitted: beyond --confirm 2"]}
+
+
 @pytest.mark.parametrize("name", list(ALL))
 def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name):
     d = ALL[name]
     table = diagnosis_rows(d)
     assert len(DIAGNOSIS_COLUMNS) == len(table[0]) and DIAGNOSIS_COLUMNS[-1] == "verdict"
+    assert [row[-1] for row in table] == ROLES[name] == [candidate_role(d, c) for c in d.ranking]
     for c, row in zip(d.ranking, table):
-        assert row[0] == c.effect and row[-1] == candidate_role(d, c)
+        assert row[0] == c.effect
         assert row[-1].startswith("named") == (c.effect in d.decision.named), (name, row)
         if d.verdict != "missing-effect":
             assert row[-1] not in ("named", "named (pair)", "indistinguishable"), (name, row)
