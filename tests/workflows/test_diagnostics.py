@@ -10,10 +10,10 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.core.errors import ParameterError, SoftsbiError
-from softsbi.core.results import CompareResult, from_json
+from softsbi.core.results import CompareResult, Diagnosis, ResultDamaged, from_json
 from softsbi.core.store import RunStore
 from softsbi.report.text import check_summary, diagnosis_summary, diagnosis_text
-from softsbi.workflows.check import check_run
+from softsbi.workflows.check import check_run, stored_result
 from softsbi.workflows.diagnose import diagnose_run, load_diagnosis, refit_model
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
@@ -267,33 +267,25 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
     np.testing.assert_array_equal(store.round_data(0)["theta"], theta0)
 
 
-def test_a_diagnosis_written_before_typed_results_still_reads(tmp_path):
-    """load_diagnosis of an older diagnosis.json (no schema): its verdict, test, ranking and refits' tests, the named
-    effect and the partial one (its energy scores were of the clouds, not of the summaries: not carried over)."""
-    def mis(exceed, n=200):
-        return {"omnibus": {"exceed": exceed, "n_null": n, "statistic": 4.2},
-                "directional": {"exceed": exceed, "n_null": n, "effect": "wind"}, "alpha": 0.01, "max_null": n}
-
+def test_a_diagnosis_written_before_typed_results_is_one_line_and_computed_again(tmp_path):
+    """An older diagnosis.json (no schema, its own field names): load_diagnosis refuses it in one line naming the
+    file and the command that writes it again; diagnose's stored-result lookup says in one line that it cannot be
+    used and computes it again (returns None), even under the same key. A file that is not JSON: the same."""
     old = {"run": "nominal", "candidates": ["wind", "extra-damping"], "alpha": 0.01, "verdict": "missing-effect",
-           "selected": "wind", "misspecification": mis(0), "simulations": 260, "seconds": 12.5,
-           "energy": {"energy_m": 0.02, "energy_se_m": 0.001, "chamfer_m": 0.025, "spread_m": 0.01, "n": 30},
-           "ranking": [{"effect": "wind", "kind": "physics", "generic": False, "description": "a wind",
-                        "explained_fraction": 0.6, "adjusted_exceed": 0, "n_null": 200, "estimate": {"wind_y": 1.7}},
-                       {"effect": "extra-damping", "error": "a sensitivity simulation failed"}],
-           "confirmed": [{"effect": "wind", "run": "nominal/refit-wind", "misspecification_after": mis(80),
-                          "energy_after_m": 0.008, "energy_after_se_m": 0.0005, "chamfer_after_m": 0.011}]}
-    (tmp_path / "diagnosis.json").write_text(json.dumps(old))
-    d = load_diagnosis(tmp_path)
-    assert d.verdict == "missing-effect" and d.decision.named == ("wind",) and d.candidates == ("wind",
-                                                                                              "extra-damping")
-    assert d.test.misspecified and d.test.p_value == pytest.approx(2 / 201) and d.test.alpha == 0.01
-    assert [c.effect for c in d.ranking] == ["wind", "extra-damping"] and not d.ranking[1].screened
-    assert d.ranking[0].adjusted.value == pytest.approx(1 / 201) and d.ranking[0].estimate == {"wind_y": 1.7}
-    (r,) = d.refits
-    assert r.effects == ("wind",) and r.adequate and r.score is None and r.chamfer_m == 0.011
-    assert d.nominal is None and d.simulations == 260
-    assert diagnosis_summary(d).startswith("Missing physics effect: wind (a wind).")
-    (tmp_path / "diagnosis.json").write_text("{not json")
-    with pytest.raises(SoftsbiError, match=r"diagnosis\.json' is damaged \(not valid JSON .*\); `softsbi diagnose "
-                                           r".*` writes it again"):
+           "selected": "wind", "simulations": 260, "seconds": 12.5, "key": {"report": "abc"},
+           "misspecification": {"omnibus": {"exceed": 0, "n_null": 200}, "alpha": 0.01},
+           "ranking": [{"effect": "wind", "kind": "physics", "explained_fraction": 0.6, "adjusted_exceed": 0,
+                        "n_null": 200}]}
+    path = tmp_path / "diagnosis.json"
+    path.write_text(json.dumps(old))
+    with pytest.raises(ResultDamaged) as err:
         load_diagnosis(tmp_path)
+    assert err.value.path == path and "'schema'" in err.value.problem and "\n" not in str(err.value)
+    assert "`softsbi diagnose" in str(err.value)
+    said = []
+    assert stored_result(path, Diagnosis, {"report": "abc"}, said.append) is None
+    assert len(said) == 1 and str(path) in said[0] and "\n" not in said[0]
+    path.write_text("{not json")
+    with pytest.raises(ResultDamaged) as err:
+        load_diagnosis(tmp_path)
+    assert err.value.path == path and err.value.problem.startswith("not valid JSON") and "\n" not in str(err.value)
