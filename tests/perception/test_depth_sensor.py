@@ -115,14 +115,14 @@ def test_rasterized_depth_matches_the_plane():
 def test_bad_calibration_gives_one_clear_line(tmp_path):
     with pytest.raises(DataError) as e:
         VirtualDepthSensor.from_calibration([tmp_path / "nope"])
-    assert "does not exist" in str(e.value) and "\n" not in str(e.value)
+    assert "nope" in str(e.value) and "\n" not in str(e.value)
     bad = tmp_path / "calib"
     bad.mkdir()
     np.save(bad / "intrinsics.npy", np.ones(3))
     np.save(bad / "trc.npy", np.eye(4)[:3])
     with pytest.raises(DataError) as e:
         VirtualDepthSensor.from_calibration([bad])
-    assert "intrinsics must be (4,)" in str(e.value) and "\n" not in str(e.value)
+    assert "intrinsics" in str(e.value) and "(4,)" in str(e.value) and "\n" not in str(e.value)  # file, shape
     with pytest.raises(DataError):
         VirtualDepthSensor(())
 

@@ -36,9 +36,9 @@ def test_cli_writes_json_and_png(tmp_path):
 
 def test_cli_bad_input(tmp_path):
     r = CliRunner().invoke(app, ["compare-backends", "--scenario", "wip", "--out", str(tmp_path)])
-    assert r.exit_code == 2 and "Valid scenarios" in r.output
+    assert r.exit_code == 2 and "'wip'" in r.output and "wipe" in r.output  # the name given and the one meant
     r = CliRunner().invoke(app, ["compare-backends", "--theta", "bendd=1", "--out", str(tmp_path)])
-    assert r.exit_code == 2 and "valid parameters" in r.output
+    assert r.exit_code == 2 and "'bendd'" in r.output and "bend" in r.output.replace("bendd", "")
 
 
 def test_api_errors_and_unit_match():
