@@ -21,27 +21,12 @@ def lift_dir() -> Path:
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
-#: test modules that fit, simulate a real engine, run the CLI or start processes: the integration tier (marker
-#: ``integration``); every other test is the unit tier (toy simulator and hand-built results, arrays in and out).
-#: Tests marked ``slow`` (the demo, real recordings, fault injection, statistical checks) are left to whoever
-#: changes those paths: ``pytest -m slow``.
-INTEGRATION = {
-    "test_aniso_plugin.py", "test_backend_units.py", "test_bank.py", "test_bestfit_widen.py", "test_calibrate.py",
-    "test_check_camera.py", "test_cli_inputs.py", "test_cli_recording.py", "test_compare_backends.py",
-    "test_conformance.py", "test_demo.py", "test_depth_sensor.py", "test_diagnose_toy.py", "test_diagnostics.py",
-    "test_executors.py", "test_faults.py", "test_flow_fit.py", "test_image_fit.py", "test_mujoco_flex.py",
-    "test_no_gl.py", "test_output_folders.py", "test_pybullet_massspring.py", "test_readme.py", "test_registry.py",
-    "test_render.py", "test_run_safety.py", "test_runs.py", "test_scenarios_all.py", "test_sensor_draws.py",
-    "test_sensor_metric.py", "test_store_loop.py", "test_tutorial.py", "test_view.py", "test_heatmap.py",
-    "test_transporter.py", "test_occlusion.py", "test_bound_pressure.py", "test_builtin_regression.py",
-    "test_door.py", "test_files.py", "test_stored_results.py", "test_newton_cloth.py",
-}
+# tiers, by markers on the tests themselves: a module that fits, simulates a real engine, runs the CLI or starts
+# processes declares ``pytestmark = pytest.mark.integration``; every other test is the unit tier (toy simulator
+# and hand-built results, arrays in and out). Tests marked ``slow`` (the demo, real recordings, fault injection,
+# statistical checks) are left to whoever changes those paths: ``pytest -m slow``; the unit tier is
+# ``-m "not integration and not slow"``, the integration tier ``-m "integration and not slow"``.
 
-
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if item.path.name in INTEGRATION and "slow" not in item.keywords:
-            item.add_marker(pytest.mark.integration)
 # no simulation bank unless a test asks for one: a bank shared by tests would hand one test's stored rollouts to
 # another that injects faults into the simulator (tests/workflows/test_bank.py switches it on where it is tested);
 # set, not defaulted, so that a user's own bank in the environment cannot reach the tests either

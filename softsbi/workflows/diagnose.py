@@ -23,7 +23,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import (Candidate, Decision, Diagnosis, Estimate, JointTest, MCPValue, Refit,
+from softsbi.core.results import (Diagnosis, Estimate, Refit,
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
@@ -216,46 +216,19 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
 
 
 def load_diagnosis(path: str | Path) -> Diagnosis:
-    """Read ``diagnosis.json`` (a run directory or the file): this schema, or an older file's verdict, test,
-    ranking, refits' tests and scores.
+    """Read ``diagnosis.json`` (a run directory or the file).
 
     Raises:
-        SoftsbiError: no such file; ResultDamaged: one that cannot be read or is not a diagnosis (one line naming
-            it and the command that writes it again).
+        SoftsbiError: no such file; ResultDamaged: one that cannot be read, is not a diagnosis or was written before
+            typed results (no ``schema``): one line naming it and the command that writes it again.
     """
     path = Path(path)
     path = path / "diagnosis.json" if path.is_dir() and not path.name == "diagnosis.json" else path
     rewrite = f"`softsbi diagnose {path.parent}`"
     if not path.exists():
         raise SoftsbiError(f"no diagnosis at '{path}'; {rewrite} writes it")
-    data = read_json(path, rewrite)
+    data = read_json(path, rewrite, ("schema",))
     try:
-        return from_json(Diagnosis, data) if "schema" in data else _legacy_diagnosis(data)
+        return from_json(Diagnosis, data)
     except (ValueError, KeyError, TypeError, AttributeError) as e:
         raise ResultDamaged(path, f"not a diagnosis: {e}", rewrite) from e
-
-
-def _legacy_test(m: dict[str, Any], family: Sequence[str]) -> JointTest:
-    o, d = m["omnibus"], m.get("directional")
-    return JointTest(MCPValue(o["exceed"], o["n_null"]), MCPValue(d["exceed"], d["n_null"]) if d else None,
-                     d.get("effect") if d else None, tuple(family), float(m["alpha"]), int(m.get("max_null", MAX_NULL)),
-                     float(o.get("statistic", np.nan)))
-
-
-def _legacy_diagnosis(old: dict[str, Any]) -> Diagnosis:
-    """A ``diagnosis.json`` written before typed results (no ``schema``)."""
-    fam = tuple(old.get("candidates") or ())
-    rank = tuple(Candidate(r["effect"], r.get("kind", "physics"), bool(r.get("generic")), r.get("description", ""),
-                           r.get("explained_fraction"),
-                           MCPValue(r["adjusted_exceed"], r["n_null"]) if "adjusted_exceed" in r else None,
-                           r.get("estimate") or {}, r.get("error")) for r in old.get("ranking") or ())
-    refits = tuple(Refit(tuple(c["effect"].split("+")), c.get("run", ""),
-                         _legacy_test(c["misspecification_after"], fam),
-                         None, c.get("chamfer_after_m"))  # an older file has no score of the summaries
-                   for c in old.get("confirmed") or () if c.get("misspecification_after"))
-    named = tuple(old.get("named_effects") or ([old["selected"]] if old.get("selected") else []))
-    decision = Decision(old["verdict"], named if old["verdict"] == "missing-effect" else (),
-                        partial=(old["partial"],) if old.get("partial") else ())
-    return Diagnosis(old.get("run", ""), fam, float(old["alpha"]), K_SE, _legacy_test(old["misspecification"], fam),
-                     rank, None,
-                     refits, decision, simulations=int(old.get("simulations", 0)), seconds=float(old.get("seconds", 0)))

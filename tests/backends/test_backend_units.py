@@ -13,6 +13,8 @@ from softsbi.backends.common import cantilever_analytic, cantilever_scenario, ca
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 
+pytestmark = pytest.mark.integration
+
 THETA = {"stretch": 100.0, "friction": 0.5, "scale": 0.2, "mass": 0.2}
 
 

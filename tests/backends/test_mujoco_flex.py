@@ -13,6 +13,8 @@ from softsbi.scenarios.builtin import lift_scenario
 from softsbi.core.errors import ParameterError
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Scenario
 
+pytestmark = pytest.mark.integration
+
 GRID = 6
 
 

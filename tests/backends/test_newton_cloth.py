@@ -17,6 +17,8 @@ from softsbi.backends.newton_cloth import INSTALL_HINT, NewtonCloth, bend_edge_s
 from softsbi.core.errors import DependencyMissing, ParameterError
 from softsbi.scenarios.builtin import make_scenario
 
+pytestmark = pytest.mark.integration
+
 THETA = {"bend": 1e-4, "stretch": 100.0, "friction": 0.5, "scale": 0.25, "mass": 0.2}
 
 

@@ -15,6 +15,8 @@ from softsbi.core.errors import ParameterError
 from softsbi.executors.local import LocalExecutor
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Scenario
 
+pytestmark = pytest.mark.integration
+
 GRID = 6
 
 

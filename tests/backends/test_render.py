@@ -21,6 +21,8 @@ from softsbi.perception.render import (
     save_gif,
 )
 
+pytestmark = pytest.mark.integration
+
 GRID = 5
 SIZE = 96
 BACKENDS = {"mujoco-flex": MujocoFlex, "pybullet-massspring": PybulletMassSpring}

@@ -12,6 +12,8 @@ from softsbi.perception.pointcloud import load_cloud_frames, sample_surface
 from softsbi.plugins import registry
 from toy_helpers import copy_lift_recording
 
+pytestmark = pytest.mark.integration
+
 runner = CliRunner()
 
 
@@ -82,7 +84,7 @@ def test_bad_data_folders(lift_dir, tmp_path):
 def test_cli_fit_reports_bad_input_without_traceback(tmp_path):
     res = runner.invoke(app, ["fit", "--observed", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
     assert res.exit_code == 2
-    assert "does not exist" in res.output and "Traceback" not in res.output
+    assert f"'{tmp_path / 'missing'}'" in res.output and "Traceback" not in res.output  # the folder
 
 
 def test_area_weighted_sampling_is_uniform_on_the_surface():
@@ -119,19 +121,18 @@ def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
     its refit did (it raised KeyError on the real lift_tan recording), and --json is the typed result, schema
     included, on stdout alone."""
     import softsbi.workflows.diagnose as dg
+    from softsbi.report.text import diagnosis_rows, diagnosis_text
     d = _unexplained_with_a_pair(tmp_path)
     assert d.verdict == "misspecified-unexplained" and d.decision.partial == ("time-offset",)
     monkeypatch.setattr(dg, "diagnose_run", lambda *a, **k: d)
     res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1"])
     assert res.exit_code == 0, res.output
-    line = next(ln for ln in res.output.splitlines() if "With time-offset + wind:" in ln)
-    assert "still outside" in line and "25 -> 40.5 (62% higher" in line
-    rows = {ln.split("|")[1].strip(): ln for ln in res.output.splitlines() if ln.startswith("|")}
-    assert rows["time-offset"].rstrip(" |").endswith("explains a part")
-    assert not any(ln.rstrip(" |").endswith(("named", "named (pair)")) for ln in rows.values())
-    assert rows["wind"].rstrip(" |").endswith("refit: misfit remains") and rows["table-unseen"].rstrip(" |").endswith(
-        "not refitted: beyond the refit budget")
-    assert "verdict: misspecified-unexplained" in res.output
+    # the printed table and paragraphs are report/'s, whose words tests/report/test_text.py fixes: all printed, the
+    # pair's paragraph included
+    rows = [[c.strip() for c in ln.strip().strip("|").split("|")] for ln in res.output.splitlines() if ln.startswith("|")]
+    assert rows[1:] == diagnosis_rows(d) and len(rows) == 1 + len(d.ranking)
+    assert all(paragraph in res.output for paragraph in diagnosis_text(d))
+    assert any("time-offset + wind" in paragraph for paragraph in diagnosis_text(d))
     assert "wrote" not in res.output  # said only by diagnose_run, when it writes the file (here: nothing written)
     res = runner.invoke(app, ["diagnose", str(tmp_path), "--workers", "1", "--json"])
     assert res.exit_code == 0, res.output
@@ -150,13 +151,14 @@ def test_a_null_too_small_for_the_level_is_refused_in_one_line_before_any_work(t
         res = runner.invoke(app, cmd)
         assert res.exit_code == 2, res.output
         msg = " ".join(res.output.split())
-        assert "max_null 30 cannot resolve alpha 0.05" in msg and "use max_null >= 39" in msg, res.output
+        assert "max_null 30" in msg and "alpha 0.05" in msg and "max_null >= 39" in msg, res.output
         errors = [ln for ln in res.output.splitlines() if "max_null" in ln]
         assert "Traceback" not in res.output and len(errors) == 1 and errors[0].startswith("error: "), res.output
         res = runner.invoke(app, cmd + ["--json"])
-        assert res.exit_code == 2 and "use max_null >= 39" in json.loads(res.stdout)["error"]
+        assert res.exit_code == 2 and "max_null >= 39" in json.loads(res.stdout)["error"]
     res = runner.invoke(app, ["check", str(tmp_path / "no-run"), "--alpha", "0.01", "--max-null", "199"])
-    assert res.exit_code == 2 and "does not exist" in res.output  # 199 resolves 0.01: the run is opened
+    # 199 resolves 0.01: the run is opened (and named), no refusal of --max-null
+    assert res.exit_code == 2 and "no-run" in res.output and "max_null" not in res.output
     # the Python API refuses the same way
     import softsbi
     from softsbi.core.errors import SoftsbiError
@@ -287,7 +289,7 @@ def test_simulate_exits_non_zero_when_the_simulation_fails(tmp_path, monkeypatch
     monkeypatch.setenv("SOFTSBI_TOY_DIVERGE_ABOVE", "0")
     res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--theta", "a=0.5", "--out", str(tmp_path / "o")])
     assert res.exit_code == 1, res.output
-    assert "error: the simulation failed (toy divergence: a = 0.500 > 0); no recording was written" in res.output
+    assert "a = 0.500 > 0" in res.output and not (tmp_path / "o" / "recording.yaml").exists()  # the reason
     res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--theta", "a=0.5", "--out", str(tmp_path / "j"),
                               "--json"])
     assert res.exit_code == 1 and json.loads(res.stdout)["status"] != 0
@@ -324,22 +326,21 @@ def test_a_recording_below_the_table_warns_in_one_line_and_params_takes_recordin
                               "--rounds", "1", "--sims-per-round", "10", "--n-eval", "1", "--points", "8",
                               "--workers", "1", "--estimator", "mdnn", "--estimator-opt", "max_epochs=2"])
     warnings = [ln for ln in res.output.splitlines() if ln.startswith("warning: ")]
-    assert len(warnings) == 1 and "every point lies below the table" in warnings[0], res.output
-    assert "check the recording's transform" in warnings[0]
+    assert len(warnings) == 1 and "transform" in warnings[0], res.output  # the recording's field to check
     from softsbi.core.errors import SoftsbiWarning
     with pytest.warns(SoftsbiWarning, match="every point lies below the table"):
         load_recording(meas, n_points=8, n_dense=8)
     # a folder of recordings is named as such, and any other folder is told what params takes
     res = runner.invoke(app, ["params", str(tmp_path / "run")])
-    assert res.exit_code == 2 and "neither a recording directory" in res.output, res.output
+    assert res.exit_code == 2 and "run" in res.output and "Traceback" not in res.output, res.output
     import shutil
     shutil.rmtree(tmp_path / "run")
     res = runner.invoke(app, ["params", str(tmp_path)])
     msg = " ".join(res.output.split())
-    assert res.exit_code == 2 and "it holds recordings (meas): give one of them" in msg, res.output
+    assert res.exit_code == 2 and "(meas)" in msg, res.output  # the recordings it holds
     res = runner.invoke(app, ["params", str(meas / "clouds")])
     msg = " ".join(res.output.split())
-    assert res.exit_code == 2 and "give a scenario name (`softsbi scenarios` lists them), a scenario file" in msg
+    assert res.exit_code == 2 and "`softsbi scenarios`" in msg  # the command that lists what params takes
 
 
 def test_view_with_nothing_to_write_and_import_of_a_recording_say_so_before_any_work(tmp_path):
@@ -348,11 +349,10 @@ def test_view_with_nothing_to_write_and_import_of_a_recording_say_so_before_any_
     pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
     res = runner.invoke(app, ["view", str(tmp_path / "no-run"), "--no-rrd", "--no-gif"])
     msg = " ".join(res.output.split())
-    assert res.exit_code == 2 and "--no-gif leaves nothing to write: --no-rrd switches off the rerun recording too; " \
-                                  "drop one of them" in msg, res.output
+    assert res.exit_code == 2 and "--no-gif" in msg and "--no-rrd" in msg, res.output  # the two flags
     meas = tmp_path / "meas"
     assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(meas)]).exit_code == 0
     res = runner.invoke(app, ["import", "diffcloud", str(meas), str(tmp_path / "dst")])
     msg = " ".join(res.output.split())
-    assert res.exit_code == 2 and f"'{meas}' is already a softsbi recording" in msg, res.output
+    assert res.exit_code == 2 and f"'{meas}'" in msg, res.output
     assert f"softsbi fit --observed {meas} --out RUN" in msg and not (tmp_path / "dst").exists()

@@ -28,10 +28,11 @@ def test_params_takes_a_scenario_file_and_another_backend_and_refuses_what_it_ca
     assert [r["name"] for r in json.loads(res.output)["parameters"]][:2] == ["pb_rope_bend", "pb_rope_stretch"]
     res = runner.invoke(app, ["params", "lift", "--backend", "pybullet-massspring", "--effect", "wind"])
     assert res.exit_code == 2
-    assert res.output.strip() == ("error: backend 'pybullet-massspring' cannot apply effect 'wind': it needs a force "
-                                  "field (pybullet-massspring applies: observation)")
+    line = res.output.strip()
+    assert line.startswith("error: ") and "\n" not in line and "'pybullet-massspring'" in line and "'wind'" in line
+    assert "force field" in line  # the door the effect needs
     res = runner.invoke(app, ["params", str(tmp_path / "nothing.yaml")])
-    assert res.exit_code == 2 and "does not exist" in res.output and "Traceback" not in res.output
+    assert res.exit_code == 2 and "nothing.yaml" in res.output and "Traceback" not in res.output
 
 
 def test_plugins_lists_the_backends_that_apply_each_effect_and_its_parameters():

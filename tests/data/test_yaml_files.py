@@ -42,7 +42,7 @@ def test_a_yaml_bomb_is_refused_while_parsing(tmp_path, levels):
     (rec / "recording.yaml").write_text("format: softsbi-recording/1\n" + _bomb(levels, field="source"))
     for load, path in ((load_scenario_file, scenario), (read_recording, rec)):
         line, peak = _refused(load, path)
-        assert f"its aliases (*name) repeat more than {MAX_ALIAS_NODES} nodes" in line and "\n" not in line
+        assert path.name in line and str(MAX_ALIAS_NODES) in line and "\n" not in line  # the file and the limit
         assert len(line) < 300 and peak < 200e6, (len(line), peak)
 
 
@@ -56,8 +56,8 @@ def test_an_oversized_or_binary_yaml_file_is_refused_before_parsing(tmp_path):
     np.save(rec / "clouds" / "000.npy", np.zeros((4, 3)))
     (rec / "recording.yaml").write_bytes(os.urandom(MAX_YAML_BYTES + 1))
     line, _ = _refused(read_recording, rec)
-    assert f"recording.yaml is 4.0 MB, over the {MAX_YAML_BYTES // 2**20} MB a YAML file may have" in line
+    assert "recording.yaml" in line and "4.0 MB" in line and f"{MAX_YAML_BYTES // 2**20} MB" in line  # size, limit
     (rec / "recording.yaml").write_bytes(b"format: \xff\xfe" + os.urandom(1000))
     line, _ = _refused(read_recording, rec)
-    assert "recording.yaml is not a text file (byte 8 is not UTF-8)" in line
+    assert "recording.yaml" in line and "byte 8" in line and "UTF-8" in line
 

@@ -17,6 +17,8 @@ import pytest
 
 from tests.effects.record_reference import CASES, rollouts
 
+pytestmark = pytest.mark.integration
+
 #: parameter changes of the deliberate fixes (see the module docstring)
 RESCALE = {"damping_rate": 2.0}
 

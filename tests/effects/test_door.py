@@ -20,6 +20,8 @@ from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows.screening import candidate_effects
 
+pytestmark = pytest.mark.integration
+
 LIFT = lift_scenario(None, n_frames=11)
 
 

@@ -15,6 +15,8 @@ from softsbi.core.errors import DataError, ShapeError, SoftsbiError
 from softsbi.core.types import Observation
 from toy_helpers import DATA
 
+pytestmark = pytest.mark.integration
+
 
 runner = CliRunner()
 SIZE = 48
@@ -174,7 +176,7 @@ def test_image_fit_bad_input(rendered, tmp_path):
     assert res.exit_code == 2 and "frames" in res.output  # 31 wipe frames are not a 36-frame fling
     res = runner.invoke(app, ["fit", "--observed", frames, "--scenario", "wipe", "--observer", "heatmap",
                               "--extractor", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "d")])
-    assert res.exit_code == 2 and "does not exist" in res.output
+    assert res.exit_code == 2 and "missing.pt" in res.output
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
 
 
@@ -216,9 +218,9 @@ def test_train_extractor_on_rendered_rollouts_and_bad_choices(tmp_path):
     from softsbi.perception.keypoints.transporter import TransporterExtractor
     assert TransporterExtractor.load(out).n_keypoints == 3
     res = runner.invoke(app, ["train-extractor", "heatmap", "--out", str(tmp_path / "x.pt")])
-    assert res.exit_code == 2 and "exactly one of --data" in res.output
+    assert res.exit_code == 2 and "--data" in res.output and "--simulate" in res.output  # the two flags
     res = runner.invoke(app, ["train-extractor", "heatmapp", "--simulate", "wipe", "--out", str(tmp_path / "x.pt")])
-    assert res.exit_code == 2 and "Did you mean 'heatmap'" in res.output
+    assert res.exit_code == 2 and "'heatmap'" in res.output  # the name meant
     res = runner.invoke(app, ["train-extractor", "heatmap", "--simulate", "wipe", "--out", str(tmp_path / "x.pt"),
                               "--opt", "input_sise=32"])
     assert res.exit_code == 2 and "input_size" in res.output

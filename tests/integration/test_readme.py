@@ -4,7 +4,10 @@ import re
 import subprocess
 import sys
 
+import pytest
 from toy_helpers import REPO
+
+pytestmark = pytest.mark.integration
 
 README = REPO / "README.md"
 

@@ -7,8 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from softsbi.core.results import CheckResult, from_json
 from toy_helpers import REPO
+
+pytestmark = pytest.mark.integration
 
 TUTORIAL = REPO / "docs" / "tutorial.md"
 

@@ -11,6 +11,8 @@ from softsbi.core.errors import DataError
 from softsbi.perception.depth_sensor import VirtualDepthSensor, rasterize_depth
 from softsbi.perception.pointcloud import sample_surface
 
+pytestmark = pytest.mark.integration
+
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "diffcloud_lift"
 OPEN = ((-np.inf,) * 3, (np.inf,) * 3)
 
@@ -113,14 +115,14 @@ def test_rasterized_depth_matches_the_plane():
 def test_bad_calibration_gives_one_clear_line(tmp_path):
     with pytest.raises(DataError) as e:
         VirtualDepthSensor.from_calibration([tmp_path / "nope"])
-    assert "does not exist" in str(e.value) and "\n" not in str(e.value)
+    assert "nope" in str(e.value) and "\n" not in str(e.value)
     bad = tmp_path / "calib"
     bad.mkdir()
     np.save(bad / "intrinsics.npy", np.ones(3))
     np.save(bad / "trc.npy", np.eye(4)[:3])
     with pytest.raises(DataError) as e:
         VirtualDepthSensor.from_calibration([bad])
-    assert "intrinsics must be (4,)" in str(e.value) and "\n" not in str(e.value)
+    assert "intrinsics" in str(e.value) and "(4,)" in str(e.value) and "\n" not in str(e.value)  # file, shape
     with pytest.raises(DataError):
         VirtualDepthSensor(())
 

@@ -25,6 +25,8 @@ from softsbi.data.keypoints import (
 from softsbi.perception.keypoints.nets import HeatmapNet
 from toy_helpers import DATA
 
+pytestmark = pytest.mark.integration
+
 WIPING = DATA / "wiping_keypoints"
 TINY = dict(input_size=64, layers=[1, 1, 1, 1], width=8, epochs=60, batch_size=4, lr=3e-3, augment=False,
             val_fraction=0.0, patience=60, sigma=10.0, num_threads=1)

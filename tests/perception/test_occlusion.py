@@ -8,6 +8,8 @@ from softsbi.scenarios.builtin import make_scenario
 from softsbi.workflows.fit import FitConfig, observer_options
 from softsbi.perception.pointcloud import PointCloudObserver, occluded_by_cylinder
 
+pytestmark = pytest.mark.integration
+
 
 def test_cylinder_occlusion_geometry():
     cam = np.array([0.0, -0.8, 0.6])

@@ -16,6 +16,8 @@ from softsbi.inference.training import torch_threads
 from softsbi.perception.keypoints.transporter import (TransporterExtractor, gaussian_maps, keypoints_in_mask,
                                             masked_reconstruction_loss, sample_pairs, spatial_softmax, transport)
 
+pytestmark = pytest.mark.integration
+
 TABLE, CLOTH, ARM, GRIPPER = (214, 104, 98), (112, 150, 86), (225, 225, 225), (30, 30, 34)
 
 

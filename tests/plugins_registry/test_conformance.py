@@ -9,6 +9,8 @@ from softsbi.core.errors import ParameterError
 from softsbi.core.types import ParamSpace, Param, Rollout
 from softsbi.plugins import registry
 
+pytestmark = pytest.mark.integration
+
 #: small meshes for the built-in engines (the check is about the contract, not accuracy)
 SMALL = {"mujoco-flex": {"grid": 5, "rope_nodes": 12}, "pybullet-massspring": {"grid": 5, "rope_nodes": 12}}
 

@@ -16,6 +16,8 @@ from softsbi.core.types import ParamSpace
 from softsbi.effects import builtin
 from softsbi.plugins import Registry, get_plugin_manager, hookimpl, manager, registry
 
+pytestmark = pytest.mark.integration
+
 
 def _plugin(module: str, **hooks) -> types.ModuleType:
     """An in-memory plugin module whose hooks return the given lists of classes."""
@@ -51,8 +53,9 @@ def test_duplicate_name_names_both_providers():
     mywind = ("mywind", "mywind 1.2", _plugin("mywind.plugin", softsbi_effects=[_effect("Wind", "wind")]))
     with pytest.raises(PluginError) as err:
         _registry(BUILTIN, mywind)
-    assert str(err.value) == ("two effect plugins are named 'wind': softsbi 0.1.0 (softsbi.effects.builtin.Wind) "
-                              "and mywind 1.2 (mywind.plugin.Wind); uninstall one or rename it")
+    msg = str(err.value)  # the name, then each provider: its distribution and class
+    assert "'wind'" in msg and "\n" not in msg
+    assert msg.index("softsbi 0.1.0 (softsbi.effects.builtin.Wind)") < msg.index("mywind 1.2 (mywind.plugin.Wind)")
     assert isinstance(err.value, SoftsbiError) and isinstance(err.value, TypeError)
     # two different classes of one name inside one plugin clash too
     with pytest.raises(PluginError, match="two simulator plugins are named 'sim'"):
@@ -81,7 +84,8 @@ def test_wrong_classes_name_the_plugin_hook_object_and_base(returned, expect):
     bad[2].softsbi_effects = hookimpl(lambda: returned)
     with pytest.raises(PluginError, match=expect) as err:
         _registry(bad)
-    assert str(err.value).startswith("softsbi plugin 'mywind' (mywind.plugin, mywind 1.2): hook softsbi_effects ")
+    msg = str(err.value)  # the plugin, its module and distribution, the hook
+    assert "'mywind'" in msg and "mywind.plugin" in msg and "mywind 1.2" in msg and "softsbi_effects" in msg
 
 
 def test_misspelled_hook_is_named_with_a_suggestion():
@@ -89,8 +93,7 @@ def test_misspelled_hook_is_named_with_a_suggestion():
     with pytest.raises(PluginError) as err:
         _registry(("mywind", "mywind 1.2", typo))
     msg = str(err.value)
-    assert msg.startswith("softsbi plugin 'mywind' (mywind.plugin, mywind 1.2) has an unknown hook "
-                          "'softsbi_efects'. Did you mean 'softsbi_effects'?")
+    assert "'mywind'" in msg and msg.index("'softsbi_efects'") < msg.index("'softsbi_effects'")  # typo, then the hook
     assert "softsbi_simulators" in msg  # lists the real hooks
     # an undecorated function of that name is no hook at all
     plain = _plugin("mywind.plugin", softsbi_effects=[builtin.Wind])
@@ -125,10 +128,8 @@ def test_alias_clashes_are_detected():
         with pytest.raises(PluginError) as err:
             _registry(*order)
         msg = str(err.value)
-        assert msg.startswith("two simulator plugins are named 'pybullet-fem': ")
-        assert "softsbi 0.1.0 (softsbi.backends.pybullet_massspring.MassSpring, an alias of " \
-               "'pybullet-massspring')" in msg
-        assert "pbfem 0.3 (pbfem.plugin.Fem)" in msg and msg.endswith("; uninstall one or rename it")
+        assert "'pybullet-fem'" in msg and "softsbi.backends.pybullet_massspring.MassSpring" in msg
+        assert "'pybullet-massspring'" in msg and "pbfem 0.3 (pbfem.plugin.Fem)" in msg  # whose alias, the other one
     # alias against alias
     other = ("o", "o 1", _plugin("o", softsbi_simulators=[_simulator("O", "o-sim", aliases=("pybullet-fem",))]))
     with pytest.raises(PluginError, match="'pybullet-fem'.*an alias of 'pybullet-massspring'.*an alias of 'o-sim'"):
@@ -186,7 +187,7 @@ def test_cli_prints_a_broken_registry_as_one_line(monkeypatch):
     res = runner.invoke(app, ["plugins", "--json"])
     assert res.exit_code == 2
     doc = json.loads(res.output[res.output.index("{"):])
-    assert doc["type"] == "PluginError" and "two effect plugins are named 'wind'" in doc["error"]
+    assert doc["type"] == "PluginError" and "'wind'" in doc["error"]
 
 
 FILE_EFFECT = '''
@@ -238,5 +239,6 @@ def test_an_effect_in_one_file_plugs_in_through_softsbi_plugins_without_a_packag
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert "hem_density" in report["posterior_mean"] and report["failed_simulations"] == 0
     res = cli("plugins", env={**env, "SOFTSBI_PLUGINS": "missing.py"})
-    assert res.returncode == 2 and "SOFTSBI_PLUGINS: cannot load 'missing.py' (FileNotFoundError" in res.stderr
+    assert res.returncode == 2 and "SOFTSBI_PLUGINS" in res.stderr and "'missing.py'" in res.stderr
+    assert "FileNotFoundError" in res.stderr
     assert "Traceback" not in res.stderr

@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.results import CompareResult, Diagnosis, Estimate, MCPValue, Metric, ResidualShape, Row
+from softsbi.core.results import CompareResult, Diagnosis, Estimate, JointTest, MCPValue, Metric, ResidualShape, Row
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
 from softsbi.workflows.decide import decide
@@ -225,19 +225,46 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
 
 
+#: the verdict column of each fixed diagnosis, written out by hand, in the screening's order (generic-constant, wind,
+#: extra-damping, time-offset)
+ROLES = {"nothing": ["not refitted: nothing missing"] * 4,
+         "named": ["not refitted: generic term", "named", "not refitted: beyond --confirm 1",
+                   "not refitted: beyond --confirm 1"],
+         "tie": ["not refitted: generic term", "named", "indistinguishable", "not refitted: beyond --confirm 2"],
+         "pair": ["not refitted: generic term", "named (pair)", "named (pair)", "not refitted: beyond --confirm 2"],
+         "partial": ["not refitted: generic term", "explains a part", "refit: misfit remains",
+                     "not refitted: beyond --confirm 2"],
+         "no refit": ["not refitted: generic term", "not refitted: beyond --confirm 0",
+                      "not refitted: beyond --confirm 0", "not refitted: beyond --confirm 0"],
+         "none lower": ["not refitted: generic term", "refit: misfit remains", "refit: misfit remains",
+                        "not refitted: beyond --confirm 2"]}
+
+
 @pytest.mark.parametrize("name", list(ALL))
 def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name):
     d = ALL[name]
     table = diagnosis_rows(d)
     assert len(DIAGNOSIS_COLUMNS) == len(table[0]) and DIAGNOSIS_COLUMNS[-1] == "verdict"
+    assert [row[-1] for row in table] == ROLES[name] == [candidate_role(d, c) for c in d.ranking]
     for c, row in zip(d.ranking, table):
-        assert row[0] == c.effect and row[-1] == candidate_role(d, c)
+        assert row[0] == c.effect
         assert row[-1].startswith("named") == (c.effect in d.decision.named), (name, row)
         if d.verdict != "missing-effect":
             assert row[-1] not in ("named", "named (pair)", "indistinguishable"), (name, row)
         if c.generic:
             assert row[-1].startswith("not refitted: "), (name, row)  # a generic term is never refitted nor named
     assert {d.verdict for d in ALL.values()} == {"nothing-missing", "missing-effect", "misspecified-unexplained"}
+
+
+def test_p_value_words():
+    """A Monte-Carlo p-value and check's joint test, in the words every sentence above quotes."""
+    assert MCPValue(3, 30).text() == "p = 0.13 (3 of 30 null simulations as extreme)"
+    assert MCPValue(0, 30).text() == "p <= 1/31 (beyond all 30 null simulations)"
+    assert JointTest(MCPValue(60, 200), None, None, (), 0.05, 200).text() == (
+        "p = 0.3 (60 of 200 null simulations as extreme)")
+    assert JointTest(MCPValue(0, 200), MCPValue(30, 200), "x", ("x",), 0.01, 200).text() == P_FLOOR
+    assert JointTest(MCPValue(12, 200), MCPValue(3, 200), "x", ("x",), 0.01, 200).text() == (
+        "p = 0.04 (two tests, Bonferroni: 2 x the directional test's p = 0.02; 200 null simulations)")
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -59,15 +59,16 @@ def test_unknown_field(tmp_path):
     p = _spec(tmp_path, object={"kind": "cloth", "mesh": {"file": "sheet.obj"}, "colour": "red"})
     with pytest.raises(DataError) as err:
         load_scenario(p)
-    assert _one_line(err).startswith(f"{p}: unknown field 'object.colour'; remove it or correct its spelling")
+    msg = _one_line(err)
+    assert msg.startswith(f"{p}: ") and "'object.colour'" in msg  # the file and the field
 
 
 def test_wrong_type(tmp_path):
     p = _spec(tmp_path, frames={"count": "eleven", "dt": 0.05})
     with pytest.raises(DataError) as err:
         load_scenario(p)
-    assert _one_line(err).startswith(f"{p}: field 'frames.count': Input should be a valid integer")
-    assert "(got 'eleven'); fix that field" in str(err.value)
+    msg = _one_line(err)
+    assert msg.startswith(f"{p}: field 'frames.count'") and "'eleven'" in msg  # the file, the field, the value
 
 
 def test_handle_vertex_out_of_range(tmp_path):
@@ -77,8 +78,8 @@ def test_handle_vertex_out_of_range(tmp_path):
     p.write_text(yaml.safe_dump(spec))
     with pytest.raises(DataError) as err:
         load_scenario(p)
-    assert _one_line(err) == (f"{p}: field 'handles[1].grasp.vertex': vertex 9 is out of range, the mesh has 9 "
-                              f"vertices (0..8); choose one of those")
+    msg = _one_line(err)
+    assert msg.startswith(f"{p}: field 'handles[1].grasp.vertex'") and "9" in msg and "(0..8)" in msg  # the range
 
 
 def test_path_length_disagrees_with_frames(tmp_path):
@@ -89,8 +90,9 @@ def test_path_length_disagrees_with_frames(tmp_path):
     p.write_text(yaml.safe_dump(spec))
     with pytest.raises(DataError) as err:
         load_scenario(p)
-    assert _one_line(err).startswith(f"{p}: field 'handles[0].path.file': ")
-    assert "has 7 rows but frames gives 11 frames; give one row per frame (or set frames.count to 7)" in str(err.value)
+    msg = _one_line(err)
+    assert msg.startswith(f"{p}: field 'handles[0].path.file': ")
+    assert "7" in msg and "11" in msg and "frames.count" in msg  # the rows, the frames and the field to change
 
 
 def test_non_manifold_mesh(tmp_path):
@@ -98,8 +100,9 @@ def test_non_manifold_mesh(tmp_path):
     _grid_obj(tmp_path / "sheet.obj", extra_face=True)
     with pytest.raises(DataError) as err:
         load_scenario(p)
-    assert _one_line(err).startswith(f"{p}: field 'object.mesh.file': mesh {tmp_path / 'sheet.obj'} is non-manifold "
-                                     f"(edge 0-4 is shared by 3 triangles)")
+    msg = _one_line(err)
+    assert msg.startswith(f"{p}: field 'object.mesh.file': ") and str(tmp_path / "sheet.obj") in msg
+    assert "0-4" in msg  # the edge
 
 
 def test_unknown_frame_and_format(tmp_path):
@@ -149,14 +152,15 @@ def test_a_keyframe_far_beyond_a_task_and_two_positions_at_one_time_are_refused(
     with pytest.raises(DataError) as err:
         load_scenario(far)
     msg = _one_line(err)
-    assert "field 'handles[0].path'" in msg and "1e+09 m from the scenario origin at t = 0.5 s" in msg
-    assert f"beyond the {MAX_POSITION:g} m" in msg
+    assert "field 'handles[0].path'" in msg and "1e+09" in msg and "t = 0.5" in msg
+    assert f"{MAX_POSITION:g} m" in msg  # the limit
     twice = _spec(tmp_path, handles=[dict(grip, path={"keyframes": [{"t": 0.0, "p": [0.3, 0.3, 0.0]},
                                                                     {"t": 0.25, "p": [0.4, 0.3, 0.1]},
                                                                     {"t": 0.25, "p": [0.2, 0.3, 0.1]}]}), held])
     with pytest.raises(DataError) as err:
         load_scenario(twice)
-    assert "two keyframes at t = 0.25 s have different positions" in _one_line(err)
+    msg = _one_line(err)
+    assert "field 'handles[0].path'" in msg and "t = 0.25" in msg
     # the same position twice (a pause written out) stays valid
     same = _spec(tmp_path, handles=[dict(grip, path={"keyframes": [{"t": 0.0, "p": [0.3, 0.3, 0.0]},
                                                                    {"t": 0.25, "p": [0.4, 0.3, 0.1]},

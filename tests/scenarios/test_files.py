@@ -13,6 +13,8 @@ from softsbi.plugins import registry
 from softsbi.scenarios import builtin as b
 from softsbi.scenarios import builtin_files, list_scenarios, load_scenario
 
+pytestmark = pytest.mark.integration
+
 REFERENCE = {"lift": lambda: b.lift_scenario(None), "wipe": b.wipe_scenario, "winding": b.winding_scenario,
              "fling": b.fling_scenario}
 REPO = Path(__file__).resolve().parents[2]

@@ -8,6 +8,8 @@ from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.backends.pybullet_massspring import PybulletMassSpring
 from softsbi.scenarios.builtin import SCENARIOS, make_scenario
 
+pytestmark = pytest.mark.integration
+
 BACKENDS = {"mujoco-flex": lambda: MujocoFlex(grid=6, rope_nodes=16),
             "pybullet-massspring": lambda: PybulletMassSpring(grid=6, rope_nodes=16)}
 

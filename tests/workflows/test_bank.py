@@ -7,6 +7,8 @@ import pytest
 from softsbi.core.types import STATUS_DIVERGED, Rollout
 from softsbi.workflows.bank import SimulationBank, rollout_key
 
+pytestmark = pytest.mark.integration
+
 
 def _rollout(seed: int = 0) -> Rollout:
     rng = np.random.default_rng(seed)
@@ -219,13 +221,15 @@ def test_bank_paths_are_checked_before_any_work(tmp_path, monkeypatch):
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "user-bank"))
     (tmp_path / "rec").mkdir()
     (tmp_path / "file").write_text("not a folder")
-    assert "--sim-bank is empty" in _refused(["--sim-bank", ""], tmp_path)
-    assert "is inside --out" in _refused(["--sim-bank", str(tmp_path / "run" / "bank")], tmp_path)
-    assert "is inside --observed" in _refused(["--sim-bank", str(tmp_path / "rec" / "bank")], tmp_path)
-    assert f"--out {tmp_path / 'run'} is inside --sim-bank" in _refused(["--sim-bank", str(tmp_path)], tmp_path)
+    assert "--sim-bank" in _refused(["--sim-bank", ""], tmp_path)
+    for bank, flag in ((tmp_path / "run" / "bank", "--out"), (tmp_path / "rec" / "bank", "--observed")):
+        line = _refused(["--sim-bank", str(bank)], tmp_path)
+        assert f"--sim-bank {bank}" in line and flag in line  # the bank and the flag it is inside
+    line = _refused(["--sim-bank", str(tmp_path)], tmp_path)
+    assert f"--out {tmp_path / 'run'}" in line and "--sim-bank" in line
     assert "--sim-bank " + str(tmp_path / "file") + " is a file" in _refused(["--sim-bank", str(tmp_path / "file")],
                                                                              tmp_path)
-    assert "cannot be created" in _refused(["--sim-bank", str(tmp_path / "file" / "bank")], tmp_path)
+    assert str(tmp_path / "file" / "bank") in _refused(["--sim-bank", str(tmp_path / "file" / "bank")], tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "rec"]  # nothing written, no run begun
 
 

@@ -9,6 +9,8 @@ import softsbi
 from softsbi.core.types import Param, ParamSpace
 from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence, widened_bounds
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402
 
@@ -109,7 +111,6 @@ def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
 def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     import shutil
 
-    from softsbi.report.text import check_summary
     from softsbi.workflows.check import check_run
     out, res = toy_run
     run = tmp_path / "run"
@@ -118,13 +119,10 @@ def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     plain = check_run(run, n_eval=10, workers=1, plot=False, alpha=0.5, max_null=10)
     rep = json.loads((run / "report.json").read_text())
     assert list(plain.posterior_at_bounds) == rep["posterior_at_bounds"]
-    assert ("presses its" in check_summary(plain)) == bool(rep["posterior_at_bounds"])
     rep["posterior_at_bounds"] = [{"param": "b", "side": "lower", "bound": -1.0, "unit": "1", "mass": 0.35}]
     (run / "report.json").write_text(json.dumps(rep))
     pressed = check_run(run, n_eval=10, workers=1, plot=False, alpha=0.5, max_null=10)
     assert list(pressed.posterior_at_bounds) == rep["posterior_at_bounds"]
-    assert ("The fit's posterior: b's posterior presses its lower prior bound -1 (35% of its mass near it): the bound "
-            "is a physical limit, so suspect an effect the model lacks.") in check_summary(pressed)
     assert pressed.test == plain.test  # the test is unchanged
 
 

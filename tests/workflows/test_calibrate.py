@@ -12,6 +12,8 @@ from softsbi.core.fitreport import CalibrationResult
 from softsbi.core.store import RunStore
 from softsbi.workflows.lock import RunLocked, run_lock
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402
 

@@ -11,17 +11,18 @@ import pytest
 from typer.testing import CliRunner
 
 from softsbi.cli import app
-from softsbi.core.errors import ParameterError, SoftsbiError
-from softsbi.core.results import CompareResult, Metric, from_json
+from softsbi.core.errors import ParameterError
+from softsbi.core.results import CheckResult, CompareResult, Diagnosis, Metric, ResultDamaged, from_json
 from softsbi.core.store import RunStore
-from softsbi.report.text import check_summary, diagnosis_summary, diagnosis_text
-from softsbi.workflows.check import check_run
+from softsbi.workflows.check import check_run, stored_result
 from softsbi.workflows.diagnose import diagnose_run, load_diagnosis, refit_model
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.runs import load_run
 from softsbi.workflows.stats import PM_ROLLOUTS, posterior_mean_chamfer, run_features
 from softsbi.plugins import registry
+
+pytestmark = pytest.mark.integration
 
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 runner = CliRunner()
@@ -92,7 +93,6 @@ def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     assert ht.p_value >= 2 / 201 == ht.resolution
     assert not ct.misspecified and ct.p_value > 0.05 and ct.p_value >= 2 / (ct.n_null + 1)
     assert ct.p_value == pytest.approx(min(1.0, 2 * min(ct.omnibus.value, ct.directional.value)))
-    assert "null simulations" in check_summary(h) and "NOT explained" in check_summary(h)
     # the hidden wind grows over time: the late phase is the worst, and the late frames are the ones flagged
     assert h.phases[-1].chamfer_m > h.phases[0].chamfer_m
     assert h.residual.frames_flagged and h.residual.frames_flagged[-1] == 3 and c.residual is None
@@ -127,8 +127,6 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     hidden, control = toy_runs
     d = diagnose_run(hidden, workers=1, confirm=1, refit_rounds=2, refit_sims=150)
     assert d.verdict == "missing-effect" and d.decision.named == ("toy-wind",)
-    summary = diagnosis_summary(d)
-    assert summary.startswith("Missing physics effect: toy-wind")
     top = d.ranking[0]
     assert top.effect == "toy-wind" and top.estimate["wind"] == pytest.approx(0.45, abs=0.12)
     assert top.adjusted.value >= 1 / (d.test.n_null + 1)
@@ -138,16 +136,16 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     (r,) = d.refits
     # the refit with the named effect passes check's test at the diagnosis' level, over the family less its effect
     assert r.effects == ("toy-wind",) and r.adequate and r.test.alpha == d.alpha and r.test.p_value > d.alpha
-    assert r.test.family == () and "inside its posterior predictive distribution" in summary
+    assert r.test.family == ()
     assert (r.rounds, r.sims_per_round) == (2, 150)
     # the toy's Chamfer has a floor from its 5 cm per-frame noise: a clear drop is what we can ask here
     # (the >= 40% criterion is measured on the MuJoCo cases in benchmarks/diagnosis.py)
     assert chk.energy.chamfer_m == pytest.approx(load_run(hidden).report.chamfer_posterior_m)
     assert r.chamfer_m < 0.8 * chk.energy.chamfer_m
     # the energy score of the two posterior predictives of check's summaries, in the nominal's scale: the refit's is
-    # lower by more than k_se standard errors, and the sentence gives both numbers
+    # lower by more than k_se standard errors, and the decision's gain is the difference of the two
     assert r.score.value < d.nominal.value - 3 * r.score.se and d.decision.gain.z > d.k_se
-    assert f"energy score from {d.nominal.value:.3g} to {r.score.value:.3g}" in summary
+    assert d.decision.gain.difference == pytest.approx(d.nominal.value - r.score.value)
     # the refit's estimate of the added effect (its posterior mean and 90% interval, with the unit), its width and
     # the prior bound it presses, from its report; the hidden wind (0.45) lies inside the interval
     refit_rep = json.loads((hidden / "refit-toy-wind" / "report.json").read_text())
@@ -157,14 +155,10 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert est.width_ratio == refit_rep["contraction"]["wind"]["width_ratio"]
     assert est.pressed == next((b["side"] for b in refit_rep["posterior_at_bounds"] if b["param"] == "wind"), None)
     assert est.q05 < 0.45 < est.q95
-    words = diagnosis_text(d)[2]
-    assert words.startswith("With toy-wind: the measurement is inside")
-    assert f"The refit estimates wind = {est.mean:.3g} m (90% interval {est.q05:.3g} to {est.q95:.3g} m" in words
     assert load_diagnosis(hidden) == d
     c = diagnose_run(control, workers=1, confirm=1)
     assert c.verdict == "nothing-missing" and c.refits == () and c.decision.named == ()
     assert c.residual is None and c.generic is None
-    assert diagnosis_summary(c).startswith("Nothing missing")
     chk_c = check_run(control, workers=1, plot=False)
     assert c.test == chk_c.test and not chk_c.test.misspecified
     # compare before/after
@@ -183,7 +177,6 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert pm["n"] == PM_ROLLOUTS and (pm_row.a, pm_row.b) == (pm["chamfer_m"], refit_pm["chamfer_m"])
     assert pm_row.b < 0.8 * pm_row.a
     assert [ch.posterior_mean["chamfer_m"] for ch in (out.check_a, out.check_b)] == [pm_row.a, pm_row.b]
-    assert f"posterior-mean rollout {pm_row.a * 100:.2f} cm -> {pm_row.b * 100:.2f} cm" in res.output
     assert (hidden / "refit-toy-wind" / "compare.png").stat().st_size > 10_000
 
 
@@ -212,9 +205,7 @@ def test_misspecified_by_nothing_installed_names_where_and_the_generic_term(toy_
     assert d.test.misspecified and d.verdict == "misspecified-unexplained"
     assert d.refits == () and d.decision.named == () and d.decision.partial == ()
     assert d.generic.effect == "toy-wind" and d.ranking[0].generic
-    text = diagnosis_text(d)
-    assert text[0].startswith("Misspecified, unexplained") and text[0].endswith("and no candidate was refitted.")
-    assert text[-1].startswith("Best generic force term: toy-wind explains")
+    assert d.confirm is not None and d.ranking[0].effect == "toy-wind" and d.ranking[0].explained > 0
     res = d.residual
     # the toy wind grows over time: the late frames are flagged, the first is not
     assert res.frames_flagged and res.frames_flagged[-1] == 3 and 0 not in res.frames_flagged
@@ -226,17 +217,20 @@ def test_cli_check_and_diagnose(toy_runs):
     hidden, _ = toy_runs
     res = runner.invoke(app, ["check", str(hidden), "--workers", "1", "--n-eval", "20"])
     assert res.exit_code == 0, res.output
-    assert "misspecification test" in res.output and "strongest toy-wind" in res.output
-    assert "null simulations" in res.output and "NOT explained" in res.output
+    res = runner.invoke(app, ["check", str(hidden), "--workers", "1", "--n-eval", "20", "--json"])  # stored: reused
+    chk = from_json(CheckResult, json.loads(res.stdout))
+    assert chk.test.misspecified and chk.test.directional_effect == "toy-wind" and chk.test.n_null == 200
     res = runner.invoke(app, ["diagnose", str(hidden), "--workers", "1", "--confirm", "1", "--refit-rounds", "2",
                               "--refit-sims", "150"])
     assert res.exit_code == 0, res.output
-    assert "verdict: missing-effect" in res.output and "Missing physics effect: toy-wind" in res.output
-    assert "Detect: " in res.output and "Decide: " in res.output
     row = next(ln for ln in res.output.splitlines() if ln.startswith("| toy-wind"))
     assert row.rstrip(" |").endswith("named")
+    res = runner.invoke(app, ["diagnose", str(hidden), "--workers", "1", "--confirm", "1", "--refit-rounds", "2",
+                              "--refit-sims", "150", "--json"])  # stored: reused
+    d = from_json(Diagnosis, json.loads(res.stdout))
+    assert d.verdict == "missing-effect" and d.decision.named == ("toy-wind",)
     res = runner.invoke(app, ["diagnose", str(hidden), "--effect", "wind", "--workers", "1"])
-    assert res.exit_code == 2 and "cannot apply" in res.output
+    assert res.exit_code == 2 and "'toy-gauss'" in res.output and "wind" in res.output  # the backend and the flag
 
 
 def count_run_loads(monkeypatch) -> list[Path]:
@@ -299,33 +293,25 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
     np.testing.assert_array_equal(store.round_data(0)["theta"], theta0)
 
 
-def test_a_diagnosis_written_before_typed_results_still_reads(tmp_path):
-    """load_diagnosis of an older diagnosis.json (no schema): its verdict, test, ranking and refits' tests, the named
-    effect and the partial one (its energy scores were of the clouds, not of the summaries: not carried over)."""
-    def mis(exceed, n=200):
-        return {"omnibus": {"exceed": exceed, "n_null": n, "statistic": 4.2},
-                "directional": {"exceed": exceed, "n_null": n, "effect": "wind"}, "alpha": 0.01, "max_null": n}
-
+def test_a_diagnosis_written_before_typed_results_is_one_line_and_computed_again(tmp_path):
+    """An older diagnosis.json (no schema, its own field names): load_diagnosis refuses it in one line naming the
+    file and the command that writes it again; diagnose's stored-result lookup says in one line that it cannot be
+    used and computes it again (returns None), even under the same key. A file that is not JSON: the same."""
     old = {"run": "nominal", "candidates": ["wind", "extra-damping"], "alpha": 0.01, "verdict": "missing-effect",
-           "selected": "wind", "misspecification": mis(0), "simulations": 260, "seconds": 12.5,
-           "energy": {"energy_m": 0.02, "energy_se_m": 0.001, "chamfer_m": 0.025, "spread_m": 0.01, "n": 30},
-           "ranking": [{"effect": "wind", "kind": "physics", "generic": False, "description": "a wind",
-                        "explained_fraction": 0.6, "adjusted_exceed": 0, "n_null": 200, "estimate": {"wind_y": 1.7}},
-                       {"effect": "extra-damping", "error": "a sensitivity simulation failed"}],
-           "confirmed": [{"effect": "wind", "run": "nominal/refit-wind", "misspecification_after": mis(80),
-                          "energy_after_m": 0.008, "energy_after_se_m": 0.0005, "chamfer_after_m": 0.011}]}
-    (tmp_path / "diagnosis.json").write_text(json.dumps(old))
-    d = load_diagnosis(tmp_path)
-    assert d.verdict == "missing-effect" and d.decision.named == ("wind",) and d.candidates == ("wind",
-                                                                                              "extra-damping")
-    assert d.test.misspecified and d.test.p_value == pytest.approx(2 / 201) and d.test.alpha == 0.01
-    assert [c.effect for c in d.ranking] == ["wind", "extra-damping"] and not d.ranking[1].screened
-    assert d.ranking[0].adjusted.value == pytest.approx(1 / 201) and d.ranking[0].estimate == {"wind_y": 1.7}
-    (r,) = d.refits
-    assert r.effects == ("wind",) and r.adequate and r.score is None and r.chamfer_m == 0.011
-    assert d.nominal is None and d.simulations == 260
-    assert diagnosis_summary(d).startswith("Missing physics effect: wind (a wind).")
-    (tmp_path / "diagnosis.json").write_text("{not json")
-    with pytest.raises(SoftsbiError, match=r"diagnosis\.json' is damaged \(not valid JSON .*\); `softsbi diagnose "
-                                           r".*` writes it again"):
+           "selected": "wind", "simulations": 260, "seconds": 12.5, "key": {"report": "abc"},
+           "misspecification": {"omnibus": {"exceed": 0, "n_null": 200}, "alpha": 0.01},
+           "ranking": [{"effect": "wind", "kind": "physics", "explained_fraction": 0.6, "adjusted_exceed": 0,
+                        "n_null": 200}]}
+    path = tmp_path / "diagnosis.json"
+    path.write_text(json.dumps(old))
+    with pytest.raises(ResultDamaged) as err:
         load_diagnosis(tmp_path)
+    assert err.value.path == path and "'schema'" in err.value.problem and "\n" not in str(err.value)
+    assert "`softsbi diagnose" in str(err.value)
+    said = []
+    assert stored_result(path, Diagnosis, {"report": "abc"}, said.append) is None
+    assert len(said) == 1 and str(path) in said[0] and "\n" not in said[0]
+    path.write_text("{not json")
+    with pytest.raises(ResultDamaged) as err:
+        load_diagnosis(tmp_path)
+    assert err.value.path == path and err.value.problem.startswith("not valid JSON") and "\n" not in str(err.value)

