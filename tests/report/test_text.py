@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.results import CompareResult, Diagnosis, Estimate, JointTest, MCPValue, Metric, ResidualShape, Row
+from softsbi.core.results import CompareResult, Diagnosis, Estimate, MCPValue, Metric, ResidualShape, Row
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
 from softsbi.workflows.decide import decide
@@ -254,17 +254,6 @@ def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name
         if c.generic:
             assert row[-1].startswith("not refitted: "), (name, row)  # a generic term is never refitted nor named
     assert {d.verdict for d in ALL.values()} == {"nothing-missing", "missing-effect", "misspecified-unexplained"}
-
-
-def test_p_value_words():
-    """A Monte-Carlo p-value and check's joint test, in the words every sentence above quotes."""
-    assert MCPValue(3, 30).text() == "p = 0.13 (3 of 30 null simulations as extreme)"
-    assert MCPValue(0, 30).text() == "p <= 1/31 (beyond all 30 null simulations)"
-    assert JointTest(MCPValue(60, 200), None, None, (), 0.05, 200).text() == (
-        "p = 0.3 (60 of 200 null simulations as extreme)")
-    assert JointTest(MCPValue(0, 200), MCPValue(30, 200), "x", ("x",), 0.01, 200).text() == P_FLOOR
-    assert JointTest(MCPValue(12, 200), MCPValue(3, 200), "x", ("x",), 0.01, 200).text() == (
-        "p = 0.04 (two tests, Bonferroni: 2 x the directional test's p = 0.02; 200 null simulations)")
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -226,6 +226,7 @@ def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them
     """estimates(): the added effects' parameters from the refit's report.json (posterior mean, 90% interval,
     width over the prior's, a pressed prior bound with the wider prior to try); the nominal parameters are not
     among them."""
+    from softsbi.core.fitreport import FitReport
     from softsbi.workflows.diagnose import estimates
     report = {"posterior_mean": {"bend": 1e-4, "wind_x": 0.1, "wind_y": 1.9},
               "posterior_q05": {"wind_x": -0.3, "wind_y": 1.7}, "posterior_q95": {"wind_x": 0.5, "wind_y": 2.0},
@@ -233,7 +234,7 @@ def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them
               "posterior_at_bounds": [{"param": "wind_y", "side": "upper", "bound": 2.0, "unit": "m/s", "mass": 0.4,
                                        "suggested_bounds": [-2.0, 4.0]},
                                       {"param": "bend", "side": "lower", "bound": 1e-6, "mass": 0.3}]}
-    wx, wy = estimates(report, ["wind"])
+    wx, wy = estimates(FitReport.from_json({"parameters": [], "posterior_median": {}, **report}), ["wind"])
     assert (wx.name, wx.unit, wx.mean, wx.q05, wx.q95, wx.width_ratio, wx.pressed) == ("wind_x", "m/s", 0.1, -0.3,
                                                                                       0.5, 0.2, None)
     assert (wy.pressed, wy.suggested_bounds, wy.informed) == ("upper", (-2.0, 4.0), True)
