@@ -234,7 +234,8 @@ def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them
               "posterior_at_bounds": [{"param": "wind_y", "side": "upper", "bound": 2.0, "unit": "m/s", "mass": 0.4,
                                        "suggested_bounds": [-2.0, 4.0]},
                                       {"param": "bend", "side": "lower", "bound": 1e-6, "mass": 0.3}]}
-    wx, wy = estimates(FitReport.from_json({"parameters": [], "posterior_median": {}, **report}), ["wind"])
+    report = FitReport.from_json({"parameters": [], "posterior_median": {}, **report})
+    wx, wy = estimates(report, ["wind"])
     assert (wx.name, wx.unit, wx.mean, wx.q05, wx.q95, wx.width_ratio, wx.pressed) == ("wind_x", "m/s", 0.1, -0.3,
                                                                                       0.5, 0.2, None)
     assert (wy.pressed, wy.suggested_bounds, wy.informed) == ("upper", (-2.0, 4.0), True)
