@@ -33,12 +33,12 @@ _LAZY = {**{n: "softsbi.core.interfaces" for n in ("Effect", "Executor", "Observ
 def __getattr__(name: str):
     if name == "__version__":
         try:
-            from importlib.metadata import version
+            from importlib.metadata import version  # start-up: only when the version is asked for
             return version("softsbi")
         except Exception:  # noqa: BLE001 - running from a source tree
             return "0.0.0"
     if name in _LAZY:
-        import importlib
+        import importlib  # start-up: the API's modules load when first used (PEP 562)
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'softsbi' has no attribute {name!r}")
 

@@ -39,6 +39,7 @@ import multiprocessing as mp
 import multiprocessing.connection as mpc
 import os
 import pickle
+import signal
 import sys
 import time
 import types
@@ -387,7 +388,6 @@ class LocalExecutor(Executor):
 def _signal_name(code: int | None) -> str:
     if code is None or code >= 0:
         return ""
-    import signal
     try:
         return f", {signal.Signals(-code).name}"
     except ValueError:

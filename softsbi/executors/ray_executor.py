@@ -36,7 +36,7 @@ _CONTEXTS: dict[str, Any] = {}
 
 def _import_ray():
     try:
-        import ray
+        import ray  # optional: the 'ray' extra
     except ImportError as exc:
         raise DependencyMissing(f"the 'ray' executor needs Ray, which is not installed ({exc}); install it with "
                                 f"`{INSTALL_HINT}`, or use --executor local") from None
@@ -45,7 +45,7 @@ def _import_ray():
 
 def _run_job(fn: Callable[[Any, Any], Any], ctx_box: list, item: Any) -> Any:
     """Ray task body: ``fn(context, item)``, the context fetched once per worker process."""
-    import ray
+    import ray  # optional: the 'ray' extra (a worker process of a Ray cluster)
     ref = ctx_box[0]
     if ref is None:
         return fn(None, item)
