@@ -39,7 +39,9 @@ def test_plugins_lists_the_backends_that_apply_each_effect_and_its_parameters():
     res = runner.invoke(app, ["plugins", "--json"])
     assert res.exit_code == 0, res.output
     effects = {e["name"]: e for e in json.loads(res.output)["effects"]}
-    assert effects["wind"]["backends"] == ["mujoco-flex"] and effects["wind"]["doors"] == ["model-edit", "force"]
+    # wind acts through the force door too, so newton-cloth (force fields only) applies it
+    assert effects["wind"]["backends"] == ["mujoco-flex", "newton-cloth"]
+    assert effects["wind"]["doors"] == ["model-edit", "force"]
     assert {"mujoco-flex", "pybullet-massspring"} <= set(effects["point-noise"]["backends"])
     assert effects["point-noise"]["doors"] == ["observation"]
     assert effects["grip-compliance"]["model_edits"] == ["mujoco-flex"]

@@ -29,7 +29,7 @@ def test_listed_by_plugins():
     assert row["package"].startswith("softsbi-aniso") and row["class"] == "softsbi_aniso.plugin.AnisotropicFriction"
     assert row["kind"] == "physics" and row["generic"] is False
     # a force field: every backend with the force door applies it, though softsbi's backends do not know its name
-    assert row["backends"] == ["mujoco-flex"] and row["doors"] == ["force"]
+    assert row["backends"] == ["mujoco-flex", "newton-cloth"] and row["doors"] == ["force"]
     assert row["parameters"][0]["name"] == "rib_friction" and row["parameters"][0]["prior"] == [0.0, 3.0]
     assert {r["name"]: r["kind"] for r in doc["effects"]}["point-noise"] == "sensor"
     sims = {s["name"]: s for s in doc["simulators"]}
