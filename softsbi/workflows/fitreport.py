@@ -8,6 +8,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from softsbi.core.fitreport import REQUIRED_KEYS
 from softsbi.core.results import ResultDamaged, read_json
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
@@ -51,8 +52,9 @@ def chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | N
     return out
 
 
-#: what every reader of a fit's ``report.json`` needs in it (a file without them is damaged)
-REPORT_KEYS = ("parameters", "posterior_median")
+#: what every reader of a fit's ``report.json`` needs in it (a file without them is damaged): the typed report's
+#: required keys, one definition for the dict reader and :class:`~softsbi.core.fitreport.FitReport`
+REPORT_KEYS = REQUIRED_KEYS
 
 
 def read_report(run_dir: str | Path) -> dict[str, Any]:
