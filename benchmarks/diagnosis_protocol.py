@@ -129,7 +129,8 @@ def row_outcome(row: Mapping[str, Any]) -> str:
 
 
 def old_outcome(row: Mapping[str, Any]) -> str | None:
-    """The old rule's :func:`outcome` of a row; None where the old rule did not diagnose it, ``error`` where it failed."""
+    """The old rule's :func:`outcome` of a row: None where the old rule did not diagnose it, ``error`` where it
+    failed."""
     old = row.get("old")
     if not isinstance(old, dict):
         return None
@@ -230,7 +231,8 @@ def summary(rows: Sequence[Mapping[str, Any]], split: str) -> dict[str, Any]:
             continue
         k = sum(o == "right" for _, o, _ in rs)
         entry = {"n": len(rs), "errors": sum(o == "error" for _, o, _ in rs), "right": k,
-                 "right_ci95": interval(k, len(rs)), "indistinguishable": sum(o == "indistinguishable" for _, o, _ in rs),
+                 "right_ci95": interval(k, len(rs)),
+                 "indistinguishable": sum(o == "indistinguishable" for _, o, _ in rs),
                  "detected": sum(o != "error" and r["verdict"] != "nothing-missing" for r, o, _ in rs)}
         olds = [oo for r, o, oo in rs if o != "error" and oo not in (None, "error")]
         if olds:
@@ -243,7 +245,8 @@ def summary(rows: Sequence[Mapping[str, Any]], split: str) -> dict[str, Any]:
     out["false_alarms"] = _rate(sum(o != "right" for _, o in ctl), len(ctl))
     pv = [float(r["p_value"]) for r, o in ctl if o != "error" and r.get("p_value") is not None]
     ks = stats.kstest(pv, "uniform") if pv else None
-    out["ks"] = {"n": len(pv), "statistic": float(ks.statistic) if ks else None, "p_value": float(ks.pvalue) if ks else None}
+    out["ks"] = {"n": len(pv), "statistic": float(ks.statistic) if ks else None,
+                 "p_value": float(ks.pvalue) if ks else None}
     eff = [o for r, o, _ in scored if r.get("label") in EFFECTS]
     out["named_right"] = {**_rate(eff.count("right"), len(eff)), "indistinguishable": eff.count("indistinguishable")}
     oe = [o for r, o, _ in scored if r.get("label") == "other-engine"]
@@ -289,7 +292,8 @@ def minimums(s: Mapping[str, Any]) -> dict[str, Any]:
 
 def old_comparison(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
     """The old rule against the new on the cases both diagnosed without error (the same nominal fit): ``n``,
-    ``agree`` (same verdict and named effects), ``new_right``, ``old_right`` (strict, with intervals), ``not_shared`` (either rule failed)
+    ``agree`` (same verdict and named effects), ``new_right``, ``old_right`` (strict, with intervals), ``not_shared``
+    (either rule failed)
     and the old checkouts' ``commits``; ``refused`` when the old verdicts come from more than one checkout commit.
     None when no row has an old verdict."""
     olds = [r for r in rows if isinstance(r.get("old"), dict)]
@@ -304,8 +308,8 @@ def old_comparison(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
     old = sum(old_outcome(r) == "right" for r in shared)
     agree = sum(r["verdict"] == r["old"]["verdict"] and sorted(_names(r.get("named"))) == sorted(_names(
         r["old"].get("named") if r["old"]["verdict"] == "missing-effect" else [])) for r in shared)
-    return {"n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)), "old_right": _rate(old, len(shared)),
-            "not_shared": len(olds) - len(shared), "commits": commits}
+    return {"n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
+            "old_right": _rate(old, len(shared)), "not_shared": len(olds) - len(shared), "commits": commits}
 
 
 def _ci(c: Sequence[float]) -> str:
@@ -344,12 +348,13 @@ def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
              + " Commits: " + ", ".join(f"`{c}` ({n})" for c, n in s["commits"].items()) + ".",
              f"False alarms: {_frac(s['false_alarms'], 'controls')}: {_verdict(acc['false_alarms']['pass'])} (target "
              f"{acc['false_alarms']['target']}).",
-             f"Control p-values against uniform: KS p = "
+             "Control p-values against uniform: KS p = "
              + (f"{s['ks']['p_value']:.3f}" if s["ks"]["p_value"] is not None else "-")
              + f" (n = {s['ks']['n']}): {_verdict(acc['control_p_uniform']['pass'])} (target "
              f"{acc['control_p_uniform']['target']}).",
-             f"Named right (the verdict names the hidden effect alone): {_frac(s['named_right'], 'hidden-effect cases')} "
-             f"({s['named_right']['indistinguishable']} more listed as indistinguishable, not counted right): "
+             "Named right (the verdict names the hidden effect alone): "
+             f"{_frac(s['named_right'], 'hidden-effect cases')} ({s['named_right']['indistinguishable']} more listed "
+             "as indistinguishable, not counted right): "
              f"{_verdict(acc['named_right']['pass'])} (target {acc['named_right']['target']}).",
              f"Other engine called misspecified-unexplained: {_frac(s['other_engine'])}: "
              f"{_verdict(acc['other_engine']['pass'])} (target {acc['other_engine']['target']}).",
