@@ -23,7 +23,8 @@ Usage:
     python -m benchmarks run diagnosis --split test --cases none    # the summary of the stored rows only
 Rows go to ``benchmarks/results/diagnosis-<split>.jsonl`` (one per case run, with its commit, machine, command and
 ``settings``: the fit's, the estimator's options with its recalibration, the diagnosis's, the cases'). A case whose
-latest row is ``ok`` is skipped, one whose latest row is an ``error`` is run again, so a run resumes. The suite's
+latest row is ``ok`` is skipped, one whose latest row is an ``error`` is run again, so a run resumes; a run refuses,
+before any case, a rows file whose rows were run under other settings (or record none). The suite's
 result is the summary of every stored row of each split (:mod:`benchmarks.diagnosis_protocol`: strict scoring,
 errors counted as wrong, rows of differing settings refused, the acceptance figures against their targets).
 """
@@ -50,7 +51,8 @@ from softsbi.workflows.measurement import simulate_recording
 
 from benchmarks import runner
 from benchmarks.diagnosis_protocol import (CYCLE, DEFAULT_THRESHOLD, EFFECTS, THRESHOLDS, cases_for_minimums,
-                                           done_ids, load_thresholds, outcome, read_rows, report, summary, threshold)
+                                           done_ids, load_thresholds, outcome, read_rows, report, settings_conflict,
+                                           summary, threshold)
 
 RESULTS = runner.RESULTS
 SPLIT_SEEDS = {"dev": 0, "test": 1}
@@ -192,14 +194,21 @@ def run(split: str, indices: Sequence[int], out: Path, workers: int | None, old:
         command: str, path: Path | None = None, thresholds: Mapping[str, float | None] = THRESHOLDS) -> None:
     """Run the cases of ``indices`` whose latest row in ``path`` (default ``results/diagnosis-<split>.jsonl``) is
     not ``ok`` (none, or an error: run again); append each row as it finishes, ``status`` ``ok`` or ``error``, with
-    the commit, machine, command and :func:`settings`."""
+    the commit, machine, command and :func:`settings`.
+
+    Raises:
+        SystemExit: before any case runs, when ``path`` holds rows of other (or unknown) settings
+            (:func:`~benchmarks.diagnosis_protocol.settings_conflict`).
+    """
     path = path or RESULTS / f"diagnosis-{split}.jsonl"
-    done = done_ids(read_rows(path))
+    stored = read_rows(path)
+    done = done_ids(stored)
     prov = {**runner.commit(), "machine": runner.machine(), "command": command, "settings": settings(thresholds)}
-    for i in indices:
+    todo = [i for i in indices if f"{split}-{i}" not in done]
+    if todo and (problem := settings_conflict(stored, prov["settings"], runner.portable(path))):
+        raise SystemExit(problem)
+    for i in todo:
         case = make_case(split, i, thresholds)
-        if case["id"] in done:
-            continue
         try:
             row = run_case(case, out, workers, old)
         except Exception as e:  # noqa: BLE001  a case that fails is a row with its error, and the run goes on

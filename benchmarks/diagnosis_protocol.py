@@ -189,6 +189,22 @@ def pooling_problem(rows: Sequence[Mapping[str, Any]], split: str) -> str | None
             f"setting per rows file (--results FILE) and rerun the others there.")
 
 
+def settings_conflict(rows: Sequence[Mapping[str, Any]], settings: Mapping[str, Any],
+                      path: Path | str) -> str | None:
+    """One line when the stored ``rows`` of ``path`` were run under settings other than ``settings`` (or unknown
+    ones), so that new rows could not be pooled with them; None when they can (or there are none)."""
+    old = latest(rows)
+    if not old or all(r.get("settings") == settings for r in old):
+        return None
+    recorded = [r["settings"] for r in old if r.get("settings") is not None]
+    what = _differing([*recorded, dict(settings)])[:8] if recorded else []
+    unknown = sum(r.get("settings") is None for r in old)
+    why = "; ".join(([f"differ in {', '.join(what)}"] if what else []) + ([f"{unknown} rows record none"] if unknown
+                                                                          else []))
+    return (f"--results {path}: its stored rows were run under other settings ({why}); give another --results file "
+            f"for these settings (or move the stored rows away), so that no split pools rows of two settings.")
+
+
 def interval(k: int, n: int) -> list[float]:
     """The 95% Clopper-Pearson interval of ``k`` successes in ``n`` ([0, 1] for n = 0)."""
     if n == 0:

@@ -105,6 +105,24 @@ def test_rows_record_commit_and_settings_and_errors_are_rerun(tmp_path, monkeypa
     assert len(calls) == 3
 
 
+def test_a_run_refuses_a_rows_file_of_other_settings_before_any_case(tmp_path, monkeypatch):
+    monkeypatch.setattr(bench, "run_case", lambda *a: pytest.fail("a case ran"))
+    path = tmp_path / "rows.jsonl"
+    current = bench.settings()
+    recal_off = {**current, "estimator_options": {**current["estimator_options"], "recalibrate": False}}
+    path.write_text(json.dumps(row("control", id="test-0", settings=recal_off)) + "\n")
+    with pytest.raises(SystemExit, match=r"--results .*differ in estimator_options\.recalibrate"):
+        bench.run("test", [0, 1], tmp_path, None, None, "cmd", path)
+    legacy = {k: v for k, v in row("control", id="test-0").items() if k not in ("settings", "status")}
+    path.write_text(json.dumps(legacy) + "\n")
+    with pytest.raises(SystemExit, match="1 rows record none"):
+        bench.run("test", [1], tmp_path, None, None, "cmd", path)
+    bench.run("test", [0], tmp_path, None, None, "cmd", path)  # nothing to run: no refusal
+    path.write_text(json.dumps(row("control", id="test-0", settings=current)) + "\n")
+    with pytest.raises(SystemExit, match=r"differ in cases\.thresholds\.air-drag"):  # another table, another setting
+        bench.run("test", [1], tmp_path, None, None, "cmd", path, {**proto.THRESHOLDS, "air-drag": 0.7})
+
+
 def test_errors_count_as_wrong_and_the_summary_says_how_many():
     rows = [row("control"), row("wind", "missing-effect", ["wind"]),
             {"id": "test-x", "label": "wind", "status": "error", "error": "boom", "commit": "abc",
