@@ -2,40 +2,47 @@
 
 Cases are measurements simulated by mujoco-flex (grid 7) in a built-in scenario (lift, wipe, fling, winding) at random
 parameters (the middle 60% of each prior): *controls* (the nominal model is true; right: ``nothing-missing``), one
-shipped effect hidden (right: the effect named, alone or listed as indistinguishable from the named one) or data from
-*the other engine* (pybullet-massspring; right: ``misspecified-unexplained``, since no installed effect turns one engine
-into the other). Case ``i`` of a split is fixed by the split's seed and ``i``: a cycle of 18 holds 6 controls, one case
-of each of the 11 shipped effects and one of the other engine. A hidden effect's magnitude (the fraction of the way
-from its switched-off value to an edge of its prior) is uniform from its detection threshold on the development
-split (:data:`THRESHOLDS`; 0.5 for an effect no magnitude within the prior detects reliably) to 1.
+shipped effect hidden (right: the verdict names that effect alone; listed as indistinguishable from the named one is
+counted apart, not as right) or data from *the other engine* (pybullet-massspring; right:
+``misspecified-unexplained``, since no installed effect turns one engine into the other). Case ``i`` of a split is
+fixed by the split's seed, ``i`` and the threshold table: a cycle of 18 holds 6 controls, one case of each of the 11
+shipped effects and one of the other engine. A hidden effect's magnitude (the fraction of the way from its
+switched-off value to an edge of its prior) is uniform from its detection threshold (``--thresholds FILE``, default
+:data:`~benchmarks.diagnosis_protocol.THRESHOLDS`; an effect without a measured one starts at an unmeasured
+placeholder, which the summary names) to 1.
 
 Splits: ``dev`` (seed 0, the seed of the cases the rule and its knobs were chosen on) and ``test`` (seed 1: fresh
-cases, run once under the frozen rule). Each case fits the nominal model (3 rounds x 100 simulations, truncated
-proposals), then diagnoses it with every shipped effect as a candidate (refits at the same budget). With ``--old
-CHECKOUT`` the same case is first diagnosed by the code in CHECKOUT (e.g. the rules before this one) and the new rule
-reuses that nominal fit, so both decide on the same fit.
+cases, run once under the frozen rule). ``--full`` runs cases 0:180, ten cycles: the test split's minimums (60
+controls, 10 cases per shipped effect, 10 of the other engine). Each case fits the nominal model (3 rounds x 100
+simulations, truncated proposals), then diagnoses it with every shipped effect as a candidate (refits at the same
+budget). With ``--old CHECKOUT`` a copy of that same nominal fit is diagnosed by CHECKOUT's ``diagnose_run`` (its own
+rule and defaults) in a process whose softsbi is CHECKOUT's; the row holds both verdicts.
 
 Usage:
-    python -m benchmarks run diagnosis --split test --cases 0:36 [--old ../softsbi-old] [--workers 2]
+    python -m benchmarks run diagnosis --split test --full [--old ../softsbi-old] [--workers 2]
     python -m benchmarks run diagnosis --split test --cases none    # the summary of the stored rows only
-Rows go to ``benchmarks/results/diagnosis-<split>.jsonl`` (one per case, with commit, machine and command); a case
-already there is skipped, so a run resumes. The suite's result is the summary of every stored row of the split.
+Rows go to ``benchmarks/results/diagnosis-<split>.jsonl`` (one per case run, with its commit, machine, command and
+``settings``: the fit's, the estimator's options with its recalibration, the diagnosis's, the cases'). A case whose
+latest row is ``ok`` is skipped, one whose latest row is an ``error`` is run again, so a run resumes; a run refuses,
+before any case, a rows file whose rows were run under other settings (or record none). The suite's
+result is the summary of every stored row of each split (:mod:`benchmarks.diagnosis_protocol`: strict scoring,
+errors counted as wrong, rows of differing settings refused, the acceptance figures against their targets).
 """
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import shutil
 import subprocess
 import sys
 import time
-from collections import Counter
+from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy import stats
 
 from softsbi.plugins import registry
 from softsbi.workflows.diagnose import diagnose_run
@@ -43,28 +50,28 @@ from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 from benchmarks import runner
+from benchmarks.diagnosis_protocol import (CYCLE, DEFAULT_THRESHOLD, EFFECTS, THRESHOLDS, cases_for_minimums,
+                                           done_ids, load_thresholds, outcome, read_rows, report, settings_conflict,
+                                           summary, threshold)
 
 RESULTS = runner.RESULTS
 SPLIT_SEEDS = {"dev": 0, "test": 1}
 SCENARIOS = ["lift", "wipe", "fling", "winding"]
-EFFECTS = ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope", "sticky-patch", "heavy-hem",
-           "calibration-offset", "time-offset", "point-noise", "table-unseen"]
-#: one cycle of case labels
-CYCLE = ["control"] * 6 + EFFECTS + ["other-engine"]
-#: magnitude at which the earlier benchmark's development cases detected the effect in 90% of cases (a logistic fit
-#: of detection on magnitude, 38-89 cases per effect); effects it never detected that reliably within their prior
-#: start at :data:`DEFAULT_THRESHOLD`
-THRESHOLDS = {"calibration-offset": 0.26, "point-noise": 0.37, "wind": 0.36, "time-offset": 0.54,
-              "grip-compliance": 0.82}
-DEFAULT_THRESHOLD = 0.5
 GRID = {"grid": 7}
 N_POINTS, N_DENSE = 64, 300
 BUDGET = {"rounds": 3, "sims_per_round": 100}
+#: the settings of ``diagnose_run`` that decide a verdict, at its defaults, passed explicitly (so a row records what
+#: the diagnosis used)
+DIAGNOSE = {k: p.default for k, p in inspect.signature(diagnose_run).parameters.items()
+            if k in ("alpha", "k_se", "confirm", "refit_rounds", "refit_sims", "n_null", "max_null", "seed")}
+#: files of a run directory that a diagnosis writes: left out of the copy the old rule diagnoses
+DIAGNOSIS_FILES = ("check.json*", "diagnosis.json*", "refit-*")
 
 
-def make_case(split: str, i: int) -> dict[str, Any]:
+def make_case(split: str, i: int, thresholds: Mapping[str, float | None] = THRESHOLDS) -> dict[str, Any]:
     """Case ``i`` of ``split``: ``id``, ``split``, ``index``, ``label`` (``control``, ``other-engine`` or the hidden
-    effect), ``scenario``, ``truth`` (physical units) and ``magnitude`` (None without a hidden effect)."""
+    effect), ``scenario``, ``truth`` (physical units) and ``magnitude`` (None without a hidden effect; from the
+    effect's entry of ``thresholds``, or :data:`DEFAULT_THRESHOLD` where it has none, to 1)."""
     rng = np.random.default_rng([SPLIT_SEEDS[split], i, 41])
     label = CYCLE[i % len(CYCLE)]
     scen = SCENARIOS[int(rng.integers(len(SCENARIOS)))]
@@ -75,7 +82,7 @@ def make_case(split: str, i: int) -> dict[str, Any]:
     truth = space.as_dict(space.from_unit(rng.uniform(0.2, 0.8, space.dim)))
     magnitude = None
     if label not in ("control", "other-engine"):
-        magnitude = float(rng.uniform(THRESHOLDS.get(label, DEFAULT_THRESHOLD), 1.0))
+        magnitude = float(rng.uniform(threshold(thresholds, label), 1.0))
         eff = reg.effect(label)()
         es, nom = eff.param_space(), eff.nominal()
         for p in es:
@@ -93,7 +100,7 @@ def _scenario(name: str):
 
 
 def fit_config(case: dict[str, Any], workers: int | None) -> FitConfig:
-    """The nominal fit of a case (the same for the old rule's run)."""
+    """The nominal fit of a case (with ``--old``, the old rule diagnoses a copy of it)."""
     return FitConfig(backend="mujoco-flex", backend_options=GRID, rounds=BUDGET["rounds"],
                      sims_per_round=BUDGET["sims_per_round"], workers=workers, n_points=N_POINTS, n_eval=30,
                      n_dense=N_DENSE, seed=case["index"], proposal="truncated")
@@ -107,200 +114,155 @@ def measurement(case: dict[str, Any]):
                               n_points=N_POINTS, n_dense=N_DENSE, seed=1000 + case["index"])
 
 
-def right(label: str, verdict: str, named: Sequence[str], alternatives: Sequence[Sequence[str]]) -> bool:
-    """The scoring rule: a control is right with ``nothing-missing``, the other engine with
-    ``misspecified-unexplained``, a hidden effect when the verdict names it alone or lists it alone as
-    indistinguishable from the named effect."""
-    if label == "control":
-        return verdict == "nothing-missing"
-    if label == "other-engine":
-        return verdict == "misspecified-unexplained"
-    return verdict == "missing-effect" and ([label] == list(named) or [label] in [list(a) for a in alternatives])
+def settings(thresholds: Mapping[str, float | None] = THRESHOLDS) -> dict[str, Any]:
+    """What decides a row besides its case index, as stored JSON: ``fit`` (:class:`FitConfig` of the nominal fit but
+    its per-case seed and the workers), ``estimator_options`` (the estimator's defaults with the fit's options over
+    them: the recalibration among them), ``diagnose`` (the candidates and :data:`DIAGNOSE`) and ``cases`` (engine
+    options, points, scenarios, cycle, the threshold table and its placeholder)."""
+    fit = asdict(fit_config({"index": 0}, None))
+    fit.pop("seed"), fit.pop("workers")
+    est = registry().estimator(fit["estimator"])
+    options = {**(est.defaults() if hasattr(est, "defaults") else {}), **fit["estimator_options"]}
+    cases = {"grid": GRID, "n_points": N_POINTS, "n_dense": N_DENSE, "scenarios": SCENARIOS, "cycle": CYCLE,
+             "thresholds": dict(thresholds), "placeholder": DEFAULT_THRESHOLD}
+    return json.loads(json.dumps(runner.portable({"fit": fit, "estimator_options": options,
+                                                  "diagnose": {"effects": EFFECTS, **DIAGNOSE}, "cases": cases})))
 
 
 def run_case(case: dict[str, Any], out: Path, workers: int | None, old: Path | None) -> dict[str, Any]:
-    """Diagnose one case (after the old rule's run of it, with ``old``); the row's fields."""
+    """Fit and diagnose one case (in ``out/<id>/nominal``); with ``old``, CHECKOUT's rule diagnoses a copy of the
+    same nominal fit (``out/<id>/old-rule``, made before this rule's diagnosis writes anything). The row's fields."""
     t0 = time.perf_counter()
     run_dir = out / case["id"] / "nominal"
     row: dict[str, Any] = dict(case)
-    if old is not None:
-        row["old"] = run_old(case, out / case["id"] / "old", workers, old)
-        if (out / case["id"] / "old" / "run.zarr").exists() and not run_dir.exists():
-            run_dir.mkdir(parents=True)  # the same nominal fit for both rules
-            shutil.copytree(out / case["id"] / "old" / "run.zarr", run_dir / "run.zarr")
-            shutil.copy(out / case["id"] / "old" / "report.json", run_dir / "report.json")
-    t1 = time.perf_counter()
     run_fit(run_dir, measurement(case), fit_config(case, workers))
-    d = diagnose_run(run_dir, effects=EFFECTS, workers=workers)
+    if old is not None:
+        copy = out / case["id"] / "old-rule"
+        if not copy.exists():  # through a temporary name: a copy cut short is made again
+            tmp = copy.with_name(copy.name + ".tmp")
+            shutil.rmtree(tmp, ignore_errors=True)
+            shutil.copytree(run_dir, tmp, ignore=shutil.ignore_patterns(*DIAGNOSIS_FILES))
+            tmp.rename(copy)
+    t1 = time.perf_counter()
+    d = diagnose_run(run_dir, effects=EFFECTS, workers=workers, **DIAGNOSE)
     named = d.refit(d.decision.named) if d.decision.named else None
-    row.update(verdict=d.verdict, named=list(d.decision.named), alternatives=[list(a) for a in d.decision.alternatives],
-               partial=list(d.decision.partial), p_value=d.test.p_value, n_null=d.test.n_null,
+    row.update(status="ok", verdict=d.verdict, named=list(d.decision.named),
+               alternatives=[list(a) for a in d.decision.alternatives], partial=list(d.decision.partial),
+               p_value=d.test.p_value, n_null=d.test.n_null,
                refits=[{"effects": list(r.effects), "adequate": r.adequate, "p_value": r.test.p_value,
                         "score": r.score.value if r.score else None, "chamfer_m": r.chamfer_m} for r in d.refits],
                score_nominal=d.nominal.value if d.nominal else None,
                score_named=named.score.value if named and named.score else None,
-               right=right(case["label"], d.verdict, d.decision.named, d.decision.alternatives),
-               seconds=time.perf_counter() - t1, wall_s=time.perf_counter() - t0)
+               outcome=outcome(case["label"], d.verdict, d.decision.named, d.decision.alternatives),
+               seconds=time.perf_counter() - t1)
+    if old is not None:
+        row["old"] = run_old(out / case["id"] / "old-rule", workers, old)
+    row["wall_s"] = time.perf_counter() - t0
     return row
 
 
-#: the old rule's run of one case, in a process of its own whose softsbi is CHECKOUT's
+#: the old rule's diagnosis of a run, in a process of its own whose softsbi is CHECKOUT's (its own defaults)
 OLD_DRIVER = """
 import json, sys
-sys.path.insert(0, sys.argv[1] + "/benchmarks")
-import diagnose_stats as ds
-case, out, workers = json.loads(sys.argv[2]), sys.argv[3], (None if sys.argv[4] == "None" else int(sys.argv[4]))
-from pathlib import Path
-suite = {"other-engine": "cross-engine", "table-unseen": "table-unseen"}.get(case["label"], "mujoco-more")
-scen = {"winding": "wind"}.get(case["scenario"], case["scenario"])  # its name in older code
-truth_label = case["label"]
-c = {"id": "old", "suite": suite, "index": case["index"], "truth_label": truth_label, "scenario": scen,
-     "truth": case["truth"], "magnitude": case["magnitude"]}
-row = ds.run_case(c, Path(out), 3, 100, 30, 200, 2, workers, {"rounds": 3, "sims_per_round": 100}, "truncated",
-                  0.05, ds.NAMED_CANDIDATES + ["table-unseen"])
-print("ROW " + json.dumps({k: row.get(k) for k in ("verdict", "named", "named_all", "alternatives", "wall_s")}))
+from softsbi.workflows.diagnose import diagnose_run
+d = diagnose_run(sys.argv[1], effects=json.loads(sys.argv[2]), workers=json.loads(sys.argv[3]))
+named = d.decision.named
+print("ROW " + json.dumps({"verdict": d.verdict, "named": [named] if isinstance(named, str) else list(named or []),
+                           "alternatives": [[a] if isinstance(a, str) else list(a) for a in d.decision.alternatives],
+                           "p_value": d.test.p_value}))
 """
 
 
-def run_old(case: dict[str, Any], out: Path, workers: int | None, checkout: Path) -> dict[str, Any]:
-    """The old rule's verdict on ``case``: ``diagnose_stats.run_case`` of ``checkout`` in a subprocess, its run in
-    ``out`` (``out/old`` holds the nominal fit)."""
+def run_old(run_dir: Path, workers: int | None, checkout: Path) -> dict[str, Any]:
+    """CHECKOUT's verdict on the run in ``run_dir`` (a copy of this rule's nominal fit): ``verdict``, ``named``,
+    ``alternatives``, ``p_value``, ``commit`` (CHECKOUT's), ``wall_s``; ``error`` (the tail of its output) instead
+    of the verdict where it failed."""
     checkout = checkout.resolve()
     env = dict(os.environ, PYTHONPATH=str(checkout))  # and its folder as the working one: `-c` puts that first
-    res = subprocess.run([sys.executable, "-c", OLD_DRIVER, str(checkout), json.dumps(case),
-                          str(out.parent.resolve()), str(workers)], env=env, cwd=checkout, capture_output=True,
-                         text=True)
+    t0 = time.perf_counter()
+    res = subprocess.run([sys.executable, "-c", OLD_DRIVER, str(run_dir.resolve()), json.dumps(EFFECTS),
+                          json.dumps(workers)], env=env, cwd=checkout, capture_output=True, text=True)
+    head = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], cwd=checkout, capture_output=True, text=True)
+    info = {"commit": head.stdout.strip() if head.returncode == 0 else "unknown", "wall_s": time.perf_counter() - t0}
     line = next((x for x in res.stdout.splitlines() if x.startswith("ROW ")), None)
     if line is None:
-        return {"error": (res.stderr or res.stdout)[-800:]}
-    r = json.loads(line[4:])
-    named = r.get("named_all") or ([r["named"]] if r.get("named") else [])
-    alts = [[a] for a in r.get("alternatives") or []]
-    return {**r, "right": right(case["label"], r["verdict"], named if r["verdict"] == "missing-effect" else [], alts)}
+        return {**info, "error": (res.stderr or res.stdout)[-800:]}
+    return {**info, **json.loads(line[4:])}
 
 
 def run(split: str, indices: Sequence[int], out: Path, workers: int | None, old: Path | None,
-        command: str, path: Path | None = None) -> None:
-    """Run the cases of ``indices`` not yet stored in ``path`` (default ``results/diagnosis-<split>.jsonl``);
-    append each row as it finishes."""
+        command: str, path: Path | None = None, thresholds: Mapping[str, float | None] = THRESHOLDS) -> None:
+    """Run the cases of ``indices`` whose latest row in ``path`` (default ``results/diagnosis-<split>.jsonl``) is
+    not ``ok`` (none, or an error: run again); append each row as it finishes, ``status`` ``ok`` or ``error``, with
+    the commit, machine, command and :func:`settings`.
+
+    Raises:
+        SystemExit: before any case runs, when ``path`` holds rows of other (or unknown) settings
+            (:func:`~benchmarks.diagnosis_protocol.settings_conflict`).
+    """
     path = path or RESULTS / f"diagnosis-{split}.jsonl"
-    done = {json.loads(x)["id"] for x in path.read_text().splitlines() if x.strip()} if path.exists() else set()
-    prov = {**runner.commit(), "machine": runner.machine(), "command": command}
-    for i in indices:
-        case = make_case(split, i)
-        if case["id"] in done:
-            continue
+    stored = read_rows(path)
+    done = done_ids(stored)
+    prov = {**runner.commit(), "machine": runner.machine(), "command": command, "settings": settings(thresholds)}
+    todo = [i for i in indices if f"{split}-{i}" not in done]
+    if todo and (problem := settings_conflict(stored, prov["settings"], runner.portable(path))):
+        raise SystemExit(problem)
+    for i in todo:
+        case = make_case(split, i, thresholds)
         try:
             row = run_case(case, out, workers, old)
         except Exception as e:  # noqa: BLE001  a case that fails is a row with its error, and the run goes on
-            row = {**case, "error": f"{type(e).__name__}: {e}"}
+            row = {**case, "status": "error", "error": f"{type(e).__name__}: {e}"}
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("a") as f:
             f.write(json.dumps({**row, **prov}) + "\n")
-        print(json.dumps({k: row.get(k) for k in ("id", "label", "verdict", "named", "right", "wall_s", "error")}),
+        print(json.dumps({k: row.get(k) for k in ("id", "label", "verdict", "named", "outcome", "wall_s", "error")}),
               file=sys.stderr, flush=True)
 
 
-def interval(k: int, n: int) -> list[float]:
-    """The 95% Clopper-Pearson interval of ``k`` successes in ``n``."""
-    if n == 0:
-        return [0.0, 1.0]
-    ci = stats.binomtest(k, n).proportion_ci(0.95, method="exact")
-    return [float(ci.low), float(ci.high)]
-
-
-def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Rates of a split: per label the cases, detections (any verdict but ``nothing-missing``) and right verdicts
-    with their 95% intervals, for the new rule and (where stored) the old one on the same cases; the confusion
-    of labels and what was called; detection against magnitude; the score's fall in right named cases."""
-    ok = [r for r in rows if "verdict" in r]
-    out: dict[str, Any] = {"cases": len(rows), "failed": len(rows) - len(ok), "by_label": {}, "confusion": {}}
-    for label in ["control", *EFFECTS, "other-engine"]:
-        rs = [r for r in ok if r["label"] == label]
-        if not rs:
-            continue
-        k = sum(r["right"] for r in rs)
-        entry = {"n": len(rs), "right": k, "right_ci95": interval(k, len(rs)),
-                 "detected": sum(r["verdict"] != "nothing-missing" for r in rs)}
-        olds = [r["old"] for r in rs if isinstance(r.get("old"), dict) and "verdict" in r["old"]]
-        if olds:
-            ko = sum(o["right"] for o in olds)
-            entry.update(old_n=len(olds), old_right=ko, old_right_ci95=interval(ko, len(olds)))
-        out["by_label"][label] = entry
-        out["confusion"][label] = dict(Counter("+".join(r["named"]) if r["named"] else r["verdict"] for r in rs))
-    ctl = out["by_label"].get("control")
-    if ctl:
-        out["false_alarms"] = ctl["n"] - ctl["right"]
-        out["false_alarm_ci95"] = interval(out["false_alarms"], ctl["n"])
-    drops = [1 - r["score_named"] / r["score_nominal"] for r in ok
-             if r["right"] and r.get("score_named") and r.get("score_nominal")]
-    out["score_drop_median"] = float(np.median(drops)) if drops else None
-    eff = [r for r in ok if r.get("magnitude") is not None]
-    bins = [(0.25, 0.5), (0.5, 0.75), (0.75, 1.0001)]
-    out["detection_by_magnitude"] = {f"{a:.2f}-{min(b, 1):.2f}": [sum(r["verdict"] != "nothing-missing" for r in eff
-                                                                       if a <= r["magnitude"] < b),
-                                                                   sum(a <= r["magnitude"] < b for r in eff)]
-                                     for a, b in bins}
-    out["seconds_median"] = float(np.median([r["seconds"] for r in ok])) if ok else None
-    return out
-
-
-def report(s: dict[str, Any], split: str) -> dict[str, Any]:
-    """The summary as the suite's tables and notes."""
-    rows = []
-    for label, e in s["by_label"].items():
-        old = ([f"{e['old_right']} of {e['old_n']}", f"{e['old_right_ci95'][0]:.2f}-{e['old_right_ci95'][1]:.2f}"]
-               if "old_n" in e else [None, None])
-        rows.append([label, e["n"], e["detected"], e["right"], f"{e['right_ci95'][0]:.2f}-{e['right_ci95'][1]:.2f}",
-                     *old])
-    if not s["cases"]:
-        return {"tables": [], "notes": [f"No case of the {split} split is stored yet."]}
-    notes = [f"{s['cases']} cases ({s['failed']} failed to run). False alarms: "
-             + (f"{s['false_alarms']} of {s['by_label']['control']['n']} controls (95% interval "
-                f"{s['false_alarm_ci95'][0]:.2f}-{s['false_alarm_ci95'][1]:.2f})." if "false_alarms" in s else "-"),
-             "What was called, per truth: " + "; ".join(f"{k}: " + ", ".join(f"{c} {n}" for c, n in v.items())
-                                                       for k, v in s["confusion"].items()) + ".",
-             "Detected against magnitude: " + ", ".join(f"{k}: {d} of {n}" for k, (d, n)
-                                                       in s["detection_by_magnitude"].items()) + "."]
-    if s.get("score_drop_median") is not None:
-        notes.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
-                     f"cases: {s['score_drop_median'] * 100:.0f}%.")
-    return {"tables": [runner.table(f"Diagnosis, {split} split: right verdicts per truth",
-                                    ["truth", "cases", "detected", "right (this rule)", "95% interval",
-                                     "right (old rules, same cases)", "95% interval"], rows)],
-            "notes": notes}
-
-
-FULL = {"cases": "0:36"}
+#: ``--full``: ten cycles, the test split's minimums (:data:`~benchmarks.diagnosis_protocol.MINIMUMS`)
+FULL = {"cases": f"0:{cases_for_minimums()}"}
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="test")
     ap.add_argument("--cases", default="0:18", help="start:stop or i,j,k: the cases to run where not yet stored "
-                                                   "(none: only summarise the stored rows)")
+                                                   f"(none: only summarise the stored rows; --full: {FULL['cases']}, "
+                                                   "the test split's minimums)")
     ap.add_argument("--out", type=Path, default=runner.REPO / "runs" / "diagnosis", help="folder of the cases' runs")
     ap.add_argument("--workers", type=int, default=None)
-    ap.add_argument("--old", type=Path, default=None, help="a checkout whose rules diagnose the same cases first")
+    ap.add_argument("--old", type=Path, default=None, help="a checkout whose rule diagnoses a copy of each case's "
+                                                           "nominal fit")
     ap.add_argument("--results", type=Path, default=None, help="rows file (default results/diagnosis-SPLIT.jsonl)")
+    ap.add_argument("--thresholds", type=Path, default=None,
+                    help="JSON {effect: detection threshold or null (not measured)} naming every shipped effect "
+                         "(default: the table in benchmarks/diagnosis_protocol.py)")
 
 
 def suite(a: argparse.Namespace) -> dict[str, Any]:
-    """Run ``--split``'s cases not yet stored, then summarise every split with stored rows (dev, then test)."""
+    """Run ``--split``'s cases not yet stored, then summarise every split with stored rows (dev, then test).
+
+    Raises:
+        SystemExit: one line for a bad ``--thresholds`` file, ``--old`` folder or ``--cases``, before any case runs.
+    """
+    thresholds = load_thresholds(a.thresholds) if a.thresholds else THRESHOLDS
+    if a.old is not None and not (a.old / "softsbi").is_dir():
+        raise SystemExit(f"--old {a.old}: not a softsbi checkout (no softsbi/ folder in it)")
     path = a.results or RESULTS / f"diagnosis-{a.split}.jsonl"
     if a.cases != "none":
         lo, _, hi = a.cases.partition(":")
-        idx = range(int(lo), int(hi)) if hi else [int(x) for x in a.cases.split(",")]
-        run(a.split, idx, a.out, a.workers, a.old, a.command, path)
+        try:
+            idx = range(int(lo), int(hi)) if hi else [int(x) for x in a.cases.split(",")]
+        except ValueError:
+            raise SystemExit(f"--cases {a.cases}: give start:stop, i,j,k or none") from None
+        run(a.split, idx, a.out, a.workers, a.old, a.command, path, thresholds)
     out: dict[str, Any] = {"tables": [], "notes": [], "data": {}}
     for split in SPLIT_SEEDS:
-        p = path if split == a.split else RESULTS / f"diagnosis-{split}.jsonl"
-        rows = [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
+        rows = read_rows(path if split == a.split else RESULTS / f"diagnosis-{split}.jsonl")
         if not rows:
             continue
-        s = summary(rows)
+        s = summary(rows, split)
         rep = report(s, split)
-        commits = Counter(r.get("commit", "unknown") for r in rows)
-        rep["notes"].append("Rows measured at " + ", ".join(f"commit `{c}` ({n})" for c, n in commits.items()) + ".")
         out["tables"] += rep["tables"]
         out["notes"] += [f"{split.capitalize()} split: {n}" for n in rep["notes"]]
         out["data"][split] = s
