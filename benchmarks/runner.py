@@ -155,6 +155,12 @@ _SUITES = [
           "hidden, or data from the other engine; each nominal fit is diagnosed with every shipped effect as a "
           "candidate. The test split's cases were run once under the frozen rule; rows are stored per case "
           "(benchmarks/results/diagnosis-SPLIT.jsonl), so a run resumes.", "benchmarks.diagnosis"),
+    Suite("tasks", "Speed", "a task trained once against every recording fitted from scratch",
+          "The demo's task (lift, mujoco-flex, the nominal model) trained once by `softsbi task train`, with its "
+          "training report on held-out prior simulations; then new recordings of the task (the demo's, with its "
+          "hidden breeze, and recordings at random hidden parameters) fitted by today's default from scratch "
+          "(4 x 150, no bank), by the stored task alone (1 round) and by the stored task plus one round of 150: "
+          "wall seconds and posterior-predictive Chamfer of each, in the same run.", "benchmarks.bench_tasks"),
     Suite("speed", "Speed", "what a user waits for",
           "Wall seconds of the command-line tool: startup (`softsbi --help`, `softsbi plugins`), one fit of the toy "
           "simulator and a `check` of it, each in a fresh process; with --full also the demo (against an older "

@@ -17,6 +17,7 @@ from softsbi.cli.extractor_cmd import train_extractor
 from softsbi.cli.fit_cmd import fit
 from softsbi.cli.import_cmd import diffcloud
 from softsbi.cli.simulate_cmd import compare_backends, simulate
+from softsbi.cli.task_cmd import task_delete, task_list, task_show, task_train
 from softsbi.cli.view_cmd import view
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -40,6 +41,14 @@ import_app = typer.Typer(help="Convert recordings from other layouts into record
                          no_args_is_help=True)
 import_app.command("diffcloud")(guard(diffcloud))
 app.add_typer(import_app, name="import")
+
+task_app = typer.Typer(help="Stored tasks: what a task learned from its prior, trained once for all its recordings.",
+                       no_args_is_help=True)
+task_app.command("train")(guard(task_train))
+task_app.command("list")(guard(task_list))
+task_app.command("show")(guard(task_show))
+task_app.command("delete")(guard(task_delete))
+app.add_typer(task_app, name="task")
 
 
 def main() -> None:

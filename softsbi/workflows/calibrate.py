@@ -241,37 +241,9 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
                 f"unit coordinates): the run was fitted with another softsbi version or other estimator defaults; "
                 f"the calibration describes the estimator as trained now")
     u_test, x_test = data["u"][ok], data["x"][ok]
-    qs = est.posteriors_at(x_test[:, fr].astype(np.float64)) if hasattr(est, "posteriors_at") else \
-        [est.posterior_at(x) for x in x_test[:, fr].astype(np.float64)]
-    rng = np.random.default_rng([cfg.seed, 16016, 1])
-    draws, lq_true, lq_draws, keep = [], [], [], []
-    for i, q in enumerate(qs):
-        try:
-            s = cal.draws_in_box(q, n_draws, rng)
-        except PosteriorError:  # no mass in the box: the truth lies outside every region
-            continue
-        keep.append(i)
-        draws.append(s)
-        lq_draws.append(q.log_prob(s))
-        lq_true.append(float(q.log_prob(u_test[i][None])[0]))
-    n_nomass = len(qs) - len(keep)
-    if not keep:
-        raise PosteriorError(f"the estimator's posterior has (almost) no mass in the prior box at any of the {len(qs)} "
-                             f"test simulations; it cannot be calibrated (too few training simulations: "
-                             f"{len(U)}?)")
-    draws_a = np.stack(draws) if draws else np.zeros((0, n_draws, space.dim))
-    hpd = cal.hpd_levels(np.array(lq_true), np.array(lq_draws).reshape(len(keep), n_draws))
-    hpd = np.concatenate([hpd, np.ones(n_nomass)])  # a posterior with no mass in the box covers nothing
-    n = len(hpd)
-    levels = cal.LEVELS
-    cov = cal.expected_coverage(hpd, levels)
-    lo, hi = cal.coverage_band(n, levels)
-    at = {g: float(cal.expected_coverage(hpd, [g])[0]) for g in (0.5, 0.9)}
-    ranks = cal.sbc_ranks(u_test[keep], draws_a)
-    tests = cal.rank_tests(ranks, n_draws, n_bins)
-    hist = [np.histogram(ranks[:, d], bins=n_bins, range=(0, n_draws + 1))[0].tolist() for d in range(space.dim)]
-    tarp = cal.tarp_coverage(u_test[keep], draws_a, np.random.default_rng([cfg.seed, 16016, 2]), levels)
-    ver = cal.verdict(cov, n, tarp, ranks, n_draws, n_bins, space.names, levels)
+    st = calibration_stats(est, u_test, x_test[:, fr], space.names, n_draws, n_bins, cfg.seed)
+    n, n_nomass, levels, cov, ver, tarp = st["n"], st["n_no_mass_in_box"], st["levels"], st["cov"], st["ver"], st["tarp"]
+    lo, hi, at, tests, hist = st["lo"], st["hi"], st["at"], st["tests"], st["hist"]
     vc = ver["coverage"]
     out = {
         "run": str(run_dir), "estimator": name, "estimator_options": opts,
@@ -309,3 +281,58 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
             write_json_atomic(run_dir / "calibration.json", result.to_json())
             plot_calibration(run_dir / "calibration.png", result)
     return result
+
+
+def calibration_stats(est: Any, u_test: np.ndarray, x_test: np.ndarray, names: list[str], n_draws: int, n_bins: int,
+                      seed: int) -> dict[str, Any]:
+    """Expected coverage, SBC ranks and TARP of a trained estimator on test pairs (Talts et al. 2018; Hermans et
+    al. 2022; Lemos et al. 2023), and the one verdict over them (:func:`softsbi.inference.calibration.verdict`).
+
+    Args:
+        est: a fitted estimator (``posterior_at``, or ``posteriors_at`` for a batch).
+        u_test: ``(n, D)`` test parameters (unit cube) drawn from the distribution the estimator was trained on.
+        x_test: ``(n, ...)`` their observations, at the frames the estimator was trained on.
+        names: the ``D`` parameters' names. n_draws: posterior draws per test pair. n_bins: rank-histogram bins.
+        seed: of the draws.
+
+    Returns:
+        ``{"n", "n_no_mass_in_box", "levels", "cov" (expected HPD coverage per level), "lo"/"hi" (pointwise 95%
+        band), "at" ({0.5, 0.9}: coverage), "ranks" (n, D), "tests" (rank tests), "hist" (per-parameter rank
+        histograms), "tarp", "ver" (the verdict)}``; a test pair whose posterior has no mass in the prior box
+        covers nothing (HPD level 1).
+
+    Raises:
+        PosteriorError: no posterior of any test pair has mass in the prior box.
+    """
+    x_test = x_test.astype(np.float64)
+    qs = est.posteriors_at(x_test) if hasattr(est, "posteriors_at") else [est.posterior_at(x) for x in x_test]
+    rng = np.random.default_rng([seed, 16016, 1])
+    draws, lq_true, lq_draws, keep = [], [], [], []
+    for i, q in enumerate(qs):
+        try:
+            s = cal.draws_in_box(q, n_draws, rng)
+        except PosteriorError:  # no mass in the box: the truth lies outside every region
+            continue
+        keep.append(i)
+        draws.append(s)
+        lq_draws.append(q.log_prob(s))
+        lq_true.append(float(q.log_prob(u_test[i][None])[0]))
+    n_nomass = len(qs) - len(keep)
+    if not keep:
+        raise PosteriorError(f"the estimator's posterior has (almost) no mass in the prior box at any of the {len(qs)} "
+                             f"test simulations; it cannot be calibrated (too few training simulations?)")
+    draws_a = np.stack(draws)
+    hpd = cal.hpd_levels(np.array(lq_true), np.array(lq_draws).reshape(len(keep), n_draws))
+    hpd = np.concatenate([hpd, np.ones(n_nomass)])  # a posterior with no mass in the box covers nothing
+    n, levels = len(hpd), cal.LEVELS
+    cov = cal.expected_coverage(hpd, levels)
+    lo, hi = cal.coverage_band(n, levels)
+    ranks = cal.sbc_ranks(u_test[keep], draws_a)
+    tarp = cal.tarp_coverage(u_test[keep], draws_a, np.random.default_rng([seed, 16016, 2]), levels)
+    return {"n": n, "n_no_mass_in_box": n_nomass, "levels": levels, "cov": cov, "lo": lo, "hi": hi,
+            "at": {g: float(cal.expected_coverage(hpd, [g])[0]) for g in (0.5, 0.9)}, "ranks": ranks,
+            "tests": cal.rank_tests(ranks, n_draws, n_bins),
+            "hist": [np.histogram(ranks[:, d], bins=n_bins, range=(0, n_draws + 1))[0].tolist()
+                     for d in range(len(names))],
+            "tarp": tarp, "ver": cal.verdict(cov, n, tarp, ranks, n_draws, n_bins, names, levels),
+            "draws": draws_a, "keep": keep}

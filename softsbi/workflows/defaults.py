@@ -39,6 +39,9 @@ K_SE = 2.0
 DEMO_ROUNDS = 3
 DEMO_SIMS = 100
 #: calibration: fresh test simulations and posterior draws per test simulation
+#: prior simulations a stored task's model is trained on (``softsbi task train --prior-sims``): a default fit's
+#: budget (4 x 150) and more, since they are simulated once per task, not per recording
+TASK_PRIOR_SIMS = 1000
 N_TEST = 200
 N_DRAWS = 1000
 #: scenario of ``softsbi simulate`` and ``compare-backends``, and the engines the latter compares

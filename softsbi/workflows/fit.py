@@ -46,6 +46,7 @@ from softsbi.workflows.observe import fit_sim_context, metric_sensor, observer_o
 from softsbi.workflows.progress import FitCallbacks
 from softsbi.workflows.resume import RunClock, open_store, repair_damaged, retry_failed_simulations
 from softsbi.workflows.rounds import Rounds, SensorDraws, round_posterior, tell_bank
+from softsbi.workflows.tasks import PriorRound
 from softsbi.workflows.widen import (decide, map_mixture, prior_of_record, reconcile, records, space_of_round,
                                      unit_map, widening_sentence)
 
@@ -127,7 +128,8 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
         retry_failed_simulations(store, callbacks)
     space = reconcile(store, base, callbacks.message)
     ctx = fit_sim_context(cfg, recording, store, space)
-    loop = Rounds(cfg, store, space, ctx, est_cls, callbacks, clock)
+    prior = PriorRound.of(cfg, space_of_round(base, store.config, 0), ctx, estimator_options(cfg, est_cls))
+    loop = Rounds(cfg, store, space, ctx, est_cls, callbacks, clock, prior)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     try:
         for r in range(cfg.rounds):

@@ -26,6 +26,7 @@ from softsbi.workflows.fitreport import chamfer_stats
 from softsbi.workflows.jobs import SimContext, _round_seeds, simulate_job
 from softsbi.workflows.progress import FitCallbacks
 from softsbi.workflows.resume import RunClock
+from softsbi.workflows.tasks import PriorRound
 
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
@@ -206,9 +207,10 @@ class Rounds:
     """The sequential rounds of one fit: draw the proposal, simulate, train, condition."""
 
     def __init__(self, cfg: FitConfig, store: RunStore, space: ParamSpace, ctx: SimContext, est_cls: type,
-                 callbacks: FitCallbacks, clock: RunClock | None = None):
+                 callbacks: FitCallbacks, clock: RunClock | None = None, prior: PriorRound | None = None):
         self.cfg, self.store, self.space, self.ctx, self.est_cls, self.cb = cfg, store, space, ctx, est_cls, callbacks
         self.clock = clock
+        self.prior = prior or PriorRound(None, None)  # the first round as a stored task (:mod:`.tasks`)
         self.sequential = bool(getattr(est_cls, "sequential", True))
         self.truncated = self.sequential and cfg.proposal == "truncated"
         self.chain = PosteriorChain(space.dim, seed=cfg.seed)
@@ -224,7 +226,7 @@ class Rounds:
         cfg, store = self.cfg, self.store
         if not store.is_begun(r):
             self._begin(r)
-        self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
+        self.cb.round_start(r, cfg.rounds, len(store.pending(r)), len(store.round_data(r, ("status",))["status"]))
         bank = sim_bank(cfg) if r == 0 else None  # the first round's draws depend on the task and the seed alone
         ctx = self.ctx if bank is None else replace(self.ctx, bank=str(bank))
         _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
@@ -268,13 +270,14 @@ class Rounds:
             if self.truncated:
                 proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
         rng = np.random.default_rng([cfg.seed, r, 0])
-        u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
+        n = self.prior.n_prior(cfg.sims_per_round) if r == 0 else cfg.sims_per_round
+        u = rng.random((n, space.dim)) if proposal is None else proposal.sample(n, rng)
         what = "prior" if proposal is None else (
             f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
             f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r}")
         sensor_u = (self.sensor.draw(u, proposal, np.random.default_rng([cfg.seed, r, 1]))
                     if self.sensor is not None else None)
-        self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
+        self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, n),
                                self.x_obs.shape, what, sensor_u=sensor_u)
 
     def _train(self, r: int, U: np.ndarray, X: np.ndarray, counts: list[int]) -> tuple[Any, dict[str, Any]]:
@@ -286,8 +289,17 @@ class Rounds:
             except PosteriorDamaged as exc:  # train the round again from its intact simulations
                 self.cb.message(f"{exc.problem}: training that round again from its stored simulations")
         opts = estimator_options(cfg, self.est_cls)
-        est = self.est_cls(**opts)
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
+        n_drawn = len(store.round_data(r, ("status",))["status"])
+        task = self.prior.task
+        if r == 0 and task is not None and task.n_prior == n_drawn:  # trained once for this task: condition only
+            q = task.restore().posterior_at(self.x_obs[fr])
+            self.cb.message(f"round 1: the stored task {task.digest[:12]} ({task.n_prior} prior simulations, "
+                            f"trained once): conditioned on this recording, no training")
+            info = dict(task.info, task=task.digest, trained_here=False)
+            store.finish_round(r, q, info, estimator=None if isinstance(q, MixtureOfGaussians) else task.estimator)
+            return q, info
+        est = self.est_cls(**opts)
         n_sensor, kw = 0, {}
         if self.sensor is not None:  # one simulation, K more observations at other sensor parameters
             su, sx, sg = _sensor_pairs(store, r)
@@ -301,6 +313,10 @@ class Rounds:
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
         info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
                     **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))
+        if r == 0 and self.prior.keep(n_drawn, est, info, opts, cfg.estimator) is not None:
+            info = dict(info, task=self.prior.digest, trained_here=True)
+            self.cb.message(f"round 1's estimator stored as task {self.prior.digest[:12]}: later recordings of this "
+                            f"task condition it instead of training it (`softsbi task list`)")
         state = None if isinstance(q, MixtureOfGaussians) else EstimatorState(cfg.estimator, opts, est.state_dict())
         store.finish_round(r, q, info, estimator=state)
         return q, info

@@ -17,6 +17,8 @@ from softsbi.workflows.compare_backends import compare_backends
 from softsbi.workflows.demo import run_demo
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.extractor import train_extractor
+from softsbi.workflows.task_training import train_task
+from softsbi.workflows.tasks import task_store_of
 from softsbi.workflows.fit import FitConfig
 from softsbi.workflows.measurement import import_diffcloud, load_image_recording
 from softsbi.workflows.simulate import simulate_to_folder
@@ -49,6 +51,9 @@ LIBRARY = {
                          "backends": ",".join(_sig(compare_backends)["backends"])},
     "diffcloud": _sig(import_diffcloud),
     "params": {"backend": FIT["backend"]},
+    "train": {**FIT, "points": FIT["n_points"], "effect": FIT["effects"], "fix": FIT["fixed"],
+              **_sig(train_task, {"prior_sims": "n_prior"})},
+    **{sub: _sig(task_store_of) for sub in ("list", "show", "delete")},
 }
 #: options only the CLI has, with a default of its own
 CLI_ONLY = {"as_json", "out", "recording", "theta", "extractor", "observed", "ray_address", "retry_failed",

@@ -1,0 +1,106 @@
+"""The tasks suite: a task trained once against every recording fitted from scratch, on the demo's task.
+
+The demo's task (the built-in lift on mujoco-flex, the nominal model, the fit's defaults) is trained once
+(``softsbi task train``: ``--prior-sims`` prior simulations, a training report on ``--n-test`` held-out ones).
+Then each of ``--recordings`` new recordings of the task (simulated at hidden parameters drawn from the middle 60%
+of each prior, seeded; the first with the demo's hidden breeze, the others without) is fitted three ways, in the
+same run:
+
+- *sequential*: today's default fit from scratch (4 rounds x 150, truncated proposals), without a simulation bank
+  or a stored task;
+- *amortised*: one round, the stored task conditioned on the recording (no training, its prior simulations read
+  from the bank), then the fit's 30 posterior-predictive rollouts;
+- *amortised + 1 round*: the same and one sequential round of 150 truncated simulations.
+
+Per recording and way: wall seconds of the fit, the posterior-predictive Chamfer (report.json's
+``chamfer_posterior_m``), the hidden values inside the 90% intervals, and the informed parameters.
+
+Usage: ``python -m benchmarks run tasks [--recordings 3] [--prior-sims 1000] [--n-test 200] [--out DIR]``.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.runner import in_out_folder, table
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--recordings", type=int, default=3, help="new recordings of the task fitted each way")
+    ap.add_argument("--prior-sims", type=int, default=1000, help="prior simulations the task is trained on")
+    ap.add_argument("--n-test", type=int, default=200, help="held-out prior simulations of the training report")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=None,
+                    help="keep the runs and the bank here (default: a temporary folder)")
+
+
+FULL = {"recordings": 5}
+
+
+def _recordings(n: int) -> list:
+    from softsbi.plugins import registry
+    from softsbi.scenarios.builtin import lift_scenario
+    from softsbi.workflows.demo import DEMO_HIDDEN_EFFECT, demo_recording
+    from softsbi.workflows.measurement import simulate_recording
+    recs = [("demo (hidden breeze)", demo_recording(False)[0])]
+    sc = lift_scenario(None)
+    space = registry().simulator("mujoco-flex")().param_space(sc)
+    rng = np.random.default_rng(2026)
+    for i in range(1, n):
+        u = 0.2 + 0.6 * rng.random(space.dim)
+        truth = space.as_dict(space.from_unit(u[None])[0])
+        recs.append((f"random {i}", simulate_recording("mujoco-flex", sc, truth, seed=100 + i)))
+    assert DEMO_HIDDEN_EFFECT  # the demo's recording carries it
+    return recs[:n]
+
+
+def _fit(out: Path, rec, cfg) -> dict:
+    from softsbi.workflows.fit import run_fit
+    t0 = time.perf_counter()
+    res = run_fit(out, rec, cfg, make_plots=False)
+    r = res.report
+    inside = r["truth_in_90pct_interval"]
+    informed = [n for n, c in r["contraction"].items() if c["informed"]]
+    return {"wall_s": time.perf_counter() - t0, "chamfer_m": r["chamfer_posterior_m"],
+            "inside": f"{sum(inside.values())} of {len(inside)}", "informed": informed}
+
+
+def measure(a: argparse.Namespace, folder: Path) -> dict:
+    from softsbi.workflows.fit import FitConfig
+    from softsbi.workflows.task_training import train_task
+    bank = folder / "bank"
+    base = FitConfig(workers=a.workers, sim_bank=str(bank))
+    recs = _recordings(a.recordings)
+    t0 = time.perf_counter()
+    task = train_task(recs[0][1], base, a.prior_sims, candidates=[], n_test=a.n_test)[0]
+    train_s = time.perf_counter() - t0
+    rep = task.report or {}
+    ways = {"sequential (4 x 150, from scratch)": replace(base, sim_bank="off"),
+            "amortised (stored task, 1 round)": replace(base, rounds=1),
+            "amortised + 1 round of 150": replace(base, rounds=2)}
+    rows = []
+    for name, rec in recs:
+        for j, (way, cfg) in enumerate(ways.items()):
+            m = _fit(folder / f"{name.split()[0]}{len(rows)}-{j}", rec, cfg)
+            rows.append([name, way, round(m["wall_s"], 1), round(m["chamfer_m"] * 100, 2), m["inside"],
+                         ", ".join(m["informed"]) or "none"])
+    con = rep.get("contraction", {})
+    return {"tables": [
+        table("The task trained once (the nominal model of the demo's task)",
+              ["prior simulations", "wall s", "held-out", "coverage 50%", "coverage 90%", "TARP KS p",
+               "SBC rejects", "verdict", "90% width / prior (median)"],
+              [[task.n_prior, round(train_s, 1), rep.get("n_test"), round(rep["coverage"]["at_50"], 3),
+                round(rep["coverage"]["at_90"], 3), rep["tarp"].get("ks_pvalue"),
+                ", ".join(n for n, r in zip(rep["parameters"], rep["sbc"]["rejects"]) if r) or "none",
+                rep["verdict"], ", ".join(f"{n} {c['width_ratio']:.2f}" for n, c in con.items())]]),
+        table("New recordings of the task: from scratch against the stored task",
+              ["recording", "fit", "wall s", "posterior-predictive Chamfer cm", "hidden values inside 90%",
+               "informed parameters"], rows)]}
+
+
+def suite(a: argparse.Namespace) -> dict:
+    return in_out_folder(measure, a)

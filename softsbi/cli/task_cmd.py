@@ -1,0 +1,132 @@
+"""``softsbi task``: train a task once, list, show and delete the stored tasks (:mod:`softsbi.workflows.tasks`)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from softsbi.cli.command import json_done
+from softsbi.cli.options import (AT_LEAST_1_WORKER, H_BACKEND, H_ESTIMATOR, H_JSON, H_SEED, H_WORKERS, SEED_OK,
+                                 bound, names, parse_bounds, parse_kv)
+from softsbi.cli.output import Output
+from softsbi.workflows import defaults as D
+
+H_BANK = "simulation bank holding the stored tasks ('default': the user's cache folder; or a folder)"
+
+
+def _store(sim_bank: str) -> Any:
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.tasks import task_store_of  # start-up: numpy, zarr
+    store = task_store_of(sim_bank)
+    if store is None:
+        raise SoftsbiError("stored tasks live in the simulation bank, which is off (SOFTSBI_SIM_BANK=off): unset it "
+                           "or give --sim-bank DIR")
+    return store
+
+
+def _row(t: Any) -> list[Any]:
+    r = t.report or {}
+    cov = r.get("coverage") or {}
+    return [t.digest[:12], t.model, t.identity.get("backend"), (t.identity.get("scenario") or {}).get("name", "?"),
+            t.n_prior, r.get("verdict", "no training report (stored by a fit)"),
+            "" if not cov else f"{cov['at_50']:.2f} / {cov['at_90']:.2f}"]
+
+
+def _doc(t: Any) -> dict[str, Any]:
+    return {"key": t.digest, "model": t.model, "n_prior": t.n_prior, "path": str(t.path), "identity": t.identity,
+            "info": t.info, "report": t.report}
+
+
+def task_train(observed: Path = typer.Option(..., help="a recording of the task (its scenario and sensor settings; "
+                                                      "its measurement is not used)"),
+               prior_sims: int = typer.Option(D.TASK_PRIOR_SIMS, "--prior-sims", callback=bound(D.MIN_SIMS_PER_ROUND),
+                                              help="prior simulations each model is trained on"),
+               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=bound(0),
+                                          help="held-out prior simulations of each model's training report "
+                                               "(coverage, SBC, TARP); 0 = no report"),
+               candidates: Optional[str] = typer.Option(None, "--candidates",
+                                                        help="comma-separated candidate effects to train beside the "
+                                                             "nominal model; default: every one diagnose refits; "
+                                                             "'none': the nominal model only"),
+               backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
+               estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
+               effect: list[str] = typer.Option(None, "--effect", help="effects of the nominal model"),
+               bounds: list[str] = typer.Option(None, "--bounds", help="prior bounds name=low:high"),
+               fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
+               points: int = typer.Option(D.N_POINTS, help="K, points per frame", callback=bound(1)),
+               min_height: Optional[float] = typer.Option(None, callback=bound(0), help="as fit's --min-height"),
+               frames: Optional[str] = typer.Option(None, help="as fit's --frames"),
+               seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
+               workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+               retrain: bool = typer.Option(False, "--retrain", help="train even the models already stored"),
+               sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK),
+               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """Train a task once: amortised posteriors of the nominal model and of each candidate effect, with a training
+    report; every later fit, check and diagnose of the task's recordings uses them."""
+    from softsbi.cli.progress import shown  # start-up: the workflows' progress
+    from softsbi.workflows.bank import check_bank_path  # start-up: numpy, zarr
+    from softsbi.workflows.fit import FitConfig  # start-up: the fit workflow
+    from softsbi.workflows.measurement import load_recording  # start-up: the recording readers
+    from softsbi.workflows.task_training import train_task  # start-up: the training workflow
+    cfg = FitConfig(backend=backend, effects=names(effect), estimator=estimator, seed=seed, n_points=points,
+                    workers=workers, bounds=parse_bounds(bounds), fixed=parse_kv(fix, "--fix"),
+                    min_height=min_height, frames=frames, sim_bank=sim_bank)
+    cfg.validate()
+    check_bank_path(cfg.sim_bank, {"--observed": observed})
+    cands = None if candidates is None else [] if candidates.strip() == "none" else names([candidates])
+    meas = load_recording(observed, n_points=points, seed=seed)
+    o = Output(as_json)
+    with shown(o):
+        tasks = train_task(meas, cfg, prior_sims, cands, n_test=n_test, retrain=retrain, message=o.message)
+    if json_done(o, [_doc(t) for t in tasks]):
+        return
+    o.table(["key", "model", "backend", "scenario", "prior sims", "training report", "coverage 50% / 90%"],
+            [_row(t) for t in tasks], title=f"stored tasks in {tasks[0].path.parent}")
+
+
+def task_list(sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK),
+              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """List the stored tasks."""
+    store = _store(sim_bank)
+    tasks = store.list()
+    o = Output(as_json)
+    if json_done(o, [_doc(t) for t in tasks]):
+        return
+    if not tasks:
+        o.line(f"no stored task in {store.path}: `softsbi task train` trains one, and every fit stores its first round")
+        return
+    o.table(["key", "model", "backend", "scenario", "prior sims", "training report", "coverage 50% / 90%"],
+            [_row(t) for t in tasks], title=f"stored tasks in {store.path}")
+
+
+def task_show(key: str = typer.Argument(..., help="the task's key (its first characters suffice)"),
+              sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK),
+              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
+    """Show one stored task: what determines it and its training report."""
+    t = _store(sim_bank).find(key)
+    o = Output(as_json)
+    if json_done(o, _doc(t)):
+        return
+    idy = t.identity
+    o.line(f"task {t.digest}: model {t.model}, backend {idy.get('backend')}, scenario "
+           f"{(idy.get('scenario') or {}).get('name', '?')}, estimator {idy.get('estimator')}, seed {idy.get('seed')}, "
+           f"softsbi {idy.get('softsbi')}; {t.n_prior} prior simulations")
+    r = t.report
+    if r is None:
+        o.line("no training report (stored by a fit's first round; `softsbi task train` trains one with its report)")
+        return
+    con = r["contraction"]
+    rows = [[n, "rejects" if rej else "ok", f"{con[n]['width_ratio']:.2f}", "yes" if con[n]["informed"] else "no"]
+            for n, rej in zip(r["parameters"], r["sbc"]["rejects"])]
+    o.table(["parameter", "SBC ranks", "90% width / prior (median)", "informed"], rows,
+            title=f"training report: {r['n_test']} held-out prior simulations")
+    o.line(f"expected coverage {r['coverage']['at_50']:.2f} at 50%, {r['coverage']['at_90']:.2f} at 90%; "
+           f"verdict: {r['verdict']}")
+
+
+def task_delete(key: str = typer.Argument(..., help="the task's key (its first characters suffice)"),
+                sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK)) -> None:
+    """Delete one stored task (its simulations stay in the bank)."""
+    t = _store(sim_bank).delete(key)
+    Output(False).line(f"deleted task {t.digest[:12]} ({t.model}, {t.n_prior} prior simulations)")

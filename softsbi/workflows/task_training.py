@@ -1,0 +1,187 @@
+"""``softsbi task train``: train a task once (:mod:`~softsbi.workflows.tasks`), for the model and each candidate effect.
+
+For each model (the nominal model, then the nominal model with each candidate effect switched on):
+
+1. ``n_prior`` parameters are drawn from the prior exactly as a fit's first round draws them (unit cube
+   ``[seed, 0, 0]``, seeds ``[seed, 0, 1]``), simulated through the simulation bank (a fit's first round then reads
+   them) and observed with the fit's observer and sensor model;
+2. the fit's estimator is trained on them as a fit's first round trains it (same options, seed ``seed``);
+3. ``n_test`` held-out prior simulations (seeds of their own, never trained on) measure the amortised posterior:
+   expected coverage, SBC ranks per parameter and TARP, one verdict over them
+   (:func:`~softsbi.workflows.calibrate.calibration_stats`), and the contraction per parameter (the posterior's
+   90% interval over the prior's, :mod:`~softsbi.inference.contraction`, median over the test pairs);
+4. the task is stored under its key with that training report.
+
+A model whose task is stored with at least ``n_prior`` prior simulations and a training report is not trained
+again (``retrain=True`` does). The prior held-out simulations go through the bank too, so a retrained task
+re-simulates nothing.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from softsbi.core.errors import SoftsbiError
+from softsbi.core.posterior_store import EstimatorState
+from softsbi.core.types import STATUS_OK, ParamSpace, Recording
+from softsbi.inference.contraction import INFORMED_MAX_RATIO
+from softsbi.plugins import registry
+from softsbi.workflows import defaults
+from softsbi.workflows.calibrate import calibration_stats
+from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, needs_images
+from softsbi.workflows.jobs import SimContext, _round_seeds, run_jobs
+from softsbi.workflows.observe import metric_sensor, observer_options
+from softsbi.workflows.screening import is_generic
+from softsbi.workflows.tasks import PriorRound, StoredTask
+
+#: seed stream of the held-out simulations (never a fit's: a fit's rounds use ``[seed, r, .]`` with small ``r``)
+TEST_STREAM = 7070
+
+
+def candidate_models(cfg: FitConfig, names: Sequence[str] | None) -> list[list[str]]:
+    """The models a task trains: the nominal model (``cfg.effects``) and, per candidate effect, the nominal model
+    with it switched on. ``names`` None: every installed non-generic effect the backend applies (what ``diagnose``
+    refits); ``[]``: the nominal model only.
+
+    Raises:
+        SoftsbiError: a named effect the backend cannot apply."""
+    reg = registry()
+    sim_cls = reg.simulator(cfg.backend)
+    if names is None:
+        names = [n for n in sim_cls.effects if n in reg.tables["effect"] and not is_generic(reg.effect(n)())]
+    bad = [n for n in names if sim_cls.supports(reg.effect(n)) is not None]
+    if bad:
+        raise SoftsbiError(f"--candidates: backend '{cfg.backend}' cannot apply {bad}; it applies "
+                           f"{list(sim_cls.effects)}")
+    return [list(cfg.effects)] + [list(cfg.effects) + [n] for n in names if n not in cfg.effects]
+
+
+def _context(cfg: FitConfig, recording: Recording, space: ParamSpace) -> SimContext:
+    """The simulation context of a fit's first round, without a measurement to score against."""
+    sensor = metric_sensor(cfg, recording.scenario)
+    return SimContext(backend=cfg.backend, backend_options=cfg.backend_options, scenario=recording.scenario.to_json(),
+                      effects=list(cfg.effects), observer=cfg.observer,
+                      observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
+                      fixed=dict(cfg.fixed), dense=None, n_dense=cfg.n_dense, min_z=sensor["metric_min_z"],
+                      camera=sensor["metric_camera"])
+
+
+def _simulate(ctx: SimContext, space: ParamSpace, u: np.ndarray, seeds: np.ndarray, cfg: FitConfig,
+              label: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, X)``: the usable ones of the simulations at unit-cube ``u`` with ``seeds`` (status ok, finite)."""
+    res = run_jobs(ctx, list(zip(space.from_unit(u), seeds.tolist())), workers=cfg.workers, executor=cfg.executor,
+                   executor_options=cfg.executor_options, label=label)
+    ok = [i for i, r in enumerate(res) if r["status"] == STATUS_OK and r["x"] is not None
+          and np.all(np.isfinite(r["x"]))]
+    if not ok:
+        reasons = sorted({str(r.get("reason")) for r in res})[:3]
+        raise SoftsbiError(f"{label}: every simulation failed, e.g. {reasons}; narrow the prior with --bounds")
+    return u[ok], np.stack([res[i]["x"] for i in ok])
+
+
+def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int = defaults.N_TEST,
+                n_draws: int = defaults.N_DRAWS, retrain: bool = False,
+                message: Callable[[str], None] | None = None) -> StoredTask:
+    """Train one model's task (module docstring) and store it; returns the stored task.
+
+    Args:
+        recording: a recording of the task (its scenario and sensor settings; its observation is not used).
+        cfg: the fit's settings (``cfg.effects`` the model).
+        n_prior: prior simulations trained on. n_test: held-out prior simulations of the report (0: no report).
+        n_draws: posterior draws per held-out simulation. retrain: train even when the task is stored.
+        message: progress notices.
+
+    Raises:
+        SoftsbiError: no simulation bank (tasks are stored beside it), ``--sensor-draws``, an image observer, or
+            every simulation failed. PosteriorError: the estimator puts no mass in the prior box.
+    """
+    say = message or (lambda s: None)
+    cfg = cfg.resolved(recording)
+    cfg.validate()
+    if needs_images(cfg):
+        raise SoftsbiError("task train takes point-cloud fits; an image observer's fits train per recording")
+    if cfg.sensor_draws:
+        raise SoftsbiError("task train does not take --sensor-draws: its extra observations are drawn per round")
+    est_cls = registry().estimator(cfg.estimator)
+    opts = estimator_options(cfg, est_cls)
+    _, space = fit_param_space(cfg, recording.scenario)
+    ctx = _context(cfg, recording, space)
+    prior = PriorRound.of(cfg, space, ctx, opts)
+    if prior.store is None:
+        raise SoftsbiError("stored tasks live in the simulation bank, which is off: give --sim-bank DIR (or unset "
+                           "SOFTSBI_SIM_BANK=off)")
+    model = "+".join(["nominal", *cfg.effects])
+    task = prior.task
+    if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
+        say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
+        return task
+    ctx = replace(ctx, bank=str(prior.store.path.parent))
+    u = np.random.default_rng([cfg.seed, 0, 0]).random((n_prior, space.dim))
+    U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, 0, n_prior), cfg, f"{model}: prior simulations")
+    fr = slice(None) if cfg.frames is None else list(cfg.frames)
+    say(f"{model}: training '{cfg.estimator}' on {len(U)} prior simulations")
+    t0 = time.perf_counter()
+    est = est_cls(**opts)
+    info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed)
+    info = dict(info, n_train_total=int(len(U)), usable_per_round=[int(len(U))], sensor_pairs=0)
+    report = None
+    if n_test > 0:
+        report = training_report(est, ctx, space, cfg, n_test, n_draws, fr)
+        report["train_seconds"] = time.perf_counter() - t0 - report["simulation_seconds"]
+    stored = prior.store.put(prior.identity, n_prior, _state(est, cfg.estimator, opts), info, report)
+    if stored is None:
+        raise SoftsbiError(f"the task store {prior.store.path} cannot be written: give --sim-bank a folder you can "
+                           f"write")
+    return stored
+
+
+def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
+    return EstimatorState(name, dict(opts), est.state_dict())
+
+
+def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int, n_draws: int,
+                    fr: Any) -> dict[str, Any]:
+    """The training report of a trained task: its amortised posterior on ``n_test`` held-out prior simulations
+    (module docstring, step 3)."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng([cfg.seed, TEST_STREAM, 0])
+    u = rng.random((n_test, space.dim))
+    seeds = np.random.default_rng([cfg.seed, TEST_STREAM, 1]).integers(0, 2**31 - 1, size=n_test)
+    U, X = _simulate(ctx, space, u, seeds, cfg, "held-out prior simulations")
+    sim_s = time.perf_counter() - t0
+    st = calibration_stats(est, U, X[:, fr], space.names, n_draws, defaults.N_BINS, cfg.seed)
+    lo, hi = np.quantile(st["draws"], 0.05, axis=1), np.quantile(st["draws"], 0.95, axis=1)  # (n, D) unit cube
+    ratio = np.median((hi - lo) / 0.9, axis=0)  # the prior's central 90% spans 0.9 of the unit cube
+    ver = st["ver"]
+    return {"n_test": int(st["n"]), "n_test_failed": int(n_test - len(U)), "n_draws": int(n_draws),
+            "parameters": space.names,
+            "coverage": {"levels": st["levels"].tolist(), "hpd": st["cov"].tolist(), "at_50": st["at"][0.5],
+                         "at_90": st["at"][0.9]},
+            "sbc": {"histograms": st["hist"], "rejects": [p["rejects"] for p in ver["sbc"]["parameters"]],
+                    **st["tests"]},
+            "tarp": st["tarp"], "verdict": ver["verdict"], "calibrated": ver["calibrated"],
+            "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
+            "contraction": {n: {"width_ratio": float(r), "informed": bool(r <= INFORMED_MAX_RATIO)}
+                            for n, r in zip(space.names, ratio)},
+            "simulation_seconds": sim_s}
+
+
+def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TASK_PRIOR_SIMS,
+               candidates: Sequence[str] | None = None,
+               n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS, retrain: bool = False,
+               message: Callable[[str], None] | None = None) -> list[StoredTask]:
+    """Train a task once for the nominal model and each candidate effect (:func:`candidate_models`,
+    :func:`train_model`); returns the stored tasks, nominal first.
+
+    Raises:
+        everything :func:`train_model` and :func:`candidate_models` raise."""
+    models = candidate_models(cfg, candidates)
+    say = message or (lambda s: None)
+    out = []
+    for i, effects in enumerate(models, start=1):
+        say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])}")
+        out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain, say))
+    return out

@@ -1,0 +1,262 @@
+"""Stored tasks: what a task has learned from its prior, trained once and reused by every later recording of it.
+
+A fit's first round draws its parameters from the prior, and neither those draws, their simulations (the
+simulation bank keeps them) nor the estimator trained on them depend on the recording: only conditioning the
+trained estimator on the recording's observation does (BayesSim's amortisation, Ramos et al. 2019). A *task* is
+everything that determines that first round: the scenario, the backend and its options, the model (the effects
+switched on), what the fit sees (observer and its options, sensor model, frames), the priors (the inferred
+parameters' bounds and scales, the fixed values), the estimator and its options, the seed, and the softsbi version
+(:func:`task_identity`). Its SHA-256 is the task's key (:func:`task_digest`).
+
+A :class:`TaskStore` (a folder ``tasks/`` inside the simulation bank, whose rollouts the tasks' prior rounds are)
+keeps, per key, the trained estimator's state, its training information, how many prior simulations trained it
+and, when ``softsbi task train`` trained it, a training report: simulation-based calibration of the amortised
+posterior on held-out prior simulations of the task (expected coverage, SBC ranks, TARP, contraction per
+parameter; :func:`~softsbi.workflows.calibrate.calibration_stats`).
+
+A fit of a task whose key is stored takes its first round from the stored task: the same prior draws and seeds
+(their rollouts read from the bank), the stored estimator conditioned on the new recording, no training. Its later
+rounds sharpen that posterior as usual. A fit of a task that is not stored stores its first round's estimator, so
+the second recording of a task never trains its first round again; ``task train`` trains one on a larger prior
+simulation budget with its training report, for the model and each candidate effect. A stored task whose key does
+not match is never used: a changed softsbi version, scenario, backend, model, prior or estimator gives another key.
+
+Entries are written into a temporary folder and renamed into place (atomic on one file system); each carries its
+identity and a SHA-256 of its content (:mod:`~softsbi.core.posterior_store`), both checked on reading: a damaged
+or moved entry counts as absent, and the fit trains (and stores) the task anew.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import uuid
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any, Mapping
+
+import zarr
+
+from softsbi.core.errors import PosteriorDamaged, SchemaError, SoftsbiError
+from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
+from softsbi.core.types import ParamSpace, jsonable
+from softsbi.plugins import registry
+from softsbi.workflows import defaults
+from softsbi.workflows.bank import _engine_version, banks_enabled, default_bank
+from softsbi.workflows.fitconfig import FitConfig, resume_identity
+from softsbi.workflows.jobs import SimContext
+
+#: format of a stored task (part of its key: a new format trains every task again)
+TASK_FORMAT = "softsbi.task/1"
+#: the stored tasks' folder inside a simulation bank
+TASKS_FOLDER = "tasks"
+
+
+def _softsbi_version() -> str:
+    try:
+        return version("softsbi")
+    except PackageNotFoundError:  # a source tree that is not installed
+        return "unknown"
+
+
+def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_options: Mapping[str, Any]) -> dict:
+    """Everything that determines a fit's first round (module docstring), as JSON: the key's content.
+
+    Args:
+        cfg: the fit's settings, :meth:`~softsbi.workflows.fitconfig.FitConfig.resolved` (frames as indices).
+        space: the inferred parameters (names, prior bounds, log scale) of the fit's first round.
+        ctx: the fit's simulation context (scenario, observer options and sensor model as the jobs apply them).
+        estimator_options: the options the fit gives its estimator
+            (:func:`~softsbi.workflows.fitconfig.estimator_options`).
+    """
+    return jsonable({
+        "format": TASK_FORMAT, "softsbi": _softsbi_version(),
+        "backend": cfg.backend, "backend_options": dict(cfg.backend_options), "engine": _engine_version(cfg.backend),
+        "scenario": resume_identity("scenario", ctx.scenario), "effects": list(cfg.effects),
+        "observer": cfg.observer, "observer_options": dict(ctx.observer_options),
+        "frames": None if cfg.frames is None else [int(i) for i in cfg.frames],
+        "metric_min_z": ctx.min_z, "metric_camera": ctx.camera,
+        "parameters": space.to_json(), "fixed": dict(cfg.fixed),
+        "estimator": cfg.estimator, "estimator_options": dict(estimator_options),
+        "seed": int(cfg.seed), "sensor_draws": int(cfg.sensor_draws)})
+
+
+def task_digest(identity: Mapping[str, Any]) -> str:
+    """The task's key: the SHA-256 (hex) of its identity's canonical JSON."""
+    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def task_store_of(sim_bank: str = defaults.SIM_BANK) -> "TaskStore | None":
+    """The task store of a fit's ``--sim-bank`` setting (``"default"``: the user's bank, ``"off"``: none; else a
+    folder): ``BANK/tasks``; None when the bank is off (a stored task's prior round is read from the bank)."""
+    if sim_bank == "off" or not banks_enabled():
+        return None
+    bank = default_bank() if sim_bank == "default" else Path(sim_bank).expanduser()
+    return None if bank is None else TaskStore(bank / TASKS_FOLDER)
+
+
+@dataclass(frozen=True)
+class StoredTask:
+    """One stored task.
+
+    Attributes:
+        digest: its key (:func:`task_digest` of ``identity``).
+        identity: what determines it (:func:`task_identity`).
+        n_prior: the prior draws of its first round (the fit's round-1 draws ``[seed, 0, 0]``, seeds
+            ``[seed, 0, 1]``); the estimator was trained on the usable ones.
+        estimator: the trained estimator's state (restore: the plugin ``estimator.name`` with its options).
+        info: the training information (:meth:`~softsbi.core.interfaces.PosteriorEstimator.fit`'s, with counts).
+        report: the training report (``task train``: calibration on held-out prior simulations), or None
+            (stored by a fit's first round).
+        path: its folder.
+    """
+
+    digest: str
+    identity: dict[str, Any]
+    n_prior: int
+    estimator: EstimatorState
+    info: dict[str, Any]
+    report: dict[str, Any] | None
+    path: Path
+
+    @property
+    def model(self) -> str:
+        """The model's name: ``nominal`` or ``nominal+<effect>...`` (the effects switched on)."""
+        return "+".join(["nominal", *self.identity.get("effects", [])])
+
+    def restore(self) -> Any:
+        """The trained estimator, restored through the plugin registry (not yet conditioned on any observation).
+
+        Raises:
+            PluginNotFound: the estimator that trained it is not installed."""
+        est = registry().estimator(self.estimator.name)(**self.estimator.options)
+        est.load_state_dict(self.estimator.state)
+        return est
+
+
+class TaskStore:
+    """Stored tasks by key in a folder (created on the first store): ``<path>/<digest>/task.zarr``."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    def _where(self, digest: str) -> Path:
+        return self.path / digest
+
+    def get(self, digest: str) -> StoredTask | None:
+        """The stored task of ``digest``; None when absent, damaged (its checksum), of another format, or stored
+        under another key (a folder moved or copied)."""
+        where = self._where(digest)
+        if not (where / "task.zarr").is_dir():
+            return None
+        try:
+            g = zarr.open_group(str(where / "task.zarr"), mode="r")
+            attrs = dict(g.attrs)
+            identity = attrs["identity"]
+            if attrs.get("format") != TASK_FORMAT or task_digest(identity) != digest:
+                return None
+            state = read_posterior_group(lambda: g["estimator"], f"stored task {digest[:12]}", "train it again",
+                                         str(identity.get("softsbi")))
+        except (PosteriorDamaged, SchemaError, KeyError, OSError, ValueError):
+            return None
+        except Exception:  # noqa: BLE001 - an unreadable entry is an absent one: trained again
+            return None
+        if not isinstance(state, EstimatorState):
+            return None
+        return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs.get("info") or {}),
+                          attrs.get("report"), where)
+
+    def put(self, identity: Mapping[str, Any], n_prior: int, estimator: EstimatorState, info: Mapping[str, Any],
+            report: Mapping[str, Any] | None = None) -> StoredTask | None:
+        """Store a trained task (replacing the entry of its key). Returns it, or None when the store cannot be
+        written (a read-only or full disk: nothing is stored, nothing is lost)."""
+        digest = task_digest(identity)
+        arrays, attrs = encode_posterior(None, estimator, f"stored task {digest[:12]}")
+        tmp = self.path / "tmp" / f"{digest}-{uuid.uuid4().hex}"
+        where = self._where(digest)
+        try:
+            g = zarr.open_group(str(tmp / "task.zarr"), mode="w")
+            write_posterior(g.require_group("estimator"), arrays, attrs)
+            g.attrs.update(jsonable({"format": TASK_FORMAT, "identity": dict(identity), "n_prior": int(n_prior),
+                                     "info": dict(info), "report": None if report is None else dict(report)}))
+            if where.exists():
+                shutil.rmtree(where, ignore_errors=True)
+            where.parent.mkdir(parents=True, exist_ok=True)
+            tmp.rename(where)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            return None
+        return self.get(digest)
+
+    def list(self) -> list[StoredTask]:
+        """Every intact stored task (damaged entries are left out)."""
+        if not self.path.is_dir():
+            return []
+        found = (self.get(d.name) for d in sorted(self.path.iterdir()) if d.is_dir() and d.name != "tmp")
+        return [t for t in found if t is not None]
+
+    def find(self, prefix: str) -> StoredTask:
+        """The stored task whose key starts with ``prefix`` (at least 4 characters).
+
+        Raises:
+            SoftsbiError: no task or several tasks match (the line lists them)."""
+        prefix = prefix.strip().lower()
+        if len(prefix) < 4:
+            raise SoftsbiError(f"task key '{prefix}' is too short: give at least its first 4 characters "
+                               f"(`softsbi task list` shows them)")
+        hits = [t for t in self.list() if t.digest.startswith(prefix)]
+        if len(hits) != 1:
+            what = ("no stored task" if not hits else
+                    f"{len(hits)} stored tasks ({', '.join(t.digest[:12] for t in hits)})")
+            raise SoftsbiError(f"{what} in {self.path} match key '{prefix}'; `softsbi task list` shows the stored ones")
+        return hits[0]
+
+    def delete(self, prefix: str) -> StoredTask:
+        """Delete the stored task whose key starts with ``prefix`` (:meth:`find`); returns what was deleted."""
+        task = self.find(prefix)
+        shutil.rmtree(task.path)
+        return task
+
+
+class PriorRound:
+    """A fit's first round as a stored task: the task it uses (``task``, None when none is stored under its key)
+    and the store where it keeps the one it trains.
+
+    Args:
+        store: the task store (None: no stored tasks, e.g. ``--no-sim-bank``).
+        identity: the fit's first round's :func:`task_identity` (None: the fit cannot use stored tasks).
+    """
+
+    def __init__(self, store: TaskStore | None, identity: dict[str, Any] | None):
+        self.store, self.identity = store, identity
+        self.digest = None if identity is None else task_digest(identity)
+        self.task = None if store is None or self.digest is None else store.get(self.digest)
+
+    @classmethod
+    def of(cls, cfg: FitConfig, space: ParamSpace, ctx: SimContext,
+           estimator_options: Mapping[str, Any]) -> "PriorRound":
+        """The first round of a fit (``cfg`` resolved, ``space`` its first round's parameters): none with
+        ``--sensor-draws`` (its extra observations are drawn per round) or without a simulation bank."""
+        store = task_store_of(cfg.sim_bank)
+        if store is None or cfg.sensor_draws:
+            return cls(None, None)
+        return cls(store, task_identity(cfg, space, ctx, estimator_options))
+
+    def n_prior(self, default: int) -> int:
+        """The first round's prior draws: the stored task's, else ``default`` (``--sims-per-round``)."""
+        return default if self.task is None else self.task.n_prior
+
+    def keep(self, n_prior: int, est: Any, info: Mapping[str, Any], options: Mapping[str, Any],
+             name: str) -> StoredTask | None:
+        """Store the first round's trained estimator ``est`` (plugin ``name`` with ``options``) as the task when
+        none is stored under its key; None when nothing was stored (a task was already there, no store, or an
+        estimator without a state)."""
+        if self.store is None or self.identity is None or self.task is not None:
+            return None
+        try:
+            state = EstimatorState(name, dict(options), est.state_dict())
+        except NotImplementedError:
+            return None
+        self.task = self.store.put(self.identity, n_prior, state, info)
+        return self.task

@@ -1,0 +1,92 @@
+"""A task is trained once: a fit's first round is stored as the task and conditioned, not trained, for every later
+recording of it; ``task train`` trains one with its training report, and the CLI lists, shows and deletes them."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.integration
+
+
+def _cfg(**kw):
+    from softsbi.workflows.fit import FitConfig
+    base = dict(backend="toy-gauss", rounds=1, sims_per_round=40, workers=1, n_points=16, n_dense=64, n_eval=5,
+                estimator="mdnn", estimator_options={"max_epochs": 8})
+    return FitConfig(**{**base, **kw})
+
+
+def _counting_fits(monkeypatch):
+    from softsbi.plugins import registry
+    cls = registry().estimator("mdnn")
+    calls = []
+    original = cls.fit
+    monkeypatch.setattr(cls, "fit", lambda self, *a, **k: calls.append(len(a[0])) or original(self, *a, **k))
+    return calls
+
+
+def test_a_later_recording_of_a_task_conditions_the_stored_first_round_instead_of_training_it(tmp_path, monkeypatch):
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.fit import run_fit
+    from softsbi.workflows.rounds import round_posterior
+    from softsbi.workflows.tasks import TaskStore
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    calls = _counting_fits(monkeypatch)
+    run_fit(tmp_path / "a", toy_measurement(truth=(0.3, -0.4)), _cfg(), make_plots=False)
+    assert calls == [40] and len(TaskStore(tmp_path / "bank" / "tasks").list()) == 1
+    rec = toy_measurement(truth=(-0.2, 0.1))
+    b = run_fit(tmp_path / "b", rec, _cfg(), make_plots=False)
+    assert calls == [40]  # the second recording trained nothing
+    info = b.store.round_attrs(0)["info"]
+    assert info["trained_here"] is False and info["task"] == TaskStore(tmp_path / "bank" / "tasks").list()[0].digest
+    scratch = run_fit(tmp_path / "c", rec, _cfg(sim_bank="off"), make_plots=False)  # no bank: no stored task
+    assert calls == [40, 40]
+    qb = round_posterior(b.store, 0, _cfg())
+    qc = round_posterior(scratch.store, 0, _cfg())
+    np.testing.assert_allclose(qb.mean(), qc.mean(), atol=1e-8)  # the stored task is what training would give
+    # another prior is another task: trained, and stored beside the first
+    run_fit(tmp_path / "d", rec, _cfg(bounds={"a": (-2.0, 2.0)}), make_plots=False)
+    assert len(calls) == 3 and len(TaskStore(tmp_path / "bank" / "tasks").list()) == 2
+
+
+def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_simulations(tmp_path, monkeypatch):
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.fit import run_fit
+    from softsbi.workflows.task_training import train_task
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    rec = toy_measurement(truth=(0.3, -0.4))
+    (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50)
+    rep = task.report
+    assert task.n_prior == 80 and rep["n_test"] == 30 and set(rep["contraction"]) == {"a", "b"}
+    assert len(rep["sbc"]["rejects"]) == 2 and 0 <= rep["coverage"]["at_90"] <= 1 and "verdict" in rep
+    calls = _counting_fits(monkeypatch)
+    again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50)[0]
+    assert calls == [] and again.digest == task.digest  # stored with its report: not trained again
+    res = run_fit(tmp_path / "run", toy_measurement(truth=(-0.1, 0.2)), _cfg(sims_per_round=20), make_plots=False)
+    assert calls == [] and len(res.store.round_data(0)["status"]) == 80  # the task's 80 prior draws, no training
+
+
+def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.fit import run_fit
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    run_fit(tmp_path / "a", toy_measurement(), _cfg(), make_plots=False)
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "softsbi.cli", "task", *args], capture_output=True, text=True)
+
+    listed = json.loads(cli("list", "--json").stdout)
+    assert len(listed) == 1 and listed[0]["model"] == "nominal" and listed[0]["n_prior"] == 40
+    key = listed[0]["key"]
+    shown = cli("show", key[:8])
+    assert shown.returncode == 0 and key in shown.stdout and "no training report" in shown.stdout
+    bad = cli("show", "zz")
+    assert bad.returncode != 0 and "at least its first 4" in bad.stdout + bad.stderr
+    assert cli("delete", key[:8]).returncode == 0
+    assert json.loads(cli("list", "--json").stdout) == []
