@@ -17,6 +17,7 @@ import numpy as np
 
 from softsbi.backends.common import check_effects
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
+from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.types import INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
@@ -86,6 +87,24 @@ def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, f
     return ro, what
 
 
+def _simulate_observed(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
+                       seed: int) -> tuple[Any, str | None]:
+    """:func:`_simulate` with ``effects``; with a bank, the observation-only effects (sensor effects: every door of
+    theirs is an observation transform) are applied after the banked rollout of the others, which does not depend on
+    them, so a model with a sensor effect reads the nominal model's rollouts. The same numbers as simulating with
+    every effect: the backends apply the observation transforms last, in order, seeded by ``seed``."""
+    if ctx.bank is None or not effects:
+        return _simulate(ctx, sim, scenario, values, effects, seed)
+    plan = check_effects(sim, effects)
+    sensor = [e for e in plan.observers if set(e.doors(sim.name)) == {OBSERVATION}]
+    if not sensor or len(sensor) != len(plan.observers):  # none, or mixed with a physical one's: keep the order
+        return _simulate(ctx, sim, scenario, values, effects, seed)
+    own = {p.name for e in sensor for p in e.param_space()}
+    raw, banked = _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
+                            [e.name for e in plan.effects if e not in sensor], seed)
+    return check_effects(sim, [e.name for e in sensor]).observe(raw, values, seed), banked
+
+
 def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
     """Simulate one parameter vector, observe it and score it against the measurement.
 
@@ -134,7 +153,7 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
                             [e for e in effects if e not in draws["effects"]], int(seed))
             ro = plan.observe(raw, values, int(seed))
         else:
-            ro, banked = _simulate(ctx, sim, scenario, values, effects, int(seed))
+            ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, int(seed))
     except SoftsbiError:
         raise
     except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed

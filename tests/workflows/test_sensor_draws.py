@@ -42,6 +42,19 @@ def test_one_simulation_observed_at_each_draw_gives_what_separate_simulations_gi
     assert np.abs(res["sensor_x"][1] - res["x"]).max() > 1e-3  # the offset moves the observed rope
 
 
+def test_with_a_bank_a_sensor_effect_reads_the_nominal_rollout_and_observes_what_simulating_it_gives(tmp_path):
+    """A model with an observation-only effect (time-offset) reads the rollout the nominal model stored in the bank
+    (its physics does not depend on the sensor) and observes exactly what simulating with the effect gives."""
+    from dataclasses import replace
+    from softsbi.workflows.bank import HIT
+    nominal = replace(_ctx([]), bank=str(tmp_path / "bank"))
+    values = {k: v for k, v in TRUTH.items() if k != "time_offset"}
+    assert simulate_job(nominal, (values, 5))["bank"] != HIT
+    banked = simulate_job(replace(_ctx(["time-offset"]), bank=str(tmp_path / "bank")), (TRUTH, 5))
+    assert banked["bank"] == HIT
+    np.testing.assert_array_equal(banked["x"], simulate_job(_ctx(["time-offset"]), (TRUTH, 5))["x"])
+
+
 def test_draws_change_only_the_sensor_parameters_and_stay_in_the_proposal():
     """Rows keep their physics parameters; the sensor dimensions are uniform (the prior) or inside the
     truncated proposal's region."""
