@@ -101,7 +101,8 @@ class RoundRow:
             final posterior's Chamfer (m; only the last round has it). mask_chamfer_posterior_px,
             mask_chamfer_posterior_std_px: the same for an image fit (px). mass_in_box: the round posterior's mass
             inside the prior box. train_seconds: the estimator's training time. posterior_mean: the round
-            posterior's mean (own units).
+            posterior's mean (own units). task: the key of the stored task whose trained posterior the round
+            conditioned instead of training (:mod:`softsbi.workflows.tasks`), else None.
     """
 
     round: int
@@ -115,12 +116,14 @@ class RoundRow:
     mass_in_box: float | None = None
     train_seconds: float | None = None
     posterior_mean: Mapping[str, float] | None = None
+    task: str | None = None
 
     def to_json(self, metric: str) -> dict[str, Any]:
         """The row as written for a report of ``metric`` (an image fit's rows carry the ``_px`` pair instead)."""
         d = _plain(self)
         drop = ("chamfer_posterior_m", "chamfer_posterior_std_m") if metric == MASK_METRIC else (
             "mask_chamfer_posterior_px", "mask_chamfer_posterior_std_px")
+        drop += ("task",) if self.task is None else ()  # a round trained in the fit
         return {k: v for k, v in d.items() if k not in drop}
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit,
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
+from softsbi.core.store import RunStore
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
@@ -36,6 +37,7 @@ from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.runs import RunView
 from softsbi.workflows.screening import candidate_effects, check_resolution
+from softsbi.workflows.tasks import served_by_task
 from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
 
@@ -184,11 +186,14 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     """
     effects = tuple(effects)
     base = FitConfig.from_run_config(run.config)
-    cfg = replace(base, effects=list(run.effects) + list(effects), rounds=int(rounds or base.rounds),
+    first = RunStore.open(run.path / "run.zarr", mode="r").round_attrs(0).get("info", {})
+    if rounds is None and not served_by_task(first):
+        rounds = base.rounds  # else None: from the refit's own stored task when there is one, as the nominal fit
+    cfg = replace(base, effects=list(run.effects) + list(effects), rounds=rounds,
                   sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
                   sensor_draws=0, workers=workers if workers is not None else base.workers)
     out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
-    run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
+    fitted = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
     pool = PosteriorPredictive(out, workers, seed)  # the refit, loaded once: its check and score share it
     chk = check_run(pool.run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
                     effects=[e for e in family if e not in effects])
@@ -197,7 +202,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
              if scale is not None and len(f) >= 3 else None)
     # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
     return Refit(effects, str(out), chk.test, score, chk.chamfer_mean_m, estimates(pool.run.report, effects), chk.ranking,
-                 cfg.rounds, cfg.sims_per_round, chk.n_rollouts)
+                 int(fitted.report["rounds"]), cfg.sims_per_round, chk.n_rollouts)
 
 
 def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]:

@@ -41,6 +41,7 @@ from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fi
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, parameter_table
 from softsbi.workflows.fitreport import build_report, chamfer_stats, damaged_report, read_report
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, simulate_job
+from softsbi.workflows import defaults
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.observe import fit_sim_context, metric_sensor, observer_options
 from softsbi.workflows.progress import FitCallbacks
@@ -118,6 +119,9 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     exe_cls = reg.executor(cfg.executor)
     _, base = fit_param_space(cfg, recording.scenario)
     space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
+    prior = PriorRound.of(cfg, recording, base)  # the first round as a stored task (:mod:`.tasks`)
+    if cfg.rounds is None:  # a stored task's posterior alone, else the sequential rounds
+        cfg = replace(cfg, rounds=1 if prior.usable(cfg.sims_per_round) else defaults.ROUNDS)
     store, prev = open_store(out_dir, recording, cfg, space, callbacks)
     damaged = damaged_report(out_dir)
     if damaged is not None:
@@ -128,7 +132,6 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
         retry_failed_simulations(store, callbacks)
     space = reconcile(store, base, callbacks.message)
     ctx = fit_sim_context(cfg, recording, store, space)
-    prior = PriorRound.of(cfg, space_of_round(base, store.config, 0), ctx, estimator_options(cfg, est_cls))
     loop = Rounds(cfg, store, space, ctx, est_cls, callbacks, clock, prior)
     executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     try:

@@ -72,8 +72,10 @@ class FitConfig:
         observer_options: extra constructor options of the observer, e.g. for the image observers
             ``{"extractor": "heatmap.pt", "size": 128}``.
         estimator: posterior-estimator plugin name; ``estimator_options`` its config.
-        rounds: number of sequential rounds (may be raised on resume); sims_per_round: simulations
-            per round (the simulation budget is ``rounds * sims_per_round``).
+        rounds: number of sequential rounds (may be raised on resume); None (the default): 1 when the fit's task
+            is stored (:mod:`~softsbi.workflows.tasks`: its trained posterior conditioned on the recording), else
+            :data:`~softsbi.workflows.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
+            budget is ``rounds * sims_per_round``).
         seed: fixes every draw and every simulation seed.
         n_eval: rollouts at final-posterior samples (the posterior predictive) for the reported Chamfer.
         n_dense: points sampled per simulated frame for the Chamfer distance.
@@ -138,7 +140,7 @@ class FitConfig:
     observer_options: dict[str, Any] = field(default_factory=dict)
     estimator: str = _resume(defaults.ESTIMATOR)
     estimator_options: dict[str, Any] = field(default_factory=dict)
-    rounds: int = defaults.ROUNDS
+    rounds: int | None = None
     sims_per_round: int = _resume(defaults.SIMS_PER_ROUND)
     seed: int = _resume(defaults.SEED)
     n_eval: int = defaults.N_EVAL
@@ -173,7 +175,7 @@ class FitConfig:
             raise SoftsbiError(f"--seed must be >= 0 (got {self.seed})")
         if not isinstance(self.sensor_draws, int) or self.sensor_draws < 0:
             raise SoftsbiError(f"sensor_draws must be an integer >= 0 (got {self.sensor_draws!r})")
-        if self.rounds < 1:
+        if self.rounds is not None and self.rounds < 1:
             raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
         if self.sims_per_round < defaults.MIN_SIMS_PER_ROUND:
             raise SoftsbiError(f"--sims-per-round must be >= {defaults.MIN_SIMS_PER_ROUND} (got {self.sims_per_round}); "

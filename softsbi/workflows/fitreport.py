@@ -15,6 +15,7 @@ from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.plugins import registry
 from softsbi.workflows.fitconfig import FitConfig
+from softsbi.workflows.tasks import served_by_task
 
 
 class RoundsOutcome(Protocol):
@@ -127,7 +128,8 @@ def build_report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: 
                        "chamfer_posterior_m": (s.get("chamfer_posterior") or {}).get("mean_m"),
                        "chamfer_posterior_std_m": (s.get("chamfer_posterior") or {}).get("std_m"),
                        "mass_in_box": s["mass_in_box"], "train_seconds": s["train"].get("seconds"),
-                       "posterior_mean": s["posterior_mean"]} for s in summaries],
+                       "posterior_mean": s["posterior_mean"],
+                       **({"task": s["train"]["task"]} if served_by_task(s["train"]) else {})} for s in summaries],
         "wall_time_s": wall,
         "metric": metric,
     }

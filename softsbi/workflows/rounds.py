@@ -270,7 +270,7 @@ class Rounds:
             if self.truncated:
                 proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
         rng = np.random.default_rng([cfg.seed, r, 0])
-        n = self.prior.n_prior(cfg.sims_per_round) if r == 0 else cfg.sims_per_round
+        n = cfg.sims_per_round
         u = rng.random((n, space.dim)) if proposal is None else proposal.sample(n, rng)
         what = "prior" if proposal is None else (
             f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
@@ -292,10 +292,11 @@ class Rounds:
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
         n_drawn = len(store.round_data(r, ("status",))["status"])
         task = self.prior.task
-        if r == 0 and task is not None and task.n_prior == n_drawn:  # trained once for this task: condition only
+        if r == 0 and self.prior.usable(n_drawn):
+            # trained once for this task, on prior draws whose first n_drawn are this round's: condition only
             q = task.restore().posterior_at(self.x_obs[fr])
-            self.cb.message(f"round 1: the stored task {task.digest[:12]} ({task.n_prior} prior simulations, "
-                            f"trained once): conditioned on this recording, no training")
+            self.cb.message(f"round 1: the stored task {task.digest[:12]} (trained once on {task.n_prior} prior "
+                            f"simulations): conditioned on this recording, no training")
             info = dict(task.info, task=task.digest, trained_here=False)
             store.finish_round(r, q, info, estimator=None if isinstance(q, MixtureOfGaussians) else task.estimator)
             return q, info

@@ -33,9 +33,8 @@ from softsbi.workflows import defaults
 from softsbi.workflows.calibrate import calibration_stats
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.jobs import SimContext, _round_seeds, run_jobs
-from softsbi.workflows.observe import metric_sensor, observer_options
 from softsbi.workflows.screening import is_generic
-from softsbi.workflows.tasks import PriorRound, StoredTask
+from softsbi.workflows.tasks import PriorRound, StoredTask, first_round_context
 
 #: seed stream of the held-out simulations (never a fit's: a fit's rounds use ``[seed, r, .]`` with small ``r``)
 TEST_STREAM = 7070
@@ -57,16 +56,6 @@ def candidate_models(cfg: FitConfig, names: Sequence[str] | None) -> list[list[s
         raise SoftsbiError(f"--candidates: backend '{cfg.backend}' cannot apply {bad}; it applies "
                            f"{list(sim_cls.effects)}")
     return [list(cfg.effects)] + [list(cfg.effects) + [n] for n in names if n not in cfg.effects]
-
-
-def _context(cfg: FitConfig, recording: Recording, space: ParamSpace) -> SimContext:
-    """The simulation context of a fit's first round, without a measurement to score against."""
-    sensor = metric_sensor(cfg, recording.scenario)
-    return SimContext(backend=cfg.backend, backend_options=cfg.backend_options, scenario=recording.scenario.to_json(),
-                      effects=list(cfg.effects), observer=cfg.observer,
-                      observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
-                      fixed=dict(cfg.fixed), dense=None, n_dense=cfg.n_dense, min_z=sensor["metric_min_z"],
-                      camera=sensor["metric_camera"])
 
 
 def _simulate(ctx: SimContext, space: ParamSpace, u: np.ndarray, seeds: np.ndarray, cfg: FitConfig,
@@ -99,7 +88,7 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
             every simulation failed. PosteriorError: the estimator puts no mass in the prior box.
     """
     say = message or (lambda s: None)
-    cfg = cfg.resolved(recording)
+    cfg = replace(cfg.resolved(recording), rounds=1)
     cfg.validate()
     if needs_images(cfg):
         raise SoftsbiError("task train takes point-cloud fits; an image observer's fits train per recording")
@@ -108,8 +97,8 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     est_cls = registry().estimator(cfg.estimator)
     opts = estimator_options(cfg, est_cls)
     _, space = fit_param_space(cfg, recording.scenario)
-    ctx = _context(cfg, recording, space)
-    prior = PriorRound.of(cfg, space, ctx, opts)
+    ctx = first_round_context(cfg, recording, space)
+    prior = PriorRound.of(cfg, recording, space)
     if prior.store is None:
         raise SoftsbiError("stored tasks live in the simulation bank, which is off: give --sim-bank DIR (or unset "
                            "SOFTSBI_SIM_BANK=off)")

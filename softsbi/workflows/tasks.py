@@ -40,12 +40,13 @@ import zarr
 
 from softsbi.core.errors import PosteriorDamaged, SchemaError, SoftsbiError
 from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
-from softsbi.core.types import ParamSpace, jsonable
+from softsbi.core.types import ParamSpace, Recording, jsonable
 from softsbi.plugins import registry
 from softsbi.workflows import defaults
 from softsbi.workflows.bank import _engine_version, banks_enabled, default_bank
-from softsbi.workflows.fitconfig import FitConfig, resume_identity
+from softsbi.workflows.fitconfig import FitConfig, estimator_options, needs_images, resume_identity
 from softsbi.workflows.jobs import SimContext
+from softsbi.workflows.observe import metric_sensor, observer_options
 
 #: format of a stored task (part of its key: a new format trains every task again)
 TASK_FORMAT = "softsbi.task/1"
@@ -80,6 +81,17 @@ def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_
         "parameters": space.to_json(), "fixed": dict(cfg.fixed),
         "estimator": cfg.estimator, "estimator_options": dict(estimator_options),
         "seed": int(cfg.seed), "sensor_draws": int(cfg.sensor_draws)})
+
+
+def first_round_context(cfg: FitConfig, recording: Recording, space: ParamSpace) -> SimContext:
+    """The simulation context of a fit's first round as far as the task goes: the simulator, the scenario, the
+    observer and the sensor model, without a measurement to score against (``dense`` None)."""
+    sensor = metric_sensor(cfg, recording.scenario)
+    return SimContext(backend=cfg.backend, backend_options=cfg.backend_options, scenario=recording.scenario.to_json(),
+                      effects=list(cfg.effects), observer=cfg.observer,
+                      observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
+                      fixed=dict(cfg.fixed), dense=None, n_dense=cfg.n_dense, min_z=sensor["metric_min_z"],
+                      camera=sensor["metric_camera"])
 
 
 def task_digest(identity: Mapping[str, Any]) -> str:
@@ -234,18 +246,23 @@ class PriorRound:
         self.task = None if store is None or self.digest is None else store.get(self.digest)
 
     @classmethod
-    def of(cls, cfg: FitConfig, space: ParamSpace, ctx: SimContext,
-           estimator_options: Mapping[str, Any]) -> "PriorRound":
-        """The first round of a fit (``cfg`` resolved, ``space`` its first round's parameters): none with
-        ``--sensor-draws`` (its extra observations are drawn per round) or without a simulation bank."""
-        store = task_store_of(cfg.sim_bank)
-        if store is None or cfg.sensor_draws:
-            return cls(None, None)
-        return cls(store, task_identity(cfg, space, ctx, estimator_options))
+    def of(cls, cfg: FitConfig, recording: Recording, space: ParamSpace) -> "PriorRound":
+        """The first round of a fit of ``recording`` (``cfg`` resolved, ``space`` the first round's parameters):
+        none with ``--sensor-draws`` (its extra observations are drawn per round), an image observer (its fits are
+        per recording) or without a simulation bank.
 
-    def n_prior(self, default: int) -> int:
-        """The first round's prior draws: the stored task's, else ``default`` (``--sims-per-round``)."""
-        return default if self.task is None else self.task.n_prior
+        Raises:
+            PluginNotFound: the estimator or an effect of ``cfg`` is not installed."""
+        store = task_store_of(cfg.sim_bank)
+        if store is None or cfg.sensor_draws or needs_images(cfg):
+            return cls(None, None)
+        opts = estimator_options(cfg, registry().estimator(cfg.estimator))
+        return cls(store, task_identity(cfg, space, first_round_context(cfg, recording, space), opts))
+
+    def usable(self, n_drawn: int) -> bool:
+        """Whether the stored task serves a first round of ``n_drawn`` prior draws: it was trained on at least as
+        many (the first ``n_drawn`` of its draws are the round's)."""
+        return self.task is not None and self.task.n_prior >= n_drawn
 
     def keep(self, n_prior: int, est: Any, info: Mapping[str, Any], options: Mapping[str, Any],
              name: str) -> StoredTask | None:
@@ -260,3 +277,8 @@ class PriorRound:
             return None
         self.task = self.store.put(self.identity, n_prior, state, info)
         return self.task
+
+
+def served_by_task(info: Mapping[str, Any]) -> bool:
+    """Whether a fit's first round was a stored task's posterior (``info``: the round's stored training info)."""
+    return info.get("trained_here") is False and bool(info.get("task"))

@@ -43,6 +43,7 @@ def test_a_later_recording_of_a_task_conditions_the_stored_first_round_instead_o
     assert calls == [40]  # the second recording trained nothing
     info = b.store.round_attrs(0)["info"]
     assert info["trained_here"] is False and info["task"] == TaskStore(tmp_path / "bank" / "tasks").list()[0].digest
+    assert b.report["per_round"][0]["task"] == info["task"]  # the report names the task that served the round
     scratch = run_fit(tmp_path / "c", rec, _cfg(sim_bank="off"), make_plots=False)  # no bank: no stored task
     assert calls == [40, 40]
     qb = round_posterior(b.store, 0, _cfg())
@@ -67,8 +68,14 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     calls = _counting_fits(monkeypatch)
     again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50)[0]
     assert calls == [] and again.digest == task.digest  # stored with its report: not trained again
-    res = run_fit(tmp_path / "run", toy_measurement(truth=(-0.1, 0.2)), _cfg(sims_per_round=20), make_plots=False)
-    assert calls == [] and len(res.store.round_data(0)["status"]) == 80  # the task's 80 prior draws, no training
+    rec2 = toy_measurement(truth=(-0.1, 0.2))
+    res = run_fit(tmp_path / "run", rec2, _cfg(sims_per_round=20, rounds=None), make_plots=False)
+    # by default a stored task's posterior alone: one round, whose 20 draws are the first of the task's 80, no training
+    assert calls == [] and res.report["rounds"] == 1 and len(res.store.round_data(0)["status"]) == 20
+    np.testing.assert_array_equal(res.store.round_data(0)["u"], np.random.default_rng([0, 0, 0]).random((80, 2))[:20])
+    scratch = run_fit(tmp_path / "scratch", rec2, _cfg(sims_per_round=10, rounds=None, sim_bank="off"),
+                      make_plots=False)
+    assert scratch.report["rounds"] == 4 and len(calls) == 4  # no stored task: the sequential default
 
 
 def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
