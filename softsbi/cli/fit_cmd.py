@@ -33,8 +33,8 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         out: Path = typer.Option(..., help="run directory (resumes if it holds a run)"),
         backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
         estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
-        rounds: Optional[int] = typer.Option(None, help=f"sequential rounds (paper: 15); default: 1 when the task is "
-                                                        f"stored (`softsbi task`), else {D.ROUNDS}",
+        rounds: Optional[int] = typer.Option(None, help=f"sequential rounds (paper: 15); default: 1 when the task was "
+                                                        f"trained (`softsbi task train`), else {D.ROUNDS}",
                                              callback=ROUNDS_OK),
         sims_per_round: int = typer.Option(D.SIMS_PER_ROUND, help="simulations per round (paper: 100)",
                                            callback=SIMS_OK),

@@ -73,8 +73,8 @@ class FitConfig:
             ``{"extractor": "heatmap.pt", "size": 128}``.
         estimator: posterior-estimator plugin name; ``estimator_options`` its config.
         rounds: number of sequential rounds (may be raised on resume); None (the default): 1 when the fit's task
-            is stored (:mod:`~softsbi.workflows.tasks`: its trained posterior conditioned on the recording), else
-            :data:`~softsbi.workflows.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
+            was trained by ``softsbi task train`` (:mod:`~softsbi.workflows.tasks`: its trained posterior conditioned
+            on the recording), else :data:`~softsbi.workflows.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
             budget is ``rounds * sims_per_round``).
         seed: fixes every draw and every simulation seed.
         n_eval: rollouts at final-posterior samples (the posterior predictive) for the reported Chamfer.

@@ -264,6 +264,12 @@ class PriorRound:
         many (the first ``n_drawn`` of its draws are the round's)."""
         return self.task is not None and self.task.n_prior >= n_drawn
 
+    def trained(self, n_drawn: int) -> bool:
+        """Whether the stored task serves a first round of ``n_drawn`` draws (:meth:`usable`) and was trained by
+        ``task train`` with its training report: its posterior was measured on held-out simulations, so a fit may
+        stop at it (a task stored by a fit's first round only starts the fit's sequential rounds)."""
+        return self.usable(n_drawn) and self.task is not None and self.task.report is not None
+
     def keep(self, n_prior: int, est: Any, info: Mapping[str, Any], options: Mapping[str, Any],
              name: str) -> StoredTask | None:
         """Store the first round's trained estimator ``est`` (plugin ``name`` with ``options``) as the task when

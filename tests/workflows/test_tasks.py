@@ -41,17 +41,20 @@ def test_a_later_recording_of_a_task_conditions_the_stored_first_round_instead_o
     rec = toy_measurement(truth=(-0.2, 0.1))
     b = run_fit(tmp_path / "b", rec, _cfg(), make_plots=False)
     assert calls == [40]  # the second recording trained nothing
+    auto = run_fit(tmp_path / "b4", rec, _cfg(rounds=None, sims_per_round=40), make_plots=False)
+    assert auto.report["rounds"] == 4  # a task stored by a fit starts the sequential rounds; it is not the posterior
     info = b.store.round_attrs(0)["info"]
     assert info["trained_here"] is False and info["task"] == TaskStore(tmp_path / "bank" / "tasks").list()[0].digest
     assert b.report["per_round"][0]["task"] == info["task"]  # the report names the task that served the round
+    assert calls == [40, 80, 120, 160]  # its rounds 2-4 trained on all so far, round 1 not
     scratch = run_fit(tmp_path / "c", rec, _cfg(sim_bank="off"), make_plots=False)  # no bank: no stored task
-    assert calls == [40, 40]
+    assert len(calls) == 5
     qb = round_posterior(b.store, 0, _cfg())
     qc = round_posterior(scratch.store, 0, _cfg())
     np.testing.assert_allclose(qb.mean(), qc.mean(), atol=1e-8)  # the stored task is what training would give
     # another prior is another task: trained, and stored beside the first
     run_fit(tmp_path / "d", rec, _cfg(bounds={"a": (-2.0, 2.0)}), make_plots=False)
-    assert len(calls) == 3 and len(TaskStore(tmp_path / "bank" / "tasks").list()) == 2
+    assert len(calls) == 6 and len(TaskStore(tmp_path / "bank" / "tasks").list()) == 2
 
 
 def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_simulations(tmp_path, monkeypatch):
