@@ -47,6 +47,7 @@ from softsbi.report.calibration import plot_calibration
 from softsbi.workflows import defaults
 from softsbi.workflows.fitconfig import FitConfig, estimator_options as fit_estimator_options
 from softsbi.workflows.rounds import round_posterior, usable_simulations
+from softsbi.workflows.tasks import served_by_task, task_store_of
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.widen import MappedProposal, map_mixture, round_spaces, unit_map
@@ -214,6 +215,9 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
                            f"command first")
     last = rounds[-1]
+    task_line = trained_task_line(store.round_attrs(0).get("info", {}), cfg.sim_bank)
+    if task_line:
+        msg(task_line)
     U, X, counts = usable_simulations(store, last)
     t0 = time.perf_counter()
     with run_lock(run_dir):  # only the writes need the lock: training and evaluating read the store
@@ -336,3 +340,18 @@ def calibration_stats(est: Any, u_test: np.ndarray, x_test: np.ndarray, names: l
                      for d in range(len(names))],
             "tarp": tarp, "ver": cal.verdict(cov, n, tarp, ranks, n_draws, n_bins, names, levels),
             "draws": draws_a, "keep": keep}
+
+
+def trained_task_line(info: Mapping[str, Any], sim_bank: str) -> str | None:
+    """The sentence that gives the training report of the stored task that served a run's first round (``info``:
+    the round's stored training info; ``sim_bank`` the run's setting), or None when no trained task served it."""
+    if not served_by_task(info):
+        return None
+    store = task_store_of(sim_bank)
+    task = None if store is None else store.get(str(info["task"]))
+    if task is None or task.report is None:
+        return None
+    r = task.report
+    return (f"round 1's posterior is stored task {task.digest[:12]}'s, measured when it was trained on "
+            f"{r['n_test']} held-out prior simulations: coverage {r['coverage']['at_50']:.2f} at 50%, "
+            f"{r['coverage']['at_90']:.2f} at 90%; {r['verdict']} (`softsbi task show {task.digest[:12]}`)")

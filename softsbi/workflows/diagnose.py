@@ -25,7 +25,6 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit,
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
-from softsbi.core.store import RunStore
 from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
@@ -37,7 +36,6 @@ from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.runs import RunView
 from softsbi.workflows.screening import candidate_effects, check_resolution
-from softsbi.workflows.tasks import served_by_task
 from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
 
@@ -186,8 +184,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     """
     effects = tuple(effects)
     base = FitConfig.from_run_config(run.config)
-    first = RunStore.open(run.path / "run.zarr", mode="r").round_attrs(0).get("info", {})
-    if rounds is None and not served_by_task(first):
+    if rounds is None and not (run.report.per_round and run.report.per_round[0].task):
         rounds = base.rounds  # else None: from the refit's own stored task when there is one, as the nominal fit
     cfg = replace(base, effects=list(run.effects) + list(effects), rounds=rounds,
                   sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,

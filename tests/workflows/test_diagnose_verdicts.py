@@ -1,5 +1,7 @@
 """diagnose's verdicts: on hand-built refits (the decision and the refits it proposes, as diagnose_run drives them),
 how a refit is set up, and on a MuJoCo lift measurement (slow: it fits the nominal model)."""
+import types
+
 import pytest
 
 from result_helpers import candidate, joint, refit, score
@@ -203,6 +205,7 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
         config = {"backend": "toy-gauss"}
         effects = ["time-offset"]
         path = tmp_path
+        report = types.SimpleNamespace(per_round=[types.SimpleNamespace(task=None)])  # round 1 trained in the fit
 
     monkeypatch.setattr(dg, "run_fit", fake_fit)
     monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
@@ -220,6 +223,11 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
         dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], None, rounds=3, sims_per_round=40)
     assert seen["out"] == tmp_path / "refit-wind+point-noise"
     assert (seen["cfg"].rounds, seen["cfg"].sims_per_round, seen["cfg"].sensor_draws) == (3, 40, 0)
+    amortised = _Run()
+    amortised.report = types.SimpleNamespace(per_round=[types.SimpleNamespace(task="ab" * 32)])
+    with pytest.raises(_Stop):
+        dg.refit_model(amortised, ["wind"], ["point-noise", "wind"], None)
+    assert seen["cfg"].rounds is None  # the nominal fit stopped at a trained task: so does the refit, where it can
 
 
 def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them_and_the_bound_they_press():

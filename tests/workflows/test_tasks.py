@@ -76,6 +76,9 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     # by default a stored task's posterior alone: one round, whose 20 draws are the first of the task's 80, no training
     assert calls == [] and res.report["rounds"] == 1 and len(res.store.round_data(0)["status"]) == 20
     np.testing.assert_array_equal(res.store.round_data(0)["u"], np.random.default_rng([0, 0, 0]).random((80, 2))[:20])
+    from softsbi.workflows.calibrate import trained_task_line  # calibrate names the task's training report
+    line = trained_task_line(res.store.round_attrs(0)["info"], "default")
+    assert task.digest[:12] in line and "30 held-out prior simulations" in line
     scratch = run_fit(tmp_path / "scratch", rec2, _cfg(sims_per_round=10, rounds=None, sim_bank="off"),
                       make_plots=False)
     assert scratch.report["rounds"] == 4 and len(calls) == 4  # no stored task: the sequential default
