@@ -226,7 +226,7 @@ class Rounds:
         cfg, store = self.cfg, self.store
         if not store.is_begun(r):
             self._begin(r)
-        self.cb.round_start(r, cfg.rounds, len(store.pending(r)), len(store.round_data(r, ("status",))["status"]))
+        self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
         bank = sim_bank(cfg) if r == 0 else None  # the first round's draws depend on the task and the seed alone
         ctx = self.ctx if bank is None else replace(self.ctx, bank=str(bank))
         _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
@@ -270,14 +270,13 @@ class Rounds:
             if self.truncated:
                 proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
         rng = np.random.default_rng([cfg.seed, r, 0])
-        n = cfg.sims_per_round
-        u = rng.random((n, space.dim)) if proposal is None else proposal.sample(n, rng)
+        u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
         what = "prior" if proposal is None else (
             f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
             f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r}")
         sensor_u = (self.sensor.draw(u, proposal, np.random.default_rng([cfg.seed, r, 1]))
                     if self.sensor is not None else None)
-        self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, n),
+        self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
                                self.x_obs.shape, what, sensor_u=sensor_u)
 
     def _train(self, r: int, U: np.ndarray, X: np.ndarray, counts: list[int]) -> tuple[Any, dict[str, Any]]:
