@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 # the JSON form and the result files' writer and reader (softsbi.core.jsonfile), importable from here too
 from softsbi.core.jsonfile import (RENAMED, SCHEMA, UPGRADED, ResultDamaged, ResultUnwritable, check_result_path,  # noqa: F401
@@ -271,6 +271,24 @@ class Gain:
 
 
 @dataclass(frozen=True)
+class RefitGain:
+    """A refit's score against the model it extends (the nominal fit's for one effect, its first effect's refit for a
+    pair): ``effects`` the refit's added effects, ``gain`` the :class:`Gain`."""
+
+    effects: tuple[str, ...]
+    gain: Gain
+
+
+class Role(str, Enum):
+    """What a diagnosis' decision says of one refit (:meth:`Decision.role`)."""
+
+    NAMED = "named"
+    INDISTINGUISHABLE = "indistinguishable"
+    PARTIAL = "explains a part"
+    NOT_NAMED = "not named"
+
+
+@dataclass(frozen=True)
 class Decision:
     """What a diagnosis concludes (:func:`softsbi.workflows.decide.decide`).
 
@@ -278,9 +296,11 @@ class Decision:
         verdict: one of :data:`VERDICTS`.
         named: the effects the verdict names (one, or two for a pair); empty unless ``missing-effect``.
         alternatives: refits the data cannot tell from the named one (each a tuple of effects).
-        partial: for ``misspecified-unexplained``: the refit that lowers the score most while the measurement
+        partial: for ``misspecified-unexplained``: the single refit that lowers the score most while the measurement
             stays outside its posterior predictive distribution (it explains a part), else empty.
         gain: the named (or partial) refit's score against the model it extends.
+        gains: every scored refit's score against the model it extends, as the decision compared them (empty in
+            files written before they were kept).
     """
 
     verdict: str
@@ -288,6 +308,22 @@ class Decision:
     alternatives: tuple[tuple[str, ...], ...] = ()
     partial: tuple[str, ...] = ()
     gain: Gain | None = None
+    gains: tuple[RefitGain, ...] = ()
+
+    def role(self, effects: Sequence[str]) -> Role:
+        """What the decision says of the refit adding ``effects`` (in any order)."""
+        s = set(effects)
+        if s == set(self.named):
+            return Role.NAMED
+        if any(s == set(a) for a in self.alternatives):
+            return Role.INDISTINGUISHABLE
+        if s == set(self.partial):
+            return Role.PARTIAL
+        return Role.NOT_NAMED
+
+    def gain_of(self, effects: Sequence[str]) -> Gain | None:
+        """The refit adding ``effects``' score against the model it extends (None: not scored, or not kept)."""
+        return next((g.gain for g in self.gains if set(g.effects) == set(effects)), None)
 
 
 @dataclass(frozen=True)

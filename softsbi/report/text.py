@@ -2,13 +2,14 @@
 (:mod:`softsbi.core.results`). Pure functions: tested against fixed result objects."""
 from __future__ import annotations
 
+import math
 from typing import Mapping, Sequence
 
 from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, JointTest, MCPValue,
-                                  Metric, Refit, ResidualShape, Score)
+from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, Gain, JointTest,
+                                  MCPValue, Metric, Refit, ResidualShape, Score)
 from softsbi.core.types import unit_suffix
 
 #: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,
@@ -189,13 +190,12 @@ def estimate_words(e: Estimate) -> str:
     return s
 
 
-def score_change(base: Score | None, new: Score | None, joiner: str = " -> ") -> str:
-    """``"28.5 -> 14.3 (50% lower, 6.1 standard errors)"`` (``joiner`` between the two scores)."""
+def score_change(base: Score | None, new: Score | None, g: Gain | None, joiner: str = " -> ") -> str:
+    """``"28.5 -> 14.3 (50% lower, 6.1 standard errors)"`` (``joiner`` between the two scores; the standard errors
+    are the decision's, ``g``: :attr:`~softsbi.core.results.Decision.gains`)."""
     if base is None or new is None:
         return "n/a"
-    d = base.value - new.value
-    se = (base.se ** 2 + new.se ** 2) ** 0.5
-    z = f", {d / se:.1f} standard errors" if se > 0 else ""
+    z = f", {g.z:.1f} standard errors" if g is not None and math.isfinite(g.z) else ""
     return f"{base.value:.3g}{joiner}{new.value:.3g} ({describe_change(base.value, new.value)}{z})"
 
 
@@ -208,8 +208,10 @@ def extended(d: Diagnosis, r: Refit) -> Score | None:
     return first.score if first else None
 
 
-def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = None, nominal_n: int = 0) -> str:
-    """One refit: is it adequate, does it improve, what it estimates, which prior bounds it presses. An adequate
+def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = None, nominal_n: int = 0,
+                g: Gain | None = None) -> str:
+    """One refit: is it adequate, does it improve (``g``: its gain over ``base``, the model it extends, as the
+    decision computed it), what it estimates, which prior bounds it presses. An adequate
     refit whose posterior-predictive Chamfer is higher than the nominal fit's (``nominal_chamfer_m``) is called
     adequate with a higher error, not "inside" (which reads like a win)."""
     worse = (r.adequate and r.chamfer_m is not None and nominal_chamfer_m is not None
@@ -218,11 +220,11 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
     if worse:
         s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {p_words(r.test)}), but its error is "
              f"higher than the nominal fit's: {chamfer} against {cm(nominal_chamfer_m)}{rollouts(nominal_n)}; "
-             f"{SUMMARY_ENERGY} {score_change(base, r.score)}.")
+             f"{SUMMARY_ENERGY} {score_change(base, r.score, g)}.")
     else:
         ok = "inside" if r.adequate else "still outside"
         s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
-             f"({p_words(r.test)}), {SUMMARY_ENERGY} {score_change(base, r.score)}"
+             f"({p_words(r.test)}), {SUMMARY_ENERGY} {score_change(base, r.score, g)}"
              + (f", {chamfer}." if r.chamfer_m is not None else "."))
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
@@ -299,7 +301,7 @@ def diagnosis_summary(d: Diagnosis) -> str:
         else:
             s += "Its refit puts the measurement inside its posterior predictive distribution "
         s += (f"({p_words(r.test)}) and lowers the {SUMMARY_ENERGY} from "
-              f"{score_change(extended(d, r), r.score, ' to ')}.")
+              f"{score_change(extended(d, r), r.score, dec.gain, ' to ')}.")
         if dec.alternatives:
             alts = " or ".join(" + ".join(a) for a in dec.alternatives)
             s += (f" The data cannot tell it from {alts}: that refit explains the misfit too, with a {SUMMARY_ENERGY} "
@@ -313,8 +315,8 @@ def diagnosis_summary(d: Diagnosis) -> str:
     s += f", and no refit of {', '.join(r.label for r in d.refits)} explains it."
     if dec.partial:
         r = d.refit(dec.partial)
-        s += (f" {' + '.join(dec.partial)} explains a part: its refit lowers the {SUMMARY_ENERGY} most, from "
-              f"{score_change(d.nominal, r.score, ' to ')}, "
+        s += (f" {' + '.join(dec.partial)} explains a part: of the single refits, it lowers the {SUMMARY_ENERGY} "
+              f"most, from {score_change(d.nominal, r.score, dec.gain, ' to ')}, "
               f"but the measurement stays outside its posterior predictive distribution ({p_words(r.test)}).")
     else:
         s += f" No refit lowers the {SUMMARY_ENERGY} by more than {d.k_se:g} standard errors."
@@ -325,7 +327,8 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
     """Everything ``diagnose`` says, one paragraph per item: the verdict, the rule as applied, each refit,
     the residual's shape and the best generic force term."""
     out = [diagnosis_summary(d), rule_words(d)]
-    out += [refit_words(r, extended(d, r), d.chamfer_m, d.chamfer_n) for r in d.refits]
+    out += [refit_words(r, extended(d, r), d.chamfer_m, d.chamfer_n, d.decision.gain_of(r.effects))
+            for r in d.refits]
     if d.decision.verdict == "misspecified-unexplained" and d.residual:
         out.append(residual_words(d.residual))
     if d.decision.verdict == "misspecified-unexplained" and d.generic:
@@ -347,7 +350,12 @@ def candidate_role(d: Diagnosis, c: Candidate) -> str:
     r = d.refit((c.effect,))
     if r is None:
         return not_refitted(d, c)
-    return "refit: misfit remains" if not r.adequate else "refit: no lower score"
+    if not r.adequate:
+        return "refit: misfit remains"
+    g = dec.gain_of(r.effects)
+    if g is not None and g.z > d.k_se and dec.named:  # adequate and improving, but the named refit scores lower
+        return f"refit: a lower score than the nominal's, above {' + '.join(dec.named)}'s"
+    return "refit: no lower score"
 
 
 def not_refitted(d: Diagnosis, c: Candidate) -> str:

@@ -30,11 +30,12 @@ refit budget (``confirm`` refits, their rounds and simulations).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
 
-from softsbi.core.results import Candidate, Decision, Gain, JointTest, Refit, Score
+from softsbi.core.results import Candidate, Decision, Gain, JointTest, Refit, RefitGain, Score
 from softsbi.workflows import defaults
 
 #: standard errors by which a score must fall to count as an improvement, and within which two refits are
@@ -76,6 +77,23 @@ def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se
     """
     if not test.misspecified:
         return Decision("nothing-missing")
+    return replace(_decide(test, nominal, refits, k_se), gains=refit_gains(nominal, refits))
+
+
+def refit_gains(nominal: Score | None, refits: Sequence[Refit]) -> tuple[RefitGain, ...]:
+    """Every scored refit's :func:`gain` over the model it extends: the nominal fit for one effect, the refit of its
+    first effect for a pair."""
+    out = []
+    for r in refits:
+        base = nominal if len(r.effects) == 1 else next(
+            (x.score for x in refits if x.effects == r.effects[:1]), None)
+        g = gain(base, r.score)
+        if g is not None:
+            out.append(RefitGain(r.effects, g))
+    return tuple(out)
+
+
+def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float) -> Decision:
     singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
     better = [r for r in singles if improves(nominal, r.score, k_se)]
     good = [r for r in better if r.adequate]
@@ -119,16 +137,3 @@ def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | N
     if second is None or frozenset(base.effects + (second,)) in done:
         return None
     return base.effects + (second,)
-
-
-def role(decision: Decision, effects: tuple[str, ...]) -> str:
-    """What the decision says of the refit adding ``effects`` (for tables): ``"named"``,
-    ``"indistinguishable"``, ``"explains a part"`` or ``"not named"``."""
-    s = set(effects)
-    if s == set(decision.named):
-        return "named"
-    if any(s == set(a) for a in decision.alternatives):
-        return "indistinguishable"
-    if s == set(decision.partial):
-        return "explains a part"
-    return "not named"

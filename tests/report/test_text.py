@@ -176,7 +176,7 @@ def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_th
     assert diagnosis_text(PARTIAL) == [
         "Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
         f"distribution ({P_FLOOR} <= 0.05), and no refit of wind, extra-damping, wind+extra-damping explains it. wind "
-        "explains a part: its refit lowers the summary energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
+        "explains a part: of the single refits, it lowers the summary energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
         f"outside its posterior predictive distribution ({P_FLOOR}).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
@@ -209,6 +209,11 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
     flat = diagnosis([refit(("wind",), 20.5, ACCEPTS)])
     assert flat.verdict == "misspecified-unexplained" and flat.decision.partial == ()
     assert diagnosis_rows(flat)[1][-3:] == ["p = 0.41", "20.5", "refit: no lower score"]
+    # an adequate refit far below the nominal's score, but above the named one's: the table says so, from the
+    # decision's own gains (not "no lower score")
+    both = diagnosis([refit(("wind",), 8, ACCEPTS), refit(("extra-damping",), 14, ACCEPTS)])
+    assert both.decision.named == ("wind",) and both.decision.gain_of(("extra-damping",)).z > both.k_se
+    assert diagnosis_rows(both)[2][-1] == "refit: a lower score than the nominal's, above wind's"
 
 
 def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():

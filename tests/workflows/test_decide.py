@@ -1,8 +1,8 @@
 """The diagnosis' decision (softsbi.workflows.decide) on hand-built typed results: no simulation."""
 from __future__ import annotations
 
-from softsbi.core.results import Candidate, Decision, JointTest, MCPValue, Refit, Score
-from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit, role
+from softsbi.core.results import Candidate, Decision, JointTest, MCPValue, Refit, RefitGain, Role, Score
+from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit
 
 ALPHA = 0.05
 
@@ -48,8 +48,11 @@ def test_nothing_missing_iff_the_nominal_test_does_not_reject():
 
 def test_the_adequate_refit_with_the_lowest_energy_score_is_named():
     d = decide(REJECTS, NOMINAL, [refit(("a",), 0.6), refit(("b",), 0.3)])
-    assert d == Decision("missing-effect", named=("b",), gain=gain(NOMINAL, score(0.3)))
-    assert role(d, ("b",)) == "named" and role(d, ("a",)) == "not named"
+    assert d == Decision("missing-effect", named=("b",), gain=gain(NOMINAL, score(0.3)),
+                         gains=(RefitGain(("a",), gain(NOMINAL, score(0.6))),
+                                RefitGain(("b",), gain(NOMINAL, score(0.3)))))
+    assert d.role(("b",)) is Role.NAMED and d.role(("a",)) is Role.NOT_NAMED
+    assert d.gain_of(("a",)) == gain(NOMINAL, score(0.6)) and d.gain_of(("z",)) is None
 
 
 def test_an_inadequate_refit_is_never_named_however_low_its_score():
@@ -68,19 +71,20 @@ def test_an_adequate_refit_that_does_not_lower_the_score_by_k_se_explains_nothin
 def test_refits_within_k_se_of_the_best_are_indistinguishable():
     d = decide(REJECTS, NOMINAL, [refit(("a",), 0.30), refit(("b",), 0.31), refit(("c",), 0.60)])
     assert d.named == ("a",) and d.alternatives == (("b",),)
-    assert role(d, ("b",)) == "indistinguishable"
+    assert d.role(("b",)) is Role.INDISTINGUISHABLE
 
 
 def test_an_improving_refit_that_check_rejects_explains_a_part():
     d = decide(REJECTS, NOMINAL, [refit(("a",), 0.5, adequate=False), refit(("b",), 0.7, adequate=False)])
     assert d.verdict == "misspecified-unexplained" and d.partial == ("a",)
-    assert role(d, ("a",)) == "explains a part"
+    assert d.role(("a",)) is Role.PARTIAL
 
 
 def test_a_pair_is_named_only_when_it_is_adequate_and_improves_on_its_first_effects_refit():
     base = refit(("a",), 0.5, adequate=False)
     good_pair = refit(("a", "b"), 0.2)
-    assert decide(REJECTS, NOMINAL, [base, good_pair]).named == ("a", "b")
+    d = decide(REJECTS, NOMINAL, [base, good_pair])
+    assert d.named == ("a", "b") and d.gain_of(("b", "a")) == gain(score(0.5), score(0.2))  # over its first refit
     # adequate but no better than the single refit it extends: the added effect buys nothing
     no_gain = refit(("a", "b"), 0.49)
     d = decide(REJECTS, NOMINAL, [base, no_gain])
