@@ -88,6 +88,7 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
             every simulation failed. PosteriorError: the estimator puts no mass in the prior box.
     """
     say = message or (lambda s: None)
+    t_start = time.perf_counter()
     cfg = replace(cfg.resolved(recording), rounds=1)
     cfg.validate()
     if needs_images(cfg):
@@ -120,6 +121,7 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     if n_test > 0:
         report = training_report(est, ctx, space, cfg, n_test, n_draws, fr)
         report["train_seconds"] = time.perf_counter() - t0 - report["simulation_seconds"]
+        report["wall_seconds"] = time.perf_counter() - t_start  # prior and held-out simulations, training, report
     stored = prior.store.put(prior.identity, n_prior, _state(est, cfg.estimator, opts), info, report)
     if stored is None:
         raise SoftsbiError(f"the task store {prior.store.path} cannot be written: give --sim-bank a folder you can "
