@@ -103,3 +103,22 @@ def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
     assert bad.returncode != 0 and "at least its first 4" in bad.stdout + bad.stderr
     assert cli("delete", key[:8]).returncode == 0
     assert json.loads(cli("list", "--json").stdout) == []
+
+
+def test_task_train_on_the_command_line_trains_the_nominal_model_and_says_what_it_stored(tmp_path, monkeypatch):
+    pytest.importorskip("softsbi_toy.plugin")
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "softsbi.cli", *args], capture_output=True, text=True,
+                              cwd=tmp_path)
+
+    assert cli("simulate", "--backend", "toy-gauss", "--out", "rec").returncode == 0
+    bad = cli("task", "train", "--observed", "rec", "--backend", "toy-gauss", "--prior-sims", "5")
+    assert bad.returncode == 2 and "--prior-sims" in bad.stdout + bad.stderr  # refused before any work
+    done = cli("task", "train", "--observed", "rec", "--backend", "toy-gauss", "--prior-sims", "40", "--n-test", "20",
+               "--candidates", "none", "--estimator", "mdnn", "--workers", "1", "--json")
+    assert done.returncode == 0, done.stderr
+    (doc,) = json.loads(done.stdout)
+    assert doc["model"] == "nominal" and doc["n_prior"] == 40 and doc["report"]["n_test"] == 20
+    assert [t["key"] for t in json.loads(cli("task", "list", "--json").stdout)] == [doc["key"]]
