@@ -69,7 +69,7 @@ def test_the_python_api_how_to_lists_each_function_with_the_code_s_signature_and
     from softsbi.workflows.diagnose import diagnose_run
     doc = (Path(__file__).parents[2] / "docs" / "howto" / "python-api.md").read_text()
     for name in ("load_scenario", "load_recording", "simulate_recording", "simulate", "fit", "open_run", "check",
-                 "diagnose", "compare", "calibrate_run", "import_diffcloud"):
+                 "diagnose", "compare", "calibrate_run", "import_diffcloud", "train_task"):
         assert f"softsbi.{name}({_rendered(getattr(softsbi, name))})\n" in doc, name
     assert f"`check`'s `settings`: `{_rendered(check_run, ('run_dir',))}`" in doc
     assert f"`diagnose`'s `settings`: `{_rendered(diagnose_run, ('run_dir', 'effects', 'progress'))}`" in doc
