@@ -10,13 +10,13 @@ from softsbi.cli.command import json_done
 from softsbi.cli.options import (AT_LEAST_1_WORKER, H_BACKEND, H_ESTIMATOR, H_JSON, H_SEED, H_WORKERS, SEED_OK,
                                  bound, names, parse_bounds, parse_kv)
 from softsbi.cli.output import Output
+from softsbi.core.errors import SoftsbiError
 from softsbi.workflows import defaults as D
 
 H_BANK = "simulation bank holding the stored tasks ('default': the user's cache folder; or a folder)"
 
 
 def _store(sim_bank: str) -> Any:
-    from softsbi.core.errors import SoftsbiError
     from softsbi.workflows.tasks import task_store_of  # start-up: numpy, zarr
     store = task_store_of(sim_bank)
     if store is None:
