@@ -60,7 +60,8 @@ READABLE_VERSIONS = (1, 2)
 ROUND_ARRAYS = ("theta", "u", "seed", "x", "status", "chamfer")
 
 
-def _version() -> str:
+def installed_version() -> str:
+    """The installed softsbi's version (``"unknown"`` in a source tree that is not installed)."""
     try:
         return _installed_version("softsbi")
     except Exception:  # noqa: BLE001 - not installed (source tree)
@@ -94,7 +95,7 @@ class RunStore:
                               f"another --out")
         path.parent.mkdir(parents=True, exist_ok=True)
         root = zarr.open_group(str(path), mode="w")
-        root.attrs.update({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "softsbi_version": _version(),
+        root.attrs.update({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "softsbi_version": installed_version(),
                            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                            "config": jsonable(dict(config))})
         root.require_group("rounds")

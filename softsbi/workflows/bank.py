@@ -67,6 +67,14 @@ def default_bank() -> Path | None:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "softsbi" / "sim-bank"
 
 
+def bank_folder(setting: str) -> Path | None:
+    """The folder of a ``--sim-bank`` setting: ``"default"`` the user's (:func:`default_bank`), ``"off"`` none, else
+    that folder; none when ``$SOFTSBI_SIM_BANK`` is ``off``."""
+    if setting == "off" or not banks_enabled():
+        return None
+    return default_bank() if setting == "default" else Path(setting).expanduser()
+
+
 def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> None:
     """Check a fit's simulation bank before any work: ``setting`` is ``--sim-bank`` (``"default"``: the user's
     bank, :func:`default_bank`; ``"off"``; or a folder), ``folders`` the folders the bank must stay out of, by the

@@ -302,7 +302,8 @@ def calibration_stats(est: Any, u_test: np.ndarray, x_test: np.ndarray, names: l
     Returns:
         ``{"n", "n_no_mass_in_box", "levels", "cov" (expected HPD coverage per level), "lo"/"hi" (pointwise 95%
         band), "at" ({0.5, 0.9}: coverage), "ranks" (n, D), "tests" (rank tests), "hist" (per-parameter rank
-        histograms), "tarp", "ver" (the verdict)}``; a test pair whose posterior has no mass in the prior box
+        histograms), "tarp", "ver" (the verdict), "draws" (m, n_draws, D): the draws of the m test pairs whose posterior
+        has mass in the box}``; a test pair whose posterior has no mass in the prior box
         covers nothing (HPD level 1).
 
     Raises:
@@ -339,7 +340,7 @@ def calibration_stats(est: Any, u_test: np.ndarray, x_test: np.ndarray, names: l
             "hist": [np.histogram(ranks[:, d], bins=n_bins, range=(0, n_draws + 1))[0].tolist()
                      for d in range(len(names))],
             "tarp": tarp, "ver": cal.verdict(cov, n, tarp, ranks, n_draws, n_bins, names, levels),
-            "draws": draws_a, "keep": keep}
+            "draws": draws_a}
 
 
 def trained_task_line(info: Mapping[str, Any], sim_bank: str) -> str | None:

@@ -99,10 +99,18 @@ def _simulate_observed(ctx: SimContext, sim: Any, scenario: Scenario, values: di
     sensor = [e for e in plan.observers if set(e.doors(sim.name)) == {OBSERVATION}]
     if not sensor or len(sensor) != len(plan.observers):  # none, or mixed with a physical one's: keep the order
         return _simulate(ctx, sim, scenario, values, effects, seed)
+    raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, sensor, seed)
+    return plan.observe(raw, values, seed), banked  # its observation transforms are exactly the sensor effects'
+
+
+def _simulate_unobserved(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
+                         sensor: list[Any], seed: int) -> tuple[Any, str | None]:
+    """:func:`_simulate` without the observation-only effects ``sensor`` (effect instances) and their parameters,
+    which the rollout does not depend on: the raw rollout their transforms are applied to afterwards."""
     own = {p.name for e in sensor for p in e.param_space()}
-    raw, banked = _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
-                            [e.name for e in plan.effects if e not in sensor], seed)
-    return check_effects(sim, [e.name for e in sensor]).observe(raw, values, seed), banked
+    names = {e.name for e in sensor}
+    return _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
+                     [e for e in effects if e not in names], seed)
 
 
 def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
@@ -148,9 +156,7 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
                                      style=obs.style)
         elif draws:  # simulate without the observation transforms, then observe once per draw
             plan = check_effects(sim, draws["effects"])
-            own = {p.name for e in plan.effects for p in e.param_space()}
-            raw, banked = _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
-                            [e for e in effects if e not in draws["effects"]], int(seed))
+            raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, plan.effects, int(seed))
             ro = plan.observe(raw, values, int(seed))
         else:
             ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, int(seed))

@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import inspect
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,7 +19,7 @@ from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace
 from softsbi.executors.local import WorkerFailure
 from softsbi.plugins import registry
-from softsbi.workflows.bank import BankCount, banks_enabled, default_bank
+from softsbi.workflows.bank import BankCount, bank_folder
 from softsbi.workflows.fitconfig import FitConfig, estimator_options
 from softsbi.workflows.fitreport import chamfer_stats
 from softsbi.workflows.jobs import SimContext, _round_seeds, simulate_job
@@ -194,15 +193,6 @@ def usable_simulations(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(us), np.concatenate(xs), counts
 
 
-def sim_bank(cfg: FitConfig) -> Path | None:
-    """The simulation bank a fit's first round reads and fills (:mod:`~softsbi.workflows.bank`): ``cfg.sim_bank``
-    ``"default"`` the user's (:func:`~softsbi.workflows.bank.default_bank`), ``"off"`` none, else that folder;
-    none when ``$SOFTSBI_SIM_BANK`` is ``off``."""
-    if cfg.sim_bank == "off" or not banks_enabled():
-        return None
-    return default_bank() if cfg.sim_bank == "default" else Path(cfg.sim_bank).expanduser()
-
-
 class Rounds:
     """The sequential rounds of one fit: draw the proposal, simulate, train, condition."""
 
@@ -227,7 +217,7 @@ class Rounds:
         if not store.is_begun(r):
             self._begin(r)
         self.cb.round_start(r, cfg.rounds, len(store.pending(r)), cfg.sims_per_round)
-        bank = sim_bank(cfg) if r == 0 else None  # the first round's draws depend on the task and the seed alone
+        bank = bank_folder(cfg.sim_bank) if r == 0 else None  # the first round's draws depend on the task and the seed alone
         ctx = self.ctx if bank is None else replace(self.ctx, bank=str(bank))
         _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
         d = store.round_data(r)

@@ -140,8 +140,7 @@ def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig
     t0 = time.perf_counter()
     rng = np.random.default_rng([cfg.seed, TEST_STREAM, 0])
     u = rng.random((n_test, space.dim))
-    seeds = np.random.default_rng([cfg.seed, TEST_STREAM, 1]).integers(0, 2**31 - 1, size=n_test)
-    U, X = _simulate(ctx, space, u, seeds, cfg, "held-out prior simulations")
+    U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, TEST_STREAM, n_test), cfg, "held-out prior simulations")
     sim_s = time.perf_counter() - t0
     st = calibration_stats(est, U, X[:, fr], space.names, n_draws, defaults.N_BINS, cfg.seed)
     lo, hi = np.quantile(st["draws"], 0.05, axis=1), np.quantile(st["draws"], 0.95, axis=1)  # (n, D) unit cube

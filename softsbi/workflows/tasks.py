@@ -32,18 +32,18 @@ import json
 import shutil
 import uuid
 from dataclasses import dataclass
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Mapping
 
 import zarr
 
 from softsbi.core.errors import PosteriorDamaged, SchemaError, SoftsbiError
+from softsbi.core.store import installed_version
 from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
 from softsbi.core.types import ParamSpace, Recording, jsonable
 from softsbi.plugins import registry
 from softsbi.workflows import defaults
-from softsbi.workflows.bank import _engine_version, banks_enabled, default_bank
+from softsbi.workflows.bank import _engine_version, bank_folder
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, needs_images, resume_identity
 from softsbi.workflows.jobs import SimContext
 from softsbi.workflows.observe import metric_sensor, observer_options
@@ -52,13 +52,6 @@ from softsbi.workflows.observe import metric_sensor, observer_options
 TASK_FORMAT = "softsbi.task/1"
 #: the stored tasks' folder inside a simulation bank
 TASKS_FOLDER = "tasks"
-
-
-def _softsbi_version() -> str:
-    try:
-        return version("softsbi")
-    except PackageNotFoundError:  # a source tree that is not installed
-        return "unknown"
 
 
 def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_options: Mapping[str, Any]) -> dict:
@@ -72,7 +65,7 @@ def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_
             (:func:`~softsbi.workflows.fitconfig.estimator_options`).
     """
     return jsonable({
-        "format": TASK_FORMAT, "softsbi": _softsbi_version(),
+        "format": TASK_FORMAT, "softsbi": installed_version(),
         "backend": cfg.backend, "backend_options": dict(cfg.backend_options), "engine": _engine_version(cfg.backend),
         "scenario": resume_identity("scenario", ctx.scenario), "effects": list(cfg.effects),
         "observer": cfg.observer, "observer_options": dict(ctx.observer_options),
@@ -102,9 +95,7 @@ def task_digest(identity: Mapping[str, Any]) -> str:
 def task_store_of(sim_bank: str = defaults.SIM_BANK) -> "TaskStore | None":
     """The task store of a fit's ``--sim-bank`` setting (``"default"``: the user's bank, ``"off"``: none; else a
     folder): ``BANK/tasks``; None when the bank is off (a stored task's prior round is read from the bank)."""
-    if sim_bank == "off" or not banks_enabled():
-        return None
-    bank = default_bank() if sim_bank == "default" else Path(sim_bank).expanduser()
+    bank = bank_folder(sim_bank)
     return None if bank is None else TaskStore(bank / TASKS_FOLDER)
 
 

@@ -49,7 +49,7 @@ def test_the_key_changes_with_everything_that_determines_the_first_round(monkeyp
     }
     assert all(d != base for d in changed.values()), [k for k, d in changed.items() if d == base]
     assert len(set(changed.values())) == len(changed)
-    monkeypatch.setattr(tasks, "_softsbi_version", lambda: "99.0")
+    monkeypatch.setattr(tasks, "installed_version", lambda: "99.0")
     assert _digest() != base  # another softsbi version trains the task again
     monkeypatch.undo()
     # what does not change the first round keeps the key: the later rounds, the workers, where the scenario came from
