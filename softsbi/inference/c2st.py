@@ -109,7 +109,7 @@ def c2st(X: np.ndarray, Y: np.ndarray, *, folds: int = 5, seed: int = 0, max_n: 
         try:
             # optional: scikit-learn (the torch classifier stands in without it)
             from sklearn.model_selection import PredefinedSplit, cross_val_score
-            from sklearn.neural_network import MLPClassifier
+            from sklearn.neural_network import MLPClassifier  # optional: scikit-learn
         except ImportError:
             if backend == "sklearn":
                 raise

@@ -114,8 +114,8 @@ class FlowNetwork(nn.Module):
         """
         # optional: zuko
         from zuko.distributions import NormalizingFlow
-        from zuko.nn import MaskedLinear
-        from zuko.transforms import ComposedTransform
+        from zuko.nn import MaskedLinear  # optional: zuko
+        from zuko.transforms import ComposedTransform  # optional: zuko
 
         c = self.embedding(z)[0]
         parts = []

@@ -48,8 +48,8 @@ def sbi_available() -> bool:
 def _require_sbi():
     try:
         import sbi  # optional: sbi (and its submodules below)
-        from sbi.inference import NPE
-        from sbi.neural_nets import posterior_nn
+        from sbi.inference import NPE  # optional: sbi
+        from sbi.neural_nets import posterior_nn  # optional: sbi
     except ImportError as exc:
         raise DependencyMissing("estimator 'sbi-npe' needs the sbi package: pip install 'softsbi[sbi]' "
                                 "(or pip install sbi after installing the CPU torch wheel)") from exc

@@ -80,7 +80,7 @@ def save_frames_png(frames: np.ndarray, path: str | Path, ncols: int = 6, labels
     """
     import matplotlib  # heavy (~1.7 s with pyplot): only the contact sheet draws
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: only the contact sheet draws
 
     f = np.asarray(frames)
     if not (f.ndim == 3 or (f.ndim == 4 and f.shape[-1] == 3)) or len(f) == 0:
