@@ -155,6 +155,12 @@ _SUITES = [
           "hidden, or data from the other engine; each nominal fit is diagnosed with every shipped effect as a "
           "candidate. The test split's cases were run once under the frozen rule; rows are stored per case "
           "(benchmarks/results/diagnosis-SPLIT.jsonl), so a run resumes.", "benchmarks.diagnosis"),
+    Suite("calibrated-check", "Diagnosis", "is check's p-value uniform on controls, and its power, calibrated or not",
+          "The demo's task trained once; controls (the nominal model at prior draws) and recordings with a hidden "
+          "breeze of growing speed, each fitted by conditioning the stored estimator and checked with `check`'s "
+          "omnibus statistic on its posterior-predictive rollouts: the posterior predictive p-value as `check` "
+          "gives it (leave-one-out) and calibrated against replicate recordings of the task refitted the same way "
+          "(Hjort, Dahl & Steinbakk 2006).", "benchmarks.bench_calibrated_check"),
     Suite("tasks", "Speed", "a task trained once against every recording fitted from scratch",
           "The demo's task (lift, mujoco-flex, the nominal model) trained once by `softsbi task train`, with its "
           "training report on held-out prior simulations; then new recordings of the task (the demo's, with its "

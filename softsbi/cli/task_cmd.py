@@ -45,6 +45,10 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
                n_test: int = typer.Option(D.N_TEST, "--n-test", callback=bound(0),
                                           help="held-out prior simulations of each model's training report "
                                                "(coverage, SBC, TARP); 0 = no report"),
+               check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=bound(0),
+                                              help="replicate recordings of the nominal model, refitted and checked, "
+                                                   "that calibrate check's test of every later fit (at least 19; "
+                                                   "0 = none, check's p-value uncalibrated)"),
                candidates: Optional[str] = typer.Option(None, "--candidates",
                                                         help="comma-separated candidate effects to train beside the "
                                                              "nominal model; default: every one diagnose refits; "
@@ -78,7 +82,8 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
     meas = load_recording(observed, n_points=points, seed=seed)
     o = Output(as_json)
     with shown(o):
-        tasks = train_task(meas, cfg, prior_sims, cands, n_test=n_test, retrain=retrain, message=o.message)
+        tasks = train_task(meas, cfg, prior_sims, cands, n_test=n_test, retrain=retrain, check_null=check_null,
+                           message=o.message)
     if json_done(o, [_doc(t) for t in tasks]):
         return
     o.table(["key", "model", "backend", "scenario", "prior sims", "training report", "coverage 50% / 90%"],

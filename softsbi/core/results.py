@@ -75,6 +75,9 @@ class JointTest:
         alpha: the level the test decides at.
         max_null: the cap of the adaptive null.
         statistic: the omnibus statistic of the measurement (dimensionless).
+        calibrated: the omnibus p-value is calibrated against replicate recordings of the run's trained task
+            refitted and checked the same way (:mod:`~softsbi.workflows.check_null`), its ``n`` their number;
+            else it is the posterior predictive p-value against the run's own rollouts (conservative).
     """
 
     omnibus: MCPValue
@@ -84,6 +87,7 @@ class JointTest:
     alpha: float
     max_null: int
     statistic: float = float("nan")
+    calibrated: bool = False
 
     @property
     def tests(self) -> int:
@@ -92,8 +96,9 @@ class JointTest:
 
     @property
     def n_null(self) -> int:
-        """Null simulations the decision used."""
-        return self.omnibus.n
+        """The larger null of the combined tests (null simulations, or a calibrated omnibus test's replicates):
+        it sets the joint p-value's floor :attr:`resolution`."""
+        return max(self.omnibus.n, 0 if self.directional is None else self.directional.n)
 
     @property
     def deciding(self) -> str:
@@ -114,7 +119,7 @@ class JointTest:
 
     @property
     def resolution(self) -> float:
-        """The smallest joint p-value the null can give: ``k / (n + 1)``."""
+        """The smallest joint p-value the nulls can give: ``k / (n + 1)`` with ``n`` :attr:`n_null`."""
         return self.tests / (self.n_null + 1)
 
     @property

@@ -15,11 +15,13 @@ from softsbi.report.style import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE
 
 
 def short_p(test: JointTest) -> str:
-    """A joint test's Monte-Carlo p-value with its resolution, short: ``p ≤ 2/201`` or ``p = 0.4 (30 sims)``."""
+    """A joint test's Monte-Carlo p-value with its resolution, short: ``p ≤ 2/201`` or ``p = 0.4 (30 sims)``, or for a
+    calibrated omnibus test deciding ``p = 0.4 (100 replicates)``."""
     n = test.n_null
     if test.p_value <= test.resolution:
         return f"p ≤ {test.tests}/{n + 1}"
-    return f"p = {test.p_value:.2g} ({n} sims)"
+    of = "replicates" if test.calibrated and test.deciding == "omnibus" else "sims"
+    return f"p = {test.p_value:.2g} ({test.best.n} {of})"
 
 
 def check_headline(out: CheckResult) -> str:

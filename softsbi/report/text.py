@@ -60,26 +60,33 @@ def p_short(p: MCPValue | JointTest) -> str:
     return f"p <= 1/{p.n + 1}" if p.at_floor else f"p = {p.value:.2g}"
 
 
-def p_words(p: MCPValue | JointTest) -> str:
+def p_words(p: MCPValue | JointTest, of: str = "null simulations") -> str:
     """A p-value for people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or ``p = 0.13 (3 of
-    30 null simulations as extreme)``; a joint test of two also names the deciding test and the Bonferroni factor."""
+    30 null simulations as extreme)``; a joint test of two also names the deciding test and the Bonferroni factor,
+    and a calibrated omnibus test (:attr:`JointTest.calibrated`) counts replicate recordings instead (``of``)."""
     if isinstance(p, MCPValue):
         if p.at_floor:
-            return f"p <= 1/{p.n + 1} (beyond all {p.n} null simulations)"
-        return f"p = {p.value:.2g} ({p.exceed} of {p.n} null simulations as extreme)"
+            return f"p <= 1/{p.n + 1} (beyond all {p.n} {of})"
+        return f"p = {p.value:.2g} ({p.exceed} of {p.n} {of} as extreme)"
+    of = REPLICATES if p.calibrated and p.deciding == "omnibus" else of
     if p.tests == 1:
-        return p_words(p.omnibus)
-    n = p.n_null
+        return p_words(p.omnibus, of)
+    n = p.best.n
     if p.best.at_floor:
-        return f"p <= 2/{n + 1} (two tests, Bonferroni; the {p.deciding} test beyond all {n} null simulations)"
+        return f"p <= 2/{n + 1} (two tests, Bonferroni; the {p.deciding} test beyond all {n} {of})"
     return (f"p = {p.p_value:.2g} (two tests, Bonferroni: 2 x the {p.deciding} test's {p_short(p.best)}; "
-            f"{n} null simulations)")
+            f"{n} {of})")
+
+
+#: what a calibrated omnibus p-value counts (:mod:`~softsbi.workflows.check_null`)
+REPLICATES = "replicate recordings of the task, refitted and checked the same way"
 
 
 def joint_test_line(t: JointTest) -> str:
     """``check``'s line on the two tests of its joint test: the omnibus p-value, then the directional one with its
     family and strongest effect."""
-    return (f"misspecification test: omnibus {p_words(t.omnibus)}"
+    return (f"misspecification test: omnibus{' (calibrated)' if t.calibrated else ''} "
+            f"{p_words(t.omnibus, REPLICATES if t.calibrated else 'null simulations')}"
             + (f"; directional (max-T over {len(t.family)} candidate effects, strongest {t.directional_effect}) "
                f"{p_words(t.directional)}" if t.directional else ""))
 

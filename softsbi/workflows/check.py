@@ -36,6 +36,7 @@ from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows import defaults
+from softsbi.workflows.check_null import run_check_null
 from softsbi.workflows.fitreport import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import RunView, load_run
@@ -369,8 +370,9 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
     check_resolution(alpha, max_null, 2)
     run = loaded(run_dir, pool, seed)
     cands = candidate_effects(run, effects)
+    null = run_check_null(run, n_eval)
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
-                     family=sorted(c.name for c in cands))
+                     family=sorted(c.name for c in cands), replicates=0 if null is None else len(null.statistics))
     say = message or (lambda _: None)
     json_path = check_result_path(run.path / "check.json")
     stored = None if recompute else stored_result(json_path, CheckResult, key, say)
@@ -399,7 +401,7 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
     stats = chamfer_stats(ch, np.full(len(ok), STATUS_OK), frames, ch1)
     labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
     reg = np.array([rollout_region_errors(run, r, labels, len(names), dense) for r in ok])
-    test, _, ranking = misspecification_verdict(pool, cands, alpha, max_null)
+    test, _, ranking = misspecification_verdict(pool, cands, alpha, max_null, null=null)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # regions a small mesh lacks, or the sensor never sees
         reg_mean = np.nanmean(reg, axis=0)

@@ -38,12 +38,15 @@ K_SE = 2.0
 #: and name the hidden wind)
 DEMO_ROUNDS = 3
 DEMO_SIMS = 100
-#: calibration: fresh test simulations and posterior draws per test simulation
 #: prior simulations a stored task's model is trained on (``softsbi task train --prior-sims``): a default fit's
 #: budget (4 x 150) and more, since they are simulated once per task, not per recording
 TASK_PRIOR_SIMS = 1000
+#: calibration: fresh test simulations and posterior draws per test simulation
 N_TEST = 200
 N_DRAWS = 1000
+#: replicate recordings ``task train`` simulates to calibrate ``check`` of the nominal model's fits
+#: (:mod:`~softsbi.workflows.check_null`): 100 resolve p = 1/101, below a 0.05 level halved by Bonferroni
+CHECK_REPLICATES = 100
 #: scenario of ``softsbi simulate`` and ``compare-backends``, and the engines the latter compares
 SCENARIO = "lift"
 COMPARED_BACKENDS = ("mujoco-flex", "pybullet-massspring")

@@ -274,8 +274,8 @@ def check_resolution(alpha: float, max_null: int, tests: int = 2) -> None:
 
 
 def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], alpha: float = ALPHA,
-                             max_null: int = MAX_NULL, unit_step: float = UNIT_STEP, effect_step: float = EFFECT_STEP
-                             ) -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
+                             max_null: int = MAX_NULL, unit_step: float = UNIT_STEP, effect_step: float = EFFECT_STEP,
+                             null: Any = None) -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
     """Is the run's measurement inside the posterior predictive distribution? ``check``'s test, ``diagnose``'s
     detection step and the adequacy of every refit (one function, one null: the commands never disagree).
 
@@ -288,6 +288,9 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
     Args:
         pool: the run's posterior-predictive rollouts (at least 5 successful; more are simulated on demand).
         cands: candidate effect instances (:func:`candidate_effects`); empty = the omnibus test alone.
+        null: the run's trained task's replicates (:class:`~softsbi.workflows.check_null.CheckNull`): the omnibus
+            statistic on the pool's first ``null.rollouts`` rollouts (the fit's evaluation samples) is then
+            calibrated against them, and only the directional test's null grows.
 
     Returns:
         ``(test, screening, ranking)``: the :class:`~softsbi.core.results.JointTest`, the :class:`Screening`
@@ -303,6 +306,10 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
 
     def evaluate() -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
         statistic, omnibus = misspecification_test(f_obs, pool.features)
+        if null is not None:  # the same rollouts as the replicates': the fit's evaluation samples
+            first = [k for k, r in enumerate(pool.rollouts) if r["sample"] < null.rollouts]
+            statistic = misspecification_test(f_obs, pool.features[first])[0]
+            omnibus = null.p_value(statistic)
         screen, ranking = None, ()
         if cands:
             try:
@@ -313,12 +320,13 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
                 ranking = tuple(failed_candidate(c, f"not screened: {exc}") for c in cands)
         top = next((c for c in ranking if c.screened), None)
         test = JointTest(omnibus, top.adjusted if top else None, top.effect if top else None, family, alpha,
-                         max_null, statistic)
+                         max_null, statistic, calibrated=null is not None)
         return test, screen, ranking
 
     test, screen, ranking = evaluate()
-    parts = [p for p in (test.omnibus, test.directional) if p is not None]
-    if len(pool.rollouts) < max_null and any(resolution_needed(p, alpha / len(parts), max_null) for p in parts):
+    # a calibrated omnibus p-value's resolution is its replicates': more rollouts cannot change it
+    parts = [p for p in (None if null else test.omnibus, test.directional) if p is not None]
+    if len(pool.rollouts) < max_null and any(resolution_needed(p, alpha / test.tests, max_null) for p in parts):
         pool.ensure_successful(max_null)  # the cap counts successful rollouts: failures would cost resolution
         test, screen, ranking = evaluate()
     return test, screen, ranking

@@ -116,14 +116,21 @@ def rollout_features(run: "RunView", rollout: dict[str, Any], seed: int) -> np.n
     samples, as many per frame as the measurement's dense clouds, drawn with ``seed`` (common random
     numbers), seen through the visibility threshold; or, for a fit through the virtual depth sensor
     (``FitConfig.sensor == "camera"``), that sensor's clouds of the rollout."""
-    camera = run.config.get("metric_camera")
+    return sensor_features(rollout, seed, run.dense.shape[1], run.metric_min_z, run.metric_frames,
+                           run.config.get("metric_camera"))
+
+
+def sensor_features(rollout: dict[str, Any], seed: int, n_dense: int, min_z: float | None,
+                    frames: Sequence[int] | None, camera: dict[str, Any] | None) -> np.ndarray:
+    """:func:`rollout_features` under a sensor model given by its settings (a fit's ``metric_*``, ``n_dense``
+    points per frame) rather than by a run: what a task sees before any run of it exists."""
     if camera is not None:
         clouds = sensor_from_json(camera).observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
                                         np.random.default_rng([seed, 23]))
-        return trajectory_features(clouds, None, run.metric_frames)
-    clouds = sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed)
+        return trajectory_features(clouds, None, frames)
+    clouds = sampled_points(rollout["vertices"], rollout["faces"], n_dense, seed)
     # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own
-    return trajectory_features(clouds, combined_min_z(run.metric_min_z, rollout_min_z(rollout)), run.metric_frames)
+    return trajectory_features(clouds, combined_min_z(min_z, rollout_min_z(rollout)), frames)
 
 
 def run_frames(run: "RunView") -> list[int]:

@@ -31,6 +31,7 @@ from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.workflows import defaults
 from softsbi.workflows.calibrate import calibration_stats
+from softsbi.workflows.check_null import check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.jobs import SimContext, _round_seeds, run_jobs
 from softsbi.workflows.screening import is_generic
@@ -72,7 +73,7 @@ def _simulate(ctx: SimContext, space: ParamSpace, u: np.ndarray, seeds: np.ndarr
 
 
 def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int = defaults.N_TEST,
-                n_draws: int = defaults.N_DRAWS, retrain: bool = False,
+                n_draws: int = defaults.N_DRAWS, retrain: bool = False, check_null: int = 0,
                 message: Callable[[str], None] | None = None) -> StoredTask:
     """Train one model's task (module docstring) and store it; returns the stored task.
 
@@ -81,6 +82,9 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
         cfg: the fit's settings (``cfg.effects`` the model).
         n_prior: prior simulations trained on. n_test: held-out prior simulations of the report (0: no report).
         n_draws: posterior draws per held-out simulation. retrain: train even when the task is stored.
+        check_null: replicate recordings that calibrate ``check`` of the task's fits
+            (:func:`~softsbi.workflows.check_null.train_check_null`, on ``defaults.N_NULL`` rollouts each; 0: none),
+            computed when the task has none for these settings.
         message: progress notices.
 
     Raises:
@@ -107,7 +111,7 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     task = prior.task
     if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
         say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
-        return task
+        return _with_check_null(task, recording, cfg, space, ctx, check_null, say)
     ctx = replace(ctx, bank=str(prior.store.path.parent))
     u = np.random.default_rng([cfg.seed, 0, 0]).random((n_prior, space.dim))
     U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, 0, n_prior), cfg, f"{model}: prior simulations")
@@ -126,7 +130,17 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     if stored is None:
         raise SoftsbiError(f"the task store {prior.store.path} cannot be written: give --sim-bank a folder you can "
                            f"write")
-    return stored
+    return _with_check_null(stored, recording, cfg, space, first_round_context(cfg, recording, space), check_null, say)
+
+
+def _with_check_null(task: StoredTask, recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimContext,
+                     n: int, say: Callable[[str], None]) -> StoredTask:
+    """The task, with ``n`` replicates for check's calibration computed unless at least as many are stored (``n`` 0:
+    none)."""
+    stored = stored_check_null(task, defaults.N_NULL, int(recording.dense.shape[1]))
+    if n > 0 and (stored is None or len(stored.statistics) < n):
+        train_check_null(task, recording, cfg, space, ctx, n, defaults.N_NULL, cfg.workers, say)
+    return task
 
 
 def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
@@ -162,16 +176,21 @@ def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig
 def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TASK_PRIOR_SIMS,
                candidates: Sequence[str] | None = None,
                n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS, retrain: bool = False,
+               check_null: int = defaults.CHECK_REPLICATES,
                message: Callable[[str], None] | None = None) -> list[StoredTask]:
     """Train a task once for the nominal model and each candidate effect (:func:`candidate_models`,
-    :func:`train_model`); returns the stored tasks, nominal first.
+    :func:`train_model`); returns the stored tasks, nominal first. ``check_null`` replicate recordings calibrate
+    the check of the nominal model's fits (:mod:`~softsbi.workflows.check_null`: ``diagnose``'s detection).
 
     Raises:
-        everything :func:`train_model` and :func:`candidate_models` raise."""
+        everything :func:`train_model`, :func:`candidate_models` and
+        :func:`~softsbi.workflows.check_null.check_replicates` raise."""
+    check_replicates(check_null)
     models = candidate_models(cfg, candidates)
     say = message or (lambda s: None)
     out = []
     for i, effects in enumerate(models, start=1):
         say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])}")
-        out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain, say))
+        out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain,
+                               check_null if i == 1 else 0, say))
     return out

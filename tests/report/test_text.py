@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.results import CompareResult, Diagnosis, Estimate, MCPValue, Metric, ResidualShape, Row
+from softsbi.core.results import CompareResult, Diagnosis, Estimate, JointTest, MCPValue, Metric, ResidualShape, Row
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
 from softsbi.workflows.decide import decide
@@ -382,6 +382,22 @@ def test_p_values_in_words_and_in_table_cells_say_their_resolution():
         "misspecification test: omnibus p = 0.065 (12 of 200 null simulations as extreme); directional (max-T over 2 "
         "candidate effects, strongest wind) p = 0.02 (3 of 200 null simulations as extreme)")
     assert joint_test_line(joint(12, None)) == "misspecification test: omnibus p = 0.065 (12 of 200 null simulations as extreme)"
+
+
+def test_a_calibrated_omnibus_p_value_counts_replicate_recordings_and_its_own_null_sets_the_floor():
+    """A trained task's calibrated omnibus test (softsbi.workflows.check_null) against 100 replicates, beside a
+    directional test on 30 rollouts: each p-value names what it counts, and the joint floor is the larger null's."""
+    cal = JointTest(MCPValue(0, 100), MCPValue(5, 30), "wind", ("wind",), 0.05, 200, 3.2, calibrated=True)
+    assert cal.n_null == 100 and cal.deciding == "omnibus" and cal.p_value == pytest.approx(2 / 101)
+    assert p_words(cal) == ("p <= 2/101 (two tests, Bonferroni; the omnibus test beyond all 100 replicate recordings "
+                            "of the task, refitted and checked the same way)")
+    assert joint_test_line(cal) == (
+        "misspecification test: omnibus (calibrated) p <= 1/101 (beyond all 100 replicate recordings of the task, "
+        "refitted and checked the same way); directional (max-T over 1 candidate effects, strongest wind) p = 0.19 "
+        "(5 of 30 null simulations as extreme)")
+    weak = JointTest(MCPValue(40, 100), MCPValue(1, 30), "wind", ("wind",), 0.05, 200, 3.2, calibrated=True)
+    assert p_words(weak) == ("p = 0.13 (two tests, Bonferroni: 2 x the directional test's p = 0.065; 30 null "
+                             "simulations)")
 
 # ---------------------------------------------------------------------------------------------------------------
 # words that agree with the tables beside them

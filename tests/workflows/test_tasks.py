@@ -64,12 +64,12 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     from softsbi.workflows.task_training import train_task
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     rec = toy_measurement(truth=(0.3, -0.4))
-    (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50)
+    (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)
     rep = task.report
     assert task.n_prior == 80 and rep["n_test"] == 30 and set(rep["contraction"]) == {"a", "b"}
     assert len(rep["sbc"]["rejects"]) == 2 and 0 <= rep["coverage"]["at_90"] <= 1 and "verdict" in rep
     calls = _counting_fits(monkeypatch)
-    again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50)[0]
+    again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)[0]
     assert calls == [] and again.digest == task.digest  # stored with its report: not trained again
     rec2 = toy_measurement(truth=(-0.1, 0.2))
     res = run_fit(tmp_path / "run", rec2, _cfg(sims_per_round=20, rounds=None), make_plots=False)
@@ -117,8 +117,38 @@ def test_task_train_on_the_command_line_trains_the_nominal_model_and_says_what_i
     bad = cli("task", "train", "--observed", "rec", "--backend", "toy-gauss", "--prior-sims", "5")
     assert bad.returncode == 2 and "--prior-sims" in bad.stdout + bad.stderr  # refused before any work
     done = cli("task", "train", "--observed", "rec", "--backend", "toy-gauss", "--prior-sims", "40", "--n-test", "20",
-               "--candidates", "none", "--estimator", "mdnn", "--workers", "1", "--json")
+               "--candidates", "none", "--estimator", "mdnn", "--workers", "1", "--check-null", "0", "--json")
     assert done.returncode == 0, done.stderr
     (doc,) = json.loads(done.stdout)
     assert doc["model"] == "nominal" and doc["n_prior"] == 40 and doc["report"]["n_test"] == 20
     assert [t["key"] for t in json.loads(cli("task", "list", "--json").stdout)] == [doc["key"]]
+
+
+def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitted_the_same_way(tmp_path, monkeypatch):
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.check import check_run
+    from softsbi.workflows.check_null import stored_check_null
+    from softsbi.workflows.defaults import N_NULL
+    from softsbi.workflows.fit import run_fit
+    from softsbi.workflows.task_training import train_task
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    rec = toy_measurement(truth=(0.3, -0.4))
+    with pytest.raises(SoftsbiError, match="--check-null 5: .* needs n >= 19"):
+        train_task(rec, _cfg(), 60, candidates=[], n_test=0, check_null=5)  # refused before any simulation
+    assert not (tmp_path / "bank").exists()
+    (task,) = train_task(rec, _cfg(), 60, candidates=[], n_test=20, n_draws=50, check_null=19)
+    null = stored_check_null(task, N_NULL, 64)
+    assert null is not None and len(null.statistics) == 19 and np.all(np.isfinite(null.statistics))
+    assert stored_check_null(task, N_NULL + 1, 64) is None  # other check settings: not this null
+    fit = run_fit(tmp_path / "run", toy_measurement(truth=(-0.1, 0.2)), _cfg(sims_per_round=20, rounds=None),
+                  make_plots=False)
+    assert fit.report["rounds"] == 1
+    chk = check_run(tmp_path / "run", plot=False, effects=[])
+    # the run's omnibus statistic on its evaluation rollouts, against the 19 replicates': p >= 1/20
+    assert chk.test.calibrated and chk.test.omnibus == null.p_value(chk.test.statistic)
+    assert chk.test.omnibus.n == 19 and chk.test.p_value >= 1 / 20
+    scratch = run_fit(tmp_path / "scratch", rec, _cfg(sims_per_round=20, rounds=2), make_plots=False)
+    assert scratch.report["rounds"] == 2
+    assert not check_run(tmp_path / "scratch", plot=False, effects=[]).test.calibrated  # sequential: not the task's

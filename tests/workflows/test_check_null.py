@@ -1,0 +1,37 @@
+"""The calibration of check's omnibus test by a trained task's replicate recordings: its p-value, and what is read
+back from the stored file."""
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pytest
+
+from softsbi.core.errors import SoftsbiError
+from softsbi.workflows.check_null import NULL_FILE, CheckNull, check_replicates, stored_check_null
+
+
+def test_the_calibrated_p_value_counts_the_replicates_at_least_as_extreme_and_never_falls_below_its_floor():
+    null = CheckNull(30, 64, (0.5, 1.0, 2.0, 4.0))
+    assert null.p_value(3.0).exceed == 1 and null.p_value(3.0).value == pytest.approx(2 / 5)
+    assert null.p_value(0.1).value == 1.0
+    assert null.p_value(9.0).value == pytest.approx(1 / 5) and null.p_value(9.0).at_floor
+
+
+def test_a_stored_null_is_read_only_for_its_own_settings_and_a_damaged_one_counts_as_absent(tmp_path):
+    task = SimpleNamespace(path=tmp_path)
+    assert stored_check_null(task, 30, 64) is None and stored_check_null(None, 30, 64) is None
+    (tmp_path / NULL_FILE).write_text(json.dumps(CheckNull(30, 64, (1.0, 2.0)).to_json()))
+    assert stored_check_null(task, 30, 64) == CheckNull(30, 64, (1.0, 2.0))
+    assert stored_check_null(task, 20, 64) is None and stored_check_null(task, 30, 600) is None
+    (tmp_path / NULL_FILE).write_text('{"rollouts": 30, "n_dense": 64, "statistics": [1.0, NaN]}')
+    assert stored_check_null(task, 30, 64) is None
+    (tmp_path / NULL_FILE).write_text("{not json")
+    assert stored_check_null(task, 30, 64) is None
+
+
+def test_too_few_replicates_to_reject_at_the_level_are_refused():
+    check_replicates(0)
+    check_replicates(19)
+    with pytest.raises(SoftsbiError, match="--check-null 18"):
+        check_replicates(18)
