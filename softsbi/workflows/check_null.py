@@ -27,20 +27,20 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import SimulationFailed, SoftsbiError
+from softsbi.core.errors import PosteriorError, SimulationFailed, SoftsbiError
 from softsbi.core.jsonfile import write_json_atomic
 from softsbi.core.levels import ALPHA
 from softsbi.core.results import MCPValue
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.calibration import draws_in_box
-from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.plugins import registry
+from softsbi.workflows.fitconfig import FitConfig
+from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.observe import metric_sensor, observe_recording
 from softsbi.workflows.progress import phase
-from softsbi.workflows.fitconfig import FitConfig
 from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import mc_pvalue, misspecification_test, sensor_features, trajectory_features
+from softsbi.workflows.stats import MIN_NULL, mc_pvalue, misspecification_test, sensor_features, trajectory_features
 from softsbi.workflows.tasks import StoredTask, task_store_of
 
 #: seed stream of the replicate recordings (no fit's, training report's or check's stream)
@@ -73,6 +73,7 @@ class CheckNull:
         return mc_pvalue(statistic, np.asarray(self.statistics))
 
     def to_json(self) -> dict[str, Any]:
+        """The stored form (``check-null.json``): the three attributes, as JSON."""
         return {"rollouts": self.rollouts, "n_dense": self.n_dense, "statistics": list(self.statistics)}
 
 
@@ -115,7 +116,8 @@ def run_check_null(run: RunView, rollouts: int) -> CheckNull | None:
 def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: ParamSpace, ctx: SimContext,
                     rollouts: int, seeds: Sequence[int], workers: int | None = None) -> np.ndarray:
     """``(n, 2)``: each recording's omnibus statistic and its uncalibrated (leave-one-out) p-value, after the
-    procedure of a trained task's fit and check (module docstring).
+    procedure of a trained task's fit and check (module docstring); NaN for a recording that procedure could not
+    check (its posterior has no mass in the prior box, or fewer than ``MIN_NULL`` of its rollouts succeeded).
 
     Args:
         recordings: the ``n`` recordings (with dense clouds). est: the task's estimator.
@@ -123,8 +125,7 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
         rollouts: posterior-predictive rollouts per recording. seeds: one per recording (draws and rollouts).
 
     Raises:
-        SoftsbiError: fewer than 5 rollouts of a recording succeeded. PosteriorError: a posterior with (almost)
-            no mass in the prior box.
+        SoftsbiError: an environment fault of the executor.
     """
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
     sensor = metric_sensor(cfg, recordings[0].scenario)
@@ -135,17 +136,28 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
         for rec, seed in zip(recordings[lo:lo + BATCH], seeds[lo:lo + BATCH]):
             f_obs.append(trajectory_features(list(rec.dense), sensor["metric_min_z"], sensor["metric_frames"]))
             q = est.posterior_at(observe_recording(cfg, rec)[fr].astype(np.float64))
-            theta = space.from_unit(draws_in_box(q, rollouts, np.random.default_rng([seed, 1])))
+            try:
+                theta = space.from_unit(draws_in_box(q, rollouts, np.random.default_rng([seed, 1])))
+            except PosteriorError:  # no mass in the prior box: its fit would fail, so it is never checked
+                f_obs[-1] = None
+                theta = np.empty((0, space.dim))
             sim_seeds = np.random.default_rng([seed, 2]).integers(2**31, size=rollouts)
             items += [(t, int(s)) for t, s in zip(theta, sim_seeds)]
-        res = run_jobs(keep, items, workers, cfg.executor, cfg.executor_options, label=f"posterior-predictive rollouts of recordings {lo + 1}-"
-                                                   f"{lo + len(f_obs)}")
-        for j, (f, rec) in enumerate(zip(f_obs, recordings[lo:lo + BATCH])):
+        res = iter(run_jobs(keep, items, workers, cfg.executor, cfg.executor_options,
+                            label=f"posterior-predictive rollouts of recordings {lo + 1}-{lo + len(f_obs)}"))
+        for f, rec in zip(f_obs, recordings[lo:lo + BATCH]):
+            if f is None:
+                out.append((np.nan, np.nan))
+                continue
+            part = [next(res) for _ in range(rollouts)]
             # as check samples a run's rollouts: as many points per frame as the recording's clouds hold
             feats = [sensor_features(r, 1000 + i, rec.dense.shape[1], sensor["metric_min_z"], sensor["metric_frames"],
                                      sensor["metric_camera"])
-                     for i, r in enumerate(res[j * rollouts:(j + 1) * rollouts])
+                     for i, r in enumerate(part)
                      if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
+            if len(feats) < MIN_NULL:  # check refuses such a run: never checked, so not a replicate either
+                out.append((np.nan, np.nan))
+                continue
             d, p = misspecification_test(f, np.array(feats))
             out.append((d, p.value))
     return np.array(out, float).reshape(-1, 2)
@@ -154,10 +166,11 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
 def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream: int = NULL_STREAM,
                effects: Sequence[str] = (), extra: dict[str, float] | None = None
                ) -> tuple[list[Recording], list[int]]:
-    """Recordings of the task simulated at ``n`` parameters drawn from the prior (recording ``i`` from the seed stream
-    ``[cfg.seed, stream, i]``), with ``effects`` switched on at the values ``extra`` (a hidden effect; none for replicates), on the
-    fit's executor; their clouds hold as many points per frame as ``recording``'s. A simulation that fails gives no
-    recording (a recording is a simulation that ran): the lists hold the others, with their seeds.
+    """Recordings of the task simulated at ``n`` parameters drawn from the prior (recording ``i`` from the seed
+    stream ``[cfg.seed, stream, i]``), with ``effects`` switched on at the values ``extra`` (a hidden effect; none
+    for replicates), on the fit's executor; their clouds hold as many points per frame as ``recording``'s. A
+    simulation that fails gives no recording (a recording is a simulation that ran): the lists hold the others,
+    with their seeds.
 
     Raises:
         SoftsbiError: every simulation failed, or the executor raised one (an environment fault)."""
@@ -196,15 +209,21 @@ def train_check_null(task: StoredTask, recording: Recording, cfg: Any, space: Pa
     """Compute and store the task's replicates (module docstring) for checks on ``rollouts`` rollouts.
 
     Raises:
-        SoftsbiError: ``n`` below :data:`MIN_REPLICATES`, or the file cannot be written. Everything
-            :func:`case_statistics` raises.
+        SoftsbiError: ``n`` below :data:`MIN_REPLICATES` (before any work), fewer than that could be fitted and
+            checked, or the file cannot be written. Everything :func:`replicates` raises.
     """
     check_replicates(n)
     (message or (lambda s: None))(f"{task.model}: {n} replicate recordings for check's calibration "
                                   f"({n * (rollouts + 1)} simulations)")
     recs, seeds = replicates(cfg, space, recording, n)
-    stats = case_statistics(recs, task.restore(), cfg, space, ctx, rollouts, seeds, workers)
-    null = CheckNull(rollouts, int(recording.dense.shape[1]), tuple(float(s) for s in stats[:, 0]))
+    stats = case_statistics(recs, task.restore(), cfg, space, ctx, rollouts, seeds, workers)[:, 0]
+    kept = stats[np.isfinite(stats)]
+    if len(kept) < MIN_REPLICATES:
+        raise SoftsbiError(f"only {len(kept)} of {n} replicate recordings could be fitted and checked (the others "
+                           f"failed to simulate or put no posterior mass in the prior box); narrow the prior with "
+                           f"--bounds")
+    (message or (lambda s: None))(f"{task.model}: {len(kept)} of {n} replicates fitted and checked")
+    null = CheckNull(rollouts, int(recording.dense.shape[1]), tuple(float(s) for s in kept))
     try:
         write_json_atomic(task.path / NULL_FILE, null.to_json())
     except OSError as exc:

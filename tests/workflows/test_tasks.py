@@ -152,3 +152,23 @@ def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitt
     scratch = run_fit(tmp_path / "scratch", rec, _cfg(sims_per_round=20, rounds=2), make_plots=False)
     assert scratch.report["rounds"] == 2
     assert not check_run(tmp_path / "scratch", plot=False, effects=[]).test.calibrated  # sequential: not the task's
+
+
+def test_a_replicate_its_fit_could_not_check_is_no_replicate():
+    """A recording whose posterior puts no mass in the prior box (its fit fails) gives no statistic."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.core.distributions import MixtureOfGaussians
+    from softsbi.workflows.check_null import case_statistics
+    from softsbi.workflows.fitconfig import fit_param_space
+    from softsbi.workflows.tasks import first_round_context
+    rec = toy_measurement()
+    cfg = _cfg().resolved(rec)
+    _, space = fit_param_space(cfg, rec.scenario)
+
+    class Outside:  # every posterior far outside the unit box
+        def posterior_at(self, x):
+            return MixtureOfGaussians(np.ones(1), np.full((1, 2), 9.0), 0.01 * np.eye(2)[None])
+
+    st = case_statistics([rec], Outside(), cfg, space, first_round_context(cfg, rec, space), 30, [1], 1)
+    assert st.shape == (1, 2) and np.isnan(st).all()
