@@ -290,7 +290,7 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
         cands: candidate effect instances (:func:`candidate_effects`); empty = the omnibus test alone.
         null: the run's trained task's replicates (:class:`~softsbi.workflows.check_null.CheckNull`): the omnibus
             statistic on the pool's first ``null.rollouts`` rollouts (the fit's evaluation samples) is then
-            calibrated against them, and only the directional test's null grows.
+            calibrated against them, and only the directional test's null grows (and not once the verdict is reached).
 
     Returns:
         ``(test, screening, ranking)``: the :class:`~softsbi.core.results.JointTest`, the :class:`Screening`
@@ -324,9 +324,11 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
         return test, screen, ranking
 
     test, screen, ranking = evaluate()
-    # a calibrated omnibus p-value's resolution is its replicates': more rollouts cannot change it
+    # a calibrated omnibus p-value's resolution is its replicates': more rollouts cannot change it, and once it
+    # rejects alone more rollouts cannot change the verdict either (the omnibus p-value stays, the joint one falls)
     parts = [p for p in (None if null else test.omnibus, test.directional) if p is not None]
-    if len(pool.rollouts) < max_null and any(resolution_needed(p, alpha / test.tests, max_null) for p in parts):
+    if not test.misspecified and len(pool.rollouts) < max_null and any(
+            resolution_needed(p, alpha / test.tests, max_null) for p in parts):
         pool.ensure_successful(max_null)  # the cap counts successful rollouts: failures would cost resolution
         test, screen, ranking = evaluate()
     return test, screen, ranking
