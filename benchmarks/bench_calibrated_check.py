@@ -48,7 +48,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--out", type=Path, default=None, help="keep the bank (the trained task) here")
 
 
-FULL = {"null": 200, "controls": 100, "per-speed": 10}
+FULL = {"null": 200, "controls": 100, "per_speed": 10}
 LEVEL = 0.05
 #: seed streams of the controls and the breeze cases (the replicates' is check_null.NULL_STREAM)
 STREAMS = {"control": 8081, "breeze": 8082}
