@@ -305,8 +305,9 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
     family = tuple(c.name for c in cands)
 
     def evaluate() -> tuple[JointTest, Screening | None, tuple[Candidate, ...]]:
-        statistic, omnibus = misspecification_test(f_obs, pool.features)
-        if null is not None:  # the same rollouts as the replicates': the fit's evaluation samples
+        if null is None:
+            statistic, omnibus = misspecification_test(f_obs, pool.features)
+        else:  # the same rollouts as the replicates': the fit's evaluation samples
             first = [k for k, r in enumerate(pool.rollouts) if r["sample"] < null.rollouts]
             statistic = misspecification_test(f_obs, pool.features[first])[0]
             omnibus = null.p_value(statistic)
