@@ -8,8 +8,9 @@ from typing import Mapping, Sequence
 from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import (Candidate, CheckResult, CompareResult, Diagnosis, Estimate, Gain, JointTest,
-                                  MCPValue, Metric, Refit, ResidualShape, Score)
+from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, Refit,
+                                  ResidualShape, Score)
 from softsbi.core.types import unit_suffix
 
 #: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,

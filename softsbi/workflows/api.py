@@ -25,7 +25,8 @@ from softsbi.core.types import Recording, Rollout, Scenario
 from softsbi.data.validation import validation_line
 from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
-from softsbi.core.results import CheckResult, CompareResult, Diagnosis
+from softsbi.core.comparison import CompareResult
+from softsbi.core.results import CheckResult, Diagnosis
 from softsbi.workflows.calibrate import calibrate_run
 from softsbi.workflows.check import check_run
 from softsbi.workflows.compare import compare_runs
@@ -177,7 +178,7 @@ def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None,
     """``softsbi compare A B``: two fits of one measurement side by side
     (:func:`~softsbi.workflows.compare.compare_runs`; the runs and ``out`` as ``str`` or ``Path``; the figure and JSON go to ``out``, default ``run_b``; ``settings``:
     ``n_eval``, ``alpha`` (the level of both checks), ``max_null``, ``workers``, ``recompute``). Returns the
-    :class:`~softsbi.core.results.CompareResult`. ``progress``: one line on stderr per phase of simulations (module
+    :class:`~softsbi.core.comparison.CompareResult`. ``progress``: one line on stderr per phase of simulations (module
     docstring)."""
     with shown_unless_shown(progress):
         return compare_runs(run_a, run_b, run_b if out is None else out, **settings)

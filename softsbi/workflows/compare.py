@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Callable
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.results import CheckResult, CompareResult, Metric, Row, check_result_path, write_result
+from softsbi.core.comparison import CompareResult, Metric, Row
+from softsbi.core.results import CheckResult, check_result_path, write_result
 from softsbi.report import fit_label, plot_compare
 from softsbi.report.text import row_label
 from softsbi.workflows.check import check_run, sensor_model
@@ -39,8 +40,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).
 
     Returns:
-        the :class:`~softsbi.core.results.CompareResult`: rows keyed by their
-        :class:`~softsbi.core.results.Metric` (posterior-predictive Chamfer first, then the one-sided Chamfer, the
+        the :class:`~softsbi.core.comparison.CompareResult`: rows keyed by their
+        :class:`~softsbi.core.comparison.Metric` (posterior-predictive Chamfer first, then the one-sided Chamfer, the
         Chamfer energy score and the posterior-mean rollout's Chamfer where both runs have them, per phase, per
         region) and both checks.
 
@@ -74,7 +75,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
 
 
 def compare_rows(a: CheckResult, b: CheckResult) -> tuple[Row, ...]:
-    """The rows of a comparison of checks ``a`` and ``b`` (m), each keyed by its :class:`~softsbi.core.results.Metric`
+    """The rows of a comparison of checks ``a`` and ``b`` (m), each keyed by its :class:`~softsbi.core.comparison.Metric`
     and labelled by :func:`~softsbi.report.text.row_label`: the posterior-predictive Chamfer, then the one-sided
     Chamfer, the Chamfer energy score and the posterior-mean rollout's Chamfer where both checks have them, then per
     phase (in ``a``'s phases) and per region (``a``'s regions; NaN where ``b`` lacks one)."""

@@ -20,7 +20,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.results import CompareResult, Diagnosis, Metric, to_json
+from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.results import Diagnosis, to_json
 from softsbi.inference.contraction import contraction_from_report
 from softsbi.core.types import Recording
 from softsbi.plugins import registry

@@ -8,7 +8,8 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.results import CompareResult, Diagnosis, Estimate, JointTest, MCPValue, Metric, ResidualShape, Row
+from softsbi.core.comparison import CompareResult, Metric, Row
+from softsbi.core.results import Diagnosis, Estimate, JointTest, MCPValue, ResidualShape
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
 from softsbi.workflows.decide import decide

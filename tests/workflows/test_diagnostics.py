@@ -12,7 +12,8 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.core.errors import ParameterError
-from softsbi.core.results import CheckResult, CompareResult, Diagnosis, Metric, ResultDamaged, from_json
+from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.results import CheckResult, Diagnosis, ResultDamaged, from_json
 from softsbi.core.store import RunStore
 from softsbi.workflows.check import check_run, stored_result
 from softsbi.workflows.diagnose import diagnose_run, load_diagnosis, refit_model

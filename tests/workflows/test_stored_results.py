@@ -10,6 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 import softsbi
+import softsbi.core.comparison as comparison
 import softsbi.core.jsonfile as jsonfile
 import softsbi.core.results as results
 from softsbi.cli import app
@@ -197,7 +198,7 @@ def test_the_python_api_compares_runs_given_as_plain_strings(checked, tmp_path):
     res = softsbi.compare(a, b, out=str(tmp_path / "cmp"), n_eval=5, workers=1, progress=False)
     assert (res.run_a, res.run_b) == (a, b) and res.png == str(tmp_path / "cmp" / "compare.png")
     assert (tmp_path / "cmp" / "compare.json").is_file() and (tmp_path / "cmp" / "compare.png").is_file()
-    assert res.row(results.Metric.CHAMFER).a == res.check_a.chamfer_mean_m
+    assert res.row(comparison.Metric.CHAMFER).a == res.check_a.chamfer_mean_m
     res = softsbi.compare(a, b, n_eval=5, workers=1, alpha=0.2, max_null=20, progress=False)
     assert res.check_a.test.alpha == res.check_b.test.alpha == 0.2 and res.png == str(tmp_path / "b" / "compare.png")
     stored = results.from_json(results.CheckResult, json.loads((tmp_path / "a" / "check.json").read_text()))
