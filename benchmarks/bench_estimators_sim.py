@@ -81,7 +81,7 @@ def measure(args: argparse.Namespace, out: Path) -> dict:
             except PosteriorError as exc:  # e.g. q with no mass in the prior box: the method fails here
                 rows.append({"round": R, "simulations": R * args.sims, "failed": str(exc)})
                 break
-            rep = res.report
+            rep = res.report.to_json()
             rows.append({"round": R, "simulations": R * args.sims,
                          "chamfer_mean_m": rep["chamfer_posterior_m"], "chamfer_std_m": rep["chamfer_posterior_std_m"],
                          "chamfer_prior_m": rep["chamfer_prior_m"],

@@ -63,7 +63,7 @@ def _fit(out: Path, rec, cfg) -> dict:
     from softsbi.workflows.fit import run_fit
     t0 = time.perf_counter()
     res = run_fit(out, rec, cfg, make_plots=False)
-    r = res.report
+    r = res.report.to_json()
     inside = r["truth_in_90pct_interval"]
     informed = [n for n, c in r["contraction"].items() if c["informed"]]
     return {"wall_s": time.perf_counter() - t0, "chamfer_m": r["chamfer_posterior_m"],
@@ -107,10 +107,10 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
 
 def _trained_row(task) -> list:
     rep = task.report
-    return [task.model, task.n_prior, round(rep["wall_seconds"], 1), rep["n_test"], round(rep["coverage"]["at_50"], 3),
-            round(rep["coverage"]["at_90"], 3), rep["tarp"].get("ks_pvalue"),
-            ", ".join(n for n, r in zip(rep["parameters"], rep["sbc"]["rejects"]) if r) or "none", rep["verdict"],
-            ", ".join(f"{n} {c['width_ratio']:.2f}" for n, c in rep["contraction"].items())]
+    return [task.model, task.n_prior, round(rep.wall_seconds, 1), rep.n_test, round(rep.coverage.at_50, 3),
+            round(rep.coverage.at_90, 3), rep.tarp.ks_pvalue,
+            ", ".join(n for n, r in zip(rep.parameters, rep.sbc.rejects) if r) or "none", rep.verdict,
+            ", ".join(f"{n} {c.width_ratio:.2f}" for n, c in rep.contraction.items())]
 
 
 def _check_and_diagnose(run, workers: int) -> list:

@@ -147,7 +147,7 @@ def main() -> None:
                         seed=0)
         t0 = time.perf_counter()
         res = run_fit(args.out / kind, meas, cfg)
-        rep = res.report
+        rep = res.report.to_json()
         prior_std = {p.name: float(np.std(space.from_unit(np.random.default_rng(0).random((4000, space.dim)))[:, i]))
                      for i, p in enumerate(space)}
         row.update({

@@ -139,5 +139,6 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     o = Output(as_json)
     with o.progress() as p:
         res = run_fit(out, meas, cfg, callbacks=ProgressHooks(o, p), retry_failed=retry_failed)
-    if not json_done(o, dict(res.report, run_dir=str(out))):
-        print_fit_report(o, res.report, out)
+    rep = res.report.to_json()
+    if not json_done(o, dict(rep, run_dir=str(out))):
+        print_fit_report(o, rep, out)

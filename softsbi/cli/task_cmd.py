@@ -26,16 +26,15 @@ def _store(sim_bank: str) -> Any:
 
 
 def _row(t: Any) -> list[Any]:
-    r = t.report or {}
-    cov = r.get("coverage") or {}
+    r = t.report
     return [t.digest[:12], t.model, t.identity.get("backend"), (t.identity.get("scenario") or {}).get("name", "?"),
-            t.n_prior, r.get("verdict", "no training report (stored by a fit)"),
-            "" if not cov else f"{cov['at_50']:.2f} / {cov['at_90']:.2f}"]
+            t.n_prior, "no training report (stored by a fit)" if r is None else r.verdict,
+            "" if r is None else f"{r.coverage.at_50:.2f} / {r.coverage.at_90:.2f}"]
 
 
 def _doc(t: Any) -> dict[str, Any]:
     return {"key": t.digest, "model": t.model, "n_prior": t.n_prior, "path": str(t.path), "identity": t.identity,
-            "info": t.info, "report": t.report}
+            "info": t.info, "report": None if t.report is None else t.report.to_json()}
 
 
 def task_train(observed: Path = typer.Option(..., help="a recording of the task (its scenario and sensor settings; "
@@ -121,13 +120,12 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
     if r is None:
         o.line("no training report (stored by a fit's first round; `softsbi task train` trains one with its report)")
         return
-    con = r["contraction"]
-    rows = [[n, "rejects" if rej else "ok", f"{con[n]['width_ratio']:.2f}", "yes" if con[n]["informed"] else "no"]
-            for n, rej in zip(r["parameters"], r["sbc"]["rejects"])]
+    con = r.contraction
+    rows = [[n, "rejects" if rej else "ok", f"{con[n].width_ratio:.2f}", "yes" if con[n].informed else "no"]
+            for n, rej in zip(r.parameters, r.sbc.rejects)]
     o.table(["parameter", "SBC ranks", "90% width / prior (median)", "informed"], rows,
-            title=f"training report: {r['n_test']} held-out prior simulations")
-    o.line(f"expected coverage {r['coverage']['at_50']:.2f} at 50%, {r['coverage']['at_90']:.2f} at 90%; "
-           f"verdict: {r['verdict']}")
+            title=f"training report: {r.n_test} held-out prior simulations")
+    o.line(f"expected coverage {r.coverage.at_50:.2f} at 50%, {r.coverage.at_90:.2f} at 90%; verdict: {r.verdict}")
 
 
 def task_delete(key: str = typer.Argument(..., help="the task's key (its first characters suffice)"),

@@ -1,5 +1,5 @@
-"""The typed form of a fit's ``report.json`` (:class:`FitReport`) and of ``calibration.json``
-(:class:`CalibrationResult`).
+"""The typed form of a fit's ``report.json`` (:class:`FitReport`), of ``calibration.json``
+(:class:`CalibrationResult`) and of a stored task's training report (:class:`TrainingReport`).
 
 The fit writes ``report.json`` as a plain JSON object; :meth:`FitReport.from_json` reads it into frozen dataclasses
 and :meth:`FitReport.to_json` gives back the same object. Reports written by older softsbi versions lack keys
@@ -482,3 +482,53 @@ class CalibrationResult:
                  "verdict_90", "verdict", "calibrated", "alpha", "too_narrow", "too_wide", "biased", "diagnostics",
                  "sbc", "tarp", "train_seconds", "simulation_seconds", "estimator_fit", "refit_max_mean_difference")
         return {k: out[k] for k in order}
+
+
+@dataclass(frozen=True)
+class TrainingReport:
+    """A stored task's training report (``softsbi task train``,
+    :func:`~softsbi.workflows.task_training.training_report`): its amortised posterior measured on held-out
+    simulations drawn from the prior.
+
+    Attributes:
+        n_test: held-out simulations measured. n_draws: posterior draws per held-out simulation. parameters: the
+            inferred parameters' names. coverage: :class:`Coverage`. sbc: :class:`RankHistograms`. tarp:
+            :class:`Tarp`. verdict, calibrated, too_narrow, too_wide, biased: as :class:`CalibrationResult`'s.
+        contraction: per parameter, the median 90% interval's width over the prior's (``width_ratio``) and whether
+            the data inform it (``informed``). n_test_failed: held-out simulations that failed.
+        simulation_seconds, train_seconds, wall_seconds: the held-out simulations', the training's and the whole
+            training's time (s).
+    """
+
+    n_test: int
+    n_draws: int
+    parameters: tuple[str, ...]
+    coverage: Coverage
+    sbc: RankHistograms
+    tarp: Tarp
+    verdict: str
+    calibrated: bool
+    contraction: Mapping[str, Contraction]
+    n_test_failed: int = 0
+    too_narrow: tuple[str, ...] = ()
+    too_wide: tuple[str, ...] = ()
+    biased: tuple[str, ...] = ()
+    simulation_seconds: float | None = None
+    train_seconds: float | None = None
+    wall_seconds: float | None = None
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> "TrainingReport":
+        """Read the stored form (:meth:`to_json`).
+
+        Raises:
+            ValueError: it is not a training report (a key missing, a value of the wrong kind).
+        """
+        try:
+            return _build(cls, dict(data))
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"not a training report: {exc}") from None
+
+    def to_json(self) -> dict[str, Any]:
+        """The stored form: plain JSON values."""
+        return _plain(self)

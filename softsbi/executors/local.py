@@ -106,6 +106,9 @@ def check_options(workers: int | None, timeout: float | None, retries: int) -> N
 STARTUP_FAILURES = 3
 #: the first message of a worker: it has started and unpickled its context
 _READY = "softsbi-worker-ready"
+#: a message ``(_NEW_CONTEXT, context)`` to an idle worker: later jobs run with ``context`` (a pool's workers are
+#: started once and serve batches of different contexts: a fit's rounds, its evaluation, a check's phases)
+_NEW_CONTEXT = "softsbi-worker-context"
 
 # ----------------------------------------------------------------------------------------
 # worker side
@@ -126,6 +129,9 @@ def _worker_main(conn: mpc.Connection, context: Any) -> None:
             return
         if msg is None:
             return
+        if msg[0] == _NEW_CONTEXT:
+            context = msg[1]
+            continue
         i, fn, item = msg
         try:
             out = (i, True, fn(context, item))
@@ -240,11 +246,20 @@ class LocalExecutor(Executor):
         return _Worker(self._mp, self._context, import_main=self._import_main)
 
     def _ensure_pool(self, context: Any, import_main: bool = False) -> None:
-        if self._pool and (self._context is not context or (import_main and not self._import_main)):
+        """Start the missing workers; a pool already started is kept, and told ``context`` when it changed
+        (workers that did not import the caller's script are replaced when ``context`` or the job needs it)."""
+        if self._pool and import_main and not self._import_main:
             self.close()
-        self._context = context
         if not self._pool:  # a pool that is kept keeps how its workers started
             self._import_main = import_main
+        changed, self._context = self._context is not context, context
+        self._pool = [w for w in self._pool if w.proc.is_alive()]
+        for w in self._pool if changed else ():
+            try:
+                w.conn.send((_NEW_CONTEXT, context))
+            except (OSError, ValueError):  # died while idle: replaced below, with the new context
+                w.kill()
+                w.proc.join(5)
         self._pool = [w for w in self._pool if w.proc.is_alive()]
         while len(self._pool) < self.workers:
             self._pool.append(self._spawn())

@@ -44,7 +44,7 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration import plot_calibration
-from softsbi.workflows import defaults
+from softsbi.workflows import defaults, pools
 from softsbi.workflows.fitconfig import FitConfig, estimator_options as fit_estimator_options
 from softsbi.workflows.rounds import round_posterior, usable_simulations
 from softsbi.workflows.tasks import served_by_task, task_store_of
@@ -158,6 +158,7 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
     return {k: v[: n_blocks * BLOCK] for k, v in data.items()}
 
 
+@pools.shared_executors()
 def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS,
                   workers: int | None = None,
                   estimator: str | None = None, estimator_options: Mapping[str, Any] | None = None,
@@ -354,5 +355,5 @@ def trained_task_line(info: Mapping[str, Any], sim_bank: str) -> str | None:
         return None
     r = task.report
     return (f"round 1's posterior is stored task {task.digest[:12]}'s, measured when it was trained on "
-            f"{r['n_test']} held-out prior simulations: coverage {r['coverage']['at_50']:.2f} at 50%, "
-            f"{r['coverage']['at_90']:.2f} at 90%; {r['verdict']} (`softsbi task show {task.digest[:12]}`)")
+            f"{r.n_test} held-out prior simulations: coverage {r.coverage.at_50:.2f} at 50%, "
+            f"{r.coverage.at_90:.2f} at 90%; {r.verdict} (`softsbi task show {task.digest[:12]}`)")

@@ -35,7 +35,7 @@ from softsbi.core.types import STATUS_OK, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
-from softsbi.workflows import defaults
+from softsbi.workflows import defaults, pools
 from softsbi.workflows.check_null import run_check_null
 from softsbi.workflows.fitreport import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
@@ -332,6 +332,7 @@ def reused(path: Path) -> str:
     return f"reused {path} (computed before for this fit and these settings; --recompute computes it again)"
 
 
+@pools.shared_executors()
 def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
               pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None,

@@ -33,7 +33,7 @@ from softsbi.core.levels import ALPHA
 from softsbi.core.results import MCPValue
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.calibration import draws_in_box
-from softsbi.plugins import registry
+from softsbi.workflows import pools
 from softsbi.workflows.fitconfig import FitConfig
 from softsbi.workflows.jobs import SimContext, run_jobs
 from softsbi.workflows.measurement import simulate_recording
@@ -181,17 +181,14 @@ def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream
                  **dict(extra or {})}
         jobs.append((cfg.backend, recording.scenario, truth, dict(cfg.backend_options), list(effects), cfg.n_points,
                      int(recording.dense.shape[1]), 0.0, int(rng.integers(2**31))))
-    exe = registry().executor(cfg.executor)(workers=cfg.workers, **dict(cfg.executor_options or {}))
     out: list[Any] = [None] * n
-    try:
-        with phase("replicate recordings", n) as advance:
-            for done, (i, res) in enumerate(exe.map_unordered(_simulated_recording, jobs), start=1):
-                if isinstance(res, SoftsbiError) and not isinstance(res, SimulationFailed):
-                    raise res
-                out[i] = None if isinstance(res, BaseException) else res
-                advance(done)
-    finally:
-        exe.close()
+    with pools.executor(cfg.executor, cfg.workers, cfg.executor_options) as exe, \
+            phase("replicate recordings", n) as advance:
+        for done, (i, res) in enumerate(exe.map_unordered(_simulated_recording, jobs), start=1):
+            if isinstance(res, SoftsbiError) and not isinstance(res, SimulationFailed):
+                raise res
+            out[i] = None if isinstance(res, BaseException) else res
+            advance(done)
     kept = [i for i in range(n) if out[i] is not None]
     if not kept:
         raise SoftsbiError(f"every one of {n} replicate recordings failed to simulate; narrow the prior with --bounds")

@@ -15,6 +15,7 @@ from softsbi.core.comparison import CompareResult, Metric, Row
 from softsbi.core.results import CheckResult, check_result_path, write_result
 from softsbi.report import fit_label, plot_compare
 from softsbi.report.text import row_label
+from softsbi.workflows import pools
 from softsbi.workflows.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.runs import load_run
@@ -22,6 +23,7 @@ from softsbi.workflows.screening import check_resolution
 from softsbi.workflows.stats import ALPHA, MAX_NULL, N_NULL
 
 
+@pools.shared_executors()
 def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = N_NULL,
                  workers: int | None = None, alpha: float = ALPHA, max_null: int = MAX_NULL, recompute: bool = False,
                  message: Callable[[str], None] | None = None) -> CompareResult:

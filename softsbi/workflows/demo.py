@@ -27,6 +27,7 @@ from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.report.text import check_summary
 from softsbi.scenarios.builtin import lift_scenario
+from softsbi.workflows import pools
 from softsbi.workflows.check import check_run
 from softsbi.workflows.defaults import DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
 from softsbi.workflows.compare import compare_runs
@@ -87,10 +88,11 @@ def demo_recording(quick: bool) -> tuple[Recording, dict[str, float]]:
 def _fit(ui: DemoCallbacks, recording: Recording, cfg: FitConfig, run_dir: Path) -> FitResult:
     with ui.fitting() as callbacks:
         res = run_fit(run_dir, recording, cfg, callbacks=callbacks)
-    ui.fit_done(res.report, run_dir)
+    ui.fit_done(res.report.to_json(), run_dir)
     return res
 
 
+@pools.shared_executors()
 def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int = DEMO_ROUNDS,
              sims_per_round: int = DEMO_SIMS, estimator: str = ESTIMATOR, seed: int = SEED,
              workers: int | None = None, proposal: str = PROPOSAL, ui: DemoCallbacks | None = None) -> dict[str, Any]:
@@ -118,9 +120,9 @@ def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int 
     nominal = out / "nominal"
     ui.step("1. fit the nominal model")
     res = _fit(ui, recording, cfg, nominal)
-    doc: dict[str, Any] = {"out": str(out), "quick": quick, "nominal": res.report}
+    doc: dict[str, Any] = {"out": str(out), "quick": quick, "nominal": res.report.to_json()}
     if quick:
-        return _finish(ui, doc, res.report, t0, "")
+        return _finish(ui, doc, doc["nominal"], t0, "")
     return _find_and_add_effect(ui, doc, recording, cfg, out, res, workers, t0)
 
 

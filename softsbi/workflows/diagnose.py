@@ -29,7 +29,7 @@ from softsbi.core.types import Recording
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
 from softsbi.workflows.check import check_run, loaded, result_key, reused, stored_result
-from softsbi.workflows import defaults
+from softsbi.workflows import defaults, pools
 from softsbi.workflows.decide import K_SE, decide, next_refit
 from softsbi.workflows.progress import fit_callbacks
 from softsbi.workflows.fit import FitConfig, run_fit
@@ -45,6 +45,7 @@ from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictiv
 REFIT_PROPOSAL = "truncated"
 
 
+@pools.shared_executors()
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alpha: float = ALPHA,
                  k_se: float = K_SE, confirm: int = defaults.CONFIRM, refit_rounds: int | None = None,
                  refit_sims: int | None = None, n_null: int = N_NULL, max_null: int = MAX_NULL,
@@ -163,6 +164,7 @@ def recording_from_run(run: RunView) -> Recording:
                      source=run.config.get("observed_source", ""), truth=run.config.get("truth"))
 
 
+@pools.shared_executors()
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], scale: np.ndarray | None = None,
                 alpha: float = ALPHA, rounds: int | None = None, sims_per_round: int | None = None,
                 n_null: int = N_NULL, max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0,
@@ -199,7 +201,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
              if scale is not None and len(f) >= 3 else None)
     # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
     return Refit(effects, str(out), chk.test, score, chk.chamfer_mean_m, estimates(pool.run.report, effects), chk.ranking,
-                 int(fitted.report["rounds"]), cfg.sims_per_round, chk.n_rollouts)
+                 int(fitted.report.rounds), cfg.sims_per_round, chk.n_rollouts)
 
 
 def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]:

@@ -31,6 +31,7 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, RoundPosterior
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.fitreport import FitReport
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
@@ -41,7 +42,7 @@ from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fi
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, parameter_table
 from softsbi.workflows.fitreport import build_report, chamfer_stats, damaged_report, read_report
 from softsbi.workflows.jobs import SimContext, evaluation_seeds, simulate_job
-from softsbi.workflows import defaults
+from softsbi.workflows import defaults, pools
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.observe import fit_sim_context, metric_sensor, observer_options
 from softsbi.workflows.progress import FitCallbacks
@@ -58,9 +59,9 @@ __all__ = ["FitCallbacks", "FitConfig", "FitResult", "SensorDraws", "SimContext"
            "read_report", "round_posterior", "run_fit", "simulate_job"]
 
 
-@dataclass
+@dataclass(frozen=True)
 class FitResult:
-    """Outcome of :func:`run_fit`; ``report`` is what goes to ``report.json``.
+    """Outcome of :func:`run_fit`; ``report`` is ``report.json``, typed (``report.to_json()`` is the file's object).
 
     ``posterior`` samples theta in unit coordinates (``param_space.from_unit`` maps them to
     physical units); :func:`softsbi.open_run` gives the posterior in physical units."""
@@ -68,8 +69,7 @@ class FitResult:
     store: RunStore
     param_space: ParamSpace
     posterior: RoundPosterior
-    report: dict[str, Any]
-    rounds: list[dict[str, Any]]
+    report: FitReport
 
 
 def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
@@ -106,7 +106,7 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
     cfg.validate()
     observed = recording.source if recording.source and Path(recording.source).is_dir() else None
     check_bank_path(cfg.sim_bank, {"--out": out_dir, "--observed": observed})
-    with run_lock(out_dir):
+    with run_lock(out_dir), pools.shared_executors():
         check_result_path(Path(out_dir) / "report.json")  # a folder in its place: refused before any simulation
         return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
 
@@ -116,7 +116,7 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     """:func:`run_fit` with the run directory's lock held."""
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
-    exe_cls = reg.executor(cfg.executor)
+    reg.executor(cfg.executor)  # an unknown executor fails before any work
     _, base = fit_param_space(cfg, recording.scenario)
     space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
     prior = PriorRound.of(cfg, recording, base)  # the first round as a stored task (:mod:`.tasks`)
@@ -133,19 +133,18 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     space = reconcile(store, base, callbacks.message)
     ctx = fit_sim_context(cfg, recording, store, space)
     loop = Rounds(cfg, store, space, ctx, est_cls, callbacks, clock, prior)
-    executor = exe_cls(workers=cfg.workers, **cfg.executor_options)
     try:
-        for r in range(cfg.rounds):
-            loop.space = space_of_round(base, store.config, r)
-            loop.run_round(r, executor)
-            _next_prior(loop, base, r)
-        space = loop.space
-        post = loop.chain.posterior(len(loop.chain) - 1)
-        ev_stats = _evaluate(store, post, space, ctx, executor, cfg, callbacks)
-        loop.summaries[-1]["chamfer_posterior"] = ev_stats
-        best = _best_fit(store, post, space, ctx, executor, cfg, callbacks) if loop.scored else None
+        with pools.executor(cfg.executor, cfg.workers, cfg.executor_options) as executor:
+            for r in range(cfg.rounds):
+                loop.space = space_of_round(base, store.config, r)
+                loop.run_round(r, executor)
+                _next_prior(loop, base, r)
+            space = loop.space
+            post = loop.chain.posterior(len(loop.chain) - 1)
+            ev_stats = _evaluate(store, post, space, ctx, executor, cfg, callbacks)
+            loop.summaries[-1]["chamfer_posterior"] = ev_stats
+            best = _best_fit(store, post, space, ctx, executor, cfg, callbacks) if loop.scored else None
     finally:
-        executor.close()
         with contextlib.suppress(OSError):  # also when interrupted: the next session's resume message counts it
             clock.save(force=True)
     samples = space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99])))
@@ -155,7 +154,8 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     write_json_atomic(out_dir / "report.json", report)
     if damaged is not None:
         callbacks.message(f"rewrote {damaged.path}, which was damaged ({damaged.problem})")
-    result = FitResult(store=store, param_space=space, posterior=post, report=report, rounds=loop.summaries)
+    result = FitResult(store=store, param_space=space, posterior=post,
+                       report=FitReport.from_json(report, out_dir / "report.json"))
     if make_plots:
         write_fit_plots(out_dir, result, recording, cfg, samples,
                         observer_options=observer_options(cfg, recording.scenario))

@@ -28,7 +28,7 @@ def write_fit_plots(out_dir: Path, result: Any, meas: Any, cfg: Any, samples: np
         samples: ``(S, D)`` final-posterior samples, physical units.
         observer_options: the fit's observer constructor options (image fits draw its keypoints).
     """
-    rep = result.report
+    rep = result.report.to_json()
     subtitle = f"fit: {fit_label(rep)}; measurement: {source_name(rep.get('observed'))}"
     paths = [plot_chamfer_rounds(out_dir / "chamfer_rounds.png", rep),
              plot_pairs(out_dir / "posterior_pairs.png", result.param_space, samples, meas.truth, subtitle=subtitle)]
@@ -69,15 +69,16 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     """Measured (grey) vs simulated at the posterior median (blue) clouds and the best fit's stored rollout
     (purple, :func:`best_fit_clouds`): side view and top view. Simulates one rollout at the posterior median
     (``cfg``'s backend, effects and fixed parameters, seed 0)."""
-    theta = dict(result.report["posterior_median"])
+    theta = dict(result.report.posterior_median)
     theta.update(cfg.fixed)
     sim = registry().simulator(cfg.backend)(**cfg.backend_options)
     ro = sim.simulate(meas.scenario, theta, effects=cfg.effects, seed=0)
     frames = frames or _four_frames(meas.scenario.n_frames)
     sim_pts = rollout_clouds(ro, CLOUD_POINTS, np.random.default_rng(0)) if ro.ok else None
     status = "" if ro.ok else f" (simulation failed: {ro.reason})"
-    title = f"fit: {fit_label(result.report)}; measurement: {source_name(result.report.get('observed'))}"
-    best_pts, best_label = best_fit_clouds(result.store, result.report)
+    rep = result.report.to_json()
+    title = f"fit: {fit_label(rep)}; measurement: {source_name(rep.get('observed'))}"
+    best_pts, best_label = best_fit_clouds(result.store, rep)
     return save_figure(clouds_figure(meas.scenario, meas.dense, sim_pts, frames, title, status,
                                      ro.vertices if ro.ok else None, len(ro.faces) == 0, best_pts, best_label), path)
 
@@ -87,7 +88,7 @@ def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     """Image fits: measured frames (top) and frames rendered at the posterior median (bottom), with
     the extractor's keypoints (cyan) and the HSV cloth-mask outline (yellow) of each. Renders one rollout at
     the posterior median with the fit's observer's camera and style (seed 0)."""
-    theta = dict(result.report["posterior_median"])
+    theta = dict(result.report.posterior_median)
     theta.update(cfg.fixed)
     obs = registry().observer(cfg.observer)(**dict(observer_options or {}))
     sim = registry().simulator(cfg.backend)(**cfg.backend_options)
@@ -96,5 +97,6 @@ def plot_frames(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     rows = [(label, imgs, obs.observe_images(imgs, sc.gripper, sc.times).points, hsv_mask(imgs))
             for label, imgs in [("measured", meas.images)] + ([("posterior median", ro.rgb)] if ro.ok else [])]
     status = "" if ro.ok else f" (posterior simulation failed: {ro.reason})"
-    fig = frames_figure(rows, frames or _four_frames(sc.n_frames), result.report, sc.name, cfg.observer, status)
+    fig = frames_figure(rows, frames or _four_frames(sc.n_frames), result.report.to_json(), sc.name, cfg.observer,
+                        status)
     return save_figure(fig, path)

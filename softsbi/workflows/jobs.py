@@ -24,6 +24,7 @@ from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
 from softsbi.workflows.bank import BankCount, SimulationBank, rollout_key
+from softsbi.workflows import pools
 from softsbi.workflows.progress import notify, phase
 
 
@@ -226,22 +227,18 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
     A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised; any other
     exception, or a crashed worker, becomes a failed result ``{"status": STATUS_ERROR, "reason"}``.
     """
-    exe = registry().executor(executor)(workers=workers, **dict(executor_options or {}))
     out: list[dict[str, Any] | None] = [None] * len(items)
     count = BankCount()
-    try:
-        with phase(label, len(items)) as advance:
-            for done, (i, res) in enumerate(exe.map_unordered(simulate_job, items, context=ctx), start=1):
-                if isinstance(res, BaseException):
-                    if isinstance(res, SoftsbiError):
-                        raise res
-                    res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None,
-                           "chamfer": None}
-                out[i] = res
-                count.add(res.get("bank"))
-                advance(done, count.hits)
-            if count.wrong_key:
-                notify(count.warning(ctx.bank))
-    finally:
-        exe.close()
+    with pools.executor(executor, workers, executor_options) as exe, phase(label, len(items)) as advance:
+        for done, (i, res) in enumerate(exe.map_unordered(simulate_job, items, context=ctx), start=1):
+            if isinstance(res, BaseException):
+                if isinstance(res, SoftsbiError):
+                    raise res
+                res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None,
+                       "chamfer": None}
+            out[i] = res
+            count.add(res.get("bank"))
+            advance(done, count.hits)
+        if count.wrong_key:
+            notify(count.warning(ctx.bank))
     return out  # type: ignore[return-value]

@@ -25,11 +25,12 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.fitreport import TrainingReport
 from softsbi.core.posterior_store import EstimatorState
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
-from softsbi.workflows import defaults
+from softsbi.workflows import defaults, pools
 from softsbi.workflows.calibrate import calibration_stats
 from softsbi.workflows.check_null import check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, needs_images
@@ -124,8 +125,8 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     report = None
     if n_test > 0:
         report = training_report(est, ctx, space, cfg, n_test, n_draws, fr)
-        report["train_seconds"] = time.perf_counter() - t0 - report["simulation_seconds"]
-        report["wall_seconds"] = time.perf_counter() - t_start  # prior and held-out simulations, training, report
+        report = replace(report, train_seconds=time.perf_counter() - t0 - report.simulation_seconds,
+                         wall_seconds=time.perf_counter() - t_start)  # prior and held-out simulations, training
     stored = prior.store.put(prior.identity, n_prior, _state(est, cfg.estimator, opts), info, report)
     if stored is None:
         raise SoftsbiError(f"the task store {prior.store.path} cannot be written: give --sim-bank a folder you can "
@@ -148,7 +149,7 @@ def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
 
 
 def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int, n_draws: int,
-                    fr: Any) -> dict[str, Any]:
+                    fr: Any) -> TrainingReport:
     """The training report of a trained task: its amortised posterior on ``n_test`` held-out prior simulations
     (module docstring, step 3)."""
     t0 = time.perf_counter()
@@ -160,19 +161,22 @@ def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig
     lo, hi = np.quantile(st["draws"], 0.05, axis=1), np.quantile(st["draws"], 0.95, axis=1)  # (n, D) unit cube
     ratio = np.median((hi - lo) / 0.9, axis=0)  # the prior's central 90% spans 0.9 of the unit cube
     ver = st["ver"]
-    return {"n_test": int(st["n"]), "n_test_failed": int(n_test - len(U)), "n_draws": int(n_draws),
-            "parameters": space.names,
-            "coverage": {"levels": st["levels"].tolist(), "hpd": st["cov"].tolist(), "at_50": st["at"][0.5],
-                         "at_90": st["at"][0.9]},
-            "sbc": {"histograms": st["hist"], "rejects": [p["rejects"] for p in ver["sbc"]["parameters"]],
-                    **st["tests"]},
-            "tarp": st["tarp"], "verdict": ver["verdict"], "calibrated": ver["calibrated"],
-            "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
-            "contraction": {n: {"width_ratio": float(r), "informed": bool(r <= INFORMED_MAX_RATIO)}
-                            for n, r in zip(space.names, ratio)},
-            "simulation_seconds": sim_s}
+    return TrainingReport.from_json({
+        "n_test": int(st["n"]), "n_test_failed": int(n_test - len(U)), "n_draws": int(n_draws),
+        "parameters": space.names,
+        "coverage": {"levels": st["levels"].tolist(), "hpd": st["cov"].tolist(), "band_lo": st["lo"].tolist(),
+                     "band_hi": st["hi"].tolist(), "at_50": st["at"][0.5], "at_90": st["at"][0.9]},
+        "sbc": {"n_bins": defaults.N_BINS, "histograms": st["hist"], "band": ver["sbc"]["band"],
+                "band_level": ver["sbc"]["level"], "shapes": [p["shapes"] for p in ver["sbc"]["parameters"]],
+                "rejects": [p["rejects"] for p in ver["sbc"]["parameters"]], **st["tests"]},
+        "tarp": st["tarp"], "verdict": ver["verdict"], "calibrated": ver["calibrated"],
+        "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
+        "contraction": {n: {"width_ratio": float(r), "informed": bool(r <= INFORMED_MAX_RATIO)}
+                        for n, r in zip(space.names, ratio)},
+        "simulation_seconds": sim_s})
 
 
+@pools.shared_executors()
 def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TASK_PRIOR_SIMS,
                candidates: Sequence[str] | None = None,
                n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS, retrain: bool = False,

@@ -38,6 +38,7 @@ from typing import Any, Mapping
 import zarr
 
 from softsbi.core.errors import PosteriorDamaged, SchemaError, SoftsbiError
+from softsbi.core.fitreport import TrainingReport
 from softsbi.core.store import installed_version
 from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
 from softsbi.core.types import ParamSpace, Recording, jsonable
@@ -110,8 +111,8 @@ class StoredTask:
             ``[seed, 0, 1]``); the estimator was trained on the usable ones.
         estimator: the trained estimator's state (restore: the plugin ``estimator.name`` with its options).
         info: the training information (:meth:`~softsbi.core.interfaces.PosteriorEstimator.fit`'s, with counts).
-        report: the training report (``task train``: calibration on held-out prior simulations), or None
-            (stored by a fit's first round).
+        report: the training report (``task train``: calibration on held-out prior simulations,
+            :class:`~softsbi.core.fitreport.TrainingReport`), or None (stored by a fit's first round).
         path: its folder.
     """
 
@@ -120,7 +121,7 @@ class StoredTask:
     n_prior: int
     estimator: EstimatorState
     info: dict[str, Any]
-    report: dict[str, Any] | None
+    report: TrainingReport | None
     path: Path
 
     @property
@@ -161,17 +162,18 @@ class TaskStore:
                 return None
             state = read_posterior_group(lambda: g["estimator"], f"stored task {digest[:12]}", "train it again",
                                          str(identity.get("softsbi")))
+            report = None if attrs.get("report") is None else TrainingReport.from_json(attrs["report"])
         except (PosteriorDamaged, SchemaError, KeyError, OSError, ValueError):
             return None
         except Exception:  # noqa: BLE001 - an unreadable entry is an absent one: trained again
             return None
         if not isinstance(state, EstimatorState):
             return None
-        return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs.get("info") or {}),
-                          attrs.get("report"), where)
+        return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs.get("info") or {}), report,
+                          where)
 
     def put(self, identity: Mapping[str, Any], n_prior: int, estimator: EstimatorState, info: Mapping[str, Any],
-            report: Mapping[str, Any] | None = None) -> StoredTask | None:
+            report: TrainingReport | None = None) -> StoredTask | None:
         """Store a trained task (replacing the entry of its key). Returns it, or None when the store cannot be
         written (a read-only or full disk: nothing is stored, nothing is lost)."""
         digest = task_digest(identity)
@@ -182,7 +184,7 @@ class TaskStore:
             g = zarr.open_group(str(tmp / "task.zarr"), mode="w")
             write_posterior(g.require_group("estimator"), arrays, attrs)
             g.attrs.update(jsonable({"format": TASK_FORMAT, "identity": dict(identity), "n_prior": int(n_prior),
-                                     "info": dict(info), "report": None if report is None else dict(report)}))
+                                     "info": dict(info), "report": None if report is None else report.to_json()}))
             if where.exists():
                 shutil.rmtree(where, ignore_errors=True)
             where.parent.mkdir(parents=True, exist_ok=True)

@@ -128,5 +128,5 @@ def test_an_environment_fault_stores_nothing_as_failed_and_the_fit_resumes(tmp_p
     status = RunStore.open(out / "run.zarr").round_data(0)["status"]
     assert np.all(status == STATUS_PENDING), status  # nothing stored as failed
     res = run_fit(out, meas, cfg, make_plots=False)  # the environment is fixed: the same call resumes
-    assert res.report["failed_simulations"] == 0
+    assert res.report.failed_simulations == 0
     assert np.all(RunStore.open(out / "run.zarr").round_data(0)["status"] == STATUS_OK)

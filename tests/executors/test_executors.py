@@ -103,7 +103,7 @@ def test_fit_round_completes_with_crashing_simulations_marked_failed(tmp_path, m
     fails = res.store.round_attrs(0)["failures"]
     assert set(fails) == {str(i) for i in np.nonzero(bad)[0]}
     assert all("WorkerCrashed" in v and "2 attempt" in v for v in fails.values())
-    assert res.rounds[0]["usable"] == int((~bad).sum())
+    assert res.report.per_round[0].usable == int((~bad).sum())
 
 
 UNGUARDED_SCRIPT = """

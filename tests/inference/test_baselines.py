@@ -147,7 +147,7 @@ def test_run_fit_draws_every_round_from_the_prior_for_bulk_estimators(tmp_path):
     u1 = store.round_data(1)["u"]
     assert store.round_attrs(1)["proposal"] == "prior"
     assert u1.std(0).min() > 0.2  # uniform on [0, 1] (std 0.29), not a concentrated posterior
-    assert res.report["per_round"][-1]["usable"] == 40
+    assert res.report.per_round[-1].usable == 40
     assert len(res.posterior.chain) == 1  # one round of q, trained on all 80 prior simulations
 
 

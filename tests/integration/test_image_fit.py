@@ -155,7 +155,7 @@ def test_fit_with_transporter_observer_python_api(rendered, tmp_path):
     cfg = FitConfig(observer="transporter", observer_options={"extractor": str(root / "tp.pt"), "size": SIZE},
                     rounds=1, sims_per_round=10, n_eval=3, workers=1, estimator_options={"max_epochs": 40})
     res = run_fit(tmp_path / "tp", meas, cfg, make_plots=False)
-    assert res.report["metric"] == "mask_chamfer_px"
+    assert res.report.metric == "mask_chamfer_px"
     x = res.store.round_data(0)["x"]
     ok = res.store.round_data(0)["status"] == 0
     assert ok.sum() >= 8 and np.all(np.isfinite(x[ok]))

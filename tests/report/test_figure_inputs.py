@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import softsbi.report
+from softsbi.core.fitreport import FitReport
 from softsbi.core.types import Handle, Param, ParamSpace, Rollout, Scenario
 from softsbi.report.fit_figures import frames_figure
 from softsbi.scenarios.handles import grasped_vertex, handle_tracks, pinned_vertices
@@ -101,8 +102,8 @@ def _fit(monkeypatch, metric="chamfer_m"):
     store = SimpleNamespace(has=lambda g: False)
     report = {"observed": "x", "backend": "toy", "effects": [], "metric": metric, "chamfer_prior_m": 0.04,
               "per_round": [{"round": 0, "chamfer_posterior_m": 0.02, "chamfer_posterior_std_m": 0.01}],
-              "posterior_median": {"bend": 1e-4, "mass": 0.2}}
-    result = SimpleNamespace(report=report, param_space=space, store=store)
+              "posterior_median": {"bend": 1e-4, "mass": 0.2}, "parameters": space.to_json()}
+    result = SimpleNamespace(report=FitReport.from_json(report), param_space=space, store=store)
     images = np.zeros((4, 16, 16, 3), np.uint8)
     images[:, 4:12, 4:12] = (200, 40, 40)
     meas = SimpleNamespace(truth={}, scenario=sc, dense=verts, images=images)

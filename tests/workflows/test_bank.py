@@ -127,14 +127,14 @@ def test_a_fit_reports_its_bank_hits_and_replaces_entries_under_another_key(tmp_
             self.read.append((r, hits, total))
 
     a = run_fit(tmp_path / "a", toy_measurement(), _fit_cfg(), callbacks=(told_a := Told()), make_plots=False)
-    assert a.report["bank_hits"] == 0 and a.report["per_round"][0]["bank_hits"] == 0 and not told_a.read
+    assert a.report.bank_hits == 0 and a.report.per_round[0].bank_hits == 0 and not told_a.read
     bank = SimulationBank(tmp_path / "bank")
     keys = sorted(p.name for p in (tmp_path / "bank").glob("??/*"))
     assert len(keys) == 20
     _move(bank, keys[0], keys[1])
     _move(bank, keys[2], keys[3])
     b = run_fit(tmp_path / "b", toy_measurement(), _fit_cfg(), callbacks=(told := Told()), make_plots=False)
-    assert b.report["bank_hits"] == 18 and b.report["per_round"][0]["bank_hits"] == 18
+    assert b.report.bank_hits == 18 and b.report.per_round[0].bank_hits == 18
     assert told.read == [(0, 18, 20)]
     warned = [m for m in told.messages if "another rollout's key" in m]
     assert len(warned) == 1 and "2 stored" in warned[0]
@@ -143,7 +143,7 @@ def test_a_fit_reports_its_bank_hits_and_replaces_entries_under_another_key(tmp_
     np.testing.assert_array_equal(b.store.round_data(0)["x"], off.store.round_data(0)["x"])
     # a resumed fit keeps the count (stored with the round)
     again = run_fit(tmp_path / "b", toy_measurement(), _fit_cfg(), make_plots=False)
-    assert again.report["per_round"][0]["bank_hits"] == 18
+    assert again.report.per_round[0].bank_hits == 18
 
 
 @pytest.mark.parametrize("terminal", [False, True])

@@ -41,10 +41,10 @@ def test_refine_finds_the_analytic_optimum_leaves_the_posterior_and_resumes_to_t
     meas = _recording(truth, 1e-4)
     kw = _fit_kw(1e-4, rounds=1, sims_per_round=60)
     out = tmp_path / "run"
-    plain = softsbi.fit(meas, out, **kw).report
+    plain = softsbi.fit(meas, out, **kw).report.to_json()
     assert plain["best_fit"]["refine"] is None and plain["best_fit"]["simulations_searched"] == 65
     before = plain["best_fit"]["chamfer_m"]
-    refined = softsbi.fit(meas, out, refine=48, **kw).report  # the finished run, refined
+    refined = softsbi.fit(meas, out, refine=48, **kw).report.to_json()  # the finished run, refined
     assert refined["posterior_mean"] == plain["posterior_mean"] and refined["posterior_q95"] == plain["posterior_q95"]
     b = refined["best_fit"]
     assert b["source"] == "refinement (CMA-ES)" and b["refine"]["simulations"] == 48 and b["chamfer_m"] < before
@@ -70,13 +70,13 @@ def test_refine_finds_the_analytic_optimum_leaves_the_posterior_and_resumes_to_t
             store.write_rows(REFINE, cut, {"chamfer": np.full((48 - cut, 3), np.nan),
                                            "status": np.full(48 - cut, STATUS_PENDING, np.uint8)})
         store.remove_group("best_fit")
-        again = softsbi.fit(meas, other, refine=48, **kw).report["best_fit"]
+        again = softsbi.fit(meas, other, refine=48, **kw).report.to_json()["best_fit"]
         assert again["theta"] == b["theta"] and again["chamfer_m"] == b["chamfer_m"]
         resumed, _ = RunStore.open(other / "run.zarr").read_rows(REFINE)
         np.testing.assert_array_equal(resumed["u"], rows["u"])
         np.testing.assert_array_equal(resumed["chamfer"], rows["chamfer"])
     # fewer refinement simulations than stored: only the first ones count
-    fewer = softsbi.fit(meas, out, refine=12, **kw).report["best_fit"]
+    fewer = softsbi.fit(meas, out, refine=12, **kw).report.to_json()["best_fit"]
     assert fewer["refine"]["simulations"] == 12 and fewer["chamfer_m"] >= b["chamfer_m"]
 
 
@@ -99,7 +99,7 @@ def test_widen_moves_a_pressed_bound_only_while_pressed_and_a_resumed_run_gives_
     meas = _recording({"a": 1.3, "b": -0.4}, 0.01, T=6)
     kw = _fit_kw(0.01, rounds=3, sims_per_round=80, widen=True)
     out = tmp_path / "run"
-    rep = softsbi.fit(meas, out, **kw).report
+    rep = softsbi.fit(meas, out, **kw).report.to_json()
     assert [(w["bounds"], w["before"]) for w in rep["widened"]] == [({"a": [-1.0, 2.0]}, {"a": [-1.0, 1.0]})]
     r0 = rep["widened"][0]["after_round"]
     assert r0 in (0, 1) and rep["widened"][0]["pressed"][0]["side"] == "upper"
@@ -125,16 +125,16 @@ def test_widen_moves_a_pressed_bound_only_while_pressed_and_a_resumed_run_gives_
             for r in range(r0 + 1):
                 g = s.root["rounds"][str(r)]
                 g["u"][...] = ParamSpace([Param("a", -1.0, 1.0), Param("b", -1.0, 1.0)]).to_unit(g["theta"][...])
-        again = softsbi.fit(meas, other, **kw).report
+        again = softsbi.fit(meas, other, **kw).report.to_json()
         assert again["posterior_mean"] == rep["posterior_mean"] and again["widened"] == rep["widened"]
         assert again["parameters"] == rep["parameters"]
     # resumed without --widen: the prior of record is kept and nothing is decided again
-    same = softsbi.fit(meas, out, **{**kw, "widen": False}).report
+    same = softsbi.fit(meas, out, **{**kw, "widen": False}).report.to_json()
     assert same["posterior_mean"] == rep["posterior_mean"] and same["widened"] == rep["widened"]
     # a redone round (--retry-failed, damaged simulations): its widening is dropped, decided again
     s = RunStore.open(out / "run.zarr")
     s.redo(r0, [0])
-    redone = softsbi.fit(meas, out, **kw).report
+    redone = softsbi.fit(meas, out, **kw).report.to_json()
     assert redone["widened"][0]["bounds"] == rep["widened"][0]["bounds"]
     assert redone["posterior_mean"] == rep["posterior_mean"]
 
@@ -181,7 +181,7 @@ def test_fit_table_and_report_say_what_was_widened_and_the_best_fit(tmp_path, ca
     from softsbi.cli import _print_report
     from softsbi.cli.output import Output
     meas = _recording({"a": 0.3, "b": -0.4}, 1e-4)
-    rep = softsbi.fit(meas, tmp_path / "run", **_fit_kw(1e-4, rounds=1, sims_per_round=30)).report
+    rep = softsbi.fit(meas, tmp_path / "run", **_fit_kw(1e-4, rounds=1, sims_per_round=30)).report.to_json()
     rep["widened"] = [{"after_round": 0, "before": {"a": [-1.0, 1.0]}, "bounds": {"a": [-1.0, 2.0]},
                        "pressed": [{"param": "a", "side": "upper", "bound": 1.0, "unit": "1", "mass": 0.36}]}]
     _print_report(Output(), rep, tmp_path / "run")

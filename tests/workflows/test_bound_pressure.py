@@ -93,11 +93,11 @@ def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
     from softsbi.report.text import refit_words
     out, res = toy_run
     pressed = {"param": "a", "side": "upper", "bound": 0.05, "unit": "1", "mass": 0.42}
-    _print_report(Output(), dict(res.report, posterior_at_bounds=[pressed]), out)
+    _print_report(Output(), dict(res.report.to_json(), posterior_at_bounds=[pressed]), out)
     printed = " ".join(capsys.readouterr().out.split())
     assert "Note: a's posterior presses against its upper prior bound 0.05 (42% of its mass" in printed
     assert "--bounds a=LOW:HIGHER" in printed
-    _print_report(Output(), dict(res.report, posterior_at_bounds=[]), out)
+    _print_report(Output(), dict(res.report.to_json(), posterior_at_bounds=[]), out)
     assert "presses" not in capsys.readouterr().out
     # a diagnosis refit whose added parameter presses its prior bound names the wider prior to try
     est = Estimate("wind", "m", 0.49, 0.41, 0.5, 0.2, "upper", (0.0, 0.75))

@@ -99,8 +99,8 @@ def test_a_full_disk_mid_round_is_one_line_and_the_same_fit_resumes_to_the_same_
     cb = _Messages()
     again = run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)
     assert any(m.startswith("resuming") for m in cb.messages), cb.messages
-    assert again.report["simulations"] == reference.report["simulations"]
-    assert again.report["posterior_mean"] == reference.report["posterior_mean"]
+    assert again.report.simulations == reference.report.simulations
+    assert again.report.posterior_mean == reference.report.posterior_mean
     assert RunStore.open(out / "run.zarr").damaged() is None
 
 
@@ -221,9 +221,9 @@ def test_a_prior_widened_beyond_the_declared_one_is_fitted(tmp_path):
     values outside the declared box (toy-gauss declares a in [-1, 1]) and reports the widened prior."""
     res = run_fit(tmp_path / "w", toy_measurement(truth=(0.9, -0.4)), _cfg(bounds={"a": (-1.0, 3.0)}),
                   make_plots=False)
-    assert res.report["parameters"][0]["high"] == 3.0
+    assert res.report.parameters[0].high == 3.0
     theta = RunStore.open(tmp_path / "w" / "run.zarr", mode="r").round_data(0)["theta"]
-    assert (theta[:, 0] > 1.0).any() and res.report["failed_simulations"] == 0
+    assert (theta[:, 0] > 1.0).any() and res.report.failed_simulations == 0
     with pytest.raises(ParameterError, match="physical limits"):
         run_fit(tmp_path / "w2", toy_measurement(), _cfg(bounds={"a": (-1.0, float("inf"))}), make_plots=False)
 

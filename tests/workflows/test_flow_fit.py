@@ -42,7 +42,7 @@ def flow_run(tmp_path_factory):
 def test_flow_fit_with_truncated_proposals_reopens_with_the_same_posterior(flow_run):
     out, res = flow_run
     store = RunStore.open(out / "run.zarr")
-    assert store.completed_rounds() == [0, 1] and res.report["proposal"] == "truncated"
+    assert store.completed_rounds() == [0, 1] and res.report.proposal == "truncated"
     assert store.round_attrs(1)["proposal"].startswith("prior truncated to the 0.999 region of round 1's posterior")
     assert dict(store.root["rounds"]["1"]["posterior"].attrs)["kind"] == "estimator"
     # round 2 drew inside the truncation region only

@@ -78,15 +78,15 @@ def test_retry_failed_resimulates_stored_failures_and_redraws_later_rounds(tmp_p
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))  # with the user's bank on, as by default
     monkeypatch.setenv("SOFTSBI_TOY_DIVERGE_ABOVE", "0.5")  # a > 0.5 "diverges": stored as failed
     res = run_fit(out, toy_measurement(), _cfg(), make_plots=False)
-    failed0 = int(res.report["per_round"][0]["failed"])
+    failed0 = int(res.report.per_round[0].failed)
     assert failed0 > 0
     monkeypatch.delenv("SOFTSBI_TOY_DIVERGE_ABOVE")
     messages, cb = _recording_callbacks()
     again = run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)  # plain resume keeps them
-    assert again.report["per_round"][0]["failed"] == failed0
+    assert again.report.per_round[0].failed == failed0
     assert any("--retry-failed" in m for m in messages), messages  # the flag that simulates them again
     fixed = run_fit(out, toy_measurement(), _cfg(), make_plots=False, retry_failed=True)
-    assert fixed.report["failed_simulations"] == 0
+    assert fixed.report.failed_simulations == 0
     store = RunStore.open(out / "run.zarr")
     assert store.completed_rounds() == [0, 1]
     assert np.all(store.round_data(0)["status"] == STATUS_OK)
@@ -147,8 +147,8 @@ def test_missing_and_damaged_chunks_are_named_resimulated_and_never_trained_on(t
     assert np.all(d["status"] == STATUS_OK)
     np.testing.assert_array_equal(d["x"], before["x"])  # the same seeds give the same simulations
     # the report is written from the posterior it reports: the same data give the same numbers
-    assert again.report["posterior_mean"] == first.report["posterior_mean"]
-    assert again.report["chamfer_posterior_m"] == first.report["chamfer_posterior_m"]
+    assert again.report.posterior_mean == first.report.posterior_mean
+    assert again.report.chamfer_posterior_m == first.report.chamfer_posterior_m
 
 
 def test_an_out_that_is_a_file_or_unwritable_is_one_clear_line(tmp_path):
@@ -192,8 +192,8 @@ def test_a_damaged_evaluation_or_round_posterior_is_computed_again_and_never_bre
     assert any("evaluation'" in m and "'chamfer'" in m for m in messages), messages  # the group and its array
     assert any("rounds/0/posterior'" in m for m in messages), messages
     assert RunStore.open(out / "run.zarr").damaged_groups() == {}
-    assert again.report["posterior_mean"] == first.report["posterior_mean"]
-    assert again.report["chamfer_posterior_m"] == first.report["chamfer_posterior_m"]
+    assert again.report.posterior_mean == first.report.posterior_mean
+    assert again.report.chamfer_posterior_m == first.report.chamfer_posterior_m
 
 
 def test_unreadable_store_metadata_is_one_line_naming_the_file_and_the_fix(tmp_path):
@@ -215,4 +215,4 @@ def test_unreadable_store_metadata_is_one_line_naming_the_file_and_the_fix(tmp_p
     for sub in ("rounds/0", "rounds/1", "evaluation"):  # the fix the message gives
         shutil.rmtree(out / "run.zarr" / sub)
     again = run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)
-    assert again.report["posterior_mean"] == first.report["posterior_mean"]
+    assert again.report.posterior_mean == first.report.posterior_mean

@@ -72,7 +72,7 @@ def test_sequential_fit_matches_the_analytic_posterior(tmp_path, proposal):
                     n_eval=20, n_dense=64, seed=1, proposal=proposal,
                     estimator_options={"max_epochs": 150, "hidden": [64, 64], "n_components": 2})
     res = run_fit(tmp_path / "run", meas, cfg, make_plots=False)
-    rep = res.report
+    rep = res.report.to_json()
     assert rep["proposal"] == proposal
     if proposal == "truncated":  # round 2 drew from the prior restricted to round 1's posterior
         assert "truncated" in res.store.round_attrs(1)["proposal"]
@@ -145,7 +145,7 @@ def test_resume_refuses_changed_settings(tmp_path):
     with pytest.raises(SchemaError, match="different settings.*proposal"):
         run_fit(tmp_path / "r", meas, cfg, make_plots=False)
     cfg.proposal, cfg.rounds = "corrected", 2
-    assert run_fit(tmp_path / "r", meas, cfg, make_plots=False).report["rounds"] == 2
+    assert run_fit(tmp_path / "r", meas, cfg, make_plots=False).report.rounds == 2
     with pytest.raises(SoftsbiError, match="--proposal must be one of"):
         FitConfig(proposal="tsnpe").validate()
 
@@ -162,8 +162,8 @@ def test_failed_simulations_are_stored_and_never_trained_on(tmp_path, monkeypatc
     bad = d["theta"][:, 0] > 0.5
     assert bad.any() and (d["status"][bad] == 1).all() and (d["status"][~bad] == 0).all()
     assert np.isnan(d["x"][bad]).all()
-    assert res.report["failed_simulations"] >= int(bad.sum())
-    assert res.rounds[0]["usable"] == int((~bad).sum())
+    assert res.report.failed_simulations >= int(bad.sum())
+    assert res.report.per_round[0].usable == int((~bad).sum())
 
 
 def test_a_run_resumes_when_its_scenario_file_is_read_from_another_path_but_not_when_the_scenario_changed(tmp_path):
@@ -180,7 +180,7 @@ def test_a_run_resumes_when_its_scenario_file_is_read_from_another_path_but_not_
                                 "source": "/elsewhere/lift.yaml"}
     store.root.attrs["config"] = c
     cfg.rounds = 2
-    assert run_fit(tmp_path / "r", meas, cfg, make_plots=False).report["rounds"] == 2
+    assert run_fit(tmp_path / "r", meas, cfg, make_plots=False).report.rounds == 2
     c = store.config
     c["scenario"]["table_z"] = float(c["scenario"]["table_z"]) + 0.01
     store.root.attrs["config"] = c

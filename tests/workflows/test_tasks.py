@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 
+from softsbi.core.fitreport import TrainingReport
+
 pytestmark = pytest.mark.integration
 
 
@@ -42,10 +44,10 @@ def test_a_later_recording_of_a_task_conditions_the_stored_first_round_instead_o
     b = run_fit(tmp_path / "b", rec, _cfg(), make_plots=False)
     assert calls == [40]  # the second recording trained nothing
     auto = run_fit(tmp_path / "b4", rec, _cfg(rounds=None, sims_per_round=40), make_plots=False)
-    assert auto.report["rounds"] == 4  # a task stored by a fit starts the sequential rounds; it is not the posterior
+    assert auto.report.rounds == 4  # a task stored by a fit starts the sequential rounds; it is not the posterior
     info = b.store.round_attrs(0)["info"]
     assert info["trained_here"] is False and info["task"] == TaskStore(tmp_path / "bank" / "tasks").list()[0].digest
-    assert b.report["per_round"][0]["task"] == info["task"]  # the report names the task that served the round
+    assert b.report.per_round[0].task == info["task"]  # the report names the task that served the round
     assert calls == [40, 80, 120, 160]  # its rounds 2-4 trained on all so far, round 1 not
     scratch = run_fit(tmp_path / "c", rec, _cfg(sim_bank="off"), make_plots=False)  # no bank: no stored task
     assert len(calls) == 5
@@ -66,22 +68,23 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     rec = toy_measurement(truth=(0.3, -0.4))
     (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)
     rep = task.report
-    assert task.n_prior == 80 and rep["n_test"] == 30 and set(rep["contraction"]) == {"a", "b"}
-    assert len(rep["sbc"]["rejects"]) == 2 and 0 <= rep["coverage"]["at_90"] <= 1 and "verdict" in rep
+    assert task.n_prior == 80 and rep.n_test == 30 and set(rep.contraction) == {"a", "b"}
+    assert len(rep.sbc.rejects) == 2 and 0 <= rep.coverage.at_90 <= 1 and rep.verdict
+    assert TrainingReport.from_json(rep.to_json()) == rep  # stored and read back as it was
     calls = _counting_fits(monkeypatch)
     again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)[0]
     assert calls == [] and again.digest == task.digest  # stored with its report: not trained again
     rec2 = toy_measurement(truth=(-0.1, 0.2))
     res = run_fit(tmp_path / "run", rec2, _cfg(sims_per_round=20, rounds=None), make_plots=False)
     # by default a stored task's posterior alone: one round, whose 20 draws are the first of the task's 80, no training
-    assert calls == [] and res.report["rounds"] == 1 and len(res.store.round_data(0)["status"]) == 20
+    assert calls == [] and res.report.rounds == 1 and len(res.store.round_data(0)["status"]) == 20
     np.testing.assert_array_equal(res.store.round_data(0)["u"], np.random.default_rng([0, 0, 0]).random((80, 2))[:20])
     from softsbi.workflows.calibrate import trained_task_line  # calibrate names the task's training report
     line = trained_task_line(res.store.round_attrs(0)["info"], "default")
     assert task.digest[:12] in line and "30 held-out prior simulations" in line
     scratch = run_fit(tmp_path / "scratch", rec2, _cfg(sims_per_round=10, rounds=None, sim_bank="off"),
                       make_plots=False)
-    assert scratch.report["rounds"] == 4 and len(calls) == 4  # no stored task: the sequential default
+    assert scratch.report.rounds == 4 and len(calls) == 4  # no stored task: the sequential default
 
 
 def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
@@ -144,13 +147,13 @@ def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitt
     assert stored_check_null(task, N_NULL + 1, 64) is None  # other check settings: not this null
     fit = run_fit(tmp_path / "run", toy_measurement(truth=(-0.1, 0.2)), _cfg(sims_per_round=20, rounds=None),
                   make_plots=False)
-    assert fit.report["rounds"] == 1
+    assert fit.report.rounds == 1
     chk = check_run(tmp_path / "run", plot=False, effects=[])
     # the run's omnibus statistic on its evaluation rollouts, against the 19 replicates': p >= 1/20
     assert chk.test.calibrated and chk.test.omnibus == null.p_value(chk.test.statistic)
     assert chk.test.omnibus.n == 19 and chk.test.p_value >= 1 / 20
     scratch = run_fit(tmp_path / "scratch", rec, _cfg(sims_per_round=20, rounds=2), make_plots=False)
-    assert scratch.report["rounds"] == 2
+    assert scratch.report.rounds == 2
     assert not check_run(tmp_path / "scratch", plot=False, effects=[]).test.calibrated  # sequential: not the task's
 
 
