@@ -209,6 +209,10 @@ class Estimate:
         width_ratio: the 90% interval's width over the prior's (in the parameter's own scale); None if unknown.
         pressed: ``"lower"`` or ``"upper"`` when the posterior presses that prior bound, else None.
         suggested_bounds: the wider prior to try when it presses a bound that is not a physical limit.
+        effect: the effect the parameter belongs to (``""`` in files written before it was kept).
+        may_be_off: whether the posterior reaches the value that switches the effect off
+            (:meth:`~softsbi.core.interfaces.Effect.nominal`): the 90% interval contains it, or, for an off value at
+            a prior bound, the posterior presses that bound; None when unknown.
     """
 
     name: str
@@ -219,6 +223,8 @@ class Estimate:
     width_ratio: float | None = None
     pressed: str | None = None
     suggested_bounds: tuple[float, float] | None = None
+    effect: str = ""
+    may_be_off: bool | None = None
 
     @property
     def informed(self) -> bool | None:
@@ -263,6 +269,13 @@ class Refit:
     def adequate(self) -> bool:
         """The measurement lies inside the refit's posterior predictive distribution (its test does not reject)."""
         return not self.test.misspecified
+
+    @property
+    def maybe_off(self) -> tuple[str, ...]:
+        """The added effects the data do not switch on: every one of their parameters' posterior reaches the
+        effect's off value (:attr:`Estimate.may_be_off`)."""
+        return tuple(e for e in self.effects if (own := [x for x in self.estimates if x.effect == e])
+                     and all(x.may_be_off for x in own))
 
 
 @dataclass(frozen=True)

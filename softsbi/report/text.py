@@ -255,7 +255,8 @@ def rule_words(d: Diagnosis) -> str:
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
           f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's "
-          f"scale, a proper score) falls by more than {d.k_se:g} standard errors below the model it extends.")
+          f"scale, a proper score) falls by more than {d.k_se:g} standard errors below the model it extends, and the "
+          f"data switch its effect on (a parameter's 90% interval excludes the effect's off value).")
     return s
 
 
@@ -360,6 +361,8 @@ def candidate_role(d: Diagnosis, c: Candidate) -> str:
         return not_refitted(d, c)
     if not r.adequate:
         return "refit: misfit remains"
+    if r.maybe_off:
+        return "refit: the data leave it possibly off"
     g = dec.gain_of(r.effects)
     if g is not None and g.z > d.k_se and dec.named:  # adequate and improving, but the named refit scores lower
         return f"refit: a lower score than the nominal's, above {' + '.join(dec.named)}'s"

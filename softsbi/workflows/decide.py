@@ -5,14 +5,18 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
 1. *Detect.* ``nothing-missing`` iff ``check``'s joint test of the nominal fit does not reject at ``alpha``.
 2. *Propose.* The screening ranks the candidates by evidence; the top ``confirm`` named (non-generic) ones are
    refitted, in that order (:func:`next_refit`). The ranking spends the refit budget; it decides nothing.
-3. *Decide* on the refits by two criteria only (:func:`decide`):
+3. *Decide* on the refits by three criteria only (:func:`decide`):
    - *adequate*: ``check``'s test of the refit does not reject at the same ``alpha``;
    - *improves*: the refit lowers the summary energy score (of the posterior predictive of ``check``'s summary
      statistics, a strictly proper score, Gneiting & Raftery 2007; every model in the nominal fit's scale,
      :class:`~softsbi.core.results.Score`) below the model it extends by more than ``k_se`` standard errors of the
-     difference (:func:`gain`).
-   The adequate, improving single refit with the lowest score is named; every other adequate, improving refit
-   whose score is not ``k_se`` standard errors above it is listed as indistinguishable. When no single refit
+     difference (:func:`gain`);
+   - *switched on*: for each added effect, the posterior of at least one of its parameters excludes the value that
+     switches the effect off (:attr:`~softsbi.core.results.Refit.maybe_off`); a refit whose added effect the data
+     leave possibly off has absorbed the misfit by widening its predictions, not identified a cause.
+   A refit that is not switched on takes no further part. The adequate, improving single refit with the lowest
+   score is named; every other adequate, improving refit whose score is not ``k_se`` standard errors above it is
+   listed as indistinguishable. When no single refit
    qualifies, one greedy step: the improving single refit with the lowest score is extended by the first
    named candidate of its own screening, and the pair is named if it is adequate and improves on that single
    refit by the same margin. Otherwise ``misspecified-unexplained``, naming the improving refit with the lowest
@@ -95,7 +99,7 @@ def refit_gains(nominal: Score | None, refits: Sequence[Refit]) -> tuple[RefitGa
 
 def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float) -> Decision:
     singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
-    better = [r for r in singles if improves(nominal, r.score, k_se)]
+    better = [r for r in singles if improves(nominal, r.score, k_se) and not r.maybe_off]
     good = [r for r in better if r.adequate]
     if good:
         best = _best(good)
@@ -103,7 +107,7 @@ def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_s
         return Decision("missing-effect", named=best.effects, alternatives=ties, gain=gain(nominal, best.score))
     base = _best(better)
     for pair in (r for r in refits if len(r.effects) == 2 and r.score is not None):
-        if base is not None and set(base.effects) < set(pair.effects) and pair.adequate \
+        if base is not None and set(base.effects) < set(pair.effects) and pair.adequate and not pair.maybe_off \
                 and improves(base.score, pair.score, k_se):
             return Decision("missing-effect", named=pair.effects, gain=gain(base.score, pair.score))
     if base is None:
@@ -129,7 +133,7 @@ def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | N
     if decide(test, nominal, refits, k_se).verdict == "missing-effect" or confirm < 2:
         return None
     singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
-    base = _best([r for r in singles if improves(nominal, r.score, k_se)])
+    base = _best([r for r in singles if improves(nominal, r.score, k_se) and not r.maybe_off])
     if base is None:
         return None
     second = next((c.effect for c in base.ranking if c.screened and not c.generic and c.effect not in base.effects),

@@ -25,7 +25,7 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit,
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
-from softsbi.core.types import Recording
+from softsbi.core.types import Param, Recording
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
 from softsbi.workflows.check import check_run, loaded, result_key, reused, stored_result
@@ -210,13 +210,31 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
     them: an older report)."""
     pressed = {b.param: b for b in report.posterior_at_bounds}
     out = []
-    for p in (p for e in effects for p in registry().effect(e)().param_space()):
-        if p.name in report.posterior_mean:
+    for e in effects:
+        effect = registry().effect(e)()
+        off = effect.nominal()
+        for p in (p for p in effect.param_space() if p.name in report.posterior_mean):
             b = pressed.get(p.name)
-            out.append(Estimate(p.name, p.unit, float(report.posterior_mean[p.name]), *report.interval(p.name),
+            q05, q95 = report.interval(p.name)
+            out.append(Estimate(p.name, p.unit, float(report.posterior_mean[p.name]), q05, q95,
                                 report.width_ratio(p.name), None if b is None else b.side,
-                                None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds)))
+                                None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds),
+                                e, may_be_off(p, off.get(p.name), q05, q95, None if b is None else b.side)))
     return tuple(out)
+
+
+def may_be_off(p: Param, off: float | None, q05: float | None, q95: float | None, pressed: str | None) -> bool | None:
+    """Whether parameter ``p``'s posterior reaches ``off``, the value that switches its effect off: its 90% interval
+    ``[q05, q95]`` contains it or, for an off value at a prior bound (which no interval of a continuous posterior
+    reaches exactly), the posterior presses that bound (``pressed``,
+    :func:`~softsbi.inference.contraction.bound_pressure`). None when the off value or the interval is unknown."""
+    if off is None or q05 is None or q95 is None:
+        return None
+    if off <= p.low:
+        return pressed == "lower"
+    if off >= p.high:
+        return pressed == "upper"
+    return q05 <= off <= q95
 
 
 def load_diagnosis(path: str | Path) -> Diagnosis:

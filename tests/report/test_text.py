@@ -67,8 +67,11 @@ NONE_LOWER = diagnosis([refit(("wind",), 21.5, REJECTS_REFIT),
                         refit(("extra-damping",), 23, joint(0, 5, family=("wind", "time-offset",
                                                                                "generic-constant")))],
                        residual=RESIDUAL, generic=RANKING[0])
+#: the wind's refit as adequate and as low, but both its parameters' posteriors reach the off value (no wind)
+WIND_OFF = replace(WIND, estimates=tuple(replace(e, effect="wind", may_be_off=True) for e in WIND.estimates))
+OFF = diagnosis([WIND_OFF])
 ALL = {"nothing": NOTHING, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial": PARTIAL, "no refit": NO_REFIT,
-       "none lower": NONE_LOWER}
+       "none lower": NONE_LOWER, "off": OFF}
 
 # recurring phrases of the joint test
 P_FLOOR = "p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null simulations)"
@@ -76,7 +79,8 @@ P_WIND = "p = 0.41 (two tests, Bonferroni: 2 x the omnibus test's p = 0.2; 200 n
 DETECT = f"Detect: check's joint test of the nominal fit, {P_FLOOR} <= 0.05."
 DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and its summary energy score (the energy score of its "
           "posterior predictive of check's summaries in the nominal fit's scale, a proper score) falls by more than 2 "
-          "standard errors below the model it extends.")
+          "standard errors below the model it extends, and the data switch its effect on (a parameter's 90% interval "
+          "excludes the effect's off value).")
 WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
               "summary energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
               "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
@@ -243,7 +247,9 @@ ROLES = {"nothing": ["not refitted: nothing missing"] * 4,
          "no refit": ["not refitted: generic term", "not refitted: beyond --confirm 0",
                       "not refitted: beyond --confirm 0", "not refitted: beyond --confirm 0"],
          "none lower": ["not refitted: generic term", "refit: misfit remains", "refit: misfit remains",
-                        "not refitted: beyond --confirm 2"]}
+                        "not refitted: beyond --confirm 2"],
+         "off": ["not refitted: generic term", "refit: the data leave it possibly off", "not refitted: beyond --confirm 1",
+                 "not refitted: beyond --confirm 1"]}
 
 
 @pytest.mark.parametrize("name", list(ALL))

@@ -1,8 +1,12 @@
 """The diagnosis' decision (softsbi.workflows.decide) on hand-built typed results: no simulation."""
 from __future__ import annotations
 
-from softsbi.core.results import Candidate, Decision, JointTest, MCPValue, Refit, RefitGain, Role, Score
+from dataclasses import replace
+
+from softsbi.core.results import Candidate, Decision, Estimate, JointTest, MCPValue, Refit, RefitGain, Role, Score
+from softsbi.core.types import Param
 from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit
+from softsbi.workflows.diagnose import may_be_off
 
 ALPHA = 0.05
 
@@ -91,6 +95,37 @@ def test_a_pair_is_named_only_when_it_is_adequate_and_improves_on_its_first_effe
     assert d.verdict == "misspecified-unexplained" and d.partial == ("a",)
     # improves but check still rejects the pair
     assert decide(REJECTS, NOMINAL, [base, refit(("a", "b"), 0.2, adequate=False)]).named == ()
+
+
+def off_estimates(effect: str, *reaches_off: bool) -> tuple[Estimate, ...]:
+    return tuple(Estimate(f"{effect}_{i}", "1", 0.5, 0.1, 0.9, 0.5, effect=effect, may_be_off=r)
+                 for i, r in enumerate(reaches_off))
+
+
+def test_a_refit_whose_added_effect_the_data_leave_possibly_off_is_never_named():
+    # adequate and by far the lowest score, but every parameter of its effect reaches the off value
+    off = replace(refit(("a",), 0.2), estimates=off_estimates("a", True, True))
+    on = replace(refit(("b",), 0.5), estimates=off_estimates("b", True, False))  # one parameter excludes off: on
+    assert off.maybe_off == ("a",) and on.maybe_off == ()
+    d = decide(REJECTS, NOMINAL, [off, on])
+    assert d.named == ("b",) and d.alternatives == ()
+    d = decide(REJECTS, NOMINAL, [off])
+    assert d.verdict == "misspecified-unexplained" and d.named == () and d.partial == ()  # explains nothing
+    # a pair is named only when each of its effects is switched on
+    base = refit(("c",), 0.5, adequate=False)
+    pair = replace(refit(("c", "a"), 0.2), estimates=off_estimates("c", False) + off_estimates("a", True))
+    assert pair.maybe_off == ("a",) and decide(REJECTS, NOMINAL, [base, pair]).named == ()
+    # an older file's estimates (no effect, unknown) say nothing: the refit may be named
+    assert decide(REJECTS, NOMINAL, [replace(refit(("a",), 0.2), estimates=(Estimate("a_0", "1", 0.5),))]).named \
+        == ("a",)
+
+
+def test_an_off_value_inside_the_prior_is_reached_by_the_interval_and_one_at_a_bound_by_pressing_it():
+    wind, mass = Param("wind_y", -2.0, 2.0), Param("ballast_mass", 0.0, 0.05)
+    assert may_be_off(wind, 0.0, -0.08, 1.13, None) and not may_be_off(wind, 0.0, 0.2, 1.1, None)
+    assert not may_be_off(mass, 0.0, 0.001, 0.03, None)  # no interval reaches a bound exactly: pressing it does
+    assert may_be_off(mass, 0.0, 0.0, 0.01, "lower") and not may_be_off(mass, 0.0, 0.02, 0.05, "upper")
+    assert may_be_off(wind, None, -1.0, 1.0, None) is None and may_be_off(wind, 0.0, None, None, None) is None
 
 
 def test_the_refits_proposed_are_the_top_named_candidates_then_one_pair():

@@ -49,6 +49,8 @@ def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
     assert d.verdict == "missing-effect" and d.decision.named == (MAGNET,)
     named = d.refit((MAGNET,))
     assert named.adequate and named.score.value < d.nominal.value
+    # the data switch the named effect on: its parameter's 90% interval excludes the effect's off value
+    assert named.maybe_off == () and [e.may_be_off for e in named.estimates if e.effect == MAGNET] == [False]
     # the same candidate family in every step: each refit's test screens the family less its own effects
     assert set(named.test.family) == set(FLEXIBLE)
     # the stored result is the returned one, and a second call with the same settings reads it back
