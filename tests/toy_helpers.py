@@ -28,3 +28,25 @@ def copy_lift_recording(tmp_path, lift_dir=DATA / "diffcloud_lift"):
         shutil.copy(lift_dir / f, dst / f)
     shutil.copytree(lift_dir / "lift_tan", dst / "lift_tan")
     return dst / "lift_tan"
+
+
+def printed_fit_report(rep, out, capsys):
+    """What ``fit`` prints for report.json ``rep`` of run directory ``out`` (``softsbi.cli._print_report``), checked
+    to be, line for line, what :mod:`softsbi.report.fit_text` renders (its wording is tested there, in
+    tests/report): the posterior table (title, header, one row per parameter, each cell as rendered), then every
+    sentence under it. Returns ``(table, lines)``: :func:`~softsbi.report.fit_text.posterior_table` and
+    :func:`~softsbi.report.fit_text.fit_report_lines` of ``rep``."""
+    from softsbi.cli import _print_report
+    from softsbi.cli.output import Output
+    from softsbi.report.fit_text import fit_report_lines, posterior_table
+    from softsbi.workflows.widen import widening_sentence
+    capsys.readouterr()  # what was printed before
+    _print_report(Output(), rep, out)
+    printed = capsys.readouterr().out.splitlines()
+    table = posterior_table(rep)
+    lines = fit_report_lines(rep, out, [widening_sentence(w) for w in rep.get("widened") or []])
+    assert printed[0] == table.title and printed[-len(lines):] == lines, printed
+    cells = [[c.strip() for c in row.strip().strip("|").split("|")] for row in printed[1:-len(lines)]
+             if row.startswith("|")]
+    assert cells == [list(table.columns)] + [list(r) for r in table.rows], printed
+    return table, lines

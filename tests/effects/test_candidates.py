@@ -35,7 +35,10 @@ def test_all_registered_with_kinds():
     reg = registry()
     for cls in PHYSICS_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS:
         assert reg.effect(cls.name) is cls
-        assert cls.__doc__ and "Off at" in cls.__doc__, cls.name
+        # documented, and switched off (Effect.nominal) at a value of each of its parameters that its prior holds
+        off, params = cls().nominal(), cls().param_space().params
+        assert cls.__doc__ and set(off) == {p.name for p in params}, cls.name
+        assert all(p.low <= off[p.name] <= p.high for p in params), cls.name
     assert {c.kind for c in SENSOR_EFFECTS} == {"sensor"}
     assert {c.kind for c in PHYSICS_EFFECTS + GENERIC_EFFECTS} == {"physics"}
     assert all(c.generic for c in GENERIC_EFFECTS) and not any(c.generic for c in PHYSICS_EFFECTS + SENSOR_EFFECTS)

@@ -100,9 +100,12 @@ def test_verdict_names_too_narrow_too_wide_and_biased_parameters_and_never_says_
     assert v["too_narrow"] == ["yaw"] and v["too_wide"] == ["friction"] and v["biased"] == ["stretch", "mass"]
     shapes = {p["name"]: p["shapes"] for p in v["sbc"]["parameters"]}
     assert shapes["uniform"] == [] and shapes["stretch"][0] == "biased-high" and shapes["mass"][0] == "biased-low"
+    # the verdict names every rejecting parameter and nothing else: neither the uniform one nor TARP and the joint
+    # coverage, which do not reject (its sentences: tests/report/test_fit_text.py)
+    assert [p["name"] for p in v["sbc"]["parameters"] if p["rejects"]] == names[1:]
     for n in names[1:]:
         assert n in v["verdict"]
-    assert "uniform" not in v["verdict"] and "TARP" not in v["verdict"] and "joint coverage" not in v["verdict"]
+    assert "uniform" not in v["verdict"] and not v["tarp"]["rejects"] and v["tarp"]["direction"] is None
     assert not v["coverage"]["rejects"] and v["coverage"]["at_50"]["verdict"] == "calibrated"
     # the level of each SBC test: alpha split over the 3 diagnostics, then over 4 tests x 5 parameters
     assert np.isclose(v["sbc"]["level"], 0.05 / 3 / (4 * 5))
@@ -111,11 +114,13 @@ def test_verdict_names_too_narrow_too_wide_and_biased_parameters_and_never_says_
     ok = cal.verdict(cov, N, {"ks_pvalue": 0.5, "atc": 0.0}, uni, L, 10, ["a", "b"])
     assert ok["calibrated"] and ok["verdict"] == "calibrated" and not ok["too_narrow"] + ok["too_wide"] + ok["biased"]
     tarp = cal.verdict(cov, N, {"ks_pvalue": 1e-6, "atc": -0.09}, uni, L, 10, ["a", "b"])
-    assert not tarp["calibrated"] and "TARP rejects (over-confident" in tarp["verdict"]
+    assert not tarp["calibrated"] and tarp["tarp"]["rejects"] and tarp["tarp"]["direction"] == "over-confident"
+    assert not tarp["coverage"]["rejects"] and not any(p["rejects"] for p in tarp["sbc"]["parameters"])
     low = np.clip(cov - 0.12 * np.sin(np.pi * cal.LEVELS), 0, 1)  # below the diagonal: over-confident
     joint = cal.verdict(low, N, {"ks_pvalue": 0.5, "atc": 0.0}, uni, L, 10, ["a", "b"])
     assert not joint["calibrated"] and joint["coverage"]["direction"] == "over-confident"
-    assert joint["coverage"]["at_50"]["verdict"] == "over-confident" and "joint coverage over-confident" in joint["verdict"]
+    assert joint["coverage"]["at_50"]["verdict"] == "over-confident" and joint["coverage"]["rejects"]
+    assert not joint["tarp"]["rejects"] and not any(p["rejects"] for p in joint["sbc"]["parameters"])
     # a histogram with one bin outside the band the figure draws is named even when its moments look uniform
     spike = uni.copy()
     spike[:60, 1] = 455  # 60 of 300 ranks in bin 4 (expected 30)

@@ -11,7 +11,8 @@ from result_helpers import REGIONS, candidate, check_result, energy, joint, refi
 from softsbi.core.comparison import CompareResult, Metric, Row
 from softsbi.core.results import Diagnosis, Estimate, JointTest, MCPValue, ResidualShape
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
-                                 diagnosis_rows, diagnosis_summary, diagnosis_text, joint_test_line, p_short, p_words)
+                                 diagnosis_rows, diagnosis_summary, diagnosis_text, estimate_words, joint_test_line,
+                                 p_short, p_words, refit_words)
 from softsbi.workflows.decide import decide
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -233,6 +234,32 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
         "summary energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates noise_std = 0.0049 m "
         "(90% interval 0.0041 to 0.0058 m); dropout = 0 (90% interval 0 to 0.02). Its noise_std presses the upper "
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
+
+
+def test_a_refit_estimate_pressing_a_bound_that_is_no_limit_adds_the_wider_prior_and_nothing_otherwise():
+    """The toy wind's refit: its wind presses the upper prior bound 0.5 m, the wider prior 0 to 0.75 m is named; the
+    same estimate pressing nothing, or pressing a physical limit (no wider prior), adds no sentence."""
+    def words(**pressed):
+        est = Estimate("wind", "m", 0.49, 0.41, 0.5, 0.2, **pressed)
+        return refit_words(refit(("toy-wind",), 0.01, joint(50, 50), estimates=(est,)), score(0.02))
+
+    plain = ("With toy-wind: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
+             "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), summary energy score 0.02 "
+             "-> 0.01 (50% lower), posterior-predictive Chamfer 0.20 cm (n=30 rollouts). The refit estimates wind = "
+             "0.49 m (90% interval 0.41 to 0.5 m).")
+    assert words() == plain and words(pressed="upper", suggested_bounds=None) == plain
+    assert words(pressed="upper", suggested_bounds=(0.0, 0.75)) == (
+        plain + " Its wind presses the upper prior bound: refit with --bounds wind=0:0.75 if such values are physical.")
+
+
+def test_an_estimate_at_a_switched_off_value_reads_zero():
+    """A switched-off effect's estimate and interval (8.7e-22 and 1.3e-14 are rounding) read as 0; an estimate
+    without its interval is the value alone."""
+    assert estimate_words(Estimate("unseen_height", "m", 8.74e-22, 0.0, 1.29e-14)) == (
+        "unseen_height = 0 m (90% interval 0 to 0 m)")
+    assert estimate_words(Estimate("wind_x", "m/s", 0.0123)) == "wind_x = 0.0123 m/s"
+    assert estimate_words(Estimate("damping_rate", "1/s", 3.1, 0.4, 7.9, 0.8)) == (
+        "damping_rate = 3.1 1/s (90% interval 0.4 to 7.9 1/s, not informed by the data)")
 
 
 #: the verdict column of each fixed diagnosis, written out by hand, in the screening's order (generic-constant, wind,

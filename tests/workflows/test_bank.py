@@ -147,33 +147,46 @@ def test_a_fit_reports_its_bank_hits_and_replaces_entries_under_another_key(tmp_
 
 
 @pytest.mark.parametrize("terminal", [False, True])
-def test_progress_says_how_many_were_read_from_the_bank(terminal):
-    """On a terminal and in a pipe: "N of M read from the bank", and a phase never claims "to simulate"."""
+def test_progress_says_how_many_were_read_from_the_bank(terminal, monkeypatch):
+    """On a terminal and in a pipe: a phase tells the CLI its bank reads once, when all its simulations are done, and
+    the CLI prints one line for each bank read (their wording: tests/report/test_progress_lines.py)."""
     import io
     from rich.console import Console
     from softsbi.cli.output import Output
     from softsbi.cli.progress import PhaseReporter, ProgressHooks
     from softsbi.workflows.progress import phase, reporting
+    told = []
+    read = PhaseReporter.read_from_bank
+    monkeypatch.setattr(PhaseReporter, "read_from_bank",
+                        lambda self, handle, hits, total: told.append((hits, total)) or read(self, handle, hits, total))
     o = Output()
     buf = io.StringIO()
     o.err = Console(file=buf, force_terminal=terminal, width=200, highlight=False, markup=False)
+    said = []
+    message = o.message
+    o.message = lambda text, style=None: said.append(text) or message(text, style)
     with o.progress() as p:
         hooks = ProgressHooks(o, p)
         hooks.round_start(0, 2, 20, 20)
         hooks.read_from_bank(0, 20, 20)
+        n_round = len(said)
         with reporting(PhaseReporter(o, p)), phase("posterior-predictive rollouts", 10) as advance:
-            for done in range(1, 11):
+            for done in range(1, 10):
                 advance(done, min(done, 7))
+            assert told == []  # not before the phase's last simulation is done
+            advance(10, 7)
+            assert told == [(7, 10)]
+    # in a pipe a phase also says when it begins and ends (a round when it begins); on a terminal its bar does
+    assert (n_round, len(said)) == ((1, 2) if terminal else (2, 5))
     text = buf.getvalue()
-    assert "round 1/2 simulations: 20 of 20 read from the bank" in text
-    assert "posterior-predictive rollouts: 7 of 10 read from the bank" in text
-    assert "to simulate" not in text
+    assert all(m + "\n" in text for m in said)  # each message whole, on a line of its own
 
 
 def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_key(tmp_path):
     """check, diagnose, compare and view re-simulate through the run's bank: the phase is told its hits, and a
     swapped entry is one warning line."""
     toy = pytest.importorskip("softsbi_toy.plugin")
+    from softsbi.workflows.bank import HIT, WRONG_KEY
     from softsbi.workflows.jobs import SimContext, run_jobs
     from softsbi.workflows.progress import Reporter, reporting
 
@@ -201,7 +214,7 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
     with reporting(second := Told()):
         res = run_jobs(ctx, items, workers=1)
     assert second.read == [(3, 4)] and len(second.messages) == 1 and "1 stored" in second.messages[0]
-    assert sorted(r["bank"] for r in res) == ["hit", "hit", "hit", "wrong key"]
+    assert sorted(r["bank"] for r in res) == [HIT, HIT, HIT, WRONG_KEY]  # the bank status of each result
 
 
 def _refused(args, tmp_path):

@@ -178,15 +178,23 @@ def test_widen_and_refine_refuse_settings_they_cannot_work_with(tmp_path):
 
 
 def test_fit_table_and_report_say_what_was_widened_and_the_best_fit(tmp_path, capsys):
-    from softsbi.cli import _print_report
-    from softsbi.cli.output import Output
+    """The fit prints a note per widening of its report and a line for its best fit, under the table, as
+    softsbi.report.fit_text renders them (their wording: tests/report/test_fit_text.py)."""
+    from toy_helpers import printed_fit_report
+    from softsbi.report.fit_text import best_fit_lines
+    from softsbi.workflows.widen import widening_sentence
     meas = _recording({"a": 0.3, "b": -0.4}, 1e-4)
     rep = softsbi.fit(meas, tmp_path / "run", **_fit_kw(1e-4, rounds=1, sims_per_round=30)).report.to_json()
-    rep["widened"] = [{"after_round": 0, "before": {"a": [-1.0, 1.0]}, "bounds": {"a": [-1.0, 2.0]},
-                       "pressed": [{"param": "a", "side": "upper", "bound": 1.0, "unit": "1", "mass": 0.36}]}]
-    _print_report(Output(), rep, tmp_path / "run")
-    out = capsys.readouterr().out
-    assert "prior widened after round 1: a [-1, 1] -> [-1, 2] (upper bound)" in out
-    assert "36% of its mass" in out and "Best fit: a=" in out and "Chamfer" in out
+    b = rep["best_fit"]  # what the best-fit line reads: the parameters, the Chamfer, where it comes from
+    assert set(b["theta"]) == {"a", "b"} and b["chamfer_m"] > 0 and b["source"] and b["simulations_searched"] == 35
+    plain = best_fit_lines(rep)
+    widened = {"after_round": 0, "before": {"a": [-1.0, 1.0]}, "bounds": {"a": [-1.0, 2.0]},
+               "pressed": [{"param": "a", "side": "upper", "bound": 1.0, "unit": "1", "mass": 0.36}]}
+    rep["widened"] = [widened]
+    _, lines = printed_fit_report(rep, tmp_path / "run", capsys)
+    noted = best_fit_lines(rep, [widening_sentence(widened)])
+    assert len(plain) == 1 and noted[1:] == plain and widening_sentence(widened) in noted[0]
+    k = lines.index(plain[0])  # the widening's note, then the best fit, each printed once
+    assert lines[k - 1:k + 1] == noted and lines.count(plain[0]) == 1
     saved = json.loads((tmp_path / "run" / "report.json").read_text())
     assert saved["best_fit"]["rollout"] == "run.zarr/best_fit" and saved["widened"] == []

@@ -28,10 +28,21 @@ def toy_run(tmp_path_factory):
     return out
 
 
-def test_calibrate_run_writes_json_and_png_and_resumes(toy_run):
+def _simulated(monkeypatch):
+    """The sizes of the batches of test simulations calibrate simulates (softsbi.workflows.calibrate.run_jobs)."""
+    import softsbi.workflows.calibrate as calibrate
+    sizes = []
+    run_jobs = calibrate.run_jobs
+    monkeypatch.setattr(calibrate, "run_jobs", lambda ctx, jobs, *a, **k: sizes.append(len(jobs)) or
+                        run_jobs(ctx, jobs, *a, **k))
+    return sizes
+
+
+def test_calibrate_run_writes_json_and_png_and_resumes(toy_run, monkeypatch):
     said = []
+    simulated = _simulated(monkeypatch)
     out = softsbi.calibrate_run(toy_run, n_test=50, n_draws=300, workers=1, message=said.append)
-    assert sum("test simulations" in s for s in said) == 1
+    assert simulated == [50] and said  # one block of test simulations, its progress told to `message`
     assert isinstance(out, CalibrationResult)
     assert out.n_test + out.n_test_failed == 50 and out.n_train == 120
     assert out.refit_max_mean_difference < 1e-6  # the re-trained estimator is the run's
@@ -51,16 +62,16 @@ def test_calibrate_run_writes_json_and_png_and_resumes(toy_run):
     arrays, attrs = RunStore.open(toy_run / "run.zarr").read_group("calibration")
     assert set(np.unique(arrays["round"])) == {0, 1} and attrs["proposals"][0] == "prior"
     # a larger n_test adds to the stored test simulations; the first 50 are kept
-    said.clear()
+    simulated.clear()
     out2 = softsbi.calibrate_run(toy_run, n_test=100, n_draws=300, workers=1, message=said.append, write=False)
-    assert sum("test simulations" in s for s in said) == 1 and out2.n_test + out2.n_test_failed == 100
+    assert simulated == [50] and out2.n_test + out2.n_test_failed == 100  # the second block only
     arrays2, _ = RunStore.open(toy_run / "run.zarr").read_group("calibration")
     np.testing.assert_array_equal(arrays2["u"][:50], arrays["u"])
     # a different estimator setting is trained on the same stored simulations and shares the test cases
-    said.clear()
+    simulated.clear()
     ens = softsbi.calibrate_run(toy_run, n_test=100, n_draws=300, workers=1, estimator="mdnn",
                                 estimator_options={**OPTS, "ensemble": 2}, message=said.append, write=False)
-    assert not any("test simulations" in s for s in said) and ens.estimator_options["ensemble"] == 2
+    assert simulated == [] and ens.estimator_options["ensemble"] == 2
 
 
 def test_calibrate_refuses_a_locked_run_and_a_tiny_test_set(toy_run):
@@ -75,9 +86,18 @@ def test_cli_calibrate_table_and_json(toy_run):
     runner = CliRunner()
     res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1"])
     assert res.exit_code == 0, res.output
-    assert "verdict:" in res.output and "90%" in res.output and "calibration.png" in res.output
-    assert "joint coverage (HPD):" in res.output and "simultaneous 98.3% band over 19 levels" in res.output
-    assert "TARP: KS p=" in res.output and "SBC per parameter" in res.output
+    # the table and one line per diagnostic, as softsbi.report.fit_text renders them from calibration.json (their
+    # wording: tests/report/test_fit_text.py); the verdict and the files written
+    from softsbi.report.fit_text import calibration_lines, calibration_table
+    cal = CalibrationResult.from_json(json.loads((toy_run / "calibration.json").read_text()))
+    table = calibration_table(cal)
+    printed = res.output.splitlines()
+    assert table.title in printed and all(line in printed for line in calibration_lines(cal))
+    assert [r[0] for r in table.rows] == ["50%", "90%"] and f"verdict: {cal.verdict}" in printed
+    assert str(toy_run / "calibration.json") in res.output and str(toy_run / "calibration.png") in res.output
+    # the whole curve's band: Bonferroni over the 3 diagnostics (1 - 0.05/3), simultaneous over the 19 inner levels
+    c = cal.coverage
+    assert c.band_simultaneous_confidence == pytest.approx(1 - 0.05 / 3) and len(c.levels) - 2 == 19
     res = runner.invoke(app, ["calibrate", str(toy_run), "--n-test", "50", "--n-draws", "300", "--workers", "1",
                               "--json"])
     assert res.exit_code == 0, res.output
@@ -88,18 +108,19 @@ def test_cli_calibrate_table_and_json(toy_run):
 
 
 def test_report_and_fit_table_show_contraction(toy_run, capsys):
-    from softsbi.cli import _print_report
-    from softsbi.cli.output import Output
+    from toy_helpers import printed_fit_report
     rep = json.loads((toy_run / "report.json").read_text())
     con = rep["contraction"]
     assert set(con) == {"a", "b"} and rep["informed_max_width_ratio"] == 0.5
     for n, c in con.items():
         assert 0 < c["width_ratio"] <= 1.2 and c["informed"] == (c["width_ratio"] <= 0.5)
         assert np.isclose(c["q05"], rep["posterior_q05"][n]) and c["scale"] == "linear"
-    _print_report(Output(), rep, toy_run)
-    out = capsys.readouterr().out
-    assert "width / prior" in out and f"{con['a']['width_ratio']:.2f}" in out and "±" in out
-    assert ("not informed" in out) == (not all(c["informed"] for c in con.values()))
+    # the table's width / prior column: each width ratio, and whether the data inform it (the wording:
+    # tests/report/test_fit_text.py)
+    table, _ = printed_fit_report(rep, toy_run, capsys)
+    for n, *_, width in (row[:5] for row in table.rows):
+        ratio = f"{con[n]['width_ratio']:.2f}"
+        assert width.startswith(ratio) and (width == ratio) == con[n]["informed"]
 
 
 def test_calibrate_retrains_with_the_options_the_runs_effects_asked_for(tmp_path, monkeypatch):

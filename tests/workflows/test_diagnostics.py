@@ -1,6 +1,7 @@
 """Model-error workflow: effects, posterior predictive check, diagnosis, compare."""
 import dataclasses
 import json
+import re
 import shutil
 import sys
 from collections import Counter
@@ -308,7 +309,9 @@ def test_a_diagnosis_written_before_typed_results_is_one_line_and_computed_again
     with pytest.raises(ResultDamaged) as err:
         load_diagnosis(tmp_path)
     assert err.value.path == path and "'schema'" in err.value.problem and "\n" not in str(err.value)
-    assert "`softsbi diagnose" in str(err.value)
+    # the one command it names, the one that writes the file again: diagnose of the run holding it
+    (command,) = re.findall(r"`([^`]*)`", str(err.value))
+    assert command.split() == ["softsbi", "diagnose", str(tmp_path)]
     said = []
     assert stored_result(path, Diagnosis, {"report": "abc"}, said.append) is None
     assert len(said) == 1 and str(path) in said[0] and "\n" not in said[0]

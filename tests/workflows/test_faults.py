@@ -23,6 +23,7 @@ from softsbi.core.errors import STORAGE_ERRNOS, DataError, ParameterError, Schem
 from softsbi.core.metrics import describe_change
 from softsbi.core.store import RunStore
 from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.resume import resume_message
 from softsbi.workflows.simulate import check_render_memory, render_memory_bytes
 
 pytestmark = pytest.mark.integration
@@ -253,10 +254,13 @@ def test_resume_names_the_partly_stored_round_and_the_time_spent_and_rounds_coun
     store = RunStore.open(out / "run.zarr")
     assert store.completed_rounds() == [0]
     assert store.config["wall_time_s"] > 0  # the interrupted session's time is kept
+    assert store.is_begun(1) and len(store.pending(1)) == 20  # round 2: 10 of its 30 stored
+    # the resumed fit begins with the resume line of this store and its time (the wording, rounds counted from one:
+    # tests/report/test_progress_lines.py)
+    said = resume_message(store, store.config["wall_time_s"])
     cb = _Messages()
     run_fit(out, toy_measurement(), _cfg(), callbacks=cb, make_plots=False)
-    msg = next(m for m in cb.messages if m.startswith("resuming"))
-    assert "round 2: 10 of 30" in msg  # the round and what of it is stored
+    assert said in cb.messages
     # round 2 draws from the posterior of round 1 (rounds count from one wherever a user reads them)
     assert "round 1" in RunStore.open(out / "run.zarr").round_attrs(1)["proposal"]
 
@@ -294,12 +298,15 @@ def test_ctrl_c_or_sigterm_says_how_to_resume_and_the_same_command_resumes(tmp_p
     assert proc.returncode == code, (stdout, stderr[-2000:])
     assert f"{word};" in " ".join(stderr.split())
     assert "Traceback" not in stderr
-    stored = 60 - len(RunStore.open(out / "run.zarr").pending(0))
+    store = RunStore.open(out / "run.zarr")
+    stored = 60 - len(store.pending(0))
     assert 5 <= stored < 60
+    # the resume line the same command begins with: round 1 and its stored simulations, the time spent
+    said = resume_message(store, store.config.get("wall_time_s") or 0.0)
     again = subprocess.run(cmd + ["--json"], capture_output=True, text=True,
                            env=dict(env, SOFTSBI_TOY_SLEEP="0"), timeout=300)
     assert again.returncode == 0, again.stderr[-2000:]
-    assert f"round 1: {stored} of 60" in again.stderr
+    assert said in again.stderr
     assert json.loads(again.stdout)["simulations"] == 63
 
 

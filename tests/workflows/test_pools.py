@@ -2,8 +2,12 @@
 of different contexts without restarting its workers."""
 import operator
 
+import pytest
+
 from softsbi.executors.local import LocalExecutor
 from softsbi.workflows import pools
+
+pytestmark = pytest.mark.integration  # starts worker processes
 
 
 def test_a_local_pool_keeps_its_workers_across_contexts_and_runs_each_batch_with_its_own():

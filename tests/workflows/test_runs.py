@@ -127,28 +127,30 @@ def test_compare_refuses_an_out_that_is_a_file_before_checking_either_run(toy_ru
 
 
 def test_a_posterior_predictive_worse_than_the_prior_says_what_it_means(toy_run, capsys):
+    """The fit prints the sentences softsbi.report.fit_text renders from its report.json (their wording:
+    tests/report/test_fit_text.py): with the posterior predictive's Chamfer above the prior's, one more, the note
+    that the model cannot reach the data."""
     import json
 
-    from softsbi.cli import _print_report
-    from softsbi.cli.output import Output
+    from toy_helpers import printed_fit_report
     rep = json.loads((toy_run / "report.json").read_text())
+    # every posterior-predictive Chamfer says its rollouts: the report keeps their number (n_eval)
+    assert rep["chamfer_posterior_n"] == 5 and rep["chamfer_prior_m"] > 0 and rep["chamfer_posterior_m"] > 0
     rep["chamfer_prior_m"], rep["chamfer_posterior_m"] = 0.0907, 0.0937  # the issue's "9.07 cm -> 9.37 cm"
-    _print_report(Output(), rep, toy_run)
-    text = " ".join(capsys.readouterr().out.split())
-    n = rep["chamfer_posterior_n"]  # every posterior-predictive Chamfer says its rollouts
-    assert n and f"9.07 cm -> posterior predictive 9.37 cm (n={n} rollouts) (3% higher)" in text
-    assert "the model cannot reach the data; `softsbi check" in text
+    _, worse = printed_fit_report(rep, toy_run, capsys)
     rep["chamfer_posterior_m"] = 0.05
-    _print_report(Output(), rep, toy_run)
-    assert "cannot reach" not in capsys.readouterr().out
+    _, better = printed_fit_report(rep, toy_run, capsys)
+    k = next(i for i, (w, b) in enumerate(zip(worse, better)) if w != b)  # the Chamfer line: its numbers changed
+    # the note comes right after it and goes with it; every other line stays
+    assert len(worse) == len(better) + 1 and worse[:k] == better[:k] and worse[k + 2:] == better[k + 1:]
 
 
 def test_estimates_of_switched_off_effects_print_as_zero():
-    from softsbi.core.results import Estimate
-    from softsbi.report.text import estimate_words
-    assert estimate_words(Estimate("unseen_height", "m", 8.74e-22, 0.0, 1.29e-14)) == \
-        "unseen_height = 0 m (90% interval 0 to 0 m)"
-    assert estimate_words(Estimate("wind_x", "m/s", 0.0123)) == "wind_x = 0.0123 m/s"
+    """A switched-off effect's estimate (8.7e-22 is rounding) prints as 0 (the sentence: tests/report/test_text.py,
+    test_an_estimate_at_a_switched_off_value_reads_zero)."""
+    from softsbi.report.text import ZERO_PRINTED, num
+    assert [num(v) for v in (8.74e-22, 0.0, 1.29e-14, -3e-13, ZERO_PRINTED / 2)] == ["0"] * 5
+    assert num(0.0123) == "0.0123" and num(-2e-12) == "-2e-12"
 
 
 def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, monkeypatch):
@@ -161,17 +163,21 @@ def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, m
 
 
 def test_the_fit_report_points_to_check_when_the_intervals_miss_more_hidden_values_than_chance(toy_run, capsys):
+    """The hint (truth_miss_hint, worded in tests/report/test_fit_text.py) is the first line under the table when
+    the intervals miss both hidden values, and absent when they miss one."""
     import json
 
-    from softsbi.cli import _print_report
-    from softsbi.cli.output import Output
+    from toy_helpers import printed_fit_report
+    from softsbi.report.text import truth_miss_hint
     rep = json.loads((toy_run / "report.json").read_text())
     names = [p["name"] for p in rep["parameters"]]
     rep["truth"] = {n: 0.0 for n in names}
     rep["truth_in_90pct_interval"] = {n: False for n in names}  # both missed: p = 0.01
-    _print_report(Output(), rep, toy_run)
-    text = " ".join(capsys.readouterr().out.split())
-    assert "miss 2 of 2 hidden values, more than chance allows" in text and f"`softsbi check {toy_run}`" in text
+    table, missed = printed_fit_report(rep, toy_run, capsys)
+    hint = truth_miss_hint(rep["truth_in_90pct_interval"], str(toy_run))
+    assert hint is not None and missed[0] == hint and str(toy_run) in hint  # it names this run for `softsbi check`
+    assert [r[-1] for r in table.rows] == ["NO", "NO"]  # the table's "inside 90%?" column
     rep["truth_in_90pct_interval"] = {n: k > 0 for k, n in enumerate(names)}  # one missed: chance
-    _print_report(Output(), rep, toy_run)
-    assert "more than chance allows" not in capsys.readouterr().out
+    table, chance = printed_fit_report(rep, toy_run, capsys)
+    assert truth_miss_hint(rep["truth_in_90pct_interval"], str(toy_run)) is None and chance == missed[1:]
+    assert [r[-1] for r in table.rows] == ["NO", "yes"]

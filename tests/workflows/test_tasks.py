@@ -79,12 +79,18 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     # by default a stored task's posterior alone: one round, whose 20 draws are the first of the task's 80, no training
     assert calls == [] and res.report.rounds == 1 and len(res.store.round_data(0)["status"]) == 20
     np.testing.assert_array_equal(res.store.round_data(0)["u"], np.random.default_rng([0, 0, 0]).random((80, 2))[:20])
-    from softsbi.workflows.calibrate import trained_task_line  # calibrate names the task's training report
-    line = trained_task_line(res.store.round_attrs(0)["info"], "default")
-    assert task.digest[:12] in line and "30 held-out prior simulations" in line
+    # calibrate names the training report of the task that served round 1 (the sentence, with its numbers:
+    # tests/report/test_fit_text.py); a run whose first round was trained here has none
+    from softsbi.workflows.calibrate import trained_task_line
+    from softsbi.workflows.tasks import served_by_task
+    info = res.store.round_attrs(0)["info"]
+    assert served_by_task(info) and info["task"] == task.digest
+    line = trained_task_line(info, "default")
+    assert line is not None and task.digest[:12] in line and rep.verdict in line
     scratch = run_fit(tmp_path / "scratch", rec2, _cfg(sims_per_round=10, rounds=None, sim_bank="off"),
                       make_plots=False)
     assert scratch.report.rounds == 4 and len(calls) == 4  # no stored task: the sequential default
+    assert trained_task_line(scratch.store.round_attrs(0)["info"], "default") is None
 
 
 def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
@@ -101,9 +107,11 @@ def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
     assert len(listed) == 1 and listed[0]["model"] == "nominal" and listed[0]["n_prior"] == 40
     key = listed[0]["key"]
     shown = cli("show", key[:8])
-    assert shown.returncode == 0 and key in shown.stdout and "no training report" in shown.stdout
-    bad = cli("show", "zz")
-    assert bad.returncode != 0 and "at least its first 4" in bad.stdout + bad.stderr
+    assert shown.returncode == 0 and key in shown.stdout
+    doc = json.loads(cli("show", key[:4], "--json").stdout)  # the first 4 characters of the key suffice
+    assert doc["key"] == key and doc["report"] is None  # stored by a fit: no training report
+    bad = cli("show", key[:3], "--json")  # fewer are refused, even when they match one task
+    assert bad.returncode != 0 and json.loads(bad.stdout)["type"] == "SoftsbiError"
     assert cli("delete", key[:8]).returncode == 0
     assert json.loads(cli("list", "--json").stdout) == []
 
