@@ -247,8 +247,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
                 f"the calibration describes the estimator as trained now")
     u_test, x_test = data["u"][ok], data["x"][ok]
     st = calibration_stats(est, u_test, x_test[:, fr], space.names, n_draws, n_bins, cfg.seed)
-    n, n_nomass, levels, cov, ver, tarp = st["n"], st["n_no_mass_in_box"], st["levels"], st["cov"], st["ver"], st["tarp"]
-    lo, hi, at, tests, hist = st["lo"], st["hi"], st["at"], st["tests"], st["hist"]
+    n, n_nomass, ver, tarp = st["n"], st["n_no_mass_in_box"], st["ver"], st["tarp"]
     vc = ver["coverage"]
     out = {
         "run": str(run_dir), "estimator": name, "estimator_options": opts,
@@ -258,22 +257,13 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
             f"{p} ({c})" for p, c in zip([p[1] for p in _proposals(store, cfg, space, last, counts)], counts)),
         "coordinates": "unit cube of the inferred parameters (log scale for log-scaled ones)",
         "parameters": space.names,
-        "coverage": {"levels": levels.tolist(), "hpd": cov.tolist(), "band_lo": lo.tolist(), "band_hi": hi.tolist(),
-                     "band_confidence": 0.95, "at_50": at[0.5], "at_90": at[0.9],
-                     # the verdict judges the whole curve with the simultaneous band (Bonferroni over the levels)
-                     "band_simultaneous_lo": vc["band_lo"], "band_simultaneous_hi": vc["band_hi"],
-                     "band_simultaneous_confidence": vc["confidence"],
-                     "outside_pointwise": [float(levels[i]) for i in cal.curve_outside(cov, lo, hi)],
-                     "inside_simultaneous": not vc["rejects"],
-                     "band_50": vc["at_50"]["band"], "band_90": vc["at_90"]["band"]},
+        "coverage": coverage_json(st),
         "verdict_50": vc["at_50"]["verdict"], "verdict_90": vc["at_90"]["verdict"], "verdict": ver["verdict"],
         "calibrated": ver["calibrated"], "alpha": ver["alpha"],
         "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
         "diagnostics": {"coverage": {k: vc[k] for k in ("rejects", "direction", "outside", "confidence")},
                         "tarp": ver["tarp"], "sbc": ver["sbc"]},
-        "sbc": {"n_bins": n_bins, "histograms": hist, "band": ver["sbc"]["band"], "band_level": ver["sbc"]["level"],
-                "shapes": [p["shapes"] for p in ver["sbc"]["parameters"]],
-                "rejects": [p["rejects"] for p in ver["sbc"]["parameters"]], **tests},
+        "sbc": rank_histograms_json(st, n_bins),
         "tarp": tarp,
         "train_seconds": train_s, "simulation_seconds": sim_s,
         "estimator_fit": {k: v for k, v in dict(getattr(est, "fit_info", {}) or {}).items()
@@ -286,6 +276,29 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
             write_json_atomic(run_dir / "calibration.json", result.to_json())
             plot_calibration(run_dir / "calibration.png", result)
     return result
+
+
+def coverage_json(st: Mapping[str, Any]) -> dict[str, Any]:
+    """The expected coverage of :func:`calibration_stats`' result ``st`` in the JSON form of
+    :class:`~softsbi.core.fitreport.Coverage` (``calibration.json``'s and a stored task's training report's)."""
+    levels, cov, lo, hi, at, vc = st["levels"], st["cov"], st["lo"], st["hi"], st["at"], st["ver"]["coverage"]
+    return {"levels": levels.tolist(), "hpd": cov.tolist(), "band_lo": lo.tolist(), "band_hi": hi.tolist(),
+            "band_confidence": 0.95, "at_50": at[0.5], "at_90": at[0.9],
+            # the verdict judges the whole curve with the simultaneous band (Bonferroni over the levels)
+            "band_simultaneous_lo": vc["band_lo"], "band_simultaneous_hi": vc["band_hi"],
+            "band_simultaneous_confidence": vc["confidence"],
+            "outside_pointwise": [float(levels[i]) for i in cal.curve_outside(cov, lo, hi)],
+            "inside_simultaneous": not vc["rejects"],
+            "band_50": vc["at_50"]["band"], "band_90": vc["at_90"]["band"]}
+
+
+def rank_histograms_json(st: Mapping[str, Any], n_bins: int) -> dict[str, Any]:
+    """The SBC rank histograms of :func:`calibration_stats`' result ``st`` (``n_bins`` bins) in the JSON form of
+    :class:`~softsbi.core.fitreport.RankHistograms`."""
+    sbc = st["ver"]["sbc"]
+    return {"n_bins": n_bins, "histograms": st["hist"], "band": sbc["band"], "band_level": sbc["level"],
+            "shapes": [p["shapes"] for p in sbc["parameters"]], "rejects": [p["rejects"] for p in sbc["parameters"]],
+            **st["tests"]}
 
 
 def calibration_stats(est: Any, u_test: np.ndarray, x_test: np.ndarray, names: list[str], n_draws: int, n_bins: int,

@@ -31,7 +31,7 @@ from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.workflows import defaults, pools
-from softsbi.workflows.calibrate import calibration_stats
+from softsbi.workflows.calibrate import calibration_stats, coverage_json, rank_histograms_json
 from softsbi.workflows.check_null import check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.jobs import SimContext, _round_seeds, run_jobs
@@ -164,11 +164,7 @@ def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig
     return TrainingReport.from_json({
         "n_test": int(st["n"]), "n_test_failed": int(n_test - len(U)), "n_draws": int(n_draws),
         "parameters": space.names,
-        "coverage": {"levels": st["levels"].tolist(), "hpd": st["cov"].tolist(), "band_lo": st["lo"].tolist(),
-                     "band_hi": st["hi"].tolist(), "at_50": st["at"][0.5], "at_90": st["at"][0.9]},
-        "sbc": {"n_bins": defaults.N_BINS, "histograms": st["hist"], "band": ver["sbc"]["band"],
-                "band_level": ver["sbc"]["level"], "shapes": [p["shapes"] for p in ver["sbc"]["parameters"]],
-                "rejects": [p["rejects"] for p in ver["sbc"]["parameters"]], **st["tests"]},
+        "coverage": coverage_json(st), "sbc": rank_histograms_json(st, defaults.N_BINS),
         "tarp": st["tarp"], "verdict": ver["verdict"], "calibrated": ver["calibrated"],
         "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
         "contraction": {n: {"width_ratio": float(r), "informed": bool(r <= INFORMED_MAX_RATIO)}
