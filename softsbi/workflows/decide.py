@@ -97,9 +97,14 @@ def refit_gains(nominal: Score | None, refits: Sequence[Refit]) -> tuple[RefitGa
     return tuple(out)
 
 
+def _better_singles(nominal: Score | None, refits: Sequence[Refit], k_se: float) -> list[Refit]:
+    """The single refits that improve on the nominal fit (:func:`improves`) with their effect switched on."""
+    return [r for r in refits if len(r.effects) == 1 and r.score is not None and improves(nominal, r.score, k_se)
+            and not r.maybe_off]
+
+
 def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float) -> Decision:
-    singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
-    better = [r for r in singles if improves(nominal, r.score, k_se) and not r.maybe_off]
+    better = _better_singles(nominal, refits, k_se)
     good = [r for r in better if r.adequate]
     if good:
         best = _best(good)
@@ -132,8 +137,7 @@ def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | N
             return (c.effect,)
     if decide(test, nominal, refits, k_se).verdict == "missing-effect" or confirm < 2:
         return None
-    singles = [r for r in refits if len(r.effects) == 1 and r.score is not None]
-    base = _best([r for r in singles if improves(nominal, r.score, k_se) and not r.maybe_off])
+    base = _best(_better_singles(nominal, refits, k_se))
     if base is None:
         return None
     second = next((c.effect for c in base.ranking if c.screened and not c.generic and c.effect not in base.effects),
