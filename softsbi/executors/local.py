@@ -253,13 +253,11 @@ class LocalExecutor(Executor):
         if not self._pool:  # a pool that is kept keeps how its workers started
             self._import_main = import_main
         changed, self._context = self._context is not context, context
-        self._pool = [w for w in self._pool if w.proc.is_alive()]
         for w in self._pool if changed else ():
             try:
                 w.conn.send((_NEW_CONTEXT, context))
             except (OSError, ValueError):  # died while idle: replaced below, with the new context
                 w.kill()
-                w.proc.join(5)
         self._pool = [w for w in self._pool if w.proc.is_alive()]
         while len(self._pool) < self.workers:
             self._pool.append(self._spawn())

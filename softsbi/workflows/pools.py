@@ -44,8 +44,11 @@ def executor(name: str, workers: int | None, options: Mapping[str, Any] | None =
     Raises:
         Whatever the plugin's constructor raises for bad options.
     """
+    def made() -> Executor:
+        return registry().executor(name)(workers=workers, **dict(options or {}))
+
     if _shared is None:
-        exe = registry().executor(name)(workers=workers, **dict(options or {}))
+        exe = made()
         try:
             yield exe
         finally:
@@ -53,5 +56,5 @@ def executor(name: str, workers: int | None, options: Mapping[str, Any] | None =
         return
     key = json.dumps([name, workers, dict(options or {})], sort_keys=True, default=str)
     if key not in _shared:
-        _shared[key] = registry().executor(name)(workers=workers, **dict(options or {}))
+        _shared[key] = made()
     yield _shared[key]
