@@ -417,3 +417,14 @@ def test_old_hook_names_are_aliased_with_a_warning(blob_data):
     est = OldHooks(**{**FAST, "max_epochs": 2, "min_epochs": 1})
     est.fit(u[:40], x[:40])
     assert est._z_shape == (5, 3, 3)
+
+
+def test_the_closed_form_smallest_eigenvalue_equals_lapacks_on_symmetric_matrices():
+    from softsbi.inference.summaries import smallest_eigenvalue_3x3
+    rng = np.random.default_rng(1)
+    m = rng.normal(size=(2000, 3, 3))
+    m = m @ m.transpose(0, 2, 1)  # positive semi-definite, as a covariance
+    m[:10] = 2.0 * np.eye(3)  # a multiple of the identity: every eigenvalue equal
+    m[10:20, 2, :] = m[10:20, :, 2] = 0.0  # rank 2: the smallest is 0
+    got = smallest_eigenvalue_3x3(m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], m[:, 0, 1], m[:, 1, 2], m[:, 0, 2])
+    np.testing.assert_allclose(got, np.linalg.eigvalsh(m)[:, 0], atol=1e-12 * np.abs(m).max())
