@@ -26,9 +26,9 @@ def print_diagnosis(o: Output, diagnosis: Any) -> None:
 
 def diagnose(run: Path = typer.Argument(..., help="run directory of a finished fit (nominal model)"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
-             confirm: int = typer.Option(D.CONFIRM, callback=bound(0, "0 = no refit"), help="refit the top N named candidates by evidence (and at most "
-                                                          "one pair when none explains the misfit alone; 0 = no "
-                                                          "refit)"),
+             confirm: int = typer.Option(D.CONFIRM, callback=bound(0, "0 = no refit"), help="refit the top N named candidates (trained ones by their "
+                                                          "amortised score, then the screening's) and at most one "
+                                                          "pair when none explains the misfit alone; 0 = no refit"),
              refit_rounds: Optional[int] = typer.Option(None, help="rounds of a refit (default: the run's)",
                                                         callback=bound(1, "leave it out for the run's own")),
              refit_sims: Optional[int] = typer.Option(None, help="simulations per round of a refit "

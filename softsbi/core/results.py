@@ -9,6 +9,7 @@ Units: distances in metres, like every stored number of softsbi.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Mapping, Sequence
@@ -130,7 +131,7 @@ class JointTest:
 
 @dataclass(frozen=True)
 class Candidate:
-    """One candidate effect of the linearised screening.
+    """One candidate effect: its linearised screening and, on a task trained with its model, its amortised evidence.
 
     Attributes:
         effect: the effect's name.
@@ -141,6 +142,8 @@ class Candidate:
         adjusted: its max-T adjusted Monte-Carlo p-value over the family (None when its screening failed).
         estimate: the linearised estimate of its parameters (physical units).
         error: why its screening failed, else None.
+        amortised: the summary energy score of its trained model's amortised posterior predictive, in the nominal
+            fit's scale (:func:`softsbi.workflows.evidence.amortised_scores`; ``diagnose`` only), else None.
     """
 
     effect: str
@@ -151,6 +154,7 @@ class Candidate:
     adjusted: MCPValue | None = None
     estimate: Mapping[str, float] = field(default_factory=dict)
     error: str | None = None
+    amortised: Score | None = None
 
     @property
     def screened(self) -> bool:
@@ -286,6 +290,17 @@ class Gain:
     difference: float
     se: float
     z: float
+
+    @classmethod
+    def of(cls, a: "Score | None", b: "Score | None") -> "Gain | None":
+        """The gain of ``b`` over ``a``: the difference ``a - b``, its standard error ``sqrt(se_a^2 + se_b^2)`` (two
+        independent Monte-Carlo samples scored against the same measurement) and ``z``; None when either is
+        missing."""
+        if a is None or b is None:
+            return None
+        d = a.value - b.value
+        se = math.hypot(a.se, b.se)
+        return cls(float(d), float(se), float(d / se) if se > 0 else (math.inf if d > 0 else -math.inf if d < 0 else 0.0))
 
 
 @dataclass(frozen=True)

@@ -250,8 +250,13 @@ def rule_words(d: Diagnosis) -> str:
     if not d.test.misspecified:
         return s
     singles = [r.label for r in d.refits if len(r.effects) == 1]
-    s += (f" Propose: the screening ranked {len(d.candidates)} candidates; refitted "
-          + (", ".join(singles) if singles else "none") + " (the top named ones by evidence)"
+    n_trained = sum(c.amortised is not None for c in d.ranking)
+    s += (f" Propose: the screening ranked {len(d.candidates)} candidates"
+          + (f" and the amortised posterior of each of the {n_trained} the task trained scored its refit"
+             if n_trained else "") + "; refitted "
+          + (", ".join(singles) if singles else "none")
+          + (" (the trained ones whose amortised refit scores lower, then the top named ones the screening ranks)"
+             if n_trained else " (the top named ones by evidence)")
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
           f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's "
@@ -371,13 +376,17 @@ def candidate_role(d: Diagnosis, c: Candidate) -> str:
 
 def not_refitted(d: Diagnosis, c: Candidate) -> str:
     """Why ``diagnose`` did not refit candidate ``c`` (its verdict column): nothing is missing, a generic term
-    (describes the residual, names no cause), its screening failed, or the refit budget ``--confirm`` ended above it
-    (:func:`softsbi.workflows.decide.next_refit` refits the top named screened candidates)."""
+    (describes the residual, names no cause), its trained model's amortised posterior predictive does not lower the
+    nominal fit's score, its screening failed, or the refit budget ``--confirm`` ended above it
+    (:func:`softsbi.workflows.decide.refit_order`)."""
     if not d.test.misspecified:
         return "not refitted: nothing missing"
     if c.generic:
         return "not refitted: generic term"
-    if not c.screened:
+    g = Gain.of(d.nominal, c.amortised)
+    if c.amortised is not None and (g is None or g.z <= d.k_se):
+        return "not refitted: its amortised refit scores no lower"
+    if c.amortised is None and not c.screened:
         return "not refitted: screening failed"
     if d.confirm is None:
         return "not refitted: beyond the refit budget"
@@ -386,21 +395,22 @@ def not_refitted(d: Diagnosis, c: Candidate) -> str:
 
 def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
     """``diagnose``'s table, one row per candidate in the screening's order: effect, kind, share of the residual
-    explained in the screening, max-T adjusted p, the refit's check p and summary energy score, and the verdict column
-    (:func:`candidate_role`)."""
+    explained in the screening, max-T adjusted p, the amortised refit's summary energy score (a trained candidate's),
+    the refit's check p and summary energy score, and the verdict column (:func:`candidate_role`)."""
     rows = []
     for c in d.ranking:
         r = d.refit((c.effect,))
         rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
                      pct(None if c.explained is None else max(c.explained, 0.0)),
                      p_short(c.adjusted) if c.adjusted else (c.error or "-"),
+                     f"{c.amortised.value:.3g}" if c.amortised else "-",
                      p_short(r.test) if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
                      candidate_role(d, c)])
     return rows
 
 
-DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "refit check p", f"refit {SUMMARY_ENERGY}",
-                     "verdict"]
+DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "amortised score", "refit check p",
+                     f"refit {SUMMARY_ENERGY}", "verdict"]
 
 
 def row_label(metric: Metric, a: CheckResult, b: CheckResult, part: str = "") -> str:

@@ -3,8 +3,10 @@
 Pure functions of typed results (:mod:`softsbi.core.results`); no simulation here. The rule:
 
 1. *Detect.* ``nothing-missing`` iff ``check``'s joint test of the nominal fit does not reject at ``alpha``.
-2. *Propose.* The screening ranks the candidates by evidence; the top ``confirm`` named (non-generic) ones are
-   refitted, in that order (:func:`next_refit`). The ranking spends the refit budget; it decides nothing.
+2. *Propose.* The top ``confirm`` named (non-generic) candidates of :func:`refit_order` are refitted: first those
+   whose trained model's amortised posterior predictive lowers the nominal fit's score (their evidence,
+   :mod:`~softsbi.workflows.evidence`), lowest score first, then the untrained ones the screening ranks
+   (:func:`next_refit`). The order spends the refit budget; it decides nothing.
 3. *Decide* on the refits by three criteria only (:func:`decide`):
    - *adequate*: ``check``'s test of the refit does not reject at the same ``alpha``;
    - *improves*: the refit lowers the summary energy score (of the posterior predictive of ``check``'s summary
@@ -37,8 +39,6 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Sequence
 
-import numpy as np
-
 from softsbi.core.results import Candidate, Decision, Gain, JointTest, Refit, RefitGain, Score
 from softsbi.workflows import defaults
 
@@ -48,14 +48,9 @@ K_SE = defaults.K_SE
 
 
 def gain(base: Score | None, new: Score | None) -> Gain | None:
-    """How much lower ``new``'s summary energy score is than ``base``'s: the difference (dimensionless), its standard
-    error ``sqrt(se_base^2 + se_new^2)`` (the two posterior predictives are independent Monte-Carlo samples scored
-    against the same measurement) and ``z``; None when either is missing."""
-    if base is None or new is None:
-        return None
-    d = base.value - new.value
-    se = float(np.hypot(base.se, new.se))
-    return Gain(float(d), se, float(d / se) if se > 0 else (np.inf if d > 0 else -np.inf if d < 0 else 0.0))
+    """How much lower ``new``'s summary energy score is than ``base``'s (:meth:`Gain.of`: the difference, its
+    standard error and ``z``); None when either is missing."""
+    return Gain.of(base, new)
 
 
 def improves(base: Score | None, new: Score | None, k_se: float = K_SE) -> bool:
@@ -120,21 +115,34 @@ def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_s
     return Decision("misspecified-unexplained", partial=base.effects, gain=gain(nominal, base.score))
 
 
+def refit_order(ranking: Sequence[Candidate], nominal: Score | None, k_se: float = K_SE) -> list[str]:
+    """The named (non-generic) candidates in the order the refit budget goes to them.
+
+    A candidate with amortised evidence (:attr:`~softsbi.core.results.Candidate.amortised`: its trained model's
+    posterior predictive, scored as its refit will be) comes first when that score improves on the nominal fit's
+    (:func:`improves`), lowest score first, and is left out otherwise: its refit's score estimates the same quantity,
+    so it could not be named. The candidates without such evidence follow in the screening's order, those it
+    screened."""
+    named = [c for c in ranking if not c.generic]
+    ahead = sorted((c for c in named if c.amortised is not None and improves(nominal, c.amortised, k_se)),
+                   key=lambda c: c.amortised.value)  # type: ignore[union-attr]
+    return [c.effect for c in ahead] + [c.effect for c in named if c.amortised is None and c.screened]
+
+
 def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | None, refits: Sequence[Refit],
                confirm: int, k_se: float = K_SE) -> tuple[str, ...] | None:
     """The refit to spend the budget on next, or None when the diagnosis is complete.
 
-    First the top ``confirm`` named (non-generic) screened candidates, in the screening's order of evidence;
-    then, when no single refit is adequate and improving, one pair: the improving single refit with the lowest
+    First the top ``confirm`` candidates of :func:`refit_order`; then, when no single refit is adequate and improving, one pair: the improving single refit with the lowest
     score and the first named candidate of that refit's own screening (its check's ranking over the same
     family, less its effect). Nothing for a fit the test does not reject.
     """
     if not test.misspecified or confirm <= 0:
         return None
     done = {frozenset(r.effects) for r in refits}
-    for c in [c for c in ranking if c.screened and not c.generic][:confirm]:
-        if frozenset([c.effect]) not in done:
-            return (c.effect,)
+    for effect in refit_order(ranking, nominal, k_se)[:confirm]:
+        if frozenset([effect]) not in done:
+            return (effect,)
     if decide(test, nominal, refits, k_se).verdict == "missing-effect" or confirm < 2:
         return None
     base = _best(_better_singles(nominal, refits, k_se))

@@ -4,9 +4,10 @@
 
 1. *detect*: ``check``'s joint test (:func:`~softsbi.workflows.screening.misspecification_verdict`: the
    omnibus and the directional test on one null of posterior-predictive rollouts, Bonferroni-combined);
-2. *propose*: the linearised screening ranks the candidate effects
-   (:class:`~softsbi.workflows.screening.Screening`), and the top ones are refitted
-   (:func:`refit_model`; :func:`~softsbi.workflows.decide.next_refit` says which);
+2. *propose*: on a task trained with its candidate models, each trained candidate's amortised posterior predictive is
+   scored (:mod:`~softsbi.workflows.evidence`); the linearised screening ranks the candidate effects
+   (:class:`~softsbi.workflows.screening.Screening`); the top ones of :func:`~softsbi.workflows.decide.refit_order`
+   are refitted (:func:`refit_model`; :func:`~softsbi.workflows.decide.next_refit` says which);
 3. *decide*: :func:`~softsbi.workflows.decide.decide` on the refits' adequacy (the same test) and summary energy scores.
 
 One candidate family is used in every step: the refits' tests screen the same candidates less their own effects.
@@ -25,25 +26,20 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit,
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
-from softsbi.core.types import Param, Recording
+from softsbi.core.types import Param
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
 from softsbi.workflows.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import defaults, pools
 from softsbi.workflows.decide import K_SE, decide, next_refit
+from softsbi.workflows.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
 from softsbi.workflows.progress import fit_callbacks
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.runs import RunView
-from softsbi.workflows.screening import candidate_effects, check_resolution
+from softsbi.workflows.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
-
-#: proposal of a refit: truncated (TSNPE, Deistler et al. 2022). A refit adds parameters to a model whose others the
-#: nominal fit has already narrowed; truncated proposals spend its rounds inside the posterior's region, where the
-#: corrected proposal's importance weights degenerate as the dimension grows
-REFIT_PROPOSAL = "truncated"
-
 
 @pools.shared_executors()
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alpha: float = ALPHA,
@@ -97,8 +93,10 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
     if not cands:
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
     family = tuple(c.name for c in cands)
-    key = result_key(run, family=sorted(family), alpha=alpha, k_se=k_se, confirm=confirm, refit_rounds=refit_rounds,
-                     refit_sims=refit_sims, n_null=n_null, max_null=max_null, seed=seed)
+    trained = trained_tasks(run, [c.name for c in cands if not is_generic(c)])
+    key = result_key(run, family=sorted(family), trained=sorted(t[0].digest for t in trained.values()), alpha=alpha,
+                     k_se=k_se, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null,
+                     max_null=max_null, seed=seed)
     say = progress or (lambda _: None)
     out = run.path if out_dir is None else Path(out_dir)
     json_path = check_result_path(out / "diagnosis.json")
@@ -117,15 +115,21 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
         scale = summary_scale(f_nom)
         nominal = summary_energy_score(run_features(run, run.dense), f_nom, scale)
+        ranking, n_amortised = chk.ranking, 0
+        if chk.test.misspecified and confirm > 0 and trained:  # each trained candidate's amortised refit's score
+            say(f"propose: the amortised posterior predictive of the {len(trained)} candidates the task trained")
+            scores, n_amortised = amortised_scores(run, trained, scale, n_null, workers, seed)
+            ranking = tuple(replace(c, amortised=scores.get(c.effect)) for c in ranking)
         refits: list[Refit] = []
-        while (nxt := next_refit(chk.test, chk.ranking, nominal, refits, confirm, k_se)) is not None:
+        while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
             say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
             refits.append(refit_model(run, nxt, family, scale, alpha, refit_rounds, refit_sims, n_null, max_null,
                                       workers, seed, out))
         decision = decide(chk.test, nominal, refits, k_se)
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
-        sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values())  # 0 when check's result was stored
-        d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, chk.ranking, nominal, tuple(refits), decision,
+        # 0 from check when its result was stored
+        sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values()) + n_amortised
+        d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, ranking, nominal, tuple(refits), decision,
                       chk.residual, generic, sims, key, time.perf_counter() - t0, chk.chamfer_mean_m,
                       chk.n_rollouts, confirm)
         write_result(json_path, d)
@@ -158,12 +162,6 @@ def check_settings(**values: float | None) -> None:
             raise SoftsbiError(f"{flag} must be {rel} {low:g} (got {value:g}): {why}")
 
 
-def recording_from_run(run: RunView) -> Recording:
-    """Rebuild the :class:`~softsbi.core.types.Recording` a run was fitted to."""
-    return Recording(scenario=run.scenario, x=run.x_obs, dense=run.dense,
-                     source=run.config.get("observed_source", ""), truth=run.config.get("truth"))
-
-
 @pools.shared_executors()
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], scale: np.ndarray | None = None,
                 alpha: float = ALPHA, rounds: int | None = None, sims_per_round: int | None = None,
@@ -171,10 +169,8 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
                 out_root: str | Path | None = None) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
-    The refit has the nominal fit's settings (:meth:`FitConfig.from_run_config`) with the effects switched on,
-    :data:`REFIT_PROPOSAL` proposals, no extra sensor draws (every refit observes each simulation once, physics
-    and sensor effects alike) and its own rounds and simulations per round (default: the nominal fit's, so that an
-    added effect is fitted as well as the model it extends); it is stored in
+    The refit has :func:`~softsbi.workflows.evidence.refit_config`'s settings (by default the nominal fit's budget,
+    so that an added effect is fitted as well as the model it extends); it is stored in
     ``RUN/refit-<a>+<b>`` (``out_root/refit-<a>+<b>`` when given) and resumes from there. It is checked by
     :func:`~softsbi.workflows.check.check_run` (so
     ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
@@ -185,12 +181,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
         everything :func:`~softsbi.workflows.fit.run_fit` raises (e.g. a stored refit with other settings).
     """
     effects = tuple(effects)
-    base = FitConfig.from_run_config(run.config)
-    if rounds is None and not (run.report.per_round and run.report.per_round[0].task):
-        rounds = base.rounds  # else None: from the refit's own stored task when there is one, as the nominal fit
-    cfg = replace(base, effects=list(run.effects) + list(effects), rounds=rounds,
-                  sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
-                  sensor_draws=0, workers=workers if workers is not None else base.workers)
+    cfg = refit_config(run, effects, rounds, sims_per_round, workers)
     out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
     fitted = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
     pool = PosteriorPredictive(out, workers, seed)  # the refit, loaded once: its check and score share it

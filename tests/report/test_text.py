@@ -71,7 +71,11 @@ NONE_LOWER = diagnosis([refit(("wind",), 21.5, REJECTS_REFIT),
 #: the wind's refit as adequate and as low, but both its parameters' posteriors reach the off value (no wind)
 WIND_OFF = replace(WIND, estimates=tuple(replace(e, effect="wind", may_be_off=True) for e in WIND.estimates))
 OFF = diagnosis([WIND_OFF])
-ALL = {"nothing": NOTHING, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial": PARTIAL, "no refit": NO_REFIT,
+#: a task trained with wind and extra-damping: wind's amortised refit scores far lower, extra-damping's no lower (within
+#: 2 standard errors of the nominal's), time-offset untrained; one refit (--confirm 1)
+AMORTISED = replace(diagnosis([WIND]), ranking=(RANKING[0], replace(RANKING[1], amortised=score(8.3)),
+                                                replace(RANKING[2], amortised=score(20.8)), RANKING[3]))
+ALL = {"nothing": NOTHING, "amortised": AMORTISED, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial": PARTIAL, "no refit": NO_REFIT,
        "none lower": NONE_LOWER, "off": OFF}
 
 # recurring phrases of the joint test
@@ -103,9 +107,10 @@ SCREENED = [["generic-constant", "physics (generic)", "62%", "p <= 1/201"], ["wi
             ["extra-damping", "physics", "31%", "p <= 1/201"], ["time-offset", "sensor", "5%", "p = 0.4"]]
 
 
-def rows(*refit_columns):
-    """The expected table: the screening's columns, then per candidate (refit check p, refit summary energy score, verdict)."""
-    return [s + list(r) for s, r in zip(SCREENED, refit_columns)]
+def rows(*refit_columns, amortised=("-",) * 4):
+    """The expected table: the screening's columns, the amortised refit's score, then per candidate (refit check p,
+    refit summary energy score, verdict)."""
+    return [s + [a] + list(r) for s, a, r in zip(SCREENED, amortised, refit_columns)]
 
 
 def not_refitted(why: str) -> tuple[str, str, str]:
@@ -140,6 +145,17 @@ def test_missing_effect_with_a_refit_pressing_a_prior_bound():
         WIND_WORDS]
     assert diagnosis_rows(NAMED) == rows(GENERIC, ("p = 0.41", "8", "named"),
                                          not_refitted("beyond --confirm 1"), not_refitted("beyond --confirm 1"))
+
+
+def test_a_trained_task_scores_each_trained_candidates_amortised_refit_and_says_why_one_was_not_refitted():
+    assert diagnosis_text(AMORTISED)[1] == (
+        f"{DETECT} Propose: the screening ranked 4 candidates and the amortised posterior of each of the 2 the task "
+        "trained scored its refit; refitted wind (the trained ones whose amortised refit scores lower, then the top "
+        f"named ones the screening ranks). {DECIDE}")
+    assert diagnosis_rows(AMORTISED) == rows(GENERIC, ("p = 0.41", "8", "named"),
+                                             not_refitted("its amortised refit scores no lower"),
+                                             not_refitted("beyond --confirm 1"), amortised=("-", "8.3", "20.8", "-"))
+    assert DIAGNOSIS_COLUMNS[4] == "amortised score"
 
 
 def test_missing_effect_with_an_indistinguishable_alternative():
@@ -265,6 +281,8 @@ def test_an_estimate_at_a_switched_off_value_reads_zero():
 #: the verdict column of each fixed diagnosis, written out by hand, in the screening's order (generic-constant, wind,
 #: extra-damping, time-offset)
 ROLES = {"nothing": ["not refitted: nothing missing"] * 4,
+         "amortised": ["not refitted: generic term", "named", "not refitted: its amortised refit scores no lower",
+                       "not refitted: beyond --confirm 1"],
          "named": ["not refitted: generic term", "named", "not refitted: beyond --confirm 1",
                    "not refitted: beyond --confirm 1"],
          "tie": ["not refitted: generic term", "named", "indistinguishable", "not refitted: beyond --confirm 2"],

@@ -5,7 +5,7 @@ from dataclasses import replace
 
 from softsbi.core.results import Candidate, Decision, Estimate, JointTest, MCPValue, Refit, RefitGain, Role, Score
 from softsbi.core.types import Param
-from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit
+from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit, refit_order
 from softsbi.workflows.diagnose import may_be_off
 
 ALPHA = 0.05
@@ -144,3 +144,18 @@ def test_the_refits_proposed_are_the_top_named_candidates_then_one_pair():
     # no refit lowers the score: no pair is built on nothing
     assert next_refit(REJECTS, ranking, NOMINAL, [refit(("a",), 1.0, False), refit(("b",), 1.0, False)], 2) is None
     assert next_refit(REJECTS, ranking, NOMINAL, [], confirm=0) is None
+
+
+def test_trained_candidates_are_refitted_first_by_their_amortised_score_and_never_when_it_does_not_improve():
+    # the screening ranks a, b, c; the task trained b (its amortised refit far lower) and c (no lower): b first, then
+    # the untrained a in the screening's order; c never (its refit's score estimates the same quantity)
+    ranking = (cand("g", generic=True), cand("a"), replace(cand("b"), amortised=score(0.5)),
+               replace(cand("c"), amortised=score(0.99)), replace(cand("d", p=150), adjusted=None))
+    assert refit_order(ranking, NOMINAL) == ["b", "a"]
+    assert next_refit(REJECTS, ranking, NOMINAL, [], confirm=1) == ("b",)
+    assert next_refit(REJECTS, ranking, NOMINAL, [refit(("b",), 0.5, adequate=False)], confirm=2) == ("a",)
+    # two improving trained candidates: the lower score first, whatever the screening says
+    ranking = (cand("a"), replace(cand("b"), amortised=score(0.6)), replace(cand("c"), amortised=score(0.3)))
+    assert refit_order(ranking, NOMINAL) == ["c", "b", "a"]
+    # no task trained: the screening's order alone, as before
+    assert refit_order((cand("g", generic=True), cand("a"), cand("b")), NOMINAL) == ["a", "b"]

@@ -90,3 +90,33 @@ def test_a_failing_plugin_effect_as_the_only_candidate_stays_in_the_table_with_i
     assert c.effect == "toy-broken" and not c.screened
     assert "observe()" in c.error and "Rollout" in c.error  # the plugin hook and the type it must return
     assert diagnosis_rows(d)[0][0] == "toy-broken" and "toy-broken" in diagnosis_rows(d)[0][3]
+
+
+def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_and_the_best_refitted_first(
+        tmp_path, monkeypatch):
+    """The task trained once with its candidate models: the diagnosis scores every trained candidate's amortised
+    posterior predictive (no training, no screening in between) and spends its one refit on the lowest score."""
+    from softsbi.workflows.decide import gain
+    from softsbi.workflows.task_training import train_task
+    toy = pytest.importorskip("softsbi_toy.plugin")
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    rec = simulate_recording("toy-gauss", toy.toy_scenario(8), {"a": 0.3, "b": -0.4, "pull": 0.3}, effects=[MAGNET],
+                             n_points=16, n_dense=64, seed=5, backend_options={"sigma": 0.02})
+    cfg = FitConfig(backend="toy-gauss", backend_options={"sigma": 0.02}, sims_per_round=80, workers=1, n_points=16,
+                    n_dense=64, n_eval=30, estimator_options={"max_epochs": 60, "hidden": [64, 64]})
+    tasks = train_task(rec, cfg, 120, candidates=["toy-drift", MAGNET], n_test=20, n_draws=50, check_null=0)
+    assert [t.model for t in tasks] == ["nominal", "nominal+toy-drift", f"nominal+{MAGNET}"]
+    run_fit(tmp_path / "nominal", rec, cfg, make_plots=False)  # stops at the trained task: one round
+    d = diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1)
+    assert d.test.misspecified
+    scores = {c.effect: c.amortised for c in d.ranking}
+    assert all(s is not None and s.n == 30 for s in scores.values())
+    assert gain(d.nominal, scores[MAGNET]).z > d.k_se and scores[MAGNET].value < scores["toy-drift"].value
+    # the one refit goes to the lowest amortised score, and the refit (of the same trained model) confirms it
+    assert [r.effects for r in d.refits] == [(MAGNET,)]
+    assert d.verdict == "missing-effect" and d.decision.named == (MAGNET,)
+    assert abs(d.refits[0].score.value - scores[MAGNET].value) < 4 * float(
+        (d.refits[0].score.se ** 2 + scores[MAGNET].se ** 2) ** 0.5)
+    # the stored diagnosis is keyed by the trained candidates' tasks (training one more diagnoses again), and read back
+    assert d.key["trained"] == sorted(t.digest for t in tasks[1:])
+    assert diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1) == d

@@ -11,6 +11,7 @@ from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows.check import check_run
 from softsbi.workflows.decide import decide, next_refit
 from softsbi.workflows.diagnose import diagnose_run
+from softsbi.workflows.evidence import REFIT_PROPOSAL
 from softsbi.workflows.fit import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
@@ -216,7 +217,7 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
         dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], None)
     cfg = seen["cfg"]
     assert seen["out"] == tmp_path / "refit-point-noise"
-    assert cfg.proposal == "truncated" == dg.REFIT_PROPOSAL and cfg.sensor_draws == 0
+    assert cfg.proposal == "truncated" == REFIT_PROPOSAL and cfg.sensor_draws == 0
     # by default the nominal fit's budget
     assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 40)
     with pytest.raises(_Stop):
