@@ -16,6 +16,7 @@ the candidates no task has trained.
 """
 from __future__ import annotations
 
+import zlib
 from dataclasses import replace
 from typing import Any, Mapping, Sequence
 
@@ -103,14 +104,15 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
         return {}, 0
     f_obs = run_features(run, run.dense)
     items = []
-    for k, (effect, (task, cfg, space)) in enumerate(trained.items()):
+    for effect, (task, cfg, space) in trained.items():
         fr = slice(None) if cfg.frames is None else list(cfg.frames)
         q = task.restore().posterior_at(run.x_obs[fr].astype(np.float64))
+        stream = [seed, EVIDENCE_STREAM, zlib.crc32(effect.encode())]  # by name: the same whatever else is trained
         try:
-            theta = space.from_unit(draws_in_box(q, n, np.random.default_rng([seed, EVIDENCE_STREAM, k])))
+            theta = space.from_unit(draws_in_box(q, n, np.random.default_rng(stream)))
         except PosteriorError:
             continue
-        sim_seeds = np.random.default_rng([seed, EVIDENCE_STREAM, k, 1]).integers(2**31, size=n)
+        sim_seeds = np.random.default_rng(stream + [1]).integers(2**31, size=n)
         items.append((effect, cfg, space, [(t, int(s)) for t, s in zip(theta, sim_seeds)]))
     out: dict[str, Score] = {}
     for effect, cfg, space, jobs in items:
