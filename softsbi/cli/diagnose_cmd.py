@@ -17,8 +17,9 @@ from softsbi.workflows import defaults as D
 def print_diagnosis(o: Output, diagnosis: Any) -> None:
     """A :class:`~softsbi.core.results.Diagnosis` as its candidates' table, its verdict and its paragraphs on
     stdout (:mod:`softsbi.report.text` words them)."""
-    from softsbi.report.text import DIAGNOSIS_COLUMNS, diagnosis_rows, diagnosis_text  # start-up: numpy, scipy
-    o.table(DIAGNOSIS_COLUMNS, diagnosis_rows(diagnosis), title="Candidate effects, by the screening's evidence")
+    from softsbi.report.text import diagnosis_columns, diagnosis_rows, diagnosis_text  # start-up: numpy, scipy
+    o.table(diagnosis_columns(diagnosis), diagnosis_rows(diagnosis),
+            title="Candidate effects, by the screening's evidence")
     o.line(f"verdict: {diagnosis.verdict}")
     for paragraph in diagnosis_text(diagnosis):
         o.line(paragraph)

@@ -394,22 +394,35 @@ def not_refitted(d: Diagnosis, c: Candidate) -> str:
 
 
 def diagnosis_rows(d: Diagnosis) -> list[list[str]]:
-    """``diagnose``'s table, one row per candidate in the screening's order: effect, kind, share of the residual
-    explained in the screening, max-T adjusted p, the amortised refit's summary energy score (a trained candidate's),
-    the refit's check p and summary energy score, and the verdict column (:func:`candidate_role`)."""
+    """``diagnose``'s table (:func:`diagnosis_columns`), one row per candidate in the screening's order: effect, kind,
+    share of the residual explained in the screening, max-T adjusted p, the amortised refit's summary energy score
+    (when the task trained candidates), the refit's check p and summary energy score, and the verdict column
+    (:func:`candidate_role`)."""
+    amortised = _has_amortised(d)
     rows = []
     for c in d.ranking:
         r = d.refit((c.effect,))
         rows.append([c.effect, c.kind + (" (generic)" if c.generic else ""),
                      pct(None if c.explained is None else max(c.explained, 0.0)),
-                     p_short(c.adjusted) if c.adjusted else (c.error or "-"),
-                     f"{c.amortised.value:.3g}" if c.amortised else "-",
-                     p_short(r.test) if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
-                     candidate_role(d, c)])
+                     p_short(c.adjusted) if c.adjusted else (c.error or "-")]
+                    + ([f"{c.amortised.value:.3g}" if c.amortised else "-"] if amortised else [])
+                    + [p_short(r.test) if r else "-", f"{r.score.value:.3g}" if r and r.score else "-",
+                       candidate_role(d, c)])
     return rows
 
 
-DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", "amortised score", "refit check p",
+def _has_amortised(d: Diagnosis) -> bool:
+    return any(c.amortised is not None for c in d.ranking)
+
+
+def diagnosis_columns(d: Diagnosis) -> list[str]:
+    """The column names of :func:`diagnosis_rows`: the amortised score's only when some candidate has one."""
+    return [c for c in DIAGNOSIS_COLUMNS if c != AMORTISED_COLUMN or _has_amortised(d)]
+
+
+#: the column of a trained candidate's amortised refit's summary energy score
+AMORTISED_COLUMN = "amortised score"
+DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", AMORTISED_COLUMN, "refit check p",
                      f"refit {SUMMARY_ENERGY}", "verdict"]
 
 

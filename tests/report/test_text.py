@@ -10,7 +10,7 @@ import pytest
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
 from softsbi.core.comparison import CompareResult, Metric, Row
 from softsbi.core.results import Diagnosis, Estimate, JointTest, MCPValue, ResidualShape
-from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, check_summary, compare_summary,
+from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, diagnosis_columns, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, estimate_words, joint_test_line,
                                  p_short, p_words, refit_words)
 from softsbi.workflows.decide import decide
@@ -107,10 +107,11 @@ SCREENED = [["generic-constant", "physics (generic)", "62%", "p <= 1/201"], ["wi
             ["extra-damping", "physics", "31%", "p <= 1/201"], ["time-offset", "sensor", "5%", "p = 0.4"]]
 
 
-def rows(*refit_columns, amortised=("-",) * 4):
-    """The expected table: the screening's columns, the amortised refit's score, then per candidate (refit check p,
-    refit summary energy score, verdict)."""
-    return [s + [a] + list(r) for s, a, r in zip(SCREENED, amortised, refit_columns)]
+def rows(*refit_columns, amortised=None):
+    """The expected table: the screening's columns, the amortised refit's score (only when given: a task trained with
+    candidates), then per candidate (refit check p, refit summary energy score, verdict)."""
+    return [s + ([] if amortised is None else [a]) + list(r)
+            for s, a, r in zip(SCREENED, amortised or [None] * 4, refit_columns)]
 
 
 def not_refitted(why: str) -> tuple[str, str, str]:
@@ -155,7 +156,8 @@ def test_a_trained_task_scores_each_trained_candidates_amortised_refit_and_says_
     assert diagnosis_rows(AMORTISED) == rows(GENERIC, ("p = 0.41", "8", "named"),
                                              not_refitted("its amortised refit scores no lower"),
                                              not_refitted("beyond --confirm 1"), amortised=("-", "8.3", "20.8", "-"))
-    assert DIAGNOSIS_COLUMNS[4] == "amortised score"
+    assert diagnosis_columns(AMORTISED)[4] == "amortised score" and diagnosis_columns(AMORTISED) == DIAGNOSIS_COLUMNS
+    assert "amortised score" not in diagnosis_columns(NAMED)  # no task trained: no column of dashes
 
 
 def test_missing_effect_with_an_indistinguishable_alternative():
@@ -301,7 +303,7 @@ ROLES = {"nothing": ["not refitted: nothing missing"] * 4,
 def test_the_verdict_column_never_names_an_effect_the_verdict_does_not_name(name):
     d = ALL[name]
     table = diagnosis_rows(d)
-    assert len(DIAGNOSIS_COLUMNS) == len(table[0]) and DIAGNOSIS_COLUMNS[-1] == "verdict"
+    assert len(diagnosis_columns(d)) == len(table[0]) and diagnosis_columns(d)[-1] == "verdict"
     assert [row[-1] for row in table] == ROLES[name] == [candidate_role(d, c) for c in d.ranking]
     for c, row in zip(d.ranking, table):
         assert row[0] == c.effect
