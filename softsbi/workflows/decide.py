@@ -133,9 +133,10 @@ def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | N
                confirm: int, k_se: float = K_SE) -> tuple[str, ...] | None:
     """The refit to spend the budget on next, or None when the diagnosis is complete.
 
-    First the top ``confirm`` candidates of :func:`refit_order`; then, when no single refit is adequate and improving, one pair: the improving single refit with the lowest
-    score and the first named candidate of that refit's own screening (its check's ranking over the same
-    family, less its effect). Nothing for a fit the test does not reject.
+    First the top ``confirm`` candidates of :func:`refit_order`; then, when no single refit is adequate and
+    improving, one pair: the improving single refit with the lowest score and the first named candidate of that
+    refit's own screening (its check's ranking over the same family, less its effect). Nothing for a fit the test
+    does not reject.
     """
     if not test.misspecified or confirm <= 0:
         return None
