@@ -300,7 +300,13 @@ class Gain:
             return None
         d = a.value - b.value
         se = math.hypot(a.se, b.se)
-        return cls(float(d), float(se), float(d / se) if se > 0 else (math.inf if d > 0 else -math.inf if d < 0 else 0.0))
+        z = d / se if se > 0 else (math.inf if d > 0 else -math.inf if d < 0 else 0.0)
+        return cls(float(d), float(se), float(z))
+
+    def exceeds(self, k_se: float) -> bool:
+        """True when the gain is more than ``k_se`` standard errors (``z > k_se``): the diagnosis' margin for an
+        improvement (:func:`softsbi.workflows.decide.improves`)."""
+        return self.z > k_se
 
 
 @dataclass(frozen=True)

@@ -369,7 +369,7 @@ def candidate_role(d: Diagnosis, c: Candidate) -> str:
     if r.maybe_off:
         return "refit: the data leave it possibly off"
     g = dec.gain_of(r.effects)
-    if g is not None and g.z > d.k_se and dec.named:  # adequate and improving, but the named refit scores lower
+    if g is not None and g.exceeds(d.k_se) and dec.named:  # adequate and improving, but the named refit scores lower
         return f"refit: a lower score than the nominal's, above {' + '.join(dec.named)}'s"
     return "refit: no lower score"
 
@@ -384,7 +384,7 @@ def not_refitted(d: Diagnosis, c: Candidate) -> str:
     if c.generic:
         return "not refitted: generic term"
     g = Gain.of(d.nominal, c.amortised)
-    if c.amortised is not None and (g is None or g.z <= d.k_se):
+    if c.amortised is not None and not (g is not None and g.exceeds(d.k_se)):  # decide.refit_order's test
         return "not refitted: its amortised refit scores no lower"
     if c.amortised is None and not c.screened:
         return "not refitted: screening failed"

@@ -56,7 +56,7 @@ def gain(base: Score | None, new: Score | None) -> Gain | None:
 def improves(base: Score | None, new: Score | None, k_se: float = K_SE) -> bool:
     """True when ``new`` scores more than ``k_se`` standard errors below ``base`` (:func:`gain`)."""
     g = gain(base, new)
-    return g is not None and g.z > k_se
+    return g is not None and g.exceeds(k_se)
 
 
 def _best(refits: Sequence[Refit]) -> Refit | None:
