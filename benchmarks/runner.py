@@ -140,6 +140,12 @@ _SUITES = [
           "and posterior-predictive rollouts on the headline metric (the fit's sensor view and frames), posterior "
           "mean and standard deviation, how much each parameter's 90 % interval contracted, and the distance "
           "between repeats of a fabric against different fabrics.", "benchmarks.real_lift_all"),
+    Suite("real-diagnosis", "Real recordings", "what `softsbi diagnose` finds missing on the DiffCloud recordings",
+          "Each lift and fold recording fitted, checked and diagnosed by the CLI with its defaults (the lifts share "
+          "one task and the suite's simulation bank); per recording the check's p-value, the verdict, the effects "
+          "named, the screening's top candidates with the share of the residual each explains, the residual's "
+          "shape, the posterior-predictive Chamfer and the best fit; and each candidate's share across the "
+          "recordings of a task.", "benchmarks.real_diagnosis"),
     Suite("fold", "Real recordings", "the DiffCloud fold recordings through the generic path",
           "Each fold recording imported with examples/fold.yaml (no fold-specific code) and fitted by `softsbi fit` "
           "with its defaults: Chamfer of prior and posterior-predictive rollouts on the headline metric, posterior "

@@ -75,8 +75,9 @@ import numpy as np
 
 from softsbi.core.camera import Camera
 from softsbi.core.errors import DataError, ShapeError
+from softsbi.core.types import Scenario
 from softsbi.perception.clouds import sensor_chamfer_per_frame, sensor_indices
-from softsbi.scenarios.builtin import load_recording, recording_transform
+from softsbi.scenarios.builtin import lift_scenario, load_recording, recording_transform
 
 #: DiffCloud's lift crop box in the robot base frame, m (``filter_pointcloud`` of the post-processing,
 #: repository version): ``(min (3,), max (3,))``. The recordings tan2, redblack, redblack2 end exactly on
@@ -303,12 +304,17 @@ class VirtualDepthSensor:
 
     @classmethod
     def for_diffcloud_recording(cls, recording: str | Path, calibration: str | Path | None = None,
-                                **kwargs) -> "VirtualDepthSensor":
+                                scenario: Scenario | None = None, **kwargs) -> "VirtualDepthSensor":
         """The sensor of a DiffCloud lift recording folder (``.../diffcloud_lift/lift_tan``), in the lift
         frame: its ``lift_real2sim.yaml`` (:func:`softsbi.scenarios.builtin.recording_transform`), the
         calibration folders ``calib_overhead``, ``calib_side`` of ``calibration`` (default: the recording's
         parent), the side offset, and the crop box its clouds are consistent with
         (:func:`diffcloud_lift_crop`). ``kwargs`` go to :meth:`from_calibration`.
+
+        ``scenario``: the lift the sensor looks at, when its frame is a translation of the recording's own
+        lift frame (:func:`~softsbi.scenarios.builtin.lift_scenario`): the lift task that the rig's recordings
+        share (:func:`~softsbi.scenarios.builtin.lift_task`). The translation is where the scenario's gripper
+        starts against where the recording's own lift starts. None: the recording's own lift frame.
 
         Raises:
             DataError: missing yaml, calibration or frames.
@@ -318,6 +324,10 @@ class VirtualDepthSensor:
         calib = Path(calibration) if calibration is not None else rec.parent
         M = diffcloud_scene_to_robot(cfg)
         kwargs.setdefault("crop", diffcloud_lift_crop(load_recording(rec), M))
+        if scenario is not None:  # scene points of the scenario's frame -> the recording's own lift frame -> robot
+            back = np.eye(4)
+            back[:3, 3] = lift_scenario(rec, len(scenario.times)).gripper[0] - np.asarray(scenario.gripper[0], float)
+            M = M @ back
         kwargs.setdefault("offsets", ((0.0, 0.0, 0.0), DIFFCLOUD_SIDE_OFFSET))
         return cls.from_calibration([calib / "calib_overhead", calib / "calib_side"], M, **kwargs)
 

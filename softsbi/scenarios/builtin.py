@@ -248,6 +248,57 @@ def lift_scenario(recording: str | Path | None = None, n_frames: int = N_FRAMES,
                     options=options, **declared("lift"))
 
 
+#: how far (m) the recording's commanded path may depart from a translation of the task's before a recording keeps
+#: its own lift (a calibration that rotates or scales, not one of DiffCloud's compensation offsets); float round-off
+#: of the two mappings is ~1e-16 m
+TRANSLATION_TOLERANCE = 1e-9
+
+
+def lift_task(recording: str | Path, n_frames: int = N_FRAMES,
+              frame_dt: float = FRAME_DT) -> tuple[Scenario, np.ndarray]:
+    """The lift task that every DiffCloud lift recording of the rig shares, and where ``recording`` lies in it.
+
+    The recordings follow one commanded path (the parent folder's ``lift_traj.npy``). They differ by their
+    calibration (``lift_real2sim.yaml``'s ``compensation_factor``: a translation) and by where the gripper held
+    the cloth (the horizontal grasp offset, :func:`~softsbi.scenarios.diffcloud.estimate_grasp_offset`). Both move
+    the whole scene rigidly, and the simulation is invariant under such a move: the table is a horizontal plane,
+    gravity points along -z and the sensor's height cut is measured from the table. So both belong to the
+    recording (its transform), not to the task, and recordings of the task share simulations and trained models.
+
+    The task's frame is the commanded path under :data:`DEFAULT_TRANSFORM` with no grasp offset. Of the
+    recording, the scenario holds only its folder as ``options["source"]``, the provenance that a task's identity
+    and the simulation bank's keys leave out (:data:`~softsbi.workflows.fitconfig.SCENARIO_PROVENANCE`).
+
+    Args:
+        recording: a DiffCloud lift recording folder (as :func:`lift_scenario`).
+        n_frames, frame_dt: as :func:`lift_scenario`.
+
+    Returns:
+        ``(scenario, translation)``: the task's :class:`Scenario` (``lift``, with ``yaw_bounds``) and the
+        translation ``(3,)`` m that carries points of the recording's own lift frame (:func:`lift_scenario` of
+        it, grasp offset applied) into the task's frame. When the recording's calibration is not a translation of
+        the default one (more than :data:`TRANSLATION_TOLERANCE` apart), the recording's own lift and a zero
+        translation.
+
+    Raises:
+        DataError, ValueError: as :func:`lift_scenario`.
+    """
+    own = lift_scenario(recording, n_frames, frame_dt)
+    traj = read_npy(Path(recording).parent / "lift_traj.npy", "gripper path")
+    moved = real_to_lift_frame(traj, DEFAULT_TRANSFORM) - real_to_lift_frame(traj, recording_transform(recording))
+    if np.abs(moved - moved[0]).max() > TRANSLATION_TOLERANCE:
+        return own, np.zeros(3)
+    gripper = _resample(real_to_lift_frame(traj, DEFAULT_TRANSFORM), n_frames)  # computed, not shifted: the same
+    shift = gripper[0] - own.gripper[0]  # bits for every recording
+    obj = {**own.object, "corner": [float(gripper[0, 0]), float(gripper[0, 1])]}
+    options = {k: own.options[k] for k in ("timing", "frame")}
+    options.update(source=own.options["source"], transform=dict(DEFAULT_TRANSFORM),
+                   robot_base=real_to_lift_frame(np.asarray(ROBOT_BASE_REAL), DEFAULT_TRANSFORM).tolist())
+    task = Scenario(name="lift", times=own.times, gripper=gripper, table_z=float(table_height(DEFAULT_TRANSFORM)),
+                    object=obj, options=options, **declared("lift"))
+    return task, shift
+
+
 # --------------------------------------------------------------------------------------------
 # overlay
 # --------------------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ from softsbi.perception.images import load_frames
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
                                           seen_resampled)
 from softsbi.plugins import registry
-from softsbi.scenarios.builtin import FRAME_DT, lift_scenario, make_scenario
+from softsbi.scenarios.builtin import FRAME_DT, lift_task, make_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.scenarios.catalog import load_scenario
 from softsbi.scenarios.spec import apply_transform, load_scenario_data, spec_from_scenario, transform_matrix
@@ -220,9 +220,11 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
     the ``robot`` frame uses this recording's calibration. Times: DiffCloud's 0.04 s frames (assumed:
     the real timing is not in the files). Sensor: :data:`DIFFCLOUD_MIN_HEIGHT`, ``frames: auto``.
 
-    Scenario: ``scenario`` (a name or file) when given; otherwise ``lift`` folders get the lift derived
-    from the recording (:func:`softsbi.scenarios.builtin.lift_scenario`: the parent's ``lift_traj.npy``,
-    the grasp offset estimated from the clouds), written inline; other tasks need ``scenario``.
+    Scenario: ``scenario`` (a name or file) when given; otherwise ``lift`` folders get the lift task that every
+    lift recording of the rig shares (:func:`softsbi.scenarios.builtin.lift_task`: the parent's
+    ``lift_traj.npy``), written inline, and the recording's calibration offset and grasp offset (estimated
+    from the clouds) become a translation in its ``transform`` and ``frames_of_reference.robot``, so that its
+    recordings share one simulation bank and one stored task; other tasks need ``scenario``.
 
     Raises:
         DataError: not a DiffCloud folder, malformed frames or yaml, a frame count that disagrees with
@@ -256,16 +258,23 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
         raise DataError(f"'{folder}' is a DiffCloud '{task}' recording: give its scenario file (e.g. "
                         f"--scenario examples/{task}.yaml); only lift folders derive their scenario from the data")
     try:
-        sc = lift_scenario(folder)
+        sc, shift = lift_task(folder)
     except FileNotFoundError as exc:
         raise DataError(f"cannot build the lift scenario for '{folder}': {exc}. The recording's parent "
                         f"folder must hold lift_traj.npy") from exc
     if len(clouds) != sc.n_frames:
         raise DataError(f"'{folder}' has {len(clouds)} frames but the lift gripper path has {sc.n_frames}; "
                         f"every recorded frame needs a gripper pose (add or remove frames so the counts match)")
+    # the calibration's compensation and the grasp offset are the recording's: a translation into the shared task
+    move = np.eye(4)
+    move[:3, 3] = shift
+    meta["transform"] = {"matrix": (move @ np.asarray(meta["transform"]["matrix"])).tolist()}
+    meta["frames_of_reference"] = {"robot": {"matrix": (move @ transform_matrix({"diffcloud": dc})).tolist()}}
+    meta["source"] += (f"; moved by ({', '.join(f'{100 * v:+.2f}' for v in shift)}) cm into the lift task "
+                       f"(calibration offset and grasp offset estimated from the clouds)")
     meta["times"] = sc.times.tolist()
-    meta["scenario"] = {"inline": spec_from_scenario(
-        sc, f"DiffCloud lift derived from {folder.name} (lift_traj.npy + grasp offset from the clouds)")}
+    meta["scenario"] = {"inline": spec_from_scenario(sc, "DiffCloud lift (lift_traj.npy), shared by the rig's "
+                                                         "recordings")}
     return meta, clouds
 
 

@@ -46,7 +46,7 @@ def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
             raise DataError(f"sensor='camera' needs a DiffCloud recording folder (lift_real2sim.yaml, with "
                             f"calib_overhead/ and calib_side/ beside it), got scenario source '{src}'; use "
                             f"sensor='height' for other recordings")
-        camera, min_z = VirtualDepthSensor.for_diffcloud_recording(src, n_points=0).to_json(), None
+        camera, min_z = VirtualDepthSensor.for_diffcloud_recording(src, n_points=0, scenario=scenario).to_json(), None
     return {"metric_min_z": min_z, "metric_frames": frames, "metric_camera": camera}
 
 

@@ -110,7 +110,13 @@ def test_import_diffcloud_lift_gives_the_same_recording(tmp_path):
     np.testing.assert_array_equal(a.scenario.gripper, b.scenario.gripper)
     assert b.min_height == 0.01 and b.frames == "auto" and b.scenario.object["yaw_bounds"] == [-45.0, 45.0]
     meta = yaml.safe_load((tmp_path / "lift_tan" / "recording.yaml").read_text())
-    assert meta["frames_of_reference"]["robot"]["diffcloud"]["z_rotation"] == 90.0
+    # the robot frame maps into the shared lift task: the commanded end effector sits the grasp offset away from
+    # the task's gripper (the grasped corner), the same on every frame
+    robot = np.asarray(meta["frames_of_reference"]["robot"]["matrix"])
+    traj = np.load(LIFT / "lift_traj.npy") @ robot[:3, :3].T + robot[:3, 3]
+    apart = b.scenario.gripper - traj
+    np.testing.assert_allclose(apart, np.broadcast_to(apart[0], apart.shape), atol=1e-9)
+    assert np.linalg.norm(apart[0, :2]) > 0.05 and abs(apart[0, 2]) < 1e-9  # lift_tan: (5.7, 2.4) cm
     # the RealSense calibration beside the lift recordings comes along
     cal = read_recording(tmp_path / "lift_tan").extras["calibration"]
     assert set(cal["cameras"]) == {"overhead", "side"}

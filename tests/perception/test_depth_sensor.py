@@ -195,6 +195,22 @@ def test_views_or_highest_keeps_seen_views_and_stands_in_the_highest_tenth_for_a
 
 
 @pytest.mark.skipif(not (DATA / "calib_overhead").is_dir(), reason="needs ../shared/data/diffcloud_lift")
+def test_the_sensor_in_the_shared_lift_task_sees_what_it_sees_in_the_recordings_own_lift():
+    from softsbi.scenarios.builtin import lift_scenario, lift_task
+    from softsbi.workflows.api import simulate
+    own = lift_scenario(DATA / "lift_tan", n_frames=4)
+    task, shift = lift_task(DATA / "lift_tan", n_frames=4)
+    a, b = simulate(own, {"yaw": 8.0}, grid=5), simulate(task, {"yaw": 8.0}, grid=5)
+    mine = VirtualDepthSensor.for_diffcloud_recording(DATA / "lift_tan", n_points=0)
+    shared = VirtualDepthSensor.for_diffcloud_recording(DATA / "lift_tan", n_points=0, scenario=task)
+    seen_own = mine.observe_rollout(a.vertices, a.faces, a.gripper, np.random.default_rng(0))
+    seen_task = shared.observe_rollout(b.vertices, b.faces, b.gripper, np.random.default_rng(0))
+    assert sum(len(c) for c in seen_own) > 100
+    for c_own, c_task in zip(seen_own, seen_task):
+        np.testing.assert_allclose(c_own + shift, c_task, atol=1e-6)
+
+
+@pytest.mark.skipif(not (DATA / "calib_overhead").is_dir(), reason="needs ../shared/data/diffcloud_lift")
 def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     import json
     from softsbi.workflows.fit import FitConfig, run_fit

@@ -113,6 +113,36 @@ def test_grasp_offset_places_corner_like_diffcloud():
 
 
 @needs_data
+def test_every_lift_recording_lies_in_one_task_moved_by_its_calibration_and_grasp_offsets():
+    import json
+    from softsbi.workflows.bank import rollout_key
+    from softsbi.workflows.fitconfig import resume_identity
+    tasks = {n: S.lift_task(LIFT / n) for n in RECORDINGS}
+    same = {json.dumps(resume_identity("scenario", sc.to_json()), sort_keys=True) for sc, _ in tasks.values()}
+    assert len(same) == 1  # one task: the recording's folder is provenance only
+    keys = {rollout_key("mujoco-flex", {}, sc.to_json(), [], {"bend": 1e-4}, 0) for sc, _ in tasks.values()}
+    assert len(keys) == 1
+    for n, (sc, shift) in tasks.items():
+        own = S.lift_scenario(LIFT / n)
+        # the recording's own lift (its calibration, grasp offset applied) moved rigidly by the translation
+        np.testing.assert_allclose(own.gripper + shift, sc.gripper, atol=1e-12, err_msg=n)
+        assert own.table_z + shift[2] == pytest.approx(sc.table_z, abs=1e-12)
+    # the calibration groups differ by 2 cm of height (compensation z); the grasp offsets move them sideways
+    assert {round(float(t[2]), 6) for _, t in tasks.values()} == {0.0, 0.02}
+    assert max(np.linalg.norm(t[:2]) for _, t in tasks.values()) > 0.02
+
+
+@needs_data
+def test_a_lift_simulated_in_the_task_is_the_recordings_own_lift_moved():
+    from softsbi.workflows.api import simulate
+    own = S.lift_scenario(LIFT / "lift_tan", n_frames=6)
+    task, shift = S.lift_task(LIFT / "lift_tan", n_frames=6)
+    a, b = simulate(own, {"yaw": 8.0}, grid=5), simulate(task, {"yaw": 8.0}, grid=5)
+    assert a.status == b.status == 0
+    np.testing.assert_allclose(a.vertices + shift, b.vertices, atol=1e-9)
+
+
+@needs_data
 def test_cloth_size_agrees_with_hanging_cloud():
     # the hanging sheet's horizontal extent is about its diagonal (a little less: the side corners
     # sag), so width / sqrt(2) is a lower estimate of the side: it must lie inside the mujoco-flex

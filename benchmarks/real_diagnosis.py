@@ -1,0 +1,114 @@
+"""The real-diagnosis suite: what `softsbi diagnose` finds missing on the DiffCloud recordings, with its defaults.
+
+Each lift recording ``lift_<r>`` of ``--data``/diffcloud_lift and each fold ``fold_<r>`` (imported with
+``--fold-scenario``) is fitted, checked and diagnosed by the CLI with its defaults (``softsbi fit``, ``check``,
+``diagnose``, ``--workers``), each in a process of its own, in ``--out/<task>_<r>``; a step already stored there is
+reused (resumable). The suite's own simulation bank (``--out/bank``) serves every recording of a task: the lifts
+share one task (:func:`softsbi.scenarios.builtin.lift_task`), so later lifts read their first round from it.
+
+Tables: per recording the check's p-value, the verdict, the effects named, the screening's top candidates with the
+share of the residual each explains, the residual's shape (flagged frames, the centroid's offset, the worst
+regions), the posterior-predictive Chamfer and the best fit; then the candidates' screening shares across the
+recordings of each task.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.runner import REPO, in_out_folder, table
+
+LIFTS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
+FULL = {"lifts": LIFTS, "folds": LIFTS}
+#: screening candidates shown per recording
+TOP = 3
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--out", type=Path, default=None, help="folder of the runs, one per recording, and their "
+                                                           "simulation bank (resumable; default: a temporary one)")
+    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data")
+    ap.add_argument("--lifts", nargs="*", default=["tan2"], choices=LIFTS, help="lift recordings")
+    ap.add_argument("--folds", nargs="*", default=[], choices=LIFTS, help="fold recordings")
+    ap.add_argument("--fold-scenario", type=Path, default=REPO / "examples" / "fold.yaml")
+    ap.add_argument("--workers", type=int, default=2, help="simulation workers per command")
+
+
+def suite(a: argparse.Namespace) -> dict:
+    return in_out_folder(measure, a)
+
+
+def _softsbi(env: dict, *args: str) -> float:
+    """Run one softsbi command (output discarded); its wall time in seconds."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "softsbi.cli", *args], check=True, stdout=subprocess.DEVNULL, env=env)
+    return time.perf_counter() - t0
+
+
+def diagnose_recording(observed: Path, run: Path, workers: int, env: dict) -> dict:
+    """Fit, check and diagnose one recording with the CLI's defaults (each step skipped when stored in ``run``);
+    the wall time of each step run now (s)."""
+    wall = {}
+    steps = [("fit", run / "report.json", ["fit", "--observed", str(observed), "--out", str(run)]),
+             ("check", run / "check.json", ["check", str(run)]),
+             ("diagnose", run / "diagnosis.json", ["diagnose", str(run)])]
+    for name, done, args in steps:
+        if not done.exists():
+            wall[name] = _softsbi(env, *args, "--workers", str(workers))
+    return wall
+
+
+def measure(a: argparse.Namespace, out: Path) -> dict:
+    from softsbi.core.results import CheckResult, Diagnosis, from_json
+
+    env = {**os.environ, "SOFTSBI_SIM_BANK": str(out / "bank")}
+    cases = [("lift", r, a.data / "diffcloud_lift" / f"lift_{r}") for r in a.lifts]
+    if a.folds:
+        folds = out / "recordings" / "fold"
+        if not folds.exists():
+            _softsbi(env, "import", "diffcloud", str(a.data / "diffcloud_fold"), str(folds), "--scenario",
+                     str(a.fold_scenario))
+        cases += [("fold", r, folds / f"fold_{r}") for r in a.folds]
+    rows, shares, data = [], {}, {}
+    for task, r, observed in cases:
+        run = out / f"{task}_{r}"
+        wall = diagnose_recording(observed, run, a.workers, env)
+        rep = json.loads((run / "report.json").read_text())
+        check = from_json(CheckResult, json.loads((run / "check.json").read_text()))
+        d = from_json(Diagnosis, json.loads((run / "diagnosis.json").read_text()))
+        screened = sorted((c for c in d.ranking if c.explained is not None), key=lambda c: -c.explained)
+        for c in screened:
+            shares.setdefault(task, {}).setdefault(c.effect, {})[r] = c.explained
+        res = d.residual
+        best = (rep.get("best_fit") or {}).get("chamfer_m")
+        rows.append([f"{task} {r}", f"{d.test.omnibus.p_value:.3g}", d.verdict, ", ".join(d.decision.named) or "-",
+                     ", ".join(f"{c.effect} {100 * c.explained:.0f}%" for c in screened[:TOP]) or "-",
+                     "-" if res is None else " ".join(f"{s[0]}-{s[1]}" for s in res.frame_spans) or "-",
+                     "-" if res is None else " ".join(f"{v:+.1f}" for v in res.centroid_offset_cm),
+                     "-" if res is None else ", ".join(res.worst_regions) or "-",
+                     round(100 * rep["chamfer_posterior_m"], 2), None if best is None else round(100 * best, 2)])
+        data[f"{task}_{r}"] = {"verdict": d.verdict, "named": list(d.decision.named),
+                               "p": d.test.omnibus.p_value, "check_misspecified": check.test.misspecified,
+                               "explained": {c.effect: c.explained for c in screened},
+                               "refits": [{"effects": list(f.effects), "adequate": f.adequate,
+                                           "score": None if f.score is None else f.score.value} for f in d.refits],
+                               "chamfer_posterior_m": rep["chamfer_posterior_m"], "best_fit_m": best,
+                               "wall_s": wall}
+    tables = [table("Per recording: the check's p-value, the diagnosis and the residual's shape (frames flagged, the "
+                    "measured centroid's offset from the simulated one in cm as x y z, the worst regions); "
+                    "posterior-predictive Chamfer and best fit [cm]",
+                    ["recording", "check p", "verdict", "named", f"screening: top {TOP} (share of the residual)",
+                     "frames flagged", "centroid offset", "worst regions", "posterior predictive", "best fit"], rows)]
+    for task, by_effect in shares.items():
+        recs = sorted({r for v in by_effect.values() for r in v}, key=lambda r: LIFTS.index(r))
+        order = sorted(by_effect, key=lambda e: -sum(by_effect[e].values()))
+        tables.append(table(f"{task}: share of the residual each candidate explains in the screening, per recording",
+                            ["candidate", *recs],
+                            [[e, *[None if r not in by_effect[e] else f"{100 * by_effect[e][r]:.0f}%" for r in recs]]
+                             for e in order]))
+    return {"tables": tables, "data": data}
