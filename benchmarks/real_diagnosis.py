@@ -40,6 +40,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--folds", nargs="*", default=[], choices=LIFTS, help="fold recordings")
     ap.add_argument("--fold-scenario", type=Path, default=REPO / "examples" / "fold.yaml")
     ap.add_argument("--workers", type=int, default=2, help="simulation workers per command")
+    ap.add_argument("--figure", type=Path, default=REPO / "docs" / "figures" / "real_diagnosis_residual.png",
+                    help="where the figure of the residual across recordings is written")
     ap.add_argument("--no-train", dest="train", action="store_false",
                     help="do not train the lift task first (every fit then runs its sequential rounds)")
 
@@ -82,7 +84,7 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             _softsbi(env, "import", "diffcloud", str(a.data / "diffcloud_fold"), str(folds), "--scenario",
                      str(a.fold_scenario))
         cases += [("fold", r, folds / f"fold_{r}") for r in a.folds]
-    rows, shares, data = [], {}, {}
+    rows, shares, data, curves = [], {}, {}, {}
     for task, r, observed in cases:
         run = out / f"{task}_{r}"
         wall = diagnose_recording(observed, run, a.workers, env)
@@ -93,6 +95,7 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
         for c in screened:
             shares.setdefault(task, {}).setdefault(c.effect, {})[r] = c.explained
         res = d.residual
+        curves[f"{task} {r}"] = (check.times_s, check.chamfer.mean, None if res is None else res.centroid_offset_cm)
         best = (rep.get("best_fit") or {}).get("chamfer_m")
         rows.append([f"{task} {r}", f"{d.test.omnibus.p_value:.3g}", d.verdict, ", ".join(d.decision.named) or "-",
                      ", ".join(f"{c.effect} {100 * c.explained:.0f}%" for c in screened[:TOP]) or "-",
@@ -119,7 +122,46 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
                             ["candidate", *recs],
                             [[e, *[None if r not in by_effect[e] else f"{100 * by_effect[e][r]:.0f}%" for r in recs]]
                              for e in order]))
+    figures = []
+    if curves:
+        plot_residuals(curves, a.figure)
+        if a.figure.resolve().is_relative_to(REPO / "docs"):
+            figures.append({"path": str(a.figure.resolve().relative_to(REPO / "docs")),
+                            "caption": "the residual across recordings: posterior-predictive Chamfer per frame, and "
+                                       "the measured centroid's offset from the simulated one in the flagged frames"})
     notes = [f"The lift task was trained by `softsbi task train` with its defaults (this run's command took "
              f"{trained:.0f} s; a model stored by an earlier run of the same folder is not trained again)."
              if trained is not None else "No task trained (--no-train): every fit ran its sequential rounds."]
-    return {"tables": tables, "notes": notes, "data": {"recordings": data, "train_s": trained}}
+    return {"tables": tables, "notes": notes, "figures": figures, "data": {"recordings": data, "train_s": trained}}
+
+
+def plot_residuals(curves: dict, path: Path) -> None:
+    """Left: each recording's posterior-predictive Chamfer per frame (cm, the check's mean over rollouts); right:
+    the measured centroid's offset from the simulated one (cm, x y z) in the residual's flagged frames."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from softsbi.report.style import save_figure
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.6, 1]})
+    names = list(curves)
+    for name, (t, mean, _) in curves.items():
+        ax.plot(t, 100 * np.asarray(mean), lw=1.4, label=name)
+    ax.set(xlabel="time [s]", ylabel="Chamfer [cm]", title="posterior-predictive Chamfer per frame")
+    ax.legend(fontsize=7, ncol=2)
+    offsets = np.array([c[2] if c[2] is not None else (np.nan,) * 3 for c in curves.values()], float)
+    y = np.arange(len(names))
+    for k, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
+        bx.barh(y + (k - 1) * 0.27, offsets[:, k], height=0.27, color=colour, label=axis)
+    for i in np.nonzero(np.isnan(offsets).all(axis=1))[0]:
+        bx.text(0, i, " no frame flagged", va="center", fontsize=7)
+    bx.set_yticks(y, names, fontsize=7)
+    bx.invert_yaxis()
+    bx.axvline(0, color="k", lw=0.8)
+    bx.set(xlabel="measured - simulated centroid [cm]", title="centroid offset, flagged frames")
+    bx.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure(fig, path)
