@@ -24,6 +24,9 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from benchmarks.fabric_distances import material_unit_means, repeat_fabric_distances
 from benchmarks.runner import REPO, in_out_folder, table
 
 LIFTS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
@@ -84,11 +87,12 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             _softsbi(env, "import", "diffcloud", str(a.data / "diffcloud_fold"), str(folds), "--scenario",
                      str(a.fold_scenario))
         cases += [("fold", r, folds / f"fold_{r}") for r in a.folds]
-    rows, shares, data, curves = [], {}, {}, {}
+    rows, shares, data, curves, reports, notes = [], {}, {}, {}, {}, []
     for task, r, observed in cases:
         run = out / f"{task}_{r}"
         wall = diagnose_recording(observed, run, a.workers, env)
         rep = json.loads((run / "report.json").read_text())
+        reports.setdefault(task, {})[r] = rep
         check = from_json(CheckResult, json.loads((run / "check.json").read_text()))
         d = from_json(Diagnosis, json.loads((run / "diagnosis.json").read_text()))
         screened = sorted((c for c in d.ranking if c.explained is not None), key=lambda c: -c.explained)
@@ -122,6 +126,14 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
                             ["candidate", *recs],
                             [[e, *[None if r not in by_effect[e] else f"{100 * by_effect[e][r]:.0f}%" for r in recs]]
                              for e in order]))
+    for task, reps in reports.items():  # do repeats of a fabric agree better than different fabrics?
+        names = [p["name"] for p in next(iter(reps.values()))["parameters"]]
+        mat, u = material_unit_means(reps, names)
+        same, diff = repeat_fabric_distances(u)
+        if same and diff:
+            notes.append(f"{task}: distance between posterior means ({', '.join(mat)}; unit-cube units): repeats of a "
+                         f"fabric {np.mean(same):.3f} ({len(same)} pairs), different fabrics {np.mean(diff):.3f} "
+                         f"({len(diff)} pairs).")
     figures = []
     if curves:
         plot_residuals(curves, a.figure)
@@ -129,7 +141,7 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             figures.append({"path": str(a.figure.resolve().relative_to(REPO / "docs")),
                             "caption": "the residual across recordings: posterior-predictive Chamfer per frame, and "
                                        "the measured centroid's offset from the simulated one in the flagged frames"})
-    notes = [f"The lift task was trained by `softsbi task train` with its defaults (this run's command took "
+    notes[:0] = [f"The lift task was trained by `softsbi task train` with its defaults (this run's command took "
              f"{trained:.0f} s; a model stored by an earlier run of the same folder is not trained again)."
              if trained is not None else "No task trained (--no-train): every fit ran its sequential rounds."]
     return {"tables": tables, "notes": notes, "figures": figures, "data": {"recordings": data, "train_s": trained}}
@@ -141,7 +153,6 @@ def plot_residuals(curves: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     from softsbi.report.style import save_figure
 
