@@ -285,11 +285,12 @@ def lift_task(recording: str | Path, n_frames: int = N_FRAMES,
     """
     own = lift_scenario(recording, n_frames, frame_dt)
     traj = read_npy(Path(recording).parent / "lift_traj.npy", "gripper path")
-    moved = real_to_lift_frame(traj, DEFAULT_TRANSFORM) - real_to_lift_frame(traj, recording_transform(recording))
+    path = real_to_lift_frame(traj, DEFAULT_TRANSFORM)
+    moved = path - real_to_lift_frame(traj, recording_transform(recording))
     if np.abs(moved - moved[0]).max() > TRANSLATION_TOLERANCE:
         return own, np.zeros(3)
-    gripper = _resample(real_to_lift_frame(traj, DEFAULT_TRANSFORM), n_frames)  # computed, not shifted: the same
-    shift = gripper[0] - own.gripper[0]  # bits for every recording
+    gripper = _resample(path, n_frames)  # computed, not shifted: the same bits for every recording
+    shift = gripper[0] - own.gripper[0]
     obj = {**own.object, "corner": [float(gripper[0, 0]), float(gripper[0, 1])]}
     options = {k: own.options[k] for k in ("timing", "frame")}
     options.update(source=own.options["source"], transform=dict(DEFAULT_TRANSFORM),

@@ -217,7 +217,8 @@ def diffcloud_recording(folder: str | Path, scenario: str | Path | None = None
     The clouds stay in DiffCloud's simulator frame; ``transform`` is ``diag(s, s, s, 1)`` (``s`` = the
     real2sim ``scale``, 0.35 m per unit) into the scenario frame (metres). ``frames_of_reference.robot``
     is the folder's ``<task>_real2sim.yaml`` (DiffCloud convention), so a scenario whose paths are in
-    the ``robot`` frame uses this recording's calibration. Times: DiffCloud's 0.04 s frames (assumed:
+    the ``robot`` frame uses this recording's calibration. A lift without ``scenario`` adds its translation
+    into the shared lift task to both (below). Times: DiffCloud's 0.04 s frames (assumed:
     the real timing is not in the files). Sensor: :data:`DIFFCLOUD_MIN_HEIGHT`, ``frames: auto``.
 
     Scenario: ``scenario`` (a name or file) when given; otherwise ``lift`` folders get the lift task that every
