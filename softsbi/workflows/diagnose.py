@@ -47,7 +47,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
                  refit_sims: int | None = None, n_null: int = N_NULL, max_null: int = MAX_NULL,
                  workers: int | None = None, seed: int = 0, progress: Callable[[str], None] | None = None,
                  pool: PosteriorPredictive | None = None, recompute: bool = False,
-                 out_dir: str | Path | None = None) -> Diagnosis:
+                 out_dir: str | Path | None = None, plots: bool = True) -> Diagnosis:
     """Is the nominal model enough, and if not, which candidate effect is missing? Writes ``diagnosis.json``.
 
     Args:
@@ -69,6 +69,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         recompute: diagnose again even when ``diagnosis.json`` holds the result for the same fit and settings.
         out_dir: the folder of ``diagnosis.json`` and the refits (default: the run directory), so that two
             diagnoses of one run can be kept; the nominal fit's own ``check.json`` stays in the run directory.
+        plots: draw the figures of the check and of each refit (``check.png``, the fit figures); the result does
+            not depend on it, and a stored result is reused either way.
 
     Returns:
         the :class:`~softsbi.core.results.Diagnosis`.
@@ -110,7 +112,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
         chk = check_run(run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
-                        pool=pool, effects=family, recompute=recompute, message=say)
+                        pool=pool, effects=family, recompute=recompute, message=say, plot=plots)
         # the score every model is compared on: the energy score of check's summaries in the nominal's scale
         f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
         scale = summary_scale(f_nom)
@@ -124,7 +126,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
             say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
             refits.append(refit_model(run, nxt, family, scale, alpha, refit_rounds, refit_sims, n_null, max_null,
-                                      workers, seed, out))
+                                      workers, seed, out, plots))
         decision = decide(chk.test, nominal, refits, k_se)
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
         # 0 from check when its result was stored
@@ -166,7 +168,7 @@ def check_settings(**values: float | None) -> None:
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], scale: np.ndarray | None = None,
                 alpha: float = ALPHA, rounds: int | None = None, sims_per_round: int | None = None,
                 n_null: int = N_NULL, max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0,
-                out_root: str | Path | None = None) -> Refit:
+                out_root: str | Path | None = None, plots: bool = True) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
     The refit has :func:`~softsbi.workflows.evidence.refit_config`'s settings (by default the nominal fit's budget,
@@ -176,6 +178,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
     its score is the energy score of its first ``n_null`` posterior-predictive rollouts' summaries in ``scale``
     (the nominal fit's, :func:`~softsbi.workflows.stats.summary_energy_score`; no score without ``scale``).
+    ``plots``: draw the refit's fit figures and ``check.png``.
 
     Raises:
         everything :func:`~softsbi.workflows.fit.run_fit` raises (e.g. a stored refit with other settings).
@@ -183,10 +186,11 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     effects = tuple(effects)
     cfg = refit_config(run, effects, rounds, sims_per_round, workers)
     out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
-    fitted = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"))
+    fitted = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"),
+                     make_plots=plots)
     pool = PosteriorPredictive(out, workers, seed)  # the refit, loaded once: its check and score share it
     chk = check_run(pool.run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
-                    effects=[e for e in family if e not in effects])
+                    effects=[e for e in family if e not in effects], plot=plots)
     f = pool.ensure(n_null).features[:n_null]
     score = (summary_energy_score(run_features(pool.run, pool.run.dense), f, scale)
              if scale is not None and len(f) >= 3 else None)

@@ -68,11 +68,12 @@ def test_a_second_fit_of_the_same_task_reads_its_first_round_from_the_bank(tmp_p
     monkeypatch.setattr(toy.ToyGauss, "simulate", lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
     cfg = FitConfig(backend="toy-gauss", rounds=1, sims_per_round=40, workers=1, n_points=16, n_dense=64, n_eval=5,
                     estimator="mdnn", estimator_options={"max_epochs": 5})
-    run_fit(tmp_path / "a", toy_measurement(truth=(0.3, -0.4)), cfg)
+    run_fit(tmp_path / "a", toy_measurement(truth=(0.3, -0.4)), cfg, make_plots=False)
     first = len(calls)
-    b = run_fit(tmp_path / "b", toy_measurement(truth=(-0.2, 0.1)), cfg)
+    b = run_fit(tmp_path / "b", toy_measurement(truth=(-0.2, 0.1)), cfg, make_plots=False)
     assert first >= 40 and len(calls) - first < 40  # the second fit's 40 first-round rollouts came from the bank
-    off = run_fit(tmp_path / "c", toy_measurement(truth=(-0.2, 0.1)), FitConfig(**{**cfg.__dict__, "sim_bank": "off"}))
+    off = run_fit(tmp_path / "c", toy_measurement(truth=(-0.2, 0.1)), FitConfig(**{**cfg.__dict__, "sim_bank": "off"}),
+                  make_plots=False)
     np.testing.assert_array_equal(b.store.round_data(0)["x"], off.store.round_data(0)["x"])
 
 

@@ -39,12 +39,12 @@ def magnet_run(tmp_path_factory):
     cfg = FitConfig(backend="toy-gauss", backend_options={"sigma": 0.02}, rounds=2, sims_per_round=80, workers=1, n_points=16, n_dense=64, n_eval=30,
                     estimator_options={"max_epochs": 60, "hidden": [64, 64]})
     out = tmp_path_factory.mktemp("magnet") / "nominal"
-    run_fit(out, rec, cfg)
+    run_fit(out, rec, cfg, make_plots=False)
     return out
 
 
 def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
-    d = diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1)
+    d = diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, plots=False)
     assert d.test.misspecified
     assert d.verdict == "missing-effect" and d.decision.named == (MAGNET,)
     named = d.refit((MAGNET,))
@@ -56,13 +56,13 @@ def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
     # the stored result is the returned one, and a second call with the same settings reads it back
     stored = from_json(Diagnosis, json.loads((magnet_run / "diagnosis.json").read_text()))
     assert stored == d and load_diagnosis(magnet_run) == d
-    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1) == d
+    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, plots=False) == d
     # a refit budget given as the run's own (2 x 80) is the default's: the stored result is read back, not recomputed
     assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, refit_rounds=2, refit_sims=80) == d
 
 
 def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(magnet_run):
-    d = diagnose_run(magnet_run, effects=FLEXIBLE, workers=1)
+    d = diagnose_run(magnet_run, effects=FLEXIBLE, workers=1, plots=False)
     assert d.test.misspecified and set(d.test.family) == set(FLEXIBLE)
     assert d.verdict == "misspecified-unexplained" and d.decision.named == ()
     assert all(MAGNET not in r.effects for r in d.refits)
@@ -82,7 +82,7 @@ def test_a_failing_plugin_effect_as_the_only_candidate_stays_in_the_table_with_i
                                                           str(Path(__file__).with_name("broken_effect.py"))]))
     registry.cache_clear()
     try:
-        d = diagnose_run(magnet_run, effects=["toy-broken"], confirm=0, workers=1)
+        d = diagnose_run(magnet_run, effects=["toy-broken"], confirm=0, workers=1, plots=False)
     finally:
         monkeypatch.undo()
         registry.cache_clear()
@@ -107,7 +107,7 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
     tasks = train_task(rec, cfg, 120, candidates=["toy-drift", MAGNET], n_test=20, n_draws=50, check_null=0)
     assert [t.model for t in tasks] == ["nominal", "nominal+toy-drift", f"nominal+{MAGNET}"]
     run_fit(tmp_path / "nominal", rec, cfg, make_plots=False)  # stops at the trained task: one round
-    d = diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1)
+    d = diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1, plots=False)
     assert d.test.misspecified
     scores = {c.effect: c.amortised for c in d.ranking}
     assert all(s is not None and s.n == 30 for s in scores.values())
@@ -119,4 +119,4 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
         (d.refits[0].score.se ** 2 + scores[MAGNET].se ** 2) ** 0.5)
     # the stored diagnosis is keyed by the trained candidates' tasks (training one more diagnoses again), and read back
     assert d.key["trained"] == sorted(t.digest for t in tasks[1:])
-    assert diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1) == d
+    assert diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1, plots=False) == d

@@ -67,7 +67,7 @@ def _fit(tmp_path, name, wind):
                                 n_dense=64, seed=11)
     cfg = FitConfig(backend="toy-gauss", estimator="rkhs", rounds=2, sims_per_round=150, workers=1, n_points=16,
                     n_eval=30, n_dense=64, seed=2, estimator_options={"max_epochs": 80, "hidden": [64, 64]})
-    run_fit(tmp_path / name, meas, cfg)
+    run_fit(tmp_path / name, meas, cfg, make_plots=False)
     return tmp_path / name
 
 
@@ -127,7 +127,7 @@ def test_posterior_mean_rollout_scores_the_point_estimate_with_the_fits_metric(t
 
 def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     hidden, control = toy_runs
-    d = diagnose_run(hidden, workers=1, confirm=1, refit_rounds=2, refit_sims=150)
+    d = diagnose_run(hidden, workers=1, confirm=1, refit_rounds=2, refit_sims=150, plots=False)
     assert d.verdict == "missing-effect" and d.decision.named == ("toy-wind",)
     top = d.ranking[0]
     assert top.effect == "toy-wind" and top.estimate["wind"] == pytest.approx(0.45, abs=0.12)
@@ -158,7 +158,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert est.pressed == next((b["side"] for b in refit_rep["posterior_at_bounds"] if b["param"] == "wind"), None)
     assert est.q05 < 0.45 < est.q95
     assert load_diagnosis(hidden) == d
-    c = diagnose_run(control, workers=1, confirm=1)
+    c = diagnose_run(control, workers=1, confirm=1, plots=False)
     assert c.verdict == "nothing-missing" and c.refits == () and c.decision.named == ()
     assert c.residual is None and c.generic is None
     chk_c = check_run(control, workers=1, plot=False)
@@ -190,7 +190,7 @@ def test_check_and_diagnose_share_one_null(toy_runs):
     pool = PosteriorPredictive(hidden, workers=1)
     chk = check_run(hidden, workers=1, plot=False, pool=pool, recompute=True)
     n = pool.requested
-    d = diagnose_run(hidden, workers=1, confirm=0, pool=pool, recompute=True)
+    d = diagnose_run(hidden, workers=1, confirm=0, pool=pool, recompute=True, plots=False)
     assert pool.requested == n == chk.test.n_null and d.test == chk.test
     assert d.ranking == chk.ranking and d.residual == chk.residual
 
@@ -203,7 +203,7 @@ def test_misspecified_by_nothing_installed_names_where_and_the_generic_term(toy_
     run = tmp_path / "hidden"
     shutil.copytree(hidden, run, ignore=shutil.ignore_patterns("refit-*", "check.*", "diagnosis.json"))
     monkeypatch.setattr(toy.ToyWind, "generic", True, raising=False)
-    d = diagnose_run(run, workers=1)
+    d = diagnose_run(run, workers=1, plots=False)
     assert d.test.misspecified and d.verdict == "misspecified-unexplained"
     assert d.refits == () and d.decision.named == () and d.decision.partial == ()
     assert d.generic.effect == "toy-wind" and d.ranking[0].generic
@@ -260,7 +260,7 @@ def test_a_diagnosis_loads_the_nominal_run_and_each_refit_once(toy_runs, tmp_pat
     shutil.copytree(hidden, nominal, ignore=shutil.ignore_patterns("refit-*", "check.json", "diagnosis.json"))
     loads = count_run_loads(monkeypatch)
     # a null of 12 extended to 40: beyond the fit's 30 evaluation samples, so posterior draws are made too
-    d = diagnose_run(nominal, workers=1, confirm=1, refit_rounds=1, refit_sims=100, n_null=12, max_null=40)
+    d = diagnose_run(nominal, workers=1, confirm=1, refit_rounds=1, refit_sims=100, n_null=12, max_null=40, plots=False)
     refits = [Path(r.run).resolve() for r in d.refits]
     assert d.test.n_null > 30 and refits
     assert Counter(loads) == {nominal.resolve(): 1, **{r: 1 for r in refits}}

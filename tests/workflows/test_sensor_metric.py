@@ -49,7 +49,7 @@ def sensor_run(tmp_path_factory):
     cfg = FitConfig(backend="toy-gauss", estimator="rkhs", rounds=1, sims_per_round=60, workers=1, n_points=16,
                     n_eval=12, n_dense=64, seed=2, estimator_options={"max_epochs": 20, "hidden": [32, 32]},
                     min_height=0.01, frames=[1, 2, 3])
-    run_fit(tmp / "run", meas, cfg)
+    run_fit(tmp / "run", meas, cfg, make_plots=False)
     return tmp / "run"
 
 

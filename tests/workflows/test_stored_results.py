@@ -26,7 +26,7 @@ from toy_helpers import toy_measurement  # noqa: E402
 
 runner = CliRunner()
 #: the diagnose settings of every test here: no refit, the check's own null (so the stored check.json is reused)
-DIAG = dict(confirm=0, n_null=5, workers=1)
+DIAG = dict(confirm=0, n_null=5, workers=1, plots=False)
 
 
 def _cfg():
