@@ -65,7 +65,7 @@ def test_param_space_names_units(sim, scenario):
     assert all(p.description for p in sp)
     rope = sim.param_space(make_scenario("winding"))
     assert rope.names == ["pb_rope_bend", "pb_rope_stretch", "friction", "scale", "mass"]
-    assert rope["mass"].unit == "kg/m" and rope["scale"].description == "rope length"
+    assert rope["mass"].unit == "kg/m" and rope["scale"].unit == "m"  # scale is the rope's length
 
 
 def test_spring_constants_mapping():

@@ -74,12 +74,12 @@ def test_scoring_is_strict_and_counts_indistinguishable_apart():
 
 
 def test_rows_record_commit_and_settings_and_errors_are_rerun(tmp_path, monkeypatch):
-    calls = []
+    calls, reason = [], "a simulation failed"
 
     def run_case(case, out, workers, old):
         calls.append(case["id"])
         if len(calls) == 1:
-            raise RuntimeError("a simulation failed")
+            raise RuntimeError(reason)
         return {**case, "status": "ok", "verdict": "nothing-missing", "named": [], "alternatives": [],
                 "p_value": 0.3}
 
@@ -87,7 +87,7 @@ def test_rows_record_commit_and_settings_and_errors_are_rerun(tmp_path, monkeypa
     path = tmp_path / "rows.jsonl"
     bench.run("test", [0, 1], tmp_path, None, None, "cmd", path)
     rows = proto.read_rows(path)
-    assert [r["status"] for r in rows] == ["error", "ok"] and "a simulation failed" in rows[0]["error"]
+    assert [r["status"] for r in rows] == ["error", "ok"] and reason in rows[0]["error"]
     for r in rows:  # every row: its commit and every setting that decides it
         assert r["commit"] and r["command"] == "cmd"
         st = r["settings"]
@@ -141,8 +141,9 @@ def test_rows_of_differing_settings_are_not_pooled():
     assert "estimator_options.recalibrate" in s["refused"] and "by_label" not in s
     rep = proto.report(s, "test")
     assert rep == {"tables": [], "notes": [s["refused"]]} and "\n" not in s["refused"]
-    legacy = {k: v for k, v in row("control").items() if k not in ("settings", "status")}
-    assert "unknown settings" in proto.summary([row("control"), legacy], "test")["refused"]
+    legacy = {**{k: v for k, v in row("control").items() if k not in ("settings", "status")}, "commit": "f00d"}
+    # a row that stored no settings is refused, naming its commit
+    assert legacy["commit"] in proto.summary([row("control"), legacy], "test")["refused"]
     assert proto.summary([row("control"), row("control", commit="def")], "test").get("refused") is None
 
 
