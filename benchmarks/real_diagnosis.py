@@ -4,10 +4,10 @@ Each lift recording ``lift_<r>`` of ``--data``/diffcloud_lift and each fold ``fo
 ``--fold-scenario``) is fitted, checked and diagnosed by the CLI with its defaults (``softsbi fit``, ``check``,
 ``diagnose``, ``--workers``), each in a process of its own, in ``--out/<task>_<r>``; a step already stored there is
 reused (resumable). The suite's own simulation bank (``--out/bank``) serves every recording of a task: the lifts
-share one task (:func:`softsbi.scenarios.builtin.lift_task`), which ``softsbi task train`` trains first with its
-defaults (the nominal model and every candidate; skipped with ``--no-train``, and a model already stored is not
-trained again), so every lift's fit stops at the trained task and its diagnosis scores each candidate through its
-amortised posterior before refitting.
+share one task (:func:`softsbi.scenarios.builtin.lift_task`), and the folds of one rig calibration share one;
+``softsbi task train`` trains each task first with its defaults (the nominal model and every candidate; skipped with
+``--no-train``, and a model already stored is not trained again), so every fit stops at its trained task and its
+diagnosis scores each candidate through its amortised posterior before refitting.
 
 Tables: per recording the check's p-value, the verdict, the effects named, the screening's top candidates with the
 share of the residual each explains, the residual's shape (flagged frames, the centroid's offset, the worst
@@ -78,15 +78,19 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
 
     env = {**os.environ, "SOFTSBI_SIM_BANK": str(out / "bank")}
     cases = [("lift", r, a.data / "diffcloud_lift" / f"lift_{r}") for r in a.lifts]
-    trained = None
-    if a.train and cases:
-        trained = _softsbi(env, "task", "train", "--observed", str(cases[0][2]), "--workers", str(a.workers))
     if a.folds:
         folds = out / "recordings" / "fold"
         if not folds.exists():
             _softsbi(env, "import", "diffcloud", str(a.data / "diffcloud_fold"), str(folds), "--scenario",
                      str(a.fold_scenario))
         cases += [("fold", r, folds / f"fold_{r}") for r in a.folds]
+    trained = None
+    if a.train and cases:
+        # the lifts are one task (trained from the first); a fold's task depends on its rig's calibration, so each
+        # fold is trained from, which reuses the models an earlier fold of the same task stored
+        first = [c[2] for c in cases if c[0] == "lift"][:1] + [c[2] for c in cases if c[0] == "fold"]
+        trained = sum(_softsbi(env, "task", "train", "--observed", str(obs), "--workers", str(a.workers))
+                      for obs in first)
     rows, shares, data, curves, reports, notes = [], {}, {}, {}, {}, []
     for task, r, observed in cases:
         run = out / f"{task}_{r}"
@@ -141,8 +145,9 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             figures.append({"path": str(a.figure.resolve().relative_to(REPO / "docs")),
                             "caption": "the residual across recordings: posterior-predictive Chamfer per frame, and "
                                        "the measured centroid's offset from the simulated one in the flagged frames"})
-    notes[:0] = [f"The lift task was trained by `softsbi task train` with its defaults (this run's command took "
-             f"{trained:.0f} s; a model stored by an earlier run of the same folder is not trained again)."
+    notes[:0] = [f"Each task was trained by `softsbi task train` with its defaults (this run's commands took "
+             f"{trained:.0f} s; a model stored by an earlier run of the same folder, or for an earlier recording of "
+             f"the same task, is not trained again)."
              if trained is not None else "No task trained (--no-train): every fit ran its sequential rounds."]
     return {"tables": tables, "notes": notes, "figures": figures, "data": {"recordings": data, "train_s": trained}}
 
