@@ -103,7 +103,8 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
         for c in screened:
             shares.setdefault(task, {}).setdefault(c.effect, {})[r] = c.explained
         res = d.residual
-        curves[f"{task} {r}"] = (check.times_s, check.chamfer.mean, None if res is None else res.centroid_offset_cm)
+        curves[f"{task} {r}"] = (check.times_s, check.chamfer.mean, None if res is None else res.centroid_offset_cm,
+                                 check.metric_frames)
         best = (rep.get("best_fit") or {}).get("chamfer_m")
         rows.append([f"{task} {r}", f"{d.test.omnibus.p_value:.3g}", d.verdict, ", ".join(d.decision.named) or "-",
                      ", ".join(f"{c.effect} {100 * c.explained:.0f}%" for c in screened[:TOP]) or "-",
@@ -138,6 +139,10 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             notes.append(f"{task}: distance between posterior means ({', '.join(mat)}; unit-cube units): repeats of a "
                          f"fabric {np.mean(same):.3f} ({len(same)} pairs), different fabrics {np.mean(diff):.3f} "
                          f"({len(diff)} pairs).")
+    reused = sum(not v["wall_s"] for v in data.values())
+    if reused:
+        notes.append(f"{reused} of {len(data)} recordings were read back from --out, where an earlier run of this "
+                     f"command stored their fit, check and diagnosis (the run's wall time does not include them).")
     figures = []
     if curves:
         plot_residuals(curves, a.figure)
@@ -153,8 +158,9 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
 
 
 def plot_residuals(curves: dict, path: Path) -> None:
-    """Left: each recording's posterior-predictive Chamfer per frame (cm, the check's mean over rollouts); right:
-    the measured centroid's offset from the simulated one (cm, x y z) in the residual's flagged frames."""
+    """Left: each recording's posterior-predictive Chamfer per frame (cm, the check's mean over rollouts), solid on
+    the frames the metric scores and dotted, greyed and cut at the axis' top on the others; right: the measured
+    centroid's offset from the simulated one (cm, x y z) in the residual's flagged frames."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -163,10 +169,22 @@ def plot_residuals(curves: dict, path: Path) -> None:
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.6, 1]})
     names = list(curves)
-    for name, (t, mean, _) in curves.items():
-        ax.plot(t, 100 * np.asarray(mean), lw=1.4, label=name)
+    top, unscored = 0.0, []
+    for name, (t, mean, _, scored) in curves.items():
+        t, cm = np.asarray(t), 100 * np.asarray(mean)
+        scored = np.asarray(scored if scored else range(len(t)), int)
+        line, = ax.plot(t[scored], cm[scored], lw=1.4, label=name)
+        ax.plot(t, cm, lw=0.7, ls=":", color=line.get_color())
+        top = max(top, float(np.nanmax(cm[scored])))
+        if scored[0] > 0:
+            unscored.append(0.5 * (t[scored[0] - 1] + t[scored[0]]))
+    if unscored:  # the frames before the metric's first (the same on every recording of a task)
+        ax.axvspan(ax.get_xlim()[0], max(unscored), color="0.88", zorder=0)
+        ax.text(0.5 * max(unscored), 1.2 * top, "frames the metric\ndoes not score", ha="center", va="top",
+                fontsize=7, color="0.3")
+    ax.set_ylim(0, 1.25 * top)
     ax.set(xlabel="time [s]", ylabel="Chamfer [cm]", title="posterior-predictive Chamfer per frame")
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, ncol=2, loc="lower right")
     offsets = np.array([c[2] if c[2] is not None else (np.nan,) * 3 for c in curves.values()], float)
     y = np.arange(len(names))
     for k, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
