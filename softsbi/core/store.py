@@ -93,8 +93,8 @@ class RunStore:
 
     def _round_array(self, r: int, name: str) -> zarr.Array | None:
         """Round ``r``'s array ``name`` (None when the round has none), opened once per store: every open reads
-        the round's and the array's metadata (measured 1.2 ms each on a local disk), and :meth:`write_simulation`
-        writes three arrays per simulation."""
+        the round's and the array's metadata from disk, and :meth:`write_simulation` writes three arrays per
+        simulation."""
         key = (r, name)
         if key not in self._arrays:
             g = self._round(r)
