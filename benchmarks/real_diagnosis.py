@@ -180,11 +180,11 @@ def plot_residuals(curves: dict, path: Path) -> None:
             unscored.append(0.5 * (t[scored[0] - 1] + t[scored[0]]))
     if unscored:  # the frames before the metric's first (the same on every recording of a task)
         ax.axvspan(ax.get_xlim()[0], max(unscored), color="0.88", zorder=0)
-        ax.text(0.5 * max(unscored), 1.2 * top, "frames the metric\ndoes not score", ha="center", va="top",
+        ax.text(0.5 * max(unscored), 1.65 * top, "frames the metric\ndoes not score", ha="center", va="top",
                 fontsize=7, color="0.3")
-    ax.set_ylim(0, 1.25 * top)
+    ax.set_ylim(0, 1.7 * top)  # headroom above the curves for the legend
     ax.set(xlabel="time [s]", ylabel="Chamfer [cm]", title="posterior-predictive Chamfer per frame")
-    ax.legend(fontsize=7, ncol=2, loc="lower right")
+    ax.legend(fontsize=7, ncol=3, loc="upper right")
     offsets = np.array([c[2] if c[2] is not None else (np.nan,) * 3 for c in curves.values()], float)
     y = np.arange(len(names))
     for k, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
