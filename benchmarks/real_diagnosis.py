@@ -86,11 +86,11 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
         cases += [("fold", r, folds / f"fold_{r}") for r in a.folds]
     trained = None
     if a.train and cases:
-        # the lifts are one task (trained from the first); a fold's task depends on its rig's calibration, so each
-        # fold is trained from, which reuses the models an earlier fold of the same task stored
-        first = [c[2] for c in cases if c[0] == "lift"][:1] + [c[2] for c in cases if c[0] == "fold"]
+        # the lifts are one task, trained from the first lift; a fold's task depends on its rig's calibration, so
+        # every fold is trained from (a fold whose task an earlier fold trained reuses the stored models)
+        train_from = [c[2] for c in cases if c[0] == "lift"][:1] + [c[2] for c in cases if c[0] == "fold"]
         trained = sum(_softsbi(env, "task", "train", "--observed", str(obs), "--workers", str(a.workers))
-                      for obs in first)
+                      for obs in train_from)
     rows, shares, data, curves, reports, notes = [], {}, {}, {}, {}, []
     for task, r, observed in cases:
         run = out / f"{task}_{r}"

@@ -124,7 +124,8 @@ def hidden_aniso_round_trip(tmp_path, seed: int = 0, refit_rounds: int = 2, refi
                     estimator_options={"max_epochs": 60, "ensemble": 1, "recalibrate": False})
     run = tmp_path / "nominal"
     run_fit(run, meas, cfg, make_plots=False)
-    d = diagnose_run(run, effects=[NAME, "wind"], alpha=0.2, n_null=12, max_null=12, workers=1, confirm=0, seed=seed, plots=False)
+    d = diagnose_run(run, effects=[NAME, "wind"], alpha=0.2, n_null=12, max_null=12, workers=1, confirm=0, seed=seed,
+                     plots=False)
     refit = refit_model(load_run(run), [NAME], d.candidates, alpha=0.2, rounds=refit_rounds, sims_per_round=refit_sims,
                         n_null=12, max_null=12, workers=1, plots=False)
     return {"diagnosis": d, "refit": refit}
