@@ -78,6 +78,11 @@ _SUITES = [
           "newton-cloth one by one, and newton-cloth as one batch of N worlds in one Newton model; --device cuda "
           "runs newton-cloth on a GPU (stored as its own configuration). Needs the optional Newton package.",
           "benchmarks.bench_newton_throughput"),
+    Suite("newton-demo", "Diagnosis", "the demo's hidden wind found on newton-cloth",
+          "softsbi demo --backend B on newton-cloth and on mujoco-flex in the same run: a lift simulated on B with a "
+          "hidden wind, fitted, checked, diagnosed and refitted on B. The verdict, the named effect, the error "
+          "before and after, and the fit's simulations per second. Needs the optional Newton package.",
+          "benchmarks.bench_newton_demo"),
     Suite("identifiability", "Engines", "how far each parameter moves the object, per backend and scenario",
           "Mean vertex displacement over all frames and vertices between a rollout at a parameter's low and at its "
           "high prior bound, the others at the prior midpoint: a parameter that barely moves the object in a "

@@ -15,6 +15,8 @@ from softsbi.workflows import defaults as D
 
 def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
          quick: bool = typer.Option(False, "--quick", help="only fit hidden parameters (no hidden effect)"),
+         backend: str = typer.Option(D.BACKEND, help="simulator plugin that simulates, fits and diagnoses the demo "
+                                                     "(one that applies wind, e.g. newton-cloth; --quick: any)"),
          rounds: int = typer.Option(D.DEMO_ROUNDS, help="sequential rounds per fit", callback=ROUNDS_OK),
          sims_per_round: int = typer.Option(D.DEMO_SIMS, help="simulations per round", callback=SIMS_OK),
          estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
@@ -34,6 +36,6 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     from softsbi.cli.demo_printer import DemoPrinter  # start-up: the demo workflow
     from softsbi.workflows.demo import run_demo  # start-up: the demo workflow
     o = Output(as_json)
-    doc = run_demo(out, quick=quick, rounds=rounds, sims_per_round=sims_per_round, estimator=estimator, seed=seed,
+    doc = run_demo(out, quick=quick, backend=backend, rounds=rounds, sims_per_round=sims_per_round, estimator=estimator, seed=seed,
                    workers=workers, proposal=Proposal(proposal).value, ui=DemoPrinter(o))
     json_done(o, doc)  # the steps were printed as they ran

@@ -16,7 +16,7 @@ from typing import Any, Callable, ClassVar, Iterable, Mapping, Sequence
 import numpy as np
 
 from softsbi.core.camera import Camera, RenderStyle
-from softsbi.core.errors import DataError
+from softsbi.core.errors import DataError, ParameterError
 from softsbi.core.types import Observation, ParamSpace, Rollout, Scenario
 
 
@@ -208,6 +208,22 @@ class Effect(ABC):
         return {n: float(theta[n]) for n in self.param_space().names}
 
 
+def batch_seeds(seed: "int | Sequence[int]", n: int) -> list[int]:
+    """The ``n`` seeds of a batch of rollouts (:meth:`Simulator.simulate_batch`): ``seed + b`` for one int,
+    else the ``n`` given.
+
+    Raises:
+        ParameterError: a sequence whose length is not ``n``.
+    """
+    if isinstance(seed, (int, np.integer)):
+        return [int(seed) + b for b in range(n)]
+    seeds = [int(s) for s in seed]
+    if len(seeds) != n:
+        raise ParameterError(f"simulate_batch got {len(seeds)} seeds for {n} parameter sets; give one seed per set "
+                             f"or one int")
+    return seeds
+
+
 class Simulator(ABC):
     """A simulator backend.
 
@@ -239,6 +255,10 @@ class Simulator(ABC):
     scenarios: ClassVar[tuple[str, ...]] = ()
     effects: ClassVar[tuple[str, ...]] = ()
     effect_kinds: ClassVar[tuple[str, ...]] = ()
+    #: how many simulations a worker hands to one :meth:`simulate_batch` call (at most; an equal share of a
+    #: phase's simulations per worker when that is fewer). 1: one :meth:`simulate` per job. A backend that
+    #: steps several parameter sets together sets it (newton-cloth).
+    batch_size: int = 1
 
     @classmethod
     def supports(cls, effect: "Effect | type[Effect]") -> str | None:
@@ -293,6 +313,21 @@ class Simulator(ABC):
                 simulated, so that a prior widened with ``--bounds`` can be fitted), unsupported effect.
             ValueError: a scenario this backend cannot run.
         """
+
+    def simulate_batch(self, scenario: Scenario, thetas: Sequence[Mapping[str, float]], effects: Sequence[str] = (),
+                       seed: "int | Sequence[int]" = 0) -> list[Rollout]:
+        """Roll ``scenario`` out at B parameter sets: the B rollouts :meth:`simulate` would return, in order.
+        This default calls :meth:`simulate` B times; a backend that steps them together overrides it.
+
+        Args:
+            thetas: B parameter mappings, as :meth:`simulate` takes one.
+            seed: B seeds, one per rollout, or one int: rollout ``b`` uses ``seed + b`` (:func:`batch_seeds`).
+
+        Raises:
+            As :meth:`simulate`, for any of the B; ParameterError: B seeds do not match B thetas.
+        """
+        return [self.simulate(scenario, th, effects=effects, seed=s)
+                for th, s in zip(thetas, batch_seeds(seed, len(thetas)))]
 
     def simulate_images(self, scenario: Scenario, theta: Mapping[str, float], camera: "Camera",
                         effects: Sequence[str] = (), seed: int = 0,

@@ -30,7 +30,7 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace
-from softsbi.workflows.jobs import SimContext, evaluation_seeds, simulate_job
+from softsbi.workflows.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
 
 __all__ = ["BestFit", "REFINE", "BEST", "best_stored", "refine", "store_best_fit", "read_best_fit", "scores"]
 
@@ -187,7 +187,7 @@ def refine(store: RunStore, space: ParamSpace, mean: np.ndarray, cov: np.ndarray
         pend = [int(i) for i in have if rows["status"][i] == STATUS_PENDING]
         if pend:
             items = [(rows["theta"][i], int(rows["seed"][i])) for i in pend]
-            for j, res in executor.map_unordered(simulate_job, items, context=ctx):
+            for j, res in map_simulations(executor, ctx, items):
                 i = pend[j]
                 if isinstance(res, SoftsbiError):
                     raise res

@@ -21,6 +21,7 @@ import numpy as np
 
 from softsbi.core.metrics import describe_change
 from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.errors import ParameterError
 from softsbi.core.results import Diagnosis, to_json
 from softsbi.inference.contraction import contraction_from_report
 from softsbi.core.types import Recording
@@ -29,7 +30,7 @@ from softsbi.report.text import check_summary
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows import pools
 from softsbi.workflows.check import check_run
-from softsbi.workflows.defaults import DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
+from softsbi.workflows.defaults import BACKEND, DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
 from softsbi.workflows.compare import compare_runs
 from softsbi.workflows.diagnose import diagnose_run
 from softsbi.workflows.stats import PosteriorPredictive
@@ -73,16 +74,33 @@ class DemoCallbacks:
         """``compare_runs``' result of the nominal fit and the refit with ``effect``."""
 
 
-def demo_recording(quick: bool) -> tuple[Recording, dict[str, float]]:
-    """The demo's simulated lift recording and its hidden values (with the hidden breeze unless
+def demo_recording(quick: bool, backend: str = BACKEND) -> tuple[Recording, dict[str, float]]:
+    """The demo's lift recording simulated on ``backend`` and its hidden values (with the hidden breeze unless
     ``quick``)."""
     sc = lift_scenario(None)
-    space = registry().simulator("mujoco-flex")().param_space(sc)
+    space = registry().simulator(backend)().param_space(sc)
     u = np.array([DEMO_TRUTH_UNIT.get(n, 0.5) for n in space.names])
     truth = space.as_dict(space.from_unit(u))
     hidden_effects = [] if quick else list(DEMO_HIDDEN_EFFECT)
     truth_all = dict(truth, **({} if quick else DEMO_HIDDEN_EFFECT["wind"]))
-    return simulate_recording("mujoco-flex", sc, truth_all, effects=hidden_effects), truth_all
+    return simulate_recording(backend, sc, truth_all, effects=hidden_effects), truth_all
+
+
+def check_demo_backend(backend: str, quick: bool) -> None:
+    """Refuse, before any work, a backend that is not installed or cannot apply the hidden effect (unless ``quick``).
+
+    Raises:
+        ParameterError: one line naming the backend and the installed ones that can run the demo.
+    """
+    reg = registry()
+    names = reg.names("simulator")
+    able = " or ".join(b for b in names if not any(reg.simulator(b).supports(reg.effect(e)) for e in DEMO_HIDDEN_EFFECT))
+    if backend not in names:
+        raise ParameterError(f"--backend {backend}: no such simulator is installed; the demo runs on {able}")
+    why = next((w for e in DEMO_HIDDEN_EFFECT if (w := reg.simulator(backend).supports(reg.effect(e)))), None)
+    if not quick and why is not None:
+        raise ParameterError(f"--backend {backend}: the demo's hidden {', '.join(DEMO_HIDDEN_EFFECT)} needs {why}; "
+                             f"run it on {able}, or add --quick (no hidden effect)")
 
 
 def _fit(ui: DemoCallbacks, recording: Recording, cfg: FitConfig, run_dir: Path) -> FitResult:
@@ -95,8 +113,10 @@ def _fit(ui: DemoCallbacks, recording: Recording, cfg: FitConfig, run_dir: Path)
 @pools.shared_executors()
 def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int = DEMO_ROUNDS,
              sims_per_round: int = DEMO_SIMS, estimator: str = ESTIMATOR, seed: int = SEED,
-             workers: int | None = None, proposal: str = PROPOSAL, ui: DemoCallbacks | None = None) -> dict[str, Any]:
-    """Run the demo into ``out`` (``nominal/``, ``with-<effect>/``, ``compare.png``).
+             workers: int | None = None, proposal: str = PROPOSAL, ui: DemoCallbacks | None = None,
+             backend: str = BACKEND) -> dict[str, Any]:
+    """Run the demo on simulator ``backend`` into ``out`` (``nominal/``, ``with-<effect>/``, ``compare.png``): the
+    recording is simulated, fitted and diagnosed on the same engine.
 
     Returns:
         ``{"out", "quick", "nominal" (report), "inside_90", "parameters" (all hidden values inside the 90%
@@ -106,17 +126,19 @@ def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int 
         checks), ``named``, ``named_correctly``, ``chamfer_before_m``, ``chamfer_after_m``.
 
     Raises:
-        Everything :func:`~softsbi.workflows.fit.run_fit` raises.
+        ParameterError: a ``backend`` that cannot run it (:func:`check_demo_backend`). Everything
+        :func:`~softsbi.workflows.fit.run_fit` raises.
     """
+    check_demo_backend(backend, quick)
     ui = ui or DemoCallbacks()
     out = Path(out)
     t0 = time.perf_counter()
     ui.step("softsbi demo")
-    ui.line(f"A cloth lift simulated at hidden parameters{'' if quick else ' with a hidden effect'}: "
+    ui.line(f"A cloth lift simulated on {backend} at hidden parameters{'' if quick else ' with a hidden effect'}: "
             f"{rounds} rounds x {sims_per_round} simulations per fit, estimator {estimator}, {proposal} proposals.")
-    recording, _ = demo_recording(quick)
-    cfg = FitConfig(estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed, workers=workers,
-                    proposal=proposal)
+    recording, _ = demo_recording(quick, backend)
+    cfg = FitConfig(backend=backend, estimator=estimator, rounds=rounds, sims_per_round=sims_per_round, seed=seed,
+                    workers=workers, proposal=proposal)
     nominal = out / "nominal"
     ui.step("1. fit the nominal model")
     res = _fit(ui, recording, cfg, nominal)

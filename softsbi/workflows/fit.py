@@ -41,7 +41,7 @@ from softsbi.workflows.bank import BankCount, banks_enabled, check_bank_path
 from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, parameter_table
 from softsbi.workflows.fitreport import build_report, chamfer_stats, damaged_report, read_report
-from softsbi.workflows.jobs import SimContext, evaluation_seeds, simulate_job
+from softsbi.workflows.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
 from softsbi.workflows import defaults, pools
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.observe import fit_sim_context, metric_sensor, observer_options
@@ -231,7 +231,7 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     # the run's own bank: check, diagnose, compare and view re-simulate these rollouts first (RunView.sim_context)
     bank = str(store.path.parent / "sims.zarr") if banks_enabled() and ctx.ref_masks is None else None
     count = BankCount()
-    for i, res in executor.map_unordered(simulate_job, list(zip(theta, seeds)), context=replace(ctx, bank=bank)):
+    for i, res in map_simulations(executor, replace(ctx, bank=bank), list(zip(theta, seeds))):
         done += 1
         hooks.simulation_done(-1, done, cfg.n_eval)
         if isinstance(res, SoftsbiError):  # an environment fault: stop, nothing stored

@@ -7,8 +7,10 @@ same observation and the same Chamfer everywhere.
 from __future__ import annotations
 
 import json
+import math
+import os
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any
@@ -73,48 +75,105 @@ def _objects(ctx: SimContext) -> tuple[Any, Any, Scenario]:
     return _WORKER_CACHE[key]
 
 
+class _Deferred(BaseException):
+    """A simulation left for its batch's ``simulate_batch`` call (:class:`_Batch`, first pass). A BaseException, so
+    that the job's engine-error handler does not take it for a failed simulation."""
+
+
+class _Batch:
+    """The rollouts of one batch of jobs (:func:`simulate_batch_job`).
+
+    The jobs run twice. In the first pass each rollout a job asks for is recorded and the job stops
+    (:class:`_Deferred`); :meth:`run` then rolls the recorded ones out with one ``simulate_batch`` call per effect
+    set; in the second pass every job runs to its end on them. A job that needs no new rollout (a bank hit) ends in
+    the first pass.
+    """
+
+    def __init__(self, sim: Any):
+        self.sim = sim
+        self._pending: dict[tuple, tuple] = {}
+        self._done: dict[tuple, Any] = {}
+
+    def simulate(self, scenario: Scenario, values: dict[str, float], effects: list[str], seed: int) -> Any:
+        key = (tuple(sorted(values.items())), tuple(effects), int(seed))
+        if key in self._done:
+            got = self._done[key]
+            if isinstance(got, Exception):
+                raise got
+            return got
+        self._pending[key] = (scenario, values, list(effects), int(seed))
+        raise _Deferred
+
+    def run(self) -> None:
+        """Roll the recorded simulations out, one ``simulate_batch`` per effect set. When a batch call raises (one
+        theta outside the physical limits fails all of it), its simulations run one by one, so each keeps its own
+        outcome: a rollout, or the exception its job raises or reports as the single simulation would."""
+        groups: dict[tuple, list[tuple]] = {}
+        for key, req in self._pending.items():
+            groups.setdefault(key[1], []).append((key, req))
+        for effects, reqs in groups.items():
+            try:
+                ros = self.sim.simulate_batch(reqs[0][1][0], [r[1] for _, r in reqs], list(effects),
+                                              [r[3] for _, r in reqs])
+                self._done.update((key, ro) for (key, _), ro in zip(reqs, ros, strict=True))
+            except Exception:  # noqa: BLE001 - told per simulation below
+                for key, (scenario, values, eff, seed) in reqs:
+                    try:
+                        self._done[key] = self.sim.simulate(scenario, values, effects=eff, seed=seed)
+                    except Exception as exc:  # noqa: BLE001 - raised in its job's second pass
+                        self._done[key] = exc
+        self._pending.clear()
+
+
+def _rollout(sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str], seed: int,
+             batch: _Batch | None) -> Any:
+    if batch is None:
+        return sim.simulate(scenario, values, effects=effects, seed=seed)
+    return batch.simulate(scenario, values, effects, seed)
+
+
 def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
-              seed: int) -> tuple[Any, str | None]:
-    """``(rollout, what the bank found)``: ``sim.simulate``, through the context's simulation bank when it has one
-    (:meth:`~softsbi.workflows.bank.SimulationBank.lookup`; None without a bank)."""
+              seed: int, batch: _Batch | None = None) -> tuple[Any, str | None]:
+    """``(rollout, what the bank found)``: ``sim.simulate`` (or the job's ``batch``), through the context's
+    simulation bank when it has one (:meth:`~softsbi.workflows.bank.SimulationBank.lookup`; None without a bank)."""
     if ctx.bank is None:
-        return sim.simulate(scenario, values, effects=effects, seed=seed), None
+        return _rollout(sim, scenario, values, effects, seed, batch), None
     bank = SimulationBank(ctx.bank)
     key = rollout_key(ctx.backend, ctx.backend_options, ctx.scenario, effects, values, seed)
     ro, what = bank.lookup(key)
     if ro is None:
-        ro = sim.simulate(scenario, values, effects=effects, seed=seed)
+        ro = _rollout(sim, scenario, values, effects, seed, batch)
         bank.put(key, ro)
     return ro, what
 
 
 def _simulate_observed(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
-                       seed: int) -> tuple[Any, str | None]:
+                       seed: int, batch: _Batch | None = None) -> tuple[Any, str | None]:
     """:func:`_simulate` with ``effects``; with a bank, the observation-only effects (sensor effects: every door of
     theirs is an observation transform) are applied after the banked rollout of the others, which does not depend on
     them, so a model with a sensor effect reads the nominal model's rollouts. The same numbers as simulating with
     every effect: the backends apply the observation transforms last, in order, seeded by ``seed``."""
     if ctx.bank is None or not effects:
-        return _simulate(ctx, sim, scenario, values, effects, seed)
+        return _simulate(ctx, sim, scenario, values, effects, seed, batch)
     plan = check_effects(sim, effects)
     sensor = [e for e in plan.observers if set(e.doors(sim.name)) == {OBSERVATION}]
     if not sensor or len(sensor) != len(plan.observers):  # none, or mixed with a physical one's: keep the order
-        return _simulate(ctx, sim, scenario, values, effects, seed)
-    raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, sensor, seed)
+        return _simulate(ctx, sim, scenario, values, effects, seed, batch)
+    raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, sensor, seed, batch)
     return plan.observe(raw, values, seed), banked  # its observation transforms are exactly the sensor effects'
 
 
 def _simulate_unobserved(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
-                         sensor: list[Any], seed: int) -> tuple[Any, str | None]:
+                         sensor: list[Any], seed: int, batch: _Batch | None = None) -> tuple[Any, str | None]:
     """:func:`_simulate` without the observation-only effects ``sensor`` (effect instances) and their parameters,
     which the rollout does not depend on: the raw rollout their transforms are applied to afterwards."""
     own = {p.name for e in sensor for p in e.param_space()}
     names = {e.name for e in sensor}
     return _simulate(ctx, sim, scenario, {k: v for k, v in values.items() if k not in own},
-                     [e for e in effects if e not in names], seed)
+                     [e for e in effects if e not in names], seed, batch)
 
 
-def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
+def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> dict[str, Any]:
     """Simulate one parameter vector, observe it and score it against the measurement.
 
     Args:
@@ -138,6 +197,7 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
         seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
         half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
         ``chamfer`` is the mask Chamfer (px) against ``ctx.ref_masks`` and ``chamfer_one_sided`` None.
+        ``batch`` (:func:`simulate_batch_job` only) takes the rollouts the job asks for.
     """
 
     theta, seed = item[0], item[1]
@@ -157,10 +217,10 @@ def simulate_job(ctx: SimContext, item: tuple) -> dict[str, Any]:
                                      style=obs.style)
         elif draws:  # simulate without the observation transforms, then observe once per draw
             plan = check_effects(sim, draws["effects"])
-            raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, plan.effects, int(seed))
+            raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, plan.effects, int(seed), batch)
             ro = plan.observe(raw, values, int(seed))
         else:
-            ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, int(seed))
+            ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, int(seed), batch)
     except SoftsbiError:
         raise
     except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed
@@ -219,6 +279,51 @@ def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
 
 
 
+def simulate_batch_job(ctx: SimContext, items: Sequence[tuple]) -> list[dict[str, Any]]:
+    """:func:`simulate_job` over ``items``, with every rollout they need simulated by the backend's
+    ``simulate_batch`` (:class:`_Batch`): the same results, in item order, as one job per item.
+
+    Raises:
+        The first :class:`SoftsbiError` an item raises, as :func:`simulate_job` would.
+    """
+    sim, _, _ = _objects(ctx)
+    batch = _Batch(sim)
+    out: list[dict[str, Any] | None] = [None] * len(items)
+    for _ in range(2):
+        for i, item in enumerate(items):
+            if out[i] is None:
+                try:
+                    out[i] = simulate_job(ctx, item, batch)
+                except _Deferred:
+                    pass
+        batch.run()
+    return out  # type: ignore[return-value]
+
+
+def batch_size(ctx: SimContext, n: int, workers: int | None) -> int:
+    """How many of ``n`` simulations one job runs: the backend's ``batch_size`` (1 for a backend that simulates
+    one at a time; :attr:`~softsbi.core.interfaces.Simulator.batch_size`), at most an equal share of ``n`` per worker
+    (``workers``; None = one per core), so that every worker gets a batch."""
+    size = int(getattr(registry().simulator(ctx.backend)(**ctx.backend_options), "batch_size", 1))
+    return max(1, min(size, math.ceil(n / max(1, workers or os.cpu_count() or 1))))
+
+
+def map_simulations(executor: Any, ctx: SimContext, items: Sequence[tuple]) -> Iterator[tuple[int, Any]]:
+    """``executor.map_unordered(simulate_job, items, context=ctx)``: yield ``(index, result or exception)`` in
+    completion order. A backend that steps several parameter sets together (``batch_size > 1``, newton-cloth) gets
+    them in jobs of :func:`batch_size` items (:func:`simulate_batch_job`); a batch's items are yielded together when
+    it ends, each with the batch's exception if it raised or its worker crashed."""
+    size = batch_size(ctx, len(items), getattr(executor, "workers", None)) if len(items) > 1 else 1
+    if size == 1:
+        yield from executor.map_unordered(simulate_job, items, context=ctx)
+        return
+    starts = range(0, len(items), size)
+    chunks = [list(items[s:s + size]) for s in starts]
+    for c, res in executor.map_unordered(simulate_batch_job, chunks, context=ctx):
+        for j in range(len(chunks[c])):
+            yield starts[c] + j, res if isinstance(res, BaseException) else res[j]
+
+
 def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
              executor_options: Mapping[str, Any] | None = None, label: str = "simulations") -> list[dict[str, Any]]:
     """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order. The phase is told to
@@ -230,7 +335,7 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
     out: list[dict[str, Any] | None] = [None] * len(items)
     count = BankCount()
     with pools.executor(executor, workers, executor_options) as exe, phase(label, len(items)) as advance:
-        for done, (i, res) in enumerate(exe.map_unordered(simulate_job, items, context=ctx), start=1):
+        for done, (i, res) in enumerate(map_simulations(exe, ctx, items), start=1):
             if isinstance(res, BaseException):
                 if isinstance(res, SoftsbiError):
                     raise res

@@ -22,7 +22,7 @@ from softsbi.plugins import registry
 from softsbi.workflows.bank import BankCount, bank_folder
 from softsbi.workflows.fitconfig import FitConfig, estimator_options
 from softsbi.workflows.fitreport import chamfer_stats
-from softsbi.workflows.jobs import SimContext, _round_seeds, simulate_job
+from softsbi.workflows.jobs import SimContext, _round_seeds, map_simulations
 from softsbi.workflows.progress import FitCallbacks
 from softsbi.workflows.resume import RunClock
 from softsbi.workflows.tasks import PriorRound
@@ -63,7 +63,7 @@ def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                                                               if extra else ()) for i in pending]
         done = len(data["status"]) - len(pending)
         errors = []
-        for j, res in executor.map_unordered(simulate_job, items, context=ctx):
+        for j, res in map_simulations(executor, ctx, items):
             i = int(pending[j])
             if isinstance(res, SoftsbiError):
                 raise res

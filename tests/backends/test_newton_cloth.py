@@ -107,6 +107,14 @@ def test_a_batch_of_three_equals_three_single_runs(newton):
     assert np.abs(batch[0].vertices - batch[1].vertices).max() > 1e-3  # the worlds differ
     with pytest.raises(ParameterError, match="columns"):
         sim.simulate_batch(sc, np.zeros((2, 3)))
+    # one seed per rollout: a sensor effect's noise in rollout b is the single rollout's at seeds[b]
+    noisy = [dict(th, noise_std=0.005) for th in thetas[:2]]
+    pair = sim.simulate_batch(sc, noisy, ["point-noise"], seed=[5, 9])
+    for th, s, ro in zip(noisy, (5, 9), pair):
+        one = sim.simulate(sc, th, ["point-noise"], seed=s)
+        assert np.abs(one.vertices - ro.vertices).max() < 1e-4
+    with pytest.raises(ParameterError, match="1 seeds for 2"):
+        sim.simulate_batch(sc, noisy, ["point-noise"], seed=[5])
 
 
 @pytest.mark.parametrize("name", ["wipe", "fling"])

@@ -356,3 +356,15 @@ def test_view_with_nothing_to_write_and_import_of_a_recording_say_so_before_any_
     msg = " ".join(res.output.split())
     assert res.exit_code == 2 and f"'{meas}'" in msg, res.output
     assert f"softsbi fit --observed {meas} --out RUN" in msg and not (tmp_path / "dst").exists()
+
+
+def test_demo_refuses_a_backend_that_cannot_apply_its_hidden_wind_before_any_work(tmp_path):
+    """The demo runs on any installed backend that applies wind (a force field); another is refused in one line
+    naming the backend, the missing door and the backends that can, before anything is written."""
+    for backend, named in (("pybullet-massspring", ["force field", "mujoco-flex", "--quick"]),
+                           ("mujoco-flx", ["mujoco-flex"])):
+        res = runner.invoke(app, ["demo", "--backend", backend, "--out", str(tmp_path / "demo")])
+        line = " ".join(res.output.split())
+        assert res.exit_code != 0 and "Traceback" not in res.output, res.output
+        assert f"--backend {backend}" in line and all(n in line for n in named), line
+        assert not (tmp_path / "demo").exists()

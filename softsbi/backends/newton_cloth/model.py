@@ -26,14 +26,14 @@ INSTALL_HINT = 'pip install "softsbi[newton]"'
 
 
 def import_newton() -> tuple[Any, Any]:
-    """``(newton, warp)``, imported now (not when softsbi is imported); Warp's start-up banner is silenced.
+    """``(newton, warp)``, imported now (not when softsbi is imported); Warp's per-module load lines are silenced.
 
     Raises:
         DependencyMissing: Newton or Warp is not installed (names :data:`INSTALL_HINT`).
     """
     try:
         import warp as wp  # optional: the 'newton' extra
-        wp.config.quiet = True
+        wp.config.log_level = wp.LOG_WARNING  # no line per kernel module loaded (Warp logs them at INFO)
         import newton  # optional: the 'newton' extra
     except ImportError as exc:
         raise DependencyMissing(f"backend 'newton-cloth' needs Newton {NEWTON_VERSION} (and Warp), which is not "

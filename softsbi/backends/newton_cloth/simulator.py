@@ -38,10 +38,15 @@ from softsbi.backends.common import (EffectPlan, EffectsThroughDoor, check_effec
 from softsbi.backends.newton_cloth.model import ClothWorld, build_cloth_world, finish_model, import_newton
 from softsbi.backends.scenario_build import handle_targets
 from softsbi.core.errors import ParameterError
-from softsbi.core.interfaces import FORCE, OBSERVATION, Simulator, VertexContext
+from softsbi.core.interfaces import FORCE, OBSERVATION, Simulator, VertexContext, batch_seeds
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, ParamSpace, Rollout, Scenario
 
 _KERNELS: dict[str, Any] = {}
+
+#: rollouts per ``simulate_batch`` call in a fit's worker (:attr:`Simulator.batch_size`). From the newton-throughput
+#: suite on 2 CPU cores (docs/benchmarks.md): one by one 0.19-0.23 rollouts/s, batches of 8 0.5-1.0/s, of 64 1.3/s;
+#: 32 per worker keeps two workers' batches near the large-batch rate within a 64-simulation phase.
+BATCH_SIZE = 32
 
 
 def _set_kinematic_kernel(wp: Any) -> Any:
@@ -75,6 +80,7 @@ class NewtonCloth(Simulator):
         damping: Rayleigh damping time, s (membrane and hinge damping = ``damping`` x stiffness).
         contact_ke: particle-table contact stiffness, N/m.
         device: Warp device, ``"cpu"`` or ``"cuda"`` (``"cuda:0"``...).
+        batch_size: rollouts per :meth:`simulate_batch` call in a fit's worker (:data:`BATCH_SIZE`).
 
     All options are plain values, so instances pickle; Newton is imported on the first rollout
     (:func:`~.model.import_newton`), so softsbi imports and lists this plugin without it.
@@ -93,7 +99,8 @@ class NewtonCloth(Simulator):
     effect_kinds = (FORCE, OBSERVATION)
 
     def __init__(self, grid: int = 9, timestep: float = 0.004, iterations: int = 5, poisson: float = 0.3,
-                 radius: float = 0.003, damping: float = 0.001, contact_ke: float = 1000.0, device: str = "cpu"):
+                 radius: float = 0.003, damping: float = 0.001, contact_ke: float = 1000.0, device: str = "cpu",
+                 batch_size: int = BATCH_SIZE):
         if int(grid) < 3:
             raise ValueError(f"grid must be >= 3 vertices per side, got {grid}")
         if not timestep > 0:
@@ -105,6 +112,9 @@ class NewtonCloth(Simulator):
         self.grid, self.timestep, self.iterations = int(grid), float(timestep), int(iterations)
         self.poisson, self.radius, self.damping = float(poisson), float(radius), float(damping)
         self.contact_ke, self.device = float(contact_ke), str(device)
+        if int(batch_size) < 1:
+            raise ValueError(f"batch_size must be >= 1 rollouts per call, got {batch_size}")
+        self.batch_size = int(batch_size)
 
     def __repr__(self) -> str:
         return (f"NewtonCloth(grid={self.grid}, timestep={self.timestep}, iterations={self.iterations}, "
@@ -149,13 +159,14 @@ class NewtonCloth(Simulator):
         return self.simulate_batch(scenario, [theta], effects, seed)[0]
 
     def simulate_batch(self, scenario: Scenario, thetas: Any, effects: Sequence[str] = (),
-                       seed: int = 0) -> list[Rollout]:
+                       seed: int | Sequence[int] = 0) -> list[Rollout]:
         """Roll ``scenario`` out at B parameter sets in one Newton model (one world each), stepped together.
 
         Args:
             thetas: a sequence of B mappings, or an array ``(B, D)`` whose columns follow
                 ``full_space(scenario, effects).names``.
-            seed: seeds the observation transforms; rollout ``b`` uses ``seed + b``.
+            seed: seeds the observation transforms: B ints, one per rollout, or one int (rollout ``b`` uses
+                ``seed + b``).
 
         Returns:
             B :class:`Rollout` as :meth:`simulate` would return each (``info["wall_s"]`` is the batch's
@@ -163,7 +174,8 @@ class NewtonCloth(Simulator):
 
         Raises:
             ParameterError: a theta outside the physical limits, a wrong number of columns, an empty
-                batch, an unsupported effect. ValueError: unsupported scenario. DependencyMissing: no Newton.
+                batch, an unsupported effect, B seeds that do not match B thetas. ValueError: unsupported
+                scenario. DependencyMissing: no Newton.
         """
         check_scenario(self, scenario)
         plan = check_effects(self, effects)
@@ -177,7 +189,7 @@ class NewtonCloth(Simulator):
         thetas = [space.check(th, within="limits") for th in thetas]
         if not thetas:
             raise ParameterError("simulate_batch needs at least one theta")
-        return self._rollouts(scenario, thetas, plan, seed)
+        return self._rollouts(scenario, thetas, plan, batch_seeds(seed, len(thetas)))
 
     def _vertex_context(self, scenario: Scenario, w: ClothWorld, gravity: np.ndarray) -> VertexContext:
         n = len(w.rest)
@@ -186,7 +198,7 @@ class NewtonCloth(Simulator):
                              grasped=tuple(w.handles), gravity=gravity)
 
     def _rollouts(self, scenario: Scenario, thetas: list[dict[str, float]], plan: EffectPlan,
-                  seed: int) -> list[Rollout]:
+                  seeds: list[int]) -> list[Rollout]:
         """The one stepping loop: B worlds, kinematic handles, force fields, checks, observation."""
         newton, wp = import_newton()
         t0 = time.perf_counter()
@@ -265,7 +277,7 @@ class NewtonCloth(Simulator):
                     "handle_vertices": list(w.handles), "corners": grid_corners(self.grid)}
             ro = Rollout(times=times.copy(), gripper=grip.copy(), vertices=v, faces=grid_faces(self.grid),
                          status=status, reason=reason, info=info)
-            out.append(plan.observe(ro, th, seed + b))
+            out.append(plan.observe(ro, th, seeds[b]))
         return out
 
     def _plausibility(self, scenario: Scenario, theta: Mapping[str, float], verts: np.ndarray,

@@ -79,8 +79,9 @@ class ToyGauss(Simulator):
     effects = ("toy-wind",)
     effect_kinds = ("observation",)
 
-    def __init__(self, sigma: float = SIGMA):
+    def __init__(self, sigma: float = SIGMA, batch_size: int = 1):
         self.sigma = float(sigma)
+        self.batch_size = int(batch_size)  # > 1: workers get simulations in batches (the inherited simulate_batch)
 
     def param_space(self, scenario: Scenario) -> ParamSpace:
         return ParamSpace([Param("a", -1.0, 1.0, "1", description="toy parameter a"),
