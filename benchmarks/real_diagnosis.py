@@ -12,7 +12,8 @@ diagnosis scores each candidate through its amortised posterior before refitting
 Tables: per recording the check's p-value, the verdict, the effects named, the screening's top candidates with the
 share of the residual each explains, the residual's shape (flagged frames, the centroid's offset, the worst
 regions), the posterior-predictive Chamfer and the best fit; then the candidates' screening shares across the
-recordings of each task.
+recordings of each task; with folds, each fold's posterior/prior and posterior-predictive Chamfer beside the fold
+suite's stored run. The figure has one row per task.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.fabric_distances import material_unit_means, repeat_fabric_distances
-from benchmarks.runner import REPO, in_out_folder, table
+from benchmarks.runner import REPO, RESULTS, in_out_folder, table
 
 LIFTS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "redblack", "redblack2"]
 FULL = {"lifts": LIFTS, "folds": LIFTS}
@@ -139,6 +140,8 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             notes.append(f"{task}: distance between posterior means ({', '.join(mat)}; unit-cube units): repeats of a "
                          f"fabric {np.mean(same):.3f} ({len(same)} pairs), different fabrics {np.mean(diff):.3f} "
                          f"({len(diff)} pairs).")
+    if "fold" in reports:
+        tables.append(fold_beside_fold_suite(reports["fold"]))
     reused = sum(not v["wall_s"] for v in data.values())
     if reused:
         notes.append(f"{reused} of {len(data)} recordings were read back from --out, where an earlier run of this "
@@ -157,19 +160,58 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
     return {"tables": tables, "notes": notes, "figures": figures, "data": {"recordings": data, "train_s": trained}}
 
 
+def fold_beside_fold_suite(reports: dict) -> dict:
+    """The folds of this run (the CLI's defaults through the trained fold task) beside the fold suite's stored run
+    (``benchmarks/results/fold.json``, its own command and commit): posterior/prior Chamfer, posterior-predictive
+    Chamfer [cm] and best fit [cm] per recording."""
+    stored = RESULTS / "fold.json"
+    run = json.loads(stored.read_text())["runs"].get("default", {}) if stored.exists() else {}
+    old = run.get("data", {})
+    rows = []
+    for r, rep in sorted(reports.items(), key=lambda kv: LIFTS.index(kv[0])):
+        o = old.get(r, {})
+        best = (rep.get("best_fit") or {}).get("chamfer_m")
+        rows.append([r, round(rep["chamfer_posterior_m"] / rep["chamfer_prior_m"], 2),
+                     None if "posterior_over_prior" not in o else round(o["posterior_over_prior"], 2),
+                     round(100 * rep["chamfer_posterior_m"], 2),
+                     None if "chamfer_posterior_m" not in o else round(100 * o["chamfer_posterior_m"], 2),
+                     None if best is None else round(100 * best, 2),
+                     None if o.get("best_fit_m") is None else round(100 * o["best_fit_m"], 2)])
+    source = (f"the fold suite's stored run: commit {run.get('commit')}, `{run.get('command')}`" if run else
+              "no stored fold suite run")
+    return table("fold: this run beside the fold suite's stored run (posterior/prior Chamfer; posterior-predictive "
+                 "Chamfer and best fit [cm])",
+                 ["fold", "posterior/prior", "fold suite", "posterior predictive", "fold suite", "best fit",
+                  "fold suite"], rows, note=f"Beside: {source}.")
+
+
 def plot_residuals(curves: dict, path: Path) -> None:
-    """Left: each recording's posterior-predictive Chamfer per frame (cm, the check's mean over rollouts), solid on
-    the frames the metric scores and dotted, greyed and cut at the axis' top on the others; right: the measured
-    centroid's offset from the simulated one (cm, x y z) in the residual's flagged frames."""
+    """One row per task (the first word of a curve's name: lift, fold). Left: each recording's posterior-predictive
+    Chamfer per frame (cm, the check's mean over rollouts), solid on the frames the metric scores and dotted, greyed
+    and cut at the axis' top on the others; right: the measured centroid's offset from the simulated one (cm, x y z)
+    in the residual's flagged frames."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from softsbi.report.style import save_figure
 
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.6, 1]})
+    tasks: dict[str, dict] = {}
+    for name, curve in curves.items():
+        tasks.setdefault(name.split()[0], {})[name] = curve
+    fig, axes = plt.subplots(len(tasks), 2, figsize=(11, 4.2 * len(tasks)), squeeze=False,
+                             gridspec_kw={"width_ratios": [1.6, 1]})
+    for (task, group), (ax, bx) in zip(tasks.items(), axes):
+        _plot_task(task, group, ax, bx)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure(fig, path)
+
+
+def _plot_task(task: str, curves: dict, ax, bx) -> None:
+    """:func:`plot_residuals`' two panels of one task."""
     names = list(curves)
-    top, unscored = 0.0, []
+    top, before, after = 0.0, [], []
     for name, (t, mean, _, scored) in curves.items():
         t, cm = np.asarray(t), 100 * np.asarray(mean)
         scored = np.asarray(scored if scored else range(len(t)), int)
@@ -177,13 +219,19 @@ def plot_residuals(curves: dict, path: Path) -> None:
         ax.plot(t, cm, lw=0.7, ls=":", color=line.get_color())
         top = max(top, float(np.nanmax(cm[scored])))
         if scored[0] > 0:
-            unscored.append(0.5 * (t[scored[0] - 1] + t[scored[0]]))
-    if unscored:  # the frames before the metric's first (the same on every recording of a task)
-        ax.axvspan(ax.get_xlim()[0], max(unscored), color="0.88", zorder=0)
-        ax.text(0.5 * max(unscored), 1.65 * top, "frames the metric\ndoes not score", ha="center", va="top",
-                fontsize=7, color="0.3")
+            before.append(0.5 * (t[scored[0] - 1] + t[scored[0]]))
+        if scored[-1] < len(t) - 1:
+            after.append(0.5 * (t[scored[-1]] + t[scored[-1] + 1]))
+    left, right = ax.get_xlim()
+    if before:  # the frames before the metric's first (the same on every recording of a task)
+        ax.axvspan(left, max(before), color="0.88", zorder=0)
+        ax.text(0.5 * (left + max(before)), 1.65 * top, "frames the metric\ndoes not score", ha="center",
+                va="top", fontsize=7, color="0.3")
+    if after:  # and after its last
+        ax.axvspan(min(after), right, color="0.88", zorder=0)
+    ax.set_xlim(left, right)
     ax.set_ylim(0, 1.7 * top)  # headroom above the curves for the legend
-    ax.set(xlabel="time [s]", ylabel="Chamfer [cm]", title="posterior-predictive Chamfer per frame")
+    ax.set(xlabel="time [s]", ylabel="Chamfer [cm]", title=f"{task}: posterior-predictive Chamfer per frame")
     ax.legend(fontsize=7, ncol=3, loc="upper right")
     offsets = np.array([c[2] if c[2] is not None else (np.nan,) * 3 for c in curves.values()], float)
     y = np.arange(len(names))
@@ -194,8 +242,6 @@ def plot_residuals(curves: dict, path: Path) -> None:
     bx.set_yticks(y, names, fontsize=7)
     bx.invert_yaxis()
     bx.axvline(0, color="k", lw=0.8)
-    bx.set(xlabel="measured - simulated centroid [cm]", title="centroid offset, flagged frames")
+    bx.set(xlabel="measured - simulated centroid [cm]", title=f"{task}: centroid offset, flagged frames")
     bx.legend(fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, path)
+
