@@ -65,9 +65,9 @@ def suite(a: argparse.Namespace) -> dict:
         for backend in a.backends:
             doc, wall = _demo(backend, a.workers, Path(tmp))
             nominal = doc["nominal"]
-            diag = doc.get("diagnosis") or {}
+            verdict = ((doc.get("diagnosis") or {}).get("decision") or {}).get("verdict")
             fit_rate = round(nominal["simulations"] / nominal["wall_time_s"], 2)
-            row = {"backend": backend, "verdict": diag.get("verdict"), "named": doc.get("named"),
+            row = {"backend": backend, "verdict": verdict, "named": doc.get("named"),
                    "named_correctly": doc.get("named_correctly"),
                    **{f"{k}_cm": _cm(doc.get(f"{k}_m")) for k in ("chamfer_before", "chamfer_after", "energy_before",
                                                                    "energy_after")},

@@ -41,8 +41,6 @@ from softsbi.workflows.measurement import simulate_recording
 DEMO_TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}
 #: the demo's hidden effect: a breeze the nominal model lacks
 DEMO_HIDDEN_EFFECT = {"wind": {"wind_x": 0.0, "wind_y": 0.8}}
-#: the demo's diagnosis refits the top candidate only (``diagnose --confirm 1``), so that it runs in a few minutes
-DEMO_CONFIRM = 1
 
 
 class DemoCallbacks:
@@ -160,7 +158,7 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     ui.line(check_summary(chk))
     ui.step("3. diagnose: which installed effect explains the residual?")
     with ui.working("screening candidate effects and refitting the top ones ..."):
-        diag = diagnose_run(nominal, workers=workers, pool=pool, progress=ui.line, confirm=DEMO_CONFIRM)
+        diag = diagnose_run(nominal, workers=workers, pool=pool, progress=ui.line)  # diagnose's defaults
     doc["diagnosis"] = to_json(diag)
     ui.diagnosis_done(diag)
     if diag.verdict != "missing-effect":
