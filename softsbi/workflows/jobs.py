@@ -304,7 +304,10 @@ def batch_size(ctx: SimContext, n: int, workers: int | None) -> int:
     """How many of ``n`` simulations one job runs: the backend's ``batch_size`` (1 for a backend that simulates
     one at a time; :attr:`~softsbi.core.interfaces.Simulator.batch_size`), at most an equal share of ``n`` per worker
     (``workers``; None = one per core), so that every worker gets a batch."""
-    size = int(getattr(registry().simulator(ctx.backend)(**ctx.backend_options), "batch_size", 1))
+    try:
+        size = int(getattr(registry().simulator(ctx.backend)(**ctx.backend_options), "batch_size", 1))
+    except Exception:  # noqa: BLE001 - bad options fail in the workers, one result per simulation, as unbatched
+        return 1
     return max(1, min(size, math.ceil(n / max(1, workers or os.cpu_count() or 1))))
 
 
