@@ -36,6 +36,6 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
     from softsbi.cli.demo_printer import DemoPrinter  # start-up: the demo workflow
     from softsbi.workflows.demo import run_demo  # start-up: the demo workflow
     o = Output(as_json)
-    doc = run_demo(out, quick=quick, backend=backend, rounds=rounds, sims_per_round=sims_per_round, estimator=estimator, seed=seed,
-                   workers=workers, proposal=Proposal(proposal).value, ui=DemoPrinter(o))
+    doc = run_demo(out, quick=quick, backend=backend, rounds=rounds, sims_per_round=sims_per_round, estimator=estimator,
+                   seed=seed, workers=workers, proposal=Proposal(proposal).value, ui=DemoPrinter(o))
     json_done(o, doc)  # the steps were printed as they ran

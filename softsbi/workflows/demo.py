@@ -92,7 +92,8 @@ def check_demo_backend(backend: str, quick: bool) -> None:
     """
     reg = registry()
     names = reg.names("simulator")
-    able = " or ".join(b for b in names if not any(reg.simulator(b).supports(reg.effect(e)) for e in DEMO_HIDDEN_EFFECT))
+    able = " or ".join(b for b in names
+                       if not any(reg.simulator(b).supports(reg.effect(e)) for e in DEMO_HIDDEN_EFFECT))
     if backend not in names:
         raise ParameterError(f"--backend {backend}: no such simulator is installed; the demo runs on {able}")
     why = next((w for e in DEMO_HIDDEN_EFFECT if (w := reg.simulator(backend).supports(reg.effect(e)))), None)
