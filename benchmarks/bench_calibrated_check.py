@@ -11,12 +11,12 @@ are exchangeable), whatever the statistic. A trained task makes the refit of a r
 stored estimator, so a replicate costs one simulation and the check's posterior-predictive rollouts.
 
 Every case here (the calibration's replicates, the controls and the hidden-effect cases) goes through one procedure,
-:mod:`softsbi.workflows.check_null`'s, that of a stored-task fit and its ``check``: simulate a recording (the cloth at
+:mod:`softsbi.workflows.criticism.check_null`'s, that of a stored-task fit and its ``check``: simulate a recording (the cloth at
 prior-drawn hidden parameters, with the hidden effect for the effect cases), observe it with the fit's observer,
 condition the demo task's stored estimator on it, simulate ``check``'s 30 posterior-predictive rollouts (posterior
 draws restricted to the prior box, as the fit's evaluation samples are), and compute ``check``'s omnibus statistic
 (mean squared standardised deviation of the sensor-faithful summaries,
-:func:`~softsbi.workflows.stats.misspecification_test`) and its leave-one-out p-value, the first stage of
+:func:`~softsbi.workflows.criticism.stats.misspecification_test`) and its leave-one-out p-value, the first stage of
 ``check``'s uncalibrated test. The directional test and the null's extension to 200 rollouts are not part of it.
 The replicates are those ``softsbi task train --check-null`` stores.
 
@@ -66,12 +66,12 @@ def _shares(p: np.ndarray) -> list:
 def measure(a: argparse.Namespace, folder: Path) -> dict:
     from scipy.stats import ks_2samp
     from softsbi.workflows.demo import demo_recording
-    from softsbi.workflows.fit import FitConfig
-    from softsbi.workflows.fitconfig import fit_param_space
-    from softsbi.workflows.task_training import train_task
-    from softsbi.workflows.check_null import case_statistics, replicates, stored_check_null
+    from softsbi.workflows.fit.run import FitConfig
+    from softsbi.workflows.fit.config import fit_param_space
+    from softsbi.workflows.tasks.training import train_task
+    from softsbi.workflows.criticism.check_null import case_statistics, replicates, stored_check_null
     from softsbi.workflows.defaults import N_NULL
-    from softsbi.workflows.tasks import first_round_context
+    from softsbi.workflows.fit.task_store import first_round_context
     cfg = FitConfig(workers=a.workers, sim_bank=str(folder / "bank"))
     rec0 = demo_recording(True)[0]
     t0 = time.perf_counter()

@@ -2,7 +2,7 @@
 
 Stage 1 (``fit``): one round of ``--train`` prior simulations of a simulated measurement (the
 six-method setup of ``bench_estimators_sim.py``: mujoco-flex, grid 6, 32 noisy (5 mm) points per
-frame) through ``run_fit`` (resumable). Stage 2 (``calibrate``): :func:`softsbi.workflows.calibrate.calibrate_run`
+frame) through ``run_fit`` (resumable). Stage 2 (``calibrate``): :func:`softsbi.workflows.tasks.calibrate.calibrate_run`
 on that run with ``--test`` fresh simulations from the run's proposal (the prior: one round), stored
 in the run's ``calibration`` group and shared by every estimator variant, which are retrained on
 the run's own stored simulations (never on the test ones).
@@ -101,7 +101,7 @@ def simulated_fit(scenario: str, run_dir: Path, train: int, workers: int, estima
     finished fit is kept whatever estimator made it, since calibrate retrains)."""
     from softsbi.plugins import registry
     from softsbi.scenarios.builtin import make_scenario
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import simulate_recording
 
     bopts = {"grid": 6} if scenario == "lift" else {}
@@ -120,7 +120,7 @@ def simulated_fit(scenario: str, run_dir: Path, train: int, workers: int, estima
 def calibrate_variant(run_dir: Path, v: str, n_test: int, workers: int) -> dict:
     """Stage 2 for variant ``v``: its coverage, verdict and diagnostics (the run's stored test simulations are
     shared by every variant)."""
-    from softsbi.workflows.calibrate import calibrate_run
+    from softsbi.workflows.tasks.calibrate import calibrate_run
 
     est, opts = VARIANTS[v]
     t0 = time.perf_counter()

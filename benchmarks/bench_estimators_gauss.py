@@ -83,7 +83,7 @@ def suite(args: argparse.Namespace) -> dict:
 def measure(args: argparse.Namespace, out: Path) -> dict:
     """(a) and (b) of the module's docstring, fits in ``out``."""
     import softsbi_toy.plugin as toy
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.inference.c2st import c2st
     from softsbi.workflows.measurement import simulate_recording
     from softsbi.core.errors import DependencyMissing
@@ -115,7 +115,7 @@ def measure(args: argparse.Namespace, out: Path) -> dict:
                             [[m, *a] for m, a in results["c2st"].items()]))
     if "coverage" not in args.skip:
         if args.lift_store:
-            from softsbi.workflows.rounds import usable_simulations
+            from softsbi.workflows.fit.rounds import usable_simulations
             from softsbi.core.store import RunStore
             st = RunStore.open(args.lift_store)
             u, x, _ = usable_simulations(st, len(st.completed_rounds()) - 1)

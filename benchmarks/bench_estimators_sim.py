@@ -55,7 +55,7 @@ def measure(args: argparse.Namespace, out: Path) -> dict:
     """Every method's fit round by round in ``out``; the Chamfer table."""
     from softsbi.scenarios.builtin import make_scenario
     from softsbi.core.errors import PosteriorError
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import simulate_recording
     from softsbi.plugins import registry
 

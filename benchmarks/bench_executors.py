@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.workflows.fit import FitConfig, SimContext, fit_param_space, observer_options, simulate_job
+from softsbi.workflows.fit.run import FitConfig, SimContext, fit_param_space, observer_options, simulate_job
 
 from benchmarks.runner import REPO, table
 

@@ -60,7 +60,7 @@ def _recordings(n: int) -> list:
 
 
 def _fit(out: Path, rec, cfg) -> dict:
-    from softsbi.workflows.fit import run_fit
+    from softsbi.workflows.fit.run import run_fit
     t0 = time.perf_counter()
     res = run_fit(out, rec, cfg, make_plots=False)
     r = res.report.to_json()
@@ -71,8 +71,8 @@ def _fit(out: Path, rec, cfg) -> dict:
 
 
 def measure(a: argparse.Namespace, folder: Path) -> dict:
-    from softsbi.workflows.fit import FitConfig
-    from softsbi.workflows.task_training import train_task
+    from softsbi.workflows.fit.run import FitConfig
+    from softsbi.workflows.tasks.training import train_task
     bank = folder / "bank"
     base = FitConfig(workers=a.workers, sim_bank=str(bank))
     recs = _recordings(a.recordings)
@@ -114,9 +114,9 @@ def _trained_row(task) -> list:
 
 
 def _check_and_diagnose(run, workers: int) -> list:
-    from softsbi.workflows.check import check_run
-    from softsbi.workflows.diagnose import diagnose_run
-    from softsbi.workflows.stats import PosteriorPredictive
+    from softsbi.workflows.criticism.check import check_run
+    from softsbi.workflows.criticism.diagnose import diagnose_run
+    from softsbi.workflows.criticism.stats import PosteriorPredictive
     t0 = time.perf_counter()
     pool = PosteriorPredictive(run, workers)
     chk = check_run(run, workers=workers, pool=pool, effects=[CANDIDATE])

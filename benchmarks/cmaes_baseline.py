@@ -37,8 +37,8 @@ import cma  # noqa: E402
 
 from softsbi.core.store import RunStore  # noqa: E402
 from softsbi.perception.pointcloud import rollout_clouds  # noqa: E402
-from softsbi.workflows.fit import FitConfig, fit_param_space, metric_sensor, observer_options  # noqa: E402
-from softsbi.workflows.jobs import SimContext, evaluation_seeds, simulate_job  # noqa: E402
+from softsbi.workflows.fit.run import FitConfig, fit_param_space, metric_sensor, observer_options  # noqa: E402
+from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, simulate_job  # noqa: E402
 from softsbi.workflows.measurement import load_recording  # noqa: E402
 
 from benchmarks.runner import REPO, table  # noqa: E402

@@ -45,8 +45,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from softsbi.plugins import registry
-from softsbi.workflows.diagnose import diagnose_run
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.criticism.diagnose import diagnose_run
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 from benchmarks import runner
@@ -164,7 +164,7 @@ def run_case(case: dict[str, Any], out: Path, workers: int | None, old: Path | N
 #: the old rule's diagnosis of a run, in a process of its own whose softsbi is CHECKOUT's (its own defaults)
 OLD_DRIVER = """
 import json, sys
-from softsbi.workflows.diagnose import diagnose_run
+from softsbi.workflows.criticism.diagnose import diagnose_run
 d = diagnose_run(sys.argv[1], effects=json.loads(sys.argv[2]), workers=json.loads(sys.argv[3]))
 named = d.decision.named
 print("ROW " + json.dumps({"verdict": d.verdict, "named": [named] if isinstance(named, str) else list(named or []),

@@ -144,7 +144,7 @@ def _bank(opts: argparse.Namespace, env: dict, tables: list) -> dict:
     """``opts.bank`` simulated recordings of the lift at other hidden parameters, fitted in a row with the defaults:
     with a fresh bank and without."""
     from softsbi.core.store import RunStore
-    from softsbi.workflows.bank import SimulationBank
+    from softsbi.workflows.fit.bank import SimulationBank
     rows, out = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -2,7 +2,7 @@
 
 The observation is the lift scenario simulated on ``--truth-backend`` (default mujoco-flex) at
 hidden parameters (its prior box at relative position 0.6 in every dimension). Each backend is
-then fitted to it with :func:`softsbi.workflows.fit.run_fit` (sequential BayesSim-RKHS rounds); the
+then fitted to it with :func:`softsbi.workflows.fit.run.run_fit` (sequential BayesSim-RKHS rounds); the
 script tabulates each posterior (mean, std, 90 % interval, in that backend's own units - the
 engines do not share units for ``bend``/``stretch``) and the posterior-predictive Chamfer
 distance (rollouts at posterior samples vs the observation, cm). The backend that did not make
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from softsbi.scenarios.builtin import make_scenario
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
 

@@ -25,7 +25,7 @@ _LAZY = {**{n: "softsbi.core.interfaces" for n in ("Effect", "Executor", "Observ
          "load_scenario": "softsbi.workflows.api", "FitConfig": "softsbi.workflows.api",
          "FitResult": "softsbi.workflows.api", "Run": "softsbi.workflows.api",
          "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement",
-         "import_diffcloud": "softsbi.workflows.measurement", "train_task": "softsbi.workflows.task_training",
+         "import_diffcloud": "softsbi.workflows.measurement", "train_task": "softsbi.workflows.tasks.training",
          "calibrate_run": "softsbi.workflows.api", "check": "softsbi.workflows.api",
          "diagnose": "softsbi.workflows.api", "compare": "softsbi.workflows.api"}
 

@@ -39,7 +39,7 @@ def printed_fit_report(rep, out, capsys):
     from softsbi.cli import _print_report
     from softsbi.cli.output import Output
     from softsbi.report.fit_text import fit_report_lines, posterior_table
-    from softsbi.workflows.widen import widening_sentence
+    from softsbi.workflows.fit.prior_widening import widening_sentence
     capsys.readouterr()  # what was printed before
     _print_report(Output(), rep, out)
     printed = capsys.readouterr().out.splitlines()

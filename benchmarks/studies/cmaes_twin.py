@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.workflows.fit import FitConfig, run_fit
-from softsbi.workflows.jobs import simulate_job
+from softsbi.workflows.fit.run import FitConfig, run_fit
+from softsbi.workflows.fit.jobs import simulate_job
 
 from benchmarks import cmaes_baseline as cb
 

@@ -106,7 +106,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from softsbi.scenarios.builtin import make_scenario
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import render_recording
     from softsbi.perception.synthdata import render_training_set
     from softsbi.plugins import registry
@@ -165,7 +165,7 @@ def main() -> None:
         })
         results[kind] = row
         out_json.write_text(json.dumps(results, indent=2))
-        from softsbi.workflows.fitplots import plot_frames
+        from softsbi.workflows.fit.plots import plot_frames
         plot_frames(FIGS / f"image_fit_{kind}.png", res, meas, cfg)
         print(json.dumps({k: row[k] for k in ("mask_chamfer_prior_px", "mask_chamfer_posterior_px",
                                               "truth_in_90pct_interval", "std_ratio_posterior_to_prior")}, indent=1))

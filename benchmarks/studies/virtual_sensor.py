@@ -202,8 +202,8 @@ def compare_fits(camera_run: Path, height_report: Path) -> dict:
     """Both metrics for a camera-sensor fit and a height-cut fit of the same recording (module docstring)."""
     from dataclasses import replace
 
-    from softsbi.workflows.jobs import run_jobs
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.jobs import run_jobs
+    from softsbi.workflows.fit.runs import load_run
     view = load_run(camera_run, n_eval=30)
     ctx_cam = view.sim_context(keep_rollout=False)
     table_z = view.scenario.table_z

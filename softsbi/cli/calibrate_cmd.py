@@ -34,7 +34,7 @@ def calibrate(run: Path = typer.Argument(..., help="run directory of a finished 
               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Simulation-based calibration of the run's posterior estimator: expected coverage, SBC ranks, TARP."""
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
-    from softsbi.workflows.calibrate import calibrate_run  # start-up: the calibration workflow
+    from softsbi.workflows.tasks.calibrate import calibrate_run  # start-up: the calibration workflow
     o = Output(as_json)
     with shown(o):
         out = calibrate_run(run, n_test=n_test, n_draws=n_draws, workers=workers, message=o.message)

@@ -62,7 +62,7 @@ def params(scenario: str = typer.Argument(..., help="scenario name (`softsbi sce
     """Every parameter a fit of SCENARIO infers: unit, prior bounds, scale and physical limits (`fit --bounds` moves
     a prior up to the limits, `fit --fix` holds a parameter)."""
     from softsbi.scenarios import load_scenario  # start-up: numpy, the scenario models
-    from softsbi.workflows.fit import FitConfig, parameter_table  # start-up: the fit workflow
+    from softsbi.workflows.fit.run import FitConfig, parameter_table  # start-up: the fit workflow
     from softsbi.workflows.measurement import recording_scenario  # start-up: the recording readers
     effects = names(effect)
     sc = recording_scenario(scenario) if Path(scenario).is_dir() else load_scenario(scenario)

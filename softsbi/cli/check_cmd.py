@@ -26,7 +26,7 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
     from softsbi.core.results import to_json  # start-up: numpy
     from softsbi.report.text import check_summary, joint_test_line  # start-up: numpy, scipy
-    from softsbi.workflows.check import check_run  # start-up: the check workflow
+    from softsbi.workflows.criticism.check import check_run  # start-up: the check workflow
     o = Output(as_json)
     with shown(o):
         out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute,
@@ -54,7 +54,7 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
     from softsbi.core.results import to_json  # start-up: numpy
     from softsbi.report.text import compare_summary  # start-up: numpy, scipy
-    from softsbi.workflows.compare import compare_runs  # start-up: the check workflow
+    from softsbi.workflows.criticism.compare import compare_runs  # start-up: the check workflow
     o = Output(as_json)
     with shown(o):
         res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null,

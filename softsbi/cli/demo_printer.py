@@ -11,7 +11,7 @@ from softsbi.cli.fit_cmd import print_fit_report
 from softsbi.cli.output import Output
 from softsbi.cli.progress import ProgressHooks, shown
 from softsbi.workflows.demo import DemoCallbacks
-from softsbi.workflows.fit import FitCallbacks
+from softsbi.workflows.fit.run import FitCallbacks
 
 
 class DemoPrinter(DemoCallbacks):

@@ -52,7 +52,7 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
     falls)."""
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
     from softsbi.core.results import to_json  # start-up: numpy
-    from softsbi.workflows.diagnose import diagnose_run  # start-up: the diagnosis workflow
+    from softsbi.workflows.criticism.diagnose import diagnose_run  # start-up: the diagnosis workflow
     o = Output(as_json)
     with shown(o):
         out = diagnose_run(run, effects=names(effect) or None, confirm=confirm, refit_rounds=refit_rounds,

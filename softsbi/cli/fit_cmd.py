@@ -19,7 +19,7 @@ def print_fit_report(o: Output, rep: dict[str, Any], out: Path) -> None:
     """The fit's report (``rep``: ``report.json`` of run directory ``out``) as a table and sentences on stdout
     (:mod:`softsbi.report.fit_text` words them)."""
     from softsbi.report.fit_text import fit_report_lines, posterior_table  # start-up: numpy, scipy
-    from softsbi.workflows.widen import widening_sentence  # start-up: numpy
+    from softsbi.workflows.fit.prior_widening import widening_sentence  # start-up: numpy
     t = posterior_table(rep)
     o.table(t.columns, t.rows, title=t.title)
     for line in fit_report_lines(rep, out, [widening_sentence(w) for w in rep.get("widened") or []]):
@@ -102,8 +102,8 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     """Infer the posterior over physical parameters from a recording (resumable)."""
     from softsbi.cli.progress import ProgressHooks  # start-up: the fit workflow
     from softsbi.plugins import registry  # start-up: loads every plugin
-    from softsbi.workflows.bank import check_bank_path  # start-up: numpy, zarr
-    from softsbi.workflows.fit import FitConfig, run_fit  # start-up: the fit workflow
+    from softsbi.workflows.fit.bank import check_bank_path  # start-up: numpy, zarr
+    from softsbi.workflows.fit.run import FitConfig, run_fit  # start-up: the fit workflow
     from softsbi.workflows.measurement import load_image_recording, load_recording  # start-up: the recording readers
     exe_opts: dict[str, Any] = {"retries": retries}
     if sim_timeout is not None:

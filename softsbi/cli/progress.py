@@ -7,8 +7,8 @@ import time
 from typing import Any, Iterator
 
 from softsbi.cli.output import Output
-from softsbi.workflows.fit import FitCallbacks
-from softsbi.workflows.progress import Reporter, reporting
+from softsbi.workflows.fit.run import FitCallbacks
+from softsbi.workflows.reporting import Reporter, reporting
 
 
 class PhaseReporter(Reporter):
@@ -47,7 +47,7 @@ def shown(o: Output) -> Iterator[None]:
 
 
 class ProgressHooks(FitCallbacks):
-    """Progress of :func:`softsbi.workflows.fit.run_fit` on stderr: bars on a terminal, one line per
+    """Progress of :func:`softsbi.workflows.fit.run.run_fit` on stderr: bars on a terminal, one line per
     round otherwise."""
 
     def __init__(self, o: Output, progress: Any):

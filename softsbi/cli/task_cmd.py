@@ -1,4 +1,4 @@
-"""``softsbi task``: train a task once, list, show and delete the stored tasks (:mod:`softsbi.workflows.tasks`)."""
+"""``softsbi task``: train a task once, list, show and delete the stored tasks (:mod:`softsbi.workflows.fit.task_store`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -17,7 +17,7 @@ H_BANK = "simulation bank holding the stored tasks ('default': the user's cache 
 
 
 def _store(sim_bank: str) -> Any:
-    from softsbi.workflows.tasks import task_store_of  # start-up: numpy, zarr
+    from softsbi.workflows.fit.task_store import task_store_of  # start-up: numpy, zarr
     store = task_store_of(sim_bank)
     if store is None:
         raise SoftsbiError("stored tasks live in the simulation bank, which is off (SOFTSBI_SIM_BANK=off): unset it "
@@ -68,10 +68,10 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
     """Train a task once: amortised posteriors of the nominal model and of each candidate effect, with a training
     report; every later fit, check and diagnose of the task's recordings uses them."""
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
-    from softsbi.workflows.bank import check_bank_path  # start-up: numpy, zarr
-    from softsbi.workflows.fit import FitConfig  # start-up: the fit workflow
+    from softsbi.workflows.fit.bank import check_bank_path  # start-up: numpy, zarr
+    from softsbi.workflows.fit.run import FitConfig  # start-up: the fit workflow
     from softsbi.workflows.measurement import load_recording  # start-up: the recording readers
-    from softsbi.workflows.task_training import train_task  # start-up: the training workflow
+    from softsbi.workflows.tasks.training import train_task  # start-up: the training workflow
     cfg = FitConfig(backend=backend, effects=names(effect), estimator=estimator, seed=seed, n_points=points,
                     workers=workers, bounds=parse_bounds(bounds), fixed=parse_kv(fix, "--fix"),
                     min_height=min_height, frames=frames, sim_bank=sim_bank)

@@ -102,7 +102,7 @@ class RoundRow:
             mask_chamfer_posterior_std_px: the same for an image fit (px). mass_in_box: the round posterior's mass
             inside the prior box. train_seconds: the estimator's training time. posterior_mean: the round
             posterior's mean (own units). task: the key of the stored task whose trained posterior the round
-            conditioned instead of training (:mod:`softsbi.workflows.tasks`), else None.
+            conditioned instead of training (:mod:`softsbi.workflows.fit.task_store`), else None.
     """
 
     round: int
@@ -129,7 +129,7 @@ class RoundRow:
 
 @dataclass(frozen=True)
 class BestFitRow:
-    """``best_fit``: the best-scoring simulation the fit found (:mod:`~softsbi.workflows.bestfit`).
+    """``best_fit``: the best-scoring simulation the fit found (:mod:`~softsbi.workflows.fit.bestfit`).
 
     Attributes:
         theta: its parameters (own units). value: its score under the report's metric (m or px; stored under the
@@ -204,7 +204,7 @@ class FitReport:
         chamfer_reduction: ``1 - posterior / prior`` Chamfer (None when either is missing).
         truth_in_90pct_interval: per parameter, whether the truth lies inside the 90% interval (None: no truth).
         best_fit: :class:`BestFitRow` (None: none stored). widened: the fit's prior widenings
-            (:func:`~softsbi.workflows.widen.records`, in order).
+            (:func:`~softsbi.workflows.fit.prior_widening.records`, in order).
         extra: keys this version does not know, kept as read.
     """
 
@@ -402,7 +402,7 @@ class Tarp:
 @dataclass(frozen=True)
 class CalibrationResult:
     """``calibration.json``: simulation-based calibration of a run's estimator
-    (:func:`~softsbi.workflows.calibrate.calibrate_run`).
+    (:func:`~softsbi.workflows.tasks.calibrate.calibrate_run`).
 
     Attributes:
         run: the run directory. estimator, estimator_options: the estimator calibrated.
@@ -487,7 +487,7 @@ class CalibrationResult:
 @dataclass(frozen=True)
 class TrainingReport:
     """A stored task's training report (``softsbi task train``,
-    :func:`~softsbi.workflows.task_training.training_report`): its amortised posterior measured on held-out
+    :func:`~softsbi.workflows.tasks.training.training_report`): its amortised posterior measured on held-out
     simulations drawn from the prior.
 
     Attributes:

@@ -2,7 +2,7 @@
 
 Plugins (built-in or third-party) provide concrete subclasses through the pluggy hooks in
 :mod:`softsbi.plugins.hookspecs`. Shapes and units in these docstrings are part of the
-contract and are checked by :func:`softsbi.workflows.conformance.check_simulator`.
+contract and are checked by :func:`softsbi.backends.conformance.check_simulator`.
 """
 from __future__ import annotations
 
@@ -112,7 +112,7 @@ class Effect(ABC):
         estimator_options: options this effect asks of the posterior estimator so that its parameters can
             be identified from the observations (e.g. point noise: ``{"frame_thickness": True}``, a summary
             that sees centimetre noise). A fit whose model has the effect passes them to an estimator that
-            has the option (:func:`softsbi.workflows.fit.estimator_options`); the user's own
+            has the option (:func:`softsbi.workflows.fit.run.estimator_options`); the user's own
             ``estimator_options`` win.
     """
 

@@ -1,6 +1,6 @@
 """The default level of softsbi's statistical verdicts, shared by every layer that decides or draws one.
 
-``softsbi.workflows.stats`` (check's misspecification test, diagnose's tests) decides at it and
+``softsbi.workflows.criticism.stats`` (check's misspecification test, diagnose's tests) decides at it and
 ``softsbi.report`` draws a stored check that lacks its ``misspecified`` field at it; both import it from
 here, so the two cannot disagree.
 """

@@ -77,7 +77,7 @@ class JointTest:
         max_null: the cap of the adaptive null.
         statistic: the omnibus statistic of the measurement (dimensionless).
         calibrated: the omnibus p-value is calibrated against replicate recordings of the run's trained task
-            refitted and checked the same way (:mod:`~softsbi.workflows.check_null`), its ``n`` their number;
+            refitted and checked the same way (:mod:`~softsbi.workflows.criticism.check_null`), its ``n`` their number;
             else it is the posterior predictive p-value against the run's own rollouts (conservative).
     """
 
@@ -143,7 +143,7 @@ class Candidate:
         estimate: the linearised estimate of its parameters (physical units).
         error: why its screening failed, else None.
         amortised: the summary energy score of its trained model's amortised posterior predictive, in the nominal
-            fit's scale (:func:`softsbi.workflows.evidence.amortised_scores`; ``diagnose`` only), else None.
+            fit's scale (:func:`softsbi.workflows.criticism.evidence.amortised_scores`; ``diagnose`` only), else None.
     """
 
     effect: str
@@ -305,7 +305,7 @@ class Gain:
 
     def exceeds(self, k_se: float) -> bool:
         """True when the gain is more than ``k_se`` standard errors (``z > k_se``): the diagnosis' margin for an
-        improvement (:func:`softsbi.workflows.decide.improves`)."""
+        improvement (:func:`softsbi.workflows.criticism.decide.improves`)."""
         return self.z > k_se
 
 
@@ -329,7 +329,7 @@ class Role(str, Enum):
 
 @dataclass(frozen=True)
 class Decision:
-    """What a diagnosis concludes (:func:`softsbi.workflows.decide.decide`).
+    """What a diagnosis concludes (:func:`softsbi.workflows.criticism.decide.decide`).
 
     Attributes:
         verdict: one of :data:`VERDICTS`.
@@ -394,7 +394,7 @@ class ResidualShape:
 
 @dataclass(frozen=True)
 class Diagnosis:
-    """The result of ``diagnose``: detect, propose, decide (:mod:`softsbi.workflows.diagnose`).
+    """The result of ``diagnose``: detect, propose, decide (:mod:`softsbi.workflows.criticism.diagnose`).
 
     Attributes:
         run: the nominal fit's run directory.

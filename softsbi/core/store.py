@@ -19,7 +19,7 @@ Layout (schema ``softsbi.run``, version :data:`SCHEMA_VERSION`)::
 
 A ``fit --widen`` run keeps its widenings in ``config["widenings"]`` and the widened prior in
 ``config["param_space"]``; every round's ``u`` is in that prior's unit cube
-(:mod:`softsbi.workflows.widen`).
+(:mod:`softsbi.workflows.fit.prior_widening`).
 
 Every array carries ``units`` in its attributes and dimension names. Simulation results
 are chunked one simulation per chunk and Zarr's local store writes each chunk atomically

@@ -39,6 +39,6 @@ does not act on deformable nodes).
 
 An effect whose parameters the estimator's default summaries cannot see names the estimator options that
 make them identifiable in ``estimator_options`` (a class attribute); a fit whose model has the effect passes
-them to an estimator that has them, under the user's own (:func:`softsbi.workflows.fit.estimator_options`).
+them to an estimator that has them, under the user's own (:func:`softsbi.workflows.fit.run.estimator_options`).
 Point noise asks for ``{"frame_thickness": True}``.
 """

@@ -1,7 +1,7 @@
 """Generic force terms (``generic = True``): a small library of force fields that describe a residual
 no named effect explains ("misspecified by nothing installed").
 
-They are not ordinary diagnosis candidates (``softsbi.workflows.diagnose`` leaves them out of its
+They are not ordinary diagnosis candidates (``softsbi.workflows.criticism.diagnose`` leaves them out of its
 default list); a verdict screens them to say which simple force shape explains the residual and by
 how much. All are per unit mass (accelerations), so they do not depend on the cloth's density,
 and all are off at zero.

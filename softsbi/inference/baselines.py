@@ -23,7 +23,7 @@ Interpretations where the paper leaves details open (documented choices):
       so the shared training loop with early stopping is reused); the std of parameter d is
       the mean absolute validation error of d.
 
-How ``run_fit`` treats ``sequential = False`` estimators (see :func:`softsbi.workflows.fit.run_fit`):
+How ``run_fit`` treats ``sequential = False`` estimators (see :func:`softsbi.workflows.fit.run.run_fit`):
 every round draws its simulations from the prior, the estimator is retrained on all data so
 far, and the posterior of a round is ``q`` truncated to the prior box (no proposal
 correction is needed); per-round figures are then "bulk with r x sims_per_round
@@ -227,7 +227,7 @@ class NNBulkEstimator(RKHSEstimator):
     """NN-bulk (Antonova et al. 2022, Sec. V, bulk baseline): RKHS-net -> MLP -> one
     full-covariance Gaussian, trained once on the whole budget drawn from the prior.
 
-    ``sequential = False``: :func:`~softsbi.workflows.fit.run_fit` draws every round from the
+    ``sequential = False``: :func:`~softsbi.workflows.fit.run.run_fit` draws every round from the
     prior. Options: those of :class:`RKHSEstimator`; ``n_components`` defaults to 1.
     """
 

@@ -218,7 +218,7 @@ def _direction(below: bool, above: bool) -> str | None:
 
 def verdict(coverage: Sequence[float], n: int, tarp: Mapping[str, Any], ranks: np.ndarray, n_draws: int,
             n_bins: int, names: Sequence[str], levels: Sequence[float] = LEVELS, alpha: float = ALPHA) -> dict[str, Any]:
-    """The calibration verdict of :func:`softsbi.workflows.calibrate.calibrate_run` from its three diagnostics
+    """The calibration verdict of :func:`softsbi.workflows.tasks.calibrate.calibrate_run` from its three diagnostics
     (module docstring: one family of tests at family-wise level ``alpha``, Bonferroni over the diagnostics).
 
     Args:

@@ -1,5 +1,5 @@
 """The figures of a fit: Chamfer per round, the posterior's pair plot, measured vs simulated clouds and, for image
-fits, measured vs rendered frames. They draw what they are given: the caller (:mod:`softsbi.workflows.fitplots`)
+fits, measured vs rendered frames. They draw what they are given: the caller (:mod:`softsbi.workflows.fit.plots`)
 simulates."""
 from __future__ import annotations
 

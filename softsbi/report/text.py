@@ -79,7 +79,7 @@ def p_words(p: MCPValue | JointTest, of: str = "null simulations") -> str:
             f"{n} {of})")
 
 
-#: what a calibrated omnibus p-value counts (:mod:`~softsbi.workflows.check_null`)
+#: what a calibrated omnibus p-value counts (:mod:`~softsbi.workflows.criticism.check_null`)
 REPLICATES = "replicate recordings of the task, refitted and checked the same way"
 
 
@@ -378,7 +378,7 @@ def not_refitted(d: Diagnosis, c: Candidate) -> str:
     """Why ``diagnose`` did not refit candidate ``c`` (its verdict column): nothing is missing, a generic term
     (describes the residual, names no cause), its trained model's amortised posterior predictive does not lower the
     nominal fit's score, its screening failed, or the refit budget ``--confirm`` ended above it
-    (:func:`softsbi.workflows.decide.refit_order`)."""
+    (:func:`softsbi.workflows.criticism.decide.refit_order`)."""
     if not d.test.misspecified:
         return "not refitted: nothing missing"
     if c.generic:

@@ -267,7 +267,7 @@ def lift_task(recording: str | Path, n_frames: int = N_FRAMES,
 
     The task's frame is the commanded path under :data:`DEFAULT_TRANSFORM` with no grasp offset. Of the
     recording, the scenario holds only its folder as ``options["source"]``, the provenance that a task's identity
-    and the simulation bank's keys leave out (:data:`~softsbi.workflows.fitconfig.SCENARIO_PROVENANCE`).
+    and the simulation bank's keys leave out (:data:`~softsbi.workflows.fit.config.SCENARIO_PROVENANCE`).
 
     Args:
         recording: a DiffCloud lift recording folder (as :func:`lift_scenario`).

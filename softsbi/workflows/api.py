@@ -9,7 +9,7 @@
     roll = softsbi.simulate("lift", dict(zip(post.names, theta[0])))
 
 ``fit``, ``check``, ``diagnose`` and ``compare`` show their progress as the CLI does in a pipe: one line on stderr
-when a phase of simulations begins and one when it ends (:class:`~softsbi.workflows.progress.LineReporter`);
+when a phase of simulations begins and one when it ends (:class:`~softsbi.workflows.reporting.LineReporter`);
 ``progress=False`` keeps them silent.
 """
 from __future__ import annotations
@@ -27,15 +27,15 @@ from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.core.comparison import CompareResult
 from softsbi.core.results import CheckResult, Diagnosis
-from softsbi.workflows.calibrate import calibrate_run
-from softsbi.workflows.check import check_run
-from softsbi.workflows.compare import compare_runs
-from softsbi.workflows.diagnose import diagnose_run
-from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, run_fit
+from softsbi.workflows.tasks.calibrate import calibrate_run
+from softsbi.workflows.criticism.check import check_run
+from softsbi.workflows.criticism.compare import compare_runs
+from softsbi.workflows.criticism.diagnose import diagnose_run
+from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.measurement import load_recording
-from softsbi.workflows.progress import fit_callbacks, say, shown_unless_shown
-from softsbi.workflows.runs import Run, open_run
-from softsbi.workflows.simulate import default_values
+from softsbi.workflows.reporting import fit_callbacks, say, shown_unless_shown
+from softsbi.workflows.fit.runs import Run, open_run
+from softsbi.workflows.measurement import default_values
 
 
 def load_scenario(name_or_path: str | Path, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
@@ -71,7 +71,7 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
         progress: one line on stderr when each round's simulations begin and end (module docstring).
 
     Returns:
-        :class:`~softsbi.workflows.fit.FitResult`; :func:`open_run` ``(out).posterior`` gives the
+        :class:`~softsbi.workflows.fit.run.FitResult`; :func:`open_run` ``(out).posterior`` gives the
         posterior in physical units.
 
     Raises:
@@ -79,7 +79,7 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
             that is not of the field's type (e.g. ``rounds="two"``, ``effects="wind"`` for ``["wind"]``,
             ``bounds={"stretch": 5}`` for ``{"stretch": (low, high)}``); ``recording`` neither a Recording nor a path;
             ``out`` not a path (e.g. None).
-        Everything :func:`~softsbi.workflows.fit.run_fit` raises.
+        Everything :func:`~softsbi.workflows.fit.run.run_fit` raises.
     """
     names = [f.name for f in fields(FitConfig)]
     bad = [k for k in settings if k not in names]
@@ -114,7 +114,7 @@ def typed_config(cfg: FitConfig) -> FitConfig:
 def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None, backend: str = "mujoco-flex",
              effects: Sequence[str] = (), seed: int = 0, **backend_options: Any) -> Rollout:
     """One rollout of ``scenario`` at ``theta`` (physical units; unset parameters as
-    :func:`~softsbi.workflows.simulate.default_values` sets them: ``scale`` at the scenario's object size, the
+    :func:`~softsbi.workflows.measurement.default_values` sets them: ``scale`` at the scenario's object size, the
     others at their prior midpoint) on a simulator plugin.
 
     Returns:
@@ -147,7 +147,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
 
 def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResult:
     """``softsbi check RUN``: the posterior predictive check of a finished fit
-    (:func:`~softsbi.workflows.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
+    (:func:`~softsbi.workflows.criticism.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
     ``recompute``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in ``RUN/check.json``).
     ``progress``: one line on stderr per phase of simulations (module docstring)."""
     with shown_unless_shown(progress):
@@ -156,7 +156,7 @@ def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResul
 
 def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | Path | None = None,
              progress: bool | Callable[[str], None] = True, **settings: Any) -> Diagnosis:
-    """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.diagnose.diagnose_run`;
+    """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.criticism.diagnose.diagnose_run`;
     ``settings``: ``alpha``, ``k_se``, ``confirm``, ``refit_rounds``, ``refit_sims``, ``workers``, ...). Returns the
     :class:`~softsbi.core.results.Diagnosis` (also in ``OUT/diagnosis.json``; ``out``, as ``diagnose --out``: the
     folder of the diagnosis and its refits, default ``run``). ``progress``: one line on stderr per phase of
@@ -176,7 +176,7 @@ def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | P
 def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, progress: bool = True,
             **settings: Any) -> CompareResult:
     """``softsbi compare A B``: two fits of one measurement side by side
-    (:func:`~softsbi.workflows.compare.compare_runs`; the runs and ``out`` as ``str`` or ``Path``; the figure and JSON go to ``out``, default ``run_b``; ``settings``:
+    (:func:`~softsbi.workflows.criticism.compare.compare_runs`; the runs and ``out`` as ``str`` or ``Path``; the figure and JSON go to ``out``, default ``run_b``; ``settings``:
     ``n_eval``, ``alpha`` (the level of both checks), ``max_null``, ``workers``, ``recompute``). Returns the
     :class:`~softsbi.core.comparison.CompareResult`. ``progress``: one line on stderr per phase of simulations (module
     docstring)."""

@@ -1,4 +1,4 @@
-"""The defaults of the workflows' settings, in one place: :class:`~softsbi.workflows.fit.FitConfig` and the
+"""The defaults of the workflows' settings, in one place: :class:`~softsbi.workflows.fit.run.FitConfig` and the
 workflow functions take their defaults from here, and so do the CLI's options (``softsbi --help`` shows them
 without importing the workflows). ``tests/cli/test_cli_defaults.py`` ties every CLI default to its library one.
 """
@@ -9,7 +9,7 @@ BACKEND = "mujoco-flex"
 ESTIMATOR = "rkhs"
 OBSERVER = "pointcloud"
 EXECUTOR = "local"
-#: proposal scheme of later rounds and sensor model of the metric (:class:`~softsbi.workflows.fit.FitConfig`)
+#: proposal scheme of later rounds and sensor model of the metric (:class:`~softsbi.workflows.fit.run.FitConfig`)
 PROPOSAL = "truncated"
 SENSOR = "height"
 #: random seed of every draw and simulation
@@ -45,7 +45,7 @@ TASK_PRIOR_SIMS = 1000
 N_TEST = 200
 N_DRAWS = 1000
 #: replicate recordings ``task train`` simulates to calibrate ``check`` of the nominal model's fits
-#: (:mod:`~softsbi.workflows.check_null`): 100 resolve p = 1/101, below a 0.05 level halved by Bonferroni
+#: (:mod:`~softsbi.workflows.criticism.check_null`): 100 resolve p = 1/101, below a 0.05 level halved by Bonferroni
 CHECK_REPLICATES = 100
 #: scenario of ``softsbi simulate`` and ``compare-backends``, and the engines the latter compares
 SCENARIO = "lift"

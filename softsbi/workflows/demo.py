@@ -29,12 +29,12 @@ from softsbi.plugins import registry
 from softsbi.report.text import check_summary
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows import pools
-from softsbi.workflows.check import check_run
+from softsbi.workflows.criticism.check import check_run
 from softsbi.workflows.defaults import BACKEND, DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
-from softsbi.workflows.compare import compare_runs
-from softsbi.workflows.diagnose import diagnose_run
-from softsbi.workflows.stats import PosteriorPredictive
-from softsbi.workflows.fit import FitCallbacks, FitConfig, FitResult, read_report, run_fit
+from softsbi.workflows.criticism.compare import compare_runs
+from softsbi.workflows.criticism.diagnose import diagnose_run
+from softsbi.workflows.criticism.stats import PosteriorPredictive
+from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, read_report, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 #: the demo's hidden parameter values (unit-cube positions; the user is not told them before the fit ends)
@@ -126,7 +126,7 @@ def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int 
 
     Raises:
         ParameterError: a ``backend`` that cannot run it (:func:`check_demo_backend`). Everything
-        :func:`~softsbi.workflows.fit.run_fit` raises.
+        :func:`~softsbi.workflows.fit.run.run_fit` raises.
     """
     check_demo_backend(backend, quick)
     ui = ui or DemoCallbacks()

@@ -42,6 +42,19 @@ N_DENSE = 1000
 DIFFCLOUD_MIN_HEIGHT = 0.01
 
 
+def default_values(space: Any, scenario: Any) -> dict[str, float]:
+    """The parameters a single rollout takes when not given: the scenario's declared object size for ``scale``
+    (``object.size``, a cloth's side, or ``object.length``, a rope's; when ``scale`` is a parameter), every other
+    parameter at its prior midpoint. A fit infers ``scale`` over its prior instead (``--fix scale=...`` holds
+    it at a size)."""
+    values = space.midpoint()
+    obj = getattr(scenario, "object", None) or {}
+    size = obj.get("length") if obj.get("kind") == "rope" else obj.get("size")
+    if "scale" in values and size is not None and "mesh" not in obj:
+        values["scale"] = float(size)
+    return values
+
+
 def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENSE, seed: int = 0,
                    scenario: str | Path | Scenario | None = None) -> Recording:
     """A recording as a :class:`Recording` in its scenario's frame (metres).
@@ -389,7 +402,7 @@ def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path =
         scenario: a :class:`Scenario`, or a built-in scenario's name or a scenario file's path.
         truth: hidden values of the backend's parameters and those of ``effects`` (hidden effects make a
             measurement the nominal model cannot explain); a parameter not given takes the value ``softsbi
-            simulate`` gives it (:func:`~softsbi.workflows.simulate.default_values`: ``scale`` at the scenario's
+            simulate`` gives it (:func:`default_values`: ``scale`` at the scenario's
             object size, the others at their prior midpoint). The recording's ``truth`` holds every value used.
         noise: Gaussian noise std (m) added to the observed points.
 
@@ -397,9 +410,6 @@ def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path =
         SimulationFailed: the hidden-parameter simulation itself failed. ParameterError: a value of ``truth`` outside
             its physical limits, or a name that is not a parameter. PluginNotFound: unknown backend or effect.
     """
-    # CLI start-up: workflows.simulate loads report/ (matplotlib), which `import` and `params` do not need
-    from softsbi.workflows.simulate import default_values
-
     if not isinstance(scenario, Scenario):
         scenario = make_scenario(str(scenario))
     reg = registry()

@@ -31,6 +31,7 @@ from softsbi.scenarios.spec import spec_from_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows.defaults import BACKEND, SCENARIO
 from softsbi.workflows.lock import check_out_dir
+from softsbi.workflows.measurement import default_values
 
 
 #: points per frame of the recording ``softsbi simulate`` writes
@@ -48,19 +49,6 @@ def render_memory_bytes(size: int, frames: int) -> int:
     frames kept, plus two frames of off-screen buffers), with the per-pixel cost measured on mujoco-flex
     (see :data:`BYTES_PER_PIXEL`)."""
     return int((frames + 2) * size * size * BYTES_PER_PIXEL)
-
-
-def default_values(space: Any, scenario: Any) -> dict[str, float]:
-    """The parameters a single rollout takes when not given: the scenario's declared object size for ``scale``
-    (``object.size``, a cloth's side, or ``object.length``, a rope's; when ``scale`` is a parameter), every other
-    parameter at its prior midpoint. A fit infers ``scale`` over its prior instead (``--fix scale=...`` holds
-    it at a size)."""
-    values = space.midpoint()
-    obj = getattr(scenario, "object", None) or {}
-    size = obj.get("length") if obj.get("kind") == "rope" else obj.get("size")
-    if "scale" in values and size is not None and "mesh" not in obj:
-        values["scale"] = float(size)
-    return values
 
 
 def check_render_memory(size: int, frames: int, cap_gb: float) -> int:

@@ -11,12 +11,12 @@ Two outputs from one set of simulations (:func:`posterior_rollouts`):
 
 :func:`write_view` writes both. The rollouts are simulated at the first ``n_eval`` rows of
 the run's posterior samples (the fit's evaluation samples) with the run's effects and the fit's
-evaluation seeds, in worker processes (:func:`~softsbi.workflows.jobs.simulate_job`). Their
+evaluation seeds, in worker processes (:func:`~softsbi.workflows.fit.jobs.simulate_job`). Their
 Chamfer error per frame is measured from the mesh's vertices and face centroids to the measured
 cloud (deterministic; ``softsbi check`` samples the surface like the fit, so its numbers can differ
 by a few millimetres).
 
-A fit's best fit (:mod:`~softsbi.workflows.bestfit`; its rollout stored in the run) is drawn in both
+A fit's best fit (:mod:`~softsbi.workflows.fit.bestfit`; its rollout stored in the run) is drawn in both
 outputs beside the posterior rollouts, in its own colour (purple), with its Chamfer per frame.
 """
 from __future__ import annotations
@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from softsbi.workflows.bestfit import read_best_fit
-from softsbi.workflows.runs import RunView, load_run
+from softsbi.workflows.fit.bestfit import read_best_fit
+from softsbi.workflows.fit.runs import RunView, load_run
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.core.store import RunStore
@@ -43,7 +43,7 @@ from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 
 
 def best_fit_rollout(run_dir: str | Path) -> dict[str, Any] | None:
-    """The fit's stored best fit (:func:`~softsbi.workflows.bestfit.read_best_fit`) as the animation draws it:
+    """The fit's stored best fit (:func:`~softsbi.workflows.fit.bestfit.read_best_fit`) as the animation draws it:
     ``{"vertices", "faces", "chamfer" (T,) m, "label"}``; None when the run stored no best-fit rollout."""
     b = read_best_fit(RunStore.open(Path(run_dir) / "run.zarr"))
     if b is None or b.vertices is None:
@@ -65,16 +65,16 @@ def posterior_rollouts(run_dir: str | Path, n_eval: int = VIEW_N_EVAL,
         workers: simulation processes (None = one per core).
 
     Returns:
-        ``(view, rollouts, chamfer)``: the opened run (:class:`~softsbi.workflows.runs.RunView`;
+        ``(view, rollouts, chamfer)``: the opened run (:class:`~softsbi.workflows.fit.runs.RunView`;
         ``view.dense (T, P, 3)`` m is the measurement), the ``S`` successful rollouts (dicts with
         ``vertices (T, N, 3)`` m, ``faces (F, 3)`` int (``F = 0`` for a rope), ``gripper (T, 3)`` m,
         ``sample`` = the posterior row simulated, ``seed``), and their bidirectional Chamfer
         distance to the measured cloud per frame ``(S, T)`` in metres: the fit's own metric
-        (:func:`~softsbi.workflows.fit.simulate_job`), so the mean matches ``softsbi check``.
+        (:func:`~softsbi.workflows.fit.run.simulate_job`), so the mean matches ``softsbi check``.
 
     Raises:
         SoftsbiError: ``n_eval < 1``; not a finished point-cloud fit (see
-            :func:`~softsbi.workflows.runs.load_run`; SchemaError for a folder that is no run);
+            :func:`~softsbi.workflows.fit.runs.load_run`; SchemaError for a folder that is no run);
             every rollout failed.
     """
     if int(n_eval) < 1:

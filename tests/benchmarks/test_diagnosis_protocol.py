@@ -269,7 +269,7 @@ def test_the_old_rule_driver_reads_the_old_checkouts_diagnosis(monkeypatch, caps
         calls.update(run=run, effects=effects, workers=workers)
         return _diagnosis("missing-effect", "wind", ["air-drag"])  # an older decision's shapes: a name, names
 
-    monkeypatch.setitem(sys.modules, "softsbi.workflows.diagnose", types.SimpleNamespace(diagnose_run=diagnose_run))
+    monkeypatch.setitem(sys.modules, "softsbi.workflows.criticism.diagnose", types.SimpleNamespace(diagnose_run=diagnose_run))
     monkeypatch.setattr(sys, "argv", ["-c", "runs/x/old-rule", json.dumps(proto.EFFECTS), "2"])
     exec(bench.OLD_DRIVER, {})
     out = json.loads(capsys.readouterr().out.split("ROW ", 1)[1])

@@ -10,16 +10,16 @@ import typer
 
 from softsbi.cli import app
 from softsbi.executors.local import LocalExecutor
-from softsbi.workflows.calibrate import calibrate_run
-from softsbi.workflows.check import check_run
-from softsbi.workflows.compare import compare_runs
+from softsbi.workflows.tasks.calibrate import calibrate_run
+from softsbi.workflows.criticism.check import check_run
+from softsbi.workflows.criticism.compare import compare_runs
 from softsbi.workflows.compare_backends import compare_backends
 from softsbi.workflows.demo import run_demo
-from softsbi.workflows.diagnose import diagnose_run
+from softsbi.workflows.criticism.diagnose import diagnose_run
 from softsbi.workflows.extractor import train_extractor
-from softsbi.workflows.task_training import train_task
-from softsbi.workflows.tasks import task_store_of
-from softsbi.workflows.fit import FitConfig
+from softsbi.workflows.tasks.training import train_task
+from softsbi.workflows.fit.task_store import task_store_of
+from softsbi.workflows.fit.run import FitConfig
 from softsbi.workflows.measurement import import_diffcloud, load_image_recording
 from softsbi.workflows.simulate import simulate_to_folder
 from softsbi.workflows.view import write_view

@@ -105,7 +105,7 @@ def _unexplained_with_a_pair(tmp_path):
     its own); table-unseen screened but not refitted."""
     from result_helpers import candidate, joint, refit, score
     from softsbi.core.results import Diagnosis
-    from softsbi.workflows.decide import decide
+    from softsbi.workflows.criticism.decide import decide
     ranking = (candidate("time-offset", 0.14, kind="sensor"), candidate("wind", 0.12),
                candidate("table-unseen", 0.05, 60, kind="sensor"))
     still = joint(0, 2, family=("time-offset", "wind", "table-unseen"))
@@ -120,7 +120,7 @@ def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
     """A pair refit ("time-offset+wind") has no screening entry of its own; the printed diagnosis still says what
     its refit did (it raised KeyError on the real lift_tan recording), and --json is the typed result, schema
     included, on stdout alone."""
-    import softsbi.workflows.diagnose as dg
+    import softsbi.workflows.criticism.diagnose as dg
     from softsbi.report.text import diagnosis_rows, diagnosis_text
     d = _unexplained_with_a_pair(tmp_path)
     assert d.verdict == "misspecified-unexplained" and d.decision.partial == ("time-offset",)

@@ -101,7 +101,7 @@ def test_demo_quick_runs_with_every_gl_library_blocked(tmp_path):
 @pytest.mark.slow
 def test_an_environment_fault_stores_nothing_as_failed_and_the_fit_resumes(tmp_path):
     from softsbi.scenarios.builtin import lift_scenario
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.core.store import RunStore
     from softsbi.core.types import STATUS_OK, STATUS_PENDING
     from softsbi.workflows.measurement import simulate_recording
@@ -114,7 +114,7 @@ def test_an_environment_fault_stores_nothing_as_failed_and_the_fit_resumes(tmp_p
     (tmp_path / "meas.pkl").write_bytes(pickle.dumps((meas, cfg)))
     out = tmp_path / "run"
     code = ("import pickle, sys\n"
-            "from softsbi.workflows.fit import run_fit\n"
+            "from softsbi.workflows.fit.run import run_fit\n"
             "from softsbi.core.errors import EnvironmentFault\n"
             f"meas, cfg = pickle.loads(open({str(tmp_path / 'meas.pkl')!r}, 'rb').read())\n"
             "try:\n"

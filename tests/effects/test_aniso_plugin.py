@@ -108,10 +108,10 @@ def hidden_aniso_round_trip(tmp_path, seed: int = 0, refit_rounds: int = 2, refi
     family less the effect. Returns the diagnosis and the refit."""
     from softsbi.backends.mujoco_flex import MujocoFlex
     from softsbi.scenarios.builtin import wipe_scenario
-    from softsbi.workflows.diagnose import diagnose_run, refit_model
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.criticism.diagnose import diagnose_run, refit_model
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import simulate_recording
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.runs import load_run
 
     sc = wipe_scenario(n_frames=16)
     mid = MujocoFlex(grid=5).param_space(sc).midpoint()
@@ -144,7 +144,7 @@ def test_hidden_aniso_is_screened_and_its_refit_lowers_the_error(tmp_path):
     1.25-2.75 14/14 > 1.0 (truth 3.0); aniso-friction ranked first of the two candidates by the screening
     13/14 (explained 1-11% of the residual: the effect switches on abruptly above ~2.5, beyond what a
     finite difference at the nominal value sees), so the ranking is asserted in the slow version only."""
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.runs import load_run
     r = hidden_aniso_round_trip(tmp_path)
     d, refit = r["diagnosis"], r["refit"]
     m = d.test
@@ -174,8 +174,8 @@ def test_hidden_aniso_is_diagnosed_and_refitted(tmp_path):
     data cannot tell from it). ~200 s on 2 busy cores."""
     from softsbi.backends.mujoco_flex import MujocoFlex
     from softsbi.scenarios.builtin import wipe_scenario
-    from softsbi.workflows.diagnose import diagnose_run
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.criticism.diagnose import diagnose_run
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import simulate_recording
 
     sc = wipe_scenario(n_frames=16)

@@ -46,7 +46,7 @@ def test_all_registered_with_kinds():
 
 def test_a_fit_passes_the_estimator_the_options_its_effects_ask_for_and_the_users_win():
     from softsbi.inference.estimators import MDNNEstimator, RKHSEstimator
-    from softsbi.workflows.fit import FitConfig, estimator_options
+    from softsbi.workflows.fit.run import FitConfig, estimator_options
     assert registry().effect("point-noise").estimator_options == {"frame_thickness": True}
     assert estimator_options(FitConfig(effects=["wind", "point-noise"]), RKHSEstimator) == {"frame_thickness": True}
     assert estimator_options(FitConfig(effects=["wind"]), RKHSEstimator) == {}
@@ -122,7 +122,7 @@ def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_me
     summaries see only points above the resting cloth + unseen_height (the highest 10% where none is)."""
     from softsbi.perception.pointcloud import PointCloudObserver, rollout_clouds
     from softsbi.workflows.measurement import simulate_recording
-    from softsbi.workflows.stats import FEATURE_NAMES, trajectory_features
+    from softsbi.workflows.criticism.stats import FEATURE_NAMES, trajectory_features
     h = 0.02
     ro = _run(LIFT, ["table-unseen"], unseen_height=h)
     np.testing.assert_array_equal(ro.vertices, base["lift"])
@@ -144,7 +144,7 @@ def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_me
 
 
 def test_table_unseen_adds_to_the_fits_sensor_in_the_job_metric():
-    from softsbi.workflows.jobs import SimContext, simulate_job
+    from softsbi.workflows.fit.jobs import SimContext, simulate_job
     clouds = rollout_clouds_of(_run(LIFT))
     kw = dict(backend="mujoco-flex", backend_options={"grid": 5}, scenario=LIFT.to_json(), effects=[],
               observer="pointcloud", observer_options={"n_points": 32}, param_names=SIM.param_space(LIFT).names,

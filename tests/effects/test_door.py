@@ -18,7 +18,7 @@ from softsbi.effects.physics import HeavyHem
 from softsbi.effects.sensor import CalibrationOffset
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import lift_scenario
-from softsbi.workflows.screening import candidate_effects
+from softsbi.workflows.criticism.screening import candidate_effects
 
 pytestmark = pytest.mark.integration
 

@@ -15,7 +15,7 @@ import pytest
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.executors.local import LocalExecutor, SimulationTimeout, WorkerCrashed, WorkerStartupError
-from softsbi.workflows.fit import FitConfig, SimContext, run_fit, simulate_job
+from softsbi.workflows.fit.run import FitConfig, SimContext, run_fit, simulate_job
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING
 
@@ -242,7 +242,7 @@ RESUME_SCRIPT = r"""
 import sys
 sys.path.insert(0, {tests!r})
 from toy_helpers import toy_measurement
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=60, workers=2, n_points=8,
                 n_eval=5, n_dense=32, seed=3, estimator_options={{"max_epochs": 20, "hidden": [16]}},
                 executor="ray", executor_options={{"address": {addr!r},
@@ -297,8 +297,8 @@ def test_same_seed_same_store_whatever_the_executor(ray_cluster, tmp_path):
 def test_a_diagnose_refit_of_a_ray_fit_runs_on_ray_with_the_run_executor_options(ray_cluster, tmp_path):
     """FitConfig round trip: the diagnosis' refit rebuilds the run's settings from the store
     (FitConfig.from_run_config), so it keeps the executor and its options instead of running locally."""
-    from softsbi.workflows.diagnose import refit_model
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.criticism.diagnose import refit_model
+    from softsbi.workflows.fit.runs import load_run
     opts = {"address": ray_cluster, "retries": 1, "timeout": 120}
     cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=1, sims_per_round=30, workers=2, n_points=8,
                     n_eval=5, n_dense=32, seed=3, estimator_options={"max_epochs": 10, "hidden": [16]},

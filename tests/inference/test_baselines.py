@@ -135,7 +135,7 @@ def test_c2st_identical_and_disjoint(backend):
 
 def test_run_fit_draws_every_round_from_the_prior_for_bulk_estimators(tmp_path):
     toy = pytest.importorskip("softsbi_toy.plugin")
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.core.store import RunStore
     from softsbi.workflows.measurement import simulate_recording
     meas = simulate_recording("toy-gauss", toy.toy_scenario(3), {"a": 0.3, "b": -0.4}, n_points=8, n_dense=32,

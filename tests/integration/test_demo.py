@@ -5,7 +5,7 @@ import pytest
 from typer.testing import CliRunner
 
 from softsbi.cli import app
-from softsbi.workflows.diagnose import load_diagnosis
+from softsbi.workflows.criticism.diagnose import load_diagnosis
 
 pytestmark = pytest.mark.integration
 

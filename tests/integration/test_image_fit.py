@@ -141,14 +141,14 @@ def test_fit_on_rendered_frames_with_heatmap_then_resume(rendered, tmp_path):
     rep2 = json.loads((tmp_path / "run" / "report.json").read_text())
     assert rep2["mask_chamfer_prior_px"] == rep["mask_chamfer_prior_px"]
     # the 3-D diagnostics say clearly that they need a point-cloud fit
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.runs import load_run
     with pytest.raises(SoftsbiError, match="image fit"):
         load_run(tmp_path / "run")
 
 
 def test_fit_with_transporter_observer_python_api(rendered, tmp_path):
     from softsbi.scenarios.builtin import make_scenario
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import load_image_recording
     root, _ = rendered
     meas = load_image_recording(root / "meas" / "frames", scenario=make_scenario("wipe"), size=SIZE)

@@ -213,9 +213,9 @@ def test_the_sensor_in_the_shared_lift_task_sees_what_it_sees_in_the_recordings_
 @pytest.mark.skipif(not (DATA / "calib_overhead").is_dir(), reason="needs ../shared/data/diffcloud_lift")
 def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     import json
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import load_recording
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.runs import load_run
     meas = load_recording(DATA / "lift_tan", n_points=16, n_dense=200)
     cfg = FitConfig(backend="mujoco-flex", backend_options={"grid": 5}, estimator="rkhs", rounds=1,
                     sims_per_round=10, n_eval=2, n_points=16, n_dense=200, workers=1, seed=0, sensor="camera",
@@ -238,7 +238,7 @@ def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     np.testing.assert_allclose(np.mean([r["chamfer"] for r in ok], axis=0), per_frame, rtol=1e-12)
     # check's and diagnose's summaries see the rollouts through the same virtual sensor, on the fit's frames:
     # the cloth still on the table is unseen, so they differ from the full surface's
-    from softsbi.workflows.stats import (FEATURE_NAMES, rollout_features, run_frames, sampled_points,
+    from softsbi.workflows.criticism.stats import (FEATURE_NAMES, rollout_features, run_frames, sampled_points,
                                          trajectory_features)
     frames = run_frames(view)
     f_cam = rollout_features(view, ok[0], 5)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from softsbi.scenarios.builtin import make_scenario
-from softsbi.workflows.fit import FitConfig, observer_options
+from softsbi.workflows.fit.run import FitConfig, observer_options
 from softsbi.perception.pointcloud import PointCloudObserver, occluded_by_cylinder
 
 pytestmark = pytest.mark.integration

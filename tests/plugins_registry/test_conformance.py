@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from softsbi.workflows.conformance import ConformanceError, check_simulator
+from softsbi.backends.conformance import ConformanceError, check_simulator
 from softsbi.core.errors import ParameterError
 from softsbi.core.types import ParamSpace, Param, Rollout
 from softsbi.plugins import registry

@@ -1,5 +1,5 @@
 """The figures draw what they are given: report/ runs no simulation (it imports neither the plugin registry nor an
-engine), and the fit's figures get their rollouts from softsbi.workflows.fitplots, which simulates."""
+engine), and the fit's figures get their rollouts from softsbi.workflows.fit.plots, which simulates."""
 import ast
 import dataclasses
 from pathlib import Path
@@ -16,7 +16,7 @@ from softsbi.core.fitreport import FitReport
 from softsbi.core.types import Handle, Param, ParamSpace, Rollout, Scenario
 from softsbi.report.fit_figures import frames_figure
 from softsbi.scenarios.handles import grasped_vertex, handle_tracks, pinned_vertices
-from softsbi.workflows import fitplots
+from softsbi.workflows.fit import plots as fitplots
 
 #: packages whose import would let a figure simulate or drive a run
 ABOVE_DRAWING = ("softsbi.plugins", "softsbi.backends", "softsbi.executors", "softsbi.workflows", "softsbi.cli")

@@ -7,7 +7,7 @@ from softsbi.core.fitreport import CalibrationResult
 from softsbi.inference.contraction import bound_sentence
 from softsbi.report.fit_text import (TextTable, best_fit_lines, calibration_lines, calibration_table,
                                      fit_report_lines, posterior_table)
-from softsbi.workflows.widen import widening_sentence
+from softsbi.workflows.fit.prior_widening import widening_sentence
 
 RUN = Path("runs") / "lift"
 
@@ -191,7 +191,7 @@ def test_calibrate_names_the_training_report_of_the_stored_task_that_served_roun
     (hand-built: 30 held-out prior simulations, coverage 0.48 and 0.87); a round trained here: no line."""
     from types import SimpleNamespace
 
-    import softsbi.workflows.calibrate as calibrate
+    import softsbi.workflows.tasks.calibrate as calibrate
     digest = "0123456789abcdef" * 4
     report = SimpleNamespace(n_test=30, coverage=SimpleNamespace(at_50=0.48, at_90=0.87), verdict="calibrated")
     tasks = {digest: SimpleNamespace(digest=digest, report=report)}

@@ -1,5 +1,5 @@
 """The lines a command prints while it simulates (softsbi.cli.progress: bars on a terminal, one line per phase in a
-pipe) and the line a resumed fit begins with (softsbi.workflows.resume.resume_message), driven by hand: counts
+pipe) and the line a resumed fit begins with (softsbi.workflows.fit.resume.resume_message), driven by hand: counts
 given to the progress hooks, a run store written by hand; no fit, no simulation."""
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def _progress(terminal: bool) -> str:
     from rich.console import Console
     from softsbi.cli.output import Output
     from softsbi.cli.progress import PhaseReporter, ProgressHooks
-    from softsbi.workflows.progress import phase, reporting
+    from softsbi.workflows.reporting import phase, reporting
     o = Output()
     buf = io.StringIO()
     o.err = Console(file=buf, force_terminal=terminal, width=200, highlight=False, markup=False)
@@ -72,7 +72,7 @@ def _store(tmp_path, failed: int = 0, stored_next: int | None = None) -> RunStor
 def test_a_resumed_fit_names_the_partly_stored_round_the_failed_simulations_and_the_time_spent(tmp_path):
     """Rounds count from one; the partly stored round with what of it is stored; stored failures with the option
     that simulates them again."""
-    from softsbi.workflows.resume import resume_message
+    from softsbi.workflows.fit.resume import resume_message
     s = _store(tmp_path / "a", failed=2, stored_next=4)
     assert resume_message(s, 125.4) == (
         f"resuming run in {s.path} after round 1; round 2: 4 of 12 simulations already stored; 2 stored simulations "

@@ -295,7 +295,7 @@ def test_the_preview_shows_the_rest_pose_from_above_with_corners_and_handles_lab
 
 
 def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_keyframes():
-    from softsbi.workflows.check import grasp_handle, motion_phases
+    from softsbi.workflows.criticism.check import grasp_handle, motion_phases
     sc, _ = _two_grip_scenario()
     assert grasp_handle(sc) == "left"
     assert [(p["phase"], p["frames"]) for p in motion_phases(sc)] == [("move 1", [0, 1]), ("move 2", [2, 3])]

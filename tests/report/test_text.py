@@ -13,7 +13,7 @@ from softsbi.core.results import Diagnosis, Estimate, JointTest, MCPValue, Resid
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, diagnosis_columns, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, estimate_words, joint_test_line,
                                  p_short, p_words, refit_words)
-from softsbi.workflows.decide import decide
+from softsbi.workflows.criticism.decide import decide
 
 # ---------------------------------------------------------------------------------------------------------------
 # fixed results: a nominal fit the joint test rejects, four candidates, refits
@@ -387,7 +387,7 @@ def test_compare_rows_are_keyed_by_their_metric_and_labelled_as_before():
     import json
 
     from softsbi.core.results import from_json, to_json
-    from softsbi.workflows.compare import compare_rows
+    from softsbi.workflows.criticism.compare import compare_rows
     a = check_result(posterior_mean={"chamfer_m": 0.02, "chamfer_se_m": 0.001, "n": 3})
     b = check_result(chamfer_mean_m=0.012, energy=energy(0.009), n_rollouts=28,
                      posterior_mean={"chamfer_m": 0.009, "chamfer_se_m": 0.001, "n": 3})
@@ -421,7 +421,7 @@ def test_compare_rows_are_keyed_by_their_metric_and_labelled_as_before():
 
 def test_p_values_in_words_and_in_table_cells_say_their_resolution():
     """The words of a Monte-Carlo p-value and of check's joint test (formerly MCPValue.text / JointTest.text, with the
-    tests of softsbi.workflows.stats and decide): never below the resolution of the null that gave them."""
+    tests of softsbi.workflows.criticism.stats and decide): never below the resolution of the null that gave them."""
     assert p_words(MCPValue(3, 30)) == "p = 0.13 (3 of 30 null simulations as extreme)"
     assert p_words(MCPValue(0, 30)) == "p <= 1/31 (beyond all 30 null simulations)"
     assert (p_short(MCPValue(3, 30)), p_short(MCPValue(0, 30))) == ("p = 0.13", "p <= 1/31")
@@ -439,7 +439,7 @@ def test_p_values_in_words_and_in_table_cells_say_their_resolution():
 
 
 def test_a_calibrated_omnibus_p_value_counts_replicate_recordings_and_its_own_null_sets_the_floor():
-    """A trained task's calibrated omnibus test (softsbi.workflows.check_null) against 100 replicates, beside a
+    """A trained task's calibrated omnibus test (softsbi.workflows.criticism.check_null) against 100 replicates, beside a
     directional test on 30 rollouts: each p-value names what it counts, and the joint floor is the larger null's."""
     cal = JointTest(MCPValue(0, 100), MCPValue(5, 30), "wind", ("wind",), 0.05, 200, 3.2, calibrated=True)
     assert cal.n_null == 100 and cal.deciding == "omnibus" and cal.p_value == pytest.approx(2 / 101)

@@ -120,7 +120,8 @@ def test_the_rope_winding_is_not_named_like_the_wind_effect_and_its_old_name_sti
 
 def test_a_rollout_without_scale_is_simulated_at_the_scenarios_declared_size(tmp_path):
     """object.size was silently replaced by scale's prior midpoint (0.27 m against size: 0.28)."""
-    from softsbi.workflows.simulate import default_values, simulate_to_folder
+    from softsbi.workflows.measurement import default_values
+    from softsbi.workflows.simulate import simulate_to_folder
     f = tmp_path / "s.yaml"
     f.write_text((Path(b.__file__).with_name("files") / "wipe.yaml").read_text().replace("size: 0.30", "size: 0.28"))
     doc = simulate_to_folder(tmp_path / "out", scenario=str(f), backend_options={"grid": 3})

@@ -115,8 +115,8 @@ def test_grasp_offset_places_corner_like_diffcloud():
 @needs_data
 def test_every_lift_recording_lies_in_one_task_moved_by_its_calibration_and_grasp_offsets():
     import json
-    from softsbi.workflows.bank import rollout_key
-    from softsbi.workflows.fitconfig import resume_identity
+    from softsbi.workflows.fit.bank import rollout_key
+    from softsbi.workflows.fit.config import resume_identity
     tasks = {n: S.lift_task(LIFT / n) for n in RECORDINGS}
     same = {json.dumps(resume_identity("scenario", sc.to_json()), sort_keys=True) for sc, _ in tasks.values()}
     assert len(same) == 1  # one task: the recording's folder is provenance only

@@ -6,7 +6,7 @@ import pytest
 
 import softsbi
 import softsbi.workflows.api as api
-from softsbi.workflows.progress import phase
+from softsbi.workflows.reporting import phase
 
 
 def test_simulate_recording_fills_in_the_parameters_not_given():
@@ -64,9 +64,9 @@ def test_the_python_api_how_to_lists_each_function_with_the_code_s_signature_and
     from pathlib import Path
 
     from softsbi.core.results import MCPValue
-    from softsbi.workflows.check import check_run
-    from softsbi.workflows.compare import compare_runs
-    from softsbi.workflows.diagnose import diagnose_run
+    from softsbi.workflows.criticism.check import check_run
+    from softsbi.workflows.criticism.compare import compare_runs
+    from softsbi.workflows.criticism.diagnose import diagnose_run
     doc = (Path(__file__).parents[2] / "docs" / "howto" / "python-api.md").read_text()
     for name in ("load_scenario", "load_recording", "simulate_recording", "simulate", "fit", "open_run", "check",
                  "diagnose", "compare", "calibrate_run", "import_diffcloud", "train_task"):

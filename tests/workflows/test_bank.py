@@ -1,11 +1,11 @@
-"""The simulation bank (softsbi.workflows.bank): rollouts stored by what determines them and read back."""
+"""The simulation bank (softsbi.workflows.fit.bank): rollouts stored by what determines them and read back."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from softsbi.core.types import STATUS_DIVERGED, Rollout
-from softsbi.workflows.bank import SimulationBank, rollout_key
+from softsbi.workflows.fit.bank import SimulationBank, rollout_key
 
 pytestmark = pytest.mark.integration
 
@@ -61,7 +61,7 @@ def test_a_second_fit_of_the_same_task_reads_its_first_round_from_the_bank(tmp_p
     and seed draw the same parameters), and its stored simulations equal those it would have simulated."""
     toy = pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     calls = []
     original = toy.ToyGauss.simulate
@@ -88,7 +88,7 @@ def _move(bank, src: str, dst: str) -> None:
 def test_an_entry_under_another_key_is_detected_and_an_old_one_is_a_miss(tmp_path):
     """The checksum covers the key: an intact entry copied into another key's place is not read as that key's."""
     import zarr
-    from softsbi.workflows.bank import HIT, MISS, WRONG_KEY
+    from softsbi.workflows.fit.bank import HIT, MISS, WRONG_KEY
     bank = SimulationBank(tmp_path / "bank")
     a, b = "ab" * 32, "cd" * 32
     assert bank.put(a, _rollout(0)) and bank.put(b, _rollout(1))
@@ -103,7 +103,7 @@ def test_an_entry_under_another_key_is_detected_and_an_old_one_is_a_miss(tmp_pat
 
 
 def _fit_cfg(**kw):
-    from softsbi.workflows.fit import FitConfig
+    from softsbi.workflows.fit.run import FitConfig
     return FitConfig(backend="toy-gauss", rounds=1, sims_per_round=20, workers=1, n_points=16, n_dense=64, n_eval=5,
                      estimator="mdnn", estimator_options={"max_epochs": 5}, **kw)
 
@@ -113,8 +113,8 @@ def test_a_fit_reports_its_bank_hits_and_replaces_entries_under_another_key(tmp_
     one warning line, and the round equals a fit without a bank."""
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
-    from softsbi.workflows.bank import HIT
-    from softsbi.workflows.fit import FitCallbacks, run_fit
+    from softsbi.workflows.fit.bank import HIT
+    from softsbi.workflows.fit.run import FitCallbacks, run_fit
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
 
     class Told(FitCallbacks):
@@ -155,7 +155,7 @@ def test_progress_says_how_many_were_read_from_the_bank(terminal, monkeypatch):
     from rich.console import Console
     from softsbi.cli.output import Output
     from softsbi.cli.progress import PhaseReporter, ProgressHooks
-    from softsbi.workflows.progress import phase, reporting
+    from softsbi.workflows.reporting import phase, reporting
     told = []
     read = PhaseReporter.read_from_bank
     monkeypatch.setattr(PhaseReporter, "read_from_bank",
@@ -187,9 +187,9 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
     """check, diagnose, compare and view re-simulate through the run's bank: the phase is told its hits, and a
     swapped entry is one warning line."""
     toy = pytest.importorskip("softsbi_toy.plugin")
-    from softsbi.workflows.bank import HIT, WRONG_KEY
-    from softsbi.workflows.jobs import SimContext, run_jobs
-    from softsbi.workflows.progress import Reporter, reporting
+    from softsbi.workflows.fit.bank import HIT, WRONG_KEY
+    from softsbi.workflows.fit.jobs import SimContext, run_jobs
+    from softsbi.workflows.reporting import Reporter, reporting
 
     class Told(Reporter):
         def __init__(self):
@@ -249,7 +249,7 @@ def test_bank_paths_are_checked_before_any_work(tmp_path, monkeypatch):
 
 def test_the_bank_named_by_the_environment_is_checked_alike(tmp_path, monkeypatch):
     from softsbi.core.errors import SoftsbiError
-    from softsbi.workflows.bank import check_bank_path
+    from softsbi.workflows.fit.bank import check_bank_path
     (tmp_path / "file").write_text("not a folder")
     for bad, why in [(tmp_path / "file", "is a file"), (tmp_path / "file" / "b", "cannot be created"),
                      (tmp_path / "run" / "b", "is inside --out")]:
@@ -267,7 +267,7 @@ def test_the_api_refuses_an_empty_bank_before_any_work(tmp_path, monkeypatch):
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
     from softsbi.core.errors import SoftsbiError
-    from softsbi.workflows.fit import run_fit
+    from softsbi.workflows.fit.run import run_fit
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "user-bank"))
     with pytest.raises(SoftsbiError, match="--sim-bank is empty"):

@@ -1,4 +1,4 @@
-"""Simulations in batches (softsbi.workflows.jobs.map_simulations): a backend with ``batch_size > 1`` gets a
+"""Simulations in batches (softsbi.workflows.fit.jobs.map_simulations): a backend with ``batch_size > 1`` gets a
 phase's simulations as ``simulate_batch`` calls, with the same results as one ``simulate`` per job."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import pytest
 from softsbi.core.errors import ParameterError
 from softsbi.core.interfaces import Simulator
 from softsbi.workflows import pools
-from softsbi.workflows.bank import HIT
-from softsbi.workflows.jobs import SimContext, batch_size, map_simulations, run_jobs
+from softsbi.workflows.fit.bank import HIT
+from softsbi.workflows.fit.jobs import SimContext, batch_size, map_simulations, run_jobs
 
 pytestmark = pytest.mark.integration
 

@@ -13,10 +13,10 @@ from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_PENDING, Param, ParamSpace
-from softsbi.workflows.bestfit import REFINE, _numpy_seed, _strategy
-from softsbi.workflows.fit import FitConfig
+from softsbi.workflows.fit.bestfit import REFINE, _numpy_seed, _strategy
+from softsbi.workflows.fit.run import FitConfig
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.widen import decide, records
+from softsbi.workflows.fit.prior_widening import decide_widening, records
 
 pytestmark = pytest.mark.integration
 
@@ -144,24 +144,24 @@ def test_decide_never_moves_a_physical_limit_nor_an_unpressed_bound(tmp_path):
     store = RunStore.create(tmp_path / "run.zarr", {"param_space": space.to_json()})
     rng = np.random.default_rng(0)
     flat = space.from_unit(rng.random((2000, 2)))
-    assert decide(store, space, flat, 0) is None and records(store.config) == []
+    assert decide_widening(store, space, flat, 0) is None and records(store.config) == []
     low = flat.copy()
     low[:, 0] = rng.uniform(0.0, 0.03, 2000)  # piled at k's lower bound, its physical limit
-    assert decide(store, space, low, 0) is None
+    assert decide_widening(store, space, low, 0) is None
     high = flat.copy()
     high[:, 0] = rng.uniform(0.97, 1.0, 2000)  # piled at the upper bound: moved, clipped to the limit 1.2
-    wide = decide(store, space, high, 0)
+    wide = decide_widening(store, space, high, 0)
     assert (wide["k"].low, wide["k"].high) == (0.0, 1.2) and (wide["f"].low, wide["f"].high) == (0.1, 10.0)
     assert store.config["param_space"] == wide.to_json() and records(store.config)[0]["bounds"] == {"k": [0.0, 1.2]}
     at_limit = flat.copy()
     at_limit[:, 0] = rng.uniform(1.17, 1.2, 2000)
-    assert decide(store, wide, at_limit, 1) is None  # the widened bound is now the physical limit
+    assert decide_widening(store, wide, at_limit, 1) is None  # the widened bound is now the physical limit
     logs = flat.copy()
     logs[:, 1] = np.exp(rng.uniform(np.log(0.1), np.log(0.12), 2000))  # a log-scaled lower bound, no limit above 0
-    f = decide(store, space, logs, 0)["f"]
+    f = decide_widening(store, space, logs, 0)["f"]
     assert np.isclose(f.low, 0.1 / 10.0) and f.high == 10.0  # half the range in log scale: one decade
     # an effect's switched-off value stays
-    assert decide(store, space, logs, 0, keep={"f": 0.1}) is None
+    assert decide_widening(store, space, logs, 0, keep={"f": 0.1}) is None
 
 
 def test_widen_and_refine_refuse_settings_they_cannot_work_with(tmp_path):
@@ -182,7 +182,7 @@ def test_fit_table_and_report_say_what_was_widened_and_the_best_fit(tmp_path, ca
     softsbi.report.fit_text renders them (their wording: tests/report/test_fit_text.py)."""
     from toy_helpers import printed_fit_report
     from softsbi.report.fit_text import best_fit_lines
-    from softsbi.workflows.widen import widening_sentence
+    from softsbi.workflows.fit.prior_widening import widening_sentence
     meas = _recording({"a": 0.3, "b": -0.4}, 1e-4)
     rep = softsbi.fit(meas, tmp_path / "run", **_fit_kw(1e-4, rounds=1, sims_per_round=30)).report.to_json()
     b = rep["best_fit"]  # what the best-fit line reads: the parameters, the Chamfer, where it comes from

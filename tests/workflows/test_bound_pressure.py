@@ -67,7 +67,7 @@ def toy_run(tmp_path_factory):
 
 def test_the_fit_report_holds_the_bound_pressure_of_its_own_posterior(toy_run):
     """report.json's entry is bound_pressure of the fit's posterior (the same 4000 draws as its summaries)."""
-    from softsbi.workflows.runs import open_run
+    from softsbi.workflows.fit.runs import open_run
     out, res = toy_run
     rep = json.loads((out / "report.json").read_text())
     post = open_run(out).posterior
@@ -110,7 +110,7 @@ def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
 def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     import shutil
 
-    from softsbi.workflows.check import check_run
+    from softsbi.workflows.criticism.check import check_run
     out, res = toy_run
     run = tmp_path / "run"
     shutil.copytree(out, run)

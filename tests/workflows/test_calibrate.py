@@ -29,8 +29,8 @@ def toy_run(tmp_path_factory):
 
 
 def _simulated(monkeypatch):
-    """The sizes of the batches of test simulations calibrate simulates (softsbi.workflows.calibrate.run_jobs)."""
-    import softsbi.workflows.calibrate as calibrate
+    """The sizes of the batches of test simulations calibrate simulates (softsbi.workflows.tasks.calibrate.run_jobs)."""
+    import softsbi.workflows.tasks.calibrate as calibrate
     sizes = []
     run_jobs = calibrate.run_jobs
     monkeypatch.setattr(calibrate, "run_jobs", lambda ctx, jobs, *a, **k: sizes.append(len(jobs)) or

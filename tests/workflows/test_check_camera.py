@@ -8,7 +8,7 @@ import pytest
 
 from softsbi.core.camera import Camera
 from softsbi.perception.depth_sensor import VirtualDepthSensor
-from softsbi.workflows.check import material_regions, region_errors, surface_points
+from softsbi.workflows.criticism.check import material_regions, region_errors, surface_points
 
 pytestmark = pytest.mark.integration
 
@@ -62,7 +62,7 @@ def lift_runs(tmp_path_factory):
     """Small fits of lift_tan: through the camera (seed 0), and two with ``sensor="height"`` and no height cut
     (``min_height=0``, seeds 0 and 1): their metric_min_z is None like the camera fit's, so only the sensor
     kind tells the camera fit apart from them."""
-    from softsbi.workflows.fit import FitConfig, run_fit
+    from softsbi.workflows.fit.run import FitConfig, run_fit
     from softsbi.workflows.measurement import load_recording
     tmp = tmp_path_factory.mktemp("camfit")
     meas = load_recording(DATA / "lift_tan", n_points=16, n_dense=200)
@@ -82,9 +82,9 @@ def lift_runs(tmp_path_factory):
 @pytest.mark.slow
 @needs_data
 def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
-    from softsbi.workflows.check import check_run, rollout_region_errors, run_sensor, sensor_model
-    from softsbi.workflows.runs import load_run
-    from softsbi.workflows.stats import sampled_points
+    from softsbi.workflows.criticism.check import check_run, rollout_region_errors, run_sensor, sensor_model
+    from softsbi.workflows.fit.runs import load_run
+    from softsbi.workflows.criticism.stats import sampled_points
     view = load_run(lift_runs["camera"], n_eval=6)
     sensor = run_sensor(view)
     assert sensor is not None and sensor_model(view)["kind"] == "camera"
@@ -128,8 +128,8 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     assert np.nanmean(through[mid]) < np.nanmean(raw[mid])
     assert np.array_equal(np.isnan(through[mid]), np.isnan(raw[mid]))  # same simulated side, same regions
     # diagnose's residual shape runs through this path on a camera fit
-    from softsbi.workflows.check import residual_shape
-    from softsbi.workflows.stats import PosteriorPredictive
+    from softsbi.workflows.criticism.check import residual_shape
+    from softsbi.workflows.criticism.stats import PosteriorPredictive
     shape = residual_shape(view, PosteriorPredictive(view, workers=1).ensure(6), 6)
     exc = shape.region_excess_cm
     assert list(exc) == names and any(v is not None and np.isfinite(v) for v in exc.values())
@@ -139,7 +139,7 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
 @needs_data
 def test_compare_warns_when_the_sensor_kind_differs(lift_runs, tmp_path):
     from softsbi.report.text import compare_summary
-    from softsbi.workflows.compare import compare_runs
+    from softsbi.workflows.criticism.compare import compare_runs
     warn = "different sensor models (--sensor / --min-height / --frames)"
     # compare checks at the default level 0.05, which needs a null cap of at least 39
     mixed = compare_runs(lift_runs["height"], lift_runs["camera"], tmp_path / "mixed", n_eval=6, workers=1,

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import pytest
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows.check_null import NULL_FILE, CheckNull, check_replicates, stored_check_null
+from softsbi.workflows.criticism.check_null import NULL_FILE, CheckNull, check_replicates, stored_check_null
 
 
 def test_the_calibrated_p_value_counts_the_replicates_at_least_as_extreme_and_never_falls_below_its_floor():

@@ -1,12 +1,12 @@
-"""The diagnosis' decision (softsbi.workflows.decide) on hand-built typed results: no simulation."""
+"""The diagnosis' decision (softsbi.workflows.criticism.decide) on hand-built typed results: no simulation."""
 from __future__ import annotations
 
 from dataclasses import replace
 
 from softsbi.core.results import Candidate, Decision, Estimate, JointTest, MCPValue, Refit, RefitGain, Role, Score
 from softsbi.core.types import Param
-from softsbi.workflows.decide import K_SE, decide, gain, improves, next_refit, refit_order
-from softsbi.workflows.diagnose import may_be_off
+from softsbi.workflows.criticism.decide import K_SE, decide, gain, improves, next_refit, refit_order
+from softsbi.workflows.criticism.diagnose import may_be_off
 
 ALPHA = 0.05
 

@@ -7,8 +7,8 @@ import json
 import pytest
 
 from softsbi.core.results import Diagnosis, from_json
-from softsbi.workflows.diagnose import diagnose_run, load_diagnosis
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.criticism.diagnose import diagnose_run, load_diagnosis
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 pytestmark = pytest.mark.integration
@@ -96,8 +96,8 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
         tmp_path, monkeypatch):
     """The task trained once with its candidate models: the diagnosis scores every trained candidate's amortised
     posterior predictive (no training, no screening in between) and spends its one refit on the lowest score."""
-    from softsbi.workflows.decide import gain
-    from softsbi.workflows.task_training import train_task
+    from softsbi.workflows.criticism.decide import gain
+    from softsbi.workflows.tasks.training import train_task
     toy = pytest.importorskip("softsbi_toy.plugin")
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     rec = simulate_recording("toy-gauss", toy.toy_scenario(8), {"a": 0.3, "b": -0.4, "pull": 0.3}, effects=[MAGNET],

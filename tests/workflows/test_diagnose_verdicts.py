@@ -8,11 +8,11 @@ from result_helpers import candidate, joint, refit, score
 from softsbi.core.results import Diagnosis
 from softsbi.effects.builtin import ExtraDamping, Wind
 from softsbi.scenarios.builtin import lift_scenario
-from softsbi.workflows.check import check_run
-from softsbi.workflows.decide import decide, next_refit
-from softsbi.workflows.diagnose import diagnose_run
-from softsbi.workflows.evidence import REFIT_PROPOSAL
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.criticism.check import check_run
+from softsbi.workflows.criticism.decide import decide, next_refit
+from softsbi.workflows.criticism.diagnose import diagnose_run
+from softsbi.workflows.criticism.evidence import REFIT_PROPOSAL
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
 
@@ -192,7 +192,7 @@ def test_a_pair_builds_on_the_refit_that_lowers_the_score_most_not_the_screening
 def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeypatch, tmp_path):
     """refit_model: the nominal fit's settings with the effects added, truncated proposals, the refit budget where
     given, and no extra sensor draws whatever the nominal fit used (physics and sensor effects on one footing)."""
-    import softsbi.workflows.diagnose as dg
+    import softsbi.workflows.criticism.diagnose as dg
     seen = {}
 
     class _Stop(Exception):
@@ -236,7 +236,7 @@ def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them
     width over the prior's, a pressed prior bound with the wider prior to try); the nominal parameters are not
     among them."""
     from softsbi.core.fitreport import FitReport
-    from softsbi.workflows.diagnose import estimates
+    from softsbi.workflows.criticism.diagnose import estimates
     report = {"posterior_mean": {"bend": 1e-4, "wind_x": 0.1, "wind_y": 1.9},
               "posterior_q05": {"wind_x": -0.3, "wind_y": 1.7}, "posterior_q95": {"wind_x": 0.5, "wind_y": 2.0},
               "contraction": {"wind_x": {"width_ratio": 0.2}, "wind_y": {"width_ratio": 0.075}},

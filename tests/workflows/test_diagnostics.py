@@ -16,12 +16,12 @@ from softsbi.core.errors import ParameterError
 from softsbi.core.comparison import CompareResult, Metric
 from softsbi.core.results import CheckResult, Diagnosis, ResultDamaged, from_json
 from softsbi.core.store import RunStore
-from softsbi.workflows.check import check_run, stored_result
-from softsbi.workflows.diagnose import diagnose_run, load_diagnosis, refit_model
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.criticism.check import check_run, stored_result
+from softsbi.workflows.criticism.diagnose import diagnose_run, load_diagnosis, refit_model
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.runs import load_run
-from softsbi.workflows.stats import PM_ROLLOUTS, posterior_mean_chamfer, run_features
+from softsbi.workflows.fit.runs import load_run
+from softsbi.workflows.criticism.stats import PM_ROLLOUTS, posterior_mean_chamfer, run_features
 from softsbi.plugins import registry
 
 pytestmark = pytest.mark.integration
@@ -185,7 +185,7 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
 def test_check_and_diagnose_share_one_null(toy_runs):
     """One pool of posterior-predictive rollouts serves both commands (the demo's path): diagnose
     simulates no further null rollouts, and its detection is check's test."""
-    from softsbi.workflows.stats import PosteriorPredictive
+    from softsbi.workflows.criticism.stats import PosteriorPredictive
     hidden, _ = toy_runs
     pool = PosteriorPredictive(hidden, workers=1)
     chk = check_run(hidden, workers=1, plot=False, pool=pool, recompute=True)
@@ -237,7 +237,7 @@ def test_cli_check_and_diagnose(toy_runs):
 
 def count_run_loads(monkeypatch) -> list[Path]:
     """Record the run directory of every ``load_run`` / ``open_run`` call, wherever softsbi imported them from."""
-    import softsbi.workflows.runs as runs
+    import softsbi.workflows.fit.runs as runs
     loads: list[Path] = []
     for name in ("load_run", "open_run"):
         orig = getattr(runs, name)

@@ -22,8 +22,8 @@ from softsbi.cli import app
 from softsbi.core.errors import STORAGE_ERRNOS, DataError, ParameterError, SchemaError, SoftsbiError, StorageError
 from softsbi.core.metrics import describe_change
 from softsbi.core.store import RunStore
-from softsbi.workflows.fit import FitConfig, run_fit
-from softsbi.workflows.resume import resume_message
+from softsbi.workflows.fit.run import FitConfig, run_fit
+from softsbi.workflows.fit.resume import resume_message
 from softsbi.workflows.simulate import check_render_memory, render_memory_bytes
 
 pytestmark = pytest.mark.integration
@@ -146,7 +146,7 @@ def test_a_disk_filling_up_mid_simulate_or_import_is_one_line_and_leaves_no_part
 
 
 def test_check_on_a_read_only_run_is_refused_before_its_rollouts(tmpfs, monkeypatch):
-    import softsbi.workflows.check as check
+    import softsbi.workflows.criticism.check as check
     run_fit(tmpfs / "done", toy_measurement(), _cfg(rounds=1, n_eval=5), make_plots=False)
     assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
 

@@ -15,7 +15,7 @@ import softsbi
 from softsbi.core.distributions import gaussian
 from softsbi.core.errors import DependencyMissing, PosteriorDamaged, SchemaError
 from softsbi.core.store import EstimatorState, RunStore
-from softsbi.workflows.fit import FitCallbacks, FitConfig, run_fit
+from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
 
 pytestmark = pytest.mark.integration
 
@@ -115,7 +115,7 @@ def test_a_damaged_estimator_state_is_named_in_one_line_and_trained_again(flow_r
 
 
 def test_calibrate_runs_on_a_flow_run(flow_run, tmp_path):
-    from softsbi.workflows.calibrate import calibrate_run
+    from softsbi.workflows.tasks.calibrate import calibrate_run
 
     run = tmp_path / "run"
     shutil.copytree(flow_run[0], run)

@@ -12,7 +12,7 @@ import pytest
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked, run_lock
 
 pytestmark = pytest.mark.integration
@@ -24,7 +24,7 @@ FIT = r"""
 import sys
 sys.path.insert(0, {tests!r})
 from toy_helpers import toy_measurement
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked
 cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=1, sims_per_round=40, workers=1, n_points=8,
                 n_eval=3, n_dense=32, seed={seed}, estimator_options={{"max_epochs": 10, "hidden": [16]}})
@@ -176,7 +176,7 @@ def test_a_damaged_evaluation_or_round_posterior_is_computed_again_and_never_bre
     """The chunk repair covers every group: fit computes a damaged evaluation or round posterior again (from
     the stored simulations and seeds: the same numbers); check, view, compare and diagnose read only the
     evaluation's samples, which they simulate again."""
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.runs import load_run
     out = tmp_path / "run"
     cfg = _cfg(n_eval=5)
     first = run_fit(out, toy_measurement(), cfg, make_plots=False)

@@ -42,7 +42,7 @@ def test_open_run_and_load_run_give_the_typed_report_json(toy_run, tmp_path):
 
     from softsbi.core.fitreport import FitReport
     from softsbi.core.results import ResultDamaged
-    from softsbi.workflows.runs import load_run
+    from softsbi.workflows.fit.runs import load_run
     doc = json.loads((toy_run / "report.json").read_text())
     run = softsbi.open_run(toy_run)
     assert isinstance(run.report, FitReport) and run.report.to_json() == doc
@@ -68,7 +68,7 @@ def test_log_prob_is_a_normalised_density_in_physical_units(toy_run):
 
 
 def test_log_prob_has_the_jacobian_of_log_scaled_parameters():
-    from softsbi.workflows.runs import Posterior
+    from softsbi.workflows.fit.runs import Posterior
 
     class UniformUnit:  # uniform on the unit square
         def log_prob(self, u):
@@ -113,7 +113,7 @@ def test_the_python_api_checks_types_and_frames_at_entry(tmp_path):
 
 
 def test_compare_refuses_an_out_that_is_a_file_before_checking_either_run(toy_run, tmp_path, monkeypatch):
-    import softsbi.workflows.compare as compare
+    import softsbi.workflows.criticism.compare as compare
 
     def no_check(*a, **k):
         raise AssertionError("checked a run before refusing the output folder")
@@ -155,7 +155,7 @@ def test_estimates_of_switched_off_effects_print_as_zero():
 
 def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, monkeypatch):
     """`check --n-eval 3` said "only 3 of 3 rollouts succeeded" after simulating them (the rule is >= 5)."""
-    import softsbi.workflows.check as check
+    import softsbi.workflows.criticism.check as check
     monkeypatch.setattr(check, "PosteriorPredictive", lambda *a, **k: pytest.fail("simulated before refusing"))
     with pytest.raises(SoftsbiError, match=r"--n-eval 3: the check needs at least 5 posterior rollouts; give "
                                            r"--n-eval 5 or more"):

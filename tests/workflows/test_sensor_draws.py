@@ -11,8 +11,8 @@ from softsbi.core.errors import SchemaError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK
 from softsbi.scenarios.builtin import winding_scenario
-from softsbi.workflows.fit import FitConfig, SensorDraws, fit_param_space, run_fit
-from softsbi.workflows.jobs import SimContext, simulate_job
+from softsbi.workflows.fit.run import FitConfig, SensorDraws, fit_param_space, run_fit
+from softsbi.workflows.fit.jobs import SimContext, simulate_job
 from softsbi.workflows.measurement import simulate_recording
 
 pytestmark = pytest.mark.integration
@@ -46,7 +46,7 @@ def test_with_a_bank_a_sensor_effect_reads_the_nominal_rollout_and_observes_what
     """A model with an observation-only effect (time-offset) reads the rollout the nominal model stored in the bank
     (its physics does not depend on the sensor) and observes exactly what simulating with the effect gives."""
     from dataclasses import replace
-    from softsbi.workflows.bank import HIT
+    from softsbi.workflows.fit.bank import HIT
     nominal = replace(_ctx([]), bank=str(tmp_path / "bank"))
     values = {k: v for k, v in TRUTH.items() if k != "time_offset"}
     assert simulate_job(nominal, (values, 5))["bank"] != HIT

@@ -6,8 +6,8 @@ import pytest
 
 from softsbi.core.metrics import chamfer, one_sided_chamfer
 from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_view
-from softsbi.workflows.check import check_run
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.criticism.check import check_run
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 pytestmark = pytest.mark.integration
@@ -73,7 +73,7 @@ def test_check_reproduces_the_reports_sensor_faithful_numbers(sensor_run):
 
 
 def test_region_errors_compare_only_what_the_sensor_sees():
-    from softsbi.workflows.check import material_regions, region_errors
+    from softsbi.workflows.criticism.check import material_regions, region_errors
     g = np.linspace(0, 0.3, 7)
     xx, yy = np.meshgrid(g, g)
     flat = np.c_[xx.ravel(), yy.ravel(), np.zeros(xx.size)]  # the cloth on the table (z = 0)
@@ -96,7 +96,7 @@ def test_region_errors_compare_only_what_the_sensor_sees():
 def test_summaries_see_what_the_sensor_sees():
     """The misspecification test's summary statistics use the fit's sensor model (issue 17/19): a
     measurement without the flat cloth matches a simulation that has it, under the sensor model only."""
-    from softsbi.workflows.stats import FEATURE_FLOOR, FEATURE_NAMES, trajectory_features
+    from softsbi.workflows.criticism.stats import FEATURE_FLOOR, FEATURE_NAMES, trajectory_features
     rng = np.random.default_rng(3)
     hanging = _sheet(rng, 0.05, 0.25, 2000)
     flat = np.c_[rng.random((2000, 2)) * 0.2 + [0.0, 0.05], np.full(2000, 0.002)]
@@ -110,8 +110,8 @@ def test_summaries_see_what_the_sensor_sees():
 
 
 def test_check_and_diagnose_summarise_the_fits_frames_only(sensor_run):
-    from softsbi.workflows.runs import load_run
-    from softsbi.workflows.stats import FEATURE_NAMES, PosteriorPredictive, run_features, run_frames
+    from softsbi.workflows.fit.runs import load_run
+    from softsbi.workflows.criticism.stats import FEATURE_NAMES, PosteriorPredictive, run_features, run_frames
     run = load_run(sensor_run, 12, 0)
     assert run_frames(run) == [1, 2, 3]
     pool = PosteriorPredictive(run, workers=1).ensure(6)

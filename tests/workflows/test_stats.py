@@ -1,10 +1,10 @@
-"""Honest Monte-Carlo statistics (softsbi.workflows.stats): p-values, max-T, adaptive resolution."""
+"""Honest Monte-Carlo statistics (softsbi.workflows.criticism.stats): p-values, max-T, adaptive resolution."""
 import numpy as np
 import pytest
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import JointTest, MCPValue
-from softsbi.workflows.stats import max_t_adjusted, mc_pvalue, misspecification_test, resolution_needed
+from softsbi.workflows.criticism.stats import max_t_adjusted, mc_pvalue, misspecification_test, resolution_needed
 
 
 def test_monte_carlo_p_value_counts_and_never_goes_below_its_resolution():
@@ -95,7 +95,7 @@ def test_a_null_cap_that_cannot_resolve_the_level_is_refused_in_one_line_naming_
     """The resolution guard: with two Bonferroni-combined tests the joint p-value is never below 2/(n + 1), so a
     cap of 30 nulls can never reject at 0.05 (2/31 > 0.05); check and diagnose refuse it before any simulation,
     naming the smallest cap that can (39: 2/40 = 0.05)."""
-    from softsbi.workflows.screening import check_resolution, smallest_null
+    from softsbi.workflows.criticism.screening import check_resolution, smallest_null
     assert smallest_null(0.05) == 39 and smallest_null(0.01) == 199 and smallest_null(0.05, 1) == 19
     assert 2 / (smallest_null(0.05) + 1) <= 0.05 < 2 / smallest_null(0.05)
     with pytest.raises(SoftsbiError, match=r"^max_null 30 cannot resolve alpha 0.05: .* 2/31 = 0.0645; "
@@ -113,7 +113,7 @@ def test_the_null_grows_to_its_cap_only_when_a_first_stage_is_promising_and_deci
     nulls as extreme (beyond all of them, or p = 3/31 <= EXTEND_P) cannot decide at 30 (1/31 > 0.01), so the null
     grows to the cap and the decision is taken on all 200 (rejected at 1 of 200, accepted at 60 of 200); 12 of 30
     (p = 0.42) is decided at 30 without simulating more."""
-    from softsbi.workflows import screening as scr
+    from softsbi.workflows.criticism import screening as scr
 
     class Pool:
         def __init__(self):
@@ -148,7 +148,7 @@ def _screening(r_obs, r_null, cols, generic=()):
     """A screening on synthetic residuals: effect ``name`` adds ``coef * cols[name]`` (coef >= 0)."""
     from softsbi.core.interfaces import Effect
     from softsbi.core.types import Param, ParamSpace
-    from softsbi.workflows.screening import Screening
+    from softsbi.workflows.criticism.screening import Screening
 
     def effect(nm):
         return type(nm, (Effect,), {"name": nm, "description": nm, "generic": nm in generic,
@@ -223,7 +223,7 @@ def test_a_null_grown_to_its_cap_counts_successful_rollouts():
     """Failed posterior-predictive rollouts do not cost resolution: the cap is reached in successes (an
     other-engine fling with 193 successes of 200 could not resolve the joint test's 2/201 <= 0.01), within a
     bound on requests when most fail."""
-    from softsbi.workflows.stats import PosteriorPredictive
+    from softsbi.workflows.criticism.stats import PosteriorPredictive
 
     class Flaky(PosteriorPredictive):
         def __init__(self, fail_every):
@@ -263,7 +263,7 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
     from types import SimpleNamespace
 
     from softsbi.perception.pointcloud import sensor_chamfer_per_frame
-    from softsbi.workflows.stats import energy_score, sampled_points
+    from softsbi.workflows.criticism.stats import energy_score, sampled_points
 
     v, f = _sheet()
     T, P, S, sigma = 3, 300, 30, 0.01
@@ -300,7 +300,7 @@ def test_the_null_accepts_as_few_rollouts_as_check_simulates_and_no_fewer():
     """The misspecification test's minimum is the named MIN_NULL, the smallest `--n-eval` check accepts: a check at
     that setting whose rollouts all succeed is tested, one failed rollout is refused in one line."""
     from softsbi.workflows.defaults import MIN_ROLLOUTS
-    from softsbi.workflows.stats import MIN_NULL
+    from softsbi.workflows.criticism.stats import MIN_NULL
     assert MIN_NULL == MIN_ROLLOUTS
     rng = np.random.default_rng(1)
     _, p = misspecification_test(rng.normal(size=6), rng.normal(size=(MIN_NULL, 6)))

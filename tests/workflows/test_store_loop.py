@@ -10,7 +10,7 @@ import zarr
 
 from softsbi.core.distributions import gaussian
 from softsbi.core.errors import SchemaError, SoftsbiError
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.core.store import SCHEMA_VERSION, RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING
 
@@ -95,7 +95,7 @@ SCRIPT = r"""
 import sys
 sys.path.insert(0, {tests!r})
 from toy_helpers import toy_measurement
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 cfg = FitConfig(backend="toy-gauss", estimator="mdnn", rounds=2, sims_per_round=60, workers=1, n_points=8,
                 n_eval=5, n_dense=32, seed=3, estimator_options={{"max_epochs": 20, "hidden": [16]}})
 run_fit({out!r}, toy_measurement(), cfg, make_plots=False)

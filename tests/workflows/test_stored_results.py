@@ -15,8 +15,8 @@ import softsbi.core.jsonfile as jsonfile
 import softsbi.core.results as results
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows import check, diagnose
-from softsbi.workflows.fit import FitCallbacks, FitConfig, run_fit
+from softsbi.workflows.criticism import check, diagnose
+from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked, run_lock
 
 pytestmark = pytest.mark.integration

@@ -1,4 +1,4 @@
-"""Stored tasks (softsbi.workflows.tasks): the key holds everything that determines a fit's first round, and an
+"""Stored tasks (softsbi.workflows.fit.task_store): the key holds everything that determines a fit's first round, and an
 entry that is damaged, moved or of another key is never used."""
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import pytest
 
 from softsbi.core.posterior_store import EstimatorState
 from softsbi.core.types import Param, ParamSpace
-from softsbi.workflows import tasks
-from softsbi.workflows.fit import FitConfig
-from softsbi.workflows.jobs import SimContext
-from softsbi.workflows.tasks import TaskStore, task_digest, task_identity
+from softsbi.workflows.fit import task_store as tasks
+from softsbi.workflows.fit.run import FitConfig
+from softsbi.workflows.fit.jobs import SimContext
+from softsbi.workflows.fit.task_store import TaskStore, task_digest, task_identity
 
 
 def _parts(**change):

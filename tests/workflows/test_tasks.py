@@ -15,7 +15,7 @@ pytestmark = pytest.mark.integration
 
 
 def _cfg(**kw):
-    from softsbi.workflows.fit import FitConfig
+    from softsbi.workflows.fit.run import FitConfig
     base = dict(backend="toy-gauss", rounds=1, sims_per_round=40, workers=1, n_points=16, n_dense=64, n_eval=5,
                 estimator="mdnn", estimator_options={"max_epochs": 8})
     return FitConfig(**{**base, **kw})
@@ -33,9 +33,9 @@ def _counting_fits(monkeypatch):
 def test_a_later_recording_of_a_task_conditions_the_stored_first_round_instead_of_training_it(tmp_path, monkeypatch):
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
-    from softsbi.workflows.fit import run_fit
-    from softsbi.workflows.rounds import round_posterior
-    from softsbi.workflows.tasks import TaskStore
+    from softsbi.workflows.fit.run import run_fit
+    from softsbi.workflows.fit.rounds import round_posterior
+    from softsbi.workflows.fit.task_store import TaskStore
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     calls = _counting_fits(monkeypatch)
     run_fit(tmp_path / "a", toy_measurement(truth=(0.3, -0.4)), _cfg(), make_plots=False)
@@ -62,8 +62,8 @@ def test_a_later_recording_of_a_task_conditions_the_stored_first_round_instead_o
 def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_simulations(tmp_path, monkeypatch):
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
-    from softsbi.workflows.fit import run_fit
-    from softsbi.workflows.task_training import train_task
+    from softsbi.workflows.fit.run import run_fit
+    from softsbi.workflows.tasks.training import train_task
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     rec = toy_measurement(truth=(0.3, -0.4))
     (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)
@@ -81,8 +81,8 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     np.testing.assert_array_equal(res.store.round_data(0)["u"], np.random.default_rng([0, 0, 0]).random((80, 2))[:20])
     # calibrate names the training report of the task that served round 1 (the sentence, with its numbers:
     # tests/report/test_fit_text.py); a run whose first round was trained here has none
-    from softsbi.workflows.calibrate import trained_task_line
-    from softsbi.workflows.tasks import served_by_task
+    from softsbi.workflows.tasks.calibrate import trained_task_line
+    from softsbi.workflows.fit.task_store import served_by_task
     info = res.store.round_attrs(0)["info"]
     assert served_by_task(info) and info["task"] == task.digest
     line = trained_task_line(info, "default")
@@ -96,7 +96,7 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
 def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
-    from softsbi.workflows.fit import run_fit
+    from softsbi.workflows.fit.run import run_fit
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     run_fit(tmp_path / "a", toy_measurement(), _cfg(), make_plots=False)
 
@@ -139,11 +139,11 @@ def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitt
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
     from softsbi.core.errors import SoftsbiError
-    from softsbi.workflows.check import check_run
-    from softsbi.workflows.check_null import stored_check_null
+    from softsbi.workflows.criticism.check import check_run
+    from softsbi.workflows.criticism.check_null import stored_check_null
     from softsbi.workflows.defaults import N_NULL
-    from softsbi.workflows.fit import run_fit
-    from softsbi.workflows.task_training import train_task
+    from softsbi.workflows.fit.run import run_fit
+    from softsbi.workflows.tasks.training import train_task
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     rec = toy_measurement(truth=(0.3, -0.4))
     with pytest.raises(SoftsbiError, match="--check-null 5: .* needs n >= 19"):
@@ -170,9 +170,9 @@ def test_a_replicate_its_fit_could_not_check_is_no_replicate():
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
     from softsbi.core.distributions import MixtureOfGaussians
-    from softsbi.workflows.check_null import case_statistics
-    from softsbi.workflows.fitconfig import fit_param_space
-    from softsbi.workflows.tasks import first_round_context
+    from softsbi.workflows.criticism.check_null import case_statistics
+    from softsbi.workflows.fit.config import fit_param_space
+    from softsbi.workflows.fit.task_store import first_round_context
     rec = toy_measurement()
     cfg = _cfg().resolved(rec)
     _, space = fit_param_space(cfg, rec.scenario)

@@ -3,7 +3,7 @@ moving cloth that the 13 position summaries do not see)."""
 import numpy as np
 import pytest
 
-from softsbi.workflows.stats import (FEATURE_FLOOR, FEATURE_NAMES, THICKNESS_FLOOR, cloud_features,
+from softsbi.workflows.criticism.stats import (FEATURE_FLOOR, FEATURE_NAMES, THICKNESS_FLOOR, cloud_features,
                                      misspecification_test, summary_floor, trajectory_features)
 
 

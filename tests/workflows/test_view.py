@@ -11,7 +11,7 @@ from PIL import Image
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.core.errors import DependencyMissing, SoftsbiError
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.report.animation import _edges
 from softsbi.workflows.view import posterior_rollouts, write_animation, write_rerun, write_view

@@ -16,9 +16,9 @@ the plugin registry: it imports no simulator. :class:`FitConfig` is the one set 
 (and defaults) of the CLI's ``fit`` and the Python API.
 
 This module runs the steps; each lives in its own module: the settings in
-:mod:`~softsbi.workflows.fitconfig`, what the fit sees in :mod:`~softsbi.workflows.observe`, opening and
-repairing a stored run in :mod:`~softsbi.workflows.resume`, the rounds in :mod:`~softsbi.workflows.rounds`,
-``report.json`` in :mod:`~softsbi.workflows.fitreport`. The names callers use stay importable from here (``__all__``).
+:mod:`~softsbi.workflows.fit.config`, what the fit sees in :mod:`~softsbi.workflows.fit.observe`, opening and
+repairing a stored run in :mod:`~softsbi.workflows.fit.resume`, the rounds in :mod:`~softsbi.workflows.fit.rounds`,
+``report.json`` in :mod:`~softsbi.workflows.fit.report_file`. The names callers use stay importable from here (``__all__``).
 """
 from __future__ import annotations
 
@@ -36,23 +36,23 @@ from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
 from softsbi.plugins import registry
-from softsbi.workflows.fitplots import write_fit_plots
-from softsbi.workflows.bank import BankCount, banks_enabled, check_bank_path
-from softsbi.workflows.bestfit import REFINE, best_stored, refine, store_best_fit
-from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, parameter_table
-from softsbi.workflows.fitreport import build_report, chamfer_stats, damaged_report, read_report
-from softsbi.workflows.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.workflows.fit.plots import write_fit_plots
+from softsbi.workflows.fit.bank import BankCount, banks_enabled, check_bank_path
+from softsbi.workflows.fit.bestfit import REFINE, best_stored, refine, store_best_fit
+from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, parameter_table
+from softsbi.workflows.fit.report_file import build_report, chamfer_stats, damaged_report, read_report
+from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
 from softsbi.workflows import defaults, pools
 from softsbi.workflows.lock import run_lock
-from softsbi.workflows.observe import fit_sim_context, metric_sensor, observer_options
-from softsbi.workflows.progress import FitCallbacks
-from softsbi.workflows.resume import RunClock, open_store, repair_damaged, retry_failed_simulations
-from softsbi.workflows.rounds import Rounds, SensorDraws, round_posterior, tell_bank
-from softsbi.workflows.tasks import PriorRound
-from softsbi.workflows.widen import (decide, map_mixture, prior_of_record, reconcile, records, space_of_round,
+from softsbi.workflows.fit.observe import fit_sim_context, metric_sensor, observer_options
+from softsbi.workflows.reporting import FitCallbacks
+from softsbi.workflows.fit.resume import RunClock, open_store, repair_damaged, retry_failed_simulations
+from softsbi.workflows.fit.rounds import Rounds, SensorDraws, round_posterior, tell_bank
+from softsbi.workflows.fit.task_store import PriorRound
+from softsbi.workflows.fit.prior_widening import (decide_widening, map_mixture, prior_of_record, reconcile, records, space_of_round,
                                      unit_map, widening_sentence)
 
-#: what callers import from here besides :func:`run_fit` (defined in the step modules; ``softsbi.workflows.fit``
+#: what callers import from here besides :func:`run_fit` (defined in the step modules; ``softsbi.workflows.fit.run``
 #: stays the one import path of a fit's API)
 __all__ = ["FitCallbacks", "FitConfig", "FitResult", "SensorDraws", "SimContext", "chamfer_stats",
            "estimator_options", "fit_param_space", "metric_sensor", "observer_options", "parameter_table",
@@ -99,7 +99,7 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
         EnvironmentFault: the machine cannot simulate; nothing is stored as failed.
         PosteriorError: a round's posterior has no mass in the prior box.
         SoftsbiError: a simulation bank that is empty, a file, cannot be created, or lies inside or around
-            ``out_dir`` or the recording (:func:`~softsbi.workflows.bank.check_bank_path`).
+            ``out_dir`` or the recording (:func:`~softsbi.workflows.fit.bank.check_bank_path`).
     """
     callbacks = callbacks or FitCallbacks()
     cfg = (cfg or FitConfig()).resolved(recording)
@@ -164,7 +164,7 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
 
 def _next_prior(loop: Rounds, base: ParamSpace, r: int) -> None:
     """After round ``r``: with ``--widen`` (and a round to follow) widen the bounds its posterior presses unless
-    the run already decided after this round (:func:`~softsbi.workflows.widen.decide`); then, when round ``r + 1``
+    the run already decided after this round (:func:`~softsbi.workflows.fit.prior_widening.decide_widening`); then, when round ``r + 1``
     draws in another prior, express the posterior its proposal truncates to in that prior's unit cube."""
     cfg, store = loop.cfg, loop.store
     if r + 1 >= cfg.rounds:
@@ -173,7 +173,7 @@ def _next_prior(loop: Rounds, base: ParamSpace, r: int) -> None:
         post = loop.chain.posterior(len(loop.chain) - 1)
         samples = loop.space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99, r])))
         keep = {k: v for e in cfg.effects for k, v in registry().effect(e)().nominal().items()}
-        if decide(store, loop.space, samples, r, keep) is not None:
+        if decide_widening(store, loop.space, samples, r, keep) is not None:
             loop.cb.message(widening_sentence(records(store.config)[-1]))
     nxt = space_of_round(base, store.config, r + 1)
     if nxt != loop.space:
@@ -186,7 +186,7 @@ def _next_prior(loop: Rounds, base: ParamSpace, r: int) -> None:
 def _best_fit(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: SimContext, executor: Any,
               cfg: FitConfig, hooks: FitCallbacks) -> dict[str, Any] | None:
     """``report.json``'s ``best_fit``: the best of the fit's simulations, after ``cfg.refine`` more by CMA-ES
-    from the posterior (:mod:`~softsbi.workflows.bestfit`), with its rollout stored in the run."""
+    from the posterior (:mod:`~softsbi.workflows.fit.bestfit`), with its rollout stored in the run."""
     frames = store.config.get("metric_frames")
     metric = store.config.get("metric", "chamfer_m")
     refined = None

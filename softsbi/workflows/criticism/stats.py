@@ -40,8 +40,8 @@ from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
                                           sensor_view)
 from softsbi.workflows.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
-from softsbi.workflows.jobs import run_jobs
-from softsbi.workflows.runs import RunView, load_run
+from softsbi.workflows.fit.jobs import run_jobs
+from softsbi.workflows.fit.runs import RunView, load_run
 
 #: names of the per-frame summary statistics
 FEATURE_NAMES = ("mean_x", "mean_y", "mean_z", "std_x", "std_y", "std_z", "z_q10", "z_q50", "z_q90",
@@ -255,7 +255,7 @@ class PosteriorPredictive:
 
     Rollout ``i < len(run.post_theta)`` is the fit's own evaluation sample ``i`` with its seed
     (so check's mean Chamfer is the fit's); further rollouts are posterior draws
-    (:meth:`~softsbi.workflows.runs.RunView.posterior`, draw seed ``seed``) with simulation
+    (:meth:`~softsbi.workflows.fit.runs.RunView.posterior`, draw seed ``seed``) with simulation
     seeds ``10_000 + i``. Each rollout's summaries use surface samples with seed ``1000 + i``, so
     the same run gives the same null in both commands.
 
@@ -282,7 +282,7 @@ class PosteriorPredictive:
         self.first = 0  # size of the first request: the null's starting size
         self._extra: np.ndarray | None = None
         #: the screening's finite-difference simulations, by (candidates, steps)
-        #: (:func:`softsbi.workflows.screening.screening_of`)
+        #: (:func:`softsbi.workflows.criticism.screening.screening_of`)
         self.sensitivities: dict[tuple, Any] = {}
         #: :func:`energy_score` results, by (n, the rollouts' samples), so that check and diagnose sharing this
         #: pool score it once
@@ -457,7 +457,7 @@ def rollout_chamfers(run: RunView, items: Sequence[tuple], workers: int | None =
 
     Args:
         run: a finished fit with a point-cloud measurement.
-        items: :func:`~softsbi.workflows.jobs.simulate_job` items, ``(theta, seed)`` or ``(theta, seed, effects)``.
+        items: :func:`~softsbi.workflows.fit.jobs.simulate_job` items, ``(theta, seed)`` or ``(theta, seed, effects)``.
         workers: simulation processes (None: the executor's default).
 
     Returns:
@@ -481,7 +481,7 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
     optimiser's best simulation ("the posterior-mean rollout").
 
     Args:
-        run: a finished fit (:class:`~softsbi.workflows.runs.RunView`) with a point-cloud measurement.
+        run: a finished fit (:class:`~softsbi.workflows.fit.runs.RunView`) with a point-cloud measurement.
         n: rollouts, seeds ``PM_SEED + k``; they differ only in their seeds (the point sampling of the simulated
             clouds, a sensor effect's noise).
         workers: simulation processes (None: the executor's default).

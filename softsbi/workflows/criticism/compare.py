@@ -1,9 +1,9 @@
 """Two fits of the same measurement side by side: error per time step and region, before vs after.
 
-Each run's errors are its own ``check`` (:func:`~softsbi.workflows.check.check_run`, reused from its
+Each run's errors are its own ``check`` (:func:`~softsbi.workflows.criticism.check.check_run`, reused from its
 ``check.json`` when that holds the same fit and settings): clouds seen through that fit's sensor model, the
 headline averaged over the fit's frames; runs whose sensor models differ
-(:func:`~softsbi.workflows.check.sensor_model`) are compared on different metrics, which the summary says.
+(:func:`~softsbi.workflows.criticism.check.sensor_model`) are compared on different metrics, which the summary says.
 """
 from __future__ import annotations
 
@@ -16,11 +16,11 @@ from softsbi.core.results import CheckResult, check_result_path, write_result
 from softsbi.report import fit_label, plot_compare
 from softsbi.report.text import row_label
 from softsbi.workflows import pools
-from softsbi.workflows.check import check_run, sensor_model
+from softsbi.workflows.criticism.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
-from softsbi.workflows.runs import load_run
-from softsbi.workflows.screening import check_resolution
-from softsbi.workflows.stats import ALPHA, MAX_NULL, N_NULL
+from softsbi.workflows.fit.runs import load_run
+from softsbi.workflows.criticism.screening import check_resolution
+from softsbi.workflows.criticism.stats import ALPHA, MAX_NULL, N_NULL
 
 
 @pools.shared_executors()
@@ -36,7 +36,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         run_a, run_b: finished fits of one measurement (e.g. the nominal model and a refit with an effect), as
             ``str`` or :class:`~pathlib.Path`.
         out_dir: where the figure and the JSON go (``str`` or ``Path``; created if missing).
-        n_eval, alpha, max_null: each run's :func:`~softsbi.workflows.check.check_run` settings; ``alpha`` is the
+        n_eval, alpha, max_null: each run's :func:`~softsbi.workflows.criticism.check.check_run` settings; ``alpha`` is the
             level both misspecification tests decide at (``p <= alpha``).
         recompute: check both runs again even when their ``check.json`` hold the same settings.
         message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).

@@ -14,12 +14,12 @@ from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.plugins import registry
-from softsbi.workflows.fitconfig import FitConfig
-from softsbi.workflows.tasks import served_by_task
+from softsbi.workflows.fit.config import FitConfig
+from softsbi.workflows.fit.task_store import served_by_task
 
 
 class RoundsOutcome(Protocol):
-    """What :func:`build_report` reads of a fit's rounds (:class:`~softsbi.workflows.rounds.Rounds`)."""
+    """What :func:`build_report` reads of a fit's rounds (:class:`~softsbi.workflows.fit.rounds.Rounds`)."""
 
     store: RunStore
     #: whether the estimator is sequential (else every round drew from the prior)

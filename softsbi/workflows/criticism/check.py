@@ -1,14 +1,14 @@
 """Posterior predictive check (Gelman et al., *Bayesian Data Analysis*, ch. 6).
 
 :func:`check_run` re-simulates a finished fit at its own posterior samples (the fit's evaluation
-samples and seeds, through :func:`~softsbi.workflows.jobs.simulate_job`) and compares them with
+samples and seeds, through :func:`~softsbi.workflows.fit.jobs.simulate_job`) and compares them with
 the measurement: Chamfer error per frame, per region of the object and per phase of the motion,
 and a misspecification test (is the measurement's summary vector inside the distribution of
 posterior-predictive summaries, in any direction or along an installed effect's?) with a
 simulation-based p-value.
 
 Every distance sees the simulated and the measured clouds through the fit's own sensor model
-(:func:`~softsbi.workflows.fit.metric_sensor`: the height cut ``min_height`` above the table, or for
+(:func:`~softsbi.workflows.fit.run.metric_sensor`: the height cut ``min_height`` above the table, or for
 ``--sensor camera`` the recording's virtual depth sensor, and the headline averages the fit's
 ``frames``), so the check's mean Chamfer is the fit's ``chamfer_posterior_m`` and neither it nor the
 per-region errors blame what the sensor cannot see. Both the bidirectional and the
@@ -36,12 +36,12 @@ from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows import defaults, pools
-from softsbi.workflows.check_null import run_check_null
-from softsbi.workflows.fitreport import chamfer_stats
+from softsbi.workflows.criticism.check_null import run_check_null
+from softsbi.workflows.fit.report_file import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
-from softsbi.workflows.runs import RunView, load_run
-from softsbi.workflows.screening import candidate_effects, check_resolution, misspecification_verdict
-from softsbi.workflows.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
+from softsbi.workflows.fit.runs import RunView, load_run
+from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, misspecification_verdict
+from softsbi.workflows.criticism.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
                                      posterior_mean_chamfer, run_features, run_frames, sampled_points, summary_floor)
 
 #: posterior rollouts the check needs at least (its error maps and the first stage of its test's null)
@@ -161,8 +161,8 @@ def sensor_model(run: RunView) -> dict[str, Any]:
 def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndarray, n_regions: int,
                           measured: Any, measured_rollout: dict[str, Any] | None = None) -> np.ndarray:
     """:func:`region_errors` ``(T, R)`` m of one posterior rollout under the run's own sensor model
-    (its height cut :attr:`~softsbi.workflows.runs.RunView.metric_min_z`, or its virtual depth sensor),
-    as :func:`~softsbi.workflows.stats.rollout_features` sees rollouts.
+    (its height cut :attr:`~softsbi.workflows.fit.runs.RunView.metric_min_z`, or its virtual depth sensor),
+    as :func:`~softsbi.workflows.criticism.stats.rollout_features` sees rollouts.
 
     Args:
         rollout: a job result with ``vertices (T, N, 3)``, ``faces``, ``gripper (T, 3)``.
@@ -229,7 +229,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
       posterior-predictive rollouts, against the same statistic of each rollout (leave-one-out); a frame is
       flagged when the measurement exceeds the rollouts' 95% quantile.
     - direction: the measured centroid minus the rollouts' mean centroid (cm), over the flagged frames.
-    - regions: per region of the cloth (:func:`~softsbi.workflows.check.material_regions`), the nearest-neighbour
+    - regions: per region of the cloth (:func:`~softsbi.workflows.criticism.check.material_regions`), the nearest-neighbour
       error of the measurement to the rollouts minus that of another rollout to them (cm; the first
       ``n_regions`` rollouts): the error the nominal model's own spread does not produce.
 
@@ -294,7 +294,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
 
 def loaded(run: str | Path | RunView, pool: PosteriorPredictive | None = None, seed: int = 0) -> RunView:
     """The run a command works on, loaded once: ``run`` itself when loaded already, else ``pool``'s when it is the
-    same run directory, else :func:`~softsbi.workflows.runs.load_run` with every evaluation sample (so that the
+    same run directory, else :func:`~softsbi.workflows.fit.runs.load_run` with every evaluation sample (so that the
     posterior-predictive null is built on it without loading it again)."""
     if isinstance(run, RunView):
         return run
@@ -340,11 +340,11 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
-        run_dir: the run directory, or the run already loaded (:func:`~softsbi.workflows.runs.load_run`), which is
+        run_dir: the run directory, or the run already loaded (:func:`~softsbi.workflows.fit.runs.load_run`), which is
             then not loaded again (nor when ``pool`` holds it).
         n_eval: posterior rollouts for the error maps and the start of the test's null.
         alpha: level of the misspecification verdict (``p <= alpha``).
-        max_null: cap of the adaptive extension of the null (:func:`~softsbi.workflows.stats.resolution_needed`).
+        max_null: cap of the adaptive extension of the null (:func:`~softsbi.workflows.criticism.stats.resolution_needed`).
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply
             and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
@@ -355,7 +355,7 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
         the :class:`~softsbi.core.results.CheckResult`: Chamfer per frame with its band, error per region (ranked
         from ``grasp_handle``, the first moving handle's grasp) and phase (``phases_at_keyframes``: how they were cut)
         under the fit's sensor model, the joint misspecification test
-        (:func:`~softsbi.workflows.screening.misspecification_verdict`, the test ``diagnose`` detects with) and the
+        (:func:`~softsbi.workflows.criticism.screening.misspecification_verdict`, the test ``diagnose`` detects with) and the
         posterior predictive's Chamfer energy score, the posterior-mean rollout's Chamfer and, when the test rejects, the
         residual's shape (:func:`residual_shape`).
 

@@ -1,6 +1,6 @@
 """The settings of a fit (:class:`FitConfig`): their defaults, checks, what a resume compares, the frames a fit
 uses and the parameter space it infers. The CLI's ``fit`` and the Python API share them;
-:func:`~softsbi.workflows.fit.run_fit` runs them.
+:func:`~softsbi.workflows.fit.run.run_fit` runs them.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import ParamSpace, Recording, Scenario
 from softsbi.plugins import check_options, registry
 from softsbi.workflows import defaults
-from softsbi.workflows.widen import check_widen
+from softsbi.workflows.fit.prior_widening import check_widen
 
 
 #: proposal schemes of sequential fits (see :class:`FitConfig`)
@@ -73,7 +73,7 @@ class FitConfig:
             ``{"extractor": "heatmap.pt", "size": 128}``.
         estimator: posterior-estimator plugin name; ``estimator_options`` its config.
         rounds: number of sequential rounds (may be raised on resume); None (the default): 1 when the fit's task
-            was trained by ``softsbi task train`` (:mod:`~softsbi.workflows.tasks`: its trained posterior conditioned
+            was trained by ``softsbi task train`` (:mod:`~softsbi.workflows.fit.task_store`: its trained posterior conditioned
             on the recording), else :data:`~softsbi.workflows.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
             budget is ``rounds * sims_per_round``).
         seed: fixes every draw and every simulation seed.
@@ -122,12 +122,12 @@ class FitConfig:
             transform of the fit is such a sensor effect; otherwise, and at 0 (the default), it does nothing.
             ``diagnose``'s refits use 0, so that physics and sensor effects are refitted on the same footing.
         refine: N >= 1: after the posterior, N more simulations polish the best fit by CMA-ES started at the
-            posterior's mean with its covariance, inside the prior (:func:`~softsbi.workflows.bestfit.refine`;
+            posterior's mean with its covariance, inside the prior (:func:`~softsbi.workflows.fit.bestfit.refine`;
             stored in the run, resumable, the posterior untouched). 0 (the default): the best fit is the best of
             the fit's own simulations. ``report.json``'s ``best_fit`` holds it either way.
         widen: after each round but the last, move a prior bound that the posterior presses (and that is not a
             physical limit) outward by the rule ``fit`` prints, for the following rounds; the widened prior is
-            the run's prior of record (:mod:`~softsbi.workflows.widen`). Truncated proposals with a sequential
+            the run's prior of record (:mod:`~softsbi.workflows.fit.prior_widening`). Truncated proposals with a sequential
             estimator only. Default False: the rounds before a widening under-weight the region beyond the old
             bound (see that module), so it is an option.
     """

@@ -25,9 +25,9 @@ from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_fro
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
-from softsbi.workflows.bank import BankCount, SimulationBank, rollout_key
+from softsbi.workflows.fit.bank import BankCount, SimulationBank, rollout_key
 from softsbi.workflows import pools
-from softsbi.workflows.progress import notify, phase
+from softsbi.workflows.reporting import notify, phase
 
 
 @dataclass
@@ -55,7 +55,7 @@ class SimContext:
     min_z: float | None = None
     #: the fit's virtual depth sensor for the metric (``VirtualDepthSensor.to_json``), None = height cut
     camera: dict[str, Any] | None = None
-    #: a simulation bank (:class:`~softsbi.workflows.bank.SimulationBank` folder) whose stored rollouts are
+    #: a simulation bank (:class:`~softsbi.workflows.fit.bank.SimulationBank` folder) whose stored rollouts are
     #: read instead of simulated, and which keeps the new ones; None = simulate everything
     bank: str | None = None
 
@@ -135,7 +135,7 @@ def _rollout(sim: Any, scenario: Scenario, values: dict[str, float], effects: li
 def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
               seed: int, batch: _Batch | None = None) -> tuple[Any, str | None]:
     """``(rollout, what the bank found)``: ``sim.simulate`` (or the job's ``batch``), through the context's
-    simulation bank when it has one (:meth:`~softsbi.workflows.bank.SimulationBank.lookup`; None without a bank)."""
+    simulation bank when it has one (:meth:`~softsbi.workflows.fit.bank.SimulationBank.lookup`; None without a bank)."""
     if ctx.bank is None:
         return _rollout(sim, scenario, values, effects, seed, batch), None
     bank = SimulationBank(ctx.bank)
@@ -192,7 +192,7 @@ def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> d
         ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
         or None, "seconds"}``, plus ``sensor_x`` ``(K, T, 1+K, 3)`` with ``sensor_draws`` (the observations at
         the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``; ``"bank"``: what the
-        simulation bank found (:data:`~softsbi.workflows.bank.HIT`, ``MISS``, ``WRONG_KEY``; None without one);
+        simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``; None without one);
         ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
         seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
         half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
@@ -330,7 +330,7 @@ def map_simulations(executor: Any, ctx: SimContext, items: Sequence[tuple]) -> I
 def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
              executor_options: Mapping[str, Any] | None = None, label: str = "simulations") -> list[dict[str, Any]]:
     """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order. The phase is told to
-    the current progress reporter as ``label`` (:mod:`~softsbi.workflows.progress`).
+    the current progress reporter as ``label`` (:mod:`~softsbi.workflows.reporting`).
 
     A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised; any other
     exception, or a crashed worker, becomes a failed result ``{"status": STATUS_ERROR, "reason"}``.

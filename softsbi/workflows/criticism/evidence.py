@@ -3,15 +3,15 @@
 On a task trained with its candidate models (``softsbi task train``), the posterior of the nominal model with effect
 ``E_k`` for a recording is that model's stored estimator conditioned on the recording: no simulation and no training,
 exactly the first (and, on a trained task, only) round of ``E_k``'s refit. The summary energy score of its posterior
-predictive, in the nominal fit's summary scale (:func:`~softsbi.workflows.stats.summary_energy_score`, the score
-:func:`~softsbi.workflows.decide.decide` compares refits on), is then an unbiased estimate of the score that refit
+predictive, in the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.stats.summary_energy_score`, the score
+:func:`~softsbi.workflows.criticism.decide.decide` compares refits on), is then an unbiased estimate of the score that refit
 will have, at the cost of its ``n`` rollouts, for every trained candidate.
 
 This is evidence that sees each candidate through its own model. The linearised screening
-(:mod:`~softsbi.workflows.screening`) sees a candidate through a first-order expansion at the nominal posterior, so
+(:mod:`~softsbi.workflows.criticism.screening`) sees a candidate through a first-order expansion at the nominal posterior, so
 an effect whose response is far from linear at the size the recording needs (a breeze that lifts a flap, a slope the
 cloth slides down) can rank below one that is linear but wrong, and the refit budget then goes to the wrong one.
-:func:`~softsbi.workflows.decide.refit_order` spends the budget on the amortised scores first; the screening orders
+:func:`~softsbi.workflows.criticism.decide.refit_order` spends the budget on the amortised scores first; the screening orders
 the candidates no task has trained.
 """
 from __future__ import annotations
@@ -26,11 +26,11 @@ from softsbi.core.errors import PosteriorError
 from softsbi.core.results import Score
 from softsbi.core.types import STATUS_OK, Recording
 from softsbi.inference.calibration import draws_in_box
-from softsbi.workflows.fitconfig import FitConfig, fit_param_space
-from softsbi.workflows.jobs import run_jobs
-from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import MIN_NULL, rollout_features, run_features, summary_energy_score
-from softsbi.workflows.tasks import PriorRound, StoredTask
+from softsbi.workflows.fit.config import FitConfig, fit_param_space
+from softsbi.workflows.fit.jobs import run_jobs
+from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.criticism.stats import MIN_NULL, rollout_features, run_features, summary_energy_score
+from softsbi.workflows.fit.task_store import PriorRound, StoredTask
 
 #: proposal of a refit: truncated (TSNPE, Deistler et al. 2022). A refit adds parameters to a model whose others the
 #: nominal fit has already narrowed; truncated proposals spend its rounds inside the posterior's region, where the
@@ -88,7 +88,7 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
     Args:
         run: the nominal fit (stopped at its trained task; otherwise nothing is scored).
         trained: the candidates with a trained task (:func:`trained_tasks`).
-        scale: ``(F,)`` the nominal fit's summary scale (:func:`~softsbi.workflows.stats.summary_scale`).
+        scale: ``(F,)`` the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.stats.summary_scale`).
         n: posterior-predictive rollouts per candidate (``diagnose``'s ``n_null``: a refit's score uses as many).
         workers: simulation processes. seed: the draws' and rollouts' seed.
 

@@ -42,7 +42,7 @@ from softsbi.inference.contraction import bound_pressure, bound_sentence, widene
 
 __all__ = ["records", "apply_widenings", "space_of_round", "round_spaces", "MappedProposal", "unit_map", "map_mixture",
            "prior_of_record",
-           "reconcile", "decide", "check_widen", "widening_sentence"]
+           "reconcile", "decide_widening", "check_widen", "widening_sentence"]
 
 #: the run config's key of the widenings (a list of records, in order)
 KEY = "widenings"
@@ -175,7 +175,7 @@ def reconcile(store: RunStore, base: ParamSpace, message: Callable[[str], None])
     return space
 
 
-def decide(store: RunStore, space: ParamSpace, samples: np.ndarray, r: int,
+def decide_widening(store: RunStore, space: ParamSpace, samples: np.ndarray, r: int,
            keep: Mapping[str, float] | None = None) -> ParamSpace | None:
     """After round ``r``: widen the bounds its posterior presses (module docstring) and store the widening.
 

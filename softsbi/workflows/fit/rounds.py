@@ -19,13 +19,13 @@ from softsbi.core.store import ROUND_ARRAYS, EstimatorState, RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace
 from softsbi.executors.local import WorkerFailure
 from softsbi.plugins import registry
-from softsbi.workflows.bank import BankCount, bank_folder
-from softsbi.workflows.fitconfig import FitConfig, estimator_options
-from softsbi.workflows.fitreport import chamfer_stats
-from softsbi.workflows.jobs import SimContext, _round_seeds, map_simulations
-from softsbi.workflows.progress import FitCallbacks
-from softsbi.workflows.resume import RunClock
-from softsbi.workflows.tasks import PriorRound
+from softsbi.workflows.fit.bank import BankCount, bank_folder
+from softsbi.workflows.fit.config import FitConfig, estimator_options
+from softsbi.workflows.fit.report_file import chamfer_stats
+from softsbi.workflows.fit.jobs import SimContext, _round_seeds, map_simulations
+from softsbi.workflows.reporting import FitCallbacks
+from softsbi.workflows.fit.resume import RunClock
+from softsbi.workflows.fit.task_store import PriorRound
 
 
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
@@ -143,7 +143,7 @@ class SensorDraws:
         return out
 
     def job_draws(self, sensor_u: np.ndarray) -> dict[str, Any]:
-        """The worker's ``sensor_draws`` item (:func:`~softsbi.workflows.jobs.simulate_job`) of one simulation's
+        """The worker's ``sensor_draws`` item (:func:`~softsbi.workflows.fit.jobs.simulate_job`) of one simulation's
         ``(K, D)`` unit-cube draws: their sensor parameters in physical units."""
         names = [self.space.names[d] for d in self.dims]
         return {"effects": list(self.effects),

@@ -6,7 +6,7 @@ deviation from the truth); a best fit is one parameter set whose rollout is clos
 for a user who wants to put a single set into their own simulator.
 
 * :func:`best_stored`: the simulation with the lowest metric (the fit's headline: the mean per-frame Chamfer
-  over the fit's frames, :func:`~softsbi.workflows.fit.chamfer_stats`) among every simulation the fit stored:
+  over the fit's frames, :func:`~softsbi.workflows.fit.run.chamfer_stats`) among every simulation the fit stored:
   its rounds, its posterior-predictive rollouts and its refinement.
 * :func:`refine` (``fit --refine N``): N more simulations spent by CMA-ES (Hansen's ``cma`` library; Hansen &
   Ostermeier 2001) on the metric, in the unit cube of the prior, started at the posterior's mean with the
@@ -16,7 +16,7 @@ for a user who wants to put a single set into their own simulator.
   generation's draws seeded, so the replay asks the stored candidates again) and only the missing
   simulations are run. Refining leaves the posterior as it was (nothing of the rounds is touched).
 * :func:`store_best_fit`: the best fit's rollout (re-simulated once with its own seed, which reproduces its
-  metric: :mod:`~softsbi.workflows.jobs`) in the run's ``best_fit`` group, for ``clouds.png``, ``view`` and
+  metric: :mod:`~softsbi.workflows.fit.jobs`) in the run's ``best_fit`` group, for ``clouds.png``, ``view`` and
   :func:`read_best_fit` (``softsbi.open_run(RUN).best_fit``).
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace
-from softsbi.workflows.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
 
 __all__ = ["BestFit", "REFINE", "BEST", "best_stored", "refine", "store_best_fit", "read_best_fit", "scores"]
 
@@ -40,7 +40,7 @@ REFINE, BEST = "refine", "best_fit"
 
 def scores(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | None) -> np.ndarray:
     """``(N,)`` the fit's headline metric of ``N`` simulations (mean of the per-frame ``chamfer (N, T)`` over
-    ``frames``, None = all; as :func:`~softsbi.workflows.fit.chamfer_stats`), ``inf`` for a failed one."""
+    ``frames``, None = all; as :func:`~softsbi.workflows.fit.run.chamfer_stats`), ``inf`` for a failed one."""
     chamfer = np.asarray(chamfer, float).reshape(len(status), -1)
     fr = slice(None) if frames is None else list(frames)
     ok = (np.asarray(status) == STATUS_OK) & np.all(np.isfinite(chamfer), axis=1)

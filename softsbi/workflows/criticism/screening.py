@@ -4,10 +4,10 @@
   posterior median, one simulation per direction) and the added-variable statistic: the drop of the weighted
   residual sum of squares when the effect's sensitivities join the nominal parameters' (a linearised test; Cook
   & Weisberg 1982, ch. 2.3), with its null from the posterior-predictive rollouts and the Westfall-Young max-T
-  adjustment over the family (:func:`~softsbi.workflows.stats.max_t_adjusted`).
+  adjustment over the family (:func:`~softsbi.workflows.criticism.stats.max_t_adjusted`).
 - :func:`misspecification_verdict`: "is the measurement inside the posterior predictive distribution?". Two tests
   on one null, Bonferroni-combined (:class:`~softsbi.core.results.JointTest`): the omnibus test
-  (:func:`~softsbi.workflows.stats.misspecification_test`, a departure in any direction) and the directional test
+  (:func:`~softsbi.workflows.criticism.stats.misspecification_test`, a departure in any direction) and the directional test
   (the screening's largest max-T statistic: a departure along a candidate's sensitivity). The omnibus test alone
   spreads its power over every direction of the summaries x frames; the directional test concentrates it on the
   directions the installed effects can move the cloth in.
@@ -23,9 +23,9 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import Candidate, JointTest
 from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
-from softsbi.workflows.jobs import run_jobs
-from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,
+from softsbi.workflows.fit.jobs import run_jobs
+from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,
                                      misspecification_test, resolution_needed, rollout_features, run_features,
                                      summary_floor)
 
@@ -232,7 +232,7 @@ def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: flo
 
     The finite-difference simulations (:func:`sensitivity_jobs`: ``1 + dim`` nominal directions plus, per
     candidate, its nominal value and one step per effect parameter) run once per pool and are kept in
-    :attr:`~softsbi.workflows.stats.PosteriorPredictive.sensitivities`, so ``check`` and ``diagnose`` sharing a
+    :attr:`~softsbi.workflows.criticism.stats.PosteriorPredictive.sensitivities`, so ``check`` and ``diagnose`` sharing a
     pool simulate them once, and a null grown to its cap re-uses them. The engines are deterministic and every
     job uses seed 0, so a fresh pool gives identical simulations.
 
@@ -279,16 +279,16 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
     """Is the run's measurement inside the posterior predictive distribution? ``check``'s test, ``diagnose``'s
     detection step and the adequacy of every refit (one function, one null: the commands never disagree).
 
-    The omnibus test (:func:`~softsbi.workflows.stats.misspecification_test`) and the directional test (the
+    The omnibus test (:func:`~softsbi.workflows.criticism.stats.misspecification_test`) and the directional test (the
     screening's strongest candidate, max-T adjusted over ``cands``) on the pool's rollouts, Bonferroni-combined.
-    Adaptive resolution (:func:`~softsbi.workflows.stats.resolution_needed`, per test at ``alpha / k``): when a
+    Adaptive resolution (:func:`~softsbi.workflows.criticism.stats.resolution_needed`, per test at ``alpha / k``): when a
     first stage that cannot reject is promising, the null grows once to ``max_null`` successful rollouts and
     both tests are decided there, so the level holds.
 
     Args:
         pool: the run's posterior-predictive rollouts (at least 5 successful; more are simulated on demand).
         cands: candidate effect instances (:func:`candidate_effects`); empty = the omnibus test alone.
-        null: the run's trained task's replicates (:class:`~softsbi.workflows.check_null.CheckNull`): the omnibus
+        null: the run's trained task's replicates (:class:`~softsbi.workflows.criticism.check_null.CheckNull`): the omnibus
             statistic on the pool's first ``null.rollouts`` rollouts (the fit's evaluation samples) is then
             calibrated against them, and only the directional test's null grows (and not once the verdict is reached).
 

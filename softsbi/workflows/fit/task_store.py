@@ -12,7 +12,7 @@ A :class:`TaskStore` (a folder ``tasks/`` inside the simulation bank, whose roll
 keeps, per key, the trained estimator's state, its training information, how many prior simulations trained it
 and, when ``softsbi task train`` trained it, a training report: simulation-based calibration of the amortised
 posterior on held-out prior simulations of the task (expected coverage, SBC ranks, TARP, contraction per
-parameter; :func:`~softsbi.workflows.calibrate.calibration_stats`).
+parameter; :func:`~softsbi.workflows.tasks.calibrate.calibration_stats`).
 
 A fit of a task whose key is stored takes its first round from the stored task: the same prior draws and seeds
 (their rollouts read from the bank), the stored estimator conditioned on the new recording, no training. Its later
@@ -44,10 +44,10 @@ from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_
 from softsbi.core.types import ParamSpace, Recording, jsonable
 from softsbi.plugins import registry
 from softsbi.workflows import defaults
-from softsbi.workflows.bank import _engine_version, bank_folder
-from softsbi.workflows.fitconfig import FitConfig, estimator_options, needs_images, resume_identity
-from softsbi.workflows.jobs import SimContext
-from softsbi.workflows.observe import metric_sensor, observer_options
+from softsbi.workflows.fit.bank import _engine_version, bank_folder
+from softsbi.workflows.fit.config import FitConfig, estimator_options, needs_images, resume_identity
+from softsbi.workflows.fit.jobs import SimContext
+from softsbi.workflows.fit.observe import metric_sensor, observer_options
 
 #: format of a stored task (part of its key: a new format trains every task again)
 TASK_FORMAT = "softsbi.task/1"
@@ -59,11 +59,11 @@ def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_
     """Everything that determines a fit's first round (module docstring), as JSON: the key's content.
 
     Args:
-        cfg: the fit's settings, :meth:`~softsbi.workflows.fitconfig.FitConfig.resolved` (frames as indices).
+        cfg: the fit's settings, :meth:`~softsbi.workflows.fit.config.FitConfig.resolved` (frames as indices).
         space: the inferred parameters (names, prior bounds, log scale) of the fit's first round.
         ctx: the fit's simulation context (scenario, observer options and sensor model as the jobs apply them).
         estimator_options: the options the fit gives its estimator
-            (:func:`~softsbi.workflows.fitconfig.estimator_options`).
+            (:func:`~softsbi.workflows.fit.config.estimator_options`).
     """
     return jsonable({
         "format": TASK_FORMAT, "softsbi": installed_version(),

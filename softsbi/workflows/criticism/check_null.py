@@ -1,7 +1,7 @@
 """``check``'s omnibus test calibrated for a trained task (Hjort, Dahl & Steinbakk 2006, "Posterior predictive
 p-values calibrated by the prior predictive").
 
-The posterior predictive p-value (:func:`~softsbi.workflows.stats.misspecification_test`) uses the recording twice,
+The posterior predictive p-value (:func:`~softsbi.workflows.criticism.stats.misspecification_test`) uses the recording twice,
 to fit and to test, so it is not uniform under the model (Meng 1994; Bayarri & Berger 2000): a recording lies closer
 to its own posterior predictive than a fresh draw does, p-values pile up near 1 and small misfits go unseen. The
 calibration runs the same procedure on replicate recordings of the task: each is simulated under the model at
@@ -34,14 +34,14 @@ from softsbi.core.results import MCPValue
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows import pools
-from softsbi.workflows.fitconfig import FitConfig
-from softsbi.workflows.jobs import SimContext, run_jobs
+from softsbi.workflows.fit.config import FitConfig
+from softsbi.workflows.fit.jobs import SimContext, run_jobs
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.observe import metric_sensor, observe_recording
-from softsbi.workflows.progress import phase
-from softsbi.workflows.runs import RunView
-from softsbi.workflows.stats import MIN_NULL, mc_pvalue, misspecification_test, sensor_features, trajectory_features
-from softsbi.workflows.tasks import StoredTask, task_store_of
+from softsbi.workflows.fit.observe import metric_sensor, observe_recording
+from softsbi.workflows.reporting import phase
+from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.criticism.stats import MIN_NULL, mc_pvalue, misspecification_test, sensor_features, trajectory_features
+from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 
 #: seed stream of the replicate recordings (no fit's, training report's or check's stream)
 NULL_STREAM = 8080

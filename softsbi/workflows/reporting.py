@@ -1,6 +1,6 @@
 """Progress of every phase that simulates, told to whoever shows it.
 
-The library reports and never prints: :func:`~softsbi.workflows.jobs.run_jobs` (the posterior-predictive
+The library reports and never prints: :func:`~softsbi.workflows.fit.jobs.run_jobs` (the posterior-predictive
 rollouts, nulls and finite differences of ``check``, ``diagnose``, ``compare``, ``view``) and the rounds of a
 fit run without callbacks of their own (a ``diagnose`` refit) tell the current :class:`Reporter`, which the CLI
 installs with :func:`reporting` (bars with counts and time left on a terminal, one line per phase in a pipe).
@@ -38,11 +38,11 @@ class Reporter:
         are all done, and only when ``hits > 0``)."""
 
     def message(self, text: str) -> None:
-        """A notice for the user (e.g. bank entries under another key, :class:`~softsbi.workflows.bank.BankCount`)."""
+        """A notice for the user (e.g. bank entries under another key, :class:`~softsbi.workflows.fit.bank.BankCount`)."""
 
 
 class FitCallbacks:
-    """Progress callbacks of :func:`~softsbi.workflows.fit.run_fit` (the CLI draws progress bars with them); every
+    """Progress callbacks of :func:`~softsbi.workflows.fit.run.run_fit` (the CLI draws progress bars with them); every
     method does nothing by default."""
 
     def round_start(self, r: int, rounds: int, n_pending: int, n_total: int) -> None:

@@ -24,7 +24,7 @@ def write_fit_plots(out_dir: Path, result: Any, meas: Any, cfg: Any, samples: np
     image fits) into ``out_dir``; a clouds or frames figure that fails leaves ``<name>_error.txt`` instead.
 
     Args:
-        result: :class:`~softsbi.workflows.fit.FitResult`. meas: the measurement.
+        result: :class:`~softsbi.workflows.fit.run.FitResult`. meas: the measurement.
         samples: ``(S, D)`` final-posterior samples, physical units.
         observer_options: the fit's observer constructor options (image fits draw its keypoints).
     """

@@ -14,9 +14,9 @@ from softsbi.core.errors import SchemaError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording
 from softsbi.perception.masks import hsv_mask
-from softsbi.workflows.fitconfig import RESUME_DEFAULTS, FitConfig, needs_images, resume_identity
-from softsbi.workflows.observe import metric_sensor, observe_recording, observer_options
-from softsbi.workflows.progress import FitCallbacks
+from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, needs_images, resume_identity
+from softsbi.workflows.fit.observe import metric_sensor, observe_recording, observer_options
+from softsbi.workflows.reporting import FitCallbacks
 
 
 def stored_config(cfg: FitConfig, meas: Recording, inferred: ParamSpace) -> dict[str, Any]:

@@ -35,7 +35,7 @@ import zarr
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_OK, Rollout
-from softsbi.workflows.fitconfig import resume_identity
+from softsbi.workflows.fit.config import resume_identity
 
 #: bank format version (part of every key: a new format starts a new bank)
 BANK_FORMAT = 1
@@ -134,7 +134,7 @@ def rollout_key(backend: str, backend_options: Mapping[str, Any], scenario: Mapp
                 effects: Sequence[str], values: Mapping[str, float], seed: int) -> str:
     """The SHA-256 (hex) of everything a rollout depends on: the simulator (name, options, engine version), the
     scenario (its JSON form without where it was read from and how it is viewed:
-    :func:`~softsbi.workflows.fitconfig.resume_identity`, so that the recordings of one task share its rollouts),
+    :func:`~softsbi.workflows.fit.config.resume_identity`, so that the recordings of one task share its rollouts),
     the effects in order, every parameter value (exactly, as ``float.hex``) and the seed."""
     doc = [BANK_FORMAT, backend, _engine_version(backend), dict(backend_options),
            resume_identity("scenario", dict(scenario)), list(effects),

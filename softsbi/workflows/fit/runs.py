@@ -13,12 +13,12 @@ from softsbi.core.fitreport import FitReport
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
 from softsbi.plugins import registry
-from softsbi.workflows.bank import banks_enabled
-from softsbi.workflows.bestfit import BestFit, read_best_fit
-from softsbi.workflows.fitconfig import FitConfig
-from softsbi.workflows.fitreport import read_report
-from softsbi.workflows.rounds import round_posterior, usable_simulations
-from softsbi.workflows.jobs import SimContext, evaluation_seeds, run_jobs
+from softsbi.workflows.fit.bank import banks_enabled
+from softsbi.workflows.fit.bestfit import BestFit, read_best_fit
+from softsbi.workflows.fit.config import FitConfig
+from softsbi.workflows.fit.report_file import read_report
+from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
+from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, run_jobs
 
 
 def read_fit_report(run_dir: str | Path) -> FitReport:
@@ -63,7 +63,7 @@ class RunView:
         return self._posterior
 
     def sim_context(self, keep_rollout: bool = True) -> Any:
-        """The fit's own worker context (:class:`~softsbi.workflows.fit.SimContext`): same simulator,
+        """The fit's own worker context (:class:`~softsbi.workflows.fit.run.SimContext`): same simulator,
         observer and metric, so re-simulating the fit's evaluation samples reproduces its Chamfer. Its rollouts go
         through the run's own simulation bank (``RUN/sims.zarr``): ``check``, ``diagnose``, ``compare`` and
         ``view`` simulate each posterior-predictive rollout and finite difference once."""
@@ -239,12 +239,12 @@ class Run:
     """A fit's run directory, opened (:func:`open_run`).
 
     Attributes:
-        path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.FitConfig`).
+        path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.run.FitConfig`).
         report: ``report.json`` (:class:`~softsbi.core.fitreport.FitReport`, e.g. ``run.report.chamfer_posterior_m``;
             None while the fit has not finished). space: the inferred parameters.
         posterior: the final posterior in physical units (:class:`Posterior`).
         best_fit: the best-fitting parameters the fit found and their rollout
-            (:class:`~softsbi.workflows.bestfit.BestFit`), None for a run that stored none.
+            (:class:`~softsbi.workflows.fit.bestfit.BestFit`), None for a run that stored none.
     """
 
     path: Path
@@ -262,7 +262,7 @@ def open_run(run_dir: str | Path) -> Run:
     chain of round posteriors, or the last round's ``q`` restricted to the prior box for truncated
     proposals and bulk estimators), whatever the estimator: a Gaussian mixture from its stored arrays,
     any other posterior (e.g. ``flow``) from the estimator's stored state
-    (:func:`~softsbi.workflows.fit.round_posterior`).
+    (:func:`~softsbi.workflows.fit.run.round_posterior`).
 
     Raises:
         SchemaError: not a run directory (no ``run.zarr``) or an unreadable schema version;

@@ -5,7 +5,7 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
 1. *Detect.* ``nothing-missing`` iff ``check``'s joint test of the nominal fit does not reject at ``alpha``.
 2. *Propose.* The top ``confirm`` named (non-generic) candidates of :func:`refit_order` are refitted: first those
    whose trained model's amortised posterior predictive lowers the nominal fit's score (their evidence,
-   :mod:`~softsbi.workflows.evidence`), lowest score first, then the untrained ones the screening ranks
+   :mod:`~softsbi.workflows.criticism.evidence`), lowest score first, then the untrained ones the screening ranks
    (:func:`next_refit`). The order spends the refit budget; it decides nothing.
 3. *Decide* on the refits by three criteria only (:func:`decide`):
    - *adequate*: ``check``'s test of the refit does not reject at the same ``alpha``;

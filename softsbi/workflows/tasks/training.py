@@ -1,4 +1,4 @@
-"""``softsbi task train``: train a task once (:mod:`~softsbi.workflows.tasks`), for the model and each candidate effect.
+"""``softsbi task train``: train a task once (:mod:`~softsbi.workflows.fit.task_store`), for the model and each candidate effect.
 
 For each model (the nominal model, then the nominal model with each candidate effect switched on):
 
@@ -8,7 +8,7 @@ For each model (the nominal model, then the nominal model with each candidate ef
 2. the fit's estimator is trained on them as a fit's first round trains it (same options, seed ``seed``);
 3. ``n_test`` held-out prior simulations (seeds of their own, never trained on) measure the amortised posterior:
    expected coverage, SBC ranks per parameter and TARP, one verdict over them
-   (:func:`~softsbi.workflows.calibrate.calibration_stats`), and the contraction per parameter (the posterior's
+   (:func:`~softsbi.workflows.tasks.calibrate.calibration_stats`), and the contraction per parameter (the posterior's
    90% interval over the prior's, :mod:`~softsbi.inference.contraction`, median over the test pairs);
 4. the task is stored under its key with that training report.
 
@@ -31,12 +31,12 @@ from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.workflows import defaults, pools
-from softsbi.workflows.calibrate import calibration_stats, coverage_json, rank_histograms_json
-from softsbi.workflows.check_null import check_replicates, stored_check_null, train_check_null
-from softsbi.workflows.fitconfig import FitConfig, estimator_options, fit_param_space, needs_images
-from softsbi.workflows.jobs import SimContext, _round_seeds, run_jobs
-from softsbi.workflows.screening import is_generic
-from softsbi.workflows.tasks import PriorRound, StoredTask, first_round_context
+from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
+from softsbi.workflows.criticism.check_null import check_replicates, stored_check_null, train_check_null
+from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
+from softsbi.workflows.fit.jobs import SimContext, _round_seeds, run_jobs
+from softsbi.workflows.criticism.screening import is_generic
+from softsbi.workflows.fit.task_store import PriorRound, StoredTask, first_round_context
 
 #: seed stream of the held-out simulations (never a fit's: a fit's rounds use ``[seed, r, .]`` with small ``r``)
 TEST_STREAM = 7070
@@ -84,7 +84,7 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
         n_prior: prior simulations trained on. n_test: held-out prior simulations of the report (0: no report).
         n_draws: posterior draws per held-out simulation. retrain: train even when the task is stored.
         check_null: replicate recordings that calibrate ``check`` of the task's fits
-            (:func:`~softsbi.workflows.check_null.train_check_null`, on ``defaults.N_NULL`` rollouts each; 0: none),
+            (:func:`~softsbi.workflows.criticism.check_null.train_check_null`, on ``defaults.N_NULL`` rollouts each; 0: none),
             computed when the task has none for these settings.
         message: progress notices.
 
@@ -180,11 +180,11 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
                message: Callable[[str], None] | None = None) -> list[StoredTask]:
     """Train a task once for the nominal model and each candidate effect (:func:`candidate_models`,
     :func:`train_model`); returns the stored tasks, nominal first. ``check_null`` replicate recordings calibrate
-    the check of the nominal model's fits (:mod:`~softsbi.workflows.check_null`: ``diagnose``'s detection).
+    the check of the nominal model's fits (:mod:`~softsbi.workflows.criticism.check_null`: ``diagnose``'s detection).
 
     Raises:
         everything :func:`train_model`, :func:`candidate_models` and
-        :func:`~softsbi.workflows.check_null.check_replicates` raise."""
+        :func:`~softsbi.workflows.criticism.check_null.check_replicates` raise."""
     check_replicates(check_null)
     models = candidate_models(cfg, candidates)
     say = message or (lambda s: None)

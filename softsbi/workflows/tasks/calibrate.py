@@ -43,14 +43,14 @@ from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
-from softsbi.report.calibration import plot_calibration
+from softsbi.report.calibration_figures import plot_calibration
 from softsbi.workflows import defaults, pools
-from softsbi.workflows.fitconfig import FitConfig, estimator_options as fit_estimator_options
-from softsbi.workflows.rounds import round_posterior, usable_simulations
-from softsbi.workflows.tasks import served_by_task, task_store_of
-from softsbi.workflows.jobs import SimContext, run_jobs
+from softsbi.workflows.fit.config import FitConfig, estimator_options as fit_estimator_options
+from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
+from softsbi.workflows.fit.task_store import served_by_task, task_store_of
+from softsbi.workflows.fit.jobs import SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
-from softsbi.workflows.widen import MappedProposal, map_mixture, round_spaces, unit_map
+from softsbi.workflows.fit.prior_widening import MappedProposal, map_mixture, round_spaces, unit_map
 
 __all__ = ["calibrate_run"]
 
@@ -64,7 +64,7 @@ def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
                counts: list[int]) -> list[tuple[Any, str]]:
     """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description; a round
     before a ``--widen`` widening drew in the narrower prior, sampled in the prior of record's unit cube
-    (:class:`~softsbi.workflows.widen.MappedProposal`)."""
+    (:class:`~softsbi.workflows.fit.prior_widening.MappedProposal`)."""
     est_cls = registry().estimator(cfg.estimator)
     sequential = bool(getattr(est_cls, "sequential", True))
     truncated = sequential and cfg.proposal == "truncated"

@@ -1,14 +1,14 @@
 """Is the nominal model enough, and which candidate effect is missing? Detect, propose, decide.
 
-:func:`diagnose_run` runs the three steps of :mod:`softsbi.workflows.decide` on a finished fit:
+:func:`diagnose_run` runs the three steps of :mod:`softsbi.workflows.criticism.decide` on a finished fit:
 
-1. *detect*: ``check``'s joint test (:func:`~softsbi.workflows.screening.misspecification_verdict`: the
+1. *detect*: ``check``'s joint test (:func:`~softsbi.workflows.criticism.screening.misspecification_verdict`: the
    omnibus and the directional test on one null of posterior-predictive rollouts, Bonferroni-combined);
 2. *propose*: on a task trained with its candidate models, each trained candidate's amortised posterior predictive is
-   scored (:mod:`~softsbi.workflows.evidence`); the linearised screening ranks the candidate effects
-   (:class:`~softsbi.workflows.screening.Screening`); the top ones of :func:`~softsbi.workflows.decide.refit_order`
-   are refitted (:func:`refit_model`; :func:`~softsbi.workflows.decide.next_refit` says which);
-3. *decide*: :func:`~softsbi.workflows.decide.decide` on the refits' adequacy (the same test) and summary energy scores.
+   scored (:mod:`~softsbi.workflows.criticism.evidence`); the linearised screening ranks the candidate effects
+   (:class:`~softsbi.workflows.criticism.screening.Screening`); the top ones of :func:`~softsbi.workflows.criticism.decide.refit_order`
+   are refitted (:func:`refit_model`; :func:`~softsbi.workflows.criticism.decide.next_refit` says which);
+3. *decide*: :func:`~softsbi.workflows.criticism.decide.decide` on the refits' adequacy (the same test) and summary energy scores.
 
 One candidate family is used in every step: the refits' tests screen the same candidates less their own effects.
 The result is a :class:`~softsbi.core.results.Diagnosis`, written to ``RUN/diagnosis.json``; its sentences are
@@ -29,16 +29,16 @@ from softsbi.core.results import (Diagnosis, Estimate, Refit,
 from softsbi.core.types import Param
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
-from softsbi.workflows.check import check_run, loaded, result_key, reused, stored_result
+from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import defaults, pools
-from softsbi.workflows.decide import K_SE, decide, next_refit
-from softsbi.workflows.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
-from softsbi.workflows.progress import fit_callbacks
-from softsbi.workflows.fit import FitConfig, run_fit
+from softsbi.workflows.criticism.decide import K_SE, decide, next_refit
+from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
+from softsbi.workflows.reporting import fit_callbacks
+from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.lock import run_lock
-from softsbi.workflows.runs import RunView
-from softsbi.workflows.screening import candidate_effects, check_resolution, is_generic
-from softsbi.workflows.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
+from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
+from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
 
 @pools.shared_executors()
@@ -56,7 +56,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
             generic force terms included).
         alpha: the level of every test (the false-alarm rate tolerated).
         k_se: standard errors by which a refit's summary energy score must fall
-            (:data:`~softsbi.workflows.decide.K_SE`).
+            (:data:`~softsbi.workflows.criticism.decide.K_SE`).
         confirm: single refits at most (the top named candidates by evidence); a pair is one more (0: no refit).
         refit_rounds, refit_sims: a refit's budget (default None: the nominal fit's; its own values are stored
             under the same key as None; a refit at a smaller budget has a wider posterior predictive, which
@@ -171,17 +171,17 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
                 out_root: str | Path | None = None, plots: bool = True) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
-    The refit has :func:`~softsbi.workflows.evidence.refit_config`'s settings (by default the nominal fit's budget,
+    The refit has :func:`~softsbi.workflows.criticism.evidence.refit_config`'s settings (by default the nominal fit's budget,
     so that an added effect is fitted as well as the model it extends); it is stored in
     ``RUN/refit-<a>+<b>`` (``out_root/refit-<a>+<b>`` when given) and resumes from there. It is checked by
-    :func:`~softsbi.workflows.check.check_run` (so
+    :func:`~softsbi.workflows.criticism.check.check_run` (so
     ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
     its score is the energy score of its first ``n_null`` posterior-predictive rollouts' summaries in ``scale``
-    (the nominal fit's, :func:`~softsbi.workflows.stats.summary_energy_score`; no score without ``scale``).
+    (the nominal fit's, :func:`~softsbi.workflows.criticism.stats.summary_energy_score`; no score without ``scale``).
     ``plots``: draw the refit's fit figures and ``check.png``.
 
     Raises:
-        everything :func:`~softsbi.workflows.fit.run_fit` raises (e.g. a stored refit with other settings).
+        everything :func:`~softsbi.workflows.fit.run.run_fit` raises (e.g. a stored refit with other settings).
     """
     effects = tuple(effects)
     cfg = refit_config(run, effects, rounds, sims_per_round, workers)

@@ -15,8 +15,8 @@ from softsbi.core.types import ParamSpace, Recording, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.plugins import registry
 from softsbi.scenarios.cameras import scenario_camera
-from softsbi.workflows.fitconfig import FitConfig, needs_images
-from softsbi.workflows.jobs import SimContext
+from softsbi.workflows.fit.config import FitConfig, needs_images
+from softsbi.workflows.fit.jobs import SimContext
 
 
 def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
