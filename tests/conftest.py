@@ -25,7 +25,15 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 # processes declares ``pytestmark = pytest.mark.integration``; every other test is the unit tier (toy simulator
 # and hand-built results, arrays in and out). Tests marked ``slow`` (the demo, real recordings, fault injection,
 # statistical checks) are left to whoever changes those paths: ``pytest -m slow``; the unit tier is
-# ``-m "not integration and not slow"``, the integration tier ``-m "integration and not slow"``.
+# ``-m unit`` (the marker is added below to every test that is neither integration nor slow), the integration tier
+# ``-m "integration and not slow"``.
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the unit tier: every test that is neither ``integration`` nor ``slow`` (``pytest -m unit``)."""
+    for item in items:
+        if item.get_closest_marker("integration") is None and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.unit)
 
 # no simulation bank unless a test asks for one: a bank shared by tests would hand one test's stored rollouts to
 # another that injects faults into the simulator (tests/workflows/test_bank.py switches it on where it is tested);
