@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
+from softsbi.core.seeds import VIEW_STREAM
 from torch import nn
 from torch.func import functional_call, stack_module_state, vmap
 
@@ -32,8 +33,6 @@ __all__ = ["train_members", "fit_stacked", "fit_shared_heads", "member_batches",
 
 #: ``training_view(zb, generator)``: the standardised training batch as the embedding net sees it in one step
 TrainingView = Callable[[torch.Tensor, torch.Generator], torch.Tensor]
-#: seeds the generator of the training view (point subsets) apart from the other streams of a seed
-VIEW_STREAM = 5150
 
 
 def member_batches(n: int, batch_size: int, rngs: Sequence[np.random.Generator]) -> list[np.ndarray]:

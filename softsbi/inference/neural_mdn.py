@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from softsbi.core.errors import DataError, ParameterError, ShapeError
+from softsbi.core.seeds import RECAL_STREAM
 from softsbi.plugins.manager import check_option_values
 from softsbi.inference.ensembles import train_members
 from softsbi.inference.mdn import ACTIVATIONS, MDNNetwork, MDNParams
@@ -39,8 +40,6 @@ TARGET_STD_FLOOR = 1e-3
 CONSTANT_FEATURE_RTOL = 1e-7
 #: the validation fraction must lie in (0, MAX_VAL_FRACTION): the rest trains
 MAX_VAL_FRACTION = 0.9
-#: seeds the generator of the covariance-scale recalibration's draws apart from the other streams of a seed
-RECAL_STREAM = 4242
 #: spaces the torch seeds of the ensemble members' initialisations
 MEMBER_SEED_STRIDE = 1_000_003
 

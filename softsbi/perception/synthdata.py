@@ -15,11 +15,9 @@ from softsbi.core.camera import Camera, RenderStyle
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.core.errors import SimulationFailed, SoftsbiError
 from softsbi.core.types import SEG_OBJECT, SEG_ROBOT, Scenario
+from softsbi.core.seeds import SYNTH_STREAM
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import make_scenario
-
-#: seeds the draws of the synthetic data set apart from the other streams of a seed
-SYNTH_STREAM = 4242
 
 
 def corner_keypoints(rollout: Any, camera: Camera) -> np.ndarray:

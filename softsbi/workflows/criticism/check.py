@@ -32,6 +32,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import (Band, CheckResult, Phase, ResidualShape, ResultDamaged, check_result_path, from_json,
                                   read_json, write_result)
 from softsbi.core.types import STATUS_OK, Scenario
+from softsbi.core.seeds import SENSOR_VIEW_STREAM, surface_seed
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
@@ -179,9 +180,9 @@ def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndar
         return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, run.metric_min_z)
     if measured_rollout is not None:
         mr = measured_rollout
-        # seeded like the null's summaries of that rollout (rollout_features, seed 1000 + its sample)
+        # seeded like the null's summaries of that rollout (rollout_features, surface_seed of its sample)
         views = sensor.observe_rollout(mr["vertices"], mr["faces"], mr.get("gripper"),
-                                       np.random.default_rng([1000 + int(mr.get("sample", 0)), 23]))
+                                       np.random.default_rng([surface_seed(mr.get("sample", 0)), SENSOR_VIEW_STREAM]))
         measured = views_or_highest(views, measured)
     return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, None, sensor,
                          rollout.get("gripper"))
@@ -275,7 +276,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
     exc = []
     for k, r in enumerate(ro):
         j = (k + 1) % len(ro)
-        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], run.dense.shape[1], 1000 + ro[j]["sample"])
+        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], run.dense.shape[1], surface_seed(ro[j]["sample"]))
         exc.append(rollout_region_errors(run, r, labels, len(names), run.dense)
                    - rollout_region_errors(run, r, labels, len(names), other, ro[j]))
     with np.errstate(all="ignore"), warnings.catch_warnings():

@@ -32,6 +32,7 @@ from softsbi.core.jsonfile import write_json_atomic
 from softsbi.core.levels import ALPHA
 from softsbi.core.results import MCPValue
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
+from softsbi.core.seeds import NULL_STREAM, surface_seed
 from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows import pools
 from softsbi.workflows.fit.config import FitConfig
@@ -43,8 +44,6 @@ from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.stats import MIN_NULL, mc_pvalue, misspecification_test, sensor_features, trajectory_features
 from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 
-#: seed stream of the replicate recordings (no fit's, training report's or check's stream)
-NULL_STREAM = 8080
 #: the file beside a stored task that holds its replicates' statistics
 NULL_FILE = "check-null.json"
 #: the fewest replicates that can reject at the default level: ``1 / (n + 1) <= ALPHA``
@@ -151,7 +150,7 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
                 continue
             part = [next(res) for _ in range(rollouts)]
             # as check samples a run's rollouts: as many points per frame as the recording's clouds hold
-            feats = [sensor_features(r, 1000 + i, rec.dense.shape[1], sensor["metric_min_z"], sensor["metric_frames"],
+            feats = [sensor_features(r, surface_seed(i), rec.dense.shape[1], sensor["metric_min_z"], sensor["metric_frames"],
                                      sensor["metric_camera"])
                      for i, r in enumerate(part)
                      if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]

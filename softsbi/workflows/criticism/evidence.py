@@ -25,6 +25,7 @@ import numpy as np
 from softsbi.core.errors import PosteriorError
 from softsbi.core.results import Score
 from softsbi.core.types import STATUS_OK, Recording
+from softsbi.core.seeds import EVIDENCE_STREAM, surface_seed
 from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.jobs import run_jobs
@@ -36,8 +37,6 @@ from softsbi.workflows.fit.task_store import PriorRound, StoredTask
 #: nominal fit has already narrowed; truncated proposals spend its rounds inside the posterior's region, where the
 #: corrected proposal's importance weights degenerate as the dimension grows
 REFIT_PROPOSAL = "truncated"
-#: seed stream of the amortised posterior predictive's draws and rollouts (no fit's or check's)
-EVIDENCE_STREAM = 6060
 
 
 def recording_from_run(run: RunView) -> Recording:
@@ -120,7 +119,7 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
                       bank=None)
         res = run_jobs(ctx, jobs, workers, cfg.executor, cfg.executor_options,
                        label=f"{effect}: amortised posterior-predictive rollouts")
-        feats = [rollout_features(run, r, 1000 + i) for i, r in enumerate(res)
+        feats = [rollout_features(run, r, surface_seed(i)) for i, r in enumerate(res)
                  if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
         if len(feats) >= MIN_NULL:
             out[effect] = summary_energy_score(f_obs, np.array(feats), scale)

@@ -35,6 +35,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import EnergyScore, MCPValue, Score
 from softsbi.core.levels import ALPHA  # noqa: F401 (re-exported)
 from softsbi.core.types import STATUS_OK
+from softsbi.core.seeds import EXTRA_ROLLOUT_SEED, SENSOR_VIEW_STREAM, surface_seed
 from softsbi.inference.summaries import local_thickness
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
@@ -126,7 +127,7 @@ def sensor_features(rollout: dict[str, Any], seed: int, n_dense: int, min_z: flo
     points per frame) rather than by a run: what a task sees before any run of it exists."""
     if camera is not None:
         clouds = sensor_from_json(camera).observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
-                                        np.random.default_rng([seed, 23]))
+                                        np.random.default_rng([seed, SENSOR_VIEW_STREAM]))
         return trajectory_features(clouds, None, frames)
     clouds = sampled_points(rollout["vertices"], rollout["faces"], n_dense, seed)
     # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own
@@ -256,7 +257,7 @@ class PosteriorPredictive:
     Rollout ``i < len(run.post_theta)`` is the fit's own evaluation sample ``i`` with its seed
     (so check's mean Chamfer is the fit's); further rollouts are posterior draws
     (:meth:`~softsbi.workflows.fit.runs.RunView.posterior`, draw seed ``seed``) with simulation
-    seeds ``10_000 + i``. Each rollout's summaries use surface samples with seed ``1000 + i``, so
+    seeds ``EXTRA_ROLLOUT_SEED + i``. Each rollout's summaries use surface samples seeded by ``surface_seed(i)``, so
     the same run gives the same null in both commands.
 
     Attributes:
@@ -303,7 +304,7 @@ class PosteriorPredictive:
             else:
                 if self._extra is None or len(self._extra) < hi - n_ev:
                     self._extra = run.posterior().sample(max(hi - n_ev, 2 * MAX_NULL), seed=self.seed)
-                items.append((self._extra[i - n_ev], 10_000 + i))
+                items.append((self._extra[i - n_ev], EXTRA_ROLLOUT_SEED + i))
         return items
 
     def ensure(self, n: int) -> "PosteriorPredictive":
@@ -317,7 +318,7 @@ class PosteriorPredictive:
             if r is None or r["status"] != STATUS_OK or r.get("vertices") is None:
                 continue
             self.rollouts.append(dict(r, sample=i))
-            self._feats.append(rollout_features(self.run, r, 1000 + i))
+            self._feats.append(rollout_features(self.run, r, surface_seed(i)))
         self.requested = n
         return self
 
@@ -353,7 +354,7 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     v = np.asarray(rollout["vertices"])[frames]
     g = rollout.get("gripper")
     views = sensor_from_json(camera).observe_rollout(v, rollout["faces"], None if g is None else np.asarray(g)[frames],
-                                                    np.random.default_rng([seed, 23]))
+                                                    np.random.default_rng([seed, SENSOR_VIEW_STREAM]))
     return views_or_highest(views, surface), None
 
 

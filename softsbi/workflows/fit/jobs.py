@@ -21,6 +21,7 @@ from softsbi.backends.common import check_effects
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
 from softsbi.core.types import INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
+from softsbi.core.seeds import eval_stream
 from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
@@ -275,7 +276,7 @@ def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
 def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
     """``(n_eval,)`` simulation seeds of a fit's final evaluation rollouts (posterior predictive):
     a check that re-simulates the same samples with them reproduces the fit's Chamfer exactly."""
-    return _round_seeds(seed, 10_000 + rounds, n_eval)
+    return _round_seeds(seed, eval_stream(rounds), n_eval)
 
 
 

@@ -35,6 +35,7 @@ from softsbi.core.fitreport import FitReport
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
+from softsbi.core.seeds import eval_stream
 from softsbi.plugins import registry
 from softsbi.workflows.fit.plots import write_fit_plots
 from softsbi.workflows.fit.bank import BankCount, banks_enabled, check_bank_path
@@ -218,7 +219,7 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
         if attrs.get("rounds") == cfg.rounds and len(arrays["status"]) == cfg.n_eval:
             return chamfer_stats(arrays["chamfer"], arrays["status"], store.config.get("metric_frames"),
                                   arrays.get("chamfer_one_sided"))
-    rng = np.random.default_rng([cfg.seed, 10_000 + cfg.rounds])
+    rng = np.random.default_rng([cfg.seed, eval_stream(cfg.rounds)])
     u = post.sample(cfg.n_eval, rng)
     theta = space.from_unit(u)
     seeds = evaluation_seeds(cfg.seed, cfg.rounds, cfg.n_eval)

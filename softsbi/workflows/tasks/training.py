@@ -28,6 +28,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.fitreport import TrainingReport
 from softsbi.core.posterior_store import EstimatorState
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
+from softsbi.core.seeds import TEST_STREAM
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.workflows import defaults, pools
@@ -38,8 +39,6 @@ from softsbi.workflows.fit.jobs import SimContext, _round_seeds, run_jobs
 from softsbi.workflows.criticism.screening import is_generic
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask, first_round_context
 
-#: seed stream of the held-out simulations (never a fit's: a fit's rounds use ``[seed, r, .]`` with small ``r``)
-TEST_STREAM = 7070
 
 
 def candidate_models(cfg: FitConfig, names: Sequence[str] | None) -> list[list[str]]:
