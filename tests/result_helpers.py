@@ -17,30 +17,39 @@ def joint(omnibus: int = 0, directional: int | None = 0, n: int = 200, alpha: fl
           family: tuple[str, ...] = ("wind", "extra-damping"), effect: str = "wind") -> JointTest:
     """A joint test from the exceedance counts of its omnibus and directional test among ``n`` nulls (``directional``
     None: the omnibus test alone)."""
-    return JointTest(MCPValue(omnibus, n), None if directional is None else MCPValue(directional, n),
-                     None if directional is None else effect, family, alpha, 200, 3.2)
+    return JointTest(
+        omnibus=MCPValue(exceed=omnibus, n=n),
+        directional=None if directional is None else MCPValue(exceed=directional, n=n),
+        directional_effect=None if directional is None else effect,
+        family=family,
+        alpha=alpha,
+        max_null=200,
+        statistic=3.2,
+    )
 
 
 def score(value: float, se: float = 0.4, n: int = 30) -> Score:
     """An energy score of the summaries (dimensionless), the score a diagnosis decides on."""
-    return Score(value, se, n)
+    return Score(value=value, se=se, n=n)
 
 
 def energy(energy_m: float, se_m: float = 0.0004, spread_m: float = 0.004, n: int = 30) -> EnergyScore:
     """An energy score of the clouds with its terms consistent: ``chamfer = energy + spread / 2``."""
-    return EnergyScore(energy_m, se_m, energy_m + spread_m / 2, spread_m, n)
+    return EnergyScore(energy_m=energy_m, se_m=se_m, chamfer_m=energy_m + spread_m / 2, spread_m=spread_m, n=n)
 
 
 def candidate(effect: str, explained: float = 0.3, exceed: int = 0, kind: str = "physics", generic: bool = False,
               description: str = "", n: int = 200, **estimate: float) -> Candidate:
-    return Candidate(effect, kind, generic, description, explained, MCPValue(exceed, n), estimate)
+    return Candidate(effect=effect, kind=kind, generic=generic, description=description, explained=explained,
+                     adjusted=MCPValue(exceed=exceed, n=n), estimate=estimate)
 
 
 def refit(effects: tuple[str, ...], value: float, test: JointTest, **fields) -> Refit:
     """A refit whose score of the summaries is ``value`` (its posterior-predictive Chamfer ``value / 1000 + 0.002`` m,
     over 30 rollouts)."""
     fields.setdefault("chamfer_n", 30)
-    return Refit(effects, f"run/refit-{'+'.join(effects)}", test, score(value), value / 1000 + 0.002, **fields)
+    return Refit(effects=effects, run=f"run/refit-{'+'.join(effects)}", test=test, score=score(value),
+                 chamfer_m=value / 1000 + 0.002, **fields)
 
 
 def check_result(T: int = 25, long: bool = False, test: JointTest | None = None, **fields) -> CheckResult:
@@ -48,15 +57,43 @@ def check_result(T: int = 25, long: bool = False, test: JointTest | None = None,
     t = np.linspace(0, 0.96, T)
     mean = 0.01 + 0.15 * t ** 2
     cuts = np.linspace(0, T, 4).round().astype(int)
-    phases = tuple(Phase(p, (int(cuts[k]), int(cuts[k + 1] - 1)), (float(t[cuts[k]]), float(t[cuts[k + 1] - 1])),
-                         float(mean[cuts[k]:cuts[k + 1]].mean()), float(0.8 * mean[cuts[k]:cuts[k + 1]].mean()),
-                         True, REGIONS[8]) for k, p in enumerate(["early", "middle", "late"]))
+    phases = tuple(
+        Phase(
+            phase=p,
+            frames=(int(cuts[k]), int(cuts[k + 1] - 1)),
+            t_s=(float(t[cuts[k]]), float(t[cuts[k + 1] - 1])),
+            chamfer_m=float(mean[cuts[k] : cuts[k + 1]].mean()),
+            chamfer_one_sided_m=float(0.8 * mean[cuts[k] : cuts[k + 1]].mean()),
+            in_fit=True,
+            worst_region=REGIONS[8],
+        )
+        for k, p in enumerate(["early", "middle", "late"])
+    )
     run = "/very/long/path/to/a/run/directory/" + ("with_a_really_long_name_" * 6 if long else "run")
     region = mean[:, None] * np.linspace(0.5, 1.5, 9)
-    band = Band(tuple(mean.tolist()), tuple((0.8 * mean).tolist()), tuple((1.2 * mean).tolist()))
-    out = CheckResult(run, 30, 0, tuple(t.tolist()), band, band, float(mean.mean()), float(0.8 * mean.mean()), None,
-                      None, "none", 0.0, REGIONS, tuple(map(tuple, region.tolist())),
-                      tuple(tuple([True] * 9) for _ in range(T)), dict(zip(REGIONS, region.mean(0).tolist())),
-                      phases, (T - 1, T - 2, T - 3), (REGIONS[8], REGIONS[7]), test or joint(), (),
-                      energy(float(mean.mean()) - 0.002))
+    band = Band(mean=tuple(mean.tolist()), q05=tuple((0.8 * mean).tolist()), q95=tuple((1.2 * mean).tolist()))
+    out = CheckResult(
+        run=run,
+        n_rollouts=30,
+        failed_rollouts=0,
+        times_s=tuple(t.tolist()),
+        chamfer=band,
+        chamfer_one_sided=band,
+        chamfer_mean_m=float(mean.mean()),
+        chamfer_one_sided_mean_m=float(0.8 * mean.mean()),
+        metric_min_z_m=None,
+        metric_frames=None,
+        metric_sensor="none",
+        table_z_m=0.0,
+        regions=REGIONS,
+        region_error_m=tuple(map(tuple, region.tolist())),
+        region_compared=tuple(tuple([True] * 9) for _ in range(T)),
+        region_mean_m=dict(zip(REGIONS, region.mean(0).tolist())),
+        phases=phases,
+        worst_frames=(T - 1, T - 2, T - 3),
+        worst_regions=(REGIONS[8], REGIONS[7]),
+        test=test or joint(),
+        ranking=(),
+        energy=energy(float(mean.mean()) - 0.002),
+    )
     return replace(out, **fields)

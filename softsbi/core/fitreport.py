@@ -25,7 +25,7 @@ MASK_METRIC = "mask_chamfer_px"
 REWRITE = "re-running the fit with the same `softsbi fit ... --out {run}` command"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ParameterRow:
     """One inferred parameter as the report lists it (:meth:`~softsbi.core.types.ParamSpace.to_json`).
 
@@ -50,7 +50,7 @@ class ParameterRow:
         return d
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Contraction:
     """How much the posterior narrowed one parameter (:func:`~softsbi.inference.contraction.contraction`).
 
@@ -69,7 +69,7 @@ class Contraction:
     informed: bool | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BoundPressure:
     """A parameter whose posterior piles up at a prior bound (:func:`~softsbi.inference.contraction.bound_pressure`).
 
@@ -91,7 +91,7 @@ class BoundPressure:
         return _plain(self)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RoundRow:
     """One round of the fit (``per_round``).
 
@@ -127,7 +127,7 @@ class RoundRow:
         return {k: v for k, v in d.items() if k not in drop}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BestFitRow:
     """``best_fit``: the best-scoring simulation the fit found (:mod:`~softsbi.workflows.fit.bestfit`).
 
@@ -176,7 +176,7 @@ _MASK_KEYS = ("mask_chamfer_prior_px", "mask_chamfer_prior_std_px", "mask_chamfe
 _OMIT_IF_NONE = ("chamfer_reduction", "truth_in_90pct_interval")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FitReport:
     """A finished fit's ``report.json``, typed (module docstring: reading older reports).
 
@@ -333,7 +333,7 @@ class FitReport:
 # calibration.json
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Coverage:
     """Expected coverage of the highest-density regions at every credibility level.
 
@@ -362,7 +362,7 @@ class Coverage:
     band_90: tuple[float, float] | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RankHistograms:
     """SBC rank histograms, one per parameter (:func:`~softsbi.inference.calibration.rank_tests`).
 
@@ -385,7 +385,7 @@ class RankHistograms:
     rejects: tuple[bool, ...] = ()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Tarp:
     """TARP coverage (Lemos et al. 2023, :func:`~softsbi.inference.calibration.tarp_coverage`).
 
@@ -399,7 +399,7 @@ class Tarp:
     ks_pvalue: float | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CalibrationResult:
     """``calibration.json``: simulation-based calibration of a run's estimator
     (:func:`~softsbi.workflows.tasks.calibrate.calibrate_run`).
@@ -484,7 +484,7 @@ class CalibrationResult:
         return {k: out[k] for k in order}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TrainingReport:
     """A stored task's training report (``softsbi task train``,
     :func:`~softsbi.workflows.tasks.training.training_report`): its amortised posterior measured on held-out

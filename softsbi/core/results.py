@@ -24,7 +24,7 @@ from softsbi.core.jsonfile import (RENAMED, SCHEMA, UPGRADED, ResultDamaged, Res
 VERDICTS = ("nothing-missing", "missing-effect", "misspecified-unexplained")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class MCPValue:
     """A Monte-Carlo p-value ``(exceed + 1) / (n + 1)`` (Davison & Hinkley 1997, eq. 4.11).
 
@@ -58,7 +58,7 @@ class MCPValue:
         return self.exceed == 0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JointTest:
     """``check``'s misspecification test: is the measurement inside the posterior predictive distribution?
 
@@ -129,7 +129,7 @@ class JointTest:
         return self.p_value <= self.alpha
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Candidate:
     """One candidate effect: its linearised screening and, on a task trained with its model, its amortised evidence.
 
@@ -162,7 +162,7 @@ class Candidate:
         return self.adjusted is not None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class EnergyScore:
     """The Chamfer energy score (``check``, ``compare``): the energy score of a posterior predictive distribution
     against the measured clouds (Gneiting & Raftery 2007, eq. 22), with the fit's Chamfer distance as the distance:
@@ -183,7 +183,7 @@ class EnergyScore:
     n: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Score:
     """The summary energy score (``diagnose``): the energy score of a posterior predictive distribution of ``check``'s
     summary statistics against the measurement's (Gneiting & Raftery 2007, eq. 22, Euclidean distance):
@@ -203,7 +203,7 @@ class Score:
     n: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Estimate:
     """A refit's posterior of one parameter of an added effect.
 
@@ -236,7 +236,7 @@ class Estimate:
         return None if self.width_ratio is None else self.width_ratio <= 0.5
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Refit:
     """The nominal model with added effects, fitted to the same measurement and checked.
 
@@ -282,7 +282,7 @@ class Refit:
                      and all(x.may_be_off for x in own))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Gain:
     """How much lower model B's score is than model A's: ``difference = A - B``, its standard error ``se`` and
     ``z = difference / se`` (all dimensionless, as the :class:`Score` they compare)."""
@@ -301,7 +301,7 @@ class Gain:
         d = a.value - b.value
         se = math.hypot(a.se, b.se)
         z = d / se if se > 0 else (math.inf if d > 0 else -math.inf if d < 0 else 0.0)
-        return cls(float(d), float(se), float(z))
+        return cls(difference=float(d), se=float(se), z=float(z))
 
     def exceeds(self, k_se: float) -> bool:
         """True when the gain is more than ``k_se`` standard errors (``z > k_se``): the diagnosis' margin for an
@@ -309,7 +309,7 @@ class Gain:
         return self.z > k_se
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RefitGain:
     """A refit's score against the model it extends (the nominal fit's for one effect, its first effect's refit for a
     pair): ``effects`` the refit's added effects, ``gain`` the :class:`Gain`."""
@@ -327,7 +327,7 @@ class Role(str, Enum):
     NOT_NAMED = "not named"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Decision:
     """What a diagnosis concludes (:func:`softsbi.workflows.criticism.decide.decide`).
 
@@ -365,7 +365,7 @@ class Decision:
         return next((g.gain for g in self.gains if set(g.effects) == set(effects)), None)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ResidualShape:
     """When, where and in which direction the nominal fit misses the measurement.
 
@@ -392,7 +392,7 @@ class ResidualShape:
     worst_regions: tuple[str, ...]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Diagnosis:
     """The result of ``diagnose``: detect, propose, decide (:mod:`softsbi.workflows.criticism.diagnose`).
 
@@ -444,7 +444,7 @@ class Diagnosis:
         return next((r for r in self.refits if set(r.effects) == want), None)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Phase:
     """One phase of the motion: ``phase`` name, ``frames`` ``(first, last)``, ``t_s`` ``(start, end)``, the mean
     Chamfer (m) of the posterior rollouts over it (and the one-sided one), whether the fit's frames include it
@@ -459,7 +459,7 @@ class Phase:
     worst_region: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Band:
     """A per-frame curve with its 5-95% band over posterior rollouts: ``mean``, ``q05``, ``q95`` ``(T,)`` (m)."""
 
@@ -468,7 +468,7 @@ class Band:
     q95: tuple[float, ...]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CheckResult:
     """The result of ``check``: where a fit misses the measurement, and whether it can produce it.
 

@@ -112,8 +112,9 @@ def _unexplained_with_a_pair(tmp_path):
     refits = (refit(("time-offset",), 25.0, still), refit(("wind",), 33.6, still),
               refit(("time-offset", "wind"), 40.5, still))
     nominal = score(28.5)
-    return Diagnosis(str(tmp_path), ("time-offset", "wind", "table-unseen"), 0.05, 2.0, joint(0, 0), ranking, nominal,
-                     refits, decide(joint(0, 0), nominal, refits))
+    return Diagnosis(run=str(tmp_path), candidates=("time-offset", "wind", "table-unseen"), alpha=0.05, k_se=2.0,
+                     test=joint(0, 0), ranking=ranking, nominal=nominal,
+                     refits=refits, decision=decide(joint(0, 0), nominal, refits))
 
 
 def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):

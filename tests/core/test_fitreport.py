@@ -51,14 +51,29 @@ REPORT = {
 
 def test_a_report_reads_into_typed_fields_and_writes_back_the_same_object():
     r = FitReport.from_json(REPORT)
-    assert r.parameters[1] == ParameterRow("b", 1e-3, 1.0, "m", True, "toy b", (0.0, None))
+    assert r.parameters[1] == ParameterRow(name="b", low=1e-3, high=1.0, unit="m", log=True, description="toy b",
+                                           limits=(0.0, None))
     assert r.names == ["a", "b"] and r.effects == () and r.metric_frames == (1, 2)
-    assert r.chamfer_posterior_m == 0.122 and r.per_round[1] == RoundRow(1, 60, 0, 0, 0.122, 0.025, None, None,
-                                                                         0.87, 0.85, {"a": 0.23, "b": 0.01})
-    assert r.contraction["b"] == Contraction("log", 0.04, None, 0.002, 0.9, 0.98, False)
-    assert r.posterior_at_bounds == (BoundPressure("b", "upper", 1.0, "m", 0.2, (0.001, 3.0)),)
-    assert r.best_fit == BestFitRow({"a": 0.46, "b": 0.77}, 0.064, (0.059, 0.072), "round 1", 4, 2080083688, 125,
-                                    "run.zarr/best_fit", None)
+    assert r.chamfer_posterior_m == 0.122 and r.per_round[1] == RoundRow(
+        round=1,
+        usable=60,
+        failed=0,
+        bank_hits=0,
+        chamfer_posterior_m=0.122,
+        chamfer_posterior_std_m=0.025,
+        mask_chamfer_posterior_px=None,
+        mask_chamfer_posterior_std_px=None,
+        mass_in_box=0.87,
+        train_seconds=0.85,
+        posterior_mean={"a": 0.23, "b": 0.01},
+    )
+    assert r.contraction["b"] == Contraction(scale="log", center=0.04, spread=None, q05=0.002, q95=0.9,
+                                             width_ratio=0.98, informed=False)
+    assert r.posterior_at_bounds == (BoundPressure(param="b", side="upper", bound=1.0, unit="m", mass=0.2,
+                                                   suggested_bounds=(0.001, 3.0)),)
+    assert r.best_fit == BestFitRow(theta={"a": 0.46, "b": 0.77}, value=0.064, per_frame=(0.059, 0.072),
+                                    source="round 1", simulation=4, seed=2080083688, simulations_searched=125,
+                                    rollout="run.zarr/best_fit", refine=None)
     assert r.interval("a") == (-0.57, 0.87) and r.interval("z") == (None, None)
     assert r.width_ratio("b") == 0.98 and r.width_ratio("z") is None
     assert r.to_json() == REPORT and r.extra == {}

@@ -318,8 +318,9 @@ def test_check_phase_labels_stay_readable_when_the_phases_are_short():
     t, mean = np.array(base.times_s), np.array(base.chamfer.mean)
     cuts = [0, 3, 6, 9, 12, 15, 18, 25]
     names = [f"move {k + 1}" for k in range(6)] + ["after the last move"]
-    phases = tuple(Phase(n, (a, b - 1), (float(t[a]), float(t[b - 1])), float(mean[a:b].mean()), None, True,
-                         REGIONS[8]) for n, a, b in zip(names, cuts[:-1], cuts[1:]))
+    phases = tuple(Phase(phase=n, frames=(a, b - 1), t_s=(float(t[a]), float(t[b - 1])),
+                         chamfer_m=float(mean[a:b].mean()), chamfer_one_sided_m=None, in_fit=True,
+                         worst_region=REGIONS[8]) for n, a, b in zip(names, cuts[:-1], cuts[1:]))
     fig = R.check_figure(dataclasses.replace(base, phases=phases))
     fig.canvas.draw()
     top = next(a for a in fig.axes[0].child_axes)

@@ -30,11 +30,12 @@ REJECTS_REFIT = joint(0, 30, family=("extra-damping", "time-offset", "generic-co
 
 #: the wind's refit: adequate, 62% lower, its wind_y pressing the upper prior bound (not a physical limit)
 WIND = refit(("wind",), 8, ACCEPTS,
-             estimates=(Estimate("wind_x", "m/s", 0.05, -0.2, 0.3, 0.12),
-                        Estimate("wind_y", "m/s", 1.79, 1.55, 1.98, 0.11, "upper", (-2.0, 4.0))))
+             estimates=(Estimate(name="wind_x", unit="m/s", mean=0.05, q05=-0.2, q95=0.3, width_ratio=0.12),
+                        Estimate(name="wind_y", unit="m/s", mean=1.79, q05=1.55, q95=1.98, width_ratio=0.11,
+                                 pressed="upper", suggested_bounds=(-2.0, 4.0))))
 #: extra damping's refit: adequate, 0.84 cm, within 2 standard errors of the wind's; its parameter not informed
 DAMPING = refit(("extra-damping",), 8.4, joint(50, 70, family=("wind", "time-offset", "generic-constant")),
-                estimates=(Estimate("damping_rate", "1/s", 3.1, 0.4, 7.9, 0.8),))
+                estimates=(Estimate(name="damping_rate", unit="1/s", mean=3.1, q05=0.4, q95=7.9, width_ratio=0.8),))
 #: single refits that lower the score but leave the measurement outside, and the pair that explains it
 WIND_PART = refit(("wind",), 15, REJECTS_REFIT,
                   ranking=(candidate("generic-constant", 0.5, generic=True), candidate("extra-damping", 0.4, 1)))
@@ -42,19 +43,28 @@ DAMPING_PART = refit(("extra-damping",), 17, joint(0, 5, family=("wind", "time-o
 PAIR = refit(("wind", "extra-damping"), 9,
              joint(60, 45, family=("time-offset", "generic-constant"), effect="time-offset"))
 RESIDUAL = ResidualShape(
-    tuple(range(10, 22)) + (24,), ((10, 21, 0.40, 0.84), (24, 24, 0.96, 0.96)),
-    ({"phase": "early", "frames": [0, 7], "fraction_flagged": 0.0, "chamfer_m": 0.011},
-     {"phase": "middle", "frames": [8, 16], "fraction_flagged": 0.78, "chamfer_m": 0.035},
-     {"phase": "late", "frames": [17, 24], "fraction_flagged": 0.75, "chamfer_m": 0.084}),
-    (0.3, 0.7, -0.4), "+y", "y_q95", {n: 0.1 * i for i, n in enumerate(REGIONS)}, (REGIONS[8], REGIONS[7]))
+    frames_flagged=tuple(range(10, 22)) + (24,),
+    frame_spans=((10, 21, 0.40, 0.84), (24, 24, 0.96, 0.96)),
+    phases=(
+        {"phase": "early", "frames": [0, 7], "fraction_flagged": 0.0, "chamfer_m": 0.011},
+        {"phase": "middle", "frames": [8, 16], "fraction_flagged": 0.78, "chamfer_m": 0.035},
+        {"phase": "late", "frames": [17, 24], "fraction_flagged": 0.75, "chamfer_m": 0.084},
+    ),
+    centroid_offset_cm=(0.3, 0.7, -0.4),
+    direction="+y",
+    worst_summary="y_q95",
+    region_excess_cm={n: 0.1 * i for i, n in enumerate(REGIONS)},
+    worst_regions=(REGIONS[8], REGIONS[7]),
+)
 
 
 def diagnosis(refits=(), test=REJECTS, **fields) -> Diagnosis:
     """A diagnosis of the fixed nominal fit (posterior-predictive Chamfer 2.5 cm over 30 rollouts; the refit budget
     --confirm is the number of single refits) whose decision is decide()'s on ``refits``."""
     fields = {"chamfer_m": 0.025, "chamfer_n": 30, "confirm": sum(len(r.effects) == 1 for r in refits), **fields}
-    return Diagnosis("run/nominal", FAMILY, 0.05, 2.0, test, RANKING, NOMINAL, tuple(refits),
-                     decide(test, NOMINAL, refits, 2.0), **fields)
+    return Diagnosis(run="run/nominal", candidates=FAMILY, alpha=0.05, k_se=2.0, test=test, ranking=RANKING,
+                     nominal=NOMINAL, refits=tuple(refits),
+                     decision=decide(test, NOMINAL, refits, 2.0), **fields)
 
 
 NOTHING = diagnosis(test=joint(90, 100))
@@ -244,8 +254,10 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
     """A sensor refit whose noise presses the upper bound (widening named) and whose dropout presses 0, a physical
     limit (nothing to widen: no --bounds advice)."""
     r = refit(("point-noise",), 8, ACCEPTS,
-              estimates=(Estimate("noise_std", "m", 0.0049, 0.0041, 0.0058, 0.2, "upper", (0.0, 0.015)),
-                         Estimate("dropout", "1", 0.0, 0.0, 0.02, 0.1, "lower", None)))
+              estimates=(Estimate(name="noise_std", unit="m", mean=0.0049, q05=0.0041, q95=0.0058, width_ratio=0.2,
+                                  pressed="upper", suggested_bounds=(0.0, 0.015)),
+                         Estimate(name="dropout", unit="1", mean=0.0, q05=0.0, q95=0.02, width_ratio=0.1,
+                                  pressed="lower", suggested_bounds=None)))
     d = diagnosis([r])
     assert diagnosis_text(d)[2] == (
         f"With point-noise: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
@@ -258,7 +270,7 @@ def test_a_refit_estimate_pressing_a_bound_that_is_no_limit_adds_the_wider_prior
     """The toy wind's refit: its wind presses the upper prior bound 0.5 m, the wider prior 0 to 0.75 m is named; the
     same estimate pressing nothing, or pressing a physical limit (no wider prior), adds no sentence."""
     def words(**pressed):
-        est = Estimate("wind", "m", 0.49, 0.41, 0.5, 0.2, **pressed)
+        est = Estimate(name="wind", unit="m", mean=0.49, q05=0.41, q95=0.5, width_ratio=0.2, **pressed)
         return refit_words(refit(("toy-wind",), 0.01, joint(50, 50), estimates=(est,)), score(0.02))
 
     plain = ("With toy-wind: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
@@ -273,10 +285,10 @@ def test_a_refit_estimate_pressing_a_bound_that_is_no_limit_adds_the_wider_prior
 def test_an_estimate_at_a_switched_off_value_reads_zero():
     """A switched-off effect's estimate and interval (8.7e-22 and 1.3e-14 are rounding) read as 0; an estimate
     without its interval is the value alone."""
-    assert estimate_words(Estimate("unseen_height", "m", 8.74e-22, 0.0, 1.29e-14)) == (
+    assert estimate_words(Estimate(name="unseen_height", unit="m", mean=8.74e-22, q05=0.0, q95=1.29e-14)) == (
         "unseen_height = 0 m (90% interval 0 to 0 m)")
-    assert estimate_words(Estimate("wind_x", "m/s", 0.0123)) == "wind_x = 0.0123 m/s"
-    assert estimate_words(Estimate("damping_rate", "1/s", 3.1, 0.4, 7.9, 0.8)) == (
+    assert estimate_words(Estimate(name="wind_x", unit="m/s", mean=0.0123)) == "wind_x = 0.0123 m/s"
+    assert estimate_words(Estimate(name="damping_rate", unit="1/s", mean=3.1, q05=0.4, q95=7.9, width_ratio=0.8)) == (
         "damping_rate = 3.1 1/s (90% interval 0.4 to 7.9 1/s, not informed by the data)")
 
 
@@ -422,9 +434,9 @@ def test_compare_rows_are_keyed_by_their_metric_and_labelled_as_before():
 def test_p_values_in_words_and_in_table_cells_say_their_resolution():
     """The words of a Monte-Carlo p-value and of check's joint test (formerly MCPValue.text / JointTest.text, with the
     tests of softsbi.workflows.criticism.stats and decide): never below the resolution of the null that gave them."""
-    assert p_words(MCPValue(3, 30)) == "p = 0.13 (3 of 30 null simulations as extreme)"
-    assert p_words(MCPValue(0, 30)) == "p <= 1/31 (beyond all 30 null simulations)"
-    assert (p_short(MCPValue(3, 30)), p_short(MCPValue(0, 30))) == ("p = 0.13", "p <= 1/31")
+    assert p_words(MCPValue(exceed=3, n=30)) == "p = 0.13 (3 of 30 null simulations as extreme)"
+    assert p_words(MCPValue(exceed=0, n=30)) == "p <= 1/31 (beyond all 30 null simulations)"
+    assert (p_short(MCPValue(exceed=3, n=30)), p_short(MCPValue(exceed=0, n=30))) == ("p = 0.13", "p <= 1/31")
     assert p_words(joint(0, 30)) == ("p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null "
                                      "simulations)")
     assert p_words(joint(12, 3)) == ("p = 0.04 (two tests, Bonferroni: 2 x the directional test's p = 0.02; 200 null "
@@ -441,7 +453,8 @@ def test_p_values_in_words_and_in_table_cells_say_their_resolution():
 def test_a_calibrated_omnibus_p_value_counts_replicate_recordings_and_its_own_null_sets_the_floor():
     """A trained task's calibrated omnibus test (softsbi.workflows.criticism.check_null) against 100 replicates, beside a
     directional test on 30 rollouts: each p-value names what it counts, and the joint floor is the larger null's."""
-    cal = JointTest(MCPValue(0, 100), MCPValue(5, 30), "wind", ("wind",), 0.05, 200, 3.2, calibrated=True)
+    cal = JointTest(omnibus=MCPValue(exceed=0, n=100), directional=MCPValue(exceed=5, n=30), directional_effect="wind",
+                    family=("wind",), alpha=0.05, max_null=200, statistic=3.2, calibrated=True)
     assert cal.n_null == 100 and cal.deciding == "omnibus" and cal.p_value == pytest.approx(2 / 101)
     assert p_words(cal) == ("p <= 2/101 (two tests, Bonferroni; the omnibus test beyond all 100 replicate recordings "
                             "of the task, refitted and checked the same way)")
@@ -449,7 +462,16 @@ def test_a_calibrated_omnibus_p_value_counts_replicate_recordings_and_its_own_nu
         "misspecification test: omnibus (calibrated) p <= 1/101 (beyond all 100 replicate recordings of the task, "
         "refitted and checked the same way); directional (max-T over 1 candidate effects, strongest wind) p = 0.19 "
         "(5 of 30 null simulations as extreme)")
-    weak = JointTest(MCPValue(40, 100), MCPValue(1, 30), "wind", ("wind",), 0.05, 200, 3.2, calibrated=True)
+    weak = JointTest(
+        omnibus=MCPValue(exceed=40, n=100),
+        directional=MCPValue(exceed=1, n=30),
+        directional_effect="wind",
+        family=("wind",),
+        alpha=0.05,
+        max_null=200,
+        statistic=3.2,
+        calibrated=True,
+    )
     assert p_words(weak) == ("p = 0.13 (two tests, Bonferroni: 2 x the directional test's p = 0.065; 30 null "
                              "simulations)")
 
@@ -500,7 +522,7 @@ def test_a_diagnosis_gain_is_dimensionless_and_an_older_file_still_reads():
     assert data["schema"] == SCHEMA >= 3 and set(data["decision"]["gain"]) == {"difference", "se", "z"}
     old = {**data, "schema": 2, "decision": {**data["decision"], "gain": {"difference_m": 13.0, "se_m": 0.64,
                                                                             "z": 20.3}}}
-    assert from_json(Diagnosis, old).decision.gain == Gain(13.0, 0.64, 20.3)
+    assert from_json(Diagnosis, old).decision.gain == Gain(difference=13.0, se=0.64, z=20.3)
 
 
 def test_the_fit_report_hints_at_check_when_the_90_intervals_miss_more_hidden_values_than_chance():

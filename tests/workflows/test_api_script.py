@@ -74,4 +74,8 @@ def test_the_python_api_how_to_lists_each_function_with_the_code_s_signature_and
     assert f"`check`'s `settings`: `{_rendered(check_run, ('run_dir',))}`" in doc
     assert f"`diagnose`'s `settings`: `{_rendered(diagnose_run, ('run_dir', 'effects', 'progress'))}`" in doc
     assert f"`compare`'s `settings`: `{_rendered(compare_runs, ('run_a', 'run_b', 'out_dir'))}`" in doc
-    assert "SOFTSBI_PLUGINS" in doc and "MCPValue" in doc and MCPValue(3, 30).p_value == MCPValue(3, 30).value
+    assert (
+        "SOFTSBI_PLUGINS" in doc
+        and "MCPValue" in doc
+        and MCPValue(exceed=3, n=30).p_value == MCPValue(exceed=3, n=30).value
+    )

@@ -98,7 +98,8 @@ def test_the_printed_report_and_a_refit_sentence_say_so(toy_run, capsys):
     noted = [line for line in lines if line not in plain]
     assert len(lines) == len(plain) + 1 and len(noted) == 1 and bound_sentence(pressed) in noted[0]
     # a diagnosis refit whose added parameter presses its prior bound names the wider prior to try
-    est = Estimate("wind", "m", 0.49, 0.41, 0.5, 0.2, "upper", (0.0, 0.75))
+    est = Estimate(name="wind", unit="m", mean=0.49, q05=0.41, q95=0.5, width_ratio=0.2, pressed="upper",
+                   suggested_bounds=(0.0, 0.75))
 
     def words(e):
         return refit_words(refit(("toy-wind",), 0.01, joint(50, 50), estimates=(e,)), score(0.02))

@@ -13,22 +13,25 @@ ALPHA = 0.05
 
 def joint(p_exceed: int = 0, n: int = 200) -> JointTest:
     """A joint test whose omnibus and directional p-values both come from ``p_exceed`` of ``n`` nulls."""
-    return JointTest(MCPValue(p_exceed, n), MCPValue(p_exceed, n), "x", ("a", "b"), ALPHA, 200)
+    return JointTest(omnibus=MCPValue(exceed=p_exceed, n=n), directional=MCPValue(exceed=p_exceed, n=n),
+                     directional_effect="x", family=("a", "b"), alpha=ALPHA, max_null=200)
 
 
 REJECTS, ACCEPTS = joint(0), joint(150, 200)
 
 
 def score(e: float, se: float = 0.01) -> Score:
-    return Score(e, se, 30)
+    return Score(value=e, se=se, n=30)
 
 
 def cand(name: str, generic: bool = False, p: int = 0) -> Candidate:
-    return Candidate(name, "physics", generic, name, 0.3, MCPValue(p, 200), {})
+    return Candidate(effect=name, kind="physics", generic=generic, description=name, explained=0.3,
+                     adjusted=MCPValue(exceed=p, n=200), estimate={})
 
 
 def refit(effects: tuple[str, ...], e: float, adequate: bool = True, ranking: tuple[Candidate, ...] = ()) -> Refit:
-    return Refit(effects, f"refit-{'+'.join(effects)}", ACCEPTS if adequate else REJECTS, score(e), e,
+    return Refit(effects=effects, run=f"refit-{'+'.join(effects)}", test=ACCEPTS if adequate else REJECTS,
+                 score=score(e), chamfer_m=e,
                  ranking=ranking)
 
 
@@ -36,13 +39,16 @@ NOMINAL = score(1.0)
 
 
 def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_never_below_its_resolution():
-    t = JointTest(MCPValue(0, 200), MCPValue(3, 200), "wind", ("wind",), ALPHA, 200)
+    t = JointTest(omnibus=MCPValue(exceed=0, n=200), directional=MCPValue(exceed=3, n=200), directional_effect="wind",
+                  family=("wind",), alpha=ALPHA, max_null=200)
     assert t.deciding == "omnibus" and t.p_value == 2 / 201 and t.resolution == 2 / 201 and t.misspecified
-    assert (t.tests, t.n_null) == (2, 200) and t.best == MCPValue(0, 200) and t.best.at_floor
-    one = JointTest(MCPValue(0, 30), None, None, (), ALPHA, 200)
+    assert (t.tests, t.n_null) == (2, 200) and t.best == MCPValue(exceed=0, n=200) and t.best.at_floor
+    one = JointTest(omnibus=MCPValue(exceed=0, n=30), directional=None, directional_effect=None, family=(), alpha=ALPHA,
+                    max_null=200)
     assert one.tests == 1 and one.p_value == 1 / 31 and one.misspecified
     # 30 nulls cannot reach 0.05 with two tests: the smallest joint p is 2/31 > 0.05
-    assert not JointTest(MCPValue(0, 30), MCPValue(0, 30), "x", ("x",), ALPHA, 30).misspecified
+    assert not JointTest(omnibus=MCPValue(exceed=0, n=30), directional=MCPValue(exceed=0, n=30), directional_effect="x",
+                         family=("x",), alpha=ALPHA, max_null=30).misspecified
 
 
 def test_nothing_missing_iff_the_nominal_test_does_not_reject():
@@ -52,9 +58,9 @@ def test_nothing_missing_iff_the_nominal_test_does_not_reject():
 
 def test_the_adequate_refit_with_the_lowest_energy_score_is_named():
     d = decide(REJECTS, NOMINAL, [refit(("a",), 0.6), refit(("b",), 0.3)])
-    assert d == Decision("missing-effect", named=("b",), gain=gain(NOMINAL, score(0.3)),
-                         gains=(RefitGain(("a",), gain(NOMINAL, score(0.6))),
-                                RefitGain(("b",), gain(NOMINAL, score(0.3)))))
+    assert d == Decision(verdict="missing-effect", named=("b",), gain=gain(NOMINAL, score(0.3)),
+                         gains=(RefitGain(effects=("a",), gain=gain(NOMINAL, score(0.6))),
+                                RefitGain(effects=("b",), gain=gain(NOMINAL, score(0.3)))))
     assert d.role(("b",)) is Role.NAMED and d.role(("a",)) is Role.NOT_NAMED
     assert d.gain_of(("a",)) == gain(NOMINAL, score(0.6)) and d.gain_of(("z",)) is None
 
@@ -98,7 +104,8 @@ def test_a_pair_is_named_only_when_it_is_adequate_and_improves_on_its_first_effe
 
 
 def off_estimates(effect: str, *reaches_off: bool) -> tuple[Estimate, ...]:
-    return tuple(Estimate(f"{effect}_{i}", "1", 0.5, 0.1, 0.9, 0.5, effect=effect, may_be_off=r)
+    return tuple(Estimate(name=f"{effect}_{i}", unit="1", mean=0.5, q05=0.1, q95=0.9, width_ratio=0.5, effect=effect,
+                          may_be_off=r)
                  for i, r in enumerate(reaches_off))
 
 
@@ -116,8 +123,9 @@ def test_a_refit_whose_added_effect_the_data_leave_possibly_off_is_never_named()
     pair = replace(refit(("c", "a"), 0.2), estimates=off_estimates("c", False) + off_estimates("a", True))
     assert pair.maybe_off == ("a",) and decide(REJECTS, NOMINAL, [base, pair]).named == ()
     # an older file's estimates (no effect, unknown) say nothing: the refit may be named
-    assert decide(REJECTS, NOMINAL, [replace(refit(("a",), 0.2), estimates=(Estimate("a_0", "1", 0.5),))]).named \
-        == ("a",)
+    assert decide(
+        REJECTS, NOMINAL, [replace(refit(("a",), 0.2), estimates=(Estimate(name="a_0", unit="1", mean=0.5),))]
+    ).named == ("a",)
 
 
 def test_an_off_value_inside_the_prior_is_reached_by_the_interval_and_one_at_a_bound_by_pressing_it():

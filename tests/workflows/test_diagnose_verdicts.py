@@ -81,8 +81,9 @@ def diagnose_with(refits: dict, confirm: int = 2, ranking=RANKING) -> Diagnosis:
     made = []
     while (nxt := next_refit(REJECTS, ranking, NOMINAL, made, confirm)) is not None:
         made.append(refits[nxt](nxt))
-    return Diagnosis("run", tuple(c.effect for c in ranking), 0.05, 2.0, REJECTS, ranking, NOMINAL, tuple(made),
-                     decide(REJECTS, NOMINAL, made), confirm=confirm)
+    return Diagnosis(run="run", candidates=tuple(c.effect for c in ranking), alpha=0.05, k_se=2.0, test=REJECTS,
+                     ranking=ranking, nominal=NOMINAL, refits=tuple(made),
+                     decision=decide(REJECTS, NOMINAL, made), confirm=confirm)
 
 
 def test_a_named_effect_whose_refit_is_still_misspecified_gives_the_third_verdict():
@@ -214,20 +215,21 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
         lambda cls, c: cls(rounds=2, sims_per_round=40, proposal="corrected", sensor_draws=4,
                            effects=["time-offset"])))
     with pytest.raises(_Stop):
-        dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], None)
+        dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], scale=None)
     cfg = seen["cfg"]
     assert seen["out"] == tmp_path / "refit-point-noise"
     assert cfg.proposal == "truncated" == REFIT_PROPOSAL and cfg.sensor_draws == 0
     # by default the nominal fit's budget
     assert cfg.effects == ["time-offset", "point-noise"] and (cfg.rounds, cfg.sims_per_round) == (2, 40)
     with pytest.raises(_Stop):
-        dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], None, rounds=3, sims_per_round=40)
+        dg.refit_model(_Run(), ["wind", "point-noise"], ["point-noise", "wind"], scale=None, rounds=3,
+                       sims_per_round=40)
     assert seen["out"] == tmp_path / "refit-wind+point-noise"
     assert (seen["cfg"].rounds, seen["cfg"].sims_per_round, seen["cfg"].sensor_draws) == (3, 40, 0)
     amortised = _Run()
     amortised.report = types.SimpleNamespace(per_round=[types.SimpleNamespace(task="ab" * 32)])
     with pytest.raises(_Stop):
-        dg.refit_model(amortised, ["wind"], ["point-noise", "wind"], None)
+        dg.refit_model(amortised, ["wind"], ["point-noise", "wind"], scale=None)
     assert seen["cfg"].rounds is None  # the nominal fit stopped at a trained task: so does the refit, where it can
 
 

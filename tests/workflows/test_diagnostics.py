@@ -276,7 +276,8 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
     run = load_run(nominal)
     # a level the 12-rollout null resolves (2/13 <= 0.2), so the refit's check stays at 12 rollouts
     scale = np.ones(len(run_features(run, run.dense)))
-    first = refit_model(run, ["toy-wind"], ["toy-wind"], scale, alpha=0.2, rounds=1, sims_per_round=100, n_null=12,
+    first = refit_model(run, ["toy-wind"], ["toy-wind"], scale=scale, alpha=0.2, rounds=1, sims_per_round=100,
+                        n_null=12,
                         max_null=12, workers=1)
     out = Path(first.run)
     assert (first.rounds, first.sims_per_round) == (1, 100) and out == nominal / "refit-toy-wind"
@@ -288,7 +289,8 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
         assert e.width_ratio == report["contraction"][e.name]["width_ratio"]
         assert e.informed == report["contraction"][e.name]["informed"]
     theta0 = RunStore.open(out / "run.zarr", mode="r").round_data(0)["theta"].copy()
-    again = refit_model(run, ["toy-wind"], ["toy-wind"], scale, alpha=0.2, rounds=2, sims_per_round=100, n_null=12,
+    again = refit_model(run, ["toy-wind"], ["toy-wind"], scale=scale, alpha=0.2, rounds=2, sims_per_round=100,
+                        n_null=12,
                         max_null=12, workers=1)
     store = RunStore.open(out / "run.zarr", mode="r")
     assert again.rounds == 2 and store.completed_rounds() == [0, 1]

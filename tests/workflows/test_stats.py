@@ -71,13 +71,13 @@ def test_max_t_controls_the_family_wise_error_and_beats_bonferroni_at_low_resolu
 
 
 def test_adaptive_resolution_extends_only_when_promising_and_keeps_the_level():
-    assert resolution_needed(MCPValue(0, 30), 0.01, 200)
-    assert resolution_needed(MCPValue(1, 30), 0.01, 200)  # 2/201 <= 0.01: the cap can still decide
-    assert not resolution_needed(MCPValue(1, 30), 0.01, 120, promising=0)  # 2/121 > 0.01 and no eager rule
-    assert resolution_needed(MCPValue(2, 30), 0.005, 200)  # 3/201 > 0.005, but the first stage's 3/31 <= 0.1
-    assert not resolution_needed(MCPValue(3, 30), 0.005, 200)  # 4/31 > 0.1 and 4/201 > 0.005
-    assert not resolution_needed(MCPValue(0, 199), 0.01, 300)  # 1/200 <= 0.01: already decidable
-    assert not resolution_needed(MCPValue(0, 200), 0.01, 200)
+    assert resolution_needed(MCPValue(exceed=0, n=30), 0.01, 200)
+    assert resolution_needed(MCPValue(exceed=1, n=30), 0.01, 200)  # 2/201 <= 0.01: the cap can still decide
+    assert not resolution_needed(MCPValue(exceed=1, n=30), 0.01, 120, promising=0)  # 2/121 > 0.01 and no eager rule
+    assert resolution_needed(MCPValue(exceed=2, n=30), 0.005, 200)  # 3/201 > 0.005, but the first stage's 3/31 <= 0.1
+    assert not resolution_needed(MCPValue(exceed=3, n=30), 0.005, 200)  # 4/31 > 0.1 and 4/201 > 0.005
+    assert not resolution_needed(MCPValue(exceed=0, n=199), 0.01, 300)  # 1/200 <= 0.01: already decidable
+    assert not resolution_needed(MCPValue(exceed=0, n=200), 0.01, 200)
     # the two-stage test under the null: reject at most alpha of the time
     rng = np.random.default_rng(2)
     alpha, n1, cap, reps = 0.02, 30, 99, 4000
@@ -128,8 +128,11 @@ def test_the_null_grows_to_its_cap_only_when_a_first_stage_is_promising_and_deci
             return self
 
     def verdict(exceed_at):
-        monkeypatch.setattr(scr, "misspecification_test", lambda f_obs, feats: (1.0, MCPValue(exceed_at(len(feats)),
-                                                                                             len(feats))))
+        monkeypatch.setattr(
+            scr,
+            "misspecification_test",
+            lambda f_obs, feats: (1.0, MCPValue(exceed=exceed_at(len(feats)), n=len(feats))),
+        )
         monkeypatch.setattr(scr, "run_features", lambda run, dense: np.zeros(2))
         test, screen, ranking = scr.misspecification_verdict(Pool(), [], 0.01, 200)
         assert screen is None and ranking == () and test.directional is None and test.tests == 1
@@ -139,7 +142,7 @@ def test_the_null_grows_to_its_cap_only_when_a_first_stage_is_promising_and_deci
     assert rejected.n_null == 200 and rejected.p_value == pytest.approx(2 / 201) and rejected.misspecified
     accepted = verdict(lambda n: 2 if n == 30 else 60)
     assert accepted.n_null == 200 and accepted.p_value == pytest.approx(61 / 201) and not accepted.misspecified
-    assert accepted.omnibus == MCPValue(60, 200) and accepted.best == accepted.omnibus
+    assert accepted.omnibus == MCPValue(exceed=60, n=200) and accepted.best == accepted.omnibus
     decided_early = verdict(lambda n: 12)
     assert decided_early.n_null == 30 and not decided_early.misspecified
 
@@ -195,16 +198,17 @@ def test_the_joint_test_is_bonferroni_over_two_monte_carlo_p_values_and_keeps_it
     never below its resolution 2/(n + 1); under the null it rejects at most at its level, whatever the
     dependence of the two statistics."""
     def joint(omnibus, directional, alpha=0.01):
-        return JointTest(omnibus, directional, "x" if directional else None, ("x",), alpha, 200)
+        return JointTest(omnibus=omnibus, directional=directional, directional_effect="x" if directional else None,
+                         family=("x",), alpha=alpha, max_null=200)
 
-    j = joint(MCPValue(0, 200), MCPValue(30, 200))
+    j = joint(MCPValue(exceed=0, n=200), MCPValue(exceed=30, n=200))
     assert j.p_value == pytest.approx(2 / 201) == j.resolution and j.tests == 2 and j.misspecified
-    assert j.deciding == "omnibus" and j.best == MCPValue(0, 200) and j.best.at_floor
-    j = joint(MCPValue(12, 200), MCPValue(3, 200))
+    assert j.deciding == "omnibus" and j.best == MCPValue(exceed=0, n=200) and j.best.at_floor
+    j = joint(MCPValue(exceed=12, n=200), MCPValue(exceed=3, n=200))
     assert j.p_value == pytest.approx(8 / 201) and j.deciding == "directional" and j.p_value > j.resolution
-    assert j.best == MCPValue(3, 200) and j.p_value == pytest.approx(2 * j.best.value) and j.n_null == 200
-    assert joint(MCPValue(20, 30), MCPValue(25, 30)).p_value == 1.0  # capped at 1
-    one = joint(MCPValue(5, 30), None)  # no candidate screened: the omnibus test alone
+    assert j.best == MCPValue(exceed=3, n=200) and j.p_value == pytest.approx(2 * j.best.value) and j.n_null == 200
+    assert joint(MCPValue(exceed=20, n=30), MCPValue(exceed=25, n=30)).p_value == 1.0  # capped at 1
+    one = joint(MCPValue(exceed=5, n=30), None)  # no candidate screened: the omnibus test alone
     assert one.tests == 1 and one.p_value == pytest.approx(6 / 31) and one.resolution == pytest.approx(1 / 31)
     # level under the null: observation and 40 nulls exchangeable, two strongly dependent statistics
     rng = np.random.default_rng(11)

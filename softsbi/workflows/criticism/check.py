@@ -283,10 +283,16 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
         warnings.simplefilter("ignore", RuntimeWarning)
         per_region = np.nanmean(np.array(exc)[:, fit_frames[sel]], axis=(0, 1)) * 100
     per_region = np.nan_to_num(per_region, nan=-np.inf)
-    return ResidualShape(tuple(int(fit_frames[i]) for i in np.flatnonzero(flagged)), tuple(spans), tuple(phases),
-                         tuple(float(v) for v in off), direction, FEATURE_NAMES[int(np.argmax(zf))],
-                         {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
-                         tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]))
+    return ResidualShape(
+        frames_flagged=tuple(int(fit_frames[i]) for i in np.flatnonzero(flagged)),
+        frame_spans=tuple(spans),
+        phases=tuple(phases),
+        centroid_offset_cm=tuple(float(v) for v in off),
+        direction=direction,
+        worst_summary=FEATURE_NAMES[int(np.argmax(zf))],
+        region_excess_cm={n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
+        worst_regions=tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]),
+    )
 
 
 # ----------------------------------------------------------------------------------------
@@ -416,28 +422,42 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
             warnings.simplefilter("ignore", RuntimeWarning)
             worst = int(np.nanargmax(np.nan_to_num(np.nanmean(reg_mean[a:b + 1], axis=0), nan=-np.inf)))
         # frames the fit's sensor model does not use (e.g. the cloth still flat) are reported, not blamed
-        phases.append(Phase(ph["phase"], (a, b), tuple(ph["t_s"]), float(mean_t[a:b + 1].mean()),
-                            float(mean_t1[a:b + 1].mean()), bool(in_fit[a:b + 1].any()), names[worst]))
+        phases.append(
+            Phase(
+                phase=ph["phase"],
+                frames=(a, b),
+                t_s=tuple(ph["t_s"]),
+                chamfer_m=float(mean_t[a : b + 1].mean()),
+                chamfer_one_sided_m=float(mean_t1[a : b + 1].mean()),
+                in_fit=bool(in_fit[a : b + 1].any()),
+                worst_region=names[worst],
+            )
+        )
     fit_idx = np.nonzero(in_fit)[0]
     one = stats["one_sided_mean_m"]  # chamfer_stats of one-sided Chamfers: always there
 
     def band(c: np.ndarray) -> Band:
-        return Band(tuple(c.mean(0).tolist()), tuple(np.quantile(c, 0.05, 0).tolist()),
-                    tuple(np.quantile(c, 0.95, 0).tolist()))
+        return Band(mean=tuple(c.mean(0).tolist()), q05=tuple(np.quantile(c, 0.05, 0).tolist()),
+                    q95=tuple(np.quantile(c, 0.95, 0).tolist()))
 
+    one = float(one) if one is not None and np.isfinite(one) else None
+    worst_frames = tuple(int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]])
+    worst_regions = tuple(names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2])
+    residual = (residual_shape(run, pool, n_eval, phase_chamfer={p.phase: p.chamfer_m for p in phases})
+                if test.misspecified else None)
     result = CheckResult(
-        str(run.path), len(ok), n_eval - len(ok), tuple(run.scenario.times.tolist()), band(ch), band(ch1),
-        float(stats["mean_m"]), float(one) if one is not None and np.isfinite(one) else None, run.metric_min_z,
-        None if frames is None else tuple(frames), sensor_model(run)["kind"], float(run.scenario.table_z),
-        tuple(names), tuple(map(tuple, np.nan_to_num(reg_mean).tolist())),
-        tuple(map(tuple, np.isfinite(reg_mean).tolist())), dict(zip(names, np.nan_to_num(reg_avg).tolist())),
-        tuple(phases), tuple(int(i) for i in fit_idx[np.argsort(mean_t[fit_idx])[::-1][:3]]),
-        tuple(names[int(i)] for i in np.argsort(np.nan_to_num(reg_avg, nan=-np.inf))[::-1][:2]),
-        test, ranking, energy_score(pool, n_eval), posterior_mean_chamfer(run, workers=workers),
-        residual_shape(run, pool, n_eval, phase_chamfer={p.phase: p.chamfer_m for p in phases})
-        if test.misspecified else None,
-        tuple(b.to_json() for b in run.report.posterior_at_bounds), key, time.perf_counter() - t0,
-        grasp_handle=grasp_handle(run.scenario),
+        run=str(run.path), n_rollouts=len(ok), failed_rollouts=n_eval - len(ok),
+        times_s=tuple(run.scenario.times.tolist()), chamfer=band(ch), chamfer_one_sided=band(ch1),
+        chamfer_mean_m=float(stats["mean_m"]), chamfer_one_sided_mean_m=one, metric_min_z_m=run.metric_min_z,
+        metric_frames=None if frames is None else tuple(frames), metric_sensor=sensor_model(run)["kind"],
+        table_z_m=float(run.scenario.table_z), regions=tuple(names),
+        region_error_m=tuple(map(tuple, np.nan_to_num(reg_mean).tolist())),
+        region_compared=tuple(map(tuple, np.isfinite(reg_mean).tolist())),
+        region_mean_m=dict(zip(names, np.nan_to_num(reg_avg).tolist())), phases=tuple(phases),
+        worst_frames=worst_frames, worst_regions=worst_regions, test=test, ranking=ranking,
+        energy=energy_score(pool, n_eval), posterior_mean=posterior_mean_chamfer(run, workers=workers),
+        residual=residual, posterior_at_bounds=tuple(b.to_json() for b in run.report.posterior_at_bounds), key=key,
+        seconds=time.perf_counter() - t0, grasp_handle=grasp_handle(run.scenario),
         phases_at_keyframes=bool((run.scenario.options or {}).get("keyframe_times")))
     write_result(json_path, result)
     if plot:

@@ -75,7 +75,7 @@ def decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se
         k_se: standard-error margin of every score comparison.
     """
     if not test.misspecified:
-        return Decision("nothing-missing")
+        return Decision(verdict="nothing-missing")
     return replace(_decide(test, nominal, refits, k_se), gains=refit_gains(nominal, refits))
 
 
@@ -88,7 +88,7 @@ def refit_gains(nominal: Score | None, refits: Sequence[Refit]) -> tuple[RefitGa
             (x.score for x in refits if x.effects == r.effects[:1]), None)
         g = gain(base, r.score)
         if g is not None:
-            out.append(RefitGain(r.effects, g))
+            out.append(RefitGain(effects=r.effects, gain=g))
     return tuple(out)
 
 
@@ -104,15 +104,15 @@ def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_s
     if good:
         best = _best(good)
         ties = tuple(r.effects for r in good if r is not best and not improves(r.score, best.score, k_se))
-        return Decision("missing-effect", named=best.effects, alternatives=ties, gain=gain(nominal, best.score))
+        return Decision(verdict="missing-effect", named=best.effects, alternatives=ties, gain=gain(nominal, best.score))
     base = _best(better)
     for pair in (r for r in refits if len(r.effects) == 2 and r.score is not None):
         if base is not None and set(base.effects) < set(pair.effects) and pair.adequate and not pair.maybe_off \
                 and improves(base.score, pair.score, k_se):
-            return Decision("missing-effect", named=pair.effects, gain=gain(base.score, pair.score))
+            return Decision(verdict="missing-effect", named=pair.effects, gain=gain(base.score, pair.score))
     if base is None:
-        return Decision("misspecified-unexplained")
-    return Decision("misspecified-unexplained", partial=base.effects, gain=gain(nominal, base.score))
+        return Decision(verdict="misspecified-unexplained")
+    return Decision(verdict="misspecified-unexplained", partial=base.effects, gain=gain(nominal, base.score))
 
 
 def refit_order(ranking: Sequence[Candidate], nominal: Score | None, k_se: float = K_SE) -> list[str]:

@@ -42,7 +42,7 @@ from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, N_NULL, Posterio
                                      summary_energy_score, summary_scale)
 
 @pools.shared_executors()
-def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alpha: float = ALPHA,
+def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, alpha: float = ALPHA,
                  k_se: float = K_SE, confirm: int = defaults.CONFIRM, refit_rounds: int | None = None,
                  refit_sims: int | None = None, n_null: int = N_NULL, max_null: int = MAX_NULL,
                  workers: int | None = None, seed: int = 0, progress: Callable[[str], None] | None = None,
@@ -125,15 +125,32 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         refits: list[Refit] = []
         while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
             say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
-            refits.append(refit_model(run, nxt, family, scale, alpha, refit_rounds, refit_sims, n_null, max_null,
-                                      workers, seed, out, plots))
+            refits.append(refit_model(run, nxt, family, scale=scale, alpha=alpha, rounds=refit_rounds,
+                                      sims_per_round=refit_sims, n_null=n_null, max_null=max_null,
+                                      workers=workers, seed=seed, out_root=out, plots=plots))
         decision = decide(chk.test, nominal, refits, k_se)
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
         # 0 from check when its result was stored
         sims = pool.requested + sum(len(v[2]) for v in pool.sensitivities.values()) + n_amortised
-        d = Diagnosis(str(run.path), family, alpha, k_se, chk.test, ranking, nominal, tuple(refits), decision,
-                      chk.residual, generic, sims, key, time.perf_counter() - t0, chk.chamfer_mean_m,
-                      chk.n_rollouts, confirm)
+        d = Diagnosis(
+            run=str(run.path),
+            candidates=family,
+            alpha=alpha,
+            k_se=k_se,
+            test=chk.test,
+            ranking=ranking,
+            nominal=nominal,
+            refits=tuple(refits),
+            decision=decision,
+            residual=chk.residual,
+            generic=generic,
+            simulations=sims,
+            key=key,
+            seconds=time.perf_counter() - t0,
+            chamfer_m=chk.chamfer_mean_m,
+            chamfer_n=chk.n_rollouts,
+            confirm=confirm,
+        )
         write_result(json_path, d)
     say(f"wrote {json_path}")
     return d
@@ -165,7 +182,7 @@ def check_settings(**values: float | None) -> None:
 
 
 @pools.shared_executors()
-def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], scale: np.ndarray | None = None,
+def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *, scale: np.ndarray | None = None,
                 alpha: float = ALPHA, rounds: int | None = None, sims_per_round: int | None = None,
                 n_null: int = N_NULL, max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0,
                 out_root: str | Path | None = None, plots: bool = True) -> Refit:
@@ -195,8 +212,9 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], sca
     score = (summary_energy_score(run_features(pool.run, pool.run.dense), f, scale)
              if scale is not None and len(f) >= 3 else None)
     # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
-    return Refit(effects, str(out), chk.test, score, chk.chamfer_mean_m, estimates(pool.run.report, effects), chk.ranking,
-                 int(fitted.report.rounds), cfg.sims_per_round, chk.n_rollouts)
+    return Refit(effects=effects, run=str(out), test=chk.test, score=score, chamfer_m=chk.chamfer_mean_m,
+                 estimates=estimates(pool.run.report, effects), ranking=chk.ranking,
+                 rounds=int(fitted.report.rounds), sims_per_round=cfg.sims_per_round, chamfer_n=chk.n_rollouts)
 
 
 def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]:
@@ -211,10 +229,20 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
         for p in (p for p in effect.param_space() if p.name in report.posterior_mean):
             b = pressed.get(p.name)
             q05, q95 = report.interval(p.name)
-            out.append(Estimate(p.name, p.unit, float(report.posterior_mean[p.name]), q05, q95,
-                                report.width_ratio(p.name), None if b is None else b.side,
-                                None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds),
-                                e, may_be_off(p, off.get(p.name), q05, q95, None if b is None else b.side)))
+            out.append(
+                Estimate(
+                    name=p.name,
+                    unit=p.unit,
+                    mean=float(report.posterior_mean[p.name]),
+                    q05=q05,
+                    q95=q95,
+                    width_ratio=report.width_ratio(p.name),
+                    pressed=None if b is None else b.side,
+                    suggested_bounds=None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds),
+                    effect=e,
+                    may_be_off=may_be_off(p, off.get(p.name), q05, q95, None if b is None else b.side),
+                )
+            )
     return tuple(out)
 
 

@@ -120,7 +120,8 @@ def sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
 
 def failed_candidate(eff: Any, error: str) -> Candidate:
     """The ranking's row of a candidate the screening could not test, with ``error`` saying why."""
-    return Candidate(eff.name, effect_kind(eff), is_generic(eff), eff.description, error=error)
+    return Candidate(effect=eff.name, kind=effect_kind(eff), generic=is_generic(eff), description=eff.description,
+                     error=error)
 
 
 class Screening:
@@ -217,7 +218,8 @@ class Screening:
         for name, (_, frac, _, est), p, zz in zip(names, tests, adj, z):
             eff = self.design[name]["effect"]
             rows.append((p.value, 0.0 if p.at_floor else -float(zz), -frac,
-                         Candidate(name, effect_kind(eff), is_generic(eff), eff.description, frac, p, est)))
+                         Candidate(effect=name, kind=effect_kind(eff), generic=is_generic(eff),
+                                   description=eff.description, explained=frac, adjusted=p, estimate=est)))
         rows.sort(key=lambda t: t[:3])
         return tuple(r[3] for r in rows) + tuple(self.failed)
 
@@ -320,8 +322,9 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
                 screen = None                # and every candidate in the table with the reason
                 ranking = tuple(failed_candidate(c, f"not screened: {exc}") for c in cands)
         top = next((c for c in ranking if c.screened), None)
-        test = JointTest(omnibus, top.adjusted if top else None, top.effect if top else None, family, alpha,
-                         max_null, statistic, calibrated=null is not None)
+        test = JointTest(omnibus=omnibus, directional=top.adjusted if top else None,
+                         directional_effect=top.effect if top else None, family=family, alpha=alpha,
+                         max_null=max_null, statistic=statistic, calibrated=null is not None)
         return test, screen, ranking
 
     test, screen, ranking = evaluate()

@@ -165,7 +165,7 @@ def mc_pvalue(observed: float, null: np.ndarray) -> MCPValue:
         raise SoftsbiError("a Monte-Carlo p-value needs at least one null simulation")
     if not (np.isfinite(null).all() and np.isfinite(observed)):
         raise SoftsbiError("non-finite test statistic: a null simulation or the measurement gave NaN/inf summaries")
-    return MCPValue(int((null >= observed - 1e-12 * max(1.0, abs(observed))).sum()), len(null))
+    return MCPValue(exceed=int((null >= observed - 1e-12 * max(1.0, abs(observed))).sum()), n=len(null))
 
 
 def max_t_adjusted(observed: np.ndarray, null: np.ndarray) -> tuple[list[MCPValue], np.ndarray]:
@@ -406,7 +406,8 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> EnergyScore
     full = score(np.ones(m, bool))
     loo = np.array([score(np.arange(m) != i) for i in range(m)])
     se = float(np.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2)))
-    pool.energy_scores[key] = EnergyScore(full, se, float(d_obs.mean()), float(d_pair.mean()), m)
+    pool.energy_scores[key] = EnergyScore(energy_m=full, se_m=se, chamfer_m=float(d_obs.mean()),
+                                          spread_m=float(d_pair.mean()), n=m)
     return pool.energy_scores[key]
 
 
@@ -441,7 +442,7 @@ def summary_energy_score(f_obs: np.ndarray, f_sims: np.ndarray, scale: np.ndarra
 
     loo = np.array([score(np.arange(S) != i) for i in range(S)])
     se = float(np.sqrt((S - 1) / S * np.sum((loo - loo.mean()) ** 2)))
-    return Score(score(np.ones(S, bool)), se, S)
+    return Score(value=score(np.ones(S, bool)), se=se, n=S)
 
 
 #: rollouts at the posterior mean whose mean Chamfer is a fit's posterior-mean rollout error
