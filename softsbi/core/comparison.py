@@ -29,7 +29,7 @@ class Metric(str, Enum):
     REGION = "region"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Row:
     """One row of a comparison: values ``a`` and ``b`` (m) of one ``metric``.
 
@@ -77,7 +77,7 @@ def _legacy_row(data: dict[str, Any]) -> dict[str, Any]:
 UPGRADED["Row"] = _legacy_row
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CompareResult:
     """The result of ``compare``: two fits of one measurement side by side.
 

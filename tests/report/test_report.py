@@ -136,7 +136,7 @@ def test_check_headline_gives_the_verdict_and_fits_the_figure(tmp_path, long):
 
 def test_compare_uses_the_before_after_roles(tmp_path):
     a, b = check_result(), check_result(test=joint(12, 20, n=30))
-    res = CompareResult("a", "b", "mujoco-flex (nominal)", "mujoco-flex + wind", (), True, a, b)
+    res = CompareResult(run_a="a", run_b="b", label_a="mujoco-flex (nominal)", label_b="mujoco-flex + wind", rows=(), same_sensor=True, check_a=a, check_b=b)
     fig = R.compare_figure(res)
     assert "p ≤ 2/201 → p = 0.84 (30 sims)" in fig.texts[0].get_text().replace("\n", " ")
     cols = [ln.get_color() for ln in fig.axes[0].lines]

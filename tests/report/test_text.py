@@ -373,13 +373,37 @@ def test_compare_summary():
     a = check_result(posterior_mean={"chamfer_m": 0.02, "chamfer_se_m": 0.001, "n": 3})
     b = check_result(test=joint(40, 70), chamfer_mean_m=0.012, energy=energy(0.009),
                      posterior_mean={"chamfer_m": 0.009, "chamfer_se_m": 0.001, "n": 3})
-    table = (Row("posterior-predictive Chamfer, mean over the fit's frames", a.chamfer_mean_m, b.chamfer_mean_m,
-                 Metric.CHAMFER),
-             Row("posterior-mean rollout Chamfer (the fitted point estimate)", 0.02, 0.009, Metric.POSTERIOR_MEAN),
-             Row("Chamfer energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
-                 a.energy.energy_m, b.energy.energy_m, Metric.ENERGY_CHAMFER))
-    res = CompareResult("run/nominal", "run/refit-wind", "mujoco-flex (nominal)", "mujoco-flex + wind", table, True,
-                        a, b, "run/refit-wind/compare.png")
+    table = (
+        Row(
+            what="posterior-predictive Chamfer, mean over the fit's frames",
+            a=a.chamfer_mean_m,
+            b=b.chamfer_mean_m,
+            metric=Metric.CHAMFER,
+        ),
+        Row(
+            what="posterior-mean rollout Chamfer (the fitted point estimate)",
+            a=0.02,
+            b=0.009,
+            metric=Metric.POSTERIOR_MEAN,
+        ),
+        Row(
+            what="Chamfer energy score (a proper score: Chamfer less half the mean Chamfer between two rollouts)",
+            a=a.energy.energy_m,
+            b=b.energy.energy_m,
+            metric=Metric.ENERGY_CHAMFER,
+        ),
+    )
+    res = CompareResult(
+        run_a="run/nominal",
+        run_b="run/refit-wind",
+        label_a="mujoco-flex (nominal)",
+        label_b="mujoco-flex + wind",
+        rows=table,
+        same_sensor=True,
+        check_a=a,
+        check_b=b,
+        png="run/refit-wind/compare.png",
+    )
     assert compare_summary(res) == (
         "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
         "(n=30 rollouts) (79% lower), "
@@ -414,7 +438,7 @@ def test_compare_rows_are_keyed_by_their_metric_and_labelled_as_before():
     assert [(r.metric, r.part) for r in rows[4:7]] == [(Metric.PHASE, p) for p in ("early", "middle", "late")]
     assert [(r.metric, r.part, r.what) for r in rows[7:9]] == [(Metric.REGION, REGIONS[0], f"region {REGIONS[0]}"),
                                                                (Metric.REGION, "R2", "region R2")]
-    res = CompareResult("a", "b", "nominal", "+ wind", rows, True, a, b)
+    res = CompareResult(run_a="a", run_b="b", label_a="nominal", label_b="+ wind", rows=rows, same_sensor=True, check_a=a, check_b=b)
     assert res.row(Metric.ENERGY_CHAMFER).b == 0.009 and replace(res, rows=rows[:2]).row(Metric.ENERGY_CHAMFER) is None
     doc = json.loads(json.dumps(to_json(res)))
     assert doc["rows"][2]["metric"] == "energy_chamfer"

@@ -69,8 +69,17 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     rows = compare_rows(a, b)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"
-    res = CompareResult(str(run_a), str(run_b), fit_label(ra.config), fit_label(rb.config), tuple(rows),
-                        sensor_model(ra) == sensor_model(rb), a, b, str(png))
+    res = CompareResult(
+        run_a=str(run_a),
+        run_b=str(run_b),
+        label_a=fit_label(ra.config),
+        label_b=fit_label(rb.config),
+        rows=tuple(rows),
+        same_sensor=sensor_model(ra) == sensor_model(rb),
+        check_a=a,
+        check_b=b,
+        png=str(png),
+    )
     plot_compare(png, res)
     write_result(out_dir / "compare.json", res)
     return res
@@ -90,4 +99,4 @@ def compare_rows(a: CheckResult, b: CheckResult) -> tuple[Row, ...]:
         pairs.append((Metric.POSTERIOR_MEAN, a.posterior_mean["chamfer_m"], b.posterior_mean["chamfer_m"], ""))
     pairs += [(Metric.PHASE, pa.chamfer_m, pb.chamfer_m, pa.phase) for pa, pb in zip(a.phases, b.phases)]
     pairs += [(Metric.REGION, a.region_mean_m[n], b.region_mean_m.get(n, float("nan")), n) for n in a.regions]
-    return tuple(Row(row_label(m, a, b, part), va, vb, m, part) for m, va, vb, part in pairs)
+    return tuple(Row(what=row_label(m, a, b, part), a=va, b=vb, metric=m, part=part) for m, va, vb, part in pairs)
