@@ -80,7 +80,7 @@ class VertexContext:
 class Effect(ABC):
     """A physical or sensor effect that a nominal model may lack (air drag, wind, a soft grasp, a
     calibration offset...), with its own parameters (physical units) and ways to act that backends
-    understand *without knowing the effect by name* (the effect door, DESIGN.md "Interfaces"):
+    understand *without knowing the effect by name* (the effect door, docs/design.md, "Interfaces"):
 
     * a **force field** (kind ``"force"``): override :meth:`force`; the backend adds the returned
       ``(N, 3)`` newtons to the object's vertices before every physics step (mujoco-flex:

@@ -1,4 +1,4 @@
-"""Recording directories: the format of what a fit is fitted to (DESIGN.md "Recordings are data").
+"""Recording directories: the format of what a fit is fitted to (docs/design.md, "Scenarios and recordings are data").
 
 A recording directory::
 

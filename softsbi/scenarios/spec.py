@@ -1,7 +1,7 @@
 """Scenario files: a versioned YAML format, validated with pydantic v2, turned into a :class:`Scenario`.
 
-A scenario file (``format: softsbi-scenario/1``) describes a task as data (DESIGN.md "Scenarios are
-data")::
+A scenario file (``format: softsbi-scenario/1``) describes a task as data (docs/design.md, "Scenarios
+and recordings are data")::
 
     format: softsbi-scenario/1
     name: fold
