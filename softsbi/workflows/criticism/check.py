@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.metrics import offset_direction
 from softsbi.core.results import (Band, CheckResult, Phase, ResidualShape, ResultDamaged, check_result_path, from_json,
                                   read_json, write_result)
 from softsbi.core.types import STATUS_OK, Scenario
@@ -266,9 +267,6 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
                        "chamfer_m": (phase_chamfer or {}).get(ph["phase"])})
     sel = flagged if flagged.any() else np.ones(T, bool)
     off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
-    axis = int(np.argmax(np.abs(off)))
-    direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + ((" (up)" if off[2] > 0 else " (down)") if axis == 2
-                                                               else "")
     zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
     ro = pool.rollouts[:max(2, min(n, n_regions))]
     labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
@@ -283,7 +281,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
         per_region = np.nanmean(np.array(exc)[:, fit_frames[sel]], axis=(0, 1)) * 100
     per_region = np.nan_to_num(per_region, nan=-np.inf)
     return ResidualShape(tuple(int(fit_frames[i]) for i in np.flatnonzero(flagged)), tuple(spans), tuple(phases),
-                         tuple(float(v) for v in off), direction, FEATURE_NAMES[int(np.argmax(zf))],
+                         tuple(float(v) for v in off), offset_direction(off), FEATURE_NAMES[int(np.argmax(zf))],
                          {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
                          tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]))
 
