@@ -167,6 +167,15 @@ def test_diagnose_out_keeps_a_second_diagnosis_apart(run, tmp_path):
     assert res.exit_code == 0, res.output
     assert (tmp_path / "second" / "diagnosis.json").is_file() and not (run / "diagnosis.json").exists()
     assert f"wrote {tmp_path / 'second' / 'diagnosis.json'}" in res.output
+    assert f"reused {run / 'check.json'}" in res.output  # the run's own check, same settings: read, not written
+    # other settings: the check is computed again into --out, and the run's check.json and check.png stay as they were
+    before = (run / "check.json").read_bytes()
+    res = runner.invoke(app, ["diagnose", str(run), "--n-null", "6", "--confirm", "0", "--workers", "1",
+                              "--out", str(tmp_path / "third")])
+    assert res.exit_code == 0, res.output
+    assert (run / "check.json").read_bytes() == before and not (run / "check.png").exists()
+    assert (tmp_path / "third" / "check.json").is_file() and (tmp_path / "third" / "check.png").is_file()
+    assert f"wrote {tmp_path / 'third' / 'check.json'} and {tmp_path / 'third' / 'check.png'}" in res.output
     said = []  # the Python API takes the same folder and reuses the result there
     d = softsbi.diagnose(run, out=tmp_path / "second", progress=said.append, **DIAG)
     assert said[-1].startswith(f"reused {tmp_path / 'second' / 'diagnosis.json'}") and d.run == str(run)

@@ -67,8 +67,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         progress: told each step (``callable(str)``), and what was written or reused.
         pool: posterior-predictive rollouts of this run already simulated (``check``'s, same ``seed``).
         recompute: diagnose again even when ``diagnosis.json`` holds the result for the same fit and settings.
-        out_dir: the folder of ``diagnosis.json`` and the refits (default: the run directory), so that two
-            diagnoses of one run can be kept; the nominal fit's own ``check.json`` stays in the run directory.
+        out_dir: the folder of ``diagnosis.json``, the nominal fit's check (``check.json``, ``check.png``) and the
+            refits (default: the run directory), so that two diagnoses of one run can be kept; the run directory is
+            then not written (its own ``check.json`` is reused when it holds the same settings).
         plots: draw the figures of the check and of each refit (``check.png``, the fit figures); the result does
             not depend on it, and a stored result is reused either way.
 
@@ -112,7 +113,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, alph
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
         chk = check_run(run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
-                        pool=pool, effects=family, recompute=recompute, message=say, plot=plots)
+                        pool=pool, effects=family, recompute=recompute, message=say, plot=plots,
+                        out_dir=None if out_dir is None else out)
         # the score every model is compared on: the energy score of check's summaries in the nominal's scale
         f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
         scale = summary_scale(f_nom)
