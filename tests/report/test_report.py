@@ -358,6 +358,20 @@ def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_key
     plt.close(fig)
 
 
+def test_the_check_heat_map_s_colour_scale_does_not_make_a_passing_run_look_hot():
+    """A passing control with region errors below a centimetre: its own maximum set the top of the scale, so it
+    looked as "hot" as a failing run. The scale now runs to at least 5 cm; a larger error extends it."""
+    from softsbi.report.check_figures import HEATMAP_MIN_CM
+    small = check_result(test=joint(150, 150))
+    small = dataclasses.replace(small, region_error_m=tuple(tuple(0.1 * v for v in row) for row in small.region_error_m))
+    assert np.max(small.region_error_m) * 100 < 3 and HEATMAP_MIN_CM == 5.0
+    for out, top in ((small, 5.0), (check_result(), float(np.max(check_result().region_error_m)) * 100)):
+        fig = R.check_figure(out)
+        assert fig.axes[1].images[0].get_clim() == pytest.approx((0.0, top)), top
+        plt.close(fig)
+    assert top > 5.0
+
+
 def test_check_phase_labels_stay_readable_when_the_phases_are_short():
     """Seven phases of three or four frames (a scenario with many keyframes): side by side their labels ran into
     each other; they are tilted, and parallel tilted labels lie more than a label's height apart."""
