@@ -4,7 +4,7 @@ Two outputs from one set of simulations (:func:`posterior_rollouts`):
 
 * :func:`write_animation` - an animated GIF (``RUN/view.gif``): the measured cloud (dark grey)
   against ``n_eval`` posterior-predictive rollouts (faded blue wireframes) and the gripper
-  (red), seen from the side (y-z) and from above (x-y), with the per-frame Chamfer error of the
+  (red), in the scenario's view (``view:``) and the other one (side or top), with the per-frame Chamfer error of the
   rollouts below; one animation frame per recorded frame.
 * :func:`write_rerun` - a `rerun <https://rerun.io>`_ recording (``RUN/view.rrd``) of the same
   scene in 3-D on a ``time`` timeline (seconds), to scrub through with ``rerun RUN/view.rrd``.
