@@ -44,8 +44,9 @@ def diagnose(run: Path = typer.Argument(..., help="run directory of a finished f
              alpha: float = typer.Option(ALPHA, help=H_ALPHA, callback=ALPHA_OK),
              workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
              recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
-             out_dir: Optional[Path] = typer.Option(None, "--out", help="output folder of diagnosis.json and the "
-                                                    "refits (default: RUN), to keep two diagnoses of one run apart"),
+             out_dir: Optional[Path] = typer.Option(None, "--out", help="output folder of diagnosis.json, the check and "
+                                                    "the refits (default: RUN), to keep two diagnoses of one run "
+                                                    "apart; RUN is then not written"),
              as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Is an effect missing, and which? Detect (check's test), propose (the screening ranks the candidates and the
     top ones are refitted), decide (a refit explains the misfit when check accepts it and its summary energy score

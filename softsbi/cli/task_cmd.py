@@ -71,7 +71,7 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
     from softsbi.workflows.fit.bank import check_bank_path  # start-up: numpy, zarr
     from softsbi.workflows.fit.run import FitConfig  # start-up: the fit workflow
     from softsbi.workflows.measurement import load_recording  # start-up: the recording readers
-    from softsbi.workflows.tasks.training import train_task  # start-up: the training workflow
+    from softsbi.workflows.tasks.training import calibration_advice, train_task  # start-up: the training workflow
     cfg = FitConfig(backend=backend, effects=names(effect), estimator=estimator, seed=seed, n_points=points,
                     workers=workers, bounds=parse_bounds(bounds), fixed=parse_kv(fix, "--fix"),
                     min_height=min_height, frames=frames, sim_bank=sim_bank)
@@ -87,6 +87,9 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
         return
     o.table(["key", "model", "backend", "scenario", "prior sims", "training report", "coverage 50% / 90%"],
             [_row(t) for t in tasks], title=f"stored tasks in {tasks[0].path.parent}")
+    advice = calibration_advice(tasks)
+    if advice:
+        o.line(advice)
 
 
 def task_list(sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK),
@@ -126,6 +129,10 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
     o.table(["parameter", "SBC ranks", "90% width / prior (median)", "informed"], rows,
             title=f"training report: {r.n_test} held-out prior simulations")
     o.line(f"expected coverage {r.coverage.at_50:.2f} at 50%, {r.coverage.at_90:.2f} at 90%; verdict: {r.verdict}")
+    from softsbi.workflows.tasks.training import calibration_advice  # start-up: the training workflow
+    advice = calibration_advice([t])
+    if advice:
+        o.line(advice)
 
 
 def task_delete(key: str = typer.Argument(..., help="the task's key (its first characters suffice)"),

@@ -94,3 +94,29 @@ def describe_change(before: float, after: float) -> str:
     if round(abs(ch) * 100) == 0:
         return "unchanged"
     return f"{abs(ch) * 100:.0f}% {'lower' if ch < 0 else 'higher'}"
+
+
+
+#: a displacement's axes whose magnitude is at least this share of the largest one's are named together: (1.9, 2.0, 0)
+#: is "+x and +y alike", never "mostly +y"
+DIRECTION_TIE = 2 / 3
+#: displacements (cm) below this read as none: they print as 0.0
+DIRECTION_NONE_CM = 0.05
+
+
+def offset_axes(offset_cm: tuple[float, float, float] | np.ndarray) -> list[str]:
+    """The dominant axes of a displacement ``(x, y, z)`` (cm), each with its sign: ``["+y"]``, ``["-z (down)"]``, or
+    several in axis order when they tie (each at least :data:`DIRECTION_TIE` of the largest: ``["+x", "+y"]``); none
+    below :data:`DIRECTION_NONE_CM`."""
+    off = np.asarray(offset_cm, float)
+    big = float(np.abs(off).max())
+    if not np.isfinite(big) or big < DIRECTION_NONE_CM:
+        return []
+    return [f"{'+-'[int(off[a] < 0)]}{'xyz'[a]}" + ((" (up)" if off[2] > 0 else " (down)") if a == 2 else "")
+            for a in range(3) if abs(off[a]) >= DIRECTION_TIE * big]
+
+
+def offset_direction(offset_cm: tuple[float, float, float] | np.ndarray) -> str:
+    """:func:`offset_axes` in words: ``"+y"``, ``"+x and +y"`` (a tie), ``"none"``."""
+    axes = offset_axes(offset_cm)
+    return "none" if not axes else axes[0] if len(axes) == 1 else f"{', '.join(axes[:-1])} and {axes[-1]}"

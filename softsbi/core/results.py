@@ -376,7 +376,8 @@ class ResidualShape:
             (``fraction_flagged`` None: no fitted frame; ``chamfer_m``: the phase's posterior-predictive Chamfer, m,
             the number ``check``'s phase table shows; absent in older files).
         centroid_offset_cm: measured minus simulated centroid over the flagged frames ``(x, y, z)`` (cm).
-        direction: its dominant axis in words (``"+y"``, ``"-z (down)"``).
+        direction: its dominant axis in words (``"+y"``, ``"-z (down)"``, ``"+x and +y"`` for a tie,
+            :func:`~softsbi.core.metrics.offset_direction`).
         worst_summary: the summary statistic that departs most.
         region_excess_cm: per region of the cloth, the error the model's own spread does not produce (cm).
         worst_regions: the two regions with the largest excess.

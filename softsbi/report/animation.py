@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from softsbi.core.errors import DependencyMissing
-from softsbi.report.style import ROLE_COLOURS, _plt, grip_label
+from softsbi.report.style import ROLE_COLOURS, _plt, grip_label, view_planes
 from softsbi.scenarios.handles import handle_tracks, pinned_vertices
 
 #: colours of the roles: the palette of every figure (:data:`softsbi.report.style.ROLE_COLOURS`)
@@ -74,9 +74,8 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     lim = _limits([dense, *grips] + [r["vertices"] for r in rollouts] + ([best["vertices"]] if best else []))
     lim[2, 0] = min(lim[2, 0], sc.table_z - 0.01)
     best_edges = _edges(np.asarray(best["faces"], int), best["vertices"].shape[1])[0] if best else None
-    views = [((1, 2), "side view (y-z)"), ((0, 1), "top view (x-y)")]
-    # equal aspect in panels of the same height: widths in proportion to width / height of the data
-    ratios = [max((lim[a, 1] - lim[a, 0]) / (lim[b, 1] - lim[b, 0]), 0.4) for (a, b), _ in views]
+    views = [((a, b), f"{name} ({'xyz'[a]}-{'xyz'[b]})") for a, b, name in view_planes(getattr(sc, "view", "yz"))]
+    ratios = panel_ratios([(lim[a, 1] - lim[a, 0]) / (lim[b, 1] - lim[b, 0]) for (a, b), _ in views])
 
     fig = plt.figure(figsize=(11, 6.8))
     gs = fig.add_gridspec(2, 2, width_ratios=ratios, height_ratios=[3.2, 1], hspace=0.42, wspace=0.22,
@@ -168,7 +167,7 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
             grip_art[ax_i][1].set_data(*held)
         vline.set_xdata([times[k], times[k]])
         dot.set_data([times[k]], [mean_cm[k]])
-        title.set_text(f"{label}\nframe {k + 1} / {T},  t = {times[k]:.2f} s,  "
+        title.set_text(f"{label}\nframe {k} (of 0-{T - 1}),  t = {times[k]:.2f} s,  "
                        f"Chamfer {mean_cm[k]:.2f} cm (mean of {len(rollouts)} rollouts)")
 
     # the writer driven directly (not FuncAnimation.save, which draws every frame twice)
@@ -182,6 +181,20 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     finally:
         plt.close(fig)
     return path
+
+
+#: the second panel of the GIF is at least this share of the first's width, however flat the first's data (a side
+#: view of a cloth dragged along the table is a thin strip: the top view beside it must not be a thumbnail)
+MIN_SECOND_PANEL = 0.5
+
+
+def panel_ratios(aspects: list[float]) -> list[float]:
+    """The widths of the GIF's two panels of one height, from the width / height of their data (``aspects``: the
+    scenario's view first): in proportion to them for equal aspect, floored at 0.4, the second panel kept between
+    :data:`MIN_SECOND_PANEL` of the first's width and the first's width (the scenario's view is never the smaller
+    one)."""
+    first = max(aspects[0], 0.4)
+    return [first, min(max(aspects[1], 0.4, MIN_SECOND_PANEL * first), first)]
 
 
 def _handle_xy(grips: list[np.ndarray], pinned: list[tuple[str, int]], rollouts: list[dict[str, Any]], k: int,

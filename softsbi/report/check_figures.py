@@ -101,10 +101,12 @@ def check_figure(out: CheckResult) -> Any:
     cmap.set_bad("0.75")  # regions the fit's sensor model never sees: grey, not a perfect match
     fitted = np.zeros(len(reg), bool)
     fitted[list(out.metric_frames) if out.metric_frames is not None else slice(None)] = True
-    # the colour scale follows the fitted frames (frames outside them, e.g. a real recording's cloth on the
-    # table, can be ten times worse and would leave the fitted part black)
+    # the colour scale runs from 0 to at least HEATMAP_MIN_CM, so that a passing run's small errors look small
+    # (a scale set by each run's own maximum made a passing control as "hot" as a failing one); above that it follows
+    # the fitted frames (frames outside them, e.g. a real recording's cloth on the table, can be ten times worse and
+    # would leave the fitted part black)
     vals = reg[fitted][compared[fitted]]
-    vmax = float(np.max(vals)) if vals.size else None
+    vmax = max(float(np.max(vals)) if vals.size else 0.0, HEATMAP_MIN_CM)
     im = ax.imshow(np.ma.masked_where(~compared, reg).T, aspect="auto", origin="lower", cmap=cmap, vmin=0,
                    vmax=vmax, extent=[t[0] - dt, t[-1] + dt, 0.5, reg.shape[1] + 0.5])
     for ph in phases[1:]:
@@ -117,7 +119,8 @@ def check_figure(out: CheckResult) -> Any:
     ax.set_title("Error per region of the cloth (dashed: phase boundaries"
                  + ("; grey: not seen by the sensor model)" if not compared.all() else ")"), fontsize=FS_SUB)
     cb = fig.colorbar(im, ax=ax, fraction=0.046)
-    cb.set_label("mean error [cm]" + (" (scale: fitted frames)" if not fitted.all() else ""), fontsize=FS_LABEL)
+    cb.set_label(f"mean error [cm] (scale from 0 to at least {HEATMAP_MIN_CM:g} cm"
+                 + ("; above: fitted frames)" if not fitted.all() else ")"), fontsize=FS_LABEL)
     cb.ax.tick_params(labelsize=FS_TICK)
     frac = _header(fig, [(check_headline(out), {"fontsize": FS_TITLE, "weight": "bold"}),
                          (f"Posterior predictive check of {source_name(out.run)}: {out.n_rollouts} "
@@ -126,6 +129,10 @@ def check_figure(out: CheckResult) -> Any:
                           {"fontsize": FS_SUB})])
     _layout(fig, frac)
     return fig
+
+
+#: the least top of the check heat map's colour scale (cm): errors below it never look "hot", whatever the run
+HEATMAP_MIN_CM = 5.0
 
 
 def plot_check(path: Path, out: CheckResult) -> Path:

@@ -10,7 +10,7 @@ import numpy as np
 
 from softsbi.core.errors import ShapeError
 from softsbi.report.style import (DPI, ENGINE_COLOURS, FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS,
-                                   _header, _plt, grip_label, save_figure)
+                                   _header, _plt, grip_label, save_figure, view_planes)
 from softsbi.scenarios.handles import handle_tracks, pinned_vertices
 
 
@@ -87,7 +87,9 @@ def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Ma
 
 def plot_rollout_preview(ro: Any, path: str | Path, title: str, scenario: Any = None) -> Path:
     """The rest pose from above (x-y, m) with a grid cloth's corners 0-3 (``ro.info["corners"]``) and every
-    handle labelled by name, then side views (y-z, m) of a rollout's vertices at four frames, with every handle of
+    handle labelled by name, then the scenario's view (:attr:`~softsbi.core.types.Scenario.view`: a side view x-z or
+    y-z, or the top view x-y; y-z without a scenario) of a rollout's vertices at four frames, at one pair of limits,
+    with every handle of
     ``scenario`` (its grippers ``+`` and the vertices it holds in place ``x``; without a scenario the rollout's
     gripper), in the palette's posterior and gripper colours (``softsbi simulate``'s ``preview.png``)."""
     return save_figure(rollout_preview_figure(ro, title, scenario), Path(path))
@@ -105,20 +107,27 @@ def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
     fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3 * len(frames) + 4, 3.4), squeeze=False,
                              gridspec_kw={"width_ratios": [4 / 3] + [1] * len(frames)})
     _rest_from_above(axes[0, 0], ro, tracks, pinned)
+    a, b, name = view_planes(scenario.view if scenario is not None else "yz")[0]
+    # one pair of limits for every frame, so that motion shows as motion (a drag along the table included)
+    pts = np.concatenate([ro.vertices[f][:, [a, b]] for f in frames] + [p[frames][:, [a, b]] for _, p in tracks])
+    pts = pts[np.isfinite(pts).all(1)]
+    mid, half = (pts.min(0) + pts.max(0)) / 2, 0.53 * max(float((pts.max(0) - pts.min(0)).max()), 1e-3)
     for ax, f in zip(axes[0, 1:], frames):
         v = ro.vertices[f]
-        ax.scatter(v[:, 1], v[:, 2], s=4, color=ROLE_COLOURS["posterior"], label="simulated vertices")
+        ax.scatter(v[:, a], v[:, b], s=4, color=ROLE_COLOURS["posterior"], label="simulated vertices")
         for k, (_, p) in enumerate(tracks):
-            ax.plot(p[f, 1], p[f, 2], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2,
+            ax.plot(p[f, a], p[f, b], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2,
                     label=grip_label(len(tracks)) if k == 0 else None)
         for k, (_, i) in enumerate(pinned):
-            ax.plot(v[i, 1], v[i, 2], "x", color=ROLE_COLOURS["gripper"], ms=8, mew=2,
+            ax.plot(v[i, a], v[i, b], "x", color=ROLE_COLOURS["gripper"], ms=8, mew=2,
                     label="held in place" if k == 0 else None)
-        ax.set_title(f"t = {ro.times[f]:.2f} s (side view)", fontsize=FS_SUB)
-        ax.set_xlabel("y [m]", fontsize=FS_LABEL)
-        ax.set_ylabel("z [m]", fontsize=FS_LABEL)
+        ax.set_title(f"frame {f}, t = {ro.times[f]:.2f} s ({name})", fontsize=FS_SUB)
+        ax.set_xlabel(f"{'xyz'[a]} [m]", fontsize=FS_LABEL)
+        ax.set_ylabel(f"{'xyz'[b]} [m]", fontsize=FS_LABEL)
         ax.tick_params(labelsize=FS_TICK)
-        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlim(mid[0] - half, mid[0] + half)  # a square view, equal aspect
+        ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_aspect("equal", adjustable="box")
     axes[0, 1].legend(fontsize=FS_LEGEND, loc="upper left")
     fig.suptitle(title, fontsize=FS_TITLE)
     fig.tight_layout()

@@ -10,7 +10,7 @@ import numpy as np
 
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction
 from softsbi.report.style import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS, _header, _layout, _plt,
-                                   _unit, fit_label, grip_label, save_figure, source_name)
+                                   _unit, fit_label, grip_label, save_figure, source_name, view_planes)
 from softsbi.scenarios.handles import handle_tracks, pinned_vertices
 
 
@@ -233,7 +233,8 @@ def plot_pairs(path: Path, space: Any, samples: np.ndarray, truth: dict[str, flo
 def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, frames: Sequence[int],
                   title: str = "", status: str = "", vertices: np.ndarray | None = None, rope: bool = False,
                   best_pts: np.ndarray | None = None, best_label: str = "") -> Any:
-    """Figure of :func:`plot_clouds`: ``dense (T, N, 3)`` measured, ``sim_pts (T, M, 3)`` simulated
+    """Figure of :func:`plot_clouds`, in two rows: the scenario's view, then the other
+    (:func:`~softsbi.report.style.view_planes`); ``dense (T, N, 3)`` measured, ``sim_pts (T, M, 3)`` simulated
     (None: the simulation failed), every handle of ``scenario``: its grippers ``+`` (where the simulated
     ``vertices (T, V, 3)`` hold them, when given) and the vertices it holds in place ``x``; ``best_pts (T, M, 3)``
     the best fit's rollout (None: not drawn) with its legend text ``best_label``."""
@@ -242,7 +243,8 @@ def clouds_figure(scenario: Any, dense: np.ndarray, sim_pts: np.ndarray | None, 
     from matplotlib.ticker import MaxNLocator  # heavy: loaded on the first figure only
     fig, axes = plt.subplots(2, len(frames), figsize=(3.1 * len(frames) + 0.6, 6.9), squeeze=False)
     mc, pc, gc = ROLE_COLOURS["measured"], ROLE_COLOURS["posterior"], ROLE_COLOURS["gripper"]
-    views = [(1, 2, "side view", ("y [m]", "z [m]")), (0, 1, "top view", ("x [m]", "y [m]"))]
+    views = [(a, b, name, (f"{'xyz'[a]} [m]", f"{'xyz'[b]} [m]"))
+             for a, b, name in view_planes(getattr(scenario, "view", "yz"))]
     tracks = handle_tracks(scenario, None if vertices is None else vertices[0], rope)
     pinned = [] if vertices is None else pinned_vertices(scenario, vertices[0], rope)
     for c, f in enumerate(frames):

@@ -35,6 +35,16 @@ FS_LABEL = 9        # axis labels
 FS_TICK = 8         # tick labels
 FS_LEGEND = 8       # legends
 
+def view_planes(view: str = "yz") -> list[tuple[int, int, str]]:
+    """The two planes a figure of a scenario draws, the scenario's own first (:attr:`~softsbi.core.types.Scenario.view`:
+    ``"xz"``, ``"yz"`` or ``"xy"``), each ``(horizontal axis, vertical axis, name)`` with axes 0-2 = x, y, z and the
+    name ``"side view"`` or ``"top view"``: a side view is followed by the top view, the top view by the side view
+    across y (x-z), where motion on the table shows its height."""
+    side = {"xz": (0, 2, "side view"), "yz": (1, 2, "side view")}
+    top = (0, 1, "top view")
+    return [top, side["xz"]] if view == "xy" else [side[view], top]
+
+
 def grip_label(n: int) -> str:
     """Legend text of ``n`` moving handles."""
     return "gripper" if n == 1 else f"{n} grippers"

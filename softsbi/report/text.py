@@ -7,10 +7,10 @@ from typing import Mapping, Sequence
 
 from scipy.stats import binom
 
-from softsbi.core.metrics import describe_change
+from softsbi.core.metrics import describe_change, offset_axes
 from softsbi.core.comparison import CompareResult, Metric
 from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, Refit,
-                                  ResidualShape, Score)
+                                  ResidualShape, Role, Score)
 from softsbi.core.types import unit_suffix
 
 #: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,
@@ -19,6 +19,9 @@ from softsbi.core.types import unit_suffix
 #: Euclidean in the nominal fit's scale (dimensionless, :class:`~softsbi.core.results.Score`)
 CHAMFER_ENERGY = "Chamfer energy score"
 SUMMARY_ENERGY = "summary energy score"
+#: the unit of the summary energy score: each summary in standard deviations of the nominal fit's posterior
+#: predictive (the scale every model is scored in, :class:`~softsbi.core.results.Score`)
+SCORE_UNIT = "sd"
 
 
 def cm(x: float | None, digits: int = 2) -> str:
@@ -189,22 +192,28 @@ def num(v: float) -> str:
 
 
 def estimate_words(e: Estimate) -> str:
-    """``"wind_y = 0.81 m/s (90% interval 0.62 to 0.97 m/s)"``."""
+    """``"wind_y = 0.81 m/s (90% interval 0.62 to 0.97 m/s)"``. A wide interval (:attr:`Estimate.informed` False)
+    is "not informed by the data", unless it excludes the effect's off value (:attr:`Estimate.may_be_off` False):
+    then the data do inform it, on two counts: the effect is on, and its size is known to within half the
+    interval's width."""
     u = unit_suffix(e.unit)
     s = f"{e.name} = {num(e.mean)}{u}"
     if e.q05 is not None and e.q95 is not None:
         s += f" (90% interval {num(e.q05)} to {num(e.q95)}{u}"
-        s += ", not informed by the data)" if e.informed is False else ")"
+        if e.informed is False and e.may_be_off is False:
+            s += f": the data show the effect is on, its size known to within ±{num((e.q95 - e.q05) / 2)}{u})"
+        else:
+            s += ", not informed by the data)" if e.informed is False else ")"
     return s
 
 
 def score_change(base: Score | None, new: Score | None, g: Gain | None, joiner: str = " -> ") -> str:
-    """``"28.5 -> 14.3 (50% lower, 6.1 standard errors)"`` (``joiner`` between the two scores; the standard errors
+    """``"28.5 -> 14.3 sd (50% lower, 6.1 standard errors)"`` (:data:`SCORE_UNIT`) (``joiner`` between the two scores; the standard errors
     are the decision's, ``g``: :attr:`~softsbi.core.results.Decision.gains`)."""
     if base is None or new is None:
         return "n/a"
     z = f", {g.z:.1f} standard errors" if g is not None and math.isfinite(g.z) else ""
-    return f"{base.value:.3g}{joiner}{new.value:.3g} ({describe_change(base.value, new.value)}{z})"
+    return f"{base.value:.3g}{joiner}{new.value:.3g} {SCORE_UNIT} ({describe_change(base.value, new.value)}{z})"
 
 
 def extended(d: Diagnosis, r: Refit) -> Score | None:
@@ -217,23 +226,27 @@ def extended(d: Diagnosis, r: Refit) -> Score | None:
 
 
 def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = None, nominal_n: int = 0,
-                g: Gain | None = None) -> str:
+                g: Gain | None = None, aside: str | None = None) -> str:
     """One refit: is it adequate, does it improve (``g``: its gain over ``base``, the model it extends, as the
-    decision computed it), what it estimates, which prior bounds it presses. An adequate
-    refit whose posterior-predictive Chamfer is higher than the nominal fit's (``nominal_chamfer_m``) is called
-    adequate with a higher error, not "inside" (which reads like a win)."""
+    decision computed it), what it estimates, which prior bounds it presses, and, when the decision sets an adequate
+    refit aside, why (``aside``: :func:`set_aside_words`, the reason the table gives). An adequate refit whose
+    posterior-predictive Chamfer is higher than the nominal fit's (``nominal_chamfer_m``) is said to pass check, not
+    to put the measurement "inside" (which reads like a win); its Chamfer is a fact beside the decision, never its
+    reason."""
     worse = (r.adequate and r.chamfer_m is not None and nominal_chamfer_m is not None
              and r.chamfer_m > nominal_chamfer_m)
     chamfer = f"posterior-predictive Chamfer {cm(r.chamfer_m)}{rollouts(r.chamfer_n)}"
     if worse:
-        s = (f"With {' + '.join(r.effects)}: adequate (check does not reject it, {p_words(r.test)}), but its error is "
-             f"higher than the nominal fit's: {chamfer} against {cm(nominal_chamfer_m)}{rollouts(nominal_n)}; "
-             f"{SUMMARY_ENERGY} {score_change(base, r.score, g)}.")
+        s = (f"With {' + '.join(r.effects)}: check does not reject the refit ({p_words(r.test)}), {SUMMARY_ENERGY} "
+             f"{score_change(base, r.score, g)}; its {chamfer} is higher than the nominal fit's "
+             f"{cm(nominal_chamfer_m)}{rollouts(nominal_n)}.")
     else:
         ok = "inside" if r.adequate else "still outside"
         s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
              f"({p_words(r.test)}), {SUMMARY_ENERGY} {score_change(base, r.score, g)}"
              + (f", {chamfer}." if r.chamfer_m is not None else "."))
+    if aside is not None:
+        s += f" Set aside: {aside}."
     if r.estimates:
         s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
     for e in r.estimates:  # a bound that is a physical limit (or the effect's switched-off side) gets no advice
@@ -241,6 +254,43 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
             s += (f" Its {e.name} presses the {e.pressed} prior bound: refit with --bounds "
                   f"{e.name}={e.suggested_bounds[0]:.4g}:{e.suggested_bounds[1]:.4g} if such values are physical.")
     return s
+
+
+#: the reasons :func:`set_aside` gives (the table's verdict column, after ``"refit: "``)
+MISFIT_REMAINS = "misfit remains"
+POSSIBLY_OFF = "the data leave it possibly off"
+NO_LOWER = "no lower score"
+
+
+def set_aside(d: Diagnosis, r: Refit) -> str | None:
+    """Why the decision did not name refit ``r`` (None: it names it, lists it as indistinguishable or as explaining
+    a part), in the order of the decision's criteria (:mod:`softsbi.workflows.criticism.decide`): the misfit remains
+    (check rejects it), the data leave its effect possibly off, its score is lower than the nominal's but above the
+    named refit's, or no lower. The table's verdict column and the refit's paragraph both give this reason."""
+    dec = d.decision
+    if dec.role(r.effects) is not Role.NOT_NAMED:
+        return None
+    if not r.adequate:
+        return MISFIT_REMAINS
+    if r.maybe_off:
+        return POSSIBLY_OFF
+    g = dec.gain_of(r.effects)
+    if g is not None and g.exceeds(d.k_se) and dec.named:  # adequate and improving, but the named refit scores lower
+        return f"a lower score than the nominal's, above {' + '.join(dec.named)}'s"
+    return NO_LOWER
+
+
+def set_aside_words(d: Diagnosis, r: Refit) -> str | None:
+    """:func:`set_aside`'s reason with what it means, for the refit's paragraph; None where the paragraph's first
+    sentence says it already (the misfit remains: the measurement is still outside) or the refit is not set aside."""
+    why = set_aside(d, r)
+    if why is None or why == MISFIT_REMAINS:
+        return None
+    if why == POSSIBLY_OFF:
+        return (f"{why} (the 90% interval of each of its parameters reaches the value that switches the effect "
+                f"off): the refit explains the misfit by widening its predictions, not by identifying a cause")
+    return f"{why} (by more than {d.k_se:g} standard errors)" if why != NO_LOWER else (
+        f"{why} (its {SUMMARY_ENERGY} is not {d.k_se:g} standard errors below the model it extends)")
 
 
 def rule_words(d: Diagnosis) -> str:
@@ -259,23 +309,24 @@ def rule_words(d: Diagnosis) -> str:
              if n_trained else " (the top named ones by evidence)")
           + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
-          f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries in the nominal fit's "
-          f"scale, a proper score) falls by more than {d.k_se:g} standard errors below the model it extends, and the "
+          f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries, a proper score, in "
+          f"{SCORE_UNIT}: standard deviations of the nominal fit's posterior predictive) falls by more than {d.k_se:g} standard errors below the model it extends, and the "
           f"data switch its effect on (a parameter's 90% interval excludes the effect's off value).")
     return s
 
 
 def residual_words(res: ResidualShape) -> str:
     """Where, when and in which direction the nominal fit misses the measurement. Each phase or region it names comes
-    with the number that ranks it: the flagged frames' share of a phase, the phase's posterior-predictive Chamfer (the
-    number of ``check``'s phase table), a region's error beyond the model's own spread."""
+    with the number that ranks it: the flagged frames' share of each phase they fall in (:func:`flagged_shares`), the
+    phase's posterior-predictive Chamfer (the number of ``check``'s phase table), a region's error beyond the model's
+    own spread; the centroid's displacement with its dominant axis, or the axes that tie
+    (:func:`~softsbi.core.metrics.offset_axes`)."""
     judged = [p for p in res.phases if p.get("fraction_flagged") is not None]
     if res.frame_spans:
         sp = ", ".join(f"frames {a}-{b} (t {t0:.2f}-{t1:.2f} s)" if b != a else f"frame {a} (t {t0:.2f} s)"
                        for a, b, t0, t1 in res.frame_spans[:3])
-        most = max(judged, key=lambda p: p["fraction_flagged"]) if judged else None
-        s = f"The summaries leave the rollouts' 95% range in {sp}" + (
-            f" ({pct(most['fraction_flagged'])} of the {most['phase']} phase's frames)" if most else "")
+        shares = flagged_shares(judged)
+        s = f"The summaries leave the rollouts' 95% range in {sp}" + (f" ({shares})" if shares else "")
     else:
         s = "No single frame is outside the rollouts' 95% range; the residual is spread over the motion"
     with_chamfer = [p for p in judged if p.get("chamfer_m") is not None]
@@ -283,12 +334,28 @@ def residual_words(res: ResidualShape) -> str:
         w = max(with_chamfer, key=lambda p: p["chamfer_m"])
         s += f"; the Chamfer is largest in the {w['phase']} phase ({cm(w['chamfer_m'])}, as in check's table)"
     o = res.centroid_offset_cm
+    axes = offset_axes(o)
+    way = ("" if not axes else f", mostly {axes[0]}" if len(axes) == 1
+           else f", {', '.join(axes[:-1])} and {axes[-1]} alike")
     exc = res.region_excess_cm
     regions = ", ".join(region_value(r, f"{exc[r]:+.2f} cm") if exc.get(r) is not None else r
                         for r in res.worst_regions)
-    return (s + f"; the measured centroid is displaced by ({o[0]:+.1f}, {o[1]:+.1f}, {o[2]:+.1f}) cm, mostly "
-                f"{res.direction}; the most deviant summary is {res.worst_summary}; regions with the most error "
-                f"beyond the model's own spread: {regions}.")
+    return (s + f"; the measured centroid is displaced by ({o[0]:+.1f}, {o[1]:+.1f}, {o[2]:+.1f}) cm{way}; the most "
+                f"deviant summary is {res.worst_summary}; regions with the most error beyond the model's own spread: "
+                f"{regions}.")
+
+
+def flagged_shares(phases: Sequence[Mapping]) -> str:
+    """The flagged frames' share of each phase they fall in, largest first: ``"78% of the middle phase's frames and
+    75% of the late phase's"``; ``"every fitted frame"`` when every phase is flagged throughout (``""``: none)."""
+    hit = sorted((p for p in phases if p["fraction_flagged"] > 0), key=lambda p: -p["fraction_flagged"])
+    if not hit:
+        return ""
+    if len(hit) == len(phases) and all(p["fraction_flagged"] >= 1 for p in hit):
+        return "every fitted frame"
+    parts = [f"{pct(p['fraction_flagged'])} of the {p['phase']} phase's" for p in hit]
+    parts[0] += " frames"
+    return parts[0] if len(parts) == 1 else f"{', '.join(parts[:-1])} and {parts[-1]}"
 
 
 def _kind(d: Diagnosis, effects: Sequence[str]) -> str:
@@ -341,7 +408,8 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
     """Everything ``diagnose`` says, one paragraph per item: the verdict, the rule as applied, each refit,
     the residual's shape and the best generic force term."""
     out = [diagnosis_summary(d), rule_words(d)]
-    out += [refit_words(r, extended(d, r), d.chamfer_m, d.chamfer_n, d.decision.gain_of(r.effects))
+    out += [refit_words(r, extended(d, r), d.chamfer_m, d.chamfer_n, d.decision.gain_of(r.effects),
+                        set_aside_words(d, r))
             for r in d.refits]
     if d.decision.verdict == "misspecified-unexplained" and d.residual:
         out.append(residual_words(d.residual))
@@ -364,14 +432,7 @@ def candidate_role(d: Diagnosis, c: Candidate) -> str:
     r = d.refit((c.effect,))
     if r is None:
         return not_refitted(d, c)
-    if not r.adequate:
-        return "refit: misfit remains"
-    if r.maybe_off:
-        return "refit: the data leave it possibly off"
-    g = dec.gain_of(r.effects)
-    if g is not None and g.exceeds(d.k_se) and dec.named:  # adequate and improving, but the named refit scores lower
-        return f"refit: a lower score than the nominal's, above {' + '.join(dec.named)}'s"
-    return "refit: no lower score"
+    return f"refit: {set_aside(d, r)}"
 
 
 def not_refitted(d: Diagnosis, c: Candidate) -> str:
@@ -421,9 +482,9 @@ def diagnosis_columns(d: Diagnosis) -> list[str]:
 
 
 #: the column of a trained candidate's amortised refit's summary energy score
-AMORTISED_COLUMN = "amortised score"
+AMORTISED_COLUMN = f"amortised score [{SCORE_UNIT}]"
 DIAGNOSIS_COLUMNS = ["candidate", "kind", "explains", "max-T p", AMORTISED_COLUMN, "refit check p",
-                     f"refit {SUMMARY_ENERGY}", "verdict"]
+                     f"refit {SUMMARY_ENERGY} [{SCORE_UNIT}]", "verdict"]
 
 
 def row_label(metric: Metric, a: CheckResult, b: CheckResult, part: str = "") -> str:
@@ -450,9 +511,10 @@ ROW_NOTES = {Metric.CHAMFER: "", Metric.CHAMFER_ONE_SIDED: " (measured -> simula
 
 
 def compare_summary(c: CompareResult) -> str:
-    """``compare``'s sentence: the error before -> after, the Chamfer energy score, the point estimate, the tests."""
+    """``compare``'s sentence: the error before -> after, the Chamfer energy score, the point estimate, the tests; the
+    two fits named in the order of their numbers (``a -> b``)."""
     first = c.row(Metric.CHAMFER)
-    s = (f"{c.label_b} vs {c.label_a}: posterior-predictive Chamfer {cm(first.a)}{rollouts(c.check_a.n_rollouts)} -> "
+    s = (f"{c.label_a} -> {c.label_b}: posterior-predictive Chamfer {cm(first.a)}{rollouts(c.check_a.n_rollouts)} -> "
          f"{cm(first.b)}{rollouts(c.check_b.n_rollouts)} ({describe_change(first.a, first.b)})")
     for metric in (Metric.ENERGY_CHAMFER, Metric.POSTERIOR_MEAN):
         row = c.row(metric)

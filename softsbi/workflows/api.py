@@ -159,7 +159,7 @@ def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | P
     """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.criticism.diagnose.diagnose_run`;
     ``settings``: ``alpha``, ``k_se``, ``confirm``, ``refit_rounds``, ``refit_sims``, ``workers``, ...). Returns the
     :class:`~softsbi.core.results.Diagnosis` (also in ``OUT/diagnosis.json``; ``out``, as ``diagnose --out``: the
-    folder of the diagnosis and its refits, default ``run``). ``progress``: one line on stderr per phase of
+    folder of the diagnosis, its check and its refits, default ``run``). ``progress``: one line on stderr per phase of
     simulations, the refits' rounds included, and per step (detect, each refit) as the CLI prints them (module
     docstring); a callable gets the step lines instead.
 

@@ -169,3 +169,13 @@ def fit_callbacks(label: str) -> Any:
                 self.handle = None
 
     return _Rounds()
+
+
+def duration_words(seconds: float) -> str:
+    """A duration for people, two significant digits at most: ``"40 s"``, ``"12 min"``, ``"2.5 h"``."""
+    s = max(float(seconds), 0.0)
+    if s < 90:
+        return f"{s:.2g} s" if s < 10 else f"{s:.0f} s"
+    if s < 90 * 60:
+        return f"{s / 60:.0f} min"
+    return f"{s / 3600:.2g} h"

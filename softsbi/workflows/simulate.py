@@ -2,7 +2,7 @@
 
 ``OUT/rollout.zarr`` (times s, gripper m, vertices m, faces; attributes: backend, scenario, theta,
 status, reason), ``OUT/preview.png`` (the rest pose from above with corners 0-3 and the handles labelled, then
-side views of four frames), a recording directory in the same folder (``OUT/recording.yaml`` + ``OUT/clouds/NNN.npy``, :mod:`softsbi.data.recording`: surface samples of
+four frames in the scenario's view, side or top (``view:``)), a recording directory in the same folder (``OUT/recording.yaml`` + ``OUT/clouds/NNN.npy``, :mod:`softsbi.data.recording`: surface samples of
 every frame, the scenario inline, the hidden ``truth`` and ``effects``; ``softsbi fit --observed OUT``
 reads it) and, when rendering,
 ``OUT/frames/000.png ...`` with ``truth.json`` (a measurement for ``fit --observer heatmap|transporter``).

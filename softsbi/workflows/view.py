@@ -4,7 +4,7 @@ Two outputs from one set of simulations (:func:`posterior_rollouts`):
 
 * :func:`write_animation` - an animated GIF (``RUN/view.gif``): the measured cloud (dark grey)
   against ``n_eval`` posterior-predictive rollouts (faded blue wireframes) and the gripper
-  (red), seen from the side (y-z) and from above (x-y), with the per-frame Chamfer error of the
+  (red), in the scenario's view (``view:``) and the other one (side or top), with the per-frame Chamfer error of the
   rollouts below; one animation frame per recorded frame.
 * :func:`write_rerun` - a `rerun <https://rerun.io>`_ recording (``RUN/view.rrd``) of the same
   scene in 3-D on a ``time`` timeline (seconds), to scrub through with ``rerun RUN/view.rrd``.
@@ -99,11 +99,13 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval:
                     workers: int | None = None, fps: float = 5) -> Path:
     """Write an animated GIF of a finished fit's posterior-predictive rollouts against the measurement.
 
-    One animation frame per recorded frame (``T`` frames): side view (y-z) and top view (x-y)
+    One animation frame per recorded frame (``T`` frames): the scenario's view (``view:``, a side view or the top
+    view) and the other (:func:`~softsbi.report.style.view_planes`)
     of the measured cloud (dark grey), ``n_eval`` posterior rollouts (faded blue mesh edges)
     and the gripper (red ``+``, its path faint), at fixed equal-aspect limits (m) covering
     every frame; below, the Chamfer distance (cm) of each rollout and their mean per frame with
-    a marker at the current frame; the title names the run, ``frame k / T``, ``t`` (s) and the
+    a marker at the current frame; the title names the run, ``frame k (of 0-T-1)`` (numbered from 0, as in
+    every figure), ``t`` (s) and the
     current mean Chamfer.
 
     Args:

@@ -154,6 +154,20 @@ def test_force_door_sees_the_current_state(monkeypatch):
     np.testing.assert_allclose((x[1:] - x[:-1]) / dt, v[1:], atol=1e-9)
     ctx = _Recorder.calls[0][3]
     assert ctx.shape == (5, 5) and np.isclose(ctx.mass.sum(), sim.param_space(LIFT).midpoint()["mass"] * 0.27 ** 2)
+    # the cloth rests one collision radius (3 mm) above the table, as the effect how-to says and computes it
+    assert ctx.x0[:, 2].min() - ctx.table_z == pytest.approx(sim.radius) and sim.radius == 0.003
+
+
+def test_the_effect_howto_lists_every_attribute_of_the_context_with_its_rest_height():
+    """A plugin author reads the how-to, not the source: every attribute of VertexContext is in its table, and the
+    height the cloth rests at above ``table_z`` is given with the way to read it."""
+    import dataclasses
+    from pathlib import Path
+    doc = (Path(__file__).parents[2] / "docs" / "howto" / "effect-plugin.md").read_text()
+    names = [f.name for f in dataclasses.fields(VertexContext)] + [
+        n for n, v in vars(VertexContext).items() if isinstance(v, property)]
+    assert "edges" in names and all(f"| `ctx.{n}` |" in doc for n in names), names
+    assert "3 mm" in doc and "rest = ctx.x0[:, 2].min() - ctx.table_z" in doc
 
 
 def test_fluid_force_is_mujocos_inertia_box_force():

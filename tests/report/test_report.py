@@ -224,7 +224,8 @@ def test_palette_is_colour_blind_safe_and_engines_have_no_role_colour(tmp_path):
 
 def _two_grip_scenario():
     """A 3 x 3 grid cloth held by two moving grippers (corners 0 and 1) and one pinned corner (2); the second
-    path is commanded 5 cm off its corner (the backends shift it there)."""
+    path is commanded 5 cm off its corner (the backends shift it there). Its figures' view is y-z, across the two
+    grippers."""
     from softsbi.core.types import Handle, Scenario
     T = 4
     up = np.linspace(0, 0.2, T)
@@ -232,7 +233,8 @@ def _two_grip_scenario():
     p1 = np.stack([np.zeros(T), np.full(T, 0.25), up], 1)
     handles = [Handle("left", {"corner": 0}, p0), Handle("right", {"corner": 1}, p1), Handle("held", {"corner": 2})]
     sc = Scenario(name="two", times=np.arange(T) * 0.1, gripper=p0, table_z=0.0,
-                  object={"kind": "cloth", "size": 0.2}, handles=handles, options={"keyframe_times": [0.0, 0.15, 0.3]})
+                  object={"kind": "cloth", "size": 0.2}, handles=handles, options={"keyframe_times": [0.0, 0.15, 0.3]},
+                  view="yz")
     xs = np.linspace(0, 0.2, 3)
     rest = np.array([[x, y, 0.0] for x in xs for y in xs])  # x-major: corner 0 (0,0), 1 (0,0.2), 2 (0.2,0.2)
     verts = np.repeat(rest[None], T, 0)
@@ -294,6 +296,54 @@ def test_the_preview_shows_the_rest_pose_from_above_with_corners_and_handles_lab
     plt.close(fig)
 
 
+def _drag_scenario(view):
+    """A 3 x 3 cloth dragged 0.6 m along +x on the table by corner 0 (it never rises): the motion is in the table's
+    plane."""
+    from softsbi.core.types import Handle, Scenario
+    T = 5
+    p0 = np.stack([np.linspace(0, 0.6, T), np.zeros(T), np.full(T, 0.003)], 1)
+    sc = Scenario(name="drag", times=np.arange(T) * 0.2, gripper=p0, table_z=0.0, object={"kind": "cloth", "size": 0.2},
+                  handles=[Handle("belt", {"corner": 0}, p0)], view=view)
+    xs = np.linspace(0, 0.2, 3)
+    rest = np.array([[x, y, 0.003] for x in xs for y in xs])
+    return sc, rest[None] + np.stack([p0[:, 0], np.zeros(T), np.zeros(T)], 1)[:, None]
+
+
+def test_the_figures_honour_the_scenario_s_view_and_give_the_top_view_room_for_motion_on_the_table(tmp_path):
+    """A cloth dragged along +x with ``view: xy``: preview.png drew y-z side views (the drag invisible), clouds.png
+    its y-z side view first, and view.gif's top view was a thumbnail beside a flat side view."""
+    from softsbi.core.types import Rollout
+    from softsbi.report.animation import draw_gif, panel_ratios
+    from softsbi.report.style import view_planes
+    sc, verts = _drag_scenario("xy")
+    ro = Rollout(times=sc.times, gripper=sc.gripper, vertices=verts, faces=np.array([[0, 1, 3]]))
+    fig = R.rollout_preview_figure(ro, "drag", sc)
+    for ax in fig.axes[1:]:
+        assert (ax.get_xlabel(), ax.get_ylabel()) == ("x [m]", "y [m]") and ax.get_title().endswith("(top view)")
+    assert fig.axes[-1].get_title() == "frame 4, t = 0.80 s (top view)"  # frames numbered from 0, as everywhere
+    plt.close(fig)
+    fig = R.clouds_figure(sc, verts, verts, [0, 4], vertices=verts)
+    assert [a.get_ylabel() for a in fig.axes[:4:2]] == ["top view\ny [m]", "side view\nz [m]"]
+    plt.close(fig)
+    assert [p[:2] for p in view_planes("xy")] == [(0, 1), (0, 2)] and view_planes("xz")[0][:2] == (0, 2)
+    # the GIF: the scenario's view first; the second panel neither wider than the first nor a thumbnail
+    assert panel_ratios([2.2, 12.0]) == [2.2, 2.2] and panel_ratios([12.0, 2.2]) == [12.0, 6.0]
+    assert panel_ratios([1.0, 0.9]) == [1.0, 0.9]
+    from matplotlib.animation import PillowWriter
+    seen, grab = [], PillowWriter.grab_frame
+
+    def record(self, **kw):
+        seen.append(([(a.get_title(), a.get_position().width) for a in self.fig.axes[:2]],
+                     self.fig._suptitle.get_text()))
+        return grab(self, **kw)
+    view = SimpleNamespace(path="run", config={"backend": "toy"}, effects=[], scenario=sc, dense=verts)
+    with mock.patch.object(PillowWriter, "grab_frame", record):
+        draw_gif(view, [{"vertices": verts, "faces": ro.faces}], np.zeros((1, 5)), tmp_path / "view.gif", fps=5)
+    (top, w_top), (side, w_side) = seen[0][0]
+    assert top == "top view (x-y)" and side == "side view (x-z)" and w_top >= w_side
+    assert "frame 0 (of 0-4)" in seen[0][1] and "frame 4 (of 0-4)" in seen[-1][1]
+
+
 def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_keyframes():
     from softsbi.workflows.criticism.check import grasp_handle, motion_phases
     sc, _ = _two_grip_scenario()
@@ -306,6 +356,20 @@ def test_check_names_the_grasp_its_regions_count_from_and_cuts_phases_at_the_key
     assert fig.axes[1].get_ylabel() == "region of the object (R1 nearest the grasp of handle 'left')"
     assert "the scenario's keyframes" in fig.axes[0].get_title()
     plt.close(fig)
+
+
+def test_the_check_heat_map_s_colour_scale_does_not_make_a_passing_run_look_hot():
+    """A passing control with region errors below a centimetre: its own maximum set the top of the scale, so it
+    looked as "hot" as a failing run. The scale now runs to at least 5 cm; a larger error extends it."""
+    from softsbi.report.check_figures import HEATMAP_MIN_CM
+    small = check_result(test=joint(150, 150))
+    small = dataclasses.replace(small, region_error_m=tuple(tuple(0.1 * v for v in row) for row in small.region_error_m))
+    assert np.max(small.region_error_m) * 100 < 3 and HEATMAP_MIN_CM == 5.0
+    for out, top in ((small, 5.0), (check_result(), float(np.max(check_result().region_error_m)) * 100)):
+        fig = R.check_figure(out)
+        assert fig.axes[1].images[0].get_clim() == pytest.approx((0.0, top)), top
+        plt.close(fig)
+    assert top > 5.0
 
 
 def test_check_phase_labels_stay_readable_when_the_phases_are_short():

@@ -9,10 +9,11 @@ import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
 from softsbi.core.comparison import CompareResult, Metric, Row
+from softsbi.core.metrics import offset_direction
 from softsbi.core.results import Diagnosis, Estimate, JointTest, MCPValue, ResidualShape
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, diagnosis_columns, check_summary, compare_summary,
                                  diagnosis_rows, diagnosis_summary, diagnosis_text, estimate_words, joint_test_line,
-                                 p_short, p_words, refit_words)
+                                 p_short, p_words, refit_words, residual_words)
 from softsbi.workflows.criticism.decide import decide
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -93,21 +94,21 @@ P_FLOOR = "p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 nu
 P_WIND = "p = 0.41 (two tests, Bonferroni: 2 x the omnibus test's p = 0.2; 200 null simulations)"
 DETECT = f"Detect: check's joint test of the nominal fit, {P_FLOOR} <= 0.05."
 DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and its summary energy score (the energy score of its "
-          "posterior predictive of check's summaries in the nominal fit's scale, a proper score) falls by more than 2 "
+          "posterior predictive of check's summaries, a proper score, in sd: standard deviations of the nominal fit's posterior predictive) falls by more than 2 "
           "standard errors below the model it extends, and the data switch its effect on (a parameter's 90% interval "
           "excludes the effect's off value).")
 WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-              "summary energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
+              "summary energy score 21 -> 8 sd (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
               "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
               "presses the upper prior bound: refit with --bounds wind_y=-2:4 if such values are physical.")
 PART_WORDS = [f"With wind: the measurement is still outside the refit's posterior predictive distribution ({P_FLOOR}), "
-              "summary energy score 21 -> 15 (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm (n=30 rollouts).",
+              "summary energy score 21 -> 15 sd (29% lower, 9.4 standard errors), posterior-predictive Chamfer 1.70 cm (n=30 rollouts).",
               "With extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-              f"({P_FLOOR}), summary energy score 21 -> 17 (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm (n=30 rollouts)."]
+              f"({P_FLOOR}), summary energy score 21 -> 17 sd (19% lower, 6.2 standard errors), posterior-predictive Chamfer 1.90 cm (n=30 rollouts)."]
 #: the summaries flag the middle phase most, while the Chamfer (check's phase table) is largest late: each named with
 #: its own number, never "mostly the middle phase" beside a table whose worst phase is the late one
 RESIDUAL_WORDS = ("The summaries leave the rollouts' 95% range in frames 10-21 (t 0.40-0.84 s), frame 24 (t 0.96 s) "
-                  "(78% of the middle phase's frames); the Chamfer is largest in the late phase (8.40 cm, as in "
+                  "(78% of the middle phase's frames and 75% of the late phase's); the Chamfer is largest in the late phase (8.40 cm, as in "
                   "check's table); the measured centroid is displaced by (+0.3, +0.7, -0.4) cm, mostly +y; the most "
                   "deviant summary is y_q95; regions with the most error beyond the model's own spread: R9 (farthest "
                   "from the grasp; +0.80 cm), R8 (+0.70 cm).")
@@ -150,7 +151,7 @@ def test_missing_effect_with_a_refit_pressing_a_prior_bound():
     assert NAMED.verdict == "missing-effect" and NAMED.decision.named == ("wind",)
     assert diagnosis_text(NAMED) == [
         "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
-        f"distribution ({P_WIND}) and lowers the summary energy score from 21 to 8 (62% lower, 20.3 standard "
+        f"distribution ({P_WIND}) and lowers the summary energy score from 21 to 8 sd (62% lower, 20.3 standard "
         "errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind (the top named ones by evidence). {DECIDE}",
         WIND_WORDS]
@@ -166,15 +167,16 @@ def test_a_trained_task_scores_each_trained_candidates_amortised_refit_and_says_
     assert diagnosis_rows(AMORTISED) == rows(GENERIC, ("p = 0.41", "8", "named"),
                                              not_refitted("its amortised refit scores no lower"),
                                              not_refitted("beyond --confirm 1"), amortised=("-", "8.3", "20.8", "-"))
-    assert diagnosis_columns(AMORTISED)[4] == "amortised score" and diagnosis_columns(AMORTISED) == DIAGNOSIS_COLUMNS
-    assert "amortised score" not in diagnosis_columns(NAMED)  # no task trained: no column of dashes
+    assert diagnosis_columns(AMORTISED)[4] == "amortised score [sd]" and diagnosis_columns(AMORTISED) == DIAGNOSIS_COLUMNS
+    assert "amortised score [sd]" not in diagnosis_columns(NAMED)  # no task trained: no column of dashes
+    assert diagnosis_columns(NAMED)[-2] == "refit summary energy score [sd]"  # every score with its unit
 
 
 def test_missing_effect_with_an_indistinguishable_alternative():
     assert TIE.decision.named == ("wind",) and TIE.decision.alternatives == (("extra-damping",),)
     assert diagnosis_text(TIE) == [
         "Missing physics effect: wind (a steady wind). Its refit puts the measurement inside its posterior predictive "
-        f"distribution ({P_WIND}) and lowers the summary energy score from 21 to 8 (62% lower, 20.3 standard "
+        f"distribution ({P_WIND}) and lowers the summary energy score from 21 to 8 sd (62% lower, 20.3 standard "
         "errors). The data cannot tell it from extra-damping: that refit explains the misfit too, with a summary "
         "energy score within 2 standard errors; evidence these recordings lack (an independent measurement of the effect, "
         "or a motion in which the two differ) would decide.",
@@ -182,7 +184,7 @@ def test_missing_effect_with_an_indistinguishable_alternative():
         f"evidence). {DECIDE}",
         WIND_WORDS,
         "With extra-damping: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
-        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), summary energy score 21 -> 8.4 (60% lower, "
+        "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), summary energy score 21 -> 8.4 sd (60% lower, "
         "19.7 standard errors), posterior-predictive Chamfer 1.04 cm (n=30 rollouts). The refit estimates damping_rate = 3.1 1/s (90% "
         "interval 0.4 to 7.9 1/s, not informed by the data)."]
     assert diagnosis_rows(TIE) == rows(GENERIC, ("p = 0.41", "8", "named"),
@@ -195,12 +197,12 @@ def test_missing_pair():
     assert diagnosis_text(PAIRED) == [
         "Missing physics effects: wind + extra-damping. Neither refit alone explains the misfit; with both, the refit "
         f"puts the measurement inside its posterior predictive distribution ({p_pair}) and lowers the summary energy score "
-        "from 15 to 9 (40% lower, 10.6 standard errors).",
+        "from 15 to 9 sd (40% lower, 10.6 standard errors).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         f"With wind + extra-damping: the measurement is inside the refit's posterior predictive distribution "
-        f"({p_pair}), summary energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts)."]
+        f"({p_pair}), summary energy score 15 -> 9 sd (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts)."]
     assert diagnosis_rows(PAIRED) == rows(GENERIC, ("p <= 2/201", "15", "named (pair)"),
                                           ("p <= 2/201", "17", "named (pair)"), BUDGET)
 
@@ -210,13 +212,13 @@ def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_th
     assert diagnosis_text(PARTIAL) == [
         "Misspecified, unexplained: the measurement lies outside the nominal model's posterior predictive "
         f"distribution ({P_FLOOR} <= 0.05), and no refit of wind, extra-damping, wind+extra-damping explains it. wind "
-        "explains a part: of the single refits, it lowers the summary energy score most, from 21 to 15 (29% lower, 9.4 standard errors), but the measurement stays "
+        "explains a part: of the single refits, it lowers the summary energy score most, from 21 to 15 sd (29% lower, 9.4 standard errors), but the measurement stays "
         f"outside its posterior predictive distribution ({P_FLOOR}).",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted wind, extra-damping (the top named ones by "
         f"evidence), then the pair wind+extra-damping. {DECIDE}",
         *PART_WORDS,
         "With wind + extra-damping: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), summary energy score 15 -> 9 (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts).",
+        f"({P_FLOOR}), summary energy score 15 -> 9 sd (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts).",
         RESIDUAL_WORDS,
         GENERIC_WORDS]
     assert diagnosis_rows(PARTIAL) == rows(GENERIC, ("p <= 2/201", "15", "explains a part"),
@@ -236,7 +238,7 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
                                              "lowers the summary energy score by more than 2 standard errors.")
     assert diagnosis_text(NONE_LOWER)[2] == (
         "With wind: the measurement is still outside the refit's posterior predictive distribution "
-        f"({P_FLOOR}), summary energy score 21 -> 21.5 (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm (n=30 rollouts).")
+        f"({P_FLOOR}), summary energy score 21 -> 21.5 sd (2% higher, -0.8 standard errors), posterior-predictive Chamfer 2.35 cm (n=30 rollouts).")
     assert diagnosis_rows(NONE_LOWER) == rows(GENERIC, ("p <= 2/201", "21.5", "refit: misfit remains"),
                                               ("p <= 2/201", "23", "refit: misfit remains"), BUDGET)
     # a refit that check accepts but whose score does not fall: explains nothing, and the table says why
@@ -261,7 +263,7 @@ def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
     d = diagnosis([r])
     assert diagnosis_text(d)[2] == (
         f"With point-noise: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
-        "summary energy score 21 -> 8 (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates noise_std = 0.0049 m "
+        "summary energy score 21 -> 8 sd (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates noise_std = 0.0049 m "
         "(90% interval 0.0041 to 0.0058 m); dropout = 0 (90% interval 0 to 0.02). Its noise_std presses the upper "
         "prior bound: refit with --bounds noise_std=0:0.015 if such values are physical.")
 
@@ -275,7 +277,7 @@ def test_a_refit_estimate_pressing_a_bound_that_is_no_limit_adds_the_wider_prior
 
     plain = ("With toy-wind: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
              "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), summary energy score 0.02 "
-             "-> 0.01 (50% lower), posterior-predictive Chamfer 0.20 cm (n=30 rollouts). The refit estimates wind = "
+             "-> 0.01 sd (50% lower), posterior-predictive Chamfer 0.20 cm (n=30 rollouts). The refit estimates wind = "
              "0.49 m (90% interval 0.41 to 0.5 m).")
     assert words() == plain and words(pressed="upper", suggested_bounds=None) == plain
     assert words(pressed="upper", suggested_bounds=(0.0, 0.75)) == (
@@ -405,12 +407,12 @@ def test_compare_summary():
         png="run/refit-wind/compare.png",
     )
     assert compare_summary(res) == (
-        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
+        "mujoco-flex (nominal) -> mujoco-flex + wind: posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
         "(n=30 rollouts) (79% lower), "
         "Chamfer energy score 5.50 cm -> 0.90 cm (84% lower), posterior-mean rollout 2.00 cm -> 0.90 cm (55% lower); "
         f"misspecification {P_FLOOR} -> {P_WIND}.")
     assert compare_summary(replace(res, same_sensor=False, rows=table[:1])) == (
-        "mujoco-flex + wind vs mujoco-flex (nominal): posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
+        "mujoco-flex (nominal) -> mujoco-flex + wind: posterior-predictive Chamfer 5.70 cm (n=30 rollouts) -> 1.20 cm "
         "(n=30 rollouts) (79% lower); "
         f"misspecification {P_FLOOR} -> {P_WIND}. The two fits use different sensor models (--sensor / --min-height "
         "/ --frames), so their Chamfer values measure different things.")
@@ -514,16 +516,80 @@ def test_the_residual_names_the_phase_check_s_table_gives_as_worst():
 
 
 def test_an_adequate_refit_with_a_higher_chamfer_than_the_nominal_is_not_described_as_a_win():
-    """A pair refit check accepts, its posterior-predictive Chamfer 4.19 cm against the nominal fit's 3.63 cm."""
+    """A pair refit check accepts, its posterior-predictive Chamfer 4.19 cm against the nominal fit's 3.63 cm: the
+    Chamfer is said as a fact, never as the reason the decision gives (it names the pair)."""
     pair = replace(PAIR, chamfer_m=0.0419, chamfer_n=30)
     d = diagnosis([WIND_PART, DAMPING_PART, pair], chamfer_m=0.0363, chamfer_n=30)
     words = diagnosis_text(d)[4]
-    assert words.startswith("With wind + extra-damping: adequate (check does not reject it, p = 0.46")
-    assert ("but its error is higher than the nominal fit's: posterior-predictive Chamfer 4.19 cm (n=30 rollouts) "
-            "against 3.63 cm (n=30 rollouts); summary energy score 15 -> 9") in words
-    assert "inside the refit's posterior predictive" not in words
+    assert d.decision.named == ("wind", "extra-damping")
+    assert words == ("With wind + extra-damping: check does not reject the refit (p = 0.46 (two tests, Bonferroni: 2 x "
+                     "the directional test's p = 0.23; 200 null simulations)), summary energy score 15 -> 9 sd (40% "
+                     "lower, 10.6 standard errors); its posterior-predictive Chamfer 4.19 cm (n=30 rollouts) is higher "
+                     "than the nominal fit's 3.63 cm (n=30 rollouts).")
+    assert "inside the refit's posterior predictive" not in words and "Set aside" not in words
     # lower than the nominal's: the usual words
     assert "is inside the refit's posterior predictive distribution" in diagnosis_text(PAIRED)[4]
+
+
+def test_the_table_and_the_prose_give_one_reason_for_setting_a_refit_aside():
+    """The user's conveyor: an adequate refit (p = 1) whose effect the data leave possibly off, with twice the nominal
+    fit's Chamfer. The table says "possibly off"; the paragraph gives that reason too, never the Chamfer."""
+    off = replace(WIND_OFF, test=joint(200, 200, family=ACCEPTS.family), chamfer_m=0.05)
+    d = diagnosis([off], chamfer_m=0.025)
+    assert d.verdict == "misspecified-unexplained"
+    assert diagnosis_rows(d)[1][-1] == "refit: the data leave it possibly off"
+    words = diagnosis_text(d)[2]
+    assert words.startswith("With wind: check does not reject the refit (p = 1 ")
+    assert ("its posterior-predictive Chamfer 5.00 cm (n=30 rollouts) is higher than the nominal fit's 2.50 cm (n=30 "
+            "rollouts). Set aside: the data leave it possibly off (the 90% interval of each of its parameters "
+            "reaches the value that switches the effect off): the refit explains the misfit by widening its "
+            "predictions, not by identifying a cause. The refit estimates") in words
+    assert "error is higher" not in words
+    # an adequate refit scoring lower than the nominal's but above the named one's, and one scoring no lower: the
+    # paragraph says what the table says
+    both = diagnosis([refit(("wind",), 8, ACCEPTS), refit(("extra-damping",), 14, ACCEPTS)])
+    assert diagnosis_rows(both)[2][-1] == "refit: a lower score than the nominal's, above wind's"
+    assert diagnosis_text(both)[3].endswith(
+        "Set aside: a lower score than the nominal's, above wind's (by more than 2 standard errors).")
+    assert "Set aside" not in diagnosis_text(both)[2]  # the named one
+    flat = diagnosis([refit(("wind",), 20.5, ACCEPTS)])
+    assert diagnosis_rows(flat)[1][-1] == "refit: no lower score"
+    assert diagnosis_text(flat)[2].endswith(
+        "Set aside: no lower score (its summary energy score is not 2 standard errors below the model it extends).")
+    # a refit that check rejects: its first sentence says so ("still outside"), as the table ("misfit remains")
+    assert all("Set aside" not in w for w in PART_WORDS) and "Set aside" not in diagnosis_text(PARTIAL)[3]
+
+
+def test_a_named_effect_s_wide_interval_that_excludes_its_off_value_says_the_data_switch_it_on():
+    """The conveyor's belt speed: the interval is wide (not narrowed to half the prior's), but it excludes 0, the off
+    value, which is why the effect was named: the words say what the data do inform."""
+    belt = Estimate(name="belt_speed", unit="m/s", mean=0.316, q05=0.162, q95=0.467, width_ratio=0.8, effect="conveyor",
+                    may_be_off=False)
+    assert estimate_words(belt) == ("belt_speed = 0.316 m/s (90% interval 0.162 to 0.467 m/s: the data show the effect "
+                                    "is on, its size known to within ±0.153 m/s)")
+    assert estimate_words(replace(belt, may_be_off=True)) == (
+        "belt_speed = 0.316 m/s (90% interval 0.162 to 0.467 m/s, not informed by the data)")
+    assert estimate_words(replace(belt, width_ratio=0.2)) == "belt_speed = 0.316 m/s (90% interval 0.162 to 0.467 m/s)"
+
+
+def test_the_residual_names_tied_axes_and_the_share_of_every_phase_the_flagged_frames_fall_in():
+    """(+1.9, +2.0, +0.0) cm is not "mostly +y"; frames 0-24, every frame of the fit, are not "100% of the move 1
+    phase's frames" (three of them)."""
+    every = replace(RESIDUAL, frames_flagged=tuple(range(25)), frame_spans=((0, 24, 0.0, 0.96),),
+                    phases=({"phase": "move 1", "frames": [0, 2], "fraction_flagged": 1.0, "chamfer_m": 0.01},
+                            {"phase": "lift", "frames": [3, 24], "fraction_flagged": 1.0, "chamfer_m": 0.02}),
+                    centroid_offset_cm=(1.9, 2.0, 0.0), direction="+x and +y")
+    words = residual_words(every)
+    assert words.startswith("The summaries leave the rollouts' 95% range in frames 0-24 (t 0.00-0.96 s) (every "
+                            "fitted frame);")
+    assert "displaced by (+1.9, +2.0, +0.0) cm, +x and +y alike;" in words and "mostly" not in words
+    part = replace(every, phases=(every.phases[0], {**every.phases[1], "fraction_flagged": 0.5}),
+                   centroid_offset_cm=(0.0, -0.3, -1.2))
+    words = residual_words(part)
+    assert "(100% of the move 1 phase's frames and 50% of the lift phase's)" in words
+    assert "displaced by (+0.0, -0.3, -1.2) cm, mostly -z (down);" in words
+    assert "displaced by (+0.0, +0.0, +0.0) cm; the most" in residual_words(replace(part, centroid_offset_cm=(0.01, 0, 0)))
+    assert offset_direction((1.9, 2.0, 0.0)) == "+x and +y" and offset_direction((0.3, 0.7, -0.4)) == "+y"
 
 
 def test_with_several_handles_the_check_says_whose_grasp_the_regions_are_numbered_from():

@@ -151,6 +151,23 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
 
 
+def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_with_an_estimate(run, tmp_path):
+    from softsbi.core.fitreport import FitReport
+    rep = FitReport(("a",), {"a": 1.0}, rounds=3, sims_per_round=400, simulations=1230, wall_time_s=600.0)
+    assert diagnose.diagnosis_plan(rep, 9, 2, n_null=30) == (
+        "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
+        "rejects, up to 3 refits (the top 2 candidates, then a pair) of about 1260 simulations each: 3810 simulations at most; "
+        "about 31 min at the nominal fit's pace (1230 simulations in 10 min) (--confirm 2 sets the number of refits)")
+    assert diagnose.diagnosis_plan(rep, 9, 1, refit_rounds=1, refit_sims=100, n_null=30).startswith(
+        "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
+        "rejects, up to 1 refit (the top candidate) of about 160 simulations each: 190 simulations at most; about 2 min")
+    assert diagnose.diagnosis_plan(FitReport(("a",), {"a": 1.0}), 4, 0) == (
+        "diagnose plan: the check's 30 posterior rollouts and the screening of 4 candidates")
+    said = []  # said first, before any simulation
+    diagnose.diagnose_run(run, progress=said.append, out_dir=tmp_path / "d", **{**DIAG, "confirm": 2})
+    assert said[0].startswith("diagnose plan: the check's 5 posterior rollouts") and "up to 3 refits" in said[0]
+
+
 def test_a_second_diagnose_is_refused_at_once_and_told_to_wait_or_use_out(run, monkeypatch):
     _no_work(monkeypatch)
     with run_lock(run, command="diagnose"):
@@ -167,6 +184,15 @@ def test_diagnose_out_keeps_a_second_diagnosis_apart(run, tmp_path):
     assert res.exit_code == 0, res.output
     assert (tmp_path / "second" / "diagnosis.json").is_file() and not (run / "diagnosis.json").exists()
     assert f"wrote {tmp_path / 'second' / 'diagnosis.json'}" in res.output
+    assert f"reused {run / 'check.json'}" in res.output  # the run's own check, same settings: read, not written
+    # other settings: the check is computed again into --out, and the run's check.json and check.png stay as they were
+    before = (run / "check.json").read_bytes()
+    res = runner.invoke(app, ["diagnose", str(run), "--n-null", "6", "--confirm", "0", "--workers", "1",
+                              "--out", str(tmp_path / "third")])
+    assert res.exit_code == 0, res.output
+    assert (run / "check.json").read_bytes() == before and not (run / "check.png").exists()
+    assert (tmp_path / "third" / "check.json").is_file() and (tmp_path / "third" / "check.png").is_file()
+    assert f"wrote {tmp_path / 'third' / 'check.json'} and {tmp_path / 'third' / 'check.png'}" in res.output
     said = []  # the Python API takes the same folder and reuses the result there
     d = softsbi.diagnose(run, out=tmp_path / "second", progress=said.append, **DIAG)
     assert said[-1].startswith(f"reused {tmp_path / 'second' / 'diagnosis.json'}") and d.run == str(run)

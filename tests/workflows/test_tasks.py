@@ -66,13 +66,20 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
     from softsbi.workflows.tasks.training import train_task
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
     rec = toy_measurement(truth=(0.3, -0.4))
-    (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)
+    said = []
+    (task,) = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0, message=said.append)
+    # its cost, said before it starts: the simulations and the time one of them took, and totals per model
+    assert said[0].startswith("task train plan: 1 model x (80 prior + 30 held-out simulations) = 110 simulations at "
+                              "most; one simulation took ") and " on 1 worker, plus the training" in said[0]
+    assert said[1] == "model 1 of 1: nominal (simulations 1-110 of 110 at most)"
     rep = task.report
     assert task.n_prior == 80 and rep.n_test == 30 and set(rep.contraction) == {"a", "b"}
     assert len(rep.sbc.rejects) == 2 and 0 <= rep.coverage.at_90 <= 1 and rep.verdict
     assert TrainingReport.from_json(rep.to_json()) == rep  # stored and read back as it was
     calls = _counting_fits(monkeypatch)
-    again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0)[0]
+    said.clear()
+    again = train_task(rec, _cfg(), 80, candidates=[], n_test=30, n_draws=50, check_null=0, message=said.append)[0]
+    assert said[0].endswith("(one simulation's time unknown: it was read from the bank or failed)")
     assert calls == [] and again.digest == task.digest  # stored with its report: not trained again
     rec2 = toy_measurement(truth=(-0.1, 0.2))
     res = run_fit(tmp_path / "run", rec2, _cfg(sims_per_round=20, rounds=None), make_plots=False)
@@ -91,6 +98,39 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
                       make_plots=False)
     assert scratch.report.rounds == 4 and len(calls) == 4  # no stored task: the sequential default
     assert trained_task_line(scratch.store.round_attrs(0)["info"], "default") is None
+
+
+def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
+    """The cost of a task of 13 models with check's calibration, and what to do about uncalibrated models (and
+    that fits use them anyway), from fixed numbers and reports."""
+    from types import SimpleNamespace
+
+    from softsbi.workflows.tasks.training import calibration_advice, training_plan
+    assert training_plan(13, 2000, 200, 100, 1.2, 8, null_rollouts=30) == (
+        "task train plan: 13 models x (2000 prior + 200 held-out simulations) + 100 replicate recordings x 31 for "
+        "check's calibration = 31700 simulations at most; one simulation took 1.2 s, so about 79 min on 8 workers, "
+        "plus the training (fewer when stored models or the simulation bank hold some)")
+
+    # the README's one-liner says what a default task train costs, with the built-in effects
+    from pathlib import Path
+
+    from softsbi.plugins import registry
+    from softsbi.workflows import defaults as D
+    from softsbi.workflows.tasks.training import candidate_models
+    models = [m for m in candidate_models(_cfg(backend=D.BACKEND), None)
+              if all(registry().effect(e).__module__.startswith("softsbi.") for e in m)]
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    assert (f"{len(models)} models x {D.TASK_PRIOR_SIMS + D.N_TEST} simulations + "
+            f"{D.CHECK_REPLICATES * (D.N_NULL + 1)} for check's calibration") in readme
+
+    def task(model, calibrated):
+        return SimpleNamespace(model=model, n_prior=2000, report=SimpleNamespace(calibrated=calibrated))
+    assert calibration_advice([task("nominal", True), SimpleNamespace(model="x", n_prior=40, report=None)]) is None
+    assert calibration_advice([task("nominal", True), task("nominal+wind", False)]) == (
+        "1 of the 2 models is not calibrated on its held-out simulations (nominal+wind). Fits of the task use it "
+        "anyway (a fit of a new recording stops at the stored posterior after one round), so its intervals may be too "
+        "narrow or too wide: train again on more prior simulations (`softsbi task train ... --prior-sims 4000` "
+        "retrains it), or delete it (`softsbi task delete KEY`) so that fits run their own sequential rounds.")
 
 
 def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):

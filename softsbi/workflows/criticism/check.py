@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.metrics import offset_direction
 from softsbi.core.results import (Band, CheckResult, Phase, ResidualShape, ResultDamaged, check_result_path, from_json,
                                   read_json, write_result)
 from softsbi.core.types import STATUS_OK, Scenario
@@ -267,9 +268,6 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
                        "chamfer_m": (phase_chamfer or {}).get(ph["phase"])})
     sel = flagged if flagged.any() else np.ones(T, bool)
     off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
-    axis = int(np.argmax(np.abs(off)))
-    direction = f"{'+-'[int(off[axis] < 0)]}{'xyz'[axis]}" + ((" (up)" if off[2] > 0 else " (down)") if axis == 2
-                                                               else "")
     zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
     ro = pool.rollouts[:max(2, min(n, n_regions))]
     labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
@@ -288,7 +286,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
         frame_spans=tuple(spans),
         phases=tuple(phases),
         centroid_offset_cm=tuple(float(v) for v in off),
-        direction=direction,
+        direction=offset_direction(off),
         worst_summary=FEATURE_NAMES[int(np.argmax(zf))],
         region_excess_cm={n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, per_region)},
         worst_regions=tuple(names[int(i)] for i in np.argsort(per_region)[::-1][:2]),
@@ -343,7 +341,8 @@ def reused(path: Path) -> str:
 def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
               seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
               pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None,
-              recompute: bool = False, message: Callable[[str], None] | None = None) -> CheckResult:
+              recompute: bool = False, message: Callable[[str], None] | None = None,
+              out_dir: str | Path | None = None) -> CheckResult:
     """Posterior predictive check of a finished fit; writes ``check.json`` and ``check.png``.
 
     Args:
@@ -357,6 +356,9 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
             and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
         recompute: simulate again even when ``check.json`` holds the result for the same fit and settings.
         message: told in one line what was written, or that the stored result was reused (or could not be).
+        out_dir: the folder ``check.json`` and ``check.png`` are written to (default: the run directory, which is
+            then never written; ``diagnose --out``). A result stored there is reused, or else the run directory's own
+            when it holds the same fit and settings.
 
     Returns:
         the :class:`~softsbi.core.results.CheckResult`: Chamfer per frame with its band, error per region (ranked
@@ -382,16 +384,21 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
                      family=sorted(c.name for c in cands), replicates=0 if null is None else len(null.statistics))
     say = message or (lambda _: None)
-    json_path = check_result_path(run.path / "check.json")
-    stored = None if recompute else stored_result(json_path, CheckResult, key, say)
-    if stored is not None:
-        if plot and not (run.path / "check.png").exists():
-            plot_check(run.path / "check.png", stored)
-            say(f"wrote {run.path / 'check.png'}")
-        say(reused(json_path))
-        return stored
-    check_out_dir(run.path, "run directory", "check writes check.json and check.png into it: copy the run "
-                                            "directory to a writable place and check the copy")
+    out = run.path if out_dir is None else Path(out_dir)
+    writable = (lambda: check_out_dir(out)) if out_dir is not None else (lambda: check_out_dir(
+        run.path, "run directory", "check writes check.json and check.png into it: copy the run directory to a "
+                                   "writable place and check the copy"))
+    json_path = check_result_path(out / "check.json")
+    for path in [] if recompute else [json_path] + ([run.path / "check.json"] if out != run.path else []):
+        stored = stored_result(path, CheckResult, key, say)
+        if stored is not None:
+            if plot and not (path.parent / "check.png").exists():
+                writable()
+                plot_check(out / "check.png", stored)
+                say(f"wrote {out / 'check.png'}")
+            say(reused(path))
+            return stored
+    writable()
     pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_eval)
     # the fit's own job, samples and seeds: the mean Chamfer equals report.json's chamfer_posterior_m
     ok = [r for r in pool.rollouts if r["sample"] < n_eval]
@@ -459,8 +466,9 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
         residual=residual, posterior_at_bounds=tuple(b.to_json() for b in run.report.posterior_at_bounds), key=key,
         seconds=time.perf_counter() - t0, grasp_handle=grasp_handle(run.scenario),
         phases_at_keyframes=bool((run.scenario.options or {}).get("keyframe_times")))
+    out.mkdir(parents=True, exist_ok=True)
     write_result(json_path, result)
     if plot:
-        plot_check(run.path / "check.png", result)
-    say(f"wrote {json_path}" + (f" and {run.path / 'check.png'}" if plot else ""))
+        plot_check(out / "check.png", result)
+    say(f"wrote {json_path}" + (f" and {out / 'check.png'}" if plot else ""))
     return result

@@ -33,7 +33,7 @@ from softsbi.workflows.criticism.check import check_run, loaded, result_key, reu
 from softsbi.workflows import defaults, pools
 from softsbi.workflows.criticism.decide import K_SE, decide, next_refit
 from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
-from softsbi.workflows.reporting import fit_callbacks
+from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.fit.runs import RunView
@@ -67,8 +67,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
         progress: told each step (``callable(str)``), and what was written or reused.
         pool: posterior-predictive rollouts of this run already simulated (``check``'s, same ``seed``).
         recompute: diagnose again even when ``diagnosis.json`` holds the result for the same fit and settings.
-        out_dir: the folder of ``diagnosis.json`` and the refits (default: the run directory), so that two
-            diagnoses of one run can be kept; the nominal fit's own ``check.json`` stays in the run directory.
+        out_dir: the folder of ``diagnosis.json``, the nominal fit's check (``check.json``, ``check.png``) and the
+            refits (default: the run directory), so that two diagnoses of one run can be kept; the run directory is
+            then not written (its own ``check.json`` is reused when it holds the same settings).
         plots: draw the figures of the check and of each refit (``check.png``, the fit figures); the result does
             not depend on it, and a stored result is reused either way.
 
@@ -109,10 +110,12 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
     busy = (f"wait for it to finish (a diagnose with the same settings then reuses its result), or keep a second "
             f"diagnosis apart with `softsbi diagnose {run.path} --out OTHER_FOLDER`")
     with run_lock(out, command="diagnose", busy=busy):
+        say(diagnosis_plan(run.report, len(family), confirm, refit_rounds, refit_sims, n_null))
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
         chk = check_run(run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
-                        pool=pool, effects=family, recompute=recompute, message=say, plot=plots)
+                        pool=pool, effects=family, recompute=recompute, message=say, plot=plots,
+                        out_dir=None if out_dir is None else out)
         # the score every model is compared on: the energy score of check's summaries in the nominal's scale
         f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
         scale = summary_scale(f_nom)
@@ -154,6 +157,32 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
         write_result(json_path, d)
     say(f"wrote {json_path}")
     return d
+
+
+def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_rounds: int | None = None,
+                   refit_sims: int | None = None, n_null: int = N_NULL) -> str:
+    """What a diagnosis of the fit ``report`` describes will spend, said before it starts: the check's ``n_null``
+    posterior rollouts and the screening of ``candidates``, then, when the check rejects, up to ``confirm`` single
+    refits and one pair (:func:`~softsbi.workflows.criticism.decide.next_refit`), each a fit at the refit budget
+    (``refit_rounds`` x ``refit_sims``, None: the nominal fit's) and its check; the time at the nominal fit's pace
+    (its wall time over its simulations, training included). Upper bounds: a refit that stops at its trained task,
+    or simulations read from the bank, cost less; a null extended to resolve the level, more."""
+    rounds, sims = report.rounds or 1, report.sims_per_round or 0
+    n_eval = max((report.simulations or 0) - rounds * sims, 0)
+    per_refit = (refit_rounds or rounds) * (refit_sims or sims) + n_eval + n_null
+    refits = confirm + (1 if confirm >= 2 else 0)
+    total = n_null + refits * per_refit
+    s = f"diagnose plan: the check's {n_null} posterior rollouts and the screening of {candidates} candidates"
+    if refits:
+        top = f"the top {confirm} candidates" if confirm > 1 else "the top candidate"
+        s += (f", then, if the check rejects, up to {refits} refit{'s' if refits > 1 else ''} ({top}"
+              f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each: {total} "
+              f"simulations at most")
+    if report.wall_time_s and report.simulations:
+        pace = report.wall_time_s / report.simulations
+        s += (f"; about {duration_words(total * pace)} at the nominal fit's pace ({report.simulations} simulations "
+              f"in {duration_words(report.wall_time_s)})")
+    return s + (f" (--confirm {confirm} sets the number of refits)" if refits else "")
 
 
 #: diagnose's settings, each with the flag that sets it, its smallest value and why (``None``: a budget left to

@@ -18,6 +18,7 @@ re-simulates nothing.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
 from typing import Any, Callable, Sequence
@@ -32,6 +33,8 @@ from softsbi.core.seeds import TEST_STREAM
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.workflows import defaults, pools
+from softsbi.workflows.fit.bank import HIT
+from softsbi.workflows.reporting import duration_words
 from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
 from softsbi.workflows.criticism.check_null import check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
@@ -93,20 +96,9 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     """
     say = message or (lambda s: None)
     t_start = time.perf_counter()
-    cfg = replace(cfg.resolved(recording), rounds=1)
-    cfg.validate()
-    if needs_images(cfg):
-        raise SoftsbiError("task train takes point-cloud fits; an image observer's fits train per recording")
-    if cfg.sensor_draws:
-        raise SoftsbiError("task train does not take --sensor-draws: its extra observations are drawn per round")
+    cfg, space, ctx, prior = _prepared(recording, cfg)
     est_cls = registry().estimator(cfg.estimator)
     opts = estimator_options(cfg, est_cls)
-    _, space = fit_param_space(cfg, recording.scenario)
-    ctx = first_round_context(cfg, recording, space)
-    prior = PriorRound.of(cfg, recording, space)
-    if prior.store is None:
-        raise SoftsbiError("stored tasks live in the simulation bank, which is off: give --sim-bank DIR (or unset "
-                           "SOFTSBI_SIM_BANK=off)")
     model = "+".join(["nominal", *cfg.effects])
     task = prior.task
     if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
@@ -131,6 +123,75 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
         raise SoftsbiError(f"the task store {prior.store.path} cannot be written: give --sim-bank a folder you can "
                            f"write")
     return _with_check_null(stored, recording, cfg, space, first_round_context(cfg, recording, space), check_null, say)
+
+
+def _prepared(recording: Recording, cfg: FitConfig) -> tuple[FitConfig, ParamSpace, SimContext, PriorRound]:
+    """One model's settings (resolved, one round), parameter space, first-round context and prior round.
+
+    Raises:
+        SoftsbiError: an image observer, ``--sensor-draws``, or no simulation bank (tasks are stored beside it)."""
+    cfg = replace(cfg.resolved(recording), rounds=1)
+    cfg.validate()
+    if needs_images(cfg):
+        raise SoftsbiError("task train takes point-cloud fits; an image observer's fits train per recording")
+    if cfg.sensor_draws:
+        raise SoftsbiError("task train does not take --sensor-draws: its extra observations are drawn per round")
+    _, space = fit_param_space(cfg, recording.scenario)
+    prior = PriorRound.of(cfg, recording, space)
+    if prior.store is None:
+        raise SoftsbiError("stored tasks live in the simulation bank, which is off: give --sim-bank DIR (or unset "
+                           "SOFTSBI_SIM_BANK=off)")
+    return cfg, space, first_round_context(cfg, recording, space), prior
+
+
+def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
+    """The wall time (s) of one simulation of the nominal model: the first of its prior simulations, through the
+    simulation bank (so that the training then reads it from there); None when it failed or was read from the bank
+    (no measure of a simulation's time)."""
+    cfg, space, ctx, prior = _prepared(recording, cfg)
+    u = np.random.default_rng([cfg.seed, 0, 0]).random((1, space.dim))  # the first row of the prior draws
+    res = run_jobs(replace(ctx, bank=str(prior.store.path.parent)),
+                   [(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))], workers=cfg.workers,
+                   executor=cfg.executor, executor_options=cfg.executor_options, label="one simulation, timed")[0]
+    ok = res["status"] == STATUS_OK and res.get("bank") != HIT and res.get("seconds")
+    return float(res["seconds"]) if ok else None
+
+
+def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,
+                  workers: int | None, null_rollouts: int = defaults.N_NULL) -> str:
+    """What ``task train`` will spend, said before it starts: ``n_models`` models of ``n_prior`` prior and
+    ``n_test`` held-out simulations each, and ``check_null`` replicate recordings of ``null_rollouts + 1``
+    simulations; with ``seconds`` (one simulation's time, :func:`pilot_seconds`) the time on ``workers`` processes
+    (None: one per CPU), the estimators' training not included. An upper bound: models already stored and
+    simulations in the bank are not simulated again."""
+    total = n_models * (n_prior + n_test) + check_null * (null_rollouts + 1)
+    s = (f"task train plan: {n_models} model{'s' if n_models > 1 else ''} x ({n_prior} prior + {n_test} held-out "
+         f"simulations)" + (f" + {check_null} replicate recordings x {null_rollouts + 1} for check's calibration"
+                            if check_null else "") + f" = {total} simulations at most")
+    if seconds is None:
+        return s + " (one simulation's time unknown: it was read from the bank or failed)"
+    n = workers or os.cpu_count() or 1
+    return (s + f"; one simulation took {duration_words(seconds)}, so about {duration_words(total * seconds / n)} "
+                f"on {n} worker{'s' if n > 1 else ''}, plus the training (fewer when stored models or the simulation "
+                f"bank hold some)")
+
+
+def calibration_advice(tasks: Sequence[StoredTask]) -> str | None:
+    """What to do about trained tasks whose training report says "not calibrated" (None: every reported one is
+    calibrated): fits of the task use them anyway, stopping at the stored posterior after one round; training them
+    on more prior simulations, or deleting them (the task's fits then run their own sequential rounds), is the
+    remedy."""
+    bad = [t for t in tasks if t.report is not None and not t.report.calibrated]
+    if not bad:
+        return None
+    one = len(bad) == 1
+    it, is_, its = ("it", "is", "its") if one else ("them", "are", "their")
+    return (f"{len(bad)} of the {len(tasks)} models {is_} not calibrated on {its} held-out simulations "
+            f"({', '.join(t.model for t in bad)}). Fits of the task use {it} anyway (a fit of a new recording stops "
+            f"at the stored posterior after one round), so {its} intervals may be too narrow or too wide: train "
+            f"again on more prior simulations (`softsbi task train ... --prior-sims {2 * max(t.n_prior for t in bad)}` "
+            f"retrains {it}), or delete {it} (`softsbi task delete KEY`) so that fits run their own sequential "
+            f"rounds.")
 
 
 def _with_check_null(task: StoredTask, recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimContext,
@@ -187,9 +248,13 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     check_replicates(check_null)
     models = candidate_models(cfg, candidates)
     say = message or (lambda s: None)
+    say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers))
+    each = [n_prior + n_test + (check_null * (defaults.N_NULL + 1) if i == 0 else 0) for i in range(len(models))]
     out = []
     for i, effects in enumerate(models, start=1):
-        say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])}")
+        done = sum(each[:i - 1])
+        say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])} (simulations "
+            f"{done + 1}-{done + each[i - 1]} of {sum(each)} at most)")
         out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain,
                                check_null if i == 1 else 0, say))
     return out
