@@ -153,7 +153,8 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
 
 def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_with_an_estimate(run, tmp_path):
     from softsbi.core.fitreport import FitReport
-    rep = FitReport(("a",), {"a": 1.0}, rounds=3, sims_per_round=400, simulations=1230, wall_time_s=600.0)
+    rep = FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=3, sims_per_round=400, simulations=1230,
+                    wall_time_s=600.0)
     assert diagnose.diagnosis_plan(rep, 9, 2, n_null=30) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
         "rejects, up to 3 refits (the top 2 candidates, then a pair) of about 1260 simulations each: 3810 simulations at most; "
@@ -161,7 +162,7 @@ def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_wi
     assert diagnose.diagnosis_plan(rep, 9, 1, refit_rounds=1, refit_sims=100, n_null=30).startswith(
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
         "rejects, up to 1 refit (the top candidate) of about 160 simulations each: 190 simulations at most; about 2 min")
-    assert diagnose.diagnosis_plan(FitReport(("a",), {"a": 1.0}), 4, 0) == (
+    assert diagnose.diagnosis_plan(FitReport(parameters=("a",), posterior_median={"a": 1.0}), 4, 0) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 4 candidates")
     said = []  # said first, before any simulation
     diagnose.diagnose_run(run, progress=said.append, out_dir=tmp_path / "d", **{**DIAG, "confirm": 2})
