@@ -34,13 +34,13 @@ import os
 import sys
 from pathlib import Path
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import pluggy
 
-from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, closest
+from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, SoftsbiError, closest
 from softsbi.core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
 from softsbi.core.types import ParamSpace
 from softsbi.plugins import hookspecs
@@ -235,11 +235,45 @@ class Registry:
     def fault(self, kind: str, name: str, what: str) -> str:
         """One line blaming the ``kind`` plugin class registered as ``name`` for ``what`` (its fault): the plugin
         that provides it, the class and the file it is defined in, and the fix."""
+        if (kind, name) not in self._provider:  # not registered here (an instance made in code)
+            return f"{kind} '{name}' is broken: {what}; fix the plugin's code"
         plugin, cls = self._provider[(kind, name)]
         path = getattr(sys.modules.get(cls.__module__), "__file__", None)
         where = f"class {cls.__module__}.{cls.__qualname__}" + (f" in {path}" if path else "")
         return (f"{kind} '{name}' ({where}, from {self._dist(plugin)}) is broken: {what}; fix the plugin's code or "
                 f"uninstall it")
+
+    def param_space(self, sim: Simulator, scenario: Any, effects: Sequence[str] = ()) -> ParamSpace:
+        """The parameters of a rollout of ``scenario``: ``sim.param_space(scenario)`` then each effect's, in order.
+
+        Args:
+            sim: an instance of a registered simulator; scenario: a :class:`~softsbi.core.types.Scenario`;
+            effects: effect names.
+
+        Raises:
+            PluginNotFound: an unknown effect. PluginError: a :attr:`broken` effect; the simulator's
+                ``param_space`` raised (other than a SoftsbiError, which passes: a deliberate refusal); an effect
+                declares a parameter name the simulator or an earlier effect has (each names the plugin, its
+                class and file).
+        """
+        try:
+            space = sim.param_space(scenario)
+        except SoftsbiError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
+            raise PluginError(self.fault("simulator", sim.name, f"its param_space(scenario '{scenario.name}') "
+                                                                f"raised {type(exc).__name__}: {exc}")) from None
+        owner = dict.fromkeys(space.names, f"simulator '{sim.name}'")
+        for e in effects:
+            own = self.effect(e)().param_space()
+            clash = [n for n in own.names if n in owner]
+            if clash:
+                raise PluginError(self.fault("effect", self.effect(e).name,
+                                             f"its parameter '{clash[0]}' is also one of {owner[clash[0]]}'s; "
+                                             f"rename it"))
+            owner.update(dict.fromkeys(own.names, f"effect '{e}'"))
+            space = space + own
+        return space
 
     # -- construction helpers -------------------------------------------------------------------
     def _dist(self, plugin: Any) -> str:

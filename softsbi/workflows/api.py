@@ -137,9 +137,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     reg = registry()
     check_options(reg.simulator(backend), backend_options, f"simulator '{backend}' (backend_options)")
     sim = reg.simulator(backend)(**backend_options)
-    space = sim.param_space(sc)
-    for e in effects:
-        space = space + reg.effect(e)().param_space()
+    space = reg.param_space(sim, sc, effects)
     values = default_values(space, sc)
     values.update(dict(theta or {}))
     return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))

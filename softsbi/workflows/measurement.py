@@ -414,9 +414,7 @@ def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path =
         scenario = make_scenario(str(scenario))
     reg = registry()
     sim = reg.simulator(backend)(**dict(backend_options or {}))
-    space = sim.param_space(scenario)
-    for e in effects:
-        space = space + reg.effect(e)().param_space()
+    space = reg.param_space(sim, scenario, effects)
     values = {**default_values(space, scenario), **dict(truth or {})}
     truth = space.check(values, within="limits")
     ro = sim.simulate(scenario, dict(truth), effects=list(effects), seed=seed)

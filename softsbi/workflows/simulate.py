@@ -122,9 +122,7 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
     if why:
         raise ParameterError(why)
     sim = reg.simulator(backend)(**dict(backend_options or {}))
-    space = sim.param_space(sc)
-    for e in effects:
-        space = space + reg.effect(e)().param_space()
+    space = reg.param_space(sim, sc, effects)
     values = default_values(space, sc)
     values.update(dict(theta or {}))
     values = space.check(values, within="limits")

@@ -21,6 +21,7 @@ import dataclasses
 import numpy as np
 
 from softsbi import Effect, Param, ParamSpace, hookimpl
+from softsbi.core.interfaces import Simulator
 
 
 class _Seen(Effect):
@@ -78,9 +79,35 @@ class Crashes(_Seen):
         raise ValueError("belt speed unknown")
 
 
+class Clash(_Seen):
+    """A parameter the toy backend has too."""
+    name = "file-clash"
+
+    def param_space(self):
+        return ParamSpace([Param("a", 0.0, 1.0, "m")])
+
+
+class Engine(Simulator):
+    """A backend whose param_space() fails."""
+    name = "file-engine"
+    scenarios = ("lift",)
+    effect_kinds = ("observation",)
+
+    def param_space(self, scenario):
+        raise KeyError("stiffness")
+
+    def simulate(self, scenario, theta, effects=(), seed=0):
+        raise AssertionError("never reached")
+
+
 @hookimpl
 def softsbi_effects():
-    return [Healthy, Raises, Duplicate, Inverted, NanSensor, Crashes]
+    return [Healthy, Raises, Duplicate, Inverted, NanSensor, Crashes, Clash]
+
+
+@hookimpl
+def softsbi_simulators():
+    return [Engine]
 '''
 
 BROKEN = {"file-raises": "its param_space() raised RuntimeError: no table height in the context",
@@ -118,7 +145,8 @@ def test_plugins_lists_the_healthy_ones_and_marks_the_broken_one(plugin):
     res = runner.invoke(app, ["plugins"])
     assert res.exit_code == 0, res.output
     rows = {line.split("|")[1].strip(): line for line in res.output.splitlines() if line.startswith("| file-")}
-    assert set(rows) == {"file-ok", "file-raises", "file-dup", "file-inverted", "file-nan", "file-crash"}
+    assert set(rows) == {"file-ok", "file-raises", "file-dup", "file-inverted", "file-nan", "file-crash", "file-clash",
+                         "file-engine"}  # the last a simulator: its parameters depend on the scenario
     assert "BROKEN" not in rows["file-ok"] and "file_ok [0, 1] m" in rows["file-ok"]
     for name, cause in BROKEN.items():
         assert "BROKEN" in rows[name]
@@ -142,9 +170,27 @@ def test_params_and_simulate_refuse_a_broken_effect_in_one_line(plugin, tmp_path
     assert not out.exists()
 
 
+@pytest.mark.parametrize("backend, effect, said", [
+    ("file-engine", "file-ok", ("error: simulator 'file-engine' (class softsbi_file_plugin_conveyor_effects.Engine "
+                                "in {plugin}, from SOFTSBI_PLUGINS ({plugin})) is broken: its param_space(scenario "
+                                "'lift') raised KeyError: 'stiffness'; fix the plugin's code or uninstall it")),
+    ("toy-gauss", "file-clash", ("error: effect 'file-clash' (class softsbi_file_plugin_conveyor_effects.Clash in "
+                                 "{plugin}, from SOFTSBI_PLUGINS ({plugin})) is broken: its parameter 'a' is also one "
+                                 "of simulator 'toy-gauss''s; rename it; fix the plugin's code or uninstall it"))])
+def test_a_backend_failing_to_declare_its_parameters_or_a_clash_of_names_is_one_line(plugin, tmp_path, backend,
+                                                                                      effect, said):
+    for command in (["params", "lift", "--backend", backend, "--effect", effect],
+                    ["simulate", "--backend", backend, "--scenario", "lift", "--effect", effect,
+                     "--out", str(tmp_path / "sim")]):
+        res = runner.invoke(app, command)
+        assert res.exit_code == 2, res.output
+        assert res.output.strip() == said.format(plugin=plugin)
+    assert not (tmp_path / "sim").exists()
+
+
 @pytest.mark.parametrize("effect, said", [
-    ("file-nan", "effect 'file-nan': observe() returned non-finite vertices (NaN or inf) at file_nan=0.5; a "
-                 "fault of the effect's code"),
+    ("file-nan", ("effect 'file-nan': observe() returned non-finite vertices (NaN or inf) at file_nan=0.5; a "
+                  "fault of the effect's code")),
     ("file-crash", "(ValueError: belt speed unknown)")])
 def test_an_effect_failing_in_a_simulate_rollout_is_one_line(plugin, tmp_path, effect, said):
     out = tmp_path / "sim"

@@ -335,21 +335,19 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     sub-space (without ``cfg.fixed``).
 
     Raises:
-        PluginNotFound, ParameterError: unknown backend/effect, unsupported effect/scenario.
+        PluginNotFound, ParameterError: unknown backend/effect, unsupported effect/scenario. PluginError: a plugin's
+            code fails to declare its parameters, or two declare one name (:meth:`Registry.param_space`).
     """
     reg = registry()
     sim_cls = reg.simulator(cfg.backend)
     why = unsupported(sim_cls, scenario)
     if why:
         raise ParameterError(why)
-    sim = sim_cls(**cfg.backend_options)
-    space = sim.param_space(scenario)
     for e in cfg.effects:
-        eff_cls = reg.effect(e)
-        missing = sim_cls.supports(eff_cls)
+        missing = sim_cls.supports(reg.effect(e))
         if missing is not None:
             raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}': it needs {missing}")
-        space = space + eff_cls().param_space()
+    space = reg.param_space(sim_cls(**cfg.backend_options), scenario, cfg.effects)
     if cfg.bounds:
         space = space.with_bounds(cfg.bounds)
     try:
