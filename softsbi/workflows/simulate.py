@@ -19,8 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import zarr
 
-from softsbi.backends.scenario_build import unsupported
-from softsbi.core.errors import EffectFault, ParameterError, SimulationFailed, SoftsbiError
+from softsbi.core.errors import EffectFault, SimulationFailed, SoftsbiError
 from softsbi.core.results import write_json_atomic
 from softsbi.perception.images import save_frames
 from softsbi.plugins import check_options, registry
@@ -33,7 +32,7 @@ from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows.defaults import BACKEND, SCENARIO
 from softsbi.workflows.fit.jobs import failure_reason
 from softsbi.workflows.lock import check_out_dir
-from softsbi.workflows.measurement import default_values
+from softsbi.workflows.measurement import default_values, rollout_space
 
 
 #: points per frame of the recording ``softsbi simulate`` writes
@@ -118,11 +117,8 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
         raise SoftsbiError(str(exc)) from None
     reg = registry()
     check_options(reg.simulator(backend), dict(backend_options or {}), f"simulator '{backend}' (--backend-opt)")
-    why = unsupported(reg.simulator(backend), sc)
-    if why:
-        raise ParameterError(why)
     sim = reg.simulator(backend)(**dict(backend_options or {}))
-    space = reg.param_space(sim, sc, effects)
+    space = rollout_space(sim, sc, effects)
     values = default_values(space, sc)
     values.update(dict(theta or {}))
     values = space.check(values, within="limits")
