@@ -217,3 +217,31 @@ def test_a_diffcloud_recording_imported_with_another_tasks_scenario_is_refused(t
     assert not (tmp_path / "out").exists()
     same = scenario({"file": str(root / "lift_traj.npy")})
     assert import_diffcloud(rec, tmp_path / "out", scenario=same) == [tmp_path / "out"]
+
+
+def test_a_misnamed_frame_is_named_with_the_name_it_needs(tmp_path):
+    """``5.npy`` among 000.npy ... gave "numbering ... (missing [])", naming neither the file nor the fix; the same
+    naming rule holds for a recording's clouds/ and depth/, a DiffCloud folder and a folder of images."""
+    from softsbi.data.frames import load_frames, save_frames
+    from softsbi.perception.pointcloud import load_cloud_frames
+    write_recording(tmp_path / "r", _meta(8), [np.zeros((5, 3))] * 8)
+    clouds = tmp_path / "r" / "clouds"
+    (clouds / "005.npy").rename(clouds / "5.npy")
+    with pytest.raises(DataError, match=r"'.*clouds/5\.npy' is misnamed: frames are named by their index with three "
+                                        r"digits or more \(000\.npy, 001\.npy, \.\.\.\); rename it to 005\.npy$"):
+        read_recording(tmp_path / "r")
+    shutil.copy(clouds / "5.npy", clouds / "005.npy")
+    with pytest.raises(DataError, match=r"rename it to 005\.npy \(005\.npy is there too: remove one of them\)$"):
+        read_recording(tmp_path / "r")
+    (clouds / "5.npy").unlink()
+    (clouds / "003.npy").unlink()
+    with pytest.raises(DataError, match=r"numbering must run 000, 001, \.\.\. without gaps \(missing 003\)"):
+        read_recording(tmp_path / "r")
+    for i in (3, 11):
+        np.save(tmp_path / f"{i}.npy", np.zeros((5, 3)))
+    with pytest.raises(DataError, match=r"'.*3\.npy' is misnamed.*rename it to 003\.npy; so are 11\.npy$"):
+        load_cloud_frames(tmp_path)
+    save_frames(np.zeros((3, 4, 4, 3), np.uint8), tmp_path / "img")
+    (tmp_path / "img" / "002.png").rename(tmp_path / "img" / "0002.png")
+    with pytest.raises(DataError, match=r"'.*0002\.png' is misnamed.*rename it to 002\.png$"):
+        load_frames(tmp_path / "img")
