@@ -224,7 +224,8 @@ def read_recording(folder: str | Path) -> RecordingData:
 
     Raises:
         DataError: no ``recording.yaml``; invalid YAML or fields (unknown field, wrong type, missing
-            ``transform``); the number of ``times`` differs from the number of clouds; a malformed cloud.
+            ``transform``); the number of ``times`` differs from the number of clouds; ``sensor.frames`` selects a
+            frame the recording does not have; a malformed or misnamed cloud file.
     """
     folder = Path(folder)
     meta_file = folder / META
@@ -240,6 +241,11 @@ def read_recording(folder: str | Path) -> RecordingData:
     if len(files) != len(meta.times):
         raise DataError(f"{meta_file}: field 'times' has {len(meta.times)} entries but clouds/ holds {len(files)} "
                         f"frames; give one time per frame")
+    if isinstance(meta.sensor.frames, list):
+        bad = [i for i in meta.sensor.frames if not 0 <= i < len(files)]
+        if bad:
+            raise DataError(f"{meta_file}: field 'sensor.frames' selects frame {bad[0]}, but the recording has "
+                            f"{len(files)} frames (0 to {len(files) - 1}); give frames within them, or all or auto")
     clouds = [read_npy(f, "frame", "re-export it as a (P, 3) float .npy").astype(float) for f in files]
     _check_clouds(clouds, str(folder / "clouds"))
     m = meta.transform.as_matrix()

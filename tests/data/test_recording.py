@@ -245,3 +245,26 @@ def test_a_misnamed_frame_is_named_with_the_name_it_needs(tmp_path):
     (tmp_path / "img" / "002.png").rename(tmp_path / "img" / "0002.png")
     with pytest.raises(DataError, match=r"'.*0002\.png' is misnamed.*rename it to 002\.png$"):
         load_frames(tmp_path / "img")
+
+
+def test_frames_out_of_range_are_blamed_on_where_they_were_given(tmp_path):
+    """recording.yaml's ``sensor: frames`` selecting a frame the recording lacks was blamed on a ``--frames`` flag
+    the user never gave."""
+    from dataclasses import replace
+
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.fit.config import FitConfig
+    write_recording(tmp_path / "r", _meta(8, sensor={"frames": [3, 40]}), [np.zeros((5, 3))] * 8)
+    with pytest.raises(DataError) as err:
+        read_recording(tmp_path / "r")
+    assert str(err.value) == (f"{tmp_path / 'r' / 'recording.yaml'}: field 'sensor.frames' selects frame 40, but the "
+                              f"recording has 8 frames (0 to 7); give frames within them, or all or auto")
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    from toy_helpers import toy_measurement
+    rec = replace(toy_measurement(T=3), frames=[0, 9])  # a recording built in code
+    with pytest.raises(SoftsbiError, match=r"^the recording's sensor\.frames 0,9 selects frame 9, but the recording "
+                                           r"has 3 frames \(0 to 2\); give frames within them, or override them with "
+                                           r"--frames$"):
+        FitConfig(backend="toy-gauss").resolved(rec)
+    with pytest.raises(SoftsbiError, match=r"^--frames 1,5 selects frame 5, .* e\.g\. --frames 1:3$"):
+        FitConfig(backend="toy-gauss", frames=[1, 5]).resolved(rec)

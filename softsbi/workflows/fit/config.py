@@ -262,7 +262,8 @@ class FitConfig:
         if needs_images(self):
             min_height = None
             frames = None if frames in ("auto", "all") else frames
-        return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario))
+        given_by = "--frames" if self.frames is not None else "the recording's sensor.frames"
+        return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario, given_by))
 
 
 def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
@@ -280,10 +281,12 @@ def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
     return {**asked, **cfg.estimator_options}
 
 
-def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> list[int] | None:
+def parse_frames(spec: list[int] | str | None, scenario: Scenario | None,
+                 given_by: str = "--frames") -> list[int] | None:
     """Frame indices of a frame spec: ``None``/``"all"`` -> None (every frame); ``"auto"`` -> the
     frames where the gripper is at least :data:`LIFTED_HEIGHT` above the table (None if none or
-    no scenario); ``"10:25"`` / ``"0,5,10"`` / a list -> indices.
+    no scenario); ``"10:25"`` / ``"0,5,10"`` / a list -> indices. ``given_by``: where the spec comes from, for
+    the message (``--frames``, or the recording's sensor model).
 
     Raises:
         SoftsbiError: a spec that is not indices or ranges, or (with ``scenario``) an index outside its frames.
@@ -293,8 +296,9 @@ def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> lis
         T = scenario.n_frames
         bad = [i for i in out if not 0 <= i < T]
         if bad:
-            raise SoftsbiError(f"--frames {_frames_text(spec)} selects frame {bad[0]}, but the recording has {T} frames "
-                               f"(0 to {T - 1}); give frames within them, e.g. --frames {T // 2}:{T}")
+            fix = f"e.g. --frames {T // 2}:{T}" if given_by == "--frames" else "or override them with --frames"
+            raise SoftsbiError(f"{given_by} {_frames_text(spec)} selects frame {bad[0]}, but the recording has {T} "
+                               f"frames (0 to {T - 1}); give frames within them, {fix}")
     return out
 
 
