@@ -238,22 +238,37 @@ class EffectPlan:
                     raise ShapeError(f"effect '{e.name}': force() must return ({len(x)}, 3) newtons, got "
                                      f"shape {fe.shape}")
                 if not np.all(np.isfinite(fe)):
-                    at = ", ".join(f"{name}={val:.4g}" for name, val in th.items()) or "no parameters"
                     raise EffectFault(f"effect '{e.name}': force() returned a non-finite force (NaN or inf) at "
-                                      f"t={t:.3f} s, {at}; a fault of the effect's code, not of the engine: fix "
+                                      f"t={t:.3f} s, {_at(th)}; a fault of the effect's code, not of the engine: fix "
                                       f"its force()")
                 f += fe
             return f
         return total
 
     def observe(self, rollout: Rollout, theta: Mapping[str, float], seed: int) -> Rollout:
-        """Apply the observation transforms, in order, to a successful rollout (``rng`` seeded by ``seed``)."""
+        """Apply the observation transforms, in order, to a successful rollout (``rng`` seeded by ``seed``).
+
+        Raises:
+            EffectFault: a transform made finite vertices non-finite (NaN or inf): the rollout fails naming the
+                effect, where the observer or a figure would otherwise fail on the NaN without naming it.
+        """
         if not self.observers or not rollout.ok:
             return rollout
         rng = np.random.default_rng(int(seed))
         for e in self.observers:
-            rollout = e.observe(rollout, e.own(theta), rng)
+            th = e.own(theta)
+            seen = rollout
+            rollout = e.observe(seen, th, rng)
+            if not np.all(np.isfinite(np.asarray(rollout.vertices, dtype=float))) and \
+                    np.all(np.isfinite(np.asarray(seen.vertices, dtype=float))):
+                raise EffectFault(f"effect '{e.name}': observe() returned non-finite vertices (NaN or inf) at "
+                                  f"{_at(th)}; a fault of the effect's code, not of the engine: fix its observe()")
         return rollout
+
+
+def _at(theta: Mapping[str, float]) -> str:
+    """``"name=value, ..."`` of an effect's own parameters (or ``"no parameters"``), for its fault's message."""
+    return ", ".join(f"{name}={val:.4g}" for name, val in theta.items()) or "no parameters"
 
 
 def check_effects(sim: Any, effects: Sequence[str]) -> EffectPlan:

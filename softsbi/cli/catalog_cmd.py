@@ -14,7 +14,7 @@ from softsbi.workflows import defaults as D
 
 def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """List installed simulators, effects (with the backends that can apply each and its parameters), observers,
-    estimators and executors."""
+    estimators and executors; a plugin whose code fails is listed as BROKEN, with its fault below the tables."""
     from softsbi.plugins import registry  # start-up: loads every plugin
     from softsbi.plugins.manager import LOAD_ERRORS  # start-up: the plugin manager
     desc = registry().describe()
@@ -23,23 +23,28 @@ def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     o = Output(as_json)
     if json_done(o, desc):
         return
+    broken = []
     for kind, rows in desc.items():
         if kind == "load_errors":
             continue
+        broken += [r["broken"] for r in rows if r.get("broken")]
         if kind == "effects":
             o.table(["name", "kind", "applied by", "parameters [prior] unit", "package", "description"],
-                    [[r["name"], r["kind"] + (" (generic)" if r.get("generic") else ""),
+                    [[r["name"], "BROKEN", "", "", r["package"], "see below"] if r.get("broken") else
+                     [r["name"], r["kind"] + (" (generic)" if r.get("generic") else ""),
                       ", ".join(r["backends"]) or "none installed",
                       "; ".join(_param_text(p) for p in r["parameters"]), r["package"],
                       r.get("description") or r.get("doc") or ""]
                      for r in rows], title=kind)
             continue
         o.table(["name", "package", "description"],
-                [[r["name"], r["package"], (r.get("doc") or "") +
+                [[r["name"], r["package"], "BROKEN: see below" if r.get("broken") else (r.get("doc") or "") +
                   (f" scenarios: {', '.join(r['scenarios'])}" if r.get("scenarios") else "")] for r in rows],
                 title=kind)
     for name, err in LOAD_ERRORS.items():
         o.line(f"plugin '{name}' failed to load: {err}")
+    for msg in broken:
+        o.line(msg)
 
 
 def _param_text(p: dict[str, Any]) -> str:

@@ -260,6 +260,15 @@ class Simulator(ABC):
     #: steps several parameter sets together sets it (newton-cloth).
     batch_size: int = 1
 
+    def check_installed(self) -> None:
+        """Refuse a machine that lacks an optional dependency this backend needs. A fit calls it before it creates
+        its run directory, so that the run is refused in one line instead of being left begun with a backend that
+        cannot simulate here. The default checks nothing (the backend needs only softsbi's own dependencies).
+
+        Raises:
+            DependencyMissing: the dependency is not installed (the message names the install command).
+        """
+
     @classmethod
     def supports(cls, effect: "Effect | type[Effect]") -> str | None:
         """Whether this backend can apply ``effect``: None if it can, else what is missing (one phrase,

@@ -10,7 +10,43 @@ import numpy as np
 from softsbi.core.errors import DataError
 from softsbi.data.keypoints import IMAGE_SUFFIXES, check_images
 
-__all__ = ["IMAGE_SUFFIXES", "load_frames", "save_frames"]
+__all__ = ["IMAGE_SUFFIXES", "load_frames", "numbered_files", "save_frames"]
+
+
+def numbered_files(folder: str | Path, suffixes: tuple[str, ...], start: int | None = 0) -> list[Path]:
+    """The frame files of ``folder`` in frame order: those with one of ``suffixes`` (lower case, with the dot)
+    whose name is a number, which must be the frame's index written with three digits or more (``000.npy``, ...,
+    ``999.npy``, ``1000.npy``), as :func:`save_frames` and the recording writer name them.
+
+    Args:
+        start: the first frame's index; None: any (DiffCloud's folders), the numbering consecutive from it.
+
+    Returns:
+        the files (an empty list when there are none, or no such folder).
+
+    Raises:
+        DataError: a file named by a number written otherwise (``5.npy``, ``0005.npy``), named with the name it
+            needs; a gap or a duplicate in the numbering, with the missing names.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    files = [f for f in folder.iterdir() if f.suffix.lower() in suffixes and f.stem.isdigit()]
+    odd = sorted((f for f in files if f.stem != f"{int(f.stem):03d}"), key=lambda f: (int(f.stem), f.name))
+    if odd:
+        right = f"{int(odd[0].stem):03d}{odd[0].suffix}"
+        twin = f" ({right} is there too: remove one of them)" if (folder / right).exists() else ""
+        others = f"; so are {', '.join(f.name for f in odd[1:4])}" if len(odd) > 1 else ""
+        raise DataError(f"'{odd[0]}' is misnamed: frames are named by their index with three digits or more "
+                        f"(000{odd[0].suffix}, 001{odd[0].suffix}, ...); rename it to {right}{twin}{others}")
+    files.sort(key=lambda f: int(f.stem))
+    idx = [int(f.stem) for f in files]
+    first = idx[0] if start is None and idx else start or 0
+    if idx and idx != list(range(first, first + len(idx))):
+        missing = sorted(set(range(first, idx[-1] + 1)) - set(idx))
+        raise DataError(f"'{folder}': frame numbering must run {first:03d}, {first + 1:03d}, ... without gaps (missing "
+                        f"{', '.join(f'{i:03d}' for i in missing[:5])}); renumber the files")
+    return files
 
 def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
     """Read a folder of frames ``000.png, 001.png, ...`` (or ``.jpg``) in numeric order as RGB.
@@ -32,14 +68,9 @@ def load_frames(folder: str | Path, size: tuple[int, int] | None = None) -> np.n
     if not folder.is_dir():
         raise DataError(f"frames folder '{folder}' does not exist; it must hold 000.png, 001.png, ... "
                         f"(one RGB frame per scenario frame)")
-    files = sorted((f for f in folder.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES and f.stem.isdigit()),
-                   key=lambda f: int(f.stem))
+    files = numbered_files(folder, IMAGE_SUFFIXES, start=None)
     if not files:
         raise DataError(f"'{folder}' holds no frames named 000.png, 001.png, ... (.png/.jpg)")
-    idx = [int(f.stem) for f in files]
-    if idx != list(range(idx[0], idx[0] + len(idx))):
-        raise DataError(f"'{folder}': frame numbering has gaps or duplicates ({idx[:8]}...); frames must be "
-                        f"consecutive")
     frames = []
     for f in files:
         im = cv2.imread(str(f), cv2.IMREAD_COLOR)

@@ -45,7 +45,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError
 from softsbi.core.yamlfile import read_yaml
-from softsbi.data.frames import load_frames, save_frames
+from softsbi.data.frames import load_frames, numbered_files, save_frames
 from softsbi.data.validation import short_repr, validation_line
 
 FORMAT = "softsbi-recording/1"
@@ -210,16 +210,6 @@ def parse_meta(data: Any, source: str) -> RecordingMeta:
         raise DataError(validation_line(source, exc, EXAMPLE, MISSING_HINTS)) from None
 
 
-def _frames(folder: Path, sub: str) -> list[Path]:
-    files = sorted(f for f in (folder / sub).glob("*.npy") if f.stem.isdigit())
-    idx = [int(f.stem) for f in files]
-    if idx and idx != list(range(len(idx))):
-        missing = sorted(set(range(idx[-1] + 1)) - set(idx))
-        raise DataError(f"{folder / sub}: frame numbering must run 000, 001, ... without gaps (missing "
-                        f"{missing[:5]}); renumber the files")
-    return files
-
-
 def _check_clouds(clouds: Sequence[np.ndarray], where: str) -> None:
     for i, c in enumerate(clouds):
         c = np.asarray(c)
@@ -234,7 +224,8 @@ def read_recording(folder: str | Path) -> RecordingData:
 
     Raises:
         DataError: no ``recording.yaml``; invalid YAML or fields (unknown field, wrong type, missing
-            ``transform``); the number of ``times`` differs from the number of clouds; a malformed cloud.
+            ``transform``); the number of ``times`` differs from the number of clouds; ``sensor.frames`` selects a
+            frame the recording does not have; a malformed or misnamed cloud file.
     """
     folder = Path(folder)
     meta_file = folder / META
@@ -243,13 +234,18 @@ def read_recording(folder: str | Path) -> RecordingData:
                         f"`softsbi import diffcloud SRC DST`, or write one with `softsbi simulate --out DIR`")
     raw = read_yaml(meta_file)
     meta = parse_meta(raw, str(meta_file))
-    files = _frames(folder, "clouds")
+    files = numbered_files(folder / "clouds", (".npy",))
     if not files:
         raise DataError(f"{folder / 'clouds'} holds no frames 000.npy, 001.npy, ...; a recording needs one (P, 3) "
                         f"cloud per frame")
     if len(files) != len(meta.times):
         raise DataError(f"{meta_file}: field 'times' has {len(meta.times)} entries but clouds/ holds {len(files)} "
                         f"frames; give one time per frame")
+    if isinstance(meta.sensor.frames, list):
+        bad = [i for i in meta.sensor.frames if not 0 <= i < len(files)]
+        if bad:
+            raise DataError(f"{meta_file}: field 'sensor.frames' selects frame {bad[0]}, but the recording has "
+                            f"{len(files)} frames (0 to {len(files) - 1}); give frames within them, or all or auto")
     clouds = [read_npy(f, "frame", "re-export it as a (P, 3) float .npy").astype(float) for f in files]
     _check_clouds(clouds, str(folder / "clouds"))
     m = meta.transform.as_matrix()
@@ -261,7 +257,7 @@ def read_recording(folder: str | Path) -> RecordingData:
             raise DataError(f"{folder / 'images'} holds {len(images)} images for {len(files)} frames; give one per "
                             f"frame or none")
     depth = None
-    dfiles = _frames(folder, "depth") if (folder / "depth").is_dir() else []
+    dfiles = numbered_files(folder / "depth", (".npy",)) if (folder / "depth").is_dir() else []
     if dfiles:
         if len(dfiles) != len(files):
             raise DataError(f"{folder / 'depth'} holds {len(dfiles)} depth images for {len(files)} frames; give one "

@@ -17,6 +17,7 @@ from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError
 from softsbi.core.interfaces import Observer
 from softsbi.core.types import Observation, Rollout
+from softsbi.data.frames import numbered_files
 from softsbi.plugins.hookspecs import hookimpl
 # the cloud operations live in clouds; the workflows and studies import them from here too
 from softsbi.perception.clouds import (FALLBACK_SHARE, combined_min_z, occluded_by_cylinder, rollout_clouds,  # noqa: F401
@@ -126,7 +127,7 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
     if not folder.is_dir():
         raise DataError(f"observed data folder '{folder}' does not exist; pass a recording folder such as "
                         f"../shared/data/diffcloud_lift/lift_tan (frames 000.npy, 001.npy, ...)")
-    files = sorted(f for f in folder.glob("*.npy") if f.stem.isdigit())
+    files = numbered_files(folder, (".npy",), start=None)
     if not files:
         if (folder / "run.zarr").exists():
             raise DataError(f"'{folder}' is a run directory (the output of `softsbi fit`), not a recording; pass the "
@@ -137,10 +138,6 @@ def load_cloud_frames(folder: str | Path) -> list[np.ndarray]:
                             f"the recording with `softsbi import diffcloud` / `softsbi simulate --out`")
         raise DataError(f"'{folder}' holds no frames named 000.npy, 001.npy, ...; a recording folder must "
                         f"contain one (P, 3) point cloud per frame")
-    idx = [int(f.stem) for f in files]
-    if idx != list(range(idx[0], idx[0] + len(idx))):
-        missing = sorted(set(range(idx[0], idx[-1] + 1)) - set(idx))
-        raise DataError(f"'{folder}': frame numbering has gaps (missing {missing[:5]}); frames must be consecutive")
     clouds = []
     for f in files:
         a = read_npy(f, "frame", "re-export it as a (P, 3) float .npy")

@@ -9,7 +9,10 @@ The registry is strict: a malformed plugin (a hook returning something that is n
 derived from its kind's ABC, two plugins of one kind with the same name, a misspelled hook)
 raises :class:`~softsbi.core.errors.PluginError` when the registry is built, so every command
 fails with that one line instead of silently picking one plugin. A plugin module that fails
-to *import* is only skipped with a warning (see :data:`LOAD_ERRORS`).
+to *import* is only skipped with a warning (see :data:`LOAD_ERRORS`), and an effect whose code fails when its
+parameters are declared (``param_space()`` raises: a bug, a duplicate parameter name, inverted bounds) is set aside
+as broken (:attr:`Registry.broken`): looking it up is a PluginError naming the plugin and its file, while every
+other plugin keeps working and ``softsbi plugins`` lists it marked.
 
 A class may keep an old name working for a while with ``aliases = ("old-name",)``: looking
 it up by an alias returns the class with a :class:`FutureWarning`.
@@ -31,14 +34,15 @@ import os
 import sys
 from pathlib import Path
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import pluggy
 
-from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, closest
+from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, SoftsbiError, closest
 from softsbi.core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
+from softsbi.core.types import ParamSpace
 from softsbi.plugins import hookspecs
 
 
@@ -161,6 +165,9 @@ class Registry:
             not loaded through an entry point (plugins registered in code, tests); entry points loaded
             by :func:`get_plugin_manager` are known without it.
         aliases: ``{kind: {old name: name}}`` from the classes' ``aliases`` attributes.
+        broken: ``{(kind, name): message}`` of the effects whose ``__init__()`` or ``param_space()`` raised or
+            did not return a ParamSpace when the registry was built: left out of ``tables``; looking one up raises
+            PluginError with its message (one line naming the plugin, the class, its file and the fault).
 
     Raises (on construction):
         PluginError: a plugin has a hook implementation with an unknown (misspelled) hook name; a hook
@@ -174,8 +181,11 @@ class Registry:
     origin: dict[tuple[str, str], str] = field(default_factory=dict)
     dists: Mapping[str, str] = field(default_factory=dict)
     aliases: dict[str, dict[str, str]] = field(default_factory=dict)
+    broken: dict[tuple[str, str], str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        #: (kind, name) -> (the plugin object that provides the class, the class): for the messages naming them
+        self._provider: dict[tuple[str, str], tuple[Any, type]] = {}
         self._check_hook_names()
         for kind, hook in KINDS.items():
             table: dict[str, type] = {}
@@ -201,8 +211,69 @@ class Registry:
                             aliases[label] = cls.name
                     table[cls.name] = cls
                     self.origin[(kind, cls.name)] = dist
+                    self._provider[(kind, cls.name)] = (impl.plugin, cls)
             self.tables[kind] = table
             self.aliases[kind] = aliases
+        self._set_aside_broken_effects()
+
+    def _set_aside_broken_effects(self) -> None:
+        """Build each effect's parameter space once; move the effects whose code fails to :attr:`broken`."""
+        for name, cls in list(self.tables["effect"].items()):
+            try:
+                space = cls().param_space()
+            except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
+                self.broken[("effect", name)] = self.fault("effect", name, f"its param_space() raised "
+                                                                           f"{type(exc).__name__}: {exc}")
+                continue
+            if not isinstance(space, ParamSpace):
+                self.broken[("effect", name)] = self.fault(
+                    "effect", name, f"its param_space() returned {type(space).__name__}, not a "
+                                    f"softsbi.core.types.ParamSpace")
+        for kind, name in self.broken:
+            del self.tables[kind][name]
+
+    def fault(self, kind: str, name: str, what: str) -> str:
+        """One line blaming the ``kind`` plugin class registered as ``name`` for ``what`` (its fault): the plugin
+        that provides it, the class and the file it is defined in, and the fix."""
+        if (kind, name) not in self._provider:  # not registered here (an instance made in code)
+            return f"{kind} '{name}' is broken: {what}; fix the plugin's code"
+        plugin, cls = self._provider[(kind, name)]
+        path = getattr(sys.modules.get(cls.__module__), "__file__", None)
+        where = f"class {cls.__module__}.{cls.__qualname__}" + (f" in {path}" if path else "")
+        return (f"{kind} '{name}' ({where}, from {self._dist(plugin)}) is broken: {what}; fix the plugin's code or "
+                f"uninstall it")
+
+    def param_space(self, sim: Simulator, scenario: Any, effects: Sequence[str] = ()) -> ParamSpace:
+        """The parameters of a rollout of ``scenario``: ``sim.param_space(scenario)`` then each effect's, in order.
+
+        Args:
+            sim: an instance of a registered simulator; scenario: a :class:`~softsbi.core.types.Scenario`;
+            effects: effect names.
+
+        Raises:
+            PluginNotFound: an unknown effect. PluginError: a :attr:`broken` effect; the simulator's
+                ``param_space`` raised (other than a SoftsbiError, which passes: a deliberate refusal); an effect
+                declares a parameter name the simulator or an earlier effect has (each names the plugin, its
+                class and file).
+        """
+        try:
+            space = sim.param_space(scenario)
+        except SoftsbiError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
+            raise PluginError(self.fault("simulator", sim.name, f"its param_space(scenario '{scenario.name}') "
+                                                                f"raised {type(exc).__name__}: {exc}")) from None
+        owner = dict.fromkeys(space.names, f"simulator '{sim.name}'")
+        for e in effects:
+            own = self.effect(e)().param_space()
+            clash = [n for n in own.names if n in owner]
+            if clash:
+                raise PluginError(self.fault("effect", self.effect(e).name,
+                                             f"its parameter '{clash[0]}' is also one of {owner[clash[0]]}'s; "
+                                             f"rename it"))
+            owner.update(dict.fromkeys(own.names, f"effect '{e}'"))
+            space = space + own
+        return space
 
     # -- construction helpers -------------------------------------------------------------------
     def _dist(self, plugin: Any) -> str:
@@ -270,6 +341,7 @@ class Registry:
         Raises:
             PluginNotFound: no class of that kind has that name or alias; the message names the
                 closest name.
+            PluginError: the class is :attr:`broken` (the message names the plugin, its file and the fault).
         """
         return self._lookup(kind, name, stacklevel=3)
 
@@ -278,6 +350,8 @@ class Registry:
         if name in table:
             return table[name]
         new = self.aliases.get(kind, {}).get(name)
+        if (kind, new or name) in self.broken:
+            raise PluginError(self.broken[(kind, new or name)])
         if new is not None:
             warnings.warn(f"plugin name '{name}' is deprecated; use '{new}'", FutureWarning, stacklevel=stacklevel)
             return table[new]
@@ -316,7 +390,8 @@ class Registry:
         simulators the effects they support and their ``effect_kinds``; for effects ``kind``, ``generic``, the
         ``doors`` they act through (``model_edits``: the backends with a model edit), the installed ``backends``
         that can apply them (:meth:`Simulator.supports`) and their ``parameters``
-        (:meth:`~softsbi.core.types.Param.summary`))."""
+        (:meth:`~softsbi.core.types.Param.summary`)). A :attr:`broken` class has ``name``, ``class``, ``package``
+        and ``broken`` (the message) only, as has one whose description raises."""
         out: dict[str, list[dict[str, Any]]] = {}
         for kind, table in self.tables.items():
             old_names: dict[str, list[str]] = {}
@@ -334,9 +409,18 @@ class Registry:
                 if name in old_names:
                     row["aliases"] = sorted(old_names[name])
                 if kind == "effect":
-                    row.update(self._effect_row(cls))
+                    try:
+                        row.update(self._effect_row(cls))
+                    except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
+                        row = {"name": name, "class": row["class"], "package": row["package"],
+                               "broken": self.fault(kind, name, f"describing it raised {type(exc).__name__}: {exc}")}
                 rows.append(row)
-            out[kind + "s"] = rows
+            for (k, name), msg in sorted(self.broken.items()):
+                if k == kind:
+                    cls = self._provider[(k, name)][1]
+                    rows.append({"name": name, "class": f"{cls.__module__}.{cls.__qualname__}",
+                                 "package": self.origin.get((k, name), ""), "broken": msg})
+            out[kind + "s"] = sorted(rows, key=lambda r: r["name"])
         return out
 
     def _effect_row(self, cls: type) -> dict[str, Any]:

@@ -35,7 +35,7 @@ from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, run_fi
 from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import fit_callbacks, say, shown_unless_shown
 from softsbi.workflows.fit.runs import Run, open_run
-from softsbi.workflows.measurement import default_values
+from softsbi.workflows.measurement import default_values, rollout_space
 
 
 def load_scenario(name_or_path: str | Path, recording: str | Path | None = None, **kwargs: Any) -> Scenario:
@@ -137,9 +137,7 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     reg = registry()
     check_options(reg.simulator(backend), backend_options, f"simulator '{backend}' (backend_options)")
     sim = reg.simulator(backend)(**backend_options)
-    space = sim.param_space(sc)
-    for e in effects:
-        space = space + reg.effect(e)().param_space()
+    space = rollout_space(sim, sc, effects)
     values = default_values(space, sc)
     values.update(dict(theta or {}))
     return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))

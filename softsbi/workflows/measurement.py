@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 
 from softsbi.core.arrays import read_npy
-from softsbi.core.errors import DataError, SimulationFailed, SoftsbiWarning
+from softsbi.backends.scenario_build import unsupported
+from softsbi.core.errors import DataError, ParameterError, SimulationFailed, SoftsbiWarning
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.core.yamlfile import read_yaml
@@ -40,6 +41,21 @@ N_DENSE = 1000
 #: lift_tan's total Chamfer further (3.35 vs 3.65 cm) but only by covering the early fragments with a
 #: rotated cloth that then hangs crossed to the real one (frames 15-24: 4.77 vs 3.11 cm)
 DIFFCLOUD_MIN_HEIGHT = 0.01
+
+
+def rollout_space(sim: Any, scenario: Scenario, effects: Sequence[str] = ()) -> Any:
+    """The :class:`~softsbi.core.types.ParamSpace` of a rollout of ``scenario`` on ``sim`` (a simulator instance)
+    with ``effects``: the backend's parameters, then each effect's (:meth:`~softsbi.plugins.Registry.param_space`).
+
+    Raises:
+        ParameterError: the backend cannot run the scenario (its ``scenarios`` or ``features``).
+        PluginNotFound: an unknown effect. PluginError: a plugin's code fails to declare its parameters, or two
+            declare one name (one line naming the plugin and its file).
+    """
+    why = unsupported(sim, scenario)
+    if why:
+        raise ParameterError(why)
+    return registry().param_space(sim, scenario, effects)
 
 
 def default_values(space: Any, scenario: Any) -> dict[str, float]:
@@ -414,9 +430,7 @@ def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path =
         scenario = make_scenario(str(scenario))
     reg = registry()
     sim = reg.simulator(backend)(**dict(backend_options or {}))
-    space = sim.param_space(scenario)
-    for e in effects:
-        space = space + reg.effect(e)().param_space()
+    space = rollout_space(sim, scenario, effects)
     values = {**default_values(space, scenario), **dict(truth or {})}
     truth = space.check(values, within="limits")
     ro = sim.simulate(scenario, dict(truth), effects=list(effects), seed=seed)

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import zarr
 
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import EffectFault, SimulationFailed, SoftsbiError
 from softsbi.core.results import write_json_atomic
 from softsbi.perception.images import save_frames
 from softsbi.plugins import check_options, registry
@@ -30,8 +30,9 @@ from softsbi.scenarios.builtin import make_scenario
 from softsbi.scenarios.spec import spec_from_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.workflows.defaults import BACKEND, SCENARIO
+from softsbi.workflows.fit.jobs import failure_reason
 from softsbi.workflows.lock import check_out_dir
-from softsbi.workflows.measurement import default_values
+from softsbi.workflows.measurement import default_values, rollout_space
 
 
 #: points per frame of the recording ``softsbi simulate`` writes
@@ -97,7 +98,10 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
         "rollout"}`` plus ``preview`` and, when rendered, ``frames_dir``.
 
     Raises:
-        SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect;
+        SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect; PluginError: a broken effect;
+        ParameterError: a scenario the backend cannot run (its ``scenarios``/``features``);
+        SimulationFailed: the simulation raised (a plugin's fault such as an effect's non-finite force or
+            observation, named); EnvironmentFault: the machine cannot simulate;
         ParameterError: unknown parameter or a value outside its physical limits (not its prior: a widened prior is simulated); RenderingUnavailable: no OpenGL;
         SoftsbiError: ``render`` or ``render_memory_gb`` not positive, or the frames would exceed
             ``render_memory_gb``; ``out`` is a file, or a non-empty folder without ``overwrite``.
@@ -114,19 +118,24 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
     reg = registry()
     check_options(reg.simulator(backend), dict(backend_options or {}), f"simulator '{backend}' (--backend-opt)")
     sim = reg.simulator(backend)(**dict(backend_options or {}))
-    space = sim.param_space(sc)
-    for e in effects:
-        space = space + reg.effect(e)().param_space()
+    space = rollout_space(sim, sc, effects)
     values = default_values(space, sc)
     values.update(dict(theta or {}))
     values = space.check(values, within="limits")
     if render is not None:
         check_render_memory(render, len(sc.times), render_memory_gb)
     t0 = time.perf_counter()
-    if render:
-        ro = sim.simulate_images(sc, values, camera=scenario_camera(sc, render), effects=list(effects))
-    else:
-        ro = sim.simulate(sc, values, effects=list(effects))
+    try:
+        if render:
+            ro = sim.simulate_images(sc, values, camera=scenario_camera(sc, render), effects=list(effects))
+        else:
+            ro = sim.simulate(sc, values, effects=list(effects))
+    except Exception as exc:  # noqa: BLE001 - a failed simulation, as a fit stores it (a plugin's fault named)
+        reason = failure_reason(exc, backend)
+        if isinstance(exc, EffectFault):  # its message names the effect and the fix
+            raise SimulationFailed(f"the simulation failed: {exc}; nothing was written") from None
+        raise SimulationFailed(f"the simulation failed ({reason}); nothing was written; change the parameters "
+                               f"(--theta), the backend options or the scenario") from None
     dt = time.perf_counter() - t0
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))

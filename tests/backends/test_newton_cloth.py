@@ -45,6 +45,21 @@ def test_missing_newton_is_one_line_naming_the_extra(monkeypatch):
     assert "\n" not in str(ei.value) and INSTALL_HINT in str(ei.value)
 
 
+def test_a_fit_without_newton_is_refused_before_its_run_directory_is_made(monkeypatch, tmp_path):
+    """Not a begun run.zarr that would refuse the next fit there with another backend."""
+    from typer.testing import CliRunner
+
+    from softsbi.cli import app
+    from toy_helpers import DATA
+    monkeypatch.setitem(sys.modules, "newton", None)
+    monkeypatch.setitem(sys.modules, "warp", None)
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["fit", "--observed", str(DATA / "diffcloud_lift" / "lift_tan"), "--backend",
+                                   "newton-cloth", "--rounds", "1", "--sims-per-round", "10", "--out", str(out)])
+    assert res.exit_code == 2 and INSTALL_HINT in res.output and "Traceback" not in res.output
+    assert not out.exists()
+
+
 def test_parameter_mapping_has_one_physical_meaning():
     mu, lam = membrane_lame(100.0, 0.3)
     # plane-stress Young's modulus of the 2-D Lame pair is the stretch stiffness E t

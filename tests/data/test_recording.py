@@ -217,3 +217,54 @@ def test_a_diffcloud_recording_imported_with_another_tasks_scenario_is_refused(t
     assert not (tmp_path / "out").exists()
     same = scenario({"file": str(root / "lift_traj.npy")})
     assert import_diffcloud(rec, tmp_path / "out", scenario=same) == [tmp_path / "out"]
+
+
+def test_a_misnamed_frame_is_named_with_the_name_it_needs(tmp_path):
+    """``5.npy`` among 000.npy ... gave "numbering ... (missing [])", naming neither the file nor the fix; the same
+    naming rule holds for a recording's clouds/ and depth/, a DiffCloud folder and a folder of images."""
+    from softsbi.data.frames import load_frames, save_frames
+    from softsbi.perception.pointcloud import load_cloud_frames
+    write_recording(tmp_path / "r", _meta(8), [np.zeros((5, 3))] * 8)
+    clouds = tmp_path / "r" / "clouds"
+    (clouds / "005.npy").rename(clouds / "5.npy")
+    with pytest.raises(DataError, match=r"'.*clouds/5\.npy' is misnamed: frames are named by their index with three "
+                                        r"digits or more \(000\.npy, 001\.npy, \.\.\.\); rename it to 005\.npy$"):
+        read_recording(tmp_path / "r")
+    shutil.copy(clouds / "5.npy", clouds / "005.npy")
+    with pytest.raises(DataError, match=r"rename it to 005\.npy \(005\.npy is there too: remove one of them\)$"):
+        read_recording(tmp_path / "r")
+    (clouds / "5.npy").unlink()
+    (clouds / "003.npy").unlink()
+    with pytest.raises(DataError, match=r"numbering must run 000, 001, \.\.\. without gaps \(missing 003\)"):
+        read_recording(tmp_path / "r")
+    for i in (3, 11):
+        np.save(tmp_path / f"{i}.npy", np.zeros((5, 3)))
+    with pytest.raises(DataError, match=r"'.*3\.npy' is misnamed.*rename it to 003\.npy; so are 11\.npy$"):
+        load_cloud_frames(tmp_path)
+    save_frames(np.zeros((3, 4, 4, 3), np.uint8), tmp_path / "img")
+    (tmp_path / "img" / "002.png").rename(tmp_path / "img" / "0002.png")
+    with pytest.raises(DataError, match=r"'.*0002\.png' is misnamed.*rename it to 002\.png$"):
+        load_frames(tmp_path / "img")
+
+
+def test_frames_out_of_range_are_blamed_on_where_they_were_given(tmp_path):
+    """recording.yaml's ``sensor: frames`` selecting a frame the recording lacks was blamed on a ``--frames`` flag
+    the user never gave."""
+    from dataclasses import replace
+
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.fit.config import FitConfig
+    write_recording(tmp_path / "r", _meta(8, sensor={"frames": [3, 40]}), [np.zeros((5, 3))] * 8)
+    with pytest.raises(DataError) as err:
+        read_recording(tmp_path / "r")
+    assert str(err.value) == (f"{tmp_path / 'r' / 'recording.yaml'}: field 'sensor.frames' selects frame 40, but the "
+                              f"recording has 8 frames (0 to 7); give frames within them, or all or auto")
+    pytest.importorskip("softsbi_toy.plugin", reason="install tests/plugins/softsbi_toy (pip install -e)")
+    from toy_helpers import toy_measurement
+    rec = replace(toy_measurement(T=3), frames=[0, 9])  # a recording built in code
+    with pytest.raises(SoftsbiError, match=r"^the recording's sensor\.frames 0,9 selects frame 9, but the recording "
+                                           r"has 3 frames \(0 to 2\); give frames within them, or override them with "
+                                           r"--frames$"):
+        FitConfig(backend="toy-gauss").resolved(rec)
+    with pytest.raises(SoftsbiError, match=r"^--frames 1,5 selects frame 5, .* e\.g\. --frames 1:3$"):
+        FitConfig(backend="toy-gauss", frames=[1, 5]).resolved(rec)

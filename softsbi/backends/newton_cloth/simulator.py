@@ -121,6 +121,14 @@ class NewtonCloth(Simulator):
                 f"device={self.device!r})")
 
     # -- parameters -------------------------------------------------------------------------
+    def check_installed(self) -> None:
+        """Import Newton and Warp now (:func:`~.model.import_newton`).
+
+        Raises:
+            DependencyMissing: Newton or Warp is not installed.
+        """
+        import_newton()
+
     def param_space(self, scenario: Scenario) -> ParamSpace:
         """The shared physical cloth parameters (:func:`~softsbi.backends.common.cloth_material_params`,
         the same names, units and bounds as mujoco-flex): ``bend`` [N m], ``stretch`` [N/m],

@@ -164,7 +164,8 @@ class FitConfig:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
         plugin option that its plugin does not have or that is text where a number is expected
         (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin), or an
-        estimator that cannot be constructed (``DependencyMissing`` for its optional dependency)."""
+        estimator or a backend that cannot be constructed or lacks an optional dependency (``DependencyMissing``,
+        :meth:`~softsbi.core.interfaces.Simulator.check_installed`)."""
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
         if self.sensor not in ("height", "camera"):
@@ -202,6 +203,7 @@ class FitConfig:
             check_widen(self.proposal, bool(getattr(reg.get("estimator", self.estimator), "sequential", True)),
                         self.sensor_draws)
         reg.estimator(self.estimator)(**self.estimator_options)  # e.g. a missing optional dependency, named now
+        reg.simulator(self.backend)(**self.backend_options).check_installed()  # before the run directory is made
 
     def to_json(self) -> dict[str, Any]:
         """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""
@@ -260,7 +262,8 @@ class FitConfig:
         if needs_images(self):
             min_height = None
             frames = None if frames in ("auto", "all") else frames
-        return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario))
+        given_by = "--frames" if self.frames is not None else "the recording's sensor.frames"
+        return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario, given_by))
 
 
 def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
@@ -278,10 +281,12 @@ def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
     return {**asked, **cfg.estimator_options}
 
 
-def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> list[int] | None:
+def parse_frames(spec: list[int] | str | None, scenario: Scenario | None,
+                 given_by: str = "--frames") -> list[int] | None:
     """Frame indices of a frame spec: ``None``/``"all"`` -> None (every frame); ``"auto"`` -> the
     frames where the gripper is at least :data:`LIFTED_HEIGHT` above the table (None if none or
-    no scenario); ``"10:25"`` / ``"0,5,10"`` / a list -> indices.
+    no scenario); ``"10:25"`` / ``"0,5,10"`` / a list -> indices. ``given_by``: where the spec comes from, for
+    the message (``--frames``, or the recording's sensor model).
 
     Raises:
         SoftsbiError: a spec that is not indices or ranges, or (with ``scenario``) an index outside its frames.
@@ -291,8 +296,9 @@ def parse_frames(spec: list[int] | str | None, scenario: Scenario | None) -> lis
         T = scenario.n_frames
         bad = [i for i in out if not 0 <= i < T]
         if bad:
-            raise SoftsbiError(f"--frames {_frames_text(spec)} selects frame {bad[0]}, but the recording has {T} frames "
-                               f"(0 to {T - 1}); give frames within them, e.g. --frames {T // 2}:{T}")
+            fix = f"e.g. --frames {T // 2}:{T}" if given_by == "--frames" else "or override them with --frames"
+            raise SoftsbiError(f"{given_by} {_frames_text(spec)} selects frame {bad[0]}, but the recording has {T} "
+                               f"frames (0 to {T - 1}); give frames within them, {fix}")
     return out
 
 
@@ -335,21 +341,19 @@ def fit_param_space(cfg: FitConfig, scenario: Scenario) -> tuple[ParamSpace, Par
     sub-space (without ``cfg.fixed``).
 
     Raises:
-        PluginNotFound, ParameterError: unknown backend/effect, unsupported effect/scenario.
+        PluginNotFound, ParameterError: unknown backend/effect, unsupported effect/scenario. PluginError: a plugin's
+            code fails to declare its parameters, or two declare one name (:meth:`Registry.param_space`).
     """
     reg = registry()
     sim_cls = reg.simulator(cfg.backend)
     why = unsupported(sim_cls, scenario)
     if why:
         raise ParameterError(why)
-    sim = sim_cls(**cfg.backend_options)
-    space = sim.param_space(scenario)
     for e in cfg.effects:
-        eff_cls = reg.effect(e)
-        missing = sim_cls.supports(eff_cls)
+        missing = sim_cls.supports(reg.effect(e))
         if missing is not None:
             raise ParameterError(f"backend '{cfg.backend}' cannot apply effect '{e}': it needs {missing}")
-        space = space + eff_cls().param_space()
+    space = reg.param_space(sim_cls(**cfg.backend_options), scenario, cfg.effects)
     if cfg.bounds:
         space = space.with_bounds(cfg.bounds)
     try:

@@ -174,6 +174,24 @@ def _simulate_unobserved(ctx: SimContext, sim: Any, scenario: Scenario, values: 
                      [e for e in effects if e not in names], seed, batch)
 
 
+def failure_reason(exc: Exception, backend: str) -> str:
+    """The stored reason of a simulation that raised ``exc``: ``"Type: message"`` (an engine's error, or a plugin's
+    fault such as an :class:`~softsbi.core.errors.EffectFault` or a scenario the backend cannot build), a failed
+    simulation with which the command goes on.
+
+    Raises:
+        SoftsbiError: ``exc`` itself, when it is one (a deliberate error stops the command).
+        EnvironmentFault: ``exc`` is an ImportError or OSError: the machine cannot simulate at all (nothing is
+            stored as failed; the same command resumes once it is fixed).
+    """
+    if isinstance(exc, SoftsbiError):
+        raise exc
+    if isinstance(exc, (ImportError, OSError)):
+        raise EnvironmentFault(f"{backend} cannot simulate on this machine ({type(exc).__name__}: {exc}); "
+                               f"fix the installation and re-run the same command to resume") from exc
+    return f"{type(exc).__name__}: {exc}"
+
+
 def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> dict[str, Any]:
     """Simulate one parameter vector, observe it and score it against the measurement.
 
@@ -222,13 +240,8 @@ def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> d
             ro = plan.observe(raw, values, int(seed))
         else:
             ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, int(seed), batch)
-    except SoftsbiError:
-        raise
-    except (ImportError, OSError) as exc:  # the machine cannot simulate: stop, store nothing as failed
-        raise EnvironmentFault(f"{ctx.backend} cannot simulate on this machine ({type(exc).__name__}: {exc}); "
-                               f"fix the installation and re-run the same command to resume") from exc
     except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
-        return {"status": STATUS_ERROR, "reason": f"{type(exc).__name__}: {exc}", "x": None, "chamfer": None,
+        return {"status": STATUS_ERROR, "reason": failure_reason(exc, ctx.backend), "x": None, "chamfer": None,
                 "seconds": time.perf_counter() - t0, "bank": banked}
     if not ro.ok:
         return {"status": int(ro.status), "reason": ro.reason, "x": None, "chamfer": None,
