@@ -72,12 +72,12 @@ def test_same_class_twice_is_not_a_clash():
 
 @pytest.mark.parametrize("returned, expect", [
     ([_simulator("Sim", "mysim")], (r"returned class mysim\.plugin\.Sim, which does not derive from "
-                                    r"softsbi\.core\.interfaces\.Effect")),
-    ([int], r"returned class builtins\.int, which does not derive from softsbi\.core\.interfaces\.Effect"),
-    ([builtin.Wind()], r"an instance: return the class itself.*not a class.*softsbi\.core\.interfaces\.Effect"),
-    (["wind"], r"returned 'wind', which is not a class.*softsbi\.core\.interfaces\.Effect"),
+                                    r"softsbi\.core\.effect\.Effect")),
+    ([int], r"returned class builtins\.int, which does not derive from softsbi\.core\.effect\.Effect"),
+    ([builtin.Wind()], r"an instance: return the class itself.*not a class.*softsbi\.core\.effect\.Effect"),
+    (["wind"], r"returned 'wind', which is not a class.*softsbi\.core\.effect\.Effect"),
     ([_effect("NoName", "")], r"NoName without a name.*non-empty string class attribute `name`"),
-    (builtin.Wind, r"must return a list of classes derived from softsbi\.core\.interfaces\.Effect"),
+    (builtin.Wind, r"must return a list of classes derived from softsbi\.core\.effect\.Effect"),
 ])
 def test_wrong_classes_name_the_plugin_hook_object_and_base(returned, expect):
     bad = ("mywind", "mywind 1.2", _plugin("mywind.plugin", softsbi_effects=[]))
