@@ -8,6 +8,7 @@ new one and a damaged file is named with the command that writes it again.
 """
 from __future__ import annotations
 
+import collections.abc
 import contextlib
 import dataclasses
 import json
@@ -93,9 +94,14 @@ def _build(tp: Any, data: Any) -> Any:
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_build(args[0], v) for v in data)
         return tuple(_build(a, v) for a, v in zip(args, data))
-    if origin in (Mapping, dict, typing.Mapping) or tp in (dict, Mapping):
+    # typing's generic aliases name their abstract origin (``Mapping[...]`` -> collections.abc.Mapping)
+    if isinstance(origin, type) and issubclass(origin, collections.abc.Mapping):
         args = typing.get_args(tp)
         return {k: (_build(args[1], v) if args else v) for k, v in data.items()}
+    if isinstance(origin, type) and issubclass(origin, collections.abc.Sequence) and origin is not str:
+        args = typing.get_args(tp)
+        items = [(_build(args[0], v) if args else v) for v in data]
+        return items if origin is list else tuple(items)
     if isinstance(tp, type) and issubclass(tp, Enum):
         return tp(data)
     if tp in (int, float) and data is not None:
