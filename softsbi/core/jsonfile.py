@@ -110,16 +110,16 @@ def _build(tp: Any, data: Any) -> Any:
 
 
 def check_result_path(path: str | Path) -> Path:
-    """Refuse, before any work, a result file that cannot be replaced because a folder (or anything but a file)
-    stands at ``path``.
+    """Refuse, before any work, a result file (a JSON result or a figure) that cannot be replaced because a folder
+    (or anything but a file) stands at ``path``; every command checks each file it will write before its work.
 
     Raises:
         ResultUnwritable: one line naming ``path`` and the fix.
     """
     path = Path(path)
     if path.exists() and not path.is_file():
-        raise ResultUnwritable(21, f"'{path}' is a folder, not a file, so its result cannot be written there; move "
-                                   f"or remove that folder, then re-run the same command")
+        raise ResultUnwritable(21, f"'{path}' is a folder, not a file, so it cannot be written; move or remove "
+                                   f"that folder, then re-run the same command")
     return path
 
 

@@ -209,6 +209,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     store = RunStore.open(run_dir / "run.zarr")
     if write:
         check_result_path(run_dir / "calibration.json")
+        check_result_path(run_dir / "calibration.png")
     cfg = FitConfig.from_run_config(store.config)
     space = ParamSpace.from_json(store.config["param_space"])
     rounds = store.completed_rounds()
