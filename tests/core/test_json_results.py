@@ -70,8 +70,8 @@ def test_a_check_json_of_schema_3_reads_its_regions_and_phases_words_as_typed_fi
 def test_mapping_and_sequence_fields_rebuild_their_dataclass_values():
     """``typing.get_origin(Mapping[...])`` is ``collections.abc.Mapping``: such fields (a training report's
     ``contraction``) read back as their dataclasses, not as dicts, and so do ``Sequence[...]`` and ``list[...]``."""
+    from collections.abc import Mapping, Sequence
     from dataclasses import dataclass
-    from typing import Mapping, Sequence
 
     from softsbi.core.fitreport import Contraction, TrainingReport
     from softsbi.core.results import Role

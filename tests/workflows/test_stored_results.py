@@ -17,9 +17,9 @@ from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
 from softsbi.workflows import view
 from softsbi.workflows.criticism import check, diagnose
-from softsbi.workflows.tasks import calibrate
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
 from softsbi.workflows.lock import RunLocked, run_lock
+from softsbi.workflows.tasks import calibrate
 
 pytestmark = pytest.mark.integration
 
