@@ -43,7 +43,7 @@ import numpy as np
 import zarr
 
 from softsbi.core.distributions import MixtureOfGaussians
-from softsbi.core.errors import SchemaError
+from softsbi.core.errors import ObservedDamaged, SchemaError
 # a round's posterior (EstimatorState and POSTERIOR_FORMAT are importable from here too)
 from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
                                           put_array, read_posterior_group, write_posterior)
@@ -197,10 +197,25 @@ class RunStore:
         g.attrs["source"] = source
 
     def read_observed(self) -> dict[str, np.ndarray]:
+        """The observed arrays (:meth:`write_observed`) by name.
+
+        Raises:
+            ObservedDamaged: the group is missing or one of its arrays cannot be read (a truncated or corrupt
+                chunk); the fix says that the fit rebuilds it from the recording.
+        """
+        where = self.path / "observed"
+        fix = "re-running the same `softsbi fit` command rebuilds it from the recording"
         if "observed" not in self.root:
-            raise SchemaError(f"run '{self.path}' has no observed data; it was not created by `softsbi fit`")
+            raise ObservedDamaged(f"'{where}' is missing", fix)
         g = self.root["observed"]
-        return {k: g[k][...] for k in g.array_keys()}
+        out = {}
+        for k in g.array_keys():
+            try:
+                out[k] = g[k][...]
+            except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
+                raise ObservedDamaged(f"'{where}' cannot be read (its '{k}' array: {type(exc).__name__})",
+                                      fix) from None
+        return out
 
     # -- rounds -----------------------------------------------------------------------
     def _round(self, r: int) -> zarr.Group:

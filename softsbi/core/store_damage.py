@@ -40,8 +40,9 @@ def check_metadata(path: Path, root: zarr.Group) -> None:
             if top[0] == "rounds" and len(top) > 1:
                 fix = (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
                        f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
-            elif top[0] in ("observed",):
-                fix = "fit into a new --out folder"
+            elif top[0] == "observed":
+                fix = (f"remove the folder '{path / 'observed'}', then re-run the same command: it rebuilds it from "
+                       f"the recording")
             else:
                 fix = (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
                        f"for evaluation/): it computes it again")
