@@ -122,6 +122,8 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     _, base = fit_param_space(cfg, recording.scenario)
     space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
     prior = PriorRound.of(cfg, recording, base)  # the first round as a stored task (:mod:`.tasks`)
+    if prior.damaged is not None:
+        callbacks.message(prior.damage_line())
     if cfg.rounds is None:  # a trained task's posterior alone, else the sequential rounds
         cfg = replace(cfg, rounds=1 if prior.trained(cfg.sims_per_round) else defaults.ROUNDS)
     store, prev = open_store(out_dir, recording, cfg, space, callbacks)
