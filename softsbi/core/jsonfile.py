@@ -177,9 +177,13 @@ def read_json(path: str | Path, rewrite: str, required: tuple[str, ...] = ()) ->
 
     Raises:
         ResultDamaged: the file cannot be read, is empty, cut short, not JSON, not an object or lacks a
-            ``required`` key; one line naming the file and ``rewrite``.
+            ``required`` key; one line naming the file and ``rewrite`` (for a folder in the file's place: after
+            moving or removing it, since no command writes over a folder).
     """
     path = Path(path)
+    if path.is_dir():
+        raise ResultDamaged(path, "a folder, not a file", f"moving or removing that folder, then {rewrite},"
+                            if rewrite else "moving or removing that folder, then re-running the command that wrote it,")
     try:
         text = path.read_text()
         if not text.strip():

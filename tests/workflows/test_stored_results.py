@@ -15,9 +15,9 @@ import softsbi.core.jsonfile as jsonfile
 import softsbi.core.results as results
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows import view
 from softsbi.workflows.criticism import check, diagnose
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
+from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.lock import RunLocked, run_lock
 from softsbi.workflows.tasks import calibrate
 
@@ -56,7 +56,7 @@ def _no_work(monkeypatch):
         raise AssertionError("work was spent before the refusal")
     for mod in (check, diagnose):
         monkeypatch.setattr(mod, "PosteriorPredictive", fail)
-    monkeypatch.setattr(view, "posterior_rollouts", fail)
+    monkeypatch.setattr(RunView, "posterior_rollouts", fail)
     monkeypatch.setattr(calibrate, "_test_simulations", fail)
 
 
@@ -78,6 +78,19 @@ def test_a_damaged_report_is_one_line_from_every_command(run, tmp_path, text, mo
         assert f"'{run / 'report.json'}'" in line and f"`softsbi fit ... --out {run}`" in line, argv  # file, command
     with pytest.raises(SoftsbiError, match="report.json' is damaged"):
         softsbi.open_run(run)
+
+
+def test_a_report_that_is_a_folder_is_one_line_whose_fix_works(run, monkeypatch):
+    """The fit refuses to write over a folder, so the advice is to move it first; then the same fit writes it."""
+    _no_work(monkeypatch)
+    (run / "report.json").unlink()
+    (run / "report.json").mkdir()
+    line = _error_line(runner.invoke(app, ["check", str(run)]))
+    assert f"'{run / 'report.json'}'" in line and "a folder" in line
+    assert "moving or removing that folder, then re-running the fit" in line and f"--out {run}`" in line
+    (run / "report.json").rmdir()  # the advice, followed
+    run_fit(run, toy_measurement(), _cfg(), make_plots=False)
+    assert json.loads((run / "report.json").read_text())["posterior_median"]
 
 
 def test_re_running_the_fit_repairs_a_damaged_report_and_says_so(run):
