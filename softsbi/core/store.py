@@ -47,7 +47,7 @@ from softsbi.core.errors import ObservedDamaged, SchemaError
 # a round's posterior (EstimatorState and POSTERIOR_FORMAT are importable from here too)
 from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
                                           put_array, read_posterior_group, write_posterior)
-from softsbi.core.store_damage import check_metadata, damaged_rows, unreadable_groups
+from softsbi.core.store_damage import array_names, check_metadata, damaged_rows, group_names, unreadable_groups
 from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
@@ -209,7 +209,7 @@ class RunStore:
             raise ObservedDamaged(f"'{where}' is missing", fix)
         g = self.root["observed"]
         out = {}
-        for k in g.array_keys():
+        for k in array_names(g):
             try:
                 out[k] = g[k][...]
             except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
@@ -222,7 +222,7 @@ class RunStore:
         return self.root["rounds"][str(r)]
 
     def round_ids(self) -> list[int]:
-        return sorted(int(k) for k in self.root["rounds"].group_keys())
+        return sorted(int(k) for k in group_names(self.root["rounds"]))
 
     def is_begun(self, r: int) -> bool:
         return str(r) in self.root["rounds"] and bool(self._round(r).attrs.get("begun", False))
@@ -442,7 +442,7 @@ class RunStore:
         """
         g = self.root[name]
         out = {}
-        for k in (g.array_keys() if keys is None else [k for k in keys if k in g]):
+        for k in (array_names(g) if keys is None else [k for k in keys if k in g]):
             try:
                 out[k] = g[k][...]
             except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk

@@ -266,3 +266,19 @@ def test_a_damaged_observed_is_rebuilt_from_the_recording_by_fit_check_and_view(
     assert res.exit_code == 2 and "Traceback" not in res.output, res.output
     line = " ".join(res.output.split())
     assert "observed'" in line and f"--observed {rec}" in line and f"--out {out}" in line
+
+
+def test_a_half_written_array_or_round_is_resumed_without_zarr_warnings(tmp_path, recwarn):
+    """A kill while an array or a round was being created leaves a folder without metadata: it is no member of the
+    store, the resumed fit writes it again, and zarr's warning about it never reaches the user."""
+    from zarr.errors import ZarrUserWarning
+    out = tmp_path / "run"
+    first = run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+    (out / "run.zarr" / "rounds" / "1").mkdir()  # a round whose zarr.json was never written
+    (out / "run.zarr" / "rounds" / "0" / "half" / "c").mkdir(parents=True)  # an array's chunks, no metadata
+    (out / "run.zarr" / "rounds" / "0" / "half" / "c" / "0").write_bytes(b"x")
+    recwarn.clear()
+    again = run_fit(out, toy_measurement(), _cfg(rounds=2), make_plots=False)
+    assert [str(w.message) for w in recwarn if issubclass(w.category, ZarrUserWarning)] == []
+    assert RunStore.open(out / "run.zarr").completed_rounds() == [0, 1] and again.report.rounds == 2
+    assert first.report.per_round[0].usable == again.report.per_round[0].usable  # round 1 as before

@@ -13,6 +13,7 @@ import numpy as np
 
 from softsbi.core.errors import ObservedDamaged, SchemaError, SoftsbiError, SoftsbiWarning
 from softsbi.core.store import RunStore
+from softsbi.core.store_damage import array_names
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.perception.masks import hsv_mask
 from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, needs_images, resume_identity
@@ -83,7 +84,7 @@ def rebuild_observed(store: RunStore, recording: Recording, cfg: FitConfig) -> d
     """
     new = _observed(cfg, recording, store.config.get("metric", "chamfer_m"))
     group = store.root["observed"] if "observed" in store.root else None
-    for k in () if group is None else group.array_keys():
+    for k in () if group is None else array_names(group):
         try:
             old = group[k][...]
         except Exception:  # noqa: BLE001 - the damaged array: rebuilt
