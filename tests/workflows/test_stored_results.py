@@ -174,6 +174,11 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
         res = runner.invoke(app, ["diagnose", str(ro), "--n-null", "5", "--confirm", "0", "--workers", "1"])
         assert res.exit_code == 0, res.output
         assert f"reused {ro / 'diagnosis.json'}" in res.output and "wrote" not in res.output
+        # a diagnosis whose check must be computed again: with --out elsewhere, its check is written there
+        res = runner.invoke(app, ["diagnose", str(ro), "--n-null", "6", "--confirm", "0", "--workers", "1",
+                                  "--out", str(tmp_path / "elsewhere")])
+        assert res.exit_code == 0, res.output
+        assert {p.name for p in (tmp_path / "elsewhere").iterdir()} >= {"check.json", "diagnosis.json"}
     finally:
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
 
