@@ -22,19 +22,33 @@ def _store(sim_bank: str) -> Any:
     if store is None:
         raise SoftsbiError("stored tasks live in the simulation bank, which is off (SOFTSBI_SIM_BANK=off): unset it "
                            "or give --sim-bank DIR")
+    for path, what in ((store.path.parent, "the simulation bank"), (store.path, "the stored tasks' folder")):
+        if path.exists() and not path.is_dir():
+            raise SoftsbiError(f"{path} is a file, not {what}: give --sim-bank the folder the fits and `softsbi task "
+                               f"train` store their tasks in")
     return store
 
 
 def _row(t: Any) -> list[Any]:
+    idy = t.identity or {}
+    head = [t.digest[:12], t.model, idy.get("backend", "?"), (idy.get("scenario") or {}).get("name", "?")]
+    if _damaged(t):
+        return [*head, "?", f"DAMAGED, never used: {t.problem}", "`softsbi task delete` removes it"]
     r = t.report
-    return [t.digest[:12], t.model, t.identity.get("backend"), (t.identity.get("scenario") or {}).get("name", "?"),
-            t.n_prior, "no training report (stored by a fit)" if r is None else r.verdict,
+    return [*head, t.n_prior, "no training report (stored by a fit)" if r is None else r.verdict,
             "" if r is None else f"{r.coverage.at_50:.2f} / {r.coverage.at_90:.2f}"]
 
 
 def _doc(t: Any) -> dict[str, Any]:
+    if _damaged(t):
+        return {"key": t.digest, "model": t.model, "path": str(t.path), "identity": t.identity, "damaged": t.problem}
     return {"key": t.digest, "model": t.model, "n_prior": t.n_prior, "path": str(t.path), "identity": t.identity,
-            "info": t.info, "report": None if t.report is None else t.report.to_json()}
+            "info": t.info, "report": None if t.report is None else t.report.to_json(), "damaged": None}
+
+
+def _damaged(t: Any) -> bool:
+    from softsbi.workflows.fit.task_store import DamagedTask  # start-up: numpy, zarr
+    return isinstance(t, DamagedTask)
 
 
 def task_train(observed: Path = typer.Option(..., help="a recording of the task (its scenario and sensor settings; "
@@ -96,7 +110,7 @@ def task_list(sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK
               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """List the stored tasks."""
     store = _store(sim_bank)
-    tasks = store.list()
+    tasks = store.entries()
     o = Output(as_json)
     if json_done(o, [_doc(t) for t in tasks]):
         return
@@ -112,6 +126,10 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Show one stored task: what determines it and its training report."""
     t = _store(sim_bank).find(key)
+    if _damaged(t):
+        raise SoftsbiError(f"stored task {t.digest[:12]} in {t.path.parent} is damaged ({t.problem}) and is never "
+                           f"used; `softsbi task delete {t.digest[:12]}` removes it and `softsbi task train` trains it "
+                           f"again")
     o = Output(as_json)
     if json_done(o, _doc(t)):
         return
@@ -139,4 +157,5 @@ def task_delete(key: str = typer.Argument(..., help="the task's key (its first c
                 sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK)) -> None:
     """Delete one stored task (its simulations stay in the bank)."""
     t = _store(sim_bank).delete(key)
-    Output(False).line(f"deleted task {t.digest[:12]} ({t.model}, {t.n_prior} prior simulations)")
+    what = f"damaged: {t.problem}" if _damaged(t) else f"{t.n_prior} prior simulations"
+    Output(False).line(f"deleted task {t.digest[:12]} ({t.model}, {what})")

@@ -57,6 +57,11 @@ class PosteriorDamaged(SchemaError):
         self.problem = problem
 
 
+class ObservedDamaged(PosteriorDamaged):
+    """A run store's ``observed`` group (the recording as the fit observed it) is missing or cannot be read; it can
+    be rebuilt from the recording (``problem`` names what is wrong)."""
+
+
 class DataError(SoftsbiError, ValueError):
     """Observed data is missing, malformed or non-finite."""
 

@@ -8,6 +8,7 @@ new one and a damaged file is named with the command that writes it again.
 """
 from __future__ import annotations
 
+import collections.abc
 import contextlib
 import dataclasses
 import json
@@ -93,9 +94,14 @@ def _build(tp: Any, data: Any) -> Any:
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_build(args[0], v) for v in data)
         return tuple(_build(a, v) for a, v in zip(args, data))
-    if origin in (Mapping, dict, typing.Mapping) or tp in (dict, Mapping):
+    # typing's generic aliases name their abstract origin (``Mapping[...]`` -> collections.abc.Mapping)
+    if isinstance(origin, type) and issubclass(origin, collections.abc.Mapping):
         args = typing.get_args(tp)
         return {k: (_build(args[1], v) if args else v) for k, v in data.items()}
+    if isinstance(origin, type) and issubclass(origin, collections.abc.Sequence) and origin is not str:
+        args = typing.get_args(tp)
+        items = [(_build(args[0], v) if args else v) for v in data]
+        return items if origin is list else tuple(items)
     if isinstance(tp, type) and issubclass(tp, Enum):
         return tp(data)
     if tp in (int, float) and data is not None:
@@ -104,16 +110,16 @@ def _build(tp: Any, data: Any) -> Any:
 
 
 def check_result_path(path: str | Path) -> Path:
-    """Refuse, before any work, a result file that cannot be replaced because a folder (or anything but a file)
-    stands at ``path``.
+    """Refuse, before any work, a result file (a JSON result or a figure) that cannot be replaced because a folder
+    (or anything but a file) stands at ``path``; every command checks each file it will write before its work.
 
     Raises:
         ResultUnwritable: one line naming ``path`` and the fix.
     """
     path = Path(path)
     if path.exists() and not path.is_file():
-        raise ResultUnwritable(21, f"'{path}' is a folder, not a file, so its result cannot be written there; move "
-                                   f"or remove that folder, then re-run the same command")
+        raise ResultUnwritable(21, f"'{path}' is a folder, not a file, so it cannot be written; move or remove "
+                                   f"that folder, then re-run the same command")
     return path
 
 
@@ -171,9 +177,13 @@ def read_json(path: str | Path, rewrite: str, required: tuple[str, ...] = ()) ->
 
     Raises:
         ResultDamaged: the file cannot be read, is empty, cut short, not JSON, not an object or lacks a
-            ``required`` key; one line naming the file and ``rewrite``.
+            ``required`` key; one line naming the file and ``rewrite`` (for a folder in the file's place: after
+            moving or removing it, since no command writes over a folder).
     """
     path = Path(path)
+    if path.is_dir():
+        raise ResultDamaged(path, "a folder, not a file", f"moving or removing that folder, then {rewrite},"
+                            if rewrite else "moving or removing that folder, then re-running the command that wrote it,")
     try:
         text = path.read_text()
         if not text.strip():

@@ -14,6 +14,7 @@ import zarr
 
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import PosteriorDamaged, SchemaError
+from softsbi.core.store_damage import array_names
 from softsbi.core.types import jsonable
 
 #: format of a round's ``posterior`` group
@@ -150,7 +151,7 @@ def read_posterior_group(open_group: Callable[[], zarr.Group], where: str, fix: 
             arrays = {k: p[k][...] for k in ("weights", "means", "scale_tril")}
         else:
             s = p["state"]
-            arrays = {k: s[k][...] for k in s.array_keys()}
+            arrays = {k: s[k][...] for k in array_names(s)}
     except SchemaError:
         raise
     except Exception as exc:  # noqa: BLE001 - a deleted group/array (KeyError) or an unreadable chunk

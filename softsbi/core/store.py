@@ -43,11 +43,11 @@ import numpy as np
 import zarr
 
 from softsbi.core.distributions import MixtureOfGaussians
-from softsbi.core.errors import SchemaError
+from softsbi.core.errors import ObservedDamaged, SchemaError
 # a round's posterior (EstimatorState and POSTERIOR_FORMAT are importable from here too)
 from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
                                           put_array, read_posterior_group, write_posterior)
-from softsbi.core.store_damage import check_metadata, damaged_rows, unreadable_groups
+from softsbi.core.store_damage import array_names, check_metadata, damaged_rows, group_names, unreadable_groups
 from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
@@ -197,17 +197,32 @@ class RunStore:
         g.attrs["source"] = source
 
     def read_observed(self) -> dict[str, np.ndarray]:
+        """The observed arrays (:meth:`write_observed`) by name.
+
+        Raises:
+            ObservedDamaged: the group is missing or one of its arrays cannot be read (a truncated or corrupt
+                chunk); the fix says that the fit rebuilds it from the recording.
+        """
+        where = self.path / "observed"
+        fix = "re-running the same `softsbi fit` command rebuilds it from the recording"
         if "observed" not in self.root:
-            raise SchemaError(f"run '{self.path}' has no observed data; it was not created by `softsbi fit`")
+            raise ObservedDamaged(f"'{where}' is missing", fix)
         g = self.root["observed"]
-        return {k: g[k][...] for k in g.array_keys()}
+        out = {}
+        for k in array_names(g):
+            try:
+                out[k] = g[k][...]
+            except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
+                raise ObservedDamaged(f"'{where}' cannot be read (its '{k}' array: {type(exc).__name__})",
+                                      fix) from None
+        return out
 
     # -- rounds -----------------------------------------------------------------------
     def _round(self, r: int) -> zarr.Group:
         return self.root["rounds"][str(r)]
 
     def round_ids(self) -> list[int]:
-        return sorted(int(k) for k in self.root["rounds"].group_keys())
+        return sorted(int(k) for k in group_names(self.root["rounds"]))
 
     def is_begun(self, r: int) -> bool:
         return str(r) in self.root["rounds"] and bool(self._round(r).attrs.get("begun", False))
@@ -427,7 +442,7 @@ class RunStore:
         """
         g = self.root[name]
         out = {}
-        for k in (g.array_keys() if keys is None else [k for k in keys if k in g]):
+        for k in (array_names(g) if keys is None else [k for k in keys if k in g]):
             try:
                 out[k] = g[k][...]
             except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk

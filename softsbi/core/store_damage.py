@@ -5,17 +5,34 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import zarr
+from zarr.errors import ZarrUserWarning
 
 from softsbi.core.errors import SchemaError
 from softsbi.core.types import STATUS_PENDING
 
 #: a round's per-simulation arrays: repaired row by row (:func:`damaged_rows`), not as whole groups
 ROW_ARRAYS = ("status", "x", "chamfer", "sensor_x")
+
+
+def array_names(g: zarr.Group) -> list[str]:
+    """The names of the arrays in ``g``. A folder without metadata (an array or group whose creation a kill
+    interrupted) is no member: it is left out without zarr's warning, and the store writes it again when needed."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Object at .* is not recognized", ZarrUserWarning)
+        return list(g.array_keys())
+
+
+def group_names(g: zarr.Group) -> list[str]:
+    """The names of the groups in ``g`` (half-written ones left out, as in :func:`array_names`)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Object at .* is not recognized", ZarrUserWarning)
+        return list(g.group_keys())
 
 
 def check_metadata(path: Path, root: zarr.Group) -> None:
@@ -40,8 +57,9 @@ def check_metadata(path: Path, root: zarr.Group) -> None:
             if top[0] == "rounds" and len(top) > 1:
                 fix = (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
                        f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
-            elif top[0] in ("observed",):
-                fix = "fit into a new --out folder"
+            elif top[0] == "observed":
+                fix = (f"remove the folder '{path / 'observed'}', then re-run the same command: it rebuilds it from "
+                       f"the recording")
             else:
                 fix = (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
                        f"for evaluation/): it computes it again")
@@ -71,7 +89,7 @@ def unreadable_groups(root: zarr.Group, rounds: Sequence[int]) -> dict[str, str]
     out: dict[str, str] = {}
 
     def scan(path: str, g: zarr.Group, skip: tuple[str, ...] = ()) -> None:
-        for k in sorted(g.array_keys()):
+        for k in sorted(array_names(g)):
             if k in skip:
                 continue
             try:
@@ -79,7 +97,7 @@ def unreadable_groups(root: zarr.Group, rounds: Sequence[int]) -> dict[str, str]
             except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
                 out.setdefault(path, f"its '{k}' array cannot be read ({type(exc).__name__})")
 
-    for name in sorted(root.group_keys()):
+    for name in sorted(group_names(root)):
         if name != "rounds":
             scan(name, root[name])
     for r in rounds:

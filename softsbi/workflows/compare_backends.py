@@ -24,7 +24,7 @@ import numpy as np
 from softsbi.backends.scenario_build import unsupported
 from softsbi.core.errors import ParameterError
 from softsbi.core.metrics import chamfer_per_frame
-from softsbi.core.results import write_json_atomic
+from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
 from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.plugins import registry
@@ -112,9 +112,12 @@ def compare_backends(scenario: Scenario, theta: Mapping[str, float] | None = Non
     Raises:
         PluginNotFound: unknown backend. ValueError: a backend cannot run the scenario, fewer than
         two backends. ParameterError: unknown parameter name or value out of a backend's bounds.
+        ResultUnwritable: a folder stands at ``compare.json`` or ``compare.png`` (before simulating).
     """
     if len(backends) < 2:
         raise ValueError(f"compare_backends needs at least two backends, got {list(backends)}")
+    for name in ("compare.json", "compare.png") if out_dir is not None else ():
+        check_result_path(Path(out_dir) / name)
     theta = dict(theta or {})
     reg = registry()
     sims = {}

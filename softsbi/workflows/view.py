@@ -30,6 +30,7 @@ from softsbi.workflows.fit.bestfit import read_best_fit
 from softsbi.workflows.fit.runs import RunView, load_run
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
+from softsbi.core.jsonfile import check_result_path
 from softsbi.core.store import RunStore
 from softsbi.workflows.defaults import VIEW_N_EVAL
 
@@ -119,11 +120,12 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval:
         The GIF's path.
 
     Raises:
+        ResultUnwritable: a folder stands at the GIF's path (before simulating).
         SoftsbiError: see :func:`posterior_rollouts`.
     """
+    path = check_result_path(Path(path) if path else Path(run_dir) / "view.gif")
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
-    return draw_gif(view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.gif", fps,
-                    best=best_fit_rollout(run_dir))
+    return draw_gif(view, rollouts, ch, path, fps, best=best_fit_rollout(run_dir))
 
 
 # ----------------------------------------------------------------------------------------
@@ -155,12 +157,13 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int
     Raises:
         DependencyMissing: rerun-sdk is not installed (checked before simulating; the message
             names ``pip install "softsbi[view]"``).
+        ResultUnwritable: a folder stands at the recording's path (before simulating).
         SoftsbiError: see :func:`posterior_rollouts`.
     """
     rr = import_rerun()
+    path = check_result_path(Path(path) if path else Path(run_dir) / "view.rrd")
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
-    return log_rrd(rr, view, rollouts, ch, Path(path) if path else Path(run_dir) / "view.rrd",
-                   best=best_fit_rollout(run_dir))
+    return log_rrd(rr, view, rollouts, ch, path, best=best_fit_rollout(run_dir))
 
 
 # ----------------------------------------------------------------------------------------
@@ -185,6 +188,7 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
 
     Raises:
         DependencyMissing: ``rrd`` asked for and rerun-sdk not installed (before simulating).
+        ResultUnwritable: a folder stands at ``view.gif`` or ``view.rrd`` (before simulating).
         SoftsbiError: nothing to write (``gif`` False and no rerun recording; before simulating); see
             :func:`posterior_rollouts`.
     """
@@ -201,8 +205,11 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
         raise SoftsbiError("--no-gif leaves nothing to write: " + (
             "--no-rrd switches off the rerun recording too; drop one of them" if rrd is False else
             f"the rerun recording is not written ({out['rrd_missing']}); drop --no-gif or install the extra"))
-    view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     run_dir = Path(run_dir)
+    for name, wanted in (("view.gif", gif), ("view.rrd", rr is not None)):
+        if wanted:  # a folder in a file's place: refused before simulating
+            check_result_path(run_dir / name)
+    view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     best = best_fit_rollout(run_dir)
     if gif:
         out["gif"] = draw_gif(view, rollouts, ch, run_dir / "view.gif", fps, best=best)

@@ -9,7 +9,7 @@ import softsbi.core.jsonfile as jsonfile
 import softsbi.core.results as results
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import write_result
-from result_helpers import check_result
+from result_helpers import check_result, training_report_doc
 
 
 def test_a_result_over_a_folder_is_one_line_and_leaves_no_tmp(tmp_path):
@@ -65,3 +65,28 @@ def test_a_check_json_of_schema_3_reads_its_regions_and_phases_words_as_typed_fi
     one = results.from_json(results.CheckResult, {**old, "schema": 3, "regions_from": "the grasp",
                                                   "phases_from": "equal thirds of the motion"})
     assert one.grasp_handle is None and one.phases_at_keyframes is False
+
+
+def test_mapping_and_sequence_fields_rebuild_their_dataclass_values():
+    """``typing.get_origin(Mapping[...])`` is ``collections.abc.Mapping``: such fields (a training report's
+    ``contraction``) read back as their dataclasses, not as dicts, and so do ``Sequence[...]`` and ``list[...]``."""
+    from collections.abc import Mapping, Sequence
+    from dataclasses import dataclass
+
+    from softsbi.core.fitreport import Contraction, TrainingReport
+    from softsbi.core.results import Role
+
+    @dataclass(frozen=True)
+    class Holder:
+        by_name: Mapping[str, Contraction]
+        in_order: Sequence[Contraction]
+        listed: list[Role]
+
+    doc = {"by_name": {"a": {"width_ratio": 0.5, "informed": True}}, "in_order": [{"width_ratio": 1}],
+           "listed": [Role.NAMED.value]}
+    back = jsonfile._build(Holder, doc)
+    assert back.by_name == {"a": Contraction(width_ratio=0.5, informed=True)}
+    assert back.in_order == (Contraction(width_ratio=1.0),) and back.listed == [Role.NAMED]
+    rep = TrainingReport.from_json(training_report_doc())
+    assert rep.contraction["a"] == Contraction(width_ratio=0.4, informed=True)
+    assert TrainingReport.from_json(rep.to_json()) == rep

@@ -35,3 +35,42 @@ def test_too_few_replicates_to_reject_at_the_level_are_refused():
     check_replicates(19)
     with pytest.raises(SoftsbiError, match="--check-null 18"):
         check_replicates(18)
+
+
+def test_a_run_whose_calibration_is_lost_says_so_and_what_its_p_value_is_then(tmp_path, monkeypatch):
+    """check of a run that stopped at a trained task: a damaged or empty check-null.json, a deleted or damaged
+    task each say in one line that the check is not calibrated and against what its p-value is computed."""
+    import numpy as np
+    import zarr
+
+    from softsbi.core.posterior_store import EstimatorState
+    from softsbi.workflows.criticism.check_null import run_check_null
+    from softsbi.workflows.fit.config import FitConfig
+    from softsbi.workflows.fit.task_store import TaskStore
+    monkeypatch.delenv("SOFTSBI_SIM_BANK", raising=False)  # the tests' default: off
+    bank = tmp_path / "bank"
+    store = TaskStore(bank / "tasks")
+    task = store.put({"task": "toy"}, 40, EstimatorState("mdnn", {}, {"w": np.arange(3.0)}), {})
+    run = SimpleNamespace(report=SimpleNamespace(rounds=1, per_round=[SimpleNamespace(task=task.digest)]),
+                          config={"fit_config": FitConfig(sim_bank=str(bank)).to_json()}, dense=np.zeros((3, 64, 3)))
+    said = []
+
+    def lost():
+        assert run_check_null(run, 30, said.append) is None and len(said) == 1, said
+        line = said.pop()
+        assert line.startswith("check is not calibrated: ") and "uncalibrated posterior-predictive" in line
+        assert "\n" not in line and "--check-null" in line
+        return line
+
+    assert run_check_null(run, 30, said.append) is None and said == []  # trained with --check-null 0: no file
+    (task.path / NULL_FILE).write_text(json.dumps(CheckNull(30, 64, (1.0, 2.0)).to_json()))
+    assert run_check_null(run, 30, said.append) == CheckNull(30, 64, (1.0, 2.0)) and said == []
+    for text in ("{}", "{not json", '{"rollouts": 30, "n_dense": 64, "statistics": []}'):
+        (task.path / NULL_FILE).write_text(text)
+        assert f"'{task.path / NULL_FILE}' is damaged" in lost()
+    g = zarr.open_group(str(task.path / "task.zarr" / "estimator" / "state"), mode="a")
+    name = next(iter(g.array_keys()))
+    g[name][...] = g[name][...] + 1
+    assert f"task {task.digest[:12]} in {store.path} is damaged" in lost()
+    store.delete(task.digest)
+    assert f"task {task.digest[:12]} is no longer stored in {store.path}" in lost()

@@ -78,3 +78,11 @@ def test_default_is_the_shared_physical_midpoint():
     assert wind["shared_params"] == ["friction", "scale", "mass"]
     assert wind["backends"]["pybullet-massspring"]["theta_source"]["pb_rope_bend"] == "midpoint"
     assert wind["backends"]["mujoco-flex"]["theta_source"]["young"] == "midpoint"
+
+
+def test_a_figure_that_is_a_folder_is_refused_before_simulating(tmp_path):
+    (tmp_path / "compare.png").mkdir()
+    r = CliRunner().invoke(app, ["compare-backends", "--scenario", "lift", "--out", str(tmp_path)] + SMALL)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert f"'{tmp_path / 'compare.png'}' is a folder" in " ".join(r.output.split())
+    assert not (tmp_path / "compare.json").exists()

@@ -216,3 +216,69 @@ def test_unreadable_store_metadata_is_one_line_naming_the_file_and_the_fix(tmp_p
         shutil.rmtree(out / "run.zarr" / sub)
     again = run_fit(out, toy_measurement(), _cfg(n_eval=5), make_plots=False)
     assert again.report.posterior_mean == first.report.posterior_mean
+
+
+def test_a_damaged_observed_is_rebuilt_from_the_recording_by_fit_check_and_view(tmp_path):
+    """The observed state is the recording as the fit observed it: a damaged chunk of it is rebuilt from the
+    recording named in the run's settings, in one line, by check and view as by fit, never a codec's traceback;
+    a recording that is gone is one line naming the fit command that rebuilds it."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from softsbi.cli import app
+    from softsbi.workflows.measurement import load_recording
+    runner = CliRunner()
+    rec = tmp_path / "rec"
+    res = runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--scenario", "lift", "--out", str(rec)])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "run"
+    cfg = _cfg(n_eval=5)
+    first = run_fit(out, load_recording(rec, n_points=cfg.n_points, seed=cfg.seed), cfg, make_plots=False)
+    good = RunStore.open(out / "run.zarr").read_observed()
+
+    def damage(name):
+        p = _first_chunk(out / "run.zarr" / "observed" / name)
+        p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2])
+
+    def same_observed():
+        back = RunStore.open(out / "run.zarr").read_observed()
+        assert sorted(back) == sorted(good) and all(np.array_equal(back[k], good[k]) for k in good)
+
+    for name, argv in (("x", ["check", str(out), "--n-eval", "5", "--workers", "1"]),
+                       ("dense", ["view", str(out), "--n-eval", "2", "--workers", "1", "--no-rrd", "--json"])):
+        damage(name)
+        res = runner.invoke(app, argv)
+        assert res.exit_code == 0 and "Traceback" not in res.output, res.output
+        said = [ln for ln in res.output.splitlines() if "rebuilt it from the recording" in ln]
+        assert len(said) == 1 and f"'{name}'" in said[0] and str(rec) in " ".join(res.output.split()), res.output
+        same_observed()
+    damage("x")
+    messages, cb = _recording_callbacks()
+    again = run_fit(out, load_recording(rec, n_points=cfg.n_points, seed=cfg.seed), cfg, callbacks=cb,
+                    make_plots=False)
+    assert any("observed'" in m and "rebuilt it from the recording" in m for m in messages), messages
+    same_observed()
+    assert again.report.posterior_mean == first.report.posterior_mean
+    damage("x")
+    shutil.rmtree(rec)  # nothing to rebuild it from: the fit command that does, in one line
+    res = runner.invoke(app, ["check", str(out), "--n-eval", "5", "--workers", "1", "--recompute"])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    line = " ".join(res.output.split())
+    assert "observed'" in line and f"--observed {rec}" in line and f"--out {out}" in line
+
+
+def test_a_half_written_array_or_round_is_resumed_without_zarr_warnings(tmp_path, recwarn):
+    """A kill while an array or a round was being created leaves a folder without metadata: it is no member of the
+    store, the resumed fit writes it again, and zarr's warning about it never reaches the user."""
+    from zarr.errors import ZarrUserWarning
+    out = tmp_path / "run"
+    first = run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+    (out / "run.zarr" / "rounds" / "1").mkdir()  # a round whose zarr.json was never written
+    (out / "run.zarr" / "rounds" / "0" / "half" / "c").mkdir(parents=True)  # an array's chunks, no metadata
+    (out / "run.zarr" / "rounds" / "0" / "half" / "c" / "0").write_bytes(b"x")
+    recwarn.clear()
+    again = run_fit(out, toy_measurement(), _cfg(rounds=2), make_plots=False)
+    assert [str(w.message) for w in recwarn if issubclass(w.category, ZarrUserWarning)] == []
+    assert RunStore.open(out / "run.zarr").completed_rounds() == [0, 1] and again.report.rounds == 2
+    assert first.report.per_round[0].usable == again.report.per_round[0].usable  # round 1 as before

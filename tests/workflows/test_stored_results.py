@@ -17,7 +17,9 @@ from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
 from softsbi.workflows.criticism import check, diagnose
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
+from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.lock import RunLocked, run_lock
+from softsbi.workflows.tasks import calibrate
 
 pytestmark = pytest.mark.integration
 
@@ -54,6 +56,8 @@ def _no_work(monkeypatch):
         raise AssertionError("work was spent before the refusal")
     for mod in (check, diagnose):
         monkeypatch.setattr(mod, "PosteriorPredictive", fail)
+    monkeypatch.setattr(RunView, "posterior_rollouts", fail)
+    monkeypatch.setattr(calibrate, "_test_simulations", fail)
 
 
 def _error_line(res):
@@ -76,6 +80,19 @@ def test_a_damaged_report_is_one_line_from_every_command(run, tmp_path, text, mo
         softsbi.open_run(run)
 
 
+def test_a_report_that_is_a_folder_is_one_line_whose_fix_works(run, monkeypatch):
+    """The fit refuses to write over a folder, so the advice is to move it first; then the same fit writes it."""
+    _no_work(monkeypatch)
+    (run / "report.json").unlink()
+    (run / "report.json").mkdir()
+    line = _error_line(runner.invoke(app, ["check", str(run)]))
+    assert f"'{run / 'report.json'}'" in line and "a folder" in line
+    assert "moving or removing that folder, then re-running the fit" in line and f"--out {run}`" in line
+    (run / "report.json").rmdir()  # the advice, followed
+    run_fit(run, toy_measurement(), _cfg(), make_plots=False)
+    assert json.loads((run / "report.json").read_text())["posterior_median"]
+
+
 def test_re_running_the_fit_repairs_a_damaged_report_and_says_so(run):
     good = json.loads((run / "report.json").read_text())
     (run / "report.json").write_text('{"parameters": [')
@@ -91,13 +108,23 @@ def test_re_running_the_fit_repairs_a_damaged_report_and_says_so(run):
 
 
 @pytest.mark.parametrize("name, argv", [("check.json", ["check", "{run}", "--n-eval", "5"]),
-                                        ("diagnosis.json", ["diagnose", "{run}", "--n-null", "5", "--confirm", "0"])])
-def test_a_result_file_that_is_a_folder_is_refused_before_any_work(run, monkeypatch, name, argv):
+                                        ("diagnosis.json", ["diagnose", "{run}", "--n-null", "5", "--confirm", "0"]),
+                                        ("check.png", ["check", "{run}", "--n-eval", "5", "--recompute"]),
+                                        ("check.png", ["compare", "{run}", "{run}", "--out", "{run}/cmp"]),
+                                        ("view.gif", ["view", "{run}", "--no-rrd"]),
+                                        ("view.gif", ["view", "{run}", "--no-rrd", "--json"]),
+                                        ("calibration.png", ["calibrate", "{run}", "--n-test", "20"])])
+def test_a_result_file_or_figure_that_is_a_folder_is_refused_before_any_work(run, monkeypatch, name, argv):
     _no_work(monkeypatch)
     (run / name).unlink(missing_ok=True)
     (run / name).mkdir()
-    line = _error_line(runner.invoke(app, [a.format(run=run) for a in argv]))
-    assert f"'{run / name}'" in line
+    res = runner.invoke(app, [a.format(run=run) for a in argv])
+    if "--json" in argv:  # one JSON error, no IsADirectoryError
+        assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+        line = json.loads(res.output)["error"]
+    else:
+        line = _error_line(res)
+    assert f"'{run / name}'" in line and "is a folder" in line
     assert not (run / f"{name}.tmp").exists()
 
 
@@ -147,6 +174,11 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
         res = runner.invoke(app, ["diagnose", str(ro), "--n-null", "5", "--confirm", "0", "--workers", "1"])
         assert res.exit_code == 0, res.output
         assert f"reused {ro / 'diagnosis.json'}" in res.output and "wrote" not in res.output
+        # a diagnosis whose check must be computed again: with --out elsewhere, its check is written there
+        res = runner.invoke(app, ["diagnose", str(ro), "--n-null", "6", "--confirm", "0", "--workers", "1",
+                                  "--out", str(tmp_path / "elsewhere")])
+        assert res.exit_code == 0, res.output
+        assert {p.name for p in (tmp_path / "elsewhere").iterdir()} >= {"check.json", "diagnosis.json"}
     finally:
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
 
@@ -210,11 +242,12 @@ def test_compare_computes_a_damaged_check_again_saying_so(run, tmp_path):
     assert json.loads((run / "check.json").read_text())["type"] == "CheckResult"
 
 
-def test_a_fit_whose_report_json_is_a_folder_is_refused_before_simulating(tmp_path):
+@pytest.mark.parametrize("name", ["report.json", "posterior_pairs.png"])
+def test_a_fit_whose_report_json_or_figure_is_a_folder_is_refused_before_simulating(tmp_path, name):
     out = tmp_path / "run"
-    (out / "report.json").mkdir(parents=True)
-    with pytest.raises(SoftsbiError, match="report.json' is a folder, not a file"):
-        run_fit(out, toy_measurement(), _cfg(), make_plots=False)
+    (out / name).mkdir(parents=True)
+    with pytest.raises(SoftsbiError, match=f"{name}' is a folder, not a file"):
+        run_fit(out, toy_measurement(), _cfg(), make_plots=True)
     assert not (out / "run.zarr").exists()
 
 

@@ -380,7 +380,7 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
     check_resolution(alpha, max_null, 2)
     run = loaded(run_dir, pool, seed)
     cands = candidate_effects(run, effects)
-    null = run_check_null(run, n_eval)
+    null = run_check_null(run, n_eval, message)
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
                      family=sorted(c.name for c in cands), replicates=0 if null is None else len(null.statistics))
     say = message or (lambda _: None)
@@ -389,6 +389,8 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
         run.path, "run directory", "check writes check.json and check.png into it: copy the run directory to a "
                                    "writable place and check the copy"))
     json_path = check_result_path(out / "check.json")
+    if plot:  # a folder in the figure's place: refused before any work, as check.json is
+        check_result_path(out / "check.png")
     for path in [] if recompute else [json_path] + ([run.path / "check.json"] if out != run.path else []):
         stored = stored_result(path, CheckResult, key, say)
         if stored is not None:

@@ -76,18 +76,24 @@ class CheckNull:
         return {"rollouts": self.rollouts, "n_dense": self.n_dense, "statistics": list(self.statistics)}
 
 
-def stored_check_null(task: StoredTask | None, rollouts: int, n_dense: int) -> CheckNull | None:
+def stored_check_null(task: StoredTask | None, rollouts: int, n_dense: int,
+                      damaged: Callable[[str], None] | None = None) -> CheckNull | None:
     """The task's replicates for checks on ``rollouts`` rollouts of ``n_dense``-point clouds; None when the task
-    has none, or none for these settings, or the file cannot be read (a damaged file is computed again)."""
+    has none, or none for these settings, or the file cannot be read (a damaged file is computed again), which is
+    told to ``damaged`` (what is wrong with the file, one line)."""
     if task is None or not (task.path / NULL_FILE).is_file():
         return None
+    path = task.path / NULL_FILE
     try:
-        d = json.loads((task.path / NULL_FILE).read_text())
+        d = json.loads(path.read_text())
         null = CheckNull(int(d["rollouts"]), int(d["n_dense"]), tuple(float(s) for s in d["statistics"]))
-    except (OSError, ValueError, KeyError, TypeError):
+        if not null.statistics or not np.all(np.isfinite(null.statistics)):
+            raise ValueError("no finite statistics")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        why = f"it lacks {exc}" if isinstance(exc, KeyError) else getattr(exc, "strerror", None) or str(exc)
+        (damaged or (lambda _: None))(f"'{path}' is damaged ({why})")
         return None
-    ok = null.rollouts == rollouts and null.n_dense == n_dense and len(null.statistics) > 0
-    return null if ok and np.all(np.isfinite(null.statistics)) else None
+    return null if null.rollouts == rollouts and null.n_dense == n_dense else None
 
 
 def check_replicates(n: int) -> None:
@@ -100,16 +106,34 @@ def check_replicates(n: int) -> None:
                            f"level of {ALPHA} needs n >= {MIN_REPLICATES}; give --check-null 100 (or 0: none)")
 
 
-def run_check_null(run: RunView, rollouts: int) -> CheckNull | None:
+def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | None = None) -> CheckNull | None:
     """The replicates that calibrate a check of ``run`` on ``rollouts`` rollouts: those of the trained task the run
     stopped at (one round, its stored estimator conditioned on the recording), for clouds of the recording's size;
-    None for a run of sequential rounds, or when the task has none for these settings."""
+    None for a run of sequential rounds, or when the task has none for these settings. When the run's task is gone
+    (deleted, damaged, its bank off) or its replicates are damaged, ``say`` is told in one line that the check is
+    not calibrated, and against what its p-value is then computed."""
     rep = run.report
     if rep.rounds != 1 or not rep.per_round or rep.per_round[0].task is None:
         return None
+    key = str(rep.per_round[0].task)
     store = task_store_of(FitConfig.from_run_config(run.config).sim_bank)
-    task = None if store is None else store.get(str(rep.per_round[0].task))
-    return stored_check_null(task, rollouts, int(run.dense.shape[1]))
+    entry = None if store is None else store.entry(key)
+
+    def lost(why: str) -> None:
+        (say or (lambda _: None))(
+            f"check is not calibrated: {why}; its omnibus p-value is the uncalibrated posterior-predictive one "
+            f"(against the run's own rollouts: it leans towards 1, so a small misfit can pass) until `softsbi task "
+            f"train --check-null 100` with the fit's settings stores the task's replicates")
+
+    if store is None:
+        lost(f"the simulation bank that holds the run's task {key[:12]} is off")
+    elif entry is None:
+        lost(f"the run's task {key[:12]} is no longer stored in {store.path}")
+    elif not isinstance(entry, StoredTask):
+        lost(f"the run's task {key[:12]} in {store.path} is damaged ({entry.problem})")
+    else:
+        return stored_check_null(entry, rollouts, int(run.dense.shape[1]), lost)
+    return None
 
 
 def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: ParamSpace, ctx: SimContext,

@@ -54,6 +54,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     """
     out_dir = check_out_dir(out_dir)
     check_result_path(out_dir / "compare.json")
+    check_result_path(out_dir / "compare.png")
     check_resolution(alpha, max_null, 2)
     run_a, run_b = Path(run_a), Path(run_b)
     ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
@@ -63,6 +64,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     for run in (run_a, run_b):
         check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
                                             "run directory to a writable place and compare the copy")
+        for name in ("check.json", "check.png"):  # the second run's too, before the first run's check
+            check_result_path(run / name)
     settings = dict(n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute,
                     message=message)
     a, b = check_run(ra, **settings), check_run(rb, **settings)

@@ -16,6 +16,8 @@ from softsbi.report.style import source_name, fit_label, save_figure
 
 #: surface points per frame of the simulated clouds in ``clouds.png``
 CLOUD_POINTS = 800
+#: the figures a fit writes into its run directory (:func:`write_fit_plots`; ``frames.png`` for an image fit)
+FIGURES = ("chamfer_rounds.png", "posterior_pairs.png", "clouds.png", "frames.png")
 
 
 def write_fit_plots(out_dir: Path, result: Any, meas: Any, cfg: Any, samples: np.ndarray,

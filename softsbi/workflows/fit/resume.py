@@ -5,17 +5,20 @@ sessions.
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from softsbi.core.errors import SchemaError
+from softsbi.core.errors import ObservedDamaged, SchemaError, SoftsbiError, SoftsbiWarning
 from softsbi.core.store import RunStore
-from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording
+from softsbi.core.store_damage import array_names
+from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.perception.masks import hsv_mask
 from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, needs_images, resume_identity
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording, observer_options
+from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import FitCallbacks
 
 
@@ -36,7 +39,11 @@ def stored_config(cfg: FitConfig, meas: Recording, inferred: ParamSpace) -> dict
 def open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: ParamSpace,
                callbacks: FitCallbacks) -> tuple[RunStore, float]:
     """Open the run store to resume it (checking the settings) or create it with the observed
-    state; returns the store and the wall time already spent in it (s)."""
+    state (rebuilt from ``recording`` when the stored one is damaged); returns the store and the wall time already
+    spent in it (s).
+
+    Raises:
+        SchemaError: the run has other settings, or its damaged observed state differs from ``recording``'s."""
     config = stored_config(cfg, recording, space)
     store_path = out_dir / "run.zarr"
     if RunStore.exists(store_path):
@@ -44,15 +51,89 @@ def open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Param
         store.check_resumable(config, FitConfig.resume_keys(), RESUME_DEFAULTS, resume_identity)
         prev = store.config.get("wall_time_s", 0.0) or 0.0
         callbacks.message(resume_message(store, prev))
+        try:
+            store.read_observed()
+        except ObservedDamaged as exc:  # the recording this fit is given rebuilds it
+            rebuild_observed(store, recording, cfg)
+            callbacks.message(f"{exc.problem}: rebuilt it from the recording '{recording.source}'")
         store.update_config(rounds=cfg.rounds)
         return store, prev
-    x0 = observe_recording(cfg, recording)  # before creating the store: bad input leaves nothing behind
+    observed = _observed(cfg, recording, config["metric"])  # before creating the store: bad input leaves nothing
     store = RunStore.create(store_path, config)
-    masks = hsv_mask(recording.images) if config["metric"] == "mask_chamfer_px" else None
-    store.write_observed(x0, recording.scenario.gripper, recording.scenario.times, recording.dense,
-                         recording.source, images=recording.images, masks=masks)
+    store.write_observed(**observed)
     store.update_config(rounds=cfg.rounds)
     return store, 0.0
+
+
+def _observed(cfg: FitConfig, recording: Recording, metric: str) -> dict[str, Any]:
+    """:meth:`RunStore.write_observed`'s arguments: ``recording`` as the fit (``cfg``, resolved) observes it."""
+    masks = hsv_mask(recording.images) if metric == "mask_chamfer_px" else None
+    return {"x": observe_recording(cfg, recording), "gripper": recording.scenario.gripper,
+            "times": recording.scenario.times, "dense": recording.dense, "source": recording.source,
+            "images": recording.images, "masks": masks}
+
+
+def rebuild_observed(store: RunStore, recording: Recording, cfg: FitConfig) -> dict[str, np.ndarray]:
+    """Write the run's ``observed`` group again from the ``recording`` it was fitted to (``cfg``: the fit's
+    settings, resolved); returns the observed arrays. The arrays of the damaged group that can still be read must
+    equal the rebuilt ones.
+
+    Raises:
+        SchemaError: the recording no longer gives what the fit observed (it changed since the fit).
+        OSError: the run store cannot be written (the arrays are not returned then).
+    """
+    new = _observed(cfg, recording, store.config.get("metric", "chamfer_m"))
+    group = store.root["observed"] if "observed" in store.root else None
+    for k in () if group is None else array_names(group):
+        try:
+            old = group[k][...]
+        except Exception:  # noqa: BLE001 - the damaged array: rebuilt
+            continue
+        if new.get(k) is None or np.shape(old) != np.shape(new[k]) or not np.allclose(old, new[k], equal_nan=True):
+            raise SchemaError(f"'{store.path / 'observed'}' cannot be rebuilt: the recording '{recording.source}' no "
+                              f"longer gives what the fit observed (its '{k}' differs); fit it into a new --out "
+                              f"folder")
+    store.remove_group("observed")
+    store.write_observed(**new)
+    return store.read_observed()
+
+
+def observed_data(store: RunStore) -> dict[str, np.ndarray]:
+    """A finished run's observed arrays (:meth:`RunStore.read_observed`). When they are damaged (a truncated or
+    corrupt chunk, the group missing), they are rebuilt from the point-cloud recording named in the run's
+    settings, said in one line (:class:`~softsbi.core.errors.SoftsbiWarning`); in a read-only run directory they
+    are used without being stored.
+
+    Raises:
+        ObservedDamaged: damaged, and the recording cannot be read (moved, or an image fit's frames): the line
+            names the ``softsbi fit`` command that rebuilds it.
+        SchemaError: the recording no longer gives what the fit observed.
+    """
+    try:
+        return store.read_observed()
+    except ObservedDamaged as exc:
+        damage = exc
+    config = store.config
+    source = str(config.get("observed_source") or "")
+    run_dir = store.path.parent
+    if config.get("metric") == "mask_chamfer_px" or not source or not Path(source).is_dir():
+        raise ObservedDamaged(damage.problem, f"re-run the fit with its recording (`softsbi fit --observed "
+                                              f"{source or 'REC'} ... --out {run_dir}`): it rebuilds it") from None
+    cfg = FitConfig.from_run_config(config)
+    try:
+        rec = load_recording(source, n_points=cfg.n_points, seed=cfg.seed,
+                             scenario=Scenario.from_json(config["scenario"]))
+    except SoftsbiError as exc:
+        raise ObservedDamaged(damage.problem, f"its recording cannot be read to rebuild it ({exc})") from None
+    cfg = cfg.resolved(rec)
+    try:
+        arrays = rebuild_observed(store, rec, cfg)
+        done = "rebuilt it"
+    except OSError as exc:  # a read-only run: used, not stored
+        arrays = {k: v for k, v in _observed(cfg, rec, "chamfer_m").items() if isinstance(v, np.ndarray)}
+        done = f"rebuilt it for this command (not stored: {exc.strerror or exc})"
+    warnings.warn(SoftsbiWarning(f"{damage.problem}: {done} from the recording '{source}'"), stacklevel=2)
+    return arrays
 
 
 def repair_damaged(store: RunStore, callbacks: FitCallbacks) -> None:
@@ -60,10 +141,12 @@ def repair_damaged(store: RunStore, callbacks: FitCallbacks) -> None:
     from their stored parameters and seeds, never dropped or trained on; the rounds after the
     first damaged one are drawn again from its new posterior. Other groups with an unreadable array are
     computed again (a round's posterior, the evaluation, a calibration), or named when they cannot be
-    (the observed data, a round's draws: :class:`SchemaError`)."""
+    (a round's draws: :class:`SchemaError`); the observed data are rebuilt by :func:`open_store`."""
     for name, why in store.damaged_groups().items():
         parts = name.split("/")
-        if name == "observed" or (parts[0] == "rounds" and len(parts) == 2):
+        if name == "observed":  # the recording the fit is given rebuilds it
+            continue
+        if parts[0] == "rounds" and len(parts) == 2:
             raise SchemaError(f"'{store.path / name}' cannot be trusted ({why}); fit into a new --out folder")
         callbacks.message(f"'{store.path / name}' cannot be trusted ({why}); computing it again")
         if parts[0] != "rounds":

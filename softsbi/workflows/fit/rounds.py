@@ -24,7 +24,7 @@ from softsbi.workflows.fit.config import FitConfig, estimator_options
 from softsbi.workflows.fit.report_file import chamfer_stats
 from softsbi.workflows.fit.jobs import SimContext, _round_seeds, map_simulations
 from softsbi.workflows.reporting import FitCallbacks
-from softsbi.workflows.fit.resume import RunClock
+from softsbi.workflows.fit.resume import RunClock, observed_data
 from softsbi.workflows.fit.task_store import PriorRound
 
 
@@ -337,4 +337,4 @@ def round_posterior(store: RunStore, r: int, cfg: FitConfig) -> Any:
     est = registry().estimator(stored.name)(**stored.options)
     est.load_state_dict(stored.state)
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
-    return est.posterior_at(store.read_observed()["x"][fr])
+    return est.posterior_at(observed_data(store)["x"][fr])

@@ -37,7 +37,7 @@ from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
 from softsbi.core.seeds import eval_stream
 from softsbi.plugins import registry
-from softsbi.workflows.fit.plots import write_fit_plots
+from softsbi.workflows.fit.plots import FIGURES, write_fit_plots
 from softsbi.workflows.fit.bank import BankCount, banks_enabled, check_bank_path
 from softsbi.workflows.fit.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, parameter_table
@@ -108,7 +108,8 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
     observed = recording.source if recording.source and Path(recording.source).is_dir() else None
     check_bank_path(cfg.sim_bank, {"--out": out_dir, "--observed": observed})
     with run_lock(out_dir), pools.shared_executors():
-        check_result_path(Path(out_dir) / "report.json")  # a folder in its place: refused before any simulation
+        for name in ("report.json", *(FIGURES if make_plots else ())):  # a folder in a file's place: refused
+            check_result_path(Path(out_dir) / name)                        # before any simulation
         return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
 
 
@@ -121,6 +122,8 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     _, base = fit_param_space(cfg, recording.scenario)
     space = prior_of_record(out_dir / "run.zarr", base)  # a --widen fit's widened prior
     prior = PriorRound.of(cfg, recording, base)  # the first round as a stored task (:mod:`.tasks`)
+    if prior.damaged is not None:
+        callbacks.message(prior.damage_line())
     if cfg.rounds is None:  # a trained task's posterior alone, else the sequential rounds
         cfg = replace(cfg, rounds=1 if prior.trained(cfg.sims_per_round) else defaults.ROUNDS)
     store, prev = open_store(out_dir, recording, cfg, space, callbacks)

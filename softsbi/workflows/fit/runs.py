@@ -17,6 +17,7 @@ from softsbi.workflows.fit.bank import banks_enabled
 from softsbi.workflows.fit.bestfit import BestFit, read_best_fit
 from softsbi.workflows.fit.config import FitConfig
 from softsbi.workflows.fit.report_file import read_report
+from softsbi.workflows.fit.resume import observed_data
 from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
 from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, run_jobs
 
@@ -133,7 +134,8 @@ def load_run(run_dir: str | Path, n_eval: int | None = 30, seed: int = 0) -> Run
 
     Raises:
         SchemaError: not a run; SoftsbiError: the fit has not finished (no report.json); ResultDamaged: its
-            report.json is damaged (:func:`read_report`).
+            report.json is damaged (:func:`read_report`); ObservedDamaged: its observed state is damaged and cannot
+            be rebuilt from the recording (:func:`~softsbi.workflows.fit.resume.observed_data`).
     """
     run_dir = Path(run_dir)
     store = RunStore.open(run_dir / "run.zarr")
@@ -143,12 +145,12 @@ def load_run(run_dir: str | Path, n_eval: int | None = 30, seed: int = 0) -> Run
                            f"`softsbi fit ... --out {run_dir}` command first")
     report = read_fit_report(run_dir)
     cfg = store.config
-    if cfg.get("metric") == "mask_chamfer_px" or "dense" not in store.read_observed():
+    obs = None if cfg.get("metric") == "mask_chamfer_px" else observed_data(store)  # damaged: rebuilt, said
+    if obs is None or "dense" not in obs:
         raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.get('observer')}'): check, diagnose and "
                            f"compare work on point-cloud fits, which carry 3-D clouds to localise the error; "
                            f"its report.json holds the mask Chamfer of prior and posterior rollouts")
     space = ParamSpace.from_json(cfg["param_space"])
-    obs = store.read_observed()
     if store.has("evaluation"):
         ev, ev_attrs = store.read_group("evaluation", ("theta",))  # what is re-simulated: the samples
         stored = len(ev["theta"])

@@ -22,8 +22,10 @@ simulation budget with its training report, for the model and each candidate eff
 not match is never used: a changed softsbi version, scenario, backend, model, prior or estimator gives another key.
 
 Entries are written into a temporary folder and renamed into place (atomic on one file system); each carries its
-identity and a SHA-256 of its content (:mod:`~softsbi.core.posterior_store`), both checked on reading: a damaged
-or moved entry counts as absent, and the fit trains (and stores) the task anew.
+identity and a SHA-256 of its content (:mod:`~softsbi.core.posterior_store`), both checked on reading. A moved
+entry (another key) counts as absent. A damaged entry (:class:`DamagedTask`) is never used: ``task list`` and
+``task show`` name it, ``task delete`` removes it, and a fit trains its first round itself, saying so, and replaces
+the entry only when no training report was stored in it (:meth:`PriorRound.damage_line`).
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ from typing import Any, Mapping
 
 import zarr
 
-from softsbi.core.errors import PosteriorDamaged, SchemaError, SoftsbiError
+from softsbi.core.errors import PosteriorDamaged, SoftsbiError
 from softsbi.core.fitreport import TrainingReport
 from softsbi.core.store import installed_version
 from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
@@ -139,6 +141,30 @@ class StoredTask:
         return est
 
 
+@dataclass(frozen=True)
+class DamagedTask:
+    """A stored task that cannot be read: never used, named by ``task list`` and ``task show``, removed by
+    ``task delete``.
+
+    Attributes:
+        digest: its key (its folder's name). path: its folder. problem: what cannot be read.
+        trained: whether it may hold a training report (``task train``'s; True when its attributes cannot be read,
+            so that a fit never replaces it unasked).
+        identity: what determines it (:func:`task_identity`) when that can still be read, else None.
+    """
+
+    digest: str
+    path: Path
+    problem: str
+    trained: bool = True
+    identity: dict[str, Any] | None = None
+
+    @property
+    def model(self) -> str:
+        """The model's name (:attr:`StoredTask.model`), ``"?"`` when its identity cannot be read."""
+        return "?" if self.identity is None else "+".join(["nominal", *self.identity.get("effects", [])])
+
+
 class TaskStore:
     """Stored tasks by key in a folder (created on the first store): ``<path>/<digest>/task.zarr``."""
 
@@ -149,28 +175,41 @@ class TaskStore:
         return self.path / digest
 
     def get(self, digest: str) -> StoredTask | None:
-        """The stored task of ``digest``; None when absent, damaged (its checksum), of another format, or stored
+        """The stored task of ``digest``; None when absent, damaged (:meth:`entry`), of another format, or stored
         under another key (a folder moved or copied)."""
+        found = self.entry(digest)
+        return found if isinstance(found, StoredTask) else None
+
+    def entry(self, digest: str) -> StoredTask | DamagedTask | None:
+        """The entry of ``digest``: the stored task, a :class:`DamagedTask` (its metadata, estimator state (its
+        checksum) or training report cannot be read, or its folder lacks ``task.zarr``), or None when absent, of
+        another format or stored under another key (a folder moved or copied)."""
         where = self._where(digest)
-        if not (where / "task.zarr").is_dir():
+        if not where.is_dir():
             return None
+        if not (where / "task.zarr").is_dir():
+            return DamagedTask(digest, where, "its task.zarr is missing")
         try:
             g = zarr.open_group(str(where / "task.zarr"), mode="r")
             attrs = dict(g.attrs)
             identity = attrs["identity"]
-            if attrs.get("format") != TASK_FORMAT or task_digest(identity) != digest:
-                return None
-            state = read_posterior_group(lambda: g["estimator"], f"stored task {digest[:12]}", "train it again",
+        except Exception as exc:  # noqa: BLE001 - unreadable metadata: its training report may be in it
+            return DamagedTask(digest, where, f"its metadata cannot be read ({type(exc).__name__})")
+        if attrs.get("format") != TASK_FORMAT or not isinstance(identity, dict) or task_digest(identity) != digest:
+            return None
+        trained = attrs.get("report") is not None
+        try:
+            state = read_posterior_group(lambda: g["estimator"], "its estimator", "train it again",
                                          str(identity.get("softsbi")))
+            if not isinstance(state, EstimatorState):
+                raise TypeError("its estimator state is not an estimator's")
             report = None if attrs.get("report") is None else TrainingReport.from_json(attrs["report"])
-        except (PosteriorDamaged, SchemaError, KeyError, OSError, ValueError):
-            return None
-        except Exception:  # noqa: BLE001 - an unreadable entry is an absent one: trained again
-            return None
-        if not isinstance(state, EstimatorState):
-            return None
-        return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs.get("info") or {}), report,
-                          where)
+            return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs.get("info") or {}), report,
+                              where)
+        except PosteriorDamaged as exc:
+            return DamagedTask(digest, where, exc.problem, trained, identity)
+        except Exception as exc:  # noqa: BLE001 - a schema, a report or a count that cannot be read
+            return DamagedTask(digest, where, f"{type(exc).__name__}: {exc}", trained, identity)
 
     def put(self, identity: Mapping[str, Any], n_prior: int, estimator: EstimatorState, info: Mapping[str, Any],
             report: TrainingReport | None = None) -> StoredTask | None:
@@ -195,14 +234,18 @@ class TaskStore:
         return self.get(digest)
 
     def list(self) -> list[StoredTask]:
-        """Every intact stored task (damaged entries are left out)."""
+        """Every intact stored task (:meth:`entries` without the damaged ones)."""
+        return [t for t in self.entries() if isinstance(t, StoredTask)]
+
+    def entries(self) -> list[StoredTask | DamagedTask]:
+        """Every stored task and every damaged entry (:meth:`entry`), by key."""
         if not self.path.is_dir():
             return []
-        found = (self.get(d.name) for d in sorted(self.path.iterdir()) if d.is_dir() and d.name != "tmp")
+        found = (self.entry(d.name) for d in sorted(self.path.iterdir()) if d.is_dir() and d.name != "tmp")
         return [t for t in found if t is not None]
 
-    def find(self, prefix: str) -> StoredTask:
-        """The stored task whose key starts with ``prefix`` (at least 4 characters).
+    def find(self, prefix: str) -> StoredTask | DamagedTask:
+        """The stored task or damaged entry whose key starts with ``prefix`` (at least 4 characters).
 
         Raises:
             SoftsbiError: no task or several tasks match (the line lists them)."""
@@ -210,15 +253,16 @@ class TaskStore:
         if len(prefix) < 4:
             raise SoftsbiError(f"task key '{prefix}' is too short: give at least its first 4 characters "
                                f"(`softsbi task list` shows them)")
-        hits = [t for t in self.list() if t.digest.startswith(prefix)]
+        hits = [t for t in self.entries() if t.digest.startswith(prefix)]
         if len(hits) != 1:
             what = ("no stored task" if not hits else
                     f"{len(hits)} stored tasks ({', '.join(t.digest[:12] for t in hits)})")
             raise SoftsbiError(f"{what} in {self.path} match key '{prefix}'; `softsbi task list` shows the stored ones")
         return hits[0]
 
-    def delete(self, prefix: str) -> StoredTask:
-        """Delete the stored task whose key starts with ``prefix`` (:meth:`find`); returns what was deleted."""
+    def delete(self, prefix: str) -> StoredTask | DamagedTask:
+        """Delete the stored task or damaged entry whose key starts with ``prefix`` (:meth:`find`); returns what was
+        deleted."""
         task = self.find(prefix)
         shutil.rmtree(task.path)
         return task
@@ -236,7 +280,22 @@ class PriorRound:
     def __init__(self, store: TaskStore | None, identity: dict[str, Any] | None):
         self.store, self.identity = store, identity
         self.digest = None if identity is None else task_digest(identity)
-        self.task = None if store is None or self.digest is None else store.get(self.digest)
+        found = None if store is None or self.digest is None else store.entry(self.digest)
+        self.task = found if isinstance(found, StoredTask) else None
+        #: the damaged entry stored under this key (never used), or None
+        self.damaged = found if isinstance(found, DamagedTask) else None
+
+    def damage_line(self) -> str | None:
+        """What a fit does about a damaged entry under its key, in one line (None when there is none): it trains
+        its first round itself; it replaces the entry unless a training report may be in it."""
+        d = self.damaged
+        if d is None:
+            return None
+        head = f"stored task {d.digest[:12]} ({d.model}) in {d.path.parent} is damaged ({d.problem})"
+        if not d.trained:
+            return f"{head}: this fit trains its first round itself and stores it in its place"
+        return (f"{head}: this fit trains its first round itself and leaves the entry, which holds a training "
+                f"report; `softsbi task delete {d.digest[:12]}` removes it and `softsbi task train` trains it again")
 
     @classmethod
     def of(cls, cfg: FitConfig, recording: Recording, space: ParamSpace) -> "PriorRound":
@@ -267,8 +326,9 @@ class PriorRound:
              name: str) -> StoredTask | None:
         """Store the first round's trained estimator ``est`` (plugin ``name`` with ``options``) as the task when
         none is stored under its key; None when nothing was stored (a task was already there, no store, or an
-        estimator without a state)."""
-        if self.store is None or self.identity is None or self.task is not None:
+        estimator without a state, or a damaged entry that may hold a training report: :meth:`damage_line`)."""
+        if self.store is None or self.identity is None or self.task is not None or \
+                (self.damaged is not None and self.damaged.trained):
             return None
         try:
             state = EstimatorState(name, dict(options), est.state_dict())

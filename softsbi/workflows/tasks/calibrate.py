@@ -46,6 +46,7 @@ from softsbi.plugins import registry
 from softsbi.report.calibration_figures import plot_calibration
 from softsbi.workflows import defaults, pools
 from softsbi.workflows.fit.config import FitConfig, estimator_options as fit_estimator_options
+from softsbi.workflows.fit.resume import observed_data
 from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
 from softsbi.workflows.fit.task_store import served_by_task, task_store_of
 from softsbi.workflows.fit.jobs import SimContext, run_jobs
@@ -124,7 +125,7 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
             data = arrays
         else:
             message("the run has changed since its last calibration: drawing new test simulations")
-    x_shape = store.read_observed()["x"].shape
+    x_shape = observed_data(store)["x"].shape
     if data is None:
         data = {"u": np.zeros((0, space.dim)), "round": np.zeros(0, int), "seed": np.zeros(0, np.int64),
                 "status": np.zeros(0, np.uint8), "x": np.zeros((0,) + x_shape, np.float32)}
@@ -209,6 +210,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     store = RunStore.open(run_dir / "run.zarr")
     if write:
         check_result_path(run_dir / "calibration.json")
+        check_result_path(run_dir / "calibration.png")
     cfg = FitConfig.from_run_config(store.config)
     space = ParamSpace.from_json(store.config["param_space"])
     rounds = store.completed_rounds()
@@ -236,7 +238,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     t1 = time.perf_counter()
     est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + last)
     train_s = time.perf_counter() - t1
-    x_obs = store.read_observed()["x"]
+    x_obs = observed_data(store)["x"]
     refit = None
     if estimator is None and estimator_options is None:  # does the re-trained estimator reproduce the run?
         q_run, q_new = round_posterior(store, last, cfg), est.posterior_at(x_obs[fr])

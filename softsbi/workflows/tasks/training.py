@@ -101,6 +101,9 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
     opts = estimator_options(cfg, est_cls)
     model = "+".join(["nominal", *cfg.effects])
     task = prior.task
+    if prior.damaged is not None:
+        say(f"{model}: stored task {prior.damaged.digest[:12]} is damaged ({prior.damaged.problem}): training it "
+            f"again in its place")
     if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
         say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
         return _with_check_null(task, recording, cfg, space, ctx, check_null, say)
