@@ -95,6 +95,61 @@ def _remove_if_only_lock(run_dir: Path, lock: FileLock) -> None:
             run_dir.rmdir()
 
 
+def _is_run(folder: Path) -> bool:
+    return (folder / "run.zarr").is_dir()
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
+    except OSError:
+        return False
+
+
+def check_out_apart(out: str | Path, command: str, run: str | Path | None = None,
+                    recording: str | Path | None = None) -> Path:
+    """Refuse, before any work, an output folder that would mix two runs' files (``diagnose``, ``fit`` and ``demo``
+    share this guard).
+
+    Args:
+        out: the folder the command writes (``--out``).
+        command: the command, named in the message.
+        run: the run directory whose results the command writes (``diagnose``: the diagnosed run; ``fit``: ``out``
+            itself, which it resumes); None when ``out`` holds runs of its own (``demo``).
+        recording: the recording the command reads (``fit --observed``).
+
+    Returns:
+        ``Path(out)``.
+
+    Raises:
+        RunDirError: ``out`` is the recording folder; ``out``, or a folder above it, is the run directory of another
+            fit (a refit folder of a diagnosis included); ``out`` holds the diagnosis of another run. One line naming
+            both folders and the fix.
+    """
+    path = Path(out)
+    fix = "choose a folder of its own (a new one, or one outside every run)"
+    if recording is not None and _same(path, Path(recording)):
+        raise RunDirError(f"--out '{path}' is the recording folder (--observed); {command} would write its run "
+                          f"among the recording's files: {fix}")
+    for folder in (path, *path.absolute().parents):
+        if not _is_run(folder):
+            continue
+        if run is not None and _same(folder, Path(run)):
+            break
+        where = "is" if folder == path else f"lies inside '{folder}',"
+        raise RunDirError(f"--out '{path}' {where} the run directory of another fit; {command} would write into it "
+                          f"and mix the two runs' files: {fix}")
+    if run is not None and not _same(path, Path(run)):
+        try:
+            other = json.loads((path / "diagnosis.json").read_text()).get("run")
+        except (OSError, ValueError, AttributeError):
+            other = None
+        if isinstance(other, str) and Path(other).exists() and not _same(Path(other), Path(run)):
+            raise RunDirError(f"--out '{path}' holds the diagnosis of another run ('{other}'); {command} would "
+                              f"replace it and mix the two runs' refits: {fix}")
+    return path
+
+
 def check_out_dir(path: str | Path, flag: str = "--out", fix: str = "choose a writable folder") -> Path:
     """Check, before any work, that a command can write into the folder ``path`` (which may not exist yet).
 
