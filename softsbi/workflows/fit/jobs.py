@@ -315,16 +315,25 @@ def map_simulations(executor: Any, ctx: SimContext, items: Sequence[tuple]) -> I
     """``executor.map_unordered(simulate_job, items, context=ctx)``: yield ``(index, result or exception)`` in
     completion order. A backend that steps several parameter sets together (``batch_size > 1``, newton-cloth) gets
     them in jobs of :func:`batch_size` items (:func:`simulate_batch_job`); a batch's items are yielded together when
-    it ends, each with the batch's exception if it raised or its worker crashed."""
+    it ends. A batch that fails as a whole (its worker crashed or hung, or it raised other than a
+    :class:`SoftsbiError`, which every item of it is yielded with) has its items run again one per job, so each keeps
+    its own outcome: one crashing simulation fails itself only, as unbatched."""
     size = batch_size(ctx, len(items), getattr(executor, "workers", None)) if len(items) > 1 else 1
     if size == 1:
         yield from executor.map_unordered(simulate_job, items, context=ctx)
         return
     starts = range(0, len(items), size)
     chunks = [list(items[s:s + size]) for s in starts]
+    alone: list[int] = []  # the items of failed batches, by index
     for c, res in executor.map_unordered(simulate_batch_job, chunks, context=ctx):
+        if isinstance(res, BaseException) and not isinstance(res, SoftsbiError):
+            alone.extend(range(starts[c], starts[c] + len(chunks[c])))
+            continue
         for j in range(len(chunks[c])):
             yield starts[c] + j, res if isinstance(res, BaseException) else res[j]
+    if alone:
+        for k, res in executor.map_unordered(simulate_job, [items[i] for i in alone], context=ctx):
+            yield alone[k], res
 
 
 def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
