@@ -106,6 +106,8 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     from softsbi.workflows.fit.run import FitConfig, run_fit  # start-up: the fit workflow
     from softsbi.workflows.lock import check_out_apart  # start-up: filelock
     from softsbi.workflows.measurement import load_image_recording, load_recording  # start-up: the recording readers
+    if no_sim_bank and sim_bank != D.SIM_BANK:
+        raise SoftsbiError(f"--sim-bank {sim_bank} and --no-sim-bank contradict each other: give one of them")
     exe_opts: dict[str, Any] = {"retries": retries}
     if sim_timeout is not None:
         exe_opts["timeout"] = sim_timeout

@@ -25,9 +25,16 @@ def _store(sim_bank: str) -> Any:
     return store
 
 
+def _backend(identity: dict[str, Any]) -> str:
+    """The task's backend with its options, e.g. ``newton-cloth (grid=8)`` (two tasks that differ only in them
+    are told apart)."""
+    opts = identity.get("backend_options") or {}
+    return f"{identity.get('backend')}" + (f" ({', '.join(f'{k}={v}' for k, v in sorted(opts.items()))})" if opts else "")
+
+
 def _row(t: Any) -> list[Any]:
     r = t.report
-    return [t.digest[:12], t.model, t.identity.get("backend"), (t.identity.get("scenario") or {}).get("name", "?"),
+    return [t.digest[:12], t.model, _backend(t.identity), (t.identity.get("scenario") or {}).get("name", "?"),
             t.n_prior, "no training report (stored by a fit)" if r is None else r.verdict,
             "" if r is None else f"{r.coverage.at_50:.2f} / {r.coverage.at_90:.2f}"]
 
@@ -113,7 +120,7 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
     if json_done(o, _doc(t)):
         return
     idy = t.identity
-    o.line(f"task {t.digest}: model {t.model}, backend {idy.get('backend')}, scenario "
+    o.line(f"task {t.digest}: model {t.model}, backend {_backend(idy)}, scenario "
            f"{(idy.get('scenario') or {}).get('name', '?')}, estimator {idy.get('estimator')}, seed {idy.get('seed')}, "
            f"softsbi {idy.get('softsbi')}; {t.n_prior} prior simulations")
     r = t.report

@@ -3,7 +3,8 @@
 A fit's first round draws its parameters from the prior, and neither those draws, their simulations (the
 simulation bank keeps them) nor the estimator trained on them depend on the recording: only conditioning the
 trained estimator on the recording's observation does (BayesSim's amortisation, Ramos et al. 2019). A *task* is
-everything that determines that first round: the scenario, the backend and its options, the model (the effects
+everything that determines that first round: the scenario, the backend and its options (but the speed knobs,
+:data:`~softsbi.workflows.fit.config.SPEED_OPTIONS`), the model (the effects
 switched on), what the fit sees (observer and its options, sensor model, frames), the priors (the inferred
 parameters' bounds and scales, the fixed values), the estimator and its options, the seed, and the softsbi version
 (:func:`task_identity`). Its SHA-256 is the task's key (:func:`task_digest`).
@@ -67,7 +68,8 @@ def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_
     """
     return jsonable({
         "format": TASK_FORMAT, "softsbi": installed_version(),
-        "backend": cfg.backend, "backend_options": dict(cfg.backend_options), "engine": _engine_version(cfg.backend),
+        "backend": cfg.backend, "backend_options": resume_identity("backend_options", dict(cfg.backend_options)),
+        "engine": _engine_version(cfg.backend),
         "scenario": resume_identity("scenario", ctx.scenario), "effects": list(cfg.effects),
         "observer": cfg.observer, "observer_options": dict(ctx.observer_options),
         "frames": None if cfg.frames is None else [int(i) for i in cfg.frames],
