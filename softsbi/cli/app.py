@@ -52,6 +52,8 @@ app.add_typer(task_app, name="task")
 
 
 def main() -> None:
-    """Console-script entry point (SIGTERM stops a command as Ctrl-C does: one line, exit code 143)."""
+    """Console-script entry point (SIGTERM stops a command as Ctrl-C does: one line, exit code 143). SIGINT stops
+    it even when the command was started with SIGINT ignored (a background job of a script inherits that)."""
     signal.signal(signal.SIGTERM, terminate)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     app()

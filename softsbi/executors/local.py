@@ -118,6 +118,9 @@ def _worker_main(conn: mpc.Connection, context: Any) -> None:
     ``(i, ok, result)`` until told to stop (``None``) or the pipe closes."""
     # simulations are single-threaded; keep BLAS from oversubscribing the cores
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    # Ctrl-C in a terminal reaches the whole process group: the driver stops the command and kills its busy
+    # workers, so a worker never reports the interrupt as a failed simulation
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         conn.send(_READY)
     except (OSError, ValueError):

@@ -183,3 +183,30 @@ def test_a_replicate_its_fit_could_not_check_is_no_replicate():
 
     st = case_statistics([rec], Outside(), cfg, space, first_round_context(cfg, rec, space), 30, [1], 1)
     assert st.shape == (1, 2) and np.isnan(st).all()
+
+
+def test_sigint_stops_task_train_even_when_started_ignoring_it_and_no_stopped_phase_is_done(tmp_path):
+    """A script's background job inherits SIGINT ignored: `kill -INT` left `task train` running. A phase stopped by
+    it printed "done in N s"."""
+    import os
+    import signal
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import REPO
+    env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.2", PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    assert subprocess.run([sys.executable, "-m", "softsbi.cli", "simulate", "--backend", "toy-gauss", "--out", "rec"],
+                          cwd=tmp_path, capture_output=True, env=env).returncode == 0
+    proc = subprocess.Popen([sys.executable, "-m", "softsbi.cli", "task", "train", "--observed", "rec", "--backend",
+                             "toy-gauss", "--prior-sims", "100", "--n-test", "0", "--check-null", "0", "--candidates",
+                             "none", "--workers", "1", "--sim-bank", "bank"], cwd=tmp_path, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    said = []
+    for line in proc.stderr:  # until the prior simulations have begun
+        said.append(line)
+        if "prior simulations: 100 simulations" in line:
+            break
+    proc.send_signal(signal.SIGINT)
+    _, rest = proc.communicate(timeout=60)
+    err = "".join(said) + rest
+    assert proc.returncode == 130, err
+    assert "interrupted; finished simulations are kept" in err and "done in" not in err and "Traceback" not in err
