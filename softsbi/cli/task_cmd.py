@@ -44,11 +44,19 @@ def _doc(t: Any) -> dict[str, Any]:
             "info": t.info, "report": None if t.report is None else t.report.to_json()}
 
 
+def _n_test_ok(ctx: typer.Context, param: typer.CallbackParam, value: int) -> int:
+    """``--n-test``: 0 (no report) or at least ``MIN_TEST`` held-out simulations, refused when the flags are parsed."""
+    if value != 0 and value < D.MIN_TEST:
+        raise typer.BadParameter(f"must be 0 (no training report) or >= {D.MIN_TEST} (got {value}): fewer held-out "
+                                 f"simulations cannot judge the calibration", ctx=ctx, param=param)
+    return value
+
+
 def task_train(observed: Path = typer.Option(..., help="a recording of the task (its scenario and sensor settings; "
                                                       "its measurement is not used)"),
                prior_sims: int = typer.Option(D.TASK_PRIOR_SIMS, "--prior-sims", callback=bound(D.MIN_SIMS_PER_ROUND),
                                               help="prior simulations each model is trained on"),
-               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=bound(0),
+               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=_n_test_ok,
                                           help="held-out prior simulations of each model's training report "
                                                "(coverage, SBC, TARP); 0 = no report"),
                check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=bound(0),
@@ -85,6 +93,9 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
     cfg.validate()
     check_bank_path(cfg.sim_bank, {"--observed": observed})
     cands = None if candidates is None else [] if candidates.strip() == "none" else names([candidates])
+    if cands == [] and candidates.strip() != "none":
+        raise SoftsbiError(f"--candidates '{candidates}' names no effect: give effect names (comma-separated), or "
+                           f"'none' for the nominal model only")
     meas = load_recording(observed, n_points=points, seed=seed)
     o = Output(as_json)
     with shown(o):

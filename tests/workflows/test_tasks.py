@@ -210,3 +210,34 @@ def test_sigint_stops_task_train_even_when_started_ignoring_it_and_no_stopped_ph
     err = "".join(said) + rest
     assert proc.returncode == 130, err
     assert "interrupted; finished simulations are kept" in err and "done in" not in err and "Traceback" not in err
+
+
+def test_task_train_refuses_contradictory_or_empty_candidates_and_too_few_test_simulations(tmp_path):
+    """`--candidates ',,'` meant none, a candidate named twice was trained twice, and `--n-test 5` got a
+    "calibrated" report: each is one line before any work."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from typer.testing import CliRunner
+    from softsbi.cli import app
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.tasks.training import candidate_models
+    rec = tmp_path / "rec"
+    assert CliRunner().invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(rec)]).exit_code == 0
+    base = ["task", "train", "--observed", str(rec), "--backend", "toy-gauss", "--sim-bank", str(tmp_path / "bank"),
+            "--workers", "1"]
+    for args, message in ((["--candidates", ",,"], "--candidates ',,' names no effect"),
+                          (["--candidates", "toy-wind,toy-wind"], "--candidates names toy-wind more than once"),
+                          (["--n-test", "5"], "'--n-test': must be 0 (no training report) or >= 20 (got 5)")):
+        res = CliRunner().invoke(app, base + args)
+        assert res.exit_code == 2 and message in " ".join(res.output.replace("│", " ").split()), res.output
+        assert "Traceback" not in res.output
+    assert not (tmp_path / "bank" / "tasks").exists()  # nothing trained
+    with pytest.raises(SoftsbiError, match="more than once"):
+        candidate_models(_cfg(), ["toy-wind", "toy-wind"])
+    assert candidate_models(_cfg(), ["toy-wind"]) == [[], ["toy-wind"]]
+
+
+def test_task_list_names_the_backend_options():
+    from softsbi.cli.task_cmd import _backend
+    assert _backend({"backend": "newton-cloth", "backend_options": {"grid": 8, "damping": 0.1}}) == \
+        "newton-cloth (damping=0.1, grid=8)"
+    assert _backend({"backend": "toy-gauss", "backend_options": {}}) == "toy-gauss"

@@ -48,8 +48,12 @@ def candidate_models(cfg: FitConfig, names: Sequence[str] | None) -> list[list[s
     refits); ``[]``: the nominal model only.
 
     Raises:
-        SoftsbiError: a named effect the backend cannot apply."""
+        SoftsbiError: a named effect the backend cannot apply, or one named twice."""
     reg = registry()
+    twice = sorted({n for n in names or [] if list(names).count(n) > 1})
+    if twice:
+        raise SoftsbiError(f"--candidates names {', '.join(twice)} more than once: each model is trained once; name "
+                           f"each candidate once")
     sim_cls = reg.simulator(cfg.backend)
     if names is None:
         names = [n for n in sim_cls.effects if n in reg.tables["effect"] and not is_generic(reg.effect(n)())]
@@ -183,9 +187,13 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     the check of the nominal model's fits (:mod:`~softsbi.workflows.criticism.check_null`: ``diagnose``'s detection).
 
     Raises:
+        SoftsbiError: ``n_test`` between 1 and ``defaults.MIN_TEST - 1``.
         everything :func:`train_model`, :func:`candidate_models` and
         :func:`~softsbi.workflows.criticism.check_null.check_replicates` raise."""
     check_replicates(check_null)
+    if n_test and n_test < defaults.MIN_TEST:
+        raise SoftsbiError(f"--n-test must be 0 (no training report) or >= {defaults.MIN_TEST} (got {n_test}): fewer "
+                           f"held-out simulations cannot judge the calibration")
     models = candidate_models(cfg, candidates)
     say = message or (lambda s: None)
     out = []
