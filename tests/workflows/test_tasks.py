@@ -91,6 +91,17 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
                       make_plots=False)
     assert scratch.report.rounds == 4 and len(calls) == 4  # no stored task: the sequential default
     assert trained_task_line(scratch.store.round_attrs(0)["info"], "default") is None
+    # a first round larger than the task's prior simulations cannot use it: said, not silent
+    from softsbi.workflows.fit.run import FitCallbacks
+    said = []
+
+    class Told(FitCallbacks):
+        def message(self, text):
+            said.append(text)
+
+    run_fit(tmp_path / "more", rec2, _cfg(sims_per_round=90, rounds=1), callbacks=Told(), make_plots=False)
+    assert any(f"stored task {task.digest[:12]} was trained on 80 prior simulations, fewer than this round's 90: "
+               f"not used" in m for m in said), said
 
 
 def test_the_cli_lists_shows_and_deletes_stored_tasks(tmp_path, monkeypatch):
