@@ -27,19 +27,23 @@ class RunDirError(SoftsbiError):
     """The run directory cannot be created or written (a file, read-only, no space)."""
 
 
-def _storage_line(exc: OSError, run_dir: Path) -> SoftsbiError:
-    return storage_error(exc, run_dir, resumable=True) or RunDirError(
-        f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); choose a writable --out (or free "
-        f"space / fix its permissions)")
+def _storage_line(exc: OSError, run_dir: Path, out_flag: str | None) -> SoftsbiError:
+    fix = f"choose a writable {out_flag} (or free space / fix its permissions)" if out_flag else \
+        "free space or fix its permissions (or copy the run directory to a writable place and run there)"
+    return storage_error(exc, run_dir, resumable=True, out_flag=out_flag) or RunDirError(
+        f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); {fix}")
 
 
 @contextlib.contextmanager
-def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None) -> Iterator[None]:
+def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None,
+             out_flag: str | None = "--out") -> Iterator[None]:
     """Hold the run directory's write lock for the ``with`` block (creating the directory).
 
     Args:
         command: the softsbi command taking the lock (a second writer's message names it).
         busy: what a second writer is told to do (default: wait, or fit into another ``--out``).
+        out_flag: the command's flag that chooses the directory, named in the fix of a disk that refuses a write;
+            None for a command that writes into a run it is given (``calibrate``).
 
     Raises:
         RunLocked: another process holds it; the message names its command, pid, since when, and the fix.
@@ -66,7 +70,7 @@ def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None)
     except OSError as exc:  # after Timeout, which is an OSError (TimeoutError) too
         if isinstance(exc, SoftsbiError):
             raise
-        raise _storage_line(exc, run_dir) from None
+        raise _storage_line(exc, run_dir, out_flag) from None
     try:
         info.write_text(json.dumps({"pid": os.getpid(), "since": _dt.datetime.now().isoformat(timespec="seconds"),
                                     "command": command}))
@@ -75,7 +79,7 @@ def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None)
         if created:
             with contextlib.suppress(OSError):
                 _remove_if_only_lock(run_dir, lock)
-        err = storage_error(exc, run_dir, resumable=True)
+        err = storage_error(exc, run_dir, resumable=True, out_flag=out_flag)
         if err is not None:  # the disk refused a write mid-run: one line, the run resumes once fixed
             raise err from None
         raise

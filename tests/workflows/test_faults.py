@@ -236,6 +236,30 @@ def test_out_of_bounds_values_advise_only_options_the_command_has(tmp_path):
         run_fit(tmp_path / "f", toy_measurement(), _cfg(fixed={"a": 50.0}), make_plots=False)
 
 
+def test_a_refused_write_advises_out_only_to_commands_that_have_it(tmp_path, capsys):
+    """`view` and `calibrate` (no --out) were told to "choose --out" on a full or read-only disk."""
+    import typer
+    from softsbi.cli.calibrate_cmd import calibrate
+    from softsbi.cli.command import _out_flag, guard
+    from softsbi.cli.diagnose_cmd import diagnose
+    from softsbi.cli.fit_cmd import fit
+    from softsbi.cli.view_cmd import view
+    from softsbi.core.errors import storage_error
+    assert (_out_flag(view), _out_flag(calibrate), _out_flag(fit), _out_flag(diagnose)) == (None, None, "--out", "--out")
+    for errno_ in (errno.ENOSPC, errno.EROFS):
+        line = str(storage_error(OSError(errno_, "refused"), "RUN", out_flag=None))
+        assert "--out" not in line and ("re-run the same command" in line or "copy the run directory" in line)
+        assert "--out" in str(storage_error(OSError(errno_, "refused"), "RUN"))
+
+    def view_like(run: str = typer.Argument(...)):  # a command without --out whose write the disk refuses
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "view.gif"))
+
+    with pytest.raises(typer.Exit):
+        guard(view_like)(run="RUN")
+    err = capsys.readouterr().err
+    assert "no space left on the device" in err and "--out" not in err
+
+
 def test_relative_changes_are_never_a_negative_lower():
     assert describe_change(5.77, 6.69) == "16% higher"
     assert describe_change(3.77, 1.25) == "67% lower"
