@@ -1,11 +1,13 @@
 """The simulation bank (softsbi.workflows.fit.bank): rollouts stored by what determines them and read back."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from softsbi.core.types import STATUS_DIVERGED, Rollout
 from softsbi.core.errors import SoftsbiError
+from softsbi.core.types import STATUS_DIVERGED, Rollout
 from softsbi.workflows.fit.bank import SimulationBank, check_bank_path, rollout_key
 
 pytestmark = pytest.mark.integration
@@ -219,6 +221,13 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
         res = run_jobs(ctx, items, workers=1)
     assert second.read == [(3, 4)] and len(second.messages) == 1 and "1 stored" in second.messages[0]
     assert sorted(r["bank"] for r in res) == [HIT, HIT, HIT, WRONG_KEY]  # the bank status of each result
+    # a bank that cannot store (here its tmp/ is a file; a full disk alike) stored nothing, silently: now one line
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "tmp").write_text("")
+    with reporting(third := Told()):
+        res = run_jobs(replace(ctx, bank=str(tmp_path / "full")), items, workers=1)
+    assert [r["status"] for r in res] == [0] * 4 and len(SimulationBank(tmp_path / "full")) == 0
+    assert len(third.messages) == 1 and "4 rollout(s) could not be stored" in third.messages[0]
 
 
 def _refused(args, tmp_path):

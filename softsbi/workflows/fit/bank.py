@@ -48,6 +48,8 @@ OFF = ("off", "none", "0")
 #: what :meth:`SimulationBank.lookup` found: the rollout; nothing usable (absent, incomplete, damaged, a failure
 #: or an entry of the first format); an intact entry whose stored key is another one (moved or copied there)
 HIT, MISS, WRONG_KEY = "hit", "miss", "wrong key"
+#: a miss whose successful rollout the bank could not store (a full or read-only disk)
+UNSTORED = "miss, not stored"
 
 #: the variable that names the user's bank (or switches every bank off, :data:`OFF`)
 ENV = "SOFTSBI_SIM_BANK"
@@ -245,16 +247,23 @@ class BankCount:
 
     hits: int = 0
     wrong_key: int = 0
+    unstored: int = 0
 
     def add(self, what: str | None) -> None:
-        """Count one simulation's lookup (a job result's ``"bank"``: :data:`HIT`, :data:`MISS`, :data:`WRONG_KEY`
-        or None without a bank)."""
+        """Count one simulation's lookup (a job result's ``"bank"``: :data:`HIT`, :data:`MISS`, :data:`WRONG_KEY`,
+        :data:`UNSTORED` or None without a bank)."""
         self.hits += what == HIT
         self.wrong_key += what == WRONG_KEY
+        self.unstored += what == UNSTORED
 
     def warning(self, bank: str | Path | None) -> str | None:
-        """The one line that tells the user of entries under the wrong key (None when there were none)."""
-        if not self.wrong_key:
-            return None
-        return (f"simulation bank {bank}: {self.wrong_key} stored rollout(s) sat under another rollout's key (moved "
-                f"or copied); they were not used but simulated again and replaced")
+        """The one line that tells the user of entries under the wrong key and of rollouts the bank could not store
+        (None when there were none)."""
+        said = []
+        if self.wrong_key:
+            said.append(f"{self.wrong_key} stored rollout(s) sat under another rollout's key (moved or copied); they "
+                        f"were not used but simulated again and replaced")
+        if self.unstored:
+            said.append(f"{self.unstored} rollout(s) could not be stored (the disk is full or read-only); the "
+                        f"command goes on, and they are simulated again when next needed: free space on that disk")
+        return f"simulation bank {bank}: " + "; ".join(said) if said else None

@@ -25,7 +25,7 @@ from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_fro
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
-from softsbi.workflows.fit.bank import BankCount, SimulationBank, rollout_key
+from softsbi.workflows.fit.bank import MISS, UNSTORED, BankCount, SimulationBank, rollout_key
 from softsbi.workflows import pools
 from softsbi.workflows.reporting import notify, phase
 
@@ -143,7 +143,8 @@ def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, f
     ro, what = bank.lookup(key)
     if ro is None:
         ro = _rollout(sim, scenario, values, effects, seed, batch)
-        bank.put(key, ro)
+        if not bank.put(key, ro) and what == MISS and ro.ok and ro.rgb is None:
+            what = UNSTORED  # a full or read-only disk: told once per phase (BankCount.warning)
     return ro, what
 
 
@@ -192,7 +193,8 @@ def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> d
         ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
         or None, "seconds"}``, plus ``sensor_x`` ``(K, T, 1+K, 3)`` with ``sensor_draws`` (the observations at
         the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``; ``"bank"``: what the
-        simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``; None without one);
+        simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``, ``UNSTORED``; None
+        without one);
         ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
         seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
         half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
@@ -356,6 +358,6 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
             out[i] = res
             count.add(res.get("bank"))
             advance(done, count.hits)
-        if count.wrong_key:
+        if count.wrong_key or count.unstored:
             notify(count.warning(ctx.bank))
     return out  # type: ignore[return-value]

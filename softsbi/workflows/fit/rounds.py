@@ -47,7 +47,7 @@ def tell_bank(hooks: FitCallbacks, r: int, count: BankCount, n: int, bank: str |
     stored there under another key."""
     if count.hits:
         hooks.read_from_bank(r, count.hits, n)
-    if count.wrong_key:
+    if count.wrong_key or count.unstored:
         hooks.message(count.warning(bank))
 
 
