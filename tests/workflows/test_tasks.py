@@ -252,3 +252,75 @@ def test_task_list_names_the_backend_options():
     assert _backend({"backend": "newton-cloth", "backend_options": {"grid": 8, "damping": 0.1}}) == \
         "newton-cloth (damping=0.1, grid=8)"
     assert _backend({"backend": "toy-gauss", "backend_options": {}}) == "toy-gauss"
+
+
+def test_a_task_store_that_cannot_take_the_task_is_refused_before_training(tmp_path, monkeypatch):
+    """`tasks/tmp` a file, `check-null.json` a folder and a full disk failed only after all the training."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.core.errors import SoftsbiError, StorageError
+    from softsbi.workflows.tasks.training import train_task
+    calls = _counting_fits(monkeypatch)
+    rec = toy_measurement(truth=(0.3, -0.4))
+    bank = tmp_path / "bank"
+    (bank / "tasks").mkdir(parents=True)
+    (bank / "tasks" / "tmp").write_text("")
+    with pytest.raises(SoftsbiError, match=r"tasks/tmp' is a file where the task store writes its entries"):
+        train_task(rec, _cfg(sim_bank=str(bank)), 40, candidates=[], n_test=0, check_null=0)
+    assert calls == [] and len(list(bank.iterdir())) == 1  # no training, no simulation stored
+    (bank / "tasks" / "tmp").unlink()
+    (task,) = train_task(rec, _cfg(sim_bank=str(bank)), 40, candidates=[], n_test=20, n_draws=50, check_null=0)
+    (task.path / "check-null.json").mkdir()
+    with pytest.raises(SoftsbiError, match="check-null.json' is a folder"):  # refused before the replicates
+        train_task(rec, _cfg(sim_bank=str(bank)), 40, candidates=[], n_test=20, n_draws=50, check_null=19)
+    assert calls == [40]
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True).returncode:
+        return  # a full disk needs a tmpfs (root); the refusals above hold without one
+    try:
+        with open(disk / "filler", "wb") as fh:
+            with pytest.raises(OSError):
+                while True:
+                    fh.write(b"\0" * 65536)
+                    fh.flush()
+        with pytest.raises(StorageError, match="no space left on the device"):
+            train_task(rec, _cfg(sim_bank=str(disk / "bank")), 40, candidates=[], n_test=0, check_null=0)
+        assert calls == [40]
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+def test_a_second_task_train_of_one_task_waits_for_the_first_and_reuses_its_task(tmp_path, monkeypatch):
+    import threading
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.fit.task_store import TaskStore
+    from softsbi.workflows.tasks.training import train_task
+    rec = toy_measurement(truth=(0.3, -0.4))
+    (trained,) = train_task(rec, _cfg(sim_bank=str(tmp_path / "a")), 40, candidates=[], n_test=20, n_draws=50,
+                            check_null=0)
+    store, said, asked = TaskStore(tmp_path / "b" / "tasks"), [], threading.Event()
+
+    def other_process():  # holds the task's lock, and stores the task once the second one waits
+        with store.lock(trained.digest):
+            held.set()
+            asked.wait(60)
+            store.put(trained.identity, trained.n_prior, trained.estimator, trained.info, trained.report)
+
+    held = threading.Event()
+    other = threading.Thread(target=other_process)
+    other.start()
+    held.wait(60)
+    calls = _counting_fits(monkeypatch)
+
+    def told(text):
+        said.append(text)
+        if "being trained by another process" in text:
+            asked.set()
+
+    (task,) = train_task(rec, _cfg(sim_bank=str(tmp_path / "b")), 40, candidates=[], n_test=20, n_draws=50,
+                         check_null=0, message=told)
+    other.join()
+    assert any(f"task {trained.digest[:12]} is being trained by another process; waiting" in m for m in said), said
+    assert calls == [] and task.digest == trained.digest and "reused" in said[-1]
