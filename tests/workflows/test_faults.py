@@ -289,6 +289,22 @@ def test_resume_names_the_partly_stored_round_and_the_time_spent_and_rounds_coun
     assert "round 1" in RunStore.open(out / "run.zarr").round_attrs(1)["proposal"]
 
 
+def test_a_crashing_simulator_with_one_worker_fails_its_simulations_not_the_command(tmp_path):
+    """`softsbi fit --workers 1` ran simulations in its own process: a simulator that killed it (exit 14) ended the
+    command without a word. One worker now runs in a process of its own, as with --workers 2."""
+    rec = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(rec)]).exit_code == 0
+    env = dict(os.environ, SOFTSBI_TOY_CRASH_ABOVE="0.8",  # a > 0.8: a tenth of the prior crashes
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    res = subprocess.run([sys.executable, "-m", "softsbi.cli", "fit", "--backend", "toy-gauss", "--rounds", "1",
+                          "--sims-per-round", "20", "--workers", "1", "--retries", "0", "--n-eval", "3", "--points",
+                          "8", "--estimator", "mdnn", "--estimator-opt", "max_epochs=5", "--observed", str(rec),
+                          "--out", str(tmp_path / "run"), "--json"], capture_output=True, text=True, env=env,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout)["per_round"][0]["failed"] > 0
+
+
 SIGINT_FIT = [sys.executable, "-m", "softsbi.cli", "fit", "--backend", "toy-gauss", "--rounds", "1",
               "--sims-per-round", "60", "--workers", "1", "--n-eval", "3", "--points", "8", "--estimator", "mdnn",
               "--estimator-opt", "max_epochs=10"]
