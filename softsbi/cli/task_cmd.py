@@ -28,8 +28,8 @@ def _store(sim_bank: str) -> Any:
 def _backend(identity: dict[str, Any]) -> str:
     """The task's backend with its options, e.g. ``newton-cloth (grid=8)`` (two tasks that differ only in them
     are told apart)."""
-    opts = identity.get("backend_options") or {}
-    return f"{identity.get('backend')}" + (f" ({', '.join(f'{k}={v}' for k, v in sorted(opts.items()))})" if opts else "")
+    opts = ", ".join(f"{k}={v}" for k, v in sorted((identity.get("backend_options") or {}).items()))
+    return f"{identity.get('backend')}" + (f" ({opts})" if opts else "")
 
 
 def _row(t: Any) -> list[Any]:

@@ -1,5 +1,7 @@
 """Output folders are checked before any work: `simulate` never mixes two simulations in one folder, an
 `--out` that is a file is one line for every command that writes one."""
+import json
+
 import pytest
 from typer.testing import CliRunner
 
@@ -71,7 +73,7 @@ def test_an_out_that_would_mix_two_runs_is_refused_before_any_work(tmp_path):
     assert (b / "diagnosis.json").read_text() == '{"run": "b"}' and not (b / "refit-wind").exists()
     other = tmp_path / "d"  # a folder of its own that holds the diagnosis of another run
     other.mkdir()
-    (other / "diagnosis.json").write_text('{"run": "%s"}' % b)
+    (other / "diagnosis.json").write_text(json.dumps({"run": str(b)}))
     line = _one_line(runner.invoke(app, ["diagnose", str(a), "--out", str(other)]))
     assert "diagnosis of another run" in line and str(b) in line
     rec = tmp_path / "rec"
@@ -88,7 +90,7 @@ def test_the_guard_lets_a_run_keep_its_own_folders(tmp_path):
     a = _run_dir(tmp_path / "a")
     refit = _run_dir(a / "refit-wind")
     (tmp_path / "d").mkdir()
-    (tmp_path / "d" / "diagnosis.json").write_text('{"run": "%s"}' % a)
+    (tmp_path / "d" / "diagnosis.json").write_text(json.dumps({"run": str(a)}))
     for out, run in ((a, a), (tmp_path / "d", a), (tmp_path / "new", a), (refit, refit),
                      (refit / "d2", refit)):
         # the run itself, its own diagnosis, a new folder, a refit diagnosed into itself or a folder of its own

@@ -203,9 +203,10 @@ def test_sigint_stops_task_train_even_when_started_ignoring_it_and_no_stopped_ph
     import signal
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import REPO
-    env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.2", PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.2",
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     assert subprocess.run([sys.executable, "-m", "softsbi.cli", "simulate", "--backend", "toy-gauss", "--out", "rec"],
-                          cwd=tmp_path, capture_output=True, env=env).returncode == 0
+                          cwd=tmp_path, capture_output=True, env=env, check=False).returncode == 0
     proc = subprocess.Popen([sys.executable, "-m", "softsbi.cli", "task", "train", "--observed", "rec", "--backend",
                              "toy-gauss", "--prior-sims", "100", "--n-test", "0", "--check-null", "0", "--candidates",
                              "none", "--workers", "1", "--sim-bank", "bank"], cwd=tmp_path, env=env, text=True,
@@ -276,7 +277,8 @@ def test_a_task_store_that_cannot_take_the_task_is_refused_before_training(tmp_p
     assert calls == [40]
     disk = tmp_path / "disk"
     disk.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True).returncode:
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True,
+                      check=False).returncode:
         return  # a full disk needs a tmpfs (root); the refusals above hold without one
     try:
         with open(disk / "filler", "wb") as fh:
@@ -288,7 +290,7 @@ def test_a_task_store_that_cannot_take_the_task_is_refused_before_training(tmp_p
             train_task(rec, _cfg(sim_bank=str(disk / "bank")), 40, candidates=[], n_test=0, check_null=0)
         assert calls == [40]
     finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True, check=False)
 
 
 def test_a_second_task_train_of_one_task_waits_for_the_first_and_reuses_its_task(tmp_path, monkeypatch):
