@@ -7,6 +7,7 @@ import signal
 
 import typer
 
+from softsbi import executors
 from softsbi.cli.calibrate_cmd import calibrate
 from softsbi.cli.catalog_cmd import params, plugins, scenarios
 from softsbi.cli.check_cmd import check, compare
@@ -52,6 +53,10 @@ app.add_typer(task_app, name="task")
 
 
 def main() -> None:
-    """Console-script entry point (SIGTERM stops a command as Ctrl-C does: one line, exit code 143)."""
+    """Console-script entry point (SIGTERM stops a command as Ctrl-C does: one line, exit code 143). SIGINT stops
+    it even when the command was started with SIGINT ignored (a background job of a script inherits that). Even one
+    worker runs in a process of its own (:data:`softsbi.executors.ISOLATE_ONE_WORKER`)."""
     signal.signal(signal.SIGTERM, terminate)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    executors.ISOLATE_ONE_WORKER = True  # --workers 1: a crashing simulator fails its simulation, not the command
     app()

@@ -3,6 +3,7 @@ error) and :func:`json_done` (the ``--json`` epilogue)."""
 from __future__ import annotations
 
 import functools
+import inspect
 import sys
 import warnings
 from typing import Any, Callable
@@ -49,9 +50,21 @@ def _fail(as_json: bool, exc: BaseException, code: int) -> typer.Exit:
     return typer.Exit(code)
 
 
+def _out_flag(fn: Callable[..., Any]) -> str | None:
+    """``"--out"`` when the command ``fn`` has that option (a disk that refuses a write may be fixed by choosing
+    another folder), else None (the command writes into a run it is given)."""
+    for p in inspect.signature(fn).parameters.values():
+        decls = getattr(p.default, "param_decls", None)
+        if decls is not None and ("--out" in decls or (not decls and p.name == "out")):
+            return "--out"
+    return None
+
+
 def guard(fn: Callable[..., Any]) -> Callable[..., Any]:
     """Run a command: a SoftsbiError prints one line (or a JSON error under ``--json``) and exits 2;
-    Ctrl-C says how to resume; under ``--json`` any other error is a JSON error with exit 1."""
+    Ctrl-C says how to resume; under ``--json`` any other error is a JSON error with exit 1. A disk that refuses a
+    write is one line whose fix names ``--out`` only when the command has it."""
+    out_flag = _out_flag(fn)
 
     @functools.wraps(fn)
     def wrapper(*a, **kw):
@@ -69,7 +82,7 @@ def guard(fn: Callable[..., Any]) -> Callable[..., Any]:
             exc = KeyboardInterrupt(f"{what}; finished simulations are kept: re-run the same command to resume")
             raise _fail(as_json, exc, 143 if isinstance(stop, Terminated) else 130)
         except Exception as exc:
-            err = storage_error(exc)  # a full or read-only disk is the machine's state, not a bug
+            err = storage_error(exc, out_flag=out_flag)  # a full or read-only disk is the machine's state, not a bug
             if err is not None:
                 raise _fail(as_json, err, 2)
             if as_json:

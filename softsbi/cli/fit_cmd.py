@@ -104,7 +104,10 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     from softsbi.plugins import registry  # start-up: loads every plugin
     from softsbi.workflows.fit.bank import check_bank_path  # start-up: numpy, zarr
     from softsbi.workflows.fit.run import FitConfig, run_fit  # start-up: the fit workflow
+    from softsbi.workflows.lock import check_out_apart  # start-up: filelock
     from softsbi.workflows.measurement import load_image_recording, load_recording  # start-up: the recording readers
+    if no_sim_bank and sim_bank != D.SIM_BANK:
+        raise SoftsbiError(f"--sim-bank {sim_bank} and --no-sim-bank contradict each other: give one of them")
     exe_opts: dict[str, Any] = {"retries": retries}
     if sim_timeout is not None:
         exe_opts["timeout"] = sim_timeout
@@ -128,6 +131,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
     elif extractor is not None:
         raise SoftsbiError(f"--extractor is for image observers (heatmap, transporter), not '{observer}'")
     cfg.validate()  # fail fast (e.g. --workers 0) before loading the recording
+    check_out_apart(out, "fit", run=out, recording=observed)
     check_bank_path(cfg.sim_bank, {"--out": out, "--observed": observed})
     if executor == "ray":
         from softsbi.executors.ray_executor import _import_ray  # start-up: ray is optional

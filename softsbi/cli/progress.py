@@ -32,6 +32,9 @@ class PhaseReporter(Reporter):
         if not self.o.err.is_terminal:
             self.o.message(f"{label}: done in {time.perf_counter() - t0:.0f} s")
 
+    def stopped(self, handle: Any) -> None:
+        self.p.remove_task(handle[0])
+
     def read_from_bank(self, handle: Any, hits: int, total: int) -> None:
         self.o.message(f"{handle[1]}: {hits} of {total} read from the bank")
 

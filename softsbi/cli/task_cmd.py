@@ -29,9 +29,16 @@ def _store(sim_bank: str) -> Any:
     return store
 
 
+def _backend(identity: dict[str, Any]) -> str:
+    """The task's backend with its options, e.g. ``newton-cloth (grid=8)`` (two tasks that differ only in them
+    are told apart)."""
+    opts = ", ".join(f"{k}={v}" for k, v in sorted((identity.get("backend_options") or {}).items()))
+    return f"{identity.get('backend')}" + (f" ({opts})" if opts else "")
+
+
 def _row(t: Any) -> list[Any]:
     idy = t.identity or {}
-    head = [t.digest[:12], t.model, idy.get("backend", "?"), (idy.get("scenario") or {}).get("name", "?")]
+    head = [t.digest[:12], t.model, _backend(idy), (idy.get("scenario") or {}).get("name", "?")]
     if _damaged(t):
         return [*head, "?", f"DAMAGED, never used: {t.problem}", "`softsbi task delete` removes it"]
     r = t.report
@@ -51,11 +58,19 @@ def _damaged(t: Any) -> bool:
     return isinstance(t, DamagedTask)
 
 
+def _n_test_ok(ctx: typer.Context, param: typer.CallbackParam, value: int) -> int:
+    """``--n-test``: 0 (no report) or at least ``MIN_TEST`` held-out simulations, refused when the flags are parsed."""
+    if value != 0 and value < D.MIN_TEST:
+        raise typer.BadParameter(f"must be 0 (no training report) or >= {D.MIN_TEST} (got {value}): fewer held-out "
+                                 f"simulations cannot judge the calibration", ctx=ctx, param=param)
+    return value
+
+
 def task_train(observed: Path = typer.Option(..., help="a recording of the task (its scenario and sensor settings; "
                                                       "its measurement is not used)"),
                prior_sims: int = typer.Option(D.TASK_PRIOR_SIMS, "--prior-sims", callback=bound(D.MIN_SIMS_PER_ROUND),
                                               help="prior simulations each model is trained on"),
-               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=bound(0),
+               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=_n_test_ok,
                                           help="held-out prior simulations of each model's training report "
                                                "(coverage, SBC, TARP); 0 = no report"),
                check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=bound(0),
@@ -92,6 +107,9 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
     cfg.validate()
     check_bank_path(cfg.sim_bank, {"--observed": observed})
     cands = None if candidates is None else [] if candidates.strip() == "none" else names([candidates])
+    if cands == [] and candidates.strip() != "none":
+        raise SoftsbiError(f"--candidates '{candidates}' names no effect: give effect names (comma-separated), or "
+                           f"'none' for the nominal model only")
     meas = load_recording(observed, n_points=points, seed=seed)
     o = Output(as_json)
     with shown(o):
@@ -134,7 +152,7 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
     if json_done(o, _doc(t)):
         return
     idy = t.identity
-    o.line(f"task {t.digest}: model {t.model}, backend {idy.get('backend')}, scenario "
+    o.line(f"task {t.digest}: model {t.model}, backend {_backend(idy)}, scenario "
            f"{(idy.get('scenario') or {}).get('name', '?')}, estimator {idy.get('estimator')}, seed {idy.get('seed')}, "
            f"softsbi {idy.get('softsbi')}; {t.n_prior} prior simulations")
     r = t.report

@@ -125,7 +125,8 @@ STORAGE_ERRNOS = {28: "no space left on the device", 122: "disk quota exceeded",
 _SHORT_WRITE = re.compile(r"^\d+ requested and \d+ written$")
 
 
-def storage_error(exc: BaseException, where: object = None, resumable: bool = False) -> StorageError | None:
+def storage_error(exc: BaseException, where: object = None, resumable: bool = False,
+                  out_flag: str | None = "--out") -> StorageError | None:
     """One clear line for an ``OSError`` the storage raised (ENOSPC, EDQUOT, EFBIG, EROFS, EACCES, EPERM, and
     numpy's short write, which has no errno and is read as ENOSPC).
 
@@ -133,6 +134,8 @@ def storage_error(exc: BaseException, where: object = None, resumable: bool = Fa
         exc: the exception caught.
         where: the run directory or output path being written (named in the message).
         resumable: the command resumes where it stopped when re-run (finished work is kept).
+        out_flag: the command's flag that chooses where it writes (named in the fix), None when it has none
+            (``view`` and ``calibrate`` write into the run directory).
 
     Returns:
         a :class:`StorageError` to raise instead, or None when ``exc`` is not such an error.
@@ -148,9 +151,12 @@ def storage_error(exc: BaseException, where: object = None, resumable: bool = Fa
     target = where if where is not None else exc.filename
     named = f" writing '{target}'" if target is not None else ""
     if errno in (28, 122, 27):
-        fix = "free space (or choose --out on another disk), then re-run the same command"
+        fix = "free space" + (f" (or choose {out_flag} on another disk)" if out_flag else "") + \
+            ", then re-run the same command"
+    elif out_flag:
+        fix = f"choose a writable {out_flag} (or copy the run directory to one and point {out_flag} at the copy)"
     else:
-        fix = "choose a writable --out (or copy the run directory to one and point --out at the copy)"
+        fix = "copy the run directory to a writable place and run the command on the copy"
     if resumable:
         fix += "; finished simulations are kept and the run resumes"
     return StorageError(errno, f"{what}{named}; {fix}")

@@ -1,7 +1,9 @@
 """Built-in executors: where simulations run, and how worker failures are survived.
 
 ``local`` runs jobs in a pool of worker processes on this machine (one per core by
-default; ``workers=1`` runs in-process, which is easiest to debug). Worker processes use
+default; ``workers=1`` runs in-process in the Python API, which is easiest to debug, and in a
+worker process of its own under the ``softsbi`` command, so that a crashing simulator fails its
+simulation, not the command: :data:`softsbi.executors.ISOLATE_ONE_WORKER`). Worker processes use
 the ``spawn`` start method, so they never inherit torch's thread pools from the driver.
 
 Workers do not re-run the calling script. ``spawn`` normally imports the driver's ``__main__``
@@ -45,6 +47,7 @@ import time
 import types
 from typing import Any, Callable, ClassVar, Iterable, Sequence
 
+from softsbi import executors
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.interfaces import Executor
 from softsbi.plugins.hookspecs import hookimpl
@@ -118,6 +121,9 @@ def _worker_main(conn: mpc.Connection, context: Any) -> None:
     ``(i, ok, result)`` until told to stop (``None``) or the pipe closes."""
     # simulations are single-threaded; keep BLAS from oversubscribing the cores
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    # Ctrl-C in a terminal reaches the whole process group: the driver stops the command and kills its busy
+    # workers, so a worker never reports the interrupt as a failed simulation
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         conn.send(_READY)
     except (OSError, ValueError):
@@ -212,7 +218,8 @@ class LocalExecutor(Executor):
             killed and counts as a failed attempt.
         retries: how many times a job whose worker crashed or hung is re-run (default 2).
         in_process: run jobs in this process, one after the other (default: ``workers == 1`` and
-            no ``timeout``); no crash or hang protection then (a crash kills the driver).
+            no ``timeout``, unless :data:`softsbi.executors.ISOLATE_ONE_WORKER`, which the ``softsbi`` command
+            sets); no crash or hang protection then (a crash kills the driver).
         startup_grace: extra seconds allowed to the first job of a fresh worker process, which
             pays for imports and one-time set-up (loading plugins takes seconds).
 
@@ -230,7 +237,7 @@ class LocalExecutor(Executor):
         self.timeout = None if timeout is None else float(timeout)
         self.retries = int(retries)
         if in_process is None:
-            in_process = self.workers == 1 and self.timeout is None
+            in_process = self.workers == 1 and self.timeout is None and not executors.ISOLATE_ONE_WORKER
         self.in_process = bool(in_process)
         self._mp = mp.get_context("spawn")
         self._pool: list[_Worker] = []
@@ -354,8 +361,8 @@ class LocalExecutor(Executor):
                                 raise WorkerStartupError(
                                     f"simulation worker processes die while starting ({startup_deaths} in a row, "
                                     f"last exit code {code}{_signal_name(code)}; what they printed is above), so no "
-                                    f"simulation can run; run with --workers 1 (workers=1) to see the error in this "
-                                    f"process; the same command then resumes")
+                                    f"simulation can run; fix what they printed (the Python API with workers=1 "
+                                    f"shows the error in its own process), then the same command resumes")
                             if i is not None:
                                 attempts[i] -= 1
                                 queue.appendleft(i)

@@ -35,6 +35,7 @@ from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, run_fi
 from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import fit_callbacks, say, shown_unless_shown
 from softsbi.workflows.fit.runs import Run, open_run
+from softsbi.workflows.lock import check_out_apart
 from softsbi.workflows.measurement import default_values, rollout_space
 
 
@@ -79,6 +80,8 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
             that is not of the field's type (e.g. ``rounds="two"``, ``effects="wind"`` for ``["wind"]``,
             ``bounds={"stretch": 5}`` for ``{"stretch": (low, high)}``); ``recording`` neither a Recording nor a path;
             ``out`` not a path (e.g. None).
+        RunDirError: ``out`` is the recording folder or lies inside another run's directory
+            (:func:`~softsbi.workflows.lock.check_out_apart`).
         Everything :func:`~softsbi.workflows.fit.run.run_fit` raises.
     """
     names = [f.name for f in fields(FitConfig)]
@@ -89,6 +92,7 @@ def fit(recording: Recording | str | Path, out: str | Path, config: FitConfig | 
         raise ParameterError(f"fit(config=...) takes a softsbi.FitConfig, got {type(config).__name__}")
     cfg = typed_config(replace(config or FitConfig(), **settings))
     out = as_path(out, "fit(out)", 'softsbi.fit(rec, out="runs/tan")')
+    check_out_apart(out, "fit", run=out, recording=recording if isinstance(recording, (str, Path)) else None)
     if isinstance(recording, (str, Path)):
         recording = load_recording(recording, n_points=cfg.n_points, seed=cfg.seed)
     elif not isinstance(recording, Recording):

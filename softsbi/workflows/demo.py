@@ -35,6 +35,7 @@ from softsbi.workflows.criticism.compare import compare_runs
 from softsbi.workflows.criticism.diagnose import diagnose_run
 from softsbi.workflows.criticism.stats import PosteriorPredictive
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, read_report, run_fit
+from softsbi.workflows.lock import check_out_apart
 from softsbi.workflows.measurement import simulate_recording
 
 #: the demo's hidden parameter values (unit-cube positions; the user is not told them before the fit ends)
@@ -125,12 +126,14 @@ def run_demo(out: str | Path = "softsbi-demo", quick: bool = False, rounds: int 
         checks), ``named``, ``named_correctly``, ``chamfer_before_m``, ``chamfer_after_m``.
 
     Raises:
-        ParameterError: a ``backend`` that cannot run it (:func:`check_demo_backend`). Everything
+        ParameterError: a ``backend`` that cannot run it (:func:`check_demo_backend`).
+        RunDirError: ``out`` is, or lies inside, the run directory of a fit
+            (:func:`~softsbi.workflows.lock.check_out_apart`). Everything
         :func:`~softsbi.workflows.fit.run.run_fit` raises.
     """
     check_demo_backend(backend, quick)
+    out = check_out_apart(out, "demo")
     ui = ui or DemoCallbacks()
-    out = Path(out)
     t0 = time.perf_counter()
     ui.step("softsbi demo")
     ui.line(f"A cloth lift simulated on {backend} at hidden parameters{'' if quick else ' with a hidden effect'}: "

@@ -27,19 +27,23 @@ class RunDirError(SoftsbiError):
     """The run directory cannot be created or written (a file, read-only, no space)."""
 
 
-def _storage_line(exc: OSError, run_dir: Path) -> SoftsbiError:
-    return storage_error(exc, run_dir, resumable=True) or RunDirError(
-        f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); choose a writable --out (or free "
-        f"space / fix its permissions)")
+def _storage_line(exc: OSError, run_dir: Path, out_flag: str | None) -> SoftsbiError:
+    fix = f"choose a writable {out_flag} (or free space / fix its permissions)" if out_flag else \
+        "free space or fix its permissions (or copy the run directory to a writable place and run there)"
+    return storage_error(exc, run_dir, resumable=True, out_flag=out_flag) or RunDirError(
+        f"cannot write the run directory '{run_dir}' ({exc.strerror or exc}); {fix}")
 
 
 @contextlib.contextmanager
-def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None) -> Iterator[None]:
+def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None,
+             out_flag: str | None = "--out") -> Iterator[None]:
     """Hold the run directory's write lock for the ``with`` block (creating the directory).
 
     Args:
         command: the softsbi command taking the lock (a second writer's message names it).
         busy: what a second writer is told to do (default: wait, or fit into another ``--out``).
+        out_flag: the command's flag that chooses the directory, named in the fix of a disk that refuses a write;
+            None for a command that writes into a run it is given (``calibrate``).
 
     Raises:
         RunLocked: another process holds it; the message names its command, pid, since when, and the fix.
@@ -66,7 +70,7 @@ def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None)
     except OSError as exc:  # after Timeout, which is an OSError (TimeoutError) too
         if isinstance(exc, SoftsbiError):
             raise
-        raise _storage_line(exc, run_dir) from None
+        raise _storage_line(exc, run_dir, out_flag) from None
     try:
         info.write_text(json.dumps({"pid": os.getpid(), "since": _dt.datetime.now().isoformat(timespec="seconds"),
                                     "command": command}))
@@ -75,7 +79,7 @@ def run_lock(run_dir: str | Path, command: str = "fit", busy: str | None = None)
         if created:
             with contextlib.suppress(OSError):
                 _remove_if_only_lock(run_dir, lock)
-        err = storage_error(exc, run_dir, resumable=True)
+        err = storage_error(exc, run_dir, resumable=True, out_flag=out_flag)
         if err is not None:  # the disk refused a write mid-run: one line, the run resumes once fixed
             raise err from None
         raise
@@ -93,6 +97,61 @@ def _remove_if_only_lock(run_dir: Path, lock: FileLock) -> None:
             (run_dir / n).unlink(missing_ok=True)
         with contextlib.suppress(OSError):
             run_dir.rmdir()
+
+
+def _is_run(folder: Path) -> bool:
+    return (folder / "run.zarr").is_dir()
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
+    except OSError:
+        return False
+
+
+def check_out_apart(out: str | Path, command: str, run: str | Path | None = None,
+                    recording: str | Path | None = None) -> Path:
+    """Refuse, before any work, an output folder that would mix two runs' files (``diagnose``, ``fit`` and ``demo``
+    share this guard).
+
+    Args:
+        out: the folder the command writes (``--out``).
+        command: the command, named in the message.
+        run: the run directory whose results the command writes (``diagnose``: the diagnosed run; ``fit``: ``out``
+            itself, which it resumes); None when ``out`` holds runs of its own (``demo``).
+        recording: the recording the command reads (``fit --observed``).
+
+    Returns:
+        ``Path(out)``.
+
+    Raises:
+        RunDirError: ``out`` is the recording folder; ``out``, or a folder above it, is the run directory of another
+            fit (a refit folder of a diagnosis included); ``out`` holds the diagnosis of another run. One line naming
+            both folders and the fix.
+    """
+    path = Path(out)
+    fix = "choose a folder of its own (a new one, or one outside every run)"
+    if recording is not None and _same(path, Path(recording)):
+        raise RunDirError(f"--out '{path}' is the recording folder (--observed); {command} would write its run "
+                          f"among the recording's files: {fix}")
+    for folder in (path, *path.absolute().parents):
+        if not _is_run(folder):
+            continue
+        if run is not None and _same(folder, Path(run)):
+            break
+        where = "is" if folder == path else f"lies inside '{folder}',"
+        raise RunDirError(f"--out '{path}' {where} the run directory of another fit; {command} would write into it "
+                          f"and mix the two runs' files: {fix}")
+    if run is not None and not _same(path, Path(run)):
+        try:
+            other = json.loads((path / "diagnosis.json").read_text()).get("run")
+        except (OSError, ValueError, AttributeError):
+            other = None
+        if isinstance(other, str) and Path(other).exists() and not _same(Path(other), Path(run)):
+            raise RunDirError(f"--out '{path}' holds the diagnosis of another run ('{other}'); {command} would "
+                              f"replace it and mix the two runs' refits: {fix}")
+    return path
 
 
 def check_out_dir(path: str | Path, flag: str = "--out", fix: str = "choose a writable folder") -> Path:

@@ -31,7 +31,10 @@ class Reporter:
         """``done`` of the phase's simulations are finished."""
 
     def end(self, handle: Any) -> None:
-        """The phase is over."""
+        """The phase is over: all its simulations are done."""
+
+    def stopped(self, handle: Any) -> None:
+        """The phase was stopped before its end (Ctrl-C, SIGTERM, an error): nothing is told as done."""
 
     def read_from_bank(self, handle: Any, hits: int, total: int) -> None:
         """``hits`` of the phase's ``total`` simulations were read from the simulation bank (told once, when they
@@ -133,8 +136,10 @@ def phase(label: str, total: int) -> Iterator[Callable[..., None]]:
 
     try:
         yield advance
-    finally:
-        rep.end(handle)
+    except BaseException:
+        rep.stopped(handle)
+        raise
+    rep.end(handle)
 
 
 def fit_callbacks(label: str) -> Any:

@@ -1,5 +1,7 @@
 """Output folders are checked before any work: `simulate` never mixes two simulations in one folder, an
 `--out` that is a file is one line for every command that writes one."""
+import json
+
 import pytest
 from typer.testing import CliRunner
 
@@ -53,3 +55,44 @@ def test_an_out_that_is_a_file_or_a_bad_render_cap_is_refused_before_simulating(
     msg = " ".join(res.output.replace("│", " ").split())
     assert "'--render-memory-gb'" in msg and "> 0" in msg and "-1" in msg  # the flag, its bound and the value
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "src"]
+
+
+def _run_dir(path):
+    """A folder that holds a run (what tells a run directory: its ``run.zarr``)."""
+    (path / "run.zarr").mkdir(parents=True)
+    return path
+
+
+def test_an_out_that_would_mix_two_runs_is_refused_before_any_work(tmp_path):
+    a, b = _run_dir(tmp_path / "a"), _run_dir(tmp_path / "b")
+    (b / "diagnosis.json").write_text('{"run": "b"}')
+    refit = _run_dir(a / "refit-wind")
+    for out in (b, refit, refit / "sub"):  # another run, a refit folder of the run, a folder inside a refit
+        line = _one_line(runner.invoke(app, ["diagnose", str(a), "--out", str(out)]))
+        assert f"--out '{out}'" in line and "another fit" in line and "diagnose" in line
+    assert (b / "diagnosis.json").read_text() == '{"run": "b"}' and not (b / "refit-wind").exists()
+    other = tmp_path / "d"  # a folder of its own that holds the diagnosis of another run
+    other.mkdir()
+    (other / "diagnosis.json").write_text(json.dumps({"run": str(b)}))
+    line = _one_line(runner.invoke(app, ["diagnose", str(a), "--out", str(other)]))
+    assert "diagnosis of another run" in line and str(b) in line
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    line = _one_line(runner.invoke(app, ["fit", "--observed", str(rec), "--out", str(rec), "--backend", "toy-gauss"]))
+    assert f"--out '{rec}' is the recording folder" in line
+    assert list(rec.iterdir()) == []
+    line = _one_line(runner.invoke(app, ["demo", "--quick", "--backend", "toy-gauss", "--out", str(a)]))
+    assert f"--out '{a}' is the run directory of another fit" in line and not (a / "nominal").exists()
+
+
+def test_the_guard_lets_a_run_keep_its_own_folders(tmp_path):
+    from softsbi.workflows.lock import check_out_apart
+    a = _run_dir(tmp_path / "a")
+    refit = _run_dir(a / "refit-wind")
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "diagnosis.json").write_text(json.dumps({"run": str(a)}))
+    for out, run in ((a, a), (tmp_path / "d", a), (tmp_path / "new", a), (refit, refit),
+                     (refit / "d2", refit)):
+        # the run itself, its own diagnosis, a new folder, a refit diagnosed into itself or a folder of its own
+        assert check_out_apart(out, "diagnose", run=run) == out
+    assert check_out_apart(tmp_path / "demo", "demo") == tmp_path / "demo"

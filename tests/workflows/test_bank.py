@@ -1,11 +1,14 @@
 """The simulation bank (softsbi.workflows.fit.bank): rollouts stored by what determines them and read back."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import STATUS_DIVERGED, Rollout
-from softsbi.workflows.fit.bank import SimulationBank, rollout_key
+from softsbi.workflows.fit.bank import SimulationBank, check_bank_path, rollout_key
 
 pytestmark = pytest.mark.integration
 
@@ -25,6 +28,8 @@ def test_the_key_is_everything_a_rollout_depends_on():
         changed = list(base)
         changed[i + 1] = other
         assert rollout_key(*changed) != k, i
+    # a speed knob (rollouts per simulate_batch call) gives the same rollouts: the same key
+    assert rollout_key(base[0], {"grid": 7, "batch_size": 8}, *base[2:]) == k
 
 
 def test_a_stored_rollout_reads_back_identical_and_a_damaged_one_counts_as_absent(tmp_path):
@@ -216,6 +221,13 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
         res = run_jobs(ctx, items, workers=1)
     assert second.read == [(3, 4)] and len(second.messages) == 1 and "1 stored" in second.messages[0]
     assert sorted(r["bank"] for r in res) == [HIT, HIT, HIT, WRONG_KEY]  # the bank status of each result
+    # a bank that cannot store (here its tmp/ is a file; a full disk alike) stored nothing, silently: now one line
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "tmp").write_text("")
+    with reporting(third := Told()):
+        res = run_jobs(replace(ctx, bank=str(tmp_path / "full")), items, workers=1)
+    assert [r["status"] for r in res] == [0] * 4 and len(SimulationBank(tmp_path / "full")) == 0
+    assert len(third.messages) == 1 and "4 rollout(s) could not be stored" in third.messages[0]
 
 
 def _refused(args, tmp_path):
@@ -273,3 +285,25 @@ def test_the_api_refuses_an_empty_bank_before_any_work(tmp_path, monkeypatch):
     with pytest.raises(SoftsbiError, match="--sim-bank is empty"):
         run_fit(tmp_path / "run", toy_measurement(), _fit_cfg(sim_bank=""))
     assert not (tmp_path / "run").exists() and not list(tmp_path.glob("??"))
+
+
+def test_contradictory_bank_flags_and_a_bad_batch_size_are_refused_and_an_explicit_bank_wins_over_off(tmp_path,
+                                                                                                   monkeypatch):
+    """`--sim-bank DIR --no-sim-bank` and batch_size 0 or -3 (silently 1) were accepted; `SOFTSBI_SIM_BANK=off`
+    silently overrode an explicit `--sim-bank DIR`: the flag given on the command line wins."""
+    from softsbi.workflows.fit.bank import bank_folder
+    from softsbi.workflows.fit.task_store import task_store_of
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "rec").mkdir()
+    line = _refused(["--sim-bank", str(tmp_path / "b"), "--no-sim-bank"], tmp_path)
+    assert f"--sim-bank {tmp_path / 'b'} and --no-sim-bank contradict each other" in line
+    for size in ("0", "-3", "1.5"):
+        assert f"--backend-opt batch_size must be an integer >= 1 (got {size})" in \
+            _refused(["--backend-opt", f"batch_size={size}"], tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]  # nothing written
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", "off")
+    assert bank_folder(str(tmp_path / "b")) == tmp_path / "b" and bank_folder("default") is None
+    assert task_store_of(str(tmp_path / "b")).path == tmp_path / "b" / "tasks"
+    with pytest.raises(SoftsbiError, match="is a file"):  # and it is checked as any explicit bank
+        (tmp_path / "file").write_text("")
+        check_bank_path(str(tmp_path / "file"), {})

@@ -98,3 +98,15 @@ def test_batches_in_worker_processes_and_their_size():
     items = ITEMS[:8]  # no divergence hook in the workers' environment
     single = run_jobs(_ctx(size=1), items, workers=2)
     _same(single, run_jobs(ctx, items, workers=2))
+
+
+def test_a_crashing_simulation_fails_itself_only_not_its_batch(monkeypatch):
+    monkeypatch.setenv("SOFTSBI_TOY_CRASH_ABOVE", "0.45")  # the worker process dies at item 5 (a = 0.5)
+    items, one_process = ITEMS[:8], {"retries": 0, "in_process": False}
+    with pools.shared_executors():  # one worker process, replaced when it dies
+        single = run_jobs(_ctx(size=1), items, workers=1, executor_options=one_process)
+        batched = run_jobs(_ctx(size=4), items, workers=1, executor_options=one_process)
+    failed = [i for i, r in enumerate(batched) if r["status"] != 0]
+    assert failed == [i for i, r in enumerate(single) if r["status"] != 0] == [5]
+    assert "WorkerCrashed" in batched[5]["reason"]
+    _same([r for i, r in enumerate(single) if i != 5], [r for i, r in enumerate(batched) if i != 5])

@@ -236,6 +236,30 @@ def test_out_of_bounds_values_advise_only_options_the_command_has(tmp_path):
         run_fit(tmp_path / "f", toy_measurement(), _cfg(fixed={"a": 50.0}), make_plots=False)
 
 
+def test_a_refused_write_advises_out_only_to_commands_that_have_it(tmp_path, capsys):
+    """`view` and `calibrate` (no --out) were told to "choose --out" on a full or read-only disk."""
+    import typer
+    from softsbi.cli.calibrate_cmd import calibrate
+    from softsbi.cli.command import _out_flag, guard
+    from softsbi.cli.diagnose_cmd import diagnose
+    from softsbi.cli.fit_cmd import fit
+    from softsbi.cli.view_cmd import view
+    from softsbi.core.errors import storage_error
+    assert [_out_flag(c) for c in (view, calibrate, fit, diagnose)] == [None, None, "--out", "--out"]
+    for errno_ in (errno.ENOSPC, errno.EROFS):
+        line = str(storage_error(OSError(errno_, "refused"), "RUN", out_flag=None))
+        assert "--out" not in line and ("re-run the same command" in line or "copy the run directory" in line)
+        assert "--out" in str(storage_error(OSError(errno_, "refused"), "RUN"))
+
+    def view_like(run: str = typer.Argument(...)):  # a command without --out whose write the disk refuses
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "view.gif"))
+
+    with pytest.raises(typer.Exit):
+        guard(view_like)(run="RUN")
+    err = capsys.readouterr().err
+    assert "no space left on the device" in err and "--out" not in err
+
+
 def test_relative_changes_are_never_a_negative_lower():
     assert describe_change(5.77, 6.69) == "16% higher"
     assert describe_change(3.77, 1.25) == "67% lower"
@@ -263,6 +287,22 @@ def test_resume_names_the_partly_stored_round_and_the_time_spent_and_rounds_coun
     assert said in cb.messages
     # round 2 draws from the posterior of round 1 (rounds count from one wherever a user reads them)
     assert "round 1" in RunStore.open(out / "run.zarr").round_attrs(1)["proposal"]
+
+
+def test_a_crashing_simulator_with_one_worker_fails_its_simulations_not_the_command(tmp_path):
+    """`softsbi fit --workers 1` ran simulations in its own process: a simulator that killed it (exit 14) ended the
+    command without a word. One worker now runs in a process of its own, as with --workers 2."""
+    rec = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(rec)]).exit_code == 0
+    env = dict(os.environ, SOFTSBI_TOY_CRASH_ABOVE="0.8",  # a > 0.8: a tenth of the prior crashes
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    res = subprocess.run([sys.executable, "-m", "softsbi.cli", "fit", "--backend", "toy-gauss", "--rounds", "1",
+                          "--sims-per-round", "20", "--workers", "1", "--retries", "0", "--n-eval", "3", "--points",
+                          "8", "--estimator", "mdnn", "--estimator-opt", "max_epochs=5", "--observed", str(rec),
+                          "--out", str(tmp_path / "run"), "--json"], capture_output=True, text=True, env=env,
+                         timeout=300, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout)["per_round"][0]["failed"] > 0
 
 
 SIGINT_FIT = [sys.executable, "-m", "softsbi.cli", "fit", "--backend", "toy-gauss", "--rounds", "1",

@@ -46,6 +46,7 @@ def test_the_key_changes_with_everything_that_determines_the_first_round(monkeyp
         "observer options": _digest(ctx=replace(ctx, observer_options={"n_points": 32})),
         "estimator options": _digest(opts={"max_epochs": 6}),
         "seed": _digest(cfg=replace(cfg, seed=4)),
+        "backend options": _digest(cfg=replace(cfg, backend_options={"sigma": 0.1})),
     }
     assert all(d != base for d in changed.values()), [k for k, d in changed.items() if d == base]
     assert len(set(changed.values())) == len(changed)
@@ -54,6 +55,7 @@ def test_the_key_changes_with_everything_that_determines_the_first_round(monkeyp
     monkeypatch.undo()
     # what does not change the first round keeps the key: the later rounds, the workers, where the scenario came from
     assert _digest(cfg=replace(cfg, rounds=7, sims_per_round=33, workers=1, n_eval=5)) == base
+    assert _digest(cfg=replace(cfg, backend_options={"batch_size": 8})) == base  # a speed knob, the same results
     assert _digest(ctx=replace(ctx, scenario={"name": "toy", "options": {"source": "elsewhere"}})) == base
 
 

@@ -98,6 +98,17 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
                       make_plots=False)
     assert scratch.report.rounds == 4 and len(calls) == 4  # no stored task: the sequential default
     assert trained_task_line(scratch.store.round_attrs(0)["info"], "default") is None
+    # a first round larger than the task's prior simulations cannot use it: said, not silent
+    from softsbi.workflows.fit.run import FitCallbacks
+    said = []
+
+    class Told(FitCallbacks):
+        def message(self, text):
+            said.append(text)
+
+    run_fit(tmp_path / "more", rec2, _cfg(sims_per_round=90, rounds=1), callbacks=Told(), make_plots=False)
+    assert any(f"stored task {task.digest[:12]} was trained on 80 prior simulations, fewer than this round's 90: "
+               f"not used" in m for m in said), said
 
 
 def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
@@ -223,3 +234,135 @@ def test_a_replicate_its_fit_could_not_check_is_no_replicate():
 
     st = case_statistics([rec], Outside(), cfg, space, first_round_context(cfg, rec, space), 30, [1], 1)
     assert st.shape == (1, 2) and np.isnan(st).all()
+
+
+def test_sigint_stops_task_train_even_when_started_ignoring_it_and_no_stopped_phase_is_done(tmp_path):
+    """A script's background job inherits SIGINT ignored: `kill -INT` left `task train` running. A phase stopped by
+    it printed "done in N s"."""
+    import os
+    import signal
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import REPO
+    env = dict(os.environ, SOFTSBI_TOY_SLEEP="0.2",
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    assert subprocess.run([sys.executable, "-m", "softsbi.cli", "simulate", "--backend", "toy-gauss", "--out", "rec"],
+                          cwd=tmp_path, capture_output=True, env=env, check=False).returncode == 0
+    proc = subprocess.Popen([sys.executable, "-m", "softsbi.cli", "task", "train", "--observed", "rec", "--backend",
+                             "toy-gauss", "--prior-sims", "100", "--n-test", "0", "--check-null", "0", "--candidates",
+                             "none", "--workers", "1", "--sim-bank", "bank"], cwd=tmp_path, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    said = []
+    for line in proc.stderr:  # until the prior simulations have begun
+        said.append(line)
+        if "prior simulations: 100 simulations" in line:
+            break
+    proc.send_signal(signal.SIGINT)
+    _, rest = proc.communicate(timeout=60)
+    err = "".join(said) + rest
+    assert proc.returncode == 130, err
+    assert "interrupted; finished simulations are kept" in err and "done in" not in err and "Traceback" not in err
+
+
+def test_task_train_refuses_contradictory_or_empty_candidates_and_too_few_test_simulations(tmp_path):
+    """`--candidates ',,'` meant none, a candidate named twice was trained twice, and `--n-test 5` got a
+    "calibrated" report: each is one line before any work."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from typer.testing import CliRunner
+    from softsbi.cli import app
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.tasks.training import candidate_models
+    rec = tmp_path / "rec"
+    assert CliRunner().invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(rec)]).exit_code == 0
+    base = ["task", "train", "--observed", str(rec), "--backend", "toy-gauss", "--sim-bank", str(tmp_path / "bank"),
+            "--workers", "1"]
+    for args, message in ((["--candidates", ",,"], "--candidates ',,' names no effect"),
+                          (["--candidates", "toy-wind,toy-wind"], "--candidates names toy-wind more than once"),
+                          (["--n-test", "5"], "'--n-test': must be 0 (no training report) or >= 20 (got 5)")):
+        res = CliRunner().invoke(app, base + args)
+        assert res.exit_code == 2 and message in " ".join(res.output.replace("│", " ").split()), res.output
+        assert "Traceback" not in res.output
+    assert not (tmp_path / "bank" / "tasks").exists()  # nothing trained
+    with pytest.raises(SoftsbiError, match="more than once"):
+        candidate_models(_cfg(), ["toy-wind", "toy-wind"])
+    assert candidate_models(_cfg(), ["toy-wind"]) == [[], ["toy-wind"]]
+
+
+def test_task_list_names_the_backend_options():
+    from softsbi.cli.task_cmd import _backend
+    assert _backend({"backend": "newton-cloth", "backend_options": {"grid": 8, "damping": 0.1}}) == \
+        "newton-cloth (damping=0.1, grid=8)"
+    assert _backend({"backend": "toy-gauss", "backend_options": {}}) == "toy-gauss"
+
+
+def test_a_task_store_that_cannot_take_the_task_is_refused_before_training(tmp_path, monkeypatch):
+    """`tasks/tmp` a file, `check-null.json` a folder and a full disk failed only after all the training."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.core.errors import SoftsbiError, StorageError
+    from softsbi.workflows.tasks.training import train_task
+    calls = _counting_fits(monkeypatch)
+    rec = toy_measurement(truth=(0.3, -0.4))
+    bank = tmp_path / "bank"
+    (bank / "tasks").mkdir(parents=True)
+    (bank / "tasks" / "tmp").write_text("")
+    with pytest.raises(SoftsbiError, match=r"tasks/tmp' is a file where the task store writes its entries"):
+        train_task(rec, _cfg(sim_bank=str(bank)), 40, candidates=[], n_test=0, check_null=0)
+    assert calls == [] and len(list(bank.iterdir())) == 1  # no training, no simulation stored
+    (bank / "tasks" / "tmp").unlink()
+    (task,) = train_task(rec, _cfg(sim_bank=str(bank)), 40, candidates=[], n_test=20, n_draws=50, check_null=0)
+    (task.path / "check-null.json").mkdir()
+    with pytest.raises(SoftsbiError, match="check-null.json' is a folder"):  # refused before the replicates
+        train_task(rec, _cfg(sim_bank=str(bank)), 40, candidates=[], n_test=20, n_draws=50, check_null=19)
+    assert calls == [40]
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True,
+                      check=False).returncode:
+        return  # a full disk needs a tmpfs (root); the refusals above hold without one
+    try:
+        with open(disk / "filler", "wb") as fh:
+            with pytest.raises(OSError):
+                while True:
+                    fh.write(b"\0" * 65536)
+                    fh.flush()
+        with pytest.raises(StorageError, match="no space left on the device"):
+            train_task(rec, _cfg(sim_bank=str(disk / "bank")), 40, candidates=[], n_test=0, check_null=0)
+        assert calls == [40]
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True, check=False)
+
+
+def test_a_second_task_train_of_one_task_waits_for_the_first_and_reuses_its_task(tmp_path, monkeypatch):
+    import threading
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.fit.task_store import TaskStore
+    from softsbi.workflows.tasks.training import train_task
+    rec = toy_measurement(truth=(0.3, -0.4))
+    (trained,) = train_task(rec, _cfg(sim_bank=str(tmp_path / "a")), 40, candidates=[], n_test=20, n_draws=50,
+                            check_null=0)
+    store, said, asked = TaskStore(tmp_path / "b" / "tasks"), [], threading.Event()
+
+    def other_process():  # holds the task's lock, and stores the task once the second one waits
+        with store.lock(trained.digest):
+            held.set()
+            asked.wait(60)
+            store.put(trained.identity, trained.n_prior, trained.estimator, trained.info, trained.report)
+
+    held = threading.Event()
+    other = threading.Thread(target=other_process)
+    other.start()
+    held.wait(60)
+    calls = _counting_fits(monkeypatch)
+
+    def told(text):
+        said.append(text)
+        if "being trained by another process" in text:
+            asked.set()
+
+    (task,) = train_task(rec, _cfg(sim_bank=str(tmp_path / "b")), 40, candidates=[], n_test=20, n_draws=50,
+                         check_null=0, message=told)
+    other.join()
+    assert any(f"task {trained.digest[:12]} is being trained by another process; waiting" in m for m in said), said
+    assert calls == [] and task.digest == trained.digest and "reused" in said[-1]

@@ -28,7 +28,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import PosteriorError, SimulationFailed, SoftsbiError
-from softsbi.core.jsonfile import write_json_atomic
+from softsbi.core.jsonfile import check_result_path, write_json_atomic
 from softsbi.core.levels import ALPHA
 from softsbi.core.results import MCPValue
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
@@ -230,9 +230,11 @@ def train_check_null(task: StoredTask, recording: Recording, cfg: Any, space: Pa
 
     Raises:
         SoftsbiError: ``n`` below :data:`MIN_REPLICATES` (before any work), fewer than that could be fitted and
-            checked, or the file cannot be written. Everything :func:`replicates` raises.
+            checked. ResultUnwritable: ``check-null.json`` cannot be written (a folder in its place: before any
+            work; a full disk named as such). Everything :func:`replicates` raises.
     """
     check_replicates(n)
+    check_result_path(task.path / NULL_FILE)  # a folder in its place: refused before the replicates are fitted
     (message or (lambda s: None))(f"{task.model}: {n} replicate recordings for check's calibration "
                                   f"({n * (rollouts + 1)} simulations)")
     recs, seeds = replicates(cfg, space, recording, n)
@@ -244,10 +246,6 @@ def train_check_null(task: StoredTask, recording: Recording, cfg: Any, space: Pa
                            f"--bounds")
     (message or (lambda s: None))(f"{task.model}: {len(kept)} of {n} replicates fitted and checked")
     null = CheckNull(rollouts, int(recording.dense.shape[1]), tuple(float(s) for s in kept))
-    try:
-        write_json_atomic(task.path / NULL_FILE, null.to_json())
-    except OSError as exc:
-        raise SoftsbiError(f"{task.path / NULL_FILE} cannot be written ({exc}): give --sim-bank a folder you can "
-                           f"write") from None
+    write_json_atomic(task.path / NULL_FILE, null.to_json())  # ResultUnwritable: one line (a full disk named)
     return null
 

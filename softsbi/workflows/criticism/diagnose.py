@@ -35,7 +35,7 @@ from softsbi.workflows.criticism.decide import K_SE, decide, next_refit
 from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import FitConfig, run_fit
-from softsbi.workflows.lock import run_lock
+from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
@@ -82,12 +82,16 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
             ``n_null < 5``);
             the nominal fit has too few successful rollouts.
         RunLocked: another process writes ``out_dir`` (e.g. a second diagnose of the run), before any work.
+        RunDirError: ``out_dir`` is or lies inside another run's directory, or holds another run's diagnosis
+            (:func:`~softsbi.workflows.lock.check_out_apart`), before any work.
         ResultUnwritable, RunDirError: ``diagnosis.json`` or ``out_dir`` cannot be written (a folder in the
             file's place: before any work; a full disk: when the result is written, the refits kept).
     """
     t0 = time.perf_counter()
     check_settings(confirm=confirm, k_se=k_se, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null)
     check_resolution(alpha, max_null, 2)
+    if out_dir is not None:
+        check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
     base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
     refit_rounds = None if refit_rounds == base.rounds else refit_rounds

@@ -48,6 +48,8 @@ OFF = ("off", "none", "0")
 #: what :meth:`SimulationBank.lookup` found: the rollout; nothing usable (absent, incomplete, damaged, a failure
 #: or an entry of the first format); an intact entry whose stored key is another one (moved or copied there)
 HIT, MISS, WRONG_KEY = "hit", "miss", "wrong key"
+#: a miss whose successful rollout the bank could not store (a full or read-only disk)
+UNSTORED = "miss, not stored"
 
 #: the variable that names the user's bank (or switches every bank off, :data:`OFF`)
 ENV = "SOFTSBI_SIM_BANK"
@@ -69,9 +71,10 @@ def default_bank() -> Path | None:
 
 
 def bank_folder(setting: str) -> Path | None:
-    """The folder of a ``--sim-bank`` setting: ``"default"`` the user's (:func:`default_bank`), ``"off"`` none, else
-    that folder; none when ``$SOFTSBI_SIM_BANK`` is ``off``."""
-    if setting == "off" or not banks_enabled():
+    """The folder of a ``--sim-bank`` setting: ``"default"`` the user's (:func:`default_bank`; none when
+    ``$SOFTSBI_SIM_BANK`` is ``off``), ``"off"`` none, else that folder (a folder given explicitly wins over
+    ``$SOFTSBI_SIM_BANK=off``)."""
+    if setting == "off":
         return None
     return default_bank() if setting == "default" else Path(setting).expanduser()
 
@@ -85,13 +88,14 @@ def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> N
     Raises:
         SoftsbiError: one line naming ``--sim-bank`` or ``$SOFTSBI_SIM_BANK`` and the fix when the setting is
             empty; when the bank and one of ``folders`` lie inside one another; when the bank (given by the flag or
-            the variable) is a file or cannot be created. The default folder is only checked against ``folders``:
+            the variable; a folder given by the flag is used even under ``$SOFTSBI_SIM_BANK=off``) is a file or
+            cannot be created. The default folder is only checked against ``folders``:
             a cache that cannot be written only stores nothing.
     """
     if not str(setting).strip():
         raise SoftsbiError("--sim-bank is empty: give the simulation bank's folder, 'default' (the user's bank) "
                            "or 'off' (or --no-sim-bank)")
-    if setting == "off" or not banks_enabled():
+    if setting == "off" or (setting == "default" and not banks_enabled()):
         return
     if setting == "default":
         path = default_bank()
@@ -132,11 +136,12 @@ def _engine_version(backend: str) -> str:
 
 def rollout_key(backend: str, backend_options: Mapping[str, Any], scenario: Mapping[str, Any],
                 effects: Sequence[str], values: Mapping[str, float], seed: int) -> str:
-    """The SHA-256 (hex) of everything a rollout depends on: the simulator (name, options, engine version), the
+    """The SHA-256 (hex) of everything a rollout depends on: the simulator (name, options but its speed knobs
+    :data:`~softsbi.workflows.fit.config.SPEED_OPTIONS`, engine version), the
     scenario (its JSON form without where it was read from and how it is viewed:
     :func:`~softsbi.workflows.fit.config.resume_identity`, so that the recordings of one task share its rollouts),
     the effects in order, every parameter value (exactly, as ``float.hex``) and the seed."""
-    doc = [BANK_FORMAT, backend, _engine_version(backend), dict(backend_options),
+    doc = [BANK_FORMAT, backend, _engine_version(backend), resume_identity("backend_options", dict(backend_options)),
            resume_identity("scenario", dict(scenario)), list(effects),
            sorted((k, float(v).hex()) for k, v in values.items()), int(seed)]
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
@@ -242,16 +247,23 @@ class BankCount:
 
     hits: int = 0
     wrong_key: int = 0
+    unstored: int = 0
 
     def add(self, what: str | None) -> None:
-        """Count one simulation's lookup (a job result's ``"bank"``: :data:`HIT`, :data:`MISS`, :data:`WRONG_KEY`
-        or None without a bank)."""
+        """Count one simulation's lookup (a job result's ``"bank"``: :data:`HIT`, :data:`MISS`, :data:`WRONG_KEY`,
+        :data:`UNSTORED` or None without a bank)."""
         self.hits += what == HIT
         self.wrong_key += what == WRONG_KEY
+        self.unstored += what == UNSTORED
 
     def warning(self, bank: str | Path | None) -> str | None:
-        """The one line that tells the user of entries under the wrong key (None when there were none)."""
-        if not self.wrong_key:
-            return None
-        return (f"simulation bank {bank}: {self.wrong_key} stored rollout(s) sat under another rollout's key (moved "
-                f"or copied); they were not used but simulated again and replaced")
+        """The one line that tells the user of entries under the wrong key and of rollouts the bank could not store
+        (None when there were none)."""
+        said = []
+        if self.wrong_key:
+            said.append(f"{self.wrong_key} stored rollout(s) sat under another rollout's key (moved or copied); they "
+                        f"were not used but simulated again and replaced")
+        if self.unstored:
+            said.append(f"{self.unstored} rollout(s) could not be stored (the disk is full or read-only); the "
+                        f"command goes on, and they are simulated again when next needed: free space on that disk")
+        return f"simulation bank {bank}: " + "; ".join(said) if said else None

@@ -39,11 +39,18 @@ SCENARIO_PROVENANCE = ("source", "file", "keyframe_times")
 #: scenario's name
 SCENARIO_PRESENTATION = ("cameras", "view")
 SCENARIO_PRESENTATION_OPTIONS = ("robot_base",)
+#: backend options that change how fast the simulations run, not their results (the simulator's
+#: :attr:`~softsbi.core.interfaces.Simulator.batch_size`): left out of what a resume compares, the simulation bank's
+#: keys and the stored tasks' keys
+SPEED_OPTIONS = ("batch_size",)
 
 
 def resume_identity(key: str, value: Any) -> Any:
     """What a resume compares of a stored setting: the value itself, except the scenario without its
-    provenance options (:data:`SCENARIO_PROVENANCE`) and presentation (:data:`SCENARIO_PRESENTATION`)."""
+    provenance options (:data:`SCENARIO_PROVENANCE`) and presentation (:data:`SCENARIO_PRESENTATION`), and the
+    backend options without the speed knobs (:data:`SPEED_OPTIONS`)."""
+    if key == "backend_options" and isinstance(value, Mapping):
+        return {k: v for k, v in value.items() if k not in SPEED_OPTIONS}
     if key == "scenario" and isinstance(value, dict) and isinstance(value.get("options"), dict):
         drop = SCENARIO_PROVENANCE + SCENARIO_PRESENTATION_OPTIONS
         return {**{k: v for k, v in value.items() if k not in SCENARIO_PRESENTATION},
@@ -197,6 +204,10 @@ class FitConfig:
                                        ("estimator", self.estimator, self.estimator_options, "--estimator-opt"),
                                        ("executor", self.executor, self.executor_options, "executor option")):
             check_options(reg.get(kind, name), opts, f"{kind} '{name}' ({flag})")
+        size = self.backend_options.get("batch_size", 1)
+        if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+            raise SoftsbiError(f"--backend-opt batch_size must be an integer >= 1 (got {size!r}): the simulations "
+                               f"one simulate_batch call steps together; 1 = one at a time")
         if not isinstance(self.refine, int) or self.refine < 0:
             raise SoftsbiError(f"--refine must be an integer >= 0 (got {self.refine!r}); 0 = no refinement")
         if self.widen:

@@ -26,7 +26,7 @@ from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_fro
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
 from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
 from softsbi.plugins import registry
-from softsbi.workflows.fit.bank import BankCount, SimulationBank, rollout_key
+from softsbi.workflows.fit.bank import MISS, UNSTORED, BankCount, SimulationBank, rollout_key
 from softsbi.workflows import pools
 from softsbi.workflows.reporting import notify, phase
 
@@ -144,7 +144,8 @@ def _simulate(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, f
     ro, what = bank.lookup(key)
     if ro is None:
         ro = _rollout(sim, scenario, values, effects, seed, batch)
-        bank.put(key, ro)
+        if not bank.put(key, ro) and what == MISS and ro.ok and ro.rgb is None:
+            what = UNSTORED  # a full or read-only disk: told once per phase (BankCount.warning)
     return ro, what
 
 
@@ -211,7 +212,8 @@ def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> d
         ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
         or None, "seconds"}``, plus ``sensor_x`` ``(K, T, 1+K, 3)`` with ``sensor_draws`` (the observations at
         the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``; ``"bank"``: what the
-        simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``; None without one);
+        simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``, ``UNSTORED``; None
+        without one);
         ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
         seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
         half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
@@ -329,16 +331,25 @@ def map_simulations(executor: Any, ctx: SimContext, items: Sequence[tuple]) -> I
     """``executor.map_unordered(simulate_job, items, context=ctx)``: yield ``(index, result or exception)`` in
     completion order. A backend that steps several parameter sets together (``batch_size > 1``, newton-cloth) gets
     them in jobs of :func:`batch_size` items (:func:`simulate_batch_job`); a batch's items are yielded together when
-    it ends, each with the batch's exception if it raised or its worker crashed."""
+    it ends. A batch that fails as a whole (its worker crashed or hung, or it raised other than a
+    :class:`SoftsbiError`, which every item of it is yielded with) has its items run again one per job, so each keeps
+    its own outcome: one crashing simulation fails itself only, as unbatched."""
     size = batch_size(ctx, len(items), getattr(executor, "workers", None)) if len(items) > 1 else 1
     if size == 1:
         yield from executor.map_unordered(simulate_job, items, context=ctx)
         return
     starts = range(0, len(items), size)
     chunks = [list(items[s:s + size]) for s in starts]
+    alone: list[int] = []  # the items of failed batches, by index
     for c, res in executor.map_unordered(simulate_batch_job, chunks, context=ctx):
+        if isinstance(res, BaseException) and not isinstance(res, SoftsbiError):
+            alone.extend(range(starts[c], starts[c] + len(chunks[c])))
+            continue
         for j in range(len(chunks[c])):
             yield starts[c] + j, res if isinstance(res, BaseException) else res[j]
+    if alone:
+        for k, res in executor.map_unordered(simulate_job, [items[i] for i in alone], context=ctx):
+            yield alone[k], res
 
 
 def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
@@ -361,6 +372,6 @@ def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor:
             out[i] = res
             count.add(res.get("bank"))
             advance(done, count.hits)
-        if count.wrong_key:
+        if count.wrong_key or count.unstored:
             notify(count.warning(ctx.bank))
     return out  # type: ignore[return-value]

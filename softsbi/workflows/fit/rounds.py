@@ -47,7 +47,7 @@ def tell_bank(hooks: FitCallbacks, r: int, count: BankCount, n: int, bank: str |
     stored there under another key."""
     if count.hits:
         hooks.read_from_bank(r, count.hits, n)
-    if count.wrong_key:
+    if count.wrong_key or count.unstored:
         hooks.message(count.warning(bank))
 
 
@@ -289,6 +289,11 @@ class Rounds:
             info = dict(task.info, task=task.digest, trained_here=False)
             store.finish_round(r, q, info, estimator=None if isinstance(q, MixtureOfGaussians) else task.estimator)
             return q, info
+        if r == 0 and task is not None:
+            self.cb.message(f"round 1: the stored task {task.digest[:12]} was trained on {task.n_prior} prior "
+                            f"simulations, fewer than this round's {n_drawn}: not used, the round is trained here "
+                            f"(--sims-per-round {task.n_prior} or fewer uses it; `softsbi task train --prior-sims "
+                            f"{n_drawn}` trains it for more)")
         est = self.est_cls(**opts)
         n_sensor, kw = 0, {}
         if self.sensor is not None:  # one simulation, K more observations at other sensor parameters

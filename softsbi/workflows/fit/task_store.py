@@ -3,7 +3,8 @@
 A fit's first round draws its parameters from the prior, and neither those draws, their simulations (the
 simulation bank keeps them) nor the estimator trained on them depend on the recording: only conditioning the
 trained estimator on the recording's observation does (BayesSim's amortisation, Ramos et al. 2019). A *task* is
-everything that determines that first round: the scenario, the backend and its options, the model (the effects
+everything that determines that first round: the scenario, the backend and its options (but the speed knobs,
+:data:`~softsbi.workflows.fit.config.SPEED_OPTIONS`), the model (the effects
 switched on), what the fit sees (observer and its options, sensor model, frames), the priors (the inferred
 parameters' bounds and scales, the fixed values), the estimator and its options, the seed, and the softsbi version
 (:func:`task_identity`). Its SHA-256 is the task's key (:func:`task_digest`).
@@ -29,17 +30,21 @@ the entry only when no training report was stored in it (:meth:`PriorRound.damag
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 import shutil
+import tempfile
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import zarr
+from filelock import FileLock, Timeout
 
-from softsbi.core.errors import PosteriorDamaged, SoftsbiError
+from softsbi.core.errors import PosteriorDamaged, SoftsbiError, storage_error
 from softsbi.core.fitreport import TrainingReport
 from softsbi.core.store import installed_version
 from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
@@ -69,7 +74,8 @@ def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_
     """
     return jsonable({
         "format": TASK_FORMAT, "softsbi": installed_version(),
-        "backend": cfg.backend, "backend_options": dict(cfg.backend_options), "engine": _engine_version(cfg.backend),
+        "backend": cfg.backend, "backend_options": resume_identity("backend_options", dict(cfg.backend_options)),
+        "engine": _engine_version(cfg.backend),
         "scenario": resume_identity("scenario", ctx.scenario), "effects": list(cfg.effects),
         "observer": cfg.observer, "observer_options": dict(ctx.observer_options),
         "frames": None if cfg.frames is None else [int(i) for i in cfg.frames],
@@ -211,10 +217,52 @@ class TaskStore:
         except Exception as exc:  # noqa: BLE001 - a schema, a report or a count that cannot be read
             return DamagedTask(digest, where, f"{type(exc).__name__}: {exc}", trained, identity)
 
+    def check_writable(self) -> None:
+        """Check, before any training, that a task can be stored here: its entries are written in ``tmp/`` first.
+
+        Raises:
+            StorageError: a full ("no space left on the device"), read-only or forbidden disk. SoftsbiError:
+                ``tmp`` or a folder above it is a file. One line naming the file or folder and the fix.
+        """
+        tmp = self.path / "tmp"
+        if tmp.exists() and not tmp.is_dir():
+            raise SoftsbiError(f"'{tmp}' is a file where the task store writes its entries: move it away (or give "
+                               f"--sim-bank another folder), then re-run the same command")
+        try:
+            tmp.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=tmp) as f:  # a few blocks, so that a full disk refuses now
+                f.write(b"\0" * 65536)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:
+            raise storage_error(exc, self.path, out_flag="--sim-bank") or SoftsbiError(
+                f"the task store {self.path} cannot be written ({exc.strerror or exc}): give --sim-bank a folder you "
+                f"can write") from None
+
+    @contextlib.contextmanager
+    def lock(self, digest: str, waiting: Callable[[], None] | None = None) -> Iterator[None]:
+        """Hold the lock of task ``digest`` (``tmp/<digest>.lock``, released when the process ends, even killed)
+        for the ``with`` block, so that one process trains it; ``waiting`` is called before waiting for another
+        holder."""
+        path = self.path / "tmp" / f"{digest}.lock"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(str(path))
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            if waiting is not None:
+                waiting()
+            lock.acquire()
+        try:
+            yield
+        finally:
+            lock.release()
+
     def put(self, identity: Mapping[str, Any], n_prior: int, estimator: EstimatorState, info: Mapping[str, Any],
-            report: TrainingReport | None = None) -> StoredTask | None:
+            report: TrainingReport | None = None, strict: bool = False) -> StoredTask | None:
         """Store a trained task (replacing the entry of its key). Returns it, or None when the store cannot be
-        written (a read-only or full disk: nothing is stored, nothing is lost)."""
+        written (a read-only or full disk: nothing is stored, nothing is lost); ``strict``: raise that
+        ``OSError`` instead."""
         digest = task_digest(identity)
         arrays, attrs = encode_posterior(None, estimator, f"stored task {digest[:12]}")
         tmp = self.path / "tmp" / f"{digest}-{uuid.uuid4().hex}"
@@ -230,6 +278,8 @@ class TaskStore:
             tmp.rename(where)
         except OSError:
             shutil.rmtree(tmp, ignore_errors=True)
+            if strict:
+                raise
             return None
         return self.get(digest)
 

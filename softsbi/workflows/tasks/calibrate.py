@@ -61,6 +61,11 @@ GROUP = "calibration"
 BLOCK = 50
 
 
+#: calibrate's hold on the run directory: it writes into the run it is given (no --out to choose another folder)
+_LOCK: dict[str, Any] = {"command": "calibrate", "busy": "wait for it to finish, then re-run the same command",
+                         "out_flag": None}
+
+
 def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
                counts: list[int]) -> list[tuple[Any, str]]:
     """Each round's proposal up to ``last`` (None = the prior) as the fit drew it, with a description; a round
@@ -223,7 +228,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         msg(task_line)
     U, X, counts = usable_simulations(store, last)
     t0 = time.perf_counter()
-    with run_lock(run_dir):  # only the writes need the lock: training and evaluating read the store
+    with run_lock(run_dir, **_LOCK):  # only the writes need the lock: training and evaluating read the store
         data = _test_simulations(store, cfg, space, last, counts, n_test, workers, msg)
     sim_s = time.perf_counter() - t0
     ok = (data["status"] == STATUS_OK) & np.all(np.isfinite(data["x"].reshape(len(data["x"]), -1)), axis=1)
@@ -274,7 +279,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     }
     result = CalibrationResult.from_json(out, run_dir / "calibration.json")
     if write:
-        with run_lock(run_dir):
+        with run_lock(run_dir, **_LOCK):
             write_json_atomic(run_dir / "calibration.json", result.to_json())
             plot_calibration(run_dir / "calibration.png", result)
     return result

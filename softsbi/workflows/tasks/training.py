@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import SoftsbiError, storage_error
 from softsbi.core.fitreport import TrainingReport
 from softsbi.core.posterior_store import EstimatorState
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
@@ -50,8 +50,12 @@ def candidate_models(cfg: FitConfig, names: Sequence[str] | None) -> list[list[s
     refits); ``[]``: the nominal model only.
 
     Raises:
-        SoftsbiError: a named effect the backend cannot apply."""
+        SoftsbiError: a named effect the backend cannot apply, or one named twice."""
     reg = registry()
+    twice = sorted({n for n in names or [] if list(names).count(n) > 1})
+    if twice:
+        raise SoftsbiError(f"--candidates names {', '.join(twice)} more than once: each model is trained once; name "
+                           f"each candidate once")
     sim_cls = reg.simulator(cfg.backend)
     if names is None:
         names = [n for n in sim_cls.effects if n in reg.tables["effect"] and not is_generic(reg.effect(n)())]
@@ -91,22 +95,42 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
         message: progress notices.
 
     Raises:
-        SoftsbiError: no simulation bank (tasks are stored beside it), ``--sensor-draws``, an image observer, or
-            every simulation failed. PosteriorError: the estimator puts no mass in the prior box.
+        SoftsbiError: no simulation bank (tasks are stored beside it), ``--sensor-draws``, an image observer, a task
+            store that cannot be written (before any simulation; StorageError "no space left on the device" for a
+            full disk, also when it fills up during the training), or every simulation failed. PosteriorError: the
+            estimator puts no mass in the prior box.
+
+    Another process training the same task holds its lock (:meth:`~softsbi.workflows.fit.task_store.TaskStore.lock`):
+    this one says so, waits, and reuses what it stored.
     """
     say = message or (lambda s: None)
     t_start = time.perf_counter()
     cfg, space, ctx, prior = _prepared(recording, cfg)
+    model = "+".join(["nominal", *cfg.effects])
+    prior.store.check_writable()  # a store that cannot take the task refuses now, not after the training
+
+    def waiting() -> None:
+        say(f"{model}: task {prior.digest[:12]} is being trained by another process; waiting for it to finish "
+            f"(its stored task is then reused here)")
+
+    with prior.store.lock(prior.digest, waiting):  # one process trains a task; a second one waits for it
+        prior = PriorRound.of(cfg, recording, space)  # read again: the other process may have stored it
+        task = prior.task
+        if prior.damaged is not None:
+            say(f"{model}: stored task {prior.damaged.digest[:12]} is damaged ({prior.damaged.problem}): training it "
+                f"again in its place")
+        if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
+            say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
+        else:
+            task = _train(recording, cfg, space, ctx, prior, model, n_prior, n_test, n_draws, say, t_start)
+    return _with_check_null(task, recording, cfg, space, ctx, check_null, say)
+
+
+def _train(recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimContext, prior: PriorRound, model: str,
+           n_prior: int, n_test: int, n_draws: int, say: Callable[[str], None], t_start: float) -> StoredTask:
+    """:func:`train_model`'s steps 1-4 for a model not stored yet (its task's lock held)."""
     est_cls = registry().estimator(cfg.estimator)
     opts = estimator_options(cfg, est_cls)
-    model = "+".join(["nominal", *cfg.effects])
-    task = prior.task
-    if prior.damaged is not None:
-        say(f"{model}: stored task {prior.damaged.digest[:12]} is damaged ({prior.damaged.problem}): training it "
-            f"again in its place")
-    if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
-        say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
-        return _with_check_null(task, recording, cfg, space, ctx, check_null, say)
     ctx = replace(ctx, bank=str(prior.store.path.parent))
     u = np.random.default_rng([cfg.seed, 0, 0]).random((n_prior, space.dim))
     U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, 0, n_prior), cfg, f"{model}: prior simulations")
@@ -121,11 +145,16 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
         report = training_report(est, ctx, space, cfg, n_test, n_draws, fr)
         report = replace(report, train_seconds=time.perf_counter() - t0 - report.simulation_seconds,
                          wall_seconds=time.perf_counter() - t_start)  # prior and held-out simulations, training
-    stored = prior.store.put(prior.identity, n_prior, _state(est, cfg.estimator, opts), info, report)
+    try:
+        stored = prior.store.put(prior.identity, n_prior, _state(est, cfg.estimator, opts), info, report, strict=True)
+    except OSError as exc:  # e.g. the disk filled up during the training: the models stored before are kept
+        raise storage_error(exc, prior.store.path, out_flag="--sim-bank") or SoftsbiError(
+            f"the task store {prior.store.path} cannot be written ({exc.strerror or exc}): give --sim-bank a folder "
+            f"you can write; the models stored before this one are kept") from None
     if stored is None:
-        raise SoftsbiError(f"the task store {prior.store.path} cannot be written: give --sim-bank a folder you can "
-                           f"write")
-    return _with_check_null(stored, recording, cfg, space, first_round_context(cfg, recording, space), check_null, say)
+        raise SoftsbiError(f"the task store {prior.store.path} cannot be read back after storing {model}: give "
+                           f"--sim-bank a folder you can write")
+    return stored
 
 
 def _prepared(recording: Recording, cfg: FitConfig) -> tuple[FitConfig, ParamSpace, SimContext, PriorRound]:
@@ -246,9 +275,13 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     the check of the nominal model's fits (:mod:`~softsbi.workflows.criticism.check_null`: ``diagnose``'s detection).
 
     Raises:
+        SoftsbiError: ``n_test`` between 1 and ``defaults.MIN_TEST - 1``.
         everything :func:`train_model`, :func:`candidate_models` and
         :func:`~softsbi.workflows.criticism.check_null.check_replicates` raise."""
     check_replicates(check_null)
+    if n_test and n_test < defaults.MIN_TEST:
+        raise SoftsbiError(f"--n-test must be 0 (no training report) or >= {defaults.MIN_TEST} (got {n_test}): fewer "
+                           f"held-out simulations cannot judge the calibration")
     models = candidate_models(cfg, candidates)
     say = message or (lambda s: None)
     say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers))
