@@ -181,6 +181,7 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
     simulation bank (so that the training then reads it from there); None when it failed or was read from the bank
     (no measure of a simulation's time)."""
     cfg, space, ctx, prior = _prepared(recording, cfg)
+    prior.store.check_writable()  # a store that cannot take the task refuses before this first simulation
     u = np.random.default_rng([cfg.seed, 0, 0]).random((1, space.dim))  # the first row of the prior draws
     res = run_jobs(replace(ctx, bank=str(prior.store.path.parent)),
                    [(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))], workers=cfg.workers,
