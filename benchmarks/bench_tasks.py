@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.runner import in_out_folder, table
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -119,9 +120,9 @@ def _check_and_diagnose(run, workers: int) -> list:
     from softsbi.workflows.criticism.stats import PosteriorPredictive
     t0 = time.perf_counter()
     pool = PosteriorPredictive(run, workers)
-    chk = check_run(run, workers=workers, pool=pool, effects=[CANDIDATE])
+    chk = check_run(run, pool=pool, effects=[CANDIDATE], settings=CheckSettings(workers=workers))
     t1 = time.perf_counter()
-    diag = diagnose_run(run, effects=[CANDIDATE], workers=workers, pool=pool)
+    diag = diagnose_run(run, effects=[CANDIDATE], pool=pool, settings=DiagnoseSettings(workers=workers))
     t2 = time.perf_counter()
     refit = diag.refits[0] if diag.refits else None
     return [["check", round(t1 - t0, 1), f"joint p = {chk.test.p_value:.3g} from {chk.test.n_null} null rollouts"],

@@ -31,7 +31,7 @@ errors counted as wrong, rows of differing settings refused, the acceptance figu
 from __future__ import annotations
 
 import argparse
-import inspect
+import dataclasses
 import json
 import os
 import shutil
@@ -53,6 +53,7 @@ from benchmarks import runner
 from benchmarks.diagnosis_protocol import (CYCLE, DEFAULT_THRESHOLD, EFFECTS, THRESHOLDS, cases_for_minimums,
                                            done_ids, load_thresholds, outcome, read_rows, report, settings_conflict,
                                            summary, threshold)
+from softsbi.workflows.defaults import DiagnoseSettings
 
 RESULTS = runner.RESULTS
 SPLIT_SEEDS = {"dev": 0, "test": 1}
@@ -62,8 +63,7 @@ N_POINTS, N_DENSE = 64, 300
 BUDGET = {"rounds": 3, "sims_per_round": 100}
 #: the settings of ``diagnose_run`` that decide a verdict, at its defaults, passed explicitly (so a row records what
 #: the diagnosis used)
-DIAGNOSE = {k: p.default for k, p in inspect.signature(diagnose_run).parameters.items()
-            if k in ("alpha", "k_se", "confirm", "refit_rounds", "refit_sims", "n_null", "max_null", "seed")}
+DIAGNOSE = {k: v for k, v in dataclasses.asdict(DiagnoseSettings()).items() if k != "workers"}
 #: files of a run directory that a diagnosis writes: left out of the copy the old rule diagnoses
 DIAGNOSIS_FILES = ("check.json*", "diagnosis.json*", "refit-*")
 
@@ -144,7 +144,7 @@ def run_case(case: dict[str, Any], out: Path, workers: int | None, old: Path | N
             shutil.copytree(run_dir, tmp, ignore=shutil.ignore_patterns(*DIAGNOSIS_FILES))
             tmp.rename(copy)
     t1 = time.perf_counter()
-    d = diagnose_run(run_dir, effects=EFFECTS, workers=workers, **DIAGNOSE)
+    d = diagnose_run(run_dir, effects=EFFECTS, settings=DiagnoseSettings(**DIAGNOSE, workers=workers))
     named = d.refit(d.decision.named) if d.decision.named else None
     row.update(status="ok", verdict=d.verdict, named=list(d.decision.named),
                alternatives=[list(a) for a in d.decision.alternatives], partial=list(d.decision.partial),

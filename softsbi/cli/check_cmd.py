@@ -8,18 +8,16 @@ from typing import Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import (ALPHA_OK, AT_LEAST_1_WORKER, H_ALPHA, H_JSON, H_MAX_NULL, H_N_EVAL, H_RECOMPUTE,
-                                 H_WORKERS, MAX_NULL_OK, N_NULL_OK)
+from softsbi.cli.options import H_ALPHA, H_JSON, H_MAX_NULL, H_N_EVAL, H_RECOMPUTE, H_WORKERS, setting
 from softsbi.cli.output import Output
-from softsbi.core.levels import ALPHA
-from softsbi.workflows import defaults as D
+from softsbi.workflows.defaults import CheckSettings
 
 
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),
-          n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL, callback=N_NULL_OK),
-          max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=MAX_NULL_OK, help=H_MAX_NULL),
-          alpha: float = typer.Option(ALPHA, help=H_ALPHA, callback=ALPHA_OK),
-          workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+          n_eval: int = setting(CheckSettings, "n_eval", H_N_EVAL),
+          max_null: int = setting(CheckSettings, "max_null", H_MAX_NULL),
+          alpha: float = setting(CheckSettings, "alpha", H_ALPHA),
+          workers: Optional[int] = setting(CheckSettings, "workers", H_WORKERS),
           recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
           as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Posterior predictive check: where and when the fitted model misses the measurement."""
@@ -29,8 +27,8 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
     from softsbi.workflows.criticism.check import check_run  # start-up: the check workflow
     o = Output(as_json)
     with shown(o):
-        out = check_run(run, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute,
-                        message=o.message)
+        out = check_run(run, CheckSettings(n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null),
+                        recompute=recompute, message=o.message)
     if json_done(o, to_json(out)):
         return
     o.table(["phase", "time [s]", "Chamfer [cm]", "worst region"],
@@ -44,10 +42,10 @@ def check(run: Path = typer.Argument(..., help="run directory of a finished fit"
 def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal model)"),
             run_b: Path = typer.Argument(..., help="second run (e.g. with the effect added)"),
             out: Optional[Path] = typer.Option(None, help="output folder (default: RUN_B)"),
-            n_eval: int = typer.Option(D.N_NULL, "--n-eval", help=H_N_EVAL + ", per run", callback=N_NULL_OK),
-            max_null: int = typer.Option(D.MAX_NULL, "--max-null", callback=MAX_NULL_OK, help=H_MAX_NULL + " (each run's check)"),
-            alpha: float = typer.Option(ALPHA, help=H_ALPHA + " (each run's check)", callback=ALPHA_OK),
-            workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+            n_eval: int = setting(CheckSettings, "n_eval", H_N_EVAL + ", per run"),
+            max_null: int = setting(CheckSettings, "max_null", H_MAX_NULL + " (each run's check)"),
+            alpha: float = setting(CheckSettings, "alpha", H_ALPHA + " (each run's check)"),
+            workers: Optional[int] = setting(CheckSettings, "workers", H_WORKERS),
             recompute: bool = typer.Option(False, "--recompute", help=H_RECOMPUTE),
             as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Two runs side by side: error per time step and region, before vs after."""
@@ -57,8 +55,14 @@ def compare(run_a: Path = typer.Argument(..., help="first run (e.g. nominal mode
     from softsbi.workflows.criticism.compare import compare_runs  # start-up: the check workflow
     o = Output(as_json)
     with shown(o):
-        res = compare_runs(run_a, run_b, out or run_b, n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null,
-                           recompute=recompute, message=o.message)
+        res = compare_runs(
+            run_a,
+            run_b,
+            out or run_b,
+            CheckSettings(n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null),
+            recompute=recompute,
+            message=o.message,
+        )
     if json_done(o, to_json(res)):
         return
     o.table(["", str(run_a), str(run_b), "change"],

@@ -10,6 +10,7 @@ import typer
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.workflows import defaults as D
+from softsbi.workflows.defaults import Bound
 
 #: help texts shared by several commands (one option name and one text per quantity)
 H_JSON = "print one JSON document on stdout (results, or the error) instead of tables"
@@ -34,27 +35,39 @@ class Proposal(str, Enum):
     truncated = "truncated"
 
 
-def bound(low: float, why: str = "", strict: bool = False, below: float | None = None):
-    """A typer option callback that refuses, when the flags are parsed (before any work), a value under ``low`` (at
-    or under it when ``strict``; at or above ``below`` when given): "Invalid value for '--n-draws': must be >= 10
-    (got 1): why", exit code 2. ``None`` (an unset optional flag) passes."""
+def checked(limit: Bound):
+    """A typer option callback that refuses, when the flags are parsed (before any work), a value outside ``limit``
+    (:class:`~softsbi.workflows.defaults.Bound`: the words the workflows refuse it with too): "Invalid value for
+    '--n-null': must be >= 5 (got 1): why", exit code 2. ``None`` (an unset optional flag) passes."""
 
     def check(ctx: typer.Context, param: typer.CallbackParam, value: float | None) -> float | None:
-        if value is not None and (value < low or (strict and value <= low) or (below is not None and value >= below)):
-            limit = (f"> {low:g}" if strict else f">= {low:g}") + ("" if below is None else f" and < {below:g}")
-            raise typer.BadParameter(f"must be {limit} (got {value:g})" + (f": {why}" if why else ""), ctx=ctx,
-                                     param=param)
+        why = limit.problem(value)
+        if why is not None:
+            raise typer.BadParameter(why, ctx=ctx, param=param)
         return value
     return check
 
 
+def bound(low: float, why: str = "", strict: bool = False, below: float | None = None):
+    """:func:`checked` for a flag that is not a check or diagnose setting: at least ``low`` (more than it when
+    ``strict``), below ``below`` when given."""
+    return checked(Bound("", low, why, strict, below))
+
+
+def setting(settings: type, name: str, help: str) -> Any:
+    """The typer option of setting ``name`` of a settings class (:class:`~softsbi.workflows.defaults.CheckSettings`,
+    :class:`~softsbi.workflows.defaults.DiagnoseSettings`): its flag, default and bound are the class's, so the
+    command and the Python API cannot disagree."""
+    limit = settings.BOUNDS[name]
+    return typer.Option(settings.__dataclass_fields__[name].default, limit.flag, help=help, callback=checked(limit))
+
+
 #: the option callbacks shared by several commands
-AT_LEAST_1_WORKER = bound(1, "one simulation process at least; leave it out for one per core")
-SEED_OK = bound(0, "seeds are non-negative integers")
-ALPHA_OK = bound(0, "a probability", strict=True, below=1)
-N_NULL_OK = bound(D.MIN_ROLLOUTS, "the null's first stage and the check's error maps need that many posterior "
-                                  "rollouts")
-MAX_NULL_OK = bound(D.MIN_ROLLOUTS)
+AT_LEAST_1_WORKER = checked(D.WORKERS_BOUND)
+SEED_OK = checked(D.SEED_BOUND)
+ALPHA_OK = checked(D.ALPHA_BOUND)
+N_NULL_OK = checked(D.CheckSettings.BOUNDS["n_eval"])
+MAX_NULL_OK = checked(D.MAX_NULL_BOUND)
 ROUNDS_OK = bound(1, "one round at least")
 SIMS_OK = bound(D.MIN_SIMS_PER_ROUND, "the estimator needs data")
 

@@ -35,6 +35,7 @@ from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, run_fi
 from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import fit_callbacks, say, shown_unless_shown
 from softsbi.workflows.fit.runs import Run, open_run
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings, split_settings
 from softsbi.workflows.lock import check_out_apart
 from softsbi.workflows.measurement import default_values, rollout_space
 
@@ -152,8 +153,9 @@ def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResul
     (:func:`~softsbi.workflows.criticism.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
     ``recompute``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in ``RUN/check.json``).
     ``progress``: one line on stderr per phase of simulations (module docstring)."""
+    check_settings, rest = split_settings(CheckSettings, settings)
     with shown_unless_shown(progress):
-        return check_run(run, **settings)
+        return check_run(run, check_settings, **rest)
 
 
 def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | Path | None = None,
@@ -171,8 +173,9 @@ def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | P
     if isinstance(effects, str):
         raise SoftsbiError(f"effects must be a list of effect names, e.g. effects=[{effects!r}]")
     steps = progress if callable(progress) else say if progress else None
+    diagnose_settings, rest = split_settings(DiagnoseSettings, settings)
     with shown_unless_shown(bool(progress)):
-        return diagnose_run(run, effects=effects, out_dir=out, progress=steps, **settings)
+        return diagnose_run(run, effects=effects, out_dir=out, progress=steps, settings=diagnose_settings, **rest)
 
 
 def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None, progress: bool = True,
@@ -182,8 +185,9 @@ def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None,
     ``n_eval``, ``alpha`` (the level of both checks), ``max_null``, ``workers``, ``recompute``). Returns the
     :class:`~softsbi.core.comparison.CompareResult`. ``progress``: one line on stderr per phase of simulations (module
     docstring)."""
+    check_settings, rest = split_settings(CheckSettings, settings)
     with shown_unless_shown(progress):
-        return compare_runs(run_a, run_b, run_b if out is None else out, **settings)
+        return compare_runs(run_a, run_b, run_b if out is None else out, check_settings, **rest)
 
 
 __all__ = ["FitConfig", "FitResult", "Run", "calibrate_run", "check", "compare", "diagnose", "fit", "load_scenario",

@@ -37,6 +37,7 @@ from softsbi.workflows.criticism.stats import PosteriorPredictive
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, read_report, run_fit
 from softsbi.workflows.lock import check_out_apart
 from softsbi.workflows.measurement import simulate_recording
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
 
 #: the demo's hidden parameter values (unit-cube positions; the user is not told them before the fit ends)
 DEMO_TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}
@@ -157,12 +158,14 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     ui.step("2. check: where does the model miss the measurement?")
     pool = PosteriorPredictive(nominal, workers)  # one null for check and diagnose
     with ui.working("posterior predictive check ..."):
-        chk = check_run(nominal, workers=workers, pool=pool)
+        chk = check_run(nominal, pool=pool, settings=CheckSettings(workers=workers))
     doc["check"] = to_json(chk)
     ui.line(check_summary(chk))
     ui.step("3. diagnose: which installed effect explains the residual?")
     with ui.working("screening candidate effects and refitting the top ones ..."):
-        diag = diagnose_run(nominal, workers=workers, pool=pool, progress=ui.line)  # diagnose's defaults
+        diag = diagnose_run(
+            nominal, pool=pool, progress=ui.line, settings=DiagnoseSettings(workers=workers)
+        )  # diagnose's defaults
     doc["diagnosis"] = to_json(diag)
     ui.diagnosis_done(diag)
     if diag.verdict != "missing-effect":
@@ -174,7 +177,7 @@ def _find_and_add_effect(ui: DemoCallbacks, doc: dict[str, Any], recording: Reco
     ui.fit_done(read_report(refit), refit)
     ui.step("5. compare: error before and after")
     with ui.working("comparing the two fits ..."):
-        comp = compare_runs(nominal, refit, out, workers=workers)
+        comp = compare_runs(nominal, refit, out, settings=CheckSettings(workers=workers))
     ui.comparison_done(comp, eff)
     a, b = comp.check_a, comp.check_b
     chamfer = comp.row(Metric.CHAMFER)

@@ -3,6 +3,7 @@ to the value of the FitConfig field or workflow parameter it sets (None: "the li
 option with a default is named here as the CLI's own."""
 import dataclasses
 import inspect
+import re
 from enum import Enum
 from pathlib import Path
 
@@ -22,10 +23,16 @@ from softsbi.workflows.fit.task_store import task_store_of
 from softsbi.workflows.fit.run import FitConfig
 from softsbi.workflows.measurement import import_diffcloud, load_image_recording
 from softsbi.workflows.simulate import simulate_to_folder
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
 from softsbi.workflows.view import write_view
 
 FIT = {f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())
        for f in dataclasses.fields(FitConfig)}
+
+
+def _settings(cls):
+    """The defaults of a settings object's fields (check's and diagnose's settings)."""
+    return {f.name: f.default for f in dataclasses.fields(cls)}
 
 
 def _sig(fn, rename=None):
@@ -40,9 +47,9 @@ LIBRARY = {
             "backend_opt": FIT["backend_options"], "estimator_opt": FIT["estimator_options"],
             "image_size": _sig(load_image_recording)["size"], "retries": _sig(LocalExecutor.__init__)["retries"],
             "sim_timeout": _sig(LocalExecutor.__init__)["timeout"]},
-    "check": _sig(check_run),
-    "diagnose": _sig(diagnose_run, {"effect": "effects"}),
-    "compare": _sig(compare_runs),
+    "check": {**_settings(CheckSettings), **_sig(check_run)},
+    "diagnose": {**_settings(DiagnoseSettings), **_sig(diagnose_run, {"effect": "effects"})},
+    "compare": {**_settings(CheckSettings), **_sig(compare_runs)},
     "view": _sig(write_view),
     "calibrate": _sig(calibrate_run),
     "demo": _sig(run_demo),
@@ -57,7 +64,7 @@ LIBRARY = {
 }
 #: options only the CLI has, with a default of its own
 CLI_ONLY = {"as_json", "out", "recording", "theta", "extractor", "observed", "ray_address", "retry_failed",
-            "refit_rounds", "refit_sims", "data", "match", "effect", "backend_opt", "no_sim_bank"}
+            "data", "match", "effect", "backend_opt", "no_sim_bank"}
 
 
 def _commands():
@@ -90,3 +97,30 @@ def test_every_cli_default_is_its_library_default():
                 assert p.name in CLI_ONLY or default in (None, False, [], ()), \
                     f"`softsbi {name} --{p.name.replace('_', '-')}` defaults to {default!r}: take it from the library"
     assert checked >= 30, checked
+
+
+def test_check_and_diagnose_take_their_flags_defaults_and_bounds_from_the_settings_objects():
+    """Each setting of check, compare and diagnose is defined once: the CLI option has the settings field's flag and
+    default, and it refuses a value outside the field's bound with the bound's own words, as the Python API does."""
+    from typer.testing import CliRunner
+    import pytest
+    from softsbi.core.errors import SoftsbiError
+    commands = dict(_commands())
+    seen = 0
+    for command, cls in (("check", CheckSettings), ("compare", CheckSettings), ("diagnose", DiagnoseSettings)):
+        options = {p.name: p for p in commands[command].params}
+        for name, limit in cls.BOUNDS.items():
+            if name == "seed" and name not in options:  # the commands keep the default seed; the API takes one
+                continue
+            option = options[name]
+            assert limit.flag in option.opts and option.default == cls.__dataclass_fields__[name].default
+            outside = limit.low if limit.strict else limit.low - 1
+            words = limit.problem(outside)
+            args = [command, "RUN"] + (["RUN_B"] if command == "compare" else []) + [limit.flag, f"{outside:g}"]
+            res = CliRunner().invoke(app, args)
+            said = " ".join(re.sub("[│╭╮╰╯─]", " ", res.output).split())  # the message, out of its box
+            assert res.exit_code == 2 and words in said, (args, res.output)
+            with pytest.raises(SoftsbiError, match=f"^{limit.flag} {re.escape(words)}$"):
+                cls(**{name: outside})
+            seen += 1
+    assert seen == 2 * (len(CheckSettings.BOUNDS) - 1) + len(DiagnoseSettings.BOUNDS) - 1

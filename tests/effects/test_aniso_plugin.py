@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.plugins import registry
+from softsbi.workflows.defaults import DiagnoseSettings
 
 runner = CliRunner()
 NAME = "aniso-friction"
@@ -124,10 +125,21 @@ def hidden_aniso_round_trip(tmp_path, seed: int = 0, refit_rounds: int = 2, refi
                     estimator_options={"max_epochs": 60, "ensemble": 1, "recalibrate": False})
     run = tmp_path / "nominal"
     run_fit(run, meas, cfg, make_plots=False)
-    d = diagnose_run(run, effects=[NAME, "wind"], alpha=0.2, n_null=12, max_null=12, workers=1, confirm=0, seed=seed,
-                     plots=False)
-    refit = refit_model(load_run(run), [NAME], d.candidates, alpha=0.2, rounds=refit_rounds, sims_per_round=refit_sims,
-                        n_null=12, max_null=12, workers=1, plots=False)
+    d = diagnose_run(
+        run,
+        effects=[NAME, "wind"],
+        plots=False,
+        settings=DiagnoseSettings(alpha=0.2, n_null=12, max_null=12, workers=1, confirm=0, seed=seed),
+    )
+    refit = refit_model(
+        load_run(run),
+        [NAME],
+        d.candidates,
+        rounds=refit_rounds,
+        sims_per_round=refit_sims,
+        plots=False,
+        settings=DiagnoseSettings(alpha=0.2, n_null=12, max_null=12, workers=1),
+    )
     return {"diagnosis": d, "refit": refit}
 
 
@@ -190,8 +202,12 @@ def test_hidden_aniso_is_diagnosed_and_refitted(tmp_path):
                     proposal="truncated")
     run = tmp_path / "nominal"
     run_fit(run, meas, cfg, make_plots=False)
-    d = diagnose_run(run, effects=[NAME, "air-drag", "heavy-hem", "wind"], n_null=30, workers=1, confirm=2,
-                     refit_rounds=4, refit_sims=60, plots=False)
+    d = diagnose_run(
+        run,
+        effects=[NAME, "air-drag", "heavy-hem", "wind"],
+        plots=False,
+        settings=DiagnoseSettings(n_null=30, workers=1, confirm=2, refit_rounds=4, refit_sims=60),
+    )
     ranked = [c.effect for c in d.ranking]
     assert NAME in ranked[:2], ranked
     r = d.refit((NAME,))

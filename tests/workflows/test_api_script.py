@@ -28,7 +28,7 @@ def _fake_fit(out, recording, cfg, callbacks=None, make_plots=True):
     return "fitted"
 
 
-def _fake_check(run, **settings):
+def _fake_check(run, settings=None, **rest):
     with phase("posterior-predictive rollouts", 30) as advance:
         advance(30)
     return "checked"
@@ -60,6 +60,13 @@ def _rendered(f, skip=()) -> str:
     return ", ".join(out)
 
 
+def _with_settings(cls, f, skip=()) -> str:
+    """A workflow's settings as the API takes them: the settings object's fields, then the workflow's own keywords."""
+    import dataclasses
+    fields = ", ".join(f"{x.name}={x.default!r}" for x in dataclasses.fields(cls))
+    return fields + ", " + _rendered(f, (*skip, "settings"))
+
+
 def test_the_python_api_how_to_lists_each_function_with_the_code_s_signature_and_defaults():
     from pathlib import Path
 
@@ -67,13 +74,17 @@ def test_the_python_api_how_to_lists_each_function_with_the_code_s_signature_and
     from softsbi.workflows.criticism.check import check_run
     from softsbi.workflows.criticism.compare import compare_runs
     from softsbi.workflows.criticism.diagnose import diagnose_run
+    from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
     doc = (Path(__file__).parents[2] / "docs" / "howto" / "python-api.md").read_text()
     for name in ("load_scenario", "load_recording", "simulate_recording", "simulate", "fit", "open_run", "check",
                  "diagnose", "compare", "calibrate_run", "import_diffcloud", "train_task"):
         assert f"softsbi.{name}({_rendered(getattr(softsbi, name))})\n" in doc, name
-    assert f"`check`'s `settings`: `{_rendered(check_run, ('run_dir',))}`" in doc
-    assert f"`diagnose`'s `settings`: `{_rendered(diagnose_run, ('run_dir', 'effects', 'progress'))}`" in doc
-    assert f"`compare`'s `settings`: `{_rendered(compare_runs, ('run_a', 'run_b', 'out_dir'))}`" in doc
+    assert f"`check`'s `settings`: `{_with_settings(CheckSettings, check_run, ('run_dir',))}`" in doc
+    assert (f"`diagnose`'s `settings`: "
+            f"`{_with_settings(DiagnoseSettings, diagnose_run, ('run_dir', 'effects', 'progress', 'out_dir'))}`") in doc
+    assert (
+        f"`compare`'s `settings`: `{_with_settings(CheckSettings, compare_runs, ('run_a', 'run_b', 'out_dir'))}`" in doc
+    )
     assert (
         "SOFTSBI_PLUGINS" in doc
         and "MCPValue" in doc

@@ -8,6 +8,7 @@ import pytest
 import softsbi
 from softsbi.core.types import Param, ParamSpace
 from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence, widened_bounds
+from softsbi.workflows.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 
@@ -40,7 +41,9 @@ def test_a_pile_up_at_a_bound_is_named_in_the_parameters_own_scale():
     # that names it: tests/report/test_fit_text.py)
     assert e["suggested_bounds"] == [1.0, pytest.approx(10 ** 4.5)]
     # the lower bound, and the threshold
-    lo = SPACE.from_unit(np.column_stack([rng.uniform(0.3, 0.7, 1000), np.r_[np.zeros(300), rng.uniform(0.3, 0.7, 700)]]))
+    lo = SPACE.from_unit(
+        np.column_stack([rng.uniform(0.3, 0.7, 1000), np.r_[np.zeros(300), rng.uniform(0.3, 0.7, 700)]])
+    )
     (e,) = bound_pressure(SPACE, lo)
     assert (e["param"], e["side"], e["bound"]) == ("friction", "lower", 0.0) and e["mass"] == pytest.approx(0.3)
     # friction 0 is a physical limit: no wider prior is suggested (the sentence says to suspect a missing effect)
@@ -116,12 +119,12 @@ def test_check_repeats_the_fits_pressed_bounds(toy_run, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(out, run)
     # a level the 10-rollout null resolves (2/11 <= 0.5): the test is not what this checks
-    plain = check_run(run, n_eval=10, workers=1, plot=False, alpha=0.5, max_null=10)
+    plain = check_run(run, plot=False, settings=CheckSettings(n_eval=10, workers=1, alpha=0.5, max_null=10))
     rep = json.loads((run / "report.json").read_text())
     assert list(plain.posterior_at_bounds) == rep["posterior_at_bounds"]
     rep["posterior_at_bounds"] = [{"param": "b", "side": "lower", "bound": -1.0, "unit": "1", "mass": 0.35}]
     (run / "report.json").write_text(json.dumps(rep))
-    pressed = check_run(run, n_eval=10, workers=1, plot=False, alpha=0.5, max_null=10)
+    pressed = check_run(run, plot=False, settings=CheckSettings(n_eval=10, workers=1, alpha=0.5, max_null=10))
     # read through the typed report: a key the file lacks (no wider prior suggested) reads as None
     assert list(pressed.posterior_at_bounds) == [{**rep["posterior_at_bounds"][0], "suggested_bounds": None}]
     assert pressed.test == plain.test  # the test is unchanged

@@ -9,6 +9,7 @@ import pytest
 from softsbi.core.camera import Camera
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.workflows.criticism.check import material_regions, region_errors, surface_points
+from softsbi.workflows.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 
@@ -109,7 +110,7 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     assert hidden > 0  # the lift's early frames have cloth lying on the table
     # check's region errors are these, averaged over its rollouts (the same samples and seeds)
     # a level the 6-rollout null resolves (2/7 <= 0.5): the test is not what this checks
-    chk = check_run(lift_runs["camera"], n_eval=6, workers=1, plot=False, alpha=0.5, max_null=6)
+    chk = check_run(lift_runs["camera"], plot=False, settings=CheckSettings(n_eval=6, workers=1, alpha=0.5, max_null=6))
     assert chk.metric_sensor == "camera"
     reg = np.array([rollout_region_errors(view, r, labels, len(names), view.dense) for r in ok])
     with warnings.catch_warnings():
@@ -142,11 +143,19 @@ def test_compare_warns_when_the_sensor_kind_differs(lift_runs, tmp_path):
     from softsbi.workflows.criticism.compare import compare_runs
     warn = "different sensor models (--sensor / --min-height / --frames)"
     # compare checks at the default level 0.05, which needs a null cap of at least 39
-    mixed = compare_runs(lift_runs["height"], lift_runs["camera"], tmp_path / "mixed", n_eval=6, workers=1,
-                         max_null=39)
+    mixed = compare_runs(
+        lift_runs["height"],
+        lift_runs["camera"],
+        tmp_path / "mixed",
+        settings=CheckSettings(n_eval=6, workers=1, max_null=39),
+    )
     assert not mixed.same_sensor and warn in compare_summary(mixed)
     assert mixed.check_a.metric_sensor == "none" and mixed.check_b.metric_sensor == "camera"  # no height cut
-    same = compare_runs(lift_runs["height"], lift_runs["height2"], tmp_path / "same", n_eval=6, workers=1,
-                        max_null=39)
+    same = compare_runs(
+        lift_runs["height"],
+        lift_runs["height2"],
+        tmp_path / "same",
+        settings=CheckSettings(n_eval=6, workers=1, max_null=39),
+    )
     assert same.same_sensor
     assert (tmp_path / "same" / "compare.png").is_file()

@@ -10,6 +10,7 @@ from softsbi.core.results import Diagnosis, from_json
 from softsbi.workflows.criticism.diagnose import diagnose_run, load_diagnosis
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
+from softsbi.workflows.defaults import DiagnoseSettings
 
 pytestmark = pytest.mark.integration
 
@@ -44,7 +45,7 @@ def magnet_run(tmp_path_factory):
 
 
 def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
-    d = diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, plots=False)
+    d = diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], plots=False, settings=DiagnoseSettings(workers=1))
     assert d.test.misspecified
     assert d.verdict == "missing-effect" and d.decision.named == (MAGNET,)
     named = d.refit((MAGNET,))
@@ -56,13 +57,18 @@ def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
     # the stored result is the returned one, and a second call with the same settings reads it back
     stored = from_json(Diagnosis, json.loads((magnet_run / "diagnosis.json").read_text()))
     assert stored == d and load_diagnosis(magnet_run) == d
-    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, plots=False) == d
+    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], plots=False, settings=DiagnoseSettings(workers=1)) == d
     # a refit budget given as the run's own (2 x 80) is the default's: the stored result is read back, not recomputed
-    assert diagnose_run(magnet_run, effects=FLEXIBLE + [MAGNET], workers=1, refit_rounds=2, refit_sims=80) == d
+    assert (
+        diagnose_run(
+            magnet_run, effects=FLEXIBLE + [MAGNET], settings=DiagnoseSettings(workers=1, refit_rounds=2, refit_sims=80)
+        )
+        == d
+    )
 
 
 def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(magnet_run):
-    d = diagnose_run(magnet_run, effects=FLEXIBLE, workers=1, plots=False)
+    d = diagnose_run(magnet_run, effects=FLEXIBLE, plots=False, settings=DiagnoseSettings(workers=1))
     assert d.test.misspecified and set(d.test.family) == set(FLEXIBLE)
     assert d.verdict == "misspecified-unexplained" and d.decision.named == ()
     assert all(MAGNET not in r.effects for r in d.refits)
@@ -82,7 +88,9 @@ def test_a_failing_plugin_effect_as_the_only_candidate_stays_in_the_table_with_i
                                                           str(Path(__file__).with_name("broken_effect.py"))]))
     registry.cache_clear()
     try:
-        d = diagnose_run(magnet_run, effects=["toy-broken"], confirm=0, workers=1, plots=False)
+        d = diagnose_run(
+            magnet_run, effects=["toy-broken"], plots=False, settings=DiagnoseSettings(confirm=0, workers=1)
+        )
     finally:
         monkeypatch.undo()
         registry.cache_clear()
@@ -107,7 +115,12 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
     tasks = train_task(rec, cfg, 120, candidates=["toy-drift", MAGNET], n_test=20, n_draws=50, check_null=0)
     assert [t.model for t in tasks] == ["nominal", "nominal+toy-drift", f"nominal+{MAGNET}"]
     run_fit(tmp_path / "nominal", rec, cfg, make_plots=False)  # stops at the trained task: one round
-    d = diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1, plots=False)
+    d = diagnose_run(
+        tmp_path / "nominal",
+        effects=["toy-drift", MAGNET],
+        plots=False,
+        settings=DiagnoseSettings(confirm=1, workers=1),
+    )
     assert d.test.misspecified
     scores = {c.effect: c.amortised for c in d.ranking}
     assert all(s is not None and s.n == 30 for s in scores.values())
@@ -119,4 +132,12 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
         (d.refits[0].score.se ** 2 + scores[MAGNET].se ** 2) ** 0.5)
     # the stored diagnosis is keyed by the trained candidates' tasks (training one more diagnoses again), and read back
     assert d.key["trained"] == sorted(t.digest for t in tasks[1:])
-    assert diagnose_run(tmp_path / "nominal", effects=["toy-drift", MAGNET], confirm=1, workers=1, plots=False) == d
+    assert (
+        diagnose_run(
+            tmp_path / "nominal",
+            effects=["toy-drift", MAGNET],
+            plots=False,
+            settings=DiagnoseSettings(confirm=1, workers=1),
+        )
+        == d
+    )

@@ -15,6 +15,7 @@ from softsbi.workflows.criticism.evidence import REFIT_PROPOSAL
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
 
 OPTS = {"grid": 5}
 
@@ -38,8 +39,8 @@ def test_generic_force_terms_give_the_third_verdict_with_where_and_how_much(tmp_
     run = _hidden_wind_fit(tmp_path)
     monkeypatch.setattr(Wind, "generic", True, raising=False)
     monkeypatch.setattr(ExtraDamping, "generic", True, raising=False)
-    d = diagnose_run(run, effects=["wind", "extra-damping"], workers=1, confirm=2)
-    chk = check_run(run, workers=1, plot=False, effects=["wind", "extra-damping"])
+    d = diagnose_run(run, effects=["wind", "extra-damping"], settings=DiagnoseSettings(workers=1, confirm=2))
+    chk = check_run(run, plot=False, effects=["wind", "extra-damping"], settings=CheckSettings(workers=1))
     assert chk.test.misspecified and d.test == chk.test  # one null, one test
     assert d.verdict == "misspecified-unexplained" and d.refits == () and d.decision.named == ()
     assert d.generic.effect == "wind" and d.ranking[0].effect == "wind" and d.ranking[0].generic
@@ -52,8 +53,12 @@ def test_generic_force_terms_give_the_third_verdict_with_where_and_how_much(tmp_
     # stored check keeps the candidates' flags as they were)
     monkeypatch.setattr(Wind, "generic", False)
     monkeypatch.setattr(ExtraDamping, "generic", False)
-    d2 = diagnose_run(run, effects=["wind", "extra-damping"], workers=1, confirm=1, refit_rounds=2, refit_sims=60,
-                      recompute=True)
+    d2 = diagnose_run(
+        run,
+        effects=["wind", "extra-damping"],
+        recompute=True,
+        settings=DiagnoseSettings(workers=1, confirm=1, refit_rounds=2, refit_sims=60),
+    )
     assert d2.verdict == "missing-effect" and d2.decision.named == ("wind",)
 
 

@@ -23,6 +23,7 @@ from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.runs import load_run
 from softsbi.workflows.criticism.stats import PM_ROLLOUTS, posterior_mean_chamfer, run_features
 from softsbi.plugins import registry
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
 
 pytestmark = pytest.mark.integration
 
@@ -79,8 +80,8 @@ def toy_runs(tmp_path_factory):
 
 def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     hidden, control = toy_runs
-    h = check_run(hidden, n_eval=30, workers=1)
-    c = check_run(control, n_eval=30, workers=1)
+    h = check_run(hidden, settings=CheckSettings(n_eval=30, workers=1))
+    c = check_run(control, settings=CheckSettings(n_eval=30, workers=1))
     assert (hidden / "check.png").stat().st_size > 10_000 and (hidden / "check.json").exists()
     assert len(h.chamfer.mean) == len(h.times_s) == 4
     assert np.array(h.region_error_m).shape == (4, 9)
@@ -102,7 +103,7 @@ def test_check_finds_misspecification_only_with_the_hidden_effect(toy_runs):
     assert h.energy.n == h.n_rollouts == 30 and h.energy.chamfer_m == pytest.approx(h.chamfer_mean_m)
     assert h.energy.energy_m == pytest.approx(h.chamfer_mean_m - h.energy.spread_m / 2)
     # stored: the same command reads the same result back from check.json
-    assert check_run(hidden, n_eval=30, workers=1) == h
+    assert check_run(hidden, settings=CheckSettings(n_eval=30, workers=1)) == h
 
 
 def test_posterior_mean_rollout_scores_the_point_estimate_with_the_fits_metric(toy_runs):
@@ -127,13 +128,15 @@ def test_posterior_mean_rollout_scores_the_point_estimate_with_the_fits_metric(t
 
 def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     hidden, control = toy_runs
-    d = diagnose_run(hidden, workers=1, confirm=1, refit_rounds=2, refit_sims=150, plots=False)
+    d = diagnose_run(
+        hidden, plots=False, settings=DiagnoseSettings(workers=1, confirm=1, refit_rounds=2, refit_sims=150)
+    )
     assert d.verdict == "missing-effect" and d.decision.named == ("toy-wind",)
     top = d.ranking[0]
     assert top.effect == "toy-wind" and top.estimate["wind"] == pytest.approx(0.45, abs=0.12)
     assert top.adjusted.value >= 1 / (d.test.n_null + 1)
     # diagnose's detection is check's test on the same null: identical numbers
-    chk = check_run(hidden, workers=1, plot=False)
+    chk = check_run(hidden, plot=False, settings=CheckSettings(workers=1))
     assert d.test == chk.test and d.ranking == chk.ranking
     (r,) = d.refits
     # the refit with the named effect passes check's test at the diagnosis' level, over the family less its effect
@@ -158,10 +161,10 @@ def test_diagnose_names_the_hidden_effect_and_refit_lowers_the_error(toy_runs):
     assert est.pressed == next((b["side"] for b in refit_rep["posterior_at_bounds"] if b["param"] == "wind"), None)
     assert est.q05 < 0.45 < est.q95
     assert load_diagnosis(hidden) == d
-    c = diagnose_run(control, workers=1, confirm=1, plots=False)
+    c = diagnose_run(control, plots=False, settings=DiagnoseSettings(workers=1, confirm=1))
     assert c.verdict == "nothing-missing" and c.refits == () and c.decision.named == ()
     assert c.residual is None and c.generic is None
-    chk_c = check_run(control, workers=1, plot=False)
+    chk_c = check_run(control, plot=False, settings=CheckSettings(workers=1))
     assert c.test == chk_c.test and not chk_c.test.misspecified
     # compare before/after
     res = runner.invoke(app, ["compare", str(hidden), r.run, "--workers", "1", "--n-eval", "20"])
@@ -188,9 +191,9 @@ def test_check_and_diagnose_share_one_null(toy_runs):
     from softsbi.workflows.criticism.stats import PosteriorPredictive
     hidden, _ = toy_runs
     pool = PosteriorPredictive(hidden, workers=1)
-    chk = check_run(hidden, workers=1, plot=False, pool=pool, recompute=True)
+    chk = check_run(hidden, plot=False, pool=pool, recompute=True, settings=CheckSettings(workers=1))
     n = pool.requested
-    d = diagnose_run(hidden, workers=1, confirm=0, pool=pool, recompute=True, plots=False)
+    d = diagnose_run(hidden, pool=pool, recompute=True, plots=False, settings=DiagnoseSettings(workers=1, confirm=0))
     assert pool.requested == n == chk.test.n_null and d.test == chk.test
     assert d.ranking == chk.ranking and d.residual == chk.residual
 
@@ -203,7 +206,7 @@ def test_misspecified_by_nothing_installed_names_where_and_the_generic_term(toy_
     run = tmp_path / "hidden"
     shutil.copytree(hidden, run, ignore=shutil.ignore_patterns("refit-*", "check.*", "diagnosis.json"))
     monkeypatch.setattr(toy.ToyWind, "generic", True, raising=False)
-    d = diagnose_run(run, workers=1, plots=False)
+    d = diagnose_run(run, plots=False, settings=DiagnoseSettings(workers=1))
     assert d.test.misspecified and d.verdict == "misspecified-unexplained"
     assert d.refits == () and d.decision.named == () and d.decision.partial == ()
     assert d.generic.effect == "toy-wind" and d.ranking[0].generic
@@ -260,7 +263,11 @@ def test_a_diagnosis_loads_the_nominal_run_and_each_refit_once(toy_runs, tmp_pat
     shutil.copytree(hidden, nominal, ignore=shutil.ignore_patterns("refit-*", "check.json", "diagnosis.json"))
     loads = count_run_loads(monkeypatch)
     # a null of 12 extended to 40: beyond the fit's 30 evaluation samples, so posterior draws are made too
-    d = diagnose_run(nominal, workers=1, confirm=1, refit_rounds=1, refit_sims=100, n_null=12, max_null=40, plots=False)
+    d = diagnose_run(
+        nominal,
+        plots=False,
+        settings=DiagnoseSettings(workers=1, confirm=1, refit_rounds=1, refit_sims=100, n_null=12, max_null=40),
+    )
     refits = [Path(r.run).resolve() for r in d.refits]
     assert d.test.n_null > 30 and refits
     assert Counter(loads) == {nominal.resolve(): 1, **{r: 1 for r in refits}}
@@ -276,9 +283,15 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
     run = load_run(nominal)
     # a level the 12-rollout null resolves (2/13 <= 0.2), so the refit's check stays at 12 rollouts
     scale = np.ones(len(run_features(run, run.dense)))
-    first = refit_model(run, ["toy-wind"], ["toy-wind"], scale=scale, alpha=0.2, rounds=1, sims_per_round=100,
-                        n_null=12,
-                        max_null=12, workers=1)
+    first = refit_model(
+        run,
+        ["toy-wind"],
+        ["toy-wind"],
+        scale=scale,
+        rounds=1,
+        sims_per_round=100,
+        settings=DiagnoseSettings(alpha=0.2, n_null=12, max_null=12, workers=1),
+    )
     out = Path(first.run)
     assert (first.rounds, first.sims_per_round) == (1, 100) and out == nominal / "refit-toy-wind"
     assert first.test.n_null == 12 and first.test.alpha == 0.2 and first.score.n == 12
@@ -289,9 +302,15 @@ def test_a_refit_resumes_its_stored_rounds_and_keeps_how_much_the_data_narrowed_
         assert e.width_ratio == report["contraction"][e.name]["width_ratio"]
         assert e.informed == report["contraction"][e.name]["informed"]
     theta0 = RunStore.open(out / "run.zarr", mode="r").round_data(0)["theta"].copy()
-    again = refit_model(run, ["toy-wind"], ["toy-wind"], scale=scale, alpha=0.2, rounds=2, sims_per_round=100,
-                        n_null=12,
-                        max_null=12, workers=1)
+    again = refit_model(
+        run,
+        ["toy-wind"],
+        ["toy-wind"],
+        scale=scale,
+        rounds=2,
+        sims_per_round=100,
+        settings=DiagnoseSettings(alpha=0.2, n_null=12, max_null=12, workers=1),
+    )
     store = RunStore.open(out / "run.zarr", mode="r")
     assert again.rounds == 2 and store.completed_rounds() == [0, 1]
     np.testing.assert_array_equal(store.round_data(0)["theta"], theta0)

@@ -5,6 +5,7 @@ import pytest
 import softsbi
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import Param, ParamSpace
+from softsbi.workflows.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 
@@ -157,9 +158,9 @@ def test_check_refuses_fewer_rollouts_than_it_needs_before_simulating(toy_run, m
     """`check --n-eval 3` said "only 3 of 3 rollouts succeeded" after simulating them (the rule is >= 5)."""
     import softsbi.workflows.criticism.check as check
     monkeypatch.setattr(check, "PosteriorPredictive", lambda *a, **k: pytest.fail("simulated before refusing"))
-    with pytest.raises(SoftsbiError, match=r"--n-eval 3: the check needs at least 5 posterior rollouts; give "
-                                           r"--n-eval 5 or more"):
-        check.check_run(toy_run, n_eval=3)
+    with pytest.raises(SoftsbiError, match=r"--n-eval must be >= 5 \(got 3\): the null's first stage and the "
+                                           r"check's error maps need that many posterior rollouts"):
+        check.check_run(toy_run, settings=CheckSettings(n_eval=3))
 
 
 def test_the_fit_report_points_to_check_when_the_intervals_miss_more_hidden_values_than_chance(toy_run, capsys):

@@ -9,6 +9,7 @@ from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_view
 from softsbi.workflows.criticism.check import check_run
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
+from softsbi.workflows.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 
@@ -59,7 +60,7 @@ def test_check_reproduces_the_reports_sensor_faithful_numbers(sensor_run):
     per_frame = np.array(rep["chamfer_posterior_per_frame_m"])
     assert len(per_frame) == 4 and np.isfinite(rep["chamfer_posterior_one_sided_m"])
     # a level the 12-rollout null resolves (2/13 <= 0.2): the test is not what this checks
-    chk = check_run(sensor_run, n_eval=12, workers=1, plot=False, alpha=0.2, max_null=12)
+    chk = check_run(sensor_run, plot=False, settings=CheckSettings(n_eval=12, workers=1, alpha=0.2, max_null=12))
     # the same rollouts, the same sensor model, the same frames: exactly the report's number
     assert chk.chamfer_mean_m == rep["chamfer_posterior_m"]
     assert chk.chamfer_one_sided_mean_m == rep["chamfer_posterior_one_sided_m"]

@@ -104,7 +104,7 @@ def test_a_null_cap_that_cannot_resolve_the_level_is_refused_in_one_line_naming_
     check_resolution(0.05, 39)  # resolvable: nothing raised
     check_resolution(0.05, 19, tests=1)
     for bad in (0.0, 1.0, -0.1):
-        with pytest.raises(SoftsbiError, match="alpha must lie in"):
+        with pytest.raises(SoftsbiError, match="--alpha must be > 0 and < 1"):
             check_resolution(bad, 200)
 
 

@@ -20,6 +20,7 @@ from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.lock import RunLocked, run_lock
 from softsbi.workflows.tasks import calibrate
+from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
 
 pytestmark = pytest.mark.integration
 
@@ -28,7 +29,7 @@ from toy_helpers import toy_measurement  # noqa: E402
 
 runner = CliRunner()
 #: the diagnose settings of every test here: no refit, the check's own null (so the stored check.json is reused)
-DIAG = dict(confirm=0, n_null=5, workers=1, plots=False)
+DIAG = dict(settings=DiagnoseSettings(confirm=0, n_null=5, workers=1), plots=False)
 
 
 def _cfg():
@@ -41,7 +42,7 @@ def checked(tmp_path_factory):
     """A finished toy fit with its check.json (n_eval 5)."""
     out = tmp_path_factory.mktemp("stored") / "run"
     run_fit(out, toy_measurement(), _cfg(), make_plots=False)
-    check.check_run(out, n_eval=5, workers=1, plot=False)
+    check.check_run(out, plot=False, settings=CheckSettings(n_eval=5, workers=1))
     return out
 
 
@@ -197,7 +198,13 @@ def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_wi
     assert diagnose.diagnosis_plan(FitReport(parameters=("a",), posterior_median={"a": 1.0}), 4, 0) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 4 candidates")
     said = []  # said first, before any simulation
-    diagnose.diagnose_run(run, progress=said.append, out_dir=tmp_path / "d", **{**DIAG, "confirm": 2})
+    diagnose.diagnose_run(
+        run,
+        progress=said.append,
+        out_dir=tmp_path / "d",
+        settings=DiagnoseSettings(confirm=2, n_null=5, workers=1),
+        plots=False,
+    )
     assert said[0].startswith("diagnose plan: the check's 5 posterior rollouts") and "up to 3 refits" in said[0]
 
 
@@ -267,7 +274,7 @@ def test_the_python_api_compares_runs_given_as_plain_strings(checked, tmp_path):
 
 def test_compare_refuses_an_alpha_out_of_range_before_any_work(checked, tmp_path, monkeypatch):
     _no_work(monkeypatch)
-    with pytest.raises(SoftsbiError, match=r"alpha must lie in \(0, 1\), got 1.5"):
+    with pytest.raises(SoftsbiError, match=r"--alpha must be > 0 and < 1 \(got 1.5\): a probability"):
         softsbi.compare(str(checked), str(checked), out=str(tmp_path / "cmp"), alpha=1.5, progress=False)
     assert not (tmp_path / "cmp").exists()
     res = runner.invoke(app, ["compare", str(checked), str(checked), "--alpha", "1.5"])

@@ -38,12 +38,13 @@ from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
 from softsbi.workflows import defaults, pools
+from softsbi.workflows.defaults import CheckSettings
 from softsbi.workflows.criticism.check_null import run_check_null
 from softsbi.workflows.fit.report_file import chamfer_stats
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.fit.runs import RunView, load_run
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, misspecification_verdict
-from softsbi.workflows.criticism.stats import (ALPHA, FEATURE_NAMES, MAX_NULL, N_NULL, PosteriorPredictive, energy_score,
+from softsbi.workflows.criticism.stats import (FEATURE_NAMES, N_NULL, PosteriorPredictive, energy_score,
                                      posterior_mean_chamfer, run_features, run_frames, sampled_points, summary_floor)
 
 #: posterior rollouts the check needs at least (its error maps and the first stage of its test's null)
@@ -338,8 +339,7 @@ def reused(path: Path) -> str:
 
 
 @pools.shared_executors()
-def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int | None = None, plot: bool = True,
-              seed: int = 0, alpha: float = ALPHA, max_null: int = MAX_NULL,
+def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = None, *, plot: bool = True,
               pool: PosteriorPredictive | None = None, effects: Sequence[str] | None = None,
               recompute: bool = False, message: Callable[[str], None] | None = None,
               out_dir: str | Path | None = None) -> CheckResult:
@@ -348,9 +348,10 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
     Args:
         run_dir: the run directory, or the run already loaded (:func:`~softsbi.workflows.fit.runs.load_run`), which is
             then not loaded again (nor when ``pool`` holds it).
-        n_eval: posterior rollouts for the error maps and the start of the test's null.
-        alpha: level of the misspecification verdict (``p <= alpha``).
-        max_null: cap of the adaptive extension of the null (:func:`~softsbi.workflows.criticism.stats.resolution_needed`).
+        settings: the posterior rollouts of the error maps and the start of the test's null (``n_eval``), the cap of
+            its adaptive extension (``max_null``, :func:`~softsbi.workflows.criticism.stats.resolution_needed`), the
+            level of the verdict (``p <= alpha``), workers and seed (:class:`~softsbi.workflows.defaults.CheckSettings`;
+            None: the defaults).
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply
             and the run lacks, generic force terms included, as ``diagnose``'s default candidates).
@@ -369,14 +370,13 @@ def check_run(run_dir: str | Path | RunView, n_eval: int = N_NULL, workers: int 
         residual's shape (:func:`residual_shape`).
 
     Raises:
-        SoftsbiError: ``n_eval`` < :data:`MIN_ROLLOUTS`, or a null cap that cannot resolve ``alpha`` (before
-            simulating); fewer posterior rollouts succeeded; RunDirError, ResultUnwritable: the run directory or its
+        SoftsbiError: a null cap that cannot resolve ``alpha`` (before simulating); fewer posterior rollouts
+            succeeded; RunDirError, ResultUnwritable: the run directory or its
             check.json cannot be written (before simulating; ResultUnwritable also when the disk fills up at the end).
     """
     t0 = time.perf_counter()
-    if not isinstance(n_eval, int) or n_eval < MIN_ROLLOUTS:
-        raise SoftsbiError(f"--n-eval {n_eval}: the check needs at least {MIN_ROLLOUTS} posterior rollouts; give "
-                           f"--n-eval {MIN_ROLLOUTS} or more (default {N_NULL})")
+    s = settings or CheckSettings()
+    n_eval, workers, seed, alpha, max_null = s.n_eval, s.workers, s.seed, s.alpha, s.max_null
     check_resolution(alpha, max_null, 2)
     run = loaded(run_dir, pool, seed)
     cands = candidate_effects(run, effects)

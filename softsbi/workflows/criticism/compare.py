@@ -20,13 +20,12 @@ from softsbi.workflows.criticism.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.fit.runs import load_run
 from softsbi.workflows.criticism.screening import check_resolution
-from softsbi.workflows.criticism.stats import ALPHA, MAX_NULL, N_NULL
+from softsbi.workflows.defaults import CheckSettings
 
 
 @pools.shared_executors()
-def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_eval: int = N_NULL,
-                 workers: int | None = None, alpha: float = ALPHA, max_null: int = MAX_NULL, recompute: bool = False,
-                 message: Callable[[str], None] | None = None) -> CompareResult:
+def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, settings: CheckSettings | None = None, *,
+                 recompute: bool = False, message: Callable[[str], None] | None = None) -> CompareResult:
     """Posterior predictive checks of two runs of the same measurement, side by side.
 
     Writes ``compare.png`` (Chamfer per frame, error per region) and ``compare.json``. Everything that can be refused
@@ -36,8 +35,9 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
         run_a, run_b: finished fits of one measurement (e.g. the nominal model and a refit with an effect), as
             ``str`` or :class:`~pathlib.Path`.
         out_dir: where the figure and the JSON go (``str`` or ``Path``; created if missing).
-        n_eval, alpha, max_null: each run's :func:`~softsbi.workflows.criticism.check.check_run` settings; ``alpha`` is the
-            level both misspecification tests decide at (``p <= alpha``).
+        settings: each run's :func:`~softsbi.workflows.criticism.check.check_run` settings
+            (:class:`~softsbi.workflows.defaults.CheckSettings`; None: the defaults); its ``alpha`` is the level both
+            misspecification tests decide at (``p <= alpha``).
         recompute: check both runs again even when their ``check.json`` hold the same settings.
         message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).
 
@@ -55,7 +55,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     out_dir = check_out_dir(out_dir)
     check_result_path(out_dir / "compare.json")
     check_result_path(out_dir / "compare.png")
-    check_resolution(alpha, max_null, 2)
+    settings = settings or CheckSettings()
+    check_resolution(settings.alpha, settings.max_null, 2)
     run_a, run_b = Path(run_a), Path(run_b)
     ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
     if ra.config.get("observed_source") != rb.config.get("observed_source") or len(ra.dense) != len(rb.dense):
@@ -66,9 +67,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
                                             "run directory to a writable place and compare the copy")
         for name in ("check.json", "check.png"):  # the second run's too, before the first run's check
             check_result_path(run / name)
-    settings = dict(n_eval=n_eval, workers=workers, alpha=alpha, max_null=max_null, recompute=recompute,
-                    message=message)
-    a, b = check_run(ra, **settings), check_run(rb, **settings)
+    a, b = (check_run(r, settings, recompute=recompute, message=message) for r in (ra, rb))
     rows = compare_rows(a, b)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / "compare.png"

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -30,22 +30,21 @@ from softsbi.core.types import Param
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
-from softsbi.workflows import defaults, pools
-from softsbi.workflows.criticism.decide import K_SE, decide, next_refit
+from softsbi.workflows import pools
+from softsbi.workflows.criticism.decide import decide, next_refit
 from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
-from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, N_NULL, PosteriorPredictive, run_features,
+from softsbi.workflows.criticism.stats import (N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
+from softsbi.workflows.defaults import DiagnoseSettings
 
 @pools.shared_executors()
-def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, alpha: float = ALPHA,
-                 k_se: float = K_SE, confirm: int = defaults.CONFIRM, refit_rounds: int | None = None,
-                 refit_sims: int | None = None, n_null: int = N_NULL, max_null: int = MAX_NULL,
-                 workers: int | None = None, seed: int = 0, progress: Callable[[str], None] | None = None,
+def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
+                 settings: DiagnoseSettings | None = None, progress: Callable[[str], None] | None = None,
                  pool: PosteriorPredictive | None = None, recompute: bool = False,
                  out_dir: str | Path | None = None, plots: bool = True) -> Diagnosis:
     """Is the nominal model enough, and if not, which candidate effect is missing? Writes ``diagnosis.json``.
@@ -54,16 +53,11 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
         run_dir: a finished fit of the nominal model.
         effects: the candidate family (default: every installed effect the backend can apply and the run lacks,
             generic force terms included).
-        alpha: the level of every test (the false-alarm rate tolerated).
-        k_se: standard errors by which a refit's summary energy score must fall
-            (:data:`~softsbi.workflows.criticism.decide.K_SE`).
-        confirm: single refits at most (the top named candidates by evidence); a pair is one more (0: no refit).
-        refit_rounds, refit_sims: a refit's budget (default None: the nominal fit's; its own values are stored
-            under the same key as None; a refit at a smaller budget has a wider posterior predictive, which
-            ``check`` rejects less often: measured on a toy magnet, a flexible candidate refitted at half the
-            budget passed where at the full budget it did not).
-        n_null, max_null: start and cap of the posterior-predictive null.
-        workers: simulation processes.
+        settings: the tests' level, the score margin, the refits and the null
+            (:class:`~softsbi.workflows.defaults.DiagnoseSettings`; None: the defaults). A refit budget of None is the
+            nominal fit's (its own values are stored under the same key as None; a refit at a smaller budget has a
+            wider posterior predictive, which ``check`` rejects less often: measured on a toy magnet, a flexible
+            candidate refitted at half the budget passed where at the full budget it did not).
         progress: told each step (``callable(str)``), and what was written or reused.
         pool: posterior-predictive rollouts of this run already simulated (``check``'s, same ``seed``).
         recompute: diagnose again even when ``diagnosis.json`` holds the result for the same fit and settings.
@@ -77,10 +71,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
         the :class:`~softsbi.core.results.Diagnosis`.
 
     Raises:
-        SoftsbiError: no candidates; a null cap that cannot resolve ``alpha``; a setting below its smallest value
-            (:func:`check_settings`: ``confirm < 0``, ``k_se <= 0``, ``refit_rounds < 1``, ``refit_sims < 10``,
-            ``n_null < 5``);
-            the nominal fit has too few successful rollouts.
+        SoftsbiError: no candidates; a null cap that cannot resolve ``alpha``; the nominal fit has too few
+            successful rollouts.
         RunLocked: another process writes ``out_dir`` (e.g. a second diagnose of the run), before any work.
         RunDirError: ``out_dir`` is or lies inside another run's directory, or holds another run's diagnosis
             (:func:`~softsbi.workflows.lock.check_out_apart`), before any work.
@@ -88,14 +80,16 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
             file's place: before any work; a full disk: when the result is written, the refits kept).
     """
     t0 = time.perf_counter()
-    check_settings(confirm=confirm, k_se=k_se, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null)
+    s = settings or DiagnoseSettings()
+    alpha, k_se, confirm, n_null, max_null, workers, seed = (s.alpha, s.k_se, s.confirm, s.n_null, s.max_null,
+                                                             s.workers, s.seed)
     check_resolution(alpha, max_null, 2)
     if out_dir is not None:
         check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
     base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
-    refit_rounds = None if refit_rounds == base.rounds else refit_rounds
-    refit_sims = None if refit_sims == base.sims_per_round else refit_sims
+    refit_rounds = None if s.refit_rounds == base.rounds else s.refit_rounds
+    refit_sims = None if s.refit_sims == base.sims_per_round else s.refit_sims
     cands = candidate_effects(run, effects)
     if not cands:
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
@@ -117,9 +111,16 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
         say(diagnosis_plan(run.report, len(family), confirm, refit_rounds, refit_sims, n_null))
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
-        chk = check_run(run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null,
-                        pool=pool, effects=family, recompute=recompute, message=say, plot=plots,
-                        out_dir=None if out_dir is None else out)
+        chk = check_run(
+            run,
+            pool=pool,
+            effects=family,
+            recompute=recompute,
+            message=say,
+            plot=plots,
+            out_dir=None if out_dir is None else out,
+            settings=s.check(),
+        )
         # the score every model is compared on: the energy score of check's summaries in the nominal's scale
         f_nom = pool.ensure(n_null).features[:n_null]  # the null's first stage (simulated here if check was stored)
         scale = summary_scale(f_nom)
@@ -132,9 +133,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
         refits: list[Refit] = []
         while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
             say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
-            refits.append(refit_model(run, nxt, family, scale=scale, alpha=alpha, rounds=refit_rounds,
-                                      sims_per_round=refit_sims, n_null=n_null, max_null=max_null,
-                                      workers=workers, seed=seed, out_root=out, plots=plots))
+            refits.append(refit_model(run, nxt, family, settings=s, scale=scale, rounds=refit_rounds,
+                                      sims_per_round=refit_sims, out_root=out, plots=plots))
         decision = decide(chk.test, nominal, refits, k_se)
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
         # 0 from check when its result was stored
@@ -189,44 +189,19 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
     return s + (f" (--confirm {confirm} sets the number of refits)" if refits else "")
 
 
-#: diagnose's settings, each with the flag that sets it, its smallest value and why (``None``: a budget left to
-#: the nominal run's)
-SETTINGS = {
-    "confirm": ("--confirm", 0, "0 = no refit"),
-    "k_se": ("--k-se", 0.0, "a positive number of standard errors"),
-    "refit_rounds": ("--refit-rounds", 1, "leave it out for the run's own rounds"),
-    "refit_sims": ("--refit-sims", defaults.MIN_SIMS_PER_ROUND, "the estimator needs data; leave it out for the "
-                                                               "run's own"),
-    "n_null": ("--n-null", defaults.MIN_ROLLOUTS, "the null's first stage and the check's error maps"),
-}
-
-
-def check_settings(**values: float | None) -> None:
-    """Refuse a :func:`diagnose_run` setting below its smallest value (:data:`SETTINGS`; ``k_se`` must exceed 0).
-
-    Raises:
-        SoftsbiError: naming the flag, the value and the smallest one allowed.
-    """
-    for name, value in values.items():
-        flag, low, why = SETTINGS[name]
-        if value is not None and (value < low or (isinstance(low, float) and value <= low)):
-            rel = ">" if isinstance(low, float) else ">="
-            raise SoftsbiError(f"{flag} must be {rel} {low:g} (got {value:g}): {why}")
-
-
 @pools.shared_executors()
-def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *, scale: np.ndarray | None = None,
-                alpha: float = ALPHA, rounds: int | None = None, sims_per_round: int | None = None,
-                n_null: int = N_NULL, max_null: int = MAX_NULL, workers: int | None = None, seed: int = 0,
-                out_root: str | Path | None = None, plots: bool = True) -> Refit:
+def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
+                settings: DiagnoseSettings | None = None, scale: np.ndarray | None = None, rounds: int | None = None,
+                sims_per_round: int | None = None, out_root: str | Path | None = None, plots: bool = True) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
     The refit has :func:`~softsbi.workflows.criticism.evidence.refit_config`'s settings (by default the nominal fit's budget,
     so that an added effect is fitted as well as the model it extends); it is stored in
     ``RUN/refit-<a>+<b>`` (``out_root/refit-<a>+<b>`` when given) and resumes from there. It is checked by
     :func:`~softsbi.workflows.criticism.check.check_run` (so
-    ``RUN/refit-<a>/check.json`` is there for ``compare``) at level ``alpha`` over ``family`` less ``effects``;
-    its score is the energy score of its first ``n_null`` posterior-predictive rollouts' summaries in ``scale``
+    ``RUN/refit-<a>/check.json`` is there for ``compare``) with ``settings.check()`` (None: the defaults) over
+    ``family`` less ``effects``; its score is the energy score of its first ``settings.n_null`` posterior-predictive
+    rollouts' summaries in ``scale``
     (the nominal fit's, :func:`~softsbi.workflows.criticism.stats.summary_energy_score`; no score without ``scale``).
     ``plots``: draw the refit's fit figures and ``check.png``.
 
@@ -234,13 +209,15 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *, 
         everything :func:`~softsbi.workflows.fit.run.run_fit` raises (e.g. a stored refit with other settings).
     """
     effects = tuple(effects)
+    s = settings or DiagnoseSettings()
+    n_null, workers = s.n_null, s.workers
     cfg = refit_config(run, effects, rounds, sims_per_round, workers)
     out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
     fitted = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"),
                      make_plots=plots)
-    pool = PosteriorPredictive(out, workers, seed)  # the refit, loaded once: its check and score share it
-    chk = check_run(pool.run, n_eval=n_null, workers=workers, seed=seed, alpha=alpha, max_null=max_null, pool=pool,
-                    effects=[e for e in family if e not in effects], plot=plots)
+    pool = PosteriorPredictive(out, workers, s.seed)  # the refit, loaded once: its check and score share it
+    chk = check_run(pool.run, pool=pool, effects=[e for e in family if e not in effects], plot=plots,
+                    settings=s.check())
     f = pool.ensure(n_null).features[:n_null]
     score = (summary_energy_score(run_features(pool.run, pool.run.dense), f, scale)
              if scale is not None and len(f) >= 3 else None)

@@ -23,6 +23,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import Candidate, JointTest
 from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
+from softsbi.workflows.defaults import ALPHA_BOUND
 from softsbi.workflows.fit.jobs import run_jobs
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,
@@ -266,8 +267,8 @@ def check_resolution(alpha: float, max_null: int, tests: int = 2) -> None:
         SoftsbiError: ``alpha`` outside ``(0, 1)``, or ``max_null < smallest_null(alpha, tests)``: with that cap
             no measurement could ever be found misspecified.
     """
-    if not 0 < alpha < 1:
-        raise SoftsbiError(f"alpha must lie in (0, 1), got {alpha}")
+    if (why := ALPHA_BOUND.problem(alpha)) is not None:
+        raise SoftsbiError(f"{ALPHA_BOUND.flag} {why}")
     need = smallest_null(alpha, tests)
     if max_null < need:
         raise SoftsbiError(f"max_null {max_null} cannot resolve alpha {alpha:g}: the smallest joint p-value of "
