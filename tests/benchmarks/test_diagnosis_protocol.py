@@ -247,7 +247,7 @@ def test_the_old_rule_diagnoses_a_copy_of_the_same_nominal_fit(tmp_path, monkeyp
     assert seen["new"] == tmp_path / "runs" / "test-6" / "nominal"
     assert seen["old"] == (tmp_path / "runs" / "test-6" / "old-rule").resolve() and seen["old"] != seen["new"]
     assert seen["files"] == ["report.json", "run.zarr"] and seen["env"] == str((tmp_path / "old-checkout").resolve())
-    assert seen["kw"]["effects"] == proto.EFFECTS and seen["kw"]["k_se"] == bench.DIAGNOSE["k_se"]
+    assert seen["kw"]["effects"] == proto.EFFECTS and seen["kw"]["settings"].k_se == bench.DIAGNOSE["k_se"]
     assert (r["outcome"], r["named"]) == ("right", ["wind"])
     assert (r["old"]["verdict"], r["old"]["named"], r["old"]["commit"]) == ("missing-effect", ["air-drag"],
                                                                           "0ldc0ffee0")
