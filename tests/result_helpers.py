@@ -6,7 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from softsbi.core.results import Band, Candidate, CheckResult, EnergyScore, JointTest, MCPValue, Phase, Refit, Score
+from softsbi.core.results import (Band, Candidate, CheckResult, Diagnosis, EnergyScore, Estimate, JointTest, MCPValue,
+                                  Phase, Refit, Score)
 
 #: region names as check_run writes them (R1 nearest the first handle's grasp)
 REGIONS = tuple(f"R{r + 1}" + (" (at the grasp)" if r == 0 else " (farthest from the grasp)" if r == 8 else "")
@@ -111,3 +112,28 @@ def training_report_doc(names: tuple[str, ...] = ("a", "b")) -> dict:
             "tarp": {"levels": [0.5], "coverage": [0.5]}, "verdict": "calibrated", "calibrated": True,
             "contraction": {n: {"width_ratio": 0.4 if i == 0 else 0.95, "informed": i == 0}
                             for i, n in enumerate(names)}}
+
+
+# -- a task's recordings (softsbi.core.joint): each recording's own diagnosis and a candidate's refit on it ---------
+
+def wind_refit(value: float, test: JointTest | None = None, on: bool = True, wind_y: float = 0.8,
+               se: float = 0.2, effect: str = "wind") -> Refit:
+    """The wind's refit of one recording (``effect``'s, its parameter still ``wind_y``): summary energy score
+    ``value``, adequate unless ``test`` says otherwise, its ``wind_y`` 90% interval excluding the off value 0 when
+    ``on`` (``wind_y +- 0.3`` m/s, else ``+- 3 wind_y``)."""
+    half = 0.3 if on else 3 * abs(wind_y) + 0.1
+    est = Estimate(name="wind_y", unit="m/s", mean=wind_y, q05=wind_y - half, q95=wind_y + half, width_ratio=0.2,
+                   effect=effect, may_be_off=not on)
+    return Refit(effects=(effect,), run=f"r/refit-{effect}", test=test or joint(120, 150), score=score(value, se),
+                 estimates=(est,), chamfer_n=30)
+
+
+def recording(name: str, nominal: float, test: JointTest, refits: tuple[Refit, ...] = (), k_se: float = 2.0,
+              se: float = 0.2) -> Diagnosis:
+    """One recording's own diagnosis: its nominal fit's check ``test`` and score ``nominal``, its own ``refits``
+    and the single diagnosis' decision on them (softsbi.workflows.criticism.decide)."""
+    from softsbi.workflows.criticism.decide import decide
+    nom = score(nominal, se)
+    return Diagnosis(run=f"runs/{name}", candidates=("wind", "extra-damping"), alpha=0.05, k_se=k_se, test=test,
+                     ranking=(candidate("wind", 0.5), candidate("extra-damping", 0.2)), nominal=nom, refits=refits,
+                     decision=decide(test, nom, refits, k_se), confirm=1)

@@ -303,6 +303,21 @@ class Gain:
         z = d / se if se > 0 else (math.inf if d > 0 else -math.inf if d < 0 else 0.0)
         return cls(difference=float(d), se=float(se), z=float(z))
 
+    @classmethod
+    def paired(cls, differences: Sequence[float], mc_se: float = 0.0) -> "Gain | None":
+        """The gain summed over recordings, paired over them: ``difference = sum_r d_r`` of the per-recording gains
+        ``d_r``, its standard error from their spread across recordings, ``sd(d_r) * sqrt(R)`` (sample standard
+        deviation; a one-sample statistic, so one recording's large gain does not make the sum significant), never
+        below ``mc_se`` (the Monte-Carlo standard error of the sum); None for fewer than two recordings."""
+        d = [float(x) for x in differences]
+        if len(d) < 2:
+            return None
+        mean = sum(d) / len(d)
+        sd = math.sqrt(sum((x - mean) ** 2 for x in d) / (len(d) - 1))
+        total, se = sum(d), max(sd * math.sqrt(len(d)), float(mc_se))
+        z = total / se if se > 0 else (math.inf if total > 0 else -math.inf if total < 0 else 0.0)
+        return cls(difference=float(total), se=float(se), z=float(z))
+
     def exceeds(self, k_se: float) -> bool:
         """True when the gain is more than ``k_se`` standard errors (``z > k_se``): the diagnosis' margin for an
         improvement (:func:`softsbi.workflows.criticism.decide.improves`)."""

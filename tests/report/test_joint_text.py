@@ -1,0 +1,83 @@
+"""The words and table of a task's diagnosis across its recordings (softsbi.report.joint_text), rendered from fixed,
+hand-built results: any change of wording shows here as a diff."""
+from __future__ import annotations
+
+from result_helpers import joint, recording, wind_refit
+from softsbi.core.joint import JointDiagnosis
+from softsbi.report.joint_text import (JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, joint_text,
+                                       recording_rows)
+from softsbi.workflows.criticism.joint_decide import decide_joint, joint_candidate, nominal_test, ranked
+
+REJECTS, ACCEPTS, LOW = joint(0, 0), joint(120, 150), joint(20, 40)
+
+
+def joint_diagnosis(recs, refits_by_effect) -> JointDiagnosis:
+    cands = ranked([joint_candidate(e, recs, rs, 0.05) for e, rs in refits_by_effect.items()])
+    test = nominal_test(recs, 0.05)
+    return JointDiagnosis(runs=tuple(d.run for d in recs), recordings=tuple(recs), candidates=cands, test=test,
+                          decision=decide_joint(test, cands, 2.0), alpha=0.05, k_se=2.0, confirm=2)
+
+
+#: five lifts that all lack the wind (each names it alone), and the damping refitted on all of them too
+NAMED = joint_diagnosis(
+    [recording(f"lift{i}", 10.0 + i, REJECTS, (wind_refit(4.0 + 0.5 * i, wind_y=0.6 + 0.1 * i),)) for i in range(5)],
+    {"wind": [wind_refit(4.0 + 0.5 * i, wind_y=0.6 + 0.1 * i) for i in range(5)],
+     "extra-damping": [wind_refit(9.0 + i * 0.9, test=joint(1, 2) if i < 3 else None, on=i == 0,
+                                  effect="extra-damping") for i in range(5)]})
+#: one lift with the wind among four that fit: the set is misfit, and the wind's gain is one recording's
+ONE = joint_diagnosis(
+    [recording("lift0", 10.0, REJECTS, (wind_refit(4.0),))] + [recording(f"lift{i}", 4.0, LOW) for i in range(1, 5)],
+    {"wind": [wind_refit(4.0)] + [wind_refit(4.1 + 0.15 * i) for i in range(1, 5)]})
+#: controls, one of which rejects alone
+CONTROLS = joint_diagnosis([recording("c0", 10.0, REJECTS, (wind_refit(4.0),))]
+                           + [recording(f"c{i}", 4.0, ACCEPTS) for i in range(1, 5)], {})
+
+
+def test_the_table_has_a_row_per_candidate_and_each_recordings_own_verdict_beside_it():
+    assert JOINT_COLUMNS[:3] == ["candidate", "summed score [sd]", "gain over nominal [sd]"]
+    assert joint_rows(NAMED) == [
+        ["wind", "25", "35 ± 1.8 (z 19.8)", "best", "5 of 5", "p = 1", "5 of 5 (p = 1e-05)",
+         "wind_y 0.8 (0.6 to 1) m/s", "5 of 5", "named"],
+        # its gains 1.0-1.4 barely spread: the Monte-Carlo standard error of the sum (0.63) is the floor
+        ["extra-damping", "54", "6 ± 0.63 (z 9.5)", "29 ± 1.4 (z 20.5)", "2 of 5 (#4, #5)", "p = 0.009",
+         "1 of 5 (p = 0.41)", "wind_y 0.8 (0.8 to 0.8) m/s", "-", "not named: misfit on the set, not switched on"]]
+    assert RECORDING_COLUMNS == ["#", "recording", "check p", "own verdict", "named alone"]
+    assert recording_rows(ONE) == [["#1", "lift0", "p <= 2/201", "missing-effect", "wind"]] + [
+        [f"#{i + 1}", f"lift{i}", "p = 0.21", "nothing-missing", "-"] for i in range(1, 5)]
+    assert joint_rows(ONE)[0][-2:] == ["1 of 5 (#1)", "not named: gain within --k-se"]
+
+
+def test_the_verdict_names_the_effect_with_the_three_criteria():
+    assert joint_summary(NAMED) == (
+        "Missing effect for the task: wind. Summed over the 5 recordings, its refits lower the summary energy score "
+        "by 35 sd, 19.8 standard errors paired over recordings (more than 2); Fisher's combined test of its refits' "
+        "checks gives p = 1 > 0.05 (adequate alone on 5 of 5); the data switch it on on 5 of 5 recordings (binomial "
+        "p = 1e-05 <= 0.05 against 10% by chance). Its parameters across the recordings: wind_y 0.8 (0.6 to 1) m/s "
+        "(median and range).")
+    assert joint_text(NAMED)[1].startswith("Rule: the 5 recordings are diagnosed one by one;")
+
+
+def test_one_recordings_gain_is_not_the_tasks_and_the_verdict_says_which_criterion_failed():
+    assert ONE.verdict == "misspecified-unexplained"
+    assert joint_summary(ONE) == (
+        "Misspecified, unexplained for the task: Fisher's combined test of the 5 nominal fits' checks gives p = 0.016 "
+        "<= 0.05, and no candidate of wind meets the three criteria. wind: its summed gain 4.1 sd is 0.6 standard "
+        "errors paired over recordings (not more than 2).")
+
+
+def test_controls_say_nothing_missing_and_name_the_recording_that_misfits_alone():
+    assert CONTROLS.verdict == "nothing-missing" and joint_rows(CONTROLS) == []
+    assert joint_summary(CONTROLS) == (
+        "Nothing missing for the task: Fisher's combined test of the 5 nominal fits' checks gives p = 0.51 > 0.05. On "
+        "its own, c0's diagnosis says missing-effect (wind): a misfit of that recording, which the set does not "
+        "share.")
+
+
+def test_a_candidate_that_gains_on_every_recording_but_stays_misfit_explains_a_part():
+    recs = [recording(f"lift{i}", 10.0 + i, REJECTS, (wind_refit(4.0 + 0.5 * i, test=joint(1, 2)),)) for i in range(5)]
+    j = joint_diagnosis(recs, {"wind": [d.refits[0] for d in recs]})
+    assert j.decision.partial == ("wind",) and joint_rows(j)[0][-1] == "explains a part"
+    assert joint_summary(j).endswith(
+        "and no candidate of wind meets the three criteria. wind explains a part: it lowers the summed summary energy "
+        "score most, by 35 ± 1.8 sd (z 19.8), and the data switch it on, but Fisher's combined test of its refits' "
+        "checks rejects (p = 2.4e-05 <= 0.05).")
