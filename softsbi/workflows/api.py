@@ -26,11 +26,13 @@ from softsbi.data.validation import validation_line
 from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.core.comparison import CompareResult
+from softsbi.core.joint import JointDiagnosis
 from softsbi.core.results import CheckResult, Diagnosis
 from softsbi.workflows.tasks.calibrate import calibrate_run
 from softsbi.workflows.criticism.check import check_run
 from softsbi.workflows.criticism.compare import compare_runs
 from softsbi.workflows.criticism.diagnose import diagnose_run
+from softsbi.workflows.criticism.joint import diagnose_runs
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, run_fit
 from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import fit_callbacks, say, shown_unless_shown
@@ -158,8 +160,9 @@ def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResul
         return check_run(run, check_settings, **rest)
 
 
-def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | Path | None = None,
-             progress: bool | Callable[[str], None] = True, **settings: Any) -> Diagnosis:
+def diagnose(run: str | Path | Sequence[str | Path], effects: Sequence[str] | None = None,
+             out: str | Path | None = None, progress: bool | Callable[[str], None] = True,
+             **settings: Any) -> Diagnosis | JointDiagnosis:
     """``softsbi diagnose RUN``: is an effect missing, and which (:func:`~softsbi.workflows.criticism.diagnose.diagnose_run`;
     ``settings``: ``alpha``, ``k_se``, ``confirm``, ``refit_rounds``, ``refit_sims``, ``workers``, ...). Returns the
     :class:`~softsbi.core.results.Diagnosis` (also in ``OUT/diagnosis.json``; ``out``, as ``diagnose --out``: the
@@ -167,14 +170,22 @@ def diagnose(run: str | Path, effects: Sequence[str] | None = None, out: str | P
     simulations, the refits' rounds included, and per step (detect, each refit) as the CLI prints them (module
     docstring); a callable gets the step lines instead.
 
+    ``run`` a list of three or more runs (fits of one task's recordings; ``softsbi diagnose RUN RUN ... --out
+    DIR``): one verdict for the task (:func:`~softsbi.workflows.criticism.joint.diagnose_runs`), returned as the
+    :class:`~softsbi.core.joint.JointDiagnosis` and written to ``out/joint-diagnosis.json`` (``out`` required).
+
     Raises:
-        SoftsbiError: ``effects`` given as one string (name them in a list), and everything ``diagnose_run`` raises.
+        SoftsbiError: ``effects`` given as one string (name them in a list), and everything ``diagnose_run`` (or
+            ``diagnose_runs``) raises.
     """
     if isinstance(effects, str):
         raise SoftsbiError(f"effects must be a list of effect names, e.g. effects=[{effects!r}]")
     steps = progress if callable(progress) else say if progress else None
     diagnose_settings, rest = split_settings(DiagnoseSettings, settings)
     with shown_unless_shown(bool(progress)):
+        if isinstance(run, (list, tuple)):
+            return diagnose_runs(run, effects=effects, out_dir=out, progress=steps, settings=diagnose_settings,
+                                 **rest)
         return diagnose_run(run, effects=effects, out_dir=out, progress=steps, settings=diagnose_settings, **rest)
 
 
