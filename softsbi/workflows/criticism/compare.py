@@ -58,9 +58,9 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     check_resolution(alpha, max_null, 2)
     run_a, run_b = Path(run_a), Path(run_b)
     ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
-    if ra.config.get("observed_source") != rb.config.get("observed_source") or len(ra.dense) != len(rb.dense):
-        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
-                           f"{rb.config.get('observed_source')}); compare runs of the same measurement")
+    if ra.record.observed_source != rb.record.observed_source or len(ra.dense) != len(rb.dense):
+        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.record.observed_source} vs "
+                           f"{rb.record.observed_source}); compare runs of the same measurement")
     for run in (run_a, run_b):
         check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
                                             "run directory to a writable place and compare the copy")

@@ -93,7 +93,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *, a
     if out_dir is not None:
         check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
-    base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
+    base = run.config  # a refit budget equal to the run's is the default: one key
     refit_rounds = None if refit_rounds == base.rounds else refit_rounds
     refit_sims = None if refit_sims == base.sims_per_round else refit_sims
     cands = candidate_effects(run, effects)

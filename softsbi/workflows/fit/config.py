@@ -277,6 +277,60 @@ class FitConfig:
         return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario, given_by))
 
 
+#: the metric of point-cloud fits (3-D Chamfer, m) and of image fits (mask Chamfer, px), as a run stores it
+CHAMFER_M, MASK_CHAMFER_PX = "chamfer_m", "mask_chamfer_px"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunRecord:
+    """What a run's stored settings (``RunStore.config``) hold beside its :class:`FitConfig`: what the fit took
+    from its recording and the metric it scored with (:func:`~softsbi.workflows.fit.resume.stored_config`).
+    A key that a run written by an older version lacks reads as its default.
+
+    Attributes:
+        scenario: the fitted scenario (JSON, as stored: the simulation bank keys its rollouts by it).
+        param_space: the inferred parameters (JSON), widened ones included.
+        observer_options: the observer's options as the fit built it (the settings' own plus those computed from
+            the recording: K, table height, viewpoint), what a re-simulation observes with.
+        observed_source: where the measurement was read from ("" unknown). truth: its ground truth, if any.
+        metric: :data:`CHAMFER_M` or :data:`MASK_CHAMFER_PX`.
+        metric_min_z: the metric's height cut (m, absolute; None = full clouds). metric_frames: the frames the
+            headline Chamfer averages (None = all). metric_camera: the metric's virtual depth sensor (JSON;
+            None = the height cut) (:func:`~softsbi.workflows.fit.observe.metric_sensor`).
+        rounds: the rounds of the latest session (a resume may ask for more than the first).
+        wall_time_s: the wall time of the fit's sessions so far (s).
+    """
+
+    scenario: dict[str, Any]
+    param_space: list[dict[str, Any]]
+    observer_options: dict[str, Any] = field(default_factory=dict)
+    observed_source: str = ""
+    truth: Any = None
+    metric: str = CHAMFER_M
+    metric_min_z: float | None = None
+    metric_frames: list[int] | None = None
+    metric_camera: dict[str, Any] | None = None
+    rounds: int | None = None
+    wall_time_s: float = 0.0
+
+    @property
+    def image_fit(self) -> bool:
+        """Whether the fit scored the mask Chamfer of rendered frames (no 3-D clouds)."""
+        return self.metric == MASK_CHAMFER_PX
+
+    @classmethod
+    def from_run_config(cls, config: Mapping[str, Any]) -> "RunRecord":
+        """The record of a stored run's settings (``RunStore.config``); missing keys read as the defaults."""
+        z, frames = config.get("metric_min_z"), config.get("metric_frames")
+        return cls(scenario=config["scenario"], param_space=config["param_space"],
+                   observer_options=dict(config.get("observer_options") or {}),
+                   observed_source=str(config.get("observed_source") or ""), truth=config.get("truth"),
+                   metric=config.get("metric", CHAMFER_M), metric_min_z=None if z is None else float(z),
+                   metric_frames=None if frames is None else [int(i) for i in frames],
+                   metric_camera=config.get("metric_camera"), rounds=config.get("rounds"),
+                   wall_time_s=float(config.get("wall_time_s", 0.0) or 0.0))
+
+
 def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
     """The options a fit gives its posterior estimator: those the model's effects ask for
     (:attr:`~softsbi.core.interfaces.Effect.estimator_options`) where ``est_cls`` has the option (its
