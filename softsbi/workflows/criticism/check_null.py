@@ -35,7 +35,6 @@ from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import NULL_STREAM, surface_seed
 from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows import pools
-from softsbi.workflows.fit.config import FitConfig
 from softsbi.workflows.fit.jobs import JobItem, SimContext, run_jobs
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording

@@ -75,8 +75,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, n_ev
     res = CompareResult(
         run_a=str(run_a),
         run_b=str(run_b),
-        label_a=fit_label(ra.config),
-        label_b=fit_label(rb.config),
+        label_a=fit_label(ra.config.to_json()),
+        label_b=fit_label(rb.config.to_json()),
         rows=tuple(rows),
         same_sensor=sensor_model(ra) == sensor_model(rb),
         check_a=a,

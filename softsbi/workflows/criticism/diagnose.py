@@ -34,7 +34,7 @@ from softsbi.workflows import defaults, pools
 from softsbi.workflows.criticism.decide import K_SE, decide, next_refit
 from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
 from softsbi.workflows.reporting import duration_words, fit_callbacks
-from softsbi.workflows.fit.run import FitConfig, run_fit
+from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic

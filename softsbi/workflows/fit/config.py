@@ -231,10 +231,11 @@ class FitConfig:
         """
         names = {f.name for f in fields(cls)}
         kw = {k: v for k, v in d.items() if k in names}
+        bounds = kw.get("bounds") or {}
         try:
-            kw["bounds"] = {k: (float(v[0]), float(v[1])) for k, v in (kw.get("bounds") or {}).items()}
+            kw["bounds"] = {k: (float(v[0]), float(v[1])) for k, v in bounds.items()}
         except (TypeError, IndexError, ValueError):
-            raise SoftsbiError(f"FitConfig bounds must map names to [low, high] pairs (got {kw.get('bounds')!r})") from None
+            raise SoftsbiError(f"FitConfig bounds must map names to [low, high] pairs (got {bounds!r})") from None
         for k in ("backend_options", "observer_options", "estimator_options", "executor_options", "fixed"):
             kw[k] = dict(kw.get(k) or {})
         kw["effects"] = list(kw.get("effects") or [])
@@ -258,7 +259,7 @@ class FitConfig:
     def resume_keys(cls) -> tuple[str, ...]:
         """Stored-config keys that must match for a run to resume: the settings that change what
         the stored simulations mean, plus those that come from the recording."""
-        return tuple(f.name for f in fields(cls) if f.metadata.get("resume")) + RECORDING_RESUME_KEYS
+        return tuple(f.name for f in fields(cls) if "resume" in f.metadata) + RECORDING_RESUME_KEYS
 
     def resolved(self, recording: Recording) -> "FitConfig":
         """These settings with the recording's defaults filled in: ``min_height`` and ``frames``
@@ -313,6 +314,16 @@ class RunRecord:
     rounds: int | None = None
     wall_time_s: float = 0.0
 
+    def __post_init__(self) -> None:  # the stored JSON's values as the attributes' types
+        put = object.__setattr__
+        put(self, "observer_options", dict(self.observer_options))
+        put(self, "observed_source", str(self.observed_source))
+        put(self, "wall_time_s", float(self.wall_time_s))
+        if self.metric_min_z is not None:
+            put(self, "metric_min_z", float(self.metric_min_z))
+        if self.metric_frames is not None:
+            put(self, "metric_frames", [int(i) for i in self.metric_frames])
+
     @property
     def image_fit(self) -> bool:
         """Whether the fit scored the mask Chamfer of rendered frames (no 3-D clouds)."""
@@ -320,15 +331,9 @@ class RunRecord:
 
     @classmethod
     def from_run_config(cls, config: Mapping[str, Any]) -> "RunRecord":
-        """The record of a stored run's settings (``RunStore.config``); missing keys read as the defaults."""
-        z, frames = config.get("metric_min_z"), config.get("metric_frames")
-        return cls(scenario=config["scenario"], param_space=config["param_space"],
-                   observer_options=dict(config.get("observer_options") or {}),
-                   observed_source=str(config.get("observed_source") or ""), truth=config.get("truth"),
-                   metric=config.get("metric", CHAMFER_M), metric_min_z=None if z is None else float(z),
-                   metric_frames=None if frames is None else [int(i) for i in frames],
-                   metric_camera=config.get("metric_camera"), rounds=config.get("rounds"),
-                   wall_time_s=float(config.get("wall_time_s", 0.0) or 0.0))
+        """The record of a stored run's settings (``RunStore.config``); keys a run lacks (or holds as null) read as
+        the defaults."""
+        return cls(**{f.name: config[f.name] for f in fields(cls) if config.get(f.name) is not None})
 
 
 def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:
