@@ -58,7 +58,8 @@ def draw_gif(view: Any, rollouts: list[Any], ch: np.ndarray, path: Path, fps: fl
               dpi: int = 90, best: dict[str, Any] | None = None) -> Path:
     """The GIF of ``softsbi view`` (:func:`softsbi.workflows.view.write_animation`); ``rollouts``: the posterior
     rollouts (job results with ``vertices (T, N, 3)`` m and ``faces (F, 3)``, ``F = 0`` for a rope); ``view``: the
-    run (``path``, ``config.backend``, ``record.observed_source``, ``effects``, ``scenario``, ``dense``); ``best``: the fit's best fit
+    run (``path``, ``config.backend``, ``record.observed_source``, ``effects``, ``scenario``, ``dense``);
+    ``best``: the fit's best fit
     (``vertices (T, N, 3)`` m, ``faces``, ``chamfer (T,)`` m, ``label``), drawn in its own colour, or None."""
     from matplotlib.animation import PillowWriter  # heavy: loaded on the first figure only
     from matplotlib.collections import LineCollection  # heavy: loaded on the first figure only
