@@ -56,8 +56,8 @@ from softsbi.workflows.fit.prior_widening import (decide_widening, map_mixture, 
 #: what callers import from here besides :func:`run_fit` (defined in the step modules; ``softsbi.workflows.fit.run``
 #: stays the one import path of a fit's API)
 __all__ = ["FitCallbacks", "FitConfig", "FitResult", "JobItem", "JobResult", "SensorDraws", "SimContext",
-           "chamfer_stats", "estimator_options", "fit_param_space", "metric_sensor", "observer_options", "parameter_table",
-           "read_report", "round_posterior", "run_fit", "simulate_job"]
+           "chamfer_stats", "estimator_options", "fit_param_space", "metric_sensor", "observer_options",
+           "parameter_table", "read_report", "round_posterior", "run_fit", "simulate_job"]
 
 
 @dataclass(frozen=True)
