@@ -270,7 +270,7 @@ def log_rrd(rr: Any, view: Any, rollouts: list[Any], ch: np.ndarray, path: Path,
                     static=True)
         for i, r in enumerate(rollouts):
             rec.log(f"error/rollouts/{i}", rr.SeriesLines(colors=[_rgba(COLOR_POSTERIOR)[:3]], widths=0.5,
-                                                          names=[f"rollout {i} (posterior sample {r['sample']})"]),
+                                                          names=[f"rollout {i} (posterior sample {r.sample})"]),
                     static=True)
         meas_col = _rgba(COLOR_MEASURED)
         post_col = _rgba(COLOR_POSTERIOR, 0.5)

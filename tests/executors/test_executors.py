@@ -265,8 +265,8 @@ def test_ray_fit_resumes_after_sigkill_of_the_driver(ray_cluster, tmp_path, kill
     store = RunStore.open(out / "run.zarr")
     after = store.round_data(0)
     np.testing.assert_array_equal(after["x"][finished], before["x"][finished])
-    np.testing.assert_array_equal(after.status[finished], before["status"][finished])
-    assert store.completed_rounds() == [0, 1] and (after.status == STATUS_OK).all()
+    np.testing.assert_array_equal(after["status"][finished], before["status"][finished])
+    assert store.completed_rounds() == [0, 1] and (after["status"] == STATUS_OK).all()
 
 
 # ------------------------------------------------------------------------------ reproducibility
