@@ -59,9 +59,9 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
     check_resolution(settings.alpha, settings.max_null, 2)
     run_a, run_b = Path(run_a), Path(run_b)
     ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
-    if ra.config.get("observed_source") != rb.config.get("observed_source") or len(ra.dense) != len(rb.dense):
-        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
-                           f"{rb.config.get('observed_source')}); compare runs of the same measurement")
+    if ra.record.observed_source != rb.record.observed_source or len(ra.dense) != len(rb.dense):
+        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.record.observed_source} vs "
+                           f"{rb.record.observed_source}); compare runs of the same measurement")
     for run in (run_a, run_b):
         check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
                                             "run directory to a writable place and compare the copy")
@@ -74,8 +74,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
     res = CompareResult(
         run_a=str(run_a),
         run_b=str(run_b),
-        label_a=fit_label(ra.config),
-        label_b=fit_label(rb.config),
+        label_a=fit_label(ra.config.to_json()),
+        label_b=fit_label(rb.config.to_json()),
         rows=tuple(rows),
         same_sensor=sensor_model(ra) == sensor_model(rb),
         check_a=a,

@@ -34,7 +34,7 @@ from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
 from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
 from softsbi.workflows.reporting import duration_words, fit_callbacks
-from softsbi.workflows.fit.run import FitConfig, run_fit
+from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
@@ -87,7 +87,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     if out_dir is not None:
         check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
-    base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
+    base = run.config  # a refit budget equal to the run's is the default: one key
     refit_rounds = None if s.refit_rounds == base.rounds else s.refit_rounds
     refit_sims = None if s.refit_sims == base.sims_per_round else s.refit_sims
     cands = candidate_effects(run, effects)
