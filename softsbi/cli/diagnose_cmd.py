@@ -9,7 +9,7 @@ import typer
 from softsbi.cli.command import json_done
 from softsbi.cli.options import H_ALPHA, H_JSON, H_MAX_NULL, H_RECOMPUTE, H_WORKERS, names, setting
 from softsbi.cli.output import Output
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 
 
 def print_diagnosis(o: Output, diagnosis: Any) -> None:

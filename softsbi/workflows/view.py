@@ -34,7 +34,7 @@ from softsbi.workflows.fit.runs import RunView, load_run
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.core.jsonfile import check_result_path
 from softsbi.core.store import RunStore
-from softsbi.workflows.defaults import VIEW_N_EVAL
+from softsbi.core.defaults import VIEW_N_EVAL
 
 from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 

@@ -9,7 +9,7 @@ import pytest
 from softsbi.core.camera import Camera
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.workflows.criticism.check import material_regions, region_errors, surface_points
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 

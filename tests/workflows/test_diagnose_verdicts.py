@@ -15,7 +15,7 @@ from softsbi.workflows.criticism.evidence import REFIT_PROPOSAL
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 
 OPTS = {"grid": 5}
 

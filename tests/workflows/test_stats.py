@@ -307,7 +307,7 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
 def test_the_null_accepts_as_few_rollouts_as_check_simulates_and_no_fewer():
     """The misspecification test's minimum is the named MIN_NULL, the smallest `--n-eval` check accepts: a check at
     that setting whose rollouts all succeed is tested, one failed rollout is refused in one line."""
-    from softsbi.workflows.defaults import MIN_ROLLOUTS
+    from softsbi.core.defaults import MIN_ROLLOUTS
     from softsbi.workflows.criticism.stats import MIN_NULL
     assert MIN_NULL == MIN_ROLLOUTS
     rng = np.random.default_rng(1)

@@ -37,8 +37,9 @@ from softsbi.core.seeds import SENSOR_VIEW_STREAM, surface_seed
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
-from softsbi.workflows import defaults, pools
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core import defaults
+from softsbi.workflows import pools
+from softsbi.core.defaults import CheckSettings
 from softsbi.workflows.criticism.check_null import run_check_null
 from softsbi.workflows.fit.report_file import chamfer_stats
 from softsbi.workflows.fit.jobs import JobResult
@@ -353,7 +354,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
             then not loaded again (nor when ``pool`` holds it).
         settings: the posterior rollouts of the error maps and the start of the test's null (``n_eval``), the cap of
             its adaptive extension (``max_null``, :func:`~softsbi.workflows.criticism.stats.resolution_needed`), the
-            level of the verdict (``p <= alpha``), workers and seed (:class:`~softsbi.workflows.defaults.CheckSettings`;
+            level of the verdict (``p <= alpha``), workers and seed (:class:`~softsbi.core.defaults.CheckSettings`;
             None: the defaults).
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply

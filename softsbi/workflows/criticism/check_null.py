@@ -29,7 +29,7 @@ import numpy as np
 
 from softsbi.core.errors import PosteriorError, SimulationFailed, SoftsbiError
 from softsbi.core.jsonfile import check_result_path, write_json_atomic
-from softsbi.core.levels import ALPHA
+from softsbi.core.defaults import ALPHA
 from softsbi.core.results import MCPValue
 from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import NULL_STREAM, surface_seed

@@ -20,7 +20,7 @@ from softsbi.workflows.criticism.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.fit.runs import load_run
 from softsbi.workflows.criticism.screening import check_resolution
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 
 @pools.shared_executors()
@@ -36,7 +36,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
             ``str`` or :class:`~pathlib.Path`.
         out_dir: where the figure and the JSON go (``str`` or ``Path``; created if missing).
         settings: each run's :func:`~softsbi.workflows.criticism.check.check_run` settings
-            (:class:`~softsbi.workflows.defaults.CheckSettings`; None: the defaults); its ``alpha`` is the level both
+            (:class:`~softsbi.core.defaults.CheckSettings`; None: the defaults); its ``alpha`` is the level both
             misspecification tests decide at (``p <= alpha``).
         recompute: check both runs again even when their ``check.json`` hold the same settings.
         message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).

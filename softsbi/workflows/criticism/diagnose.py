@@ -40,7 +40,7 @@ from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import (N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 
 @pools.shared_executors()
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
@@ -54,7 +54,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
         effects: the candidate family (default: every installed effect the backend can apply and the run lacks,
             generic force terms included).
         settings: the tests' level, the score margin, the refits and the null
-            (:class:`~softsbi.workflows.defaults.DiagnoseSettings`; None: the defaults). A refit budget of None is the
+            (:class:`~softsbi.core.defaults.DiagnoseSettings`; None: the defaults). A refit budget of None is the
             nominal fit's (its own values are stored under the same key as None; a refit at a smaller budget has a
             wider posterior predictive, which ``check`` rejects less often: measured on a toy magnet, a flexible
             candidate refitted at half the budget passed where at the full budget it did not).

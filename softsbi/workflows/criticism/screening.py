@@ -22,7 +22,7 @@ from scipy.optimize import lsq_linear
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import Candidate, JointTest
 from softsbi.plugins import registry
-from softsbi.workflows.defaults import ALPHA_BOUND
+from softsbi.core.defaults import ALPHA_BOUND
 from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,

@@ -34,13 +34,13 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import EnergyScore, MCPValue, Score
-from softsbi.core.levels import ALPHA  # noqa: F401 (re-exported)
+from softsbi.core.defaults import ALPHA  # noqa: F401 (re-exported)
 from softsbi.core.seeds import EXTRA_ROLLOUT_SEED, SENSOR_VIEW_STREAM, surface_seed
 from softsbi.inference.summaries import local_thickness
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
                                           sensor_view)
-from softsbi.workflows.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
+from softsbi.core.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
 from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView, load_run
 
@@ -59,7 +59,7 @@ FEATURE_FLOORS = np.array([FEATURE_FLOOR] * (len(FEATURE_NAMES) - 1) + [THICKNES
 #: level, not fitted: it cannot change a test's level, only its cost and power
 EXTEND_P = 0.1
 #: the fewest successful posterior-predictive rollouts a null may hold: the fewest ``check`` simulates
-#: (:data:`~softsbi.workflows.defaults.MIN_ROLLOUTS`, the smallest ``--n-eval``), so that the test refuses only
+#: (:data:`~softsbi.core.defaults.MIN_ROLLOUTS`, the smallest ``--n-eval``), so that the test refuses only
 #: rollouts that failed; each leave-one-out statistic then standardises by the spread of at least 4 others
 MIN_NULL = MIN_ROLLOUTS
 

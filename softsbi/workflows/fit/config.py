@@ -13,7 +13,7 @@ from softsbi.backends.scenario_build import unsupported
 from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import ParamSpace, Recording, Scenario
 from softsbi.plugins import check_options, registry
-from softsbi.workflows import defaults
+from softsbi.core import defaults
 from softsbi.workflows.fit.prior_widening import check_widen
 
 
@@ -81,7 +81,7 @@ class FitConfig:
         estimator: posterior-estimator plugin name; ``estimator_options`` its config.
         rounds: number of sequential rounds (may be raised on resume); None (the default): 1 when the fit's task
             was trained by ``softsbi task train`` (:mod:`~softsbi.workflows.fit.task_store`: its trained posterior conditioned
-            on the recording), else :data:`~softsbi.workflows.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
+            on the recording), else :data:`~softsbi.core.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
             budget is ``rounds * sims_per_round``).
         seed: fixes every draw and every simulation seed.
         n_eval: rollouts at final-posterior samples (the posterior predictive) for the reported Chamfer.

@@ -43,7 +43,8 @@ from softsbi.workflows.fit.bestfit import REFINE, best_stored, refine, store_bes
 from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options, fit_param_space, parameter_table
 from softsbi.workflows.fit.report_file import build_report, chamfer_stats, damaged_report, read_report
 from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, evaluation_seeds, map_simulations, simulate_job
-from softsbi.workflows import defaults, pools
+from softsbi.core import defaults
+from softsbi.workflows import pools
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.fit.observe import fit_sim_context, metric_sensor, observer_options
 from softsbi.workflows.reporting import FitCallbacks

@@ -44,7 +44,8 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration_figures import plot_calibration
-from softsbi.workflows import defaults, pools
+from softsbi.core import defaults
+from softsbi.workflows import pools
 from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options as fit_estimator_options
 from softsbi.workflows.fit.resume import observed_data
 from softsbi.workflows.fit.rounds import round_posterior, usable_simulations

@@ -32,7 +32,8 @@ from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import TEST_STREAM
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
-from softsbi.workflows import defaults, pools
+from softsbi.core import defaults
+from softsbi.workflows import pools
 from softsbi.workflows.fit.bank import HIT
 from softsbi.workflows.reporting import duration_words
 from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
