@@ -77,7 +77,7 @@ def run_mode(mode: str, ctx, items) -> dict:
             t0 = time.perf_counter()
             res = list(pool.imap_unordered(_call, items, chunksize=1))
             out["seconds"] = time.perf_counter() - t0
-            out["peak_rss_mb"] = max(_peak_rss_mb(p.pid) for p in pool._pool)  # noqa: SLF001
+            out["peak_rss_mb"] = max(_peak_rss_mb(p.pid) for p in pool._pool)
     elif kind == "local":
         from softsbi.executors.local import LocalExecutor
         ex = LocalExecutor(workers=w, in_process=False)

@@ -50,13 +50,13 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from softsbi.backends.mujoco_flex import MujocoFlex  # noqa: E402
-from softsbi.core.metrics import chamfer_terms  # noqa: E402
-from softsbi.perception.depth_sensor import DIFFCLOUD_OUTLIER, VirtualDepthSensor  # noqa: E402
-from softsbi.perception.pointcloud import sample_surface, sensor_indices  # noqa: E402
-from softsbi.scenarios.builtin import lift_scenario, load_recording  # noqa: E402
+from softsbi.backends.mujoco_flex import MujocoFlex
+from softsbi.core.metrics import chamfer_terms
+from softsbi.perception.depth_sensor import DIFFCLOUD_OUTLIER, VirtualDepthSensor
+from softsbi.perception.pointcloud import sample_surface, sensor_indices
+from softsbi.scenarios.builtin import lift_scenario, load_recording
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO.parent / "shared" / "data" / "diffcloud_lift"

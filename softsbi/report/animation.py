@@ -103,7 +103,7 @@ def draw_gif(view: Any, rollouts: list[Any], ch: np.ndarray, path: Path, fps: fl
         for grip in grips:
             ax.plot(grip[:, a], grip[:, b], color=COLOR_GRIPPER, lw=1.2, ls="--", alpha=0.5, zorder=1)
         lcs = []
-        for r in rollouts:  # outline clearly, inner mesh edges faintly
+        for _ in rollouts:  # outline clearly, inner mesh edges faintly
             outer = LineCollection([], colors=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA * 2, linewidths=1.3, zorder=2)
             inner = LineCollection([], colors=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA * 0.6, linewidths=0.6, zorder=2)
             ax.add_collection(outer)

@@ -237,7 +237,7 @@ def test_a_force_field_sees_the_handles_current_positions_and_the_cloth_corners(
     ro = sim.simulate(LIFT, {**sim.param_space(LIFT).midpoint(), "k": 0.5}, effects=["spy"])
     assert len(spy.seen) > 10
     names = tuple(h.name for h in LIFT.handles)
-    for t, handles, seen_names, corners in spy.seen:
+    for _t, handles, seen_names, corners in spy.seen:
         assert handles.shape == (len(LIFT.handles), 3) and seen_names == names
         assert corners == tuple(grid_corners(5))
     dt = ro.info["timestep"]

@@ -304,7 +304,7 @@ class Rounds:
                 if "groups" in inspect.signature(est.fit).parameters:  # hold out whole simulations
                     kw["groups"] = np.concatenate([np.arange(len(U) - n_sensor), sg])
         info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
-                       progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l), **kw)
+                       progress=lambda e, m, v, _r=r: self.cb.training_epoch(_r, e, m, v), **kw)
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
         info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
                     **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))

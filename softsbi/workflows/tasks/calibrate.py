@@ -79,7 +79,9 @@ def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
     spaces = round_spaces(space, store.config, last)
     out: list[tuple[Any, str]] = []
     for r in range(last + 1):
-        to_record = (lambda p, r=r: p if spaces[r] == space else MappedProposal(p, *unit_map(spaces[r], space)))
+        def to_record(p: Any, r: int = r) -> Any:
+            return p if spaces[r] == space else MappedProposal(p, *unit_map(spaces[r], space))
+
         if r == 0 or not sequential:
             out.append((to_record(None), "prior" if spaces[r] == space else "prior before its widening"))
             continue
