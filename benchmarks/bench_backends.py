@@ -180,6 +180,6 @@ def memory(n, grid):
             if i in (9, n - 1):
                 gc.collect()
                 with open("/proc/self/status") as fh:
-                    rss.append(int(next(l for l in fh if l.startswith("VmRSS")).split()[1]) / 1024)
+                    rss.append(int(next(line for line in fh if line.startswith("VmRSS")).split()[1]) / 1024)
         rows.append([b, round(rss[0], 1), round(rss[1], 1), round(rss[1] - rss[0], 1)])
     return rows

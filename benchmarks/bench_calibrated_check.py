@@ -70,7 +70,7 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
     from softsbi.workflows.fit.config import fit_param_space
     from softsbi.workflows.tasks.training import train_task
     from softsbi.workflows.criticism.check_null import case_statistics, replicates, stored_check_null
-    from softsbi.workflows.defaults import N_NULL
+    from softsbi.core.defaults import N_NULL
     from softsbi.workflows.fit.task_store import first_round_context
     cfg = FitConfig(workers=a.workers, sim_bank=str(folder / "bank"))
     rec0 = demo_recording(True)[0]

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.workflows.fit.run import FitConfig, SimContext, fit_param_space, observer_options, simulate_job
+from softsbi.workflows.fit.run import (FitConfig, JobItem, SimContext, fit_param_space, observer_options,
+                                       simulate_job)
 
 from benchmarks.runner import REPO, table
 
@@ -63,7 +64,7 @@ def build(observed: str, n: int, seed: int = 0):
                      param_names=space.names, fixed={}, dense=np.asarray(meas.dense), n_dense=cfg.n_dense)
     rng = np.random.default_rng(seed)
     theta = space.from_unit(rng.random((n, space.dim)))
-    return ctx, [(theta[i], int(1000 + i)) for i in range(n)]
+    return ctx, [JobItem(theta[i], int(1000 + i)) for i in range(n)]
 
 
 def run_mode(mode: str, ctx, items) -> dict:
@@ -76,7 +77,7 @@ def run_mode(mode: str, ctx, items) -> dict:
             t0 = time.perf_counter()
             res = list(pool.imap_unordered(_call, items, chunksize=1))
             out["seconds"] = time.perf_counter() - t0
-            out["peak_rss_mb"] = max(_peak_rss_mb(p.pid) for p in pool._pool)  # noqa: SLF001
+            out["peak_rss_mb"] = max(_peak_rss_mb(p.pid) for p in pool._pool)
     elif kind == "local":
         from softsbi.executors.local import LocalExecutor
         ex = LocalExecutor(workers=w, in_process=False)
@@ -106,7 +107,7 @@ def run_mode(mode: str, ctx, items) -> dict:
         raise SystemExit(f"unknown mode {mode!r}; use localW, bareW or rayW")
     bad = [r for r in res if isinstance(r, BaseException)]
     out.update(n=len(items), failed=len(bad), ok=sum(1 for r in res if not isinstance(r, BaseException)
-                                                       and r["status"] == 0),
+                                                       and r.status == 0),
                sims_per_s=len(items) / out["seconds"], load=os.getloadavg())
     return out
 

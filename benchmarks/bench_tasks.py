@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.runner import in_out_folder, table
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:

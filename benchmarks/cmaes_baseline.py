@@ -38,7 +38,7 @@ import cma  # noqa: E402
 from softsbi.core.store import RunStore  # noqa: E402
 from softsbi.perception.pointcloud import rollout_clouds  # noqa: E402
 from softsbi.workflows.fit.run import FitConfig, fit_param_space, metric_sensor, observer_options  # noqa: E402
-from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, simulate_job  # noqa: E402
+from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, evaluation_seeds, simulate_job  # noqa: E402
 from softsbi.workflows.measurement import load_recording  # noqa: E402
 
 from benchmarks.runner import REPO, table  # noqa: E402
@@ -65,27 +65,27 @@ def contexts_of(rec) -> tuple[FitConfig, object, dict, SimContext, SimContext]:
     return rec, space, sensor, SimContext(**kw, min_z=sensor["metric_min_z"]), SimContext(**kw, min_z=None)
 
 
-def score(res: dict, metric: str, frames: list[int] | None) -> float:
+def score(res: JobResult, metric: str, frames: list[int] | None) -> float:
     """The scalar ``metric`` (m) of one job result (``inf`` for a failed simulation)."""
-    if res["chamfer"] is None:
+    if res.chamfer is None:
         return float("inf")
     fr = slice(None) if frames is None else frames
     if metric == "one":
-        return float(np.mean(res["chamfer_one_sided"][fr]))
+        return float(np.mean(res.chamfer_one_sided[fr]))
     if metric == "fit":
-        return float(np.mean(res["chamfer"][fr]))
-    return float(np.mean(res["chamfer"]))  # all, full (the context decides what is seen)
+        return float(np.mean(res.chamfer[fr]))
+    return float(np.mean(res.chamfer))  # all, full (the context decides what is seen)
 
 
 def simulated_clouds(ctx: SimContext, theta: np.ndarray, seed: int, n: int | None = None
-                     ) -> tuple[dict, list[np.ndarray] | None]:
+                     ) -> tuple[JobResult, list[np.ndarray] | None]:
     """One rollout through ``ctx``'s job with its vertices kept, and its surface clouds ``(n, 3)`` m per frame
     (``n`` points, default ``ctx.n_dense``, sampled with ``seed``); clouds None when the simulation failed."""
-    res = simulate_job(SimContext(**{**ctx.__dict__, "keep_rollout": True}), (theta, seed))
-    if res["chamfer"] is None:
+    res = simulate_job(SimContext(**{**ctx.__dict__, "keep_rollout": True}), JobItem(theta, seed))
+    if res.chamfer is None:
         return res, None
     from softsbi.core.types import Rollout
-    ro = Rollout(vertices=res["vertices"], faces=res["faces"], gripper=res["gripper"],
+    ro = Rollout(vertices=res.vertices, faces=res.faces, gripper=res.gripper,
                  times=np.asarray(ctx.scenario["times"]))
     return res, rollout_clouds(ro, ctx.n_dense if n is None else n, np.random.default_rng(seed))
 
@@ -106,7 +106,7 @@ def run(folder: Path, metric: str, budget: int, fit_dir: Path | None, seed: int,
         xs = xs[:budget - k]
         fs = []
         for x in xs:
-            fs.append(score(simulate_job(ctx, (space.from_unit(np.asarray(x)), int(seeds[k]))), metric, frames))
+            fs.append(score(simulate_job(ctx, JobItem(space.from_unit(np.asarray(x)), int(seeds[k]))), metric, frames))
             k += 1
         hist_u += [list(map(float, x)) for x in xs]
         hist_f += fs
@@ -130,10 +130,10 @@ def softsbi_side(fit_dir: Path, space, ctx: SimContext, metric: str, frames) -> 
     rep = json.loads((fit_dir / "report.json").read_text())
     store = RunStore.open(fit_dir / "run.zarr")
     pm = space.as_array(rep["posterior_mean"])
-    pm_val = score(simulate_job(ctx, (pm, 0)), metric, frames)
+    pm_val = score(simulate_job(ctx, JobItem(pm, 0)), metric, frames)
     ev, attrs = store.read_group("evaluation")
     seeds = evaluation_seeds(int(store.config.get("seed", 0)), int(attrs["rounds"]), len(ev["theta"]))
-    vals = [score(simulate_job(ctx, (th, int(s))), metric, frames) for th, s in zip(ev["theta"], seeds)]
+    vals = [score(simulate_job(ctx, JobItem(th, int(s))), metric, frames) for th, s in zip(ev["theta"], seeds)]
     vals = [v for v in vals if np.isfinite(v)]
     d0 = store.round_data(0)
     ok = (d0["status"] == 0) & np.all(np.isfinite(d0["chamfer"]), axis=1)
@@ -183,7 +183,7 @@ def _flat(q) -> np.ndarray:
 def reevaluate(ctx: SimContext, theta: np.ndarray, metric: str, frames, seeds: list[int]) -> float:
     """Mean of ``metric`` over simulations at ``theta`` with fresh ``seeds`` (the seed changes the surface sampling
     of the Chamfer and the simulator's noise, so a minimum over noisy evaluations is optimistic)."""
-    return float(np.mean([score(simulate_job(ctx, (theta, s)), metric, frames) for s in seeds]))
+    return float(np.mean([score(simulate_job(ctx, JobItem(theta, s)), metric, frames) for s in seeds]))
 
 
 def refine_run(folder: Path, cma: dict, fit_dir: Path, n: int, workers: int, fit_args: list[str],

@@ -53,7 +53,7 @@ from benchmarks import runner
 from benchmarks.diagnosis_protocol import (CYCLE, DEFAULT_THRESHOLD, EFFECTS, THRESHOLDS, cases_for_minimums,
                                            done_ids, load_thresholds, outcome, read_rows, report, settings_conflict,
                                            summary, threshold)
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 
 RESULTS = runner.RESULTS
 SPLIT_SEEDS = {"dev": 0, "test": 1}

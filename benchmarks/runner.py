@@ -124,6 +124,13 @@ _SUITES = [
           "proposal, each estimator variant retrained on the run's own simulations; expected HPD coverage at 50 % "
           "and 90 % (a calibrated estimator gives 0.50 / 0.90), TARP and the verdict of `softsbi calibrate`.",
           "benchmarks.bench_calibration"),
+    Suite("posterior-calibration", "Estimators and calibration", "every trained model of the lift task on its "
+          "held-out simulations",
+          "The demo's lift task trained by `softsbi task train` for the nominal model and each candidate effect "
+          "(`--full`: every shipped candidate, 1000 prior and 200 held-out simulations each); per model, its training "
+          "report against three criteria: TARP's KS p >= 0.01, HPD coverage at 50% and 90% inside the binomial band "
+          "of a calibrated estimator, and every marginal's SBC KS p above 0.05 / D (Bonferroni).",
+          "benchmarks.bench_posterior_calibration"),
     Suite("sbibm", "Estimators and calibration", "C2ST on SBI-benchmark tasks",
           "softsbi's flow and flat-vector mixture density network, and sbi's own NPE, trained on the same "
           "simulations of sbibm's simulators, one round; the C2ST of their posteriors against sbibm's reference "

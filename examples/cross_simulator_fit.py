@@ -60,7 +60,7 @@ def main() -> None:
         rows.append((backend, "Chamfer", "cm", (rep.get("chamfer_posterior_m") or float("nan")) * 100,
                      None, None, None, None))
 
-    print(f"\n| backend | parameter | unit | mean | std | 90% interval | truth |\n|---|---|---|---|---|---|---|")
+    print("\n| backend | parameter | unit | mean | std | 90% interval | truth |\n|---|---|---|---|---|---|---|")
     for b, n, u, m, s, lo, hi, t in rows:
         if n == "Chamfer":
             print(f"| {b} | posterior-predictive Chamfer | cm | {m:.2f} | | | |")

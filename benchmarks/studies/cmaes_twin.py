@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from softsbi.workflows.fit.run import FitConfig, run_fit
-from softsbi.workflows.fit.jobs import simulate_job
+from softsbi.workflows.fit.jobs import JobItem, simulate_job
 
 from benchmarks import cmaes_baseline as cb
 
@@ -51,7 +51,7 @@ def twin(folder: Path, theta: dict[str, float], seed: int):
     th = space.as_array(theta)
     res, clouds = cb.simulated_clouds(ctx_full, th, seed, rec.dense.shape[1])
     if clouds is None:
-        raise RuntimeError(f"the twin's simulation failed: {res['reason']}")
+        raise RuntimeError(f"the twin's simulation failed: {res.reason}")
     return dataclasses.replace(rec, dense=np.stack(clouds), x=None, truth=space.as_dict(th),
                                source=f"twin of {folder.name} (seed {seed})"), th, space
 
@@ -59,7 +59,7 @@ def twin(folder: Path, theta: dict[str, float], seed: int):
 def floor_runs(ctx_s, theta: np.ndarray, frames: list[int] | None, n: int = 5) -> list[float]:
     """The truth's own score (m, headline metric): ``theta`` simulated in the sensor context ``ctx_s`` with ``n``
     seeds (9000, 9001, ...) that neither the twin nor the fits use."""
-    return [cb.score(simulate_job(ctx_s, (theta, 9000 + k)), "fit", frames) for k in range(n)]
+    return [cb.score(simulate_job(ctx_s, JobItem(theta, 9000 + k)), "fit", frames) for k in range(n)]
 
 
 def parse_twin_arguments(ap: argparse.ArgumentParser, table) -> argparse.Namespace | None:

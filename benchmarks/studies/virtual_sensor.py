@@ -50,13 +50,13 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from softsbi.backends.mujoco_flex import MujocoFlex  # noqa: E402
-from softsbi.core.metrics import chamfer_terms  # noqa: E402
-from softsbi.perception.depth_sensor import DIFFCLOUD_OUTLIER, VirtualDepthSensor  # noqa: E402
-from softsbi.perception.pointcloud import sample_surface, sensor_indices  # noqa: E402
-from softsbi.scenarios.builtin import lift_scenario, load_recording  # noqa: E402
+from softsbi.backends.mujoco_flex import MujocoFlex
+from softsbi.core.metrics import chamfer_terms
+from softsbi.perception.depth_sensor import DIFFCLOUD_OUTLIER, VirtualDepthSensor
+from softsbi.perception.pointcloud import sample_surface, sensor_indices
+from softsbi.scenarios.builtin import lift_scenario, load_recording
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO.parent / "shared" / "data" / "diffcloud_lift"
@@ -202,7 +202,7 @@ def compare_fits(camera_run: Path, height_report: Path) -> dict:
     """Both metrics for a camera-sensor fit and a height-cut fit of the same recording (module docstring)."""
     from dataclasses import replace
 
-    from softsbi.workflows.fit.jobs import run_jobs
+    from softsbi.workflows.fit.jobs import JobItem, run_jobs
     from softsbi.workflows.fit.runs import load_run
     view = load_run(camera_run, n_eval=30)
     ctx_cam = view.sim_context(keep_rollout=False)
@@ -218,15 +218,15 @@ def compare_fits(camera_run: Path, height_report: Path) -> dict:
            "height_fit": {"prior_height": href["chamfer_prior_m"], "posterior_height": href["chamfer_posterior_m"],
                           "posterior_mean": href["posterior_mean"],
                           "contraction": {k: v["width_ratio"] for k, v in href["contraction"].items()}}}
-    items = list(zip(view.post_theta, view.post_seeds))
+    items = [JobItem(theta, int(seed)) for theta, seed in zip(view.post_theta, view.post_seeds)]
     for name, ctx in (("camera", ctx_cam), ("height", ctx_h)):
-        res = [r for r in run_jobs(ctx, items, 1) if r["status"] == 0]
-        out["camera_fit"][f"posterior_predictive_{name}"] = float(np.mean([np.mean(r["chamfer"][frames]) for r in res]))
+        res = [r for r in run_jobs(ctx, items, 1) if r.status == 0]
+        out["camera_fit"][f"posterior_predictive_{name}"] = float(np.mean([np.mean(r.chamfer[frames]) for r in res]))
     for fit, pm in (("camera_fit", cam_rep["posterior_mean"]), ("height_fit", href["posterior_mean"])):
         theta = {k: float(v) for k, v in pm.items()}
         for name, ctx in (("camera", ctx_cam), ("height", ctx_h)):
-            r = run_jobs(ctx, [(theta, 0)], 1)[0]
-            out[fit][f"posterior_mean_rollout_{name}"] = float(np.mean(r["chamfer"][frames]))
+            r = run_jobs(ctx, [JobItem(theta, 0)], 1)[0]
+            out[fit][f"posterior_mean_rollout_{name}"] = float(np.mean(r.chamfer[frames]))
     return out
 
 

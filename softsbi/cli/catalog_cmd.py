@@ -9,7 +9,7 @@ import typer
 from softsbi.cli.command import json_done
 from softsbi.cli.options import H_BACKEND, H_JSON, names
 from softsbi.cli.output import Output
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 
 def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:

@@ -10,7 +10,7 @@ import typer
 from softsbi.cli.command import json_done
 from softsbi.cli.options import H_ALPHA, H_JSON, H_MAX_NULL, H_N_EVAL, H_RECOMPUTE, H_WORKERS, setting
 from softsbi.cli.output import Output
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 
 def check(run: Path = typer.Argument(..., help="run directory of a finished fit"),

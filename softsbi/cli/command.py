@@ -76,16 +76,16 @@ def guard(fn: Callable[..., Any]) -> Callable[..., Any]:
         except (typer.Exit, typer.Abort):
             raise
         except SoftsbiError as exc:
-            raise _fail(as_json, exc, 2)
+            raise _fail(as_json, exc, 2) from None
         except KeyboardInterrupt as stop:
             what = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
             exc = KeyboardInterrupt(f"{what}; finished simulations are kept: re-run the same command to resume")
-            raise _fail(as_json, exc, 143 if isinstance(stop, Terminated) else 130)
+            raise _fail(as_json, exc, 143 if isinstance(stop, Terminated) else 130) from None
         except Exception as exc:
             err = storage_error(exc, out_flag=out_flag)  # a full or read-only disk is the machine's state, not a bug
             if err is not None:
-                raise _fail(as_json, err, 2)
+                raise _fail(as_json, err, 2) from None
             if as_json:
-                raise _fail(True, exc, 1)
+                raise _fail(True, exc, 1) from None
             raise
     return wrapper

@@ -10,7 +10,7 @@ from softsbi.cli.command import json_done
 from softsbi.cli.options import (AT_LEAST_1_WORKER, H_ESTIMATOR, H_JSON, H_PROPOSAL, H_SEED, H_WORKERS, ROUNDS_OK,
                                  SEED_OK, SIMS_OK, Proposal)
 from softsbi.cli.output import Output
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 
 def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),

@@ -9,8 +9,8 @@ import typer
 from softsbi.cli.command import json_done
 from softsbi.cli.options import H_ALPHA, H_JSON, H_MAX_NULL, H_RECOMPUTE, H_WORKERS, names, setting
 from softsbi.cli.output import Output
+from softsbi.core.defaults import DiagnoseSettings
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows.defaults import DiagnoseSettings
 
 
 def print_diagnosis(o: Output, diagnosis: Any) -> None:

@@ -9,7 +9,7 @@ import typer
 from softsbi.cli.command import json_done
 from softsbi.cli.options import H_JSON, H_SEED, SEED_OK, bound, parse_kv
 from softsbi.cli.output import Output
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 
 def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heatmap (supervised) or transporter "

@@ -12,7 +12,7 @@ from softsbi.cli.options import (AT_LEAST_1_WORKER, H_BACKEND, H_ESTIMATOR, H_JS
                                  parse_kv)
 from softsbi.cli.output import Output
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 
 def print_fit_report(o: Output, rep: dict[str, Any], out: Path) -> None:
@@ -68,7 +68,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                              "on this machine"),
         sim_timeout: Optional[float] = typer.Option(None, callback=bound(0, strict=True), help="seconds after which a hung simulation's worker is "
                                                                "killed and the simulation retried (default: none)"),
-        retries: int = typer.Option(2, callback=bound(0), help="re-runs of a simulation whose worker crashed or hung, before it is "
+        retries: int = typer.Option(D.RETRIES, callback=bound(0), help="re-runs of a simulation whose worker crashed or hung, before it is "
                                             "stored as failed"),
         observer: str = typer.Option(D.OBSERVER, help="observer plugin: pointcloud (3-D clouds), or heatmap / "
                                                         "transporter (keypoints found in RGB frames by a trained "

@@ -9,8 +9,8 @@ from typing import Any
 import typer
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows import defaults as D
-from softsbi.workflows.defaults import Bound
+from softsbi.core import defaults as D
+from softsbi.core.defaults import Bound
 
 #: help texts shared by several commands (one option name and one text per quantity)
 H_JSON = "print one JSON document on stdout (results, or the error) instead of tables"
@@ -37,7 +37,7 @@ class Proposal(str, Enum):
 
 def checked(limit: Bound):
     """A typer option callback that refuses, when the flags are parsed (before any work), a value outside ``limit``
-    (:class:`~softsbi.workflows.defaults.Bound`: the words the workflows refuse it with too): "Invalid value for
+    (:class:`~softsbi.core.defaults.Bound`: the words the workflows refuse it with too): "Invalid value for
     '--n-null': must be >= 5 (got 1): why", exit code 2. ``None`` (an unset optional flag) passes."""
 
     def check(ctx: typer.Context, param: typer.CallbackParam, value: float | None) -> float | None:
@@ -55,8 +55,8 @@ def bound(low: float, why: str = "", strict: bool = False, below: float | None =
 
 
 def setting(settings: type, name: str, help: str) -> Any:
-    """The typer option of setting ``name`` of a settings class (:class:`~softsbi.workflows.defaults.CheckSettings`,
-    :class:`~softsbi.workflows.defaults.DiagnoseSettings`): its flag, default and bound are the class's, so the
+    """The typer option of setting ``name`` of a settings class (:class:`~softsbi.core.defaults.CheckSettings`,
+    :class:`~softsbi.core.defaults.DiagnoseSettings`): its flag, default and bound are the class's, so the
     command and the Python API cannot disagree."""
     limit = settings.BOUNDS[name]
     return typer.Option(settings.__dataclass_fields__[name].default, limit.flag, help=help, callback=checked(limit))

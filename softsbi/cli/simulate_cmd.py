@@ -12,7 +12,7 @@ from softsbi.cli.command import json_done
 from softsbi.cli.options import H_BACKEND, H_JSON, bound, names, parse_kv
 from softsbi.cli.output import Output
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 
 class Match(str, Enum):

@@ -11,7 +11,7 @@ from softsbi.cli.options import (AT_LEAST_1_WORKER, H_BACKEND, H_ESTIMATOR, H_JS
                                  bound, names, parse_bounds, parse_kv)
 from softsbi.cli.output import Output
 from softsbi.core.errors import SoftsbiError
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 H_BANK = "simulation bank holding the stored tasks ('default': the user's cache folder; or a folder)"
 

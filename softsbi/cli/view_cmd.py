@@ -9,7 +9,7 @@ import typer
 from softsbi.cli.command import json_done
 from softsbi.cli.options import AT_LEAST_1_WORKER, H_JSON, H_WORKERS, bound
 from softsbi.cli.output import Output
-from softsbi.workflows import defaults as D
+from softsbi.core import defaults as D
 
 
 def view(run: Path = typer.Argument(..., help="run directory of a finished point-cloud fit"),

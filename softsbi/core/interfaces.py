@@ -75,7 +75,7 @@ class Simulator(ABC):
     #: steps several parameter sets together sets it (newton-cloth).
     batch_size: int = 1
 
-    def check_installed(self) -> None:
+    def check_installed(self) -> None:  # noqa: B027 - an optional hook: by default nothing to check
         """Refuse a machine that lacks an optional dependency this backend needs. A fit calls it before it creates
         its run directory, so that the run is refused in one line instead of being left begun with a backend that
         cannot simulate here. The default checks nothing (the backend needs only softsbi's own dependencies).
@@ -413,7 +413,7 @@ class PosteriorEstimator(ABC):
         :meth:`load_state_dict` then receives the arrays as NumPy arrays and tuples as lists)."""
         return {}
 
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:  # noqa: B027 - optional: stateless by default
         """Inverse of :meth:`state_dict`."""
 
 
@@ -437,5 +437,5 @@ class Executor(ABC):
         failed job never stops the batch.
         """
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional: an executor without workers has nothing to release
         """Release workers."""

@@ -48,6 +48,7 @@ from softsbi.core.errors import ObservedDamaged, SchemaError
 from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
                                           put_array, read_posterior_group, write_posterior)
 from softsbi.core.store_damage import array_names, check_metadata, damaged_rows, group_names, unreadable_groups
+from softsbi.core.store_groups import NamedGroups
 from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
@@ -68,10 +69,11 @@ def installed_version() -> str:
         return "unknown"
 
 
-class RunStore:
+class RunStore(NamedGroups):
     """Read/write access to a run's Zarr store.
 
-    Use :meth:`create` for a new run and :meth:`open` for an existing one.
+    Use :meth:`create` for a new run and :meth:`open` for an existing one. The groups outside the rounds
+    (``evaluation``, ``refine``, ``best_fit``, ...) are read and written through :class:`NamedGroups`' methods.
 
     Raises:
         SchemaError: the path is not a softsbi run, or has another schema version.
@@ -374,11 +376,6 @@ class RunStore:
         ``rounds/<r>`` (the round's draws), ``rounds/<r>/posterior`` and the other top-level groups."""
         return unreadable_groups(self.root, self.round_ids())
 
-    def remove_group(self, name: str) -> None:
-        """Remove a top-level group (e.g. ``evaluation``) and everything in it (nothing when it does not exist)."""
-        shutil.rmtree(self.path / name, ignore_errors=True)
-        self.root = zarr.open_group(str(self.path), mode="a")
-
     def damaged(self) -> tuple[int, dict[int, str]] | None:
         """The earliest round with stored simulations that cannot be trusted: a chunk that cannot
         be read (truncated or corrupt) or a simulation marked done whose state is missing (a deleted
@@ -419,78 +416,3 @@ class RunStore:
             fails = {k: v for k, v in dict(g.attrs.get("failures", {})).items() if int(k) not in set(rows.tolist())}
             g.attrs["failures"] = fails
         return int(dropped)
-
-    # -- evaluation -----------------------------------------------------------------
-    def write_group(self, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None,
-                    units: Mapping[str, str] | None = None) -> None:
-        """(Over)write a named group of arrays, e.g. ``evaluation`` or ``checks``."""
-        if name in self.root:
-            shutil.rmtree(self.path / name, ignore_errors=True)
-            self.root = zarr.open_group(str(self.path), mode="a")
-        g = self.root.require_group(name)
-        for k, v in arrays.items():
-            v = np.asarray(v)
-            put_array(g, k, v, tuple(f"dim_{i}" for i in range(v.ndim)), (units or {}).get(k, ""))
-        if attrs:
-            g.attrs.update(jsonable(dict(attrs)))
-
-    def read_group(self, name: str, keys: Sequence[str] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """The arrays of group ``name`` (those named in ``keys``, default all) and its attributes.
-
-        Raises:
-            SchemaError: an array cannot be read (a damaged chunk); the message names it and the fix.
-        """
-        g = self.root[name]
-        out = {}
-        for k in (array_names(g) if keys is None else [k for k in keys if k in g]):
-            try:
-                out[k] = g[k][...]
-            except Exception as exc:  # noqa: BLE001 - the codec's error for a damaged chunk
-                raise SchemaError(f"'{self.path / name / k}' cannot be read ({type(exc).__name__}: a damaged chunk); "
-                                  f"re-run the same `softsbi fit` command: it computes the group '{name}' again") \
-                    from None
-        return out, dict(g.attrs)
-
-    def has(self, name: str) -> bool:
-        return name in self.root
-
-    # -- row groups: simulations stored one by one outside the rounds (a best fit's refinement) ----------------
-    def append_rows(self, name: str, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None,
-                    units: Mapping[str, str] | None = None) -> int:
-        """Append rows (axis 0) to the arrays of group ``name``, creating them on first use with one row per
-        chunk (so each row is written atomically, as a round's simulations are); ``arrays`` must hold a
-        ``status`` array, written last: the group's row count is ``len(status)`` (:meth:`read_rows`), so rows
-        cut short by a killed append are overwritten by the next one. ``attrs`` update the group's attributes.
-
-        Returns:
-            The index of the first appended row.
-        """
-        if "status" not in arrays:
-            raise ValueError("append_rows needs a 'status' array (it marks the rows as stored)")
-        g = self.root.require_group(name)
-        start = int(g["status"].shape[0]) if "status" in g else 0
-        for k in [k for k in arrays if k != "status"] + ["status"]:
-            v = np.asarray(arrays[k])
-            if k not in g:
-                g.create_array(k, shape=(0,) + v.shape[1:], dtype=v.dtype, chunks=(1,) + v.shape[1:],
-                               dimension_names=("row",) + tuple(f"dim_{i}" for i in range(1, v.ndim)),
-                               attributes={"units": (units or {}).get(k, "")})
-            arr = g[k]
-            arr.resize((start + len(v),) + tuple(arr.shape[1:]))
-            arr[start:start + len(v)] = v
-        if attrs:
-            g.attrs.update(jsonable(dict(attrs)))
-        return start
-
-    def write_rows(self, name: str, start: int, arrays: Mapping[str, np.ndarray]) -> None:
-        """Overwrite rows ``start..`` of group ``name``'s arrays (``status`` last, as :meth:`append_rows`)."""
-        g = self.root[name]
-        for k in [k for k in arrays if k != "status"] + (["status"] if "status" in arrays else []):
-            v = np.asarray(arrays[k])
-            g[k][start:start + len(v)] = v
-
-    def read_rows(self, name: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Group ``name``'s arrays cut to its row count ``len(status)`` (:meth:`append_rows`), and its attributes."""
-        arrays, attrs = self.read_group(name)
-        n = len(arrays["status"]) if "status" in arrays else 0
-        return {k: v[:n] for k, v in arrays.items()}, attrs

@@ -48,6 +48,7 @@ import types
 from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 from softsbi import executors
+from softsbi.core.defaults import RETRIES
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.interfaces import Executor
 from softsbi.plugins.hookspecs import hookimpl
@@ -229,7 +230,7 @@ class LocalExecutor(Executor):
 
     name: ClassVar[str] = "local"
 
-    def __init__(self, workers: int | None = None, timeout: float | None = None, retries: int = 2,
+    def __init__(self, workers: int | None = None, timeout: float | None = None, retries: int = RETRIES,
                  in_process: bool | None = None, startup_grace: float = 60.0):
         check_options(workers, timeout, retries)
         self.startup_grace = float(startup_grace)

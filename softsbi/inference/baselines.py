@@ -244,7 +244,7 @@ GP_STATE_FORMAT = "softsbi.gp-bulk/1"
 
 def _require_gpytorch():
     try:
-        import gpytorch  # noqa: F401 - heavy (gpytorch pulls scikit-learn): only gp-bulk loads it
+        import gpytorch
     except ImportError as exc:  # pragma: no cover - gpytorch is a dependency
         raise DependencyMissing("estimator 'gp-bulk' needs GPyTorch: pip install gpytorch") from exc
     return gpytorch

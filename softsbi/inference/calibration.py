@@ -21,7 +21,7 @@ These are the few lines of sbi's ``run_sbc`` / ``check_sbc`` / ``run_tarp`` writ
 project's mixtures (sbi is not a dependency of the core package); the statistics are scipy's.
 
 **The verdict** (:func:`verdict`) reads all three diagnostics as one family of tests at the family-wise
-level :data:`~softsbi.core.levels.ALPHA` (0.05), split equally over them (Bonferroni): a calibrated estimator
+level :data:`~softsbi.core.defaults.ALPHA` (0.05), split equally over them (Bonferroni): a calibrated estimator
 is called "calibrated" in at least 95 % of test sets, and the verdict is "calibrated" only when none of the
 three rejects:
 
@@ -43,7 +43,7 @@ import numpy as np
 from scipy import stats
 
 from softsbi.core.errors import PosteriorError, ShapeError
-from softsbi.core.levels import ALPHA
+from softsbi.core.defaults import ALPHA
 
 __all__ = ["draws_in_box", "hpd_levels", "expected_coverage", "coverage_band", "coverage_band_simultaneous",
            "curve_outside", "sbc_ranks", "rank_tests", "rank_band", "rank_band_simultaneous", "rank_shape",

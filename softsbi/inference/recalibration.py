@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy import optimize, special, stats
 
-from softsbi.core.levels import ALPHA
+from softsbi.core.defaults import ALPHA
 from softsbi.inference.calibration import expected_coverage
 from softsbi.inference.mdn import MDNParams
 
@@ -149,7 +149,7 @@ def fit_marginals(base: MDNParams, u_val: np.ndarray, scale_range: tuple[float, 
     modern neural networks") per parameter with a shift, a proper scoring rule, so a calibrated marginal keeps
     ``s = 1, b = 0`` in expectation. ``s`` in ``scale_range``, ``|b|`` at most ``shift_max``. A parameter is
     corrected only where the validation split shows its marginal is off: the likelihood-ratio test of
-    ``s = 1, b = 0`` rejects at :data:`~softsbi.core.levels.ALPHA` (``2 n (NLL_before - NLL_after)`` against
+    ``s = 1, b = 0`` rejects at :data:`~softsbi.core.defaults.ALPHA` (``2 n (NLL_before - NLL_after)`` against
     the chi-square quantile with 2 degrees of freedom; Wilks 1938), so a small split or a calibrated marginal
     leaves it as trained.
 

@@ -74,8 +74,8 @@ def combined_min_z(*thresholds: float | None) -> float | None:
 
 
 def rollout_min_z(rollout: Any) -> float | None:
-    """The visibility threshold a sensor effect set on a rollout (``info[INFO_MIN_VISIBLE_Z]``, m) or on a
-    job result dict (the same key), else None."""
+    """The visibility threshold a sensor effect set on a rollout (``info[INFO_MIN_VISIBLE_Z]``, m), on a job result
+    (its ``info``) or on a dict holding the key, else None."""
     info = rollout.get("info", rollout) if isinstance(rollout, dict) else getattr(rollout, "info", None) or {}
     v = info.get(INFO_MIN_VISIBLE_Z) if isinstance(info, dict) else None
     return None if v is None else float(v)

@@ -25,10 +25,10 @@ ROLLOUT_ALPHA = 0.25
 
 def _run_label(view: Any) -> str:
     name = Path(view.path).resolve().name
-    src = str(view.config.get("observed_source") or "")
+    src = view.record.observed_source
     src = Path(src).name if src and not src.startswith("simulated:") else src
     eff = " + " + "+".join(view.effects) if view.effects else ""
-    return f"run '{name}' ({view.config['backend']}{eff}" + (f"; measurement {src})" if src else ")")
+    return f"run '{name}' ({view.config.backend}{eff}" + (f"; measurement {src})" if src else ")")
 
 
 def _edges(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
@@ -54,9 +54,12 @@ def _limits(arrays: list[np.ndarray], margin: float = 0.06) -> np.ndarray:
 # GIF
 
 
-def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Path, fps: float,
+def draw_gif(view: Any, rollouts: list[Any], ch: np.ndarray, path: Path, fps: float,
               dpi: int = 90, best: dict[str, Any] | None = None) -> Path:
-    """The GIF of ``softsbi view`` (:func:`softsbi.workflows.view.write_animation`); ``best``: the fit's best fit
+    """The GIF of ``softsbi view`` (:func:`softsbi.workflows.view.write_animation`); ``rollouts``: the posterior
+    rollouts (job results with ``vertices (T, N, 3)`` m and ``faces (F, 3)``, ``F = 0`` for a rope); ``view``: the
+    run (``path``, ``config.backend``, ``record.observed_source``, ``effects``, ``scenario``, ``dense``);
+    ``best``: the fit's best fit
     (``vertices (T, N, 3)`` m, ``faces``, ``chamfer (T,)`` m, ``label``), drawn in its own colour, or None."""
     from matplotlib.animation import PillowWriter  # heavy: loaded on the first figure only
     from matplotlib.collections import LineCollection  # heavy: loaded on the first figure only
@@ -68,10 +71,10 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     sc = view.scenario
     times = sc.times
     T = len(dense)
-    v0, rope = rollouts[0]["vertices"][0], len(rollouts[0]["faces"]) == 0  # where the first rollout's handles hold
+    v0, rope = rollouts[0].vertices[0], len(rollouts[0].faces) == 0  # where the first rollout's handles hold
     grips = [p for _, p in handle_tracks(sc, v0, rope)]
     pinned = pinned_vertices(sc, v0, rope)
-    lim = _limits([dense, *grips] + [r["vertices"] for r in rollouts] + ([best["vertices"]] if best else []))
+    lim = _limits([dense, *grips] + [r.vertices for r in rollouts] + ([best["vertices"]] if best else []))
     lim[2, 0] = min(lim[2, 0], sc.table_z - 0.01)
     best_edges = _edges(np.asarray(best["faces"], int), best["vertices"].shape[1])[0] if best else None
     views = [((a, b), f"{name} ({'xyz'[a]}-{'xyz'[b]})") for a, b, name in view_planes(getattr(sc, "view", "yz"))]
@@ -83,7 +86,7 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
     axes = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1])]
     ax_err = fig.add_subplot(gs[1, :])
     names = "xyz"
-    edges = [_edges(r["faces"], r["vertices"].shape[1]) for r in rollouts]
+    edges = [_edges(r.faces, r.vertices.shape[1]) for r in rollouts]
     meas_art, roll_art, grip_art = [], [], []
     for ax, ((a, b), title) in zip(axes, views):
         ax.set_xlim(*lim[a])
@@ -100,7 +103,7 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
         for grip in grips:
             ax.plot(grip[:, a], grip[:, b], color=COLOR_GRIPPER, lw=1.2, ls="--", alpha=0.5, zorder=1)
         lcs = []
-        for r in rollouts:  # outline clearly, inner mesh edges faintly
+        for _ in rollouts:  # outline clearly, inner mesh edges faintly
             outer = LineCollection([], colors=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA * 2, linewidths=1.3, zorder=2)
             inner = LineCollection([], colors=COLOR_POSTERIOR, alpha=ROLLOUT_ALPHA * 0.6, linewidths=0.6, zorder=2)
             ax.add_collection(outer)
@@ -157,7 +160,7 @@ def draw_gif(view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Pa
         for ax_i, ((a, b), _) in enumerate(views):
             meas_art[ax_i].set_offsets(dense[k][:, [a, b]])
             for (outer, inner), r, (e_out, e_in) in zip(roll_art[ax_i], rollouts, edges):
-                v = r["vertices"][k][:, [a, b]]
+                v = r.vertices[k][:, [a, b]]
                 outer.set_segments(v[e_out])
                 inner.set_segments(v[e_in])
             if best is not None:
@@ -197,11 +200,11 @@ def panel_ratios(aspects: list[float]) -> list[float]:
     return [first, min(max(aspects[1], 0.4, MIN_SECOND_PANEL * first), first)]
 
 
-def _handle_xy(grips: list[np.ndarray], pinned: list[tuple[str, int]], rollouts: list[dict[str, Any]], k: int,
+def _handle_xy(grips: list[np.ndarray], pinned: list[tuple[str, int]], rollouts: list[Any], k: int,
                a: int, b: int) -> tuple[tuple[list[float], list[float]], tuple[list[float], list[float]]]:
     """Frame ``k``'s handle positions on axes ``a``, ``b``: the grippers ``(xs, ys)`` and the vertices held in
     place (in the first rollout) ``(xs, ys)``."""
-    held = [rollouts[0]["vertices"][k][i] for _, i in pinned]
+    held = [rollouts[0].vertices[k][i] for _, i in pinned]
     return ([float(g[k, a]) for g in grips], [float(g[k, b]) for g in grips]), \
         ([float(p[a]) for p in held], [float(p[b]) for p in held])
 
@@ -232,7 +235,7 @@ def _vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.where(norm > 0, n / np.maximum(norm, 1e-12), np.array([0.0, 0.0, 1.0]))
 
 
-def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, path: Path,
+def log_rrd(rr: Any, view: Any, rollouts: list[Any], ch: np.ndarray, path: Path,
             best: dict[str, Any] | None = None) -> Path:
     """The rerun recording of ``softsbi view`` (:func:`softsbi.workflows.view.write_rerun`); ``best`` as in
     :func:`draw_gif`: logged as ``world/best_fit`` and ``error/best_fit_cm``."""
@@ -242,7 +245,7 @@ def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, 
     dense = view.dense
     T = len(dense)
     mean_cm = ch.mean(0) * 100
-    lim = _limits([dense, sc.gripper] + [r["vertices"] for r in rollouts])
+    lim = _limits([dense, sc.gripper] + [r.vertices for r in rollouts])
     path.parent.mkdir(parents=True, exist_ok=True)
     blueprint = rrb.Blueprint(
         rrb.Vertical(rrb.Spatial3DView(origin="/world", name="measured vs posterior rollouts"),
@@ -267,7 +270,7 @@ def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, 
                     static=True)
         for i, r in enumerate(rollouts):
             rec.log(f"error/rollouts/{i}", rr.SeriesLines(colors=[_rgba(COLOR_POSTERIOR)[:3]], widths=0.5,
-                                                          names=[f"rollout {i} (posterior sample {r['sample']})"]),
+                                                          names=[f"rollout {i} (posterior sample {r.sample})"]),
                     static=True)
         meas_col = _rgba(COLOR_MEASURED)
         post_col = _rgba(COLOR_POSTERIOR, 0.5)
@@ -276,11 +279,11 @@ def log_rrd(rr: Any, view: Any, rollouts: list[dict[str, Any]], ch: np.ndarray, 
             rec.log("world/measured", rr.Points3D(dense[k], colors=[meas_col], radii=0.002))
             rec.log("world/gripper", rr.Points3D([sc.gripper[k]], colors=[_rgba(COLOR_GRIPPER)], radii=0.008))
             for i, r in enumerate(rollouts):
-                v = r["vertices"][k]
-                if len(r["faces"]):
+                v = r.vertices[k]
+                if len(r.faces):
                     rec.log(f"world/posterior/{i}",
-                            rr.Mesh3D(vertex_positions=v, triangle_indices=r["faces"],
-                                      vertex_normals=_vertex_normals(v, r["faces"]), albedo_factor=post_col))
+                            rr.Mesh3D(vertex_positions=v, triangle_indices=r.faces,
+                                      vertex_normals=_vertex_normals(v, r.faces), albedo_factor=post_col))
                 else:  # a rope: its centre line
                     rec.log(f"world/posterior/{i}", rr.LineStrips3D([v], colors=[post_col], radii=0.003))
                 rec.log(f"error/rollouts/{i}", rr.Scalars(float(ch[i, k] * 100)))

@@ -46,7 +46,7 @@ from softsbi.core.arrays import read_npy
 from softsbi.core.errors import DataError
 from softsbi.core.types import Handle, Scenario, jsonable
 # the format's models and reader (softsbi.scenarios.schema); FORMAT, MAX_POSITION, ScenarioSpec importable here too
-from softsbi.scenarios.schema import (FORMAT, MAX_POSITION, CameraSpec, ScenarioSpec, TransformSpec,  # noqa: F401
+from softsbi.scenarios.schema import (FORMAT, MAX_POSITION, CameraSpec, ScenarioSpec, TransformSpec,
                                       parse_spec, read_scenario_yaml)
 
 # ---------------------------------------------------------------------------------------------
@@ -212,7 +212,7 @@ def build_scenario(spec: ScenarioSpec, source: str, base_dir: Path | None,
     gripper = next(h.path for h in handles if h.path is not None)
 
     # grasps fit the object
-    for i, (h, hs) in enumerate(zip(handles, spec.handles)):
+    for i, h in enumerate(handles):
         field = f"handles[{i}].grasp"
         kind = next(iter(h.grasp))
         if kind == "vertex":

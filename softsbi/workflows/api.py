@@ -37,7 +37,7 @@ from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, run_fi
 from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import fit_callbacks, say, shown_unless_shown
 from softsbi.workflows.fit.runs import Run, open_run
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings, split_settings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings, split_settings
 from softsbi.workflows.lock import check_out_apart
 from softsbi.workflows.measurement import default_values, rollout_space
 

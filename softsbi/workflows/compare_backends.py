@@ -29,7 +29,7 @@ from softsbi.core.types import STATUS_NAMES, Param, ParamSpace, Scenario
 from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.plugins import registry
 from softsbi.report import plot_compare_backends
-from softsbi.workflows.defaults import COMPARED_BACKENDS
+from softsbi.core.defaults import COMPARED_BACKENDS
 
 
 def shared_space(spaces: Sequence[ParamSpace]) -> ParamSpace:

@@ -30,14 +30,14 @@ from softsbi.report.text import check_summary
 from softsbi.scenarios.builtin import lift_scenario
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.check import check_run
-from softsbi.workflows.defaults import BACKEND, DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
+from softsbi.core.defaults import BACKEND, DEMO_ROUNDS, DEMO_SIMS, ESTIMATOR, PROPOSAL, SEED
 from softsbi.workflows.criticism.compare import compare_runs
 from softsbi.workflows.criticism.diagnose import diagnose_run
 from softsbi.workflows.criticism.stats import PosteriorPredictive
 from softsbi.workflows.fit.run import FitCallbacks, FitConfig, FitResult, read_report, run_fit
 from softsbi.workflows.lock import check_out_apart
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 
 #: the demo's hidden parameter values (unit-cube positions; the user is not told them before the fit ends)
 DEMO_TRUTH_UNIT = {"bend": 0.62, "stretch": 0.45, "friction": 0.35, "scale": 0.55, "mass": 0.5}

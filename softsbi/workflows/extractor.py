@@ -10,7 +10,7 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import write_json_atomic
 from softsbi.core.types import jsonable
-from softsbi.workflows import defaults
+from softsbi.core import defaults
 from softsbi.data.keypoints import block_split, keypoint_errors, load_keypoint_folder
 from softsbi.perception.synthdata import render_training_set, visible_corner_labels
 from softsbi.plugins import registry

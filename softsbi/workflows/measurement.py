@@ -25,7 +25,7 @@ from softsbi.scenarios.builtin import FRAME_DT, lift_task, make_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.scenarios.catalog import load_scenario
 from softsbi.scenarios.spec import apply_transform, load_scenario_data, spec_from_scenario, transform_matrix
-from softsbi.workflows.defaults import BACKEND, IMAGE_SIZE, SCENARIO
+from softsbi.core.defaults import BACKEND, IMAGE_SIZE, SCENARIO
 from softsbi.workflows.lock import check_out_dir
 
 if TYPE_CHECKING:

@@ -29,7 +29,7 @@ from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.scenarios.builtin import make_scenario
 from softsbi.scenarios.spec import spec_from_scenario
 from softsbi.scenarios.cameras import scenario_camera
-from softsbi.workflows.defaults import BACKEND, SCENARIO
+from softsbi.core.defaults import BACKEND, SCENARIO
 from softsbi.workflows.fit.jobs import failure_reason
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.measurement import default_values, rollout_space

@@ -21,18 +21,20 @@ outputs beside the posterior rollouts, in its own colour (purple), with its Cham
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from softsbi.workflows.fit.bestfit import read_best_fit
+from softsbi.workflows.fit.jobs import JobResult
 from softsbi.workflows.fit.runs import RunView, load_run
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.core.jsonfile import check_result_path
 from softsbi.core.store import RunStore
-from softsbi.workflows.defaults import VIEW_N_EVAL
+from softsbi.core.defaults import VIEW_N_EVAL
 
 from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 
@@ -56,7 +58,7 @@ def best_fit_rollout(run_dir: str | Path) -> dict[str, Any] | None:
 
 
 def posterior_rollouts(run_dir: str | Path, n_eval: int = VIEW_N_EVAL,
-                       workers: int | None = None) -> tuple[RunView, list[dict[str, Any]], np.ndarray]:
+                       workers: int | None = None) -> tuple[RunView, list[JobResult], np.ndarray]:
     """Simulate a finished run at its first ``n_eval`` posterior samples.
 
     Args:
@@ -67,7 +69,8 @@ def posterior_rollouts(run_dir: str | Path, n_eval: int = VIEW_N_EVAL,
 
     Returns:
         ``(view, rollouts, chamfer)``: the opened run (:class:`~softsbi.workflows.fit.runs.RunView`;
-        ``view.dense (T, P, 3)`` m is the measurement), the ``S`` successful rollouts (dicts with
+        ``view.dense (T, P, 3)`` m is the measurement), the ``S`` successful rollouts (job results,
+        :class:`~softsbi.workflows.fit.jobs.JobResult`, with
         ``vertices (T, N, 3)`` m, ``faces (F, 3)`` int (``F = 0`` for a rope), ``gripper (T, 3)`` m,
         ``sample`` = the posterior row simulated, ``seed``), and their bidirectional Chamfer
         distance to the measured cloud per frame ``(S, T)`` in metres: the fit's own metric
@@ -84,13 +87,13 @@ def posterior_rollouts(run_dir: str | Path, n_eval: int = VIEW_N_EVAL,
     # the fit's own job, evaluation samples and seeds: the rollouts are the fit's posterior-predictive
     # rollouts and their Chamfer is the fit's metric (as in `softsbi check` and report.json)
     rollouts, res = view.posterior_rollouts(workers)
-    for r in rollouts:
-        r["faces"] = np.asarray(r["faces"] if r.get("faces") is not None else np.zeros((0, 3)), int)
+    rollouts = [replace(r, faces=np.asarray(r.faces if r.faces is not None else np.zeros((0, 3)), int))
+                for r in rollouts]
     if not rollouts:
-        reasons = sorted({str(r.get("reason")) for r in res if r is not None})
+        reasons = sorted({str(r.reason) for r in res if r is not None})
         raise SoftsbiError(f"all {len(res)} posterior rollouts of '{run_dir}' failed ({'; '.join(reasons)}); "
                            f"nothing to show")
-    ch = np.array([r["chamfer"] for r in rollouts], dtype=float)
+    ch = np.array([r.chamfer for r in rollouts], dtype=float)
     return view, rollouts, ch
 
 

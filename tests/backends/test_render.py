@@ -208,7 +208,7 @@ def test_backproject_depth_inverts_project():
     for (u, v), d in zip(np.round(uv).astype(int), z):
         depth[v, u] = d
     world = backproject_depth(depth, cam)
-    for (u, v), p, (uu, vv) in zip(np.round(uv).astype(int), pts, uv):
+    for (u, v), p in zip(np.round(uv).astype(int), pts):
         # the rounded pixel shifts the point by < 1 px at its depth
         assert np.linalg.norm(world[v, u] - p) < 2 * z.max() / cam.fx
 

@@ -19,8 +19,8 @@ from scipy import stats
 from toy_helpers import REPO
 
 sys.path.insert(0, str(REPO))
-from benchmarks import diagnosis as bench  # noqa: E402
-from benchmarks import diagnosis_protocol as proto  # noqa: E402
+from benchmarks import diagnosis as bench
+from benchmarks import diagnosis_protocol as proto
 
 #: settings of one protocol, as a row stores them (the real ones are tested in test_rows_record_commit_and_settings)
 SETTINGS = {"fit": {"rounds": 3, "sims_per_round": 100, "proposal": "truncated"},

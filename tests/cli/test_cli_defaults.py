@@ -23,7 +23,7 @@ from softsbi.workflows.fit.task_store import task_store_of
 from softsbi.workflows.fit.run import FitConfig
 from softsbi.workflows.measurement import import_diffcloud, load_image_recording
 from softsbi.workflows.simulate import simulate_to_folder
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 from softsbi.workflows.view import write_view
 
 FIT = {f.name: (f.default if f.default is not dataclasses.MISSING else f.default_factory())

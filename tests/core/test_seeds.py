@@ -1,6 +1,6 @@
 """Seed streams are distinct from each other and far from a fit's round streams."""
 from softsbi.core import seeds
-from softsbi.workflows import defaults
+from softsbi.core import defaults
 
 
 def test_the_named_seed_streams_are_distinct_and_apart_from_the_rounds_streams():

@@ -157,7 +157,7 @@ def test_rendered_simulation_is_an_image_recording(tmp_path):
     from softsbi.workflows.simulate import simulate_to_folder
     try:
         doc = simulate_to_folder(tmp_path / "m", scenario="wipe", render=24)
-    except Exception as exc:  # noqa: BLE001 - no off-screen OpenGL here
+    except Exception as exc:
         if type(exc).__name__ == "RenderingUnavailable":
             pytest.skip(str(exc))
         raise

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.plugins import registry
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 
 runner = CliRunner()
 NAME = "aniso-friction"

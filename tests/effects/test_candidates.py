@@ -144,18 +144,18 @@ def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_me
 
 
 def test_table_unseen_adds_to_the_fits_sensor_in_the_job_metric():
-    from softsbi.workflows.fit.jobs import SimContext, simulate_job
+    from softsbi.workflows.fit.jobs import JobItem, SimContext, simulate_job
     clouds = rollout_clouds_of(_run(LIFT))
     kw = dict(backend="mujoco-flex", backend_options={"grid": 5}, scenario=LIFT.to_json(), effects=[],
               observer="pointcloud", observer_options={"n_points": 32}, param_names=SIM.param_space(LIFT).names,
               fixed={}, dense=clouds, n_dense=200, keep_rollout=True)
     theta = {**SIM.param_space(LIFT).midpoint(), "unseen_height": 0.02}
-    plain = simulate_job(SimContext(**kw), (SIM.param_space(LIFT).midpoint(), 0, []))
-    hidden = simulate_job(SimContext(**kw), (theta, 0, ["table-unseen"]))
-    assert hidden["min_visible_z"] == pytest.approx(clouds[0][:, 2].min() + 0.02, abs=0.003)
-    assert "min_visible_z" not in plain
+    plain = simulate_job(SimContext(**kw), JobItem(SIM.param_space(LIFT).midpoint(), 0, effects=[]))
+    hidden = simulate_job(SimContext(**kw), JobItem(theta, 0, effects=["table-unseen"]))
+    assert hidden.min_visible_z == pytest.approx(clouds[0][:, 2].min() + 0.02, abs=0.003)
+    assert plain.min_visible_z is None
     # the nominal rollout against its own full clouds: close; with the flat cloth unseen: the early frames differ
-    assert hidden["chamfer"][0] > 2 * plain["chamfer"][0]
+    assert hidden.chamfer[0] > 2 * plain.chamfer[0]
 
 
 def rollout_clouds_of(ro):

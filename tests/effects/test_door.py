@@ -99,7 +99,7 @@ def test_vertex_context_edges():
 
 
 def test_diagnose_candidates_come_through_the_door():
-    run = SimpleNamespace(config={"backend": "mujoco-flex"}, effects=["wind"])
+    run = SimpleNamespace(config=SimpleNamespace(backend="mujoco-flex"), effects=["wind"])
     names = {c.name for c in candidate_effects(run, None)}
     assert {"air-drag", "extra-damping", "heavy-hem", "sticky-patch", "table-slope", "point-noise"} <= names
     assert "wind" not in names
@@ -107,7 +107,7 @@ def test_diagnose_candidates_come_through_the_door():
     generic = {c.name for c in candidate_effects(run, None) if c.generic}
     assert generic and all(n.startswith("generic-") for n in generic)
     assert [c.name for c in candidate_effects(run, ["generic-constant"])] == ["generic-constant"]  # asked by name
-    pb = SimpleNamespace(config={"backend": "pybullet-massspring"}, effects=[])
+    pb = SimpleNamespace(config=SimpleNamespace(backend="pybullet-massspring"), effects=[])
     with pytest.raises(SoftsbiError, match="heavy-hem \\(it needs a force field"):
         candidate_effects(pb, ["heavy-hem"])
 
@@ -116,7 +116,7 @@ def test_an_empty_candidate_family_is_no_family():
     """An empty family means check's omnibus test alone, not every installed effect: the check of a refit that adds
     all of a diagnosis' candidates (`diagnose --effect heavy-hem`, or the pair of `--effect a --effect b`) screens
     the family less the refit's effects, so the family never grows between the steps of one diagnosis."""
-    run = SimpleNamespace(config={"backend": "mujoco-flex"}, effects=["heavy-hem"])
+    run = SimpleNamespace(config=SimpleNamespace(backend="mujoco-flex"), effects=["heavy-hem"])
     assert candidate_effects(run, []) == []
 
 
@@ -237,7 +237,7 @@ def test_a_force_field_sees_the_handles_current_positions_and_the_cloth_corners(
     ro = sim.simulate(LIFT, {**sim.param_space(LIFT).midpoint(), "k": 0.5}, effects=["spy"])
     assert len(spy.seen) > 10
     names = tuple(h.name for h in LIFT.handles)
-    for t, handles, seen_names, corners in spy.seen:
+    for _t, handles, seen_names, corners in spy.seen:
         assert handles.shape == (len(LIFT.handles), 3) and seen_names == names
         assert corners == tuple(grid_corners(5))
     dt = ro.info["timestep"]

@@ -15,7 +15,7 @@ import pytest
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.executors.local import LocalExecutor, SimulationTimeout, WorkerCrashed, WorkerStartupError
-from softsbi.workflows.fit.run import FitConfig, SimContext, run_fit, simulate_job
+from softsbi.workflows.fit.run import FitConfig, JobItem, SimContext, run_fit, simulate_job
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING
 
@@ -43,7 +43,7 @@ def toy_ctx():
 
 def run_all(ex, items, ctx):
     out = {}
-    for i, res in ex.map_unordered(simulate_job, items, context=ctx):
+    for i, res in ex.map_unordered(simulate_job, [JobItem(theta, seed) for theta, seed in items], context=ctx):
         assert i not in out, "an item was yielded twice"
         out[i] = res
     assert sorted(out) == list(range(len(items)))
@@ -70,18 +70,18 @@ def test_local_worker_crash_is_retried_and_hang_times_out(tmp_path, monkeypatch)
     try:
         # crash once per seed: each item's worker dies, the item is re-run on a fresh worker
         res = run_all(ex, [(OK, 1), (OK, 2)], ctx)
-        assert all(not isinstance(r, BaseException) and r["status"] == STATUS_OK for r in res.values()), res
+        assert all(not isinstance(r, BaseException) and r.status == STATUS_OK for r in res.values()), res
         assert ex.stats["crashed"] == 2
         # a hang (seed 1 no longer crashes) on a warm worker: killed after 3 s, reported
         ex.retries = 0
         t0 = time.perf_counter()
         res = run_all(ex, [(OK, 1), (OK, 2), (BAD, 1)], ctx)
         assert isinstance(res[2], SimulationTimeout) and "3 s timeout" in str(res[2])
-        assert res[0]["status"] == res[1]["status"] == STATUS_OK
+        assert res[0].status == res[1].status == STATUS_OK
         assert ex.stats["timed_out"] == 1 and time.perf_counter() - t0 < 30
         # a crash with no retry left is reported with the exit code; the batch goes on
         res = run_all(ex, [(OK, 1), (OK, 3)], ctx)
-        assert res[0]["status"] == STATUS_OK
+        assert res[0].status == STATUS_OK
         assert isinstance(res[1], WorkerCrashed) and "exit code 13" in str(res[1])
     finally:
         ex.close()
@@ -227,14 +227,14 @@ def test_ray_crash_is_retried_and_hang_times_out(ray_cluster, tmp_path):
     ex = RayExecutor(workers=2, timeout=15, retries=1, startup_grace=120, runtime_env={"env_vars": env})
     ctx = toy_ctx()
     res = run_all(ex, [(OK, 1), (OK, 2)], ctx)  # each crashes once, then succeeds on a fresh worker
-    assert all(not isinstance(r, BaseException) and r["status"] == STATUS_OK for r in res.values()), res
+    assert all(not isinstance(r, BaseException) and r.status == STATUS_OK for r in res.values()), res
     assert ex.stats["crashed"] == 2
     res = run_all(ex, [(OK, 1), (OK, 2)], ctx)  # warm the replacement workers
     ex.retries = 0
     res = run_all(ex, [(OK, 1), (BAD, 3)], ctx)  # BAD crashes once (retries=0 -> failed)
-    assert res[0]["status"] == STATUS_OK and isinstance(res[1], WorkerCrashed)
+    assert res[0].status == STATUS_OK and isinstance(res[1], WorkerCrashed)
     res = run_all(ex, [(OK, 1), (BAD, 3)], ctx)  # marker exists now: BAD hangs -> timeout
-    assert res[0]["status"] == STATUS_OK and isinstance(res[1], SimulationTimeout), res
+    assert res[0].status == STATUS_OK and isinstance(res[1], SimulationTimeout), res
     ex.close()
     assert ray.is_initialized()  # a Ray started by someone else is left running
 

@@ -17,7 +17,7 @@ from softsbi.inference.baselines import (BayesZoomRKHSEstimator, FlatMDNEstimato
 from softsbi.inference.c2st import c2st
 
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))  # tests/inference
-from test_inference import blob_task  # noqa: E402
+from test_inference import blob_task
 
 SMALL = dict(hidden=(32, 32), max_epochs=60, patience=10, batch_size=32, lr=3e-3, num_threads=1)
 

@@ -13,7 +13,7 @@ from softsbi.inference.baselines import BayesZoomRKHSEstimator
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, contraction, contraction_from_report, format_estimate
 from softsbi.inference.estimators import MDNNEstimator
 
-from test_inference import FAST, blob_task  # noqa: E402  (tests/inference on sys.path via rootdir conftest)
+from test_inference import FAST, blob_task
 
 
 def _cases(width_factor: float, n: int = 300, L: int = 400, seed: int = 0):

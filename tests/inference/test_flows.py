@@ -10,8 +10,8 @@ import pytest
 
 pytest.importorskip("zuko")
 
-from softsbi.core.errors import DependencyMissing, ParameterError, ShapeError  # noqa: E402
-from softsbi.inference.flows import FlowEstimator, FlowPosterior  # noqa: E402
+from softsbi.core.errors import DependencyMissing, ParameterError, ShapeError
+from softsbi.inference.flows import FlowEstimator, FlowPosterior
 
 SIGMA = 0.05  # observation noise of the toy simulator x = theta + N(0, SIGMA^2 I)
 FAST = {"transforms": 2, "hidden": (32, 32), "patience": 10, "max_epochs": 200, "lr": 2e-3,

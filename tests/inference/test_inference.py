@@ -282,7 +282,7 @@ def test_torch_threads_restores_also_on_errors():
     assert torch.get_num_threads() == old
     with pytest.raises(ZeroDivisionError):
         with torch_threads(target):
-            1 / 0
+            _ = 1 / 0
     assert torch.get_num_threads() == old
     with torch_threads(None):  # None: leave torch's setting alone
         assert torch.get_num_threads() == old

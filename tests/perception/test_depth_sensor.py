@@ -235,14 +235,14 @@ def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
         ok, _ = view.posterior_rollouts(workers=1)
     assert len(ok) == 2
     assert len(renders) == 2 * 25  # the observer and the metric share one render per frame (shared_renders)
-    np.testing.assert_allclose(np.mean([r["chamfer"] for r in ok], axis=0), per_frame, rtol=1e-12)
+    np.testing.assert_allclose(np.mean([r.chamfer for r in ok], axis=0), per_frame, rtol=1e-12)
     # check's and diagnose's summaries see the rollouts through the same virtual sensor, on the fit's frames:
     # the cloth still on the table is unseen, so they differ from the full surface's
     from softsbi.workflows.criticism.stats import (FEATURE_NAMES, rollout_features, run_frames, sampled_points,
                                          trajectory_features)
     frames = run_frames(view)
     f_cam = rollout_features(view, ok[0], 5)
-    f_full = trajectory_features(sampled_points(ok[0]["vertices"], ok[0]["faces"], view.dense.shape[1], 5),
+    f_full = trajectory_features(sampled_points(ok[0].vertices, ok[0].faces, view.dense.shape[1], 5),
                                  None, frames)
     assert f_cam.shape == f_full.shape == (len(frames) * len(FEATURE_NAMES),) and np.all(np.isfinite(f_cam))
     assert np.abs(f_cam - f_full).max() > 0.01  # what the camera sees is not the whole cloth

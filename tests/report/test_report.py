@@ -263,7 +263,8 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
     fig = R.clouds_figure(sc, verts, verts, [0, 3], vertices=verts)
     assert len(_markers(fig, "+")) == 2 * 2 * 2 * 2 and len(_markers(fig, "x")) == 2 * 2  # white halo + cross
     plt.close(fig)
-    view = SimpleNamespace(path="run", config={"backend": "toy"}, effects=[], scenario=sc, dense=verts)
+    view = SimpleNamespace(path="run", config=SimpleNamespace(backend="toy"), effects=[], scenario=sc, dense=verts,
+                           record=SimpleNamespace(observed_source=""))
     from matplotlib.animation import PillowWriter
     frames, grab = [], PillowWriter.grab_frame
 
@@ -271,7 +272,8 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
         frames.append(_markers(self.fig, "+") + _markers(self.fig, "x"))
         return grab(self, **kw)
     with mock.patch.object(PillowWriter, "grab_frame", record):
-        draw_gif(view, [{"vertices": verts, "faces": ro.faces}], np.zeros((1, 4)), tmp_path / "view.gif", fps=5)
+        draw_gif(view, [SimpleNamespace(vertices=verts, faces=ro.faces)], np.zeros((1, 4)), tmp_path / "view.gif",
+                 fps=5)
     first = frames[0]
     assert sum(len(x) for x, _ in first) == 2 * (2 + 1)  # side and top view: two grippers, one held corner
     side = [(list(x), list(y)) for x, y in first][0]
@@ -336,9 +338,11 @@ def test_the_figures_honour_the_scenario_s_view_and_give_the_top_view_room_for_m
         seen.append(([(a.get_title(), a.get_position().width) for a in self.fig.axes[:2]],
                      self.fig._suptitle.get_text()))
         return grab(self, **kw)
-    view = SimpleNamespace(path="run", config={"backend": "toy"}, effects=[], scenario=sc, dense=verts)
+    view = SimpleNamespace(path="run", config=SimpleNamespace(backend="toy"), effects=[], scenario=sc, dense=verts,
+                           record=SimpleNamespace(observed_source=""))
     with mock.patch.object(PillowWriter, "grab_frame", record):
-        draw_gif(view, [{"vertices": verts, "faces": ro.faces}], np.zeros((1, 5)), tmp_path / "view.gif", fps=5)
+        draw_gif(view, [SimpleNamespace(vertices=verts, faces=ro.faces)], np.zeros((1, 5)), tmp_path / "view.gif",
+                 fps=5)
     (top, w_top), (side, w_side) = seen[0][0]
     assert top == "top view (x-y)" and side == "side view (x-z)" and w_top >= w_side
     assert "frame 0 (of 0-4)" in seen[0][1] and "frame 4 (of 0-4)" in seen[-1][1]

@@ -74,7 +74,7 @@ def test_the_python_api_how_to_lists_each_function_with_the_code_s_signature_and
     from softsbi.workflows.criticism.check import check_run
     from softsbi.workflows.criticism.compare import compare_runs
     from softsbi.workflows.criticism.diagnose import diagnose_run
-    from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+    from softsbi.core.defaults import CheckSettings, DiagnoseSettings
     doc = (Path(__file__).parents[2] / "docs" / "howto" / "python-api.md").read_text()
     for name in ("load_scenario", "load_recording", "simulate_recording", "simulate", "fit", "open_run", "check",
                  "diagnose", "compare", "calibrate_run", "import_diffcloud", "train_task"):

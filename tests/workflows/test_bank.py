@@ -193,7 +193,7 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
     swapped entry is one warning line."""
     toy = pytest.importorskip("softsbi_toy.plugin")
     from softsbi.workflows.fit.bank import HIT, WRONG_KEY
-    from softsbi.workflows.fit.jobs import SimContext, run_jobs
+    from softsbi.workflows.fit.jobs import JobItem, SimContext, run_jobs
     from softsbi.workflows.reporting import Reporter, reporting
 
     class Told(Reporter):
@@ -210,7 +210,7 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
     ctx = SimContext(backend="toy-gauss", backend_options={}, scenario=sc.to_json(), effects=[], observer="pointcloud",
                      observer_options={"n_points": 16}, param_names=["a", "b"], fixed={}, dense=None, n_dense=64,
                      bank=str(tmp_path / "bank"))
-    items = [(np.array([0.1 * i, -0.1 * i]), i) for i in range(4)]
+    items = [JobItem(np.array([0.1 * i, -0.1 * i]), i) for i in range(4)]
     with reporting(first := Told()):
         run_jobs(ctx, items, workers=1)
     assert first.read == [] and first.messages == []
@@ -220,13 +220,13 @@ def test_run_jobs_counts_the_runs_own_bank_and_warns_of_entries_under_another_ke
     with reporting(second := Told()):
         res = run_jobs(ctx, items, workers=1)
     assert second.read == [(3, 4)] and len(second.messages) == 1 and "1 stored" in second.messages[0]
-    assert sorted(r["bank"] for r in res) == [HIT, HIT, HIT, WRONG_KEY]  # the bank status of each result
+    assert sorted(r.bank for r in res) == [HIT, HIT, HIT, WRONG_KEY]  # the bank status of each result
     # a bank that cannot store (here its tmp/ is a file; a full disk alike) stored nothing, silently: now one line
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "tmp").write_text("")
     with reporting(third := Told()):
         res = run_jobs(replace(ctx, bank=str(tmp_path / "full")), items, workers=1)
-    assert [r["status"] for r in res] == [0] * 4 and len(SimulationBank(tmp_path / "full")) == 0
+    assert [r.status for r in res] == [0] * 4 and len(SimulationBank(tmp_path / "full")) == 0
     assert len(third.messages) == 1 and "4 rollout(s) could not be stored" in third.messages[0]
 
 

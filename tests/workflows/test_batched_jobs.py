@@ -9,7 +9,7 @@ from softsbi.core.errors import ParameterError
 from softsbi.core.interfaces import Simulator
 from softsbi.workflows import pools
 from softsbi.workflows.fit.bank import HIT
-from softsbi.workflows.fit.jobs import SimContext, batch_size, map_simulations, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, SimContext, batch_size, map_simulations, run_jobs
 
 pytestmark = pytest.mark.integration
 
@@ -25,20 +25,20 @@ def _ctx(tmp_path=None, size=1, **kw):
 
 
 # 9 simulations: two effect sets, distinct seeds, one that diverges (a > 0.7)
-ITEMS = [(np.array([0.1 * i, -0.1 * i]), 100 + i) for i in range(6)] + \
-        [({"a": 0.2, "b": 0.1, "wind": 0.3}, 7, ["toy-wind"]), ({"a": -0.4, "b": 0.0, "wind": 0.1}, 8, ["toy-wind"]),
-         (np.array([0.9, 0.0]), 9)]
+ITEMS = [JobItem(np.array([0.1 * i, -0.1 * i]), 100 + i) for i in range(6)] + \
+        [JobItem({"a": 0.2, "b": 0.1, "wind": 0.3}, 7, effects=["toy-wind"]),
+         JobItem({"a": -0.4, "b": 0.0, "wind": 0.1}, 8, effects=["toy-wind"]), JobItem(np.array([0.9, 0.0]), 9)]
 
 
 def _same(a, b):
     assert len(a) == len(b)
     for r, s in zip(a, b):
-        assert r["status"] == s["status"] and r["reason"] == s["reason"]
+        assert r.status == s.status and r.reason == s.reason
         for k in ("x", "chamfer", "chamfer_one_sided"):
-            if r.get(k) is None:
-                assert s.get(k) is None
+            if getattr(r, k) is None:
+                assert getattr(s, k) is None
             else:
-                np.testing.assert_array_equal(r[k], s[k])
+                np.testing.assert_array_equal(getattr(r, k), getattr(s, k))
 
 
 def _run(ctx, workers=1):
@@ -67,7 +67,7 @@ def test_batches_give_the_results_of_single_jobs(calls):
     assert calls == []  # batch_size 1: one simulate per job
     batched = _run(_ctx(size=4))
     _same(single, batched)
-    assert single[-1]["status"] != 0  # the divergent one stays a failed simulation, not a failed batch
+    assert single[-1].status != 0  # the divergent one stays a failed simulation, not a failed batch
     # jobs of 4, 4 and 1 items; within a job one call per effect set, each rollout with its item's seed
     assert calls == [(4, (), [100, 101, 102, 103]), (2, (), [104, 105]), (2, ("toy-wind",), [7, 8]), (1, (), [9])]
 
@@ -87,7 +87,7 @@ def test_batched_rollouts_fill_and_read_the_bank(tmp_path, calls):
     assert sum(b for b, _, _ in calls) == len(ITEMS)
     again = _run(_ctx(tmp_path, size=4))
     # every successful rollout read from the bank; the divergent one (not banked) simulated again
-    assert [r["bank"] for r in again[:-1]] == [HIT] * (len(ITEMS) - 1) and calls[-1] == (1, (), [9])
+    assert [r.bank for r in again[:-1]] == [HIT] * (len(ITEMS) - 1) and calls[-1] == (1, (), [9])
     _same(first, again)
 
 
@@ -106,7 +106,7 @@ def test_a_crashing_simulation_fails_itself_only_not_its_batch(monkeypatch):
     with pools.shared_executors():  # one worker process, replaced when it dies
         single = run_jobs(_ctx(size=1), items, workers=1, executor_options=one_process)
         batched = run_jobs(_ctx(size=4), items, workers=1, executor_options=one_process)
-    failed = [i for i, r in enumerate(batched) if r["status"] != 0]
-    assert failed == [i for i, r in enumerate(single) if r["status"] != 0] == [5]
-    assert "WorkerCrashed" in batched[5]["reason"]
+    failed = [i for i, r in enumerate(batched) if r.status != 0]
+    assert failed == [i for i, r in enumerate(single) if r.status != 0] == [5]
+    assert "WorkerCrashed" in batched[5].reason
     _same([r for i, r in enumerate(single) if i != 5], [r for i, r in enumerate(batched) if i != 5])

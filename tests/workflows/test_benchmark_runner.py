@@ -14,7 +14,7 @@ import pytest
 from toy_helpers import REPO
 
 sys.path.insert(0, str(REPO))
-from benchmarks import runner  # noqa: E402
+from benchmarks import runner
 
 
 def test_the_runner_lists_every_suite_and_each_suite_declares_its_options():

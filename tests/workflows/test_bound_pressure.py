@@ -8,7 +8,7 @@ import pytest
 import softsbi
 from softsbi.core.types import Param, ParamSpace
 from softsbi.inference.contraction import BOUND_MASS_MIN, BOUND_SLAB, bound_pressure, bound_sentence, widened_bounds
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 

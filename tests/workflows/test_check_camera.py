@@ -9,7 +9,7 @@ import pytest
 from softsbi.core.camera import Camera
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.workflows.criticism.check import material_regions, region_errors, surface_points
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 
@@ -91,16 +91,16 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     assert sensor is not None and sensor_model(view)["kind"] == "camera"
     assert run_sensor(load_run(lift_runs["height"], n_eval=6)) is None
     ok, _ = view.posterior_rollouts(workers=1)
-    labels, names = material_regions(ok[0]["vertices"][0], view.scenario.gripper[0])
-    lab = np.concatenate([labels, labels[ok[0]["faces"][:, 0]]])
+    labels, names = material_regions(ok[0].vertices[0], view.scenario.gripper[0])
+    lab = np.concatenate([labels, labels[ok[0].faces[:, 0]]])
     table = view.scenario.table_z
     hidden = 0
     for r in ok:
         cam = rollout_region_errors(view, r, labels, len(names), view.dense)
-        full = region_errors(r["vertices"], r["faces"], labels, view.dense, len(names))
-        pts = surface_points(r["vertices"], r["faces"])
+        full = region_errors(r.vertices, r.faces, labels, view.dense, len(names))
+        pts = surface_points(r.vertices, r.faces)
         for t in range(len(pts)):
-            if not sensor.seen(pts[t], r["vertices"][t], r["faces"], r["gripper"][t]).any():
+            if not sensor.seen(pts[t], r.vertices[t], r.faces, r.gripper[t]).any():
                 continue  # nothing seen: the metric's fallback (highest points) stands in
             # a region lying on the table (below the crop plane) is not compared; the full clouds compare it
             low = np.array([pts[t][lab == k, 2].max() < table + 0.004 for k in range(len(names))])
@@ -122,7 +122,7 @@ def test_check_of_a_camera_fit_compares_what_the_camera_sees(lift_runs):
     # diagnose's null: another rollout stands in for the measurement, seen through the same camera, so its
     # cloth lying on the table is not blamed on the regions the camera sees
     r, o = ok[0], ok[1]
-    other = sampled_points(o["vertices"], o["faces"], view.dense.shape[1], 1000 + o["sample"])
+    other = sampled_points(o.vertices, o.faces, view.dense.shape[1], 1000 + o.sample)
     through = rollout_region_errors(view, r, labels, len(names), other, o)
     raw = rollout_region_errors(view, r, labels, len(names), other)
     mid = slice(8, 15)  # the cloth partly lifted

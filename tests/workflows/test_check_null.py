@@ -52,7 +52,7 @@ def test_a_run_whose_calibration_is_lost_says_so_and_what_its_p_value_is_then(tm
     store = TaskStore(bank / "tasks")
     task = store.put({"task": "toy"}, 40, EstimatorState("mdnn", {}, {"w": np.arange(3.0)}), {})
     run = SimpleNamespace(report=SimpleNamespace(rounds=1, per_round=[SimpleNamespace(task=task.digest)]),
-                          config={"fit_config": FitConfig(sim_bank=str(bank)).to_json()}, dense=np.zeros((3, 64, 3)))
+                          config=FitConfig(sim_bank=str(bank)), dense=np.zeros((3, 64, 3)))
     said = []
 
     def lost():

@@ -10,7 +10,7 @@ from softsbi.core.results import Diagnosis, from_json
 from softsbi.workflows.criticism.diagnose import diagnose_run, load_diagnosis
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 
 pytestmark = pytest.mark.integration
 

@@ -15,7 +15,7 @@ from softsbi.workflows.criticism.evidence import REFIT_PROPOSAL
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.plugins import registry
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 
 OPTS = {"grid": 5}
 
@@ -199,6 +199,7 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
     """refit_model: the nominal fit's settings with the effects added, truncated proposals, the refit budget where
     given, and no extra sensor draws whatever the nominal fit used (physics and sensor effects on one footing)."""
     import softsbi.workflows.criticism.diagnose as dg
+    from softsbi.workflows.fit.config import FitConfig
     seen = {}
 
     class _Stop(Exception):
@@ -209,16 +210,14 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
         raise _Stop
 
     class _Run:
-        config = {"backend": "toy-gauss"}
+        config = FitConfig(backend="toy-gauss", rounds=2, sims_per_round=40, proposal="corrected", sensor_draws=4,
+                           effects=["time-offset"])
         effects = ["time-offset"]
         path = tmp_path
         report = types.SimpleNamespace(per_round=[types.SimpleNamespace(task=None)])  # round 1 trained in the fit
 
     monkeypatch.setattr(dg, "run_fit", fake_fit)
     monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
-    monkeypatch.setattr(dg.FitConfig, "from_run_config", classmethod(
-        lambda cls, c: cls(rounds=2, sims_per_round=40, proposal="corrected", sensor_draws=4,
-                           effects=["time-offset"])))
     with pytest.raises(_Stop):
         dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], scale=None)
     cfg = seen["cfg"]

@@ -23,7 +23,7 @@ from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.runs import load_run
 from softsbi.workflows.criticism.stats import PM_ROLLOUTS, posterior_mean_chamfer, run_features
 from softsbi.plugins import registry
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 
 pytestmark = pytest.mark.integration
 

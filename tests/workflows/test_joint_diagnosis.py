@@ -16,7 +16,7 @@ from softsbi.core.joint import JointDiagnosis
 from softsbi.core.results import Diagnosis, from_json
 from softsbi.core.store import RunStore
 from softsbi.workflows.criticism.joint import JOINT_FILE, diagnose_runs, load_joint_diagnosis
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.lock import RunDirError
 from softsbi.workflows.measurement import simulate_recording
@@ -93,7 +93,9 @@ def test_a_set_that_is_not_one_tasks_recordings_is_refused_before_any_work(rig, 
     other = tmp_path / "other"
     shutil.copytree(runs[2], other, ignore=shutil.ignore_patterns("refit-*", "check.*", "diagnosis.json"))
     store = RunStore.open(other / "run.zarr")
-    store.root.attrs["config"] = {**store.config, "effects": ["toy-wind"]}
+    config = store.config  # the settings a fit with the wind in its model stores
+    store.root.attrs["config"] = {**config, "effects": ["toy-wind"],
+                                  "fit_config": {**config["fit_config"], "effects": ["toy-wind"]}}
     out = tmp_path / "task"
     refusals = [
         ([*runs[:2], other], "not fits of one task: .* has effects \\[\\], .* has \\['toy-wind'\\]", SoftsbiError),

@@ -5,7 +5,7 @@ import pytest
 import softsbi
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.types import Param, ParamSpace
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 

@@ -12,7 +12,7 @@ from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK
 from softsbi.scenarios.builtin import winding_scenario
 from softsbi.workflows.fit.run import FitConfig, SensorDraws, fit_param_space, run_fit
-from softsbi.workflows.fit.jobs import SimContext, simulate_job
+from softsbi.workflows.fit.jobs import JobItem, SimContext, simulate_job
 from softsbi.workflows.measurement import simulate_recording
 
 pytestmark = pytest.mark.integration
@@ -31,15 +31,15 @@ def test_one_simulation_observed_at_each_draw_gives_what_separate_simulations_gi
     """The primary observation is the job's without draws (same x); each draw's observation is the job's at that
     time offset (the offset is deterministic and the observer's sampling is the primary's)."""
     ctx = _ctx(["time-offset"])
-    plain = simulate_job(ctx, (TRUTH, 5))
+    plain = simulate_job(ctx, JobItem(TRUTH, 5))
     draws = {"effects": ["time-offset"], "draws": [{"time_offset": 0.06}, {"time_offset": -0.08}]}
-    res = simulate_job(ctx, (TRUTH, 5, None, draws))
-    assert res["status"] == STATUS_OK and res["sensor_x"].shape == (2, *plain["x"].shape)
-    np.testing.assert_array_equal(res["x"], plain["x"])
-    np.testing.assert_array_equal(res["sensor_x"][0], plain["x"])
-    other = simulate_job(ctx, ({**TRUTH, "time_offset": -0.08}, 5))
-    np.testing.assert_array_equal(res["sensor_x"][1], other["x"])
-    assert np.abs(res["sensor_x"][1] - res["x"]).max() > 1e-3  # the offset moves the observed rope
+    res = simulate_job(ctx, JobItem(TRUTH, 5, sensor_draws=draws))
+    assert res.status == STATUS_OK and res.sensor_x.shape == (2, *plain.x.shape)
+    np.testing.assert_array_equal(res.x, plain.x)
+    np.testing.assert_array_equal(res.sensor_x[0], plain.x)
+    other = simulate_job(ctx, JobItem({**TRUTH, "time_offset": -0.08}, 5))
+    np.testing.assert_array_equal(res.sensor_x[1], other.x)
+    assert np.abs(res.sensor_x[1] - res.x).max() > 1e-3  # the offset moves the observed rope
 
 
 def test_with_a_bank_a_sensor_effect_reads_the_nominal_rollout_and_observes_what_simulating_it_gives(tmp_path):
@@ -49,10 +49,10 @@ def test_with_a_bank_a_sensor_effect_reads_the_nominal_rollout_and_observes_what
     from softsbi.workflows.fit.bank import HIT
     nominal = replace(_ctx([]), bank=str(tmp_path / "bank"))
     values = {k: v for k, v in TRUTH.items() if k != "time_offset"}
-    assert simulate_job(nominal, (values, 5))["bank"] != HIT
-    banked = simulate_job(replace(_ctx(["time-offset"]), bank=str(tmp_path / "bank")), (TRUTH, 5))
-    assert banked["bank"] == HIT
-    np.testing.assert_array_equal(banked["x"], simulate_job(_ctx(["time-offset"]), (TRUTH, 5))["x"])
+    assert simulate_job(nominal, JobItem(values, 5)).bank != HIT
+    banked = simulate_job(replace(_ctx(["time-offset"]), bank=str(tmp_path / "bank")), JobItem(TRUTH, 5))
+    assert banked.bank == HIT
+    np.testing.assert_array_equal(banked.x, simulate_job(_ctx(["time-offset"]), JobItem(TRUTH, 5)).x)
 
 
 def test_draws_change_only_the_sensor_parameters_and_stay_in_the_proposal():

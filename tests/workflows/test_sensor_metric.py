@@ -9,7 +9,7 @@ from softsbi.perception.pointcloud import sensor_chamfer_per_frame, sensor_view
 from softsbi.workflows.criticism.check import check_run
 from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 pytestmark = pytest.mark.integration
 

@@ -1,10 +1,13 @@
 """Honest Monte-Carlo statistics (softsbi.workflows.criticism.stats): p-values, max-T, adaptive resolution."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import JointTest, MCPValue
 from softsbi.workflows.criticism.stats import max_t_adjusted, mc_pvalue, misspecification_test, resolution_needed
+from softsbi.workflows.fit.jobs import JobResult
 
 
 def test_monte_carlo_p_value_counts_and_never_goes_below_its_resolution():
@@ -274,14 +277,15 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
     rng = np.random.default_rng(0)
     verts = np.repeat(v[None], T, 0)
     y = sampled_points(verts + rng.normal(0, sigma, verts.shape), f, P, 999)
-    run = SimpleNamespace(post_theta=np.zeros(S), dense=y, metric_frames=None, metric_min_z=None, config={})
+    run = SimpleNamespace(post_theta=np.zeros(S), dense=y, metric_frames=None, metric_min_z=None,
+                          record=SimpleNamespace(metric_camera=None))
 
     def pool(noise: float, n: int = S) -> SimpleNamespace:
         ro = []
         for i in range(n):
             vv = verts + rng.normal(0, noise, verts.shape)
             ch = sensor_chamfer_per_frame(sampled_points(vv, f, P, 5000 + i), y)[0]
-            ro.append({"vertices": vv, "faces": f, "chamfer": ch, "sample": i})
+            ro.append(JobResult(status=0, vertices=vv, faces=f, chamfer=ch, sample=i))
         return SimpleNamespace(run=run, rollouts=ro, energy_scores={})
 
     none, right, double = (energy_score(pool(s)) for s in (0.0, sigma, 2 * sigma))
@@ -295,15 +299,15 @@ def test_the_energy_score_is_smallest_at_the_measurements_own_noise_where_the_ch
     # a pool shared by check and diagnose is scored once: the second call reads what the first stored
     p = pool(sigma)
     first = energy_score(p)
-    for r in p.rollouts:
-        r["chamfer"] = np.zeros_like(r["chamfer"])  # a recomputation would now give another Chamfer term
+    # a recomputation would now give another Chamfer term
+    p.rollouts[:] = [replace(r, chamfer=np.zeros_like(r.chamfer)) for r in p.rollouts]
     assert energy_score(p) == first
 
 
 def test_the_null_accepts_as_few_rollouts_as_check_simulates_and_no_fewer():
     """The misspecification test's minimum is the named MIN_NULL, the smallest `--n-eval` check accepts: a check at
     that setting whose rollouts all succeed is tested, one failed rollout is refused in one line."""
-    from softsbi.workflows.defaults import MIN_ROLLOUTS
+    from softsbi.core.defaults import MIN_ROLLOUTS
     from softsbi.workflows.criticism.stats import MIN_NULL
     assert MIN_NULL == MIN_ROLLOUTS
     rng = np.random.default_rng(1)

@@ -20,7 +20,7 @@ from softsbi.workflows.fit.run import FitCallbacks, FitConfig, run_fit
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.lock import RunLocked, run_lock
 from softsbi.workflows.tasks import calibrate
-from softsbi.workflows.defaults import CheckSettings, DiagnoseSettings
+from softsbi.core.defaults import CheckSettings, DiagnoseSettings
 
 pytestmark = pytest.mark.integration
 

@@ -126,7 +126,7 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     from pathlib import Path
 
     from softsbi.plugins import registry
-    from softsbi.workflows import defaults as D
+    from softsbi.core import defaults as D
     from softsbi.workflows.tasks.training import candidate_models
     models = [m for m in candidate_models(_cfg(backend=D.BACKEND), None)
               if all(registry().effect(e).__module__.startswith("softsbi.") for e in m)]
@@ -192,7 +192,7 @@ def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitt
     from softsbi.core.errors import SoftsbiError
     from softsbi.workflows.criticism.check import check_run
     from softsbi.workflows.criticism.check_null import stored_check_null
-    from softsbi.workflows.defaults import N_NULL
+    from softsbi.core.defaults import N_NULL
     from softsbi.workflows.fit.run import run_fit
     from softsbi.workflows.tasks.training import train_task
     monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))

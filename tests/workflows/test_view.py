@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 import sys
 
 import numpy as np
@@ -39,9 +40,9 @@ def lift_run(tmp_path_factory):
 
 def test_posterior_rollouts(lift_run):
     view, rollouts, ch = posterior_rollouts(lift_run, n_eval=S, workers=1)
-    assert len(rollouts) == S and [r["sample"] for r in rollouts] == list(range(S))
+    assert len(rollouts) == S and [r.sample for r in rollouts] == list(range(S))
     for r in rollouts:
-        assert r["vertices"].shape == (T, 25, 3) and r["faces"].shape == (32, 3)
+        assert r.vertices.shape == (T, 25, 3) and r.faces.shape == (32, 3)
     assert ch.shape == (S, T) and np.all(np.isfinite(ch))
     # a fit to a simulated measurement: its posterior rollouts are within centimetres of it
     assert 0 < ch.mean() < 0.05
@@ -189,7 +190,7 @@ def test_rrd_of_a_rope_logs_line_strips(lift_run, tmp_path):
 
     from softsbi.report.animation import log_rrd as _log_rrd
     view, rollouts, ch = posterior_rollouts(lift_run, n_eval=1, workers=1)
-    rope = [dict(rollouts[0], vertices=rollouts[0]["vertices"][:, :5], faces=np.zeros((0, 3), int))]
+    rope = [replace(rollouts[0], vertices=rollouts[0].vertices[:, :5], faces=np.zeros((0, 3), int))]
     p = _log_rrd(rr, view, rope, ch, tmp_path / "rope.rrd")
     names = _read_rrd(p)["/world/posterior/0"][0].to_record_batch().schema.names
     assert "LineStrips3D:strips" in names and not any(n.startswith("Mesh3D") for n in names)

@@ -51,7 +51,7 @@ def import_mujoco() -> Any:
     os.environ["MUJOCO_GL"] = "disable"
     try:
         import mujoco  # engine: imported once with MUJOCO_GL set for this process
-    except Exception as exc:  # noqa: BLE001 - any import failure is an environment fault
+    except Exception as exc:
         raise EnvironmentFault(f"MuJoCo cannot be loaded ({type(exc).__name__}: {exc}); reinstall it with "
                                f"`pip install --force-reinstall mujoco`") from exc
     finally:
@@ -116,7 +116,7 @@ def gl_context_class() -> Any:
                                    f"render with {backend!r}; set MUJOCO_GL={platform} or start a new process")
     try:
         cls = importlib.import_module(f"mujoco.{backend}").GLContext
-    except Exception as exc:  # noqa: BLE001 - PyOpenGL fails with many exception types
+    except Exception as exc:
         raise RenderingUnavailable(f"off-screen OpenGL back-end {backend!r} cannot be loaded "
                                    f"({type(exc).__name__}: {exc}); {RENDER_FIX}") from exc
     _chosen[backend] = cls

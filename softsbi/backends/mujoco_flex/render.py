@@ -101,7 +101,7 @@ class MjFrameRenderer(FrameRenderer):
             self.gl = cls(max(640, self.camera.width), max(480, self.camera.height))
             self.gl.make_current()
             self.ctx = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
-        except Exception as exc:  # noqa: BLE001 - GL back-ends fail with many exception types
+        except Exception as exc:
             self.close()
             raise RenderingUnavailable(f"MuJoCo could not open an off-screen OpenGL context with back-end "
                                        f"{choose_backend()!r} ({type(exc).__name__}: {exc}); {RENDER_FIX}") from exc

@@ -359,7 +359,7 @@ class TransporterExtractor(KeypointExtractor):
             raise DataError(f"transporter checkpoint not found: {path}")
         try:
             ck = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - any unpickling/zip error means a wrong file
+        except Exception as exc:
             raise DataError(f"{path} is not a transporter checkpoint (torch.load failed: {exc}); "
                             f"write one with TransporterExtractor.save") from exc
         if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:

@@ -37,10 +37,12 @@ from softsbi.core.seeds import SENSOR_VIEW_STREAM, surface_seed
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
-from softsbi.workflows import defaults, pools
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core import defaults
+from softsbi.workflows import pools
+from softsbi.core.defaults import CheckSettings
 from softsbi.workflows.criticism.check_null import run_check_null
 from softsbi.workflows.fit.report_file import chamfer_stats
+from softsbi.workflows.fit.jobs import JobResult
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.fit.runs import RunView, load_run
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, misspecification_verdict
@@ -148,7 +150,7 @@ def region_errors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, d
 
 def run_sensor(run: RunView) -> VirtualDepthSensor | None:
     """The run's virtual depth sensor (its stored ``metric_camera``) for a ``--sensor camera`` fit, else None."""
-    camera = run.config.get("metric_camera")
+    camera = run.record.metric_camera
     return None if camera is None else sensor_from_json(camera)
 
 
@@ -156,19 +158,20 @@ def sensor_model(run: RunView) -> dict[str, Any]:
     """The run's sensor model as stored (what its metric used): ``kind`` (``"camera"``, ``"height"`` or
     ``"none"``: full clouds), ``min_z`` (m or None), ``frames`` (None = all) and ``camera`` (the virtual
     sensor's JSON or None). Two runs measure the same thing only when these are equal."""
-    camera = run.config.get("metric_camera")
+    camera = run.record.metric_camera
     kind = "camera" if camera is not None else ("height" if run.metric_min_z is not None else "none")
     return {"kind": kind, "min_z": run.metric_min_z, "frames": run.metric_frames, "camera": camera}
 
 
-def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndarray, n_regions: int,
-                          measured: Any, measured_rollout: dict[str, Any] | None = None) -> np.ndarray:
+def rollout_region_errors(run: RunView, rollout: JobResult, labels: np.ndarray, n_regions: int,
+                          measured: Any, measured_rollout: JobResult | None = None) -> np.ndarray:
     """:func:`region_errors` ``(T, R)`` m of one posterior rollout under the run's own sensor model
     (its height cut :attr:`~softsbi.workflows.fit.runs.RunView.metric_min_z`, or its virtual depth sensor),
     as :func:`~softsbi.workflows.criticism.stats.rollout_features` sees rollouts.
 
     Args:
-        rollout: a job result with ``vertices (T, N, 3)``, ``faces``, ``gripper (T, 3)``.
+        rollout: a job result (:class:`~softsbi.workflows.fit.jobs.JobResult`) with ``vertices (T, N, 3)``,
+            ``faces``, ``gripper (T, 3)``.
         measured: ``T`` clouds ``(m_t, 3)`` m: the run's measurement (``run.dense``, used as recorded by a
             camera fit), or surface samples of another rollout standing in for it (``diagnose``'s null).
         measured_rollout: when ``measured`` are surface samples of a simulated rollout, that rollout (job
@@ -179,15 +182,16 @@ def rollout_region_errors(run: RunView, rollout: dict[str, Any], labels: np.ndar
     """
     sensor = run_sensor(run)
     if sensor is None:
-        return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, run.metric_min_z)
+        return region_errors(rollout.vertices, rollout.faces, labels, measured, n_regions, run.metric_min_z)
     if measured_rollout is not None:
         mr = measured_rollout
         # seeded like the null's summaries of that rollout (rollout_features, surface_seed of its sample)
-        views = sensor.observe_rollout(mr["vertices"], mr["faces"], mr.get("gripper"),
-                                       np.random.default_rng([surface_seed(mr.get("sample", 0)), SENSOR_VIEW_STREAM]))
+        sample = 0 if mr.sample is None else mr.sample
+        views = sensor.observe_rollout(mr.vertices, mr.faces, mr.gripper,
+                                       np.random.default_rng([surface_seed(sample), SENSOR_VIEW_STREAM]))
         measured = views_or_highest(views, measured)
-    return region_errors(rollout["vertices"], rollout["faces"], labels, measured, n_regions, None, sensor,
-                         rollout.get("gripper"))
+    return region_errors(rollout.vertices, rollout.faces, labels, measured, n_regions, None, sensor,
+                         rollout.gripper)
 
 
 def grasp_handle(scenario: Scenario) -> str | None:
@@ -271,11 +275,11 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
     off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
     zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)
     ro = pool.rollouts[:max(2, min(n, n_regions))]
-    labels, names = material_regions(ro[0]["vertices"][0], run.scenario.gripper[0])
+    labels, names = material_regions(ro[0].vertices[0], run.scenario.gripper[0])
     exc = []
     for k, r in enumerate(ro):
         j = (k + 1) % len(ro)
-        other = sampled_points(ro[j]["vertices"], ro[j]["faces"], run.dense.shape[1], surface_seed(ro[j]["sample"]))
+        other = sampled_points(ro[j].vertices, ro[j].faces, run.dense.shape[1], surface_seed(ro[j].sample))
         exc.append(rollout_region_errors(run, r, labels, len(names), run.dense)
                    - rollout_region_errors(run, r, labels, len(names), other, ro[j]))
     with np.errstate(all="ignore"), warnings.catch_warnings():
@@ -350,7 +354,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
             then not loaded again (nor when ``pool`` holds it).
         settings: the posterior rollouts of the error maps and the start of the test's null (``n_eval``), the cap of
             its adaptive extension (``max_null``, :func:`~softsbi.workflows.criticism.stats.resolution_needed`), the
-            level of the verdict (``p <= alpha``), workers and seed (:class:`~softsbi.workflows.defaults.CheckSettings`;
+            level of the verdict (``p <= alpha``), workers and seed (:class:`~softsbi.core.defaults.CheckSettings`;
             None: the defaults).
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).
         effects: the directional test's family (default: every installed effect the run's backend can apply
@@ -403,7 +407,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
     writable()
     pool = (pool or PosteriorPredictive(run, workers, seed)).ensure(n_eval)
     # the fit's own job, samples and seeds: the mean Chamfer equals report.json's chamfer_posterior_m
-    ok = [r for r in pool.rollouts if r["sample"] < n_eval]
+    ok = [r for r in pool.rollouts if r.sample < n_eval]
     if len(ok) < MIN_ROLLOUTS:
         raise SoftsbiError(f"only {len(ok)} of {n_eval} posterior rollouts succeeded, and the check needs "
                            f"{MIN_ROLLOUTS}; look at why the simulations fail (report.json)")
@@ -412,11 +416,10 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
     frames = run.metric_frames
     in_fit = np.zeros(T, bool)
     in_fit[slice(None) if frames is None else frames] = True
-    ch = np.array([r["chamfer"] for r in ok])
-    ch1 = np.array([r["chamfer_one_sided"] if r.get("chamfer_one_sided") is not None else np.full(T, np.nan)
-                    for r in ok])
+    ch = np.array([r.chamfer for r in ok])
+    ch1 = np.array([r.chamfer_one_sided if r.chamfer_one_sided is not None else np.full(T, np.nan) for r in ok])
     stats = chamfer_stats(ch, np.full(len(ok), STATUS_OK), frames, ch1)
-    labels, names = material_regions(ok[0]["vertices"][0], run.scenario.gripper[0])
+    labels, names = material_regions(ok[0].vertices[0], run.scenario.gripper[0])
     reg = np.array([rollout_region_errors(run, r, labels, len(names), dense) for r in ok])
     test, _, ranking = misspecification_verdict(pool, cands, alpha, max_null, null=null)
     with warnings.catch_warnings():

@@ -29,14 +29,13 @@ import numpy as np
 
 from softsbi.core.errors import PosteriorError, SimulationFailed, SoftsbiError
 from softsbi.core.jsonfile import check_result_path, write_json_atomic
-from softsbi.core.levels import ALPHA
+from softsbi.core.defaults import ALPHA
 from softsbi.core.results import MCPValue
-from softsbi.core.types import STATUS_OK, ParamSpace, Recording
+from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import NULL_STREAM, surface_seed
 from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows import pools
-from softsbi.workflows.fit.config import FitConfig
-from softsbi.workflows.fit.jobs import SimContext, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, SimContext, run_jobs
 from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording
 from softsbi.workflows.reporting import phase
@@ -116,7 +115,7 @@ def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | Non
     if rep.rounds != 1 or not rep.per_round or rep.per_round[0].task is None:
         return None
     key = str(rep.per_round[0].task)
-    store = task_store_of(FitConfig.from_run_config(run.config).sim_bank)
+    store = task_store_of(run.config.sim_bank)
     entry = None if store is None else store.entry(key)
 
     def lost(why: str) -> None:
@@ -165,7 +164,7 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
                 f_obs[-1] = None
                 theta = np.empty((0, space.dim))
             sim_seeds = np.random.default_rng([seed, 2]).integers(2**31, size=rollouts)
-            items += [(t, int(s)) for t, s in zip(theta, sim_seeds)]
+            items += [JobItem(t, int(s)) for t, s in zip(theta, sim_seeds)]
         res = iter(run_jobs(keep, items, workers, cfg.executor, cfg.executor_options,
                             label=f"posterior-predictive rollouts of recordings {lo + 1}-{lo + len(f_obs)}"))
         for f, rec in zip(f_obs, recordings[lo:lo + BATCH]):
@@ -177,7 +176,7 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
             feats = [sensor_features(r, surface_seed(i), rec.dense.shape[1], sensor["metric_min_z"], sensor["metric_frames"],
                                      sensor["metric_camera"])
                      for i, r in enumerate(part)
-                     if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
+                     if r is not None and r.ok and r.vertices is not None]
             if len(feats) < MIN_NULL:  # check refuses such a run: never checked, so not a replicate either
                 out.append((np.nan, np.nan))
                 continue

@@ -20,7 +20,7 @@ from softsbi.workflows.criticism.check import check_run, sensor_model
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.fit.runs import load_run
 from softsbi.workflows.criticism.screening import check_resolution
-from softsbi.workflows.defaults import CheckSettings
+from softsbi.core.defaults import CheckSettings
 
 
 @pools.shared_executors()
@@ -36,7 +36,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
             ``str`` or :class:`~pathlib.Path`.
         out_dir: where the figure and the JSON go (``str`` or ``Path``; created if missing).
         settings: each run's :func:`~softsbi.workflows.criticism.check.check_run` settings
-            (:class:`~softsbi.workflows.defaults.CheckSettings`; None: the defaults); its ``alpha`` is the level both
+            (:class:`~softsbi.core.defaults.CheckSettings`; None: the defaults); its ``alpha`` is the level both
             misspecification tests decide at (``p <= alpha``).
         recompute: check both runs again even when their ``check.json`` hold the same settings.
         message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).
@@ -59,9 +59,9 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
     check_resolution(settings.alpha, settings.max_null, 2)
     run_a, run_b = Path(run_a), Path(run_b)
     ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
-    if ra.config.get("observed_source") != rb.config.get("observed_source") or len(ra.dense) != len(rb.dense):
-        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.config.get('observed_source')} vs "
-                           f"{rb.config.get('observed_source')}); compare runs of the same measurement")
+    if ra.record.observed_source != rb.record.observed_source or len(ra.dense) != len(rb.dense):
+        raise SoftsbiError(f"the runs were fitted to different measurements ({ra.record.observed_source} vs "
+                           f"{rb.record.observed_source}); compare runs of the same measurement")
     for run in (run_a, run_b):
         check_out_dir(run, "run directory", "compare writes each run's check.json and check.png into it: copy the "
                                             "run directory to a writable place and compare the copy")
@@ -74,8 +74,8 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
     res = CompareResult(
         run_a=str(run_a),
         run_b=str(run_b),
-        label_a=fit_label(ra.config),
-        label_b=fit_label(rb.config),
+        label_a=fit_label(ra.config.to_json()),
+        label_b=fit_label(rb.config.to_json()),
         rows=tuple(rows),
         same_sensor=sensor_model(ra) == sensor_model(rb),
         check_a=a,

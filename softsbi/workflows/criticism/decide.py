@@ -40,10 +40,10 @@ from dataclasses import replace
 from typing import Sequence
 
 from softsbi.core.results import Candidate, Decision, Gain, JointTest, Refit, RefitGain, Score
-from softsbi.workflows import defaults
+from softsbi.core import defaults
 
 #: standard errors by which a score must fall to count as an improvement, and within which two refits are
-#: indistinguishable (:data:`softsbi.workflows.defaults.K_SE`)
+#: indistinguishable (:data:`softsbi.core.defaults.K_SE`)
 K_SE = defaults.K_SE
 
 

@@ -34,13 +34,13 @@ from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
 from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
 from softsbi.workflows.reporting import duration_words, fit_callbacks
-from softsbi.workflows.fit.run import FitConfig, run_fit
+from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import (N_NULL, PosteriorPredictive, run_features,
                                      summary_energy_score, summary_scale)
-from softsbi.workflows.defaults import DiagnoseSettings
+from softsbi.core.defaults import DiagnoseSettings
 
 @pools.shared_executors()
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
@@ -54,7 +54,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
         effects: the candidate family (default: every installed effect the backend can apply and the run lacks,
             generic force terms included).
         settings: the tests' level, the score margin, the refits and the null
-            (:class:`~softsbi.workflows.defaults.DiagnoseSettings`; None: the defaults). A refit budget of None is the
+            (:class:`~softsbi.core.defaults.DiagnoseSettings`; None: the defaults). A refit budget of None is the
             nominal fit's (its own values are stored under the same key as None; a refit at a smaller budget has a
             wider posterior predictive, which ``check`` rejects less often: measured on a toy magnet, a flexible
             candidate refitted at half the budget passed where at the full budget it did not).
@@ -87,7 +87,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     if out_dir is not None:
         check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
-    base = FitConfig.from_run_config(run.config)  # a refit budget equal to the run's is the default: one key
+    base = run.config  # a refit budget equal to the run's is the default: one key
     refit_rounds = None if s.refit_rounds == base.rounds else s.refit_rounds
     refit_sims = None if s.refit_sims == base.sims_per_round else s.refit_sims
     cands = candidate_effects(run, effects)

@@ -24,11 +24,11 @@ import numpy as np
 
 from softsbi.core.errors import PosteriorError
 from softsbi.core.results import Score
-from softsbi.core.types import STATUS_OK, Recording
+from softsbi.core.types import Recording
 from softsbi.core.seeds import EVIDENCE_STREAM, surface_seed
 from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
-from softsbi.workflows.fit.jobs import run_jobs
+from softsbi.workflows.fit.jobs import JobItem, run_jobs
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.stats import MIN_NULL, rollout_features, run_features, summary_energy_score
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask
@@ -42,7 +42,7 @@ REFIT_PROPOSAL = "truncated"
 def recording_from_run(run: RunView) -> Recording:
     """Rebuild the :class:`~softsbi.core.types.Recording` a run was fitted to."""
     return Recording(scenario=run.scenario, x=run.x_obs, dense=run.dense,
-                     source=run.config.get("observed_source", ""), truth=run.config.get("truth"))
+                     source=run.record.observed_source, truth=run.record.truth)
 
 
 def refit_config(run: RunView, effects: Sequence[str], rounds: int | None = None,
@@ -52,7 +52,7 @@ def refit_config(run: RunView, effects: Sequence[str], rounds: int | None = None
     simulation once, physics and sensor effects alike), and its own rounds (None: the refit's own trained task when
     the nominal fit stopped at one, else the nominal fit's rounds) and simulations per round (None: the nominal
     fit's)."""
-    base = FitConfig.from_run_config(run.config)
+    base = run.config
     if rounds is None and not (run.report.per_round and run.report.per_round[0].task):
         rounds = base.rounds
     return replace(base, effects=list(run.effects) + list(effects), rounds=rounds,
@@ -112,7 +112,7 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
         except PosteriorError:
             continue
         sim_seeds = np.random.default_rng(stream + [1]).integers(2**31, size=n)
-        items.append((effect, cfg, space, [(t, int(s)) for t, s in zip(theta, sim_seeds)]))
+        items.append((effect, cfg, space, [JobItem(t, int(s)) for t, s in zip(theta, sim_seeds)]))
     out: dict[str, Score] = {}
     for effect, cfg, space, jobs in items:
         ctx = replace(run.sim_context(keep_rollout=True), effects=list(cfg.effects), param_names=space.names,
@@ -120,7 +120,7 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
         res = run_jobs(ctx, jobs, workers, cfg.executor, cfg.executor_options,
                        label=f"{effect}: amortised posterior-predictive rollouts")
         feats = [rollout_features(run, r, surface_seed(i)) for i, r in enumerate(res)
-                 if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
+                 if r is not None and r.ok and r.vertices is not None]
         if len(feats) >= MIN_NULL:
             out[effect] = summary_energy_score(f_obs, np.array(feats), scale)
     return out, sum(len(jobs) for *_, jobs in items)

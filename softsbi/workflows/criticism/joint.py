@@ -26,8 +26,8 @@ from softsbi.workflows.criticism.joint_decide import (check_recordings, decide_j
                                                       ranked, set_candidates)
 from softsbi.workflows.criticism.screening import check_resolution
 from softsbi.workflows.criticism.stats import PosteriorPredictive, summary_scale
-from softsbi.workflows.defaults import DiagnoseSettings
-from softsbi.workflows.fit.config import FitConfig
+from softsbi.core.defaults import DiagnoseSettings
+from softsbi.workflows.fit.config import FitConfig, RunRecord
 from softsbi.workflows.lock import check_out_apart, check_out_dir, run_lock
 
 #: the file a task's diagnosis is written to, in ``--out``
@@ -133,7 +133,7 @@ def set_refits(runs: Sequence[Path], diagnoses: Sequence[Diagnosis], names: Sequ
         made: dict[str, Refit] = {}
         if missing:
             run = loaded(path, None, s.seed)
-            base = FitConfig.from_run_config(run.config)
+            base = run.config
             rounds = None if s.refit_rounds == base.rounds else s.refit_rounds
             sims_per_round = None if s.refit_sims == base.sims_per_round else s.refit_sims
             pool = PosteriorPredictive(run, s.workers, s.seed)
@@ -151,12 +151,11 @@ def set_refits(runs: Sequence[Path], diagnoses: Sequence[Diagnosis], names: Sequ
 
 
 def task_of(config: dict[str, Any]) -> dict[str, Any]:
-    """What a run's stored config says of its task (:data:`TASK_KEYS`): the scenario's name, the simulator, the
-    model's effects (sorted) and the observer."""
-    scenario = config.get("scenario")
-    return {"scenario": scenario.get("name") if isinstance(scenario, dict) else scenario,
-            "backend": config.get("backend"), "effects": sorted(config.get("effects") or []),
-            "observer": config.get("observer")}
+    """What a run's stored settings (``RunStore.config``) say of its task (:data:`TASK_KEYS`): the scenario's name,
+    the simulator, the model's effects (sorted) and the observer."""
+    cfg, record = FitConfig.from_run_config(config), RunRecord.from_run_config(config)
+    return {"scenario": record.scenario.get("name"), "backend": cfg.backend, "effects": sorted(cfg.effects),
+            "observer": cfg.observer}
 
 
 def check_one_task(runs: Sequence[Path]) -> None:

@@ -21,10 +21,9 @@ from scipy.optimize import lsq_linear
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import Candidate, JointTest
-from softsbi.core.types import STATUS_OK
 from softsbi.plugins import registry
-from softsbi.workflows.defaults import ALPHA_BOUND
-from softsbi.workflows.fit.jobs import run_jobs
+from softsbi.core.defaults import ALPHA_BOUND
+from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,
                                      misspecification_test, resolution_needed, rollout_features, run_features,
@@ -55,7 +54,7 @@ def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[
         SoftsbiError: a named effect the backend cannot apply (naming the door it needs).
     """
     reg = registry()
-    sim_cls = reg.simulator(run.config["backend"])
+    sim_cls = reg.simulator(run.config.backend)
     if isinstance(names, str):
         raise SoftsbiError(f"candidate effects must be a list of names, e.g. [{names!r}]")
     if names is not None:
@@ -83,36 +82,36 @@ def is_generic(effect: Any) -> bool:
 
 
 def sensitivity_jobs(run: RunView, cands: list[Any], unit_step: float,
-                      effect_step: float) -> tuple[list[tuple[dict, int, tuple]], list[tuple[Any, str, int, int]], int]:
-    """The finite-difference simulations of the screening, as job items ``(theta, seed, effects)``:
+                      effect_step: float) -> tuple[list[JobItem], list[tuple[Any, str, int, int]], int]:
+    """The finite-difference simulations of the screening, as job items (``theta``, seed 0, ``effects``):
     the posterior median; one step per nominal parameter; per candidate the effect at its nominal
     value and one step per effect parameter. Returns the items, the effect columns ``(effect,
     parameter, index with the step, index at nominal)`` and the number of items."""
     base = run.median()
     space = run.space
     u_hat = np.clip(space.to_unit(space.as_array({k: base[k] for k in space.names})), 0, 1)
-    jobs: list[tuple[dict, int, tuple]] = [(dict(base), 0, tuple(run.effects))]
+    jobs: list[JobItem] = [JobItem(dict(base), 0, effects=tuple(run.effects))]
     for j in range(space.dim):
         s = unit_step if u_hat[j] + unit_step <= 1 else -unit_step
         u = u_hat.copy()
         u[j] += s
         v = dict(base)
         v.update(space.as_dict(space.from_unit(u)))
-        jobs.append((v, 0, tuple(run.effects)))
+        jobs.append(JobItem(v, 0, effects=tuple(run.effects)))
     eff_cols: list[tuple[Any, str, int, int]] = []
     for eff in cands:
         es = eff.param_space()
         nom = eff.nominal()
         v0 = dict(base)
         v0.update(nom)
-        jobs.append((v0, 0, tuple(run.effects) + (eff.name,)))
+        jobs.append(JobItem(v0, 0, effects=tuple(run.effects) + (eff.name,)))
         i_nom = len(jobs) - 1
         for p in es:
             u0 = es.subset([p.name]).to_unit(np.array([nom[p.name]]))[0]
             s = effect_step if u0 + effect_step <= 1 else -effect_step
             v = dict(v0)
             v[p.name] = float(es.subset([p.name]).from_unit(np.array([u0 + s]))[0])
-            jobs.append((v, 0, tuple(run.effects) + (eff.name,)))
+            jobs.append(JobItem(v, 0, effects=tuple(run.effects) + (eff.name,)))
             eff_cols.append((eff, p.name, len(jobs) - 1, i_nom))
     return jobs, eff_cols, len(jobs)
 
@@ -137,13 +136,12 @@ class Screening:
     with the max-T null (:func:`max_t_adjusted`).
     """
 
-    def __init__(self, run: RunView, cands: list[Any], res: list[dict[str, Any]],
+    def __init__(self, run: RunView, cands: list[Any], res: list[JobResult],
                  eff_cols: list[tuple[Any, str, int, int]], effect_step: float, null_features: np.ndarray):
         # finite-difference simulations share one sampling seed (common random numbers)
-        feats = [rollout_features(run, r, 0)
-                 if r is not None and r["status"] == STATUS_OK else None for r in res]
+        feats = [rollout_features(run, r, 0) if r is not None and r.ok else None for r in res]
         if feats[0] is None:
-            raise SoftsbiError(f"the simulation at the posterior median failed: {res[0]['reason']}")
+            raise SoftsbiError(f"the simulation at the posterior median failed: {res[0].reason}")
         f0 = feats[0]
         null_f = np.asarray(null_features)
         if len(null_f) < MIN_NULL:
@@ -161,10 +159,11 @@ class Screening:
         self.n_simulations = len(res)
 
     def _add_design(self, eff: Any, cols: list[tuple[Any, str, int, int]], feats: list[Any], f0: np.ndarray,
-                    sd: np.ndarray, effect_step: float, res: list[dict[str, Any] | None]) -> None:
+                    sd: np.ndarray, effect_step: float, res: list[JobResult | None]) -> None:
         # offset: the effect switched on at its nominal value (e.g. wind at 0 m/s still adds air)
         if not cols or any(feats[c[2]] is None or feats[c[3]] is None for c in cols):
-            why = next(((res[i] or {}).get("reason") for c in cols for i in (c[3], c[2]) if feats[i] is None), None)
+            why = next((res[i].reason if res[i] is not None else None for c in cols for i in (c[3], c[2])
+                        if feats[i] is None), None)
             self.failed.append(failed_candidate(eff, "a sensitivity simulation failed" + (f": {why}" if why else "")))
             return
         es = eff.param_space()
@@ -311,7 +310,7 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
         if null is None:
             statistic, omnibus = misspecification_test(f_obs, pool.features)
         else:  # the same rollouts as the replicates': the fit's evaluation samples
-            first = [k for k, r in enumerate(pool.rollouts) if r["sample"] < null.rollouts]
+            first = [k for k, r in enumerate(pool.rollouts) if r.sample < null.rollouts]
             statistic = misspecification_test(f_obs, pool.features[first])[0]
             omnibus = null.p_value(statistic)
         screen, ranking = None, ()

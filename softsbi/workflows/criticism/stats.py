@@ -26,6 +26,7 @@ the same run:
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -33,15 +34,14 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import EnergyScore, MCPValue, Score
-from softsbi.core.levels import ALPHA  # noqa: F401 (re-exported)
-from softsbi.core.types import STATUS_OK
+from softsbi.core.defaults import ALPHA  # noqa: F401 (re-exported)
 from softsbi.core.seeds import EXTRA_ROLLOUT_SEED, SENSOR_VIEW_STREAM, surface_seed
 from softsbi.inference.summaries import local_thickness
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame,
                                           sensor_view)
-from softsbi.workflows.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
-from softsbi.workflows.fit.jobs import run_jobs
+from softsbi.core.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
+from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView, load_run
 
 #: names of the per-frame summary statistics
@@ -59,7 +59,7 @@ FEATURE_FLOORS = np.array([FEATURE_FLOOR] * (len(FEATURE_NAMES) - 1) + [THICKNES
 #: level, not fitted: it cannot change a test's level, only its cost and power
 EXTEND_P = 0.1
 #: the fewest successful posterior-predictive rollouts a null may hold: the fewest ``check`` simulates
-#: (:data:`~softsbi.workflows.defaults.MIN_ROLLOUTS`, the smallest ``--n-eval``), so that the test refuses only
+#: (:data:`~softsbi.core.defaults.MIN_ROLLOUTS`, the smallest ``--n-eval``), so that the test refuses only
 #: rollouts that failed; each leave-one-out statistic then standardises by the spread of at least 4 others
 MIN_NULL = MIN_ROLLOUTS
 
@@ -111,25 +111,25 @@ def run_features(run: "RunView", clouds: Sequence[np.ndarray]) -> np.ndarray:
     return trajectory_features(clouds, run.metric_min_z, run.metric_frames)
 
 
-def rollout_features(run: "RunView", rollout: dict[str, Any], seed: int) -> np.ndarray:
+def rollout_features(run: "RunView", rollout: JobResult, seed: int) -> np.ndarray:
     """``(T' * 14,)`` summaries of one simulated rollout (a job result with ``vertices (T, N, 3)``,
     ``faces``, ``gripper``) as the run's sensor model sees it (:func:`run_features`): area-weighted surface
     samples, as many per frame as the measurement's dense clouds, drawn with ``seed`` (common random
     numbers), seen through the visibility threshold; or, for a fit through the virtual depth sensor
     (``FitConfig.sensor == "camera"``), that sensor's clouds of the rollout."""
     return sensor_features(rollout, seed, run.dense.shape[1], run.metric_min_z, run.metric_frames,
-                           run.config.get("metric_camera"))
+                           run.record.metric_camera)
 
 
-def sensor_features(rollout: dict[str, Any], seed: int, n_dense: int, min_z: float | None,
+def sensor_features(rollout: JobResult, seed: int, n_dense: int, min_z: float | None,
                     frames: Sequence[int] | None, camera: dict[str, Any] | None) -> np.ndarray:
     """:func:`rollout_features` under a sensor model given by its settings (a fit's ``metric_*``, ``n_dense``
     points per frame) rather than by a run: what a task sees before any run of it exists."""
     if camera is not None:
-        clouds = sensor_from_json(camera).observe_rollout(rollout["vertices"], rollout["faces"], rollout.get("gripper"),
+        clouds = sensor_from_json(camera).observe_rollout(rollout.vertices, rollout.faces, rollout.gripper,
                                         np.random.default_rng([seed, SENSOR_VIEW_STREAM]))
         return trajectory_features(clouds, None, frames)
-    clouds = sampled_points(rollout["vertices"], rollout["faces"], n_dense, seed)
+    clouds = sampled_points(rollout.vertices, rollout.faces, n_dense, seed)
     # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own
     return trajectory_features(clouds, combined_min_z(min_z, rollout_min_z(rollout)), frames)
 
@@ -277,7 +277,7 @@ class PosteriorPredictive:
             run = load_run(run.path if isinstance(run, RunView) else Path(run), None, seed)
         self.run: RunView = run
         self.workers, self.seed = workers, seed
-        self.rollouts: list[dict[str, Any]] = []
+        self.rollouts: list[JobResult] = []
         self._feats: list[np.ndarray] = []
         self.requested = 0
         self.first = 0  # size of the first request: the null's starting size
@@ -294,17 +294,17 @@ class PosteriorPredictive:
         """``(S, T' * 14)`` summaries of the successful rollouts (:func:`run_features`)."""
         return np.array(self._feats)
 
-    def _items(self, lo: int, hi: int) -> list[tuple[Any, int]]:
+    def _items(self, lo: int, hi: int) -> list[JobItem]:
         run = self.run
         n_ev = len(run.post_theta)
-        items: list[tuple[Any, int]] = []
+        items: list[JobItem] = []
         for i in range(lo, hi):
             if i < n_ev:
-                items.append((run.post_theta[i], int(run.post_seeds[i])))
+                items.append(JobItem(run.post_theta[i], int(run.post_seeds[i])))
             else:
                 if self._extra is None or len(self._extra) < hi - n_ev:
                     self._extra = run.posterior().sample(max(hi - n_ev, 2 * MAX_NULL), seed=self.seed)
-                items.append((self._extra[i - n_ev], EXTRA_ROLLOUT_SEED + i))
+                items.append(JobItem(self._extra[i - n_ev], EXTRA_ROLLOUT_SEED + i))
         return items
 
     def ensure(self, n: int) -> "PosteriorPredictive":
@@ -315,9 +315,9 @@ class PosteriorPredictive:
         res = run_jobs(self.run.sim_context(keep_rollout=True), self._items(self.requested, n), self.workers,
                        label=f"posterior-predictive rollouts {self.requested + 1}-{n}")
         for i, r in enumerate(res, start=self.requested):
-            if r is None or r["status"] != STATUS_OK or r.get("vertices") is None:
+            if r is None or not r.ok or r.vertices is None:
                 continue
-            self.rollouts.append(dict(r, sample=i))
+            self.rollouts.append(replace(r, sample=i))
             self._feats.append(rollout_features(self.run, r, surface_seed(i)))
         self.requested = n
         return self
@@ -338,7 +338,7 @@ class PosteriorPredictive:
 ENERGY_PAIRS = 3
 
 
-def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[list[np.ndarray], float | None]:
+def rollout_views(run: "RunView", rollout: JobResult, seed: int) -> tuple[list[np.ndarray], float | None]:
     """What the run's sensor model sees of one simulated rollout, in its metric frames: ``(views, min_z)``.
 
     ``views`` are ``T'`` clouds ``(P_t, 3)`` m (:func:`run_frames`' order): area-weighted surface samples (as
@@ -347,13 +347,13 @@ def rollout_views(run: "RunView", rollout: dict[str, Any], seed: int) -> tuple[l
     convention). ``min_z`` is the visibility threshold still to apply to them (the run's, combined with a
     sensor effect's on the rollout; None for the camera, whose clouds are already what it sees)."""
     frames = run_frames(run)
-    surface = sampled_points(rollout["vertices"], rollout["faces"], run.dense.shape[1], seed, frames)
-    camera = run.config.get("metric_camera")
+    surface = sampled_points(rollout.vertices, rollout.faces, run.dense.shape[1], seed, frames)
+    camera = run.record.metric_camera
     if camera is None:
         return list(surface), combined_min_z(run.metric_min_z, rollout_min_z(rollout))
-    v = np.asarray(rollout["vertices"])[frames]
-    g = rollout.get("gripper")
-    views = sensor_from_json(camera).observe_rollout(v, rollout["faces"], None if g is None else np.asarray(g)[frames],
+    v = np.asarray(rollout.vertices)[frames]
+    g = rollout.gripper
+    views = sensor_from_json(camera).observe_rollout(v, rollout.faces, None if g is None else np.asarray(g)[frames],
                                                     np.random.default_rng([seed, SENSOR_VIEW_STREAM]))
     return views_or_highest(views, surface), None
 
@@ -384,16 +384,16 @@ def energy_score(pool: PosteriorPredictive, n: int | None = None) -> EnergyScore
     """
     run = pool.run
     n = len(run.post_theta) if n is None else n
-    ok = [r for r in pool.rollouts if r["sample"] < n and r.get("chamfer") is not None]
+    ok = [r for r in pool.rollouts if r.sample < n and r.chamfer is not None]
     m = len(ok)
     if m < 3 or run.dense is None:
         return None
-    key = (n, tuple(int(r["sample"]) for r in ok))
+    key = (n, tuple(int(r.sample) for r in ok))
     if key in pool.energy_scores:  # check and diagnose sharing one pool score it once
         return pool.energy_scores[key]
     frames = run_frames(run)
-    d_obs = np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in ok])
-    views = [rollout_views(run, r, 2000 + int(r["sample"])) for r in ok]
+    d_obs = np.array([float(np.mean(np.asarray(r.chamfer, float)[frames])) for r in ok])
+    views = [rollout_views(run, r, 2000 + int(r.sample)) for r in ok]
     pairs = sorted({tuple(sorted((i, (i + k) % m))) for i in range(m) for k in range(1, min(ENERGY_PAIRS, m - 1) + 1)})
     d_pair = np.array([sensor_chamfer_per_frame(views[i][0], views[j][0],
                                                 combined_min_z(views[i][1], views[j][1]))[0].mean() for i, j in pairs])
@@ -452,14 +452,14 @@ PM_ROLLOUTS = 3
 PM_SEED = 3000
 
 
-def rollout_chamfers(run: RunView, items: Sequence[tuple], workers: int | None = None) -> np.ndarray:
+def rollout_chamfers(run: RunView, items: Sequence[JobItem], workers: int | None = None) -> np.ndarray:
     """Simulate job ``items`` through the fit's own job (:meth:`RunView.sim_context`: its simulator, effects,
     observer and sensor model) and score each: the mean Chamfer (m) over the fit's metric frames, as the report's
     ``chamfer_posterior_m`` scores one rollout.
 
     Args:
         run: a finished fit with a point-cloud measurement.
-        items: :func:`~softsbi.workflows.fit.jobs.simulate_job` items, ``(theta, seed)`` or ``(theta, seed, effects)``.
+        items: :func:`~softsbi.workflows.fit.jobs.simulate_job` items (:class:`~softsbi.workflows.fit.jobs.JobItem`).
         workers: simulation processes (None: the executor's default).
 
     Returns:
@@ -467,8 +467,8 @@ def rollout_chamfers(run: RunView, items: Sequence[tuple], workers: int | None =
     """
     res = run_jobs(run.sim_context(keep_rollout=False), list(items), workers, label="posterior-mean rollouts")
     frames = run_frames(run)
-    return np.array([float(np.mean(np.asarray(r["chamfer"], float)[frames])) for r in res
-                     if r is not None and r["status"] == STATUS_OK and r.get("chamfer") is not None])
+    return np.array([float(np.mean(np.asarray(r.chamfer, float)[frames])) for r in res
+                     if r is not None and r.ok and r.chamfer is not None])
 
 
 def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | None = None) -> dict[str, Any] | None:
@@ -496,7 +496,7 @@ def posterior_mean_chamfer(run: RunView, n: int = PM_ROLLOUTS, workers: int | No
     if not pm or run.dense is None or any(name not in pm for name in run.space.names):
         return None
     theta = run.space.as_array(pm)
-    vals = rollout_chamfers(run, [(theta, PM_SEED + k) for k in range(n)], workers)
+    vals = rollout_chamfers(run, [JobItem(theta, PM_SEED + k) for k in range(n)], workers)
     if not len(vals):
         return None
     se = float(vals.std(ddof=1) / np.sqrt(len(vals))) if len(vals) > 1 else 0.0

@@ -30,7 +30,8 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace
-from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.workflows.fit.jobs import JobItem, SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.workflows.fit.config import RunRecord
 
 __all__ = ["BestFit", "REFINE", "BEST", "best_stored", "refine", "store_best_fit", "read_best_fit", "scores"]
 
@@ -186,15 +187,15 @@ def refine(store: RunStore, space: ParamSpace, mean: np.ndarray, cov: np.ndarray
             have = np.flatnonzero((rows["generation"] == g) & (np.arange(len(rows["generation"])) < n))
         pend = [int(i) for i in have if rows["status"][i] == STATUS_PENDING]
         if pend:
-            items = [(rows["theta"][i], int(rows["seed"][i])) for i in pend]
+            items = [JobItem(rows["theta"][i], int(rows["seed"][i])) for i in pend]
             for j, res in map_simulations(executor, ctx, items):
                 i = pend[j]
                 if isinstance(res, SoftsbiError):
                     raise res
-                ok = not isinstance(res, BaseException) and res["chamfer"] is not None
-                store.write_rows(REFINE, i, {"chamfer": np.asarray(res["chamfer"], float)[None] if ok else
+                ok = not isinstance(res, BaseException) and res.chamfer is not None
+                store.write_rows(REFINE, i, {"chamfer": np.asarray(res.chamfer, float)[None] if ok else
                                              np.full((1, T), np.nan),
-                                             "status": np.array([res["status"] if not isinstance(res, BaseException)
+                                             "status": np.array([res.status if not isinstance(res, BaseException)
                                                                  else STATUS_ERROR], np.uint8)})
                 done += 1
                 if progress is not None:
@@ -255,15 +256,15 @@ def store_best_fit(store: RunStore, best: dict[str, Any], space: ParamSpace, ctx
         arrays, attrs = store.read_group(BEST)
         if all(attrs.get(k) == v for k, v in key.items()):
             return "vertices" in arrays
-    res = next(iter(executor.map_unordered(simulate_job, [(best["theta"], best["seed"])],
+    res = next(iter(executor.map_unordered(simulate_job, [JobItem(best["theta"], best["seed"])],
                                            context=replace(ctx, keep_rollout=True))))[1]
     if isinstance(res, SoftsbiError):
         raise res
     arrays = {"theta": best["theta"], "u": best["u"], "chamfer": best["chamfer"]}
-    ok = not isinstance(res, BaseException) and res.get("vertices") is not None
+    ok = not isinstance(res, BaseException) and res.vertices is not None
     if ok:
-        arrays.update(vertices=np.asarray(res["vertices"], np.float32), gripper=np.asarray(res["gripper"], float),
-                      faces=np.asarray(res["faces"] if res.get("faces") is not None else np.zeros((0, 3)), np.int64))
+        arrays.update(vertices=np.asarray(res.vertices, np.float32), gripper=np.asarray(res.gripper, float),
+                      faces=np.asarray(res.faces if res.faces is not None else np.zeros((0, 3)), np.int64))
     store.write_group(BEST, arrays, attrs={**key, "names": space.names, "fixed": dict(fixed or {}),
                                            "what": "the fit's best simulation and its rollout"},
                       units={"theta": "physical (see param_space)", "u": "unit cube", "chamfer": "m",
@@ -278,7 +279,7 @@ def read_best_fit(store: RunStore) -> BestFit | None:
     arrays, attrs = store.read_group(BEST)
     theta = {n: float(v) for n, v in zip(attrs["names"], arrays["theta"])}
     theta.update({k: float(v) for k, v in (attrs.get("fixed") or {}).items()})
-    unit = "px" if store.config.get("metric") == "mask_chamfer_px" else "m"
+    unit = "px" if RunRecord.from_run_config(store.config).image_fit else "m"
     return BestFit(theta=theta, value=float(attrs["score"]), per_frame=arrays["chamfer"], source=str(attrs["source"]),
                    seed=int(attrs["seed"]), vertices=arrays.get("vertices"), faces=arrays.get("faces"),
                    gripper=arrays.get("gripper"), unit=unit)

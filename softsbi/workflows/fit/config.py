@@ -13,7 +13,7 @@ from softsbi.backends.scenario_build import unsupported
 from softsbi.core.errors import ParameterError, SoftsbiError
 from softsbi.core.types import ParamSpace, Recording, Scenario
 from softsbi.plugins import check_options, registry
-from softsbi.workflows import defaults
+from softsbi.core import defaults
 from softsbi.workflows.fit.prior_widening import check_widen
 
 
@@ -81,7 +81,7 @@ class FitConfig:
         estimator: posterior-estimator plugin name; ``estimator_options`` its config.
         rounds: number of sequential rounds (may be raised on resume); None (the default): 1 when the fit's task
             was trained by ``softsbi task train`` (:mod:`~softsbi.workflows.fit.task_store`: its trained posterior conditioned
-            on the recording), else :data:`~softsbi.workflows.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
+            on the recording), else :data:`~softsbi.core.defaults.ROUNDS`. sims_per_round: simulations per round (the simulation
             budget is ``rounds * sims_per_round``).
         seed: fixes every draw and every simulation seed.
         n_eval: rollouts at final-posterior samples (the posterior predictive) for the reported Chamfer.
@@ -231,10 +231,11 @@ class FitConfig:
         """
         names = {f.name for f in fields(cls)}
         kw = {k: v for k, v in d.items() if k in names}
+        bounds = kw.get("bounds") or {}
         try:
-            kw["bounds"] = {k: (float(v[0]), float(v[1])) for k, v in (kw.get("bounds") or {}).items()}
+            kw["bounds"] = {k: (float(v[0]), float(v[1])) for k, v in bounds.items()}
         except (TypeError, IndexError, ValueError):
-            raise SoftsbiError(f"FitConfig bounds must map names to [low, high] pairs (got {kw.get('bounds')!r})") from None
+            raise SoftsbiError(f"FitConfig bounds must map names to [low, high] pairs (got {bounds!r})") from None
         for k in ("backend_options", "observer_options", "estimator_options", "executor_options", "fixed"):
             kw[k] = dict(kw.get(k) or {})
         kw["effects"] = list(kw.get("effects") or [])
@@ -258,7 +259,7 @@ class FitConfig:
     def resume_keys(cls) -> tuple[str, ...]:
         """Stored-config keys that must match for a run to resume: the settings that change what
         the stored simulations mean, plus those that come from the recording."""
-        return tuple(f.name for f in fields(cls) if f.metadata.get("resume")) + RECORDING_RESUME_KEYS
+        return tuple(f.name for f in fields(cls) if "resume" in f.metadata) + RECORDING_RESUME_KEYS
 
     def resolved(self, recording: Recording) -> "FitConfig":
         """These settings with the recording's defaults filled in: ``min_height`` and ``frames``
@@ -275,6 +276,64 @@ class FitConfig:
             frames = None if frames in ("auto", "all") else frames
         given_by = "--frames" if self.frames is not None else "the recording's sensor.frames"
         return replace(self, min_height=min_height, frames=parse_frames(frames, recording.scenario, given_by))
+
+
+#: the metric of point-cloud fits (3-D Chamfer, m) and of image fits (mask Chamfer, px), as a run stores it
+CHAMFER_M, MASK_CHAMFER_PX = "chamfer_m", "mask_chamfer_px"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunRecord:
+    """What a run's stored settings (``RunStore.config``) hold beside its :class:`FitConfig`: what the fit took
+    from its recording and the metric it scored with (:func:`~softsbi.workflows.fit.resume.stored_config`).
+    A key that a run written by an older version lacks reads as its default.
+
+    Attributes:
+        scenario: the fitted scenario (JSON, as stored: the simulation bank keys its rollouts by it).
+        param_space: the inferred parameters (JSON), widened ones included.
+        observer_options: the observer's options as the fit built it (the settings' own plus those computed from
+            the recording: K, table height, viewpoint), what a re-simulation observes with.
+        observed_source: where the measurement was read from ("" unknown). truth: its ground truth, if any.
+        metric: :data:`CHAMFER_M` or :data:`MASK_CHAMFER_PX`.
+        metric_min_z: the metric's height cut (m, absolute; None = full clouds). metric_frames: the frames the
+            headline Chamfer averages (None = all). metric_camera: the metric's virtual depth sensor (JSON;
+            None = the height cut) (:func:`~softsbi.workflows.fit.observe.metric_sensor`).
+        rounds: the rounds of the latest session (a resume may ask for more than the first).
+        wall_time_s: the wall time of the fit's sessions so far (s).
+    """
+
+    scenario: dict[str, Any]
+    param_space: list[dict[str, Any]]
+    observer_options: dict[str, Any] = field(default_factory=dict)
+    observed_source: str = ""
+    truth: Any = None
+    metric: str = CHAMFER_M
+    metric_min_z: float | None = None
+    metric_frames: list[int] | None = None
+    metric_camera: dict[str, Any] | None = None
+    rounds: int | None = None
+    wall_time_s: float = 0.0
+
+    def __post_init__(self) -> None:  # the stored JSON's values as the attributes' types
+        put = object.__setattr__
+        put(self, "observer_options", dict(self.observer_options))
+        put(self, "observed_source", str(self.observed_source))
+        put(self, "wall_time_s", float(self.wall_time_s))
+        if self.metric_min_z is not None:
+            put(self, "metric_min_z", float(self.metric_min_z))
+        if self.metric_frames is not None:
+            put(self, "metric_frames", [int(i) for i in self.metric_frames])
+
+    @property
+    def image_fit(self) -> bool:
+        """Whether the fit scored the mask Chamfer of rendered frames (no 3-D clouds)."""
+        return self.metric == MASK_CHAMFER_PX
+
+    @classmethod
+    def from_run_config(cls, config: Mapping[str, Any]) -> "RunRecord":
+        """The record of a stored run's settings (``RunStore.config``); keys a run lacks (or holds as null) read as
+        the defaults."""
+        return cls(**{f.name: config[f.name] for f in fields(cls) if config.get(f.name) is not None})
 
 
 def estimator_options(cfg: FitConfig, est_cls: type) -> dict[str, Any]:

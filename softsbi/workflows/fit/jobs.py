@@ -12,7 +12,7 @@ import os
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,6 +59,86 @@ class SimContext:
     #: a simulation bank (:class:`~softsbi.workflows.fit.bank.SimulationBank` folder) whose stored rollouts are
     #: read instead of simulated, and which keeps the new ones; None = simulate everything
     bank: str | None = None
+
+
+@dataclass(frozen=True)
+class JobItem:
+    """One simulation for :func:`simulate_job`.
+
+    Attributes:
+        theta: ``(D,)`` in the order of ``SimContext.param_names`` (physical units), or a ``{name: value}`` mapping;
+            ``SimContext.fixed`` is added to it.
+        seed: the simulation's seed.
+        effects: effect names that replace ``SimContext.effects`` for this simulation (None = the context's; the
+            diagnosis's sensitivity simulations switch candidate effects on one at a time).
+        sensor_draws: ``{"effects": names, "draws": [{param: value}, ...]}``: the named effects (observation
+            transforms only, every observation transform of the effects, in their order) are applied after the
+            simulation, once with ``theta`` (the result's ``x`` and Chamfer, the same numbers as without
+            ``sensor_draws``) and once per draw, whose parameters replace ``theta``'s: one simulation, several
+            observations (``FitConfig.sensor_draws``). None = one observation.
+    """
+
+    theta: np.ndarray | Mapping[str, float]
+    seed: int
+    effects: Sequence[str] | None = field(default=None, kw_only=True)
+    sensor_draws: Mapping[str, Any] | None = field(default=None, kw_only=True)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class JobResult:
+    """What :func:`simulate_job` returns for one :class:`JobItem` (also a failed job's result, made by
+    :func:`run_jobs` or a round for a crashed worker: its ``status`` and ``reason`` only).
+
+    Attributes:
+        status: :data:`~softsbi.core.types.STATUS_OK`, or the failure's status. reason: why it failed ("" if ok).
+        x: ``(T, 1+K, 3)`` the observation, None when it failed.
+        chamfer: ``(T,)`` the fit's metric per frame: the bidirectional 3-D Chamfer (m) against
+            ``SimContext.dense``, both clouds seen through the sensor model, or the mask Chamfer (px) of an image fit;
+            None when it failed or the context has no measurement.
+        chamfer_one_sided: ``(T,)`` its measured -> simulated half (m), None for image fits.
+        seconds: the job's wall time (s), None for a result not made by the job.
+        bank: what the simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``,
+            ``UNSTORED``; None without one).
+        sensor_x: ``(K, T, 1+K, 3)`` the observations at the item's K sensor draws (None without ``sensor_draws``).
+        vertices: ``(T, N, 3)`` m, faces: ``(F, 3)``, gripper: ``(T, 3)`` m: the rollout, with
+            ``SimContext.keep_rollout`` only.
+        min_visible_z: a sensor effect's visibility threshold (m, absolute) on the rollout
+            (:data:`~softsbi.core.types.INFO_MIN_VISIBLE_Z`), with ``keep_rollout`` only; None = none.
+        seed: the item's seed. sample: the posterior sample the rollout simulates, set by the consumers that pair
+            results with samples (:meth:`~softsbi.workflows.fit.runs.RunView.posterior_rollouts`); None otherwise.
+    """
+
+    status: int
+    reason: str = ""
+    x: np.ndarray | None = None
+    chamfer: np.ndarray | None = None
+    chamfer_one_sided: np.ndarray | None = None
+    seconds: float | None = None
+    bank: str | None = None
+    sensor_x: np.ndarray | None = None
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    gripper: np.ndarray | None = None
+    min_visible_z: float | None = None
+    seed: int | None = None
+    sample: int | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether the simulation succeeded (``status == STATUS_OK``)."""
+        return self.status == STATUS_OK
+
+    @property
+    def info(self) -> dict[str, float]:
+        """The rollout's sensor information as a rollout carries it (``{INFO_MIN_VISIBLE_Z: m}`` or empty), for
+        :func:`~softsbi.perception.pointcloud.rollout_min_z`."""
+        return {} if self.min_visible_z is None else {INFO_MIN_VISIBLE_Z: self.min_visible_z}
+
+
+def failed(exc: BaseException) -> JobResult:
+    """The result of a job that raised ``exc`` in its worker or whose worker crashed: ``STATUS_ERROR`` and
+    ``"Type: message"``."""
+    return JobResult(status=STATUS_ERROR, reason=f"{type(exc).__name__}: {exc}")
 
 
 _WORKER_CACHE: dict[str, Any] = {}
@@ -193,37 +273,28 @@ def failure_reason(exc: Exception, backend: str) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> dict[str, Any]:
+def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) -> JobResult:
     """Simulate one parameter vector, observe it and score it against the measurement.
 
     Args:
         ctx: the shared context.
-        item: ``(theta, seed)``, ``(theta, seed, effects)`` or ``(theta, seed, effects, sensor_draws)``:
-            ``theta`` is ``(D,)`` in the order of ``ctx.param_names`` (physical units) or a ``{name: value}``
-            mapping; ``ctx.fixed`` is added to it. ``effects`` (names; None = ``ctx.effects``) replaces
-            ``ctx.effects`` for this simulation (the diagnosis's sensitivity simulations switch candidate
-            effects on one at a time). ``sensor_draws`` ``{"effects": names, "draws": [{param: value}, ...]}``:
-            the named effects (observation transforms only, every observation transform of ``effects``, in
-            their order) are applied after the simulation, once with ``theta`` (the returned ``x`` and Chamfer,
-            the same numbers as without ``sensor_draws``) and once per draw, whose parameters replace
-            ``theta``'s: one simulation, several observations (``FitConfig.sensor_draws``).
+        item: the simulation (:class:`JobItem`): ``theta``, ``seed``, and optionally the effects that replace
+            ``ctx.effects`` and the sensor draws observed besides ``theta``.
+        batch: (:func:`simulate_batch_job` only) takes the rollouts the job asks for.
 
     Returns:
-        ``{"status", "reason", "x" (T, 1+K, 3) or None, "chamfer" (T,) or None, "chamfer_one_sided" (T,)
-        or None, "seconds"}``, plus ``sensor_x`` ``(K, T, 1+K, 3)`` with ``sensor_draws`` (the observations at
-        the K draws), ``vertices``, ``faces``, ``gripper`` when ``ctx.keep_rollout``; ``"bank"``: what the
-        simulation bank found (:data:`~softsbi.workflows.fit.bank.HIT`, ``MISS``, ``WRONG_KEY``, ``UNSTORED``; None
-        without one);
-        ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame against ``ctx.dense``, both clouds
-        seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided`` its measured -> simulated
-        half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits
-        ``chamfer`` is the mask Chamfer (px) against ``ctx.ref_masks`` and ``chamfer_one_sided`` None.
-        ``batch`` (:func:`simulate_batch_job` only) takes the rollouts the job asks for.
+        A :class:`JobResult`: ``status``, ``reason``, ``x``, ``chamfer``, ``chamfer_one_sided``, ``seconds``,
+        ``bank`` and ``seed``; ``sensor_x`` with ``item.sensor_draws``; ``vertices``, ``faces``, ``gripper`` and
+        ``min_visible_z`` when ``ctx.keep_rollout``. ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame
+        against ``ctx.dense``, both clouds seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided``
+        its measured -> simulated half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image
+        fits ``chamfer`` is the mask Chamfer (px) against ``ctx.ref_masks`` and ``chamfer_one_sided`` None. A
+        failed simulation has its status and reason only.
     """
 
-    theta, seed = item[0], item[1]
-    effects = list(item[2]) if len(item) > 2 and item[2] is not None else list(ctx.effects)
-    draws = item[3] if len(item) > 3 else None
+    theta, seed = item.theta, int(item.seed)
+    effects = list(item.effects) if item.effects is not None else list(ctx.effects)
+    draws = item.sensor_draws
     t0 = time.perf_counter()
     sim, obs, scenario = _objects(ctx)
     if isinstance(theta, Mapping):
@@ -234,21 +305,21 @@ def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> d
     banked = None
     try:
         if getattr(obs, "needs_images", False):
-            ro = sim.simulate_images(scenario, values, camera=obs.camera, effects=effects, seed=int(seed),
+            ro = sim.simulate_images(scenario, values, camera=obs.camera, effects=effects, seed=seed,
                                      style=obs.style)
         elif draws:  # simulate without the observation transforms, then observe once per draw
             plan = check_effects(sim, draws["effects"])
-            raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, plan.effects, int(seed), batch)
-            ro = plan.observe(raw, values, int(seed))
+            raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, plan.effects, seed, batch)
+            ro = plan.observe(raw, values, seed)
         else:
-            ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, int(seed), batch)
+            ro, banked = _simulate_observed(ctx, sim, scenario, values, effects, seed, batch)
     except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
-        return {"status": STATUS_ERROR, "reason": failure_reason(exc, ctx.backend), "x": None, "chamfer": None,
-                "seconds": time.perf_counter() - t0, "bank": banked}
+        return JobResult(status=STATUS_ERROR, reason=failure_reason(exc, ctx.backend),
+                         seconds=time.perf_counter() - t0, bank=banked, seed=seed)
     if not ro.ok:
-        return {"status": int(ro.status), "reason": ro.reason, "x": None, "chamfer": None,
-                "seconds": time.perf_counter() - t0, "bank": banked}
-    rng = np.random.default_rng([int(seed), 17])
+        return JobResult(status=int(ro.status), reason=ro.reason, seconds=time.perf_counter() - t0, bank=banked,
+                         seed=seed)
+    rng = np.random.default_rng([seed, 17])
     effect_z = rollout_min_z(ro)  # a sensor effect's visibility threshold (table-unseen), else None
     # a camera fit: the virtual depth sensor makes the simulated clouds of the metric (FitConfig.sensor) and
     # of the point-cloud observer (the same per-process sensor, sensor_from_json); each frame is rendered once
@@ -267,21 +338,21 @@ def simulate_job(ctx: SimContext, item: tuple, batch: _Batch | None = None) -> d
                                                    rng)
             else:  # a sensor effect's threshold (table-unseen) adds to the fit's own
                 ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, effect_z))
-    out = {"status": STATUS_OK, "reason": "", "x": x, "chamfer": ch, "chamfer_one_sided": ch1,
-           "seconds": time.perf_counter() - t0, "bank": banked}
+    seconds = time.perf_counter() - t0
+    sensor_x = None
     if draws:
         # each draw: the sensor effects' own randomness (point noise) drawn afresh, the observer's point
         # sampling the primary's (so a draw at theta's own sensor parameters repeats x when they are deterministic)
-        out["sensor_x"] = np.stack([
+        sensor_x = np.stack([
             obs.observe(plan.observe(raw, {**values, **{k: float(v) for k, v in d.items()}},
-                                     int(seed) + 1_000_003 * (j + 1)),
-                        np.random.default_rng([int(seed), 17])).state()
+                                     seed + 1_000_003 * (j + 1)),
+                        np.random.default_rng([seed, 17])).state()
             for j, d in enumerate(draws["draws"])])
+    kept = {}
     if ctx.keep_rollout:
-        out.update(vertices=ro.vertices, faces=ro.faces, gripper=ro.gripper)
-        if effect_z is not None:
-            out[INFO_MIN_VISIBLE_Z] = effect_z
-    return out
+        kept = {"vertices": ro.vertices, "faces": ro.faces, "gripper": ro.gripper, "min_visible_z": effect_z}
+    return JobResult(status=STATUS_OK, reason="", x=x, chamfer=ch, chamfer_one_sided=ch1, seconds=seconds,
+                     bank=banked, sensor_x=sensor_x, seed=seed, **kept)
 
 
 def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
@@ -295,7 +366,7 @@ def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
 
 
 
-def simulate_batch_job(ctx: SimContext, items: Sequence[tuple]) -> list[dict[str, Any]]:
+def simulate_batch_job(ctx: SimContext, items: Sequence[JobItem]) -> list[JobResult]:
     """:func:`simulate_job` over ``items``, with every rollout they need simulated by the backend's
     ``simulate_batch`` (:class:`_Batch`): the same results, in item order, as one job per item.
 
@@ -304,7 +375,7 @@ def simulate_batch_job(ctx: SimContext, items: Sequence[tuple]) -> list[dict[str
     """
     sim, _, _ = _objects(ctx)
     batch = _Batch(sim)
-    out: list[dict[str, Any] | None] = [None] * len(items)
+    out: list[JobResult | None] = [None] * len(items)
     for _ in range(2):
         for i, item in enumerate(items):
             if out[i] is None:
@@ -327,7 +398,7 @@ def batch_size(ctx: SimContext, n: int, workers: int | None) -> int:
     return max(1, min(size, math.ceil(n / max(1, workers or os.cpu_count() or 1))))
 
 
-def map_simulations(executor: Any, ctx: SimContext, items: Sequence[tuple]) -> Iterator[tuple[int, Any]]:
+def map_simulations(executor: Any, ctx: SimContext, items: Sequence[JobItem]) -> Iterator[tuple[int, Any]]:
     """``executor.map_unordered(simulate_job, items, context=ctx)``: yield ``(index, result or exception)`` in
     completion order. A backend that steps several parameter sets together (``batch_size > 1``, newton-cloth) gets
     them in jobs of :func:`batch_size` items (:func:`simulate_batch_job`); a batch's items are yielded together when
@@ -352,25 +423,24 @@ def map_simulations(executor: Any, ctx: SimContext, items: Sequence[tuple]) -> I
             yield alone[k], res
 
 
-def run_jobs(ctx: SimContext, items: list, workers: int | None = None, executor: str = "local",
-             executor_options: Mapping[str, Any] | None = None, label: str = "simulations") -> list[dict[str, Any]]:
+def run_jobs(ctx: SimContext, items: Sequence[JobItem], workers: int | None = None, executor: str = "local",
+             executor_options: Mapping[str, Any] | None = None, label: str = "simulations") -> list[JobResult]:
     """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order. The phase is told to
     the current progress reporter as ``label`` (:mod:`~softsbi.workflows.reporting`).
 
     A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised; any other
-    exception, or a crashed worker, becomes a failed result ``{"status": STATUS_ERROR, "reason"}``.
+    exception, or a crashed worker, becomes a failed result (:func:`failed`: ``STATUS_ERROR`` and its reason).
     """
-    out: list[dict[str, Any] | None] = [None] * len(items)
+    out: list[JobResult | None] = [None] * len(items)
     count = BankCount()
     with pools.executor(executor, workers, executor_options) as exe, phase(label, len(items)) as advance:
         for done, (i, res) in enumerate(map_simulations(exe, ctx, items), start=1):
             if isinstance(res, BaseException):
                 if isinstance(res, SoftsbiError):
                     raise res
-                res = {"status": STATUS_ERROR, "reason": f"{type(res).__name__}: {res}", "x": None,
-                       "chamfer": None}
+                res = failed(res)
             out[i] = res
-            count.add(res.get("bank"))
+            count.add(res.bank)
             advance(done, count.hits)
         if count.wrong_key or count.unstored:
             notify(count.warning(ctx.bank))

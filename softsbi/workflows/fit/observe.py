@@ -15,7 +15,7 @@ from softsbi.core.types import ParamSpace, Recording, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.plugins import registry
 from softsbi.scenarios.cameras import scenario_camera
-from softsbi.workflows.fit.config import FitConfig, needs_images
+from softsbi.workflows.fit.config import FitConfig, RunRecord, needs_images
 from softsbi.workflows.fit.jobs import SimContext
 
 
@@ -105,10 +105,10 @@ def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
 def fit_sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: ParamSpace) -> SimContext:
     """What every simulation job of this fit needs: simulator, observer, the metric's reference."""
     observed = store.read_observed()
-    metric = store.config.get("metric", "chamfer_m")
+    rec = RunRecord.from_run_config(store.config)
     return SimContext(backend=cfg.backend, backend_options=cfg.backend_options,
                       scenario=recording.scenario.to_json(), effects=list(cfg.effects), observer=cfg.observer,
                       observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
                       fixed=dict(cfg.fixed), dense=observed.get("dense"), n_dense=cfg.n_dense,
-                      ref_masks=observed.get("masks") if metric == "mask_chamfer_px" else None,
-                      min_z=store.config.get("metric_min_z"), camera=store.config.get("metric_camera"))
+                      ref_masks=observed.get("masks") if rec.image_fit else None,
+                      min_z=rec.metric_min_z, camera=rec.metric_camera)

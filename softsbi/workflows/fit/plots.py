@@ -13,6 +13,7 @@ from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.plugins import registry
 from softsbi.report.fit_figures import clouds_figure, frames_figure, plot_chamfer_rounds, plot_pairs
 from softsbi.report.style import source_name, fit_label, save_figure
+from softsbi.workflows.fit.config import MASK_CHAMFER_PX
 
 #: surface points per frame of the simulated clouds in ``clouds.png``
 CLOUD_POINTS = 800
@@ -31,10 +32,10 @@ def write_fit_plots(out_dir: Path, result: Any, meas: Any, cfg: Any, samples: np
         observer_options: the fit's observer constructor options (image fits draw its keypoints).
     """
     rep = result.report.to_json()
-    subtitle = f"fit: {fit_label(rep)}; measurement: {source_name(rep.get('observed'))}"
+    subtitle = f"fit: {fit_label(rep)}; measurement: {source_name(result.report.observed)}"
     paths = [plot_chamfer_rounds(out_dir / "chamfer_rounds.png", rep),
              plot_pairs(out_dir / "posterior_pairs.png", result.param_space, samples, meas.truth, subtitle=subtitle)]
-    image_fit = rep.get("metric") == "mask_chamfer_px"
+    image_fit = result.report.metric == MASK_CHAMFER_PX
     name = "frames.png" if image_fit else "clouds.png"
     try:
         if image_fit:
@@ -79,7 +80,7 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     sim_pts = rollout_clouds(ro, CLOUD_POINTS, np.random.default_rng(0)) if ro.ok else None
     status = "" if ro.ok else f" (simulation failed: {ro.reason})"
     rep = result.report.to_json()
-    title = f"fit: {fit_label(rep)}; measurement: {source_name(rep.get('observed'))}"
+    title = f"fit: {fit_label(rep)}; measurement: {source_name(result.report.observed)}"
     best_pts, best_label = best_fit_clouds(result.store, rep)
     return save_figure(clouds_figure(meas.scenario, meas.dense, sim_pts, frames, title, status,
                                      ro.vertices if ro.ok else None, len(ro.faces) == 0, best_pts, best_label), path)

@@ -14,7 +14,7 @@ from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_pressure, contraction
 from softsbi.plugins import registry
-from softsbi.workflows.fit.config import FitConfig
+from softsbi.workflows.fit.config import CHAMFER_M, FitConfig, RunRecord
 from softsbi.workflows.fit.task_store import served_by_task
 
 
@@ -107,7 +107,7 @@ def build_report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: 
         # the metric: per frame, simulated and measured clouds seen through the fit's sensor
         # model; the headline values above are the mean over metric_frames
         # the sensor model stored with the run, which its simulations' per-frame metric used (_sim_context)
-        "metric_min_z_m": loop.store.config.get("metric_min_z") if metric == "chamfer_m" else None,
+        "metric_min_z_m": RunRecord.from_run_config(loop.store.config).metric_min_z if metric == CHAMFER_M else None,
         "metric_frames": cfg.frames if metric == "chamfer_m" else None, "metric_sensor": cfg.sensor,
         "chamfer_posterior_one_sided_m": ev_stats.get("one_sided_mean_m"),
         "chamfer_posterior_one_sided_std_m": ev_stats.get("one_sided_std_m"),

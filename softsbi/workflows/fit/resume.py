@@ -16,7 +16,7 @@ from softsbi.core.store import RunStore
 from softsbi.core.store_damage import array_names
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.perception.masks import hsv_mask
-from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, needs_images, resume_identity
+from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, RunRecord, needs_images, resume_identity
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording, observer_options
 from softsbi.workflows.measurement import load_recording
 from softsbi.workflows.reporting import FitCallbacks
@@ -49,7 +49,7 @@ def open_store(out_dir: Path, recording: Recording, cfg: FitConfig, space: Param
     if RunStore.exists(store_path):
         store = RunStore.open(store_path)
         store.check_resumable(config, FitConfig.resume_keys(), RESUME_DEFAULTS, resume_identity)
-        prev = store.config.get("wall_time_s", 0.0) or 0.0
+        prev = RunRecord.from_run_config(store.config).wall_time_s
         callbacks.message(resume_message(store, prev))
         try:
             store.read_observed()
@@ -82,7 +82,7 @@ def rebuild_observed(store: RunStore, recording: Recording, cfg: FitConfig) -> d
         SchemaError: the recording no longer gives what the fit observed (it changed since the fit).
         OSError: the run store cannot be written (the arrays are not returned then).
     """
-    new = _observed(cfg, recording, store.config.get("metric", "chamfer_m"))
+    new = _observed(cfg, recording, RunRecord.from_run_config(store.config).metric)
     group = store.root["observed"] if "observed" in store.root else None
     for k in () if group is None else array_names(group):
         try:
@@ -114,15 +114,16 @@ def observed_data(store: RunStore) -> dict[str, np.ndarray]:
     except ObservedDamaged as exc:
         damage = exc
     config = store.config
-    source = str(config.get("observed_source") or "")
+    rec = RunRecord.from_run_config(config)
+    source = rec.observed_source
     run_dir = store.path.parent
-    if config.get("metric") == "mask_chamfer_px" or not source or not Path(source).is_dir():
+    if rec.image_fit or not source or not Path(source).is_dir():
         raise ObservedDamaged(damage.problem, f"re-run the fit with its recording (`softsbi fit --observed "
                                               f"{source or 'REC'} ... --out {run_dir}`): it rebuilds it") from None
     cfg = FitConfig.from_run_config(config)
     try:
         rec = load_recording(source, n_points=cfg.n_points, seed=cfg.seed,
-                             scenario=Scenario.from_json(config["scenario"]))
+                             scenario=Scenario.from_json(rec.scenario))
     except SoftsbiError as exc:
         raise ObservedDamaged(damage.problem, f"its recording cannot be read to rebuild it ({exc})") from None
     cfg = cfg.resolved(rec)

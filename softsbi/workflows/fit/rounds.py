@@ -20,9 +20,9 @@ from softsbi.core.types import STATUS_ERROR, STATUS_OK, ParamSpace
 from softsbi.executors.local import WorkerFailure
 from softsbi.plugins import registry
 from softsbi.workflows.fit.bank import BankCount, bank_folder
-from softsbi.workflows.fit.config import FitConfig, estimator_options
+from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options
 from softsbi.workflows.fit.report_file import chamfer_stats
-from softsbi.workflows.fit.jobs import SimContext, _round_seeds, map_simulations
+from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, map_simulations
 from softsbi.workflows.reporting import FitCallbacks
 from softsbi.workflows.fit.resume import RunClock, observed_data
 from softsbi.workflows.fit.task_store import PriorRound
@@ -59,8 +59,8 @@ def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, h
         pending = store.pending(r)
         if len(pending) == 0:
             return
-        items = [(data["theta"][i], int(data["seed"][i])) + ((None, sensor.job_draws(data["sensor_u"][i]),)
-                                                              if extra else ()) for i in pending]
+        items = [JobItem(data["theta"][i], int(data["seed"][i]),
+                         sensor_draws=sensor.job_draws(data["sensor_u"][i]) if extra else None) for i in pending]
         done = len(data["status"]) - len(pending)
         errors = []
         for j, res in map_simulations(executor, ctx, items):
@@ -77,9 +77,8 @@ def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                 if attempt == 1:
                     store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
                 continue
-            store.write_simulation(r, i, res["x"], res["chamfer"], res["status"], res["reason"],
-                                   sensor_x=res.get("sensor_x"))
-            count.add(res.get("bank"))
+            store.write_simulation(r, i, res.x, res.chamfer, res.status, res.reason, sensor_x=res.sensor_x)
+            count.add(res.bank)
             if clock is not None:
                 clock.save()
             done += 1
@@ -221,7 +220,8 @@ class Rounds:
         ctx = self.ctx if bank is None else replace(self.ctx, bank=str(bank))
         _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
         d = store.round_data(r)
-        stats = chamfer_stats(d["chamfer"], d["status"], store.config.get("metric_frames")) if self.scored else {}
+        frames = RunRecord.from_run_config(store.config).metric_frames
+        stats = chamfer_stats(d["chamfer"], d["status"], frames) if self.scored else {}
         if r == 0:
             self.prior_stats = stats
         elif self.summaries:
@@ -304,7 +304,7 @@ class Rounds:
                 if "groups" in inspect.signature(est.fit).parameters:  # hold out whole simulations
                     kw["groups"] = np.concatenate([np.arange(len(U) - n_sensor), sg])
         info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed + r,
-                       progress=lambda e, m, l, _r=r: self.cb.training_epoch(_r, e, m, l), **kw)
+                       progress=lambda e, m, v, _r=r: self.cb.training_epoch(_r, e, m, v), **kw)
         q = est.posterior_at(self.x_obs[fr])  # the posterior at the observation x_o
         info = dict(info, n_train_total=int(len(U)), usable_per_round=counts, sensor_pairs=n_sensor,
                     **({"held_out_by_simulation": "groups" in kw} if n_sensor else {}))

@@ -40,10 +40,11 @@ from softsbi.plugins import registry
 from softsbi.workflows.fit.plots import FIGURES, write_fit_plots
 from softsbi.workflows.fit.bank import BankCount, banks_enabled, check_bank_path
 from softsbi.workflows.fit.bestfit import REFINE, best_stored, refine, store_best_fit
-from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, parameter_table
+from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options, fit_param_space, parameter_table
 from softsbi.workflows.fit.report_file import build_report, chamfer_stats, damaged_report, read_report
-from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, map_simulations, simulate_job
-from softsbi.workflows import defaults, pools
+from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.core import defaults
+from softsbi.workflows import pools
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.fit.observe import fit_sim_context, metric_sensor, observer_options
 from softsbi.workflows.reporting import FitCallbacks
@@ -55,9 +56,9 @@ from softsbi.workflows.fit.prior_widening import (decide_widening, map_mixture, 
 
 #: what callers import from here besides :func:`run_fit` (defined in the step modules; ``softsbi.workflows.fit.run``
 #: stays the one import path of a fit's API)
-__all__ = ["FitCallbacks", "FitConfig", "FitResult", "SensorDraws", "SimContext", "chamfer_stats",
-           "estimator_options", "fit_param_space", "metric_sensor", "observer_options", "parameter_table",
-           "read_report", "round_posterior", "run_fit", "simulate_job"]
+__all__ = ["FitCallbacks", "FitConfig", "FitResult", "JobItem", "JobResult", "SensorDraws", "SimContext",
+           "chamfer_stats", "estimator_options", "fit_param_space", "metric_sensor", "observer_options",
+           "parameter_table", "read_report", "round_posterior", "run_fit", "simulate_job"]
 
 
 @dataclass(frozen=True)
@@ -153,7 +154,8 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
             clock.save(force=True)
     samples = space.from_unit(post.sample(4000, np.random.default_rng([cfg.seed, 99])))
     wall = clock.save(force=True)
-    report = build_report(recording, cfg, space, loop, ev_stats, samples, wall, store.config.get("metric", "chamfer_m"))
+    report = build_report(recording, cfg, space, loop, ev_stats, samples, wall,
+                          RunRecord.from_run_config(store.config).metric)
     report.update(best_fit=best, widened=records(store.config))
     write_json_atomic(out_dir / "report.json", report)
     if damaged is not None:
@@ -191,8 +193,8 @@ def _best_fit(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
               cfg: FitConfig, hooks: FitCallbacks) -> dict[str, Any] | None:
     """``report.json``'s ``best_fit``: the best of the fit's simulations, after ``cfg.refine`` more by CMA-ES
     from the posterior (:mod:`~softsbi.workflows.fit.bestfit`), with its rollout stored in the run."""
-    frames = store.config.get("metric_frames")
-    metric = store.config.get("metric", "chamfer_m")
+    rec = RunRecord.from_run_config(store.config)
+    frames, metric = rec.metric_frames, rec.metric
     refined = None
     if cfg.refine > 0:
         before = best_stored(store, cfg.rounds, cfg.seed, frames)
@@ -220,8 +222,8 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     if store.has("evaluation"):
         arrays, attrs = store.read_group("evaluation")
         if attrs.get("rounds") == cfg.rounds and len(arrays["status"]) == cfg.n_eval:
-            return chamfer_stats(arrays["chamfer"], arrays["status"], store.config.get("metric_frames"),
-                                  arrays.get("chamfer_one_sided"))
+            frames = RunRecord.from_run_config(store.config).metric_frames
+            return chamfer_stats(arrays["chamfer"], arrays["status"], frames, arrays.get("chamfer_one_sided"))
     rng = np.random.default_rng([cfg.seed, eval_stream(cfg.rounds)])
     u = post.sample(cfg.n_eval, rng)
     theta = space.from_unit(u)
@@ -235,19 +237,19 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
     # the run's own bank: check, diagnose, compare and view re-simulate these rollouts first (RunView.sim_context)
     bank = str(store.path.parent / "sims.zarr") if banks_enabled() and ctx.ref_masks is None else None
     count = BankCount()
-    for i, res in map_simulations(executor, replace(ctx, bank=bank), list(zip(theta, seeds))):
+    for i, res in map_simulations(executor, replace(ctx, bank=bank), [JobItem(t, s) for t, s in zip(theta, seeds)]):
         done += 1
         hooks.simulation_done(-1, done, cfg.n_eval)
         if isinstance(res, SoftsbiError):  # an environment fault: stop, nothing stored
             raise res
         if isinstance(res, BaseException):
             continue
-        count.add(res.get("bank"))
-        status[i] = res["status"]
-        if res["chamfer"] is not None:
-            chamfer[i] = res["chamfer"]
-        if res.get("chamfer_one_sided") is not None:
-            one_sided[i] = res["chamfer_one_sided"]
+        count.add(res.bank)
+        status[i] = res.status
+        if res.chamfer is not None:
+            chamfer[i] = res.chamfer
+        if res.chamfer_one_sided is not None:
+            one_sided[i] = res.chamfer_one_sided
     tell_bank(hooks, -1, count, cfg.n_eval, bank)
     arrays = {"theta": theta, "u": u, "status": status, "chamfer": chamfer}
     if ctx.ref_masks is None:
@@ -256,4 +258,5 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
                       attrs={"rounds": cfg.rounds, "what": "rollouts at final-posterior samples"},
                       units={"chamfer": "px" if ctx.ref_masks is not None else "m", "chamfer_one_sided": "m",
                              "theta": "physical"})
-    return chamfer_stats(chamfer, status, store.config.get("metric_frames"), arrays.get("chamfer_one_sided"))
+    return chamfer_stats(chamfer, status, RunRecord.from_run_config(store.config).metric_frames,
+                         arrays.get("chamfer_one_sided"))

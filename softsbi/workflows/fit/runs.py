@@ -1,7 +1,7 @@
 """Finished runs: open a run directory for checking, diagnosing, viewing, or its posterior."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -11,15 +11,15 @@ from softsbi.core.distributions import PosteriorChain
 from softsbi.core.errors import SoftsbiError, as_path
 from softsbi.core.fitreport import FitReport
 from softsbi.core.store import RunStore
-from softsbi.core.types import STATUS_OK, ParamSpace, Scenario
+from softsbi.core.types import ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.workflows.fit.bank import banks_enabled
 from softsbi.workflows.fit.bestfit import BestFit, read_best_fit
-from softsbi.workflows.fit.config import FitConfig
+from softsbi.workflows.fit.config import FitConfig, RunRecord
 from softsbi.workflows.fit.report_file import read_report
 from softsbi.workflows.fit.resume import observed_data
 from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
-from softsbi.workflows.fit.jobs import SimContext, evaluation_seeds, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, evaluation_seeds, run_jobs
 
 
 def read_fit_report(run_dir: str | Path) -> FitReport:
@@ -33,12 +33,15 @@ def read_fit_report(run_dir: str | Path) -> FitReport:
     return FitReport.from_json(read_report(run_dir), run_dir / "report.json")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunView:
     """What the diagnostics need from a finished run, loaded once (:func:`load_run`) and passed down a command.
 
     Attributes:
-        path: the run directory. config: the run store's settings. space: the inferred parameters.
+        path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.config.FitConfig`,
+            :meth:`~softsbi.workflows.fit.config.FitConfig.from_run_config`). record: what the run stored beside
+            them: its recording's scenario, observer options, source and truth, its metric
+            (:class:`~softsbi.workflows.fit.config.RunRecord`). space: the inferred parameters.
         scenario, dense (``T`` clouds ``(m, 3)`` m), x_obs: the measurement as fitted.
         report: ``report.json`` (:class:`~softsbi.core.fitreport.FitReport`).
         post_theta: ``(S, D)`` the fit's evaluation samples (physical units), the first ``n_eval``.
@@ -46,7 +49,8 @@ class RunView:
     """
 
     path: Path
-    config: dict[str, Any]
+    config: FitConfig
+    record: RunRecord
     space: ParamSpace
     scenario: Scenario
     dense: np.ndarray
@@ -68,51 +72,48 @@ class RunView:
         observer and metric, so re-simulating the fit's evaluation samples reproduces its Chamfer. Its rollouts go
         through the run's own simulation bank (``RUN/sims.zarr``): ``check``, ``diagnose``, ``compare`` and
         ``view`` simulate each posterior-predictive rollout and finite difference once."""
-        c = self.config
-        return SimContext(backend=c["backend"], backend_options=dict(c.get("backend_options") or {}),
-                          scenario=c["scenario"], effects=list(self.effects), observer=c["observer"],
-                          observer_options=dict(c.get("observer_options") or {}), param_names=self.space.names,
-                          fixed=self.fixed, dense=self.dense, n_dense=int(c.get("n_dense", 600)),
-                          keep_rollout=keep_rollout, min_z=c.get("metric_min_z"), camera=c.get("metric_camera"),
+        c, rec = self.config, self.record
+        return SimContext(backend=c.backend, backend_options=dict(c.backend_options), scenario=rec.scenario,
+                          effects=list(self.effects), observer=c.observer,
+                          observer_options=dict(rec.observer_options), param_names=self.space.names,
+                          fixed=self.fixed, dense=self.dense, n_dense=int(c.n_dense), keep_rollout=keep_rollout,
+                          min_z=rec.metric_min_z, camera=rec.metric_camera,
                           bank=str(self.path / "sims.zarr") if banks_enabled() else None)
 
     @property
     def metric_min_z(self) -> float | None:
         """The fit's sensor model for the metric: points at or below this height (m) are not seen;
         None = full clouds (also runs written before the metric had a sensor model)."""
-        v = self.config.get("metric_min_z")
-        return None if v is None else float(v)
+        return self.record.metric_min_z
 
     @property
     def metric_frames(self) -> list[int] | None:
         """The frames the fit's headline Chamfer averages (None = all)."""
-        v = self.config.get("metric_frames")
-        return None if v is None else [int(i) for i in v]
+        return self.record.metric_frames
 
-    def posterior_rollouts(self, workers: int | None = None) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    def posterior_rollouts(self, workers: int | None = None) -> tuple[list[JobResult], list[JobResult]]:
         """Re-simulate the run's posterior samples (:attr:`post_theta`) with their seeds through the
         fit's own job, so each rollout's per-frame Chamfer is the fit's metric.
 
         Returns:
             ``(ok, results)``: the successful rollouts (job results with ``vertices (T, N, 3)`` m,
-            ``faces``, ``gripper``, ``chamfer (T,)``, plus ``sample`` = the row of
-            :attr:`post_theta` and ``seed``) and every job result, in sample order.
+            ``faces``, ``gripper``, ``chamfer (T,)``, ``seed``, and ``sample`` = the row of
+            :attr:`post_theta`) and every job result, in sample order.
         """
-        items = list(zip(self.post_theta, self.post_seeds))
+        items = [JobItem(theta, int(seed)) for theta, seed in zip(self.post_theta, self.post_seeds)]
         res = run_jobs(self.sim_context(keep_rollout=True), items, workers, label="posterior rollouts")
-        ok = [dict(r, sample=i, seed=int(items[i][1])) for i, r in enumerate(res)
-              if r is not None and r["status"] == STATUS_OK and r.get("vertices") is not None]
+        ok = [replace(r, sample=i) for i, r in enumerate(res) if r is not None and r.ok and r.vertices is not None]
         return ok, res
 
     @property
     def fixed(self) -> dict[str, float]:
         """Parameters held fixed in the fit ``{name: value}``."""
-        return dict(self.config.get("fixed") or {})
+        return dict(self.config.fixed)
 
     @property
     def effects(self) -> list[str]:
         """Effects the fit switched on."""
-        return list(self.config.get("effects") or [])
+        return list(self.config.effects)
 
     def values(self, row: np.ndarray) -> dict[str, float]:
         """Inferred parameters ``(D,)`` plus the fixed ones as a ``{name: value}`` mapping."""
@@ -144,26 +145,27 @@ def load_run(run_dir: str | Path, n_eval: int | None = 30, seed: int = 0) -> Run
         raise SoftsbiError(f"'{run_dir}' has no report.json: the fit has not finished; resume it with the same "
                            f"`softsbi fit ... --out {run_dir}` command first")
     report = read_fit_report(run_dir)
-    cfg = store.config
-    obs = None if cfg.get("metric") == "mask_chamfer_px" else observed_data(store)  # damaged: rebuilt, said
+    cfg, rec = FitConfig.from_run_config(store.config), RunRecord.from_run_config(store.config)
+    obs = None if rec.image_fit else observed_data(store)  # damaged: rebuilt, said
     if obs is None or "dense" not in obs:
-        raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.get('observer')}'): check, diagnose and "
+        raise SoftsbiError(f"'{run_dir}' is an image fit (observer '{cfg.observer}'): check, diagnose and "
                            f"compare work on point-cloud fits, which carry 3-D clouds to localise the error; "
                            f"its report.json holds the mask Chamfer of prior and posterior rollouts")
-    space = ParamSpace.from_json(cfg["param_space"])
+    space = ParamSpace.from_json(rec.param_space)
     if store.has("evaluation"):
         ev, ev_attrs = store.read_group("evaluation", ("theta",))  # what is re-simulated: the samples
         stored = len(ev["theta"])
         theta = ev["theta"][:n_eval]
-        seeds = evaluation_seeds(int(cfg.get("seed", 0)), int(ev_attrs.get("rounds", cfg["rounds"])),
-                                 len(ev["theta"]))[:n_eval]
+        # the rounds the evaluation followed (stored with it; older runs: the latest session's)
+        seeds = evaluation_seeds(int(cfg.seed), int(ev_attrs.get("rounds", rec.rounds)), len(ev["theta"]))[:n_eval]
     else:  # fall back on the last round's draws (samples of the previous posterior)
         last = store.round_ids()[-1]
         d = store.round_data(last)
         stored = len(d["theta"])
         theta, seeds = d["theta"][:n_eval], d["seed"][:n_eval]
-    return RunView(run_dir, cfg, space, Scenario.from_json(cfg["scenario"]), obs["dense"], obs["x"], report, theta,
-                   np.asarray(seeds), post_complete=len(theta) == stored)
+    return RunView(path=run_dir, config=cfg, record=rec, space=space, scenario=Scenario.from_json(rec.scenario),
+                   dense=obs["dense"], x_obs=obs["x"], report=report, post_theta=theta, post_seeds=np.asarray(seeds),
+                   post_complete=len(theta) == stored)
 
 
 
@@ -276,8 +278,8 @@ def open_run(run_dir: str | Path) -> Run:
     store = RunStore.open(run_dir / "run.zarr")
     post = final_posterior(run_dir, store)
     report = read_fit_report(run_dir) if (run_dir / "report.json").exists() else None
-    return Run(run_dir, FitConfig.from_run_config(store.config), report, post.space, post,
-               best_fit=read_best_fit(store))
+    return Run(path=run_dir, config=FitConfig.from_run_config(store.config), report=report, space=post.space,
+               posterior=post, best_fit=read_best_fit(store))
 
 
 def final_posterior(run_dir: Path, store: RunStore) -> Posterior:

@@ -50,7 +50,7 @@ from softsbi.core.store import installed_version
 from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
 from softsbi.core.types import ParamSpace, Recording, jsonable
 from softsbi.plugins import registry
-from softsbi.workflows import defaults
+from softsbi.core import defaults
 from softsbi.workflows.fit.bank import _engine_version, bank_folder
 from softsbi.workflows.fit.config import FitConfig, estimator_options, needs_images, resume_identity
 from softsbi.workflows.fit.jobs import SimContext

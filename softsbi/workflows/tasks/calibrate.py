@@ -44,12 +44,13 @@ from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
 from softsbi.report.calibration_figures import plot_calibration
-from softsbi.workflows import defaults, pools
-from softsbi.workflows.fit.config import FitConfig, estimator_options as fit_estimator_options
+from softsbi.core import defaults
+from softsbi.workflows import pools
+from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options as fit_estimator_options
 from softsbi.workflows.fit.resume import observed_data
 from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
 from softsbi.workflows.fit.task_store import served_by_task, task_store_of
-from softsbi.workflows.fit.jobs import SimContext, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, SimContext, run_jobs
 from softsbi.workflows.lock import run_lock
 from softsbi.workflows.fit.prior_widening import MappedProposal, map_mixture, round_spaces, unit_map
 
@@ -78,7 +79,9 @@ def _proposals(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int,
     spaces = round_spaces(space, store.config, last)
     out: list[tuple[Any, str]] = []
     for r in range(last + 1):
-        to_record = (lambda p, r=r: p if spaces[r] == space else MappedProposal(p, *unit_map(spaces[r], space)))
+        def to_record(p: Any, r: int = r) -> Any:
+            return p if spaces[r] == space else MappedProposal(p, *unit_map(spaces[r], space))
+
         if r == 0 or not sequential:
             out.append((to_record(None), "prior" if spaces[r] == space else "prior before its widening"))
             continue
@@ -109,13 +112,13 @@ def _draw_block(b: int, proposals: list[tuple[Any, str]], counts: list[int], see
     return u, which, seeds
 
 
-def _sim_context(store: RunStore) -> SimContext:
-    c = store.config
-    return SimContext(backend=c["backend"], backend_options=dict(c.get("backend_options") or {}),
-                      scenario=c["scenario"], effects=list(c.get("effects") or []), observer=c["observer"],
-                      observer_options=dict(c.get("observer_options") or {}),
-                      param_names=[p["name"] for p in c["param_space"]], fixed=dict(c.get("fixed") or {}),
-                      dense=None, n_dense=int(c.get("n_dense", 600)))
+def _sim_context(store: RunStore, cfg: FitConfig) -> SimContext:
+    """The run's simulations without a metric (the test simulations need observations only)."""
+    rec = RunRecord.from_run_config(store.config)
+    return SimContext(backend=cfg.backend, backend_options=dict(cfg.backend_options), scenario=rec.scenario,
+                      effects=list(cfg.effects), observer=cfg.observer, observer_options=dict(rec.observer_options),
+                      param_names=[p["name"] for p in rec.param_space], fixed=dict(cfg.fixed), dense=None,
+                      n_dense=int(cfg.n_dense))
 
 
 def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: int, counts: list[int],
@@ -135,7 +138,7 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
         data = {"u": np.zeros((0, space.dim)), "round": np.zeros(0, int), "seed": np.zeros(0, np.int64),
                 "status": np.zeros(0, np.uint8), "x": np.zeros((0,) + x_shape, np.float32)}
     proposals = _proposals(store, cfg, space, last, counts)
-    ctx = _sim_context(store)
+    ctx = _sim_context(store, cfg)
     have = len(data["status"]) // BLOCK
     for b in range(n_blocks):
         if b < have and not (data["status"][b * BLOCK:(b + 1) * BLOCK] == STATUS_PENDING).any():
@@ -143,13 +146,13 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
         u, which, seeds = _draw_block(b, proposals, counts, cfg.seed, last, space.dim)
         theta = space.from_unit(u)
         message(f"test simulations {b * BLOCK + 1}-{(b + 1) * BLOCK} of {n_blocks * BLOCK}")
-        res = run_jobs(ctx, list(zip(theta, seeds)), workers, cfg.executor, cfg.executor_options,
-                       label="calibration test simulations")
-        status = np.array([r["status"] for r in res], np.uint8)
+        res = run_jobs(ctx, [JobItem(t, s) for t, s in zip(theta, seeds)], workers, cfg.executor,
+                       cfg.executor_options, label="calibration test simulations")
+        status = np.array([r.status for r in res], np.uint8)
         x = np.full((BLOCK,) + x_shape, np.nan, np.float32)
         for i, r in enumerate(res):
-            if r["status"] == STATUS_OK and r.get("x") is not None:
-                x[i] = r["x"]
+            if r.ok and r.x is not None:
+                x[i] = r.x
         sl = slice(b * BLOCK, (b + 1) * BLOCK)
         new = {"u": u, "round": which, "seed": seeds, "status": status, "x": x}
         if b < len(data["status"]) // BLOCK:

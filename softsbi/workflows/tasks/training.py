@@ -28,17 +28,18 @@ import numpy as np
 from softsbi.core.errors import SoftsbiError, storage_error
 from softsbi.core.fitreport import TrainingReport
 from softsbi.core.posterior_store import EstimatorState
-from softsbi.core.types import STATUS_OK, ParamSpace, Recording
+from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import TEST_STREAM
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
-from softsbi.workflows import defaults, pools
+from softsbi.core import defaults
+from softsbi.workflows import pools
 from softsbi.workflows.fit.bank import HIT
 from softsbi.workflows.reporting import duration_words
 from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
 from softsbi.workflows.criticism.check_null import check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
-from softsbi.workflows.fit.jobs import SimContext, _round_seeds, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, run_jobs
 from softsbi.workflows.criticism.screening import is_generic
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask, first_round_context
 
@@ -69,14 +70,14 @@ def candidate_models(cfg: FitConfig, names: Sequence[str] | None) -> list[list[s
 def _simulate(ctx: SimContext, space: ParamSpace, u: np.ndarray, seeds: np.ndarray, cfg: FitConfig,
               label: str) -> tuple[np.ndarray, np.ndarray]:
     """``(U, X)``: the usable ones of the simulations at unit-cube ``u`` with ``seeds`` (status ok, finite)."""
-    res = run_jobs(ctx, list(zip(space.from_unit(u), seeds.tolist())), workers=cfg.workers, executor=cfg.executor,
-                   executor_options=cfg.executor_options, label=label)
-    ok = [i for i, r in enumerate(res) if r["status"] == STATUS_OK and r["x"] is not None
-          and np.all(np.isfinite(r["x"]))]
+    items = [JobItem(theta, seed) for theta, seed in zip(space.from_unit(u), seeds.tolist())]
+    res = run_jobs(ctx, items, workers=cfg.workers, executor=cfg.executor, executor_options=cfg.executor_options,
+                   label=label)
+    ok = [i for i, r in enumerate(res) if r.ok and r.x is not None and np.all(np.isfinite(r.x))]
     if not ok:
-        reasons = sorted({str(r.get("reason")) for r in res})[:3]
+        reasons = sorted({str(r.reason) for r in res})[:3]
         raise SoftsbiError(f"{label}: every simulation failed, e.g. {reasons}; narrow the prior with --bounds")
-    return u[ok], np.stack([res[i]["x"] for i in ok])
+    return u[ok], np.stack([res[i].x for i in ok])
 
 
 def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int = defaults.N_TEST,
@@ -184,10 +185,10 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
     prior.store.check_writable()  # a store that cannot take the task refuses before this first simulation
     u = np.random.default_rng([cfg.seed, 0, 0]).random((1, space.dim))  # the first row of the prior draws
     res = run_jobs(replace(ctx, bank=str(prior.store.path.parent)),
-                   [(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))], workers=cfg.workers,
+                   [JobItem(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))], workers=cfg.workers,
                    executor=cfg.executor, executor_options=cfg.executor_options, label="one simulation, timed")[0]
-    ok = res["status"] == STATUS_OK and res.get("bank") != HIT and res.get("seconds")
-    return float(res["seconds"]) if ok else None
+    ok = res.ok and res.bank != HIT and res.seconds
+    return float(res.seconds) if ok else None
 
 
 def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,

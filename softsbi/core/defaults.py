@@ -1,13 +1,20 @@
-"""The defaults of the workflows' settings, in one place: :class:`~softsbi.workflows.fit.run.FitConfig` and the
-workflow functions take their defaults from here, and so do the CLI's options (``softsbi --help`` shows them
-without importing the workflows). ``tests/cli/test_cli_defaults.py`` ties every CLI default to its library one.
+"""Every default and bound of softsbi's settings, in one place: the workflows, the CLI's options (``softsbi --help``
+shows them without importing the workflows), the executors and the report all read them from here.
+``tests/cli/test_cli_defaults.py`` ties every CLI default to its library one, and check's and diagnose's flags,
+defaults and bounds to :class:`CheckSettings` and :class:`DiagnoseSettings`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import ClassVar, Mapping
 
-from softsbi.core.levels import ALPHA
+from softsbi.core.errors import SoftsbiError
+
+#: default family-wise level of the verdicts (check's misspecification test and diagnose's tests): the false-alarm
+#: rate a user tolerates, the conventional 5%, chosen and not fitted. The posterior-predictive test is conservative
+#: (the measurement was fitted, so it sits nearer the posterior predictive's centre than a fresh draw; Bayarri &
+#: Berger 2000), so its false-alarm rate is at most this level; docs/benchmarks.md gives the rate on controls.
+ALPHA = 0.05
 
 #: simulator, posterior estimator, observer and executor plugins of a fit
 BACKEND = "mujoco-flex"
@@ -19,6 +26,8 @@ PROPOSAL = "truncated"
 SENSOR = "height"
 #: random seed of every draw and simulation
 SEED = 0
+#: re-runs of a simulation whose worker crashed or hung, before it is stored as failed (``fit --retries``)
+RETRIES = 2
 #: sequential rounds and simulations per round (the simulation budget is their product; the paper: 15 x 100)
 ROUNDS = 4
 SIMS_PER_ROUND = 150
@@ -117,7 +126,6 @@ class _Settings:
         for name, bound in self.BOUNDS.items():
             why = bound.problem(getattr(self, name))
             if why is not None:
-                from softsbi.core.errors import SoftsbiError  # start-up: the CLI reads its defaults from here
                 raise SoftsbiError(f"{bound.flag} {why}")
 
 
@@ -198,7 +206,6 @@ def split_settings(cls: type, values: Mapping[str, object]) -> tuple[object, dic
     given = values.get("settings")
     if given is not None:
         if fields:
-            from softsbi.core.errors import SoftsbiError  # start-up: the CLI reads its defaults from here
             raise SoftsbiError(f"give either settings={cls.__name__}(...) or its fields ({', '.join(sorted(fields))}), "
                                f"not both")
         return given, rest
