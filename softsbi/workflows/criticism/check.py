@@ -446,7 +446,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
             )
         )
     fit_idx = np.nonzero(in_fit)[0]
-    one = stats["one_sided_mean_m"]  # chamfer_stats of one-sided Chamfers: always there
+    one = stats.one_sided_mean_m  # chamfer_stats of one-sided Chamfers: always there
 
     def band(c: np.ndarray) -> Band:
         return Band(mean=tuple(c.mean(0).tolist()), q05=tuple(np.quantile(c, 0.05, 0).tolist()),
