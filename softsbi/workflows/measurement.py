@@ -24,7 +24,8 @@ from softsbi.plugins import registry
 from softsbi.scenarios.builtin import FRAME_DT, lift_task, make_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.scenarios.catalog import load_scenario
-from softsbi.scenarios.spec import apply_transform, load_scenario_data, spec_from_scenario, transform_matrix
+from softsbi.scenarios.spec import (apply_transform, declared_size, load_scenario_data, spec_from_scenario,
+                                   transform_matrix)
 from softsbi.core.defaults import BACKEND, IMAGE_SIZE, SCENARIO
 from softsbi.workflows.lock import check_out_dir
 
@@ -68,14 +69,6 @@ def default_values(space: Any, scenario: Any) -> dict[str, float]:
     if "scale" in values and size is not None and "mesh" not in (getattr(scenario, "object", None) or {}):
         values["scale"] = float(size)
     return values
-
-
-def declared_size(scenario: Any) -> tuple[str | None, float | None]:
-    """The kind of a scenario's object (its ``object.kind``, None when not declared) and the size it declares (m): a
-    rope's ``length``, another object's ``size`` (a cloth's side); None when it declares none (a mesh)."""
-    obj = getattr(scenario, "object", None) or {}
-    kind = obj.get("kind")
-    return kind, obj.get("length") if kind == "rope" else obj.get("size")
 
 
 def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENSE, seed: int = 0,

@@ -37,6 +37,7 @@ from softsbi.core.seeds import SENSOR_VIEW_STREAM, surface_seed
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
+from softsbi.scenarios.spec import keyframe_times
 from softsbi.core import defaults
 from softsbi.workflows import pools
 from softsbi.core.defaults import CheckSettings
@@ -208,7 +209,7 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
     ``after the last move``), else three phases of equal duration (``early``, ``middle``, ``late``)."""
     T = scenario.n_frames
     times = np.asarray(scenario.times, float)
-    kt = sorted(float(t) for t in (scenario.options or {}).get("keyframe_times") or [])
+    kt = keyframe_times(scenario)
     if len(kt) >= 2:
         edges = np.searchsorted(times, np.array(kt[1:-1]) - 1e-9)  # frame k belongs to the move it starts in
         cuts = [0, *[int(e) for e in edges], int(np.searchsorted(times, kt[-1] + 1e-9)), T]
@@ -470,7 +471,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
         energy=energy_score(pool, n_eval), posterior_mean=posterior_mean_chamfer(run, workers=workers),
         residual=residual, posterior_at_bounds=tuple(b.to_json() for b in run.report.posterior_at_bounds), key=key,
         seconds=time.perf_counter() - t0, grasp_handle=grasp_handle(run.scenario),
-        phases_at_keyframes=bool((run.scenario.options or {}).get("keyframe_times")))
+        phases_at_keyframes=bool(keyframe_times(run.scenario)))
     out.mkdir(parents=True, exist_ok=True)
     write_result(json_path, result)
     if plot:

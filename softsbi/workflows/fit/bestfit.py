@@ -31,7 +31,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
 from softsbi.core.store_groups import holds
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace
-from softsbi.workflows.fit.jobs import JobItem, SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.workflows.fit.jobs import JobItem, SimContext, map_simulations, simulate_job, stored_evaluation_seeds
 from softsbi.workflows.fit.config import RunRecord
 
 __all__ = ["BestFit", "REFINE", "BEST", "best_stored", "refine", "store_best_fit", "read_best_fit", "scores"]
@@ -64,7 +64,7 @@ def _candidates(store: RunStore, rounds: int, seed: int, n_refine: int) -> Itera
         ev, attrs = store.read_group("evaluation")
         yield {"source": "posterior predictive rollout", "theta": ev["theta"], "u": ev["u"], "status": ev["status"],
                "chamfer": ev["chamfer"],
-               "seed": evaluation_seeds(seed, int(attrs.get("rounds", rounds)), len(ev["theta"]))}
+               "seed": stored_evaluation_seeds(seed, attrs, rounds, len(ev["theta"]))}
     if n_refine > 0 and store.has(REFINE):
         rf, _ = store.read_rows(REFINE)
         yield {"source": "refinement (CMA-ES)", **{k: rf[k][:n_refine] for k in
