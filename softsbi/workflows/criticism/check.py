@@ -461,7 +461,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
     result = CheckResult(
         run=str(run.path), n_rollouts=len(ok), failed_rollouts=n_eval - len(ok),
         times_s=tuple(run.scenario.times.tolist()), chamfer=band(ch), chamfer_one_sided=band(ch1),
-        chamfer_mean_m=float(stats["mean_m"]), chamfer_one_sided_mean_m=one, metric_min_z_m=run.metric_min_z,
+        chamfer_mean_m=float(stats.mean_m), chamfer_one_sided_mean_m=one, metric_min_z_m=run.metric_min_z,
         metric_frames=None if frames is None else tuple(frames), metric_sensor=sensor_model(run)["kind"],
         table_z_m=float(run.scenario.table_z), regions=tuple(names),
         region_error_m=tuple(map(tuple, np.nan_to_num(reg_mean).tolist())),
