@@ -111,7 +111,7 @@ def task_store_of(sim_bank: str = defaults.SIM_BANK) -> "TaskStore | None":
 def model_name(identity: Mapping[str, Any]) -> str:
     """The name of a task's model (:func:`task_identity`): ``nominal`` or ``nominal+<effect>...`` (the effects
     switched on)."""
-    return "+".join(["nominal", *identity["effects"]])
+    return "+".join(["nominal", *identity.get("effects", [])])
 
 
 @dataclass(frozen=True)
@@ -209,13 +209,13 @@ class TaskStore:
             return DamagedTask(digest, where, f"its metadata cannot be read ({type(exc).__name__})")
         if attrs.get("format") != TASK_FORMAT or not isinstance(identity, dict) or task_digest(identity) != digest:
             return None  # an entry of another format (which may lack the attribute), or stored under another key
-        # an entry of this format holds every attribute :meth:`put` writes (in one update), its identity every key
-        # of :func:`task_identity`
+        # an entry of this format holds every attribute :meth:`put` writes (in one update); its identity is the
+        # mapping it was put with (:func:`task_identity`'s for a fit's), which may lack the softsbi version
         stored_report = attrs["report"]
         trained = stored_report is not None
         try:
             state = read_posterior_group(lambda: g["estimator"], "its estimator", "train it again",
-                                         str(identity["softsbi"]))
+                                         str(identity.get("softsbi")))
             if not isinstance(state, EstimatorState):
                 raise TypeError("its estimator state is not an estimator's")
             report = None if stored_report is None else TrainingReport.from_json(stored_report)
