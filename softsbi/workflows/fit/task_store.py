@@ -211,9 +211,9 @@ class TaskStore:
             return None  # an entry of another format (which may lack the attribute), or stored under another key
         # an entry of this format holds every attribute :meth:`put` writes (in one update); its identity is the
         # mapping it was put with (:func:`task_identity`'s for a fit's), which may lack the softsbi version
-        stored_report = attrs["report"]
-        trained = stored_report is not None
+        trained = "report" in attrs and attrs["report"] is not None  # an entry missing it is damaged below
         try:
+            stored_report = attrs["report"]
             state = read_posterior_group(lambda: g["estimator"], "its estimator", "train it again",
                                          str(identity.get("softsbi")))
             if not isinstance(state, EstimatorState):
