@@ -83,8 +83,8 @@ class ProgressHooks(FitCallbacks):
         if self.train_task is not None:
             self.p.remove_task(self.train_task)
             self.train_task = None
-        ch = s.get("chamfer_proposal") or {}
-        ch_txt = f", Chamfer of this round's rollouts {ch['mean_m'] * 100:.2f} cm" if ch.get("mean_m") else ""
+        mean_m = s["chamfer_proposal"].mean_m  # ChamferStats of the round's rollouts (None when not scored)
+        ch_txt = f", Chamfer of this round's rollouts {mean_m * 100:.2f} cm" if mean_m else ""
         mean = ", ".join(f"{k}={v:.3g}" for k, v in s["posterior_mean"].items())
         self.o.message(f"round {r + 1}: {s['usable']} usable, {s['failed']} failed{ch_txt}; posterior mean {mean}")
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import shutil
+from dataclasses import dataclass, field, fields
 from importlib.metadata import version as _installed_version
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -59,6 +60,29 @@ READABLE_VERSIONS = (1, 2)
 
 #: the arrays every round holds (:meth:`RunStore.round_data`); a fit with sensor draws adds ``sensor_u``, ``sensor_x``
 ROUND_ARRAYS = ("theta", "u", "seed", "x", "status", "chamfer")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RoundRecord:
+    """A round's stored attributes (:meth:`RunStore.round_record`); one a round lacks (a round begun but not finished,
+    or stored by an older version) reads as its default.
+
+    Attributes:
+        proposal: what its parameters were drawn from (words). complete: whether its posterior is stored.
+        failures: ``{row: reason}`` of its failed simulations. info: its training information (the estimator's, with
+            the stored task that served it, if any). bank_hits: its simulations read from a simulation bank.
+    """
+
+    proposal: str = ""
+    complete: bool = False
+    failures: dict[str, str] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+    bank_hits: int = 0
+
+    @classmethod
+    def of(cls, attrs: Mapping[str, Any]) -> "RoundRecord":
+        """The record of a round group's attributes (other attributes are left out)."""
+        return cls(**{f.name: attrs[f.name] for f in fields(cls) if f.name in attrs})
 
 
 def installed_version() -> str:
@@ -303,6 +327,10 @@ class RunStore(NamedGroups):
 
     def round_attrs(self, r: int) -> dict[str, Any]:
         return dict(self._round(r).attrs)
+
+    def round_record(self, r: int) -> RoundRecord:
+        """Round ``r``'s stored attributes, typed (:class:`RoundRecord`)."""
+        return RoundRecord.of(self._round(r).attrs)
 
     def add_bank_hits(self, r: int, n: int) -> None:
         """Count ``n`` more of round ``r``'s simulations as read from a simulation bank (round attribute

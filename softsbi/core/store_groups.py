@@ -16,6 +16,12 @@ from softsbi.core.store_damage import array_names
 from softsbi.core.types import jsonable
 
 
+def holds(attrs: Mapping[str, Any], key: Mapping[str, Any]) -> bool:
+    """Whether a stored group's attributes ``attrs`` hold every value of ``key`` (what the group was computed from):
+    a value that differs, or one the attributes lack (a group stored by an older version), does not match."""
+    return all(attrs.get(k) == v for k, v in key.items())
+
+
 class NamedGroups:
     """Named top-level groups of arrays in a run store: :class:`~softsbi.core.store.RunStore`'s methods for them.
 

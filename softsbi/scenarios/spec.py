@@ -368,3 +368,30 @@ def spec_from_scenario(sc: Scenario, description: str = "") -> dict[str, Any]:
     if sc.view != "xz":
         out["view"] = sc.view
     return out
+
+
+# -- what a built scenario declares beyond its core fields: the optional entries of its options and object -------
+def keyframe_times(scenario: Scenario) -> list[float]:
+    """The times (s, sorted) of the keyframes of a scenario file's gripper path (``options["keyframe_times"]``, which
+    :func:`build_scenario` writes); ``[]`` for a scenario without them (a built-in one, or one stored before they
+    were kept)."""
+    return sorted(float(t) for t in (scenario.options or {}).get("keyframe_times") or [])
+
+
+def scenario_source(scenario: Scenario) -> str:
+    """Where a scenario was read from (``options["source"]``: a scenario file, or the recording folder a DiffCloud
+    lift was derived from); ``""`` when it does not say."""
+    return str((scenario.options or {}).get("source", ""))
+
+
+def declared_size(scenario: Any) -> tuple[str | None, float | None]:
+    """The kind of a scenario's object (its ``object.kind``; None when not declared) and the size it declares (m): a
+    rope's ``length``, another object's ``size`` (a cloth's side); None when it declares none (a mesh)."""
+    obj = getattr(scenario, "object", None) or {}
+    return obj.get("kind"), obj.get("length") if obj.get("kind") == "rope" else obj.get("size")
+
+
+def declared_spool(scenario: Scenario) -> Mapping[str, Any] | None:
+    """The occluding spool a scenario's object is wound on (``object.spool``: ``centre``, ``radius``, ``height``, m;
+    the built-in winding's), or None."""
+    return (scenario.object or {}).get("spool")

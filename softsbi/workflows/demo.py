@@ -79,7 +79,8 @@ def demo_recording(quick: bool, backend: str = BACKEND) -> tuple[Recording, dict
     ``quick``)."""
     sc = lift_scenario(None)
     space = registry().simulator(backend)().param_space(sc)
-    u = np.array([DEMO_TRUTH_UNIT.get(n, 0.5) for n in space.names])
+    unit = {**dict.fromkeys(space.names, 0.5), **DEMO_TRUTH_UNIT}  # a parameter it does not name: the prior's middle
+    u = np.array([unit[n] for n in space.names])
     truth = space.as_dict(space.from_unit(u))
     hidden_effects = [] if quick else list(DEMO_HIDDEN_EFFECT)
     truth_all = dict(truth, **({} if quick else DEMO_HIDDEN_EFFECT["wind"]))

@@ -16,7 +16,7 @@ from softsbi.core.errors import DataError, ParameterError, SimulationFailed, Sof
 from softsbi.core.types import Recording
 from softsbi.core.types import Scenario
 from softsbi.core.yamlfile import read_yaml
-from softsbi.data.recording import META, Transform, is_recording, parse_meta, read_recording, write_recording
+from softsbi.data.recording import META, RecordingMeta, is_recording, parse_meta, read_recording, write_recording
 from softsbi.perception.images import load_frames
 from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
                                           seen_resampled)
@@ -24,7 +24,8 @@ from softsbi.plugins import registry
 from softsbi.scenarios.builtin import FRAME_DT, lift_task, make_scenario
 from softsbi.scenarios.cameras import scenario_camera
 from softsbi.scenarios.catalog import load_scenario
-from softsbi.scenarios.spec import apply_transform, load_scenario_data, spec_from_scenario, transform_matrix
+from softsbi.scenarios.spec import (apply_transform, declared_size, load_scenario_data, spec_from_scenario,
+                                   transform_matrix)
 from softsbi.core.defaults import BACKEND, IMAGE_SIZE, SCENARIO
 from softsbi.workflows.lock import check_out_dir
 
@@ -64,9 +65,8 @@ def default_values(space: Any, scenario: Any) -> dict[str, float]:
     parameter at its prior midpoint. A fit infers ``scale`` over its prior instead (``--fix scale=...`` holds
     it at a size)."""
     values = space.midpoint()
-    obj = getattr(scenario, "object", None) or {}
-    size = obj.get("length") if obj.get("kind") == "rope" else obj.get("size")
-    if "scale" in values and size is not None and "mesh" not in obj:
+    _, size = declared_size(scenario)
+    if "scale" in values and size is not None and "mesh" not in (getattr(scenario, "object", None) or {}):
         values["scale"] = float(size)
     return values
 
@@ -97,17 +97,16 @@ def load_recording(folder: str | Path, n_points: int = 64, n_dense: int = N_DENS
     folder = Path(folder)
     if is_recording(folder):
         data = read_recording(folder)
-        meta, clouds, base = data.meta.model_dump(mode="json", exclude_none=True), data.clouds, folder
+        meta, clouds, base = data.meta, data.clouds, folder
     else:
         if folder.is_dir() and not any(f.stem.isdigit() for f in folder.glob("*.npy")) and \
                 any(f.stem.isdigit() for f in folder.glob("*.png")):
             raise DataError(f"'{folder}' holds image frames (000.png ...), not point clouds; fit them with an image "
                             f"observer (--observer heatmap|transporter --extractor PATH.pt)")
         meta, clouds = diffcloud_recording(folder, scenario if isinstance(scenario, (str, Path)) else None)
-        parsed = parse_meta(meta, str(folder))
-        m = Transform.model_validate(parsed.model_dump()["transform"]).as_matrix()
+        meta, base = parse_meta(meta, str(folder)), folder
+        m = meta.transform.as_matrix()
         clouds = [c @ m[:3, :3].T + m[:3, 3] for c in clouds]
-        meta, base = parsed.model_dump(mode="json", exclude_none=True), folder
     return recording_from_meta(meta, clouds, base, n_points=n_points, n_dense=n_dense, seed=seed,
                                scenario=scenario, source=str(folder))
 
@@ -121,8 +120,7 @@ def recording_scenario(folder: str | Path) -> Scenario:
     """
     folder = Path(folder)
     if is_recording(folder):
-        meta = parse_meta(read_yaml(folder / META), str(folder / META)).model_dump(mode="json", exclude_none=True)
-        return scenario_of(meta, folder, str(folder))
+        return scenario_of(parse_meta(read_yaml(folder / META), str(folder / META)), folder, str(folder))
     if not (any(folder.glob("*_real2sim.yaml")) and any(f.stem.isdigit() for f in folder.glob("*.npy"))):
         inside = sorted(p.name for p in folder.iterdir() if p.is_dir() and (is_recording(p) or any(p.glob("0*.npy"))))
         raise DataError(f"'{folder}' is neither a recording directory (no recording.yaml) nor a DiffCloud recording "
@@ -133,7 +131,8 @@ def recording_scenario(folder: str | Path) -> Scenario:
     return load_recording(folder, n_points=8, n_dense=8).scenario
 
 
-def scenario_of(meta: Mapping, base: Path, source: str, override: str | Path | Scenario | None = None) -> Scenario:
+def scenario_of(meta: RecordingMeta, base: Path, source: str,
+                override: str | Path | Scenario | None = None) -> Scenario:
     """The scenario a recording's ``scenario`` entry names (or ``override``: a name, file or
     :class:`Scenario`), with the recording's ``frames_of_reference`` replacing the scenario's transforms
     (the recording's own calibration).
@@ -141,28 +140,29 @@ def scenario_of(meta: Mapping, base: Path, source: str, override: str | Path | S
     Raises:
         DataError: an unknown name or an invalid scenario file / inline scenario.
     """
-    frames = {k: Transform.model_validate(v).as_matrix() for k, v in (meta.get("frames_of_reference") or {}).items()}
+    frames = {k: v.as_matrix() for k, v in meta.frames_of_reference.items()}
     if override is not None:
         return override if isinstance(override, Scenario) else load_scenario(override, frames)
-    ref = meta["scenario"]
-    if ref.get("inline") is not None:
-        return load_scenario_data(ref["inline"], f"{source}/recording.yaml: scenario.inline", base, frames)
-    if ref.get("file") is not None:
-        f = Path(ref["file"]).expanduser()
+    ref = meta.scenario
+    if ref.inline is not None:
+        return load_scenario_data(ref.inline, f"{source}/recording.yaml: scenario.inline", base, frames)
+    if ref.file is not None:
+        f = Path(ref.file).expanduser()
         return load_scenario(f if f.is_absolute() else base / f, frames)
-    return load_scenario(ref["name"], frames)
+    return load_scenario(ref.name, frames)
 
 
-def recording_from_meta(meta: Mapping, clouds: Sequence[np.ndarray], base: Path, n_points: int = 64,
+def recording_from_meta(meta: RecordingMeta, clouds: Sequence[np.ndarray], base: Path, n_points: int = 64,
                         n_dense: int = N_DENSE, seed: int = 0, scenario: str | Path | Scenario | None = None,
                         source: str = "") -> Recording:
-    """Build the :class:`Recording` of validated recording metadata and clouds ``(P_t, 3)`` m (scenario frame).
+    """Build the :class:`Recording` of validated recording metadata (``recording.yaml``, :func:`parse_meta`) and
+    clouds ``(P_t, 3)`` m (scenario frame).
 
     Raises:
         DataError: the number of clouds or their times disagree with the scenario's frames.
     """
     sc = scenario_of(meta, base, source, scenario)
-    times = np.asarray(meta["times"], dtype=float)
+    times = np.asarray(meta.times, dtype=float)
     if len(clouds) != sc.n_frames:
         raise DataError(f"{source}: the recording has {len(clouds)} frames but scenario '{sc.name}' has "
                         f"{sc.n_frames}; make the scenario's frames match the recording (frames.count / times)")
@@ -175,9 +175,8 @@ def recording_from_meta(meta: Mapping, clouds: Sequence[np.ndarray], base: Path,
     rng = np.random.default_rng(seed)
     obs = PointCloudObserver(n_points).observe_clouds(list(clouds), sc.gripper, sc.times, rng, source=source)
     dense = np.stack([c[rng.choice(len(c), size=n_dense, replace=len(c) < n_dense)] for c in clouds])
-    sensor = meta.get("sensor") or {}
-    return Recording(scenario=sc, x=obs.state(), dense=dense, source=source, truth=meta.get("truth"),
-                     min_height=sensor.get("min_height"), frames=sensor.get("frames", "all"))
+    return Recording(scenario=sc, x=obs.state(), dense=dense, source=source, truth=meta.truth,
+                     min_height=meta.sensor.min_height, frames=meta.sensor.frames)
 
 
 #: how far (in object extents: a cloth's diagonal, a rope's length) a frame's points may lie from the nearest
@@ -195,9 +194,8 @@ def check_reach(clouds: Sequence[np.ndarray], scenario: Scenario, source: str) -
     Raises:
         DataError: naming the frame, the distance and the fix (the recording's transform and units).
     """
-    obj = scenario.object or {}
-    extent = obj.get("length") if obj.get("kind") == "rope" else (
-        float(obj["size"]) * np.sqrt(2) if obj.get("size") else None)
+    kind, size = declared_size(scenario)
+    extent = size if kind == "rope" else (float(size) * np.sqrt(2) if size else None)
     if not extent:
         return
     paths = [np.asarray(h.path, float) for h in scenario.handles if h.path is not None] or [scenario.gripper]
@@ -477,8 +475,7 @@ def load_image_recording(folder: str | Path, scenario: str | Path | Scenario | N
         if data.images is None:
             raise DataError(f"recording '{folder}' has no images/ (000.png ...); image observers need one RGB frame "
                             f"per frame (`softsbi simulate --render SIZE --out DIR` writes them)")
-        meta = data.meta.model_dump(mode="json", exclude_none=True)
-        sc = scenario_of(meta, Path(folder), str(folder), scenario)
+        sc = scenario_of(data.meta, Path(folder), str(folder), scenario)
         cam = camera or scenario_camera(sc, size)
         images = np.stack([im if im.shape[:2] == (cam.height, cam.width) else
                            cv2.resize(im, (cam.width, cam.height), interpolation=cv2.INTER_AREA) for im in data.images])

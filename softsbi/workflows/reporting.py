@@ -63,7 +63,11 @@ class FitCallbacks:
         instead of simulated (told once they are all done, only when ``hits > 0``)."""
 
     def round_end(self, r: int, summary: dict[str, Any]) -> None:
-        """Round ``r`` is complete; ``summary`` as in ``report.json``'s ``per_round``."""
+        """Round ``r`` is complete; ``summary`` as in ``report.json``'s ``per_round`` before it is cut down: ``round``,
+        ``simulations``, ``usable``, ``failed``, ``bank_hits``, ``train`` (the training information),
+        ``mass_in_box``, ``posterior_mean`` and ``chamfer_proposal``, the
+        :class:`~softsbi.workflows.fit.report_file.ChamferStats` of the round's rollouts (every field None when the
+        fit does not score them)."""
 
     def message(self, text: str) -> None:
         """A notice for the user (resuming, retries)."""

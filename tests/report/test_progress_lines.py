@@ -50,6 +50,38 @@ def test_on_a_terminal_the_bars_come_with_the_lines_of_what_the_bank_gave():
     assert "to simulate" not in text
 
 
+def test_a_round_ends_with_its_counts_the_chamfer_summary_of_its_rollouts_and_its_posterior_mean():
+    """The round's summary (``report.json``'s ``per_round`` row before it is cut down) carries the Chamfer summary of
+    its rollouts as a ChamferStats; rollouts that were not scored (every field None) add no Chamfer."""
+    from rich.console import Console
+    from softsbi.cli.output import Output
+    from softsbi.cli.progress import ProgressHooks
+    from softsbi.workflows.fit.report_file import ChamferStats, chamfer_stats
+    o = Output()
+    buf = io.StringIO()
+    o.err = Console(file=buf, force_terminal=False, width=200, highlight=False, markup=False)
+    stats = chamfer_stats(np.array([[0.01, 0.03], [0.02, 0.04], [np.nan, 0.0]]), np.array([STATUS_OK, STATUS_OK, 1]))
+    assert (stats.mean_m, stats.n, stats.failed, stats.one_sided_mean_m) == (0.025, 2, 1, None)
+    with o.progress() as p:
+        hooks = ProgressHooks(o, p)
+        for chamfer in (stats, ChamferStats()):
+            hooks.round_end(0, {"usable": 2, "failed": 1, "chamfer_proposal": chamfer, "posterior_mean": {"a": 0.5}})
+    assert buf.getvalue().splitlines() == [
+        "round 1: 2 usable, 1 failed, Chamfer of this round's rollouts 2.50 cm; posterior mean a=0.5",
+        "round 1: 2 usable, 1 failed; posterior mean a=0.5"]
+
+
+def test_a_round_record_reads_a_round_s_attributes_and_the_defaults_of_those_it_lacks(tmp_path):
+    """RunStore.round_record: the training info, failures and bank hits of a finished round; a round only begun has
+    no info and no bank hits yet."""
+    s = _store(tmp_path, failed=2, stored_next=0)
+    s.add_bank_hits(0, 3)
+    done, begun = s.round_record(0), s.round_record(1)
+    assert (done.complete, done.info, done.bank_hits, sorted(done.failures.values())) == (
+        True, {"epochs": 3}, 3, ["diverged", "diverged"])
+    assert (begun.complete, begun.info, begun.bank_hits, begun.proposal) == (False, {}, 0, "posterior of round 1")
+
+
 def _store(tmp_path, failed: int = 0, stored_next: int | None = None) -> RunStore:
     """A run store written by hand: round 1 complete (12 simulations, ``failed`` of them failed), round 2 begun with
     ``stored_next`` of its 12 stored (None: not begun)."""

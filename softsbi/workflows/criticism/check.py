@@ -37,6 +37,7 @@ from softsbi.core.seeds import SENSOR_VIEW_STREAM, surface_seed
 from softsbi.perception.depth_sensor import VirtualDepthSensor, sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import sensor_indices, sensor_view
 from softsbi.report import plot_check
+from softsbi.scenarios.spec import keyframe_times
 from softsbi.core import defaults
 from softsbi.workflows import pools
 from softsbi.core.defaults import CheckSettings
@@ -208,7 +209,7 @@ def motion_phases(scenario: Scenario) -> list[dict[str, Any]]:
     ``after the last move``), else three phases of equal duration (``early``, ``middle``, ``late``)."""
     T = scenario.n_frames
     times = np.asarray(scenario.times, float)
-    kt = sorted(float(t) for t in (scenario.options or {}).get("keyframe_times") or [])
+    kt = keyframe_times(scenario)
     if len(kt) >= 2:
         edges = np.searchsorted(times, np.array(kt[1:-1]) - 1e-9)  # frame k belongs to the move it starts in
         cuts = [0, *[int(e) for e in edges], int(np.searchsorted(times, kt[-1] + 1e-9)), T]
@@ -446,7 +447,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
             )
         )
     fit_idx = np.nonzero(in_fit)[0]
-    one = stats["one_sided_mean_m"]  # chamfer_stats of one-sided Chamfers: always there
+    one = stats.one_sided_mean_m  # chamfer_stats of one-sided Chamfers: always there
 
     def band(c: np.ndarray) -> Band:
         return Band(mean=tuple(c.mean(0).tolist()), q05=tuple(np.quantile(c, 0.05, 0).tolist()),
@@ -460,7 +461,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
     result = CheckResult(
         run=str(run.path), n_rollouts=len(ok), failed_rollouts=n_eval - len(ok),
         times_s=tuple(run.scenario.times.tolist()), chamfer=band(ch), chamfer_one_sided=band(ch1),
-        chamfer_mean_m=float(stats["mean_m"]), chamfer_one_sided_mean_m=one, metric_min_z_m=run.metric_min_z,
+        chamfer_mean_m=float(stats.mean_m), chamfer_one_sided_mean_m=one, metric_min_z_m=run.metric_min_z,
         metric_frames=None if frames is None else tuple(frames), metric_sensor=sensor_model(run)["kind"],
         table_z_m=float(run.scenario.table_z), regions=tuple(names),
         region_error_m=tuple(map(tuple, np.nan_to_num(reg_mean).tolist())),
@@ -470,7 +471,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
         energy=energy_score(pool, n_eval), posterior_mean=posterior_mean_chamfer(run, workers=workers),
         residual=residual, posterior_at_bounds=tuple(b.to_json() for b in run.report.posterior_at_bounds), key=key,
         seconds=time.perf_counter() - t0, grasp_handle=grasp_handle(run.scenario),
-        phases_at_keyframes=bool((run.scenario.options or {}).get("keyframe_times")))
+        phases_at_keyframes=bool(keyframe_times(run.scenario)))
     out.mkdir(parents=True, exist_ok=True)
     write_result(json_path, result)
     if plot:

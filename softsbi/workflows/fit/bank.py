@@ -55,9 +55,14 @@ UNSTORED = "miss, not stored"
 ENV = "SOFTSBI_SIM_BANK"
 
 
+def _variable() -> str:
+    """``$SOFTSBI_SIM_BANK`` without surrounding blanks (``""`` when unset)."""
+    return os.environ.get(ENV, "").strip()
+
+
 def banks_enabled() -> bool:
     """False when ``$SOFTSBI_SIM_BANK`` is ``off`` (or ``none``, ``0``): nothing is read from or stored in a bank."""
-    return os.environ.get("SOFTSBI_SIM_BANK", "").strip().lower() not in OFF
+    return _variable().lower() not in OFF
 
 
 def default_bank() -> Path | None:
@@ -65,7 +70,7 @@ def default_bank() -> Path | None:
     ``~/.cache/softsbi/sim-bank``); None when banks are off (:func:`banks_enabled`)."""
     if not banks_enabled():
         return None
-    if os.environ.get(ENV, "").strip():
+    if _variable():
         return Path(os.environ[ENV]).expanduser()
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "softsbi" / "sim-bank"
 
@@ -99,7 +104,7 @@ def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> N
         return
     if setting == "default":
         path = default_bank()
-        name = ENV if os.environ.get(ENV, "").strip() else "the default simulation bank"
+        name = ENV if _variable() else "the default simulation bank"
         off = f"{ENV}=off" if name == ENV else "--no-sim-bank"
     else:
         path, name, off = Path(setting).expanduser(), "--sim-bank", "--no-sim-bank"
@@ -197,8 +202,8 @@ class SimulationBank:
             g = zarr.open_group(str(where), mode="r")
             arrays = {n: np.asarray(g[n][...]) for n in ("times", "gripper", "vertices", "faces")}
             attrs = dict(g.attrs)
-            stored = attrs.get("key")
-            if not isinstance(stored, str) or attrs.get("sha256") != _digest(stored, arrays):
+            stored, sha256 = attrs.get("key"), attrs.get("sha256")  # an entry of the first format has neither
+            if not isinstance(stored, str) or sha256 != _digest(stored, arrays):
                 return None, MISS
             if stored != key:
                 return None, WRONG_KEY
@@ -206,7 +211,7 @@ class SimulationBank:
                 return None, MISS
             return Rollout(times=arrays["times"], gripper=arrays["gripper"], vertices=arrays["vertices"],
                            faces=arrays["faces"].astype(int), status=int(attrs["status"]), reason=str(attrs["reason"]),
-                           info=dict(attrs.get("info") or {})), HIT
+                           info=dict(attrs["info"])), HIT  # put writes it with the key
         except Exception:  # noqa: BLE001 - a damaged entry is an absent one: simulated again
             return None, MISS
 

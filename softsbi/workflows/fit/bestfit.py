@@ -29,8 +29,9 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
+from softsbi.core.store_groups import holds
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace
-from softsbi.workflows.fit.jobs import JobItem, SimContext, evaluation_seeds, map_simulations, simulate_job
+from softsbi.workflows.fit.jobs import JobItem, SimContext, map_simulations, simulate_job, stored_evaluation_seeds
 from softsbi.workflows.fit.config import RunRecord
 
 __all__ = ["BestFit", "REFINE", "BEST", "best_stored", "refine", "store_best_fit", "read_best_fit", "scores"]
@@ -63,7 +64,7 @@ def _candidates(store: RunStore, rounds: int, seed: int, n_refine: int) -> Itera
         ev, attrs = store.read_group("evaluation")
         yield {"source": "posterior predictive rollout", "theta": ev["theta"], "u": ev["u"], "status": ev["status"],
                "chamfer": ev["chamfer"],
-               "seed": evaluation_seeds(seed, int(attrs.get("rounds", rounds)), len(ev["theta"]))}
+               "seed": stored_evaluation_seeds(seed, attrs, rounds, len(ev["theta"]))}
     if n_refine > 0 and store.has(REFINE):
         rf, _ = store.read_rows(REFINE)
         yield {"source": "refinement (CMA-ES)", **{k: rf[k][:n_refine] for k in
@@ -149,7 +150,7 @@ def refine(store: RunStore, space: ParamSpace, mean: np.ndarray, cov: np.ndarray
            "start_cov": [[float(v) for v in row] for row in np.atleast_2d(cov)]}
     if store.has(REFINE):
         _, attrs = store.read_rows(REFINE)
-        if any(attrs.get(k) != v for k, v in key.items()):
+        if not holds(attrs, key):
             say("the posterior has changed since the stored refinement: refining from the new one")
             store.remove_group(REFINE)
     rows, _ = store.read_rows(REFINE) if store.has(REFINE) else ({"generation": np.zeros(0, int)}, {})
@@ -157,7 +158,7 @@ def refine(store: RunStore, space: ParamSpace, mean: np.ndarray, cov: np.ndarray
     lam = int(es.popsize)
     T = len(ctx.scenario["times"])
     total = len(rows["generation"])
-    done = int((rows.get("status", np.zeros(0)) != STATUS_PENDING).sum()) if total else 0
+    done = int((rows["status"] != STATUS_PENDING).sum()) if total else 0  # read_rows: a stored group has status
     g, stopped, warned, partial = 0, "budget", False, False
     while True:
         # the rows of generation g among the first n (a stored refinement may hold more than this one asks for)
@@ -254,7 +255,7 @@ def store_best_fit(store: RunStore, best: dict[str, Any], space: ParamSpace, ctx
     key = {"source": best["source"], "index": best["index"], "seed": best["seed"], "score": best["score"]}
     if store.has(BEST):
         arrays, attrs = store.read_group(BEST)
-        if all(attrs.get(k) == v for k, v in key.items()):
+        if holds(attrs, key):
             return "vertices" in arrays
     res = next(iter(executor.map_unordered(simulate_job, [JobItem(best["theta"], best["seed"])],
                                            context=replace(ctx, keep_rollout=True))))[1]
@@ -281,5 +282,6 @@ def read_best_fit(store: RunStore) -> BestFit | None:
     theta.update({k: float(v) for k, v in (attrs.get("fixed") or {}).items()})
     unit = "px" if RunRecord.from_run_config(store.config).image_fit else "m"
     return BestFit(theta=theta, value=float(attrs["score"]), per_frame=arrays["chamfer"], source=str(attrs["source"]),
-                   seed=int(attrs["seed"]), vertices=arrays.get("vertices"), faces=arrays.get("faces"),
-                   gripper=arrays.get("gripper"), unit=unit)
+                   seed=int(attrs["seed"]), unit=unit,
+                   # the rollout's arrays: absent when its re-simulation failed
+                   **{k: arrays.get(k) for k in ("vertices", "faces", "gripper")})

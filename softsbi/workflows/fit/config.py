@@ -200,10 +200,11 @@ class FitConfig:
             parse_frames(self.frames, None)
         # the plugins' options, before the first simulation (an estimator's are otherwise read after a round)
         reg = registry()
-        for kind, name, opts, flag in (("simulator", self.backend, self.backend_options, "--backend-opt"),
-                                       ("estimator", self.estimator, self.estimator_options, "--estimator-opt"),
-                                       ("executor", self.executor, self.executor_options, "executor option")):
-            check_options(reg.get(kind, name), opts, f"{kind} '{name}' ({flag})")
+        for lookup, kind, name, opts, flag in (
+                (reg.simulator, "simulator", self.backend, self.backend_options, "--backend-opt"),
+                (reg.estimator, "estimator", self.estimator, self.estimator_options, "--estimator-opt"),
+                (reg.executor, "executor", self.executor, self.executor_options, "executor option")):
+            check_options(lookup(name), opts, f"{kind} '{name}' ({flag})")
         size = self.backend_options.get("batch_size", 1)
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise SoftsbiError(f"--backend-opt batch_size must be an integer >= 1 (got {size!r}): the simulations "
@@ -211,7 +212,7 @@ class FitConfig:
         if not isinstance(self.refine, int) or self.refine < 0:
             raise SoftsbiError(f"--refine must be an integer >= 0 (got {self.refine!r}); 0 = no refinement")
         if self.widen:
-            check_widen(self.proposal, bool(getattr(reg.get("estimator", self.estimator), "sequential", True)),
+            check_widen(self.proposal, bool(getattr(reg.estimator(self.estimator), "sequential", True)),
                         self.sensor_draws)
         reg.estimator(self.estimator)(**self.estimator_options)  # e.g. a missing optional dependency, named now
         reg.simulator(self.backend)(**self.backend_options).check_installed()  # before the run directory is made

@@ -365,6 +365,12 @@ def evaluation_seeds(seed: int, rounds: int, n_eval: int) -> np.ndarray:
     return _round_seeds(seed, eval_stream(rounds), n_eval)
 
 
+def stored_evaluation_seeds(seed: int, attrs: Mapping[str, Any], rounds: int | None, n_eval: int) -> np.ndarray:
+    """:func:`evaluation_seeds` of a stored evaluation (``attrs``: its group's attributes): after the rounds stored with
+    it, or ``rounds`` for a run stored before they were kept."""
+    return evaluation_seeds(seed, int(attrs.get("rounds", rounds)), n_eval)
+
+
 
 def simulate_batch_job(ctx: SimContext, items: Sequence[JobItem]) -> list[JobResult]:
     """:func:`simulate_job` over ``items``, with every rollout they need simulated by the backend's

@@ -15,6 +15,7 @@ from softsbi.core.types import ParamSpace, Recording, Scenario
 from softsbi.perception.depth_sensor import VirtualDepthSensor
 from softsbi.plugins import registry
 from softsbi.scenarios.cameras import scenario_camera
+from softsbi.scenarios.spec import declared_spool, scenario_source
 from softsbi.workflows.fit.config import FitConfig, RunRecord, needs_images
 from softsbi.workflows.fit.jobs import SimContext
 
@@ -40,7 +41,7 @@ def metric_sensor(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
     frames = None if cfg.frames is None else [int(i) for i in cfg.frames]
     camera = None
     if cfg.sensor == "camera":
-        src = Path(str((scenario.options or {}).get("source", "")))
+        src = Path(scenario_source(scenario))
         if not ((src / "lift_real2sim.yaml").is_file() and (src.parent / "calib_overhead").is_dir()
                 and (src.parent / "calib_side").is_dir()):
             raise DataError(f"sensor='camera' needs a DiffCloud recording folder (lift_real2sim.yaml, with "
@@ -70,7 +71,7 @@ def observer_options(cfg: FitConfig, scenario: Scenario) -> dict[str, Any]:
         opts["camera"] = metric_sensor(cfg, scenario)["metric_camera"]
     elif cfg.min_height:
         opts["min_z"] = float(scenario.table_z) + float(cfg.min_height)
-    spool = (scenario.object or {}).get("spool")
+    spool = declared_spool(scenario)
     if spool and cfg.observer == "pointcloud":  # an occluding obstacle (the winding's spool) hides what is behind it
         opts["viewpoint"] = [float(v) for v in scenario_camera(scenario).position]  # as seen by its camera
         opts["occluder"] = {"centre": list(spool["centre"]), "radius": float(spool["radius"]),
@@ -105,10 +106,11 @@ def observe_recording(cfg: FitConfig, meas: Recording) -> np.ndarray:
 def fit_sim_context(cfg: FitConfig, recording: Recording, store: RunStore, space: ParamSpace) -> SimContext:
     """What every simulation job of this fit needs: simulator, observer, the metric's reference."""
     observed = store.read_observed()
+    dense, masks = (observed.get(k) for k in ("dense", "masks"))  # a point-cloud fit's clouds, an image fit's masks
     rec = RunRecord.from_run_config(store.config)
     return SimContext(backend=cfg.backend, backend_options=cfg.backend_options,
                       scenario=recording.scenario.to_json(), effects=list(cfg.effects), observer=cfg.observer,
                       observer_options=observer_options(cfg, recording.scenario), param_names=space.names,
-                      fixed=dict(cfg.fixed), dense=observed.get("dense"), n_dense=cfg.n_dense,
-                      ref_masks=observed.get("masks") if rec.image_fit else None,
+                      fixed=dict(cfg.fixed), dense=dense, n_dense=cfg.n_dense,
+                      ref_masks=masks if rec.image_fit else None,
                       min_z=rec.metric_min_z, camera=rec.metric_camera)

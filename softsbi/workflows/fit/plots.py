@@ -3,17 +3,18 @@ simulations they show run here, at the posterior median, and :mod:`softsbi.repor
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
+from softsbi.core.fitreport import FitReport
 from softsbi.core.types import Rollout
 from softsbi.perception.masks import hsv_mask
 from softsbi.perception.pointcloud import rollout_clouds
 from softsbi.plugins import registry
 from softsbi.report.fit_figures import clouds_figure, frames_figure, plot_chamfer_rounds, plot_pairs
 from softsbi.report.style import source_name, fit_label, save_figure
-from softsbi.workflows.fit.config import MASK_CHAMFER_PX
+from softsbi.workflows.fit.config import CHAMFER_M, MASK_CHAMFER_PX
 
 #: surface points per frame of the simulated clouds in ``clouds.png``
 CLOUD_POINTS = 800
@@ -52,19 +53,20 @@ def _four_frames(n_frames: int) -> tuple[int, ...]:
     return tuple(sorted({0, n_frames // 3, 2 * n_frames // 3, n_frames - 1}))
 
 
-def best_fit_clouds(store: Any, report: Mapping[str, Any], n: int = CLOUD_POINTS) -> tuple[np.ndarray | None, str]:
-    """The best fit's stored rollout (``report["best_fit"]``, the run store's ``best_fit`` group) as surface
-    clouds ``(T, n, 3)`` m and its legend text; ``(None, "")`` when the run stored none."""
-    best = report.get("best_fit") or {}
-    if not best.get("rollout") or not store.has("best_fit"):
+def best_fit_clouds(store: Any, report: FitReport, n: int = CLOUD_POINTS) -> tuple[np.ndarray | None, str]:
+    """The best fit's stored rollout (``report.best_fit``, the run store's ``best_fit`` group) as surface
+    clouds ``(T, n, 3)`` m and its legend text (with its Chamfer for a point-cloud fit); ``(None, "")`` when the run
+    stored none."""
+    best = report.best_fit
+    if best is None or not best.rollout or not store.has("best_fit"):
         return None, ""
     a, _ = store.read_group("best_fit")
     if "vertices" not in a:
         return None, ""
     ro = Rollout(times=np.arange(len(a["vertices"]), dtype=float), gripper=a["gripper"], vertices=a["vertices"],
                  faces=np.asarray(a["faces"], int))
-    value = best.get("chamfer_m")
-    what = f"best fit ({best['source']}{'' if value is None else f', Chamfer {value * 100:.2f} cm'})"
+    value = best.value if report.metric == CHAMFER_M else None
+    what = f"best fit ({best.source}{'' if value is None else f', Chamfer {value * 100:.2f} cm'})"
     return rollout_clouds(ro, n, np.random.default_rng(1)), what
 
 
@@ -81,7 +83,7 @@ def plot_clouds(path: Path, result: Any, meas: Any, cfg: Any, frames: tuple[int,
     status = "" if ro.ok else f" (simulation failed: {ro.reason})"
     rep = result.report.to_json()
     title = f"fit: {fit_label(rep)}; measurement: {source_name(result.report.observed)}"
-    best_pts, best_label = best_fit_clouds(result.store, rep)
+    best_pts, best_label = best_fit_clouds(result.store, result.report)
     return save_figure(clouds_figure(meas.scenario, meas.dense, sim_pts, frames, title, status,
                                      ro.vertices if ro.ok else None, len(ro.faces) == 0, best_pts, best_label), path)
 

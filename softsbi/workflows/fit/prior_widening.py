@@ -169,7 +169,7 @@ def reconcile(store: RunStore, base: ParamSpace, message: Callable[[str], None])
         message(f"round {int(w['after_round']) + 1} is redone: its widening of {', '.join(w['bounds'])} is "
                 f"dropped and decided again when the round completes")
     space = apply_widenings(base, keep)
-    if keep != recs or cfg.get("param_space") != space.to_json():
+    if keep != recs or cfg["param_space"] != space.to_json():
         store.update_config(**{KEY: keep, "param_space": space.to_json()})
     _rewrite_u(store, space, {n for w in recs for n in w["bounds"]})
     return space

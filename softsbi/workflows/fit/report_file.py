@@ -3,6 +3,7 @@
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -26,31 +27,55 @@ class RoundsOutcome(Protocol):
     sequential: bool
     #: each round's summary, as ``report.json``'s ``per_round`` before it is cut down
     summaries: list[dict[str, Any]]
-    #: :func:`chamfer_stats` of the first round's prior draws; None when not scored
-    prior_stats: dict[str, Any] | None
+    #: :func:`chamfer_stats` of the first round's prior draws (empty, :class:`ChamferStats` ``()``, when not scored)
+    prior_stats: "ChamferStats"
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChamferStats:
+    """The Chamfer summary of a set of rollouts (:func:`chamfer_stats`); every field None (``failed`` 0) for rollouts
+    that were not scored (a fit without a metric's reference).
+
+    Attributes:
+        mean_m, std_m: mean and standard deviation over the successful simulations of each one's mean over the
+            metric's frames (the metric's unit: m, or px for an image fit); None when none succeeded.
+        per_frame_m: ``(T,)`` the per-frame mean over the successful simulations; None when none succeeded.
+        n: the successful simulations (None when not scored). failed: the failed ones.
+        one_sided_mean_m, one_sided_std_m, one_sided_per_frame_m: the same of the one-sided Chamfer (measured to
+            simulated, m), None when it was not computed.
+    """
+
+    mean_m: float | None = None
+    std_m: float | None = None
+    per_frame_m: list[float] | None = None
+    n: int | None = None
+    failed: int = 0
+    one_sided_mean_m: float | None = None
+    one_sided_std_m: float | None = None
+    one_sided_per_frame_m: list[float] | None = None
 
 
 def chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | None = None,
-                  one_sided: np.ndarray | None = None) -> dict[str, Any]:
+                  one_sided: np.ndarray | None = None) -> ChamferStats:
     """Summary of per-frame Chamfer values ``chamfer (N, T)`` of ``N`` simulations with ``status (N,)``:
     each simulation's mean over ``frames`` (None = all), then ``mean_m``/``std_m`` over the successful
     ones, ``per_frame_m (T,)`` (mean over them), ``n``, ``failed``; with ``one_sided (N, T)`` also
-    ``one_sided_mean_m``, ``one_sided_std_m``, ``one_sided_per_frame_m``. The fit's report and
-    ``check`` both summarise with this, so their numbers agree."""
+    ``one_sided_mean_m``, ``one_sided_std_m``, ``one_sided_per_frame_m`` (:class:`ChamferStats`). The fit's report
+    and ``check`` both summarise with this, so their numbers agree."""
     fr = slice(None) if frames is None else list(frames)
     ok = (status == STATUS_OK) & np.all(np.isfinite(chamfer), axis=1)
     per_sim = chamfer[ok][:, fr].mean(1) if ok.any() else np.array([])
-    out = {"mean_m": float(per_sim.mean()) if len(per_sim) else None,
-           "std_m": float(per_sim.std()) if len(per_sim) else None,
-           "per_frame_m": chamfer[ok].mean(0).tolist() if ok.any() else None,
-           "n": int(ok.sum()), "failed": int((status != STATUS_OK).sum())}
+    one: dict[str, Any] = {}
     if one_sided is not None:
         ok1 = ok & np.all(np.isfinite(one_sided), axis=1)
         o = one_sided[ok1][:, fr].mean(1) if ok1.any() else np.array([])
-        out.update(one_sided_mean_m=float(o.mean()) if len(o) else None,
-                   one_sided_std_m=float(o.std()) if len(o) else None,
-                   one_sided_per_frame_m=one_sided[ok1].mean(0).tolist() if ok1.any() else None)
-    return out
+        one = {"one_sided_mean_m": float(o.mean()) if len(o) else None,
+               "one_sided_std_m": float(o.std()) if len(o) else None,
+               "one_sided_per_frame_m": one_sided[ok1].mean(0).tolist() if ok1.any() else None}
+    return ChamferStats(mean_m=float(per_sim.mean()) if len(per_sim) else None,
+                        std_m=float(per_sim.std()) if len(per_sim) else None,
+                        per_frame_m=chamfer[ok].mean(0).tolist() if ok.any() else None,
+                        n=int(ok.sum()), failed=int((status != STATUS_OK).sum()), **one)
 
 
 #: what every reader of a fit's ``report.json`` needs in it (a file without them is damaged): the typed report's
@@ -83,11 +108,12 @@ def damaged_report(run_dir: Path) -> ResultDamaged | None:
 
 
 def build_report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: RoundsOutcome,
-                 ev_stats: dict[str, Any], samples: np.ndarray, wall: float, metric: str) -> dict[str, Any]:
+                 ev_stats: ChamferStats, samples: np.ndarray, wall: float, metric: str) -> dict[str, Any]:
     """``report.json``: settings, posterior summaries (physical units), Chamfer of prior and
-    posterior-predictive rollouts, per-round summaries, and the truth when simulated."""
-    summaries, prior_stats = loop.summaries, loop.prior_stats
-    failed = sum(s["failed"] for s in summaries) + ev_stats.get("failed", 0)
+    posterior-predictive rollouts (``ev_stats``), per-round summaries (each round's ``chamfer_posterior``: the
+    :class:`ChamferStats` of the rollouts drawn from its posterior), and the truth when simulated."""
+    summaries, prior = loop.summaries, loop.prior_stats
+    failed = sum(s["failed"] for s in summaries) + ev_stats.failed
     total = sum(s["simulations"] for s in summaries) + cfg.n_eval
     report = {
         "observed": recording.source,
@@ -99,21 +125,21 @@ def build_report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: 
         "failed_simulations": failed,
         # simulations of the rounds read from the simulation bank instead of simulated (per round in per_round)
         "bank_hits": sum(s["bank_hits"] for s in summaries),
-        "chamfer_prior_m": (prior_stats or {}).get("mean_m"),
-        "chamfer_prior_std_m": (prior_stats or {}).get("std_m"),
-        "chamfer_posterior_m": ev_stats.get("mean_m"),
-        "chamfer_posterior_std_m": ev_stats.get("std_m"),
-        "chamfer_posterior_n": ev_stats.get("n"),
+        "chamfer_prior_m": prior.mean_m,
+        "chamfer_prior_std_m": prior.std_m,
+        "chamfer_posterior_m": ev_stats.mean_m,
+        "chamfer_posterior_std_m": ev_stats.std_m,
+        "chamfer_posterior_n": ev_stats.n,
         # the metric: per frame, simulated and measured clouds seen through the fit's sensor
         # model; the headline values above are the mean over metric_frames
         # the sensor model stored with the run, which its simulations' per-frame metric used (_sim_context)
         "metric_min_z_m": RunRecord.from_run_config(loop.store.config).metric_min_z if metric == CHAMFER_M else None,
         "metric_frames": cfg.frames if metric == "chamfer_m" else None, "metric_sensor": cfg.sensor,
-        "chamfer_posterior_one_sided_m": ev_stats.get("one_sided_mean_m"),
-        "chamfer_posterior_one_sided_std_m": ev_stats.get("one_sided_std_m"),
-        "chamfer_prior_per_frame_m": (prior_stats or {}).get("per_frame_m"),
-        "chamfer_posterior_per_frame_m": ev_stats.get("per_frame_m"),
-        "chamfer_posterior_one_sided_per_frame_m": ev_stats.get("one_sided_per_frame_m"),
+        "chamfer_posterior_one_sided_m": ev_stats.one_sided_mean_m,
+        "chamfer_posterior_one_sided_std_m": ev_stats.one_sided_std_m,
+        "chamfer_prior_per_frame_m": prior.per_frame_m,
+        "chamfer_posterior_per_frame_m": ev_stats.per_frame_m,
+        "chamfer_posterior_one_sided_per_frame_m": ev_stats.one_sided_per_frame_m,
         "posterior_mean": space.as_dict(samples.mean(0)),
         "posterior_std": space.as_dict(samples.std(0)),
         "posterior_q05": space.as_dict(np.quantile(samples, 0.05, axis=0)),
@@ -125,8 +151,8 @@ def build_report(recording: Recording, cfg: FitConfig, space: ParamSpace, loop: 
         "posterior_at_bounds": bound_pressure(space, samples),
         "truth": recording.truth,
         "per_round": [{"round": s["round"], "usable": s["usable"], "failed": s["failed"], "bank_hits": s["bank_hits"],
-                       "chamfer_posterior_m": (s.get("chamfer_posterior") or {}).get("mean_m"),
-                       "chamfer_posterior_std_m": (s.get("chamfer_posterior") or {}).get("std_m"),
+                       "chamfer_posterior_m": s["chamfer_posterior"].mean_m,
+                       "chamfer_posterior_std_m": s["chamfer_posterior"].std_m,
                        "mass_in_box": s["mass_in_box"], "train_seconds": s["train"].get("seconds"),
                        "posterior_mean": s["posterior_mean"],
                        **({"task": s["train"]["task"]} if served_by_task(s["train"]) else {})} for s in summaries],

@@ -21,7 +21,7 @@ from softsbi.executors.local import WorkerFailure
 from softsbi.plugins import registry
 from softsbi.workflows.fit.bank import BankCount, bank_folder
 from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options
-from softsbi.workflows.fit.report_file import chamfer_stats
+from softsbi.workflows.fit.report_file import ChamferStats, chamfer_stats
 from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, map_simulations
 from softsbi.workflows.reporting import FitCallbacks
 from softsbi.workflows.fit.resume import RunClock, observed_data
@@ -204,7 +204,7 @@ class Rounds:
         self.truncated = self.sequential and cfg.proposal == "truncated"
         self.chain = PosteriorChain(space.dim, seed=cfg.seed)
         self.summaries: list[dict[str, Any]] = []
-        self.prior_stats: dict[str, Any] | None = None
+        self.prior_stats = ChamferStats()
         self.x_obs = store.read_observed()["x"]
         self.scored = ctx.dense is not None or ctx.ref_masks is not None
         self.sensor = SensorDraws.of(cfg, space, ctx, self.truncated or not self.sequential)
@@ -221,14 +221,14 @@ class Rounds:
         _simulate_missing(store, r, ctx, executor, self.cb, self.clock, self.sensor)
         d = store.round_data(r)
         frames = RunRecord.from_run_config(store.config).metric_frames
-        stats = chamfer_stats(d["chamfer"], d["status"], frames) if self.scored else {}
+        stats = chamfer_stats(d["chamfer"], d["status"], frames) if self.scored else ChamferStats()
         if r == 0:
             self.prior_stats = stats
         elif self.summaries:
             self.summaries[-1]["chamfer_posterior"] = stats  # round r draws from posterior r-1
         U, X, counts = usable_simulations(store, r)
         if counts[r] == 0:
-            reasons = sorted(set(store.round_attrs(r)["failures"].values()))
+            reasons = sorted(set(store.round_record(r).failures.values()))
             effect_code = all(x.startswith(EffectFault.__name__) for x in reasons)  # an effect's code, not physics
             raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; "
                                + ("fix the effect's code named there" if effect_code else
@@ -246,7 +246,7 @@ class Rounds:
                                  f"the finished simulations are kept in {store.path}") from exc
         self.summaries.append({"round": r, "simulations": int(len(d["status"])), "usable": counts[r],
                                "failed": int((d["status"] != STATUS_OK).sum()),
-                               "bank_hits": int(store.round_attrs(r).get("bank_hits", 0)),
+                               "bank_hits": int(store.round_record(r).bank_hits),
                                "chamfer_proposal": stats, "train": info, "mass_in_box": post.mass_in_box,
                                "posterior_mean": self.space.as_dict(self.space.from_unit(mean_u))})
         self.cb.round_end(r, self.summaries[-1])
@@ -274,7 +274,7 @@ class Rounds:
         cfg, store = self.cfg, self.store
         if store.is_complete(r):
             try:
-                return round_posterior(store, r, cfg), store.round_attrs(r).get("info", {})
+                return round_posterior(store, r, cfg), store.round_record(r).info
             except PosteriorDamaged as exc:  # train the round again from its intact simulations
                 self.cb.message(f"{exc.problem}: training that round again from its stored simulations")
         opts = estimator_options(cfg, self.est_cls)

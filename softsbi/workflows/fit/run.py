@@ -34,6 +34,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.fitreport import FitReport
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
+from softsbi.core.store_groups import holds
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
 from softsbi.core.seeds import eval_stream
 from softsbi.plugins import registry
@@ -41,7 +42,7 @@ from softsbi.workflows.fit.plots import FIGURES, write_fit_plots
 from softsbi.workflows.fit.bank import BankCount, banks_enabled, check_bank_path
 from softsbi.workflows.fit.bestfit import REFINE, best_stored, refine, store_best_fit
 from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options, fit_param_space, parameter_table
-from softsbi.workflows.fit.report_file import build_report, chamfer_stats, damaged_report, read_report
+from softsbi.workflows.fit.report_file import ChamferStats, build_report, chamfer_stats, damaged_report, read_report
 from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, evaluation_seeds, map_simulations, simulate_job
 from softsbi.core import defaults
 from softsbi.workflows import pools
@@ -217,11 +218,11 @@ def _best_fit(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
 
 
 def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: SimContext, executor: Any,
-              cfg: FitConfig, hooks: FitCallbacks) -> dict[str, Any]:
-    """Rollouts at ``cfg.n_eval`` final-posterior samples (stored under ``evaluation/``)."""
+              cfg: FitConfig, hooks: FitCallbacks) -> ChamferStats:
+    """Rollouts at ``cfg.n_eval`` final-posterior samples (stored under ``evaluation/``) and their Chamfer summary."""
     if store.has("evaluation"):
         arrays, attrs = store.read_group("evaluation")
-        if attrs.get("rounds") == cfg.rounds and len(arrays["status"]) == cfg.n_eval:
+        if holds(attrs, {"rounds": cfg.rounds}) and len(arrays["status"]) == cfg.n_eval:
             frames = RunRecord.from_run_config(store.config).metric_frames
             return chamfer_stats(arrays["chamfer"], arrays["status"], frames, arrays.get("chamfer_one_sided"))
     rng = np.random.default_rng([cfg.seed, eval_stream(cfg.rounds)])
@@ -259,4 +260,4 @@ def _evaluate(store: RunStore, post: RoundPosterior, space: ParamSpace, ctx: Sim
                       units={"chamfer": "px" if ctx.ref_masks is not None else "m", "chamfer_one_sided": "m",
                              "theta": "physical"})
     return chamfer_stats(chamfer, status, RunRecord.from_run_config(store.config).metric_frames,
-                         arrays.get("chamfer_one_sided"))
+                         one_sided if ctx.ref_masks is None else None)

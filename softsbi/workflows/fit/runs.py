@@ -19,7 +19,7 @@ from softsbi.workflows.fit.config import FitConfig, RunRecord
 from softsbi.workflows.fit.report_file import read_report
 from softsbi.workflows.fit.resume import observed_data
 from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
-from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, evaluation_seeds, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, run_jobs, stored_evaluation_seeds
 
 
 def read_fit_report(run_dir: str | Path) -> FitReport:
@@ -157,7 +157,7 @@ def load_run(run_dir: str | Path, n_eval: int | None = 30, seed: int = 0) -> Run
         stored = len(ev["theta"])
         theta = ev["theta"][:n_eval]
         # the rounds the evaluation followed (stored with it; older runs: the latest session's)
-        seeds = evaluation_seeds(int(cfg.seed), int(ev_attrs.get("rounds", rec.rounds)), len(ev["theta"]))[:n_eval]
+        seeds = stored_evaluation_seeds(int(cfg.seed), ev_attrs, rec.rounds, len(ev["theta"]))[:n_eval]
     else:  # fall back on the last round's draws (samples of the previous posterior)
         last = store.round_ids()[-1]
         d = store.round_data(last)

@@ -108,6 +108,12 @@ def task_store_of(sim_bank: str = defaults.SIM_BANK) -> "TaskStore | None":
     return None if bank is None else TaskStore(bank / TASKS_FOLDER)
 
 
+def model_name(identity: Mapping[str, Any]) -> str:
+    """The name of a task's model (:func:`task_identity`): ``nominal`` or ``nominal+<effect>...`` (the effects
+    switched on)."""
+    return "+".join(["nominal", *identity.get("effects", [])])
+
+
 @dataclass(frozen=True)
 class StoredTask:
     """One stored task.
@@ -135,7 +141,7 @@ class StoredTask:
     @property
     def model(self) -> str:
         """The model's name: ``nominal`` or ``nominal+<effect>...`` (the effects switched on)."""
-        return "+".join(["nominal", *self.identity.get("effects", [])])
+        return model_name(self.identity)
 
     def restore(self) -> Any:
         """The trained estimator, restored through the plugin registry (not yet conditioned on any observation).
@@ -168,7 +174,7 @@ class DamagedTask:
     @property
     def model(self) -> str:
         """The model's name (:attr:`StoredTask.model`), ``"?"`` when its identity cannot be read."""
-        return "?" if self.identity is None else "+".join(["nominal", *self.identity.get("effects", [])])
+        return "?" if self.identity is None else model_name(self.identity)
 
 
 class TaskStore:
@@ -202,16 +208,18 @@ class TaskStore:
         except Exception as exc:  # noqa: BLE001 - unreadable metadata: its training report may be in it
             return DamagedTask(digest, where, f"its metadata cannot be read ({type(exc).__name__})")
         if attrs.get("format") != TASK_FORMAT or not isinstance(identity, dict) or task_digest(identity) != digest:
-            return None
-        trained = attrs.get("report") is not None
+            return None  # an entry of another format (which may lack the attribute), or stored under another key
+        # an entry of this format holds every attribute :meth:`put` writes (in one update); its identity is the
+        # mapping it was put with (:func:`task_identity`'s for a fit's), which may lack the softsbi version
+        trained = "report" in attrs and attrs["report"] is not None  # an entry missing it is damaged below
         try:
+            stored_report = attrs["report"]
             state = read_posterior_group(lambda: g["estimator"], "its estimator", "train it again",
                                          str(identity.get("softsbi")))
             if not isinstance(state, EstimatorState):
                 raise TypeError("its estimator state is not an estimator's")
-            report = None if attrs.get("report") is None else TrainingReport.from_json(attrs["report"])
-            return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs.get("info") or {}), report,
-                              where)
+            report = None if stored_report is None else TrainingReport.from_json(stored_report)
+            return StoredTask(digest, identity, int(attrs["n_prior"]), state, dict(attrs["info"]), report, where)
         except PosteriorDamaged as exc:
             return DamagedTask(digest, where, exc.problem, trained, identity)
         except Exception as exc:  # noqa: BLE001 - a schema, a report or a count that cannot be read

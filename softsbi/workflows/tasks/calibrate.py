@@ -40,6 +40,7 @@ from softsbi.core.errors import PosteriorError, SoftsbiError
 from softsbi.core.fitreport import CalibrationResult
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
+from softsbi.core.store_groups import holds
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
@@ -129,7 +130,7 @@ def _test_simulations(store: RunStore, cfg: FitConfig, space: ParamSpace, last: 
     data: dict[str, np.ndarray] | None = None
     if store.has(GROUP):
         arrays, attrs = store.read_group(GROUP)
-        if all(attrs.get(k) == v for k, v in key.items()):
+        if holds(attrs, key):
             data = arrays
         else:
             message("the run has changed since its last calibration: drawing new test simulations")
@@ -226,7 +227,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
                            f"command first")
     last = rounds[-1]
-    task_line = trained_task_line(store.round_attrs(0).get("info", {}), cfg.sim_bank)
+    task_line = trained_task_line(store.round_record(0).info, cfg.sim_bank)
     if task_line:
         msg(task_line)
     U, X, counts = usable_simulations(store, last)
