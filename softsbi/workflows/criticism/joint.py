@@ -154,7 +154,7 @@ def task_of(config: dict[str, Any]) -> dict[str, Any]:
     """What a run's stored settings (``RunStore.config``) say of its task (:data:`TASK_KEYS`): the scenario's name,
     the simulator, the model's effects (sorted) and the observer."""
     cfg, record = FitConfig.from_run_config(config), RunRecord.from_run_config(config)
-    return {"scenario": record.scenario.get("name"), "backend": cfg.backend, "effects": sorted(cfg.effects),
+    return {"scenario": record.scenario["name"], "backend": cfg.backend, "effects": sorted(cfg.effects),
             "observer": cfg.observer}
 
 
