@@ -16,7 +16,7 @@ prior-drawn hidden parameters, with the hidden effect for the effect cases), obs
 condition the demo task's stored estimator on it, simulate ``check``'s 30 posterior-predictive rollouts (posterior
 draws restricted to the prior box, as the fit's evaluation samples are), and compute ``check``'s omnibus statistic
 (mean squared standardised deviation of the sensor-faithful summaries,
-:func:`~softsbi.workflows.criticism.stats.misspecification_test`) and its leave-one-out p-value, the first stage of
+:func:`~softsbi.workflows.criticism.statistics.misspecification_test`) and its leave-one-out p-value, the first stage of
 ``check``'s uncalibrated test. The directional test and the null's extension to 200 rollouts are not part of it.
 The replicates are those ``softsbi task train --check-null`` stores.
 

@@ -28,7 +28,11 @@ def _run(sc, effects=(), seed=0, **values):
 
 @pytest.fixture(scope="module")
 def base():
-    return {"lift": _run(LIFT).vertices, "wipe": _run(WIPE).vertices, "wipe_slippery": _run(WIPE, friction=0.1).vertices}
+    return {
+        "lift": _run(LIFT).vertices,
+        "wipe": _run(WIPE).vertices,
+        "wipe_slippery": _run(WIPE, friction=0.1).vertices,
+    }
 
 
 def test_all_registered_with_kinds():
@@ -122,7 +126,7 @@ def test_table_unseen_hides_the_cloth_near_the_table_from_observer_metric_and_me
     summaries see only points above the resting cloth + unseen_height (the highest 10% where none is)."""
     from softsbi.perception.pointcloud import PointCloudObserver, rollout_clouds
     from softsbi.workflows.measurement import simulate_recording
-    from softsbi.workflows.criticism.stats import FEATURE_NAMES, trajectory_features
+    from softsbi.workflows.criticism.statistics import FEATURE_NAMES, trajectory_features
     h = 0.02
     ro = _run(LIFT, ["table-unseen"], unseen_height=h)
     np.testing.assert_array_equal(ro.vertices, base["lift"])

@@ -238,8 +238,8 @@ def test_fit_with_the_camera_sensor_runs_on_a_real_recording(tmp_path):
     np.testing.assert_allclose(np.mean([r.chamfer for r in ok], axis=0), per_frame, rtol=1e-12)
     # check's and diagnose's summaries see the rollouts through the same virtual sensor, on the fit's frames:
     # the cloth still on the table is unseen, so they differ from the full surface's
-    from softsbi.workflows.criticism.stats import (FEATURE_NAMES, rollout_features, run_frames, sampled_points,
-                                         trajectory_features)
+    from softsbi.workflows.criticism.stats import rollout_features, run_frames, sampled_points
+    from softsbi.workflows.criticism.statistics import FEATURE_NAMES, trajectory_features
     frames = run_frames(view)
     f_cam = rollout_features(view, ok[0], 5)
     f_full = trajectory_features(sampled_points(ok[0].vertices, ok[0].faces, view.dense.shape[1], 5),

@@ -97,7 +97,7 @@ def test_region_errors_compare_only_what_the_sensor_sees():
 def test_summaries_see_what_the_sensor_sees():
     """The misspecification test's summary statistics use the fit's sensor model (issue 17/19): a
     measurement without the flat cloth matches a simulation that has it, under the sensor model only."""
-    from softsbi.workflows.criticism.stats import FEATURE_FLOOR, FEATURE_NAMES, trajectory_features
+    from softsbi.workflows.criticism.statistics import FEATURE_FLOOR, FEATURE_NAMES, trajectory_features
     rng = np.random.default_rng(3)
     hanging = _sheet(rng, 0.05, 0.25, 2000)
     flat = np.c_[rng.random((2000, 2)) * 0.2 + [0.0, 0.05], np.full(2000, 0.002)]
@@ -112,7 +112,8 @@ def test_summaries_see_what_the_sensor_sees():
 
 def test_check_and_diagnose_summarise_the_fits_frames_only(sensor_run):
     from softsbi.workflows.fit.runs import load_run
-    from softsbi.workflows.criticism.stats import FEATURE_NAMES, PosteriorPredictive, run_features, run_frames
+    from softsbi.workflows.criticism.stats import PosteriorPredictive, run_features, run_frames
+    from softsbi.workflows.criticism.statistics import FEATURE_NAMES
     run = load_run(sensor_run, 12, 0)
     assert run_frames(run) == [1, 2, 3]
     pool = PosteriorPredictive(run, workers=1).ensure(6)

@@ -6,7 +6,7 @@ import pytest
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results import JointTest, MCPValue
-from softsbi.workflows.criticism.stats import max_t_adjusted, mc_pvalue, misspecification_test, resolution_needed
+from softsbi.workflows.criticism.statistics import max_t_adjusted, mc_pvalue, misspecification_test, resolution_needed
 from softsbi.workflows.fit.jobs import JobResult
 
 
@@ -308,7 +308,7 @@ def test_the_null_accepts_as_few_rollouts_as_check_simulates_and_no_fewer():
     """The misspecification test's minimum is the named MIN_NULL, the smallest `--n-eval` check accepts: a check at
     that setting whose rollouts all succeed is tested, one failed rollout is refused in one line."""
     from softsbi.core.defaults import MIN_ROLLOUTS
-    from softsbi.workflows.criticism.stats import MIN_NULL
+    from softsbi.workflows.criticism.statistics import MIN_NULL
     assert MIN_NULL == MIN_ROLLOUTS
     rng = np.random.default_rng(1)
     _, p = misspecification_test(rng.normal(size=6), rng.normal(size=(MIN_NULL, 6)))

@@ -3,8 +3,15 @@ moving cloth that the 13 position summaries do not see)."""
 import numpy as np
 import pytest
 
-from softsbi.workflows.criticism.stats import (FEATURE_FLOOR, FEATURE_NAMES, THICKNESS_FLOOR, cloud_features,
-                                     misspecification_test, summary_floor, trajectory_features)
+from softsbi.workflows.criticism.statistics import (
+    FEATURE_FLOOR,
+    FEATURE_NAMES,
+    THICKNESS_FLOOR,
+    cloud_features,
+    misspecification_test,
+    summary_floor,
+    trajectory_features,
+)
 
 
 def _wavy_sheet(rng, n=600, amp=0.01, phase=0.0):

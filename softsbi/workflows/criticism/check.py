@@ -47,8 +47,16 @@ from softsbi.workflows.fit.jobs import JobResult
 from softsbi.workflows.lock import check_out_dir
 from softsbi.workflows.fit.runs import RunView, load_run
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, misspecification_verdict
-from softsbi.workflows.criticism.stats import (FEATURE_NAMES, N_NULL, PosteriorPredictive, energy_score,
-                                     posterior_mean_chamfer, run_features, run_frames, sampled_points, summary_floor)
+from softsbi.workflows.criticism.stats import (
+    N_NULL,
+    PosteriorPredictive,
+    energy_score,
+    posterior_mean_chamfer,
+    run_features,
+    run_frames,
+    sampled_points,
+)
+from softsbi.workflows.criticism.statistics import FEATURE_NAMES, summary_floor
 
 #: posterior rollouts the check needs at least (its error maps and the first stage of its test's null)
 MIN_ROLLOUTS = defaults.MIN_ROLLOUTS
@@ -354,7 +362,7 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
         run_dir: the run directory, or the run already loaded (:func:`~softsbi.workflows.fit.runs.load_run`), which is
             then not loaded again (nor when ``pool`` holds it).
         settings: the posterior rollouts of the error maps and the start of the test's null (``n_eval``), the cap of
-            its adaptive extension (``max_null``, :func:`~softsbi.workflows.criticism.stats.resolution_needed`), the
+            its adaptive extension (``max_null``, :func:`~softsbi.workflows.criticism.statistics.resolution_needed`), the
             level of the verdict (``p <= alpha``), workers and seed (:class:`~softsbi.core.defaults.CheckSettings`;
             None: the defaults).
         pool: already simulated posterior-predictive rollouts of this run (``diagnose`` shares its own).

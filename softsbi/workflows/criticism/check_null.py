@@ -1,7 +1,7 @@
 """``check``'s omnibus test calibrated for a trained task (Hjort, Dahl & Steinbakk 2006, "Posterior predictive
 p-values calibrated by the prior predictive").
 
-The posterior predictive p-value (:func:`~softsbi.workflows.criticism.stats.misspecification_test`) uses the recording twice,
+The posterior predictive p-value (:func:`~softsbi.workflows.criticism.statistics.misspecification_test`) uses the recording twice,
 to fit and to test, so it is not uniform under the model (Meng 1994; Bayarri & Berger 2000): a recording lies closer
 to its own posterior predictive than a fresh draw does, p-values pile up near 1 and small misfits go unseen. The
 calibration runs the same procedure on replicate recordings of the task: each is simulated under the model at
@@ -40,7 +40,8 @@ from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording
 from softsbi.workflows.reporting import phase
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import MIN_NULL, mc_pvalue, misspecification_test, sensor_features, trajectory_features
+from softsbi.workflows.criticism.stats import sensor_features
+from softsbi.workflows.criticism.statistics import MIN_NULL, mc_pvalue, misspecification_test, trajectory_features
 from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 
 #: the file beside a stored task that holds its replicates' statistics

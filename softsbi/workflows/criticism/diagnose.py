@@ -38,8 +38,8 @@ from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
-from softsbi.workflows.criticism.stats import (N_NULL, PosteriorPredictive, run_features,
-                                     summary_energy_score, summary_scale)
+from softsbi.workflows.criticism.stats import N_NULL, PosteriorPredictive, run_features
+from softsbi.workflows.criticism.statistics import summary_energy_score, summary_scale
 from softsbi.core.defaults import DiagnoseSettings
 
 @pools.shared_executors()
@@ -202,7 +202,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
     ``RUN/refit-<a>/check.json`` is there for ``compare``) with ``settings.check()`` (None: the defaults) over
     ``family`` less ``effects``; its score is the energy score of its first ``settings.n_null`` posterior-predictive
     rollouts' summaries in ``scale``
-    (the nominal fit's, :func:`~softsbi.workflows.criticism.stats.summary_energy_score`; no score without ``scale``).
+    (the nominal fit's, :func:`~softsbi.workflows.criticism.statistics.summary_energy_score`; no score without ``scale``).
     ``plots``: draw the refit's fit figures and ``check.png``.
 
     Raises:

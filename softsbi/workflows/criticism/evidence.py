@@ -3,7 +3,7 @@
 On a task trained with its candidate models (``softsbi task train``), the posterior of the nominal model with effect
 ``E_k`` for a recording is that model's stored estimator conditioned on the recording: no simulation and no training,
 exactly the first (and, on a trained task, only) round of ``E_k``'s refit. The summary energy score of its posterior
-predictive, in the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.stats.summary_energy_score`, the score
+predictive, in the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.statistics.summary_energy_score`, the score
 :func:`~softsbi.workflows.criticism.decide.decide` compares refits on), is then an unbiased estimate of the score that refit
 will have, at the cost of its ``n`` rollouts, for every trained candidate.
 
@@ -30,7 +30,8 @@ from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.jobs import JobItem, run_jobs
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import MIN_NULL, rollout_features, run_features, summary_energy_score
+from softsbi.workflows.criticism.stats import rollout_features, run_features
+from softsbi.workflows.criticism.statistics import MIN_NULL, summary_energy_score
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask
 
 #: proposal of a refit: truncated (TSNPE, Deistler et al. 2022). A refit adds parameters to a model whose others the
@@ -87,7 +88,7 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
     Args:
         run: the nominal fit (stopped at its trained task; otherwise nothing is scored).
         trained: the candidates with a trained task (:func:`trained_tasks`).
-        scale: ``(F,)`` the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.stats.summary_scale`).
+        scale: ``(F,)`` the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.statistics.summary_scale`).
         n: posterior-predictive rollouts per candidate (``diagnose``'s ``n_null``: a refit's score uses as many).
         workers: simulation processes. seed: the draws' and rollouts' seed.
 

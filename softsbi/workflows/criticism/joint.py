@@ -25,7 +25,8 @@ from softsbi.workflows.criticism.diagnose import diagnose_run, refit_model
 from softsbi.workflows.criticism.joint_decide import (check_recordings, decide_joint, joint_candidate, nominal_test,
                                                       ranked, set_candidates)
 from softsbi.workflows.criticism.screening import check_resolution
-from softsbi.workflows.criticism.stats import PosteriorPredictive, summary_scale
+from softsbi.workflows.criticism.stats import PosteriorPredictive
+from softsbi.workflows.criticism.statistics import summary_scale
 from softsbi.core.defaults import DiagnoseSettings
 from softsbi.workflows.fit.config import FitConfig, RunRecord
 from softsbi.workflows.lock import check_out_apart, check_out_dir, run_lock

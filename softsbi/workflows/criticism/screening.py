@@ -4,10 +4,10 @@
   posterior median, one simulation per direction) and the added-variable statistic: the drop of the weighted
   residual sum of squares when the effect's sensitivities join the nominal parameters' (a linearised test; Cook
   & Weisberg 1982, ch. 2.3), with its null from the posterior-predictive rollouts and the Westfall-Young max-T
-  adjustment over the family (:func:`~softsbi.workflows.criticism.stats.max_t_adjusted`).
+  adjustment over the family (:func:`~softsbi.workflows.criticism.statistics.max_t_adjusted`).
 - :func:`misspecification_verdict`: "is the measurement inside the posterior predictive distribution?". Two tests
   on one null, Bonferroni-combined (:class:`~softsbi.core.results.JointTest`): the omnibus test
-  (:func:`~softsbi.workflows.criticism.stats.misspecification_test`, a departure in any direction) and the directional test
+  (:func:`~softsbi.workflows.criticism.statistics.misspecification_test`, a departure in any direction) and the directional test
   (the screening's largest max-T statistic: a departure along a candidate's sensitivity). The omnibus test alone
   spreads its power over every direction of the summaries x frames; the directional test concentrates it on the
   directions the installed effects can move the cloth in.
@@ -25,9 +25,14 @@ from softsbi.plugins import registry
 from softsbi.core.defaults import ALPHA_BOUND
 from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, MIN_NULL, PosteriorPredictive, max_t_adjusted,
-                                     misspecification_test, resolution_needed, rollout_features, run_features,
-                                     summary_floor)
+from softsbi.workflows.criticism.stats import ALPHA, MAX_NULL, PosteriorPredictive, rollout_features, run_features
+from softsbi.workflows.criticism.statistics import (
+    MIN_NULL,
+    max_t_adjusted,
+    misspecification_test,
+    resolution_needed,
+    summary_floor,
+)
 
 
 #: finite-difference step of a nominal parameter (unit-cube units): small enough that the summaries respond linearly
@@ -281,9 +286,9 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
     """Is the run's measurement inside the posterior predictive distribution? ``check``'s test, ``diagnose``'s
     detection step and the adequacy of every refit (one function, one null: the commands never disagree).
 
-    The omnibus test (:func:`~softsbi.workflows.criticism.stats.misspecification_test`) and the directional test (the
+    The omnibus test (:func:`~softsbi.workflows.criticism.statistics.misspecification_test`) and the directional test (the
     screening's strongest candidate, max-T adjusted over ``cands``) on the pool's rollouts, Bonferroni-combined.
-    Adaptive resolution (:func:`~softsbi.workflows.criticism.stats.resolution_needed`, per test at ``alpha / k``): when a
+    Adaptive resolution (:func:`~softsbi.workflows.criticism.statistics.resolution_needed`, per test at ``alpha / k``): when a
     first stage that cannot reject is promising, the null grows once to ``max_null`` successful rollouts and
     both tests are decided there, so the level holds.
 
