@@ -65,9 +65,6 @@ def setting(settings: type, name: str, help: str) -> Any:
 #: the option callbacks shared by several commands
 AT_LEAST_1_WORKER = checked(D.WORKERS_BOUND)
 SEED_OK = checked(D.SEED_BOUND)
-ALPHA_OK = checked(D.ALPHA_BOUND)
-N_NULL_OK = checked(D.CheckSettings.BOUNDS["n_eval"])
-MAX_NULL_OK = checked(D.MAX_NULL_BOUND)
 ROUNDS_OK = bound(1, "one round at least")
 SIMS_OK = bound(D.MIN_SIMS_PER_ROUND, "the estimator needs data")
 
