@@ -242,14 +242,31 @@ def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
     return EstimatorState(name, dict(opts), est.state_dict())
 
 
+def _held_out(ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, X)``: the usable ones of a model's ``n_test`` held-out prior simulations (seeds of their own)."""
+    u = np.random.default_rng([cfg.seed, TEST_STREAM, 0]).random((n_test, space.dim))
+    return _simulate(ctx, space, u, _round_seeds(cfg.seed, TEST_STREAM, n_test), cfg, "held-out prior simulations")
+
+
+def held_out_simulations(recording: Recording, cfg: FitConfig, n_test: int = defaults.N_TEST
+                         ) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """The held-out prior simulations of a model's training report (``cfg.effects`` the model), through the
+    simulation bank (a trained model's are read, not simulated): ``(names, U (n, D) unit cube, X (n, T, 1+K, 3) at
+    the fit's frames)``, the failed ones left out.
+
+    Raises:
+        SoftsbiError: as :func:`train_model` before simulating; every simulation failed."""
+    cfg, space, ctx, prior = _prepared(recording, cfg)
+    U, X = _held_out(replace(ctx, bank=str(prior.store.path.parent)), space, cfg, n_test)
+    return tuple(space.names), U, X[:, slice(None) if cfg.frames is None else list(cfg.frames)]
+
+
 def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int, n_draws: int,
                     fr: Any) -> TrainingReport:
     """The training report of a trained task: its amortised posterior on ``n_test`` held-out prior simulations
     (module docstring, step 3)."""
     t0 = time.perf_counter()
-    rng = np.random.default_rng([cfg.seed, TEST_STREAM, 0])
-    u = rng.random((n_test, space.dim))
-    U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, TEST_STREAM, n_test), cfg, "held-out prior simulations")
+    U, X = _held_out(ctx, space, cfg, n_test)
     sim_s = time.perf_counter() - t0
     st = calibration_stats(est, U, X[:, fr], space.names, n_draws, defaults.N_BINS, cfg.seed)
     lo, hi = np.quantile(st["draws"], 0.05, axis=1), np.quantile(st["draws"], 0.95, axis=1)  # (n, D) unit cube
