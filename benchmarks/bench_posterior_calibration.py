@@ -11,7 +11,9 @@ Each model is trained twice in one run, by two estimators (:data:`ESTIMATORS`): 
 estimator's earlier default written out as options (a shared-trunk ensemble whose joint covariance scale is the
 smallest meeting the validation coverage at every level), and ``current``, the ``rkhs`` estimator's default. Both
 train on the same prior simulations and are judged on the same held-out ones (the simulation bank serves the
-second estimator's simulations). ``--estimators current`` trains one.
+second estimator's simulations). ``--estimators current`` trains one. ``--fresh-test N`` judges every trained
+model again on ``N`` fresh held-out prior simulations (:data:`~softsbi.core.seeds.FRESH_TEST_STREAM`): the
+estimator was chosen on the training reports' held-out simulations, so these are its test.
 
 Per model, the table reads its training report against three criteria, each at a stated level:
 
@@ -53,6 +55,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--candidates", default="wind",
                     help="comma-separated candidate effects trained beside the nominal model; 'shipped': every "
                          "built-in candidate the backend applies")
+    ap.add_argument("--fresh-test", type=int, default=0,
+                    help="also judge every trained model on this many fresh held-out prior simulations (0: none)")
     ap.add_argument("--estimators", default="previous,current",
                     help=f"comma-separated estimators of {sorted(ESTIMATORS)} each model is trained with")
     ap.add_argument("--workers", type=int, default=2)
@@ -60,7 +64,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="the simulation bank the models are trained into and read back from (a run resumes there)")
 
 
-FULL = {"prior_sims": 1000, "n_test": 200, "candidates": "shipped"}
+FULL = {"prior_sims": 1000, "n_test": 200, "candidates": "shipped", "fresh_test": 200}
 
 
 def shipped_candidates(backend: str) -> list[str]:
@@ -94,9 +98,10 @@ def criteria(report: Any) -> dict[str, Any]:
 
 
 def _measure(args: argparse.Namespace, bank: Path) -> dict:
+    from softsbi.core.seeds import FRESH_TEST_STREAM
     from softsbi.workflows.demo import demo_recording
     from softsbi.workflows.fit.config import FitConfig
-    from softsbi.workflows.tasks.training import train_task
+    from softsbi.workflows.tasks.training import held_out_report, held_out_simulations, train_task
     recording, _ = demo_recording(False)
     estimators = [e for e in args.estimators.split(",") if e]
     unknown = sorted(set(estimators) - set(ESTIMATORS))
@@ -105,17 +110,64 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
     cfg = FitConfig(workers=args.workers, sim_bank=str(bank))
     names = (shipped_candidates(cfg.backend) if args.candidates == "shipped"
              else [n for n in args.candidates.split(",") if n])
-    rows, data, seconds, intervals = [], [], {}, []
+    data, fresh, seconds, intervals = [], [], {}, []
     for est in estimators:
         t0 = time.perf_counter()
         tasks = train_task(recording, replace(cfg, estimator_options=dict(ESTIMATORS[est])), n_prior=args.prior_sims,
                            candidates=names, n_test=args.n_test, n_draws=args.n_draws, check_null=0, message=print)
         seconds[est] = time.perf_counter() - t0
         for t in tasks:
-            c = criteria(t.report)
             data.append({"estimator": est, "model": t.model, "n_test": t.report.n_test, "n_prior": t.n_prior,
-                         "train_seconds": t.report.train_seconds, **c})
+                         "train_seconds": t.report.train_seconds, **criteria(t.report)})
+            if args.fresh_test:
+                model_cfg = replace(cfg, estimator_options=dict(ESTIMATORS[est]), effects=list(t.identity["effects"]))
+                params, u, x = held_out_simulations(recording, model_cfg, args.fresh_test, FRESH_TEST_STREAM)
+                report = held_out_report(t.restore(), params, u, x, args.n_draws, cfg.seed)
+                fresh.append({"estimator": est, "model": t.model, "n_test": report.n_test,
+                              "train_seconds": t.report.train_seconds, **criteria(report)})
         intervals.extend(effect_intervals(est, tasks, recording, cfg, args.n_test, args.n_draws))
+    band = _band(_binomial_band(INTERVAL, args.n_test))
+    irows = [[d["model"], d["parameter"], d["estimator"], f"{d['holds']:.3f}", _ok(d["holds_ok"]),
+              f"{d['excludes_off']:.3f}", _ok(d["excludes_ok"])] for d in sorted(
+        intervals, key=lambda d: (d["model"], d["parameter"], estimators.index(d["estimator"])))]
+    tables = [_criteria_table(
+        f"Each trained model of the lift task on its training report's {args.n_test} held-out prior simulations "
+        f"({args.prior_sims} prior simulations each), by estimator", data)]
+    if fresh:
+        tables.append(_criteria_table(
+            f"The same models on {args.fresh_test} fresh held-out prior simulations (a seed stream of their own, "
+            f"judged once: the estimator was chosen on the first table's simulations)", fresh))
+    tables.append(table(
+        f"The candidates' effect parameters whose off value lies inside the prior: how often the central "
+        f"{INTERVAL:.0%} interval holds the truth on the candidate's own held-out simulations, and how often it "
+        f"excludes the off value on the nominal model's held-out simulations (the effect absent: a wrong candidate "
+        f"'switched on'); calibrated: inside {band} and at most {1 - INTERVAL:.2f} within its band",
+        ["candidate", "parameter", "estimator", "holds the truth", f"in {band}", "excludes the off value, effect "
+         "absent", "in band"], irows))
+    notes = []
+    for est in estimators:
+        mine = [d for d in data if d["estimator"] == est]
+        notes.append(f"{est} ({_options(ESTIMATORS[est])}): {_counts(mine)}"
+                     + (f"; on the fresh simulations {_counts([d for d in fresh if d['estimator'] == est])}"
+                        if fresh else "")
+                     + f". Training the {len(mine)} estimators took {sum(d['train_seconds'] or 0 for d in mine):.0f} "
+                       f"s; the whole run of this estimator {seconds[est]:.0f} s (models already in the bank are "
+                       f"read, not trained; simulations the bank holds are read, not simulated).")
+    return {"tables": tables,
+            "notes": notes + ["An effect whose off value is a prior bound is named by the posterior pressing that "
+                              "bound, not by its interval, so its parameters are not in the last table."],
+            "data": {"models": data, "fresh": fresh, "candidates": names,
+                     "estimators": {e: ESTIMATORS[e] for e in estimators}, "intervals": intervals}}
+
+
+def _counts(rows: list[dict]) -> str:
+    return (f"{sum(d['passes'] for d in rows)} of {len(rows)} models pass all three criteria (TARP "
+            f"{sum(d['tarp_ok'] for d in rows)}, HPD 50% {sum(d['in_50'] for d in rows)}, HPD 90% "
+            f"{sum(d['in_90'] for d in rows)}, SBC {sum(not d['sbc_fail'] for d in rows)})")
+
+
+def _criteria_table(title: str, data: list[dict]) -> dict:
+    rows = []
     for model in dict.fromkeys(d["model"] for d in data):
         for d in (d for d in data if d["model"] == model):
             rows.append([model, d["estimator"], _p(d["tarp_p"]), _ok(d["tarp_ok"]),
@@ -123,37 +175,9 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
                          f"{d['at_90']:.3f} ({_band(d['band_90'])})", _ok(d["in_90"]),
                          f"{d['sbc_min_p']:.2g} vs {d['sbc_threshold']:.2g}", ", ".join(d["sbc_fail"]) or "none",
                          "passes" if d["passes"] else "fails", f"{d['train_seconds']:.0f}"])
-    notes = []
-    for est in estimators:
-        mine = [d for d in data if d["estimator"] == est]
-        notes.append(f"{est} ({_options(ESTIMATORS[est])}): {sum(d['passes'] for d in mine)} of {len(mine)} models "
-                     f"pass all three criteria; TARP {sum(d['tarp_ok'] for d in mine)}, HPD 50% "
-                     f"{sum(d['in_50'] for d in mine)}, HPD 90% {sum(d['in_90'] for d in mine)}, SBC "
-                     f"{sum(not d['sbc_fail'] for d in mine)}. Training the {len(mine)} estimators took "
-                     f"{sum(d['train_seconds'] or 0 for d in mine):.0f} s; the whole run of this estimator "
-                     f"{seconds[est]:.0f} s (models already in the bank are read, not trained; simulations the bank "
-                     f"holds are read, not simulated).")
-    band = _band(_binomial_band(INTERVAL, args.n_test))
-    irows = [[d["model"], d["parameter"], d["estimator"], f"{d['holds']:.3f}", _ok(d["holds_ok"]),
-              f"{d['excludes_off']:.3f}", _ok(d["excludes_ok"])] for d in sorted(
-        intervals, key=lambda d: (d["model"], d["parameter"], estimators.index(d["estimator"])))]
-    return {"tables": [table(
-        f"Each trained model of the lift task on its {args.n_test} held-out prior simulations ({args.prior_sims} "
-        f"prior simulations each), by estimator",
-        ["model", "estimator", "TARP KS p", f">= {TARP_MIN_P}", "HPD coverage 50% (band)", "inside",
-         "HPD coverage 90% (band)", "inside", "SBC min KS p vs Bonferroni", "SBC marginals off", "all three",
-         "training s"],
-        rows), table(
-        f"The candidates' effect parameters whose off value lies inside the prior: how often the central "
-        f"{INTERVAL:.0%} interval holds the truth on the candidate's own held-out simulations, and how often it "
-        f"excludes the off value on the nominal model's held-out simulations (the effect absent: a wrong candidate "
-        f"'switched on'); calibrated: inside {band} and at most {1 - INTERVAL:.2f} within its band",
-        ["candidate", "parameter", "estimator", "holds the truth", f"in {band}", "excludes the off value, effect "
-         "absent", "in band"], irows)],
-        "notes": notes + ["An effect whose off value is a prior bound is named by the posterior pressing that "
-                          "bound, not by its interval, so its parameters are not in the second table."],
-        "data": {"models": data, "candidates": names, "estimators": {e: ESTIMATORS[e] for e in estimators},
-                 "intervals": intervals}}
+    return table(title, ["model", "estimator", "TARP KS p", f">= {TARP_MIN_P}", "HPD coverage 50% (band)", "inside",
+                         "HPD coverage 90% (band)", "inside", "SBC min KS p vs Bonferroni", "SBC marginals off",
+                         "all three", "training s"], rows)
 
 
 #: the credibility of the effect parameters' interval (the diagnosis's: an effect is on when its 90% interval
