@@ -47,7 +47,7 @@ class DurationScale(Effect):
     nominal's (its mean height +0.2 to +0.6 cm, 0.39 cm on average, at s = 4 over the rising frames 5-8 of the 5x5
     test lift); as the gripper slows down at the end, the nominal's cloth swings on along the path, the slower one
     much less. On the path of the real lift_tan (grid 9, the prior's midpoint) the cloth's centroid is 0.1-0.2 cm
-    higher while it rises, and over the last 6 frames 0.8-2.0 cm back along the path (+y there) and 0.1-0.9 cm lower,
+    higher while it rises, and over the last 6 frames 0.6-2.0 cm back along the path (+y there) and 0.1-0.9 cm lower,
     at s = 2 and 4 (measured); on the built-in lift the height there changes with s without a fixed sign.
     """
 
