@@ -1,7 +1,8 @@
 """Effects: physical or sensor effects a nominal model may lack, declared exactly like third-party ones.
 
 Modules: :mod:`.builtin` (air-drag, wind, extra-damping, grip-compliance; its hook registers every
-built-in), :mod:`.physics` (table-slope, sticky-patch, heavy-hem), :mod:`.sensor`
+built-in), :mod:`.physics` (table-slope, sticky-patch, heavy-hem), :mod:`.robot` (duration-scale,
+grasp-patch: how the robot executes the scenario; model edits for ``mujoco-flex``), :mod:`.sensor`
 (calibration-offset, point-noise, time-offset; ``kind = "sensor"``) and :mod:`.generic` (generic
 force terms, ``generic = True``, not ordinary diagnosis candidates).
 
