@@ -40,7 +40,7 @@ from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording
 from softsbi.workflows.reporting import phase
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import sensor_features
+from softsbi.workflows.criticism.stats import summarising
 from softsbi.workflows.criticism.statistics import MIN_NULL, mc_pvalue, misspecification_test, trajectory_features
 from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 
@@ -143,16 +143,22 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
     check (its posterior has no mass in the prior box, or fewer than ``MIN_NULL`` of its rollouts succeeded).
 
     Args:
-        recordings: the ``n`` recordings (with dense clouds). est: the task's estimator.
+        recordings: the ``n`` recordings, with dense clouds of one size (points per frame; :func:`replicates`' are
+            the task recording's). est: the task's estimator.
         cfg: the fit's settings, resolved. space: the inferred parameters. ctx: the fit's simulation context.
         rollouts: posterior-predictive rollouts per recording. seeds: one per recording (draws and rollouts).
 
     Raises:
-        SoftsbiError: an environment fault of the executor.
+        SoftsbiError: an environment fault of the executor; recordings whose clouds differ in size.
     """
+    if len({int(r.dense.shape[1]) for r in recordings}) > 1:
+        raise SoftsbiError("case statistics take recordings whose dense clouds hold as many points per frame")
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
     sensor = metric_sensor(cfg, recordings[0].scenario)
-    keep = replace(ctx, keep_rollout=True, bank=None)
+    # as check samples a run's rollouts: as many points per frame as the recording's clouds hold (the replicates'
+    # are the task recording's size), summarised in the jobs
+    keep = summarising(replace(ctx, keep_rollout=False, bank=None), recordings[0].dense.shape[1],
+                       sensor["metric_min_z"], sensor["metric_frames"], sensor["metric_camera"])
     out = []
     for lo in range(0, len(recordings), BATCH):
         f_obs, items = [], []
@@ -165,19 +171,16 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
                 f_obs[-1] = None
                 theta = np.empty((0, space.dim))
             sim_seeds = np.random.default_rng([seed, 2]).integers(2**31, size=rollouts)
-            items += [JobItem(t, int(s)) for t, s in zip(theta, sim_seeds)]
+            items += [JobItem(t, int(s), summary_seed=surface_seed(i))
+                      for i, (t, s) in enumerate(zip(theta, sim_seeds))]
         res = iter(run_jobs(keep, items, workers, cfg.executor, cfg.executor_options,
                             label=f"posterior-predictive rollouts of recordings {lo + 1}-{lo + len(f_obs)}"))
-        for f, rec in zip(f_obs, recordings[lo:lo + BATCH]):
+        for f in f_obs:
             if f is None:
                 out.append((np.nan, np.nan))
                 continue
             part = [next(res) for _ in range(rollouts)]
-            # as check samples a run's rollouts: as many points per frame as the recording's clouds hold
-            feats = [sensor_features(r, surface_seed(i), rec.dense.shape[1], sensor["metric_min_z"], sensor["metric_frames"],
-                                     sensor["metric_camera"])
-                     for i, r in enumerate(part)
-                     if r is not None and r.ok and r.vertices is not None]
+            feats = [r.features for r in part if r is not None and r.ok and r.features is not None]
             if len(feats) < MIN_NULL:  # check refuses such a run: never checked, so not a replicate either
                 out.append((np.nan, np.nan))
                 continue

@@ -37,12 +37,14 @@ from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.fit.task_store import read_once
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import N_NULL, PosteriorPredictive, run_features
 from softsbi.workflows.criticism.statistics import summary_energy_score, summary_scale
 from softsbi.core.defaults import DiagnoseSettings
 
 @pools.shared_executors()
+@read_once()  # each stored task read once: the candidates' amortised posteriors, refits and checks share it
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
                  settings: DiagnoseSettings | None = None, progress: Callable[[str], None] | None = None,
                  pool: PosteriorPredictive | None = None, recompute: bool = False,
@@ -190,6 +192,7 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
 
 
 @pools.shared_executors()
+@read_once()
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
                 settings: DiagnoseSettings | None = None, scale: np.ndarray | None = None, rounds: int | None = None,
                 sims_per_round: int | None = None, out_root: str | Path | None = None, plots: bool = True) -> Refit:

@@ -30,7 +30,7 @@ from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.jobs import JobItem, run_jobs
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import rollout_features, run_features
+from softsbi.workflows.criticism.stats import run_features, run_summarising
 from softsbi.workflows.criticism.statistics import MIN_NULL, summary_energy_score
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask
 
@@ -113,15 +113,15 @@ def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitCo
         except PosteriorError:
             continue
         sim_seeds = np.random.default_rng(stream + [1]).integers(2**31, size=n)
-        items.append((effect, cfg, space, [JobItem(t, int(s)) for t, s in zip(theta, sim_seeds)]))
+        items.append((effect, cfg, space, [JobItem(t, int(s), summary_seed=surface_seed(i))
+                                           for i, (t, s) in enumerate(zip(theta, sim_seeds))]))
     out: dict[str, Score] = {}
     for effect, cfg, space, jobs in items:
-        ctx = replace(run.sim_context(keep_rollout=True), effects=list(cfg.effects), param_names=space.names,
+        ctx = replace(run_summarising(run, keep_rollout=False), effects=list(cfg.effects), param_names=space.names,
                       bank=None)
         res = run_jobs(ctx, jobs, workers, cfg.executor, cfg.executor_options,
                        label=f"{effect}: amortised posterior-predictive rollouts")
-        feats = [rollout_features(run, r, surface_seed(i)) for i, r in enumerate(res)
-                 if r is not None and r.ok and r.vertices is not None]
+        feats = [r.features for r in res if r is not None and r.ok and r.features is not None]
         if len(feats) >= MIN_NULL:
             out[effect] = summary_energy_score(f_obs, np.array(feats), scale)
     return out, sum(len(jobs) for *_, jobs in items)
