@@ -14,9 +14,11 @@ parameters drawn from the prior, the recording and the replicates are exchangeab
 never below ``1 / (n + 1)`` with ``n`` replicates.
 
 It applies to a run that stopped at its trained task (one round: the stored estimator conditioned on the
-recording) and was checked on the same number of rollouts, with the same number of points per cloud. The
-replicates are stored beside the task (``BANK/tasks/KEY/check-null.json``) and go with it: a retrained task has
-none until ``softsbi task train --check-null N`` computes them again.
+recording) and was checked on the same number of rollouts, with the same number of points per cloud. Each trained
+model has its own: the nominal model's calibrate ``diagnose``'s detection, a candidate model's the check of its
+refit (the candidate's amortised posterior on a trained task), so that a refit is judged adequate with the power the
+nominal model was rejected with. The replicates are stored beside the task (``BANK/tasks/KEY/check-null.json``) and
+go with it: a retrained task has none until ``softsbi task train --check-null N`` computes them again.
 """
 from __future__ import annotations
 
@@ -192,9 +194,10 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
 def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream: int = NULL_STREAM,
                effects: Sequence[str] = (), extra: dict[str, float] | None = None
                ) -> tuple[list[Recording], list[int]]:
-    """Recordings of the task simulated at ``n`` parameters drawn from the prior (recording ``i`` from the seed
-    stream ``[cfg.seed, stream, i]``), with ``effects`` switched on at the values ``extra`` (a hidden effect; none
-    for replicates), on the fit's executor; their clouds hold as many points per frame as ``recording``'s. A
+    """Recordings of the task simulated under its model (``cfg.effects`` on) at ``n`` parameters drawn from the
+    prior (recording ``i`` from the seed stream ``[cfg.seed, stream, i]``), with ``effects`` switched on besides at
+    the values ``extra`` (a hidden effect; none for replicates), on the fit's executor; their clouds hold as many
+    points per frame as ``recording``'s. A
     simulation that fails gives no recording (a recording is a simulation that ran): the lists hold the others,
     with their seeds.
 
@@ -205,7 +208,8 @@ def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream
         rng = np.random.default_rng([cfg.seed, stream, i])
         truth = {**space.as_dict(space.from_unit(rng.random((1, space.dim)))[0]), **dict(cfg.fixed),
                  **dict(extra or {})}
-        jobs.append((cfg.backend, recording.scenario, truth, dict(cfg.backend_options), list(effects), cfg.n_points,
+        jobs.append((cfg.backend, recording.scenario, truth, dict(cfg.backend_options),
+                     list(cfg.effects) + [e for e in effects if e not in cfg.effects], cfg.n_points,
                      int(recording.dense.shape[1]), 0.0, int(rng.integers(2**31))))
     out: list[Any] = [None] * n
     with pools.executor(cfg.executor, cfg.workers, cfg.executor_options) as exe, \
