@@ -45,7 +45,9 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
                                     "explains the misfit alone; 0 = no refit. With several runs, also the number "
                                     "of candidates refitted on every recording"),
              refit_rounds: Optional[int] = setting(DiagnoseSettings, "refit_rounds",
-                                                   "rounds of a refit (default: the run's)"),
+                                                   "rounds of a refit (default: the run's; a candidate the task "
+                                                   "trained is then its amortised posterior, and N >= 2 fits it in "
+                                                   "sequential rounds)"),
              refit_sims: Optional[int] = setting(DiagnoseSettings, "refit_sims",
                                                  "simulations per round of a refit (default: the run's)"),
              k_se: float = setting(DiagnoseSettings, "k_se", "standard errors by which a refit's summary energy score "

@@ -74,8 +74,9 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
                                           help="held-out prior simulations of each model's training report "
                                                "(coverage, SBC, TARP); 0 = no report"),
                check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=bound(0),
-                                              help="replicate recordings of the nominal model, refitted and checked, "
-                                                   "that calibrate check's test of every later fit (at least 19; "
+                                              help="replicate recordings of each model, refitted and checked, "
+                                                   "that calibrate check's test of every later fit of it (the nominal "
+                                                   "model's, and diagnose's refits of the candidates) (at least 19; "
                                                    "0 = none, check's p-value uncalibrated)"),
                candidates: Optional[str] = typer.Option(None, "--candidates",
                                                         help="comma-separated candidate effects to train beside the "

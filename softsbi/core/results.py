@@ -250,7 +250,9 @@ class Refit:
         chamfer_n: the posterior-predictive rollouts that Chamfer averages (0: unknown).
         estimates: its posterior of the added effects' parameters.
         ranking: its own screening of the remaining candidates (what it leaves unexplained).
-        rounds, sims_per_round: its simulation budget.
+        rounds, sims_per_round: its simulation budget (an amortised refit: 1 round of 0 simulations of its own).
+        amortised: its posterior is its model's trained task's, conditioned on the recording (no rounds simulated;
+            its check calibrated against the model's replicates when the task has them); False: sequential rounds.
     """
 
     effects: tuple[str, ...]
@@ -263,6 +265,7 @@ class Refit:
     rounds: int = 0
     sims_per_round: int = 0
     chamfer_n: int = 0
+    amortised: bool = False
 
     @property
     def label(self) -> str:

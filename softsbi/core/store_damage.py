@@ -115,7 +115,7 @@ def damaged_rows(g: zarr.Group, complete: bool) -> dict[int, str]:
     bad: dict[int, str] = {}
     arrays = {name: _read_rows(g[name], bad, name) for name in ROW_ARRAYS if name in g}
     done = arrays["status"] == 0
-    x = arrays["x"].reshape(len(done), -1)
+    x = arrays["x"].reshape(len(done), int(np.prod(arrays["x"].shape[1:])))  # a round may draw none
     for i in np.nonzero(done & ~np.all(np.isfinite(x), axis=1))[0]:
         bad.setdefault(int(i), "its stored state is missing (a deleted chunk)")
     if complete:  # a complete round has no pending simulation: its status chunk is gone

@@ -218,6 +218,7 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
 
     monkeypatch.setattr(dg, "run_fit", fake_fit)
     monkeypatch.setattr(dg, "recording_from_run", lambda run: None)
+    monkeypatch.setattr(dg, "trained_task", lambda run, effects, sims_per_round=None: None)  # no task trained them
     with pytest.raises(_Stop):
         dg.refit_model(_Run(), ["point-noise"], ["point-noise", "wind"], scale=None)
     cfg = seen["cfg"]
@@ -235,6 +236,20 @@ def test_refits_use_truncated_proposals_and_observe_each_simulation_once(monkeyp
     with pytest.raises(_Stop):
         dg.refit_model(amortised, ["wind"], ["point-noise", "wind"], scale=None)
     assert seen["cfg"].rounds is None  # the nominal fit stopped at a trained task: so does the refit, where it can
+
+    def fake_amortised(run, effects, root, workers=None, plots=False, callbacks=None):
+        seen["amortised"] = (tuple(effects), root)
+        raise _Stop
+
+    # a candidate whose model the task trained: its refit is the amortised posterior, unless rounds are asked for
+    monkeypatch.setattr(dg, "trained_task", lambda run, effects, sims_per_round=None: ("task", None, None))
+    monkeypatch.setattr(dg, "amortised_refit", fake_amortised)
+    with pytest.raises(_Stop):
+        dg.refit_model(amortised, ["wind"], ["point-noise", "wind"], scale=None)
+    assert seen["amortised"] == (("wind",), tmp_path)
+    with pytest.raises(_Stop):
+        dg.refit_model(amortised, ["wind"], ["point-noise", "wind"], scale=None, rounds=3)
+    assert seen["out"] == tmp_path / "refit-wind-sequential" and seen["cfg"].rounds == 3
 
 
 def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them_and_the_bound_they_press():

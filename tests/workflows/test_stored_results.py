@@ -195,6 +195,14 @@ def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_wi
     assert diagnose.diagnosis_plan(rep, 9, 1, refit_rounds=1, refit_sims=100, n_null=30).startswith(
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
         "rejects, up to 1 refit (the top candidate) of about 160 simulations each: 190 simulations at most; about 2 min")
+    one = FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=1, sims_per_round=400, simulations=430,
+                    wall_time_s=43.0)  # a fit that stopped at its trained task
+    assert diagnose.diagnosis_plan(one, 9, 2, n_null=30, amortised=6) == (
+        "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
+        "rejects, the amortised posteriors of the 6 trained candidates (30 rollouts each; a trained candidate's refit "
+        "simulates no round) and up to 3 refits (the top 2 candidates, then a pair) of about 460 simulations each when "
+        "no task trained the candidate: 1590 simulations at most; about 3 min at the nominal fit's pace (430 "
+        "simulations in 43 s) (--confirm 2 sets the number of refits)")
     assert diagnose.diagnosis_plan(FitReport(parameters=("a",), posterior_median={"a": 1.0}), 4, 0) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 4 candidates")
     said = []  # said first, before any simulation

@@ -111,16 +111,60 @@ def test_task_train_stores_a_training_report_and_a_fit_starts_from_its_prior_sim
                f"not used" in m for m in said), said
 
 
+def test_a_fit_of_the_stored_tasks_posterior_alone_draws_no_simulation_of_a_round(tmp_path, monkeypatch):
+    """``task_only`` (what an amortised refit stores): round 1 is the trained task conditioned on the recording, with
+    no simulation of its own, neither simulated nor read from the bank; its posterior is the one-round fit's that
+    reads them; it resumes as stored, and what needs a round's simulations says it has none."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.workflows.fit import jobs
+    from softsbi.workflows.fit.run import run_fit
+    from softsbi.workflows.fit.runs import open_run
+    from softsbi.workflows.tasks.calibrate import calibrate_run
+    from softsbi.workflows.tasks.training import train_task
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    rec = toy_measurement(truth=(-0.1, 0.2))
+    with pytest.raises(SoftsbiError, match="no trained task"):  # nothing stored yet: refused before any simulation
+        run_fit(tmp_path / "none", rec, _cfg(rounds=None), make_plots=False, task_only=True)
+    (task,) = train_task(toy_measurement(), _cfg(), 80, candidates=[], n_test=20, n_draws=50, check_null=0)
+    seeds = []
+    simulate = jobs.simulate_job
+    monkeypatch.setattr(jobs, "simulate_job", lambda ctx, item, batch=None: seeds.append(item.seed)
+                        or simulate(ctx, item, batch))
+    res = run_fit(tmp_path / "alone", rec, _cfg(rounds=None), make_plots=True, task_only=True)
+    # its 5 posterior-predictive rollouts, nothing of round 1 (task train's prior seeds)
+    assert sorted(seeds) == sorted(jobs.evaluation_seeds(0, 1, 5).tolist())
+    assert res.report.rounds == 1 and res.report.simulations == 5 and res.report.chamfer_prior_m is None
+    assert len(res.store.round_data(0)["status"]) == 0 and res.report.per_round[0].task == task.digest
+    read = run_fit(tmp_path / "read", rec, _cfg(rounds=None), make_plots=False)  # reads round 1 from the bank
+    assert len(read.store.round_data(0)["status"]) == 40 and read.report.chamfer_prior_m is not None
+    a, b = open_run(tmp_path / "alone").posterior, open_run(tmp_path / "read").posterior
+    np.testing.assert_allclose(a.unit.chain.qs[0].mean(), b.unit.chain.qs[0].mean())  # one posterior
+    np.testing.assert_allclose(list(a.mean.values()), list(b.mean.values()), atol=0.02)
+    seeds.clear()
+    again = run_fit(tmp_path / "alone", rec, _cfg(rounds=None), make_plots=False)  # resumed: all stored
+    assert again.report.simulations == 5 and len(again.store.round_data(0)["status"]) == 0
+    with pytest.raises(SoftsbiError, match="holds no simulations of its own"):
+        calibrate_run(tmp_path / "alone", n_test=20, n_draws=50, workers=1)
+    with pytest.raises(SoftsbiError, match="one round"):
+        run_fit(tmp_path / "two", rec, _cfg(rounds=2), make_plots=False, task_only=True)
+
+
 def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     """The cost of a task of 13 models with check's calibration, and what to do about uncalibrated models (and
     that fits use them anyway), from fixed numbers and reports."""
     from types import SimpleNamespace
 
     from softsbi.workflows.tasks.training import calibration_advice, training_plan
+    # each model's replicates calibrate the check of its own fits (the candidates': diagnose's refits)
     assert training_plan(13, 2000, 200, 100, 1.2, 8, null_rollouts=30) == (
-        "task train plan: 13 models x (2000 prior + 200 held-out simulations) + 100 replicate recordings x 31 for "
-        "check's calibration = 31700 simulations at most; one simulation took 1.2 s, so about 79 min on 8 workers, "
+        "task train plan: 13 models x (2000 prior + 200 held-out simulations + 100 replicate recordings x 31 for "
+        "check's calibration) = 68900 simulations at most; one simulation took 1.2 s, so about 2.9 h on 8 workers, "
         "plus the training (fewer when stored models or the simulation bank hold some)")
+    assert training_plan(2, 100, 0, 0, None, 1) == (
+        "task train plan: 2 models x (100 prior + 0 held-out simulations) = 200 simulations at most (one "
+        "simulation's time unknown: it was read from the bank or failed)")
 
     # the README's one-liner says what a default task train costs, with the built-in effects
     from pathlib import Path
@@ -131,8 +175,8 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     models = [m for m in candidate_models(_cfg(backend=D.BACKEND), None)
               if all(registry().effect(e).__module__.startswith("softsbi.") for e in m)]
     readme = (Path(__file__).parents[2] / "README.md").read_text()
-    assert (f"{len(models)} models x {D.TASK_PRIOR_SIMS + D.N_TEST} simulations + "
-            f"{D.CHECK_REPLICATES * (D.N_NULL + 1)} for check's calibration") in readme
+    assert (f"{len(models)} models x ({D.TASK_PRIOR_SIMS + D.N_TEST} simulations + "
+            f"{D.CHECK_REPLICATES * (D.N_NULL + 1)} for check's calibration)") in readme
 
     def task(model, calibrated):
         return SimpleNamespace(model=model, n_prior=2000, report=SimpleNamespace(calibrated=calibrated))

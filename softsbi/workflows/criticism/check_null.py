@@ -14,9 +14,11 @@ parameters drawn from the prior, the recording and the replicates are exchangeab
 never below ``1 / (n + 1)`` with ``n`` replicates.
 
 It applies to a run that stopped at its trained task (one round: the stored estimator conditioned on the
-recording) and was checked on the same number of rollouts, with the same number of points per cloud. The
-replicates are stored beside the task (``BANK/tasks/KEY/check-null.json``) and go with it: a retrained task has
-none until ``softsbi task train --check-null N`` computes them again.
+recording) and was checked on the same number of rollouts, with the same number of points per cloud. Each trained
+model has its own: the nominal model's calibrate ``diagnose``'s detection, a candidate model's the check of its
+refit (the candidate's amortised posterior on a trained task), so that a refit is judged adequate with the power the
+nominal model was rejected with. The replicates are stored beside the task (``BANK/tasks/KEY/check-null.json``) and
+go with it: a retrained task has none until ``softsbi task train --check-null N`` computes them again.
 """
 from __future__ import annotations
 
@@ -40,7 +42,7 @@ from softsbi.workflows.measurement import simulate_recording
 from softsbi.workflows.fit.observe import metric_sensor, observe_recording
 from softsbi.workflows.reporting import phase
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import sensor_features
+from softsbi.workflows.criticism.stats import summarising
 from softsbi.workflows.criticism.statistics import MIN_NULL, mc_pvalue, misspecification_test, trajectory_features
 from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 
@@ -143,16 +145,22 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
     check (its posterior has no mass in the prior box, or fewer than ``MIN_NULL`` of its rollouts succeeded).
 
     Args:
-        recordings: the ``n`` recordings (with dense clouds). est: the task's estimator.
+        recordings: the ``n`` recordings, with dense clouds of one size (points per frame; :func:`replicates`' are
+            the task recording's). est: the task's estimator.
         cfg: the fit's settings, resolved. space: the inferred parameters. ctx: the fit's simulation context.
         rollouts: posterior-predictive rollouts per recording. seeds: one per recording (draws and rollouts).
 
     Raises:
-        SoftsbiError: an environment fault of the executor.
+        SoftsbiError: an environment fault of the executor; recordings whose clouds differ in size.
     """
+    if len({int(r.dense.shape[1]) for r in recordings}) > 1:
+        raise SoftsbiError("case statistics take recordings whose dense clouds hold as many points per frame")
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
     sensor = metric_sensor(cfg, recordings[0].scenario)
-    keep = replace(ctx, keep_rollout=True, bank=None)
+    # as check samples a run's rollouts: as many points per frame as the recording's clouds hold (the replicates'
+    # are the task recording's size), summarised in the jobs
+    keep = summarising(replace(ctx, keep_rollout=False, bank=None), recordings[0].dense.shape[1],
+                       sensor["metric_min_z"], sensor["metric_frames"], sensor["metric_camera"])
     out = []
     for lo in range(0, len(recordings), BATCH):
         f_obs, items = [], []
@@ -165,19 +173,16 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
                 f_obs[-1] = None
                 theta = np.empty((0, space.dim))
             sim_seeds = np.random.default_rng([seed, 2]).integers(2**31, size=rollouts)
-            items += [JobItem(t, int(s)) for t, s in zip(theta, sim_seeds)]
+            items += [JobItem(t, int(s), summary_seed=surface_seed(i))
+                      for i, (t, s) in enumerate(zip(theta, sim_seeds))]
         res = iter(run_jobs(keep, items, workers, cfg.executor, cfg.executor_options,
                             label=f"posterior-predictive rollouts of recordings {lo + 1}-{lo + len(f_obs)}"))
-        for f, rec in zip(f_obs, recordings[lo:lo + BATCH]):
+        for f in f_obs:
             if f is None:
                 out.append((np.nan, np.nan))
                 continue
             part = [next(res) for _ in range(rollouts)]
-            # as check samples a run's rollouts: as many points per frame as the recording's clouds hold
-            feats = [sensor_features(r, surface_seed(i), rec.dense.shape[1], sensor["metric_min_z"], sensor["metric_frames"],
-                                     sensor["metric_camera"])
-                     for i, r in enumerate(part)
-                     if r is not None and r.ok and r.vertices is not None]
+            feats = [r.features for r in part if r is not None and r.ok and r.features is not None]
             if len(feats) < MIN_NULL:  # check refuses such a run: never checked, so not a replicate either
                 out.append((np.nan, np.nan))
                 continue
@@ -189,9 +194,10 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
 def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream: int = NULL_STREAM,
                effects: Sequence[str] = (), extra: dict[str, float] | None = None
                ) -> tuple[list[Recording], list[int]]:
-    """Recordings of the task simulated at ``n`` parameters drawn from the prior (recording ``i`` from the seed
-    stream ``[cfg.seed, stream, i]``), with ``effects`` switched on at the values ``extra`` (a hidden effect; none
-    for replicates), on the fit's executor; their clouds hold as many points per frame as ``recording``'s. A
+    """Recordings of the task simulated under its model (``cfg.effects`` on) at ``n`` parameters drawn from the
+    prior (recording ``i`` from the seed stream ``[cfg.seed, stream, i]``), with ``effects`` switched on besides at
+    the values ``extra`` (a hidden effect; none for replicates), on the fit's executor; their clouds hold as many
+    points per frame as ``recording``'s. A
     simulation that fails gives no recording (a recording is a simulation that ran): the lists hold the others,
     with their seeds.
 
@@ -202,7 +208,8 @@ def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream
         rng = np.random.default_rng([cfg.seed, stream, i])
         truth = {**space.as_dict(space.from_unit(rng.random((1, space.dim)))[0]), **dict(cfg.fixed),
                  **dict(extra or {})}
-        jobs.append((cfg.backend, recording.scenario, truth, dict(cfg.backend_options), list(effects), cfg.n_points,
+        jobs.append((cfg.backend, recording.scenario, truth, dict(cfg.backend_options),
+                     list(cfg.effects) + [e for e in effects if e not in cfg.effects], cfg.n_points,
                      int(recording.dense.shape[1]), 0.0, int(rng.integers(2**31))))
     out: list[Any] = [None] * n
     with pools.executor(cfg.executor, cfg.workers, cfg.executor_options) as exe, \

@@ -19,11 +19,11 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import PosteriorError, SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit,
                                   ResultDamaged, check_result_path, from_json, read_json, write_result)
 from softsbi.core.types import Param
@@ -32,17 +32,20 @@ from softsbi.core.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
-from softsbi.workflows.criticism.evidence import amortised_scores, recording_from_run, refit_config, trained_tasks
+from softsbi.workflows.criticism.evidence import (amortised_refit, amortised_scores, recording_from_run, refit_config,
+                                                  refit_dir, trained_task, trained_tasks)
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
 from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.fit.task_store import read_once
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import N_NULL, PosteriorPredictive, run_features
 from softsbi.workflows.criticism.statistics import summary_energy_score, summary_scale
 from softsbi.core.defaults import DiagnoseSettings
 
 @pools.shared_executors()
+@read_once()  # each stored task read once: the candidates' amortised posteriors, refits and checks share it
 def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
                  settings: DiagnoseSettings | None = None, progress: Callable[[str], None] | None = None,
                  pool: PosteriorPredictive | None = None, recompute: bool = False,
@@ -95,9 +98,10 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
     family = tuple(c.name for c in cands)
     trained = trained_tasks(run, [c.name for c in cands if not is_generic(c)])
+    # on a trained task a candidate's refit is its amortised posterior unless sequential rounds are asked for
     key = result_key(run, family=sorted(family), trained=sorted(t[0].digest for t in trained.values()), alpha=alpha,
                      k_se=k_se, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null,
-                     max_null=max_null, seed=seed)
+                     max_null=max_null, seed=seed, amortised_refits=sorted(trained) if refit_rounds is None else [])
     say = progress or (lambda _: None)
     out = run.path if out_dir is None else Path(out_dir)
     json_path = check_result_path(out / "diagnosis.json")
@@ -108,7 +112,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     busy = (f"wait for it to finish (a diagnose with the same settings then reuses its result), or keep a second "
             f"diagnosis apart with `softsbi diagnose {run.path} --out OTHER_FOLDER`")
     with run_lock(out, command="diagnose", busy=busy):
-        say(diagnosis_plan(run.report, len(family), confirm, refit_rounds, refit_sims, n_null))
+        say(diagnosis_plan(run.report, len(family), confirm, refit_rounds, refit_sims, n_null,
+                           0 if refit_rounds is not None else len(trained)))
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
         chk = check_run(
@@ -126,15 +131,18 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
         scale = summary_scale(f_nom)
         nominal = summary_energy_score(run_features(run, run.dense), f_nom, scale)
         ranking, n_amortised = chk.ranking, 0
+        amortised: dict[str, PosteriorPredictive] = {}  # each trained candidate's refit run's rollouts
         if chk.test.misspecified and confirm > 0 and trained:  # each trained candidate's amortised refit's score
             say(f"propose: the amortised posterior predictive of the {len(trained)} candidates the task trained")
-            scores, n_amortised = amortised_scores(run, trained, scale, n_null, workers, seed)
+            amortised = amortised_pools(run, trained, out, s, say)
+            scores, n_amortised = amortised_scores(run, amortised, scale, n_null)
             ranking = tuple(replace(c, amortised=scores.get(c.effect)) for c in ranking)
         refits: list[Refit] = []
         while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
             say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
             refits.append(refit_model(run, nxt, family, settings=s, scale=scale, rounds=refit_rounds,
-                                      sims_per_round=refit_sims, out_root=out, plots=plots))
+                                      sims_per_round=refit_sims, out_root=out, plots=plots,
+                                      pool=amortised.get(nxt[0]) if len(nxt) == 1 else None))
         decision = decide(chk.test, nominal, refits, k_se)
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
         # 0 from check when its result was stored
@@ -164,13 +172,15 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
 
 
 def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_rounds: int | None = None,
-                   refit_sims: int | None = None, n_null: int = N_NULL) -> str:
+                   refit_sims: int | None = None, n_null: int = N_NULL, amortised: int = 0) -> str:
     """What a diagnosis of the fit ``report`` describes will spend, said before it starts: the check's ``n_null``
     posterior rollouts and the screening of ``candidates``, then, when the check rejects, up to ``confirm`` single
     refits and one pair (:func:`~softsbi.workflows.criticism.decide.next_refit`), each a fit at the refit budget
     (``refit_rounds`` x ``refit_sims``, None: the nominal fit's) and its check; the time at the nominal fit's pace
-    (its wall time over its simulations, training included). Upper bounds: a refit that stops at its trained task,
-    or simulations read from the bank, cost less; a null extended to resolve the level, more."""
+    (its wall time over its simulations, training included). ``amortised`` candidates have a trained task: their
+    refits are their amortised posteriors (:func:`~softsbi.workflows.criticism.evidence.amortised_refit`), whose
+    ``n_null`` rollouts are spent on scoring them all, and which simulate no rounds. Upper bounds: simulations read
+    from the bank cost less; a null extended to resolve the level, more."""
     rounds, sims = report.rounds or 1, report.sims_per_round or 0
     n_eval = max((report.simulations or 0) - rounds * sims, 0)
     per_refit = (refit_rounds or rounds) * (refit_sims or sims) + n_eval + n_null
@@ -179,9 +189,14 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
     s = f"diagnose plan: the check's {n_null} posterior rollouts and the screening of {candidates} candidates"
     if refits:
         top = f"the top {confirm} candidates" if confirm > 1 else "the top candidate"
-        s += (f", then, if the check rejects, up to {refits} refit{'s' if refits > 1 else ''} ({top}"
-              f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each: {total} "
-              f"simulations at most")
+        first = ""
+        if amortised:  # the trained candidates' refits are their amortised posteriors, scored first
+            total += amortised * n_null
+            first = (f"the amortised posteriors of the {amortised} trained candidate{'s' if amortised > 1 else ''} "
+                     f"({n_null} rollouts each; a trained candidate's refit simulates no round) and ")
+        s += (f", then, if the check rejects, {first}up to {refits} refit{'s' if refits > 1 else ''} ({top}"
+              f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each"
+              f"{' when no task trained the candidate' if amortised else ''}: {total} simulations at most")
     if report.wall_time_s and report.simulations:
         pace = report.wall_time_s / report.simulations
         s += (f"; about {duration_words(total * pace)} at the nominal fit's pace ({report.simulations} simulations "
@@ -190,19 +205,28 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
 
 
 @pools.shared_executors()
+@read_once()
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
                 settings: DiagnoseSettings | None = None, scale: np.ndarray | None = None, rounds: int | None = None,
-                sims_per_round: int | None = None, out_root: str | Path | None = None, plots: bool = True) -> Refit:
+                sims_per_round: int | None = None, out_root: str | Path | None = None, plots: bool = True,
+                pool: PosteriorPredictive | None = None) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
-    The refit has :func:`~softsbi.workflows.criticism.evidence.refit_config`'s settings (by default the nominal fit's budget,
-    so that an added effect is fitted as well as the model it extends); it is stored in
-    ``RUN/refit-<a>+<b>`` (``out_root/refit-<a>+<b>`` when given) and resumes from there. It is checked by
-    :func:`~softsbi.workflows.criticism.check.check_run` (so
-    ``RUN/refit-<a>/check.json`` is there for ``compare``) with ``settings.check()`` (None: the defaults) over
-    ``family`` less ``effects``; its score is the energy score of its first ``settings.n_null`` posterior-predictive
-    rollouts' summaries in ``scale``
-    (the nominal fit's, :func:`~softsbi.workflows.criticism.statistics.summary_energy_score`; no score without ``scale``).
+    On a task trained with the refit's model, when the nominal fit stopped at its trained task and no ``rounds``
+    are asked for, the refit is the model's amortised posterior
+    (:func:`~softsbi.workflows.criticism.evidence.amortised_refit`: its stored estimator conditioned on the
+    recording, no rounds simulated) in ``RUN/refit-<a>+<b>``; its check is calibrated against the model's own
+    replicates when ``task train --check-null`` stored them (as the nominal fit's detection is), else uncalibrated.
+    Otherwise the refit runs sequential rounds at :func:`~softsbi.workflows.criticism.evidence.refit_config`'s
+    settings (by default the nominal fit's budget, so that an added effect is fitted as well as the model it
+    extends), in ``RUN/refit-<a>+<b>`` (``refit-<a>+<b>-sequential`` for a model with a trained task:
+    :func:`~softsbi.workflows.criticism.evidence.refit_dir`), and resumes from there; ``out_root`` replaces ``RUN``.
+
+    Either is checked by :func:`~softsbi.workflows.criticism.check.check_run` (so ``check.json`` is there for
+    ``compare``) with ``settings.check()`` (None: the defaults) over ``family`` less ``effects``; its score is the
+    energy score of its first ``settings.n_null`` posterior-predictive rollouts' summaries in ``scale`` (the nominal
+    fit's, :func:`~softsbi.workflows.criticism.statistics.summary_energy_score`; no score without ``scale``).
+    ``pool``: the refit run's rollouts already simulated (the amortised score's; used when it is this refit's run).
     ``plots``: draw the refit's fit figures and ``check.png``.
 
     Raises:
@@ -211,20 +235,48 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
     effects = tuple(effects)
     s = settings or DiagnoseSettings()
     n_null, workers = s.n_null, s.workers
-    cfg = refit_config(run, effects, rounds, sims_per_round, workers)
-    out = Path(out_root or run.path) / f"refit-{'+'.join(effects)}"
-    fitted = run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(f"refit with {' + '.join(effects)}"),
-                     make_plots=plots)
-    pool = PosteriorPredictive(out, workers, s.seed)  # the refit, loaded once: its check and score share it
+    root = Path(out_root or run.path)
+    label = f"refit with {' + '.join(effects)}"
+    trained = trained_task(run, effects, sims_per_round)
+    if trained is not None and rounds is None:  # the trained model's amortised posterior: no rounds
+        out = amortised_refit(run, effects, root, workers, plots, fit_callbacks(label))
+        cfg = trained[1]
+    else:
+        cfg = refit_config(run, effects, rounds, sims_per_round, workers)
+        out = refit_dir(root, effects, sequential_of_trained=trained is not None)
+        run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(label), make_plots=plots)
+    if pool is None or Path(pool.run.path).resolve() != out.resolve():
+        pool = PosteriorPredictive(out, workers, s.seed)  # the refit, loaded once: its check and score share it
     chk = check_run(pool.run, pool=pool, effects=[e for e in family if e not in effects], plot=plots,
                     settings=s.check())
     f = pool.ensure(n_null).features[:n_null]
     score = (summary_energy_score(run_features(pool.run, pool.run.dense), f, scale)
              if scale is not None and len(f) >= 3 else None)
+    report = pool.run.report
+    amortised = trained is not None and rounds is None
     # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
     return Refit(effects=effects, run=str(out), test=chk.test, score=score, chamfer_m=chk.chamfer_mean_m,
-                 estimates=estimates(pool.run.report, effects), ranking=chk.ranking,
-                 rounds=int(fitted.report.rounds), sims_per_round=cfg.sims_per_round, chamfer_n=chk.n_rollouts)
+                 estimates=estimates(report, effects), ranking=chk.ranking, rounds=int(report.rounds),
+                 sims_per_round=0 if amortised else cfg.sims_per_round, chamfer_n=chk.n_rollouts,
+                 amortised=amortised)
+
+
+def amortised_pools(run: RunView, trained: Mapping[str, Any], root: Path, settings: DiagnoseSettings,
+                    say: Callable[[str], None]) -> dict[str, PosteriorPredictive]:
+    """Each trained candidate's amortised posterior stored as its refit run under ``root``
+    (:func:`~softsbi.workflows.criticism.evidence.amortised_refit`, figures left to its refit), with its
+    posterior-predictive rollouts (not yet simulated beyond the fit's own), by effect. A candidate whose amortised
+    posterior puts no mass in the prior box is left out (told to ``say``): its refit would fail."""
+    out: dict[str, PosteriorPredictive] = {}
+    for effect in trained:
+        try:
+            path = amortised_refit(run, (effect,), root, settings.workers, False,
+                                   fit_callbacks(f"{effect}: amortised posterior"))
+        except PosteriorError as exc:
+            say(f"{effect}: its amortised posterior is left out ({exc})")
+            continue
+        out[effect] = PosteriorPredictive(path, settings.workers, settings.seed)
+    return out
 
 
 def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]:

@@ -1,11 +1,14 @@
-"""Each trained candidate's evidence from its own amortised posterior: the order in which ``diagnose`` refits.
+"""Each trained candidate's evidence from its own amortised posterior: the order in which ``diagnose`` refits, and
+the refit itself.
 
 On a task trained with its candidate models (``softsbi task train``), the posterior of the nominal model with effect
-``E_k`` for a recording is that model's stored estimator conditioned on the recording: no simulation and no training,
-exactly the first (and, on a trained task, only) round of ``E_k``'s refit. The summary energy score of its posterior
-predictive, in the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.statistics.summary_energy_score`, the score
-:func:`~softsbi.workflows.criticism.decide.decide` compares refits on), is then an unbiased estimate of the score that refit
-will have, at the cost of its ``n`` rollouts, for every trained candidate.
+``E_k`` for a recording is that model's stored estimator conditioned on the recording: no simulation and no training.
+It is stored as ``E_k``'s refit run (:func:`amortised_refit`: a fit of the stored task's posterior alone, in the run
+format ``compare``, ``view`` and ``check`` read, whose only simulations are its posterior-predictive rollouts), so on
+a trained task the refit *is* the amortised posterior. The summary energy score of its posterior predictive, in the
+nominal fit's summary scale (:func:`~softsbi.workflows.criticism.statistics.summary_energy_score`, the score
+:func:`~softsbi.workflows.criticism.decide.decide` compares refits on), is then the score that refit has, at the
+cost of its ``n`` rollouts, for every trained candidate (:func:`amortised_scores`); its check reuses them.
 
 This is evidence that sees each candidate through its own model. The linearised screening
 (:mod:`~softsbi.workflows.criticism.screening`) sees a candidate through a first-order expansion at the nominal posterior, so
@@ -16,21 +19,18 @@ the candidates no task has trained.
 """
 from __future__ import annotations
 
-import zlib
 from dataclasses import replace
+from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import PosteriorError
 from softsbi.core.results import Score
 from softsbi.core.types import Recording
-from softsbi.core.seeds import EVIDENCE_STREAM, surface_seed
-from softsbi.inference.calibration import draws_in_box
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
-from softsbi.workflows.fit.jobs import JobItem, run_jobs
+from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import rollout_features, run_features
+from softsbi.workflows.criticism.stats import PosteriorPredictive, run_features
 from softsbi.workflows.criticism.statistics import MIN_NULL, summary_energy_score
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask
 
@@ -61,14 +61,18 @@ def refit_config(run: RunView, effects: Sequence[str], rounds: int | None = None
                    sensor_draws=0, workers=workers if workers is not None else base.workers)
 
 
-def trained_task(run: RunView, effect: str) -> tuple[StoredTask, FitConfig, Any] | None:
-    """The stored task of ``run``'s refit with ``effect`` added, its settings (resolved) and parameter space, when
-    ``softsbi task train`` trained it (a training report, at least the refit's simulations per round) and the nominal
-    fit stopped at its own trained task (a refit then stops at its task too); else None."""
+def trained_task(run: RunView, effects: str | Sequence[str],
+                 sims_per_round: int | None = None) -> tuple[StoredTask, FitConfig, Any] | None:
+    """The stored task of ``run``'s refit with ``effects`` added (one effect's name, or several), its settings
+    (resolved, ``sims_per_round`` None: the nominal fit's) and parameter space, when ``softsbi task train`` trained it
+    (a training report, at least the refit's simulations per round) and the nominal fit stopped at its own trained
+    task (a refit then stops at its task too); else None. Inside
+    :func:`~softsbi.workflows.fit.task_store.read_once` the task is read once."""
     if not (run.report.per_round and run.report.per_round[0].task and run.report.rounds == 1):
         return None
     rec = recording_from_run(run)
-    cfg = refit_config(run, [effect]).resolved(rec)
+    cfg = refit_config(run, [effects] if isinstance(effects, str) else list(effects), None,
+                       sims_per_round).resolved(rec)
     _, space = fit_param_space(cfg, rec.scenario)
     prior = PriorRound.of(cfg, rec, space)
     if prior.task is None or not prior.trained(cfg.sims_per_round):
@@ -77,52 +81,58 @@ def trained_task(run: RunView, effect: str) -> tuple[StoredTask, FitConfig, Any]
 
 
 def trained_tasks(run: RunView, effects: Sequence[str]) -> dict[str, tuple[StoredTask, FitConfig, Any]]:
-    """:func:`trained_task` of each of ``effects`` that has one, by effect."""
+    """:func:`trained_task` of each of ``effects`` (one effect each) that has one, by effect."""
     return {e: t for e in effects if (t := trained_task(run, e)) is not None}
 
 
-def amortised_scores(run: RunView, trained: Mapping[str, tuple[StoredTask, FitConfig, Any]], scale: np.ndarray,
-                     n: int, workers: int | None = None, seed: int = 0) -> tuple[dict[str, Score], int]:
+def refit_dir(root: str | Path, effects: Sequence[str], sequential_of_trained: bool = False) -> Path:
+    """The folder of ``effects``' refit under ``root`` (the nominal run's directory or ``diagnose --out``):
+    ``refit-<a>+<b>``; a sequential refit of a model that has a trained task (``--refit-rounds N``) keeps apart from
+    its amortised one, in ``refit-<a>+<b>-sequential``, since neither run can resume the other."""
+    return Path(root) / f"refit-{'+'.join(effects)}{'-sequential' if sequential_of_trained else ''}"
+
+
+def amortised_refit(run: RunView, effects: Sequence[str], root: str | Path, workers: int | None = None,
+                    plots: bool = False, callbacks: Any = None) -> Path:
+    """Store the amortised posterior of the nominal model with ``effects`` (its trained task's estimator
+    conditioned on ``run``'s recording) as that model's refit run, :func:`refit_dir` under ``root``: a fit of the
+    stored task's posterior alone (:func:`~softsbi.workflows.fit.run.run_fit`'s ``task_only``) at
+    :func:`refit_config`'s settings, so that ``compare``, ``view`` and ``check`` read it as any refit. Its only
+    simulations are its ``n_eval`` posterior-predictive rollouts and its best fit's; a stored one is resumed (read).
+    ``plots``: draw its fit figures. Returns the folder.
+
+    Raises:
+        SoftsbiError: the model has no trained task (:func:`trained_task`). PosteriorError: the amortised posterior
+            puts no mass in the prior box. Everything :func:`~softsbi.workflows.fit.run.run_fit` raises.
+    """
+    cfg = refit_config(run, effects, None, None, workers)
+    out = refit_dir(root, effects)
+    run_fit(out, recording_from_run(run), cfg, callbacks=callbacks, make_plots=plots, task_only=True)
+    return out
+
+
+def amortised_scores(run: RunView, pools: Mapping[str, PosteriorPredictive], scale: np.ndarray,
+                     n: int) -> tuple[dict[str, Score], int]:
     """The summary energy score of each trained candidate's amortised posterior predictive (module docstring).
 
     Args:
-        run: the nominal fit (stopped at its trained task; otherwise nothing is scored).
-        trained: the candidates with a trained task (:func:`trained_tasks`).
+        run: the nominal fit (stopped at its trained task).
+        pools: each candidate's amortised refit's posterior-predictive rollouts (:func:`amortised_refit`, then
+            :class:`~softsbi.workflows.criticism.stats.PosteriorPredictive`), by effect; its check shares them.
         scale: ``(F,)`` the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.statistics.summary_scale`).
         n: posterior-predictive rollouts per candidate (``diagnose``'s ``n_null``: a refit's score uses as many).
-        workers: simulation processes. seed: the draws' and rollouts' seed.
 
     Returns:
-        ``{effect: Score}`` for the candidates scored (a candidate whose amortised posterior puts no mass in the
-        prior box, or with fewer than ``MIN_NULL`` successful rollouts, is left out: its refit would fail or not
-        be checked), and the number of rollouts simulated.
+        ``{effect: Score}`` for the candidates scored (one with fewer than ``MIN_NULL`` successful rollouts is left
+        out: its refit would not be checked), and the number of rollouts requested.
 
     Raises:
         SoftsbiError: an environment fault of the executor.
     """
-    if not trained:
-        return {}, 0
     f_obs = run_features(run, run.dense)
-    items = []
-    for effect, (task, cfg, space) in trained.items():
-        fr = slice(None) if cfg.frames is None else list(cfg.frames)
-        q = task.restore().posterior_at(run.x_obs[fr].astype(np.float64))
-        stream = [seed, EVIDENCE_STREAM, zlib.crc32(effect.encode())]  # by name: the same whatever else is trained
-        try:
-            theta = space.from_unit(draws_in_box(q, n, np.random.default_rng(stream)))
-        except PosteriorError:
-            continue
-        sim_seeds = np.random.default_rng(stream + [1]).integers(2**31, size=n)
-        items.append((effect, cfg, space, [JobItem(t, int(s)) for t, s in zip(theta, sim_seeds)]))
     out: dict[str, Score] = {}
-    for effect, cfg, space, jobs in items:
-        ctx = replace(run.sim_context(keep_rollout=True), effects=list(cfg.effects), param_names=space.names,
-                      bank=None)
-        res = run_jobs(ctx, jobs, workers, cfg.executor, cfg.executor_options,
-                       label=f"{effect}: amortised posterior-predictive rollouts")
-        feats = [rollout_features(run, r, surface_seed(i)) for i, r in enumerate(res)
-                 if r is not None and r.ok and r.vertices is not None]
+    for effect, pool in pools.items():
+        feats = pool.ensure(n).features[:n]
         if len(feats) >= MIN_NULL:
-            out[effect] = summary_energy_score(f_obs, np.array(feats), scale)
-    return out, sum(len(jobs) for *_, jobs in items)
-
+            out[effect] = summary_energy_score(f_obs, feats, scale)
+    return out, sum(pool.requested for pool in pools.values())

@@ -28,6 +28,7 @@ from softsbi.workflows.criticism.screening import check_resolution
 from softsbi.workflows.criticism.stats import PosteriorPredictive
 from softsbi.workflows.criticism.statistics import summary_scale
 from softsbi.core.defaults import DiagnoseSettings
+from softsbi.workflows.fit.task_store import read_once
 from softsbi.workflows.fit.config import FitConfig, RunRecord
 from softsbi.workflows.lock import check_out_apart, check_out_dir, run_lock
 
@@ -38,6 +39,7 @@ TASK_KEYS = ("scenario", "backend", "effects", "observer")
 
 
 @pools.shared_executors()
+@read_once()  # each stored task read once over the recordings' diagnoses and refits
 def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None = None, *,
                   settings: DiagnoseSettings | None = None, progress: Callable[[str], None] | None = None,
                   out_dir: str | Path | None, recompute: bool = False, plots: bool = True) -> JointDiagnosis:

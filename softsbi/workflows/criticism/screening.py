@@ -14,6 +14,7 @@
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -25,7 +26,8 @@ from softsbi.plugins import registry
 from softsbi.core.defaults import ALPHA_BOUND
 from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView
-from softsbi.workflows.criticism.stats import ALPHA, MAX_NULL, PosteriorPredictive, rollout_features, run_features
+from softsbi.workflows.criticism.stats import (ALPHA, MAX_NULL, PosteriorPredictive, features_of, run_features,
+                                               run_summarising)
 from softsbi.workflows.criticism.statistics import (
     MIN_NULL,
     max_t_adjusted,
@@ -143,8 +145,8 @@ class Screening:
 
     def __init__(self, run: RunView, cands: list[Any], res: list[JobResult],
                  eff_cols: list[tuple[Any, str, int, int]], effect_step: float, null_features: np.ndarray):
-        # finite-difference simulations share one sampling seed (common random numbers)
-        feats = [rollout_features(run, r, 0) if r is not None and r.ok else None for r in res]
+        # finite-difference simulations share one sampling seed (common random numbers), summarised in their jobs
+        feats = [features_of(run, r, 0) if r is not None and r.ok else None for r in res]
         if feats[0] is None:
             raise SoftsbiError(f"the simulation at the posterior median failed: {res[0].reason}")
         f0 = feats[0]
@@ -249,8 +251,8 @@ def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: flo
     key = (tuple(c.name for c in cands), float(unit_step), float(effect_step))
     if key not in pool.sensitivities:
         jobs, eff_cols, _ = sensitivity_jobs(pool.run, list(cands), unit_step, effect_step)
-        res = run_jobs(pool.run.sim_context(keep_rollout=True), jobs, pool.workers,
-                       label="finite differences of the screening")
+        res = run_jobs(run_summarising(pool.run, keep_rollout=False), [replace(j, summary_seed=0) for j in jobs],
+                       pool.workers, label="finite differences of the screening")
         pool.sensitivities[key] = (list(cands), eff_cols, res)
     # the stored effect instances: the design's columns refer to them
     first, eff_cols, res = pool.sensitivities[key]

@@ -3,13 +3,15 @@
 
 - :class:`PosteriorPredictive`: the posterior-predictive rollouts of a run, the null of both tests: the fit's own
   evaluation samples with their seeds first, then further posterior draws, simulated on demand
-  (:meth:`PosteriorPredictive.ensure`), with their summaries (:func:`rollout_features`).
+  (:meth:`PosteriorPredictive.ensure`), with their summaries (:func:`rollout_features`, computed in the simulation
+  jobs: :func:`run_summarising`).
 - :func:`energy_score`: the Chamfer energy score of a run's posterior predictive; :func:`posterior_mean_chamfer`:
   the posterior-mean rollout's Chamfer.
 """
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -22,7 +24,7 @@ from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
 from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame)
 from softsbi.core.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
 from softsbi.workflows.criticism.statistics import trajectory_features
-from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, run_jobs
 from softsbi.workflows.fit.runs import RunView, load_run
 
 
@@ -65,6 +67,29 @@ def sensor_features(rollout: JobResult, seed: int, n_dense: int, min_z: float | 
     clouds = sampled_points(rollout.vertices, rollout.faces, n_dense, seed)
     # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own
     return trajectory_features(clouds, combined_min_z(min_z, rollout_min_z(rollout)), frames)
+
+
+def summarising(ctx: SimContext, n_dense: int, min_z: float | None, frames: Sequence[int] | None,
+                camera: dict[str, Any] | None) -> SimContext:
+    """``ctx`` whose jobs compute each rollout's :func:`sensor_features` (``n_dense`` points per frame, the sensor
+    model ``min_z``, ``frames``, ``camera``) in the worker, for the items with a ``summary_seed``
+    (:class:`~softsbi.workflows.fit.jobs.JobItem`): the main process reads them from the results' ``features``
+    instead of sampling surfaces and summarising every rollout itself."""
+    return replace(ctx, summarise=partial(sensor_features, n_dense=int(n_dense), min_z=min_z,
+                                          frames=None if frames is None else list(frames), camera=camera))
+
+
+def run_summarising(run: "RunView", keep_rollout: bool = True) -> SimContext:
+    """The run's own job context (:meth:`~softsbi.workflows.fit.runs.RunView.sim_context`) computing each rollout's
+    :func:`rollout_features` in the worker (:func:`summarising`)."""
+    return summarising(run.sim_context(keep_rollout=keep_rollout), run.dense.shape[1], run.metric_min_z,
+                       run.metric_frames, run.record.metric_camera)
+
+
+def features_of(run: "RunView", result: JobResult, seed: int) -> np.ndarray:
+    """A successful job result's summaries: those its worker computed (``result.features``), else
+    :func:`rollout_features` here (a result simulated without :func:`run_summarising`)."""
+    return result.features if result.features is not None else rollout_features(run, result, seed)
 
 
 def run_frames(run: "RunView") -> list[int]:
@@ -159,13 +184,15 @@ class PosteriorPredictive:
         if n <= self.requested:
             return self
         self.first = self.first or n
-        res = run_jobs(self.run.sim_context(keep_rollout=True), self._items(self.requested, n), self.workers,
+        items = [replace(t, summary_seed=surface_seed(i)) for i, t in enumerate(self._items(self.requested, n),
+                                                                               start=self.requested)]
+        res = run_jobs(run_summarising(self.run), items, self.workers,
                        label=f"posterior-predictive rollouts {self.requested + 1}-{n}")
         for i, r in enumerate(res, start=self.requested):
             if r is None or not r.ok or r.vertices is None:
                 continue
             self.rollouts.append(replace(r, sample=i))
-            self._feats.append(rollout_features(self.run, r, surface_seed(i)))
+            self._feats.append(features_of(self.run, r, surface_seed(i)))
         self.requested = n
         return self
 

@@ -20,6 +20,7 @@ rename wins.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -131,7 +132,10 @@ def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> N
                            f"or {off}") from exc
 
 
+@functools.lru_cache(maxsize=None)
 def _engine_version(backend: str) -> str:
+    """The version of ``backend``'s engine package ("" when unknown), read once per process: reading an installed
+    package's metadata takes milliseconds, and every rollout key (each job through a bank) needs it."""
     try:
         return {"mujoco-flex": "mujoco " + version("mujoco"),
                 "pybullet-massspring": "pybullet " + version("pybullet")}.get(backend, "")

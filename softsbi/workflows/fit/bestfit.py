@@ -43,7 +43,8 @@ REFINE, BEST = "refine", "best_fit"
 def scores(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | None) -> np.ndarray:
     """``(N,)`` the fit's headline metric of ``N`` simulations (mean of the per-frame ``chamfer (N, T)`` over
     ``frames``, None = all; as :func:`~softsbi.workflows.fit.run.chamfer_stats`), ``inf`` for a failed one."""
-    chamfer = np.asarray(chamfer, float).reshape(len(status), -1)
+    chamfer = np.asarray(chamfer, float)
+    chamfer = chamfer.reshape(len(status), int(np.prod(chamfer.shape[1:])) if chamfer.ndim > 1 else -1)
     fr = slice(None) if frames is None else list(frames)
     ok = (np.asarray(status) == STATUS_OK) & np.all(np.isfinite(chamfer), axis=1)
     out = np.full(len(status), np.inf)

@@ -12,7 +12,7 @@ import os
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -59,6 +59,11 @@ class SimContext:
     #: a simulation bank (:class:`~softsbi.workflows.fit.bank.SimulationBank` folder) whose stored rollouts are
     #: read instead of simulated, and which keeps the new ones; None = simulate everything
     bank: str | None = None
+    #: the summaries of a rollout, computed in the worker for every item with a ``summary_seed``
+    #: (``summarise(result, summary_seed) -> (F,)``, a picklable callable such as a ``functools.partial`` of a
+    #: module-level function; the criticism's posterior-predictive summaries); None = none. The result it is given
+    #: holds the rollout (``vertices``, ``faces``, ``gripper``, ``min_visible_z``) whatever ``keep_rollout`` says
+    summarise: Any = None
 
 
 @dataclass(frozen=True)
@@ -76,12 +81,15 @@ class JobItem:
             simulation, once with ``theta`` (the result's ``x`` and Chamfer, the same numbers as without
             ``sensor_draws``) and once per draw, whose parameters replace ``theta``'s: one simulation, several
             observations (``FitConfig.sensor_draws``). None = one observation.
+        summary_seed: the seed of the rollout's summaries, computed in the worker by ``SimContext.summarise``
+            (the result's ``features``); None = no summaries.
     """
 
     theta: np.ndarray | Mapping[str, float]
     seed: int
     effects: Sequence[str] | None = field(default=None, kw_only=True)
     sensor_draws: Mapping[str, Any] | None = field(default=None, kw_only=True)
+    summary_seed: int | None = field(default=None, kw_only=True)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -106,6 +114,8 @@ class JobResult:
             (:data:`~softsbi.core.types.INFO_MIN_VISIBLE_Z`), with ``keep_rollout`` only; None = none.
         seed: the item's seed. sample: the posterior sample the rollout simulates, set by the consumers that pair
             results with samples (:meth:`~softsbi.workflows.fit.runs.RunView.posterior_rollouts`); None otherwise.
+        features: ``(F,)`` the rollout's summaries (``SimContext.summarise`` with the item's ``summary_seed``),
+            None without them.
     """
 
     status: int
@@ -122,6 +132,7 @@ class JobResult:
     min_visible_z: float | None = None
     seed: int | None = None
     sample: int | None = None
+    features: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -348,11 +359,12 @@ def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) ->
                                      seed + 1_000_003 * (j + 1)),
                         np.random.default_rng([seed, 17])).state()
             for j, d in enumerate(draws["draws"])])
-    kept = {}
-    if ctx.keep_rollout:
-        kept = {"vertices": ro.vertices, "faces": ro.faces, "gripper": ro.gripper, "min_visible_z": effect_z}
-    return JobResult(status=STATUS_OK, reason="", x=x, chamfer=ch, chamfer_one_sided=ch1, seconds=seconds,
-                     bank=banked, sensor_x=sensor_x, seed=seed, **kept)
+    rollout = {"vertices": ro.vertices, "faces": ro.faces, "gripper": ro.gripper, "min_visible_z": effect_z}
+    res = JobResult(status=STATUS_OK, reason="", x=x, chamfer=ch, chamfer_one_sided=ch1, seconds=seconds,
+                    bank=banked, sensor_x=sensor_x, seed=seed, **rollout)
+    if ctx.summarise is not None and item.summary_seed is not None:  # in the worker: the main process only reads
+        res = replace(res, features=np.asarray(ctx.summarise(res, int(item.summary_seed)), float))
+    return res if ctx.keep_rollout else replace(res, vertices=None, faces=None, gripper=None, min_visible_z=None)
 
 
 def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:

@@ -175,7 +175,8 @@ def _sensor_pairs(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, n
 
 def _usable_rows(d: dict[str, np.ndarray]) -> np.ndarray:
     """``(n,)`` bool: the simulations of a round's arrays ``d`` that training uses (status ok, finite state)."""
-    return (d["status"] == STATUS_OK) & np.all(np.isfinite(d["x"].reshape(len(d["x"]), -1)), axis=1)
+    x = d["x"]
+    return (d["status"] == STATUS_OK) & np.all(np.isfinite(x.reshape(len(x), int(np.prod(x.shape[1:])))), axis=1)
 
 
 def usable_simulations(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -192,14 +193,28 @@ def usable_simulations(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(us), np.concatenate(xs), counts
 
 
+def chain_counts(store: RunStore, counts: list[int]) -> list[int]:
+    """The usable simulations per round ``counts`` (:func:`usable_simulations`) as the posterior chain weighs the
+    rounds' proposals: a first round that drew nothing (the stored task's posterior alone, ``task_only``) counts the
+    prior simulations its task was trained on (its stored training information), at least 1."""
+    if counts and counts[0] == 0 and not len(store.round_data(0, ("status",))["status"]):
+        info = store.round_record(0).info
+        counts = [max(int(info.get("n_train_total") or 0), 1), *counts[1:]]
+    return counts
+
+
 class Rounds:
     """The sequential rounds of one fit: draw the proposal, simulate, train, condition."""
 
     def __init__(self, cfg: FitConfig, store: RunStore, space: ParamSpace, ctx: SimContext, est_cls: type,
-                 callbacks: FitCallbacks, clock: RunClock | None = None, prior: PriorRound | None = None):
+                 callbacks: FitCallbacks, clock: RunClock | None = None, prior: PriorRound | None = None,
+                 task_only: bool = False):
         self.cfg, self.store, self.space, self.ctx, self.est_cls, self.cb = cfg, store, space, ctx, est_cls, callbacks
         self.clock = clock
         self.prior = prior or PriorRound(None, None)  # the first round as a stored task (:mod:`.tasks`)
+        #: a first round begun here draws nothing: its posterior is the stored task's alone (its prior
+        #: simulations are neither read from the bank nor scored: :func:`~softsbi.workflows.fit.run.run_fit`)
+        self.task_only = task_only
         self.sequential = bool(getattr(est_cls, "sequential", True))
         self.truncated = self.sequential and cfg.proposal == "truncated"
         self.chain = PosteriorChain(space.dim, seed=cfg.seed)
@@ -227,7 +242,11 @@ class Rounds:
         elif self.summaries:
             self.summaries[-1]["chamfer_posterior"] = stats  # round r draws from posterior r-1
         U, X, counts = usable_simulations(store, r)
-        if counts[r] == 0:
+        if r == 0 and not len(d["status"]):  # a first round that drew nothing: the stored task's posterior alone
+            if not (store.is_complete(r) or self.prior.usable(0)):
+                raise SoftsbiError(f"round 1 of {store.path} drew no simulations of its own: its posterior is a "
+                                   f"stored task's, which is no longer stored; fit into a new --out folder")
+        elif counts[r] == 0:
             reasons = sorted(set(store.round_record(r).failures.values()))
             effect_code = all(x.startswith(EffectFault.__name__) for x in reasons)  # an effect's code, not physics
             raise SoftsbiError(f"round {r + 1}: every simulation failed, e.g. {reasons[:3]}; "
@@ -237,7 +256,7 @@ class Rounds:
                                f"fail, fix it and re-run with --retry-failed (finished simulations are kept in "
                                f"{store.path})")
         q, info = self._train(r, U, X, counts)
-        post = self._add_posterior(r, q, counts)
+        post = self._add_posterior(r, q, chain_counts(store, counts))
         try:
             mean_u, _ = post.moments(4000, seed=cfg.seed + r)
         except PosteriorError as exc:
@@ -252,8 +271,14 @@ class Rounds:
         self.cb.round_end(r, self.summaries[-1])
 
     def _begin(self, r: int) -> None:
-        """Draw round ``r``'s parameters from its proposal and store them (with their seeds)."""
+        """Draw round ``r``'s parameters from its proposal and store them (with their seeds); a first round that
+        is the stored task's alone (``task_only``) draws none."""
         cfg, space = self.cfg, self.space
+        if r == 0 and self.task_only:
+            none = np.zeros((0, space.dim))
+            self.store.begin_round(r, none, none, np.zeros(0, np.int64), self.x_obs.shape,
+                                   f"none: stored task {self.prior.digest}'s posterior, conditioned on the recording")
+            return
         proposal = None  # bulk estimators (sequential = False): every round draws from the prior
         if r > 0 and self.sequential:
             proposal = self.chain.posterior(len(self.chain) - 1)

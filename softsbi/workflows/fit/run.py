@@ -76,7 +76,8 @@ class FitResult:
 
 
 def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = None,
-            callbacks: FitCallbacks | None = None, make_plots: bool = True, retry_failed: bool = False) -> FitResult:
+            callbacks: FitCallbacks | None = None, make_plots: bool = True, retry_failed: bool = False,
+            task_only: bool = False) -> FitResult:
     """Run (or resume) a sequential fit into ``out_dir``.
 
     Writes ``out_dir/run.zarr`` as it goes, then ``report.json`` and PNGs.
@@ -91,6 +92,12 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
         retry_failed: on resume, simulate the stored failed simulations again (e.g. after fixing the
             environment that made them fail): the earliest round with failures is redone from its
             stored draws and the rounds after it are drawn again from its new posterior.
+        task_only: a fit of a task ``softsbi task train`` trained, in one round: the stored task's posterior
+            conditioned on the recording, with no simulation of the first round's own (a fit that stops at the
+            trained task reads its prior simulations back from the bank, for the report's prior Chamfer and the
+            best fit among them; this one draws none, so its report has no prior Chamfer). Its evaluation
+            rollouts and best fit are simulated as any fit's. What a refit of a trained candidate stores
+            (``diagnose``); a run begun this way stays so when it is resumed.
 
     Returns:
         :class:`FitResult`.
@@ -102,7 +109,8 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
         EnvironmentFault: the machine cannot simulate; nothing is stored as failed.
         PosteriorError: a round's posterior has no mass in the prior box.
         SoftsbiError: a simulation bank that is empty, a file, cannot be created, or lies inside or around
-            ``out_dir`` or the recording (:func:`~softsbi.workflows.fit.bank.check_bank_path`).
+            ``out_dir`` or the recording (:func:`~softsbi.workflows.fit.bank.check_bank_path`); ``task_only``
+            without a task trained for ``cfg``'s first round, or with more than one round.
     """
     callbacks = callbacks or FitCallbacks()
     cfg = (cfg or FitConfig()).resolved(recording)
@@ -112,11 +120,11 @@ def run_fit(out_dir: str | Path, recording: Recording, cfg: FitConfig | None = N
     with run_lock(out_dir), pools.shared_executors():
         for name in ("report.json", *(FIGURES if make_plots else ())):  # a folder in a file's place: refused
             check_result_path(Path(out_dir) / name)                        # before any simulation
-        return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed)
+        return _run_fit_locked(Path(out_dir), recording, cfg, callbacks, make_plots, retry_failed, task_only)
 
 
 def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbacks: FitCallbacks, make_plots: bool,
-                    retry_failed: bool) -> FitResult:
+                    retry_failed: bool, task_only: bool = False) -> FitResult:
     """:func:`run_fit` with the run directory's lock held."""
     reg = registry()
     est_cls = reg.estimator(cfg.estimator)
@@ -126,6 +134,12 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
     prior = PriorRound.of(cfg, recording, base)  # the first round as a stored task (:mod:`.tasks`)
     if prior.damaged is not None:
         callbacks.message(prior.damage_line())
+    if task_only:
+        if not prior.trained(cfg.sims_per_round) or cfg.rounds not in (None, 1):
+            raise SoftsbiError(f"a fit of the stored task's posterior alone takes one round of a task `softsbi task "
+                               f"train` trained for its settings (rounds {cfg.rounds}; "
+                               f"{'a trained task' if prior.trained(cfg.sims_per_round) else 'no trained task'})")
+        cfg = replace(cfg, rounds=1)
     if cfg.rounds is None:  # a trained task's posterior alone, else the sequential rounds
         cfg = replace(cfg, rounds=1 if prior.trained(cfg.sims_per_round) else defaults.ROUNDS)
     store, prev = open_store(out_dir, recording, cfg, space, callbacks)
@@ -138,7 +152,7 @@ def _run_fit_locked(out_dir: Path, recording: Recording, cfg: FitConfig, callbac
         retry_failed_simulations(store, callbacks)
     space = reconcile(store, base, callbacks.message)
     ctx = fit_sim_context(cfg, recording, store, space)
-    loop = Rounds(cfg, store, space, ctx, est_cls, callbacks, clock, prior)
+    loop = Rounds(cfg, store, space, ctx, est_cls, callbacks, clock, prior, task_only)
     try:
         with pools.executor(cfg.executor, cfg.workers, cfg.executor_options) as executor:
             for r in range(cfg.rounds):

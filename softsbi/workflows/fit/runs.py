@@ -18,7 +18,7 @@ from softsbi.workflows.fit.bestfit import BestFit, read_best_fit
 from softsbi.workflows.fit.config import FitConfig, RunRecord
 from softsbi.workflows.fit.report_file import read_report
 from softsbi.workflows.fit.resume import observed_data
-from softsbi.workflows.fit.rounds import round_posterior, usable_simulations
+from softsbi.workflows.fit.rounds import chain_counts, round_posterior, usable_simulations
 from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, run_jobs, stored_evaluation_seeds
 
 
@@ -296,7 +296,7 @@ def final_posterior(run_dir: Path, store: RunStore) -> Posterior:
         raise SoftsbiError(f"'{run_dir}' holds no finished round yet; resume the fit with the same `softsbi fit` "
                            f"command first")
     sequential = bool(getattr(registry().estimator(cfg.estimator), "sequential", True))
-    _, _, counts = usable_simulations(store, rounds[-1])
+    counts = chain_counts(store, usable_simulations(store, rounds[-1])[2])
     chain = PosteriorChain(space.dim, seed=cfg.seed)
     if sequential and cfg.proposal != "truncated":
         for r in rounds:

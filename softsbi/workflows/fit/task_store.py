@@ -31,6 +31,7 @@ the entry only when no training report was stored in it (:meth:`PriorRound.damag
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import hashlib
 import json
 import os
@@ -100,6 +101,26 @@ def first_round_context(cfg: FitConfig, recording: Recording, space: ParamSpace)
 def task_digest(identity: Mapping[str, Any]) -> str:
     """The task's key: the SHA-256 (hex) of its identity's canonical JSON."""
     return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
+
+
+#: the entries :func:`read_once` keeps, by (store folder, key); None outside it
+_READ_ONCE: contextvars.ContextVar[dict[tuple[str, str], Any] | None] = contextvars.ContextVar("read_once",
+                                                                                              default=None)
+
+
+@contextlib.contextmanager
+def read_once() -> Iterator[None]:
+    """Inside the block, each stored task is read from the disk once (:meth:`TaskStore.entry`): a command that
+    reaches one task through several steps (``diagnose``: the candidates' amortised posteriors, their refits, the
+    checks' calibration) reads its metadata and estimator state once. Nested blocks share the outermost's entries."""
+    if _READ_ONCE.get() is not None:
+        yield
+        return
+    token = _READ_ONCE.set({})
+    try:
+        yield
+    finally:
+        _READ_ONCE.reset(token)
 
 
 def task_store_of(sim_bank: str = defaults.SIM_BANK) -> "TaskStore | None":
@@ -196,7 +217,24 @@ class TaskStore:
     def entry(self, digest: str) -> StoredTask | DamagedTask | None:
         """The entry of ``digest``: the stored task, a :class:`DamagedTask` (its metadata, estimator state (its
         checksum) or training report cannot be read, or its folder lacks ``task.zarr``), or None when absent, of
-        another format or stored under another key (a folder moved or copied)."""
+        another format or stored under another key (a folder moved or copied). Inside :func:`read_once`, each
+        entry is read from the disk once (:meth:`put` and :meth:`delete` of this process read it again)."""
+        cache = _READ_ONCE.get()
+        if cache is None:
+            return self._read(digest)
+        key = (str(self.path.resolve()), digest)
+        if key not in cache:
+            cache[key] = self._read(digest)
+        return cache[key]
+
+    def _forget(self, digest: str) -> None:
+        """Drop ``digest``'s entry from the :func:`read_once` cache (it was stored or deleted here)."""
+        cache = _READ_ONCE.get()
+        if cache is not None:
+            cache.pop((str(self.path.resolve()), digest), None)
+
+    def _read(self, digest: str) -> StoredTask | DamagedTask | None:
+        """:meth:`entry` read from the disk: its metadata, its estimator state (checksummed) and its report."""
         where = self._where(digest)
         if not where.is_dir():
             return None
@@ -273,6 +311,7 @@ class TaskStore:
         written (a read-only or full disk: nothing is stored, nothing is lost); ``strict``: raise that
         ``OSError`` instead."""
         digest = task_digest(identity)
+        self._forget(digest)
         arrays, attrs = encode_posterior(None, estimator, f"stored task {digest[:12]}")
         tmp = self.path / "tmp" / f"{digest}-{uuid.uuid4().hex}"
         where = self._where(digest)
@@ -324,6 +363,7 @@ class TaskStore:
         deleted."""
         task = self.find(prefix)
         shutil.rmtree(task.path)
+        self._forget(task.digest)
         return task
 
 

@@ -194,14 +194,14 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
 def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,
                   workers: int | None, null_rollouts: int = defaults.N_NULL) -> str:
     """What ``task train`` will spend, said before it starts: ``n_models`` models of ``n_prior`` prior and
-    ``n_test`` held-out simulations each, and ``check_null`` replicate recordings of ``null_rollouts + 1``
-    simulations; with ``seconds`` (one simulation's time, :func:`pilot_seconds`) the time on ``workers`` processes
-    (None: one per CPU), the estimators' training not included. An upper bound: models already stored and
-    simulations in the bank are not simulated again."""
-    total = n_models * (n_prior + n_test) + check_null * (null_rollouts + 1)
+    ``n_test`` held-out simulations each, and, for each model, ``check_null`` replicate recordings of
+    ``null_rollouts + 1`` simulations; with ``seconds`` (one simulation's time, :func:`pilot_seconds`) the time on
+    ``workers`` processes (None: one per CPU), the estimators' training not included. An upper bound: models and
+    replicates already stored and simulations in the bank are not simulated again."""
+    total = n_models * (n_prior + n_test + check_null * (null_rollouts + 1))
     s = (f"task train plan: {n_models} model{'s' if n_models > 1 else ''} x ({n_prior} prior + {n_test} held-out "
-         f"simulations)" + (f" + {check_null} replicate recordings x {null_rollouts + 1} for check's calibration"
-                            if check_null else "") + f" = {total} simulations at most")
+         f"simulations" + (f" + {check_null} replicate recordings x {null_rollouts + 1} for check's calibration"
+                           if check_null else "") + f") = {total} simulations at most")
     if seconds is None:
         return s + " (one simulation's time unknown: it was read from the bank or failed)"
     n = workers or os.cpu_count() or 1
@@ -303,8 +303,9 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
                check_null: int = defaults.CHECK_REPLICATES,
                message: Callable[[str], None] | None = None) -> list[StoredTask]:
     """Train a task once for the nominal model and each candidate effect (:func:`candidate_models`,
-    :func:`train_model`); returns the stored tasks, nominal first. ``check_null`` replicate recordings calibrate
-    the check of the nominal model's fits (:mod:`~softsbi.workflows.criticism.check_null`: ``diagnose``'s detection).
+    :func:`train_model`); returns the stored tasks, nominal first. ``check_null`` replicate recordings of each model
+    calibrate the check of its fits (:mod:`~softsbi.workflows.criticism.check_null`): the nominal model's is
+    ``diagnose``'s detection, a candidate's the adequacy check of its refit, which then has the detection's power.
 
     Raises:
         SoftsbiError: ``n_test`` between 1 and ``defaults.MIN_TEST - 1``.
@@ -317,12 +318,12 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     models = candidate_models(cfg, candidates)
     say = message or (lambda s: None)
     say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers))
-    each = [n_prior + n_test + (check_null * (defaults.N_NULL + 1) if i == 0 else 0) for i in range(len(models))]
+    each = [n_prior + n_test + check_null * (defaults.N_NULL + 1)] * len(models)
     out = []
     for i, effects in enumerate(models, start=1):
         done = sum(each[:i - 1])
         say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])} (simulations "
             f"{done + 1}-{done + each[i - 1]} of {sum(each)} at most)")
         out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain,
-                               check_null if i == 1 else 0, say))
+                               check_null, say))
     return out
