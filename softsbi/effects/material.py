@@ -23,10 +23,14 @@ class AnisotropicStretch(Effect):
     axis: a grid cloth's first axis (vertex ``i * n + j``: index i), a mesh cloth's own x axis (turned by its
     placement yaw). Off at ``r = 1`` (the prior's midpoint in log scale: the prior is log-uniform over 1/4-4).
 
-    Direction: at ``r > 1`` a cloth pulled along the warp stretches less, and across it more, than the nominal
-    cloth of the same ``stretch`` (``tests/effects/test_rig.py``: a strip hanging along the warp at ``r = 4``
-    stretches half as much). A corner lift pulls along the diagonal, which is symmetric in warp and weft: ``r``
-    and ``1/r`` then give mirror images of each other about the diagonal's vertical plane.
+    Direction: at ``r > 1`` the cloth stretches less along the warp and more along the weft than the nominal
+    cloth of the same ``stretch``: stretched uniformly along the warp it pulls back ``sqrt(r)`` times as hard,
+    along the weft ``1/sqrt(r)`` times (MuJoCo's passive forces, exactly); lifted by a corner (5x5 grid, stretch
+    10 N/m, r = 4) its warp edges stretch 1.0 % where the nominal's stretch 2.5 %, its weft edges 4.7 %
+    (``tests/effects/test_rig.py``). A corner lift pulls along the diagonal, which is symmetric in warp and weft:
+    ``r`` and ``1/r`` then give near mirror images of each other about the diagonal's vertical plane, and to first
+    order in ``log r`` the hanging shape does not change (a finite difference at ``r = 1`` hardly sees it; a
+    trained or refitted model does).
 
     Model edit for ``mujoco-flex`` only (the orthotropic stiffness written into the compiled flex, integrated
     implicitly as the engine's own elasticity).
