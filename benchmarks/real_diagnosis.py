@@ -11,9 +11,11 @@ diagnosis scores each candidate through its amortised posterior before refitting
 
 Tables: per recording the check's p-value, the verdict, the effects named, the screening's top candidates with the
 share of the residual each explains, the residual's shape (flagged frames, the centroid's offset, the worst
-regions), the posterior-predictive Chamfer and the best fit; then the candidates' screening shares across the
-recordings of each task; with folds, each fold's posterior/prior and posterior-predictive Chamfer beside the fold
-suite's stored run. The figure has one row per task.
+regions), the posterior-predictive Chamfer and the best fit; per task with two recordings or more, the diagnosis
+across its recordings (``softsbi diagnose RUN RUN ... --out``: one verdict for the set, each candidate's summed
+score, adequacy and switched-on count) with each recording's own verdict beside it; then the candidates' screening
+shares across the recordings of each task; with folds, each fold's posterior/prior and posterior-predictive Chamfer
+beside the fold suite's stored run. The figure has one row per task.
 """
 from __future__ import annotations
 
@@ -132,6 +134,11 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
                             ["candidate", *recs],
                             [[e, *[None if r not in by_effect[e] else f"{100 * by_effect[e][r]:.0f}%" for r in recs]]
                              for e in order]))
+    joint = {}
+    for task in dict.fromkeys(c[0] for c in cases):  # one diagnosis across each task's recordings
+        runs = [out / f"{t}_{r}" for t, r, _ in cases if t == task]
+        if len(runs) >= 2:
+            tables[1:1], joint[task] = joint_tables(task, runs, out / f"joint_{task}", a.workers, env)
     for task, reps in reports.items():  # do repeats of a fabric agree better than different fabrics?
         names = [p["name"] for p in next(iter(reps.values()))["parameters"]]
         mat, u = material_unit_means(reps, names)
@@ -157,7 +164,28 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
              f"{trained:.0f} s; a model stored by an earlier run of the same folder, or for an earlier recording of "
              f"the same task, is not trained again)."
              if trained is not None else "No task trained (--no-train): every fit ran its sequential rounds."]
-    return {"tables": tables, "notes": notes, "figures": figures, "data": {"recordings": data, "train_s": trained}}
+    return {"tables": tables, "notes": notes, "figures": figures,
+            "data": {"recordings": data, "train_s": trained, "joint": joint}}
+
+
+def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: dict) -> tuple[list[dict], dict]:
+    """The diagnosis across a task's recordings (``softsbi diagnose RUN RUN ... --out folder``, reused when stored
+    there): its candidates' table and each recording's own verdict beside it, and its data (verdict, named, the
+    summary sentence, wall time)."""
+    from softsbi.core.joint import JointDiagnosis
+    from softsbi.core.results import from_json
+    from softsbi.report.joint_text import JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, recording_rows
+    from softsbi.workflows.criticism.joint import JOINT_FILE
+    wall = None
+    if not (folder / JOINT_FILE).exists():
+        wall = _softsbi(env, "diagnose", *map(str, runs), "--out", str(folder), "--workers", str(workers))
+    j = from_json(JointDiagnosis, json.loads((folder / JOINT_FILE).read_text()))
+    summary = joint_summary(j)
+    return ([table(f"{task}: one diagnosis across its {len(runs)} recordings, candidates by summed score. "
+                   f"{summary}", JOINT_COLUMNS, joint_rows(j)),
+             table(f"{task}: each recording's own diagnosis beside the task's", RECORDING_COLUMNS, recording_rows(j))],
+            {"verdict": j.decision.verdict,
+             "named": list(j.decision.named), "summary": summary, "wall_s": wall})
 
 
 def fold_beside_fold_suite(reports: dict) -> dict:

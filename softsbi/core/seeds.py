@@ -19,6 +19,9 @@ VIEW_STREAM = 5150
 EVIDENCE_STREAM = 6060
 #: a task's held-out prior simulations (its training report)
 TEST_STREAM = 7070
+#: a second set of a task's held-out prior simulations, judged once after a choice made on the first
+#: (the posterior-calibration suite's fresh test)
+FRESH_TEST_STREAM = 7171
 #: the replicate recordings that calibrate ``check`` of a trained task
 NULL_STREAM = 8080
 #: the posterior-predictive evaluation after the last round ``R``: stream ``EVAL_STREAM + R``
@@ -31,6 +34,7 @@ SURFACE_SEED = 1000
 #: the named streams, by name (their values must differ)
 STREAMS = {"SENSOR_VIEW_STREAM": SENSOR_VIEW_STREAM, "RECAL_STREAM": RECAL_STREAM, "SYNTH_STREAM": SYNTH_STREAM,
            "VIEW_STREAM": VIEW_STREAM, "EVIDENCE_STREAM": EVIDENCE_STREAM, "TEST_STREAM": TEST_STREAM,
+           "FRESH_TEST_STREAM": FRESH_TEST_STREAM,
            "NULL_STREAM": NULL_STREAM, "EVAL_STREAM": EVAL_STREAM}
 
 

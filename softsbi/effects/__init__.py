@@ -1,7 +1,8 @@
 """Effects: physical or sensor effects a nominal model may lack, declared exactly like third-party ones.
 
 Modules: :mod:`.builtin` (air-drag, wind, extra-damping, grip-compliance; its hook registers every
-built-in), :mod:`.physics` (table-slope, sticky-patch, heavy-hem), :mod:`.sensor`
+built-in), :mod:`.physics` (table-slope, sticky-patch, heavy-hem), :mod:`.robot` (duration-scale,
+grasp-patch: how the robot executes the scenario; model edits for ``mujoco-flex``), :mod:`.sensor`
 (calibration-offset, point-noise, time-offset, table-unseen; ``kind = "sensor"``), :mod:`.material`
 (aniso-stretch: the fabric's warp-to-weft stiffness ratio), :mod:`.rig` (arm-mask, camera-offset: the depth rig's
 two merged cameras and its masked-out arm; ``kind = "sensor"``) and :mod:`.generic` (generic force terms,

@@ -26,9 +26,10 @@ No backend knows them by name: each acts through the kinds of :class:`~softsbi.c
   cloth slipping in soft fingers.
 
 The other built-in candidates live in :mod:`softsbi.effects.physics` (tilted table, sticky patch,
-heavy hem), :mod:`softsbi.effects.sensor` (calibration offset, point noise, time offset),
-:mod:`softsbi.effects.material` (anisotropic stretch), :mod:`softsbi.effects.rig` (the depth rig's arm mask and
-camera offset) and :mod:`softsbi.effects.generic` (generic force terms); this module's hook registers them all.
+heavy hem), :mod:`softsbi.effects.robot` (the motion's duration, a grasp holding a patch),
+:mod:`softsbi.effects.sensor` (calibration offset, point noise, time offset), :mod:`softsbi.effects.material`
+(anisotropic stretch), :mod:`softsbi.effects.rig` (the depth rig's arm mask and camera offset) and
+:mod:`softsbi.effects.generic` (generic force terms); this module's hook registers them all.
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ from softsbi.effects.generic import GENERIC_EFFECTS
 from softsbi.effects.material import MATERIAL_EFFECTS
 from softsbi.effects.physics import PHYSICS_EFFECTS
 from softsbi.effects.rig import RIG_EFFECTS
+from softsbi.effects.robot import ROBOT_EFFECTS
 from softsbi.effects.sensor import SENSOR_EFFECTS
 from softsbi.plugins.hookspecs import hookimpl
 
@@ -188,9 +190,16 @@ class GripCompliance(Effect):
                                  description="time constant of the grasp constraint (0.008 s = rigid grasp)")])
 
     def edit_model(self, backend: str, model: Any, theta: Mapping[str, float], ctx: Mapping[str, Any]) -> None:
-        """Only the time constant changes (never below the nominal grasp's), so the lower bound is nominal."""
-        tc, ratio = model["connect"]["solref"]
-        model["connect"]["solref"] = [max(float(theta["grip_timeconst"]), tc), ratio]
+        """Only the time constant changes (never below the nominal grasp's), so the lower bound is nominal. Every
+        other constraint on the gripper (``grasp-patch``'s held vertices) is slowed by the same factor, so the two
+        edits give one model in either order."""
+        grip = model["connect"]
+        tc, ratio = grip["solref"]
+        slow = max(float(theta["grip_timeconst"]), tc)
+        for c in model.get("connects", [grip]):
+            if c is not grip and c["body2"] == grip["body2"]:
+                c["solref"] = [float(c["solref"][0]) * slow / tc, c["solref"][1]]
+        grip["solref"] = [slow, ratio]
 
 
 BUILTIN_EFFECTS = (AirDrag, Wind, ExtraDamping, GripCompliance)
@@ -198,6 +207,7 @@ BUILTIN_EFFECTS = (AirDrag, Wind, ExtraDamping, GripCompliance)
 
 @hookimpl
 def softsbi_effects():
-    """Every built-in effect: the four above, the physical, material, sensor and rig candidates and the generic
-    terms."""
-    return [*BUILTIN_EFFECTS, *PHYSICS_EFFECTS, *SENSOR_EFFECTS, *GENERIC_EFFECTS, *MATERIAL_EFFECTS, *RIG_EFFECTS]
+    """Every built-in effect: the four above, the physical, robot, sensor, material and rig candidates and the
+    generic terms."""
+    return [*BUILTIN_EFFECTS, *PHYSICS_EFFECTS, *ROBOT_EFFECTS, *SENSOR_EFFECTS, *GENERIC_EFFECTS, *MATERIAL_EFFECTS,
+            *RIG_EFFECTS]

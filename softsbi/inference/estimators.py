@@ -55,17 +55,20 @@ class RKHSEstimator(NeuralMDNEstimator):
     are divided by one isotropic scale (the RMS spread of the training points), so the
     kernel stays isotropic in metric space and ``rkhs_sigma = 1`` is about the object size.
 
-    Defaults that differ from :class:`NeuralMDNEstimator`'s: a recalibrated deep ensemble of 5
-    (``ensemble=5, recalibrate=True``; Lakshminarayanan et al. 2017) whose members share one trunk
-    (:data:`SHARED_TRUNK`: ``ensemble_shared="trunk", point_subset=8, lr=3e-3, patience=8``; sharing the
-    trunk is this project's variant): member 0 trains end to end on random 8-point subsets of every frame
-    (an unbiased estimate of the kernel mean embedding per step; every point at validation and
-    prediction), the other members' heads train together on its frozen trunk's features, then every
-    component's covariance is scaled on the validation split. Its calibration, held-out NLL and training
-    time against one network and against 5 independent networks are in docs/benchmarks.md (calibration,
-    estimators-speed). :data:`END_TO_END` (``ensemble_shared=none, point_subset=0, lr=0.001, patience=15``)
-    trains 5 independent networks; ``ensemble=1, recalibrate=False`` with those is the single network of
-    Antonova et al. 2022.
+    Defaults that differ from :class:`NeuralMDNEstimator`'s: a recalibrated deep ensemble of 5 independent
+    networks (``ensemble=5, recalibrate=True``; Lakshminarayanan et al. 2017), each trained end to end on random
+    8-point subsets of every frame (:data:`SUBSETS`: ``ensemble_shared="none", point_subset=8, lr=3e-3,
+    patience=8``; an unbiased estimate of the kernel mean embedding per step; every point at validation and
+    prediction), then recalibrated on the validation split: each parameter's marginal by a scale and a shift
+    (``recal_marginals=True``, maximum likelihood, kept only where a likelihood-ratio test rejects the trained
+    marginal), then every component's covariance by the scale whose validation coverage lies closest to nominal
+    (``recal_rule="closest"``). *Why:* on the lift task's 12 trained models (docs/benchmarks.md,
+    posterior-calibration) the previous default, a shared-trunk ensemble (:data:`SHARED_TRUNK`: the other members'
+    heads trained on member 0's frozen trunk) with one covariance scale, was over-confident in some marginals and
+    too wide in others (TARP rejected 10 of 12, SBC 10 of 12); independent members, per-marginal recalibration and
+    the closest scale are the ensemble and recalibration of Hermans et al. 2022. :data:`END_TO_END`
+    (``ensemble_shared=none, point_subset=0, lr=0.001, patience=15``) trains 5 independent networks on every
+    point; ``ensemble=1, recalibrate=False`` with those is the single network of Antonova et al. 2022.
 
     Extra config options (besides :class:`NeuralMDNEstimator`'s):
         rkhs_features: number of frequencies ``M`` per layer (output ``2M``), default 32.
@@ -88,18 +91,21 @@ class RKHSEstimator(NeuralMDNEstimator):
     """
 
     name: ClassVar[str] = "rkhs"
-    #: the shared-trunk ensemble's training (part of the default; docs/benchmarks.md, calibration and
-    #: estimators-speed)
-    SHARED_TRUNK: ClassVar[dict[str, Any]] = {"ensemble_shared": "trunk", "point_subset": 8, "lr": 3e-3, "patience": 8}
+    #: independent members trained on 8-point subsets (part of the default; docs/benchmarks.md,
+    #: posterior-calibration)
+    SUBSETS: ClassVar[dict[str, Any]] = {"ensemble_shared": "none", "point_subset": 8, "lr": 3e-3, "patience": 8}
+    #: the shared-trunk ensemble's training: the members' heads on member 0's frozen trunk (the previous default;
+    #: docs/benchmarks.md, estimators-speed)
+    SHARED_TRUNK: ClassVar[dict[str, Any]] = {**SUBSETS, "ensemble_shared": "trunk"}
     #: every network trained end to end on every point, the base's learning rate and patience: the previous
     #: default's training (with ``ensemble=5, recalibrate=True``) and the baselines' (nn-bulk, bayeszoom-rkhs)
     END_TO_END: ClassVar[dict[str, Any]] = {"ensemble_shared": "none", "point_subset": None, "lr": 1e-3, "patience": 15}
-    #: ``ensemble=5, recalibrate=True`` with :data:`SHARED_TRUNK`: the calibrated default (docs/benchmarks.md,
-    #: calibration)
-    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"ensemble": 5, "recalibrate": True,
+    #: ``ensemble=5, recalibrate=True, recal_marginals=True`` with :data:`SUBSETS`: the calibrated default
+    #: (docs/benchmarks.md, posterior-calibration)
+    EXTRA_DEFAULTS: ClassVar[dict[str, Any]] = {"ensemble": 5, "recalibrate": True, "recal_marginals": True,
                                                 "rkhs_features": 32, "rkhs_sigma": 0.5, "rkhs_learn": True,
                                                 "batch_norm": False, "frame_moments": False, "frame_thickness": False,
-                                                **SHARED_TRUNK}
+                                                **SUBSETS}
 
     def __init__(self, **config: Any):
         super().__init__(**config)

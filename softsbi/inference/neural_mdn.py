@@ -25,7 +25,7 @@ from softsbi.plugins.manager import check_option_values
 from softsbi.inference.ensembles import train_members
 from softsbi.inference.mdn import ACTIVATIONS, MDNNetwork, MDNParams
 from softsbi.inference.mdn_posterior import STATE_FORMAT, MDNPosterior
-from softsbi.inference.recalibration import choose_cov_scale, fit_marginals
+from softsbi.inference.recalibration import SCALE_RULES, choose_cov_scale, fit_marginals
 from softsbi.inference.training import threads_option, torch_threads, train_val_split
 
 __all__ = ["NeuralMDNEstimator", "merge_config", "check_training_pair", "threads_option", "MIN_SAMPLES", "STATE_FORMAT",
@@ -113,11 +113,15 @@ class NeuralMDNEstimator(MDNPosterior):
             (:func:`~softsbi.inference.ensembles.fit_stacked`), default False: the same members up to float
             rounding; it pays where per-step overhead dominates (small networks, a GPU), not on a CPU.
             Networks with batch normalisation never stack.
-        recalibrate: after training, scale every component's covariance by the smallest factor ``s``
-            in :data:`RECAL_SCALES` whose expected HPD coverage on the held-out validation simulations
-            is at least nominal, plus ``recal_margin`` binomial standard errors, at the levels
-            :data:`RECAL_LEVELS` (post-hoc recalibration), default False. ``fit_info["recalibration"]``
-            holds ``s``, the validation coverage at every scale and the coverage error before/after.
+        recalibrate: after training, scale every component's covariance by the factor ``s`` in
+            :data:`RECAL_SCALES` chosen on the held-out validation simulations by ``recal_rule`` against the
+            nominal coverage plus ``recal_margin`` binomial standard errors at the levels :data:`RECAL_LEVELS`
+            (post-hoc recalibration, :func:`~softsbi.inference.recalibration.choose_cov_scale`), default False.
+            ``fit_info["recalibration"]`` holds ``s``, the validation coverage at every scale and the coverage
+            error before/after.
+        recal_rule: how ``recalibrate`` chooses ``s``: ``"closest"`` (default), the scale whose validation
+            coverage curve lies closest to the target; ``"at-least"``, the smallest scale that reaches it at
+            every level (the earlier rule: it over-covered the middle levels, docs/explanation.md).
         recal_marginals: with ``recalibrate``, first recalibrate each parameter's marginal on the validation
             split (:meth:`_recalibrate_marginals`: a per-parameter scale and shift of the posterior about its
             mean, fitted by maximum likelihood of the held-out truths under the box-restricted marginals), then
@@ -158,7 +162,7 @@ class NeuralMDNEstimator(MDNPosterior):
         "hidden": (256, 256), "n_components": 4, "activation": "relu", "lr": 1e-3, "weight_decay": 1e-5,
         "max_epochs": 300, "patience": 15, "min_epochs": 10, "batch_size": 64, "val_fraction": 0.15,
         "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1, "ensemble": 1,
-        "recalibrate": False, "recal_margin": 0.0, "recal_marginals": False,
+        "recalibrate": False, "recal_margin": 0.0, "recal_marginals": False, "recal_rule": "closest",
         "embedding_epochs": None,
         "stack_members": False,
         "ensemble_shared": "none",
@@ -192,6 +196,8 @@ class NeuralMDNEstimator(MDNPosterior):
         super().__init__(**cfg)
         if int(cfg["ensemble"]) < 1:
             raise ParameterError(f"ensemble must be an integer >= 1 (got {cfg['ensemble']}); 1 = a single network")
+        if cfg["recal_rule"] not in SCALE_RULES:
+            raise ParameterError(f"recal_rule must be one of {', '.join(SCALE_RULES)} (got {cfg['recal_rule']!r})")
         if cfg["ensemble_shared"] not in self.SHARED_CHOICES:
             raise ParameterError(f"ensemble_shared must be one of {', '.join(self.SHARED_CHOICES)} (got "
                                  f"{cfg['ensemble_shared']!r}); 'none' = independent networks")
@@ -403,7 +409,8 @@ class NeuralMDNEstimator(MDNPosterior):
             marginals = self._recalibrate_marginals(base, u_val)
             base = self._predict(zs_val)  # with the marginals recalibrated: the joint scale is chosen on top
         out = choose_cov_scale(base, u_val, self.RECAL_SCALES, self.RECAL_LEVELS,
-                               float(self.config.get("recal_margin", 0.0)), np.random.default_rng([seed, RECAL_STREAM]))
+                               float(self.config.get("recal_margin", 0.0)), np.random.default_rng([seed, RECAL_STREAM]),
+                               rule=str(self.config.get("recal_rule", "closest")))
         self._cov_scale = out["cov_scale"]
         return {**out, **({"marginals": marginals} if marginals is not None else {})}
 

@@ -94,18 +94,25 @@ def marginal_affine(p: MDNParams, scale: np.ndarray, shift: np.ndarray) -> MDNPa
     return MDNParams(p.logits, m + s * (p.means - m) + b * sd, s[:, None] * p.scale_tril)
 
 
-def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float], levels: Sequence[float],
-                     margin: float, rng: np.random.Generator, n_draws: int = HPD_DRAWS) -> dict[str, Any]:
-    """The covariance scale ``s`` of ``recalibrate``: the smallest in ``scales`` whose expected HPD coverage
-    ``c_g`` on the ``n`` held-out validation simulations satisfies ``c_g >= g + m sqrt(g (1 - g) / n)`` at every
-    level ``g`` of ``levels``, ``m = margin`` (the posterior restricted to the unit box, as used; the largest
-    scale if none does). Post-hoc recalibration of the predictive distribution, like temperature scaling
-    (Guo et al. 2017), on the split that early stopping also uses.
+#: the rules of :func:`choose_cov_scale`
+SCALE_RULES = ("closest", "at-least")
 
-    Conservative on purpose: the validation coverage is optimistic (early stopping picked the epoch on the
-    same split, so a scale matching it to the nominal levels leaves the test coverage below them), and an
-    over-confident posterior is the failure to avoid (Hermans et al. 2022). A margin ``m > 0`` makes the
-    choice a one-sided lower confidence bound on the validation coverage (``m = 1``: ~84 %).
+
+def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float], levels: Sequence[float],
+                     margin: float, rng: np.random.Generator, n_draws: int = HPD_DRAWS,
+                     rule: str = "closest") -> dict[str, Any]:
+    """The covariance scale ``s`` of ``recalibrate``: with ``rule="closest"`` the one in ``scales`` whose expected
+    HPD coverage ``c_g`` on the ``n`` held-out validation simulations lies closest to the target
+    ``t_g = g + m sqrt(g (1 - g) / n)`` over ``levels`` (the least mean ``|c_g - t_g|``; ties to the smaller
+    scale), ``m = margin`` (the posterior restricted to the unit box, as used); with ``rule="at-least"`` the
+    smallest whose ``c_g >= t_g`` at every level (the largest if none is). Post-hoc recalibration of the
+    predictive distribution, like temperature scaling (Guo et al. 2017).
+
+    Matching the coverage curve, not requiring ``c_g >= t_g`` at every level: a posterior whose shape is slightly
+    off (its coverage curve crosses the diagonal) met the one-sided rule only at a scale that over-covered the
+    middle levels, and the noise of ``n`` validation cases pushed it wider still. On the lift task's trained models
+    the one-sided rule gave held-out 50% coverage 0.62-0.67 in 6 of 12 models, outside the calibrated band
+    (docs/benchmarks.md, posterior-calibration). ``m > 0`` still asks for a margin above nominal.
 
     Args:
         base: the validation rows' mixtures in unit coordinates, ``(n, C, D)``.
@@ -113,11 +120,12 @@ def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float]
         scales: candidate factors, containing 1 (the trained posterior), in increasing order.
         levels: credibility levels in (0, 1).
         margin: ``m`` above, in binomial standard errors.
-        rng: the draws' generator.
+        rng: the draws' generator. n_draws: posterior draws per case. rule: one of :data:`SCALE_RULES`.
 
     Returns:
         ``{"cov_scale", "n_val", "levels", "val_coverage_before", "val_coverage_after", "coverage_error_before",
-        "coverage_error_after", "required", "scales", "val_coverage_by_scale"}`` (before: at scale 1).
+        "coverage_error_after", "required", "scales", "val_coverage_by_scale"}`` (before: at scale 1; the errors:
+        mean ``|c_g - g|``; ``required``: the targets ``t_g``).
     """
     levels = list(levels)
     hpd_by_scale = hpd_levels_by_scale(base, torch.as_tensor(u_val), scales, n_draws, rng)
@@ -125,8 +133,11 @@ def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float]
     errors = [float(np.abs(cov - np.array(levels)).mean()) for cov in covs]
     g = np.array(levels)
     need = g + float(margin) * np.sqrt(g * (1 - g) / max(len(u_val), 1))
-    ok = [i for i, cov in enumerate(covs) if np.all(cov >= need - 1e-12)]
-    best = ok[0] if ok else len(scales) - 1
+    if rule == "closest":
+        best = int(np.argmin([float(np.abs(cov - need).mean()) for cov in covs]))
+    else:
+        ok = [i for i, cov in enumerate(covs) if np.all(cov >= need - 1e-12)]
+        best = ok[0] if ok else len(scales) - 1
     one = list(scales).index(1.0)
     return {"cov_scale": float(scales[best]), "n_val": int(len(u_val)), "levels": levels,
             "val_coverage_before": covs[one].tolist(), "val_coverage_after": covs[best].tolist(),

@@ -30,9 +30,12 @@ range 0.113-0.324 kg/m^2). ``scale`` is the cloth side in metres.
 Extending (effects): :func:`build_spec` returns a plain nested dict; an effect edits it before
 :func:`spec_to_xml`, e.g. ``spec["option"].update(density=1.2, viscosity=1.8e-5, wind="1 0 0")``
 or ``spec["flexcomp"]["inertiabox"] = h``; rendering adds ``spec["render"]`` (camera, light,
-``<visual>`` settings; no physics effect). What MJCF cannot say is applied to the compiled model:
-``spec["anisotropy"] = {"warp_weft_ratio": r}`` makes the cloth's membrane orthotropic
-(:func:`apply_anisotropy`, which the simulator calls after compiling; it is not in the XML text).
+``<visual>`` settings; no physics effect). Two keys are not MJCF but are read by the simulator: ``spec["motion"]``
+(``time_scale``: the commanded paths take that many times the scenario's duration) and ``spec["rest"]`` (the
+vertices at rest), with ``spec["connects"]`` (the handles' constraints; more may be added to the ``grip`` mocap):
+:func:`add_motion`, :func:`add_handles`. What MJCF cannot say is applied to the compiled model:
+``spec["anisotropy"] = {"warp_weft_ratio": r}`` makes the cloth's membrane orthotropic (:func:`apply_anisotropy`,
+which the simulator calls after compiling; it is not in the XML text), about the warp axis ``spec["warp"]``.
 """
 from __future__ import annotations
 
@@ -155,6 +158,7 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
         spec["mesh_layout"] = layout
     spec["warp"] = warp  # the cloth's material x axis (warp) in the world at rest, unit (3,): see apply_anisotropy
     add_handles(spec, scenario, rest, handle_vertices(scenario, rest, grid), "cloth", timestep)
+    add_motion(spec, rest)
     for k, v in ov.items():  # remaining overrides go to option
         spec["option"][k] = v
     return spec
@@ -313,6 +317,7 @@ def build_rope_spec(scenario: Scenario, theta: Mapping[str, float], *, nodes: in
     }
     rest = np.column_stack([start + np.linspace(0.0, L, nodes)[:, None] * e, np.full(nodes, z0)])
     add_handles(spec, scenario, rest, handle_vertices(scenario, rest), "rope", timestep)
+    add_motion(spec, rest)
     for k, v in ov.items():
         spec["option"][k] = v
     return spec
@@ -358,6 +363,16 @@ def add_handles(spec: dict[str, Any], scenario: Scenario, rest: np.ndarray, vert
         del h
     spec.update(grip=grips[0], grips=grips, connect=connects[0], connects=connects,
                 corner_body=connects[0]["body1"], handle_mocaps=mocap_of, handle_vertices=list(vertices))
+
+
+def add_motion(spec: dict[str, Any], rest: np.ndarray) -> None:
+    """The parts of the model dict that effects may edit and MJCF does not hold: ``spec["rest"]``, the object's
+    vertices at rest ``(N, 3)`` m as nested lists (vertex order of the flex), and ``spec["motion"]``, how the
+    simulator executes the scenario's commanded paths: ``time_scale`` (1.0: each path takes the scenario's
+    duration; ``s``: it takes ``s`` times as long and the frames are recorded at the same fractions of the motion,
+    :meth:`~softsbi.backends.mujoco_flex.simulator.MujocoFlex.simulate`)."""
+    spec["rest"] = np.asarray(rest, dtype=float).tolist()
+    spec["motion"] = {"time_scale": 1.0}
 
 
 def spec_to_xml(spec: Mapping[str, Any]) -> str:

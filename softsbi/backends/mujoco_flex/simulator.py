@@ -29,6 +29,7 @@ from softsbi.backends.mujoco_flex.model import (apply_anisotropy, build_rope_spe
                                                 rope_param_space, spec_to_xml)
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Simulator, VertexContext
+from softsbi.core.errors import ParameterError
 from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
 
 
@@ -148,7 +149,9 @@ class MujocoFlex(Simulator):
             :class:`Rollout` with ``vertices (T, N, 3)`` m at ``scenario.times``: cloth
             ``N = grid^2`` with ``faces`` the grid triangles ``(2 (grid-1)^2, 3)`` int64; rope
             ``N = rope_nodes`` with ``faces (0, 3)``. ``gripper (T, 3)`` m is the actual grasp target
-            (mocap) at those times. ``info``: ``wall_s`` (s), ``steps``, ``timestep`` (s), ``young``
+            (mocap) at those times. ``info``: ``wall_s`` (s), ``steps``, ``timestep`` (s), ``time_scale`` (the
+            motion's, set by a model edit: the paths took ``time_scale`` x the scenario's duration and frame ``k``
+            was recorded at ``time_scale * times[k]`` of physical time; 1.0 nominal), ``young``
             (Pa), ``thickness`` (m), and for cloth ``corners`` (4 vertex indices,
             :func:`~softsbi.backends.common.grid_corners` order). Divergence is returned as
             ``status != 0`` with a ``reason``, its vertices zeroed where they were not finite.
@@ -214,13 +217,19 @@ class MujocoFlex(Simulator):
         push = self._force_applier(m, d, plan, theta, scenario, spec)
         status, reason = STATUS_OK, ""
         steps = 0
+        # the motion's time scale s (an effect's model edit; 1 nominal): the paths are executed over s times the
+        # scenario's duration (physical time s * t for the scenario's time t) and frame k is recorded at s * t_k,
+        # the same fraction of the motion; the rollout keeps the scenario's times (the recording's stamps)
+        scale = float(spec.get("motion", {}).get("time_scale", 1.0))
+        if not scale > 0:
+            raise ParameterError(f"the motion's time scale must be > 0, got {scale}")
         # step counts are fixed in advance: after a divergence MuJoCo resets d.time to 0, so a
         # loop on d.time would never end
-        frame_steps = np.maximum(np.round(times / dt).astype(int), 0)
+        frame_steps = np.maximum(np.round(times * scale / dt).astype(int), 0)
         warn = d.warning[mujoco.mjtWarning.mjWARN_BADQACC]
         for k in range(1, T):
             while steps < frame_steps[k]:
-                tn = (steps + 1) * dt
+                tn = (steps + 1) * dt / scale
                 d.mocap_pos[0] = [np.interp(tn, times, target[:, c]) for c in range(3)]
                 for j, tg in others:
                     d.mocap_pos[j] = [np.interp(tn, times, tg[:, c]) for c in range(3)]
@@ -252,7 +261,7 @@ class MujocoFlex(Simulator):
         faces = (np.zeros((0, 3), dtype=np.int64) if rope else
                  np.asarray(scenario.object["mesh"]["faces"], dtype=np.int64) if mesh else grid_faces(self.grid))
         info = {"wall_s": wall, "steps": steps, "backend": self.name, "grid": self.grid,
-                "timestep": dt, "young": spec["elasticity"]["young"],
+                "timestep": dt, "time_scale": scale, "young": spec["elasticity"]["young"],
                 "thickness": spec["elasticity"]["thickness"], "effects": list(effects),
                 "handle_vertices": list(spec["handle_vertices"])}
         if not rope and not mesh:

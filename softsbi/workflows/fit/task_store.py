@@ -69,8 +69,9 @@ def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_
         cfg: the fit's settings, :meth:`~softsbi.workflows.fit.config.FitConfig.resolved` (frames as indices).
         space: the inferred parameters (names, prior bounds, log scale) of the fit's first round.
         ctx: the fit's simulation context (scenario, observer options and sensor model as the jobs apply them).
-        estimator_options: the options the fit gives its estimator
-            (:func:`~softsbi.workflows.fit.config.estimator_options`).
+        estimator_options: the estimator's configuration: its defaults (``defaults()``, where it has them) updated
+            by the options the fit gives it (:func:`~softsbi.workflows.fit.config.estimator_options`), so that a
+            changed default of the estimator keys its tasks anew.
     """
     return jsonable({
         "format": TASK_FORMAT, "softsbi": installed_version(),
@@ -366,7 +367,9 @@ class PriorRound:
         store = task_store_of(cfg.sim_bank)
         if store is None or cfg.sensor_draws or needs_images(cfg):
             return cls(None, None)
-        opts = estimator_options(cfg, registry().estimator(cfg.estimator))
+        est_cls = registry().estimator(cfg.estimator)
+        # the estimator's whole configuration: a changed default of the estimator trains its tasks again
+        opts = {**(est_cls.defaults() if hasattr(est_cls, "defaults") else {}), **estimator_options(cfg, est_cls)}
         return cls(store, task_identity(cfg, space, first_round_context(cfg, recording, space), opts))
 
     def usable(self, n_drawn: int) -> bool:

@@ -242,28 +242,58 @@ def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
     return EstimatorState(name, dict(opts), est.state_dict())
 
 
+def _held_out(ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int,
+              stream: int = TEST_STREAM) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, X)``: the usable ones of a model's ``n_test`` held-out prior simulations of seed stream ``stream``."""
+    u = np.random.default_rng([cfg.seed, stream, 0]).random((n_test, space.dim))
+    return _simulate(ctx, space, u, _round_seeds(cfg.seed, stream, n_test), cfg, "held-out prior simulations")
+
+
+def held_out_simulations(recording: Recording, cfg: FitConfig, n_test: int = defaults.N_TEST,
+                         stream: int = TEST_STREAM) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """Held-out prior simulations of a model (``cfg.effects`` the model) through the simulation bank (those
+    simulated before are read): ``(names, U (n, D) unit cube, X (n, T, 1+K, 3) at the fit's frames)``, the failed
+    ones left out. ``stream``: :data:`~softsbi.core.seeds.TEST_STREAM`, the training report's;
+    :data:`~softsbi.core.seeds.FRESH_TEST_STREAM`, a second set no choice was made on.
+
+    Raises:
+        SoftsbiError: as :func:`train_model` before simulating; every simulation failed."""
+    cfg, space, ctx, prior = _prepared(recording, cfg)
+    U, X = _held_out(replace(ctx, bank=str(prior.store.path.parent)), space, cfg, n_test, stream)
+    return tuple(space.names), U, X[:, slice(None) if cfg.frames is None else list(cfg.frames)]
+
+
+def held_out_report(est: Any, names: Sequence[str], U: np.ndarray, X: np.ndarray, n_draws: int, seed: int,
+                    n_failed: int = 0) -> TrainingReport:
+    """A trained estimator measured on held-out prior simulations ``U (n, D)`` (unit cube), ``X`` (at its frames):
+    expected coverage, SBC ranks, TARP and their verdict, and the contraction per parameter (module docstring,
+    step 3), as a :class:`~softsbi.core.fitreport.TrainingReport` (without its times).
+
+    Raises:
+        PosteriorError: no posterior of a held-out simulation has mass in the prior box."""
+    st = calibration_stats(est, U, X, list(names), n_draws, defaults.N_BINS, seed)
+    lo, hi = np.quantile(st["draws"], 0.05, axis=1), np.quantile(st["draws"], 0.95, axis=1)  # (n, D) unit cube
+    ratio = np.median((hi - lo) / 0.9, axis=0)  # the prior's central 90% spans 0.9 of the unit cube
+    ver = st["ver"]
+    return TrainingReport.from_json({
+        "n_test": int(st["n"]), "n_test_failed": int(n_failed), "n_draws": int(n_draws),
+        "parameters": list(names),
+        "coverage": coverage_json(st), "sbc": rank_histograms_json(st, defaults.N_BINS),
+        "tarp": st["tarp"], "verdict": ver["verdict"], "calibrated": ver["calibrated"],
+        "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
+        "contraction": {n: {"width_ratio": float(r), "informed": bool(r <= INFORMED_MAX_RATIO)}
+                        for n, r in zip(names, ratio)}})
+
+
 def training_report(est: Any, ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int, n_draws: int,
                     fr: Any) -> TrainingReport:
     """The training report of a trained task: its amortised posterior on ``n_test`` held-out prior simulations
     (module docstring, step 3)."""
     t0 = time.perf_counter()
-    rng = np.random.default_rng([cfg.seed, TEST_STREAM, 0])
-    u = rng.random((n_test, space.dim))
-    U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, TEST_STREAM, n_test), cfg, "held-out prior simulations")
+    U, X = _held_out(ctx, space, cfg, n_test)
     sim_s = time.perf_counter() - t0
-    st = calibration_stats(est, U, X[:, fr], space.names, n_draws, defaults.N_BINS, cfg.seed)
-    lo, hi = np.quantile(st["draws"], 0.05, axis=1), np.quantile(st["draws"], 0.95, axis=1)  # (n, D) unit cube
-    ratio = np.median((hi - lo) / 0.9, axis=0)  # the prior's central 90% spans 0.9 of the unit cube
-    ver = st["ver"]
-    return TrainingReport.from_json({
-        "n_test": int(st["n"]), "n_test_failed": int(n_test - len(U)), "n_draws": int(n_draws),
-        "parameters": space.names,
-        "coverage": coverage_json(st), "sbc": rank_histograms_json(st, defaults.N_BINS),
-        "tarp": st["tarp"], "verdict": ver["verdict"], "calibrated": ver["calibrated"],
-        "too_narrow": ver["too_narrow"], "too_wide": ver["too_wide"], "biased": ver["biased"],
-        "contraction": {n: {"width_ratio": float(r), "informed": bool(r <= INFORMED_MAX_RATIO)}
-                        for n, r in zip(space.names, ratio)},
-        "simulation_seconds": sim_s})
+    report = held_out_report(est, space.names, U, X[:, fr], n_draws, cfg.seed, n_test - len(U))
+    return replace(report, simulation_seconds=sim_s)
 
 
 @pools.shared_executors()
