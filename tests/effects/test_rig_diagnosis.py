@@ -54,7 +54,7 @@ def _estimates(d, effect):
 
 
 def test_a_hidden_camera_offset_is_named(tmp_path):
-    """Measured over seeds 0-9 (~13 s each on 2 busy cores): named 9/10, the other misspecified-unexplained; the
+    """Measured over seeds 0-9 (5-15 s each on 2 cores, quiet to busy): named 9/10, the other misspecified-unexplained; the
     refit's side_dy 1.3-2.1 cm where named (truth 2.5 cm: a small refit's posterior shrinks to the prior's centre)."""
     d = diagnosed(tmp_path, LIFT, OFFSET, ["camera-offset"], ["camera-offset", "calibration-offset"], ["stretch"])
     assert d.test.misspecified
@@ -71,7 +71,7 @@ def test_without_a_camera_offset_nothing_is_named(tmp_path):
 
 
 def test_a_hidden_arm_mask_is_named(tmp_path):
-    """Measured over seeds 0-9 (~17 s each): named 9/10 (the other's refit not adequate); the refit's mask radius
+    """Measured over seeds 0-9 (5-20 s each): named 9/10 (the other's refit not adequate); the refit's mask radius
     5.7-7.3 cm where named (truth 8 cm)."""
     d = diagnosed(tmp_path, LIFT, MASK, ["arm-mask"], ["arm-mask", "table-unseen"], ["stretch"])
     assert d.test.misspecified
@@ -97,7 +97,7 @@ DENSE_VIEW = {"n_points": 128, "estimator": {"point_subset": 0}, "n_null": 39, "
 
 @pytest.mark.slow
 def test_a_hidden_anisotropic_stretch_is_named(tmp_path):
-    """~60 s. The nominal fit infers the bending rigidity only (the stretch held at the truth's geometric mean).
+    """25-60 s. The nominal fit infers the bending rigidity only (the stretch held at the truth's geometric mean).
     Measured over seeds 0-8: named 5/9 (seeds 1, 3, 4, 5, 7; this test runs seed 1); otherwise
     misspecified-unexplained 3 (the refit's score gain short of 2 standard errors once, the refit not adequate
     twice) and nothing-missing 1 (the free bending rigidity absorbed it). The refit's ratio: 2.6-3.4 in all 8
@@ -112,7 +112,7 @@ def test_a_hidden_anisotropic_stretch_is_named(tmp_path):
 
 @pytest.mark.slow
 def test_without_an_anisotropic_stretch_nothing_is_named(tmp_path):
-    """~20-50 s. Measured over seeds 0-8: nothing named 9/9 (nothing-missing 4, misspecified-unexplained 5: the
+    """5-50 s. Measured over seeds 0-8: nothing named 9/9 (nothing-missing 4, misspecified-unexplained 5: the
     one-round nominal fit is flagged more often than the level, and no refit is adequate, switched on and better)."""
     d = diagnosed(tmp_path, WIPE, {"stretch": 5.0}, [], ["aniso-stretch", "sticky-patch"], ["bend"], **DENSE_VIEW)
     assert d.decision.named == (), d.decision
