@@ -466,6 +466,10 @@ STATUS_NAMES = {STATUS_OK: "ok", STATUS_DIVERGED: "diverged", STATUS_IMPLAUSIBLE
 #: ``Rollout.info`` key: a visibility threshold (absolute height, m) that a sensor effect sets; observers
 #: and metrics see only points above it (with the fit's own threshold, the higher one applies)
 INFO_MIN_VISIBLE_Z = "min_visible_z"
+#: ``Rollout.info`` key: the radius (m) of the arm's mask that a sensor effect (``arm-mask``) sets; observers and
+#: metrics do not see the points within it of the gripper or of the vertical line above it, frame by frame
+#: (:func:`softsbi.perception.clouds.arm_hidden`)
+INFO_ARM_MASK_RADIUS = "arm_mask_radius"
 
 
 @dataclass
@@ -484,9 +488,11 @@ class Rollout:
         depth: optional ``(T, H, W)`` float32 distance along the camera's optical axis, m.
         segmentation: optional ``(T, H, W)`` uint8 labels ``SEG_*`` (0 table/background,
             1 cloth/rope, 2 robot/gripper).
-        info: backend-specific extras (wall time, step count...). One key is read by every observer
+        info: backend-specific extras (wall time, step count...). Two keys are read by every observer
             and metric: :data:`INFO_MIN_VISIBLE_Z` (absolute height, m; set by a sensor effect such as
-            ``table-unseen``): points at or below it are not seen, on top of the fit's own sensor model.
+            ``table-unseen``): points at or below it are not seen, on top of the fit's own sensor model; and
+            :data:`INFO_ARM_MASK_RADIUS` (m; set by ``arm-mask``): points within it of the gripper, or of the
+            vertical line above it, are not seen.
     """
 
     times: np.ndarray

@@ -3,8 +3,10 @@
 Modules: :mod:`.builtin` (air-drag, wind, extra-damping, grip-compliance; its hook registers every
 built-in), :mod:`.physics` (table-slope, sticky-patch, heavy-hem), :mod:`.robot` (duration-scale,
 grasp-patch: how the robot executes the scenario; model edits for ``mujoco-flex``), :mod:`.sensor`
-(calibration-offset, point-noise, time-offset; ``kind = "sensor"``) and :mod:`.generic` (generic
-force terms, ``generic = True``, not ordinary diagnosis candidates).
+(calibration-offset, point-noise, time-offset, table-unseen; ``kind = "sensor"``), :mod:`.material`
+(aniso-stretch: the fabric's warp-to-weft stiffness ratio), :mod:`.rig` (arm-mask, camera-offset: the depth rig's
+two merged cameras and its masked-out arm; ``kind = "sensor"``) and :mod:`.generic` (generic force terms,
+``generic = True``, not ordinary diagnosis candidates).
 
 Writing an effect (the effect door; no backend needs to know its name)::
 
@@ -35,7 +37,8 @@ model description, edited before it is built; used there in place of the force f
 effects, ``kind = "sensor"``). ``Simulator.supports(effect)`` says whether a backend can apply it
 and, if not, which door it lacks; ``softsbi plugins`` lists the effects each backend supports.
 Door support today: ``mujoco-flex`` all three (forces through ``xfrc_applied`` of the flex vertex
-bodies); ``pybullet-massspring`` observation transforms only (PyBullet's ``applyExternalForce``
+bodies; model edits on the spec dict, and on the compiled model where MJCF cannot say it: aniso-stretch's
+orthotropic membrane); ``pybullet-massspring`` observation transforms only (PyBullet's ``applyExternalForce``
 does not act on deformable nodes).
 
 An effect whose parameters the estimator's default summaries cannot see names the estimator options that

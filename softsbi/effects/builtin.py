@@ -26,7 +26,9 @@ No backend knows them by name: each acts through the kinds of :class:`~softsbi.c
   cloth slipping in soft fingers.
 
 The other built-in candidates live in :mod:`softsbi.effects.physics` (tilted table, sticky patch,
-heavy hem), :mod:`softsbi.effects.robot` (the motion's duration, a grasp holding a patch), :mod:`softsbi.effects.sensor` (calibration offset, point noise, time offset) and
+heavy hem), :mod:`softsbi.effects.robot` (the motion's duration, a grasp holding a patch),
+:mod:`softsbi.effects.sensor` (calibration offset, point noise, time offset), :mod:`softsbi.effects.material`
+(anisotropic stretch), :mod:`softsbi.effects.rig` (the depth rig's arm mask and camera offset) and
 :mod:`softsbi.effects.generic` (generic force terms); this module's hook registers them all.
 """
 from __future__ import annotations
@@ -39,7 +41,9 @@ import numpy as np
 from softsbi.core.interfaces import Effect, VertexContext
 from softsbi.core.types import Param, ParamSpace
 from softsbi.effects.generic import GENERIC_EFFECTS
+from softsbi.effects.material import MATERIAL_EFFECTS
 from softsbi.effects.physics import PHYSICS_EFFECTS
+from softsbi.effects.rig import RIG_EFFECTS
 from softsbi.effects.robot import ROBOT_EFFECTS
 from softsbi.effects.sensor import SENSOR_EFFECTS
 from softsbi.plugins.hookspecs import hookimpl
@@ -203,5 +207,7 @@ BUILTIN_EFFECTS = (AirDrag, Wind, ExtraDamping, GripCompliance)
 
 @hookimpl
 def softsbi_effects():
-    """Every built-in effect: the four above, the physical, robot and sensor candidates and the generic terms."""
-    return [*BUILTIN_EFFECTS, *PHYSICS_EFFECTS, *ROBOT_EFFECTS, *SENSOR_EFFECTS, *GENERIC_EFFECTS]
+    """Every built-in effect: the four above, the physical, robot, sensor, material and rig candidates and the
+    generic terms."""
+    return [*BUILTIN_EFFECTS, *PHYSICS_EFFECTS, *ROBOT_EFFECTS, *SENSOR_EFFECTS, *GENERIC_EFFECTS, *MATERIAL_EFFECTS,
+            *RIG_EFFECTS]

@@ -1,6 +1,6 @@
 """Point-cloud operations shared by the observer, the depth sensor and the workflows: area-weighted surface
-sampling, the points a sensor sees (the table-unseen threshold), the Chamfer distance per frame between a
-simulated and a measured cloud, and the cylinder occluder.
+sampling, the points a sensor sees (the table-unseen threshold, the arm's mask), the Chamfer distance per frame
+between a simulated and a measured cloud, and the cylinder occluder.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from softsbi.core.errors import ShapeError
 from softsbi.core.metrics import chamfer_terms
-from softsbi.core.types import INFO_MIN_VISIBLE_Z, Rollout
+from softsbi.core.types import INFO_ARM_MASK_RADIUS, INFO_MIN_VISIBLE_Z, Rollout
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -76,9 +76,59 @@ def combined_min_z(*thresholds: float | None) -> float | None:
 def rollout_min_z(rollout: Any) -> float | None:
     """The visibility threshold a sensor effect set on a rollout (``info[INFO_MIN_VISIBLE_Z]``, m), on a job result
     (its ``info``) or on a dict holding the key, else None."""
-    info = rollout.get("info", rollout) if isinstance(rollout, dict) else getattr(rollout, "info", None) or {}
-    v = info.get(INFO_MIN_VISIBLE_Z) if isinstance(info, dict) else None
+    v = _info(rollout).get(INFO_MIN_VISIBLE_Z)
     return None if v is None else float(v)
+
+
+def _info(rollout: Any) -> dict:
+    info = rollout.get("info", rollout) if isinstance(rollout, dict) else getattr(rollout, "info", None) or {}
+    return info if isinstance(info, dict) else {}
+
+
+def rollout_arm_radius(rollout: Any) -> float | None:
+    """The arm-mask radius a sensor effect set on a rollout (``info[INFO_ARM_MASK_RADIUS]``, m), on a job result
+    (its ``info``) or on a dict holding the key, else None."""
+    v = _info(rollout).get(INFO_ARM_MASK_RADIUS)
+    return None if v is None else float(v)
+
+
+def arm_distance(points: np.ndarray, grip: np.ndarray) -> np.ndarray:
+    """``(P,)`` m: each point's distance to the arm, the vertical half-line ``{grip + s e_z, s >= 0}`` from the grasp
+    point ``grip (3,)`` m upwards (a point below the grasp point: its distance to the grasp point; above it: its
+    horizontal distance to the line)."""
+    d = np.asarray(points, float) - np.asarray(grip, float).reshape(1, 3)
+    return np.where(d[:, 2] < 0.0, np.linalg.norm(d, axis=1), np.hypot(d[:, 0], d[:, 1]))
+
+
+def arm_hidden(points: np.ndarray, grip: np.ndarray, radius: float) -> np.ndarray:
+    """``(P,)`` bool: the points of ``points (P, 3)`` m that the arm's mask of ``radius`` m hides, those within it of
+    the grasp point ``grip (3,)`` or of the vertical line above it (:func:`arm_distance`)."""
+    return arm_distance(points, grip) < float(radius)
+
+
+def arm_view(cloud: np.ndarray, grip: np.ndarray, radius: float) -> np.ndarray:
+    """The part ``(P', 3)`` of ``cloud (P, 3)`` m outside the arm's mask (:func:`arm_hidden`), in cloud order; when the
+    mask hides every point, the :data:`FALLBACK_SHARE` of the points farthest from the arm stand in."""
+    dist = arm_distance(cloud, grip)
+    seen = dist >= float(radius)
+    if seen.any():
+        return cloud[seen]
+    k = max(1, int(round(FALLBACK_SHARE * len(cloud))))
+    return cloud[np.sort(np.argsort(dist)[-k:])]
+
+
+def effect_views(clouds: Sequence[np.ndarray], rollout: Any, frames: Sequence[int] | None = None):
+    """``clouds`` (``T'`` clouds ``(P, 3)`` m of ``rollout``'s frames ``frames``, default all, in that order) as the
+    rollout's per-point sensor effects leave them: the arm's mask (:func:`rollout_arm_radius`, around the rollout's
+    gripper in each frame, :func:`arm_view`). The clouds themselves (the same object) when it has none, else a list of
+    ``(P'_t, 3)`` clouds. The height threshold (:func:`rollout_min_z`) is not applied here: it combines with the fit's
+    own (:func:`combined_min_z`)."""
+    r = rollout_arm_radius(rollout)
+    if r is None:
+        return clouds
+    grip = np.asarray(rollout.get("gripper") if isinstance(rollout, dict) else rollout.gripper, float)
+    idx = range(len(clouds)) if frames is None else frames
+    return [arm_view(np.asarray(c, float), grip[t], r) for c, t in zip(clouds, idx)]
 
 
 def seen_resampled(cloud: np.ndarray, min_z: float | None, rng: np.random.Generator) -> np.ndarray:

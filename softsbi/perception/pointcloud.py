@@ -20,9 +20,10 @@ from softsbi.core.types import Observation, Rollout
 from softsbi.data.frames import numbered_files
 from softsbi.plugins.hookspecs import hookimpl
 # the cloud operations live in clouds; the workflows and studies import them from here too
-from softsbi.perception.clouds import (FALLBACK_SHARE, combined_min_z, occluded_by_cylinder, rollout_clouds,  # noqa: F401
-                                       rollout_min_z, sample_surface, seen_resampled, sensor_chamfer_per_frame,
-                                       sensor_indices, sensor_view, visible_subset)
+from softsbi.perception.clouds import (FALLBACK_SHARE, arm_hidden, combined_min_z, effect_views,  # noqa: F401
+                                       occluded_by_cylinder, rollout_arm_radius, rollout_clouds, rollout_min_z,
+                                       sample_surface, seen_resampled, sensor_chamfer_per_frame, sensor_indices,
+                                       sensor_view, visible_subset)
 from softsbi.perception.depth_sensor import sensor_from_json
 
 #: surface points sampled per observed point where a view (sensor threshold, occluder, camera) keeps only some:
@@ -77,17 +78,18 @@ class PointCloudObserver(Observer):
         return cloud[keep] if keep.any() else cloud
 
     def observe(self, rollout: Rollout, rng: np.random.Generator) -> Observation:
-        # a sensor effect's threshold (table-unseen) adds to the observer's own
+        # a sensor effect's threshold (table-unseen) adds to the observer's own; its arm mask (arm-mask) hides more
         min_z = combined_min_z(self.min_z, rollout_min_z(rollout))
+        arm = rollout_arm_radius(rollout)
         if self.camera is not None:
             dense = rollout_clouds(rollout, DENSE_FACTOR * self.n_points, rng)
             views = [self.camera.observe(v, rollout.faces, g, rng) for v, g in zip(rollout.vertices, rollout.gripper)]
             pts = np.stack([visible_subset(c if len(c) else d[sensor_indices(d, np.inf)], self.n_points, rng, None)
                             for c, d in zip(views, dense)])
-        elif min_z is None and self.occluder is None:
+        elif min_z is None and self.occluder is None and arm is None:
             pts = rollout_clouds(rollout, self.n_points, rng)
         else:
-            dense = rollout_clouds(rollout, DENSE_FACTOR * self.n_points, rng)
+            dense = effect_views(rollout_clouds(rollout, DENSE_FACTOR * self.n_points, rng), rollout)
             pts = np.stack([visible_subset(self._unoccluded(c), self.n_points, rng, min_z) for c in dense])
         if self.noise > 0:
             pts = pts + rng.normal(0, self.noise, pts.shape)

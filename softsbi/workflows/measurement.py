@@ -18,8 +18,8 @@ from softsbi.core.types import Scenario
 from softsbi.core.yamlfile import read_yaml
 from softsbi.data.recording import META, RecordingMeta, is_recording, parse_meta, read_recording, write_recording
 from softsbi.perception.images import load_frames
-from softsbi.perception.pointcloud import (PointCloudObserver, load_cloud_frames, rollout_clouds, rollout_min_z,
-                                          seen_resampled)
+from softsbi.perception.pointcloud import (PointCloudObserver, effect_views, load_cloud_frames, rollout_arm_radius,
+                                          rollout_clouds, rollout_min_z, seen_resampled)
 from softsbi.plugins import registry
 from softsbi.scenarios.builtin import FRAME_DT, lift_task, make_scenario
 from softsbi.scenarios.cameras import scenario_camera
@@ -437,6 +437,11 @@ def simulate_recording(backend: str = BACKEND, scenario: Scenario | str | Path =
     rng = np.random.default_rng(seed)
     obs = PointCloudObserver(n_points, noise=noise).observe(ro, rng)
     dense = rollout_clouds(ro, n_dense, rng)
+    if rollout_arm_radius(ro) is not None:
+        # a hidden arm mask hides the cloth near the gripper: n_dense seen points of a 4x denser sample per frame, so
+        # that the seen surface is sampled as the metric samples it, no point repeated (redrawn only if too few)
+        seen = effect_views(rollout_clouds(ro, 4 * n_dense, rng), ro)
+        dense = np.stack([v[:n_dense] if len(v) >= n_dense else v[rng.integers(len(v), size=n_dense)] for v in seen])
     effect_z = rollout_min_z(ro)
     if effect_z is not None:  # a hidden sensor effect hides points (table-unseen): the seen ones, redrawn
         dense = np.stack([seen_resampled(c, effect_z, rng) for c in dense])

@@ -1,4 +1,6 @@
-"""Round trip of a third-party force-field effect (``tests/plugins/softsbi_aniso``, installed editable):
+"""Round trip of a third-party force-field effect (``tests/plugins/softsbi_aniso``, installed editable: anisotropic
+table friction, the plugin-shape example; the built-in ``aniso-stretch``, a model edit of the membrane, is another
+effect, tested in ``tests/effects/test_rig.py``):
 listed by ``softsbi plugins``, applied by mujoco-flex without knowing it (``simulate``/``fit --effect``),
 and, hidden in a measurement, diagnosed among the candidates and refitted."""
 from __future__ import annotations

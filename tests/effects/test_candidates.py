@@ -7,7 +7,9 @@ import pytest
 
 from softsbi.backends.mujoco_flex import MujocoFlex
 from softsbi.effects.generic import GENERIC_EFFECTS
+from softsbi.effects.material import MATERIAL_EFFECTS
 from softsbi.effects.physics import PHYSICS_EFFECTS, TableSlope
+from softsbi.effects.rig import RIG_EFFECTS
 from softsbi.effects.robot import ROBOT_EFFECTS
 from softsbi.effects.sensor import SENSOR_EFFECTS
 from softsbi.plugins import registry
@@ -38,16 +40,16 @@ def base():
 
 def test_all_registered_with_kinds():
     reg = registry()
-    for cls in PHYSICS_EFFECTS + ROBOT_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS:
+    for cls in PHYSICS_EFFECTS + ROBOT_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS + MATERIAL_EFFECTS + RIG_EFFECTS:
         assert reg.effect(cls.name) is cls
         # documented, and switched off (Effect.nominal) at a value of each of its parameters that its prior holds
         off, params = cls().nominal(), cls().param_space().params
         assert cls.__doc__ and set(off) == {p.name for p in params}, cls.name
         assert all(p.low <= off[p.name] <= p.high for p in params), cls.name
-    assert {c.kind for c in SENSOR_EFFECTS} == {"sensor"}
-    assert {c.kind for c in PHYSICS_EFFECTS + ROBOT_EFFECTS + GENERIC_EFFECTS} == {"physics"}
+    assert {c.kind for c in SENSOR_EFFECTS + RIG_EFFECTS} == {"sensor"}
+    assert {c.kind for c in PHYSICS_EFFECTS + ROBOT_EFFECTS + GENERIC_EFFECTS + MATERIAL_EFFECTS} == {"physics"}
     assert all(c.generic for c in GENERIC_EFFECTS)
-    assert not any(c.generic for c in PHYSICS_EFFECTS + ROBOT_EFFECTS + SENSOR_EFFECTS)
+    assert not any(c.generic for c in PHYSICS_EFFECTS + ROBOT_EFFECTS + SENSOR_EFFECTS + MATERIAL_EFFECTS + RIG_EFFECTS)
 
 
 def test_a_fit_passes_the_estimator_the_options_its_effects_ask_for_and_the_users_win():
@@ -62,7 +64,8 @@ def test_a_fit_passes_the_estimator_the_options_its_effects_ask_for_and_the_user
     assert estimator_options(mine, RKHSEstimator) == {"frame_thickness": False, "ensemble": 1}
 
 
-@pytest.mark.parametrize("cls", PHYSICS_EFFECTS + ROBOT_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS, ids=lambda c: c.name)
+@pytest.mark.parametrize("cls", PHYSICS_EFFECTS + ROBOT_EFFECTS + SENSOR_EFFECTS + GENERIC_EFFECTS + MATERIAL_EFFECTS
+                         + RIG_EFFECTS, ids=lambda c: c.name)
 def test_nominal_is_the_nominal_model(cls, base):
     ro = _run(LIFT, [cls.name], seed=3, **cls().nominal())
     assert np.array_equal(ro.vertices, base["lift"])

@@ -60,7 +60,7 @@ def test_refusal_is_one_line_naming_the_door():
     with pytest.raises(ParameterError) as err:
         sim.simulate(LIFT, sim.param_space(LIFT).midpoint(), effects=["heavy-hem"])
     msg = str(err.value)
-    assert "\n" not in msg and "'heavy-hem' needs a force field" in msg and "supported effects: calibration-offset" in msg
+    assert "\n" not in msg and "'heavy-hem' needs a force field" in msg and "supported effects: arm-mask, calibration-offset" in msg
     with pytest.raises(ParameterError, match="'no-such' is not an installed effect"):
         check_effects(MujocoFlex(), ["no-such"])
 

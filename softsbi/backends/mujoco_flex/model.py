@@ -33,7 +33,9 @@ or ``spec["flexcomp"]["inertiabox"] = h``; rendering adds ``spec["render"]`` (ca
 ``<visual>`` settings; no physics effect). Two keys are not MJCF but are read by the simulator: ``spec["motion"]``
 (``time_scale``: the commanded paths take that many times the scenario's duration) and ``spec["rest"]`` (the
 vertices at rest), with ``spec["connects"]`` (the handles' constraints; more may be added to the ``grip`` mocap):
-:func:`add_motion`, :func:`add_handles`.
+:func:`add_motion`, :func:`add_handles`. What MJCF cannot say is applied to the compiled model:
+``spec["anisotropy"] = {"warp_weft_ratio": r}`` makes the cloth's membrane orthotropic (:func:`apply_anisotropy`,
+which the simulator calls after compiling; it is not in the XML text), about the warp axis ``spec["warp"]``.
 """
 from __future__ import annotations
 
@@ -129,9 +131,12 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
         # surface patch of each vertex (a third of its triangles' areas)
         layout = {"spacing": float(np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1).mean()),
                   "n": len(rest), "area": varea.tolist()}
+        yaw = math.radians(float(theta.get("yaw", 0.0)))  # mesh_rest turns the mesh's own x axis by the yaw
+        warp = [math.cos(yaw), math.sin(yaw), 0.0]
     else:
         rest = grid_rest_vertices(scenario, L, grid, z0, theta)
         layout = None
+        warp = [math.cos(math.radians(phi)), math.sin(math.radians(phi)), 0.0]  # the grid's first axis (index i)
         flex = {"name": "cloth", "type": "grid", "dim": 2, "count": [grid, grid, 1],
                 "spacing": [h, h, h], "pos": [float(centre[0]), float(centre[1]), z0],
                 "euler": [0.0, 0.0, phi], "radius": radius, "mass": rho * L * L}
@@ -151,11 +156,89 @@ def build_spec(scenario: Scenario, theta: Mapping[str, float], *, grid: int, tim
     }
     if layout is not None:
         spec["mesh_layout"] = layout
+    spec["warp"] = warp  # the cloth's material x axis (warp) in the world at rest, unit (3,): see apply_anisotropy
     add_handles(spec, scenario, rest, handle_vertices(scenario, rest, grid), "cloth", timestep)
     add_motion(spec, rest)
     for k, v in ov.items():  # remaining overrides go to option
         spec["option"][k] = v
     return spec
+
+
+def orthotropic_stiffness(rest: np.ndarray, elements: np.ndarray, warp: np.ndarray, stretch: float, poisson: float,
+                          ratio: float) -> np.ndarray:
+    """MuJoCo's per-triangle membrane stiffness (``mjModel.flex_stiffness`` of a 2-D flex, the upper triangle of a 3x3
+    matrix over each triangle's edges) for an orthotropic membrane; at ``ratio = 1`` it is MuJoCo's own isotropic
+    one (Saint Venant-Kirchhoff, plane stress, to machine precision: ``tests/effects/test_rig.py``).
+
+    The membrane (Huber's orthotropic plate): stiffness ``stretch * sqrt(ratio)`` N/m along the warp,
+    ``stretch / sqrt(ratio)`` along the weft, their geometric mean ``stretch``; the Poisson coupling and the shear
+    stiffness are the isotropic ones of ``stretch`` (``nu stretch / (1 - nu^2)``, ``stretch / (2 (1 + nu))``). So
+    the plane-stress matrix ``C`` (N/m, Voigt with engineering shear) is ``stretch / (1 - nu^2) [[sqrt r, nu, 0],
+    [nu, 1 / sqrt r, 0], [0, 0, (1 - nu) / 2]]``, positive definite for every ``r > 0``.
+
+    Per triangle of rest area A with rest edges ``E_e`` (its vertices' order ``(1, 2), (2, 0), (0, 1)``, as
+    MuJoCo's element edges), in the material frame (warp projected onto the triangle's plane, weft = normal x
+    warp): an edge's squared-length change is ``delta_e = 2 E_e^T eps E_e`` for the Green strain ``eps``, i.e.
+    ``delta = S eps_v``; the energy ``A/2 eps_v^T C eps_v`` is MuJoCo's ``delta^T K delta / 4`` for
+    ``K = 2 A S^-T C S^-1``.
+
+    Args:
+        rest: ``(N, 3)`` rest vertex positions, m. elements: ``(F, 3)`` vertex indices. warp: ``(3,)`` the warp
+            direction in the world at rest. stretch: the membrane stiffness ``E t``, N/m. poisson: nu.
+        ratio: warp-to-weft stiffness ratio (> 0).
+
+    Returns:
+        ``(F, 6)``: each triangle's ``K`` in MuJoCo's order ``K00, K01, K02, K11, K12, K22``.
+    """
+    s, nu = math.sqrt(float(ratio)), float(poisson)
+    C = float(stretch) / (1.0 - nu * nu) * np.array([[s, nu, 0.0], [nu, 1.0 / s, 0.0], [0.0, 0.0, (1.0 - nu) / 2.0]])
+    P = np.asarray(rest, float)[np.asarray(elements, int)]                       # (F, 3 vertices, 3)
+    n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    n /= 2.0 * area[:, None]
+    w = np.asarray(warp, float)[None, :]
+    a = w - (n @ w[0])[:, None] * n                                               # warp in each triangle's plane
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(n, a)
+    E = P[:, [2, 0, 1]] - P[:, [1, 2, 0]]                                         # (F, 3 edges, 3): v1->v2, v2->v0, v0->v1
+    ex, ey = np.einsum("fec,fc->fe", E, a), np.einsum("fec,fc->fe", E, b)
+    S = 2.0 * np.stack([ex * ex, ey * ey, ex * ey], axis=-1)                      # (F, 3, 3): delta = S eps_v
+    T = np.linalg.inv(S)
+    K = 2.0 * area[:, None, None] * np.einsum("fji,jk,fkl->fil", T, C, T)
+    iu = np.triu_indices(3)
+    return K[:, iu[0], iu[1]]
+
+
+def apply_anisotropy(m: Any, d: Any, spec: Mapping[str, Any]) -> None:
+    """Make a compiled cloth's membrane orthotropic as ``spec["anisotropy"]`` asks (``{"warp_weft_ratio": r}``; no
+    key, or ``r == 1``: nothing changes), writing :func:`orthotropic_stiffness` into ``m.flex_stiffness``. MuJoCo
+    integrates the edited stiffness as its own (implicitly under ``integrator="discrete"``; the elasticity's Rayleigh
+    damping scales with it). Call it after ``mj_forward`` at the rest state (``d.flexvert_xpos`` is the rest shape).
+
+    Raises:
+        ParameterError: a rope (no membrane), a cloth without membrane elasticity, or a MuJoCo whose compiled
+            isotropic stiffness is not the one :func:`orthotropic_stiffness` computes at ratio 1 (another layout:
+            the edit would be wrong, so it is refused).
+    """
+    r = float((spec.get("anisotropy") or {}).get("warp_weft_ratio", 1.0))
+    if r == 1.0:
+        return
+    if int(m.flex_dim[0]) != 2 or int(m.flex_stiffnessadr[0]) < 0:
+        raise ParameterError("an anisotropic membrane needs a cloth (a 2-D flex with membrane elasticity)")
+    el = spec["elasticity"]
+    stretch, nu = float(el["young"]) * float(el["thickness"]), float(el["poisson"])
+    nel, adr = int(m.flex_elemnum[0]), int(m.flex_elemdataadr[0])
+    elements = np.asarray(m.flex_elem[adr:adr + 3 * nel]).reshape(nel, 3)
+    v0 = int(m.flex_vertadr[0])
+    rest = np.asarray(d.flexvert_xpos).reshape(-1, 3)[v0:v0 + int(m.flex_vertnum[0])]
+    start = int(m.flex_stiffnessadr[0])
+    K = np.array(m.flex_stiffness[start:start + 21 * nel], dtype=float).reshape(nel, 21)
+    iso = orthotropic_stiffness(rest, elements, spec["warp"], stretch, nu, 1.0)
+    if not np.allclose(K[:, :6], iso, rtol=1e-9, atol=1e-12 * np.abs(iso).max()):
+        raise ParameterError("this MuJoCo's flex membrane stiffness is not the one the anisotropic membrane was "
+                             "derived from (mjModel.flex_stiffness layout); the anisotropy cannot be applied")
+    K[:, :6] = orthotropic_stiffness(rest, elements, spec["warp"], stretch, nu, r)
+    m.flex_stiffness[start:start + 21 * nel] = K.ravel()
 
 
 def rope_param_space() -> ParamSpace:

@@ -25,8 +25,8 @@ from softsbi.backends.common import (EffectPlan, EffectsThroughDoor, check_effec
                                      grid_faces, size_params)
 from softsbi.backends.scenario_build import FEATURES, handle_targets, mesh_edges
 from softsbi.backends.mujoco_flex.gl import import_mujoco
-from softsbi.backends.mujoco_flex.model import (build_rope_spec, build_spec, check_rope_theta, rope_param_space,
-                                                spec_to_xml)
+from softsbi.backends.mujoco_flex.model import (apply_anisotropy, build_rope_spec, build_spec, check_rope_theta,
+                                                rope_param_space, spec_to_xml)
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Simulator, VertexContext
 from softsbi.core.errors import ParameterError
@@ -111,7 +111,9 @@ class MujocoFlex(Simulator):
         return check_effects(self, effects).space(self.param_space(scenario))
 
     def build_xml(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = ()) -> str:
-        """MJCF string of the lift at ``theta`` (no validation; use :meth:`simulate`)."""
+        """MJCF string of the lift at ``theta`` (no validation; use :meth:`simulate`). An anisotropic membrane
+        (``spec["anisotropy"]``, :func:`~.model.apply_anisotropy`) is applied to the compiled model, so it is not in
+        this text."""
         return spec_to_xml(self.build_spec(scenario, theta, effects))
 
     def build_spec(self, scenario: Scenario, theta: Mapping[str, float], effects: Sequence[str] = (),
@@ -193,6 +195,9 @@ class MujocoFlex(Simulator):
         m = mujoco.MjModel.from_xml_string(spec_to_xml(spec))
         d = mujoco.MjData(m)
         mujoco.mj_forward(m, d)
+        if spec.get("anisotropy"):  # what MJCF cannot say, on the compiled model (at the rest state)
+            apply_anisotropy(m, d, spec)
+            mujoco.mj_forward(m, d)
         n = int(m.flex_vertnum[0])  # grid^2 (cloth) or rope_nodes (rope)
         times = scenario.times
         T = len(times)

@@ -21,7 +21,8 @@ from softsbi.core.results import EnergyScore
 from softsbi.core.defaults import ALPHA  # noqa: F401 (re-exported)
 from softsbi.core.seeds import EXTRA_ROLLOUT_SEED, SENSOR_VIEW_STREAM, surface_seed
 from softsbi.perception.depth_sensor import sensor_from_json, views_or_highest
-from softsbi.perception.pointcloud import (combined_min_z, rollout_min_z, sample_surface, sensor_chamfer_per_frame)
+from softsbi.perception.pointcloud import (combined_min_z, effect_views, rollout_min_z, sample_surface,
+                                           sensor_chamfer_per_frame)
 from softsbi.core.defaults import MAX_NULL, MIN_ROLLOUTS, N_NULL  # noqa: F401 - null sizes, re-exported
 from softsbi.workflows.criticism.statistics import trajectory_features
 from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, run_jobs
@@ -64,8 +65,8 @@ def sensor_features(rollout: JobResult, seed: int, n_dense: int, min_z: float | 
         clouds = sensor_from_json(camera).observe_rollout(rollout.vertices, rollout.faces, rollout.gripper,
                                         np.random.default_rng([seed, SENSOR_VIEW_STREAM]))
         return trajectory_features(clouds, None, frames)
-    clouds = sampled_points(rollout.vertices, rollout.faces, n_dense, seed)
-    # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own
+    clouds = effect_views(sampled_points(rollout.vertices, rollout.faces, n_dense, seed), rollout)
+    # a sensor effect's threshold on the rollout (table-unseen) adds to the run's own; its arm mask hides more
     return trajectory_features(clouds, combined_min_z(min_z, rollout_min_z(rollout)), frames)
 
 
@@ -218,13 +219,15 @@ def rollout_views(run: "RunView", rollout: JobResult, seed: int) -> tuple[list[n
     ``views`` are ``T'`` clouds ``(P_t, 3)`` m (:func:`run_frames`' order): area-weighted surface samples (as
     many per frame as the measurement's, drawn with ``seed``), or for a fit through the virtual depth sensor
     that sensor's clouds (the highest 10 % of the surface samples where it sees nothing, the metric's
-    convention). ``min_z`` is the visibility threshold still to apply to them (the run's, combined with a
-    sensor effect's on the rollout; None for the camera, whose clouds are already what it sees)."""
+    convention), with what the rollout's arm mask hides left out. ``min_z`` is the visibility threshold still to
+    apply to them (the run's, combined with a sensor effect's on the rollout; None for the camera, whose clouds are
+    already what it sees)."""
     frames = run_frames(run)
     surface = sampled_points(rollout.vertices, rollout.faces, run.dense.shape[1], seed, frames)
     camera = run.record.metric_camera
     if camera is None:
-        return list(surface), combined_min_z(run.metric_min_z, rollout_min_z(rollout))
+        return list(effect_views(list(surface), rollout, frames)), combined_min_z(run.metric_min_z,
+                                                                                   rollout_min_z(rollout))
     v = np.asarray(rollout.vertices)[frames]
     g = rollout.gripper
     views = sensor_from_json(camera).observe_rollout(v, rollout.faces, None if g is None else np.asarray(g)[frames],

@@ -20,11 +20,12 @@ import numpy as np
 from softsbi.backends.common import check_effects
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
-from softsbi.core.types import INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
+from softsbi.core.types import INFO_ARM_MASK_RADIUS, INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
 from softsbi.core.seeds import eval_stream
 from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
-from softsbi.perception.pointcloud import combined_min_z, rollout_clouds, rollout_min_z, sensor_chamfer_per_frame
+from softsbi.perception.pointcloud import (combined_min_z, effect_views, rollout_arm_radius, rollout_clouds,
+                                           rollout_min_z, sensor_chamfer_per_frame)
 from softsbi.plugins import registry
 from softsbi.workflows.fit.bank import MISS, UNSTORED, BankCount, SimulationBank, rollout_key
 from softsbi.workflows import pools
@@ -112,6 +113,8 @@ class JobResult:
             ``SimContext.keep_rollout`` only.
         min_visible_z: a sensor effect's visibility threshold (m, absolute) on the rollout
             (:data:`~softsbi.core.types.INFO_MIN_VISIBLE_Z`), with ``keep_rollout`` only; None = none.
+        arm_mask_radius: a sensor effect's arm-mask radius (m) on the rollout
+            (:data:`~softsbi.core.types.INFO_ARM_MASK_RADIUS`), with ``keep_rollout`` only; None = none.
         seed: the item's seed. sample: the posterior sample the rollout simulates, set by the consumers that pair
             results with samples (:meth:`~softsbi.workflows.fit.runs.RunView.posterior_rollouts`); None otherwise.
         features: ``(F,)`` the rollout's summaries (``SimContext.summarise`` with the item's ``summary_seed``),
@@ -130,6 +133,7 @@ class JobResult:
     faces: np.ndarray | None = None
     gripper: np.ndarray | None = None
     min_visible_z: float | None = None
+    arm_mask_radius: float | None = None
     seed: int | None = None
     sample: int | None = None
     features: np.ndarray | None = None
@@ -141,9 +145,13 @@ class JobResult:
 
     @property
     def info(self) -> dict[str, float]:
-        """The rollout's sensor information as a rollout carries it (``{INFO_MIN_VISIBLE_Z: m}`` or empty), for
-        :func:`~softsbi.perception.pointcloud.rollout_min_z`."""
-        return {} if self.min_visible_z is None else {INFO_MIN_VISIBLE_Z: self.min_visible_z}
+        """The rollout's sensor information as a rollout carries it (``{INFO_MIN_VISIBLE_Z: m, INFO_ARM_MASK_RADIUS:
+        m}``, each only when set), for :func:`~softsbi.perception.pointcloud.rollout_min_z` and
+        :func:`~softsbi.perception.pointcloud.effect_views`."""
+        out = {} if self.min_visible_z is None else {INFO_MIN_VISIBLE_Z: self.min_visible_z}
+        if self.arm_mask_radius is not None:
+            out[INFO_ARM_MASK_RADIUS] = self.arm_mask_radius
+        return out
 
 
 def failed(exc: BaseException) -> JobResult:
@@ -295,12 +303,14 @@ def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) ->
 
     Returns:
         A :class:`JobResult`: ``status``, ``reason``, ``x``, ``chamfer``, ``chamfer_one_sided``, ``seconds``,
-        ``bank`` and ``seed``; ``sensor_x`` with ``item.sensor_draws``; ``vertices``, ``faces``, ``gripper`` and
-        ``min_visible_z`` when ``ctx.keep_rollout``. ``chamfer`` is the bidirectional 3-D Chamfer (m) per frame
-        against ``ctx.dense``, both clouds seen through the sensor model ``ctx.min_z``, and ``chamfer_one_sided``
-        its measured -> simulated half (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image
-        fits ``chamfer`` is the mask Chamfer (px) against ``ctx.ref_masks`` and ``chamfer_one_sided`` None. A
-        failed simulation has its status and reason only.
+        ``bank`` and ``seed``; ``sensor_x`` with ``item.sensor_draws``; ``vertices``, ``faces``, ``gripper``,
+        ``min_visible_z`` and ``arm_mask_radius`` when ``ctx.keep_rollout``. ``chamfer`` is the bidirectional 3-D
+        Chamfer (m) per frame against ``ctx.dense``, both clouds seen through the sensor model ``ctx.min_z`` (the
+        simulated one also through the rollout's sensor effects: table-unseen's height, the arm's mask), and
+        ``chamfer_one_sided`` its measured -> simulated half
+        (:func:`~softsbi.perception.pointcloud.sensor_chamfer_per_frame`); for image fits ``chamfer`` is the mask
+        Chamfer (px) against ``ctx.ref_masks`` and ``chamfer_one_sided`` None. A failed simulation has its status and
+        reason only.
     """
 
     theta, seed = item.theta, int(item.seed)
@@ -347,8 +357,9 @@ def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) ->
             if sensor is not None:
                 ch, ch1 = camera_chamfer_per_frame(sensor, ro.vertices, ro.faces, ro.gripper, ctx.dense, surface,
                                                    rng)
-            else:  # a sensor effect's threshold (table-unseen) adds to the fit's own
-                ch, ch1 = sensor_chamfer_per_frame(surface, ctx.dense, combined_min_z(ctx.min_z, effect_z))
+            else:  # a sensor effect's threshold (table-unseen) adds to the fit's own, its arm mask hides more
+                ch, ch1 = sensor_chamfer_per_frame(effect_views(surface, ro), ctx.dense,
+                                                   combined_min_z(ctx.min_z, effect_z))
     seconds = time.perf_counter() - t0
     sensor_x = None
     if draws:
@@ -359,12 +370,14 @@ def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) ->
                                      seed + 1_000_003 * (j + 1)),
                         np.random.default_rng([seed, 17])).state()
             for j, d in enumerate(draws["draws"])])
-    rollout = {"vertices": ro.vertices, "faces": ro.faces, "gripper": ro.gripper, "min_visible_z": effect_z}
+    rollout = {"vertices": ro.vertices, "faces": ro.faces, "gripper": ro.gripper, "min_visible_z": effect_z,
+               "arm_mask_radius": rollout_arm_radius(ro)}
     res = JobResult(status=STATUS_OK, reason="", x=x, chamfer=ch, chamfer_one_sided=ch1, seconds=seconds,
                     bank=banked, sensor_x=sensor_x, seed=seed, **rollout)
     if ctx.summarise is not None and item.summary_seed is not None:  # in the worker: the main process only reads
         res = replace(res, features=np.asarray(ctx.summarise(res, int(item.summary_seed)), float))
-    return res if ctx.keep_rollout else replace(res, vertices=None, faces=None, gripper=None, min_visible_z=None)
+    return res if ctx.keep_rollout else replace(res, vertices=None, faces=None, gripper=None, min_visible_z=None,
+                                                arm_mask_radius=None)
 
 
 def _round_seeds(seed: int, r: int, n: int) -> np.ndarray:
