@@ -119,9 +119,12 @@ class NeuralMDNEstimator(MDNPosterior):
             (post-hoc recalibration, :func:`~softsbi.inference.recalibration.choose_cov_scale`), default False.
             ``fit_info["recalibration"]`` holds ``s``, the validation coverage at every scale and the coverage
             error before/after.
-        recal_rule: how ``recalibrate`` chooses ``s``: ``"closest"`` (default), the scale whose validation
-            coverage curve lies closest to the target; ``"at-least"``, the smallest scale that reaches it at
-            every level (the earlier rule: it over-covered the middle levels, docs/explanation.md).
+        recal_rule: how ``recalibrate`` chooses ``s``: ``"closest"`` (default), of the scales whose validation
+            coverage curve lies within ``recal_tolerance_se`` binomial standard errors of the closest to the target,
+            the one nearest to 1; ``"at-least"``, the smallest scale that reaches it at every level (the earlier
+            rule: it over-covered the middle levels, docs/explanation.md).
+        recal_tolerance_se: the closest rule's tolerance, default 1 (the one-standard-error rule: a validation
+            split of a few cases leaves the trained posterior's scale); 0 picks the closest scale.
         recal_marginals: with ``recalibrate``, first recalibrate each parameter's marginal on the validation
             split (:meth:`_recalibrate_marginals`: a per-parameter scale and shift of the posterior about its
             mean, fitted by maximum likelihood of the held-out truths under the box-restricted marginals), then
@@ -163,6 +166,7 @@ class NeuralMDNEstimator(MDNPosterior):
         "max_epochs": 300, "patience": 15, "min_epochs": 10, "batch_size": 64, "val_fraction": 0.15,
         "grad_clip": 10.0, "min_scale": 1e-3, "max_seconds": None, "num_threads": 1, "ensemble": 1,
         "recalibrate": False, "recal_margin": 0.0, "recal_marginals": False, "recal_rule": "closest",
+        "recal_tolerance_se": 1.0,
         "embedding_epochs": None,
         "stack_members": False,
         "ensemble_shared": "none",
@@ -410,7 +414,8 @@ class NeuralMDNEstimator(MDNPosterior):
             base = self._predict(zs_val)  # with the marginals recalibrated: the joint scale is chosen on top
         out = choose_cov_scale(base, u_val, self.RECAL_SCALES, self.RECAL_LEVELS,
                                float(self.config.get("recal_margin", 0.0)), np.random.default_rng([seed, RECAL_STREAM]),
-                               rule=str(self.config.get("recal_rule", "closest")))
+                               rule=str(self.config.get("recal_rule", "closest")),
+                               tolerance_se=float(self.config.get("recal_tolerance_se", 1.0)))
         self._cov_scale = out["cov_scale"]
         return {**out, **({"marginals": marginals} if marginals is not None else {})}
 

@@ -100,13 +100,16 @@ SCALE_RULES = ("closest", "at-least")
 
 def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float], levels: Sequence[float],
                      margin: float, rng: np.random.Generator, n_draws: int = HPD_DRAWS,
-                     rule: str = "closest") -> dict[str, Any]:
-    """The covariance scale ``s`` of ``recalibrate``: with ``rule="closest"`` the one in ``scales`` whose expected
-    HPD coverage ``c_g`` on the ``n`` held-out validation simulations lies closest to the target
-    ``t_g = g + m sqrt(g (1 - g) / n)`` over ``levels`` (the least mean ``|c_g - t_g|``; ties to the smaller
-    scale), ``m = margin`` (the posterior restricted to the unit box, as used); with ``rule="at-least"`` the
-    smallest whose ``c_g >= t_g`` at every level (the largest if none is). Post-hoc recalibration of the
-    predictive distribution, like temperature scaling (Guo et al. 2017).
+                     rule: str = "closest", tolerance_se: float = 1.0) -> dict[str, Any]:
+    """The covariance scale ``s`` of ``recalibrate``. With ``rule="closest"``: of the scales in ``scales`` whose
+    expected HPD coverage ``c_g`` on the ``n`` held-out validation simulations lies closest to the target
+    ``t_g = g + m sqrt(g (1 - g) / n)`` over ``levels`` (mean ``|c_g - t_g|``, ``m = margin``; the posterior
+    restricted to the unit box, as used), within ``tolerance_se`` binomial standard errors
+    (``mean_g sqrt(t_g (1 - t_g) / n)``) of the closest, the one nearest to 1 (the trained posterior): the
+    one-standard-error rule (Breiman et al. 1984), so a split too small to tell the scales apart leaves the
+    posterior as trained instead of picking a scale by its noise. With ``rule="at-least"``: the smallest whose
+    ``c_g >= t_g`` at every level (the largest if none is). Post-hoc recalibration of the predictive distribution,
+    like temperature scaling (Guo et al. 2017).
 
     Matching the coverage curve, not requiring ``c_g >= t_g`` at every level: a posterior whose shape is slightly
     off (its coverage curve crosses the diagonal) met the one-sided rule only at a scale that over-covered the
@@ -121,6 +124,7 @@ def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float]
         levels: credibility levels in (0, 1).
         margin: ``m`` above, in binomial standard errors.
         rng: the draws' generator. n_draws: posterior draws per case. rule: one of :data:`SCALE_RULES`.
+        tolerance_se: the closest rule's tolerance, in binomial standard errors (0: the closest scale).
 
     Returns:
         ``{"cov_scale", "n_val", "levels", "val_coverage_before", "val_coverage_after", "coverage_error_before",
@@ -134,7 +138,10 @@ def choose_cov_scale(base: MDNParams, u_val: np.ndarray, scales: Sequence[float]
     g = np.array(levels)
     need = g + float(margin) * np.sqrt(g * (1 - g) / max(len(u_val), 1))
     if rule == "closest":
-        best = int(np.argmin([float(np.abs(cov - need).mean()) for cov in covs]))
+        err = np.array([float(np.abs(cov - need).mean()) for cov in covs])
+        se = float(np.mean(np.sqrt(need * (1 - need) / max(len(u_val), 1))))
+        near = [i for i in range(len(scales)) if err[i] <= err.min() + float(tolerance_se) * se]
+        best = min(near, key=lambda i: (abs(np.log(float(scales[i]))), err[i]))
     else:
         ok = [i for i, cov in enumerate(covs) if np.all(cov >= need - 1e-12)]
         best = ok[0] if ok else len(scales) - 1
