@@ -30,11 +30,11 @@ import numpy as np
 from benchmarks.runner import REPO, table
 
 METHODS = ["rkhs", "mdnn", "mdrff", "bayeszoom-rkhs", "nn-bulk", "gp-bulk", "sbi-npe"]
-# the shared-trunk ensemble (RKHSEstimator.SHARED_TRUNK), rkhs's default (with ensemble=5, recalibrate=true); OLD: the
-# training before it (independent members, every point, lr 1e-3, patience 15)
+# the shared-trunk ensemble (RKHSEstimator.SHARED_TRUNK), rkhs's default when this suite was run (with ensemble=5,
+# recalibrate=true); OLD: the training before it (independent members, every point, lr 1e-3, patience 15)
 SHARED = {"ensemble_shared": "trunk", "point_subset": 8, "lr": 3e-3, "patience": 8}
 OLD = {"ensemble_shared": "none", "point_subset": None, "lr": 1e-3, "patience": 15}
-VARIANTS = {"rkhs-shared": ("rkhs", SHARED),  # = rkhs (the default)
+VARIANTS = {"rkhs-shared": ("rkhs", SHARED),  # = rkhs's default when this suite was run
             "rkhs-old": ("rkhs", OLD),  # the default before the shared trunk: 5 independent networks
             "rkhs-one": ("rkhs", {**OLD, "ensemble": 1, "recalibrate": False}),  # one network (the paper's)
             "rkhs-one-fast": ("rkhs", {**SHARED, "ensemble": 1, "recalibrate": False}),  # member 0 of rkhs-shared
