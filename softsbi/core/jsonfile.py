@@ -202,6 +202,24 @@ def read_json(path: str | Path, rewrite: str, required: tuple[str, ...] = ()) ->
     return data
 
 
+def read_result(path: Path, cls: type, name: str, what: str, rewrite: str) -> Any:
+    """The typed result ``cls`` stored at ``path`` by :func:`write_result`; ``name`` and ``what`` name it in the
+    errors ("no {name} at ...", "not {what}: ...", e.g. "diagnosis", "a diagnosis"), ``rewrite`` is the command that
+    writes it again.
+
+    Raises:
+        SoftsbiError: no such file. ResultDamaged: as :func:`read_json` (a ``schema`` key required), or the object
+            is not a ``cls``: one line naming the file and ``rewrite``.
+    """
+    if not path.exists():
+        raise SoftsbiError(f"no {name} at '{path}'; {rewrite} writes it")
+    data = read_json(path, rewrite, ("schema",))
+    try:
+        return from_json(cls, data)
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ResultDamaged(path, f"not {what}: {e}", rewrite) from e
+
+
 class ResultUnwritable(SoftsbiError, OSError):
     """A result file cannot be written (``errno`` kept); the message names the file and the fix."""
 

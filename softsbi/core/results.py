@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 
 # the JSON form and the result files' writer and reader (softsbi.core.jsonfile), importable from here too
 from softsbi.core.jsonfile import (RENAMED, SCHEMA, UPGRADED, ResultDamaged, ResultUnwritable, check_result_path,  # noqa: F401
-                                   from_json, read_json, to_json, write_json_atomic, write_result)
+                                   from_json, read_json, read_result, to_json, write_json_atomic, write_result)
 
 
 

@@ -24,8 +24,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from softsbi.core.errors import PosteriorError, SoftsbiError
-from softsbi.core.results import (Diagnosis, Estimate, Refit,
-                                  ResultDamaged, check_result_path, from_json, read_json, write_result)
+from softsbi.core.results import (Diagnosis, Estimate, Refit, read_result,
+                                  check_result_path, write_result)
 from softsbi.core.types import Param
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
@@ -331,11 +331,4 @@ def load_diagnosis(path: str | Path) -> Diagnosis:
     """
     path = Path(path)
     path = path / "diagnosis.json" if path.is_dir() and not path.name == "diagnosis.json" else path
-    rewrite = f"`softsbi diagnose {path.parent}`"
-    if not path.exists():
-        raise SoftsbiError(f"no diagnosis at '{path}'; {rewrite} writes it")
-    data = read_json(path, rewrite, ("schema",))
-    try:
-        return from_json(Diagnosis, data)
-    except (ValueError, KeyError, TypeError, AttributeError) as e:
-        raise ResultDamaged(path, f"not a diagnosis: {e}", rewrite) from e
+    return read_result(path, Diagnosis, "diagnosis", "a diagnosis", f"`softsbi diagnose {path.parent}`")

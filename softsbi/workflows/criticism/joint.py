@@ -17,7 +17,7 @@ from typing import Any, Callable, Sequence
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.joint import JointDiagnosis
-from softsbi.core.results import Diagnosis, Refit, ResultDamaged, check_result_path, from_json, read_json, write_result
+from softsbi.core.results import Diagnosis, Refit, check_result_path, read_result, write_result
 from softsbi.core.store import RunStore
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.check import loaded, reused, stored_result
@@ -199,11 +199,5 @@ def load_joint_diagnosis(path: str | Path) -> JointDiagnosis:
     """
     path = Path(path)
     path = path / JOINT_FILE if path.is_dir() else path
-    rewrite = f"`softsbi diagnose RUN RUN RUN ... --out {path.parent}`"
-    if not path.exists():
-        raise SoftsbiError(f"no task diagnosis at '{path}'; {rewrite} writes it")
-    data = read_json(path, rewrite, ("schema",))
-    try:
-        return from_json(JointDiagnosis, data)
-    except (ValueError, KeyError, TypeError, AttributeError) as e:
-        raise ResultDamaged(path, f"not a task's diagnosis: {e}", rewrite) from e
+    return read_result(path, JointDiagnosis, "task diagnosis", "a task's diagnosis",
+                       f"`softsbi diagnose RUN RUN RUN ... --out {path.parent}`")
