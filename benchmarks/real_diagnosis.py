@@ -14,7 +14,9 @@ share of the residual each explains, the residual's shape (flagged frames, the c
 regions), the posterior-predictive Chamfer and the best fit; per task with two recordings or more, the diagnosis
 across its recordings (``softsbi diagnose RUN RUN ... --out``: one verdict for the set, each candidate's summed
 score, adequacy and switched-on count) with each recording's own verdict beside it; then the candidates' screening
-shares across the recordings of each task; with folds, each fold's posterior/prior and posterior-predictive Chamfer
+shares across the recordings of each task; then the candidates of ``--weigh`` (by default the rig's hypotheses,
+:data:`RIG_HYPOTHESES`) weighed on each task's set (``diagnose RUN RUN ... --candidate``), with each recording's
+posterior-predictive Chamfer under the nominal model and under each of them (from their checks); with folds, each fold's posterior/prior and posterior-predictive Chamfer
 beside the fold suite's stored run. The figure has one row per task.
 """
 from __future__ import annotations
@@ -36,6 +38,9 @@ LIFTS = ["tan", "tan2", "navy", "navy2", "paper", "paper2", "polka", "polka2", "
 FULL = {"lifts": LIFTS, "folds": LIFTS}
 #: screening candidates shown per recording
 TOP = 3
+#: the rig's hypotheses about what its recordings lack (the motion's real duration, a grasp that holds a patch,
+#: anisotropic stretch, the rig's sensor), weighed on every task's set by default
+RIG_HYPOTHESES = ["duration-scale", "grasp-patch", "aniso-stretch", "arm-mask", "camera-offset"]
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -48,6 +53,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--workers", type=int, default=2, help="simulation workers per command")
     ap.add_argument("--figure", type=Path, default=REPO / "docs" / "figures" / "real_diagnosis_residual.png",
                     help="where the figure of the residual across recordings is written")
+    ap.add_argument("--weigh", nargs="*", default=RIG_HYPOTHESES,
+                    help="candidates refitted on every recording of a task and weighed for the set, beside its "
+                         "default diagnosis (none: skip)")
     ap.add_argument("--no-train", dest="train", action="store_false",
                     help="do not train the lift task first (every fit then runs its sequential rounds)")
 
@@ -139,6 +147,10 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
         runs = [out / f"{t}_{r}" for t, r, _ in cases if t == task]
         if len(runs) >= 2:
             tables[1:1], joint[task] = joint_tables(task, runs, out / f"joint_{task}", a.workers, env)
+        if len(runs) >= 3 and a.weigh:
+            weighed, joint[f"{task} weighed"] = joint_tables(task, runs, out / f"joint_{task}_weighed", a.workers,
+                                                              env, a.weigh)
+            tables += weighed[:1] + weighed[2:]
     for task, reps in reports.items():  # do repeats of a fabric agree better than different fabrics?
         names = [p["name"] for p in next(iter(reps.values()))["parameters"]]
         mat, u = material_unit_means(reps, names)
@@ -168,24 +180,57 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             "data": {"recordings": data, "train_s": trained, "joint": joint}}
 
 
-def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: dict) -> tuple[list[dict], dict]:
+def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: dict,
+                 candidates: list[str] | None = None) -> tuple[list[dict], dict]:
     """The diagnosis across a task's recordings (``softsbi diagnose RUN RUN ... --out folder``, reused when stored
-    there): its candidates' table and each recording's own verdict beside it, and its data (verdict, named, the
-    summary sentence, wall time)."""
+    there; ``candidates``: those weighed on the set, ``--candidate``, instead of the default ones): its candidates'
+    table, each recording's own verdict beside it and, with ``candidates``, each recording's posterior-predictive
+    Chamfer under the nominal model and under each candidate (:func:`chamfer_table`); and its data (verdict, named,
+    the summary sentence, wall time, and with ``candidates`` the Chamfer medians)."""
     from softsbi.core.joint import JointDiagnosis
     from softsbi.core.results import from_json
     from softsbi.report.joint_text import JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, recording_rows
     from softsbi.workflows.criticism.joint import JOINT_FILE
     wall = None
     if not (folder / JOINT_FILE).exists():
-        wall = _softsbi(env, "diagnose", *map(str, runs), "--out", str(folder), "--workers", str(workers))
+        weigh = [arg for c in candidates or [] for arg in ("--candidate", c)]
+        wall = _softsbi(env, "diagnose", *map(str, runs), "--out", str(folder), "--workers", str(workers), *weigh)
     j = from_json(JointDiagnosis, json.loads((folder / JOINT_FILE).read_text()))
     summary = joint_summary(j)
-    return ([table(f"{task}: one diagnosis across its {len(runs)} recordings, candidates by summed score. "
-                   f"{summary}", JOINT_COLUMNS, joint_rows(j)),
-             table(f"{task}: each recording's own diagnosis beside the task's", RECORDING_COLUMNS, recording_rows(j))],
-            {"verdict": j.decision.verdict,
-             "named": list(j.decision.named), "summary": summary, "wall_s": wall})
+    what = (f"the candidates {', '.join(candidates)} weighed on its {len(runs)} recordings" if candidates else
+            f"one diagnosis across its {len(runs)} recordings")
+    tables = [table(f"{task}: {what}, candidates by summed score. {summary}", JOINT_COLUMNS, joint_rows(j)),
+              table(f"{task}: each recording's own diagnosis beside the task's", RECORDING_COLUMNS, recording_rows(j))]
+    data = {"verdict": j.decision.verdict, "named": list(j.decision.named), "summary": summary, "wall_s": wall}
+    if candidates:
+        chamfer, data["chamfer_median_cm"] = chamfer_table(task, j)
+        tables.append(chamfer)
+    return tables, data
+
+
+def chamfer_table(task: str, j) -> tuple[dict, dict]:
+    """Each recording's posterior-predictive Chamfer [cm] under the nominal model and under each candidate of ``j``
+    (a :class:`~softsbi.core.joint.JointDiagnosis`; each from its check's rollouts), a star where the candidate's
+    refit is adequate (its check does not reject at the set's alpha); then the medians over the recordings and each
+    candidate's fall of the median from the nominal one. Returns the table and the medians by model."""
+    nominal = [d.chamfer_m for d in j.recordings]
+    cols = {"nominal": nominal, **{c.effect: [r.chamfer_m for r in c.refits] for c in j.candidates}}
+    med = {k: float(np.median([100 * v for v in vals if v is not None])) if any(v is not None for v in vals)
+           else None for k, vals in cols.items()}
+    rows = []
+    for i, run in enumerate(j.runs):
+        cells = [None if nominal[i] is None else round(100 * nominal[i], 2)]
+        for c in j.candidates:
+            r = c.refits[i]
+            cells.append("-" if r.chamfer_m is None else f"{100 * r.chamfer_m:.2f}{'*' if r.adequate else ''}")
+        rows.append([Path(run).name, *cells])
+    rows.append(["median", *[None if v is None else round(v, 2) for v in med.values()]])
+    base = med["nominal"]
+    rows.append(["fall of the median", "-", *[f"{100 * (1 - med[c.effect] / base):.0f}%"
+                                               if base and med[c.effect] is not None else "-" for c in j.candidates]])
+    return (table(f"{task}: posterior-predictive Chamfer [cm] per recording, under the nominal model and with each "
+                  f"candidate added (*: its refit is adequate, check p >= {j.alpha:g})",
+                  ["recording", "nominal", *[c.effect for c in j.candidates]], rows), med)
 
 
 def fold_beside_fold_suite(reports: dict) -> dict:

@@ -50,6 +50,10 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
                                                    "sequential rounds)"),
              refit_sims: Optional[int] = setting(DiagnoseSettings, "refit_sims",
                                                  "simulations per round of a refit (default: the run's)"),
+             candidate: list[str] = typer.Option(None, "--candidate", help="with several runs: a candidate to refit "
+                                                 "on every recording and weigh for the task (repeat it; default: "
+                                                 "those the recordings' own diagnoses refitted most often, the first "
+                                                 "--confirm)"),
              k_se: float = setting(DiagnoseSettings, "k_se", "standard errors by which a refit's summary energy score "
                                                              "must fall to count, and within which two refits tie "
                                                              "(with several runs: summed, paired over recordings)"),
@@ -79,12 +83,15 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
     if len(runs) > 1 and out_dir is None:
         raise SoftsbiError(f"diagnosing {len(runs)} runs together needs --out DIR, the folder of their "
                            f"joint-diagnosis.json (each run keeps its own diagnosis in its folder)")
+    if candidate and len(runs) == 1:
+        raise SoftsbiError("--candidate weighs candidates across several recordings; with one run, name the family "
+                           "with --effect")
     with shown(o):
         settings = DiagnoseSettings(confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, k_se=k_se,
                                     workers=workers, n_null=n_null, max_null=max_null, alpha=alpha)
         if len(runs) > 1:
             joint = diagnose_runs(runs, effects=names(effect) or None, settings=settings, progress=o.message,
-                                  recompute=recompute, out_dir=out_dir)
+                                  recompute=recompute, out_dir=out_dir, candidates=names(candidate) or None)
         else:
             out = diagnose_run(runs[0], effects=names(effect) or None, settings=settings, progress=o.message,
                                recompute=recompute, out_dir=out_dir)

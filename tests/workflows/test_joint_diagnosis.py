@@ -89,6 +89,17 @@ def test_one_recordings_wind_is_named_for_it_not_for_the_task(rig, tmp_path):
     assert softsbi.diagnose(runs, out=tmp_path / "task", workers=1, confirm=1, max_null=60, progress=False) == j
     res = runner.invoke(app, ["diagnose", str(runs[0]), *args, "--json"])
     assert res.exit_code == 0 and from_json(Diagnosis, json.loads(res.stdout)) == own
+    # a candidate a user names is weighed on the set instead: on controls, whose own diagnoses refit nothing, it is
+    # refitted on every recording (the recordings' own diagnoses are the stored ones) and not named
+    controls = [rig("control", i) for i in (1, 2, 3)]
+    res = runner.invoke(app, ["diagnose", *map(str, controls), "--out", str(tmp_path / "weighed"), *args, "--json",
+                              "--candidate", "toy-wind"])
+    assert res.exit_code == 0, res.output
+    weighed = from_json(JointDiagnosis, json.loads(res.stdout))
+    assert weighed.recordings[:2] == j.recordings[1:] and not any(d.refits for d in weighed.recordings)
+    (wind,) = weighed.candidates
+    assert [r.run for r in wind.refits] == [str(r / "refit-toy-wind") for r in controls]
+    assert weighed.decision.named == ()
 
 
 def test_a_set_that_is_not_one_tasks_recordings_is_refused_before_any_work(rig, tmp_path):
@@ -112,6 +123,10 @@ def test_a_set_that_is_not_one_tasks_recordings_is_refused_before_any_work(rig, 
         diagnose_runs(runs, settings=SETTINGS, out_dir=None)
     with pytest.raises(RunDirError, match="run directory of another fit"):
         diagnose_runs(runs, settings=SETTINGS, out_dir=runs[0] / "joint")
+    with pytest.raises(SoftsbiError, match="'toy-nothing' is not in the diagnosis's family"):
+        diagnose_runs(runs, settings=SETTINGS, out_dir=out, candidates=["toy-wind", "toy-nothing"])
+    res = runner.invoke(app, ["diagnose", str(runs[0]), "--candidate", "toy-wind"])
+    assert res.exit_code == 2 and "with one run, name the family with --effect" in res.output
     (tmp_path / "file").write_text("")
     with pytest.raises(RunDirError, match="is a file"):
         diagnose_runs(runs, settings=SETTINGS, out_dir=tmp_path / "file" / "joint")

@@ -24,7 +24,7 @@ from softsbi.workflows.criticism.check import loaded, reused, stored_result
 from softsbi.workflows.criticism.diagnose import diagnose_run, refit_model
 from softsbi.workflows.criticism.joint_decide import (check_recordings, decide_joint, joint_candidate, nominal_test,
                                                       ranked, set_candidates)
-from softsbi.workflows.criticism.screening import check_resolution
+from softsbi.workflows.criticism.screening import candidate_effects, check_resolution
 from softsbi.workflows.criticism.stats import PosteriorPredictive
 from softsbi.workflows.criticism.statistics import summary_scale
 from softsbi.core.defaults import DiagnoseSettings
@@ -42,7 +42,8 @@ TASK_KEYS = ("scenario", "backend", "effects", "observer")
 @read_once()  # each stored task read once over the recordings' diagnoses and refits
 def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None = None, *,
                   settings: DiagnoseSettings | None = None, progress: Callable[[str], None] | None = None,
-                  out_dir: str | Path | None, recompute: bool = False, plots: bool = True) -> JointDiagnosis:
+                  out_dir: str | Path | None, recompute: bool = False, plots: bool = True,
+                  candidates: Sequence[str] | None = None) -> JointDiagnosis:
     """One diagnosis for a task across its recordings: is an effect missing from every recording, and which?
 
     Each recording keeps its own diagnosis (its verdict, its cloth parameters and its refits: ``diagnose_run`` with
@@ -71,6 +72,9 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
         out_dir: the folder of ``joint-diagnosis.json`` (required; not inside a run directory).
         recompute: compute every recording's diagnosis and the set's again.
         plots: draw each check's and each refit's figures.
+        candidates: the candidates to refit on every recording and weigh for the task, instead of those the
+            recordings' own diagnoses refitted (e.g. the hypotheses a user holds about the rig); each must be in the
+            family.
 
     Returns:
         the :class:`~softsbi.core.joint.JointDiagnosis`.
@@ -92,6 +96,8 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
     check_recordings(len(runs))
     check_one_task(runs)
     check_resolution(s.alpha, s.max_null, 2)
+    if candidates is not None:
+        check_candidates(runs[0], effects, candidates)
     out = check_out_apart(check_out_dir(out_dir), "diagnose")
     json_path = check_result_path(out / JOINT_FILE)
     say = progress or (lambda _: None)
@@ -103,7 +109,7 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
         for i, run in enumerate(runs):
             say(f"recording {i + 1}/{len(runs)}: {run}")
             diagnoses.append(diagnose_run(run, effects, settings=s, progress=say, recompute=recompute, plots=plots))
-        names = set_candidates(diagnoses, s.confirm)
+        names = set_candidates(diagnoses, s.confirm) if candidates is None else tuple(dict.fromkeys(candidates))
         key: dict[str, Any] = {"runs": [str(r.resolve()) for r in runs], "diagnoses": [dict(d.key) for d in diagnoses],
                                "candidates": list(names), "alpha": s.alpha, "k_se": s.k_se, "confirm": s.confirm}
         stored = None if recompute else stored_result(json_path, JointDiagnosis, key, say)
@@ -151,6 +157,22 @@ def set_refits(runs: Sequence[Path], diagnoses: Sequence[Diagnosis], names: Sequ
         for e in names:
             out[e].append(d.refit((e,)) or made[e])
     return out, sims
+
+
+def check_candidates(run: Path, effects: Sequence[str] | None, candidates: Sequence[str]) -> None:
+    """Refuse, in one line and before any work, set candidates outside the family of ``run`` (a fit of the task)
+    or none at all.
+
+    Raises:
+        SoftsbiError: naming the candidate and the family.
+    """
+    if isinstance(candidates, str):
+        raise SoftsbiError(f"candidates must be a list of effect names, e.g. [{candidates!r}]")
+    family = [c.name for c in candidate_effects(loaded(run), effects)]
+    bad = [c for c in candidates if c not in family]
+    if bad or not candidates:
+        raise SoftsbiError(f"candidate {bad[0] if bad else 'list'!r} is not in the diagnosis's family "
+                           f"{family}: name candidates the model lacks and the backend can apply (or widen --effect)")
 
 
 def task_of(config: dict[str, Any]) -> dict[str, Any]:

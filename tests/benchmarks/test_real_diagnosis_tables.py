@@ -1,0 +1,34 @@
+"""The real-diagnosis suite's Chamfer table (benchmarks/real_diagnosis.py) on a hand-built task diagnosis: each
+recording's posterior-predictive Chamfer under the nominal model and under a weighed candidate, the refits that are
+adequate starred, the medians and the median's fall (no fit and no simulation)."""
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+
+import pytest
+
+from result_helpers import joint, recording, wind_refit
+from toy_helpers import REPO
+from softsbi.core.joint import JointDiagnosis
+from softsbi.workflows.criticism.joint_decide import decide_joint, joint_candidate, nominal_test, ranked
+
+sys.path.insert(0, str(REPO))
+from benchmarks.real_diagnosis import chamfer_table  # noqa: E402
+
+
+def test_the_chamfer_table_gives_each_recording_under_both_models_and_the_fall_of_the_median():
+    nominal_cm, wind_cm = [1.5, 2.0, 1.0, 1.8], [1.2, 1.4, 0.9, 1.0]
+    recs = [replace(recording(f"r{i}", 10.0, joint(0, 0)), chamfer_m=c / 100) for i, c in enumerate(nominal_cm)]
+    refits = [replace(wind_refit(4.0, test=joint(0, 0) if i == 1 else None), chamfer_m=c / 100)
+              for i, c in enumerate(wind_cm)]
+    cands = ranked([joint_candidate("wind", recs, refits, 0.05)])
+    test = nominal_test(recs, 0.05)
+    j = JointDiagnosis(runs=tuple(d.run for d in recs), recordings=tuple(recs), candidates=cands, test=test,
+                       decision=decide_joint(test, cands, 2.0), alpha=0.05, k_se=2.0, confirm=2)
+    tab, med = chamfer_table("lift", j)
+    assert tab["columns"] == ["recording", "nominal", "wind"]
+    rows = tab["rows"]
+    assert rows[0] == ["r0", 1.5, "1.20*"] and rows[1] == ["r1", 2.0, "1.40"]  # r1's wind refit is misfit
+    assert med == pytest.approx({"nominal": 1.65, "wind": 1.1})
+    assert rows[-2] == ["median", 1.65, 1.1] and rows[-1] == ["fall of the median", "-", "33%"]
