@@ -167,3 +167,21 @@ def test_trained_candidates_are_refitted_first_by_their_amortised_score_and_neve
     assert refit_order(ranking, NOMINAL) == ["c", "b", "a"]
     # no task trained: the screening's order alone, as before
     assert refit_order((cand("g", generic=True), cand("a"), cand("b")), NOMINAL) == ["a", "b"]
+
+
+def test_the_amortised_race_stops_a_candidate_once_its_refit_decision_is_made_either_way():
+    from softsbi.workflows.criticism.evidence import decided
+    nominal = Score(value=10.0, se=0.3, n=30)
+    scores = {"good": Score(value=5.0, se=0.5, n=10), "second": Score(value=8.8, se=0.5, n=10),
+              "null": Score(value=9.9, se=0.6, n=10), "worse": Score(value=11.2, se=0.6, n=10)}
+    third = 10 / 30
+    # futile: at a third of the rollouts, z below k_se (sqrt(1/3) - 1) = -0.85 cannot reach k_se at the cap
+    assert gain(nominal, scores["worse"]).z < K_SE * (third ** 0.5 - 1)
+    assert decided("worse", scores, nominal, keep=2, k_se=K_SE, fraction=third)
+    # undecided: a gain near 0 at a third of the rollouts may still reach k_se; with one refit to spend, the good one
+    # improving by k_se and scoring lower by k_se standard errors of the difference outranks it
+    assert not decided("null", scores, nominal, keep=2, k_se=K_SE, fraction=third)
+    assert decided("null", scores, nominal, keep=1, k_se=K_SE, fraction=third)
+    # the ones that will be refitted stay in the race to the cap
+    assert not decided("good", scores, nominal, keep=1, k_se=K_SE, fraction=third)
+    assert not decided("second", scores, nominal, keep=2, k_se=K_SE, fraction=third)

@@ -199,7 +199,8 @@ def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_wi
                     wall_time_s=43.0)  # a fit that stopped at its trained task
     assert diagnose.diagnosis_plan(one, 9, 2, n_null=30, amortised=6) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
-        "rejects, the amortised posteriors of the 6 trained candidates (30 rollouts each; a trained candidate's refit "
+        "rejects, the amortised posteriors of the 6 trained candidates (10 to 30 rollouts each, as their decision needs; a "
+        "trained candidate's refit "
         "simulates no round) and up to 3 refits (the top 2 candidates, then a pair) of about 460 simulations each when "
         "no task trained the candidate: 1590 simulations at most; about 3 min at the nominal fit's pace (430 "
         "simulations in 43 s) (--confirm 2 sets the number of refits)")

@@ -90,13 +90,16 @@ def test_a_trained_candidates_refit_is_its_amortised_posterior_and_simulates_no_
     store = RunStore.open(f"{refit.run}/run.zarr", mode="r")
     assert store.round_ids() == [0] and len(store.round_data(0)["status"]) == 0
     report = read_fit_report(refit.run)
-    assert report.per_round[0].task == tasks[2].digest and report.simulations == 30 and report.bank_hits == 0
+    # its fit evaluated the race's first stage; its score and check extended them to the check's 30
+    assert report.per_round[0].task == tasks[2].digest and report.simulations == 10 and report.bank_hits == 0
     prior_seeds = set(_round_seeds(0, 0, 120).tolist())  # the task's prior simulations (task train's round 1)
     assert ran and not prior_seeds & {seed for _, seed in ran}
     # the candidate's model was simulated: its posterior-predictive rollouts, scored and checked
     assert sum(1 for effects, _ in ran if MAGNET in effects) >= 30
     amortised = next(c.amortised for c in d.ranking if c.effect == MAGNET)
-    assert refit.score == amortised
+    assert refit.score == amortised and amortised.n == 30
+    # the drift's decision was made on the race's first stage (futile, or outranked by the magnet for the one refit)
+    assert next(c.amortised for c in d.ranking if c.effect == "toy-drift").n == 10
 
 
 def test_compare_check_and_view_read_an_amortised_refit_as_any_refit(trained, diagnosed, tmp_path):

@@ -32,7 +32,7 @@ from softsbi.core.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
-from softsbi.workflows.criticism.evidence import (amortised_refit, amortised_scores, recording_from_run, refit_config,
+from softsbi.workflows.criticism.evidence import (RACE_START, amortised_refit, amortised_scores, recording_from_run, refit_config,
                                                   refit_dir, trained_task, trained_tasks)
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import run_fit
@@ -101,7 +101,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     # on a trained task a candidate's refit is its amortised posterior unless sequential rounds are asked for
     key = result_key(run, family=sorted(family), trained=sorted(t[0].digest for t in trained.values()), alpha=alpha,
                      k_se=k_se, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null,
-                     max_null=max_null, seed=seed, amortised_refits=sorted(trained) if refit_rounds is None else [])
+                     max_null=max_null, seed=seed, amortised_refits=sorted(trained) if refit_rounds is None else [],
+                     race_start=RACE_START)
     say = progress or (lambda _: None)
     out = run.path if out_dir is None else Path(out_dir)
     json_path = check_result_path(out / "diagnosis.json")
@@ -135,7 +136,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
         if chk.test.misspecified and confirm > 0 and trained:  # each trained candidate's amortised refit's score
             say(f"propose: the amortised posterior predictive of the {len(trained)} candidates the task trained")
             amortised = amortised_pools(run, trained, out, s, say)
-            scores, n_amortised = amortised_scores(run, amortised, scale, n_null)
+            scores, n_amortised = amortised_scores(run, amortised, scale, n_null, nominal, confirm, k_se)
             ranking = tuple(replace(c, amortised=scores.get(c.effect)) for c in ranking)
         refits: list[Refit] = []
         while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
@@ -193,7 +194,8 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
         if amortised:  # the trained candidates' refits are their amortised posteriors, scored first
             total += amortised * n_null
             first = (f"the amortised posteriors of the {amortised} trained candidate{'s' if amortised > 1 else ''} "
-                     f"({n_null} rollouts each; a trained candidate's refit simulates no round) and ")
+                     f"({min(RACE_START, n_null)} to {n_null} rollouts each, as their decision needs; a trained "
+                     f"candidate's refit simulates no round) and ")
         s += (f", then, if the check rejects, {first}up to {refits} refit{'s' if refits > 1 else ''} ({top}"
               f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each"
               f"{' when no task trained the candidate' if amortised else ''}: {total} simulations at most")

@@ -25,11 +25,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.results import Score
+from softsbi.core.results import Gain, Score
 from softsbi.core.types import Recording
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.criticism.decide import K_SE, improves
 from softsbi.workflows.criticism.stats import PosteriorPredictive, run_features
 from softsbi.workflows.criticism.statistics import MIN_NULL, summary_energy_score
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask
@@ -98,7 +99,8 @@ def amortised_refit(run: RunView, effects: Sequence[str], root: str | Path, work
     conditioned on ``run``'s recording) as that model's refit run, :func:`refit_dir` under ``root``: a fit of the
     stored task's posterior alone (:func:`~softsbi.workflows.fit.run.run_fit`'s ``task_only``) at
     :func:`refit_config`'s settings, so that ``compare``, ``view`` and ``check`` read it as any refit. Its only
-    simulations are its ``n_eval`` posterior-predictive rollouts and its best fit's; a stored one is resumed (read).
+    simulations are its posterior-predictive rollouts, :data:`RACE_START` of them (``n_eval``; its check and score
+    extend them), and its best fit's; a stored one is resumed (read).
     ``plots``: draw its fit figures. Returns the folder.
 
     Raises:
@@ -106,33 +108,81 @@ def amortised_refit(run: RunView, effects: Sequence[str], root: str | Path, work
             puts no mass in the prior box. Everything :func:`~softsbi.workflows.fit.run.run_fit` raises.
     """
     cfg = refit_config(run, effects, None, None, workers)
+    cfg = replace(cfg, n_eval=min(cfg.n_eval, RACE_START))  # its score's race starts there (:func:`amortised_scores`)
     out = refit_dir(root, effects)
     run_fit(out, recording_from_run(run), cfg, callbacks=callbacks, make_plots=plots, task_only=True)
     return out
 
 
-def amortised_scores(run: RunView, pools: Mapping[str, PosteriorPredictive], scale: np.ndarray,
-                     n: int) -> tuple[dict[str, Score], int]:
-    """The summary energy score of each trained candidate's amortised posterior predictive (module docstring).
+#: posterior-predictive rollouts every trained candidate's amortised score starts with in :func:`amortised_scores`'s
+#: race; an undecided candidate's rollouts double, up to ``diagnose``'s ``n_null`` (at 10 and 30: stages of 10, 20,
+#: 30). Its energy score is unbiased at any size (:func:`~softsbi.workflows.criticism.statistics.summary_energy_score`),
+#: so a score on fewer rollouts differs only in its standard error
+RACE_START = 10
+
+
+def amortised_scores(run: RunView, pools: Mapping[str, PosteriorPredictive], scale: np.ndarray, n: int,
+                     nominal: Score | None = None, keep: int = 0, k_se: float = K_SE,
+                     start: int = RACE_START) -> tuple[dict[str, Score], int]:
+    """The summary energy score of each trained candidate's amortised posterior predictive (module docstring), each
+    on the rollouts its refit decision needs: a race (successive elimination, Maron & Moore 1994).
+
+    Every candidate is scored on ``start`` rollouts. At each stage a candidate leaves the race, keeping the score it
+    has, when its decision is made either way:
+
+    - *futile*: its gain over ``nominal`` could not reach ``k_se`` standard errors at ``n`` rollouts even if its
+      true gain were ``k_se`` of its present standard errors above its estimate (the standard error shrinks as
+      ``1/sqrt(rollouts)``: ``z_m < k_se (sqrt(m/n) - 1)`` at ``m`` rollouts), so
+      :func:`~softsbi.workflows.criticism.decide.refit_order` will not refit it;
+    - *outranked*: ``keep`` other candidates improve on ``nominal`` by ``k_se`` standard errors and score lower
+      than it by ``k_se`` standard errors of the difference, so the ``keep`` refits go to others first.
+
+    The others get twice as many rollouts, up to ``n``, where every candidate left is scored as without the race.
+    ``nominal`` None or ``keep`` 0: no race (every candidate on ``n`` rollouts).
 
     Args:
         run: the nominal fit (stopped at its trained task).
         pools: each candidate's amortised refit's posterior-predictive rollouts (:func:`amortised_refit`, then
             :class:`~softsbi.workflows.criticism.stats.PosteriorPredictive`), by effect; its check shares them.
         scale: ``(F,)`` the nominal fit's summary scale (:func:`~softsbi.workflows.criticism.statistics.summary_scale`).
-        n: posterior-predictive rollouts per candidate (``diagnose``'s ``n_null``: a refit's score uses as many).
+        n: posterior-predictive rollouts per candidate at most (``diagnose``'s ``n_null``: a refit's score uses as
+            many).
+        nominal: the nominal fit's score in ``scale``; keep: the refits the decision spends (``confirm``); k_se:
+            the decision's margin (:data:`~softsbi.workflows.criticism.decide.K_SE`); start: the first stage's
+            rollouts (:data:`RACE_START`).
 
     Returns:
-        ``{effect: Score}`` for the candidates scored (one with fewer than ``MIN_NULL`` successful rollouts is left
-        out: its refit would not be checked), and the number of rollouts requested.
+        ``{effect: Score}`` for the candidates scored (each with the rollouts it was scored on; one with fewer than
+        ``MIN_NULL`` successful rollouts is left out: its refit would not be checked), and the number of rollouts
+        requested.
 
     Raises:
         SoftsbiError: an environment fault of the executor.
     """
     f_obs = run_features(run, run.dense)
     out: dict[str, Score] = {}
-    for effect, pool in pools.items():
-        feats = pool.ensure(n).features[:n]
-        if len(feats) >= MIN_NULL:
-            out[effect] = summary_energy_score(f_obs, feats, scale)
+    live = dict(pools)
+    m = n if nominal is None or keep <= 0 else min(max(start, MIN_NULL), n)
+    while live:
+        for effect, pool in live.items():
+            feats = pool.ensure(m).features[:m]
+            if len(feats) >= MIN_NULL:
+                out[effect] = summary_energy_score(f_obs, feats, scale)
+        if m >= n:
+            break
+        live = {e: p for e, p in live.items() if e in out and not decided(e, out, nominal, keep, k_se, m / n)}
+        m = min(2 * m, n)
     return out, sum(pool.requested for pool in pools.values())
+
+
+def decided(effect: str, scores: Mapping[str, Score], nominal: Score, keep: int, k_se: float,
+            fraction: float) -> bool:
+    """Whether ``effect``'s refit decision is made at ``fraction`` of its rollouts (:func:`amortised_scores`: futile
+    or outranked)."""
+    g = Gain.of(nominal, scores[effect])
+    if g is not None and g.z < k_se * (np.sqrt(fraction) - 1):
+        return True
+    c = scores[effect]
+    ahead = [s for e, s in scores.items() if e != effect and improves(nominal, s, k_se)
+             and c.value - s.value > k_se * np.hypot(c.se, s.se)]
+    return len(ahead) >= keep
