@@ -11,23 +11,17 @@ Pure functions of the rows that :mod:`benchmarks.diagnosis` writes (no simulatio
   case whose latest row is an error stays in every rate's denominator as wrong (a control's error counts as a false
   alarm), and the summary states how many there are.
 * **Pooling** (:func:`pooling_problem`): a split's rows are summarised together only when they record the same
-  settings (the fit's, the estimator's options with its recalibration, the diagnosis's, the cases' with the threshold
-  table). Rows stored before rows recorded their settings count as settings unknown, pooled only with unknown rows of
+  settings (the fit's, the estimator's options with its recalibration, the diagnosis's, the cases'). Rows stored before rows recorded their settings count as settings unknown, pooled only with unknown rows of
   one commit; otherwise the summary is one line saying why it refuses.
-* **Thresholds** (:data:`THRESHOLDS`, ``--thresholds FILE``): a hidden effect's magnitude starts at its measured
-  detection threshold; an effect without one starts at :data:`DEFAULT_THRESHOLD`, an unmeasured placeholder, and the
-  summary marks it so.
-* **Acceptance** (:data:`TARGETS`): the false-alarm rate of the controls with its 95% Clopper-Pearson interval, a KS
-  test of the controls' p-values against uniform, the strict named-right rate overall and per effect, the other
-  engine's share of ``misspecified-unexplained``, each against its target; the old rule against the new on the cases
-  both diagnosed (the same nominal fit).
-* **Split size** (:data:`MINIMUMS`): the counts a test split must reach; :func:`cases_for_minimums` is the smallest
-  number of cases (whole cycles of :data:`CYCLE`) that reaches them.
+* **Acceptance** (:data:`TARGETS`): the false-alarm rate of the controls with its 95% Clopper-Pearson interval, the
+  strict named-right rate overall and per effect, the other engine's share of ``misspecified-unexplained``, each
+  against its target; a KS test of the controls' p-values against uniform is reported beside them. The sequential
+  path (and an old rule, where rows hold one) against the trained one on the cases both ran.
+* **Split** (:func:`schedule`): :data:`COUNTS` cases, their labels shuffled by the split's seed.
 """
 from __future__ import annotations
 
 import json
-import math
 from collections import Counter
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -37,64 +31,41 @@ from scipy import stats
 
 from benchmarks import runner
 
-#: the shipped effects, each hidden in one case per cycle
-EFFECTS = ["wind", "air-drag", "extra-damping", "grip-compliance", "table-slope", "sticky-patch", "heavy-hem",
-           "calibration-offset", "time-offset", "point-noise", "table-unseen"]
-#: one cycle of case labels: 6 controls, one case per shipped effect, one of the other engine
-CYCLE = ["control"] * 6 + EFFECTS + ["other-engine"]
+#: the shipped effects mujoco-flex applies, less the generic force terms: the hidden effects of the cases
+EFFECTS = ["air-drag", "aniso-friction", "aniso-stretch", "arm-mask", "calibration-offset", "camera-offset",
+           "duration-scale", "extra-damping", "grasp-patch", "grip-compliance", "heavy-hem", "point-noise",
+           "sticky-patch", "table-slope", "table-unseen", "time-offset", "wind"]
 LABELS = ["control", *EFFECTS, "other-engine"]
-#: magnitude at which the earlier benchmark's development cases detected the effect in 90% of cases (a logistic fit
-#: of detection on magnitude, 38-89 cases per effect); None: not measured (no magnitude within the prior detected the
-#: effect that reliably), the case's magnitude starts at :data:`DEFAULT_THRESHOLD`
-THRESHOLDS: dict[str, float | None] = {e: None for e in EFFECTS} | {
-    "calibration-offset": 0.26, "point-noise": 0.37, "wind": 0.36, "time-offset": 0.54, "grip-compliance": 0.82}
-#: the lower end of an unmeasured effect's magnitude: a placeholder, not a measured threshold (the summary says so)
-DEFAULT_THRESHOLD = 0.5
-#: the acceptance targets: false-alarm rate and the upper end of its 95% interval, the KS p-value of the controls'
-#: p-values against uniform (above), the strict named-right rate of the hidden effects and the other engine's share
-#: of ``misspecified-unexplained`` (at least)
-TARGETS = {"false_alarm_rate": 0.05, "false_alarm_upper": 0.10, "ks_p": 0.05, "named_right": 0.80,
-           "other_engine": 0.90}
-#: what a test split must hold: controls, cases per shipped effect, cases of the other engine
-MINIMUMS = {"control": 60, "effect": 10, "other-engine": 10}
+#: a split's cases: controls, cases per shipped effect, cases of the other engine
+COUNTS = {"control": 40, "effect": 6, "other-engine": 8}
+#: every case of a split
+N_CASES = COUNTS["control"] + COUNTS["effect"] * len(EFFECTS) + COUNTS["other-engine"]
+#: a hidden effect's magnitude, uniform on the upper two thirds of its on range (the way from its off value to an
+#: edge of its prior: :mod:`benchmarks.diagnosis`)
+MAGNITUDES = (1 / 3, 1.0)
+#: the acceptance targets: false alarms at most 1 in 40 (the 95% Clopper-Pearson upper bound of 1 in 40 is 13%), the
+#: strict named-right rate of the hidden effects and the other engine's share of ``misspecified-unexplained`` (7 of 8)
+TARGETS = {"false_alarm_rate": 1 / 40, "named_right": 0.75, "other_engine": 7 / 8}
+#: what a test split must hold (:data:`COUNTS`)
+MINIMUMS = COUNTS
+#: the cases also run on the sequential path: a split's first controls and first hidden-effect cases
+SEQUENTIAL = {"control": 4, "effect": 8}
 
 
-def cases_for_minimums() -> int:
-    """The fewest cases, in whole cycles of :data:`CYCLE`, that hold :data:`MINIMUMS` (10 cycles: 180)."""
-    need = {"control": MINIMUMS["control"], "other-engine": MINIMUMS["other-engine"],
-            **{e: MINIMUMS["effect"] for e in EFFECTS}}
-    return len(CYCLE) * max(math.ceil(n / CYCLE.count(label)) for label, n in need.items())
+def schedule(seed: int) -> list[str]:
+    """The labels of a split's :data:`N_CASES` cases in the order its ``seed`` shuffles them (so that any first
+    cases mix controls, effects and the other engine)."""
+    labels = (["control"] * COUNTS["control"] + [e for e in EFFECTS for _ in range(COUNTS["effect"])]
+              + ["other-engine"] * COUNTS["other-engine"])
+    return [labels[j] for j in np.random.default_rng([seed, 7]).permutation(len(labels))]
 
 
-def threshold(thresholds: Mapping[str, float | None], label: str) -> float:
-    """The lower end of a hidden effect's magnitude: its measured threshold, else :data:`DEFAULT_THRESHOLD`."""
-    value = thresholds.get(label)
-    return DEFAULT_THRESHOLD if value is None else float(value)
-
-
-def load_thresholds(path: Path) -> dict[str, float | None]:
-    """The threshold table of ``--thresholds FILE``: a JSON object naming every shipped effect, each with its measured
-    detection threshold (a magnitude in [0, 1)) or null (not measured).
-
-    Raises:
-        SystemExit: one line naming the file and what is wrong (unreadable, not an object, an effect missing or
-            unknown, a value out of range).
-    """
-    try:
-        table = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as e:
-        raise SystemExit(f"--thresholds {path}: cannot read a JSON object ({e})") from None
-    if not isinstance(table, dict):
-        raise SystemExit(f"--thresholds {path}: expected a JSON object {{effect: threshold or null}}")
-    missing, unknown = [e for e in EFFECTS if e not in table], sorted(set(table) - set(EFFECTS))
-    if missing or unknown:
-        raise SystemExit(f"--thresholds {path}: name every shipped effect once (null where not measured); "
-                         f"missing {missing}, unknown {unknown}")
-    bad = {e: v for e, v in table.items() if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                                                 or not 0 <= v < 1)}
-    if bad:
-        raise SystemExit(f"--thresholds {path}: a threshold is a magnitude in [0, 1) or null; got {bad}")
-    return {e: (None if table[e] is None else float(table[e])) for e in EFFECTS}
+def sequential_cases(seed: int) -> list[int]:
+    """The indices of the split's first :data:`SEQUENTIAL` controls and hidden-effect cases."""
+    labels = schedule(seed)
+    ctl = [i for i, x in enumerate(labels) if x == "control"][:SEQUENTIAL["control"]]
+    eff = [i for i, x in enumerate(labels) if x in EFFECTS][:SEQUENTIAL["effect"]]
+    return sorted(ctl + eff)
 
 
 def _names(x: Any) -> list[str]:
@@ -128,16 +99,21 @@ def row_outcome(row: Mapping[str, Any]) -> str:
     return outcome(row["label"], row["verdict"], row.get("named"), row.get("alternatives"))
 
 
-def old_outcome(row: Mapping[str, Any]) -> str | None:
-    """The old rule's :func:`outcome` of a row: None where the old rule did not diagnose it, ``error`` where it
-    failed."""
-    old = row.get("old")
-    if not isinstance(old, dict):
+#: the other diagnoses a row may hold of the same case, by key: the sequential path's (:mod:`benchmarks.diagnosis`)
+#: and an old rule's (rows of an earlier protocol)
+BESIDE = {"sequential": "the sequential path", "old": "the old rule"}
+
+
+def beside_outcome(row: Mapping[str, Any], key: str) -> str | None:
+    """:func:`outcome` of the diagnosis a row holds under ``key`` (:data:`BESIDE`): None where the row holds none,
+    ``error`` where it failed."""
+    other = row.get(key)
+    if not isinstance(other, dict):
         return None
-    if "verdict" not in old or "error" in old:
+    if "verdict" not in other or "error" in other:
         return "error"
-    return outcome(row["label"], old["verdict"], old.get("named") if old["verdict"] == "missing-effect" else [],
-                   old.get("alternatives"))
+    return outcome(row["label"], other["verdict"], other.get("named") if other["verdict"] == "missing-effect" else [],
+                   other.get("alternatives"))
 
 
 def read_rows(path: Path) -> list[dict[str, Any]]:
@@ -217,15 +193,20 @@ def _rate(k: int, n: int) -> dict[str, Any]:
     return {"k": k, "n": n, "rate": k / n if n else None, "ci95": interval(k, n)}
 
 
+#: the magnitude bins of the detection table: thirds of :data:`MAGNITUDES`
+MAGNITUDE_BINS = [(1 / 3, 5 / 9), (5 / 9, 7 / 9), (7 / 9, 1.0001)]
+
+
 def summary(rows: Sequence[Mapping[str, Any]], split: str) -> dict[str, Any]:
     """The figures of a split's stored rows (every stored row; a case's latest one counts).
 
     Returns ``{"refused": line, ...}`` when the rows cannot be pooled (:func:`pooling_problem`); otherwise the counts
     (``cases``, ``errors``, ``reruns``), ``by_label`` (per truth: cases, errors, detected, right, indistinguishable,
-    the right rate's interval, what was called, the old rule's right on the same fit), ``false_alarms``, ``ks``,
-    ``named_right``, ``other_engine`` (each ``k``, ``n``, ``rate``, ``ci95``), ``acceptance`` (:func:`acceptance`),
-    ``minimums`` (:func:`minimums`), ``thresholds`` (per effect: the value, ``unmeasured`` or ``unknown``), ``old``
-    (the comparison on the cases both rules diagnosed) and the detection by magnitude.
+    the right rate's interval, and per :data:`BESIDE` key the right count on the same cases), ``confusion`` (truth by
+    call), ``false_alarms``, ``ks``, ``named_right``, ``other_engine`` (each ``k``, ``n``, ``rate``, ``ci95``),
+    ``acceptance`` (:func:`acceptance`), ``minimums`` (:func:`minimums`), per :data:`BESIDE` key the comparison on the
+    cases both diagnosed (:func:`beside_comparison`), ``seconds`` (medians of the steps) and
+    ``detection_by_magnitude`` (per effect and :data:`MAGNITUDE_BINS`: detected, right, cases).
     """
     stored = len(rows)
     rows = latest(rows)
@@ -234,63 +215,83 @@ def summary(rows: Sequence[Mapping[str, Any]], split: str) -> dict[str, Any]:
                                                                                   for r in rows))}
     if problem := pooling_problem(rows, split):
         return {**out, "refused": problem}
-    settings = rows[0].get("settings") if rows else None
-    out["settings"] = "recorded" if settings is not None else "unknown"
-    table = (settings or {}).get("cases", {}).get("thresholds")
-    out["thresholds"] = {e: ("unknown" if table is None else "unmeasured" if table.get(e) is None else table[e])
-                         for e in EFFECTS}
-    scored = [(r, row_outcome(r), old_outcome(r)) for r in rows]
+    out["settings"] = "recorded" if rows and rows[0].get("settings") is not None else "unknown"
+    scored = [(r, row_outcome(r)) for r in rows]
     out["by_label"], out["confusion"] = {}, {}
     for label in LABELS:
-        rs = [(r, o, oo) for r, o, oo in scored if r.get("label") == label]
+        rs = [(r, o) for r, o in scored if r.get("label") == label]
         if not rs:
             continue
-        k = sum(o == "right" for _, o, _ in rs)
-        entry = {"n": len(rs), "errors": sum(o == "error" for _, o, _ in rs), "right": k,
+        k = sum(o == "right" for _, o in rs)
+        entry = {"n": len(rs), "errors": sum(o == "error" for _, o in rs), "right": k,
                  "right_ci95": interval(k, len(rs)),
-                 "indistinguishable": sum(o == "indistinguishable" for _, o, _ in rs),
-                 "detected": sum(o != "error" and r["verdict"] != "nothing-missing" for r, o, _ in rs)}
-        olds = [oo for r, o, oo in rs if o != "error" and oo not in (None, "error")]
-        if olds:
-            entry.update(old_n=len(olds), old_right=olds.count("right"), old_right_ci95=interval(olds.count("right"),
-                                                                                                len(olds)))
+                 "indistinguishable": sum(o == "indistinguishable" for _, o in rs),
+                 "detected": sum(o != "error" and r["verdict"] != "nothing-missing" for r, o in rs)}
+        for key in BESIDE:
+            others = [bo for r, o in rs if o != "error" and (bo := beside_outcome(r, key)) not in (None, "error")]
+            if others:
+                entry.update({f"{key}_n": len(others), f"{key}_right": others.count("right"),
+                              f"{key}_right_ci95": interval(others.count("right"), len(others))})
         out["by_label"][label] = entry
-        out["confusion"][label] = dict(Counter("error" if o == "error" else "+".join(_names(r.get("named")))
-                                               or r["verdict"] for r, o, _ in rs))
-    ctl = [(r, o) for r, o, _ in scored if r.get("label") == "control"]
+        out["confusion"][label] = dict(Counter(call(r, o) for r, o in rs))
+    ctl = [(r, o) for r, o in scored if r.get("label") == "control"]
     out["false_alarms"] = _rate(sum(o != "right" for _, o in ctl), len(ctl))
     pv = [float(r["p_value"]) for r, o in ctl if o != "error" and r.get("p_value") is not None]
     ks = stats.kstest(pv, "uniform") if pv else None
     out["ks"] = {"n": len(pv), "statistic": float(ks.statistic) if ks else None,
                  "p_value": float(ks.pvalue) if ks else None}
-    eff = [o for r, o, _ in scored if r.get("label") in EFFECTS]
+    eff = [o for r, o in scored if r.get("label") in EFFECTS]
     out["named_right"] = {**_rate(eff.count("right"), len(eff)), "indistinguishable": eff.count("indistinguishable")}
-    oe = [o for r, o, _ in scored if r.get("label") == "other-engine"]
+    oe = [o for r, o in scored if r.get("label") == "other-engine"]
     out["other_engine"] = _rate(oe.count("right"), len(oe))
     out["acceptance"] = acceptance(out)
     out["minimums"] = minimums(out)
-    out["old"] = old_comparison(rows)
-    with_m = [(r, o) for r, o, _ in scored if r.get("magnitude") is not None]
-    out["detection_by_magnitude"] = {f"{a:.2f}-{min(b, 1):.2f}": [sum(o != "error" and r["verdict"] != "nothing-missing"
-                                                                      for r, o in with_m if a <= r["magnitude"] < b),
-                                                                  sum(a <= r["magnitude"] < b for r, _ in with_m)]
-                                     for a, b in [(0.25, 0.5), (0.5, 0.75), (0.75, 1.0001)]}
-    drops = [1 - r["score_named"] / r["score_nominal"] for r, o, _ in scored
+    for key in BESIDE:
+        out[key] = beside_comparison(rows, key)
+    out["seconds"] = step_seconds([r for r, o in scored if o != "error"])
+    out["detection_by_magnitude"] = {
+        e: [[sum(r["verdict"] != "nothing-missing" for r, o in cell), sum(o == "right" for _, o in cell), len(cell)]
+            for cell in ([(r, o) for r, o in scored if r.get("label") == e and o != "error"
+                          and a <= (r.get("magnitude") or -1) < b] for a, b in MAGNITUDE_BINS)]
+        for e in EFFECTS if e in out["by_label"]}
+    drops = [1 - _value(r["score_named"]) / _value(r["score_nominal"]) for r, o in scored
              if o == "right" and r.get("score_named") and r.get("score_nominal")]
     out["score_drop_median"] = float(np.median(drops)) if drops else None
     return out
 
 
+def _value(score: Any) -> float:
+    """A stored score's value: ``[value, se, n]`` or a number (older rows)."""
+    return float(score[0] if isinstance(score, (list, tuple)) else score)
+
+
+def call(row: Mapping[str, Any], outcome_: str) -> str:
+    """What a case was called: the named effects (joined by +), else the verdict; ``error``."""
+    return "error" if outcome_ == "error" else "+".join(_names(row.get("named"))) or row["verdict"]
+
+
+def step_seconds(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Medians over ``rows`` (those that record their steps) of the fit's, check's and diagnose's seconds and of
+    check + diagnose, over all of them and over the misfit ones (check rejected: the diagnosis proposed and
+    refitted)."""
+    timed = [r for r in rows if all(isinstance(r.get(k), (int, float)) for k in ("fit_s", "check_s", "diagnose_s"))]
+
+    def med(rs, f):
+        return float(np.median([f(r) for r in rs])) if rs else None
+
+    misfit = [r for r in timed if r["verdict"] != "nothing-missing"]
+    return {"n": len(timed), "fit": med(timed, lambda r: r["fit_s"]), "check": med(timed, lambda r: r["check_s"]),
+            "diagnose": med(timed, lambda r: r["diagnose_s"]),
+            "check_diagnose": med(timed, lambda r: r["check_s"] + r["diagnose_s"]),
+            "misfit_n": len(misfit), "misfit_check_diagnose": med(misfit, lambda r: r["check_s"] + r["diagnose_s"])}
+
+
 def acceptance(s: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """Each criterion of :data:`TARGETS` with its value and ``pass`` (True, False, or None with no case to judge)."""
-    fa, ks, nr, oe, t = s["false_alarms"], s["ks"], s["named_right"], s["other_engine"], TARGETS
+    fa, nr, oe, t = s["false_alarms"], s["named_right"], s["other_engine"], TARGETS
     return {
-        "false_alarms": {"value": fa["rate"], "upper": fa["ci95"][1],
-                         "target": f"rate <= {t['false_alarm_rate']:g}, 95% upper bound <= {t['false_alarm_upper']:g}",
-                         "pass": None if not fa["n"] else fa["rate"] <= t["false_alarm_rate"]
-                         and fa["ci95"][1] <= t["false_alarm_upper"]},
-        "control_p_uniform": {"value": ks["p_value"], "target": f"KS p > {t['ks_p']:g}",
-                              "pass": None if ks["p_value"] is None else ks["p_value"] > t["ks_p"]},
+        "false_alarms": {"value": fa["rate"], "upper": fa["ci95"][1], "target": f"rate <= {t['false_alarm_rate']:g}",
+                         "pass": None if not fa["n"] else fa["rate"] <= t["false_alarm_rate"]},
         "named_right": {"value": nr["rate"], "target": f">= {t['named_right']:g}",
                         "pass": None if not nr["n"] else nr["rate"] >= t["named_right"]},
         "other_engine": {"value": oe["rate"], "target": f">= {t['other_engine']:g}",
@@ -306,26 +307,37 @@ def minimums(s: Mapping[str, Any]) -> dict[str, Any]:
     return {"short": short, "met": not short}
 
 
-def old_comparison(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
-    """The old rule against the new on the cases both diagnosed without error (the same nominal fit): ``n``,
-    ``agree`` (same verdict and named effects), ``new_right``, ``old_right`` (strict, with intervals), ``not_shared``
-    (either rule failed)
-    and the old checkouts' ``commits``; ``refused`` when the old verdicts come from more than one checkout commit.
-    None when no row has an old verdict."""
-    olds = [r for r in rows if isinstance(r.get("old"), dict)]
-    if not olds:
+def beside_comparison(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, Any] | None:
+    """The diagnosis rows hold under ``key`` (:data:`BESIDE`) against this one, on the cases both diagnosed without
+    error: ``n``, ``agree`` (same verdict and named effects), ``new_right``, ``other_right`` (strict, with
+    intervals), ``not_shared`` (either failed), the median seconds of fit + check + diagnose on each path (where
+    recorded) and, for an old rule, its checkouts' ``commits`` (``refused`` when there are several). None when no
+    row holds one."""
+    others = [r for r in rows if isinstance(r.get(key), dict)]
+    if not others:
         return None
-    commits = dict(Counter(r["old"].get("commit", "unknown") for r in olds))
-    if len(commits) > 1:
-        return {"commits": commits, "refused": f"The old rule's verdicts come from {len(commits)} checkouts "
-                                               f"({', '.join(commits)}): not compared; rerun them with one --old."}
-    shared = [r for r in olds if not is_error(r) and old_outcome(r) != "error"]
+    out: dict[str, Any] = {}
+    if key == "old":
+        commits = dict(Counter(r["old"].get("commit", "unknown") for r in others))
+        out["commits"] = commits
+        if len(commits) > 1:
+            return {**out, "refused": f"The old rule's verdicts come from {len(commits)} checkouts "
+                                      f"({', '.join(commits)}): not compared; rerun them with one --old."}
+    shared = [r for r in others if not is_error(r) and beside_outcome(r, key) != "error"]
     new = sum(row_outcome(r) == "right" for r in shared)
-    old = sum(old_outcome(r) == "right" for r in shared)
-    agree = sum(r["verdict"] == r["old"]["verdict"] and sorted(_names(r.get("named"))) == sorted(_names(
-        r["old"].get("named") if r["old"]["verdict"] == "missing-effect" else [])) for r in shared)
-    return {"n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
-            "old_right": _rate(old, len(shared)), "not_shared": len(olds) - len(shared), "commits": commits}
+    other = sum(beside_outcome(r, key) == "right" for r in shared)
+    agree = sum(r["verdict"] == r[key]["verdict"] and sorted(_names(r.get("named"))) == sorted(_names(
+        r[key].get("named") if r[key]["verdict"] == "missing-effect" else [])) for r in shared)
+
+    def total(x):
+        return sum(x.get(k) or 0.0 for k in ("fit_s", "check_s", "diagnose_s")) if "fit_s" in x else None
+
+    times = [(total(r), total(r[key])) for r in shared]
+    times = [t for t in times if None not in t]
+    return {**out, "n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
+            "other_right": _rate(other, len(shared)), "not_shared": len(others) - len(shared),
+            "seconds": [float(np.median([a for a, _ in times])), float(np.median([b for _, b in times]))]
+            if times else None}
 
 
 def _ci(c: Sequence[float]) -> str:
@@ -341,61 +353,79 @@ def _frac(r: Mapping[str, Any], what: str = "") -> str:
                                                            if r["n"] else "")
 
 
+def _seconds(x: float | None) -> str:
+    return "-" if x is None else f"{x:.0f} s"
+
+
 def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
-    """The summary (:func:`summary`) as the suite's table and notes: one line when the rows were not pooled."""
+    """The summary (:func:`summary`) as the suite's tables (verdicts per truth, the confusion table, detection against
+    magnitude per effect) and notes: one line when the rows were not pooled."""
     if "refused" in s:
         return {"tables": [], "notes": [s["refused"]]}
     if not s["cases"]:
         return {"tables": [], "notes": [f"No case of the {split} split is stored yet."]}
     rows = []
     for label, e in s["by_label"].items():
-        th = s["thresholds"].get(label)
-        th = None if th is None else f"{th:.2f}" if isinstance(th, float) else (
-            f"unmeasured ({DEFAULT_THRESHOLD:g} placeholder)" if th == "unmeasured" else th)
-        old = [f"{e['old_right']} of {e['old_n']}", _ci(e["old_right_ci95"])] if "old_n" in e else [None, None]
-        rows.append([label, th, e["n"], e["errors"], e["detected"], e["right"], _ci(e["right_ci95"]),
-                     e["indistinguishable"], *old])
+        seq = ([f"{e['sequential_right']} of {e['sequential_n']}", _ci(e["sequential_right_ci95"])]
+               if "sequential_n" in e else [None, None])
+        rows.append([label, e["n"], e["errors"], e["detected"], e["right"], _ci(e["right_ci95"]),
+                     e["indistinguishable"], *seq])
+    calls = sorted({c for v in s["confusion"].values() for c in v},
+                   key=lambda c: (c not in ("nothing-missing", "misspecified-unexplained", "error"), c))
+    confusion = [[label, *[v.get(c) or None for c in calls]] for label, v in s["confusion"].items()]
+    bins = [f"{a:.2f}-{min(b, 1):.2f}" for a, b in MAGNITUDE_BINS]
+    magnitude = [[e, *[f"{d}/{r}/{n}" if n else "-" for d, r, n in cells]]
+                 for e, cells in s["detection_by_magnitude"].items()]
     acc = s["acceptance"]
     reruns = f", {s['reruns']} earlier rows replaced by reruns" if s["reruns"] else ""
+    sec = s["seconds"]
     notes = [f"{s['cases']} cases, {s['errors']} of them errors (counted as wrong; a control's as a false alarm)"
              f"{reruns}; settings "
              + ("recorded and equal in every row." if s["settings"] == "recorded" else
-                "unknown (rows stored before rows recorded them: one commit, thresholds unknown).")
+                "unknown (rows stored before rows recorded them: one commit).")
              + " Commits: " + ", ".join(f"`{c}` ({n})" for c, n in s["commits"].items()) + ".",
              f"False alarms: {_frac(s['false_alarms'], 'controls')}: {_verdict(acc['false_alarms']['pass'])} (target "
              f"{acc['false_alarms']['target']}).",
-             "Control p-values against uniform: KS p = "
-             + (f"{s['ks']['p_value']:.3f}" if s["ks"]["p_value"] is not None else "-")
-             + f" (n = {s['ks']['n']}): {_verdict(acc['control_p_uniform']['pass'])} (target "
-             f"{acc['control_p_uniform']['target']}).",
              "Named right (the verdict names the hidden effect alone): "
              f"{_frac(s['named_right'], 'hidden-effect cases')} ({s['named_right']['indistinguishable']} more listed "
              "as indistinguishable, not counted right): "
              f"{_verdict(acc['named_right']['pass'])} (target {acc['named_right']['target']}).",
              f"Other engine called misspecified-unexplained: {_frac(s['other_engine'])}: "
              f"{_verdict(acc['other_engine']['pass'])} (target {acc['other_engine']['target']}).",
+             "Control p-values against uniform (reported, not a target): KS p = "
+             + (f"{s['ks']['p_value']:.3f}" if s["ks"]["p_value"] is not None else "-") + f" (n = {s['ks']['n']}).",
              "Split size: " + ("meets" if s["minimums"]["met"] else "falls short of")
-             + f" the test split's minimums ({MINIMUMS['control']} controls, {MINIMUMS['effect']} cases per shipped "
-             f"effect, {MINIMUMS['other-engine']} of the other engine; {cases_for_minimums()} cases)"
+             + f" the split's counts ({MINIMUMS['control']} controls, {MINIMUMS['effect']} cases per shipped "
+             f"effect, {MINIMUMS['other-engine']} of the other engine; {N_CASES} cases)"
              + ("." if s["minimums"]["met"] else ": " + ", ".join(f"{k} {h} of {n}" for k, (h, n)
                                                                   in s["minimums"]["short"].items()) + ".")]
-    unmeasured = [e for e, v in s["thresholds"].items() if v == "unmeasured"]
-    if unmeasured:
-        notes.append(f"No measured detection threshold (magnitudes from the unmeasured placeholder "
-                     f"{DEFAULT_THRESHOLD:g}): {', '.join(unmeasured)}.")
-    if (o := s["old"]) is not None:
-        notes.append(o["refused"] if "refused" in o else
-                     f"Old rule (checkout `{next(iter(o['commits']))}`) on the same nominal fits: {o['n']} cases "
-                     f"shared ({o['not_shared']} not: either rule failed); verdicts agree in {o['agree']}; named "
-                     f"right: this rule {_frac(o['new_right'])}, the old rule {_frac(o['old_right'])}.")
-    notes += ["What was called, per truth: " + "; ".join(f"{k}: " + ", ".join(f"{c} {n}" for c, n in v.items())
-                                                        for k, v in s["confusion"].items()) + ".",
-              "Detected against magnitude: " + ", ".join(f"{k}: {d} of {n}" for k, (d, n)
-                                                         in s["detection_by_magnitude"].items()) + "."]
+    if sec["n"]:
+        notes.append(f"Median seconds over {sec['n']} cases: fit {_seconds(sec['fit'])}, check "
+                     f"{_seconds(sec['check'])}, diagnose {_seconds(sec['diagnose'])}, check + diagnose "
+                     f"{_seconds(sec['check_diagnose'])} ({_seconds(sec['misfit_check_diagnose'])} over the "
+                     f"{sec['misfit_n']} the check rejected).")
+    for key, what in BESIDE.items():
+        o = s.get(key)
+        if o is None:
+            continue
+        if "refused" in o:
+            notes.append(o["refused"])
+            continue
+        t = o["seconds"]
+        notes.append(f"{what.capitalize()} on the same cases: {o['n']} shared ({o['not_shared']} not: either "
+                     f"failed); verdicts agree in {o['agree']}; named right: the trained task {_frac(o['new_right'])}, "
+                     f"{what} {_frac(o['other_right'])}"
+                     + (f"; median fit + check + diagnose {t[0]:.0f} s against {t[1]:.0f} s." if t else "."))
     if s.get("score_drop_median") is not None:
         notes.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
                      f"cases: {s['score_drop_median'] * 100:.0f}%.")
-    return {"tables": [runner.table(f"Diagnosis, {split} split: verdicts per truth",
-                                    ["truth", "threshold", "cases", "errors", "detected", "right (this rule)",
-                                     "95% interval", "listed indistinguishable", "right (old rule, same fit)",
-                                     "95% interval"], rows)], "notes": notes}
+    tables = [runner.table(f"Diagnosis, {split} split: verdicts per truth",
+                           ["truth", "cases", "errors", "detected", "right", "95% interval",
+                            "listed indistinguishable", "right (sequential path, same case)", "95% interval"], rows),
+              runner.table(f"Diagnosis, {split} split: what each truth was called (cases)", ["truth", *calls],
+                           confusion)]
+    if magnitude:
+        tables.append(runner.table(f"Diagnosis, {split} split: detected / named right / cases per effect, by "
+                                   f"magnitude (the fraction of the effect's on range)", ["effect", *bins],
+                                   magnitude))
+    return {"tables": tables, "notes": notes}

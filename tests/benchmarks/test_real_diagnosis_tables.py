@@ -14,7 +14,7 @@ from softsbi.core.joint import JointDiagnosis
 from softsbi.workflows.criticism.joint_decide import decide_joint, joint_candidate, nominal_test, ranked
 
 sys.path.insert(0, str(REPO))
-from benchmarks.real_diagnosis import chamfer_table  # noqa: E402
+from benchmarks.real_diagnosis import chamfer_table
 
 
 def test_the_chamfer_table_gives_each_recording_under_both_models_and_the_fall_of_the_median():
