@@ -151,6 +151,9 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             weighed, joint[f"{task} weighed"] = joint_tables(task, runs, out / f"joint_{task}_weighed", a.workers,
                                                               env, a.weigh)
             tables += weighed[:1] + weighed[2:]
+            if task == "lift":
+                notes.append(duration_note(a.data / "diffcloud_lift" / f"lift_{a.lifts[0]}",
+                                           out / f"joint_{task}_weighed"))
     for task, reps in reports.items():  # do repeats of a fabric agree better than different fabrics?
         names = [p["name"] for p in next(iter(reps.values()))["parameters"]]
         mat, u = material_unit_means(reps, names)
@@ -172,6 +175,7 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             figures.append({"path": str(a.figure.resolve().relative_to(REPO / "docs")),
                             "caption": "the residual across recordings: posterior-predictive Chamfer per frame, and "
                                        "the measured centroid's offset from the simulated one in the flagged frames"})
+    notes = [n for n in notes if n]
     notes[:0] = [f"Each task was trained by `softsbi task train` with its defaults (this run's commands took "
              f"{trained:.0f} s; a model stored by an earlier run of the same folder, or for an earlier recording of "
              f"the same task, is not trained again)."
@@ -206,6 +210,34 @@ def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: d
         chamfer, data["chamfer_median_cm"] = chamfer_table(task, j)
         tables.append(chamfer)
     return tables, data
+
+
+#: the Kinova Gen3's top Cartesian speed (m/s, its specification sheet): the arm of DiffCloud's rig
+ARM_TOP_SPEED = 0.5
+
+
+def duration_note(lift: Path, folder: Path) -> str:
+    """What the duration scales weighed on the lifts (the joint diagnosis in ``folder``) make of the arm's speed: the
+    lift's gripper path (its length over the scenario's duration, from ``lift``'s scenario) at each recording's
+    estimated ``duration_scale`` is a mean speed, against :data:`ARM_TOP_SPEED`. Empty when duration-scale was not
+    weighed."""
+    from softsbi.core.joint import JointDiagnosis
+    from softsbi.core.results import from_json
+    from softsbi.scenarios.builtin import lift_task
+    from softsbi.workflows.criticism.joint import JOINT_FILE
+    j = from_json(JointDiagnosis, json.loads((folder / JOINT_FILE).read_text()))
+    c = next((c for c in j.candidates if c.effect == "duration-scale"), None)
+    if c is None:
+        return ""
+    sc, _ = lift_task(lift)
+    g = np.asarray(sc.gripper, float).reshape(len(sc.gripper), -1, 3)[:, 0]
+    path = float(np.linalg.norm(np.diff(g, axis=0), axis=1).sum())
+    s = [x for x in c.estimates("duration_scale") if x is not None]
+    speeds = [path / (x * sc.duration) for x in s]
+    return (f"duration-scale against the rig: the lift's gripper path is {path:.2f} m over the scenario's "
+            f"{sc.duration:.2f} s; the lifts' estimated scales {min(s):.2f}-{max(s):.2f} (median "
+            f"{float(np.median(s)):.2f}) make the real lift's mean speed {min(speeds):.2f}-{max(speeds):.2f} m/s "
+            f"(the arm, a Kinova Gen3, tops out at {ARM_TOP_SPEED:g} m/s).") if s else ""
 
 
 def chamfer_table(task: str, j) -> tuple[dict, dict]:
