@@ -268,4 +268,7 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
         out["tables"] += rep["tables"]
         out["notes"] += [f"{split.capitalize()} split: {n}" for n in rep["notes"]]
         out["data"][split] = s
+    if not out["data"]:
+        out["notes"].append(f"No case is stored yet: the test split runs with `python -m benchmarks run diagnosis "
+                            f"--split test --train --full --out OUTSIDE` ({N_CASES} cases; it resumes).")
     return out

@@ -16,7 +16,7 @@ Pure functions of the rows that :mod:`benchmarks.diagnosis` writes (no simulatio
 * **Acceptance** (:data:`TARGETS`): the false-alarm rate of the controls with its 95% Clopper-Pearson interval, the
   strict named-right rate overall and per effect, the other engine's share of ``misspecified-unexplained``, each
   against its target; a KS test of the controls' p-values against uniform is reported beside them. The sequential
-  path (and an old rule, where rows hold one) against the trained one on the cases both ran.
+  path against the trained one on the cases both ran.
 * **Split** (:func:`schedule`): :data:`COUNTS` cases, their labels shuffled by the split's seed.
 """
 from __future__ import annotations
@@ -100,8 +100,7 @@ def row_outcome(row: Mapping[str, Any]) -> str:
 
 
 #: the other diagnoses a row may hold of the same case, by key: the sequential path's (:mod:`benchmarks.diagnosis`)
-#: and an old rule's (rows of an earlier protocol)
-BESIDE = {"sequential": "the sequential path", "old": "the old rule"}
+BESIDE = {"sequential": "the sequential path"}
 
 
 def beside_outcome(row: Mapping[str, Any], key: str) -> str | None:
@@ -310,19 +309,11 @@ def minimums(s: Mapping[str, Any]) -> dict[str, Any]:
 def beside_comparison(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, Any] | None:
     """The diagnosis rows hold under ``key`` (:data:`BESIDE`) against this one, on the cases both diagnosed without
     error: ``n``, ``agree`` (same verdict and named effects), ``new_right``, ``other_right`` (strict, with
-    intervals), ``not_shared`` (either failed), the median seconds of fit + check + diagnose on each path (where
-    recorded) and, for an old rule, its checkouts' ``commits`` (``refused`` when there are several). None when no
-    row holds one."""
+    intervals), ``not_shared`` (either failed) and the median seconds of fit + check + diagnose on each path (where
+    recorded). None when no row holds one."""
     others = [r for r in rows if isinstance(r.get(key), dict)]
     if not others:
         return None
-    out: dict[str, Any] = {}
-    if key == "old":
-        commits = dict(Counter(r["old"].get("commit", "unknown") for r in others))
-        out["commits"] = commits
-        if len(commits) > 1:
-            return {**out, "refused": f"The old rule's verdicts come from {len(commits)} checkouts "
-                                      f"({', '.join(commits)}): not compared; rerun them with one --old."}
     shared = [r for r in others if not is_error(r) and beside_outcome(r, key) != "error"]
     new = sum(row_outcome(r) == "right" for r in shared)
     other = sum(beside_outcome(r, key) == "right" for r in shared)
@@ -334,7 +325,7 @@ def beside_comparison(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, 
 
     times = [(total(r), total(r[key])) for r in shared]
     times = [t for t in times if None not in t]
-    return {**out, "n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
+    return {"n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
             "other_right": _rate(other, len(shared)), "not_shared": len(others) - len(shared),
             "seconds": [float(np.median([a for a, _ in times])), float(np.median([b for _, b in times]))]
             if times else None}
@@ -407,9 +398,6 @@ def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
     for key, what in BESIDE.items():
         o = s.get(key)
         if o is None:
-            continue
-        if "refused" in o:
-            notes.append(o["refused"])
             continue
         t = o["seconds"]
         notes.append(f"{what.capitalize()} on the same cases: {o['n']} shared ({o['not_shared']} not: either "

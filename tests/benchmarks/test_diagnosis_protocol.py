@@ -265,4 +265,3 @@ def test_the_sequential_path_fits_the_same_recording_in_its_own_folder_and_bank(
     o = s["sequential"]
     assert (o["n"], o["agree"], o["new_right"]["k"], o["other_right"]["k"], o["not_shared"]) == (2, 1, 2, 1, 1)
     assert s["by_label"]["wind"]["sequential_right"] == 0 and s["by_label"]["control"]["sequential_n"] == 1
-    assert s["old"] is None
