@@ -232,12 +232,22 @@ def duration_note(lift: Path, folder: Path) -> str:
     sc, _ = lift_task(lift)
     g = np.asarray(sc.gripper, float).reshape(len(sc.gripper), -1, 3)[:, 0]
     path = float(np.linalg.norm(np.diff(g, axis=0), axis=1).sum())
+    from softsbi.inference.contraction import INFORMED_MAX_RATIO
     s = [x for x in c.estimates("duration_scale") if x is not None]
+    if not s:
+        return ""
     speeds = [path / (x * sc.duration) for x in s]
+    widths = [e.width_ratio for r in c.refits for e in r.estimates
+              if e.name == "duration_scale" and e.width_ratio is not None]
+    width = float(np.median(widths)) if widths else None
+    informed = width is not None and width <= INFORMED_MAX_RATIO
     return (f"duration-scale against the rig: the lift's gripper path is {path:.2f} m over the scenario's "
-            f"{sc.duration:.2f} s; the lifts' estimated scales {min(s):.2f}-{max(s):.2f} (median "
+            f"{sc.duration:.2f} s; the lifts' posterior mean scales {min(s):.2f}-{max(s):.2f} (median "
             f"{float(np.median(s)):.2f}) make the real lift's mean speed {min(speeds):.2f}-{max(speeds):.2f} m/s "
-            f"(the arm, a Kinova Gen3, tops out at {ARM_TOP_SPEED:g} m/s).") if s else ""
+            f"(the arm, a Kinova Gen3, tops out at {ARM_TOP_SPEED:g} m/s)"
+            + ("" if width is None else
+               f"; its 90% interval is {width:.2f} of the prior's wide (median over the lifts)"
+               + ("." if informed else ": the recordings do not inform it, and these speeds are the prior's.")))
 
 
 def chamfer_table(task: str, j) -> tuple[dict, dict]:

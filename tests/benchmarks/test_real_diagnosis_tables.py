@@ -41,16 +41,20 @@ def test_the_duration_scales_read_as_the_arms_mean_speed(tmp_path):
     from softsbi.workflows.criticism.joint import JOINT_FILE
     from benchmarks.real_diagnosis import duration_note
     recs = [recording(f"r{i}", 10.0, joint(0, 0)) for i in range(3)]
-    refits = [replace(wind_refit(4.0, effect="duration-scale"), estimates=(Estimate(
-        name="duration_scale", unit="1", mean=s, q05=s - 0.2, q95=s + 0.2, width_ratio=0.3, effect="duration-scale"),))
-        for s in (1.5, 2.0, 3.0)]
-    cands = ranked([joint_candidate("duration-scale", recs, refits, 0.05)])
-    test = nominal_test(recs, 0.05)
-    j = JointDiagnosis(runs=tuple(d.run for d in recs), recordings=tuple(recs), candidates=cands, test=test,
-                       decision=decide_joint(test, cands, 2.0), alpha=0.05, k_se=2.0, confirm=2)
-    (tmp_path / JOINT_FILE).write_text(json.dumps(to_json(j)))
-    lift = REPO.parent / "shared" / "data" / "diffcloud_lift" / "lift_tan2"
-    note = duration_note(lift, tmp_path)
+    def note(width):
+        refits = [replace(wind_refit(4.0, effect="duration-scale"), estimates=(Estimate(
+            name="duration_scale", unit="1", mean=s, q05=s - 0.2, q95=s + 0.2, width_ratio=width,
+            effect="duration-scale"),)) for s in (1.5, 2.0, 3.0)]
+        cands = ranked([joint_candidate("duration-scale", recs, refits, 0.05)])
+        test = nominal_test(recs, 0.05)
+        j = JointDiagnosis(runs=tuple(d.run for d in recs), recordings=tuple(recs), candidates=cands, test=test,
+                           decision=decide_joint(test, cands, 2.0), alpha=0.05, k_se=2.0, confirm=2)
+        (tmp_path / JOINT_FILE).write_text(json.dumps(to_json(j)))
+        return duration_note(REPO.parent / "shared" / "data" / "diffcloud_lift" / "lift_tan2", tmp_path)
+
     # the 0.36 m path over 0.96 s: 0.38 m/s as scripted, 0.13-0.25 m/s at scales 3 and 1.5
-    assert "path is 0.36 m over the scenario's 0.96 s" in note and "scales 1.50-3.00 (median 2.00)" in note
-    assert "mean speed 0.13-0.25 m/s" in note
+    informed = note(0.3)
+    assert "path is 0.36 m over the scenario's 0.96 s" in informed and "scales 1.50-3.00 (median 2.00)" in informed
+    assert "mean speed 0.13-0.25 m/s" in informed and informed.endswith("0.30 of the prior's wide (median over the lifts).")
+    # a posterior as wide as the prior: the speeds are the prior's, and the note says so
+    assert note(0.99).endswith("the recordings do not inform it, and these speeds are the prior's.")
