@@ -53,7 +53,7 @@ from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 from benchmarks import runner
-from benchmarks.diagnosis_protocol import (MAGNITUDES, N_CASES, done_ids, outcome, read_rows, report,
+from benchmarks.diagnosis_protocol import (COUNTS, MAGNITUDES, N_CASES, done_ids, outcome, read_rows, report,
                                            schedule, sequential_cases, settings_conflict, summary)
 
 RESULTS = runner.RESULTS
@@ -107,7 +107,6 @@ def settings() -> dict[str, Any]:
     its bank and workers), ``estimator_options`` (the estimator's defaults with the fit's options over them),
     ``diagnose`` (the candidates and :data:`DIAGNOSE`) and ``cases`` (the task, the engines, the counts and the
     magnitudes)."""
-    from benchmarks.diagnosis_protocol import COUNTS
     fit = asdict(fit_config(Path("bank"), None))
     for k in ("sim_bank", "workers", "seed"):
         fit.pop(k)

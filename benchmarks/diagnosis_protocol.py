@@ -46,8 +46,6 @@ MAGNITUDES = (1 / 3, 1.0)
 #: the acceptance targets: false alarms at most 1 in 40 (the 95% Clopper-Pearson upper bound of 1 in 40 is 13%), the
 #: strict named-right rate of the hidden effects and the other engine's share of ``misspecified-unexplained`` (7 of 8)
 TARGETS = {"false_alarm_rate": 1 / 40, "named_right": 0.75, "other_engine": 7 / 8}
-#: what a test split must hold (:data:`COUNTS`)
-MINIMUMS = COUNTS
 #: the cases also run on the sequential path: a split's first controls and first hidden-effect cases
 SEQUENTIAL = {"control": 4, "effect": 8}
 
@@ -253,15 +251,10 @@ def summary(rows: Sequence[Mapping[str, Any]], split: str) -> dict[str, Any]:
             for cell in ([(r, o) for r, o in scored if r.get("label") == e and o != "error"
                           and a <= (r.get("magnitude") or -1) < b] for a, b in MAGNITUDE_BINS)]
         for e in EFFECTS if e in out["by_label"]}
-    drops = [1 - _value(r["score_named"]) / _value(r["score_nominal"]) for r, o in scored
+    drops = [1 - r["score_named"][0] / r["score_nominal"][0] for r, o in scored
              if o == "right" and r.get("score_named") and r.get("score_nominal")]
     out["score_drop_median"] = float(np.median(drops)) if drops else None
     return out
-
-
-def _value(score: Any) -> float:
-    """A stored score's value: ``[value, se, n]`` or a number (older rows)."""
-    return float(score[0] if isinstance(score, (list, tuple)) else score)
 
 
 def call(row: Mapping[str, Any], outcome_: str) -> str:
@@ -298,10 +291,10 @@ def acceptance(s: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def minimums(s: Mapping[str, Any]) -> dict[str, Any]:
-    """The split's cases (errors included) per truth against :data:`MINIMUMS`: ``short`` (label: [have, need]) and
+    """The split's cases (errors included) per truth against :data:`COUNTS`: ``short`` (label: [have, need]) and
     ``met``."""
     have = {label: s["by_label"].get(label, {}).get("n", 0) for label in LABELS}
-    need = {label: MINIMUMS["effect" if label in EFFECTS else label] for label in LABELS}
+    need = {label: COUNTS["effect" if label in EFFECTS else label] for label in LABELS}
     short = {label: [have[label], need[label]] for label in LABELS if have[label] < need[label]}
     return {"short": short, "met": not short}
 
@@ -386,8 +379,8 @@ def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
              "Control p-values against uniform (reported, not a target): KS p = "
              + (f"{s['ks']['p_value']:.3f}" if s["ks"]["p_value"] is not None else "-") + f" (n = {s['ks']['n']}).",
              "Split size: " + ("meets" if s["minimums"]["met"] else "falls short of")
-             + f" the split's counts ({MINIMUMS['control']} controls, {MINIMUMS['effect']} cases per shipped "
-             f"effect, {MINIMUMS['other-engine']} of the other engine; {N_CASES} cases)"
+             + f" the split's counts ({COUNTS['control']} controls, {COUNTS['effect']} cases per shipped "
+             f"effect, {COUNTS['other-engine']} of the other engine; {N_CASES} cases)"
              + ("." if s["minimums"]["met"] else ": " + ", ".join(f"{k} {h} of {n}" for k, (h, n)
                                                                   in s["minimums"]["short"].items()) + ".")]
     if sec["n"]:

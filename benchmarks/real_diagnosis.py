@@ -28,6 +28,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -146,14 +147,13 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
     for task in dict.fromkeys(c[0] for c in cases):  # one diagnosis across each task's recordings
         runs = [out / f"{t}_{r}" for t, r, _ in cases if t == task]
         if len(runs) >= 2:
-            tables[1:1], joint[task] = joint_tables(task, runs, out / f"joint_{task}", a.workers, env)
+            tables[1:1], joint[task], _ = joint_tables(task, runs, out / f"joint_{task}", a.workers, env)
         if len(runs) >= 3 and a.weigh:
-            weighed, joint[f"{task} weighed"] = joint_tables(task, runs, out / f"joint_{task}_weighed", a.workers,
-                                                              env, a.weigh)
+            weighed, joint[f"{task} weighed"], j = joint_tables(task, runs, out / f"joint_{task}_weighed",
+                                                                 a.workers, env, a.weigh)
             tables += weighed[:1] + weighed[2:]
-            if task == "lift":
-                notes.append(duration_note(a.data / "diffcloud_lift" / f"lift_{a.lifts[0]}",
-                                           out / f"joint_{task}_weighed"))
+            if task == "lift" and (note := duration_note(a.data / "diffcloud_lift" / f"lift_{a.lifts[0]}", j)):
+                notes.append(note)
     for task, reps in reports.items():  # do repeats of a fabric agree better than different fabrics?
         names = [p["name"] for p in next(iter(reps.values()))["parameters"]]
         mat, u = material_unit_means(reps, names)
@@ -175,7 +175,6 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
             figures.append({"path": str(a.figure.resolve().relative_to(REPO / "docs")),
                             "caption": "the residual across recordings: posterior-predictive Chamfer per frame, and "
                                        "the measured centroid's offset from the simulated one in the flagged frames"})
-    notes = [n for n in notes if n]
     notes[:0] = [f"Each task was trained by `softsbi task train` with its defaults (this run's commands took "
              f"{trained:.0f} s; a model stored by an earlier run of the same folder, or for an earlier recording of "
              f"the same task, is not trained again)."
@@ -185,12 +184,13 @@ def measure(a: argparse.Namespace, out: Path) -> dict:
 
 
 def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: dict,
-                 candidates: list[str] | None = None) -> tuple[list[dict], dict]:
+                 candidates: list[str] | None = None) -> tuple[list[dict], dict, Any]:
     """The diagnosis across a task's recordings (``softsbi diagnose RUN RUN ... --out folder``, reused when stored
     there; ``candidates``: those weighed on the set, ``--candidate``, instead of the default ones): its candidates'
     table, each recording's own verdict beside it and, with ``candidates``, each recording's posterior-predictive
     Chamfer under the nominal model and under each candidate (:func:`chamfer_table`); and its data (verdict, named,
-    the summary sentence, wall time, and with ``candidates`` the Chamfer medians)."""
+    the summary sentence, wall time, and with ``candidates`` the Chamfer medians); and the
+    :class:`~softsbi.core.joint.JointDiagnosis` itself."""
     from softsbi.core.joint import JointDiagnosis
     from softsbi.core.results import from_json
     from softsbi.report.joint_text import JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, recording_rows
@@ -209,30 +209,26 @@ def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: d
     if candidates:
         chamfer, data["chamfer_median_cm"] = chamfer_table(task, j)
         tables.append(chamfer)
-    return tables, data
+    return tables, data, j
 
 
 #: the Kinova Gen3's top Cartesian speed (m/s, its specification sheet): the arm of DiffCloud's rig
 ARM_TOP_SPEED = 0.5
 
 
-def duration_note(lift: Path, folder: Path) -> str:
-    """What the duration scales weighed on the lifts (the joint diagnosis in ``folder``) make of the arm's speed: the
+def duration_note(lift: Path, j: Any) -> str:
+    """What the duration scales weighed on the lifts (the joint diagnosis ``j``) make of the arm's speed: the
     lift's gripper path (its length over the scenario's duration, from ``lift``'s scenario) at each recording's
     estimated ``duration_scale`` is a mean speed, against :data:`ARM_TOP_SPEED`. Empty when duration-scale was not
     weighed."""
-    from softsbi.core.joint import JointDiagnosis
-    from softsbi.core.results import from_json
+    from softsbi.inference.contraction import INFORMED_MAX_RATIO
     from softsbi.scenarios.builtin import lift_task
-    from softsbi.workflows.criticism.joint import JOINT_FILE
-    j = from_json(JointDiagnosis, json.loads((folder / JOINT_FILE).read_text()))
     c = next((c for c in j.candidates if c.effect == "duration-scale"), None)
     if c is None:
         return ""
     sc, _ = lift_task(lift)
     g = np.asarray(sc.gripper, float).reshape(len(sc.gripper), -1, 3)[:, 0]
     path = float(np.linalg.norm(np.diff(g, axis=0), axis=1).sum())
-    from softsbi.inference.contraction import INFORMED_MAX_RATIO
     s = [x for x in c.estimates("duration_scale") if x is not None]
     if not s:
         return ""

@@ -125,6 +125,8 @@ def test_a_set_that_is_not_one_tasks_recordings_is_refused_before_any_work(rig, 
         diagnose_runs(runs, settings=SETTINGS, out_dir=runs[0] / "joint")
     with pytest.raises(SoftsbiError, match="'toy-nothing' is not in the diagnosis's family"):
         diagnose_runs(runs, settings=SETTINGS, out_dir=out, candidates=["toy-wind", "toy-nothing"])
+    with pytest.raises(SoftsbiError, match="no candidates: name at least one of the diagnosis's family"):
+        diagnose_runs(runs, settings=SETTINGS, out_dir=out, candidates=[])
     res = runner.invoke(app, ["diagnose", str(runs[0]), "--candidate", "toy-wind"])
     assert res.exit_code == 2 and "with one run, name the family with --effect" in res.output
     (tmp_path / "file").write_text("")

@@ -32,8 +32,8 @@ from softsbi.core.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
-from softsbi.workflows.criticism.evidence import (RACE_START, amortised_refit, amortised_scores, recording_from_run, refit_config,
-                                                  refit_dir, trained_task, trained_tasks)
+from softsbi.workflows.criticism.evidence import (RACE_START, amortised_refit, amortised_scores, recording_from_run,
+                                                  refit_config, refit_dir, trained_task, trained_tasks)
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock

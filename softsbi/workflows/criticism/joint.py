@@ -169,10 +169,12 @@ def check_candidates(run: Path, effects: Sequence[str] | None, candidates: Seque
     if isinstance(candidates, str):
         raise SoftsbiError(f"candidates must be a list of effect names, e.g. [{candidates!r}]")
     family = [c.name for c in candidate_effects(loaded(run), effects)]
+    if not candidates:
+        raise SoftsbiError(f"no candidates: name at least one of the diagnosis's family {family}")
     bad = [c for c in candidates if c not in family]
-    if bad or not candidates:
-        raise SoftsbiError(f"candidate {bad[0] if bad else 'list'!r} is not in the diagnosis's family "
-                           f"{family}: name candidates the model lacks and the backend can apply (or widen --effect)")
+    if bad:
+        raise SoftsbiError(f"candidate {bad[0]!r} is not in the diagnosis's family {family}: name candidates the "
+                           f"model lacks and the backend can apply (or widen --effect)")
 
 
 def task_of(config: dict[str, Any]) -> dict[str, Any]:
