@@ -129,7 +129,8 @@ def family() -> list[str]:
 def diagnose_case(case: dict[str, Any], run_dir: Path, bank: Path, workers: int | None) -> dict[str, Any]:
     """Fit, check and diagnose one case's recording into ``run_dir`` with the bank ``bank``, each step timed: the
     verdict, the named effects, check's p-value, the nominal and every candidate's score with its standard error
-    (the amortised ones and the refits'), the refits, and ``fit_s``, ``check_s``, ``diagnose_s``."""
+    (the amortised ones and the refits'), the refits (with their added effects' estimates: interval, off ratio,
+    possibly off), and ``fit_s``, ``check_s``, ``diagnose_s``."""
     settings_ = DiagnoseSettings(**DIAGNOSE, workers=workers)
     t0 = time.perf_counter()
     run_fit(run_dir, measurement(case), fit_config(bank, workers), make_plots=False)
@@ -149,7 +150,9 @@ def diagnose_case(case: dict[str, Any], run_dir: Path, bank: Path, workers: int 
             "score_named": score(named.score) if named is not None else None,
             "amortised": {c.effect: score(c.amortised) for c in d.ranking if c.amortised is not None},
             "refits": [{"effects": list(r.effects), "adequate": r.adequate, "p_value": r.test.p_value,
-                        "score": score(r.score), "chamfer_m": r.chamfer_m, "amortised": r.amortised}
+                        "score": score(r.score), "chamfer_m": r.chamfer_m, "amortised": r.amortised,
+                        "estimates": {e.name: {"q05": e.q05, "q95": e.q95, "off_ratio": e.off_ratio,
+                                               "may_be_off": e.may_be_off} for e in r.estimates}}
                        for r in d.refits],
             "outcome": outcome(case["label"], d.verdict, d.decision.named, d.decision.alternatives),
             "fit_s": t1 - t0, "check_s": t2 - t1, "diagnose_s": t3 - t2}

@@ -58,6 +58,8 @@ class Contraction:
         scale: ``"log"`` or ``"linear"``. center, spread: the posterior's (own units; spread None for log ones).
         q05, q95: its 90% interval. width_ratio: the interval's width over the prior's, in the parameter's scale.
         informed: ``width_ratio <= informed_max_width_ratio``.
+        slab_mass: the posterior's mass next to the lower and the upper prior bound, each in the slab of
+            :data:`~softsbi.inference.contraction.BOUND_SLAB` of the range (None: an older report).
     """
 
     scale: str | None = None
@@ -67,6 +69,14 @@ class Contraction:
     q95: float | None = None
     width_ratio: float | None = None
     informed: bool | None = None
+    slab_mass: tuple[float, float] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The entry as written (an older report's, without ``slab_mass``, as read)."""
+        d = _plain(self)
+        if self.slab_mass is None:
+            del d["slab_mass"]
+        return d
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -307,6 +317,8 @@ class FitReport:
                 out[name] = [p.to_json() for p in value]
             elif name == "per_round":
                 out[name] = [r.to_json(self.metric) for r in value]
+            elif name == "contraction":
+                out[name] = {k: c.to_json() for k, c in value.items()}
             elif name == "best_fit":
                 out[name] = None if value is None else value.to_json(self.metric)
             else:

@@ -18,7 +18,8 @@ from typing import Any, Mapping, Sequence
 from softsbi.core.results import Decision, Diagnosis, Gain, Refit
 
 #: the chance that a calibrated 90% interval excludes a parameter's true value (5% on each side): the rate at which
-#: a recording's refit shows an effect that is off as switched on, per parameter of the effect
+#: a recording's refit shows an effect that is off as switched on, per parameter of the effect; for an off value at
+#: a prior bound, the Bayes factor against it that excludes it (whose chance rate is at most this)
 CHANCE_EXCLUDED = 0.10
 #: a candidate's three criteria for the set (:meth:`JointCandidate.fails`)
 CRITERIA = ("improves", "adequate", "switched on")
@@ -89,8 +90,8 @@ class CombinedTest:
 @dataclass(frozen=True, kw_only=True)
 class SwitchedOn:
     """Is an effect switched on across the recordings? A one-sided binomial test of the number of recordings whose
-    refit excludes the effect's off value (at least one of its parameters' 90% intervals excludes it,
-    :attr:`~softsbi.core.results.Estimate.may_be_off` False) against :attr:`chance`, the rate at which that happens
+    refit excludes the effect's off value (at least one of its parameters excludes it at the level
+    :data:`CHANCE_EXCLUDED`, :attr:`~softsbi.core.results.Estimate.may_be_off` False) against :attr:`chance`, the rate at which that happens
     when the effect is off: :data:`CHANCE_EXCLUDED` per parameter (Bonferroni over the effect's parameters, at most 1).
 
     Attributes:

@@ -214,9 +214,12 @@ class Estimate:
         pressed: ``"lower"`` or ``"upper"`` when the posterior presses that prior bound, else None.
         suggested_bounds: the wider prior to try when it presses a bound that is not a physical limit.
         effect: the effect the parameter belongs to (``""`` in files written before it was kept).
-        may_be_off: whether the posterior reaches the value that switches the effect off
+        may_be_off: whether the data leave the posterior at the value that switches the effect off
             (:meth:`~softsbi.core.interfaces.Effect.nominal`): the 90% interval contains it, or, for an off value at
-            a prior bound, the posterior presses that bound; None when unknown.
+            a prior bound, the Savage-Dickey density ratio there is above 0.10
+            (:func:`~softsbi.workflows.criticism.diagnose.may_be_off`); None when unknown.
+        off_ratio: for an off value at a prior bound, that Savage-Dickey ratio (the posterior's mass next to the
+            bound over the prior's, :func:`~softsbi.workflows.criticism.diagnose.off_ratio`); None otherwise.
     """
 
     name: str
@@ -229,6 +232,7 @@ class Estimate:
     suggested_bounds: tuple[float, float] | None = None
     effect: str = ""
     may_be_off: bool | None = None
+    off_ratio: float | None = None
 
     @property
     def informed(self) -> bool | None:

@@ -42,10 +42,12 @@ BOUND_MASS_MIN = 0.2
 
 
 def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, Any]]:
-    """Per parameter ``{"scale", "center", "spread", "q05", "q95", "width_ratio", "informed"}`` from
+    """Per parameter ``{"scale", "center", "spread", "q05", "q95", "width_ratio", "informed", "slab_mass"}`` from
     posterior samples ``(S, D)`` in physical units (module docstring): ``scale`` ``"log"`` or
     ``"linear"``; ``center``/``spread`` the geometric mean and multiplicative spread (log) or the
-    mean and standard deviation (linear); ``width_ratio`` the 90 % width ratio to the prior's."""
+    mean and standard deviation (linear); ``width_ratio`` the 90 % width ratio to the prior's; ``slab_mass``
+    ``[lower, upper]``, the posterior's mass in the slab of width :data:`BOUND_SLAB` next to each prior bound (a
+    flat posterior puts :data:`BOUND_SLAB` in each)."""
     samples = np.atleast_2d(np.asarray(samples, float))
     u = space.to_unit(samples)
     q05, q95 = np.quantile(samples, 0.05, axis=0), np.quantile(samples, 0.95, axis=0)
@@ -60,14 +62,15 @@ def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, A
             center, spread = float(samples[:, d].mean()), float(samples[:, d].std())
         out[p.name] = {"scale": "log" if p.log else "linear", "center": center, "spread": spread,
                        "q05": float(q05[d]), "q95": float(q95[d]), "width_ratio": ratio,
-                       "informed": bool(ratio <= INFORMED_MAX_RATIO)}
+                       "informed": bool(ratio <= INFORMED_MAX_RATIO),
+                       "slab_mass": [float((u[:, d] <= BOUND_SLAB).mean()), float((u[:, d] >= 1 - BOUND_SLAB).mean())]}
     return out
 
 
 def contraction_from_report(report: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """``report["contraction"]``, or for a ``report.json`` written before it existed the same entries
     rebuilt from its 90 % intervals (center/spread: the mean and std it stored; for log parameters
-    the geometric midpoint of the interval and no spread)."""
+    the geometric midpoint of the interval and no spread; no ``slab_mass``)."""
     if report.get("contraction"):
         return dict(report["contraction"])
     space = ParamSpace.from_json(report["parameters"])

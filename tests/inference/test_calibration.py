@@ -194,6 +194,8 @@ def test_contraction_in_the_parameters_own_scale():
     assert c["k"]["scale"] == "log" and 0.97 < c["k"]["width_ratio"] < 1.03 and not c["k"]["informed"]
     assert np.isclose(c["k"]["center"], np.sqrt(5 * 1000), rtol=0.03)  # geometric mean of a log-uniform
     assert np.isclose(c["f"]["width_ratio"], 2 * 1.645 * 0.05 / 1.8, rtol=0.05) and c["f"]["informed"]
+    # the mass next to each bound, in the parameter's own scale: the flat log-uniform puts 5% in each slab
+    assert np.allclose(c["k"]["slab_mass"], [0.05, 0.05], atol=0.005) and c["f"]["slab_mass"] == [0.0, 0.0]
     assert "×/÷" in format_estimate(c["k"]) and "±" in format_estimate(c["f"])
     assert INFORMED_MAX_RATIO == 0.5
     rep = {"parameters": space.to_json(), "posterior_q05": {"k": 9.7, "f": 0.9}, "posterior_q95": {"k": 727.0, "f": 1.1},

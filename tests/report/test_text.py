@@ -541,8 +541,9 @@ def test_the_table_and_the_prose_give_one_reason_for_setting_a_refit_aside():
     words = diagnosis_text(d)[2]
     assert words.startswith("With wind: check does not reject the refit (p = 1 ")
     assert ("its posterior-predictive Chamfer 5.00 cm (n=30 rollouts) is higher than the nominal fit's 2.50 cm (n=30 "
-            "rollouts). Set aside: the data leave it possibly off (the 90% interval of each of its parameters "
-            "reaches the value that switches the effect off): the refit explains the misfit by widening its "
+            "rollouts). Set aside: the data leave it possibly off (no parameter of it excludes the value that "
+            "switches the effect off: its 90% interval holds the value or, at a prior bound, its posterior there is "
+            "over a tenth of the prior's): the refit explains the misfit by widening its "
             "predictions, not by identifying a cause. The refit estimates") in words
     assert "error is higher" not in words
     # an adequate refit scoring lower than the nominal's but above the named one's, and one scoring no lower: the

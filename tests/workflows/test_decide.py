@@ -6,7 +6,7 @@ from dataclasses import replace
 from softsbi.core.results import Candidate, Decision, Estimate, JointTest, MCPValue, Refit, RefitGain, Role, Score
 from softsbi.core.types import Param
 from softsbi.workflows.criticism.decide import K_SE, decide, gain, improves, next_refit, refit_order
-from softsbi.workflows.criticism.diagnose import may_be_off
+from softsbi.workflows.criticism.diagnose import may_be_off, off_ratio
 
 ALPHA = 0.05
 
@@ -128,11 +128,17 @@ def test_a_refit_whose_added_effect_the_data_leave_possibly_off_is_never_named()
     ).named == ("a",)
 
 
-def test_an_off_value_inside_the_prior_is_reached_by_the_interval_and_one_at_a_bound_by_pressing_it():
+def test_an_off_value_inside_the_prior_is_reached_by_the_interval_and_one_at_a_bound_by_the_density_ratio():
     wind, mass = Param("wind_y", -2.0, 2.0), Param("ballast_mass", 0.0, 0.05)
     assert may_be_off(wind, 0.0, -0.08, 1.13, None) and not may_be_off(wind, 0.0, 0.2, 1.1, None)
-    assert not may_be_off(mass, 0.0, 0.001, 0.03, None)  # no interval reaches a bound exactly: pressing it does
-    assert may_be_off(mass, 0.0, 0.0, 0.01, "lower") and not may_be_off(mass, 0.0, 0.02, 0.05, "upper")
+    # at a bound the interval decides nothing: a posterior the data left flat puts the prior's 5% next to the bound
+    # (Savage-Dickey ratio 1) and may be off, although its interval excludes the bound
+    assert may_be_off(mass, 0.0, 0.001, 0.048, (0.05, 0.05))
+    # the ratio 0.1 (0.005 of the mass in the 5% slab) is the edge: at it the data exclude the off value
+    assert not may_be_off(mass, 0.0, 0.02, 0.04, (0.005, 0.0)) and may_be_off(mass, 0.0, 0.02, 0.04, (0.006, 0.0))
+    assert not may_be_off(Param("slip", 0.0, 1.0), 1.0, 0.1, 0.5, (0.3, 0.0))  # off at the upper bound: its slab
+    assert may_be_off(mass, 0.0, 0.0, 0.01, None) is None  # an older report: no slab mass
+    assert off_ratio(mass, 0.0, (0.025, 0.0)) == 0.5 and off_ratio(wind, 0.0, (0.05, 0.05)) is None
     assert may_be_off(wind, None, -1.0, 1.0, None) is None and may_be_off(wind, 0.0, None, None, None) is None
 
 

@@ -25,7 +25,8 @@ REPLICATES = 19
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """A toy task trained with its candidate models (and check's replicates), its bank on for this module only, and
-    a nominal fit of a recording with a hidden magnet (pull 0.3 m mid-motion) that stops at the trained task.
+    a nominal fit of a recording with a hidden magnet (pull 0.45 m mid-motion, where this small task's posterior
+    excludes the pull 0 that switches it off) that stops at the trained task.
     Yields ``(nominal run directory, the stored tasks: nominal first)``."""
     from softsbi.plugins.manager import registry
     from softsbi.workflows.tasks.training import train_task
@@ -35,7 +36,7 @@ def trained(tmp_path_factory):
         mp.setenv("SOFTSBI_PLUGINS", "softsbi_toy.shifts")
         mp.setenv("SOFTSBI_SIM_BANK", str(root / "bank"))
         registry.cache_clear()
-        rec = simulate_recording("toy-gauss", toy.toy_scenario(8), {"a": 0.3, "b": -0.4, "pull": 0.3},
+        rec = simulate_recording("toy-gauss", toy.toy_scenario(8), {"a": 0.3, "b": -0.4, "pull": 0.45},
                                  effects=[MAGNET], n_points=16, n_dense=64, seed=5, backend_options={"sigma": 0.02})
         cfg = FitConfig(backend="toy-gauss", backend_options={"sigma": 0.02}, sims_per_round=80, workers=1,
                         n_points=16, n_dense=64, n_eval=30, estimator_options={"max_epochs": 60, "hidden": [64, 64]})

@@ -26,7 +26,9 @@ import numpy as np
 from softsbi.core.errors import PosteriorError, SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit, read_result,
                                   check_result_path, write_result)
+from softsbi.core.joint import CHANCE_EXCLUDED
 from softsbi.core.types import Param
+from softsbi.inference.contraction import BOUND_SLAB
 from softsbi.plugins import registry
 from softsbi.core.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
@@ -286,6 +288,7 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
     over the prior's and the prior bound it presses, with the prior to try instead (None where the report lacks
     them: an older report)."""
     pressed = {b.param: b for b in report.posterior_at_bounds}
+    slabs = {k: c.slab_mass for k, c in report.contraction.items()}
     out = []
     for e in effects:
         effect = registry().effect(e)()
@@ -304,24 +307,48 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
                     pressed=None if b is None else b.side,
                     suggested_bounds=None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds),
                     effect=e,
-                    may_be_off=may_be_off(p, off.get(p.name), q05, q95, None if b is None else b.side),
+                    may_be_off=may_be_off(p, off.get(p.name), q05, q95, slabs.get(p.name)),
+                    off_ratio=off_ratio(p, off.get(p.name), slabs.get(p.name)),
                 )
             )
     return tuple(out)
 
 
-def may_be_off(p: Param, off: float | None, q05: float | None, q95: float | None, pressed: str | None) -> bool | None:
-    """Whether parameter ``p``'s posterior reaches ``off``, the value that switches its effect off: its 90% interval
-    ``[q05, q95]`` contains it or, for an off value at a prior bound (which no interval of a continuous posterior
-    reaches exactly), the posterior presses that bound (``pressed``,
-    :func:`~softsbi.inference.contraction.bound_pressure`). None when the off value or the interval is unknown."""
+def may_be_off(p: Param, off: float | None, q05: float | None, q95: float | None,
+               slab_mass: tuple[float, float] | None) -> bool | None:
+    """Whether parameter ``p``'s posterior may sit at ``off``, the value that switches its effect off: the data do
+    not exclude it at the level :data:`~softsbi.core.joint.CHANCE_EXCLUDED`.
+
+    - ``off`` inside the prior: its 90% interval ``[q05, q95]`` contains it (a calibrated interval excludes the
+      true off value with probability 0.10).
+    - ``off`` at a prior bound, which no interval of a continuous posterior reaches (so an interval cannot decide,
+      and a posterior the data left flat would count as switched on): the Savage-Dickey density ratio, the Bayes
+      factor of "off" against the effect's prior (Dickey 1971; Wagenmakers et al. 2010), estimated as the
+      posterior's mass in the slab next to that bound (``slab_mass``, :func:`~softsbi.inference.contraction.
+      contraction`) over the prior's, :data:`~softsbi.inference.contraction.BOUND_SLAB` (a box prior is uniform
+      in the parameter's own scale). The data exclude ``off`` when the ratio is at most ``CHANCE_EXCLUDED``:
+      when the effect is off, a Bayes factor against "off" reaches ``1 / c`` with probability at most ``c``
+      (Markov's inequality: its mean is 1), so the chance rate is at most the interval's 0.10.
+
+    None when the off value or what decides it (the interval; the slab mass, absent from an older report) is
+    unknown.
+    """
     if off is None or q05 is None or q95 is None:
         return None
-    if off <= p.low:
-        return pressed == "lower"
-    if off >= p.high:
-        return pressed == "upper"
+    if off <= p.low or off >= p.high:
+        ratio = off_ratio(p, off, slab_mass)
+        return None if ratio is None else ratio > CHANCE_EXCLUDED
     return q05 <= off <= q95
+
+
+def off_ratio(p: Param, off: float | None, slab_mass: tuple[float, float] | None) -> float | None:
+    """The Savage-Dickey density ratio at an off value ``off`` at a prior bound of ``p`` (:func:`may_be_off`): the
+    posterior's mass in the slab next to that bound (``slab_mass``: lower, upper) over the prior's,
+    :data:`~softsbi.inference.contraction.BOUND_SLAB`. 1 for a posterior the data left flat, 0 for one that
+    excludes the bound. None for an off value inside the prior or unknown, or without ``slab_mass``."""
+    if off is None or slab_mass is None or p.low < off < p.high:
+        return None
+    return float(slab_mass[0 if off <= p.low else 1]) / BOUND_SLAB
 
 
 def load_diagnosis(path: str | Path) -> Diagnosis:
