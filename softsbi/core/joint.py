@@ -91,8 +91,9 @@ class CombinedTest:
 class SwitchedOn:
     """Is an effect switched on across the recordings? A one-sided binomial test of the number of recordings whose
     refit excludes the effect's off value (at least one of its parameters excludes it at the level
-    :data:`CHANCE_EXCLUDED`, :attr:`~softsbi.core.results.Estimate.may_be_off` False) against :attr:`chance`, the rate at which that happens
-    when the effect is off: :data:`CHANCE_EXCLUDED` per parameter (Bonferroni over the effect's parameters, at most 1).
+    :data:`CHANCE_EXCLUDED`, :attr:`~softsbi.core.results.Estimate.may_be_off` False) against :attr:`chance`, the
+    rate at which that happens when the effect is off: :data:`CHANCE_EXCLUDED` per parameter (Bonferroni over the
+    effect's parameters, at most 1).
 
     Attributes:
         on: per recording, in the runs' order: its refit excludes the off value.

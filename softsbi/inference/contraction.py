@@ -25,7 +25,7 @@ import numpy as np
 from softsbi.core.types import ParamSpace, unit_suffix
 
 __all__ = ["BOUND_MASS_MIN", "BOUND_SLAB", "INFORMED_MAX_RATIO", "WIDEN_FRACTION", "bound_pressure", "bound_sentence",
-           "contraction", "contraction_from_report", "format_estimate", "widened_bounds"]
+           "contraction", "contraction_from_report", "format_estimate", "slab_masses", "widened_bounds"]
 
 #: width ratio above which a parameter counts as not informed by the data (module docstring)
 INFORMED_MAX_RATIO = 0.5
@@ -41,6 +41,12 @@ BOUND_SLAB = 0.05
 BOUND_MASS_MIN = 0.2
 
 
+def slab_masses(u: np.ndarray, slab: float = BOUND_SLAB) -> np.ndarray:
+    """``(D, 2)``: per parameter, the share of the draws ``u`` (``(S, D)`` in unit coordinates, the parameters' own
+    scale) in the slab of width ``slab`` next to the lower and the upper prior bound (a flat posterior: ``slab``)."""
+    return np.stack([(u <= slab).mean(0), (u >= 1 - slab).mean(0)], axis=1)
+
+
 def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, Any]]:
     """Per parameter ``{"scale", "center", "spread", "q05", "q95", "width_ratio", "informed", "slab_mass"}`` from
     posterior samples ``(S, D)`` in physical units (module docstring): ``scale`` ``"log"`` or
@@ -52,6 +58,7 @@ def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, A
     u = space.to_unit(samples)
     q05, q95 = np.quantile(samples, 0.05, axis=0), np.quantile(samples, 0.95, axis=0)
     uq = np.quantile(u, [0.05, 0.95], axis=0)
+    slabs = slab_masses(u)
     out: dict[str, dict[str, Any]] = {}
     for d, p in enumerate(space):
         ratio = float((uq[1, d] - uq[0, d]) / _PRIOR_WIDTH)
@@ -63,7 +70,7 @@ def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, A
         out[p.name] = {"scale": "log" if p.log else "linear", "center": center, "spread": spread,
                        "q05": float(q05[d]), "q95": float(q95[d]), "width_ratio": ratio,
                        "informed": bool(ratio <= INFORMED_MAX_RATIO),
-                       "slab_mass": [float((u[:, d] <= BOUND_SLAB).mean()), float((u[:, d] >= 1 - BOUND_SLAB).mean())]}
+                       "slab_mass": [float(m) for m in slabs[d]]}
     return out
 
 
@@ -118,11 +125,10 @@ def bound_pressure(space: ParamSpace, samples: np.ndarray, slab: float = BOUND_S
         raise ValueError(f"bound_pressure needs samples of shape (S, {space.dim}), got {samples.shape}")
     if not (0 < slab < 1 and 0 < min_mass < 1):
         raise ValueError(f"slab and min_mass must lie in (0, 1), got {slab} and {min_mass}")
-    u = space.to_unit(samples)
+    slabs = slab_masses(space.to_unit(samples), slab)
     out = []
     for d, p in enumerate(space):
-        for side, mass, bound in (("lower", float((u[:, d] <= slab).mean()), p.low),
-                                  ("upper", float((u[:, d] >= 1 - slab).mean()), p.high)):
+        for side, mass, bound in (("lower", float(slabs[d, 0]), p.low), ("upper", float(slabs[d, 1]), p.high)):
             if mass >= min_mass:
                 e = {"param": p.name, "side": side, "bound": float(bound), "unit": p.unit, "mass": mass}
                 wide = widened_bounds(space, [e]).get(p.name)

@@ -288,7 +288,8 @@ def set_aside_words(d: Diagnosis, r: Refit) -> str | None:
         return None
     if why == POSSIBLY_OFF:
         return (f"{why} (no parameter of it excludes the value that switches the effect off: its 90% interval "
-                f"holds the value or, at a prior bound, its posterior there is over a tenth of the prior's): the refit explains the misfit by widening its predictions, not by identifying a cause")
+                f"holds the value or, at a prior bound, its posterior there is over a tenth of the prior's): the "
+                f"refit explains the misfit by widening its predictions, not by identifying a cause")
     return f"{why} (by more than {d.k_se:g} standard errors)" if why != NO_LOWER else (
         f"{why} (its {SUMMARY_ENERGY} is not {d.k_se:g} standard errors below the model it extends)")
 

@@ -32,7 +32,7 @@ def shifts():
 
 @pytest.fixture(scope="module")
 def magnet_run(tmp_path_factory):
-    """A nominal fit of a toy measurement with a hidden magnet (pull 0.3 m at mid-motion; 8 frames with 2 cm of noise
+    """A nominal fit of a toy measurement with a hidden magnet (pull 0.45 m at mid-motion; 8 frames with 2 cm of noise
     each, so that the hump is told from a line)."""
     toy = pytest.importorskip("softsbi_toy.plugin")
     rec = simulate_recording("toy-gauss", toy.toy_scenario(8), {"a": 0.3, "b": -0.4, "pull": 0.45}, effects=[MAGNET],

@@ -16,7 +16,8 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
    - *switched on*: for each added effect, the posterior of at least one of its parameters excludes the value that
      switches the effect off at the level :data:`~softsbi.core.joint.CHANCE_EXCLUDED` (its 90% interval, or at a
      prior bound the Savage-Dickey density ratio: :func:`~softsbi.workflows.criticism.diagnose.may_be_off`;
-     :attr:`~softsbi.core.results.Refit.maybe_off`); a refit whose added effect the data leave possibly off has absorbed the misfit by widening its predictions, not identified a cause.
+     :attr:`~softsbi.core.results.Refit.maybe_off`); a refit whose added effect the data leave possibly off has
+     absorbed the misfit by widening its predictions, not identified a cause.
    A refit that is not switched on takes no further part. The adequate, improving single refit with the lowest
    score is named; every other adequate, improving refit whose score is not ``k_se`` standard errors above it is
    listed as indistinguishable. When no single refit
