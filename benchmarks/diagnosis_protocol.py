@@ -302,8 +302,8 @@ def minimums(s: Mapping[str, Any]) -> dict[str, Any]:
 def beside_comparison(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, Any] | None:
     """The diagnosis rows hold under ``key`` (:data:`BESIDE`) against this one, on the cases both diagnosed without
     error: ``n``, ``agree`` (same verdict and named effects), ``new_right``, ``other_right`` (strict, with
-    intervals), ``not_shared`` (either failed) and the median seconds of fit + check + diagnose on each path (where
-    recorded). None when no row holds one."""
+    intervals), ``not_shared`` (either failed), ``differ`` (:func:`differing`) and the median seconds of fit + check +
+    diagnose on each path (where recorded). None when no row holds one."""
     others = [r for r in rows if isinstance(r.get(key), dict)]
     if not others:
         return None
@@ -320,8 +320,34 @@ def beside_comparison(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, 
     times = [t for t in times if None not in t]
     return {"n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
             "other_right": _rate(other, len(shared)), "not_shared": len(others) - len(shared),
+            "differ": differing(shared, key),
             "seconds": [float(np.median([a for a, _ in times])), float(np.median([b for _, b in times]))]
             if times else None}
+
+
+def _call_of(d: Mapping[str, Any]) -> str:
+    """A diagnosis's call (:func:`call`) from its verdict and named effects."""
+    return "+".join(_names(d.get("named") if d["verdict"] == "missing-effect" else [])) or d["verdict"]
+
+
+def differing(rows: Sequence[Mapping[str, Any]], key: str) -> list[dict[str, Any]]:
+    """The cases of ``rows`` whose call differs between the trained task and the diagnosis under ``key``, with where
+    the paths part: ``detection`` when one path's check rejected at the rows' level and the other's did not (their
+    p-values say how near the level each was), else ``naming`` (both detected; each path's refitted candidates).
+    Each: ``id``, ``label``, ``magnitude``, ``calls`` and ``p_values`` (trained, other), ``part`` and ``refits``
+    (trained, other: the effects of each refit)."""
+    out = []
+    for r in rows:
+        o = r[key]
+        calls = [_call_of(r), _call_of(o)]
+        if calls[0] == calls[1]:
+            continue
+        detected = [d["verdict"] != "nothing-missing" for d in (r, o)]
+        out.append({"id": r.get("id"), "label": r.get("label"), "magnitude": r.get("magnitude"), "calls": calls,
+                    "p_values": [r.get("p_value"), o.get("p_value")],
+                    "part": "detection" if detected[0] != detected[1] else "naming",
+                    "refits": [["+".join(f["effects"]) for f in d.get("refits") or []] for d in (r, o)]})
+    return out
 
 
 def _ci(c: Sequence[float]) -> str:
@@ -397,6 +423,7 @@ def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
                      f"failed); verdicts agree in {o['agree']}; named right: the trained task {_frac(o['new_right'])}, "
                      f"{what} {_frac(o['other_right'])}"
                      + (f"; median fit + check + diagnose {t[0]:.0f} s against {t[1]:.0f} s." if t else "."))
+    differ = [(what, d) for key, what in BESIDE.items() if s.get(key) for d in s[key]["differ"]]
     if s.get("score_drop_median") is not None:
         notes.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
                      f"cases: {s['score_drop_median'] * 100:.0f}%.")
@@ -405,6 +432,21 @@ def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
                             "listed indistinguishable", "right (sequential path, same case)", "95% interval"], rows),
               runner.table(f"Diagnosis, {split} split: what each truth was called (cases)", ["truth", *calls],
                            confusion)]
+    if differ:
+        def p(x):
+            return "-" if x is None else f"{x:.3f}"
+
+        def why(d):
+            if d["part"] == "detection":
+                return "detection: check's p on either side of the level"
+            return "naming: refitted " + "; ".join(", ".join(f) or "none" for f in d["refits"])
+
+        tables.append(runner.table(
+            f"Diagnosis, {split} split: the cases whose call differs between the paths, and where they part",
+            ["case", "truth", "magnitude", "path", "trained task (check p)", "other path (check p)", "where"],
+            [[d["id"], d["label"], "-" if d["magnitude"] is None else f"{d['magnitude']:.2f}", what,
+              f"{d['calls'][0]} ({p(d['p_values'][0])})", f"{d['calls'][1]} ({p(d['p_values'][1])})", why(d)]
+             for what, d in differ]))
     if magnitude:
         tables.append(runner.table(f"Diagnosis, {split} split: detected / named right / cases per effect, by "
                                    f"magnitude (the fraction of the effect's on range)", ["effect", *bins],

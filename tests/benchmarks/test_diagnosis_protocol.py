@@ -265,3 +265,24 @@ def test_the_sequential_path_fits_the_same_recording_in_its_own_folder_and_bank(
     o = s["sequential"]
     assert (o["n"], o["agree"], o["new_right"]["k"], o["other_right"]["k"], o["not_shared"]) == (2, 1, 2, 1, 1)
     assert s["by_label"]["wind"]["sequential_right"] == 0 and s["by_label"]["control"]["sequential_n"] == 1
+    assert [(d["label"], d["calls"], d["part"]) for d in o["differ"]] == [("wind", ["wind", "air-drag"], "naming")]
+
+
+def test_the_cases_whose_call_differs_between_the_paths_say_where_they_part():
+    rows = [row("time-offset", p_value=0.059, sequential={"verdict": "missing-effect", "named": ["time-offset"],
+                                                          "p_value": 0.04}),
+            row("camera-offset", "missing-effect", ["wind"], p_value=0.02,
+                refits=[{"effects": ["wind"]}, {"effects": ["camera-offset"]}],
+                sequential={"verdict": "misspecified-unexplained", "named": [], "p_value": 0.01,
+                            "refits": [{"effects": ["camera-offset"]}, {"effects": ["time-offset", "table-slope"]}]}),
+            row("control", sequential={"verdict": "nothing-missing", "named": [], "p_value": 0.3})]
+    d = proto.differing(rows, "sequential")
+    assert [(x["label"], x["calls"], x["p_values"], x["part"]) for x in d] == [
+        ("time-offset", ["nothing-missing", "time-offset"], [0.059, 0.04], "detection"),
+        ("camera-offset", ["wind", "misspecified-unexplained"], [0.02, 0.01], "naming")]
+    assert d[1]["refits"] == [["wind", "camera-offset"], ["camera-offset", "time-offset+table-slope"]]
+    table = next(t for t in proto.report(proto.summary(rows, "test"), "test")["tables"] if "differs" in t["title"])
+    assert [r[-1] for r in table["rows"]] == [
+        "detection: check's p on either side of the level",
+        "naming: refitted wind, camera-offset; camera-offset, time-offset+table-slope"]
+    assert table["rows"][0][4:6] == ["nothing-missing (0.059)", "time-offset (0.040)"]
