@@ -57,6 +57,9 @@ from benchmarks.diagnosis_protocol import (COUNTS, MAGNITUDES, N_CASES, done_ids
                                            schedule, sequential_cases, settings_conflict, summary)
 
 RESULTS = runner.RESULTS
+#: what the trained task learned, per model (its training reports), kept beside the rows: the bank lies outside the
+#: repository, and the page is written from stored results
+TASK_RESULTS = RESULTS / "diagnosis-task.json"
 SPLIT_SEEDS = {"dev": 0, "test": 1}
 ENGINE, OTHER_ENGINE = "mujoco-flex", "pybullet-massspring"
 #: the settings of ``diagnose_run`` that decide a verdict, at its defaults, passed explicitly (so a row records what
@@ -185,6 +188,24 @@ def train(out: Path, workers: int | None, say=print) -> float:
     return time.perf_counter() - t0
 
 
+def task_record(bank: Path) -> dict[str, Any] | None:
+    """What the task trained in ``bank`` learned, per model with a training report: ``n_prior``, ``replicates``
+    (check's calibration; 0 without), ``verdict`` (calibration on held-out prior simulations) and ``width_ratio``
+    (per parameter, the median over held-out prior simulations of its 90% interval's width over the prior's). None
+    unless the bank holds every model of the task (the nominal one and one per candidate of :func:`family`)."""
+    from softsbi.workflows.fit.task_store import TaskStore
+    models = {}
+    for t in TaskStore(bank / "tasks").list():
+        if t.report is None or t.identity.get("backend", ENGINE) != ENGINE:
+            continue
+        null = t.path / "check-null.json"
+        models[t.model] = {"n_prior": t.n_prior, "verdict": t.report.verdict,
+                           "replicates": len(json.loads(null.read_text())["statistics"]) if null.is_file() else 0,
+                           "width_ratio": {k: c.width_ratio for k, c in t.report.contraction.items()}}
+    need = {"nominal", *(f"nominal+{e}" for e in family())}
+    return dict(sorted(models.items())) if need <= set(models) else None
+
+
 def run(split: str, indices: Sequence[int], out: Path, workers: int | None, command: str,
         path: Path | None = None, sequential: Sequence[int] | None = None) -> None:
     """Run the cases of ``indices`` whose latest row in ``path`` (default ``results/diagnosis-<split>.jsonl``) is
@@ -258,6 +279,9 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
         raise SystemExit(f"--cases {a.cases}: a split has cases 0 to {N_CASES - 1}")
     if a.train:
         train(a.out, a.workers)
+    if (record := task_record(a.out / "bank")) is not None:
+        TASK_RESULTS.write_text(json.dumps({**runner.commit(), "models": record}, indent=1) + "\n")
+    task = json.loads(TASK_RESULTS.read_text())["models"] if TASK_RESULTS.is_file() else None
     if idx:
         run(a.split, idx, a.out, a.workers, a.command, path, seq)
     out: dict[str, Any] = {"tables": [], "notes": [], "data": {}}
@@ -266,7 +290,7 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
         if not rows:
             continue
         s = summary(rows, split)
-        rep = report(s, split)
+        rep = report(s, split, task)
         out["tables"] += rep["tables"]
         out["notes"] += [f"{split.capitalize()} split: {n}" for n in rep["notes"]]
         out["data"][split] = s

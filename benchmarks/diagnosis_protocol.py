@@ -367,9 +367,30 @@ def _seconds(x: float | None) -> str:
     return "-" if x is None else f"{x:.0f} s"
 
 
-def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
-    """The summary (:func:`summary`) as the suite's tables (verdicts per truth, the confusion table, detection against
-    magnitude per effect) and notes: one line when the rows were not pooled."""
+def informed_table(s: Mapping[str, Any], task: Mapping[str, Any], split: str) -> dict[str, Any]:
+    """Per hidden effect of the split: what the trained task's model with that effect learns about the effect's
+    parameters on held-out prior simulations (``task``: :func:`benchmarks.diagnosis.task_record`; the median 90%
+    width over the prior's, informed at most :data:`~softsbi.inference.contraction.INFORMED_MAX_RATIO`) beside the
+    split's detected and named-right counts."""
+    from softsbi.inference.contraction import INFORMED_MAX_RATIO
+    rows = []
+    for e in EFFECTS:
+        ratios = task.get(f"nominal+{e}", {}).get("width_ratio", {})
+        own = {k: v for k, v in ratios.items() if k not in task.get("nominal", {}).get("width_ratio", {})}
+        b = s["by_label"].get(e, {})
+        rows.append([e, ", ".join(f"{k} {v:.2f}" for k, v in own.items()) or "-",
+                     "yes" if any(v <= INFORMED_MAX_RATIO for v in own.values()) else "no",
+                     b.get("n", 0), b.get("detected", 0), b.get("right", 0)])
+    return runner.table(f"Diagnosis, {split} split: what the trained task learns of each effect's parameters on "
+                        f"held-out prior simulations (median 90% width / prior), beside the split's calls",
+                        ["effect", "width / prior", f"informed (<= {INFORMED_MAX_RATIO:g})", "cases", "detected",
+                         "right"], rows)
+
+
+def report(s: Mapping[str, Any], split: str, task: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The summary (:func:`summary`) as the suite's tables (verdicts per truth, the confusion table, the cases whose
+    call differs between the paths, detection against magnitude per effect and, given the trained ``task``,
+    :func:`informed_table`) and notes: one line when the rows were not pooled."""
     if "refused" in s:
         return {"tables": [], "notes": [s["refused"]]}
     if not s["cases"]:
@@ -451,4 +472,6 @@ def report(s: Mapping[str, Any], split: str) -> dict[str, Any]:
         tables.append(runner.table(f"Diagnosis, {split} split: detected / named right / cases per effect, by "
                                    f"magnitude (the fraction of the effect's on range)", ["effect", *bins],
                                    magnitude))
+    if task:
+        tables.append(informed_table(s, task, split))
     return {"tables": tables, "notes": notes}

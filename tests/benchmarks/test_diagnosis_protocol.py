@@ -286,3 +286,36 @@ def test_the_cases_whose_call_differs_between_the_paths_say_where_they_part():
         "detection: check's p on either side of the level",
         "naming: refitted wind, camera-offset; camera-offset, time-offset+table-slope"]
     assert table["rows"][0][4:6] == ["nothing-missing (0.059)", "time-offset (0.040)"]
+
+
+def test_the_page_sets_what_the_trained_task_learns_of_each_effect_beside_its_calls(monkeypatch, tmp_path):
+    task = {"nominal": {"width_ratio": {"bend": 0.6, "mass": 0.9}},
+            "nominal+air-drag": {"width_ratio": {"bend": 0.6, "mass": 0.9, "air_density": 0.97}},
+            "nominal+wind": {"width_ratio": {"bend": 0.6, "mass": 0.9, "wind_x": 0.17, "wind_y": 0.7}}}
+    rows = [row("air-drag"), row("air-drag"), row("wind", "missing-effect", ["wind"])]
+    table = next(t for t in proto.report(proto.summary(rows, "test"), "test", task)["tables"]
+                 if "held-out" in t["title"])
+    by = {r[0]: r[1:] for r in table["rows"]}
+    assert by["air-drag"] == ["air_density 0.97", "no", 2, 0, 0]
+    assert by["wind"] == ["wind_x 0.17, wind_y 0.70", "yes", 1, 1, 1]
+    assert by["table-slope"] == ["-", "no", 0, 0, 0]  # a model the record lacks
+    assert not any("held-out" in t["title"] for t in proto.report(proto.summary(rows, "test"), "test")["tables"])
+
+    class Stored:  # a stored task as the store lists it
+        def __init__(self, model, ratios, report=True):
+            self.model, self.n_prior, self.identity, self.path = model, 1000, {"backend": "mujoco-flex"}, tmp_path
+            self.report = types.SimpleNamespace(verdict="calibrated", contraction={
+                k: types.SimpleNamespace(width_ratio=v) for k, v in ratios.items()}) if report else None
+
+    stored = [Stored("nominal", {"bend": 0.6}), Stored("nominal+wind", {"bend": 0.6, "wind_x": 0.2}),
+              Stored("nominal+first-round-only", {}, report=False)]
+    store = types.SimpleNamespace(list=lambda: stored)
+    import softsbi.workflows.fit.task_store as ts
+    monkeypatch.setattr(ts, "TaskStore", lambda path: store)
+    monkeypatch.setattr(bench, "family", lambda: ["wind"])
+    assert bench.task_record(tmp_path) == {
+        "nominal": {"n_prior": 1000, "verdict": "calibrated", "replicates": 0, "width_ratio": {"bend": 0.6}},
+        "nominal+wind": {"n_prior": 1000, "verdict": "calibrated", "replicates": 0,
+                         "width_ratio": {"bend": 0.6, "wind_x": 0.2}}}
+    monkeypatch.setattr(bench, "family", lambda: ["wind", "air-drag"])
+    assert bench.task_record(tmp_path) is None  # not every model of the task is trained yet
