@@ -53,7 +53,7 @@ from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 from benchmarks import runner
-from benchmarks.diagnosis_protocol import (COUNTS, MAGNITUDES, N_CASES, done_ids, outcome, read_rows, report,
+from benchmarks.diagnosis_protocol import (COUNTS, EFFECTS, MAGNITUDES, N_CASES, done_ids, outcome, read_rows, report,
                                            schedule, sequential_cases, settings_conflict, summary)
 
 RESULTS = runner.RESULTS
@@ -192,7 +192,8 @@ def task_record(bank: Path) -> dict[str, Any] | None:
     """What the task trained in ``bank`` learned, per model with a training report: ``n_prior``, ``replicates``
     (check's calibration; 0 without), ``verdict`` (calibration on held-out prior simulations) and ``width_ratio``
     (per parameter, the median over held-out prior simulations of its 90% interval's width over the prior's). None
-    unless the bank holds every model of the task (the nominal one and one per candidate of :func:`family`)."""
+    unless the bank holds every model of the task (the nominal one and one per shipped effect,
+    :data:`~benchmarks.diagnosis_protocol.EFFECTS`: ``task train`` trains no generic force term)."""
     from softsbi.workflows.fit.task_store import TaskStore
     models = {}
     for t in TaskStore(bank / "tasks").list():
@@ -202,7 +203,7 @@ def task_record(bank: Path) -> dict[str, Any] | None:
         models[t.model] = {"n_prior": t.n_prior, "verdict": t.report.verdict,
                            "replicates": len(json.loads(null.read_text())["statistics"]) if null.is_file() else 0,
                            "width_ratio": {k: c.width_ratio for k, c in t.report.contraction.items()}}
-    need = {"nominal", *(f"nominal+{e}" for e in family())}
+    need = {"nominal", *(f"nominal+{e}" for e in EFFECTS)}
     return dict(sorted(models.items())) if need <= set(models) else None
 
 

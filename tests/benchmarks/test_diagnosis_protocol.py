@@ -312,10 +312,10 @@ def test_the_page_sets_what_the_trained_task_learns_of_each_effect_beside_its_ca
     store = types.SimpleNamespace(list=lambda: stored)
     import softsbi.workflows.fit.task_store as ts
     monkeypatch.setattr(ts, "TaskStore", lambda path: store)
-    monkeypatch.setattr(bench, "family", lambda: ["wind"])
+    monkeypatch.setattr(bench, "EFFECTS", ["wind"])
     assert bench.task_record(tmp_path) == {
         "nominal": {"n_prior": 1000, "verdict": "calibrated", "replicates": 0, "width_ratio": {"bend": 0.6}},
         "nominal+wind": {"n_prior": 1000, "verdict": "calibrated", "replicates": 0,
                          "width_ratio": {"bend": 0.6, "wind_x": 0.2}}}
-    monkeypatch.setattr(bench, "family", lambda: ["wind", "air-drag"])
+    monkeypatch.setattr(bench, "EFFECTS", ["wind", "air-drag"])
     assert bench.task_record(tmp_path) is None  # not every model of the task is trained yet
