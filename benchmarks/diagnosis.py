@@ -194,12 +194,13 @@ def task_record(bank: Path) -> dict[str, Any] | None:
     (per parameter, the median over held-out prior simulations of its 90% interval's width over the prior's). None
     unless the bank holds every model of the task (the nominal one and one per shipped effect,
     :data:`~benchmarks.diagnosis_protocol.EFFECTS`: ``task train`` trains no generic force term)."""
+    from softsbi.workflows.criticism.check_null import NULL_FILE
     from softsbi.workflows.fit.task_store import TaskStore
     models = {}
     for t in TaskStore(bank / "tasks").list():
         if t.report is None or t.identity.get("backend", ENGINE) != ENGINE:
             continue
-        null = t.path / "check-null.json"
+        null = t.path / NULL_FILE
         models[t.model] = {"n_prior": t.n_prior, "verdict": t.report.verdict,
                            "replicates": len(json.loads(null.read_text())["statistics"]) if null.is_file() else 0,
                            "width_ratio": {k: c.width_ratio for k, c in t.report.contraction.items()}}
@@ -280,9 +281,10 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
         raise SystemExit(f"--cases {a.cases}: a split has cases 0 to {N_CASES - 1}")
     if a.train:
         train(a.out, a.workers)
-    if (record := task_record(a.out / "bank")) is not None:
-        TASK_RESULTS.write_text(json.dumps({**runner.commit(), "models": record}, indent=1) + "\n")
-    task = json.loads(TASK_RESULTS.read_text())["models"] if TASK_RESULTS.is_file() else None
+    if (task := task_record(a.out / "bank")) is not None:
+        TASK_RESULTS.write_text(json.dumps({**runner.commit(), "models": task}, indent=1) + "\n")
+    elif TASK_RESULTS.is_file():
+        task = json.loads(TASK_RESULTS.read_text())["models"]
     if idx:
         run(a.split, idx, a.out, a.workers, a.command, path, seq)
     out: dict[str, Any] = {"tables": [], "notes": [], "data": {}}

@@ -310,28 +310,27 @@ def beside_comparison(rows: Sequence[Mapping[str, Any]], key: str) -> dict[str, 
     shared = [r for r in others if not is_error(r) and beside_outcome(r, key) != "error"]
     new = sum(row_outcome(r) == "right" for r in shared)
     other = sum(beside_outcome(r, key) == "right" for r in shared)
-    agree = sum(r["verdict"] == r[key]["verdict"] and sorted(_names(r.get("named"))) == sorted(_names(
-        r[key].get("named") if r[key]["verdict"] == "missing-effect" else [])) for r in shared)
+    differ = differing(shared, key)
 
     def total(x):
         return sum(x.get(k) or 0.0 for k in ("fit_s", "check_s", "diagnose_s")) if "fit_s" in x else None
 
     times = [(total(r), total(r[key])) for r in shared]
     times = [t for t in times if None not in t]
-    return {"n": len(shared), "agree": agree, "new_right": _rate(new, len(shared)),
-            "other_right": _rate(other, len(shared)), "not_shared": len(others) - len(shared),
-            "differ": differing(shared, key),
+    return {"n": len(shared), "agree": len(shared) - len(differ), "new_right": _rate(new, len(shared)),
+            "other_right": _rate(other, len(shared)), "not_shared": len(others) - len(shared), "differ": differ,
             "seconds": [float(np.median([a for a, _ in times])), float(np.median([b for _, b in times]))]
             if times else None}
 
 
-def _call_of(d: Mapping[str, Any]) -> str:
-    """A diagnosis's call (:func:`call`) from its verdict and named effects."""
-    return "+".join(_names(d.get("named") if d["verdict"] == "missing-effect" else [])) or d["verdict"]
+def _named_of(d: Mapping[str, Any]) -> list[str]:
+    """The effects a diagnosis named (none unless its verdict is ``missing-effect``)."""
+    return _names(d.get("named") if d["verdict"] == "missing-effect" else [])
 
 
 def differing(rows: Sequence[Mapping[str, Any]], key: str) -> list[dict[str, Any]]:
-    """The cases of ``rows`` whose call differs between the trained task and the diagnosis under ``key``, with where
+    """The cases of ``rows`` whose call (verdict and named effects) differs between the trained task and the diagnosis
+    under ``key``, with where
     the paths part: ``detection`` when one path's check rejected at the rows' level and the other's did not (their
     p-values say how near the level each was), else ``naming`` (both detected; each path's refitted candidates).
     Each: ``id``, ``label``, ``magnitude``, ``calls`` and ``p_values`` (trained, other), ``part`` and ``refits``
@@ -339,9 +338,9 @@ def differing(rows: Sequence[Mapping[str, Any]], key: str) -> list[dict[str, Any
     out = []
     for r in rows:
         o = r[key]
-        calls = [_call_of(r), _call_of(o)]
-        if calls[0] == calls[1]:
+        if r["verdict"] == o["verdict"] and sorted(_names(r.get("named"))) == sorted(_named_of(o)):
             continue
+        calls = ["+".join(_names(r.get("named"))) or r["verdict"], "+".join(_named_of(o)) or o["verdict"]]
         detected = [d["verdict"] != "nothing-missing" for d in (r, o)]
         out.append({"id": r.get("id"), "label": r.get("label"), "magnitude": r.get("magnitude"), "calls": calls,
                     "p_values": [r.get("p_value"), o.get("p_value")],
@@ -444,7 +443,6 @@ def report(s: Mapping[str, Any], split: str, task: Mapping[str, Any] | None = No
                      f"failed); verdicts agree in {o['agree']}; named right: the trained task {_frac(o['new_right'])}, "
                      f"{what} {_frac(o['other_right'])}"
                      + (f"; median fit + check + diagnose {t[0]:.0f} s against {t[1]:.0f} s." if t else "."))
-    differ = [(what, d) for key, what in BESIDE.items() if s.get(key) for d in s[key]["differ"]]
     if s.get("score_drop_median") is not None:
         notes.append(f"Median fall of the energy score of the summaries from the nominal fit to the named refit, right "
                      f"cases: {s['score_drop_median'] * 100:.0f}%.")
@@ -453,7 +451,7 @@ def report(s: Mapping[str, Any], split: str, task: Mapping[str, Any] | None = No
                             "listed indistinguishable", "right (sequential path, same case)", "95% interval"], rows),
               runner.table(f"Diagnosis, {split} split: what each truth was called (cases)", ["truth", *calls],
                            confusion)]
-    if differ:
+    if differ := [(what, d) for key, what in BESIDE.items() if s.get(key) for d in s[key]["differ"]]:
         def p(x):
             return "-" if x is None else f"{x:.3f}"
 
