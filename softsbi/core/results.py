@@ -434,6 +434,10 @@ class Diagnosis:
         chamfer_m, chamfer_n: the nominal fit's posterior-predictive Chamfer (m, from its check) and the rollouts it
             averages (0: unknown), which each refit's is compared with.
         confirm: the refit budget (``--confirm``: the top named candidates refitted; None: unknown).
+        uninformed: the trained candidates their task does not inform, by effect: the smallest median held-out 90%
+            width over the prior's among the effect's own parameters, each above
+            :data:`~softsbi.inference.contraction.INFORMED_MAX_RATIO`
+            (:func:`~softsbi.workflows.criticism.evidence.uninformed_candidates`).
         key: what determines the result (the fit, the settings), so that a stored result is reused only for them.
         seconds: wall time.
     """
@@ -455,6 +459,7 @@ class Diagnosis:
     chamfer_m: float | None = None
     chamfer_n: int = 0
     confirm: int | None = None
+    uninformed: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 from softsbi.core.joint import JointCandidate, JointDiagnosis, short_names
 from softsbi.core.results import Diagnosis, Gain
 from softsbi.core.types import unit_suffix
-from softsbi.report.text import SCORE_UNIT, SUMMARY_ENERGY, num, p_short
+from softsbi.report.text import SCORE_UNIT, SUMMARY_ENERGY, num, p_short, uninformed_words
 
 #: the columns of :func:`joint_rows`
 JOINT_COLUMNS = ["candidate", f"summed score [{SCORE_UNIT}]", f"gain over nominal [{SCORE_UNIT}]",
@@ -168,5 +168,7 @@ def joint_rule(j: JointDiagnosis) -> str:
 
 
 def joint_text(j: JointDiagnosis) -> list[str]:
-    """Everything a task's diagnosis says, one paragraph per item: the verdict and the rule."""
-    return [joint_summary(j), joint_rule(j)]
+    """Everything a task's diagnosis says, one paragraph per item: the verdict, the rule and, when the set's test
+    rejects, the trained candidates the task does not inform (one task: its recordings' diagnoses list the same)."""
+    blind = j.recordings[0].uninformed if j.recordings else {}
+    return [joint_summary(j), joint_rule(j)] + ([uninformed_words(blind)] if j.test.rejects and blind else [])

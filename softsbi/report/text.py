@@ -12,6 +12,7 @@ from softsbi.core.comparison import CompareResult, Metric
 from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, Refit,
                                   ResidualShape, Role, Score)
 from softsbi.core.types import unit_suffix
+from softsbi.inference.contraction import INFORMED_MAX_RATIO
 
 #: the names of softsbi's two energy scores (Gneiting & Raftery 2007, eq. 22), one per space, used in every sentence,
 #: table and figure: ``check`` and ``compare`` score the posterior predictive's clouds with the Chamfer distance (cm,
@@ -418,7 +419,21 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
         g = d.generic
         out.append(f"Best generic force term: {g.effect} explains {pct(g.explained)} of the residual in the "
                    f"linearised screening (max-T adjusted {p_words(g.adjusted) if g.adjusted else 'n/a'}).")
+    if d.test.misspecified and d.uninformed:
+        out.append(uninformed_words(d.uninformed))
     return out
+
+
+def uninformed_words(uninformed: Mapping[str, float]) -> str:
+    """The trained candidates the task does not inform (:attr:`~softsbi.core.results.Diagnosis.uninformed`), in
+    one sentence: the data of this motion leave their parameters near the prior, so a missing effect among them is
+    not named here."""
+    names = ", ".join(f"{e} ({w:.2f})" for e, w in sorted(uninformed.items(), key=lambda kv: kv[1]))
+    return (f"Not informed by this task: {names}. Over the task's held-out prior simulations, the median 90% "
+            f"interval of every one of their own parameters spans more than {INFORMED_MAX_RATIO:g} of the prior's "
+            f"width (the narrowest in brackets): the data of this motion seldom switch these effects on, so a "
+            f"missing effect among them is seldom named here; a motion that excites them, trained as another task, "
+            f"can tell.")
 
 
 def candidate_role(d: Diagnosis, c: Candidate) -> str:

@@ -81,3 +81,15 @@ def test_a_candidate_that_gains_on_every_recording_but_stays_misfit_explains_a_p
         "and no candidate of wind meets the three criteria. wind explains a part: it lowers the summed summary energy "
         "score most, by 35 ± 1.8 sd (z 19.8), and the data switch it on, but Fisher's combined test of its refits' "
         "checks rejects (p = 2.4e-05 <= 0.05).")
+
+
+def test_a_rejecting_set_names_the_candidates_its_task_cannot_identify_and_controls_do_not():
+    from dataclasses import replace
+
+    from softsbi.report.text import uninformed_words
+    blind = {"heavy-hem": 0.96}
+
+    def with_blind(j):
+        return replace(j, recordings=tuple(replace(d, uninformed=blind) for d in j.recordings))
+    assert joint_text(with_blind(ONE)) == joint_text(ONE) + [uninformed_words(blind)]
+    assert joint_text(with_blind(CONTROLS)) == joint_text(CONTROLS)

@@ -252,6 +252,22 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
     assert diagnosis_rows(both)[2][-1] == "refit: a lower score than the nominal's, above wind's"
 
 
+def test_candidates_the_task_does_not_inform_are_named_once_the_check_rejects_and_a_stored_file_without_them_reads():
+    blind = {"heavy-hem": 0.96, "extra-damping": 0.91}
+    words = ("Not informed by this task: extra-damping (0.91), heavy-hem (0.96). Over the task's held-out prior "
+             "simulations, the median 90% interval of every one of their own parameters spans more than 0.5 of the "
+             "prior's width (the narrowest in brackets): the data of this motion seldom switch these effects on, so "
+             "a missing effect among them is seldom named here; a motion that excites them, trained as another "
+             "task, can tell.")
+    assert diagnosis_text(replace(NO_REFIT, uninformed=blind))[-1] == words
+    assert diagnosis_text(replace(NAMED, uninformed=blind))[-1] == words  # beside a named effect, too
+    assert diagnosis_text(replace(NOTHING, uninformed=blind)) == diagnosis_text(NOTHING)  # no misfit to explain
+    from softsbi.core.results import from_json, to_json
+    data = to_json(replace(NO_REFIT, uninformed=blind))
+    assert from_json(Diagnosis, data).uninformed == blind
+    assert from_json(Diagnosis, {k: v for k, v in data.items() if k != "uninformed"}).uninformed == {}
+
+
 def test_a_refit_estimate_pressing_a_physical_limit_suggests_no_wider_prior():
     """A sensor refit whose noise presses the upper bound (widening named) and whose dropout presses 0, a physical
     limit (nothing to widen: no --bounds advice)."""

@@ -91,6 +91,24 @@ def diagnose_with(refits: dict, confirm: int = 2, ranking=RANKING) -> Diagnosis:
                      decision=decide(REJECTS, NOMINAL, made), confirm=confirm)
 
 
+def test_a_trained_candidate_is_not_informed_when_its_task_informs_none_of_its_own_parameters():
+    """uninformed_candidates reads each trained candidate's training report: an effect is listed (with its narrowest
+    width) only when every one of its own parameters' held-out widths is above INFORMED_MAX_RATIO; the nominal
+    model's parameters in the same report do not count, and a task without a report says nothing."""
+    from softsbi.core.fitreport import Contraction
+    from softsbi.workflows.criticism.evidence import uninformed_candidates
+
+    def task(**widths):
+        report = types.SimpleNamespace(contraction={k: Contraction(width_ratio=v) for k, v in widths.items()})
+        return types.SimpleNamespace(report=report), None, None
+
+    trained = {"wind": task(bend=0.1, wind_x=0.9, wind_y=0.45),  # wind_y informed
+               "extra-damping": task(bend=0.1, damping_rate=0.91),
+               "table-slope": task(bend=0.2, slope_x=0.98, slope_y=0.97),
+               "air-drag": (types.SimpleNamespace(report=None), None, None)}
+    assert uninformed_candidates(trained) == {"extra-damping": 0.91, "table-slope": 0.97}
+
+
 def test_a_named_effect_whose_refit_is_still_misspecified_gives_the_third_verdict():
     """The refit re-checked with check's test separates 'the effect explains the misfit' from 'it explains a part
     but the model is still misspecified' (data from another engine): both refits lower the score, check rejects

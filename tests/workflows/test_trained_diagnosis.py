@@ -101,6 +101,10 @@ def test_a_trained_candidates_refit_is_its_amortised_posterior_and_simulates_no_
     assert refit.score == amortised and amortised.n == 30
     # the drift's decision was made on the race's first stage (futile, or outranked by the magnet for the one refit)
     assert next(c.amortised for c in d.ranking if c.effect == "toy-drift").n == 10
+    # the candidates the task does not inform are those whose training reports leave every own parameter wide
+    widths = {t.model.split("+")[1]: t.report.contraction[p].width_ratio
+              for t, p in zip(tasks[1:], ("drift", "pull"))}
+    assert d.uninformed == {e: w for e, w in widths.items() if w > 0.5}
 
 
 def test_compare_check_and_view_read_an_amortised_refit_as_any_refit(trained, diagnosed, tmp_path):

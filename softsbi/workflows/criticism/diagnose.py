@@ -35,7 +35,8 @@ from softsbi.workflows.criticism.check import check_run, loaded, result_key, reu
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
 from softsbi.workflows.criticism.evidence import (RACE_START, amortised_refit, amortised_scores, recording_from_run,
-                                                  refit_config, refit_dir, trained_task, trained_tasks)
+                                                  refit_config, refit_dir, trained_task, trained_tasks,
+                                                  uninformed_candidates)
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
@@ -168,6 +169,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
             chamfer_m=chk.chamfer_mean_m,
             chamfer_n=chk.n_rollouts,
             confirm=confirm,
+            uninformed=uninformed_candidates(trained),
         )
         write_result(json_path, d)
     say(f"wrote {json_path}")

@@ -27,6 +27,8 @@ import numpy as np
 
 from softsbi.core.results import Gain, Score
 from softsbi.core.types import Recording
+from softsbi.inference.contraction import INFORMED_MAX_RATIO
+from softsbi.plugins import registry
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.fit.runs import RunView
@@ -84,6 +86,24 @@ def trained_task(run: RunView, effects: str | Sequence[str],
 def trained_tasks(run: RunView, effects: Sequence[str]) -> dict[str, tuple[StoredTask, FitConfig, Any]]:
     """:func:`trained_task` of each of ``effects`` (one effect each) that has one, by effect."""
     return {e: t for e in effects if (t := trained_task(run, e)) is not None}
+
+
+def uninformed_candidates(trained: Mapping[str, tuple[StoredTask, FitConfig, Any]]) -> dict[str, float]:
+    """The trained candidates (``trained``: :func:`trained_tasks`) that their task does not inform: on the task's
+    held-out prior simulations (``task train``'s training report) the median 90% interval of every one of the
+    effect's own parameters spans more than :data:`~softsbi.inference.contraction.INFORMED_MAX_RATIO` of the
+    prior's width. The data of such a task mostly leave the effect's posterior near its prior, so its off value is
+    seldom excluded (:func:`~softsbi.workflows.criticism.diagnose.may_be_off`) and the diagnosis seldom names it. By
+    effect: the smallest of those width ratios. A task without a training report says nothing (left out)."""
+    out = {}
+    for effect, (task, _, _) in trained.items():
+        if task.report is None:
+            continue
+        own = {p.name for p in registry().effect(effect)().param_space()}
+        widths = [c.width_ratio for n, c in task.report.contraction.items() if n in own and c.width_ratio is not None]
+        if widths and min(widths) > INFORMED_MAX_RATIO:
+            out[effect] = float(min(widths))
+    return out
 
 
 def refit_dir(root: str | Path, effects: Sequence[str], sequential_of_trained: bool = False) -> Path:
