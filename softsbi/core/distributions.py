@@ -298,7 +298,8 @@ class TruncatedPrior(Distribution):
         seed: seeds those draws (results are deterministic).
 
     Raises:
-        PosteriorError (from ``sample``): the region is too small to hit by rejection.
+        PosteriorError: ``posterior`` has no finite log-density at any of its draws (no region); from ``sample``:
+            the region is too small to hit by rejection.
     """
 
     def __init__(self, posterior: Distribution, eps: float = 1e-3, n_ref: int = 20000, seed: int = 0,
@@ -309,6 +310,10 @@ class TruncatedPrior(Distribution):
         ref = posterior.sample(n_ref, np.random.default_rng([seed, 31337]))
         self.dim = ref.shape[1]
         lp = posterior.log_prob(ref)
+        if not np.isfinite(lp).any():
+            raise PosteriorError(f"the previous round's posterior has no finite density at any of its {n_ref} draws, "
+                                 f"so it defines no truncation region: its estimator failed on this observation "
+                                 f"(more simulations per round, --sims-per-round, give it more to learn from)")
         self.tau = float(np.quantile(lp[np.isfinite(lp)], eps))
         lo, hi = ref.min(0), ref.max(0)
         w = hi - lo

@@ -174,6 +174,11 @@ def test_truncated_prior_is_uniform_on_the_posterior_hpd_region():
     assert lp[0] == pytest.approx(-np.log(tp.prior_mass)) and np.isneginf(lp[1])
     with pytest.raises(ValueError, match="eps"):
         TruncatedPrior(post, eps=0.0)
+    # a posterior with no finite density at its own draws defines no region: one clear error, not numpy's
+    from softsbi.core.errors import PosteriorError
+    broken = type("Broken", (), {"sample": post.sample, "log_prob": lambda self, u: np.full(len(u), -np.inf)})()
+    with pytest.raises(PosteriorError, match="no finite density at any of its 20000 draws"):
+        TruncatedPrior(broken)
 
 
 def test_posterior_draws_are_not_repeated_when_importance_weights_are_uneven():
