@@ -310,11 +310,12 @@ class TruncatedPrior(Distribution):
         ref = posterior.sample(n_ref, np.random.default_rng([seed, 31337]))
         self.dim = ref.shape[1]
         lp = posterior.log_prob(ref)
-        if not np.isfinite(lp).any():
+        lp = lp[np.isfinite(lp)]
+        if not lp.size:
             raise PosteriorError(f"the previous round's posterior has no finite density at any of its {n_ref} draws, "
                                  f"so it defines no truncation region: its estimator failed on this observation "
                                  f"(more simulations per round, --sims-per-round, give it more to learn from)")
-        self.tau = float(np.quantile(lp[np.isfinite(lp)], eps))
+        self.tau = float(np.quantile(lp, eps))
         lo, hi = ref.min(0), ref.max(0)
         w = hi - lo
         self.low = np.clip(lo - pad * w, 0.0, 1.0)

@@ -426,8 +426,8 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
 
 def uninformed_words(uninformed: Mapping[str, float]) -> str:
     """The trained candidates the task does not inform (:attr:`~softsbi.core.results.Diagnosis.uninformed`), in
-    one sentence: the data of this motion leave their parameters near the prior, so a missing effect among them is
-    not named here."""
+    one sentence: the data of this motion mostly leave their parameters near the prior, so a missing effect among
+    them is seldom named here."""
     names = ", ".join(f"{e} ({w:.2f})" for e, w in sorted(uninformed.items(), key=lambda kv: kv[1]))
     return (f"Not informed by this task: {names}. Over the task's held-out prior simulations, the median 90% "
             f"interval of every one of their own parameters spans more than {INFORMED_MAX_RATIO:g} of the prior's "

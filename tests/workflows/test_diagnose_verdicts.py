@@ -96,10 +96,12 @@ def test_a_trained_candidate_is_not_informed_when_its_task_informs_none_of_its_o
     width) only when every one of its own parameters' held-out widths is above INFORMED_MAX_RATIO; the nominal
     model's parameters in the same report do not count, and a task without a report says nothing."""
     from softsbi.core.fitreport import Contraction
+    from softsbi.inference.contraction import INFORMED_MAX_RATIO
     from softsbi.workflows.criticism.evidence import uninformed_candidates
 
     def task(**widths):
-        report = types.SimpleNamespace(contraction={k: Contraction(width_ratio=v) for k, v in widths.items()})
+        report = types.SimpleNamespace(contraction={k: Contraction(width_ratio=v, informed=v <= INFORMED_MAX_RATIO)
+                                                    for k, v in widths.items()})
         return types.SimpleNamespace(report=report), None, None
 
     trained = {"wind": task(bend=0.1, wind_x=0.9, wind_y=0.45),  # wind_y informed

@@ -27,7 +27,6 @@ import numpy as np
 
 from softsbi.core.results import Gain, Score
 from softsbi.core.types import Recording
-from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.run import run_fit
@@ -100,9 +99,9 @@ def uninformed_candidates(trained: Mapping[str, tuple[StoredTask, FitConfig, Any
         if task.report is None:
             continue
         own = {p.name for p in registry().effect(effect)().param_space()}
-        widths = [c.width_ratio for n, c in task.report.contraction.items() if n in own and c.width_ratio is not None]
-        if widths and min(widths) > INFORMED_MAX_RATIO:
-            out[effect] = float(min(widths))
+        entries = [c for n, c in task.report.contraction.items() if n in own]
+        if entries and not any(c.informed for c in entries):  # each decided by the report, at INFORMED_MAX_RATIO
+            out[effect] = float(min(c.width_ratio for c in entries))
     return out
 
 
