@@ -28,8 +28,11 @@ def print_joint_diagnosis(o: Output, joint: Any) -> None:
     """A :class:`~softsbi.core.joint.JointDiagnosis` as its candidates' table, its recordings' own verdicts, the
     set's verdict and its paragraphs on stdout (:mod:`softsbi.report.joint_text` words them)."""
     from softsbi.report.joint_text import (JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_text,  # start-up
-                                           recording_rows)
-    o.table(JOINT_COLUMNS, joint_rows(joint), title="Candidate effects refitted on every recording, by summed score")
+                                           no_candidate_words, recording_rows)
+    if joint.candidates:
+        o.table(JOINT_COLUMNS, joint_rows(joint), title="Candidate effects refitted on every recording, by summed score")
+    else:
+        o.line(no_candidate_words(joint))
     o.table(RECORDING_COLUMNS, recording_rows(joint), title="Each recording's own diagnosis")
     o.line(f"verdict for the task: {joint.verdict}")
     for paragraph in joint_text(joint):

@@ -103,6 +103,10 @@ class Effect(ABC):
             height) that describe residuals no named effect explains; they are not ordinary
             diagnosis candidates.
         model_edits: backend names for which :meth:`edit_model` is implemented.
+        objects: the object kinds (a scenario's ``object.kind``: ``"cloth"``, ``"rope"``) the effect can act on
+            (None: every kind); ``diagnose`` and ``check`` leave an effect out of the default candidate family of a task whose object
+            it cannot act on (:func:`~softsbi.workflows.criticism.screening.candidate_effects`), and naming it
+            there is refused.
         estimator_options: options this effect asks of the posterior estimator so that its parameters can
             be identified from the observations (e.g. point noise: ``{"frame_thickness": True}``, a summary
             that sees centimetre noise). A fit whose model has the effect passes them to an estimator that
@@ -116,6 +120,7 @@ class Effect(ABC):
     kind: ClassVar[str] = "physics"
     generic: ClassVar[bool] = False
     model_edits: ClassVar[tuple[str, ...]] = ()
+    objects: ClassVar[tuple[str, ...] | None] = None
     estimator_options: ClassVar[Mapping[str, Any]] = {}
 
     @abstractmethod

@@ -79,6 +79,8 @@ class JointTest:
         calibrated: the omnibus p-value is calibrated against replicate recordings of the run's trained task
             refitted and checked the same way (:mod:`~softsbi.workflows.criticism.check_null`), its ``n`` their number;
             else it is the posterior predictive p-value against the run's own rollouts (conservative).
+        directional_skipped: why the directional test did not run (no candidate effects, or none could be
+            screened, and why); None when it ran. The p-value is then the omnibus test's alone.
     """
 
     omnibus: MCPValue
@@ -89,6 +91,7 @@ class JointTest:
     max_null: int
     statistic: float = float("nan")
     calibrated: bool = False
+    directional_skipped: str | None = None
 
     @property
     def tests(self) -> int:

@@ -41,6 +41,7 @@ class AnisotropicStretch(Effect):
     description: ClassVar[str] = "anisotropic stretch: warp-to-weft ratio of the membrane stiffness"
     backends: ClassVar[tuple[str, ...]] = ("mujoco-flex",)
     model_edits: ClassVar[tuple[str, ...]] = ("mujoco-flex",)
+    objects: ClassVar[tuple[str, ...]] = ("cloth",)  # a rope has no membrane
 
     def param_space(self) -> ParamSpace:
         return ParamSpace([Param("warp_weft_ratio", 0.25, 4.0, "1", log=True, limits=(1e-3, 1e3),

@@ -6,7 +6,7 @@ from __future__ import annotations
 from softsbi.core.joint import JointCandidate, JointDiagnosis, short_names
 from softsbi.core.results import Diagnosis, Gain
 from softsbi.core.types import unit_suffix
-from softsbi.report.text import SCORE_UNIT, SUMMARY_ENERGY, num, p_short, uninformed_words
+from softsbi.report.text import SCORE_UNIT, SUMMARY_ENERGY, SWITCHED_ON_RULE, num, p_short, uninformed_words
 
 #: the columns of :func:`joint_rows`
 JOINT_COLUMNS = ["candidate", f"summed score [{SCORE_UNIT}]", f"gain over nominal [{SCORE_UNIT}]",
@@ -75,6 +75,16 @@ def joint_rows(j: JointDiagnosis) -> list[list[str]]:
              f"{c.on.count} of {n} ({p_value(c.on.p_value)})", spread_words(c),
              recordings_cell(j.named_by(c.effect), n) if j.named_by(c.effect) else "-", task_role(j, c)]
             for c in j.candidates]
+
+
+def no_candidate_words(j: JointDiagnosis) -> str:
+    """The sentence that stands for an empty candidates' table (:func:`joint_rows`): why no candidate was refitted
+    on every recording."""
+    if not j.test.rejects:
+        return (f"No candidate was refitted on every recording: the recordings' combined check does not reject "
+                f"(Fisher's method, p = {j.test.p_value:.2g} > {j.alpha:g}), so nothing is missing for the task.")
+    return ("No candidate was refitted on every recording: no recording's own diagnosis refitted one (--confirm "
+            f"{j.confirm}), and none was named with --candidate.")
 
 
 def own_verdict(d: Diagnosis) -> str:
@@ -163,8 +173,8 @@ def joint_rule(j: JointDiagnosis) -> str:
             f"for the task when its {SUMMARY_ENERGY}, summed over the recordings, is lower than the nominal model's by "
             f"more than {j.k_se:g} standard errors paired over recordings (from the spread of the per-recording gains, "
             f"so that one recording's gain does not name an effect for all), Fisher's combined test of its refits' "
-            f"checks does not reject at {j.alpha:g}, and more recordings switch its effect on (a 90% interval "
-            f"excludes the off value) than chance allows (one-sided binomial test at {j.alpha:g}).")
+            f"checks does not reject at {j.alpha:g}, and more recordings switch its effect on ({SWITCHED_ON_RULE}) "
+            f"than chance allows (one-sided binomial test at {j.alpha:g}).")
 
 
 def joint_text(j: JointDiagnosis) -> list[str]:

@@ -11,6 +11,7 @@ from softsbi.core.metrics import describe_change, offset_axes
 from softsbi.core.comparison import CompareResult, Metric
 from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, Refit,
                                   ResidualShape, Role, Score)
+from softsbi.core.joint import CHANCE_EXCLUDED
 from softsbi.core.types import unit_suffix
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 
@@ -96,11 +97,20 @@ def joint_test_line(t: JointTest) -> str:
                f"{p_words(t.directional)}" if t.directional else ""))
 
 
+def skipped_words(t: JointTest) -> str:
+    """``"; the directional test did not run (why): the p-value is the omnibus test's alone"`` when one of the two
+    tests did not run (:attr:`JointTest.directional_skipped`), else ``""``."""
+    if t.directional is not None or not t.directional_skipped:
+        return ""
+    return f"; the directional test did not run ({t.directional_skipped}): the p-value is the omnibus test's alone"
+
+
 def test_verdict(test: JointTest) -> str:
     """``check``'s verdict in words, with its p-value and level."""
+    alone = skipped_words(test)
     if test.misspecified:
-        return f"the measurement is NOT explained by the model ({p_words(test)} <= {test.alpha:g})"
-    return f"no evidence of misspecification ({p_words(test)} > {test.alpha:g})"
+        return f"the measurement is NOT explained by the model ({p_words(test)} <= {test.alpha:g}){alone}"
+    return f"no evidence of misspecification ({p_words(test)} > {test.alpha:g}){alone}"
 
 
 def sensor_words(c: CheckResult) -> str:
@@ -201,11 +211,27 @@ def estimate_words(e: Estimate) -> str:
     s = f"{e.name} = {num(e.mean)}{u}"
     if e.q05 is not None and e.q95 is not None:
         s += f" (90% interval {num(e.q05)} to {num(e.q95)}{u}"
+        if e.off_ratio is not None:  # an off value at a prior bound: the ratio decides, not the interval
+            s += f"; {off_ratio_words(e.off_ratio)}"
         if e.informed is False and e.may_be_off is False:
             s += f": the data show the effect is on, its size known to within ±{num((e.q95 - e.q05) / 2)}{u})"
         else:
             s += ", not informed by the data)" if e.informed is False else ")"
     return s
+
+
+def off_ratio_words(ratio: float) -> str:
+    """``"its posterior next to the off value is 1.2 times the prior's (possibly off: on at most 0.1)"``: the
+    Savage-Dickey ratio that decides "switched on" for an off value at a prior bound (:data:`SWITCHED_ON_RULE`)."""
+    on = ratio <= CHANCE_EXCLUDED
+    return (f"its posterior next to the off value is {ratio:.2g} times the prior's "
+            f"({'switched on' if on else 'possibly off'}: on at most {CHANCE_EXCLUDED:g})")
+
+
+#: the "switched on" criterion in words, as :func:`~softsbi.workflows.criticism.diagnose.may_be_off` applies it
+SWITCHED_ON_RULE = (f"a parameter's 90% interval excludes the effect's off value or, for an off value at a prior "
+                    f"bound (which no interval reaches), the posterior's mass next to that bound is at most "
+                    f"{CHANCE_EXCLUDED:g} of the prior's (a Savage-Dickey ratio)")
 
 
 def score_change(base: Score | None, new: Score | None, g: Gain | None, joiner: str = " -> ") -> str:
@@ -288,8 +314,7 @@ def set_aside_words(d: Diagnosis, r: Refit) -> str | None:
     if why is None or why == MISFIT_REMAINS:
         return None
     if why == POSSIBLY_OFF:
-        return (f"{why} (no parameter of it excludes the value that switches the effect off: its 90% interval "
-                f"holds the value or, at a prior bound, its posterior there is over a tenth of the prior's): the "
+        return (f"{why} (its effect is switched on when {SWITCHED_ON_RULE}, and no parameter of it does so): the "
                 f"refit explains the misfit by widening its predictions, not by identifying a cause")
     return f"{why} (by more than {d.k_se:g} standard errors)" if why != NO_LOWER else (
         f"{why} (its {SUMMARY_ENERGY} is not {d.k_se:g} standard errors below the model it extends)")
@@ -298,7 +323,7 @@ def set_aside_words(d: Diagnosis, r: Refit) -> str | None:
 def rule_words(d: Diagnosis) -> str:
     """The decision rule as applied, in three sentences."""
     s = (f"Detect: check's joint test of the nominal fit, {p_words(d.test)} "
-         f"{'<=' if d.test.misspecified else '>'} {d.alpha:g}.")
+         f"{'<=' if d.test.misspecified else '>'} {d.alpha:g}{skipped_words(d.test)}.")
     if not d.test.misspecified:
         return s
     singles = [r.label for r in d.refits if len(r.effects) == 1]
@@ -313,7 +338,7 @@ def rule_words(d: Diagnosis) -> str:
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
           f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries, a proper score, in "
           f"{SCORE_UNIT}: standard deviations of the nominal fit's posterior predictive) falls by more than {d.k_se:g} standard errors below the model it extends, and the "
-          f"data switch its effect on (a parameter's 90% interval excludes the effect's off value).")
+          f"data switch its effect on ({SWITCHED_ON_RULE}).")
     return s
 
 
@@ -402,8 +427,18 @@ def diagnosis_summary(d: Diagnosis) -> str:
               f"most, from {score_change(d.nominal, r.score, dec.gain, ' to ')}, "
               f"but the measurement stays outside its posterior predictive distribution ({p_words(r.test)}).")
     else:
-        s += f" No refit lowers the {SUMMARY_ENERGY} by more than {d.k_se:g} standard errors."
+        s += " " + unexplained_reasons(d)
     return s
+
+
+def unexplained_reasons(d: Diagnosis) -> str:
+    """Why no refit explains the misfit, as the decision found it: ``"No refit lowers the summary energy score by more
+    than 2 standard errors."`` when no refit's gain clears ``k_se``, else each refit with the reason that set it aside
+    (:func:`set_aside`)."""
+    gains = [d.decision.gain_of(r.effects) for r in d.refits]
+    if not any(g is not None and g.exceeds(d.k_se) for g in gains):
+        return f"No refit lowers the {SUMMARY_ENERGY} by more than {d.k_se:g} standard errors."
+    return "Set aside: " + "; ".join(f"{r.label}: {set_aside(d, r) or 'not set aside'}" for r in d.refits) + "."
 
 
 def diagnosis_text(d: Diagnosis) -> list[str]:

@@ -112,6 +112,22 @@ def test_diagnose_candidates_come_through_the_door():
         candidate_effects(pb, ["heavy-hem"])
 
 
+def test_a_rope_s_default_candidates_leave_out_what_cannot_act_on_a_rope_and_say_so():
+    """The default family of a rope held aniso-stretch, a cloth-only model edit: its refusal stopped the screening
+    of all 21 candidates. Now it is left out, in one line; named, it is refused before any work."""
+    rope = SimpleNamespace(config=SimpleNamespace(backend="mujoco-flex"), effects=[],
+                           scenario=SimpleNamespace(object={"kind": "rope", "length": 0.3}))
+    said: list[str] = []
+    names = {c.name for c in candidate_effects(rope, None, said.append)}
+    assert "aniso-stretch" not in names and {"heavy-hem", "wind", "sticky-patch"} <= names
+    assert said == [f"left out of the candidates: aniso-stretch (cannot act on a rope); the other {len(names)} are "
+                    f"screened"]
+    with pytest.raises(SoftsbiError, match="aniso-stretch cannot act on a rope .it acts on cloth.; leave it out"):
+        candidate_effects(rope, ["wind", "aniso-stretch"])
+    cloth = SimpleNamespace(config=rope.config, effects=[], scenario=SimpleNamespace(object={"kind": "cloth"}))
+    assert "aniso-stretch" in {c.name for c in candidate_effects(cloth, None, said.append)} and len(said) == 1
+
+
 def test_an_empty_candidate_family_is_no_family():
     """An empty family means check's omnibus test alone, not every installed effect: the check of a refit that adds
     all of a diagnosis' candidates (`diagnose --effect heavy-hem`, or the pair of `--effect a --effect b`) screens

@@ -93,3 +93,15 @@ def test_a_rejecting_set_names_the_candidates_its_task_cannot_identify_and_contr
         return replace(j, recordings=tuple(replace(d, uninformed=blind) for d in j.recordings))
     assert joint_text(with_blind(ONE)) == joint_text(ONE) + [uninformed_words(blind)]
     assert joint_text(with_blind(CONTROLS)) == joint_text(CONTROLS)
+
+
+def test_an_empty_candidates_table_is_one_sentence_saying_why(capsys):
+    """The empty joint table printed a header with no row and no sentence."""
+    from softsbi.cli.diagnose_cmd import print_joint_diagnosis
+    from softsbi.cli.output import Output
+    print_joint_diagnosis(Output(), CONTROLS)
+    out = capsys.readouterr().out
+    assert "Candidate effects refitted on every recording" not in out
+    assert ("No candidate was refitted on every recording: the recordings' combined check does not reject (Fisher's "
+            "method, p = 0.51 > 0.05), so nothing is missing for the task.") in out
+    assert "Each recording's own diagnosis" in out  # the recordings' table stays

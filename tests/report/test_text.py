@@ -96,7 +96,8 @@ DETECT = f"Detect: check's joint test of the nominal fit, {P_FLOOR} <= 0.05."
 DECIDE = ("Decide: a refit explains the misfit when check's test of it gives p > 0.05 and its summary energy score (the energy score of its "
           "posterior predictive of check's summaries, a proper score, in sd: standard deviations of the nominal fit's posterior predictive) falls by more than 2 "
           "standard errors below the model it extends, and the data switch its effect on (a parameter's 90% interval "
-          "excludes the effect's off value).")
+          "excludes the effect's off value or, for an off value at a prior bound (which no interval reaches), the "
+          "posterior's mass next to that bound is at most 0.1 of the prior's (a Savage-Dickey ratio)).")
 WIND_WORDS = (f"With wind: the measurement is inside the refit's posterior predictive distribution ({P_WIND}), "
               "summary energy score 21 -> 8 sd (62% lower, 20.3 standard errors), posterior-predictive Chamfer 1.00 cm (n=30 rollouts). The refit estimates wind_x = 0.05 "
               "m/s (90% interval -0.2 to 0.3 m/s); wind_y = 1.79 m/s (90% interval 1.55 to 1.98 m/s). Its wind_y "
@@ -557,9 +558,10 @@ def test_the_table_and_the_prose_give_one_reason_for_setting_a_refit_aside():
     words = diagnosis_text(d)[2]
     assert words.startswith("With wind: check does not reject the refit (p = 1 ")
     assert ("its posterior-predictive Chamfer 5.00 cm (n=30 rollouts) is higher than the nominal fit's 2.50 cm (n=30 "
-            "rollouts). Set aside: the data leave it possibly off (no parameter of it excludes the value that "
-            "switches the effect off: its 90% interval holds the value or, at a prior bound, its posterior there is "
-            "over a tenth of the prior's): the refit explains the misfit by widening its "
+            "rollouts). Set aside: the data leave it possibly off (its effect is switched on when a parameter's 90% "
+            "interval excludes the effect's off value or, for an off value at a prior bound (which no interval "
+            "reaches), the posterior's mass next to that bound is at most 0.1 of the prior's (a Savage-Dickey ratio), "
+            "and no parameter of it does so): the refit explains the misfit by widening its "
             "predictions, not by identifying a cause. The refit estimates") in words
     assert "error is higher" not in words
     # an adequate refit scoring lower than the nominal's but above the named one's, and one scoring no lower: the
@@ -644,3 +646,37 @@ def test_the_fit_report_hints_at_check_when_the_90_intervals_miss_more_hidden_va
     assert truth_miss_hint({**three, "c": True}, "r") is None and TRUTH_MISS_LEVEL == 0.05
     assert truth_miss_hint({"a": False, "b": True, "c": None}, "r") is None
     assert truth_miss_hint({**three, "c": True}, "r", level=0.1) is not None
+
+
+def test_an_unexplained_verdict_gives_the_reason_each_refit_was_set_aside_not_a_score_it_contradicts():
+    """A refit 3.4 standard errors better was set aside as possibly off; the summary said "No refit lowers the summary
+    energy score by more than 2 standard errors" two lines above its own "(... 3.4 standard errors)"."""
+    snag = Estimate(name="snag_k", unit="N/m", mean=3.5, q05=0.51, q95=7.5, width_ratio=0.7, effect="snag",
+                    may_be_off=True, off_ratio=1.2)
+    d = diagnosis([refit(("snag",), 8, ACCEPTS, estimates=(snag,)), refit(("wind",), 20.5, ACCEPTS)])
+    assert d.verdict == "misspecified-unexplained"
+    summary = diagnosis_text(d)[0]
+    assert "No refit lowers" not in summary
+    assert summary.endswith("Set aside: snag: the data leave it possibly off; wind: no lower score.")
+    # every refit no lower: the sentence that is then true
+    assert diagnosis_text(diagnosis([refit(("wind",), 20.5, ACCEPTS)]))[0].endswith(
+        "No refit lowers the summary energy score by more than 2 standard errors.")
+    # at a prior bound the printed criterion is the one applied: the ratio, beside an interval that excludes 0
+    words = diagnosis_text(d)[2]
+    assert ("snag_k = 3.5 N/m (90% interval 0.51 to 7.5 N/m; its posterior next to the off value is 1.2 times the "
+            "prior's (possibly off: on at most 0.1), not informed by the data)") in words
+    assert "Savage-Dickey" in diagnosis_text(d)[1]  # the rule as applied names the bound's criterion
+
+
+def test_a_check_whose_directional_test_did_not_run_says_so_and_what_its_p_value_is():
+    """A rope's default family held a cloth-only candidate whose refusal stopped the whole screening: check.json had
+    "directional": null and the verdict rested on the omnibus test alone, without a word."""
+    from softsbi.report.text import rule_words, test_verdict
+    alone = replace(joint(3, None), directional_skipped="the screening failed: a sensitivity simulation failed")
+    assert test_verdict(alone) == (
+        "the measurement is NOT explained by the model (p = 0.02 (3 of 200 null simulations as extreme) <= 0.05); "
+        "the directional test did not run (the screening failed: a sensitivity simulation failed): the p-value is "
+        "the omnibus test's alone")
+    assert "did not run" not in test_verdict(joint(3, 5))
+    assert "the directional test did not run (no candidate effects)" in rule_words(
+        diagnosis([], test=replace(joint(0, None), directional_skipped="no candidate effects")))

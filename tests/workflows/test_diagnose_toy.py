@@ -101,6 +101,28 @@ def test_a_failing_plugin_effect_as_the_only_candidate_stays_in_the_table_with_i
     assert diagnosis_rows(d)[0][0] == "toy-broken" and "toy-broken" in diagnosis_rows(d)[0][3]
 
 
+def test_one_failing_candidate_s_refusal_never_reaches_another_candidate_s_row(magnet_run, monkeypatch):
+    """A candidate whose simulations raise (a plugin's observe() of the wrong shape; on a rope, a cloth-only model
+    edit) stopped the screening of every candidate, each row then carrying its refusal, and the directional test
+    did not run. Now its own row carries it; the others are screened and both tests run."""
+    import os
+    from pathlib import Path
+    from softsbi.plugins.manager import registry
+    monkeypatch.setenv("SOFTSBI_PLUGINS", os.pathsep.join([os.environ["SOFTSBI_PLUGINS"],
+                                                          str(Path(__file__).with_name("broken_effect.py"))]))
+    registry.cache_clear()
+    try:
+        d = diagnose_run(magnet_run, effects=["toy-broken", MAGNET], plots=False, recompute=True,
+                         out_dir=magnet_run.parent / "one-broken", settings=DiagnoseSettings(confirm=0, workers=1))
+    finally:
+        monkeypatch.undo()
+        registry.cache_clear()
+    rows = {c.effect: c for c in d.ranking}
+    assert not rows["toy-broken"].screened and "observe()" in rows["toy-broken"].error
+    assert rows[MAGNET].screened and rows[MAGNET].error is None
+    assert d.test.directional is not None and d.test.directional_effect == MAGNET
+
+
 def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_and_the_best_refitted_first(
         tmp_path, monkeypatch):
     """The task trained once with its candidate models: the diagnosis scores every trained candidate's amortised

@@ -102,6 +102,19 @@ def test_one_recordings_wind_is_named_for_it_not_for_the_task(rig, tmp_path):
     assert weighed.decision.named == ()
 
 
+def test_a_set_that_fits_says_so_first_and_refits_no_named_candidate(rig, tmp_path):
+    """`diagnose RUN RUN RUN --candidate X` refitted X on every recording for minutes, then said "not named: nothing
+    missing" from the combined test it knew before any refit. Now it says so first and spends nothing on refits."""
+    runs = [rig("control", i) for i in (1, 2, 3)]
+    said: list[str] = []
+    j = diagnose_runs(runs, settings=SETTINGS, out_dir=tmp_path / "task", plots=False, candidates=["toy-wind"],
+                      progress=said.append)
+    assert not j.test.rejects and j.verdict == "nothing-missing" and j.candidates == ()
+    assert any("combined check does not reject" in s and "toy-wind is not refitted" in s for s in said)
+    assert not any("refit with toy-wind (a candidate of the set)" in s for s in said)
+    assert all(not (r / "refit-toy-wind").exists() for r, d in zip(runs, j.recordings) if not d.refits)
+
+
 def test_a_set_that_is_not_one_tasks_recordings_is_refused_before_any_work(rig, tmp_path):
     runs = [rig("wind", 0), rig("control", 1), rig("control", 2)]
     other = tmp_path / "other"

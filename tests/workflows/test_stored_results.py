@@ -185,25 +185,31 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
 
 
 def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_with_an_estimate(run, tmp_path):
-    from softsbi.core.fitreport import FitReport
+    from softsbi.core.fitreport import FitReport, RoundRow
     rep = FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=3, sims_per_round=400, simulations=1230,
                     wall_time_s=600.0)
     assert diagnose.diagnosis_plan(rep, 9, 2, n_null=30) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
-        "rejects, up to 3 refits (the top 2 candidates, then a pair) of about 1260 simulations each: 3810 simulations at most; "
+        "rejects, up to 3 refits (the top 2 candidates, then a pair) of about 1260 simulations each (3 rounds x 400 "
+        "simulations, then its check): 3810 simulations at most; "
         "about 31 min at the nominal fit's pace (1230 simulations in 10 min) (--confirm 2 sets the number of refits)")
     assert diagnose.diagnosis_plan(rep, 9, 1, refit_rounds=1, refit_sims=100, n_null=30).startswith(
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
-        "rejects, up to 1 refit (the top candidate) of about 160 simulations each: 190 simulations at most; about 2 min")
+        "rejects, up to 1 refit (the top candidate) of about 160 simulations each (1 round x 100 simulations, then its "
+        "check): 190 simulations at most; about 2 min")
     one = FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=1, sims_per_round=400, simulations=430,
-                    wall_time_s=43.0)  # a fit that stopped at its trained task
+                    wall_time_s=43.0, per_round=(RoundRow(round=0, task="k" * 64),))  # stopped at its trained task
+    # an untrained candidate's refit of such a run runs the default rounds, and the plan says so (it said 1 round)
     assert diagnose.diagnosis_plan(one, 9, 2, n_null=30, amortised=6) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 9 candidates, then, if the check "
         "rejects, the amortised posteriors of the 6 trained candidates (10 to 30 rollouts each, as their decision needs; a "
         "trained candidate's refit "
-        "simulates no round) and up to 3 refits (the top 2 candidates, then a pair) of about 460 simulations each when "
-        "no task trained the candidate: 1590 simulations at most; about 3 min at the nominal fit's pace (430 "
+        "simulates no round) and up to 3 refits (the top 2 candidates, then a pair) of about 1660 simulations each (4 "
+        "rounds x 400 simulations, then its check) when "
+        "no task trained the candidate: 5190 simulations at most; about 9 min at the nominal fit's pace (430 "
         "simulations in 43 s) (--confirm 2 sets the number of refits)")
+    assert "of about 460 simulations each (1 round x 400" in diagnose.diagnosis_plan(
+        one, 9, 2, refit_rounds=1, n_null=30, amortised=0)
     assert diagnose.diagnosis_plan(FitReport(parameters=("a",), posterior_median={"a": 1.0}), 4, 0) == (
         "diagnose plan: the check's 30 posterior rollouts and the screening of 4 candidates")
     said = []  # said first, before any simulation
@@ -288,3 +294,20 @@ def test_compare_refuses_an_alpha_out_of_range_before_any_work(checked, tmp_path
     assert not (tmp_path / "cmp").exists()
     res = runner.invoke(app, ["compare", str(checked), str(checked), "--alpha", "1.5"])
     assert res.exit_code == 2 and "--alpha" in res.output, res.output
+
+
+def test_an_asked_refit_budget_is_kept_when_the_run_stopped_at_its_stored_task():
+    """`diagnose --refit-rounds N` was dropped as "the run's own" when N equalled the run's rounds, and a run that had
+    stopped at its stored task then refitted an untrained candidate at the default 4 rounds: 3, 4 and 1 rounds for
+    one setting, depending on which recording filled the task first."""
+    from types import SimpleNamespace
+    from softsbi.core.fitreport import FitReport, RoundRow
+    cfg = SimpleNamespace(rounds=1, sims_per_round=100)
+    at_task = SimpleNamespace(config=cfg, report=FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=1,
+                                                            per_round=(RoundRow(round=0, task="k" * 64),)))
+    sequential = SimpleNamespace(config=cfg, report=FitReport(parameters=("a",), posterior_median={"a": 1.0},
+                                                              rounds=1, per_round=(RoundRow(round=0),)))
+    asked = DiagnoseSettings(refit_rounds=1, refit_sims=100)
+    assert diagnose.refit_budget(at_task, asked) == (1, None)
+    assert diagnose.refit_budget(sequential, asked) == (None, None)  # the run's own: one stored key
+    assert diagnose.refit_budget(at_task, DiagnoseSettings()) == (None, None)

@@ -45,7 +45,7 @@ from softsbi.workflows.fit.task_store import read_once
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import N_NULL, PosteriorPredictive, run_features
 from softsbi.workflows.criticism.statistics import summary_energy_score, summary_scale
-from softsbi.core.defaults import DiagnoseSettings
+from softsbi.core.defaults import ROUNDS, DiagnoseSettings
 
 @pools.shared_executors()
 @read_once()  # each stored task read once: the candidates' amortised posteriors, refits and checks share it
@@ -93,10 +93,9 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     if out_dir is not None:
         check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it
-    base = run.config  # a refit budget equal to the run's is the default: one key
-    refit_rounds = None if s.refit_rounds == base.rounds else s.refit_rounds
-    refit_sims = None if s.refit_sims == base.sims_per_round else s.refit_sims
-    cands = candidate_effects(run, effects)
+    refit_rounds, refit_sims = refit_budget(run, s)
+    say = progress or (lambda _: None)
+    cands = candidate_effects(run, effects, say)
     if not cands:
         raise SoftsbiError("no candidate effects: install effect plugins or name them with --effect")
     family = tuple(c.name for c in cands)
@@ -106,7 +105,6 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
                      k_se=k_se, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null,
                      max_null=max_null, seed=seed, amortised_refits=sorted(trained) if refit_rounds is None else [],
                      race_start=RACE_START)
-    say = progress or (lambda _: None)
     out = run.path if out_dir is None else Path(out_dir)
     json_path = check_result_path(out / "diagnosis.json")
     stored = None if recompute else stored_result(json_path, Diagnosis, key, say)
@@ -176,6 +174,20 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     return d
 
 
+def refit_budget(run: RunView, s: DiagnoseSettings) -> tuple[int | None, int | None]:
+    """The refits' rounds and simulations per round that ``s`` asks of ``run``'s diagnosis, None for "the run's own"
+    (one stored key for both spellings of the default). An asked number of rounds is "the run's own" only when the
+    run did not stop at a stored task: one that did ran one round whatever its settings said, and "its own" then
+    means each refit's own task (:func:`~softsbi.workflows.criticism.evidence.refit_config`: the default rounds for
+    an untrained candidate), so an asked budget is kept as asked and never depends on which recording filled the
+    task first."""
+    base, rep = run.config, run.report
+    at_task = bool(rep.per_round and rep.per_round[0].task)  # "the run's own" then means each refit's own task
+    rounds = None if s.refit_rounds is not None and s.refit_rounds == base.rounds and not at_task else s.refit_rounds
+    sims = None if s.refit_sims == base.sims_per_round else s.refit_sims
+    return rounds, sims
+
+
 def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_rounds: int | None = None,
                    refit_sims: int | None = None, n_null: int = N_NULL, amortised: int = 0) -> str:
     """What a diagnosis of the fit ``report`` describes will spend, said before it starts: the check's ``n_null``
@@ -188,7 +200,10 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
     from the bank cost less; a null extended to resolve the level, more."""
     rounds, sims = report.rounds or 1, report.sims_per_round or 0
     n_eval = max((report.simulations or 0) - rounds * sims, 0)
-    per_refit = (refit_rounds or rounds) * (refit_sims or sims) + n_eval + n_null
+    # "the run's own" rounds of a run that stopped at its stored task are an untrained refit's default ones
+    at_task = bool(report.per_round and report.per_round[0].task)
+    r_rounds, r_sims = refit_rounds or (ROUNDS if at_task else rounds), refit_sims or sims
+    per_refit = r_rounds * r_sims + n_eval + n_null
     refits = confirm + (1 if confirm >= 2 else 0)
     total = n_null + refits * per_refit
     s = f"diagnose plan: the check's {n_null} posterior rollouts and the screening of {candidates} candidates"
@@ -201,7 +216,8 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
                      f"({min(RACE_START, n_null)} to {n_null} rollouts each, as their decision needs; a trained "
                      f"candidate's refit simulates no round) and ")
         s += (f", then, if the check rejects, {first}up to {refits} refit{'s' if refits > 1 else ''} ({top}"
-              f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each"
+              f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each ({r_rounds} "
+              f"round{'s' if r_rounds > 1 else ''} x {r_sims} simulations, then its check)"
               f"{' when no task trained the candidate' if amortised else ''}: {total} simulations at most")
     if report.wall_time_s and report.simulations:
         pace = report.wall_time_s / report.simulations

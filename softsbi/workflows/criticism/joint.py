@@ -21,7 +21,7 @@ from softsbi.core.results import Diagnosis, Refit, check_result_path, read_resul
 from softsbi.core.store import RunStore
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.check import loaded, reused, stored_result
-from softsbi.workflows.criticism.diagnose import diagnose_run, refit_model
+from softsbi.workflows.criticism.diagnose import diagnose_run, refit_budget, refit_model
 from softsbi.workflows.criticism.joint_decide import (check_recordings, decide_joint, joint_candidate, nominal_test,
                                                       ranked, set_candidates)
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution
@@ -116,9 +116,14 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
         if stored is not None:
             say(reused(json_path))
             return stored
+        test = nominal_test(diagnoses, s.alpha)
+        if not test.rejects and names:  # the verdict is known before any refit: spend nothing on them
+            say(f"the recordings' combined check does not reject (Fisher's method, p = {test.p_value:.2g} > "
+                f"{s.alpha:g}): nothing is missing for the task, so {', '.join(names)} "
+                f"{'is' if len(names) == 1 else 'are'} not refitted")
+            names = ()
         refits, sims = set_refits(runs, diagnoses, names, s, say, plots)
         candidates = ranked([joint_candidate(e, diagnoses, refits[e], s.alpha) for e in names])
-        test = nominal_test(diagnoses, s.alpha)
         j = JointDiagnosis(runs=tuple(str(r) for r in runs), recordings=tuple(diagnoses), candidates=candidates,
                            test=test, decision=decide_joint(test, candidates, s.k_se), alpha=s.alpha, k_se=s.k_se,
                            confirm=s.confirm, simulations=sims + sum(d.simulations for d in diagnoses), key=key,
@@ -142,9 +147,7 @@ def set_refits(runs: Sequence[Path], diagnoses: Sequence[Diagnosis], names: Sequ
         made: dict[str, Refit] = {}
         if missing:
             run = loaded(path, None, s.seed)
-            base = run.config
-            rounds = None if s.refit_rounds == base.rounds else s.refit_rounds
-            sims_per_round = None if s.refit_sims == base.sims_per_round else s.refit_sims
+            rounds, sims_per_round = refit_budget(run, s)
             pool = PosteriorPredictive(run, s.workers, s.seed)
             scale = summary_scale(pool.ensure(s.n_null).features[:s.n_null])
             sims += pool.requested

@@ -15,12 +15,12 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from softsbi.core.errors import SoftsbiError
+from softsbi.core.errors import ParameterError, ShapeError, SoftsbiError
 from softsbi.core.results import Candidate, JointTest
 from softsbi.plugins import registry
 from softsbi.core.defaults import ALPHA_BOUND
@@ -52,16 +52,21 @@ EFFECT_STEP = 0.25
 NOMINAL_COEF_BOUND = 1e3
 
 
-def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[Any]:
+def candidate_effects(run: RunView, names: Sequence[str] | None = None,
+                      say: Callable[[str], None] | None = None) -> list[Any]:
     """Instances of the candidate effects of a run: ``names`` (each must be applicable by the run's
-    backend; an empty list is no candidate), or by default (None) every installed effect the backend supports,
-    generic force terms included; effects the run already has are left out.
+    backend to the run's object; an empty list is no candidate), or by default (None) every installed effect the
+    backend supports that can act on the run's object (:attr:`~softsbi.core.interfaces.Effect.objects`: e.g. no
+    anisotropic membrane on a rope), generic force terms included; effects the run already has are left out.
+    Default candidates left out for the object are told to ``say`` in one line.
 
     Raises:
-        SoftsbiError: a named effect the backend cannot apply (naming the door it needs).
+        SoftsbiError: a named effect the backend cannot apply (naming the door it needs), or that cannot act on
+            the run's object.
     """
     reg = registry()
     sim_cls = reg.simulator(run.config.backend)
+    kind = object_kind(getattr(run, "scenario", None))
     if isinstance(names, str):
         raise SoftsbiError(f"candidate effects must be a list of names, e.g. [{names!r}]")
     if names is not None:
@@ -69,11 +74,32 @@ def candidate_effects(run: RunView, names: Sequence[str] | None = None) -> list[
         bad = [f"{c.name} (it needs {sim_cls.supports(c)})" for c in cands if sim_cls.supports(c) is not None]
         if bad:
             raise SoftsbiError(f"backend '{sim_cls.name}' cannot apply {bad}; it supports {list(sim_cls.effects)}")
+        if off := [c.name for c in cands if not acts_on(c, kind)]:
+            raise SoftsbiError(f"{', '.join(off)} cannot act on a {kind} (it acts on "
+                               f"{' or '.join(reg.effect(off[0]).objects)}); leave it out of the candidates")
     else:
         # generic force terms are screened too (in the max-T family), but only for the third verdict: the diagnosis
         # refits and names non-generic effects only
         cands = [reg.effect(n) for n in sim_cls.effects if n in reg.tables["effect"]]
+        off = [c.name for c in cands if not acts_on(c, kind) and c.name not in run.effects]
+        if off and say is not None:
+            say(f"left out of the candidates: {', '.join(off)} (cannot act on a {kind}); the other "
+                f"{len(cands) - len(off) - sum(c.name in run.effects for c in cands)} are screened")
+        cands = [c for c in cands if acts_on(c, kind)]
     return [c() for c in cands if c.name not in run.effects]
+
+
+def acts_on(effect: Any, kind: str) -> bool:
+    """Whether an effect (class or instance) can act on an object of ``kind``
+    (:attr:`~softsbi.core.interfaces.Effect.objects`; None: on every kind)."""
+    objects = getattr(effect, "objects", None)
+    return objects is None or kind in objects
+
+
+def object_kind(scenario: Any) -> str:
+    """The kind of a scenario's object (``object.kind``: ``"cloth"`` or ``"rope"``; ``"cloth"`` when it does not
+    say, as the backends read it)."""
+    return str((getattr(scenario, "object", None) or {}).get("kind") or "cloth")
 
 
 def effect_kind(effect: Any) -> str:
@@ -251,8 +277,11 @@ def screening_of(pool: PosteriorPredictive, cands: Sequence[Any], unit_step: flo
     key = (tuple(c.name for c in cands), float(unit_step), float(effect_step))
     if key not in pool.sensitivities:
         jobs, eff_cols, _ = sensitivity_jobs(pool.run, list(cands), unit_step, effect_step)
+        # an effect the model cannot take (ParameterError: e.g. a membrane edit of a rope) or whose code returns the
+        # wrong shape (ShapeError) fails its own jobs only: its refusal never reaches another candidate's row
         res = run_jobs(run_summarising(pool.run, keep_rollout=False), [replace(j, summary_seed=0) for j in jobs],
-                       pool.workers, label="finite differences of the screening")
+                       pool.workers, label="finite differences of the screening",
+                       contained=(ParameterError, ShapeError))
         pool.sensitivities[key] = (list(cands), eff_cols, res)
     # the stored effect instances: the design's columns refer to them
     first, eff_cols, res = pool.sensitivities[key]
@@ -320,7 +349,7 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
             first = [k for k, r in enumerate(pool.rollouts) if r.sample < null.rollouts]
             statistic = misspecification_test(f_obs, pool.features[first])[0]
             omnibus = null.p_value(statistic)
-        screen, ranking = None, ()
+        screen, ranking, skipped = None, (), None if cands else "no candidate effects"
         if cands:
             try:
                 screen = screening_of(pool, cands, unit_step, effect_step)
@@ -328,10 +357,14 @@ def misspecification_verdict(pool: PosteriorPredictive, cands: Sequence[Any], al
             except SoftsbiError as exc:  # e.g. the posterior median's simulation failed: the omnibus test alone,
                 screen = None                # and every candidate in the table with the reason
                 ranking = tuple(failed_candidate(c, f"not screened: {exc}") for c in cands)
+                skipped = f"the screening failed: {exc}"
         top = next((c for c in ranking if c.screened), None)
+        if top is None and skipped is None:
+            skipped = f"none of the {len(cands)} candidates could be screened"
         test = JointTest(omnibus=omnibus, directional=top.adjusted if top else None,
                          directional_effect=top.effect if top else None, family=family, alpha=alpha,
-                         max_null=max_null, statistic=statistic, calibrated=null is not None)
+                         max_null=max_null, statistic=statistic, calibrated=null is not None,
+                         directional_skipped=skipped)
         return test, screen, ranking
 
     test, screen, ranking = evaluate()

@@ -455,19 +455,22 @@ def map_simulations(executor: Any, ctx: SimContext, items: Sequence[JobItem]) ->
 
 
 def run_jobs(ctx: SimContext, items: Sequence[JobItem], workers: int | None = None, executor: str = "local",
-             executor_options: Mapping[str, Any] | None = None, label: str = "simulations") -> list[JobResult]:
+             executor_options: Mapping[str, Any] | None = None, label: str = "simulations",
+             contained: tuple[type[BaseException], ...] = ()) -> list[JobResult]:
     """Run :func:`simulate_job` over ``items`` on an executor plugin; results in item order. The phase is told to
     the current progress reporter as ``label`` (:mod:`~softsbi.workflows.reporting`).
 
-    A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised; any other
-    exception, or a crashed worker, becomes a failed result (:func:`failed`: ``STATUS_ERROR`` and its reason).
+    A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised, unless it is one of
+    ``contained`` (e.g. a :class:`~softsbi.core.errors.ParameterError` of one job's effect, which concerns that job
+    only); any other exception, or a crashed worker, becomes a failed result (:func:`failed`: ``STATUS_ERROR`` and
+    its reason).
     """
     out: list[JobResult | None] = [None] * len(items)
     count = BankCount()
     with pools.executor(executor, workers, executor_options) as exe, phase(label, len(items)) as advance:
         for done, (i, res) in enumerate(map_simulations(exe, ctx, items), start=1):
             if isinstance(res, BaseException):
-                if isinstance(res, SoftsbiError):
+                if isinstance(res, SoftsbiError) and not isinstance(res, contained):
                     raise res
                 res = failed(res)
             out[i] = res
