@@ -48,7 +48,8 @@ from softsbi.core.errors import ObservedDamaged, SchemaError
 # a round's posterior (EstimatorState and POSTERIOR_FORMAT are importable from here too)
 from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
                                           put_array, read_posterior_group, write_posterior)
-from softsbi.core.store_damage import array_names, check_metadata, damaged_rows, group_names, unreadable_groups
+from softsbi.core.store_damage import (array_names, check_metadata, damage_fix, damaged_rows, group_names,
+                                       observed_faults, round_faults, unreadable_groups)
 from softsbi.core.store_groups import NamedGroups
 from softsbi.core.types import STATUS_PENDING, jsonable
 
@@ -226,13 +227,16 @@ class RunStore(NamedGroups):
         """The observed arrays (:meth:`write_observed`) by name.
 
         Raises:
-            ObservedDamaged: the group is missing or one of its arrays cannot be read (a truncated or corrupt
-                chunk); the fix says that the fit rebuilds it from the recording.
+            ObservedDamaged: the group is missing, one of its arrays cannot be read (a truncated or corrupt
+                chunk) or has the wrong shape (:func:`~softsbi.core.store_damage.observed_faults`); the fix says
+                that the fit rebuilds it from the recording.
         """
         where = self.path / "observed"
         fix = "re-running the same `softsbi fit` command rebuilds it from the recording"
         if "observed" not in self.root:
             raise ObservedDamaged(f"'{where}' is missing", fix)
+        for why in observed_faults(self.root).values():
+            raise ObservedDamaged(f"'{where}' cannot be used ({why})", fix)
         g = self.root["observed"]
         out = {}
         for k in array_names(g):
@@ -411,8 +415,15 @@ class RunStore(NamedGroups):
 
         Returns:
             ``(round, {simulation: reason})``, or None when every stored simulation is intact.
+
+        Raises:
+            SchemaError: a round's array has the wrong shape (:meth:`damaged_groups` names it too): one line naming
+                the array, its shape, the expected one and the fix.
         """
         for r in self.round_ids():
+            for why in round_faults(self.root, r).values():
+                raise SchemaError(f"'{self.path / 'rounds' / str(r)}' cannot be trusted ({why}); "
+                                  f"{damage_fix(self.path, f'rounds/{r}')}")
             bad = damaged_rows(self._round(r), self.is_complete(r))
             if bad:
                 return r, bad

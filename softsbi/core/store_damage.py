@@ -1,13 +1,15 @@
 """What in a run store cannot be read: its metadata files (:func:`check_metadata`, on opening), whole arrays of a
-group (:func:`unreadable_groups`) and single simulations of a round (:func:`damaged_rows`, which the fit simulates
-again). :class:`~softsbi.core.store.RunStore` asks these; each names what is damaged, never repairs it."""
+group (:func:`unreadable_groups`), arrays that read but do not have the layout's shape (:func:`shape_faults`) and
+single simulations of a round (:func:`damaged_rows`, which the fit simulates again).
+:class:`~softsbi.core.store.RunStore` asks these; each names what is damaged, never repairs it."""
 from __future__ import annotations
 
 import json
 import os
 import warnings
+from collections import Counter
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import zarr
@@ -18,6 +20,16 @@ from softsbi.core.types import STATUS_PENDING
 
 #: a round's per-simulation arrays: repaired row by row (:func:`damaged_rows`), not as whole groups
 ROW_ARRAYS = ("status", "x", "chamfer", "sensor_x")
+
+#: the shapes of the observed and of a round's arrays (the layout in :mod:`softsbi.core.store`); a letter is a size
+#: the arrays share: T frames, P observed points, N simulations, D parameters, K sensor draws, Q dense points,
+#: H x W pixels
+OBSERVED_SHAPES: dict[str, tuple[str | int, ...]] = {
+    "x": ("T", "P", 3), "gripper": ("T", 3), "times": ("T",), "dense": ("T", "Q", 3), "images": ("T", "H", "W", 3),
+    "masks": ("T", "H", "W")}
+ROUND_SHAPES: dict[str, tuple[str | int, ...]] = {
+    "theta": ("N", "D"), "u": ("N", "D"), "seed": ("N",), "status": ("N",), "x": ("N", "T", "P", 3),
+    "chamfer": ("N", "T"), "sensor_u": ("N", "K", "D"), "sensor_x": ("N", "K", "T", "P", 3)}
 
 
 def array_names(g: zarr.Group) -> list[str]:
@@ -33,6 +45,69 @@ def group_names(g: zarr.Group) -> list[str]:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "Object at .* is not recognized", ZarrUserWarning)
         return list(g.group_keys())
+
+
+def damage_fix(path: Path, rel: str) -> str:
+    """What fixes the damaged group ``rel`` (``"rounds/0"``, ``"observed"``, ``"evaluation"``, ...) of the run store at
+    ``path``: the folders to remove and the command that computes them again."""
+    top = rel.split("/")
+    if top[0] == "rounds" and len(top) > 1:
+        return (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
+                f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
+    if top[0] == "observed":
+        return (f"remove the folder '{path / 'observed'}', then re-run the same command: it rebuilds it from "
+                f"the recording")
+    return (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
+            f"for evaluation/): it computes it again")
+
+
+def shape_faults(g: zarr.Group, shapes: Mapping[str, tuple[str | int, ...]],
+                 sizes: Mapping[str, int] | None = None) -> dict[str, str]:
+    """The arrays of group ``g`` that read but do not have their shape in ``shapes`` (:data:`OBSERVED_SHAPES`,
+    :data:`ROUND_SHAPES`): ``{array: reason}``, e.g. ``{"x": "its 'x' array has shape (20, 3, 9, 3), expected (30,
+    3, 9, 3)"}``. A letter's size is the one given in ``sizes`` (the run's settings: T, D, ...), else the one most of
+    the group's arrays agree on; one no array gives is printed as ``*`` (any)."""
+    names = set(array_names(g))
+    found = {k: tuple(g[k].shape) for k in shapes if k in names}
+    known = dict(sizes or {})
+    votes: dict[str, list[int]] = {}
+    for k, shape in found.items():
+        if len(shape) == len(shapes[k]):
+            for sym, n in zip(shapes[k], shape):
+                if isinstance(sym, str) and sym not in known:
+                    votes.setdefault(sym, []).append(n)
+    known.update({sym: Counter(ns).most_common(1)[0][0] for sym, ns in votes.items()})
+    out = {}
+    for k, shape in found.items():
+        want = tuple(known.get(sym, "*") if isinstance(sym, str) else sym for sym in shapes[k])
+        if len(shape) != len(want) or any(w not in ("*", n) for w, n in zip(want, shape)):
+            out[k] = f"its '{k}' array has shape {shape}, expected ({', '.join(map(str, want))}{',' * (len(want) == 1)})"
+    return out
+
+
+def _config_sizes(root: zarr.Group) -> dict[str, int]:
+    """The sizes the run's settings fix: T (the scenario's frames), D (the parameters)."""
+    config: Any = root.attrs.get("config") or {}
+    sizes = {}
+    if isinstance(config.get("scenario"), Mapping) and isinstance(config["scenario"].get("times"), list):
+        sizes["T"] = len(config["scenario"]["times"])
+    if isinstance(config.get("param_space"), list):
+        sizes["D"] = len(config["param_space"])
+    return sizes
+
+
+def observed_faults(root: zarr.Group) -> dict[str, str]:
+    """The arrays of the store ``root``'s ``observed`` group with the wrong shape (:func:`shape_faults`)."""
+    return shape_faults(root["observed"], OBSERVED_SHAPES, _config_sizes(root)) if "observed" in root else {}
+
+
+def round_faults(root: zarr.Group, r: int) -> dict[str, str]:
+    """The arrays of the store ``root``'s round ``r`` with the wrong shape (:func:`shape_faults`); the observed
+    points P are the observed state's when it has its shape."""
+    sizes = _config_sizes(root)
+    if "observed" in root and "x" in array_names(root["observed"]) and "x" not in observed_faults(root):
+        sizes["P"] = int(root["observed"]["x"].shape[1])
+    return shape_faults(root["rounds"][str(r)], ROUND_SHAPES, sizes)
 
 
 def check_metadata(path: Path, root: zarr.Group) -> None:
@@ -53,18 +128,8 @@ def check_metadata(path: Path, root: zarr.Group) -> None:
             json.loads((here / "zarr.json").read_bytes())
             root[rel]
         except Exception as exc:  # noqa: BLE001 - a garbage or truncated metadata file
-            top = rel.split("/")
-            if top[0] == "rounds" and len(top) > 1:
-                fix = (f"remove the folder '{path / 'rounds' / top[1]}', those of later rounds and "
-                       f"'{path / 'evaluation'}', then re-run the same `softsbi fit` command: it simulates them again")
-            elif top[0] == "observed":
-                fix = (f"remove the folder '{path / 'observed'}', then re-run the same command: it rebuilds it from "
-                       f"the recording")
-            else:
-                fix = (f"remove the folder '{path / top[0]}', then re-run the command that wrote it (`softsbi fit` "
-                       f"for evaluation/): it computes it again")
             raise SchemaError(f"run store file '{here / 'zarr.json'}' cannot be read ({type(exc).__name__}); "
-                              f"{fix}") from None
+                              f"{damage_fix(path, rel)}") from None
 
 
 def _read_rows(arr: zarr.Array, bad: dict[int, str], name: str) -> np.ndarray:
@@ -84,9 +149,15 @@ def _read_rows(arr: zarr.Array, bad: dict[int, str], name: str) -> np.ndarray:
 
 def unreadable_groups(root: zarr.Group, rounds: Sequence[int]) -> dict[str, str]:
     """Groups of the store ``root`` holding an array that cannot be read whole (a truncated or corrupt chunk),
-    other than the per-simulation arrays of ``rounds`` (:data:`ROW_ARRAYS`): ``{group path: reason}``; the paths
+    other than the per-simulation arrays of ``rounds`` (:data:`ROW_ARRAYS`), or an array, these included, that reads
+    but has the wrong shape (:func:`observed_faults`, :func:`round_faults`): ``{group path: reason}``; the paths
     are ``observed``, ``rounds/<r>``, ``rounds/<r>/posterior`` and the other top-level groups."""
     out: dict[str, str] = {}
+    for why in observed_faults(root).values():
+        out.setdefault("observed", why)
+    for r in rounds:
+        for why in round_faults(root, r).values():
+            out.setdefault(f"rounds/{r}", why)
 
     def scan(path: str, g: zarr.Group, skip: tuple[str, ...] = ()) -> None:
         for k in sorted(array_names(g)):

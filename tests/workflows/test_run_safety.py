@@ -282,3 +282,63 @@ def test_a_half_written_array_or_round_is_resumed_without_zarr_warnings(tmp_path
     assert [str(w.message) for w in recwarn if issubclass(w.category, ZarrUserWarning)] == []
     assert RunStore.open(out / "run.zarr").completed_rounds() == [0, 1] and again.report.rounds == 2
     assert first.report.per_round[0].usable == again.report.per_round[0].usable  # round 1 as before
+
+
+def _replace_array(out, path, value):
+    """Replace the store array ``path`` (``"rounds/0/x"``) of run ``out`` with a well-formed array ``value``."""
+    import shutil
+
+    from softsbi.core.posterior_store import put_array
+    shutil.rmtree(out / "run.zarr" / path)
+    group, name = path.rsplit("/", 1)
+    put_array(RunStore.open(out / "run.zarr").root[group], name, value,
+              tuple(f"dim_{i}" for i in range(value.ndim)), "m")
+
+
+def test_a_round_array_of_the_wrong_shape_is_one_line_naming_it_and_the_fix(tmp_path):
+    """A well-formed array of the wrong shape is damage: named with its shape, the expected one and the fix, which
+    works (never numpy's reshape error from the chunk check)."""
+    import shutil
+    out = tmp_path / "run"
+    cfg = _cfg(rounds=1)
+    first = run_fit(out, toy_measurement(), cfg, make_plots=False)
+    x = RunStore.open(out / "run.zarr").round_data(0)["x"]
+    _replace_array(out, "rounds/0/x", x[:20])  # a short round
+    short = f"its 'x' array has shape (20, {', '.join(map(str, x.shape[1:]))}), expected {x.shape}"
+    assert RunStore.open(out / "run.zarr").damaged_groups() == {"rounds/0": short}
+    with pytest.raises(SoftsbiError) as err:
+        run_fit(out, toy_measurement(), cfg, make_plots=False)
+    line = str(err.value)
+    assert "\n" not in line and short in line and f"remove the folder '{out / 'run.zarr' / 'rounds' / '0'}'" in line
+    shutil.rmtree(out / "run.zarr" / "rounds" / "0")  # the fix the line gives
+    shutil.rmtree(out / "run.zarr" / "evaluation")
+    again = run_fit(out, toy_measurement(), cfg, make_plots=False)
+    assert again.report.posterior_mean == first.report.posterior_mean
+
+
+def test_an_observed_array_of_the_wrong_shape_is_rebuilt_by_check_and_fit(tmp_path):
+    from typer.testing import CliRunner
+
+    from softsbi.cli import app
+    from softsbi.workflows.measurement import load_recording
+    rec = tmp_path / "rec"
+    res = CliRunner().invoke(app, ["simulate", "--backend", "toy-gauss", "--scenario", "lift", "--out", str(rec)])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "run"
+    cfg = _cfg(rounds=1)
+    run_fit(out, load_recording(rec, n_points=cfg.n_points, seed=cfg.seed), cfg, make_plots=False)
+    good = RunStore.open(out / "run.zarr").read_observed()
+    T = len(good["times"])
+    _replace_array(out, "observed/x", np.zeros((3, 2)))
+    res = CliRunner().invoke(app, ["check", str(out), "--n-eval", "5", "--workers", "1"])
+    assert res.exit_code == 0 and "Traceback" not in res.output, res.output
+    said = [ln for ln in res.output.splitlines() if "rebuilt it from the recording" in ln]
+    assert len(said) == 1 and f"its 'x' array has shape (3, 2), expected ({T}, *, 3)" in said[0], res.output
+    assert np.array_equal(RunStore.open(out / "run.zarr").read_observed()["x"], good["x"])
+    _replace_array(out, "observed/x", np.zeros((3, 2)))
+    messages, cb = _recording_callbacks()  # a resumed fit rebuilds it too, and its next round is drawn
+    again = run_fit(out, load_recording(rec, n_points=cfg.n_points, seed=cfg.seed), _cfg(rounds=2), callbacks=cb,
+                    make_plots=False)
+    assert any("(3, 2)" in m and "rebuilt it from the recording" in m for m in messages), messages
+    assert again.report.rounds == 2
+    assert np.array_equal(RunStore.open(out / "run.zarr").read_observed()["x"], good["x"])

@@ -13,7 +13,7 @@ import numpy as np
 
 from softsbi.core.errors import ObservedDamaged, SchemaError, SoftsbiError, SoftsbiWarning
 from softsbi.core.store import RunStore
-from softsbi.core.store_damage import array_names
+from softsbi.core.store_damage import array_names, damage_fix, observed_faults
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.perception.masks import hsv_mask
 from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, RunRecord, needs_images, resume_identity
@@ -84,7 +84,8 @@ def rebuild_observed(store: RunStore, recording: Recording, cfg: FitConfig) -> d
     """
     new = _observed(cfg, recording, RunRecord.from_run_config(store.config).metric)
     group = store.root["observed"] if "observed" in store.root else None
-    for k in () if group is None else array_names(group):
+    wrong = observed_faults(store.root)  # the arrays of the wrong shape: rebuilt
+    for k in () if group is None else [k for k in array_names(group) if k not in wrong]:
         try:
             old = group[k][...]
         except Exception:  # noqa: BLE001 - the damaged array: rebuilt
@@ -148,7 +149,7 @@ def repair_damaged(store: RunStore, callbacks: FitCallbacks) -> None:
         if name == "observed":  # the recording the fit is given rebuilds it
             continue
         if parts[0] == "rounds" and len(parts) == 2:
-            raise SchemaError(f"'{store.path / name}' cannot be trusted ({why}); fit into a new --out folder")
+            raise SchemaError(f"'{store.path / name}' cannot be trusted ({why}); {damage_fix(store.path, name)}")
         callbacks.message(f"'{store.path / name}' cannot be trusted ({why}); computing it again")
         if parts[0] != "rounds":
             store.remove_group(name)
