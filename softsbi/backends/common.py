@@ -249,8 +249,9 @@ class EffectPlan:
         """Apply the observation transforms, in order, to a successful rollout (``rng`` seeded by ``seed``).
 
         Raises:
-            EffectFault: a transform made finite vertices non-finite (NaN or inf): the rollout fails naming the
-                effect, where the observer or a figure would otherwise fail on the NaN without naming it.
+            EffectFault: a transform returned vertices of another shape than the ``(T, N, 3)`` it was given, or made
+                finite vertices non-finite (NaN or inf): the rollout fails naming the effect, where the observer or
+                a figure would otherwise fail on them without naming it.
         """
         if not self.observers or not rollout.ok:
             return rollout
@@ -259,6 +260,13 @@ class EffectPlan:
             th = e.own(theta)
             seen = rollout
             rollout = e.observe(seen, th, rng)
+            if not isinstance(rollout, Rollout) or np.shape(rollout.vertices) != np.shape(seen.vertices):
+                got = (f"vertices of shape {np.shape(rollout.vertices)}" if isinstance(rollout, Rollout) else
+                       f"a {type(rollout).__name__}, not a Rollout")
+                raise EffectFault(f"effect '{e.name}': observe() returned {got}, expected a Rollout whose vertices "
+                                  f"have the shape it was given, {np.shape(seen.vertices)} (T frames, N vertices, "
+                                  f"xyz), at {_at(th)}; a fault of the effect's code, not of the engine: fix its "
+                                  f"observe()")
             if not np.all(np.isfinite(np.asarray(rollout.vertices, dtype=float))) and \
                     np.all(np.isfinite(np.asarray(seen.vertices, dtype=float))):
                 raise EffectFault(f"effect '{e.name}': observe() returned non-finite vertices (NaN or inf) at "

@@ -71,6 +71,14 @@ class NanSensor(_Seen):
         return dataclasses.replace(rollout, vertices=np.full_like(rollout.vertices, np.nan))
 
 
+class WrongShape(_Seen):
+    """An observation transform that drops a frame and a coordinate."""
+    name = "file-shape"
+
+    def observe(self, rollout, theta, rng):
+        return dataclasses.replace(rollout, vertices=rollout.vertices[1:, :, :2])
+
+
 class Crashes(_Seen):
     """An observation transform that raises."""
     name = "file-crash"
@@ -102,7 +110,7 @@ class Engine(Simulator):
 
 @hookimpl
 def softsbi_effects():
-    return [Healthy, Raises, Duplicate, Inverted, NanSensor, Crashes, Clash]
+    return [Healthy, Raises, Duplicate, Inverted, NanSensor, WrongShape, Crashes, Clash]
 
 
 @hookimpl
@@ -145,8 +153,8 @@ def test_plugins_lists_the_healthy_ones_and_marks_the_broken_one(plugin):
     res = runner.invoke(app, ["plugins"])
     assert res.exit_code == 0, res.output
     rows = {line.split("|")[1].strip(): line for line in res.output.splitlines() if line.startswith("| file-")}
-    assert set(rows) == {"file-ok", "file-raises", "file-dup", "file-inverted", "file-nan", "file-crash", "file-clash",
-                         "file-engine"}  # the last a simulator: its parameters depend on the scenario
+    assert set(rows) == {"file-ok", "file-raises", "file-dup", "file-inverted", "file-nan", "file-shape", "file-crash",
+                         "file-clash", "file-engine"}  # the last a simulator: its parameters depend on the scenario
     assert "BROKEN" not in rows["file-ok"] and "file_ok [0, 1] m" in rows["file-ok"]
     for name, cause in BROKEN.items():
         assert "BROKEN" in rows[name]
@@ -191,6 +199,9 @@ def test_a_backend_failing_to_declare_its_parameters_or_a_clash_of_names_is_one_
 @pytest.mark.parametrize("effect, said", [
     ("file-nan", ("effect 'file-nan': observe() returned non-finite vertices (NaN or inf) at file_nan=0.5; a "
                   "fault of the effect's code")),
+    ("file-shape", ("effect 'file-shape': observe() returned vertices of shape (24, 4, 2), expected a Rollout whose "
+                    "vertices have the shape it was given, (25, 4, 3) (T frames, N vertices, xyz), at file_shape=0.5; "
+                    "a fault of the effect's code")),
     ("file-crash", "(ValueError: belt speed unknown)")])
 def test_an_effect_failing_in_a_simulate_rollout_is_one_line(plugin, tmp_path, effect, said):
     out = tmp_path / "sim"
