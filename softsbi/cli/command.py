@@ -2,8 +2,10 @@
 error) and :func:`json_done` (the ``--json`` epilogue)."""
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
+import os
 import sys
 import warnings
 from typing import Any, Callable
@@ -18,9 +20,21 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the command is, so that it stops as after Ctrl-C: finished work kept, one line."""
 
 
+#: commands running in this process (:func:`guard`): where a SIGTERM stops a command rather than the process
+_running = 0
+
+
 def terminate(signum: int, frame: Any) -> None:
-    """The SIGTERM handler of the ``softsbi`` command: raise :class:`Terminated`."""
-    raise Terminated()
+    """The SIGTERM handler of the ``softsbi`` command: raise :class:`Terminated` inside a command (:func:`guard`);
+    outside one (the options being parsed, or Python shutting down after the command ended: its exit handlers)
+    end the process at once with exit code 143, its output flushed, as SIGTERM's default does, never with a
+    traceback from where the signal landed."""
+    if _running:
+        raise Terminated()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(143)
 
 
 def json_done(o: Output, doc: Any) -> bool:
@@ -68,7 +82,9 @@ def guard(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(fn)
     def wrapper(*a, **kw):
+        global _running
         as_json = bool(kw.get("as_json"))
+        _running += 1
         try:
             with warnings.catch_warnings():
                 warnings.showwarning = functools.partial(_show_warning, warnings.showwarning)
@@ -88,4 +104,6 @@ def guard(fn: Callable[..., Any]) -> Callable[..., Any]:
             if as_json:
                 raise _fail(True, exc, 1) from None
             raise
+        finally:
+            _running -= 1
     return wrapper

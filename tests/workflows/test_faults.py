@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -361,3 +362,36 @@ def test_a_bad_or_unusable_sensor_is_one_line(tmp_path):
     assert res.exit_code == 2 and "sensor='camera'" in res.output and "DiffCloud" in res.output
     assert "sensor='height'" in res.output and "Traceback" not in res.output  # the fix
     assert not out.exists()  # nothing left behind
+
+
+LATE_SIGTERM = r"""
+import atexit, os, signal, sys, time
+from softsbi.cli.app import main
+
+
+def late_sigterm():  # Python's exit handlers run after the command: a SIGTERM that lands while they do
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)
+
+
+atexit.register(late_sigterm)
+sys.argv = ["softsbi"] + sys.argv[1:]
+main()
+"""
+
+
+def test_a_sigterm_after_the_command_ended_is_no_traceback(tmp_path):
+    """One SIGTERM in `softsbi check` printed a `Terminated` traceback: it landed after the command had ended, in
+    Python's exit handlers. Outside a command SIGTERM ends the process at once (exit code 143), what the command
+    printed kept."""
+    out = tmp_path / "run"
+    run_fit(out, toy_measurement(), _cfg(rounds=1), make_plots=False)
+    script = tmp_path / "late_sigterm.py"
+    script.write_text(LATE_SIGTERM)
+    import softsbi
+    code = Path(softsbi.__file__).parents[1]  # the softsbi under test
+    env = dict(os.environ, PYTHONPATH=str(code) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    res = subprocess.run([sys.executable, str(script), "check", str(out), "--n-eval", "5", "--workers", "1"],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 143 and "Traceback" not in res.stderr and "Terminated" not in res.stderr, res.stderr
+    assert "misspecification test" in res.stdout and (out / "check.json").is_file()  # the ended command's output
