@@ -30,6 +30,7 @@ import numpy as np
 from softsbi.workflows.fit.bestfit import read_best_fit
 from softsbi.workflows.fit.jobs import JobResult
 from softsbi.workflows.fit.runs import RunView, load_run
+from softsbi.workflows.lock import check_out_dir
 
 from softsbi.core.errors import DependencyMissing, SoftsbiError
 from softsbi.core.jsonfile import check_result_path
@@ -43,6 +44,24 @@ from softsbi.report.animation import draw_gif, import_rerun, log_rrd
 
 # ----------------------------------------------------------------------------------------
 # simulation shared by both outputs
+
+
+def writable_target(path: Path, run_dir: str | Path) -> Path:
+    """Check, before simulating, that the output file ``path`` can be written: no folder in its place
+    (:func:`~softsbi.core.jsonfile.check_result_path`) and a folder that takes a new file
+    (:func:`~softsbi.workflows.lock.check_out_dir`; a read-only run directory, ``run_dir``, is told to be copied).
+
+    Raises:
+        ResultUnwritable: a folder stands at ``path``. RunDirError: its folder cannot be written (one line with the
+            fix).
+    """
+    path = check_result_path(path)
+    if path.parent.resolve() == Path(run_dir).resolve():
+        check_out_dir(path.parent, "run directory", f"view writes {path.name} into it: copy the run directory to a "
+                                                    f"writable place and view the copy")
+    else:
+        check_out_dir(path.parent, "folder", f"give a writable path for {path.name}")
+    return path
 
 
 def best_fit_rollout(run_dir: str | Path) -> dict[str, Any] | None:
@@ -123,10 +142,11 @@ def write_animation(run_dir: str | Path, path: str | Path | None = None, n_eval:
         The GIF's path.
 
     Raises:
-        ResultUnwritable: a folder stands at the GIF's path (before simulating).
+        ResultUnwritable: a folder stands at the GIF's path; RunDirError: its folder cannot be written (both before
+            simulating).
         SoftsbiError: see :func:`posterior_rollouts`.
     """
-    path = check_result_path(Path(path) if path else Path(run_dir) / "view.gif")
+    path = writable_target(Path(path) if path else Path(run_dir) / "view.gif", run_dir)
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     return draw_gif(view, rollouts, ch, path, fps, best=best_fit_rollout(run_dir))
 
@@ -160,11 +180,12 @@ def write_rerun(run_dir: str | Path, path: str | Path | None = None, n_eval: int
     Raises:
         DependencyMissing: rerun-sdk is not installed (checked before simulating; the message
             names ``pip install "softsbi[view]"``).
-        ResultUnwritable: a folder stands at the recording's path (before simulating).
+        ResultUnwritable: a folder stands at the recording's path; RunDirError: its folder cannot be written (both
+            before simulating).
         SoftsbiError: see :func:`posterior_rollouts`.
     """
     rr = import_rerun()
-    path = check_result_path(Path(path) if path else Path(run_dir) / "view.rrd")
+    path = writable_target(Path(path) if path else Path(run_dir) / "view.rrd", run_dir)
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     return log_rrd(rr, view, rollouts, ch, path, best=best_fit_rollout(run_dir))
 
@@ -191,7 +212,8 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
 
     Raises:
         DependencyMissing: ``rrd`` asked for and rerun-sdk not installed (before simulating).
-        ResultUnwritable: a folder stands at ``view.gif`` or ``view.rrd`` (before simulating).
+        ResultUnwritable: a folder stands at ``view.gif`` or ``view.rrd``; RunDirError: the run directory cannot be
+            written, e.g. read-only (both before simulating).
         SoftsbiError: nothing to write (``gif`` False and no rerun recording; before simulating); see
             :func:`posterior_rollouts`.
     """
@@ -210,8 +232,8 @@ def write_view(run_dir: str | Path, n_eval: int = VIEW_N_EVAL, workers: int | No
             f"the rerun recording is not written ({out['rrd_missing']}); drop --no-gif or install the extra"))
     run_dir = Path(run_dir)
     for name, wanted in (("view.gif", gif), ("view.rrd", rr is not None)):
-        if wanted:  # a folder in a file's place: refused before simulating
-            check_result_path(run_dir / name)
+        if wanted:  # a folder in a file's place, a read-only run: refused before simulating
+            writable_target(run_dir / name, run_dir)
     view, rollouts, ch = posterior_rollouts(run_dir, n_eval, workers)
     best = best_fit_rollout(run_dir)
     if gif:

@@ -395,3 +395,47 @@ def test_a_sigterm_after_the_command_ended_is_no_traceback(tmp_path):
                          capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 143 and "Traceback" not in res.stderr and "Terminated" not in res.stderr, res.stderr
     assert "misspecification test" in res.stdout and (out / "check.json").is_file()  # the ended command's output
+
+
+def test_a_folder_named_check_null_json_in_the_task_store_is_refused_before_any_simulation(tmp_path, monkeypatch):
+    import softsbi.workflows.tasks.training as training
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(tmp_path / "bank"))
+    cfg = _cfg(rounds=1, n_points=16, n_dense=64, estimator_options={"max_epochs": 8})
+    (task,) = training.train_task(toy_measurement(), cfg, 40, candidates=[], n_test=0, check_null=0)
+    (task.path / "check-null.json").mkdir()
+
+    def simulated(*a, **k):
+        raise AssertionError("simulated before refusing the folder in check-null.json's place")
+    monkeypatch.setattr(training, "run_jobs", simulated)
+    with pytest.raises(SoftsbiError) as err:
+        training.train_task(toy_measurement(), cfg, 40, candidates=[], n_test=0, check_null=19, retrain=True)
+    line = str(err.value)
+    assert str(task.path / "check-null.json") in line and "\n" not in line
+
+
+def test_a_read_only_simulation_bank_is_refused_before_the_fit(tmpfs, tmp_path):
+    (tmpfs / "bank").mkdir()
+    assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
+    rec = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "--backend", "toy-gauss", "--out", str(rec)]).exit_code == 0
+    res = runner.invoke(app, ["fit", "--observed", str(rec), "--backend", "toy-gauss", "--rounds", "1",
+                              "--sims-per-round", "10", "--workers", "1", "--sim-bank", str(tmpfs / "bank"),
+                              "--out", str(tmp_path / "run")])
+    assert res.exit_code == 2, res.output
+    (line,) = res.output.strip().splitlines()
+    assert f"--sim-bank {tmpfs / 'bank'} cannot be written" in line and "--no-sim-bank" in line
+    assert not (tmp_path / "run").exists()
+
+
+def test_view_of_a_read_only_run_is_refused_before_its_rollouts(tmpfs, monkeypatch):
+    import softsbi.workflows.view as view
+    run_fit(tmpfs / "done", toy_measurement(), _cfg(rounds=1, n_eval=5), make_plots=False)
+    assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
+
+    def no_rollouts(*a, **k):
+        raise AssertionError("simulated posterior rollouts for a run it cannot write to")
+    monkeypatch.setattr(view, "posterior_rollouts", no_rollouts)
+    res = runner.invoke(app, ["view", str(tmpfs / "done"), "--n-eval", "2", "--workers", "1", "--no-rrd"])
+    assert res.exit_code == 2, res.output
+    (line,) = res.output.strip().splitlines()
+    assert f"run directory '{tmpfs / 'done'}' cannot be written" in line and "copy the run directory" in line

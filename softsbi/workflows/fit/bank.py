@@ -25,6 +25,7 @@ import hashlib
 import json
 import os
 import shutil
+import tempfile
 import uuid
 from dataclasses import dataclass
 from importlib.metadata import version
@@ -94,8 +95,9 @@ def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> N
     Raises:
         SoftsbiError: one line naming ``--sim-bank`` or ``$SOFTSBI_SIM_BANK`` and the fix when the setting is
             empty; when the bank and one of ``folders`` lie inside one another; when the bank (given by the flag or
-            the variable; a folder given by the flag is used even under ``$SOFTSBI_SIM_BANK=off``) is a file or
-            cannot be created. The default folder is only checked against ``folders``:
+            the variable; a folder given by the flag is used even under ``$SOFTSBI_SIM_BANK=off``) is a file,
+            cannot be created or cannot be written (read-only, no permission). The default folder is only checked
+            against ``folders``:
             a cache that cannot be written only stores nothing.
     """
     if not str(setting).strip():
@@ -130,6 +132,12 @@ def check_bank_path(setting: str, folders: Mapping[str, str | Path | None]) -> N
     except OSError as exc:
         raise SoftsbiError(f"{name} {path} cannot be created ({exc.strerror or exc}): give a folder you can write, "
                            f"or {off}") from exc
+    try:  # a read-only bank would store nothing, said only after the work
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise SoftsbiError(f"{name} {path} cannot be written ({exc.strerror or exc}): give a folder you can write, "
+                           f"or {off}") from None
 
 
 @functools.lru_cache(maxsize=None)

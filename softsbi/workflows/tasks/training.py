@@ -27,6 +27,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError, storage_error
 from softsbi.core.fitreport import TrainingReport
+from softsbi.core.jsonfile import check_result_path
 from softsbi.core.posterior_store import EstimatorState
 from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import TEST_STREAM
@@ -37,7 +38,7 @@ from softsbi.workflows import pools
 from softsbi.workflows.fit.bank import HIT
 from softsbi.workflows.reporting import duration_words
 from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
-from softsbi.workflows.criticism.check_null import check_replicates, stored_check_null, train_check_null
+from softsbi.workflows.criticism.check_null import NULL_FILE, check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, run_jobs
 from softsbi.workflows.criticism.screening import is_generic
@@ -308,7 +309,8 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     ``diagnose``'s detection, a candidate's the adequacy check of its refit, which then has the detection's power.
 
     Raises:
-        SoftsbiError: ``n_test`` between 1 and ``defaults.MIN_TEST - 1``.
+        SoftsbiError: ``n_test`` between 1 and ``defaults.MIN_TEST - 1``. ResultUnwritable: a model's
+            ``check-null.json`` cannot be written (a folder in its place; before any simulation).
         everything :func:`train_model`, :func:`candidate_models` and
         :func:`~softsbi.workflows.criticism.check_null.check_replicates` raise."""
     check_replicates(check_null)
@@ -316,6 +318,9 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
         raise SoftsbiError(f"--n-test must be 0 (no training report) or >= {defaults.MIN_TEST} (got {n_test}): fewer "
                            f"held-out simulations cannot judge the calibration")
     models = candidate_models(cfg, candidates)
+    for effects in models if check_null else ():  # a folder in a replicates file's place: refused before any work
+        prior = _prepared(recording, replace(cfg, effects=effects))[3]
+        check_result_path(prior.store.path / prior.digest / NULL_FILE)
     say = message or (lambda s: None)
     say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers))
     each = [n_prior + n_test + check_null * (defaults.N_NULL + 1)] * len(models)
