@@ -32,6 +32,7 @@ import importlib.util
 import inspect
 import os
 import sys
+import traceback
 from pathlib import Path
 import warnings
 from collections.abc import Mapping, Sequence
@@ -40,7 +41,7 @@ from typing import Any
 
 import pluggy
 
-from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, SoftsbiError, closest
+from softsbi.core.errors import ParameterError, PluginError, PluginNotFound, SoftsbiError, SoftsbiWarning, closest
 from softsbi.core.interfaces import Effect, Executor, KeypointExtractor, Observer, PosteriorEstimator, Simulator
 from softsbi.core.types import ParamSpace
 from softsbi.plugins import hookspecs
@@ -71,9 +72,12 @@ def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
             except PluginError:
                 raise
             except Exception as exc:  # noqa: BLE001 - any import failure of a plugin
-                LOAD_ERRORS[ep.name] = f"{type(exc).__name__}: {exc}"
-                warnings.warn(f"softsbi plugin '{ep.name}' ({ep.value}) failed to load and is skipped: {exc}",
-                              stacklevel=2)
+                LOAD_ERRORS[ep.name] = f"{type(exc).__name__}: {exc}{_where(exc)}"
+                dist = getattr(ep, "dist", None)
+                by = f"the package {dist.name}" if dist is not None else "its package"
+                warnings.warn(SoftsbiWarning(
+                    f"softsbi plugin '{ep.name}' ({ep.value}) failed to load and is skipped: {LOAD_ERRORS[ep.name]}; "
+                    f"{_import_fix(exc, f'reinstall or fix {by}', 'uninstall it')}"), stacklevel=2)
                 continue
             if pm.is_registered(plugin):  # two entry points naming the same module: load it once
                 continue
@@ -83,7 +87,7 @@ def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
                 pm.register(plugin, name=ep.name)
             except pluggy.PluginValidationError as exc:
                 raise PluginError(f"softsbi plugin '{ep.name}' ({ep.value}, {_DIST[id(plugin)]}) is malformed: "
-                                  f"{exc}") from None
+                                  f"{_one_line(exc)}; {_HOOK_FIX}") from None
         _load_env_plugins(pm)
     return pm
 
@@ -92,12 +96,49 @@ def get_plugin_manager(autoload: bool = True) -> pluggy.PluginManager:
 PLUGINS_ENV = "SOFTSBI_PLUGINS"
 
 
+#: the fix of a hook implementation pluggy refuses
+_HOOK_FIX = "declare each hook without arguments, as softsbi.plugins.hookspecs does"
+
+
+def _one_line(exc: BaseException) -> str:
+    """``str(exc)`` on one line (pluggy's messages span several)."""
+    return " ".join(str(exc).split())
+
+
+def _where(exc: BaseException, files: Sequence[str] = ()) -> str:
+    """``" (line N of FILE)"``: where a plugin's code raised ``exc``: the innermost frame in one of ``files`` (a
+    plugin module's), else outside softsbi and Python's import machinery; the line of a SyntaxError; ``""`` when
+    unknown."""
+    if isinstance(exc, SyntaxError) and exc.filename:
+        return f" (line {exc.lineno} of {exc.filename})"
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = str(Path(__file__).resolve().parents[1])
+    mine = [f for f in frames if f.filename in files] or \
+        [f for f in frames if not f.filename.startswith(ours) and not f.filename.startswith("<frozen")]
+    return f" (line {mine[-1].lineno} of {mine[-1].filename})" if mine else ""
+
+
+def _import_fix(exc: BaseException, repair: str, drop: str) -> str:
+    """What fixes a plugin whose import raised ``exc``: the missing package it imports installed, else ``repair``;
+    or ``drop`` it."""
+    if isinstance(exc, ModuleNotFoundError) and exc.name:
+        return f"install the package that provides '{exc.name}' (the plugin imports it), or {drop}"
+    return f"{repair}, or {drop}"
+
+
+class _NotFound(Exception):
+    """A :data:`PLUGINS_ENV` entry that names no file or module (not a fault of a plugin's code)."""
+
+
 def _import_plugin(item: str) -> Any:
-    """The module named by one entry of :data:`PLUGINS_ENV`: a ``.py`` file (path) or an importable module."""
+    """The module named by one entry of :data:`PLUGINS_ENV`: a ``.py`` file (path) or an importable module.
+
+    Raises:
+        _NotFound: no such file or module. Anything the module's code raises when it runs."""
     if item.endswith(".py") or os.sep in item:
         path = Path(item).expanduser().resolve()
         if not path.is_file():
-            raise FileNotFoundError(f"no such file {str(path)!r}")
+            raise _NotFound(f"FileNotFoundError: no such file {str(path)!r}")
         name = f"softsbi_file_plugin_{path.stem}"
         module = sys.modules.get(name)
         if module is not None and getattr(module, "__file__", None) == str(path):
@@ -111,7 +152,12 @@ def _import_plugin(item: str) -> Any:
             del sys.modules[name]
             raise
         return module
-    return importlib.import_module(item)
+    try:
+        return importlib.import_module(item)
+    except ModuleNotFoundError as exc:
+        if exc.name and (item == exc.name or item.startswith(exc.name + ".")):  # the entry itself, not an import in it
+            raise _NotFound(f"ModuleNotFoundError: {exc}") from None
+        raise
 
 
 def _load_env_plugins(pm: pluggy.PluginManager) -> None:
@@ -125,16 +171,23 @@ def _load_env_plugins(pm: pluggy.PluginManager) -> None:
             continue
         try:
             plugin = _import_plugin(item)
-        except Exception as exc:  # noqa: BLE001 - any failure of a plugin the user named
-            raise PluginError(f"{PLUGINS_ENV}: cannot load '{item}' ({type(exc).__name__}: {exc}); give an importable "
-                              f"module name or the path of a .py file, separated by '{os.pathsep}'") from None
+        except _NotFound as exc:
+            raise PluginError(f"{PLUGINS_ENV}: cannot load '{item}' ({exc}); give an importable module name or the "
+                              f"path of a .py file, separated by '{os.pathsep}'") from None
+        except Exception as exc:  # noqa: BLE001 - any failure of the code of a plugin the user named
+            file = str(Path(item).expanduser().resolve()) if item.endswith(".py") or os.sep in item else ""
+            text = exc.msg if isinstance(exc, SyntaxError) else _one_line(exc)  # its line follows
+            raise PluginError(f"{PLUGINS_ENV}: plugin '{item}' failed while loading: {type(exc).__name__}: "
+                              f"{text}{_where(exc, [file])}; "
+                              f"{_import_fix(exc, 'fix its code', f'remove it from {PLUGINS_ENV}')}") from None
         if pm.is_registered(plugin):
             continue
         _DIST[id(plugin)] = f"{PLUGINS_ENV} ({item})"
         try:
             pm.register(plugin, name=f"{PLUGINS_ENV}:{item}")
         except pluggy.PluginValidationError as exc:
-            raise PluginError(f"softsbi plugin '{item}' ({PLUGINS_ENV}) is malformed: {exc}") from None
+            raise PluginError(f"softsbi plugin '{item}' ({PLUGINS_ENV}) is malformed: {_one_line(exc)}; "
+                              f"{_HOOK_FIX}") from None
 
 
 #: ``{id(plugin object): "distribution version"}`` of the entry points loaded by :func:`get_plugin_manager`
@@ -220,7 +273,13 @@ class Registry:
         """Build each effect's parameter space once; move the effects whose code fails to :attr:`broken`."""
         for name, cls in list(self.tables["effect"].items()):
             try:
-                space = cls().param_space()
+                eff = cls()
+            except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code (an abstract method left out)
+                self.broken[("effect", name)] = self.fault("effect", name, f"making it ({cls.__qualname__}()) raised "
+                                                                           f"{type(exc).__name__}: {exc}{_where(exc)}")
+                continue
+            try:
+                space = eff.param_space()
             except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
                 self.broken[("effect", name)] = self.fault("effect", name, f"its param_space() raised "
                                                                            f"{type(exc).__name__}: {exc}")
@@ -241,7 +300,12 @@ class Registry:
         path = getattr(sys.modules.get(cls.__module__), "__file__", None)
         where = f"class {cls.__module__}.{cls.__qualname__}" + (f" in {path}" if path else "")
         return (f"{kind} '{name}' ({where}, from {self._dist(plugin)}) is broken: {what}; fix the plugin's code or "
-                f"uninstall it")
+                f"{self._drop(plugin)}")
+
+    def _drop(self, plugin: Any) -> str:
+        """How to do without ``plugin``: take it out of :data:`PLUGINS_ENV`, or uninstall its package."""
+        return f"remove it from {PLUGINS_ENV}" if self.pm.get_name(plugin).startswith(f"{PLUGINS_ENV}:") else \
+            "uninstall it"
 
     def param_space(self, sim: Simulator, scenario: Any, effects: Sequence[str] = ()) -> ParamSpace:
         """The parameters of a rollout of ``scenario``: ``sim.param_space(scenario)`` then each effect's, in order.
@@ -275,6 +339,29 @@ class Registry:
             space = space + own
         return space
 
+    def create(self, kind: str, name: str, options: Mapping[str, Any], what: str) -> Any:
+        """An instance of the ``kind`` plugin ``name`` made with ``options``; ``what`` names it and its option flag in
+        the messages (``"simulator 'mujoco-flex' (--backend-opt)"``).
+
+        Raises:
+            PluginNotFound, PluginError: as :meth:`get`. SoftsbiError: the plugin's own refusal, as it is.
+            ParameterError: its constructor refused the options given (ValueError, TypeError). PluginError: its
+                constructor failed otherwise, or without options (names the plugin, its class and file).
+        """
+        cls = self._lookup(kind, name, stacklevel=3)
+        try:
+            return cls(**dict(options))
+        except SoftsbiError:
+            raise
+        except (ValueError, TypeError) as exc:
+            if options:
+                raise ParameterError(f"{what} refused the options {dict(options)}: {exc}; change them") from None
+            raise PluginError(self.fault(kind, name, f"making it raised {type(exc).__name__}: {exc}{_where(exc)}")) \
+                from None
+        except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
+            raise PluginError(self.fault(kind, name, f"making it raised {type(exc).__name__}: {exc}{_where(exc)}")) \
+                from None
+
     # -- construction helpers -------------------------------------------------------------------
     def _dist(self, plugin: Any) -> str:
         name = self.pm.get_name(plugin)
@@ -285,7 +372,12 @@ class Registry:
     def _who(self, plugin: Any) -> str:
         """``softsbi plugin 'effects' (softsbi.effects.builtin, softsbi 0.1.0)``."""
         module = getattr(plugin, "__name__", None) or f"{type(plugin).__module__}.{type(plugin).__qualname__}"
-        return f"softsbi plugin '{self.pm.get_name(plugin)}' ({module}, {self._dist(plugin)})"
+        name = self.pm.get_name(plugin)
+        if name.startswith(f"{PLUGINS_ENV}:"):  # one of SOFTSBI_PLUGINS: the entry, and the file it was read from
+            item, file = name[len(PLUGINS_ENV) + 1:], getattr(plugin, "__file__", None)
+            same = file is None or Path(item).expanduser().resolve() == Path(file).resolve()
+            return f"softsbi plugin '{item}' ({PLUGINS_ENV}" + (")" if same else f", {file})")
+        return f"softsbi plugin '{name}' ({module}, {self._dist(plugin)})"
 
     def _check_hook_names(self) -> None:
         """Hook implementations without a spec are misspelled hooks: one PluginError naming them all."""
@@ -305,24 +397,31 @@ class Registry:
         try:  # whatever else pluggy finds unverified
             self.pm.check_pending()
         except pluggy.PluginValidationError as exc:
-            raise PluginError(f"{self._who(exc.plugin)}: {exc}") from None
+            raise PluginError(f"{self._who(exc.plugin)}: {_one_line(exc)}; {_HOOK_FIX}") from None
 
     def _classes(self, kind: str, hook: str, impl: Any) -> list[type]:
         """The classes one hook implementation returns, checked against the kind's ABC."""
         base = BASES[kind]
         expected = f"{base.__module__}.{base.__qualname__}"
         where = f"{self._who(impl.plugin)}: hook {hook}"
-        result = impl.function()
-        if result is None:
-            return []
-        if isinstance(result, (str, bytes, Mapping, type)) or not hasattr(result, "__iter__"):
-            raise PluginError(f"{where} returned {result!r}; it must return a list of classes derived from "
-                              f"{expected}")
+        try:
+            result = impl.function()
+            if result is None:
+                return []
+            if isinstance(result, (str, bytes, Mapping, type)) or not hasattr(result, "__iter__"):
+                raise PluginError(f"{where} returned {result!r}; it must return a list of classes derived from "
+                                  f"{expected}")
+            result = list(result)
+        except PluginError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any fault of a plugin's code
+            raise PluginError(f"{where} raised {type(exc).__name__}: {exc}{_where(exc)}; fix the plugin's code or "
+                              f"{self._drop(impl.plugin)}") from None
         out = []
         for obj in result:
             if not isinstance(obj, type):
                 hint = " (an instance: return the class itself)" if isinstance(obj, base) else ""
-                raise PluginError(f"{where} returned {obj!r}{hint}, which is not a class; a {kind} plugin "
+                raise PluginError(f"{where} returned {obj!r}{hint}, which is not a class; {_a(kind)} {kind} plugin "
                                   f"is a class derived from {expected}")
             if not issubclass(obj, base):
                 raise PluginError(f"{where} returned class {obj.__module__}.{obj.__qualname__}, which does not "
@@ -448,6 +547,11 @@ def _aliases_of(cls: type, who: str, hook: str) -> list[str]:
         if a != cls.name and a not in out:
             out.append(a)
     return out
+
+
+def _a(word: str) -> str:
+    """The indefinite article of ``word``."""
+    return "an" if word[:1] in "aeiou" else "a"
 
 
 def _as_alias(cls: type, is_alias: bool) -> str:

@@ -98,7 +98,9 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
         "rollout"}`` plus ``preview`` and, when rendered, ``frames_dir``.
 
     Raises:
-        SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect; PluginError: a broken effect;
+        SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect; PluginError: a broken effect, or a
+        simulator that cannot be made (:meth:`~softsbi.plugins.manager.Registry.create`; ParameterError: its options
+        refused);
         ParameterError: a scenario the backend cannot run (its ``scenarios``/``features``);
         SimulationFailed: the simulation raised (a plugin's fault such as an effect's non-finite force or
             observation, named); EnvironmentFault: the machine cannot simulate;
@@ -116,8 +118,9 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
     except ValueError as exc:
         raise SoftsbiError(str(exc)) from None
     reg = registry()
-    check_options(reg.simulator(backend), dict(backend_options or {}), f"simulator '{backend}' (--backend-opt)")
-    sim = reg.simulator(backend)(**dict(backend_options or {}))
+    what = f"simulator '{backend}' (--backend-opt)"
+    check_options(reg.simulator(backend), dict(backend_options or {}), what)
+    sim = reg.create("simulator", backend, dict(backend_options or {}), what)
     space = rollout_space(sim, sc, effects)
     values = default_values(space, sc)
     values.update(dict(theta or {}))

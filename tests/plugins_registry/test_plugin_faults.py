@@ -181,10 +181,12 @@ def test_params_and_simulate_refuse_a_broken_effect_in_one_line(plugin, tmp_path
 @pytest.mark.parametrize("backend, effect, said", [
     ("file-engine", "file-ok", ("error: simulator 'file-engine' (class softsbi_file_plugin_conveyor_effects.Engine "
                                 "in {plugin}, from SOFTSBI_PLUGINS ({plugin})) is broken: its param_space(scenario "
-                                "'lift') raised KeyError: 'stiffness'; fix the plugin's code or uninstall it")),
+                                "'lift') raised KeyError: 'stiffness'; fix the plugin's code or remove it from "
+                                "SOFTSBI_PLUGINS")),
     ("toy-gauss", "file-clash", ("error: effect 'file-clash' (class softsbi_file_plugin_conveyor_effects.Clash in "
                                  "{plugin}, from SOFTSBI_PLUGINS ({plugin})) is broken: its parameter 'a' is also one "
-                                 "of simulator 'toy-gauss''s; rename it; fix the plugin's code or uninstall it"))])
+                                 "of simulator 'toy-gauss''s; rename it; fix the plugin's code or remove it from "
+                                 "SOFTSBI_PLUGINS"))])
 def test_a_backend_failing_to_declare_its_parameters_or_a_clash_of_names_is_one_line(plugin, tmp_path, backend,
                                                                                       effect, said):
     for command in (["params", "lift", "--backend", backend, "--effect", effect],

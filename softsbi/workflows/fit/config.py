@@ -171,8 +171,9 @@ class FitConfig:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
         plugin option that its plugin does not have or that is text where a number is expected
         (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin), or an
-        estimator or a backend that cannot be constructed or lacks an optional dependency (``DependencyMissing``,
-        :meth:`~softsbi.core.interfaces.Simulator.check_installed`)."""
+        estimator or a backend that cannot be constructed (``ParameterError``: its options refused; ``PluginError``:
+        its code failed, :meth:`~softsbi.plugins.manager.Registry.create`) or lacks an optional dependency
+        (``DependencyMissing``, :meth:`~softsbi.core.interfaces.Simulator.check_installed`)."""
         if self.proposal not in PROPOSALS:
             raise SoftsbiError(f"--proposal must be one of {list(PROPOSALS)} (got {self.proposal!r})")
         if self.sensor not in ("height", "camera"):
@@ -214,8 +215,10 @@ class FitConfig:
         if self.widen:
             check_widen(self.proposal, bool(getattr(reg.estimator(self.estimator), "sequential", True)),
                         self.sensor_draws)
-        reg.estimator(self.estimator)(**self.estimator_options)  # e.g. a missing optional dependency, named now
-        reg.simulator(self.backend)(**self.backend_options).check_installed()  # before the run directory is made
+        # e.g. a missing optional dependency, named now, before the run directory is made
+        reg.create("estimator", self.estimator, self.estimator_options, f"estimator '{self.estimator}' (--estimator-opt)")
+        reg.create("simulator", self.backend, self.backend_options, f"simulator '{self.backend}' (--backend-opt)"
+                   ).check_installed()
 
     def to_json(self) -> dict[str, Any]:
         """Every setting as a JSON-able dict (bounds as ``[low, high]`` lists)."""
