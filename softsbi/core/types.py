@@ -470,6 +470,9 @@ INFO_MIN_VISIBLE_Z = "min_visible_z"
 #: metrics do not see the points within it of the gripper or of the vertical line above it, frame by frame
 #: (:func:`softsbi.perception.clouds.arm_hidden`)
 INFO_ARM_MASK_RADIUS = "arm_mask_radius"
+#: ``Rollout.info`` key: the engine's warnings during the rollout, their texts joined by ``"; "`` (a backend keeps them
+#: instead of printing them; the commands tell them once per batch, :class:`softsbi.workflows.reporting.SimulationIssues`)
+INFO_ENGINE_WARNINGS = "engine_warnings"
 
 
 @dataclass

@@ -14,7 +14,8 @@ import contextlib
 import sys
 import time
 from contextvars import ContextVar
-from typing import Any, Callable, Iterator, TextIO
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Mapping, Sequence, TextIO
 
 #: the reporter of the current command (None: silent)
 _CURRENT: ContextVar["Reporter | None"] = ContextVar("softsbi_progress", default=None)
@@ -71,6 +72,47 @@ class FitCallbacks:
 
     def message(self, text: str) -> None:
         """A notice for the user (resuming, retries)."""
+
+
+@dataclass
+class SimulationIssues:
+    """The simulations of one batch that failed or that the engine warned about (a backend keeps its engine's warnings
+    instead of printing them between the progress lines): counted, and the first :attr:`keep` named with their
+    parameters, in one line at the batch's end (:meth:`line`).
+
+    Attributes:
+        names: the parameters' names, in the order of a parameter vector given to :meth:`add`.
+    """
+
+    names: Sequence[str]
+    keep: int = 3
+    total: int = 0
+    failed: int = 0
+    warned: int = 0
+    examples: list[str] = field(default_factory=list)
+
+    def add(self, theta: Sequence[float] | Mapping[str, float], ok: bool, reason: str = "", warning: str = "") -> None:
+        """Count one simulation at ``theta`` (physical units): ``ok`` or failed for ``reason``; ``warning``: its
+        engine's warnings (``""``: none)."""
+        self.total += 1
+        if ok and not warning:
+            return
+        self.failed += not ok
+        self.warned += ok
+        if len(self.examples) < self.keep:
+            values = theta.items() if isinstance(theta, Mapping) else zip(self.names, theta)
+            at = ", ".join(f"{k}={float(v):.4g}" for k, v in values)
+            self.examples.append(f"{at} ({'failed: ' + reason if not ok else 'warned: ' + warning})")
+
+    def line(self, label: str) -> str | None:
+        """``"<label>: 2 of 40 simulations failed, 3 ran with engine warnings; the first at a=0.1, b=2 (failed:
+        ...); ..."``, or None when every simulation ran clean."""
+        if not (self.failed or self.warned):
+            return None
+        what = [f"{self.failed} failed"] * bool(self.failed) + [f"{self.warned} ran with engine warnings"] * bool(
+            self.warned)
+        first = "the first" if len(self.examples) == 1 else f"the first {len(self.examples)}"
+        return f"{label}: of {self.total} simulations, {', '.join(what)}; {first} at {'; '.join(self.examples)}"
 
 
 def say(text: str, stream: TextIO | None = None) -> None:

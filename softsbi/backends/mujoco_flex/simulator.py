@@ -9,15 +9,20 @@ Divergence: MuJoCo resets the state silently when accelerations blow up; we chec
 and an over-stretched grasped edge, and return ``STATUS_DIVERGED`` / ``STATUS_IMPLAUSIBLE`` with
 a reason instead of raising.
 
+MuJoCo's own warnings (printed on the terminal and appended to ``MUJOCO_LOG.TXT`` in the working folder by default)
+are kept instead (:func:`kept_warnings`): the rollout's ``info[INFO_ENGINE_WARNINGS]`` holds their text, which the
+commands count and tell once per batch (:class:`~softsbi.workflows.reporting.SimulationIssues`).
+
 Rendering: :meth:`~softsbi.core.interfaces.Simulator.simulate_images` (the base class template)
 runs :meth:`MujocoFlex._rollout` with :class:`~.render.MjFrameRenderer`. Simulation loads no
 OpenGL (:mod:`.gl`).
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import time
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -30,7 +35,21 @@ from softsbi.backends.mujoco_flex.model import (apply_anisotropy, build_rope_spe
 from softsbi.backends.mujoco_flex.render import MjFrameRenderer, MjState
 from softsbi.core.interfaces import FORCE, MODEL_EDIT, OBSERVATION, Simulator, VertexContext
 from softsbi.core.errors import ParameterError
-from softsbi.core.types import STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace, Rollout, Scenario
+from softsbi.core.types import (INFO_ENGINE_WARNINGS, STATUS_DIVERGED, STATUS_IMPLAUSIBLE, STATUS_OK, Param, ParamSpace,
+                                Rollout, Scenario)
+
+
+@contextlib.contextmanager
+def kept_warnings(mujoco: Any) -> Iterator[list[str]]:
+    """Inside the block, MuJoCo's warnings are appended to the yielded list instead of being printed (and written to
+    ``MUJOCO_LOG.TXT``); the previous handler is restored after it."""
+    said: list[str] = []
+    before = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(said.append)
+    try:
+        yield said
+    finally:
+        mujoco.set_mju_user_warning(before)
 
 
 class MujocoFlex(Simulator):
@@ -192,6 +211,15 @@ class MujocoFlex(Simulator):
         spec = self.build_spec(scenario, theta, effects, plan=plan)
         if frames is not None:
             frames.edit(spec)
+        with kept_warnings(mujoco) as said:
+            ro = self._step(mujoco, spec, scenario, theta, list(effects), plan, frames, t0)
+        ro.info[INFO_ENGINE_WARNINGS] = "; ".join(dict.fromkeys(said))
+        return plan.observe(ro, theta, seed)
+
+    def _step(self, mujoco: Any, spec: dict[str, Any], scenario: Scenario, theta: Mapping[str, float],
+              effects: list[str], plan: EffectPlan, frames: MjFrameRenderer | None, t0: float) -> Rollout:
+        """:meth:`_rollout`'s model compiled from ``spec`` and stepped through the scenario (before the
+        observation transforms); ``t0``: when the rollout began (``perf_counter``)."""
         m = mujoco.MjModel.from_xml_string(spec_to_xml(spec))
         d = mujoco.MjData(m)
         mujoco.mj_forward(m, d)
@@ -266,9 +294,8 @@ class MujocoFlex(Simulator):
                 "handle_vertices": list(spec["handle_vertices"])}
         if not rope and not mesh:
             info["corners"] = grid_corners(self.grid)
-        ro = Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
-                     status=status, reason=reason, info=info)
-        return plan.observe(ro, theta, seed)
+        return Rollout(times=times.copy(), gripper=grip, vertices=verts, faces=faces,
+                       status=status, reason=reason, info=info)
 
     @staticmethod
     def _force_applier(m: Any, d: Any, plan: EffectPlan, theta: Mapping[str, float], scenario: Scenario,

@@ -20,7 +20,8 @@ import numpy as np
 from softsbi.backends.common import check_effects
 from softsbi.core.errors import EnvironmentFault, SoftsbiError
 from softsbi.core.interfaces import OBSERVATION
-from softsbi.core.types import INFO_ARM_MASK_RADIUS, INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK, Scenario
+from softsbi.core.types import (INFO_ARM_MASK_RADIUS, INFO_ENGINE_WARNINGS, INFO_MIN_VISIBLE_Z, STATUS_ERROR, STATUS_OK,
+                                Scenario)
 from softsbi.core.seeds import eval_stream
 from softsbi.perception.depth_sensor import camera_chamfer_per_frame, sensor_from_json
 from softsbi.perception.masks import hsv_mask, mask_chamfer_per_frame
@@ -29,7 +30,7 @@ from softsbi.perception.pointcloud import (combined_min_z, effect_views, rollout
 from softsbi.plugins import registry
 from softsbi.workflows.fit.bank import MISS, UNSTORED, BankCount, SimulationBank, rollout_key
 from softsbi.workflows import pools
-from softsbi.workflows.reporting import notify, phase
+from softsbi.workflows.reporting import SimulationIssues, notify, phase
 
 
 @dataclass
@@ -119,6 +120,8 @@ class JobResult:
             results with samples (:meth:`~softsbi.workflows.fit.runs.RunView.posterior_rollouts`); None otherwise.
         features: ``(F,)`` the rollout's summaries (``SimContext.summarise`` with the item's ``summary_seed``),
             None without them.
+        warning: the engine's warnings during the rollout (:data:`~softsbi.core.types.INFO_ENGINE_WARNINGS`), ``""``
+            when none.
     """
 
     status: int
@@ -137,6 +140,7 @@ class JobResult:
     seed: int | None = None
     sample: int | None = None
     features: np.ndarray | None = None
+    warning: str = ""
 
     @property
     def ok(self) -> bool:
@@ -337,9 +341,10 @@ def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) ->
     except Exception as exc:  # noqa: BLE001 - an engine error is a failed simulation
         return JobResult(status=STATUS_ERROR, reason=failure_reason(exc, ctx.backend),
                          seconds=time.perf_counter() - t0, bank=banked, seed=seed)
+    warning = str(ro.info.get(INFO_ENGINE_WARNINGS, ""))
     if not ro.ok:
         return JobResult(status=int(ro.status), reason=ro.reason, seconds=time.perf_counter() - t0, bank=banked,
-                         seed=seed)
+                         seed=seed, warning=warning)
     rng = np.random.default_rng([seed, 17])
     effect_z = rollout_min_z(ro)  # a sensor effect's visibility threshold (table-unseen), else None
     # a camera fit: the virtual depth sensor makes the simulated clouds of the metric (FitConfig.sensor) and
@@ -373,7 +378,7 @@ def simulate_job(ctx: SimContext, item: JobItem, batch: _Batch | None = None) ->
     rollout = {"vertices": ro.vertices, "faces": ro.faces, "gripper": ro.gripper, "min_visible_z": effect_z,
                "arm_mask_radius": rollout_arm_radius(ro)}
     res = JobResult(status=STATUS_OK, reason="", x=x, chamfer=ch, chamfer_one_sided=ch1, seconds=seconds,
-                    bank=banked, sensor_x=sensor_x, seed=seed, **rollout)
+                    bank=banked, sensor_x=sensor_x, seed=seed, warning=warning, **rollout)
     if ctx.summarise is not None and item.summary_seed is not None:  # in the worker: the main process only reads
         res = replace(res, features=np.asarray(ctx.summarise(res, int(item.summary_seed)), float))
     return res if ctx.keep_rollout else replace(res, vertices=None, faces=None, gripper=None, min_visible_z=None,
@@ -463,10 +468,12 @@ def run_jobs(ctx: SimContext, items: Sequence[JobItem], workers: int | None = No
     A worker's :class:`SoftsbiError` (e.g. an :class:`EnvironmentFault`) is raised, unless it is one of
     ``contained`` (e.g. a :class:`~softsbi.core.errors.ParameterError` of one job's effect, which concerns that job
     only); any other exception, or a crashed worker, becomes a failed result (:func:`failed`: ``STATUS_ERROR`` and
-    its reason).
+    its reason). The failed simulations and those the engine warned about are told once at the end, the first few
+    with their parameters (:class:`~softsbi.workflows.reporting.SimulationIssues`).
     """
     out: list[JobResult | None] = [None] * len(items)
     count = BankCount()
+    issues = SimulationIssues(ctx.param_names)
     with pools.executor(executor, workers, executor_options) as exe, phase(label, len(items)) as advance:
         for done, (i, res) in enumerate(map_simulations(exe, ctx, items), start=1):
             if isinstance(res, BaseException):
@@ -475,7 +482,10 @@ def run_jobs(ctx: SimContext, items: Sequence[JobItem], workers: int | None = No
                 res = failed(res)
             out[i] = res
             count.add(res.bank)
+            issues.add(items[i].theta, res.ok, res.reason, res.warning)
             advance(done, count.hits)
         if count.wrong_key or count.unstored:
             notify(count.warning(ctx.bank))
+        if (line := issues.line(label)) is not None:
+            notify(line)
     return out  # type: ignore[return-value]

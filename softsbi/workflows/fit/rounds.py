@@ -23,7 +23,7 @@ from softsbi.workflows.fit.bank import BankCount, bank_folder
 from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options
 from softsbi.workflows.fit.report_file import ChamferStats, chamfer_stats
 from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, map_simulations
-from softsbi.workflows.reporting import FitCallbacks
+from softsbi.workflows.reporting import FitCallbacks, SimulationIssues
 from softsbi.workflows.fit.resume import RunClock, observed_data
 from softsbi.workflows.fit.task_store import PriorRound
 
@@ -31,15 +31,20 @@ from softsbi.workflows.fit.task_store import PriorRound
 def _simulate_missing(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
                       clock: RunClock | None = None, sensor: "SensorDraws | None" = None) -> None:
     """Simulate round ``r``'s pending simulations and store them; those read from the context's simulation bank
-    are counted in the round (:meth:`RunStore.add_bank_hits`, also when interrupted) and told to ``hooks``."""
+    are counted in the round (:meth:`RunStore.add_bank_hits`, also when interrupted) and told to ``hooks``, as are
+    the failed ones and those the engine warned about, once, the first few with their parameters
+    (:class:`~softsbi.workflows.reporting.SimulationIssues`)."""
     count, n = BankCount(), len(store.pending(r))
+    issues = SimulationIssues(ctx.param_names)
     try:
-        _simulate_pending(store, r, ctx, executor, hooks, count, clock, sensor)
+        _simulate_pending(store, r, ctx, executor, hooks, count, clock, sensor, issues)
     finally:
         if count.hits:
             with contextlib.suppress(OSError):
                 store.add_bank_hits(r, count.hits)
     tell_bank(hooks, r, count, n, ctx.bank)
+    if (line := issues.line(f"round {r + 1}")) is not None:
+        hooks.message(line)
 
 
 def tell_bank(hooks: FitCallbacks, r: int, count: BankCount, n: int, bank: str | None) -> None:
@@ -52,7 +57,8 @@ def tell_bank(hooks: FitCallbacks, r: int, count: BankCount, n: int, bank: str |
 
 
 def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, hooks: FitCallbacks,
-                      count: BankCount, clock: RunClock | None, sensor: "SensorDraws | None") -> None:
+                      count: BankCount, clock: RunClock | None, sensor: "SensorDraws | None",
+                      issues: SimulationIssues) -> None:
     data = store.round_data(r, ROUND_ARRAYS + (("sensor_u",) if sensor is not None else ()))
     extra = "sensor_u" in data
     for attempt in range(2):  # one retry for jobs whose worker crashed
@@ -69,6 +75,7 @@ def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                 raise res
             if isinstance(res, WorkerFailure):  # crashed/hung on every attempt the executor allowed
                 store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                issues.add(data["theta"][i], False, f"{type(res).__name__}: {res}")
                 done += 1
                 hooks.simulation_done(r, done, len(data["status"]))
                 continue
@@ -76,9 +83,11 @@ def _simulate_pending(store: RunStore, r: int, ctx: SimContext, executor: Any, h
                 errors.append(i)
                 if attempt == 1:
                     store.write_simulation(r, i, None, None, STATUS_ERROR, f"{type(res).__name__}: {res}")
+                    issues.add(data["theta"][i], False, f"{type(res).__name__}: {res}")
                 continue
             store.write_simulation(r, i, res.x, res.chamfer, res.status, res.reason, sensor_x=res.sensor_x)
             count.add(res.bank)
+            issues.add(data["theta"][i], res.ok, res.reason, res.warning)
             if clock is not None:
                 clock.save()
             done += 1

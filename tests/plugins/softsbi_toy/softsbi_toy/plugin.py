@@ -99,7 +99,7 @@ class ToyGauss(Simulator):
             space = space + e.param_space()
         vals = space.check({k: v for k, v in theta.items() if k in space.names}, within="limits")
         T = scenario.n_frames
-        # test hooks: slow simulations (to kill a fit mid-round) and a divergence region
+        # test hooks: slow simulations (to kill a fit mid-round), a divergence region, a region the engine warns in
         if os.environ.get("SOFTSBI_TOY_SLEEP"):
             time.sleep(float(os.environ["SOFTSBI_TOY_SLEEP"]))
         # fault-injection hooks (executor tests): crash the worker process once per seed, hang
@@ -129,8 +129,12 @@ class ToyGauss(Simulator):
         sq = np.array([[-HALF, -HALF, 0], [HALF, -HALF, 0], [HALF, HALF, 0], [-HALF, HALF, 0]])
         verts = c[:, None, :] + sq[None]
         faces = np.array([[0, 1, 2], [0, 2, 3]])
+        info = {"centres": c}
+        warn_above = os.environ.get("SOFTSBI_TOY_WARN_ABOVE")  # an engine that warns (INFO_ENGINE_WARNINGS)
+        if warn_above is not None and vals["a"] > float(warn_above):
+            info["engine_warnings"] = f"toy warning: a = {vals['a']:.3f} > {warn_above}"
         ro = Rollout(times=scenario.times.copy(), gripper=scenario.gripper.copy(), vertices=verts, faces=faces,
-                     info={"centres": c})
+                     info=info)
         return plan.observe(ro, vals, seed)
 
 
