@@ -14,13 +14,15 @@ when a phase of simulations begins and one when it ends (:class:`~softsbi.workfl
 """
 from __future__ import annotations
 
+import json
+import warnings
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from pydantic import TypeAdapter, ValidationError
 
-from softsbi.core.errors import ParameterError, SoftsbiError, as_path, closest
+from softsbi.core.errors import ParameterError, SoftsbiError, SoftsbiWarning, as_path, closest
 from softsbi.core.types import Recording, Rollout, Scenario
 from softsbi.data.validation import validation_line
 from softsbi.plugins import check_options, registry
@@ -153,11 +155,35 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
 def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResult:
     """``softsbi check RUN``: the posterior predictive check of a finished fit
     (:func:`~softsbi.workflows.criticism.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
-    ``recompute``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in ``RUN/check.json``).
-    ``progress``: one line on stderr per phase of simulations (module docstring)."""
+    ``effects``, ``recompute``, ``out_dir``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in
+    ``RUN/check.json``, or ``out_dir/check.json``). ``progress``: one line on stderr per phase of simulations (module
+    docstring).
+
+    A run keeps one check: a ``check.json`` computed with other settings (another ``effects`` family, ``n_eval``,
+    ``alpha`` ...) is replaced, and a :class:`~softsbi.core.errors.SoftsbiWarning` says so, naming the settings that
+    changed; ``out_dir`` writes the new check beside the run's and keeps that one.
+    """
     check_settings, rest = split_settings(CheckSettings, settings)
+    path = Path(rest.get("out_dir") or run) / "check.json"
+    before = _stored_key(path)
     with shown_unless_shown(progress):
-        return check_run(run, check_settings, **rest)
+        result = check_run(run, check_settings, **rest)
+    after = _stored_key(path)
+    if before is not None and after is not None and before != after:
+        changed = ", ".join(f"{k} {before.get(k)!r} -> {after.get(k)!r}" for k in after if before.get(k) != after.get(k))
+        warnings.warn(SoftsbiWarning(f"replaced {path}, which held the check of other settings ({changed}); pass "
+                                     f"out_dir=... to keep both"), stacklevel=2)
+    return result
+
+
+def _stored_key(path: Path) -> dict[str, Any] | None:
+    """The settings a stored ``check.json`` was computed with (its ``key``); None when there is none or it cannot be
+    read."""
+    try:
+        key = json.loads(path.read_text())["key"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return key if isinstance(key, dict) else None
 
 
 def diagnose(run: str | Path | Sequence[str | Path], effects: Sequence[str] | None = None,

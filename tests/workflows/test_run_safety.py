@@ -342,3 +342,21 @@ def test_an_observed_array_of_the_wrong_shape_is_rebuilt_by_check_and_fit(tmp_pa
     assert any("(3, 2)" in m and "rebuilt it from the recording" in m for m in messages), messages
     assert again.report.rounds == 2
     assert np.array_equal(RunStore.open(out / "run.zarr").read_observed()["x"], good["x"])
+
+
+def test_the_api_check_says_when_it_replaces_a_check_of_other_settings(tmp_path, recwarn):
+    """softsbi.check(run, effects=[...]) replaced the run's check.json without a word: it now warns, naming what
+    changed, and out_dir keeps both."""
+    import softsbi
+    from softsbi.core.errors import SoftsbiWarning
+    out = tmp_path / "run"
+    run_fit(out, toy_measurement(), _cfg(rounds=1, n_eval=5), make_plots=False)
+    first = softsbi.check(out, n_eval=5, workers=1, progress=False)
+    softsbi.check(out, n_eval=5, workers=1, progress=False)  # the same settings: reused, nothing said
+    assert [w for w in recwarn if issubclass(w.category, SoftsbiWarning)] == []
+    with pytest.warns(SoftsbiWarning) as said:
+        softsbi.check(out, n_eval=5, workers=1, progress=False, effects=[])
+    (line,) = [str(w.message) for w in said if issubclass(w.category, SoftsbiWarning)]
+    assert line == (f"replaced {out / 'check.json'}, which held the check of other settings (family "
+                    f"{sorted(first.test.family)!r} -> []); pass out_dir=... to keep both")
+    assert first.test.family  # the default family: the run's own check.json was replaced by one without it
