@@ -62,10 +62,14 @@ class MCPValue:
 class JointTest:
     """``check``'s misspecification test: is the measurement inside the posterior predictive distribution?
 
-    Two Monte-Carlo tests on one null of posterior-predictive rollouts, Bonferroni-combined: the *omnibus*
-    test (mean squared standardised deviation of the summary statistics, a departure in any direction) and
-    the *directional* test (the largest Westfall-Young max-T statistic over the candidate family: a departure
-    along an effect's sensitivity). ``p = min(1, k min(p_omnibus, p_directional))`` with ``k`` tests.
+    Two Monte-Carlo tests on one null: the *omnibus* test (mean squared standardised deviation of the summary
+    statistics, a departure in any direction) and the *directional* test (the largest Westfall-Young max-T statistic
+    over the candidate family: a departure along an effect's sensitivity), combined by the null's own distribution
+    of the smaller of their p-values (:attr:`combined`, Westfall & Young's min-P:
+    :func:`~softsbi.workflows.criticism.statistics.min_p_combined`). The null is the run's posterior-predictive
+    rollouts, or for a fit of a trained task the task's replicate recordings, each refitted and checked the same
+    way (:attr:`calibrated`). Results written before the combination (no :attr:`combined`) keep their Bonferroni
+    p-value ``min(1, k min(p_omnibus, p_directional))``.
 
     Attributes:
         omnibus: the omnibus test's p-value.
@@ -81,6 +85,10 @@ class JointTest:
             else it is the posterior predictive p-value against the run's own rollouts (conservative).
         directional_skipped: why the directional test did not run (no candidate effects, or none could be
             screened, and why); None when it ran. The p-value is then the omnibus test's alone.
+        combined: the two tests' min-P combined p-value against the null (its ``n``: null rollouts, or replicate
+            recordings when :attr:`calibrated`); None with one test.
+        directional_statistic: the directional test's statistic of the measurement (the screening's max-T maximum,
+            dimensionless); None without it.
     """
 
     omnibus: MCPValue
@@ -92,6 +100,8 @@ class JointTest:
     statistic: float = float("nan")
     calibrated: bool = False
     directional_skipped: str | None = None
+    combined: MCPValue | None = None
+    directional_statistic: float | None = None
 
     @property
     def tests(self) -> int:
@@ -100,8 +110,10 @@ class JointTest:
 
     @property
     def n_null(self) -> int:
-        """The larger null of the combined tests (null simulations, or a calibrated omnibus test's replicates):
+        """The null the joint p-value is computed against (the combination's, else the larger of the two tests'):
         it sets the joint p-value's floor :attr:`resolution`."""
+        if self.combined is not None:
+            return self.combined.n
         return max(self.omnibus.n, 0 if self.directional is None else self.directional.n)
 
     @property
@@ -118,13 +130,17 @@ class JointTest:
 
     @property
     def p_value(self) -> float:
-        """The Bonferroni-combined p-value, never below :attr:`resolution`."""
+        """The joint p-value: :attr:`combined`'s, else (one test, or a result written before the combination) the
+        Bonferroni one; never below :attr:`resolution`."""
+        if self.combined is not None:
+            return self.combined.value
         return min(1.0, self.tests * self.best.value)
 
     @property
     def resolution(self) -> float:
-        """The smallest joint p-value the nulls can give: ``k / (n + 1)`` with ``n`` :attr:`n_null`."""
-        return self.tests / (self.n_null + 1)
+        """The smallest joint p-value the null can give: ``1 / (n + 1)`` of the combination, ``k / (n + 1)``
+        with Bonferroni (``n``: :attr:`n_null`)."""
+        return (1 if self.combined is not None else self.tests) / (self.n_null + 1)
 
     @property
     def misspecified(self) -> bool:

@@ -18,11 +18,11 @@ from softsbi.report.style import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE
 def short_p(test: JointTest) -> str:
     """A joint test's Monte-Carlo p-value with its resolution, short: ``p ≤ 2/201`` or ``p = 0.4 (30 sims)``, or for a
     calibrated omnibus test deciding ``p = 0.4 (100 replicates)``."""
-    n = test.n_null
+    n, joint = test.n_null, test.combined is not None
     if test.p_value <= test.resolution:
-        return f"p ≤ {test.tests}/{n + 1}"
-    of = "replicates" if test.calibrated and test.deciding == "omnibus" else "sims"
-    return f"p = {test.p_value:.2g} ({test.best.n} {of})"
+        return f"p ≤ {1 if joint else test.tests}/{n + 1}"
+    of = "replicates" if test.calibrated and (joint or test.deciding == "omnibus") else "sims"
+    return f"p = {test.p_value:.2g} ({n if joint else test.best.n} {of})"
 
 
 def check_headline(out: CheckResult) -> str:

@@ -59,21 +59,31 @@ def ranges(idx: Sequence[int]) -> str:
 
 
 def p_short(p: MCPValue | JointTest) -> str:
-    """A p-value in a table cell, floored at its resolution: ``p <= 1/31`` or ``p = 0.13`` (a Monte-Carlo p-value),
-    ``p <= 2/201`` or ``p = 0.34`` (a joint test)."""
+    """A p-value in a table cell, floored at its resolution: ``p <= 1/31`` or ``p = 0.13`` (a Monte-Carlo p-value,
+    or a joint test's), ``p <= 2/201`` (a joint test Bonferroni-combined, as results written before the min-p
+    combination are)."""
     if isinstance(p, JointTest):
-        return f"p <= {p.tests}/{p.n_null + 1}" if p.p_value <= p.resolution else f"p = {p.p_value:.2g}"
+        k = 1 if p.combined is not None else p.tests
+        return f"p <= {k}/{p.n_null + 1}" if p.p_value <= p.resolution else f"p = {p.p_value:.2g}"
     return f"p <= 1/{p.n + 1}" if p.at_floor else f"p = {p.value:.2g}"
 
 
 def p_words(p: MCPValue | JointTest, of: str = "null simulations") -> str:
     """A p-value for people, with its resolution: ``p <= 1/31 (beyond all 30 null simulations)`` or ``p = 0.13 (3 of
-    30 null simulations as extreme)``; a joint test of two also names the deciding test and the Bonferroni factor,
-    and a calibrated omnibus test (:attr:`JointTest.calibrated`) counts replicate recordings instead (``of``)."""
+    30 null simulations as extreme)``; a joint test of two says how they were combined (min-p; Bonferroni in results
+    written before it) and names the deciding test's own p-value, and a calibrated test (:attr:`JointTest.calibrated`)
+    counts replicate recordings instead (``of``)."""
     if isinstance(p, MCPValue):
         if p.at_floor:
             return f"p <= 1/{p.n + 1} (beyond all {p.n} {of})"
         return f"p = {p.value:.2g} ({p.exceed} of {p.n} {of} as extreme)"
+    if p.combined is not None:  # the two tests' min-p combination against one null
+        of = REPLICATES if p.calibrated else of
+        c = p.combined
+        own = f"the {p.deciding} test's own {p_short(p.best)}"
+        if c.at_floor:
+            return f"p <= 1/{c.n + 1} (two tests, min-p combined; beyond all {c.n} {of}; {own})"
+        return f"p = {c.value:.2g} (two tests, min-p combined: {c.exceed} of {c.n} {of} as extreme; {own})"
     of = REPLICATES if p.calibrated and p.deciding == "omnibus" else of
     if p.tests == 1:
         return p_words(p.omnibus, of)

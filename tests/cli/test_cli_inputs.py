@@ -143,28 +143,28 @@ def test_diagnose_prints_a_refitted_pair_and_its_json(tmp_path, monkeypatch):
 
 
 def test_a_null_too_small_for_the_level_is_refused_in_one_line_before_any_work(tmp_path):
-    """check, diagnose and compare with --max-null 30 at the default level 0.05: two Bonferroni-combined tests can never
-    reach it (2/31 > 0.05), so the command refuses in one line naming the smallest cap that can, exit code 2,
+    """check, diagnose and compare with --max-null 18 at the default level 0.05: the tests' min-p combination can never
+    reach it (1/19 > 0.05), so the command refuses in one line naming the smallest cap that can, exit code 2,
     before opening the run (none here); --json gives the same message as a JSON error."""
-    for cmd in (["check", str(tmp_path / "no-run"), "--max-null", "30"],
-                ["diagnose", str(tmp_path / "no-run"), "--max-null", "30"],
-                ["compare", str(tmp_path / "no-run"), str(tmp_path / "no-run-b"), "--max-null", "30"]):
+    for cmd in (["check", str(tmp_path / "no-run"), "--max-null", "18"],
+                ["diagnose", str(tmp_path / "no-run"), "--max-null", "18"],
+                ["compare", str(tmp_path / "no-run"), str(tmp_path / "no-run-b"), "--max-null", "18"]):
         res = runner.invoke(app, cmd)
         assert res.exit_code == 2, res.output
         msg = " ".join(res.output.split())
-        assert "max_null 30" in msg and "alpha 0.05" in msg and "max_null >= 39" in msg, res.output
+        assert "max_null 18" in msg and "alpha 0.05" in msg and "max_null >= 19" in msg, res.output
         errors = [ln for ln in res.output.splitlines() if "max_null" in ln]
         assert "Traceback" not in res.output and len(errors) == 1 and errors[0].startswith("error: "), res.output
         res = runner.invoke(app, cmd + ["--json"])
-        assert res.exit_code == 2 and "max_null >= 39" in json.loads(res.stdout)["error"]
-    res = runner.invoke(app, ["check", str(tmp_path / "no-run"), "--alpha", "0.01", "--max-null", "199"])
-    # 199 resolves 0.01: the run is opened (and named), no refusal of --max-null
+        assert res.exit_code == 2 and "max_null >= 19" in json.loads(res.stdout)["error"]
+    res = runner.invoke(app, ["check", str(tmp_path / "no-run"), "--alpha", "0.01", "--max-null", "99"])
+    # 99 resolves 0.01: the run is opened (and named), no refusal of --max-null
     assert res.exit_code == 2 and "no-run" in res.output and "max_null" not in res.output
     # the Python API refuses the same way
     import softsbi
     from softsbi.core.errors import SoftsbiError
-    with pytest.raises(SoftsbiError, match="use max_null >= 39"):
-        softsbi.diagnose(tmp_path / "no-run", max_null=30)
+    with pytest.raises(SoftsbiError, match="use max_null >= 19"):
+        softsbi.diagnose(tmp_path / "no-run", max_null=18)
     with pytest.raises(SoftsbiError, match=r"effects must be a list of effect names, e.g. effects=\['wind'\]"):
         softsbi.diagnose(tmp_path / "no-run", effects="wind")
 

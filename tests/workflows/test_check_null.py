@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from softsbi.core.errors import SoftsbiError
@@ -74,3 +75,24 @@ def test_a_run_whose_calibration_is_lost_says_so_and_what_its_p_value_is_then(tm
     assert f"task {task.digest[:12]} in {store.path} is damaged" in lost()
     store.delete(task.digest)
     assert f"task {task.digest[:12]} is no longer stored in {store.path}" in lost()
+
+
+def test_replicates_calibrate_a_check_only_against_the_family_they_were_screened_against():
+    """The joint calibration compares the recording's (omnibus, directional) pair with the replicates': each
+    replicate keeps every candidate's statistic, so a check against any part of the family (a refit screens the
+    family less its own effect) is calibrated by the maximum over that part; a candidate the replicates were not
+    screened against is another procedure, and the omnibus test alone needs no family."""
+    null = CheckNull(30, 64, (1.0, 2.0, 3.0), ((0.5, 0.1), (2.5, float("nan")), (1.0, 3.0)), ("wind", "heavy-hem"))
+    assert null.calibrates([]) and null.calibrates(["heavy-hem", "wind"]) and null.calibrates(["wind"])
+    assert not null.calibrates(["wind", "air-drag"])
+    assert not CheckNull(30, 64, (1.0, 2.0)).calibrates(["wind"])  # stored before the joint calibration
+    # beyond every replicate in both statistics: p = 1/4; the directional maximum over the asked part only
+    assert null.joint_p_value(np.array([9.0, 9.0]), ["wind", "heavy-hem"]).value == pytest.approx(1 / 4)
+    assert null.joint_p_value(np.array([0.9, 2.8]), ["wind"]).value == pytest.approx(2 / 4)
+    assert null.joint_p_value(np.array([0.9, 2.8]), ["wind", "heavy-hem"]).value == pytest.approx(3 / 4)
+    # a replicate whose only asked candidate could not be screened is left out
+    assert null.joint_p_value(np.array([9.0, 9.0]), ["heavy-hem"]).n == 2
+    with pytest.raises(SoftsbiError, match="not screened against"):
+        null.joint_p_value(np.array([1.0, 1.0]), ["air-drag"])
+    back = json.loads(json.dumps(null.to_json()))
+    assert back["family"] == ["wind", "heavy-hem"] and back["directional"][1] == [2.5, None]

@@ -79,7 +79,7 @@ def test_adaptive_resolution_extends_only_when_promising_and_keeps_the_level():
     assert not resolution_needed(MCPValue(exceed=1, n=30), 0.01, 120, promising=0)  # 2/121 > 0.01 and no eager rule
     assert resolution_needed(MCPValue(exceed=2, n=30), 0.005, 200)  # 3/201 > 0.005, but the first stage's 3/31 <= 0.1
     assert not resolution_needed(MCPValue(exceed=3, n=30), 0.005, 200)  # 4/31 > 0.1 and 4/201 > 0.005
-    assert not resolution_needed(MCPValue(exceed=0, n=199), 0.01, 300)  # 1/200 <= 0.01: already decidable
+    assert resolution_needed(MCPValue(exceed=0, n=199), 0.01, 300)  # 1/200 <= 0.01, but rejections are the cap's
     assert not resolution_needed(MCPValue(exceed=0, n=200), 0.01, 200)
     # the two-stage test under the null: reject at most alpha of the time
     rng = np.random.default_rng(2)
@@ -95,17 +95,16 @@ def test_adaptive_resolution_extends_only_when_promising_and_keeps_the_level():
 
 
 def test_a_null_cap_that_cannot_resolve_the_level_is_refused_in_one_line_naming_the_smallest_that_can():
-    """The resolution guard: with two Bonferroni-combined tests the joint p-value is never below 2/(n + 1), so a
-    cap of 30 nulls can never reject at 0.05 (2/31 > 0.05); check and diagnose refuse it before any simulation,
-    naming the smallest cap that can (39: 2/40 = 0.05)."""
+    """The resolution guard: the joint p-value of the min-p combination is never below 1/(n + 1), so a cap of 18
+    nulls can never reject at 0.05 (1/19 > 0.05); check and diagnose refuse it before any simulation, naming the
+    smallest cap that can (19: 1/20 = 0.05)."""
     from softsbi.workflows.criticism.screening import check_resolution, smallest_null
-    assert smallest_null(0.05) == 39 and smallest_null(0.01) == 199 and smallest_null(0.05, 1) == 19
-    assert 2 / (smallest_null(0.05) + 1) <= 0.05 < 2 / smallest_null(0.05)
-    with pytest.raises(SoftsbiError, match=r"^max_null 30 cannot resolve alpha 0.05: .* 2/31 = 0.0645; "
-                                           r"use max_null >= 39$"):
-        check_resolution(0.05, 30)
-    check_resolution(0.05, 39)  # resolvable: nothing raised
-    check_resolution(0.05, 19, tests=1)
+    assert smallest_null(0.05) == 19 and smallest_null(0.01) == 99
+    assert 1 / (smallest_null(0.05) + 1) <= 0.05 < 1 / smallest_null(0.05)
+    with pytest.raises(SoftsbiError, match=r"^max_null 18 cannot resolve alpha 0.05: .* 1/19 = 0.0526; "
+                                           r"use max_null >= 19$"):
+        check_resolution(0.05, 18)
+    check_resolution(0.05, 19)  # resolvable: nothing raised
     for bad in (0.0, 1.0, -0.1):
         with pytest.raises(SoftsbiError, match="--alpha must be > 0 and < 1"):
             check_resolution(bad, 200)
@@ -131,11 +130,8 @@ def test_the_null_grows_to_its_cap_only_when_a_first_stage_is_promising_and_deci
             return self
 
     def verdict(exceed_at):
-        monkeypatch.setattr(
-            scr,
-            "misspecification_test",
-            lambda f_obs, feats: (1.0, MCPValue(exceed=exceed_at(len(feats)), n=len(feats))),
-        )
+        monkeypatch.setattr(scr, "omnibus_statistics", lambda f_obs, feats: (1.0, np.zeros(len(feats))))
+        monkeypatch.setattr(scr, "mc_pvalue", lambda d, null: MCPValue(exceed=exceed_at(len(null)), n=len(null)))
         monkeypatch.setattr(scr, "run_features", lambda run, dense: np.zeros(2))
         test, screen, ranking = scr.misspecification_verdict(Pool(), [], 0.01, 200)
         assert screen is None and ranking == () and test.directional is None and test.tests == 1
@@ -315,3 +311,44 @@ def test_the_null_accepts_as_few_rollouts_as_check_simulates_and_no_fewer():
     assert p.n == MIN_NULL
     with pytest.raises(SoftsbiError, match=f"at least {MIN_NULL} successful posterior rollouts \\(got {MIN_NULL - 1}\\)"):
         misspecification_test(rng.normal(size=6), rng.normal(size=(MIN_NULL - 1, 6)))
+
+
+def test_the_min_p_combination_is_uniform_on_exchangeable_nulls_where_bonferroni_piles_up_at_one():
+    """Two correlated tests on one null: Bonferroni (2 x the smaller p) is valid but puts about 40% of the null's
+    p-values at exactly 1 (the controls of the lift's diagnosis split: 8 of 40 at 1, KS p 0.016); the min-p
+    combination against the null's own minima is uniform, keeps the level, and is never below 1/(n + 1)."""
+    from scipy.stats import kstest
+    from softsbi.workflows.criticism.statistics import min_p_combined
+    rng = np.random.default_rng(0)
+    minp, bonf = [], []
+    for _ in range(1500):
+        x = rng.normal(size=(40, 2))
+        x[:, 1] = 0.7 * x[:, 0] + 0.7 * x[:, 1]
+        p = min_p_combined(x[0], x[1:])
+        assert p.n == 39 and p.value >= 1 / 40
+        minp.append(p.value)
+        bonf.append(min(1.0, 2 * min(mc_pvalue(x[0, j], x[1:, j]).value for j in range(2))))
+    minp, bonf = np.array(minp), np.array(bonf)
+    assert abs((minp <= 0.05).mean() - 0.05) < 0.02 and (minp == 1).mean() < 0.05
+    assert (bonf == 1).mean() > 0.3 and (bonf <= 0.05).mean() <= 0.07
+    # uniform up to the rank resolution: the smoothed p-values pass a KS test
+    assert kstest(minp - rng.random(len(minp)) / 40, "uniform").pvalue > 0.01
+    # one test: the combination is that test's Monte-Carlo p-value
+    x = rng.normal(size=(31, 1))
+    assert min_p_combined(x[0], x[1:]) == mc_pvalue(x[0, 0], x[1:, 0])
+
+
+def test_the_min_p_combination_gains_power_over_bonferroni_when_the_tests_agree_and_loses_none_otherwise():
+    from softsbi.workflows.criticism.statistics import min_p_combined
+    rng = np.random.default_rng(1)
+    for rho, better in ((0.0, False), (0.8, True)):
+        gained = lost = 0
+        for _ in range(400):
+            x = rng.normal(size=(201, 2))
+            x[:, 1] = rho * x[:, 0] + np.sqrt(1 - rho ** 2) * x[:, 1]
+            x[0] += (2.0, 2.0 * rho)
+            mp = min_p_combined(x[0], x[1:]).value <= 0.05
+            bf = min(1.0, 2 * min(mc_pvalue(x[0, j], x[1:, j]).value for j in range(2))) <= 0.05
+            gained += mp and not bf
+            lost += bf and not mp
+        assert lost <= 2 and (gained >= 3) == better, (rho, gained, lost)

@@ -174,9 +174,21 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     from softsbi.workflows.tasks.training import candidate_models
     models = [m for m in candidate_models(_cfg(backend=D.BACKEND), None)
               if all(registry().effect(e).__module__.startswith("softsbi.") for e in m)]
+    from softsbi.scenarios.builtin import make_scenario
+    from softsbi.workflows.criticism.screening import screening_size
+    from softsbi.workflows.fit.config import fit_param_space
+    from softsbi.workflows.tasks.training import replicate_family
+    lift = make_scenario(D.SCENARIO)
+    family = replicate_family(_cfg(backend=D.BACKEND), SimpleNamespace(scenario=lift), [m[-1] for m in models[1:]])
+    per = D.N_NULL + 1 + screening_size(fit_param_space(_cfg(backend=D.BACKEND), lift)[1].dim, family)
     readme = (Path(__file__).parents[2] / "README.md").read_text()
     assert (f"{len(models)} models x ({D.TASK_PRIOR_SIMS + D.N_TEST} simulations + "
-            f"{D.CHECK_REPLICATES * (D.N_NULL + 1)} for check's calibration)") in readme
+            f"{D.CHECK_REPLICATES * per} for check's calibration)") in readme
+    total = len(models) * (D.TASK_PRIOR_SIMS + D.N_TEST + D.CHECK_REPLICATES * per)
+    assert f"at most {round(total, -2):,} simulations" in readme
+    # each replicate is screened as a check screens a recording: its finite differences are counted
+    assert "40 replicate recordings x 91 for check's calibration" in training_plan(
+        17, 1000, 200, 40, None, 2, null_rollouts=30, screening=60)
 
     def task(model, calibrated):
         return SimpleNamespace(model=model, n_prior=2000, report=SimpleNamespace(calibrated=calibrated))
@@ -255,6 +267,14 @@ def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitt
     # the run's omnibus statistic on its evaluation rollouts, against the 19 replicates': p >= 1/20
     assert chk.test.calibrated and chk.test.omnibus == null.p_value(chk.test.statistic)
     assert chk.test.omnibus.n == 19 and chk.test.p_value >= 1 / 20
+    # both tests against the default family, as the replicates were screened: their min-p combination against the
+    # replicates' pairs; another family is not the replicates' procedure, so that check is not calibrated
+    assert null.family and len(null.directional) == 19 and len(null.directional[0]) == len(null.family)
+    both = check_run(tmp_path / "run", plot=False, recompute=True)
+    assert both.test.family == null.family and both.test.directional is not None
+    assert both.test.calibrated and both.test.combined is not None and both.test.combined.n == 19
+    assert both.test.combined == null.joint_p_value(np.array([both.test.statistic, both.test.directional_statistic]),
+                                                    null.family)
     scratch = run_fit(tmp_path / "scratch", rec, _cfg(sims_per_round=20, rounds=2), make_plots=False)
     assert scratch.report.rounds == 2
     assert not check_run(tmp_path / "scratch", plot=False, effects=[]).test.calibrated  # sequential: not the task's

@@ -390,10 +390,10 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
     t0 = time.perf_counter()
     s = settings or CheckSettings()
     n_eval, workers, seed, alpha, max_null = s.n_eval, s.workers, s.seed, s.alpha, s.max_null
-    check_resolution(alpha, max_null, 2)
+    check_resolution(alpha, max_null)
     run = loaded(run_dir, pool, seed)
     cands = candidate_effects(run, effects, message)
-    null = run_check_null(run, n_eval, message)
+    null = run_check_null(run, n_eval, message, [c.name for c in cands])
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
                      family=sorted(c.name for c in cands), replicates=0 if null is None else len(null.statistics))
     say = message or (lambda _: None)

@@ -1,4 +1,4 @@
-"""``check``'s omnibus test calibrated for a trained task (Hjort, Dahl & Steinbakk 2006, "Posterior predictive
+"""``check``'s test calibrated for a trained task (Hjort, Dahl & Steinbakk 2006, "Posterior predictive
 p-values calibrated by the prior predictive").
 
 The posterior predictive p-value (:func:`~softsbi.workflows.criticism.statistics.misspecification_test`) uses the recording twice,
@@ -8,10 +8,12 @@ calibration runs the same procedure on replicate recordings of the task: each is
 parameters drawn from the prior (:func:`~softsbi.workflows.measurement.simulate_recording`), observed with the fit's
 observer, refitted by conditioning the task's stored estimator (the fit of a trained task does exactly that), and
 checked on ``n_rollouts`` posterior-predictive rollouts (draws restricted to the prior box, as the fit's evaluation
-samples are) with ``check``'s omnibus statistic under the fit's sensor model. The calibrated p-value of a recording
-is the Monte-Carlo p-value of its statistic against the replicates' (:class:`CheckNull`): under the model, with
-parameters drawn from the prior, the recording and the replicates are exchangeable, so it is exactly uniform and
-never below ``1 / (n + 1)`` with ``n`` replicates.
+samples are) with ``check``'s omnibus statistic under the fit's sensor model, and screened about its posterior
+median against the candidate family (every candidate's directional statistic). The calibrated p-value of a recording
+is the min-p combination of its two statistics against the replicates' pairs (:meth:`CheckNull.joint_p_value`; the
+omnibus statistic alone against theirs when the check has no family): under the model, with parameters drawn from
+the prior, the recording and the replicates are exchangeable, so it is exactly uniform and never below
+``1 / (n + 1)`` with ``n`` replicates.
 
 It applies to a run that stopped at its trained task (one round: the stored estimator conditioned on the
 recording) and was checked on the same number of rollouts, with the same number of points per cloud. Each trained
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
@@ -43,13 +46,16 @@ from softsbi.workflows.fit.observe import metric_sensor, observe_recording
 from softsbi.workflows.reporting import phase
 from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.criticism.stats import summarising
-from softsbi.workflows.criticism.statistics import MIN_NULL, mc_pvalue, misspecification_test, trajectory_features
+from softsbi.workflows.criticism.statistics import (MIN_NULL, mc_pvalue, min_p_combined, misspecification_test,
+                                                     trajectory_features)
 from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 
 #: the file beside a stored task that holds its replicates' statistics
 NULL_FILE = "check-null.json"
 #: the fewest replicates that can reject at the default level: ``1 / (n + 1) <= ALPHA``
 MIN_REPLICATES = math.ceil(1 / ALPHA) - 1
+#: posterior draws a replicate's posterior median is taken from (a fit's report takes it from 4000 samples)
+MEDIAN_DRAWS = 4000
 #: replicate recordings whose posterior-predictive rollouts one executor call simulates (their rollouts are held
 #: in memory together: about 30 x 0.3 MB each for the built-in lift)
 BATCH = 10
@@ -57,25 +63,60 @@ BATCH = 10
 
 @dataclass(frozen=True)
 class CheckNull:
-    """The omnibus statistics of a task's replicate recordings (module docstring).
+    """The check statistics of a task's replicate recordings (module docstring).
 
     Attributes:
         rollouts: posterior-predictive rollouts per recording the statistics were computed on.
         n_dense: points per frame of the recordings' clouds (a recording's surface samples).
         statistics: ``(n,)`` the replicates' omnibus statistics (dimensionless, larger is worse).
+        directional: ``(n, C)`` each replicate's normalised max-T statistic of each candidate of ``family``
+            (:func:`~softsbi.workflows.criticism.statistics.max_t_statistics`; NaN where that candidate's screening
+            failed), in the order of ``statistics``: the directional statistic of a check against any part of the
+            family is their maximum over that part; None for replicates stored before the joint calibration.
+        family: the candidates of ``directional``'s columns.
     """
 
     rollouts: int
     n_dense: int
     statistics: tuple[float, ...]
+    directional: tuple[tuple[float, ...], ...] | None = None
+    family: tuple[str, ...] | None = None
 
     def p_value(self, statistic: float) -> MCPValue:
         """The calibrated p-value of a recording's omnibus ``statistic``: ``(1 + #{replicates >= it}) / (n + 1)``."""
         return mc_pvalue(statistic, np.asarray(self.statistics))
 
+    def calibrates(self, family: Sequence[str]) -> bool:
+        """Whether these replicates calibrate a check against the candidate ``family``: the omnibus test alone (no
+        family), or both tests when every candidate of ``family`` was screened on the replicates (a refit's check
+        screens the family less its own effects: a part of it)."""
+        return not family or (self.directional is not None and set(family) <= set(self.family or ()))
+
+    def joint_p_value(self, pair: np.ndarray, family: Sequence[str]) -> MCPValue:
+        """The calibrated joint p-value of a recording's ``(omnibus, directional)`` statistics, its directional one
+        the maximum over ``family`` (:meth:`calibrates`): their min-p combination against the replicates' pairs
+        (:func:`~softsbi.workflows.criticism.statistics.min_p_combined`), exactly uniform under the model (the
+        recording and the replicates are exchangeable). A replicate none of whose ``family`` could be screened is
+        left out.
+
+        Raises:
+            SoftsbiError: replicates that do not calibrate a check against ``family``."""
+        if not family or not self.calibrates(family):
+            raise SoftsbiError(f"these replicates were not screened against {list(family)}; compute them again with "
+                               f"`softsbi task train --check-null 100`")
+        cols = [list(self.family or ()).index(c) for c in family]
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a replicate none of whose family was screened
+            z = np.nanmax(np.asarray(self.directional, float)[:, cols], axis=1)
+        ok = np.isfinite(z)
+        return min_p_combined(pair, np.column_stack([np.asarray(self.statistics)[ok], z[ok]]))
+
     def to_json(self) -> dict[str, Any]:
-        """The stored form (``check-null.json``): the three attributes, as JSON."""
-        return {"rollouts": self.rollouts, "n_dense": self.n_dense, "statistics": list(self.statistics)}
+        """The stored form (``check-null.json``): the attributes, as JSON (NaN as null)."""
+        return {"rollouts": self.rollouts, "n_dense": self.n_dense, "statistics": list(self.statistics),
+                "directional": None if self.directional is None else [
+                    [None if not math.isfinite(v) else v for v in row] for row in self.directional],
+                "family": None if self.family is None else list(self.family)}
 
 
 def stored_check_null(task: StoredTask | None, rollouts: int, n_dense: int,
@@ -88,9 +129,16 @@ def stored_check_null(task: StoredTask | None, rollouts: int, n_dense: int,
     path = task.path / NULL_FILE
     try:
         d = json.loads(path.read_text())
-        null = CheckNull(int(d["rollouts"]), int(d["n_dense"]), tuple(float(s) for s in d["statistics"]))
+        direc, fam = d.get("directional"), d.get("family")
+        null = CheckNull(int(d["rollouts"]), int(d["n_dense"]), tuple(float(s) for s in d["statistics"]),
+                         None if direc is None else tuple(tuple(float("nan") if v is None else float(v) for v in row)
+                                                          for row in direc),
+                         None if fam is None else tuple(str(f) for f in fam))
         if not null.statistics or not np.all(np.isfinite(null.statistics)):
             raise ValueError("no finite statistics")
+        if null.directional is not None and (len(null.directional) != len(null.statistics)
+                                             or any(len(row) != len(null.family or ()) for row in null.directional)):
+            raise ValueError("directional statistics that do not match the omnibus ones and the family")
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         why = f"it lacks {exc}" if isinstance(exc, KeyError) else getattr(exc, "strerror", None) or str(exc)
         (damaged or (lambda _: None))(f"'{path}' is damaged ({why})")
@@ -108,12 +156,14 @@ def check_replicates(n: int) -> None:
                            f"level of {ALPHA} needs n >= {MIN_REPLICATES}; give --check-null 100 (or 0: none)")
 
 
-def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | None = None) -> CheckNull | None:
-    """The replicates that calibrate a check of ``run`` on ``rollouts`` rollouts: those of the trained task the run
-    stopped at (one round, its stored estimator conditioned on the recording), for clouds of the recording's size;
-    None for a run of sequential rounds, or when the task has none for these settings. When the run's task is gone
-    (deleted, damaged, its bank off) or its replicates are damaged, ``say`` is told in one line that the check is
-    not calibrated, and against what its p-value is then computed."""
+def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | None = None,
+                   family: Sequence[str] = ()) -> CheckNull | None:
+    """The replicates that calibrate a check of ``run`` on ``rollouts`` rollouts against the candidate ``family``:
+    those of the trained task the run stopped at (one round, its stored estimator conditioned on the recording), for
+    clouds of the recording's size and checked against the same family (:meth:`CheckNull.calibrates`); None for a
+    run of sequential rounds, or when the task has none for these settings. When the run's task is gone (deleted,
+    damaged, its bank off), its replicates are damaged or were checked against another family, ``say`` is told in
+    one line that the check is not calibrated, and against what its p-value is then computed."""
     rep = run.report
     if rep.rounds != 1 or not rep.per_round or rep.per_round[0].task is None:
         return None
@@ -123,9 +173,9 @@ def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | Non
 
     def lost(why: str) -> None:
         (say or (lambda _: None))(
-            f"check is not calibrated: {why}; its omnibus p-value is the uncalibrated posterior-predictive one "
-            f"(against the run's own rollouts: it leans towards 1, so a small misfit can pass) until `softsbi task "
-            f"train --check-null 100` with the fit's settings stores the task's replicates")
+            f"check is not calibrated: {why}; its p-value is the uncalibrated posterior-predictive one (against the "
+            f"run's own rollouts: it leans towards 1, so a small misfit can pass) until `softsbi task train "
+            f"--check-null 100` with the fit's settings stores the task's replicates")
 
     if store is None:
         lost(f"the simulation bank that holds the run's task {key[:12]} is off")
@@ -134,25 +184,38 @@ def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | Non
     elif not isinstance(entry, StoredTask):
         lost(f"the run's task {key[:12]} in {store.path} is damaged ({entry.problem})")
     else:
-        return stored_check_null(entry, rollouts, int(run.dense.shape[1]), lost)
+        null = stored_check_null(entry, rollouts, int(run.dense.shape[1]), lost)
+        if null is None or null.calibrates(family):
+            return null
+        lost(f"the task's {len(null.statistics)} replicates were checked against "
+             + ("no candidate family" if null.family is None else f"another candidate family ({len(null.family)} "
+                f"candidates, this check {len(family)})"))
     return None
 
 
 def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: ParamSpace, ctx: SimContext,
-                    rollouts: int, seeds: Sequence[int], workers: int | None = None) -> np.ndarray:
-    """``(n, 2)``: each recording's omnibus statistic and its uncalibrated (leave-one-out) p-value, after the
-    procedure of a trained task's fit and check (module docstring); NaN for a recording that procedure could not
-    check (its posterior has no mass in the prior box, or fewer than ``MIN_NULL`` of its rollouts succeeded).
+                    rollouts: int, seeds: Sequence[int], workers: int | None = None,
+                    family: Sequence[Any] = ()) -> np.ndarray:
+    """``(n, 2 + C)``: each recording's omnibus statistic, its uncalibrated (leave-one-out) p-value and its
+    directional statistics against the ``C`` candidates of ``family`` (effect instances; each one's normalised max-T
+    statistic about the recording's posterior median, :func:`~softsbi.workflows.criticism.screening.
+    screening_statistics`), after the procedure of a trained task's fit and check (module docstring); NaN for a
+    recording that procedure could not check (its posterior has no mass in the prior box, or fewer than
+    ``MIN_NULL`` of its rollouts succeeded), and a directional NaN where its screening of a candidate failed.
 
     Args:
         recordings: the ``n`` recordings, with dense clouds of one size (points per frame; :func:`replicates`' are
             the task recording's). est: the task's estimator.
         cfg: the fit's settings, resolved. space: the inferred parameters. ctx: the fit's simulation context.
         rollouts: posterior-predictive rollouts per recording. seeds: one per recording (draws and rollouts).
+        family: the check's candidate effects; each recording's screening costs ``1 + dim`` simulations plus one
+            per candidate and one per candidate parameter (:func:`~softsbi.workflows.criticism.screening.
+            sensitivity_jobs`).
 
     Raises:
         SoftsbiError: an environment fault of the executor; recordings whose clouds differ in size.
     """
+    from softsbi.workflows.criticism.screening import screening_statistics  # screening reads check's statistics
     if len({int(r.dense.shape[1]) for r in recordings}) > 1:
         raise SoftsbiError("case statistics take recordings whose dense clouds hold as many points per frame")
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
@@ -163,32 +226,39 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
                        sensor["metric_min_z"], sensor["metric_frames"], sensor["metric_camera"])
     out = []
     for lo in range(0, len(recordings), BATCH):
-        f_obs, items = [], []
+        f_obs, items, medians = [], [], []
         for rec, seed in zip(recordings[lo:lo + BATCH], seeds[lo:lo + BATCH]):
             f_obs.append(trajectory_features(list(rec.dense), sensor["metric_min_z"], sensor["metric_frames"]))
             q = est.posterior_at(observe_recording(cfg, rec)[fr].astype(np.float64))
             try:
                 theta = space.from_unit(draws_in_box(q, rollouts, np.random.default_rng([seed, 1])))
+                # the fit's posterior median (report.json's, the screening's linearisation point)
+                medians.append({**space.as_dict(np.median(space.from_unit(
+                    draws_in_box(q, MEDIAN_DRAWS, np.random.default_rng([seed, 3]))), axis=0)), **dict(cfg.fixed)})
             except PosteriorError:  # no mass in the prior box: its fit would fail, so it is never checked
-                f_obs[-1] = None
-                theta = np.empty((0, space.dim))
+                f_obs[-1], theta = None, np.empty((0, space.dim))
+                medians.append(None)
             sim_seeds = np.random.default_rng([seed, 2]).integers(2**31, size=rollouts)
             items += [JobItem(t, int(s), summary_seed=surface_seed(i))
                       for i, (t, s) in enumerate(zip(theta, sim_seeds))]
         res = iter(run_jobs(keep, items, workers, cfg.executor, cfg.executor_options,
                             label=f"posterior-predictive rollouts of recordings {lo + 1}-{lo + len(f_obs)}"))
-        for f in f_obs:
-            if f is None:
-                out.append((np.nan, np.nan))
-                continue
-            part = [next(res) for _ in range(rollouts)]
+        checked = []  # (f_obs, null features, median) of the batch's recordings that can be checked
+        for f, med in zip(f_obs, medians):
+            part = [next(res) for _ in range(rollouts)] if f is not None else []
             feats = [r.features for r in part if r is not None and r.ok and r.features is not None]
-            if len(feats) < MIN_NULL:  # check refuses such a run: never checked, so not a replicate either
-                out.append((np.nan, np.nan))
+            # check refuses a run with too few rollouts: never checked, so not a replicate either
+            checked.append((f, np.array(feats), med) if f is not None and len(feats) >= MIN_NULL else None)
+        z = screening_statistics(keep, space, cfg, [c[2] if c else None for c in checked],
+                                 [c[0] if c else None for c in checked], [c[1] if c else None for c in checked],
+                                 list(family), workers, label=f"screenings of recordings {lo + 1}-{lo + len(f_obs)}")
+        for c, zz in zip(checked, z):
+            if c is None:
+                out.append([np.nan, np.nan, *zz])
                 continue
-            d, p = misspecification_test(f, np.array(feats))
-            out.append((d, p.value))
-    return np.array(out, float).reshape(-1, 2)
+            d, p = misspecification_test(c[0], c[1])
+            out.append([d, p.value, *zz])
+    return np.array(out, float).reshape(-1, 2 + len(family))
 
 
 def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream: int = NULL_STREAM,
@@ -232,27 +302,37 @@ def _simulated_recording(context: Any, job: tuple) -> Recording:
 
 def train_check_null(task: StoredTask, recording: Recording, cfg: Any, space: ParamSpace, ctx: SimContext, n: int,
                      rollouts: int, workers: int | None = None,
-                     message: Callable[[str], None] | None = None) -> CheckNull:
-    """Compute and store the task's replicates (module docstring) for checks on ``rollouts`` rollouts.
+                     message: Callable[[str], None] | None = None, family: Sequence[Any] | None = None) -> CheckNull:
+    """Compute and store the task's replicates (module docstring) for checks on ``rollouts`` rollouts against any
+    part of the candidate ``family`` (effect instances; None: the model's default family,
+    :func:`~softsbi.workflows.criticism.screening.default_candidates`, the family ``check`` and ``diagnose`` screen):
+    each replicate's omnibus and directional statistics (:func:`case_statistics`). A replicate no candidate of which could be screened (the screening failed) is left
+    out, so that the pairs stay the recording's procedure.
 
     Raises:
         SoftsbiError: ``n`` below :data:`MIN_REPLICATES` (before any work), fewer than that could be fitted and
             checked. ResultUnwritable: ``check-null.json`` cannot be written (a folder in its place: before any
             work; a full disk named as such). Everything :func:`replicates` raises.
     """
+    from softsbi.workflows.criticism.screening import default_candidates, screening_size  # screening reads this
     check_replicates(n)
     check_result_path(task.path / NULL_FILE)  # a folder in its place: refused before the replicates are fitted
+    family = list(default_candidates(cfg.backend, recording.scenario, cfg.effects) if family is None else family)
+    per = rollouts + 1 + screening_size(space.dim, family)
     (message or (lambda s: None))(f"{task.model}: {n} replicate recordings for check's calibration "
-                                  f"({n * (rollouts + 1)} simulations)")
+                                  f"({n * per} simulations: each simulated, {rollouts} posterior-predictive "
+                                  f"rollouts and its screening of {len(family)} candidates)")
     recs, seeds = replicates(cfg, space, recording, n)
-    stats = case_statistics(recs, task.restore(), cfg, space, ctx, rollouts, seeds, workers)[:, 0]
-    kept = stats[np.isfinite(stats)]
-    if len(kept) < MIN_REPLICATES:
-        raise SoftsbiError(f"only {len(kept)} of {n} replicate recordings could be fitted and checked (the others "
-                           f"failed to simulate or put no posterior mass in the prior box); narrow the prior with "
-                           f"--bounds")
-    (message or (lambda s: None))(f"{task.model}: {len(kept)} of {n} replicates fitted and checked")
-    null = CheckNull(rollouts, int(recording.dense.shape[1]), tuple(float(s) for s in kept))
+    stats = case_statistics(recs, task.restore(), cfg, space, ctx, rollouts, seeds, workers, family)
+    ok = np.isfinite(stats[:, 0]) & (np.isfinite(stats[:, 2:]).any(1) if family else True)
+    if ok.sum() < MIN_REPLICATES:
+        raise SoftsbiError(f"only {int(ok.sum())} of {n} replicate recordings could be fitted and checked (the others "
+                           f"failed to simulate, put no posterior mass in the prior box or could not be screened); "
+                           f"narrow the prior with --bounds")
+    (message or (lambda s: None))(f"{task.model}: {int(ok.sum())} of {n} replicates fitted and checked")
+    null = CheckNull(rollouts, int(recording.dense.shape[1]), tuple(float(v) for v in stats[ok, 0]),
+                     tuple(tuple(float(v) for v in row) for row in stats[ok, 2:]) if family else None,
+                     tuple(c.name for c in family) if family else None)
     write_json_atomic(task.path / NULL_FILE, null.to_json())  # ResultUnwritable: one line (a full disk named)
     return null
 

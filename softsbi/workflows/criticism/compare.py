@@ -56,7 +56,7 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
     check_result_path(out_dir / "compare.json")
     check_result_path(out_dir / "compare.png")
     settings = settings or CheckSettings()
-    check_resolution(settings.alpha, settings.max_null, 2)
+    check_resolution(settings.alpha, settings.max_null)
     run_a, run_b = Path(run_a), Path(run_b)
     ra, rb = load_run(run_a, None), load_run(run_b, None)  # every evaluation sample: each check uses its run as is
     if ra.record.observed_source != rb.record.observed_source or len(ra.dense) != len(rb.dense):

@@ -3,7 +3,8 @@
 :func:`diagnose_run` runs the three steps of :mod:`softsbi.workflows.criticism.decide` on a finished fit:
 
 1. *detect*: ``check``'s joint test (:func:`~softsbi.workflows.criticism.screening.misspecification_verdict`: the
-   omnibus and the directional test on one null of posterior-predictive rollouts, Bonferroni-combined);
+   omnibus and the directional test on one null of posterior-predictive rollouts, min-p combined; calibrated against
+   the task's replicates on a trained task);
 2. *propose*: on a task trained with its candidate models, each trained candidate's amortised posterior predictive is
    scored (:mod:`~softsbi.workflows.criticism.evidence`); the linearised screening ranks the candidate effects
    (:class:`~softsbi.workflows.criticism.screening.Screening`); the top ones of :func:`~softsbi.workflows.criticism.decide.refit_order`
@@ -89,7 +90,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     s = settings or DiagnoseSettings()
     alpha, k_se, confirm, n_null, max_null, workers, seed = (s.alpha, s.k_se, s.confirm, s.n_null, s.max_null,
                                                              s.workers, s.seed)
-    check_resolution(alpha, max_null, 2)
+    check_resolution(alpha, max_null)
     if out_dir is not None:
         check_out_apart(out_dir, "diagnose", run=run_dir)
     run = loaded(run_dir, pool, seed)  # loaded once: the pool, check and the refits share it

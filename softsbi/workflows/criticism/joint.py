@@ -95,7 +95,7 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
     runs = [Path(r) for r in run_dirs]
     check_recordings(len(runs))
     check_one_task(runs)
-    check_resolution(s.alpha, s.max_null, 2)
+    check_resolution(s.alpha, s.max_null)
     if candidates is not None:
         check_candidates(runs[0], effects, candidates)
     out = check_out_apart(check_out_dir(out_dir), "diagnose")

@@ -4,6 +4,8 @@ simulations. :mod:`~softsbi.workflows.criticism.stats` applies them to a run's p
 - :func:`mc_pvalue`: the Monte-Carlo p-value ``(k + 1) / (n + 1)`` of an observed statistic against ``n`` null
   simulations, ``k`` of them at least as extreme (Davison & Hinkley 1997, eq. 4.11; North, Curtis & Sham 2002). It
   is never smaller than ``1 / (n + 1)``: no tail model extrapolates beyond the simulations.
+- :func:`min_p_combined`: two tests on one null combined by the null's own distribution of their smaller p-value
+  (Westfall & Young's min-P), not Bonferroni's doubling.
 - :func:`max_t_adjusted`: family-wise error control over several candidate statistics by the single-step max-T null
   (Westfall & Young 1993, alg. 2.8): each candidate's statistic is normalised by its own null, and its adjusted
   p-value is the Monte-Carlo p-value of its normalised statistic against the null of the *maximum* over candidates.
@@ -133,31 +135,78 @@ def max_t_adjusted(observed: np.ndarray, null: np.ndarray) -> tuple[list[MCPValu
     Raises:
         SoftsbiError: shapes disagree or there are no null simulations.
     """
+    z_obs, z_max = max_t_statistics(observed, null)
+    return [mc_pvalue(z, z_max) for z in z_obs], z_obs
+
+
+def max_t_statistics(observed: np.ndarray, null: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normalised statistics of :func:`max_t_adjusted`: the observed ones ``(C,)`` and each null simulation's
+    maximum over the candidates ``(n,)`` (each column normalised over all ``n + 1`` values). The observed maximum
+    against the nulls' is the directional test, a statistic of the exchangeable sample like the omnibus one, so the
+    two combine by :func:`min_p_combined`.
+
+    Raises:
+        SoftsbiError: shapes disagree or there are no null simulations.
+    """
     observed = np.asarray(observed, float).ravel()
     null = np.asarray(null, float)
     if null.ndim != 2 or null.shape[1] != len(observed) or len(null) == 0:
         raise SoftsbiError(f"max-T needs null statistics of shape (n, {len(observed)}), got {null.shape}")
     both = np.vstack([observed[None], null])
     mu, sd = both.mean(0), np.maximum(both.std(0), 1e-12)
-    z_obs = (observed - mu) / sd
-    z_max = ((null - mu) / sd).max(1)
-    return [mc_pvalue(z, z_max) for z in z_obs], z_obs
+    return (observed - mu) / sd, ((null - mu) / sd).max(1)
+
+
+def min_p_combined(observed: np.ndarray, null: np.ndarray) -> MCPValue:
+    """The Monte-Carlo p-value of the smaller of ``k`` tests' p-values, calibrated against the null's own
+    distribution of that minimum (Westfall & Young 1993, the single-step min-P procedure, alg. 2.5) instead of
+    Bonferroni's ``k x min p``.
+
+    Every member of the exchangeable sample (the observation and the ``n`` null simulations) gets each test's
+    p-value from its rank among all ``n + 1`` members (``#{members at least as large} / (n + 1)``, larger is more
+    extreme); the combined p-value is the Monte-Carlo p-value of the observation's smallest one against the
+    nulls' smallest ones, ``(1 + #{i: m_i <= m_obs}) / (n + 1)``. A symmetric function of the sample, so it is
+    exactly uniform when the members are exchangeable (ties are counted as extreme: conservative), never below
+    ``1 / (n + 1)`` and never above Bonferroni's ``k x min p`` by more than the rank resolution; unlike
+    Bonferroni it does not pay for the tests' dependence, and it puts no mass at 1.
+
+    Args:
+        observed: ``(k,)`` the observation's statistics (larger is more extreme).
+        null: ``(n, k)`` each null simulation's statistics, the same tests on the same scale (posterior-predictive
+            rollouts, each against the others; or replicate recordings of the task, each checked like the
+            observation).
+
+    Raises:
+        SoftsbiError: shapes disagree, no null simulations, or non-finite statistics.
+    """
+    observed = np.asarray(observed, float).ravel()
+    null = np.asarray(null, float)
+    if null.ndim != 2 or null.shape[1] != len(observed) or len(null) == 0:
+        raise SoftsbiError(f"a min-p combination needs null statistics of shape (n, {len(observed)}), got {null.shape}")
+    if not (np.isfinite(null).all() and np.isfinite(observed).all()):
+        raise SoftsbiError("non-finite test statistic: a null simulation or the measurement gave NaN/inf summaries")
+    both = np.vstack([observed[None], null])                                     # (n + 1, k)
+    tol = 1e-12 * np.maximum(1.0, np.abs(both))
+    # p[i, j]: the share of members whose statistic j is at least member i's
+    p = ((both[None, :, :] >= both[:, None, :] - tol[:, None, :]).sum(1)) / len(both)
+    m = p.min(1)
+    return MCPValue(exceed=int((m[1:] <= m[0] + 1e-12).sum()), n=len(null))
 
 
 def resolution_needed(p: MCPValue, alpha: float, cap: int, promising: float = EXTEND_P) -> bool:
-    """True when more null simulations (up to ``cap``) are needed to decide ``p <= alpha``: the
-    current ``n`` nulls cannot give any p-value at or below ``alpha`` (``1 / (n + 1) > alpha``; so
-    stopping here never rejects), and either the exceedances so far would allow it at the cap
-    (``(exceed + 1) / (cap + 1) <= alpha``; e.g. the observation beyond all nulls) or the first stage's
-    p-value is at most ``promising`` (:data:`EXTEND_P`).
+    """True when the null must grow to ``cap`` simulations before ``p <= alpha`` is decided: the first stage's
+    ``n < cap`` nulls are not the cap, and either the cap could reject (``(exceed + 1) / (cap + 1) <= alpha``: e.g.
+    the observation beyond all nulls, or a first stage that rejects already) or the first stage's p-value is at most
+    ``promising`` (:data:`EXTEND_P`). Otherwise the first stage accepts, and no more nulls could change that.
 
-    Rejections happen only at the cap's fixed size, on the p-value of all ``cap`` nulls, so the two-stage
-    test keeps its level ``alpha`` whatever the extension rule: ``P(extend and p_cap <= alpha) <=
-    P(p_cap <= alpha) <= alpha``. The rule sets only the cost and the power. The second clause matters
-    because the tests' exceedance counts are not monotone in ``n``: max-T renormalises every column over
-    all ``n + 1`` values and the omnibus test's leave-one-out null re-standardises, so 1 exceedance in 30
-    can become 0 in 200, and a first stage of ``p = 2/31`` can end at ``p = 1/201``."""
-    return p.floor > alpha and p.n < cap and ((p.exceed + 1) / (cap + 1) <= alpha or p.value <= promising)
+    Rejections happen only at the cap's fixed size, on the p-value of all ``cap`` nulls, so the two-stage test keeps
+    its level ``alpha`` whatever the extension rule: ``P(extend and p_cap <= alpha) <= P(p_cap <= alpha) <= alpha``
+    (a first stage that rejects is not enough: rejecting there as well would add its own chance of a false alarm).
+    The rule sets only the cost and the power. The second clause matters because the tests' exceedance counts are
+    not monotone in ``n``: max-T renormalises every column over all ``n + 1`` values and the omnibus test's
+    leave-one-out null re-standardises, so 1 exceedance in 30 can become 0 in 200, and a first stage of ``p = 2/31``
+    can end at ``p = 1/201``."""
+    return p.n < cap and ((p.exceed + 1) / (cap + 1) <= alpha or p.value <= promising)
 
 
 def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> tuple[float, MCPValue]:
@@ -173,20 +222,28 @@ def misspecification_test(f_obs: np.ndarray, f_sims: np.ndarray) -> tuple[float,
     Raises:
         SoftsbiError: fewer than :data:`MIN_NULL` simulations.
     """
+    d_obs, null = omnibus_statistics(f_obs, f_sims)
+    return d_obs, mc_pvalue(d_obs, null)
+
+
+def omnibus_statistics(f_obs: np.ndarray, f_sims: np.ndarray) -> tuple[float, np.ndarray]:
+    """:func:`misspecification_test`'s statistic of ``f_obs (F,)`` against ``f_sims (S, F)`` and its leave-one-out
+    null ``(S,)`` (each simulation against the others).
+
+    Raises:
+        SoftsbiError: fewer than :data:`MIN_NULL` simulations.
+    """
     S = len(f_sims)
     if S < MIN_NULL:
         raise SoftsbiError(f"the misspecification test needs at least {MIN_NULL} successful posterior rollouts "
                            f"(got {S})")
-
     floor = summary_floor(f_sims.shape[1])
 
     def stat(f, others):
         sd = np.maximum(others.std(0), floor)
         return float((((f - others.mean(0)) / sd) ** 2).mean())
 
-    d_obs = stat(f_obs, f_sims)
-    null = np.array([stat(f_sims[i], np.delete(f_sims, i, axis=0)) for i in range(S)])
-    return d_obs, mc_pvalue(d_obs, null)
+    return stat(f_obs, f_sims), np.array([stat(f_sims[i], np.delete(f_sims, i, axis=0)) for i in range(S)])
 
 
 def summary_scale(f_sims: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, 
 from softsbi.workflows.criticism.check_null import NULL_FILE, check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, run_jobs
-from softsbi.workflows.criticism.screening import is_generic
+from softsbi.workflows.criticism.screening import default_candidates, is_generic, screening_size
 from softsbi.workflows.fit.task_store import PriorRound, StoredTask, first_round_context
 
 
@@ -83,7 +83,7 @@ def _simulate(ctx: SimContext, space: ParamSpace, u: np.ndarray, seeds: np.ndarr
 
 def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int = defaults.N_TEST,
                 n_draws: int = defaults.N_DRAWS, retrain: bool = False, check_null: int = 0,
-                message: Callable[[str], None] | None = None) -> StoredTask:
+                message: Callable[[str], None] | None = None, screened: Sequence[str] = ()) -> StoredTask:
     """Train one model's task (module docstring) and store it; returns the stored task.
 
     Args:
@@ -95,6 +95,8 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
             (:func:`~softsbi.workflows.criticism.check_null.train_check_null`, on ``defaults.N_NULL`` rollouts each; 0: none),
             computed when the task has none for these settings.
         message: progress notices.
+        screened: candidates the replicates are screened against besides the model's default family (the task's
+            trained candidates: a diagnosis may name them), so that a check against any part of them is calibrated.
 
     Raises:
         SoftsbiError: no simulation bank (tasks are stored beside it), ``--sensor-draws``, an image observer, a task
@@ -125,7 +127,7 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
             say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
         else:
             task = _train(recording, cfg, space, ctx, prior, model, n_prior, n_test, n_draws, say, t_start)
-    return _with_check_null(task, recording, cfg, space, ctx, check_null, say)
+    return _with_check_null(task, recording, cfg, space, ctx, check_null, say, screened)
 
 
 def _train(recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimContext, prior: PriorRound, model: str,
@@ -193,15 +195,18 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
 
 
 def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,
-                  workers: int | None, null_rollouts: int = defaults.N_NULL) -> str:
+                  workers: int | None, null_rollouts: int = defaults.N_NULL, screening: int = 0) -> str:
     """What ``task train`` will spend, said before it starts: ``n_models`` models of ``n_prior`` prior and
     ``n_test`` held-out simulations each, and, for each model, ``check_null`` replicate recordings of
-    ``null_rollouts + 1`` simulations; with ``seconds`` (one simulation's time, :func:`pilot_seconds`) the time on
-    ``workers`` processes (None: one per CPU), the estimators' training not included. An upper bound: models and
-    replicates already stored and simulations in the bank are not simulated again."""
-    total = n_models * (n_prior + n_test + check_null * (null_rollouts + 1))
+    ``null_rollouts + 1`` simulations and ``screening`` finite differences each
+    (:func:`~softsbi.workflows.criticism.screening.screening_size`); with ``seconds`` (one simulation's time,
+    :func:`pilot_seconds`) the time on ``workers`` processes (None: one per CPU), the estimators' training not
+    included. An upper bound: models and replicates already stored and simulations in the bank are not simulated
+    again."""
+    per = null_rollouts + 1 + screening
+    total = n_models * (n_prior + n_test + check_null * per)
     s = (f"task train plan: {n_models} model{'s' if n_models > 1 else ''} x ({n_prior} prior + {n_test} held-out "
-         f"simulations" + (f" + {check_null} replicate recordings x {null_rollouts + 1} for check's calibration"
+         f"simulations" + (f" + {check_null} replicate recordings x {per} for check's calibration"
                            if check_null else "") + f") = {total} simulations at most")
     if seconds is None:
         return s + " (one simulation's time unknown: it was read from the bank or failed)"
@@ -230,13 +235,23 @@ def calibration_advice(tasks: Sequence[StoredTask]) -> str | None:
 
 
 def _with_check_null(task: StoredTask, recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimContext,
-                     n: int, say: Callable[[str], None]) -> StoredTask:
-    """The task, with ``n`` replicates for check's calibration computed unless at least as many are stored (``n`` 0:
-    none)."""
+                     n: int, say: Callable[[str], None], screened: Sequence[str] = ()) -> StoredTask:
+    """The task, with ``n`` replicates for check's calibration computed unless at least as many are stored, screened
+    against a family holding the model's default one and ``screened`` less its own effects (``n`` 0: none)."""
+    family = replicate_family(cfg, recording, screened)
     stored = stored_check_null(task, defaults.N_NULL, int(recording.dense.shape[1]))
-    if n > 0 and (stored is None or len(stored.statistics) < n):
-        train_check_null(task, recording, cfg, space, ctx, n, defaults.N_NULL, cfg.workers, say)
+    if n > 0 and (stored is None or len(stored.statistics) < n or not stored.calibrates([c.name for c in family])):
+        train_check_null(task, recording, cfg, space, ctx, n, defaults.N_NULL, cfg.workers, say, family)
     return task
+
+
+def replicate_family(cfg: FitConfig, recording: Recording, screened: Sequence[str] = ()) -> list[Any]:
+    """The candidates a model's replicates are screened against: its default family
+    (:func:`~softsbi.workflows.criticism.screening.default_candidates`) and ``screened``, less the model's own
+    effects (instances)."""
+    family = default_candidates(cfg.backend, recording.scenario, cfg.effects)
+    have = {c.name for c in family} | set(cfg.effects)
+    return family + [registry().effect(n)() for n in dict.fromkeys(screened) if n not in have]
 
 
 def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
@@ -322,13 +337,16 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
         prior = _prepared(recording, replace(cfg, effects=effects))[3]
         check_result_path(prior.store.path / prior.digest / NULL_FILE)
     say = message or (lambda s: None)
-    say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers))
-    each = [n_prior + n_test + check_null * (defaults.N_NULL + 1)] * len(models)
+    screened = [m[-1] for m in models[1:]]
+    screening = screening_size(_prepared(recording, cfg)[1].dim, replicate_family(cfg, recording, screened))
+    say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers,
+                      screening=screening))
+    each = [n_prior + n_test + check_null * (defaults.N_NULL + 1 + screening)] * len(models)
     out = []
     for i, effects in enumerate(models, start=1):
         done = sum(each[:i - 1])
         say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])} (simulations "
             f"{done + 1}-{done + each[i - 1]} of {sum(each)} at most)")
         out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain,
-                               check_null, say))
+                               check_null, say, screened=screened))
     return out
