@@ -7,7 +7,7 @@ from typing import Any, Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import AT_LEAST_1_WORKER, H_JSON, H_WORKERS, bound
+from softsbi.cli.options import H_JSON, H_WORKERS, WORKERS_OK, checked
 from softsbi.cli.output import Output
 from softsbi.core import defaults as D
 
@@ -23,14 +23,12 @@ def print_calibration(o: Output, out: Any) -> None:
 
 
 def calibrate(run: Path = typer.Argument(..., help="run directory of a finished fit"),
-              n_test: int = typer.Option(D.N_TEST, "--n-test", callback=bound(D.MIN_TEST, "200 or more resolves "
-                                         "the 90% coverage"), help="fresh test simulations from the run's proposals "
-                                         "(stored in the run; a re-run resumes, a larger number adds to them)"),
+              n_test: int = typer.Option(D.N_TEST, "--n-test", callback=checked(D.N_TEST_BOUND),
+                                         help="fresh test simulations from the run's proposals (stored in the run; a "
+                                              "re-run resumes, a larger number adds to them)"),
               n_draws: int = typer.Option(D.N_DRAWS, "--n-draws", help="posterior draws per test simulation",
-                                          callback=bound(D.MIN_DRAWS, f"one draw per bin of the {D.N_BINS}-bin SBC "
-                                                         f"rank histogram, HPD levels (coverage, TARP) resolved to "
-                                                         f"1/{D.N_BINS}")),
-              workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+                                          callback=checked(D.N_DRAWS_BOUND)),
+              workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=WORKERS_OK),
               as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Simulation-based calibration of the run's posterior estimator: expected coverage, SBC ranks, TARP."""
     from softsbi.cli.progress import shown  # start-up: the workflows' progress

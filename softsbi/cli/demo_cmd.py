@@ -7,8 +7,8 @@ from typing import Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import (AT_LEAST_1_WORKER, H_ESTIMATOR, H_JSON, H_PROPOSAL, H_SEED, H_WORKERS, ROUNDS_OK,
-                                 SEED_OK, SIMS_OK, Proposal)
+from softsbi.cli.options import (H_ESTIMATOR, H_JSON, H_PROPOSAL, H_SEED, H_WORKERS, ROUNDS_OK, SEED_OK, SIMS_OK,
+                                 WORKERS_OK, Proposal)
 from softsbi.cli.output import Output
 from softsbi.core import defaults as D
 
@@ -21,7 +21,7 @@ def demo(out: Path = typer.Option(Path("softsbi-demo"), help="output folder"),
          sims_per_round: int = typer.Option(D.DEMO_SIMS, help="simulations per round", callback=SIMS_OK),
          estimator: str = typer.Option(D.ESTIMATOR, help=H_ESTIMATOR),
          seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
-         workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+         workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=WORKERS_OK),
          proposal: Proposal = typer.Option(Proposal(D.PROPOSAL), help=H_PROPOSAL + "; truncated keeps the "
                                                                                  "7-parameter refit's posterior tight"),
          as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:

@@ -77,26 +77,26 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
     refitted on every recording, and a candidate is named for the task when its summed score falls by --k-se standard
     errors paired over recordings, Fisher's combined test of its refits' checks does not reject, and more recordings
     switch it on than chance allows."""
-    from softsbi.cli.progress import shown  # start-up: the workflows' progress
-    from softsbi.core.results import to_json  # start-up: numpy
-    from softsbi.workflows.criticism.diagnose import diagnose_run  # start-up: the diagnosis workflow
-    from softsbi.workflows.criticism.joint import diagnose_runs  # start-up: the diagnosis workflow
-    runs = run
-    o = Output(as_json)
+    runs, effects, candidates = run, names(effect, "--effect") or None, names(candidate, "--candidate") or None
     if len(runs) > 1 and out_dir is None:
         raise SoftsbiError(f"diagnosing {len(runs)} runs together needs --out DIR, the folder of their "
                            f"joint-diagnosis.json (each run keeps its own diagnosis in its folder)")
     if candidate and len(runs) == 1:
         raise SoftsbiError("--candidate weighs candidates across several recordings; with one run, name the family "
                            "with --effect")
+    from softsbi.cli.progress import shown  # start-up: the workflows' progress
+    from softsbi.core.results import to_json  # start-up: numpy
+    from softsbi.workflows.criticism.diagnose import diagnose_run  # start-up: the diagnosis workflow
+    from softsbi.workflows.criticism.joint import diagnose_runs  # start-up: the diagnosis workflow
+    o = Output(as_json)
     with shown(o):
         settings = DiagnoseSettings(confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, k_se=k_se,
                                     workers=workers, n_null=n_null, max_null=max_null, alpha=alpha)
         if len(runs) > 1:
-            joint = diagnose_runs(runs, effects=names(effect) or None, settings=settings, progress=o.message,
-                                  recompute=recompute, out_dir=out_dir, candidates=names(candidate) or None)
+            joint = diagnose_runs(runs, effects=effects, settings=settings, progress=o.message, recompute=recompute,
+                                  out_dir=out_dir, candidates=candidates)
         else:
-            out = diagnose_run(runs[0], effects=names(effect) or None, settings=settings, progress=o.message,
+            out = diagnose_run(runs[0], effects=effects, settings=settings, progress=o.message,
                                recompute=recompute, out_dir=out_dir)
     if len(runs) > 1:
         if not json_done(o, to_json(joint)):

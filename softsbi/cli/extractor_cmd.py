@@ -7,7 +7,7 @@ from typing import Any, Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import H_JSON, H_SEED, SEED_OK, bound, parse_kv
+from softsbi.cli.options import H_JSON, H_SEED, IMAGE_SIZE_OK, SEED_OK, checked, parse_kv
 from softsbi.cli.output import Output
 from softsbi.core import defaults as D
 
@@ -23,9 +23,9 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
                                                                       "corners; robot masks from the segmentation)"),
                     backend: str = typer.Option(D.BACKEND, help="with --simulate: simulator plugin"),
                     rollouts: int = typer.Option(D.IMAGE_ROLLOUTS, help="with --simulate: rendered rollouts",
-                                                 callback=bound(1)),
+                                                 callback=checked(D.IMAGE_ROLLOUTS_BOUND)),
                     image_size: int = typer.Option(D.IMAGE_SIZE, help="with --simulate: square camera size (px)",
-                                                   callback=bound(1)),
+                                                   callback=IMAGE_SIZE_OK),
                     mask_robot: bool = typer.Option(True, help="transporter: leave the robot out of the "
                                                                "reconstruction loss"),
                     opt: list[str] = typer.Option(None, "--opt", help="extractor option name=value (repeatable)"),

@@ -7,9 +7,9 @@ from typing import Any, Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import (AT_LEAST_1_WORKER, H_BACKEND, H_ESTIMATOR, H_JSON, H_N_EVAL, H_PROPOSAL, H_SEED,
-                                 H_WORKERS, ROUNDS_OK, SEED_OK, SIMS_OK, Proposal, bound, names, parse_bounds,
-                                 parse_kv)
+from softsbi.cli.options import (H_BACKEND, H_ESTIMATOR, H_JSON, H_N_EVAL, H_PROPOSAL, H_SEED, H_WORKERS,
+                                 IMAGE_SIZE_OK, POINTS_OK, ROUNDS_OK, SEED_OK, SIMS_OK, WORKERS_OK, Proposal, bound,
+                                 checked, names, parse_bounds, parse_kv)
 from softsbi.cli.output import Output
 from softsbi.core.errors import SoftsbiError
 from softsbi.core import defaults as D
@@ -39,15 +39,15 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         sims_per_round: int = typer.Option(D.SIMS_PER_ROUND, help="simulations per round (paper: 100)",
                                            callback=SIMS_OK),
         seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
-        points: int = typer.Option(D.N_POINTS, help="K, points per frame", callback=bound(1)),
-        workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+        points: int = typer.Option(D.N_POINTS, help="K, points per frame", callback=POINTS_OK),
+        workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=WORKERS_OK),
         effect: list[str] = typer.Option(None, "--effect", help="effects to add (their parameters are inferred)"),
         bounds: list[str] = typer.Option(None, "--bounds", help="prior bounds name=low:high"),
         fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
         backend_opt: list[str] = typer.Option(None, "--backend-opt", help="backend option name=value"),
         estimator_opt: list[str] = typer.Option(None, "--estimator-opt", help="estimator option name=value"),
         n_eval: int = typer.Option(D.N_EVAL, "--n-eval", help=H_N_EVAL + "; their mean Chamfer is the reported one",
-                                   callback=bound(1, "one rollout at least")),
+                                   callback=checked(D.EVAL_BOUND)),
         min_height: Optional[float] = typer.Option(
             None, callback=bound(0, "0 = every point visible"), help="sensor model: points closer than this (m) to the table are not seen, in simulation and "
                        "recording alike (0 = all visible); default: the recording's (DiffCloud depth clouds lack "
@@ -68,7 +68,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                              "on this machine"),
         sim_timeout: Optional[float] = typer.Option(None, callback=bound(0, strict=True), help="seconds after which a hung simulation's worker is "
                                                                "killed and the simulation retried (default: none)"),
-        retries: int = typer.Option(D.RETRIES, callback=bound(0), help="re-runs of a simulation whose worker crashed or hung, before it is "
+        retries: int = typer.Option(D.RETRIES, callback=checked(D.RETRIES_BOUND), help="re-runs of a simulation whose worker crashed or hung, before it is "
                                             "stored as failed"),
         observer: str = typer.Option(D.OBSERVER, help="observer plugin: pointcloud (3-D clouds), or heatmap / "
                                                         "transporter (keypoints found in RGB frames by a trained "
@@ -77,10 +77,10 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
                                                             "extractor checkpoint (softsbi train-extractor)"),
         scenario: Optional[str] = typer.Option(None, help="scenario (name or file) the frames were recorded in; "
                                                           "default: the recording's own (image observers: lift)"),
-        image_size: int = typer.Option(D.IMAGE_SIZE, callback=bound(1), help="image observers: square size (px) of the scenario's built-in "
+        image_size: int = typer.Option(D.IMAGE_SIZE, callback=IMAGE_SIZE_OK, help="image observers: square size (px) of the scenario's built-in "
                                                  "camera; frames are resized to it"),
         proposal: Proposal = typer.Option(Proposal(D.PROPOSAL), help=H_PROPOSAL),
-        sensor_draws: int = typer.Option(0, "--sensor-draws", callback=bound(0),
+        sensor_draws: int = typer.Option(0, "--sensor-draws", callback=checked(D.SENSOR_DRAWS_BOUND),
                                          help="observe each simulation at N more values of the sensor effects' "
                                               "parameters (--effect time-offset, point-noise, ...): N times more "
                                               "training pairs along them at no simulation cost (truncated "
@@ -88,7 +88,7 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         retry_failed: bool = typer.Option(False, "--retry-failed",
                                           help="on resume, simulate the stored failed simulations again (after "
                                                "fixing what made them fail); later rounds are drawn again"),
-        refine: int = typer.Option(0, "--refine", callback=bound(0, "0 = no refinement"), help="polish the best fit with N more simulations by CMA-ES, "
+        refine: int = typer.Option(0, "--refine", callback=checked(D.REFINE_BOUND), help="polish the best fit with N more simulations by CMA-ES, "
                                                         "started at the posterior (stored in the run; resumable; "
                                                         "the posterior is left as it is)"),
         widen: bool = typer.Option(False, "--widen", help="after each round, move a prior bound the posterior "

@@ -2,6 +2,7 @@
 parsers of ``name=value`` lists."""
 from __future__ import annotations
 
+import math
 import re
 from enum import Enum
 from typing import Any
@@ -48,10 +49,10 @@ def checked(limit: Bound):
     return check
 
 
-def bound(low: float, why: str = "", strict: bool = False, below: float | None = None):
-    """:func:`checked` for a flag that is not a check or diagnose setting: at least ``low`` (more than it when
-    ``strict``), below ``below`` when given."""
-    return checked(Bound("", low, why, strict, below))
+def bound(low: float, why: str = "", strict: bool = False):
+    """:func:`checked` for a float flag without a bound of its own in :mod:`~softsbi.core.defaults`: a finite number
+    at least ``low`` (more than it when ``strict``)."""
+    return checked(Bound("", low, why, strict))
 
 
 def setting(settings: type, name: str, help: str) -> Any:
@@ -63,20 +64,34 @@ def setting(settings: type, name: str, help: str) -> Any:
 
 
 #: the option callbacks shared by several commands
-AT_LEAST_1_WORKER = checked(D.WORKERS_BOUND)
+WORKERS_OK = checked(D.WORKERS_BOUND)
 SEED_OK = checked(D.SEED_BOUND)
-ROUNDS_OK = bound(1, "one round at least")
-SIMS_OK = bound(D.MIN_SIMS_PER_ROUND, "the estimator needs data")
+ROUNDS_OK = checked(D.ROUNDS_BOUND)
+SIMS_OK = checked(D.SIMS_BOUND)
+POINTS_OK = checked(D.POINTS_BOUND)
+IMAGE_SIZE_OK = checked(D.IMAGE_SIZE_BOUND)
 
 
-def names(items: list[str] | None) -> list[str]:
-    """The names of a repeatable, comma-separated option (``--effect wind --effect a,b`` -> ``[wind, a, b]``)."""
-    return [n for it in items or [] for n in it.split(",") if n]
+def names(items: list[str] | None, flag: str = "") -> list[str]:
+    """The names of a repeatable, comma-separated option (``--effect wind --effect a,b`` -> ``[wind, a, b]``).
+
+    Raises:
+        SoftsbiError: with ``flag`` (the option, e.g. ``--candidate``), an item that names nothing (``''``, ``,``),
+            which would otherwise be dropped silently."""
+    out = []
+    for it in items or []:
+        got = [n for n in it.split(",") if n.strip()]
+        if flag and not got:
+            raise SoftsbiError(f"{flag} '{it}' names nothing: give a name (several comma-separated), or leave {flag} "
+                               f"out")
+        out += got
+    return out
 
 
 def parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
     """``name=value`` items of option ``what`` (repeatable, comma-separated; lists as ``name=[1,2]``) as a dict of
-    numbers, booleans or strings. Raises SoftsbiError naming ``what`` on an item without ``=``."""
+    numbers, booleans or strings. Raises SoftsbiError naming ``what`` on an item without ``=`` or a value that is NaN
+    or infinite."""
     out: dict[str, Any] = {}
     for it in items or []:
         for part in re.split(r",(?![^\[]*\])", it):  # commas inside [..] belong to a list value
@@ -85,24 +100,32 @@ def parse_kv(items: list[str] | None, what: str) -> dict[str, Any]:
             if "=" not in part:
                 raise SoftsbiError(f"{what} '{part}' must look like name=value (lists as name=[1,2])")
             k, v = part.split("=", 1)
-            out[k.strip()] = _num(v.strip())
+            out[k.strip()] = _num(v.strip(), f"{what} '{part}'")
     return out
 
 
-def _num(v: str) -> Any:
+def _num(v: str, where: str) -> Any:
     if v.startswith("[") and v.endswith("]"):
-        return [_num(x.strip()) for x in v[1:-1].split(",") if x.strip()]
+        return [_num(x.strip(), where) for x in v[1:-1].split(",") if x.strip()]
     for cast in (int, float):
         try:
-            return cast(v)
+            x = cast(v)
         except ValueError:
-            pass
+            continue
+        return _finite(x, where)
     return {"true": True, "false": False}.get(v.lower(), v)
+
+
+def _finite(x: float, where: str) -> float:
+    """``x``, or SoftsbiError naming ``where`` when it is NaN or infinite (Python's float() reads 'nan', 'inf')."""
+    if isinstance(x, float) and not math.isfinite(x):
+        raise SoftsbiError(f"{where}: {x} is not a finite number; give a number")
+    return x
 
 
 def parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
     """``--bounds name=low:high`` items (repeatable, comma-separated) as ``{name: (low, high)}``. Raises SoftsbiError
-    on an item of another shape."""
+    on an item of another shape, or a bound that is NaN or infinite."""
     out = {}
     for it in items or []:
         for part in it.split(","):
@@ -112,4 +135,6 @@ def parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
                 out[k.strip()] = (float(lo), float(hi))
             except ValueError:
                 raise SoftsbiError(f"--bounds '{part}' must look like name=low:high (e.g. friction=0.1:1.5)") from None
+            for x in out[k.strip()]:
+                _finite(x, f"--bounds '{part}'")
     return out

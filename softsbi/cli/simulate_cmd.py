@@ -9,7 +9,7 @@ from typing import Any, Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import H_BACKEND, H_JSON, bound, names, parse_kv
+from softsbi.cli.options import H_BACKEND, H_JSON, IMAGE_SIZE_OK, bound, names, parse_kv
 from softsbi.cli.output import Output
 from softsbi.core.errors import SoftsbiError
 from softsbi.core import defaults as D
@@ -32,7 +32,7 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
              out: Path = typer.Option(Path("rollout"), help="output folder: rollout.zarr, preview.png and a "
                                                             "recording (recording.yaml + clouds/) that `softsbi fit "
                                                             "--observed OUT` reads"),
-             render: Optional[int] = typer.Option(None, callback=bound(1), help="also render every frame through the scenario's "
+             render: Optional[int] = typer.Option(None, callback=IMAGE_SIZE_OK, help="also render every frame through the scenario's "
                                                              "overhead camera at this square size (px): "
                                                              "OUT/frames/000.png ... + truth.json, a measurement "
                                                              "for `fit --observer heatmap|transporter`"),

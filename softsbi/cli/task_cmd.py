@@ -7,8 +7,8 @@ from typing import Any, Optional
 import typer
 
 from softsbi.cli.command import json_done
-from softsbi.cli.options import (AT_LEAST_1_WORKER, H_BACKEND, H_ESTIMATOR, H_JSON, H_SEED, H_WORKERS, SEED_OK,
-                                 bound, names, parse_bounds, parse_kv)
+from softsbi.cli.options import (H_BACKEND, H_ESTIMATOR, H_JSON, H_SEED, H_WORKERS, POINTS_OK, SEED_OK, WORKERS_OK,
+                                 bound, checked, names, parse_bounds, parse_kv)
 from softsbi.cli.output import Output
 from softsbi.core.errors import SoftsbiError
 from softsbi.core import defaults as D
@@ -58,22 +58,14 @@ def _damaged(t: Any) -> bool:
     return isinstance(t, DamagedTask)
 
 
-def _n_test_ok(ctx: typer.Context, param: typer.CallbackParam, value: int) -> int:
-    """``--n-test``: 0 (no report) or at least ``MIN_TEST`` held-out simulations, refused when the flags are parsed."""
-    if value != 0 and value < D.MIN_TEST:
-        raise typer.BadParameter(f"must be 0 (no training report) or >= {D.MIN_TEST} (got {value}): fewer held-out "
-                                 f"simulations cannot judge the calibration", ctx=ctx, param=param)
-    return value
-
-
 def task_train(observed: Path = typer.Option(..., help="a recording of the task (its scenario and sensor settings; "
                                                       "its measurement is not used)"),
-               prior_sims: int = typer.Option(D.TASK_PRIOR_SIMS, "--prior-sims", callback=bound(D.MIN_SIMS_PER_ROUND),
+               prior_sims: int = typer.Option(D.TASK_PRIOR_SIMS, "--prior-sims", callback=checked(D.PRIOR_SIMS_BOUND),
                                               help="prior simulations each model is trained on"),
-               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=_n_test_ok,
+               n_test: int = typer.Option(D.N_TEST, "--n-test", callback=checked(D.TASK_N_TEST_BOUND),
                                           help="held-out prior simulations of each model's training report "
                                                "(coverage, SBC, TARP); 0 = no report"),
-               check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=bound(0),
+               check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=checked(D.CHECK_NULL_BOUND),
                                               help="replicate recordings of each model, refitted and checked, "
                                                    "that calibrate check's test of every later fit of it (the nominal "
                                                    "model's, and diagnose's refits of the candidates) (at least 19; "
@@ -87,30 +79,31 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
                effect: list[str] = typer.Option(None, "--effect", help="effects of the nominal model"),
                bounds: list[str] = typer.Option(None, "--bounds", help="prior bounds name=low:high"),
                fix: list[str] = typer.Option(None, "--fix", help="hold a parameter: name=value"),
-               points: int = typer.Option(D.N_POINTS, help="K, points per frame", callback=bound(1)),
+               points: int = typer.Option(D.N_POINTS, help="K, points per frame", callback=POINTS_OK),
                min_height: Optional[float] = typer.Option(None, callback=bound(0), help="as fit's --min-height"),
                frames: Optional[str] = typer.Option(None, help="as fit's --frames"),
                seed: int = typer.Option(D.SEED, help=H_SEED, callback=SEED_OK),
-               workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=AT_LEAST_1_WORKER),
+               workers: Optional[int] = typer.Option(None, help=H_WORKERS, callback=WORKERS_OK),
                retrain: bool = typer.Option(False, "--retrain", help="train even the models already stored"),
                sim_bank: str = typer.Option(D.SIM_BANK, "--sim-bank", help=H_BANK),
                as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Train a task once: amortised posteriors of the nominal model and of each candidate effect, with a training
     report; every later fit, check and diagnose of the task's recordings uses them."""
+    cands = None if candidates is None else [] if candidates.strip() == "none" else names([candidates])
+    if cands == [] and candidates.strip() != "none":  # before the imports and the plugins load
+        raise SoftsbiError(f"--candidates '{candidates}' names no effect: give effect names (comma-separated), or "
+                           f"'none' for the nominal model only")
+    prior_bounds, fixed = parse_bounds(bounds), parse_kv(fix, "--fix")
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
     from softsbi.workflows.fit.bank import check_bank_path  # start-up: numpy, zarr
     from softsbi.workflows.fit.run import FitConfig  # start-up: the fit workflow
     from softsbi.workflows.measurement import load_recording  # start-up: the recording readers
     from softsbi.workflows.tasks.training import calibration_advice, train_task  # start-up: the training workflow
     cfg = FitConfig(backend=backend, effects=names(effect), estimator=estimator, seed=seed, n_points=points,
-                    workers=workers, bounds=parse_bounds(bounds), fixed=parse_kv(fix, "--fix"),
+                    workers=workers, bounds=prior_bounds, fixed=fixed,
                     min_height=min_height, frames=frames, sim_bank=sim_bank)
     cfg.validate()
     check_bank_path(cfg.sim_bank, {"--observed": observed})
-    cands = None if candidates is None else [] if candidates.strip() == "none" else names([candidates])
-    if cands == [] and candidates.strip() != "none":
-        raise SoftsbiError(f"--candidates '{candidates}' names no effect: give effect names (comma-separated), or "
-                           f"'none' for the nominal model only")
     meas = load_recording(observed, n_points=points, seed=seed)
     o = Output(as_json)
     with shown(o):

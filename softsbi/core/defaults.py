@@ -5,6 +5,7 @@ defaults and bounds to :class:`CheckSettings` and :class:`DiagnoseSettings`.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar, Mapping
 
@@ -82,42 +83,112 @@ MIN_TEST = 20
 #: resolved to ``1 / N_BINS`` (with 1 draw every rank and level is 0 or 1)
 N_BINS = 10
 MIN_DRAWS = N_BINS
+#: the fewest replicate recordings of ``task train --check-null`` that can reject at the default level:
+#: ``1 / (n + 1) <= ALPHA``
+MIN_CHECK_REPLICATES = math.ceil(1 / ALPHA) - 1
 
+#: the largest counts the settings accept (each bound's ``why`` below says why). Each lies far beyond what a use
+#: needs and stops a slip (an extra zero, a 1e9) before it is spent: ``check --n-eval 1000000000`` asked numpy for
+#: 74.5 GiB, ``diagnose --refit-sims 1000000000`` planned 4.7e4 hours of simulation
+MAX_ROLLOUTS = 10_000
+MAX_SIMS = 100_000
+MAX_ROUNDS = 100
+MAX_WORKERS = 1024
+MAX_CONFIRM = 100
+MAX_CHECK_REPLICATES = 1000
+MAX_POINTS = 4096
+MAX_IMAGE_SIZE = 4096
+MAX_RETRIES = 100
+MAX_SENSOR_DRAWS = 100
+MAX_SEED = 2**32 - 1
+#: why most counts stop where they do: rollouts, null sizes, held-out test simulations, posterior draws per test
+#: simulation (10000 draws of 10000 test simulations are already 0.8 GB of log-densities) and rendered rollouts;
+#: simulations per round, a task's prior simulations and the best fit's refinement (the paper's rounds hold 100, a
+#: default fit's 150)
+ROLLOUTS_WHY = f"{MAX_ROLLOUTS} resolve a p-value, a coverage or a rank to 1e-4, finer than any level a verdict reads"
+SIMS_WHY = f"{MAX_SIMS} simulations take hours and teach the estimators nothing more"
 
-# -- the settings of check and diagnose, each with its default and its bound in one place ------------------------
+# -- every numeric setting's bound in one place (check's and diagnose's, and the other commands' flags) ----------
+
+def _text(value: float) -> str:
+    return str(value) if isinstance(value, int) else f"{value:g}"
+
 
 @dataclass(frozen=True)
 class Bound:
-    """The values a numeric setting accepts: at least ``low`` (more than it when ``strict``), below ``below`` when
-    given, and why. The CLI refuses a flag outside it when the flags are parsed and the workflow when it is called,
-    both with :meth:`problem`'s words, so the two cannot disagree."""
+    """The values a numeric setting accepts: a finite number at least ``low`` (more than it when ``strict``), below
+    ``below`` and at most ``high`` when given, or 0 when ``zero`` says what 0 means; and why. The CLI refuses a flag
+    outside it when the flags are parsed and the workflow when it is called, both with :meth:`problem`'s words, so
+    the two cannot disagree."""
 
     flag: str
     low: float
     why: str = ""
     strict: bool = False
     below: float | None = None
+    high: float | None = None
+    zero: str = ""
+
+    def _lower(self) -> str:
+        return ((f"0 ({self.zero}) or " if self.zero else "") + (">" if self.strict else ">=") + f" {self.low:g}" +
+                ("" if self.below is None else f" and < {self.below:g}"))
 
     def limit(self) -> str:
-        """The accepted range in words, e.g. ``> 0 and < 1``."""
-        return (f"> {self.low:g}" if self.strict else f">= {self.low:g}") + (
-            "" if self.below is None else f" and < {self.below:g}")
+        """The accepted range in words, e.g. ``> 0 and < 1``, ``>= 5 and <= 10000``."""
+        return self._lower() + ("" if self.high is None else f" and <= {_text(self.high)}")
 
     def problem(self, value: float | None) -> str | None:
-        """None when ``value`` is accepted (None, an unset optional setting, is), else ``must be >= 5 (got 2): why``."""
-        if value is None:
+        """None when ``value`` is accepted (None, an unset optional setting, is), else the side it crosses, e.g.
+        ``must be >= 5 (got 2): why``, ``must be <= 10000 (got 1000000000): why``; NaN and infinity are refused
+        with the whole range."""
+        if value is None or (self.zero and value == 0):
             return None
-        if value < self.low or (self.strict and value <= self.low) or (self.below is not None and value >= self.below):
-            return f"must be {self.limit()} (got {value:g})" + (f": {self.why}" if self.why else "")
-        return None
+        if value != value or value in (math.inf, -math.inf):
+            need = f"a finite number {self.limit()}"
+        elif value < self.low or (self.strict and value <= self.low) or (self.below is not None and value >= self.below):
+            need = self._lower()
+        elif self.high is not None and value > self.high:
+            need = f"<= {_text(self.high)}"
+        else:
+            return None
+        return f"must be {need} (got {_text(value)})" + (f": {self.why}" if self.why else "")
 
 
 #: the bounds shared by check and diagnose
 ALPHA_BOUND = Bound("--alpha", 0.0, "a probability", strict=True, below=1.0)
-MAX_NULL_BOUND = Bound("--max-null", MIN_ROLLOUTS)
-WORKERS_BOUND = Bound("--workers", 1, "one simulation process at least; leave it out for one per core")
-SEED_BOUND = Bound("--seed", 0, "seeds are non-negative integers")
-NULL_WHY = "the null's first stage and the check's error maps need that many posterior rollouts"
+MAX_NULL_BOUND = Bound("--max-null", MIN_ROLLOUTS, ROLLOUTS_WHY, high=MAX_ROLLOUTS)
+WORKERS_BOUND = Bound("--workers", 1, f"one simulation process at least, and more than {MAX_WORKERS} outnumber any "
+                                      f"machine's cores; leave it out for one per core", high=MAX_WORKERS)
+SEED_BOUND = Bound("--seed", 0, "seeds are non-negative 32-bit integers", high=MAX_SEED)
+NULL_WHY = f"the null's first stage and the check's error maps need that many posterior rollouts; {ROLLOUTS_WHY}"
+#: the bounds of the other commands' counts
+ROUNDS_BOUND = Bound("--rounds", 1, "one round at least; the paper runs 15", high=MAX_ROUNDS)
+SIMS_BOUND = Bound("--sims-per-round", MIN_SIMS_PER_ROUND, f"the estimator needs data; {SIMS_WHY} (the paper's "
+                                                           f"rounds hold 100)", high=MAX_SIMS)
+PRIOR_SIMS_BOUND = Bound("--prior-sims", MIN_SIMS_PER_ROUND, f"the estimator needs data; {SIMS_WHY}", high=MAX_SIMS)
+EVAL_BOUND = Bound("--n-eval", 1, f"one rollout at least; {ROLLOUTS_WHY}", high=MAX_ROLLOUTS)
+POINTS_BOUND = Bound("--points", 1, "one point per frame at least; the estimators' input grows with K, and a "
+                                    "DiffCloud frame holds 3500 points", high=MAX_POINTS)
+IMAGE_SIZE_BOUND = Bound("--image-size", 1, f"pixels a side of a square frame; a {MAX_IMAGE_SIZE} px RGB frame is "
+                                            f"48 MiB", high=MAX_IMAGE_SIZE)
+IMAGE_ROLLOUTS_BOUND = Bound("--rollouts", 1, f"one rendered rollout at least; {ROLLOUTS_WHY}", high=MAX_ROLLOUTS)
+RETRIES_BOUND = Bound("--retries", 0, f"0 = a crashed simulation is stored as failed; one that crashes {MAX_RETRIES} "
+                                      f"times will crash again", high=MAX_RETRIES)
+SENSOR_DRAWS_BOUND = Bound("--sensor-draws", 0, f"0 = none; each multiplies the training pairs, {MAX_SENSOR_DRAWS} "
+                                                f"times at most", high=MAX_SENSOR_DRAWS)
+REFINE_BOUND = Bound("--refine", 0, f"0 = no refinement; {SIMS_WHY}", high=MAX_SIMS)
+N_TEST_BOUND = Bound("--n-test", MIN_TEST, f"200 or more resolves the 90% coverage; {ROLLOUTS_WHY}",
+                     high=MAX_ROLLOUTS)
+TASK_N_TEST_BOUND = Bound("--n-test", MIN_TEST, f"fewer held-out simulations cannot judge the calibration; "
+                                                f"{ROLLOUTS_WHY}", high=MAX_ROLLOUTS, zero="no training report")
+N_DRAWS_BOUND = Bound("--n-draws", MIN_DRAWS, f"one draw per bin of the {N_BINS}-bin SBC rank histogram, HPD levels "
+                                              f"(coverage, TARP) resolved to 1/{N_BINS}; {ROLLOUTS_WHY}",
+                      high=MAX_ROLLOUTS)
+CHECK_NULL_BOUND = Bound("--check-null", MIN_CHECK_REPLICATES,
+                         f"a calibrated p-value from n replicates is at least 1/(n+1), so the level {ALPHA} needs "
+                         f"n >= {MIN_CHECK_REPLICATES}; each replicate is refitted, checked and screened (91 "
+                         f"simulations on the lift), and {MAX_CHECK_REPLICATES} resolve p to 1/{MAX_CHECK_REPLICATES + 1}",
+                         high=MAX_CHECK_REPLICATES, zero="none")
 
 
 class _Settings:
@@ -133,7 +204,19 @@ class _Settings:
 
 
 @dataclass(frozen=True, kw_only=True)
-class CheckSettings(_Settings):
+class _CheckFields(_Settings):
+    """The settings check and diagnose share (the check of the nominal fit and of each refit), and their bounds."""
+
+    max_null: int = MAX_NULL
+    alpha: float = ALPHA
+    workers: int | None = None
+    seed: int = SEED
+    BOUNDS: ClassVar[Mapping[str, Bound]] = {"max_null": MAX_NULL_BOUND, "alpha": ALPHA_BOUND,
+                                             "workers": WORKERS_BOUND, "seed": SEED_BOUND}
+
+
+@dataclass(frozen=True, kw_only=True)
+class CheckSettings(_CheckFields):
     """``softsbi check``'s settings (and ``compare``'s check of each run).
 
     Attributes:
@@ -146,17 +229,12 @@ class CheckSettings(_Settings):
     """
 
     n_eval: int = N_NULL
-    max_null: int = MAX_NULL
-    alpha: float = ALPHA
-    workers: int | None = None
-    seed: int = SEED
     BOUNDS: ClassVar[Mapping[str, Bound]] = {
-        "n_eval": Bound("--n-eval", MIN_ROLLOUTS, NULL_WHY), "max_null": MAX_NULL_BOUND, "alpha": ALPHA_BOUND,
-        "workers": WORKERS_BOUND, "seed": SEED_BOUND}
+        "n_eval": Bound("--n-eval", MIN_ROLLOUTS, NULL_WHY, high=MAX_ROLLOUTS), **_CheckFields.BOUNDS}
 
 
 @dataclass(frozen=True, kw_only=True)
-class DiagnoseSettings(_Settings):
+class DiagnoseSettings(_CheckFields):
     """``softsbi diagnose``'s settings.
 
     Attributes:
@@ -171,22 +249,19 @@ class DiagnoseSettings(_Settings):
     """
 
     n_null: int = N_NULL
-    max_null: int = MAX_NULL
-    alpha: float = ALPHA
-    workers: int | None = None
-    seed: int = SEED
     k_se: float = K_SE
     confirm: int = CONFIRM
     refit_rounds: int | None = None
     refit_sims: int | None = None
     BOUNDS: ClassVar[Mapping[str, Bound]] = {
-        "n_null": Bound("--n-null", MIN_ROLLOUTS, NULL_WHY), "max_null": MAX_NULL_BOUND, "alpha": ALPHA_BOUND,
-        "workers": WORKERS_BOUND, "seed": SEED_BOUND,
+        "n_null": Bound("--n-null", MIN_ROLLOUTS, NULL_WHY, high=MAX_ROLLOUTS), **_CheckFields.BOUNDS,
         "k_se": Bound("--k-se", 0.0, "a positive number of standard errors", strict=True),
-        "confirm": Bound("--confirm", 0, "0 = no refit"),
-        "refit_rounds": Bound("--refit-rounds", 1, "leave it out for the run's own rounds"),
-        "refit_sims": Bound("--refit-sims", MIN_SIMS_PER_ROUND, "the estimator needs data; leave it out for the run's "
-                                                                 "own")}
+        "confirm": Bound("--confirm", 0, "0 = no refit; each is a whole fit, and a family of effects holds a few "
+                                         "dozen candidates", high=MAX_CONFIRM),
+        "refit_rounds": Bound("--refit-rounds", 1, "leave it out for the run's own rounds; the paper runs 15",
+                              high=MAX_ROUNDS),
+        "refit_sims": Bound("--refit-sims", MIN_SIMS_PER_ROUND, f"the estimator needs data; leave it out for the "
+                                                                f"run's own; {SIMS_WHY}", high=MAX_SIMS)}
 
     def check(self) -> CheckSettings:
         """The settings of the nominal fit's check (and each refit's)."""
