@@ -87,6 +87,14 @@ def obstacles(scenario: Scenario) -> list[dict[str, Any]]:
     return list(obs)
 
 
+def friction_words(scenario: Scenario, obj: str) -> str:
+    """What a friction coefficient acts between, from the scenario's own obstacles (:func:`obstacles`, by name, else
+    by type): ``"rope-table friction coefficient"``, ``"rope-table and rope-spool friction coefficient"``."""
+    pairs = [f"{obj}-{o}" for o in dict.fromkeys(["table"] + [o.get("name") or o["type"] for o in obstacles(scenario)])]
+    return (" and ".join(pairs) if len(pairs) < 3 else ", ".join(pairs[:-1]) + " and " + pairs[-1]) + \
+        " friction coefficient"
+
+
 def grid_rest_vertices(scenario: Scenario, L: float, n: int, z: float,
                        theta: Mapping[str, float] | None = None) -> np.ndarray:
     """Rest positions ``(n*n, 3)`` m of the square cloth grid (vertex ``i*n+j`` at local

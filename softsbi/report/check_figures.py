@@ -53,7 +53,14 @@ def _unoverlap(fig: Any, ax: Any, labels: Sequence[Any]) -> None:
 
 
 def _region_short(name: str) -> str:
-    return name.replace(" (at the grasp)", " grasp").replace(" (farthest from the grasp)", " farthest")
+    return (name.replace(" (at the grasp)", " grasp").replace(" (farthest from the grasp)", " farthest")
+            .replace(" (grasped end)", " grasped end").replace(" (far end)", " far end"))
+
+
+def region_parts(regions: Sequence[str]) -> str:
+    """What a check's regions are: ``"segment of the rope"`` when they are segments along a rope (named from its
+    grasped end by :func:`~softsbi.workflows.criticism.check.material_regions`), else ``"region of the cloth"``."""
+    return "segment of the rope" if regions and regions[0].endswith("(grasped end)") else "region of the cloth"
 
 
 def check_figure(out: CheckResult) -> Any:
@@ -97,8 +104,7 @@ def check_figure(out: CheckResult) -> Any:
     ax.grid(alpha=0.3)
     ax = axes[1]
     compared = np.array(out.region_compared, dtype=bool)
-    cmap = plt.get_cmap("magma").copy()
-    cmap.set_bad("0.75")  # regions the fit's sensor model never sees: grey, not a perfect match
+    cmap = plt.get_cmap("magma").with_extremes(bad="0.75")  # regions the sensor model never sees: grey, not a match
     fitted = np.zeros(len(reg), bool)
     fitted[list(out.metric_frames) if out.metric_frames is not None else slice(None)] = True
     # the colour scale runs from 0 to at least HEATMAP_MIN_CM, so that a passing run's small errors look small
@@ -114,9 +120,11 @@ def check_figure(out: CheckResult) -> Any:
     ax.set_yticks(range(1, reg.shape[1] + 1))
     ax.set_yticklabels([_region_short(n) for n in out.regions], fontsize=FS_TICK)
     ax.set_xlabel("time [s]", fontsize=FS_LABEL)
-    ax.set_ylabel(f"region of the object (R1 nearest {regions_from(out)})", fontsize=FS_LABEL)
+    parts = region_parts(out.regions)
+    ax.set_ylabel(f"{parts} (R1 at {regions_from(out)})" if "rope" in parts
+                  else f"region of the object (R1 nearest {regions_from(out)})", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
-    ax.set_title("Error per region of the cloth (dashed: phase boundaries"
+    ax.set_title(f"Error per {parts} (dashed: phase boundaries"
                  + ("; grey: not seen by the sensor model)" if not compared.all() else ")"), fontsize=FS_SUB)
     cb = fig.colorbar(im, ax=ax, fraction=0.046)
     cb.set_label(f"mean error [cm] (scale from 0 to at least {HEATMAP_MIN_CM:g} cm"
@@ -170,11 +178,13 @@ def compare_figure(res: CompareResult) -> Any:
     ax.set_xticks(x)
     ax.set_xticklabels([n.split(" ")[0] for n in names], fontsize=FS_TICK)
     ax.tick_params(labelsize=FS_TICK)
-    ax.set_xlabel("region of the cloth (R1 at the grasp ... farthest)", fontsize=FS_LABEL)
+    parts = region_parts(names)
+    ax.set_xlabel(parts + (" (R1 at the grasped end ... far end)" if "rope" in parts
+                           else " (R1 at the grasp ... farthest)"), fontsize=FS_LABEL)
     ax.set_ylabel("mean error [cm]", fontsize=FS_LABEL)
     ax.legend(fontsize=FS_LEGEND, loc="best")
     ax.grid(alpha=0.3, axis="y")
-    ax.set_title("Error per region of the cloth", fontsize=FS_SUB)
+    ax.set_title(f"Error per {parts}", fontsize=FS_SUB)
     ma, mb = a.chamfer_mean_m * 100, b.chamfer_mean_m * 100
     pa, pb = short_p(a.test), short_p(b.test)
     head = (f"Mean error {ma:.2f} → {mb:.2f} cm ({describe_change(ma, mb)})"

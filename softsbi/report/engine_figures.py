@@ -4,10 +4,11 @@ parameters), ``simulate``'s preview of one rollout and a measured frame over a s
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from softsbi.backends.scenario_build import obstacles
 from softsbi.core.errors import ShapeError
 from softsbi.report.style import (DPI, ENGINE_COLOURS, FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS,
                                    _header, _plt, grip_label, save_figure, view_planes)
@@ -85,17 +86,31 @@ def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Ma
     return path
 
 
-def plot_rollout_preview(ro: Any, path: str | Path, title: str, scenario: Any = None) -> Path:
+def plot_rollout_preview(ro: Any, path: str | Path, title: str, scenario: Any = None,
+                         effects: Mapping[str, Mapping[str, tuple[float, str]]] | None = None) -> Path:
     """The rest pose from above (x-y, m) with a grid cloth's corners 0-3 (``ro.info["corners"]``) and every
     handle labelled by name, then the scenario's view (:attr:`~softsbi.core.types.Scenario.view`: a side view x-z or
     y-z, or the top view x-y; y-z without a scenario) of a rollout's vertices at four frames, at one pair of limits,
     with every handle of
     ``scenario`` (its grippers ``+`` and the vertices it holds in place ``x``; without a scenario the rollout's
-    gripper), in the palette's posterior and gripper colours (``softsbi simulate``'s ``preview.png``)."""
-    return save_figure(rollout_preview_figure(ro, title, scenario), Path(path))
+    gripper) and its obstacles (boxes and cylinders, named in the legend below the panels), in the palette's
+    posterior, gripper and obstacle colours; under the title, the effects switched on with their values (``effects``: effect name ->
+    ``{parameter: (value, unit)}``, :func:`effects_line`) (``softsbi simulate``'s ``preview.png``)."""
+    return save_figure(rollout_preview_figure(ro, title, scenario, effects), Path(path))
 
 
-def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
+def effects_line(effects: Mapping[str, Mapping[str, tuple[float, str]]] | None) -> str:
+    """The effects a rollout has switched on, with their values: ``"with snag: snag_k = 6 N/m"`` (several joined by
+    ``"; "``), or ``"no effect switched on"``. ``effects``: effect name -> ``{parameter: (value, unit)}``."""
+    if not effects:
+        return "no effect switched on"
+    return "; ".join(f"with {e}" + (": " if ps else "") + ", ".join(
+        f"{n} = {v:.3g}" + ("" if u in ("1", "") else f" {u}") for n, (v, u) in ps.items())
+        for e, ps in effects.items())
+
+
+def rollout_preview_figure(ro: Any, title: str, scenario: Any = None,
+                           effects: Mapping[str, Mapping[str, tuple[float, str]]] | None = None) -> Any:
     """Figure of :func:`plot_rollout_preview`."""
     plt = _plt()
     T = len(ro.times)
@@ -104,23 +119,29 @@ def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
     tracks = (handle_tracks(scenario, ro.vertices[0], rope) if scenario is not None
               else [("gripper", np.asarray(ro.gripper, float))])
     pinned = pinned_vertices(scenario, ro.vertices[0], rope) if scenario is not None else []
-    fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3 * len(frames) + 4, 3.4), squeeze=False,
+    blocks = obstacles(scenario) if scenario is not None else []
+    table_z = float(scenario.table_z) if scenario is not None else 0.0
+    fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3 * len(frames) + 4, 3.6), squeeze=False,
                              gridspec_kw={"width_ratios": [4 / 3] + [1] * len(frames)})
-    _rest_from_above(axes[0, 0], ro, tracks, pinned)
+    _rest_from_above(axes[0, 0], ro, tracks, pinned, [obstacle_outline(o, 0, 1, table_z) for o in blocks])
     a, b, name = view_planes(scenario.view if scenario is not None else "yz")[0]
+    outlines = [obstacle_outline(o, a, b, table_z) for o in blocks]
     # one pair of limits for every frame, so that motion shows as motion (a drag along the table included)
-    pts = np.concatenate([ro.vertices[f][:, [a, b]] for f in frames] + [p[frames][:, [a, b]] for _, p in tracks])
+    pts = np.concatenate([ro.vertices[f][:, [a, b]] for f in frames] + [p[frames][:, [a, b]] for _, p in tracks]
+                         + outlines)
     pts = pts[np.isfinite(pts).all(1)]
     mid, half = (pts.min(0) + pts.max(0)) / 2, 0.53 * max(float((pts.max(0) - pts.min(0)).max()), 1e-3)
     for ax, f in zip(axes[0, 1:], frames):
+        for o, poly in zip(blocks, outlines):
+            _fill_obstacle(ax, poly, obstacle_name(o) if ax is axes[0, 1] else None)
         v = ro.vertices[f]
-        ax.scatter(v[:, a], v[:, b], s=4, color=ROLE_COLOURS["posterior"], label="simulated vertices")
+        ax.scatter(v[:, a], v[:, b], s=4, color=ROLE_COLOURS["posterior"], label="simulated vertices", zorder=3)
         for k, (_, p) in enumerate(tracks):
             ax.plot(p[f, a], p[f, b], "+", color=ROLE_COLOURS["gripper"], ms=10, mew=2,
-                    label=grip_label(len(tracks)) if k == 0 else None)
+                    label=grip_label(len(tracks)) if k == 0 else None, zorder=4)
         for k, (_, i) in enumerate(pinned):
             ax.plot(v[i, a], v[i, b], "x", color=ROLE_COLOURS["gripper"], ms=8, mew=2,
-                    label="held in place" if k == 0 else None)
+                    label="held in place" if k == 0 else None, zorder=4)
         ax.set_title(f"frame {f}, t = {ro.times[f]:.2f} s ({name})", fontsize=FS_SUB)
         ax.set_xlabel(f"{'xyz'[a]} [m]", fontsize=FS_LABEL)
         ax.set_ylabel(f"{'xyz'[b]} [m]", fontsize=FS_LABEL)
@@ -128,21 +149,64 @@ def rollout_preview_figure(ro: Any, title: str, scenario: Any = None) -> Any:
         ax.set_xlim(mid[0] - half, mid[0] + half)  # a square view, equal aspect
         ax.set_ylim(mid[1] - half, mid[1] + half)
         ax.set_aspect("equal", adjustable="box")
-    axes[0, 1].legend(fontsize=FS_LEGEND, loc="upper left")
-    fig.suptitle(title, fontsize=FS_TITLE)
-    fig.tight_layout()
+    handles, labels = axes[0, 1].get_legend_handles_labels()  # below the panels, clear of the data
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=FS_LEGEND + 1, frameon=False)
+    frac = _header(fig, [(title, {"fontsize": FS_TITLE}), (effects_line(effects), {"fontsize": FS_SUB})])
+    fig.tight_layout(rect=(0, 0.35 / fig.get_figheight(), 1, 1 - frac))
     return fig
+
+
+def obstacle_name(o: Mapping[str, Any]) -> str:
+    """An obstacle's legend text: its name and type (``"block (box)"``), or its type alone."""
+    return f"{o['name']} ({o['type']})" if o.get("name") else str(o["type"])
+
+
+def obstacle_outline(o: Mapping[str, Any], a: int, b: int, table_z: float) -> np.ndarray:
+    """The outline ``(K, 2)`` m of a scenario obstacle (:func:`~softsbi.backends.scenario_build.obstacles`: a box
+    with ``centre`` [x, y, z], ``half_size`` and ``yaw`` deg about z; a cylinder standing on the table at ``table_z``
+    with ``centre`` [x, y], ``radius`` and ``height``) seen along the third axis of the plane of axes ``a``, ``b``
+    (0-2 = x, y, z): from above (0, 1) a box's rotated rectangle or a cylinder's circle, from a side the rectangle it
+    covers."""
+    top = (a, b) == (0, 1)
+    if o["type"] == "cylinder":
+        c, r, h = np.asarray(o["centre"], float), float(o["radius"]), float(o["height"])
+        if top:
+            phi = np.linspace(0, 2 * np.pi, 49)
+            return c + r * np.stack([np.cos(phi), np.sin(phi)], 1)
+        lo = np.array([c[a] - r, table_z])
+        hi = np.array([c[a] + r, table_z + h])
+    else:
+        c, hs = np.asarray(o["centre"], float), np.asarray(o["half_size"], float)
+        yaw = np.radians(float(o.get("yaw", 0.0)))
+        rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+        signs = np.array([[-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1], [-1, -1, -1], [1, -1, -1], [1, 1, -1],
+                          [-1, 1, -1]], float)
+        corners = (c + (signs * hs) @ rot.T)[:, [a, b]]
+        if top:
+            return corners[:4]
+        lo, hi = corners.min(0), corners.max(0)
+    return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+
+
+def _fill_obstacle(ax: Any, poly: np.ndarray, label: str | None) -> None:
+    """Draw one obstacle's outline (:func:`obstacle_outline`) filled in the palette's obstacle colour."""
+    ax.fill(poly[:, 0], poly[:, 1], facecolor=ROLE_COLOURS["obstacle"], alpha=0.45,
+            edgecolor=ROLE_COLOURS["obstacle"], lw=1.2, label=label, zorder=1)
 
 
 #: room around the cloth in the preview's view from above, for the corner and handle labels (fraction of its size)
 PREVIEW_LABEL_ROOM = 0.45
 
 
-def _rest_from_above(ax: Any, ro: Any, tracks: list[tuple[str, np.ndarray]], pinned: list[tuple[str, int]]) -> None:
+def _rest_from_above(ax: Any, ro: Any, tracks: list[tuple[str, np.ndarray]], pinned: list[tuple[str, int]],
+                     outlines: Sequence[np.ndarray] = ()) -> None:
     """The first frame's vertices from above (x-y), each corner (``corner k``) and handle (its name) labelled
-    beside its vertex, away from the cloth's centre: where a scenario file's corners and handles end up."""
+    beside its vertex, away from the cloth's centre: where a scenario file's corners and handles end up; the
+    obstacles' ``outlines`` from above (:func:`obstacle_outline`) behind them."""
     v = np.asarray(ro.vertices[0], float)
-    ax.scatter(v[:, 0], v[:, 1], s=4, color=ROLE_COLOURS["posterior"])
+    for poly in outlines:
+        _fill_obstacle(ax, poly, None)
+    ax.scatter(v[:, 0], v[:, 1], s=4, color=ROLE_COLOURS["posterior"], zorder=3)
     names: dict[int, list[str]] = {}
     for k, i in enumerate((getattr(ro, "info", None) or {}).get("corners") or []):
         names.setdefault(int(i), []).append(f"corner {k}")
@@ -164,7 +228,8 @@ def _rest_from_above(ax: Any, ro: Any, tracks: list[tuple[str, np.ndarray]], pin
     ax.set_xlabel("x [m]", fontsize=FS_LABEL)
     ax.set_ylabel("y [m]", fontsize=FS_LABEL)
     ax.tick_params(labelsize=FS_TICK)
-    lo, hi = v[:, :2].min(0), v[:, :2].max(0)
+    near = np.concatenate([v[:, :2], *outlines])
+    lo, hi = near.min(0), near.max(0)
     half = 0.5 * float(max(hi - lo)) * (1 + 2 * PREVIEW_LABEL_ROOM)  # a square view, room for the labels
     mid = (lo + hi) / 2
     ax.set_xlim(mid[0] - half, mid[0] + half)

@@ -23,6 +23,7 @@ ROLE_COLOURS: dict[str, str] = {
     "nominal": "#E69F00",      # orange: run A of ``compare`` (before, e.g. the nominal model)
     "with_effect": "#009E73",  # bluish green: run B of ``compare`` (after, e.g. with the effect)
     "best_fit": "#AA3377",     # purple (Paul Tol's colour-blind-safe scheme): the fit's best fit and its rollout
+    "obstacle": "#788096",     # slate grey: the scenario's rigid obstacles (a block, the winding's spool), as rendered
 }
 #: engines of ``compare-backends`` (no role: each engine is one simulation), in backend order:
 #: sky blue, reddish purple, then brown and dark teal for a third and fourth engine.

@@ -2,7 +2,8 @@
 
 ``OUT/rollout.zarr`` (times s, gripper m, vertices m, faces; attributes: backend, scenario, theta,
 status, reason), ``OUT/preview.png`` (the rest pose from above with corners 0-3 and the handles labelled, then
-four frames in the scenario's view, side or top (``view:``)), a recording directory in the same folder (``OUT/recording.yaml`` + ``OUT/clouds/NNN.npy``, :mod:`softsbi.data.recording`: surface samples of
+four frames in the scenario's view, side or top (``view:``), with the scenario's obstacles and the effects switched on
+and their values), a recording directory in the same folder (``OUT/recording.yaml`` + ``OUT/clouds/NNN.npy``, :mod:`softsbi.data.recording`: surface samples of
 every frame, the scenario inline, the hidden ``truth`` and ``effects``; ``softsbi fit --observed OUT``
 reads it) and, when rendering,
 ``OUT/frames/000.png ...`` with ``truth.json`` (a measurement for ``fit --observer heatmap|transporter``).
@@ -143,7 +144,9 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        doc = _write_rollout(tmp, out, ro, sc, backend, scenario, values, effects, render, cloud_points, seed, dt)
+        doc = _write_rollout(tmp, out, ro, sc, backend, scenario, values, effects, render, cloud_points, seed, dt,
+                             {e: {q.name: (values[q.name], q.unit) for q in reg.effect(e)().param_space()}
+                              for e in effects})
         if out.exists():  # --overwrite (checked above): the old contents go once the new ones are complete
             shutil.rmtree(out)
         os.replace(tmp, out)
@@ -167,9 +170,10 @@ def check_out_folder(out: Path, overwrite: bool) -> None:
 
 def _write_rollout(out: Path, final: Path, ro: Any, sc: Any, backend: str, scenario: str | Path, values: dict[str, float],
                    effects: Sequence[str], render: int | None, cloud_points: int, seed: int,
-                   dt: float) -> dict[str, Any]:
+                   dt: float, shown: Mapping[str, Mapping[str, tuple[float, str]]]) -> dict[str, Any]:
     """Write one rollout's files into the (new, empty) folder ``out``; returns the command's summary, whose paths
-    name the ``final`` folder ``out`` becomes."""
+    name the ``final`` folder ``out`` becomes. ``shown``: each effect's parameters with their values and units, for
+    the preview."""
     g = zarr.open_group(str(out / "rollout.zarr"), mode="w")
     g.attrs.update({"backend": backend, "scenario": sc.to_json(), "theta": values, "status": int(ro.status),
                     "reason": ro.reason})
@@ -181,7 +185,7 @@ def _write_rollout(out: Path, final: Path, ro: Any, sc: Any, backend: str, scena
                            "reason": ro.reason, "frames": len(ro.times), "vertices": int(ro.vertices.shape[1]),
                            "wall_s": dt, "rollout": str(final / "rollout.zarr")}
     if ro.ok:
-        plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}", sc)
+        plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}", sc, shown)
         doc["preview"] = str(final / "preview.png")
         clouds = rollout_clouds(ro, int(cloud_points), np.random.default_rng(seed))
         meta = {"scenario": {"inline": spec_from_scenario(sc)}, "times": ro.times.tolist(),

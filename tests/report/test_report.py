@@ -258,7 +258,7 @@ def test_every_handle_is_drawn_where_it_holds_the_cloth(tmp_path):
     assert len(grips) == 2 * 5  # both grippers in the view from above and each of the 4 side views
     assert sorted(float(x[0]) for x, _ in grips[2:4]) == pytest.approx([0.0, 0.2])  # y of corners 0 and 1
     assert len(_markers(fig, "x")) == 5  # the pinned corner
-    assert "2 grippers" in [t.get_text() for t in fig.axes[1].get_legend().get_texts()]
+    assert "2 grippers" in [t.get_text() for t in fig.legends[0].get_texts()]
     plt.close(fig)
     fig = R.clouds_figure(sc, verts, verts, [0, 3], vertices=verts)
     assert len(_markers(fig, "+")) == 2 * 2 * 2 * 2 and len(_markers(fig, "x")) == 2 * 2  # white halo + cross

@@ -45,7 +45,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from softsbi.backends.common import size_params
-from softsbi.backends.scenario_build import grid_rest_vertices, handle_vertices, mesh_rest, obstacles
+from softsbi.backends.scenario_build import (friction_words, grid_rest_vertices, handle_vertices, mesh_rest,
+                                             obstacles)
 from softsbi.core.errors import ParameterError
 from softsbi.core.types import Param, ParamSpace, Scenario
 from softsbi.scenarios.builtin import placed_direction
@@ -241,18 +242,19 @@ def apply_anisotropy(m: Any, d: Any, spec: Mapping[str, Any]) -> None:
     m.flex_stiffness[start:start + 21 * nel] = K.ravel()
 
 
-def rope_param_space() -> ParamSpace:
-    """Parameters of the rope (winding) scenario, SI units: ``young`` = Young's modulus E of the rope
+def rope_param_space(scenario: Scenario) -> ParamSpace:
+    """Parameters of a rope scenario (the winding), SI units: ``young`` = Young's modulus E of the rope
     material [Pa] (log 1e5-3e7): MuJoCo's ``young`` of the 1-D flex elasticity, whose bending rigidity
     is ``EI = E pi r^4 / 4`` for the rope radius ``r`` (checked by a clamped rope drooping under its
     weight, :func:`~softsbi.backends.common.rope_cantilever_scenario`; the rope is inextensible through ``<edge equality="true"/>``,
-    so there is no ``stretch``); ``friction`` [1] 0.1-1.0, ``scale`` = rope length [m] 0.3-0.5,
+    so there is no ``stretch``); ``friction`` [1] 0.1-1.0 (on the table and the scenario's obstacles, described by
+    name: :func:`~softsbi.backends.scenario_build.friction_words`), ``scale`` = rope length [m] 0.3-0.5,
     ``mass`` = linear density [kg/m] 0.01-0.05. The rope's stiffness was called ``bend`` before; that
     name means the cloth's bending rigidity D [N m] and is refused on a rope (:func:`check_rope_theta`)."""
     return ParamSpace([
         Param("young", 1e5, 3e7, "Pa", log=True,
               description="Young's modulus of the rope (bending rigidity E pi r^4 / 4; edges inextensible)"),
-        Param("friction", 0.1, 1.0, "1", description="rope-table and rope-spool friction coefficient"),
+        Param("friction", 0.1, 1.0, "1", description=friction_words(scenario, "rope")),
         *size_params(None, rope=True),
     ])
 

@@ -112,7 +112,7 @@ class MujocoFlex(Simulator):
         """
         check_scenario(self, scenario)
         if scenario.object.get("kind") == "rope":
-            return rope_param_space()
+            return rope_param_space(scenario)
         return ParamSpace([
             Param("bend", 1e-6, 1e-3, "N*m", log=True,
                   description="bending rigidity D = E t^3 / (12 (1 - nu^2))"),

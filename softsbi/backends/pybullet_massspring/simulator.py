@@ -35,7 +35,7 @@ import numpy as np
 
 from softsbi.backends.common import (EffectsThroughDoor, check_effects, check_scenario, cloth_material_params,
                                      grid_corners, grid_faces, size_params)
-from softsbi.backends.scenario_build import FEATURES, handle_targets, handle_vertices, mesh_edges, mesh_rest
+from softsbi.backends.scenario_build import FEATURES, friction_words, handle_targets, handle_vertices, mesh_edges, mesh_rest
 from softsbi.backends.pybullet_massspring.model import (CLOTH_SCENARIOS, ROPE_SCENARIOS, build_world, cloth_vertices,
                                                         import_pybullet, ribbon_faces, ribbon_vertices, spring_constants,
                                                         substeps)
@@ -147,7 +147,7 @@ class PybulletMassSpring(Simulator):
                       description="PyBullet springBendingStiffness of the rope ribbon (per bending spring)"),
                 Param("pb_rope_stretch", 80.0, 600.0, "N/m", log=True,
                       description="PyBullet springElasticStiffness of the rope ribbon (per spring)"),
-                Param("friction", 0.1, 1.0, "1", description="rope-table and rope-spool friction coefficient"),
+                Param("friction", 0.1, 1.0, "1", description=friction_words(scenario, "rope")),
                 *size_params(scenario, True),
             ])
         return ParamSpace([*cloth_material_params(stretch=PB_STRETCH_BOUNDS), *size_params(scenario, False)])

@@ -70,8 +70,17 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 
+#: an object whose rest pose is narrower than this fraction of its length (second to first principal extent) is a
+#: line, a rope: its regions are segments along it
+LINE_WIDTH = 0.01
+
+
 def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) -> tuple[np.ndarray, list[str]]:
     """Partition the object into ``n_side x n_side`` regions in its rest configuration.
+
+    A rope (a rest pose without width: its second principal extent under :data:`LINE_WIDTH` of its first) is cut
+    instead into ``n_side**2`` segments along it (at most one per vertex), each with the same number of vertices,
+    numbered from its grasped end ("R1 (grasped end)" ... "R9 (far end)").
 
     Args:
         vertices0: ``(N, 3)`` vertex positions at frame 0 (material coordinates).
@@ -82,8 +91,16 @@ def material_regions(vertices0: np.ndarray, grasp: np.ndarray, n_side: int = 3) 
         the region's centre from the grasp point ("R1 at the grasp" ... "R9 farthest").
     """
     v = vertices0 - vertices0.mean(0)
-    _, _, vt = np.linalg.svd(v, full_matrices=False)
+    _, s, vt = np.linalg.svd(v, full_matrices=False)
     uv = v @ vt[:2].T
+    if len(s) < 2 or s[1] <= LINE_WIDTH * s[0]:  # a rope: segments along it, from the end nearer the grasp
+        along = uv[:, 0]
+        ends = np.linalg.norm(vertices0[[np.argmin(along), np.argmax(along)]] - grasp, axis=1)
+        along = along if ends[0] <= ends[1] else -along
+        R = min(n_side * n_side, len(v))
+        labels = np.argsort(np.argsort(along, kind="stable")) * R // len(v)
+        return labels, [f"R{r + 1}" + (" (grasped end)" if r == 0 else " (far end)" if r == R - 1 else "")
+                        for r in range(R)]
     bins = []
     for k in range(2):
         edges = np.quantile(uv[:, k], np.linspace(0, 1, n_side + 1)[1:-1])
