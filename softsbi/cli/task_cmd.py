@@ -42,8 +42,14 @@ def _row(t: Any) -> list[Any]:
     if _damaged(t):
         return [*head, "?", f"DAMAGED, never used: {t.problem}", "`softsbi task delete` removes it"]
     r = t.report
-    return [*head, t.n_prior, "no training report (stored by a fit)" if r is None else r.verdict,
+    return [*head, t.n_prior, _no_report(t) if r is None else r.verdict,
             "" if r is None else f"{r.coverage.at_50:.2f} / {r.coverage.at_90:.2f}"]
+
+
+def _no_report(t: Any) -> str:
+    """Why a stored task has no training report: trained by ``task train --n-test 0``, or stored by a fit."""
+    return ("trained without a calibration report (--n-test 0)" if t.by_task_train else
+            "no training report (stored by a fit)")
 
 
 def _doc(t: Any) -> dict[str, Any]:
@@ -151,7 +157,8 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
            f"softsbi {idy.get('softsbi')}; {t.n_prior} prior simulations")
     r = t.report
     if r is None:
-        o.line("no training report (stored by a fit's first round; `softsbi task train` trains one with its report)")
+        o.line(f"{_no_report(t)}: fits of the task start their sequential rounds from it; `softsbi task train` "
+               f"with --n-test {D.N_TEST} trains it again with its report")
         return
     con = r.contraction
     rows = [[n, "rejects" if rej else "ok", f"{con[n].width_ratio:.2f}", "yes" if con[n].informed else "no"]

@@ -34,7 +34,7 @@ import numpy as np
 
 from softsbi.core.errors import PosteriorError, SimulationFailed, SoftsbiError
 from softsbi.core.jsonfile import check_result_path, write_json_atomic
-from softsbi.core.defaults import ALPHA
+from softsbi.core.defaults import ALPHA, MAX_CHECK_REPLICATES, MIN_CHECK_REPLICATES
 from softsbi.core.results import MCPValue
 from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import NULL_STREAM, surface_seed
@@ -53,7 +53,7 @@ from softsbi.workflows.fit.task_store import StoredTask, task_store_of
 #: the file beside a stored task that holds its replicates' statistics
 NULL_FILE = "check-null.json"
 #: the fewest replicates that can reject at the default level: ``1 / (n + 1) <= ALPHA``
-MIN_REPLICATES = math.ceil(1 / ALPHA) - 1
+MIN_REPLICATES = MIN_CHECK_REPLICATES
 #: posterior draws a replicate's posterior median is taken from (a fit's report takes it from 4000 samples)
 MEDIAN_DRAWS = 4000
 #: replicate recordings whose posterior-predictive rollouts one executor call simulates (their rollouts are held
@@ -215,6 +215,13 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
     Raises:
         SoftsbiError: an environment fault of the executor; recordings whose clouds differ in size.
     """
+    return _case_statistics(recordings, est, cfg, space, ctx, rollouts, seeds, workers, family)[0]
+
+
+def _case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: ParamSpace, ctx: SimContext,
+                     rollouts: int, seeds: Sequence[int], workers: int | None = None,
+                     family: Sequence[Any] = ()) -> tuple[np.ndarray, list[str]]:
+    """:func:`case_statistics`, and per recording why its fit could not be checked (``""``: it was checked)."""
     from softsbi.workflows.criticism.screening import screening_statistics  # screening reads check's statistics
     if len({int(r.dense.shape[1]) for r in recordings}) > 1:
         raise SoftsbiError("case statistics take recordings whose dense clouds hold as many points per frame")
@@ -224,7 +231,7 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
     # are the task recording's size), summarised in the jobs
     keep = summarising(replace(ctx, keep_rollout=False, bank=None), recordings[0].dense.shape[1],
                        sensor["metric_min_z"], sensor["metric_frames"], sensor["metric_camera"])
-    out = []
+    out, why = [], []
     for lo in range(0, len(recordings), BATCH):
         f_obs, items, medians = [], [], []
         for rec, seed in zip(recordings[lo:lo + BATCH], seeds[lo:lo + BATCH]):
@@ -249,6 +256,9 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
             feats = [r.features for r in part if r is not None and r.ok and r.features is not None]
             # check refuses a run with too few rollouts: never checked, so not a replicate either
             checked.append((f, np.array(feats), med) if f is not None and len(feats) >= MIN_NULL else None)
+            why.append("" if checked[-1] else "its posterior has no mass in the prior box" if f is None else
+                       f"only {len(feats)} of its {rollouts} posterior-predictive rollouts ran (a check needs "
+                       f"{MIN_NULL})")
         z = screening_statistics(keep, space, cfg, [c[2] if c else None for c in checked],
                                  [c[0] if c else None for c in checked], [c[1] if c else None for c in checked],
                                  list(family), workers, label=f"screenings of recordings {lo + 1}-{lo + len(f_obs)}")
@@ -258,7 +268,7 @@ def case_statistics(recordings: Sequence[Recording], est: Any, cfg: Any, space: 
                 continue
             d, p = misspecification_test(c[0], c[1])
             out.append([d, p.value, *zz])
-    return np.array(out, float).reshape(-1, 2 + len(family))
+    return np.array(out, float).reshape(-1, 2 + len(family)), why
 
 
 def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream: int = NULL_STREAM,
@@ -273,6 +283,21 @@ def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream
 
     Raises:
         SoftsbiError: every simulation failed, or the executor raised one (an environment fault)."""
+    jobs, out = _replicate_runs(cfg, space, recording, n, stream, effects, extra)
+    kept = [i for i in range(n) if isinstance(out[i], Recording)]
+    if not kept:
+        raise SoftsbiError(f"every one of {n} replicate recordings failed to simulate; narrow the prior with --bounds")
+    return [out[i] for i in kept], [jobs[i][-1] for i in kept]
+
+
+def _replicate_runs(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream: int = NULL_STREAM,
+                    effects: Sequence[str] = (), extra: dict[str, float] | None = None
+                    ) -> tuple[list[tuple], list[Recording | BaseException]]:
+    """:func:`replicates`' simulation jobs (:func:`~softsbi.workflows.measurement.simulate_recording`'s arguments,
+    the truth third and the seed last) and, per replicate, its recording or the exception its simulation ended in.
+
+    Raises:
+        SoftsbiError: the executor raised one (an environment fault)."""
     jobs = []
     for i in range(n):  # recording i's own stream: the first n of a larger set are these n
         rng = np.random.default_rng([cfg.seed, stream, i])
@@ -287,12 +312,9 @@ def replicates(cfg: Any, space: ParamSpace, recording: Recording, n: int, stream
         for done, (i, res) in enumerate(exe.map_unordered(_simulated_recording, jobs), start=1):
             if isinstance(res, SoftsbiError) and not isinstance(res, SimulationFailed):
                 raise res
-            out[i] = None if isinstance(res, BaseException) else res
+            out[i] = res
             advance(done)
-    kept = [i for i in range(n) if out[i] is not None]
-    if not kept:
-        raise SoftsbiError(f"every one of {n} replicate recordings failed to simulate; narrow the prior with --bounds")
-    return [out[i] for i in kept], [jobs[i][-1] for i in kept]
+    return jobs, out
 
 
 def _simulated_recording(context: Any, job: tuple) -> Recording:
@@ -306,33 +328,58 @@ def train_check_null(task: StoredTask, recording: Recording, cfg: Any, space: Pa
     """Compute and store the task's replicates (module docstring) for checks on ``rollouts`` rollouts against any
     part of the candidate ``family`` (effect instances; None: the model's default family,
     :func:`~softsbi.workflows.criticism.screening.default_candidates`, the family ``check`` and ``diagnose`` screen):
-    each replicate's omnibus and directional statistics (:func:`case_statistics`). A replicate no candidate of which could be screened (the screening failed) is left
-    out, so that the pairs stay the recording's procedure.
+    each replicate's omnibus and directional statistics (:func:`case_statistics`).
+
+    A replicate that cannot be fitted and checked as a recording would be (its simulation failed, its posterior has
+    no mass in the prior box, too few of its rollouts ran, or none of the family could be screened) is left out, so
+    that the pairs stay the recording's procedure; the others are kept when at least :data:`MIN_REPLICATES` are left
+    (a p-value from ``k`` replicates is at least ``1 / (k + 1)``: fewer cannot resolve the level), and the left-out
+    ones are named to ``message``, each with its parameters and reason.
 
     Raises:
-        SoftsbiError: ``n`` below :data:`MIN_REPLICATES` (before any work), fewer than that could be fitted and
-            checked. ResultUnwritable: ``check-null.json`` cannot be written (a folder in its place: before any
-            work; a full disk named as such). Everything :func:`replicates` raises.
+        SoftsbiError: ``n`` below :data:`MIN_REPLICATES` (before any work); fewer than that could be fitted and
+            checked (one line naming the model and the first failed replicates: index, parameters, reason).
+            ResultUnwritable: ``check-null.json`` cannot be written (a folder in its place: before any work; a full
+            disk named as such). Everything :func:`replicates` raises but its "every simulation failed".
     """
     from softsbi.workflows.criticism.screening import default_candidates, screening_size  # screening reads this
+    say = message or (lambda s: None)
     check_replicates(n)
     check_result_path(task.path / NULL_FILE)  # a folder in its place: refused before the replicates are fitted
     family = list(default_candidates(cfg.backend, recording.scenario, cfg.effects) if family is None else family)
     per = rollouts + 1 + screening_size(space.dim, family)
-    (message or (lambda s: None))(f"{task.model}: {n} replicate recordings for check's calibration "
-                                  f"({n * per} simulations: each simulated, {rollouts} posterior-predictive "
-                                  f"rollouts and its screening of {len(family)} candidates)")
-    recs, seeds = replicates(cfg, space, recording, n)
-    stats = case_statistics(recs, task.restore(), cfg, space, ctx, rollouts, seeds, workers, family)
-    ok = np.isfinite(stats[:, 0]) & (np.isfinite(stats[:, 2:]).any(1) if family else True)
-    if ok.sum() < MIN_REPLICATES:
-        raise SoftsbiError(f"only {int(ok.sum())} of {n} replicate recordings could be fitted and checked (the others "
-                           f"failed to simulate, put no posterior mass in the prior box or could not be screened); "
-                           f"narrow the prior with --bounds")
-    (message or (lambda s: None))(f"{task.model}: {int(ok.sum())} of {n} replicates fitted and checked")
+    say(f"{task.model}: {n} replicate recordings for check's calibration ({n * per} simulations: each simulated, "
+        f"{rollouts} posterior-predictive rollouts and its screening of {len(family)} candidates)")
+    jobs, sims = _replicate_runs(cfg, space, recording, n)
+    why = {i: str(sim) if isinstance(sim, SimulationFailed) else f"its simulation failed ({type(sim).__name__}: {sim})"
+           for i, sim in enumerate(sims) if not isinstance(sim, Recording)}
+    ran = [i for i in range(n) if i not in why]
+    stats = np.full((0, 2 + len(family)), np.nan)
+    if ran:
+        stats, reasons = _case_statistics([sims[i] for i in ran], task.restore(), cfg, space, ctx, rollouts,
+                                          [jobs[i][-1] for i in ran], workers, family)
+        for i, row, reason in zip(ran, stats, reasons):
+            if reason or (family and not np.isfinite(row[2:]).any()):
+                why[i] = reason or f"none of its {len(family)} candidates could be screened"
+    ok = [k for k, i in enumerate(ran) if i not in why]
+    failed = "; ".join(f"replicate {i + 1} at {_at(jobs[i][2], space)}: {why[i]}" for i in sorted(why)[:3]) + (
+        f"; and {len(why) - 3} more" if len(why) > 3 else "")
+    if len(ok) < MIN_REPLICATES:
+        enough = math.ceil(MIN_REPLICATES * n / len(ok)) + 1 if ok else MAX_CHECK_REPLICATES + 1  # at this rate
+        more = f"give --check-null {enough} (the failed ones are left out) or " if enough <= MAX_CHECK_REPLICATES else ""
+        raise SoftsbiError(f"{task.model}: only {len(ok)} of {n} replicate recordings could be fitted and checked, and "
+                           f"check's calibration needs {MIN_REPLICATES} (a p-value from k replicates is at least "
+                           f"1/(k+1), above the level {ALPHA} for fewer): {failed}; {more}narrow the prior with "
+                           f"--bounds")
+    say(f"{task.model}: {len(ok)} of {n} replicates fitted and checked" + (
+        f", kept (check's calibration needs at least {MIN_REPLICATES}); left out: {failed}" if why else ""))
     null = CheckNull(rollouts, int(recording.dense.shape[1]), tuple(float(v) for v in stats[ok, 0]),
                      tuple(tuple(float(v) for v in row) for row in stats[ok, 2:]) if family else None,
                      tuple(c.name for c in family) if family else None)
     write_json_atomic(task.path / NULL_FILE, null.to_json())  # ResultUnwritable: one line (a full disk named)
     return null
 
+
+def _at(truth: dict[str, float], space: ParamSpace) -> str:
+    """A replicate's inferred parameters, e.g. ``a=0.93, b=-0.2``."""
+    return ", ".join(f"{k}={float(truth[k]):.4g}" for k in space.names)

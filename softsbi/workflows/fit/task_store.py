@@ -61,6 +61,9 @@ from softsbi.workflows.fit.observe import metric_sensor, observer_options
 TASK_FORMAT = "softsbi.task/1"
 #: the stored tasks' folder inside a simulation bank
 TASKS_FOLDER = "tasks"
+#: the entry of a stored task's ``info`` that marks a task ``softsbi task train`` trained (a fit's first round
+#: stores none): with ``--n-test 0`` it has no training report, and is still no fit's
+TASK_TRAIN_INFO = "task_train"
 
 
 def task_identity(cfg: FitConfig, space: ParamSpace, ctx: SimContext, estimator_options: Mapping[str, Any]) -> dict:
@@ -148,7 +151,8 @@ class StoredTask:
         estimator: the trained estimator's state (restore: the plugin ``estimator.name`` with its options).
         info: the training information (:meth:`~softsbi.core.interfaces.PosteriorEstimator.fit`'s, with counts).
         report: the training report (``task train``: calibration on held-out prior simulations,
-            :class:`~softsbi.core.fitreport.TrainingReport`), or None (stored by a fit's first round).
+            :class:`~softsbi.core.fitreport.TrainingReport`), or None (stored by a fit's first round, or trained by
+            ``task train --n-test 0``: :attr:`by_task_train`).
         path: its folder.
     """
 
@@ -164,6 +168,12 @@ class StoredTask:
     def model(self) -> str:
         """The model's name: ``nominal`` or ``nominal+<effect>...`` (the effects switched on)."""
         return model_name(self.identity)
+
+    @property
+    def by_task_train(self) -> bool:
+        """Whether ``softsbi task train`` trained it (with its training report, or without one: ``--n-test 0``),
+        not a fit's first round."""
+        return self.report is not None or bool(self.info.get(TASK_TRAIN_INFO))
 
     def restore(self) -> Any:
         """The trained estimator, restored through the plugin registry (not yet conditioned on any observation).

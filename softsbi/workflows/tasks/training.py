@@ -12,9 +12,9 @@ For each model (the nominal model, then the nominal model with each candidate ef
    90% interval over the prior's, :mod:`~softsbi.inference.contraction`, median over the test pairs);
 4. the task is stored under its key with that training report.
 
-A model whose task is stored with at least ``n_prior`` prior simulations and a training report is not trained
-again (``retrain=True`` does). The prior held-out simulations go through the bank too, so a retrained task
-re-simulates nothing.
+A model whose task ``task train`` stored with at least ``n_prior`` prior simulations and a training report (or
+without one, when ``n_test`` is 0) is not trained again (``retrain=True`` does). The prior held-out simulations go
+through the bank too, so a retrained task re-simulates nothing.
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ from softsbi.workflows.criticism.check_null import NULL_FILE, check_replicates, 
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, run_jobs
 from softsbi.workflows.criticism.screening import default_candidates, is_generic, screening_size
-from softsbi.workflows.fit.task_store import PriorRound, StoredTask, first_round_context
+from softsbi.workflows.fit.task_store import TASK_TRAIN_INFO, PriorRound, StoredTask, first_round_context
 
 
 
@@ -123,7 +123,8 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
         if prior.damaged is not None:
             say(f"{model}: stored task {prior.damaged.digest[:12]} is damaged ({prior.damaged.problem}): training it "
                 f"again in its place")
-        if task is not None and task.report is not None and task.n_prior >= n_prior and not retrain:
+        if task is not None and task.by_task_train and (task.report is not None or not n_test) and \
+                task.n_prior >= n_prior and not retrain:
             say(f"{model}: stored task {task.digest[:12]} ({task.n_prior} prior simulations) reused")
         else:
             task = _train(recording, cfg, space, ctx, prior, model, n_prior, n_test, n_draws, say, t_start)
@@ -143,7 +144,8 @@ def _train(recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimCont
     t0 = time.perf_counter()
     est = est_cls(**opts)
     info = est.fit(U.astype(np.float64), X[:, fr].astype(np.float64), seed=cfg.seed)
-    info = dict(info, n_train_total=int(len(U)), usable_per_round=[int(len(U))], sensor_pairs=0)
+    info = dict(info, n_train_total=int(len(U)), usable_per_round=[int(len(U))], sensor_pairs=0,
+                **{TASK_TRAIN_INFO: True})  # a task trained here, with or without its report: no fit's
     report = None
     if n_test > 0:
         report = training_report(est, ctx, space, cfg, n_test, n_draws, fr)
@@ -181,17 +183,23 @@ def _prepared(recording: Recording, cfg: FitConfig) -> tuple[FitConfig, ParamSpa
 
 
 def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
-    """The wall time (s) of one simulation of the nominal model: the first of its prior simulations, through the
-    simulation bank (so that the training then reads it from there); None when it failed or was read from the bank
-    (no measure of a simulation's time)."""
+    """The wall time (s) of one simulation of the nominal model, simulated here: the first of its prior simulations,
+    through the simulation bank (so that the training then reads it from there); when the bank already holds it (a
+    bank read costs nothing, so it measures no simulation), the same simulation again outside the bank (timed, not
+    stored). None when it failed."""
     cfg, space, ctx, prior = _prepared(recording, cfg)
     prior.store.check_writable()  # a store that cannot take the task refuses before this first simulation
     u = np.random.default_rng([cfg.seed, 0, 0]).random((1, space.dim))  # the first row of the prior draws
-    res = run_jobs(replace(ctx, bank=str(prior.store.path.parent)),
-                   [JobItem(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))], workers=cfg.workers,
-                   executor=cfg.executor, executor_options=cfg.executor_options, label="one simulation, timed")[0]
-    ok = res.ok and res.bank != HIT and res.seconds
-    return float(res.seconds) if ok else None
+    item = JobItem(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))
+
+    def timed(bank: str | None) -> Any:
+        return run_jobs(replace(ctx, bank=bank), [item], workers=cfg.workers, executor=cfg.executor,
+                        executor_options=cfg.executor_options, label="one simulation, timed")[0]
+
+    res = timed(str(prior.store.path.parent))
+    if res.bank == HIT:  # a bank read costs nothing, so it measures no simulation: the same one outside the bank
+        res = timed(None)
+    return float(res.seconds) if res.ok and res.seconds else None
 
 
 def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,
@@ -209,7 +217,7 @@ def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, sec
          f"simulations" + (f" + {check_null} replicate recordings x {per} for check's calibration"
                            if check_null else "") + f") = {total} simulations at most")
     if seconds is None:
-        return s + " (one simulation's time unknown: it was read from the bank or failed)"
+        return s + " (one simulation's time unknown: it failed)"
     n = workers or os.cpu_count() or 1
     return (s + f"; one simulation took {duration_words(seconds)}, so about {duration_words(total * seconds / n)} "
                 f"on {n} worker{'s' if n > 1 else ''}, plus the training (fewer when stored models or the simulation "
