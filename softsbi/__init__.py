@@ -27,7 +27,8 @@ _LAZY = {**{n: "softsbi.core.interfaces" for n in ("Effect", "Executor", "Observ
          "load_recording": "softsbi.workflows.measurement", "simulate_recording": "softsbi.workflows.measurement",
          "import_diffcloud": "softsbi.workflows.measurement", "train_task": "softsbi.workflows.tasks.training",
          "calibrate_run": "softsbi.workflows.api", "check": "softsbi.workflows.api",
-         "diagnose": "softsbi.workflows.api", "compare": "softsbi.workflows.api"}
+         "diagnose": "softsbi.workflows.api", "compare": "softsbi.workflows.api",
+         "to_datatree": "softsbi.workflows.datatree"}
 
 
 def __getattr__(name: str):
