@@ -94,8 +94,8 @@ def plot_rollout_preview(ro: Any, path: str | Path, title: str, scenario: Any = 
     with every handle of
     ``scenario`` (its grippers ``+`` and the vertices it holds in place ``x``; without a scenario the rollout's
     gripper) and its obstacles (boxes and cylinders, named in the legend below the panels), in the palette's
-    posterior, gripper and obstacle colours; under the title, the effects switched on with their values (``effects``: effect name ->
-    ``{parameter: (value, unit)}``, :func:`effects_line`) (``softsbi simulate``'s ``preview.png``)."""
+    posterior, gripper and obstacle colours; under the title, the effects switched on with their values (``effects``:
+    effect name -> ``{parameter: (value, unit)}``, :func:`effects_line`) (``softsbi simulate``'s ``preview.png``)."""
     return save_figure(rollout_preview_figure(ro, title, scenario, effects), Path(path))
 
 
