@@ -680,3 +680,15 @@ def test_a_check_whose_directional_test_did_not_run_says_so_and_what_its_p_value
     assert "did not run" not in test_verdict(joint(3, 5))
     assert "the directional test did not run (no candidate effects)" in rule_words(
         diagnosis([], test=replace(joint(0, None), directional_skipped="no candidate effects")))
+
+
+def test_a_min_p_combined_test_says_how_it_was_combined_and_counts_its_own_null():
+    """A joint test combined by its null's own minima says so, with the deciding test's own p-value; a calibrated one
+    counts replicate recordings. Results written before the combination keep their Bonferroni words (above)."""
+    t = replace(joint(2, 0), combined=MCPValue(exceed=0, n=200))
+    assert p_words(t) == ("p <= 1/201 (two tests, min-p combined; beyond all 200 null simulations; the directional "
+                          "test's own p <= 1/201)")
+    assert p_short(t) == "p <= 1/201" and t.resolution == 1 / 201
+    cal = replace(joint(9, 4), combined=MCPValue(exceed=3, n=40), calibrated=True)
+    assert p_words(cal).startswith("p = 0.098 (two tests, min-p combined: 3 of 40 replicate recordings of the task")
+    assert p_short(cal) == "p = 0.098" and not cal.misspecified
