@@ -23,6 +23,7 @@ from softsbi.core.errors import ParameterError
 from softsbi.core.types import Scenario
 from softsbi.scenarios.grid import grid_corners
 from softsbi.scenarios.builtin import placed_direction
+from softsbi.scenarios.spec import obstacles
 
 #: every feature name :func:`required_features` can return
 FEATURES = ("cloth", "cloth-mesh", "rope", "several handles", "pinned handles", "box obstacles",
@@ -74,17 +75,6 @@ def check_features(sim: Any, scenario: Scenario) -> None:
     why = unsupported(sim, scenario)
     if why:
         raise ValueError(why)
-
-
-def obstacles(scenario: Scenario) -> list[dict[str, Any]]:
-    """The scenario's obstacles (``world["obstacles"]``; a scenario built in code with only
-    ``object["spool"]`` gets that cylinder)."""
-    obs = scenario.world.get("obstacles")
-    if obs is None:
-        sp = scenario.object.get("spool")
-        obs = [{"type": "cylinder", "name": "spool", "centre": list(sp["centre"]), "radius": float(sp["radius"]),
-                "height": float(sp["height"])}] if sp else []
-    return list(obs)
 
 
 def friction_words(scenario: Scenario, obj: str) -> str:

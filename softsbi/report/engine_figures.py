@@ -8,11 +8,11 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.backends.scenario_build import obstacles
 from softsbi.core.errors import ShapeError
 from softsbi.report.style import (DPI, ENGINE_COLOURS, FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS,
                                    _header, _plt, grip_label, save_figure, view_planes)
 from softsbi.scenarios.handles import handle_tracks, pinned_vertices
+from softsbi.scenarios.spec import obstacles
 
 
 def plot_compare_backends(scenario: Any, rollouts: Mapping[str, Any], report: Mapping[str, Any],
@@ -162,7 +162,7 @@ def obstacle_name(o: Mapping[str, Any]) -> str:
 
 
 def obstacle_outline(o: Mapping[str, Any], a: int, b: int, table_z: float) -> np.ndarray:
-    """The outline ``(K, 2)`` m of a scenario obstacle (:func:`~softsbi.backends.scenario_build.obstacles`: a box
+    """The outline ``(K, 2)`` m of a scenario obstacle (:func:`~softsbi.scenarios.spec.obstacles`: a box
     with ``centre`` [x, y, z], ``half_size`` and ``yaw`` deg about z; a cylinder standing on the table at ``table_z``
     with ``centre`` [x, y], ``radius`` and ``height``) seen along the third axis of the plane of axes ``a``, ``b``
     (0-2 = x, y, z): from above (0, 1) a box's rotated rectangle or a cylinder's circle, from a side the rectangle it

@@ -395,3 +395,14 @@ def declared_spool(scenario: Scenario) -> Mapping[str, Any] | None:
     """The occluding spool a scenario's object is wound on (``object.spool``: ``centre``, ``radius``, ``height``, m;
     the built-in winding's), or None."""
     return (scenario.object or {}).get("spool")
+
+
+def obstacles(scenario: Scenario) -> list[dict[str, Any]]:
+    """The scenario's obstacles (``world["obstacles"]``; a scenario built in code with only
+    ``object["spool"]`` gets that cylinder)."""
+    obs = scenario.world.get("obstacles")
+    if obs is None:
+        sp = scenario.object.get("spool")
+        obs = [{"type": "cylinder", "name": "spool", "centre": list(sp["centre"]), "radius": float(sp["radius"]),
+                "height": float(sp["height"])}] if sp else []
+    return list(obs)

@@ -209,11 +209,11 @@ def test_an_unknown_plugin_name_leaves_no_run_directory(tmp_path):
 
 
 def test_a_huge_render_is_refused_before_simulating_with_an_estimate_and_an_override(tmp_path):
-    res = runner.invoke(app, ["simulate", "--render", "5000", "--out", str(tmp_path / "r")])
+    res = runner.invoke(app, ["simulate", "--render", "4000", "--out", str(tmp_path / "r")])
     assert res.exit_code == 2
-    assert "7.4 GB" in res.output and "--render-memory-gb" in res.output and "Traceback" not in res.output
+    assert "4.8 GB" in res.output and "--render-memory-gb" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "r").exists()
-    assert check_render_memory(5000, 25, cap_gb=10) == render_memory_bytes(5000, 25)  # the override admits it
+    assert check_render_memory(4000, 25, cap_gb=10) == render_memory_bytes(4000, 25)  # the override admits it
     with pytest.raises(SoftsbiError, match="positive"):
         check_render_memory(0, 25, cap_gb=4)
 
