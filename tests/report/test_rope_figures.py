@@ -5,6 +5,7 @@ speaks of the rope; ``params`` words the friction from the task's own obstacles 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import matplotlib
 
@@ -20,22 +21,8 @@ from softsbi.report import figures as R
 from softsbi.scenarios import load_scenario
 from softsbi.scenarios.spec import load_scenario_file
 
-ROPE_DRAG = """\
-format: softsbi-scenario/1
-name: rope-drag
-description: a rope dragged by one end along +x, then along -y, past a block
-object: {kind: rope, length: 0.30, radius: 0.004}
-placement: {corner: [0.0, 0.0], direction: [-1.0, 0.0]}
-handles:
-  - name: grip
-    grasp: {end: 0}
-    path: {keyframes: [{t: 0, p: [0, 0, 0.01]}, {t: 0.5, p: [0.15, 0, 0.01]}, {t: 1.0, p: [0.15, -0.15, 0.01]}]}
-frames: {count: 11, duration: 1.0}
-world:
-  table_z: 0.0
-  obstacles:
-    - {type: box, name: block, centre: [0.05, -0.06, 0.02], half_size: [0.03, 0.02, 0.02]}
-VIEW"""
+#: the user's rope task of the rope diagnosis tests, "VIEW" where a test puts its figures' view
+ROPE_DRAG = (Path(__file__).parents[1] / "workflows" / "rope_drag.yaml").read_text() + "VIEW"
 #: vertices of the rope (a mujoco-flex rope's count), vertex 0 at the grasped end
 N = 24
 

@@ -146,14 +146,21 @@ def test_a_disk_filling_up_mid_simulate_or_import_is_one_line_and_leaves_no_part
     assert res.exit_code == 0, res.output
 
 
-def test_check_on_a_read_only_run_is_refused_before_its_rollouts(tmpfs, monkeypatch):
-    import softsbi.workflows.criticism.check as check
+def read_only_run(tmpfs, monkeypatch, module, rollouts: str):
+    """A finished toy fit in ``tmpfs`` made read-only, with ``module``'s ``rollouts`` function failing the test if the
+    command simulates posterior rollouts for it."""
     run_fit(tmpfs / "done", toy_measurement(), _cfg(rounds=1, n_eval=5), make_plots=False)
     assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
 
     def no_rollouts(*a, **k):
         raise AssertionError("simulated posterior rollouts for a run it cannot write to")
-    monkeypatch.setattr(check, "PosteriorPredictive", no_rollouts)
+    monkeypatch.setattr(module, rollouts, no_rollouts)
+    return tmpfs / "done"
+
+
+def test_check_on_a_read_only_run_is_refused_before_its_rollouts(tmpfs, monkeypatch):
+    import softsbi.workflows.criticism.check as check
+    read_only_run(tmpfs, monkeypatch, check, "PosteriorPredictive")
     res = runner.invoke(app, ["check", str(tmpfs / "done"), "--n-eval", "5", "--workers", "1"])
     assert res.exit_code == 2, res.output
     line = " ".join(res.output.split())
@@ -429,12 +436,7 @@ def test_a_read_only_simulation_bank_is_refused_before_the_fit(tmpfs, tmp_path):
 
 def test_view_of_a_read_only_run_is_refused_before_its_rollouts(tmpfs, monkeypatch):
     import softsbi.workflows.view as view
-    run_fit(tmpfs / "done", toy_measurement(), _cfg(rounds=1, n_eval=5), make_plots=False)
-    assert subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)]).returncode == 0
-
-    def no_rollouts(*a, **k):
-        raise AssertionError("simulated posterior rollouts for a run it cannot write to")
-    monkeypatch.setattr(view, "posterior_rollouts", no_rollouts)
+    read_only_run(tmpfs, monkeypatch, view, "posterior_rollouts")
     res = runner.invoke(app, ["view", str(tmpfs / "done"), "--n-eval", "2", "--workers", "1", "--no-rrd"])
     assert res.exit_code == 2, res.output
     (line,) = res.output.strip().splitlines()

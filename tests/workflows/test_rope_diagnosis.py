@@ -15,22 +15,8 @@ from softsbi.workflows.measurement import simulate_recording
 
 pytestmark = pytest.mark.integration
 
-ROPE_DRAG = """\
-format: softsbi-scenario/1
-name: rope-drag
-description: a rope dragged by one end along +x, then along -y, past a block
-object: {kind: rope, length: 0.30, radius: 0.004}
-placement: {corner: [0.0, 0.0], direction: [-1.0, 0.0]}
-handles:
-  - name: grip
-    grasp: {end: 0}
-    path: {keyframes: [{t: 0, p: [0, 0, 0.01]}, {t: 0.5, p: [0.15, 0, 0.01]}, {t: 1.0, p: [0.15, -0.15, 0.01]}]}
-frames: {count: 11, duration: 1.0}
-world:
-  table_z: 0.0
-  obstacles:
-    - {type: box, name: block, centre: [0.05, -0.06, 0.02], half_size: [0.03, 0.02, 0.02]}
-"""
+#: the user's rope task, a scenario file (the rope figures' tests read it too)
+ROPE_DRAG = Path(__file__).with_name("rope_drag.yaml")
 TRUTH = {"young": 1e6, "friction": 0.5, "scale": 0.3, "mass": 0.03}
 
 
@@ -49,12 +35,10 @@ def snag_plugin():
 def rope_fits(tmp_path_factory):
     """Nominal fits (one round of 80) of the rope drag with the snag hidden at 6 N/m, and without it."""
     root = tmp_path_factory.mktemp("rope")
-    scenario = root / "rope_drag.yaml"
-    scenario.write_text(ROPE_DRAG)
     cfg = FitConfig(rounds=1, sims_per_round=80, workers=2, n_eval=30)
     out = {}
     for name, extra, effects in (("snag", {"snag_k": 6.0}, ["snag"]), ("control", {}, [])):
-        rec = simulate_recording("mujoco-flex", str(scenario), {**TRUTH, **extra}, effects=effects, seed=3)
+        rec = simulate_recording("mujoco-flex", str(ROPE_DRAG), {**TRUTH, **extra}, effects=effects, seed=3)
         run_fit(root / name, rec, cfg, make_plots=False)
         out[name] = root / name
     return out
