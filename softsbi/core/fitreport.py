@@ -272,6 +272,12 @@ class FitReport:
         """The inferred parameters' names, in column order."""
         return [p.name for p in self.parameters]
 
+    @property
+    def task(self) -> str | None:
+        """The key of the stored task whose trained posterior the fit's first round conditioned (the fit then stopped
+        at it when it ran one round, :attr:`RoundRow.task`), else None."""
+        return self.per_round[0].task if self.per_round else None
+
     @classmethod
     def from_json(cls, data: Mapping[str, Any], path: str | Path = "report.json",
                   rewrite: str | None = None) -> "FitReport":

@@ -183,7 +183,7 @@ def refit_budget(run: RunView, s: DiagnoseSettings) -> tuple[int | None, int | N
     an untrained candidate), so an asked budget is kept as asked and never depends on which recording filled the
     task first."""
     base, rep = run.config, run.report
-    at_task = bool(rep.per_round and rep.per_round[0].task)  # "the run's own" then means each refit's own task
+    at_task = bool(rep.task)  # "the run's own" then means each refit's own task
     rounds = None if s.refit_rounds is not None and s.refit_rounds == base.rounds and not at_task else s.refit_rounds
     sims = None if s.refit_sims == base.sims_per_round else s.refit_sims
     return rounds, sims
@@ -202,7 +202,7 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
     rounds, sims = report.rounds or 1, report.sims_per_round or 0
     n_eval = max((report.simulations or 0) - rounds * sims, 0)
     # "the run's own" rounds of a run that stopped at its stored task are an untrained refit's default ones
-    at_task = bool(report.per_round and report.per_round[0].task)
+    at_task = bool(report.task)
     r_rounds, r_sims = refit_rounds or (ROUNDS if at_task else rounds), refit_sims or sims
     per_refit = r_rounds * r_sims + n_eval + n_null
     refits = confirm + (1 if confirm >= 2 else 0)

@@ -207,11 +207,10 @@ class Screening:
         for eff in cands:
             self._add_design(eff, [c for c in eff_cols if c[0] is eff], feats, f0, sd, effect_step, res)
         self.n_simulations = len(res)
-        #: the directional test's statistic on the measurement and on each null rollout (the max-T maximum over the
-        #: candidates, :func:`max_t_statistics`), set by :meth:`ranking`
-        self.z_obs_max: float | None = None
+        #: each null rollout's directional statistic (the max-T maximum over the candidates,
+        #: :func:`max_t_statistics`), and each screened candidate's normalised statistic on the measurement, set by
+        #: :meth:`ranking`
         self.z_max: np.ndarray | None = None
-        #: each screened candidate's normalised statistic on the measurement, set by :meth:`ranking`
         self.z_obs: dict[str, float] = {}
 
     def _add_design(self, eff: Any, cols: list[tuple[Any, str, int, int]], feats: list[Any], f0: np.ndarray,
@@ -234,6 +233,12 @@ class Screening:
         self.design[eff.name] = {"effect": eff, "J": np.stack([(feats[c[2]] - feats[c[3]]) / sd for c in cols], 1),
                                  "offset": (feats[cols[0][3]] - f0) / sd, "lo": np.array(lo), "hi": np.array(hi),
                                  "steps": steps}
+
+    @property
+    def z_obs_max(self) -> float | None:
+        """The directional test's statistic on the measurement: the largest of :attr:`z_obs` (None before
+        :meth:`ranking`, or when no candidate was screened)."""
+        return max(self.z_obs.values(), default=None)
 
     def sse(self, r: np.ndarray, names: Sequence[str]) -> tuple[float, np.ndarray]:
         """Weighted residual sum of squares of the best linearised fit with effects ``names``, and
@@ -273,7 +278,6 @@ class Screening:
         adj, z = max_t_adjusted(obs, null)
         z_obs, self.z_max = max_t_statistics(obs, null)
         self.z_obs = dict(zip(names, (float(z) for z in z_obs)))
-        self.z_obs_max = float(z_obs.max())
         rows = []
         for name, (_, frac, _, est), p, zz in zip(names, tests, adj, z):
             eff = self.design[name]["effect"]

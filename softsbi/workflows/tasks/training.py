@@ -346,7 +346,8 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
         check_result_path(prior.store.path / prior.digest / NULL_FILE)
     say = message or (lambda s: None)
     screened = [m[-1] for m in models[1:]]
-    screening = screening_size(_prepared(recording, cfg)[1].dim, replicate_family(cfg, recording, screened))
+    screening = screening_size(_prepared(recording, cfg)[1].dim, replicate_family(cfg, recording, screened)) \
+        if check_null else 0
     say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers,
                       screening=screening))
     each = [n_prior + n_test + check_null * (defaults.N_NULL + 1 + screening)] * len(models)
