@@ -292,7 +292,7 @@ def parameters_page() -> str:
             if not _builtin(cls) or (cls.scenarios and scen not in cls.scenarios):
                 continue
             rows = _param_rows([p.summary() for p in cls().param_space(sc)])
-            parts.append(f"## {scen} on {b}\n\n{about.get(scen, '')}\n\n" + _table(PARAM_COLS, rows) + "\n")
+            parts.append(f"## {scen} on {b}\n\n{about[scen]}\n\n" + _table(PARAM_COLS, rows) + "\n")
     return "".join(parts)
 
 

@@ -31,7 +31,7 @@ def view(run: Path = typer.Argument(..., help="run directory of a finished point
     if json_done(o, res):
         return
     for key in ("gif", "rrd"):
-        if res.get(key):
+        if res[key]:
             o.line(f"wrote {res[key]}" + ("  (open with `rerun " + str(res[key]) + "`)" if key == "rrd" else ""))
-    if res.get("rrd_missing"):
+    if res["rrd_missing"]:
         o.line('not written: view.rrd (the 3-D rerun recording needs the extra: pip install "softsbi[view]")')

@@ -152,7 +152,8 @@ def simulate(scenario: str | Scenario, theta: Mapping[str, float] | None = None,
     return sim.simulate(sc, space.check(values, within="limits"), effects=list(effects), seed=int(seed))
 
 
-def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResult:
+def check(run: str | Path, progress: bool = True, *, out_dir: str | Path | None = None,
+          **settings: Any) -> CheckResult:
     """``softsbi check RUN``: the posterior predictive check of a finished fit
     (:func:`~softsbi.workflows.criticism.check.check_run`; ``settings``: ``n_eval``, ``alpha``, ``max_null``, ``workers``,
     ``effects``, ``recompute``, ``out_dir``, ...). Returns the :class:`~softsbi.core.results.CheckResult` (also in
@@ -164,10 +165,10 @@ def check(run: str | Path, progress: bool = True, **settings: Any) -> CheckResul
     changed; ``out_dir`` writes the new check beside the run's and keeps that one.
     """
     check_settings, rest = split_settings(CheckSettings, settings)
-    path = Path(rest.get("out_dir") or run) / "check.json"
+    path = Path(out_dir or run) / "check.json"
     before = _stored_key(path)
     with shown_unless_shown(progress):
-        result = check_run(run, check_settings, **rest)
+        result = check_run(run, check_settings, out_dir=out_dir, **rest)
     after = _stored_key(path)
     if before is not None and after is not None and before != after:
         changed = ", ".join(f"{k} {before.get(k)!r} -> {after.get(k)!r}" for k in after if before.get(k) != after.get(k))

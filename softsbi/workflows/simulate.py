@@ -95,8 +95,9 @@ def simulate_to_folder(out: str | Path, backend: str = BACKEND, scenario: str | 
     (a full disk, an interrupt) leaves ``out`` as it was and no partial folder.
 
     Returns:
-        ``{"backend", "scenario", "theta", "status", "reason", "frames", "vertices", "wall_s",
-        "rollout"}`` plus ``preview`` and, when rendered, ``frames_dir``.
+        ``{"backend", "scenario", "theta", "status", "reason", "frames", "vertices", "wall_s", "rollout",
+        "preview", "recording", "frames_dir"}``: the last three are paths, or None when not written (no preview
+        nor recording of a failed rollout, no ``frames_dir`` unless rendered).
 
     Raises:
         SoftsbiError: unknown scenario; PluginNotFound: unknown backend or effect; PluginError: a broken effect, or a
@@ -183,7 +184,8 @@ def _write_rollout(out: Path, final: Path, ro: Any, sc: Any, backend: str, scena
         a[...] = arr
     doc: dict[str, Any] = {"backend": backend, "scenario": str(scenario), "theta": values, "status": int(ro.status),
                            "reason": ro.reason, "frames": len(ro.times), "vertices": int(ro.vertices.shape[1]),
-                           "wall_s": dt, "rollout": str(final / "rollout.zarr")}
+                           "wall_s": dt, "rollout": str(final / "rollout.zarr"), "preview": None, "recording": None,
+                           "frames_dir": None}
     if ro.ok:
         plot_rollout_preview(ro, out / "preview.png", f"{backend} {sc.name}", sc, shown)
         doc["preview"] = str(final / "preview.png")

@@ -267,8 +267,9 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
       ``n_regions`` rollouts): the error the nominal model's own spread does not produce.
 
     Uses the first ``n`` successful rollouts of ``pool`` (the null's first stage), so the shape does not depend on
-    whether the null was extended. ``phase_chamfer`` (phase name -> m): the posterior-predictive Chamfer of each
-    phase as ``check``'s table shows it, stored with the phase so that the words name the table's worst phase.
+    whether the null was extended. ``phase_chamfer`` (phase name -> m, every phase of :func:`motion_phases`): the
+    posterior-predictive Chamfer of each phase as ``check``'s table shows it, stored with the phase so that the words
+    name the table's worst phase (None: no Chamfer stored with the phases).
     """
     fit_frames = np.array(run_frames(run))
     T = len(fit_frames)
@@ -296,7 +297,7 @@ def residual_shape(run: RunView, pool: PosteriorPredictive, n: int = N_NULL, n_r
         inside = (fit_frames >= ph["frames"][0]) & (fit_frames <= ph["frames"][1])
         phases.append({"phase": ph["phase"], "frames": list(ph["frames"]),
                        "fraction_flagged": float(flagged[inside].mean()) if inside.any() else None,
-                       "chamfer_m": (phase_chamfer or {}).get(ph["phase"])})
+                       "chamfer_m": None if phase_chamfer is None else phase_chamfer[ph["phase"]]})
     sel = flagged if flagged.any() else np.ones(T, bool)
     off = (f_obs[sel, :3] - mu[sel, :3]).mean(0) * 100
     zf = (((f_obs[sel] - mu[sel]) / sd[sel]) ** 2).mean(0)

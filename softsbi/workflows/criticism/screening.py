@@ -25,6 +25,7 @@ from softsbi.core.errors import ParameterError, ShapeError, SoftsbiError
 from softsbi.core.results import Candidate, JointTest
 from softsbi.core.types import ParamSpace
 from softsbi.plugins import registry
+from softsbi.scenarios.spec import declared_size
 from softsbi.core.defaults import ALPHA_BOUND
 from softsbi.workflows.fit.jobs import JobItem, JobResult, run_jobs
 from softsbi.workflows.fit.runs import RunView
@@ -113,8 +114,8 @@ def acts_on(effect: Any, kind: str) -> bool:
 
 def object_kind(scenario: Any) -> str:
     """The kind of a scenario's object (``object.kind``: ``"cloth"`` or ``"rope"``; ``"cloth"`` when it does not
-    say, as the backends read it)."""
-    return str((getattr(scenario, "object", None) or {}).get("kind") or "cloth")
+    say, as the backends read it; :func:`~softsbi.scenarios.spec.declared_size` reads it)."""
+    return str(declared_size(scenario)[0] or "cloth")
 
 
 def effect_kind(effect: Any) -> str:

@@ -280,7 +280,7 @@ def read_best_fit(store: RunStore) -> BestFit | None:
         return None
     arrays, attrs = store.read_group(BEST)
     theta = {n: float(v) for n, v in zip(attrs["names"], arrays["theta"])}
-    theta.update({k: float(v) for k, v in (attrs.get("fixed") or {}).items()})
+    theta.update({k: float(v) for k, v in attrs["fixed"].items()})  # stored with it
     unit = "px" if RunRecord.from_run_config(store.config).image_fit else "m"
     return BestFit(theta=theta, value=float(attrs["score"]), per_frame=arrays["chamfer"], source=str(attrs["source"]),
                    seed=int(attrs["seed"]), unit=unit,

@@ -219,5 +219,5 @@ def widening_sentence(w: Mapping[str, Any]) -> str:
         blo, bhi = w["before"][k]
         side = [s for s, a, b in (("lower", blo, lo), ("upper", bhi, hi)) if not np.isclose(a, b)]
         moves.append(f"{k} [{blo:.4g}, {bhi:.4g}] -> [{lo:.4g}, {hi:.4g}] ({' and '.join(side)} bound)")
-    why = "; ".join(bound_sentence(e).split(": the data")[0] for e in w.get("pressed") or [])
+    why = "; ".join(bound_sentence(e).split(": the data")[0] for e in w["pressed"])
     return f"prior widened after round {int(w['after_round']) + 1}: " + ", ".join(moves) + (f" ({why})" if why else "")

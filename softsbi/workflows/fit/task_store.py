@@ -136,7 +136,7 @@ def task_store_of(sim_bank: str = defaults.SIM_BANK) -> "TaskStore | None":
 def model_name(identity: Mapping[str, Any]) -> str:
     """The name of a task's model (:func:`task_identity`): ``nominal`` or ``nominal+<effect>...`` (the effects
     switched on)."""
-    return "+".join(["nominal", *identity.get("effects", [])])
+    return "+".join(["nominal", *identity["effects"]])
 
 
 @dataclass(frozen=True)
