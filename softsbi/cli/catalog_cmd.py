@@ -24,21 +24,22 @@ def plugins(as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     if json_done(o, desc):
         return
     broken = []
+    # a broken plugin's row holds name, class, package and broken only; every other row holds doc, and an effect's
+    # its kind, generic and description (Effect's class attributes) (Registry.describe)
     for kind, rows in desc.items():
         if kind == "load_errors":
             continue
-        broken += [r["broken"] for r in rows if r.get("broken")]
+        broken += [r["broken"] for r in rows if "broken" in r]
         if kind == "effects":
             o.table(["name", "kind", "applied by", "parameters [prior] unit", "package", "description"],
-                    [[r["name"], "BROKEN", "", "", r["package"], "see below"] if r.get("broken") else
-                     [r["name"], r["kind"] + (" (generic)" if r.get("generic") else ""),
+                    [[r["name"], "BROKEN", "", "", r["package"], "see below"] if "broken" in r else
+                     [r["name"], r["kind"] + (" (generic)" if r["generic"] else ""),
                       ", ".join(r["backends"]) or "none installed",
-                      "; ".join(_param_text(p) for p in r["parameters"]), r["package"],
-                      r.get("description") or r.get("doc") or ""]
+                      "; ".join(_param_text(p) for p in r["parameters"]), r["package"], r["description"] or r["doc"]]
                      for r in rows], title=kind)
             continue
         o.table(["name", "package", "description"],
-                [[r["name"], r["package"], "BROKEN: see below" if r.get("broken") else (r.get("doc") or "") +
+                [[r["name"], r["package"], "BROKEN: see below" if "broken" in r else r["doc"] +
                   (f" scenarios: {', '.join(r['scenarios'])}" if r.get("scenarios") else "")] for r in rows],
                 title=kind)
     for name, err in LOAD_ERRORS.items():
@@ -69,7 +70,7 @@ def params(scenario: str = typer.Argument(..., help="scenario name (`softsbi sce
     from softsbi.scenarios import load_scenario  # start-up: numpy, the scenario models
     from softsbi.workflows.fit.run import FitConfig, parameter_table  # start-up: the fit workflow
     from softsbi.workflows.measurement import recording_scenario  # start-up: the recording readers
-    effects = names(effect)
+    effects = names(effect, "--effect")
     sc = recording_scenario(scenario) if Path(scenario).is_dir() else load_scenario(scenario)
     rows = parameter_table(FitConfig(backend=backend, effects=effects), sc)
     o = Output(as_json)

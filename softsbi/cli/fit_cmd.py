@@ -16,13 +16,14 @@ from softsbi.core import defaults as D
 
 
 def print_fit_report(o: Output, rep: dict[str, Any], out: Path) -> None:
-    """The fit's report (``rep``: ``report.json`` of run directory ``out``) as a table and sentences on stdout
+    """The fit's report (``rep``: ``report.json`` of run directory ``out``, as
+    :meth:`~softsbi.core.fitreport.FitReport.to_json` writes it) as a table and sentences on stdout
     (:mod:`softsbi.report.fit_text` words them)."""
     from softsbi.report.fit_text import fit_report_lines, posterior_table  # start-up: numpy, scipy
     from softsbi.workflows.fit.prior_widening import widening_sentence  # start-up: numpy
     t = posterior_table(rep)
     o.table(t.columns, t.rows, title=t.title)
-    for line in fit_report_lines(rep, out, [widening_sentence(w) for w in rep.get("widened") or []]):
+    for line in fit_report_lines(rep, out, [widening_sentence(w) for w in rep["widened"]]):
         o.line(line)
 
 
@@ -115,8 +116,9 @@ def fit(observed: Path = typer.Option(..., help="recording directory (recording.
         if executor != "ray":
             raise SoftsbiError(f"--ray-address needs --executor ray (got --executor {executor})")
         exe_opts["address"] = ray_address
-    cfg = FitConfig(backend=backend, backend_options=parse_kv(backend_opt, "--backend-opt"), effects=names(effect),
-                    estimator=estimator, estimator_options=parse_kv(estimator_opt, "--estimator-opt"),
+    cfg = FitConfig(backend=backend, backend_options=parse_kv(backend_opt, "--backend-opt"),
+                    effects=names(effect, "--effect"), estimator=estimator,
+                    estimator_options=parse_kv(estimator_opt, "--estimator-opt"),
                     rounds=rounds, sims_per_round=sims_per_round, seed=seed, n_points=points, workers=workers,
                     bounds=parse_bounds(bounds), fixed=parse_kv(fix, "--fix"), n_eval=n_eval,
                     min_height=min_height, frames=frames, executor=executor, executor_options=exe_opts,

@@ -72,16 +72,18 @@ POINTS_OK = checked(D.POINTS_BOUND)
 IMAGE_SIZE_OK = checked(D.IMAGE_SIZE_BOUND)
 
 
-def names(items: list[str] | None, flag: str = "") -> list[str]:
-    """The names of a repeatable, comma-separated option (``--effect wind --effect a,b`` -> ``[wind, a, b]``).
+def names(items: list[str] | None, flag: str) -> list[str]:
+    """The names of a repeatable, comma-separated option (``--effect wind --effect a,b`` -> ``[wind, a, b]``), every
+    command's (``flag``: the option, e.g. ``--effect``, ``--candidate``, which the refusal names).
 
     Raises:
-        SoftsbiError: with ``flag`` (the option, e.g. ``--candidate``), an item that names nothing (``''``, ``,``),
-            which would otherwise be dropped silently."""
+        SoftsbiError: an item that names nothing (``''``, ``,``), which would otherwise be dropped silently (and
+            e.g. ``fit --effect ''`` fit the nominal model, ``diagnose --candidate ''`` weigh the default
+            candidates)."""
     out = []
     for it in items or []:
         got = [n for n in it.split(",") if n.strip()]
-        if flag and not got:
+        if not got:
             raise SoftsbiError(f"{flag} '{it}' names nothing: give a name (several comma-separated), or leave {flag} "
                                f"out")
         out += got

@@ -48,7 +48,7 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
 
     o = Output(as_json)
     doc = simulate_to_folder(out, backend=backend, scenario=scenario, recording=recording,
-                             theta=parse_kv(theta, "--theta"), effects=names(effect),
+                             theta=parse_kv(theta, "--theta"), effects=names(effect, "--effect"),
                              backend_options=parse_kv(backend_opt, "--backend-opt"), render=render,
                              render_memory_gb=RENDER_MEMORY_GB if render_memory_gb is None else render_memory_gb,
                              overwrite=overwrite)
@@ -61,11 +61,11 @@ def simulate(backend: str = typer.Option(D.BACKEND, help=H_BACKEND),
     if doc["status"] != 0:  # the failed rollout is kept for a look, but there is no recording to fit
         o.error(f"the simulation failed ({doc['reason']}); no recording was written")
         raise typer.Exit(1)
-    if doc.get("recording"):
+    if doc["recording"]:
         o.line(f"recording: {doc['recording']} (`softsbi fit --observed {doc['recording']} --out RUN` fits it)")
-    if doc.get("preview"):
+    if doc["preview"]:
         o.line(f"preview: {doc['preview']}")
-    if doc.get("frames_dir"):
+    if doc["frames_dir"]:
         o.line(f"{doc['frames']} rendered frames ({render}x{render} px): {doc['frames_dir']} (truth.json holds "
                f"the parameters; `softsbi fit --observed {doc['frames_dir']} --scenario {scenario} "
                f"--observer heatmap --extractor ...` fits them)")
@@ -100,7 +100,7 @@ def compare_backends(scenario: str = typer.Option(D.SCENARIO, help="scenario nam
         b, kv = it.split(":", 1)
         opts.setdefault(b, {}).update(parse_kv([kv], "--backend-opt"))
     try:
-        rep = run(sc, parse_kv(theta, "--theta"), names([backends]), out, backend_options=opts,
+        rep = run(sc, parse_kv(theta, "--theta"), names([backends], "--backends"), out, backend_options=opts,
                   match=Match(match).value)
     except ValueError as exc:
         raise SoftsbiError(str(exc)) from None

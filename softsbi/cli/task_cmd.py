@@ -31,14 +31,15 @@ def _store(sim_bank: str) -> Any:
 
 def _backend(identity: dict[str, Any]) -> str:
     """The task's backend with its options, e.g. ``newton-cloth (grid=8)`` (two tasks that differ only in them
-    are told apart)."""
-    opts = ", ".join(f"{k}={v}" for k, v in sorted((identity.get("backend_options") or {}).items()))
-    return f"{identity.get('backend')}" + (f" ({opts})" if opts else "")
+    are told apart). ``identity``: a stored task's (:func:`~softsbi.workflows.fit.task_store.task_identity`, which
+    holds every key an entry of its format has)."""
+    opts = ", ".join(f"{k}={v}" for k, v in sorted(identity["backend_options"].items()))
+    return f"{identity['backend']}" + (f" ({opts})" if opts else "")
 
 
 def _row(t: Any) -> list[Any]:
-    idy = t.identity or {}
-    head = [t.digest[:12], t.model, _backend(idy), (idy.get("scenario") or {}).get("name", "?")]
+    idy = t.identity  # a damaged entry's: None when it cannot be read
+    head = [t.digest[:12], t.model, *(("?", "?") if idy is None else (_backend(idy), idy["scenario"]["name"]))]
     if _damaged(t):
         return [*head, "?", f"DAMAGED, never used: {t.problem}", "`softsbi task delete` removes it"]
     r = t.report
@@ -95,18 +96,19 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
                as_json: bool = typer.Option(False, "--json", help=H_JSON)) -> None:
     """Train a task once: amortised posteriors of the nominal model and of each candidate effect, with a training
     report; every later fit, check and diagnose of the task's recordings uses them."""
-    cands = None if candidates is None else [] if candidates.strip() == "none" else names([candidates])
-    if cands == [] and candidates.strip() != "none":  # before the imports and the plugins load
+    if candidates is not None and candidates.strip() != "none" and not candidates.replace(",", " ").strip():
         raise SoftsbiError(f"--candidates '{candidates}' names no effect: give effect names (comma-separated), or "
-                           f"'none' for the nominal model only")
+                           f"'none' for the nominal model only")  # before the imports and the plugins load
+    cands = (None if candidates is None else [] if candidates.strip() == "none" else
+             names([candidates], "--candidates"))
     prior_bounds, fixed = parse_bounds(bounds), parse_kv(fix, "--fix")
     from softsbi.cli.progress import shown  # start-up: the workflows' progress
     from softsbi.workflows.fit.bank import check_bank_path  # start-up: numpy, zarr
     from softsbi.workflows.fit.run import FitConfig  # start-up: the fit workflow
     from softsbi.workflows.measurement import load_recording  # start-up: the recording readers
     from softsbi.workflows.tasks.training import calibration_advice, train_task  # start-up: the training workflow
-    cfg = FitConfig(backend=backend, effects=names(effect), estimator=estimator, seed=seed, n_points=points,
-                    workers=workers, bounds=prior_bounds, fixed=fixed,
+    cfg = FitConfig(backend=backend, effects=names(effect, "--effect"), estimator=estimator, seed=seed,
+                    n_points=points, workers=workers, bounds=prior_bounds, fixed=fixed,
                     min_height=min_height, frames=frames, sim_bank=sim_bank)
     cfg.validate()
     check_bank_path(cfg.sim_bank, {"--observed": observed})
@@ -153,8 +155,8 @@ def task_show(key: str = typer.Argument(..., help="the task's key (its first cha
         return
     idy = t.identity
     o.line(f"task {t.digest}: model {t.model}, backend {_backend(idy)}, scenario "
-           f"{(idy.get('scenario') or {}).get('name', '?')}, estimator {idy.get('estimator')}, seed {idy.get('seed')}, "
-           f"softsbi {idy.get('softsbi')}; {t.n_prior} prior simulations")
+           f"{idy['scenario']['name']}, estimator {idy['estimator']}, seed {idy['seed']}, softsbi {idy['softsbi']}; "
+           f"{t.n_prior} prior simulations")
     r = t.report
     if r is None:
         o.line(f"{_no_report(t)}: fits of the task start their sequential rounds from it; `softsbi task train` "

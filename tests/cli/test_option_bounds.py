@@ -174,3 +174,49 @@ def test_check_and_diagnose_settings_declare_their_shared_fields_once():
     d = DiagnoseSettings(n_null=7, max_null=99, alpha=0.01, workers=3, seed=4, k_se=3.0)
     assert d.check() == CheckSettings(n_eval=7, max_null=99, alpha=0.01, workers=3, seed=4)
     assert DiagnoseSettings().n_null == D.N_NULL and CheckSettings().n_eval == D.N_NULL
+
+
+def test_fit_settings_refuse_a_count_above_its_maximum_for_the_python_api_too():
+    """`fit --sims-per-round 1000000000` is refused when the flags are parsed, but FitConfig(sims_per_round=10**9)
+    (the Python API's softsbi.fit) validated and planned 1e9 simulations a round: each count of a fit's settings is
+    now refused in one line naming the setting, the value, the maximum and why (the flag's own Bound), and the
+    maximum itself is accepted."""
+    from softsbi.workflows.fit.config import FitConfig
+    cases = [("sims_per_round", D.SIMS_BOUND, "--sims-per-round"), ("rounds", D.ROUNDS_BOUND, "--rounds"),
+             ("workers", D.WORKERS_BOUND, "--workers"), ("n_eval", D.EVAL_BOUND, "--n-eval"),
+             ("n_points", D.POINTS_BOUND, "--points (n_points)"), ("seed", D.SEED_BOUND, "--seed"),
+             ("sensor_draws", D.SENSOR_DRAWS_BOUND, "--sensor-draws"), ("refine", D.REFINE_BOUND, "--refine")]
+    for name, bound, named in cases:
+        with pytest.raises(SoftsbiError) as err:
+            FitConfig(**{name: 10**12}).validate()
+        assert str(err.value) == f"{named} must be <= {bound.high} (got 1000000000000): {bound.why}", name
+        assert "\n" not in str(err.value)
+    with pytest.raises(SoftsbiError, match=r"^--sims-per-round must be <= 100000 \(got 1000000000\): the estimator"):
+        FitConfig(sims_per_round=10**9).validate()
+    with pytest.raises(SoftsbiError, match=r"^--sims-per-round must be >= 10 \(got 3\): the estimator needs data"):
+        FitConfig(sims_per_round=3).validate()  # the least value, in the flag's words too
+    FitConfig(backend="toy-gauss", sims_per_round=D.MAX_SIMS, rounds=D.MAX_ROUNDS, workers=D.MAX_WORKERS,
+              n_eval=D.MAX_ROLLOUTS, n_points=D.MAX_POINTS, seed=D.MAX_SEED, refine=D.MAX_SIMS).validate()
+
+
+def test_every_command_refuses_an_empty_effect_or_candidate_name_in_one_line(tmp_path):
+    """`fit --effect ''` fitted the nominal model, and `simulate`, `params` and `task train` dropped the empty name
+    too: only diagnose refused it. Every command's --effect, --candidate and --candidates (found by the flag, so that
+    a new command is covered too) now refuses it in one line before anything is written, by the one check
+    (options.names) diagnose used."""
+    required = {("fit",): ["--observed", str(tmp_path / "rec"), "--out", str(tmp_path / "out")],
+                ("simulate",): ["--out", str(tmp_path / "out")],
+                ("params",): ["lift"],
+                ("task", "train"): ["--observed", str(tmp_path / "rec"), "--sim-bank", str(tmp_path / "out")],
+                ("diagnose",): [str(tmp_path / "run"), str(tmp_path / "run2"), "--out", str(tmp_path / "out")]}
+    found = [(tuple(path), flag) for path, flag in _options(str) if flag in ("--effect", "--candidate", "--candidates")]
+    assert {p for p, _ in found} == set(required) and len(found) == 7, found
+    for path, flag in found:
+        for value in ("", ",", " "):
+            res = runner.invoke(app, [*path, *required[path], flag, value])
+            lines = [ln for ln in res.output.splitlines() if ln.strip()]
+            assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {flag} '{value}' names "), \
+                (path, flag, value, res.output)
+            assert not (tmp_path / "out").exists(), (path, flag)
+    res = runner.invoke(app, ["compare-backends", "--backends", ",", "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and "error: --backends ',' names nothing" in res.output, res.output

@@ -25,6 +25,13 @@ LIFTED_HEIGHT = 0.10
 #: keys of the stored run configuration that come from the recording, not from :class:`FitConfig`,
 #: and must match on resume
 RECORDING_RESUME_KEYS = ("scenario", "param_space", "observed_source", "observer_options")
+#: the bound of each count of a fit's settings (:class:`~softsbi.core.defaults.Bound`): :meth:`FitConfig.validate`
+#: refuses a value outside it with the words the CLI's flag refuses it with, so a Python API call and the command
+#: cannot disagree
+COUNT_BOUNDS: Mapping[str, defaults.Bound] = {
+    "seed": defaults.SEED_BOUND, "rounds": defaults.ROUNDS_BOUND, "sims_per_round": defaults.SIMS_BOUND,
+    "workers": defaults.WORKERS_BOUND, "n_points": defaults.POINTS_BOUND, "n_eval": defaults.EVAL_BOUND,
+    "sensor_draws": defaults.SENSOR_DRAWS_BOUND, "refine": defaults.REFINE_BOUND}
 #: values of resume keys in runs written before the key existed
 RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height", "sensor_draws": 0}
 
@@ -168,7 +175,8 @@ class FitConfig:
     sim_bank: str = defaults.SIM_BANK
 
     def validate(self) -> None:
-        """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range, or for a
+        """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range (a count outside its
+        :data:`COUNT_BOUNDS`, e.g. above its maximum: the line names the flag, the value, the bound and why), or for a
         plugin option that its plugin does not have or that is text where a number is expected
         (:func:`~softsbi.plugins.check_options`; ``PluginNotFound`` for an unknown plugin), or an
         estimator or a backend that cannot be constructed (``ParameterError``: its options refused; ``PluginError``:
@@ -180,19 +188,15 @@ class FitConfig:
             raise SoftsbiError(f"--sensor must be 'height' or 'camera' (got {self.sensor!r})")
         if not 0 < self.truncation_eps < 0.5:
             raise SoftsbiError(f"truncation_eps must lie in (0, 0.5) (got {self.truncation_eps})")
-        if self.seed < 0:
-            raise SoftsbiError(f"--seed must be >= 0 (got {self.seed})")
         if not isinstance(self.sensor_draws, int) or self.sensor_draws < 0:
             raise SoftsbiError(f"sensor_draws must be an integer >= 0 (got {self.sensor_draws!r})")
-        if self.rounds is not None and self.rounds < 1:
-            raise SoftsbiError(f"--rounds must be >= 1 (got {self.rounds})")
-        if self.sims_per_round < defaults.MIN_SIMS_PER_ROUND:
-            raise SoftsbiError(f"--sims-per-round must be >= {defaults.MIN_SIMS_PER_ROUND} (got {self.sims_per_round}); "
-                               f"the estimator needs data")
-        if self.workers is not None and self.workers < 1:
-            raise SoftsbiError(f"--workers must be >= 1 (got {self.workers})")
-        if self.n_points < 1:
-            raise SoftsbiError(f"--points must be >= 1 (got {self.n_points})")
+        if not isinstance(self.refine, int) or self.refine < 0:
+            raise SoftsbiError(f"--refine must be an integer >= 0 (got {self.refine!r}); 0 = no refinement")
+        for name, bound in COUNT_BOUNDS.items():  # each count's least and largest value (None: unset, accepted)
+            why = bound.problem(getattr(self, name))
+            if why is not None:
+                field_name = "" if bound.flag == "--" + name.replace("_", "-") else f" ({name})"
+                raise SoftsbiError(f"{bound.flag}{field_name} {why}")
         if self.min_height is not None and self.min_height < 0:
             raise SoftsbiError(f"--min-height must be >= 0 m (got {self.min_height})")
         if isinstance(self.frames, list) and len(self.frames) < 1:
@@ -210,8 +214,6 @@ class FitConfig:
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise SoftsbiError(f"--backend-opt batch_size must be an integer >= 1 (got {size!r}): the simulations "
                                f"one simulate_batch call steps together; 1 = one at a time")
-        if not isinstance(self.refine, int) or self.refine < 0:
-            raise SoftsbiError(f"--refine must be an integer >= 0 (got {self.refine!r}); 0 = no refinement")
         if self.widen:
             check_widen(self.proposal, bool(getattr(reg.estimator(self.estimator), "sequential", True)),
                         self.sensor_draws)
