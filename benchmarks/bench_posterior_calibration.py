@@ -110,7 +110,7 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
     cfg = FitConfig(workers=args.workers, sim_bank=str(bank))
     names = (shipped_candidates(cfg.backend) if args.candidates == "shipped"
              else [n for n in args.candidates.split(",") if n])
-    data, fresh, seconds, intervals = [], [], {}, []
+    data, fresh, seconds, intervals, switched = [], [], {}, [], []
     for est in estimators:
         t0 = time.perf_counter()
         tasks = train_task(recording, replace(cfg, estimator_options=dict(ESTIMATORS[est])), n_prior=args.prior_sims,
@@ -126,6 +126,8 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
                 fresh.append({"estimator": est, "model": t.model, "n_test": report.n_test,
                               "train_seconds": t.report.train_seconds, **criteria(report)})
         intervals.extend(effect_intervals(est, tasks, recording, cfg, args.n_test, args.n_draws))
+        if args.fresh_test:
+            switched.extend(switched_on_rates(est, tasks, recording, cfg, args.fresh_test, args.n_draws))
     band = _band(_binomial_band(INTERVAL, args.n_test))
     irows = [[d["model"], d["parameter"], d["estimator"], f"{d['holds']:.3f}", _ok(d["holds_ok"]),
               f"{d['excludes_off']:.3f}", _ok(d["excludes_ok"])] for d in sorted(
@@ -144,6 +146,21 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
         f"'switched on'); calibrated: inside {band} and at most {1 - INTERVAL:.2f} within its band",
         ["candidate", "parameter", "estimator", "holds the truth", f"in {band}", "excludes the off value, effect "
          "absent", "in band"], irows))
+    if switched:
+        lo, hi = _binomial_band(SWITCHED_ON_LEVEL, args.fresh_test, 0.99)
+        tables.append(table(
+            f"'Switched on' as the diagnosis decides it for an amortised refit (a Monte-Carlo test of the posterior's "
+            f"distance from the off value against the candidate's stored null, at p <= {SWITCHED_ON_LEVEL:g}), on "
+            f"{args.fresh_test} fresh held-out prior simulations: of the model without the candidate (the effect "
+            f"absent: its rate must lie in the 99% binomial band {lo:.3f}-{hi:.3f} of its nominal "
+            f"{SWITCHED_ON_LEVEL:g}) and of the candidate's own model (the effect drawn from its prior: the power, "
+            f"averaged over the prior, small values included); beside them the 90% interval rule's rate on the "
+            f"same simulations without the effect",
+            ["candidate", "estimator", "null size", "switched on, effect absent", "in the 99% band",
+             "interval rule, effect absent", "switched on, effect present"],
+            [[d["model"], d["estimator"], str(d["null_n"]), f"{d['on_absent']:.3f}", _ok(d["in_band"]),
+              "-" if d["interval_absent"] is None else f"{d['interval_absent']:.3f}", f"{d['on_present']:.3f}"]
+             for d in switched]))
     notes = []
     for est in estimators:
         mine = [d for d in data if d["estimator"] == est]
@@ -156,7 +173,7 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
     return {"tables": tables,
             "notes": notes + ["An effect whose off value is a prior bound is named by the posterior pressing that "
                               "bound, not by its interval, so its parameters are not in the last table."],
-            "data": {"models": data, "fresh": fresh, "candidates": names,
+            "data": {"models": data, "fresh": fresh, "candidates": names, "switched_on": switched,
                      "estimators": {e: ESTIMATORS[e] for e in estimators}, "intervals": intervals}}
 
 
@@ -191,17 +208,21 @@ def _binomial_band(p: float, n: int, level: float = 0.95) -> tuple[float, float]
     return (float(stats.binom.ppf((1 - level) / 2, n, p) / n), float(stats.binom.ppf((1 + level) / 2, n, p) / n))
 
 
-def effect_intervals(estimator: str, tasks: list, recording: Any, cfg: Any, n_test: int, n_draws: int) -> list[dict]:
+def effect_intervals(estimator: str, tasks: list, recording: Any, cfg: Any, n_test: int, n_draws: int,
+                     stream: int | None = None) -> list[dict]:
     """Per candidate model of ``tasks`` (the nominal first) and per parameter of its effect whose off value lies
     strictly inside the prior: the rate at which the posterior's central :data:`INTERVAL` interval holds the truth
     on the model's own held-out simulations, and the rate at which it excludes the off value on the nominal
-    model's held-out simulations (same seeds and settings, the effect absent)."""
+    model's held-out simulations (same seeds and settings, the effect absent); ``stream``: their seed stream (None:
+    the training reports')."""
     from softsbi.core.errors import PosteriorError
     from softsbi.inference import calibration as cal
     from softsbi.plugins import registry
     from softsbi.workflows.tasks.training import held_out_simulations
     import numpy as np
-    _, _, x_nominal = held_out_simulations(recording, cfg, n_test)
+    from softsbi.core.seeds import TEST_STREAM
+    stream = TEST_STREAM if stream is None else stream
+    _, _, x_nominal = held_out_simulations(recording, cfg, n_test, stream)
     rng = np.random.default_rng(0)
     lo_q, hi_q = (1 - INTERVAL) / 2, (1 + INTERVAL) / 2
 
@@ -223,7 +244,7 @@ def effect_intervals(estimator: str, tasks: list, recording: Any, cfg: Any, n_te
         effect = registry().effect(t.identity["effects"][-1])()
         off = effect.nominal()
         names, u_own, x_own = held_out_simulations(recording, replace(cfg, estimator_options=dict(
-            t.estimator.options), effects=list(t.identity["effects"])), n_test)
+            t.estimator.options), effects=list(t.identity["effects"])), n_test, stream)
         inside = [p for p in effect.param_space() if p.low < off.get(p.name, p.low) < p.high]
         if not inside:
             continue
@@ -241,6 +262,55 @@ def effect_intervals(estimator: str, tasks: list, recording: Any, cfg: Any, n_te
                         "holds_ok": band[0] <= holds <= band[1], "excludes_off": excl,
                         "excludes_ok": excl <= off_band[1], "no_mass": int((~ok_own).sum() + (~ok_abs).sum())})
     return out
+
+
+#: the level of the calibrated "switched on" test (the diagnosis's: softsbi.core.joint.CHANCE_EXCLUDED)
+SWITCHED_ON_LEVEL = 0.1
+
+
+def switched_on_rates(estimator: str, tasks: list, recording: Any, cfg: Any, n_fresh: int, n_draws: int) -> list[dict]:
+    """Per candidate model of ``tasks`` (the nominal first) with a stored "switched on" null: how often the
+    diagnosis's calibrated test (:mod:`softsbi.workflows.criticism.switched_on`) calls the effect on, on ``n_fresh``
+    fresh held-out prior simulations (:data:`~softsbi.core.seeds.FRESH_TEST_STREAM`) of the model without it and
+    of its own model, and how often the 90% interval rule does on the former (off values inside the prior only)."""
+    from softsbi.core.seeds import FRESH_TEST_STREAM
+    from softsbi.plugins import registry
+    from softsbi.workflows.criticism.switched_on import stored_off_null, unit_off_values
+    from softsbi.workflows.fit.config import fit_param_space
+    from softsbi.workflows.tasks.training import held_out_simulations
+    out = []
+    for t in tasks[1:]:
+        null = stored_off_null(t.path)
+        if null is None:
+            continue
+        effects = list(t.identity["effects"])
+        effect = registry().effect(effects[-1])()
+        model_cfg = replace(cfg, estimator_options=dict(t.estimator.options), effects=effects)
+        _, space = fit_param_space(model_cfg.resolved(recording), recording.scenario)
+        off = unit_off_values(effect, space)
+        _, _, x_own = held_out_simulations(recording, model_cfg, n_fresh, FRESH_TEST_STREAM)
+        _, _, x_absent = held_out_simulations(recording, replace(model_cfg, effects=effects[:-1]), n_fresh,
+                                              FRESH_TEST_STREAM)
+        est = t.restore()
+
+        on_absent = _on_rate(est, x_absent, off, null, n_draws, 11)
+        lo, hi = _binomial_band(SWITCHED_ON_LEVEL, n_fresh, 0.99)
+        interval = [d["excludes_off"] for d in effect_intervals(estimator, [tasks[0], t], recording, cfg, n_fresh,
+                                                                 n_draws, FRESH_TEST_STREAM)]
+        out.append({"estimator": estimator, "model": t.model, "null_n": int(len(null)), "on_absent": on_absent,
+                    "in_band": bool(lo <= on_absent <= hi), "on_present": _on_rate(est, x_own, off, null, n_draws, 12),
+                    "interval_absent": max(interval) if interval else None})
+    return out
+
+
+def _on_rate(est: Any, x: Any, off: Any, null: Any, n_draws: int, seed: int) -> float:
+    """The share of the simulations ``x`` whose posterior the calibrated test calls switched on."""
+    import numpy as np
+    from softsbi.workflows.criticism.statistics import mc_pvalue
+    from softsbi.workflows.criticism.switched_on import train_off_null
+    stats = train_off_null(est, x, off, n_draws, seed)
+    stats = stats[np.isfinite(stats)]
+    return float(np.mean([mc_pvalue(v, null).value <= SWITCHED_ON_LEVEL + 1e-12 for v in stats]))
 
 
 def _options(opts: dict) -> str:

@@ -60,6 +60,8 @@ class Contraction:
         informed: ``width_ratio <= informed_max_width_ratio``.
         slab_mass: the posterior's mass next to the lower and the upper prior bound, each in the slab of
             :data:`~softsbi.inference.contraction.BOUND_SLAB` of the range (None: an older report).
+        unit_mean, unit_std: the posterior's mean and standard deviation in unit coordinates (the prior box mapped
+            to [0, 1] in the parameter's own scale; None: an older report).
     """
 
     scale: str | None = None
@@ -70,12 +72,15 @@ class Contraction:
     width_ratio: float | None = None
     informed: bool | None = None
     slab_mass: tuple[float, float] | None = None
+    unit_mean: float | None = None
+    unit_std: float | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """The entry as written (an older report's, without ``slab_mass``, as read)."""
+        """The entry as written (an older report's, without ``slab_mass`` or the unit moments, as read)."""
         d = _plain(self)
-        if self.slab_mass is None:
-            del d["slab_mass"]
+        for k in ("slab_mass", "unit_mean", "unit_std"):
+            if d[k] is None:
+                del d[k]
         return d
 
 

@@ -260,6 +260,30 @@ class Estimate:
 
 
 @dataclass(frozen=True, kw_only=True)
+class OffTest:
+    """The calibrated test of "the added effect is off" of an amortised refit
+    (:mod:`~softsbi.workflows.criticism.switched_on`): its posterior's distance from the effect's off value
+    (:func:`~softsbi.workflows.criticism.statistics.off_distance`) against the same model's posteriors of
+    ``p_value.n`` prior simulations without the effect (the nominal model's held-out simulations).
+
+    Attributes:
+        statistic: the refit's distance (posterior standard deviations, unit coordinates).
+        p_value: its Monte-Carlo p-value, ``(1 + #null >= statistic) / (n + 1)``.
+        level: the effect is switched on when ``p_value <= level`` (the rate at which an effect that is off is
+            called on: :data:`~softsbi.core.joint.CHANCE_EXCLUDED`).
+    """
+
+    statistic: float
+    p_value: MCPValue
+    level: float
+
+    @property
+    def on(self) -> bool:
+        """The data switch the effect on: ``p_value <= level``."""
+        return self.p_value.value <= self.level + 1e-12
+
+
+@dataclass(frozen=True, kw_only=True)
 class Refit:
     """The nominal model with added effects, fitted to the same measurement and checked.
 
@@ -276,6 +300,9 @@ class Refit:
         rounds, sims_per_round: its simulation budget (an amortised refit: 1 round of 0 simulations of its own).
         amortised: its posterior is its model's trained task's, conditioned on the recording (no rounds simulated;
             its check calibrated against the model's replicates when the task has them); False: sequential rounds.
+        off_test: for an amortised single refit whose task stores its "off" null, the calibrated test that decides
+            whether the data switch its effect on (:class:`OffTest`); None: the estimates decide
+            (:attr:`Estimate.may_be_off`).
     """
 
     effects: tuple[str, ...]
@@ -289,6 +316,7 @@ class Refit:
     sims_per_round: int = 0
     chamfer_n: int = 0
     amortised: bool = False
+    off_test: OffTest | None = None
 
     @property
     def label(self) -> str:
@@ -302,8 +330,11 @@ class Refit:
 
     @property
     def maybe_off(self) -> tuple[str, ...]:
-        """The added effects the data do not switch on: every one of their parameters' posterior reaches the
-        effect's off value (:attr:`Estimate.may_be_off`)."""
+        """The added effects the data do not switch on: with an :attr:`off_test`, its effect unless the test says
+        on; else those every one of whose parameters' posterior reaches the effect's off value
+        (:attr:`Estimate.may_be_off`)."""
+        if self.off_test is not None:
+            return () if self.off_test.on else self.effects
         return tuple(e for e in self.effects if (own := [x for x in self.estimates if x.effect == e])
                      and all(x.may_be_off for x in own))
 

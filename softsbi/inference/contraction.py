@@ -48,12 +48,15 @@ def slab_masses(u: np.ndarray, slab: float = BOUND_SLAB) -> np.ndarray:
 
 
 def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, Any]]:
-    """Per parameter ``{"scale", "center", "spread", "q05", "q95", "width_ratio", "informed", "slab_mass"}`` from
+    """Per parameter ``{"scale", "center", "spread", "q05", "q95", "width_ratio", "informed", "slab_mass",
+    "unit_mean", "unit_std"}`` from
     posterior samples ``(S, D)`` in physical units (module docstring): ``scale`` ``"log"`` or
     ``"linear"``; ``center``/``spread`` the geometric mean and multiplicative spread (log) or the
     mean and standard deviation (linear); ``width_ratio`` the 90 % width ratio to the prior's; ``slab_mass``
     ``[lower, upper]``, the posterior's mass in the slab of width :data:`BOUND_SLAB` next to each prior bound (a
-    flat posterior puts :data:`BOUND_SLAB` in each)."""
+    flat posterior puts :data:`BOUND_SLAB` in each); ``unit_mean``/``unit_std`` the mean and standard deviation in
+    unit coordinates (the prior box mapped to [0, 1] in the parameter's own scale: what "switched on" measures its
+    distance from an off value in, :func:`~softsbi.workflows.criticism.statistics.off_distance`)."""
     samples = np.atleast_2d(np.asarray(samples, float))
     u = space.to_unit(samples)
     q05, q95 = np.quantile(samples, 0.05, axis=0), np.quantile(samples, 0.95, axis=0)
@@ -70,7 +73,8 @@ def contraction(space: ParamSpace, samples: np.ndarray) -> dict[str, dict[str, A
         out[p.name] = {"scale": "log" if p.log else "linear", "center": center, "spread": spread,
                        "q05": float(q05[d]), "q95": float(q95[d]), "width_ratio": ratio,
                        "informed": bool(ratio <= INFORMED_MAX_RATIO),
-                       "slab_mass": [float(m) for m in slabs[d]]}
+                       "slab_mass": [float(m) for m in slabs[d]],
+                       "unit_mean": float(u[:, d].mean()), "unit_std": float(u[:, d].std())}
     return out
 
 

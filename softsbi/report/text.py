@@ -9,8 +9,8 @@ from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change, offset_axes
 from softsbi.core.comparison import CompareResult, Metric
-from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, Refit,
-                                  ResidualShape, Role, Score)
+from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, OffTest,
+                                  Refit, ResidualShape, Role, Score)
 from softsbi.core.joint import CHANCE_EXCLUDED
 from softsbi.core.types import unit_suffix
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
@@ -212,36 +212,54 @@ def num(v: float) -> str:
     return "0" if abs(v) < ZERO_PRINTED else f"{v:.3g}"
 
 
-def estimate_words(e: Estimate) -> str:
+def estimate_words(e: Estimate, on: bool | None = None) -> str:
     """``"wind_y = 0.81 m/s (90% interval 0.62 to 0.97 m/s)"``. A wide interval (:attr:`Estimate.informed` False)
-    is "not informed by the data", unless it excludes the effect's off value (:attr:`Estimate.may_be_off` False):
-    then the data do inform it, on two counts: the effect is on, and its size is known to within half the
-    interval's width."""
+    is "not informed by the data", unless the effect is switched on (``on``: the refit's calibrated test,
+    :attr:`~softsbi.core.results.Refit.off_test`; None: the estimate's own rule, :attr:`Estimate.may_be_off`
+    False): then the data do inform it, on two counts: the effect is on, and its size is known to within half the
+    interval's width. Where a test decides, the Savage-Dickey ratio is printed without a verdict of its own."""
     u = unit_suffix(e.unit)
     s = f"{e.name} = {num(e.mean)}{u}"
+    shown_on = (e.may_be_off is False) if on is None else on
     if e.q05 is not None and e.q95 is not None:
         s += f" (90% interval {num(e.q05)} to {num(e.q95)}{u}"
         if e.off_ratio is not None:  # an off value at a prior bound: the ratio decides, not the interval
-            s += f"; {off_ratio_words(e.off_ratio)}"
-        if e.informed is False and e.may_be_off is False:
+            s += f"; {off_ratio_words(e.off_ratio, decides=on is None)}"
+        if e.informed is False and shown_on:
             s += f": the data show the effect is on, its size known to within ±{num((e.q95 - e.q05) / 2)}{u})"
         else:
             s += ", not informed by the data)" if e.informed is False else ")"
     return s
 
 
-def off_ratio_words(ratio: float) -> str:
+def off_ratio_words(ratio: float, decides: bool = True) -> str:
     """``"its posterior next to the off value is 1.2 times the prior's (possibly off: on at most 0.1)"``: the
-    Savage-Dickey ratio that decides "switched on" for an off value at a prior bound (:data:`SWITCHED_ON_RULE`)."""
+    Savage-Dickey ratio that decides "switched on" for an off value at a prior bound (:data:`SWITCHED_ON_RULE`);
+    without its verdict where a calibrated test decides instead (``decides`` False)."""
+    s = f"its posterior next to the off value is {ratio:.2g} times the prior's"
+    if not decides:
+        return s
     on = ratio <= CHANCE_EXCLUDED
-    return (f"its posterior next to the off value is {ratio:.2g} times the prior's "
-            f"({'switched on' if on else 'possibly off'}: on at most {CHANCE_EXCLUDED:g})")
+    return s + f" ({'switched on' if on else 'possibly off'}: on at most {CHANCE_EXCLUDED:g})"
 
 
 #: the "switched on" criterion in words, as :func:`~softsbi.workflows.criticism.diagnose.may_be_off` applies it
 SWITCHED_ON_RULE = (f"a parameter's 90% interval excludes the effect's off value or, for an off value at a prior "
                     f"bound (which no interval reaches), the posterior's mass next to that bound is at most "
                     f"{CHANCE_EXCLUDED:g} of the prior's (a Savage-Dickey ratio)")
+#: the calibrated "switched on" test of a trained task's amortised refit in words
+#: (:mod:`~softsbi.workflows.criticism.switched_on`)
+SWITCHED_ON_TEST = (f"its posterior lies farther from the effect's off value, in posterior standard deviations, than "
+                    f"its model's posteriors of simulations without the effect do, at p <= {CHANCE_EXCLUDED:g}")
+
+
+def off_test_words(t: OffTest) -> str:
+    """``"its posterior lies 3.1 posterior standard deviations from the off value, farther than on 195 of 200
+    simulations without the effect (p = 0.03: switched on at p <= 0.1)"``."""
+    far = t.p_value.n - t.p_value.exceed
+    return (f"its posterior lies {t.statistic:.2g} posterior standard deviations from the off value, farther than on "
+            f"{far} of {t.p_value.n} of its model's posteriors of simulations without the effect ({p_short(t.p_value)}"
+            f": {'switched on' if t.on else 'possibly off'} at p <= {t.level:g})")
 
 
 def score_change(base: Score | None, new: Score | None, g: Gain | None, joiner: str = " -> ") -> str:
@@ -285,7 +303,11 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
     if aside is not None:
         s += f" Set aside: {aside}."
     if r.estimates:
-        s += " The refit estimates " + "; ".join(estimate_words(e) for e in r.estimates) + "."
+        on = None if r.off_test is None else r.off_test.on
+        s += " The refit estimates " + "; ".join(estimate_words(e, on) for e in r.estimates) + "."
+    if r.off_test is not None:
+        words = off_test_words(r.off_test)
+        s += f" Is its effect off? {words[0].upper()}{words[1:]}."
     for e in r.estimates:  # a bound that is a physical limit (or the effect's switched-off side) gets no advice
         if e.pressed and e.suggested_bounds:
             s += (f" Its {e.name} presses the {e.pressed} prior bound: refit with --bounds "
@@ -323,6 +345,9 @@ def set_aside_words(d: Diagnosis, r: Refit) -> str | None:
     why = set_aside(d, r)
     if why is None or why == MISFIT_REMAINS:
         return None
+    if why == POSSIBLY_OFF and r.off_test is not None:
+        return (f"{why} ({off_test_words(r.off_test)}): the refit explains the misfit by widening its predictions, "
+                f"not by identifying a cause")
     if why == POSSIBLY_OFF:
         return (f"{why} (its effect is switched on when {SWITCHED_ON_RULE}, and no parameter of it does so): the "
                 f"refit explains the misfit by widening its predictions, not by identifying a cause")
@@ -348,8 +373,20 @@ def rule_words(d: Diagnosis) -> str:
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
           f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries, a proper score, in "
           f"{SCORE_UNIT}: standard deviations of the nominal fit's posterior predictive) falls by more than {d.k_se:g} standard errors below the model it extends, and the "
-          f"data switch its effect on ({SWITCHED_ON_RULE}).")
+          f"data switch its effect on ({switched_on_rules(d.refits)}).")
     return s
+
+
+def switched_on_rules(refits: Sequence[Refit]) -> str:
+    """The "switched on" rule(s) the refits were judged by: the calibrated test for amortised refits that have one
+    (:data:`SWITCHED_ON_TEST`), the estimates' rule for the others (:data:`SWITCHED_ON_RULE`)."""
+    tested = [r for r in refits if r.off_test is not None]
+    if not tested:
+        return SWITCHED_ON_RULE
+    if len(tested) == len(refits):
+        return SWITCHED_ON_TEST
+    return (f"for {', '.join(r.label for r in tested)}, {SWITCHED_ON_TEST}; for the others, "
+            f"{SWITCHED_ON_RULE}")
 
 
 def residual_words(res: ResidualShape) -> str:

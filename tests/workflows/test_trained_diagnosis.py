@@ -201,3 +201,20 @@ def test_each_stored_task_is_read_once_per_diagnosis(trained, monkeypatch):
                      settings=DiagnoseSettings(confirm=1, workers=1))
     assert d.refits  # the refit's fit and check reached its task too
     assert reads == {t.digest: 1 for t in tasks}
+
+
+def test_each_trained_candidate_stores_its_switched_on_null_and_its_amortised_refit_is_tested_against_it(trained,
+                                                                                                       diagnosed):
+    """task train stores, per candidate model, its posterior's distance from the off value on each of the nominal
+    model's held-out simulations; the named magnet's amortised refit is switched on by that calibrated test (its
+    pull lies beyond every null posterior's), not by its interval."""
+    from softsbi.workflows.criticism.switched_on import stored_off_null
+    _, tasks = trained
+    assert stored_off_null(tasks[0].path) is None  # the nominal model adds no effect
+    nulls = {t.model: stored_off_null(t.path) for t in tasks[1:]}
+    assert all(n is not None and len(n) == 20 and np.all(n >= 0) for n in nulls.values()), nulls
+    d, _ = diagnosed
+    (refit,) = d.refits
+    t = refit.off_test
+    assert t is not None and t.p_value.n == 20 and t.on
+    assert t.statistic > nulls[f"nominal+{MAGNET}"].max() and t.p_value.value == 1 / 21

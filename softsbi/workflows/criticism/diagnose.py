@@ -45,6 +45,7 @@ from softsbi.workflows.fit.runs import RunView
 from softsbi.workflows.fit.task_store import read_once
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution, is_generic
 from softsbi.workflows.criticism.stats import N_NULL, PosteriorPredictive, run_features
+from softsbi.workflows.criticism.switched_on import off_test, stored_off_null
 from softsbi.workflows.criticism.statistics import summary_energy_score, summary_scale
 from softsbi.core.defaults import ROUNDS, DiagnoseSettings
 
@@ -277,11 +278,13 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
              if scale is not None and len(f) >= 3 else None)
     report = pool.run.report
     amortised = trained is not None and rounds is None
+    null = stored_off_null(trained[0].path) if amortised and len(effects) == 1 else None
+    tested = None if null is None else off_test(report.contraction, registry().effect(effects[0])(), trained[2], null)
     # its Chamfer from its check, over as many rollouts as the nominal's (Diagnosis.chamfer_m), not the fit's n_eval
     return Refit(effects=effects, run=str(out), test=chk.test, score=score, chamfer_m=chk.chamfer_mean_m,
                  estimates=estimates(report, effects), ranking=chk.ranking, rounds=int(report.rounds),
                  sims_per_round=0 if amortised else cfg.sims_per_round, chamfer_n=chk.n_rollouts,
-                 amortised=amortised)
+                 amortised=amortised, off_test=tested)
 
 
 def amortised_pools(run: RunView, trained: Mapping[str, Any], root: Path, settings: DiagnoseSettings,

@@ -112,6 +112,31 @@ def mc_pvalue(observed: float, null: np.ndarray) -> MCPValue:
     return MCPValue(exceed=int((null >= observed - 1e-12 * max(1.0, abs(observed))).sum()), n=len(null))
 
 
+#: the smallest posterior standard deviation (unit coordinates: a fraction of the prior's range) that
+#: :func:`off_distance` divides by; a posterior narrower than that is a point
+OFF_SD_FLOOR = 1e-6
+
+
+def off_distance(unit_mean: np.ndarray, unit_std: np.ndarray, unit_off: np.ndarray) -> float:
+    """The "switched on" statistic of one added effect: the largest distance, over the effect's parameters, of the
+    posterior mean from the parameter's off value in posterior standard deviations, all in unit coordinates (the
+    prior box mapped to [0, 1] in each parameter's own scale). Larger is farther from "off". A Wald-type distance;
+    its null distribution is not assumed but simulated (:mod:`~softsbi.workflows.criticism.switched_on`).
+
+    Args:
+        unit_mean, unit_std, unit_off: ``(D,)`` the posterior's mean and standard deviation and the off values of
+            the effect's ``D`` parameters (NaN: a parameter without an off value, left out).
+
+    Returns:
+        The statistic; NaN when no parameter has an off value.
+    """
+    m, sd, off = (np.asarray(a, float).ravel() for a in (unit_mean, unit_std, unit_off))
+    keep = np.isfinite(off) & np.isfinite(m) & np.isfinite(sd)
+    if not keep.any():
+        return float("nan")
+    return float(np.max(np.abs(m[keep] - off[keep]) / np.maximum(sd[keep], OFF_SD_FLOOR)))
+
+
 def max_t_adjusted(observed: np.ndarray, null: np.ndarray) -> tuple[list[MCPValue], np.ndarray]:
     """Westfall-Young single-step max-T adjusted p-values.
 

@@ -42,6 +42,7 @@ from softsbi.workflows.criticism.check_null import NULL_FILE, check_replicates, 
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
 from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, run_jobs
 from softsbi.workflows.criticism.screening import default_candidates, is_generic, screening_size
+from softsbi.workflows.criticism.switched_on import store_off_null, stored_off_null, train_off_null, unit_off_values
 from softsbi.workflows.fit.task_store import TASK_TRAIN_INFO, PriorRound, StoredTask, first_round_context
 
 
@@ -358,4 +359,26 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
             f"{done + 1}-{done + each[i - 1]} of {sum(each)} at most)")
         out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain,
                                check_null, say, screened=screened))
+        if i > 1 and n_test:
+            with_off_null(out[-1], recording, replace(cfg, effects=effects), n_test, n_draws, say)
     return out
+
+
+def with_off_null(task: StoredTask, recording: Recording, cfg: FitConfig, n_test: int, n_draws: int,
+                  say: Callable[[str], None]) -> None:
+    """Store the null of "switched on" for the candidate model ``cfg.effects`` (its last effect the candidate)
+    unless the task has it: the statistic of its amortised posterior on the ``n_test`` held-out prior simulations of
+    the model without the candidate (the training report's, read from the simulation bank),
+    :func:`~softsbi.workflows.criticism.switched_on.train_off_null`.
+
+    Raises:
+        ResultUnwritable: the null cannot be written."""
+    if stored_off_null(task.path) is not None:
+        return
+    effect = registry().effect(cfg.effects[-1])()
+    space = _prepared(recording, cfg)[1]
+    _, _, x = held_out_simulations(recording, replace(cfg, effects=list(cfg.effects[:-1])), n_test)
+    null = train_off_null(task.restore(), x, unit_off_values(effect, space), n_draws, cfg.seed)
+    store_off_null(task.path, null, n_draws)
+    say(f"{task.model}: 'switched on' calibrated on {int(np.isfinite(null).sum())} of the model without "
+        f"{effect.name}'s held-out simulations")
