@@ -11,7 +11,7 @@
 * with ``--bank N`` (``--full``: 3): N simulated recordings of one lift task fitted in a row with the defaults,
   once with a fresh simulation bank and once without (``--no-sim-bank``): wall time and the first round's
   simulations read from the bank;
-* with ``--tests`` (``--full``): README command 2's tests (``pytest -m "not slow" -n 2``) and the unit tier.
+* with ``--tests`` (``--full``): README command 2's tests (``pytest -m "not slow" -n 2 --dist loadscope``) and the unit tier.
 
 Every timing is one row ``(what, command, seconds)`` made by :func:`timed`; a new timing (another command, or the same
 commands of another checkout) is one more call of it in :func:`suite`. Every command runs as on a fresh machine: the
@@ -174,11 +174,12 @@ def _tests(env: dict, tables: list) -> dict:
     out, rows = {}, []
     for what, marks in (("README command 2's tests", "not slow"), ("unit tier", "not slow and not integration")):
         t0 = time.perf_counter()
-        res = subprocess.run([sys.executable, "-m", "pytest", "-m", marks, "-q", "-n", "2", "-p", "no:cacheprovider"],
+        res = subprocess.run([sys.executable, "-m", "pytest", "-m", marks, "-q", "-n", "2", "--dist", "loadscope",
+                              "-p", "no:cacheprovider"],
                              cwd=REPO, env=env, capture_output=True, text=True)
         sec = time.perf_counter() - t0
         last = (res.stdout.strip().splitlines() or [""])[-1]
-        rows.append([what, f"pytest -m \"{marks}\" -n 2", round(sec, 1), last])
+        rows.append([what, f"pytest -m \"{marks}\" -n 2 --dist loadscope", round(sec, 1), last])
         out[what] = {"seconds": round(sec, 1), "result": last}
     tables.append(table("The test tiers (wall seconds)", ["what", "command", "s", "result"], rows))
     return out

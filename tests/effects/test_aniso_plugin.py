@@ -78,6 +78,7 @@ def test_fit_infers_its_parameter(tmp_path, lift_dir):
     assert 0.0 <= report["posterior_mean"]["rib_friction"] <= 1.5
 
 
+@pytest.mark.slow
 def test_diagnose_screens_it(tmp_path, lift_dir):
     """``diagnose --effect aniso-friction`` on a (tiny) nominal fit screens it like any built-in (a null of 12
     posterior-predictive rollouts, grown to at most 39: the smallest that resolves the level 0.05)."""

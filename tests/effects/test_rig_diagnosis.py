@@ -62,6 +62,7 @@ def test_a_hidden_camera_offset_is_named(tmp_path):
     assert 0.01 < _estimates(d, "camera-offset")["side_dy"].mean < 0.03
 
 
+@pytest.mark.slow
 def test_without_a_camera_offset_nothing_is_named(tmp_path):
     """Measured over seeds 0-9: nothing named 10/10 (nothing-missing 6, misspecified-unexplained 4, the level's
     false alarms, whose calibration-offset refit is not switched on)."""
@@ -70,6 +71,7 @@ def test_without_a_camera_offset_nothing_is_named(tmp_path):
     assert d.verdict in ("nothing-missing", "misspecified-unexplained")
 
 
+@pytest.mark.slow
 def test_a_hidden_arm_mask_is_named(tmp_path):
     """Measured over seeds 0-9 (5-20 s each): named 9/10 (the other's refit not adequate); the refit's mask radius
     5.7-7.3 cm where named (truth 8 cm)."""
@@ -79,6 +81,7 @@ def test_a_hidden_arm_mask_is_named(tmp_path):
     assert 0.04 < _estimates(d, "arm-mask")["mask_radius"].mean <= 0.1
 
 
+@pytest.mark.slow
 def test_without_an_arm_mask_nothing_is_named(tmp_path):
     """Measured over seeds 0-9: nothing named 10/10 (nothing-missing 8, misspecified-unexplained 2)."""
     d = diagnosed(tmp_path, LIFT, {}, [], ["arm-mask", "table-unseen"], ["stretch"])

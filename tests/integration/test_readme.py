@@ -12,6 +12,7 @@ pytestmark = pytest.mark.integration
 README = REPO / "README.md"
 
 
+@pytest.mark.slow
 def test_readme_python_api_example_runs_as_a_script(tmp_path):
     """As a file, not exec'd inside pytest: a script is the driver's ``__main__``, which ``spawn`` workers used
     to re-run (the example has no ``if __name__ == "__main__":`` guard and hung for more than 600 s)."""

@@ -26,6 +26,7 @@ def tutorial_commands(text: str) -> list[str]:
     return re.findall(r"```bash\n(.*?)```", text, re.S)
 
 
+@pytest.mark.slow
 def test_the_tutorial_runs_from_file_to_verdict(tmp_path):
     text = TUTORIAL.read_text()
     files = tutorial_files(text)

@@ -21,6 +21,7 @@ def _numbers(text: str) -> np.ndarray:
     return np.array([float(v) for v in re.findall(r"-?\d+\.\d*", text)])
 
 
+@pytest.mark.slow
 def test_the_howtos_check_that_an_effect_moves_the_object_runs_as_written(tmp_path):
     doc = HOWTO.read_text()
     (tmp_path / "my_hem.py").write_text(re.search(r"```python\n(.*?)```", doc, re.S).group(1))

@@ -100,6 +100,7 @@ def test_batches_in_worker_processes_and_their_size():
     _same(single, run_jobs(ctx, items, workers=2))
 
 
+@pytest.mark.slow
 def test_a_crashing_simulation_fails_itself_only_not_its_batch(monkeypatch):
     monkeypatch.setenv("SOFTSBI_TOY_CRASH_ABOVE", "0.45")  # the worker process dies at item 5 (a = 0.5)
     items, one_process = ITEMS[:8], {"retries": 0, "in_process": False}

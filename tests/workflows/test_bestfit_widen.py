@@ -93,6 +93,7 @@ def test_cma_es_starts_at_the_posteriors_mean_with_its_covariance():
     assert draws.min() >= 0 and draws.max() <= 1  # inside the prior box
 
 
+@pytest.mark.slow
 def test_widen_moves_a_pressed_bound_only_while_pressed_and_a_resumed_run_gives_the_same_result(tmp_path):
     """Hidden a = 1.3 beyond the prior [-1, 1]: an early round's posterior presses the upper bound, which moves half
     the range outward ([-1, 2]) for the following rounds; their posterior sits inside, so nothing moves again."""

@@ -68,6 +68,7 @@ def test_an_installed_third_party_effect_is_named_when_hidden(magnet_run):
     )
 
 
+@pytest.mark.slow
 def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(magnet_run):
     d = diagnose_run(magnet_run, effects=FLEXIBLE, plots=False, settings=DiagnoseSettings(workers=1))
     assert d.test.misspecified and set(d.test.family) == set(FLEXIBLE)
@@ -123,6 +124,7 @@ def test_one_failing_candidate_s_refusal_never_reaches_another_candidate_s_row(m
     assert d.test.directional is not None and d.test.directional_effect == MAGNET
 
 
+@pytest.mark.slow
 def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_and_the_best_refitted_first(
         tmp_path, monkeypatch):
     """The task trained once with its candidate models: the diagnosis scores every trained candidate's amortised

@@ -297,6 +297,7 @@ def test_resume_names_the_partly_stored_round_and_the_time_spent_and_rounds_coun
     assert "round 1" in RunStore.open(out / "run.zarr").round_attrs(1)["proposal"]
 
 
+@pytest.mark.slow
 def test_a_crashing_simulator_with_one_worker_fails_its_simulations_not_the_command(tmp_path):
     """`softsbi fit --workers 1` ran simulations in its own process: a simulator that killed it (exit 14) ended the
     command without a word. One worker now runs in a process of its own, as with --workers 2."""
@@ -387,6 +388,7 @@ main()
 """
 
 
+@pytest.mark.slow
 def test_a_sigterm_after_the_command_ended_is_no_traceback(tmp_path):
     """One SIGTERM in `softsbi check` printed a `Terminated` traceback: it landed after the command had ended, in
     Python's exit handlers. Outside a command SIGTERM ends the process at once (exit code 143), what the command

@@ -57,6 +57,7 @@ def rig(tmp_path_factory):
     return fit
 
 
+@pytest.mark.slow
 def test_one_recordings_wind_is_named_for_it_not_for_the_task(rig, tmp_path):
     """1 of 3 recordings with the hidden wind (the default tier's test; the 5 + 5 + 5 sets are below, slow): the set
     does not reject, so its verdict is known before any refit and none is made; two of three with it, and the

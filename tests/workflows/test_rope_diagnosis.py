@@ -33,21 +33,27 @@ def snag_plugin():
 
 @pytest.fixture(scope="module")
 def rope_fits(tmp_path_factory):
-    """Nominal fits (one round of 80) of the rope drag with the snag hidden at 6 N/m, and without it."""
+    """``rope_fits(name) -> run``: the nominal fit (one round of 80) of the rope drag with the snag hidden at 6 N/m
+    (``snag``) or without it (``control``), fitted when first asked for."""
     root = tmp_path_factory.mktemp("rope")
     cfg = FitConfig(rounds=1, sims_per_round=80, workers=2, n_eval=30)
-    out = {}
-    for name, extra, effects in (("snag", {"snag_k": 6.0}, ["snag"]), ("control", {}, [])):
-        rec = simulate_recording("mujoco-flex", str(ROPE_DRAG), {**TRUTH, **extra}, effects=effects, seed=3)
-        run_fit(root / name, rec, cfg, make_plots=False)
-        out[name] = root / name
-    return out
+    hidden = {"snag": ({"snag_k": 6.0}, ["snag"]), "control": ({}, [])}
+    runs = {}
+
+    def fitted(name):
+        if name not in runs:
+            extra, effects = hidden[name]
+            rec = simulate_recording("mujoco-flex", str(ROPE_DRAG), {**TRUTH, **extra}, effects=effects, seed=3)
+            run_fit(root / name, rec, cfg, make_plots=False)
+            runs[name] = root / name
+        return runs[name]
+    return fitted
 
 
 def test_a_rope_task_screens_every_candidate_that_can_act_on_a_rope_runs_both_tests_and_detects_a_snag(
         rope_fits, capsys):
     said: list[str] = []
-    d = diagnose_run(rope_fits["snag"], plots=False, progress=said.append,
+    d = diagnose_run(rope_fits("snag"), plots=False, progress=said.append,
                      settings=DiagnoseSettings(confirm=0, workers=2))
     assert "aniso-stretch" not in d.candidates and "snag" in d.candidates
     assert any("left out of the candidates: aniso-stretch (cannot act on a rope)" in s for s in said)
@@ -56,7 +62,8 @@ def test_a_rope_task_screens_every_candidate_that_can_act_on_a_rope_runs_both_te
     assert d.test.misspecified and d.ranking[0].effect == "snag"  # detected, and the screening points at the snag
 
 
+@pytest.mark.slow
 def test_the_rope_control_stays_clean(rope_fits):
-    d = diagnose_run(rope_fits["control"], plots=False, settings=DiagnoseSettings(confirm=0, workers=2))
+    d = diagnose_run(rope_fits("control"), plots=False, settings=DiagnoseSettings(confirm=0, workers=2))
     assert d.test.directional is not None
     assert d.decision.verdict == "nothing-missing", d.test

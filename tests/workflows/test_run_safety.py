@@ -218,6 +218,7 @@ def test_unreadable_store_metadata_is_one_line_naming_the_file_and_the_fix(tmp_p
     assert again.report.posterior_mean == first.report.posterior_mean
 
 
+@pytest.mark.slow
 def test_a_damaged_observed_is_rebuilt_from_the_recording_by_fit_check_and_view(tmp_path):
     """The observed state is the recording as the fit observed it: a damaged chunk of it is rebuilt from the
     recording named in the run's settings, in one line, by check and view as by fit, never a codec's traceback;
@@ -316,6 +317,7 @@ def test_a_round_array_of_the_wrong_shape_is_one_line_naming_it_and_the_fix(tmp_
     assert again.report.posterior_mean == first.report.posterior_mean
 
 
+@pytest.mark.slow
 def test_an_observed_array_of_the_wrong_shape_is_rebuilt_by_check_and_fit(tmp_path):
     from typer.testing import CliRunner
 

@@ -103,6 +103,7 @@ run_fit({out!r}, toy_measurement(), cfg, make_plots=False)
 
 
 
+@pytest.mark.slow
 def test_resume_after_sigkill_keeps_finished_simulations(tmp_path, kill_when_stored):
     out = tmp_path / "run"
     script = SCRIPT.format(tests=str(TESTS_DIR), out=str(out))

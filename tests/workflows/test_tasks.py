@@ -243,6 +243,7 @@ def test_task_train_on_the_command_line_trains_the_nominal_model_and_says_what_i
     assert [t["key"] for t in json.loads(cli("task", "list", "--json").stdout)] == [doc["key"]]
 
 
+@pytest.mark.slow
 def test_a_trained_tasks_check_is_calibrated_against_replicate_recordings_refitted_the_same_way(tmp_path, monkeypatch):
     pytest.importorskip("softsbi_toy.plugin")
     from toy_helpers import toy_measurement
@@ -380,6 +381,7 @@ def test_a_task_trained_without_held_out_simulations_is_listed_as_such_and_reuse
     assert calls == [] and again.digest == task.digest and any("reused" in s for s in said), said
 
 
+@pytest.mark.slow
 def test_sigint_stops_task_train_even_when_started_ignoring_it_and_no_stopped_phase_is_done(tmp_path):
     """A script's background job inherits SIGINT ignored: `kill -INT` left `task train` running. A phase stopped by
     it printed "done in N s"."""
