@@ -264,7 +264,7 @@ def effect_intervals(estimator: str, tasks: list, recording: Any, cfg: Any, n_te
     return out
 
 
-#: the level of the calibrated "switched on" test (the diagnosis's: softsbi.core.joint.CHANCE_EXCLUDED)
+#: the level of the calibrated "switched on" test (the diagnosis's: softsbi.core.results.joint.CHANCE_EXCLUDED)
 SWITCHED_ON_LEVEL = 0.1
 
 

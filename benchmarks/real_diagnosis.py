@@ -190,8 +190,8 @@ def joint_tables(task: str, runs: list[Path], folder: Path, workers: int, env: d
     table, each recording's own verdict beside it and, with ``candidates``, each recording's posterior-predictive
     Chamfer under the nominal model and under each candidate (:func:`chamfer_table`); and its data (verdict, named,
     the summary sentence, wall time, and with ``candidates`` the Chamfer medians); and the
-    :class:`~softsbi.core.joint.JointDiagnosis` itself."""
-    from softsbi.core.joint import JointDiagnosis
+    :class:`~softsbi.core.results.joint.JointDiagnosis` itself."""
+    from softsbi.core.results.joint import JointDiagnosis
     from softsbi.core.results import from_json
     from softsbi.report.joint_text import JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, recording_rows
     from softsbi.workflows.criticism.joint import JOINT_FILE
@@ -248,9 +248,9 @@ def duration_note(lift: Path, j: Any) -> str:
 
 def chamfer_table(task: str, j) -> tuple[dict, dict]:
     """Each recording's posterior-predictive Chamfer [cm] under the nominal model and under each candidate of ``j``
-    (a :class:`~softsbi.core.joint.JointDiagnosis`; each from its check's rollouts), a star where the candidate's
-    refit is adequate (its check does not reject at the set's alpha); then the medians over the recordings and each
-    candidate's fall of the median from the nominal one. Returns the table and the medians by model."""
+    (a :class:`~softsbi.core.results.joint.JointDiagnosis`; each from its check's rollouts), a star where the
+    candidate's refit is adequate (its check does not reject at the set's alpha); then the medians over the recordings
+    and each candidate's fall of the median from the nominal one. Returns the table and the medians by model."""
     nominal = [d.chamfer_m for d in j.recordings]
     cols = {"nominal": nominal, **{c.effect: [r.chamfer_m for r in c.refits] for c in j.candidates}}
     med = {k: float(np.median([100 * v for v in vals if v is not None])) if any(v is not None for v in vals)

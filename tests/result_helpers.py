@@ -114,7 +114,7 @@ def training_report_doc(names: tuple[str, ...] = ("a", "b")) -> dict:
                             for i, n in enumerate(names)}}
 
 
-# -- a task's recordings (softsbi.core.joint): each recording's own diagnosis and a candidate's refit on it ---------
+# -- a task's recordings (softsbi.core.results.joint): each recording's own diagnosis and a candidate's refit on it -
 
 def wind_refit(value: float, test: JointTest | None = None, on: bool = True, wind_y: float = 0.8,
                se: float = 0.2, effect: str = "wind") -> Refit:

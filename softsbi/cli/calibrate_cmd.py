@@ -14,7 +14,7 @@ from softsbi.core import defaults as D
 
 def print_calibration(o: Output, out: Any) -> None:
     """``calibrate``'s table and one line per diagnostic the verdict reads (``out``: a
-    :class:`~softsbi.core.fitreport.CalibrationResult`; :mod:`softsbi.report.fit_text` words them)."""
+    :class:`~softsbi.core.results.fitreport.CalibrationResult`; :mod:`softsbi.report.fit_text` words them)."""
     from softsbi.report.fit_text import calibration_lines, calibration_table  # start-up: numpy, scipy
     t = calibration_table(out)
     o.table(t.columns, t.rows, title=t.title)

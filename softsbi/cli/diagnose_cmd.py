@@ -25,7 +25,7 @@ def print_diagnosis(o: Output, diagnosis: Any) -> None:
 
 
 def print_joint_diagnosis(o: Output, joint: Any) -> None:
-    """A :class:`~softsbi.core.joint.JointDiagnosis` as its candidates' table, its recordings' own verdicts, the
+    """A :class:`~softsbi.core.results.joint.JointDiagnosis` as its candidates' table, its recordings' own verdicts, the
     set's verdict and its paragraphs on stdout (:mod:`softsbi.report.joint_text` words them)."""
     from softsbi.report.joint_text import (JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_text,  # start-up
                                            no_candidate_words, recording_rows)

@@ -17,7 +17,7 @@ from softsbi.core import defaults as D
 
 def print_fit_report(o: Output, rep: dict[str, Any], out: Path) -> None:
     """The fit's report (``rep``: ``report.json`` of run directory ``out``, as
-    :meth:`~softsbi.core.fitreport.FitReport.to_json` writes it) as a table and sentences on stdout
+    :meth:`~softsbi.core.results.fitreport.FitReport.to_json` writes it) as a table and sentences on stdout
     (:mod:`softsbi.report.fit_text` words them)."""
     from softsbi.report.fit_text import fit_report_lines, posterior_table  # start-up: numpy, scipy
     from softsbi.workflows.fit.prior_widening import widening_sentence  # start-up: numpy

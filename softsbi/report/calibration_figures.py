@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from softsbi.core.fitreport import CalibrationResult, RankHistograms
+from softsbi.core.results.fitreport import CalibrationResult, RankHistograms
 from softsbi.report.style import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS, _header, _plt,
                                   save_figure)
 
@@ -35,7 +35,7 @@ def _band_words(s: RankHistograms) -> str:
 
 
 def calibration_figure(cal: CalibrationResult) -> Any:
-    """Figure of :func:`plot_calibration` for a :class:`~softsbi.core.fitreport.CalibrationResult`."""
+    """Figure of :func:`plot_calibration` for a :class:`~softsbi.core.results.fitreport.CalibrationResult`."""
     plt = _plt()
     names = list(cal.parameters)
     D = len(names)
@@ -111,5 +111,6 @@ def calibration_figure(cal: CalibrationResult) -> Any:
 
 
 def plot_calibration(path: str | Path, cal: CalibrationResult) -> Path:
-    """Save :func:`calibration_figure` of a :class:`~softsbi.core.fitreport.CalibrationResult` to ``path`` (PNG)."""
+    """Save :func:`calibration_figure` of a :class:`~softsbi.core.results.fitreport.CalibrationResult` to ``path``
+    (PNG)."""
     return save_figure(calibration_figure(cal), Path(path))

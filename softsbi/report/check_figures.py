@@ -8,7 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.comparison import CompareResult
+from softsbi.core.results.comparison import CompareResult
 from softsbi.core.results import CheckResult, JointTest
 from softsbi.report.text import phases_from, regions_from
 from softsbi.report.style import (FS_LABEL, FS_LEGEND, FS_SUB, FS_TICK, FS_TITLE, ROLE_COLOURS, _header, _layout, _plt,

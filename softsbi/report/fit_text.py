@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from softsbi.core.fitreport import CalibrationResult
+from softsbi.core.results.fitreport import CalibrationResult
 from softsbi.core.metrics import describe_change
 from softsbi.inference.calibration import SHAPES
 from softsbi.inference.contraction import INFORMED_MAX_RATIO, bound_sentence, contraction_from_report, format_estimate

@@ -1,9 +1,9 @@
 """Every sentence and table row of a task's diagnosis across its recordings (``softsbi diagnose RUN RUN ... --out
-DIR``), rendered from its typed result (:class:`~softsbi.core.joint.JointDiagnosis`). Pure functions: tested against
-fixed result objects. The words of a single diagnosis are :mod:`softsbi.report.text`'s."""
+DIR``), rendered from its typed result (:class:`~softsbi.core.results.joint.JointDiagnosis`). Pure functions: tested
+against fixed result objects. The words of a single diagnosis are :mod:`softsbi.report.text`'s."""
 from __future__ import annotations
 
-from softsbi.core.joint import JointCandidate, JointDiagnosis, short_names
+from softsbi.core.results.joint import JointCandidate, JointDiagnosis, short_names
 from softsbi.core.results import Diagnosis, Gain
 from softsbi.core.types import unit_suffix
 from softsbi.report.text import SCORE_UNIT, SUMMARY_ENERGY, SWITCHED_ON_RULE, num, p_short, uninformed_words
@@ -14,7 +14,8 @@ JOINT_COLUMNS = ["candidate", f"summed score [{SCORE_UNIT}]", f"gain over nomina
                  "estimates: median (range)", "named alone by", "for the task"]
 #: the columns of :func:`recording_rows`
 RECORDING_COLUMNS = ["#", "recording", "check p", "own verdict", "named alone"]
-#: the ``for the task`` column's words for each criterion a candidate fails (:data:`~softsbi.core.joint.CRITERIA`)
+#: the ``for the task`` column's words for each criterion a candidate fails
+#: (:data:`~softsbi.core.results.joint.CRITERIA`)
 FAILED = {"improves": "gain within --k-se", "adequate": "misfit on the set", "switched on": "not switched on"}
 
 

@@ -8,10 +8,10 @@ from typing import Mapping, Sequence
 from scipy.stats import binom
 
 from softsbi.core.metrics import describe_change, offset_axes
-from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.results.comparison import CompareResult, Metric
 from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, OffTest,
                                   Refit, ResidualShape, Role, Score)
-from softsbi.core.joint import CHANCE_EXCLUDED
+from softsbi.core.results.joint import CHANCE_EXCLUDED
 from softsbi.core.types import unit_suffix
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
 

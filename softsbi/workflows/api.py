@@ -27,8 +27,8 @@ from softsbi.core.types import Recording, Rollout, Scenario
 from softsbi.data.validation import validation_line
 from softsbi.plugins import check_options, registry
 from softsbi.scenarios.builtin import make_scenario
-from softsbi.core.comparison import CompareResult
-from softsbi.core.joint import JointDiagnosis
+from softsbi.core.results.comparison import CompareResult
+from softsbi.core.results.joint import JointDiagnosis
 from softsbi.core.results import CheckResult, Diagnosis
 from softsbi.workflows.tasks.calibrate import calibrate_run
 from softsbi.workflows.criticism.check import check_run
@@ -199,7 +199,7 @@ def diagnose(run: str | Path | Sequence[str | Path], effects: Sequence[str] | No
 
     ``run`` a list of three or more runs (fits of one task's recordings; ``softsbi diagnose RUN RUN ... --out
     DIR``): one verdict for the task (:func:`~softsbi.workflows.criticism.joint.diagnose_runs`), returned as the
-    :class:`~softsbi.core.joint.JointDiagnosis` and written to ``out/joint-diagnosis.json`` (``out`` required).
+    :class:`~softsbi.core.results.joint.JointDiagnosis` and written to ``out/joint-diagnosis.json`` (``out`` required).
 
     Raises:
         SoftsbiError: ``effects`` given as one string (name them in a list), and everything ``diagnose_run`` (or
@@ -221,8 +221,8 @@ def compare(run_a: str | Path, run_b: str | Path, out: str | Path | None = None,
     """``softsbi compare A B``: two fits of one measurement side by side
     (:func:`~softsbi.workflows.criticism.compare.compare_runs`; the runs and ``out`` as ``str`` or ``Path``; the figure and JSON go to ``out``, default ``run_b``; ``settings``:
     ``n_eval``, ``alpha`` (the level of both checks), ``max_null``, ``workers``, ``recompute``). Returns the
-    :class:`~softsbi.core.comparison.CompareResult`. ``progress``: one line on stderr per phase of simulations (module
-    docstring)."""
+    :class:`~softsbi.core.results.comparison.CompareResult`. ``progress``: one line on stderr per phase of simulations
+    (module docstring)."""
     check_settings, rest = split_settings(CheckSettings, settings)
     with shown_unless_shown(progress):
         return compare_runs(run_a, run_b, run_b if out is None else out, check_settings, **rest)

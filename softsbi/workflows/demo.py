@@ -20,7 +20,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from softsbi.core.metrics import describe_change
-from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.results.comparison import CompareResult, Metric
 from softsbi.core.errors import ParameterError
 from softsbi.core.results import Diagnosis, to_json
 from softsbi.inference.contraction import contraction_from_report

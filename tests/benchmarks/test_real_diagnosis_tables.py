@@ -10,7 +10,7 @@ import pytest
 
 from result_helpers import joint, recording, wind_refit
 from toy_helpers import REPO
-from softsbi.core.joint import JointDiagnosis
+from softsbi.core.results.joint import JointDiagnosis
 from softsbi.workflows.criticism.joint_decide import decide_joint, joint_candidate, nominal_test, ranked
 
 sys.path.insert(0, str(REPO))

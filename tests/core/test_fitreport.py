@@ -6,8 +6,8 @@ import copy
 
 import pytest
 
-from softsbi.core.fitreport import (BestFitRow, BoundPressure, CalibrationResult, Contraction, FitReport,
-                                    ParameterRow, RoundRow)
+from softsbi.core.results.fitreport import (BestFitRow, BoundPressure, CalibrationResult, Contraction, FitReport,
+                                            ParameterRow, RoundRow)
 from softsbi.core.results import ResultDamaged
 
 #: a toy fit's report.json as the fit writes it (per-frame lists shortened)

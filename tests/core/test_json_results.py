@@ -73,7 +73,7 @@ def test_mapping_and_sequence_fields_rebuild_their_dataclass_values():
     from collections.abc import Mapping, Sequence
     from dataclasses import dataclass
 
-    from softsbi.core.fitreport import Contraction, TrainingReport
+    from softsbi.core.results.fitreport import Contraction, TrainingReport
     from softsbi.core.results import Role
 
     @dataclass(frozen=True)

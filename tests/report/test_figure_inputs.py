@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import softsbi.report
-from softsbi.core.fitreport import FitReport
+from softsbi.core.results.fitreport import FitReport
 from softsbi.core.types import Handle, Param, ParamSpace, Rollout, Scenario
 from softsbi.report.fit_figures import frames_figure
 from softsbi.scenarios.handles import grasped_vertex, handle_tracks, pinned_vertices

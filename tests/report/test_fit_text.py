@@ -3,7 +3,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softsbi.core.fitreport import CalibrationResult
+from softsbi.core.results.fitreport import CalibrationResult
 from softsbi.inference.contraction import bound_sentence
 from softsbi.report.fit_text import (TextTable, best_fit_lines, calibration_lines, calibration_table,
                                      fit_report_lines, posterior_table)

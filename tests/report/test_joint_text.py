@@ -3,7 +3,7 @@ hand-built results: any change of wording shows here as a diff."""
 from __future__ import annotations
 
 from result_helpers import joint, recording, wind_refit
-from softsbi.core.joint import JointDiagnosis
+from softsbi.core.results.joint import JointDiagnosis
 from softsbi.report.joint_text import (JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, joint_text,
                                        recording_rows)
 from softsbi.workflows.criticism.joint_decide import decide_joint, joint_candidate, nominal_test, ranked

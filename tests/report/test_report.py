@@ -15,7 +15,7 @@ from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 
 from result_helpers import REGIONS, check_result, joint
-from softsbi.core.comparison import CompareResult
+from softsbi.core.results.comparison import CompareResult
 from softsbi.core.types import Param, ParamSpace
 from softsbi.report import figures as R
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from result_helpers import check_result, joint
-from softsbi.core.comparison import CompareResult
+from softsbi.core.results.comparison import CompareResult
 from softsbi.core.types import Rollout
 from softsbi.report import figures as R
 from softsbi.scenarios import load_scenario

@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from result_helpers import REGIONS, candidate, check_result, energy, joint, refit, score
-from softsbi.core.comparison import CompareResult, Metric, Row
+from softsbi.core.results.comparison import CompareResult, Metric, Row
 from softsbi.core.metrics import offset_direction
 from softsbi.core.results import Diagnosis, Estimate, JointTest, MCPValue, ResidualShape
 from softsbi.report.text import (DIAGNOSIS_COLUMNS, candidate_role, diagnosis_columns, check_summary, compare_summary,

@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 import softsbi
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.fitreport import CalibrationResult
+from softsbi.core.results.fitreport import CalibrationResult
 from softsbi.core.store import RunStore
 from softsbi.workflows.lock import RunLocked, run_lock
 

@@ -44,7 +44,7 @@ def test_a_run_whose_calibration_is_lost_says_so_and_what_its_p_value_is_then(tm
     import numpy as np
     import zarr
 
-    from softsbi.core.posterior_store import EstimatorState
+    from softsbi.core.store.posterior import EstimatorState
     from softsbi.workflows.criticism.check_null import run_check_null
     from softsbi.workflows.fit.config import FitConfig
     from softsbi.workflows.fit.task_store import TaskStore

@@ -95,7 +95,7 @@ def test_a_trained_candidate_is_not_informed_when_its_task_informs_none_of_its_o
     """uninformed_candidates reads each trained candidate's training report: an effect is listed (with its narrowest
     width) only when every one of its own parameters' held-out widths is above INFORMED_MAX_RATIO; the nominal
     model's parameters in the same report do not count, and a task without a report says nothing."""
-    from softsbi.core.fitreport import Contraction
+    from softsbi.core.results.fitreport import Contraction
     from softsbi.inference.contraction import INFORMED_MAX_RATIO
     from softsbi.workflows.criticism.evidence import uninformed_candidates
 
@@ -276,7 +276,7 @@ def test_a_refits_estimates_carry_their_interval_how_much_the_data_narrowed_them
     """estimates(): the added effects' parameters from the refit's report.json (posterior mean, 90% interval,
     width over the prior's, a pressed prior bound with the wider prior to try); the nominal parameters are not
     among them."""
-    from softsbi.core.fitreport import FitReport
+    from softsbi.core.results.fitreport import FitReport
     from softsbi.workflows.criticism.diagnose import estimates
     report = {"posterior_mean": {"bend": 1e-4, "wind_x": 0.1, "wind_y": 1.9},
               "posterior_q05": {"wind_x": -0.3, "wind_y": 1.7}, "posterior_q95": {"wind_x": 0.5, "wind_y": 2.0},

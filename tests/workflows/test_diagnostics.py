@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from softsbi.cli import app
 from softsbi.core.errors import ParameterError
-from softsbi.core.comparison import CompareResult, Metric
+from softsbi.core.results.comparison import CompareResult, Metric
 from softsbi.core.results import CheckResult, Diagnosis, ResultDamaged, from_json
 from softsbi.core.store import RunStore
 from softsbi.workflows.criticism.check import check_run, stored_result

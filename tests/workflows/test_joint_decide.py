@@ -9,7 +9,7 @@ from scipy.stats import binom, chi2
 
 from result_helpers import joint, recording, wind_refit
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.joint import CombinedTest, JointDiagnosis, SwitchedOn, binomial_tail, chi2_sf_even
+from softsbi.core.results.joint import CombinedTest, JointDiagnosis, SwitchedOn, binomial_tail, chi2_sf_even
 from softsbi.core.results import Gain, MCPValue, from_json, to_json
 from softsbi.workflows.criticism.joint_decide import (MIN_RECORDINGS, check_recordings, decide_joint,
                                                       joint_candidate, nominal_test, ranked, set_candidates)

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 import softsbi
 from softsbi.cli import app
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.joint import JointDiagnosis
+from softsbi.core.results.joint import JointDiagnosis
 from softsbi.core.results import Diagnosis, from_json
 from softsbi.core.store import RunStore
 from softsbi.workflows.criticism.joint import JOINT_FILE, diagnose_runs, load_joint_diagnosis

@@ -289,7 +289,7 @@ def _replace_array(out, path, value):
     """Replace the store array ``path`` (``"rounds/0/x"``) of run ``out`` with a well-formed array ``value``."""
     import shutil
 
-    from softsbi.core.posterior_store import put_array
+    from softsbi.core.store.posterior import put_array
     shutil.rmtree(out / "run.zarr" / path)
     group, name = path.rsplit("/", 1)
     put_array(RunStore.open(out / "run.zarr").root[group], name, value,

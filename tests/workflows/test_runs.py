@@ -41,7 +41,7 @@ def test_open_run_and_load_run_give_the_typed_report_json(toy_run, tmp_path):
     import json
     import shutil
 
-    from softsbi.core.fitreport import FitReport
+    from softsbi.core.results.fitreport import FitReport
     from softsbi.core.results import ResultDamaged
     from softsbi.workflows.fit.runs import load_run
     doc = json.loads((toy_run / "report.json").read_text())

@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 import softsbi
-import softsbi.core.comparison as comparison
+import softsbi.core.results.comparison as comparison
 import softsbi.core.jsonfile as jsonfile
 import softsbi.core.results as results
 from softsbi.cli import app
@@ -185,7 +185,7 @@ def test_diagnose_says_what_it_wrote_or_reused_even_on_a_read_only_run(run, tmp_
 
 
 def test_a_diagnosis_says_up_front_how_many_refits_and_simulations_are_coming_with_an_estimate(run, tmp_path):
-    from softsbi.core.fitreport import FitReport, RoundRow
+    from softsbi.core.results.fitreport import FitReport, RoundRow
     rep = FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=3, sims_per_round=400, simulations=1230,
                     wall_time_s=600.0)
     assert diagnose.diagnosis_plan(rep, 9, 2, n_null=30) == (
@@ -301,7 +301,7 @@ def test_an_asked_refit_budget_is_kept_when_the_run_stopped_at_its_stored_task()
     stopped at its stored task then refitted an untrained candidate at the default 4 rounds: 3, 4 and 1 rounds for
     one setting, depending on which recording filled the task first."""
     from types import SimpleNamespace
-    from softsbi.core.fitreport import FitReport, RoundRow
+    from softsbi.core.results.fitreport import FitReport, RoundRow
     cfg = SimpleNamespace(rounds=1, sims_per_round=100)
     at_task = SimpleNamespace(config=cfg, report=FitReport(parameters=("a",), posterior_median={"a": 1.0}, rounds=1,
                                                             per_round=(RoundRow(round=0, task="k" * 64),)))

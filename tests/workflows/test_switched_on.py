@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from softsbi.core.fitreport import Contraction
+from softsbi.core.results.fitreport import Contraction
 from softsbi.core.results import Estimate, MCPValue, OffTest
 from softsbi.core.types import Param, ParamSpace
 from softsbi.workflows.criticism.decide import decide

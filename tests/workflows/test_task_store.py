@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from softsbi.core.posterior_store import EstimatorState
+from softsbi.core.store.posterior import EstimatorState
 from softsbi.core.types import Param, ParamSpace
 from softsbi.workflows.fit import task_store as tasks
 from softsbi.workflows.fit.run import FitConfig
@@ -117,7 +117,7 @@ def _damage(task):
 def test_a_fit_never_uses_a_damaged_task_says_so_and_replaces_it_only_without_a_training_report(tmp_path, trained):
     from result_helpers import training_report_doc
 
-    from softsbi.core.fitreport import TrainingReport
+    from softsbi.core.results.fitreport import TrainingReport
     store = TaskStore(tmp_path / "tasks")
     p = _parts()
     idy = task_identity(p["cfg"], p["space"], p["ctx"], p["opts"])
@@ -148,7 +148,7 @@ def test_task_list_show_and_delete_name_a_trained_and_a_damaged_task(tmp_path, m
     from typer.testing import CliRunner
 
     from softsbi.cli import app
-    from softsbi.core.fitreport import TrainingReport
+    from softsbi.core.results.fitreport import TrainingReport
     monkeypatch.delenv("SOFTSBI_SIM_BANK", raising=False)  # the tests' default: off
     runner = CliRunner()
     bank = tmp_path / "bank"

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from softsbi.core.fitreport import TrainingReport
+from softsbi.core.results.fitreport import TrainingReport
 
 pytestmark = pytest.mark.integration
 

@@ -108,7 +108,7 @@ def test_a_trained_candidates_refit_is_its_amortised_posterior_and_simulates_no_
 
 
 def test_compare_check_and_view_read_an_amortised_refit_as_any_refit(trained, diagnosed, tmp_path):
-    from softsbi.core.comparison import Metric
+    from softsbi.core.results.comparison import Metric
     from softsbi.core.defaults import CheckSettings
     from softsbi.workflows.criticism.check import check_run
     from softsbi.workflows.criticism.compare import compare_runs

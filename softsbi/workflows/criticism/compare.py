@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Callable
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.comparison import CompareResult, Metric, Row
+from softsbi.core.results.comparison import CompareResult, Metric, Row
 from softsbi.core.results import CheckResult, check_result_path, write_result
 from softsbi.report import fit_label, plot_compare
 from softsbi.report.text import row_label
@@ -42,10 +42,10 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
         message: told in one line what each check wrote, reused or computed again (a damaged ``check.json``).
 
     Returns:
-        the :class:`~softsbi.core.comparison.CompareResult`: rows keyed by their
-        :class:`~softsbi.core.comparison.Metric` (posterior-predictive Chamfer first, then the one-sided Chamfer, the
-        Chamfer energy score and the posterior-mean rollout's Chamfer where both runs have them, per phase, per
-        region) and both checks.
+        the :class:`~softsbi.core.results.comparison.CompareResult`: rows keyed by their
+        :class:`~softsbi.core.results.comparison.Metric` (posterior-predictive Chamfer first, then the one-sided
+        Chamfer, the Chamfer energy score and the posterior-mean rollout's Chamfer where both runs have them, per
+        phase, per region) and both checks.
 
     Raises:
         SoftsbiError: ``alpha`` outside (0, 1) or a null cap that cannot resolve it; either is not a finished fit, or
@@ -88,10 +88,11 @@ def compare_runs(run_a: str | Path, run_b: str | Path, out_dir: str | Path, sett
 
 
 def compare_rows(a: CheckResult, b: CheckResult) -> tuple[Row, ...]:
-    """The rows of a comparison of checks ``a`` and ``b`` (m), each keyed by its :class:`~softsbi.core.comparison.Metric`
-    and labelled by :func:`~softsbi.report.text.row_label`: the posterior-predictive Chamfer, then the one-sided
-    Chamfer, the Chamfer energy score and the posterior-mean rollout's Chamfer where both checks have them, then per
-    phase (in ``a``'s phases) and per region (``a``'s regions; NaN where ``b`` lacks one)."""
+    """The rows of a comparison of checks ``a`` and ``b`` (m), each keyed by its
+    :class:`~softsbi.core.results.comparison.Metric` and labelled by :func:`~softsbi.report.text.row_label`: the
+    posterior-predictive Chamfer, then the one-sided Chamfer, the Chamfer energy score and the posterior-mean
+    rollout's Chamfer where both checks have them, then per phase (in ``a``'s phases) and per region (``a``'s
+    regions; NaN where ``b`` lacks one)."""
     pairs: list[tuple[Metric, float, float, str]] = [(Metric.CHAMFER, a.chamfer_mean_m, b.chamfer_mean_m, "")]
     if a.chamfer_one_sided_mean_m is not None and b.chamfer_one_sided_mean_m is not None:
         pairs.append((Metric.CHAMFER_ONE_SIDED, a.chamfer_one_sided_mean_m, b.chamfer_one_sided_mean_m, ""))

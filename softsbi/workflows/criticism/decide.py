@@ -14,7 +14,7 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
      :class:`~softsbi.core.results.Score`) below the model it extends by more than ``k_se`` standard errors of the
      difference (:func:`gain`);
    - *switched on*: for each added effect, the posterior of at least one of its parameters excludes the value that
-     switches the effect off at the level :data:`~softsbi.core.joint.CHANCE_EXCLUDED` (its 90% interval, or at a
+     switches the effect off at the level :data:`~softsbi.core.results.joint.CHANCE_EXCLUDED` (its 90% interval, or at a
      prior bound the Savage-Dickey density ratio: :func:`~softsbi.workflows.criticism.diagnose.may_be_off`;
      :attr:`~softsbi.core.results.Refit.maybe_off`); a refit whose added effect the data leave possibly off has
      absorbed the misfit by widening its predictions, not identified a cause.

@@ -27,11 +27,11 @@ import numpy as np
 from softsbi.core.errors import PosteriorError, SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit, read_result,
                                   check_result_path, write_result)
-from softsbi.core.joint import CHANCE_EXCLUDED
+from softsbi.core.results.joint import CHANCE_EXCLUDED
 from softsbi.core.types import Param
 from softsbi.inference.contraction import BOUND_SLAB
 from softsbi.plugins import registry
-from softsbi.core.fitreport import FitReport
+from softsbi.core.results.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit
@@ -339,7 +339,7 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
 def may_be_off(p: Param, off: float | None, q05: float | None, q95: float | None,
                slab_mass: tuple[float, float] | None) -> bool | None:
     """Whether parameter ``p``'s posterior may sit at ``off``, the value that switches its effect off: the data do
-    not exclude it at the level :data:`~softsbi.core.joint.CHANCE_EXCLUDED`.
+    not exclude it at the level :data:`~softsbi.core.results.joint.CHANCE_EXCLUDED`.
 
     - ``off`` inside the prior: its 90% interval ``[q05, q95]`` contains it (a calibrated interval excludes the
       true off value with probability 0.10).

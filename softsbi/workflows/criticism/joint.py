@@ -6,7 +6,7 @@ that recording's noise. :func:`diagnose_runs` diagnoses each recording (:func:`~
 its stored result reused), refits the set's candidates on every recording where its own diagnosis did not
 (:func:`~softsbi.workflows.criticism.diagnose.refit_model`, stored in the run's own ``refit-<effect>`` folder, where
 ``softsbi diagnose RUN`` would put it), and decides for the set
-(:mod:`~softsbi.workflows.criticism.joint_decide`). The result is a :class:`~softsbi.core.joint.JointDiagnosis`,
+(:mod:`~softsbi.workflows.criticism.joint_decide`). The result is a :class:`~softsbi.core.results.joint.JointDiagnosis`,
 written to ``DIR/joint-diagnosis.json``; its sentences are rendered by :mod:`softsbi.report.joint_text`.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.joint import JointDiagnosis
+from softsbi.core.results.joint import JointDiagnosis
 from softsbi.core.results import Diagnosis, Refit, check_result_path, read_result, write_result
 from softsbi.core.store import RunStore
 from softsbi.workflows import pools
@@ -77,7 +77,7 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
             family.
 
     Returns:
-        the :class:`~softsbi.core.joint.JointDiagnosis`.
+        the :class:`~softsbi.core.results.joint.JointDiagnosis`.
 
     Raises:
         SoftsbiError: before any work, in one line: no ``out_dir``; fewer than three runs; a run given twice; runs

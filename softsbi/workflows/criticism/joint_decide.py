@@ -1,12 +1,12 @@
 """A task's diagnosis across its recordings: the decision for the set, from each recording's diagnosis and the refits
 of the set's candidates on every recording. Pure functions of typed results (:mod:`softsbi.core.results`,
-:mod:`softsbi.core.joint`); no simulation here.
+:mod:`softsbi.core.results.joint`); no simulation here.
 
 The rule (``R`` recordings, ``R >= 3``; ``alpha`` and ``k_se`` as in a single diagnosis,
 :mod:`~softsbi.workflows.criticism.decide`):
 
 1. *Detect.* ``nothing-missing`` iff Fisher's method over the nominal fits' ``check`` p-values
-   (:class:`~softsbi.core.joint.CombinedTest`: ``-2 sum ln p_r ~ chi^2_{2R}``) does not reject at ``alpha``.
+   (:class:`~softsbi.core.results.joint.CombinedTest`: ``-2 sum ln p_r ~ chi^2_{2R}``) does not reject at ``alpha``.
 2. *Propose.* The candidates compared on the set are refitted on every recording, so that their scores can be summed
    (:func:`set_candidates`: those the recordings' own diagnoses refitted, most often refitted first).
 3. *Decide.* A candidate is named for the task when all three hold:
@@ -18,8 +18,8 @@ The rule (``R`` recordings, ``R >= 3``; ``alpha`` and ``k_se`` as in a single di
      the set;
    - *adequate on the set*: Fisher's method over its refits' check p-values does not reject at ``alpha``;
    - *switched on*: more recordings' refits exclude the effect's off value than chance allows: a one-sided binomial
-     test at ``alpha`` against the rate :data:`~softsbi.core.joint.CHANCE_EXCLUDED` per parameter
-     (:class:`~softsbi.core.joint.SwitchedOn`).
+     test at ``alpha`` against the rate :data:`~softsbi.core.results.joint.CHANCE_EXCLUDED` per parameter
+     (:class:`~softsbi.core.results.joint.SwitchedOn`).
    The qualifying candidate with the lowest summed score is named (``missing-effect``); the others whose summed
    score is not ``k_se`` paired standard errors above it are listed as indistinguishable. Otherwise
    ``misspecified-unexplained``, naming the improving, switched-on candidate with the lowest summed score as
@@ -36,7 +36,7 @@ from dataclasses import replace
 from typing import Sequence
 
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.joint import CHANCE_EXCLUDED, CombinedTest, JointCandidate, SwitchedOn
+from softsbi.core.results.joint import CHANCE_EXCLUDED, CombinedTest, JointCandidate, SwitchedOn
 from softsbi.core.results import Decision, Diagnosis, Gain, Refit, RefitGain
 
 #: the fewest recordings whose spread of score gains a standard error can be judged from (two give one degree of
@@ -105,7 +105,7 @@ def paired_between(a: JointCandidate, b: JointCandidate) -> Gain | None:
 
 def ranked(candidates: Sequence[JointCandidate]) -> tuple[JointCandidate, ...]:
     """The candidates by summed score, lowest first (unscored last), each with its difference to the best
-    (:attr:`~softsbi.core.joint.JointCandidate.to_best`)."""
+    (:attr:`~softsbi.core.results.joint.JointCandidate.to_best`)."""
     order = sorted(candidates, key=lambda c: (c.score is None, c.score if c.score is not None else 0.0, c.effect))
     best = order[0] if order and order[0].score is not None else None
     return tuple(replace(c, to_best=None if best is None or c is best else paired_between(c, best)) for c in order)

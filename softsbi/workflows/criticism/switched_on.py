@@ -31,7 +31,7 @@ import numpy as np
 
 from softsbi.core.errors import PosteriorError
 from softsbi.core.jsonfile import write_json_atomic
-from softsbi.core.joint import CHANCE_EXCLUDED
+from softsbi.core.results.joint import CHANCE_EXCLUDED
 from softsbi.core.results import OffTest
 from softsbi.inference import calibration as cal
 from softsbi.workflows.criticism.statistics import mc_pvalue, off_distance

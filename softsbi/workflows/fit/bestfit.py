@@ -29,7 +29,7 @@ import numpy as np
 
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.store import RunStore
-from softsbi.core.store_groups import holds
+from softsbi.core.store.groups import holds
 from softsbi.core.types import STATUS_ERROR, STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.workflows.fit.jobs import JobItem, SimContext, map_simulations, simulate_job, stored_evaluation_seeds
 from softsbi.workflows.fit.config import RunRecord

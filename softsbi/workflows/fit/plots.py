@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from softsbi.core.fitreport import FitReport
+from softsbi.core.results.fitreport import FitReport
 from softsbi.core.types import Rollout
 from softsbi.perception.masks import hsv_mask
 from softsbi.perception.pointcloud import rollout_clouds

@@ -9,7 +9,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from softsbi.core.fitreport import REQUIRED_KEYS
+from softsbi.core.results.fitreport import REQUIRED_KEYS
 from softsbi.core.results import ResultDamaged, read_json
 from softsbi.core.store import RunStore
 from softsbi.core.types import STATUS_OK, ParamSpace, Recording
@@ -79,7 +79,7 @@ def chamfer_stats(chamfer: np.ndarray, status: np.ndarray, frames: list[int] | N
 
 
 #: what every reader of a fit's ``report.json`` needs in it (a file without them is damaged): the typed report's
-#: required keys, one definition for the dict reader and :class:`~softsbi.core.fitreport.FitReport`
+#: required keys, one definition for the dict reader and :class:`~softsbi.core.results.fitreport.FitReport`
 REPORT_KEYS = REQUIRED_KEYS
 
 

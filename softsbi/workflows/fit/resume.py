@@ -13,7 +13,7 @@ import numpy as np
 
 from softsbi.core.errors import ObservedDamaged, SchemaError, SoftsbiError, SoftsbiWarning
 from softsbi.core.store import RunStore
-from softsbi.core.store_damage import array_names, damage_fix, observed_faults
+from softsbi.core.store.damage import array_names, damage_fix, observed_faults
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace, Recording, Scenario
 from softsbi.perception.masks import hsv_mask
 from softsbi.workflows.fit.config import RESUME_DEFAULTS, FitConfig, RunRecord, needs_images, resume_identity

@@ -31,10 +31,10 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, RoundPosterior
 from softsbi.core.errors import SoftsbiError
-from softsbi.core.fitreport import FitReport
+from softsbi.core.results.fitreport import FitReport
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
-from softsbi.core.store_groups import holds
+from softsbi.core.store.groups import holds
 from softsbi.core.types import STATUS_ERROR, ParamSpace, Recording
 from softsbi.core.seeds import eval_stream
 from softsbi.plugins import registry

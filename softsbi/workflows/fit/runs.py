@@ -9,7 +9,7 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain
 from softsbi.core.errors import SoftsbiError, as_path
-from softsbi.core.fitreport import FitReport
+from softsbi.core.results.fitreport import FitReport
 from softsbi.core.store import RunStore
 from softsbi.core.types import ParamSpace, Scenario
 from softsbi.plugins import registry
@@ -23,7 +23,7 @@ from softsbi.workflows.fit.jobs import JobItem, JobResult, SimContext, run_jobs,
 
 
 def read_fit_report(run_dir: str | Path) -> FitReport:
-    """A finished fit's ``report.json``, typed (:class:`~softsbi.core.fitreport.FitReport`).
+    """A finished fit's ``report.json``, typed (:class:`~softsbi.core.results.fitreport.FitReport`).
 
     Raises:
         ResultDamaged: it is empty, cut short, not JSON, lacks a required key or holds a value of the wrong kind;
@@ -43,7 +43,7 @@ class RunView:
             them: its recording's scenario, observer options, source and truth, its metric
             (:class:`~softsbi.workflows.fit.config.RunRecord`). space: the inferred parameters.
         scenario, dense (``T`` clouds ``(m, 3)`` m), x_obs: the measurement as fitted.
-        report: ``report.json`` (:class:`~softsbi.core.fitreport.FitReport`).
+        report: ``report.json`` (:class:`~softsbi.core.results.fitreport.FitReport`).
         post_theta: ``(S, D)`` the fit's evaluation samples (physical units), the first ``n_eval``.
         post_seeds: ``(S,)`` their simulation seeds. post_complete: ``post_theta`` holds every stored sample.
     """
@@ -244,8 +244,8 @@ class Run:
 
     Attributes:
         path: the run directory. config: the fit's settings (:class:`~softsbi.workflows.fit.run.FitConfig`).
-        report: ``report.json`` (:class:`~softsbi.core.fitreport.FitReport`, e.g. ``run.report.chamfer_posterior_m``;
-            None while the fit has not finished). space: the inferred parameters.
+        report: ``report.json`` (:class:`~softsbi.core.results.fitreport.FitReport`, e.g.
+            ``run.report.chamfer_posterior_m``; None while the fit has not finished). space: the inferred parameters.
         posterior: the final posterior in physical units (:class:`Posterior`).
         best_fit: the best-fitting parameters the fit found and their rollout
             (:class:`~softsbi.workflows.fit.bestfit.BestFit`), None for a run that stored none.

@@ -23,7 +23,7 @@ simulation budget with its training report, for the model and each candidate eff
 not match is never used: a changed softsbi version, scenario, backend, model, prior or estimator gives another key.
 
 Entries are written into a temporary folder and renamed into place (atomic on one file system); each carries its
-identity and a SHA-256 of its content (:mod:`~softsbi.core.posterior_store`), both checked on reading. A moved
+identity and a SHA-256 of its content (:mod:`~softsbi.core.store.posterior`), both checked on reading. A moved
 entry (another key) counts as absent. A damaged entry (:class:`DamagedTask`) is never used: ``task list`` and
 ``task show`` name it, ``task delete`` removes it, and a fit trains its first round itself, saying so, and replaces
 the entry only when no training report was stored in it (:meth:`PriorRound.damage_line`).
@@ -46,9 +46,9 @@ import zarr
 from filelock import FileLock, Timeout
 
 from softsbi.core.errors import PosteriorDamaged, SoftsbiError, storage_error
-from softsbi.core.fitreport import TrainingReport
+from softsbi.core.results.fitreport import TrainingReport
 from softsbi.core.store import installed_version
-from softsbi.core.posterior_store import EstimatorState, encode_posterior, read_posterior_group, write_posterior
+from softsbi.core.store.posterior import EstimatorState, encode_posterior, read_posterior_group, write_posterior
 from softsbi.core.types import ParamSpace, Recording, jsonable
 from softsbi.plugins import registry
 from softsbi.core import defaults
@@ -151,8 +151,8 @@ class StoredTask:
         estimator: the trained estimator's state (restore: the plugin ``estimator.name`` with its options).
         info: the training information (:meth:`~softsbi.core.interfaces.PosteriorEstimator.fit`'s, with counts).
         report: the training report (``task train``: calibration on held-out prior simulations,
-            :class:`~softsbi.core.fitreport.TrainingReport`), or None (stored by a fit's first round, or trained by
-            ``task train --n-test 0``: :attr:`by_task_train`).
+            :class:`~softsbi.core.results.fitreport.TrainingReport`), or None (stored by a fit's first round, or trained
+            by ``task train --n-test 0``: :attr:`by_task_train`).
         path: its folder.
     """
 

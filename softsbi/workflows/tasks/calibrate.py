@@ -37,10 +37,10 @@ import numpy as np
 
 from softsbi.core.distributions import PosteriorChain, TruncatedPrior
 from softsbi.core.errors import PosteriorError, SoftsbiError
-from softsbi.core.fitreport import CalibrationResult
+from softsbi.core.results.fitreport import CalibrationResult
 from softsbi.core.results import check_result_path, write_json_atomic
 from softsbi.core.store import RunStore
-from softsbi.core.store_groups import holds
+from softsbi.core.store.groups import holds
 from softsbi.core.types import STATUS_OK, STATUS_PENDING, ParamSpace
 from softsbi.inference import calibration as cal
 from softsbi.plugins import registry
@@ -193,8 +193,8 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
         message: progress notices.
 
     Returns:
-        The :class:`~softsbi.core.fitreport.CalibrationResult` (``calibration.json`` is its
-        :meth:`~softsbi.core.fitreport.CalibrationResult.to_json`): ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
+        The :class:`~softsbi.core.results.fitreport.CalibrationResult` (``calibration.json`` is its
+        :meth:`~softsbi.core.results.fitreport.CalibrationResult.to_json`): ``coverage`` (``levels``, ``hpd``, ``band_lo``/``band_hi`` (pointwise
         95 %), ``band_simultaneous_lo``/``_hi`` (the whole curve's band at the verdict's level, Bonferroni over
         the levels), ``outside_pointwise`` (levels), ``inside_simultaneous``, ``at_50``, ``at_90``, ``band_50``,
         ``band_90`` (the verdict's band at those levels)), ``verdict_50``, ``verdict_90``, ``verdict``,
@@ -295,7 +295,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
 
 def coverage_json(st: Mapping[str, Any]) -> dict[str, Any]:
     """The expected coverage of :func:`calibration_stats`' result ``st`` in the JSON form of
-    :class:`~softsbi.core.fitreport.Coverage` (``calibration.json``'s and a stored task's training report's)."""
+    :class:`~softsbi.core.results.fitreport.Coverage` (``calibration.json``'s and a stored task's training report's)."""
     levels, cov, lo, hi, at, vc = st["levels"], st["cov"], st["lo"], st["hi"], st["at"], st["ver"]["coverage"]
     return {"levels": levels.tolist(), "hpd": cov.tolist(), "band_lo": lo.tolist(), "band_hi": hi.tolist(),
             "band_confidence": 0.95, "at_50": at[0.5], "at_90": at[0.9],
@@ -309,7 +309,7 @@ def coverage_json(st: Mapping[str, Any]) -> dict[str, Any]:
 
 def rank_histograms_json(st: Mapping[str, Any], n_bins: int) -> dict[str, Any]:
     """The SBC rank histograms of :func:`calibration_stats`' result ``st`` (``n_bins`` bins) in the JSON form of
-    :class:`~softsbi.core.fitreport.RankHistograms`."""
+    :class:`~softsbi.core.results.fitreport.RankHistograms`."""
     sbc = st["ver"]["sbc"]
     return {"n_bins": n_bins, "histograms": st["hist"], "band": sbc["band"], "band_level": sbc["level"],
             "shapes": [p["shapes"] for p in sbc["parameters"]], "rejects": [p["rejects"] for p in sbc["parameters"]],

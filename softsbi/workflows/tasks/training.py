@@ -26,9 +26,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from softsbi.core.errors import SoftsbiError, storage_error
-from softsbi.core.fitreport import TrainingReport
+from softsbi.core.results.fitreport import TrainingReport
 from softsbi.core.jsonfile import check_result_path
-from softsbi.core.posterior_store import EstimatorState
+from softsbi.core.store.posterior import EstimatorState
 from softsbi.core.types import ParamSpace, Recording
 from softsbi.core.seeds import TEST_STREAM
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
@@ -292,7 +292,7 @@ def held_out_report(est: Any, names: Sequence[str], U: np.ndarray, X: np.ndarray
                     n_failed: int = 0) -> TrainingReport:
     """A trained estimator measured on held-out prior simulations ``U (n, D)`` (unit cube), ``X`` (at its frames):
     expected coverage, SBC ranks, TARP and their verdict, and the contraction per parameter (module docstring,
-    step 3), as a :class:`~softsbi.core.fitreport.TrainingReport` (without its times).
+    step 3), as a :class:`~softsbi.core.results.fitreport.TrainingReport` (without its times).
 
     Raises:
         PosteriorError: no posterior of a held-out simulation has mass in the prior box."""

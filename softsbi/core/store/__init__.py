@@ -30,6 +30,10 @@ a damaged or missing posterior is named in one line, never used.
 
 Version 2 added the posterior's ``kind``, ``format`` and ``checksum``; version-1 runs (every
 posterior a mixture, no checksum) are read as they are.
+
+:class:`RunStore` is defined here; the package's modules hold its parts: a round's posterior group
+(:mod:`softsbi.core.store.posterior`), the named groups outside the rounds (:mod:`softsbi.core.store.groups`) and
+what in a store cannot be read (:mod:`softsbi.core.store.damage`).
 """
 from __future__ import annotations
 
@@ -46,11 +50,11 @@ import zarr
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import ObservedDamaged, SchemaError
 # a round's posterior (EstimatorState and POSTERIOR_FORMAT are importable from here too)
-from softsbi.core.posterior_store import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
+from softsbi.core.store.posterior import (POSTERIOR_FORMAT, EstimatorState, encode_posterior,  # noqa: F401
                                           put_array, read_posterior_group, write_posterior)
-from softsbi.core.store_damage import (array_names, check_metadata, damage_fix, damaged_rows, group_names,
+from softsbi.core.store.damage import (array_names, check_metadata, damage_fix, damaged_rows, group_names,
                                        observed_faults, round_faults, unreadable_groups)
-from softsbi.core.store_groups import NamedGroups
+from softsbi.core.store.groups import NamedGroups
 from softsbi.core.types import STATUS_PENDING, jsonable
 
 SCHEMA = "softsbi.run"
@@ -228,7 +232,7 @@ class RunStore(NamedGroups):
 
         Raises:
             ObservedDamaged: the group is missing, one of its arrays cannot be read (a truncated or corrupt
-                chunk) or has the wrong shape (:func:`~softsbi.core.store_damage.observed_faults`); the fix says
+                chunk) or has the wrong shape (:func:`~softsbi.core.store.damage.observed_faults`); the fix says
                 that the fit rebuilds it from the recording.
         """
         where = self.path / "observed"

@@ -14,7 +14,7 @@ import zarr
 
 from softsbi.core.distributions import MixtureOfGaussians
 from softsbi.core.errors import PosteriorDamaged, SchemaError
-from softsbi.core.store_damage import array_names
+from softsbi.core.store.damage import array_names
 from softsbi.core.types import jsonable
 
 #: format of a round's ``posterior`` group

@@ -5,6 +5,10 @@ figures from them, and their JSON form (``check.json``, ``diagnosis.json``, ``co
 schema version (:data:`SCHEMA`). :func:`to_json` / :func:`from_json` (:mod:`softsbi.core.jsonfile`) convert any of
 them, nested ones included, from their type hints alone.
 
+The package's modules hold the other typed results: a fit's ``report.json``, ``calibration.json`` and a task's
+training report (:mod:`softsbi.core.results.fitreport`), the diagnosis across a task's recordings
+(:mod:`softsbi.core.results.joint`) and ``compare``'s result (:mod:`softsbi.core.results.comparison`).
+
 Units: distances in metres, like every stored number of softsbi.
 """
 from __future__ import annotations
@@ -270,7 +274,7 @@ class OffTest:
         statistic: the refit's distance (posterior standard deviations, unit coordinates).
         p_value: its Monte-Carlo p-value, ``(1 + #null >= statistic) / (n + 1)``.
         level: the effect is switched on when ``p_value <= level`` (the rate at which an effect that is off is
-            called on: :data:`~softsbi.core.joint.CHANCE_EXCLUDED`).
+            called on: :data:`~softsbi.core.results.joint.CHANCE_EXCLUDED`).
     """
 
     statistic: float

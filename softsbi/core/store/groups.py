@@ -11,8 +11,8 @@ import numpy as np
 import zarr
 
 from softsbi.core.errors import SchemaError
-from softsbi.core.posterior_store import put_array
-from softsbi.core.store_damage import array_names
+from softsbi.core.store.posterior import put_array
+from softsbi.core.store.damage import array_names
 from softsbi.core.types import jsonable
 
 
