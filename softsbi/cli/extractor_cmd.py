@@ -57,5 +57,5 @@ def train_extractor(kind: str = typer.Argument(..., help="extractor plugin: heat
     if json_done(o, summary):
         return
     tr = summary["train"]
-    o.line(f"trained {kind}: {tr.get('epochs')} epochs, {tr.get('seconds', 0):.0f} s -> {out} "
+    o.line(f"trained {kind}: {tr['epochs']} epochs, {tr['seconds']:.0f} s -> {out} "
            f"(summary {out.with_suffix('.json')})")

@@ -118,6 +118,19 @@ def test_an_older_report_reads_with_its_missing_keys_as_none_and_keeps_unknown_o
     assert FitReport.from_json(back) == r
 
 
+def test_a_report_gives_a_parameters_slab_mass_and_the_bound_it_presses_or_none():
+    """FitReport.slab_mass and .bound_pressure: one parameter's entries of ``contraction`` and
+    ``posterior_at_bounds``; None for a parameter without them and for an older report that lacks them."""
+    rep = copy.deepcopy(REPORT)
+    rep["contraction"]["a"]["slab_mass"] = [0.01, 0.3]
+    r = FitReport.from_json(rep)
+    assert r.slab_mass("a") == (0.01, 0.3) and r.slab_mass("b") is None and r.slab_mass("c") is None
+    assert r.bound_pressure("b") == r.posterior_at_bounds[0] and r.bound_pressure("b").side == "upper"
+    assert r.bound_pressure("a") is None
+    old = FitReport.from_json({k: REPORT[k] for k in ("parameters", "posterior_median")})
+    assert old.slab_mass("a") is None and old.bound_pressure("b") is None
+
+
 @pytest.mark.parametrize("damage, problem", [
     (lambda d: d.pop("posterior_median"), "it lacks 'posterior_median'"),
     (lambda d: d.update(parameters=[{"name": "a"}]), "not a fit report"),

@@ -198,6 +198,7 @@ def test_train_extractor_from_an_annotated_folder(tmp_path):
     res = runner.invoke(app, ["train-extractor", "heatmap", "--data", str(tmp_path / "d"), "--out", str(out),
                               "--opt", "input_size=32,layers=[1,1,1,1],width=4,epochs=2,augment=false"])
     assert res.exit_code == 0, res.output
+    assert "trained heatmap: 2 epochs, " in res.output  # the extractor's promised training info (epochs, seconds)
     summary = json.loads(out.with_suffix(".json").read_text())
     assert summary["test"]["n_frames"] >= 2 and np.isfinite(summary["test"]["hungarian_mean_px"])
     from softsbi.perception.keypoints.heatmap import HeatmapExtractor

@@ -9,7 +9,7 @@ import re
 import numpy as np
 
 from softsbi.core.distributions import gaussian
-from softsbi.core.store import RunStore
+from softsbi.core.store import RoundRecord, RunStore
 from softsbi.core.types import STATUS_OK
 
 
@@ -80,6 +80,15 @@ def test_a_round_record_reads_a_round_s_attributes_and_the_defaults_of_those_it_
     assert (done.complete, done.info, done.bank_hits, sorted(done.failures.values())) == (
         True, {"epochs": 3}, 3, ["diverged", "diverged"])
     assert (begun.complete, begun.info, begun.bank_hits, begun.proposal) == (False, {}, 0, "posterior of round 1")
+
+
+def test_a_round_record_names_the_stored_task_and_the_training_size_of_its_info():
+    """RoundRecord.task and .n_train_total: the training info's ``task`` (as text) and ``n_train_total`` (as an
+    int); None and 0 for a round whose info lacks them (not finished, or no stored task)."""
+    served = RoundRecord(info={"task": "ab12cd", "trained_here": False, "n_train_total": 60.0, "epochs": 3})
+    assert (served.task, served.n_train_total) == ("ab12cd", 60) and isinstance(served.n_train_total, int)
+    assert (RoundRecord().task, RoundRecord().n_train_total) == (None, 0)
+    assert RoundRecord(info={"n_train_total": None}).n_train_total == 0
 
 
 def _store(tmp_path, failed: int = 0, stored_next: int | None = None) -> RunStore:

@@ -347,6 +347,17 @@ class FitReport:
         lacks it: a report written before contraction, or a parameter it does not infer)."""
         return self.contraction[name].width_ratio if name in self.contraction else None
 
+    def slab_mass(self, name: str) -> tuple[float, float] | None:
+        """Parameter ``name``'s posterior mass next to its lower and its upper prior bound
+        (:attr:`Contraction.slab_mass`; None where the report lacks it: an older report, or a parameter it does not
+        infer)."""
+        return self.contraction[name].slab_mass if name in self.contraction else None
+
+    def bound_pressure(self, name: str) -> BoundPressure | None:
+        """The prior bound parameter ``name``'s posterior piles up at (:attr:`posterior_at_bounds`), or None: none
+        (or a report written before bound pressure)."""
+        return next((b for b in self.posterior_at_bounds if b.param == name), None)
+
     def space_json(self) -> list[dict[str, Any]]:
         """:attr:`parameters` as :meth:`~softsbi.core.types.ParamSpace.from_json` takes them."""
         return [p.to_json() for p in self.parameters]

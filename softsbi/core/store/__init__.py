@@ -89,6 +89,19 @@ class RoundRecord:
         """The record of a round group's attributes (other attributes are left out)."""
         return cls(**{f.name: attrs[f.name] for f in fields(cls) if f.name in attrs})
 
+    @property
+    def task(self) -> str | None:
+        """The key (digest) of the stored task the round's estimator came from or was stored as (its training info's
+        ``task``), or None: no stored task, or a round not finished."""
+        task = self.info.get("task")
+        return None if task is None else str(task)
+
+    @property
+    def n_train_total(self) -> int:
+        """How many simulations (with sensor pairs) the round's estimator was trained on (its training info's
+        ``n_train_total``); 0 where the info lacks it (a round not finished)."""
+        return int(self.info.get("n_train_total") or 0)
+
 
 def installed_version() -> str:
     """The installed softsbi's version (``"unknown"`` in a source tree that is not installed)."""

@@ -309,15 +309,14 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
     """A fit's posterior of the parameters of ``effects`` (from its ``report.json``): mean, 90% interval, width
     over the prior's and the prior bound it presses, with the prior to try instead (None where the report lacks
     them: an older report)."""
-    pressed = {b.param: b for b in report.posterior_at_bounds}
-    slabs = {k: c.slab_mass for k, c in report.contraction.items()}
     out = []
     for e in effects:
         effect = registry().effect(e)()
         off = effect.nominal()
         for p in (p for p in effect.param_space() if p.name in report.posterior_mean):
-            b = pressed.get(p.name)
+            b = report.bound_pressure(p.name)
             q05, q95 = report.interval(p.name)
+            off_value, slab = off.get(p.name), report.slab_mass(p.name)
             out.append(
                 Estimate(
                     name=p.name,
@@ -329,8 +328,8 @@ def estimates(report: FitReport, effects: Sequence[str]) -> tuple[Estimate, ...]
                     pressed=None if b is None else b.side,
                     suggested_bounds=None if b is None or b.suggested_bounds is None else tuple(b.suggested_bounds),
                     effect=e,
-                    may_be_off=may_be_off(p, off.get(p.name), q05, q95, slabs.get(p.name)),
-                    off_ratio=off_ratio(p, off.get(p.name), slabs.get(p.name)),
+                    may_be_off=may_be_off(p, off_value, q05, q95, slab),
+                    off_ratio=off_ratio(p, off_value, slab),
                 )
             )
     return tuple(out)

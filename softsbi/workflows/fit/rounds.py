@@ -207,8 +207,7 @@ def chain_counts(store: RunStore, counts: list[int]) -> list[int]:
     rounds' proposals: a first round that drew nothing (the stored task's posterior alone, ``task_only``) counts the
     prior simulations its task was trained on (its stored training information), at least 1."""
     if counts and counts[0] == 0 and not len(store.round_data(0, ("status",))["status"]):
-        info = store.round_record(0).info
-        counts = [max(int(info.get("n_train_total") or 0), 1), *counts[1:]]
+        counts = [max(store.round_record(0).n_train_total, 1), *counts[1:]]
     return counts
 
 

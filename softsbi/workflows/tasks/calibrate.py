@@ -234,7 +234,7 @@ def calibrate_run(run_dir: str | Path, n_test: int = defaults.N_TEST, n_draws: i
     if not len(U):  # a fit of the stored task's posterior alone (run_fit's task_only): nothing of its own to train on
         raise SoftsbiError(f"'{run_dir}' holds no simulations of its own: its posterior is a stored task's, whose "
                            f"calibration was measured when it was trained (`softsbi task show "
-                           f"{store.round_record(0).info.get('task', 'KEY')}`)")
+                           f"{store.round_record(0).task or 'KEY'}`)")
     t0 = time.perf_counter()
     with run_lock(run_dir, **_LOCK):  # only the writes need the lock: training and evaluating read the store
         data = _test_simulations(store, cfg, space, last, counts, n_test, workers, msg)
