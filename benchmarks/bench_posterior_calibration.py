@@ -172,7 +172,8 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
                        f"read, not trained; simulations the bank holds are read, not simulated).")
     return {"tables": tables,
             "notes": notes + ["An effect whose off value is a prior bound is named by the posterior pressing that "
-                              "bound, not by its interval, so its parameters are not in the last table."],
+                              "bound, not by its interval, so its parameters are not in the interval table; the "
+                              "calibrated test's table holds every candidate."],
             "data": {"models": data, "fresh": fresh, "candidates": names, "switched_on": switched,
                      "estimators": {e: ESTIMATORS[e] for e in estimators}, "intervals": intervals}}
 
