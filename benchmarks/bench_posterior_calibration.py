@@ -228,7 +228,7 @@ def effect_intervals(estimator: str, tasks: list, recording: Any, cfg: Any, n_te
     lo_q, hi_q = (1 - INTERVAL) / 2, (1 + INTERVAL) / 2
 
     def intervals(est: Any, x: np.ndarray, dim: int) -> np.ndarray:  # (n, D, 2) unit cube
-        qs = est.posteriors_at(x.astype(np.float64)) if hasattr(est, "posteriors_at") else [est.posterior_at(v) for v in x]
+        qs = cal.posteriors_at(est, x)
         out = np.full((len(qs), dim, 2), np.nan)
         for i, q in enumerate(qs):
             try:

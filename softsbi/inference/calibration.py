@@ -53,6 +53,13 @@ __all__ = ["draws_in_box", "hpd_levels", "expected_coverage", "coverage_band", "
 LEVELS = np.round(np.linspace(0.0, 1.0, 21), 3)
 
 
+def posteriors_at(est: Any, x: np.ndarray) -> list[Any]:
+    """``est``'s posterior at each of ``x`` (``(n, ...)``, cast to float64): its batched ``posteriors_at`` when it
+    has one, else ``posterior_at`` one observation at a time."""
+    x = np.asarray(x, np.float64)
+    return list(est.posteriors_at(x)) if hasattr(est, "posteriors_at") else [est.posterior_at(v) for v in x]
+
+
 def draws_in_box(q: Any, n: int, rng: np.random.Generator, max_tries: int = 20) -> np.ndarray:
     """``(n, D)`` draws of the mixture ``q`` restricted to the unit box (rejection sampling), as the
     fit's posterior is restricted to the prior box.

@@ -46,20 +46,10 @@ def unit_off_values(effect: Any, space: Any) -> np.ndarray:
     An off value at or beyond a prior bound is that bound (0 or 1)."""
     off = effect.nominal()
     own = {p.name for p in effect.param_space()}
-    out = np.full(space.dim, np.nan)
-    for j, p in enumerate(space):
-        if p.name not in own or p.name not in off:
-            continue
-        v = float(off[p.name])
-        if v <= p.low:
-            out[j] = 0.0
-        elif v >= p.high:
-            out[j] = 1.0
-        elif p.log:
-            out[j] = float((np.log(v) - np.log(p.low)) / (np.log(p.high) - np.log(p.low)))
-        else:
-            out[j] = float((v - p.low) / (p.high - p.low))
-    return out
+    has = np.array([p.name in own and p.name in off for p in space])
+    # an off value at or beyond a bound is that bound (a log parameter's 0 included); other parameters at their low
+    row = [min(max(float(off[p.name]), p.low), p.high) if h else p.low for p, h in zip(space, has)]
+    return np.where(has, space.to_unit(np.array(row)), np.nan)
 
 
 def draws_off_distance(unit_draws: np.ndarray, unit_off: np.ndarray) -> float:
@@ -73,8 +63,7 @@ def train_off_null(est: Any, x: np.ndarray, unit_off: np.ndarray, n_draws: int, 
     (``(n, ...)``, simulations without the effect, at the fit's frames), from ``n_draws`` draws in the prior box;
     NaN where a posterior puts no mass in the box."""
     rng = np.random.default_rng([seed, 7])
-    x = np.asarray(x, np.float64)
-    qs = est.posteriors_at(x) if hasattr(est, "posteriors_at") else [est.posterior_at(v) for v in x]
+    qs = cal.posteriors_at(est, x)
     out = np.full(len(qs), np.nan)
     for i, q in enumerate(qs):
         try:

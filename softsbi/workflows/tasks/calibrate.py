@@ -338,8 +338,7 @@ def calibration_stats(est: Any, u_test: np.ndarray, x_test: np.ndarray, names: l
     Raises:
         PosteriorError: no posterior of any test pair has mass in the prior box.
     """
-    x_test = x_test.astype(np.float64)
-    qs = est.posteriors_at(x_test) if hasattr(est, "posteriors_at") else [est.posterior_at(x) for x in x_test]
+    qs = cal.posteriors_at(est, x_test)
     rng = np.random.default_rng([seed, 16016, 1])
     draws, lq_true, lq_draws, keep = [], [], [], []
     for i, q in enumerate(qs):
