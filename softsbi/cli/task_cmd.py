@@ -73,10 +73,14 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
                                           help="held-out prior simulations of each model's training report "
                                                "(coverage, SBC, TARP); 0 = no report"),
                check_null: int = typer.Option(D.CHECK_REPLICATES, "--check-null", callback=checked(D.CHECK_NULL_BOUND),
-                                              help="replicate recordings of each model, refitted and checked, "
-                                                   "that calibrate check's test of every later fit of it (the nominal "
-                                                   "model's, and diagnose's refits of the candidates) (at least 19; "
-                                                   "0 = none, check's p-value uncalibrated)"),
+                                              help="replicate recordings of the nominal model, refitted, checked "
+                                                   "and screened, that calibrate check's test of every later fit of "
+                                                   "it (diagnose's detection) (at least 19; 0 = none, check's p-value "
+                                                   "uncalibrated)"),
+               refit_null: int = typer.Option(D.REFIT_REPLICATES, "--refit-null", callback=checked(D.REFIT_NULL_BOUND),
+                                              help="replicate recordings of each candidate model, refitted and "
+                                                   "checked, that calibrate the omnibus test of diagnose's refit of "
+                                                   "it (at least 19; 0 = none, the refit's check uncalibrated)"),
                candidates: Optional[str] = typer.Option(None, "--candidates",
                                                         help="comma-separated candidate effects to train beside the "
                                                              "nominal model; default: every one diagnose refits; "
@@ -116,7 +120,7 @@ def task_train(observed: Path = typer.Option(..., help="a recording of the task 
     o = Output(as_json)
     with shown(o):
         tasks = train_task(meas, cfg, prior_sims, cands, n_test=n_test, retrain=retrain, check_null=check_null,
-                           message=o.message)
+                           message=o.message, refit_null=refit_null)
     if json_done(o, [_doc(t) for t in tasks]):
         return
     o.table(["key", "model", "backend", "scenario", "prior sims", "training report", "coverage 50% / 90%"],

@@ -59,11 +59,11 @@ TASK_PRIOR_SIMS = 1000
 #: calibration: fresh test simulations and posterior draws per test simulation
 N_TEST = 200
 N_DRAWS = 1000
-#: replicate recordings ``task train`` simulates per model to calibrate ``check`` of its fits
-#: (:mod:`~softsbi.workflows.criticism.check_null`), each refitted, checked on ``N_NULL`` rollouts and screened
-#: (about 60 finite differences on the lift: 91 simulations a replicate). 40 resolve p = 1/41 = 0.024, half the
-#: 0.05 level, so that a recording beyond all but one replicate rejects; 100 would cost 2.5 times as much for a
-#: finer p-value the verdict does not need (the lift task: 17 x 3640 replicate simulations, not 17 x 9100)
+#: replicate recordings ``task train`` simulates of the nominal model to calibrate ``check`` of its fits (the
+#: detection, :mod:`~softsbi.workflows.criticism.check_null`), each refitted, checked on ``N_NULL`` rollouts and
+#: screened (about 60 finite differences on the lift: 91 simulations a replicate). 40 resolve p = 1/41 = 0.024, half
+#: the 0.05 level, so that a recording beyond all but one replicate rejects; 100 would cost 2.5 times as much for a
+#: finer p-value the verdict does not need (the lift: 3,640 replicate simulations, not 9,100)
 CHECK_REPLICATES = 40
 #: scenario of ``softsbi simulate`` and ``compare-backends``, and the engines the latter compares
 SCENARIO = "lift"
@@ -86,6 +86,13 @@ MIN_DRAWS = N_BINS
 #: the fewest replicate recordings of ``task train --check-null`` that can reject at the default level:
 #: ``1 / (n + 1) <= ALPHA``
 MIN_CHECK_REPLICATES = math.ceil(1 / ALPHA) - 1
+#: replicate recordings ``task train`` simulates per candidate model (``--refit-null``): they calibrate the adequacy
+#: check of ``diagnose``'s amortised refit of that candidate by its omnibus test alone, so they are not screened (31
+#: simulations a replicate on the lift, not 91). 19 resolve p = 1/20, the level: a refit is inadequate when its
+#: statistic is beyond every one of them. The lift task's 16 candidates then cost 16 x 19 x 31 = 9,424 replicate
+#: simulations instead of 16 x 40 x 91 = 58,240, and the task 33,464 in all instead of 82,264 (docs/explanation.md,
+#: "What a trained task costs")
+REFIT_REPLICATES = MIN_CHECK_REPLICATES
 
 #: the largest counts the settings accept (each bound's ``why`` below says why). Each lies far beyond what a use
 #: needs and stops a slip (an extra zero, a 1e9) before it is spent: ``check --n-eval 1000000000`` asked numpy for
@@ -189,6 +196,10 @@ CHECK_NULL_BOUND = Bound("--check-null", MIN_CHECK_REPLICATES,
                          f"n >= {MIN_CHECK_REPLICATES}; each replicate is refitted, checked and screened (91 "
                          f"simulations on the lift), and {MAX_CHECK_REPLICATES} resolve p to 1/{MAX_CHECK_REPLICATES + 1}",
                          high=MAX_CHECK_REPLICATES, zero="none")
+REFIT_NULL_BOUND = Bound("--refit-null", MIN_CHECK_REPLICATES,
+                         f"a calibrated p-value from n replicates is at least 1/(n+1), so the level {ALPHA} needs "
+                         f"n >= {MIN_CHECK_REPLICATES}; each replicate is refitted and checked (31 simulations on the "
+                         f"lift)", high=MAX_CHECK_REPLICATES, zero="none")
 
 
 class _Settings:

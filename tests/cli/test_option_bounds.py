@@ -125,6 +125,7 @@ def test_task_train_refuses_a_check_null_that_cannot_reject_before_loading_anyth
         except SoftsbiError:
             workflow_refuses = True
         assert (D.CHECK_NULL_BOUND.problem(n) is not None) == workflow_refuses, n
+        assert (D.REFIT_NULL_BOUND.problem(n) is not None) == workflow_refuses, n
     code = ("import sys; from typer.testing import CliRunner; from softsbi.cli import app; "
             "r = CliRunner().invoke(app, ['task', 'train', '--observed', 'no-recording', '--check-null', '5']); "
             "print(r.exit_code, ' '.join(r.output.replace('\\u2502', ' ').split())); "

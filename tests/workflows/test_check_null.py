@@ -36,6 +36,35 @@ def test_too_few_replicates_to_reject_at_the_level_are_refused():
     check_replicates(19)
     with pytest.raises(SoftsbiError, match="--check-null 18"):
         check_replicates(18)
+    with pytest.raises(SoftsbiError, match="--refit-null 18: .* give --refit-null 19"):
+        check_replicates(18, "--refit-null")
+
+
+def test_unscreened_replicates_calibrate_a_check_s_omnibus_test_alone_and_screened_ones_of_another_family_none(
+        tmp_path, monkeypatch):
+    """A candidate model's replicates (task train --refit-null) are not screened: a check of its fit against any
+    family is calibrated by them on the omnibus test alone (check_run then screens nothing), while screened
+    replicates of another family leave the check uncalibrated, said in one line."""
+    import numpy as np
+
+    from softsbi.core.store.posterior import EstimatorState
+    from softsbi.workflows.criticism.check_null import run_check_null
+    from softsbi.workflows.fit.config import FitConfig
+    from softsbi.workflows.fit.task_store import TaskStore
+    monkeypatch.delenv("SOFTSBI_SIM_BANK", raising=False)
+    bank = tmp_path / "bank"
+    task = TaskStore(bank / "tasks").put({"task": "toy"}, 40, EstimatorState("mdnn", {}, {"w": np.arange(3.0)}), {})
+    run = SimpleNamespace(report=SimpleNamespace(rounds=1, per_round=[SimpleNamespace(task=task.digest)]),
+                          config=FitConfig(sim_bank=str(bank)), dense=np.zeros((3, 64, 3)))
+    said = []
+    unscreened = CheckNull(30, 64, (1.0, 2.0))
+    (task.path / NULL_FILE).write_text(json.dumps(unscreened.to_json()))
+    assert run_check_null(run, 30, said.append, ["wind", "time-offset"]) == unscreened and said == []
+    screened = CheckNull(30, 64, (1.0, 2.0), ((0.5,), (0.7,)), ("wind",))
+    (task.path / NULL_FILE).write_text(json.dumps(screened.to_json()))
+    assert run_check_null(run, 30, said.append, ["wind"]) == screened and said == []
+    assert run_check_null(run, 30, said.append, ["wind", "time-offset"]) is None
+    assert len(said) == 1 and "another candidate family (1 candidates, this check 2)" in said[0]
 
 
 def test_a_run_whose_calibration_is_lost_says_so_and_what_its_p_value_is_then(tmp_path, monkeypatch):

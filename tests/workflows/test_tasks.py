@@ -158,14 +158,19 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     from types import SimpleNamespace
 
     from softsbi.workflows.tasks.training import calibration_advice, training_plan
-    # each model's replicates calibrate the check of its own fits (the candidates': diagnose's refits)
-    assert training_plan(13, 2000, 200, 100, 1.2, 8, null_rollouts=30) == (
-        "task train plan: 13 models x (2000 prior + 200 held-out simulations + 100 replicate recordings x 31 for "
-        "check's calibration) = 68900 simulations at most; one simulation took 1.2 s, so about 2.9 h on 8 workers, "
-        "plus the training (fewer when stored models or the simulation bank hold some)")
+    # the nominal model's replicates calibrate the detection (screened); each candidate model's its refit's check
+    # (the omnibus test alone, not screened)
+    assert training_plan(13, 2000, 200, 100, 1.2, 8, null_rollouts=30, screening=60, refit_null=19) == (
+        "task train plan: 13 models x (2000 prior + 200 held-out simulations) + 100 replicate recordings x 91 for the "
+        "nominal check's calibration + 12 x 19 x 31 for the refits' checks = 44768 simulations at most; one "
+        "simulation took 1.2 s, so about 1.9 h on 8 workers, plus the training (fewer when stored models or the "
+        "simulation bank hold some)")
     assert training_plan(2, 100, 0, 0, None, 1) == (
         "task train plan: 2 models x (100 prior + 0 held-out simulations) = 200 simulations at most (one "
         "simulation's time unknown: it failed)")
+    assert training_plan(1, 100, 0, 40, None, 1, null_rollouts=30, refit_null=19).endswith(
+        "+ 40 replicate recordings x 31 for the nominal check's calibration = 1340 simulations at most (one "
+        "simulation's time unknown: it failed)")  # no candidate: no refit's replicates
 
     # the README's one-liner says what a default task train costs, with the built-in effects
     from pathlib import Path
@@ -182,13 +187,14 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     lift = make_scenario(D.SCENARIO)
     family = replicate_family(_cfg(backend=D.BACKEND), SimpleNamespace(scenario=lift), [m[-1] for m in models[1:]])
     per = D.N_NULL + 1 + screening_size(fit_param_space(_cfg(backend=D.BACKEND), lift)[1].dim, family)
-    readme = (Path(__file__).parents[2] / "README.md").read_text()
-    assert (f"{len(models)} models x ({D.TASK_PRIOR_SIMS + D.N_TEST} simulations + "
-            f"{D.CHECK_REPLICATES * per} for check's calibration)") in readme
-    total = len(models) * (D.TASK_PRIOR_SIMS + D.N_TEST + D.CHECK_REPLICATES * per)
+    refit = D.REFIT_REPLICATES * (D.N_NULL + 1)
+    readme = " ".join((Path(__file__).parents[2] / "README.md").read_text().replace("#", " ").split())
+    assert (f"{len(models)} models x {D.TASK_PRIOR_SIMS + D.N_TEST} simulations + {D.CHECK_REPLICATES * per} (the "
+            f"nominal check's calibration) + {len(models) - 1} x {refit} (the refits' checks)") in readme
+    total = len(models) * (D.TASK_PRIOR_SIMS + D.N_TEST) + D.CHECK_REPLICATES * per + (len(models) - 1) * refit
     assert f"at most {round(total, -2):,} simulations" in readme
-    # each replicate is screened as a check screens a recording: its finite differences are counted
-    assert "40 replicate recordings x 91 for check's calibration" in training_plan(
+    # the nominal's replicates are screened as a check screens a recording: their finite differences are counted
+    assert "40 replicate recordings x 91 for the nominal check's calibration" in training_plan(
         17, 1000, 200, 40, None, 2, null_rollouts=30, screening=60)
 
     def task(model, calibrated):

@@ -74,6 +74,8 @@ def test_task_train_stores_check_s_replicates_for_every_model_not_only_the_nomin
     for t in tasks:
         null = stored_check_null(t, N_NULL, 64)
         assert null is not None and len(null.statistics) == REPLICATES, t.model
+        # the nominal model's are screened (the detection's two tests); a candidate model's are not (--refit-null)
+        assert (null.directional is None) == (t.model != "nominal"), t.model
 
 
 def test_a_trained_candidates_refit_is_its_amortised_posterior_and_simulates_no_rounds(trained, diagnosed):
@@ -140,6 +142,7 @@ def test_an_amortised_refits_check_is_calibrated_against_its_models_replicates(t
     refit = d.refit((MAGNET,))
     null = stored_check_null(tasks[2], N_NULL, 64)
     assert refit.test.calibrated and refit.test.omnibus == null.p_value(refit.test.statistic)
+    assert refit.test.directional is None and refit.test.family == ()  # its replicates calibrate the omnibus alone
     assert refit.test.omnibus.n == REPLICATES and refit.test.p_value >= 1 / (REPLICATES + 1)
     kept = (tasks[2].path / NULL_FILE).read_text()
     (tasks[2].path / NULL_FILE).unlink()

@@ -412,6 +412,11 @@ def check_run(run_dir: str | Path | RunView, settings: CheckSettings | None = No
     run = loaded(run_dir, pool, seed)
     cands = candidate_effects(run, effects, message)
     null = run_check_null(run, n_eval, message, [c.name for c in cands])
+    if null is not None and null.directional is None and cands:
+        (message or (lambda _: None))(
+            f"the check is the omnibus test alone: its task's {len(null.statistics)} replicates were not screened "
+            f"(a candidate model's, `task train --refit-null`), so they calibrate that test and no directional one")
+        cands = []
     key = result_key(run, n_eval=n_eval, seed=seed, alpha=alpha, max_null=max_null,
                      family=sorted(c.name for c in cands), replicates=0 if null is None else len(null.statistics))
     say = message or (lambda _: None)

@@ -146,21 +146,23 @@ def stored_check_null(task: StoredTask | None, rollouts: int, n_dense: int,
     return null if null.rollouts == rollouts and null.n_dense == n_dense else None
 
 
-def check_replicates(n: int) -> None:
-    """Refuse a replicate count that cannot reject at the default level, before any work.
+def check_replicates(n: int, flag: str = "--check-null") -> None:
+    """Refuse a replicate count (of option ``flag``) that cannot reject at the default level, before any work.
 
     Raises:
         SoftsbiError: ``0 < n <`` :data:`MIN_REPLICATES`."""
     if 0 < n < MIN_REPLICATES:
-        raise SoftsbiError(f"--check-null {n}: a calibrated p-value from n replicates is at least 1/(n+1), so a "
-                           f"level of {ALPHA} needs n >= {MIN_REPLICATES}; give --check-null 100 (or 0: none)")
+        raise SoftsbiError(f"{flag} {n}: a calibrated p-value from n replicates is at least 1/(n+1), so a "
+                           f"level of {ALPHA} needs n >= {MIN_REPLICATES}; give {flag} {'100' if flag == '--check-null' else MIN_REPLICATES} (or 0: none)")
 
 
 def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | None = None,
                    family: Sequence[str] = ()) -> CheckNull | None:
     """The replicates that calibrate a check of ``run`` on ``rollouts`` rollouts against the candidate ``family``:
     those of the trained task the run stopped at (one round, its stored estimator conditioned on the recording), for
-    clouds of the recording's size and checked against the same family (:meth:`CheckNull.calibrates`); None for a
+    clouds of the recording's size and checked against the same family (:meth:`CheckNull.calibrates`), or not
+    screened at all (a candidate model's, ``task train --refit-null``: they calibrate the omnibus test alone, and the
+    check then screens no family); None for a
     run of sequential rounds, or when the task has none for these settings. When the run's task is gone (deleted,
     damaged, its bank off), its replicates are damaged or were checked against another family, ``say`` is told in
     one line that the check is not calibrated, and against what its p-value is then computed."""
@@ -185,11 +187,10 @@ def run_check_null(run: RunView, rollouts: int, say: Callable[[str], None] | Non
         lost(f"the run's task {key[:12]} in {store.path} is damaged ({entry.problem})")
     else:
         null = stored_check_null(entry, rollouts, int(run.dense.shape[1]), lost)
-        if null is None or null.calibrates(family):
-            return null
-        lost(f"the task's {len(null.statistics)} replicates were checked against "
-             + ("no candidate family" if null.family is None else f"another candidate family ({len(null.family)} "
-                f"candidates, this check {len(family)})"))
+        if null is None or null.calibrates(family) or null.directional is None:
+            return null  # unscreened replicates calibrate the omnibus test alone (check_run then screens nothing)
+        lost(f"the task's {len(null.statistics)} replicates were checked against another candidate family "
+             f"({len(null.family or ())} candidates, this check {len(family)})")
     return None
 
 

@@ -84,7 +84,7 @@ def _simulate(ctx: SimContext, space: ParamSpace, u: np.ndarray, seeds: np.ndarr
 
 def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int = defaults.N_TEST,
                 n_draws: int = defaults.N_DRAWS, retrain: bool = False, check_null: int = 0,
-                message: Callable[[str], None] | None = None, screened: Sequence[str] = ()) -> StoredTask:
+                message: Callable[[str], None] | None = None, screened: Sequence[str] | None = ()) -> StoredTask:
     """Train one model's task (module docstring) and store it; returns the stored task.
 
     Args:
@@ -97,7 +97,9 @@ def train_model(recording: Recording, cfg: FitConfig, n_prior: int, n_test: int 
             computed when the task has none for these settings.
         message: progress notices.
         screened: candidates the replicates are screened against besides the model's default family (the task's
-            trained candidates: a diagnosis may name them), so that a check against any part of them is calibrated.
+            trained candidates: a diagnosis may name them), so that a check against any part of them is calibrated;
+            None: the replicates are not screened and calibrate the omnibus test alone (a candidate model's, which
+            calibrate the adequacy check of its refit).
 
     Raises:
         SoftsbiError: no simulation bank (tasks are stored beside it), ``--sensor-draws``, an image observer, a task
@@ -204,19 +206,24 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
 
 
 def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,
-                  workers: int | None, null_rollouts: int = defaults.N_NULL, screening: int = 0) -> str:
+                  workers: int | None, null_rollouts: int = defaults.N_NULL, screening: int = 0,
+                  refit_null: int = 0) -> str:
     """What ``task train`` will spend, said before it starts: ``n_models`` models of ``n_prior`` prior and
-    ``n_test`` held-out simulations each, and, for each model, ``check_null`` replicate recordings of
+    ``n_test`` held-out simulations each; the nominal model's ``check_null`` replicate recordings of
     ``null_rollouts + 1`` simulations and ``screening`` finite differences each
-    (:func:`~softsbi.workflows.criticism.screening.screening_size`); with ``seconds`` (one simulation's time,
+    (:func:`~softsbi.workflows.criticism.screening.screening_size`); each candidate model's ``refit_null`` replicates
+    of ``null_rollouts + 1`` simulations (not screened); with ``seconds`` (one simulation's time,
     :func:`pilot_seconds`) the time on ``workers`` processes (None: one per CPU), the estimators' training not
     included. An upper bound: models and replicates already stored and simulations in the bank are not simulated
     again."""
-    per = null_rollouts + 1 + screening
-    total = n_models * (n_prior + n_test + check_null * per)
+    per, per_refit = null_rollouts + 1 + screening, null_rollouts + 1
+    refit_null = refit_null if n_models > 1 else 0
+    total = n_models * (n_prior + n_test) + check_null * per + (n_models - 1) * refit_null * per_refit
     s = (f"task train plan: {n_models} model{'s' if n_models > 1 else ''} x ({n_prior} prior + {n_test} held-out "
-         f"simulations" + (f" + {check_null} replicate recordings x {per} for check's calibration"
-                           if check_null else "") + f") = {total} simulations at most")
+         f"simulations)" + (f" + {check_null} replicate recordings x {per} for the nominal check's calibration"
+                            if check_null else "")
+         + (f" + {n_models - 1} x {refit_null} x {per_refit} for the refits' checks" if refit_null else "")
+         + f" = {total} simulations at most")
     if seconds is None:
         return s + " (one simulation's time unknown: it failed)"
     n = workers or os.cpu_count() or 1
@@ -244,10 +251,11 @@ def calibration_advice(tasks: Sequence[StoredTask]) -> str | None:
 
 
 def _with_check_null(task: StoredTask, recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimContext,
-                     n: int, say: Callable[[str], None], screened: Sequence[str] = ()) -> StoredTask:
+                     n: int, say: Callable[[str], None], screened: Sequence[str] | None = ()) -> StoredTask:
     """The task, with ``n`` replicates for check's calibration computed unless at least as many are stored, screened
-    against a family holding the model's default one and ``screened`` less its own effects (``n`` 0: none)."""
-    family = replicate_family(cfg, recording, screened)
+    against a family holding the model's default one and ``screened`` less its own effects (``n`` 0: none;
+    ``screened`` None: not screened)."""
+    family = [] if screened is None else replicate_family(cfg, recording, screened)
     stored = stored_check_null(task, defaults.N_NULL, int(recording.dense.shape[1]))
     if n > 0 and (stored is None or len(stored.statistics) < n or not stored.calibrates([c.name for c in family])):
         train_check_null(task, recording, cfg, space, ctx, n, defaults.N_NULL, cfg.workers, say, family)
@@ -326,11 +334,14 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
                candidates: Sequence[str] | None = None,
                n_test: int = defaults.N_TEST, n_draws: int = defaults.N_DRAWS, retrain: bool = False,
                check_null: int = defaults.CHECK_REPLICATES,
-               message: Callable[[str], None] | None = None) -> list[StoredTask]:
+               message: Callable[[str], None] | None = None,
+               refit_null: int = defaults.REFIT_REPLICATES) -> list[StoredTask]:
     """Train a task once for the nominal model and each candidate effect (:func:`candidate_models`,
-    :func:`train_model`); returns the stored tasks, nominal first. ``check_null`` replicate recordings of each model
-    calibrate the check of its fits (:mod:`~softsbi.workflows.criticism.check_null`): the nominal model's is
-    ``diagnose``'s detection, a candidate's the adequacy check of its refit, which then has the detection's power.
+    :func:`train_model`); returns the stored tasks, nominal first. Replicate recordings calibrate the check of a
+    model's fits (:mod:`~softsbi.workflows.criticism.check_null`): the nominal model's ``check_null``, screened
+    against every candidate, ``diagnose``'s detection (both tests); each candidate model's ``refit_null``, not
+    screened, the adequacy check of its refit by the omnibus test alone
+    (:func:`~softsbi.workflows.criticism.check_null.run_check_null`).
 
     Raises:
         SoftsbiError: ``n_test`` between 1 and ``defaults.MIN_TEST - 1``. ResultUnwritable: a model's
@@ -338,11 +349,14 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
         everything :func:`train_model`, :func:`candidate_models` and
         :func:`~softsbi.workflows.criticism.check_null.check_replicates` raise."""
     check_replicates(check_null)
+    check_replicates(refit_null, "--refit-null")
     if n_test and n_test < defaults.MIN_TEST:
         raise SoftsbiError(f"--n-test must be 0 (no training report) or >= {defaults.MIN_TEST} (got {n_test}): fewer "
                            f"held-out simulations cannot judge the calibration")
     models = candidate_models(cfg, candidates)
-    for effects in models if check_null else ():  # a folder in a replicates file's place: refused before any work
+    for i, effects in enumerate(models):  # a folder in a replicates file's place: refused before any work
+        if not (check_null if i == 0 else refit_null):
+            continue
         prior = _prepared(recording, replace(cfg, effects=effects))[3]
         check_result_path(prior.store.path / prior.digest / NULL_FILE)
     say = message or (lambda s: None)
@@ -350,15 +364,16 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     screening = screening_size(_prepared(recording, cfg)[1].dim, replicate_family(cfg, recording, screened)) \
         if check_null else 0
     say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers,
-                      screening=screening))
-    each = [n_prior + n_test + check_null * (defaults.N_NULL + 1 + screening)] * len(models)
+                      screening=screening, refit_null=refit_null))
+    each = [n_prior + n_test + check_null * (defaults.N_NULL + 1 + screening)] + \
+        [n_prior + n_test + refit_null * (defaults.N_NULL + 1)] * (len(models) - 1)
     out = []
     for i, effects in enumerate(models, start=1):
         done = sum(each[:i - 1])
         say(f"model {i} of {len(models)}: {'+'.join(['nominal', *effects[len(cfg.effects):]])} (simulations "
             f"{done + 1}-{done + each[i - 1]} of {sum(each)} at most)")
         out.append(train_model(recording, replace(cfg, effects=effects), n_prior, n_test, n_draws, retrain,
-                               check_null, say, screened=screened))
+                               check_null if i == 1 else refit_null, say, screened=screened if i == 1 else None))
         if i > 1 and n_test:
             with_off_null(out[-1], recording, replace(cfg, effects=effects), n_test, n_draws, say)
     return out
