@@ -53,6 +53,9 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
                                                    "sequential rounds)"),
              refit_sims: Optional[int] = setting(DiagnoseSettings, "refit_sims",
                                                  "simulations per round of a refit (default: the run's)"),
+             refine: int = setting(DiagnoseSettings, "refine", "amortised refits that are adequate and improving but "
+                                   "whose effect the data may leave off, refined by 2 sequential rounds of 150 after "
+                                   "their amortised posterior (at most N; 0 = none)"),
              candidate: list[str] = typer.Option(None, "--candidate", help="with several runs: a candidate to refit "
                                                  "on every recording and weigh for the task (repeat it; default: "
                                                  "those the recordings' own diagnoses refitted most often, the first "
@@ -91,7 +94,7 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
     o = Output(as_json)
     with shown(o):
         settings = DiagnoseSettings(confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, k_se=k_se,
-                                    workers=workers, n_null=n_null, max_null=max_null, alpha=alpha)
+                                    refine=refine, workers=workers, n_null=n_null, max_null=max_null, alpha=alpha)
         if len(runs) > 1:
             joint = diagnose_runs(runs, effects=effects, settings=settings, progress=o.message, recompute=recompute,
                                   out_dir=out_dir, candidates=candidates)

@@ -48,6 +48,15 @@ VIEW_N_EVAL = 5
 #: refit's summary energy score must fall to count, and within which two refits tie (2: a one-sided z-test at about
 #: 2.3% for an improvement, a two-sided one at about 5% for a tie; the standard errors are the scores' Monte-Carlo ones)
 CONFIRM = 2
+#: refinement of a diagnosis' amortised refit that is adequate and improving but whose effect the data may leave off
+#: (``diagnose --refine-refits N``, :func:`~softsbi.workflows.criticism.decide.to_refine`): at most ``REFINE`` of
+#: them, each fitted again in ``REFINE_ROUNDS`` sequential rounds of ``REFINE_SIMS`` truncated-proposal simulations
+#: after its amortised posterior (round 1, read from the task). Arithmetic on the lift: 2 x 150 = 300 simulations, about 40 s at
+#: 7.5 rollouts/s, plus its check (30 rollouts and the screening); two refined refits keep a diagnosis that needs them
+#: within about 2 min more, and a control (nothing to refine) pays nothing
+REFINE = 2
+REFINE_ROUNDS = 2
+REFINE_SIMS = 150
 K_SE = 2.0
 #: the demo's budget per fit (3 x 100: the demo, its diagnosis and its refit run in about 3.5 minutes on 2 cores
 #: and name the hidden wind)
@@ -254,6 +263,7 @@ class DiagnoseSettings(_CheckFields):
         k_se: standard errors by which a refit's summary energy score must fall to count, and within which two refits
             tie. confirm: single refits of the top candidates (a pair may follow; 0: none).
         refit_rounds, refit_sims: a refit's rounds and simulations per round (None: the run's own).
+        refine: amortised refits that may be refined by sequential rounds (:data:`REFINE`; 0: none).
 
     Raises:
         SoftsbiError: a value outside its :data:`BOUNDS`, naming the flag.
@@ -264,6 +274,7 @@ class DiagnoseSettings(_CheckFields):
     confirm: int = CONFIRM
     refit_rounds: int | None = None
     refit_sims: int | None = None
+    refine: int = REFINE
     BOUNDS: ClassVar[Mapping[str, Bound]] = {
         "n_null": Bound("--n-null", MIN_ROLLOUTS, NULL_WHY, high=MAX_ROLLOUTS), **_CheckFields.BOUNDS,
         "k_se": Bound("--k-se", 0.0, "a positive number of standard errors", strict=True),
@@ -272,7 +283,9 @@ class DiagnoseSettings(_CheckFields):
         "refit_rounds": Bound("--refit-rounds", 1, "leave it out for the run's own rounds; the paper runs 15",
                               high=MAX_ROUNDS),
         "refit_sims": Bound("--refit-sims", MIN_SIMS_PER_ROUND, f"the estimator needs data; leave it out for the "
-                                                                f"run's own; {SIMS_WHY}", high=MAX_SIMS)}
+                                                                f"run's own; {SIMS_WHY}", high=MAX_SIMS),
+        "refine": Bound("--refine-refits", 0, "0 = none; each costs two sequential rounds and a check",
+                        high=MAX_CONFIRM)}
 
     def check(self) -> CheckSettings:
         """The settings of the nominal fit's check (and each refit's)."""

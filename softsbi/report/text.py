@@ -300,6 +300,8 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
         s = (f"With {' + '.join(r.effects)}: the measurement is {ok} the refit's posterior predictive distribution "
              f"({p_words(r.test)}), {SUMMARY_ENERGY} {score_change(base, r.score, g)}"
              + (f", {chamfer}." if r.chamfer_m is not None else "."))
+    if r.refined_from is not None:
+        s += f" {refined_words(r)}"
     if aside is not None:
         s += f" Set aside: {aside}."
     if r.estimates:
@@ -313,6 +315,20 @@ def refit_words(r: Refit, base: Score | None, nominal_chamfer_m: float | None = 
             s += (f" Its {e.name} presses the {e.pressed} prior bound: refit with --bounds "
                   f"{e.name}={e.suggested_bounds[0]:.4g}:{e.suggested_bounds[1]:.4g} if such values are physical.")
     return s
+
+
+def refined_words(r: Refit) -> str:
+    """Why and how refit ``r`` was refined (:func:`~softsbi.workflows.criticism.decide.to_refine`): its amortised
+    refit was adequate and improving but left the effect possibly off, so it was fitted again in sequential rounds
+    after that posterior; its adequacy needs the amortised refit's calibrated check too."""
+    a = r.refined_from
+    assert a is not None
+    why = off_test_words(a.off_test) if a.off_test is not None else "no parameter's posterior excluded its off value"
+    score = f" to {a.score.value:.3g}" if a.score is not None else ""
+    return (f"Refined: its amortised refit passed check ({p_words(a.test)}) and lowered the {SUMMARY_ENERGY}{score} "
+            f"but left {' + '.join(r.effects)} possibly off ({why}), so it was fitted again in "
+            f"{max(r.rounds - 1, 0)} sequential round{'s' if r.rounds - 1 != 1 else ''} of {r.sims_per_round} "
+            f"simulations after that posterior; the numbers here are the refinement's.")
 
 
 #: the reasons :func:`set_aside` gives (the table's verdict column, after ``"refit: "``)
@@ -362,6 +378,7 @@ def rule_words(d: Diagnosis) -> str:
     if not d.test.misspecified:
         return s
     singles = [r.label for r in d.refits if len(r.effects) == 1]
+    refined = [r.label for r in d.refits if r.refined_from is not None]
     n_trained = sum(c.amortised is not None for c in d.ranking)
     s += (f" Propose: the screening ranked {len(d.candidates)} candidates"
           + (f" and the amortised posterior of each of the {n_trained} the task trained scored its refit"
@@ -369,7 +386,10 @@ def rule_words(d: Diagnosis) -> str:
           + (", ".join(singles) if singles else "none")
           + (" (the trained ones whose amortised refit scores lower, then the top named ones the screening ranks)"
              if n_trained else " (the top named ones by evidence)")
-          + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "") + ".")
+          + (f", then the pair {d.refits[-1].label}" if d.refits and len(d.refits[-1].effects) == 2 else "")
+          + (f"; refined {', '.join(refined)} (an amortised refit that passed and improved but left its effect "
+             f"possibly off, fitted again in sequential rounds after its amortised posterior)" if refined else "")
+          + ".")
     s += (f" Decide: a refit explains the misfit when check's test of it gives p > {d.alpha:g} and its "
           f"{SUMMARY_ENERGY} (the energy score of its posterior predictive of check's summaries, a proper score, in "
           f"{SCORE_UNIT}: standard deviations of the nominal fit's posterior predictive) falls by more than {d.k_se:g} standard errors below the model it extends, and the "

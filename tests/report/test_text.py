@@ -86,8 +86,10 @@ OFF = diagnosis([WIND_OFF])
 #: 2 standard errors of the nominal's), time-offset untrained; one refit (--confirm 1)
 AMORTISED = replace(diagnosis([WIND]), ranking=(RANKING[0], replace(RANKING[1], amortised=score(8.3)),
                                                 replace(RANKING[2], amortised=score(20.8)), RANKING[3]))
+#: the wind's amortised refit passed and improved but left wind possibly off; refined (2 rounds of 150 after it), on
+REFINED = diagnosis([replace(WIND, rounds=3, sims_per_round=150, refined_from=replace(WIND_OFF, amortised=True))])
 ALL = {"nothing": NOTHING, "amortised": AMORTISED, "named": NAMED, "tie": TIE, "pair": PAIRED, "partial": PARTIAL, "no refit": NO_REFIT,
-       "none lower": NONE_LOWER, "off": OFF}
+       "none lower": NONE_LOWER, "off": OFF, "refined": REFINED}
 
 # recurring phrases of the joint test
 P_FLOOR = "p <= 2/201 (two tests, Bonferroni; the omnibus test beyond all 200 null simulations)"
@@ -327,7 +329,9 @@ ROLES = {"nothing": ["not refitted: nothing missing"] * 4,
          "none lower": ["not refitted: generic term", "refit: misfit remains", "refit: misfit remains",
                         "not refitted: beyond --confirm 2"],
          "off": ["not refitted: generic term", "refit: the data leave it possibly off", "not refitted: beyond --confirm 1",
-                 "not refitted: beyond --confirm 1"]}
+                 "not refitted: beyond --confirm 1"],
+         "refined": ["not refitted: generic term", "named", "not refitted: beyond --confirm 1",
+                     "not refitted: beyond --confirm 1"]}
 
 
 @pytest.mark.parametrize("name", list(ALL))
@@ -692,3 +696,18 @@ def test_a_min_p_combined_test_says_how_it_was_combined_and_counts_its_own_null(
     cal = replace(joint(9, 4), combined=MCPValue(exceed=3, n=40), calibrated=True)
     assert p_words(cal).startswith("p = 0.098 (two tests, min-p combined: 3 of 40 replicate recordings of the task")
     assert p_short(cal) == "p = 0.098" and not cal.misspecified
+
+
+def test_a_refined_refit_says_why_it_was_refined_and_that_its_numbers_are_the_refinement_s():
+    """diagnose refines an amortised refit that passed and improved but left its effect possibly off: the rule's
+    Propose sentence names it, and its paragraph says why and how, before its own (the refinement's) estimates."""
+    text = diagnosis_text(REFINED)
+    assert REFINED.decision.named == ("wind",)
+    assert ("; refined wind (an amortised refit that passed and improved but left its effect possibly off, fitted again "
+            "in sequential rounds after its amortised posterior).") in text[-2] + text[-1] + "".join(text)
+    para = next(t for t in text if t.startswith("With wind:"))
+    assert (f"Refined: its amortised refit passed check ({P_WIND}) and lowered the summary energy score to 8 but left "
+            "wind possibly off (no parameter's posterior excluded its off value), so it was fitted again in 2 "
+            "sequential rounds of 150 simulations after that posterior; the numbers here are the refinement's.") in para
+    assert para.index("Refined:") < para.index("The refit estimates")
+    assert "Refined" not in "".join(diagnosis_text(NAMED))

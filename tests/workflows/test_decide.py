@@ -191,3 +191,37 @@ def test_the_amortised_race_stops_a_candidate_once_its_refit_decision_is_made_ei
     # the ones that will be refitted stay in the race to the cap
     assert not decided("good", scores, nominal, keep=1, k_se=K_SE, fraction=third)
     assert not decided("second", scores, nominal, keep=2, k_se=K_SE, fraction=third)
+
+
+def test_an_adequate_improving_amortised_refit_whose_effect_may_be_off_is_refined_and_its_refinement_decides():
+    """to_refine picks the amortised single refits that are adequate, improve on the nominal fit and leave their
+    effect possibly off, lowest score first; never a sequential refit, a refinement, an inadequate or a
+    non-improving one, nor anything when the check does not reject. The refinement replaces it in the decision, and
+    is adequate only when the refit it refines was too."""
+    from softsbi.core.results import OffTest
+    from softsbi.workflows.criticism.decide import to_refine
+    off = OffTest(statistic=0.4, p_value=MCPValue(exceed=120, n=199), level=0.1)
+    on = OffTest(statistic=3.5, p_value=MCPValue(exceed=3, n=199), level=0.1)
+    hem = replace(refit(("heavy-hem",), 0.4), amortised=True, off_test=off)
+    cam = replace(refit(("camera-offset",), 0.3), amortised=True, off_test=off)
+    others = [replace(refit(("wind",), 0.2), amortised=True, off_test=on),          # switched on: named as it is
+              replace(refit(("drift",), 0.1), off_test=None),                     # sequential: no estimates, on
+              replace(refit(("slope",), 0.5, adequate=False), amortised=True, off_test=off),   # inadequate
+              replace(refit(("patch",), 0.995), amortised=True, off_test=off)]    # does not improve by k_se
+    assert to_refine(REJECTS, NOMINAL, [hem, cam, *others]) == [("camera-offset",), ("heavy-hem",)]
+    assert to_refine(ACCEPTS, NOMINAL, [hem, cam]) == []
+    assert decide(REJECTS, NOMINAL, [hem]).verdict == "misspecified-unexplained"
+    # refined: the sequential posterior's estimates switch it on (no off test of its own)
+    est = Estimate(name="hem_density", unit="kg/m^2", mean=0.03, q05=0.02, q95=0.04, width_ratio=0.4, pressed=None,
+                   suggested_bounds=None, effect="heavy-hem", may_be_off=False, off_ratio=0.0)
+    refined = replace(refit(("heavy-hem",), 0.35), estimates=(est,), refined_from=hem)
+    assert to_refine(REJECTS, NOMINAL, [refined]) == []  # refined once
+    d = decide(REJECTS, NOMINAL, [refined])
+    assert d.verdict == "missing-effect" and d.named == ("heavy-hem",)
+    # its own (uncalibrated) check does not replace the amortised refit's calibrated one
+    assert not replace(refined, refined_from=replace(hem, test=REJECTS)).adequate
+    assert decide(REJECTS, NOMINAL, [replace(refined, refined_from=replace(hem, test=REJECTS))]).verdict == \
+        "misspecified-unexplained"
+    # diagnosis.json keeps the refit it refines
+    from softsbi.core.results import from_json, to_json
+    assert from_json(Refit, to_json(refined)) == refined

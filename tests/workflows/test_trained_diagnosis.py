@@ -221,3 +221,31 @@ def test_each_trained_candidate_stores_its_switched_on_null_and_its_amortised_re
     t = refit.off_test
     assert t is not None and t.p_value.n == 20 and t.on
     assert t.statistic > nulls[f"nominal+{MAGNET}"].max() and t.p_value.value == 1 / 21
+
+
+def test_an_adequate_improving_refit_left_possibly_off_is_refined_by_sequential_rounds_and_then_decides(
+        trained, tmp_path, monkeypatch):
+    """Were the magnet's calibrated "switched on" test to leave it possibly off, its adequate, improving amortised
+    refit is refined: the same model fitted again in 2 sequential rounds of 150 after that posterior (a folder of
+    its own), checked and scored, and its estimates decide; the refinement keeps the amortised refit it refines."""
+    from softsbi.core.defaults import REFINE_ROUNDS, REFINE_SIMS
+    from softsbi.core.results import MCPValue, OffTest
+    from softsbi.workflows.criticism import diagnose as diagnose_module
+    run_dir, _ = trained
+    undecided = OffTest(statistic=0.1, p_value=MCPValue(exceed=150, n=199), level=0.1)
+    monkeypatch.setattr(diagnose_module, "off_test", lambda *a, **k: undecided)
+    said = []
+    d = diagnose_run(run_dir, effects=CANDIDATES, plots=False, out_dir=tmp_path / "refined", progress=said.append,
+                     settings=DiagnoseSettings(confirm=1, workers=1))
+    refit = d.refit((MAGNET,))
+    assert refit.refined_from is not None and refit.refined_from.amortised and refit.refined_from.maybe_off
+    # rounds of the task's 120 prior simulations (fewer than REFINE_SIMS), so that round 1 is the stored task
+    assert not refit.amortised and (refit.rounds, refit.sims_per_round) == (1 + REFINE_ROUNDS, min(REFINE_SIMS, 120))
+    assert refit.run.endswith(f"refit-{MAGNET}-sequential") and refit.off_test is None
+    assert any(line.startswith(f"refine: {MAGNET}'s amortised refit is adequate") for line in said)
+    pull = next(e for e in refit.estimates if e.name == "pull")
+    assert pull.may_be_off is False and pull.q05 > 0  # the refined posterior excludes the magnet's off value
+    assert d.verdict == "missing-effect" and d.decision.named == (MAGNET,)
+    bare = diagnose_run(run_dir, effects=CANDIDATES, plots=False, out_dir=tmp_path / "not-refined",
+                        settings=DiagnoseSettings(confirm=1, workers=1, refine=0))
+    assert bare.refit((MAGNET,)).refined_from is None and bare.verdict == "misspecified-unexplained"

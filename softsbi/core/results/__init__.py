@@ -307,6 +307,9 @@ class Refit:
         off_test: for an amortised single refit whose task stores its "off" null, the calibrated test that decides
             whether the data switch its effect on (:class:`OffTest`); None: the estimates decide
             (:attr:`Estimate.may_be_off`).
+        refined_from: the amortised refit this one refines (adequate and improving, its effect possibly off:
+            :func:`~softsbi.workflows.criticism.decide.to_refine`), fitted again in sequential rounds after it; None:
+            not a refinement.
     """
 
     effects: tuple[str, ...]
@@ -321,6 +324,7 @@ class Refit:
     chamfer_n: int = 0
     amortised: bool = False
     off_test: OffTest | None = None
+    refined_from: Refit | None = None
 
     @property
     def label(self) -> str:
@@ -329,8 +333,10 @@ class Refit:
 
     @property
     def adequate(self) -> bool:
-        """The measurement lies inside the refit's posterior predictive distribution (its test does not reject)."""
-        return not self.test.misspecified
+        """The measurement lies inside the refit's posterior predictive distribution (its test does not reject);
+        a refinement also needs the refit it refines to be adequate (whose check, calibrated against the model's
+        replicates, its own uncalibrated one does not replace)."""
+        return not self.test.misspecified and (self.refined_from is None or self.refined_from.adequate)
 
     @property
     def maybe_off(self) -> tuple[str, ...]:

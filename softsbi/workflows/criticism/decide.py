@@ -18,7 +18,12 @@ Pure functions of typed results (:mod:`softsbi.core.results`); no simulation her
      prior bound the Savage-Dickey density ratio: :func:`~softsbi.workflows.criticism.diagnose.may_be_off`;
      :attr:`~softsbi.core.results.Refit.maybe_off`); a refit whose added effect the data leave possibly off has
      absorbed the misfit by widening its predictions, not identified a cause.
-   A refit that is not switched on takes no further part. The adequate, improving single refit with the lowest
+   A refit that is not switched on takes no further part, unless it can be *refined* (:func:`to_refine`): an
+   amortised single refit that is adequate and improving but whose effect the data may leave off is fitted again in
+   sequential rounds after its amortised posterior (a trained task's posterior is amortised over the whole prior, so
+   an effect the task barely informs stays near its prior there even when this recording wants it on), and the
+   refinement takes its place, judged by the same criteria (adequate only when the amortised refit was too).
+   The adequate, improving single refit with the lowest
    score is named; every other adequate, improving refit whose score is not ``k_se`` standard errors above it is
    listed as indistinguishable. When no single refit
    qualifies, one greedy step: the improving single refit with the lowest score is extended by the first
@@ -33,8 +38,9 @@ The posterior-predictive Chamfer is not proper: a model that predicts no spread 
 model raises it. An added parameter the data do not inform widens the posterior predictive, which the score
 charges for unless the measurement needs that spread.
 
-Knobs: ``alpha`` (the level of every test: the false-alarm rate tolerated), ``k_se`` (:data:`K_SE`) and the
-refit budget (``confirm`` refits, their rounds and simulations).
+Knobs: ``alpha`` (the level of every test: the false-alarm rate tolerated), ``k_se`` (:data:`K_SE`), the
+refit budget (``confirm`` refits, their rounds and simulations) and the refinement budget (``refine`` refits,
+:data:`~softsbi.core.defaults.REFINE_ROUNDS` x :data:`~softsbi.core.defaults.REFINE_SIMS` each).
 """
 from __future__ import annotations
 
@@ -115,6 +121,19 @@ def _decide(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_s
     if base is None:
         return Decision(verdict="misspecified-unexplained")
     return Decision(verdict="misspecified-unexplained", partial=base.effects, gain=gain(nominal, base.score))
+
+
+def to_refine(test: JointTest, nominal: Score | None, refits: Sequence[Refit], k_se: float = K_SE
+              ) -> list[tuple[str, ...]]:
+    """The refits to refine by sequential rounds (module docstring, step 3), lowest score first: the amortised single
+    refits of a fit the test rejects that are adequate, improve on the nominal fit (:func:`improves`) and whose effect
+    the data may leave off (:attr:`~softsbi.core.results.Refit.maybe_off`), not refined yet. The caller spends at
+    most its refinement budget on the first ones."""
+    if not test.misspecified:
+        return []
+    open_ = [r for r in refits if len(r.effects) == 1 and r.amortised and r.refined_from is None and r.adequate
+             and r.score is not None and improves(nominal, r.score, k_se) and r.maybe_off]
+    return [r.effects for r in sorted(open_, key=lambda r: r.score.value)]  # type: ignore[union-attr]
 
 
 def refit_order(ranking: Sequence[Candidate], nominal: Score | None, k_se: float = K_SE) -> list[str]:

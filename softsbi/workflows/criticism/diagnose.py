@@ -24,7 +24,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from softsbi.core.errors import PosteriorError, SoftsbiError
+from softsbi.core.errors import PosteriorError, SimulationFailed, SoftsbiError
 from softsbi.core.results import (Diagnosis, Estimate, Refit, read_result,
                                   check_result_path, write_result)
 from softsbi.core.results.joint import CHANCE_EXCLUDED
@@ -34,7 +34,7 @@ from softsbi.plugins import registry
 from softsbi.core.results.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import pools
-from softsbi.workflows.criticism.decide import decide, next_refit
+from softsbi.workflows.criticism.decide import decide, next_refit, to_refine
 from softsbi.workflows.criticism.evidence import (RACE_START, amortised_refit, amortised_scores, recording_from_run,
                                                   refit_config, refit_dir, trained_task, trained_tasks,
                                                   uninformed_candidates)
@@ -47,7 +47,7 @@ from softsbi.workflows.criticism.screening import candidate_effects, check_resol
 from softsbi.workflows.criticism.stats import N_NULL, PosteriorPredictive, run_features
 from softsbi.workflows.criticism.switched_on import off_test, stored_off_null
 from softsbi.workflows.criticism.statistics import summary_energy_score, summary_scale
-from softsbi.core.defaults import ROUNDS, DiagnoseSettings
+from softsbi.core.defaults import REFINE_ROUNDS, REFINE_SIMS, ROUNDS, DiagnoseSettings
 
 @pools.shared_executors()
 @read_once()  # each stored task read once: the candidates' amortised posteriors, refits and checks share it
@@ -106,7 +106,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     key = result_key(run, family=sorted(family), trained=sorted(t[0].digest for t in trained.values()), alpha=alpha,
                      k_se=k_se, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null,
                      max_null=max_null, seed=seed, amortised_refits=sorted(trained) if refit_rounds is None else [],
-                     race_start=RACE_START)
+                     race_start=RACE_START, refine=[s.refine, REFINE_ROUNDS, REFINE_SIMS])
     out = run.path if out_dir is None else Path(out_dir)
     json_path = check_result_path(out / "diagnosis.json")
     stored = None if recompute else stored_result(json_path, Diagnosis, key, say)
@@ -117,7 +117,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
             f"diagnosis apart with `softsbi diagnose {run.path} --out OTHER_FOLDER`")
     with run_lock(out, command="diagnose", busy=busy):
         say(diagnosis_plan(run.report, len(family), confirm, refit_rounds, refit_sims, n_null,
-                           0 if refit_rounds is not None else len(trained)))
+                           0 if refit_rounds is not None else len(trained), s.refine))
         say(f"detect: posterior predictive check of {run.path} against {len(family)} candidates")
         pool = pool or PosteriorPredictive(run, workers, seed)
         chk = check_run(
@@ -142,7 +142,15 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
             scores, n_amortised = amortised_scores(run, amortised, scale, n_null, nominal, confirm, k_se)
             ranking = tuple(replace(c, amortised=scores.get(c.effect)) for c in ranking)
         refits: list[Refit] = []
-        while (nxt := next_refit(chk.test, ranking, nominal, refits, confirm, k_se)) is not None:
+        refined = False  # the singles' refinements come before the pair (decide.to_refine)
+        while True:
+            nxt = next_refit(chk.test, ranking, nominal, refits, confirm, k_se)
+            if not refined and (nxt is None or len(nxt) > 1):
+                refined = True
+                refits = refine_refits(run, family, refits, chk.test, nominal, s, scale, out, plots, say)
+                continue
+            if nxt is None:
+                break
             say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
             refits.append(refit_model(run, nxt, family, settings=s, scale=scale, rounds=refit_rounds,
                                       sims_per_round=refit_sims, out_root=out, plots=plots,
@@ -176,6 +184,34 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     return d
 
 
+def refine_refits(run: RunView, family: Sequence[str], refits: list[Refit], test: Any, nominal: Any,
+                  s: DiagnoseSettings, scale: np.ndarray, out: Path, plots: bool,
+                  say: Callable[[str], None]) -> list[Refit]:
+    """``refits`` with the first ``s.refine`` of :func:`~softsbi.workflows.criticism.decide.to_refine`'s replaced by
+    their refinements: each the same model fitted again after its amortised posterior (round 1, read from its task)
+    in :data:`~softsbi.core.defaults.REFINE_ROUNDS` sequential rounds of :data:`~softsbi.core.defaults.REFINE_SIMS`
+    truncated-proposal simulations (at most the task's prior simulations, so that round 1 is the stored task;
+    ``refit-<effect>-sequential``), checked and scored as any refit, with
+    ``refined_from`` the amortised refit. A refinement that cannot be fitted (its posterior has no mass in the prior
+    box, every simulation failed) is told to ``say`` and the amortised refit is kept: it explains nothing more."""
+    out_refits = list(refits)
+    for effects in to_refine(test, nominal, refits, s.k_se)[:s.refine]:
+        i = next(k for k, r in enumerate(out_refits) if r.effects == effects)
+        say(f"refine: {' + '.join(effects)}'s amortised refit is adequate and improves on the nominal fit, but the "
+            f"data may leave it off; fitting it again in {REFINE_ROUNDS} sequential rounds of {REFINE_SIMS} after its "
+            f"amortised posterior")
+        task = trained_task(run, effects)
+        sims = REFINE_SIMS if task is None else min(REFINE_SIMS, task[0].n_prior)  # round 1: the stored task
+        try:
+            new = refit_model(run, effects, family, settings=s, scale=scale, rounds=1 + REFINE_ROUNDS,
+                              sims_per_round=sims, out_root=out, plots=plots)
+        except (PosteriorError, SimulationFailed) as exc:  # an environment fault or a full disk still ends it
+            say(f"refine: {' + '.join(effects)} could not be refined ({exc}); its amortised refit is kept")
+            continue
+        out_refits[i] = replace(new, refined_from=out_refits[i])
+    return out_refits
+
+
 def refit_budget(run: RunView, s: DiagnoseSettings) -> tuple[int | None, int | None]:
     """The refits' rounds and simulations per round that ``s`` asks of ``run``'s diagnosis, None for "the run's own"
     (one stored key for both spellings of the default). An asked number of rounds is "the run's own" only when the
@@ -191,15 +227,16 @@ def refit_budget(run: RunView, s: DiagnoseSettings) -> tuple[int | None, int | N
 
 
 def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_rounds: int | None = None,
-                   refit_sims: int | None = None, n_null: int = N_NULL, amortised: int = 0) -> str:
+                   refit_sims: int | None = None, n_null: int = N_NULL, amortised: int = 0, refine: int = 0) -> str:
     """What a diagnosis of the fit ``report`` describes will spend, said before it starts: the check's ``n_null``
     posterior rollouts and the screening of ``candidates``, then, when the check rejects, up to ``confirm`` single
     refits and one pair (:func:`~softsbi.workflows.criticism.decide.next_refit`), each a fit at the refit budget
     (``refit_rounds`` x ``refit_sims``, None: the nominal fit's) and its check; the time at the nominal fit's pace
     (its wall time over its simulations, training included). ``amortised`` candidates have a trained task: their
     refits are their amortised posteriors (:func:`~softsbi.workflows.criticism.evidence.amortised_refit`), whose
-    ``n_null`` rollouts are spent on scoring them all, and which simulate no rounds. Upper bounds: simulations read
-    from the bank cost less; a null extended to resolve the level, more."""
+    ``n_null`` rollouts are spent on scoring them all, and which simulate no rounds; up to ``refine`` of them may be
+    refined (:func:`refine_refits`). Upper bounds: simulations read from the bank cost less; a null extended to
+    resolve the level, more."""
     rounds, sims = report.rounds or 1, report.sims_per_round or 0
     n_eval = max((report.simulations or 0) - rounds * sims, 0)
     # "the run's own" rounds of a run that stopped at its stored task are an untrained refit's default ones
@@ -220,7 +257,13 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
         s += (f", then, if the check rejects, {first}up to {refits} refit{'s' if refits > 1 else ''} ({top}"
               f"{', then a pair' if refits > confirm else ''}) of about {per_refit} simulations each ({r_rounds} "
               f"round{'s' if r_rounds > 1 else ''} x {r_sims} simulations, then its check)"
-              f"{' when no task trained the candidate' if amortised else ''}: {total} simulations at most")
+              f"{' when no task trained the candidate' if amortised else ''}")
+        if amortised and refine:  # each refinement: its sequential rounds, then its check's rollouts
+            total += min(refine, confirm) * (REFINE_ROUNDS * REFINE_SIMS + n_null)
+            s += (f", and up to {min(refine, confirm)} refinement{'s' if min(refine, confirm) > 1 else ''} of an "
+                  f"amortised refit whose effect may be off ({REFINE_ROUNDS} rounds x {REFINE_SIMS} simulations, then "
+                  f"its check)")
+        s += f": {total} simulations at most"
     if report.wall_time_s and report.simulations:
         pace = report.wall_time_s / report.simulations
         s += (f"; about {duration_words(total * pace)} at the nominal fit's pace ({report.simulations} simulations "
@@ -240,7 +283,8 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
     are asked for, the refit is the model's amortised posterior
     (:func:`~softsbi.workflows.criticism.evidence.amortised_refit`: its stored estimator conditioned on the
     recording, no rounds simulated) in ``RUN/refit-<a>+<b>``; its check is calibrated against the model's own
-    replicates when ``task train --check-null`` stored them (as the nominal fit's detection is), else uncalibrated.
+    replicates when ``task train`` stored them (by its omnibus test alone when they were not screened, a candidate
+    model's: :func:`~softsbi.workflows.criticism.check_null.run_check_null`), else uncalibrated.
     Otherwise the refit runs sequential rounds at :func:`~softsbi.workflows.criticism.evidence.refit_config`'s
     settings (by default the nominal fit's budget, so that an added effect is fitted as well as the model it
     extends), in ``RUN/refit-<a>+<b>`` (``refit-<a>+<b>-sequential`` for a model with a trained task:
@@ -267,7 +311,9 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
         cfg = trained[1]
     else:
         cfg = refit_config(run, effects, rounds, sims_per_round, workers)
-        out = refit_dir(root, effects, sequential_of_trained=trained is not None)
+        # apart from the amortised refit whenever the model has a trained task at the run's own budget
+        out = refit_dir(root, effects, sequential_of_trained=trained is not None or (
+            sims_per_round is not None and trained_task(run, effects) is not None))
         run_fit(out, recording_from_run(run), cfg, callbacks=fit_callbacks(label), make_plots=plots)
     if pool is None or Path(pool.run.path).resolve() != out.resolve():
         pool = PosteriorPredictive(out, workers, s.seed)  # the refit, loaded once: its check and score share it
