@@ -26,6 +26,7 @@ its own, checked and diagnosed with sequential refits; the row holds both.
 Usage:
     python -m benchmarks run diagnosis --split test --train --full --out OUTSIDE/diagnosis [--workers 2]
     python -m benchmarks run diagnosis --split test --cases none    # the summary of the stored rows only
+    python -m benchmarks run diagnosis --development --out OUTSIDE/diagnosis   # the test split's failures, rerun
 Rows go to ``benchmarks/results/diagnosis-<split>.jsonl``, one per case as it finishes, with its commit, machine,
 command and ``settings``. A case whose latest row is ``ok`` is skipped, one whose latest row is an ``error`` is run
 again, so a run resumes; a run refuses, before any case, a rows file whose rows were run under other settings. The
@@ -53,13 +54,16 @@ from softsbi.workflows.fit.run import FitConfig, run_fit
 from softsbi.workflows.measurement import simulate_recording
 
 from benchmarks import runner
-from benchmarks.diagnosis_protocol import (COUNTS, EFFECTS, MAGNITUDES, N_CASES, done_ids, outcome, read_rows, report,
-                                           schedule, sequential_cases, settings_conflict, summary)
+from benchmarks.diagnosis_protocol import (COUNTS, EFFECTS, MAGNITUDES, N_CASES, development_cases, development_table,
+                                           done_ids, outcome, read_rows, report, schedule, sequential_cases,
+                                           settings_conflict, summary)
 
 RESULTS = runner.RESULTS
 #: what the trained task learned, per model (its training reports), kept beside the rows: the bank lies outside the
 #: repository, and the page is written from stored results
 TASK_RESULTS = RESULTS / "diagnosis-task.json"
+#: the development cases' rows (``--development``): the test split's failure cases rerun under a later rule
+DEVELOPMENT = RESULTS / "diagnosis-development.jsonl"
 SPLIT_SEEDS = {"dev": 0, "test": 1}
 ENGINE, OTHER_ENGINE = "mujoco-flex", "pybullet-massspring"
 #: the settings of ``diagnose_run`` that decide a verdict, at its defaults, passed explicitly (so a row records what
@@ -153,6 +157,7 @@ def diagnose_case(case: dict[str, Any], run_dir: Path, bank: Path, workers: int 
             "score_named": score(named.score) if named is not None else None,
             "amortised": {c.effect: score(c.amortised) for c in d.ranking if c.amortised is not None},
             "refits": [{"effects": list(r.effects), "adequate": r.adequate, "p_value": r.test.p_value,
+                        "refined": r.refined_from is not None,
                         "score": score(r.score), "chamfer_m": r.chamfer_m, "amortised": r.amortised,
                         "estimates": {e.name: {"q05": e.q05, "q95": e.q95, "off_ratio": e.off_ratio,
                                                "may_be_off": e.may_be_off} for e in r.estimates}}
@@ -256,6 +261,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                          "and first 8 hidden-effect cases; none: no case)")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--results", type=Path, default=None, help="rows file (default results/diagnosis-SPLIT.jsonl)")
+    ap.add_argument("--development", action="store_true",
+                    help="rerun the test split's failure cases (development_cases) under the current rule into "
+                         "results/diagnosis-development.jsonl (resumes), and table them beside their stored verdicts")
 
 
 def _indices(text: str, flag: str) -> list[int]:
@@ -275,6 +283,9 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
     """
     path = a.results or RESULTS / f"diagnosis-{a.split}.jsonl"
     idx = [] if a.cases == "none" else _indices(a.cases, "--cases")
+    if a.development:  # the test split's failure cases, rerun apart from its rows
+        path, a.split = DEVELOPMENT, "test"
+        idx = development_cases(read_rows(RESULTS / "diagnosis-test.jsonl"))
     seq = None if a.sequential is None else [] if a.sequential == "none" else _indices(a.sequential, "--sequential")
     bad = [i for i in idx if not 0 <= i < N_CASES]
     if bad:
@@ -289,7 +300,7 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
         run(a.split, idx, a.out, a.workers, a.command, path, seq)
     out: dict[str, Any] = {"tables": [], "notes": [], "data": {}}
     for split in SPLIT_SEEDS:
-        rows = read_rows(path if split == a.split else RESULTS / f"diagnosis-{split}.jsonl")
+        rows = read_rows(path if split == a.split and not a.development else RESULTS / f"diagnosis-{split}.jsonl")
         if not rows:
             continue
         s = summary(rows, split)
@@ -297,6 +308,8 @@ def suite(a: argparse.Namespace) -> dict[str, Any]:
         out["tables"] += rep["tables"]
         out["notes"] += [f"{split.capitalize()} split: {n}" for n in rep["notes"]]
         out["data"][split] = s
+    if (dev := read_rows(DEVELOPMENT)):
+        out["tables"].append(development_table(read_rows(RESULTS / "diagnosis-test.jsonl"), dev))
     if not out["data"]:
         out["notes"].append(f"No case is stored yet: the test split runs with `python -m benchmarks run diagnosis "
                             f"--split test --train --full --out OUTSIDE` ({N_CASES} cases; it resumes).")

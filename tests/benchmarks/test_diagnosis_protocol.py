@@ -319,3 +319,27 @@ def test_the_page_sets_what_the_trained_task_learns_of_each_effect_beside_its_ca
                          "width_ratio": {"bend": 0.6, "wind_x": 0.2}}}
     monkeypatch.setattr(bench, "EFFECTS", ["wind", "air-drag"])
     assert bench.task_record(tmp_path) is None  # not every model of the task is trained yet
+
+
+def test_the_development_cases_are_the_split_s_detected_failures_and_near_misses_and_their_rerun_is_tabled():
+    """development_cases: an effect case detected but unexplained, named wrong or failed, or missed at p <= 0.07
+    (not at 0.08, not a control or the other engine); development_table sets their rerun beside them."""
+    old = [row("heavy-hem", "misspecified-unexplained", p_value=0.02, id="test-3", index=3),
+           row("wind", "missing-effect", ["wind"], p_value=0.01, id="test-4", index=4),          # right
+           row("time-offset", "missing-effect", ["grip-compliance"], p_value=0.02, id="test-5", index=5),
+           row("sticky-patch", p_value=0.06, id="test-6", index=6),                             # near miss
+           row("sticky-patch", p_value=0.08, id="test-7", index=7),
+           row("control", "misspecified-unexplained", p_value=0.01, id="test-8", index=8),
+           {"id": "test-9", "index": 9, "label": "grip-compliance", "status": "error", "error": "PosteriorError"},
+           row("other-engine", "missing-effect", ["wind"], p_value=0.01, id="test-10", index=10)]
+    assert proto.development_cases(old) == [3, 5, 6, 9]
+    new = [row("heavy-hem", "missing-effect", ["heavy-hem"], p_value=0.02, id="test-3", index=3,
+               refits=[{"effects": ["heavy-hem"], "refined": True}, {"effects": ["wind"], "refined": False}]),
+           row("time-offset", "missing-effect", ["grip-compliance"], p_value=0.02, id="test-5", index=5),
+           row("grip-compliance", "misspecified-unexplained", p_value=0.03, id="test-9", index=9)]
+    t = proto.development_table(old, new)
+    assert t["title"].endswith("right 0 -> 1 of 3")
+    assert t["rows"][0] == ["test-3", "heavy-hem", 0.02, "misspecified-unexplained", 0.02, "missing-effect: heavy-hem",
+                            "heavy-hem", "right"]
+    assert t["rows"][1][3] == t["rows"][1][5] == "missing-effect: grip-compliance" and t["rows"][1][-1] == "wrong"
+    assert t["rows"][2][2:4] == [None, "error"] and t["rows"][2][5] == "misspecified-unexplained"
