@@ -1,35 +1,38 @@
-"""The calibrated-check suite: is the posterior predictive check's p-value uniform on controls, and how fast does its
-power grow with a hidden effect's size, before and after calibration against replicate data refitted under the model?
+"""The calibrated-check suite: is the check of a trained task's fit at its nominal size on controls, and how fast does
+its power grow with a hidden effect's size?
 
 The posterior predictive p-value uses the data twice (to fit and to test) and is not uniform under the model
 (Meng 1994; Bayarri & Berger 2000): a recording is closer to its own posterior predictive than a fresh draw is, so
 p-values pile up near 1 and small misfits go unseen. Hjort, Dahl & Steinbakk (2006) calibrate it: the same
 procedure (fit, then check) is run on replicate recordings simulated under the model from the prior, and the
-calibrated p-value of a recording is the fraction of replicates whose statistic is at least its own. Under the
-model, with the recording's parameters drawn from the prior, it is exactly uniform (the recording and the replicates
-are exchangeable), whatever the statistic. A trained task makes the refit of a replicate one conditioning of its
-stored estimator, so a replicate costs one simulation and the check's posterior-predictive rollouts.
+calibrated p-value of a recording is its rank among them. Under the model, with the recording's parameters drawn
+from the prior, it is exactly uniform (the recording and the replicates are exchangeable), whatever the statistic.
 
 Every case here (the calibration's replicates, the controls and the hidden-effect cases) goes through one procedure,
-:mod:`softsbi.workflows.criticism.check_null`'s, that of a stored-task fit and its ``check``: simulate a recording (the cloth at
-prior-drawn hidden parameters, with the hidden effect for the effect cases), observe it with the fit's observer,
-condition the demo task's stored estimator on it, simulate ``check``'s 30 posterior-predictive rollouts (posterior
-draws restricted to the prior box, as the fit's evaluation samples are), and compute ``check``'s omnibus statistic
-(mean squared standardised deviation of the sensor-faithful summaries,
-:func:`~softsbi.workflows.criticism.statistics.misspecification_test`) and its leave-one-out p-value, the first stage of
-``check``'s uncalibrated test. The directional test and the null's extension to 200 rollouts are not part of it.
-The replicates are those ``softsbi task train --check-null`` stores.
+:mod:`softsbi.workflows.criticism.check_null`'s, that of a stored-task fit and its ``check``: simulate a recording (the
+cloth at prior-drawn hidden parameters, with the hidden effect for the effect cases), observe it, condition the demo
+lift task's stored estimator on it, simulate ``check``'s 30 posterior-predictive rollouts, compute the omnibus
+statistic with its leave-one-out p-value, and screen the candidate family about the posterior median (each
+candidate's directional statistic). Three p-values per case:
 
-Tables: the p-values of the controls, uncalibrated and calibrated against the ``--null`` replicates (share at 1,
-share at or below 0.05 with its Clopper-Pearson interval, Kolmogorov-Smirnov p against the uniform); the share of
-hidden-breeze cases rejected at 0.05 per breeze speed, both ways; and the cost.
+- **check (calibrated, both tests)**: what ``check`` and ``diagnose``'s detection give: the omnibus and the largest
+  directional statistic combined by min-P against the task's ``--null`` screened replicates
+  (:meth:`~softsbi.workflows.criticism.check_null.CheckNull.joint_p_value`);
+- **refit check (omnibus, 19 replicates)**: what a candidate refit's adequacy check gives on a task trained with
+  ``task train``'s defaults (``--refit-null 19``, not screened): the omnibus statistic's rank among the first 19
+  replicates; on the nominal model's cases it measures that check's size and power at its resolution;
+- **uncalibrated omnibus**: the leave-one-out posterior predictive p-value.
 
-Usage: ``python -m benchmarks run calibrated-check [--null 100] [--controls 60] [--speeds 0.4,0.8,1.6]
-[--per-speed 6] [--out DIR]``.
+Tables: the p-values of the controls (share at 1, share at or below 0.05 with its Clopper-Pearson interval,
+Kolmogorov-Smirnov p against the uniform); the share of hidden-effect cases rejected at 0.05 per effect and
+magnitude, each way; and the cost. Each stage's statistics are kept in ``--out`` and read again by a rerun.
+
+Usage: ``python -m benchmarks run calibrated-check [--null 40] [--controls 60] [--per-magnitude 5] [--out DIR]``.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -39,19 +42,25 @@ from benchmarks.runner import in_out_folder, table
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    ap.add_argument("--null", type=int, default=100, help="replicate recordings the calibration compares with")
+    ap.add_argument("--null", type=int, default=40, help="screened replicate recordings of the nominal model")
     ap.add_argument("--controls", type=int, default=60, help="control recordings (the nominal model, prior draws)")
-    ap.add_argument("--speeds", default="0.4,0.8,1.6", help="hidden breeze speeds wind_y (m/s), comma-separated")
-    ap.add_argument("--per-speed", type=int, default=6, help="recordings per breeze speed")
+    ap.add_argument("--per-magnitude", type=int, default=5, help="recordings per hidden effect and magnitude")
     ap.add_argument("--prior-sims", type=int, default=1000, help="prior simulations the task is trained on")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=None, help="keep the bank (the trained task) here")
+    ap.add_argument("--out", type=Path, default=None, help="keep the bank (the trained task) and the stages here")
 
 
-FULL = {"null": 200, "controls": 100, "per_speed": 10}
+FULL = {"controls": 100, "per_magnitude": 10}
 LEVEL = 0.05
-#: seed streams of the controls and the breeze cases (the replicates' is check_null.NULL_STREAM)
-STREAMS = {"control": 8081, "breeze": 8082}
+#: a candidate refit's replicates (``task train --refit-null``'s default)
+REFIT_NULL = 19
+#: the hidden effects of the power table: one parameter each, at an eighth, a quarter, half and all of its prior's
+#: largest distance from its off value (the other parameters of the effect at their off values)
+MAGNITUDES = {"wind": ("wind_y", (0.25, 0.5, 1.0, 2.0)),
+              "heavy-hem": ("hem_density", (0.00625, 0.0125, 0.025, 0.05)),
+              "time-offset": ("time_offset", (0.0125, 0.025, 0.05, 0.1))}
+#: seed streams of the controls and of the effect cases (the replicates' is check_null.NULL_STREAM)
+STREAMS = {"control": 8081, "effect": 8200}
 
 
 def _shares(p: np.ndarray) -> list:
@@ -65,59 +74,90 @@ def _shares(p: np.ndarray) -> list:
 
 def measure(a: argparse.Namespace, folder: Path) -> dict:
     from scipy.stats import ks_2samp
-    from softsbi.workflows.demo import demo_recording
-    from softsbi.workflows.fit.run import FitConfig
-    from softsbi.workflows.fit.config import fit_param_space
-    from softsbi.workflows.tasks.training import train_task
-    from softsbi.workflows.criticism.check_null import case_statistics, replicates, stored_check_null
     from softsbi.core.defaults import N_NULL
+    from softsbi.workflows.criticism.check_null import case_statistics, replicates, stored_check_null
+    from softsbi.workflows.criticism.screening import default_candidates
+    from softsbi.workflows.criticism.statistics import mc_pvalue
+    from softsbi.workflows.demo import demo_recording
+    from softsbi.workflows.fit.config import fit_param_space
+    from softsbi.workflows.fit.run import FitConfig
     from softsbi.workflows.fit.task_store import first_round_context
+    from softsbi.workflows.tasks.training import train_task
     cfg = FitConfig(workers=a.workers, sim_bank=str(folder / "bank"))
     rec0 = demo_recording(True)[0]
     t0 = time.perf_counter()
-    (task,) = train_task(rec0, cfg, a.prior_sims, candidates=[], check_null=a.null)  # the replicates: task train's
+    (task,) = train_task(rec0, cfg, a.prior_sims, candidates=[], check_null=a.null, message=print)
     train_s = time.perf_counter() - t0
     cfg = cfg.resolved(rec0)
     _, space = fit_param_space(cfg, rec0.scenario)
     null = stored_check_null(task, N_NULL, rec0.dense.shape[1])
+    family = [c for c in default_candidates(cfg.backend, rec0.scenario, cfg.effects) if c.name in (null.family or ())]
+    names = [c.name for c in family]
     est, ctx = task.restore(), first_round_context(cfg, rec0, space)
+    stages = folder / "calibrated-check"
+    stages.mkdir(parents=True, exist_ok=True)
 
-    def stats(stream: int, n: int, speed: float = 0.0):
-        breeze = {"effects": ["wind"], "extra": {"wind_x": 0.0, "wind_y": speed}} if speed else {}
-        recs, seeds = replicates(cfg, space, rec0, n, stream, **breeze)
-        st = case_statistics(recs, est, cfg, space, ctx, N_NULL, seeds, a.workers)
-        return st[np.isfinite(st[:, 0])]  # a recording its fit could not check is no case (check_null)
+    def stats(name: str, stream: int, n: int, effect: str | None = None, value: float = 0.0) -> np.ndarray:
+        path = stages / f"{name}.json"
+        if path.is_file():
+            return np.array(json.loads(path.read_text()), float).reshape(-1, 2 + len(family))
+        hidden = {} if effect is None else {
+            "effects": [effect], "extra": {**registry_nominal(effect), MAGNITUDES[effect][0]: value}}
+        recs, seeds = replicates(cfg, space, rec0, n, stream, **hidden)
+        st = case_statistics(recs, est, cfg, space, ctx, N_NULL, seeds, a.workers, family)
+        st = st[np.isfinite(st[:, 0])]  # a recording its fit could not check is no case (check_null)
+        path.write_text(json.dumps(np.where(np.isfinite(st), st, None).tolist()))
+        return np.array(st, float)
 
-    def calibrated(d: np.ndarray) -> np.ndarray:
-        return np.array([null.p_value(v).value for v in d])
+    def pvalues(st: np.ndarray) -> dict[str, np.ndarray]:
+        with np.errstate(all="ignore"):
+            z = np.nanmax(st[:, 2:], axis=1)
+        refit = np.asarray(null.statistics[:REFIT_NULL])
+        return {"check": np.array([null.joint_p_value(np.array([o, d]), names).value for o, d in zip(st[:, 0], z)]),
+                "refit": np.array([mc_pvalue(o, refit).value for o in st[:, 0]]), "uncalibrated": st[:, 1]}
 
-    ctrl = stats(STREAMS["control"], a.controls)
-    rows = [["controls, uncalibrated (leave-one-out)", *_shares(ctrl[:, 1])],
-            ["controls, calibrated", *_shares(calibrated(ctrl[:, 0]))]]
+    t1 = time.perf_counter()
+    ctrl = stats("controls", STREAMS["control"], a.controls)
+    pc = pvalues(ctrl)
+    rows = [[f"check: both tests, calibrated ({len(null.statistics)} replicates)", *_shares(pc["check"])],
+            [f"a refit's check: omnibus, calibrated ({REFIT_NULL} replicates)", *_shares(pc["refit"])],
+            ["omnibus, uncalibrated (leave-one-out)", *_shares(pc["uncalibrated"])]]
     exchangeable = ks_2samp(ctrl[:, 0], null.statistics).pvalue
-    power, breezes = [], {}
-    for speed in [float(s) for s in a.speeds.split(",")]:
-        br = stats(STREAMS["breeze"] + int(round(speed * 1000)), a.per_speed, speed)
-        breezes[str(speed)] = br.tolist()
-        cal = calibrated(br[:, 0])
-        power.append([speed, len(br), int(np.sum(br[:, 1] <= LEVEL)), int(np.sum(cal <= LEVEL)),
-                      round(float(np.median(br[:, 1])), 3), round(float(np.median(cal)), 3)])
+    power, cases = [], {}
+    for k, (effect, (param, values)) in enumerate(MAGNITUDES.items()):
+        for j, v in enumerate(values):
+            st = stats(f"{effect}-{v:g}", STREAMS["effect"] + 10 * k + j, a.per_magnitude, effect, v)
+            cases[f"{effect} {param}={v:g}"] = st.tolist()
+            p = pvalues(st)
+            power.append([effect, f"{param} = {v:g}", len(st), *(int(np.sum(p[w] <= LEVEL))
+                                                                 for w in ("check", "refit", "uncalibrated")),
+                          round(float(np.median(p["check"])), 3)])
+    cases_s = time.perf_counter() - t1
+    n_cases = len(ctrl) + sum(len(c) for c in cases.values())
     return {"tables": [
         table(f"p-values on controls (the nominal model at prior draws) at level {LEVEL}",
               ["p-value", "recordings", "share p = 1", f"share p <= {LEVEL} [95% Clopper-Pearson]",
                "KS p (uniform)"], rows),
-        table(f"power: recordings with a hidden breeze (wind_y, cloth at prior draws) rejected at {LEVEL}",
-              ["wind_y m/s", "recordings", "rejected, uncalibrated", "rejected, calibrated", "median p uncalibrated",
-               "median p calibrated"], power)],
-        "data": {"replicates": list(null.statistics), "controls": ctrl.tolist(), "breeze": breezes},
-        "notes": [f"The controls' statistics against the replicates' (two-sample Kolmogorov-Smirnov, the test of "
-                  f"their exchangeability): p = {exchangeable:.3g}. The one-sample KS p of the calibrated p-values "
-                  f"is approximate: every control is ranked against the same {len(null.statistics)} replicates, so "
-                  f"their p-values are positively dependent (Bates et al. 2023).",
-                  f"`softsbi task train --check-null {a.null}`: the calibration's {a.null} replicates cost "
-                  f"{a.null * (N_NULL + 1)} simulations, once per task; with the task's training it took "
-                  f"{train_s:.0f} s on {a.workers} workers (0 when stored). Each case: one recording, one "
-                  f"conditioning of the stored estimator, {N_NULL} posterior-predictive rollouts."]}
+        table(f"power: recordings with a hidden effect (cloth at prior draws) rejected at {LEVEL}",
+              ["effect", "magnitude", "recordings", "rejected by check", "by a refit's check (omnibus, 19)",
+               "uncalibrated", "median p of check"], power)],
+        "data": {"replicates": list(null.statistics), "directional": [list(r) for r in null.directional or ()],
+                 "family": names, "controls": ctrl.tolist(), "cases": cases},
+        "notes": [f"The controls' omnibus statistics against the replicates' (two-sample Kolmogorov-Smirnov, the test "
+                  f"of their exchangeability): p = {exchangeable:.3g}. The one-sample KS p of the calibrated p-values "
+                  f"is approximate: every control is ranked against the same replicates, so their p-values are "
+                  f"positively dependent (Bates et al. 2023).",
+                  f"`softsbi task train --check-null {a.null}`: {a.null} replicates, each refitted, checked on "
+                  f"{N_NULL} rollouts and screened against {len(family)} candidates, once per task; with the task's "
+                  f"training {train_s:.0f} s on {a.workers} workers (0 when stored). The {n_cases} cases took "
+                  f"{cases_s:.0f} s ({cases_s / max(n_cases, 1):.1f} s each: one recording, one conditioning of the "
+                  f"stored estimator, {N_NULL} rollouts and the screening; 0 when read from --out)."]}
+
+
+def registry_nominal(effect: str) -> dict[str, float]:
+    """The effect's off values (its other parameters stay off in an effect case)."""
+    from softsbi.plugins import registry
+    return dict(registry().effect(effect)().nominal())
 
 
 def suite(a: argparse.Namespace) -> dict:
