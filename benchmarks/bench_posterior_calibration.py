@@ -114,7 +114,8 @@ def _measure(args: argparse.Namespace, bank: Path) -> dict:
     for est in estimators:
         t0 = time.perf_counter()
         tasks = train_task(recording, replace(cfg, estimator_options=dict(ESTIMATORS[est])), n_prior=args.prior_sims,
-                           candidates=names, n_test=args.n_test, n_draws=args.n_draws, check_null=0, message=print)
+                           candidates=names, n_test=args.n_test, n_draws=args.n_draws, check_null=0, refit_null=0,
+                           message=print)
         seconds[est] = time.perf_counter() - t0
         for t in tasks:
             data.append({"estimator": est, "model": t.model, "n_test": t.report.n_test, "n_prior": t.n_prior,

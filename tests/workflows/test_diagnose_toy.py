@@ -139,7 +139,8 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
                              n_points=16, n_dense=64, seed=5, backend_options={"sigma": 0.02})
     cfg = FitConfig(backend="toy-gauss", backend_options={"sigma": 0.02}, sims_per_round=80, workers=1, n_points=16,
                     n_dense=64, n_eval=30, estimator_options={"max_epochs": 60, "hidden": [64, 64]})
-    tasks = train_task(rec, cfg, 120, candidates=["toy-drift", MAGNET], n_test=20, n_draws=50, check_null=0)
+    tasks = train_task(rec, cfg, 120, candidates=["toy-drift", MAGNET], n_test=20, n_draws=50, check_null=0,
+                       refit_null=0)
     assert [t.model for t in tasks] == ["nominal", "nominal+toy-drift", f"nominal+{MAGNET}"]
     run_fit(tmp_path / "nominal", rec, cfg, make_plots=False)  # stops at the trained task: one round
     d = diagnose_run(
