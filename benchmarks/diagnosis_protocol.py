@@ -494,13 +494,6 @@ def development_cases(rows: Sequence[Mapping[str, Any]]) -> list[int]:
     return sorted(out)
 
 
-def _call(row: Mapping[str, Any]) -> str:
-    if is_error(row):
-        return "error"
-    named = _names(row.get("named"))
-    return row["verdict"] + (f": {' + '.join(named)}" if named and row["verdict"] == "missing-effect" else "")
-
-
 def development_table(old: Sequence[Mapping[str, Any]], new: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """The development cases rerun under a new rule beside their stored verdicts: per case its truth, the check's
     p-value and call before and after, the refits refined after, and whether the call is right now; with a count
@@ -514,8 +507,8 @@ def development_table(old: Sequence[Mapping[str, Any]], new: Sequence[Mapping[st
         ok = [row_outcome(b) == "right", row_outcome(r) == "right"]
         right = [right[0] + ok[0], right[1] + ok[1]]
         refined = [x["effects"][0] for x in r.get("refits", []) if x.get("refined")]
-        rows.append([r["id"], r["label"], None if is_error(b) else round(b["p_value"], 3), _call(b),
-                     None if is_error(r) else round(r["p_value"], 3), _call(r), ", ".join(refined) or "-",
+        rows.append([r["id"], r["label"], None if is_error(b) else round(b["p_value"], 3), call(b, row_outcome(b)),
+                     None if is_error(r) else round(r["p_value"], 3), call(r, row_outcome(r)), ", ".join(refined) or "-",
                      "right" if ok[1] else row_outcome(r)])
     return runner.table(
         f"Diagnosis, development cases (the test split's failures) rerun under the new rule: right {right[0]} -> "
