@@ -147,7 +147,7 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
             nxt = next_refit(chk.test, ranking, nominal, refits, confirm, k_se)
             if not refined and (nxt is None or len(nxt) > 1):
                 refined = True
-                refits = refine_refits(run, family, refits, chk.test, nominal, s, scale, out, plots, say)
+                refits = refine_refits(run, family, refits, chk.test, nominal, s, scale, out, plots, say, trained)
                 continue
             if nxt is None:
                 break
@@ -186,21 +186,22 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
 
 def refine_refits(run: RunView, family: Sequence[str], refits: list[Refit], test: Any, nominal: Any,
                   s: DiagnoseSettings, scale: np.ndarray, out: Path, plots: bool,
-                  say: Callable[[str], None]) -> list[Refit]:
+                  say: Callable[[str], None], trained: Mapping[str, Any]) -> list[Refit]:
     """``refits`` with the first ``s.refine`` of :func:`~softsbi.workflows.criticism.decide.to_refine`'s replaced by
     their refinements: each the same model fitted again after its amortised posterior (round 1, read from its task)
     in :data:`~softsbi.core.defaults.REFINE_ROUNDS` sequential rounds of :data:`~softsbi.core.defaults.REFINE_SIMS`
     truncated-proposal simulations (at most the task's prior simulations, so that round 1 is the stored task;
     ``refit-<effect>-sequential``), checked and scored as any refit, with
     ``refined_from`` the amortised refit. A refinement that cannot be fitted (its posterior has no mass in the prior
-    box, every simulation failed) is told to ``say`` and the amortised refit is kept: it explains nothing more."""
+    box, every simulation failed) is told to ``say`` and the amortised refit is kept: it explains nothing more.
+    ``trained``: the candidates' trained tasks (:func:`~softsbi.workflows.criticism.evidence.trained_tasks`)."""
     out_refits = list(refits)
     for effects in to_refine(test, nominal, refits, s.k_se)[:s.refine]:
         i = next(k for k, r in enumerate(out_refits) if r.effects == effects)
         say(f"refine: {' + '.join(effects)}'s amortised refit is adequate and improves on the nominal fit, but the "
             f"data may leave it off; fitting it again in {REFINE_ROUNDS} sequential rounds of {REFINE_SIMS} after its "
             f"amortised posterior")
-        task = trained_task(run, effects)
+        task = trained.get(effects[0])  # an amortised refit's: always there
         sims = REFINE_SIMS if task is None else min(REFINE_SIMS, task[0].n_prior)  # round 1: the stored task
         try:
             new = refit_model(run, effects, family, settings=s, scale=scale, rounds=1 + REFINE_ROUNDS,
