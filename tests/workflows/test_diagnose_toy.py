@@ -76,6 +76,11 @@ def test_left_out_the_verdict_is_unexplained_not_a_pair_of_flexible_candidates(m
     assert all(MAGNET not in r.effects for r in d.refits)
     # a flexible candidate explains a part; the pair built on it is refitted and explains no more
     assert d.decision.partial and any(len(r.effects) == 2 for r in d.refits)
+    # the pair starts in the box of its first effect's single refit's posterior, not at the prior
+    from softsbi.workflows.fit.runs import load_run
+    pair = next(r for r in d.refits if len(r.effects) == 2)
+    box = load_run(pair.run).config.start_box
+    assert set(load_run(d.refit(pair.effects[:1]).run).space.names) <= set(box)
     assert d.residual is not None and d.residual.frames_flagged
 
 
@@ -170,3 +175,42 @@ def test_on_a_task_trained_with_its_candidates_each_amortised_refit_is_scored_an
         )
         == d
     )
+
+
+def test_a_pair_starts_in_the_box_of_its_singles_posteriors(magnet_run, tmp_path):
+    """A pair refit's first round draws from the prior restricted to the box of its singles' posteriors (a truncated
+    proposal), not from the whole prior at a single's budget: the box holds the single's 90% intervals, lies in the
+    prior, and a fit given it draws its first round inside it."""
+    from types import SimpleNamespace
+    from dataclasses import replace as dc_replace
+    from softsbi.core.errors import SoftsbiError
+    from softsbi.core.store import RunStore
+    from softsbi.workflows.criticism.evidence import recording_from_run, start_box
+    from softsbi.workflows.fit.runs import load_run
+    view = load_run(magnet_run)
+    box = start_box([SimpleNamespace(run=str(magnet_run))])
+    assert set(box) <= set(view.space.names) and box
+    for name, (lo, hi) in box.items():
+        p = view.space[name]
+        q05, q95 = view.posterior().interval(0.9)[name]
+        assert p.low <= lo <= q05 <= q95 <= hi <= p.high
+    assert start_box([]) == {}
+    # a fit given a box (here one parameter's 90% interval: this toy's posterior is wide) draws its first round in it
+    names = view.space.names
+    box = {names[0]: list(view.posterior().interval(0.9)[names[0]])}
+    cfg = dc_replace(view.config, rounds=1, sims_per_round=40, n_eval=10, proposal="truncated", start_box=box,
+                     workers=1)
+    out = tmp_path / "boxed"
+    run_fit(out, recording_from_run(view), cfg, make_plots=False)
+    store = RunStore.open(out / "run.zarr")
+    theta = store.round_data(0, ("theta",))["theta"]
+    for name, (lo, hi) in box.items():
+        j = names.index(name)
+        assert (theta[:, j] >= lo - 1e-9).all() and (theta[:, j] <= hi + 1e-9).all()
+    assert "start box" in str(store.round_attrs(0))
+    assert theta[:, 1].min() < -0.8 and theta[:, 1].max() > 0.8  # a parameter not named keeps its prior range
+    with pytest.raises(SoftsbiError, match="truncated proposals"):
+        dc_replace(cfg, proposal="corrected").validate()
+    with pytest.raises(SoftsbiError, match="low < high"):
+        dc_replace(cfg, start_box={names[0]: [1.0, 0.0]}).validate()
+

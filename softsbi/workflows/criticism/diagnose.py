@@ -35,9 +35,9 @@ from softsbi.core.results.fitreport import FitReport
 from softsbi.workflows.criticism.check import check_run, loaded, result_key, reused, stored_result
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.decide import decide, next_refit, to_refine
-from softsbi.workflows.criticism.evidence import (RACE_START, amortised_refit, amortised_scores, recording_from_run,
-                                                  refit_config, refit_dir, trained_task, trained_tasks,
-                                                  uninformed_candidates)
+from softsbi.workflows.criticism.evidence import (RACE_START, START_EPS, START_PAD, amortised_refit, amortised_scores,
+                                                  recording_from_run, refit_config, refit_dir, start_box,
+                                                  trained_task, trained_tasks, uninformed_candidates)
 from softsbi.workflows.reporting import duration_words, fit_callbacks
 from softsbi.workflows.fit.run import run_fit
 from softsbi.workflows.lock import check_out_apart, run_lock
@@ -106,7 +106,8 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
     key = result_key(run, family=sorted(family), trained=sorted(t[0].digest for t in trained.values()), alpha=alpha,
                      k_se=k_se, confirm=confirm, refit_rounds=refit_rounds, refit_sims=refit_sims, n_null=n_null,
                      max_null=max_null, seed=seed, amortised_refits=sorted(trained) if refit_rounds is None else [],
-                     race_start=RACE_START, refine=[s.refine, REFINE_ROUNDS, REFINE_SIMS])
+                     race_start=RACE_START, refine=[s.refine, REFINE_ROUNDS, REFINE_SIMS],
+                     pair_start=[START_EPS, START_PAD])
     out = run.path if out_dir is None else Path(out_dir)
     json_path = check_result_path(out / "diagnosis.json")
     stored = None if recompute else stored_result(json_path, Diagnosis, key, say)
@@ -151,10 +152,14 @@ def diagnose_run(run_dir: str | Path, effects: Sequence[str] | None = None, *,
                 continue
             if nxt is None:
                 break
-            say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}")
+            singles = [r for r in refits if len(r.effects) == 1 and r.effects[0] in nxt] if len(nxt) > 1 else []
+            say(f"refit {len(refits) + 1}: the nominal model with {' + '.join(nxt)}"
+                + (f", its first round in the box of {' and '.join(r.effects[0] for r in singles)}'s posterior"
+                   f"{'s' if len(singles) > 1 else ''}" if singles else ""))
             refits.append(refit_model(run, nxt, family, settings=s, scale=scale, rounds=refit_rounds,
                                       sims_per_round=refit_sims, out_root=out, plots=plots,
-                                      pool=amortised.get(nxt[0]) if len(nxt) == 1 else None))
+                                      pool=amortised.get(nxt[0]) if len(nxt) == 1 else None,
+                                      start=start_box(singles) if singles else None))
         decision = decide(chk.test, nominal, refits, k_se)
         generic = next((c for c in chk.ranking if c.generic and c.screened), None) if chk.test.misspecified else None
         # 0 from check when its result was stored
@@ -277,7 +282,7 @@ def diagnosis_plan(report: FitReport, candidates: int, confirm: int, refit_round
 def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
                 settings: DiagnoseSettings | None = None, scale: np.ndarray | None = None, rounds: int | None = None,
                 sims_per_round: int | None = None, out_root: str | Path | None = None, plots: bool = True,
-                pool: PosteriorPredictive | None = None) -> Refit:
+                pool: PosteriorPredictive | None = None, start: Mapping[str, Sequence[float]] | None = None) -> Refit:
     """Fit ``run``'s measurement again with ``effects`` added, then check the refit.
 
     On a task trained with the refit's model, when the nominal fit stopped at its trained task and no ``rounds``
@@ -296,7 +301,8 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
     energy score of its first ``settings.n_null`` posterior-predictive rollouts' summaries in ``scale`` (the nominal
     fit's, :func:`~softsbi.workflows.criticism.statistics.summary_energy_score`; no score without ``scale``).
     ``pool``: the refit run's rollouts already simulated (the amortised score's; used when it is this refit's run).
-    ``plots``: draw the refit's fit figures and ``check.png``.
+    ``start``: a sequential refit's first-round box (a pair's: :func:`~softsbi.workflows.criticism.evidence.start_box`
+    of its singles; None: the prior). ``plots``: draw the refit's fit figures and ``check.png``.
 
     Raises:
         everything :func:`~softsbi.workflows.fit.run.run_fit` raises (e.g. a stored refit with other settings).
@@ -311,7 +317,7 @@ def refit_model(run: RunView, effects: Sequence[str], family: Sequence[str], *,
         out = amortised_refit(run, effects, root, workers, plots, fit_callbacks(label))
         cfg = trained[1]
     else:
-        cfg = refit_config(run, effects, rounds, sims_per_round, workers)
+        cfg = refit_config(run, effects, rounds, sims_per_round, workers, start)
         # apart from the amortised refit whenever the model has a trained task at the run's own budget
         out = refit_dir(root, effects, sequential_of_trained=trained is not None or (
             sims_per_round is not None and trained_task(run, effects) is not None))

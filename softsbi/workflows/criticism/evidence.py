@@ -26,11 +26,12 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from softsbi.core.results import Gain, Score
-from softsbi.core.types import Recording
+from softsbi.core.store import RunStore
+from softsbi.core.types import Param, ParamSpace, Recording
 from softsbi.plugins import registry
 from softsbi.workflows.fit.config import FitConfig, fit_param_space
 from softsbi.workflows.fit.run import run_fit
-from softsbi.workflows.fit.runs import RunView
+from softsbi.workflows.fit.runs import RunView, final_posterior
 from softsbi.workflows.criticism.decide import K_SE, improves
 from softsbi.workflows.criticism.stats import PosteriorPredictive, run_features
 from softsbi.workflows.criticism.statistics import MIN_NULL, summary_energy_score
@@ -49,18 +50,67 @@ def recording_from_run(run: RunView) -> Recording:
 
 
 def refit_config(run: RunView, effects: Sequence[str], rounds: int | None = None,
-                 sims_per_round: int | None = None, workers: int | None = None) -> FitConfig:
+                 sims_per_round: int | None = None, workers: int | None = None,
+                 start: Mapping[str, Sequence[float]] | None = None) -> FitConfig:
     """The settings of ``run``'s refit with ``effects`` added: the nominal fit's (:meth:`FitConfig.from_run_config`)
     with the effects switched on, :data:`REFIT_PROPOSAL` proposals, no extra sensor draws (every refit observes each
     simulation once, physics and sensor effects alike), and its own rounds (None: the refit's own trained task when
     the nominal fit stopped at one, else the nominal fit's rounds) and simulations per round (None: the nominal
-    fit's)."""
+    fit's); ``start``: its first round's box (:attr:`FitConfig.start_box`, :func:`start_box`; None: the prior)."""
     base = run.config
     if rounds is None and not (run.report.per_round and run.report.per_round[0].task):
         rounds = base.rounds
     return replace(base, effects=list(run.effects) + list(effects), rounds=rounds,
                    sims_per_round=int(sims_per_round or base.sims_per_round), proposal=REFIT_PROPOSAL,
-                   sensor_draws=0, workers=workers if workers is not None else base.workers)
+                   sensor_draws=0, workers=workers if workers is not None else base.workers,
+                   start_box={k: [float(v[0]), float(v[1])] for k, v in (start or {}).items()})
+
+
+#: posterior draws of each single refit that set a pair's start box (:func:`start_box`)
+START_DRAWS = 4000
+#: the posterior mass each single refit leaves outside its part of the box (TSNPE's default truncation, as the
+#: sequential rounds use: :attr:`~softsbi.workflows.fit.config.FitConfig.truncation_eps`)
+START_EPS = 1e-3
+#: the box's padding per side, as a share of its width in the unit cube (as
+#: :class:`~softsbi.core.distributions.TruncatedPrior` pads its bounding box)
+START_PAD = 0.1
+
+
+def start_box(singles: Sequence[Any]) -> dict[str, list[float]]:
+    """A pair's first-round box (:attr:`~softsbi.workflows.fit.config.FitConfig.start_box`) from its singles'
+    posteriors, so that the pair does not start from the prior at a single's budget.
+
+    Each single refit (``singles``: :class:`~softsbi.core.results.Refit` of the pair's effects, one effect each)
+    contributes, per parameter of its model, the central ``1 - START_EPS`` of :data:`START_DRAWS` draws of its final
+    posterior (a refined refit's sequential one) in the unit cube; a parameter two singles share (the nominal
+    model's) takes the union of their ranges, since with both effects on it may lie at either single's; each range
+    is padded by :data:`START_PAD` of its width per side and clipped to the prior. A parameter no single infers (the
+    effect of a pair's second candidate that was never refitted alone) is not named: it keeps its whole prior range.
+    Returns ``{name: [low, high]}`` in physical units; empty without singles.
+
+    The box is a truncated proposal (TSNPE, Deistler et al. 2022; box regions as in Miller et al. 2021): the
+    pair's posterior is exact when the box holds its mass, which the union and the padding are there for; the
+    later rounds truncate to the pair's own posterior, so a box that cut off mass is widened there.
+    """
+    lo: dict[str, float] = {}
+    hi: dict[str, float] = {}
+    params: dict[str, Param] = {}
+    for i, refit in enumerate(singles):
+        post = final_posterior(Path(refit.run), RunStore.open(Path(refit.run) / "run.zarr"))
+        u = post.unit.sample(START_DRAWS, np.random.default_rng([START_DRAWS, i]))
+        a, b = np.quantile(u, [START_EPS / 2, 1 - START_EPS / 2], axis=0)
+        for j, p in enumerate(post.space):
+            lo[p.name], hi[p.name] = min(lo.get(p.name, 1.0), a[j]), max(hi.get(p.name, 0.0), b[j])
+            params.setdefault(p.name, p)
+    if not params:
+        return {}
+    space = ParamSpace(list(params.values()))
+    low, high = np.array([lo[n] for n in space.names]), np.array([hi[n] for n in space.names])
+    pad = START_PAD * (high - low)
+    u = np.stack([np.clip(low - pad, 0.0, 1.0), np.clip(high + pad, 0.0, 1.0)])
+    theta = space.from_unit(u)
+    return {n: [float(min(theta[0, j], theta[1, j])), float(max(theta[0, j], theta[1, j]))]
+            for j, n in enumerate(space.names) if u[1, j] > u[0, j]}
 
 
 def trained_task(run: RunView, effects: str | Sequence[str],

@@ -33,7 +33,8 @@ COUNT_BOUNDS: Mapping[str, defaults.Bound] = {
     "workers": defaults.WORKERS_BOUND, "n_points": defaults.POINTS_BOUND, "n_eval": defaults.EVAL_BOUND,
     "sensor_draws": defaults.SENSOR_DRAWS_BOUND, "refine": defaults.REFINE_BOUND}
 #: values of resume keys in runs written before the key existed
-RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height", "sensor_draws": 0}
+RESUME_DEFAULTS = {"proposal": "corrected", "truncation_eps": 1e-3, "sensor": "height", "sensor_draws": 0,
+                   "start_box": {}}
 
 
 #: scenario options that say where a scenario was read from, not what it is: a run resumes whatever path the
@@ -144,6 +145,15 @@ class FitConfig:
             the run's prior of record (:mod:`~softsbi.workflows.fit.prior_widening`). Truncated proposals with a sequential
             estimator only. Default False: the rounds before a widening under-weight the region beyond the old
             bound (see that module), so it is an option.
+        start_box: ``{name: [low, high]}`` in physical units: the first round draws from the prior restricted to
+            this box (every parameter not named keeps its whole prior range) instead of the whole prior, a
+            truncated proposal whose region is a box (as in truncated marginal neural ratio estimation, Miller et al.
+            2021); the posterior is then ``q`` restricted to the prior box, exact when the box holds the posterior's
+            mass. Truncated proposals with a sequential estimator and no sensor draws only; the first round is then
+            never a stored task.
+            ``diagnose`` starts a pair's refit in the box of its singles' posteriors
+            (:func:`~softsbi.workflows.criticism.evidence.start_box`). Default: none, the first round draws from the
+            prior.
     """
 
     backend: str = _resume(defaults.BACKEND)
@@ -173,6 +183,7 @@ class FitConfig:
     refine: int = 0
     widen: bool = False
     sim_bank: str = defaults.SIM_BANK
+    start_box: dict[str, list[float]] = _resume(factory=dict)
 
     def validate(self) -> None:
         """Raise :class:`SoftsbiError` naming the option and the fix for a setting out of range (a count outside its
@@ -214,6 +225,15 @@ class FitConfig:
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise SoftsbiError(f"--backend-opt batch_size must be an integer >= 1 (got {size!r}): the simulations "
                                f"one simulate_batch call steps together; 1 = one at a time")
+        if self.start_box:
+            bad = {k: v for k, v in self.start_box.items() if len(v) != 2 or not float(v[0]) < float(v[1])}
+            if bad:
+                raise SoftsbiError(f"start_box needs [low, high] with low < high per parameter (got {bad})")
+            if self.proposal != "truncated" or not getattr(reg.estimator(self.estimator), "sequential", True) \
+                    or self.sensor_draws:
+                raise SoftsbiError("start_box needs truncated proposals, a sequential estimator and no sensor draws "
+                                   "(--proposal truncated with rkhs, mdnn, ...; --sensor-draws 0): the box is a "
+                                   "truncated proposal of every parameter")
         if self.widen:
             check_widen(self.proposal, bool(getattr(reg.estimator(self.estimator), "sequential", True)),
                         self.sensor_draws)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 from dataclasses import replace
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -202,6 +202,28 @@ def usable_simulations(store: RunStore, upto: int) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(us), np.concatenate(xs), counts
 
 
+def start_box_unit(space: ParamSpace, box: Mapping[str, Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
+    """A start box (:attr:`FitConfig.start_box`, ``{name: [low, high]}`` in physical units) as ``(low, high)``,
+    each ``(D,)`` in ``space``'s unit cube (clipped to it; a parameter not named spans ``[0, 1]``).
+
+    Raises:
+        SoftsbiError: a named parameter is not one of ``space``'s."""
+    unknown = sorted(set(box) - set(space.names))
+    if unknown:
+        raise SoftsbiError(f"start_box names {unknown}, which this fit does not infer (its parameters: "
+                           f"{space.names})")
+    mid = space.from_unit(np.full((1, space.dim), 0.5))[0]
+    ends = np.stack([mid, mid])
+    for name, (lo, hi) in box.items():
+        ends[:, space.names.index(name)] = (float(lo), float(hi))
+    u = np.clip(space.to_unit(ends), 0.0, 1.0)
+    low, high = np.zeros(space.dim), np.ones(space.dim)
+    for name in box:
+        j = space.names.index(name)
+        low[j], high[j] = u[:, j].min(), u[:, j].max()
+    return low, high
+
+
 def chain_counts(store: RunStore, counts: list[int]) -> list[int]:
     """The usable simulations per round ``counts`` (:func:`usable_simulations`) as the posterior chain weighs the
     rounds' proposals: a first round that drew nothing (the stored task's posterior alone, ``task_only``) counts the
@@ -294,6 +316,13 @@ class Rounds:
                 proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
         rng = np.random.default_rng([cfg.seed, r, 0])
         u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
+        if r == 0 and cfg.start_box:  # the prior restricted to a box (FitConfig.start_box): a truncated proposal
+            low, high = start_box_unit(space, cfg.start_box)
+            u = low + (high - low) * u
+            self.store.begin_round(r, space.from_unit(u), u, _round_seeds(cfg.seed, r, cfg.sims_per_round),
+                                   self.x_obs.shape, f"prior restricted to the start box of "
+                                   f"{', '.join(sorted(cfg.start_box))} (prior mass {np.prod(high - low):.3g})")
+            return
         what = "prior" if proposal is None else (
             f"prior truncated to the {1 - cfg.truncation_eps:g} region of round {r}'s posterior "
             f"(prior mass {proposal.prior_mass:.3g})" if self.truncated else f"posterior of round {r}")

@@ -409,13 +409,13 @@ class PriorRound:
     @classmethod
     def of(cls, cfg: FitConfig, recording: Recording, space: ParamSpace) -> "PriorRound":
         """The first round of a fit of ``recording`` (``cfg`` resolved, ``space`` the first round's parameters):
-        none with ``--sensor-draws`` (its extra observations are drawn per round), an image observer (its fits are
-        per recording) or without a simulation bank.
+        none with ``--sensor-draws`` (its extra observations are drawn per round), a ``start_box`` (its draws are not
+        the prior's), an image observer (its fits are per recording) or without a simulation bank.
 
         Raises:
             PluginNotFound: the estimator or an effect of ``cfg`` is not installed."""
         store = task_store_of(cfg.sim_bank)
-        if store is None or cfg.sensor_draws or needs_images(cfg):
+        if store is None or cfg.sensor_draws or cfg.start_box or needs_images(cfg):
             return cls(None, None)
         est_cls = registry().estimator(cfg.estimator)
         # the estimator's whole configuration: a changed default of the estimator trains its tasks again
