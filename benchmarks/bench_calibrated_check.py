@@ -27,7 +27,8 @@ Tables: the p-values of the controls (share at 1, share at or below 0.05 with it
 Kolmogorov-Smirnov p against the uniform); the share of hidden-effect cases rejected at 0.05 per effect and
 magnitude, each way; and the cost. Each stage's statistics are kept in ``--out`` and read again by a rerun.
 
-Usage: ``python -m benchmarks run calibrated-check [--null 40] [--controls 60] [--per-magnitude 5] [--out DIR]``.
+Usage: ``python -m benchmarks run calibrated-check [--null 40] [--controls 60] [--control-stream S] [--per-magnitude 5]
+[--out DIR]``.
 """
 from __future__ import annotations
 
@@ -44,6 +45,9 @@ from benchmarks.runner import in_out_folder, table
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--null", type=int, default=40, help="screened replicate recordings of the nominal model")
     ap.add_argument("--controls", type=int, default=60, help="control recordings (the nominal model, prior draws)")
+    ap.add_argument("--control-stream", type=int, default=None,
+                    help="seed stream of the controls (default: STREAMS['control']); another stream gives fresh "
+                         "controls, e.g. to judge a replicate count chosen on the first ones")
     ap.add_argument("--per-magnitude", type=int, default=5, help="recordings per hidden effect and magnitude")
     ap.add_argument("--prior-sims", type=int, default=1000, help="prior simulations the task is trained on")
     ap.add_argument("--workers", type=int, default=2)
@@ -117,12 +121,14 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
                 "refit": np.array([mc_pvalue(o, refit).value for o in st[:, 0]]), "uncalibrated": st[:, 1]}
 
     t1 = time.perf_counter()
-    ctrl = stats("controls", STREAMS["control"], a.controls)
+    stream = STREAMS["control"] if a.control_stream is None else a.control_stream
+    ctrl = stats("controls" if stream == STREAMS["control"] else f"controls-{stream}", stream, a.controls)
     pc = pvalues(ctrl)
     rows = [[f"check: both tests, calibrated ({len(null.statistics)} replicates)", *_shares(pc["check"])],
             [f"a refit's check: omnibus, calibrated ({REFIT_NULL} replicates)", *_shares(pc["refit"])],
             ["omnibus, uncalibrated (leave-one-out)", *_shares(pc["uncalibrated"])]]
     exchangeable = ks_2samp(ctrl[:, 0], null.statistics).pvalue
+    shared = shared_set_band(len(null.statistics), len(pc["check"]), int(np.sum(pc["check"] <= LEVEL)))
     power, cases = [], {}
     for k, (effect, (param, values)) in enumerate(MAGNITUDES.items()):
         for j, v in enumerate(values):
@@ -135,7 +141,7 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
     cases_s = time.perf_counter() - t1
     n_cases = len(ctrl) + sum(len(c) for c in cases.values())
     return {"tables": [
-        table(f"p-values on controls (the nominal model at prior draws) at level {LEVEL}",
+        table(f"p-values on controls (the nominal model at prior draws, seed stream {stream}) at level {LEVEL}",
               ["p-value", "recordings", "share p = 1", f"share p <= {LEVEL} [95% Clopper-Pearson]",
                "KS p (uniform)"], rows),
         table(f"power: recordings with a hidden effect (cloth at prior draws) rejected at {LEVEL}",
@@ -146,12 +152,30 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
         "notes": [f"The controls' omnibus statistics against the replicates' (two-sample Kolmogorov-Smirnov, the test "
                   f"of their exchangeability): p = {exchangeable:.3g}. The one-sample KS p of the calibrated p-values "
                   f"is approximate: every control is ranked against the same replicates, so their p-values are "
-                  f"positively dependent (Bates et al. 2023).",
+                  f"positively dependent (Bates et al. 2023).", shared,
                   f"`softsbi task train --check-null {a.null}`: {a.null} replicates, each refitted, checked on "
                   f"{N_NULL} rollouts and screened against {len(family)} candidates, once per task; with the task's "
                   f"training {train_s:.0f} s on {a.workers} workers (0 when stored). The {n_cases} cases took "
                   f"{cases_s:.0f} s ({cases_s / max(n_cases, 1):.1f} s each: one recording, one conditioning of the "
                   f"stored estimator, {N_NULL} rollouts and the screening; 0 when read from --out)."]}
+
+
+def shared_set_band(r: int, n: int, k: int) -> str:
+    """The false alarms of ``n`` controls ranked against one set of ``r`` replicates, in words: a calibrated check
+    rejects at p <= LEVEL when a control's statistic ranks among the top ``j = floor(LEVEL (r + 1))`` of the ``r + 1``
+    (p = j / (r + 1)); given the replicate set its size is the share of the model's cases above the set's j-th largest
+    statistic, Beta(j, r + 1 - j) distributed, so the count is beta-binomial, not binomial; its 95% band and the
+    chance of at least ``k`` false alarms."""
+    from scipy.stats import betabinom, binom
+    j = int(np.floor(LEVEL * (r + 1) + 1e-9))
+    bb = betabinom(n, j, r + 1 - j)
+    return (f"Every control is ranked against the same {r} replicates: a calibrated check rejects at p <= {LEVEL} "
+            f"when it ranks among the top {j} of {r + 1} (p = {j}/{r + 1}), and given the replicate set its size is "
+            f"Beta({j}, {r + 1 - j}) distributed (mean {j / (r + 1):.3f}, sd "
+            f"{np.sqrt(j * (r + 1 - j) / ((r + 1) ** 2 * (r + 2))):.3f}), so the false alarms of {n} controls are "
+            f"beta-binomial: 95% band {int(bb.ppf(0.025))}-{int(bb.ppf(0.975))}, against the binomial band "
+            f"{int(binom(n, LEVEL).ppf(0.025))}-{int(binom(n, LEVEL).ppf(0.975))} of independent sets; "
+            f"P(at least {k} of {n}) = {bb.sf(k - 1):.3f} (binomial: {binom(n, LEVEL).sf(k - 1):.3f}).")
 
 
 def registry_nominal(effect: str) -> dict[str, float]:

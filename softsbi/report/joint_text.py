@@ -16,7 +16,36 @@ JOINT_COLUMNS = ["candidate", f"summed score [{SCORE_UNIT}]", f"gain over nomina
 RECORDING_COLUMNS = ["#", "recording", "check p", "own verdict", "named alone"]
 #: the ``for the task`` column's words for each criterion a candidate fails
 #: (:data:`~softsbi.core.results.joint.CRITERIA`)
-FAILED = {"improves": "gain within --k-se", "adequate": "misfit on the set", "switched on": "not switched on"}
+FAILED = {"improves": "gain within --k-se", "adequate": "misfit on the set", "switched on": "not switched on",
+          "not contradicted": "worse on a recording"}
+
+
+#: what a rig's combined estimate is, in words
+COMBINED = ("; combined: the product of the informing recordings' marginal posteriors, assuming the recordings "
+            "independent given one value of the parameter for the rig")
+
+
+def standard_errors(c: JointCandidate) -> str:
+    """What a candidate's summed gain's standard errors are: paired over recordings (one task), or the recordings'
+    own (a rig)."""
+    return "standard errors of the recordings' own scores" if c.rig else "standard errors paired over recordings"
+
+
+def informing(c: JointCandidate) -> str:
+    """A rig's candidate's recordings its gain is summed over, in words: ``"over the 2 recordings whose motion
+    informs it"`` (``""`` for one task's)."""
+    if not c.rig:
+        return ""
+    n = len(c.informed_by)
+    return (f" over the {n} recording{'s' if n > 1 else ''} whose motion informs it" if any(c.informs) else
+            " over every recording (none informs it)")
+
+
+def combined_words(c: JointCandidate) -> str:
+    """A rig's candidate's parameters combined over the recordings that inform it: ``"wind_y 0.8 (90% 0.5 to 1.1)
+    m/s"`` (``""`` for one task's)."""
+    return "; ".join(f"{e.name} {num(e.mean)} (90% {num(e.q05)} to {num(e.q95)}){unit_suffix(e.unit)}"
+                     for e in c.combined)
 
 
 def p_value(p: float) -> str:
@@ -42,7 +71,8 @@ def spread_words(c: JointCandidate) -> str:
         unit = next((e.unit for r in c.refits for e in r.estimates if e.name == name), "")
         if s is not None:
             parts.append(f"{name} {num(s[0])} ({num(s[1])} to {num(s[2])}){unit_suffix(unit)}")
-    return "; ".join(parts) or "-"
+    words = "; ".join(parts) or "-"
+    return words + (f"; combined: {combined_words(c)}" if c.combined else "")
 
 
 def task_role(j: JointDiagnosis, c: JointCandidate) -> str:
@@ -73,7 +103,7 @@ def joint_rows(j: JointDiagnosis) -> list[list[str]]:
     return [[c.effect, "-" if c.score is None else f"{c.score:.3g}", gain_cell(c.gain),
              "best" if c is j.candidates[0] and c.score is not None else gain_cell(c.to_best),
              recordings_cell(c.adequate_on, n), p_value(c.adequacy.p_value),
-             f"{c.on.count} of {n} ({p_value(c.on.p_value)})", spread_words(c),
+             f"{c.on.count} of {len(c.on.on)} ({p_value(c.on.p_value)})", spread_words(c),
              recordings_cell(j.named_by(c.effect), n) if j.named_by(c.effect) else "-", task_role(j, c)]
             for c in j.candidates]
 
@@ -110,14 +140,18 @@ def _not_named(j: JointDiagnosis, c: JointCandidate) -> str:
     for f in c.fails(j.k_se):
         if f == "improves":
             why.append("its refits are not scored on every recording" if c.gain is None else
-                       f"its summed gain {c.gain.difference:.3g} {SCORE_UNIT} is {c.gain.z:.1f} standard errors "
-                       f"paired over recordings (not more than {j.k_se:g})")
+                       f"its summed gain{informing(c)} {c.gain.difference:.3g} {SCORE_UNIT} is {c.gain.z:.1f} "
+                       f"{standard_errors(c)} (not more than {j.k_se:g})")
         elif f == "adequate":
             why.append(f"Fisher's combined test of its refits' checks rejects ({p_value(c.adequacy.p_value)} <= "
                        f"{j.alpha:g})")
+        elif f == "switched on":
+            why.append(f"the data switch it on on {c.on.count} of {len(c.on.on)} recordings"
+                       f"{' that inform it' if c.rig and any(c.informs) else ''}, no more than chance allows "
+                       f"(binomial {p_value(c.on.p_value)} > {c.on.alpha:g})")
         else:
-            why.append(f"the data switch it on on {c.on.count} of {n} recordings, no more than chance allows "
-                       f"(binomial {p_value(c.on.p_value)} > {j.alpha:g})")
+            why.append(f"its refit scores worse than the nominal fit by more than {j.k_se:g} standard errors on "
+                       f"{recordings_cell(c.worse_on, n)}")
     return f"{c.effect}: " + "; ".join(why)
 
 
@@ -126,9 +160,10 @@ def joint_summary(j: JointDiagnosis) -> str:
     the recordings whose own verdict differs."""
     n, dec, t = len(j.recordings), j.decision, j.test
     names = short_names(j.runs)
+    whole = "the rig" if j.rig else "the task"
     combined = f"Fisher's combined test of the {n} nominal fits' checks gives {p_value(t.p_value)}"
     if dec.verdict == "nothing-missing":
-        s = f"Nothing missing for the task: {combined} > {j.alpha:g}."
+        s = f"Nothing missing for {whole}: {combined} > {j.alpha:g}."
         own = [(names[i], d) for i, d in enumerate(j.recordings) if d.verdict != "nothing-missing"]
         if own:
             s += (" On its own, " + "; ".join(f"{name}'s diagnosis says {d.verdict}"
@@ -142,33 +177,50 @@ def joint_summary(j: JointDiagnosis) -> str:
         g = c.gain
         desc = next((x.description for d in j.recordings for x in d.ranking if x.effect == c.effect and x.description),
                     "")
-        s = (f"Missing effect for the task: {c.effect}" + (f" ({desc})" if desc else "") + ". "
-             f"Summed over the {n} recordings, its refits lower the {SUMMARY_ENERGY} by {g.difference:.3g} "
-             f"{SCORE_UNIT}, {g.z:.1f} standard errors paired over recordings (more than {j.k_se:g}); Fisher's "
-             f"combined test of its refits' checks gives {p_value(c.adequacy.p_value)} > {j.alpha:g} (adequate alone on "
-             f"{recordings_cell(c.adequate_on, n)}); the data switch it on on {c.on.count} of {n} recordings "
-             f"(binomial {p_value(c.on.p_value)} <= {j.alpha:g} against {c.on.chance:.0%} by chance). Its parameters "
-             f"across the recordings: {spread_words(c)} (median and range).")
+        s = (f"Missing effect for {whole}: {c.effect}" + (f" ({desc})" if desc else "") + ". "
+             f"Summed{informing(c) if c.rig else f' over the {n} recordings'}, its refits lower the "
+             f"{SUMMARY_ENERGY} by {g.difference:.3g} {SCORE_UNIT}, {g.z:.1f} {standard_errors(c)} (more than "
+             f"{j.k_se:g}){'; no recording scores worse with it' if c.rig else ''}; Fisher's combined test of its "
+             f"refits' checks gives {p_value(c.adequacy.p_value)} > {j.alpha:g} (adequate alone on "
+             f"{recordings_cell(c.adequate_on, n)}); the data switch it on on {c.on.count} of {len(c.on.on)} "
+             f"recordings (binomial {p_value(c.on.p_value)} <= {c.on.alpha:g} against {c.on.chance:.0%} by chance). "
+             f"Its parameters across the recordings: {spread_words(c)} (median and range"
+             f"{COMBINED if c.combined else ''}).")
         if dec.alternatives:
             alts = " or ".join(a[0] for a in dec.alternatives)
-            s += (f" The recordings cannot tell it from {alts}: it meets the three criteria too, with a summed score "
-                  f"within {j.k_se:g} paired standard errors.")
+            s += (f" The recordings cannot tell it from {alts}: it meets the {'four' if j.rig else 'three'} criteria "
+                  f"too, with a summed score "
+                  f"within {j.k_se:g} {'standard errors' if j.rig else 'paired standard errors'}.")
         return s
-    s = f"Misspecified, unexplained for the task: {combined} <= {j.alpha:g}"
+    s = f"Misspecified, unexplained for {whole}: {combined} <= {j.alpha:g}"
     if not j.candidates:
         return s + ", and no recording's diagnosis refitted a candidate."
-    s += f", and no candidate of {', '.join(c.effect for c in j.candidates)} meets the three criteria."
+    s += (f", and no candidate of {', '.join(c.effect for c in j.candidates)} meets the "
+          f"{'four' if j.rig else 'three'} criteria.")
     if dec.partial:
         c = j.candidate(dec.partial[0])
         s += (f" {c.effect} explains a part: it lowers the summed {SUMMARY_ENERGY} most, by {c.gain.difference:.3g} ± "
-              f"{c.gain.se:.2g} {SCORE_UNIT} (z {c.gain.z:.1f}), and the data switch it on, but Fisher's combined test of its refits' checks rejects "
-              f"({p_value(c.adequacy.p_value)} <= {j.alpha:g}).")
+              f"{c.gain.se:.2g} {SCORE_UNIT} (z {c.gain.z:.1f}), and the data switch it on, but Fisher's combined "
+              f"test of its refits' checks rejects ({p_value(c.adequacy.p_value)} <= {j.alpha:g}).")
     rest = [_not_named(j, c) + "." for c in j.candidates if (c.effect,) != dec.partial]
     return " ".join([s, *rest])
 
 
 def joint_rule(j: JointDiagnosis) -> str:
-    """The rule as applied, in words."""
+    """The rule as applied, in words (a rig's or one task's)."""
+    if j.rig:
+        return (f"Rule for a rig's {len(set(j.scenarios))} motions ({', '.join(dict.fromkeys(j.scenarios))}): the "
+                f"{len(j.recordings)} recordings are diagnosed one by one; the candidates their diagnoses refitted most "
+                f"often (at most --confirm {j.confirm}) are refitted on every recording. A candidate is named for the "
+                f"rig when its {SUMMARY_ENERGY}, summed over the recordings whose motion informs it (some parameter's "
+                f"90% interval narrower than half the prior's, on the trained task's held-out simulations, else on "
+                f"the recording's refit; every recording when none does), is lower than the nominal model's by more than "
+                f"{j.k_se:g} standard errors of the recordings' own scores, no recording scores worse with it by more "
+                f"than {j.k_se:g} of its own, Fisher's combined test of its refits' checks on every recording does not "
+                f"reject at {j.alpha:g}, and the informing recordings switch its effect on (each as its own diagnosis "
+                f"decides) more often than chance allows, at the chance rate itself (one informing recording decides "
+                f"it as its own diagnosis would). Motions differ in what they show, so a gain seen in one motion "
+                f"among null ones counts with its own standard error, not the spread across motions.")
     return (f"Rule: the {len(j.recordings)} recordings are diagnosed one by one; the candidates their diagnoses "
             f"refitted most often (at most --confirm {j.confirm}) are refitted on every recording. A candidate is named "
             f"for the task when its {SUMMARY_ENERGY}, summed over the recordings, is lower than the nominal model's by "

@@ -105,3 +105,32 @@ def test_an_empty_candidates_table_is_one_sentence_saying_why(capsys):
     assert ("No candidate was refitted on every recording: the recordings' combined check does not reject (Fisher's "
             "method, p = 0.51 > 0.05), so nothing is missing for the task.") in out
     assert "Each recording's own diagnosis" in out  # the recordings' table stays
+
+
+def test_a_rigs_verdict_says_which_motions_inform_the_effect_and_gives_the_combined_interval():
+    from dataclasses import replace
+    from softsbi.core.results import Estimate
+    from softsbi.workflows.criticism.joint_decide import rig_candidate
+    lift_refit = wind_refit(4.05)
+    lift_refit = replace(lift_refit, estimates=tuple(replace(e, width_ratio=0.9, may_be_off=True)
+                                                     for e in lift_refit.estimates))
+    wipe_refit = wind_refit(4.0)
+    recs = [recording("lift", 4.0, LOW), recording("wipe", 10.0, REJECTS, (wipe_refit,))]
+    cand = rig_candidate("wind", recs, [lift_refit, wipe_refit], 0.05, 2.0)
+    cand = replace(cand, combined=(Estimate(name="wind_y", unit="m/s", mean=0.8, q05=0.55, q95=1.05,
+                                            effect="wind"),))
+    test = nominal_test(recs, 0.05)
+    j = JointDiagnosis(runs=("runs/lift", "runs/wipe"), recordings=tuple(recs), candidates=(cand,), test=test,
+                       decision=decide_joint(test, [cand], 2.0, rig=True), alpha=0.05, k_se=2.0, confirm=2,
+                       scenarios=("lift", "wipe"))
+    assert j.rig and j.verdict == "missing-effect"
+    assert joint_summary(j) == (
+        "Missing effect for the rig: wind. Summed over the 1 recording whose motion informs it, its refits lower the "
+        "summary energy score by 6 sd, 21.2 standard errors of the recordings' own scores (more than 2); no recording scores worse with it; Fisher's combined test of its "
+        "refits' checks gives p = 1 > 0.05 (adequate alone on 2 of 2); the data switch it on on 1 of 1 recordings "
+        "(binomial p = 0.1 <= 0.1 against 10% by chance). Its parameters across the recordings: wind_y 0.8 (0.8 to "
+        "0.8) m/s; combined: wind_y 0.8 (90% 0.55 to 1.05) m/s (median and range; combined: the product of the "
+        "informing recordings' marginal posteriors, assuming the recordings independent given one value of the "
+        "parameter for the rig).")
+    assert joint_text(j)[1].startswith("Rule for a rig's 2 motions (lift, wipe): the 2 recordings are diagnosed")
+    assert joint_rows(j)[0][6] == "1 of 1 (p = 0.1)" and joint_rows(j)[0][-1] == "named"

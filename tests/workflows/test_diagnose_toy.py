@@ -214,3 +214,28 @@ def test_a_pair_starts_in_the_box_of_its_singles_posteriors(magnet_run, tmp_path
     with pytest.raises(SoftsbiError, match="low < high"):
         dc_replace(cfg, start_box={names[0]: [1.0, 0.0]}).validate()
 
+
+
+def test_a_rig_names_the_effect_its_second_motion_informs_and_its_first_does_not(magnet_run, tmp_path):
+    """A rig of two motions of one toy patch with one hidden magnet: a two-frame motion, which the magnet (a lift
+    mid-motion, zero at both ends) cannot move, and the eight-frame one of ``magnet_run``. The first motion's
+    diagnosis finds nothing; across the rig the magnet is named, its gain summed over the motion that informs it."""
+    import numpy as np
+    from softsbi.core.types import Scenario
+    from softsbi.workflows.criticism.joint import diagnose_runs
+    from softsbi.workflows.fit.runs import load_run
+    short = Scenario(name="lift", times=np.arange(2) * 0.1, gripper=np.zeros((2, 3)), table_z=0.0,
+                     object={"kind": "patch"})
+    rec = simulate_recording("toy-gauss", short, {"a": 0.3, "b": -0.4, "pull": 0.45}, effects=[MAGNET], n_points=16,
+                             n_dense=64, seed=6, backend_options={"sigma": 0.02})
+    first = tmp_path / "short"
+    run_fit(first, rec, load_run(magnet_run).config, make_plots=False)
+    j = diagnose_runs([first, magnet_run], effects=FLEXIBLE + [MAGNET], settings=DiagnoseSettings(workers=1),
+                      out_dir=tmp_path / "rig", plots=False)
+    assert j.rig and j.scenarios == ("lift", "toy")
+    assert j.recordings[0].verdict == "nothing-missing" and j.recordings[1].decision.named == (MAGNET,)
+    magnet = j.candidate(MAGNET)
+    assert magnet.informs == (False, True) and magnet.fails(j.k_se) == ()
+    assert j.verdict == "missing-effect" and j.decision.named == (MAGNET,)
+    (pull,) = magnet.combined
+    assert pull.name == "pull" and pull.q05 < 0.45 < pull.q95 and pull.q95 - pull.q05 < 0.4

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 from scipy.stats import binom, chi2
@@ -12,6 +13,7 @@ from softsbi.core.errors import SoftsbiError
 from softsbi.core.results.joint import CombinedTest, JointDiagnosis, SwitchedOn, binomial_tail, chi2_sf_even
 from softsbi.core.results import Gain, MCPValue, from_json, to_json
 from softsbi.workflows.criticism.joint_decide import (MIN_RECORDINGS, check_recordings, decide_joint,
+                                                      informed_by_recording, rig_candidate,
                                                       joint_candidate, nominal_test, ranked, set_candidates)
 
 ALPHA, K_SE = 0.05, 2.0
@@ -163,3 +165,50 @@ def test_a_joint_diagnosis_round_trips_through_json():
     back = from_json(JointDiagnosis, to_json(j))
     assert back == j and back.verdict == "missing-effect" and to_json(j)["type"] == "JointDiagnosis"
     assert back.nominal == pytest.approx(33.0) and back.named_by("wind") == (0, 1, 2)
+
+
+def uninformed(refit):
+    """``refit`` as a motion that does not inform its effect leaves it: the effect's 90% interval about the prior's."""
+    return replace(refit, estimates=tuple(replace(e, width_ratio=0.9, may_be_off=True) for e in refit.estimates))
+
+
+def rig(lift_refit, wipe_refit, lift_nominal=4.0, wipe_nominal=10.0):
+    """A rig's two motions: a lift that fits (its nominal check does not reject) and a wipe that misfits, with the
+    wind refitted on both; the candidate by the rig's rule and the rig's decision."""
+    lift = recording("lift", lift_nominal, LOW)
+    wipe = recording("wipe", wipe_nominal, REJECTS, (wipe_refit,))
+    cand = rig_candidate("wind", [lift, wipe], [lift_refit, wipe_refit], ALPHA, K_SE)
+    return decide_joint(nominal_test([lift, wipe], ALPHA), ranked([cand]), K_SE, rig=True), ranked([cand])[0]
+
+
+def test_a_rig_names_an_effect_that_only_its_second_motion_informs():
+    """Across motions the paired standard error would be about the gain itself (one motion's gain among null ones:
+    z about 1); the rig's rule sums the gains of the motions that inform the effect with their own standard errors."""
+    dec, wind = rig(uninformed(wind_refit(4.05)), wind_refit(4.0))
+    assert wind.rig and wind.informs == (False, True) and wind.informed_by == (1,)
+    assert wind.gain.difference == pytest.approx(6.0) and wind.gain.se == pytest.approx(math.hypot(0.2, 0.2))
+    assert wind.on.on == (True,) and wind.on.p_value == pytest.approx(0.1) and wind.on.switched_on
+    assert wind.worse_on == () and wind.fails(K_SE) == () and dec.verdict == "missing-effect"
+    assert dec.named == ("wind",)
+    # the paired rule on the same two gains: one standard error, and two recordings are too few for it
+    assert Gain.paired([6.0, -0.05]).z < 1.1
+    with pytest.raises(SoftsbiError, match="needs 3 recordings or more"):
+        decide_joint(nominal_test([recording("a", 4.0, LOW), recording("b", 10.0, REJECTS)], ALPHA), [], K_SE)
+
+
+def test_a_rig_does_not_name_an_effect_a_motion_contradicts_or_that_informing_motions_leave_off():
+    # the wind makes the lift clearly worse (3.5 of its own standard errors): contradicted there
+    dec, wind = rig(uninformed(wind_refit(5.0)), wind_refit(4.0))
+    assert wind.worse_on == (0,) and wind.fails(K_SE) == ("not contradicted",) and dec.named == ()
+    # both motions inform it, one switches it on: 1 of 2 is within chance (P = 0.19 > 0.10)
+    dec, wind = rig(wind_refit(3.5, on=False), wind_refit(4.0))
+    assert wind.informs == (True, True) and wind.on.count == 1
+    assert wind.on.p_value == pytest.approx(0.19) and wind.fails(K_SE) == ("switched on",) and dec.named == ()
+    # on a trained task the task's report decides what the motion informs, not the recording's refit
+    lift = replace(recording("lift", 4.0, LOW), uninformed={"wind": 0.9})
+    assert not informed_by_recording("wind", lift, replace(wind_refit(4.0), amortised=True))
+    assert informed_by_recording("wind", recording("lift", 4.0, LOW), replace(uninformed(wind_refit(4.0)),
+                                                                                   amortised=True))
+    with pytest.raises(SoftsbiError, match="rig's diagnosis across its motions needs 2 recordings"):
+        check_recordings(1, rig=True)
+    check_recordings(2, rig=True)

@@ -119,7 +119,7 @@ def test_a_set_that_is_not_one_tasks_recordings_is_refused_before_any_work(rig, 
                                   "fit_config": {**config["fit_config"], "effects": ["toy-wind"]}}
     out = tmp_path / "task"
     refusals = [
-        ([*runs[:2], other], "not fits of one task: .* has effects \\[\\], .* has \\['toy-wind'\\]", SoftsbiError),
+        ([*runs[:2], other], "not fits of one rig: .* has effects \\[\\], .* has \\['toy-wind'\\]", SoftsbiError),
         ([*runs, runs[1]], "given twice", SoftsbiError),
         (runs[:2], "3 recordings or more \\(got 2\\)", SoftsbiError),
     ]

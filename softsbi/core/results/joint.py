@@ -15,14 +15,14 @@ from dataclasses import dataclass, field
 from pathlib import PurePath
 from typing import Any, Mapping, Sequence
 
-from softsbi.core.results import Decision, Diagnosis, Gain, Refit
+from softsbi.core.results import Decision, Diagnosis, Estimate, Gain, Refit
 
 #: the chance that a calibrated 90% interval excludes a parameter's true value (5% on each side): the rate at which
 #: a recording's refit shows an effect that is off as switched on, per parameter of the effect; for an off value at
 #: a prior bound, the Bayes factor against it that excludes it (whose chance rate is at most this)
 CHANCE_EXCLUDED = 0.10
-#: a candidate's three criteria for the set (:meth:`JointCandidate.fails`)
-CRITERIA = ("improves", "adequate", "switched on")
+#: a candidate's criteria for the set (:meth:`JointCandidate.fails`); the last is a rig's only (several motions)
+CRITERIA = ("improves", "adequate", "switched on", "not contradicted")
 
 
 def chi2_sf_even(x: float, df: int) -> float:
@@ -136,6 +136,16 @@ class JointCandidate:
         on: whether the data switch its effect on across the set (:class:`SwitchedOn`).
         to_best: how much lower the best candidate's summed score is than this one's (paired, as ``gain``); None for
             the best one, or when a recording has no score.
+        informs: a rig's (recordings of several motions) only: per recording, in the runs' order, whether its
+            motion informs the effect (:func:`~softsbi.workflows.criticism.joint_decide.informed_by_recording`);
+            its ``gain`` and ``on`` are then over the recordings that inform it
+            (every recording when none does), the gain's standard error from the recordings' own Monte-Carlo
+            standard errors (:func:`~softsbi.workflows.criticism.joint_decide.rig_candidate`). Empty: one task's
+            recordings (the paired rule).
+        worse_on: a rig's only: the recordings whose refit scores worse than their nominal fit by more than ``k_se``
+            of their own standard errors (the effect contradicted there).
+        combined: a rig's only: each effect parameter's posterior combined over the recordings that inform it (the
+            product of their marginal posteriors: :func:`~softsbi.workflows.criticism.joint.combined_estimates`).
     """
 
     effect: str
@@ -144,6 +154,20 @@ class JointCandidate:
     adequacy: CombinedTest
     on: SwitchedOn
     to_best: Gain | None = None
+    informs: tuple[bool, ...] = ()
+    worse_on: tuple[int, ...] = ()
+    combined: tuple[Estimate, ...] = ()
+
+    @property
+    def rig(self) -> bool:
+        """Decided by the rig's rule (recordings of several motions), not the task's."""
+        return bool(self.informs)
+
+    @property
+    def informed_by(self) -> tuple[int, ...]:
+        """A rig's recordings (indices) whose evidence decides it: those that inform it, every one when none does."""
+        idx = tuple(i for i, x in enumerate(self.informs) if x)
+        return idx or tuple(range(len(self.refits)))
 
     @property
     def score(self) -> float | None:
@@ -176,8 +200,8 @@ class JointCandidate:
 
     def fails(self, k_se: float) -> tuple[str, ...]:
         """The criteria for the set it fails, in the rule's order (:data:`CRITERIA`; empty: it qualifies)."""
-        return tuple(name for name, ok in zip(CRITERIA, (self.improves(k_se), self.adequate, self.on.switched_on))
-                     if not ok)
+        return tuple(name for name, ok in zip(CRITERIA, (self.improves(k_se), self.adequate, self.on.switched_on,
+                                                         not self.worse_on)) if not ok)
 
     def estimates(self, name: str) -> tuple[float | None, ...]:
         """Parameter ``name``'s posterior mean on each recording (None where the refit lacks it)."""
@@ -203,6 +227,7 @@ class JointDiagnosis:
         alpha, k_se, confirm: the level of every test, the standard-error margin and the refit budget.
         simulations: simulations spent by the per-recording diagnoses and the scales of the set's refits (refits'
             fits excluded).
+        scenarios: each recording's scenario (motion), in the runs' order; more than one: a rig's diagnosis.
         key: what determines the result, so that a stored result is reused only for it.
         seconds: wall time.
     """
@@ -218,6 +243,12 @@ class JointDiagnosis:
     simulations: int = 0
     key: Mapping[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
+    scenarios: tuple[str, ...] = ()
+
+    @property
+    def rig(self) -> bool:
+        """Recordings of several motions (scenarios) of one rig, decided by the rig's rule."""
+        return len(set(self.scenarios)) > 1
 
     @property
     def verdict(self) -> str:

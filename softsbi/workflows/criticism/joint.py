@@ -12,24 +12,29 @@ written to ``DIR/joint-diagnosis.json``; its sentences are rendered by :mod:`sof
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 from softsbi.core.errors import SoftsbiError
 from softsbi.core.results.joint import JointDiagnosis
-from softsbi.core.results import Diagnosis, Refit, check_result_path, read_result, write_result
+from softsbi.core.results import Diagnosis, Estimate, Refit, check_result_path, read_result, write_result
 from softsbi.core.store import RunStore
 from softsbi.workflows import pools
 from softsbi.workflows.criticism.check import loaded, reused, stored_result
 from softsbi.workflows.criticism.diagnose import diagnose_run, refit_budget, refit_model
 from softsbi.workflows.criticism.joint_decide import (check_recordings, decide_joint, joint_candidate, nominal_test,
-                                                      ranked, set_candidates)
+                                                      ranked, rig_candidate, set_candidates)
 from softsbi.workflows.criticism.screening import candidate_effects, check_resolution
 from softsbi.workflows.criticism.stats import PosteriorPredictive
 from softsbi.workflows.criticism.statistics import summary_scale
 from softsbi.core.defaults import DiagnoseSettings
 from softsbi.workflows.fit.task_store import read_once
+from softsbi.core.types import ParamSpace
 from softsbi.workflows.fit.config import FitConfig, RunRecord
+from softsbi.workflows.fit.runs import final_posterior
 from softsbi.workflows.lock import check_out_apart, check_out_dir, run_lock
 
 #: the file a task's diagnosis is written to, in ``--out``
@@ -93,8 +98,9 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
         raise SoftsbiError("a diagnosis across several runs needs --out DIR, the folder of its joint-diagnosis.json "
                            "(each run keeps its own diagnosis in its folder)")
     runs = [Path(r) for r in run_dirs]
-    check_recordings(len(runs))
-    check_one_task(runs)
+    scenarios = check_one_task(runs)
+    rig = len(set(scenarios)) > 1
+    check_recordings(len(runs), rig)
     check_resolution(s.alpha, s.max_null)
     if candidates is not None:
         check_candidates(runs[0], effects, candidates)
@@ -103,8 +109,10 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
     say = progress or (lambda _: None)
     busy = "wait for it to finish (the same command then reuses its result), or write this one to another --out"
     with run_lock(out, command="diagnose", busy=busy):
-        say(f"diagnose {len(runs)} recordings of one task: each recording's own diagnosis, then the set's candidates "
-            f"refitted on every recording")
+        say(f"diagnose {len(runs)} recordings of "
+            + (f"one rig's {len(set(scenarios))} motions ({', '.join(dict.fromkeys(scenarios))})" if rig else
+               "one task")
+            + ": each recording's own diagnosis, then the set's candidates refitted on every recording")
         diagnoses = []
         for i, run in enumerate(runs):
             say(f"recording {i + 1}/{len(runs)}: {run}")
@@ -123,11 +131,16 @@ def diagnose_runs(run_dirs: Sequence[str | Path], effects: Sequence[str] | None 
                 f"{'is' if len(names) == 1 else 'are'} not refitted")
             names = ()
         refits, sims = set_refits(runs, diagnoses, names, s, say, plots)
-        candidates = ranked([joint_candidate(e, diagnoses, refits[e], s.alpha) for e in names])
+        if rig:  # each recording's evidence with its own standard errors; the effect's posterior combined
+            rows = [rig_candidate(e, diagnoses, refits[e], s.alpha, s.k_se) for e in names]
+            rows = [replace(c, combined=combined_estimates(c)) for c in rows]
+        else:
+            rows = [joint_candidate(e, diagnoses, refits[e], s.alpha) for e in names]
+        candidates = ranked(rows)
         j = JointDiagnosis(runs=tuple(str(r) for r in runs), recordings=tuple(diagnoses), candidates=candidates,
-                           test=test, decision=decide_joint(test, candidates, s.k_se), alpha=s.alpha, k_se=s.k_se,
-                           confirm=s.confirm, simulations=sims + sum(d.simulations for d in diagnoses), key=key,
-                           seconds=time.perf_counter() - t0)
+                           test=test, decision=decide_joint(test, candidates, s.k_se, rig), alpha=s.alpha,
+                           k_se=s.k_se, confirm=s.confirm, simulations=sims + sum(d.simulations for d in diagnoses),
+                           key=key, seconds=time.perf_counter() - t0, scenarios=tuple(scenarios))
         write_result(json_path, j)
     say(f"wrote {json_path}")
     return j
@@ -188,10 +201,11 @@ def task_of(config: dict[str, Any]) -> dict[str, Any]:
             "observer": cfg.observer}
 
 
-def check_one_task(runs: Sequence[Path]) -> None:
-    """Refuse, before any work and in one line, runs that are not finished fits of one task: a run given twice, a
-    folder that is no run or whose fit has not finished, or runs whose configs name another scenario, simulator,
-    model or observer (:func:`task_of`).
+def check_one_task(runs: Sequence[Path]) -> list[str]:
+    """Refuse, before any work and in one line, runs that are not finished fits of one task or of one rig: a run
+    given twice, a folder that is no run or whose fit has not finished, or runs whose configs name another simulator,
+    model or observer (:func:`task_of`; the scenario may differ: a rig's several motions). Returns each run's
+    scenario.
 
     Raises:
         SoftsbiError: naming the run and what differs.
@@ -210,12 +224,63 @@ def check_one_task(runs: Sequence[Path]) -> None:
                                f"`softsbi fit ... --out {r}` command first")
         tasks.append(task_of(config))
     for r, t in zip(runs[1:], tasks[1:]):
-        diff = [k for k in TASK_KEYS if t[k] != tasks[0][k]]
+        diff = [k for k in TASK_KEYS if k != "scenario" and t[k] != tasks[0][k]]
         if diff:
             k = diff[0]
-            raise SoftsbiError(f"the runs are not fits of one task: '{runs[0]}' has {k} {tasks[0][k]!r}, '{r}' has "
-                               f"{t[k]!r}; a task's diagnosis compares one model across its recordings, so diagnose "
-                               f"runs of the same scenario, simulator, model and observer together")
+            raise SoftsbiError(f"the runs are not fits of one rig: '{runs[0]}' has {k} {tasks[0][k]!r}, '{r}' has "
+                               f"{t[k]!r}; a diagnosis across recordings compares one model of one object and rig, so "
+                               f"diagnose runs of the same simulator, model and observer together (their motions, "
+                               f"the scenarios, may differ)")
+    return [t["scenario"] for t in tasks]
+
+
+#: posterior draws per recording and bins of the unit interval behind a rig's combined estimates
+COMBINED_DRAWS, COMBINED_BINS = 4000, 64
+
+
+def combined_estimates(c: Any) -> tuple[Estimate, ...]:
+    """Each effect parameter of a rig's candidate ``c`` (:class:`~softsbi.core.results.joint.JointCandidate`)
+    combined over the recordings that inform it (:attr:`~softsbi.core.results.joint.JointCandidate.informed_by`):
+    the normalised product of their refits' marginal posteriors, each a histogram of :data:`COMBINED_DRAWS` draws on
+    :data:`COMBINED_BINS` bins of the parameter's unit interval (half a draw added to every bin, so that no recording
+    rules a region out on a few draws), with its mean and central 90% interval in physical units.
+
+    Assumptions, stated with the result: the recordings are independent given the parameters; the effect's parameters
+    are one value for the rig (the same object, rig and effect in every motion); the prior is uniform in the unit
+    cube (each refit's); and the product of the marginals stands for the marginal of the product, exact when the
+    parameter is a posteriori independent of the others in each recording. A parameter is combined only over the
+    refits that infer it; a refit whose posterior cannot be read is left out."""
+    names = c.parameters
+    edges = np.linspace(0.0, 1.0, COMBINED_BINS + 1)
+    logp = {n: np.zeros(COMBINED_BINS) for n in names}
+    params: dict[str, Any] = {}
+    for i in c.informed_by:
+        path = Path(c.refits[i].run)
+        try:
+            post = final_posterior(path, RunStore.open(path / "run.zarr", mode="r"))
+        except (SoftsbiError, OSError, KeyError):
+            continue
+        u = post.unit.sample(COMBINED_DRAWS, np.random.default_rng([COMBINED_DRAWS, i]))
+        for j, p in enumerate(post.space):
+            if p.name in logp:
+                h, _ = np.histogram(np.clip(u[:, j], 0.0, 1.0), bins=edges)
+                logp[p.name] += np.log(h + 0.5)
+                params.setdefault(p.name, p)
+    out = []
+    for n in names:
+        if n not in params:
+            continue
+        w = np.exp(logp[n] - logp[n].max())
+        w /= w.sum()
+        cdf = np.concatenate([[0.0], np.cumsum(w)])
+        q05, q95, mean_u = (float(np.interp(0.05, cdf, edges)), float(np.interp(0.95, cdf, edges)),
+                            float(np.sum(w * (edges[:-1] + edges[1:]) / 2)))
+        space = ParamSpace([params[n]])
+        lo, mean, hi = (float(space.from_unit(np.array([[v]]))[0, 0]) for v in (q05, mean_u, q95))
+        unit = next((e.unit for r in c.refits for e in r.estimates if e.name == n), params[n].unit)
+        out.append(Estimate(name=n, unit=unit, mean=mean, q05=min(lo, hi), q95=max(lo, hi),
+                            width_ratio=abs(q95 - q05), effect=c.effect))
+    return tuple(out)
 
 
 def load_joint_diagnosis(path: str | Path) -> JointDiagnosis:

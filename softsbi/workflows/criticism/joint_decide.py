@@ -27,6 +27,26 @@ The rule (``R`` recordings, ``R >= 3``; ``alpha`` and ``k_se`` as in a single di
 
 With fewer than :data:`MIN_RECORDINGS` recordings the spread of the ``d_r`` cannot be judged, and the set is not
 diagnosed.
+
+*A rig* (recordings of several motions of one object and rig: the same simulator, model and observer, the scenarios
+differing; at least :data:`MIN_RIG_RECORDINGS`) is decided by another rule, since the paired standard error assumes
+every recording shows the effect alike, and across motions they do not (a sticky patch moves a wipe, not a lift: one
+motion's large gain among null ones would have ``z`` about 1). With ``I_c`` the recordings whose motion informs ``c``
+(:func:`informed_by_recording`: a 90% interval narrower than half the prior's, on the trained task's held-out
+simulations, else on the recording's refit; every recording when none does), :func:`rig_candidate` and
+:func:`decide_joint` name ``c`` when
+
+- *improves*: ``sum_{r in I_c} d_r > k_se sqrt(sum_{r in I_c} se_r^2)``, each ``d_r`` in its recording's own nominal
+  scale with its own Monte-Carlo standard error ``se_r`` (:meth:`~softsbi.core.results.Gain.of`): a single
+  diagnosis' margin, applied to the evidence of the motions that inform the effect;
+- *not contradicted*: no recording's refit scores worse than its nominal fit by more than ``k_se`` of its own
+  standard errors;
+- *adequate on every recording*: Fisher's method over all its refits' checks does not reject at ``alpha``;
+- *switched on*: on ``I_c``, the one-sided binomial test of the recordings whose refit switches it on, against the
+  chance rate, at the chance rate itself (:data:`~softsbi.core.results.joint.CHANCE_EXCLUDED` per parameter): one
+  informing recording then decides it as its own diagnosis does, and several need more than chance allows.
+
+Ties and the ranking compare summed scores over every recording with the Monte-Carlo standard errors.
 """
 from __future__ import annotations
 
@@ -42,15 +62,21 @@ from softsbi.core.results import Decision, Diagnosis, Gain, Refit, RefitGain
 #: the fewest recordings whose spread of score gains a standard error can be judged from (two give one degree of
 #: freedom: a standard error from two numbers is too rough to decide on)
 MIN_RECORDINGS = 3
+#: the fewest recordings of a rig (several motions): each recording's evidence carries its own standard errors
+MIN_RIG_RECORDINGS = 2
 
 
-def check_recordings(n: int) -> None:
-    """Refuse a set of fewer than :data:`MIN_RECORDINGS` recordings, in one line.
+def check_recordings(n: int, rig: bool = False) -> None:
+    """Refuse a set of fewer than :data:`MIN_RECORDINGS` recordings of one task (:data:`MIN_RIG_RECORDINGS` of a
+    rig's several motions), in one line.
 
     Raises:
-        SoftsbiError: ``n < MIN_RECORDINGS``.
+        SoftsbiError: too few recordings.
     """
-    if n < MIN_RECORDINGS:
+    if rig and n < MIN_RIG_RECORDINGS:
+        raise SoftsbiError(f"a rig's diagnosis across its motions needs {MIN_RIG_RECORDINGS} recordings or more (got "
+                           f"{n}); diagnose the run alone (`softsbi diagnose RUN`)")
+    if not rig and n < MIN_RECORDINGS:
         raise SoftsbiError(f"a task's diagnosis across its recordings needs {MIN_RECORDINGS} recordings or more (got "
                            f"{n}): the standard error of a summed score gain comes from its spread across recordings, "
                            f"which fewer cannot judge; diagnose each run alone (`softsbi diagnose RUN`)")
@@ -94,12 +120,58 @@ def joint_candidate(effect: str, recordings: Sequence[Diagnosis], refits: Sequen
     return JointCandidate(effect=effect, refits=tuple(refits), gain=gain, adequacy=adequacy, on=on)
 
 
+def rig_candidate(effect: str, recordings: Sequence[Diagnosis], refits: Sequence[Refit], alpha: float,
+                  k_se: float) -> JointCandidate:
+    """Candidate ``effect`` on a rig's recordings (several motions) from its refit on each (``refits``, in the order
+    of ``recordings``), by the rig's rule (module docstring): its gain summed over the recordings that inform it with
+    their own Monte-Carlo standard errors, the recordings that contradict it, Fisher's method over all its refits'
+    checks, and the binomial test of the informing recordings that switch it on at the chance rate."""
+    if len(refits) != len(recordings):
+        raise ValueError(f"{effect}: {len(refits)} refits for {len(recordings)} recordings")
+    informs = tuple(informed_by_recording(effect, d, r) for d, r in zip(recordings, refits))
+    idx = [i for i, x in enumerate(informs) if x] or list(range(len(recordings)))
+    gains = [Gain.of(d.nominal, r.score) for d, r in zip(recordings, refits)]
+    gain = None
+    if all(g is not None for g in gains):
+        total = sum(gains[i].difference for i in idx)  # type: ignore[union-attr]
+        se = math.sqrt(sum(gains[i].se ** 2 for i in idx))  # type: ignore[union-attr]
+        gain = Gain(difference=total, se=se, z=total / se if se > 0 else math.copysign(math.inf, total) if total
+                    else 0.0)
+    worse = tuple(i for i, g in enumerate(gains) if g is not None and g.z < -k_se)
+    # as each recording's own diagnosis decides it (Refit.maybe_off: its calibrated test at CHANCE_EXCLUDED, else
+    # the interval rule, CHANCE_EXCLUDED per parameter)
+    per = [1 if refits[i].off_test is not None else
+           max(len([e for e in refits[i].estimates if e.effect in ("", effect)]), 1) for i in idx]
+    chance = min(1.0, CHANCE_EXCLUDED * max(per))
+    on = SwitchedOn(on=tuple(effect not in refits[i].maybe_off for i in idx), chance=chance, alpha=chance)
+    adequacy = CombinedTest(p_values=tuple(r.test.p_value for r in refits),
+                            resolutions=tuple(r.test.resolution for r in refits), alpha=alpha)
+    return JointCandidate(effect=effect, refits=tuple(refits), gain=gain, adequacy=adequacy, on=on,
+                          informs=informs, worse_on=worse)
+
+
+def informed_by_recording(effect: str, recording: Diagnosis, refit: Refit) -> bool:
+    """Whether a recording's motion informs ``effect``: one criterion, a 90% interval narrower than half the prior's
+    for some parameter of the effect, read where it is measured: on a trained task (an amortised refit, or one
+    refined from it), from the task's held-out simulations (its report: the recording's
+    :attr:`~softsbi.core.results.Diagnosis.uninformed`); otherwise from this recording's refit
+    (:attr:`~softsbi.core.results.Estimate.informed`; unknown counts as informed)."""
+    trained = refit.amortised or (refit.refined_from is not None and refit.refined_from.amortised)
+    if trained or effect in recording.uninformed:
+        return effect not in recording.uninformed
+    own = [e.informed for e in refit.estimates if e.effect in ("", effect)]
+    return not own or any(x is not False for x in own)
+
+
 def paired_between(a: JointCandidate, b: JointCandidate) -> Gain | None:
-    """How much lower ``b``'s summed score is than ``a``'s, paired over recordings (None: a score is missing)."""
+    """How much lower ``b``'s summed score is than ``a``'s, paired over recordings (a rig's: summed over every
+    recording with the Monte-Carlo standard errors; None: a score is missing)."""
     if a.score is None or b.score is None:
         return None
     ds = [x.score.value - y.score.value for x, y in zip(a.refits, b.refits)]  # type: ignore[union-attr]
     mc = math.sqrt(sum(x.score.se ** 2 + y.score.se ** 2 for x, y in zip(a.refits, b.refits)))  # type: ignore
+    if a.rig:
+        return Gain(difference=sum(ds), se=mc, z=sum(ds) / mc if mc > 0 else 0.0)
     return Gain.paired(ds, mc)
 
 
@@ -111,18 +183,19 @@ def ranked(candidates: Sequence[JointCandidate]) -> tuple[JointCandidate, ...]:
     return tuple(replace(c, to_best=None if best is None or c is best else paired_between(c, best)) for c in order)
 
 
-def decide_joint(test: CombinedTest, candidates: Sequence[JointCandidate], k_se: float) -> Decision:
+def decide_joint(test: CombinedTest, candidates: Sequence[JointCandidate], k_se: float, rig: bool = False) -> Decision:
     """The verdict for the set (module docstring).
 
     Args:
         test: Fisher's method over the nominal fits' checks (:func:`nominal_test`).
         candidates: the candidates refitted on every recording (:func:`joint_candidate`).
         k_se: the standard-error margin of every score comparison (paired over recordings).
+        rig: the recordings are a rig's several motions (its candidates from :func:`rig_candidate`).
 
     Raises:
-        SoftsbiError: fewer than :data:`MIN_RECORDINGS` recordings.
+        SoftsbiError: fewer than :data:`MIN_RECORDINGS` recordings (:data:`MIN_RIG_RECORDINGS` of a rig).
     """
-    check_recordings(len(test.p_values))
+    check_recordings(len(test.p_values), rig)
     if not test.rejects:
         return Decision(verdict="nothing-missing")
     gains = tuple(RefitGain(effects=(c.effect,), gain=c.gain) for c in candidates if c.gain is not None)
