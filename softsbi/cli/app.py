@@ -13,6 +13,7 @@ from softsbi.cli.catalog_cmd import params, plugins, scenarios
 from softsbi.cli.check_cmd import check, compare
 from softsbi.cli.command import guard, terminate
 from softsbi.cli.demo_cmd import demo
+from softsbi.cli.design_cmd import design
 from softsbi.cli.diagnose_cmd import diagnose
 from softsbi.cli.extractor_cmd import train_extractor
 from softsbi.cli.fit_cmd import fit
@@ -32,6 +33,7 @@ app.command("demo")(guard(demo))
 app.command("check")(guard(check))
 app.command("calibrate")(guard(calibrate))
 app.command("diagnose")(guard(diagnose))
+app.command("design")(guard(design))
 app.command("compare")(guard(compare))
 app.command("view")(guard(view))
 app.command("train-extractor")(guard(train_extractor))

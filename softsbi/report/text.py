@@ -11,6 +11,7 @@ from softsbi.core.metrics import describe_change, offset_axes
 from softsbi.core.results.comparison import CompareResult, Metric
 from softsbi.core.results import (Candidate, CheckResult, Diagnosis, Estimate, Gain, JointTest, MCPValue, OffTest,
                                   Refit, ResidualShape, Role, Score)
+from softsbi.core.results.design import undecided_candidates
 from softsbi.core.results.joint import CHANCE_EXCLUDED
 from softsbi.core.types import unit_suffix
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
@@ -523,7 +524,22 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
                    f"linearised screening (max-T adjusted {p_words(g.adjusted) if g.adjusted else 'n/a'}).")
     if d.test.misspecified and d.uninformed:
         out.append(uninformed_words(d.uninformed))
+    left = undecided_candidates(d, [c.effect for c in d.ranking if not c.generic])
+    if left:
+        out.append(design_hint(d, left))
     return out
+
+
+def design_hint(d: Diagnosis, undecided: Mapping[str, str]) -> str:
+    """The last line of a diagnosis that leaves candidates undecided: how many, why, and the command that ranks the
+    motions to record next (:func:`~softsbi.core.results.design.undecided_candidates`)."""
+    why: dict[str, list[str]] = {}
+    for e, reason in undecided.items():
+        why.setdefault(reason, []).append(e)
+    parts = "; ".join(f"{len(v)} {k}" for k, v in why.items())
+    return (f"Undecided: {len(undecided)} candidate{'s' if len(undecided) > 1 else ''} ({parts}). `softsbi design "
+            f"{d.run}` ranks the motions the object supports by how well one more recording of each would inform "
+            f"them (seconds from trained tasks, a few minutes of simulation otherwise).")
 
 
 def uninformed_words(uninformed: Mapping[str, float]) -> str:

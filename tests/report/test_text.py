@@ -175,6 +175,13 @@ def test_a_trained_task_scores_each_trained_candidates_amortised_refit_and_says_
     assert diagnosis_columns(NAMED)[-2] == "refit summary energy score [sd]"  # every score with its unit
 
 
+def hint(n: int, why: str) -> str:
+    """The last line of a diagnosis that leaves ``n`` candidates undecided (``why``: their counts by reason)."""
+    return (f"Undecided: {n} candidates ({why}). `softsbi design run/nominal` ranks the motions the object supports by "
+            "how well one more recording of each would inform them (seconds from trained tasks, a few minutes of "
+            "simulation otherwise).")
+
+
 def test_missing_effect_with_an_indistinguishable_alternative():
     assert TIE.decision.named == ("wind",) and TIE.decision.alternatives == (("extra-damping",),)
     assert diagnosis_text(TIE) == [
@@ -189,7 +196,7 @@ def test_missing_effect_with_an_indistinguishable_alternative():
         "With extra-damping: the measurement is inside the refit's posterior predictive distribution (p = 0.51 (two "
         "tests, Bonferroni: 2 x the omnibus test's p = 0.25; 200 null simulations)), summary energy score 21 -> 8.4 sd (60% lower, "
         "19.7 standard errors), posterior-predictive Chamfer 1.04 cm (n=30 rollouts). The refit estimates damping_rate = 3.1 1/s (90% "
-        "interval 0.4 to 7.9 1/s, not informed by the data)."]
+        "interval 0.4 to 7.9 1/s, not informed by the data).", hint(2, "2 indistinguishable")]
     assert diagnosis_rows(TIE) == rows(GENERIC, ("p = 0.41", "8", "named"),
                                        ("p = 0.51", "8.4", "indistinguishable"), BUDGET)
 
@@ -223,7 +230,7 @@ def test_misspecified_unexplained_with_a_partial_explanation_the_residual_and_th
         "With wind + extra-damping: the measurement is still outside the refit's posterior predictive distribution "
         f"({P_FLOOR}), summary energy score 15 -> 9 sd (40% lower, 10.6 standard errors), posterior-predictive Chamfer 1.10 cm (n=30 rollouts).",
         RESIDUAL_WORDS,
-        GENERIC_WORDS]
+        GENERIC_WORDS, hint(3, "3 unexplained")]
     assert diagnosis_rows(PARTIAL) == rows(GENERIC, ("p <= 2/201", "15", "explains a part"),
                                            ("p <= 2/201", "17", "refit: misfit remains"), BUDGET)
 
@@ -235,7 +242,7 @@ def test_misspecified_unexplained_without_refits_and_when_no_refit_lowers_the_sc
         head + ", and no candidate was refitted.",
         f"{DETECT} Propose: the screening ranked 4 candidates; refitted none (the top named ones by evidence). "
         f"{DECIDE}",
-        RESIDUAL_WORDS, GENERIC_WORDS]
+        RESIDUAL_WORDS, GENERIC_WORDS, hint(3, "3 unexplained")]
     assert NONE_LOWER.decision.partial == ()
     assert diagnosis_summary(NONE_LOWER) == (head + ", and no refit of wind, extra-damping explains it. No refit "
                                              "lowers the summary energy score by more than 2 standard errors.")
@@ -262,8 +269,9 @@ def test_candidates_the_task_does_not_inform_are_named_once_the_check_rejects_an
              "prior's width (the narrowest in brackets): the data of this motion seldom switch these effects on, so "
              "a missing effect among them is seldom named here; a motion that excites them, trained as another "
              "task, can tell.")
-    assert diagnosis_text(replace(NO_REFIT, uninformed=blind))[-1] == words
-    assert diagnosis_text(replace(NAMED, uninformed=blind))[-1] == words  # beside a named effect, too
+    assert diagnosis_text(replace(NO_REFIT, uninformed=blind))[-2:] == [words, hint(4, "2 unexplained; 2 not informed by this task")]
+    # beside a named effect, too; the uninformed ones are then what is undecided
+    assert diagnosis_text(replace(NAMED, uninformed=blind))[-2:] == [words, hint(2, "2 not informed by this task")]
     assert diagnosis_text(replace(NOTHING, uninformed=blind)) == diagnosis_text(NOTHING)  # no misfit to explain
     from softsbi.core.results import from_json, to_json
     data = to_json(replace(NO_REFIT, uninformed=blind))

@@ -223,6 +223,7 @@ def test_a_rig_names_the_effect_its_second_motion_informs_and_its_first_does_not
     import numpy as np
     from softsbi.core.types import Scenario
     from softsbi.workflows.criticism.joint import diagnose_runs
+    from softsbi_toy.plugin import toy_scenario
     from softsbi.workflows.fit.runs import load_run
     short = Scenario(name="lift", times=np.arange(2) * 0.1, gripper=np.zeros((2, 3)), table_z=0.0,
                      object={"kind": "patch"})
@@ -239,3 +240,11 @@ def test_a_rig_names_the_effect_its_second_motion_informs_and_its_first_does_not
     assert j.verdict == "missing-effect" and j.decision.named == (MAGNET,)
     (pull,) = magnet.combined
     assert pull.name == "pull" and pull.q05 < 0.45 < pull.q95 and pull.q95 - pull.q05 < 0.4
+    # the motion to record next, from the first motion's fit: the eight-frame one informs the magnet, the
+    # two-frame one leaves it at its prior; the linear estimate against this linear-Gaussian toy's exact posterior
+    # (the magnet's 90% interval 0.079 of the prior's, its confounding with a and b included)
+    from softsbi.workflows.criticism.design import design_run
+    des = design_run(first, scenarios=[toy_scenario(8)], effects=[MAGNET], workers=1, out_dir=tmp_path / "design")
+    assert des.motion == "lift" and des.motions == ("toy", "lift") and des.best == "toy"
+    assert des.cell("lift", MAGNET).width_ratio > 0.9 and not des.cell("lift", MAGNET).informs
+    assert des.cell("toy", MAGNET).informs and 0.05 < des.cell("toy", MAGNET).width_ratio < 0.16
