@@ -27,7 +27,7 @@ Tables: the p-values of the controls (share at 1, share at or below 0.05 with it
 Kolmogorov-Smirnov p against the uniform); the share of hidden-effect cases rejected at 0.05 per effect and
 magnitude, each way; and the cost. Each stage's statistics are kept in ``--out`` and read again by a rerun.
 
-Usage: ``python -m benchmarks run calibrated-check [--null 40] [--controls 60] [--control-stream S] [--per-magnitude 5]
+Usage: ``python -m benchmarks run calibrated-check [--null 40] [--controls 60] [--fresh-controls] [--per-magnitude 5]
 [--out DIR]``.
 """
 from __future__ import annotations
@@ -45,9 +45,10 @@ from benchmarks.runner import in_out_folder, table
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--null", type=int, default=40, help="screened replicate recordings of the nominal model")
     ap.add_argument("--controls", type=int, default=60, help="control recordings (the nominal model, prior draws)")
-    ap.add_argument("--control-stream", type=int, default=None,
-                    help="seed stream of the controls (default: STREAMS['control']); another stream gives fresh "
-                         "controls, e.g. to judge a replicate count chosen on the first ones")
+    ap.add_argument("--fresh-controls", action="store_true",
+                    help="also a second set of --controls controls from a seed stream of its own "
+                         "(STREAMS['fresh control']), tabled beside the first: fresh cases to judge a rule chosen on "
+                         "the first ones")
     ap.add_argument("--per-magnitude", type=int, default=5, help="recordings per hidden effect and magnitude")
     ap.add_argument("--prior-sims", type=int, default=1000, help="prior simulations the task is trained on")
     ap.add_argument("--workers", type=int, default=2)
@@ -64,7 +65,7 @@ MAGNITUDES = {"wind": ("wind_y", (0.25, 0.5, 1.0, 2.0)),
               "heavy-hem": ("hem_density", (0.00625, 0.0125, 0.025, 0.05)),
               "time-offset": ("time_offset", (0.0125, 0.025, 0.05, 0.1))}
 #: seed streams of the controls and of the effect cases (the replicates' is check_null.NULL_STREAM)
-STREAMS = {"control": 8081, "effect": 8200}
+STREAMS = {"control": 8081, "effect": 8200, "fresh control": 8082}
 
 
 def _shares(p: np.ndarray) -> list:
@@ -121,14 +122,20 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
                 "refit": np.array([mc_pvalue(o, refit).value for o in st[:, 0]]), "uncalibrated": st[:, 1]}
 
     t1 = time.perf_counter()
-    stream = STREAMS["control"] if a.control_stream is None else a.control_stream
-    ctrl = stats("controls" if stream == STREAMS["control"] else f"controls-{stream}", stream, a.controls)
-    pc = pvalues(ctrl)
-    rows = [[f"check: both tests, calibrated ({len(null.statistics)} replicates)", *_shares(pc["check"])],
-            [f"a refit's check: omnibus, calibrated ({REFIT_NULL} replicates)", *_shares(pc["refit"])],
-            ["omnibus, uncalibrated (leave-one-out)", *_shares(pc["uncalibrated"])]]
+    sets = {"controls": stats("controls", STREAMS["control"], a.controls)}
+    if a.fresh_controls:
+        sets["fresh controls"] = stats("controls-fresh", STREAMS["fresh control"], a.controls)
+        sets["all controls"] = np.concatenate(list(sets.values()))
+    rows, shared = [], []
+    for label, st in sets.items():
+        pc = pvalues(st)
+        rows += [[label, f"check: both tests, calibrated ({len(null.statistics)} replicates)", *_shares(pc["check"])],
+                 [label, f"a refit's check: omnibus, calibrated ({REFIT_NULL} replicates)", *_shares(pc["refit"])],
+                 [label, "omnibus, uncalibrated (leave-one-out)", *_shares(pc["uncalibrated"])]]
+        shared.append(f"{label}: " + shared_set_band(len(null.statistics), len(pc["check"]),
+                                                      int(np.sum(pc["check"] <= LEVEL))))
+    ctrl = np.concatenate([v for k, v in sets.items() if k != "all controls"])
     exchangeable = ks_2samp(ctrl[:, 0], null.statistics).pvalue
-    shared = shared_set_band(len(null.statistics), len(pc["check"]), int(np.sum(pc["check"] <= LEVEL)))
     power, cases = [], {}
     for k, (effect, (param, values)) in enumerate(MAGNITUDES.items()):
         for j, v in enumerate(values):
@@ -141,9 +148,9 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
     cases_s = time.perf_counter() - t1
     n_cases = len(ctrl) + sum(len(c) for c in cases.values())
     return {"tables": [
-        table(f"p-values on controls (the nominal model at prior draws, seed stream {stream}) at level {LEVEL}",
-              ["p-value", "recordings", "share p = 1", f"share p <= {LEVEL} [95% Clopper-Pearson]",
-               "KS p (uniform)"], rows),
+        table(f"p-values on controls (the nominal model at prior draws; each set a seed stream of its own) at level "
+              f"{LEVEL}", ["controls", "p-value", "recordings", "share p = 1",
+                           f"share p <= {LEVEL} [95% Clopper-Pearson]", "KS p (uniform)"], rows),
         table(f"power: recordings with a hidden effect (cloth at prior draws) rejected at {LEVEL}",
               ["effect", "magnitude", "recordings", "rejected by check", "by a refit's check (omnibus, 19)",
                "uncalibrated", "median p of check"], power)],
@@ -152,7 +159,7 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
         "notes": [f"The controls' omnibus statistics against the replicates' (two-sample Kolmogorov-Smirnov, the test "
                   f"of their exchangeability): p = {exchangeable:.3g}. The one-sample KS p of the calibrated p-values "
                   f"is approximate: every control is ranked against the same replicates, so their p-values are "
-                  f"positively dependent (Bates et al. 2023).", shared,
+                  f"positively dependent (Bates et al. 2023).", *shared,
                   f"`softsbi task train --check-null {a.null}`: {a.null} replicates, each refitted, checked on "
                   f"{N_NULL} rollouts and screened against {len(family)} candidates, once per task; with the task's "
                   f"training {train_s:.0f} s on {a.workers} workers (0 when stored). The {n_cases} cases took "
