@@ -34,14 +34,14 @@ def print_joint_diagnosis(o: Output, joint: Any) -> None:
     else:
         o.line(no_candidate_words(joint))
     o.table(RECORDING_COLUMNS, recording_rows(joint), title="Each recording's own diagnosis")
-    o.line(f"verdict for the task: {joint.verdict}")
+    o.line(f"verdict for the {'rig' if joint.rig else 'task'}: {joint.verdict}")
     for paragraph in joint_text(joint):
         o.line(paragraph)
 
 
 def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a finished fit (nominal model); several "
-                                               "(3 or more fits of one task's recordings, with --out): one verdict "
-                                               "for the task"),
+                                               "(with --out: 3 or more fits of one task's recordings, or 2 or more "
+                                               "of one rig's motions): one verdict for the task or the rig"),
              effect: list[str] = typer.Option(None, "--effect", help="candidate effects (default: all installed)"),
              confirm: int = setting(DiagnoseSettings, "confirm", "refit the top N named candidates (trained ones by "
                                     "their amortised score, then the screening's) and at most one pair when none "
