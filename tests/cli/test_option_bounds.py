@@ -209,9 +209,10 @@ def test_every_command_refuses_an_empty_effect_or_candidate_name_in_one_line(tmp
                 ("simulate",): ["--out", str(tmp_path / "out")],
                 ("params",): ["lift"],
                 ("task", "train"): ["--observed", str(tmp_path / "rec"), "--sim-bank", str(tmp_path / "out")],
-                ("diagnose",): [str(tmp_path / "run"), str(tmp_path / "run2"), "--out", str(tmp_path / "out")]}
+                ("diagnose",): [str(tmp_path / "run"), str(tmp_path / "run2"), "--out", str(tmp_path / "out")],
+                ("design",): [str(tmp_path / "run"), "--out", str(tmp_path / "out")]}
     found = [(tuple(path), flag) for path, flag in _options(str) if flag in ("--effect", "--candidate", "--candidates")]
-    assert {p for p, _ in found} == set(required) and len(found) == 7, found
+    assert {p for p, _ in found} == set(required) and len(found) == 8, found
     for path, flag in found:
         for value in ("", ",", " "):
             res = runner.invoke(app, [*path, *required[path], flag, value])
