@@ -36,6 +36,6 @@ def design(run: Path = typer.Argument(..., help="run directory of a finished fit
         return
     if d.undecided:
         o.table(design_columns(d), design_rows(d),
-                title="Predicted 90% interval width over the prior's after one recording, per motion")
+                title="Predicted 90% interval width over the prior's after one recording of each motion")
     for paragraph in design_text(d):
         o.line(paragraph)

@@ -4,28 +4,30 @@ from __future__ import annotations
 
 from softsbi.core.results.design import INFORMED_MAX_RATIO, Design
 
-#: the first columns of :func:`design_rows` (one more per undecided candidate)
-DESIGN_COLUMNS = ["motion", "informs"]
+#: the first columns of :func:`design_rows` (one more per motion, best first)
+DESIGN_COLUMNS = ["candidate", "undecided because"]
 
 
 def design_columns(d: Design) -> list[str]:
-    """The table's columns: the motion, how many undecided candidates it informs, then one per candidate."""
-    return DESIGN_COLUMNS + list(d.undecided)
+    """The table's columns: the candidate, why it is undecided, then one per motion, best first (the fit's own
+    marked)."""
+    return DESIGN_COLUMNS + [m + (" (this fit)" if m == d.motion else "") for m in d.motions]
 
 
 def design_rows(d: Design) -> list[list[str]]:
-    """One row per motion, best first: its name (the fit's own marked), the undecided candidates it informs, and per
-    candidate the predicted 90% interval width over the prior's (``"0.12"``; ``"0.12 (trained)"`` where a trained
-    task measured it; ``"failed"`` where it could not be estimated)."""
+    """One row per undecided candidate: its name, why it is undecided, and per motion the predicted 90% interval
+    width over the prior's (``"0.12"``; ``"0.12 (trained)"`` where a trained task measured it; ``"failed"`` where it
+    could not be estimated); a last row counts the candidates each motion informs."""
     rows = []
-    for m in d.motions:
+    for e, why in d.undecided.items():
         cells = []
-        for e in d.undecided:
+        for m in d.motions:
             c = d.cell(m, e)
             cells.append("-" if c is None else "failed" if c.width_ratio is None else
                          f"{c.width_ratio:.2f}{' (trained)' if c.source == 'trained task' else ''}")
-        rows.append([m + (" (this fit)" if m == d.motion else ""), f"{len(d.informed(m))} of {len(d.undecided)}",
-                     *cells])
+        rows.append([e, why, *cells])
+    rows.append(["informed", f"at {INFORMED_MAX_RATIO:g} or less",
+                 *(f"{len(d.informed(m))} of {len(d.undecided)}" for m in d.motions)])
     return rows
 
 

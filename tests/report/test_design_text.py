@@ -10,7 +10,7 @@ import pytest
 from result_helpers import joint, recording, wind_refit
 from softsbi.core.results.design import LINEAR, TRAINED, Design, MotionEffect, undecided_candidates
 from softsbi.inference.contraction import INFORMED_MAX_RATIO
-from softsbi.report.design_text import design_advice, design_rows, design_text
+from softsbi.report.design_text import design_advice, design_columns, design_rows, design_text
 from softsbi.workflows.criticism.design import efficiency_factor, noise_precision
 
 FAMILY = ["wind", "extra-damping", "sticky-patch"]
@@ -48,8 +48,10 @@ def test_the_advice_names_the_motion_that_informs_what_this_one_does_not():
     assert d.motions == ("wipe", "fling", "lift") and d.best == "wipe"
     assert design_advice(d) == ("Record a wipe: it informs sticky-patch, which the lift does not (a 90% interval "
                                 "under 0.5 of the prior's).")
-    assert design_rows(d) == [["wipe", "1 of 2", "0.62", "0.21"], ["fling", "1 of 2", "0.38", "0.88"],
-                              ["lift (this fit)", "0 of 2", "0.91 (trained)", "0.95 (trained)"]]
+    assert design_columns(d) == ["candidate", "undecided because", "wipe", "fling", "lift (this fit)"]
+    assert design_rows(d) == [["extra-damping", "not informed by this task", "0.62", "0.38", "0.91 (trained)"],
+                              ["sticky-patch", "not informed by this task", "0.21", "0.88", "0.95 (trained)"],
+                              ["informed", "at 0.5 or less", "1 of 2", "1 of 2", "0 of 2"]]
     assert design_text(d)[1].startswith("Each cell is the undecided candidate's predicted 90% interval width")
     assert "2 from trained tasks' reports" in design_text(d)[1] and "4 by the linear estimate" in design_text(d)[1]
     assert design_text(d)[1].endswith("no trained task of this motion scales it, so it is optimistic).")

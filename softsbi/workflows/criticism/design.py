@@ -22,9 +22,9 @@ diagnosis's "not informed by this task". It is measured where it can be and esti
   ``NOISE_SEEDS + FD_SEEDS x (D + sum_e (1 + D_e))`` simulations per motion, printed first.
 
 The bound is optimistic: a trained estimator does not reach it at its simulation budget (on the demo's lift, the
-trained task's widths were 0.8-20 times the bound's). Where a trained task of the fit's own motion measures the
-undecided candidates, the design also computes the bound there and scales the other motions' bounds by the median
-ratio (:func:`efficiency_factor`), the estimator's efficiency carried to the motions it was not trained on; without
+trained task's widths were 0.8-20 times the bound's). Where trained tasks of the fit's own motion measure candidates of
+its family, the design also computes the bound there for all of them and scales the other motions' bounds by the
+median ratio (:func:`efficiency_factor`), the estimator's efficiency carried to the motions it was not trained on; without
 one, the bound stands as it is and the words say it is optimistic.
 
 Ranked: most undecided candidates informed first, then the smallest summed width ratio. The advice names the best
@@ -260,20 +260,22 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
     if stored is not None:
         say(reused(json_path))
         return stored
-    say(f"design plan: {len(undecided)} undecided candidate{'s' if len(undecided) != 1 else ''} on "
-        f"{len(motions)} motions ({', '.join(m.name for m in motions)}), each from a trained task where one is "
-        f"stored, else by the linear estimate: {design_cost(run, motions, list(undecided))} simulations at "
-        f"most")
     store = task_store_of(run.config.sim_bank)
     tasks = store.list() if store is not None else []
     trained = {m.name: {e: w for e in undecided if (w := trained_width(tasks, run.config.backend, m.name, e))
                         is not None} for m in motions}
     own = motions[0].name
-    # the bound on the fit's own motion too, where a trained task measured it and another motion needs the bound:
-    # their ratio is the trained estimator's efficiency (efficiency_factor)
+    # the bound on the fit's own motion too, for every candidate of the family a trained task measured there, when
+    # another motion needs the bound: their ratio is the trained estimator's efficiency (efficiency_factor), from
+    # the whole family so that it does not depend on which candidates are undecided
     linear_needed = {m.name: [e for e in undecided if e not in trained[m.name]] for m in motions}
-    if trained[own] and any(linear_needed[m.name] for m in motions[1:]):
-        linear_needed[own] = list(undecided)
+    own_trained = {e: w for e in dict.fromkeys([*family, *undecided])
+                   if (w := trained_width(tasks, run.config.backend, own, e)) is not None}
+    if own_trained and any(linear_needed[m.name] for m in motions[1:]):
+        linear_needed[own] = list(dict.fromkeys([*undecided, *own_trained]))
+    say(f"design plan: {len(undecided)} undecided candidate{'s' if len(undecided) != 1 else ''} on "
+        f"{len(motions)} motions ({', '.join(m.name for m in motions)}), each from a trained task where one is "
+        f"stored, else by the linear estimate: {design_cost(run, motions, linear_needed)} simulations")
     bounds: dict[str, dict[str, float | None]] = {}
     sims = 0
     errors: dict[tuple[str, str], str] = {}
@@ -286,7 +288,7 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
             sims += n
             bounds[m.name] = widths
             errors.update({(m.name, e): w for e, w in why.items()})
-    factor = efficiency_factor(trained[own], bounds.get(own, {}))
+    factor = efficiency_factor(own_trained, bounds.get(own, {}))
     cells: list[MotionEffect] = []
     for m in motions:
         for e in undecided:
@@ -311,12 +313,16 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
     return result
 
 
-def design_cost(run: RunView, motions: Sequence[Scenario], effects: Sequence[str]) -> int:
-    """The simulations of the linear estimates of ``effects`` on ``motions`` at most (every cell estimated):
-    ``NOISE_SEEDS + FD_SEEDS x (D + sum_e (1 + D_e))`` per motion, ``D`` the motion's inferred parameters."""
-    per_effect = sum(1 + registry().effect(e)().param_space().dim for e in effects)
-    return sum(NOISE_SEEDS + FD_SEEDS * (fit_param_space(replace(run.config, effects=list(run.effects)), m)[1].dim
-                                         + per_effect) for m in motions)
+def design_cost(run: RunView, motions: Sequence[Scenario], effects: Mapping[str, Sequence[str]]) -> int:
+    """The simulations of the linear estimates of ``effects[motion]`` on each of ``motions``:
+    ``NOISE_SEEDS + FD_SEEDS x (D + sum_e (1 + D_e))`` per motion with any, ``D`` the motion's inferred parameters."""
+    total = 0
+    for m in motions:
+        mine = effects.get(m.name) or ()
+        if mine:
+            d = fit_param_space(replace(run.config, effects=list(run.effects)), m)[1].dim
+            total += NOISE_SEEDS + FD_SEEDS * (d + sum(1 + registry().effect(e)().param_space().dim for e in mine))
+    return total
 
 
 def load_design(path: str | Path) -> Design:
