@@ -158,6 +158,11 @@ def test_the_refits_proposed_are_the_top_named_candidates_then_one_pair():
     # no refit lowers the score: no pair is built on nothing
     assert next_refit(REJECTS, ranking, NOMINAL, [refit(("a",), 1.0, False), refit(("b",), 1.0, False)], 2) is None
     assert next_refit(REJECTS, ranking, NOMINAL, [], confirm=0) is None
+    # refits whose checks screened nothing (a trained task's, checked by the omnibus test alone): the pair is the two
+    # improving singles, the lower score first; one improving single builds none
+    unscreened = [refit(("b",), 0.8, adequate=False), refit(("a",), 0.5, adequate=False)]
+    assert next_refit(REJECTS, ranking, NOMINAL, unscreened, confirm=2) == ("a", "b")
+    assert next_refit(REJECTS, ranking, NOMINAL, [refit(("a",), 0.5, False), refit(("b",), 1.0, False)], 2) is None
 
 
 def test_trained_candidates_are_refitted_first_by_their_amortised_score_and_never_when_it_does_not_improve():

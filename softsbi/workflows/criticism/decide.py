@@ -156,8 +156,9 @@ def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | N
 
     First the top ``confirm`` candidates of :func:`refit_order`; then, when no single refit is adequate and
     improving, one pair: the improving single refit with the lowest score and the first named candidate of that
-    refit's own screening (its check's ranking over the same family, less its effect). Nothing for a fit the test
-    does not reject.
+    refit's own screening (its check's ranking over the same family, less its effect), or, when its check screened
+    nothing (a trained task's refit, checked by the omnibus test alone), the next improving single refit. Nothing
+    for a fit the test does not reject.
     """
     if not test.misspecified or confirm <= 0:
         return None
@@ -167,11 +168,17 @@ def next_refit(test: JointTest, ranking: Sequence[Candidate], nominal: Score | N
             return (effect,)
     if decide(test, nominal, refits, k_se).verdict == "missing-effect" or confirm < 2:
         return None
-    base = _best(_better_singles(nominal, refits, k_se))
+    better = _better_singles(nominal, refits, k_se)
+    base = _best(better)
     if base is None:
         return None
     second = next((c.effect for c in base.ranking if c.screened and not c.generic and c.effect not in base.effects),
                   None)
+    if second is None and not any(c.screened for c in base.ranking):
+        # its check screened nothing (a trained task's refit, checked by the omnibus test alone): the next improving
+        # single refit, lowest score first
+        second = next((r.effects[0] for r in sorted(better, key=lambda r: r.score.value)  # type: ignore[union-attr]
+                       if r is not base), None)
     if second is None or frozenset(base.effects + (second,)) in done:
         return None
     return base.effects + (second,)
