@@ -16,6 +16,9 @@ from softsbi.core.errors import SoftsbiError
 #: (the measurement was fitted, so it sits nearer the posterior predictive's centre than a fresh draw; Bayarri &
 #: Berger 2000), so its false-alarm rate is at most this level; docs/benchmarks.md gives the rate on controls.
 ALPHA = 0.05
+#: width ratio (a 90% interval's width over the prior's) above which a parameter counts as not informed by the
+#: data (:mod:`softsbi.inference.contraction`): one threshold for fits, training reports, the diagnosis and design
+INFORMED_MAX_RATIO = 0.5
 
 #: simulator, posterior estimator, observer and executor plugins of a fit
 BACKEND = "mujoco-flex"

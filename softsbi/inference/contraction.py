@@ -22,13 +22,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from softsbi.core.defaults import INFORMED_MAX_RATIO  # width ratio above which a parameter is not informed
 from softsbi.core.types import ParamSpace, unit_suffix
 
 __all__ = ["BOUND_MASS_MIN", "BOUND_SLAB", "INFORMED_MAX_RATIO", "WIDEN_FRACTION", "bound_pressure", "bound_sentence",
            "contraction", "contraction_from_report", "format_estimate", "slab_masses", "widened_bounds"]
 
-#: width ratio above which a parameter counts as not informed by the data (module docstring)
-INFORMED_MAX_RATIO = 0.5
 #: the prior's central 90 % interval spans 0.9 of the box in the parameter's own scale
 _PRIOR_WIDTH = 0.9
 #: width of the slab next to each prior bound, as a fraction of the range in the parameter's own scale

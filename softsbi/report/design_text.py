@@ -2,7 +2,8 @@
 (:class:`~softsbi.core.results.design.Design`). Pure functions: tested against fixed result objects."""
 from __future__ import annotations
 
-from softsbi.core.results.design import INFORMED_MAX_RATIO, Design
+from softsbi.core.defaults import INFORMED_MAX_RATIO
+from softsbi.core.results.design import TRAINED, Design
 
 #: the first columns of :func:`design_rows` (one more per motion, best first)
 DESIGN_COLUMNS = ["candidate", "undecided because"]
@@ -24,7 +25,7 @@ def design_rows(d: Design) -> list[list[str]]:
         for m in d.motions:
             c = d.cell(m, e)
             cells.append("-" if c is None else "failed" if c.width_ratio is None else
-                         f"{c.width_ratio:.2f}{' (trained)' if c.source == 'trained task' else ''}")
+                         f"{c.width_ratio:.2f}{' (trained)' if c.source == TRAINED else ''}")
         rows.append([e, why, *cells])
     rows.append(["informed", f"at {INFORMED_MAX_RATIO:g} or less",
                  *(f"{len(d.informed(m))} of {len(d.undecided)}" for m in d.motions)])
@@ -56,7 +57,7 @@ def design_advice(d: Design) -> str:
 
 def design_text(d: Design) -> list[str]:
     """The advice, then how the widths were found."""
-    trained = sum(c.source == "trained task" for c in d.cells)
+    trained = sum(c.source == TRAINED for c in d.cells)
     how = (f"Each cell is the undecided candidate's predicted 90% interval width over its prior's after one recording "
            f"of the motion (its best-informed parameter; informed at {INFORMED_MAX_RATIO:g} or less): "
            + (f"{trained} from trained tasks' reports (the median over their held-out simulations), " if trained else "")

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Mapping, Sequence
 
+from softsbi.core.defaults import INFORMED_MAX_RATIO
 # the JSON form and the result files' writer and reader (softsbi.core.jsonfile), importable from here too
 from softsbi.core.jsonfile import (RENAMED, SCHEMA, UPGRADED, ResultDamaged, ResultUnwritable, check_result_path,  # noqa: F401
                                    from_json, read_json, read_result, to_json, write_json_atomic, write_result)
@@ -260,7 +261,7 @@ class Estimate:
     @property
     def informed(self) -> bool | None:
         """Whether the data narrowed it (90% interval narrower than half the prior's)."""
-        return None if self.width_ratio is None else self.width_ratio <= 0.5
+        return None if self.width_ratio is None else self.width_ratio <= INFORMED_MAX_RATIO
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -365,10 +366,15 @@ class Gain:
         missing."""
         if a is None or b is None:
             return None
-        d = a.value - b.value
-        se = math.hypot(a.se, b.se)
+        return cls.summed(a.value - b.value, math.hypot(a.se, b.se))
+
+    @classmethod
+    def summed(cls, difference: float, se: float) -> "Gain":
+        """A gain ``difference`` with its standard error ``se``: ``z = difference / se`` (at ``se`` 0, infinite in the
+        gain's sign, 0 for no gain)."""
+        d, se = float(difference), float(se)
         z = d / se if se > 0 else (math.inf if d > 0 else -math.inf if d < 0 else 0.0)
-        return cls(difference=float(d), se=float(se), z=float(z))
+        return cls(difference=d, se=se, z=z)
 
     @classmethod
     def paired(cls, differences: Sequence[float], mc_se: float = 0.0) -> "Gain | None":
@@ -381,9 +387,7 @@ class Gain:
             return None
         mean = sum(d) / len(d)
         sd = math.sqrt(sum((x - mean) ** 2 for x in d) / (len(d) - 1))
-        total, se = sum(d), max(sd * math.sqrt(len(d)), float(mc_se))
-        z = total / se if se > 0 else (math.inf if total > 0 else -math.inf if total < 0 else 0.0)
-        return cls(difference=float(total), se=float(se), z=float(z))
+        return cls.summed(sum(d), max(sd * math.sqrt(len(d)), float(mc_se)))
 
     def exceeds(self, k_se: float) -> bool:
         """True when the gain is more than ``k_se`` standard errors (``z > k_se``): the diagnosis' margin for an

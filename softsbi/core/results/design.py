@@ -9,11 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
+from softsbi.core.defaults import INFORMED_MAX_RATIO
 from softsbi.core.results import Diagnosis
 
-#: a parameter is informed by a motion when its 90% interval is at most this share of the prior's width
-#: (:data:`softsbi.inference.contraction.INFORMED_MAX_RATIO`, the training report's criterion)
-INFORMED_MAX_RATIO = 0.5
 #: the sources of a cell's width ratio
 TRAINED, LINEAR = "trained task", "linear estimate"
 

@@ -5,7 +5,7 @@ The measure is a motion's *expected posterior contraction* of each undecided eff
 effect's best-informed parameter over its prior's width, under the prior predictive (a Bayesian design utility: the
 expected posterior variance of the quantity of interest, Chaloner & Verdinelli 1995, section 2.2, read as an
 interval width as softsbi's training reports read it). A motion *informs* an effect when that ratio is at most
-:data:`~softsbi.core.results.design.INFORMED_MAX_RATIO` (0.5), the criterion of ``task train``'s report and of the
+:data:`~softsbi.core.defaults.INFORMED_MAX_RATIO` (0.5), the criterion of ``task train``'s report and of the
 diagnosis's "not informed by this task". It is measured where it can be and estimated where it cannot:
 
 * **trained task** of the motion with the effect's model in the fit's simulation bank (``softsbi task train`` on a
@@ -46,8 +46,8 @@ from softsbi.core.types import ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.scenarios.catalog import builtin_files, load_scenario
 from softsbi.workflows.criticism.check import loaded, reused, stored_result
-from softsbi.workflows.criticism.screening import (EFFECT_STEP, UNIT_STEP, default_candidates, is_generic,
-                                                   object_kind, sensitivity_jobs)
+from softsbi.workflows.criticism.screening import (EFFECT_STEP, UNIT_STEP, default_candidates, inward_step,
+                                                   is_generic, object_kind, sensitivity_jobs)
 from softsbi.workflows.criticism.statistics import FEATURE_NAMES, summary_floor
 from softsbi.workflows.criticism.stats import summarising
 from softsbi.workflows.fit.config import fit_param_space
@@ -153,7 +153,7 @@ def linear_widths(run: RunView, motion: Scenario, effects: Sequence[str], worker
         return np.mean(diffs, axis=0) if diffs else None
 
     u_hat = np.clip(nominal_space.to_unit(nominal_space.as_array({k: base[k] for k in nominal_space.names})), 0, 1)
-    nom_cols = [slope(1 + j, 0, UNIT_STEP if u_hat[j] + UNIT_STEP <= 1 else -UNIT_STEP) for j in range(d)]
+    nom_cols = [slope(1 + j, 0, inward_step(u_hat[j], UNIT_STEP)) for j in range(d)]
     zero = np.zeros(precision.shape[0])
     out: dict[str, float | None] = {}
     why: dict[str, str] = {}
@@ -163,7 +163,7 @@ def linear_widths(run: RunView, motion: Scenario, effects: Sequence[str], worker
         for (e, p, i_step, i_nom) in cols:
             if e is eff:
                 u0 = es.subset([p]).to_unit(np.array([nom[p]]))[0]
-                eff_cols.append(slope(i_step, i_nom, EFFECT_STEP if u0 + EFFECT_STEP <= 1 else -EFFECT_STEP))
+                eff_cols.append(slope(i_step, i_nom, inward_step(u0, EFFECT_STEP)))
         if not eff_cols or any(c is None for c in eff_cols):
             out[eff.name], why[eff.name] = None, f"{motion.name}: the effect's simulations failed"
             continue
@@ -262,15 +262,17 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
         return stored
     store = task_store_of(run.config.sim_bank)
     tasks = store.list() if store is not None else []
-    trained = {m.name: {e: w for e in undecided if (w := trained_width(tasks, run.config.backend, m.name, e))
-                        is not None} for m in motions}
     own = motions[0].name
+    # on the fit's own motion every candidate of the family a trained task measured: the efficiency below
+    own_trained = {e: w for e in dict.fromkeys([*family, *undecided])
+                   if (w := trained_width(tasks, run.config.backend, own, e)) is not None}
+    trained = {m.name: {e: w for e in undecided if (w := own_trained.get(e) if m.name == own else
+                                                    trained_width(tasks, run.config.backend, m.name, e)) is not None}
+               for m in motions}
     # the bound on the fit's own motion too, for every candidate of the family a trained task measured there, when
     # another motion needs the bound: their ratio is the trained estimator's efficiency (efficiency_factor), from
     # the whole family so that it does not depend on which candidates are undecided
     linear_needed = {m.name: [e for e in undecided if e not in trained[m.name]] for m in motions}
-    own_trained = {e: w for e in dict.fromkeys([*family, *undecided])
-                   if (w := trained_width(tasks, run.config.backend, own, e)) is not None}
     if own_trained and any(linear_needed[m.name] for m in motions[1:]):
         linear_needed[own] = list(dict.fromkeys([*undecided, *own_trained]))
     say(f"design plan: {len(undecided)} undecided candidate{'s' if len(undecided) != 1 else ''} on "
@@ -325,12 +327,5 @@ def design_cost(run: RunView, motions: Sequence[Scenario], effects: Mapping[str,
     return total
 
 
-def load_design(path: str | Path) -> Design:
-    """Read ``design.json`` (a run directory, ``--out`` folder or the file)."""
-    path = Path(path)
-    path = path / DESIGN_FILE if path.is_dir() else path
-    return read_result(path, Design, "design", "a design", f"`softsbi design {path.parent}`")
-
-
 __all__ = ["FD_SEEDS", "NOISE_SEEDS", "candidate_motions", "design_cost", "design_run", "linear_widths",
-           "load_design", "noise_precision", "trained_width", "undecided_candidates"]
+           "noise_precision", "trained_width", "undecided_candidates"]

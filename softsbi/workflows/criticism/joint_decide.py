@@ -133,10 +133,8 @@ def rig_candidate(effect: str, recordings: Sequence[Diagnosis], refits: Sequence
     gains = [Gain.of(d.nominal, r.score) for d, r in zip(recordings, refits)]
     gain = None
     if all(g is not None for g in gains):
-        total = sum(gains[i].difference for i in idx)  # type: ignore[union-attr]
-        se = math.sqrt(sum(gains[i].se ** 2 for i in idx))  # type: ignore[union-attr]
-        gain = Gain(difference=total, se=se, z=total / se if se > 0 else math.copysign(math.inf, total) if total
-                    else 0.0)
+        gain = Gain.summed(sum(gains[i].difference for i in idx),  # type: ignore[union-attr]
+                           math.sqrt(sum(gains[i].se ** 2 for i in idx)))  # type: ignore[union-attr]
     worse = tuple(i for i, g in enumerate(gains) if g is not None and g.z < -k_se)
     # as each recording's own diagnosis decides it (Refit.maybe_off: its calibrated test at CHANCE_EXCLUDED, else
     # the interval rule, CHANCE_EXCLUDED per parameter)
@@ -170,9 +168,7 @@ def paired_between(a: JointCandidate, b: JointCandidate) -> Gain | None:
         return None
     ds = [x.score.value - y.score.value for x, y in zip(a.refits, b.refits)]  # type: ignore[union-attr]
     mc = math.sqrt(sum(x.score.se ** 2 + y.score.se ** 2 for x, y in zip(a.refits, b.refits)))  # type: ignore
-    if a.rig:
-        return Gain(difference=sum(ds), se=mc, z=sum(ds) / mc if mc > 0 else 0.0)
-    return Gain.paired(ds, mc)
+    return Gain.summed(sum(ds), mc) if a.rig else Gain.paired(ds, mc)
 
 
 def ranked(candidates: Sequence[JointCandidate]) -> tuple[JointCandidate, ...]:

@@ -130,6 +130,12 @@ def is_generic(effect: Any) -> bool:
     return bool(getattr(type(effect), "generic", False))
 
 
+def inward_step(u: float, step: float) -> float:
+    """The finite-difference step from ``u`` (unit cube) that stays inside it: ``+step``, or ``-step`` where ``u +
+    step`` would leave it (the screening's and the design's one rule)."""
+    return step if u + step <= 1 else -step
+
+
 def sensitivity_jobs(base: Mapping[str, float], space: ParamSpace, effects: Sequence[str], cands: list[Any],
                      unit_step: float, effect_step: float) -> tuple[list[JobItem], list[tuple[Any, str, int, int]], int]:
     """The finite-difference simulations of the screening about ``base`` (the posterior median, physical units, the
@@ -141,7 +147,7 @@ def sensitivity_jobs(base: Mapping[str, float], space: ParamSpace, effects: Sequ
     effects = tuple(effects)
     jobs: list[JobItem] = [JobItem(dict(base), 0, effects=effects)]
     for j in range(space.dim):
-        s = unit_step if u_hat[j] + unit_step <= 1 else -unit_step
+        s = inward_step(u_hat[j], unit_step)
         u = u_hat.copy()
         u[j] += s
         v = dict(base)
@@ -157,7 +163,7 @@ def sensitivity_jobs(base: Mapping[str, float], space: ParamSpace, effects: Sequ
         i_nom = len(jobs) - 1
         for p in es:
             u0 = es.subset([p.name]).to_unit(np.array([nom[p.name]]))[0]
-            s = effect_step if u0 + effect_step <= 1 else -effect_step
+            s = inward_step(u0, effect_step)
             v = dict(v0)
             v[p.name] = float(es.subset([p.name]).from_unit(np.array([u0 + s]))[0])
             jobs.append(JobItem(v, 0, effects=effects + (eff.name,)))
@@ -227,7 +233,7 @@ class Screening:
         for c in cols:
             ps1 = es.subset([c[1]])
             u0 = ps1.to_unit(np.array([eff.nominal()[c[1]]]))[0]
-            step = effect_step if u0 + effect_step <= 1 else -effect_step
+            step = inward_step(u0, effect_step)
             lo.append(min(-u0 / step, (1 - u0) / step))
             hi.append(max(-u0 / step, (1 - u0) / step))
             steps.append((c[1], u0, step))
