@@ -35,7 +35,6 @@ from softsbi.inference.contraction import INFORMED_MAX_RATIO
 from softsbi.plugins import registry
 from softsbi.core import defaults
 from softsbi.workflows import pools
-from softsbi.workflows.fit.bank import HIT
 from softsbi.workflows.reporting import duration_words
 from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
 from softsbi.workflows.criticism.check_null import NULL_FILE, check_replicates, stored_check_null, train_check_null
@@ -186,22 +185,17 @@ def _prepared(recording: Recording, cfg: FitConfig) -> tuple[FitConfig, ParamSpa
 
 
 def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
-    """The wall time (s) of one simulation of the nominal model, simulated here: the first of its prior simulations,
-    through the simulation bank (so that the training then reads it from there); when the bank already holds it (a
-    bank read costs nothing, so it measures no simulation), the same simulation again outside the bank (timed, not
-    stored). None when it failed."""
+    """The wall time (s) of one simulation of the nominal model in a warm worker: the first two of its prior draws
+    simulated one after the other in one process, outside the simulation bank (a bank read measures no
+    simulation; nothing is stored), and the second one's time. The first one's includes the worker's start-up
+    (loading the plugins, building the engine's model: several times a lift rollout on mujoco-flex), which the
+    training pays once per worker, not per simulation. None when it failed."""
     cfg, space, ctx, prior = _prepared(recording, cfg)
-    prior.store.check_writable()  # a store that cannot take the task refuses before this first simulation
-    u = np.random.default_rng([cfg.seed, 0, 0]).random((1, space.dim))  # the first row of the prior draws
-    item = JobItem(space.from_unit(u)[0], int(_round_seeds(cfg.seed, 0, 1)[0]))
-
-    def timed(bank: str | None) -> Any:
-        return run_jobs(replace(ctx, bank=bank), [item], workers=cfg.workers, executor=cfg.executor,
-                        executor_options=cfg.executor_options, label="one simulation, timed")[0]
-
-    res = timed(str(prior.store.path.parent))
-    if res.bank == HIT:  # a bank read costs nothing, so it measures no simulation: the same one outside the bank
-        res = timed(None)
+    prior.store.check_writable()  # a store that cannot take the task refuses before these simulations
+    u = np.random.default_rng([cfg.seed, 0, 0]).random((2, space.dim))  # the first rows of the prior draws
+    items = [JobItem(t, int(s)) for t, s in zip(space.from_unit(u), _round_seeds(cfg.seed, 0, 2))]
+    res = run_jobs(replace(ctx, bank=None), items, workers=1, executor=cfg.executor,
+                   executor_options=cfg.executor_options, label="one simulation, timed")[-1]
     return float(res.seconds) if res.ok and res.seconds else None
 
 

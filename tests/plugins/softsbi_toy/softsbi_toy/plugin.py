@@ -9,7 +9,8 @@ plus ``wind * s_t`` along x when the ``toy-wind`` effect is on. With a uniform p
 wide enough, the posterior given the centres is Gaussian with precision
 ``sum_t A_t^T A_t / sigma^2`` (see :func:`analytic_posterior`).
 
-Test hooks (environment variables read at each ``simulate``): ``SOFTSBI_TOY_SLEEP=<s>`` sleeps;
+Test hooks (environment variables read at each ``simulate``): ``SOFTSBI_TOY_SLEEP=<s>`` sleeps
+(``SOFTSBI_TOY_START_SLEEP=<s>``: the simulator's construction sleeps, a worker's start-up);
 ``SOFTSBI_TOY_DIVERGE_ABOVE=<a>`` returns a diverged rollout for a larger ``a``;
 ``SOFTSBI_TOY_CRASH_ONCE=<dir>`` kills the worker process (``os._exit(13)``) the first time a
 seed is simulated (a marker file ``<dir>/crashed-<seed>`` records it);
@@ -82,6 +83,8 @@ class ToyGauss(Simulator):
     def __init__(self, sigma: float = SIGMA, batch_size: int = 1):
         self.sigma = float(sigma)
         self.batch_size = int(batch_size)  # > 1: workers get simulations in batches (the inherited simulate_batch)
+        if os.environ.get("SOFTSBI_TOY_START_SLEEP"):
+            time.sleep(float(os.environ["SOFTSBI_TOY_START_SLEEP"]))
 
     def param_space(self, scenario: Scenario) -> ParamSpace:
         return ParamSpace([Param("a", -1.0, 1.0, "1", description="toy parameter a"),
