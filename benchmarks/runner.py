@@ -182,6 +182,12 @@ _SUITES = [
           "calibrated against the task's replicate recordings, refitted, checked and screened the same way (Hjort, "
           "Dahl & Steinbakk 2006); beside it the uncalibrated omnibus p-value and a candidate refit's check (the "
           "omnibus test alone against 19 replicates).", "benchmarks.bench_calibrated_check"),
+    Suite("motions", "Diagnosis", "which shipped effects each motion informs, trained and estimated",
+          "Each built-in motion's task (the demo's lift, the wipe and the fling on mujoco-flex) trained by `softsbi "
+          "task train` with every shipped candidate; per effect and motion, the trained model's median 90% interval "
+          "width over the prior's on its held-out simulations (informed at the report's criterion), and beside it "
+          "`softsbi design`'s linear estimate at a fit of the demo's lift, which reads no wipe or fling task: a "
+          "prediction their trained reports judge.", "benchmarks.bench_motions"),
     Suite("tasks", "Speed", "a task trained once against every recording fitted from scratch",
           "The demo's task (lift, mujoco-flex, the nominal model) trained once by `softsbi task train`, with its "
           "training report on held-out prior simulations; then new recordings of the task (the demo's, with its "

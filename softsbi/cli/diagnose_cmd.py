@@ -24,9 +24,9 @@ def print_diagnosis(o: Output, diagnosis: Any) -> None:
         o.line(paragraph)
 
 
-def print_joint_diagnosis(o: Output, joint: Any) -> None:
+def print_joint_diagnosis(o: Output, joint: Any, where: str = "DIR") -> None:
     """A :class:`~softsbi.core.results.joint.JointDiagnosis` as its candidates' table, its recordings' own verdicts, the
-    set's verdict and its paragraphs on stdout (:mod:`softsbi.report.joint_text` words them)."""
+    set's verdict and its paragraphs on stdout (:mod:`softsbi.report.joint_text` words them; ``where``: its folder)."""
     from softsbi.report.joint_text import (JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_text,  # start-up
                                            no_candidate_words, recording_rows)
     if joint.candidates:
@@ -35,7 +35,7 @@ def print_joint_diagnosis(o: Output, joint: Any) -> None:
         o.line(no_candidate_words(joint))
     o.table(RECORDING_COLUMNS, recording_rows(joint), title="Each recording's own diagnosis")
     o.line(f"verdict for the {'rig' if joint.rig else 'task'}: {joint.verdict}")
-    for paragraph in joint_text(joint):
+    for paragraph in joint_text(joint, where):
         o.line(paragraph)
 
 
@@ -103,6 +103,6 @@ def diagnose(run: list[Path] = typer.Argument(..., help="run directory of a fini
                                recompute=recompute, out_dir=out_dir)
     if len(runs) > 1:
         if not json_done(o, to_json(joint)):
-            print_joint_diagnosis(o, joint)
+            print_joint_diagnosis(o, joint, str(out_dir))
     elif not json_done(o, to_json(out)):
         print_diagnosis(o, out)

@@ -11,8 +11,9 @@ DESIGN_COLUMNS = ["candidate", "undecided because"]
 
 def design_columns(d: Design) -> list[str]:
     """The table's columns: the candidate, why it is undecided, then one per motion, best first (the fit's own
-    marked)."""
-    return DESIGN_COLUMNS + [m + (" (this fit)" if m == d.motion else "") for m in d.motions]
+    marked, or a rig's recorded ones)."""
+    mark = " (recorded)" if d.recorded else " (this fit)"
+    return DESIGN_COLUMNS + [m + (mark if m in d.recorded_motions else "") for m in d.motions]
 
 
 def design_rows(d: Design) -> list[list[str]]:
@@ -38,21 +39,24 @@ def _names(effects: tuple[str, ...] | list[str]) -> str:
 
 
 def design_advice(d: Design) -> str:
-    """The one sentence: which motion to record next and which undecided candidates it informs that the fit's own
-    motion does not, or why none is advised."""
+    """The one sentence: which motion to record next and which undecided candidates it informs that no recorded
+    motion does, or why none is advised."""
     if not d.undecided:
         return "Nothing is undecided: the diagnosis names one effect or finds nothing missing."
-    own = set(d.informed(d.motion))
+    own = set(d.informed_already)
+    recorded = _names([f"the {m}" for m in d.recorded_motions])
+    one = len(d.recorded_motions) == 1
     best = d.best
     if best is None:
         left = [e for e in d.undecided if e not in own]
-        return (f"No motion weighed informs {_names(left)} beyond what the {d.motion} does: record a motion that "
-                f"excites {'it' if len(left) == 1 else 'them'} (one with a scenario file: --scenario FILE)."
-                if left else f"The {d.motion} already informs every undecided candidate: more recordings of it "
-                             f"(`softsbi diagnose RUN RUN RUN --out DIR`) decide between them.")
+        return (f"No motion weighed informs {_names(left)} beyond what {recorded} do{'es' if one else ''}: record a "
+                f"motion that excites {'it' if len(left) == 1 else 'them'} (one with a scenario file: --scenario "
+                f"FILE)." if left else
+                f"{recorded[0].upper()}{recorded[1:]} already inform{'s' if one else ''} every undecided candidate: "
+                f"more recordings (`softsbi diagnose RUN RUN RUN --out DIR`) decide between them.")
     new = [e for e in d.informed(best) if e not in own]
-    return (f"Record a {best}: it informs {_names(new)}, which the {d.motion} does not (a 90% interval under "
-            f"{INFORMED_MAX_RATIO:g} of the prior's).")
+    return (f"Record a {best}: it informs {_names(new)}, which {recorded} do{'es' if one else ''} not (a 90% "
+            f"interval under {INFORMED_MAX_RATIO:g} of the prior's).")
 
 
 def design_text(d: Design) -> list[str]:

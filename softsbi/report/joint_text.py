@@ -6,7 +6,9 @@ from __future__ import annotations
 from softsbi.core.results.joint import JointCandidate, JointDiagnosis, short_names
 from softsbi.core.results import Diagnosis, Gain
 from softsbi.core.types import unit_suffix
-from softsbi.report.text import SCORE_UNIT, SUMMARY_ENERGY, SWITCHED_ON_RULE, num, p_short, uninformed_words
+from softsbi.core.results.design import undecided_candidates
+from softsbi.report.text import (SCORE_UNIT, SUMMARY_ENERGY, SWITCHED_ON_RULE, design_hint, num, p_short,
+                                 uninformed_words)
 
 #: the columns of :func:`joint_rows`
 JOINT_COLUMNS = ["candidate", f"summed score [{SCORE_UNIT}]", f"gain over nominal [{SCORE_UNIT}]",
@@ -230,8 +232,12 @@ def joint_rule(j: JointDiagnosis) -> str:
             f"than chance allows (one-sided binomial test at {j.alpha:g}).")
 
 
-def joint_text(j: JointDiagnosis) -> list[str]:
-    """Everything a task's diagnosis says, one paragraph per item: the verdict, the rule and, when the set's test
-    rejects, the trained candidates the task does not inform (one task: its recordings' diagnoses list the same)."""
-    blind = j.recordings[0].uninformed if j.recordings else {}
-    return [joint_summary(j), joint_rule(j)] + ([uninformed_words(blind)] if j.test.rejects and blind else [])
+def joint_text(j: JointDiagnosis, where: str = "DIR") -> list[str]:
+    """Everything a task's or a rig's diagnosis says, one paragraph per item: the verdict, the rule, when the set's
+    test rejects the trained candidates no recording's task informs, and, when it leaves candidates undecided, the
+    command that ranks the motions to record next (``where``: the diagnosis's ``--out`` folder)."""
+    blind = j.uninformed
+    out = [joint_summary(j), joint_rule(j)] + ([uninformed_words(blind)] if j.test.rejects and blind else [])
+    family = [c.effect for c in j.recordings[0].ranking if not c.generic] if j.recordings else []
+    left = undecided_candidates(j, family)
+    return out + ([design_hint(where, left)] if left else [])

@@ -526,19 +526,20 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
         out.append(uninformed_words(d.uninformed))
     left = undecided_candidates(d, [c.effect for c in d.ranking if not c.generic])
     if left:
-        out.append(design_hint(d, left))
+        out.append(design_hint(d.run, left))
     return out
 
 
-def design_hint(d: Diagnosis, undecided: Mapping[str, str]) -> str:
+def design_hint(where: str, undecided: Mapping[str, str]) -> str:
     """The last line of a diagnosis that leaves candidates undecided: how many, why, and the command that ranks the
-    motions to record next (:func:`~softsbi.core.results.design.undecided_candidates`)."""
+    motions to record next (:func:`~softsbi.core.results.design.undecided_candidates`); ``where``: the fit's run
+    directory, or the folder of a diagnosis across several recordings."""
     why: dict[str, list[str]] = {}
     for e, reason in undecided.items():
         why.setdefault(reason, []).append(e)
     parts = "; ".join(f"{len(v)} {k}" for k, v in why.items())
     return (f"Undecided: {len(undecided)} candidate{'s' if len(undecided) > 1 else ''} ({parts}). `softsbi design "
-            f"{d.run}` ranks the motions the object supports by how well one more recording of each would inform "
+            f"{where}` ranks the motions the object supports by how well one more recording of each would inform "
             f"them (seconds from trained tasks, a few minutes of simulation otherwise).")
 
 

@@ -67,6 +67,22 @@ def test_the_advice_names_the_motion_that_informs_what_this_one_does_not():
     assert INFORMED_MAX_RATIO == 0.5 and MotionEffect(motion="a", effect="b", width_ratio=0.5, source=LINEAR).informs
 
 
+def test_a_rigs_advice_is_a_motion_none_of_its_recorded_motions_informs_it_with():
+    widths = {"lift": {"extra-damping": 0.91, "sticky-patch": 0.95, "air-drag": 0.9},
+              "wipe": {"extra-damping": 0.62, "sticky-patch": 0.21, "air-drag": 0.8},
+              "fling": {"extra-damping": 0.38, "sticky-patch": 0.88, "air-drag": 0.3}}
+    assert design(widths).best == "fling"  # after the lift alone: it informs two
+    rig = replace(design(widths), recorded=("lift", "fling"))
+    assert rig.informed_already == ("extra-damping", "air-drag") and rig.best == "wipe"
+    assert design_advice(rig) == ("Record a wipe: it informs sticky-patch, which the lift and the fling do not (a 90% "
+                                  "interval under 0.5 of the prior's).")
+    assert design_columns(rig)[2:] == ["fling (recorded)", "wipe", "lift (recorded)"]
+    done = replace(rig, recorded=("lift", "fling", "wipe"))
+    assert done.best is None and design_advice(done) == (
+        "The lift, the fling and the wipe already inform every undecided candidate: more recordings (`softsbi "
+        "diagnose RUN RUN RUN --out DIR`) decide between them.")
+
+
 def test_the_noise_precision_is_unbiased_and_refuses_too_few_seeds():
     rng = np.random.default_rng(3)
     a = rng.normal(size=(14, 14)) * 0.1

@@ -3,6 +3,7 @@ hand-built results: any change of wording shows here as a diff."""
 from __future__ import annotations
 
 from result_helpers import joint, recording, wind_refit
+from softsbi.core.results.design import undecided_candidates
 from softsbi.core.results.joint import JointDiagnosis
 from softsbi.report.joint_text import (JOINT_COLUMNS, RECORDING_COLUMNS, joint_rows, joint_summary, joint_text,
                                        recording_rows)
@@ -91,8 +92,33 @@ def test_a_rejecting_set_names_the_candidates_its_task_cannot_identify_and_contr
 
     def with_blind(j):
         return replace(j, recordings=tuple(replace(d, uninformed=blind) for d in j.recordings))
-    assert joint_text(with_blind(ONE)) == joint_text(ONE) + [uninformed_words(blind)]
+    text = joint_text(ONE, "runs/lifts")
+    blind_text = joint_text(with_blind(ONE), "runs/lifts")
+    assert blind_text[:3] == text[:2] + [uninformed_words(blind)] and len(blind_text) == len(text) + 1
+    assert "(2 unexplained; 1 not informed by these tasks)" in blind_text[-1]
     assert joint_text(with_blind(CONTROLS)) == joint_text(CONTROLS)
+    # a misfit set leaves candidates undecided, and its last line says how to choose the motion to record next
+    family = [c.effect for c in ONE.recordings[0].ranking if not c.generic]
+    assert ONE.verdict == "misspecified-unexplained" and family
+    assert text[-1] == (f"Undecided: {len(family)} candidate{'s' if len(family) > 1 else ''} ({len(family)} "
+                        f"unexplained). `softsbi design runs/lifts` ranks the motions the object supports by how well "
+                        f"one more recording of each would inform them (seconds from trained tasks, a few minutes of "
+                        f"simulation otherwise).")
+    assert undecided_candidates(with_blind(ONE), [])["heavy-hem"] == "not informed by these tasks"
+    assert not undecided_candidates(with_blind(CONTROLS), family)  # the set fits: nothing to decide
+
+
+def test_a_rig_leaves_uninformed_only_what_no_recordings_task_informs():
+    from dataclasses import replace
+    recs = (replace(recording("lift", 10.0, REJECTS), uninformed={"heavy-hem": 0.96, "sticky-patch": 0.93}),
+            replace(recording("wipe", 10.0, REJECTS), uninformed={"heavy-hem": 0.7}))
+    test = nominal_test(list(recs), 0.05)
+    j = JointDiagnosis(runs=("runs/lift", "runs/wipe"), recordings=recs, candidates=(), test=test,
+                       decision=decide_joint(test, [], 2.0, rig=True), alpha=0.05, k_se=2.0, confirm=2,
+                       scenarios=("lift", "wipe"))
+    assert j.uninformed == {"heavy-hem": 0.7}  # the wipe informs the sticky patch, neither the hem
+    assert undecided_candidates(j, ["sticky-patch"]) == {"sticky-patch": "unexplained",
+                                                         "heavy-hem": "not informed by these tasks"}
 
 
 def test_an_empty_candidates_table_is_one_sentence_saying_why(capsys):

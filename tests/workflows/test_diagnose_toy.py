@@ -248,3 +248,8 @@ def test_a_rig_names_the_effect_its_second_motion_informs_and_its_first_does_not
     assert des.motion == "lift" and des.motions == ("toy", "lift") and des.best == "toy"
     assert des.cell("lift", MAGNET).width_ratio > 0.9 and not des.cell("lift", MAGNET).informs
     assert des.cell("toy", MAGNET).informs and 0.05 < des.cell("toy", MAGNET).width_ratio < 0.16
+    # from the rig's diagnosis: its motions are the recorded ones (the second one's scenario read from its run)
+    rig = design_run(tmp_path / "rig", effects=[MAGNET], workers=1)
+    assert rig.run == str(tmp_path / "rig") and (tmp_path / "rig" / "design.json").is_file()
+    assert rig.recorded == ("lift", "toy") and set(rig.motions) == {"lift", "toy"} and rig.best is None
+    assert rig.informed_already == (MAGNET,)

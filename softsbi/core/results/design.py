@@ -11,6 +11,7 @@ from typing import Any, Mapping, Sequence
 
 from softsbi.core.defaults import INFORMED_MAX_RATIO
 from softsbi.core.results import Diagnosis
+from softsbi.core.results.joint import JointDiagnosis
 
 #: the sources of a cell's width ratio
 TRAINED, LINEAR = "trained task", "linear estimate"
@@ -53,8 +54,9 @@ class Design:
     """Which motion to record next (:func:`~softsbi.workflows.criticism.design.design_run`).
 
     Attributes:
-        run: the fit whose diagnosis left the candidates undecided.
-        motion: that fit's motion (scenario).
+        run: the fit whose diagnosis left the candidates undecided, or the folder of a diagnosis across several
+            recordings (``joint-diagnosis.json``).
+        motion: that fit's motion (scenario); a joint diagnosis's: its first recording's.
         undecided: the candidates to decide, each with why it is undecided (``"not informed by this task"``,
             ``"indistinguishable"``, ``"unexplained"``, or ``"no diagnosis yet"``).
         cells: one per motion and undecided candidate.
@@ -65,6 +67,7 @@ class Design:
             scaled; None when no trained task of the fit's motion measures it (the bounds stand unscaled).
         key: what determines the result, so that a stored result is reused only for it.
         seconds: wall time.
+        recorded: the motions already recorded, in order (a rig's several; empty: ``motion`` alone).
     """
 
     run: str
@@ -76,6 +79,18 @@ class Design:
     efficiency: float | None = None
     key: Mapping[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
+    recorded: tuple[str, ...] = ()
+
+    @property
+    def recorded_motions(self) -> tuple[str, ...]:
+        """The motions already recorded: :attr:`recorded`, or the fit's own alone."""
+        return self.recorded or (self.motion,)
+
+    @property
+    def informed_already(self) -> tuple[str, ...]:
+        """The undecided candidates some recorded motion informs, in :attr:`undecided`'s order."""
+        done = {e for m in self.recorded_motions for e in self.informed(m)}
+        return tuple(e for e in self.undecided if e in done)
 
     def cell(self, motion: str, effect: str) -> MotionEffect | None:
         """The cell of ``motion`` and ``effect``, or None."""
@@ -87,25 +102,28 @@ class Design:
 
     @property
     def best(self) -> str | None:
-        """The motion to record next: the best-ranked other than the fit's own that informs an undecided
-        candidate the fit's own motion does not; None when none does."""
-        own = set(self.informed(self.motion))
-        return next((m for m in self.motions if m != self.motion and set(self.informed(m)) - own), None)
+        """The motion to record next: the best-ranked not yet recorded that informs an undecided candidate no
+        recorded motion does; None when none does."""
+        own = set(self.informed_already)
+        return next((m for m in self.motions if m not in self.recorded_motions and set(self.informed(m)) - own), None)
 
 
-def undecided_candidates(d: Diagnosis | None, family: Sequence[str]) -> dict[str, str]:
+def undecided_candidates(d: Diagnosis | JointDiagnosis | None, family: Sequence[str]) -> dict[str, str]:
     """The candidates a diagnosis ``d`` leaves undecided, each with why, in ``family``'s order then the rest: those its
     task does not inform (when the check rejects), the named one and those indistinguishable from it, and, when the
     verdict is ``misspecified-unexplained``, every candidate of ``family``. A check that does not reject, or one named
-    effect with nothing beside it, leaves only the uninformed ones. Without a diagnosis (None): the whole family."""
+    effect with nothing beside it, leaves only the uninformed ones. Without a diagnosis (None): the whole family.
+    A diagnosis across several recordings (:class:`~softsbi.core.results.joint.JointDiagnosis`) by the same rule on
+    the set: its combined check, its verdict, and the candidates no recording's task informs."""
     if d is None:
         return {e: "no diagnosis yet" for e in family}
-    if not d.test.misspecified:
+    if not (d.test.rejects if isinstance(d, JointDiagnosis) else d.test.misspecified):
         return {}
     out: dict[str, str] = {}
     if d.verdict == "misspecified-unexplained":
         out.update({e: "unexplained" for e in family})
     if d.decision.alternatives:
         out.update({e: "indistinguishable" for x in (d.decision.named, *d.decision.alternatives) for e in x})
-    out.update({e: "not informed by this task" for e in d.uninformed})
+    out.update({e: "not informed by this task" if isinstance(d, Diagnosis) else "not informed by these tasks"
+                for e in d.uninformed})
     return out

@@ -262,6 +262,16 @@ class JointDiagnosis:
             return None
         return float(sum(d.nominal.value for d in self.recordings))  # type: ignore[union-attr]
 
+    @property
+    def uninformed(self) -> dict[str, float]:
+        """The trained candidates no recording's task informs (each recording's
+        :attr:`~softsbi.core.results.Diagnosis.uninformed`), by effect: the smallest width ratio over the recordings.
+        A candidate one recording's task informs, or that one recording has no trained task of, is left out."""
+        maps = [d.uninformed for d in self.recordings]
+        if not maps:
+            return {}
+        return {e: min(m[e] for m in maps) for e in maps[0] if all(e in m for m in maps[1:])}
+
     def candidate(self, effect: str) -> JointCandidate | None:
         """The row of ``effect``, or None."""
         return next((c for c in self.candidates if c.effect == effect), None)

@@ -46,6 +46,7 @@ from softsbi.core.types import ParamSpace, Scenario
 from softsbi.plugins import registry
 from softsbi.scenarios.catalog import builtin_files, load_scenario
 from softsbi.workflows.criticism.check import loaded, reused, stored_result
+from softsbi.workflows.criticism.joint import JOINT_FILE, load_joint_diagnosis
 from softsbi.workflows.criticism.screening import (EFFECT_STEP, UNIT_STEP, default_candidates, inward_step,
                                                    is_generic, object_kind, sensitivity_jobs)
 from softsbi.workflows.criticism.statistics import FEATURE_NAMES, summary_floor
@@ -71,7 +72,7 @@ Z90 = 2 * 1.6448536269514722
 DESIGN_FILE = "design.json"
 
 
-def candidate_motions(run: RunView, scenarios: Sequence[str | Path] = ()) -> list[Scenario]:
+def candidate_motions(run: RunView, scenarios: Sequence[str | Path | Scenario] = ()) -> list[Scenario]:
     """The motions to weigh: the fit's own, every built-in scenario the simulator runs whose object is the fit's
     (cloth or rope), and ``scenarios`` (names or scenario files), once each by name.
 
@@ -218,7 +219,10 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
 
     Args:
         run_dir: a finished fit; its ``diagnosis.json`` (if any) says which candidates are undecided
-            (:func:`undecided_candidates`), else every candidate of the family.
+            (:func:`undecided_candidates`), else every candidate of the family. Or the folder of a diagnosis across
+            several recordings (``joint-diagnosis.json``, ``diagnose RUN RUN ... --out DIR``): its set's verdict
+            says which are undecided, its recordings' motions are the ones recorded (the advice is a motion none
+            of them is), and the linear estimate is made at its first recording's fit.
         scenarios: further motions to weigh (scenario names or files) beside the built-in ones the simulator runs.
         effects: the candidates to weigh instead of the undecided ones.
         workers: simulation worker processes (None: one per core).
@@ -235,7 +239,8 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
     """
     t0 = time.perf_counter()
     say = progress or (lambda _: None)
-    run = loaded(run_dir)
+    joint = load_joint_diagnosis(run_dir) if (Path(run_dir) / JOINT_FILE).is_file() else None
+    run = loaded(joint.runs[0] if joint is not None else run_dir)
     sim = registry().simulator(run.config.backend)
     family = [c.name for c in default_candidates(run.config.backend, Scenario.from_json(run.record.scenario),
                                                  run.effects) if not is_generic(c)]
@@ -244,17 +249,22 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
         if bad:
             raise SoftsbiError(f"--effect {bad[0]}: {sim.supports(registry().effect(bad[0]))}")
         undecided = {e: "named with --effect" for e in effects}
+    elif joint is not None:
+        undecided = undecided_candidates(joint, family)
     else:
         d = None
         path = Path(out_dir or run.path) / "diagnosis.json"
         if path.exists():
             d = read_result(path, Diagnosis, "diagnosis", "a diagnosis", f"`softsbi diagnose {run.path}`")
         undecided = undecided_candidates(d, family)
-    motions = candidate_motions(run, scenarios)
-    out = Path(out_dir or run.path)
+    rig = [Scenario.from_json(loaded(r).record.scenario) for r in joint.runs[1:]] if joint is not None else []
+    motions = candidate_motions(run, [*rig, *scenarios])
+    recorded = tuple(dict.fromkeys(joint.scenarios)) if joint is not None and joint.rig else ()
+    home = Path(run_dir) if joint is not None else run.path
+    out = Path(out_dir or home)
     out.mkdir(parents=True, exist_ok=True)
     json_path = check_result_path(out / DESIGN_FILE)
-    key = {"run": str(run.path.resolve()), "undecided": dict(undecided), "motions": [m.name for m in motions],
+    key = {"run": str(home.resolve()), "undecided": dict(undecided), "motions": [m.name for m in motions],
            "seeds": [FD_SEEDS, NOISE_SEEDS]}
     stored = None if recompute else stored_result(json_path, Design, key, say)
     if stored is not None:
@@ -307,7 +317,7 @@ def design_run(run_dir: str | Path, scenarios: Sequence[str | Path] = (), effect
         mine = [c for c in cells if c.motion == name]
         return (-sum(c.informs for c in mine), sum(1.0 if c.width_ratio is None else c.width_ratio for c in mine))
     order = sorted((m.name for m in motions), key=rank)
-    result = Design(run=str(run.path), motion=motions[0].name, undecided=dict(undecided), cells=tuple(
+    result = Design(run=str(home), motion=motions[0].name, recorded=recorded, undecided=dict(undecided), cells=tuple(
         sorted(cells, key=lambda c: (order.index(c.motion), list(undecided).index(c.effect)))),
         motions=tuple(order), simulations=sims, efficiency=factor, key=key, seconds=time.perf_counter() - t0)
     write_result(json_path, result)
