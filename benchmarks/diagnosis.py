@@ -75,9 +75,14 @@ def make_case(split: str, i: int) -> dict[str, Any]:
     """Case ``i`` of ``split``: ``id``, ``split``, ``index``, ``label`` (``control``, ``other-engine`` or the hidden
     effect), ``seed`` (of its draws; the recording's is ``1000 + i``), ``truth`` (physical units: the engine's
     parameters at a prior draw and the hidden effect's) and ``magnitude`` (None without a hidden effect)."""
-    seed = [SPLIT_SEEDS[split], i, 41]
+    return case_at(split, SPLIT_SEEDS[split], i, COUNTS)
+
+
+def case_at(split: str, split_seed: int, i: int, counts: dict[str, int]) -> dict[str, Any]:
+    """Case ``i`` of a split of seed ``split_seed`` and ``counts`` (:func:`make_case`; the motions split's too)."""
+    seed = [split_seed, i, 41]
     rng = np.random.default_rng(seed)
-    label = schedule(SPLIT_SEEDS[split])[i]
+    label = schedule(split_seed, counts)[i]
     reg = registry()
     engine = OTHER_ENGINE if label == "other-engine" else ENGINE
     space = reg.simulator(engine)().param_space(lift_scenario(None))

@@ -50,11 +50,12 @@ TARGETS = {"false_alarm_rate": 1 / 40, "named_right": 0.75, "other_engine": 7 / 
 SEQUENTIAL = {"control": 4, "effect": 8}
 
 
-def schedule(seed: int) -> list[str]:
-    """The labels of a split's :data:`N_CASES` cases in the order its ``seed`` shuffles them (so that any first
-    cases mix controls, effects and the other engine)."""
-    labels = (["control"] * COUNTS["control"] + [e for e in EFFECTS for _ in range(COUNTS["effect"])]
-              + ["other-engine"] * COUNTS["other-engine"])
+def schedule(seed: int, counts: Mapping[str, int] = COUNTS) -> list[str]:
+    """The labels of a split's cases (``counts``: controls, cases per effect, other engine; :data:`N_CASES` at
+    :data:`COUNTS`) in the order its ``seed`` shuffles them (so that any first cases mix controls, effects and the
+    other engine)."""
+    labels = (["control"] * counts["control"] + [e for e in EFFECTS for _ in range(counts["effect"])]
+              + ["other-engine"] * counts["other-engine"])
     return [labels[j] for j in np.random.default_rng([seed, 7]).permutation(len(labels))]
 
 

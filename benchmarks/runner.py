@@ -182,6 +182,13 @@ _SUITES = [
           "calibrated against the task's replicate recordings, refitted, checked and screened the same way (Hjort, "
           "Dahl & Steinbakk 2006); beside it the uncalibrated omnibus p-value and a candidate refit's check (the "
           "omnibus test alone against 19 replicates).", "benchmarks.bench_calibrated_check"),
+    Suite("diagnosis-motions", "Diagnosis", "the loop a user follows: the lift, then the motions design asks for",
+          "Cases drawn as the diagnosis suite's on a seed stream of their own (40 controls, 4 per shipped effect, 8 "
+          "from the other engine): each lift fitted on its trained task, checked and diagnosed; while the diagnosis "
+          "leaves candidates undecided, `softsbi design` advises a motion, the same hidden truth is simulated on it, "
+          "fitted on its trained task and the recordings diagnosed as one rig (at most 3 motions). Scored strictly "
+          "after the lift and after the last motion; rows stored per case "
+          "(benchmarks/results/diagnosis-motions.jsonl), so a run resumes.", "benchmarks.diagnosis_motions"),
     Suite("motions", "Diagnosis", "which shipped effects each motion informs, trained and estimated",
           "Each built-in motion's task (the demo's lift, the wipe and the fling on mujoco-flex) trained by `softsbi "
           "task train` with every shipped candidate; per effect and motion, the trained model's median 90% interval "
