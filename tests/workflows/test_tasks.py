@@ -165,6 +165,11 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
         "nominal check's calibration + 12 x 19 x 31 for the refits' checks = 44768 simulations at most; one "
         "simulation took 1.2 s, so about 1.9 h on 8 workers, plus the training (fewer when stored models or the "
         "simulation bank hold some)")
+    assert training_plan(18, 1000, 200, 40, None, 2, null_rollouts=30, screening=60, refit_null=19,
+                         sensor_models=5).startswith(
+        "task train plan: 13 models x (1000 prior + 200 held-out simulations) (and 5 sensor models, whose simulations "
+        "are the nominal model's) + 40 replicate recordings x 91 for the nominal check's calibration + 17 x 19 x 31 "
+        "for the refits' checks = 29253 simulations at most")
     assert training_plan(2, 100, 0, 0, None, 1) == (
         "task train plan: 2 models x (100 prior + 0 held-out simulations) = 200 simulations at most (one "
         "simulation's time unknown: it failed)")
@@ -188,10 +193,15 @@ def test_task_train_s_plan_and_the_advice_on_a_model_that_is_not_calibrated():
     family = replicate_family(_cfg(backend=D.BACKEND), SimpleNamespace(scenario=lift), [m[-1] for m in models[1:]])
     per = D.N_NULL + 1 + screening_size(fit_param_space(_cfg(backend=D.BACKEND), lift)[1].dim, family)
     refit = D.REFIT_REPLICATES * (D.N_NULL + 1)
+    from softsbi.workflows.fit.jobs import sensor_parameters
+    sensor = sum({p.name for p in registry().effect(m[-1])().param_space()} <= sensor_parameters(D.BACKEND, m)
+                 for m in models[1:])
     readme = " ".join((Path(__file__).parents[2] / "README.md").read_text().replace("#", " ").split())
-    assert (f"{len(models)} models x {D.TASK_PRIOR_SIMS + D.N_TEST} simulations + {D.CHECK_REPLICATES * per} (the "
-            f"nominal check's calibration) + {len(models) - 1} x {refit} (the refits' checks)") in readme
-    total = len(models) * (D.TASK_PRIOR_SIMS + D.N_TEST) + D.CHECK_REPLICATES * per + (len(models) - 1) * refit
+    assert (f"{len(models) - sensor} models x {D.TASK_PRIOR_SIMS + D.N_TEST} simulations (the {sensor} sensor models' "
+            f"are the nominal model's) + {D.CHECK_REPLICATES * per} (the nominal check's calibration) + "
+            f"{len(models) - 1} x {refit} (the refits' checks)") in readme
+    total = (len(models) - sensor) * (D.TASK_PRIOR_SIMS + D.N_TEST) + D.CHECK_REPLICATES * per + \
+        (len(models) - 1) * refit
     assert f"at most {round(total, -2):,} simulations" in readme
     # the nominal's replicates are screened as a check screens a recording: their finite differences are counted
     assert "40 replicate recordings x 91 for the nominal check's calibration" in training_plan(
@@ -517,3 +527,29 @@ def test_a_second_task_train_of_one_task_waits_for_the_first_and_reuses_its_task
     other.join()
     assert any(f"task {trained.digest[:12]} is being trained by another process; waiting" in m for m in said), said
     assert calls == [] and task.digest == trained.digest and "reused" in said[-1]
+
+
+def test_a_sensor_models_prior_and_held_out_simulations_are_the_nominal_models_rollouts(tmp_path, monkeypatch):
+    """A model with a sensor effect (an observation transform alone) draws the cloth parameters of the model without
+    it, at the same seeds, so its prior and held-out simulations are the nominal model's rollouts read from the bank
+    with the transform applied: task train simulates nothing for it. Its own parameters are still drawn uniformly."""
+    pytest.importorskip("softsbi_toy.plugin")
+    from toy_helpers import toy_measurement
+    from softsbi.workflows.fit.jobs import prior_unit_draws, sensor_parameters
+    from softsbi.workflows.tasks.training import train_task
+    bank = tmp_path / "bank"
+    monkeypatch.setenv("SOFTSBI_SIM_BANK", str(bank))
+
+    def rollouts():
+        return sorted(p for p in bank.rglob("*") if p.is_file() and p.relative_to(bank).parts[0] != "tasks")
+    (nominal,) = train_task(toy_measurement(), _cfg(), 40, candidates=[], n_test=20, check_null=0)
+    before = rollouts()
+    assert before  # the nominal model's prior and held-out rollouts
+    _, noisy = train_task(toy_measurement(), _cfg(), 40, candidates=["point-noise"], n_test=20, check_null=0,
+                          refit_null=0)
+    assert noisy.model == "nominal+point-noise" and noisy.report is not None
+    assert rollouts() == before  # every one of its simulations read from the bank
+    assert sensor_parameters("toy-gauss", ["point-noise", "toy-wind"]) == {"noise_std"}
+    u = prior_unit_draws([0, 0, 0], 4000, ["a", "noise_std", "b"], {"noise_std"})
+    assert np.array_equal(u[:, [0, 2]], np.random.default_rng([0, 0, 0]).random((4000, 2)))
+    assert abs(u[:, 1].mean() - 0.5) < 0.02 and abs(np.corrcoef(u[:, 0], u[:, 1])[0, 1]) < 0.05

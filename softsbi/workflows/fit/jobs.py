@@ -268,6 +268,31 @@ def _simulate_observed(ctx: SimContext, sim: Any, scenario: Scenario, values: di
     return plan.observe(raw, values, seed), banked  # its observation transforms are exactly the sensor effects'
 
 
+def sensor_parameters(backend: str, effects: Sequence[str]) -> set[str]:
+    """The parameters of ``effects``' observation-only (sensor) effects on ``backend``: those a rollout does not
+    depend on (:func:`_simulate_observed` applies their transforms after the banked rollout of the others)."""
+    if not effects:
+        return set()
+    sim = registry().simulator(backend)()
+    return {p.name for e in check_effects(sim, list(effects)).observers if set(e.doors(sim.name)) == {OBSERVATION}
+            for p in e.param_space()}
+
+
+def prior_unit_draws(seed: Sequence[int], n: int, names: Sequence[str], sensor: set[str] = frozenset()) -> np.ndarray:
+    """``(n, D)`` uniform draws in the unit cube for the parameters ``names``: the others than ``sensor``
+    (:func:`sensor_parameters`) from the stream ``seed``, row by row exactly as ``default_rng(seed).random((n, d))``,
+    and ``sensor``'s from a stream of their own (``[*seed, 1]``). So a model with a sensor effect draws the very
+    cloth parameters of the model without it, at the same simulation seeds, and its rollouts are that model's (read
+    from the simulation bank: a trained task's sensor models then simulate nothing)."""
+    own = [j for j, name in enumerate(names) if name in sensor]
+    rest = [j for j in range(len(names)) if j not in own]
+    u = np.empty((n, len(names)))
+    u[:, rest] = np.random.default_rng(list(seed)).random((n, len(rest)))
+    if own:
+        u[:, own] = np.random.default_rng([*seed, 1]).random((n, len(own)))
+    return u
+
+
 def _simulate_unobserved(ctx: SimContext, sim: Any, scenario: Scenario, values: dict[str, float], effects: list[str],
                          sensor: list[Any], seed: int, batch: _Batch | None = None) -> tuple[Any, str | None]:
     """:func:`_simulate` without the observation-only effects ``sensor`` (effect instances) and their parameters,

@@ -22,7 +22,7 @@ from softsbi.plugins import registry
 from softsbi.workflows.fit.bank import BankCount, bank_folder
 from softsbi.workflows.fit.config import FitConfig, RunRecord, estimator_options
 from softsbi.workflows.fit.report_file import ChamferStats, chamfer_stats
-from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, map_simulations
+from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, map_simulations, prior_unit_draws, sensor_parameters
 from softsbi.workflows.reporting import FitCallbacks, SimulationIssues
 from softsbi.workflows.fit.resume import RunClock, observed_data
 from softsbi.workflows.fit.task_store import PriorRound
@@ -315,7 +315,11 @@ class Rounds:
             if self.truncated:
                 proposal = TruncatedPrior(proposal, eps=cfg.truncation_eps, seed=cfg.seed + r)
         rng = np.random.default_rng([cfg.seed, r, 0])
-        u = rng.random((cfg.sims_per_round, space.dim)) if proposal is None else proposal.sample(cfg.sims_per_round, rng)
+        # from the prior: a sensor effect's parameters from a stream of their own, so that its cloth parameters and
+        # rollouts are the model's without it (read from the bank)
+        u = prior_unit_draws([cfg.seed, r, 0], cfg.sims_per_round, space.names,
+                             sensor_parameters(cfg.backend, cfg.effects)) if proposal is None else \
+            proposal.sample(cfg.sims_per_round, rng)
         if r == 0 and cfg.start_box:  # the prior restricted to a box (FitConfig.start_box): a truncated proposal
             low, high = start_box_unit(space, cfg.start_box)
             u = low + (high - low) * u

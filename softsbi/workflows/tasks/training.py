@@ -39,7 +39,7 @@ from softsbi.workflows.reporting import duration_words
 from softsbi.workflows.tasks.calibrate import calibration_stats, coverage_json, rank_histograms_json
 from softsbi.workflows.criticism.check_null import NULL_FILE, check_replicates, stored_check_null, train_check_null
 from softsbi.workflows.fit.config import FitConfig, estimator_options, fit_param_space, needs_images
-from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, run_jobs
+from softsbi.workflows.fit.jobs import JobItem, SimContext, _round_seeds, prior_unit_draws, run_jobs, sensor_parameters
 from softsbi.workflows.criticism.screening import default_candidates, is_generic, screening_size
 from softsbi.workflows.criticism.switched_on import store_off_null, stored_off_null, train_off_null, unit_off_values
 from softsbi.workflows.fit.task_store import TASK_TRAIN_INFO, PriorRound, StoredTask, first_round_context
@@ -139,7 +139,7 @@ def _train(recording: Recording, cfg: FitConfig, space: ParamSpace, ctx: SimCont
     est_cls = registry().estimator(cfg.estimator)
     opts = estimator_options(cfg, est_cls)
     ctx = replace(ctx, bank=str(prior.store.path.parent))
-    u = np.random.default_rng([cfg.seed, 0, 0]).random((n_prior, space.dim))
+    u = prior_unit_draws([cfg.seed, 0, 0], n_prior, space.names, sensor_parameters(cfg.backend, cfg.effects))
     U, X = _simulate(ctx, space, u, _round_seeds(cfg.seed, 0, n_prior), cfg, f"{model}: prior simulations")
     fr = slice(None) if cfg.frames is None else list(cfg.frames)
     say(f"{model}: training '{cfg.estimator}' on {len(U)} prior simulations")
@@ -192,7 +192,7 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
     training pays once per worker, not per simulation. None when it failed."""
     cfg, space, ctx, prior = _prepared(recording, cfg)
     prior.store.check_writable()  # a store that cannot take the task refuses before these simulations
-    u = np.random.default_rng([cfg.seed, 0, 0]).random((2, space.dim))  # the first rows of the prior draws
+    u = prior_unit_draws([cfg.seed, 0, 0], 2, space.names)  # the first rows of the nominal model's prior draws
     items = [JobItem(t, int(s)) for t, s in zip(space.from_unit(u), _round_seeds(cfg.seed, 0, 2))]
     res = run_jobs(replace(ctx, bank=None), items, workers=1, executor=cfg.executor,
                    executor_options=cfg.executor_options, label="one simulation, timed")[-1]
@@ -201,9 +201,11 @@ def pilot_seconds(recording: Recording, cfg: FitConfig) -> float | None:
 
 def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, seconds: float | None,
                   workers: int | None, null_rollouts: int = defaults.N_NULL, screening: int = 0,
-                  refit_null: int = 0) -> str:
+                  refit_null: int = 0, sensor_models: int = 0) -> str:
     """What ``task train`` will spend, said before it starts: ``n_models`` models of ``n_prior`` prior and
-    ``n_test`` held-out simulations each; the nominal model's ``check_null`` replicate recordings of
+    ``n_test`` held-out simulations each, but ``sensor_models`` of them, whose simulations are the nominal model's
+    rollouts read from the bank (:func:`~softsbi.workflows.fit.jobs.prior_unit_draws`); the nominal model's
+    ``check_null`` replicate recordings of
     ``null_rollouts + 1`` simulations and ``screening`` finite differences each
     (:func:`~softsbi.workflows.criticism.screening.screening_size`); each candidate model's ``refit_null`` replicates
     of ``null_rollouts + 1`` simulations (not screened); with ``seconds`` (one simulation's time,
@@ -212,9 +214,12 @@ def training_plan(n_models: int, n_prior: int, n_test: int, check_null: int, sec
     again."""
     per, per_refit = null_rollouts + 1 + screening, null_rollouts + 1
     refit_null = refit_null if n_models > 1 else 0
-    total = n_models * (n_prior + n_test) + check_null * per + (n_models - 1) * refit_null * per_refit
-    s = (f"task train plan: {n_models} model{'s' if n_models > 1 else ''} x ({n_prior} prior + {n_test} held-out "
-         f"simulations)" + (f" + {check_null} replicate recordings x {per} for the nominal check's calibration"
+    simulated = n_models - sensor_models
+    total = simulated * (n_prior + n_test) + check_null * per + (n_models - 1) * refit_null * per_refit
+    s = (f"task train plan: {simulated} model{'s' if simulated > 1 else ''} x ({n_prior} prior + {n_test} held-out "
+         f"simulations)" + (f" (and {sensor_models} sensor model{'s' if sensor_models > 1 else ''}, whose "
+                            f"simulations are the nominal model's)" if sensor_models else "")
+         + (f" + {check_null} replicate recordings x {per} for the nominal check's calibration"
                             if check_null else "")
          + (f" + {n_models - 1} x {refit_null} x {per_refit} for the refits' checks" if refit_null else "")
          + f" = {total} simulations at most")
@@ -272,7 +277,7 @@ def _state(est: Any, name: str, opts: dict[str, Any]) -> EstimatorState:
 def _held_out(ctx: SimContext, space: ParamSpace, cfg: FitConfig, n_test: int,
               stream: int = TEST_STREAM) -> tuple[np.ndarray, np.ndarray]:
     """``(U, X)``: the usable ones of a model's ``n_test`` held-out prior simulations of seed stream ``stream``."""
-    u = np.random.default_rng([cfg.seed, stream, 0]).random((n_test, space.dim))
+    u = prior_unit_draws([cfg.seed, stream, 0], n_test, space.names, sensor_parameters(cfg.backend, cfg.effects))
     return _simulate(ctx, space, u, _round_seeds(cfg.seed, stream, n_test), cfg, "held-out prior simulations")
 
 
@@ -357,10 +362,12 @@ def train_task(recording: Recording, cfg: FitConfig, n_prior: int = defaults.TAS
     screened = [m[-1] for m in models[1:]]
     screening = screening_size(_prepared(recording, cfg)[1].dim, replicate_family(cfg, recording, screened)) \
         if check_null else 0
+    sensor = [set(p.name for p in registry().effect(m[-1])().param_space()) <= sensor_parameters(cfg.backend, m)
+              for m in models[1:]]
     say(training_plan(len(models), n_prior, n_test, check_null, pilot_seconds(recording, cfg), cfg.workers,
-                      screening=screening, refit_null=refit_null))
+                      screening=screening, refit_null=refit_null, sensor_models=sum(sensor)))
     each = [n_prior + n_test + check_null * (defaults.N_NULL + 1 + screening)] + \
-        [n_prior + n_test + refit_null * (defaults.N_NULL + 1)] * (len(models) - 1)
+        [(0 if s else n_prior + n_test) + refit_null * (defaults.N_NULL + 1) for s in sensor]
     out = []
     for i, effects in enumerate(models, start=1):
         done = sum(each[:i - 1])
