@@ -41,7 +41,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 FULL = None
 
 
-def _recording(motion: str):
+def task_recording(motion: str):
     """The recording a motion's task is trained on: the demo's lift, else the built-in scenario at the prior's
     midpoint (``softsbi simulate``'s default values; a task reads a recording's scenario and sensor settings)."""
     if motion == "lift":
@@ -63,7 +63,7 @@ def measure(a: argparse.Namespace, folder: Path) -> dict:
     from softsbi.workflows.fit.task_store import task_store_of
     from softsbi.workflows.tasks.training import train_task
     cfg = FitConfig(backend=BACKEND, workers=a.workers, sim_bank=str(a.bank))
-    recs = {m: _recording(m) for m in a.motions}
+    recs = {m: task_recording(m) for m in a.motions}
     family = [c.name for c in default_candidates(BACKEND, recs[a.motions[0]].scenario, []) if not is_generic(c)]
     notes = []
     if a.train:

@@ -41,7 +41,7 @@ import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -231,23 +231,37 @@ def run(split: str, indices: Sequence[int], out: Path, workers: int | None, comm
     """
     path = path or RESULTS / f"diagnosis-{split}.jsonl"
     seq = set(sequential_cases(SPLIT_SEEDS[split]) if sequential is None else sequential)
+    append_rows(path, [make_case(split, i) for i in indices],
+                lambda case: run_case(case, out, workers, case["index"] in seq), command, settings(),
+                lambda row: {k: row.get(k) for k in ("id", "label", "verdict", "named", "outcome", "wall_s", "error")})
+
+
+def append_rows(path: Path, cases: Sequence[dict[str, Any]], run_one: Callable[[dict[str, Any]], dict[str, Any]],
+                command: str, settings_: dict[str, Any], shown: Callable[[dict[str, Any]], Any]) -> None:
+    """Run each of ``cases`` whose latest row in ``path`` is not ``ok`` (none, or an error: run again) by ``run_one``
+    (its row), and append each row as it finishes, with the commit, machine, ``command`` and ``settings_``; a case
+    that raises is a row of ``status`` ``error`` with its error, and the run goes on. ``shown(row)``: the line
+    printed (JSON, on stderr) per row. The rows loop of every resumable split (this suite's, the motions split's).
+
+    Raises:
+        SystemExit: before any case runs, when ``path`` holds rows of other (or unknown) settings
+            (:func:`~benchmarks.diagnosis_protocol.settings_conflict`).
+    """
     stored = read_rows(path)
     done = done_ids(stored)
-    prov = {**runner.commit(), "machine": runner.machine(), "command": command, "settings": settings()}
-    todo = [i for i in indices if f"{split}-{i}" not in done]
+    prov = {**runner.commit(), "machine": runner.machine(), "command": command, "settings": settings_}
+    todo = [case for case in cases if case["id"] not in done]
     if todo and (problem := settings_conflict(stored, prov["settings"], runner.portable(path))):
         raise SystemExit(problem)
-    for i in todo:
-        case = make_case(split, i)
+    for case in todo:
         try:
-            row = run_case(case, out, workers, i in seq)
+            row = run_one(case)
         except Exception as e:  # noqa: BLE001  a case that fails is a row with its error, and the run goes on
             row = {**case, "status": "error", "error": f"{type(e).__name__}: {e}"}
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("a") as f:
             f.write(json.dumps({**row, **prov}) + "\n")
-        print(json.dumps({k: row.get(k) for k in ("id", "label", "verdict", "named", "outcome", "wall_s", "error")}),
-              file=sys.stderr, flush=True)
+        print(json.dumps(shown(row)), file=sys.stderr, flush=True)
 
 
 #: ``--full``: every case of the split (:data:`~benchmarks.diagnosis_protocol.COUNTS`)

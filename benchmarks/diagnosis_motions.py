@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections import Counter
 from pathlib import Path
@@ -37,8 +36,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from benchmarks import runner
-from benchmarks.diagnosis_protocol import (EFFECTS, LABELS, _rate, done_ids, latest, outcome, read_rows,
-                                           settings_conflict)
+from benchmarks.diagnosis_protocol import (EFFECTS, LABELS, _rate, latest, outcome, read_rows)
 
 RESULTS = runner.RESULTS / "diagnosis-motions.jsonl"
 #: the split's seed stream (the diagnosis suite's splits are 0 and 1)
@@ -82,11 +80,9 @@ def step_of(motion: str, d: Any, seconds: float) -> dict[str, Any]:
     named effect's gain over the nominal model: difference, standard error, z; summed over the rig), ``undecided``
     (the candidates it leaves undecided, with why) and ``seconds`` (fit + check + diagnose of this step)."""
     from softsbi.core.results.design import undecided_candidates
-    ranking = d.ranking if hasattr(d, "ranking") else d.recordings[0].ranking
-    family = [c.effect for c in ranking if not c.generic]
     return {"motion": motion, "verdict": d.verdict, "named": list(d.decision.named),
             "alternatives": [list(a) for a in d.decision.alternatives], "p_value": float(d.test.p_value),
-            "gain": _score(d.decision.gain), "undecided": undecided_candidates(d, family), "seconds": seconds}
+            "gain": _score(d.decision.gain), "undecided": undecided_candidates(d, d.family), "seconds": seconds}
 
 
 def record_motion(case: Mapping[str, Any], motion: str, run_dir: Path, bank: Path, workers: int | None) -> float:
@@ -145,10 +141,10 @@ def run_case(case: Mapping[str, Any], out: Path, workers: int | None) -> dict[st
 def train(out: Path, workers: int | None, say=print) -> None:
     """Train every motion's task into ``out/bank`` (``softsbi task train``'s defaults; stored models are read)."""
     from benchmarks.diagnosis import fit_config
-    from benchmarks.bench_motions import _recording
+    from benchmarks.bench_motions import task_recording
     from softsbi.workflows.tasks.training import train_task
     for m in MOTIONS:
-        train_task(_recording(m), fit_config(out / "bank", workers), message=say)
+        train_task(task_recording(m), fit_config(out / "bank", workers), message=say)
 
 
 def settings() -> dict[str, Any]:
@@ -161,30 +157,20 @@ def settings() -> dict[str, Any]:
 
 
 def run(indices: Sequence[int], out: Path, workers: int | None, command: str, path: Path = RESULTS) -> None:
-    """Run the cases of ``indices`` whose latest row in ``path`` is not ``ok``; append each row as it finishes.
+    """Run the cases of ``indices`` whose latest row in ``path`` is not ``ok``; append each row as it finishes
+    (:func:`benchmarks.diagnosis.append_rows`: a failed case is a row with its error, counted wrong).
 
     Raises:
         SystemExit: before any case runs, when ``path`` holds rows of other settings."""
-    stored = read_rows(path)
-    done = done_ids(stored)
-    prov = {**runner.commit(), "machine": runner.machine(), "command": command, "settings": settings()}
-    todo = [i for i in indices if f"motions-{i}" not in done]
-    if todo and (problem := settings_conflict(stored, prov["settings"], runner.portable(path))):
-        raise SystemExit(problem)
-    for i in todo:
-        case = make_case(i)
+    from benchmarks.diagnosis import append_rows
+
+    def run_one(case: dict[str, Any]) -> dict[str, Any]:
         t0 = time.perf_counter()
-        try:
-            row = {**case, **run_case(case, out, workers), "status": "ok"}
-        except Exception as e:  # noqa: BLE001  a case that fails is a row with its error (wrong), and the run goes on
-            row = {**case, "status": "error", "error": f"{type(e).__name__}: {e}"}
-        row["wall_s"] = time.perf_counter() - t0
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("a") as f:
-            f.write(json.dumps({**row, **prov}) + "\n")
-        print(json.dumps({"id": row["id"], "label": row["label"], "wall_s": row["wall_s"], "error": row.get("error"),
-                          "steps": [(s["motion"], s["verdict"], s["named"]) for s in row.get("steps", [])]}),
-              file=sys.stderr, flush=True)
+        return {**case, **run_case(case, out, workers), "status": "ok", "wall_s": time.perf_counter() - t0}
+    append_rows(path, [make_case(i) for i in indices], run_one, command, settings(),
+                lambda row: {"id": row["id"], "label": row["label"], "wall_s": row.get("wall_s"),
+                             "error": row.get("error"),
+                             "steps": [(s["motion"], s["verdict"], s["named"]) for s in row.get("steps", [])]})
 
 
 # ------------------------------------------------------------------ the page, from stored rows

@@ -238,6 +238,5 @@ def joint_text(j: JointDiagnosis, where: str = "DIR") -> list[str]:
     command that ranks the motions to record next (``where``: the diagnosis's ``--out`` folder)."""
     blind = j.uninformed
     out = [joint_summary(j), joint_rule(j)] + ([uninformed_words(blind)] if j.test.rejects and blind else [])
-    family = [c.effect for c in j.recordings[0].ranking if not c.generic] if j.recordings else []
-    left = undecided_candidates(j, family)
+    left = undecided_candidates(j, j.family)
     return out + ([design_hint(where, left)] if left else [])

@@ -524,7 +524,7 @@ def diagnosis_text(d: Diagnosis) -> list[str]:
                    f"linearised screening (max-T adjusted {p_words(g.adjusted) if g.adjusted else 'n/a'}).")
     if d.test.misspecified and d.uninformed:
         out.append(uninformed_words(d.uninformed))
-    left = undecided_candidates(d, [c.effect for c in d.ranking if not c.generic])
+    left = undecided_candidates(d, d.family)
     if left:
         out.append(design_hint(d.run, left))
     return out

@@ -526,6 +526,11 @@ class Diagnosis:
     uninformed: Mapping[str, float] = field(default_factory=dict)
 
     @property
+    def family(self) -> tuple[str, ...]:
+        """The candidates it ranked, generic force terms aside: the effects a verdict may leave undecided."""
+        return tuple(c.effect for c in self.ranking if not c.generic)
+
+    @property
     def verdict(self) -> str:
         """The decision's verdict."""
         return self.decision.verdict

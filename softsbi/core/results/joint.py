@@ -263,6 +263,12 @@ class JointDiagnosis:
         return float(sum(d.nominal.value for d in self.recordings))  # type: ignore[union-attr]
 
     @property
+    def family(self) -> tuple[str, ...]:
+        """The candidates its recordings' diagnoses ranked, generic force terms aside (every recording ranks the same
+        family): the effects a verdict may leave undecided."""
+        return self.recordings[0].family if self.recordings else ()
+
+    @property
     def uninformed(self) -> dict[str, float]:
         """The trained candidates no recording's task informs (each recording's
         :attr:`~softsbi.core.results.Diagnosis.uninformed`), by effect: the smallest width ratio over the recordings.

@@ -261,21 +261,26 @@ def _simulate_observed(ctx: SimContext, sim: Any, scenario: Scenario, values: di
     if ctx.bank is None or not effects:
         return _simulate(ctx, sim, scenario, values, effects, seed, batch)
     plan = check_effects(sim, effects)
-    sensor = [e for e in plan.observers if set(e.doors(sim.name)) == {OBSERVATION}]
+    sensor = sensor_effects(sim, plan)
     if not sensor or len(sensor) != len(plan.observers):  # none, or mixed with a physical one's: keep the order
         return _simulate(ctx, sim, scenario, values, effects, seed, batch)
     raw, banked = _simulate_unobserved(ctx, sim, scenario, values, effects, sensor, seed, batch)
     return plan.observe(raw, values, seed), banked  # its observation transforms are exactly the sensor effects'
 
 
+def sensor_effects(sim: Any, plan: Any) -> list[Any]:
+    """The observation-only (sensor) effects of ``plan`` (:func:`~softsbi.backends.common.check_effects` on ``sim``):
+    every door of theirs is an observation transform, so a rollout does not depend on them."""
+    return [e for e in plan.observers if set(e.doors(sim.name)) == {OBSERVATION}]
+
+
 def sensor_parameters(backend: str, effects: Sequence[str]) -> set[str]:
-    """The parameters of ``effects``' observation-only (sensor) effects on ``backend``: those a rollout does not
+    """The parameters of ``effects``' sensor effects on ``backend`` (:func:`sensor_effects`): those a rollout does not
     depend on (:func:`_simulate_observed` applies their transforms after the banked rollout of the others)."""
     if not effects:
         return set()
     sim = registry().simulator(backend)()
-    return {p.name for e in check_effects(sim, list(effects)).observers if set(e.doors(sim.name)) == {OBSERVATION}
-            for p in e.param_space()}
+    return {p.name for e in sensor_effects(sim, check_effects(sim, list(effects))) for p in e.param_space()}
 
 
 def prior_unit_draws(seed: Sequence[int], n: int, names: Sequence[str], sensor: set[str] = frozenset()) -> np.ndarray:
